@@ -1,0 +1,149 @@
+//! Entropy coding of residual matrices ("bands") into records and back.
+//!
+//! A record is one byte string holding one or more bands, each a row-major `width × height`
+//! matrix of `i32` quantizer indices. Two coders sit behind the same interface:
+//! [`CoderKind::EliasGamma`], the paper's reference coder (quadtree of split bits, Elias-gamma
+//! leaves, [`gamma`]), and [`CoderKind::Adaptive`], a context-modelled adaptive binary arithmetic
+//! coder ([`adaptive`]). A repository records which one wrote it.
+
+pub mod adaptive;
+pub mod bitio;
+pub mod gamma;
+
+use crate::CodecError;
+
+/// Which entropy coder wrote a record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum CoderKind {
+    /// Quadtree with one bit per split and Elias-gamma coded leaves (paper §5).
+    EliasGamma = 0,
+    /// Context-modelled adaptive binary arithmetic coding.
+    Adaptive = 1,
+}
+
+impl CoderKind {
+    /// Both coders, for tests and benchmarks.
+    pub const ALL: [CoderKind; 2] = [CoderKind::EliasGamma, CoderKind::Adaptive];
+
+    /// The byte stored in a repository header.
+    pub fn to_byte(self) -> u8 {
+        self as u8
+    }
+
+    /// Parses the byte stored in a repository header.
+    pub fn from_byte(b: u8) -> Result<Self, CodecError> {
+        match b {
+            0 => Ok(Self::EliasGamma),
+            1 => Ok(Self::Adaptive),
+            _ => Err(CodecError::corrupt(format!("unknown entropy coder id {b}"))),
+        }
+    }
+
+    /// A short human-readable name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::EliasGamma => "elias-gamma",
+            Self::Adaptive => "adaptive",
+        }
+    }
+}
+
+/// What a band holds; coders may use it to pick context models.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum BandKind {
+    /// Cell-centre residuals ΔC of one diamond refinement, `(N−1)²`.
+    Cells,
+    /// Inner-vertex residuals ΔV of one refinement (only when α < 1), `(N−2)²`.
+    Vertices,
+    /// The quantized prediction residuals of the root height field.
+    Roots,
+}
+
+/// A band to encode.
+#[derive(Clone, Copy, Debug)]
+pub struct Band<'a> {
+    /// What the values are.
+    pub kind: BandKind,
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Row-major values, `width * height` of them.
+    pub values: &'a [i32],
+}
+
+/// A band to decode into.
+#[derive(Debug)]
+pub struct BandMut<'a> {
+    /// What the values are.
+    pub kind: BandKind,
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Row-major output, `width * height` of them; fully overwritten on success.
+    pub values: &'a mut [i32],
+}
+
+/// Bounds a decoder enforces, so that hostile bytes cannot make it produce values that later
+/// arithmetic would overflow on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DecodeLimits {
+    /// Largest magnitude a decoded value may have; larger ones are [`CodecError::Corrupt`].
+    pub max_abs: u32,
+}
+
+impl Default for DecodeLimits {
+    fn default() -> Self {
+        // Encoders never write more than this (values are i32 and we keep a bit of headroom);
+        // the decoder rejects anything larger as corrupt.
+        Self { max_abs: (1 << 30) - 1 }
+    }
+}
+
+/// Largest band dimension any coder accepts (root fields of huge datasets are the largest bands).
+pub const MAX_BAND_SIDE: usize = 1 << 20;
+
+/// Encodes `bands` into one record appended to `out`.
+///
+/// # Panics
+/// If a band's `values.len() != width * height`, or a value's magnitude exceeds
+/// `DecodeLimits::default().max_abs` — both are caller bugs, not data errors.
+pub fn encode_bands(kind: CoderKind, bands: &[Band<'_>], out: &mut Vec<u8>) {
+    for b in bands {
+        assert_eq!(b.values.len(), b.width * b.height, "band size mismatch");
+    }
+    match kind {
+        CoderKind::EliasGamma => gamma::encode_bands(bands, out),
+        CoderKind::Adaptive => adaptive::encode_bands(bands, out),
+    }
+}
+
+/// Decodes one record written by [`encode_bands`] with the same band shapes.
+///
+/// Never panics on any input bytes: garbage gives [`CodecError::Corrupt`] or
+/// [`CodecError::Truncated`]. Trailing bytes beyond what the bands need are an error as well
+/// (beyond the final partial byte / coder flush).
+pub fn decode_bands(
+    kind: CoderKind,
+    bytes: &[u8],
+    bands: &mut [BandMut<'_>],
+    limits: DecodeLimits,
+) -> Result<(), CodecError> {
+    for b in bands.iter() {
+        if b.width > MAX_BAND_SIDE || b.height > MAX_BAND_SIDE {
+            return Err(CodecError::limit(format!(
+                "band of {}×{} exceeds the {MAX_BAND_SIDE} side limit",
+                b.width, b.height
+            )));
+        }
+        if b.values.len() != b.width * b.height {
+            return Err(CodecError::invalid("band buffer does not match its width × height"));
+        }
+    }
+    match kind {
+        CoderKind::EliasGamma => gamma::decode_bands(bytes, bands, limits),
+        CoderKind::Adaptive => adaptive::decode_bands(bytes, bands, limits),
+    }
+}

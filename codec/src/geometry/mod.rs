@@ -1,0 +1,1 @@
+//! Diamond geometry (being written).

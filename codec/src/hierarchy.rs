@@ -1,0 +1,1 @@
+//! Encoder/decoder hierarchy (being written).

@@ -1,0 +1,1 @@
+//! DEM input readers (being written).

@@ -1,0 +1,1 @@
+//! Neville quincunx lifting (being written).
