@@ -1,0 +1,304 @@
+//! Cuts of the diamond DAG and the triangles they draw.
+
+use std::collections::{BTreeSet, HashMap};
+
+use super::{Diagonal, DiamondId, Half, Layout};
+
+/// A triangle in lattice coordinates, counter-clockwise (x east, y south counts as a right-handed
+/// frame here: only consistency matters).
+pub type Triangle = [(i64, i64); 3];
+
+/// A cut: the set of refined diamonds, closed under "parents of a refined diamond are refined".
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Cut {
+    refined: BTreeSet<DiamondId>,
+}
+
+impl Cut {
+    /// The coarsest cut: only the roots, none refined.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Whether `id` is refined.
+    pub fn is_refined(&self, id: DiamondId) -> bool {
+        self.refined.contains(&id)
+    }
+
+    /// The refined diamonds, coarse to fine.
+    pub fn refined(&self) -> impl Iterator<Item = DiamondId> + '_ {
+        self.refined.iter().copied()
+    }
+
+    /// Refines `id`, first forcing its parents (recursively). Returns the diamonds newly
+    /// refined, parents before children. Diamonds of the finest level cannot be refined.
+    pub fn refine(&mut self, layout: &Layout, id: DiamondId) -> Vec<DiamondId> {
+        let mut done = Vec::new();
+        self.refine_into(layout, id, &mut done);
+        done
+    }
+
+    fn refine_into(&mut self, layout: &Layout, id: DiamondId, done: &mut Vec<DiamondId>) {
+        if self.refined.contains(&id) || id.level >= layout.finest_level() || !layout.contains(id)
+        {
+            return;
+        }
+        for p in layout.parents(id).into_iter().flatten() {
+            self.refine_into(layout, p, done);
+        }
+        self.refined.insert(id);
+        done.push(id);
+    }
+
+    /// Undoes the refinement of `id` if none of its children is refined. Returns whether it did.
+    pub fn coarsen(&mut self, layout: &Layout, id: DiamondId) -> bool {
+        let blocked = layout
+            .children(id)
+            .into_iter()
+            .flatten()
+            .any(|c| self.refined.contains(&c));
+        !blocked && self.refined.remove(&id)
+    }
+
+    /// The halves the cut draws: the half of `K` lying in parent `A` is drawn iff `A` is refined
+    /// and `K` is not; unrefined roots draw both halves.
+    pub fn drawn_halves(&self, layout: &Layout) -> Vec<(DiamondId, Half)> {
+        let mut out: Vec<(DiamondId, Half)> = layout
+            .roots()
+            .filter(|r| !self.refined.contains(r))
+            .flat_map(|r| Half::BOTH.map(|h| (r, h)))
+            .collect();
+        for &a in &self.refined {
+            for k in layout.children(a).into_iter().flatten() {
+                if !self.refined.contains(&k) {
+                    let half = layout.half_in(k, a).expect("child lists its parent");
+                    out.push((k, half));
+                }
+            }
+        }
+        out
+    }
+
+    /// All triangles the cut draws, in lattice coordinates.
+    pub fn triangles(&self, layout: &Layout) -> Vec<Triangle> {
+        let mut out = Vec::new();
+        for (id, half) in self.drawn_halves(layout) {
+            half_triangles(layout, id, half, &mut out);
+        }
+        out
+    }
+}
+
+/// Appends the triangles of one half of a diamond: its grid cells split parallel to the split
+/// diagonal, so that each half is a union of whole grid triangles.
+pub fn half_triangles(layout: &Layout, id: DiamondId, half: Half, out: &mut Vec<Triangle>) {
+    let g = layout.grid(id);
+    let n1 = (layout.n() - 1) as i64;
+    let diag = layout.diagonal(id);
+    for j in 0..n1 {
+        for i in 0..n1 {
+            let tris: [[(i64, i64); 3]; 2] = match diag {
+                Diagonal::Main => [
+                    [(i, j), (i + 1, j), (i + 1, j + 1)],
+                    [(i, j), (i + 1, j + 1), (i, j + 1)],
+                ],
+                Diagonal::Anti => [
+                    [(i, j), (i + 1, j), (i, j + 1)],
+                    [(i + 1, j), (i + 1, j + 1), (i, j + 1)],
+                ],
+            };
+            for t in tris {
+                let si = t[0].0 + t[1].0 + t[2].0;
+                let sj = t[0].1 + t[1].1 + t[2].1;
+                if layout.half_of_centroid3(id, si, sj) != half {
+                    continue;
+                }
+                let mut p = t.map(|(a, b)| g.point(a, b));
+                if signed_area2(&p) < 0 {
+                    p.swap(1, 2);
+                }
+                out.push(p);
+            }
+        }
+    }
+}
+
+fn signed_area2(t: &Triangle) -> i64 {
+    (t[1].0 - t[0].0) * (t[2].1 - t[0].1) - (t[2].0 - t[0].0) * (t[1].1 - t[0].1)
+}
+
+/// Checks that `triangles` form a conforming triangulation of the layout's whole domain: every
+/// triangle non-degenerate and inside the domain, their areas adding up to the domain's, and
+/// every directed edge matched by exactly one opposite edge unless it lies on the domain's
+/// boundary. Together these rule out cracks, T-junctions (an edge with a vertex in its interior
+/// has no single matching edge), overlaps and holes.
+pub fn check_conforming(layout: &Layout, triangles: &[Triangle]) -> Result<(), String> {
+    let (ex, ey) = layout.extent();
+    let mut area2 = 0i64;
+    let mut edges: HashMap<((i64, i64), (i64, i64)), u32> = HashMap::new();
+    for t in triangles {
+        let a = signed_area2(t);
+        if a <= 0 {
+            return Err(format!("degenerate or clockwise triangle {t:?}"));
+        }
+        if t.iter().any(|p| p.0 < 0 || p.1 < 0 || p.0 > ex || p.1 > ey) {
+            return Err(format!("triangle {t:?} leaves the domain"));
+        }
+        area2 += a;
+        for e in 0..3 {
+            *edges.entry((t[e], t[(e + 1) % 3])).or_default() += 1;
+        }
+    }
+    if area2 != 2 * ex * ey {
+        return Err(format!(
+            "triangles cover {} but the domain is {}",
+            area2 as f64 / 2.0,
+            ex * ey
+        ));
+    }
+    let on_boundary = |p: (i64, i64), q: (i64, i64)| {
+        (p.0 == q.0 && (p.0 == 0 || p.0 == ex)) || (p.1 == q.1 && (p.1 == 0 || p.1 == ey))
+    };
+    for (&(p, q), &count) in &edges {
+        if count != 1 {
+            return Err(format!("edge {p:?}->{q:?} used {count} times in one direction"));
+        }
+        let back = edges.get(&(q, p)).copied().unwrap_or(0);
+        if back == 0 && !on_boundary(p, q) {
+            return Err(format!("edge {p:?}->{q:?} has no neighbour: crack or T-junction"));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn random_cut(layout: &Layout, picks: &[(u8, u32, u32)]) -> Cut {
+        let mut cut = Cut::new();
+        let (ex, ey) = layout.extent();
+        for &(l, fx, fy) in picks {
+            let level = l % layout.finest_level().max(1);
+            // Snap a random point to the nearest centre of the chosen level, then refine it.
+            let r = layout.radius(level);
+            let x = (i64::from(fx) % (ex + 1)) / r * r;
+            let y = (i64::from(fy) % (ey + 1)) / r * r;
+            for (dx, dy) in [(0, 0), (r, 0), (0, r), (r, r)] {
+                if let (Ok(x), Ok(y)) = (u32::try_from(x + dx), u32::try_from(y + dy)) {
+                    let id = DiamondId::new(level, x, y);
+                    if layout.contains(id) {
+                        let newly = cut.refine(layout, id);
+                        // Parents come before children in the returned order.
+                        for (pos, d) in newly.iter().enumerate() {
+                            for p in layout.parents(*d).into_iter().flatten() {
+                                assert!(
+                                    cut.is_refined(p) && !newly[pos..].contains(&p),
+                                    "parent {p} of {d} not refined first"
+                                );
+                            }
+                        }
+                        break;
+                    }
+                }
+            }
+        }
+        cut
+    }
+
+    #[test]
+    fn coarsest_and_finest_cuts_conform() {
+        let layout = Layout::new(5, 2, 2, 1).unwrap();
+        let cut = Cut::new();
+        check_conforming(&layout, &cut.triangles(&layout)).unwrap();
+        // Refine everything but the finest level.
+        let mut cut = Cut::new();
+        let mut frontier: Vec<DiamondId> = layout.roots().collect();
+        let mut seen = std::collections::HashSet::new();
+        while let Some(d) = frontier.pop() {
+            if d.level < layout.finest_level() && seen.insert(d) {
+                cut.refine(&layout, d);
+                frontier.extend(layout.children(d).into_iter().flatten());
+            }
+        }
+        let tris = cut.triangles(&layout);
+        check_conforming(&layout, &tris).unwrap();
+        // Finest level everywhere: one unit-spaced grid, two triangles per lattice cell.
+        let (ex, ey) = layout.extent();
+        assert_eq!(tris.len() as i64, 2 * ex * ey);
+    }
+
+    #[test]
+    fn the_naive_cut_rule_leaves_holes() {
+        // "Draw unrefined diamonds whose parents are both refined" is not the same rule: a
+        // diamond with one refined parent leaves its half in that parent undrawn.
+        let layout = Layout::new(3, 2, 1, 1).unwrap();
+        let mut cut = Cut::new();
+        let root = layout.roots().next().unwrap();
+        cut.refine(&layout, root);
+        let child = layout.children(root)[0].unwrap();
+        cut.refine(&layout, child);
+        let mut naive = Vec::new();
+        for (id, half) in cut.drawn_halves(&layout) {
+            let all_parents_refined = layout
+                .parents(id)
+                .into_iter()
+                .flatten()
+                .all(|p| cut.is_refined(p));
+            if all_parents_refined {
+                half_triangles(&layout, id, half, &mut naive);
+            }
+        }
+        assert!(check_conforming(&layout, &naive).is_err());
+        check_conforming(&layout, &cut.triangles(&layout)).unwrap();
+    }
+
+    #[test]
+    fn a_missing_triangle_or_a_t_junction_is_detected() {
+        let layout = Layout::new(3, 1, 1, 1).unwrap();
+        let mut cut = Cut::new();
+        cut.refine(&layout, layout.roots().next().unwrap());
+        let mut tris = cut.triangles(&layout);
+        tris.pop();
+        assert!(check_conforming(&layout, &tris).is_err());
+        // Replace one triangle by its two halves split at an edge midpoint: area is the same,
+        // but the neighbour across that edge now meets a T-junction.
+        let mut tris = cut.triangles(&layout);
+        let t = tris.remove(0);
+        let two = |p: (i64, i64)| (2 * p.0, 2 * p.1);
+        let mut doubled: Vec<Triangle> = tris.iter().map(|t| t.map(two)).collect();
+        let t2 = t.map(two);
+        let m = ((t2[0].0 + t2[1].0) / 2, (t2[0].1 + t2[1].1) / 2);
+        doubled.push([t2[0], m, t2[2]]);
+        doubled.push([m, t2[1], t2[2]]);
+        let big = Layout::new(3, 2, 1, 1).unwrap(); // twice the extent
+        let err = check_conforming(&big, &doubled).unwrap_err();
+        assert!(err.contains("T-junction") || err.contains("neighbour"), "{err}");
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+        #[test]
+        fn random_cuts_conform(
+            n_pow in 1u32..4,
+            k in 1u32..4,
+            rx in 1u32..3,
+            ry in 1u32..3,
+            picks in proptest::collection::vec((any::<u8>(), any::<u32>(), any::<u32>()), 0..40),
+            coarsen in proptest::collection::vec(any::<u16>(), 0..20),
+        ) {
+            let layout = Layout::new((1 << n_pow) + 1, k, rx, ry).unwrap();
+            let mut cut = random_cut(&layout, &picks);
+            check_conforming(&layout, &cut.triangles(&layout)).map_err(TestCaseError::fail)?;
+            // Coarsening (garbage collection) keeps it conforming too.
+            let refined: Vec<DiamondId> = cut.refined().collect();
+            for c in coarsen {
+                if !refined.is_empty() {
+                    cut.coarsen(&layout, refined[c as usize % refined.len()]);
+                }
+            }
+            check_conforming(&layout, &cut.triangles(&layout)).map_err(TestCaseError::fail)?;
+        }
+    }
+}
