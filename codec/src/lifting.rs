@@ -1,1 +1,294 @@
-//! Neville quincunx lifting (being written).
+//! Quincunx Neville prediction on one diamond's grid (paper eqs. 1–4, Fig. 3).
+//!
+//! A diamond's `N × N` vertex grid `P` (row-major, `P[j·N + i]`) predicts its `(N−1)²` cell
+//! centres `C` (cell `(i, j)` lies between vertices `i, i+1` and `j, j+1`), and the cell centres
+//! predict the inner vertices. Order 4 (10/32 on the 4 nearest, −1/32 on the 8 next) is used where
+//! the whole support lies in the diamond's own grid, order 2 (¼ on the 4 nearest) elsewhere, so a
+//! diamond never reads outside itself and every record decodes on its own.
+//!
+//! All filters are integer with exactly one rounding, by floor: order 2 is scaled by 8 so both
+//! orders round as `(num + 16) >> 5`. Encoder and decoder therefore agree bit for bit. Inputs
+//! must satisfy `|value| ≤` [`MAX_ABS_HEIGHT`] so that numerators (at most 48 times a value)
+//! fit an `i32`.
+
+/// Largest magnitude of any reconstructed height, in the repository's integer unit. Filter
+/// numerators reach 48 times this, which must stay below 2^31.
+pub const MAX_ABS_HEIGHT: i32 = 44_000_000;
+
+/// Whether cell `(i, j)` of an `N`-grid is predicted with order 4 (its 12-point support, one
+/// vertex beyond the cell on each side, lies inside the grid).
+#[inline]
+pub fn cell_uses_order4(n: usize, i: usize, j: usize) -> bool {
+    (1..=n.wrapping_sub(3)).contains(&i) && (1..=n.wrapping_sub(3)).contains(&j)
+}
+
+/// Whether inner vertex `(i, j)` is predicted with order 4 from the cell centres.
+#[inline]
+pub fn vertex_uses_order4(n: usize, i: usize, j: usize) -> bool {
+    (2..=n.wrapping_sub(3)).contains(&i) && (2..=n.wrapping_sub(3)).contains(&j)
+}
+
+/// Prediction of cell `(i, j)` from the vertex grid `p`.
+#[inline]
+pub fn predict_cell(p: &[i32], n: usize, i: usize, j: usize) -> i32 {
+    let at = |x: usize, y: usize| p[y * n + x];
+    let s4 = at(i, j) + at(i + 1, j) + at(i, j + 1) + at(i + 1, j + 1);
+    if cell_uses_order4(n, i, j) {
+        let s8 = at(i - 1, j)
+            + at(i - 1, j + 1)
+            + at(i + 2, j)
+            + at(i + 2, j + 1)
+            + at(i, j - 1)
+            + at(i + 1, j - 1)
+            + at(i, j + 2)
+            + at(i + 1, j + 2);
+        (10 * s4 - s8 + 16) >> 5
+    } else {
+        (8 * s4 + 16) >> 5
+    }
+}
+
+/// Predictions of all `(N−1)²` cells, row-major into `out`.
+///
+/// The hot path of decoding: borders use [`predict_cell`], the interior runs a branch-free loop
+/// over rows so the compiler can vectorise it.
+pub fn predict_cells(p: &[i32], n: usize, out: &mut [i32]) {
+    let m = n - 1;
+    assert!(p.len() == n * n && out.len() == m * m);
+    for j in 0..m {
+        let interior_row = cell_uses_order4(n, 1, j);
+        if !interior_row || m < 4 {
+            for i in 0..m {
+                out[j * m + i] = predict_cell(p, n, i, j);
+            }
+            continue;
+        }
+        out[j * m] = predict_cell(p, n, 0, j);
+        out[j * m + m - 1] = predict_cell(p, n, m - 1, j);
+        let r_m1 = &p[(j - 1) * n..j * n];
+        let r0 = &p[j * n..(j + 1) * n];
+        let r1 = &p[(j + 1) * n..(j + 2) * n];
+        let r2 = &p[(j + 2) * n..(j + 3) * n];
+        let row = &mut out[j * m + 1..j * m + m - 1];
+        for (k, o) in row.iter_mut().enumerate() {
+            let i = k + 1;
+            let s4 = r0[i] + r0[i + 1] + r1[i] + r1[i + 1];
+            let s8 = r0[i - 1] + r1[i - 1] + r0[i + 2] + r1[i + 2] + r_m1[i] + r_m1[i + 1]
+                + r2[i]
+                + r2[i + 1];
+            *o = (10 * s4 - s8 + 16) >> 5;
+        }
+    }
+}
+
+/// Prediction of inner vertex `(i, j)` (`1 ≤ i, j ≤ N−2`) from the cell grid `c`.
+#[inline]
+pub fn predict_vertex(c: &[i32], n: usize, i: usize, j: usize) -> i32 {
+    let m = n - 1;
+    let at = |x: usize, y: usize| c[y * m + x];
+    let s4 = at(i - 1, j - 1) + at(i, j - 1) + at(i - 1, j) + at(i, j);
+    if vertex_uses_order4(n, i, j) {
+        let s8 = at(i - 2, j - 1)
+            + at(i - 2, j)
+            + at(i + 1, j - 1)
+            + at(i + 1, j)
+            + at(i - 1, j - 2)
+            + at(i, j - 2)
+            + at(i - 1, j + 1)
+            + at(i, j + 1);
+        (10 * s4 - s8 + 16) >> 5
+    } else {
+        (8 * s4 + 16) >> 5
+    }
+}
+
+/// The unrounded numerator of [`predict_vertex`] scaled by 32 (`10·s4 − s8` or `8·s4`), for the
+/// α = ½ analysis, which averages `V` with the exact prediction and rounds once.
+#[inline]
+pub fn predict_vertex_numerator(c: impl Fn(usize, usize) -> i64, n: usize, i: usize, j: usize) -> i64 {
+    let s4 = c(i - 1, j - 1) + c(i, j - 1) + c(i - 1, j) + c(i, j);
+    if vertex_uses_order4(n, i, j) {
+        let s8 = c(i - 2, j - 1)
+            + c(i - 2, j)
+            + c(i + 1, j - 1)
+            + c(i + 1, j)
+            + c(i - 1, j - 2)
+            + c(i, j - 2)
+            + c(i - 1, j + 1)
+            + c(i, j + 1);
+        10 * s4 - s8
+    } else {
+        8 * s4
+    }
+}
+
+/// The lifting weight α of inner vertices (always 1 on a diamond's sides).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Alpha {
+    /// Predict-only lifting: coarse vertices are subsamples, records hold ΔC only. The default
+    /// (DESIGN.md: α = ½'s ΔV is mostly quantization noise and costs ≈ 2 bits/sample).
+    One,
+    /// The paper's smoothing: `P = (V + Pred_V(C)) / 2` on inner vertices; records add ΔV.
+    Half,
+}
+
+impl Alpha {
+    /// The byte stored in a repository header.
+    pub fn to_byte(self) -> u8 {
+        match self {
+            Alpha::One => 0,
+            Alpha::Half => 1,
+        }
+    }
+    /// Parses the header byte.
+    pub fn from_byte(b: u8) -> Option<Self> {
+        match b {
+            0 => Some(Alpha::One),
+            1 => Some(Alpha::Half),
+            _ => None,
+        }
+    }
+}
+
+/// One level of analysis on a single diamond (eqs. 1–2), with integer rounding: from the finer
+/// level's vertex values `v` (`N²`) and cell values `c` (`(N−1)²`) compute the coarse vertices
+/// `p` and the details `h = C − Pred_C(P)`.
+///
+/// With α = ½ the rounding makes the step lose up to one bit per inner vertex; the remainder
+/// `r = V − (2P − Pred_V(C))` is returned so that [`synthesis`] can invert it exactly (the codec
+/// carries it, quantized, in ΔV).
+pub fn analysis(alpha: Alpha, n: usize, v: &[i32], c: &[i32], p: &mut [i32], h: &mut [i32], r: &mut [i32]) {
+    let m = n - 1;
+    p.copy_from_slice(v);
+    if alpha == Alpha::Half {
+        for j in 1..n - 1 {
+            for i in 1..n - 1 {
+                let num = predict_vertex_numerator(|x, y| i64::from(c[y * m + x]), n, i, j);
+                let vv = i64::from(v[j * n + i]);
+                p[j * n + i] = ((32 * vv + num + 32) >> 6) as i32;
+            }
+        }
+    }
+    predict_cells(p, n, h);
+    for (hk, ck) in h.iter_mut().zip(c) {
+        *hk = ck - *hk;
+    }
+    r.fill(0);
+    if alpha == Alpha::Half {
+        for j in 1..n - 1 {
+            for i in 1..n - 1 {
+                let pv = predict_vertex(c, n, i, j);
+                r[(j - 1) * (n - 2) + (i - 1)] = v[j * n + i] - (2 * p[j * n + i] - pv);
+            }
+        }
+    }
+}
+
+/// Inverse of [`analysis`] (eqs. 3–4): from `p`, `h` and the remainders `r` rebuild `v`, `c`.
+pub fn synthesis(alpha: Alpha, n: usize, p: &[i32], h: &[i32], r: &[i32], v: &mut [i32], c: &mut [i32]) {
+    predict_cells(p, n, c);
+    for (ck, hk) in c.iter_mut().zip(h) {
+        *ck += hk;
+    }
+    v.copy_from_slice(p);
+    if alpha == Alpha::Half {
+        for j in 1..n - 1 {
+            for i in 1..n - 1 {
+                let pv = predict_vertex(c, n, i, j);
+                v[j * n + i] = 2 * p[j * n + i] - pv + r[(j - 1) * (n - 2) + (i - 1)];
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn neville_predictions_are_exact_on_polynomials_and_round_by_floor() {
+        // Order 4 reproduces cubics, order 2 planes. Fields are scaled by 64 so that every exact
+        // prediction is an integer and rounding cannot hide an error.
+        let n = 9;
+        let f = |x: f64, y: f64| 64.0 * (x * x * x - 2.0 * x * x * y + y * y * y + x * y);
+        let cubic: Vec<i32> = (0..n * n).map(|k| f((k % n) as f64, (k / n) as f64) as i32).collect();
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                if cell_uses_order4(n, i, j) {
+                    let want = f(i as f64 + 0.5, j as f64 + 0.5);
+                    assert_eq!(f64::from(predict_cell(&cubic, n, i, j)), want, "cell ({i},{j})");
+                }
+            }
+        }
+        let plane: Vec<i32> = (0..n * n).map(|k| 32 * (3 * (k % n) as i32 - 5 * (k / n) as i32)).collect();
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                // The plane at the cell centre (i+½, j+½), times 32.
+                let want = 32 * 3 * i as i32 + 48 - 32 * 5 * j as i32 - 80;
+                assert_eq!(predict_cell(&plane, n, i, j), want, "cell ({i},{j})");
+            }
+        }
+        // Rounding is floor even for negative numerators: -1/4 rounds to -1 with order 2 and the
+        // +16 offset rounds -0.5 up to 0 (round half up).
+        let mut p = vec![0i32; n * n];
+        p[0] = -1;
+        assert_eq!(predict_cell(&p, n, 0, 0), ((8 * -1) + 16) >> 5);
+        assert_eq!(predict_cell(&p, n, 0, 0), 0);
+        p[0] = -3;
+        assert_eq!(predict_cell(&p, n, 0, 0), -1);
+    }
+
+    #[test]
+    fn order_regions_match_the_design() {
+        let n = 65;
+        assert!(!cell_uses_order4(n, 0, 5) && cell_uses_order4(n, 1, 1) && cell_uses_order4(n, 62, 62));
+        assert!(!cell_uses_order4(n, 63, 5));
+        assert!(!vertex_uses_order4(n, 1, 5) && vertex_uses_order4(n, 2, 2) && vertex_uses_order4(n, 62, 62));
+        assert!(!vertex_uses_order4(n, 63, 5));
+        // The vectorised loop agrees with the scalar definition everywhere.
+        let p: Vec<i32> = (0..n * n).map(|k| ((k * 7919) % 2001) as i32 - 1000).collect();
+        let mut out = vec![0; 64 * 64];
+        predict_cells(&p, n, &mut out);
+        for j in 0..64 {
+            for i in 0..64 {
+                assert_eq!(out[j * 64 + i], predict_cell(&p, n, i, j));
+            }
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn lifting_round_trip_is_exact(
+            n_pow in 1u32..6,
+            seed in any::<u64>(),
+            amp in 1i32..MAX_ABS_HEIGHT / 2,
+            half in any::<bool>(),
+        ) {
+            let n = (1usize << n_pow) + 1;
+            let alpha = if half { Alpha::Half } else { Alpha::One };
+            let mut s = seed | 1;
+            let mut rnd = || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; ((s % (2 * amp as u64 + 1)) as i64 - amp as i64) as i32 };
+            let v: Vec<i32> = (0..n * n).map(|_| rnd() / 2).collect();
+            let c: Vec<i32> = (0..(n - 1) * (n - 1)).map(|_| rnd() / 2).collect();
+            let (mut p, mut h, mut r) = (vec![0; n * n], vec![0; (n - 1) * (n - 1)], vec![0; (n - 2) * (n - 2)]);
+            analysis(alpha, n, &v, &c, &mut p, &mut h, &mut r);
+            // The diamond's sides are never smoothed: α = 1 there.
+            for k in 0..n {
+                for (i, j) in [(k, 0), (k, n - 1), (0, k), (n - 1, k)] {
+                    prop_assert_eq!(p[j * n + i], v[j * n + i]);
+                }
+            }
+            if alpha == Alpha::Half {
+                // 2P − Pred_V(C) differs from V by at most the two roundings: 1.5 → one unit.
+                prop_assert!(r.iter().all(|&x| (-1..=1).contains(&x)));
+            } else {
+                prop_assert!(r.iter().all(|&x| x == 0));
+            }
+            let (mut v2, mut c2) = (vec![0; n * n], vec![0; (n - 1) * (n - 1)]);
+            synthesis(alpha, n, &p, &h, &r, &mut v2, &mut c2);
+            prop_assert_eq!(v2, v);
+            prop_assert_eq!(c2, c);
+        }
+    }
+}

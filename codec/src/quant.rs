@@ -1,1 +1,311 @@
-//! Quantization (being written).
+//! From metres to integer heights, and the near-lossless quantizer.
+//!
+//! Heights are stored as integers `n` in a unit `u` around an offset: `h = offset + n·u`.
+//! Two cases, decided by [`QuantPlan::new`]:
+//! - **Lattice input**: the samples lie on a grid of values `u` (whole metres, 0.1 m Terrain-RGB;
+//!   detected or given). Mapping to integers is exact, and residuals are quantized with step
+//!   `(2k+1)·u`, `k = ⌊ε/u⌋`: error ≤ `k·u ≤ ε`, lossless when `ε < u`.
+//! - **Float input** (no quantum): the samples are first pre-quantized to the power of two
+//!   `u ∈ (ε/16, ε/8]` (error ≤ `u/2`), then quantized with `k = ⌊(ε − u/2)/u⌋ ≥ 7`: total error
+//!   ≤ `k·u + u/2 ≤ ε`. A binary `u` keeps `offset + n·u` exact in `f64`.
+//!
+//! Either way every reconstructed value is within `k` units of the integer input, which the
+//! tests check exactly in integers.
+
+use crate::CodecError;
+use crate::lifting::MAX_ABS_HEIGHT;
+
+/// Largest magnitude of an input height in units: reconstructions overshoot the input range by
+/// up to ≈ 8 % on cliffs, and every reconstruction must stay within [`MAX_ABS_HEIGHT`].
+pub const MAX_ABS_INPUT: i32 = 40_000_000;
+
+/// Uniform quantizer with odd step `2k + 1` (in units): index `⌊(r + k) / (2k+1)⌋`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Quantizer {
+    k: i32,
+}
+
+impl Quantizer {
+    /// A quantizer whose reconstruction error is at most `k` units.
+    pub fn new(k: u32) -> Result<Self, CodecError> {
+        let k = i32::try_from(k)
+            .ok()
+            .filter(|&k| k <= MAX_ABS_HEIGHT)
+            .ok_or_else(|| CodecError::invalid(format!("quantizer half-step {k} is too large")))?;
+        Ok(Self { k })
+    }
+
+    /// The error bound in units.
+    pub fn k(&self) -> i32 {
+        self.k
+    }
+
+    /// The step `2k + 1`.
+    pub fn step(&self) -> i32 {
+        2 * self.k + 1
+    }
+
+    /// The index of residual `r`. Floor division: residuals are negative half of the time, and
+    /// Rust's truncating `/` would round those towards zero and break the bound.
+    #[inline]
+    pub fn index(&self, r: i64) -> i64 {
+        (r + i64::from(self.k)).div_euclid(i64::from(self.step()))
+    }
+}
+
+/// How metres become integer units for one dataset at one tolerance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct QuantPlan {
+    /// The integer unit `u`, metres.
+    pub unit: f64,
+    /// Height of integer 0, metres (a multiple of `unit` for lattice input).
+    pub offset: f64,
+    /// Residual quantizer.
+    pub quantizer: Quantizer,
+    /// Whether the input lies exactly on multiples of `unit` (no pre-quantization).
+    pub lattice: bool,
+    /// The tolerance asked for, metres.
+    pub epsilon: f64,
+}
+
+/// Relative slack when dividing decimal tolerances by decimal quanta: 0.3 / 0.1 is
+/// 2.9999999999999996 in binary, and a user asking for 0.3 m on 0.1 m data means k = 3.
+const DECIMAL_SLACK: f64 = 1e-9;
+
+impl QuantPlan {
+    /// Plans the integer mapping for samples in `[min, max]` metres at tolerance `epsilon`;
+    /// `quantum` is the data's value grid when known.
+    pub fn new(epsilon: f64, quantum: Option<f64>, min: f64, max: f64) -> Result<Self, CodecError> {
+        if !(epsilon.is_finite() && epsilon > 0.0) {
+            return Err(CodecError::invalid(format!(
+                "the maximum error must be a positive number of metres, not {epsilon}"
+            )));
+        }
+        if !(min.is_finite() && max.is_finite() && min <= max) {
+            return Err(CodecError::invalid(format!("invalid height range {min}…{max}")));
+        }
+        let (unit, k, lattice) = match quantum {
+            Some(u) => {
+                if !(u.is_finite() && u > 0.0) {
+                    return Err(CodecError::invalid(format!("value quantum must be positive, not {u}")));
+                }
+                let k = (epsilon / u * (1.0 + DECIMAL_SLACK)).floor();
+                (u, k, true)
+            }
+            None => {
+                let u = 2f64.powi((epsilon / 8.0).log2().floor() as i32);
+                let k = ((epsilon - u / 2.0) / u).floor();
+                (u, k, false)
+            }
+        };
+        if !(0.0..=f64::from(MAX_ABS_HEIGHT)).contains(&k) {
+            return Err(CodecError::invalid(format!(
+                "tolerance {epsilon} m is out of range for unit {unit} m"
+            )));
+        }
+        let offset = ((min + max) / 2.0 / unit).round() * unit;
+        let reach = ((max - offset).abs().max((min - offset).abs()) / unit).ceil();
+        if reach > f64::from(MAX_ABS_INPUT) {
+            let smallest = (max - min) / 2.0 / f64::from(MAX_ABS_INPUT) * 8.0;
+            return Err(CodecError::invalid(format!(
+                "tolerance {epsilon} m is too fine for heights {min}…{max} m: integer heights would \
+                 overflow; the smallest tolerance for this range is about {smallest:.2e} m"
+            )));
+        }
+        Ok(Self {
+            unit,
+            offset,
+            quantizer: Quantizer::new(k as u32)?,
+            lattice,
+            epsilon,
+        })
+    }
+
+    /// The guaranteed bound, metres: `k·u`, plus `u/2` of pre-quantization for float input.
+    pub fn max_error(&self) -> f64 {
+        let k = f64::from(self.quantizer.k()) * self.unit;
+        if self.lattice { k } else { k + self.unit / 2.0 }
+    }
+
+    /// Metres of integer height `n`.
+    pub fn metres(&self, n: i32) -> f64 {
+        self.offset + f64::from(n) * self.unit
+    }
+
+    /// Integer height of sample `v` (metres); `Ok(None)` for NaN (nodata).
+    ///
+    /// Errors: infinite values, values out of the planned range, and — for lattice input —
+    /// values off the lattice (a wrong quantum override would otherwise break the bound).
+    pub fn to_units(&self, v: f64) -> Result<Option<i32>, CodecError> {
+        if v.is_nan() {
+            return Ok(None);
+        }
+        if v.is_infinite() {
+            return Err(CodecError::invalid(format!("sample value {v} is infinite")));
+        }
+        let q = ((v - self.offset) / self.unit).round();
+        if q.abs() > f64::from(MAX_ABS_INPUT) {
+            return Err(CodecError::invalid(format!(
+                "sample value {v} m is outside the planned height range"
+            )));
+        }
+        let n = q as i32;
+        if self.lattice {
+            let back = self.metres(n);
+            // Exact for integer data; for decimal quanta the nearest f32 of n·u is what the file
+            // stored, so allow the representation error of an f32 at that magnitude.
+            let slack = (v.abs().max(self.unit) * f64::from(f32::EPSILON)).max(1e-12);
+            if (back - v).abs() > slack {
+                return Err(CodecError::invalid(format!(
+                    "sample value {v} m is not a multiple of the value quantum {} m",
+                    self.unit
+                )));
+            }
+        }
+        Ok(Some(n))
+    }
+}
+
+/// A grid of integer heights ready for the encoder.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct HeightGrid {
+    /// Columns.
+    pub width: usize,
+    /// Rows (row 0 = north).
+    pub height: usize,
+    /// Row-major integer heights; meaningless where `valid` is false.
+    pub values: Vec<i32>,
+    /// Row-major: false at nodata.
+    pub valid: Vec<bool>,
+}
+
+impl HeightGrid {
+    /// Converts metres to units under `plan`; `nodata` samples (and NaN) become invalid.
+    pub fn from_metres(
+        width: usize,
+        height: usize,
+        samples: &[f64],
+        nodata: Option<f64>,
+        plan: &QuantPlan,
+    ) -> Result<Self, CodecError> {
+        if samples.len() != width * height {
+            return Err(CodecError::invalid("sample count does not match width × height"));
+        }
+        let mut values = vec![0i32; samples.len()];
+        let mut valid = vec![false; samples.len()];
+        for (idx, &v) in samples.iter().enumerate() {
+            if nodata.is_some_and(|nd| v == nd) {
+                continue;
+            }
+            let n = plan.to_units(v).map_err(|e| {
+                CodecError::invalid(format!("at column {}, row {}: {e}", idx % width, idx / width))
+            })?;
+            if let Some(n) = n {
+                values[idx] = n;
+                valid[idx] = true;
+            }
+        }
+        Ok(Self {
+            width,
+            height,
+            values,
+            valid,
+        })
+    }
+
+    /// A grid whose samples are all valid.
+    pub fn all_valid(width: usize, height: usize, values: Vec<i32>) -> Self {
+        assert_eq!(values.len(), width * height);
+        Self {
+            width,
+            height,
+            valid: vec![true; values.len()],
+            values,
+        }
+    }
+
+    /// The height at lattice point `(x, y)` if it is a valid sample.
+    #[inline]
+    pub fn get(&self, x: i64, y: i64) -> Option<i32> {
+        if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
+            return None;
+        }
+        let k = y as usize * self.width + x as usize;
+        self.valid[k].then(|| self.values[k])
+    }
+
+    /// Smallest and largest valid height, or `None` if no sample is valid.
+    pub fn range(&self) -> Option<(i32, i32)> {
+        let mut it = self.values.iter().zip(&self.valid).filter(|(_, ok)| **ok).map(|(v, _)| *v);
+        let first = it.next()?;
+        Some(it.fold((first, first), |(lo, hi), v| (lo.min(v), hi.max(v))))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quantizer_error_is_bounded_for_negative_residuals_too() {
+        for k in [0u32, 1, 2, 7, 100] {
+            let q = Quantizer::new(k).unwrap();
+            for r in -1000i64..=1000 {
+                let idx = q.index(r);
+                let err = r - idx * i64::from(q.step());
+                assert!(err.abs() <= i64::from(k), "k={k} r={r} idx={idx}");
+            }
+        }
+    }
+
+    #[test]
+    fn plans_use_the_quantum_or_a_binary_unit() {
+        let p = QuantPlan::new(1.0, Some(1.0), 1111.0, 3270.0).unwrap();
+        assert_eq!((p.unit, p.quantizer.k(), p.lattice), (1.0, 1, true));
+        assert_eq!(p.offset, 2191.0, "mid-range 2190.5 rounded to the lattice");
+        let p = QuantPlan::new(0.4, Some(1.0), 0.0, 10.0).unwrap();
+        assert_eq!(p.quantizer.k(), 0, "ε < u stores lattice data losslessly");
+        let p = QuantPlan::new(0.3, Some(0.1), 13.7, 3751.0).unwrap();
+        assert_eq!(p.quantizer.k(), 3, "0.3 m on 0.1 m data is three steps");
+        let p = QuantPlan::new(1.0, None, 379.6, 410.8).unwrap();
+        assert_eq!((p.unit, p.quantizer.k()), (0.125, 7));
+        assert!(p.max_error() <= 1.0);
+        for eps in [0.0025, 0.01, 0.1, 0.3, 0.5, 1.0, 2.0, 5.0, 100.0] {
+            let p = QuantPlan::new(eps, None, -11000.0, 9000.0).unwrap();
+            assert!(p.max_error() <= eps && p.quantizer.k() >= 7, "{eps}: {p:?}");
+            assert_eq!(p.unit.log2().fract(), 0.0, "unit is a power of two");
+        }
+    }
+
+    #[test]
+    fn impossible_tolerances_are_refused_with_a_reason() {
+        for eps in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(QuantPlan::new(eps, None, 0.0, 1.0).is_err());
+        }
+        let err = QuantPlan::new(1e-4, None, -11000.0, 9000.0).unwrap_err().to_string();
+        assert!(err.contains("too fine") && err.contains("smallest"), "{err}");
+        assert!(QuantPlan::new(1.0, Some(0.0), 0.0, 1.0).is_err());
+        assert!(QuantPlan::new(1.0, None, f64::NAN, 1.0).is_err());
+    }
+
+    #[test]
+    fn awkward_floats_are_handled_deliberately() {
+        let p = QuantPlan::new(0.01, None, 0.0, 100.0).unwrap();
+        assert_eq!(p.to_units(f64::NAN).unwrap(), None);
+        assert!(p.to_units(f64::INFINITY).is_err());
+        assert!(p.to_units(f64::NEG_INFINITY).is_err());
+        assert!(p.to_units(1e30).is_err());
+        assert!(p.to_units(-1e30).is_err());
+        // Values below the unit (3e-12 next to 100, subnormals) pre-quantize within budget.
+        for v in [3e-12, f64::from(f32::from_bits(1)), -0.0, 100.0 - 3e-12] {
+            let n = p.to_units(v).unwrap().unwrap();
+            assert!((p.metres(n) - v).abs() <= p.unit / 2.0, "{v}");
+        }
+        // A quantum override the data does not honour is caught, not silently rounded.
+        let p = QuantPlan::new(1.0, Some(1.0), 0.0, 100.0).unwrap();
+        assert!(p.to_units(12.5).is_err());
+        assert_eq!(p.to_units(12.0).unwrap(), Some(12 - 50));
+        let err = HeightGrid::from_metres(2, 1, &[1.0, f64::INFINITY], None, &p).unwrap_err();
+        assert!(err.to_string().contains("column 1, row 0"), "{err}");
+    }
+}
