@@ -1,1 +1,0 @@
-//! Encoder/decoder hierarchy (being written).

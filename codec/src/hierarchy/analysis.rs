@@ -1,0 +1,193 @@
+//! Fine-to-coarse analysis for α = ½ (paper eq. 1): the filtered height field of every level.
+//!
+//! With α = 1 the filtered field of every level is simply the input subsampled, and none of
+//! this is needed. With α = ½ inner vertices are smoothed, `P = ⌊(32·V + 32·Pred_V(C) + 32)/64⌋`
+//! with the exact (unrounded) prediction — one rounding, in the same unit as the input, so the
+//! field stays on the input's value lattice; diamond sides are copied, never rounded.
+//!
+//! This is the in-core variant: each level's field covers the whole padded domain.
+
+use crate::geometry::{DiamondId, Layout};
+use crate::lifting::predict_vertex_numerator;
+use crate::quant::HeightGrid;
+
+/// One level's filtered heights on the lattice points of that level.
+#[derive(Clone, Debug)]
+pub struct LevelField {
+    /// Lattice spacing of the stored grid (the level's points are a subset of it).
+    g: i64,
+    cols: usize,
+    extent: (i64, i64),
+    data: Vec<i32>,
+}
+
+impl LevelField {
+    fn new(layout: &Layout, level: u8) -> Self {
+        let (ex, ey) = layout.extent();
+        let grid = layout.grid(DiamondId::new(level, 0, 0));
+        // Even levels: axis steps (h, 0); odd levels: diagonal steps (d, ±d) — either way every
+        // point of the level lies on the axis-aligned grid of spacing |u.0|.
+        let g = grid.u.0;
+        let (cols, rows) = ((ex / g + 1) as usize, (ey / g + 1) as usize);
+        Self {
+            g,
+            cols,
+
+            extent: (ex, ey),
+            data: vec![0; cols * rows],
+        }
+    }
+
+    /// The filtered height at lattice point `(x, y)` of this level; points outside the domain are
+    /// reflected across its edges (the symmetric extension of edge diamonds).
+    #[inline]
+    pub fn get(&self, x: i64, y: i64) -> i32 {
+        let (x, y) = (reflect(x, self.extent.0), reflect(y, self.extent.1));
+        self.data[(y / self.g) as usize * self.cols + (x / self.g) as usize]
+    }
+
+    #[inline]
+    fn set(&mut self, x: i64, y: i64, v: i32) {
+        self.data[(y / self.g) as usize * self.cols + (x / self.g) as usize] = v;
+    }
+}
+
+/// Reflects `x` into `[0, len]` (symmetric extension without repeating the edge sample).
+#[inline]
+fn reflect(x: i64, len: i64) -> i64 {
+    if len == 0 {
+        return 0;
+    }
+    let period = 2 * len;
+    let x = x.rem_euclid(period);
+    if x > len { period - x } else { x }
+}
+
+/// Filtered fields of levels `0..=L` for α = ½. Level `L` is the input, extended beyond the data
+/// rectangle by reflection and filled at nodata by push-pull averaging; these filled values are
+/// "don't care" for the bound but feed the smoothing of nearby valid vertices.
+pub fn analysis_fields(layout: &Layout, grid: &HeightGrid) -> Vec<LevelField> {
+    let finest = layout.finest_level();
+    let filled = fill_nodata(grid);
+    let mut fine = LevelField::new(layout, finest);
+    let (ex, ey) = layout.extent();
+    let (w, h) = (grid.width as i64, grid.height as i64);
+    for y in 0..=ey {
+        for x in 0..=ex {
+            let (sx, sy) = (reflect(x, w - 1), reflect(y, h - 1));
+            fine.set(x, y, filled[(sy * w + sx) as usize]);
+        }
+    }
+    let n = layout.n();
+    let mut fields = vec![fine];
+    for level in (0..finest).rev() {
+        let finer = fields.last().expect("at least the finest field");
+        let mut field = LevelField::new(layout, level);
+        for id in all_diamonds_of_level(layout, level) {
+            let g = layout.grid(id);
+            for j in 0..n {
+                for i in 0..n {
+                    let (x, y) = g.point(i as i64, j as i64);
+                    if x < 0 || y < 0 || x > ex || y > ey {
+                        continue;
+                    }
+                    let v = i64::from(finer.get(x, y));
+                    let inner = (1..n - 1).contains(&i) && (1..n - 1).contains(&j);
+                    let p = if inner {
+                        let cell = |ci: usize, cj: usize| {
+                            let (x2, y2) = g.point2(2 * ci as i64 + 1, 2 * cj as i64 + 1);
+                            i64::from(finer.get(x2 / 2, y2 / 2))
+                        };
+                        let num = predict_vertex_numerator(cell, n, i, j);
+                        (32 * v + num + 32) >> 6
+                    } else {
+                        v
+                    };
+                    field.set(x, y, p as i32);
+                }
+            }
+        }
+        fields.push(field);
+    }
+    fields.reverse();
+    fields
+}
+
+/// Every diamond of a level, inside the domain or sticking out of it.
+fn all_diamonds_of_level(layout: &Layout, level: u8) -> Vec<DiamondId> {
+    let r = layout.radius(level);
+    let (ex, ey) = layout.extent();
+    let mut out = Vec::new();
+    let mut push = |x: i64, y: i64| {
+        let id = DiamondId::new(level, x as u32, y as u32);
+        if layout.contains(id) {
+            out.push(id);
+        }
+    };
+    if level % 2 == 0 {
+        for y in (r..ey).step_by(2 * r as usize) {
+            for x in (r..ex).step_by(2 * r as usize) {
+                push(x, y);
+            }
+        }
+    } else {
+        for y in (0..=ey).step_by(r as usize) {
+            for x in (0..=ex).step_by(r as usize) {
+                push(x, y);
+            }
+        }
+    }
+    out
+}
+
+/// Input heights with nodata replaced by push-pull averages (the mean of the valid samples of
+/// the smallest enclosing power-of-two block that has any). Deterministic and cheap; the values
+/// only have to be plausible.
+fn fill_nodata(grid: &HeightGrid) -> Vec<i32> {
+    let (w, h) = (grid.width, grid.height);
+    let mut out = grid.values.clone();
+    if grid.valid.iter().all(|&v| v) {
+        return out;
+    }
+    // Pyramid of (sum, count) by 2×2 blocks.
+    let mut levels: Vec<(usize, usize, Vec<(i64, u64)>)> = vec![(
+        w,
+        h,
+        grid.values
+            .iter()
+            .zip(&grid.valid)
+            .map(|(&v, &ok)| if ok { (i64::from(v), 1) } else { (0, 0) })
+            .collect(),
+    )];
+    while levels.last().is_some_and(|(lw, lh, _)| *lw > 1 || *lh > 1) {
+        let (lw, lh, prev) = levels.last().expect("non-empty");
+        let (nw, nh) = (lw.div_ceil(2), lh.div_ceil(2));
+        let mut next = vec![(0i64, 0u64); nw * nh];
+        for y in 0..*lh {
+            for x in 0..*lw {
+                let (s, c) = prev[y * lw + x];
+                let t = &mut next[(y / 2) * nw + x / 2];
+                t.0 += s;
+                t.1 += c;
+            }
+        }
+        levels.push((nw, nh, next));
+    }
+    for y in 0..h {
+        for x in 0..w {
+            if grid.valid[y * w + x] {
+                continue;
+            }
+            out[y * w + x] = levels
+                .iter()
+                .enumerate()
+                .skip(1)
+                .find_map(|(l, (lw, _, data))| {
+                    let (s, c) = data[(y >> l) * lw + (x >> l)];
+                    (c > 0).then(|| s.div_euclid(c as i64) as i32)
+                })
+                .unwrap_or(0);
+        }
+    }
+    out
+}

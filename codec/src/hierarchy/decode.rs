@@ -1,0 +1,160 @@
+//! Decoding diamond by diamond, and the exact L∞ verifier built on it.
+
+use std::collections::HashMap;
+
+use super::analysis::analysis_fields;
+use super::refine::{RefineScratch, Refined, gather, refine};
+use super::roots::{decode_roots, root_grid};
+use super::{CodecParams, Encoded};
+use crate::CodecError;
+use crate::geometry::DiamondId;
+use crate::lifting::Alpha;
+use crate::quant::HeightGrid;
+
+/// A decoder: the root field plus the per-diamond steps. The renderer drives it diamond by
+/// diamond; [`verify`] drives it over the whole hierarchy.
+#[derive(Clone, Debug)]
+pub struct Decoder {
+    params: CodecParams,
+    roots: Vec<i32>,
+}
+
+impl Decoder {
+    /// Decodes the root field.
+    pub fn new(params: CodecParams, root_bytes: &[u8]) -> Result<Self, CodecError> {
+        let roots = decode_roots(&params, root_bytes)?;
+        Ok(Self { params, roots })
+    }
+
+    /// The header fields.
+    pub fn params(&self) -> &CodecParams {
+        &self.params
+    }
+
+    /// The `N × N` grid of `id`: from the root field at level 0, otherwise gathered from the
+    /// refinements of its existing parents ([`gather`]).
+    pub fn grid_of(&self, id: DiamondId, parents: [Option<&Refined>; 2]) -> Vec<i32> {
+        let n = self.params.layout.n();
+        let mut p = vec![0i32; n * n];
+        if id.level == 0 {
+            root_grid(&self.params.layout, &self.roots, id, &mut p);
+        } else {
+            gather(&self.params.layout, id, parents, &mut p);
+        }
+        p
+    }
+
+    /// Refines a diamond with grid `p` by its record.
+    pub fn refine(&self, p: &[i32], record: &[u8], scratch: &mut RefineScratch) -> Result<Refined, CodecError> {
+        refine(&self.params, p, record, scratch)
+    }
+}
+
+/// The worst error found on one level.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LevelReport {
+    /// The level.
+    pub level: u8,
+    /// Diamonds whose grids were checked.
+    pub diamonds: usize,
+    /// Valid vertices checked (shared vertices counted once per diamond).
+    pub vertices: u64,
+    /// Largest |reconstructed − filtered| seen, units.
+    pub max_error: u32,
+}
+
+/// What [`verify`] found.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct VerifyReport {
+    /// One entry per level, coarse to fine.
+    pub levels: Vec<LevelReport>,
+    /// The bound every error must respect, units (`k`).
+    pub bound: u32,
+}
+
+impl VerifyReport {
+    /// Largest error over all levels, units.
+    pub fn max_error(&self) -> u32 {
+        self.levels.iter().map(|l| l.max_error).max().unwrap_or(0)
+    }
+    /// Whether every level is within the bound.
+    pub fn within_bound(&self) -> bool {
+        self.max_error() <= self.bound
+    }
+}
+
+/// Decodes the whole hierarchy and compares every reconstructed vertex of every level with the
+/// filtered data of that level (the input itself for α = 1 and at the finest level).
+///
+/// Corrupt records are errors; a bound violation is reported, not an error, so callers can say
+/// by how much.
+pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, CodecError> {
+    let params = encoded.params;
+    let layout = params.layout;
+    let decoder = Decoder::new(params, &encoded.roots)?;
+    let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(&layout, input));
+    let n = layout.n();
+    let finest = layout.finest_level();
+    let mut by_level: Vec<Vec<(DiamondId, &[u8])>> = vec![Vec::new(); finest as usize + 1];
+    for r in &encoded.records {
+        if r.id.level >= finest || !layout.contains(r.id) {
+            return Err(CodecError::corrupt(format!("record for impossible diamond {}", r.id)));
+        }
+        by_level[r.id.level as usize].push((r.id, &r.bytes));
+    }
+    let mut levels = Vec::new();
+    let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
+    let mut scratch = RefineScratch::default();
+    for level in 0..=finest {
+        // The diamonds whose grids exist at this level: the records', plus at the finest level
+        // every child all of whose existing parents were refined.
+        let mut ids: Vec<DiamondId> = by_level[level as usize].iter().map(|(id, _)| *id).collect();
+        if level == finest {
+            let mut leaves: Vec<DiamondId> = prev
+                .keys()
+                .flat_map(|&p| layout.children(p))
+                .flatten()
+                .filter(|&c| layout.parents(c).into_iter().flatten().all(|p| prev.contains_key(&p)))
+                .collect();
+            leaves.sort();
+            leaves.dedup();
+            ids = leaves;
+        }
+        let mut report = LevelReport {
+            level,
+            diamonds: 0,
+            vertices: 0,
+            max_error: 0,
+        };
+        let mut next = HashMap::new();
+        let records: HashMap<DiamondId, &[u8]> = by_level[level as usize].iter().copied().collect();
+        for id in ids {
+            let parents = layout.parents(id).map(|p| p.and_then(|p| prev.get(&p)));
+            if level > 0 && layout.parents(id).iter().zip(&parents).any(|(id, r)| id.is_some() && r.is_none()) {
+                return Err(CodecError::corrupt(format!("{id} is stored but a parent is not")));
+            }
+            let p = decoder.grid_of(id, parents);
+            let g = layout.grid(id);
+            report.diamonds += 1;
+            for j in 0..n {
+                for i in 0..n {
+                    let (x, y) = g.point(i as i64, j as i64);
+                    let Some(v) = input.get(x, y) else { continue };
+                    let want = fields.as_ref().map_or(v, |f| f[level as usize].get(x, y));
+                    let e = (i64::from(p[j * n + i]) - i64::from(want)).unsigned_abs();
+                    report.max_error = report.max_error.max(u32::try_from(e).unwrap_or(u32::MAX));
+                    report.vertices += 1;
+                }
+            }
+            if let Some(bytes) = records.get(&id) {
+                next.insert(id, decoder.refine(&p, bytes, &mut scratch)?);
+            }
+        }
+        prev = next;
+        levels.push(report);
+    }
+    Ok(VerifyReport {
+        levels,
+        bound: params.quantizer.k() as u32,
+    })
+}

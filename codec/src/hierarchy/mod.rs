@@ -1,0 +1,102 @@
+//! The two-stage near-lossless hierarchy (paper §4–5): encoder, decoder and verifier.
+//!
+//! Coarse to fine, every stored diamond `D` of level `l` is refined: its vertex grid `P̃`
+//! (gathered from its parents' refinements, or from the root field at level 0) predicts the
+//! level-`l+1` values on its square, and the record of `D` holds the quantized corrections
+//! (eqs. 5–8, closed loop against the *reconstructed* `P̃`). So every reconstructed value of
+//! every level is within `k` units of the filtered value at that level, and the decoder — which
+//! only ever has `P̃` — reproduces the encoder's reconstruction bit for bit.
+//!
+//! Outside the data rectangle and at nodata, residuals are "don't care" (zero): those heights are
+//! unconstrained and must not be drawn. The stored set is the parent closure of the finest
+//! diamonds that meet valid data.
+
+mod analysis;
+mod decode;
+mod encode;
+mod object_error;
+mod refine;
+mod roots;
+
+pub use analysis::{LevelField, analysis_fields};
+pub use decode::{Decoder, LevelReport, VerifyReport, verify};
+pub use encode::{EncodeOptions, encode};
+pub use refine::{RefineScratch, Refined, gather, refine};
+pub use roots::root_field_dims;
+
+use crate::entropy::{BandKind, CoderKind};
+use crate::geometry::{DiamondId, Layout};
+use crate::lifting::Alpha;
+use crate::quant::Quantizer;
+
+/// Everything a decoder needs to know besides the bytes: what a repository header holds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CodecParams {
+    /// The diamond hierarchy.
+    pub layout: Layout,
+    /// Lifting weight of inner vertices.
+    pub alpha: Alpha,
+    /// Which entropy coder wrote the records.
+    pub coder: CoderKind,
+    /// The residual quantizer (error bound `k` units, step `2k+1`).
+    pub quantizer: Quantizer,
+    /// Columns of input samples; lattice x of the data is `0..data_width`.
+    pub data_width: u32,
+    /// Rows of input samples; lattice y of the data is `0..data_height`.
+    pub data_height: u32,
+}
+
+impl CodecParams {
+    /// Whether lattice point `(x, y)` lies in the data rectangle.
+    #[inline]
+    pub fn in_data(&self, x: i64, y: i64) -> bool {
+        x >= 0 && y >= 0 && x < i64::from(self.data_width) && y < i64::from(self.data_height)
+    }
+
+    /// The bands of one refinement record: `(kind, width, height)`.
+    pub fn record_bands(&self) -> Vec<(BandKind, usize, usize)> {
+        let n = self.layout.n();
+        let mut b = vec![(BandKind::Cells, n - 1, n - 1)];
+        if self.alpha == Alpha::Half {
+            b.push((BandKind::Vertices, n - 2, n - 2));
+        }
+        b
+    }
+}
+
+/// One stored diamond's record and the metadata a renderer needs before decoding it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Record {
+    /// The diamond this record refines.
+    pub id: DiamondId,
+    /// The entropy-coded residual bands.
+    pub bytes: Vec<u8>,
+    /// Saturated bound, in units (rounded up), of the distance between this diamond's surface —
+    /// or that of any descendant — and the input samples under it.
+    pub object_error: u32,
+    /// Smallest reconstructed vertex height of the diamond's grid, units.
+    pub min: i32,
+    /// Largest reconstructed vertex height of the diamond's grid, units.
+    pub max: i32,
+}
+
+/// A whole encoded hierarchy, in memory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Encoded {
+    /// Header fields.
+    pub params: CodecParams,
+    /// The coded root field.
+    pub roots: Vec<u8>,
+    /// Records of all stored diamonds, sorted by id (coarse to fine).
+    pub records: Vec<Record>,
+    /// Saturated object-space error of the finest diamonds taken together (units): the leaves'
+    /// error is the quantizer's, measured.
+    pub leaf_error: u32,
+}
+
+impl Encoded {
+    /// Total coded bytes: root field plus records (no container overhead).
+    pub fn payload_bytes(&self) -> usize {
+        self.roots.len() + self.records.iter().map(|r| r.bytes.len()).sum::<usize>()
+    }
+}

@@ -1,0 +1,170 @@
+//! The two per-diamond steps shared by encoder, decoder and renderer: gathering a diamond's grid
+//! from its parents, and refining it with a record.
+
+use super::CodecParams;
+use crate::CodecError;
+use crate::entropy::{BandMut, DecodeLimits, decode_bands};
+use crate::geometry::{Diagonal, DiamondId, Half, Layout};
+use crate::lifting::{Alpha, MAX_ABS_HEIGHT, predict_cells, predict_vertex};
+
+/// The level-`l+1` values a refinement produces on a level-`l` diamond's square: its vertices
+/// (`N²`, changed only at inner vertices and only when α = ½) and its cell centres (`(N−1)²`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Refined {
+    /// Vertex values, row-major `N × N`.
+    pub vertices: Vec<i32>,
+    /// Cell-centre values, row-major `(N−1) × (N−1)`.
+    pub cells: Vec<i32>,
+}
+
+impl Refined {
+    /// Value at half-step index `(a, b)` (`a + b` even): vertex `(a/2, b/2)` or cell
+    /// `((a−1)/2, (b−1)/2)`.
+    #[inline]
+    fn half_step(&self, n: usize, a: usize, b: usize) -> i32 {
+        if a % 2 == 0 {
+            self.vertices[(b / 2) * n + a / 2]
+        } else {
+            self.cells[(b / 2) * (n - 1) + a / 2]
+        }
+    }
+}
+
+/// Gathers the `N × N` grid of a non-root diamond from its parents' refinements.
+///
+/// `parents[h]` is the refinement of the parent on half `h` ([`Layout::parents`] order); it may
+/// be `None` only where that parent does not exist (a diamond on the domain's edge), and then
+/// the missing half is the mirror image of the present one across the split diagonal — the
+/// symmetric extension the paper uses for incomplete diamonds.
+///
+/// # Panics
+/// If both parents are missing, or if the two parents disagree on the split diagonal (the
+/// parents' sides are never changed by a refinement, so a disagreement is a bug, not bad data).
+pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], out: &mut [i32]) {
+    let n = layout.n();
+    assert_eq!(out.len(), n * n);
+    assert!(parents.iter().any(Option::is_some), "{id} has no parent to gather from");
+    let grid = layout.grid(id);
+    let diag = layout.diagonal(id);
+    let ids = layout.parents(id);
+    let mut first = true;
+    for (h, half) in Half::BOTH.into_iter().enumerate() {
+        let Some(parent) = parents[h] else { continue };
+        let pid = ids[h].expect("a refinement was passed for a parent that does not exist");
+        let m = grid
+            .index_map_into_half_step(&layout.grid(pid))
+            .expect("child grid maps into its parent");
+        for j in 0..n {
+            let (lo, hi) = half_range(diag, half, n, j);
+            for i in lo..=hi {
+                let (a, b) = m.apply(i as i64, j as i64);
+                let v = parent.half_step(n, a as usize, b as usize);
+                let on_diagonal = match diag {
+                    Diagonal::Main => i == j,
+                    Diagonal::Anti => i + j == n - 1,
+                };
+                if on_diagonal && !first {
+                    assert_eq!(out[j * n + i], v, "parents of {id} disagree on its diagonal");
+                }
+                out[j * n + i] = v;
+            }
+        }
+        first = false;
+    }
+    for (h, half) in Half::BOTH.into_iter().enumerate() {
+        if parents[h].is_some() {
+            continue;
+        }
+        for j in 0..n {
+            let (lo, hi) = half_range(diag, half, n, j);
+            for i in lo..=hi {
+                let (mi, mj) = match diag {
+                    Diagonal::Main => (j, i),
+                    Diagonal::Anti => (n - 1 - j, n - 1 - i),
+                };
+                out[j * n + i] = out[mj * n + mi];
+            }
+        }
+    }
+}
+
+/// Column range `lo..=hi` of row `j` in one half (diagonal included).
+fn half_range(diag: Diagonal, half: Half, n: usize, j: usize) -> (usize, usize) {
+    match (diag, half) {
+        (Diagonal::Main, Half::Positive) => (j, n - 1),
+        (Diagonal::Main, Half::Negative) => (0, j),
+        (Diagonal::Anti, Half::Positive) => (n - 1 - j, n - 1),
+        (Diagonal::Anti, Half::Negative) => (0, n - 1 - j),
+    }
+}
+
+/// Scratch buffers for [`refine`], reused across calls to avoid allocation per diamond.
+#[derive(Debug, Default)]
+pub struct RefineScratch {
+    dc: Vec<i32>,
+    dv: Vec<i32>,
+}
+
+/// Refines a diamond: decodes its record and synthesises its level-`l+1` values from `p`, its
+/// reconstructed `N × N` grid (eqs. 6 and 8).
+///
+/// Never panics on bad bytes; a record whose values would leave the representable range is
+/// [`CodecError::Corrupt`].
+pub fn refine(
+    params: &CodecParams,
+    p: &[i32],
+    record: &[u8],
+    scratch: &mut RefineScratch,
+) -> Result<Refined, CodecError> {
+    let n = params.layout.n();
+    let m = n - 1;
+    scratch.dc.resize(m * m, 0);
+    scratch.dv.resize((n - 2) * (n - 2), 0);
+    {
+        let (dc, dv) = (&mut scratch.dc, &mut scratch.dv);
+        let mut bands = vec![BandMut {
+            kind: crate::entropy::BandKind::Cells,
+            width: m,
+            height: m,
+            values: dc.as_mut_slice(),
+        }];
+        if params.alpha == Alpha::Half {
+            bands.push(BandMut {
+                kind: crate::entropy::BandKind::Vertices,
+                width: n - 2,
+                height: n - 2,
+                values: dv.as_mut_slice(),
+            });
+        }
+        decode_bands(params.coder, record, &mut bands, DecodeLimits::default())?;
+    }
+    let step = i64::from(params.quantizer.step());
+    let mut cells = vec![0i32; m * m];
+    predict_cells(p, n, &mut cells);
+    let mut bad = false;
+    for (c, &d) in cells.iter_mut().zip(&scratch.dc) {
+        let v = i64::from(*c) + step * i64::from(d);
+        bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
+        *c = v as i32;
+    }
+    // Check before predicting vertices from the cells: out-of-range cells would overflow the
+    // filter's i32 numerators.
+    if bad {
+        return Err(CodecError::corrupt("record reconstructs heights out of range"));
+    }
+    let mut vertices = p.to_vec();
+    if params.alpha == Alpha::Half {
+        for j in 1..n - 1 {
+            for i in 1..n - 1 {
+                let pred = 2 * i64::from(p[j * n + i]) - i64::from(predict_vertex(&cells, n, i, j));
+                let v = pred + step * i64::from(scratch.dv[(j - 1) * (n - 2) + (i - 1)]);
+                bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
+                vertices[j * n + i] = v as i32;
+            }
+        }
+    }
+    if bad {
+        return Err(CodecError::corrupt("record reconstructs heights out of range"));
+    }
+    Ok(Refined { vertices, cells })
+}
