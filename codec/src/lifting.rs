@@ -15,6 +15,19 @@
 /// numerators reach 48 times this, which must stay below 2^31.
 pub const MAX_ABS_HEIGHT: i32 = 44_000_000;
 
+/// Predictions are clamped to `±PREDICTION_LIMIT` before a residual is added. Where residuals
+/// are "don't care" (outside the data, nodata) a reconstruction *is* its prediction, and
+/// order-4 overshoot (up to 50 % of a step) compounds level after level; the clamp bounds every
+/// reconstruction by `PREDICTION_LIMIT + k ≤ MAX_ABS_HEIGHT`, so numerators always fit `i32`.
+/// Encoder and decoder clamp identically, so reconstruction stays bit-exact.
+pub const PREDICTION_LIMIT: i32 = 40_000_000;
+
+/// Clamps a prediction to `±PREDICTION_LIMIT`.
+#[inline]
+pub fn clamp_prediction(v: i64) -> i64 {
+    v.clamp(-i64::from(PREDICTION_LIMIT), i64::from(PREDICTION_LIMIT))
+}
+
 /// Whether cell `(i, j)` of an `N`-grid is predicted with order 4 (its 12-point support, one
 /// vertex beyond the cell on each side, lies inside the grid).
 #[inline]
@@ -73,7 +86,12 @@ pub fn predict_cells(p: &[i32], n: usize, out: &mut [i32]) {
         for (k, o) in row.iter_mut().enumerate() {
             let i = k + 1;
             let s4 = r0[i] + r0[i + 1] + r1[i] + r1[i + 1];
-            let s8 = r0[i - 1] + r1[i - 1] + r0[i + 2] + r1[i + 2] + r_m1[i] + r_m1[i + 1]
+            let s8 = r0[i - 1]
+                + r1[i - 1]
+                + r0[i + 2]
+                + r1[i + 2]
+                + r_m1[i]
+                + r_m1[i + 1]
                 + r2[i]
                 + r2[i + 1];
             *o = (10 * s4 - s8 + 16) >> 5;
@@ -105,7 +123,12 @@ pub fn predict_vertex(c: &[i32], n: usize, i: usize, j: usize) -> i32 {
 /// The unrounded numerator of [`predict_vertex`] scaled by 32 (`10·s4 − s8` or `8·s4`), for the
 /// α = ½ analysis, which averages `V` with the exact prediction and rounds once.
 #[inline]
-pub fn predict_vertex_numerator(c: impl Fn(usize, usize) -> i64, n: usize, i: usize, j: usize) -> i64 {
+pub fn predict_vertex_numerator(
+    c: impl Fn(usize, usize) -> i64,
+    n: usize,
+    i: usize,
+    j: usize,
+) -> i64 {
     let s4 = c(i - 1, j - 1) + c(i, j - 1) + c(i - 1, j) + c(i, j);
     if vertex_uses_order4(n, i, j) {
         let s8 = c(i - 2, j - 1)
@@ -157,7 +180,15 @@ impl Alpha {
 /// With α = ½ the rounding makes the step lose up to one bit per inner vertex; the remainder
 /// `r = V − (2P − Pred_V(C))` is returned so that [`synthesis`] can invert it exactly (the codec
 /// carries it, quantized, in ΔV).
-pub fn analysis(alpha: Alpha, n: usize, v: &[i32], c: &[i32], p: &mut [i32], h: &mut [i32], r: &mut [i32]) {
+pub fn analysis(
+    alpha: Alpha,
+    n: usize,
+    v: &[i32],
+    c: &[i32],
+    p: &mut [i32],
+    h: &mut [i32],
+    r: &mut [i32],
+) {
     let m = n - 1;
     p.copy_from_slice(v);
     if alpha == Alpha::Half {
@@ -185,7 +216,15 @@ pub fn analysis(alpha: Alpha, n: usize, v: &[i32], c: &[i32], p: &mut [i32], h: 
 }
 
 /// Inverse of [`analysis`] (eqs. 3–4): from `p`, `h` and the remainders `r` rebuild `v`, `c`.
-pub fn synthesis(alpha: Alpha, n: usize, p: &[i32], h: &[i32], r: &[i32], v: &mut [i32], c: &mut [i32]) {
+pub fn synthesis(
+    alpha: Alpha,
+    n: usize,
+    p: &[i32],
+    h: &[i32],
+    r: &[i32],
+    v: &mut [i32],
+    c: &mut [i32],
+) {
     predict_cells(p, n, c);
     for (ck, hk) in c.iter_mut().zip(h) {
         *ck += hk;
@@ -212,16 +251,24 @@ mod tests {
         // prediction is an integer and rounding cannot hide an error.
         let n = 9;
         let f = |x: f64, y: f64| 64.0 * (x * x * x - 2.0 * x * x * y + y * y * y + x * y);
-        let cubic: Vec<i32> = (0..n * n).map(|k| f((k % n) as f64, (k / n) as f64) as i32).collect();
+        let cubic: Vec<i32> = (0..n * n)
+            .map(|k| f((k % n) as f64, (k / n) as f64) as i32)
+            .collect();
         for j in 0..n - 1 {
             for i in 0..n - 1 {
                 if cell_uses_order4(n, i, j) {
                     let want = f(i as f64 + 0.5, j as f64 + 0.5);
-                    assert_eq!(f64::from(predict_cell(&cubic, n, i, j)), want, "cell ({i},{j})");
+                    assert_eq!(
+                        f64::from(predict_cell(&cubic, n, i, j)),
+                        want,
+                        "cell ({i},{j})"
+                    );
                 }
             }
         }
-        let plane: Vec<i32> = (0..n * n).map(|k| 32 * (3 * (k % n) as i32 - 5 * (k / n) as i32)).collect();
+        let plane: Vec<i32> = (0..n * n)
+            .map(|k| 32 * (3 * (k % n) as i32 - 5 * (k / n) as i32))
+            .collect();
         for j in 0..n - 1 {
             for i in 0..n - 1 {
                 // The plane at the cell centre (i+½, j+½), times 32.
@@ -242,12 +289,20 @@ mod tests {
     #[test]
     fn order_regions_match_the_design() {
         let n = 65;
-        assert!(!cell_uses_order4(n, 0, 5) && cell_uses_order4(n, 1, 1) && cell_uses_order4(n, 62, 62));
+        assert!(
+            !cell_uses_order4(n, 0, 5) && cell_uses_order4(n, 1, 1) && cell_uses_order4(n, 62, 62)
+        );
         assert!(!cell_uses_order4(n, 63, 5));
-        assert!(!vertex_uses_order4(n, 1, 5) && vertex_uses_order4(n, 2, 2) && vertex_uses_order4(n, 62, 62));
+        assert!(
+            !vertex_uses_order4(n, 1, 5)
+                && vertex_uses_order4(n, 2, 2)
+                && vertex_uses_order4(n, 62, 62)
+        );
         assert!(!vertex_uses_order4(n, 63, 5));
         // The vectorised loop agrees with the scalar definition everywhere.
-        let p: Vec<i32> = (0..n * n).map(|k| ((k * 7919) % 2001) as i32 - 1000).collect();
+        let p: Vec<i32> = (0..n * n)
+            .map(|k| ((k * 7919) % 2001) as i32 - 1000)
+            .collect();
         let mut out = vec![0; 64 * 64];
         predict_cells(&p, n, &mut out);
         for j in 0..64 {

@@ -14,11 +14,14 @@
 //! tests check exactly in integers.
 
 use crate::CodecError;
-use crate::lifting::MAX_ABS_HEIGHT;
+use crate::lifting::{MAX_ABS_HEIGHT, PREDICTION_LIMIT};
 
-/// Largest magnitude of an input height in units: reconstructions overshoot the input range by
-/// up to ≈ 8 % on cliffs, and every reconstruction must stay within [`MAX_ABS_HEIGHT`].
-pub const MAX_ABS_INPUT: i32 = 40_000_000;
+/// Largest magnitude of an input height in units: no larger than the clamp on predictions, so a
+/// clamped prediction plus a residual within `k` always reaches a valid target.
+pub const MAX_ABS_INPUT: i32 = PREDICTION_LIMIT;
+
+/// Largest quantizer half-step `k`: reconstructions are bounded by `PREDICTION_LIMIT + k`.
+pub const MAX_K: i32 = MAX_ABS_HEIGHT - PREDICTION_LIMIT;
 
 /// Uniform quantizer with odd step `2k + 1` (in units): index `⌊(r + k) / (2k+1)⌋`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -31,7 +34,7 @@ impl Quantizer {
     pub fn new(k: u32) -> Result<Self, CodecError> {
         let k = i32::try_from(k)
             .ok()
-            .filter(|&k| k <= MAX_ABS_HEIGHT)
+            .filter(|&k| k <= MAX_K)
             .ok_or_else(|| CodecError::invalid(format!("quantizer half-step {k} is too large")))?;
         Ok(Self { k })
     }
@@ -83,7 +86,9 @@ impl QuantPlan {
             )));
         }
         if !(min.is_finite() && max.is_finite() && min <= max) {
-            return Err(CodecError::invalid(format!("invalid height range {min}…{max}")));
+            return Err(CodecError::invalid(format!(
+                "invalid height range {min}…{max}"
+            )));
         }
         let reach_in = |u: f64| {
             let offset = ((min + max) / 2.0 / u).round() * u;
@@ -93,7 +98,9 @@ impl QuantPlan {
         let (unit, k, lattice) = match quantum {
             Some(u) => {
                 if !(u.is_finite() && u > 0.0) {
-                    return Err(CodecError::invalid(format!("value quantum must be positive, not {u}")));
+                    return Err(CodecError::invalid(format!(
+                        "value quantum must be positive, not {u}"
+                    )));
                 }
                 let k = (epsilon / u * (1.0 + DECIMAL_SLACK)).floor();
                 (u, k, true)
@@ -108,7 +115,7 @@ impl QuantPlan {
                 (u, k, false)
             }
         };
-        if !(0.0..=f64::from(MAX_ABS_HEIGHT)).contains(&k) {
+        if !(0.0..=f64::from(MAX_K)).contains(&k) {
             return Err(CodecError::invalid(format!(
                 "tolerance {epsilon} m is out of range for unit {unit} m"
             )));
@@ -198,7 +205,9 @@ impl HeightGrid {
         plan: &QuantPlan,
     ) -> Result<Self, CodecError> {
         if samples.len() != width * height {
-            return Err(CodecError::invalid("sample count does not match width × height"));
+            return Err(CodecError::invalid(
+                "sample count does not match width × height",
+            ));
         }
         let mut values = vec![0i32; samples.len()];
         let mut valid = vec![false; samples.len()];
@@ -207,7 +216,11 @@ impl HeightGrid {
                 continue;
             }
             let n = plan.to_units(v).map_err(|e| {
-                CodecError::invalid(format!("at column {}, row {}: {e}", idx % width, idx / width))
+                CodecError::invalid(format!(
+                    "at column {}, row {}: {e}",
+                    idx % width,
+                    idx / width
+                ))
             })?;
             if let Some(n) = n {
                 values[idx] = n;
@@ -245,7 +258,12 @@ impl HeightGrid {
 
     /// Smallest and largest valid height, or `None` if no sample is valid.
     pub fn range(&self) -> Option<(i32, i32)> {
-        let mut it = self.values.iter().zip(&self.valid).filter(|(_, ok)| **ok).map(|(v, _)| *v);
+        let mut it = self
+            .values
+            .iter()
+            .zip(&self.valid)
+            .filter(|(_, ok)| **ok)
+            .map(|(v, _)| *v);
         let first = it.next()?;
         Some(it.fold((first, first), |(lo, hi), v| (lo.min(v), hi.max(v))))
     }
@@ -293,8 +311,13 @@ mod tests {
         for eps in [0.0, -1.0, f64::NAN, f64::INFINITY] {
             assert!(QuantPlan::new(eps, None, 0.0, 1.0).is_err());
         }
-        let err = QuantPlan::new(1e-4, None, -11000.0, 9000.0).unwrap_err().to_string();
-        assert!(err.contains("too fine") && err.contains("smallest"), "{err}");
+        let err = QuantPlan::new(1e-4, None, -11000.0, 9000.0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("too fine") && err.contains("smallest"),
+            "{err}"
+        );
         assert!(QuantPlan::new(1.0, Some(0.0), 0.0, 1.0).is_err());
         assert!(QuantPlan::new(1.0, None, f64::NAN, 1.0).is_err());
     }

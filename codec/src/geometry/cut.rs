@@ -39,8 +39,7 @@ impl Cut {
     }
 
     fn refine_into(&mut self, layout: &Layout, id: DiamondId, done: &mut Vec<DiamondId>) {
-        if self.refined.contains(&id) || id.level >= layout.finest_level() || !layout.contains(id)
-        {
+        if self.refined.contains(&id) || id.level >= layout.finest_level() || !layout.contains(id) {
             return;
         }
         for p in layout.parents(id).into_iter().flatten() {
@@ -161,11 +160,15 @@ pub fn check_conforming(layout: &Layout, triangles: &[Triangle]) -> Result<(), S
     };
     for (&(p, q), &count) in &edges {
         if count != 1 {
-            return Err(format!("edge {p:?}->{q:?} used {count} times in one direction"));
+            return Err(format!(
+                "edge {p:?}->{q:?} used {count} times in one direction"
+            ));
         }
         let back = edges.get(&(q, p)).copied().unwrap_or(0);
         if back == 0 && !on_boundary(p, q) {
-            return Err(format!("edge {p:?}->{q:?} has no neighbour: crack or T-junction"));
+            return Err(format!(
+                "edge {p:?}->{q:?} has no neighbour: crack or T-junction"
+            ));
         }
     }
     Ok(())
@@ -274,7 +277,10 @@ mod tests {
         doubled.push([m, t2[1], t2[2]]);
         let big = Layout::new(3, 2, 1, 1).unwrap(); // twice the extent
         let err = check_conforming(&big, &doubled).unwrap_err();
-        assert!(err.contains("T-junction") || err.contains("neighbour"), "{err}");
+        assert!(
+            err.contains("T-junction") || err.contains("neighbour"),
+            "{err}"
+        );
     }
 
     proptest! {

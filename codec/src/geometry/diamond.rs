@@ -85,8 +85,20 @@ mod tests {
         let id = DiamondId::new(7, 4096, 12);
         assert_eq!(id.to_string(), "7-4096-12");
         assert_eq!("7-4096-12".parse::<DiamondId>().unwrap(), id);
-        for bad in ["", "7-1", "7-1-2-3", "a-1-2", "7--2", "+7-1-2", "7-1-99999999999", "256-1-1"] {
-            assert!(bad.parse::<DiamondId>().is_err(), "{bad:?} should not parse");
+        for bad in [
+            "",
+            "7-1",
+            "7-1-2-3",
+            "a-1-2",
+            "7--2",
+            "+7-1-2",
+            "7-1-99999999999",
+            "256-1-1",
+        ] {
+            assert!(
+                bad.parse::<DiamondId>().is_err(),
+                "{bad:?} should not parse"
+            );
         }
     }
 }

@@ -55,7 +55,9 @@ impl Layout {
     /// along the longer side, finest level on the samples.
     pub fn covering(n: usize, width: usize, height: usize) -> Result<Self, CodecError> {
         if width == 0 || height == 0 {
-            return Err(CodecError::invalid("cannot lay diamonds over an empty grid"));
+            return Err(CodecError::invalid(
+                "cannot lay diamonds over an empty grid",
+            ));
         }
         let span = (width.max(height) - 1) as u64;
         let mut k = 0u32;
@@ -299,19 +301,29 @@ mod tests {
             let layout = Layout::new(n, k, rx, ry).unwrap();
             let all = all_diamonds(&layout);
             let set: HashSet<_> = all.iter().copied().collect();
-            assert_eq!(set.len(), all.len(), "a diamond reached twice was counted twice");
+            assert_eq!(
+                set.len(),
+                all.len(),
+                "a diamond reached twice was counted twice"
+            );
             let mut per_level = vec![0usize; layout.finest_level() as usize + 1];
             for &d in &all {
                 assert!(layout.contains(d), "{d} was produced but is not contained");
                 per_level[d.level as usize] += 1;
                 for c in layout.children(d).into_iter().flatten() {
                     assert_eq!(c.level, d.level + 1);
-                    assert!(layout.half_in(c, d).is_some(), "{c} does not list {d} as parent");
+                    assert!(
+                        layout.half_in(c, d).is_some(),
+                        "{c} does not list {d} as parent"
+                    );
                 }
                 for (h, p) in layout.parents(d).into_iter().enumerate() {
                     let Some(p) = p else { continue };
                     assert!(set.contains(&p));
-                    assert!(layout.children(p).contains(&Some(d)), "{p} does not list child {d}");
+                    assert!(
+                        layout.children(p).contains(&Some(d)),
+                        "{p} does not list child {d}"
+                    );
                     // The parent's centre is the grid corner on its side of the split diagonal.
                     let g = layout.grid(d);
                     let n1 = (n - 1) as i64;
@@ -321,7 +333,10 @@ mod tests {
                         (Diagonal::Anti, 0) => (n1, n1),
                         (Diagonal::Anti, _) => (0, 0),
                     };
-                    assert_eq!(g.point(corner.0, corner.1), (i64::from(p.x), i64::from(p.y)));
+                    assert_eq!(
+                        g.point(corner.0, corner.1),
+                        (i64::from(p.x), i64::from(p.y))
+                    );
                 }
                 if d.level > 0 {
                     let n_parents = layout.parents(d).iter().flatten().count();
@@ -340,7 +355,10 @@ mod tests {
                 }
             }
             // The finest grids sample the lattice at unit spacing.
-            let fine = all.iter().find(|d| d.level == layout.finest_level()).unwrap();
+            let fine = all
+                .iter()
+                .find(|d| d.level == layout.finest_level())
+                .unwrap();
             assert_eq!(layout.grid(*fine).u, (1, 0));
         }
     }
@@ -351,7 +369,10 @@ mod tests {
         let n = layout.n() as i64;
         for d in all_diamonds(&layout) {
             for p in layout.parents(d).into_iter().flatten() {
-                let m = layout.grid(d).index_map_into_half_step(&layout.grid(p)).unwrap();
+                let m = layout
+                    .grid(d)
+                    .index_map_into_half_step(&layout.grid(p))
+                    .unwrap();
                 // The half in the parent lands inside the parent's (2N−1)² half-step grid on
                 // points with a + b even (vertices and cell centres, never edge midpoints).
                 let half = layout.half_in(d, p).unwrap();
@@ -381,7 +402,10 @@ mod tests {
         let l = Layout::covering(65, 1000, 1000).unwrap();
         assert_eq!((l.k(), l.roots_x(), l.roots_y()), (4, 1, 1));
         let l = Layout::covering(65, 16385, 16385).unwrap();
-        assert_eq!((l.k(), l.roots_x(), l.roots_y(), l.root_side()), (8, 1, 1, 16384));
+        assert_eq!(
+            (l.k(), l.roots_x(), l.roots_y(), l.root_side()),
+            (8, 1, 1, 16384)
+        );
         let l = Layout::covering(65, 4320, 2161).unwrap();
         assert!(l.extent().0 >= 4319 && l.extent().1 >= 2160);
         assert!(Layout::covering(65, 0, 5).is_err());

@@ -45,7 +45,12 @@ impl Decoder {
     }
 
     /// Refines a diamond with grid `p` by its record.
-    pub fn refine(&self, p: &[i32], record: &[u8], scratch: &mut RefineScratch) -> Result<Refined, CodecError> {
+    pub fn refine(
+        &self,
+        p: &[i32],
+        record: &[u8],
+        scratch: &mut RefineScratch,
+    ) -> Result<Refined, CodecError> {
         refine(&self.params, p, record, scratch)
     }
 }
@@ -98,7 +103,10 @@ pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, Cod
     let mut by_level: Vec<Vec<(DiamondId, &[u8])>> = vec![Vec::new(); finest as usize + 1];
     for r in &encoded.records {
         if r.id.level >= finest || !layout.contains(r.id) {
-            return Err(CodecError::corrupt(format!("record for impossible diamond {}", r.id)));
+            return Err(CodecError::corrupt(format!(
+                "record for impossible diamond {}",
+                r.id
+            )));
         }
         by_level[r.id.level as usize].push((r.id, &r.bytes));
     }
@@ -109,12 +117,21 @@ pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, Cod
         // The diamonds whose grids exist at this level: the records', plus at the finest level
         // every child all of whose existing parents were refined.
         let mut ids: Vec<DiamondId> = by_level[level as usize].iter().map(|(id, _)| *id).collect();
-        if level == finest {
+        if finest == 0 {
+            // A single level: the roots are the leaves, and there are no records.
+            ids = layout.roots().collect();
+        } else if level == finest {
             let mut leaves: Vec<DiamondId> = prev
                 .keys()
                 .flat_map(|&p| layout.children(p))
                 .flatten()
-                .filter(|&c| layout.parents(c).into_iter().flatten().all(|p| prev.contains_key(&p)))
+                .filter(|&c| {
+                    layout
+                        .parents(c)
+                        .into_iter()
+                        .flatten()
+                        .all(|p| prev.contains_key(&p))
+                })
                 .collect();
             leaves.sort();
             leaves.dedup();
@@ -130,8 +147,16 @@ pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, Cod
         let records: HashMap<DiamondId, &[u8]> = by_level[level as usize].iter().copied().collect();
         for id in ids {
             let parents = layout.parents(id).map(|p| p.and_then(|p| prev.get(&p)));
-            if level > 0 && layout.parents(id).iter().zip(&parents).any(|(id, r)| id.is_some() && r.is_none()) {
-                return Err(CodecError::corrupt(format!("{id} is stored but a parent is not")));
+            if level > 0
+                && layout
+                    .parents(id)
+                    .iter()
+                    .zip(&parents)
+                    .any(|(id, r)| id.is_some() && r.is_none())
+            {
+                return Err(CodecError::corrupt(format!(
+                    "{id} is stored but a parent is not"
+                )));
             }
             let p = decoder.grid_of(id, parents);
             let g = layout.grid(id);

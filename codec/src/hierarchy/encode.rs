@@ -12,7 +12,7 @@ use super::{CodecParams, Encoded, Record};
 use crate::CodecError;
 use crate::entropy::{Band, BandKind, CoderKind, encode_bands};
 use crate::geometry::{DiamondId, Layout};
-use crate::lifting::{Alpha, MAX_ABS_HEIGHT, predict_cells, predict_vertex};
+use crate::lifting::{Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_vertex};
 use crate::quant::{HeightGrid, Quantizer};
 
 /// Encoder settings besides the tolerance.
@@ -31,7 +31,7 @@ impl Default for EncodeOptions {
         Self {
             n: 65,
             alpha: Alpha::One,
-            coder: CoderKind::Adaptive,
+            coder: CoderKind::EliasGamma,
         }
     }
 }
@@ -59,7 +59,11 @@ impl Targets<'_> {
 /// Errors if the grid has no valid sample, or if the reconstruction would leave the integer
 /// range (a tolerance far too fine for the heights; [`crate::quant::QuantPlan`] normally refuses
 /// those first).
-pub fn encode(grid: &HeightGrid, quantizer: Quantizer, opts: &EncodeOptions) -> Result<Encoded, CodecError> {
+pub fn encode(
+    grid: &HeightGrid,
+    quantizer: Quantizer,
+    opts: &EncodeOptions,
+) -> Result<Encoded, CodecError> {
     if grid.range().is_none() {
         return Err(CodecError::invalid("the input has no valid sample"));
     }
@@ -110,8 +114,11 @@ pub fn encode(grid: &HeightGrid, quantizer: Quantizer, opts: &EncodeOptions) -> 
             .map(|&id| {
                 let p = grids_of(id);
                 let err = surface_error(&layout, id, &p, grid);
-                let (refined, bytes) = refine_encode(&params, id, &p, |x, y| targets.at(level + 1, x, y))?;
-                let (min, max) = p.iter().fold((i32::MAX, i32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+                let (refined, bytes) =
+                    refine_encode(&params, id, &p, |x, y| targets.at(level + 1, x, y))?;
+                let (min, max) = p
+                    .iter()
+                    .fold((i32::MAX, i32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
                 Ok((id, refined, bytes, err, min, max))
             })
             .collect::<Result<Vec<_>, CodecError>>()?;
@@ -135,14 +142,20 @@ pub fn encode(grid: &HeightGrid, quantizer: Quantizer, opts: &EncodeOptions) -> 
     for level in (0..=finest).rev() {
         for &id in &stored[level as usize] {
             let children = layout.children(id).into_iter().flatten();
-            let e = children.filter_map(|c| saturated.get(&c)).fold(own_error[&id], |a, &b| a.max(b));
+            let e = children
+                .filter_map(|c| saturated.get(&c))
+                .fold(own_error[&id], |a, &b| a.max(b));
             saturated.insert(id, e);
         }
     }
     for r in &mut records {
         r.object_error = saturated[&r.id];
     }
-    let leaf_error = stored[finest as usize].iter().map(|id| own_error[id]).max().unwrap_or(0);
+    let leaf_error = stored[finest as usize]
+        .iter()
+        .map(|id| own_error[id])
+        .max()
+        .unwrap_or(0);
     records.sort_by_key(|r| r.id);
     Ok(Encoded {
         params,
@@ -166,14 +179,24 @@ fn refine_encode(
     let g = layout.grid(id);
     let q = params.quantizer;
     let step = i64::from(q.step());
-    let overflow = || CodecError::invalid("reconstructed heights overflow the integer range; use a larger tolerance");
+    let overflow = || {
+        CodecError::invalid(
+            "reconstructed heights overflow the integer range; use a larger tolerance",
+        )
+    };
     let mut cells = vec![0i32; m * m];
     predict_cells(p, n, &mut cells);
+    for c in &mut cells {
+        *c = clamp_prediction(i64::from(*c)) as i32;
+    }
     let mut dc = vec![0i32; m * m];
     for cj in 0..m {
         for ci in 0..m {
             let (x2, y2) = g.point2(2 * ci as i64 + 1, 2 * cj as i64 + 1);
-            debug_assert!(x2 % 2 == 0 && y2 % 2 == 0, "cell centres of refinable levels are lattice points");
+            debug_assert!(
+                x2 % 2 == 0 && y2 % 2 == 0,
+                "cell centres of refinable levels are lattice points"
+            );
             let k = cj * m + ci;
             if let Some(t) = target(x2 / 2, y2 / 2) {
                 let pred = i64::from(cells[k]);
@@ -195,7 +218,9 @@ fn refine_encode(
             for i in 1..n - 1 {
                 let (x, y) = g.point(i as i64, j as i64);
                 // Eq. 8 with P̃: the decoder never has P, so it predicts 2P̃ − Pred_V(C̃).
-                let pred = 2 * i64::from(p[j * n + i]) - i64::from(predict_vertex(&cells, n, i, j));
+                let pred = clamp_prediction(
+                    2 * i64::from(p[j * n + i]) - i64::from(predict_vertex(&cells, n, i, j)),
+                );
                 let (idx, v) = match target(x, y) {
                     Some(t) => {
                         let idx = q.index(i64::from(t) - pred);
@@ -246,11 +271,16 @@ pub(crate) fn stored_sets(layout: &Layout, grid: &HeightGrid) -> Vec<Vec<Diamond
     }
     let count = |x0: i64, y0: i64, x1: i64, y1: i64| -> u32 {
         let (x0, y0) = (x0.max(0) as usize, y0.max(0) as usize);
-        let (x1, y1) = ((x1 + 1).min(w as i64) as usize, (y1 + 1).min(h as i64) as usize);
+        let (x1, y1) = (
+            (x1 + 1).min(w as i64) as usize,
+            (y1 + 1).min(h as i64) as usize,
+        );
         if x0 >= x1 || y0 >= y1 {
             return 0;
         }
-        sat[y1 * (w + 1) + x1] + sat[y0 * (w + 1) + x0] - sat[y0 * (w + 1) + x1] - sat[y1 * (w + 1) + x0]
+        sat[y1 * (w + 1) + x1] + sat[y0 * (w + 1) + x0]
+            - sat[y0 * (w + 1) + x1]
+            - sat[y1 * (w + 1) + x0]
     };
     let finest = layout.finest_level();
     let r = layout.radius(finest);

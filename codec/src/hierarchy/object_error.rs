@@ -16,7 +16,12 @@ fn interpolate_h(p: &[i32], n: usize, diag: Diagonal, h: i64, is: i64, js: i64) 
     let cj = ((js / h) as usize).min(n - 2);
     let (fx, fy) = (is - ci as i64 * h, js - cj as i64 * h);
     let at = |i: usize, j: usize| i64::from(p[j * n + i]);
-    let (v00, v10, v01, v11) = (at(ci, cj), at(ci + 1, cj), at(ci, cj + 1), at(ci + 1, cj + 1));
+    let (v00, v10, v01, v11) = (
+        at(ci, cj),
+        at(ci + 1, cj),
+        at(ci, cj + 1),
+        at(ci + 1, cj + 1),
+    );
     match diag {
         Diagonal::Main if fx >= fy => v00 * h + (v10 - v00) * fx + (v11 - v10) * fy,
         Diagonal::Main => v00 * h + (v11 - v01) * fx + (v01 - v00) * fy,
@@ -80,7 +85,11 @@ mod tests {
             for j in 0..n {
                 for i in 0..n {
                     let got = interpolate_h(&p, n, diag, h, i as i64 * h, j as i64 * h);
-                    assert_eq!(got, i64::from(p[j * n + i]) * h, "{diag:?} vertex ({i},{j})");
+                    assert_eq!(
+                        got,
+                        i64::from(p[j * n + i]) * h,
+                        "{diag:?} vertex ({i},{j})"
+                    );
                 }
             }
         }

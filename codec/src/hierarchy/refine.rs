@@ -5,7 +5,7 @@ use super::CodecParams;
 use crate::CodecError;
 use crate::entropy::{BandMut, DecodeLimits, decode_bands};
 use crate::geometry::{Diagonal, DiamondId, Half, Layout};
-use crate::lifting::{Alpha, MAX_ABS_HEIGHT, predict_cells, predict_vertex};
+use crate::lifting::{Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_vertex};
 
 /// The level-`l+1` values a refinement produces on a level-`l` diamond's square: its vertices
 /// (`N²`, changed only at inner vertices and only when α = ½) and its cell centres (`(N−1)²`).
@@ -43,7 +43,10 @@ impl Refined {
 pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], out: &mut [i32]) {
     let n = layout.n();
     assert_eq!(out.len(), n * n);
-    assert!(parents.iter().any(Option::is_some), "{id} has no parent to gather from");
+    assert!(
+        parents.iter().any(Option::is_some),
+        "{id} has no parent to gather from"
+    );
     let grid = layout.grid(id);
     let diag = layout.diagonal(id);
     let ids = layout.parents(id);
@@ -64,7 +67,11 @@ pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], ou
                     Diagonal::Anti => i + j == n - 1,
                 };
                 if on_diagonal && !first {
-                    assert_eq!(out[j * n + i], v, "parents of {id} disagree on its diagonal");
+                    assert_eq!(
+                        out[j * n + i],
+                        v,
+                        "parents of {id} disagree on its diagonal"
+                    );
                 }
                 out[j * n + i] = v;
             }
@@ -143,28 +150,33 @@ pub fn refine(
     predict_cells(p, n, &mut cells);
     let mut bad = false;
     for (c, &d) in cells.iter_mut().zip(&scratch.dc) {
-        let v = i64::from(*c) + step * i64::from(d);
+        let v = clamp_prediction(i64::from(*c)) + step * i64::from(d);
         bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
         *c = v as i32;
     }
     // Check before predicting vertices from the cells: out-of-range cells would overflow the
     // filter's i32 numerators.
     if bad {
-        return Err(CodecError::corrupt("record reconstructs heights out of range"));
+        return Err(CodecError::corrupt(
+            "record reconstructs heights out of range",
+        ));
     }
     let mut vertices = p.to_vec();
     if params.alpha == Alpha::Half {
         for j in 1..n - 1 {
             for i in 1..n - 1 {
                 let pred = 2 * i64::from(p[j * n + i]) - i64::from(predict_vertex(&cells, n, i, j));
-                let v = pred + step * i64::from(scratch.dv[(j - 1) * (n - 2) + (i - 1)]);
+                let v = clamp_prediction(pred)
+                    + step * i64::from(scratch.dv[(j - 1) * (n - 2) + (i - 1)]);
                 bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
                 vertices[j * n + i] = v as i32;
             }
         }
     }
     if bad {
-        return Err(CodecError::corrupt("record reconstructs heights out of range"));
+        return Err(CodecError::corrupt(
+            "record reconstructs heights out of range",
+        ));
     }
     Ok(Refined { vertices, cells })
 }

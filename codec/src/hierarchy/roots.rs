@@ -70,7 +70,9 @@ pub(crate) fn encode_roots(
                 None => (0, pred),
             };
             if v.abs() > i64::from(MAX_ABS_HEIGHT) {
-                return Err(CodecError::invalid("root heights overflow the integer range"));
+                return Err(CodecError::invalid(
+                    "root heights overflow the integer range",
+                ));
             }
             idx[y * w + x] = i as i32;
             recon[y * w + x] = v as i32;
@@ -104,7 +106,9 @@ pub(crate) fn decode_roots(params: &CodecParams, bytes: &[u8]) -> Result<Vec<i32
         for x in 0..w {
             let v = med(&recon, w, x, y) + i64::from(idx[y * w + x]) * step;
             if v.abs() > i64::from(MAX_ABS_HEIGHT) {
-                return Err(CodecError::corrupt("root field reconstructs heights out of range"));
+                return Err(CodecError::corrupt(
+                    "root field reconstructs heights out of range",
+                ));
             }
             recon[y * w + x] = v as i32;
         }
