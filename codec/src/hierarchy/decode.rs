@@ -88,34 +88,24 @@ impl VerifyReport {
     }
 }
 
-/// Decodes the whole hierarchy and compares every reconstructed vertex of every level with the
-/// filtered data of that level (the input itself for α = 1 and at the finest level).
-///
-/// Corrupt records are errors; a bound violation is reported, not an error, so callers can say
-/// by how much.
-pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, CodecError> {
+/// Decodes the whole hierarchy coarse to fine and hands every diamond's reconstructed grid to
+/// `visit`: the stored diamonds of each level, then the finest diamonds all of whose existing
+/// parents are stored. Single-threaded and in level order, like a renderer that refines all.
+pub fn walk(encoded: &Encoded, mut visit: impl FnMut(DiamondId, &[i32])) -> Result<(), CodecError> {
     let params = encoded.params;
     let layout = params.layout;
     let decoder = Decoder::new(params, &encoded.roots)?;
-    let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(&layout, input));
-    let n = layout.n();
     let finest = layout.finest_level();
     let mut by_level: Vec<Vec<(DiamondId, &[u8])>> = vec![Vec::new(); finest as usize + 1];
     for r in &encoded.records {
         if r.id.level >= finest || !layout.contains(r.id) {
-            return Err(CodecError::corrupt(format!(
-                "record for impossible diamond {}",
-                r.id
-            )));
+            return Err(CodecError::corrupt(format!("record for impossible diamond {}", r.id)));
         }
         by_level[r.id.level as usize].push((r.id, &r.bytes));
     }
-    let mut levels = Vec::new();
     let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
     let mut scratch = RefineScratch::default();
     for level in 0..=finest {
-        // The diamonds whose grids exist at this level: the records', plus at the finest level
-        // every child all of whose existing parents were refined.
         let mut ids: Vec<DiamondId> = by_level[level as usize].iter().map(|(id, _)| *id).collect();
         if finest == 0 {
             // A single level: the roots are the leaves, and there are no records.
@@ -125,59 +115,90 @@ pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, Cod
                 .keys()
                 .flat_map(|&p| layout.children(p))
                 .flatten()
-                .filter(|&c| {
-                    layout
-                        .parents(c)
-                        .into_iter()
-                        .flatten()
-                        .all(|p| prev.contains_key(&p))
-                })
+                .filter(|&c| layout.parents(c).into_iter().flatten().all(|p| prev.contains_key(&p)))
                 .collect();
             leaves.sort();
             leaves.dedup();
             ids = leaves;
         }
-        let mut report = LevelReport {
-            level,
-            diamonds: 0,
-            vertices: 0,
-            max_error: 0,
-        };
         let mut next = HashMap::new();
         let records: HashMap<DiamondId, &[u8]> = by_level[level as usize].iter().copied().collect();
         for id in ids {
-            let parents = layout.parents(id).map(|p| p.and_then(|p| prev.get(&p)));
-            if level > 0
-                && layout
-                    .parents(id)
-                    .iter()
-                    .zip(&parents)
-                    .any(|(id, r)| id.is_some() && r.is_none())
-            {
-                return Err(CodecError::corrupt(format!(
-                    "{id} is stored but a parent is not"
-                )));
+            let parent_ids = layout.parents(id);
+            let parents = parent_ids.map(|p| p.and_then(|p| prev.get(&p)));
+            if level > 0 && parent_ids.iter().zip(&parents).any(|(id, r)| id.is_some() && r.is_none()) {
+                return Err(CodecError::corrupt(format!("{id} is stored but a parent is not")));
             }
             let p = decoder.grid_of(id, parents);
-            let g = layout.grid(id);
-            report.diamonds += 1;
-            for j in 0..n {
-                for i in 0..n {
-                    let (x, y) = g.point(i as i64, j as i64);
-                    let Some(v) = input.get(x, y) else { continue };
-                    let want = fields.as_ref().map_or(v, |f| f[level as usize].get(x, y));
-                    let e = (i64::from(p[j * n + i]) - i64::from(want)).unsigned_abs();
-                    report.max_error = report.max_error.max(u32::try_from(e).unwrap_or(u32::MAX));
-                    report.vertices += 1;
-                }
-            }
+            visit(id, &p);
             if let Some(bytes) = records.get(&id) {
                 next.insert(id, decoder.refine(&p, bytes, &mut scratch)?);
             }
         }
         prev = next;
-        levels.push(report);
     }
+    Ok(())
+}
+
+/// Decodes the finest level onto the input's grid (`data_width × data_height`, row-major):
+/// within the bound of every valid sample, unconstrained elsewhere.
+pub fn reconstruct_finest(encoded: &Encoded) -> Result<Vec<i32>, CodecError> {
+    let params = encoded.params;
+    let layout = params.layout;
+    let (w, h) = (params.data_width as usize, params.data_height as usize);
+    let mut out = vec![0i32; w * h];
+    let n = layout.n();
+    let finest = layout.finest_level();
+    walk(encoded, |id, p| {
+        if id.level != finest {
+            return;
+        }
+        let g = layout.grid(id);
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = g.point(i as i64, j as i64);
+                if params.in_data(x, y) {
+                    out[y as usize * w + x as usize] = p[j * n + i];
+                }
+            }
+        }
+    })?;
+    Ok(out)
+}
+
+/// Decodes the whole hierarchy and compares every reconstructed vertex of every level with the
+/// filtered data of that level (the input itself for α = 1 and at the finest level).
+///
+/// Corrupt records are errors; a bound violation is reported, not an error, so callers can say
+/// by how much.
+pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, CodecError> {
+    let params = encoded.params;
+    let layout = params.layout;
+    let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(&layout, input));
+    let n = layout.n();
+    let mut levels: Vec<LevelReport> = (0..=layout.finest_level())
+        .map(|level| LevelReport {
+            level,
+            diamonds: 0,
+            vertices: 0,
+            max_error: 0,
+        })
+        .collect();
+    walk(encoded, |id, p| {
+        let report = &mut levels[id.level as usize];
+        let g = layout.grid(id);
+        report.diamonds += 1;
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = g.point(i as i64, j as i64);
+                let Some(v) = input.get(x, y) else { continue };
+                let want = fields.as_ref().map_or(v, |f| f[id.level as usize].get(x, y));
+                let e = (i64::from(p[j * n + i]) - i64::from(want)).unsigned_abs();
+                report.max_error = report.max_error.max(u32::try_from(e).unwrap_or(u32::MAX));
+                report.vertices += 1;
+            }
+        }
+    })?;
     Ok(VerifyReport {
         levels,
         bound: params.quantizer.k() as u32,

@@ -19,7 +19,7 @@ mod refine;
 mod roots;
 
 pub use analysis::{LevelField, analysis_fields};
-pub use decode::{Decoder, LevelReport, VerifyReport, verify};
+pub use decode::{Decoder, LevelReport, VerifyReport, reconstruct_finest, verify, walk};
 pub use encode::{EncodeOptions, encode};
 pub use refine::{RefineScratch, Refined, gather, refine};
 pub use roots::root_field_dims;
