@@ -574,6 +574,24 @@ fn tiff_geokeys_and_gdal_nodata() {
     assert!(!g.pixel_is_area);
 }
 
+#[test]
+fn tiff_float32_lowest_nodata_written_by_gdal() {
+    // GDAL writes f32::MIN as "-3.402823e+38", which parses to a double that is not f32::MIN.
+    let dir = TempDir::new().unwrap();
+    let data = [f32::MIN, 1.0, 2.5, f32::MIN];
+    let mut out = Cursor::new(Vec::new());
+    let mut enc = TiffEncoder::new(&mut out).unwrap();
+    let mut img = enc.new_image::<colortype::Gray32Float>(2, 2).unwrap();
+    img.encoder()
+        .write_tag(Tag::GdalNodata, "-3.402823e+38")
+        .unwrap();
+    img.write_data(&data).unwrap();
+    let dem = read(&write(&dir, "lowest.tif", &out.into_inner())).unwrap();
+    assert_eq!(dem.nodata, Some(f64::from(f32::MIN)));
+    assert_eq!(dem.valid_count(), 2);
+    assert_eq!(detect_quantum(&dem), Some(0.5));
+}
+
 /// Finds IFD entry `tag` in a little-endian classic TIFF and overwrites its inline SHORT value,
 /// to make files the encoder refuses to write.
 fn patch_short_tag(bytes: &mut [u8], tag: u16, value: u16) {
