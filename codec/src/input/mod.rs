@@ -1,1 +1,263 @@
-//! DEM input readers (being written).
+//! Reading digital elevation models from the formats terrain usually comes in.
+//!
+//! Every reader produces the same [`Dem`]: a north-up, row-major grid of `f64` heights that are
+//! exact copies of what the file stores, with the file's nodata value and georeferencing when it
+//! has them. Deciding what to do with nodata or NaN samples, empty grids or odd sizes is left to
+//! the builder; the readers only refuse inputs they cannot read faithfully.
+
+mod ascii_grid;
+mod geotiff;
+mod hgt;
+mod png;
+mod quantum;
+mod raw;
+
+use std::path::Path;
+
+use crate::CodecError;
+
+pub use quantum::detect_quantum;
+
+/// The numeric type a DEM's samples were stored as.
+///
+/// Integer types mean every sample is an exact integer; the float types say which precision the
+/// values were rounded to, which is what [`detect_quantum`] has to respect.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleType {
+    /// Signed 8-bit integers.
+    I8,
+    /// Unsigned 8-bit integers.
+    U8,
+    /// Signed 16-bit integers (SRTM, most national DEMs).
+    I16,
+    /// Unsigned 16-bit integers.
+    U16,
+    /// Signed 32-bit integers.
+    I32,
+    /// Unsigned 32-bit integers.
+    U32,
+    /// IEEE single precision.
+    F32,
+    /// IEEE double precision; also used for heights derived from integer codes by a scale, whose
+    /// exactly-rounded decimal value only an `f64` holds.
+    F64,
+}
+
+impl SampleType {
+    /// Whether every sample of this type is an integer.
+    pub fn is_integer(self) -> bool {
+        !matches!(self, Self::F32 | Self::F64)
+    }
+}
+
+/// Where a DEM lies: an axis-aligned grid in some coordinate reference system.
+///
+/// `(origin_x, origin_y)` are the model coordinates of raster point (0, 0): the outer corner of
+/// the north-west sample when `pixel_is_area`, its centre otherwise. Column `c`, row `r` lies at
+/// `(origin_x + c * pixel_x, origin_y - r * pixel_y)`, i.e. rows run south for positive `pixel_y`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GeoRef {
+    /// EPSG code of the coordinate reference system, when the file names one.
+    pub epsg: Option<u32>,
+    /// Model x (easting or longitude) of raster point (0, 0).
+    pub origin_x: f64,
+    /// Model y (northing or latitude) of raster point (0, 0).
+    pub origin_y: f64,
+    /// Sample spacing along x.
+    pub pixel_x: f64,
+    /// Sample spacing along y, positive when rows run south.
+    pub pixel_y: f64,
+    /// True when a sample stands for a cell (GeoTIFF `PixelIsArea`), false when it is a point
+    /// measurement at the cell centre (`PixelIsPoint`, SRTM `.hgt`).
+    pub pixel_is_area: bool,
+}
+
+/// A digital elevation model as read from a file.
+#[derive(Clone, Debug)]
+pub struct Dem {
+    /// Number of columns.
+    pub width: usize,
+    /// Number of rows.
+    pub height: usize,
+    /// Row-major heights, row 0 = north edge; exact copies of the stored samples.
+    pub values: Vec<f64>,
+    /// The type the samples were stored as.
+    pub sample_type: SampleType,
+    /// The value that marks a missing sample, from the file or [`ReadOptions::nodata`].
+    pub nodata: Option<f64>,
+    /// Georeferencing, when the file carries it.
+    pub georef: Option<GeoRef>,
+}
+
+impl Dem {
+    /// Whether sample `i` holds a height: it is neither the nodata value nor NaN.
+    pub fn is_valid(&self, i: usize) -> bool {
+        let v = self.values[i];
+        !v.is_nan() && self.nodata != Some(v)
+    }
+
+    /// Number of samples that hold a height.
+    pub fn valid_count(&self) -> usize {
+        (0..self.values.len()).filter(|&i| self.is_valid(i)).count()
+    }
+}
+
+/// The file formats [`read_dem`] understands.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Format {
+    /// GeoTIFF or plain TIFF, classic or BigTIFF, single band.
+    GeoTiff,
+    /// 16-bit grayscale PNG holding `offset + scale * value`.
+    Png16 {
+        /// Height units per stored count.
+        scale: f64,
+        /// Height of a stored zero.
+        offset: f64,
+    },
+    /// Mapbox Terrain-RGB PNG: `-10000 + 0.1 * (R * 65536 + G * 256 + B)`.
+    TerrainRgb,
+    /// SRTM `.hgt` tile: big-endian `i16`, 1201 or 3601 samples square.
+    Hgt,
+    /// ESRI ASCII grid (`.asc`).
+    AsciiGrid,
+    /// Headerless little-endian `f32`, row-major, north-up.
+    RawF32 {
+        /// Number of columns.
+        width: usize,
+        /// Number of rows.
+        height: usize,
+    },
+}
+
+/// Resource bounds, checked against the declared size of an input before anything is allocated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest number of samples (width × height) a file may declare.
+    pub max_samples: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        // 2^32 samples is a 65536² grid, already far more than fits in memory as f64 on most
+        // machines; on 32-bit targets the address space is the tighter bound anyway.
+        Self {
+            max_samples: usize::try_from(1u64 << 32).unwrap_or(usize::MAX),
+        }
+    }
+}
+
+impl Limits {
+    /// Checks a declared `width × height` against the bound, overflow included.
+    pub fn check(&self, width: usize, height: usize) -> Result<usize, CodecError> {
+        match width.checked_mul(height) {
+            Some(n) if n <= self.max_samples => Ok(n),
+            _ => Err(CodecError::limit(format!(
+                "DEM of {width} x {height} samples exceeds the limit of {} samples",
+                self.max_samples
+            ))),
+        }
+    }
+}
+
+/// How [`read_dem`] should read a file.
+#[derive(Clone, Debug, Default)]
+pub struct ReadOptions {
+    /// The file's format; `None` detects it from the extension, then from the leading bytes.
+    pub format: Option<Format>,
+    /// Nodata value to use instead of the file's own.
+    pub nodata: Option<f64>,
+    /// Resource bounds.
+    pub limits: Limits,
+}
+
+/// Reads a DEM from `path`.
+///
+/// # Errors
+/// [`CodecError::Io`] when the file cannot be read, [`CodecError::Truncated`] /
+/// [`CodecError::Corrupt`] for damaged files, [`CodecError::Unsupported`] for well-formed files
+/// using a feature no reader here implements (the message names it),
+/// [`CodecError::LimitExceeded`] when the declared size exceeds [`Limits::max_samples`] and
+/// [`CodecError::InvalidParameter`] when the format cannot be determined or the given format
+/// does not fit the file.
+pub fn read_dem(path: &Path, opts: &ReadOptions) -> Result<Dem, CodecError> {
+    let format = match opts.format {
+        Some(f) => f,
+        None => detect_format(path)?,
+    };
+    let mut dem = match format {
+        Format::GeoTiff => geotiff::read(path, &opts.limits)?,
+        Format::Png16 { scale, offset } => png::read_png16(path, scale, offset, &opts.limits)?,
+        Format::TerrainRgb => png::read_terrain_rgb(path, &opts.limits)?,
+        Format::Hgt => hgt::read(path, &opts.limits)?,
+        Format::AsciiGrid => ascii_grid::read(path, &opts.limits)?,
+        Format::RawF32 { width, height } => raw::read_f32(path, width, height, &opts.limits)?,
+    };
+    if opts.nodata.is_some() {
+        dem.nodata = opts.nodata;
+    }
+    Ok(dem)
+}
+
+/// Picks a format from the file name, falling back to the leading bytes when the extension is
+/// unknown, so that e.g. a GeoTIFF saved without extension still reads.
+fn detect_format(path: &Path) -> Result<Format, CodecError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("tif" | "tiff" | "gtif" | "gtiff") => return Ok(Format::GeoTiff),
+        Some("hgt") => return Ok(Format::Hgt),
+        Some("asc") => return Ok(Format::AsciiGrid),
+        Some("png") => return png::detect(path),
+        Some("raw" | "f32" | "bin") => {
+            return Err(CodecError::invalid(format!(
+                "{}: raw float32 files carry no size; pass Format::RawF32 {{ width, height }}",
+                path.display()
+            )));
+        }
+        _ => {}
+    }
+    let mut head = [0u8; 16];
+    let n = read_prefix(path, &mut head)?;
+    let head = &head[..n];
+    if head.starts_with(b"II*\0")
+        || head.starts_with(b"MM\0*")
+        || head.starts_with(b"II+\0")
+        || head.starts_with(b"MM\0+")
+    {
+        return Ok(Format::GeoTiff);
+    }
+    if head.starts_with(b"\x89PNG\r\n\x1a\n") {
+        return png::detect(path);
+    }
+    let text = String::from_utf8_lossy(head);
+    if text.trim_start().to_ascii_lowercase().starts_with("ncols") {
+        return Ok(Format::AsciiGrid);
+    }
+    Err(CodecError::invalid(format!(
+        "{}: cannot tell the DEM format from the extension {} or the contents; set \
+         ReadOptions::format",
+        path.display(),
+        ext.map_or_else(|| "(none)".to_string(), |e| format!("'.{e}'"))
+    )))
+}
+
+/// Reads up to `buf.len()` leading bytes; fewer only at end of file.
+fn read_prefix(path: &Path, buf: &mut [u8]) -> Result<usize, CodecError> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path)?;
+    let mut n = 0;
+    while n < buf.len() {
+        match f.read(&mut buf[n..])? {
+            0 => break,
+            k => n += k,
+        }
+    }
+    Ok(n)
+}
+
+/// The length of the file at `path`, in bytes.
+fn file_len(path: &Path) -> Result<u64, CodecError> {
+    Ok(std::fs::metadata(path)?.len())
+}

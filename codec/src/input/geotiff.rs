@@ -1,0 +1,341 @@
+//! GeoTIFF through the `tiff` crate, plus the GeoTIFF and GDAL tags it leaves to us.
+//!
+//! `tiff` 0.11 decodes strips and tiles, classic TIFF and BigTIFF, the horizontal predictor and
+//! the floating-point predictor (predictor 3, including the padded edge tiles where the predictor
+//! shuffles padding bytes into the row). What it does not do is refuse what a DEM reader must
+//! refuse, so the tags are checked here first: anything but a single band of 8/16/32-bit
+//! integers or 32/64-bit floats, compressed with none, LZW, Deflate or PackBits, is reported as
+//! unsupported by name rather than decoded into something that is not a height field. Predictor
+//! codes other than 1-3 exist in no specification; the crate refuses them when opening, as corrupt.
+
+use std::fs::File;
+use std::io::{BufReader, ErrorKind};
+use std::path::Path;
+
+use tiff::decoder::{Decoder, DecodingResult};
+use tiff::tags::Tag;
+use tiff::{TiffError, TiffUnsupportedError};
+
+use super::{Dem, GeoRef, Limits, SampleType};
+use crate::CodecError;
+
+const KEY_RASTER_TYPE: u16 = 1025;
+const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
+const KEY_PROJECTED_CS_TYPE: u16 = 3072;
+const RASTER_PIXEL_IS_POINT: u16 = 2;
+/// GeoTIFF's "user-defined" code: the CRS is spelled out in other keys, not an EPSG code.
+const USER_DEFINED: u16 = 32767;
+
+pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
+    let file_len = super::file_len(path)?;
+    let file = BufReader::new(File::open(path)?);
+    let mut dec = Decoder::new(file).map_err(tiff_err)?;
+    let (w, h) = dec.dimensions().map_err(tiff_err)?;
+    let (width, height) = (w as usize, h as usize);
+    let n = limits.check(width, height)?;
+
+    let sample_type = check_layout(&mut dec)?;
+    check_chunks_in_file(&mut dec, file_len)?;
+
+    // Our own bound was checked above; the crate's default 256 MiB buffer limit would only
+    // refuse legitimate large DEMs.
+    let mut tl = tiff::decoder::Limits::default();
+    tl.decoding_buffer_size = n.saturating_mul(8).max(tl.decoding_buffer_size);
+    tl.intermediate_buffer_size = usize::MAX;
+    tl.ifd_value_size = 64 << 20;
+    let mut dec = dec.with_limits(tl);
+
+    let nodata = read_nodata(&mut dec)?.map(|v| fit_nodata(v, sample_type));
+    let georef = read_georef(&mut dec)?;
+
+    let values: Vec<f64> = match dec.read_image().map_err(tiff_err)? {
+        DecodingResult::I8(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::U8(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::I16(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::U16(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::I32(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::U32(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
+        DecodingResult::F64(v) => v,
+        _ => {
+            return Err(CodecError::unsupported(
+                "TIFF sample type beyond 32-bit integers is not supported",
+            ));
+        }
+    };
+    if values.len() != n {
+        return Err(CodecError::corrupt(format!(
+            "TIFF decoded {} samples for a {width} x {height} image",
+            values.len()
+        )));
+    }
+    Ok(Dem {
+        width,
+        height,
+        values,
+        sample_type,
+        nodata,
+        georef,
+    })
+}
+
+/// Refuses everything that is not one band of a plain numeric type, naming what was found.
+fn check_layout<R: std::io::Read + std::io::Seek>(
+    dec: &mut Decoder<R>,
+) -> Result<SampleType, CodecError> {
+    let samples: u16 = dec
+        .find_tag_unsigned(Tag::SamplesPerPixel)
+        .map_err(tiff_err)?
+        .unwrap_or(1);
+    if samples != 1 {
+        return Err(CodecError::unsupported(format!(
+            "TIFF with {samples} bands (SamplesPerPixel) is not supported; a DEM must have one band"
+        )));
+    }
+
+    let compression: u16 = dec
+        .find_tag_unsigned(Tag::Compression)
+        .map_err(tiff_err)?
+        .unwrap_or(1);
+    // JPEG and the fax codings are lossy or bilevel: decoding them would hand back something
+    // that is not the stored height field, even though the `tiff` crate could.
+    if !matches!(compression, 1 | 5 | 8 | 32946 | 32773) {
+        return Err(CodecError::unsupported(format!(
+            "TIFF compression {} ({compression}) is not supported (supported: none, LZW, \
+             Deflate, PackBits)",
+            compression_name(compression)
+        )));
+    }
+
+    let photometric: Option<u16> = dec
+        .find_tag_unsigned(Tag::PhotometricInterpretation)
+        .map_err(tiff_err)?;
+    // The `tiff` crate "inverts" WhiteIsZero images (1.0 - v for floats), which would silently
+    // change heights; GDAL ignores the tag for data values, but guessing wrong is worse than
+    // refusing.
+    if photometric == Some(0) {
+        return Err(CodecError::unsupported(
+            "TIFF photometric interpretation WhiteIsZero (0) is not supported for DEMs",
+        ));
+    }
+
+    let bits: u16 = dec
+        .find_tag_unsigned(Tag::BitsPerSample)
+        .map_err(tiff_err)?
+        .unwrap_or(1);
+    let format: u16 = dec
+        .find_tag_unsigned(Tag::SampleFormat)
+        .map_err(tiff_err)?
+        .unwrap_or(1);
+    Ok(match (format, bits) {
+        (1, 8) => SampleType::U8,
+        (1, 16) => SampleType::U16,
+        (1, 32) => SampleType::U32,
+        (2, 8) => SampleType::I8,
+        (2, 16) => SampleType::I16,
+        (2, 32) => SampleType::I32,
+        (3, 32) => SampleType::F32,
+        (3, 64) => SampleType::F64,
+        _ => {
+            let kind = match format {
+                1 => "unsigned integer",
+                2 => "signed integer",
+                3 => "floating point",
+                4 => "untyped (void)",
+                5 => "complex integer",
+                6 => "complex floating point",
+                _ => "unknown",
+            };
+            return Err(CodecError::unsupported(format!(
+                "TIFF sample format {bits}-bit {kind} (SampleFormat {format}) is not supported \
+                 (supported: 8/16/32-bit integers, 32/64-bit floats)"
+            )));
+        }
+    })
+}
+
+fn compression_name(code: u16) -> &'static str {
+    match code {
+        2 => "CCITT RLE",
+        3 => "CCITT Group 3 fax",
+        4 => "CCITT Group 4 fax",
+        6 => "old-style JPEG",
+        7 => "JPEG",
+        34661 => "JBIG",
+        34712 => "JPEG 2000",
+        34887 => "LERC",
+        34925 => "LZMA",
+        50000 => "Zstandard",
+        50001 => "WebP",
+        50002 => "JPEG XL",
+        _ => "unknown",
+    }
+}
+
+/// A strip or tile reaching past the end of the file is the usual sign of an interrupted
+/// download; saying so beats the decompressor's "unexpected end of stream" in the middle of it.
+fn check_chunks_in_file<R: std::io::Read + std::io::Seek>(
+    dec: &mut Decoder<R>,
+    file_len: u64,
+) -> Result<(), CodecError> {
+    let tiled = dec.find_tag(Tag::TileOffsets).map_err(tiff_err)?.is_some();
+    let (offsets_tag, counts_tag, what) = if tiled {
+        (Tag::TileOffsets, Tag::TileByteCounts, "tile")
+    } else {
+        (Tag::StripOffsets, Tag::StripByteCounts, "strip")
+    };
+    let offsets: Vec<u64> = dec
+        .find_tag_unsigned_vec(offsets_tag)
+        .map_err(tiff_err)?
+        .unwrap_or_default();
+    let counts: Vec<u64> = dec
+        .find_tag_unsigned_vec(counts_tag)
+        .map_err(tiff_err)?
+        .unwrap_or_default();
+    for (i, (&off, &len)) in offsets.iter().zip(&counts).enumerate() {
+        let end = off.saturating_add(len);
+        if end > file_len {
+            return Err(CodecError::truncated(format!(
+                "TIFF {what} {i} ends at byte {end} but the file has only {file_len} bytes"
+            )));
+        }
+    }
+    Ok(())
+}
+
+fn read_nodata<R: std::io::Read + std::io::Seek>(
+    dec: &mut Decoder<R>,
+) -> Result<Option<f64>, CodecError> {
+    let Some(value) = dec.find_tag(Tag::GdalNodata).map_err(tiff_err)? else {
+        return Ok(None);
+    };
+    let text = value
+        .into_string()
+        .map_err(|_| CodecError::corrupt("TIFF GDAL_NODATA tag is not ASCII"))?;
+    let text = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+    text.parse::<f64>()
+        .map(Some)
+        .map_err(|_| CodecError::corrupt(format!("TIFF GDAL_NODATA tag '{text}' is not a number")))
+}
+
+/// GDAL writes the nodata tag as decimal text, which need not round-trip to the band's type:
+/// the common float32 "lowest value" is written as `-3.402823e+38`, seven digits, which is not
+/// `f32::MIN`. Like GDAL, snap near-±`f32::MAX` to it and round other float32 nodata to `f32`, so
+/// that comparing samples with the nodata value finds the samples the writer meant.
+fn fit_nodata(v: f64, ty: SampleType) -> f64 {
+    if ty != SampleType::F32 || !v.is_finite() {
+        return v;
+    }
+    let max = f64::from(f32::MAX);
+    if (v.abs() - max).abs() <= max * 1e-6 {
+        v.signum() * max
+    } else {
+        f64::from(v as f32)
+    }
+}
+
+fn read_georef<R: std::io::Read + std::io::Seek>(
+    dec: &mut Decoder<R>,
+) -> Result<Option<GeoRef>, CodecError> {
+    let f64s = |dec: &mut Decoder<R>, tag: Tag| -> Result<Option<Vec<f64>>, CodecError> {
+        match dec.find_tag(tag).map_err(tiff_err)? {
+            None => Ok(None),
+            Some(v) => v.into_f64_vec().map(Some).map_err(|_| {
+                CodecError::corrupt(format!("GeoTIFF tag {tag:?} does not hold doubles"))
+            }),
+        }
+    };
+    let scale = f64s(dec, Tag::ModelPixelScaleTag)?;
+    let tiepoint = f64s(dec, Tag::ModelTiepointTag)?;
+    let transform = f64s(dec, Tag::ModelTransformationTag)?;
+    let keys: Option<Vec<u16>> = match dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(tiff_err)? {
+        None => None,
+        Some(v) => Some(
+            v.into_u16_vec()
+                .map_err(|_| CodecError::corrupt("GeoKeyDirectoryTag does not hold shorts"))?,
+        ),
+    };
+
+    let (origin_x, origin_y, pixel_x, pixel_y) = match (scale, tiepoint, transform) {
+        (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => {
+            // The tiepoint ties raster point (i, j) to model (x, y); move it back to (0, 0).
+            let (i, j, x, y) = (t[0], t[1], t[3], t[4]);
+            (x - i * s[0], y + j * s[1], s[0], s[1])
+        }
+        (_, _, Some(m)) if m.len() >= 16 => {
+            if m[1] != 0.0 || m[4] != 0.0 {
+                return Err(CodecError::unsupported(
+                    "GeoTIFF ModelTransformationTag with rotation or shear is not supported",
+                ));
+            }
+            (m[3], m[7], m[0], -m[5])
+        }
+        _ => return Ok(None),
+    };
+
+    let mut epsg = None;
+    let mut geographic = None;
+    let mut pixel_is_area = true;
+    if let Some(keys) = keys {
+        if keys.len() < 4 {
+            return Err(CodecError::corrupt(
+                "GeoKeyDirectoryTag shorter than its header",
+            ));
+        }
+        let count = keys[3] as usize;
+        let entries = keys[4..].chunks_exact(4).take(count);
+        if entries.len() < count {
+            return Err(CodecError::corrupt(format!(
+                "GeoKeyDirectoryTag declares {count} keys but holds {}",
+                (keys.len() - 4) / 4
+            )));
+        }
+        for e in entries {
+            // Location 0 means the value is the short itself; the keys we want are all shorts.
+            let (key, location, value) = (e[0], e[1], e[3]);
+            if location != 0 {
+                continue;
+            }
+            match key {
+                KEY_RASTER_TYPE => pixel_is_area = value != RASTER_PIXEL_IS_POINT,
+                KEY_PROJECTED_CS_TYPE if value != 0 && value != USER_DEFINED => {
+                    epsg = Some(u32::from(value));
+                }
+                KEY_GEOGRAPHIC_TYPE if value != 0 && value != USER_DEFINED => {
+                    geographic = Some(u32::from(value));
+                }
+                _ => {}
+            }
+        }
+    }
+    // A projected CRS also names the datum's geographic CRS; the projected one is where the
+    // grid's coordinates live.
+    Ok(Some(GeoRef {
+        epsg: epsg.or(geographic),
+        origin_x,
+        origin_y,
+        pixel_x,
+        pixel_y,
+        pixel_is_area,
+    }))
+}
+
+fn tiff_err(e: TiffError) -> CodecError {
+    match e {
+        TiffError::IoError(io) if io.kind() == ErrorKind::UnexpectedEof => {
+            CodecError::truncated(format!("TIFF ends early: {io}"))
+        }
+        TiffError::IoError(io) if io.kind() == ErrorKind::InvalidData => {
+            CodecError::corrupt(format!("TIFF data: {io}"))
+        }
+        TiffError::IoError(io) => CodecError::Io(io),
+        TiffError::FormatError(f) => CodecError::corrupt(format!("TIFF: {f}")),
+        TiffError::UnsupportedError(u) => unsupported(u),
+        TiffError::LimitsExceeded => CodecError::limit("TIFF decoder limits exceeded"),
+        other => CodecError::corrupt(format!("TIFF: {other}")),
+    }
+}
+
+fn unsupported(u: TiffUnsupportedError) -> CodecError {
+    CodecError::unsupported(format!("TIFF feature: {u}"))
+}
