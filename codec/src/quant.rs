@@ -14,6 +14,7 @@
 //! tests check exactly in integers.
 
 use crate::CodecError;
+use crate::input::{Dem, detect_quantum};
 use crate::lifting::{MAX_ABS_HEIGHT, PREDICTION_LIMIT};
 
 /// Largest magnitude of an input height in units: no larger than the clamp on predictions, so a
@@ -137,6 +138,22 @@ impl QuantPlan {
         })
     }
 
+    /// Plans for a DEM: its valid height range, and its value quantum — `quantum` if given,
+    /// otherwise the one [`detect_quantum`] finds (none for float data off any grid).
+    pub fn for_dem(dem: &Dem, epsilon: f64, quantum: Option<f64>) -> Result<Self, CodecError> {
+        let (lo, hi) = (0..dem.values.len())
+            .filter(|&i| dem.is_valid(i))
+            .map(|i| dem.values[i])
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        if lo > hi {
+            return Err(CodecError::invalid("the input has no valid sample (all nodata or NaN)"));
+        }
+        if !(lo.is_finite() && hi.is_finite()) {
+            return Err(CodecError::invalid("the input holds infinite heights"));
+        }
+        Self::new(epsilon, quantum.or_else(|| detect_quantum(dem)), lo, hi)
+    }
+
     /// The guaranteed bound, metres: `k·u`, plus `u/2` of pre-quantization for float input.
     pub fn max_error(&self) -> f64 {
         let k = f64::from(self.quantizer.k()) * self.unit;
@@ -233,6 +250,11 @@ impl HeightGrid {
             values,
             valid,
         })
+    }
+
+    /// Converts a DEM under `plan` (see [`QuantPlan::for_dem`]).
+    pub fn from_dem(dem: &Dem, plan: &QuantPlan) -> Result<Self, CodecError> {
+        Self::from_metres(dem.width, dem.height, &dem.values, dem.nodata, plan)
     }
 
     /// A grid whose samples are all valid.
