@@ -98,7 +98,9 @@ impl Default for DecodeLimits {
     fn default() -> Self {
         // Encoders never write more than this (values are i32 and we keep a bit of headroom);
         // the decoder rejects anything larger as corrupt.
-        Self { max_abs: (1 << 30) - 1 }
+        Self {
+            max_abs: (1 << 30) - 1,
+        }
     }
 }
 
@@ -139,7 +141,9 @@ pub fn decode_bands(
             )));
         }
         if b.values.len() != b.width * b.height {
-            return Err(CodecError::invalid("band buffer does not match its width × height"));
+            return Err(CodecError::invalid(
+                "band buffer does not match its width × height",
+            ));
         }
     }
     match kind {
