@@ -268,6 +268,10 @@ fn code_node<C: BinCoder>(
     nz
 }
 
+/// A decoded magnitude above the limit. Kept tiny so the per-coefficient result stays in
+/// registers; [`CodecError`] is built only once, outside the loop.
+struct TooLarge(u32);
+
 /// Codes one coefficient; `v` is the value to write (ignored when decoding).
 #[inline(always)]
 fn code_coeff<C: BinCoder>(
@@ -277,7 +281,7 @@ fn code_coeff<C: BinCoder>(
     border: usize,
     v: i32,
     max_abs: u32,
-) -> Result<i32, CodecError> {
+) -> Result<i32, TooLarge> {
     if !c.bit(&mut m.zero[class * 2 + border], v != 0) {
         return Ok(0);
     }
@@ -304,9 +308,7 @@ fn code_coeff<C: BinCoder>(
         }
     }
     if mag > max_abs {
-        return Err(CodecError::corrupt(format!(
-            "adaptive: magnitude {mag} exceeds the limit {max_abs}"
-        )));
+        return Err(TooLarge(mag));
     }
     Ok(if neg { -(mag as i32) } else { mag as i32 })
 }
@@ -347,7 +349,13 @@ fn code_band<C: BinCoder>(
                     + u32::from(mag[j - stride - 1])
                     + u32::from(mag[j - stride + 1]);
                 let border = row_border | (x < 2 || x + 2 >= w) as usize;
-                let v = code_coeff(c, m, class_of(sum), border, *r, max_abs)?;
+                let v = code_coeff(c, m, class_of(sum), border, *r, max_abs).map_err(
+                    |TooLarge(a)| {
+                        CodecError::corrupt(format!(
+                            "adaptive: magnitude {a} exceeds the limit {max_abs}"
+                        ))
+                    },
+                )?;
                 *r = v;
                 mag[j] = v.unsigned_abs().min(MAG_SAT) as u16;
             }
