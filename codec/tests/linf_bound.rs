@@ -146,7 +146,7 @@ fn check(
 
 fn both_coders_and_alphas(n: usize) -> Vec<EncodeOptions> {
     let mut v = Vec::new();
-    for coder in [CoderKind::EliasGamma] {
+    for coder in CoderKind::ALL {
         for alpha in [Alpha::One, Alpha::Half] {
             v.push(EncodeOptions { n, alpha, coder });
         }
@@ -242,7 +242,7 @@ proptest! {
         let opts = EncodeOptions {
             n: (1 << n_pow) + 1,
             alpha: if half { Alpha::Half } else { Alpha::One },
-            coder: if gamma { CoderKind::EliasGamma } else { CoderKind::EliasGamma },
+            coder: if gamma { CoderKind::EliasGamma } else { CoderKind::Adaptive },
         };
         check(field, w, h, seed, eps, lattice.then_some(1.0), opts);
     }

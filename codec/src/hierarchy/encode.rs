@@ -31,7 +31,7 @@ impl Default for EncodeOptions {
         Self {
             n: 65,
             alpha: Alpha::One,
-            coder: CoderKind::EliasGamma,
+            coder: CoderKind::Adaptive,
         }
     }
 }
