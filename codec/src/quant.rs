@@ -67,8 +67,12 @@ pub struct QuantPlan {
     pub offset: f64,
     /// Residual quantizer.
     pub quantizer: Quantizer,
-    /// Whether the input lies exactly on multiples of `unit` (no pre-quantization).
+    /// Whether the input lies on multiples of `unit` (no pre-quantization).
     pub lattice: bool,
+    /// For lattice input: the largest distance, metres, between a sample as stored and its
+    /// lattice value (e.g. 0.1 m data stored as float32 is off by up to half an f32 ulp). It is
+    /// taken out of the budget, so the bound holds against the samples exactly as stored.
+    pub representation_error: f64,
     /// The tolerance asked for, metres.
     pub epsilon: f64,
 }
@@ -81,6 +85,18 @@ impl QuantPlan {
     /// Plans the integer mapping for samples in `[min, max]` metres at tolerance `epsilon`;
     /// `quantum` is the data's value grid when known.
     pub fn new(epsilon: f64, quantum: Option<f64>, min: f64, max: f64) -> Result<Self, CodecError> {
+        Self::with_representation_error(epsilon, quantum, 0.0, min, max)
+    }
+
+    /// Like [`QuantPlan::new`], for lattice data whose samples are up to `deviation` metres off
+    /// their lattice values.
+    pub fn with_representation_error(
+        epsilon: f64,
+        quantum: Option<f64>,
+        deviation: f64,
+        min: f64,
+        max: f64,
+    ) -> Result<Self, CodecError> {
         if !(epsilon.is_finite() && epsilon > 0.0) {
             return Err(CodecError::invalid(format!(
                 "the maximum error must be a positive number of metres, not {epsilon}"
@@ -103,7 +119,20 @@ impl QuantPlan {
                         "value quantum must be positive, not {u}"
                     )));
                 }
-                let k = (epsilon / u * (1.0 + DECIMAL_SLACK)).floor();
+                if !(deviation.is_finite() && (0.0..u / 2.0).contains(&deviation)) {
+                    return Err(CodecError::invalid(format!(
+                        "samples are up to {deviation} m off the value quantum {u} m"
+                    )));
+                }
+                if deviation >= epsilon {
+                    return Err(CodecError::invalid(format!(
+                        "tolerance {epsilon} m is below the {deviation} m the samples' storage \
+                         already deviates from their {u} m value grid"
+                    )));
+                }
+                // Exact decimal data (deviation 0) keeps the slack for 0.3/0.1-style quotients.
+                let budget = if deviation > 0.0 { epsilon - deviation } else { epsilon * (1.0 + DECIMAL_SLACK) };
+                let k = (budget / u).floor();
                 (u, k, true)
             }
             None => {
@@ -134,6 +163,7 @@ impl QuantPlan {
             offset,
             quantizer: Quantizer::new(k as u32)?,
             lattice,
+            representation_error: if lattice { deviation } else { 0.0 },
             epsilon,
         })
     }
@@ -151,13 +181,28 @@ impl QuantPlan {
         if !(lo.is_finite() && hi.is_finite()) {
             return Err(CodecError::invalid("the input holds infinite heights"));
         }
-        Self::new(epsilon, quantum.or_else(|| detect_quantum(dem)), lo, hi)
+        let quantum = quantum.or_else(|| detect_quantum(dem));
+        let Some(u) = quantum else {
+            return Self::new(epsilon, None, lo, hi);
+        };
+        // How far the stored samples are from their lattice values, measured on the same
+        // offset lattice the plan will use (the offset is a multiple of u).
+        let offset = ((lo + hi) / 2.0 / u).round() * u;
+        let deviation = (0..dem.values.len())
+            .filter(|&i| dem.is_valid(i))
+            .map(|i| {
+                let v = dem.values[i];
+                (offset + ((v - offset) / u).round() * u - v).abs()
+            })
+            .fold(0.0, f64::max);
+        Self::with_representation_error(epsilon, Some(u), deviation, lo, hi)
     }
 
-    /// The guaranteed bound, metres: `k·u`, plus `u/2` of pre-quantization for float input.
+    /// The guaranteed bound, metres: `k·u`, plus `u/2` of pre-quantization for float input or
+    /// the representation error of lattice input.
     pub fn max_error(&self) -> f64 {
         let k = f64::from(self.quantizer.k()) * self.unit;
-        if self.lattice { k } else { k + self.unit / 2.0 }
+        if self.lattice { k + self.representation_error } else { k + self.unit / 2.0 }
     }
 
     /// Metres of integer height `n`.
@@ -362,6 +407,16 @@ mod tests {
         assert!(p.to_units(12.5).is_err());
         assert_eq!(p.to_units(12.0).unwrap(), Some(12 - 50));
         let err = HeightGrid::from_metres(2, 1, &[1.0, f64::INFINITY], None, &p).unwrap_err();
+        // Decimal data stored as float32 is off its lattice by up to half an ulp: that comes
+        // out of the budget, so 0.5 m on 0.1 m data stored as f32 takes 4 steps, not 5.
+        let v = f64::from(3751.3f32);
+        let dev = (v - 3751.3).abs();
+        assert!(dev > 0.0);
+        let p = QuantPlan::with_representation_error(0.5, Some(0.1), dev, 13.7, 3751.3).unwrap();
+        assert_eq!(p.quantizer.k(), 4);
+        assert!(p.max_error() <= 0.5);
+        assert_eq!(QuantPlan::new(0.5, Some(0.1), 13.7, 3751.3).unwrap().quantizer.k(), 5);
+        assert!(QuantPlan::with_representation_error(dev / 2.0, Some(0.1), dev, 0.0, 1.0).is_err());
         assert!(err.to_string().contains("column 1, row 0"), "{err}");
     }
 }
