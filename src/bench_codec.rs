@@ -32,7 +32,11 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
     }
-    let inputs = if args.inputs.is_empty() { default_inputs()? } else { args.inputs.clone() };
+    let inputs = if args.inputs.is_empty() {
+        default_inputs()?
+    } else {
+        args.inputs.clone()
+    };
     let alphas: Vec<Alpha> = match args.alpha {
         Which::Default => vec![Alpha::One],
         Which::Other => vec![Alpha::Half],
@@ -43,13 +47,16 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
         Which::Other => vec![CoderKind::EliasGamma],
         Which::Both => vec![CoderKind::Adaptive, CoderKind::EliasGamma],
     };
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(args.threads.max(1)).build()?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads.max(1))
+        .build()?;
     println!(
         "| dataset | ε (m) | α | coder | bits/sample | records | verified max err (m) | encode MS/s | decode MS/s |"
     );
     println!("|---|---:|---|---|---:|---:|---:|---:|---:|");
     for path in &inputs {
-        let dem = read_dem(path, &ReadOptions::default()).with_context(|| format!("reading {}", path.display()))?;
+        let dem = read_dem(path, &ReadOptions::default())
+            .with_context(|| format!("reading {}", path.display()))?;
         let name = path.file_stem().unwrap_or_default().to_string_lossy();
         let samples = (dem.width * dem.height) as f64;
         for &eps in &args.max_error {
@@ -57,7 +64,11 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
             let grid = HeightGrid::from_dem(&dem, &plan)?;
             for &alpha in &alphas {
                 for &coder in &coders {
-                    let opts = EncodeOptions { n: args.diamond_size, alpha, coder };
+                    let opts = EncodeOptions {
+                        n: args.diamond_size,
+                        alpha,
+                        coder,
+                    };
                     let mut enc_times = Vec::new();
                     let mut encoded: Option<Encoded> = None;
                     for _ in 0..args.runs {

@@ -11,7 +11,11 @@ use std::process::ExitCode;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 #[derive(Parser)]
-#[command(name = "cbdam", version, about = "Compressed Batched Dynamic Adaptive Meshes: terrain with a guaranteed maximum error")]
+#[command(
+    name = "cbdam",
+    version,
+    about = "Compressed Batched Dynamic Adaptive Meshes: terrain with a guaranteed maximum error"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -131,7 +131,11 @@ impl QuantPlan {
                     )));
                 }
                 // Exact decimal data (deviation 0) keeps the slack for 0.3/0.1-style quotients.
-                let budget = if deviation > 0.0 { epsilon - deviation } else { epsilon * (1.0 + DECIMAL_SLACK) };
+                let budget = if deviation > 0.0 {
+                    epsilon - deviation
+                } else {
+                    epsilon * (1.0 + DECIMAL_SLACK)
+                };
                 let k = (budget / u).floor();
                 (u, k, true)
             }
@@ -174,9 +178,13 @@ impl QuantPlan {
         let (lo, hi) = (0..dem.values.len())
             .filter(|&i| dem.is_valid(i))
             .map(|i| dem.values[i])
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v), hi.max(v))
+            });
         if lo > hi {
-            return Err(CodecError::invalid("the input has no valid sample (all nodata or NaN)"));
+            return Err(CodecError::invalid(
+                "the input has no valid sample (all nodata or NaN)",
+            ));
         }
         if !(lo.is_finite() && hi.is_finite()) {
             return Err(CodecError::invalid("the input holds infinite heights"));
@@ -202,7 +210,11 @@ impl QuantPlan {
     /// the representation error of lattice input.
     pub fn max_error(&self) -> f64 {
         let k = f64::from(self.quantizer.k()) * self.unit;
-        if self.lattice { k + self.representation_error } else { k + self.unit / 2.0 }
+        if self.lattice {
+            k + self.representation_error
+        } else {
+            k + self.unit / 2.0
+        }
     }
 
     /// Metres of integer height `n`.
@@ -415,7 +427,13 @@ mod tests {
         let p = QuantPlan::with_representation_error(0.5, Some(0.1), dev, 13.7, 3751.3).unwrap();
         assert_eq!(p.quantizer.k(), 4);
         assert!(p.max_error() <= 0.5);
-        assert_eq!(QuantPlan::new(0.5, Some(0.1), 13.7, 3751.3).unwrap().quantizer.k(), 5);
+        assert_eq!(
+            QuantPlan::new(0.5, Some(0.1), 13.7, 3751.3)
+                .unwrap()
+                .quantizer
+                .k(),
+            5
+        );
         assert!(QuantPlan::with_representation_error(dev / 2.0, Some(0.1), dev, 0.0, 1.0).is_err());
         assert!(err.to_string().contains("column 1, row 0"), "{err}");
     }

@@ -41,7 +41,12 @@ fn make(field: Field, w: usize, h: usize, seed: u64) -> Vec<f64> {
                 .map(|o| {
                     let f = 0.01 * 1.35f64.powi(o);
                     let a = 1500.0 / (1.0 + f * 60.0);
-                    (f, rng.unit() * 6.28, a, rng.unit() * 6.28)
+                    (
+                        f,
+                        rng.unit() * std::f64::consts::TAU,
+                        a,
+                        rng.unit() * std::f64::consts::TAU,
+                    )
                 })
                 .collect();
             (0..w * h)
@@ -68,7 +73,7 @@ fn make(field: Field, w: usize, h: usize, seed: u64) -> Vec<f64> {
             let mut v = vec![200.0; w * h];
             for _ in 0..(w * h / 40).max(2) {
                 let k = rng.next() as usize % (w * h);
-                v[k] = if rng.next() % 2 == 0 {
+                v[k] = if rng.next().is_multiple_of(2) {
                     10_000.0
                 } else {
                     -10_000.0
@@ -79,7 +84,7 @@ fn make(field: Field, w: usize, h: usize, seed: u64) -> Vec<f64> {
         Field::Constant => vec![-42.0; w * h],
         Field::Checkerboard => (0..w * h)
             .map(|k| {
-                if (k % w + k / w) % 2 == 0 {
+                if (k % w + k / w).is_multiple_of(2) {
                     900.0
                 } else {
                     -900.0

@@ -134,7 +134,8 @@ fn signed_area2(t: &Triangle) -> i64 {
 pub fn check_conforming(layout: &Layout, triangles: &[Triangle]) -> Result<(), String> {
     let (ex, ey) = layout.extent();
     let mut area2 = 0i64;
-    let mut edges: HashMap<((i64, i64), (i64, i64)), u32> = HashMap::new();
+    type Edge = ((i64, i64), (i64, i64));
+    let mut edges: HashMap<Edge, u32> = HashMap::new();
     for t in triangles {
         let a = signed_area2(t);
         if a <= 0 {

@@ -26,7 +26,7 @@ impl DiamondId {
 
     /// Whether the level is even (axis-aligned square) or odd (rotated 45°).
     pub const fn is_even(&self) -> bool {
-        self.level % 2 == 0
+        self.level.is_multiple_of(2)
     }
 }
 

@@ -386,7 +386,7 @@ mod tests {
                             (Diagonal::Main, Half::Positive) => i >= j,
                             (Diagonal::Main, Half::Negative) => i <= j,
                             (Diagonal::Anti, Half::Positive) => i + j >= n - 1,
-                            (Diagonal::Anti, Half::Negative) => i + j <= n - 1,
+                            (Diagonal::Anti, Half::Negative) => i + j < n,
                         };
                         assert_eq!(in_parent, on_side, "{d} in {p} at ({i},{j}) -> ({a},{b})");
                         inside += usize::from(in_parent);

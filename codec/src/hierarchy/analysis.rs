@@ -124,7 +124,7 @@ fn all_diamonds_of_level(layout: &Layout, level: u8) -> Vec<DiamondId> {
             out.push(id);
         }
     };
-    if level % 2 == 0 {
+    if level.is_multiple_of(2) {
         for y in (r..ey).step_by(2 * r as usize) {
             for x in (r..ex).step_by(2 * r as usize) {
                 push(x, y);
@@ -150,7 +150,9 @@ fn fill_nodata(grid: &HeightGrid) -> Vec<i32> {
         return out;
     }
     // Pyramid of (sum, count) by 2×2 blocks.
-    let mut levels: Vec<(usize, usize, Vec<(i64, u64)>)> = vec![(
+    // (width, height, per-block (sum, count)) from the full grid up to 1×1.
+    type Level = (usize, usize, Vec<(i64, u64)>);
+    let mut levels: Vec<Level> = vec![(
         w,
         h,
         grid.values

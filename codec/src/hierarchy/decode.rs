@@ -99,7 +99,10 @@ pub fn walk(encoded: &Encoded, mut visit: impl FnMut(DiamondId, &[i32])) -> Resu
     let mut by_level: Vec<Vec<(DiamondId, &[u8])>> = vec![Vec::new(); finest as usize + 1];
     for r in &encoded.records {
         if r.id.level >= finest || !layout.contains(r.id) {
-            return Err(CodecError::corrupt(format!("record for impossible diamond {}", r.id)));
+            return Err(CodecError::corrupt(format!(
+                "record for impossible diamond {}",
+                r.id
+            )));
         }
         by_level[r.id.level as usize].push((r.id, &r.bytes));
     }
@@ -115,7 +118,13 @@ pub fn walk(encoded: &Encoded, mut visit: impl FnMut(DiamondId, &[i32])) -> Resu
                 .keys()
                 .flat_map(|&p| layout.children(p))
                 .flatten()
-                .filter(|&c| layout.parents(c).into_iter().flatten().all(|p| prev.contains_key(&p)))
+                .filter(|&c| {
+                    layout
+                        .parents(c)
+                        .into_iter()
+                        .flatten()
+                        .all(|p| prev.contains_key(&p))
+                })
                 .collect();
             leaves.sort();
             leaves.dedup();
@@ -126,8 +135,15 @@ pub fn walk(encoded: &Encoded, mut visit: impl FnMut(DiamondId, &[i32])) -> Resu
         for id in ids {
             let parent_ids = layout.parents(id);
             let parents = parent_ids.map(|p| p.and_then(|p| prev.get(&p)));
-            if level > 0 && parent_ids.iter().zip(&parents).any(|(id, r)| id.is_some() && r.is_none()) {
-                return Err(CodecError::corrupt(format!("{id} is stored but a parent is not")));
+            if level > 0
+                && parent_ids
+                    .iter()
+                    .zip(&parents)
+                    .any(|(id, r)| id.is_some() && r.is_none())
+            {
+                return Err(CodecError::corrupt(format!(
+                    "{id} is stored but a parent is not"
+                )));
             }
             let p = decoder.grid_of(id, parents);
             visit(id, &p);
@@ -192,7 +208,9 @@ pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, Cod
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);
                 let Some(v) = input.get(x, y) else { continue };
-                let want = fields.as_ref().map_or(v, |f| f[id.level as usize].get(x, y));
+                let want = fields
+                    .as_ref()
+                    .map_or(v, |f| f[id.level as usize].get(x, y));
                 let e = (i64::from(p[j * n + i]) - i64::from(want)).unsigned_abs();
                 report.max_error = report.max_error.max(u32::try_from(e).unwrap_or(u32::MAX));
                 report.vertices += 1;

@@ -20,13 +20,22 @@ pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &H
     let (w, h) = (input.width as i64, input.height as i64);
     // Grid coordinates scaled by the spacing `sp`: even levels use (x, y) − origin directly;
     // odd levels use s = Δx + Δy, t = Δx − Δy, where lattice points have s ≡ t (mod 2).
-    let (sp, odd) = if id.is_even() { (g.u.0, false) } else { (2 * g.u.0, true) };
+    let (sp, odd) = if id.is_even() {
+        (g.u.0, false)
+    } else {
+        (2 * g.u.0, true)
+    };
     let (ox, oy) = g.origin;
     let mut worst_h = 0i64;
     for cj in 0..n - 1 {
         for ci in 0..n - 1 {
             let at = |i: usize, j: usize| i64::from(p[j * n + i]);
-            let (v00, v10, v01, v11) = (at(ci, cj), at(ci + 1, cj), at(ci, cj + 1), at(ci + 1, cj + 1));
+            let (v00, v10, v01, v11) = (
+                at(ci, cj),
+                at(ci + 1, cj),
+                at(ci, cj + 1),
+                at(ci + 1, cj + 1),
+            );
             let (s0, t0) = (ci as i64 * sp, cj as i64 * sp);
             for ft in 0..=sp {
                 let t = t0 + ft;
@@ -35,16 +44,26 @@ pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &H
                 let mut fs = first;
                 while fs <= sp {
                     let s = s0 + fs;
-                    let (x, y) = if odd { (ox + (s + t) / 2, oy + (s - t) / 2) } else { (ox + s, oy + t) };
+                    let (x, y) = if odd {
+                        (ox + (s + t) / 2, oy + (s - t) / 2)
+                    } else {
+                        (ox + s, oy + t)
+                    };
                     if x >= 0 && y >= 0 && x < w && y < h {
                         let k = y as usize * input.width + x as usize;
                         if input.valid[k] {
                             let (fx, fy) = (fs, ft);
                             let surf = match diag {
-                                Diagonal::Main if fx >= fy => v00 * sp + (v10 - v00) * fx + (v11 - v10) * fy,
+                                Diagonal::Main if fx >= fy => {
+                                    v00 * sp + (v10 - v00) * fx + (v11 - v10) * fy
+                                }
                                 Diagonal::Main => v00 * sp + (v11 - v01) * fx + (v01 - v00) * fy,
-                                Diagonal::Anti if fx + fy <= sp => v00 * sp + (v10 - v00) * fx + (v01 - v00) * fy,
-                                Diagonal::Anti => v11 * sp + (v01 - v11) * (sp - fx) + (v10 - v11) * (sp - fy),
+                                Diagonal::Anti if fx + fy <= sp => {
+                                    v00 * sp + (v10 - v00) * fx + (v01 - v00) * fy
+                                }
+                                Diagonal::Anti => {
+                                    v11 * sp + (v01 - v11) * (sp - fx) + (v10 - v11) * (sp - fy)
+                                }
                             };
                             worst_h = worst_h.max((surf - i64::from(input.values[k]) * sp).abs());
                         }
@@ -63,7 +82,7 @@ mod tests {
     use super::*;
     use crate::geometry::Layout;
 
-/// `h ×` the piecewise-linear interpolant at `(is, js)` (grid coordinates times `h`), for a grid
+    /// `h ×` the piecewise-linear interpolant at `(is, js)` (grid coordinates times `h`), for a grid
     /// of spacing `h` split along `diag`.
     #[inline]
     fn interpolate_h(p: &[i32], n: usize, diag: Diagonal, h: i64, is: i64, js: i64) -> i64 {
@@ -95,7 +114,11 @@ mod tests {
             for x in cx - r..=cx + r {
                 let Some(v) = input.get(x, y) else { continue };
                 let (dx, dy) = (x - g.origin.0, y - g.origin.1);
-                let (sp, s, t) = if id.is_even() { (g.u.0, dx, dy) } else { (2 * g.u.0, dx + dy, dx - dy) };
+                let (sp, s, t) = if id.is_even() {
+                    (g.u.0, dx, dy)
+                } else {
+                    (2 * g.u.0, dx + dy, dx - dy)
+                };
                 if s < 0 || t < 0 || s > sp * (n as i64 - 1) || t > sp * (n as i64 - 1) {
                     continue; // outside a rotated diamond
                 }
@@ -129,7 +152,11 @@ mod tests {
             }
             frontier.extend(layout.children(d).into_iter().flatten());
             let p: Vec<i32> = (0..25).map(|_| rnd(1000) as i32).collect();
-            assert_eq!(surface_error(&layout, d, &p, &input), brute_force(&layout, d, &p, &input), "{d}");
+            assert_eq!(
+                surface_error(&layout, d, &p, &input),
+                brute_force(&layout, d, &p, &input),
+                "{d}"
+            );
             checked[usize::from(!d.is_even())] += 1;
         }
         assert!(checked[0] > 10 && checked[1] > 10);
@@ -153,7 +180,11 @@ mod tests {
             }
         }
         // Midpoint of the split diagonal of cell (0,0): the mean of its two ends.
-        assert_eq!(interpolate_h(&p, n, Diagonal::Main, 4, 2, 2), (0 + 16) * 2);
+        assert_eq!(
+            interpolate_h(&p, n, Diagonal::Main, 4, 2, 2),
+            16 * 2,
+            "(0 + 16) / 2, times h = 4"
+        );
         assert_eq!(interpolate_h(&p, n, Diagonal::Anti, 4, 2, 2), (10 + 5) * 2);
     }
 

@@ -22,7 +22,7 @@ impl Refined {
     /// `((a−1)/2, (b−1)/2)`.
     #[inline]
     fn half_step(&self, n: usize, a: usize, b: usize) -> i32 {
-        if a % 2 == 0 {
+        if a.is_multiple_of(2) {
             self.vertices[(b / 2) * n + a / 2]
         } else {
             self.cells[(b / 2) * (n - 1) + a / 2]
