@@ -252,7 +252,7 @@ fn refine_encode(
     }
     let mut bytes = Vec::new();
     encode_bands(params.coder, &bands, &mut bytes);
-    Ok((Refined { vertices, cells }, bytes))
+    Ok((Refined::from_parts(n, &vertices, &cells), bytes))
 }
 
 /// The stored diamonds of every level `0..=L`, sorted: the finest diamonds that meet a valid

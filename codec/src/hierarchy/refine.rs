@@ -7,26 +7,49 @@ use crate::entropy::{BandMut, DecodeLimits, decode_bands};
 use crate::geometry::{Diagonal, DiamondId, Half, Layout};
 use crate::lifting::{Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_vertex};
 
-/// The level-`l+1` values a refinement produces on a level-`l` diamond's square: its vertices
-/// (`N²`, changed only at inner vertices and only when α = ½) and its cell centres (`(N−1)²`).
+/// The level-`l+1` values a refinement produces on a level-`l` diamond's square, interleaved on
+/// its `(2N−1)²` half-step grid: vertex `(i, j)` at `(2i, 2j)` (changed only at inner vertices
+/// and only when α = ½), cell centre `(i, j)` at `(2i+1, 2j+1)`; the other half-step points
+/// (edge midpoints) are finer than level `l+1` and unused. Interleaving makes gathering a
+/// child's grid a strided copy.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Refined {
-    /// Vertex values, row-major `N × N`.
-    pub vertices: Vec<i32>,
-    /// Cell-centre values, row-major `(N−1) × (N−1)`.
-    pub cells: Vec<i32>,
+    n: usize,
+    half_step: Vec<i32>,
 }
 
 impl Refined {
-    /// Value at half-step index `(a, b)` (`a + b` even): vertex `(a/2, b/2)` or cell
-    /// `((a−1)/2, (b−1)/2)`.
-    #[inline]
-    fn half_step(&self, n: usize, a: usize, b: usize) -> i32 {
-        if a.is_multiple_of(2) {
-            self.vertices[(b / 2) * n + a / 2]
-        } else {
-            self.cells[(b / 2) * (n - 1) + a / 2]
+    /// Interleaves vertex values (`N²`, row-major) and cell values (`(N−1)²`, row-major).
+    pub fn from_parts(n: usize, vertices: &[i32], cells: &[i32]) -> Self {
+        assert!(vertices.len() == n * n && cells.len() == (n - 1) * (n - 1));
+        let side = 2 * n - 1;
+        let mut half_step = vec![0i32; side * side];
+        for j in 0..n {
+            for i in 0..n {
+                half_step[2 * j * side + 2 * i] = vertices[j * n + i];
+            }
         }
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                half_step[(2 * j + 1) * side + 2 * i + 1] = cells[j * (n - 1) + i];
+            }
+        }
+        Self { n, half_step }
+    }
+
+    /// Grid side `N` of the diamond.
+    pub fn n(&self) -> usize {
+        self.n
+    }
+
+    /// The refined value of vertex `(i, j)`.
+    pub fn vertex(&self, i: usize, j: usize) -> i32 {
+        self.half_step[2 * j * (2 * self.n - 1) + 2 * i]
+    }
+
+    /// The value of cell centre `(i, j)`.
+    pub fn cell(&self, i: usize, j: usize) -> i32 {
+        self.half_step[(2 * j + 1) * (2 * self.n - 1) + 2 * i + 1]
     }
 }
 
@@ -57,23 +80,26 @@ pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], ou
         let m = grid
             .index_map_into_half_step(&layout.grid(pid))
             .expect("child grid maps into its parent");
+        let side = (2 * n - 1) as i64;
+        let stride = m.bi * side + m.ai;
         for j in 0..n {
             let (lo, hi) = half_range(diag, half, n, j);
-            for i in lo..=hi {
-                let (a, b) = m.apply(i as i64, j as i64);
-                let v = parent.half_step(n, a as usize, b as usize);
-                let on_diagonal = match diag {
-                    Diagonal::Main => i == j,
-                    Diagonal::Anti => i + j == n - 1,
-                };
-                if on_diagonal && !first {
-                    assert_eq!(
-                        out[j * n + i],
-                        v,
-                        "parents of {id} disagree on its diagonal"
-                    );
-                }
-                out[j * n + i] = v;
+            let (a, b) = m.apply(lo as i64, j as i64);
+            let mut k = b * side + a;
+            let row = &mut out[j * n..(j + 1) * n];
+            // The diagonal point of this row, if any, is checked against the first parent.
+            let diagonal = match diag {
+                Diagonal::Main => j,
+                Diagonal::Anti => n - 1 - j,
+            };
+            if !first {
+                let (da, db) = m.apply(diagonal as i64, j as i64);
+                let v = parent.half_step[(db * side + da) as usize];
+                assert_eq!(row[diagonal], v, "parents of {id} disagree on its diagonal");
+            }
+            for o in &mut row[lo..=hi] {
+                *o = parent.half_step[k as usize];
+                k += stride;
             }
         }
         first = false;
@@ -178,5 +204,5 @@ pub fn refine(
             "record reconstructs heights out of range",
         ));
     }
-    Ok(Refined { vertices, cells })
+    Ok(Refined::from_parts(n, &vertices, &cells))
 }
