@@ -51,9 +51,9 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
         .num_threads(args.threads.max(1))
         .build()?;
     println!(
-        "| dataset | ε (m) | α | coder | bits/sample | records | verified max err (m) | encode MS/s | decode MS/s |"
+        "| dataset | ε (m) | α | coder | bits/sample | roots B | records | index B | verified max err (m) | encode MS/s | decode MS/s |"
     );
-    println!("|---|---:|---|---|---:|---:|---:|---:|---:|");
+    println!("|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for path in &inputs {
         let dem = read_dem(path, &ReadOptions::default())
             .with_context(|| format!("reading {}", path.display()))?;
@@ -68,6 +68,7 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
                         n: args.diamond_size,
                         alpha,
                         coder,
+                        extra_level_pairs: args.extra_levels,
                     };
                     let mut enc_times = Vec::new();
                     let mut encoded: Option<Encoded> = None;
@@ -104,13 +105,17 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
                     if max_err > eps * (1.0 + 1e-12) {
                         bail!("{name} ε={eps}: sample error {max_err} m exceeds the tolerance");
                     }
-                    let bits = encoded.payload_bytes() as f64 * 8.0;
+                    // The whole hierarchy: root field, records and their index (the container's
+                    // fixed-size header is not counted).
+                    let index = encoded.index_bytes().len();
+                    let bits = (encoded.payload_bytes() + index) as f64 * 8.0;
                     let ms = |d: Duration| samples / d.as_secs_f64() / 1e6;
                     println!(
-                        "| {name} | {eps} | {} | {} | {:.3} | {} | {:.4} | {:.1} | {:.1} |",
+                        "| {name} | {eps} | {} | {} | {:.3} | {} | {} | {index} | {:.4} | {:.1} | {:.1} |",
                         if alpha == Alpha::One { "1" } else { "½" },
                         coder.name(),
                         bits / samples,
+                        encoded.roots.len(),
                         encoded.records.len(),
                         max_err,
                         ms(median(enc_times)),

@@ -8,6 +8,7 @@ mod bench_codec;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use cbdam_codec::hierarchy::EncodeOptions;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 #[derive(Parser)]
@@ -62,6 +63,9 @@ pub struct BenchCodecArgs {
     /// Diamond grid side N (2^k + 1).
     #[arg(long, default_value_t = 65)]
     diamond_size: usize,
+    /// Level pairs above the smallest covering hierarchy (coarser roots).
+    #[arg(long, default_value_t = EncodeOptions::default().extra_level_pairs)]
+    extra_levels: u32,
     /// Timed repetitions; the median is reported.
     #[arg(long, default_value_t = 3)]
     runs: usize,

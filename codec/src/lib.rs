@@ -13,5 +13,6 @@ pub mod hierarchy;
 pub mod input;
 pub mod lifting;
 pub mod quant;
+pub mod repository;
 
 pub use error::CodecError;

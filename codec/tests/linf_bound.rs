@@ -153,7 +153,12 @@ fn both_coders_and_alphas(n: usize) -> Vec<EncodeOptions> {
     let mut v = Vec::new();
     for coder in CoderKind::ALL {
         for alpha in [Alpha::One, Alpha::Half] {
-            v.push(EncodeOptions { n, alpha, coder });
+            v.push(EncodeOptions {
+                n,
+                alpha,
+                coder,
+                extra_level_pairs: 0,
+            });
         }
     }
     v
@@ -243,11 +248,13 @@ proptest! {
         half in any::<bool>(),
         gamma in any::<bool>(),
         seed in any::<u64>(),
+        extra_level_pairs in 0u32..3,
     ) {
         let opts = EncodeOptions {
             n: (1 << n_pow) + 1,
             alpha: if half { Alpha::Half } else { Alpha::One },
             coder: if gamma { CoderKind::EliasGamma } else { CoderKind::Adaptive },
+            extra_level_pairs,
         };
         check(field, w, h, seed, eps, lattice.then_some(1.0), opts);
     }

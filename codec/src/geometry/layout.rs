@@ -51,9 +51,15 @@ impl Layout {
         })
     }
 
-    /// The smallest layout whose roots cover a `width × height` sample grid with at most one root
-    /// along the longer side, finest level on the samples.
-    pub fn covering(n: usize, width: usize, height: usize) -> Result<Self, CodecError> {
+    /// The layout whose finest level lies on a `width × height` sample grid, with one root along
+    /// the longer side — or, with `extra_level_pairs > 0`, that many level pairs more, so roots
+    /// are `4^extra` times sparser (coarse levels code terrain more cheaply than root values do).
+    pub fn covering(
+        n: usize,
+        width: usize,
+        height: usize,
+        extra_level_pairs: u32,
+    ) -> Result<Self, CodecError> {
         if width == 0 || height == 0 {
             return Err(CodecError::invalid(
                 "cannot lay diamonds over an empty grid",
@@ -67,6 +73,7 @@ impl Layout {
                 return Err(CodecError::limit("grid too large"));
             }
         }
+        k += extra_level_pairs;
         let side = (n as u64 - 1) << k;
         let roots = |len: usize| (((len as u64).saturating_sub(1)).div_ceil(side)).max(1) as u32;
         Self::new(n, k, roots(width), roots(height))
@@ -399,16 +406,16 @@ mod tests {
 
     #[test]
     fn covering_layout_fits_the_samples() {
-        let l = Layout::covering(65, 1000, 1000).unwrap();
+        let l = Layout::covering(65, 1000, 1000, 0).unwrap();
         assert_eq!((l.k(), l.roots_x(), l.roots_y()), (4, 1, 1));
-        let l = Layout::covering(65, 16385, 16385).unwrap();
+        let l = Layout::covering(65, 16385, 16385, 0).unwrap();
         assert_eq!(
             (l.k(), l.roots_x(), l.roots_y(), l.root_side()),
             (8, 1, 1, 16384)
         );
-        let l = Layout::covering(65, 4320, 2161).unwrap();
+        let l = Layout::covering(65, 4320, 2161, 0).unwrap();
         assert!(l.extent().0 >= 4319 && l.extent().1 >= 2160);
-        assert!(Layout::covering(65, 0, 5).is_err());
+        assert!(Layout::covering(65, 0, 5, 0).is_err());
         assert!(Layout::new(64, 1, 1, 1).is_err());
         assert!(Layout::new(65, 30, 1, 1).is_err());
     }

@@ -24,6 +24,8 @@ pub struct EncodeOptions {
     pub alpha: Alpha,
     /// Entropy coder.
     pub coder: CoderKind,
+    /// Level pairs above the smallest hierarchy that covers the data with one root.
+    pub extra_level_pairs: u32,
 }
 
 impl Default for EncodeOptions {
@@ -32,6 +34,7 @@ impl Default for EncodeOptions {
             n: 65,
             alpha: Alpha::One,
             coder: CoderKind::Adaptive,
+            extra_level_pairs: 0,
         }
     }
 }
@@ -67,7 +70,7 @@ pub fn encode(
     if grid.range().is_none() {
         return Err(CodecError::invalid("the input has no valid sample"));
     }
-    let layout = Layout::covering(opts.n, grid.width, grid.height)?;
+    let layout = Layout::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
     let params = CodecParams {
         layout,
         alpha: opts.alpha,

@@ -99,4 +99,29 @@ impl Encoded {
     pub fn payload_bytes(&self) -> usize {
         self.roots.len() + self.records.iter().map(|r| r.bytes.len()).sum::<usize>()
     }
+
+    /// The index entries of the records, offsets as prefix sums of the lengths in id order.
+    pub fn index_entries(&self) -> Vec<crate::repository::index::IndexEntry> {
+        let mut offset = 0u64;
+        self.records
+            .iter()
+            .map(|r| {
+                let e = crate::repository::index::IndexEntry {
+                    id: r.id,
+                    offset,
+                    length: r.bytes.len() as u32,
+                    object_error: r.object_error,
+                    min: r.min,
+                    max: r.max,
+                };
+                offset += r.bytes.len() as u64;
+                e
+            })
+            .collect()
+    }
+
+    /// The serialised record index (see [`crate::repository::index`]).
+    pub fn index_bytes(&self) -> Vec<u8> {
+        crate::repository::index::encode_index(&self.params.layout, &self.index_entries())
+    }
 }

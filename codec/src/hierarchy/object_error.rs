@@ -30,7 +30,8 @@ pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &H
             for i in 0..n as i64 {
                 let (x, y) = g.point(i, j);
                 if let Some(v) = input.get(x, y) {
-                    worst = worst.max((i64::from(p[j as usize * n + i as usize]) - i64::from(v)).abs());
+                    worst =
+                        worst.max((i64::from(p[j as usize * n + i as usize]) - i64::from(v)).abs());
                 }
             }
         }
@@ -64,7 +65,12 @@ fn surface_error_runs(layout: &Layout, id: DiamondId, p: &[i32], input: &HeightG
             // Skip cells entirely outside the data (cheap bounding-box test).
             let (bx0, by0, bx1, by1) = if odd {
                 let (sa, sb, ta, tb) = (s0, s0 + sp, t0, t0 + sp);
-                (ox + (sa + ta) / 2, oy + (sa - tb) / 2, ox + (sb + tb) / 2, oy + (sb - ta) / 2)
+                (
+                    ox + (sa + ta) / 2,
+                    oy + (sa - tb) / 2,
+                    ox + (sb + tb) / 2,
+                    oy + (sb - ta) / 2,
+                )
             } else {
                 (ox + s0, oy + t0, ox + s0 + sp, oy + t0 + sp)
             };
@@ -72,7 +78,12 @@ fn surface_error_runs(layout: &Layout, id: DiamondId, p: &[i32], input: &HeightG
                 continue;
             }
             let at = |i: usize, j: usize| i64::from(p[j * n + i]);
-            let (v00, v10, v01, v11) = (at(ci, cj), at(ci + 1, cj), at(ci, cj + 1), at(ci + 1, cj + 1));
+            let (v00, v10, v01, v11) = (
+                at(ci, cj),
+                at(ci + 1, cj),
+                at(ci, cj + 1),
+                at(ci + 1, cj + 1),
+            );
             for ft in 0..=sp {
                 // The row's two runs: [lo, hi] inclusive in fs, with surface·sp = c0 + c1·fs.
                 let runs = match diag {
@@ -82,12 +93,29 @@ fn surface_error_runs(layout: &Layout, id: DiamondId, p: &[i32], input: &HeightG
                     ],
                     Diagonal::Anti => [
                         (0, sp - ft, v00 * sp + (v01 - v00) * ft, v10 - v00),
-                        (sp - ft + 1, sp, v01 * sp + (v10 - v11) * (sp - ft), v11 - v01),
+                        (
+                            sp - ft + 1,
+                            sp,
+                            v01 * sp + (v10 - v11) * (sp - ft),
+                            v11 - v01,
+                        ),
                     ],
                 };
                 let t = t0 + ft;
                 for (lo, hi, c0, c1) in runs {
-                    worst_h = worst_h.max(scan_run(input, odd, (ox, oy), s0, t, lo, hi, c0, c1, sp, (w, h)));
+                    worst_h = worst_h.max(scan_run(
+                        input,
+                        odd,
+                        (ox, oy),
+                        s0,
+                        t,
+                        lo,
+                        hi,
+                        c0,
+                        c1,
+                        sp,
+                        (w, h),
+                    ));
                 }
             }
         }
@@ -162,7 +190,12 @@ fn scan_run(
     worst
 }
 
-fn surface_error_impl<const MAIN: bool>(layout: &Layout, id: DiamondId, p: &[i32], input: &HeightGrid) -> u32 {
+fn surface_error_impl<const MAIN: bool>(
+    layout: &Layout,
+    id: DiamondId,
+    p: &[i32],
+    input: &HeightGrid,
+) -> u32 {
     let n = layout.n();
     let g = layout.grid(id);
     let (w, h) = (input.width as i64, input.height as i64);
@@ -206,7 +239,11 @@ fn surface_error_impl<const MAIN: bool>(layout: &Layout, id: DiamondId, p: &[i32
         let (x0, x1) = ((cx - half).max(0), (cx + half).min(w - 1));
         let row = y as usize * input.width;
         for x in x0..=x1 {
-            let (s, t) = if odd { ((x - ox) + (y - oy), (x - ox) - (y - oy)) } else { (x - ox, y - oy) };
+            let (s, t) = if odd {
+                ((x - ox) + (y - oy), (x - ox) - (y - oy))
+            } else {
+                (x - ox, y - oy)
+            };
             let k = row + x as usize;
             let e = (surface_sp(s, t) - i64::from(input.values[k]) * sp).abs();
             // Branch-free: nodata contributes 0.
