@@ -174,8 +174,7 @@ pub fn decode_index(
     loop {
         let level_end = ids.len();
         let mut next: Vec<DiamondId> = Vec::new();
-        for k in level_start..level_end {
-            let d = ids[k];
+        for &d in &ids[level_start..level_end] {
             if d.level < last_with_records {
                 for c in designated_children(layout, d) {
                     if next_bit(bytes)? {
