@@ -103,21 +103,8 @@ pub fn predict_cells(p: &[i32], n: usize, out: &mut [i32]) {
 #[inline]
 pub fn predict_vertex(c: &[i32], n: usize, i: usize, j: usize) -> i32 {
     let m = n - 1;
-    let at = |x: usize, y: usize| c[y * m + x];
-    let s4 = at(i - 1, j - 1) + at(i, j - 1) + at(i - 1, j) + at(i, j);
-    if vertex_uses_order4(n, i, j) {
-        let s8 = at(i - 2, j - 1)
-            + at(i - 2, j)
-            + at(i + 1, j - 1)
-            + at(i + 1, j)
-            + at(i - 1, j - 2)
-            + at(i, j - 2)
-            + at(i - 1, j + 1)
-            + at(i, j + 1);
-        (10 * s4 - s8 + 16) >> 5
-    } else {
-        (8 * s4 + 16) >> 5
-    }
+    let num = predict_vertex_numerator(|x, y| i64::from(c[y * m + x]), n, i, j);
+    ((num + 16) >> 5) as i32
 }
 
 /// The unrounded numerator of [`predict_vertex`] scaled by 32 (`10·s4 − s8` or `8·s4`), for the
