@@ -11,9 +11,8 @@ use cbdam_codec::entropy::{
 };
 use libfuzzer_sys::fuzz_target;
 
-/// Coders to round-trip. Add `CoderKind::Adaptive` once `adaptive.rs` is merged (on this
-/// branch it is still a placeholder that panics on encode).
-const CODERS: [CoderKind; 1] = [CoderKind::EliasGamma];
+/// Coders to round-trip: all of them.
+const CODERS: [CoderKind; 2] = CoderKind::ALL;
 
 fuzz_target!(|data: &[u8]| {
     let [w, h, rest @ ..] = data else { return };

@@ -1,0 +1,240 @@
+//! Hostile bytes at the hierarchy level: real records of an encoded SRTM hierarchy, truncated,
+//! bit-flipped or replaced by random bytes, go through `Decoder::refine` (and damaged root
+//! fields through `Decoder::new`). Whatever comes back, nothing may panic — the test profile
+//! keeps overflow checks on, so arithmetic overflow in the synthesis panics here too — and
+//! whatever damaged data decodes must stay within the heights the format can represent, all the
+//! way down the hierarchy.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use cbdam_codec::entropy::CoderKind;
+use cbdam_codec::geometry::DiamondId;
+use cbdam_codec::hierarchy::{Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk};
+use cbdam_codec::input::{Dem, ReadOptions, read_dem};
+use cbdam_codec::lifting::{Alpha, MAX_ABS_HEIGHT};
+use cbdam_codec::quant::{HeightGrid, QuantPlan};
+
+/// SplitMix64: reproducible from the seed alone.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+}
+
+/// A 256 × 256 window of SRTM at ε = 1 m: real residual statistics, a few levels of diamonds.
+fn hierarchy(alpha: Alpha, coder: CoderKind) -> Encoded {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/srtm3_demcompare.tif");
+    let dem = read_dem(&path, &ReadOptions::default()).unwrap();
+    let (x0, y0, w, h) = (500, 300, 256, 256);
+    let values = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| dem.values[(y0 + y) * dem.width + x0 + x])
+        .collect();
+    let part = Dem {
+        width: w,
+        height: h,
+        values,
+        ..dem
+    };
+    let plan = QuantPlan::for_dem(&part, 1.0, None).unwrap();
+    let grid = HeightGrid::from_dem(&part, &plan).unwrap();
+    let opts = EncodeOptions {
+        alpha,
+        coder,
+        ..EncodeOptions::default()
+    };
+    encode(&grid, plan.quantizer, &opts).unwrap()
+}
+
+/// Every stored diamond's reconstructed grid, from an undamaged decode.
+fn grids(enc: &Encoded) -> HashMap<DiamondId, Vec<i32>> {
+    let mut out = HashMap::new();
+    walk(enc, |id, p| {
+        out.insert(id, p.to_vec());
+    })
+    .unwrap();
+    out
+}
+
+/// Decodes the whole hierarchy with `record` replaced by `bytes` and checks every grid the
+/// walk reaches. Children of a damaged diamond are refined from damaged grids, so this also
+/// drives the synthesis with extreme (but in-range) inputs. An error part-way is fine.
+fn walk_damaged(enc: &Encoded, record: usize, bytes: &[u8]) -> usize {
+    let mut damaged = enc.clone();
+    damaged.records[record].bytes = bytes.to_vec();
+    walk_checked(&damaged)
+}
+
+/// Walks `enc` and asserts every visited height is representable; returns the grids seen.
+fn walk_checked(enc: &Encoded) -> usize {
+    let mut seen = 0;
+    let _ = walk(enc, |id, p| {
+        seen += 1;
+        if let Some(v) = p.iter().find(|v| v.unsigned_abs() > MAX_ABS_HEIGHT as u32) {
+            panic!("{id}: decoded height {v} is out of range");
+        }
+    });
+    seen
+}
+
+fn configs() -> Vec<(Alpha, CoderKind)> {
+    let mut v = Vec::new();
+    for coder in CoderKind::ALL {
+        for alpha in [Alpha::One, Alpha::Half] {
+            v.push((alpha, coder));
+        }
+    }
+    v
+}
+
+#[test]
+fn truncated_records_never_panic() {
+    for (alpha, coder) in configs() {
+        let enc = hierarchy(alpha, coder);
+        let grids = grids(&enc);
+        let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
+        let mut scratch = RefineScratch::default();
+        let (mut total, mut accepted) = (0usize, 0usize);
+        for r in &enc.records {
+            let p = &grids[&r.id];
+            // The intact record decodes: otherwise the truncations below prove nothing.
+            decoder.refine(p, &r.bytes, &mut scratch).unwrap();
+            for len in 0..r.bytes.len() {
+                total += 1;
+                if decoder.refine(p, &r.bytes[..len], &mut scratch).is_ok() {
+                    accepted += 1;
+                }
+            }
+        }
+        // Accepting a cut record is not a safety problem (the values are still bounded), only
+        // undetected damage; report how often it happens.
+        eprintln!(
+            "{alpha:?} {}: {} records, {total} truncations, {accepted} accepted",
+            coder.name(),
+            enc.records.len()
+        );
+        assert!(
+            total > 1000,
+            "too few truncations to mean anything: {total}"
+        );
+    }
+}
+
+#[test]
+fn bit_flipped_records_never_panic_and_stay_in_range() {
+    let mut rng = Rng(7);
+    for (alpha, coder) in configs() {
+        let enc = hierarchy(alpha, coder);
+        let grids = grids(&enc);
+        let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
+        let mut scratch = RefineScratch::default();
+        let (mut accepted, mut walked) = (0usize, 0usize);
+        const FLIPS: usize = 2500;
+        for _ in 0..FLIPS {
+            let ri = rng.below(enc.records.len());
+            let r = &enc.records[ri];
+            let mut bytes = r.bytes.clone();
+            let bit = rng.below(bytes.len() * 8);
+            bytes[bit / 8] ^= 1 << (bit % 8);
+            if decoder.refine(&grids[&r.id], &bytes, &mut scratch).is_ok() {
+                accepted += 1;
+                // Whole walks are slower: check the range downstream for some of them.
+                if walked < 150 {
+                    walked += 1;
+                    walk_damaged(&enc, ri, &bytes);
+                }
+            }
+        }
+        eprintln!(
+            "{alpha:?} {}: {FLIPS} flips, {accepted} accepted, {walked} walked",
+            coder.name()
+        );
+    }
+}
+
+#[test]
+fn random_records_never_panic_and_stay_in_range() {
+    let mut rng = Rng(11);
+    for (alpha, coder) in configs() {
+        let enc = hierarchy(alpha, coder);
+        let grids = grids(&enc);
+        let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
+        let mut scratch = RefineScratch::default();
+        let longest = enc.records.iter().map(|r| r.bytes.len()).max().unwrap();
+        let (mut accepted, mut walked) = (0usize, 0usize);
+        const TRIES: usize = 1500;
+        for t in 0..TRIES {
+            let ri = rng.below(enc.records.len());
+            let len = rng.below(2 * longest + 2);
+            let mut bytes: Vec<u8> = (0..len).map(|_| rng.next() as u8).collect();
+            // Sparse bytes too: mostly-zero streams look like plausible "nothing to correct"
+            // prefixes and reach deeper into the coders than uniform noise.
+            if t % 2 == 1 {
+                for b in &mut bytes {
+                    if rng.below(8) != 0 {
+                        *b = 0;
+                    }
+                }
+            }
+            if decoder
+                .refine(&grids[&enc.records[ri].id], &bytes, &mut scratch)
+                .is_ok()
+            {
+                accepted += 1;
+                if walked < 100 {
+                    walked += 1;
+                    walk_damaged(&enc, ri, &bytes);
+                }
+            }
+        }
+        eprintln!(
+            "{alpha:?} {}: {TRIES} random records, {accepted} accepted, {walked} walked",
+            coder.name()
+        );
+    }
+}
+
+#[test]
+fn damaged_root_fields_never_panic_and_stay_in_range() {
+    let mut rng = Rng(13);
+    for (alpha, coder) in configs() {
+        let enc = hierarchy(alpha, coder);
+        Decoder::new(enc.params, &enc.roots).unwrap();
+        let mut damaged = enc.clone();
+        let mut accepted = 0usize;
+        let mut tries: Vec<Vec<u8>> = (0..enc.roots.len())
+            .map(|len| enc.roots[..len].to_vec())
+            .collect();
+        for _ in 0..500 {
+            let mut bytes = enc.roots.clone();
+            let bit = rng.below(bytes.len() * 8);
+            bytes[bit / 8] ^= 1 << (bit % 8);
+            tries.push(bytes);
+        }
+        for _ in 0..500 {
+            let len = rng.below(2 * enc.roots.len() + 2);
+            tries.push((0..len).map(|_| rng.next() as u8).collect());
+        }
+        for bytes in tries {
+            if Decoder::new(enc.params, &bytes).is_ok() {
+                accepted += 1;
+                damaged.roots = bytes;
+                walk_checked(&damaged);
+            }
+        }
+        eprintln!(
+            "{alpha:?} {}: root field of {} bytes, {accepted} damaged versions accepted",
+            coder.name(),
+            enc.roots.len()
+        );
+    }
+}
