@@ -3,7 +3,7 @@
 
 use super::CodecParams;
 use crate::CodecError;
-use crate::entropy::{BandMut, DecodeLimits, decode_bands};
+use crate::entropy::{BandKind, BandMut, DecodeLimits, decode_bands};
 use crate::geometry::{Diagonal, DiamondId, Half, Layout};
 use crate::lifting::{Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_vertex};
 
@@ -136,6 +136,8 @@ fn half_range(diag: Diagonal, half: Half, n: usize, j: usize) -> (usize, usize) 
 pub struct RefineScratch {
     dc: Vec<i32>,
     dv: Vec<i32>,
+    cells: Vec<i32>,
+    vertices: Vec<i32>,
 }
 
 /// Refines a diamond: decodes its record and synthesises its level-`l+1` values from `p`, its
@@ -151,31 +153,36 @@ pub fn refine(
 ) -> Result<Refined, CodecError> {
     let n = params.layout.n();
     let m = n - 1;
-    scratch.dc.resize(m * m, 0);
-    scratch.dv.resize((n - 2) * (n - 2), 0);
-    {
-        let (dc, dv) = (&mut scratch.dc, &mut scratch.dv);
-        let mut bands = vec![BandMut {
-            kind: crate::entropy::BandKind::Cells,
+    let RefineScratch {
+        dc,
+        dv,
+        cells,
+        vertices,
+    } = scratch;
+    dc.resize(m * m, 0);
+    dv.resize((n - 2) * (n - 2), 0);
+    let half = params.alpha == Alpha::Half;
+    let mut bands = [
+        BandMut {
+            kind: BandKind::Cells,
             width: m,
             height: m,
             values: dc.as_mut_slice(),
-        }];
-        if params.alpha == Alpha::Half {
-            bands.push(BandMut {
-                kind: crate::entropy::BandKind::Vertices,
-                width: n - 2,
-                height: n - 2,
-                values: dv.as_mut_slice(),
-            });
-        }
-        decode_bands(params.coder, record, &mut bands, DecodeLimits::default())?;
-    }
+        },
+        BandMut {
+            kind: BandKind::Vertices,
+            width: n - 2,
+            height: n - 2,
+            values: dv.as_mut_slice(),
+        },
+    ];
+    decode_bands(params.coder, record, &mut bands[..1 + usize::from(half)], DecodeLimits::default())?;
+    let out_of_range = || CodecError::corrupt("record reconstructs heights out of range");
     let step = i64::from(params.quantizer.step());
-    let mut cells = vec![0i32; m * m];
-    predict_cells(p, n, &mut cells);
+    cells.resize(m * m, 0);
+    predict_cells(p, n, cells);
     let mut bad = false;
-    for (c, &d) in cells.iter_mut().zip(&scratch.dc) {
+    for (c, &d) in cells.iter_mut().zip(dc.iter()) {
         let v = clamp_prediction(i64::from(*c)) + step * i64::from(d);
         bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
         *c = v as i32;
@@ -183,26 +190,22 @@ pub fn refine(
     // Check before predicting vertices from the cells: out-of-range cells would overflow the
     // filter's i32 numerators.
     if bad {
-        return Err(CodecError::corrupt(
-            "record reconstructs heights out of range",
-        ));
+        return Err(out_of_range());
     }
-    let mut vertices = p.to_vec();
-    if params.alpha == Alpha::Half {
+    vertices.clear();
+    vertices.extend_from_slice(p);
+    if half {
         for j in 1..n - 1 {
             for i in 1..n - 1 {
-                let pred = 2 * i64::from(p[j * n + i]) - i64::from(predict_vertex(&cells, n, i, j));
-                let v = clamp_prediction(pred)
-                    + step * i64::from(scratch.dv[(j - 1) * (n - 2) + (i - 1)]);
+                let pred = 2 * i64::from(p[j * n + i]) - i64::from(predict_vertex(cells, n, i, j));
+                let v = clamp_prediction(pred) + step * i64::from(dv[(j - 1) * (n - 2) + (i - 1)]);
                 bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
                 vertices[j * n + i] = v as i32;
             }
         }
+        if bad {
+            return Err(out_of_range());
+        }
     }
-    if bad {
-        return Err(CodecError::corrupt(
-            "record reconstructs heights out of range",
-        ));
-    }
-    Ok(Refined::from_parts(n, &vertices, &cells))
+    Ok(Refined::from_parts(n, vertices, cells))
 }
