@@ -134,16 +134,7 @@ fn read(name: &str) -> Dem {
 
 /// The `w × h` window at `(x0, y0)` of a DEM, planned at `eps` on its own.
 fn crop(dem: &Dem, x0: usize, y0: usize, w: usize, h: usize, eps: f64) -> (HeightGrid, Quantizer) {
-    let values: Vec<f64> = (0..h)
-        .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| dem.values[(y0 + y) * dem.width + x0 + x])
-        .collect();
-    let part = Dem {
-        width: w,
-        height: h,
-        values,
-        ..dem.clone()
-    };
+    let part = dem.crop(x0, y0, w, h).unwrap();
     let plan = QuantPlan::for_dem(&part, eps, None).unwrap();
     (HeightGrid::from_dem(&part, &plan).unwrap(), plan.quantizer)
 }

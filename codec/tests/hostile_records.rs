@@ -11,7 +11,7 @@ use std::path::Path;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk};
-use cbdam_codec::input::{Dem, ReadOptions, read_dem};
+use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::lifting::{Alpha, MAX_ABS_HEIGHT};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
@@ -34,17 +34,7 @@ impl Rng {
 fn hierarchy(alpha: Alpha, coder: CoderKind) -> Encoded {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/srtm3_demcompare.tif");
     let dem = read_dem(&path, &ReadOptions::default()).unwrap();
-    let (x0, y0, w, h) = (500, 300, 256, 256);
-    let values = (0..h)
-        .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| dem.values[(y0 + y) * dem.width + x0 + x])
-        .collect();
-    let part = Dem {
-        width: w,
-        height: h,
-        values,
-        ..dem
-    };
+    let part = dem.crop(500, 300, 256, 256).unwrap();
     let plan = QuantPlan::for_dem(&part, 1.0, None).unwrap();
     let grid = HeightGrid::from_dem(&part, &plan).unwrap();
     let opts = EncodeOptions {

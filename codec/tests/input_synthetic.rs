@@ -910,3 +910,36 @@ fn quantum_candidates_and_failures() {
         None
     );
 }
+
+#[test]
+fn crop_takes_a_window_and_moves_the_georeferencing() {
+    let dem = cbdam_codec::input::Dem {
+        width: 4,
+        height: 3,
+        values: (0..12).map(f64::from).collect(),
+        sample_type: cbdam_codec::input::SampleType::I16,
+        nodata: None,
+        georef: Some(cbdam_codec::input::GeoRef {
+            epsg: Some(4326),
+            origin_x: 10.0,
+            origin_y: 50.0,
+            pixel_x: 0.5,
+            pixel_y: 0.25,
+            pixel_is_area: true,
+        }),
+    };
+    let part = dem.crop(1, 1, 2, 2).unwrap();
+    assert_eq!((part.width, part.height), (2, 2));
+    assert_eq!(part.values, vec![5.0, 6.0, 9.0, 10.0]);
+    let g = part.georef.unwrap();
+    // One column east (+0.5) and one row south (−0.25, rows run north to south).
+    assert_eq!((g.origin_x, g.origin_y, g.epsg), (10.5, 49.75, Some(4326)));
+    for (x0, y0, w, h) in [
+        (3, 0, 2, 1),
+        (0, 2, 1, 2),
+        (0, 0, 0, 1),
+        (usize::MAX, 0, 2, 1),
+    ] {
+        assert!(dem.crop(x0, y0, w, h).is_err(), "{x0},{y0} {w}x{h}");
+    }
+}

@@ -100,6 +100,48 @@ impl Dem {
     pub fn valid_count(&self) -> usize {
         (0..self.values.len()).filter(|&i| self.is_valid(i)).count()
     }
+
+    /// The `width × height` window whose north-west sample is `(x0, y0)`, georeferencing moved
+    /// to the window's origin.
+    pub fn crop(
+        &self,
+        x0: usize,
+        y0: usize,
+        width: usize,
+        height: usize,
+    ) -> Result<Dem, CodecError> {
+        let fits =
+            |o: usize, len: usize, total: usize| o.checked_add(len).is_some_and(|end| end <= total);
+        if width == 0
+            || height == 0
+            || !fits(x0, width, self.width)
+            || !fits(y0, height, self.height)
+        {
+            return Err(CodecError::invalid(format!(
+                "window {width}×{height} at ({x0}, {y0}) does not fit a {}×{} grid",
+                self.width, self.height
+            )));
+        }
+        let values = (y0..y0 + height)
+            .flat_map(|y| {
+                self.values[y * self.width + x0..y * self.width + x0 + width]
+                    .iter()
+                    .copied()
+            })
+            .collect();
+        let georef = self.georef.clone().map(|g| GeoRef {
+            origin_x: g.origin_x + x0 as f64 * g.pixel_x,
+            origin_y: g.origin_y - y0 as f64 * g.pixel_y,
+            ..g
+        });
+        Ok(Dem {
+            width,
+            height,
+            values,
+            georef,
+            ..self.clone()
+        })
+    }
 }
 
 /// The file formats [`read_dem`] understands.
