@@ -26,7 +26,8 @@ pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &H
             for i in 0..n as i64 {
                 let (x, y) = g.point(i, j);
                 if let Some(v) = input.get(x, y) {
-                    worst = worst.max((i64::from(p[j as usize * n + i as usize]) - i64::from(v)).abs());
+                    worst =
+                        worst.max((i64::from(p[j as usize * n + i as usize]) - i64::from(v)).abs());
                 }
             }
         }
@@ -38,7 +39,12 @@ pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &H
     }
 }
 
-fn surface_error_rows<const MAIN: bool>(layout: &Layout, id: DiamondId, p: &[i32], input: &HeightGrid) -> u32 {
+fn surface_error_rows<const MAIN: bool>(
+    layout: &Layout,
+    id: DiamondId,
+    p: &[i32],
+    input: &HeightGrid,
+) -> u32 {
     let n = layout.n();
     let g = layout.grid(id);
     let odd = !id.is_even();
@@ -119,7 +125,11 @@ fn surface_error_rows<const MAIN: bool>(layout: &Layout, id: DiamondId, p: &[i32
         }
         // Compare the row with the input.
         let (kstep, sstep) = if odd { (input.width + 1, 2) } else { (1, 1) };
-        let (x, y) = if odd { (ox + (lo + t) / 2, oy + (lo - t) / 2) } else { (ox + lo, oy + t) };
+        let (x, y) = if odd {
+            (ox + (lo + t) / 2, oy + (lo - t) / 2)
+        } else {
+            (ox + lo, oy + t)
+        };
         let mut k = (y * w + x) as usize;
         let mut s = lo;
         while s <= hi {

@@ -176,7 +176,12 @@ pub fn refine(
             values: dv.as_mut_slice(),
         },
     ];
-    decode_bands(params.coder, record, &mut bands[..1 + usize::from(half)], DecodeLimits::default())?;
+    decode_bands(
+        params.coder,
+        record,
+        &mut bands[..1 + usize::from(half)],
+        DecodeLimits::default(),
+    )?;
     let out_of_range = || CodecError::corrupt("record reconstructs heights out of range");
     let step = i64::from(params.quantizer.step());
     cells.resize(m * m, 0);
