@@ -28,6 +28,8 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         - repo.section_len(Section::Roots)
         - repo.section_len(Section::Index)
         - repo.section_len(Section::Records);
+    // Records whose residuals are all zero: smooth terrain has many at coarse tolerances.
+    let empty = repo.entries().iter().filter(|e| e.length == 0).count();
     let metres = |u: u32| f64::from(u) * plan.unit;
     let err_lo = repo
         .entries()
@@ -82,6 +84,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "nodata": repo.nodata(),
             "georef": geo,
             "records": repo.entries().len(),
+            "empty_records": empty,
             "roots_bytes": repo.section_len(Section::Roots),
             "index_bytes": repo.section_len(Section::Index),
             "records_bytes": repo.section_len(Section::Records),
@@ -156,6 +159,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         repo.section_len(Section::Records),
         overhead
     );
+    println!("records         {} ({empty} empty)", repo.entries().len());
     println!(
         "object error    {} … {} m (finest level {} m)",
         metres(err_lo),

@@ -1,8 +1,8 @@
 //! The single-file repository container (format version 1; `docs/FORMAT.md`).
 //!
 //! Layout: a fixed 256-byte header, then four sections in this order with no gaps — the coded
-//! root field, the record index ([`super::index`]), a table of one CRC-32 per record in id order,
-//! and the records area (record bytes concatenated in id order, so record offsets are the prefix
+//! root field, the record index ([`super::index`]), a table of one CRC-32 per non-empty record in
+//! id order, and the records area (record bytes concatenated in id order, so record offsets are the prefix
 //! sums of the index's lengths). The file ends exactly where the records area ends.
 //!
 //! Why per-record checksums: the entropy decoders accept most byte strings, so a damaged record
@@ -57,7 +57,7 @@ pub enum Section {
     Roots,
     /// The record index.
     Index,
-    /// One CRC-32 (little-endian u32) per record, in id order.
+    /// One CRC-32 (little-endian u32) per non-empty record, in id order.
     Checksums,
     /// The records, concatenated in id order.
     Records,
@@ -116,9 +116,12 @@ pub fn serialize(
     }
     let entries = encoded.index_entries();
     let index = encode_index(&p.layout, &entries);
+    // Empty records (all residuals zero) get no checksum: their length of 0 is already covered
+    // by the index's CRC, and smooth terrain has many (all 69 of lidar1m_mn's at 5 m).
     let checksums: Vec<u8> = encoded
         .records
         .iter()
+        .filter(|r| !r.bytes.is_empty())
         .flat_map(|r| crc32(&r.bytes).to_le_bytes())
         .collect();
     let records_len: u64 = encoded.records.iter().map(|r| r.bytes.len() as u64).sum();
@@ -308,6 +311,8 @@ pub struct Repository {
     leaf_error: u32,
     sections: [SectionInfo; 4],
     entries: Vec<IndexEntry>,
+    /// Per entry, its slot in the checksum table (meaningless for empty records).
+    crc_slots: Vec<u32>,
 }
 
 fn u16_at(b: &[u8], at: usize) -> u16 {
@@ -572,17 +577,23 @@ impl Repository {
             }
         }
         let record_count = u64_at(b, RECORD_COUNT_AT);
-        if record_count.checked_mul(4) != Some(sections[2].length) {
-            return Err(CodecError::corrupt(format!(
-                "record checksum table is {} bytes for {record_count} records",
-                sections[2].length
-            )));
-        }
         let entries = decode_index(&layout, &b[sections[1].range()], sections[3].length)?;
         if entries.len() as u64 != record_count {
             return Err(CodecError::corrupt(format!(
                 "index holds {} records, header says {record_count}",
                 entries.len()
+            )));
+        }
+        let mut crc_slots = Vec::with_capacity(entries.len());
+        let mut non_empty = 0u32;
+        for e in &entries {
+            crc_slots.push(non_empty);
+            non_empty += u32::from(e.length > 0);
+        }
+        if u64::from(non_empty) * 4 != sections[2].length {
+            return Err(CodecError::corrupt(format!(
+                "record checksum table is {} bytes for {non_empty} non-empty records",
+                sections[2].length
             )));
         }
         let params = CodecParams {
@@ -611,6 +622,7 @@ impl Repository {
             leaf_error,
             sections,
             entries,
+            crc_slots,
         })
     }
 
@@ -668,7 +680,10 @@ impl Repository {
         // Offsets and lengths were checked by `decode_index` to add up to the records area.
         let start = self.sections[3].offset as usize + e.offset as usize;
         let bytes = &self.bytes[start..start + e.length as usize];
-        let at = self.sections[2].offset as usize + 4 * i;
+        if bytes.is_empty() {
+            return Ok(bytes);
+        }
+        let at = self.sections[2].offset as usize + 4 * self.crc_slots[i] as usize;
         if crc32(bytes) != u32_at(&self.bytes, at) {
             let id = e.id;
             return Err(CodecError::corrupt(format!(
