@@ -116,7 +116,7 @@ pub struct BuildArgs {
     #[arg(short, long)]
     output: PathBuf,
     /// Guaranteed maximum error of every reconstructed sample, metres.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     max_error: f64,
     /// Diamond grid side N (2^k + 1).
     #[arg(long, default_value_t = 65)]
