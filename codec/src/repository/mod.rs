@@ -1,6 +1,12 @@
-//! The repository format: how an encoded hierarchy is laid out in bytes.
+//! The repository format: how an encoded hierarchy is laid out in one file.
 //!
-//! So far only the record index ([`index`]); the single-file container with its header and
-//! checksums is issue 3.
+//! [`index`] is the compact record index; [`container`] is the single-file, memory-mappable
+//! container around it (header, root field, index, per-record checksums, records), specified
+//! byte by byte in `docs/FORMAT.md`.
 
+pub mod container;
 pub mod index;
+
+pub use container::{
+    FORMAT_VERSION, HEADER_LEN, MAGIC, Repository, Section, serialize, write_repository,
+};

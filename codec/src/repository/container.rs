@@ -1,0 +1,752 @@
+//! The single-file repository container (format version 1; `docs/FORMAT.md`).
+//!
+//! Layout: a fixed 256-byte header, then four sections in this order with no gaps — the coded
+//! root field, the record index ([`super::index`]), a table of one CRC-32 per non-empty record in
+//! id order, and the records area (record bytes concatenated in id order, so record offsets are the prefix
+//! sums of the index's lengths). The file ends exactly where the records area ends.
+//!
+//! Why per-record checksums: the entropy decoders accept most byte strings, so a damaged record
+//! would otherwise decode silently to wrong heights. A renderer that maps the file and touches
+//! only the records it draws checks exactly those; [`Repository::open`] checks the header and the
+//! small sections but does not scan the records area, so opening a large repository stays cheap.
+//! [`Repository::check_all`] checks everything.
+
+use std::fs::{File, OpenOptions};
+use std::io::Write;
+use std::ops::Deref;
+use std::path::{Path, PathBuf};
+
+use super::index::{IndexEntry, decode_index, encode_index};
+use crate::CodecError;
+use crate::entropy::CoderKind;
+use crate::geometry::{DiamondId, Layout};
+use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, root_quantizer};
+use crate::input::GeoRef;
+use crate::lifting::Alpha;
+use crate::quant::{QuantPlan, Quantizer};
+
+/// The first eight bytes of every repository. The CR LF pair catches text-mode transfers that
+/// rewrite line endings; the NUL stops it being mistaken for text.
+pub const MAGIC: [u8; 8] = *b"CBDAM\0\r\n";
+/// The format version this code writes and the newest it reads.
+pub const FORMAT_VERSION: u16 = 1;
+/// Size of the version-1 header, bytes (the header CRC is its last four bytes).
+pub const HEADER_LEN: usize = 256;
+
+/// Byte offset of the section table in the header.
+const SECTIONS_AT: usize = 128;
+/// Bytes per section-table entry: offset u64, length u64, CRC-32 u32, reserved u32.
+const SECTION_ENTRY: usize = 24;
+/// Byte offset of the record count.
+const RECORD_COUNT_AT: usize = SECTIONS_AT + 4 * SECTION_ENTRY;
+/// Byte offset of the input's nodata value (f64, NaN for none).
+const NODATA_AT: usize = RECORD_COUNT_AT + 8;
+/// Byte offset of the header CRC.
+const HEADER_CRC_AT: usize = HEADER_LEN - 4;
+
+/// Nodata policy 0: samples that were nodata in the input are unconstrained in the hierarchy
+/// ("don't care") and must not be drawn. The only policy so far.
+const NODATA_DONT_CARE: u8 = 0;
+/// Vertical unit 0: heights are metres.
+const VERTICAL_METRES: u8 = 0;
+
+/// The four sections, in file order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Section {
+    /// The coded root field.
+    Roots,
+    /// The record index.
+    Index,
+    /// One CRC-32 (little-endian u32) per non-empty record, in id order.
+    Checksums,
+    /// The records, concatenated in id order.
+    Records,
+}
+
+impl Section {
+    const ALL: [Section; 4] = [
+        Section::Roots,
+        Section::Index,
+        Section::Checksums,
+        Section::Records,
+    ];
+
+    fn name(self) -> &'static str {
+        match self {
+            Section::Roots => "root field",
+            Section::Index => "record index",
+            Section::Checksums => "record checksum table",
+            Section::Records => "records area",
+        }
+    }
+}
+
+/// Where a section lies and its checksum.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct SectionInfo {
+    offset: u64,
+    length: u64,
+    crc: u32,
+}
+
+impl SectionInfo {
+    fn range(&self) -> std::ops::Range<usize> {
+        // Bounds were checked against the file length at open, so both fit in usize.
+        self.offset as usize..(self.offset + self.length) as usize
+    }
+}
+
+fn crc32(bytes: &[u8]) -> u32 {
+    crc32fast::hash(bytes)
+}
+
+/// Serialises `encoded` as a repository file image. `nodata` is the input's effective nodata
+/// value (recorded so that `verify` can re-read the input the same way).
+pub fn serialize(
+    encoded: &Encoded,
+    plan: &QuantPlan,
+    georef: Option<&GeoRef>,
+    nodata: Option<f64>,
+) -> Result<Vec<u8>, CodecError> {
+    let p = &encoded.params;
+    if p.quantizer != plan.quantizer {
+        return Err(CodecError::invalid(
+            "the quantization plan does not match the encoded hierarchy's quantizer",
+        ));
+    }
+    let entries = encoded.index_entries();
+    let index = encode_index(&p.layout, &entries);
+    // Empty records (all residuals zero) get no checksum: their length of 0 is already covered
+    // by the index's CRC, and smooth terrain has many (all 69 of lidar1m_mn's at 5 m).
+    let checksums: Vec<u8> = encoded
+        .records
+        .iter()
+        .filter(|r| !r.bytes.is_empty())
+        .flat_map(|r| crc32(&r.bytes).to_le_bytes())
+        .collect();
+    let records_len: u64 = encoded.records.iter().map(|r| r.bytes.len() as u64).sum();
+    let n = u16::try_from(p.layout.n()).map_err(|_| CodecError::limit("diamond size"))?;
+    let k = u8::try_from(p.layout.k()).map_err(|_| CodecError::limit("level pairs"))?;
+
+    let mut h = vec![0u8; HEADER_LEN];
+    let mut put = |at: usize, b: &[u8]| h[at..at + b.len()].copy_from_slice(b);
+    put(0, &MAGIC);
+    put(8, &FORMAT_VERSION.to_le_bytes());
+    put(10, &(HEADER_LEN as u16).to_le_bytes());
+    // 12..16: flags, zero in version 1.
+    put(16, &n.to_le_bytes());
+    put(18, &[k]);
+    put(19, &[p.alpha.to_byte()]);
+    put(20, &[p.coder.to_byte()]);
+    put(21, &[u8::from(plan.lattice)]);
+    let geo_flags = georef.map_or(0, |g| 1 | (u8::from(g.pixel_is_area) << 1));
+    put(22, &[geo_flags]);
+    put(23, &[NODATA_DONT_CARE]);
+    put(24, &p.layout.roots_x().to_le_bytes());
+    put(28, &p.layout.roots_y().to_le_bytes());
+    put(32, &p.data_width.to_le_bytes());
+    put(36, &p.data_height.to_le_bytes());
+    put(40, &(p.quantizer.k() as u32).to_le_bytes());
+    put(44, &(p.root_quantizer.k() as u32).to_le_bytes());
+    put(48, &encoded.leaf_error.to_le_bytes());
+    put(52, &georef.and_then(|g| g.epsg).unwrap_or(0).to_le_bytes());
+    put(56, &plan.unit.to_le_bytes());
+    put(64, &plan.offset.to_le_bytes());
+    put(72, &plan.epsilon.to_le_bytes());
+    put(80, &plan.representation_error.to_le_bytes());
+    let g = georef.cloned().unwrap_or(GeoRef {
+        epsg: None,
+        origin_x: 0.0,
+        origin_y: 0.0,
+        pixel_x: 0.0,
+        pixel_y: 0.0,
+        pixel_is_area: false,
+    });
+    put(88, &g.origin_x.to_le_bytes());
+    put(96, &g.origin_y.to_le_bytes());
+    put(104, &g.pixel_x.to_le_bytes());
+    put(112, &g.pixel_y.to_le_bytes());
+    put(120, &[VERTICAL_METRES]);
+    put(NODATA_AT, &nodata.unwrap_or(f64::NAN).to_le_bytes());
+    let mut offset = HEADER_LEN as u64;
+    let sections: [(&[u8], u64); 4] = [
+        (&encoded.roots, encoded.roots.len() as u64),
+        (&index, index.len() as u64),
+        (&checksums, checksums.len() as u64),
+        (&[], records_len),
+    ];
+    let mut records_hasher = crc32fast::Hasher::new();
+    for r in &encoded.records {
+        records_hasher.update(&r.bytes);
+    }
+    let records_crc = records_hasher.finalize();
+    for (i, (bytes, len)) in sections.iter().enumerate() {
+        let at = SECTIONS_AT + i * SECTION_ENTRY;
+        let crc = if i == 3 { records_crc } else { crc32(bytes) };
+        put(at, &offset.to_le_bytes());
+        put(at + 8, &len.to_le_bytes());
+        put(at + 16, &crc.to_le_bytes());
+        offset += len;
+    }
+    put(
+        RECORD_COUNT_AT,
+        &(encoded.records.len() as u64).to_le_bytes(),
+    );
+    let crc = crc32(&h[..HEADER_CRC_AT]);
+    h[HEADER_CRC_AT..].copy_from_slice(&crc.to_le_bytes());
+
+    let total = usize::try_from(offset).map_err(|_| CodecError::limit("repository too large"))?;
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(&h);
+    out.extend_from_slice(&encoded.roots);
+    out.extend_from_slice(&index);
+    out.extend_from_slice(&checksums);
+    for r in &encoded.records {
+        out.extend_from_slice(&r.bytes);
+    }
+    debug_assert_eq!(out.len(), total);
+    Ok(out)
+}
+
+/// Removes the temporary file unless the write went through.
+struct TempGuard(Option<PathBuf>);
+
+impl Drop for TempGuard {
+    fn drop(&mut self) {
+        if let Some(p) = self.0.take() {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}
+
+/// Writes `encoded` to `path` atomically: into a temporary file in the same directory, synced,
+/// then renamed over `path`, so a reader never sees a half-written repository and a failed write
+/// leaves nothing behind. Refuses a `path` that is a directory.
+pub fn write_repository(
+    path: &Path,
+    encoded: &Encoded,
+    plan: &QuantPlan,
+    georef: Option<&GeoRef>,
+    nodata: Option<f64>,
+) -> Result<(), CodecError> {
+    if path.is_dir() {
+        return Err(CodecError::invalid(format!(
+            "output path {} is a directory",
+            path.display()
+        )));
+    }
+    let name = path.file_name().ok_or_else(|| {
+        CodecError::invalid(format!("output path {} names no file", path.display()))
+    })?;
+    let bytes = serialize(encoded, plan, georef, nodata)?;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let mut tmp = None;
+    let mut file = None;
+    for attempt in 0..100u32 {
+        let candidate = dir.join(format!(
+            ".{}.tmp-{}-{attempt}",
+            name.to_string_lossy(),
+            std::process::id()
+        ));
+        match OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&candidate)
+        {
+            Ok(f) => {
+                tmp = Some(candidate);
+                file = Some(f);
+                break;
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e.into()),
+        }
+    }
+    let (Some(tmp), Some(mut file)) = (tmp, file) else {
+        return Err(CodecError::invalid(
+            "could not create a temporary file next to the output",
+        ));
+    };
+    let mut guard = TempGuard(Some(tmp.clone()));
+    file.write_all(&bytes)?;
+    file.sync_all()?;
+    drop(file);
+    std::fs::rename(&tmp, path)?;
+    guard.0 = None;
+    // Make the rename itself durable; not every platform lets a directory be opened and synced.
+    if let Ok(d) = File::open(&dir) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
+/// The bytes behind a repository: a read-only file mapping, or an owned buffer.
+#[derive(Debug)]
+enum Backing {
+    Map(memmap2::Mmap),
+    Owned(Vec<u8>),
+}
+
+impl Deref for Backing {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Backing::Map(m) => m,
+            Backing::Owned(v) => v,
+        }
+    }
+}
+
+/// An opened, validated repository.
+#[derive(Debug)]
+pub struct Repository {
+    bytes: Backing,
+    params: CodecParams,
+    plan: QuantPlan,
+    georef: Option<GeoRef>,
+    nodata: Option<f64>,
+    leaf_error: u32,
+    sections: [SectionInfo; 4],
+    entries: Vec<IndexEntry>,
+    /// Per entry, its slot in the checksum table (meaningless for empty records).
+    crc_slots: Vec<u32>,
+}
+
+fn u16_at(b: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([b[at], b[at + 1]])
+}
+fn u32_at(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
+}
+fn u64_at(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+fn f64_at(b: &[u8], at: usize) -> f64 {
+    f64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+
+impl Repository {
+    /// Maps and validates the repository at `path`: magic, version, header CRC, every header
+    /// field, section bounds against the file length, the CRCs of the root field, index and
+    /// checksum table, and the index itself. Record bytes are checked when read
+    /// ([`Repository::record`]) or by [`Repository::check_all`].
+    pub fn open(path: &Path) -> Result<Self, CodecError> {
+        let file = File::open(path)?;
+        let len = file.metadata()?.len();
+        if len < HEADER_LEN as u64 {
+            // Small files are read rather than mapped: mapping an empty file fails on some
+            // platforms, and the error should name what is missing, not the mapping.
+            let bytes = std::fs::read(path)?;
+            return Self::from_bytes(bytes);
+        }
+        // SAFETY: the mapping is read-only. Like every memory-mapped reader we rely on nobody
+        // truncating or rewriting the file while it is open; `write_repository` never does (it
+        // renames a new file over the old one, leaving the mapped inode intact).
+        let map = unsafe { memmap2::Mmap::map(&file)? };
+        Self::parse(Backing::Map(map))
+    }
+
+    /// Validates a repository held in memory (see [`Repository::open`]).
+    pub fn from_bytes(bytes: Vec<u8>) -> Result<Self, CodecError> {
+        Self::parse(Backing::Owned(bytes))
+    }
+
+    fn parse(bytes: Backing) -> Result<Self, CodecError> {
+        let b: &[u8] = &bytes;
+        if b.len() < MAGIC.len() {
+            return Err(CodecError::truncated(format!(
+                "file is {} bytes, too short for the repository magic",
+                b.len()
+            )));
+        }
+        if b[..8] != MAGIC {
+            return Err(CodecError::corrupt(
+                "not a C-BDAM repository (bad magic bytes)",
+            ));
+        }
+        if b.len() < 12 {
+            return Err(CodecError::truncated("file ends inside the header"));
+        }
+        let version = u16_at(b, 8);
+        if version > FORMAT_VERSION {
+            return Err(CodecError::unsupported(format!(
+                "repository format version {version} is newer than this reader (version \
+                 {FORMAT_VERSION}); upgrade cbdam"
+            )));
+        }
+        if version == 0 {
+            return Err(CodecError::corrupt(
+                "repository format version 0 does not exist",
+            ));
+        }
+        let header_len = u16_at(b, 10);
+        if usize::from(header_len) != HEADER_LEN {
+            return Err(CodecError::corrupt(format!(
+                "header length {header_len}, version 1 headers are {HEADER_LEN} bytes"
+            )));
+        }
+        if b.len() < HEADER_LEN {
+            return Err(CodecError::truncated(format!(
+                "file is {} bytes, shorter than the {HEADER_LEN}-byte header",
+                b.len()
+            )));
+        }
+        let stored_crc = u32_at(b, HEADER_CRC_AT);
+        if crc32(&b[..HEADER_CRC_AT]) != stored_crc {
+            return Err(CodecError::corrupt("header checksum mismatch"));
+        }
+        // The CRC matched, so what follows are fields some writer meant; still validate each,
+        // since a buggy or hostile writer can compute a CRC too.
+        let flags = u32_at(b, 12);
+        if flags != 0 {
+            return Err(CodecError::unsupported(format!(
+                "unknown header flags {flags:#x}"
+            )));
+        }
+        let layout = Layout::new(
+            usize::from(u16_at(b, 16)),
+            u32::from(b[18]),
+            u32_at(b, 24),
+            u32_at(b, 28),
+        )
+        .map_err(|e| CodecError::corrupt(format!("header layout: {e}")))?;
+        let alpha = Alpha::from_byte(b[19])
+            .ok_or_else(|| CodecError::corrupt(format!("unknown lifting weight id {}", b[19])))?;
+        let coder = CoderKind::from_byte(b[20])?;
+        let lattice = match b[21] {
+            0 => false,
+            1 => true,
+            v => {
+                return Err(CodecError::corrupt(format!(
+                    "lattice flag {v} is not 0 or 1"
+                )));
+            }
+        };
+        let geo_flags = b[22];
+        if geo_flags & !3 != 0 || geo_flags == 2 {
+            return Err(CodecError::corrupt(format!(
+                "invalid georeferencing flags {geo_flags:#x}"
+            )));
+        }
+        if b[23] != NODATA_DONT_CARE {
+            return Err(CodecError::unsupported(format!(
+                "unknown nodata policy {}",
+                b[23]
+            )));
+        }
+        if b[120] != VERTICAL_METRES {
+            return Err(CodecError::unsupported(format!(
+                "unknown vertical unit {}",
+                b[120]
+            )));
+        }
+        if b[121..SECTIONS_AT].iter().any(|&x| x != 0)
+            || b[NODATA_AT + 8..HEADER_CRC_AT].iter().any(|&x| x != 0)
+        {
+            return Err(CodecError::corrupt("reserved header bytes are not zero"));
+        }
+        let data_width = u32_at(b, 32);
+        let data_height = u32_at(b, 36);
+        let (ex, ey) = layout.extent();
+        if data_width == 0
+            || data_height == 0
+            || i64::from(data_width) > ex + 1
+            || i64::from(data_height) > ey + 1
+        {
+            return Err(CodecError::corrupt(format!(
+                "data size {data_width}×{data_height} does not fit the layout's {}×{} lattice",
+                ex + 1,
+                ey + 1
+            )));
+        }
+        let quantizer = Quantizer::new(u32_at(b, 40))
+            .map_err(|e| CodecError::corrupt(format!("header quantizer: {e}")))?;
+        let root_k = u32_at(b, 44);
+        let root_q = root_quantizer(quantizer);
+        if root_k != root_q.k() as u32 {
+            return Err(CodecError::unsupported(format!(
+                "root quantizer k = {root_k}; this reader derives {} from k = {}",
+                root_q.k(),
+                quantizer.k()
+            )));
+        }
+        let leaf_error = u32_at(b, 48);
+        let epsg = u32_at(b, 52);
+        let unit = f64_at(b, 56);
+        let offset = f64_at(b, 64);
+        let epsilon = f64_at(b, 72);
+        let representation_error = f64_at(b, 80);
+        if !(unit.is_finite() && unit > 0.0) {
+            return Err(CodecError::corrupt(format!(
+                "height unit {unit} is not positive"
+            )));
+        }
+        if !offset.is_finite() {
+            return Err(CodecError::corrupt("height offset is not finite"));
+        }
+        if !(epsilon.is_finite() && epsilon > 0.0) {
+            return Err(CodecError::corrupt(format!(
+                "tolerance {epsilon} is not positive"
+            )));
+        }
+        if !(representation_error.is_finite() && representation_error >= 0.0) {
+            return Err(CodecError::corrupt(
+                "representation error is negative or not finite",
+            ));
+        }
+        let geo: Vec<f64> = (0..4).map(|i| f64_at(b, 88 + 8 * i)).collect();
+        let georef = if geo_flags & 1 == 1 {
+            if geo.iter().any(|v| !v.is_finite()) {
+                return Err(CodecError::corrupt("georeferencing values are not finite"));
+            }
+            Some(GeoRef {
+                epsg: (epsg != 0).then_some(epsg),
+                origin_x: geo[0],
+                origin_y: geo[1],
+                pixel_x: geo[2],
+                pixel_y: geo[3],
+                pixel_is_area: geo_flags & 2 == 2,
+            })
+        } else {
+            if epsg != 0 || geo.iter().any(|&v| v.to_bits() != 0) {
+                return Err(CodecError::corrupt(
+                    "georeferencing fields are set but the header says there is none",
+                ));
+            }
+            None
+        };
+        let nodata_value = f64_at(b, NODATA_AT);
+        let nodata = (!nodata_value.is_nan()).then_some(nodata_value);
+
+        let file_len = b.len() as u64;
+        let mut sections = [SectionInfo {
+            offset: 0,
+            length: 0,
+            crc: 0,
+        }; 4];
+        let mut expected = HEADER_LEN as u64;
+        for (i, s) in Section::ALL.iter().enumerate() {
+            let at = SECTIONS_AT + i * SECTION_ENTRY;
+            let info = SectionInfo {
+                offset: u64_at(b, at),
+                length: u64_at(b, at + 8),
+                crc: u32_at(b, at + 16),
+            };
+            if u32_at(b, at + 20) != 0 {
+                return Err(CodecError::corrupt(format!(
+                    "reserved bytes of the {} entry are not zero",
+                    s.name()
+                )));
+            }
+            // Sections follow one another without gaps: anything else is not a version-1 file.
+            if info.offset != expected {
+                return Err(CodecError::corrupt(format!(
+                    "{} starts at byte {}, expected {expected}",
+                    s.name(),
+                    info.offset
+                )));
+            }
+            let end = info
+                .offset
+                .checked_add(info.length)
+                .ok_or_else(|| CodecError::corrupt(format!("{} length overflows", s.name())))?;
+            if end > file_len {
+                return Err(CodecError::truncated(format!(
+                    "{} ends at byte {end} but the file is {file_len} bytes",
+                    s.name()
+                )));
+            }
+            expected = end;
+            sections[i] = info;
+        }
+        if expected != file_len {
+            return Err(CodecError::corrupt(format!(
+                "{} trailing bytes after the records area",
+                file_len - expected
+            )));
+        }
+        for (i, s) in Section::ALL.iter().enumerate().take(3) {
+            if crc32(&b[sections[i].range()]) != sections[i].crc {
+                return Err(CodecError::corrupt(format!(
+                    "{} checksum mismatch",
+                    s.name()
+                )));
+            }
+        }
+        let record_count = u64_at(b, RECORD_COUNT_AT);
+        let entries = decode_index(&layout, &b[sections[1].range()], sections[3].length)?;
+        if entries.len() as u64 != record_count {
+            return Err(CodecError::corrupt(format!(
+                "index holds {} records, header says {record_count}",
+                entries.len()
+            )));
+        }
+        let mut crc_slots = Vec::with_capacity(entries.len());
+        let mut non_empty = 0u32;
+        for e in &entries {
+            crc_slots.push(non_empty);
+            non_empty += u32::from(e.length > 0);
+        }
+        if u64::from(non_empty) * 4 != sections[2].length {
+            return Err(CodecError::corrupt(format!(
+                "record checksum table is {} bytes for {non_empty} non-empty records",
+                sections[2].length
+            )));
+        }
+        let params = CodecParams {
+            layout,
+            alpha,
+            coder,
+            quantizer,
+            root_quantizer: root_q,
+            data_width,
+            data_height,
+        };
+        let plan = QuantPlan {
+            unit,
+            offset,
+            quantizer,
+            lattice,
+            representation_error,
+            epsilon,
+        };
+        Ok(Self {
+            bytes,
+            params,
+            plan,
+            georef,
+            nodata,
+            leaf_error,
+            sections,
+            entries,
+            crc_slots,
+        })
+    }
+
+    /// The decoder's header fields.
+    pub fn params(&self) -> &CodecParams {
+        &self.params
+    }
+
+    /// How integer units map to metres, and the tolerance the repository was built for.
+    pub fn plan(&self) -> &QuantPlan {
+        &self.plan
+    }
+
+    /// Georeferencing of the data grid, when the input had one.
+    pub fn georef(&self) -> Option<&GeoRef> {
+        self.georef.as_ref()
+    }
+
+    /// The input's nodata value at build time, if any.
+    pub fn nodata(&self) -> Option<f64> {
+        self.nodata
+    }
+
+    /// Object-space error of the finest diamonds, units.
+    pub fn leaf_error(&self) -> u32 {
+        self.leaf_error
+    }
+
+    /// The index entries, in id order.
+    pub fn entries(&self) -> &[IndexEntry] {
+        &self.entries
+    }
+
+    /// Total file size, bytes.
+    pub fn file_len(&self) -> u64 {
+        self.bytes.len() as u64
+    }
+
+    /// Length of a section, bytes.
+    pub fn section_len(&self, s: Section) -> u64 {
+        self.sections[Section::ALL.iter().position(|&x| x == s).expect("listed")].length
+    }
+
+    /// The coded root field.
+    pub fn root_bytes(&self) -> &[u8] {
+        &self.bytes[self.sections[0].range()]
+    }
+
+    /// The bytes of the `i`-th record in id order, checked against its CRC.
+    pub fn record_at(&self, i: usize) -> Result<&[u8], CodecError> {
+        let e = self
+            .entries
+            .get(i)
+            .ok_or_else(|| CodecError::invalid(format!("record {i} of {}", self.entries.len())))?;
+        // Offsets and lengths were checked by `decode_index` to add up to the records area.
+        let start = self.sections[3].offset as usize + e.offset as usize;
+        let bytes = &self.bytes[start..start + e.length as usize];
+        if bytes.is_empty() {
+            return Ok(bytes);
+        }
+        let at = self.sections[2].offset as usize + 4 * self.crc_slots[i] as usize;
+        if crc32(bytes) != u32_at(&self.bytes, at) {
+            let id = e.id;
+            return Err(CodecError::corrupt(format!(
+                "checksum mismatch in record {i} (diamond level {} at {}, {})",
+                id.level, id.x, id.y
+            )));
+        }
+        Ok(bytes)
+    }
+
+    /// The record of diamond `id`, checked against its CRC.
+    pub fn record(&self, id: DiamondId) -> Result<&[u8], CodecError> {
+        let i = self
+            .entries
+            .binary_search_by(|e| e.id.cmp(&id))
+            .map_err(|_| {
+                CodecError::invalid(format!(
+                    "diamond level {} at {}, {} is not stored",
+                    id.level, id.x, id.y
+                ))
+            })?;
+        self.record_at(i)
+    }
+
+    /// Checks the records area's CRC and every record's.
+    pub fn check_all(&self) -> Result<(), CodecError> {
+        for i in 0..self.entries.len() {
+            self.record_at(i)?;
+        }
+        // Per-record CRCs cover every byte of the area (the records tile it), so this only adds
+        // a check of the table against the area as a whole.
+        if crc32(&self.bytes[self.sections[3].range()]) != self.sections[3].crc {
+            return Err(CodecError::corrupt("records area checksum mismatch"));
+        }
+        Ok(())
+    }
+
+    /// A decoder over the root field.
+    pub fn decoder(&self) -> Result<Decoder, CodecError> {
+        Decoder::new(self.params, self.root_bytes())
+    }
+
+    /// The whole hierarchy in memory (for [`crate::hierarchy::verify`]); checks every record.
+    pub fn to_encoded(&self) -> Result<Encoded, CodecError> {
+        let records = self
+            .entries
+            .iter()
+            .enumerate()
+            .map(|(i, e)| {
+                Ok(Record {
+                    id: e.id,
+                    bytes: self.record_at(i)?.to_vec(),
+                    object_error: e.object_error,
+                    min: e.min,
+                    max: e.max,
+                })
+            })
+            .collect::<Result<Vec<_>, CodecError>>()?;
+        Ok(Encoded {
+            params: self.params,
+            roots: self.root_bytes().to_vec(),
+            records,
+            leaf_error: self.leaf_error,
+        })
+    }
+}
