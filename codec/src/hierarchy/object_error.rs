@@ -5,8 +5,14 @@
 //! two in lattice units, so the interpolant at an input sample is a rational with that
 //! denominator: it is evaluated exactly in integers, and the maximum rounded up.
 
+use rayon::prelude::*;
+
 use crate::geometry::{Diagonal, DiamondId, Layout};
 use crate::quant::HeightGrid;
+
+/// Diamonds whose grid rows span at least this many lattice units have their rows scanned in
+/// parallel.
+const PARALLEL_ROWS_FROM: i64 = 512;
 
 /// The largest distance, in units rounded up, between the surface of diamond `id` with grid `p`
 /// and the valid input samples under it (0 if there are none).
@@ -33,9 +39,21 @@ pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &H
         }
         return u32::try_from(worst).unwrap_or(u32::MAX);
     }
+    let parallel = layout.radius(id.level) * 2 >= PARALLEL_ROWS_FROM;
+    surface_error_scan(layout, id, p, input, parallel)
+}
+
+/// [`surface_error`] without the finest-level shortcut, rows scanned in parallel or not.
+fn surface_error_scan(
+    layout: &Layout,
+    id: DiamondId,
+    p: &[i32],
+    input: &HeightGrid,
+    parallel: bool,
+) -> u32 {
     match layout.diagonal(id) {
-        Diagonal::Main => surface_error_rows::<true>(layout, id, p, input),
-        Diagonal::Anti => surface_error_rows::<false>(layout, id, p, input),
+        Diagonal::Main => surface_error_rows::<true>(layout, id, p, input, parallel),
+        Diagonal::Anti => surface_error_rows::<false>(layout, id, p, input, parallel),
     }
 }
 
@@ -44,6 +62,7 @@ fn surface_error_rows<const MAIN: bool>(
     id: DiamondId,
     p: &[i32],
     input: &HeightGrid,
+    parallel: bool,
 ) -> u32 {
     let n = layout.n();
     let g = layout.grid(id);
@@ -55,9 +74,8 @@ fn surface_error_rows<const MAIN: bool>(
     let side = sp * (n as i64 - 1);
     let (ox, oy) = g.origin;
     let (w, h) = (input.width as i64, input.height as i64);
-    let mut surface = vec![0i64; side as usize + 1];
-    let mut worst_h = 0i64;
-    for t in 0..=side {
+    // One row of the diamond: the largest scaled error over its samples in the data.
+    let row_error = |t: i64, surface: &mut [i64]| -> i64 {
         // The row's samples that lie in the data: s in [lo, hi] (odd levels: s ≡ t mod 2).
         let (mut lo, mut hi) = if odd {
             (
@@ -66,7 +84,7 @@ fn surface_error_rows<const MAIN: bool>(
             )
         } else {
             if oy + t < 0 || oy + t >= h {
-                continue;
+                return 0;
             }
             ((-ox).max(0), (w - 1 - ox).min(side))
         };
@@ -77,7 +95,7 @@ fn surface_error_rows<const MAIN: bool>(
             hi -= 1;
         }
         if lo > hi {
-            continue;
+            return 0;
         }
         let cj = (t >> shift).min(last);
         let ft = t - (cj << shift);
@@ -132,6 +150,7 @@ fn surface_error_rows<const MAIN: bool>(
         };
         let mut k = (y * w + x) as usize;
         let mut s = lo;
+        let mut worst_h = 0i64;
         while s <= hi {
             let e = (surface[s as usize] - i64::from(input.values[k]) * sp).abs();
             // Branch-free: nodata contributes 0.
@@ -139,7 +158,21 @@ fn surface_error_rows<const MAIN: bool>(
             k += kstep;
             s += sstep;
         }
-    }
+        worst_h
+    };
+    // The coarsest diamonds cover the whole dataset alone, and their level has too few
+    // diamonds to keep every core busy: split their rows across threads instead.
+    let rows = 0..=side;
+    let fresh = || vec![0i64; side as usize + 1];
+    let worst_h = if parallel {
+        rows.into_par_iter()
+            .map_init(fresh, |surface, t| row_error(t, surface))
+            .max()
+            .unwrap_or(0)
+    } else {
+        let mut surface = fresh();
+        rows.map(|t| row_error(t, &mut surface)).max().unwrap_or(0)
+    };
     let e = (worst_h + sp - 1) / sp;
     u32::try_from(e).unwrap_or(u32::MAX)
 }
@@ -234,11 +267,13 @@ mod tests {
                 }
                 frontier.extend(layout.children(d).into_iter().flatten());
                 let p: Vec<i32> = (0..n * n).map(|_| rnd(1000) as i32).collect();
-                proptest::prop_assert_eq!(
-                    surface_error(&layout, d, &p, &input),
-                    brute_force(&layout, d, &p, &input),
-                    "{}", d
-                );
+                let want = brute_force(&layout, d, &p, &input);
+                proptest::prop_assert_eq!(surface_error(&layout, d, &p, &input), want, "{}", d);
+                if d.level < layout.finest_level() || !d.is_even() {
+                    for parallel in [false, true] {
+                        proptest::prop_assert_eq!(surface_error_scan(&layout, d, &p, &input, parallel), want, "{} {}", d, parallel);
+                    }
+                }
             }
         }
     }
