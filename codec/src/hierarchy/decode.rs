@@ -162,7 +162,12 @@ pub fn reconstruct_finest(encoded: &Encoded) -> Result<Vec<i32>, CodecError> {
     let params = encoded.params;
     let layout = params.layout;
     let (w, h) = (params.data_width as usize, params.data_height as usize);
-    let mut out = vec![0i32; w * h];
+    // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
+    let mut out = Vec::new();
+    w.checked_mul(h)
+        .and_then(|len| out.try_reserve_exact(len).ok().map(|()| len))
+        .map(|len| out.resize(len, 0))
+        .ok_or_else(|| CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory")))?;
     let n = layout.n();
     let finest = layout.finest_level();
     walk(encoded, |id, p| {
