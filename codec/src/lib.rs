@@ -6,6 +6,7 @@
 //! decoder diamond by diamond, and [`entropy`] turns residual matrices into bytes and back.
 #![deny(missing_docs)]
 
+pub mod atomic;
 pub mod entropy;
 pub mod error;
 pub mod geometry;

@@ -11,13 +11,14 @@
 //! small sections but does not scan the records area, so opening a large repository stays cheap.
 //! [`Repository::check_all`] checks everything.
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::Write;
 use std::ops::Deref;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use super::index::{IndexEntry, decode_index, encode_index};
 use crate::CodecError;
+use crate::atomic::write_atomically;
 use crate::entropy::CoderKind;
 use crate::geometry::{DiamondId, Layout};
 use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, root_quantizer};
@@ -208,20 +209,9 @@ pub fn serialize(
     Ok(out)
 }
 
-/// Removes the temporary file unless the write went through.
-struct TempGuard(Option<PathBuf>);
-
-impl Drop for TempGuard {
-    fn drop(&mut self) {
-        if let Some(p) = self.0.take() {
-            let _ = std::fs::remove_file(p);
-        }
-    }
-}
-
-/// Writes `encoded` to `path` atomically: into a temporary file in the same directory, synced,
-/// then renamed over `path`, so a reader never sees a half-written repository and a failed write
-/// leaves nothing behind. Refuses a `path` that is a directory.
+/// Writes `encoded` to `path` atomically ([`crate::atomic::write_atomically`]): a reader never
+/// sees a half-written repository and a failed write leaves nothing behind. Refuses a `path`
+/// that is a directory.
 pub fn write_repository(
     path: &Path,
     encoded: &Encoded,
@@ -235,52 +225,11 @@ pub fn write_repository(
             path.display()
         )));
     }
-    let name = path.file_name().ok_or_else(|| {
-        CodecError::invalid(format!("output path {} names no file", path.display()))
-    })?;
     let bytes = serialize(encoded, plan, georef, nodata)?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let mut tmp = None;
-    let mut file = None;
-    for attempt in 0..100u32 {
-        let candidate = dir.join(format!(
-            ".{}.tmp-{}-{attempt}",
-            name.to_string_lossy(),
-            std::process::id()
-        ));
-        match OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&candidate)
-        {
-            Ok(f) => {
-                tmp = Some(candidate);
-                file = Some(f);
-                break;
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
-            Err(e) => return Err(e.into()),
-        }
-    }
-    let (Some(tmp), Some(mut file)) = (tmp, file) else {
-        return Err(CodecError::invalid(
-            "could not create a temporary file next to the output",
-        ));
-    };
-    let mut guard = TempGuard(Some(tmp.clone()));
-    file.write_all(&bytes)?;
-    file.sync_all()?;
-    drop(file);
-    std::fs::rename(&tmp, path)?;
-    guard.0 = None;
-    // Make the rename itself durable; not every platform lets a directory be opened and synced.
-    if let Ok(d) = File::open(&dir) {
-        let _ = d.sync_all();
-    }
-    Ok(())
+    write_atomically(path, |f: &mut File| -> Result<(), CodecError> {
+        f.write_all(&bytes)?;
+        Ok(())
+    })
 }
 
 /// The bytes behind a repository: a read-only file mapping, or an owned buffer.

@@ -1,0 +1,327 @@
+//! `cbdam extract`: decode a repository (or a window / coarser level of it) back to a DEM file.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use cbdam_codec::atomic::write_atomically;
+use cbdam_codec::hierarchy::walk;
+use cbdam_codec::input::GeoRef;
+use cbdam_codec::repository::Repository;
+use serde_json::json;
+use tiff::encoder::{TiffEncoder, colortype};
+use tiff::tags::Tag;
+
+use crate::{ExtractArgs, ExtractFormat};
+
+const KEY_MODEL_TYPE: u16 = 1024;
+const KEY_RASTER_TYPE: u16 = 1025;
+const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
+const KEY_PROJECTED_CS_TYPE: u16 = 3072;
+const MODEL_PROJECTED: u16 = 1;
+const MODEL_GEOGRAPHIC: u16 = 2;
+const RASTER_PIXEL_IS_AREA: u16 = 1;
+const RASTER_PIXEL_IS_POINT: u16 = 2;
+
+/// The output raster: heights in metres, row-major, row 0 = north.
+struct Raster {
+    width: usize,
+    height: usize,
+    values: Vec<f64>,
+    georef: Option<GeoRef>,
+}
+
+pub fn run(args: &ExtractArgs) -> Result<()> {
+    // Argument checks before the decode, which is the expensive part.
+    if args.output.is_dir() {
+        bail!("output path {} is a directory", args.output.display());
+    }
+    let sidecar = sidecar_path(&args.output);
+    if args.format == ExtractFormat::Raw && sidecar == args.output {
+        bail!(
+            "output path {} would be overwritten by its own JSON sidecar; use another extension",
+            args.output.display()
+        );
+    }
+    let repo =
+        Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
+    let p = *repo.params();
+    let plan = *repo.plan();
+    let finest = p.layout.finest_level();
+    let level = args.level.unwrap_or(finest);
+    if !level.is_multiple_of(2) || level > finest {
+        bail!(
+            "--level {level}: only even levels 0, 2, …, {finest} are axis-aligned grids in this \
+             repository (the finest is {finest})"
+        );
+    }
+    // Lattice spacing of the level's samples: level 2m samples every 2^(K−m) input samples.
+    let step = 1i64 << ((finest - level) / 2);
+    let (w, h) = (i64::from(p.data_width), i64::from(p.data_height));
+    let window = match &args.bbox {
+        None => (0, 0, w - 1, h - 1),
+        Some(b) => bbox_window(b, repo.georef(), w, h)?,
+    };
+    // The level's lattice points inside the window: multiples of `step`.
+    let first = |lo: i64| (lo + step - 1).div_euclid(step) * step;
+    let (x0, y0) = (first(window.0), first(window.1));
+    if x0 > window.2 || y0 > window.3 {
+        bail!("the bounding box holds no sample of level {level} (spacing {step} input samples)");
+    }
+    let out_w = ((window.2 - x0) / step + 1) as usize;
+    let out_h = ((window.3 - y0) / step + 1) as usize;
+
+    let encoded = repo
+        .to_encoded()
+        .with_context(|| format!("reading {}", args.repo.display()))?;
+    // Points no decoded diamond covers lie in parts of the data rectangle with no valid sample
+    // nearby (the encoder stores only diamonds that meet one): nodata, or NaN without a value.
+    let fill = repo.nodata().unwrap_or(f64::NAN);
+    let mut values = vec![fill; out_w * out_h];
+    let n = p.layout.n();
+    walk(&encoded, |id, grid| {
+        if id.level != level {
+            return;
+        }
+        let g = p.layout.grid(id);
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = g.point(i as i64, j as i64);
+                if x < x0 || y < y0 || x > window.2 || y > window.3 {
+                    continue;
+                }
+                // Even-level grids sit on multiples of their own spacing, which is `step`.
+                debug_assert!((x - x0) % step == 0 && (y - y0) % step == 0);
+                let (c, r) = (((x - x0) / step) as usize, ((y - y0) / step) as usize);
+                values[r * out_w + c] = plan.metres(grid[j * n + i]);
+            }
+        }
+    })
+    .with_context(|| format!("decoding {}", args.repo.display()))?;
+
+    let georef = repo.georef().map(|g| {
+        // Raster point (0, 0) of the output is lattice point (x0, y0); a PixelIsArea origin is the
+        // outer corner of a cell `step` samples wide centred on that point.
+        let half = if g.pixel_is_area { 0.5 } else { 0.0 };
+        let (sx, sy) = (step as f64, step as f64);
+        GeoRef {
+            origin_x: g.origin_x + (x0 as f64 + half - half * sx) * g.pixel_x,
+            origin_y: g.origin_y - (y0 as f64 + half - half * sy) * g.pixel_y,
+            pixel_x: g.pixel_x * sx,
+            pixel_y: g.pixel_y * sy,
+            ..g.clone()
+        }
+    });
+    let raster = Raster {
+        width: out_w,
+        height: out_h,
+        values,
+        georef,
+    };
+    match args.format {
+        ExtractFormat::Geotiff => write_atomically(&args.output, |f: &mut File| {
+            write_geotiff(f, &raster, repo.nodata(), args.float64)
+        })
+        .with_context(|| format!("writing {}", args.output.display()))?,
+        ExtractFormat::Raw => {
+            write_atomically(&args.output, |f: &mut File| {
+                write_raw(f, &raster, args.float64)
+            })
+            .with_context(|| format!("writing {}", args.output.display()))?;
+            let meta = json!({
+                "width": raster.width,
+                "height": raster.height,
+                "dtype": if args.float64 { "float64" } else { "float32" },
+                "byte_order": "little",
+                "row_order": "north-up (row 0 = north edge)",
+                "unit": "m",
+                "nodata": repo.nodata(),
+                "max_error_m": plan.epsilon,
+                "guaranteed_max_error_m": plan.max_error(),
+                "level": level,
+                "georef": raster.georef.as_ref().map(|g| json!({
+                    "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
+                    "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
+                    "pixel_is": if g.pixel_is_area { "area" } else { "point" },
+                })),
+            });
+            let written = write_atomically(&sidecar, |f: &mut File| -> Result<()> {
+                serde_json::to_writer_pretty(&mut *f, &meta)?;
+                f.write_all(b"\n")?;
+                Ok(())
+            });
+            if let Err(e) = written {
+                // Raw samples without their sidecar are unreadable: take them back.
+                let _ = std::fs::remove_file(&args.output);
+                return Err(e.context(format!("writing {}", sidecar.display())));
+            }
+        }
+    }
+    if !args.quiet {
+        println!(
+            "{}: {}×{} samples of level {level} (spacing {step}), max error {} m",
+            args.output.display(),
+            out_w,
+            out_h,
+            plan.max_error()
+        );
+    }
+    Ok(())
+}
+
+/// `OUT.json` next to a raw `OUT.f32` (the extension replaced).
+fn sidecar_path(output: &Path) -> PathBuf {
+    output.with_extension("json")
+}
+
+/// The inclusive lattice window `(x0, y0, x1, y1)` of the data samples inside `b`, clipped to
+/// the data. With georeferencing `b` is in CRS units and a sample is inside when its centre is;
+/// without, it is in column / row indices (row 0 = north).
+fn bbox_window(b: &[f64], georef: Option<&GeoRef>, w: i64, h: i64) -> Result<(i64, i64, i64, i64)> {
+    let [minx, miny, maxx, maxy] = b else {
+        bail!(
+            "--bbox takes four numbers MINX,MINY,MAXX,MAXY, not {}",
+            b.len()
+        );
+    };
+    if !b.iter().all(|v| v.is_finite()) {
+        bail!("--bbox holds a non-finite number");
+    }
+    if minx > maxx || miny > maxy {
+        bail!("--bbox is inverted: MINX must not exceed MAXX, nor MINY MAXY");
+    }
+    // Sample (c, r) has its centre at (ox + (c + half)·px, oy − (r + half)·py); solve for c and r.
+    let (ox, oy, px, py, half) = match georef {
+        Some(g) => (
+            g.origin_x,
+            g.origin_y,
+            g.pixel_x,
+            g.pixel_y,
+            if g.pixel_is_area { 0.5 } else { 0.0 },
+        ),
+        // Pixel coordinates: x = column, y = row.
+        None => (0.0, 0.0, 1.0, -1.0, 0.0),
+    };
+    let range = |a: f64, b: f64| {
+        let (lo, hi) = (a.min(b), a.max(b));
+        (lo.ceil(), hi.floor())
+    };
+    let (c0, c1) = range((minx - ox) / px - half, (maxx - ox) / px - half);
+    let (r0, r1) = range((oy - maxy) / py - half, (oy - miny) / py - half);
+    let (c0, r0) = (c0.max(0.0), r0.max(0.0));
+    let (c1, r1) = (c1.min((w - 1) as f64), r1.min((h - 1) as f64));
+    if c0 > c1 || r0 > r1 {
+        bail!(
+            "--bbox {minx},{miny},{maxx},{maxy} holds no sample of the data ({})",
+            match georef {
+                Some(g) => {
+                    let xs = [
+                        g.origin_x + half * g.pixel_x,
+                        g.origin_x + ((w - 1) as f64 + half) * g.pixel_x,
+                    ];
+                    let ys = [
+                        g.origin_y - half * g.pixel_y,
+                        g.origin_y - ((h - 1) as f64 + half) * g.pixel_y,
+                    ];
+                    format!(
+                        "sample centres span x {} … {}, y {} … {}",
+                        xs[0].min(xs[1]),
+                        xs[0].max(xs[1]),
+                        ys[0].min(ys[1]),
+                        ys[0].max(ys[1])
+                    )
+                }
+                None => format!(
+                    "no georeferencing: columns 0 … {}, rows 0 … {}",
+                    w - 1,
+                    h - 1
+                ),
+            }
+        );
+    }
+    Ok((c0 as i64, r0 as i64, c1 as i64, r1 as i64))
+}
+
+fn write_geotiff(f: &mut File, r: &Raster, nodata: Option<f64>, float64: bool) -> Result<()> {
+    let mut enc = TiffEncoder::new(BufWriter::new(f))?;
+    let (w, h) = (u32::try_from(r.width)?, u32::try_from(r.height)?);
+    // Tags first, then the samples: the same for both sample types.
+    macro_rules! image {
+        ($ct:ty, $data:expr) => {{
+            let mut img = enc.new_image::<$ct>(w, h)?;
+            write_geo_tags(img.encoder(), r.georef.as_ref(), nodata)?;
+            img.write_data($data)?;
+        }};
+    }
+    if float64 {
+        image!(colortype::Gray64Float, &r.values);
+    } else {
+        let v: Vec<f32> = r.values.iter().map(|&x| x as f32).collect();
+        image!(colortype::Gray32Float, &v);
+    }
+    Ok(())
+}
+
+/// The GeoTIFF tags `codec/src/input/geotiff.rs` reads back: pixel scale, one tie point at
+/// raster (0, 0), model and raster type, the EPSG code, and GDAL's nodata text.
+fn write_geo_tags<W: Write + std::io::Seek, K: tiff::encoder::TiffKind>(
+    dir: &mut tiff::encoder::DirectoryEncoder<'_, W, K>,
+    georef: Option<&GeoRef>,
+    nodata: Option<f64>,
+) -> Result<()> {
+    if let Some(g) = georef {
+        dir.write_tag(Tag::ModelPixelScaleTag, &[g.pixel_x, g.pixel_y, 0.0][..])?;
+        dir.write_tag(
+            Tag::ModelTiepointTag,
+            &[0.0, 0.0, 0.0, g.origin_x, g.origin_y, 0.0][..],
+        )?;
+        let raster = if g.pixel_is_area {
+            RASTER_PIXEL_IS_AREA
+        } else {
+            RASTER_PIXEL_IS_POINT
+        };
+        let mut keys: Vec<[u16; 2]> = Vec::new();
+        // EPSG codes above 65535 do not fit a GeoKey short; the CRS is then left unnamed, as it
+        // is for repositories built without one.
+        match g.epsg.and_then(|e| u16::try_from(e).ok()) {
+            // 4000…4999 holds the geographic 2-D CRSs (4326 and kin).
+            Some(e) if (4000..5000).contains(&e) => {
+                keys.push([KEY_MODEL_TYPE, MODEL_GEOGRAPHIC]);
+                keys.push([KEY_RASTER_TYPE, raster]);
+                keys.push([KEY_GEOGRAPHIC_TYPE, e]);
+            }
+            Some(e) => {
+                keys.push([KEY_MODEL_TYPE, MODEL_PROJECTED]);
+                keys.push([KEY_RASTER_TYPE, raster]);
+                keys.push([KEY_PROJECTED_CS_TYPE, e]);
+            }
+            None => keys.push([KEY_RASTER_TYPE, raster]),
+        }
+        // Header: directory version 1, revision 1.0, key count; then key, location 0 (value
+        // inline), count 1, value — keys sorted ascending, as the specification requires.
+        let mut dirv: Vec<u16> = vec![1, 1, 0, keys.len() as u16];
+        for [k, v] in keys {
+            dirv.extend_from_slice(&[k, 0, 1, v]);
+        }
+        dir.write_tag(Tag::GeoKeyDirectoryTag, &dirv[..])?;
+    }
+    if let Some(nd) = nodata {
+        // Rust's shortest round-trip formatting: the reader parses back the same f64.
+        dir.write_tag(Tag::GdalNodata, format!("{nd}").as_str())?;
+    }
+    Ok(())
+}
+
+fn write_raw(f: &mut File, r: &Raster, float64: bool) -> Result<()> {
+    let mut out = BufWriter::new(f);
+    for &v in &r.values {
+        if float64 {
+            out.write_all(&v.to_le_bytes())?;
+        } else {
+            out.write_all(&(v as f32).to_le_bytes())?;
+        }
+    }
+    out.flush()?;
+    Ok(())
+}
