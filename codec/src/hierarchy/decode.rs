@@ -167,7 +167,9 @@ pub fn reconstruct_finest(encoded: &Encoded) -> Result<Vec<i32>, CodecError> {
     w.checked_mul(h)
         .and_then(|len| out.try_reserve_exact(len).ok().map(|()| len))
         .map(|len| out.resize(len, 0))
-        .ok_or_else(|| CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory")))?;
+        .ok_or_else(|| {
+            CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
+        })?;
     let n = layout.n();
     let finest = layout.finest_level();
     walk(encoded, |id, p| {
