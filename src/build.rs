@@ -30,18 +30,12 @@ pub fn run(args: &BuildArgs) -> Result<()> {
     };
     let dem = read_dem(&args.input, &opts)
         .with_context(|| format!("reading {}", args.input.display()))?;
-    let (lo, hi) = (0..dem.values.len())
-        .filter(|&i| dem.is_valid(i))
-        .map(|i| dem.values[i])
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-            (lo.min(v), hi.max(v))
-        });
-    if lo > hi {
+    let Some((lo, hi)) = dem.valid_range() else {
         bail!(
             "{} has no valid sample (all nodata or NaN)",
             args.input.display()
         );
-    }
+    };
     // A tolerance above the whole height range would let a flat plane stand for the terrain:
     // almost certainly a unit mistake (feet, centimetres) rather than intent.
     if hi > lo && args.max_error > hi - lo {

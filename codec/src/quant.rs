@@ -183,17 +183,11 @@ impl QuantPlan {
     /// Plans for a DEM: its valid height range, and its value quantum — `quantum` if given,
     /// otherwise the one [`detect_quantum`] finds (none for float data off any grid).
     pub fn for_dem(dem: &Dem, epsilon: f64, quantum: Option<f64>) -> Result<Self, CodecError> {
-        let (lo, hi) = (0..dem.values.len())
-            .filter(|&i| dem.is_valid(i))
-            .map(|i| dem.values[i])
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-                (lo.min(v), hi.max(v))
-            });
-        if lo > hi {
+        let Some((lo, hi)) = dem.valid_range() else {
             return Err(CodecError::invalid(
                 "the input has no valid sample (all nodata or NaN)",
             ));
-        }
+        };
         if !(lo.is_finite() && hi.is_finite()) {
             return Err(CodecError::invalid("the input holds infinite heights"));
         }

@@ -96,6 +96,17 @@ impl Dem {
         !v.is_nan() && self.nodata != Some(v)
     }
 
+    /// Smallest and largest valid height, or `None` if no sample holds one.
+    pub fn valid_range(&self) -> Option<(f64, f64)> {
+        let (lo, hi) = (0..self.values.len())
+            .filter(|&i| self.is_valid(i))
+            .map(|i| self.values[i])
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v), hi.max(v))
+            });
+        (lo <= hi).then_some((lo, hi))
+    }
+
     /// Number of samples that hold a height.
     pub fn valid_count(&self) -> usize {
         (0..self.values.len()).filter(|&i| self.is_valid(i)).count()
