@@ -1,14 +1,17 @@
 //! `cbdam build`: one DEM in memory → one repository file.
 
+use std::io::IsTerminal;
+use std::sync::Mutex;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, encode_with_progress};
 use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::write_repository;
+use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::{AlphaArg, BuildArgs, CoderArg};
 
@@ -68,7 +71,13 @@ pub fn run(args: &BuildArgs) -> Result<()> {
         pool = pool.num_threads(t);
     }
     let pool = pool.build()?;
-    let encoded = pool.install(|| encode(&grid, plan.quantizer, &enc_opts))?;
+    let progress = Progress::new(args.quiet);
+    let encoded = pool.install(|| {
+        encode_with_progress(&grid, plan.quantizer, &enc_opts, &|done, total| {
+            progress.update(done, total)
+        })
+    })?;
+    progress.finish();
     write_repository(
         &args.output,
         &encoded,
@@ -97,4 +106,56 @@ pub fn run(args: &BuildArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Progress of the encode: a bar with ETA on a terminal, a log line per quarter otherwise (so CI
+/// logs and pipes stay readable), nothing with `--quiet`.
+enum Progress {
+    Quiet,
+    Bar(ProgressBar),
+    Log(Mutex<usize>),
+}
+
+impl Progress {
+    fn new(quiet: bool) -> Self {
+        if quiet {
+            Progress::Quiet
+        } else if std::io::stderr().is_terminal() {
+            let bar = ProgressBar::new(0);
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "encoding {bar:40} {percent:>3}%, {elapsed} elapsed, ETA {eta}",
+                )
+                .expect("static template"),
+            );
+            Progress::Bar(bar)
+        } else {
+            Progress::Log(Mutex::new(0))
+        }
+    }
+
+    fn update(&self, done: usize, total: usize) {
+        match self {
+            Progress::Quiet => {}
+            Progress::Bar(bar) => {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            }
+            Progress::Log(logged) => {
+                let q = done * 4 / total.max(1);
+                // Workers report concurrently: log every quarter crossed, once and in order.
+                let mut logged = logged.lock().unwrap_or_else(|e| e.into_inner());
+                while *logged < q.min(4) {
+                    *logged += 1;
+                    eprintln!("encoding: {}% done", *logged * 25);
+                }
+            }
+        }
+    }
+
+    fn finish(&self) {
+        if let Progress::Bar(bar) = self {
+            bar.finish_and_clear();
+        }
+    }
 }

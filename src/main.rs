@@ -28,8 +28,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Build a repository from one DEM, in memory (multiple inputs, out-of-core building and a
-    /// progress bar are not implemented yet).
+    /// Build a repository from one DEM, in memory (multiple inputs and out-of-core building are
+    /// not implemented yet).
     Build(BuildArgs),
     /// Print a repository's header, per-level record counts and sizes, and error range.
     Inspect(InspectArgs),
@@ -121,8 +121,9 @@ pub enum AlphaArg {
 
 /// Build a repository from one DEM file.
 ///
-/// The whole DEM is read and encoded in memory. Multiple inputs (mosaics), out-of-core building
-/// for DEMs larger than memory and a progress bar are later work.
+/// The whole DEM is read and encoded in memory. Progress goes to stderr: a bar with ETA on a
+/// terminal, a line per quarter otherwise, nothing with --quiet. Multiple inputs (mosaics) and
+/// out-of-core building for DEMs larger than memory are later work.
 #[derive(Args, Debug)]
 pub struct BuildArgs {
     /// DEM file (GeoTIFF, .hgt, ASCII grid, PNG).

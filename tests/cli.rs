@@ -133,6 +133,38 @@ fn quiet_prints_nothing() {
     assert!(o.stdout.is_empty() && o.stderr.is_empty());
 }
 
+#[test]
+fn progress_is_logged_when_stderr_is_not_a_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = s(&dir.path().join("p.cbdam"));
+    let o = cbdam(&[
+        "build",
+        &data("jacksboro_mpl.tif"),
+        "-o",
+        &out,
+        "--max-error",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let log = stderr(&o);
+    // One line per quarter, in order, ending at 100 %, and no terminal control codes.
+    let quarters: Vec<&str> = log
+        .lines()
+        .filter(|l| l.starts_with("encoding: "))
+        .collect();
+    assert_eq!(
+        quarters,
+        [
+            "encoding: 25% done",
+            "encoding: 50% done",
+            "encoding: 75% done",
+            "encoding: 100% done"
+        ],
+        "{log}"
+    );
+    assert!(!log.contains('\u{1b}'), "{log}");
+}
+
 /// Runs a build that must fail with `message` and leave `dir` as it was.
 fn build_fails(dir: &Path, input: &str, out: &Path, extra: &[&str], message: &str) {
     let before = listing(dir);

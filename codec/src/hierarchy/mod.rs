@@ -20,7 +20,7 @@ mod roots;
 
 pub use analysis::{LevelField, analysis_fields};
 pub use decode::{Decoder, LevelReport, VerifyReport, reconstruct_finest, verify, walk};
-pub use encode::{EncodeOptions, encode};
+pub use encode::{EncodeOptions, encode, encode_with_progress};
 pub use refine::{RefineScratch, Refined, gather, refine};
 pub use roots::root_field_dims;
 
