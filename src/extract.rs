@@ -8,21 +8,16 @@ use anyhow::{Context, Result, bail};
 use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::hierarchy::walk;
 use cbdam_codec::input::GeoRef;
+use cbdam_codec::input::geokeys::{
+    KEY_GEOGRAPHIC_TYPE, KEY_MODEL_TYPE, KEY_PROJECTED_CS_TYPE, KEY_RASTER_TYPE, MODEL_GEOGRAPHIC,
+    MODEL_PROJECTED, RASTER_PIXEL_IS_AREA, RASTER_PIXEL_IS_POINT,
+};
 use cbdam_codec::repository::Repository;
 use serde_json::json;
 use tiff::encoder::{TiffEncoder, colortype};
 use tiff::tags::Tag;
 
 use crate::{ExtractArgs, ExtractFormat};
-
-const KEY_MODEL_TYPE: u16 = 1024;
-const KEY_RASTER_TYPE: u16 = 1025;
-const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
-const KEY_PROJECTED_CS_TYPE: u16 = 3072;
-const MODEL_PROJECTED: u16 = 1;
-const MODEL_GEOGRAPHIC: u16 = 2;
-const RASTER_PIXEL_IS_AREA: u16 = 1;
-const RASTER_PIXEL_IS_POINT: u16 = 2;
 
 /// The output raster: heights in metres, row-major, row 0 = north.
 struct Raster {

@@ -5,6 +5,8 @@
 //! whatever damaged data decodes must stay within the heights the format can represent, all the
 //! way down the hierarchy.
 
+mod common;
+use common::Rng;
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -14,21 +16,6 @@ use cbdam_codec::hierarchy::{Decoder, EncodeOptions, Encoded, RefineScratch, enc
 use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::lifting::{Alpha, MAX_ABS_HEIGHT};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
-
-/// SplitMix64: reproducible from the seed alone.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
 
 /// A 256 × 256 window of SRTM at ε = 1 m: real residual statistics, a few levels of diamonds.
 fn hierarchy(alpha: Alpha, coder: CoderKind) -> Encoded {

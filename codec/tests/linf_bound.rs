@@ -1,24 +1,12 @@
 //! The L∞ guarantee, checked exactly (in integer units) on every level, on adversarial fields.
 
+mod common;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, encode, verify};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use common::Rng;
 use proptest::prelude::*;
-
-/// Deterministic xorshift, so failures reproduce from the seed alone.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
 
 #[derive(Clone, Copy, Debug)]
 enum Field {

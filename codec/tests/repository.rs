@@ -2,6 +2,7 @@
 //! single-bit flips, random bytes) that must give an error — never a panic, never silent
 //! acceptance.
 
+mod common;
 use cbdam_codec::CodecError;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify};
@@ -11,16 +12,7 @@ use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{
     FORMAT_VERSION, HEADER_LEN, Repository, Section, serialize, write_repository,
 };
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-}
+use common::Rng;
 
 /// A small hierarchy with nodata holes, rough enough that records are non-trivial.
 fn fixture(alpha: Alpha, coder: CoderKind) -> (Encoded, QuantPlan, HeightGrid) {

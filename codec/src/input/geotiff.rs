@@ -19,12 +19,10 @@ use tiff::{TiffError, TiffUnsupportedError};
 use super::{Dem, GeoRef, Limits, SampleType};
 use crate::CodecError;
 
-const KEY_RASTER_TYPE: u16 = 1025;
-const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
-const KEY_PROJECTED_CS_TYPE: u16 = 3072;
-const RASTER_PIXEL_IS_POINT: u16 = 2;
-/// GeoTIFF's "user-defined" code: the CRS is spelled out in other keys, not an EPSG code.
-const USER_DEFINED: u16 = 32767;
+use super::geokeys::{
+    KEY_GEOGRAPHIC_TYPE, KEY_PROJECTED_CS_TYPE, KEY_RASTER_TYPE, RASTER_PIXEL_IS_POINT,
+    USER_DEFINED,
+};
 
 pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
     let file_len = super::file_len(path)?;

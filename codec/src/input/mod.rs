@@ -6,6 +6,7 @@
 //! the builder; the readers only refuse inputs they cannot read faithfully.
 
 mod ascii_grid;
+pub mod geokeys;
 mod geotiff;
 mod hgt;
 mod png;
