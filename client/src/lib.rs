@@ -1,4 +1,7 @@
 //! The C-BDAM client: data access, time-critical refinement and rendering (`cbdam view`).
 //!
-//! Not implemented yet: issues 5 and 6.
+//! [`patch`] is the unit everything downstream of the decoder handles: the half-patches a cut
+//! draws. Streaming refinement (issue 5) and the renderer (issue 6) are not implemented yet.
 #![deny(missing_docs)]
+
+pub mod patch;

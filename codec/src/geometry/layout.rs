@@ -266,6 +266,17 @@ impl Layout {
         (x - r, y - r, x + r, y + r)
     }
 
+    /// Which half of `id` grid point `(i, j)` lies in; `None` on the split diagonal, which
+    /// belongs to both.
+    pub fn half_of_point(&self, id: DiamondId, i: usize, j: usize) -> Option<Half> {
+        let n1 = self.n - 1;
+        let on_diagonal = match self.diagonal(id) {
+            Diagonal::Main => i == j,
+            Diagonal::Anti => i + j == n1,
+        };
+        (!on_diagonal).then(|| self.half_of_centroid3(id, 3 * i as i64, 3 * j as i64))
+    }
+
     /// Which half of `id` grid index `(i, j)` of a cell-split triangle belongs to, from three
     /// times its centroid `(si, sj)` (integers, so no rounding).
     pub(crate) fn half_of_centroid3(&self, id: DiamondId, si: i64, sj: i64) -> Half {
