@@ -6,4 +6,5 @@
 
 pub mod camera;
 pub mod patch;
+pub mod remote;
 pub mod world;
