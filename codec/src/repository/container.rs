@@ -615,6 +615,35 @@ impl Repository {
         self.sections[Section::ALL.iter().position(|&x| x == s).expect("listed")].length
     }
 
+    /// Byte offset of a section from the start of the file. The records area is the last
+    /// section, so its offset is the length of everything a reader needs besides the records.
+    pub fn section_offset(&self, s: Section) -> u64 {
+        self.sections[Section::ALL.iter().position(|&x| x == s).expect("listed")].offset
+    }
+
+    /// The whole file, as validated by [`Repository::open`] (the records area unchecked). For
+    /// serving the file verbatim, e.g. to HTTP range requests.
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    /// The header's CRC-32. The header holds the CRCs of every section (records area
+    /// included), so this identifies the file's content: servers use it in cache validators.
+    pub fn header_crc(&self) -> u32 {
+        u32_at(&self.bytes, HEADER_CRC_AT)
+    }
+
+    /// The CRC-32 stored for the `i`-th record in id order, as the checksum table holds it
+    /// (not recomputed); `None` for an empty record (it has no slot) or `i` out of range.
+    pub fn record_checksum(&self, i: usize) -> Option<u32> {
+        let e = self.entries.get(i)?;
+        if e.length == 0 {
+            return None;
+        }
+        let at = self.sections[2].offset as usize + 4 * self.crc_slots[i] as usize;
+        Some(u32_at(&self.bytes, at))
+    }
+
     /// The coded root field.
     pub fn root_bytes(&self) -> &[u8] {
         &self.bytes[self.sections[0].range()]
