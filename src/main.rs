@@ -4,11 +4,14 @@
 //! problem), 2 bad usage (clap's own code).
 
 mod bench_codec;
+mod bench_serve;
 mod build;
 mod extract;
 mod inspect;
+mod serve;
 mod verify;
 
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -49,6 +52,13 @@ enum Command {
     /// samples in regions with no valid input sample nearby (no stored diamond) are written as the
     /// recorded nodata value (NaN when the repository recorded none).
     Extract(ExtractArgs),
+    /// Serve repositories over HTTP/1.1 and HTTP/2 (cleartext): per-diamond records, batches,
+    /// the header as JSON, the raw file with range requests, and Prometheus metrics.
+    ///
+    /// Endpoints and the batch framing: docs/FORMAT.md, "HTTP API". Logs go to stderr,
+    /// filtered by RUST_LOG (default info, one line per request). Stops on SIGINT/SIGTERM after
+    /// the requests in flight finish.
+    Serve(ServeArgs),
     /// Measure the codec and other parts of the pipeline.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -59,6 +69,65 @@ enum BenchCommand {
     /// Rate, verified maximum error and speed of the codec on DEM files (default: the bundled
     /// samples), as a Markdown table.
     Codec(BenchCodecArgs),
+    /// Load test of the HTTP server: concurrent clients fetching random stored diamonds, one per
+    /// request and in batches, over loopback; records/s, MB/s and latency as a Markdown table.
+    Serve(BenchServeArgs),
+}
+
+/// Serve repositories over HTTP.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Repositories: PATH (served under its file stem) or NAME=PATH. Names may use
+    /// A-Z a-z 0-9 . _ - and must be unique.
+    #[arg(required = true, value_name = "REPO")]
+    repos: Vec<String>,
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    addr: SocketAddr,
+    /// Most diamond ids in one batch request (more: 413).
+    #[arg(long, default_value_t = 4096)]
+    max_batch: usize,
+    /// Largest request body, bytes (more: 413).
+    #[arg(long, default_value_t = 1 << 20)]
+    max_body: usize,
+    /// Access-Control-Allow-Origin: `*` or a comma-separated list of origins.
+    #[arg(long, default_value = "*")]
+    cors_origin: String,
+    /// Time allowed for one request, seconds (then 408).
+    #[arg(long, default_value_t = 30.0)]
+    timeout: f64,
+    /// Worker threads (default: one per core).
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+/// Load-test the HTTP server in-process.
+#[derive(Args, Debug)]
+pub struct BenchServeArgs {
+    /// Repository to serve. Default: built from data/srtm3_demcompare.tif at ε = 1 m into a
+    /// temporary directory.
+    repo: Option<PathBuf>,
+    /// Concurrent clients, each on its own keep-alive HTTP/1.1 connection.
+    #[arg(long, default_value_t = 64)]
+    clients: usize,
+    /// Seconds per measured run.
+    #[arg(long, default_value_t = 5.0)]
+    seconds: f64,
+    /// Most requests per run (the other bound besides --seconds).
+    #[arg(long, default_value_t = 5_000_000)]
+    max_requests: u64,
+    /// Ids per batch request (0: skip the batched runs).
+    #[arg(long, default_value_t = 64)]
+    batch: usize,
+    /// Runs per mode; the median run (by records/s) is reported.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Server worker threads.
+    #[arg(long, default_value_t = 1)]
+    server_threads: usize,
+    /// Load-generator worker threads (its own runtime, so the two do not share a scheduler).
+    #[arg(long, default_value_t = 1)]
+    client_threads: usize,
 }
 
 /// Which value(s) of a two-way option to run.
@@ -225,7 +294,9 @@ fn main() -> ExitCode {
         Command::Inspect(args) => inspect::run(&args),
         Command::Verify(args) => verify::run(&args),
         Command::Extract(args) => extract::run(&args),
+        Command::Serve(args) => serve::run(&args),
         Command::Bench(BenchCommand::Codec(args)) => bench_codec::run(&args),
+        Command::Bench(BenchCommand::Serve(args)) => bench_serve::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -322,3 +322,39 @@ fn head_from_a_prefix_checks_records_like_the_repository() {
     assert!(RepositoryHead::parse(&bytes[..len], bytes.len() as u64 + 1).is_err());
     assert!(required_head_len(&bytes[..HEADER_LEN - 1]).is_err());
 }
+
+/// The accessors a server needs to serve the file verbatim agree with the writer's layout.
+#[test]
+fn raw_accessors_match_the_layout() {
+    let (enc, plan, _) = fixture(Alpha::One, CoderKind::Adaptive);
+    let bytes = serialize(&enc, &plan, Some(&georef()), None).unwrap();
+    let repo = Repository::from_bytes(bytes.clone()).unwrap();
+    assert_eq!(repo.as_bytes(), &bytes[..]);
+    assert_eq!(
+        repo.header_crc(),
+        u32::from_le_bytes(bytes[HEADER_LEN - 4..HEADER_LEN].try_into().unwrap())
+    );
+    assert_eq!(repo.section_offset(Section::Roots), HEADER_LEN as u64);
+    // The records area is last: everything before it is header + roots + index + checksums.
+    let head = repo.section_offset(Section::Records);
+    assert_eq!(head + repo.section_len(Section::Records), repo.file_len());
+    assert_eq!(
+        head,
+        HEADER_LEN as u64
+            + repo.section_len(Section::Roots)
+            + repo.section_len(Section::Index)
+            + repo.section_len(Section::Checksums)
+    );
+    let mut empty = 0;
+    for (i, r) in enc.records.iter().enumerate() {
+        match repo.record_checksum(i) {
+            Some(c) => assert_eq!(c, crc32fast::hash(&r.bytes)),
+            None => {
+                assert!(r.bytes.is_empty());
+                empty += 1;
+            }
+        }
+    }
+    assert!(empty > 0, "the fixture has a flat strip of empty records");
+    assert_eq!(repo.record_checksum(enc.records.len()), None);
+}

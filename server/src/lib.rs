@@ -1,4 +1,90 @@
 //! The HTTP server of diamond residuals (`cbdam serve`).
 //!
-//! Not implemented yet: it is issue 4 and depends on the repository format (issue 3).
+//! Serves per-diamond records of one or more memory-mapped repositories over HTTP/1.1 and
+//! HTTP/2 cleartext (prior knowledge). The endpoints and the batch framing are specified in
+//! `docs/FORMAT.md`, section "HTTP API":
+//!
+//! - `GET /v1/repos`: the repositories served.
+//! - `GET /v1/repos/{name}/meta`: a repository's header as JSON ([`describe::describe`] plus
+//!   links).
+//! - `GET /v1/repos/{name}/diamonds/{l-x-y}`: one record's bytes.
+//! - `POST /v1/repos/{name}/diamonds`: many records in one framed body.
+//! - `GET /v1/repos/{name}/file`: the repository file itself, with range requests.
+//! - `GET /metrics`: Prometheus counters.
+//!
+//! [`app`] builds the router, [`run`] serves it on a listener until a shutdown future
+//! completes.
 #![deny(missing_docs)]
+
+pub mod describe;
+mod error;
+pub mod metrics;
+mod range;
+mod routes;
+mod state;
+
+use std::future::Future;
+
+use axum::Router;
+use axum::serve::ListenerExt;
+use tokio::net::TcpListener;
+
+pub use describe::{describe, head_len, summarize};
+pub use error::{ApiError, ServerError};
+pub use range::{RangeRequest, parse_range};
+pub use routes::{BATCH_CONTENT_TYPE, BATCH_MAGIC, STATUS_NOT_STORED, STATUS_RECORD};
+pub use state::{AppState, Config, RepoSpec, ServedRepo, validate_name};
+
+/// The router with every endpoint and middleware (CORS, timeout, metrics and request logs).
+pub fn app(state: AppState) -> Router {
+    routes::router(state)
+}
+
+/// Serves `state` on `listener` until `shutdown` completes, then stops accepting, lets the
+/// requests in flight finish and returns. HTTP/1.1 and HTTP/2 are told apart per connection
+/// (HTTP/2 cleartext needs prior knowledge: there is no `Upgrade: h2c` dance).
+pub async fn run(
+    listener: TcpListener,
+    state: AppState,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServerError> {
+    // Without TCP_NODELAY a small response can wait for the client's delayed ACK (Nagle's
+    // algorithm): tens of milliseconds on a request that takes microseconds.
+    let listener = listener.tap_io(|tcp| {
+        if let Err(e) = tcp.set_nodelay(true) {
+            tracing::debug!("set_nodelay: {e}");
+        }
+    });
+    axum::serve(listener, app(state))
+        .with_graceful_shutdown(shutdown)
+        .await?;
+    Ok(())
+}
+
+/// Completes on SIGINT (Ctrl-C) or, on Unix, SIGTERM: the shutdown future for [`run`].
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        if let Err(e) = tokio::signal::ctrl_c().await {
+            tracing::error!("cannot listen for Ctrl-C: {e}");
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(e) => {
+                tracing::error!("cannot listen for SIGTERM: {e}");
+                std::future::pending::<()>().await;
+            }
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => tracing::info!("SIGINT received, shutting down"),
+        () = term => tracing::info!("SIGTERM received, shutting down"),
+    }
+}

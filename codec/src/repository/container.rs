@@ -266,6 +266,7 @@ pub struct RepositoryHead {
     record_crcs: Vec<u32>,
     roots: Vec<u8>,
     file_len: u64,
+    header_crc: u32,
 }
 
 impl RepositoryHead {
@@ -555,6 +556,7 @@ impl RepositoryHead {
             record_crcs,
             roots: b[sections[0].range()].to_vec(),
             file_len,
+            header_crc: stored_crc,
         })
     }
 
@@ -606,6 +608,24 @@ impl RepositoryHead {
     /// Byte offset of the records area: the head is the file's bytes before it.
     pub fn records_offset(&self) -> u64 {
         self.sections[3].offset
+    }
+
+    /// Byte offset of a section from the start of the file.
+    pub fn section_offset(&self, s: Section) -> u64 {
+        self.sections[Section::ALL.iter().position(|&x| x == s).expect("listed")].offset
+    }
+
+    /// The header's CRC-32. The header holds the CRCs of every section (records area
+    /// included), so this identifies the file's content: servers use it in cache validators.
+    pub fn header_crc(&self) -> u32 {
+        self.header_crc
+    }
+
+    /// The CRC-32 stored for the `i`-th record in id order, as the checksum table holds it
+    /// (not recomputed); `None` for an empty record (it has no slot) or `i` out of range.
+    pub fn record_checksum(&self, i: usize) -> Option<u32> {
+        let e = self.entries.get(i)?;
+        (e.length > 0).then(|| self.record_crcs[i])
     }
 
     /// Absolute byte range of record `i` in the file (for range requests).
@@ -776,9 +796,26 @@ impl Repository {
         self.head.root_bytes()
     }
 
-    /// The whole file's bytes (mapped or owned).
-    pub fn file_bytes(&self) -> &[u8] {
+    /// The whole file, as validated by [`Repository::open`] (the records area unchecked). For
+    /// serving the file verbatim, e.g. to HTTP range requests.
+    pub fn as_bytes(&self) -> &[u8] {
         &self.bytes
+    }
+
+    /// Byte offset of a section from the start of the file. The records area is the last
+    /// section, so its offset is the length of everything a reader needs besides the records.
+    pub fn section_offset(&self, s: Section) -> u64 {
+        self.head.section_offset(s)
+    }
+
+    /// The header's CRC-32 (see [`RepositoryHead::header_crc`]).
+    pub fn header_crc(&self) -> u32 {
+        self.head.header_crc()
+    }
+
+    /// The CRC-32 stored for the `i`-th record (see [`RepositoryHead::record_checksum`]).
+    pub fn record_checksum(&self, i: usize) -> Option<u32> {
+        self.head.record_checksum(i)
     }
 
     /// The bytes of the `i`-th record in id order, checked against its CRC.

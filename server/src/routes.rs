@@ -1,0 +1,448 @@
+//! The endpoints and the middleware around them.
+
+use std::borrow::Cow;
+use std::ops::Range;
+use std::sync::Arc;
+use std::sync::atomic::Ordering::Relaxed;
+use std::time::Instant;
+
+use axum::Router;
+use axum::body::Body;
+use axum::extract::rejection::{BytesRejection, PathRejection};
+use axum::extract::{DefaultBodyLimit, Path, Request, State};
+use axum::http::{HeaderMap, HeaderName, HeaderValue, Method, StatusCode, Uri, header};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use bytes::Bytes;
+use cbdam_codec::geometry::DiamondId;
+use serde::Deserialize;
+use tower_http::cors::{AllowOrigin, CorsLayer};
+use tower_http::timeout::TimeoutLayer;
+
+use crate::error::ApiError;
+use crate::metrics::Endpoint;
+use crate::range::{RangeRequest, parse_range};
+use crate::state::{AppState, ServedRepo};
+
+/// The first four bytes of a batch response.
+pub const BATCH_MAGIC: [u8; 4] = *b"CBDR";
+/// `Content-Type` of a batch response.
+pub const BATCH_CONTENT_TYPE: &str = "application/x-cbdam-records";
+/// Batch entry status: the record follows.
+pub const STATUS_RECORD: u8 = 0;
+/// Batch entry status: the diamond is not stored in this repository (length 0, no bytes).
+pub const STATUS_NOT_STORED: u8 = 1;
+
+/// Records never change for a given URL while the same file is served under the same name.
+const IMMUTABLE: &str = "public, max-age=31536000, immutable";
+/// Meta and file may change if an operator serves a rebuilt file under the same name, so
+/// caches revalidate them (cheaply: a 304 against their ETag).
+const REVALIDATE: &str = "no-cache";
+const OCTETS: &str = "application/octet-stream";
+const JSON: &str = "application/json";
+
+/// A static header value (`HeaderValue` consts would trip clippy's interior-mutability lint).
+fn hv(s: &'static str) -> HeaderValue {
+    HeaderValue::from_static(s)
+}
+
+pub(crate) fn router(state: AppState) -> Router {
+    let cfg = state.config().clone();
+    Router::new()
+        .route("/v1/repos", get(list))
+        .route("/v1/repos/{name}/meta", get(meta))
+        .route("/v1/repos/{name}/file", get(file))
+        .route("/v1/repos/{name}/diamonds/{id}", get(diamond))
+        .route(
+            "/v1/repos/{name}/diamonds",
+            post(batch).layer(DefaultBodyLimit::max(cfg.max_body)),
+        )
+        .route("/metrics", get(metrics))
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(TimeoutLayer::with_status_code(
+            StatusCode::REQUEST_TIMEOUT,
+            cfg.timeout,
+        ))
+        .layer(cors_layer(&cfg.cors_origin))
+        // Outermost, so that it sees (and counts) timeouts, CORS preflights and 404s too.
+        .layer(middleware::from_fn_with_state(state.clone(), observe))
+        .with_state(state)
+}
+
+/// Parses `--cors-origin`: `*` or a comma-separated list of origins.
+pub(crate) fn parse_cors_origin(s: &str) -> Result<AllowOrigin, String> {
+    if s.trim() == "*" {
+        return Ok(AllowOrigin::any());
+    }
+    let list = s
+        .split(',')
+        .map(|o| {
+            let o = o.trim();
+            if o.is_empty() || o.contains('*') {
+                return Err(format!("invalid CORS origin {o:?}"));
+            }
+            HeaderValue::from_str(o).map_err(|_| format!("invalid CORS origin {o:?}"))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(AllowOrigin::list(list))
+}
+
+fn cors_layer(origin: &str) -> CorsLayer {
+    // `AppState::new` validated the origin.
+    let origin = parse_cors_origin(origin).unwrap_or_else(|_| AllowOrigin::any());
+    CorsLayer::new()
+        .allow_origin(origin)
+        .allow_methods([Method::GET, Method::HEAD, Method::POST])
+        .allow_headers([
+            header::CONTENT_TYPE,
+            header::RANGE,
+            header::IF_NONE_MATCH,
+            header::IF_RANGE,
+        ])
+        // Browsers hide response headers from scripts unless listed here; a client needs
+        // these to cache records and read ranges.
+        .expose_headers([
+            header::ETAG,
+            header::CONTENT_RANGE,
+            header::ACCEPT_RANGES,
+            header::CONTENT_LENGTH,
+        ])
+        .max_age(std::time::Duration::from_secs(86_400))
+}
+
+/// Counts and logs every request.
+async fn observe(State(st): State<AppState>, req: Request, next: Next) -> Response {
+    let start = Instant::now();
+    let endpoint = Endpoint::classify(req.method(), req.uri().path());
+    // Cloning the method and URI only when the access log is on keeps the hot path free of
+    // them when it is off.
+    let log = tracing::enabled!(target: "cbdam_server::access", tracing::Level::INFO);
+    let seen = log.then(|| (req.method().clone(), req.uri().clone(), req.version()));
+    let mut resp = next.run(req).await;
+    if resp.status() == StatusCode::REQUEST_TIMEOUT {
+        // TimeoutLayer answers with an empty body; give it the same JSON shape as every
+        // other error.
+        resp = ApiError::Timeout(st.config().timeout.as_secs_f64()).into_response();
+    }
+    let bytes = http_body_size(resp.body());
+    let elapsed = start.elapsed();
+    st.metrics()
+        .observe(endpoint, resp.status(), bytes, elapsed);
+    if let Some((method, uri, version)) = seen {
+        tracing::info!(
+            target: "cbdam_server::access",
+            %method,
+            path = %uri,
+            ?version,
+            status = resp.status().as_u16(),
+            bytes,
+            micros = elapsed.as_micros() as u64,
+        );
+    }
+    resp
+}
+
+fn http_body_size(b: &Body) -> u64 {
+    use axum::body::HttpBody;
+    b.size_hint().exact().unwrap_or(0)
+}
+
+async fn not_found(uri: Uri) -> ApiError {
+    ApiError::NotFound(format!("no such endpoint {}", uri.path()))
+}
+
+async fn method_not_allowed(method: Method, uri: Uri) -> ApiError {
+    ApiError::MethodNotAllowed(format!("{method} is not allowed on {}", uri.path()))
+}
+
+fn bad_path(e: PathRejection) -> ApiError {
+    ApiError::BadRequest(format!("malformed path: {}", e.body_text()))
+}
+
+fn lookup<'a>(st: &'a AppState, name: &str) -> Result<&'a Arc<ServedRepo>, ApiError> {
+    st.repo(name)
+        .ok_or_else(|| ApiError::NotFound(format!("no repository named {name:?}")))
+}
+
+fn parse_id(s: &str) -> Result<DiamondId, ApiError> {
+    s.parse()
+        .map_err(|_| ApiError::BadRequest(format!("malformed diamond id {s:?} (want level-x-y)")))
+}
+
+fn find(r: &ServedRepo, id: DiamondId) -> Option<usize> {
+    r.repo.entries().binary_search_by(|e| e.id.cmp(&id)).ok()
+}
+
+/// Whether `If-None-Match` matches `etag` (weak comparison, as RFC 9110 asks for this header).
+fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
+    let ours = etag.as_bytes();
+    headers
+        .get_all(header::IF_NONE_MATCH)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .map(str::trim)
+        .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t).as_bytes() == ours)
+}
+
+/// Record `i`'s bytes, checked against its CRC. A damaged record is answered with 500 and
+/// logged the first time only.
+fn checked_record<'a>(st: &AppState, r: &'a ServedRepo, i: usize) -> Result<&'a [u8], ApiError> {
+    r.repo.record_at(i).map_err(|e| {
+        st.metrics().add_corrupt();
+        let id = r.repo.entries()[i].id;
+        if !r.corrupt_logged[i].swap(true, Relaxed) {
+            tracing::error!(
+                repo = %r.name,
+                diamond = %id,
+                "damaged record, answering 500 for it (logged once): {e}"
+            );
+        }
+        ApiError::Internal(format!(
+            "the record of diamond {id} in repository {:?} is damaged",
+            r.name
+        ))
+    })
+}
+
+fn respond(status: StatusCode, headers: HeaderMap, body: impl Into<Body>) -> Response {
+    let mut r = Response::new(body.into());
+    *r.status_mut() = status;
+    *r.headers_mut() = headers;
+    r
+}
+
+fn headers<const N: usize>(pairs: [(HeaderName, HeaderValue); N]) -> HeaderMap {
+    let mut h = HeaderMap::with_capacity(N + 4);
+    for (k, v) in pairs {
+        h.insert(k, v);
+    }
+    h
+}
+
+async fn list(State(st): State<AppState>) -> Response {
+    respond(
+        StatusCode::OK,
+        headers([
+            (header::CONTENT_TYPE, hv(JSON)),
+            (header::CACHE_CONTROL, hv(REVALIDATE)),
+        ]),
+        st.inner.listing.clone(),
+    )
+}
+
+async fn meta(
+    State(st): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let Path(name) = path.map_err(bad_path)?;
+    let r = lookup(&st, &name)?;
+    let h = headers([
+        (header::ETAG, r.meta_etag.clone()),
+        (header::CACHE_CONTROL, hv(REVALIDATE)),
+    ]);
+    if not_modified(req.headers(), &r.meta_etag) {
+        return Ok(respond(StatusCode::NOT_MODIFIED, h, Body::empty()));
+    }
+    let mut h = h;
+    h.insert(header::CONTENT_TYPE, hv(JSON));
+    Ok(respond(StatusCode::OK, h, r.meta.clone()))
+}
+
+async fn diamond(
+    State(st): State<AppState>,
+    path: Result<Path<(String, String)>, PathRejection>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let Path((name, id)) = path.map_err(bad_path)?;
+    let r = lookup(&st, &name)?;
+    let id = parse_id(&id)?;
+    let i = find(r, id).ok_or_else(|| {
+        ApiError::NotFound(format!("diamond {id} is not stored in repository {name:?}"))
+    })?;
+    let etag = r.record_etag(i);
+    if not_modified(req.headers(), &etag) {
+        return Ok(respond(
+            StatusCode::NOT_MODIFIED,
+            headers([(header::ETAG, etag), (header::CACHE_CONTROL, hv(IMMUTABLE))]),
+            Body::empty(),
+        ));
+    }
+    let bytes = checked_record(&st, r, i)?;
+    st.metrics().add_records(1);
+    Ok(respond(
+        StatusCode::OK,
+        headers([
+            (header::CONTENT_TYPE, hv(OCTETS)),
+            (header::ETAG, etag),
+            (header::CACHE_CONTROL, hv(IMMUTABLE)),
+        ]),
+        Bytes::copy_from_slice(bytes),
+    ))
+}
+
+/// `POST /v1/repos/{name}/diamonds` body. Ids are borrowed from the body when they contain no
+/// JSON escapes, which is always for well-formed ids.
+#[derive(Deserialize)]
+struct BatchRequest<'a> {
+    #[serde(borrow)]
+    ids: Vec<Cow<'a, str>>,
+}
+
+async fn batch(
+    State(st): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Response, ApiError> {
+    let Path(name) = path.map_err(bad_path)?;
+    let r = lookup(&st, &name)?;
+    let cfg = st.config();
+    let body = body.map_err(|e| {
+        if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::TooLarge(format!("request body is over {} bytes", cfg.max_body))
+        } else {
+            ApiError::BadRequest(format!("reading the request body: {}", e.body_text()))
+        }
+    })?;
+    let req: BatchRequest = serde_json::from_slice(&body).map_err(|e| {
+        ApiError::BadRequest(format!(
+            "malformed batch request: {e} (want {{\"ids\": [\"level-x-y\", ...]}})"
+        ))
+    })?;
+    if req.ids.len() > cfg.max_batch {
+        return Err(ApiError::TooLarge(format!(
+            "{} ids in one batch, at most {} allowed",
+            req.ids.len(),
+            cfg.max_batch
+        )));
+    }
+    // Resolve every id before sending anything, so a malformed one fails the request whole,
+    // and so the body can be sized exactly.
+    let entries = r.repo.entries();
+    let mut slots = Vec::with_capacity(req.ids.len());
+    let mut total = 8;
+    for (k, s) in req.ids.iter().enumerate() {
+        let id = s.parse::<DiamondId>().map_err(|_| {
+            ApiError::BadRequest(format!(
+                "malformed diamond id {s:?} at position {k} (want level-x-y)"
+            ))
+        })?;
+        let slot = find(r, id);
+        total += 5 + slot.map_or(0, |i| entries[i].length as usize);
+        slots.push(slot);
+    }
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(&BATCH_MAGIC);
+    // `max_batch` is a usize from the command line; the count field is u32.
+    let count = u32::try_from(slots.len())
+        .map_err(|_| ApiError::TooLarge("more than 2^32 ids in one batch".into()))?;
+    out.extend_from_slice(&count.to_le_bytes());
+    let mut found = 0;
+    for slot in slots {
+        match slot {
+            Some(i) => {
+                let rec = checked_record(&st, r, i)?;
+                out.push(STATUS_RECORD);
+                // Index lengths are u32, so this cannot truncate.
+                out.extend_from_slice(&(rec.len() as u32).to_le_bytes());
+                out.extend_from_slice(rec);
+                found += 1;
+            }
+            None => {
+                out.push(STATUS_NOT_STORED);
+                out.extend_from_slice(&0u32.to_le_bytes());
+            }
+        }
+    }
+    debug_assert_eq!(out.len(), total);
+    st.metrics().add_records(found);
+    Ok(respond(
+        StatusCode::OK,
+        headers([
+            (
+                header::CONTENT_TYPE,
+                HeaderValue::from_static(BATCH_CONTENT_TYPE),
+            ),
+            (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
+        ]),
+        out,
+    ))
+}
+
+/// A byte range of a served file, owned by the repository's `Arc`: the body is the mapped
+/// bytes themselves, never copied.
+struct FileSlice {
+    repo: Arc<ServedRepo>,
+    range: Range<usize>,
+}
+
+impl AsRef<[u8]> for FileSlice {
+    fn as_ref(&self) -> &[u8] {
+        &self.repo.repo.as_bytes()[self.range.clone()]
+    }
+}
+
+async fn file(
+    State(st): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let Path(name) = path.map_err(bad_path)?;
+    let r = lookup(&st, &name)?;
+    let len = r.repo.file_len();
+    let mut h = headers([
+        (header::ETAG, r.file_etag.clone()),
+        (header::CACHE_CONTROL, hv(REVALIDATE)),
+        (header::ACCEPT_RANGES, HeaderValue::from_static("bytes")),
+    ]);
+    if not_modified(req.headers(), &r.file_etag) {
+        return Ok(respond(StatusCode::NOT_MODIFIED, h, Body::empty()));
+    }
+    let range = req
+        .headers()
+        .get(header::RANGE)
+        .and_then(|v| v.to_str().ok());
+    // If-Range: the range applies only while the client's validator is current (strong
+    // comparison); a stale validator or an HTTP date (we give no Last-Modified) gets the whole
+    // file.
+    let range = match req.headers().get(header::IF_RANGE) {
+        Some(v) if v != r.file_etag => None,
+        _ => range,
+    };
+    h.insert(header::CONTENT_TYPE, hv(OCTETS));
+    let (status, range) = match parse_range(range, len) {
+        RangeRequest::Full => (StatusCode::OK, 0..len),
+        RangeRequest::Partial(range) => {
+            let cr = format!("bytes {}-{}/{len}", range.start, range.end - 1);
+            h.insert(
+                header::CONTENT_RANGE,
+                HeaderValue::from_str(&cr).expect("ASCII"),
+            );
+            (StatusCode::PARTIAL_CONTENT, range)
+        }
+        RangeRequest::Unsatisfiable => return Err(ApiError::RangeNotSatisfiable(len)),
+    };
+    // The file is mapped, so its length fits in usize.
+    let body = Bytes::from_owner(FileSlice {
+        repo: Arc::clone(r),
+        range: range.start as usize..range.end as usize,
+    });
+    Ok(respond(status, h, body))
+}
+
+async fn metrics(State(st): State<AppState>) -> Response {
+    respond(
+        StatusCode::OK,
+        headers([
+            (
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("text/plain; version=0.0.4; charset=utf-8"),
+            ),
+            (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
+        ]),
+        st.metrics().render(),
+    )
+}

@@ -1,0 +1,346 @@
+//! `cbdam bench serve`: load test of the HTTP server over loopback, in one process.
+//!
+//! The server runs on its own tokio runtime and the load generator on another, so the thread
+//! split between them is explicit (`--server-threads`, `--client-threads`) rather than left to
+//! one work-stealing scheduler. Each client holds one keep-alive HTTP/1.1 connection (hyper's
+//! client connection directly, the lightest generator at hand) and sends requests back to back;
+//! latency is measured per request from send to the last body byte.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail, ensure};
+use bytes::Bytes;
+use cbdam_codec::repository::Repository;
+use cbdam_server::{AppState, Config, RepoSpec};
+use http_body_util::{BodyExt, Full};
+use hyper::Request;
+use hyper::header::{CONTENT_TYPE, HOST};
+use hyper_util::rt::TokioIo;
+use tokio::net::TcpStream;
+
+use crate::{AlphaArg, BenchServeArgs, BuildArgs, CoderArg};
+
+const NAME: &str = "bench";
+
+/// What one request asks for, prepared before the clock starts.
+struct Job {
+    /// GET path, or POST path with a JSON body.
+    path: String,
+    body: Option<Bytes>,
+    /// Records and body bytes the answer must have (checked, so a broken server cannot post
+    /// good figures).
+    records: u64,
+    bytes: usize,
+}
+
+#[derive(Default)]
+struct ClientStats {
+    requests: u64,
+    records: u64,
+    bytes: u64,
+    latencies_us: Vec<u32>,
+}
+
+struct RunResult {
+    requests: u64,
+    records: u64,
+    bytes: u64,
+    elapsed: Duration,
+    p50_us: u32,
+    p99_us: u32,
+}
+
+impl RunResult {
+    fn records_per_s(&self) -> f64 {
+        self.records as f64 / self.elapsed.as_secs_f64()
+    }
+}
+
+/// SplitMix64, one per client.
+struct Rng(u64);
+impl Rng {
+    fn below(&mut self, n: usize) -> usize {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) % n as u64) as usize
+    }
+}
+
+fn default_repo(dir: &Path) -> Result<PathBuf> {
+    let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/srtm3_demcompare.tif");
+    let output = dir.join("srtm3_demcompare.cbdam");
+    eprintln!("building {} at ε = 1 m …", output.display());
+    crate::build::run(&BuildArgs {
+        input,
+        output: output.clone(),
+        max_error: 1.0,
+        diamond_size: 65,
+        threads: None,
+        coder: CoderArg::Adaptive,
+        alpha: AlphaArg::One,
+        quantum: None,
+        nodata: None,
+        quiet: true,
+    })?;
+    Ok(output)
+}
+
+pub fn run(args: &BenchServeArgs) -> Result<()> {
+    ensure!(args.clients > 0, "--clients must be at least 1");
+    ensure!(args.runs > 0, "--runs must be at least 1");
+    ensure!(
+        args.seconds.is_finite() && args.seconds > 0.0,
+        "--seconds must be positive"
+    );
+    let tmp = tempfile::tempdir()?;
+    let path = match &args.repo {
+        Some(p) => p.clone(),
+        None => default_repo(tmp.path())?,
+    };
+    let spec = RepoSpec {
+        name: NAME.into(),
+        path: path.clone(),
+    };
+    let state = AppState::open(
+        &[spec],
+        Config {
+            max_batch: args.batch.max(1),
+            ..Config::default()
+        },
+    )?;
+    let repo: &Repository = &state.repo(NAME).expect("just opened").repo;
+    // Only records that pass their checksum: a damaged one would answer 500 and fail the run.
+    repo.check_all()
+        .with_context(|| format!("checking {}", path.display()))?;
+    let entries = repo.entries();
+    ensure!(!entries.is_empty(), "{} stores no records", path.display());
+    let singles: Vec<Job> = entries
+        .iter()
+        .map(|e| Job {
+            path: format!("/v1/repos/{NAME}/diamonds/{}", e.id),
+            body: None,
+            records: 1,
+            bytes: e.length as usize,
+        })
+        .collect();
+    let mut rng = Rng(0x5EED);
+    let batches: Vec<Job> = if args.batch == 0 {
+        Vec::new()
+    } else {
+        (0..256)
+            .map(|_| {
+                let picks: Vec<usize> = (0..args.batch).map(|_| rng.below(entries.len())).collect();
+                let ids: Vec<String> = picks.iter().map(|&i| entries[i].id.to_string()).collect();
+                let bytes = 8 + picks
+                    .iter()
+                    .map(|&i| 5 + entries[i].length as usize)
+                    .sum::<usize>();
+                Job {
+                    path: format!("/v1/repos/{NAME}/diamonds"),
+                    body: Some(Bytes::from(serde_json::json!({ "ids": ids }).to_string())),
+                    records: args.batch as u64,
+                    bytes,
+                }
+            })
+            .collect()
+    };
+    let mean_record =
+        repo.section_len(cbdam_codec::repository::Section::Records) as f64 / entries.len() as f64;
+
+    let server_rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(args.server_threads.max(1))
+        .thread_name("server")
+        .enable_all()
+        .build()?;
+    let client_rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(args.client_threads.max(1))
+        .thread_name("client")
+        .enable_all()
+        .build()?;
+    let listener = server_rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;
+    let addr = listener.local_addr()?;
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let server = server_rt.spawn(cbdam_server::run(listener, state.clone(), async {
+        let _ = stopped.await;
+    }));
+
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!(
+        "repository {}: {} records, mean {:.0} B; {} clients, {} s × {} runs per mode, \
+         server threads {}, client threads {}; load average before: {}",
+        path.display(),
+        entries.len(),
+        mean_record,
+        args.clients,
+        args.seconds,
+        args.runs,
+        args.server_threads,
+        args.client_threads,
+        load.split_whitespace()
+            .take(3)
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    println!();
+    println!("| mode | ids/request | requests | records | records/s | MB/s | p50 ms | p99 ms |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    let singles = Arc::new(singles);
+    let batches = Arc::new(batches);
+    let modes: Vec<(&str, usize, &Arc<Vec<Job>>)> = if args.batch == 0 {
+        vec![("single GET", 1, &singles)]
+    } else {
+        vec![
+            ("single GET", 1, &singles),
+            ("batch POST", args.batch, &batches),
+        ]
+    };
+    for (mode, per, jobs) in modes {
+        let mut runs = Vec::new();
+        for run in 0..args.runs {
+            let r = client_rt.block_on(load_run(addr, jobs, args, run as u64))?;
+            runs.push(r);
+        }
+        runs.sort_by(|a, b| a.records_per_s().total_cmp(&b.records_per_s()));
+        let all: Vec<String> = runs
+            .iter()
+            .map(|r| format!("{:.0}", r.records_per_s()))
+            .collect();
+        let m = &runs[runs.len() / 2];
+        println!(
+            "| {mode} (median of {}: {} records/s) | {per} | {} | {} | {:.0} | {:.1} | {:.3} | {:.3} |",
+            runs.len(),
+            all.join(" / "),
+            m.requests,
+            m.records,
+            m.records_per_s(),
+            m.bytes as f64 / 1e6 / m.elapsed.as_secs_f64(),
+            f64::from(m.p50_us) / 1000.0,
+            f64::from(m.p99_us) / 1000.0,
+        );
+    }
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!();
+    println!(
+        "load average after: {}; MB/s counts response bodies (records and batch framing).",
+        load.split_whitespace()
+            .take(3)
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let _ = stop.send(());
+    server_rt
+        .block_on(async { tokio::time::timeout(Duration::from_secs(10), server).await })
+        .context("server did not stop")???;
+    Ok(())
+}
+
+async fn load_run(
+    addr: SocketAddr,
+    jobs: &Arc<Vec<Job>>,
+    args: &BenchServeArgs,
+    run: u64,
+) -> Result<RunResult> {
+    // Connect everyone before the clock starts.
+    let mut senders = Vec::with_capacity(args.clients);
+    for _ in 0..args.clients {
+        let stream = TcpStream::connect(addr).await?;
+        stream.set_nodelay(true)?;
+        let (sender, conn) =
+            hyper::client::conn::http1::handshake::<_, Full<Bytes>>(TokioIo::new(stream)).await?;
+        tokio::spawn(conn);
+        senders.push(sender);
+    }
+    let budget = Arc::new(AtomicU64::new(args.max_requests));
+    let start = Instant::now();
+    let deadline = start + Duration::from_secs_f64(args.seconds);
+    let tasks: Vec<_> = senders
+        .into_iter()
+        .enumerate()
+        .map(|(c, sender)| {
+            let jobs = Arc::clone(jobs);
+            let budget = Arc::clone(&budget);
+            let seed = (run << 32) ^ c as u64;
+            tokio::spawn(client(sender, jobs, budget, deadline, seed))
+        })
+        .collect();
+    let mut total = ClientStats::default();
+    for t in tasks {
+        let s = t.await??;
+        total.requests += s.requests;
+        total.records += s.records;
+        total.bytes += s.bytes;
+        total.latencies_us.extend(s.latencies_us);
+    }
+    let elapsed = start.elapsed();
+    if total.requests == 0 {
+        bail!("no request completed");
+    }
+    total.latencies_us.sort_unstable();
+    let q = |p: f64| {
+        let v = &total.latencies_us;
+        v[((v.len() - 1) as f64 * p).round() as usize]
+    };
+    Ok(RunResult {
+        requests: total.requests,
+        records: total.records,
+        bytes: total.bytes,
+        elapsed,
+        p50_us: q(0.50),
+        p99_us: q(0.99),
+    })
+}
+
+async fn client(
+    mut sender: hyper::client::conn::http1::SendRequest<Full<Bytes>>,
+    jobs: Arc<Vec<Job>>,
+    budget: Arc<AtomicU64>,
+    deadline: Instant,
+    seed: u64,
+) -> Result<ClientStats> {
+    let mut rng = Rng(seed);
+    let mut s = ClientStats {
+        latencies_us: Vec::with_capacity(1 << 16),
+        ..ClientStats::default()
+    };
+    while Instant::now() < deadline
+        && budget
+            .fetch_update(Relaxed, Relaxed, |b| b.checked_sub(1))
+            .is_ok()
+    {
+        let job = &jobs[rng.below(jobs.len())];
+        let req = match &job.body {
+            None => Request::get(job.path.as_str())
+                .header(HOST, "bench")
+                .body(Full::new(Bytes::new()))?,
+            Some(b) => Request::post(job.path.as_str())
+                .header(HOST, "bench")
+                .header(CONTENT_TYPE, "application/json")
+                .body(Full::new(b.clone()))?,
+        };
+        let t0 = Instant::now();
+        sender.ready().await?;
+        let resp = sender.send_request(req).await?;
+        let status = resp.status();
+        let body = resp.into_body().collect().await?.to_bytes();
+        let us = t0.elapsed().as_micros().min(u128::from(u32::MAX)) as u32;
+        ensure!(status == 200, "{} answered {status}", job.path);
+        ensure!(
+            body.len() == job.bytes,
+            "{}: {} bytes, expected {}",
+            job.path,
+            body.len(),
+            job.bytes
+        );
+        s.latencies_us.push(us);
+        s.requests += 1;
+        s.records += job.records;
+        s.bytes += body.len() as u64;
+    }
+    Ok(s)
+}
