@@ -5,8 +5,10 @@
 //! diamond in the frustum meets the pixel target or the frame's time budget is spent. Refining a
 //! diamond first forces its unrefined parents. Only diamonds whose record is in RAM are refined;
 //! missing ones are requested from the [`DataSource`] with their screen error as priority and
-//! never waited for. Decoding runs on rayon's worker threads, a batch at a time sized to the
-//! remaining budget. Coarsening is garbage collection: every few frames, refined diamonds with no
+//! never waited for. Decoding runs on rayon's worker threads: the frame dispatches the most urgent
+//! ready refinements, applies results as they come back while budget remains, and leaves the
+//! rest running; what finishes after the deadline is applied at the start of the next frame, so
+//! a slow decode never stretches a frame. Coarsening is garbage collection: every few frames, refined diamonds with no
 //! refined child that the view no longer needs are undone, least needed first, and their decoded
 //! data moves to an LRU cache so that refining them again is free.
 //!
@@ -35,7 +37,7 @@ use cbdam_codec::CodecError;
 use cbdam_codec::geometry::{Cut, DiamondId, Half, Layout};
 use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather};
 use glam::DVec3;
-use rayon::prelude::*;
+use std::sync::mpsc::{Receiver, Sender};
 
 use crate::access::{AccessStats, DataSource, Priority};
 use crate::camera::{Camera, Frustum};
@@ -45,8 +47,6 @@ use crate::world::World;
 /// Prefetched diamonds are requested with their error scaled by this, so that they never
 /// overtake what the current view needs.
 const PREFETCH_PRIORITY: f64 = 1.0 / 16.0;
-/// At most this many diamonds are decoded in one parallel batch.
-const MAX_BATCH: usize = 64;
 /// Recent error messages kept for [`Refiner::errors`].
 const ERROR_LOG: usize = 64;
 
@@ -94,11 +94,13 @@ impl Default for RefineConfig {
 pub struct FrameStats {
     /// Frame number, from 1.
     pub frame: u64,
-    /// Wall time of the frame's refinement work (pump, heaps, decoding, coarsening), ms.
+    /// Wall time of the frame on the calling thread, ms: pump, heaps, dispatching, waiting for
+    /// decodes while budget remains, coarsening.
     pub refine_ms: f64,
-    /// Wall time spent in decoding batches, ms (part of `refine_ms`).
+    /// Worker time spent decoding the refinements that came back this frame, ms.
     pub decode_ms: f64,
-    /// Diamonds decoded this frame (not counting refinements served from the cache).
+    /// Diamonds decoded that came back this frame (refinements served from the cache do not
+    /// count).
     pub decoded: usize,
     /// Largest screen-space error, pixels, of a drawn diamond in the frustum that could still
     /// be refined (stored, and neither it nor a parent it needs given up on); 0 if none. Detail past the data's resolution does
@@ -214,7 +216,7 @@ pub fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
 pub struct Refiner<S: DataSource> {
     source: S,
     config: RefineConfig,
-    decoder: Decoder,
+    decoder: Arc<Decoder>,
     /// The refiner's hierarchy: the source's, with `shift` more level pairs when synthesising
     /// detail (ids then have coordinates `2^shift` times the source's).
     layout: Layout,
@@ -237,8 +239,10 @@ pub struct Refiner<S: DataSource> {
     errors: Vec<String>,
     frame: u64,
     last_camera: Option<Camera>,
-    /// Seconds per decoded diamond per thread, smoothed.
-    decode_estimate: f64,
+    /// Diamonds being refined on worker threads.
+    decoding: HashSet<DiamondId>,
+    done_tx: Sender<Done>,
+    done_rx: Receiver<Done>,
 }
 
 impl<S: DataSource> Refiner<S> {
@@ -297,9 +301,10 @@ impl<S: DataSource> Refiner<S> {
                 }),
             );
         }
+        let (done_tx, done_rx) = std::sync::mpsc::channel();
         let mut me = Self {
             source,
-            decoder,
+            decoder: Arc::new(decoder),
             layout,
             world,
             shift,
@@ -320,7 +325,9 @@ impl<S: DataSource> Refiner<S> {
             errors: Vec::new(),
             frame: 0,
             last_camera: None,
-            decode_estimate: 200e-6,
+            decoding: HashSet::new(),
+            done_tx,
+            done_rx,
             config,
         };
         me.rebuild_drawn();
@@ -606,40 +613,31 @@ impl<S: DataSource> Refiner<S> {
             frame: self.frame,
             ..FrameStats::default()
         };
-        let threads = rayon::current_num_threads().max(1) as f64;
+        // Results of decodes dispatched in earlier frames first.
+        while let Ok(done) = self.done_rx.try_recv() {
+            self.apply(done, &view, &mut heap, &mut stats);
+        }
+        let max_in_flight = 2 * rayon::current_num_threads().max(1);
+        let mut waiting: Vec<Candidate> = Vec::new();
         loop {
-            let now = Instant::now();
-            let cap = match deadline {
-                None => MAX_BATCH,
-                Some(d) if now >= d => {
-                    stats.budget_exhausted = !heap.is_empty();
-                    break;
-                }
-                Some(d) => {
-                    let left = (d - now).as_secs_f64();
-                    ((left / self.decode_estimate * threads) as usize).clamp(1, MAX_BATCH)
-                }
-            };
-            let mut batch: Vec<(DiamondId, Source)> = Vec::new();
-            let mut requeue = Vec::new();
-            while batch.len() < cap {
+            // Dispatch the most urgent ready refinements to the workers.
+            while self.decoding.len() < max_in_flight {
                 let Some(c) = heap.pop() else { break };
                 if self.cut.is_refined(c.id) {
                     continue;
                 }
-                let plan = self.plan(c.id);
-                let mut ready = Vec::new();
                 let mut blocked = false;
-                for &d in &plan {
+                let mut dispatched_self = false;
+                for d in self.plan(c.id) {
+                    if self.decoding.contains(&d) {
+                        continue;
+                    }
                     let parents_done = self
                         .layout
                         .parents(d)
                         .into_iter()
                         .flatten()
                         .all(|p| self.cut.is_refined(p));
-                    if batch.iter().any(|(b, _)| *b == d) {
-                        continue;
-                    }
                     match self.need(d) {
                         Need::Impossible => {
                             blocked = true;
@@ -650,55 +648,59 @@ impl<S: DataSource> Refiner<S> {
                             *w = w.max(c.err);
                             blocked = true;
                         }
-                        Need::Ready(s) if parents_done => ready.push((d, s)),
+                        Need::Ready(Source::Cached(node)) if parents_done => {
+                            // Decoded before and coarsened since: refining again is free.
+                            self.apply(
+                                Done {
+                                    id: d,
+                                    result: Ok(node),
+                                    secs: None,
+                                },
+                                &view,
+                                &mut heap,
+                                &mut stats,
+                            );
+                            dispatched_self |= d == c.id;
+                        }
+                        Need::Ready(s) if parents_done => {
+                            self.dispatch(d, s);
+                            dispatched_self |= d == c.id;
+                        }
                         Need::Ready(_) => {}
                     }
                 }
-                if blocked {
-                    continue;
-                }
-                let in_ready = ready.iter().any(|(d, _)| *d == c.id);
-                batch.extend(ready);
-                if !in_ready {
-                    requeue.push(c);
+                if !blocked && !dispatched_self && !self.cut.is_refined(c.id) {
+                    waiting.push(c);
                 }
             }
-            if batch.is_empty() {
+            if self.decoding.is_empty() {
+                // Nothing in flight and nothing more could be started: locally optimal for
+                // the data at hand.
                 break;
             }
-            let t = Instant::now();
-            let decoded = batch
-                .iter()
-                .filter(|(_, s)| !matches!(s, Source::Cached(_)))
-                .count();
-            let results = self.run_batch(batch);
-            let secs = t.elapsed().as_secs_f64();
-            stats.decode_ms += secs * 1e3;
-            stats.decoded += decoded;
-            if decoded > 0 {
-                let per = secs * threads.min(decoded as f64) / decoded as f64;
-                self.decode_estimate = 0.8 * self.decode_estimate + 0.2 * per;
-            }
-            for (id, r) in results {
-                match r {
-                    Ok(node) => {
-                        self.decoded.remove(&id);
-                        self.nodes.insert(id, node);
-                        let newly = self.cut.refine(&self.layout, id);
-                        debug_assert_eq!(newly, vec![id], "parents are refined first");
-                        self.drawn_dirty = true;
-                        stats.refinements += 1;
-                        for k in self.layout.children(id).into_iter().flatten() {
-                            if let Some(err) = self.violation(k, &view) {
-                                heap.push(Candidate { err, id: k });
-                            }
-                        }
+            let done = match deadline {
+                None => self.done_rx.recv().ok(),
+                Some(d) => {
+                    let now = Instant::now();
+                    if now >= d {
+                        None
+                    } else {
+                        self.done_rx.recv_timeout(d - now).ok()
                     }
-                    Err(e) => self.log_failure(id, format!("decoding {id} failed: {e}")),
                 }
+            };
+            let Some(done) = done else {
+                stats.budget_exhausted = true;
+                break;
+            };
+            self.apply(done, &view, &mut heap, &mut stats);
+            while let Ok(done) = self.done_rx.try_recv() {
+                self.apply(done, &view, &mut heap, &mut stats);
             }
-            heap.extend(requeue);
+            // Candidates that waited for an ancestor may be ready now.
+            heap.extend(waiting.drain(..));
         }
+        heap.extend(waiting);
 
         // What the budget did not reach still gets requested, then prefetch.
         for c in heap.into_vec() {
@@ -783,24 +785,77 @@ impl<S: DataSource> Refiner<S> {
         }
     }
 
-    /// Decodes a batch in parallel: each entry's parents are refined.
-    fn run_batch(
-        &self,
-        batch: Vec<(DiamondId, Source)>,
-    ) -> Vec<(DiamondId, Result<Arc<Node>, CodecError>)> {
-        let ctx = Ctx {
-            decoder: &self.decoder,
-            layout: &self.layout,
-            nodes: &self.nodes,
+    /// Starts refining `id` (whose parents are refined) on a worker thread.
+    fn dispatch(&mut self, id: DiamondId, source: Source) {
+        let parents = self
+            .layout
+            .parents(id)
+            .map(|p| p.map(|p| self.nodes[&p].clone()));
+        let job = Job {
+            decoder: self.decoder.clone(),
+            layout: self.layout,
+            parents,
             shift: self.shift,
             seed: self.config.detail.map_or(0, |d| d.seed),
         };
-        batch
-            .into_par_iter()
-            .map_init(RefineScratch::default, |scratch, (id, source)| {
-                (id, ctx.refine(id, source, scratch))
-            })
-            .collect()
+        let tx = self.done_tx.clone();
+        self.decoding.insert(id);
+        rayon::spawn(move || {
+            let t = Instant::now();
+            let result = job.refine(id, source);
+            // The refiner may be gone; then nobody wants the result.
+            let _ = tx.send(Done {
+                id,
+                result,
+                secs: Some(t.elapsed().as_secs_f64()),
+            });
+        });
+    }
+
+    /// Puts a finished refinement into the cut, or into the cache if the cut moved on (a
+    /// parent was coarsened meanwhile).
+    fn apply(
+        &mut self,
+        done: Done,
+        view: &View,
+        heap: &mut BinaryHeap<Candidate>,
+        stats: &mut FrameStats,
+    ) {
+        let id = done.id;
+        self.decoding.remove(&id);
+        if let Some(secs) = done.secs {
+            stats.decode_ms += secs * 1e3;
+            stats.decoded += 1;
+        }
+        let node = match done.result {
+            Ok(node) => node,
+            Err(e) => {
+                self.log_failure(id, format!("decoding {id} failed: {e}"));
+                return;
+            }
+        };
+        let parents_refined = self
+            .layout
+            .parents(id)
+            .into_iter()
+            .flatten()
+            .all(|p| self.cut.is_refined(p));
+        if self.cut.is_refined(id) || !parents_refined {
+            let bytes = node.bytes();
+            self.decoded.insert(id, node, bytes);
+            return;
+        }
+        self.decoded.remove(&id);
+        self.nodes.insert(id, node);
+        let newly = self.cut.refine(&self.layout, id);
+        debug_assert_eq!(newly, vec![id], "parents are refined first");
+        self.drawn_dirty = true;
+        stats.refinements += 1;
+        for k in self.layout.children(id).into_iter().flatten() {
+            if let Some(err) = self.violation(k, view) {
+                heap.push(Candidate { err, id: k });
+            }
+        }
     }
 
     /// Coarsens every refined diamond the view does not need, finest first (a coarsening
@@ -897,32 +952,35 @@ impl<S: DataSource> Refiner<S> {
     }
 }
 
-/// What decoding workers share: read-only views of the refiner.
-struct Ctx<'a> {
-    decoder: &'a Decoder,
-    layout: &'a Layout,
-    nodes: &'a HashMap<DiamondId, Arc<Node>>,
+/// A finished (or failed) refinement coming back from a worker.
+struct Done {
+    id: DiamondId,
+    result: Result<Arc<Node>, CodecError>,
+    /// Worker time; `None` when nothing was decoded (served from the cache).
+    secs: Option<f64>,
+}
+
+/// What a worker needs to refine one diamond: owned, so it outlives the frame.
+struct Job {
+    decoder: Arc<Decoder>,
+    layout: Layout,
+    parents: [Option<Arc<Node>>; 2],
     shift: u32,
     seed: u64,
 }
 
-impl Ctx<'_> {
-    fn refine(
-        &self,
-        id: DiamondId,
-        source: Source,
-        scratch: &mut RefineScratch,
-    ) -> Result<Arc<Node>, CodecError> {
+impl Job {
+    fn refine(&self, id: DiamondId, source: Source) -> Result<Arc<Node>, CodecError> {
         match source {
             Source::Cached(node) => Ok(node),
             Source::Record(bytes) => {
                 let grid = self.grid_of(id);
-                let r = self.decoder.refine(&grid, &bytes, scratch)?;
+                let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, &bytes, s))?;
                 Ok(self.node(id, r))
             }
             Source::Synthetic(amp) => {
                 let grid = self.grid_of(id);
-                let r = detail::synthesize(self.layout, id, &grid, amp, self.seed);
+                let r = detail::synthesize(&self.layout, id, &grid, amp, self.seed);
                 Ok(self.node(id, r))
             }
         }
@@ -933,20 +991,22 @@ impl Ctx<'_> {
             let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
             return self.decoder.grid_of(sid, [None, None]);
         }
-        let parents = self
-            .layout
-            .parents(id)
-            .map(|p| p.map(|p| &self.nodes[&p].refined));
+        let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
         let n = self.layout.n();
         let mut grid = vec![0i32; n * n];
-        gather(self.layout, id, parents, &mut grid);
+        gather(&self.layout, id, parents, &mut grid);
         grid
     }
 
     fn node(&self, id: DiamondId, refined: Refined) -> Arc<Node> {
         let halves = self.layout.children(id).map(|c| {
-            c.and_then(|c| HalfPatch::from_parent(self.layout, c, id, &refined).map(Arc::new))
+            c.and_then(|c| HalfPatch::from_parent(&self.layout, c, id, &refined).map(Arc::new))
         });
         Arc::new(Node { refined, halves })
     }
+}
+
+thread_local! {
+    /// Decoding buffers, one set per worker thread.
+    static SCRATCH: std::cell::RefCell<RefineScratch> = std::cell::RefCell::default();
 }
