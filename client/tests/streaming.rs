@@ -448,3 +448,42 @@ fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
     }
     assert!(runs[0] == runs[1], "synthesis is deterministic");
 }
+
+#[test]
+fn requests_the_view_no_longer_needs_are_cancelled() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let (lo, hi) = world.data_box();
+    let look = |x: f64| {
+        let eye = DVec3::new(lo.x + x * (hi.x - lo.x), lo.y - 20.0, hi.z + 30.0);
+        let target = DVec3::new(eye.x, (lo.y + hi.y) / 2.0, lo.z);
+        Camera::looking_at(&world, eye, target, 30f64.to_radians(), (640, 480))
+    };
+    let source = FlakySource::new(
+        repo.clone(),
+        FlakyConfig {
+            latency: (3, 3),
+            ..FlakyConfig::default()
+        },
+    );
+    let mut r = Refiner::new(source, unlimited(1)).unwrap();
+    let (west, east) = (look(0.05), look(0.95));
+    let mut s = FrameStats::default();
+    for _ in 0..12 {
+        s = r.frame(&west);
+    }
+    assert!(s.refined > 0 && s.access.requests_cancelled == 0);
+    // Turn away while the next level's records are in flight: they are cancelled, not waited
+    // for.
+    for _ in 0..4 {
+        s = r.frame(&west);
+        if s.access.in_flight > 0 {
+            break;
+        }
+    }
+    assert!(s.access.in_flight > 0, "west still needs records");
+    let in_flight_west = s.access.in_flight;
+    s = r.frame(&east);
+    assert!(s.access.requests_cancelled > 0);
+    assert!(s.access.requests_issued > 0 && in_flight_west > 0);
+}

@@ -721,7 +721,13 @@ impl<S: DataSource> Refiner<S> {
         for id in stale {
             self.requested.remove(&id);
             if let Some(sid) = self.source_id(id) {
-                self.source.cancel(sid);
+                // A remote source may have completed it since the frame began: keep what was
+                // paid for rather than dropping it.
+                if self.source.is_available(sid) {
+                    self.take(id, sid);
+                } else {
+                    self.source.cancel(sid);
+                }
             }
         }
         for (id, prio) in wanted {
