@@ -168,10 +168,13 @@ fn the_cut_conforms_after_every_frame_of_random_flights() {
             let mut cam = a;
             cam.eye = a.eye.lerp(b.eye, u);
             cam.target = a.target.lerp(b.target, u);
-            r.frame(&cam);
+            let s = r.frame(&cam);
             let cut = r.cut();
-            check_conforming(&layout, &cut.triangles(&layout))
+            let triangles = cut.triangles(&layout);
+            check_conforming(&layout, &triangles)
                 .unwrap_or_else(|e| panic!("seed {seed} frame {f}: {e}"));
+            assert_eq!(s.triangles, triangles.len() as u64);
+            assert_eq!(s.refined, cut.refined().count());
             for d in cut.refined() {
                 for p in layout.parents(d).into_iter().flatten() {
                     assert!(cut.is_refined(p), "parent {p} of refined {d}");

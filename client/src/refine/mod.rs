@@ -103,8 +103,9 @@ pub struct FrameStats {
     /// count).
     pub decoded: usize,
     /// Largest screen-space error, pixels, of a drawn diamond in the frustum that could still
-    /// be refined (stored, and neither it nor a parent it needs given up on); 0 if none. Detail past the data's resolution does
-    /// not count.
+    /// be refined (stored, or synthetic with detail synthesis on; neither it nor a parent it
+    /// needs given up on); 0 if none. Without detail synthesis, the finest level's own error
+    /// (the data's resolution) does not count: nothing can reduce it.
     pub max_screen_error_px: f64,
     /// `max_screen_error_px` is within the target.
     pub met_target: bool,
