@@ -8,6 +8,7 @@ mod bench_serve;
 mod build;
 mod extract;
 mod inspect;
+mod replay;
 mod serve;
 mod verify;
 
@@ -59,6 +60,9 @@ enum Command {
     /// filtered by RUST_LOG (default info, one line per request). Stops on SIGINT/SIGTERM after
     /// the requests in flight finish.
     Serve(ServeArgs),
+    /// Run the client's refinement loop over a camera flight without drawing: one CSV row per
+    /// frame, then hold the camera still until the cut converges, and print a summary.
+    Replay(ReplayArgs),
     /// Measure the codec and other parts of the pipeline.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -287,6 +291,43 @@ pub struct ExtractArgs {
     quiet: bool,
 }
 
+/// Replay a flight through the refinement loop (documented on [`Command::Replay`]).
+#[derive(Args, Debug)]
+pub struct ReplayArgs {
+    /// Repository file (remote `http://` URLs are not supported yet).
+    #[arg(value_name = "REPO_OR_URL")]
+    repo: String,
+    /// Flight file (JSON keyframes relative to the data's extent; see data/flights/).
+    #[arg(long)]
+    path: PathBuf,
+    /// Viewport WIDTHxHEIGHT, pixels.
+    #[arg(long, default_value = "1920x1080", value_parser = replay::parse_size)]
+    size: (u32, u32),
+    /// Target screen-space error, pixels.
+    #[arg(long, default_value_t = 1.0)]
+    pixel_error: f64,
+    /// Refinement time budget per frame, ms (0: unlimited).
+    #[arg(long, default_value_t = 2.0)]
+    budget_ms: f64,
+    /// Output CSV, one row per frame: frame, t, settling, refine_ms (wall), cpu_ms (CPU time of
+    /// the refining thread), decode_ms (worker time), decoded,
+    /// max_screen_error_px, met_target, converged, diamonds_in_cut, drawn_halves, triangles,
+    /// refinements, coarsenings, budget_exhausted, bytes_fetched (cumulative), requests_issued
+    /// (cumulative), requests_in_flight, failures.
+    #[arg(long)]
+    out: PathBuf,
+    /// Frames per second of flight time.
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// After the flight, at most this many frames with the camera still waiting for the cut to
+    /// converge.
+    #[arg(long, default_value_t = 600)]
+    max_settle_frames: usize,
+    /// Synthesise procedural detail past the finest stored level.
+    #[arg(long)]
+    detail: bool,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -295,6 +336,7 @@ fn main() -> ExitCode {
         Command::Verify(args) => verify::run(&args),
         Command::Extract(args) => extract::run(&args),
         Command::Serve(args) => serve::run(&args),
+        Command::Replay(args) => replay::run(&args),
         Command::Bench(BenchCommand::Codec(args)) => bench_codec::run(&args),
         Command::Bench(BenchCommand::Serve(args)) => bench_serve::run(&args),
     };

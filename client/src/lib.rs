@@ -1,10 +1,17 @@
 //! The C-BDAM client: data access, time-critical refinement and rendering (`cbdam view`).
 //!
-//! [`patch`] is the unit everything downstream of the decoder handles: the half-patches a cut
-//! draws. [`world`] maps the lattice to metres and [`camera`] looks at it. Streaming refinement (issue 5) and the renderer (issue 6) are not implemented yet.
+//! [`access`] is the data access layer: one non-blocking [`access::DataSource`] trait with a
+//! memory-mapped implementation and a flaky test double (the HTTP one comes later).
+//! [`refine`] keeps a cut of the diamond DAG with the paper's time-critical dual-queue loop and
+//! hands the renderer the half-patches to draw ([`patch`]), decoded on worker threads.
+//! [`world`] maps the lattice to metres, [`camera`] looks at it and [`flight`] moves the camera
+//! along keyframed paths. The renderer (issue 6) lives elsewhere.
 #![deny(missing_docs)]
 
+pub mod access;
 pub mod camera;
+pub mod flight;
 pub mod patch;
+pub mod refine;
 pub mod remote;
 pub mod world;

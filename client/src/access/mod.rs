@@ -1,0 +1,114 @@
+//! The data access layer (paper §6): the one interface through which the refinement loop reaches
+//! a repository, whether it is a memory-mapped file ([`LocalSource`]) or a remote server (an
+//! HTTP implementation written against [`DataSource`]). The loop cannot tell which one it has.
+//!
+//! Everything is non-blocking. The loop, once per frame:
+//! 1. calls [`DataSource::pump`] so the source can advance its I/O and collect completions;
+//! 2. for each diamond it wants, asks [`DataSource::is_available`] and, if so, moves the record
+//!    into its own RAM with [`DataSource::take`]; otherwise it posts [`DataSource::request`] with
+//!    a priority (the diamond's screen-space error in pixels: larger is more urgent) and moves on;
+//! 3. calls [`DataSource::cancel`] for requests the cut no longer needs.
+//!
+//! Contract for implementers:
+//! - `request` is idempotent: re-requesting a pending diamond only updates its priority.
+//!   Requests for diamonds that are not stored must be answered with an error, not ignored.
+//! - A record handed out by `take` must be validated (the local source checks its CRC; a remote
+//!   one checks the bytes against the head's checksums). Failures are reported through `take`
+//!   as `Some(Err(..))` exactly once, after which the diamond is forgotten; the loop decides
+//!   whether to retry.
+//! - `take` of a diamond that is not available returns `None` immediately: it never waits.
+//! - Head metadata (codec parameters, quantization plan, georeferencing, index, root field) is
+//!   available from construction on: a remote source fetches and parses the head before it is
+//!   handed to the loop.
+
+mod flaky;
+mod local;
+
+pub use flaky::{FlakyConfig, FlakySource};
+pub use local::LocalSource;
+
+use cbdam_codec::CodecError;
+use cbdam_codec::geometry::DiamondId;
+use cbdam_codec::hierarchy::{CodecParams, Decoder};
+use cbdam_codec::input::GeoRef;
+use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::repository::index::IndexEntry;
+
+/// Priority of a request: screen-space error in pixels. Larger is fetched first; prefetches use
+/// a scaled-down error so that they never overtake what the current view needs.
+pub type Priority = f32;
+
+/// Why a record could not be had.
+#[derive(Debug, thiserror::Error)]
+pub enum AccessError {
+    /// The bytes failed validation (checksum) or could not be read.
+    #[error("record of {id} rejected: {source}")]
+    Record {
+        /// The diamond.
+        id: DiamondId,
+        /// What the codec said.
+        source: CodecError,
+    },
+    /// The transport failed (connection, HTTP status, timeout).
+    #[error("fetching {id} failed: {message}")]
+    Transport {
+        /// The diamond.
+        id: DiamondId,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// Counters since the source was created.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AccessStats {
+    /// Requests posted (re-prioritising a pending one does not count).
+    pub requests_issued: u64,
+    /// Requests withdrawn with [`DataSource::cancel`] before they completed.
+    pub requests_cancelled: u64,
+    /// Requests posted but not yet taken, failed or cancelled.
+    pub in_flight: u64,
+    /// Records handed out by [`DataSource::take`].
+    pub records_taken: u64,
+    /// Bytes of records handed out (for a remote source: bytes received, retries included).
+    pub bytes_fetched: u64,
+    /// Failures reported through [`DataSource::take`].
+    pub errors: u64,
+}
+
+/// Where records come from. See the module documentation for the contract.
+pub trait DataSource: Send {
+    /// The decoder's header fields (layout, coder, quantizer, data rectangle).
+    fn params(&self) -> &CodecParams;
+    /// How integer units map to metres, and the tolerance the repository was built for.
+    fn plan(&self) -> &QuantPlan;
+    /// Georeferencing of the data grid, when the input had one.
+    fn georef(&self) -> Option<&GeoRef>;
+    /// Object-space error of the finest diamonds, units.
+    fn leaf_error(&self) -> u32;
+    /// The index: every stored diamond in id order, with record length, object-space error and
+    /// height range.
+    fn entries(&self) -> &[IndexEntry];
+    /// The coded root field.
+    fn root_bytes(&self) -> &[u8];
+
+    /// A decoder over the root field.
+    fn decoder(&self) -> Result<Decoder, CodecError> {
+        Decoder::new(*self.params(), self.root_bytes())
+    }
+
+    /// Asks for `id`'s record, or re-prioritises a pending request. Never blocks.
+    fn request(&mut self, id: DiamondId, priority: Priority);
+    /// Withdraws a request the cut no longer needs (a no-op if there is none). A record that
+    /// already arrived is dropped.
+    fn cancel(&mut self, id: DiamondId);
+    /// Whether [`DataSource::take`] would return `Some` now.
+    fn is_available(&self, id: DiamondId) -> bool;
+    /// Moves `id`'s validated record into the caller's RAM, or reports why it failed; `None`
+    /// when it is not available yet. Never blocks.
+    fn take(&mut self, id: DiamondId) -> Option<Result<Vec<u8>, AccessError>>;
+    /// Advances I/O: called once per frame before anything else.
+    fn pump(&mut self);
+    /// Counters.
+    fn stats(&self) -> AccessStats;
+}

@@ -1,0 +1,1019 @@
+//! Time-critical dual-queue refinement (paper §6) over a [`Cut`].
+//!
+//! Every frame [`Refiner::frame`] rebuilds a refinement heap from the cut's drawn diamonds and
+//! the camera, ordered by screen-space error, and refines from the top until every drawn
+//! diamond in the frustum meets the pixel target or the frame's time budget is spent. Refining a
+//! diamond first forces its unrefined parents. Only diamonds whose record is in RAM are refined;
+//! missing ones are requested from the [`DataSource`] with their screen error as priority and
+//! never waited for. Decoding runs on rayon's worker threads: the frame dispatches the most urgent
+//! ready refinements, applies results as they come back while budget remains, and leaves the
+//! rest running; what finishes after the deadline is applied at the start of the next frame, so
+//! a slow decode never stretches a frame. Coarsening is garbage collection: every few frames, refined diamonds with no
+//! refined child that the view no longer needs are undone, least needed first, and their decoded
+//! data moves to an LRU cache so that refining them again is free.
+//!
+//! **The error metric is made monotone** so that the cut the loop converges to is unique (it does
+//! not depend on latency or on the order of past frames): a diamond's error is its stored
+//! object-space error (metres) times [`Camera::pixels_per_metre`] at the distance from the eye
+//! to its *saturated* bounding box — the union of its own box and its stored descendants' — and
+//! its object error is saturated the same way. A child's box and error are then contained in its
+//! parents', so a diamond that needs refining has parents that need it too; the converged cut is
+//! exactly the set of stored diamonds whose saturated error exceeds the target and whose
+//! saturated box meets the frustum. The saturated box is larger than the diamond (its
+//! descendants spill into its neighbours), which makes the metric conservative: the target also
+//! holds for the plain per-diamond boxes.
+
+mod cache;
+mod detail;
+
+pub use cache::LruCache;
+pub use detail::DetailConfig;
+
+use std::collections::{BinaryHeap, HashMap, HashSet};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use cbdam_codec::CodecError;
+use cbdam_codec::geometry::{Cut, DiamondId, Half, Layout};
+use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather};
+use glam::DVec3;
+use std::sync::mpsc::{Receiver, Sender};
+
+use crate::access::{AccessStats, DataSource, Priority};
+use crate::camera::{Camera, Frustum};
+use crate::patch::HalfPatch;
+use crate::world::World;
+
+/// Prefetched diamonds are requested with their error scaled by this, so that they never
+/// overtake what the current view needs.
+const PREFETCH_PRIORITY: f64 = 1.0 / 16.0;
+/// Recent error messages kept for [`Refiner::errors`].
+const ERROR_LOG: usize = 64;
+
+/// Settings of the refinement loop.
+#[derive(Clone, Debug)]
+pub struct RefineConfig {
+    /// Target screen-space error, pixels.
+    pub pixel_error: f64,
+    /// Time budget per frame; `None` refines until the cut is locally optimal.
+    pub budget: Option<Duration>,
+    /// Garbage-collect (coarsen) every this many frames.
+    pub gc_interval: u32,
+    /// Prefetch what a frustum enlarged by this fraction of the eye–target distance sees.
+    pub prefetch_margin: f64,
+    /// Prefetch where the eye will be this many frames ahead at its current velocity.
+    pub lookahead_frames: f64,
+    /// Bytes of decoded diamonds kept after they are coarsened.
+    pub decoded_cache_bytes: usize,
+    /// Bytes of compressed records kept in RAM.
+    pub record_cache_bytes: usize,
+    /// A diamond whose record fails this many times is given up on (never refined).
+    pub max_failures: u32,
+    /// Synthesise detail past the finest stored level (off by default).
+    pub detail: Option<DetailConfig>,
+}
+
+impl Default for RefineConfig {
+    fn default() -> Self {
+        Self {
+            pixel_error: 1.0,
+            budget: Some(Duration::from_millis(2)),
+            gc_interval: 8,
+            prefetch_margin: 0.25,
+            lookahead_frames: 15.0,
+            decoded_cache_bytes: 256 << 20,
+            record_cache_bytes: 64 << 20,
+            max_failures: 3,
+            detail: None,
+        }
+    }
+}
+
+/// What one frame did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameStats {
+    /// Frame number, from 1.
+    pub frame: u64,
+    /// Wall time of the frame on the calling thread, ms: pump, heaps, dispatching, waiting for
+    /// decodes while budget remains, coarsening.
+    pub refine_ms: f64,
+    /// Worker time spent decoding the refinements that came back this frame, ms.
+    pub decode_ms: f64,
+    /// Diamonds decoded that came back this frame (refinements served from the cache do not
+    /// count).
+    pub decoded: usize,
+    /// Largest screen-space error, pixels, of a drawn diamond in the frustum that could still
+    /// be refined (stored, or synthetic with detail synthesis on; neither it nor a parent it
+    /// needs given up on); 0 if none. Without detail synthesis, the finest level's own error
+    /// (the data's resolution) does not count: nothing can reduce it.
+    pub max_screen_error_px: f64,
+    /// `max_screen_error_px` is within the target.
+    pub met_target: bool,
+    /// Met the target and nothing is left to coarsen: the cut is the one this view converges to.
+    pub converged: bool,
+    /// Refined diamonds in the cut.
+    pub refined: usize,
+    /// Half-patches drawn.
+    pub drawn_halves: usize,
+    /// Triangles drawn.
+    pub triangles: u64,
+    /// Refinements this frame.
+    pub refinements: usize,
+    /// Coarsenings this frame.
+    pub coarsenings: usize,
+    /// The budget ran out with work left.
+    pub budget_exhausted: bool,
+    /// The data source's counters after the frame.
+    pub access: AccessStats,
+    /// Records rejected so far (failed fetches and failed decodes).
+    pub failures: u64,
+}
+
+/// A refined diamond: its refinement and the halves of its children that lie in it.
+#[derive(Debug)]
+struct Node {
+    refined: Refined,
+    /// `halves[i]` is the half of `children[i]` lying in this diamond.
+    halves: [Option<Arc<HalfPatch>>; 4],
+}
+
+impl Node {
+    fn bytes(&self) -> usize {
+        let n = self.refined.n();
+        4 * ((2 * n - 1) * (2 * n - 1) + self.halves.iter().flatten().count() * n * n)
+    }
+}
+
+/// What the metric knows of a refinable diamond.
+#[derive(Clone, Copy, Debug)]
+struct Info {
+    /// Saturated object-space error, metres.
+    err_m: f64,
+    /// Saturated world bounding box.
+    lo: DVec3,
+    hi: DVec3,
+}
+
+/// How a diamond's refinement can be had.
+enum Source {
+    Cached(Arc<Node>),
+    Record(Arc<[u8]>),
+    Synthetic(i32),
+}
+
+enum Need {
+    Ready(Source),
+    Missing,
+    Impossible,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Candidate {
+    err: f64,
+    id: DiamondId,
+}
+impl Eq for Candidate {}
+impl Ord for Candidate {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        self.err.total_cmp(&o.err).then(o.id.cmp(&self.id))
+    }
+}
+impl PartialOrd for Candidate {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+
+/// The view a frame is refined for.
+struct View {
+    camera: Camera,
+    frustum: Frustum,
+}
+
+impl View {
+    fn new(camera: Camera, margin: f64) -> Self {
+        let f = camera.frustum();
+        let frustum = if margin > 0.0 { f.enlarged(margin) } else { f };
+        Self { camera, frustum }
+    }
+
+    /// Screen-space error of a diamond, `None` outside the frustum.
+    fn error(&self, info: &Info) -> Option<f64> {
+        if !self.frustum.intersects_box(info.lo, info.hi) {
+            return None;
+        }
+        let e = self.camera.eye;
+        let d = (info.lo - e).max(e - info.hi).max(DVec3::ZERO).length();
+        Some(info.err_m * self.camera.pixels_per_metre(d))
+    }
+}
+
+/// Distance from `p` to the box `lo..hi` (0 inside).
+pub fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
+    (lo - p).max(p - hi).max(DVec3::ZERO).length()
+}
+
+/// The streaming refinement loop over one data source.
+pub struct Refiner<S: DataSource> {
+    source: S,
+    config: RefineConfig,
+    decoder: Arc<Decoder>,
+    /// The refiner's hierarchy: the source's, with `shift` more level pairs when synthesising
+    /// detail (ids then have coordinates `2^shift` times the source's).
+    layout: Layout,
+    world: World,
+    shift: u32,
+    source_finest: u8,
+    stored: HashMap<DiamondId, Info>,
+    synthetic: HashMap<DiamondId, Option<Info>>,
+    cut: Cut,
+    nodes: HashMap<DiamondId, Arc<Node>>,
+    roots: HashMap<DiamondId, [Arc<HalfPatch>; 2]>,
+    drawn: Vec<Arc<HalfPatch>>,
+    drawn_dirty: bool,
+    records: LruCache<DiamondId, Arc<[u8]>>,
+    decoded: LruCache<DiamondId, Arc<Node>>,
+    requested: HashMap<DiamondId, Priority>,
+    failures: HashMap<DiamondId, u32>,
+    failure_count: u64,
+    broken: HashSet<DiamondId>,
+    errors: Vec<String>,
+    frame: u64,
+    last_camera: Option<Camera>,
+    /// Diamonds being refined on worker threads.
+    decoding: HashSet<DiamondId>,
+    done_tx: Sender<Done>,
+    done_rx: Receiver<Done>,
+}
+
+impl<S: DataSource> Refiner<S> {
+    /// A refiner with the coarsest cut (roots only).
+    pub fn new(source: S, config: RefineConfig) -> Result<Self, CodecError> {
+        let decoder = source.decoder()?;
+        let params = *source.params();
+        let src_layout = params.layout;
+        let mut world = World::new(&params, source.plan(), source.georef(), source.entries());
+        let shift = config.detail.map_or(0, |d| d.level_pairs);
+        let layout = if shift > 0 {
+            Layout::new(
+                src_layout.n(),
+                src_layout.k() + shift,
+                src_layout.roots_x(),
+                src_layout.roots_y(),
+            )?
+        } else {
+            src_layout
+        };
+        let scale = f64::from(1u32 << shift);
+        world.layout = layout;
+        world.step_x /= scale;
+        world.step_y /= scale;
+        world.data_width = ((world.data_width.max(1) - 1) << shift) + 1;
+        world.data_height = ((world.data_height.max(1) - 1) << shift) + 1;
+
+        // Saturate boxes and errors bottom-up: ids sort coarse to fine, so go in reverse.
+        let mut stored: HashMap<DiamondId, Info> = HashMap::new();
+        for e in source.entries().iter().rev() {
+            let id = DiamondId::new(e.id.level, e.id.x << shift, e.id.y << shift);
+            let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
+            let mut err_m = f64::from(e.object_error) * world.unit;
+            for c in layout.children(id).into_iter().flatten() {
+                if let Some(ci) = stored.get(&c) {
+                    lo = lo.min(ci.lo);
+                    hi = hi.max(ci.hi);
+                    err_m = err_m.max(ci.err_m);
+                }
+            }
+            stored.insert(id, Info { err_m, lo, hi });
+        }
+
+        let mut roots = HashMap::new();
+        for r in layout.roots() {
+            let src = DiamondId::new(r.level, r.x >> shift, r.y >> shift);
+            let heights = decoder.grid_of(src, [None, None]);
+            roots.insert(
+                r,
+                Half::BOTH.map(|half| {
+                    Arc::new(HalfPatch {
+                        id: r,
+                        half,
+                        heights: heights.clone(),
+                    })
+                }),
+            );
+        }
+        let (done_tx, done_rx) = std::sync::mpsc::channel();
+        let mut me = Self {
+            source,
+            decoder: Arc::new(decoder),
+            layout,
+            world,
+            shift,
+            source_finest: src_layout.finest_level(),
+            stored,
+            synthetic: HashMap::new(),
+            cut: Cut::new(),
+            nodes: HashMap::new(),
+            roots,
+            drawn: Vec::new(),
+            drawn_dirty: true,
+            records: LruCache::new(config.record_cache_bytes),
+            decoded: LruCache::new(config.decoded_cache_bytes),
+            requested: HashMap::new(),
+            failures: HashMap::new(),
+            failure_count: 0,
+            broken: HashSet::new(),
+            errors: Vec::new(),
+            frame: 0,
+            last_camera: None,
+            decoding: HashSet::new(),
+            done_tx,
+            done_rx,
+            config,
+        };
+        me.rebuild_drawn();
+        Ok(me)
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &RefineConfig {
+        &self.config
+    }
+
+    /// The current cut (in [`Refiner::layout`]'s ids).
+    pub fn cut(&self) -> &Cut {
+        &self.cut
+    }
+
+    /// The hierarchy the cut lives in: the source's, deeper when synthesising detail.
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// Lattice to world metres for [`Refiner::layout`]'s ids.
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// The data source.
+    pub fn source(&self) -> &S {
+        &self.source
+    }
+
+    /// The data source, mutably (e.g. to change a test double's behaviour).
+    pub fn source_mut(&mut self) -> &mut S {
+        &mut self.source
+    }
+
+    /// The half-patches the cut draws, in [`Cut::drawn_halves`] order.
+    pub fn drawn(&self) -> impl Iterator<Item = &Arc<HalfPatch>> {
+        self.drawn.iter()
+    }
+
+    /// Recent error messages (rejected records), oldest first.
+    pub fn errors(&self) -> &[String] {
+        &self.errors
+    }
+
+    /// The source's id of one of the refiner's diamonds (`None` for synthetic levels).
+    pub fn source_id(&self, id: DiamondId) -> Option<DiamondId> {
+        let mask = (1u32 << self.shift) - 1;
+        (id.level <= self.source_finest && id.x & mask == 0 && id.y & mask == 0)
+            .then(|| DiamondId::new(id.level, id.x >> self.shift, id.y >> self.shift))
+    }
+
+    /// The refiner's id of one of the source's diamonds.
+    pub fn refiner_id(&self, id: DiamondId) -> DiamondId {
+        DiamondId::new(id.level, id.x << self.shift, id.y << self.shift)
+    }
+
+    /// Screen-space error of a refinable diamond as the loop sees it (`None` if it cannot be
+    /// refined or lies outside the frustum).
+    pub fn screen_error(&mut self, id: DiamondId, camera: &Camera) -> Option<f64> {
+        let info = self.info(id)?;
+        View::new(*camera, 0.0).error(&info)
+    }
+
+    fn info(&mut self, id: DiamondId) -> Option<Info> {
+        if let Some(i) = self.stored.get(&id) {
+            return Some(*i);
+        }
+        let detail = self.config.detail?;
+        if id.level < self.source_finest || id.level >= self.layout.finest_level() {
+            return None;
+        }
+        if let Some(i) = self.synthetic.get(&id) {
+            return *i;
+        }
+        // Synthesised only where every parent has data (stored or itself synthesised).
+        let mut z = (f64::INFINITY, f64::NEG_INFINITY);
+        let mut ok = true;
+        for p in self.layout.parents(id).into_iter().flatten() {
+            match self.info(p) {
+                Some(pi) => z = (z.0.min(pi.lo.z), z.1.max(pi.hi.z)),
+                None => ok = false,
+            }
+        }
+        let info = ok.then(|| {
+            let amp = |l: u8| {
+                f64::from(detail::amplitude_units(&self.world, &detail, l)) * self.world.unit
+            };
+            let below: f64 = (id.level..self.layout.finest_level()).map(amp).sum();
+            let (x0, y0, x1, y1) = self.layout.bounds(id);
+            let pad = 2 * self.layout.radius(id.level);
+            let a = self.world.point(x0 - pad, y0 - pad, 0);
+            let b = self.world.point(x1 + pad, y1 + pad, 0);
+            Info {
+                err_m: amp(id.level),
+                lo: DVec3::new(a.x.min(b.x), a.y.min(b.y), z.0 - below),
+                hi: DVec3::new(a.x.max(b.x), a.y.max(b.y), z.1 + below),
+            }
+        });
+        self.synthetic.insert(id, info);
+        info
+    }
+
+    fn is_synthetic(&self, id: DiamondId) -> bool {
+        id.level >= self.source_finest
+    }
+
+    fn log_failure(&mut self, id: DiamondId, message: String) {
+        self.failure_count += 1;
+        let n = self.failures.entry(id).or_default();
+        *n += 1;
+        let gave_up = *n >= self.config.max_failures;
+        if gave_up {
+            self.broken.insert(id);
+        }
+        if self.errors.len() >= ERROR_LOG {
+            self.errors.remove(0);
+        }
+        self.errors.push(if gave_up {
+            format!("{message} (giving up on {id})")
+        } else {
+            message
+        });
+        self.records.remove(&id);
+    }
+
+    /// Moves a record that has arrived into RAM.
+    fn take(&mut self, id: DiamondId, sid: DiamondId) -> Option<Arc<[u8]>> {
+        match self.source.take(sid)? {
+            Ok(bytes) => {
+                let bytes: Arc<[u8]> = bytes.into();
+                self.records.insert(id, bytes.clone(), bytes.len() + 64);
+                Some(bytes)
+            }
+            Err(e) => {
+                self.log_failure(id, e.to_string());
+                None
+            }
+        }
+    }
+
+    fn need(&mut self, id: DiamondId) -> Need {
+        if self.broken.contains(&id) || self.info(id).is_none() {
+            return Need::Impossible;
+        }
+        if let Some(n) = self.decoded.get(&id) {
+            return Need::Ready(Source::Cached(n.clone()));
+        }
+        if self.is_synthetic(id) {
+            let detail = self
+                .config
+                .detail
+                .expect("synthetic levels only with detail");
+            let amp = detail::amplitude_units(&self.world, &detail, id.level);
+            return Need::Ready(Source::Synthetic(amp));
+        }
+        if let Some(r) = self.records.get(&id) {
+            return Need::Ready(Source::Record(r.clone()));
+        }
+        let sid = self.source_id(id).expect("stored levels map to the source");
+        if self.source.is_available(sid) {
+            self.requested.remove(&id);
+            if let Some(r) = self.take(id, sid) {
+                return Need::Ready(Source::Record(r));
+            }
+            if self.broken.contains(&id) {
+                return Need::Impossible;
+            }
+        }
+        Need::Missing
+    }
+
+    /// Whether a diamond's data could be had without a request (in RAM, cached, synthetic, or
+    /// available from the source). Takes nothing.
+    fn have_or_available(&mut self, id: DiamondId) -> bool {
+        self.decoded.contains(&id)
+            || self.records.contains(&id)
+            || self.is_synthetic(id)
+            || self
+                .source_id(id)
+                .is_some_and(|sid| self.source.is_available(sid))
+    }
+
+    /// The unrefined diamonds refining `id` takes, parents before children.
+    fn plan(&self, id: DiamondId) -> Vec<DiamondId> {
+        fn visit(me: &Cut, layout: &Layout, d: DiamondId, out: &mut Vec<DiamondId>) {
+            if me.is_refined(d) || out.contains(&d) {
+                return;
+            }
+            for p in layout.parents(d).into_iter().flatten() {
+                visit(me, layout, p, out);
+            }
+            out.push(d);
+        }
+        let mut out = Vec::new();
+        visit(&self.cut, &self.layout, id, &mut out);
+        out
+    }
+
+    /// Whether refining `id` needs a diamond that was given up on.
+    fn blocked(&self, id: DiamondId) -> bool {
+        !self.broken.is_empty() && self.plan(id).iter().any(|d| self.broken.contains(d))
+    }
+
+    /// The diamonds with a drawn half (refinement candidates), each once.
+    fn candidates(&self) -> Vec<DiamondId> {
+        let mut out: Vec<DiamondId> = self
+            .layout
+            .roots()
+            .filter(|r| !self.cut.is_refined(*r))
+            .collect();
+        for a in self.cut.refined() {
+            for k in self.layout.children(a).into_iter().flatten() {
+                if self.cut.is_refined(k) {
+                    continue;
+                }
+                let first = self
+                    .layout
+                    .parents(k)
+                    .into_iter()
+                    .flatten()
+                    .find(|p| self.cut.is_refined(*p));
+                if first == Some(a) {
+                    out.push(k);
+                }
+            }
+        }
+        out
+    }
+
+    fn violation(&mut self, id: DiamondId, view: &View) -> Option<f64> {
+        let info = self.info(id)?;
+        view.error(&info)
+            .filter(|&e| e > self.config.pixel_error && !self.broken.contains(&id))
+    }
+
+    /// Wants the records that refining `id` (parents first) still lacks.
+    fn want_plan(&mut self, id: DiamondId, priority: f64, wanted: &mut HashMap<DiamondId, f64>) {
+        for d in self.plan(id) {
+            if self.broken.contains(&d) || self.info(d).is_none() {
+                return;
+            }
+            if !self.have_or_available(d) {
+                let w = wanted.entry(d).or_insert(priority);
+                *w = w.max(priority);
+            }
+        }
+    }
+
+    /// Runs one frame for `camera`: refine within the budget, request what is missing,
+    /// prefetch, cancel what is no longer needed, and every few frames coarsen.
+    pub fn frame(&mut self, camera: &Camera) -> FrameStats {
+        let start = Instant::now();
+        let deadline = self.config.budget.map(|b| start + b);
+        self.frame += 1;
+        self.source.pump();
+        // Move what arrived into RAM; failures are logged now rather than when next wanted.
+        let arrived: Vec<DiamondId> = self
+            .requested
+            .keys()
+            .copied()
+            .filter(|id| {
+                self.source_id(*id)
+                    .is_some_and(|s| self.source.is_available(s))
+            })
+            .collect();
+        for id in arrived {
+            self.requested.remove(&id);
+            let sid = self.source_id(id).expect("requested ids are stored");
+            self.take(id, sid);
+        }
+
+        let view = View::new(*camera, 0.0);
+        let mut heap = BinaryHeap::new();
+        for id in self.candidates() {
+            if let Some(err) = self.violation(id, &view) {
+                heap.push(Candidate { err, id });
+            }
+        }
+        let mut wanted: HashMap<DiamondId, f64> = HashMap::new();
+        let mut stats = FrameStats {
+            frame: self.frame,
+            ..FrameStats::default()
+        };
+        // Results of decodes dispatched in earlier frames first.
+        while let Ok(done) = self.done_rx.try_recv() {
+            self.apply(done, &view, &mut heap, &mut stats);
+        }
+        let max_in_flight = 2 * rayon::current_num_threads().max(1);
+        let mut waiting: Vec<Candidate> = Vec::new();
+        loop {
+            // Dispatch the most urgent ready refinements to the workers.
+            while self.decoding.len() < max_in_flight {
+                let Some(c) = heap.pop() else { break };
+                if self.cut.is_refined(c.id) {
+                    continue;
+                }
+                let mut blocked = false;
+                let mut dispatched_self = false;
+                for d in self.plan(c.id) {
+                    if self.decoding.contains(&d) {
+                        continue;
+                    }
+                    let parents_done = self
+                        .layout
+                        .parents(d)
+                        .into_iter()
+                        .flatten()
+                        .all(|p| self.cut.is_refined(p));
+                    match self.need(d) {
+                        Need::Impossible => {
+                            blocked = true;
+                            break;
+                        }
+                        Need::Missing => {
+                            let w = wanted.entry(d).or_insert(c.err);
+                            *w = w.max(c.err);
+                            blocked = true;
+                        }
+                        Need::Ready(Source::Cached(node)) if parents_done => {
+                            // Decoded before and coarsened since: refining again is free.
+                            self.apply(
+                                Done {
+                                    id: d,
+                                    result: Ok(node),
+                                    secs: None,
+                                },
+                                &view,
+                                &mut heap,
+                                &mut stats,
+                            );
+                            dispatched_self |= d == c.id;
+                        }
+                        Need::Ready(s) if parents_done => {
+                            self.dispatch(d, s);
+                            dispatched_self |= d == c.id;
+                        }
+                        Need::Ready(_) => {}
+                    }
+                }
+                if !blocked && !dispatched_self && !self.cut.is_refined(c.id) {
+                    waiting.push(c);
+                }
+            }
+            if self.decoding.is_empty() {
+                // Nothing in flight and nothing more could be started: locally optimal for
+                // the data at hand.
+                break;
+            }
+            let done = match deadline {
+                None => self.done_rx.recv().ok(),
+                Some(d) => {
+                    let now = Instant::now();
+                    if now >= d {
+                        None
+                    } else {
+                        self.done_rx.recv_timeout(d - now).ok()
+                    }
+                }
+            };
+            let Some(done) = done else {
+                stats.budget_exhausted = true;
+                break;
+            };
+            self.apply(done, &view, &mut heap, &mut stats);
+            while let Ok(done) = self.done_rx.try_recv() {
+                self.apply(done, &view, &mut heap, &mut stats);
+            }
+            // Candidates that waited for an ancestor may be ready now.
+            heap.extend(waiting.drain(..));
+        }
+        heap.extend(waiting);
+
+        // What the budget did not reach still gets requested, then prefetch.
+        for c in heap.into_vec() {
+            if !self.cut.is_refined(c.id) {
+                self.want_plan(c.id, c.err, &mut wanted);
+            }
+        }
+        self.prefetch(camera, &mut wanted);
+        self.last_camera = Some(*camera);
+
+        // Post new requests, re-prioritise, cancel what is no longer wanted.
+        let stale: Vec<DiamondId> = self
+            .requested
+            .keys()
+            .filter(|id| !wanted.contains_key(id))
+            .copied()
+            .collect();
+        for id in stale {
+            self.requested.remove(&id);
+            if let Some(sid) = self.source_id(id) {
+                // A remote source may have completed it since the frame began: keep what was
+                // paid for rather than dropping it.
+                if self.source.is_available(sid) {
+                    self.take(id, sid);
+                } else {
+                    self.source.cancel(sid);
+                }
+            }
+        }
+        for (id, prio) in wanted {
+            let prio = prio as Priority;
+            if self.requested.get(&id) != Some(&prio)
+                && let Some(sid) = self.source_id(id)
+            {
+                self.source.request(sid, prio);
+                self.requested.insert(id, prio);
+            }
+        }
+
+        if self.config.gc_interval > 0
+            && self
+                .frame
+                .is_multiple_of(u64::from(self.config.gc_interval))
+        {
+            stats.coarsenings = self.collect_garbage(&view);
+        }
+        if self.drawn_dirty {
+            self.rebuild_drawn();
+        }
+        stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
+
+        let (max_err, coarsenable) = self.measure(&view);
+        stats.max_screen_error_px = max_err;
+        stats.met_target = max_err <= self.config.pixel_error;
+        stats.converged = stats.met_target && coarsenable == 0;
+        stats.refined = self.nodes.len();
+        stats.drawn_halves = self.drawn.len();
+        let n1 = (self.layout.n() - 1) as u64;
+        stats.triangles = self.drawn.len() as u64 * n1 * n1;
+        stats.access = self.source.stats();
+        stats.failures = self.failure_count;
+        stats
+    }
+
+    /// Requests (at low priority) what the camera is about to need: the drawn diamonds that an
+    /// enlarged frustum around the extrapolated eye would refine, and the children of diamonds
+    /// the current view refines that will need refining next.
+    fn prefetch(&mut self, camera: &Camera, wanted: &mut HashMap<DiamondId, f64>) {
+        let velocity = self.last_camera.map_or(DVec3::ZERO, |c| camera.eye - c.eye);
+        let ahead = velocity * self.config.lookahead_frames;
+        let mut future = *camera;
+        future.eye += ahead;
+        future.target += ahead;
+        let margin = self.config.prefetch_margin * (camera.target - camera.eye).length();
+        let view = View::new(future, margin);
+        let now = View::new(*camera, 0.0);
+        for id in self.candidates() {
+            if let Some(err) = self.violation(id, &view) {
+                self.want_plan(id, err * PREFETCH_PRIORITY, wanted);
+            }
+            if self.violation(id, &now).is_some() {
+                for k in self.layout.children(id).into_iter().flatten() {
+                    if let Some(err) = self.violation(k, &now) {
+                        self.want_plan(k, err * PREFETCH_PRIORITY, wanted);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Starts refining `id` (whose parents are refined) on a worker thread.
+    fn dispatch(&mut self, id: DiamondId, source: Source) {
+        let parents = self
+            .layout
+            .parents(id)
+            .map(|p| p.map(|p| self.nodes[&p].clone()));
+        let job = Job {
+            decoder: self.decoder.clone(),
+            layout: self.layout,
+            parents,
+            shift: self.shift,
+            seed: self.config.detail.map_or(0, |d| d.seed),
+        };
+        let tx = self.done_tx.clone();
+        self.decoding.insert(id);
+        rayon::spawn(move || {
+            let t = Instant::now();
+            let result = job.refine(id, source);
+            // The refiner may be gone; then nobody wants the result.
+            let _ = tx.send(Done {
+                id,
+                result,
+                secs: Some(t.elapsed().as_secs_f64()),
+            });
+        });
+    }
+
+    /// Puts a finished refinement into the cut, or into the cache if the cut moved on (a
+    /// parent was coarsened meanwhile).
+    fn apply(
+        &mut self,
+        done: Done,
+        view: &View,
+        heap: &mut BinaryHeap<Candidate>,
+        stats: &mut FrameStats,
+    ) {
+        let id = done.id;
+        self.decoding.remove(&id);
+        if let Some(secs) = done.secs {
+            stats.decode_ms += secs * 1e3;
+            stats.decoded += 1;
+        }
+        let node = match done.result {
+            Ok(node) => node,
+            Err(e) => {
+                self.log_failure(id, format!("decoding {id} failed: {e}"));
+                return;
+            }
+        };
+        let parents_refined = self
+            .layout
+            .parents(id)
+            .into_iter()
+            .flatten()
+            .all(|p| self.cut.is_refined(p));
+        if self.cut.is_refined(id) || !parents_refined {
+            let bytes = node.bytes();
+            self.decoded.insert(id, node, bytes);
+            return;
+        }
+        self.decoded.remove(&id);
+        self.nodes.insert(id, node);
+        let newly = self.cut.refine(&self.layout, id);
+        debug_assert_eq!(newly, vec![id], "parents are refined first");
+        self.drawn_dirty = true;
+        stats.refinements += 1;
+        for k in self.layout.children(id).into_iter().flatten() {
+            if let Some(err) = self.violation(k, view) {
+                heap.push(Candidate { err, id: k });
+            }
+        }
+    }
+
+    /// Coarsens every refined diamond the view does not need, finest first (a coarsening
+    /// heap ordered by ascending screen error, re-fed with parents that become leaves).
+    fn collect_garbage(&mut self, view: &View) -> usize {
+        let mut heap: BinaryHeap<std::cmp::Reverse<Candidate>> = BinaryHeap::new();
+        let leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
+        for d in leaves {
+            if let Some(c) = self.unneeded(d, view) {
+                heap.push(std::cmp::Reverse(c));
+            }
+        }
+        let mut done = 0;
+        while let Some(std::cmp::Reverse(c)) = heap.pop() {
+            if !self.cut.coarsen(&self.layout, c.id) {
+                continue;
+            }
+            done += 1;
+            self.drawn_dirty = true;
+            if let Some(node) = self.nodes.remove(&c.id) {
+                let bytes = node.bytes();
+                self.decoded.insert(c.id, node, bytes);
+            }
+            for p in self.layout.parents(c.id).into_iter().flatten() {
+                if self.cut.is_refined(p)
+                    && self.is_leaf(p)
+                    && let Some(c) = self.unneeded(p, view)
+                {
+                    heap.push(std::cmp::Reverse(c));
+                }
+            }
+        }
+        done
+    }
+
+    fn is_leaf(&self, id: DiamondId) -> bool {
+        !self
+            .layout
+            .children(id)
+            .into_iter()
+            .flatten()
+            .any(|c| self.cut.is_refined(c))
+    }
+
+    /// `Some` (with its error, for ordering) if a refined diamond is not needed by the view.
+    fn unneeded(&mut self, id: DiamondId, view: &View) -> Option<Candidate> {
+        let err = self.info(id).and_then(|i| view.error(&i)).unwrap_or(0.0);
+        (err <= self.config.pixel_error).then_some(Candidate { err, id })
+    }
+
+    /// The largest screen error a refinement could still fix, and how many refined diamonds
+    /// garbage collection would remove.
+    fn measure(&mut self, view: &View) -> (f64, usize) {
+        let mut worst = 0f64;
+        for id in self.candidates() {
+            if let Some(e) = self.info(id).and_then(|i| view.error(&i))
+                && e > worst
+                && !self.blocked(id)
+            {
+                worst = e;
+            }
+        }
+        let refined: Vec<DiamondId> = self.cut.refined().collect();
+        let coarsenable = refined
+            .into_iter()
+            .filter(|&d| self.is_leaf(d) && self.unneeded(d, view).is_some())
+            .count();
+        (worst, coarsenable)
+    }
+
+    fn rebuild_drawn(&mut self) {
+        self.drawn.clear();
+        for (id, half) in self.cut.drawn_halves(&self.layout) {
+            let patch = if id.level == 0 {
+                self.roots[&id][half as usize].clone()
+            } else {
+                let parent = self
+                    .layout
+                    .parent(id, half)
+                    .expect("a drawn child half has its parent");
+                let slot = self
+                    .layout
+                    .children(parent)
+                    .iter()
+                    .position(|c| *c == Some(id))
+                    .expect("child of its parent");
+                self.nodes[&parent].halves[slot]
+                    .clone()
+                    .expect("refined parents hold their children's halves")
+            };
+            self.drawn.push(patch);
+        }
+        self.drawn_dirty = false;
+    }
+}
+
+/// A finished (or failed) refinement coming back from a worker.
+struct Done {
+    id: DiamondId,
+    result: Result<Arc<Node>, CodecError>,
+    /// Worker time; `None` when nothing was decoded (served from the cache).
+    secs: Option<f64>,
+}
+
+/// What a worker needs to refine one diamond: owned, so it outlives the frame.
+struct Job {
+    decoder: Arc<Decoder>,
+    layout: Layout,
+    parents: [Option<Arc<Node>>; 2],
+    shift: u32,
+    seed: u64,
+}
+
+impl Job {
+    fn refine(&self, id: DiamondId, source: Source) -> Result<Arc<Node>, CodecError> {
+        match source {
+            Source::Cached(node) => Ok(node),
+            Source::Record(bytes) => {
+                let grid = self.grid_of(id);
+                let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, &bytes, s))?;
+                Ok(self.node(id, r))
+            }
+            Source::Synthetic(amp) => {
+                let grid = self.grid_of(id);
+                let r = detail::synthesize(&self.layout, id, &grid, amp, self.seed);
+                Ok(self.node(id, r))
+            }
+        }
+    }
+
+    fn grid_of(&self, id: DiamondId) -> Vec<i32> {
+        if id.level == 0 {
+            let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
+            return self.decoder.grid_of(sid, [None, None]);
+        }
+        let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
+        let n = self.layout.n();
+        let mut grid = vec![0i32; n * n];
+        gather(&self.layout, id, parents, &mut grid);
+        grid
+    }
+
+    fn node(&self, id: DiamondId, refined: Refined) -> Arc<Node> {
+        let halves = self.layout.children(id).map(|c| {
+            c.and_then(|c| HalfPatch::from_parent(&self.layout, c, id, &refined).map(Arc::new))
+        });
+        Arc::new(Node { refined, halves })
+    }
+}
+
+thread_local! {
+    /// Decoding buffers, one set per worker thread.
+    static SCRATCH: std::cell::RefCell<RefineScratch> = std::cell::RefCell::default();
+}

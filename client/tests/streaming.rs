@@ -1,0 +1,492 @@
+//! The streaming refinement loop end to end, without a GPU: conformity on random flights,
+//! convergence to the cut an independent brute force computes, agreement with the synchronous
+//! decoder, and non-blocking behaviour over a slow, lossy source.
+
+use std::collections::{HashMap, HashSet};
+use std::sync::Arc;
+use std::time::Duration;
+
+use cbdam_client::access::{FlakyConfig, FlakySource, LocalSource};
+use cbdam_client::camera::Camera;
+use cbdam_client::patch::{HalfPatch, decode_cut};
+use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner, box_distance};
+use cbdam_client::world::World;
+use cbdam_codec::geometry::{Cut, DiamondId, check_conforming};
+use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::repository::{Repository, serialize};
+use glam::DVec3;
+
+/// A 200 × 150 terrain (ridges, a valley and noise) with 9 × 9 grids: levels 0…10, a data
+/// rectangle smaller than the domain (so some diamonds are not stored).
+fn repository() -> Arc<Repository> {
+    let (w, h) = (200usize, 150usize);
+    let mut state = 0x2545_f491_4f6c_dd1d_u64;
+    let metres: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f64, (i / w) as f64);
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let noise = (state % 1000) as f64 / 1000.0;
+            120.0
+                + 80.0 * (x / 23.0).sin() * (y / 31.0).cos()
+                + 40.0 * ((x + y) / 11.0).sin()
+                + 0.01 * (x - 100.0).powi(2)
+                + 3.0 * noise
+        })
+        .collect();
+    let plan = QuantPlan::new(0.25, None, -50.0, 400.0).unwrap();
+    let grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
+    let opts = EncodeOptions {
+        n: 9,
+        ..EncodeOptions::default()
+    };
+    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    Arc::new(Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap())
+}
+
+fn unlimited(gc: u32) -> RefineConfig {
+    RefineConfig {
+        budget: None,
+        gc_interval: gc,
+        ..RefineConfig::default()
+    }
+}
+
+/// A small deterministic generator for camera paths.
+struct Rng(u64);
+impl Rng {
+    fn f(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// A random camera above the terrain looking at a random point of the data.
+fn random_camera(world: &World, rng: &mut Rng) -> Camera {
+    let (lo, hi) = world.data_box();
+    let span = hi - lo;
+    let target = lo + DVec3::new(rng.f() * span.x, rng.f() * span.y, rng.f() * span.z);
+    let eye = DVec3::new(
+        lo.x + (rng.f() * 1.6 - 0.3) * span.x,
+        lo.y + (rng.f() * 1.6 - 0.3) * span.y,
+        hi.z + 5.0 + rng.f() * rng.f() * 2.0 * span.x,
+    );
+    Camera::looking_at(world, eye, target, 50f64.to_radians(), (640, 480))
+}
+
+fn run_until_converged<S: cbdam_client::access::DataSource>(
+    r: &mut Refiner<S>,
+    cam: &Camera,
+    max_frames: usize,
+) -> FrameStats {
+    for _ in 0..max_frames {
+        let s = r.frame(cam);
+        if s.converged {
+            return s;
+        }
+    }
+    panic!("no convergence in {max_frames} frames");
+}
+
+/// The cut a view needs, computed directly from the index: a stored diamond is refined iff its
+/// error, saturated over its stored descendants (found here by explicit search, not the
+/// refiner's bottom-up pass), projected at the distance of the union of its descendants' boxes,
+/// exceeds the target, and that box meets the frustum.
+fn brute_force(repo: &Repository, cam: &Camera, target: f64) -> HashSet<DiamondId> {
+    let world = World::of_repository(repo);
+    let layout = repo.params().layout;
+    let by_id: HashMap<DiamondId, _> = repo.entries().iter().map(|e| (e.id, *e)).collect();
+    let frustum = cam.frustum();
+    let mut out = HashSet::new();
+    for e in repo.entries() {
+        let (mut lo, mut hi) = world.diamond_box(e.id, e.min, e.max);
+        let mut err = e.object_error;
+        let mut stack = vec![e.id];
+        let mut seen = HashSet::new();
+        while let Some(d) = stack.pop() {
+            for c in layout.children(d).into_iter().flatten() {
+                if let Some(ce) = by_id.get(&c)
+                    && seen.insert(c)
+                {
+                    let (a, b) = world.diamond_box(c, ce.min, ce.max);
+                    lo = lo.min(a);
+                    hi = hi.max(b);
+                    err = err.max(ce.object_error);
+                    stack.push(c);
+                }
+            }
+        }
+        let px = f64::from(err) * world.unit * cam.pixels_per_metre(box_distance(cam.eye, lo, hi));
+        if frustum.intersects_box(lo, hi) && px > target {
+            out.insert(e.id);
+        }
+    }
+    out
+}
+
+fn refined_set(cut: &Cut) -> HashSet<DiamondId> {
+    cut.refined().collect()
+}
+
+#[test]
+fn the_cut_conforms_after_every_frame_of_random_flights() {
+    let repo = repository();
+    let layout = repo.params().layout;
+    let world = World::of_repository(&repo);
+    for (seed, latency) in [(1u64, (0, 0)), (2, (1, 4)), (3, (0, 2))] {
+        let mut rng = Rng(seed);
+        let source = FlakySource::new(
+            repo.clone(),
+            FlakyConfig {
+                latency,
+                per_frame: 6,
+                corrupt_one_in: 5,
+                ..FlakyConfig::default()
+            },
+        );
+        let config = RefineConfig {
+            budget: Some(Duration::from_micros(300)),
+            gc_interval: 3,
+            ..RefineConfig::default()
+        };
+        let mut r = Refiner::new(source, config).unwrap();
+        let (mut a, mut b) = (
+            random_camera(&world, &mut rng),
+            random_camera(&world, &mut rng),
+        );
+        let mut refined_any = false;
+        for f in 0..60 {
+            if f % 12 == 0 {
+                (a, b) = (b, random_camera(&world, &mut rng));
+            }
+            let u = (f % 12) as f64 / 12.0;
+            let mut cam = a;
+            cam.eye = a.eye.lerp(b.eye, u);
+            cam.target = a.target.lerp(b.target, u);
+            let s = r.frame(&cam);
+            let cut = r.cut();
+            let triangles = cut.triangles(&layout);
+            check_conforming(&layout, &triangles)
+                .unwrap_or_else(|e| panic!("seed {seed} frame {f}: {e}"));
+            assert_eq!(s.triangles, triangles.len() as u64);
+            assert_eq!(s.refined, cut.refined().count());
+            for d in cut.refined() {
+                for p in layout.parents(d).into_iter().flatten() {
+                    assert!(cut.is_refined(p), "parent {p} of refined {d}");
+                }
+            }
+            let keys: Vec<_> = r.drawn().map(|p| p.key()).collect();
+            assert_eq!(keys, cut.drawn_halves(&layout));
+            refined_any |= cut.refined().count() > 3;
+        }
+        assert!(
+            refined_any,
+            "seed {seed}: the flights must refine something"
+        );
+    }
+}
+
+#[test]
+fn unlimited_budget_converges_to_the_brute_force_cut() {
+    let repo = repository();
+    let layout = repo.params().layout;
+    let world = World::of_repository(&repo);
+    let mut rng = Rng(7);
+    let mut r = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
+    let mut sizes = Vec::new();
+    // One refiner over several views: each converged cut must not depend on the previous ones
+    // (coarsening has to remove what the new view does not need).
+    for view in 0..8 {
+        let cam = random_camera(&world, &mut rng);
+        let s = run_until_converged(&mut r, &cam, 10);
+        assert!(s.met_target && s.max_screen_error_px <= 1.0);
+        let expected = brute_force(&repo, &cam, 1.0);
+        assert_eq!(refined_set(r.cut()), expected, "view {view}");
+        sizes.push(expected.len());
+
+        // The target holds with plain per-diamond boxes too, everywhere in the frustum: every
+        // drawn stored diamond whose own box meets the frustum is within 1 px.
+        let frustum = cam.frustum();
+        for (id, _) in r.cut().drawn_halves(&layout) {
+            let Ok(i) = repo.entries().binary_search_by(|e| e.id.cmp(&id)) else {
+                continue;
+            };
+            let e = repo.entries()[i];
+            let (lo, hi) = world.diamond_box(id, e.min, e.max);
+            if frustum.intersects_box(lo, hi) {
+                let px = f64::from(e.object_error)
+                    * world.unit
+                    * cam.pixels_per_metre(box_distance(cam.eye, lo, hi));
+                assert!(px <= 1.0, "view {view}: drawn {id} at {px} px");
+            }
+        }
+    }
+    assert!(
+        sizes.iter().any(|&n| n > 20) && sizes.iter().any(|&n| n < sizes.iter().max().unwrap() / 2),
+        "views should need different amounts of detail: {sizes:?}"
+    );
+}
+
+#[test]
+fn drawn_patches_equal_the_synchronous_decoder() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let mut rng = Rng(11);
+    let config = RefineConfig {
+        budget: Some(Duration::from_micros(500)),
+        gc_interval: 2,
+        ..RefineConfig::default()
+    };
+    let mut r = Refiner::new(LocalSource::new(repo.clone()), config).unwrap();
+    for _ in 0..3 {
+        let cam = random_camera(&world, &mut rng);
+        for _ in 0..4 {
+            r.frame(&cam);
+        }
+        let reference = decode_cut(&repo, r.cut()).unwrap();
+        let drawn: Vec<HalfPatch> = r.drawn().map(|p| (**p).clone()).collect();
+        assert_eq!(drawn.len(), reference.len());
+        assert!(
+            drawn == reference,
+            "streamed patches differ from decode_cut"
+        );
+    }
+}
+
+#[test]
+fn a_slow_lossy_source_never_blocks_and_converges_to_the_local_cut() {
+    let repo = repository();
+    let layout = repo.params().layout;
+    let world = World::of_repository(&repo);
+    let mut rng = Rng(5);
+    let budget = Duration::from_millis(2);
+    let source = FlakySource::new(
+        repo.clone(),
+        FlakyConfig {
+            latency: (2, 8),
+            per_frame: 10,
+            corrupt_one_in: 3,
+            ..FlakyConfig::default()
+        },
+    );
+    let config = RefineConfig {
+        budget: Some(budget),
+        ..RefineConfig::default()
+    };
+    let mut r = Refiner::new(source, config.clone()).unwrap();
+    let (a, b) = (
+        random_camera(&world, &mut rng),
+        random_camera(&world, &mut rng),
+    );
+    let mut worst_ms = 0f64;
+    let mut saw_in_flight = false;
+    for f in 0..40 {
+        let u = f as f64 / 40.0;
+        let mut cam = a;
+        cam.eye = a.eye.lerp(b.eye, u);
+        cam.target = a.target.lerp(b.target, u);
+        let s = r.frame(&cam);
+        worst_ms = worst_ms.max(s.refine_ms);
+        saw_in_flight |= s.access.in_flight > 0;
+        // Nothing is refined without its record having arrived: the first frames cannot have
+        // refined anything (the root's record is at least 2 frames away).
+        if f == 0 {
+            assert_eq!(s.refined, 0);
+        }
+    }
+    assert!(saw_in_flight);
+    // The machine is shared: allow a generous margin over the budget, but a loop that waited
+    // for data would never return at all (records only arrive on later frames).
+    assert!(worst_ms < 2.0 + 60.0, "worst frame {worst_ms} ms");
+
+    let mut settled = None;
+    for _ in 0..400 {
+        let s = r.frame(&b);
+        if s.converged {
+            settled = Some(s);
+            break;
+        }
+    }
+    let s = settled.expect("converges once the camera stops");
+    assert!(s.access.requests_issued > 0 && s.access.bytes_fetched > 0);
+
+    let corrupted = r.source().corrupted().to_vec();
+    assert!(
+        !corrupted.is_empty(),
+        "the double delivered corrupt records"
+    );
+    assert!(s.failures >= corrupted.len() as u64);
+    assert!(r.errors().iter().any(|e| e.contains("checksum")));
+
+    let mut local = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
+    run_until_converged(&mut local, &b, 10);
+    assert_eq!(refined_set(r.cut()), refined_set(local.cut()));
+    assert_eq!(refined_set(r.cut()), brute_force(&repo, &b, 1.0));
+    let x: Vec<_> = r.drawn().collect();
+    let y: Vec<_> = local.drawn().collect();
+    assert!(x == y, "same cut, same patches");
+    check_conforming(&layout, &r.cut().triangles(&layout)).unwrap();
+}
+
+#[test]
+fn a_record_that_always_fails_is_given_up_on_without_stalling() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let overview = Camera::overview(&world, (800, 600));
+    let mut local = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
+    run_until_converged(&mut local, &overview, 10);
+    // A refined level-2 diamond of the converged cut fails forever.
+    let bad = local
+        .cut()
+        .refined()
+        .find(|d| d.level == 2)
+        .expect("the overview refines level 2");
+    let source = FlakySource::new(
+        repo.clone(),
+        FlakyConfig {
+            latency: (1, 2),
+            always_fail: [bad].into_iter().collect(),
+            ..FlakyConfig::default()
+        },
+    );
+    let mut r = Refiner::new(source, unlimited(1)).unwrap();
+    let mut last = FrameStats::default();
+    for _ in 0..100 {
+        last = r.frame(&overview);
+        if last.converged {
+            break;
+        }
+    }
+    assert!(last.converged, "the rest of the cut converges");
+    assert!(!r.cut().is_refined(bad));
+    assert!(r.errors().iter().any(|e| e.contains("giving up")));
+    assert_eq!(
+        last.failures,
+        u64::from(RefineConfig::default().max_failures)
+    );
+    // Everything that does not depend on the broken diamond is refined as locally.
+    let layout = repo.params().layout;
+    for d in local.cut().refined() {
+        let mut ancestors = vec![d];
+        let mut depends = false;
+        while let Some(a) = ancestors.pop() {
+            depends |= a == bad;
+            ancestors.extend(layout.parents(a).into_iter().flatten());
+        }
+        assert_eq!(r.cut().is_refined(d), !depends, "{d}");
+    }
+}
+
+#[test]
+fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let src_finest = repo.params().layout.finest_level();
+    // Close to the ground, looking along it: the data's resolution is not enough.
+    let (lo, hi) = world.data_box();
+    let c = (lo + hi) * 0.5;
+    let cam = Camera::looking_at(
+        &world,
+        DVec3::new(c.x, c.y, hi.z + 2.0),
+        DVec3::new(c.x + 30.0, c.y + 10.0, lo.z),
+        50f64.to_radians(),
+        (640, 480),
+    );
+    let mut plain = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
+    run_until_converged(&mut plain, &cam, 20);
+    assert_eq!(plain.layout(), &repo.params().layout);
+    assert!(plain.cut().refined().all(|d| d.level < src_finest));
+
+    let detail = RefineConfig {
+        detail: Some(DetailConfig {
+            amplitude: 0.3,
+            ..DetailConfig::default()
+        }),
+        ..unlimited(1)
+    };
+    let mut runs = Vec::new();
+    for _ in 0..2 {
+        let mut r = Refiner::new(LocalSource::new(repo.clone()), detail.clone()).unwrap();
+        run_until_converged(&mut r, &cam, 20);
+        let layout = *r.layout();
+        assert_eq!(layout.finest_level(), src_finest + 2);
+        check_conforming(&layout, &r.cut().triangles(&layout)).unwrap();
+        assert!(
+            r.cut().refined().any(|d| d.level >= src_finest),
+            "synthesised"
+        );
+        // Stored levels are the repository's data: every drawn patch of a diamond above the
+        // source's finest level matches the synchronous decoder's patch of the same diamond.
+        let src_cut = {
+            let mut cut = Cut::new();
+            for d in r.cut().refined().filter_map(|d| r.source_id(d)) {
+                if d.level < src_finest {
+                    cut.refine(&repo.params().layout, d);
+                }
+            }
+            cut
+        };
+        let reference: HashMap<_, _> = decode_cut(&repo, &src_cut)
+            .unwrap()
+            .into_iter()
+            .map(|p| (p.key(), p))
+            .collect();
+        let mut compared = 0;
+        for p in r.drawn() {
+            if let Some(sid) = r.source_id(p.id)
+                && let Some(q) = reference.get(&(sid, p.half))
+                && p.id.level <= src_finest
+            {
+                assert_eq!(p.heights, q.heights, "{}", p.id);
+                compared += 1;
+            }
+        }
+        assert!(compared > 0);
+        runs.push(r.drawn().map(|p| (**p).clone()).collect::<Vec<_>>());
+    }
+    assert!(runs[0] == runs[1], "synthesis is deterministic");
+}
+
+#[test]
+fn requests_the_view_no_longer_needs_are_cancelled() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let (lo, hi) = world.data_box();
+    let look = |x: f64| {
+        let eye = DVec3::new(lo.x + x * (hi.x - lo.x), lo.y - 20.0, hi.z + 30.0);
+        let target = DVec3::new(eye.x, (lo.y + hi.y) / 2.0, lo.z);
+        Camera::looking_at(&world, eye, target, 30f64.to_radians(), (640, 480))
+    };
+    let source = FlakySource::new(
+        repo.clone(),
+        FlakyConfig {
+            latency: (3, 3),
+            ..FlakyConfig::default()
+        },
+    );
+    let mut r = Refiner::new(source, unlimited(1)).unwrap();
+    let (west, east) = (look(0.05), look(0.95));
+    let mut s = FrameStats::default();
+    for _ in 0..12 {
+        s = r.frame(&west);
+    }
+    assert!(s.refined > 0 && s.access.requests_cancelled == 0);
+    // Turn away while the next level's records are in flight: they are cancelled, not waited
+    // for.
+    for _ in 0..4 {
+        s = r.frame(&west);
+        if s.access.in_flight > 0 {
+            break;
+        }
+    }
+    assert!(s.access.in_flight > 0, "west still needs records");
+    let in_flight_west = s.access.in_flight;
+    s = r.frame(&east);
+    assert!(s.access.requests_cancelled > 0);
+    assert!(s.access.requests_issued > 0 && in_flight_west > 0);
+}

@@ -1,0 +1,225 @@
+//! `cbdam replay`: the real refinement loop over a camera flight, one CSV row per frame.
+
+use std::io::Write;
+use std::path::Path;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use cbdam_client::access::LocalSource;
+use cbdam_client::flight::Flight;
+use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner};
+
+use crate::ReplayArgs;
+
+/// The CSV header; `tests/cli.rs` checks it. Times in ms; `bytes_fetched` and
+/// `requests_issued` are cumulative, the other counters per frame or current state.
+pub const HEADER: &str = "frame,t,settling,refine_ms,cpu_ms,decode_ms,decoded,max_screen_error_px,\
+met_target,converged,diamonds_in_cut,drawn_halves,triangles,refinements,coarsenings,\
+budget_exhausted,bytes_fetched,requests_issued,requests_in_flight,failures";
+
+/// `WIDTHxHEIGHT`.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("{s:?} is not WIDTHxHEIGHT"))?;
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&v| (1..=16384).contains(&v))
+            .ok_or_else(|| format!("{v:?} is not a size between 1 and 16384"))
+    };
+    Ok((parse(w)?, parse(h)?))
+}
+
+pub fn run(args: &ReplayArgs) -> Result<()> {
+    if args.repo.starts_with("http://") || args.repo.starts_with("https://") {
+        bail!(
+            "remote sources: not implemented yet ({}); pass a local repository file",
+            args.repo
+        );
+    }
+    if !(args.pixel_error > 0.0 && args.pixel_error.is_finite()) {
+        bail!("--pixel-error must be positive, got {}", args.pixel_error);
+    }
+    if !(args.fps > 0.0 && args.fps.is_finite()) {
+        bail!("--fps must be positive, got {}", args.fps);
+    }
+    if !(args.budget_ms >= 0.0 && args.budget_ms.is_finite()) {
+        bail!("--budget-ms must be 0 (unlimited) or positive");
+    }
+    let flight =
+        Flight::load(&args.path).with_context(|| format!("loading {}", args.path.display()))?;
+    let source = LocalSource::open(Path::new(&args.repo))
+        .with_context(|| format!("opening {}", args.repo))?;
+    let config = RefineConfig {
+        pixel_error: args.pixel_error,
+        budget: (args.budget_ms > 0.0).then(|| Duration::from_secs_f64(args.budget_ms / 1e3)),
+        detail: args.detail.then(DetailConfig::default),
+        ..RefineConfig::default()
+    };
+    let mut refiner = Refiner::new(source, config).context("starting the refiner")?;
+    let world = *refiner.world();
+
+    let file = std::fs::File::create(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let mut csv = std::io::BufWriter::new(file);
+    writeln!(csv, "{HEADER}")?;
+
+    let flight_frames = (flight.duration() * args.fps).ceil() as u64 + 1;
+    let mut rows: Vec<FrameStats> = Vec::new();
+    let mut cpu_rows: Vec<f64> = Vec::new();
+    let mut bytes_at_end_of_flight = 0;
+    let mut converged_after = None;
+    let mut frame = 0u64;
+    loop {
+        let settling = frame >= flight_frames;
+        if settling && frame - flight_frames >= args.max_settle_frames as u64 {
+            break;
+        }
+        let t = (frame as f64 / args.fps).min(flight.duration());
+        let camera = flight.camera(&world, t, args.size);
+        let cpu = thread_cpu_seconds();
+        let s = refiner.frame(&camera);
+        let cpu_ms = (thread_cpu_seconds() - cpu) * 1e3;
+        writeln!(
+            csv,
+            "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{}",
+            s.frame,
+            t,
+            u8::from(settling),
+            s.refine_ms,
+            cpu_ms,
+            s.decode_ms,
+            s.decoded,
+            s.max_screen_error_px,
+            u8::from(s.met_target),
+            u8::from(s.converged),
+            s.refined,
+            s.drawn_halves,
+            s.triangles,
+            s.refinements,
+            s.coarsenings,
+            u8::from(s.budget_exhausted),
+            s.access.bytes_fetched,
+            s.access.requests_issued,
+            s.access.in_flight,
+            s.failures,
+        )?;
+        rows.push(s);
+        cpu_rows.push(cpu_ms);
+        frame += 1;
+        if frame == flight_frames {
+            bytes_at_end_of_flight = s.access.bytes_fetched;
+        }
+        if settling && s.converged {
+            converged_after = Some(frame - flight_frames);
+            break;
+        }
+    }
+    csv.flush()?;
+    drop(csv);
+
+    let flight_rows = &rows[..rows.len().min(flight_frames as usize)];
+    let mut ms: Vec<f64> = flight_rows.iter().map(|s| s.refine_ms).collect();
+    ms.sort_by(f64::total_cmp);
+    let mut cpu: Vec<f64> = cpu_rows[..flight_rows.len()].to_vec();
+    cpu.sort_by(f64::total_cmp);
+    let mut tris: Vec<u64> = flight_rows.iter().map(|s| s.triangles).collect();
+    tris.sort_unstable();
+    let decoded: usize = rows.iter().map(|s| s.decoded).sum();
+    let decode_s: f64 = rows.iter().map(|s| s.decode_ms).sum::<f64>() / 1e3;
+    let n1 = (refiner.layout().n() - 1) as f64;
+    let pixels = f64::from(args.size.0) * f64::from(args.size.1);
+    let last = rows.last().expect("at least one frame");
+    let over = flight_rows.iter().filter(|s| s.budget_exhausted).count();
+    println!(
+        "flight: {} frames at {} fps ({:.1} s), {}×{}, target {} px, budget {}",
+        flight_rows.len(),
+        args.fps,
+        flight.duration(),
+        args.size.0,
+        args.size.1,
+        args.pixel_error,
+        if args.budget_ms > 0.0 {
+            format!("{} ms", args.budget_ms)
+        } else {
+            "unlimited".into()
+        }
+    );
+    println!(
+        "refine ms per frame, wall: median {:.3}, p99 {:.3}, max {:.3}; budget exhausted in {over} frames",
+        percentile(&ms, 0.5),
+        percentile(&ms, 0.99),
+        ms.last().copied().unwrap_or(0.0)
+    );
+    println!(
+        "refine ms per frame, CPU of the calling thread: median {:.3}, p99 {:.3}, max {:.3}",
+        percentile(&cpu, 0.5),
+        percentile(&cpu, 0.99),
+        cpu.last().copied().unwrap_or(0.0)
+    );
+    println!(
+        "triangles per frame: median {}, max {} ({:.2} per pixel at the median)",
+        percentile(&tris, 0.5),
+        tris.last().copied().unwrap_or(0),
+        percentile(&tris, 0.5) as f64 / pixels
+    );
+    if decode_s > 0.0 {
+        println!(
+            "decoding: {decoded} diamonds in {:.1} ms, {:.0} diamonds/s, {:.1} M cells/s",
+            decode_s * 1e3,
+            decoded as f64 / decode_s,
+            decoded as f64 * n1 * n1 / decode_s / 1e6
+        );
+    }
+    println!(
+        "fetched: {} bytes during the flight ({:.0} bytes per second of flight), {} in all, {} failures",
+        bytes_at_end_of_flight,
+        bytes_at_end_of_flight as f64 / flight.duration().max(1e-9),
+        last.access.bytes_fetched,
+        last.failures
+    );
+    match converged_after {
+        Some(n) => println!(
+            "converged {n} frames after the flight: {} diamonds refined, {} triangles, max error {:.3} px",
+            last.refined, last.triangles, last.max_screen_error_px
+        ),
+        None => println!(
+            "not converged within {} frames after the flight (max error {:.3} px)",
+            args.max_settle_frames, last.max_screen_error_px
+        ),
+    }
+    for e in refiner.errors() {
+        eprintln!("cbdam: warning: {e}");
+    }
+    Ok(())
+}
+
+/// CPU time of the calling thread, seconds: what the loop costs the render thread, without
+/// the time the shared machine's scheduler keeps it waiting. NaN where unsupported.
+#[cfg(unix)]
+fn thread_cpu_seconds() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant the C library
+    // defines. On failure `ts` stays zero and the difference of two calls is meaningless but
+    // harmless, so the result is not checked.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+#[cfg(not(unix))]
+fn thread_cpu_seconds() -> f64 {
+    f64::NAN
+}
+
+fn percentile<T: Copy + Default>(sorted: &[T], q: f64) -> T {
+    if sorted.is_empty() {
+        return T::default();
+    }
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[i]
+}
