@@ -10,7 +10,8 @@ use cbdam_codec::input::GeoRef;
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{
-    FORMAT_VERSION, HEADER_LEN, Repository, Section, serialize, write_repository,
+    FORMAT_VERSION, HEADER_LEN, Repository, RepositoryHead, Section, required_head_len, serialize,
+    write_repository,
 };
 use common::Rng;
 
@@ -277,6 +278,49 @@ fn hostile_headers_with_valid_checksums_never_panic() {
         refused * 2 > tried,
         "only {refused} of {tried} hostile headers refused"
     );
+}
+
+/// What a remote client does: fetch the header, learn the head's length, fetch the head, then
+/// check each record it fetches. The head must agree with the mapped repository, accept every
+/// true record and refuse altered ones, and refuse every too-short prefix without panicking.
+#[test]
+fn head_from_a_prefix_checks_records_like_the_repository() {
+    let bytes = image();
+    let repo = load(bytes.clone()).unwrap();
+    let len = required_head_len(&bytes[..HEADER_LEN]).unwrap() as usize;
+    assert!(len < bytes.len());
+    let head = RepositoryHead::parse(&bytes[..len], bytes.len() as u64).unwrap();
+    assert_eq!(head.entries(), repo.entries());
+    assert_eq!(head.params(), repo.params());
+    assert_eq!(head.root_bytes(), repo.root_bytes());
+    assert_eq!(head.records_offset() as usize, len);
+    let mut non_empty = 0;
+    for (i, _) in head.entries().iter().enumerate() {
+        let r = head.record_range(i).unwrap();
+        let record = &bytes[r.start as usize..r.end as usize];
+        assert_eq!(record, repo.record_at(i).unwrap());
+        head.check_record(i, record).unwrap();
+        if record.is_empty() {
+            continue;
+        }
+        non_empty += 1;
+        let mut bad = record.to_vec();
+        bad[record.len() / 2] ^= 0x10;
+        assert!(matches!(
+            head.check_record(i, &bad),
+            Err(CodecError::Corrupt(_))
+        ));
+        assert!(head.check_record(i, &record[1..]).is_err());
+    }
+    assert!(non_empty > 3, "the fixture should have real records");
+    assert!(head.check_record(head.entries().len(), &[]).is_err());
+    for cut in 0..len {
+        let e = RepositoryHead::parse(&bytes[..cut], bytes.len() as u64).unwrap_err();
+        assert!(is_data_error(&e), "prefix {cut}: {e}");
+    }
+    // The same head bytes claiming a different file length contradict the section table.
+    assert!(RepositoryHead::parse(&bytes[..len], bytes.len() as u64 + 1).is_err());
+    assert!(required_head_len(&bytes[..HEADER_LEN - 1]).is_err());
 }
 
 /// The accessors a server needs to serve the file verbatim agree with the writer's layout.

@@ -249,10 +249,12 @@ impl Deref for Backing {
     }
 }
 
-/// An opened, validated repository.
-#[derive(Debug)]
-pub struct Repository {
-    bytes: Backing,
+/// Everything in a repository but its records: header, root field, index and record checksums —
+/// the first [`RepositoryHead::records_offset`] bytes of the file. A remote client fetches these
+/// bytes once (one range request, see [`required_head_len`]) and then checks each record it
+/// fetches with [`RepositoryHead::check_record`], exactly as [`Repository`] does with its map.
+#[derive(Clone, Debug)]
+pub struct RepositoryHead {
     params: CodecParams,
     plan: QuantPlan,
     georef: Option<GeoRef>,
@@ -260,51 +262,19 @@ pub struct Repository {
     leaf_error: u32,
     sections: [SectionInfo; 4],
     entries: Vec<IndexEntry>,
-    /// Per entry, its slot in the checksum table (meaningless for empty records).
-    crc_slots: Vec<u32>,
+    /// Per entry, its CRC-32 (0 and unused for empty records).
+    record_crcs: Vec<u32>,
+    roots: Vec<u8>,
+    file_len: u64,
+    header_crc: u32,
 }
 
-fn u16_at(b: &[u8], at: usize) -> u16 {
-    u16::from_le_bytes([b[at], b[at + 1]])
-}
-fn u32_at(b: &[u8], at: usize) -> u32 {
-    u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
-}
-fn u64_at(b: &[u8], at: usize) -> u64 {
-    u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
-}
-fn f64_at(b: &[u8], at: usize) -> f64 {
-    f64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
-}
-
-impl Repository {
-    /// Maps and validates the repository at `path`: magic, version, header CRC, every header
-    /// field, section bounds against the file length, the CRCs of the root field, index and
-    /// checksum table, and the index itself. Record bytes are checked when read
-    /// ([`Repository::record`]) or by [`Repository::check_all`].
-    pub fn open(path: &Path) -> Result<Self, CodecError> {
-        let file = File::open(path)?;
-        let len = file.metadata()?.len();
-        if len < HEADER_LEN as u64 {
-            // Small files are read rather than mapped: mapping an empty file fails on some
-            // platforms, and the error should name what is missing, not the mapping.
-            let bytes = std::fs::read(path)?;
-            return Self::from_bytes(bytes);
-        }
-        // SAFETY: the mapping is read-only. Like every memory-mapped reader we rely on nobody
-        // truncating or rewriting the file while it is open; `write_repository` never does (it
-        // renames a new file over the old one, leaving the mapped inode intact).
-        let map = unsafe { memmap2::Mmap::map(&file)? };
-        Self::parse(Backing::Map(map))
-    }
-
-    /// Validates a repository held in memory (see [`Repository::open`]).
-    pub fn from_bytes(bytes: Vec<u8>) -> Result<Self, CodecError> {
-        Self::parse(Backing::Owned(bytes))
-    }
-
-    fn parse(bytes: Backing) -> Result<Self, CodecError> {
-        let b: &[u8] = &bytes;
+impl RepositoryHead {
+    /// Validates a repository head: `b` holds at least the first [`required_head_len`] bytes of
+    /// a file of `file_len` bytes (the whole file will do). Checks magic, version, header CRC,
+    /// every header field, section placement against `file_len`, the CRCs of the root field,
+    /// index and checksum table, and the index itself.
+    pub fn parse(b: &[u8], file_len: u64) -> Result<Self, CodecError> {
         if b.len() < MAGIC.len() {
             return Err(CodecError::truncated(format!(
                 "file is {} bytes, too short for the repository magic",
@@ -470,7 +440,6 @@ impl Repository {
         let nodata_value = f64_at(b, NODATA_AT);
         let nodata = (!nodata_value.is_nan()).then_some(nodata_value);
 
-        let file_len = b.len() as u64;
         let mut sections = [SectionInfo {
             offset: 0,
             length: 0,
@@ -517,6 +486,13 @@ impl Repository {
                 file_len - expected
             )));
         }
+        if (b.len() as u64) < sections[3].offset {
+            return Err(CodecError::truncated(format!(
+                "{} bytes given, the repository head is {}",
+                b.len(),
+                sections[3].offset
+            )));
+        }
         for (i, s) in Section::ALL.iter().enumerate().take(3) {
             if crc32(&b[sections[i].range()]) != sections[i].crc {
                 return Err(CodecError::corrupt(format!(
@@ -533,13 +509,8 @@ impl Repository {
                 entries.len()
             )));
         }
-        let mut crc_slots = Vec::with_capacity(entries.len());
-        let mut non_empty = 0u32;
-        for e in &entries {
-            crc_slots.push(non_empty);
-            non_empty += u32::from(e.length > 0);
-        }
-        if u64::from(non_empty) * 4 != sections[2].length {
+        let non_empty = entries.iter().filter(|e| e.length > 0).count() as u64;
+        if non_empty * 4 != sections[2].length {
             return Err(CodecError::corrupt(format!(
                 "record checksum table is {} bytes for {non_empty} non-empty records",
                 sections[2].length
@@ -562,8 +533,19 @@ impl Repository {
             representation_error,
             epsilon,
         };
+        let table = &b[sections[2].range()];
+        let mut slot = 0;
+        let record_crcs = entries
+            .iter()
+            .map(|e| {
+                if e.length == 0 {
+                    return 0;
+                }
+                slot += 4;
+                u32_at(table, slot - 4)
+            })
+            .collect();
         Ok(Self {
-            bytes,
             params,
             plan,
             georef,
@@ -571,7 +553,10 @@ impl Repository {
             leaf_error,
             sections,
             entries,
-            crc_slots,
+            record_crcs,
+            roots: b[sections[0].range()].to_vec(),
+            file_len,
+            header_crc: stored_crc,
         })
     }
 
@@ -605,9 +590,14 @@ impl Repository {
         &self.entries
     }
 
+    /// Position in [`RepositoryHead::entries`] of diamond `id`, if stored.
+    pub fn position(&self, id: DiamondId) -> Option<usize> {
+        self.entries.binary_search_by(|e| e.id.cmp(&id)).ok()
+    }
+
     /// Total file size, bytes.
     pub fn file_len(&self) -> u64 {
-        self.bytes.len() as u64
+        self.file_len
     }
 
     /// Length of a section, bytes.
@@ -615,10 +605,195 @@ impl Repository {
         self.sections[Section::ALL.iter().position(|&x| x == s).expect("listed")].length
     }
 
-    /// Byte offset of a section from the start of the file. The records area is the last
-    /// section, so its offset is the length of everything a reader needs besides the records.
+    /// Byte offset of the records area: the head is the file's bytes before it.
+    pub fn records_offset(&self) -> u64 {
+        self.sections[3].offset
+    }
+
+    /// Byte offset of a section from the start of the file.
     pub fn section_offset(&self, s: Section) -> u64 {
         self.sections[Section::ALL.iter().position(|&x| x == s).expect("listed")].offset
+    }
+
+    /// The header's CRC-32. The header holds the CRCs of every section (records area
+    /// included), so this identifies the file's content: servers use it in cache validators.
+    pub fn header_crc(&self) -> u32 {
+        self.header_crc
+    }
+
+    /// The CRC-32 stored for the `i`-th record in id order, as the checksum table holds it
+    /// (not recomputed); `None` for an empty record (it has no slot) or `i` out of range.
+    pub fn record_checksum(&self, i: usize) -> Option<u32> {
+        let e = self.entries.get(i)?;
+        (e.length > 0).then(|| self.record_crcs[i])
+    }
+
+    /// Absolute byte range of record `i` in the file (for range requests).
+    pub fn record_range(&self, i: usize) -> Option<std::ops::Range<u64>> {
+        let e = self.entries.get(i)?;
+        let start = self.sections[3].offset + e.offset;
+        Some(start..start + u64::from(e.length))
+    }
+
+    /// The coded root field.
+    pub fn root_bytes(&self) -> &[u8] {
+        &self.roots
+    }
+
+    /// Checks that `bytes` are record `i`: its length and CRC-32.
+    pub fn check_record(&self, i: usize, bytes: &[u8]) -> Result<(), CodecError> {
+        let e = self
+            .entries
+            .get(i)
+            .ok_or_else(|| CodecError::invalid(format!("record {i} of {}", self.entries.len())))?;
+        let id = e.id;
+        if bytes.len() != e.length as usize {
+            return Err(CodecError::corrupt(format!(
+                "record {i} (diamond {id}) is {} bytes, the index says {}",
+                bytes.len(),
+                e.length
+            )));
+        }
+        if !bytes.is_empty() && crc32(bytes) != self.record_crcs[i] {
+            return Err(CodecError::corrupt(format!(
+                "checksum mismatch in record {i} (diamond level {} at {}, {})",
+                id.level, id.x, id.y
+            )));
+        }
+        Ok(())
+    }
+
+    /// A decoder over the root field.
+    pub fn decoder(&self) -> Result<Decoder, CodecError> {
+        Decoder::new(self.params, &self.roots)
+    }
+}
+
+/// An opened, validated repository: the head plus the mapped records.
+#[derive(Debug)]
+pub struct Repository {
+    bytes: Backing,
+    head: RepositoryHead,
+}
+
+/// How many bytes from the start of a repository file make up its head (everything before the
+/// records area), read from the file's first [`HEADER_LEN`] bytes. Only the header checksum and
+/// magic are checked here; [`RepositoryHead::parse`] validates the rest.
+pub fn required_head_len(header: &[u8]) -> Result<u64, CodecError> {
+    if header.len() < HEADER_LEN {
+        return Err(CodecError::truncated(format!(
+            "{} bytes given, the header is {HEADER_LEN}",
+            header.len()
+        )));
+    }
+    if header[..8] != MAGIC {
+        return Err(CodecError::corrupt(
+            "not a C-BDAM repository (bad magic bytes)",
+        ));
+    }
+    if crc32(&header[..HEADER_CRC_AT]) != u32_at(header, HEADER_CRC_AT) {
+        return Err(CodecError::corrupt("header checksum mismatch"));
+    }
+    let records_offset = u64_at(header, SECTIONS_AT + 3 * SECTION_ENTRY);
+    if records_offset < HEADER_LEN as u64 {
+        return Err(CodecError::corrupt(format!(
+            "records area starts at byte {records_offset}, inside the header"
+        )));
+    }
+    Ok(records_offset)
+}
+
+fn u16_at(b: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([b[at], b[at + 1]])
+}
+fn u32_at(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
+}
+fn u64_at(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+fn f64_at(b: &[u8], at: usize) -> f64 {
+    f64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+
+impl Repository {
+    /// Maps and validates the repository at `path`: magic, version, header CRC, every header
+    /// field, section bounds against the file length, the CRCs of the root field, index and
+    /// checksum table, and the index itself. Record bytes are checked when read
+    /// ([`Repository::record`]) or by [`Repository::check_all`].
+    pub fn open(path: &Path) -> Result<Self, CodecError> {
+        let file = File::open(path)?;
+        let len = file.metadata()?.len();
+        if len < HEADER_LEN as u64 {
+            // Small files are read rather than mapped: mapping an empty file fails on some
+            // platforms, and the error should name what is missing, not the mapping.
+            let bytes = std::fs::read(path)?;
+            return Self::from_bytes(bytes);
+        }
+        // SAFETY: the mapping is read-only. Like every memory-mapped reader we rely on nobody
+        // truncating or rewriting the file while it is open; `write_repository` never does (it
+        // renames a new file over the old one, leaving the mapped inode intact).
+        let map = unsafe { memmap2::Mmap::map(&file)? };
+        Self::parse(Backing::Map(map))
+    }
+
+    /// Validates a repository held in memory (see [`Repository::open`]).
+    pub fn from_bytes(bytes: Vec<u8>) -> Result<Self, CodecError> {
+        Self::parse(Backing::Owned(bytes))
+    }
+
+    fn parse(bytes: Backing) -> Result<Self, CodecError> {
+        let head = RepositoryHead::parse(&bytes, bytes.len() as u64)?;
+        Ok(Self { bytes, head })
+    }
+
+    /// The header, root field, index and checksums.
+    pub fn head(&self) -> &RepositoryHead {
+        &self.head
+    }
+    /// The decoder's header fields.
+    pub fn params(&self) -> &CodecParams {
+        self.head.params()
+    }
+
+    /// How integer units map to metres, and the tolerance the repository was built for.
+    pub fn plan(&self) -> &QuantPlan {
+        self.head.plan()
+    }
+
+    /// Georeferencing of the data grid, when the input had one.
+    pub fn georef(&self) -> Option<&GeoRef> {
+        self.head.georef()
+    }
+
+    /// The input's nodata value at build time, if any.
+    pub fn nodata(&self) -> Option<f64> {
+        self.head.nodata()
+    }
+
+    /// Object-space error of the finest diamonds, units.
+    pub fn leaf_error(&self) -> u32 {
+        self.head.leaf_error()
+    }
+
+    /// The index entries, in id order.
+    pub fn entries(&self) -> &[IndexEntry] {
+        self.head.entries()
+    }
+
+    /// Total file size, bytes.
+    pub fn file_len(&self) -> u64 {
+        self.head.file_len()
+    }
+
+    /// Length of a section, bytes.
+    pub fn section_len(&self, s: Section) -> u64 {
+        self.head.section_len(s)
+    }
+
+    /// The coded root field.
+    pub fn root_bytes(&self) -> &[u8] {
+        self.head.root_bytes()
     }
 
     /// The whole file, as validated by [`Repository::open`] (the records area unchecked). For
@@ -627,73 +802,53 @@ impl Repository {
         &self.bytes
     }
 
-    /// The header's CRC-32. The header holds the CRCs of every section (records area
-    /// included), so this identifies the file's content: servers use it in cache validators.
+    /// Byte offset of a section from the start of the file. The records area is the last
+    /// section, so its offset is the length of everything a reader needs besides the records.
+    pub fn section_offset(&self, s: Section) -> u64 {
+        self.head.section_offset(s)
+    }
+
+    /// The header's CRC-32 (see [`RepositoryHead::header_crc`]).
     pub fn header_crc(&self) -> u32 {
-        u32_at(&self.bytes, HEADER_CRC_AT)
+        self.head.header_crc()
     }
 
-    /// The CRC-32 stored for the `i`-th record in id order, as the checksum table holds it
-    /// (not recomputed); `None` for an empty record (it has no slot) or `i` out of range.
+    /// The CRC-32 stored for the `i`-th record (see [`RepositoryHead::record_checksum`]).
     pub fn record_checksum(&self, i: usize) -> Option<u32> {
-        let e = self.entries.get(i)?;
-        if e.length == 0 {
-            return None;
-        }
-        let at = self.sections[2].offset as usize + 4 * self.crc_slots[i] as usize;
-        Some(u32_at(&self.bytes, at))
-    }
-
-    /// The coded root field.
-    pub fn root_bytes(&self) -> &[u8] {
-        &self.bytes[self.sections[0].range()]
+        self.head.record_checksum(i)
     }
 
     /// The bytes of the `i`-th record in id order, checked against its CRC.
     pub fn record_at(&self, i: usize) -> Result<&[u8], CodecError> {
-        let e = self
-            .entries
-            .get(i)
-            .ok_or_else(|| CodecError::invalid(format!("record {i} of {}", self.entries.len())))?;
+        let range = self.head.record_range(i).ok_or_else(|| {
+            CodecError::invalid(format!("record {i} of {}", self.head.entries.len()))
+        })?;
         // Offsets and lengths were checked by `decode_index` to add up to the records area.
-        let start = self.sections[3].offset as usize + e.offset as usize;
-        let bytes = &self.bytes[start..start + e.length as usize];
-        if bytes.is_empty() {
-            return Ok(bytes);
-        }
-        let at = self.sections[2].offset as usize + 4 * self.crc_slots[i] as usize;
-        if crc32(bytes) != u32_at(&self.bytes, at) {
-            let id = e.id;
-            return Err(CodecError::corrupt(format!(
-                "checksum mismatch in record {i} (diamond level {} at {}, {})",
-                id.level, id.x, id.y
-            )));
-        }
+        let bytes = &self.bytes[range.start as usize..range.end as usize];
+        self.head.check_record(i, bytes)?;
         Ok(bytes)
     }
 
     /// The record of diamond `id`, checked against its CRC.
     pub fn record(&self, id: DiamondId) -> Result<&[u8], CodecError> {
-        let i = self
-            .entries
-            .binary_search_by(|e| e.id.cmp(&id))
-            .map_err(|_| {
-                CodecError::invalid(format!(
-                    "diamond level {} at {}, {} is not stored",
-                    id.level, id.x, id.y
-                ))
-            })?;
+        let i = self.head.position(id).ok_or_else(|| {
+            CodecError::invalid(format!(
+                "diamond level {} at {}, {} is not stored",
+                id.level, id.x, id.y
+            ))
+        })?;
         self.record_at(i)
     }
 
     /// Checks the records area's CRC and every record's.
     pub fn check_all(&self) -> Result<(), CodecError> {
-        for i in 0..self.entries.len() {
+        for i in 0..self.head.entries.len() {
             self.record_at(i)?;
         }
         // Per-record CRCs cover every byte of the area (the records tile it), so this only adds
         // a check of the table against the area as a whole.
-        if crc32(&self.bytes[self.sections[3].range()]) != self.sections[3].crc {
+        let records = self.head.sections[3];
+        if crc32(&self.bytes[records.range()]) != records.crc {
             return Err(CodecError::corrupt("records area checksum mismatch"));
         }
         Ok(())
@@ -701,12 +856,13 @@ impl Repository {
 
     /// A decoder over the root field.
     pub fn decoder(&self) -> Result<Decoder, CodecError> {
-        Decoder::new(self.params, self.root_bytes())
+        self.head.decoder()
     }
 
     /// The whole hierarchy in memory (for [`crate::hierarchy::verify`]); checks every record.
     pub fn to_encoded(&self) -> Result<Encoded, CodecError> {
         let records = self
+            .head
             .entries
             .iter()
             .enumerate()
@@ -721,10 +877,10 @@ impl Repository {
             })
             .collect::<Result<Vec<_>, CodecError>>()?;
         Ok(Encoded {
-            params: self.params,
+            params: self.head.params,
             roots: self.root_bytes().to_vec(),
             records,
-            leaf_error: self.leaf_error,
+            leaf_error: self.head.leaf_error,
         })
     }
 }

@@ -8,5 +8,6 @@ pub mod container;
 pub mod index;
 
 pub use container::{
-    FORMAT_VERSION, HEADER_LEN, MAGIC, Repository, Section, serialize, write_repository,
+    FORMAT_VERSION, HEADER_LEN, MAGIC, Repository, RepositoryHead, Section, required_head_len,
+    serialize, write_repository,
 };

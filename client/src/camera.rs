@@ -1,0 +1,275 @@
+//! The perspective camera shared by refinement (frustum culling, screen-space error) and the
+//! renderer (projection). World positions are `f64`; what reaches the GPU is relative to the eye
+//! (`view_proj_relative`), so large extents do not jitter in `f32`.
+
+use glam::{DMat4, DVec3, DVec4, Mat4};
+
+use crate::world::World;
+
+/// A perspective camera looking from `eye` at `target`, z up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    /// Eye position, world metres.
+    pub eye: DVec3,
+    /// Point looked at, world metres.
+    pub target: DVec3,
+    /// Vertical field of view, radians.
+    pub fov_y: f64,
+    /// Viewport width, pixels.
+    pub width: u32,
+    /// Viewport height, pixels.
+    pub height: u32,
+    /// Near plane distance, metres.
+    pub near: f64,
+    /// Far plane distance, metres.
+    pub far: f64,
+}
+
+impl Camera {
+    /// A camera with near and far planes chosen for `world`: far enough to see the whole data
+    /// from `eye`, near as large as the eye's height above the data allows (depth precision).
+    pub fn looking_at(
+        world: &World,
+        eye: DVec3,
+        target: DVec3,
+        fov_y: f64,
+        size: (u32, u32),
+    ) -> Self {
+        let (lo, hi) = world.data_box();
+        let far_corner = DVec3::new(
+            if eye.x - lo.x > hi.x - eye.x {
+                lo.x
+            } else {
+                hi.x
+            },
+            if eye.y - lo.y > hi.y - eye.y {
+                lo.y
+            } else {
+                hi.y
+            },
+            lo.z,
+        );
+        let far = (far_corner - eye).length() * 1.5 + 1.0;
+        let clearance = (eye.z - hi.z).max(0.0);
+        let near = (clearance * 0.5).clamp(far * 1e-6, far * 1e-2).max(0.01);
+        Self {
+            eye,
+            target,
+            fov_y,
+            width: size.0,
+            height: size.1,
+            near,
+            far,
+        }
+    }
+
+    /// An overview of the whole data: from the south, 35° above the horizon, far enough that the
+    /// data rectangle fills most of the view.
+    pub fn overview(world: &World, size: (u32, u32)) -> Self {
+        let (lo, hi) = world.data_box();
+        let centre = (lo + hi) * 0.5;
+        let radius = ((hi - lo) * DVec3::new(0.5, 0.5, 0.5)).length().max(1.0);
+        let fov_y = 45f64.to_radians();
+        let aspect = f64::from(size.0) / f64::from(size.1.max(1));
+        let half = (fov_y / 2.0).tan().min((fov_y / 2.0).tan() * aspect);
+        let distance = radius / half.atan().sin();
+        let elevation = 35f64.to_radians();
+        let eye = centre + DVec3::new(0.0, -elevation.cos(), elevation.sin()) * distance;
+        Self::looking_at(world, eye, centre, fov_y, size)
+    }
+
+    /// World to view (right-handed, looking down −z).
+    pub fn view(&self) -> DMat4 {
+        look_at(self.eye, self.target)
+    }
+
+    /// View to clip space, depth 0 (near) to 1 (far), as wgpu expects.
+    pub fn projection(&self) -> DMat4 {
+        perspective(self.fov_y, self.aspect(), self.near, self.far)
+    }
+
+    /// World-minus-eye to clip space, in `f32` for the GPU: vertices are sent relative to the eye.
+    pub fn view_proj_relative(&self) -> Mat4 {
+        let rotation = look_at(DVec3::ZERO, self.target - self.eye);
+        (self.projection() * rotation).as_mat4()
+    }
+
+    /// Width over height.
+    pub fn aspect(&self) -> f64 {
+        f64::from(self.width) / f64::from(self.height.max(1))
+    }
+
+    /// Pixels per metre of a length facing the camera at `distance` metres.
+    pub fn pixels_per_metre(&self, distance: f64) -> f64 {
+        f64::from(self.height) / (2.0 * (self.fov_y / 2.0).tan() * distance.max(self.near))
+    }
+
+    /// The view frustum in world space.
+    pub fn frustum(&self) -> Frustum {
+        Frustum::from_matrix(self.projection() * self.view())
+    }
+}
+
+/// Right-handed world-to-view matrix (view looks down −z, y up on screen), z-up world.
+fn look_at(eye: DVec3, target: DVec3) -> DMat4 {
+    let f = (target - eye).normalize();
+    let s = f.cross(up_for(f)).normalize();
+    let u = s.cross(f);
+    DMat4::from_cols(
+        DVec4::new(s.x, u.x, -f.x, 0.0),
+        DVec4::new(s.y, u.y, -f.y, 0.0),
+        DVec4::new(s.z, u.z, -f.z, 0.0),
+        DVec4::new(-s.dot(eye), -u.dot(eye), f.dot(eye), 1.0),
+    )
+}
+
+/// Right-handed perspective projection with depth 0 at `near` and 1 at `far` (wgpu's clip space).
+fn perspective(fov_y: f64, aspect: f64, near: f64, far: f64) -> DMat4 {
+    let f = 1.0 / (fov_y / 2.0).tan();
+    let r = far / (near - far);
+    DMat4::from_cols(
+        DVec4::new(f / aspect, 0.0, 0.0, 0.0),
+        DVec4::new(0.0, f, 0.0, 0.0),
+        DVec4::new(0.0, 0.0, r, -1.0),
+        DVec4::new(0.0, 0.0, r * near, 0.0),
+    )
+}
+
+/// An up vector that is never parallel to the viewing direction (looking straight down works).
+fn up_for(dir: DVec3) -> DVec3 {
+    let d = dir.normalize_or_zero();
+    if d.cross(DVec3::Z).length_squared() < 1e-12 {
+        DVec3::Y
+    } else {
+        DVec3::Z
+    }
+}
+
+/// Six planes `a·x + b·y + c·z + d ≥ 0` inside, world space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Frustum {
+    /// Left, right, bottom, top, near, far.
+    pub planes: [DVec4; 6],
+}
+
+impl Frustum {
+    /// The planes of a world-to-clip matrix with 0..1 depth (Gribb–Hartmann).
+    pub fn from_matrix(m: DMat4) -> Self {
+        let r = |i: usize| m.row(i);
+        let planes = [
+            r(3) + r(0),
+            r(3) - r(0),
+            r(3) + r(1),
+            r(3) - r(1),
+            r(2),
+            r(3) - r(2),
+        ]
+        .map(|p| p / p.truncate().length());
+        Self { planes }
+    }
+
+    /// The same frustum with every side plane pushed out by `margin` metres (prefetching asks for
+    /// what an enlarged frustum sees).
+    pub fn enlarged(&self, margin: f64) -> Self {
+        let mut planes = self.planes;
+        for p in &mut planes[..4] {
+            p.w += margin;
+        }
+        Self { planes }
+    }
+
+    /// Whether the box `min..max` is at least partly inside (conservative: may say yes for a box
+    /// just outside a corner, never no for a box inside).
+    pub fn intersects_box(&self, min: DVec3, max: DVec3) -> bool {
+        self.planes.iter().all(|p| {
+            let corner = DVec3::new(
+                if p.x >= 0.0 { max.x } else { min.x },
+                if p.y >= 0.0 { max.y } else { min.y },
+                if p.z >= 0.0 { max.z } else { min.z },
+            );
+            p.truncate().dot(corner) + p.w >= 0.0
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cbdam_codec::geometry::Layout;
+
+    fn world() -> World {
+        World {
+            layout: Layout::covering(65, 1000, 800, 0).unwrap(),
+            step_x: 30.0,
+            step_y: 30.0,
+            unit: 1.0,
+            offset: 0.0,
+            data_width: 1000,
+            data_height: 800,
+            min_height: 100.0,
+            max_height: 2500.0,
+        }
+    }
+
+    /// The overview sees every corner of the data box, and the target is at the screen centre.
+    #[test]
+    fn overview_sees_the_whole_data() {
+        let w = world();
+        let cam = Camera::overview(&w, (1920, 1080));
+        let (lo, hi) = w.data_box();
+        let m = cam.projection() * cam.view();
+        for i in 0..8 {
+            let c = DVec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            );
+            let p = m * c.extend(1.0);
+            let ndc = p.truncate() / p.w;
+            assert!(
+                ndc.x.abs() <= 1.0 && ndc.y.abs() <= 1.0,
+                "corner {i} at {ndc}"
+            );
+            assert!((0.0..=1.0).contains(&ndc.z), "corner {i} depth {}", ndc.z);
+            assert!(cam.frustum().intersects_box(c, c));
+        }
+        let t = m * cam.target.extend(1.0);
+        assert!((t.x / t.w).abs() < 1e-9 && (t.y / t.w).abs() < 1e-9);
+    }
+
+    /// Camera-relative projection equals the absolute one up to f32 rounding, even far from the
+    /// origin where absolute f32 positions would lose metres.
+    #[test]
+    fn relative_projection_matches_absolute() {
+        let w = world();
+        let mut cam = Camera::overview(&w, (800, 600));
+        let shift = DVec3::new(3.0e6, -5.0e6, 0.0);
+        cam.eye += shift;
+        cam.target += shift;
+        let abs = cam.projection() * cam.view();
+        let rel = cam.view_proj_relative();
+        let p = cam.target + DVec3::new(123.25, -77.5, 40.0);
+        let a = abs * p.extend(1.0);
+        let r = rel * (p - cam.eye).as_vec3().extend(1.0);
+        let (a, r) = (a.truncate() / a.w, r.truncate().as_dvec3() / f64::from(r.w));
+        assert!((a - r).abs().max_element() < 1e-5, "{a} vs {r}");
+    }
+
+    /// Boxes behind the camera or beside the frustum are culled; boxes in front are kept.
+    #[test]
+    fn frustum_culls_boxes_outside() {
+        let w = world();
+        let cam = Camera::overview(&w, (800, 600));
+        let f = cam.frustum();
+        let behind = cam.eye + (cam.eye - cam.target);
+        assert!(!f.intersects_box(behind - DVec3::ONE, behind + DVec3::ONE));
+        let right = cam.view().inverse().transform_vector3(DVec3::X);
+        let beside = cam.target + right * 1e7;
+        assert!(!f.intersects_box(beside - DVec3::ONE, beside + DVec3::ONE));
+        assert!(f.intersects_box(cam.target - DVec3::ONE, cam.target + DVec3::ONE));
+        assert!(
+            f.enlarged(2e7)
+                .intersects_box(beside - DVec3::ONE, beside + DVec3::ONE)
+        );
+    }
+}

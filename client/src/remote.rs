@@ -1,0 +1,700 @@
+//! Fetching records over HTTP: from `cbdam serve` (batched `POST …/diamonds`) or from any static
+//! server holding the repository file (HTTP range requests).
+//!
+//! The frame loop never waits on the network. Each frame it hands the fetcher the set of records
+//! it wants with their priorities ([`RemoteFetcher::want`]) and collects whatever arrived
+//! ([`RemoteFetcher::poll`]). A background tokio runtime sends the most urgent wanted records
+//! first, a batch per request, with a bounded number of requests in flight; records no longer
+//! wanted are dropped from the queue and requests whose records are all unwanted are aborted;
+//! failures (refused connections, time-outs, HTTP errors, records failing their checksum) are
+//! retried with exponential backoff, so a server that goes away and comes back is survived.
+//! Every record is checked against the repository head's checksum before it is handed over.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use cbdam_codec::CodecError;
+use cbdam_codec::geometry::DiamondId;
+use cbdam_codec::repository::{HEADER_LEN, RepositoryHead, required_head_len};
+use tokio::sync::Notify;
+use tokio::task::AbortHandle;
+
+/// Tuning of the fetcher; every limit is explicit.
+#[derive(Clone, Debug)]
+pub struct FetchOptions {
+    /// Most records asked for in one request.
+    pub max_batch: usize,
+    /// Most requests in flight at once.
+    pub max_in_flight: usize,
+    /// Time-out of one request.
+    pub timeout: Duration,
+    /// First retry delay; doubled per failure of the same record, up to `max_backoff`.
+    pub initial_backoff: Duration,
+    /// Longest retry delay.
+    pub max_backoff: Duration,
+    /// Range requests to a static server merge records separated by at most this many bytes.
+    pub max_range_gap: u64,
+}
+
+impl Default for FetchOptions {
+    fn default() -> Self {
+        Self {
+            max_batch: 64,
+            max_in_flight: 8,
+            timeout: Duration::from_secs(5),
+            initial_backoff: Duration::from_millis(50),
+            max_backoff: Duration::from_secs(2),
+            max_range_gap: 16 * 1024,
+        }
+    }
+}
+
+/// Counters of the fetcher's work, cumulative.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FetchStats {
+    /// HTTP requests sent (head requests included).
+    pub requests: u64,
+    /// Requests in flight now.
+    pub in_flight: u64,
+    /// Response body bytes received.
+    pub bytes: u64,
+    /// Records handed over, checked.
+    pub records: u64,
+    /// Failed requests and rejected records (each retried later).
+    pub errors: u64,
+    /// Requests aborted because none of their records was wanted any more.
+    pub cancelled: u64,
+}
+
+/// Where the records come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+enum Endpoint {
+    /// `cbdam serve`: `base` is `…/v1/repos/{name}`.
+    Server { base: String },
+    /// Any server of the repository file that honours `Range`.
+    File { url: String },
+}
+
+impl Endpoint {
+    fn file_url(&self) -> String {
+        match self {
+            Endpoint::Server { base } => format!("{base}/file"),
+            Endpoint::File { url } => url.clone(),
+        }
+    }
+}
+
+/// Why connecting failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RemoteError {
+    /// The network or the server failed.
+    #[error("{url}: {message}")]
+    Http {
+        /// What was being fetched.
+        url: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// The repository bytes are invalid.
+    #[error("{url}: {source}")]
+    Repository {
+        /// Where they came from.
+        url: String,
+        /// The codec's complaint.
+        source: CodecError,
+    },
+    /// The URL does not name one repository.
+    #[error("{0}")]
+    Url(String),
+}
+
+/// A record that arrived, or a record that could not be had.
+pub type Fetched = (DiamondId, Result<Arc<[u8]>, CodecError>);
+
+struct Pending {
+    priority: f32,
+}
+
+#[derive(Default)]
+struct State {
+    wanted: HashMap<DiamondId, Pending>,
+    in_flight: HashSet<DiamondId>,
+    /// Per record: failures so far and the time before which it is not retried.
+    backoff: HashMap<DiamondId, (u32, Instant)>,
+    batches: Vec<(u64, Vec<DiamondId>, AbortHandle)>,
+    next_batch: u64,
+    shutdown: bool,
+}
+
+struct Shared {
+    state: Mutex<State>,
+    wake: Notify,
+    stats: Counters,
+    head: Arc<RepositoryHead>,
+    endpoint: Endpoint,
+    options: FetchOptions,
+    client: reqwest::Client,
+    results: Mutex<mpsc::Sender<Fetched>>,
+}
+
+#[derive(Default)]
+struct Counters {
+    requests: AtomicU64,
+    in_flight: AtomicU64,
+    bytes: AtomicU64,
+    records: AtomicU64,
+    errors: AtomicU64,
+    cancelled: AtomicU64,
+}
+
+/// Fetches records of one remote repository in the background.
+pub struct RemoteFetcher {
+    shared: Arc<Shared>,
+    results: mpsc::Receiver<Fetched>,
+    runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl std::fmt::Debug for RemoteFetcher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RemoteFetcher")
+            .field("endpoint", &self.shared.endpoint)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RemoteFetcher {
+    /// Connects to a repository and fetches its head (this one call blocks, before any frame).
+    ///
+    /// `url` is either a repository of `cbdam serve` (`http://host:port/v1/repos/NAME`), a
+    /// `cbdam serve` root that serves exactly one repository (`http://host:port/`), or the URL
+    /// of a repository file on any server that honours range requests.
+    pub fn connect(url: &str, options: FetchOptions) -> Result<Self, RemoteError> {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name("cbdam-fetch")
+            .enable_all()
+            .build()
+            .map_err(|e| RemoteError::Http {
+                url: url.to_owned(),
+                message: format!("cannot start the network runtime: {e}"),
+            })?;
+        let client = reqwest::Client::builder()
+            .timeout(options.timeout)
+            .build()
+            .map_err(|e| RemoteError::Http {
+                url: url.to_owned(),
+                message: e.to_string(),
+            })?;
+        let (endpoint, head) = runtime.block_on(async {
+            let endpoint = resolve(&client, url).await?;
+            let head = fetch_head(&client, &endpoint.file_url()).await?;
+            Ok::<_, RemoteError>((endpoint, head))
+        })?;
+        let (tx, rx) = mpsc::channel();
+        let shared = Arc::new(Shared {
+            state: Mutex::new(State::default()),
+            wake: Notify::new(),
+            stats: Counters::default(),
+            head: Arc::new(head),
+            endpoint,
+            options,
+            client,
+            results: Mutex::new(tx),
+        });
+        // The head took two requests.
+        shared.stats.requests.fetch_add(2, Ordering::Relaxed);
+        runtime.spawn(schedule(shared.clone()));
+        Ok(Self {
+            shared,
+            results: rx,
+            runtime: Some(runtime),
+        })
+    }
+
+    /// The repository's head.
+    pub fn head(&self) -> &Arc<RepositoryHead> {
+        &self.shared.head
+    }
+
+    /// Replaces the set of wanted records (higher priority first). Queued records not in the set
+    /// are forgotten, and requests none of whose records are wanted any more are aborted.
+    pub fn want(&self, wanted: impl IntoIterator<Item = (DiamondId, f32)>) {
+        let mut s = self.shared.state.lock().expect("fetch state");
+        s.wanted = wanted
+            .into_iter()
+            .filter(|(id, _)| self.shared.head.position(*id).is_some())
+            .map(|(id, priority)| (id, Pending { priority }))
+            .collect();
+        let State {
+            wanted,
+            batches,
+            in_flight,
+            ..
+        } = &mut *s;
+        batches.retain(|(_, ids, handle)| {
+            if ids.iter().any(|id| wanted.contains_key(id)) {
+                return true;
+            }
+            handle.abort();
+            for id in ids {
+                in_flight.remove(id);
+            }
+            self.shared.stats.cancelled.fetch_add(1, Ordering::Relaxed);
+            self.shared.stats.in_flight.fetch_sub(1, Ordering::Relaxed);
+            false
+        });
+        drop(s);
+        self.shared.wake.notify_one();
+    }
+
+    /// Takes the records that arrived since the last call; never blocks.
+    pub fn poll(&self) -> Vec<Fetched> {
+        self.results.try_iter().collect()
+    }
+
+    /// Whether `id` is queued or being fetched.
+    pub fn is_pending(&self, id: DiamondId) -> bool {
+        let s = self.shared.state.lock().expect("fetch state");
+        s.wanted.contains_key(&id) || s.in_flight.contains(&id)
+    }
+
+    /// The counters so far.
+    pub fn stats(&self) -> FetchStats {
+        let c = &self.shared.stats;
+        FetchStats {
+            requests: c.requests.load(Ordering::Relaxed),
+            in_flight: c.in_flight.load(Ordering::Relaxed),
+            bytes: c.bytes.load(Ordering::Relaxed),
+            records: c.records.load(Ordering::Relaxed),
+            errors: c.errors.load(Ordering::Relaxed),
+            cancelled: c.cancelled.load(Ordering::Relaxed),
+        }
+    }
+}
+
+impl Drop for RemoteFetcher {
+    fn drop(&mut self) {
+        self.shared.state.lock().expect("fetch state").shutdown = true;
+        self.shared.wake.notify_one();
+        if let Some(rt) = self.runtime.take() {
+            rt.shutdown_background();
+        }
+    }
+}
+
+fn http_error(url: &str, e: impl std::fmt::Display) -> RemoteError {
+    RemoteError::Http {
+        url: url.to_owned(),
+        message: e.to_string(),
+    }
+}
+
+/// Works out what kind of URL this is.
+async fn resolve(client: &reqwest::Client, url: &str) -> Result<Endpoint, RemoteError> {
+    let trimmed = url.trim_end_matches('/');
+    if !(trimmed.starts_with("http://") || trimmed.starts_with("https://")) {
+        return Err(RemoteError::Url(format!("{url} is not an http:// URL")));
+    }
+    if trimmed.contains("/v1/repos/") {
+        return Ok(Endpoint::Server {
+            base: trimmed.to_owned(),
+        });
+    }
+    let after_scheme = trimmed.split_once("://").map_or("", |(_, rest)| rest);
+    if after_scheme.contains('/') {
+        return Ok(Endpoint::File {
+            url: trimmed.to_owned(),
+        });
+    }
+    // A bare server address: use its repository if it serves exactly one.
+    let list = format!("{trimmed}/v1/repos");
+    let body = client
+        .get(&list)
+        .send()
+        .await
+        .and_then(|r| r.error_for_status())
+        .map_err(|e| http_error(&list, e))?
+        .bytes()
+        .await
+        .map_err(|e| http_error(&list, e))?;
+    let json: serde_json::Value =
+        serde_json::from_slice(&body).map_err(|e| http_error(&list, format!("not JSON: {e}")))?;
+    let names: Vec<String> = json["repos"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|r| r["name"].as_str().map(str::to_owned))
+                .collect()
+        })
+        .unwrap_or_default();
+    match names.as_slice() {
+        [one] => Ok(Endpoint::Server {
+            base: format!("{trimmed}/v1/repos/{one}"),
+        }),
+        [] => Err(RemoteError::Url(format!("{url} serves no repository"))),
+        many => Err(RemoteError::Url(format!(
+            "{url} serves {} repositories ({}); name one: {trimmed}/v1/repos/NAME",
+            many.len(),
+            many.join(", ")
+        ))),
+    }
+}
+
+/// GETs `range` of `url`; returns the body and the total file length from `Content-Range`.
+async fn get_range(
+    client: &reqwest::Client,
+    url: &str,
+    range: std::ops::Range<u64>,
+) -> Result<(Vec<u8>, u64), String> {
+    let resp = client
+        .get(url)
+        .header(
+            reqwest::header::RANGE,
+            format!("bytes={}-{}", range.start, range.end - 1),
+        )
+        .send()
+        .await
+        .map_err(|e| e.to_string())?;
+    if resp.status() != reqwest::StatusCode::PARTIAL_CONTENT {
+        return Err(format!(
+            "asked for bytes {}..{}, got HTTP {} (does the server honour Range requests?)",
+            range.start,
+            range.end,
+            resp.status()
+        ));
+    }
+    let total = resp
+        .headers()
+        .get(reqwest::header::CONTENT_RANGE)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.rsplit_once('/'))
+        .and_then(|(_, total)| total.parse::<u64>().ok())
+        .ok_or("206 response without a Content-Range total")?;
+    let body = resp.bytes().await.map_err(|e| e.to_string())?;
+    if body.len() as u64 != range.end - range.start {
+        return Err(format!(
+            "asked for {} bytes, got {}",
+            range.end - range.start,
+            body.len()
+        ));
+    }
+    Ok((body.to_vec(), total))
+}
+
+async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHead, RemoteError> {
+    let (header, file_len) = get_range(client, url, 0..HEADER_LEN as u64)
+        .await
+        .map_err(|e| http_error(url, e))?;
+    let repo_error = |source| RemoteError::Repository {
+        url: url.to_owned(),
+        source,
+    };
+    let head_len = required_head_len(&header).map_err(repo_error)?;
+    if head_len > file_len {
+        return Err(repo_error(CodecError::truncated(format!(
+            "the head is {head_len} bytes, the file {file_len}"
+        ))));
+    }
+    let (head, _) = get_range(client, url, 0..head_len)
+        .await
+        .map_err(|e| http_error(url, e))?;
+    RepositoryHead::parse(&head, file_len).map_err(repo_error)
+}
+
+/// The scheduler: whenever woken (new wants, a finished request, a backoff expiring), starts the
+/// most urgent wanted records that are neither in flight nor backing off.
+async fn schedule(shared: Arc<Shared>) {
+    loop {
+        let next_retry = {
+            let mut s = shared.state.lock().expect("fetch state");
+            if s.shutdown {
+                return;
+            }
+            start_batches(&shared, &mut s)
+        };
+        let wait = next_retry.map_or(Duration::from_millis(250), |t| {
+            t.saturating_duration_since(Instant::now())
+        });
+        tokio::select! {
+            () = shared.wake.notified() => {}
+            () = tokio::time::sleep(wait) => {}
+        }
+    }
+}
+
+/// Starts requests while slots are free; returns the earliest backoff expiry among wanted records.
+fn start_batches(shared: &Arc<Shared>, s: &mut State) -> Option<Instant> {
+    let now = Instant::now();
+    let mut next_retry: Option<Instant> = None;
+    let mut ready: Vec<(DiamondId, f32)> = Vec::new();
+    for (&id, p) in &s.wanted {
+        if s.in_flight.contains(&id) {
+            continue;
+        }
+        if let Some(&(_, until)) = s.backoff.get(&id)
+            && until > now
+        {
+            next_retry = Some(next_retry.map_or(until, |t| t.min(until)));
+            continue;
+        }
+        ready.push((id, p.priority));
+    }
+    ready.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    let mut ready: VecDeque<DiamondId> = ready.into_iter().map(|(id, _)| id).collect();
+    while s.batches.len() < shared.options.max_in_flight && !ready.is_empty() {
+        let ids: Vec<DiamondId> = match &shared.endpoint {
+            Endpoint::Server { .. } => {
+                let n = ready.len().min(shared.options.max_batch);
+                ready.drain(..n).collect()
+            }
+            // One range request covers records close together in the file: take the most urgent
+            // record and those of the next few that lie near it; the rest stay queued in order.
+            Endpoint::File { .. } => {
+                let first = ready.pop_front().expect("not empty");
+                let r0 = record_range(&shared.head, first);
+                let (mut lo, mut hi) = (r0.start, r0.end);
+                let gap = shared.options.max_range_gap;
+                let mut ids = vec![first];
+                let mut kept = VecDeque::with_capacity(ready.len());
+                for (scanned, id) in ready.drain(..).enumerate() {
+                    let r = record_range(&shared.head, id);
+                    if scanned < 4 * shared.options.max_batch
+                        && ids.len() < shared.options.max_batch
+                        && r.start <= hi + gap
+                        && r.end + gap >= lo
+                    {
+                        lo = lo.min(r.start);
+                        hi = hi.max(r.end);
+                        ids.push(id);
+                    } else {
+                        kept.push_back(id);
+                    }
+                }
+                ready = kept;
+                ids
+            }
+        };
+        for id in &ids {
+            s.in_flight.insert(*id);
+        }
+        let batch = s.next_batch;
+        s.next_batch += 1;
+        let task = tokio::spawn(fetch_batch(shared.clone(), batch, ids.clone()));
+        s.batches.push((batch, ids, task.abort_handle()));
+        shared.stats.in_flight.fetch_add(1, Ordering::Relaxed);
+        shared.stats.requests.fetch_add(1, Ordering::Relaxed);
+    }
+    next_retry
+}
+
+fn record_range(head: &RepositoryHead, id: DiamondId) -> std::ops::Range<u64> {
+    let i = head.position(id).expect("only stored records are wanted");
+    head.record_range(i).expect("position is in range")
+}
+
+/// Fetches one batch and hands over its records; failures go to backoff.
+async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>) {
+    let outcome = match &shared.endpoint {
+        Endpoint::Server { base } => fetch_from_server(&shared, base, &ids).await,
+        Endpoint::File { url } => fetch_ranges(&shared, url, &ids).await,
+    };
+    let mut delivered = Vec::new();
+    let mut failed = Vec::new();
+    match outcome {
+        Ok(records) => {
+            for (id, bytes) in records {
+                let i = shared.head.position(id).expect("stored");
+                match shared.head.check_record(i, &bytes) {
+                    Ok(()) => delivered.push((id, Ok(Arc::from(bytes)))),
+                    Err(e) => {
+                        tracing::warn!("record {id} rejected: {e}");
+                        failed.push(id);
+                    }
+                }
+            }
+        }
+        Err(message) => {
+            tracing::warn!("request for {} records failed: {message}", ids.len());
+            failed.extend(ids.iter().copied());
+        }
+    }
+    let mut s = shared.state.lock().expect("fetch state");
+    let Some(pos) = s.batches.iter().position(|(b, _, _)| *b == batch) else {
+        // Cancelled meanwhile: its bookkeeping is already undone.
+        return;
+    };
+    s.batches.swap_remove(pos);
+    shared.stats.in_flight.fetch_sub(1, Ordering::Relaxed);
+    for id in &ids {
+        s.in_flight.remove(id);
+    }
+    if !failed.is_empty() {
+        shared.stats.errors.fetch_add(1, Ordering::Relaxed);
+    }
+    let now = Instant::now();
+    for id in failed {
+        let attempts = s.backoff.get(&id).map_or(0, |b| b.0) + 1;
+        let delay = shared
+            .options
+            .initial_backoff
+            .saturating_mul(1 << attempts.min(16))
+            .min(shared.options.max_backoff);
+        s.backoff.insert(id, (attempts, now + delay));
+    }
+    let tx = shared.results.lock().expect("results").clone();
+    for (id, r) in delivered {
+        s.wanted.remove(&id);
+        s.backoff.remove(&id);
+        shared.stats.records.fetch_add(1, Ordering::Relaxed);
+        // The receiver is gone only when the fetcher is being dropped.
+        let _ = tx.send((id, r));
+    }
+    drop(s);
+    shared.wake.notify_one();
+}
+
+/// `POST …/diamonds`, framing `CBDR`, `u32 count`, then per id `u8 status`, `u32 length`, bytes.
+async fn fetch_from_server(
+    shared: &Shared,
+    base: &str,
+    ids: &[DiamondId],
+) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
+    let url = format!("{base}/diamonds");
+    let names: Vec<String> = ids.iter().map(ToString::to_string).collect();
+    let body = serde_json::json!({ "ids": names }).to_string();
+    let resp = shared
+        .client
+        .post(&url)
+        .header(reqwest::header::CONTENT_TYPE, "application/json")
+        .body(body)
+        .send()
+        .await
+        .and_then(|r| r.error_for_status())
+        .map_err(|e| e.to_string())?;
+    let bytes = resp.bytes().await.map_err(|e| e.to_string())?;
+    shared
+        .stats
+        .bytes
+        .fetch_add(bytes.len() as u64, Ordering::Relaxed);
+    parse_frames(&bytes, ids)
+}
+
+/// Splits a batch response body into records, checking its framing.
+pub fn parse_frames(body: &[u8], ids: &[DiamondId]) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
+    let take = |pos: &mut usize, n: usize| -> Result<&[u8], String> {
+        let s = body
+            .get(*pos..*pos + n)
+            .ok_or_else(|| format!("batch response ends at byte {}", body.len()))?;
+        *pos += n;
+        Ok(s)
+    };
+    let mut pos = 0;
+    if take(&mut pos, 4)? != b"CBDR" {
+        return Err("batch response does not start with CBDR".into());
+    }
+    let count = u32::from_le_bytes(take(&mut pos, 4)?.try_into().expect("4 bytes")) as usize;
+    if count != ids.len() {
+        return Err(format!(
+            "asked for {} records, response holds {count}",
+            ids.len()
+        ));
+    }
+    let mut out = Vec::with_capacity(count);
+    for &id in ids {
+        let status = take(&mut pos, 1)?[0];
+        let len = u32::from_le_bytes(take(&mut pos, 4)?.try_into().expect("4 bytes")) as usize;
+        let bytes = take(&mut pos, len)?;
+        match status {
+            0 => out.push((id, bytes.to_vec())),
+            1 => {
+                return Err(format!(
+                    "server says {id} is not stored, the head says it is"
+                ));
+            }
+            s => return Err(format!("unknown record status {s}")),
+        }
+    }
+    if pos != body.len() {
+        return Err(format!("{} bytes after the last record", body.len() - pos));
+    }
+    Ok(out)
+}
+
+/// One range request covering `ids`' records (they were chosen close together).
+async fn fetch_ranges(
+    shared: &Shared,
+    url: &str,
+    ids: &[DiamondId],
+) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
+    let ranges: Vec<_> = ids
+        .iter()
+        .map(|&id| record_range(&shared.head, id))
+        .collect();
+    let lo = ranges
+        .iter()
+        .map(|r| r.start)
+        .min()
+        .expect("non-empty batch");
+    let hi = ranges.iter().map(|r| r.end).max().expect("non-empty batch");
+    if lo == hi {
+        // Only empty records: nothing to fetch.
+        return Ok(ids.iter().map(|&id| (id, Vec::new())).collect());
+    }
+    let (body, total) = get_range(&shared.client, url, lo..hi).await?;
+    if total != shared.head.file_len() {
+        return Err(format!(
+            "the file is now {total} bytes, the head says {}: it changed on the server",
+            shared.head.file_len()
+        ));
+    }
+    shared
+        .stats
+        .bytes
+        .fetch_add(body.len() as u64, Ordering::Relaxed);
+    Ok(ids
+        .iter()
+        .zip(ranges)
+        .map(|(&id, r)| {
+            (
+                id,
+                body[(r.start - lo) as usize..(r.end - lo) as usize].to_vec(),
+            )
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn id(l: u8, x: u32, y: u32) -> DiamondId {
+        DiamondId { level: l, x, y }
+    }
+
+    #[test]
+    fn frames_parse_and_bad_frames_are_errors() {
+        let ids = [id(1, 2, 3), id(2, 4, 5)];
+        let mut body = b"CBDR".to_vec();
+        body.extend(2u32.to_le_bytes());
+        body.push(0);
+        body.extend(3u32.to_le_bytes());
+        body.extend([7, 8, 9]);
+        body.push(0);
+        body.extend(0u32.to_le_bytes());
+        let r = parse_frames(&body, &ids).unwrap();
+        assert_eq!(r, vec![(ids[0], vec![7, 8, 9]), (ids[1], vec![])]);
+        for cut in 0..body.len() {
+            assert!(parse_frames(&body[..cut], &ids).is_err(), "cut at {cut}");
+        }
+        let mut longer = body.clone();
+        longer.push(0);
+        assert!(parse_frames(&longer, &ids).is_err());
+        assert!(parse_frames(&body, &ids[..1]).is_err());
+        let mut missing = body.clone();
+        missing[8] = 1;
+        assert!(parse_frames(&missing, &ids).is_err());
+    }
+}

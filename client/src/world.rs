@@ -1,0 +1,117 @@
+//! From lattice coordinates and integer heights to world metres.
+//!
+//! The world frame is local and metric: x east, y north, z up, origin at lattice point (0, 0),
+//! z = height in metres. Geographic rasters (spacing in degrees) are flattened around the data's
+//! centre latitude — a local tangent-plane approximation that is what a viewer of one DEM wants;
+//! a planet-wide mosaic would need the cube-sphere root set instead.
+
+use cbdam_codec::geometry::{DiamondId, Layout};
+use cbdam_codec::hierarchy::CodecParams;
+use cbdam_codec::input::GeoRef;
+use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::repository::index::IndexEntry;
+use glam::DVec3;
+
+/// Metres per degree of latitude (WGS 84 mean) — used only to flatten geographic rasters.
+const METRES_PER_DEGREE: f64 = 111_195.0;
+
+/// EPSG codes of geographic (degree-based) coordinate systems we meet in DEMs: WGS 84, NAD83,
+/// ETRS89, GDA94, NAD27.
+const GEOGRAPHIC_EPSG: [u32; 5] = [4326, 4269, 4258, 4283, 4267];
+
+/// The mapping from a repository's lattice to world metres, and the data's extent in it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct World {
+    /// The diamond hierarchy.
+    pub layout: Layout,
+    /// Metres per lattice step eastwards.
+    pub step_x: f64,
+    /// Metres per lattice step southwards (lattice y runs south, world y north).
+    pub step_y: f64,
+    /// Metres per height unit.
+    pub unit: f64,
+    /// Height in metres of unit 0.
+    pub offset: f64,
+    /// Data rectangle, lattice points `0..data_width × 0..data_height`.
+    pub data_width: u32,
+    /// See `data_width`.
+    pub data_height: u32,
+    /// Lowest height of the data in metres (from the index's per-diamond ranges).
+    pub min_height: f64,
+    /// Highest height of the data in metres.
+    pub max_height: f64,
+}
+
+impl World {
+    /// The world of a repository, from what its head holds.
+    pub fn new(
+        params: &CodecParams,
+        plan: &QuantPlan,
+        georef: Option<&GeoRef>,
+        entries: &[IndexEntry],
+    ) -> Self {
+        let (step_x, step_y) = match georef {
+            Some(g) if g.epsg.is_some_and(|e| GEOGRAPHIC_EPSG.contains(&e)) => {
+                let centre_lat = g.origin_y - g.pixel_y * f64::from(params.data_height) / 2.0;
+                let cos = centre_lat.to_radians().cos().max(1e-3);
+                (
+                    g.pixel_x.abs() * METRES_PER_DEGREE * cos,
+                    g.pixel_y.abs() * METRES_PER_DEGREE,
+                )
+            }
+            Some(g) if g.pixel_x > 0.0 && g.pixel_y != 0.0 => (g.pixel_x, g.pixel_y.abs()),
+            _ => (1.0, 1.0),
+        };
+        let lo = entries.iter().map(|e| e.min).min().unwrap_or(0);
+        let hi = entries.iter().map(|e| e.max).max().unwrap_or(0);
+        Self {
+            layout: params.layout,
+            step_x,
+            step_y,
+            unit: plan.unit,
+            offset: plan.offset,
+            data_width: params.data_width,
+            data_height: params.data_height,
+            min_height: plan.offset + plan.unit * f64::from(lo),
+            max_height: plan.offset + plan.unit * f64::from(hi),
+        }
+    }
+
+    /// The world of an opened repository.
+    pub fn of_repository(repo: &cbdam_codec::repository::Repository) -> Self {
+        Self::new(repo.params(), repo.plan(), repo.georef(), repo.entries())
+    }
+
+    /// World position of lattice point `(x, y)` at height `h` units.
+    pub fn point(&self, x: i64, y: i64, h: i32) -> DVec3 {
+        DVec3::new(
+            x as f64 * self.step_x,
+            -(y as f64) * self.step_y,
+            self.height(h),
+        )
+    }
+
+    /// Metres of height `h` units.
+    pub fn height(&self, h: i32) -> f64 {
+        self.offset + self.unit * f64::from(h)
+    }
+
+    /// World bounding box `(min, max)` of a diamond whose heights lie in `min..=max` units.
+    pub fn diamond_box(&self, id: DiamondId, min: i32, max: i32) -> (DVec3, DVec3) {
+        let (x0, y0, x1, y1) = self.layout.bounds(id);
+        let a = self.point(x0, y0, min);
+        let b = self.point(x1, y1, max);
+        (a.min(b), a.max(b))
+    }
+
+    /// World bounding box of the data rectangle, over the data's height range.
+    pub fn data_box(&self) -> (DVec3, DVec3) {
+        let a = DVec3::new(0.0, 0.0, self.min_height);
+        let b = DVec3::new(
+            f64::from(self.data_width.saturating_sub(1)) * self.step_x,
+            -f64::from(self.data_height.saturating_sub(1)) * self.step_y,
+            self.max_height,
+        );
+        (a.min(b), a.max(b))
+    }
+}
