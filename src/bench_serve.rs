@@ -46,6 +46,9 @@ struct ClientStats {
 }
 
 struct RunResult {
+    /// CPU time of the server's and the load generator's threads during the run, seconds.
+    server_cpu: f64,
+    client_cpu: f64,
     requests: u64,
     records: u64,
     bytes: u64,
@@ -58,6 +61,35 @@ impl RunResult {
     fn records_per_s(&self) -> f64 {
         self.records as f64 / self.elapsed.as_secs_f64()
     }
+}
+
+/// CPU seconds (user + system) used so far by this process's threads named `name`, from
+/// /proc (Linux; 0 elsewhere). On a machine shared with other work the wall-clock rates depend
+/// on how much CPU the benchmark got; CPU time per request does not.
+fn thread_cpu(name: &str) -> f64 {
+    let Ok(dir) = std::fs::read_dir("/proc/self/task") else {
+        return 0.0;
+    };
+    let mut ticks = 0u64;
+    for t in dir.flatten() {
+        let Ok(stat) = std::fs::read_to_string(t.path().join("stat")) else {
+            continue;
+        };
+        // "tid (comm) state ..." — comm may contain spaces, so split at the last ')'.
+        let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else {
+            continue;
+        };
+        if &stat[open + 1..close] != name {
+            continue;
+        }
+        let f: Vec<&str> = stat[close + 1..].split_whitespace().collect();
+        // Fields 14 and 15 of stat (utime, stime) are at 11 and 12 after the comm.
+        if let (Some(u), Some(s)) = (f.get(11), f.get(12)) {
+            ticks += u.parse::<u64>().unwrap_or(0) + s.parse::<u64>().unwrap_or(0);
+        }
+    }
+    // USER_HZ is 100 on every Linux configuration in practice.
+    ticks as f64 / 100.0
 }
 
 /// SplitMix64, one per client.
@@ -188,8 +220,11 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
             .join(" ")
     );
     println!();
-    println!("| mode | ids/request | requests | records | records/s | MB/s | p50 ms | p99 ms |");
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    println!(
+        "| mode | ids/request | requests | records | records/s | MB/s | p50 ms | p99 ms | \
+         server CPU µs/request | client CPU µs/request | CPU used (cores) |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let singles = Arc::new(singles);
     let batches = Arc::new(batches);
     let modes: Vec<(&str, usize, &Arc<Vec<Job>>)> = if args.batch == 0 {
@@ -213,7 +248,8 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
             .collect();
         let m = &runs[runs.len() / 2];
         println!(
-            "| {mode} (median of {}: {} records/s) | {per} | {} | {} | {:.0} | {:.1} | {:.3} | {:.3} |",
+            "| {mode} (median of {}: {} records/s) | {per} | {} | {} | {:.0} | {:.1} | {:.3} | {:.3} \
+             | {:.1} | {:.1} | {:.2} |",
             runs.len(),
             all.join(" / "),
             m.requests,
@@ -222,6 +258,9 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
             m.bytes as f64 / 1e6 / m.elapsed.as_secs_f64(),
             f64::from(m.p50_us) / 1000.0,
             f64::from(m.p99_us) / 1000.0,
+            m.server_cpu * 1e6 / m.requests as f64,
+            m.client_cpu * 1e6 / m.requests as f64,
+            (m.server_cpu + m.client_cpu) / m.elapsed.as_secs_f64(),
         );
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
@@ -257,6 +296,7 @@ async fn load_run(
         senders.push(sender);
     }
     let budget = Arc::new(AtomicU64::new(args.max_requests));
+    let (server0, client0) = (thread_cpu("server"), thread_cpu("client"));
     let start = Instant::now();
     let deadline = start + Duration::from_secs_f64(args.seconds);
     let tasks: Vec<_> = senders
@@ -278,6 +318,10 @@ async fn load_run(
         total.latencies_us.extend(s.latencies_us);
     }
     let elapsed = start.elapsed();
+    let (server_cpu, client_cpu) = (
+        thread_cpu("server") - server0,
+        thread_cpu("client") - client0,
+    );
     if total.requests == 0 {
         bail!("no request completed");
     }
@@ -287,6 +331,8 @@ async fn load_run(
         v[((v.len() - 1) as f64 * p).round() as usize]
     };
     Ok(RunResult {
+        server_cpu,
+        client_cpu,
         requests: total.requests,
         records: total.records,
         bytes: total.bytes,

@@ -89,13 +89,13 @@ pub enum ServerError {
     #[error("no repository to serve")]
     NoRepositories,
     /// A repository file could not be opened or failed validation.
-    #[error("opening repository {}: {source}", path.display())]
+    #[error("opening repository {}: {error}", path.display())]
     Open {
         /// The file.
         path: PathBuf,
-        /// What the codec found.
-        #[source]
-        source: CodecError,
+        /// What the codec found. Part of the message and deliberately not the error's
+        /// `source()`, or `{:#}` chains (anyhow) would print it twice.
+        error: CodecError,
     },
     /// `--cors-origin` is not `*` or a list of origins.
     #[error("{0}")]

@@ -266,9 +266,9 @@ impl AppState {
 }
 
 fn open_one(path: &Path) -> Result<Repository, ServerError> {
-    Repository::open(path).map_err(|source| ServerError::Open {
+    Repository::open(path).map_err(|error| ServerError::Open {
         path: path.to_path_buf(),
-        source,
+        error,
     })
 }
 
