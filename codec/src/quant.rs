@@ -16,9 +16,9 @@
 use crate::CodecError;
 use rayon::prelude::*;
 
-use crate::input::{Dem, QuantumScan, SampleSource};
 #[cfg(doc)]
 use crate::input::detect_quantum;
+use crate::input::{Dem, QuantumScan, SampleSource};
 use crate::lifting::{MAX_ABS_HEIGHT, PREDICTION_LIMIT};
 
 /// Samples per parallel work item of the passes over the input.

@@ -19,7 +19,7 @@ use std::path::Path;
 use crate::CodecError;
 
 pub use quantum::{QuantumScan, detect_quantum};
-pub use stream::{RawF32Source, SampleSource};
+pub use stream::{BlockFn, RawF32Source, SampleSource};
 
 /// The numeric type a DEM's samples were stored as.
 ///

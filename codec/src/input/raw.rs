@@ -35,7 +35,12 @@ pub(super) fn read_f32(
 }
 
 /// Checks that the file holds exactly `n = width × height` samples; returns its length.
-pub(super) fn check_len(path: &Path, n: usize, width: usize, height: usize) -> Result<u64, CodecError> {
+pub(super) fn check_len(
+    path: &Path,
+    n: usize,
+    width: usize,
+    height: usize,
+) -> Result<u64, CodecError> {
     let expected = n as u64 * 4;
     let len = super::file_len(path)?;
     if len < expected {

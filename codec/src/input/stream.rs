@@ -8,6 +8,9 @@ use std::path::{Path, PathBuf};
 use super::{Dem, Limits, SampleType};
 use crate::CodecError;
 
+/// What a pass calls on each block: `(first_row, samples)`.
+pub type BlockFn<'a> = dyn FnMut(usize, &[f64]) -> Result<(), CodecError> + 'a;
+
 /// Rows of samples in passes: each pass calls `f(first_row, samples)` on consecutive blocks of
 /// whole rows that together cover the grid, north to south, samples row-major.
 pub trait SampleSource: Sync {
@@ -20,10 +23,7 @@ pub trait SampleSource: Sync {
     /// The value marking a missing sample.
     fn nodata(&self) -> Option<f64>;
     /// One pass over the samples.
-    fn for_each_block(
-        &self,
-        f: &mut dyn FnMut(usize, &[f64]) -> Result<(), CodecError>,
-    ) -> Result<(), CodecError>;
+    fn for_each_block(&self, f: &mut BlockFn<'_>) -> Result<(), CodecError>;
 }
 
 impl SampleSource for Dem {
@@ -39,10 +39,7 @@ impl SampleSource for Dem {
     fn nodata(&self) -> Option<f64> {
         self.nodata
     }
-    fn for_each_block(
-        &self,
-        f: &mut dyn FnMut(usize, &[f64]) -> Result<(), CodecError>,
-    ) -> Result<(), CodecError> {
+    fn for_each_block(&self, f: &mut BlockFn<'_>) -> Result<(), CodecError> {
         f(0, &self.values)
     }
 }
@@ -96,10 +93,7 @@ impl SampleSource for RawF32Source {
     fn nodata(&self) -> Option<f64> {
         self.nodata
     }
-    fn for_each_block(
-        &self,
-        f: &mut dyn FnMut(usize, &[f64]) -> Result<(), CodecError>,
-    ) -> Result<(), CodecError> {
+    fn for_each_block(&self, f: &mut BlockFn<'_>) -> Result<(), CodecError> {
         let file = File::open(&self.path)?;
         // The size was checked at open; a file that shrank since is caught by read_exact.
         let mut reader = BufReader::with_capacity(1 << 20, file);
@@ -155,5 +149,57 @@ mod tests {
         assert_eq!(got, dem.values);
         assert!(RawF32Source::open(&path, w, h + 1, None, &Limits::default()).is_err());
         assert!(RawF32Source::open(&path, w, h - 1, None, &Limits::default()).is_err());
+    }
+}
+
+#[cfg(test)]
+mod plan_tests {
+    use super::*;
+    use crate::input::{Format, ReadOptions, read_dem};
+    use crate::quant::{HeightGrid, QuantPlan};
+
+    /// Streaming and whole-file reading of the same raw samples give the same plan and grid, on
+    /// lattice (decimetre) data with NaN holes and on float data.
+    #[test]
+    fn streamed_plan_and_grid_equal_the_whole_dem_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (37, 23);
+        for lattice in [true, false] {
+            let path = dir.path().join(format!("{lattice}.f32"));
+            let values: Vec<f32> = (0..w * h)
+                .map(|k| {
+                    let v = (k as f32 * 0.731).sin() * 55.0 + 812.0;
+                    if k % 17 == 5 {
+                        f32::NAN
+                    } else if lattice {
+                        (v * 10.0).round() / 10.0
+                    } else {
+                        v
+                    }
+                })
+                .collect();
+            let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+            std::fs::write(&path, bytes).unwrap();
+            let opts = ReadOptions {
+                format: Some(Format::RawF32 {
+                    width: w,
+                    height: h,
+                }),
+                ..ReadOptions::default()
+            };
+            let dem = read_dem(&path, &opts).unwrap();
+            let mut src = RawF32Source::open(&path, w, h, None, &Limits::default()).unwrap();
+            src.block_rows = 4;
+            for eps in [0.05, 0.3, 1.0] {
+                let whole = QuantPlan::for_dem(&dem, eps, None).unwrap();
+                let streamed = QuantPlan::for_source(&src, eps, None).unwrap();
+                assert_eq!(whole, streamed, "lattice {lattice}, ε {eps}");
+                assert_eq!(whole.lattice, lattice);
+                assert_eq!(
+                    HeightGrid::from_dem(&dem, &whole).unwrap(),
+                    HeightGrid::from_source(&src, &streamed).unwrap()
+                );
+            }
+        }
     }
 }
