@@ -119,6 +119,8 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
         quantum: None,
         nodata: None,
         quiet: true,
+        size: None,
+        memory_limit: None,
     })?;
     Ok(output)
 }

@@ -1,19 +1,221 @@
-//! `cbdam build`: one DEM in memory → one repository file.
+//! `cbdam build`: one DEM → one repository file, in parallel, within a memory limit.
+//!
+//! Raw float32 input (`--size WxH`) is streamed: planned and quantized block by block, never
+//! held as floats. The other formats are read whole (8 bytes per sample) and dropped once
+//! quantized. The encoder's reconstruction field goes to a memory-mapped temporary file when the
+//! grid and the field together would exceed `--memory-limit`.
 
 use std::io::IsTerminal;
+use std::path::Path;
 use std::sync::Mutex;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, encode_with_progress};
-use cbdam_codec::input::{ReadOptions, read_dem};
+use cbdam_codec::geometry::Layout;
+use cbdam_codec::hierarchy::{EncodeOptions, Encoded, TempStorage, encode_with_storage};
+use cbdam_codec::input::{GeoRef, Limits, RawF32Source, ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::write_repository;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::{AlphaArg, BuildArgs, CoderArg};
+
+/// A quantized input, with what the repository header needs from the file.
+pub struct Prepared {
+    /// Integer heights.
+    pub grid: HeightGrid,
+    /// The integer mapping.
+    pub plan: QuantPlan,
+    /// Georeferencing of the file, if any.
+    pub georef: Option<GeoRef>,
+    /// Nodata value of the file (or the override).
+    pub nodata: Option<f64>,
+}
+
+/// How the input is read.
+pub struct InputSpec<'a> {
+    /// The DEM file.
+    pub path: &'a Path,
+    /// `Some((w, h))`: headerless little-endian float32, streamed.
+    pub raw_size: Option<(usize, usize)>,
+    /// Nodata override.
+    pub nodata: Option<f64>,
+    /// Value quantum override.
+    pub quantum: Option<f64>,
+    /// Tolerance, metres.
+    pub max_error: f64,
+}
+
+/// Reads, plans and quantizes the input.
+pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
+    let path = spec.path;
+    let unit_check = |lo: f64, hi: f64| -> Result<()> {
+        // A tolerance above the whole height range would let a flat plane stand for the
+        // terrain: almost certainly a unit mistake (feet, centimetres) rather than intent.
+        if hi > lo && spec.max_error > hi - lo {
+            bail!(
+                "--max-error {} m exceeds the data's height range ({lo} … {hi} m, {} m); \
+                 is the unit right?",
+                spec.max_error,
+                hi - lo
+            );
+        }
+        Ok(())
+    };
+    if let Some((w, h)) = spec.raw_size {
+        let src = RawF32Source::open(path, w, h, spec.nodata, &Limits::default())
+            .with_context(|| format!("reading {}", path.display()))?;
+        let plan = QuantPlan::for_source(&src, spec.max_error, spec.quantum)
+            .with_context(|| format!("reading {}", path.display()))?;
+        let grid = HeightGrid::from_source(&src, &plan)
+            .with_context(|| format!("reading {}", path.display()))?;
+        if let Some((lo, hi)) = grid.range() {
+            unit_check(plan.metres(lo), plan.metres(hi))?;
+        }
+        return Ok(Prepared {
+            grid,
+            plan,
+            georef: None,
+            nodata: spec.nodata,
+        });
+    }
+    let is_raw = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "raw" | "f32" | "bin"));
+    if is_raw {
+        bail!(
+            "{}: raw float32 files carry no size; pass --size WIDTHxHEIGHT",
+            path.display()
+        );
+    }
+    let opts = ReadOptions {
+        nodata: spec.nodata,
+        ..ReadOptions::default()
+    };
+    let dem = read_dem(path, &opts).with_context(|| format!("reading {}", path.display()))?;
+    let Some((lo, hi)) = dem.valid_range() else {
+        bail!("{} has no valid sample (all nodata or NaN)", path.display());
+    };
+    unit_check(lo, hi)?;
+    let plan = QuantPlan::for_dem(&dem, spec.max_error, spec.quantum)?;
+    let grid = HeightGrid::from_dem(&dem, &plan)?;
+    Ok(Prepared {
+        grid,
+        plan,
+        georef: dem.georef,
+        nodata: dem.nodata,
+    })
+}
+
+/// Where the encoder's temporaries go under `limit` bytes: in memory when the grid (5 bytes per
+/// sample) and the reconstruction field (4 bytes per lattice point of the domain) fit.
+pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<TempStorage> {
+    let layout = Layout::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
+    let (ex, ey) = layout.extent();
+    let field = 4 * (ex as u64 + 1) * (ey as u64 + 1);
+    let input = 5 * (grid.width as u64) * (grid.height as u64);
+    Ok(if input + field > limit {
+        TempStorage::File(None)
+    } else {
+        TempStorage::Memory
+    })
+}
+
+/// Parses a byte size: a number with an optional binary suffix K, M, G or T (also KiB, KB …,
+/// any case), e.g. `2G`, `512M`, `1.5G`, `1073741824`.
+pub fn parse_size(text: &str) -> Result<u64> {
+    let t = text.trim();
+    let digits = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (num, suffix) = t.split_at(digits);
+    let scale: u64 = match suffix.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1,
+        "k" | "kb" | "kib" => 1 << 10,
+        "m" | "mb" | "mib" => 1 << 20,
+        "g" | "gb" | "gib" => 1 << 30,
+        "t" | "tb" | "tib" => 1 << 40,
+        other => bail!(
+            "--memory-limit {text:?}: unknown unit {other:?} (use a number of bytes with K, M, G \
+             or T, e.g. 2G or 512M)"
+        ),
+    };
+    let value: f64 = num
+        .parse()
+        .ok()
+        .filter(|v: &f64| v.is_finite())
+        .with_context(|| format!("--memory-limit {text:?} is not a size (e.g. 2G or 512M)"))?;
+    let bytes = value * scale as f64;
+    if bytes < 1.0 || bytes >= u64::MAX as f64 {
+        bail!("--memory-limit {text:?} must be at least one byte and below 16 EiB");
+    }
+    Ok(bytes as u64)
+}
+
+/// The default memory limit: half of physical memory (`MemTotal` in `/proc/meminfo`), or 4 GiB
+/// where that cannot be read. Half, because the page cache and other processes need the rest.
+pub fn default_memory_limit() -> u64 {
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|m| {
+            let line = m.lines().find(|l| l.starts_with("MemTotal:"))?;
+            let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            Some(kib * 1024 / 2)
+        })
+        .unwrap_or(4 << 30)
+}
+
+/// Parses `WIDTHxHEIGHT`.
+pub fn parse_dims(text: &str) -> Result<(usize, usize)> {
+    let bad = || anyhow::anyhow!("--size {text:?}: expected WIDTHxHEIGHT, e.g. 16385x16385");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
+    let w: usize = w.trim().parse().map_err(|_| bad())?;
+    let h: usize = h.trim().parse().map_err(|_| bad())?;
+    if w == 0 || h == 0 {
+        return Err(bad());
+    }
+    Ok((w, h))
+}
+
+/// Encoder options from the command line.
+pub fn encode_options(args: &BuildArgs) -> EncodeOptions {
+    EncodeOptions {
+        n: args.diamond_size,
+        alpha: match args.alpha {
+            AlphaArg::One => Alpha::One,
+            AlphaArg::Half => Alpha::Half,
+        },
+        coder: match args.coder {
+            CoderArg::Adaptive => CoderKind::Adaptive,
+            CoderArg::EliasGamma => CoderKind::EliasGamma,
+        },
+        ..EncodeOptions::default()
+    }
+}
+
+/// Encodes a prepared input with `threads` workers (all cores when `None`).
+pub fn encode_prepared(
+    input: &Prepared,
+    opts: &EncodeOptions,
+    storage: &TempStorage,
+    threads: Option<usize>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Encoded> {
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = threads {
+        if t == 0 {
+            bail!("--threads must be at least 1");
+        }
+        pool = pool.num_threads(t);
+    }
+    let pool = pool.build()?;
+    Ok(pool.install(|| {
+        encode_with_storage(&input.grid, input.plan.quantizer, opts, storage, progress)
+    })?)
+}
 
 pub fn run(args: &BuildArgs) -> Result<()> {
     let start = Instant::now();
@@ -27,75 +229,48 @@ pub fn run(args: &BuildArgs) -> Result<()> {
     if args.output.is_dir() {
         bail!("output path {} is a directory", args.output.display());
     }
-    let opts = ReadOptions {
+    if args.threads == Some(0) {
+        bail!("--threads must be at least 1");
+    }
+    let limit = match &args.memory_limit {
+        Some(text) => parse_size(text)?,
+        None => default_memory_limit(),
+    };
+    let raw_size = args.size.as_deref().map(parse_dims).transpose()?;
+    let input = prepare(&InputSpec {
+        path: &args.input,
+        raw_size,
         nodata: args.nodata,
-        ..ReadOptions::default()
-    };
-    let dem = read_dem(&args.input, &opts)
-        .with_context(|| format!("reading {}", args.input.display()))?;
-    let Some((lo, hi)) = dem.valid_range() else {
-        bail!(
-            "{} has no valid sample (all nodata or NaN)",
-            args.input.display()
-        );
-    };
-    // A tolerance above the whole height range would let a flat plane stand for the terrain:
-    // almost certainly a unit mistake (feet, centimetres) rather than intent.
-    if hi > lo && args.max_error > hi - lo {
-        bail!(
-            "--max-error {} m exceeds the data's height range ({lo} … {hi} m, {} m); \
-             is the unit right?",
-            args.max_error,
-            hi - lo
-        );
-    }
-    let plan = QuantPlan::for_dem(&dem, args.max_error, args.quantum)?;
-    let grid = HeightGrid::from_dem(&dem, &plan)?;
-    let enc_opts = EncodeOptions {
-        n: args.diamond_size,
-        alpha: match args.alpha {
-            AlphaArg::One => Alpha::One,
-            AlphaArg::Half => Alpha::Half,
-        },
-        coder: match args.coder {
-            CoderArg::Adaptive => CoderKind::Adaptive,
-            CoderArg::EliasGamma => CoderKind::EliasGamma,
-        },
-        ..EncodeOptions::default()
-    };
-    let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = args.threads {
-        if t == 0 {
-            bail!("--threads must be at least 1");
-        }
-        pool = pool.num_threads(t);
-    }
-    let pool = pool.build()?;
+        quantum: args.quantum,
+        max_error: args.max_error,
+    })?;
+    let enc_opts = encode_options(args);
+    let storage = storage_for(&input.grid, &enc_opts, limit)?;
     let progress = Progress::new(args.quiet);
-    let encoded = pool.install(|| {
-        encode_with_progress(&grid, plan.quantizer, &enc_opts, &|done, total| {
-            progress.update(done, total)
-        })
+    let encoded = encode_prepared(&input, &enc_opts, &storage, args.threads, &|done, total| {
+        progress.update(done, total)
     })?;
     progress.finish();
+    let plan = &input.plan;
     write_repository(
         &args.output,
         &encoded,
-        &plan,
-        dem.georef.as_ref(),
-        dem.nodata,
+        plan,
+        input.georef.as_ref(),
+        input.nodata,
     )
     .with_context(|| format!("writing {}", args.output.display()))?;
     if !args.quiet {
         let bytes = std::fs::metadata(&args.output)?.len();
-        let samples = dem.width * dem.height;
+        let grid = &input.grid;
+        let samples = grid.width * grid.height;
         println!(
             "{}: {}×{} samples ({} valid), {} bytes, {:.3} bits/sample, {} records, \
              max error {} m (unit {} m, k = {}), {:.2} s",
             args.output.display(),
-            dem.width,
-            dem.height,
-            dem.valid_count(),
+            grid.width,
+            grid.height,
+            grid.valid.iter().filter(|&&v| v).count(),
             bytes,
             bytes as f64 * 8.0 / samples as f64,
             encoded.records.len(),
@@ -156,6 +331,40 @@ impl Progress {
     fn finish(&self) {
         if let Progress::Bar(bar) = self {
             bar.finish_and_clear();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_with_binary_suffixes_and_junk_is_refused() {
+        assert_eq!(parse_size("2G").unwrap(), 2 << 30);
+        assert_eq!(parse_size("512m").unwrap(), 512 << 20);
+        assert_eq!(parse_size("1.5GiB").unwrap(), 3 << 29);
+        assert_eq!(parse_size("4096").unwrap(), 4096);
+        assert_eq!(parse_size(" 64 K ").unwrap(), 64 << 10);
+        for bad in [
+            "",
+            "G",
+            "-1G",
+            "0",
+            "0.1",
+            "2X",
+            "1e3",
+            "nanG",
+            "1..2G",
+            "99999999999T",
+        ] {
+            assert!(parse_size(bad).is_err(), "{bad:?} accepted");
+        }
+        assert!(default_memory_limit() >= 1 << 20);
+        assert_eq!(parse_dims("16385x16385").unwrap(), (16385, 16385));
+        assert_eq!(parse_dims("3X2").unwrap(), (3, 2));
+        for bad in ["16385", "0x5", "5x", "ax3", "-1x3"] {
+            assert!(parse_dims(bad).is_err(), "{bad:?} accepted");
         }
     }
 }

@@ -3,6 +3,7 @@
 //! Only this file turns errors into exit codes: 0 success, 1 failure (the message names the
 //! problem), 2 bad usage (clap's own code).
 
+mod bench_build;
 mod bench_codec;
 mod bench_serve;
 mod build;
@@ -10,6 +11,7 @@ mod extract;
 mod inspect;
 mod replay;
 mod serve;
+mod synth;
 mod verify;
 
 use std::net::SocketAddr;
@@ -32,7 +34,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Build a repository from one DEM, in memory (multiple inputs and out-of-core building are
+    /// Build a repository from one DEM, in parallel, within a memory limit (multiple inputs are
     /// not implemented yet).
     Build(BuildArgs),
     /// Print a repository's header, per-level record counts and sizes, and error range.
@@ -66,6 +68,24 @@ enum Command {
     /// Measure the codec and other parts of the pipeline.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Write a synthetic fractal terrain (deterministic diamond-square) as raw little-endian
+    /// float32, for benchmarks.
+    #[command(hide = true)]
+    Synth(SynthArgs),
+}
+
+/// Arguments of the hidden `cbdam synth`.
+#[derive(Args, Debug)]
+pub struct SynthArgs {
+    /// Side of the square grid in samples.
+    #[arg(long)]
+    size: usize,
+    /// Output raw float32 file.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Seed of the pseudo-random displacements.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
 }
 
 #[derive(Subcommand)]
@@ -76,6 +96,10 @@ enum BenchCommand {
     /// Load test of the HTTP server: concurrent clients fetching random stored diamonds, one per
     /// request and in batches, over loopback; records/s, MB/s and latency as a Markdown table.
     Serve(BenchServeArgs),
+    /// Build throughput (million input samples per second, median of runs) and peak resident
+    /// memory of `cbdam build` on DEM files (default: the bundled samples) and a synthetic
+    /// fractal terrain, as a Markdown table.
+    Build(BenchBuildArgs),
 }
 
 /// Serve repositories over HTTP.
@@ -132,6 +156,28 @@ pub struct BenchServeArgs {
     /// Load-generator worker threads (its own runtime, so the two do not share a scheduler).
     #[arg(long, default_value_t = 1)]
     client_threads: usize,
+}
+
+/// Arguments of `cbdam bench build`.
+#[derive(Args, Debug)]
+pub struct BenchBuildArgs {
+    /// DEM files (GeoTIFF, .hgt, ASCII grid, PNG). Default: every .tif in data/.
+    inputs: Vec<PathBuf>,
+    /// Side of a synthetic square fractal terrain to add (0: none), e.g. 16385.
+    #[arg(long, default_value_t = 4097)]
+    synthetic: usize,
+    /// Maximum error, metres.
+    #[arg(long, default_value_t = 1.0)]
+    max_error: f64,
+    /// Timed repetitions; the median is reported.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Memory limit as for `cbdam build --memory-limit`.
+    #[arg(long)]
+    memory_limit: Option<String>,
 }
 
 /// Which value(s) of a two-way option to run.
@@ -194,13 +240,25 @@ pub enum AlphaArg {
 
 /// Build a repository from one DEM file.
 ///
-/// The whole DEM is read and encoded in memory. Progress goes to stderr: a bar with ETA on a
-/// terminal, a line per quarter otherwise, nothing with --quiet. Multiple inputs (mosaics) and
-/// out-of-core building for DEMs larger than memory are later work.
+/// Encoding runs on all cores, level by level. Raw float32 input (--size) is streamed in blocks
+/// and never held as floats; other formats are read whole, then quantized to 5 bytes per sample.
+/// The encoder keeps one 4-byte reconstruction value per lattice point; when that and the
+/// quantized input exceed --memory-limit, the reconstruction goes to a memory-mapped temporary
+/// file (in $TMPDIR). Progress goes to stderr: a bar with ETA on a terminal, a line per quarter
+/// otherwise, nothing with --quiet. Multiple inputs (mosaics) are later work.
 #[derive(Args, Debug)]
 pub struct BuildArgs {
-    /// DEM file (GeoTIFF, .hgt, ASCII grid, PNG).
+    /// DEM file (GeoTIFF, .hgt, ASCII grid, PNG, or raw float32 with --size).
     input: PathBuf,
+    /// The input is headerless little-endian float32, WIDTHxHEIGHT samples, row 0 north
+    /// (streamed: never held in memory as floats).
+    #[arg(long, value_name = "WIDTHxHEIGHT")]
+    size: Option<String>,
+    /// Memory budget, e.g. 2G or 512M (K, M, G, T are powers of 1024). Above it, the encoder's
+    /// reconstruction field is a memory-mapped temporary file instead of anonymous memory.
+    /// Default: half of physical memory.
+    #[arg(long, value_name = "SIZE")]
+    memory_limit: Option<String>,
     /// Output repository (written atomically: a temporary file renamed into place).
     #[arg(short, long)]
     output: PathBuf,
@@ -339,6 +397,8 @@ fn main() -> ExitCode {
         Command::Replay(args) => replay::run(&args),
         Command::Bench(BenchCommand::Codec(args)) => bench_codec::run(&args),
         Command::Bench(BenchCommand::Serve(args)) => bench_serve::run(&args),
+        Command::Bench(BenchCommand::Build(args)) => bench_build::run(&args),
+        Command::Synth(args) => synth::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

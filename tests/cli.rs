@@ -869,3 +869,86 @@ fn replay_refuses_remote_urls_and_bad_flights() {
     ]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[test]
+fn out_of_core_and_streamed_builds_give_identical_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let ok = |o: &Output| assert!(o.status.success(), "{}", stderr(o));
+    // Bundled DEM with nodata: default memory limit vs a limit that forces the mapped field.
+    let a = dir.path().join("a.cbdam");
+    let b = dir.path().join("b.cbdam");
+    let rhine = data("rhine_nodata.tif");
+    for (out, extra) in [(&a, None), (&b, Some("1M"))] {
+        let mut args = vec!["build", &rhine, "--max-error", "1", "-o"];
+        let out = s(out);
+        args.push(&out);
+        args.push("--quiet");
+        if let Some(limit) = extra {
+            args.extend(["--memory-limit", limit]);
+        }
+        ok(&cbdam(&args));
+    }
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    // An odd-sized float terrain streamed from raw f32, in memory and forced out of core:
+    // identical repositories, within the bound of the same samples read whole (ASCII grid).
+    let (w, h) = (131usize, 77usize);
+    let rows: Vec<Vec<f64>> = (0..h)
+        .map(|y| {
+            (0..w)
+                .map(|x| f64::from((x as f32 * 0.37).sin() * 40.0 + y as f32 * 1.25 + 300.0))
+                .collect()
+        })
+        .collect();
+    let asc = dir.path().join("t.asc");
+    write_asc(&asc, &rows, None);
+    let raw = dir.path().join("t.f32");
+    let bytes: Vec<u8> = rows
+        .iter()
+        .flatten()
+        .flat_map(|&v| (v as f32).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, bytes).unwrap();
+    let (c, d) = (dir.path().join("c.cbdam"), dir.path().join("d.cbdam"));
+    ok(&cbdam(&[
+        "build",
+        &s(&raw),
+        "--size",
+        "131x77",
+        "--max-error",
+        "0.5",
+        "-o",
+        &s(&c),
+        "--quiet",
+    ]));
+    ok(&cbdam(&[
+        "build",
+        &s(&raw),
+        "--size",
+        "131x77",
+        "--max-error",
+        "0.5",
+        "-o",
+        &s(&d),
+        "--quiet",
+        "--memory-limit",
+        "4K",
+    ]));
+    assert_eq!(std::fs::read(&c).unwrap(), std::fs::read(&d).unwrap());
+    ok(&cbdam(&["verify", &s(&d), "--against", &s(&asc)]));
+    // Bad limits and sizes are clear errors.
+    for (flag, bad) in [
+        ("--memory-limit", "lots"),
+        ("--memory-limit", "0"),
+        ("--size", "131"),
+    ] {
+        let mut args = vec!["build", &rhine, "--max-error", "1", "-o"];
+        let out = s(&a);
+        args.push(&out);
+        args.extend([flag, bad]);
+        let o = cbdam(&args);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(flag), "{flag} {bad}: {}", stderr(&o));
+    }
+    let o = cbdam(&["build", &s(&raw), "--max-error", "1", "-o", &s(&a)]);
+    assert!(stderr(&o).contains("--size"), "{}", stderr(&o));
+}

@@ -14,8 +14,15 @@
 //! tests check exactly in integers.
 
 use crate::CodecError;
-use crate::input::{Dem, detect_quantum};
+use rayon::prelude::*;
+
+#[cfg(doc)]
+use crate::input::detect_quantum;
+use crate::input::{Dem, QuantumScan, SampleSource};
 use crate::lifting::{MAX_ABS_HEIGHT, PREDICTION_LIMIT};
+
+/// Samples per parallel work item of the passes over the input.
+const CHUNK: usize = 1 << 16;
 
 /// Largest magnitude of an input height in units: no larger than the clamp on predictions, so a
 /// clamped prediction plus a residual within `k` always reaches a valid target.
@@ -183,28 +190,90 @@ impl QuantPlan {
     /// Plans for a DEM: its valid height range, and its value quantum — `quantum` if given,
     /// otherwise the one [`detect_quantum`] finds (none for float data off any grid).
     pub fn for_dem(dem: &Dem, epsilon: f64, quantum: Option<f64>) -> Result<Self, CodecError> {
-        let Some((lo, hi)) = dem.valid_range() else {
+        Self::for_source(dem, epsilon, quantum)
+    }
+
+    /// [`QuantPlan::for_dem`] for samples streamed in blocks: one pass for the range and the
+    /// quantum, a second for lattice input's representation error. Same result as `for_dem` on
+    /// the same samples.
+    pub fn for_source(
+        src: &dyn SampleSource,
+        epsilon: f64,
+        quantum: Option<f64>,
+    ) -> Result<Self, CodecError> {
+        let nodata = src.nodata();
+        let is_valid = |v: f64| !v.is_nan() && nodata != Some(v);
+        let detect = quantum.is_none();
+        let ty = src.sample_type();
+        #[derive(Clone)]
+        struct Scan {
+            lo: f64,
+            hi: f64,
+            quantum: QuantumScan,
+        }
+        let empty = || Scan {
+            lo: f64::INFINITY,
+            hi: f64::NEG_INFINITY,
+            quantum: QuantumScan::new(ty),
+        };
+        let mut total = empty();
+        src.for_each_block(&mut |_, block| {
+            let part = block
+                .par_chunks(CHUNK)
+                .map(|chunk| {
+                    let mut s = empty();
+                    for &v in chunk.iter().filter(|&&v| is_valid(v)) {
+                        s.lo = s.lo.min(v);
+                        s.hi = s.hi.max(v);
+                        if detect {
+                            s.quantum.push(v);
+                        }
+                    }
+                    s
+                })
+                .reduce(empty, |a, b| Scan {
+                    lo: a.lo.min(b.lo),
+                    hi: a.hi.max(b.hi),
+                    quantum: a.quantum.merge(b.quantum),
+                });
+            total = Scan {
+                lo: total.lo.min(part.lo),
+                hi: total.hi.max(part.hi),
+                quantum: total.quantum.clone().merge(part.quantum),
+            };
+            Ok(())
+        })?;
+        let (lo, hi) = (total.lo, total.hi);
+        if lo > hi {
             return Err(CodecError::invalid(
                 "the input has no valid sample (all nodata or NaN)",
             ));
-        };
+        }
         if !(lo.is_finite() && hi.is_finite()) {
             return Err(CodecError::invalid("the input holds infinite heights"));
         }
-        let quantum = quantum.or_else(|| detect_quantum(dem));
+        let quantum = quantum.or_else(|| total.quantum.finish());
         let Some(u) = quantum else {
             return Self::new(epsilon, None, lo, hi);
         };
         // How far the stored samples are from their lattice values, measured on the same
         // offset lattice the plan will use (the offset is a multiple of u).
         let offset = ((lo + hi) / 2.0 / u).round() * u;
-        let deviation = (0..dem.values.len())
-            .filter(|&i| dem.is_valid(i))
-            .map(|i| {
-                let v = dem.values[i];
-                (offset + round_to_i64((v - offset) / u) as f64 * u - v).abs()
-            })
-            .fold(0.0, f64::max);
+        let mut deviation = 0.0f64;
+        src.for_each_block(&mut |_, block| {
+            let d = block
+                .par_chunks(CHUNK)
+                .map(|chunk| {
+                    chunk
+                        .iter()
+                        .filter(|&&v| is_valid(v))
+                        .map(|&v| (offset + round_to_i64((v - offset) / u) as f64 * u - v).abs())
+                        .fold(0.0, f64::max)
+                })
+                .reduce(|| 0.0, f64::max);
+            deviation = deviation.max(d);
+            Ok(())
+        })?;
         Self::with_representation_error(epsilon, Some(u), deviation, lo, hi)
     }
 
@@ -285,30 +354,76 @@ impl HeightGrid {
                 "sample count does not match width × height",
             ));
         }
-        let mut values = vec![0i32; samples.len()];
-        let mut valid = vec![false; samples.len()];
-        for (idx, &v) in samples.iter().enumerate() {
-            if nodata.is_some_and(|nd| v == nd) {
-                continue;
-            }
-            let n = plan.to_units(v).map_err(|e| {
-                CodecError::invalid(format!(
-                    "at column {}, row {}: {e}",
-                    idx % width,
-                    idx / width
-                ))
-            })?;
-            if let Some(n) = n {
-                values[idx] = n;
-                valid[idx] = true;
-            }
-        }
-        Ok(Self {
+        let mut grid = Self {
             width,
             height,
-            values,
-            valid,
-        })
+            values: vec![0i32; samples.len()],
+            valid: vec![false; samples.len()],
+        };
+        grid.quantize_rows(0, samples, nodata, plan)?;
+        Ok(grid)
+    }
+
+    /// Quantizes `samples`, whole rows starting at row `first_row`, into the grid; in parallel,
+    /// reporting the first bad sample in raster order.
+    fn quantize_rows(
+        &mut self,
+        first_row: usize,
+        samples: &[f64],
+        nodata: Option<f64>,
+        plan: &QuantPlan,
+    ) -> Result<(), CodecError> {
+        let start = first_row * self.width;
+        let end = start + samples.len();
+        let width = self.width;
+        let bad = samples
+            .par_chunks(CHUNK)
+            .zip(self.values[start..end].par_chunks_mut(CHUNK))
+            .zip(self.valid[start..end].par_chunks_mut(CHUNK))
+            .enumerate()
+            .filter_map(|(c, ((samples, values), valid))| {
+                for (i, &v) in samples.iter().enumerate() {
+                    if nodata.is_some_and(|nd| v == nd) {
+                        continue;
+                    }
+                    match plan.to_units(v) {
+                        Ok(Some(n)) => {
+                            values[i] = n;
+                            valid[i] = true;
+                        }
+                        Ok(None) => {}
+                        Err(e) => return Some((start + c * CHUNK + i, e)),
+                    }
+                }
+                None
+            })
+            .min_by_key(|(idx, _)| *idx);
+        match bad {
+            None => Ok(()),
+            Some((idx, e)) => Err(CodecError::invalid(format!(
+                "at column {}, row {}: {e}",
+                idx % width,
+                idx / width
+            ))),
+        }
+    }
+
+    /// Quantizes streamed samples under `plan` (see [`QuantPlan::for_source`]); the same grid
+    /// as [`HeightGrid::from_metres`] on the same samples.
+    pub fn from_source(src: &dyn SampleSource, plan: &QuantPlan) -> Result<Self, CodecError> {
+        let (width, height) = (src.width(), src.height());
+        let len = width
+            .checked_mul(height)
+            .ok_or_else(|| CodecError::limit("grid too large"))?;
+        let mut grid = Self {
+            width,
+            height,
+            values: vec![0i32; len],
+            valid: vec![false; len],
+        };
+        let nodata = src.nodata();
+        src.for_each_block(&mut |row, block| grid.quantize_rows(row, block, nodata, plan))?;
+        Ok(grid)
     }
 
     /// Converts a DEM under `plan` (see [`QuantPlan::for_dem`]).

@@ -5,9 +5,10 @@ use std::collections::{BTreeSet, HashMap};
 use rayon::prelude::*;
 
 use super::analysis::{LevelField, analysis_fields};
+use super::field::{ReconField, TempStorage};
 use super::object_error::surface_error;
 use super::refine::{Refined, gather};
-use super::roots::{encode_roots, root_grid};
+use super::roots::{encode_roots, root_field_dims, root_grid, root_spacing};
 use super::{CodecParams, Encoded, Record};
 use crate::CodecError;
 use crate::entropy::{Band, BandKind, CoderKind, encode_bands};
@@ -80,6 +81,42 @@ pub fn encode_with_progress(
     opts: &EncodeOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Encoded, CodecError> {
+    encode_with_storage(grid, quantizer, opts, &TempStorage::Memory, progress)
+}
+
+/// [`encode_with_progress`], keeping the encoder's large temporaries in `storage`. The output
+/// does not depend on `storage`.
+pub fn encode_with_storage(
+    grid: &HeightGrid,
+    quantizer: Quantizer,
+    opts: &EncodeOptions,
+    storage: &TempStorage,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Encoded, CodecError> {
+    let strategy = match opts.alpha {
+        Alpha::One => Keeping::Field(storage),
+        Alpha::Half => Keeping::PerDiamond,
+    };
+    encode_impl(grid, quantizer, opts, strategy, progress)
+}
+
+/// How the encoder keeps the reconstruction between levels.
+#[derive(Clone, Copy, Debug)]
+enum Keeping<'a> {
+    /// Every refined diamond of the previous level as a `(2N−1)²` half-step grid: needed for
+    /// α = ½, whose refinements change vertices.
+    PerDiamond,
+    /// One reconstruction field over the domain ([`ReconField`]); α = 1 only.
+    Field(&'a TempStorage),
+}
+
+fn encode_impl(
+    grid: &HeightGrid,
+    quantizer: Quantizer,
+    opts: &EncodeOptions,
+    strategy: Keeping<'_>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Encoded, CodecError> {
     if grid.range().is_none() {
         return Err(CodecError::invalid("the input has no valid sample"));
     }
@@ -101,10 +138,6 @@ pub fn encode_with_progress(
     let (root_field, roots) = encode_roots(&params, |x, y| targets.at(0, x, y))?;
 
     let finest = layout.finest_level();
-    let n = layout.n();
-    let mut records: Vec<Record> = Vec::new();
-    let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
-    let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
     // Work per diamond is about the data it covers: its bounding box clipped to the data.
     let area = |id: &DiamondId| {
         let (x0, y0, x1, y1) = layout.bounds(*id);
@@ -121,61 +154,28 @@ pub fn encode_with_progress(
             total,
         );
     };
-    for level in 0..=finest {
-        let grids_of = |id: DiamondId| -> Vec<i32> {
-            let mut p = vec![0i32; n * n];
-            if level == 0 {
-                root_grid(&layout, &root_field, id, &mut p);
-            } else {
-                let parents = layout.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
-                gather(&layout, id, parents, &mut p);
-            }
-            p
-        };
-        if level == finest {
-            for (id, e) in stored[level as usize]
-                .par_iter()
-                .map(|&id| {
-                    let e = surface_error(&layout, id, &grids_of(id), grid);
-                    tick(&id);
-                    (id, e)
-                })
-                .collect::<Vec<_>>()
-            {
-                own_error.insert(id, e);
-            }
-            break;
+    let levels = Levels {
+        params: &params,
+        grid,
+        targets: &targets,
+        stored: &stored,
+        root_field: &root_field,
+        tick: &tick,
+    };
+    let (records, own_error) = match strategy {
+        Keeping::PerDiamond => levels.per_diamond()?,
+        Keeping::Field(storage) => {
+            assert!(
+                opts.alpha == Alpha::One,
+                "the reconstruction field needs α = 1"
+            );
+            levels.field(storage)?
         }
-        let results = stored[level as usize]
-            .par_iter()
-            .map(|&id| {
-                let p = grids_of(id);
-                let err = surface_error(&layout, id, &p, grid);
-                let (refined, bytes) =
-                    refine_encode(&params, id, &p, |x, y| targets.at(level + 1, x, y))?;
-                let (min, max) = p
-                    .iter()
-                    .fold((i32::MAX, i32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
-                tick(&id);
-                Ok((id, refined, bytes, err, min, max))
-            })
-            .collect::<Result<Vec<_>, CodecError>>()?;
-        prev.clear();
-        for (id, refined, bytes, err, min, max) in results {
-            own_error.insert(id, err);
-            prev.insert(id, refined);
-            records.push(Record {
-                id,
-                bytes,
-                object_error: 0,
-                min,
-                max,
-            });
-        }
-    }
+    };
 
     // Saturate fine to coarse: a diamond's error bounds every descendant's, so the error a
     // renderer sees never increases when it refines.
+    let mut records = records;
     let mut saturated: HashMap<DiamondId, u32> = HashMap::new();
     for level in (0..=finest).rev() {
         for &id in &stored[level as usize] {
@@ -203,6 +203,169 @@ pub fn encode_with_progress(
     })
 }
 
+/// Records (object errors not yet saturated) and each stored diamond's own object error.
+type LevelOutput = (Vec<Record>, HashMap<DiamondId, u32>);
+
+/// What the coarse-to-fine pass over the levels works on.
+struct Levels<'a> {
+    params: &'a CodecParams,
+    grid: &'a HeightGrid,
+    targets: &'a Targets<'a>,
+    stored: &'a [Vec<DiamondId>],
+    root_field: &'a [i32],
+    tick: &'a (dyn Fn(&DiamondId) + Sync),
+}
+
+impl Levels<'_> {
+    /// The record of a refined diamond with reconstructed grid `p`.
+    fn record(id: DiamondId, p: &[i32], bytes: Vec<u8>) -> Record {
+        let (min, max) = p
+            .iter()
+            .fold((i32::MAX, i32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        Record {
+            id,
+            bytes,
+            object_error: 0,
+            min,
+            max,
+        }
+    }
+
+    /// The levels with the previous level's refinements kept per diamond (any α).
+    fn per_diamond(&self) -> Result<LevelOutput, CodecError> {
+        let layout = &self.params.layout;
+        let (finest, n) = (layout.finest_level(), layout.n());
+        let mut records: Vec<Record> = Vec::new();
+        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
+        let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
+        for level in 0..=finest {
+            let grids_of = |id: DiamondId| -> Vec<i32> {
+                let mut p = vec![0i32; n * n];
+                if level == 0 {
+                    root_grid(layout, self.root_field, id, &mut p);
+                } else {
+                    let parents = layout.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
+                    gather(layout, id, parents, &mut p);
+                }
+                p
+            };
+            if level == finest {
+                for (id, e) in self.stored[level as usize]
+                    .par_iter()
+                    .map(|&id| {
+                        let e = surface_error(layout, id, &grids_of(id), self.grid);
+                        (self.tick)(&id);
+                        (id, e)
+                    })
+                    .collect::<Vec<_>>()
+                {
+                    own_error.insert(id, e);
+                }
+                break;
+            }
+            let results = self.stored[level as usize]
+                .par_iter()
+                .map(|&id| {
+                    let p = grids_of(id);
+                    let err = surface_error(layout, id, &p, self.grid);
+                    let r = refine_encode(self.params, id, &p, |x, y| {
+                        self.targets.at(level + 1, x, y)
+                    })?;
+                    let vertices = r.vertices.as_deref().unwrap_or(&p);
+                    let refined = Refined::from_parts(n, vertices, &r.cells);
+                    (self.tick)(&id);
+                    Ok((id, refined, Self::record(id, &p, r.bytes), err))
+                })
+                .collect::<Result<Vec<_>, CodecError>>()?;
+            prev.clear();
+            for (id, refined, record, err) in results {
+                own_error.insert(id, err);
+                prev.insert(id, refined);
+                records.push(record);
+            }
+        }
+        Ok((records, own_error))
+    }
+
+    /// The levels with one reconstruction field (α = 1): each refinement writes its new points
+    /// into the field, and the next level gathers from it.
+    fn field(&self, storage: &TempStorage) -> Result<LevelOutput, CodecError> {
+        let layout = &self.params.layout;
+        let (finest, n) = (layout.finest_level(), layout.n());
+        let (ex, ey) = layout.extent();
+        let field = ReconField::new(ex as usize + 1, ey as usize + 1, storage)?;
+        // Level 0's vertices: the root field covers the domain at spacing 2^K.
+        let (rw, rh) = root_field_dims(layout);
+        let s = root_spacing(layout);
+        for (k, &v) in self.root_field.iter().enumerate() {
+            field.set((k % rw) as i64 * s, (k / rw) as i64 * s, v);
+        }
+        debug_assert_eq!(self.root_field.len(), rw * rh);
+        let mut records: Vec<Record> = Vec::new();
+        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
+        for level in 0..=finest {
+            let grid_of = |id: DiamondId| -> Vec<i32> {
+                let mut p = vec![0i32; n * n];
+                if level == 0 {
+                    root_grid(layout, self.root_field, id, &mut p);
+                } else {
+                    field.gather(layout, id, &mut p);
+                }
+                p
+            };
+            let results = self.stored[level as usize]
+                .par_iter()
+                .map(|&id| {
+                    let p = grid_of(id);
+                    let err = surface_error(layout, id, &p, self.grid);
+                    let record = if level < finest {
+                        let r = refine_encode(self.params, id, &p, |x, y| {
+                            self.targets.at(level + 1, x, y)
+                        })?;
+                        write_cells(&field, layout, id, &r.cells);
+                        Some(Self::record(id, &p, r.bytes))
+                    } else {
+                        None
+                    };
+                    (self.tick)(&id);
+                    Ok((id, record, err))
+                })
+                .collect::<Result<Vec<_>, CodecError>>()?;
+            for (id, record, err) in results {
+                own_error.insert(id, err);
+                records.extend(record);
+            }
+        }
+        Ok((records, own_error))
+    }
+}
+
+/// Writes the cell values of a refinement of `id` (the points new at the next level) into the
+/// field; those outside the domain (edge diamonds' mirrored halves) are never read back.
+fn write_cells(field: &ReconField, layout: &Layout, id: DiamondId, cells: &[i32]) {
+    let m = layout.n() - 1;
+    let g = layout.grid(id);
+    for cj in 0..m {
+        for ci in 0..m {
+            let (x2, y2) = g.point2(2 * ci as i64 + 1, 2 * cj as i64 + 1);
+            let (x, y) = (x2 / 2, y2 / 2);
+            if field.contains(x, y) {
+                field.set(x, y, cells[cj * m + ci]);
+            }
+        }
+    }
+}
+
+/// What one refinement on the encoder side produces.
+struct Refinement {
+    /// Reconstructed cell centres, `(N−1)²`.
+    cells: Vec<i32>,
+    /// Reconstructed vertices, `N²`, when α = ½ changed them (`None`: the input grid).
+    vertices: Option<Vec<i32>>,
+    /// The coded record.
+    bytes: Vec<u8>,
+}
+
 /// One refinement on the encoder side: quantized residuals against the reconstruction
 /// (eqs. 5–8), the refined reconstruction, and the coded record.
 fn refine_encode(
@@ -210,7 +373,7 @@ fn refine_encode(
     id: DiamondId,
     p: &[i32],
     target: impl Fn(i64, i64) -> Option<i32>,
-) -> Result<(Refined, Vec<u8>), CodecError> {
+) -> Result<Refinement, CodecError> {
     let layout = &params.layout;
     let n = layout.n();
     let m = n - 1;
@@ -248,9 +411,10 @@ fn refine_encode(
             }
         }
     }
-    let mut vertices = p.to_vec();
+    let mut vertices = None;
     let mut dv = Vec::new();
     if params.alpha == Alpha::Half {
+        let vertices = vertices.insert(p.to_vec());
         dv = vec![0i32; (n - 2) * (n - 2)];
         for j in 1..n - 1 {
             for i in 1..n - 1 {
@@ -290,7 +454,11 @@ fn refine_encode(
     }
     let mut bytes = Vec::new();
     encode_bands(params.coder, &bands, &mut bytes);
-    Ok((Refined::from_parts(n, &vertices, &cells), bytes))
+    Ok(Refinement {
+        cells,
+        vertices,
+        bytes,
+    })
 }
 
 /// The stored diamonds of every level `0..=L`, sorted: the finest diamonds that meet a valid
@@ -298,35 +466,40 @@ fn refine_encode(
 /// parents do not touch the data themselves).
 pub(crate) fn stored_sets(layout: &Layout, grid: &HeightGrid) -> Vec<Vec<DiamondId>> {
     let (w, h) = (grid.width, grid.height);
-    // Summed-area table of valid samples: any box query in O(1).
-    let mut sat = vec![0u32; (w + 1) * (h + 1)];
-    for y in 0..h {
-        let mut row = 0u32;
-        for x in 0..w {
-            row += u32::from(grid.valid[y * w + x]);
-            sat[(y + 1) * (w + 1) + x + 1] = sat[y * (w + 1) + x + 1] + row;
-        }
-    }
-    let count = |x0: i64, y0: i64, x1: i64, y1: i64| -> u32 {
-        let (x0, y0) = (x0.max(0) as usize, y0.max(0) as usize);
-        let (x1, y1) = (
-            (x1 + 1).min(w as i64) as usize,
-            (y1 + 1).min(h as i64) as usize,
-        );
-        if x0 >= x1 || y0 >= y1 {
-            return 0;
-        }
-        sat[y1 * (w + 1) + x1] + sat[y0 * (w + 1) + x0]
-            - sat[y0 * (w + 1) + x1]
-            - sat[y1 * (w + 1) + x0]
-    };
     let finest = layout.finest_level();
-    let r = layout.radius(finest);
+    let r = layout.radius(finest) as usize;
     let (ex, ey) = layout.extent();
+    // Leaf (a, b) is centred at ((2a+1)r, (2b+1)r); it exists while the centre is inside the
+    // domain, and is stored when its closed box [2ar, 2ar + 2r] × [2br, 2br + 2r] holds a valid
+    // sample. Scanning each leaf's rows with an early exit keeps this one pass over the mask at
+    // worst, with no per-sample table (a summed-area table would cost 4 bytes per sample).
+    let count = |extent: i64, len: usize| {
+        let in_domain = (extent as usize).div_ceil(2 * r);
+        let reaching_data = len.saturating_sub(1) / (2 * r) + 1;
+        in_domain.min(reaching_data)
+    };
+    let (nx, ny) = (count(ex, w), count(ey, h));
+    let rows: Vec<Vec<bool>> = (0..ny)
+        .into_par_iter()
+        .map(|b| {
+            let mut hit = vec![false; nx];
+            for y in (2 * b * r)..=((2 * b + 2) * r).min(h - 1) {
+                let row = &grid.valid[y * w..(y + 1) * w];
+                for (a, hit) in hit.iter_mut().enumerate() {
+                    if !*hit {
+                        let (x0, x1) = (2 * a * r, ((2 * a + 2) * r).min(w - 1));
+                        *hit = row[x0..=x1].iter().any(|&v| v);
+                    }
+                }
+            }
+            hit
+        })
+        .collect();
     let mut leaves = Vec::new();
-    for cy in (r..ey.min(h as i64 - 1 + r + 1)).step_by(2 * r as usize) {
-        for cx in (r..ex.min(w as i64 - 1 + r + 1)).step_by(2 * r as usize) {
-            if count(cx - r, cy - r, cx + r, cy + r) > 0 {
+    for (b, row) in rows.iter().enumerate() {
+        for (a, &hit) in row.iter().enumerate() {
+            if hit {
+                let (cx, cy) = ((2 * a + 1) * r, (2 * b + 1) * r);
                 leaves.push(DiamondId::new(finest, cx as u32, cy as u32));
             }
         }
@@ -342,4 +515,162 @@ pub(crate) fn stored_sets(layout: &Layout, grid: &HeightGrid) -> Vec<Vec<Diamond
         sets[level] = parents.into_iter().collect();
     }
     sets
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::{ReadOptions, read_dem};
+    use crate::quant::QuantPlan;
+    use proptest::prelude::*;
+
+    /// The leaf selection by summed-area table that `stored_sets` replaced: the reference.
+    fn leaves_by_table(layout: &Layout, grid: &HeightGrid) -> Vec<DiamondId> {
+        let (w, h) = (grid.width, grid.height);
+        let mut sat = vec![0u32; (w + 1) * (h + 1)];
+        for y in 0..h {
+            let mut row = 0u32;
+            for x in 0..w {
+                row += u32::from(grid.valid[y * w + x]);
+                sat[(y + 1) * (w + 1) + x + 1] = sat[y * (w + 1) + x + 1] + row;
+            }
+        }
+        let count = |x0: i64, y0: i64, x1: i64, y1: i64| -> u32 {
+            let (x0, y0) = (x0.max(0) as usize, y0.max(0) as usize);
+            let (x1, y1) = (
+                (x1 + 1).min(w as i64) as usize,
+                (y1 + 1).min(h as i64) as usize,
+            );
+            if x0 >= x1 || y0 >= y1 {
+                return 0;
+            }
+            sat[y1 * (w + 1) + x1] + sat[y0 * (w + 1) + x0]
+                - sat[y0 * (w + 1) + x1]
+                - sat[y1 * (w + 1) + x0]
+        };
+        let finest = layout.finest_level();
+        let r = layout.radius(finest);
+        let (ex, ey) = layout.extent();
+        let mut leaves = Vec::new();
+        for cy in (r..ey.min(h as i64 - 1 + r + 1)).step_by(2 * r as usize) {
+            for cx in (r..ex.min(w as i64 - 1 + r + 1)).step_by(2 * r as usize) {
+                if count(cx - r, cy - r, cx + r, cy + r) > 0 {
+                    leaves.push(DiamondId::new(finest, cx as u32, cy as u32));
+                }
+            }
+        }
+        leaves
+    }
+
+    /// Rough terrain with a few nodata holes, deterministic in `seed`.
+    fn terrain(w: usize, h: usize, holes: &[u16], seed: u64) -> HeightGrid {
+        let mut s = seed | 1;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let values = (0..w * h)
+            .map(|k| {
+                let (x, y) = ((k % w) as f64, (k / w) as f64);
+                let smooth = 300.0 * (x / 9.0).sin() * (y / 13.0).cos() + 4.0 * x;
+                smooth as i32 + (next() % 41) as i32 - 20
+            })
+            .collect();
+        let mut g = HeightGrid::all_valid(w, h, values);
+        for &hole in holes {
+            let c = hole as usize % (w * h);
+            // A small square hole, so whole leaves can lose all their data.
+            for k in [c, c + 1, c + w, c + w + 1] {
+                if k < w * h {
+                    g.valid[k] = false;
+                }
+            }
+        }
+        g
+    }
+
+    fn both_ways(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, storage: &TempStorage) {
+        let old = encode_impl(grid, q, opts, Keeping::PerDiamond, &|_, _| {}).unwrap();
+        let new = encode_impl(grid, q, opts, Keeping::Field(storage), &|_, _| {}).unwrap();
+        assert!(
+            old == new,
+            "field and per-diamond encoders differ on {}×{} {opts:?}",
+            grid.width,
+            grid.height
+        );
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+        #[test]
+        fn field_encoder_is_bit_identical_to_the_per_diamond_one(
+            n_pow in 1u32..5,
+            w in 1usize..90,
+            h in 1usize..90,
+            extra in 0u32..2,
+            k in 0u32..4,
+            holes in proptest::collection::vec(any::<u16>(), 0..30),
+            seed in any::<u64>(),
+            file in any::<bool>(),
+        ) {
+            let mut grid = terrain(w, h, &holes, seed);
+            if grid.range().is_none() {
+                grid.valid[0] = true;
+            }
+            let opts = EncodeOptions {
+                n: (1 << n_pow) + 1,
+                extra_level_pairs: extra,
+                coder: if seed % 2 == 0 { CoderKind::Adaptive } else { CoderKind::EliasGamma },
+                ..EncodeOptions::default()
+            };
+            let storage = if file { TempStorage::File(None) } else { TempStorage::Memory };
+            both_ways(&grid, Quantizer::new(k).unwrap(), &opts, &storage);
+        }
+
+        #[test]
+        fn leaf_scan_matches_the_summed_area_table(
+            n_pow in 1u32..4,
+            w in 1usize..70,
+            h in 1usize..70,
+            extra in 0u32..2,
+            holes in proptest::collection::vec(any::<u16>(), 0..400),
+        ) {
+            let grid = terrain(w, h, &holes, 7);
+            let layout = Layout::covering((1 << n_pow) + 1, w, h, extra).unwrap();
+            let sets = stored_sets(&layout, &grid);
+            prop_assert_eq!(&sets[layout.finest_level() as usize], &leaves_by_table(&layout, &grid));
+        }
+    }
+
+    #[test]
+    fn field_encoder_is_bit_identical_on_real_dems_with_nodata_and_odd_sizes() {
+        let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data");
+        // (file, window x0, y0, w, h, ε): nodata, odd sizes, a data rectangle ending mid-diamond.
+        let cases = [
+            ("rhine_nodata.tif", 0, 0, 0, 0, 1.0),
+            ("srtm3_demcompare.tif", 37, 11, 301, 257, 1.0),
+            ("lidar1m_mn.tif", 5, 3, 129, 200, 0.5),
+            ("jacksboro_mpl.tif", 0, 0, 0, 0, 2.0),
+        ];
+        for (name, x0, y0, w, h, eps) in cases {
+            let mut dem = read_dem(&data.join(name), &ReadOptions::default()).unwrap();
+            if w > 0 {
+                dem = dem.crop(x0, y0, w, h).unwrap();
+            }
+            let plan = QuantPlan::for_dem(&dem, eps, None).unwrap();
+            let grid = HeightGrid::from_dem(&dem, &plan).unwrap();
+            if name.starts_with("rhine") {
+                assert!(grid.valid.iter().any(|v| !v), "the fixture has nodata");
+            }
+            for n in [17, 65] {
+                let opts = EncodeOptions {
+                    n,
+                    ..EncodeOptions::default()
+                };
+                both_ways(&grid, plan.quantizer, &opts, &TempStorage::Memory);
+            }
+        }
+    }
 }

@@ -14,13 +14,15 @@
 mod analysis;
 mod decode;
 mod encode;
+mod field;
 mod object_error;
 mod refine;
 mod roots;
 
 pub use analysis::{LevelField, analysis_fields};
 pub use decode::{Decoder, LevelReport, VerifyReport, reconstruct_finest, verify, walk};
-pub use encode::{EncodeOptions, encode, encode_with_progress};
+pub use encode::{EncodeOptions, encode, encode_with_progress, encode_with_storage};
+pub use field::TempStorage;
 pub use refine::{RefineScratch, Refined, gather, refine};
 pub use roots::root_field_dims;
 

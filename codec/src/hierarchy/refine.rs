@@ -122,7 +122,7 @@ pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], ou
 }
 
 /// Column range `lo..=hi` of row `j` in one half (diagonal included).
-fn half_range(diag: Diagonal, half: Half, n: usize, j: usize) -> (usize, usize) {
+pub(crate) fn half_range(diag: Diagonal, half: Half, n: usize, j: usize) -> (usize, usize) {
     match (diag, half) {
         (Diagonal::Main, Half::Positive) => (j, n - 1),
         (Diagonal::Main, Half::Negative) => (0, j),

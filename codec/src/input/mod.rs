@@ -12,12 +12,14 @@ mod hgt;
 mod png;
 mod quantum;
 mod raw;
+mod stream;
 
 use std::path::Path;
 
 use crate::CodecError;
 
-pub use quantum::detect_quantum;
+pub use quantum::{QuantumScan, detect_quantum};
+pub use stream::{BlockFn, RawF32Source, SampleSource};
 
 /// The numeric type a DEM's samples were stored as.
 ///

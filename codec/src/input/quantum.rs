@@ -30,37 +30,89 @@ const MAX_STEPS: f64 = 9_007_199_254_740_992.0; // 2^53
 /// its own type nearest to `round(v / u) * u`. `None` when no candidate fits (lidar, resampled
 /// data) or when no sample is valid.
 pub fn detect_quantum(dem: &Dem) -> Option<f64> {
-    let mut valid = (0..dem.values.len())
-        .filter(|&i| dem.is_valid(i))
-        .map(|i| dem.values[i]);
-    let first = valid.next()?;
-    let valid = std::iter::once(first).chain(valid);
-    if dem.sample_type.is_integer() {
-        return Some(integer_quantum(first, valid));
-    }
-    CANDIDATES
-        .iter()
-        .find(|&&(_, k)| {
-            let valid = (0..dem.values.len())
-                .filter(|&i| dem.is_valid(i))
-                .map(|i| dem.values[i]);
-            fits(valid, k, dem.sample_type)
-        })
-        .map(|&(u, _)| u)
-}
-
-fn integer_quantum(first: f64, valid: impl Iterator<Item = f64>) -> f64 {
-    let mut g = 0u64;
-    let mut constant = true;
-    for v in valid {
-        constant &= v == first;
-        // Integer sample types hold at most 32 bits, so the cast is exact.
-        g = gcd(g, v.abs() as u64);
-        if g == 1 {
-            return 1.0;
+    let mut scan = QuantumScan::new(dem.sample_type);
+    for i in 0..dem.values.len() {
+        if dem.is_valid(i) {
+            scan.push(dem.values[i]);
         }
     }
-    if constant || g == 0 { 1.0 } else { g as f64 }
+    scan.finish()
+}
+
+/// [`detect_quantum`] one valid sample at a time, for inputs streamed in blocks; scans of
+/// consecutive parts combine with [`QuantumScan::merge`].
+#[derive(Clone, Debug)]
+pub struct QuantumScan {
+    sample_type: SampleType,
+    /// The first valid sample, and whether every later one equals it (integer types).
+    first: Option<f64>,
+    constant: bool,
+    /// Gcd of the magnitudes so far (integer types).
+    gcd: u64,
+    /// Which float candidates every sample so far fits.
+    alive: [bool; CANDIDATES.len()],
+}
+
+impl QuantumScan {
+    /// An empty scan of samples stored as `sample_type`.
+    pub fn new(sample_type: SampleType) -> Self {
+        Self {
+            sample_type,
+            first: None,
+            constant: true,
+            gcd: 0,
+            alive: [true; CANDIDATES.len()],
+        }
+    }
+
+    /// Adds one valid sample.
+    #[inline]
+    pub fn push(&mut self, v: f64) {
+        let first = *self.first.get_or_insert(v);
+        if self.sample_type.is_integer() {
+            self.constant &= v == first;
+            if self.gcd != 1 {
+                // Integer sample types hold at most 32 bits, so the cast is exact.
+                self.gcd = gcd(self.gcd, v.abs() as u64);
+            }
+        } else {
+            for (alive, &(_, k)) in self.alive.iter_mut().zip(&CANDIDATES) {
+                *alive = *alive && fits(v, k, self.sample_type);
+            }
+        }
+    }
+
+    /// The scan of `self`'s samples followed by `later`'s.
+    pub fn merge(mut self, later: Self) -> Self {
+        if let Some(f) = later.first {
+            match self.first {
+                None => return later,
+                Some(first) => self.constant &= later.constant && f == first,
+            }
+        }
+        self.gcd = gcd(self.gcd, later.gcd);
+        for (a, b) in self.alive.iter_mut().zip(later.alive) {
+            *a &= b;
+        }
+        self
+    }
+
+    /// The quantum, as [`detect_quantum`] defines it.
+    pub fn finish(&self) -> Option<f64> {
+        self.first?;
+        if self.sample_type.is_integer() {
+            return Some(if self.constant || self.gcd == 0 {
+                1.0
+            } else {
+                self.gcd as f64
+            });
+        }
+        CANDIDATES
+            .iter()
+            .zip(self.alive)
+            .find(|(_, alive)| *alive)
+            .map(|(&(u, _), _)| u)
+    }
 }
 
 fn gcd(mut a: u64, mut b: u64) -> u64 {
@@ -70,15 +122,17 @@ fn gcd(mut a: u64, mut b: u64) -> u64 {
     a
 }
 
-/// Whether every value is the nearest value of `ty` to some `n / k`; stops at the first miss.
-fn fits(mut values: impl Iterator<Item = f64>, k: f64, ty: SampleType) -> bool {
-    let single = ty == SampleType::F32;
-    values.all(|v| {
-        let n = (v * k).round();
-        if n.is_nan() || n.abs() >= MAX_STEPS {
-            return false;
-        }
-        let q = n / k;
-        if single { q as f32 == v as f32 } else { q == v }
-    })
+/// Whether `v` is the nearest value of `ty` to some `n / k`.
+#[inline]
+fn fits(v: f64, k: f64, ty: SampleType) -> bool {
+    let n = (v * k).round();
+    if n.is_nan() || n.abs() >= MAX_STEPS {
+        return false;
+    }
+    let q = n / k;
+    if ty == SampleType::F32 {
+        q as f32 == v as f32
+    } else {
+        q == v
+    }
 }

@@ -12,23 +12,7 @@ pub(super) fn read_f32(
     limits: &Limits,
 ) -> Result<Dem, CodecError> {
     let n = limits.check(width, height)?;
-    let expected = n as u64 * 4;
-    let len = super::file_len(path)?;
-    if len < expected {
-        return Err(CodecError::truncated(format!(
-            "raw f32 file {} is {len} bytes; {width} x {height} samples need {expected}",
-            path.display()
-        )));
-    }
-    if len > expected {
-        // More bytes than samples means the caller's size is wrong (or there is a header):
-        // reading a prefix would shear every row.
-        return Err(CodecError::invalid(format!(
-            "raw f32 file {} is {len} bytes, more than the {expected} of {width} x {height} \
-             samples",
-            path.display()
-        )));
-    }
+    let expected = check_len(path, n, width, height)?;
     let bytes = std::fs::read(path)?;
     if bytes.len() as u64 != expected {
         return Err(CodecError::truncated(format!(
@@ -48,4 +32,31 @@ pub(super) fn read_f32(
         nodata: None,
         georef: None,
     })
+}
+
+/// Checks that the file holds exactly `n = width × height` samples; returns its length.
+pub(super) fn check_len(
+    path: &Path,
+    n: usize,
+    width: usize,
+    height: usize,
+) -> Result<u64, CodecError> {
+    let expected = n as u64 * 4;
+    let len = super::file_len(path)?;
+    if len < expected {
+        return Err(CodecError::truncated(format!(
+            "raw f32 file {} is {len} bytes; {width} x {height} samples need {expected}",
+            path.display()
+        )));
+    }
+    if len > expected {
+        // More bytes than samples means the caller's size is wrong (or there is a header):
+        // reading a prefix would shear every row.
+        return Err(CodecError::invalid(format!(
+            "raw f32 file {} is {len} bytes, more than the {expected} of {width} x {height} \
+             samples",
+            path.display()
+        )));
+    }
+    Ok(expected)
 }

@@ -1,0 +1,204 @@
+//! The encoder's reconstruction field: one integer height per lattice point of the domain.
+//!
+//! With α = 1 a refinement never changes the vertices it starts from; it only adds the values at
+//! the cell centres of its square, which are the lattice points new at the next level. So the
+//! reconstructed value of a lattice point is fixed at the level where it first appears, and one
+//! array over the domain holds every level's reconstruction at once. Level `l`'s refinements
+//! write their new points into it, and level `l+1` gathers its grids from it by lattice index.
+//! This replaces a map of every previous-level diamond's `(2N−1)²` half-step grid (16 bytes and
+//! more per input sample at the fine levels) by 4 bytes per lattice point.
+//!
+//! Disjointness, which makes the parallel writes race-free: the cell centres of a level tile the
+//! domain — each new point is strictly inside exactly one diamond of the level (diamonds of a
+//! level tile the plane, cell centres are interior to their diamond) — and every point a level
+//! reads is older than that level. Points outside the domain (the mirrored halves of diamonds on
+//! its edge) are never stored: no child of an edge diamond reads them, since every child's half
+//! in a parent lies inside the domain; the gather rebuilds them by the same mirroring as
+//! [`super::gather`].
+//!
+//! The field lives in anonymous memory or in a memory-mapped unlinked temporary file
+//! ([`TempStorage`]); either way its pages are zero until touched, so parts of the domain no
+//! stored diamond reaches cost nothing.
+
+use std::path::PathBuf;
+use std::ptr::NonNull;
+use std::sync::atomic::{AtomicI32, Ordering};
+
+use memmap2::MmapMut;
+
+use super::refine::half_range;
+use crate::CodecError;
+use crate::geometry::{Diagonal, DiamondId, Half, Layout};
+
+/// Where the encoder keeps its large temporaries (the reconstruction field).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum TempStorage {
+    /// Anonymous memory.
+    #[default]
+    Memory,
+    /// A memory-mapped temporary file, created already unlinked in this directory (the system
+    /// temporary directory when `None`), so the kernel can write pages back to disk under memory
+    /// pressure instead of failing.
+    File(Option<PathBuf>),
+}
+
+/// Integer heights over the lattice points `[0, width) × [0, height)`, shared by the workers of
+/// one level. Accesses are relaxed atomics: plain loads and stores on every platform that
+/// matters, and safe without proof that no two workers touch one point; the order between
+/// levels comes from rayon's join at the end of each level.
+pub(crate) struct ReconField {
+    width: usize,
+    height: usize,
+    ptr: NonNull<AtomicI32>,
+    /// Owns the memory `ptr` points into; never accessed as bytes.
+    _map: MmapMut,
+}
+
+// SAFETY: `ptr` points into `_map`, which the field owns and which lives exactly as long; every
+// access goes through `AtomicI32`, which is `Sync`.
+unsafe impl Send for ReconField {}
+// SAFETY: as above.
+unsafe impl Sync for ReconField {}
+
+impl ReconField {
+    /// A zeroed field of `width × height` points in `storage`.
+    pub(crate) fn new(
+        width: usize,
+        height: usize,
+        storage: &TempStorage,
+    ) -> Result<Self, CodecError> {
+        let too_big = || CodecError::limit("reconstruction field too large for the address space");
+        let bytes = width
+            .checked_mul(height)
+            .and_then(|c| c.checked_mul(4))
+            .ok_or_else(too_big)?;
+        let mut map = match storage {
+            TempStorage::Memory => MmapMut::map_anon(bytes.max(1))?,
+            TempStorage::File(dir) => {
+                let file = match dir {
+                    Some(d) => tempfile::tempfile_in(d)?,
+                    None => tempfile::tempfile()?,
+                };
+                // A sparse file: blocks are allocated only where pages are written.
+                file.set_len(bytes.max(1) as u64)?;
+                // SAFETY: the file is unlinked and private to this process, so nothing else can
+                // truncate or modify it while it is mapped.
+                unsafe { MmapMut::map_mut(&file)? }
+            }
+        };
+        // Page-aligned, so aligned for `AtomicI32`; `AtomicI32` has the layout of `i32`, and
+        // every bit pattern (zero pages included) is a valid value.
+        let ptr = NonNull::new(map.as_mut_ptr().cast::<AtomicI32>()).expect("mmap is non-null");
+        Ok(Self {
+            width,
+            height,
+            ptr,
+            _map: map,
+        })
+    }
+
+    fn cells(&self) -> &[AtomicI32] {
+        // SAFETY: the mapping holds at least `width·height` aligned `AtomicI32`s (see `new`) and
+        // outlives `self`; all mutation goes through the atomics.
+        unsafe { std::slice::from_raw_parts(self.ptr.as_ptr(), self.width * self.height) }
+    }
+
+    /// Row-major index of lattice point `(x, y)`, which must lie in the field.
+    #[inline]
+    fn index(&self, x: i64, y: i64) -> usize {
+        debug_assert!(
+            x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height,
+            "({x}, {y}) outside the {}×{} field",
+            self.width,
+            self.height
+        );
+        y as usize * self.width + x as usize
+    }
+
+    /// Whether `(x, y)` lies in the field.
+    #[inline]
+    pub(crate) fn contains(&self, x: i64, y: i64) -> bool {
+        x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height
+    }
+
+    /// Stores the value of `(x, y)`.
+    #[inline]
+    pub(crate) fn set(&self, x: i64, y: i64, v: i32) {
+        self.cells()[self.index(x, y)].store(v, Ordering::Relaxed);
+    }
+
+    /// Gathers the `N × N` grid of diamond `id`, like [`super::gather`] from its parents'
+    /// refinements: the halves whose parent exists are read from the field, a half whose parent
+    /// does not exist (a diamond on the domain's edge) is the mirror image of the other across
+    /// the split diagonal.
+    pub(crate) fn gather(&self, layout: &Layout, id: DiamondId, out: &mut [i32]) {
+        let n = layout.n();
+        assert_eq!(out.len(), n * n);
+        let cells = self.cells();
+        let grid = layout.grid(id);
+        let diag = layout.diagonal(id);
+        let parents = layout.parents(id);
+        assert!(
+            parents.iter().any(Option::is_some),
+            "{id} has no parent to gather from"
+        );
+        // Moving one step in i is a fixed step in the row-major index (u has no negative part).
+        let stride = grid.u.1 as usize * self.width + grid.u.0 as usize;
+        for (h, half) in Half::BOTH.into_iter().enumerate() {
+            if parents[h].is_none() {
+                continue;
+            }
+            for j in 0..n {
+                let (lo, hi) = half_range(diag, half, n, j);
+                let (x, y) = grid.point(lo as i64, j as i64);
+                let (xe, ye) = grid.point(hi as i64, j as i64);
+                // Both ends in the field means the whole (straight) row is.
+                debug_assert!(self.contains(xe, ye), "{id} reads ({xe}, {ye})");
+                let mut k = self.index(x, y);
+                for o in &mut out[j * n + lo..=j * n + hi] {
+                    *o = cells[k].load(Ordering::Relaxed);
+                    k += stride;
+                }
+            }
+        }
+        for (h, half) in Half::BOTH.into_iter().enumerate() {
+            if parents[h].is_some() {
+                continue;
+            }
+            for j in 0..n {
+                let (lo, hi) = half_range(diag, half, n, j);
+                for i in lo..=hi {
+                    let (mi, mj) = match diag {
+                        Diagonal::Main => (j, i),
+                        Diagonal::Anti => (n - 1 - j, n - 1 - i),
+                    };
+                    out[j * n + i] = out[mj * n + mi];
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn both_storages_start_at_zero_and_keep_what_is_stored() {
+        for storage in [TempStorage::Memory, TempStorage::File(None)] {
+            let f = ReconField::new(7, 5, &storage).unwrap();
+            assert!(f.cells().iter().all(|c| c.load(Ordering::Relaxed) == 0));
+            f.set(6, 4, -12345);
+            f.set(0, 0, 77);
+            assert_eq!(f.cells()[34].load(Ordering::Relaxed), -12345);
+            assert_eq!(f.cells()[0].load(Ordering::Relaxed), 77);
+            assert!(f.contains(6, 4) && !f.contains(7, 0) && !f.contains(0, -1));
+        }
+    }
+
+    #[test]
+    fn an_unusable_temporary_directory_is_an_error_not_a_panic() {
+        let missing = std::env::temp_dir().join("cbdam-no-such-dir/sub");
+        assert!(ReconField::new(4, 4, &TempStorage::File(Some(missing))).is_err());
+    }
+}

@@ -1,0 +1,127 @@
+//! `cbdam bench build`: throughput and peak memory of the whole build pipeline.
+//!
+//! Each run is what `cbdam build` does after parsing its arguments: read, plan, quantize,
+//! encode in parallel, write the repository (to a temporary directory). Throughput is input
+//! samples over the median wall time. Peak memory is the process's resident high-water mark
+//! (`VmHWM`), reset before each dataset through `/proc/self/clear_refs`, so each row shows its
+//! own peak; mapped temporaries count while resident.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use cbdam_codec::hierarchy::EncodeOptions;
+use cbdam_codec::repository::write_repository;
+
+use crate::BenchBuildArgs;
+use crate::build::{
+    InputSpec, default_memory_limit, encode_prepared, parse_size, prepare, storage_for,
+};
+
+/// Resets the resident high-water mark (Linux ≥ 4.0); false where that is not possible.
+fn reset_peak() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
+/// The resident high-water mark in bytes, if the platform reports it.
+fn peak_rss() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+fn default_inputs() -> Result<Vec<PathBuf>> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "tif"))
+        .collect();
+    v.sort();
+    Ok(v)
+}
+
+pub fn run(args: &BenchBuildArgs) -> Result<()> {
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    if !(args.max_error.is_finite() && args.max_error > 0.0) {
+        bail!("--max-error must be a positive number of metres");
+    }
+    let limit = match &args.memory_limit {
+        Some(text) => parse_size(text)?,
+        None => default_memory_limit(),
+    };
+    let tmp = tempfile::tempdir()?;
+    let mut inputs: Vec<(PathBuf, Option<(usize, usize)>)> = if args.inputs.is_empty() {
+        default_inputs()?.into_iter().map(|p| (p, None)).collect()
+    } else {
+        args.inputs.iter().map(|p| (p.clone(), None)).collect()
+    };
+    if args.synthetic > 1 {
+        let s = args.synthetic;
+        let path = tmp.path().join(format!("synthetic_{s}.f32"));
+        crate::synth::write(&path, s, 1)?;
+        inputs.push((path, Some((s, s))));
+    }
+    let threads = args.threads.unwrap_or_else(rayon::current_num_threads);
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!(
+        "{threads} threads, ε = {} m, median of {} runs, load average before: {}",
+        args.max_error,
+        args.runs,
+        load.split_whitespace()
+            .take(3)
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    println!();
+    println!(
+        "| dataset | samples | temporaries | bits/sample | median s | M samples/s | peak RSS MiB |"
+    );
+    println!("|---|---:|---|---:|---:|---:|---:|");
+    let out = tmp.path().join("bench.cbdam");
+    let opts = EncodeOptions::default();
+    for (path, raw_size) in &inputs {
+        let can_reset = reset_peak();
+        let mut times = Vec::new();
+        let mut summary = None;
+        for _ in 0..args.runs {
+            let t = Instant::now();
+            let input = prepare(&InputSpec {
+                path,
+                raw_size: *raw_size,
+                nodata: None,
+                quantum: None,
+                max_error: args.max_error,
+            })?;
+            let storage = storage_for(&input.grid, &opts, limit)?;
+            let enc = encode_prepared(&input, &opts, &storage, args.threads, &|_, _| {})?;
+            write_repository(&out, &enc, &input.plan, input.georef.as_ref(), input.nodata)?;
+            times.push(t.elapsed());
+            let samples = input.grid.width * input.grid.height;
+            let bits = std::fs::metadata(&out)?.len() as f64 * 8.0 / samples as f64;
+            summary = Some((samples, bits, storage));
+        }
+        let (samples, bits, storage) = summary.expect("at least one run");
+        times.sort();
+        let median: Duration = times[times.len() / 2];
+        let peak = if can_reset { peak_rss() } else { None };
+        let name = path.file_stem().unwrap_or_default().to_string_lossy();
+        println!(
+            "| {name} | {samples} | {} | {bits:.3} | {:.2} | {:.2} | {} |",
+            match storage {
+                cbdam_codec::hierarchy::TempStorage::Memory => "memory",
+                cbdam_codec::hierarchy::TempStorage::File(_) => "mapped file",
+            },
+            median.as_secs_f64(),
+            samples as f64 / median.as_secs_f64() / 1e6,
+            peak.map_or("n/a".to_string(), |b| format!(
+                "{:.0}",
+                b as f64 / 1048576.0
+            )),
+        );
+    }
+    Ok(())
+}
