@@ -7,6 +7,7 @@ mod bench_codec;
 mod build;
 mod extract;
 mod inspect;
+mod render;
 mod verify;
 
 use std::path::PathBuf;
@@ -49,6 +50,12 @@ enum Command {
     /// samples in regions with no valid input sample nearby (no stored diamond) are written as the
     /// recorded nodata value (NaN when the repository recorded none).
     Extract(ExtractArgs),
+    /// Render one frame offscreen to a PNG (lavapipe works where there is no GPU).
+    ///
+    /// The cut is chosen by an interim rule until the streaming client lands: every stored
+    /// diamond in the view whose screen-space error exceeds --pixel-error is refined, then the
+    /// whole cut is decoded. Prints the frame time and triangle count.
+    Render(RenderArgs),
     /// Measure the codec and other parts of the pipeline.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -59,6 +66,59 @@ enum BenchCommand {
     /// Rate, verified maximum error and speed of the codec on DEM files (default: the bundled
     /// samples), as a Markdown table.
     Codec(BenchCodecArgs),
+    /// Offscreen frame time and triangle rate of the renderer on repositories, overview and a
+    /// low oblique view, as a Markdown table.
+    Render(BenchRenderArgs),
+}
+
+/// Render one frame of a repository (documented on [`Command::Render`]).
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// Repository file.
+    repo: PathBuf,
+    /// Image size WIDTHxHEIGHT.
+    #[arg(long, value_parser = render::parse_size, default_value = "1920x1080")]
+    size: (u32, u32),
+    /// Output PNG (written atomically).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Camera eye_x,eye_y,eye_z,target_x,target_y,target_z in world metres: x east and y north
+    /// of the data's north-west corner (so y is negative over the data), z height. Default: an
+    /// overview of the whole data from the south.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, num_args = 1)]
+    camera: Option<Vec<f64>>,
+    /// Screen-space error target, pixels.
+    #[arg(long, default_value_t = 1.0)]
+    pixel_error: f64,
+    /// Draw triangle edges over the surface.
+    #[arg(long)]
+    wireframe: bool,
+    /// Colour by diamond level instead of height.
+    #[arg(long)]
+    levels: bool,
+    /// Vertical exaggeration (heights and the camera's z are scaled by it).
+    #[arg(long, default_value_t = 1.0)]
+    exaggeration: f64,
+    /// GPU height pool, MiB (default: 256 or what the adapter allows).
+    #[arg(long)]
+    pool_mib: Option<u64>,
+}
+
+/// Time offscreen frames.
+#[derive(Args, Debug)]
+pub struct BenchRenderArgs {
+    /// Repository files.
+    #[arg(required = true)]
+    repos: Vec<PathBuf>,
+    /// Image size WIDTHxHEIGHT.
+    #[arg(long, value_parser = render::parse_size, default_value = "1920x1080")]
+    size: (u32, u32),
+    /// Screen-space error target, pixels.
+    #[arg(long, default_value_t = 1.0)]
+    pixel_error: f64,
+    /// Timed frames per view; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
 }
 
 /// Which value(s) of a two-way option to run.
@@ -225,7 +285,9 @@ fn main() -> ExitCode {
         Command::Inspect(args) => inspect::run(&args),
         Command::Verify(args) => verify::run(&args),
         Command::Extract(args) => extract::run(&args),
+        Command::Render(args) => render::run(&args),
         Command::Bench(BenchCommand::Codec(args)) => bench_codec::run(&args),
+        Command::Bench(BenchCommand::Render(args)) => render::bench(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
