@@ -22,7 +22,7 @@ struct Frame {
     ramp_hi: f32,
     // Grid side N.
     n: u32,
-    // 0: hypsometric colours; 1: colour by level (debug); 2: flat dark (wireframe lines).
+    // 0: hypsometric colours; 1: colour by level (debug).
     mode: u32,
     // Data rectangle in lattice units: drawn where 0 ≤ x ≤ data_max.x, 0 ≤ y ≤ data_max.y.
     data_max: vec2<f32>,
@@ -178,18 +178,29 @@ fn level_colour(level: u32) -> vec3<f32> {
 
 const AMBIENT: f32 = 0.35;
 
-@fragment
-fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
-    // Heights outside the data rectangle are unconstrained by the codec: never show them. The
-    // tolerance (relative to the extent, f32 interpolation being relative too) absorbs rounding
-    // of fragments exactly on the rectangle's edge.
+// Heights outside the data rectangle are unconstrained by the codec: never show them. The
+// tolerance (relative to the extent, f32 interpolation being relative too) absorbs rounding of
+// fragments exactly on the rectangle's edge.
+fn outside_data(lattice: vec2<f32>) -> bool {
     let eps = 1e-5 * max(1.0, max(frame.data_max.x, frame.data_max.y));
-    if in.lattice.x < -eps || in.lattice.y < -eps || in.lattice.x > frame.data_max.x + eps
-        || in.lattice.y > frame.data_max.y + eps {
+    return lattice.x < -eps || lattice.y < -eps || lattice.x > frame.data_max.x + eps
+        || lattice.y > frame.data_max.y + eps;
+}
+
+// Triangle edges of the wireframe overlay (drawn with PolygonMode::Line), blended over the
+// surface so that dense meshes darken it rather than turn it black.
+@fragment
+fn fs_wire(in: VsOut) -> @location(0) vec4<f32> {
+    if outside_data(in.lattice) {
         discard;
     }
-    if frame.mode == 2u {
-        return vec4<f32>(0.08, 0.08, 0.10, 1.0);
+    return vec4<f32>(0.0, 0.0, 0.0, 0.45);
+}
+
+@fragment
+fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
+    if outside_data(in.lattice) {
+        discard;
     }
     let nrm = normalize(in.normal);
     let lambert = max(dot(nrm, frame.sun.xyz), 0.0);

@@ -109,7 +109,7 @@ fn cuts(repo: &cbdam_codec::repository::Repository) -> Vec<(String, Cut)> {
             cbdam_client::draw::select::full_resolution_cut(repo),
         ),
     ];
-    for (k, count) in [n / 40, n / 12, n / 4].into_iter().enumerate() {
+    for (k, count) in [n / 60, n / 20, n / 6].into_iter().enumerate() {
         out.push((format!("random{k}"), random_cut(repo, count, 17 + k as u64)));
     }
     out

@@ -145,7 +145,7 @@ pub struct FrameUniform {
     pub ramp_hi: f32,
     /// Grid side N.
     pub n: u32,
-    /// 0 hypsometric, 1 level colours, 2 wireframe lines.
+    /// 0 hypsometric, 1 level colours.
     pub mode: u32,
     /// Largest lattice x and y of the data rectangle.
     pub data_max: [f32; 2],
@@ -406,7 +406,8 @@ impl Renderer {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = |polygon_mode, bias: wgpu::DepthBiasState, compare| {
+        let pipeline = |polygon_mode, bias: wgpu::DepthBiasState, compare, fs| {
+            let blend = (fs == "fs_wire").then_some(wgpu::BlendState::ALPHA_BLENDING);
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("terrain"),
                 layout: Some(&pipeline_layout),
@@ -435,9 +436,13 @@ impl Renderer {
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
                     module: &shader,
-                    entry_point: Some("fs_main"),
+                    entry_point: Some(fs),
                     compilation_options: Default::default(),
-                    targets: &[Some(COLOR_FORMAT.into())],
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: COLOR_FORMAT,
+                        blend,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
                 }),
                 multiview_mask: None,
                 cache: None,
@@ -447,6 +452,7 @@ impl Renderer {
             wgpu::PolygonMode::Fill,
             Default::default(),
             wgpu::CompareFunction::Less,
+            "fs_main",
         );
         // Under a wireframe the surface is pushed back a little so the lines win the depth test.
         let fill_under_lines = pipeline(
@@ -457,6 +463,7 @@ impl Renderer {
                 clamp: 0.0,
             },
             wgpu::CompareFunction::Less,
+            "fs_main",
         );
         let lines = device
             .features()
@@ -466,6 +473,7 @@ impl Renderer {
                     wgpu::PolygonMode::Line,
                     Default::default(),
                     wgpu::CompareFunction::LessEqual,
+                    "fs_wire",
                 )
             });
         let instance_capacity = 1024;

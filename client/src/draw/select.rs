@@ -2,7 +2,7 @@
 //! client's time-critical refinement loop (issue 5) replaces it. Kept apart on purpose: swap
 //! [`screen_error_cut`] for that loop's cut and nothing else changes.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use cbdam_codec::geometry::{Cut, DiamondId};
 use cbdam_codec::repository::Repository;
@@ -36,8 +36,11 @@ pub fn screen_error_cut(
     let frustum = camera.frustum();
     let mut cut = Cut::new();
     let mut stack: Vec<DiamondId> = layout.roots().collect();
+    // A diamond is reached from both its parents, and may already be refined because a child
+    // forced it: judge each one once, on its own error, whatever the cut holds.
+    let mut seen = HashSet::new();
     while let Some(id) = stack.pop() {
-        if cut.is_refined(id) {
+        if !seen.insert(id) {
             continue;
         }
         let Some(e) = entries.get(&id) else { continue };

@@ -111,17 +111,30 @@ pub fn height_range(world: &World, patches: &[HalfPatch]) -> (f64, f64) {
     (world.height(lo), world.height(hi))
 }
 
-/// A random cut: `count` random stored diamonds refined, parents forced by `Cut::refine`.
+/// A random cut: `count` random stored diamonds refined, parents forced by `Cut::refine`. The
+/// level is drawn uniformly first, so coarse levels are picked as often as fine ones (stored
+/// diamonds are mostly fine, and refining one forces its whole ancestry): the cut then mixes
+/// as many levels side by side as the DAG allows.
 pub fn random_cut(repo: &Repository, count: usize, seed: u64) -> Cut {
     let layout = repo.params().layout;
-    let entries = repo.entries();
+    let mut by_level: Vec<Vec<_>> = vec![Vec::new(); usize::from(layout.finest_level())];
+    for e in repo.entries() {
+        if let Some(l) = by_level.get_mut(usize::from(e.id.level)) {
+            l.push(e.id);
+        }
+    }
+    by_level.retain(|l| !l.is_empty());
     let mut cut = Cut::new();
     let mut state = seed;
-    for _ in 0..count {
+    let mut next = || {
         state = state
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
-        cut.refine(&layout, entries[(state >> 33) as usize % entries.len()].id);
+        (state >> 33) as usize
+    };
+    for _ in 0..count {
+        let level = &by_level[next() % by_level.len()];
+        cut.refine(&layout, level[next() % level.len()]);
     }
     cut
 }
