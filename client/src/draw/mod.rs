@@ -338,8 +338,9 @@ impl Renderer {
         }
         let slot_bytes = (n * n * 4) as u64;
         let limits = gpu.device.limits();
-        let max_pool =
-            u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+        let max_pool = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         let pool = config
             .pool_bytes
             .unwrap_or(DEFAULT_POOL_BYTES)
