@@ -88,7 +88,7 @@ pub struct RenderArgs {
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true, num_args = 1)]
     camera: Option<Vec<f64>>,
     /// Screen-space error target, pixels.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
     pixel_error: f64,
     /// Draw triangle edges over the surface.
     #[arg(long)]
@@ -97,7 +97,7 @@ pub struct RenderArgs {
     #[arg(long)]
     levels: bool,
     /// Vertical exaggeration (heights and the camera's z are scaled by it).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
     exaggeration: f64,
     /// GPU height pool, MiB (default: 256 or what the adapter allows).
     #[arg(long)]
