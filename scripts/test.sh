@@ -19,4 +19,42 @@ for f in data/srtm3_demcompare.tif data/lidar1m_mn.tif; do
     [ -s "$f" ] || { echo "missing sample data $f (is this a full checkout?)" >&2; exit 1; }
 done
 
+# The renderer's tests draw for real, on Mesa's software Vulkan driver (lavapipe) where there is
+# no GPU. Install it when no Vulkan driver (ICD) is registered. Where that is impossible (no
+# apt-get, no root or sudo), say so and go on: the GPU tests then fail, each with a message
+# naming the packages to install — they never pass without rendering.
+has_vulkan_icd() {
+    for d in /usr/share/vulkan/icd.d /etc/vulkan/icd.d /usr/local/share/vulkan/icd.d; do
+        compgen -G "$d/*.json" >/dev/null && return 0
+    done
+    [ -n "${VK_ICD_FILENAMES:-}${VK_DRIVER_FILES:-}" ]
+}
+has_vulkan_loader() {
+    ! command -v ldconfig >/dev/null 2>&1 || ldconfig -p | grep -q 'libvulkan\.so\.1'
+}
+if ! has_vulkan_icd || ! has_vulkan_loader; then
+    if command -v apt-get >/dev/null 2>&1; then
+        sudo=""
+        [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && sudo="sudo -n"
+        if [ "$(id -u)" -eq 0 ] || [ -n "$sudo" ]; then
+            echo "test.sh: no Vulkan driver found; installing Mesa's lavapipe (mesa-vulkan-drivers libvulkan1)" >&2
+            $sudo apt-get update -qq
+            DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+        else
+            echo "test.sh: no Vulkan driver and no root/sudo to install one: GPU tests will fail." >&2
+            echo "test.sh: install with: apt-get install mesa-vulkan-drivers libvulkan1" >&2
+        fi
+    else
+        echo "test.sh: no Vulkan driver and no apt-get: GPU tests will fail." >&2
+        echo "test.sh: install Mesa's Vulkan drivers (lavapipe) and the Vulkan loader." >&2
+    fi
+fi
+# Mesa warns on every device creation when XDG_RUNTIME_DIR is unset or unusable.
+if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "$XDG_RUNTIME_DIR" ] || [ ! -O "$XDG_RUNTIME_DIR" ]; then
+    XDG_RUNTIME_DIR="$(mktemp -d)"
+    chmod 700 "$XDG_RUNTIME_DIR"
+    export XDG_RUNTIME_DIR
+    trap 'rm -rf "$XDG_RUNTIME_DIR"' EXIT
+fi
+
 cargo test --workspace --all-targets

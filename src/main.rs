@@ -9,6 +9,7 @@ mod bench_serve;
 mod build;
 mod extract;
 mod inspect;
+mod render;
 mod replay;
 mod serve;
 mod synth;
@@ -65,6 +66,12 @@ enum Command {
     /// Run the client's refinement loop over a camera flight without drawing: one CSV row per
     /// frame, then hold the camera still until the cut converges, and print a summary.
     Replay(ReplayArgs),
+    /// Render one frame offscreen to a PNG (lavapipe works where there is no GPU).
+    ///
+    /// The cut is chosen by an interim rule until the streaming client lands: every stored
+    /// diamond in the view whose screen-space error exceeds --pixel-error is refined, then the
+    /// whole cut is decoded. Prints the frame time and triangle count.
+    Render(RenderArgs),
     /// Measure the codec and other parts of the pipeline.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -100,6 +107,9 @@ enum BenchCommand {
     /// memory of `cbdam build` on DEM files (default: the bundled samples) and a synthetic
     /// fractal terrain, as a Markdown table.
     Build(BenchBuildArgs),
+    /// Offscreen frame time and triangle rate of the renderer on repositories, overview and a
+    /// low oblique view, as a Markdown table.
+    Render(BenchRenderArgs),
 }
 
 /// Serve repositories over HTTP.
@@ -178,6 +188,56 @@ pub struct BenchBuildArgs {
     /// Memory limit as for `cbdam build --memory-limit`.
     #[arg(long)]
     memory_limit: Option<String>,
+}
+
+/// Render one frame of a repository (documented on [`Command::Render`]).
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// Repository file.
+    repo: PathBuf,
+    /// Image size WIDTHxHEIGHT.
+    #[arg(long, value_parser = render::parse_size, default_value = "1920x1080")]
+    size: (u32, u32),
+    /// Output PNG (written atomically).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Camera eye_x,eye_y,eye_z,target_x,target_y,target_z in world metres: x east and y north
+    /// of the data's north-west corner (so y is negative over the data), z height. Default: an
+    /// overview of the whole data from the south.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, num_args = 1)]
+    camera: Option<Vec<f64>>,
+    /// Screen-space error target, pixels.
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    pixel_error: f64,
+    /// Draw triangle edges over the surface.
+    #[arg(long)]
+    wireframe: bool,
+    /// Colour by diamond level instead of height.
+    #[arg(long)]
+    levels: bool,
+    /// Vertical exaggeration (heights and the camera's z are scaled by it).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    exaggeration: f64,
+    /// GPU height pool, MiB (default: 256 or what the adapter allows).
+    #[arg(long)]
+    pool_mib: Option<u64>,
+}
+
+/// Time offscreen frames.
+#[derive(Args, Debug)]
+pub struct BenchRenderArgs {
+    /// Repository files.
+    #[arg(required = true)]
+    repos: Vec<PathBuf>,
+    /// Image size WIDTHxHEIGHT.
+    #[arg(long, value_parser = render::parse_size, default_value = "1920x1080")]
+    size: (u32, u32),
+    /// Screen-space error target, pixels.
+    #[arg(long, default_value_t = 1.0)]
+    pixel_error: f64,
+    /// Timed frames per view; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
 }
 
 /// Which value(s) of a two-way option to run.
@@ -399,6 +459,8 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Serve(args)) => bench_serve::run(&args),
         Command::Bench(BenchCommand::Build(args)) => bench_build::run(&args),
         Command::Synth(args) => synth::run(&args),
+        Command::Render(args) => render::run(&args),
+        Command::Bench(BenchCommand::Render(args)) => render::bench(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,973 @@
+//! The wgpu renderer: draws the half-patches of a cut from a GPU patch cache.
+//!
+//! Design (DESIGN.md "GPU", paper §6):
+//! - **Shared grid.** The `N × N` grid's triangle lists are uploaded once ([`mesh`]): 8 index
+//!   lists (split diagonal × half × grid orientation) in one index buffer. There is no vertex
+//!   buffer: an index is the grid vertex number `j·N + i`, which *is* its (u, v).
+//! - **Height pool.** One storage buffer of `i32` heights, `N²` per slot; a slot holds one
+//!   half-patch's grid and nothing else. Slots are an LRU cache keyed by [`PatchKey`](crate::patch::PatchKey)
+//!   ([`cache`]); new patches are copied in one batch per frame from a single staging buffer,
+//!   within a byte budget. Normals are computed in the vertex shader from neighbouring heights.
+//! - **Instances.** Per drawn patch a 64-byte [`PatchInstance`] (slot, level, half, diagonal,
+//!   grid origin and axes relative to the eye in metres, and the same in lattice integers for
+//!   clipping) in a storage buffer, sorted by mesh kind: the whole cut is at most 8 instanced
+//!   draw calls (16 with the wireframe overlay).
+//! - **Precision.** Positions are relative to the eye: origins are subtracted in `f64` on the
+//!   CPU, and [`Camera::view_proj_relative`] only rotates and projects.
+//! - **Data rectangle.** Fragments whose lattice position is outside the data rectangle are
+//!   discarded (heights there are unconstrained), and patches entirely outside are not drawn.
+//!
+//! Offscreen rendering ([`Renderer::render`]) reads back colour and optionally depth.
+
+pub mod cache;
+pub mod mesh;
+pub mod select;
+
+use std::time::Instant;
+
+use bytemuck::{Pod, Zeroable};
+use cbdam_codec::geometry::{Diagonal, Half};
+use glam::DVec3;
+
+pub use cache::{CacheStats, Residency, SlotCache};
+pub use mesh::{MeshKind, SharedMesh};
+
+use crate::camera::Camera;
+use crate::patch::HalfPatch;
+use crate::world::World;
+
+/// The terrain shader (entry points `vs_main`, `fs_main`).
+pub const TERRAIN_WGSL: &str = include_str!("../../../shaders/terrain.wgsl");
+
+/// Colour and depth formats of the offscreen targets.
+pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+/// See [`COLOR_FORMAT`].
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// Default size of the height pool when the adapter allows it.
+pub const DEFAULT_POOL_BYTES: u64 = 256 << 20;
+
+/// Why rendering failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DrawError {
+    /// No GPU adapter (on Linux without a GPU: Mesa's lavapipe is missing).
+    #[error(
+        "no GPU adapter found ({0}); on a machine without a GPU install Mesa's software Vulkan \
+         driver: apt-get install mesa-vulkan-drivers libvulkan1"
+    )]
+    NoAdapter(String),
+    /// The adapter refused a device.
+    #[error("cannot open the GPU device: {0}")]
+    Device(String),
+    /// The adapter lacks something this request needs.
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+    /// A wgpu validation or runtime error.
+    #[error("GPU error: {0}")]
+    Gpu(String),
+    /// Writing an image failed.
+    #[error("PNG: {0}")]
+    Png(String),
+}
+
+/// A device and queue, with what the adapter is.
+pub struct Gpu {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// Adapter name, driver, device type.
+    pub info: wgpu::AdapterInfo,
+}
+
+impl Gpu {
+    /// A device without any window, the adapter wgpu's defaults pick (environment variables such
+    /// as `WGPU_BACKEND` apply). Takes every limit the adapter offers (the height pool wants
+    /// large storage buffers) and `POLYGON_MODE_LINE` when available (wireframe).
+    pub fn headless() -> Result<Self, DrawError> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| DrawError::NoAdapter(e.to_string()))?;
+        Self::from_adapter(&adapter)
+    }
+
+    /// A device on `adapter`.
+    pub fn from_adapter(adapter: &wgpu::Adapter) -> Result<Self, DrawError> {
+        let features = adapter.features() & wgpu::Features::POLYGON_MODE_LINE;
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("cbdam"),
+            required_features: features,
+            required_limits: adapter.limits(),
+            ..Default::default()
+        }))
+        .map_err(|e| DrawError::Device(e.to_string()))?;
+        Ok(Self {
+            device,
+            queue,
+            info: adapter.get_info(),
+        })
+    }
+
+    /// "name (backend, device type)".
+    pub fn describe(&self) -> String {
+        format!(
+            "{} ({:?}, {:?})",
+            self.info.name, self.info.backend, self.info.device_type
+        )
+    }
+}
+
+/// Per-frame constants (`Frame` in the shader).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct FrameUniform {
+    /// World-minus-eye to clip.
+    pub view_proj: [[f32; 4]; 4],
+    /// Unit vector towards the sun; w unused.
+    pub sun: [f32; 4],
+    /// z relative to the eye of height 0 units.
+    pub z_base: f32,
+    /// Metres per height unit (vertically exaggerated if asked).
+    pub z_scale: f32,
+    /// True metres of height 0 units (colour ramp).
+    pub m_offset: f32,
+    /// True metres per height unit (colour ramp).
+    pub m_unit: f32,
+    /// Colour ramp start, metres.
+    pub ramp_lo: f32,
+    /// Colour ramp end, metres.
+    pub ramp_hi: f32,
+    /// Grid side N.
+    pub n: u32,
+    /// 0 hypsometric, 1 level colours.
+    pub mode: u32,
+    /// Largest lattice x and y of the data rectangle.
+    pub data_max: [f32; 2],
+    /// 1 when the data reaches below sea level.
+    pub has_sea: u32,
+    /// Padding to the WGSL struct size.
+    pub _pad: u32,
+}
+const _: () = assert!(std::mem::size_of::<FrameUniform>() == 128);
+
+/// One drawn half-patch (`Patch` in the shader).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PatchInstance {
+    /// World x, y of grid point (0, 0) minus the eye's, metres.
+    pub origin_rel: [f32; 2],
+    /// World step of grid index i, metres.
+    pub u_world: [f32; 2],
+    /// World step of grid index j, metres.
+    pub v_world: [f32; 2],
+    /// Lattice point of grid index (0, 0).
+    pub origin_lat: [i32; 2],
+    /// Lattice step of i.
+    pub u_lat: [i32; 2],
+    /// Lattice step of j.
+    pub v_lat: [i32; 2],
+    /// Slot in the height pool.
+    pub slot: u32,
+    /// Diamond level.
+    pub level: u32,
+    /// 0 main split diagonal, 1 anti.
+    pub diagonal: u32,
+    /// 0 positive half, 1 negative.
+    pub half: u32,
+}
+const _: () = assert!(std::mem::size_of::<PatchInstance>() == 64);
+
+/// How a frame looks.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderOptions {
+    /// Colour by diamond level instead of by height (debug).
+    pub level_colours: bool,
+    /// Draw triangle edges over the surface (debug; needs `POLYGON_MODE_LINE`).
+    pub wireframe: bool,
+    /// Clear colour, RGBA 0–1 as written to the image.
+    pub background: [f64; 4],
+    /// Unit vector towards the sun (default: from the north-west, 45° high — the cartographic
+    /// convention, so valleys read as valleys).
+    pub sun: DVec3,
+    /// Read the depth buffer back into [`Frame::depth`].
+    pub read_depth: bool,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        Self {
+            level_colours: false,
+            wireframe: false,
+            background: [0.62, 0.74, 0.86, 1.0],
+            sun: DVec3::new(-0.5, 0.5, std::f64::consts::FRAC_1_SQRT_2).normalize(),
+            read_depth: false,
+        }
+    }
+}
+
+/// What one frame drew.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameStats {
+    /// Half-patches in the cut handed over.
+    pub patches: usize,
+    /// Half-patches drawn.
+    pub drawn: usize,
+    /// Not drawn: entirely outside the data rectangle or the view frustum.
+    pub culled: usize,
+    /// Not drawn: not resident and not uploadable this frame (budget or pool size).
+    pub missing: usize,
+    /// Triangles submitted.
+    pub triangles: u64,
+    /// Draw calls issued.
+    pub draw_calls: u32,
+    /// Cache counters of this frame.
+    pub cache: CacheStats,
+    /// CPU time preparing the frame (culling, cache, staging), seconds.
+    pub prepare_s: f64,
+    /// Time from submitting the frame to the GPU finishing it, seconds (readback excluded).
+    pub gpu_s: f64,
+}
+
+/// An offscreen frame read back.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Pixels across.
+    pub width: u32,
+    /// Pixels down.
+    pub height: u32,
+    /// RGBA8, row-major, top row first.
+    pub rgba: Vec<u8>,
+    /// Depth 0 (near) – 1 (far, background), when asked for.
+    pub depth: Option<Vec<f32>>,
+    /// What was drawn.
+    pub stats: FrameStats,
+}
+
+impl Frame {
+    /// RGBA of pixel `(x, y)`.
+    pub fn pixel(&self, x: u32, y: u32) -> [u8; 4] {
+        let i = 4 * (y as usize * self.width as usize + x as usize);
+        [
+            self.rgba[i],
+            self.rgba[i + 1],
+            self.rgba[i + 2],
+            self.rgba[i + 3],
+        ]
+    }
+
+    /// The image as PNG bytes.
+    pub fn to_png(&self) -> Result<Vec<u8>, DrawError> {
+        encode_png(self.width, self.height, &self.rgba)
+    }
+}
+
+/// RGBA8 pixels as PNG bytes.
+pub fn encode_png(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, DrawError> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, width, height);
+    enc.set_color(png::ColorType::Rgba);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc
+        .write_header()
+        .map_err(|e| DrawError::Png(e.to_string()))?;
+    w.write_image_data(rgba)
+        .map_err(|e| DrawError::Png(e.to_string()))?;
+    w.finish().map_err(|e| DrawError::Png(e.to_string()))?;
+    Ok(out)
+}
+
+/// Sizes of the GPU patch cache.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CacheConfig {
+    /// Height pool size in bytes (rounded down to whole slots). `None`: the smaller of
+    /// [`DEFAULT_POOL_BYTES`] and what one storage binding may hold on this adapter.
+    pub pool_bytes: Option<u64>,
+    /// Bytes of heights copied to the GPU per frame at most.
+    pub upload_budget: u64,
+}
+
+impl Default for CacheConfig {
+    fn default() -> Self {
+        Self {
+            pool_bytes: None,
+            upload_budget: u64::MAX,
+        }
+    }
+}
+
+struct Target {
+    size: (u32, u32),
+    color: wgpu::Texture,
+    depth: wgpu::Texture,
+}
+
+/// The terrain renderer of one repository's world.
+pub struct Renderer {
+    gpu: Gpu,
+    world: World,
+    mesh: SharedMesh,
+    index_buffer: wgpu::Buffer,
+    heights: wgpu::Buffer,
+    instances: wgpu::Buffer,
+    instance_capacity: u64,
+    uniform: wgpu::Buffer,
+    layout: wgpu::BindGroupLayout,
+    bind_group: wgpu::BindGroup,
+    fill: wgpu::RenderPipeline,
+    fill_under_lines: wgpu::RenderPipeline,
+    lines: Option<wgpu::RenderPipeline>,
+    cache: SlotCache,
+    target: Option<Target>,
+}
+
+impl Renderer {
+    /// A renderer for `world` (possibly vertically [`exaggerated`]).
+    pub fn new(gpu: Gpu, world: World, config: CacheConfig) -> Result<Self, DrawError> {
+        let n = world.layout.n();
+        let (ex, ey) = world.layout.extent();
+        if ex > i64::from(i32::MAX) || ey > i64::from(i32::MAX) {
+            return Err(DrawError::Unsupported(format!(
+                "lattice extent {ex}×{ey} exceeds the shader's 32-bit lattice coordinates"
+            )));
+        }
+        let slot_bytes = (n * n * 4) as u64;
+        let limits = gpu.device.limits();
+        let max_pool = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        let pool = config
+            .pool_bytes
+            .unwrap_or(DEFAULT_POOL_BYTES)
+            .min(max_pool);
+        let slots = (pool / slot_bytes).min(u64::from(u32::MAX)) as u32;
+        if slots == 0 {
+            return Err(DrawError::Unsupported(format!(
+                "a height pool of {pool} bytes holds no {slot_bytes}-byte slot"
+            )));
+        }
+        let device = &gpu.device;
+        let mesh = SharedMesh::new(n);
+        let index_buffer = buffer_init(
+            device,
+            "shared grid indices",
+            bytemuck::cast_slice(&mesh.indices),
+            wgpu::BufferUsages::INDEX,
+        );
+        let heights = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("height pool"),
+            size: u64::from(slots) * slot_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("frame uniform"),
+            size: std::mem::size_of::<FrameUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let storage = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::VERTEX,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("terrain"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                storage(1),
+                storage(2),
+            ],
+        });
+        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("terrain.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(TERRAIN_WGSL.into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("terrain"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = |polygon_mode, bias: wgpu::DepthBiasState, compare, fs| {
+            let blend = (fs == "fs_wire").then_some(wgpu::BlendState::ALPHA_BLENDING);
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("terrain"),
+                layout: Some(&pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology: wgpu::PrimitiveTopology::TriangleList,
+                    front_face: wgpu::FrontFace::Ccw,
+                    // Terrain is a height field seen from above: back faces are never wanted,
+                    // and culling them makes any crack show the background.
+                    cull_mode: Some(wgpu::Face::Back),
+                    polygon_mode,
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(compare),
+                    stencil: Default::default(),
+                    bias,
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some(fs),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: COLOR_FORMAT,
+                        blend,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let fill = pipeline(
+            wgpu::PolygonMode::Fill,
+            Default::default(),
+            wgpu::CompareFunction::Less,
+            "fs_main",
+        );
+        // Under a wireframe the surface is pushed back a little so the lines win the depth test.
+        let fill_under_lines = pipeline(
+            wgpu::PolygonMode::Fill,
+            wgpu::DepthBiasState {
+                constant: 2,
+                slope_scale: 1.0,
+                clamp: 0.0,
+            },
+            wgpu::CompareFunction::Less,
+            "fs_main",
+        );
+        let lines = device
+            .features()
+            .contains(wgpu::Features::POLYGON_MODE_LINE)
+            .then(|| {
+                pipeline(
+                    wgpu::PolygonMode::Line,
+                    Default::default(),
+                    wgpu::CompareFunction::LessEqual,
+                    "fs_wire",
+                )
+            });
+        let instance_capacity = 1024;
+        let instances = instance_buffer(device, instance_capacity);
+        let bind_group = bind_group(device, &layout, &uniform, &instances, &heights);
+        Ok(Self {
+            cache: SlotCache::new(slots, slot_bytes, config.upload_budget),
+            gpu,
+            world,
+            mesh,
+            index_buffer,
+            heights,
+            instances,
+            instance_capacity,
+            uniform,
+            layout,
+            bind_group,
+            fill,
+            fill_under_lines,
+            lines,
+            target: None,
+        })
+    }
+
+    /// The device.
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// Cumulative cache counters.
+    pub fn cache_stats(&self) -> CacheStats {
+        self.cache.stats()
+    }
+
+    /// The patch cache's bookkeeping (capacity, residency).
+    pub fn cache(&self) -> &SlotCache {
+        &self.cache
+    }
+
+    /// Triangles one half-patch draws.
+    pub fn triangles_per_patch(&self) -> u32 {
+        self.mesh.triangles_per_patch()
+    }
+
+    /// Renders `patches` (a cut's drawn halves) from `camera` offscreen and reads the image back.
+    pub fn render(
+        &mut self,
+        camera: &Camera,
+        patches: &[HalfPatch],
+        options: &RenderOptions,
+    ) -> Result<Frame, DrawError> {
+        if options.wireframe && self.lines.is_none() {
+            return Err(DrawError::Unsupported(
+                "wireframe needs the POLYGON_MODE_LINE feature, which this adapter lacks".into(),
+            ));
+        }
+        let error_scope = self
+            .gpu
+            .device
+            .push_error_scope(wgpu::ErrorFilter::Validation);
+        let size = (camera.width, camera.height);
+        self.ensure_target(size);
+        let start = Instant::now();
+        let prepared = self.prepare(camera, patches, options);
+        let mut stats = prepared.stats;
+        let device = &self.gpu.device;
+        let mut encoder = device.create_command_encoder(&Default::default());
+        if let Some(staging) = &prepared.staging {
+            let slot_bytes = self.slot_bytes();
+            for (k, &slot) in prepared.upload_slots.iter().enumerate() {
+                encoder.copy_buffer_to_buffer(
+                    staging,
+                    k as u64 * slot_bytes,
+                    &self.heights,
+                    u64::from(slot) * slot_bytes,
+                    slot_bytes,
+                );
+            }
+        }
+        let target = self.target.as_ref().expect("target made above");
+        let color_view = target.color.create_view(&Default::default());
+        let depth_view = target.depth.create_view(&Default::default());
+        {
+            let bg = options.background;
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("terrain"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &color_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color {
+                            r: bg[0],
+                            g: bg[1],
+                            b: bg[2],
+                            a: bg[3],
+                        }),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Store,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            stats.draw_calls += self.draw(&mut pass, &prepared.groups, options);
+        }
+        stats.prepare_s = start.elapsed().as_secs_f64();
+        let t = Instant::now();
+        self.gpu.queue.submit([encoder.finish()]);
+        self.wait()?;
+        stats.gpu_s = t.elapsed().as_secs_f64();
+        let rgba = self.read_texture(&target.color, size, 4)?;
+        let depth = if options.read_depth {
+            let bytes = self.read_texture(&target.depth, size, 4)?;
+            Some(bytemuck::pod_collect_to_vec::<u8, f32>(&bytes))
+        } else {
+            None
+        };
+        if let Some(e) = pollster::block_on(error_scope.pop()) {
+            return Err(DrawError::Gpu(e.to_string()));
+        }
+        Ok(Frame {
+            width: size.0,
+            height: size.1,
+            rgba,
+            depth,
+            stats,
+        })
+    }
+
+    fn slot_bytes(&self) -> u64 {
+        (self.mesh.n * self.mesh.n * 4) as u64
+    }
+
+    /// Records the draw calls of a prepared frame into `pass`; returns how many.
+    fn draw(
+        &self,
+        pass: &mut wgpu::RenderPass<'_>,
+        groups: &[std::ops::Range<u32>; 8],
+        options: &RenderOptions,
+    ) -> u32 {
+        let mut calls = 0;
+        pass.set_bind_group(0, &self.bind_group, &[]);
+        pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+        let fill = if options.wireframe {
+            &self.fill_under_lines
+        } else {
+            &self.fill
+        };
+        let mut passes = vec![fill];
+        if options.wireframe {
+            passes.push(self.lines.as_ref().expect("checked by render"));
+        }
+        for pipeline in passes {
+            pass.set_pipeline(pipeline);
+            for (kind, instances) in groups.iter().enumerate() {
+                if !instances.is_empty() {
+                    pass.draw_indexed(self.mesh.ranges[kind].clone(), 0, instances.clone());
+                    calls += 1;
+                }
+            }
+        }
+        calls
+    }
+
+    fn ensure_target(&mut self, size: (u32, u32)) {
+        if self.target.as_ref().is_some_and(|t| t.size == size) {
+            return;
+        }
+        let tex = |label, format, usage| {
+            self.gpu.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: size.0,
+                    height: size.1,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
+        self.target = Some(Target {
+            size,
+            color: tex("colour", COLOR_FORMAT, usage),
+            depth: tex("depth", DEPTH_FORMAT, usage),
+        });
+    }
+
+    fn wait(&self) -> Result<(), DrawError> {
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| DrawError::Gpu(e.to_string()))
+    }
+
+    /// Copies a texture with `bpp` bytes per pixel into a tightly packed byte vector.
+    fn read_texture(
+        &self,
+        texture: &wgpu::Texture,
+        size: (u32, u32),
+        bpp: u32,
+    ) -> Result<Vec<u8>, DrawError> {
+        let row = size.0 * bpp;
+        let padded =
+            row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let buffer = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: u64::from(padded) * u64::from(size.1),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+        encoder.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(padded),
+                    rows_per_image: Some(size.1),
+                },
+            },
+            wgpu::Extent3d {
+                width: size.0,
+                height: size.1,
+                depth_or_array_layers: 1,
+            },
+        );
+        self.gpu.queue.submit([encoder.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|e| DrawError::Gpu(e.to_string()))?
+            .map_err(|e| DrawError::Gpu(e.to_string()))?;
+        let mut out = Vec::with_capacity((row * size.1) as usize);
+        {
+            let view = buffer
+                .get_mapped_range(..)
+                .map_err(|e| DrawError::Gpu(e.to_string()))?;
+            for y in 0..size.1 as usize {
+                let start = y * padded as usize;
+                out.extend_from_slice(&view[start..start + row as usize]);
+            }
+        }
+        buffer.unmap();
+        Ok(out)
+    }
+
+    /// Culls, assigns slots, stages uploads, and writes the uniform and instances.
+    fn prepare(
+        &mut self,
+        camera: &Camera,
+        patches: &[HalfPatch],
+        options: &RenderOptions,
+    ) -> Prepared {
+        let world = self.world;
+        let layout = world.layout;
+        let n = layout.n();
+        let frustum = camera.frustum();
+        let before = self.cache.stats();
+        self.cache.begin_frame();
+        let (dw, dh) = (
+            i64::from(world.data_width) - 1,
+            i64::from(world.data_height) - 1,
+        );
+        let mut stats = FrameStats {
+            patches: patches.len(),
+            ..Default::default()
+        };
+        let mut by_kind: [Vec<PatchInstance>; 8] = Default::default();
+        let mut upload_slots = Vec::new();
+        let mut staging_data: Vec<i32> = Vec::new();
+        let eye = camera.eye;
+        for p in patches {
+            let (x0, y0, x1, y1) = layout.bounds(p.id);
+            if x1 < 0 || y1 < 0 || x0 > dw || y0 > dh {
+                stats.culled += 1;
+                continue;
+            }
+            let (lo, hi) = p
+                .heights
+                .iter()
+                .fold((i32::MAX, i32::MIN), |(a, b), &h| (a.min(h), b.max(h)));
+            let (blo, bhi) = world.diamond_box(p.id, lo, hi);
+            if !frustum.intersects_box(blo, bhi) {
+                stats.culled += 1;
+                continue;
+            }
+            let slot = match self.cache.request(p.key()) {
+                Residency::Hit(s) => s,
+                Residency::Upload(s) => {
+                    upload_slots.push(s);
+                    staging_data.extend_from_slice(&p.heights);
+                    s
+                }
+                Residency::Missing => {
+                    stats.missing += 1;
+                    continue;
+                }
+            };
+            let g = layout.grid(p.id);
+            let origin = world.point(g.origin.0, g.origin.1, 0) - eye;
+            let kind = MeshKind {
+                diagonal: layout.diagonal(p.id),
+                half: p.half,
+                mirrored: !p.id.is_even(),
+            };
+            by_kind[kind.index()].push(PatchInstance {
+                origin_rel: [origin.x as f32, origin.y as f32],
+                u_world: [
+                    (g.u.0 as f64 * world.step_x) as f32,
+                    (-g.u.1 as f64 * world.step_y) as f32,
+                ],
+                v_world: [
+                    (g.v.0 as f64 * world.step_x) as f32,
+                    (-g.v.1 as f64 * world.step_y) as f32,
+                ],
+                origin_lat: [g.origin.0 as i32, g.origin.1 as i32],
+                u_lat: [g.u.0 as i32, g.u.1 as i32],
+                v_lat: [g.v.0 as i32, g.v.1 as i32],
+                slot,
+                level: u32::from(p.id.level),
+                diagonal: u32::from(kind.diagonal == Diagonal::Anti),
+                half: u32::from(p.half == Half::Negative),
+            });
+            stats.drawn += 1;
+        }
+        debug_assert_eq!(staging_data.len(), upload_slots.len() * n * n);
+        let mut instances = Vec::with_capacity(stats.drawn);
+        let mut groups: [std::ops::Range<u32>; 8] = Default::default();
+        for (k, list) in by_kind.iter().enumerate() {
+            let start = instances.len() as u32;
+            instances.extend_from_slice(list);
+            groups[k] = start..instances.len() as u32;
+        }
+        stats.triangles = instances.len() as u64 * u64::from(self.mesh.triangles_per_patch());
+        stats.cache = self.cache.stats().since(&before);
+        self.write_instances(&instances);
+        self.write_uniform(camera, options);
+        let staging = (!staging_data.is_empty()).then(|| {
+            buffer_init(
+                &self.gpu.device,
+                "height uploads",
+                bytemuck::cast_slice(&staging_data),
+                wgpu::BufferUsages::COPY_SRC,
+            )
+        });
+        Prepared {
+            stats,
+            groups,
+            upload_slots,
+            staging,
+        }
+    }
+
+    fn write_instances(&mut self, instances: &[PatchInstance]) {
+        let needed = instances.len() as u64;
+        if needed > self.instance_capacity {
+            self.instance_capacity = needed.next_power_of_two();
+            self.instances = instance_buffer(&self.gpu.device, self.instance_capacity);
+            self.bind_group = bind_group(
+                &self.gpu.device,
+                &self.layout,
+                &self.uniform,
+                &self.instances,
+                &self.heights,
+            );
+        }
+        if !instances.is_empty() {
+            self.gpu
+                .queue
+                .write_buffer(&self.instances, 0, bytemuck::cast_slice(instances));
+        }
+    }
+
+    fn write_uniform(&self, camera: &Camera, options: &RenderOptions) {
+        let w = &self.world;
+        let sun = options.sun.normalize_or_zero();
+        // The colour ramp spans the land's true heights; below sea level is water when present.
+        let ramp_lo = w.min_height.max(0.0);
+        let uniform = FrameUniform {
+            view_proj: camera.view_proj_relative().to_cols_array_2d(),
+            sun: [sun.x as f32, sun.y as f32, sun.z as f32, 0.0],
+            z_base: (w.offset - camera.eye.z) as f32,
+            z_scale: w.unit as f32,
+            m_offset: w.offset as f32,
+            m_unit: w.unit as f32,
+            ramp_lo: ramp_lo as f32,
+            ramp_hi: w.max_height.max(ramp_lo + 1.0) as f32,
+            n: w.layout.n() as u32,
+            mode: u32::from(options.level_colours),
+            data_max: [
+                w.data_width.saturating_sub(1) as f32,
+                w.data_height.saturating_sub(1) as f32,
+            ],
+            has_sea: u32::from(w.min_height < 0.0),
+            _pad: 0,
+        };
+        self.gpu
+            .queue
+            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&uniform));
+    }
+}
+
+struct Prepared {
+    stats: FrameStats,
+    groups: [std::ops::Range<u32>; 8],
+    upload_slots: Vec<u32>,
+    staging: Option<wgpu::Buffer>,
+}
+
+fn buffer_init(
+    device: &wgpu::Device,
+    label: &str,
+    contents: &[u8],
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    use wgpu::util::DeviceExt;
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents,
+        usage,
+    })
+}
+
+fn instance_buffer(device: &wgpu::Device, capacity: u64) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("patch instances"),
+        size: capacity * std::mem::size_of::<PatchInstance>() as u64,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+fn bind_group(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    uniform: &wgpu::Buffer,
+    instances: &wgpu::Buffer,
+    heights: &wgpu::Buffer,
+) -> wgpu::BindGroup {
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("terrain"),
+        layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: uniform.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: instances.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: heights.as_entire_binding(),
+            },
+        ],
+    })
+}
+
+/// `world` with heights scaled by `factor` about 0 m, for vertical exaggeration: hand it to
+/// [`Renderer::new`], [`select::screen_error_cut`] and the camera alike. The colour ramp spans
+/// the data's height range and sea level stays at 0 m, so land colours do not change; only the
+/// water's depth tint (absolute metres) deepens with the factor.
+pub fn exaggerated(world: &World, factor: f64) -> World {
+    World {
+        unit: world.unit * factor,
+        offset: world.offset * factor,
+        min_height: world.min_height * factor,
+        max_height: world.max_height * factor,
+        ..*world
+    }
+}

@@ -1,0 +1,217 @@
+// Terrain of a C-BDAM cut: every drawn half-patch is one instance of the shared N×N grid.
+//
+// Vertex pulling: there is no vertex buffer. The shared index buffer holds grid vertex numbers
+// `j·N + i` (so the index *is* the patch's (u, v) position); the instance picks its slot of
+// heights and its placement from storage buffers. Positions are relative to the eye, in metres,
+// computed from per-patch origins the CPU subtracted in f64: no large numbers reach f32.
+
+struct Frame {
+    // World-minus-eye to clip space.
+    view_proj: mat4x4<f32>,
+    // Unit vector towards the sun, world frame (x east, y north, z up); w unused.
+    sun: vec4<f32>,
+    // z relative to the eye of height unit h is `z_base + z_scale·h` (f64 on the CPU).
+    z_base: f32,
+    z_scale: f32,
+    // Metres of height unit h: `m_offset + m_unit·h`, for the colour ramp.
+    m_offset: f32,
+    m_unit: f32,
+    // Colour ramp: land from `ramp_lo` to `ramp_hi` metres; below 0 m is water when the data
+    // goes below sea level.
+    ramp_lo: f32,
+    ramp_hi: f32,
+    // Grid side N.
+    n: u32,
+    // 0: hypsometric colours; 1: colour by level (debug).
+    mode: u32,
+    // Data rectangle in lattice units: drawn where 0 ≤ x ≤ data_max.x, 0 ≤ y ≤ data_max.y.
+    data_max: vec2<f32>,
+    // Whether the data reaches below sea level (water colours below 0 m).
+    has_sea: u32,
+    _pad: u32,
+}
+
+// One drawn half-patch (64 bytes, `PatchInstance` on the CPU).
+struct Patch {
+    // World x, y of grid point (0, 0) minus the eye's, metres.
+    origin_rel: vec2<f32>,
+    // World x, y step of grid index i and of j, metres.
+    u_world: vec2<f32>,
+    v_world: vec2<f32>,
+    // The same map in exact lattice integers, for clipping to the data rectangle.
+    origin_lat: vec2<i32>,
+    u_lat: vec2<i32>,
+    v_lat: vec2<i32>,
+    // Slot of the height pool holding this patch's N×N heights.
+    slot: u32,
+    level: u32,
+    // 0: split diagonal i == j; 1: i + j == N − 1.
+    diagonal: u32,
+    // 0: positive half, 1: negative half (codec `Half` order).
+    half: u32,
+}
+
+@group(0) @binding(0) var<uniform> frame: Frame;
+@group(0) @binding(1) var<storage, read> patches: array<Patch>;
+@group(0) @binding(2) var<storage, read> heights: array<i32>;
+
+struct VsOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) normal: vec3<f32>,
+    // Lattice position, to discard fragments outside the data rectangle.
+    @location(1) lattice: vec2<f32>,
+    // Height in metres, for the colour ramp.
+    @location(2) metres: f32,
+    @location(3) @interpolate(flat) level: u32,
+}
+
+// Whether grid point (a, b) belongs to the patch's own half (split diagonal included). Normals
+// use only these points: the other half of a slot holds a mirror image, whose differences
+// across the diagonal would flatten the slope there.
+fn in_half(p: Patch, a: i32, b: i32) -> bool {
+    let n = i32(frame.n);
+    if a < 0 || b < 0 || a >= n || b >= n {
+        return false;
+    }
+    // Same rule as `Layout::half_of_point` (positive: i > j, or i + j > N − 1).
+    var s: i32;
+    if p.diagonal == 0u {
+        s = a - b;
+    } else {
+        s = a + b - (n - 1);
+    }
+    if s == 0 {
+        return true;
+    }
+    return (s > 0) == (p.half == 0u);
+}
+
+fn height_at(p: Patch, a: i32, b: i32) -> f32 {
+    let n = i32(frame.n);
+    return f32(heights[p.slot * frame.n * frame.n + u32(b * n + a)]);
+}
+
+// Derivative of the height (units per grid step) along (da, db) at (a, b): central where both
+// neighbours are in the half, one-sided at the half's edges.
+fn slope(p: Patch, a: i32, b: i32, da: i32, db: i32) -> f32 {
+    let fwd = in_half(p, a + da, b + db);
+    let back = in_half(p, a - da, b - db);
+    if fwd && back {
+        return 0.5 * (height_at(p, a + da, b + db) - height_at(p, a - da, b - db));
+    } else if fwd {
+        return height_at(p, a + da, b + db) - height_at(p, a, b);
+    } else if back {
+        return height_at(p, a, b) - height_at(p, a - da, b - db);
+    }
+    return 0.0;
+}
+
+@vertex
+fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
+    let p = patches[ii];
+    let i = vi % frame.n;
+    let j = vi / frame.n;
+    let h = f32(heights[p.slot * frame.n * frame.n + vi]);
+    let xy = p.origin_rel + f32(i) * p.u_world + f32(j) * p.v_world;
+    let pos = vec3<f32>(xy, frame.z_base + frame.z_scale * h);
+
+    // Normal from the tangents along i and j (world metres).
+    let dh_di = slope(p, i32(i), i32(j), 1, 0) * frame.z_scale;
+    let dh_dj = slope(p, i32(i), i32(j), 0, 1) * frame.z_scale;
+    var nrm = cross(vec3<f32>(p.u_world, dh_di), vec3<f32>(p.v_world, dh_dj));
+    // Odd levels' grids are mirrored (negative determinant): keep the normal pointing up.
+    if nrm.z < 0.0 {
+        nrm = -nrm;
+    }
+
+    let lat = p.origin_lat + i32(i) * p.u_lat + i32(j) * p.v_lat;
+    var out: VsOut;
+    out.clip = frame.view_proj * vec4<f32>(pos, 1.0);
+    out.normal = normalize(nrm);
+    out.lattice = vec2<f32>(lat);
+    out.metres = frame.m_offset + frame.m_unit * h;
+    out.level = p.level;
+    return out;
+}
+
+// Hypsometric tints: lowland green, through tan and brown, to grey rock and snow. Every stop
+// keeps green ≥ 0.45 and shading never goes below `AMBIENT`, so pure magenta (the tests'
+// background) cannot come out of this shader.
+fn land_colour(t: f32) -> vec3<f32> {
+    let c0 = vec3<f32>(0.33, 0.56, 0.31);
+    let c1 = vec3<f32>(0.56, 0.68, 0.38);
+    let c2 = vec3<f32>(0.83, 0.77, 0.52);
+    let c3 = vec3<f32>(0.66, 0.53, 0.42);
+    let c4 = vec3<f32>(0.72, 0.70, 0.68);
+    let c5 = vec3<f32>(0.97, 0.97, 0.97);
+    let x = clamp(t, 0.0, 1.0);
+    if x < 0.2 {
+        return mix(c0, c1, x / 0.2);
+    } else if x < 0.45 {
+        return mix(c1, c2, (x - 0.2) / 0.25);
+    } else if x < 0.7 {
+        return mix(c2, c3, (x - 0.45) / 0.25);
+    } else if x < 0.9 {
+        return mix(c3, c4, (x - 0.7) / 0.2);
+    }
+    return mix(c4, c5, (x - 0.9) / 0.1);
+}
+
+fn water_colour(depth: f32) -> vec3<f32> {
+    // Lighter on shelves, darker in the deep ocean (depth in metres, positive).
+    let t = clamp(depth / 6000.0, 0.0, 1.0);
+    return mix(vec3<f32>(0.45, 0.66, 0.85), vec3<f32>(0.10, 0.22, 0.50), sqrt(t));
+}
+
+fn level_colour(level: u32) -> vec3<f32> {
+    switch level % 8u {
+        case 0u: { return vec3<f32>(0.90, 0.30, 0.25); }
+        case 1u: { return vec3<f32>(0.95, 0.60, 0.20); }
+        case 2u: { return vec3<f32>(0.90, 0.85, 0.25); }
+        case 3u: { return vec3<f32>(0.45, 0.80, 0.30); }
+        case 4u: { return vec3<f32>(0.25, 0.75, 0.75); }
+        case 5u: { return vec3<f32>(0.35, 0.50, 0.90); }
+        case 6u: { return vec3<f32>(0.65, 0.40, 0.85); }
+        default: { return vec3<f32>(0.85, 0.45, 0.65); }
+    }
+}
+
+const AMBIENT: f32 = 0.35;
+
+// Heights outside the data rectangle are unconstrained by the codec: never show them. The
+// tolerance (relative to the extent, f32 interpolation being relative too) absorbs rounding of
+// fragments exactly on the rectangle's edge.
+fn outside_data(lattice: vec2<f32>) -> bool {
+    let eps = 1e-5 * max(1.0, max(frame.data_max.x, frame.data_max.y));
+    return lattice.x < -eps || lattice.y < -eps || lattice.x > frame.data_max.x + eps
+        || lattice.y > frame.data_max.y + eps;
+}
+
+// Triangle edges of the wireframe overlay (drawn with PolygonMode::Line), blended over the
+// surface so that dense meshes darken it rather than turn it black.
+@fragment
+fn fs_wire(in: VsOut) -> @location(0) vec4<f32> {
+    if outside_data(in.lattice) {
+        discard;
+    }
+    return vec4<f32>(0.0, 0.0, 0.0, 0.45);
+}
+
+@fragment
+fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
+    if outside_data(in.lattice) {
+        discard;
+    }
+    let nrm = normalize(in.normal);
+    let lambert = max(dot(nrm, frame.sun.xyz), 0.0);
+    let shade = AMBIENT + (1.0 - AMBIENT) * lambert;
+    var base: vec3<f32>;
+    if frame.mode == 1u {
+        base = level_colour(in.level);
+    } else if frame.has_sea != 0u && in.metres < 0.0 {
+        base = water_colour(-in.metres);
+    } else {
+        base = land_colour((in.metres - frame.ramp_lo) / max(frame.ramp_hi - frame.ramp_lo, 1e-3));
+    }
+    return vec4<f32>(base * shade, 1.0);
+}
