@@ -1,4 +1,7 @@
 //! `cbdam bench codec`: bits per sample, verified error and throughput on real DEMs.
+//!
+//! [`measure`] is the one place where the codec is timed and its error verified; `cbdam bench
+//! report` calls it too, so both commands measure the same thing the same way.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -6,26 +9,151 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify, walk};
-use cbdam_codec::input::{ReadOptions, read_dem};
+use cbdam_codec::input::{Dem, ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::repository::serialize;
 
 use crate::{BenchCodecArgs, Which};
 
-fn median(mut v: Vec<Duration>) -> Duration {
+/// Median of repeated timings (the upper median for an even count).
+pub fn median(mut v: Vec<Duration>) -> Duration {
     v.sort();
     v[v.len() / 2]
 }
 
-fn default_inputs() -> Result<Vec<PathBuf>> {
+/// The bundled DEMs in `data/` whose extension is one of `extensions`, sorted by name.
+pub fn bundled_inputs(extensions: &[&str]) -> Result<Vec<PathBuf>> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
     let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
         .with_context(|| format!("reading {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "tif"))
+        .filter(|p| {
+            p.extension()
+                .is_some_and(|e| extensions.iter().any(|x| e == *x))
+        })
         .collect();
     v.sort();
     Ok(v)
+}
+
+/// One verified measurement of the codec on one DEM at one tolerance.
+#[derive(Clone, Debug)]
+pub struct Measurement {
+    /// Width × height (nodata included): the denominator of every rate and throughput.
+    pub samples: usize,
+    /// Coded root field.
+    pub roots_bytes: usize,
+    /// Coded records, all of them.
+    pub records_bytes: usize,
+    /// Number of records.
+    pub records: usize,
+    /// Serialised record index.
+    pub index_bytes: usize,
+    /// The whole repository file as `cbdam build` writes it (header and checksums included).
+    pub file_bytes: usize,
+    /// Largest |decoded − input| over valid samples at the finest level, metres.
+    pub max_err: f64,
+    /// Root mean square of the same differences, metres.
+    pub rms_err: f64,
+    /// Median time of the whole in-memory build: quantization plan, integer grid, encode,
+    /// serialisation (no file I/O).
+    pub build: Duration,
+    /// Median time of the encode alone (within the same runs as `build`).
+    pub encode: Duration,
+    /// Median time to decode every record and synthesise every diamond (single thread).
+    pub decode: Duration,
+}
+
+impl Measurement {
+    /// Roots, records and index: the coded hierarchy without the container.
+    pub fn payload_bytes(&self) -> usize {
+        self.roots_bytes + self.records_bytes + self.index_bytes
+    }
+
+    pub fn payload_bps(&self) -> f64 {
+        self.payload_bytes() as f64 * 8.0 / self.samples as f64
+    }
+
+    pub fn file_bps(&self) -> f64 {
+        self.file_bytes as f64 * 8.0 / self.samples as f64
+    }
+
+    /// Million samples per second for a duration over this DEM.
+    pub fn msps(&self, d: Duration) -> f64 {
+        self.samples as f64 / d.as_secs_f64() / 1e6
+    }
+}
+
+/// Builds `dem` at tolerance `eps` `runs` times on `pool`, decodes it `runs` times, and checks
+/// the guarantee; fails if any level or any valid sample is beyond `eps`.
+pub fn measure(
+    dem: &Dem,
+    eps: f64,
+    opts: &EncodeOptions,
+    runs: usize,
+    pool: &rayon::ThreadPool,
+) -> Result<Measurement> {
+    if runs == 0 {
+        bail!("at least one run is needed");
+    }
+    let mut build_times = Vec::new();
+    let mut enc_times = Vec::new();
+    let mut built: Option<(QuantPlan, HeightGrid, Encoded, usize)> = None;
+    for _ in 0..runs {
+        let t = Instant::now();
+        let plan = QuantPlan::for_dem(dem, eps, None)?;
+        let grid = HeightGrid::from_dem(dem, &plan)?;
+        let te = Instant::now();
+        let e = pool.install(|| encode(&grid, plan.quantizer, opts))?;
+        enc_times.push(te.elapsed());
+        let file = serialize(&e, &plan, dem.georef.as_ref(), dem.nodata)?;
+        build_times.push(t.elapsed());
+        built = Some((plan, grid, e, file.len()));
+    }
+    let (plan, grid, encoded, file_bytes) = built.expect("runs ≥ 1");
+    let mut dec_times = Vec::new();
+    for _ in 0..runs {
+        let t = Instant::now();
+        walk(&encoded, |_, p| {
+            std::hint::black_box(p);
+        })?;
+        dec_times.push(t.elapsed());
+    }
+    // The guarantee, checked every time: every level in integer units, and the finest level
+    // against the file's own values in metres.
+    let report = verify(&encoded, &grid)?;
+    if !report.within_bound() {
+        bail!("ε={eps}: L∞ bound violated: {report:?}");
+    }
+    let finest = reconstruct_finest(&encoded)?;
+    let (mut max_err, mut sum_sq, mut valid) = (0f64, 0f64, 0usize);
+    for (i, &n) in finest.iter().enumerate() {
+        if grid.valid[i] {
+            let d = (plan.metres(n) - dem.values[i]).abs();
+            max_err = max_err.max(d);
+            sum_sq += d * d;
+            valid += 1;
+        }
+    }
+    // f64 evaluation of offset + n·u is good to ~1e-16 relative; the bound itself was checked
+    // exactly in integers by `verify` above.
+    if max_err > eps * (1.0 + 1e-12) {
+        bail!("ε={eps}: sample error {max_err} m exceeds the tolerance");
+    }
+    Ok(Measurement {
+        samples: dem.width * dem.height,
+        roots_bytes: encoded.roots.len(),
+        records_bytes: encoded.records.iter().map(|r| r.bytes.len()).sum(),
+        records: encoded.records.len(),
+        index_bytes: encoded.index_bytes().len(),
+        file_bytes,
+        max_err,
+        rms_err: (sum_sq / valid.max(1) as f64).sqrt(),
+        build: median(build_times),
+        encode: median(enc_times),
+        decode: median(dec_times),
+    })
 }
 
 pub fn run(args: &BenchCodecArgs) -> Result<()> {
@@ -33,7 +161,7 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
         bail!("--runs must be at least 1");
     }
     let inputs = if args.inputs.is_empty() {
-        default_inputs()?
+        bundled_inputs(&["tif"])?
     } else {
         args.inputs.clone()
     };
@@ -58,10 +186,7 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
         let dem = read_dem(path, &ReadOptions::default())
             .with_context(|| format!("reading {}", path.display()))?;
         let name = path.file_stem().unwrap_or_default().to_string_lossy();
-        let samples = (dem.width * dem.height) as f64;
         for &eps in &args.max_error {
-            let plan = QuantPlan::for_dem(&dem, eps, None)?;
-            let grid = HeightGrid::from_dem(&dem, &plan)?;
             for &alpha in &alphas {
                 for &coder in &coders {
                     let opts = EncodeOptions {
@@ -70,56 +195,21 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
                         coder,
                         extra_level_pairs: args.extra_levels,
                     };
-                    let mut enc_times = Vec::new();
-                    let mut encoded: Option<Encoded> = None;
-                    for _ in 0..args.runs {
-                        let t = Instant::now();
-                        let e = pool.install(|| encode(&grid, plan.quantizer, &opts))?;
-                        enc_times.push(t.elapsed());
-                        encoded = Some(e);
-                    }
-                    let encoded = encoded.expect("runs ≥ 1");
-                    let mut dec_times = Vec::new();
-                    for _ in 0..args.runs {
-                        let t = Instant::now();
-                        walk(&encoded, |_, p| {
-                            std::hint::black_box(p);
-                        })?;
-                        dec_times.push(t.elapsed());
-                    }
-                    // The guarantee, checked every time: every level in integer units, and the
-                    // finest level against the file's own values in metres.
-                    let report = verify(&encoded, &grid)?;
-                    if !report.within_bound() {
-                        bail!("{name} ε={eps}: L∞ bound violated: {report:?}");
-                    }
-                    let finest = reconstruct_finest(&encoded)?;
-                    let mut max_err = 0f64;
-                    for (i, &n) in finest.iter().enumerate() {
-                        if grid.valid[i] {
-                            max_err = max_err.max((plan.metres(n) - dem.values[i]).abs());
-                        }
-                    }
-                    // f64 evaluation of offset + n·u is good to ~1e-16 relative; the bound
-                    // itself was checked exactly in integers by `verify` above.
-                    if max_err > eps * (1.0 + 1e-12) {
-                        bail!("{name} ε={eps}: sample error {max_err} m exceeds the tolerance");
-                    }
+                    let m = measure(&dem, eps, &opts, args.runs, &pool)
+                        .with_context(|| name.to_string())?;
                     // The whole hierarchy: root field, records and their index (the container's
                     // fixed-size header is not counted).
-                    let index = encoded.index_bytes().len();
-                    let bits = (encoded.payload_bytes() + index) as f64 * 8.0;
-                    let ms = |d: Duration| samples / d.as_secs_f64() / 1e6;
                     println!(
-                        "| {name} | {eps} | {} | {} | {:.3} | {} | {} | {index} | {:.4} | {:.1} | {:.1} |",
+                        "| {name} | {eps} | {} | {} | {:.3} | {} | {} | {} | {:.4} | {:.1} | {:.1} |",
                         if alpha == Alpha::One { "1" } else { "½" },
                         coder.name(),
-                        bits / samples,
-                        encoded.roots.len(),
-                        encoded.records.len(),
-                        max_err,
-                        ms(median(enc_times)),
-                        ms(median(dec_times)),
+                        m.payload_bps(),
+                        m.roots_bytes,
+                        m.records,
+                        m.index_bytes,
+                        m.max_err,
+                        m.msps(m.encode),
+                        m.msps(m.decode),
                     );
                 }
             }

@@ -5,6 +5,7 @@
 
 mod bench_build;
 mod bench_codec;
+mod bench_report;
 mod bench_serve;
 mod build;
 mod extract;
@@ -110,6 +111,10 @@ enum BenchCommand {
     /// Offscreen frame time and triangle rate of the renderer on repositories, overview and a
     /// low oblique view, as a Markdown table.
     Render(BenchRenderArgs),
+    /// Rate–distortion and time-against-error report: every bundled DEM and a synthetic fractal
+    /// terrain at a ladder of tolerances, optionally beside peer codecs (SZ3, ZFP, LERC,
+    /// JPEG-LS, zstd) measured in the same run; writes report.md and SVG plots.
+    Report(BenchReportArgs),
 }
 
 /// Serve repositories over HTTP.
@@ -276,6 +281,40 @@ pub struct BenchCodecArgs {
     /// Worker threads for encoding (the decode is single-threaded by construction).
     #[arg(long, default_value_t = 1)]
     threads: usize,
+}
+
+/// Arguments of `cbdam bench report`.
+#[derive(Args, Debug)]
+pub struct BenchReportArgs {
+    /// DEM files. Default: every .tif and .png in data/.
+    inputs: Vec<PathBuf>,
+    /// Output directory (created): report.md, results.json, plots/*.svg.
+    #[arg(long, default_value = "bench-report")]
+    out: PathBuf,
+    /// Small and fast: one run per point and a 257² synthetic terrain unless given explicitly.
+    #[arg(long)]
+    quick: bool,
+    /// Also measure the peer codecs (bench/peers.py in a Python venv; skipped with a message
+    /// when Python or pip is unavailable).
+    #[arg(long)]
+    peers: bool,
+    /// Tolerances ε, metres, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = vec![0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0])]
+    max_error: Vec<f64>,
+    /// Timed repetitions per point; medians are reported (default 3, 1 with --quick).
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Side of the synthetic fractal terrain (2^k + 1; 0 for none; default 4097, 257 with
+    /// --quick).
+    #[arg(long)]
+    synthetic: Option<usize>,
+    /// Worker threads for building (default 1, as the peers are single-threaded; the decode is
+    /// single-threaded by construction).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// Python virtual environment for the peers (default ~/.cache/cbdam-bench-venv).
+    #[arg(long)]
+    venv: Option<PathBuf>,
 }
 
 /// Entropy coder of `cbdam build`.
@@ -461,6 +500,7 @@ fn main() -> ExitCode {
         Command::Synth(args) => synth::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Bench(BenchCommand::Render(args)) => render::bench(&args),
+        Command::Bench(BenchCommand::Report(args)) => bench_report::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
