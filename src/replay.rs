@@ -5,9 +5,10 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use cbdam_client::access::LocalSource;
+use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner};
+use cbdam_client::remote::FetchOptions;
 
 use crate::ReplayArgs;
 
@@ -33,12 +34,6 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 pub fn run(args: &ReplayArgs) -> Result<()> {
-    if args.repo.starts_with("http://") || args.repo.starts_with("https://") {
-        bail!(
-            "remote sources: not implemented yet ({}); pass a local repository file",
-            args.repo
-        );
-    }
     if !(args.pixel_error > 0.0 && args.pixel_error.is_finite()) {
         bail!("--pixel-error must be positive, got {}", args.pixel_error);
     }
@@ -50,16 +45,36 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     }
     let flight =
         Flight::load(&args.path).with_context(|| format!("loading {}", args.path.display()))?;
-    let source = LocalSource::open(Path::new(&args.repo))
-        .with_context(|| format!("opening {}", args.repo))?;
     let config = RefineConfig {
         pixel_error: args.pixel_error,
         budget: (args.budget_ms > 0.0).then(|| Duration::from_secs_f64(args.budget_ms / 1e3)),
         detail: args.detail.then(DetailConfig::default),
         ..RefineConfig::default()
     };
-    let mut refiner = Refiner::new(source, config).context("starting the refiner")?;
+    if args.repo.starts_with("http://") || args.repo.starts_with("https://") {
+        let source = RemoteSource::connect(&args.repo, FetchOptions::default())
+            .with_context(|| format!("connecting to {}", args.repo))?;
+        let refiner = Refiner::new(source, config).context("starting the refiner")?;
+        // Over a network, frames are paced at --fps so that fetches take the time they would
+        // take in a viewer; locally nothing waits on I/O and frames run back to back.
+        fly(args, &flight, refiner, true)
+    } else {
+        let source = LocalSource::open(Path::new(&args.repo))
+            .with_context(|| format!("opening {}", args.repo))?;
+        let refiner = Refiner::new(source, config).context("starting the refiner")?;
+        fly(args, &flight, refiner, false)
+    }
+}
+
+/// Runs the flight, then the settling frames, writing the CSV and the summary.
+fn fly<S: DataSource>(
+    args: &ReplayArgs,
+    flight: &Flight,
+    mut refiner: Refiner<S>,
+    paced: bool,
+) -> Result<()> {
     let world = *refiner.world();
+    let start = std::time::Instant::now();
 
     let file = std::fs::File::create(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -78,6 +93,10 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
             break;
         }
         let t = (frame as f64 / args.fps).min(flight.duration());
+        if paced {
+            let due = Duration::from_secs_f64(frame as f64 / args.fps);
+            std::thread::sleep(due.saturating_sub(start.elapsed()));
+        }
         let camera = flight.camera(&world, t, args.size);
         let cpu = thread_cpu_seconds();
         let s = refiner.frame(&camera);

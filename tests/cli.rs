@@ -832,20 +832,25 @@ fn replay_writes_documented_csv_and_converges() {
 }
 
 #[test]
-fn replay_refuses_remote_urls_and_bad_flights() {
+fn replay_reports_unreachable_servers_and_bad_flights() {
     let dir = tempfile::tempdir().unwrap();
     let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flights/descent.json");
     let out = dir.path().join("x.csv");
     let o = cbdam(&[
         "replay",
-        "http://localhost:8080/srtm",
+        // Nothing listens on the discard port: the error names the URL, quickly.
+        "http://127.0.0.1:9/v1/repos/srtm",
         "--path",
         &s(&flight),
         "--out",
         &s(&out),
     ]);
     assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains("remote sources: not implemented yet"));
+    assert!(
+        stderr(&o).contains("connecting to http://127.0.0.1:9/v1/repos/srtm"),
+        "{}",
+        stderr(&o)
+    );
     let bad = dir.path().join("bad.json");
     std::fs::write(&bad, r#"{ "keyframes": [] }"#).unwrap();
     let repo = dir.path().join("jb.cbdam");

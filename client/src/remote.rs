@@ -47,7 +47,7 @@ impl Default for FetchOptions {
             timeout: Duration::from_secs(5),
             initial_backoff: Duration::from_millis(50),
             max_backoff: Duration::from_secs(2),
-            max_range_gap: 16 * 1024,
+            max_range_gap: 512,
         }
     }
 }

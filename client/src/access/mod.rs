@@ -23,9 +23,11 @@
 
 mod flaky;
 mod local;
+mod remote;
 
 pub use flaky::{FlakyConfig, FlakySource};
 pub use local::LocalSource;
+pub use remote::RemoteSource;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;

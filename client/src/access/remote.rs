@@ -1,0 +1,135 @@
+//! Records over HTTP: the [`DataSource`] face of [`crate::remote::RemoteFetcher`].
+//!
+//! The fetcher keeps the network side (batching, priorities, bounded in-flight requests,
+//! cancellation, retries with backoff, checksum checks); this adapter turns the loop's per-diamond
+//! `request` / `cancel` / `take` calls into the fetcher's per-frame "wanted set" and collects
+//! what arrived on `pump`. Transport failures and rejected records are retried by the fetcher
+//! itself (a server that restarts is survived without the loop noticing), so they show up in
+//! [`AccessStats::errors`] rather than as failed `take`s; only requests for diamonds the head
+//! says are not stored fail, at once.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use cbdam_codec::CodecError;
+use cbdam_codec::geometry::DiamondId;
+use cbdam_codec::hierarchy::CodecParams;
+use cbdam_codec::input::GeoRef;
+use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::repository::index::IndexEntry;
+
+use super::{AccessError, AccessStats, DataSource, Priority};
+use crate::remote::{FetchOptions, RemoteError, RemoteFetcher};
+
+/// A repository behind `cbdam serve` or any static server that honours range requests.
+#[derive(Debug)]
+pub struct RemoteSource {
+    fetcher: RemoteFetcher,
+    wanted: HashMap<DiamondId, Priority>,
+    wanted_changed: bool,
+    arrived: HashMap<DiamondId, Result<Arc<[u8]>, AccessError>>,
+    stats: AccessStats,
+}
+
+impl RemoteSource {
+    /// Connects and fetches the repository head (blocks until it has it or fails). `url` as in
+    /// [`RemoteFetcher::connect`].
+    pub fn connect(url: &str, options: FetchOptions) -> Result<Self, RemoteError> {
+        Ok(Self {
+            fetcher: RemoteFetcher::connect(url, options)?,
+            wanted: HashMap::new(),
+            wanted_changed: false,
+            arrived: HashMap::new(),
+            stats: AccessStats::default(),
+        })
+    }
+}
+
+impl DataSource for RemoteSource {
+    fn params(&self) -> &CodecParams {
+        self.fetcher.head().params()
+    }
+    fn plan(&self) -> &QuantPlan {
+        self.fetcher.head().plan()
+    }
+    fn georef(&self) -> Option<&GeoRef> {
+        self.fetcher.head().georef()
+    }
+    fn leaf_error(&self) -> u32 {
+        self.fetcher.head().leaf_error()
+    }
+    fn entries(&self) -> &[IndexEntry] {
+        self.fetcher.head().entries()
+    }
+    fn root_bytes(&self) -> &[u8] {
+        self.fetcher.head().root_bytes()
+    }
+
+    fn request(&mut self, id: DiamondId, priority: Priority) {
+        if self.arrived.contains_key(&id) {
+            return;
+        }
+        if self.fetcher.head().position(id).is_none() {
+            self.stats.requests_issued += 1;
+            let source = CodecError::invalid(format!("{id} is not stored in this repository"));
+            self.arrived
+                .insert(id, Err(AccessError::Record { id, source }));
+            return;
+        }
+        match self.wanted.insert(id, priority) {
+            None => {
+                self.stats.requests_issued += 1;
+                self.wanted_changed = true;
+            }
+            Some(old) if old != priority => self.wanted_changed = true,
+            Some(_) => {}
+        }
+    }
+
+    fn cancel(&mut self, id: DiamondId) {
+        if self.wanted.remove(&id).is_some() {
+            self.stats.requests_cancelled += 1;
+            self.wanted_changed = true;
+        }
+        self.arrived.remove(&id);
+    }
+
+    fn is_available(&self, id: DiamondId) -> bool {
+        self.arrived.contains_key(&id)
+    }
+
+    fn take(&mut self, id: DiamondId) -> Option<Result<Vec<u8>, AccessError>> {
+        let r = self.arrived.remove(&id)?;
+        match &r {
+            Ok(_) => self.stats.records_taken += 1,
+            Err(_) => self.stats.errors += 1,
+        }
+        Some(r.map(|b| b.to_vec()))
+    }
+
+    fn pump(&mut self) {
+        if self.wanted_changed {
+            self.fetcher
+                .want(self.wanted.iter().map(|(&id, &p)| (id, p)));
+            self.wanted_changed = false;
+        }
+        for (id, result) in self.fetcher.poll() {
+            // Records that were cancelled meanwhile are dropped.
+            if self.wanted.remove(&id).is_none() {
+                continue;
+            }
+            let r = result.map_err(|source| AccessError::Record { id, source });
+            self.arrived.insert(id, r);
+        }
+    }
+
+    fn stats(&self) -> AccessStats {
+        let f = self.fetcher.stats();
+        AccessStats {
+            in_flight: self.wanted.len() as u64,
+            bytes_fetched: f.bytes,
+            errors: self.stats.errors + f.errors,
+            ..self.stats
+        }
+    }
+}
