@@ -36,6 +36,8 @@ pub struct FetchOptions {
     /// Longest retry delay.
     pub max_backoff: Duration,
     /// Range requests to a static server merge records separated by at most this many bytes.
+    /// 0 (the default) merges only records that touch: a gap's bytes may belong to records
+    /// another request is fetching, and measured on loopback that doubled the bytes fetched.
     pub max_range_gap: u64,
 }
 
@@ -47,7 +49,7 @@ impl Default for FetchOptions {
             timeout: Duration::from_secs(5),
             initial_backoff: Duration::from_millis(50),
             max_backoff: Duration::from_secs(2),
-            max_range_gap: 512,
+            max_range_gap: 0,
         }
     }
 }
@@ -125,6 +127,9 @@ struct State {
     /// Per record: failures so far and the time before which it is not retried.
     backoff: HashMap<DiamondId, (u32, Instant)>,
     batches: Vec<(u64, Vec<DiamondId>, AbortHandle)>,
+    /// Records sent to the frame loop but not yet polled: a `want` racing with their delivery
+    /// must not fetch them again.
+    delivered: HashSet<DiamondId>,
     next_batch: u64,
     shutdown: bool,
 }
@@ -223,11 +228,13 @@ impl RemoteFetcher {
     /// are forgotten, and requests none of whose records are wanted any more are aborted.
     pub fn want(&self, wanted: impl IntoIterator<Item = (DiamondId, f32)>) {
         let mut s = self.shared.state.lock().expect("fetch state");
+        let delivered = std::mem::take(&mut s.delivered);
         s.wanted = wanted
             .into_iter()
-            .filter(|(id, _)| self.shared.head.position(*id).is_some())
+            .filter(|(id, _)| self.shared.head.position(*id).is_some() && !delivered.contains(id))
             .map(|(id, priority)| (id, Pending { priority }))
             .collect();
+        s.delivered = delivered;
         let State {
             wanted,
             batches,
@@ -252,7 +259,14 @@ impl RemoteFetcher {
 
     /// Takes the records that arrived since the last call; never blocks.
     pub fn poll(&self) -> Vec<Fetched> {
-        self.results.try_iter().collect()
+        let got: Vec<Fetched> = self.results.try_iter().collect();
+        if !got.is_empty() {
+            let mut s = self.shared.state.lock().expect("fetch state");
+            for (id, _) in &got {
+                s.delivered.remove(id);
+            }
+        }
+        got
     }
 
     /// Whether `id` is queued or being fetched.
@@ -548,6 +562,7 @@ async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>) {
     for (id, r) in delivered {
         s.wanted.remove(&id);
         s.backoff.remove(&id);
+        s.delivered.insert(id);
         shared.stats.records.fetch_add(1, Ordering::Relaxed);
         // The receiver is gone only when the fetcher is being dropped.
         let _ = tx.send((id, r));

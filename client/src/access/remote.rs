@@ -28,8 +28,15 @@ pub struct RemoteSource {
     wanted: HashMap<DiamondId, Priority>,
     wanted_changed: bool,
     arrived: HashMap<DiamondId, Result<Arc<[u8]>, AccessError>>,
+    /// Records that arrived after their request was cancelled: paid for, so kept (up to
+    /// [`SPARE_RECORDS`]) in case the loop asks again — a camera that hesitates would otherwise
+    /// fetch the same records over and over.
+    spare: HashMap<DiamondId, Arc<[u8]>>,
     stats: AccessStats,
 }
+
+/// Most spare records kept.
+const SPARE_RECORDS: usize = 4096;
 
 impl RemoteSource {
     /// Connects and fetches the repository head (blocks until it has it or fails). `url` as in
@@ -40,6 +47,7 @@ impl RemoteSource {
             wanted: HashMap::new(),
             wanted_changed: false,
             arrived: HashMap::new(),
+            spare: HashMap::new(),
             stats: AccessStats::default(),
         })
     }
@@ -67,6 +75,11 @@ impl DataSource for RemoteSource {
 
     fn request(&mut self, id: DiamondId, priority: Priority) {
         if self.arrived.contains_key(&id) {
+            return;
+        }
+        if let Some(bytes) = self.spare.remove(&id) {
+            self.stats.requests_issued += 1;
+            self.arrived.insert(id, Ok(bytes));
             return;
         }
         if self.fetcher.head().position(id).is_none() {
@@ -114,8 +127,12 @@ impl DataSource for RemoteSource {
             self.wanted_changed = false;
         }
         for (id, result) in self.fetcher.poll() {
-            // Records that were cancelled meanwhile are dropped.
             if self.wanted.remove(&id).is_none() {
+                if let Ok(bytes) = result
+                    && self.spare.len() < SPARE_RECORDS
+                {
+                    self.spare.insert(id, bytes);
+                }
                 continue;
             }
             let r = result.map_err(|source| AccessError::Record { id, source });
