@@ -67,11 +67,15 @@ enum Command {
     /// Run the client's refinement loop over a camera flight without drawing: one CSV row per
     /// frame, then hold the camera still until the cut converges, and print a summary.
     Replay(ReplayArgs),
-    /// Render one frame offscreen to a PNG (lavapipe works where there is no GPU).
+    /// Render offscreen to PNG: one frame, or every frame of a camera flight (lavapipe works
+    /// where there is no GPU).
     ///
-    /// The cut is chosen by an interim rule until the streaming client lands: every stored
-    /// diamond in the view whose screen-space error exceeds --pixel-error is refined, then the
-    /// whole cut is decoded. Prints the frame time and triangle count.
+    /// The cut is the streaming client's: the time-critical refinement loop of `cbdam replay`
+    /// over the local repository. For one frame (-o) it runs with an unlimited budget until the
+    /// cut converges for the view (every diamond in it within --pixel-error), then draws it. With
+    /// --path it flies the camera path at --fps with the real per-frame --budget-ms, as replay
+    /// does, and writes each frame to --out-dir/frame_NNNNN.png. Prints the frame time and
+    /// triangle count (with --path, median and p99 refine and render times).
     Render(RenderArgs),
     /// Measure the codec and other parts of the pipeline.
     #[command(subcommand)]
@@ -204,8 +208,24 @@ pub struct RenderArgs {
     #[arg(long, value_parser = render::parse_size, default_value = "1920x1080")]
     size: (u32, u32),
     /// Output PNG (written atomically).
-    #[arg(short, long)]
-    output: PathBuf,
+    #[arg(short, long, required_unless_present = "path", conflicts_with = "path")]
+    output: Option<PathBuf>,
+    /// Render every frame of this camera flight (JSON, as for `cbdam replay`) instead of one.
+    #[arg(long, requires = "out_dir", conflicts_with = "camera")]
+    path: Option<PathBuf>,
+    /// With --path: directory for frame_00000.png, frame_00001.png, … (created if missing;
+    /// each written atomically).
+    #[arg(long, requires = "path")]
+    out_dir: Option<PathBuf>,
+    /// With --path: frames per second of flight.
+    #[arg(long, default_value_t = 30.0, requires = "path")]
+    fps: f64,
+    /// With --path: refinement time budget per frame, ms (0 = unlimited).
+    #[arg(long, default_value_t = 2.0, requires = "path")]
+    budget_ms: f64,
+    /// With --path: stop after this many frames.
+    #[arg(long, requires = "path")]
+    max_frames: Option<u64>,
     /// Camera eye_x,eye_y,eye_z,target_x,target_y,target_z in world metres: x east and y north
     /// of the data's north-west corner (so y is negative over the data), z height. Default: an
     /// overview of the whole data from the south.

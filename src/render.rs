@@ -1,13 +1,16 @@
-//! `cbdam render` (one offscreen frame to PNG) and `cbdam bench render` (frame times).
+//! `cbdam render` (one offscreen frame, or a flight's frames, to PNG) and `cbdam bench render`
+//! (frame times). Cuts come from the streaming client's refinement loop, as in `cbdam replay`.
 
 use std::path::Path;
-use std::time::Instant;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use cbdam_client::access::LocalSource;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::select::screen_error_cut;
-use cbdam_client::draw::{CacheConfig, Gpu, RenderOptions, Renderer, exaggerated};
-use cbdam_client::patch::decode_cut;
+use cbdam_client::draw::{CacheConfig, Frame, Gpu, RenderOptions, Renderer};
+use cbdam_client::flight::Flight;
+use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::world::World;
 use cbdam_codec::repository::Repository;
 use glam::DVec3;
@@ -63,13 +66,37 @@ pub fn low_oblique(world: &World, size: (u32, u32)) -> Camera {
     Camera::looking_at(world, eye, centre, 45f64.to_radians(), size)
 }
 
-fn open(path: &Path, exaggeration: f64) -> Result<(Repository, World)> {
+/// Frames a still view may take to converge with an unlimited budget (one, in practice).
+const SETTLE_FRAMES: u32 = 16;
+
+fn open(path: &Path) -> Result<Arc<Repository>> {
+    let repo = Repository::open(path).with_context(|| format!("opening {}", path.display()))?;
+    Ok(Arc::new(repo))
+}
+
+/// The refinement loop over `repo`, with heights exaggerated by `exaggeration`.
+fn refiner(
+    repo: &Arc<Repository>,
+    pixel_error: f64,
+    budget_ms: f64,
+    exaggeration: f64,
+) -> Result<Refiner<LocalSource>> {
+    if !(pixel_error.is_finite() && pixel_error > 0.0) {
+        bail!("--pixel-error must be a positive number of pixels");
+    }
     if !(exaggeration.is_finite() && exaggeration > 0.0) {
         bail!("--exaggeration must be a positive number, not {exaggeration}");
     }
-    let repo = Repository::open(path).with_context(|| format!("opening {}", path.display()))?;
-    let world = exaggerated(&World::of_repository(&repo), exaggeration);
-    Ok((repo, world))
+    if !(budget_ms.is_finite() && budget_ms >= 0.0) {
+        bail!("--budget-ms must be 0 (unlimited) or positive");
+    }
+    let config = RefineConfig {
+        pixel_error,
+        budget: (budget_ms > 0.0).then(|| Duration::from_secs_f64(budget_ms / 1e3)),
+        exaggeration,
+        ..RefineConfig::default()
+    };
+    Refiner::new(LocalSource::new(repo.clone()), config).context("starting the refiner")
 }
 
 fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
@@ -79,39 +106,63 @@ fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
     }
 }
 
+fn write_png(path: &Path, frame: &Frame) -> Result<()> {
+    let png = frame.to_png()?;
+    cbdam_codec::atomic::write_atomically::<anyhow::Error>(path, |f| {
+        use std::io::Write;
+        f.write_all(&png)?;
+        Ok(())
+    })
+    .with_context(|| format!("writing {}", path.display()))
+}
+
 pub fn run(args: &RenderArgs) -> Result<()> {
-    if !(args.pixel_error.is_finite() && args.pixel_error > 0.0) {
-        bail!("--pixel-error must be a positive number of pixels");
-    }
-    let (repo, world) = open(&args.repo, args.exaggeration)?;
-    let cam = camera(&world, args.camera.as_deref(), args.size)?;
-    let t = Instant::now();
-    let cut = screen_error_cut(&repo, &world, &cam, args.pixel_error);
-    let select_s = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let patches = decode_cut(&repo, &cut)?;
-    let decode_s = t.elapsed().as_secs_f64();
-    let gpu = Gpu::headless()?;
-    let adapter = gpu.describe();
-    let mut renderer = Renderer::new(gpu, world, cache_config(args.pool_mib))?;
+    let repo = open(&args.repo)?;
+    let budget_ms = if args.path.is_some() {
+        args.budget_ms
+    } else {
+        0.0
+    };
+    let mut refiner = refiner(&repo, args.pixel_error, budget_ms, args.exaggeration)?;
+    let world = *refiner.world();
     let options = RenderOptions {
         wireframe: args.wireframe,
         level_colours: args.levels,
         ..RenderOptions::default()
     };
+    if let (Some(path), Some(dir)) = (&args.path, &args.out_dir) {
+        return fly(args, path, dir, refiner, &options);
+    }
+    let output = args
+        .output
+        .as_deref()
+        .expect("clap requires -o without --path");
+    let cam = camera(&world, args.camera.as_deref(), args.size)?;
+    let t = Instant::now();
+    let settled = refiner.settle(&cam, SETTLE_FRAMES);
+    let refine_s = t.elapsed().as_secs_f64();
+    if !settled.met_target {
+        eprintln!(
+            "cbdam: warning: the cut did not meet the target in {SETTLE_FRAMES} frames (max \
+             error {:.3} px)",
+            settled.max_screen_error_px
+        );
+    }
+    for e in refiner.errors() {
+        eprintln!("cbdam: warning: {e}");
+    }
+    let patches: Vec<_> = refiner.drawn().cloned().collect();
+    let gpu = Gpu::headless()?;
+    let adapter = gpu.describe();
+    let mut renderer = Renderer::new(gpu, world, cache_config(args.pool_mib))?;
     let frame = renderer.render(&cam, &patches, &options)?;
-    let png = frame.to_png()?;
-    cbdam_codec::atomic::write_atomically::<anyhow::Error>(&args.output, |f| {
-        use std::io::Write;
-        f.write_all(&png)?;
-        Ok(())
-    })
-    .with_context(|| format!("writing {}", args.output.display()))?;
+    write_png(output, &frame)?;
     let s = frame.stats;
     println!(
         "{}: {}×{}, {} half-patches drawn of {} ({} culled, {} not resident), {:.3} M triangles, \
-         {} draw calls; cut {:.3} s, decode {:.3} s, frame {:.1} ms ({:.1} M triangles/s) on {}",
-        args.output.display(),
+         {} draw calls; cut {:.3} s ({} refinement frames, {} diamonds refined, max error {:.3} \
+         px), frame {:.1} ms ({:.1} M triangles/s) on {}",
+        output.display(),
         frame.width,
         frame.height,
         s.drawn,
@@ -120,8 +171,10 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         s.missing,
         s.triangles as f64 / 1e6,
         s.draw_calls,
-        select_s,
-        decode_s,
+        refine_s,
+        settled.frame,
+        settled.refined,
+        settled.max_screen_error_px,
         (s.prepare_s + s.gpu_s) * 1e3,
         s.triangles as f64 / (s.prepare_s + s.gpu_s) / 1e6,
         adapter,
@@ -132,6 +185,88 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         cam.eye.x, cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z
     );
     Ok(())
+}
+
+/// `cbdam render --path`: every frame of a flight, refined with the per-frame budget.
+fn fly(
+    args: &RenderArgs,
+    path: &Path,
+    dir: &Path,
+    mut refiner: Refiner<LocalSource>,
+    options: &RenderOptions,
+) -> Result<()> {
+    if !(args.fps > 0.0 && args.fps.is_finite()) {
+        bail!("--fps must be positive, got {}", args.fps);
+    }
+    let flight = Flight::load(path).with_context(|| format!("loading {}", path.display()))?;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let world = *refiner.world();
+    let gpu = Gpu::headless()?;
+    let adapter = gpu.describe();
+    let mut renderer = Renderer::new(gpu, world, cache_config(args.pool_mib))?;
+    let mut frames = (flight.duration() * args.fps).ceil() as u64 + 1;
+    if let Some(max) = args.max_frames {
+        frames = frames.min(max);
+    }
+    let (mut refine_ms, mut render_ms, mut tris) = (Vec::new(), Vec::new(), Vec::new());
+    let mut over = 0;
+    let mut max_err: f64 = 0.0;
+    for i in 0..frames {
+        let t = (i as f64 / args.fps).min(flight.duration());
+        let cam = flight.camera(&world, t, args.size);
+        let s = refiner.frame(&cam);
+        let patches: Vec<_> = refiner.drawn().cloned().collect();
+        let frame = renderer.render(&cam, &patches, options)?;
+        write_png(&dir.join(format!("frame_{i:05}.png")), &frame)?;
+        refine_ms.push(s.refine_ms);
+        render_ms.push((frame.stats.prepare_s + frame.stats.gpu_s) * 1e3);
+        tris.push(frame.stats.triangles);
+        over += usize::from(s.budget_exhausted);
+        max_err = max_err.max(s.max_screen_error_px);
+    }
+    refine_ms.sort_by(f64::total_cmp);
+    render_ms.sort_by(f64::total_cmp);
+    tris.sort_unstable();
+    println!(
+        "{}: {frames} frames at {} fps, {}×{}, target {} px, budget {}, on {adapter}",
+        dir.display(),
+        args.fps,
+        args.size.0,
+        args.size.1,
+        args.pixel_error,
+        if args.budget_ms > 0.0 {
+            format!("{} ms", args.budget_ms)
+        } else {
+            "unlimited".into()
+        }
+    );
+    println!(
+        "refine ms per frame: median {:.3}, p99 {:.3}; budget exhausted in {over} frames; \
+         largest error {max_err:.3} px",
+        percentile(&refine_ms, 0.5),
+        percentile(&refine_ms, 0.99),
+    );
+    println!(
+        "render ms per frame: median {:.3}, p99 {:.3}",
+        percentile(&render_ms, 0.5),
+        percentile(&render_ms, 0.99),
+    );
+    println!(
+        "triangles drawn per frame: median {}, max {}",
+        percentile(&tris, 0.5),
+        tris.last().copied().unwrap_or(0),
+    );
+    for e in refiner.errors() {
+        eprintln!("cbdam: warning: {e}");
+    }
+    Ok(())
+}
+
+fn percentile<T: Copy + Default>(sorted: &[T], q: f64) -> T {
+    if sorted.is_empty() {
+        return T::default();
+    }
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
 pub fn bench(args: &BenchRenderArgs) -> Result<()> {
@@ -148,14 +283,16 @@ pub fn bench(args: &BenchRenderArgs) -> Result<()> {
     );
     println!("|---|---|---:|---:|---:|---:|---:|");
     for path in &args.repos {
-        let (repo, world) = open(path, 1.0)?;
+        let repo = open(path)?;
+        let world = World::of_repository(&repo);
         let mut renderer = Renderer::new(Gpu::headless()?, world, cache_config(None))?;
         for (view, cam) in [
             ("overview", Camera::overview(&world, args.size)),
             ("low oblique", low_oblique(&world, args.size)),
         ] {
-            let cut = screen_error_cut(&repo, &world, &cam, args.pixel_error);
-            let patches = decode_cut(&repo, &cut)?;
+            let mut refiner = refiner(&repo, args.pixel_error, 0.0, 1.0)?;
+            refiner.settle(&cam, SETTLE_FRAMES);
+            let patches: Vec<_> = refiner.drawn().cloned().collect();
             let options = RenderOptions::default();
             let first = renderer.render(&cam, &patches, &options)?.stats;
             let mut times = Vec::with_capacity(args.runs);

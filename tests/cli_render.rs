@@ -22,10 +22,21 @@ fn png_size(path: &Path) -> (u32, u32) {
     (info.width, info.height)
 }
 
-#[test]
-fn render_writes_a_png_and_rejects_bad_arguments() {
-    let dir = tempfile::tempdir().unwrap();
-    let repo = dir.path().join("j.cbdam");
+/// Size and number of distinct RGBA colours of a PNG.
+fn png_colours(path: &Path) -> ((u32, u32), usize) {
+    let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+    let mut reader = png::Decoder::new(file).read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgba);
+    buf.truncate(info.buffer_size());
+    let colours: std::collections::HashSet<&[u8]> = buf.chunks(4).collect();
+    ((info.width, info.height), colours.len())
+}
+
+/// Jacksboro built into `dir` at a loose bound (quick).
+fn jacksboro(dir: &Path) -> std::path::PathBuf {
+    let repo = dir.join("j.cbdam");
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/jacksboro_mpl.tif");
     let o = cbdam(&[
         "build",
@@ -37,6 +48,13 @@ fn render_writes_a_png_and_rejects_bad_arguments() {
         "--quiet",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    repo
+}
+
+#[test]
+fn render_writes_a_png_and_rejects_bad_arguments() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
 
     let out = dir.path().join("f.png");
     let o = cbdam(&["render", &s(&repo), "--size", "96x64", "-o", &s(&out)]);
@@ -92,5 +110,84 @@ fn render_writes_a_png_and_rejects_bad_arguments() {
     }
     // A directory as output.
     let o = cbdam(&["render", &s(&repo), "--size", "32x32", "-o", &s(dir.path())]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+/// `cbdam render --path`: one PNG per flight frame with the time-budgeted refiner, bounded by
+/// --max-frames, and a timing summary.
+#[test]
+fn render_path_writes_every_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flights/descent.json");
+    let frames = dir.path().join("frames");
+    let o = cbdam(&[
+        "render",
+        &s(&repo),
+        "--path",
+        &s(&flight),
+        "--out-dir",
+        &s(&frames),
+        "--size",
+        "160x90",
+        "--fps",
+        "10",
+        "--budget-ms",
+        "2",
+        "--max-frames",
+        "4",
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        text.contains("4 frames")
+            && text.contains("refine ms per frame: median")
+            && text.contains("render ms per frame: median")
+            && text.contains("p99")
+            && text.contains("triangles"),
+        "{text}"
+    );
+    let mut names: Vec<String> = std::fs::read_dir(&frames)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        (0..4)
+            .map(|i| format!("frame_{i:05}.png"))
+            .collect::<Vec<_>>()
+    );
+    for name in &names {
+        let (size, colours) = png_colours(&frames.join(name));
+        assert_eq!(size, (160, 90), "{name}");
+        // Shaded terrain, not a cleared background.
+        assert!(colours > 50, "{name}: {colours} colours");
+    }
+
+    // --path wants --out-dir, and excludes -o and --camera: usage errors.
+    for extra in [
+        vec![],
+        vec!["--out-dir", "x", "-o", "y.png"],
+        vec!["--out-dir", "x", "--camera", "1,2,3,4,5,6"],
+    ] {
+        let mut args = vec!["render", "REPO", "--path", "f.json"];
+        args.extend(extra.iter());
+        let repo = s(&repo);
+        args[1] = &repo;
+        let o = cbdam(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}");
+    }
+    // A flight that is not one: exit 1.
+    let bad = dir.path().join("bad.json");
+    std::fs::write(&bad, "{}").unwrap();
+    let o = cbdam(&[
+        "render",
+        &s(&repo),
+        "--path",
+        &s(&bad),
+        "--out-dir",
+        &s(&frames),
+    ]);
     assert_eq!(o.status.code(), Some(1));
 }

@@ -24,7 +24,6 @@ mod common;
 
 use cbdam_client::camera::Camera;
 use cbdam_client::draw::RenderOptions;
-use cbdam_client::draw::select::screen_error_cut;
 use cbdam_client::patch::decode_cut;
 use cbdam_client::world::World;
 use cbdam_codec::geometry::{Cut, Diagonal, DiamondId, Layout};
@@ -139,16 +138,14 @@ fn adaptive_cuts_stay_within_the_pixel_error() {
     let size = (240, 160);
     let (lo, hi) = world.data_box();
     let span = (hi - lo).x.max((hi - lo).y);
-    let full = cbdam_client::draw::select::full_resolution_cut(repo)
-        .refined()
-        .count();
+    let full = full_resolution_cut(repo).refined().count();
     for (name, cam) in [
         ("overview", Camera::overview(&world, size)),
         ("oblique", orbit(&world, 30.0, 20.0, span * 0.6, size)),
         ("low", orbit(&world, 200.0, 9.0, span * 0.45, size)),
     ] {
         for target in [0.5, 1.0, 4.0] {
-            let cut = screen_error_cut(repo, &world, &cam, target);
+            let (cut, _) = refined_cut(repo, &cam, target);
             let (excess, worst, counted) = worst_excess(repo, &finest, &cam, &cut, target);
             eprintln!(
                 "{name} target {target}: {} of {full} refined, worst {worst:.3} px, excess \

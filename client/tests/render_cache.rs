@@ -11,9 +11,8 @@
 mod common;
 
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::select::screen_error_cut;
 use cbdam_client::draw::{CacheConfig, Frame, RenderOptions, Renderer};
-use cbdam_client::patch::{HalfPatch, decode_cut};
+use cbdam_client::patch::HalfPatch;
 use cbdam_client::world::World;
 use common::*;
 
@@ -69,9 +68,9 @@ fn views(world: &World) -> Vec<Camera> {
     ]
 }
 
-fn cut_patches(world: &World, cam: &Camera) -> Vec<HalfPatch> {
-    let repo = jacksboro();
-    decode_cut(repo, &screen_error_cut(repo, world, cam, 0.5)).unwrap()
+fn cut_patches(cam: &Camera) -> Vec<HalfPatch> {
+    let (_, patches) = refined_cut(jacksboro(), cam, 0.5);
+    patches.iter().map(|p| (**p).clone()).collect()
 }
 
 #[test]
@@ -82,7 +81,7 @@ fn a_pool_too_small_draws_fewer_patches_never_wrong_ones() {
     let n = repo.params().layout.n() as u64;
     let slot_bytes = n * n * 4;
     let views = views(&world);
-    let first = cut_patches(&world, &views[0]);
+    let first = cut_patches(&views[0]);
     // A third of the first view's patches fit.
     let slots = (first.len() as u64 / 3).max(4);
     let mut small = Renderer::new(
@@ -99,7 +98,7 @@ fn a_pool_too_small_draws_fewer_patches_never_wrong_ones() {
     let mut degraded = 0;
     for round in 0..2 {
         for (v, cam) in views.iter().enumerate() {
-            let patches = cut_patches(&world, cam);
+            let patches = cut_patches(cam);
             let reference = ample.render(cam, &patches, &options()).unwrap();
             let frame = small.render(cam, &patches, &options()).unwrap();
             let name = format!("round {round} view {v}");
@@ -136,7 +135,7 @@ fn an_upload_budget_converges_to_the_full_picture() {
     let repo = jacksboro();
     let world = World::of_repository(repo);
     let cam = &views(&world)[1];
-    let patches = cut_patches(&world, cam);
+    let patches = cut_patches(cam);
     let reference = renderer(repo).render(cam, &patches, &options()).unwrap();
     let n = repo.params().layout.n() as u64;
     let per_frame = 40;

@@ -104,10 +104,7 @@ fn cuts(repo: &cbdam_codec::repository::Repository) -> Vec<(String, Cut)> {
     let n = repo.entries().len();
     let mut out = vec![
         ("coarsest".to_string(), Cut::new()),
-        (
-            "full".to_string(),
-            cbdam_client::draw::select::full_resolution_cut(repo),
-        ),
+        ("full".to_string(), full_resolution_cut(repo)),
     ];
     for (k, count) in [n / 60, n / 20, n / 6].into_iter().enumerate() {
         out.push((format!("random{k}"), random_cut(repo, count, 17 + k as u64)));
@@ -159,7 +156,7 @@ fn a_missing_patch_is_detected() {
         background: [1.0, 0.0, 1.0, 1.0],
         ..RenderOptions::default()
     };
-    let cut = cbdam_client::draw::select::full_resolution_cut(repo);
+    let cut = full_resolution_cut(repo);
     let mut patches = decode_cut(repo, &cut).unwrap();
     let (lo, hi) = height_range(&world, &patches);
     let (_, cam) = views(&world).into_iter().next().unwrap();

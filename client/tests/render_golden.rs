@@ -15,9 +15,7 @@ mod common;
 use std::path::PathBuf;
 
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::select::screen_error_cut;
 use cbdam_client::draw::{Frame, RenderOptions};
-use cbdam_client::patch::decode_cut;
 use cbdam_client::world::World;
 use common::*;
 
@@ -76,9 +74,7 @@ fn compare(name: &str, frame: &Frame) {
 
 fn render(name: &str, cam: &Camera, pixel_error: f64, options: &RenderOptions) -> Frame {
     let repo = jacksboro();
-    let world = World::of_repository(repo);
-    let cut = screen_error_cut(repo, &world, cam, pixel_error);
-    let patches = decode_cut(repo, &cut).unwrap();
+    let (_, patches) = refined_cut(repo, cam, pixel_error);
     let frame = renderer(repo).render(cam, &patches, options).unwrap();
     eprintln!("{name}: {:?}", frame.stats);
     frame

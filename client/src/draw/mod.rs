@@ -21,8 +21,8 @@
 
 pub mod cache;
 pub mod mesh;
-pub mod select;
 
+use std::borrow::Borrow;
 use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
@@ -519,11 +519,14 @@ impl Renderer {
         self.mesh.triangles_per_patch()
     }
 
-    /// Renders `patches` (a cut's drawn halves) from `camera` offscreen and reads the image back.
-    pub fn render(
+    /// Renders `patches` (a cut's drawn halves, owned or shared like [`Refiner::drawn`]'s) from
+    /// `camera` offscreen and reads the image back.
+    ///
+    /// [`Refiner::drawn`]: crate::refine::Refiner::drawn
+    pub fn render<P: Borrow<HalfPatch>>(
         &mut self,
         camera: &Camera,
-        patches: &[HalfPatch],
+        patches: &[P],
         options: &RenderOptions,
     ) -> Result<Frame, DrawError> {
         if options.wireframe && self.lines.is_none() {
@@ -746,10 +749,10 @@ impl Renderer {
     }
 
     /// Culls, assigns slots, stages uploads, and writes the uniform and instances.
-    fn prepare(
+    fn prepare<P: Borrow<HalfPatch>>(
         &mut self,
         camera: &Camera,
-        patches: &[HalfPatch],
+        patches: &[P],
         options: &RenderOptions,
     ) -> Prepared {
         let world = self.world;
@@ -771,6 +774,7 @@ impl Renderer {
         let mut staging_data: Vec<i32> = Vec::new();
         let eye = camera.eye;
         for p in patches {
+            let p = p.borrow();
             let (x0, y0, x1, y1) = layout.bounds(p.id);
             if x1 < 0 || y1 < 0 || x0 > dw || y0 > dh {
                 stats.culled += 1;
@@ -959,7 +963,8 @@ fn bind_group(
 }
 
 /// `world` with heights scaled by `factor` about 0 m, for vertical exaggeration: hand it to
-/// [`Renderer::new`], [`select::screen_error_cut`] and the camera alike. The colour ramp spans
+/// [`Renderer::new`] and the camera, and the same factor to
+/// [`RefineConfig::exaggeration`](crate::refine::RefineConfig::exaggeration). The colour ramp spans
 /// the data's height range and sea level stays at 0 m, so land colours do not change; only the
 /// water's depth tint (absolute metres) deepens with the factor.
 pub fn exaggerated(world: &World, factor: f64) -> World {

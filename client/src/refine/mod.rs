@@ -71,6 +71,9 @@ pub struct RefineConfig {
     pub max_failures: u32,
     /// Synthesise detail past the finest stored level (off by default).
     pub detail: Option<DetailConfig>,
+    /// Vertical exaggeration: heights (and so boxes and object-space errors) are scaled by
+    /// this, as [`crate::draw::exaggerated`] scales the renderer's world. 1 by default.
+    pub exaggeration: f64,
 }
 
 impl Default for RefineConfig {
@@ -85,6 +88,7 @@ impl Default for RefineConfig {
             record_cache_bytes: 64 << 20,
             max_failures: 3,
             detail: None,
+            exaggeration: 1.0,
         }
     }
 }
@@ -252,7 +256,10 @@ impl<S: DataSource> Refiner<S> {
         let decoder = source.decoder()?;
         let params = *source.params();
         let src_layout = params.layout;
-        let mut world = World::new(&params, source.plan(), source.georef(), source.entries());
+        let mut world = crate::draw::exaggerated(
+            &World::new(&params, source.plan(), source.georef(), source.entries()),
+            config.exaggeration,
+        );
         let shift = config.detail.map_or(0, |d| d.level_pairs);
         let layout = if shift > 0 {
             Layout::new(
@@ -763,6 +770,21 @@ impl<S: DataSource> Refiner<S> {
         stats.triangles = self.drawn.len() as u64 * n1 * n1;
         stats.access = self.source.stats();
         stats.failures = self.failure_count;
+        stats
+    }
+
+    /// Runs frames for one still `camera` until the cut has converged, or for `max_frames`
+    /// frames at most, and returns the last frame's stats. With an unlimited budget and a local
+    /// source the first frame usually converges: a single image's cut, picked exactly as a
+    /// flight's frames pick theirs.
+    pub fn settle(&mut self, camera: &Camera, max_frames: u32) -> FrameStats {
+        let mut stats = self.frame(camera);
+        for _ in 1..max_frames {
+            if stats.converged {
+                break;
+            }
+            stats = self.frame(camera);
+        }
         stats
     }
 

@@ -3,11 +3,13 @@
 #![allow(dead_code)]
 
 use std::path::PathBuf;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
+use cbdam_client::access::LocalSource;
 use cbdam_client::camera::Camera;
 use cbdam_client::draw::{CacheConfig, Gpu, Renderer};
 use cbdam_client::patch::HalfPatch;
+use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::world::World;
 use cbdam_codec::geometry::Cut;
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
@@ -39,9 +41,27 @@ pub fn repository(name: &str, max_error: f64, n: usize) -> Repository {
 }
 
 /// Jacksboro (403 × 344, 3″) with 17-point diamonds: 11 levels, so cuts can mix many.
-pub fn jacksboro() -> &'static Repository {
-    static REPO: OnceLock<Repository> = OnceLock::new();
-    REPO.get_or_init(|| repository("jacksboro_mpl.tif", 1.0, 17))
+pub fn jacksboro() -> &'static Arc<Repository> {
+    static REPO: OnceLock<Arc<Repository>> = OnceLock::new();
+    REPO.get_or_init(|| Arc::new(repository("jacksboro_mpl.tif", 1.0, 17)))
+}
+
+/// The cut the streaming client's refinement loop settles on for `cam` at `pixel_error` with an
+/// unlimited budget (what `cbdam render` draws), and its drawn half-patches.
+pub fn refined_cut(
+    repo: &Arc<Repository>,
+    cam: &Camera,
+    pixel_error: f64,
+) -> (Cut, Vec<Arc<HalfPatch>>) {
+    let config = RefineConfig {
+        pixel_error,
+        budget: None,
+        ..RefineConfig::default()
+    };
+    let mut refiner = Refiner::new(LocalSource::new(repo.clone()), config).unwrap();
+    let stats = refiner.settle(cam, 16);
+    assert!(stats.converged, "{stats:?}");
+    (refiner.cut().clone(), refiner.drawn().cloned().collect())
 }
 
 /// A device, or a failure that says what to install. Tests that render must not silently pass
@@ -147,4 +167,15 @@ pub fn save(name: &str, png: &[u8]) -> PathBuf {
     let path = dir.join(name);
     std::fs::write(&path, png).unwrap();
     path
+}
+
+/// The full-resolution cut: every stored diamond refined, so the finest level is drawn wherever
+/// there is data. The reference that adaptive cuts are compared with.
+pub fn full_resolution_cut(repo: &Repository) -> Cut {
+    let layout = repo.params().layout;
+    let mut cut = Cut::new();
+    for e in repo.entries() {
+        cut.refine(&layout, e.id);
+    }
+    cut
 }
