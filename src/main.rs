@@ -202,7 +202,9 @@ pub struct BenchBuildArgs {
 /// Render one frame of a repository (documented on [`Command::Render`]).
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// Repository file.
+    /// Repository file, or its URL: http://HOST:PORT/v1/repos/NAME (cbdam serve),
+    /// http://HOST:PORT/ (a server with one repository), or a .cbdam file on any server that
+    /// honours range requests.
     repo: PathBuf,
     /// Image size WIDTHxHEIGHT.
     #[arg(long, value_parser = render::parse_size, default_value = "1920x1080")]

@@ -6,11 +6,13 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use cbdam_client::access::LocalSource;
+use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
 use cbdam_client::camera::Camera;
 use cbdam_client::draw::{CacheConfig, Frame, Gpu, RenderOptions, Renderer};
 use cbdam_client::flight::Flight;
+use cbdam_client::refine::FrameStats;
 use cbdam_client::refine::{RefineConfig, Refiner};
+use cbdam_client::remote::FetchOptions;
 use cbdam_client::world::World;
 use cbdam_codec::repository::Repository;
 use glam::DVec3;
@@ -81,6 +83,12 @@ fn refiner(
     budget_ms: f64,
     exaggeration: f64,
 ) -> Result<Refiner<LocalSource>> {
+    let config = refine_config(pixel_error, budget_ms, exaggeration)?;
+    Refiner::new(LocalSource::new(repo.clone()), config).context("starting the refiner")
+}
+
+/// The refinement settings of the command line, checked.
+fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> Result<RefineConfig> {
     if !(pixel_error.is_finite() && pixel_error > 0.0) {
         bail!("--pixel-error must be a positive number of pixels");
     }
@@ -90,14 +98,16 @@ fn refiner(
     if !(budget_ms.is_finite() && budget_ms >= 0.0) {
         bail!("--budget-ms must be 0 (unlimited) or positive");
     }
-    let config = RefineConfig {
+    Ok(RefineConfig {
         pixel_error,
         budget: (budget_ms > 0.0).then(|| Duration::from_secs_f64(budget_ms / 1e3)),
         exaggeration,
         ..RefineConfig::default()
-    };
-    Refiner::new(LocalSource::new(repo.clone()), config).context("starting the refiner")
+    })
 }
+
+/// Longest a remote render waits for the records its cut needs.
+const REMOTE_SETTLE: Duration = Duration::from_secs(60);
 
 fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
     CacheConfig {
@@ -117,13 +127,48 @@ fn write_png(path: &Path, frame: &Frame) -> Result<()> {
 }
 
 pub fn run(args: &RenderArgs) -> Result<()> {
-    let repo = open(&args.repo)?;
     let budget_ms = if args.path.is_some() {
         args.budget_ms
     } else {
         0.0
     };
-    let mut refiner = refiner(&repo, args.pixel_error, budget_ms, args.exaggeration)?;
+    let config = refine_config(args.pixel_error, budget_ms, args.exaggeration)?;
+    let url = args
+        .repo
+        .to_str()
+        .filter(|s| s.starts_with("http://") || s.starts_with("https://"));
+    if let Some(url) = url {
+        let source = RemoteSource::connect(url, FetchOptions::default())
+            .with_context(|| format!("connecting to {url}"))?;
+        let refiner = Refiner::new(source, config).context("starting the refiner")?;
+        render_with(args, refiner, true)
+    } else {
+        let repo = open(&args.repo)?;
+        let refiner =
+            Refiner::new(LocalSource::new(repo), config).context("starting the refiner")?;
+        render_with(args, refiner, false)
+    }
+}
+
+/// Waits (in real time) until the cut for `cam` converges with every record it needs fetched.
+fn settle_remote<S: DataSource>(refiner: &mut Refiner<S>, cam: &Camera) -> FrameStats {
+    let start = Instant::now();
+    loop {
+        let s = refiner.frame(cam);
+        if (s.converged && s.access.in_flight == 0) || start.elapsed() > REMOTE_SETTLE {
+            return s;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// One frame or a flight, from any source. `remote`: records arrive over the network, so the
+/// loop waits for them in real time (single frames) or paces the flight at `--fps`.
+fn render_with<S: DataSource>(
+    args: &RenderArgs,
+    mut refiner: Refiner<S>,
+    remote: bool,
+) -> Result<()> {
     let world = *refiner.world();
     let options = RenderOptions {
         wireframe: args.wireframe,
@@ -131,7 +176,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         ..RenderOptions::default()
     };
     if let (Some(path), Some(dir)) = (&args.path, &args.out_dir) {
-        return fly(args, path, dir, refiner, &options);
+        return fly(args, path, dir, refiner, &options, remote);
     }
     let output = args
         .output
@@ -139,7 +184,11 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         .expect("clap requires -o without --path");
     let cam = camera(&world, args.camera.as_deref(), args.size)?;
     let t = Instant::now();
-    let settled = refiner.settle(&cam, SETTLE_FRAMES);
+    let settled = if remote {
+        settle_remote(&mut refiner, &cam)
+    } else {
+        refiner.settle(&cam, SETTLE_FRAMES)
+    };
     let refine_s = t.elapsed().as_secs_f64();
     if !settled.met_target {
         eprintln!(
@@ -188,12 +237,13 @@ pub fn run(args: &RenderArgs) -> Result<()> {
 }
 
 /// `cbdam render --path`: every frame of a flight, refined with the per-frame budget.
-fn fly(
+fn fly<S: DataSource>(
     args: &RenderArgs,
     path: &Path,
     dir: &Path,
-    mut refiner: Refiner<LocalSource>,
+    mut refiner: Refiner<S>,
     options: &RenderOptions,
+    remote: bool,
 ) -> Result<()> {
     if !(args.fps > 0.0 && args.fps.is_finite()) {
         bail!("--fps must be positive, got {}", args.fps);
@@ -211,8 +261,13 @@ fn fly(
     let (mut refine_ms, mut render_ms, mut tris) = (Vec::new(), Vec::new(), Vec::new());
     let mut over = 0;
     let mut max_err: f64 = 0.0;
+    let start = Instant::now();
     for i in 0..frames {
         let t = (i as f64 / args.fps).min(flight.duration());
+        if remote {
+            let due = Duration::from_secs_f64(i as f64 / args.fps);
+            std::thread::sleep(due.saturating_sub(start.elapsed()));
+        }
         let cam = flight.camera(&world, t, args.size);
         let s = refiner.frame(&cam);
         let patches: Vec<_> = refiner.drawn().cloned().collect();

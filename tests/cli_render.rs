@@ -191,3 +191,44 @@ fn render_path_writes_every_frame() {
     ]);
     assert_eq!(o.status.code(), Some(1));
 }
+
+/// The same frame from a real `cbdam serve` over HTTP and from the local file: the client cannot
+/// tell its sources apart, so the converged cut and the PNG are byte-identical.
+#[cfg(unix)]
+#[test]
+fn render_over_http_equals_render_of_the_file() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let mut server = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(["serve", &s(&repo), "--addr", "127.0.0.1:0"])
+        .env("RUST_LOG", "info")
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(server.stderr.take().unwrap());
+    let addr = loop {
+        let mut line = String::new();
+        assert!(err.read_line(&mut line).unwrap() > 0, "serve exited early");
+        if let Some(i) = line.find("listening on http://") {
+            break line[i + "listening on http://".len()..].trim().to_string();
+        }
+    };
+    // Drain the access log so the server never blocks on a full pipe.
+    std::thread::spawn(move || for _ in err.lines() {});
+    let local = dir.path().join("local.png");
+    let remote = dir.path().join("remote.png");
+    let o = cbdam(&["render", &s(&repo), "--size", "200x120", "-o", &s(&local)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let url = format!("http://{addr}/");
+    let o = cbdam(&["render", &url, "--size", "200x120", "-o", &s(&remote)]);
+    let _ = server.kill();
+    let _ = server.wait();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        std::fs::read(&local).unwrap(),
+        std::fs::read(&remote).unwrap()
+    );
+}
