@@ -8,6 +8,7 @@ mod bench_codec;
 mod bench_report;
 mod bench_serve;
 mod build;
+mod demo;
 mod extract;
 mod inspect;
 mod render;
@@ -77,6 +78,10 @@ enum Command {
     /// does, and writes each frame to --out-dir/frame_NNNNN.png. Prints the frame time and
     /// triangle count (with --path, median and p99 refine and render times).
     Render(RenderArgs),
+    /// The whole pipeline on the bundled SRTM tile: builds a repository (once), serves it on
+    /// loopback, replays a flight against the server over HTTP and renders an overview and the
+    /// flight's frames offscreen from what the client fetched; prints where the outputs are.
+    Demo(DemoArgs),
     /// Measure the codec and other parts of the pipeline.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -265,6 +270,23 @@ pub struct BenchRenderArgs {
     /// Timed frames per view; the median is reported.
     #[arg(long, default_value_t = 5)]
     runs: usize,
+}
+
+/// Arguments of `cbdam demo`.
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Where the repository, CSV and PNGs go.
+    #[arg(long, default_value = "demo-out")]
+    out_dir: PathBuf,
+    /// Flight from data/flights/.
+    #[arg(long, default_value = "descent.json")]
+    flight: String,
+    /// Size of the rendered frames.
+    #[arg(long, value_parser = render::parse_size, default_value = "640x360")]
+    size: (u32, u32),
+    /// Render at most this many frames of the flight (all by default).
+    #[arg(long)]
+    max_frames: Option<u64>,
 }
 
 /// Which value(s) of a two-way option to run.
@@ -516,6 +538,7 @@ fn main() -> ExitCode {
         Command::Extract(args) => extract::run(&args),
         Command::Serve(args) => serve::run(&args),
         Command::Replay(args) => replay::run(&args),
+        Command::Demo(args) => demo::run(&args),
         Command::Bench(BenchCommand::Codec(args)) => bench_codec::run(&args),
         Command::Bench(BenchCommand::Serve(args)) => bench_serve::run(&args),
         Command::Bench(BenchCommand::Build(args)) => bench_build::run(&args),

@@ -232,3 +232,31 @@ fn render_over_http_equals_render_of_the_file() {
         std::fs::read(&remote).unwrap()
     );
 }
+
+/// `cbdam demo` end to end (build, serve, replay and render over HTTP), bounded to two frames.
+#[test]
+fn demo_builds_serves_replays_and_renders() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let o = cbdam(&[
+        "demo",
+        "--out-dir",
+        &s(&out),
+        "--size",
+        "160x90",
+        "--max-frames",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("demo finished"), "{stdout}");
+    let csv = std::fs::read_to_string(out.join("replay.csv")).unwrap();
+    assert!(csv.lines().count() > 100, "a row per frame of the flight");
+    assert_eq!(png_size(&out.join("overview.png")), (160, 90));
+    for i in 0..2 {
+        let (size, colours) = png_colours(&out.join(format!("frames/frame_{i:05}.png")));
+        assert_eq!(size, (160, 90));
+        assert!(colours > 50, "frame {i} shows terrain");
+    }
+    assert!(!out.join("frames/frame_00002.png").exists());
+}

@@ -1,0 +1,113 @@
+//! `cbdam demo`: the whole pipeline on the bundled SRTM tile, over HTTP on loopback — build (once),
+//! serve, then the client against the server: the replay statistics of a flight and offscreen
+//! frames rendered from what the client fetched.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use cbdam_server::{AppState, Config, RepoSpec};
+
+use crate::{AlphaArg, BuildArgs, CoderArg, DemoArgs, RenderArgs, ReplayArgs};
+
+pub fn run(args: &DemoArgs) -> Result<()> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = &args.out_dir;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let repo = out.join("srtm.cbdam");
+    if repo.exists() {
+        eprintln!("demo: using {} (delete it to rebuild)", repo.display());
+    } else {
+        eprintln!(
+            "demo: building {} from the bundled SRTM tile, ε = 1 m",
+            repo.display()
+        );
+        crate::build::run(&BuildArgs {
+            input: root.join("data/srtm3_demcompare.tif"),
+            size: None,
+            memory_limit: None,
+            output: repo.clone(),
+            max_error: 1.0,
+            diamond_size: 65,
+            threads: None,
+            coder: CoderArg::Adaptive,
+            alpha: AlphaArg::One,
+            quantum: None,
+            nodata: None,
+            quiet: false,
+        })?;
+    }
+
+    // The server runs on its own runtime thread for the whole demo.
+    let spec: RepoSpec = format!("srtm={}", repo.display()).parse()?;
+    let state = AppState::open(&[spec], Config::default())?;
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .context("starting the server runtime")?;
+    let listener = rt
+        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+        .context("binding a loopback port")?;
+    let addr = listener.local_addr()?;
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let server = rt.spawn(cbdam_server::run(listener, state, async {
+        let _ = stopped.await;
+    }));
+    let url = format!("http://{addr}/v1/repos/srtm");
+    eprintln!("demo: serving {} at {url}", repo.display());
+
+    let flight = root.join("data/flights").join(&args.flight);
+    let csv = out.join("replay.csv");
+    let frames = out.join("frames");
+    let overview = out.join("overview.png");
+    let t = Instant::now();
+    let result = (|| -> Result<()> {
+        eprintln!("demo: replaying {} over HTTP", flight.display());
+        crate::replay::run(&ReplayArgs {
+            repo: url.clone(),
+            path: flight.clone(),
+            size: (1920, 1080),
+            pixel_error: 1.0,
+            budget_ms: 2.0,
+            out: csv.clone(),
+            fps: 30.0,
+            max_settle_frames: 600,
+            detail: false,
+        })?;
+        let render = |output: Option<PathBuf>, path: Option<PathBuf>, out_dir: Option<PathBuf>| {
+            crate::render::run(&RenderArgs {
+                repo: PathBuf::from(&url),
+                size: args.size,
+                output,
+                path,
+                out_dir,
+                fps: 30.0,
+                budget_ms: 2.0,
+                max_frames: args.max_frames,
+                camera: None,
+                pixel_error: 1.0,
+                wireframe: false,
+                levels: false,
+                exaggeration: 1.0,
+                pool_mib: None,
+            })
+        };
+        eprintln!("demo: rendering an overview over HTTP");
+        render(Some(overview.clone()), None, None)?;
+        eprintln!("demo: rendering the flight's frames over HTTP (offscreen)");
+        render(None, Some(flight.clone()), Some(frames.clone()))
+    })();
+    let _ = stop.send(());
+    let _ = rt.block_on(server);
+    result?;
+    println!(
+        "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png",
+        t.elapsed().as_secs_f64(),
+        repo.display(),
+        csv.display(),
+        overview.display(),
+        frames.display()
+    );
+    Ok(())
+}
