@@ -17,6 +17,7 @@ use cbdam_client::world::World;
 use cbdam_codec::repository::Repository;
 use glam::DVec3;
 
+use crate::replay::percentile;
 use crate::{BenchRenderArgs, RenderArgs};
 
 /// Parses `WIDTHxHEIGHT`.
@@ -315,13 +316,6 @@ fn fly<S: DataSource>(
         eprintln!("cbdam: warning: {e}");
     }
     Ok(())
-}
-
-fn percentile<T: Copy + Default>(sorted: &[T], q: f64) -> T {
-    if sorted.is_empty() {
-        return T::default();
-    }
-    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
 pub fn bench(args: &BenchRenderArgs) -> Result<()> {

@@ -235,7 +235,9 @@ fn thread_cpu_seconds() -> f64 {
     f64::NAN
 }
 
-fn percentile<T: Copy + Default>(sorted: &[T], q: f64) -> T {
+/// The `q`-quantile of sorted values (nearest rank), or the default of an empty list. Shared by
+/// the replay, render and bench summaries.
+pub fn percentile<T: Copy + Default>(sorted: &[T], q: f64) -> T {
     if sorted.is_empty() {
         return T::default();
     }

@@ -16,9 +16,7 @@ const COLUMNS: [&str; 4] = [
     "max_screen_error_px",
 ];
 
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
-}
+use crate::replay::percentile;
 
 /// The section's Markdown body for `csvs` (each labelled, e.g. by its ε and pixel tolerance).
 pub fn section(csvs: &[(String, PathBuf)]) -> Result<String> {

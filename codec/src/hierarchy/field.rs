@@ -26,9 +26,9 @@ use std::sync::atomic::{AtomicI32, Ordering};
 
 use memmap2::MmapMut;
 
-use super::refine::half_range;
+use super::refine::{half_range, mirror_missing_halves};
 use crate::CodecError;
-use crate::geometry::{Diagonal, DiamondId, Half, Layout};
+use crate::geometry::{DiamondId, Half, Layout};
 
 /// Where the encoder keeps its large temporaries (the reconstruction field).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -161,21 +161,7 @@ impl ReconField {
                 }
             }
         }
-        for (h, half) in Half::BOTH.into_iter().enumerate() {
-            if parents[h].is_some() {
-                continue;
-            }
-            for j in 0..n {
-                let (lo, hi) = half_range(diag, half, n, j);
-                for i in lo..=hi {
-                    let (mi, mj) = match diag {
-                        Diagonal::Main => (j, i),
-                        Diagonal::Anti => (n - 1 - j, n - 1 - i),
-                    };
-                    out[j * n + i] = out[mj * n + mi];
-                }
-            }
-        }
+        mirror_missing_halves(diag, n, parents.map(|p| p.is_some()), out);
     }
 }
 

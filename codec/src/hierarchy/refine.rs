@@ -104,8 +104,14 @@ pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], ou
         }
         first = false;
     }
+    mirror_missing_halves(diag, n, parents.map(|p| p.is_some()), out);
+}
+
+/// Fills each half whose parent is missing (`present[h]` false) with the mirror image of the
+/// other half across the split diagonal: the symmetric extension of incomplete diamonds.
+pub(crate) fn mirror_missing_halves(diag: Diagonal, n: usize, present: [bool; 2], out: &mut [i32]) {
     for (h, half) in Half::BOTH.into_iter().enumerate() {
-        if parents[h].is_some() {
+        if present[h] {
             continue;
         }
         for j in 0..n {
