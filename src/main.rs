@@ -332,7 +332,8 @@ pub struct BenchCodecArgs {
 pub struct BenchReportArgs {
     /// DEM files. Default: every .tif and .png in data/.
     inputs: Vec<PathBuf>,
-    /// Output directory (created): report.md, results.json, plots/*.svg.
+    /// Output directory (created): report.md, results.json, plots/*.svg, replay/ (the
+    /// rendering-cost repository and per-frame CSVs).
     #[arg(long, default_value = "bench-report")]
     out: PathBuf,
     /// Small and fast: one run per point and a 257² synthetic terrain unless given explicitly.
@@ -359,6 +360,17 @@ pub struct BenchReportArgs {
     /// Python virtual environment for the peers (default ~/.cache/cbdam-bench-venv).
     #[arg(long)]
     venv: Option<PathBuf>,
+    /// Rendering cost: the flights (every *.json in this folder; default data/flights).
+    #[arg(long)]
+    flights: Option<PathBuf>,
+    /// Rendering cost: pixel-error targets, comma-separated (default 0.5,1,2,4,8; 1,4 with
+    /// --quick).
+    #[arg(long, value_delimiter = ',')]
+    pixel_errors: Option<Vec<f64>>,
+    /// Rendering cost: the dataset to fly over, by its name in the report (default the SRTM
+    /// sample when it is an input, else the first input).
+    #[arg(long)]
+    render_dem: Option<String>,
 }
 
 /// Entropy coder of `cbdam build`.
@@ -495,7 +507,8 @@ pub struct ExtractArgs {
 /// Replay a flight through the refinement loop (documented on [`Command::Replay`]).
 #[derive(Args, Debug)]
 pub struct ReplayArgs {
-    /// Repository file (remote `http://` URLs are not supported yet).
+    /// Repository file, or the URL of one (`cbdam serve`'s repository URL or a .cbdam file on
+    /// any server that honours Range).
     #[arg(value_name = "REPO_OR_URL")]
     repo: String,
     /// Flight file (JSON keyframes relative to the data's extent; see data/flights/).

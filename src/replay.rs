@@ -57,47 +57,124 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         let refiner = Refiner::new(source, config).context("starting the refiner")?;
         // Over a network, frames are paced at --fps so that fetches take the time they would
         // take in a viewer; locally nothing waits on I/O and frames run back to back.
-        fly(args, &flight, refiner, true)
+        replay(args, &flight, refiner, true)
     } else {
         let source = LocalSource::open(Path::new(&args.repo))
             .with_context(|| format!("opening {}", args.repo))?;
         let refiner = Refiner::new(source, config).context("starting the refiner")?;
-        fly(args, &flight, refiner, false)
+        replay(args, &flight, refiner, false)
     }
 }
 
-/// Runs the flight, then the settling frames, writing the CSV and the summary.
-fn fly<S: DataSource>(
+fn replay<S: DataSource>(
     args: &ReplayArgs,
     flight: &Flight,
     mut refiner: Refiner<S>,
     paced: bool,
 ) -> Result<()> {
+    let pacing = ReplayPacing {
+        fps: args.fps,
+        size: args.size,
+        max_settle_frames: args.max_settle_frames,
+        paced,
+    };
+    let run = fly(flight, &mut refiner, &pacing, &args.out)?;
+    print_summary(args, &run);
+    for e in refiner.errors() {
+        eprintln!("cbdam: warning: {e}");
+    }
+    Ok(())
+}
+
+/// What one replay measured: the per-frame statistics and the refining thread's CPU time per
+/// frame, split at the end of the flight (the rest are the settling frames).
+pub struct ReplayRun {
+    /// Every frame, flight then settling.
+    pub rows: Vec<FrameStats>,
+    /// CPU ms of the refining thread, one per row.
+    pub cpu_ms: Vec<f64>,
+    /// How many of `rows` are flight frames.
+    pub flight_frames: usize,
+    /// Settling frames until the cut converged; `None` if it did not within the limit.
+    pub converged_after: Option<u64>,
+    /// The flight's duration, seconds.
+    pub duration_s: f64,
+    /// Grid intervals per diamond side (N − 1), to turn decoded diamonds into cells.
+    pub cells_per_side: usize,
+}
+
+impl ReplayRun {
+    /// The flight frames (no settling).
+    pub fn flight(&self) -> &[FrameStats] {
+        &self.rows[..self.flight_frames]
+    }
+
+    /// Sorted CPU ms of the flight frames.
+    pub fn flight_cpu_sorted(&self) -> Vec<f64> {
+        let mut cpu = self.cpu_ms[..self.flight_frames].to_vec();
+        cpu.sort_by(f64::total_cmp);
+        cpu
+    }
+
+    /// Sorted triangles per flight frame.
+    pub fn flight_triangles_sorted(&self) -> Vec<u64> {
+        let mut tris: Vec<u64> = self.flight().iter().map(|s| s.triangles).collect();
+        tris.sort_unstable();
+        tris
+    }
+
+    /// Bytes fetched by the end of the flight (before settling).
+    pub fn flight_bytes(&self) -> u64 {
+        self.flight().last().map_or(0, |s| s.access.bytes_fetched)
+    }
+
+    /// The last frame: the converged state when `converged_after` is `Some`.
+    pub fn last(&self) -> &FrameStats {
+        self.rows.last().expect("a replay has at least one frame")
+    }
+}
+
+/// How a replay runs: frame rate, viewport, settling limit, and whether frames wait for wall
+/// time (over a network, so that fetches take the time they would in a viewer).
+pub struct ReplayPacing {
+    pub fps: f64,
+    pub size: (u32, u32),
+    pub max_settle_frames: usize,
+    pub paced: bool,
+}
+
+/// Runs `flight`, then up to `max_settle_frames` settling frames with the camera still,
+/// writing one CSV row per frame to `csv_path`.
+pub fn fly<S: DataSource>(
+    flight: &Flight,
+    refiner: &mut Refiner<S>,
+    pacing: &ReplayPacing,
+    csv_path: &Path,
+) -> Result<ReplayRun> {
     let world = *refiner.world();
     let start = std::time::Instant::now();
 
-    let file = std::fs::File::create(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+    let file = std::fs::File::create(csv_path)
+        .with_context(|| format!("creating {}", csv_path.display()))?;
     let mut csv = std::io::BufWriter::new(file);
     writeln!(csv, "{HEADER}")?;
 
-    let flight_frames = (flight.duration() * args.fps).ceil() as u64 + 1;
+    let flight_frames = (flight.duration() * pacing.fps).ceil() as u64 + 1;
     let mut rows: Vec<FrameStats> = Vec::new();
     let mut cpu_rows: Vec<f64> = Vec::new();
-    let mut bytes_at_end_of_flight = 0;
     let mut converged_after = None;
     let mut frame = 0u64;
     loop {
         let settling = frame >= flight_frames;
-        if settling && frame - flight_frames >= args.max_settle_frames as u64 {
+        if settling && frame - flight_frames >= pacing.max_settle_frames as u64 {
             break;
         }
-        let t = (frame as f64 / args.fps).min(flight.duration());
-        if paced {
-            let due = Duration::from_secs_f64(frame as f64 / args.fps);
+        let t = (frame as f64 / pacing.fps).min(flight.duration());
+        if pacing.paced {
+            let due = Duration::from_secs_f64(frame as f64 / pacing.fps);
             std::thread::sleep(due.saturating_sub(start.elapsed()));
         }
-        let camera = flight.camera(&world, t, args.size);
+        let camera = flight.camera(&world, t, pacing.size);
         let cpu = thread_cpu_seconds();
         let s = refiner.frame(&camera);
         let cpu_ms = (thread_cpu_seconds() - cpu) * 1e3;
@@ -128,35 +205,40 @@ fn fly<S: DataSource>(
         rows.push(s);
         cpu_rows.push(cpu_ms);
         frame += 1;
-        if frame == flight_frames {
-            bytes_at_end_of_flight = s.access.bytes_fetched;
-        }
         if settling && s.converged {
             converged_after = Some(frame - flight_frames);
             break;
         }
     }
     csv.flush()?;
-    drop(csv);
+    Ok(ReplayRun {
+        flight_frames: rows.len().min(flight_frames as usize),
+        rows,
+        cpu_ms: cpu_rows,
+        converged_after,
+        duration_s: flight.duration(),
+        cells_per_side: refiner.layout().n() - 1,
+    })
+}
 
-    let flight_rows = &rows[..rows.len().min(flight_frames as usize)];
+/// Prints the summary of `cbdam replay`.
+fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
+    let flight_rows = run.flight();
     let mut ms: Vec<f64> = flight_rows.iter().map(|s| s.refine_ms).collect();
     ms.sort_by(f64::total_cmp);
-    let mut cpu: Vec<f64> = cpu_rows[..flight_rows.len()].to_vec();
-    cpu.sort_by(f64::total_cmp);
-    let mut tris: Vec<u64> = flight_rows.iter().map(|s| s.triangles).collect();
-    tris.sort_unstable();
-    let decoded: usize = rows.iter().map(|s| s.decoded).sum();
-    let decode_s: f64 = rows.iter().map(|s| s.decode_ms).sum::<f64>() / 1e3;
-    let n1 = (refiner.layout().n() - 1) as f64;
+    let cpu = run.flight_cpu_sorted();
+    let tris = run.flight_triangles_sorted();
+    let decoded: usize = run.rows.iter().map(|s| s.decoded).sum();
+    let decode_s: f64 = run.rows.iter().map(|s| s.decode_ms).sum::<f64>() / 1e3;
+    let n1 = run.cells_per_side as f64;
     let pixels = f64::from(args.size.0) * f64::from(args.size.1);
-    let last = rows.last().expect("at least one frame");
+    let last = run.last();
     let over = flight_rows.iter().filter(|s| s.budget_exhausted).count();
     println!(
         "flight: {} frames at {} fps ({:.1} s), {}×{}, target {} px, budget {}",
         flight_rows.len(),
         args.fps,
-        flight.duration(),
+        run.duration_s,
         args.size.0,
         args.size.1,
         args.pixel_error,
@@ -192,14 +274,15 @@ fn fly<S: DataSource>(
             decoded as f64 * n1 * n1 / decode_s / 1e6
         );
     }
+    let flight_bytes = run.flight_bytes();
     println!(
         "fetched: {} bytes during the flight ({:.0} bytes per second of flight), {} in all, {} failures",
-        bytes_at_end_of_flight,
-        bytes_at_end_of_flight as f64 / flight.duration().max(1e-9),
+        flight_bytes,
+        flight_bytes as f64 / run.duration_s.max(1e-9),
         last.access.bytes_fetched,
         last.failures
     );
-    match converged_after {
+    match run.converged_after {
         Some(n) => println!(
             "converged {n} frames after the flight: {} diamonds refined, {} triangles, max error {:.3} px",
             last.refined, last.triangles, last.max_screen_error_px
@@ -209,10 +292,6 @@ fn fly<S: DataSource>(
             args.max_settle_frames, last.max_screen_error_px
         ),
     }
-    for e in refiner.errors() {
-        eprintln!("cbdam: warning: {e}");
-    }
-    Ok(())
 }
 
 /// CPU time of the calling thread, seconds: what the loop costs the render thread, without

@@ -11,6 +11,7 @@ use std::path::Path;
 
 use anyhow::{Result, bail};
 use cbdam_codec::atomic::write_atomically;
+use cbdam_codec::input::{Dem, SampleType};
 
 use crate::SynthArgs;
 
@@ -86,6 +87,20 @@ pub fn terrain(size: usize, seed: u64) -> Vec<f32> {
     (0..size)
         .flat_map(|y| h[y * side..y * side + size].to_vec())
         .collect()
+}
+
+/// `terrain(size, seed)` as a float32 DEM without georeferencing: the benchmark report's
+/// synthetic input. Values off any lattice exercise the codec's pre-quantization path, which
+/// the bundled whole-metre DEMs do not.
+pub fn dem(size: usize, seed: u64) -> Dem {
+    Dem {
+        width: size,
+        height: size,
+        values: terrain(size, seed).into_iter().map(f64::from).collect(),
+        sample_type: SampleType::F32,
+        nodata: None,
+        georef: None,
+    }
 }
 
 /// Writes `terrain(size, seed)` to `path`.

@@ -1005,7 +1005,36 @@ fn bench_report_quick() {
     assert!(o.status.success(), "{}", stderr(&o));
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(md.contains("| CPU |") && md.contains("| commit |"), "{md}");
-    assert!(md.contains("Not measured: cbdam replay not available."));
+    // Rendering cost: the two bundled flights over the DEM at 1 and 4 px (the --quick
+    // targets), measured by the real refinement loop.
+    let cost = tables_with(&md, "triangles / frame (median)");
+    assert_eq!(cost.len(), 1, "{md}");
+    let cost = &cost[0];
+    assert_eq!(cost.len(), 4, "{cost:?}");
+    for flight in ["descent", "low_pass"] {
+        let rows: Vec<_> = cost.iter().filter(|r| r["flight"] == flight).collect();
+        assert_eq!(rows.len(), 2, "{cost:?}");
+        let tris = |r: &std::collections::HashMap<String, String>| -> u64 {
+            r["triangles, converged"].parse().unwrap()
+        };
+        // A looser target never needs more triangles once the cut has converged.
+        assert!(tris(rows[1]) <= tris(rows[0]), "{rows:?}");
+        for r in &rows {
+            let target: f64 = r["target (px)"].parse().unwrap();
+            let frames: usize = r["frames"].parse().unwrap();
+            assert!(frames > 10, "{r:?}");
+            let converged: f64 = r["error (px), converged"]
+                .parse()
+                .unwrap_or_else(|_| panic!("did not converge: {r:?}"));
+            assert!(converged <= target, "{r:?}");
+            let csv = out.join("replay").join(format!("{flight}_{target}px.csv"));
+            let lines = std::fs::read_to_string(&csv).unwrap().lines().count();
+            assert!(lines > frames, "{}: {lines} lines", csv.display());
+        }
+    }
+    assert!(md.contains("(plots/render_cost.svg)"));
+    let svg = std::fs::read_to_string(out.join("plots/render_cost.svg")).unwrap();
+    assert!(svg.contains("<svg") && svg.contains("low_pass"));
     // One rate table per dataset (the DEM and the synthetic terrain), every default ε, every
     // verified max error within its ε.
     let tables = tables_with(&md, "cbdam max err (m)");

@@ -9,7 +9,6 @@ mod machine;
 mod peers;
 mod plot;
 mod render_cost;
-mod synth;
 
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
@@ -95,7 +94,7 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
     if synth_side != 0 {
         dems.push((
             format!("synthetic fractal {synth_side}²"),
-            synth::fractal(synth_side, SYNTH_SEED),
+            crate::synth::dem(synth_side, SYNTH_SEED),
         ));
     }
 
@@ -164,7 +163,7 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
         per_dataset(&mut md, d, &rows, &plot)?;
     }
     md += "\n## Rendering cost against error\n\n";
-    md += &render_cost::section(&[])?;
+    md += &rendering_cost(args, &datasets)?;
     fairness(&mut md);
     let report = args.out.join("report.md");
     std::fs::write(&report, md).with_context(|| format!("writing {}", report.display()))?;
@@ -174,6 +173,71 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
     )?;
     println!("{}", report.display());
     Ok(())
+}
+
+/// The rendering-cost section: the flights over one dataset (`--render-dem`, default the SRTM
+/// sample when it is among the inputs, else the first) at ε = 1 m.
+fn rendering_cost(args: &BenchReportArgs, datasets: &[Dataset]) -> Result<String> {
+    const RENDER_EPS: f64 = 1.0;
+    let flights_dir = args
+        .flights
+        .clone()
+        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flights"));
+    let flights = render_cost::flights_in(&flights_dir)?;
+    if flights.is_empty() {
+        return Ok(format!(
+            "Not measured: no flights (*.json) in {}.\n",
+            flights_dir.display()
+        ));
+    }
+    let pick = match &args.render_dem {
+        Some(name) => datasets
+            .iter()
+            .find(|d| &d.name == name)
+            .with_context(|| format!("--render-dem {name}: not one of the report's datasets"))?,
+        None => match datasets.iter().find(|d| d.name.starts_with("srtm")) {
+            Some(d) => d,
+            None => datasets.first().context("no dataset to fly over")?,
+        },
+    };
+    let mut targets = args.pixel_errors.clone().unwrap_or_else(|| {
+        if args.quick {
+            vec![1.0, 4.0]
+        } else {
+            vec![0.5, 1.0, 2.0, 4.0, 8.0]
+        }
+    });
+    if targets.is_empty() || targets.iter().any(|p| !(p.is_finite() && *p > 0.0)) {
+        bail!("--pixel-errors must list positive numbers of pixels");
+    }
+    targets.sort_by(f64::total_cmp);
+    targets.dedup();
+    let name = file_safe(&pick.name);
+    let points = render_cost::measure(
+        &pick.dem,
+        &name,
+        RENDER_EPS,
+        &flights,
+        &targets,
+        &args.out.join("replay"),
+    )?;
+    let plot = "plots/render_cost.svg";
+    plot::render_cost(
+        &args.out.join(plot),
+        &format!(
+            "{}: rendering cost against the pixel-error target",
+            pick.name
+        ),
+        &points,
+    )?;
+    render_cost::section(
+        &points,
+        &format!(
+            "{} at ε = {RENDER_EPS} m (repository and per-frame CSVs in `replay/`)",
+            pick.name
+        ),
+        Some(plot),
+    )
 }
 
 /// Dataset names as file names and harness keys: no spaces or superscripts.

@@ -38,6 +38,19 @@ fn tick(v: f64) -> String {
     }
 }
 
+/// A linear-axis label: 0, 0.25, 350k, 1.2M.
+fn si(v: f64) -> String {
+    if v.abs() >= 1e6 {
+        format!("{}M", tick(v / 1e6))
+    } else if v.abs() >= 1e4 {
+        format!("{}k", tick(v / 1e3))
+    } else if v == 0.0 {
+        "0".into()
+    } else {
+        tick(v)
+    }
+}
+
 pub fn dataset(path: &Path, title: &str, series: &[Series]) -> Result<()> {
     let err = |e: &dyn std::fmt::Debug| anyhow!("plotting {}: {e:?}", path.display());
     let root = SVGBackend::new(path, (1500, 480)).into_drawing_area();
@@ -104,9 +117,108 @@ pub fn dataset(path: &Path, title: &str, series: &[Series]) -> Result<()> {
     Ok(())
 }
 
+/// The rendering-cost plot: triangles per frame, CPU ms per frame (median, dashed p99) and KB
+/// read during the flight against the pixel-error target, one series per flight. Both axes
+/// logarithmic: targets span 0.5…8 px and costs fall roughly with their square.
+pub fn render_cost(
+    path: &Path,
+    title: &str,
+    points: &[super::render_cost::CostPoint],
+) -> Result<()> {
+    let err = |e: &dyn std::fmt::Debug| anyhow!("plotting {}: {e:?}", path.display());
+    let root = SVGBackend::new(path, (1500, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let root = root
+        .titled(title, ("sans-serif", 22))
+        .map_err(|e| err(&e))?;
+    let panels = root.split_evenly((1, 3));
+    let mut flights: Vec<&str> = points.iter().map(|p| p.flight.as_str()).collect();
+    flights.dedup();
+    let (x_lo, x_hi) = span(points.iter().map(|p| p.pixel_error));
+    type Pick = fn(&super::render_cost::CostPoint) -> (f64, Option<f64>);
+    let what: [(&str, Pick); 3] = [
+        ("triangles per frame (median)", |p| {
+            (p.triangles_median as f64, None)
+        }),
+        ("CPU ms per frame (median, p99 dashed)", |p| {
+            (p.cpu_ms_median, Some(p.cpu_ms_p99))
+        }),
+        ("KB read during the flight", |p| {
+            (p.bytes_flight as f64 / 1e3, None)
+        }),
+    ];
+    for (k, (panel, (label, pick))) in panels.iter().zip(what).enumerate() {
+        // Linear from zero: a factor of 2–4 over the range, where a log axis would show no
+        // labelled tick at all.
+        let y_hi = points
+            .iter()
+            .flat_map(|p| {
+                let (a, b) = pick(p);
+                [Some(a), b].into_iter().flatten()
+            })
+            .filter(|v| v.is_finite())
+            .fold(0f64, f64::max)
+            .max(1e-9)
+            * 1.15;
+        let mut chart = ChartBuilder::on(panel)
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d((x_lo..x_hi).log_scale(), 0.0..y_hi)
+            .map_err(|e| err(&e))?;
+        chart
+            .configure_mesh()
+            .x_desc("pixel-error target (px)")
+            .y_desc(label)
+            .x_label_formatter(&|v| tick(*v))
+            .y_label_formatter(&|v| si(*v))
+            .draw()
+            .map_err(|e| err(&e))?;
+        for (i, flight) in flights.iter().enumerate() {
+            let color = Palette99::pick(i).to_rgba();
+            let of = || points.iter().filter(move |p| p.flight == *flight);
+            let main: Vec<(f64, f64)> = of()
+                .map(|p| (p.pixel_error, pick(p).0))
+                .filter(|p| p.1 > 0.0 && p.1.is_finite())
+                .collect();
+            let line = chart
+                .draw_series(LineSeries::new(main.clone(), color.stroke_width(2)))
+                .map_err(|e| err(&e))?;
+            if k == 0 {
+                line.label(*flight).legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+                });
+            }
+            chart
+                .draw_series(main.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                .map_err(|e| err(&e))?;
+            let second: Vec<(f64, f64)> = of()
+                .filter_map(|p| pick(p).1.map(|v| (p.pixel_error, v)))
+                .filter(|p| p.1 > 0.0 && p.1.is_finite())
+                .collect();
+            if !second.is_empty() {
+                chart
+                    .draw_series(DashedLineSeries::new(second, 6, 4, color.stroke_width(1)))
+                    .map_err(|e| err(&e))?;
+            }
+        }
+        if k == 0 {
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .position(SeriesLabelPosition::UpperRight)
+                .draw()
+                .map_err(|e| err(&e))?;
+        }
+    }
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
-    use super::tick;
+    use super::{si, tick};
 
     #[test]
     fn ticks() {
@@ -116,5 +228,9 @@ mod tests {
         assert_eq!(tick(10.0), "10");
         assert_eq!(tick(123.4), "123");
         assert_eq!(tick(0.0123), "0.0123");
+        assert_eq!(si(0.0), "0");
+        assert_eq!(si(0.25), "0.25");
+        assert_eq!(si(350_000.0), "350k");
+        assert_eq!(si(1_250_000.0), "1.25M");
     }
 }
