@@ -74,6 +74,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             fps: 30.0,
             max_settle_frames: 600,
             detail: false,
+            cut_mib: 1024,
         })?;
         let render = |output: Option<PathBuf>, path: Option<PathBuf>, out_dir: Option<PathBuf>| {
             crate::render::run(&RenderArgs {

@@ -527,7 +527,8 @@ pub struct ReplayArgs {
     /// the refining thread), decode_ms (worker time), decoded,
     /// max_screen_error_px, met_target, converged, diamonds_in_cut, drawn_halves, triangles,
     /// refinements, coarsenings, budget_exhausted, bytes_fetched (cumulative), requests_issued
-    /// (cumulative), requests_in_flight, failures.
+    /// (cumulative), requests_in_flight, failures, cut_bytes (decoded diamonds in the cut),
+    /// memory_limited (a refinement waited for --cut-mib).
     #[arg(long)]
     out: PathBuf,
     /// Frames per second of flight time.
@@ -540,6 +541,10 @@ pub struct ReplayArgs {
     /// Synthesise procedural detail past the finest stored level.
     #[arg(long)]
     detail: bool,
+    /// Memory for the cut's decoded diamonds, MiB (0: unlimited). At the limit a refinement
+    /// goes ahead only by coarsening diamonds of smaller screen error elsewhere.
+    #[arg(long, default_value_t = 1024)]
+    cut_mib: usize,
 }
 
 fn main() -> ExitCode {

@@ -16,7 +16,7 @@ use crate::ReplayArgs;
 /// `requests_issued` are cumulative, the other counters per frame or current state.
 pub const HEADER: &str = "frame,t,settling,refine_ms,cpu_ms,decode_ms,decoded,max_screen_error_px,\
 met_target,converged,diamonds_in_cut,drawn_halves,triangles,refinements,coarsenings,\
-budget_exhausted,bytes_fetched,requests_issued,requests_in_flight,failures";
+budget_exhausted,bytes_fetched,requests_issued,requests_in_flight,failures,cut_bytes,memory_limited";
 
 /// `WIDTHxHEIGHT`.
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -49,6 +49,10 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         pixel_error: args.pixel_error,
         budget: (args.budget_ms > 0.0).then(|| Duration::from_secs_f64(args.budget_ms / 1e3)),
         detail: args.detail.then(DetailConfig::default),
+        cut_bytes: match args.cut_mib {
+            0 => None,
+            m => Some(m.checked_mul(1 << 20).context("--cut-mib is too large")?),
+        },
         ..RefineConfig::default()
     };
     if args.repo.starts_with("http://") || args.repo.starts_with("https://") {
@@ -180,7 +184,7 @@ pub fn fly<S: DataSource>(
         let cpu_ms = (thread_cpu_seconds() - cpu) * 1e3;
         writeln!(
             csv,
-            "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             s.frame,
             t,
             u8::from(settling),
@@ -201,6 +205,8 @@ pub fn fly<S: DataSource>(
             s.access.requests_issued,
             s.access.in_flight,
             s.failures,
+            s.cut_bytes,
+            u8::from(s.memory_limited),
         )?;
         rows.push(s);
         cpu_rows.push(cpu_ms);
@@ -234,6 +240,7 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     let pixels = f64::from(args.size.0) * f64::from(args.size.1);
     let last = run.last();
     let over = flight_rows.iter().filter(|s| s.budget_exhausted).count();
+    let memory_limited = run.rows.iter().filter(|s| s.memory_limited).count();
     println!(
         "flight: {} frames at {} fps ({:.1} s), {}×{}, target {} px, budget {}",
         flight_rows.len(),
@@ -291,6 +298,14 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
             "not converged within {} frames after the flight (max error {:.3} px)",
             args.max_settle_frames, last.max_screen_error_px
         ),
+    }
+    if memory_limited > 0 {
+        println!(
+            "the cut's memory limit (--cut-mib {}) held refinement back in {memory_limited} frames; \
+             cut now {:.1} MiB",
+            args.cut_mib,
+            last.cut_bytes as f64 / f64::from(1u32 << 20)
+        );
     }
 }
 

@@ -808,6 +808,8 @@ fn replay_writes_documented_csv_and_converges() {
             "coarsenings",
             "bytes_fetched",
             "requests_in_flight",
+            "cut_bytes",
+            "memory_limited",
         ] {
             assert!(header.contains(&col), "{flight}: no column {col}");
         }
@@ -828,6 +830,9 @@ fn replay_writes_documented_csv_and_converges() {
         assert!(last[col("triangles")] > 0.0 && last[col("diamonds_in_cut")] > 0.0);
         assert!(rows.iter().map(|r| r[col("refinements")]).sum::<f64>() > 0.0);
         assert!(last[col("bytes_fetched")] > 0.0);
+        // The default cut memory (1 GiB) is far above what this small tile needs.
+        assert!(last[col("cut_bytes")] > 0.0);
+        assert!(rows.iter().all(|r| r[col("memory_limited")] == 0.0));
     }
 }
 

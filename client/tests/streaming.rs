@@ -490,3 +490,84 @@ fn requests_the_view_no_longer_needs_are_cancelled() {
     assert!(s.access.requests_cancelled > 0);
     assert!(s.access.requests_issued > 0 && in_flight_west > 0);
 }
+
+/// Bytes of one node at N = 9 with its four child halves: the unit the budget counts in.
+const NODE_BYTES_N9: usize = 4 * (17 * 17 + 4 * 9 * 9);
+
+#[test]
+fn a_memory_budget_bounds_the_cut_and_degrades_it_coarser_never_wrong() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let mut rng = Rng(23);
+    let mut checked = 0;
+    for view in 0..12 {
+        let cam = random_camera(&world, &mut rng);
+        let mut free = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
+        let full_stats = run_until_converged(&mut free, &cam, 10);
+        let full = refined_set(free.cut());
+        if full.len() < 24 {
+            continue;
+        }
+        checked += 1;
+        if checked > 4 {
+            break;
+        }
+        let mut errors = Vec::new();
+        for fraction in [3, 2] {
+            let limit = full.len() / fraction * NODE_BYTES_N9;
+            let config = RefineConfig {
+                cut_bytes: Some(limit),
+                ..unlimited(1)
+            };
+            let mut r = Refiner::new(LocalSource::new(repo.clone()), config).unwrap();
+            let mut limited = false;
+            let mut last = None;
+            // The same view for a while, then the free cut's view from a new camera and back:
+            // swaps happen while the camera moves as well as at rest.
+            let other = random_camera(&world, &mut rng);
+            for (i, c) in std::iter::repeat_n(cam, 6)
+                .chain(std::iter::repeat_n(other, 3))
+                .chain(std::iter::repeat_n(cam, 6))
+                .enumerate()
+            {
+                let s = r.frame(&c);
+                limited |= s.memory_limited;
+                assert!(
+                    s.cut_bytes <= limit,
+                    "view {view} frame {i}: {} > {limit}",
+                    s.cut_bytes
+                );
+                let layout = repo.params().layout;
+                check_conforming(&layout, &r.cut().triangles(&layout))
+                    .unwrap_or_else(|e| panic!("view {view} frame {i}: {e}"));
+                if [5, 8, 14].contains(&i) {
+                    // At the end of each camera phase (decoding every cut is slow).
+                    let reference = decode_cut(&repo, r.cut()).unwrap();
+                    let drawn: Vec<HalfPatch> = r.drawn().map(|p| (**p).clone()).collect();
+                    assert!(drawn == reference, "view {view} frame {i}: wrong patches");
+                }
+                last = Some(s);
+            }
+            let s = last.unwrap();
+            assert!(
+                limited,
+                "view {view}: 1/{fraction} of the cut never hit the limit"
+            );
+            assert!(!s.met_target && s.max_screen_error_px > full_stats.max_screen_error_px);
+            // Only what the view needs is refined: the limited cut lies inside the free one.
+            let cut = refined_set(r.cut());
+            assert!(
+                cut.is_subset(&full),
+                "view {view}: refined outside the needed cut"
+            );
+            assert!(
+                cut.len() * 2 >= full.len() / fraction,
+                "view {view}: budget left unused"
+            );
+            errors.push(s.max_screen_error_px);
+        }
+        // More memory, no larger error.
+        assert!(errors[1] <= errors[0] + 1e-9, "view {view}: {errors:?}");
+    }
+    assert!(checked > 4, "too few detailed views: {checked}");
+}

@@ -67,6 +67,12 @@ pub struct RefineConfig {
     pub decoded_cache_bytes: usize,
     /// Bytes of compressed records kept in RAM.
     pub record_cache_bytes: usize,
+    /// Bytes the cut's decoded diamonds may take (refined and being decoded); `None` for no
+    /// limit. At the limit the loop is the paper's dual queue: a refinement goes ahead only by
+    /// coarsening refined leaves of smaller screen error, so the cut degrades coarser where it
+    /// matters least; if none is smaller, the refinement waits and the frame reports
+    /// `memory_limited`.
+    pub cut_bytes: Option<usize>,
     /// A diamond whose record fails this many times is given up on (never refined).
     pub max_failures: u32,
     /// Synthesise detail past the finest stored level (off by default).
@@ -86,6 +92,8 @@ impl Default for RefineConfig {
             lookahead_frames: 15.0,
             decoded_cache_bytes: 256 << 20,
             record_cache_bytes: 64 << 20,
+            // About 8 000 diamonds at N = 65: far above what a 4K view needs at 1 px.
+            cut_bytes: Some(1 << 30),
             max_failures: 3,
             detail: None,
             exaggeration: 1.0,
@@ -127,6 +135,11 @@ pub struct FrameStats {
     pub coarsenings: usize,
     /// The budget ran out with work left.
     pub budget_exhausted: bool,
+    /// A refinement waited because the cut was at `cut_bytes` and nothing coarser could give
+    /// way.
+    pub memory_limited: bool,
+    /// Bytes of the cut's decoded diamonds after the frame.
+    pub cut_bytes: usize,
     /// The data source's counters after the frame.
     pub access: AccessStats,
     /// Records rejected so far (failed fetches and failed decodes).
@@ -143,8 +156,12 @@ struct Node {
 
 impl Node {
     fn bytes(&self) -> usize {
-        let n = self.refined.n();
-        4 * ((2 * n - 1) * (2 * n - 1) + self.halves.iter().flatten().count() * n * n)
+        Self::bytes_for(self.refined.n(), self.halves.iter().flatten().count())
+    }
+
+    /// Bytes of a node of an `n × n` diamond with `halves` child halves.
+    fn bytes_for(n: usize, halves: usize) -> usize {
+        4 * ((2 * n - 1) * (2 * n - 1) + halves * n * n)
     }
 }
 
@@ -232,6 +249,8 @@ pub struct Refiner<S: DataSource> {
     synthetic: HashMap<DiamondId, Option<Info>>,
     cut: Cut,
     nodes: HashMap<DiamondId, Arc<Node>>,
+    /// Sum of `nodes`' bytes.
+    cut_bytes: usize,
     roots: HashMap<DiamondId, [Arc<HalfPatch>; 2]>,
     drawn: Vec<Arc<HalfPatch>>,
     drawn_dirty: bool,
@@ -321,6 +340,7 @@ impl<S: DataSource> Refiner<S> {
             synthetic: HashMap::new(),
             cut: Cut::new(),
             nodes: HashMap::new(),
+            cut_bytes: 0,
             roots,
             drawn: Vec::new(),
             drawn_dirty: true,
@@ -627,6 +647,7 @@ impl<S: DataSource> Refiner<S> {
         }
         let max_in_flight = 2 * rayon::current_num_threads().max(1);
         let mut waiting: Vec<Candidate> = Vec::new();
+        let mut coarsening = None;
         loop {
             // Dispatch the most urgent ready refinements to the workers.
             while self.decoding.len() < max_in_flight {
@@ -655,6 +676,20 @@ impl<S: DataSource> Refiner<S> {
                             let w = wanted.entry(d).or_insert(c.err);
                             *w = w.max(c.err);
                             blocked = true;
+                        }
+                        Need::Ready(_)
+                            if parents_done
+                                && !self.make_room(
+                                    c.err,
+                                    d,
+                                    &view,
+                                    &mut coarsening,
+                                    &mut stats,
+                                ) =>
+                        {
+                            stats.memory_limited = true;
+                            blocked = true;
+                            break;
                         }
                         Need::Ready(Source::Cached(node)) if parents_done => {
                             // Decoded before and coarsened since: refining again is free.
@@ -765,6 +800,7 @@ impl<S: DataSource> Refiner<S> {
         stats.met_target = max_err <= self.config.pixel_error;
         stats.converged = stats.met_target && coarsenable == 0;
         stats.refined = self.nodes.len();
+        stats.cut_bytes = self.cut_bytes;
         stats.drawn_halves = self.drawn.len();
         let n1 = (self.layout.n() - 1) as u64;
         stats.triangles = self.drawn.len() as u64 * n1 * n1;
@@ -875,7 +911,10 @@ impl<S: DataSource> Refiner<S> {
             return;
         }
         self.decoded.remove(&id);
-        self.nodes.insert(id, node);
+        self.cut_bytes += node.bytes();
+        if let Some(old) = self.nodes.insert(id, node) {
+            self.cut_bytes -= old.bytes();
+        }
         let newly = self.cut.refine(&self.layout, id);
         debug_assert_eq!(newly, vec![id], "parents are refined first");
         self.drawn_dirty = true;
@@ -903,11 +942,7 @@ impl<S: DataSource> Refiner<S> {
                 continue;
             }
             done += 1;
-            self.drawn_dirty = true;
-            if let Some(node) = self.nodes.remove(&c.id) {
-                let bytes = node.bytes();
-                self.decoded.insert(c.id, node, bytes);
-            }
+            self.release(c.id);
             for p in self.layout.parents(c.id).into_iter().flatten() {
                 if self.cut.is_refined(p)
                     && self.is_leaf(p)
@@ -918,6 +953,95 @@ impl<S: DataSource> Refiner<S> {
             }
         }
         done
+    }
+
+    /// After `id` was coarsened: its node moves to the decoded cache.
+    fn release(&mut self, id: DiamondId) {
+        self.drawn_dirty = true;
+        if let Some(node) = self.nodes.remove(&id) {
+            let bytes = node.bytes();
+            self.cut_bytes -= bytes;
+            self.decoded.insert(id, node, bytes);
+        }
+    }
+
+    /// Makes room in the cut budget for one more node before `keep` is refined (or dispatched
+    /// for decoding) to fix a screen error of `err`: coarsens refined leaves, smallest screen
+    /// error first, while theirs is below `err`. Parents of `keep` and of diamonds being
+    /// decoded stay. `pool` is this frame's coarsening heap, built on first need. False if the
+    /// budget cannot be met that way.
+    fn make_room(
+        &mut self,
+        err: f64,
+        keep: DiamondId,
+        view: &View,
+        pool: &mut Option<BinaryHeap<std::cmp::Reverse<Candidate>>>,
+        stats: &mut FrameStats,
+    ) -> bool {
+        let Some(limit) = self.config.cut_bytes else {
+            return true;
+        };
+        // Worst case: every node with all four child halves.
+        let node = Node::bytes_for(self.layout.n(), 4);
+        let fits = |me: &Self| me.cut_bytes + (me.decoding.len() + 1) * node <= limit;
+        if fits(self) {
+            return true;
+        }
+        if pool.is_none() {
+            let leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
+            let heap = leaves
+                .into_iter()
+                .map(|id| {
+                    std::cmp::Reverse(Candidate {
+                        err: self.drawn_error(id, view),
+                        id,
+                    })
+                })
+                .collect();
+            *pool = Some(heap);
+        }
+        let heap = pool.as_mut().expect("built above");
+        let mut kept = Vec::new();
+        let ok = loop {
+            if fits(self) {
+                break true;
+            }
+            let Some(std::cmp::Reverse(c)) = heap.pop() else {
+                break false;
+            };
+            // Entries go stale as the frame refines and coarsens.
+            if !self.cut.is_refined(c.id) || !self.is_leaf(c.id) {
+                continue;
+            }
+            if c.err >= err {
+                heap.push(std::cmp::Reverse(c));
+                break false;
+            }
+            let is_parent = |d: DiamondId| self.layout.parents(d).contains(&Some(c.id));
+            if is_parent(keep) || self.decoding.iter().any(|&d| is_parent(d)) {
+                kept.push(std::cmp::Reverse(c));
+                continue;
+            }
+            if !self.cut.coarsen(&self.layout, c.id) {
+                continue;
+            }
+            stats.coarsenings += 1;
+            self.release(c.id);
+            for p in self.layout.parents(c.id).into_iter().flatten() {
+                if self.cut.is_refined(p) && self.is_leaf(p) {
+                    let err = self.drawn_error(p, view);
+                    heap.push(std::cmp::Reverse(Candidate { err, id: p }));
+                }
+            }
+        };
+        heap.extend(kept);
+        ok
+    }
+
+    /// The screen error a refined diamond would show if coarsened: its own, 0 outside the
+    /// frustum.
+    fn drawn_error(&mut self, id: DiamondId, view: &View) -> f64 {
+        self.info(id).and_then(|i| view.error(&i)).unwrap_or(0.0)
     }
 
     fn is_leaf(&self, id: DiamondId) -> bool {
