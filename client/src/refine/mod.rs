@@ -29,12 +29,12 @@ mod detail;
 pub use cache::LruCache;
 pub use detail::DetailConfig;
 
-use std::collections::{BinaryHeap, HashMap, HashSet};
+use std::collections::BinaryHeap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use cbdam_codec::CodecError;
-use cbdam_codec::geometry::{Cut, DiamondId, Half, Layout};
+use cbdam_codec::geometry::{Cut, DiamondId, Half, IdMap, IdSet, Layout};
 use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather};
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
@@ -245,26 +245,26 @@ pub struct Refiner<S: DataSource> {
     world: World,
     shift: u32,
     source_finest: u8,
-    stored: HashMap<DiamondId, Info>,
-    synthetic: HashMap<DiamondId, Option<Info>>,
+    stored: IdMap<Info>,
+    synthetic: IdMap<Option<Info>>,
     cut: Cut,
-    nodes: HashMap<DiamondId, Arc<Node>>,
+    nodes: IdMap<Arc<Node>>,
     /// Sum of `nodes`' bytes.
     cut_bytes: usize,
-    roots: HashMap<DiamondId, [Arc<HalfPatch>; 2]>,
+    roots: IdMap<[Arc<HalfPatch>; 2]>,
     drawn: Vec<Arc<HalfPatch>>,
     drawn_dirty: bool,
     records: LruCache<DiamondId, Arc<[u8]>>,
     decoded: LruCache<DiamondId, Arc<Node>>,
-    requested: HashMap<DiamondId, Priority>,
-    failures: HashMap<DiamondId, u32>,
+    requested: IdMap<Priority>,
+    failures: IdMap<u32>,
     failure_count: u64,
-    broken: HashSet<DiamondId>,
+    broken: IdSet,
     errors: Vec<String>,
     frame: u64,
     last_camera: Option<Camera>,
     /// Diamonds being refined on worker threads.
-    decoding: HashSet<DiamondId>,
+    decoding: IdSet,
     done_tx: Sender<Done>,
     done_rx: Receiver<Done>,
 }
@@ -298,7 +298,7 @@ impl<S: DataSource> Refiner<S> {
         world.data_height = ((world.data_height.max(1) - 1) << shift) + 1;
 
         // Saturate boxes and errors bottom-up: ids sort coarse to fine, so go in reverse.
-        let mut stored: HashMap<DiamondId, Info> = HashMap::new();
+        let mut stored: IdMap<Info> = IdMap::default();
         for e in source.entries().iter().rev() {
             let id = DiamondId::new(e.id.level, e.id.x << shift, e.id.y << shift);
             let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
@@ -313,7 +313,7 @@ impl<S: DataSource> Refiner<S> {
             stored.insert(id, Info { err_m, lo, hi });
         }
 
-        let mut roots = HashMap::new();
+        let mut roots = IdMap::default();
         for r in layout.roots() {
             let src = DiamondId::new(r.level, r.x >> shift, r.y >> shift);
             let heights = decoder.grid_of(src, [None, None]);
@@ -337,23 +337,23 @@ impl<S: DataSource> Refiner<S> {
             shift,
             source_finest: src_layout.finest_level(),
             stored,
-            synthetic: HashMap::new(),
+            synthetic: IdMap::default(),
             cut: Cut::new(),
-            nodes: HashMap::new(),
+            nodes: IdMap::default(),
             cut_bytes: 0,
             roots,
             drawn: Vec::new(),
             drawn_dirty: true,
             records: LruCache::new(config.record_cache_bytes),
             decoded: LruCache::new(config.decoded_cache_bytes),
-            requested: HashMap::new(),
-            failures: HashMap::new(),
+            requested: IdMap::default(),
+            failures: IdMap::default(),
             failure_count: 0,
-            broken: HashSet::new(),
+            broken: IdSet::default(),
             errors: Vec::new(),
             frame: 0,
             last_camera: None,
-            decoding: HashSet::new(),
+            decoding: IdSet::default(),
             done_tx,
             done_rx,
             config,
@@ -594,7 +594,7 @@ impl<S: DataSource> Refiner<S> {
     }
 
     /// Wants the records that refining `id` (parents first) still lacks.
-    fn want_plan(&mut self, id: DiamondId, priority: f64, wanted: &mut HashMap<DiamondId, f64>) {
+    fn want_plan(&mut self, id: DiamondId, priority: f64, wanted: &mut IdMap<f64>) {
         for d in self.plan(id) {
             if self.broken.contains(&d) || self.info(d).is_none() {
                 return;
@@ -636,7 +636,7 @@ impl<S: DataSource> Refiner<S> {
                 heap.push(Candidate { err, id });
             }
         }
-        let mut wanted: HashMap<DiamondId, f64> = HashMap::new();
+        let mut wanted: IdMap<f64> = IdMap::default();
         let mut stats = FrameStats {
             frame: self.frame,
             ..FrameStats::default()
@@ -827,7 +827,7 @@ impl<S: DataSource> Refiner<S> {
     /// Requests (at low priority) what the camera is about to need: the drawn diamonds that an
     /// enlarged frustum around the extrapolated eye would refine, and the children of diamonds
     /// the current view refines that will need refining next.
-    fn prefetch(&mut self, camera: &Camera, wanted: &mut HashMap<DiamondId, f64>) {
+    fn prefetch(&mut self, camera: &Camera, wanted: &mut IdMap<f64>) {
         let velocity = self.last_camera.map_or(DVec3::ZERO, |c| camera.eye - c.eye);
         let ahead = velocity * self.config.lookahead_frames;
         let mut future = *camera;

@@ -2,7 +2,7 @@
 
 use std::collections::{BTreeSet, HashMap};
 
-use super::{Diagonal, DiamondId, Half, Layout};
+use super::{Diagonal, DiamondId, Half, IdSet, Layout};
 
 /// A triangle in lattice coordinates, counter-clockwise (x east, y south counts as a right-handed
 /// frame here: only consistency matters).
@@ -11,7 +11,10 @@ pub type Triangle = [(i64, i64); 3];
 /// A cut: the set of refined diamonds, closed under "parents of a refined diamond are refined".
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Cut {
+    /// Ordered for iteration coarse to fine.
     refined: BTreeSet<DiamondId>,
+    /// The same ids for constant-time lookups, which the refinement loop makes many of.
+    lookup: IdSet,
 }
 
 impl Cut {
@@ -22,7 +25,7 @@ impl Cut {
 
     /// Whether `id` is refined.
     pub fn is_refined(&self, id: DiamondId) -> bool {
-        self.refined.contains(&id)
+        self.lookup.contains(&id)
     }
 
     /// The refined diamonds, coarse to fine.
@@ -39,13 +42,14 @@ impl Cut {
     }
 
     fn refine_into(&mut self, layout: &Layout, id: DiamondId, done: &mut Vec<DiamondId>) {
-        if self.refined.contains(&id) || id.level >= layout.finest_level() || !layout.contains(id) {
+        if self.lookup.contains(&id) || id.level >= layout.finest_level() || !layout.contains(id) {
             return;
         }
         for p in layout.parents(id).into_iter().flatten() {
             self.refine_into(layout, p, done);
         }
         self.refined.insert(id);
+        self.lookup.insert(id);
         done.push(id);
     }
 
@@ -55,8 +59,8 @@ impl Cut {
             .children(id)
             .into_iter()
             .flatten()
-            .any(|c| self.refined.contains(&c));
-        !blocked && self.refined.remove(&id)
+            .any(|c| self.lookup.contains(&c));
+        !blocked && self.lookup.remove(&id) && self.refined.remove(&id)
     }
 
     /// The halves the cut draws: the half of `K` lying in parent `A` is drawn iff `A` is refined
@@ -64,12 +68,12 @@ impl Cut {
     pub fn drawn_halves(&self, layout: &Layout) -> Vec<(DiamondId, Half)> {
         let mut out: Vec<(DiamondId, Half)> = layout
             .roots()
-            .filter(|r| !self.refined.contains(r))
+            .filter(|r| !self.lookup.contains(r))
             .flat_map(|r| Half::BOTH.map(|h| (r, h)))
             .collect();
         for &a in &self.refined {
             for k in layout.children(a).into_iter().flatten() {
-                if !self.refined.contains(&k) {
+                if !self.lookup.contains(&k) {
                     let half = layout.half_in(k, a).expect("child lists its parent");
                     out.push((k, half));
                 }
