@@ -751,7 +751,20 @@ impl<S: DataSource> Refiner<S> {
                 self.want_plan(c.id, c.err, &mut wanted);
             }
         }
-        self.prefetch(camera, &mut wanted);
+        if self.config.gc_interval > 0
+            && self
+                .frame
+                .is_multiple_of(u64::from(self.config.gc_interval))
+        {
+            stats.coarsenings += self.collect_garbage(&view);
+        }
+        // One pass over the final cut's candidates serves prefetching and the frame's figures.
+        let candidates = self.candidates();
+        let errors: Vec<Option<f64>> = candidates
+            .iter()
+            .map(|&id| self.info(id).and_then(|i| view.error(&i)))
+            .collect();
+        self.prefetch(camera, &candidates, &errors, &mut wanted);
         self.last_camera = Some(*camera);
 
         // Post new requests, re-prioritise, cancel what is no longer wanted.
@@ -783,19 +796,12 @@ impl<S: DataSource> Refiner<S> {
             }
         }
 
-        if self.config.gc_interval > 0
-            && self
-                .frame
-                .is_multiple_of(u64::from(self.config.gc_interval))
-        {
-            stats.coarsenings = self.collect_garbage(&view);
-        }
         if self.drawn_dirty {
             self.rebuild_drawn();
         }
         stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
 
-        let (max_err, coarsenable) = self.measure(&view);
+        let (max_err, coarsenable) = self.measure(&view, &candidates, &errors);
         stats.max_screen_error_px = max_err;
         stats.met_target = max_err <= self.config.pixel_error;
         stats.converged = stats.met_target && coarsenable == 0;
@@ -827,7 +833,14 @@ impl<S: DataSource> Refiner<S> {
     /// Requests (at low priority) what the camera is about to need: the drawn diamonds that an
     /// enlarged frustum around the extrapolated eye would refine, and the children of diamonds
     /// the current view refines that will need refining next.
-    fn prefetch(&mut self, camera: &Camera, wanted: &mut IdMap<f64>) {
+    /// `candidates` are the cut's, `errors` their screen errors in the current view.
+    fn prefetch(
+        &mut self,
+        camera: &Camera,
+        candidates: &[DiamondId],
+        errors: &[Option<f64>],
+        wanted: &mut IdMap<f64>,
+    ) {
         let velocity = self.last_camera.map_or(DVec3::ZERO, |c| camera.eye - c.eye);
         let ahead = velocity * self.config.lookahead_frames;
         let mut future = *camera;
@@ -836,11 +849,13 @@ impl<S: DataSource> Refiner<S> {
         let margin = self.config.prefetch_margin * (camera.target - camera.eye).length();
         let view = View::new(future, margin);
         let now = View::new(*camera, 0.0);
-        for id in self.candidates() {
+        for (&id, &err_now) in candidates.iter().zip(errors) {
             if let Some(err) = self.violation(id, &view) {
                 self.want_plan(id, err * PREFETCH_PRIORITY, wanted);
             }
-            if self.violation(id, &now).is_some() {
+            let violates_now =
+                err_now.is_some_and(|e| e > self.config.pixel_error) && !self.broken.contains(&id);
+            if violates_now {
                 for k in self.layout.children(id).into_iter().flatten() {
                     if let Some(err) = self.violation(k, &now) {
                         self.want_plan(k, err * PREFETCH_PRIORITY, wanted);
@@ -1061,10 +1076,16 @@ impl<S: DataSource> Refiner<S> {
 
     /// The largest screen error a refinement could still fix, and how many refined diamonds
     /// garbage collection would remove.
-    fn measure(&mut self, view: &View) -> (f64, usize) {
+    /// `candidates` are the cut's, `errors` their screen errors in `view`.
+    fn measure(
+        &mut self,
+        view: &View,
+        candidates: &[DiamondId],
+        errors: &[Option<f64>],
+    ) -> (f64, usize) {
         let mut worst = 0f64;
-        for id in self.candidates() {
-            if let Some(e) = self.info(id).and_then(|i| view.error(&i))
+        for (&id, &e) in candidates.iter().zip(errors) {
+            if let Some(e) = e
                 && e > worst
                 && !self.blocked(id)
             {
