@@ -1075,7 +1075,7 @@ impl<S: DataSource> Refiner<S> {
     }
 
     /// The largest screen error a refinement could still fix, and how many refined diamonds
-    /// garbage collection would remove.
+    /// garbage collection would remove (0, uncounted, when the error is above the target).
     /// `candidates` are the cut's, `errors` their screen errors in `view`.
     fn measure(
         &mut self,
@@ -1091,6 +1091,11 @@ impl<S: DataSource> Refiner<S> {
             {
                 worst = e;
             }
+        }
+        // Only a cut that meets the target can be converged, so only then does the count
+        // matter: skip the pass over the whole cut otherwise.
+        if worst > self.config.pixel_error {
+            return (worst, 0);
         }
         let refined: Vec<DiamondId> = self.cut.refined().collect();
         let coarsenable = refined
