@@ -481,15 +481,16 @@ impl<S: DataSource> ApplicationHandler for App<'_, S> {
                     event_loop.exit();
                 }
             }
-            WindowEvent::KeyboardInput { event, .. } => {
-                if !event.repeat || event.state == ElementState::Released {
-                    self.key(
-                        event_loop,
-                        &event.logical_key,
-                        event.physical_key,
-                        event.state == ElementState::Pressed,
-                    );
-                }
+            // Auto-repeat would step the pixel error or toggle modes many times per press.
+            WindowEvent::KeyboardInput { event, .. }
+                if !event.repeat || event.state == ElementState::Released =>
+            {
+                self.key(
+                    event_loop,
+                    &event.logical_key,
+                    event.physical_key,
+                    event.state == ElementState::Pressed,
+                );
             }
             WindowEvent::MouseInput { state, button, .. } => {
                 let down = state == ElementState::Pressed;
