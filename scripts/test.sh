@@ -49,12 +49,50 @@ if ! has_vulkan_icd || ! has_vulkan_loader; then
         echo "test.sh: install Mesa's Vulkan drivers (lavapipe) and the Vulkan loader." >&2
     fi
 fi
+# The viewer's test (tests/cli_view.rs) opens a real window: on a machine without a display it
+# needs Xvfb (and the X client libraries winit loads at run time). Install them when missing,
+# like lavapipe above; without them that test prints SKIPPED and passes.
+if ! command -v Xvfb >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null 2>&1; then
+        sudo=""
+        [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && sudo="sudo -n"
+        if [ "$(id -u)" -eq 0 ] || [ -n "$sudo" ]; then
+            echo "test.sh: no Xvfb found; installing it for the viewer's test" >&2
+            $sudo apt-get update -qq
+            DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
+                xvfb libxkbcommon-x11-0 libx11-xcb1 libxcursor1 libxrandr2 libxi6 >/dev/null
+        else
+            echo "test.sh: no Xvfb and no root/sudo to install it: the viewer's test is skipped." >&2
+        fi
+    fi
+fi
+cleanup=()
+trap 'for c in "${cleanup[@]}"; do eval "$c"; done' EXIT
+# Without a display, start Xvfb on a free display number for the test run.
+if [ -z "${DISPLAY:-}" ] && command -v Xvfb >/dev/null 2>&1; then
+    for n in $(seq 99 149); do
+        [ -e "/tmp/.X11-unix/X$n" ] || [ -e "/tmp/.X$n-lock" ] && continue
+        Xvfb ":$n" -screen 0 1280x1024x24 -nolisten tcp >/dev/null 2>&1 &
+        xvfb_pid=$!
+        for _ in $(seq 100); do
+            [ -e "/tmp/.X11-unix/X$n" ] && break
+            kill -0 "$xvfb_pid" 2>/dev/null || break
+            sleep 0.05
+        done
+        if [ -e "/tmp/.X11-unix/X$n" ]; then
+            export DISPLAY=":$n"
+            cleanup+=("kill $xvfb_pid 2>/dev/null")
+            break
+        fi
+        kill "$xvfb_pid" 2>/dev/null || true
+    done
+fi
 # Mesa warns on every device creation when XDG_RUNTIME_DIR is unset or unusable.
 if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "$XDG_RUNTIME_DIR" ] || [ ! -O "$XDG_RUNTIME_DIR" ]; then
     XDG_RUNTIME_DIR="$(mktemp -d)"
     chmod 700 "$XDG_RUNTIME_DIR"
     export XDG_RUNTIME_DIR
-    trap 'rm -rf "$XDG_RUNTIME_DIR"' EXIT
+    cleanup+=("rm -rf '$XDG_RUNTIME_DIR'")
 fi
 
 cargo test --workspace --all-targets

@@ -16,6 +16,7 @@ mod replay;
 mod serve;
 mod synth;
 mod verify;
+mod view;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -78,6 +79,18 @@ enum Command {
     /// does, and writes each frame to --out-dir/frame_NNNNN.png. Prints the frame time and
     /// triangle count (with --path, median and p99 refine and render times).
     Render(RenderArgs),
+    /// Open a window onto a repository (file or URL): orbit and fly cameras, the pixel-error
+    /// target and debug views on keys, and a HUD with frame rate, triangle rate, cut size, cache
+    /// use and network traffic.
+    ///
+    /// Every frame runs one step of the refinement loop within --budget-ms (remote records arrive
+    /// in the background, so the window never waits for the network) and draws the cut with the
+    /// renderer of `cbdam render`, starting from the same overview. With --max-frames it stops
+    /// after that many frames, printing the frame-time median and p99 and the triangle rate;
+    /// --screenshot saves the last frame on exit (scripts, tests). Needs a display: an X11
+    /// server, or Xvfb.
+    #[command(after_help = view::KEY_HELP)]
+    View(ViewArgs),
     /// The whole pipeline on the bundled SRTM tile: builds a repository (once), serves it on
     /// loopback, replays a flight against the server over HTTP and renders an overview and the
     /// flight's frames offscreen from what the client fetched; prints where the outputs are.
@@ -248,6 +261,43 @@ pub struct RenderArgs {
     #[arg(long)]
     levels: bool,
     /// Vertical exaggeration (heights and the camera's z are scaled by it).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    exaggeration: f64,
+    /// GPU height pool, MiB (default: 256 or what the adapter allows).
+    #[arg(long)]
+    pool_mib: Option<u64>,
+}
+
+/// Open the interactive viewer (documented on [`Command::View`]).
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Repository file, or its URL (as for `cbdam render`).
+    repo: PathBuf,
+    /// Initial window size WIDTHxHEIGHT, pixels.
+    #[arg(long, value_parser = render::parse_size, default_value = "1280x720")]
+    size: (u32, u32),
+    /// Screen-space error target, pixels (+/- halve and double it).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    pixel_error: f64,
+    /// Refinement time budget per frame, ms.
+    #[arg(long, default_value_t = 2.0, allow_hyphen_values = true)]
+    budget_ms: f64,
+    /// Present as fast as possible (immediate or mailbox) instead of waiting for vsync.
+    #[arg(long)]
+    no_vsync: bool,
+    /// Quit after this many frames.
+    #[arg(long)]
+    max_frames: Option<u64>,
+    /// Save the last frame (with the HUD) to this PNG when the viewer stops.
+    #[arg(long)]
+    screenshot: Option<PathBuf>,
+    /// Start with the wireframe on.
+    #[arg(long)]
+    wireframe: bool,
+    /// Start colouring by diamond level.
+    #[arg(long)]
+    levels: bool,
+    /// Vertical exaggeration.
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
     exaggeration: f64,
     /// GPU height pool, MiB (default: 256 or what the adapter allows).
@@ -562,6 +612,7 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Build(args)) => bench_build::run(&args),
         Command::Synth(args) => synth::run(&args),
         Command::Render(args) => render::run(&args),
+        Command::View(args) => view::run(&args),
         Command::Bench(BenchCommand::Render(args)) => render::bench(&args),
         Command::Bench(BenchCommand::Report(args)) => bench_report::run(&args),
     };

@@ -5,11 +5,13 @@
 //! [`refine`] keeps a cut of the diamond DAG with the paper's time-critical dual-queue loop and
 //! hands the renderer the half-patches to draw ([`patch`]), decoded on worker threads.
 //! [`world`] maps the lattice to metres, [`camera`] looks at it and [`flight`] moves the camera
-//! along keyframed paths. [`draw`] is the wgpu renderer with its GPU patch cache.
+//! along keyframed paths; [`controls`] moves it interactively. [`draw`] is the wgpu renderer
+//! with its GPU patch cache.
 #![deny(missing_docs)]
 
 pub mod access;
 pub mod camera;
+pub mod controls;
 pub mod draw;
 pub mod flight;
 pub mod patch;

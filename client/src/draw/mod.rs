@@ -20,7 +20,9 @@
 //! Offscreen rendering ([`Renderer::render`]) reads back colour and optionally depth.
 
 pub mod cache;
+pub mod hud;
 pub mod mesh;
+pub mod present;
 
 use std::borrow::Borrow;
 use std::time::Instant;
@@ -529,15 +531,50 @@ impl Renderer {
         patches: &[P],
         options: &RenderOptions,
     ) -> Result<Frame, DrawError> {
+        let error_scope = self
+            .gpu
+            .device
+            .push_error_scope(wgpu::ErrorFilter::Validation);
+        let size = (camera.width, camera.height);
+        let (encoder, mut stats) = self.encode(camera, patches, options)?;
+        let t = Instant::now();
+        self.gpu.queue.submit([encoder.finish()]);
+        self.wait()?;
+        stats.gpu_s = t.elapsed().as_secs_f64();
+        let target = self.target.as_ref().expect("made by encode");
+        let rgba = self.read_texture(&target.color, size, 4)?;
+        let depth = if options.read_depth {
+            let bytes = self.read_texture(&target.depth, size, 4)?;
+            Some(bytemuck::pod_collect_to_vec::<u8, f32>(&bytes))
+        } else {
+            None
+        };
+        if let Some(e) = pollster::block_on(error_scope.pop()) {
+            return Err(DrawError::Gpu(e.to_string()));
+        }
+        Ok(Frame {
+            width: size.0,
+            height: size.1,
+            rgba,
+            depth,
+            stats,
+        })
+    }
+
+    /// Records a frame into the offscreen colour target ([`Renderer::color_texture`]) without
+    /// submitting it, so that a window can draw an overlay over it and present it; uploads are
+    /// part of the returned commands. [`FrameStats::gpu_s`] is left 0.
+    pub fn encode<P: Borrow<HalfPatch>>(
+        &mut self,
+        camera: &Camera,
+        patches: &[P],
+        options: &RenderOptions,
+    ) -> Result<(wgpu::CommandEncoder, FrameStats), DrawError> {
         if options.wireframe && self.lines.is_none() {
             return Err(DrawError::Unsupported(
                 "wireframe needs the POLYGON_MODE_LINE feature, which this adapter lacks".into(),
             ));
         }
-        let error_scope = self
-            .gpu
-            .device
-            .push_error_scope(wgpu::ErrorFilter::Validation);
         let size = (camera.width, camera.height);
         self.ensure_target(size);
         let start = Instant::now();
@@ -593,26 +630,28 @@ impl Renderer {
             stats.draw_calls += self.draw(&mut pass, &prepared.groups, options);
         }
         stats.prepare_s = start.elapsed().as_secs_f64();
-        let t = Instant::now();
-        self.gpu.queue.submit([encoder.finish()]);
-        self.wait()?;
-        stats.gpu_s = t.elapsed().as_secs_f64();
-        let rgba = self.read_texture(&target.color, size, 4)?;
-        let depth = if options.read_depth {
-            let bytes = self.read_texture(&target.depth, size, 4)?;
-            Some(bytemuck::pod_collect_to_vec::<u8, f32>(&bytes))
-        } else {
-            None
-        };
-        if let Some(e) = pollster::block_on(error_scope.pop()) {
-            return Err(DrawError::Gpu(e.to_string()));
-        }
+        Ok((encoder, stats))
+    }
+
+    /// The offscreen colour target ([`COLOR_FORMAT`]) of the last frame, once there is one.
+    pub fn color_texture(&self) -> Option<&wgpu::Texture> {
+        self.target.as_ref().map(|t| &t.color)
+    }
+
+    /// Reads the colour target back (RGBA8, top row first) after the commands that drew it were
+    /// submitted; waits for the GPU.
+    pub fn read_color(&self) -> Result<Frame, DrawError> {
+        let target = self
+            .target
+            .as_ref()
+            .ok_or_else(|| DrawError::Gpu("nothing rendered yet".into()))?;
+        let rgba = self.read_texture(&target.color, target.size, 4)?;
         Ok(Frame {
-            width: size.0,
-            height: size.1,
+            width: target.size.0,
+            height: target.size.1,
             rgba,
-            depth,
-            stats,
+            depth: None,
+            stats: FrameStats::default(),
         })
     }
 
@@ -674,7 +713,12 @@ impl Renderer {
         let usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
         self.target = Some(Target {
             size,
-            color: tex("colour", COLOR_FORMAT, usage),
+            // A window samples the colour target to present it.
+            color: tex(
+                "colour",
+                COLOR_FORMAT,
+                usage | wgpu::TextureUsages::TEXTURE_BINDING,
+            ),
             depth: tex("depth", DEPTH_FORMAT, usage),
         });
     }

@@ -146,6 +146,21 @@ pub struct FrameStats {
     pub failures: u64,
 }
 
+/// Bytes held by the refiner's CPU caches ([`Refiner::cache_use`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CacheUse {
+    /// Compressed records kept in RAM.
+    pub record_bytes: usize,
+    /// [`RefineConfig::record_cache_bytes`].
+    pub record_budget: usize,
+    /// Decoded diamonds kept after coarsening.
+    pub decoded_bytes: usize,
+    /// [`RefineConfig::decoded_cache_bytes`].
+    pub decoded_budget: usize,
+    /// Decoded diamonds evicted so far.
+    pub decoded_evictions: u64,
+}
+
 /// A refined diamond: its refinement and the halves of its children that lie in it.
 #[derive(Debug)]
 struct Node {
@@ -365,6 +380,26 @@ impl<S: DataSource> Refiner<S> {
     /// The settings.
     pub fn config(&self) -> &RefineConfig {
         &self.config
+    }
+
+    /// Changes the screen-space error target from the next frame on (an interactive viewer's
+    /// `+`/`-`). Non-positive or non-finite values are ignored: the target must stay a positive
+    /// number of pixels.
+    pub fn set_pixel_error(&mut self, pixel_error: f64) {
+        if pixel_error.is_finite() && pixel_error > 0.0 {
+            self.config.pixel_error = pixel_error;
+        }
+    }
+
+    /// How full the CPU-side caches are.
+    pub fn cache_use(&self) -> CacheUse {
+        CacheUse {
+            record_bytes: self.records.bytes(),
+            record_budget: self.config.record_cache_bytes,
+            decoded_bytes: self.decoded.bytes(),
+            decoded_budget: self.config.decoded_cache_bytes,
+            decoded_evictions: self.decoded.evictions(),
+        }
     }
 
     /// The current cut (in [`Refiner::layout`]'s ids).
