@@ -131,15 +131,30 @@ async fn observe(State(st): State<AppState>, req: Request, next: Next) -> Respon
     st.metrics()
         .observe(endpoint, resp.status(), bytes, elapsed);
     if let Some((method, uri, version)) = seen {
-        tracing::info!(
-            target: "cbdam_server::access",
-            %method,
-            path = %uri,
-            ?version,
-            status = resp.status().as_u16(),
-            bytes,
-            micros = elapsed.as_micros() as u64,
-        );
+        macro_rules! access {
+            ($level:ident) => {
+                tracing::$level!(
+                    target: "cbdam_server::access",
+                    %method,
+                    path = %uri,
+                    ?version,
+                    status = resp.status().as_u16(),
+                    bytes,
+                    micros = elapsed.as_micros() as u64,
+                )
+            };
+        }
+        // Record hits are the bulk of the traffic (tens of thousands a second): a line each
+        // at the default level would cost more than answering them. They log at debug
+        // (`RUST_LOG=cbdam_server::access=debug`); every other request, and any record
+        // request that fails, logs at info.
+        let routine = matches!(endpoint, Endpoint::Diamond | Endpoint::Batch)
+            && (resp.status().is_success() || resp.status() == StatusCode::NOT_MODIFIED);
+        if routine {
+            access!(debug);
+        } else {
+            access!(info);
+        }
     }
     resp
 }
@@ -187,24 +202,38 @@ fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
         .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t).as_bytes() == ours)
 }
 
-/// Record `i`'s bytes, checked against its CRC. A damaged record is answered with 500 and
-/// logged the first time only.
-fn checked_record<'a>(st: &AppState, r: &'a ServedRepo, i: usize) -> Result<&'a [u8], ApiError> {
-    r.repo.record_at(i).map_err(|e| {
-        st.metrics().add_corrupt();
-        let id = r.repo.entries()[i].id;
-        if !r.corrupt_logged[i].swap(true, Relaxed) {
-            tracing::error!(
-                repo = %r.name,
-                diamond = %id,
-                "damaged record, answering 500 for it (logged once): {e}"
-            );
+/// Record `i`'s byte range in the file, its bytes checked against their CRC (once per record:
+/// repositories are immutable while served). A damaged record is answered with 500 and logged the first time
+/// only.
+fn checked_record(st: &AppState, r: &ServedRepo, i: usize) -> Result<Range<usize>, ApiError> {
+    // `i` comes from a search of the index, and the index was checked against the file.
+    let range = r.repo.head().record_range(i).expect("an index position");
+    // The file is mapped, so its offsets fit in usize.
+    let range = range.start as usize..range.end as usize;
+    if r.verified[i].load(Relaxed) {
+        return Ok(range);
+    }
+    match r.repo.record_at(i) {
+        Ok(_) => {
+            r.verified[i].store(true, Relaxed);
+            Ok(range)
         }
-        ApiError::Internal(format!(
-            "the record of diamond {id} in repository {:?} is damaged",
-            r.name
-        ))
-    })
+        Err(e) => {
+            st.metrics().add_corrupt();
+            let id = r.repo.entries()[i].id;
+            if !r.corrupt_logged[i].swap(true, Relaxed) {
+                tracing::error!(
+                    repo = %r.name,
+                    diamond = %id,
+                    "damaged record, answering 500 for it (logged once): {e}"
+                );
+            }
+            Err(ApiError::Internal(format!(
+                "the record of diamond {id} in repository {:?} is damaged",
+                r.name
+            )))
+        }
+    }
 }
 
 fn respond(status: StatusCode, headers: HeaderMap, body: impl Into<Body>) -> Response {
@@ -271,7 +300,7 @@ async fn diamond(
             Body::empty(),
         ));
     }
-    let bytes = checked_record(&st, r, i)?;
+    let range = checked_record(&st, r, i)?;
     st.metrics().add_records(1);
     Ok(respond(
         StatusCode::OK,
@@ -280,7 +309,11 @@ async fn diamond(
             (header::ETAG, etag),
             (header::CACHE_CONTROL, hv(IMMUTABLE)),
         ]),
-        Bytes::copy_from_slice(bytes),
+        // The mapped bytes themselves, not a copy.
+        Bytes::from_owner(FileSlice {
+            repo: Arc::clone(r),
+            range,
+        }),
     ))
 }
 
@@ -344,7 +377,7 @@ async fn batch(
     for slot in slots {
         match slot {
             Some(i) => {
-                let rec = checked_record(&st, r, i)?;
+                let rec = &r.repo.as_bytes()[checked_record(&st, r, i)?];
                 out.push(STATUS_RECORD);
                 // Index lengths are u32, so this cannot truncate.
                 out.extend_from_slice(&(rec.len() as u32).to_le_bytes());
