@@ -19,6 +19,7 @@
 pub mod describe;
 mod error;
 pub mod metrics;
+mod observe;
 mod range;
 mod routes;
 mod state;

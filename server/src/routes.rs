@@ -4,15 +4,13 @@ use std::borrow::Cow;
 use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
-use std::time::Instant;
 
 use axum::Router;
 use axum::body::Body;
 use axum::extract::rejection::{BytesRejection, PathRejection};
 use axum::extract::{DefaultBodyLimit, Path, Request, State};
 use axum::http::{HeaderMap, HeaderName, HeaderValue, Method, StatusCode, Uri, header};
-use axum::middleware::{self, Next};
-use axum::response::{IntoResponse, Response};
+use axum::response::Response;
 use axum::routing::{get, post};
 use bytes::Bytes;
 use cbdam_codec::geometry::DiamondId;
@@ -21,7 +19,7 @@ use tower_http::cors::{AllowOrigin, CorsLayer};
 use tower_http::timeout::TimeoutLayer;
 
 use crate::error::ApiError;
-use crate::metrics::Endpoint;
+use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
 use crate::state::{AppState, ServedRepo};
 
@@ -67,7 +65,7 @@ pub(crate) fn router(state: AppState) -> Router {
         ))
         .layer(cors_layer(&cfg.cors_origin))
         // Outermost, so that it sees (and counts) timeouts, CORS preflights and 404s too.
-        .layer(middleware::from_fn_with_state(state.clone(), observe))
+        .layer(ObserveLayer::new(state.clone()))
         .with_state(state)
 }
 
@@ -110,58 +108,6 @@ fn cors_layer(origin: &str) -> CorsLayer {
             header::CONTENT_LENGTH,
         ])
         .max_age(std::time::Duration::from_secs(86_400))
-}
-
-/// Counts and logs every request.
-async fn observe(State(st): State<AppState>, req: Request, next: Next) -> Response {
-    let start = Instant::now();
-    let endpoint = Endpoint::classify(req.method(), req.uri().path());
-    // Cloning the method and URI only when the access log is on keeps the hot path free of
-    // them when it is off.
-    let log = tracing::enabled!(target: "cbdam_server::access", tracing::Level::INFO);
-    let seen = log.then(|| (req.method().clone(), req.uri().clone(), req.version()));
-    let mut resp = next.run(req).await;
-    if resp.status() == StatusCode::REQUEST_TIMEOUT {
-        // TimeoutLayer answers with an empty body; give it the same JSON shape as every
-        // other error.
-        resp = ApiError::Timeout(st.config().timeout.as_secs_f64()).into_response();
-    }
-    let bytes = http_body_size(resp.body());
-    let elapsed = start.elapsed();
-    st.metrics()
-        .observe(endpoint, resp.status(), bytes, elapsed);
-    if let Some((method, uri, version)) = seen {
-        macro_rules! access {
-            ($level:ident) => {
-                tracing::$level!(
-                    target: "cbdam_server::access",
-                    %method,
-                    path = %uri,
-                    ?version,
-                    status = resp.status().as_u16(),
-                    bytes,
-                    micros = elapsed.as_micros() as u64,
-                )
-            };
-        }
-        // Record hits are the bulk of the traffic (tens of thousands a second): a line each
-        // at the default level would cost more than answering them. They log at debug
-        // (`RUST_LOG=cbdam_server::access=debug`); every other request, and any record
-        // request that fails, logs at info.
-        let routine = matches!(endpoint, Endpoint::Diamond | Endpoint::Batch)
-            && (resp.status().is_success() || resp.status() == StatusCode::NOT_MODIFIED);
-        if routine {
-            access!(debug);
-        } else {
-            access!(info);
-        }
-    }
-    resp
-}
-
-fn http_body_size(b: &Body) -> u64 {
-    use axum::body::HttpBody;
-    b.size_hint().exact().unwrap_or(0)
 }
 
 async fn not_found(uri: Uri) -> ApiError {
