@@ -2,9 +2,14 @@
 //!
 //! The server runs on its own tokio runtime and the load generator on another, so the thread
 //! split between them is explicit (`--server-threads`, `--client-threads`) rather than left to
-//! one work-stealing scheduler. Each client holds one keep-alive HTTP/1.1 connection (hyper's
-//! client connection directly, the lightest generator at hand) and sends requests back to back;
-//! latency is measured per request from send to the last body byte.
+//! one work-stealing scheduler. Each client holds one keep-alive HTTP/1.1 connection and sends
+//! requests back to back; latency is measured per request from send to the last body byte.
+//!
+//! The generator shares the machine with the server, so every microsecond it spends is one the
+//! server does not get. It is therefore a minimal HTTP/1.1 client written here: requests are
+//! encoded before the clock starts, each connection is one task (a hyper client connection
+//! is two, handing every request across a channel), and a response is parsed with `httparse`,
+//! its status and `Content-Length` checked and its body read to the last byte.
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -13,13 +18,9 @@ use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail, ensure};
-use bytes::Bytes;
 use cbdam_codec::repository::Repository;
 use cbdam_server::{AppState, Config, RepoSpec};
-use http_body_util::{BodyExt, Full};
-use hyper::Request;
-use hyper::header::{CONTENT_TYPE, HOST};
-use hyper_util::rt::TokioIo;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 use crate::{AlphaArg, BenchServeArgs, BuildArgs, CoderArg};
@@ -28,9 +29,8 @@ const NAME: &str = "bench";
 
 /// What one request asks for, prepared before the clock starts.
 struct Job {
-    /// GET path, or POST path with a JSON body.
-    path: String,
-    body: Option<Bytes>,
+    /// The whole HTTP/1.1 request: a GET, or a POST with a JSON body.
+    request: Vec<u8>,
     /// Records and body bytes the answer must have (checked, so a broken server cannot post
     /// good figures).
     records: u64,
@@ -157,8 +157,7 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
     let singles: Vec<Job> = entries
         .iter()
         .map(|e| Job {
-            path: format!("/v1/repos/{NAME}/diamonds/{}", e.id),
-            body: None,
+            request: get_request(&format!("/v1/repos/{NAME}/diamonds/{}", e.id)),
             records: 1,
             bytes: e.length as usize,
         })
@@ -176,8 +175,10 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
                     .map(|&i| 5 + entries[i].length as usize)
                     .sum::<usize>();
                 Job {
-                    path: format!("/v1/repos/{NAME}/diamonds"),
-                    body: Some(Bytes::from(serde_json::json!({ "ids": ids }).to_string())),
+                    request: post_request(
+                        &format!("/v1/repos/{NAME}/diamonds"),
+                        &serde_json::json!({ "ids": ids }).to_string(),
+                    ),
                     records: args.batch as u64,
                     bytes,
                 }
@@ -288,27 +289,24 @@ async fn load_run(
     run: u64,
 ) -> Result<RunResult> {
     // Connect everyone before the clock starts.
-    let mut senders = Vec::with_capacity(args.clients);
+    let mut streams = Vec::with_capacity(args.clients);
     for _ in 0..args.clients {
         let stream = TcpStream::connect(addr).await?;
         stream.set_nodelay(true)?;
-        let (sender, conn) =
-            hyper::client::conn::http1::handshake::<_, Full<Bytes>>(TokioIo::new(stream)).await?;
-        tokio::spawn(conn);
-        senders.push(sender);
+        streams.push(stream);
     }
     let budget = Arc::new(AtomicU64::new(args.max_requests));
     let (server0, client0) = (thread_cpu("server"), thread_cpu("client"));
     let start = Instant::now();
     let deadline = start + Duration::from_secs_f64(args.seconds);
-    let tasks: Vec<_> = senders
+    let tasks: Vec<_> = streams
         .into_iter()
         .enumerate()
-        .map(|(c, sender)| {
+        .map(|(c, stream)| {
             let jobs = Arc::clone(jobs);
             let budget = Arc::clone(&budget);
             let seed = (run << 32) ^ c as u64;
-            tokio::spawn(client(sender, jobs, budget, deadline, seed))
+            tokio::spawn(client(stream, jobs, budget, deadline, seed))
         })
         .collect();
     let mut total = ClientStats::default();
@@ -344,8 +342,63 @@ async fn load_run(
     })
 }
 
+fn get_request(path: &str) -> Vec<u8> {
+    format!("GET {path} HTTP/1.1\r\nhost: bench\r\n\r\n").into_bytes()
+}
+
+fn post_request(path: &str, json: &str) -> Vec<u8> {
+    format!(
+        "POST {path} HTTP/1.1\r\nhost: bench\r\ncontent-type: application/json\r\n\
+         content-length: {}\r\n\r\n{json}",
+        json.len()
+    )
+    .into_bytes()
+}
+
+/// What [`parse_head`] found in a response head.
+#[derive(Debug, PartialEq)]
+struct Head {
+    status: u16,
+    /// Length of the head, the blank line included: the body starts there.
+    len: usize,
+    content_length: usize,
+}
+
+/// Parses the head of an HTTP/1.1 response at the start of `buf`: `None` while it is
+/// incomplete. A response this client cannot frame (no `Content-Length`, or chunked) is an
+/// error rather than a guess.
+fn parse_head(buf: &[u8]) -> Result<Option<Head>> {
+    let mut headers = [httparse::EMPTY_HEADER; 32];
+    let mut resp = httparse::Response::new(&mut headers);
+    let len = match resp.parse(buf).context("malformed response head")? {
+        httparse::Status::Partial => return Ok(None),
+        httparse::Status::Complete(n) => n,
+    };
+    ensure!(resp.version == Some(1), "not an HTTP/1.1 response");
+    let mut content_length = None;
+    for h in resp.headers.iter() {
+        if h.name.eq_ignore_ascii_case("content-length") {
+            let v = std::str::from_utf8(h.value)
+                .ok()
+                .and_then(|v| v.trim().parse().ok());
+            ensure!(
+                content_length.is_none() && v.is_some(),
+                "bad or repeated content-length"
+            );
+            content_length = v;
+        } else if h.name.eq_ignore_ascii_case("transfer-encoding") {
+            bail!("unexpected transfer-encoding in a response");
+        }
+    }
+    Ok(Some(Head {
+        status: resp.code.context("no status")?,
+        len,
+        content_length: content_length.context("response without content-length")?,
+    }))
+}
+
 async fn client(
-    mut sender: hyper::client::conn::http1::SendRequest<Full<Bytes>>,
+    mut stream: TcpStream,
     jobs: Arc<Vec<Job>>,
     budget: Arc<AtomicU64>,
     deadline: Instant,
@@ -356,39 +409,77 @@ async fn client(
         latencies_us: Vec::with_capacity(1 << 16),
         ..ClientStats::default()
     };
+    let mut buf: Vec<u8> = Vec::with_capacity(1 << 16);
     while Instant::now() < deadline
         && budget
             .fetch_update(Relaxed, Relaxed, |b| b.checked_sub(1))
             .is_ok()
     {
         let job = &jobs[rng.below(jobs.len())];
-        let req = match &job.body {
-            None => Request::get(job.path.as_str())
-                .header(HOST, "bench")
-                .body(Full::new(Bytes::new()))?,
-            Some(b) => Request::post(job.path.as_str())
-                .header(HOST, "bench")
-                .header(CONTENT_TYPE, "application/json")
-                .body(Full::new(b.clone()))?,
-        };
         let t0 = Instant::now();
-        sender.ready().await?;
-        let resp = sender.send_request(req).await?;
-        let status = resp.status();
-        let body = resp.into_body().collect().await?.to_bytes();
+        stream.write_all(&job.request).await?;
+        // One request in flight per connection, so everything read belongs to its response.
+        buf.clear();
+        let head = loop {
+            if let Some(h) = parse_head(&buf)? {
+                break h;
+            }
+            ensure!(
+                stream.read_buf(&mut buf).await? > 0,
+                "connection closed mid-response"
+            );
+        };
+        let end = head.len + head.content_length;
+        buf.reserve(end.saturating_sub(buf.len()));
+        while buf.len() < end {
+            ensure!(
+                stream.read_buf(&mut buf).await? > 0,
+                "connection closed mid-body"
+            );
+        }
         let us = t0.elapsed().as_micros().min(u128::from(u32::MAX)) as u32;
-        ensure!(status == 200, "{} answered {status}", job.path);
+        ensure!(buf.len() == end, "bytes after the response body");
         ensure!(
-            body.len() == job.bytes,
-            "{}: {} bytes, expected {}",
-            job.path,
-            body.len(),
+            head.status == 200,
+            "request {} answered {}",
+            s.requests,
+            head.status
+        );
+        ensure!(
+            head.content_length == job.bytes,
+            "{} body bytes, expected {}",
+            head.content_length,
             job.bytes
         );
         s.latencies_us.push(us);
         s.requests += 1;
         s.records += job.records;
-        s.bytes += body.len() as u64;
+        s.bytes += head.content_length as u64;
     }
     Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn response_heads() {
+        let r = b"HTTP/1.1 200 OK\r\ncontent-length: 5\r\netag: \"x\"\r\n\r\nhello";
+        assert_eq!(
+            parse_head(r).unwrap(),
+            Some(Head {
+                status: 200,
+                len: r.len() - 5,
+                content_length: 5
+            })
+        );
+        assert_eq!(parse_head(&r[..20]).unwrap(), None);
+        let nolen = b"HTTP/1.1 404 Not Found\r\nx: y\r\n\r\n";
+        assert!(parse_head(nolen).is_err());
+        let chunked = b"HTTP/1.1 200 OK\r\ntransfer-encoding: chunked\r\ncontent-length: 1\r\n\r\n";
+        assert!(parse_head(chunked).is_err());
+        assert!(parse_head(b"HTTP/1.1 200 OK\r\ncontent-length: x\r\n\r\n").is_err());
+        assert!(parse_head(b"garbage\r\n\r\n").is_err());
+    }
 }

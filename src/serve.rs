@@ -12,7 +12,8 @@ use tracing_subscriber::EnvFilter;
 use crate::ServeArgs;
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`: startup, errors, one line per
-/// request; `RUST_LOG=warn` silences the access log).
+/// request except successful record requests, which log at debug:
+/// `RUST_LOG=info,cbdam_server::access=debug` logs every request, `RUST_LOG=warn` none).
 fn init_logging() {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
     // Fails only when a subscriber is already installed, which is then the one to keep.

@@ -14,11 +14,21 @@
 //!
 //! [`app`] builds the router, [`run`] serves it on a listener until a shutdown future
 //! completes.
+//!
+//! # Performance
+//!
+//! A single-record `GET` is the hot path (a client refining a view asks for many small
+//! records). It formats nothing and copies nothing: each record's ETag is sliced from one
+//! buffer built at startup, its body is the mapped bytes, and its CRC is checked on its first
+//! request only. The metrics and the access log are one hand-written layer, and successful
+//! record requests log at debug, so the default `info` level does not write a line per
+//! record. `cbdam bench serve` measures records/s, latency and CPU time per request.
 #![deny(missing_docs)]
 
 pub mod describe;
 mod error;
 pub mod metrics;
+mod observe;
 mod range;
 mod routes;
 mod state;

@@ -4,15 +4,13 @@ use std::borrow::Cow;
 use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
-use std::time::Instant;
 
 use axum::Router;
 use axum::body::Body;
 use axum::extract::rejection::{BytesRejection, PathRejection};
 use axum::extract::{DefaultBodyLimit, Path, Request, State};
 use axum::http::{HeaderMap, HeaderName, HeaderValue, Method, StatusCode, Uri, header};
-use axum::middleware::{self, Next};
-use axum::response::{IntoResponse, Response};
+use axum::response::Response;
 use axum::routing::{get, post};
 use bytes::Bytes;
 use cbdam_codec::geometry::DiamondId;
@@ -21,7 +19,7 @@ use tower_http::cors::{AllowOrigin, CorsLayer};
 use tower_http::timeout::TimeoutLayer;
 
 use crate::error::ApiError;
-use crate::metrics::Endpoint;
+use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
 use crate::state::{AppState, ServedRepo};
 
@@ -67,7 +65,7 @@ pub(crate) fn router(state: AppState) -> Router {
         ))
         .layer(cors_layer(&cfg.cors_origin))
         // Outermost, so that it sees (and counts) timeouts, CORS preflights and 404s too.
-        .layer(middleware::from_fn_with_state(state.clone(), observe))
+        .layer(ObserveLayer::new(state.clone()))
         .with_state(state)
 }
 
@@ -112,43 +110,6 @@ fn cors_layer(origin: &str) -> CorsLayer {
         .max_age(std::time::Duration::from_secs(86_400))
 }
 
-/// Counts and logs every request.
-async fn observe(State(st): State<AppState>, req: Request, next: Next) -> Response {
-    let start = Instant::now();
-    let endpoint = Endpoint::classify(req.method(), req.uri().path());
-    // Cloning the method and URI only when the access log is on keeps the hot path free of
-    // them when it is off.
-    let log = tracing::enabled!(target: "cbdam_server::access", tracing::Level::INFO);
-    let seen = log.then(|| (req.method().clone(), req.uri().clone(), req.version()));
-    let mut resp = next.run(req).await;
-    if resp.status() == StatusCode::REQUEST_TIMEOUT {
-        // TimeoutLayer answers with an empty body; give it the same JSON shape as every
-        // other error.
-        resp = ApiError::Timeout(st.config().timeout.as_secs_f64()).into_response();
-    }
-    let bytes = http_body_size(resp.body());
-    let elapsed = start.elapsed();
-    st.metrics()
-        .observe(endpoint, resp.status(), bytes, elapsed);
-    if let Some((method, uri, version)) = seen {
-        tracing::info!(
-            target: "cbdam_server::access",
-            %method,
-            path = %uri,
-            ?version,
-            status = resp.status().as_u16(),
-            bytes,
-            micros = elapsed.as_micros() as u64,
-        );
-    }
-    resp
-}
-
-fn http_body_size(b: &Body) -> u64 {
-    use axum::body::HttpBody;
-    b.size_hint().exact().unwrap_or(0)
-}
-
 async fn not_found(uri: Uri) -> ApiError {
     ApiError::NotFound(format!("no such endpoint {}", uri.path()))
 }
@@ -187,24 +148,38 @@ fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
         .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t).as_bytes() == ours)
 }
 
-/// Record `i`'s bytes, checked against its CRC. A damaged record is answered with 500 and
-/// logged the first time only.
-fn checked_record<'a>(st: &AppState, r: &'a ServedRepo, i: usize) -> Result<&'a [u8], ApiError> {
-    r.repo.record_at(i).map_err(|e| {
-        st.metrics().add_corrupt();
-        let id = r.repo.entries()[i].id;
-        if !r.corrupt_logged[i].swap(true, Relaxed) {
-            tracing::error!(
-                repo = %r.name,
-                diamond = %id,
-                "damaged record, answering 500 for it (logged once): {e}"
-            );
+/// Record `i`'s byte range in the file, its bytes checked against their CRC (once per record:
+/// repositories are immutable while served). A damaged record is answered with 500 and logged the first time
+/// only.
+fn checked_record(st: &AppState, r: &ServedRepo, i: usize) -> Result<Range<usize>, ApiError> {
+    // `i` comes from a search of the index, and the index was checked against the file.
+    let range = r.repo.head().record_range(i).expect("an index position");
+    // The file is mapped, so its offsets fit in usize.
+    let range = range.start as usize..range.end as usize;
+    if r.verified[i].load(Relaxed) {
+        return Ok(range);
+    }
+    match r.repo.record_at(i) {
+        Ok(_) => {
+            r.verified[i].store(true, Relaxed);
+            Ok(range)
         }
-        ApiError::Internal(format!(
-            "the record of diamond {id} in repository {:?} is damaged",
-            r.name
-        ))
-    })
+        Err(e) => {
+            st.metrics().add_corrupt();
+            let id = r.repo.entries()[i].id;
+            if !r.corrupt_logged[i].swap(true, Relaxed) {
+                tracing::error!(
+                    repo = %r.name,
+                    diamond = %id,
+                    "damaged record, answering 500 for it (logged once): {e}"
+                );
+            }
+            Err(ApiError::Internal(format!(
+                "the record of diamond {id} in repository {:?} is damaged",
+                r.name
+            )))
+        }
+    }
 }
 
 fn respond(status: StatusCode, headers: HeaderMap, body: impl Into<Body>) -> Response {
@@ -271,7 +246,7 @@ async fn diamond(
             Body::empty(),
         ));
     }
-    let bytes = checked_record(&st, r, i)?;
+    let range = checked_record(&st, r, i)?;
     st.metrics().add_records(1);
     Ok(respond(
         StatusCode::OK,
@@ -280,7 +255,11 @@ async fn diamond(
             (header::ETAG, etag),
             (header::CACHE_CONTROL, hv(IMMUTABLE)),
         ]),
-        Bytes::copy_from_slice(bytes),
+        // The mapped bytes themselves, not a copy.
+        Bytes::from_owner(FileSlice {
+            repo: Arc::clone(r),
+            range,
+        }),
     ))
 }
 
@@ -344,7 +323,7 @@ async fn batch(
     for slot in slots {
         match slot {
             Some(i) => {
-                let rec = checked_record(&st, r, i)?;
+                let rec = &r.repo.as_bytes()[checked_record(&st, r, i)?];
                 out.push(STATUS_RECORD);
                 // Index lengths are u32, so this cannot truncate.
                 out.extend_from_slice(&(rec.len() as u32).to_le_bytes());

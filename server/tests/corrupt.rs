@@ -130,7 +130,7 @@ async fn a_damaged_record_fails_alone_and_is_logged_once() {
     s.stop().await;
 
     // Five requests met the damaged record; its error was logged once. Access logs carry
-    // every request.
+    // every failed request at info.
     let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
     let damaged_lines: Vec<&str> = text
         .lines()
@@ -140,6 +140,13 @@ async fn a_damaged_record_fails_alone_and_is_logged_once() {
     assert!(damaged_lines[0].contains(&bad_id.to_string()) && damaged_lines[0].contains("broken"));
     assert!(
         text.lines().filter(|l| l.contains("status=500")).count() >= 5,
+        "{text}"
+    );
+    // Successful record requests (hundreds above) log at debug, under this INFO subscriber.
+    assert!(
+        !text
+            .lines()
+            .any(|l| l.contains("/diamonds/") && l.contains("status=200")),
         "{text}"
     );
 }
