@@ -6,7 +6,7 @@ use rayon::prelude::*;
 
 use super::analysis::{LevelField, analysis_fields};
 use super::field::{ReconField, TempStorage};
-use super::object_error::surface_error;
+use super::object_error::{ErrorInput, surface_error};
 use super::refine::{Refined, gather};
 use super::roots::{encode_roots, root_field_dims, root_grid, root_spacing};
 use super::{CodecParams, Encoded, Record};
@@ -156,7 +156,7 @@ fn encode_impl(
     };
     let levels = Levels {
         params: &params,
-        grid,
+        error_input: ErrorInput::new(grid),
         targets: &targets,
         stored: &stored,
         root_field: &root_field,
@@ -209,7 +209,8 @@ type LevelOutput = (Vec<Record>, HashMap<DiamondId, u32>);
 /// What the coarse-to-fine pass over the levels works on.
 struct Levels<'a> {
     params: &'a CodecParams,
-    grid: &'a HeightGrid,
+    /// The input, for the object-space errors.
+    error_input: ErrorInput<'a>,
     targets: &'a Targets<'a>,
     stored: &'a [Vec<DiamondId>],
     root_field: &'a [i32],
@@ -253,7 +254,7 @@ impl Levels<'_> {
                 for (id, e) in self.stored[level as usize]
                     .par_iter()
                     .map(|&id| {
-                        let e = surface_error(layout, id, &grids_of(id), self.grid);
+                        let e = surface_error(layout, id, &grids_of(id), &self.error_input);
                         (self.tick)(&id);
                         (id, e)
                     })
@@ -267,7 +268,7 @@ impl Levels<'_> {
                 .par_iter()
                 .map(|&id| {
                     let p = grids_of(id);
-                    let err = surface_error(layout, id, &p, self.grid);
+                    let err = surface_error(layout, id, &p, &self.error_input);
                     let r = refine_encode(self.params, id, &p, |x, y| {
                         self.targets.at(level + 1, x, y)
                     })?;
@@ -317,7 +318,7 @@ impl Levels<'_> {
                 .par_iter()
                 .map(|&id| {
                     let p = grid_of(id);
-                    let err = surface_error(layout, id, &p, self.grid);
+                    let err = surface_error(layout, id, &p, &self.error_input);
                     let record = if level < finest {
                         let r = refine_encode(self.params, id, &p, |x, y| {
                             self.targets.at(level + 1, x, y)
