@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::{Cut, DiamondId, Half, Layout};
-use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather};
+use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
 
@@ -144,7 +144,18 @@ struct Node {
 impl Node {
     fn bytes(&self) -> usize {
         let n = self.refined.n();
-        4 * ((2 * n - 1) * (2 * n - 1) + self.halves.iter().flatten().count() * n * n)
+        let heights =
+            4 * ((2 * n - 1) * (2 * n - 1) + self.halves.iter().flatten().count() * n * n);
+        // Nodata masks, one byte per point, where the record has any nodata.
+        let masks = self.refined.validity().map_or(0, <[bool]>::len)
+            + self
+                .halves
+                .iter()
+                .flatten()
+                .filter_map(|h| h.valid.as_ref())
+                .map(Vec::len)
+                .sum::<usize>();
+        heights + masks
     }
 }
 
@@ -298,6 +309,7 @@ impl<S: DataSource> Refiner<S> {
         for r in layout.roots() {
             let src = DiamondId::new(r.level, r.x >> shift, r.y >> shift);
             let heights = decoder.grid_of(src, [None, None]);
+            let valid = decoder.validity_of(src, [None, None]);
             roots.insert(
                 r,
                 Half::BOTH.map(|half| {
@@ -305,6 +317,7 @@ impl<S: DataSource> Refiner<S> {
                         id: r,
                         half,
                         heights: heights.clone(),
+                        valid: valid.clone(),
                     })
                 }),
             );
@@ -1009,7 +1022,9 @@ impl Job {
             }
             Source::Synthetic(amp) => {
                 let grid = self.grid_of(id);
-                let r = detail::synthesize(&self.layout, id, &grid, amp, self.seed);
+                let valid = self.validity_of(id);
+                let r =
+                    detail::synthesize(&self.layout, id, &grid, valid.as_deref(), amp, self.seed);
                 Ok(self.node(id, r))
             }
         }
@@ -1025,6 +1040,15 @@ impl Job {
         let mut grid = vec![0i32; n * n];
         gather(&self.layout, id, parents, &mut grid);
         grid
+    }
+
+    fn validity_of(&self, id: DiamondId) -> Option<Vec<bool>> {
+        if id.level == 0 {
+            let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
+            return self.decoder.validity_of(sid, [None, None]);
+        }
+        let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
+        gather_validity(&self.layout, id, parents)
     }
 
     fn node(&self, id: DiamondId, refined: Refined) -> Arc<Node> {
