@@ -10,16 +10,20 @@ use crate::InspectArgs;
 pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    let valid = count_valid_samples(
-        repo.params(),
-        repo.root_bytes(),
-        repo.entries()
+    let samples = u64::from(repo.params().data_width) * u64::from(repo.params().data_height);
+    // Without a mask every sample had data; with one, the count reads (and checks) the records.
+    let valid = if repo.params().nodata_mask {
+        let records = repo
+            .entries()
             .iter()
             .map(|e| Ok((e.id, repo.record(e.id)?)))
-            .collect::<Result<Vec<_>, cbdam_codec::CodecError>>()?,
-    )
-    .with_context(|| format!("reading the nodata mask of {}", args.repo.display()))?;
-    let samples = u64::from(repo.params().data_width) * u64::from(repo.params().data_height);
+            .collect::<Result<Vec<_>, cbdam_codec::CodecError>>()
+            .with_context(|| format!("reading the records of {}", args.repo.display()))?;
+        count_valid_samples(repo.params(), repo.root_bytes(), records)
+            .with_context(|| format!("reading the nodata mask of {}", args.repo.display()))?
+    } else {
+        samples
+    };
     let nodata_fraction = 1.0 - valid as f64 / samples as f64;
     if args.json {
         // The same description the server's meta endpoint starts from.
