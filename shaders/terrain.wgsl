@@ -63,6 +63,26 @@ struct VsOut {
     // Height in metres, for the colour ramp.
     @location(2) metres: f32,
     @location(3) @interpolate(flat) level: u32,
+    // 1 at vertices with data (or outside the data rectangle, which `lattice` clips), 0 at
+    // nodata; interpolated, so it is exactly 1 only inside triangles whose corners all have data.
+    @location(4) valid: f32,
+}
+
+// `NODATA_BIT` of client/src/draw/mod.rs: nodata heights are stored as `h ^ NODATA_BIT`, which
+// puts them outside ±MAX_ABS_HEIGHT (44 000 000 < 2^30).
+const NODATA_BIT: i32 = 1073741824;
+const MAX_ABS_HEIGHT: i32 = 44000000;
+
+fn is_nodata(raw: i32) -> bool {
+    return raw > MAX_ABS_HEIGHT || raw < -MAX_ABS_HEIGHT;
+}
+
+// The height of a pool entry, nodata mark removed.
+fn unmark(raw: i32) -> i32 {
+    if is_nodata(raw) {
+        return raw ^ NODATA_BIT;
+    }
+    return raw;
 }
 
 // Whether grid point (a, b) belongs to the patch's own half (split diagonal included). Normals
@@ -88,7 +108,7 @@ fn in_half(p: Patch, a: i32, b: i32) -> bool {
 
 fn height_at(p: Patch, a: i32, b: i32) -> f32 {
     let n = i32(frame.n);
-    return f32(heights[p.slot * frame.n * frame.n + u32(b * n + a)]);
+    return f32(unmark(heights[p.slot * frame.n * frame.n + u32(b * n + a)]));
 }
 
 // Derivative of the height (units per grid step) along (da, db) at (a, b): central where both
@@ -111,7 +131,8 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     let p = patches[ii];
     let i = vi % frame.n;
     let j = vi / frame.n;
-    let h = f32(heights[p.slot * frame.n * frame.n + vi]);
+    let raw = heights[p.slot * frame.n * frame.n + vi];
+    let h = f32(unmark(raw));
     let xy = p.origin_rel + f32(i) * p.u_world + f32(j) * p.v_world;
     let pos = vec3<f32>(xy, frame.z_base + frame.z_scale * h);
 
@@ -131,6 +152,8 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     out.lattice = vec2<f32>(lat);
     out.metres = frame.m_offset + frame.m_unit * h;
     out.level = p.level;
+    // The mask is don't care outside the data rectangle, which `outside_data` clips anyway.
+    out.valid = select(1.0, 0.0, is_nodata(raw) && !outside_data(vec2<f32>(lat)));
     return out;
 }
 
@@ -187,11 +210,19 @@ fn outside_data(lattice: vec2<f32>) -> bool {
         || lattice.y > frame.data_max.y + eps;
 }
 
+// Fragments of triangles with a nodata corner: the surface there interpolates towards heights
+// that are predictions, not data, so none of it is drawn (a threshold of ½ would draw half of
+// each such triangle, i.e. invented surface up to half a sample into the hole). The margin only
+// absorbs interpolation rounding of the constant 1.
+fn touches_nodata(valid: f32) -> bool {
+    return valid < 0.999;
+}
+
 // Triangle edges of the wireframe overlay (drawn with PolygonMode::Line), blended over the
 // surface so that dense meshes darken it rather than turn it black.
 @fragment
 fn fs_wire(in: VsOut) -> @location(0) vec4<f32> {
-    if outside_data(in.lattice) {
+    if outside_data(in.lattice) || touches_nodata(in.valid) {
         discard;
     }
     return vec4<f32>(0.0, 0.0, 0.0, 0.45);
@@ -199,7 +230,7 @@ fn fs_wire(in: VsOut) -> @location(0) vec4<f32> {
 
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
-    if outside_data(in.lattice) {
+    if outside_data(in.lattice) || touches_nodata(in.valid) {
         discard;
     }
     let nrm = normalize(in.normal);

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use cbdam_codec::atomic::write_atomically;
-use cbdam_codec::hierarchy::walk;
+use cbdam_codec::hierarchy::walk_with_validity;
 use cbdam_codec::input::GeoRef;
 use cbdam_codec::input::geokeys::{
     KEY_GEOGRAPHIC_TYPE, KEY_MODEL_TYPE, KEY_PROJECTED_CS_TYPE, KEY_RASTER_TYPE, MODEL_GEOGRAPHIC,
@@ -71,11 +71,12 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         .to_encoded()
         .with_context(|| format!("reading {}", args.repo.display()))?;
     // Points no decoded diamond covers lie in parts of the data rectangle with no valid sample
-    // nearby (the encoder stores only diamonds that meet one): nodata, or NaN without a value.
+    // nearby (the encoder stores only diamonds that meet one), and the repository's nodata mask
+    // marks the others that had no data: both are written as nodata, or NaN without a value.
     let fill = repo.nodata().unwrap_or(f64::NAN);
     let mut values = vec![fill; out_w * out_h];
     let n = p.layout.n();
-    walk(&encoded, |id, grid| {
+    walk_with_validity(&encoded, |id, grid, valid| {
         if id.level != level {
             return;
         }
@@ -89,7 +90,9 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
                 // Even-level grids sit on multiples of their own spacing, which is `step`.
                 debug_assert!((x - x0) % step == 0 && (y - y0) % step == 0);
                 let (c, r) = (((x - x0) / step) as usize, ((y - y0) / step) as usize);
-                values[r * out_w + c] = plan.metres(grid[j * n + i]);
+                if valid.is_none_or(|v| v[j * n + i]) {
+                    values[r * out_w + c] = plan.metres(grid[j * n + i]);
+                }
             }
         }
     })

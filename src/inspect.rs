@@ -1,6 +1,7 @@
 //! `cbdam inspect`: what a repository holds.
 
 use anyhow::{Context, Result};
+use cbdam_codec::hierarchy::mask::count_valid_samples;
 use cbdam_codec::repository::{Repository, Section};
 use cbdam_server::summarize;
 
@@ -9,9 +10,27 @@ use crate::InspectArgs;
 pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
+    let samples = u64::from(repo.params().data_width) * u64::from(repo.params().data_height);
+    // Without a mask every sample had data; with one, the count reads (and checks) the records.
+    let valid = if repo.params().nodata_mask {
+        let records = repo
+            .entries()
+            .iter()
+            .map(|e| Ok((e.id, repo.record(e.id)?)))
+            .collect::<Result<Vec<_>, cbdam_codec::CodecError>>()
+            .with_context(|| format!("reading the records of {}", args.repo.display()))?;
+        count_valid_samples(repo.params(), repo.root_bytes(), records)
+            .with_context(|| format!("reading the nodata mask of {}", args.repo.display()))?
+    } else {
+        samples
+    };
+    let nodata_fraction = 1.0 - valid as f64 / samples as f64;
     if args.json {
         // The same description the server's meta endpoint starts from.
-        let v = cbdam_server::describe(&repo);
+        let mut v = cbdam_server::describe(&repo);
+        v["nodata_mask"] = repo.params().nodata_mask.into();
+        v["nodata_samples"] = (samples - valid).into();
+        v["nodata_fraction"] = nodata_fraction.into();
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
@@ -76,8 +95,15 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         None => println!("georeference    none"),
     }
     println!(
-        "nodata          {}",
-        repo.nodata().map_or("none".to_string(), |v| v.to_string())
+        "nodata          value {}, {} of {samples} samples ({:.2} %) without data{}",
+        repo.nodata().map_or("none".to_string(), |v| v.to_string()),
+        samples - valid,
+        100.0 * nodata_fraction,
+        if p.nodata_mask {
+            ", per-sample mask stored"
+        } else {
+            ""
+        }
     );
     println!(
         "sections        roots {} B, index {} B, records {} B, header + checksums {} B",

@@ -1,7 +1,7 @@
 //! `cbdam verify`: every checksum, every level, every sample.
 
 use anyhow::{Context, Result, bail};
-use cbdam_codec::hierarchy::{reconstruct_finest, verify};
+use cbdam_codec::hierarchy::{reconstruct_finest_with_validity, verify};
 use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::quant::HeightGrid;
 use cbdam_codec::repository::Repository;
@@ -52,7 +52,29 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         );
     }
     // Against the samples as stored, in metres: what the user was promised.
-    let finest = reconstruct_finest(&encoded)?;
+    let (finest, valid) = reconstruct_finest_with_validity(&encoded)?;
+    // The nodata mask must state exactly which samples had data: a sample drawn that had none
+    // shows invented surface, one hidden that had data loses it.
+    let wrong: Vec<usize> = (0..valid.len())
+        .filter(|&i| valid[i] != grid.valid[i])
+        .collect();
+    let nodata = grid.valid.iter().filter(|v| !**v).count();
+    println!(
+        "nodata mask: {nodata} of {} samples without data in {}, {} mismatches",
+        grid.valid.len(),
+        args.against.display(),
+        wrong.len()
+    );
+    if let Some(&i) = wrong.first() {
+        bail!(
+            "nodata mask disagrees with the input at {} samples, first at column {}, row {}              (repository says {}, input says {})",
+            wrong.len(),
+            i % dem.width,
+            i / dem.width,
+            if valid[i] { "data" } else { "nodata" },
+            if grid.valid[i] { "data" } else { "nodata" }
+        );
+    }
     let mut max_err = 0f64;
     let mut worst = 0usize;
     for (i, &n) in finest.iter().enumerate() {

@@ -650,12 +650,89 @@ fn extract_keeps_the_nodata_value() {
     assert_eq!(got.nodata, orig.nodata);
     assert_eq!(got.georef, orig.georef);
     max_abs_diff(&got, &orig, 1.0, true);
-    // Where no decoded diamond reaches (far from any valid sample) the output says nodata; the
-    // bound check above already shows no valid input sample came back as nodata.
+    // The repository's nodata mask comes back exactly: nodata where the input had none, data
+    // everywhere else.
     let written_nodata = (0..got.values.len()).filter(|&i| !got.is_valid(i)).count();
+    let input_nodata = (0..orig.values.len())
+        .filter(|&i| !orig.is_valid(i))
+        .count();
+    assert!(input_nodata > orig.values.len() / 3, "{input_nodata}");
+    let differ: Vec<usize> = (0..orig.values.len())
+        .filter(|&i| got.is_valid(i) != orig.is_valid(i))
+        .collect();
     assert!(
-        written_nodata > 0,
-        "the large nodata area should come back as nodata"
+        differ.is_empty(),
+        "{} of {input_nodata} nodata samples differ ({written_nodata} written), first at {:?}",
+        differ.len(),
+        &differ[..differ.len().min(5)]
+    );
+    // A coarser level keeps the mask on its own samples (every 2nd sample of every 2nd row).
+    let coarse = dir.path().join("c.tif");
+    let finest = cbdam(&["inspect", "--json", &s(&repo)]);
+    let meta: serde_json::Value = serde_json::from_slice(&finest.stdout).unwrap();
+    let level = meta["finest_level"].as_u64().unwrap() - 2;
+    extract_ok(&[&s(&repo), "-o", &s(&coarse), "--level", &level.to_string()]);
+    let c = read(&coarse);
+    for y in 0..c.height {
+        for x in 0..c.width {
+            let i = 2 * y * orig.width + 2 * x;
+            assert_eq!(c.is_valid(y * c.width + x), orig.is_valid(i), "({x}, {y})");
+        }
+    }
+
+    // inspect reports the share of samples without data, from the mask.
+    assert!(
+        (meta["nodata_fraction"].as_f64().unwrap()
+            - input_nodata as f64 / orig.values.len() as f64)
+            .abs()
+            < 1e-12,
+        "{}",
+        meta["nodata_fraction"]
+    );
+    let text = stdout(&cbdam(&["inspect", &s(&repo)]));
+    assert!(
+        text.contains(&format!("{input_nodata} of")) && text.contains("mask stored"),
+        "{text}"
+    );
+}
+
+/// `verify` checks the nodata mask sample by sample: an input whose nodata differs in a single
+/// sample (valid there, within the tolerance of the decoded surface) is rejected by name.
+#[test]
+fn verify_checks_the_nodata_mask() {
+    let dir = tempfile::tempdir().unwrap();
+    let rows: Vec<Vec<f64>> = (0..20)
+        .map(|y| (0..30).map(|x| f64::from(x * 3 + (y * 2) % 7)).collect())
+        .collect();
+    let mut holed = rows.clone();
+    for (y, row) in holed.iter_mut().enumerate() {
+        for (x, v) in row.iter_mut().enumerate() {
+            if (x + 2 * y) % 9 == 0 || (10..14).contains(&x) {
+                *v = -9999.0;
+            }
+        }
+    }
+    let asc = dir.path().join("h.asc");
+    write_asc(&asc, &holed, Some(-9999.0));
+    let out = s(&dir.path().join("h.cbdam"));
+    let o = cbdam(&["build", &s(&asc), "-o", &out, "--max-error", "2", "--quiet"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = cbdam(&["verify", &out, "--against", &s(&asc)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("0 mismatches"), "{}", stdout(&o));
+
+    // Sample (12, 5) had no data; give it its true height.
+    let mut filled = holed.clone();
+    filled[5][12] = rows[5][12];
+    let bad = dir.path().join("filled.asc");
+    write_asc(&bad, &filled, Some(-9999.0));
+    let o = cbdam(&["verify", &out, "--against", &s(&bad)]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("nodata mask disagrees with the input at 1 samples")
+            && stderr(&o).contains("column 12, row 5"),
+        "{}",
+        stderr(&o)
     );
 }
 

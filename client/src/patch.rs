@@ -9,7 +9,7 @@ use std::collections::HashMap;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::{Cut, DiamondId, Half, Layout};
-use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather};
+use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use cbdam_codec::repository::Repository;
 
 /// Identity of a half-patch: the diamond and which of its halves.
@@ -28,6 +28,10 @@ pub struct HalfPatch {
     /// diagonal (the codec's symmetric extension), so finite differences at the diagonal stay
     /// defined. Outside the data rectangle heights are unconstrained and must not be drawn.
     pub heights: Vec<i32>,
+    /// Which of those points had data in the input (same layout), from the repository's nodata
+    /// mask; `None` when all did. Heights at invalid points are predictions, not data: triangles
+    /// touching them are not drawn. Meaningless outside the data rectangle.
+    pub valid: Option<Vec<bool>>,
 }
 
 impl HalfPatch {
@@ -39,10 +43,12 @@ impl HalfPatch {
     /// Both halves of an unrefined root, from the decoder's root field.
     pub fn root_halves(decoder: &Decoder, root: DiamondId) -> [HalfPatch; 2] {
         let heights = decoder.grid_of(root, [None, None]);
+        let valid = decoder.validity_of(root, [None, None]);
         Half::BOTH.map(|half| HalfPatch {
             id: root,
             half,
             heights: heights.clone(),
+            valid: valid.clone(),
         })
     }
 
@@ -63,6 +69,7 @@ impl HalfPatch {
             id: child,
             half,
             heights,
+            valid: gather_validity(layout, child, parents),
         })
     }
 }

@@ -12,18 +12,30 @@ use std::path::Path;
 
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk};
+use cbdam_codec::hierarchy::{
+    Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk, walk_with_validity,
+};
 use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::lifting::{Alpha, MAX_ABS_HEIGHT};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
 /// A 256 × 256 window of SRTM at ε = 1 m: real residual statistics, a few levels of diamonds.
-fn hierarchy(alpha: Alpha, coder: CoderKind) -> Encoded {
+/// With `nodata`, a disc and a sprinkling of samples are nodata, so the root field and records
+/// carry nodata masks that the damage reaches too.
+fn hierarchy(alpha: Alpha, coder: CoderKind, nodata: bool) -> Encoded {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/srtm3_demcompare.tif");
     let dem = read_dem(&path, &ReadOptions::default()).unwrap();
     let part = dem.crop(500, 300, 256, 256).unwrap();
     let plan = QuantPlan::for_dem(&part, 1.0, None).unwrap();
-    let grid = HeightGrid::from_dem(&part, &plan).unwrap();
+    let mut grid = HeightGrid::from_dem(&part, &plan).unwrap();
+    if nodata {
+        for (k, v) in grid.valid.iter_mut().enumerate() {
+            let (x, y) = ((k % 256) as i64 - 90, (k / 256) as i64 - 150);
+            if x * x + y * y < 60 * 60 || k % 97 == 0 {
+                *v = false;
+            }
+        }
+    }
     let opts = EncodeOptions {
         alpha,
         coder,
@@ -54,7 +66,7 @@ fn walk_damaged(enc: &Encoded, record: usize, bytes: &[u8]) -> usize {
 /// Walks `enc` and asserts every visited height is representable; returns the grids seen.
 fn walk_checked(enc: &Encoded) -> usize {
     let mut seen = 0;
-    let _ = walk(enc, |id, p| {
+    let _ = walk_with_validity(enc, |id, p, _| {
         seen += 1;
         if let Some(v) = p.iter().find(|v| v.unsigned_abs() > MAX_ABS_HEIGHT as u32) {
             panic!("{id}: decoded height {v} is out of range");
@@ -63,20 +75,22 @@ fn walk_checked(enc: &Encoded) -> usize {
     seen
 }
 
-fn configs() -> Vec<(Alpha, CoderKind)> {
+fn configs() -> Vec<(Alpha, CoderKind, bool)> {
     let mut v = Vec::new();
     for coder in CoderKind::ALL {
         for alpha in [Alpha::One, Alpha::Half] {
-            v.push((alpha, coder));
+            v.push((alpha, coder, false));
         }
+        v.push((Alpha::One, coder, true));
     }
     v
 }
 
 #[test]
 fn truncated_records_never_panic() {
-    for (alpha, coder) in configs() {
-        let enc = hierarchy(alpha, coder);
+    for (alpha, coder, nodata) in configs() {
+        let enc = hierarchy(alpha, coder, nodata);
+        assert_eq!(enc.params.nodata_mask, nodata);
         let grids = grids(&enc);
         let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
         let mut scratch = RefineScratch::default();
@@ -109,8 +123,9 @@ fn truncated_records_never_panic() {
 #[test]
 fn bit_flipped_records_never_panic_and_stay_in_range() {
     let mut rng = Rng(7);
-    for (alpha, coder) in configs() {
-        let enc = hierarchy(alpha, coder);
+    for (alpha, coder, nodata) in configs() {
+        let enc = hierarchy(alpha, coder, nodata);
+        assert_eq!(enc.params.nodata_mask, nodata);
         let grids = grids(&enc);
         let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
         let mut scratch = RefineScratch::default();
@@ -141,8 +156,9 @@ fn bit_flipped_records_never_panic_and_stay_in_range() {
 #[test]
 fn random_records_never_panic_and_stay_in_range() {
     let mut rng = Rng(11);
-    for (alpha, coder) in configs() {
-        let enc = hierarchy(alpha, coder);
+    for (alpha, coder, nodata) in configs() {
+        let enc = hierarchy(alpha, coder, nodata);
+        assert_eq!(enc.params.nodata_mask, nodata);
         let grids = grids(&enc);
         let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
         let mut scratch = RefineScratch::default();
@@ -183,8 +199,9 @@ fn random_records_never_panic_and_stay_in_range() {
 #[test]
 fn damaged_root_fields_never_panic_and_stay_in_range() {
     let mut rng = Rng(13);
-    for (alpha, coder) in configs() {
-        let enc = hierarchy(alpha, coder);
+    for (alpha, coder, nodata) in configs() {
+        let enc = hierarchy(alpha, coder, nodata);
+        assert_eq!(enc.params.nodata_mask, nodata);
         Decoder::new(enc.params, &enc.roots).unwrap();
         let mut damaged = enc.clone();
         let mut accepted = 0usize;

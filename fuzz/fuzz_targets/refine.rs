@@ -2,14 +2,17 @@
 //! (fuzz builds keep overflow checks on), and whatever decodes gives representable heights to
 //! the diamond's children.
 //!
-//! Input layout: `[selector byte, record..]`; the selector picks the coder, α and which stored
-//! diamond (so which parent grid) the record refines.
+//! Input layout: `[selector byte, record..]`; the selector picks the coder, α, whether the
+//! hierarchy has nodata (so records start with a nodata mask) and which stored diamond (so which
+//! parent grid) the record refines.
 #![no_main]
 
 use std::sync::OnceLock;
 
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk};
+use cbdam_codec::hierarchy::{
+    Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk, walk_with_validity,
+};
 use cbdam_codec::lifting::{Alpha, MAX_ABS_HEIGHT};
 use cbdam_codec::quant::{HeightGrid, Quantizer};
 use libfuzzer_sys::fuzz_target;
@@ -33,24 +36,35 @@ fn fixtures() -> &'static [Fixture] {
                 5 * x - 3 * y + (x * y) % 11 + if x > y { 400 } else { 0 }
             })
             .collect();
-        let grid = HeightGrid::all_valid(w, h, values);
+        let plain = HeightGrid::all_valid(w, h, values);
+        let mut holed = plain.clone();
+        for (k, v) in holed.valid.iter_mut().enumerate() {
+            *v = !(k % 7 == 0 || (10..20).contains(&(k % w)));
+        }
         let mut out = Vec::new();
-        for coder in CoderKind::ALL {
-            for alpha in [Alpha::One, Alpha::Half] {
-                let opts = EncodeOptions { n: 9, alpha, coder };
-                let enc = encode(&grid, Quantizer::new(2).unwrap(), &opts).unwrap();
-                let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
-                let mut by_id = std::collections::HashMap::new();
-                walk(&enc, |id, p| {
-                    by_id.insert(id, p.to_vec());
-                })
-                .unwrap();
-                let grids = enc.records.iter().map(|r| by_id[&r.id].clone()).collect();
-                out.push(Fixture {
-                    enc,
-                    decoder,
-                    grids,
-                });
+        for grid in [&plain, &holed] {
+            for coder in CoderKind::ALL {
+                for alpha in [Alpha::One, Alpha::Half] {
+                    let opts = EncodeOptions {
+                        n: 9,
+                        alpha,
+                        coder,
+                        ..EncodeOptions::default()
+                    };
+                    let enc = encode(&grid, Quantizer::new(2).unwrap(), &opts).unwrap();
+                    let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
+                    let mut by_id = std::collections::HashMap::new();
+                    walk(&enc, |id, p| {
+                        by_id.insert(id, p.to_vec());
+                    })
+                    .unwrap();
+                    let grids = enc.records.iter().map(|r| by_id[&r.id].clone()).collect();
+                    out.push(Fixture {
+                        enc,
+                        decoder,
+                        grids,
+                    });
+                }
             }
         }
         out
@@ -60,8 +74,8 @@ fn fixtures() -> &'static [Fixture] {
 fuzz_target!(|data: &[u8]| {
     let [sel, record @ ..] = data else { return };
     let fs = fixtures();
-    let f = &fs[usize::from(sel & 3)];
-    let ri = usize::from(sel >> 2) % f.enc.records.len();
+    let f = &fs[usize::from(sel & 7)];
+    let ri = usize::from(sel >> 3) % f.enc.records.len();
     let mut scratch = RefineScratch::default();
     if f.decoder
         .refine(&f.grids[ri], record, &mut scratch)
@@ -72,7 +86,7 @@ fuzz_target!(|data: &[u8]| {
     // It decoded: the whole hierarchy with this record in place must stay representable.
     let mut damaged = f.enc.clone();
     damaged.records[ri].bytes = record.to_vec();
-    let _ = walk(&damaged, |id, p| {
+    let _ = walk_with_validity(&damaged, |id, p, _| {
         if let Some(v) = p.iter().find(|v| v.unsigned_abs() > MAX_ABS_HEIGHT as u32) {
             panic!("{id}: decoded height {v} out of range");
         }

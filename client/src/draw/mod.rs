@@ -16,6 +16,9 @@
 //!   CPU, and [`Camera::view_proj_relative`] only rotates and projects.
 //! - **Data rectangle.** Fragments whose lattice position is outside the data rectangle are
 //!   discarded (heights there are unconstrained), and patches entirely outside are not drawn.
+//! - **Nodata.** Heights at points without data (the repository's nodata mask) are marked in the
+//!   pool ([`NODATA_BIT`]); fragments of triangles touching such a point are discarded, so no
+//!   invented surface is drawn.
 //!
 //! Offscreen rendering ([`Renderer::render`]) reads back colour and optionally depth.
 
@@ -37,6 +40,12 @@ pub use mesh::{MeshKind, SharedMesh};
 use crate::camera::Camera;
 use crate::patch::HalfPatch;
 use crate::world::World;
+
+/// Marks a height of the pool as nodata (`h ^ NODATA_BIT`): heights satisfy
+/// `|h| ≤ MAX_ABS_HEIGHT < 2^30`, so the flipped bit 30 puts a marked height outside that range
+/// in either sign, and the shader undoes it. Keeping the mark inside the heights costs no
+/// memory, no extra buffer and no extra upload; `shaders/terrain.wgsl` has the same constant.
+pub const NODATA_BIT: i32 = 1 << 30;
 
 /// The terrain shader (entry points `vs_main`, `fs_main`).
 pub const TERRAIN_WGSL: &str = include_str!("../../../shaders/terrain.wgsl");
@@ -837,7 +846,15 @@ impl Renderer {
                 Residency::Hit(s) => s,
                 Residency::Upload(s) => {
                     upload_slots.push(s);
-                    staging_data.extend_from_slice(&p.heights);
+                    match &p.valid {
+                        None => staging_data.extend_from_slice(&p.heights),
+                        Some(valid) => staging_data.extend(
+                            p.heights
+                                .iter()
+                                .zip(valid)
+                                .map(|(&h, &v)| if v { h } else { h ^ NODATA_BIT }),
+                        ),
+                    }
                     s
                 }
                 Residency::Missing => {

@@ -71,11 +71,14 @@ pub(crate) fn residual(seed: u64, x2: i64, y2: i64, amp: i32) -> i32 {
     (h % (2 * amp as u64 + 1)) as i32 - amp
 }
 
-/// Refines diamond `id` with grid `p` procedurally.
+/// Refines diamond `id` with grid `p` procedurally. `valid` is the grid's validity (`None`: all
+/// valid); a new point is valid only where all four vertices around it are, so detail never
+/// spreads into a nodata hole.
 pub(crate) fn synthesize(
     layout: &Layout,
     id: DiamondId,
     p: &[i32],
+    valid: Option<&[bool]>,
     amp: i32,
     seed: u64,
 ) -> Refined {
@@ -92,7 +95,25 @@ pub(crate) fn synthesize(
             *c = v.clamp(-i64::from(MAX_ABS_HEIGHT), i64::from(MAX_ABS_HEIGHT)) as i32;
         }
     }
-    Refined::from_parts(n, p, &cells)
+    let half_step = valid.map(|v| {
+        let side = 2 * n - 1;
+        let mut out = vec![false; side * side];
+        for j in 0..n {
+            for i in 0..n {
+                out[2 * j * side + 2 * i] = v[j * n + i];
+            }
+        }
+        for j in 0..m {
+            for i in 0..m {
+                out[(2 * j + 1) * side + 2 * i + 1] = v[j * n + i]
+                    && v[j * n + i + 1]
+                    && v[(j + 1) * n + i]
+                    && v[(j + 1) * n + i + 1];
+            }
+        }
+        out
+    });
+    Refined::from_parts(n, p, &cells).with_validity(half_step)
 }
 
 #[cfg(test)]
@@ -124,7 +145,7 @@ mod tests {
         let id = layout.roots().next().unwrap();
         let n = layout.n();
         let p: Vec<i32> = (0..n * n).map(|i| (i as i32 * 37) % 101).collect();
-        let r = synthesize(&layout, id, &p, 5, 9);
+        let r = synthesize(&layout, id, &p, None, 5, 9);
         let mut pred = vec![0; (n - 1) * (n - 1)];
         predict_cells(&p, n, &mut pred);
         let mut differs = false;
@@ -141,6 +162,6 @@ mod tests {
                 assert_eq!(r.vertex(i, j), p[j * n + i], "vertices stay put");
             }
         }
-        assert_eq!(r, synthesize(&layout, id, &p, 5, 9));
+        assert_eq!(r, synthesize(&layout, id, &p, None, 5, 9));
     }
 }

@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::{Cut, DiamondId, Half, IdMap, IdSet, Layout};
-use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather};
+use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
 
@@ -171,10 +171,21 @@ struct Node {
 
 impl Node {
     fn bytes(&self) -> usize {
-        Self::bytes_for(self.refined.n(), self.halves.iter().flatten().count())
+        let heights = Self::bytes_for(self.refined.n(), self.halves.iter().flatten().count());
+        // Nodata masks, one byte per point, where the record has any nodata.
+        let masks = self.refined.validity().map_or(0, <[bool]>::len)
+            + self
+                .halves
+                .iter()
+                .flatten()
+                .filter_map(|h| h.valid.as_ref())
+                .map(Vec::len)
+                .sum::<usize>();
+        heights + masks
     }
 
-    /// Bytes of a node of an `n × n` diamond with `halves` child halves.
+    /// Bytes of the heights of a node of an `n × n` diamond with `halves` child halves (its
+    /// nodata masks, when it has any, add a quarter: one byte per point against four).
     fn bytes_for(n: usize, halves: usize) -> usize {
         4 * ((2 * n - 1) * (2 * n - 1) + halves * n * n)
     }
@@ -332,6 +343,7 @@ impl<S: DataSource> Refiner<S> {
         for r in layout.roots() {
             let src = DiamondId::new(r.level, r.x >> shift, r.y >> shift);
             let heights = decoder.grid_of(src, [None, None]);
+            let valid = decoder.validity_of(src, [None, None]);
             roots.insert(
                 r,
                 Half::BOTH.map(|half| {
@@ -339,6 +351,7 @@ impl<S: DataSource> Refiner<S> {
                         id: r,
                         half,
                         heights: heights.clone(),
+                        valid: valid.clone(),
                     })
                 }),
             );
@@ -1031,8 +1044,8 @@ impl<S: DataSource> Refiner<S> {
         let Some(limit) = self.config.cut_bytes else {
             return true;
         };
-        // Worst case: every node with all four child halves.
-        let node = Node::bytes_for(self.layout.n(), 4);
+        // Worst case: every node with all four child halves and nodata masks.
+        let node = Node::bytes_for(self.layout.n(), 4) * 5 / 4;
         let fits = |me: &Self| me.cut_bytes + (me.decoding.len() + 1) * node <= limit;
         if fits(self) {
             return true;
@@ -1194,7 +1207,9 @@ impl Job {
             }
             Source::Synthetic(amp) => {
                 let grid = self.grid_of(id);
-                let r = detail::synthesize(&self.layout, id, &grid, amp, self.seed);
+                let valid = self.validity_of(id);
+                let r =
+                    detail::synthesize(&self.layout, id, &grid, valid.as_deref(), amp, self.seed);
                 Ok(self.node(id, r))
             }
         }
@@ -1210,6 +1225,15 @@ impl Job {
         let mut grid = vec![0i32; n * n];
         gather(&self.layout, id, parents, &mut grid);
         grid
+    }
+
+    fn validity_of(&self, id: DiamondId) -> Option<Vec<bool>> {
+        if id.level == 0 {
+            let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
+            return self.decoder.validity_of(sid, [None, None]);
+        }
+        let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
+        gather_validity(&self.layout, id, parents)
     }
 
     fn node(&self, id: DiamondId, refined: Refined) -> Arc<Node> {

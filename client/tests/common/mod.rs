@@ -179,3 +179,38 @@ pub fn full_resolution_cut(repo: &Repository) -> Cut {
     }
     cut
 }
+
+/// A smooth synthetic 129 × 113 DEM with nodata: a disc, a strip, and scattered single samples
+/// (about 15 % in all), built with 17-point diamonds at ε = 0.5 m. Returns the repository and
+/// the input's validity (row-major, `true` = data).
+pub fn holed() -> &'static (Arc<Repository>, Vec<bool>) {
+    static REPO: OnceLock<(Arc<Repository>, Vec<bool>)> = OnceLock::new();
+    REPO.get_or_init(|| {
+        let (w, h) = (129usize, 113usize);
+        let metres: Vec<f64> = (0..w * h)
+            .map(|k| {
+                let (x, y) = ((k % w) as f64, (k / w) as f64);
+                120.0 + 30.0 * (x / 17.0).sin() * (y / 23.0).cos() + 0.2 * x
+            })
+            .collect();
+        let valid: Vec<bool> = (0..w * h)
+            .map(|k| {
+                let (x, y) = ((k % w) as i64, (k / w) as i64);
+                let disc = (x - 70).pow(2) + (y - 50).pow(2) < 18 * 18;
+                let strip = (20..26).contains(&x) && y > 60;
+                let scattered = k % 211 == 0;
+                !(disc || strip || scattered)
+            })
+            .collect();
+        let plan = QuantPlan::new(0.5, None, 80.0, 160.0).unwrap();
+        let mut grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
+        grid.valid.clone_from(&valid);
+        let opts = EncodeOptions {
+            n: 17,
+            ..EncodeOptions::default()
+        };
+        let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+        let bytes = serialize(&enc, &plan, None, None).unwrap();
+        (Arc::new(Repository::from_bytes(bytes).unwrap()), valid)
+    })
+}

@@ -3,7 +3,7 @@
 use std::collections::HashMap;
 
 use super::analysis::analysis_fields;
-use super::refine::{RefineScratch, Refined, gather, refine};
+use super::refine::{RefineScratch, Refined, gather, gather_validity, refine};
 use super::roots::{decode_roots, root_grid};
 use super::{CodecParams, Encoded};
 use crate::CodecError;
@@ -17,13 +17,19 @@ use crate::quant::HeightGrid;
 pub struct Decoder {
     params: CodecParams,
     roots: Vec<i32>,
+    /// The root field's validity, `None` when the repository has no nodata mask.
+    root_valid: Option<Vec<bool>>,
 }
 
 impl Decoder {
     /// Decodes the root field.
     pub fn new(params: CodecParams, root_bytes: &[u8]) -> Result<Self, CodecError> {
-        let roots = decode_roots(&params, root_bytes)?;
-        Ok(Self { params, roots })
+        let (roots, root_valid) = decode_roots(&params, root_bytes)?;
+        Ok(Self {
+            params,
+            roots,
+            root_valid,
+        })
     }
 
     /// The header fields.
@@ -42,6 +48,19 @@ impl Decoder {
             gather(&self.params.layout, id, parents, &mut p);
         }
         p
+    }
+
+    /// The validity of `id`'s `N × N` grid (`true` = the input had data there), `None` when all
+    /// points are valid. Only points inside the data rectangle are meaningful.
+    pub fn validity_of(&self, id: DiamondId, parents: [Option<&Refined>; 2]) -> Option<Vec<bool>> {
+        if id.level > 0 {
+            return gather_validity(&self.params.layout, id, parents);
+        }
+        let field = self.root_valid.as_ref()?;
+        let n = self.params.layout.n();
+        let mut v = vec![true; n * n];
+        root_grid(&self.params.layout, field, id, &mut v);
+        Some(v)
     }
 
     /// Refines a diamond with grid `p` by its record.
@@ -92,6 +111,15 @@ impl VerifyReport {
 /// `visit`: the stored diamonds of each level, then the finest diamonds all of whose existing
 /// parents are stored. Single-threaded and in level order, like a renderer that refines all.
 pub fn walk(encoded: &Encoded, mut visit: impl FnMut(DiamondId, &[i32])) -> Result<(), CodecError> {
+    walk_with_validity(encoded, |id, p, _| visit(id, p))
+}
+
+/// [`walk`], also handing `visit` the validity of each grid ([`Decoder::validity_of`]; `None`:
+/// all valid).
+pub fn walk_with_validity(
+    encoded: &Encoded,
+    mut visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+) -> Result<(), CodecError> {
     let params = encoded.params;
     let layout = params.layout;
     let decoder = Decoder::new(params, &encoded.roots)?;
@@ -146,7 +174,8 @@ pub fn walk(encoded: &Encoded, mut visit: impl FnMut(DiamondId, &[i32])) -> Resu
                 )));
             }
             let p = decoder.grid_of(id, parents);
-            visit(id, &p);
+            let valid = decoder.validity_of(id, parents);
+            visit(id, &p, valid.as_deref());
             if let Some(bytes) = records.get(&id) {
                 next.insert(id, decoder.refine(&p, bytes, &mut scratch)?);
             }
@@ -159,6 +188,14 @@ pub fn walk(encoded: &Encoded, mut visit: impl FnMut(DiamondId, &[i32])) -> Resu
 /// Decodes the finest level onto the input's grid (`data_width × data_height`, row-major):
 /// within the bound of every valid sample, unconstrained elsewhere.
 pub fn reconstruct_finest(encoded: &Encoded) -> Result<Vec<i32>, CodecError> {
+    Ok(reconstruct_finest_with_validity(encoded)?.0)
+}
+
+/// [`reconstruct_finest`] and the repository's nodata mask on the same grid (`true` = the input
+/// had data; all `true` without a mask).
+pub fn reconstruct_finest_with_validity(
+    encoded: &Encoded,
+) -> Result<(Vec<i32>, Vec<bool>), CodecError> {
     let params = encoded.params;
     let layout = params.layout;
     let (w, h) = (params.data_width as usize, params.data_height as usize);
@@ -170,9 +207,11 @@ pub fn reconstruct_finest(encoded: &Encoded) -> Result<Vec<i32>, CodecError> {
         .ok_or_else(|| {
             CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
         })?;
+    // Points no finest diamond reaches lie in leaves without data, which are not stored.
+    let mut valid = vec![!params.nodata_mask; out.len()];
     let n = layout.n();
     let finest = layout.finest_level();
-    walk(encoded, |id, p| {
+    walk_with_validity(encoded, |id, p, v| {
         if id.level != finest {
             return;
         }
@@ -181,12 +220,14 @@ pub fn reconstruct_finest(encoded: &Encoded) -> Result<Vec<i32>, CodecError> {
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);
                 if params.in_data(x, y) {
-                    out[y as usize * w + x as usize] = p[j * n + i];
+                    let k = y as usize * w + x as usize;
+                    out[k] = p[j * n + i];
+                    valid[k] = v.is_none_or(|v| v[j * n + i]);
                 }
             }
         }
     })?;
-    Ok(out)
+    Ok((out, valid))
 }
 
 /// Decodes the whole hierarchy and compares every reconstructed vertex of every level with the

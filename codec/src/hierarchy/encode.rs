@@ -6,6 +6,7 @@ use rayon::prelude::*;
 
 use super::analysis::{LevelField, analysis_fields};
 use super::field::{ReconField, TempStorage};
+use super::mask::encode_mask;
 use super::object_error::{ErrorInput, surface_error};
 use super::refine::{Refined, gather};
 use super::roots::{encode_roots, root_field_dims, root_grid, root_spacing};
@@ -129,6 +130,7 @@ fn encode_impl(
         root_quantizer: super::root_quantizer(quantizer),
         data_width: u32::try_from(grid.width).map_err(|_| CodecError::limit("grid too wide"))?,
         data_height: u32::try_from(grid.height).map_err(|_| CodecError::limit("grid too tall"))?,
+        nodata_mask: grid.valid.iter().any(|v| !v),
     };
     let targets = Targets {
         grid,
@@ -454,7 +456,32 @@ fn refine_encode(
         });
     }
     let mut bytes = Vec::new();
-    encode_bands(params.coder, &bands, &mut bytes);
+    if params.nodata_mask {
+        // The validity of the level-`l+1` points of the square (equal-parity half-step points),
+        // in the data rectangle; the rest is don't care.
+        let all_valid = std::cell::Cell::new(true);
+        let cared = |a: usize, b: usize| -> Option<bool> {
+            if a % 2 != b % 2 {
+                return None;
+            }
+            let (x2, y2) = g.point2(a as i64, b as i64);
+            let (x, y) = (x2 / 2, y2 / 2);
+            let v = params.in_data(x, y).then(|| target(x, y).is_some());
+            if v == Some(false) {
+                all_valid.set(false);
+            }
+            v
+        };
+        encode_mask(2 * n - 1, 2 * n - 1, &cared, &mut bytes);
+        let mask_len = bytes.len();
+        encode_bands(params.coder, &bands, &mut bytes);
+        // An empty record means "all valid, all residuals zero", as without a mask.
+        if all_valid.get() && bytes.len() == mask_len {
+            bytes.clear();
+        }
+    } else {
+        encode_bands(params.coder, &bands, &mut bytes);
+    }
     Ok(Refinement {
         cells,
         vertices,

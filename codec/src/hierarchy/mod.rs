@@ -8,22 +8,28 @@
 //! only ever has `P̃` — reproduces the encoder's reconstruction bit for bit.
 //!
 //! Outside the data rectangle and at nodata, residuals are "don't care" (zero): those heights are
-//! unconstrained and must not be drawn. The stored set is the parent closure of the finest
-//! diamonds that meet valid data.
+//! unconstrained predictions and must not be drawn. Where the data rectangle has nodata, the
+//! root field and every record also state which of their points had data ([`mask`]), so a
+//! renderer or `extract` can tell data from invention. The stored set is the parent closure of
+//! the finest diamonds that meet valid data.
 
 mod analysis;
 mod decode;
 mod encode;
 mod field;
+pub mod mask;
 mod object_error;
 mod refine;
 mod roots;
 
 pub use analysis::{LevelField, analysis_fields};
-pub use decode::{Decoder, LevelReport, VerifyReport, reconstruct_finest, verify, walk};
+pub use decode::{
+    Decoder, LevelReport, VerifyReport, reconstruct_finest, reconstruct_finest_with_validity,
+    verify, walk, walk_with_validity,
+};
 pub use encode::{EncodeOptions, encode, encode_with_progress, encode_with_storage};
 pub use field::TempStorage;
-pub use refine::{RefineScratch, Refined, gather, refine};
+pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
 pub use roots::root_field_dims;
 
 use crate::entropy::{BandKind, CoderKind};
@@ -48,6 +54,9 @@ pub struct CodecParams {
     pub data_width: u32,
     /// Rows of input samples; lattice y of the data is `0..data_height`.
     pub data_height: u32,
+    /// Whether the root field and the records carry a nodata mask ([`mask`]); false when every
+    /// sample of the data rectangle has data.
+    pub nodata_mask: bool,
 }
 
 /// The root field is quantized with half the error bound of the records: a coarse root field

@@ -2,6 +2,7 @@
 //! from its parents, and refining it with a record.
 
 use super::CodecParams;
+use super::mask::decode_mask;
 use crate::CodecError;
 use crate::entropy::{BandKind, BandMut, DecodeLimits, decode_bands};
 use crate::geometry::{Diagonal, DiamondId, Half, Layout};
@@ -16,6 +17,9 @@ use crate::lifting::{Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, pre
 pub struct Refined {
     n: usize,
     half_step: Vec<i32>,
+    /// Validity of the same half-step points from the record's nodata mask, trusted only at
+    /// vertices and cell centres inside the data rectangle; `None` when all of those are valid.
+    valid: Option<Vec<bool>>,
 }
 
 impl Refined {
@@ -34,7 +38,27 @@ impl Refined {
                 half_step[(2 * j + 1) * side + 2 * i + 1] = cells[j * (n - 1) + i];
             }
         }
-        Self { n, half_step }
+        Self {
+            n,
+            half_step,
+            valid: None,
+        }
+    }
+
+    /// Attaches the validity of the `(2N−1)²` half-step points (`None`: all valid).
+    pub fn with_validity(mut self, valid: Option<Vec<bool>>) -> Self {
+        assert!(
+            valid
+                .as_ref()
+                .is_none_or(|v| v.len() == self.half_step.len())
+        );
+        self.valid = valid;
+        self
+    }
+
+    /// The half-step validity, `None` when every point this refinement produced had data.
+    pub fn validity(&self) -> Option<&[bool]> {
+        self.valid.as_deref()
     }
 
     /// Grid side `N` of the diamond.
@@ -64,6 +88,44 @@ impl Refined {
 /// If both parents are missing, or if the two parents disagree on the split diagonal (the
 /// parents' sides are never changed by a refinement, so a disagreement is a bug, not bad data).
 pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], out: &mut [i32]) {
+    gather_values(
+        layout,
+        id,
+        parents.map(|p| p.map(|p| &p.half_step[..])),
+        true,
+        out,
+    );
+}
+
+/// The validity of `id`'s `N × N` grid, gathered from its parents' refinements like
+/// [`gather`] gathers heights: `None` when no parent has a mask (all valid). Trusted only at
+/// points inside the data rectangle. Unlike heights, the parents may differ on the diagonal
+/// outside the data rectangle (don't care), so that is not checked.
+pub fn gather_validity(
+    layout: &Layout,
+    id: DiamondId,
+    parents: [Option<&Refined>; 2],
+) -> Option<Vec<bool>> {
+    if parents.iter().flatten().all(|p| p.valid.is_none()) {
+        return None;
+    }
+    let n = layout.n();
+    let side = 2 * n - 1;
+    let all = vec![true; side * side];
+    let sources = parents.map(|p| p.map(|p| p.valid.as_deref().unwrap_or(&all)));
+    let mut out = vec![true; n * n];
+    gather_values(layout, id, sources, false, &mut out);
+    Some(out)
+}
+
+/// [`gather`] over any per-point values of the parents' half-step grids.
+fn gather_values<T: Copy + PartialEq + std::fmt::Debug>(
+    layout: &Layout,
+    id: DiamondId,
+    parents: [Option<&[T]>; 2],
+    check_diagonal: bool,
+    out: &mut [T],
+) {
     let n = layout.n();
     assert_eq!(out.len(), n * n);
     assert!(
@@ -92,13 +154,13 @@ pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], ou
                 Diagonal::Main => j,
                 Diagonal::Anti => n - 1 - j,
             };
-            if !first {
+            if !first && check_diagonal {
                 let (da, db) = m.apply(diagonal as i64, j as i64);
-                let v = parent.half_step[(db * side + da) as usize];
+                let v = parent[(db * side + da) as usize];
                 assert_eq!(row[diagonal], v, "parents of {id} disagree on its diagonal");
             }
             for o in &mut row[lo..=hi] {
-                *o = parent.half_step[k as usize];
+                *o = parent[k as usize];
                 k += stride;
             }
         }
@@ -109,7 +171,12 @@ pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], ou
 
 /// Fills each half whose parent is missing (`present[h]` false) with the mirror image of the
 /// other half across the split diagonal: the symmetric extension of incomplete diamonds.
-pub(crate) fn mirror_missing_halves(diag: Diagonal, n: usize, present: [bool; 2], out: &mut [i32]) {
+pub(crate) fn mirror_missing_halves<T: Copy>(
+    diag: Diagonal,
+    n: usize,
+    present: [bool; 2],
+    out: &mut [T],
+) {
     for (h, half) in Half::BOTH.into_iter().enumerate() {
         if present[h] {
             continue;
@@ -168,6 +235,14 @@ pub fn refine(
     dc.resize(m * m, 0);
     dv.resize((n - 2) * (n - 2), 0);
     let half = params.alpha == Alpha::Half;
+    let (valid, record) = if params.nodata_mask && !record.is_empty() {
+        let side = 2 * n - 1;
+        let (mask, used) = decode_mask(side, side, record)?;
+        // All valid is the common case: keep no bitmap for it.
+        (mask.contains(&false).then_some(mask), &record[used..])
+    } else {
+        (None, record)
+    };
     let mut bands = [
         BandMut {
             kind: BandKind::Cells,
@@ -218,5 +293,5 @@ pub fn refine(
             return Err(out_of_range());
         }
     }
-    Ok(Refined::from_parts(n, vertices, cells))
+    Ok(Refined::from_parts(n, vertices, cells).with_validity(valid))
 }

@@ -6,6 +6,7 @@
 //! detector of LOCO-I and quantized closed loop like every other level.
 
 use super::CodecParams;
+use super::mask::{decode_mask, encode_mask};
 use crate::CodecError;
 use crate::entropy::{Band, BandKind, BandMut, DecodeLimits, decode_bands, encode_bands};
 use crate::geometry::{DiamondId, Layout};
@@ -79,6 +80,13 @@ pub(crate) fn encode_roots(
         }
     }
     let mut bytes = Vec::new();
+    if params.nodata_mask {
+        let cared = |x: usize, y: usize| {
+            let (lx, ly) = (x as i64 * s, y as i64 * s);
+            params.in_data(lx, ly).then(|| target(lx, ly).is_some())
+        };
+        encode_mask(w, h, &cared, &mut bytes);
+    }
     let band = Band {
         kind: BandKind::Roots,
         width: w,
@@ -89,9 +97,18 @@ pub(crate) fn encode_roots(
     Ok((recon, bytes))
 }
 
+/// The decoded root field: heights, and validity when the repository has a nodata mask.
+pub(crate) type RootField = (Vec<i32>, Option<Vec<bool>>);
+
 /// Decodes the root field written by [`encode_roots`].
-pub(crate) fn decode_roots(params: &CodecParams, bytes: &[u8]) -> Result<Vec<i32>, CodecError> {
+pub(crate) fn decode_roots(params: &CodecParams, bytes: &[u8]) -> Result<RootField, CodecError> {
     let (w, h) = root_field_dims(&params.layout);
+    let (valid, bytes) = if params.nodata_mask {
+        let (m, used) = decode_mask(w, h, bytes)?;
+        (Some(m), &bytes[used..])
+    } else {
+        (None, bytes)
+    };
     let mut idx = vec![0i32; w * h];
     let mut bands = [BandMut {
         kind: BandKind::Roots,
@@ -113,11 +130,11 @@ pub(crate) fn decode_roots(params: &CodecParams, bytes: &[u8]) -> Result<Vec<i32
             recon[y * w + x] = v as i32;
         }
     }
-    Ok(recon)
+    Ok((recon, valid))
 }
 
-/// Copies a root diamond's `N × N` grid out of the root field.
-pub(crate) fn root_grid(layout: &Layout, field: &[i32], id: DiamondId, out: &mut [i32]) {
+/// Copies a root diamond's `N × N` grid out of the root field (heights or validity).
+pub(crate) fn root_grid<T: Copy>(layout: &Layout, field: &[T], id: DiamondId, out: &mut [T]) {
     let n = layout.n();
     let (w, _) = root_field_dims(layout);
     let g = layout.grid(id);

@@ -48,6 +48,11 @@ const HEADER_CRC_AT: usize = HEADER_LEN - 4;
 /// Nodata policy 0: samples that were nodata in the input are unconstrained in the hierarchy
 /// ("don't care") and must not be drawn. The only policy so far.
 const NODATA_DONT_CARE: u8 = 0;
+/// Header flag bit 0: the root field and every non-empty record begin with a nodata mask
+/// (`docs/FORMAT.md`, "Nodata mask"). Clear when the input has no nodata inside the data
+/// rectangle, so such repositories are byte for byte what they were before the mask existed,
+/// and readers that predate it refuse the flag instead of drawing invented surface.
+pub const FLAG_NODATA_MASK: u32 = 1;
 /// Vertical unit 0: heights are metres.
 const VERTICAL_METRES: u8 = 0;
 
@@ -134,7 +139,10 @@ pub fn serialize(
     put(0, &MAGIC);
     put(8, &FORMAT_VERSION.to_le_bytes());
     put(10, &(HEADER_LEN as u16).to_le_bytes());
-    // 12..16: flags, zero in version 1.
+    put(
+        12,
+        &(if p.nodata_mask { FLAG_NODATA_MASK } else { 0 }).to_le_bytes(),
+    );
     put(16, &n.to_le_bytes());
     put(18, &[k]);
     put(19, &[p.alpha.to_byte()]);
@@ -320,7 +328,7 @@ impl RepositoryHead {
         // The CRC matched, so what follows are fields some writer meant; still validate each,
         // since a buggy or hostile writer can compute a CRC too.
         let flags = u32_at(b, 12);
-        if flags != 0 {
+        if flags & !FLAG_NODATA_MASK != 0 {
             return Err(CodecError::unsupported(format!(
                 "unknown header flags {flags:#x}"
             )));
@@ -524,6 +532,7 @@ impl RepositoryHead {
             root_quantizer: root_q,
             data_width,
             data_height,
+            nodata_mask: flags & FLAG_NODATA_MASK != 0,
         };
         let plan = QuantPlan {
             unit,
