@@ -89,7 +89,7 @@ fn refiner(
 }
 
 /// The refinement settings of the command line, checked.
-fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> Result<RefineConfig> {
+pub fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> Result<RefineConfig> {
     if !(pixel_error.is_finite() && pixel_error > 0.0) {
         bail!("--pixel-error must be a positive number of pixels");
     }

@@ -6,7 +6,7 @@
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
@@ -16,7 +16,7 @@ use cbdam_client::draw::hud::{self, Hud};
 use cbdam_client::draw::present::Presenter;
 use cbdam_client::draw::{CacheConfig, Frame, Gpu, RenderOptions, Renderer};
 use cbdam_client::patch::HalfPatch;
-use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
+use cbdam_client::refine::{FrameStats, Refiner};
 use cbdam_client::remote::FetchOptions;
 use cbdam_client::world::World;
 use cbdam_codec::repository::Repository;
@@ -46,21 +46,11 @@ Keys and mouse of `cbdam view`:
 const FPS_WINDOW: usize = 60;
 
 pub fn run(args: &ViewArgs) -> Result<()> {
-    if !(args.pixel_error.is_finite() && args.pixel_error > 0.0) {
-        bail!("--pixel-error must be a positive number of pixels");
-    }
+    // Unlike `render` (0 = refine to convergence), a window refines within a budget every frame.
     if !(args.budget_ms.is_finite() && args.budget_ms > 0.0) {
         bail!("--budget-ms must be positive: the viewer refines within a budget every frame");
     }
-    if !(args.exaggeration.is_finite() && args.exaggeration > 0.0) {
-        bail!("--exaggeration must be a positive number");
-    }
-    let config = RefineConfig {
-        pixel_error: args.pixel_error,
-        budget: Some(Duration::from_secs_f64(args.budget_ms / 1e3)),
-        exaggeration: args.exaggeration,
-        ..RefineConfig::default()
-    };
+    let config = crate::render::refine_config(args.pixel_error, args.budget_ms, args.exaggeration)?;
     let url = args
         .repo
         .to_str()
