@@ -1,6 +1,7 @@
 //! `cbdam demo`: the whole pipeline on the bundled SRTM tile, over HTTP on loopback — build (once),
 //! serve, then the client against the server: the replay statistics of a flight and offscreen
-//! frames rendered from what the client fetched.
+//! frames rendered from what the client fetched, then the interactive viewer on the same URL
+//! when a display is available.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -8,7 +9,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use cbdam_server::{AppState, Config, RepoSpec};
 
-use crate::{AlphaArg, BuildArgs, CoderArg, DemoArgs, RenderArgs, ReplayArgs};
+use crate::{AlphaArg, BuildArgs, CoderArg, DemoArgs, RenderArgs, ReplayArgs, ViewArgs};
 
 pub fn run(args: &DemoArgs) -> Result<()> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -97,18 +98,54 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         eprintln!("demo: rendering an overview over HTTP");
         render(Some(overview.clone()), None, None)?;
         eprintln!("demo: rendering the flight's frames over HTTP (offscreen)");
-        render(None, Some(flight.clone()), Some(frames.clone()))
+        render(None, Some(flight.clone()), Some(frames.clone()))?;
+        println!(
+            "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png",
+            t.elapsed().as_secs_f64(),
+            repo.display(),
+            csv.display(),
+            overview.display(),
+            frames.display()
+        );
+        if args.no_view {
+            return Ok(());
+        }
+        if !display_available() {
+            eprintln!(
+                "demo: no display (DISPLAY / WAYLAND_DISPLAY unset), so no viewer; \
+                 the outputs above are offscreen renders"
+            );
+            return Ok(());
+        }
+        eprintln!("demo: opening the viewer on {url} (Esc quits; the server stops with it)");
+        let viewed = crate::view::run(&ViewArgs {
+            repo: PathBuf::from(&url),
+            size: (1280, 720),
+            pixel_error: 1.0,
+            budget_ms: 2.0,
+            no_vsync: false,
+            max_frames: args.view_frames,
+            screenshot: None,
+            wireframe: false,
+            levels: false,
+            exaggeration: 1.0,
+            pool_mib: None,
+        });
+        // The offscreen outputs are made; a display that cannot take a window is not a
+        // failure of the demo.
+        match viewed {
+            Ok(()) => eprintln!("demo: viewer closed"),
+            Err(e) => eprintln!("demo: the viewer could not run: {e:#}"),
+        }
+        Ok(())
     })();
     let _ = stop.send(());
     let _ = rt.block_on(server);
-    result?;
-    println!(
-        "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png",
-        t.elapsed().as_secs_f64(),
-        repo.display(),
-        csv.display(),
-        overview.display(),
-        frames.display()
-    );
-    Ok(())
+    result
+}
+
+fn display_available() -> bool {
+    ["DISPLAY", "WAYLAND_DISPLAY"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some_and(|s| !s.is_empty()))
 }

@@ -337,6 +337,14 @@ pub struct DemoArgs {
     /// Render at most this many frames of the flight (all by default).
     #[arg(long)]
     max_frames: Option<u64>,
+    /// Do not open the interactive viewer at the end (it opens when a display is available:
+    /// DISPLAY or WAYLAND_DISPLAY set).
+    #[arg(long)]
+    no_view: bool,
+    /// Close the viewer after this many frames (for scripts and tests; by default it stays open
+    /// until Esc).
+    #[arg(long)]
+    view_frames: Option<u64>,
 }
 
 /// Which value(s) of a two-way option to run.
