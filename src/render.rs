@@ -290,11 +290,7 @@ fn fly<S: DataSource>(
         args.size.0,
         args.size.1,
         args.pixel_error,
-        if args.budget_ms > 0.0 {
-            format!("{} ms", args.budget_ms)
-        } else {
-            "unlimited".into()
-        }
+        crate::replay::budget_label(args.budget_ms)
     );
     println!(
         "refine ms per frame: median {:.3}, p99 {:.3}; budget exhausted in {over} frames; \

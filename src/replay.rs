@@ -249,11 +249,7 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
         args.size.0,
         args.size.1,
         args.pixel_error,
-        if args.budget_ms > 0.0 {
-            format!("{} ms", args.budget_ms)
-        } else {
-            "unlimited".into()
-        }
+        budget_label(args.budget_ms)
     );
     println!(
         "refine ms per frame, wall: median {:.3}, p99 {:.3}, max {:.3}; budget exhausted in {over} frames",
@@ -306,6 +302,15 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
             args.cut_mib,
             last.cut_bytes as f64 / f64::from(1u32 << 20)
         );
+    }
+}
+
+/// A refinement budget in words: "2 ms", or "unlimited" for 0.
+pub fn budget_label(budget_ms: f64) -> String {
+    if budget_ms > 0.0 {
+        format!("{budget_ms} ms")
+    } else {
+        "unlimited".into()
     }
 }
 

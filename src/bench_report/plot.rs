@@ -51,6 +51,18 @@ fn si(v: f64) -> String {
     }
 }
 
+/// The series legend, drawn on a plot's first panel.
+fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+}
+
 pub fn dataset(path: &Path, title: &str, series: &[Series]) -> Result<()> {
     let err = |e: &dyn std::fmt::Debug| anyhow!("plotting {}: {e:?}", path.display());
     let root = SVGBackend::new(path, (1500, 480)).into_drawing_area();
@@ -104,13 +116,7 @@ pub fn dataset(path: &Path, title: &str, series: &[Series]) -> Result<()> {
                 .map_err(|e| err(&e))?;
         }
         if k == 0 {
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .position(SeriesLabelPosition::UpperRight)
-                .draw()
-                .map_err(|e| err(&e))?;
+            legend(&mut chart).map_err(|e| err(&e))?;
         }
     }
     root.present().map_err(|e| err(&e))?;
@@ -203,13 +209,7 @@ pub fn render_cost(
             }
         }
         if k == 0 {
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .position(SeriesLabelPosition::UpperRight)
-                .draw()
-                .map_err(|e| err(&e))?;
+            legend(&mut chart).map_err(|e| err(&e))?;
         }
     }
     root.present().map_err(|e| err(&e))?;
