@@ -6,10 +6,10 @@
 //! (`VmHWM`), reset before each dataset through `/proc/self/clear_refs`, so each row shows its
 //! own peak; mapped temporaries count while resident.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use cbdam_codec::hierarchy::EncodeOptions;
 use cbdam_codec::repository::write_repository;
 
@@ -31,17 +31,6 @@ fn peak_rss() -> Option<u64> {
     Some(kib * 1024)
 }
 
-fn default_inputs() -> Result<Vec<PathBuf>> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
-    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .with_context(|| format!("reading {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "tif"))
-        .collect();
-    v.sort();
-    Ok(v)
-}
-
 pub fn run(args: &BenchBuildArgs) -> Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
@@ -55,7 +44,10 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
     };
     let tmp = tempfile::tempdir()?;
     let mut inputs: Vec<(PathBuf, Option<(usize, usize)>)> = if args.inputs.is_empty() {
-        default_inputs()?.into_iter().map(|p| (p, None)).collect()
+        crate::bench_codec::bundled_inputs(&["tif"])?
+            .into_iter()
+            .map(|p| (p, None))
+            .collect()
     } else {
         args.inputs.iter().map(|p| (p.clone(), None)).collect()
     };

@@ -22,10 +22,9 @@ pub fn median(mut v: Vec<Duration>) -> Duration {
     v[v.len() / 2]
 }
 
-/// The bundled DEMs in `data/` whose extension is one of `extensions`, sorted by name.
-pub fn bundled_inputs(extensions: &[&str]) -> Result<Vec<PathBuf>> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
-    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+/// The files in `dir` whose extension is one of `extensions`, sorted by name.
+pub fn files_with(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("reading {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
@@ -35,6 +34,14 @@ pub fn bundled_inputs(extensions: &[&str]) -> Result<Vec<PathBuf>> {
         .collect();
     v.sort();
     Ok(v)
+}
+
+/// The bundled DEMs in `data/` whose extension is one of `extensions`, sorted by name.
+pub fn bundled_inputs(extensions: &[&str]) -> Result<Vec<PathBuf>> {
+    files_with(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("data"),
+        extensions,
+    )
 }
 
 /// One verified measurement of the codec on one DEM at one tolerance.

@@ -117,7 +117,8 @@ fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
     }
 }
 
-fn write_png(path: &Path, frame: &Frame) -> Result<()> {
+/// Writes `frame` as a PNG, atomically.
+pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
     let png = frame.to_png()?;
     cbdam_codec::atomic::write_atomically::<anyhow::Error>(path, |f| {
         use std::io::Write;

@@ -4,7 +4,7 @@
 //! over it and copies the result onto the window's surface.
 
 use std::collections::VecDeque;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -14,7 +14,7 @@ use cbdam_client::camera::Camera;
 use cbdam_client::controls::{self, Controls, Mode, Movement};
 use cbdam_client::draw::hud::{self, Hud};
 use cbdam_client::draw::present::Presenter;
-use cbdam_client::draw::{CacheConfig, Frame, Gpu, RenderOptions, Renderer};
+use cbdam_client::draw::{CacheConfig, Gpu, RenderOptions, Renderer};
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, Refiner};
 use cbdam_client::remote::FetchOptions;
@@ -346,7 +346,7 @@ impl<S: DataSource> App<'_, S> {
         let done = self.args.max_frames.is_some_and(|n| self.frames >= n);
         if std::mem::take(&mut self.screenshot_now) {
             let path = next_screenshot_path();
-            save(&ws.renderer.read_color()?, &path)?;
+            crate::render::write_png(&path, &ws.renderer.read_color()?)?;
             println!("saved {}", path.display());
         }
         if done {
@@ -360,7 +360,7 @@ impl<S: DataSource> App<'_, S> {
         if let (Some(path), Some(ws)) = (&self.args.screenshot, &self.window)
             && ws.renderer.color_texture().is_some()
         {
-            save(&ws.renderer.read_color()?, path)?;
+            crate::render::write_png(path, &ws.renderer.read_color()?)?;
             println!("saved {}", path.display());
         }
         Ok(())
@@ -634,16 +634,6 @@ fn hud_lines<S: DataSource>(app: &App<'_, S>, size: (u32, u32)) -> Vec<String> {
 
 fn mib(bytes: u64) -> f64 {
     bytes as f64 / f64::from(1u32 << 20)
-}
-
-fn save(frame: &Frame, path: &Path) -> Result<()> {
-    let png = frame.to_png()?;
-    cbdam_codec::atomic::write_atomically::<anyhow::Error>(path, |f| {
-        use std::io::Write;
-        f.write_all(&png)?;
-        Ok(())
-    })
-    .with_context(|| format!("writing {}", path.display()))
 }
 
 /// `cbdam-view-0001.png`, `…0002.png`, …: the first name not taken in the working directory.

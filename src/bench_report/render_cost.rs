@@ -48,13 +48,8 @@ pub struct CostPoint {
 
 /// The flights to fly: every `*.json` in `dir`, sorted by name.
 pub fn flights_in(dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("reading the flights folder {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "json"))
-        .collect();
-    v.sort();
-    Ok(v)
+    crate::bench_codec::files_with(dir, &["json"])
+        .with_context(|| format!("reading the flights folder {}", dir.display()))
 }
 
 /// Builds `dem` at `eps` (written to `out_dir/NAME.cbdam` so a user can replay or render the
