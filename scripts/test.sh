@@ -49,20 +49,21 @@ if ! has_vulkan_icd || ! has_vulkan_loader; then
         echo "test.sh: install Mesa's Vulkan drivers (lavapipe) and the Vulkan loader." >&2
     fi
 fi
-# The viewer's test (tests/cli_view.rs) opens a real window: on a machine without a display it
-# needs Xvfb (and the X client libraries winit loads at run time). Install them when missing,
-# like lavapipe above; without them that test prints SKIPPED and passes.
-if ! command -v Xvfb >/dev/null 2>&1; then
+# The viewer's tests (tests/cli_view.rs) open a real window: on a machine without a display they
+# need Xvfb (and the X client libraries winit loads at run time), and xdotool to press keys and
+# drag the mouse. Install them when missing, like lavapipe above; without them those tests print
+# SKIPPED and pass.
+if ! command -v Xvfb >/dev/null 2>&1 || ! command -v xdotool >/dev/null 2>&1; then
     if command -v apt-get >/dev/null 2>&1; then
         sudo=""
         [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && sudo="sudo -n"
         if [ "$(id -u)" -eq 0 ] || [ -n "$sudo" ]; then
-            echo "test.sh: no Xvfb found; installing it for the viewer's test" >&2
+            echo "test.sh: no Xvfb or xdotool found; installing them for the viewer's tests" >&2
             $sudo apt-get update -qq
             DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
-                xvfb libxkbcommon-x11-0 libx11-xcb1 libxcursor1 libxrandr2 libxi6 >/dev/null
+                xvfb xdotool libxkbcommon-x11-0 libx11-xcb1 libxcursor1 libxrandr2 libxi6 >/dev/null
         else
-            echo "test.sh: no Xvfb and no root/sudo to install it: the viewer's test is skipped." >&2
+            echo "test.sh: no Xvfb/xdotool and no root/sudo to install them: the viewer's tests are skipped." >&2
         fi
     fi
 fi

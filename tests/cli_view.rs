@@ -35,37 +35,43 @@ fn display() -> Result<(String, Option<Xvfb>), String> {
     if let Some(d) = std::env::var_os("DISPLAY").filter(|d| !d.is_empty()) {
         return Ok((d.to_string_lossy().into_owned(), None));
     }
-    let free = (150..250).find(|n| {
-        !Path::new(&format!("/tmp/.X11-unix/X{n}")).exists()
-            && !Path::new(&format!("/tmp/.X{n}-lock")).exists()
-    });
-    let n = free.ok_or("no free X display number")?;
-    let child = Command::new("Xvfb")
+    let (display, xvfb) = start_xvfb()?;
+    Ok((display, Some(xvfb)))
+}
+
+/// A fresh Xvfb, whatever `$DISPLAY` says. Xvfb picks a free display number itself and reports
+/// it once it accepts connections (`-displayfd`), so tests starting servers at the same time
+/// cannot race for one number.
+fn start_xvfb() -> Result<(String, Xvfb), String> {
+    let mut child = Command::new("Xvfb")
         .args([
-            &format!(":{n}"),
+            "-displayfd",
+            "1",
             "-screen",
             "0",
             "1024x768x24",
             "-nolisten",
             "tcp",
         ])
-        .stdout(Stdio::null())
+        .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
         .map_err(|e| format!("DISPLAY is unset and Xvfb cannot be started ({e})"))?;
-    let mut xvfb = Xvfb(child);
-    let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
-    let start = Instant::now();
-    while !socket.exists() {
-        if let Ok(Some(status)) = xvfb.0.try_wait() {
-            return Err(format!("Xvfb :{n} exited at once ({status})"));
-        }
-        if start.elapsed() > Duration::from_secs(10) {
-            return Err(format!("Xvfb :{n} did not come up in 10 s"));
-        }
-        std::thread::sleep(Duration::from_millis(50));
+    let stdout = child.stdout.take().expect("piped");
+    let xvfb = Xvfb(child);
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut line = String::new();
+        let _ = std::io::BufRead::read_line(&mut std::io::BufReader::new(stdout), &mut line);
+        let _ = tx.send(line);
+    });
+    let line = rx
+        .recv_timeout(Duration::from_secs(20))
+        .map_err(|_| "Xvfb did not come up in 20 s".to_string())?;
+    match line.trim().parse::<u32>() {
+        Ok(n) => Ok((format!(":{n}"), xvfb)),
+        Err(_) => Err(format!("Xvfb exited without a display ({line:?})")),
     }
-    Ok((format!(":{n}"), Some(xvfb)))
 }
 
 fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
@@ -76,6 +82,23 @@ fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
     assert_eq!(info.color_type, png::ColorType::Rgba);
     buf.truncate(info.buffer_size());
     (info.width, info.height, buf)
+}
+
+/// Jacksboro at 2 m in `dir`: small enough that the viewer's cut converges in a few frames.
+fn build_jacksboro(dir: &Path) -> PathBuf {
+    let repo = dir.join("j.cbdam");
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/jacksboro_mpl.tif");
+    let o = cbdam(&[
+        "build",
+        &s(&data),
+        "-o",
+        &s(&repo),
+        "--max-error",
+        "2",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    repo
 }
 
 #[test]
@@ -105,18 +128,7 @@ fn view_draws_terrain_and_the_hud_in_a_window() {
         }
     };
     let dir = tempfile::tempdir().unwrap();
-    let repo = dir.path().join("j.cbdam");
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/jacksboro_mpl.tif");
-    let o = cbdam(&[
-        "build",
-        &s(&data),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "2",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let repo = build_jacksboro(dir.path());
 
     let shot = dir.path().join("shot.png");
     let (w, h) = (320u32, 240u32);
@@ -195,4 +207,211 @@ fn view_draws_terrain_and_the_hud_in_a_window() {
             );
         }
     }
+}
+
+/// Runs `xdotool ARGS` on `display`; its stdout.
+fn xdotool(display: &str, args: &[&str]) -> String {
+    let o = Command::new("xdotool")
+        .args(args)
+        .env("DISPLAY", display)
+        .output()
+        .expect("run xdotool");
+    assert!(
+        o.status.success(),
+        "xdotool {args:?} failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Waits for the viewer to write `path` (it saves a screenshot after the next frame it draws).
+fn wait_for(path: &Path, viewer: &mut Child) -> (u32, u32, Vec<u8>) {
+    let start = Instant::now();
+    // Written by `write_png` with a rename, so a file that exists is complete.
+    while !path.exists() {
+        if let Ok(Some(status)) = viewer.try_wait() {
+            panic!(
+                "the viewer exited ({status}) before writing {}",
+                path.display()
+            );
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no {} after 60 s",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    read_png(path)
+}
+
+/// Pixels of the lower half (below the HUD) that differ between two screenshots.
+fn lower_half_changes(a: &[u8], b: &[u8], w: u32, h: u32) -> usize {
+    let from = (4 * w * (h / 2)) as usize;
+    a[from..]
+        .chunks(4)
+        .zip(b[from..].chunks(4))
+        .filter(|(p, q)| p != q)
+        .count()
+}
+
+/// Mean brightness (0–255) of the square of side `2r` at the centre of the frame.
+fn centre_brightness(rgba: &[u8], w: u32, h: u32, r: u32) -> f64 {
+    let mut sum = 0u64;
+    for y in h / 2 - r..h / 2 + r {
+        for x in w / 2 - r..w / 2 + r {
+            let i = 4 * (y * w + x) as usize;
+            sum += u64::from(rgba[i]) + u64::from(rgba[i + 1]) + u64::from(rgba[i + 2]);
+        }
+    }
+    sum as f64 / (3.0 * f64::from(4 * r * r))
+}
+
+/// The viewer driven by real X11 input events (XTEST, through `xdotool`): P saves a screenshot,
+/// Tab switches to wireframe, a left drag rotates the orbit camera, Esc quits. Always on a
+/// private Xvfb, never on the session's display, so no key lands in someone's desktop.
+#[test]
+fn keys_and_mouse_drive_the_viewer() {
+    let skip = |why: &str| println!("SKIPPED keys_and_mouse_drive_the_viewer: {why}");
+    if Command::new("xdotool").arg("version").output().is_err() {
+        return skip("xdotool is not installed (scripts/test.sh installs it)");
+    }
+    let (display, _xvfb) = match start_xvfb() {
+        Ok(d) => d,
+        Err(why) => return skip(&why),
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let repo = build_jacksboro(dir.path());
+    let (w, h) = (320u32, 240u32);
+    let mut viewer = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args([
+            "view",
+            &s(&repo),
+            "--size",
+            &format!("{w}x{h}"),
+            "--no-vsync",
+        ])
+        .current_dir(dir.path())
+        .env("DISPLAY", &display)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run cbdam view");
+    let window = xdotool(&display, &["search", "--sync", "--name", "cbdam view"]);
+    let window = window
+        .lines()
+        .next()
+        .expect("the viewer's window")
+        .to_string();
+    // Without a window manager, keys go to the focused window: give it the focus.
+    xdotool(&display, &["windowfocus", "--sync", &window]);
+    let shot = |i: u32| dir.path().join(format!("cbdam-view-{i:04}.png"));
+    let press = |keys: &[&str]| {
+        let mut args = vec!["key", "--delay", "50"];
+        args.extend_from_slice(keys);
+        xdotool(&display, &args);
+    };
+
+    // P, until two screenshots of the still camera agree below the HUD: the cut has converged
+    // (the HUD's fps line changes every frame, so it is left out).
+    press(&["p"]);
+    let mut n = 1;
+    let (_, _, mut still) = wait_for(&shot(n), &mut viewer);
+    loop {
+        press(&["p"]);
+        n += 1;
+        let (_, _, next) = wait_for(&shot(n), &mut viewer);
+        let changed = lower_half_changes(&still, &next, w, h);
+        still = next;
+        if changed == 0 {
+            break;
+        }
+        assert!(
+            n < 20,
+            "the still view never settled ({changed} pixels still change)"
+        );
+    }
+
+    // Tab: wireframe. The shaded surface is replaced by lines over the background, so the
+    // centre's colours change and most of it gets darker (the wireframe is drawn dark).
+    press(&["Tab", "p"]);
+    n += 1;
+    let (_, _, wire) = wait_for(&shot(n), &mut viewer);
+    let changed = lower_half_changes(&still, &wire, w, h);
+    assert!(
+        changed > (w * h / 8) as usize,
+        "Tab changed only {changed} pixels"
+    );
+    let (shaded_light, wire_light) = (
+        centre_brightness(&still, w, h, 20),
+        centre_brightness(&wire, w, h, 20),
+    );
+    assert!(
+        wire_light < shaded_light * 0.8,
+        "wireframe centre brightness {wire_light:.1} vs shaded {shaded_light:.1}"
+    );
+
+    // Tab again: back to the shaded frame, identical to before (the camera has not moved).
+    press(&["Tab", "p"]);
+    n += 1;
+    let (_, _, back) = wait_for(&shot(n), &mut viewer);
+    assert_eq!(
+        lower_half_changes(&still, &back, w, h),
+        0,
+        "Tab twice is not a no-op"
+    );
+
+    // A left drag across the window rotates the orbit camera: the view changes.
+    let (cx, cy) = ((w / 2).to_string(), (h * 3 / 4).to_string());
+    xdotool(
+        &display,
+        &[
+            "mousemove",
+            "--window",
+            &window,
+            &cx,
+            &cy,
+            "mousedown",
+            "1",
+            "mousemove_relative",
+            "--",
+            "80",
+            "0",
+            "mouseup",
+            "1",
+        ],
+    );
+    press(&["p"]);
+    n += 1;
+    let (_, _, turned) = wait_for(&shot(n), &mut viewer);
+    let changed = lower_half_changes(&still, &turned, w, h);
+    assert!(
+        changed > (w * h / 8) as usize,
+        "the drag changed only {changed} pixels"
+    );
+
+    // Esc: the viewer quits cleanly and reports what it drew.
+    press(&["Escape"]);
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = viewer.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "Esc did not quit the viewer"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let out = viewer.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        status.success(),
+        "cbdam view: {status}\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains(&format!("saved cbdam-view-{n:04}.png")),
+        "{stdout}"
+    );
 }
