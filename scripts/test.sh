@@ -50,20 +50,22 @@ if ! has_vulkan_icd || ! has_vulkan_loader; then
     fi
 fi
 # The viewer's tests (tests/cli_view.rs) open a real window: on a machine without a display they
-# need Xvfb (and the X client libraries winit loads at run time), and xdotool to press keys and
-# drag the mouse. Install them when missing, like lavapipe above; without them those tests print
-# SKIPPED and pass.
-if ! command -v Xvfb >/dev/null 2>&1 || ! command -v xdotool >/dev/null 2>&1; then
+# need Xvfb (and the X client libraries winit loads at run time), xdotool to press keys and
+# drag the mouse, and xwd (x11-apps) to read the window back. Install them when missing, like
+# lavapipe above; without them those tests print SKIPPED and pass.
+if ! command -v Xvfb >/dev/null 2>&1 || ! command -v xdotool >/dev/null 2>&1 \
+    || ! command -v xwd >/dev/null 2>&1; then
     if command -v apt-get >/dev/null 2>&1; then
         sudo=""
         [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && sudo="sudo -n"
         if [ "$(id -u)" -eq 0 ] || [ -n "$sudo" ]; then
-            echo "test.sh: no Xvfb or xdotool found; installing them for the viewer's tests" >&2
+            echo "test.sh: no Xvfb, xdotool or xwd found; installing them for the viewer's tests" >&2
             $sudo apt-get update -qq
             DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
-                xvfb xdotool libxkbcommon-x11-0 libx11-xcb1 libxcursor1 libxrandr2 libxi6 >/dev/null
+                xvfb xdotool x11-apps libxkbcommon-x11-0 libx11-xcb1 libxcursor1 libxrandr2 \
+                libxi6 >/dev/null
         else
-            echo "test.sh: no Xvfb/xdotool and no root/sudo to install them: the viewer's tests are skipped." >&2
+            echo "test.sh: no Xvfb/xdotool/xwd and no root/sudo to install them: the viewer's tests are skipped." >&2
         fi
     fi
 fi

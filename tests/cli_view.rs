@@ -245,6 +245,48 @@ fn wait_for(path: &Path, viewer: &mut Child) -> (u32, u32, Vec<u8>) {
     read_png(path)
 }
 
+/// The window's pixels as RGBA, read back from the X server with `xwd` (format: X11's XWDFile.h;
+/// only the 32-bit TrueColor ZPixmap that Xvfb's 24-bit screen gives is accepted).
+fn capture_window(display: &str, window: &str, w: u32, h: u32) -> Vec<u8> {
+    let o = Command::new("xwd")
+        .args(["-silent", "-id", window])
+        .env("DISPLAY", display)
+        .output()
+        .expect("run xwd");
+    assert!(
+        o.status.success(),
+        "xwd: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let d = o.stdout;
+    let field = |i: usize| u32::from_be_bytes(d[4 * i..4 * i + 4].try_into().unwrap());
+    let (header, format, width, height) = (field(0), field(2), field(4), field(5));
+    let (byte_order, bits_per_pixel, bytes_per_line) = (field(7), field(11), field(12));
+    let (red, green, blue, ncolors) = (field(14), field(15), field(16), field(19));
+    assert_eq!((format, width, height, bits_per_pixel), (2, w, h, 32));
+    assert_eq!(
+        (red, green, blue),
+        (0xff0000, 0xff00, 0xff),
+        "not an RGB TrueColor visual"
+    );
+    let pixels = &d[(header + 12 * ncolors) as usize..];
+    let mut rgba = Vec::with_capacity((4 * w * h) as usize);
+    for y in 0..h as usize {
+        for x in 0..w as usize {
+            let b: [u8; 4] = pixels[y * bytes_per_line as usize + 4 * x..][..4]
+                .try_into()
+                .unwrap();
+            let v = if byte_order == 0 {
+                u32::from_le_bytes(b)
+            } else {
+                u32::from_be_bytes(b)
+            };
+            rgba.extend_from_slice(&[(v >> 16) as u8, (v >> 8) as u8, v as u8, 255]);
+        }
+    }
+    rgba
+}
+
 /// Pixels of the lower half (below the HUD) that differ between two screenshots.
 fn lower_half_changes(a: &[u8], b: &[u8], w: u32, h: u32) -> usize {
     let from = (4 * w * (h / 2)) as usize;
@@ -268,13 +310,18 @@ fn centre_brightness(rgba: &[u8], w: u32, h: u32, r: u32) -> f64 {
 }
 
 /// The viewer driven by real X11 input events (XTEST, through `xdotool`): P saves a screenshot,
-/// Tab switches to wireframe, a left drag rotates the orbit camera, Esc quits. Always on a
+/// which matches what the window shows; Tab switches to wireframe, a left drag rotates the orbit
+/// camera, Esc quits. Always on a
 /// private Xvfb, never on the session's display, so no key lands in someone's desktop.
 #[test]
 fn keys_and_mouse_drive_the_viewer() {
     let skip = |why: &str| println!("SKIPPED keys_and_mouse_drive_the_viewer: {why}");
-    if Command::new("xdotool").arg("version").output().is_err() {
-        return skip("xdotool is not installed (scripts/test.sh installs it)");
+    for tool in ["xdotool", "xwd"] {
+        if Command::new(tool).arg("-version").output().is_err() {
+            return skip(&format!(
+                "{tool} is not installed (scripts/test.sh installs it)"
+            ));
+        }
     }
     let (display, _xvfb) = match start_xvfb() {
         Ok(d) => d,
@@ -331,6 +378,16 @@ fn keys_and_mouse_drive_the_viewer() {
             "the still view never settled ({changed} pixels still change)"
         );
     }
+
+    // What the window shows is what the screenshot saved: the present pass copies the sRGB
+    // frame to the swapchain without a second gamma or a channel swap. Below the HUD (which
+    // changes every frame) they agree exactly.
+    let shown = capture_window(&display, &window, w, h);
+    assert_eq!(
+        lower_half_changes(&still, &shown, w, h),
+        0,
+        "the window differs from the screenshot"
+    );
 
     // Tab: wireframe. The shaded surface is replaced by lines over the background, so the
     // centre's colours change and most of it gets darker (the wireframe is drawn dark).
