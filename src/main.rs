@@ -320,6 +320,19 @@ pub struct BenchRenderArgs {
     /// Timed frames per view; the median is reported.
     #[arg(long, default_value_t = 5)]
     runs: usize,
+    /// Also fly this camera path (repeatable, e.g. data/flights/*.json): every frame refines
+    /// within --budget-ms and is drawn; frame time percentiles and triangle rate are reported.
+    #[arg(long = "flight", value_name = "FLIGHT.json")]
+    flights: Vec<PathBuf>,
+    /// Frames per second of flight time.
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// Refinement time budget per flight frame, ms.
+    #[arg(long, default_value_t = 2.0)]
+    budget_ms: f64,
+    /// At most this many frames per flight.
+    #[arg(long)]
+    max_frames: Option<u64>,
 }
 
 /// Arguments of `cbdam demo`.

@@ -260,27 +260,26 @@ fn fly<S: DataSource>(
     if let Some(max) = args.max_frames {
         frames = frames.min(max);
     }
-    let (mut refine_ms, mut render_ms, mut tris) = (Vec::new(), Vec::new(), Vec::new());
-    let mut over = 0;
-    let mut max_err: f64 = 0.0;
-    let start = Instant::now();
-    for i in 0..frames {
-        let t = (i as f64 / args.fps).min(flight.duration());
-        if remote {
-            let due = Duration::from_secs_f64(i as f64 / args.fps);
-            std::thread::sleep(due.saturating_sub(start.elapsed()));
-        }
-        let cam = flight.camera(&world, t, args.size);
-        let s = refiner.frame(&cam);
-        let patches: Vec<_> = refiner.drawn().cloned().collect();
-        let frame = renderer.render(&cam, &patches, options)?;
-        write_png(&dir.join(format!("frame_{i:05}.png")), &frame)?;
-        refine_ms.push(s.refine_ms);
-        render_ms.push((frame.stats.prepare_s + frame.stats.gpu_s) * 1e3);
-        tris.push(frame.stats.triangles);
-        over += usize::from(s.budget_exhausted);
-        max_err = max_err.max(s.max_screen_error_px);
-    }
+    let run = draw_flight(
+        &mut refiner,
+        &mut renderer,
+        &flight,
+        FlightPacing {
+            fps: args.fps,
+            frames,
+            size: args.size,
+            real_time: remote,
+        },
+        options,
+        |i, frame| write_png(&dir.join(format!("frame_{i:05}.png")), frame),
+    )?;
+    let FlightRun {
+        mut refine_ms,
+        mut render_ms,
+        mut tris,
+        over,
+        max_err,
+    } = run;
     refine_ms.sort_by(f64::total_cmp);
     render_ms.sort_by(f64::total_cmp);
     tris.sort_unstable();
@@ -315,9 +314,72 @@ fn fly<S: DataSource>(
     Ok(())
 }
 
+/// How a flight is stepped: `frames` frames at `fps`, of `size`; `real_time` waits for each
+/// frame's due time (records arriving over a network need it).
+#[derive(Clone, Copy)]
+struct FlightPacing {
+    fps: f64,
+    frames: u64,
+    size: (u32, u32),
+    real_time: bool,
+}
+
+/// Per-frame figures of one flight: refinement and render (CPU preparation + GPU) ms, triangles
+/// drawn, frames that ran out of refinement budget and the largest screen error of any frame.
+struct FlightRun {
+    refine_ms: Vec<f64>,
+    render_ms: Vec<f64>,
+    tris: Vec<u64>,
+    over: usize,
+    max_err: f64,
+}
+
+/// Flies `flight`: each frame refines (within the refiner's budget), draws the cut and hands the
+/// frame to `each` (which is not timed).
+fn draw_flight<S: DataSource>(
+    refiner: &mut Refiner<S>,
+    renderer: &mut Renderer,
+    flight: &Flight,
+    pacing: FlightPacing,
+    options: &RenderOptions,
+    mut each: impl FnMut(u64, &Frame) -> Result<()>,
+) -> Result<FlightRun> {
+    let world = *refiner.world();
+    let mut run = FlightRun {
+        refine_ms: Vec::new(),
+        render_ms: Vec::new(),
+        tris: Vec::new(),
+        over: 0,
+        max_err: 0.0,
+    };
+    let start = Instant::now();
+    for i in 0..pacing.frames {
+        let t = (i as f64 / pacing.fps).min(flight.duration());
+        if pacing.real_time {
+            let due = Duration::from_secs_f64(i as f64 / pacing.fps);
+            std::thread::sleep(due.saturating_sub(start.elapsed()));
+        }
+        let cam = flight.camera(&world, t, pacing.size);
+        let s = refiner.frame(&cam);
+        let patches: Vec<_> = refiner.drawn().cloned().collect();
+        let frame = renderer.render(&cam, &patches, options)?;
+        each(i, &frame)?;
+        run.refine_ms.push(s.refine_ms);
+        run.render_ms
+            .push((frame.stats.prepare_s + frame.stats.gpu_s) * 1e3);
+        run.tris.push(frame.stats.triangles);
+        run.over += usize::from(s.budget_exhausted);
+        run.max_err = run.max_err.max(s.max_screen_error_px);
+    }
+    Ok(run)
+}
+
 pub fn bench(args: &BenchRenderArgs) -> Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
+    }
+    if !(args.fps > 0.0 && args.fps.is_finite()) {
+        bail!("--fps must be positive, got {}", args.fps);
     }
     let gpu_name = Gpu::headless()?.describe();
     println!(
@@ -357,6 +419,79 @@ pub fn bench(args: &BenchRenderArgs) -> Result<()> {
                 (first.prepare_s + first.gpu_s) * 1e3,
                 median * 1e3,
                 last.triangles as f64 / median / 1e6,
+            );
+        }
+    }
+    if !args.flights.is_empty() {
+        bench_flights(args)?;
+    }
+    Ok(())
+}
+
+/// `bench render --flight`: each flight over each repository, drawn frame by frame as
+/// `render --path` does (without writing the frames).
+fn bench_flights(args: &BenchRenderArgs) -> Result<()> {
+    println!(
+        "\nflights: {} fps of flight time, refinement budget {}; frame = CPU preparation + GPU \
+         of the draw (refinement is timed apart); triangle rate = median over frames of \
+         triangles / frame time\n",
+        args.fps,
+        crate::replay::budget_label(args.budget_ms)
+    );
+    println!(
+        "| repository | flight | frames | frame ms median | frame ms p99 | M triangles/frame \
+         median | M triangles/s | refine ms p99 |"
+    );
+    println!("|---|---|---:|---:|---:|---:|---:|---:|");
+    for path in &args.repos {
+        let repo = open(path)?;
+        let world = World::of_repository(&repo);
+        for flight_path in &args.flights {
+            let flight = Flight::load(flight_path)
+                .with_context(|| format!("loading {}", flight_path.display()))?;
+            let mut frames = (flight.duration() * args.fps).ceil() as u64 + 1;
+            if let Some(max) = args.max_frames {
+                frames = frames.min(max);
+            }
+            let mut refiner = refiner(&repo, args.pixel_error, args.budget_ms, 1.0)?;
+            let mut renderer = Renderer::new(Gpu::headless()?, world, cache_config(None))?;
+            let pacing = FlightPacing {
+                fps: args.fps,
+                frames,
+                size: args.size,
+                real_time: false,
+            };
+            let options = RenderOptions::default();
+            let mut run = draw_flight(
+                &mut refiner,
+                &mut renderer,
+                &flight,
+                pacing,
+                &options,
+                |_, _| Ok(()),
+            )?;
+            let mut rate: Vec<f64> = run
+                .tris
+                .iter()
+                .zip(&run.render_ms)
+                .map(|(&t, &ms)| t as f64 / (ms / 1e3) / 1e6)
+                .collect();
+            run.render_ms.sort_by(f64::total_cmp);
+            run.refine_ms.sort_by(f64::total_cmp);
+            run.tris.sort_unstable();
+            rate.sort_by(f64::total_cmp);
+            println!(
+                "| {} | {} | {frames} | {:.1} | {:.1} | {:.3} | {:.1} | {:.3} |",
+                path.file_name().unwrap_or_default().to_string_lossy(),
+                flight_path
+                    .file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy(),
+                percentile(&run.render_ms, 0.5),
+                percentile(&run.render_ms, 0.99),
+                percentile(&run.tris, 0.5) as f64 / 1e6,
+                percentile(&rate, 0.5),
+                percentile(&run.refine_ms, 0.99),
             );
         }
     }

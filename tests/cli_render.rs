@@ -270,3 +270,57 @@ fn demo_builds_serves_replays_and_renders() {
     }
     assert!(!out.join("frames/frame_00002.png").exists());
 }
+
+/// `cbdam bench render --flight`: one table row per repository and flight, with frame counts
+/// bounded by --max-frames and positive frame times and triangle rates; a bad --fps is refused.
+#[test]
+fn bench_render_flies_the_flights() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let flights = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flights");
+    let (low, descent) = (flights.join("low_pass.json"), flights.join("descent.json"));
+    let o = cbdam(&[
+        "bench",
+        "render",
+        &s(&repo),
+        "--size",
+        "160x90",
+        "--runs",
+        "1",
+        "--flight",
+        &s(&low),
+        "--flight",
+        &s(&descent),
+        "--max-frames",
+        "3",
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for flight in ["low_pass.json", "descent.json"] {
+        let row = text
+            .lines()
+            .find(|l| l.starts_with("| j.cbdam | ") && l.contains(flight))
+            .unwrap_or_else(|| panic!("no row for {flight}:\n{text}"));
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        assert_eq!(cells[3], "3", "frames: {row}");
+        for (i, what) in [
+            (4, "frame ms median"),
+            (6, "triangles/frame"),
+            (7, "M tris/s"),
+        ] {
+            let v: f64 = cells[i].parse().unwrap_or_else(|_| panic!("{what}: {row}"));
+            assert!(v > 0.0, "{what} is {v}: {row}");
+        }
+    }
+    let o = cbdam(&[
+        "bench",
+        "render",
+        &s(&repo),
+        "--flight",
+        &s(&low),
+        "--fps",
+        "0",
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--fps must be positive"));
+}
