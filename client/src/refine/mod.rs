@@ -12,6 +12,15 @@
 //! refined child that the view no longer needs are undone, least needed first, and their decoded
 //! data moves to an LRU cache so that refining them again is free.
 //!
+//! **A frame's cost follows what changes, not the size of the cut.** The refinement candidates
+//! (diamonds with a drawn half), the coarsening candidates (refined diamonds with no refined
+//! child) and the drawn half-patches are kept up to date on every refinement and coarsening, each
+//! with its saturated metric at hand, so no frame walks the cut or looks diamonds up in the
+//! repository's index: what remains per frame is one screen error per candidate (a box test and a
+//! distance), for the heaps and the frame's figures. A source that always has every record at
+//! hand (a local repository) makes the passes that look for records to request unnecessary; they
+//! are skipped.
+//!
 //! **The error metric is made monotone** so that the cut the loop converges to is unique (it does
 //! not depend on latency or on the order of past frames): a diamond's error is its stored
 //! object-space error (metres) times [`Camera::pixels_per_metre`] at the distance from the eye
@@ -983,6 +992,8 @@ impl<S: DataSource> Refiner<S> {
         }
 
         stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
+        #[cfg(debug_assertions)]
+        self.check_incremental_sets();
 
         let (max_err, coarsenable) = self.measure(&view, &candidates, &errors);
         stats.max_screen_error_px = max_err;
@@ -1284,9 +1295,41 @@ impl<S: DataSource> Refiner<S> {
         let coarsenable = self
             .leaves
             .values()
-            .filter(|info| info.and_then(|i| view.error(&i)).unwrap_or(0.0) <= self.config.pixel_error)
+            .filter(|info| {
+                info.and_then(|i| view.error(&i)).unwrap_or(0.0) <= self.config.pixel_error
+            })
             .count();
         (worst, coarsenable)
+    }
+
+    /// Checks the incrementally kept sets against a recomputation from the cut (debug builds,
+    /// so every test frame checks them).
+    #[cfg(debug_assertions)]
+    fn check_incremental_sets(&self) {
+        let mut candidates: Vec<DiamondId> = self
+            .layout
+            .roots()
+            .filter(|r| !self.cut.is_refined(*r))
+            .collect();
+        for a in self.cut.refined() {
+            for k in self.layout.children(a).into_iter().flatten() {
+                if !self.cut.is_refined(k) {
+                    candidates.push(k);
+                }
+            }
+        }
+        candidates.sort_unstable();
+        candidates.dedup();
+        let mut kept: Vec<DiamondId> = self.candidates.keys().copied().collect();
+        kept.sort_unstable();
+        assert_eq!(kept, candidates, "refinement candidates out of step with the cut");
+        let mut leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
+        leaves.sort_unstable();
+        let mut kept: Vec<DiamondId> = self.leaves.keys().copied().collect();
+        kept.sort_unstable();
+        assert_eq!(kept, leaves, "coarsening candidates out of step with the cut");
+        let drawn: Vec<(DiamondId, Half)> = self.drawn.values().map(|p| (p.id, p.half)).collect();
+        assert_eq!(drawn, self.cut.drawn_halves(&self.layout), "drawn list out of step");
     }
 
     /// Fills the drawn list of the initial cut (roots only).
