@@ -82,6 +82,10 @@ impl DataSource for LocalSource {
         true
     }
 
+    fn always_available(&self) -> bool {
+        true
+    }
+
     fn take(&mut self, id: DiamondId) -> Option<Result<Vec<u8>, AccessError>> {
         let result = if self.stored(id) {
             self.repo.record(id).map(<[u8]>::to_vec)

@@ -106,6 +106,12 @@ pub trait DataSource: Send {
     fn cancel(&mut self, id: DiamondId);
     /// Whether [`DataSource::take`] would return `Some` now.
     fn is_available(&self, id: DiamondId) -> bool;
+    /// Whether [`DataSource::is_available`] is true for every id, always (a memory-mapped
+    /// repository): the refiner then never needs to request anything and skips the passes that
+    /// look for what to request. False unless a source promises it.
+    fn always_available(&self) -> bool {
+        false
+    }
     /// Moves `id`'s validated record into the caller's RAM, or reports why it failed; `None`
     /// when it is not available yet. Never blocks.
     fn take(&mut self, id: DiamondId) -> Option<Result<Vec<u8>, AccessError>>;

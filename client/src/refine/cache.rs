@@ -3,11 +3,14 @@
 use std::collections::{BTreeMap, HashMap};
 use std::hash::Hash;
 
+use cbdam_codec::geometry::IdBuildHasher;
+
 /// An LRU map that evicts the least recently used entries once the sum of their declared sizes
 /// exceeds a byte budget.
 #[derive(Debug)]
 pub struct LruCache<K, V> {
-    map: HashMap<K, (V, usize, u64)>,
+    /// Keyed by diamond ids in the refiner: the fast hasher, not SipHash (see `IdBuildHasher`).
+    map: HashMap<K, (V, usize, u64), IdBuildHasher>,
     order: BTreeMap<u64, K>,
     tick: u64,
     bytes: usize,
@@ -19,7 +22,7 @@ impl<K: Copy + Eq + Hash, V> LruCache<K, V> {
     /// An empty cache holding at most `budget` bytes.
     pub fn new(budget: usize) -> Self {
         Self {
-            map: HashMap::new(),
+            map: HashMap::default(),
             order: BTreeMap::new(),
             tick: 0,
             bytes: 0,

@@ -12,6 +12,15 @@
 //! refined child that the view no longer needs are undone, least needed first, and their decoded
 //! data moves to an LRU cache so that refining them again is free.
 //!
+//! **A frame's cost follows what changes, not the size of the cut.** The refinement candidates
+//! (diamonds with a drawn half), the coarsening candidates (refined diamonds with no refined
+//! child) and the drawn half-patches are kept up to date on every refinement and coarsening, each
+//! with its saturated metric at hand, so no frame walks the cut or looks diamonds up in the
+//! repository's index: what remains per frame is one screen error per candidate (a box test and a
+//! distance), for the heaps and the frame's figures. A source that always has every record at
+//! hand (a local repository) makes the passes that look for records to request unnecessary; they
+//! are skipped.
+//!
 //! **The error metric is made monotone** so that the cut the loop converges to is unique (it does
 //! not depend on latency or on the order of past frames): a diamond's error is its stored
 //! object-space error (metres) times [`Camera::pixels_per_metre`] at the distance from the eye
@@ -29,7 +38,7 @@ mod detail;
 pub use cache::LruCache;
 pub use detail::DetailConfig;
 
-use std::collections::BinaryHeap;
+use std::collections::{BTreeMap, BinaryHeap};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -235,13 +244,20 @@ impl PartialOrd for Candidate {
 struct View {
     camera: Camera,
     frustum: Frustum,
+    /// `2 tan(fov_y / 2)`, the part of [`Camera::pixels_per_metre`] that does not depend on the
+    /// distance: computed once per view, with the same arithmetic, so errors are bit-identical.
+    two_tan: f64,
 }
 
 impl View {
     fn new(camera: Camera, margin: f64) -> Self {
         let f = camera.frustum();
         let frustum = if margin > 0.0 { f.enlarged(margin) } else { f };
-        Self { camera, frustum }
+        Self {
+            camera,
+            frustum,
+            two_tan: 2.0 * (camera.fov_y / 2.0).tan(),
+        }
     }
 
     /// Screen-space error of a diamond, `None` outside the frustum.
@@ -251,7 +267,9 @@ impl View {
         }
         let e = self.camera.eye;
         let d = (info.lo - e).max(e - info.hi).max(DVec3::ZERO).length();
-        Some(info.err_m * self.camera.pixels_per_metre(d))
+        let ppm = f64::from(self.camera.height) / (self.two_tan * d.max(self.camera.near));
+        debug_assert_eq!(ppm, self.camera.pixels_per_metre(d));
+        Some(info.err_m * ppm)
     }
 }
 
@@ -278,8 +296,14 @@ pub struct Refiner<S: DataSource> {
     /// Sum of `nodes`' bytes.
     cut_bytes: usize,
     roots: IdMap<[Arc<HalfPatch>; 2]>,
-    drawn: Vec<Arc<HalfPatch>>,
-    drawn_dirty: bool,
+    /// The drawn half-patches, keyed so that iteration follows [`Cut::drawn_halves`]' order;
+    /// updated on every refinement and coarsening, so a frame's cost follows what changed.
+    drawn: BTreeMap<DrawKey, Arc<HalfPatch>>,
+    /// Refinement candidates (the diamonds with a drawn half) with their metric, kept as the
+    /// cut changes rather than found by a pass over the cut each frame.
+    candidates: IdMap<Option<Info>>,
+    /// Coarsening candidates: refined diamonds with no refined child, with their metric.
+    leaves: IdMap<Option<Info>>,
     records: LruCache<DiamondId, Arc<[u8]>>,
     decoded: LruCache<DiamondId, Arc<Node>>,
     requested: IdMap<Priority>,
@@ -370,8 +394,9 @@ impl<S: DataSource> Refiner<S> {
             nodes: IdMap::default(),
             cut_bytes: 0,
             roots,
-            drawn: Vec::new(),
-            drawn_dirty: true,
+            drawn: BTreeMap::new(),
+            candidates: IdMap::default(),
+            leaves: IdMap::default(),
             records: LruCache::new(config.record_cache_bytes),
             decoded: LruCache::new(config.decoded_cache_bytes),
             requested: IdMap::default(),
@@ -387,6 +412,11 @@ impl<S: DataSource> Refiner<S> {
             config,
         };
         me.rebuild_drawn();
+        let roots: Vec<DiamondId> = me.layout.roots().collect();
+        for r in roots {
+            let info = me.info(r);
+            me.candidates.insert(r, info);
+        }
         Ok(me)
     }
 
@@ -442,7 +472,7 @@ impl<S: DataSource> Refiner<S> {
 
     /// The half-patches the cut draws, in [`Cut::drawn_halves`] order.
     pub fn drawn(&self) -> impl Iterator<Item = &Arc<HalfPatch>> {
-        self.drawn.iter()
+        self.drawn.values()
     }
 
     /// Recent error messages (rejected records), oldest first.
@@ -599,6 +629,14 @@ impl<S: DataSource> Refiner<S> {
             }
             out.push(d);
         }
+        // Most often only `id` itself is unrefined (a candidate whose parents are refined).
+        if self.cut.is_refined(id) {
+            return Vec::new();
+        }
+        let parents = self.layout.parents(id);
+        if parents.iter().flatten().all(|&p| self.cut.is_refined(p)) {
+            return vec![id];
+        }
         let mut out = Vec::new();
         visit(&self.cut, &self.layout, id, &mut out);
         out
@@ -609,30 +647,122 @@ impl<S: DataSource> Refiner<S> {
         !self.broken.is_empty() && self.plan(id).iter().any(|d| self.broken.contains(d))
     }
 
-    /// The diamonds with a drawn half (refinement candidates), each once.
-    fn candidates(&self) -> Vec<DiamondId> {
-        let mut out: Vec<DiamondId> = self
-            .layout
-            .roots()
-            .filter(|r| !self.cut.is_refined(*r))
-            .collect();
-        for a in self.cut.refined() {
-            for k in self.layout.children(a).into_iter().flatten() {
-                if self.cut.is_refined(k) {
-                    continue;
-                }
-                let first = self
-                    .layout
-                    .parents(k)
-                    .into_iter()
-                    .flatten()
-                    .find(|p| self.cut.is_refined(*p));
-                if first == Some(a) {
-                    out.push(k);
-                }
+    /// The diamonds with a drawn half (refinement candidates), each once, with their metric.
+    fn candidate_list(&self) -> Vec<(DiamondId, Option<Info>)> {
+        self.candidates.iter().map(|(&id, &i)| (id, i)).collect()
+    }
+
+    /// [`Refiner::violation`] for a diamond whose metric is at hand.
+    fn violation_of(&self, id: DiamondId, info: Option<Info>, view: &View) -> Option<f64> {
+        view.error(&info?)
+            .filter(|&e| e > self.config.pixel_error && !self.broken.contains(&id))
+    }
+
+    /// Refines `id` (whose parents are refined and whose node is in `nodes`) and updates the
+    /// drawn halves and both candidate sets.
+    fn refine_in_cut(&mut self, id: DiamondId) {
+        let newly = self.cut.refine(&self.layout, id);
+        debug_assert_eq!(newly, vec![id], "parents are refined first");
+        if newly.is_empty() {
+            return;
+        }
+        self.hide_halves(id);
+        self.candidates.remove(&id);
+        let halves = self.nodes[&id].halves.clone();
+        for (slot, k) in self.layout.children(id).into_iter().enumerate() {
+            let Some(k) = k else { continue };
+            let half = halves[slot]
+                .clone()
+                .expect("refined parents hold their children's halves");
+            self.drawn.insert(DrawKey::Child(id, slot), half);
+            let info = self.info(k);
+            self.candidates.insert(k, info);
+        }
+        let info = self.info(id);
+        self.leaves.insert(id, info);
+        for p in self.layout.parents(id).into_iter().flatten() {
+            self.leaves.remove(&p);
+        }
+    }
+
+    /// Coarsens `id` if none of its children is refined, updating the drawn halves and both
+    /// candidate sets. Returns whether it did.
+    fn coarsen_in_cut(&mut self, id: DiamondId) -> bool {
+        if !self.cut.coarsen(&self.layout, id) {
+            return false;
+        }
+        for (slot, k) in self.layout.children(id).into_iter().enumerate() {
+            let Some(k) = k else { continue };
+            self.drawn.remove(&DrawKey::Child(id, slot));
+            let still_drawn = self
+                .layout
+                .parents(k)
+                .into_iter()
+                .flatten()
+                .any(|p| self.cut.is_refined(p));
+            if !still_drawn {
+                self.candidates.remove(&k);
             }
         }
+        self.show_halves(id);
+        let info = self.info(id);
+        self.candidates.insert(id, info);
+        self.leaves.remove(&id);
+        for p in self.layout.parents(id).into_iter().flatten() {
+            if self.is_leaf(p) {
+                let info = self.info(p);
+                self.leaves.insert(p, info);
+            }
+        }
+        true
+    }
+
+    /// The drawn-list keys of the halves of unrefined `id` (one per refined parent, both
+    /// halves for a root).
+    fn half_keys(&self, id: DiamondId) -> Vec<(DrawKey, Arc<HalfPatch>)> {
+        if id.level == 0 {
+            let idx = self
+                .layout
+                .roots()
+                .position(|r| r == id)
+                .expect("level 0 diamonds are roots");
+            return Half::BOTH
+                .iter()
+                .enumerate()
+                .map(|(i, &h)| (DrawKey::Root(idx, i), self.roots[&id][h as usize].clone()))
+                .collect();
+        }
+        let mut out = Vec::new();
+        for p in self.layout.parents(id).into_iter().flatten() {
+            if !self.cut.is_refined(p) {
+                continue;
+            }
+            let slot = self
+                .layout
+                .children(p)
+                .iter()
+                .position(|c| *c == Some(id))
+                .expect("child of its parent");
+            let half = self.nodes[&p].halves[slot]
+                .clone()
+                .expect("refined parents hold their children's halves");
+            out.push((DrawKey::Child(p, slot), half));
+        }
         out
+    }
+
+    /// Draws the halves of `id`, just coarsened (or a root).
+    fn show_halves(&mut self, id: DiamondId) {
+        for (k, h) in self.half_keys(id) {
+            self.drawn.insert(k, h);
+        }
+    }
+
+    /// Stops drawing the halves of `id`, about to be refined (its parents are refined).
+    fn hide_halves(&mut self, id: DiamondId) {
+        for (k, _) in self.half_keys(id) {
+            self.drawn.remove(&k);
+        }
     }
 
     fn violation(&mut self, id: DiamondId, view: &View) -> Option<f64> {
@@ -643,7 +773,18 @@ impl<S: DataSource> Refiner<S> {
 
     /// Wants the records that refining `id` (parents first) still lacks.
     fn want_plan(&mut self, id: DiamondId, priority: f64, wanted: &mut IdMap<f64>) {
-        for d in self.plan(id) {
+        let plan = self.plan(id);
+        self.want_planned(&plan, priority, wanted);
+    }
+
+    /// [`Refiner::want_plan`] for a plan at hand.
+    fn want_planned(&mut self, plan: &[DiamondId], priority: f64, wanted: &mut IdMap<f64>) {
+        // Usually everything is at hand (always with a local source): then nothing is wanted
+        // whatever the metric says, and the metric's lookups can be skipped.
+        if plan.iter().all(|&d| self.have_or_available(d)) {
+            return;
+        }
+        for &d in plan {
             if self.broken.contains(&d) || self.info(d).is_none() {
                 return;
             }
@@ -679,8 +820,8 @@ impl<S: DataSource> Refiner<S> {
 
         let view = View::new(*camera, 0.0);
         let mut heap = BinaryHeap::new();
-        for id in self.candidates() {
-            if let Some(err) = self.violation(id, &view) {
+        for (id, info) in self.candidate_list() {
+            if let Some(err) = self.violation_of(id, info, &view) {
                 heap.push(Candidate { err, id });
             }
         }
@@ -793,10 +934,14 @@ impl<S: DataSource> Refiner<S> {
         }
         heap.extend(waiting);
 
-        // What the budget did not reach still gets requested, then prefetch.
-        for c in heap.into_vec() {
-            if !self.cut.is_refined(c.id) {
-                self.want_plan(c.id, c.err, &mut wanted);
+        // What the budget did not reach still gets requested, then prefetch (neither can want
+        // anything from a source that always has everything at hand).
+        let may_want = !self.source.always_available();
+        if may_want {
+            for c in heap.into_vec() {
+                if !self.cut.is_refined(c.id) {
+                    self.want_plan(c.id, c.err, &mut wanted);
+                }
             }
         }
         if self.config.gc_interval > 0
@@ -807,12 +952,14 @@ impl<S: DataSource> Refiner<S> {
             stats.coarsenings += self.collect_garbage(&view);
         }
         // One pass over the final cut's candidates serves prefetching and the frame's figures.
-        let candidates = self.candidates();
+        let candidates = self.candidate_list();
         let errors: Vec<Option<f64>> = candidates
             .iter()
-            .map(|&id| self.info(id).and_then(|i| view.error(&i)))
+            .map(|&(_, info)| info.and_then(|i| view.error(&i)))
             .collect();
-        self.prefetch(camera, &candidates, &errors, &mut wanted);
+        if may_want {
+            self.prefetch(camera, &candidates, &errors, &mut wanted);
+        }
         self.last_camera = Some(*camera);
 
         // Post new requests, re-prioritise, cancel what is no longer wanted.
@@ -844,10 +991,9 @@ impl<S: DataSource> Refiner<S> {
             }
         }
 
-        if self.drawn_dirty {
-            self.rebuild_drawn();
-        }
         stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
+        #[cfg(debug_assertions)]
+        self.check_incremental_sets();
 
         let (max_err, coarsenable) = self.measure(&view, &candidates, &errors);
         stats.max_screen_error_px = max_err;
@@ -885,7 +1031,7 @@ impl<S: DataSource> Refiner<S> {
     fn prefetch(
         &mut self,
         camera: &Camera,
-        candidates: &[DiamondId],
+        candidates: &[(DiamondId, Option<Info>)],
         errors: &[Option<f64>],
         wanted: &mut IdMap<f64>,
     ) {
@@ -897,16 +1043,20 @@ impl<S: DataSource> Refiner<S> {
         let margin = self.config.prefetch_margin * (camera.target - camera.eye).length();
         let view = View::new(future, margin);
         let now = View::new(*camera, 0.0);
-        for (&id, &err_now) in candidates.iter().zip(errors) {
-            if let Some(err) = self.violation(id, &view) {
+        for (&(id, info), &err_now) in candidates.iter().zip(errors) {
+            if let Some(err) = self.violation_of(id, info, &view) {
                 self.want_plan(id, err * PREFETCH_PRIORITY, wanted);
             }
             let violates_now =
                 err_now.is_some_and(|e| e > self.config.pixel_error) && !self.broken.contains(&id);
             if violates_now {
                 for k in self.layout.children(id).into_iter().flatten() {
+                    let plan = self.plan(k);
+                    if plan.iter().all(|&d| self.have_or_available(d)) {
+                        continue; // nothing to want: skip the metric
+                    }
                     if let Some(err) = self.violation(k, &now) {
-                        self.want_plan(k, err * PREFETCH_PRIORITY, wanted);
+                        self.want_planned(&plan, err * PREFETCH_PRIORITY, wanted);
                     }
                 }
             }
@@ -978,9 +1128,7 @@ impl<S: DataSource> Refiner<S> {
         if let Some(old) = self.nodes.insert(id, node) {
             self.cut_bytes -= old.bytes();
         }
-        let newly = self.cut.refine(&self.layout, id);
-        debug_assert_eq!(newly, vec![id], "parents are refined first");
-        self.drawn_dirty = true;
+        self.refine_in_cut(id);
         stats.refinements += 1;
         for k in self.layout.children(id).into_iter().flatten() {
             if let Some(err) = self.violation(k, view) {
@@ -993,15 +1141,15 @@ impl<S: DataSource> Refiner<S> {
     /// heap ordered by ascending screen error, re-fed with parents that become leaves).
     fn collect_garbage(&mut self, view: &View) -> usize {
         let mut heap: BinaryHeap<std::cmp::Reverse<Candidate>> = BinaryHeap::new();
-        let leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
-        for d in leaves {
-            if let Some(c) = self.unneeded(d, view) {
-                heap.push(std::cmp::Reverse(c));
+        for (&id, info) in &self.leaves {
+            let err = info.and_then(|i| view.error(&i)).unwrap_or(0.0);
+            if err <= self.config.pixel_error {
+                heap.push(std::cmp::Reverse(Candidate { err, id }));
             }
         }
         let mut done = 0;
         while let Some(std::cmp::Reverse(c)) = heap.pop() {
-            if !self.cut.coarsen(&self.layout, c.id) {
+            if !self.coarsen_in_cut(c.id) {
                 continue;
             }
             done += 1;
@@ -1020,7 +1168,6 @@ impl<S: DataSource> Refiner<S> {
 
     /// After `id` was coarsened: its node moves to the decoded cache.
     fn release(&mut self, id: DiamondId) {
-        self.drawn_dirty = true;
         if let Some(node) = self.nodes.remove(&id) {
             let bytes = node.bytes();
             self.cut_bytes -= bytes;
@@ -1051,12 +1198,12 @@ impl<S: DataSource> Refiner<S> {
             return true;
         }
         if pool.is_none() {
-            let leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
-            let heap = leaves
-                .into_iter()
-                .map(|id| {
+            let heap = self
+                .leaves
+                .iter()
+                .map(|(&id, info)| {
                     std::cmp::Reverse(Candidate {
-                        err: self.drawn_error(id, view),
+                        err: info.and_then(|i| view.error(&i)).unwrap_or(0.0),
                         id,
                     })
                 })
@@ -1085,7 +1232,7 @@ impl<S: DataSource> Refiner<S> {
                 kept.push(std::cmp::Reverse(c));
                 continue;
             }
-            if !self.cut.coarsen(&self.layout, c.id) {
+            if !self.coarsen_in_cut(c.id) {
                 continue;
             }
             stats.coarsenings += 1;
@@ -1128,11 +1275,11 @@ impl<S: DataSource> Refiner<S> {
     fn measure(
         &mut self,
         view: &View,
-        candidates: &[DiamondId],
+        candidates: &[(DiamondId, Option<Info>)],
         errors: &[Option<f64>],
     ) -> (f64, usize) {
         let mut worst = 0f64;
-        for (&id, &e) in candidates.iter().zip(errors) {
+        for (&(id, _), &e) in candidates.iter().zip(errors) {
             if let Some(e) = e
                 && e > worst
                 && !self.blocked(id)
@@ -1145,38 +1292,63 @@ impl<S: DataSource> Refiner<S> {
         if worst > self.config.pixel_error {
             return (worst, 0);
         }
-        let refined: Vec<DiamondId> = self.cut.refined().collect();
-        let coarsenable = refined
-            .into_iter()
-            .filter(|&d| self.is_leaf(d) && self.unneeded(d, view).is_some())
+        let coarsenable = self
+            .leaves
+            .values()
+            .filter(|info| {
+                info.and_then(|i| view.error(&i)).unwrap_or(0.0) <= self.config.pixel_error
+            })
             .count();
         (worst, coarsenable)
     }
 
+    /// Checks the incrementally kept sets against a recomputation from the cut (debug builds,
+    /// so every test frame checks them).
+    #[cfg(debug_assertions)]
+    fn check_incremental_sets(&self) {
+        let mut candidates: Vec<DiamondId> = self
+            .layout
+            .roots()
+            .filter(|r| !self.cut.is_refined(*r))
+            .collect();
+        for a in self.cut.refined() {
+            for k in self.layout.children(a).into_iter().flatten() {
+                if !self.cut.is_refined(k) {
+                    candidates.push(k);
+                }
+            }
+        }
+        candidates.sort_unstable();
+        candidates.dedup();
+        let mut kept: Vec<DiamondId> = self.candidates.keys().copied().collect();
+        kept.sort_unstable();
+        assert_eq!(kept, candidates, "refinement candidates out of step with the cut");
+        let mut leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
+        leaves.sort_unstable();
+        let mut kept: Vec<DiamondId> = self.leaves.keys().copied().collect();
+        kept.sort_unstable();
+        assert_eq!(kept, leaves, "coarsening candidates out of step with the cut");
+        let drawn: Vec<(DiamondId, Half)> = self.drawn.values().map(|p| (p.id, p.half)).collect();
+        assert_eq!(drawn, self.cut.drawn_halves(&self.layout), "drawn list out of step");
+    }
+
+    /// Fills the drawn list of the initial cut (roots only).
     fn rebuild_drawn(&mut self) {
         self.drawn.clear();
-        for (id, half) in self.cut.drawn_halves(&self.layout) {
-            let patch = if id.level == 0 {
-                self.roots[&id][half as usize].clone()
-            } else {
-                let parent = self
-                    .layout
-                    .parent(id, half)
-                    .expect("a drawn child half has its parent");
-                let slot = self
-                    .layout
-                    .children(parent)
-                    .iter()
-                    .position(|c| *c == Some(id))
-                    .expect("child of its parent");
-                self.nodes[&parent].halves[slot]
-                    .clone()
-                    .expect("refined parents hold their children's halves")
-            };
-            self.drawn.push(patch);
+        let roots: Vec<DiamondId> = self.layout.roots().collect();
+        for r in roots {
+            self.show_halves(r);
         }
-        self.drawn_dirty = false;
     }
+}
+
+/// Where a drawn half sits in [`Cut::drawn_halves`]' order: unrefined roots first (by their
+/// index in [`Layout::roots`], then the half's index in [`Half::BOTH`]), then the halves of
+/// refined diamonds' children, by parent (the cut's coarse-to-fine order), then child slot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum DrawKey {
+    Root(usize, usize),
+    Child(DiamondId, usize),
 }
 
 /// A finished (or failed) refinement coming back from a worker.
