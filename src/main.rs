@@ -499,6 +499,9 @@ pub struct BuildArgs {
     /// Print nothing on success.
     #[arg(long)]
     quiet: bool,
+    /// Print the wall time of each stage (read and plan, quantize, encode, write) to stderr.
+    #[arg(long)]
+    timings: bool,
 }
 
 /// Describe a repository.
