@@ -273,6 +273,9 @@ fn with_context(e: CodecError, context: &str) -> CodecError {
             let msg = format!("{context}: {io}");
             if kind == ErrorKind::UnexpectedEof {
                 CodecError::truncated(msg)
+            } else if kind == ErrorKind::InvalidData {
+                // What the decompressors report for a damaged stream.
+                CodecError::corrupt(msg)
             } else {
                 CodecError::Io(std::io::Error::new(kind, msg))
             }

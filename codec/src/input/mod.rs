@@ -19,8 +19,8 @@ use std::path::Path;
 
 use crate::CodecError;
 
-pub use quantum::{QuantumScan, detect_quantum};
 pub use geotiff_stream::GeoTiffSource;
+pub use quantum::{QuantumScan, detect_quantum};
 pub use stream::{BlockFn, RawF32Source, SampleSource};
 
 /// The numeric type a DEM's samples were stored as.
