@@ -119,6 +119,7 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
         quantum: None,
         nodata: None,
         quiet: true,
+        timings: false,
         size: None,
         memory_limit: None,
     })?;

@@ -1,20 +1,23 @@
 //! `cbdam build`: one DEM → one repository file, in parallel, within a memory limit.
 //!
-//! Raw float32 input (`--size WxH`) is streamed: planned and quantized block by block, never
-//! held as floats. The other formats are read whole (8 bytes per sample) and dropped once
-//! quantized. The encoder's reconstruction field goes to a memory-mapped temporary file when the
+//! GeoTIFF and raw float32 input (`--size WxH`) are streamed: planned and quantized block by
+//! block, never held as floats. The other formats are read whole (8 bytes per sample) and
+//! dropped once quantized. The encoder's reconstruction field goes to a memory-mapped temporary file when the
 //! grid and the field together would exceed `--memory-limit`.
 
 use std::io::IsTerminal;
 use std::path::Path;
 use std::sync::Mutex;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Layout;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoded, TempStorage, encode_with_storage};
-use cbdam_codec::input::{GeoRef, Limits, RawF32Source, ReadOptions, read_dem};
+use cbdam_codec::input::{
+    Format, GeoRef, GeoTiffSource, Limits, RawF32Source, ReadOptions, SampleSource, detect_format,
+    read_dem,
+};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::write_repository;
@@ -32,6 +35,8 @@ pub struct Prepared {
     pub georef: Option<GeoRef>,
     /// Nodata value of the file (or the override).
     pub nodata: Option<f64>,
+    /// Wall time of each preparation stage, in order (for `--timings`).
+    pub stages: Vec<(&'static str, Duration)>,
 }
 
 /// How the input is read.
@@ -64,22 +69,27 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
         }
         Ok(())
     };
-    if let Some((w, h)) = spec.raw_size {
-        let src = RawF32Source::open(path, w, h, spec.nodata, &Limits::default())
-            .with_context(|| format!("reading {}", path.display()))?;
-        let plan = QuantPlan::for_source(&src, spec.max_error, spec.quantum)
-            .with_context(|| format!("reading {}", path.display()))?;
-        let grid = HeightGrid::from_source(&src, &plan)
-            .with_context(|| format!("reading {}", path.display()))?;
+    let streamed = |src: &dyn SampleSource, georef: Option<GeoRef>| -> Result<Prepared> {
+        let reading = || format!("reading {}", path.display());
+        let t = Instant::now();
+        let (plan, grid) =
+            QuantPlan::quantize_source(src, spec.max_error, spec.quantum).with_context(reading)?;
+        let stages = vec![("read, plan and quantize", t.elapsed())];
         if let Some((lo, hi)) = grid.range() {
             unit_check(plan.metres(lo), plan.metres(hi))?;
         }
-        return Ok(Prepared {
+        Ok(Prepared {
             grid,
             plan,
-            georef: None,
-            nodata: spec.nodata,
-        });
+            georef,
+            nodata: src.nodata(),
+            stages,
+        })
+    };
+    if let Some((w, h)) = spec.raw_size {
+        let src = RawF32Source::open(path, w, h, spec.nodata, &Limits::default())
+            .with_context(|| format!("reading {}", path.display()))?;
+        return streamed(&src, None);
     }
     let is_raw = path
         .extension()
@@ -91,22 +101,36 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
             path.display()
         );
     }
+    // GeoTIFF is decoded strip by strip or tile by tile, in parallel, and never held whole.
+    if detect_format(path).ok() == Some(Format::GeoTiff) {
+        let src = GeoTiffSource::open(path, spec.nodata, &Limits::default())
+            .with_context(|| format!("reading {}", path.display()))?;
+        return streamed(&src, src.georef().cloned());
+    }
     let opts = ReadOptions {
         nodata: spec.nodata,
         ..ReadOptions::default()
     };
+    let t = Instant::now();
     let dem = read_dem(path, &opts).with_context(|| format!("reading {}", path.display()))?;
+    let read = t.elapsed();
     let Some((lo, hi)) = dem.valid_range() else {
         bail!("{} has no valid sample (all nodata or NaN)", path.display());
     };
     unit_check(lo, hi)?;
     let plan = QuantPlan::for_dem(&dem, spec.max_error, spec.quantum)?;
+    let planned = t.elapsed();
     let grid = HeightGrid::from_dem(&dem, &plan)?;
     Ok(Prepared {
         grid,
         plan,
         georef: dem.georef,
         nodata: dem.nodata,
+        stages: vec![
+            ("read", read),
+            ("plan", planned - read),
+            ("quantize", t.elapsed() - planned),
+        ],
     })
 }
 
@@ -244,14 +268,18 @@ pub fn run(args: &BuildArgs) -> Result<()> {
         quantum: args.quantum,
         max_error: args.max_error,
     })?;
+    let mut stages = input.stages.clone();
     let enc_opts = encode_options(args);
     let storage = storage_for(&input.grid, &enc_opts, limit)?;
     let progress = Progress::new(args.quiet);
+    let t = Instant::now();
     let encoded = encode_prepared(&input, &enc_opts, &storage, args.threads, &|done, total| {
         progress.update(done, total)
     })?;
     progress.finish();
+    stages.push(("encode", t.elapsed()));
     let plan = &input.plan;
+    let t = Instant::now();
     write_repository(
         &args.output,
         &encoded,
@@ -260,6 +288,20 @@ pub fn run(args: &BuildArgs) -> Result<()> {
         input.nodata,
     )
     .with_context(|| format!("writing {}", args.output.display()))?;
+    stages.push(("write", t.elapsed()));
+    if args.timings {
+        let total = start.elapsed();
+        let parts: Vec<String> = stages
+            .iter()
+            .map(|(name, d)| format!("{name} {:.3} s", d.as_secs_f64()))
+            .collect();
+        eprintln!(
+            "timings: {}, total {:.3} s ({:.2} M samples/s)",
+            parts.join(", "),
+            total.as_secs_f64(),
+            (input.grid.width * input.grid.height) as f64 / total.as_secs_f64() / 1e6
+        );
+    }
     if !args.quiet {
         let bytes = std::fs::metadata(&args.output)?.len();
         let grid = &input.grid;
@@ -338,6 +380,64 @@ impl Progress {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The streamed GeoTIFF path writes the same repository bytes as reading the whole file
+    /// (decoded by the `tiff` crate's own whole-image reader, not by the chunk reader under
+    /// test), on every bundled GeoTIFF.
+    #[test]
+    fn streamed_geotiff_builds_the_same_repository_as_the_whole_file() {
+        use tiff::decoder::{Decoder, DecodingResult};
+        let dir = tempfile::tempdir().unwrap();
+        let inputs = crate::bench_codec::bundled_inputs(&["tif"]).unwrap();
+        assert!(inputs.len() >= 6, "{inputs:?}");
+        let opts = EncodeOptions::default();
+        for path in inputs {
+            let spec = InputSpec {
+                path: &path,
+                raw_size: None,
+                nodata: None,
+                quantum: None,
+                max_error: 1.0,
+            };
+            let streamed = prepare(&spec).unwrap();
+            let mut dem = read_dem(&path, &ReadOptions::default()).unwrap();
+            let mut dec = Decoder::new(std::fs::File::open(&path).unwrap()).unwrap();
+            let whole: Vec<f64> = match dec.read_image().unwrap() {
+                DecodingResult::I16(v) => v.into_iter().map(f64::from).collect(),
+                DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
+                _ => panic!(
+                    "{}: a sample type the bundled data does not use",
+                    path.display()
+                ),
+            };
+            assert_eq!(dem.values, whole, "{}", path.display());
+            dem.values = whole;
+            let plan = QuantPlan::for_dem(&dem, 1.0, None).unwrap();
+            let grid = HeightGrid::from_dem(&dem, &plan).unwrap();
+            assert_eq!(plan, streamed.plan, "{}", path.display());
+            assert_eq!(grid, streamed.grid, "{}", path.display());
+            let mut bytes = Vec::new();
+            for (grid, plan, georef, nodata) in [
+                (&grid, &plan, dem.georef.as_ref(), dem.nodata),
+                (
+                    &streamed.grid,
+                    &streamed.plan,
+                    streamed.georef.as_ref(),
+                    streamed.nodata,
+                ),
+            ] {
+                let enc = cbdam_codec::hierarchy::encode(grid, plan.quantizer, &opts).unwrap();
+                let out = dir.path().join("r.cbdam");
+                write_repository(&out, &enc, plan, georef, nodata).unwrap();
+                bytes.push(std::fs::read(&out).unwrap());
+            }
+            assert!(
+                bytes[0] == bytes[1],
+                "{}: repositories differ",
+                path.display()
+            );
+        }
+    }
 
     #[test]
     fn sizes_parse_with_binary_suffixes_and_junk_is_refused() {

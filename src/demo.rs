@@ -36,6 +36,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             quantum: None,
             nodata: None,
             quiet: false,
+            timings: false,
         })?;
     }
 

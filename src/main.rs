@@ -116,6 +116,18 @@ pub struct SynthArgs {
     /// Seed of the pseudo-random displacements.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Write a float32 BigTIFF (strips of 16 rows) instead of raw float32.
+    #[arg(long, value_enum)]
+    tiff: Option<TiffArg>,
+}
+
+/// Compression of `cbdam synth --tiff`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum TiffArg {
+    /// Uncompressed.
+    Plain,
+    /// Deflate (fast level).
+    Deflate,
 }
 
 #[derive(Subcommand)]
@@ -512,6 +524,9 @@ pub struct BuildArgs {
     /// Print nothing on success.
     #[arg(long)]
     quiet: bool,
+    /// Print the wall time of each stage (read and plan, quantize, encode, write) to stderr.
+    #[arg(long)]
+    timings: bool,
 }
 
 /// Describe a repository.

@@ -13,7 +13,7 @@ use anyhow::{Result, bail};
 use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::input::{Dem, SampleType};
 
-use crate::SynthArgs;
+use crate::{SynthArgs, TiffArg};
 
 /// A uniform value in `[-1, 1)` from a position and a seed (splitmix64 finaliser).
 fn noise(x: usize, y: usize, seed: u64) -> f32 {
@@ -103,6 +103,31 @@ pub fn dem(size: usize, seed: u64) -> Dem {
     }
 }
 
+/// Writes `terrain(size, seed)` to `path` as a float32 TIFF in strips of 16 rows, Deflate
+/// compressed when `deflate`: the large GeoTIFF input of the streaming build's memory test.
+pub fn write_tiff(path: &Path, size: usize, seed: u64, deflate: bool) -> Result<()> {
+    use tiff::encoder::compression::DeflateLevel;
+    use tiff::encoder::{Compression, TiffEncoder, colortype};
+    const STRIP_ROWS: usize = 16;
+    let t = terrain(size, seed);
+    let side = u32::try_from(size)?;
+    write_atomically::<anyhow::Error>(path, |f| {
+        let w = std::io::BufWriter::with_capacity(1 << 20, f);
+        let mut enc = TiffEncoder::new_big(w)?.with_compression(if deflate {
+            Compression::Deflate(DeflateLevel::Fast)
+        } else {
+            Compression::Uncompressed
+        });
+        let mut img = enc.new_image::<colortype::Gray32Float>(side, side)?;
+        img.rows_per_strip(STRIP_ROWS as u32)?;
+        for rows in t.chunks(STRIP_ROWS * size) {
+            img.write_strip(rows)?;
+        }
+        img.finish()?;
+        Ok(())
+    })
+}
+
 /// Writes `terrain(size, seed)` to `path`.
 pub fn write(path: &Path, size: usize, seed: u64) -> Result<()> {
     let t = terrain(size, seed);
@@ -120,7 +145,11 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     if args.size < 2 {
         bail!("--size must be at least 2");
     }
-    write(&args.output, args.size, args.seed)
+    match args.tiff {
+        None => write(&args.output, args.size, args.seed),
+        Some(TiffArg::Plain) => write_tiff(&args.output, args.size, args.seed, false),
+        Some(TiffArg::Deflate) => write_tiff(&args.output, args.size, args.seed, true),
+    }
 }
 
 #[cfg(test)]

@@ -203,56 +203,7 @@ impl QuantPlan {
     ) -> Result<Self, CodecError> {
         let nodata = src.nodata();
         let is_valid = |v: f64| !v.is_nan() && nodata != Some(v);
-        let detect = quantum.is_none();
-        let ty = src.sample_type();
-        #[derive(Clone)]
-        struct Scan {
-            lo: f64,
-            hi: f64,
-            quantum: QuantumScan,
-        }
-        let empty = || Scan {
-            lo: f64::INFINITY,
-            hi: f64::NEG_INFINITY,
-            quantum: QuantumScan::new(ty),
-        };
-        let mut total = empty();
-        src.for_each_block(&mut |_, block| {
-            let part = block
-                .par_chunks(CHUNK)
-                .map(|chunk| {
-                    let mut s = empty();
-                    for &v in chunk.iter().filter(|&&v| is_valid(v)) {
-                        s.lo = s.lo.min(v);
-                        s.hi = s.hi.max(v);
-                        if detect {
-                            s.quantum.push(v);
-                        }
-                    }
-                    s
-                })
-                .reduce(empty, |a, b| Scan {
-                    lo: a.lo.min(b.lo),
-                    hi: a.hi.max(b.hi),
-                    quantum: a.quantum.merge(b.quantum),
-                });
-            total = Scan {
-                lo: total.lo.min(part.lo),
-                hi: total.hi.max(part.hi),
-                quantum: total.quantum.clone().merge(part.quantum),
-            };
-            Ok(())
-        })?;
-        let (lo, hi) = (total.lo, total.hi);
-        if lo > hi {
-            return Err(CodecError::invalid(
-                "the input has no valid sample (all nodata or NaN)",
-            ));
-        }
-        if !(lo.is_finite() && hi.is_finite()) {
-            return Err(CodecError::invalid("the input holds infinite heights"));
-        }
-        let quantum = quantum.or_else(|| total.quantum.finish());
+        let (lo, hi, quantum) = scan_source(src, quantum)?;
         let Some(u) = quantum else {
             return Self::new(epsilon, None, lo, hi);
         };
@@ -275,6 +226,53 @@ impl QuantPlan {
             Ok(())
         })?;
         Self::with_representation_error(epsilon, Some(u), deviation, lo, hi)
+    }
+
+    /// [`QuantPlan::for_source`] followed by [`HeightGrid::from_source`], with one pass over the
+    /// samples fewer for lattice input: its representation error is measured while quantizing,
+    /// which does not depend on it (only the step `k` does). Same plan, same grid and, for bad
+    /// input, the same error as the two calls.
+    pub fn quantize_source(
+        src: &dyn SampleSource,
+        epsilon: f64,
+        quantum: Option<f64>,
+    ) -> Result<(Self, HeightGrid), CodecError> {
+        let (lo, hi, quantum) = scan_source(src, quantum)?;
+        let Some(u) = quantum else {
+            let plan = Self::new(epsilon, None, lo, hi)?;
+            let grid = HeightGrid::from_source(src, &plan)?;
+            return Ok((plan, grid));
+        };
+        // What `to_units` uses of a lattice plan is its unit and offset, both known now.
+        let offset = ((lo + hi) / 2.0 / u).round() * u;
+        let provisional = Self {
+            unit: u,
+            offset,
+            quantizer: Quantizer { k: 0 },
+            lattice: true,
+            representation_error: 0.0,
+            epsilon,
+        };
+        let mut grid = HeightGrid::empty(src.width(), src.height())?;
+        let nodata = src.nodata();
+        let mut deviation = 0.0f64;
+        let mut first_bad = None;
+        src.for_each_block(&mut |row, block| {
+            // Keep measuring past a bad sample: the plan's own error, which `for_source` would
+            // have reported first, depends on every sample's deviation.
+            let (d, bad) = grid.quantize_rows_measuring(row, block, nodata, &provisional, true);
+            deviation = deviation.max(d);
+            if first_bad.is_none() {
+                first_bad = bad;
+            }
+            Ok(())
+        })?;
+        let plan = Self::with_representation_error(epsilon, Some(u), deviation, lo, hi)?;
+        debug_assert!(plan.unit == u && plan.offset == offset && plan.lattice);
+        match first_bad {
+            Some(e) => Err(e),
+            None => Ok((plan, grid)),
+        }
     }
 
     /// The guaranteed bound, metres: `k·u`, plus `u/2` of pre-quantization for float input or
@@ -327,6 +325,66 @@ impl QuantPlan {
     }
 }
 
+/// One pass over the samples: the valid height range, and the value quantum (`quantum` when
+/// given, else detected). Errors when no sample is valid or a valid one is infinite.
+fn scan_source(
+    src: &dyn SampleSource,
+    quantum: Option<f64>,
+) -> Result<(f64, f64, Option<f64>), CodecError> {
+    let nodata = src.nodata();
+    let is_valid = |v: f64| !v.is_nan() && nodata != Some(v);
+    let detect = quantum.is_none();
+    let ty = src.sample_type();
+    #[derive(Clone)]
+    struct Scan {
+        lo: f64,
+        hi: f64,
+        quantum: QuantumScan,
+    }
+    let empty = || Scan {
+        lo: f64::INFINITY,
+        hi: f64::NEG_INFINITY,
+        quantum: QuantumScan::new(ty),
+    };
+    let mut total = empty();
+    src.for_each_block(&mut |_, block| {
+        let part = block
+            .par_chunks(CHUNK)
+            .map(|chunk| {
+                let mut s = empty();
+                for &v in chunk.iter().filter(|&&v| is_valid(v)) {
+                    s.lo = s.lo.min(v);
+                    s.hi = s.hi.max(v);
+                    if detect {
+                        s.quantum.push(v);
+                    }
+                }
+                s
+            })
+            .reduce(empty, |a, b| Scan {
+                lo: a.lo.min(b.lo),
+                hi: a.hi.max(b.hi),
+                quantum: a.quantum.merge(b.quantum),
+            });
+        total = Scan {
+            lo: total.lo.min(part.lo),
+            hi: total.hi.max(part.hi),
+            quantum: total.quantum.clone().merge(part.quantum),
+        };
+        Ok(())
+    })?;
+    let (lo, hi) = (total.lo, total.hi);
+    if lo > hi {
+        return Err(CodecError::invalid(
+            "the input has no valid sample (all nodata or NaN)",
+        ));
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        return Err(CodecError::invalid("the input holds infinite heights"));
+    }
+    Ok((lo, hi, quantum.or_else(|| total.quantum.finish())))
+}
+
 /// A grid of integer heights ready for the encoder.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct HeightGrid {
@@ -373,18 +431,42 @@ impl HeightGrid {
         nodata: Option<f64>,
         plan: &QuantPlan,
     ) -> Result<(), CodecError> {
+        match self.quantize_rows_measuring(first_row, samples, nodata, plan, false) {
+            (_, None) => Ok(()),
+            (_, Some(e)) => Err(e),
+        }
+    }
+
+    /// [`HeightGrid::quantize_rows`] going on past bad samples; with `measure`, also the largest
+    /// distance between a valid sample and its lattice value under `plan` (what
+    /// [`QuantPlan::for_source`] measures as the representation error).
+    fn quantize_rows_measuring(
+        &mut self,
+        first_row: usize,
+        samples: &[f64],
+        nodata: Option<f64>,
+        plan: &QuantPlan,
+        measure: bool,
+    ) -> (f64, Option<CodecError>) {
         let start = first_row * self.width;
         let end = start + samples.len();
         let width = self.width;
-        let bad = samples
+        let (offset, u) = (plan.offset, plan.unit);
+        let (deviation, bad) = samples
             .par_chunks(CHUNK)
             .zip(self.values[start..end].par_chunks_mut(CHUNK))
             .zip(self.valid[start..end].par_chunks_mut(CHUNK))
             .enumerate()
-            .filter_map(|(c, ((samples, values), valid))| {
+            .map(|(c, ((samples, values), valid))| {
+                let mut deviation = 0.0f64;
+                let mut bad = None;
                 for (i, &v) in samples.iter().enumerate() {
                     if nodata.is_some_and(|nd| v == nd) {
                         continue;
+                    }
+                    if measure && !v.is_nan() {
+                        let d = (offset + round_to_i64((v - offset) / u) as f64 * u - v).abs();
+                        deviation = deviation.max(d);
                     }
                     match plan.to_units(v) {
                         Ok(Some(n)) => {
@@ -392,38 +474,58 @@ impl HeightGrid {
                             valid[i] = true;
                         }
                         Ok(None) => {}
-                        Err(e) => return Some((start + c * CHUNK + i, e)),
+                        Err(e) => {
+                            if bad.is_none() {
+                                bad = Some((start + c * CHUNK + i, e));
+                            }
+                            if !measure {
+                                break;
+                            }
+                        }
                     }
                 }
-                None
+                (deviation, bad)
             })
-            .min_by_key(|(idx, _)| *idx);
-        match bad {
-            None => Ok(()),
-            Some((idx, e)) => Err(CodecError::invalid(format!(
+            .reduce(
+                || (0.0, None),
+                |(da, ba), (db, bb)| {
+                    let bad = match (ba, bb) {
+                        (Some(a), Some(b)) => Some(if a.0 <= b.0 { a } else { b }),
+                        (a, b) => a.or(b),
+                    };
+                    (da.max(db), bad)
+                },
+            );
+        let bad = bad.map(|(idx, e)| {
+            CodecError::invalid(format!(
                 "at column {}, row {}: {e}",
                 idx % width,
                 idx / width
-            ))),
-        }
+            ))
+        });
+        (deviation, bad)
     }
 
     /// Quantizes streamed samples under `plan` (see [`QuantPlan::for_source`]); the same grid
     /// as [`HeightGrid::from_metres`] on the same samples.
     pub fn from_source(src: &dyn SampleSource, plan: &QuantPlan) -> Result<Self, CodecError> {
-        let (width, height) = (src.width(), src.height());
+        let mut grid = Self::empty(src.width(), src.height())?;
+        let nodata = src.nodata();
+        src.for_each_block(&mut |row, block| grid.quantize_rows(row, block, nodata, plan))?;
+        Ok(grid)
+    }
+
+    /// A `width × height` grid with no valid sample yet.
+    fn empty(width: usize, height: usize) -> Result<Self, CodecError> {
         let len = width
             .checked_mul(height)
             .ok_or_else(|| CodecError::limit("grid too large"))?;
-        let mut grid = Self {
+        Ok(Self {
             width,
             height,
             values: vec![0i32; len],
             valid: vec![false; len],
-        };
-        let nodata = src.nodata();
-        src.for_each_block(&mut |row, block| grid.quantize_rows(row, block, nodata, plan))?;
-        Ok(grid)
+        })
     }
 
     /// Converts a DEM under `plan` (see [`QuantPlan::for_dem`]).

@@ -12,10 +12,12 @@ use std::fs::File;
 use std::io::{BufReader, ErrorKind};
 use std::path::Path;
 
-use tiff::decoder::{Decoder, DecodingResult};
+use tiff::decoder::{ChunkType, Decoder};
 use tiff::tags::Tag;
 use tiff::{TiffError, TiffUnsupportedError};
 
+use super::geotiff_stream::GeoTiffSource;
+use super::stream::SampleSource;
 use super::{Dem, GeoRef, Limits, SampleType};
 use crate::CodecError;
 
@@ -24,56 +26,105 @@ use super::geokeys::{
     USER_DEFINED,
 };
 
-pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
-    let file_len = super::file_len(path)?;
-    let file = BufReader::new(File::open(path)?);
-    let mut dec = Decoder::new(file).map_err(tiff_err)?;
-    let (w, h) = dec.dimensions().map_err(tiff_err)?;
-    let (width, height) = (w as usize, h as usize);
-    let n = limits.check(width, height)?;
+/// What a GeoTIFF's tags say about its samples and their layout, checked: one band of a
+/// supported type, a supported compression, every chunk inside the file.
+#[derive(Clone, Debug)]
+pub(super) struct Header {
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) sample_type: SampleType,
+    pub(super) nodata: Option<f64>,
+    pub(super) georef: Option<GeoRef>,
+    /// Tiles rather than strips; a strip is handled as a tile as wide as the image.
+    pub(super) tiled: bool,
+    pub(super) chunk_width: usize,
+    /// Rows per chunk (at most the image height).
+    pub(super) chunk_height: usize,
+    pub(super) chunks_across: usize,
+    pub(super) chunks_down: usize,
+}
 
-    let sample_type = check_layout(&mut dec)?;
-    check_chunks_in_file(&mut dec, file_len)?;
+impl Header {
+    pub(super) fn read(path: &Path, limits: &Limits) -> Result<Self, CodecError> {
+        let file_len = super::file_len(path)?;
+        let file = BufReader::new(File::open(path)?);
+        let mut dec = Decoder::new(file).map_err(tiff_err)?;
+        let (w, h) = dec.dimensions().map_err(tiff_err)?;
+        let (width, height) = (w as usize, h as usize);
+        limits.check(width, height)?;
 
-    // Our own bound was checked above; the crate's default 256 MiB buffer limit would only
-    // refuse legitimate large DEMs.
-    let mut tl = tiff::decoder::Limits::default();
-    tl.decoding_buffer_size = n.saturating_mul(8).max(tl.decoding_buffer_size);
-    tl.intermediate_buffer_size = usize::MAX;
-    tl.ifd_value_size = 64 << 20;
-    let mut dec = dec.with_limits(tl);
-
-    let nodata = read_nodata(&mut dec)?.map(|v| fit_nodata(v, sample_type));
-    let georef = read_georef(&mut dec)?;
-
-    let values: Vec<f64> = match dec.read_image().map_err(tiff_err)? {
-        DecodingResult::I8(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::U8(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::I16(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::U16(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::I32(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::U32(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::F32(v) => v.into_iter().map(f64::from).collect(),
-        DecodingResult::F64(v) => v,
-        _ => {
-            return Err(CodecError::unsupported(
-                "TIFF sample type beyond 32-bit integers is not supported",
-            ));
+        let sample_type = check_layout(&mut dec)?;
+        let tiled = dec.get_chunk_type() == ChunkType::Tile;
+        let (cw, ch) = dec.chunk_dimensions();
+        let (chunk_width, chunk_height) = (cw as usize, (ch as usize).min(height));
+        if chunk_width == 0 || chunk_height == 0 {
+            return Err(CodecError::corrupt(format!(
+                "TIFF chunks of {cw} x {ch} samples"
+            )));
         }
-    };
-    if values.len() != n {
-        return Err(CodecError::corrupt(format!(
-            "TIFF decoded {} samples for a {width} x {height} image",
-            values.len()
-        )));
+        let (chunks_across, chunks_down) =
+            (width.div_ceil(chunk_width), height.div_ceil(chunk_height));
+        check_chunks_in_file(&mut dec, file_len, chunks_across * chunks_down)?;
+        let nodata = read_nodata(&mut dec)?.map(|v| fit_nodata(v, sample_type));
+        let georef = read_georef(&mut dec)?;
+        Ok(Self {
+            width,
+            height,
+            sample_type,
+            nodata,
+            georef,
+            tiled,
+            chunk_width,
+            chunk_height,
+            chunks_across,
+            chunks_down,
+        })
     }
+
+    /// Where chunk `index` lies: `(first column, first row, columns, rows)` of its data, the
+    /// padding of edge tiles and of the last strip excluded.
+    pub(super) fn chunk_rect(&self, index: usize) -> (usize, usize, usize, usize) {
+        let (c, r) = (index % self.chunks_across, index / self.chunks_across);
+        let (x0, y0) = (c * self.chunk_width, r * self.chunk_height);
+        (
+            x0,
+            y0,
+            self.chunk_width.min(self.width - x0),
+            self.chunk_height.min(self.height - y0),
+        )
+    }
+
+    /// Decoder limits for one chunk at a time: our own size bound was checked when reading the
+    /// header, and the crate's default 256 MiB buffer limit would only refuse a legitimate file
+    /// stored as one huge strip.
+    pub(super) fn decoder_limits(&self) -> tiff::decoder::Limits {
+        let mut tl = tiff::decoder::Limits::default();
+        let chunk = self.chunk_width.saturating_mul(self.chunk_height);
+        tl.decoding_buffer_size = chunk.saturating_mul(8).max(tl.decoding_buffer_size);
+        tl.intermediate_buffer_size = usize::MAX;
+        tl.ifd_value_size = 64 << 20;
+        tl
+    }
+}
+
+/// The whole image, decoded through [`GeoTiffSource`] (in parallel, chunk by chunk).
+pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
+    let mut src = GeoTiffSource::open(path, None, limits)?;
+    // One pass: keeping the chunks would only double the memory.
+    src.set_caching(false);
+    let (width, height) = (src.width(), src.height());
+    let mut values = Vec::with_capacity(width * height);
+    src.for_each_block(&mut |_, block| {
+        values.extend_from_slice(block);
+        Ok(())
+    })?;
     Ok(Dem {
         width,
         height,
         values,
-        sample_type,
-        nodata,
-        georef,
+        sample_type: src.sample_type(),
+        nodata: src.nodata(),
+        georef: src.georef().cloned(),
     })
 }
 
@@ -175,6 +226,7 @@ fn compression_name(code: u16) -> &'static str {
 fn check_chunks_in_file<R: std::io::Read + std::io::Seek>(
     dec: &mut Decoder<R>,
     file_len: u64,
+    expected: usize,
 ) -> Result<(), CodecError> {
     let tiled = dec.find_tag(Tag::TileOffsets).map_err(tiff_err)?.is_some();
     let (offsets_tag, counts_tag, what) = if tiled {
@@ -190,6 +242,13 @@ fn check_chunks_in_file<R: std::io::Read + std::io::Seek>(
         .find_tag_unsigned_vec(counts_tag)
         .map_err(tiff_err)?
         .unwrap_or_default();
+    if offsets.len() < expected || counts.len() < expected {
+        return Err(CodecError::corrupt(format!(
+            "TIFF lists {} {what} offsets and {} byte counts but the image has {expected} {what}s",
+            offsets.len(),
+            counts.len()
+        )));
+    }
     for (i, (&off, &len)) in offsets.iter().zip(&counts).enumerate() {
         let end = off.saturating_add(len);
         if end > file_len {
@@ -318,7 +377,7 @@ fn read_georef<R: std::io::Read + std::io::Seek>(
     }))
 }
 
-fn tiff_err(e: TiffError) -> CodecError {
+pub(super) fn tiff_err(e: TiffError) -> CodecError {
     match e {
         TiffError::IoError(io) if io.kind() == ErrorKind::UnexpectedEof => {
             CodecError::truncated(format!("TIFF ends early: {io}"))

@@ -8,6 +8,7 @@
 mod ascii_grid;
 pub mod geokeys;
 mod geotiff;
+mod geotiff_stream;
 mod hgt;
 mod png;
 mod quantum;
@@ -18,6 +19,7 @@ use std::path::Path;
 
 use crate::CodecError;
 
+pub use geotiff_stream::GeoTiffSource;
 pub use quantum::{QuantumScan, detect_quantum};
 pub use stream::{BlockFn, RawF32Source, SampleSource};
 
@@ -47,6 +49,16 @@ pub enum SampleType {
 }
 
 impl SampleType {
+    /// Bytes a sample of this type takes.
+    pub fn bytes(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+
     /// Whether every sample of this type is an integer.
     pub fn is_integer(self) -> bool {
         !matches!(self, Self::F32 | Self::F64)
@@ -256,7 +268,11 @@ pub fn read_dem(path: &Path, opts: &ReadOptions) -> Result<Dem, CodecError> {
 
 /// Picks a format from the file name, falling back to the leading bytes when the extension is
 /// unknown, so that e.g. a GeoTIFF saved without extension still reads.
-fn detect_format(path: &Path) -> Result<Format, CodecError> {
+///
+/// # Errors
+/// [`CodecError::InvalidParameter`] when neither tells (and for raw float32, which needs a size),
+/// [`CodecError::Io`] when the file cannot be read.
+pub fn detect_format(path: &Path) -> Result<Format, CodecError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

@@ -76,6 +76,13 @@ impl QuantumScan {
                 self.gcd = gcd(self.gcd, v.abs() as u64);
             }
         } else {
+            // A whole number of modest size is exactly n / k for every candidate k (v·k is an
+            // exact integer, and dividing it by k gives v back), so it keeps every candidate
+            // alive: skip the seven roundings for the whole-metre floats most DEMs hold.
+            let i = v as i64;
+            if i as f64 == v && i.unsigned_abs() < 1 << 40 {
+                return;
+            }
             for (alive, &(_, k)) in self.alive.iter_mut().zip(&CANDIDATES) {
                 *alive = *alive && fits(v, k, self.sample_type);
             }

@@ -56,7 +56,7 @@ pub struct RawF32Source {
 }
 
 /// Samples per block: large enough for sequential reads, small next to any grid worth streaming.
-const BLOCK_SAMPLES: usize = 1 << 22;
+pub(super) const BLOCK_SAMPLES: usize = 1 << 20;
 
 impl RawF32Source {
     /// Opens `path` as `width × height` samples, checking its length like
