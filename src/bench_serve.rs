@@ -121,6 +121,8 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
         quiet: true,
         size: None,
         memory_limit: None,
+        colour: false,
+        like: None,
     })?;
     Ok(output)
 }

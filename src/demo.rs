@@ -36,6 +36,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             quantum: None,
             nodata: None,
             quiet: false,
+            colour: false,
+            like: None,
         })?;
     }
 

@@ -12,6 +12,7 @@ mod hgt;
 mod png;
 mod quantum;
 mod raw;
+mod rgb;
 mod stream;
 
 use std::path::Path;
@@ -19,6 +20,7 @@ use std::path::Path;
 use crate::CodecError;
 
 pub use quantum::{QuantumScan, detect_quantum};
+pub use rgb::read_rgb;
 pub use stream::{BlockFn, RawF32Source, SampleSource};
 
 /// The numeric type a DEM's samples were stored as.
