@@ -116,7 +116,7 @@ fn read_tiff(path: &Path, limits: &Limits) -> Result<RgbImage, CodecError> {
     let planar = tag(&mut dec, Tag::PlanarConfiguration, 1)?;
     let photometric = tag(&mut dec, Tag::PhotometricInterpretation, 1)?;
     let format = tag(&mut dec, Tag::SampleFormat, 1)?;
-    if samples < 3 || !(photometric == 2) {
+    if samples < 3 || photometric != 2 {
         return Err(CodecError::unsupported(format!(
             "TIFF with {samples} band(s), photometric interpretation {photometric}: a colour \
              image must be RGB (3 or 4 bands, PhotometricInterpretation 2)"
