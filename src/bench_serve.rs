@@ -122,6 +122,8 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
         timings: false,
         size: None,
         memory_limit: None,
+        colour: false,
+        like: None,
     })?;
     Ok(output)
 }

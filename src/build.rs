@@ -242,6 +242,12 @@ pub fn encode_prepared(
 }
 
 pub fn run(args: &BuildArgs) -> Result<()> {
+    if args.colour {
+        return crate::colour_build::run(args, encode_options(args));
+    }
+    if args.like.is_some() {
+        bail!("--like only applies to colour repositories (--colour)");
+    }
     let start = Instant::now();
     // Cheap argument checks first, so a typo does not cost a DEM read.
     if !(args.max_error.is_finite() && args.max_error > 0.0) {
@@ -327,14 +333,14 @@ pub fn run(args: &BuildArgs) -> Result<()> {
 
 /// Progress of the encode: a bar with ETA on a terminal, a log line per quarter otherwise (so CI
 /// logs and pipes stay readable), nothing with `--quiet`.
-enum Progress {
+pub(crate) enum Progress {
     Quiet,
     Bar(ProgressBar),
     Log(Mutex<usize>),
 }
 
 impl Progress {
-    fn new(quiet: bool) -> Self {
+    pub(crate) fn new(quiet: bool) -> Self {
         if quiet {
             Progress::Quiet
         } else if std::io::stderr().is_terminal() {
@@ -351,7 +357,7 @@ impl Progress {
         }
     }
 
-    fn update(&self, done: usize, total: usize) {
+    pub(crate) fn update(&self, done: usize, total: usize) {
         match self {
             Progress::Quiet => {}
             Progress::Bar(bar) => {
@@ -370,7 +376,7 @@ impl Progress {
         }
     }
 
-    fn finish(&self) {
+    pub(crate) fn finish(&self) {
         if let Progress::Bar(bar) = self {
             bar.finish_and_clear();
         }

@@ -37,6 +37,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             nodata: None,
             quiet: false,
             timings: false,
+            colour: false,
+            like: None,
         })?;
     }
 

@@ -44,6 +44,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     let overhead = s.container_overhead;
     let empty = s.empty_records;
     println!("repository      {}", args.repo.display());
+    println!("kind            {}", p.kind.name());
     println!("file            {} bytes", repo.file_len());
     println!(
         "data            {}×{} samples, {:.4} bits/sample",
@@ -77,11 +78,21 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "pre-quantized float data".to_string()
         }
     );
-    println!(
-        "max error       {} m requested, {} m guaranteed",
-        plan.epsilon,
-        plan.max_error()
-    );
+    if p.kind == cbdam_codec::hierarchy::RepoKind::Colour {
+        println!(
+            "max error       {} levels per R, G, B component (YCoCg-R, k = {} per channel: \
+             R, G, B within {:?}); values below are colour levels",
+            plan.epsilon,
+            p.quantizer.k(),
+            cbdam_codec::colour::ycocg::rgb_bound(p.quantizer.k() as u32)
+        );
+    } else {
+        println!(
+            "max error       {} m requested, {} m guaranteed",
+            plan.epsilon,
+            plan.max_error()
+        );
+    }
     match repo.georef() {
         Some(g) => println!(
             "georeference    EPSG {}, origin ({}, {}), pixel {} × {}, pixel is {}",

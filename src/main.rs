@@ -8,6 +8,7 @@ mod bench_codec;
 mod bench_report;
 mod bench_serve;
 mod build;
+mod colour_build;
 mod demo;
 mod extract;
 mod inspect;
@@ -500,9 +501,19 @@ pub struct BuildArgs {
     /// Output repository (written atomically: a temporary file renamed into place).
     #[arg(short, long)]
     output: PathBuf,
-    /// Guaranteed maximum error of every reconstructed sample, metres.
+    /// Guaranteed maximum error of every reconstructed sample, metres; with --colour, whole
+    /// 8-bit levels bounding every decoded R, G and B component (0 = lossless).
     #[arg(long, allow_hyphen_values = true)]
     max_error: f64,
+    /// The input is an 8-bit RGB/RGBA PNG or RGB GeoTIFF: build a colour repository (YCoCg-R,
+    /// each component coded like elevation) to drape over an elevation repository.
+    #[arg(long)]
+    colour: bool,
+    /// With --colour: lay the colour over this elevation repository's domain (its diamond size
+    /// and roots; the image must be (W − 1)·2^m + 1 × (H − 1)·2^m + 1 of its W × H samples; a
+    /// PNG gets its georeferencing, scaled).
+    #[arg(long, value_name = "ELEVATION.cbdam")]
+    like: Option<PathBuf>,
     /// Diamond grid side N (2^k + 1).
     #[arg(long, default_value_t = 65)]
     diamond_size: usize,

@@ -1,18 +1,70 @@
 //! `cbdam verify`: every checksum, every level, every sample.
 
 use anyhow::{Context, Result, bail};
-use cbdam_codec::hierarchy::{reconstruct_finest_with_validity, verify};
-use cbdam_codec::input::{ReadOptions, read_dem};
+use cbdam_codec::colour::verify_colour;
+use cbdam_codec::hierarchy::{RepoKind, reconstruct_finest_with_validity, verify};
+use cbdam_codec::input::{Limits, ReadOptions, read_dem, read_rgb};
 use cbdam_codec::quant::HeightGrid;
 use cbdam_codec::repository::Repository;
 
 use crate::VerifyArgs;
+
+/// A colour repository against its image: every level of Y, Co, Cg within `k`, and every
+/// decoded R, G, B within the tolerance (`--max-error`, levels).
+fn verify_colour_repo(repo: &Repository, args: &VerifyArgs) -> Result<()> {
+    let img = read_rgb(&args.against, &Limits::default())
+        .with_context(|| format!("reading {}", args.against.display()))?;
+    let encoded = repo.to_encoded()?;
+    let report = verify_colour(&encoded, &img)
+        .with_context(|| format!("checking against {}", args.against.display()))?;
+    let k = repo.params().quantizer.k();
+    println!("level  diamonds  max error Y / Co / Cg (levels, bound {k})");
+    for l in 0..report.channels[0].levels.len() {
+        let [y, co, cg] = &report.channels;
+        println!(
+            "{:>5}  {:>8}  {} / {} / {}",
+            l,
+            y.levels[l].diamonds,
+            y.levels[l].max_error,
+            co.levels[l].max_error,
+            cg.levels[l].max_error
+        );
+    }
+    let eps = repo.plan().epsilon;
+    println!(
+        "finest level against {}: max error R {} G {} B {} levels (tolerance {eps}, derived bound \
+         {:?})",
+        args.against.display(),
+        report.rgb_max[0],
+        report.rgb_max[1],
+        report.rgb_max[2],
+        report.rgb_bound
+    );
+    if let Some(c) = report.channels.iter().position(|c| !c.within_bound()) {
+        bail!(
+            "L∞ bound violated in channel {}: {} levels, bound {k}",
+            ["Y", "Co", "Cg"][c],
+            report.channels[c].max_error()
+        );
+    }
+    if report.rgb_max.iter().any(|&e| f64::from(e) > eps) {
+        bail!(
+            "RGB error {:?} above the {eps}-level tolerance",
+            report.rgb_max
+        );
+    }
+    println!("OK");
+    Ok(())
+}
 
 pub fn run(args: &VerifyArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
     repo.check_all()
         .with_context(|| format!("checking {}", args.repo.display()))?;
+    if repo.kind() == RepoKind::Colour {
+        return verify_colour_repo(&repo, args);
+    }
     let p = *repo.params();
     let plan = *repo.plan();
     // Read the input the way the build did: its nodata value was recorded in the header.

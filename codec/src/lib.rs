@@ -7,6 +7,7 @@
 #![deny(missing_docs)]
 
 pub mod atomic;
+pub mod colour;
 pub mod entropy;
 pub mod error;
 pub mod geometry;

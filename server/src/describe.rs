@@ -126,6 +126,7 @@ pub fn describe(repo: &Repository) -> Value {
     let roots: Vec<String> = p.layout.roots().map(|id| id.to_string()).collect();
     json!({
         "format_version": FORMAT_VERSION,
+        "kind": p.kind.name(),
         "file_bytes": repo.file_len(),
         "header_crc": format!("{:08x}", repo.header_crc()),
         "diamond_size": p.layout.n(),

@@ -24,6 +24,11 @@ pub struct Decoder {
 impl Decoder {
     /// Decodes the root field.
     pub fn new(params: CodecParams, root_bytes: &[u8]) -> Result<Self, CodecError> {
+        if params.kind != super::RepoKind::Elevation {
+            return Err(CodecError::unsupported(
+                "this is a colour repository: its three channels need the colour decoder",
+            ));
+        }
         let (roots, root_valid) = decode_roots(&params, root_bytes)?;
         Ok(Self {
             params,

@@ -131,6 +131,7 @@ fn encode_impl(
         data_width: u32::try_from(grid.width).map_err(|_| CodecError::limit("grid too wide"))?,
         data_height: u32::try_from(grid.height).map_err(|_| CodecError::limit("grid too tall"))?,
         nodata_mask: grid.valid.iter().any(|v| !v),
+        kind: super::RepoKind::Elevation,
     };
     let targets = Targets {
         grid,

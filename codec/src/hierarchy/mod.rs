@@ -57,6 +57,30 @@ pub struct CodecParams {
     /// Whether the root field and the records carry a nodata mask ([`mask`]); false when every
     /// sample of the data rectangle has data.
     pub nodata_mask: bool,
+    /// What the values are. A colour repository's root field and records hold three channels
+    /// ([`crate::colour`]); these parameters then describe each channel, and [`Decoder`]
+    /// refuses them (use [`crate::colour::ColourDecoder`]).
+    pub kind: RepoKind,
+}
+
+/// What a repository holds (`docs/FORMAT.md`, header flag bit 1).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RepoKind {
+    /// One channel of heights.
+    #[default]
+    Elevation,
+    /// Three channels Y, Co, Cg: the YCoCg-R transform of 8-bit RGB ([`crate::colour`]).
+    Colour,
+}
+
+impl RepoKind {
+    /// The name `inspect` and the server's metadata use.
+    pub fn name(self) -> &'static str {
+        match self {
+            RepoKind::Elevation => "elevation",
+            RepoKind::Colour => "colour",
+        }
+    }
 }
 
 /// The root field is quantized with half the error bound of the records: a coarse root field

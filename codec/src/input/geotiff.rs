@@ -223,7 +223,7 @@ fn compression_name(code: u16) -> &'static str {
 
 /// A strip or tile reaching past the end of the file is the usual sign of an interrupted
 /// download; saying so beats the decompressor's "unexpected end of stream" in the middle of it.
-fn check_chunks_in_file<R: std::io::Read + std::io::Seek>(
+pub(super) fn check_chunks_in_file<R: std::io::Read + std::io::Seek>(
     dec: &mut Decoder<R>,
     file_len: u64,
     expected: usize,
@@ -291,7 +291,7 @@ fn fit_nodata(v: f64, ty: SampleType) -> f64 {
     }
 }
 
-fn read_georef<R: std::io::Read + std::io::Seek>(
+pub(super) fn read_georef<R: std::io::Read + std::io::Seek>(
     dec: &mut Decoder<R>,
 ) -> Result<Option<GeoRef>, CodecError> {
     let f64s = |dec: &mut Decoder<R>, tag: Tag| -> Result<Option<Vec<f64>>, CodecError> {

@@ -13,6 +13,7 @@ mod hgt;
 mod png;
 mod quantum;
 mod raw;
+mod rgb;
 mod stream;
 
 use std::path::Path;
@@ -21,6 +22,7 @@ use crate::CodecError;
 
 pub use geotiff_stream::GeoTiffSource;
 pub use quantum::{QuantumScan, detect_quantum};
+pub use rgb::read_rgb;
 pub use stream::{BlockFn, RawF32Source, SampleSource};
 
 /// The numeric type a DEM's samples were stored as.

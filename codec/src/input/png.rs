@@ -168,7 +168,7 @@ pub(super) fn read_terrain_rgb(path: &Path, limits: &Limits) -> Result<Dem, Code
     })
 }
 
-fn png_err(e: DecodingError) -> CodecError {
+pub(super) fn png_err(e: DecodingError) -> CodecError {
     match e {
         DecodingError::IoError(io) if io.kind() == ErrorKind::UnexpectedEof => {
             CodecError::truncated(format!("PNG ends early: {io}"))

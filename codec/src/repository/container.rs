@@ -19,9 +19,10 @@ use std::path::Path;
 use super::index::{IndexEntry, decode_index, encode_index};
 use crate::CodecError;
 use crate::atomic::write_atomically;
+use crate::colour::{ColourDecoder, ycocg};
 use crate::entropy::CoderKind;
 use crate::geometry::{DiamondId, Layout};
-use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, root_quantizer};
+use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, RepoKind, root_quantizer};
 use crate::input::GeoRef;
 use crate::lifting::Alpha;
 use crate::quant::{QuantPlan, Quantizer};
@@ -53,6 +54,11 @@ const NODATA_DONT_CARE: u8 = 0;
 /// rectangle, so such repositories are byte for byte what they were before the mask existed,
 /// and readers that predate it refuse the flag instead of drawing invented surface.
 pub const FLAG_NODATA_MASK: u32 = 1;
+/// Header flag bit 1: a colour repository ([`crate::colour`]): the root field and every
+/// non-empty record hold three channels Y, Co, Cg (`docs/FORMAT.md`, "Colour repositories").
+/// Elevation repositories leave it clear and are unchanged; readers that predate colour refuse
+/// it ("unknown header flags") rather than draw chroma as heights.
+pub const FLAG_COLOUR: u32 = 2;
 /// Vertical unit 0: heights are metres.
 const VERTICAL_METRES: u8 = 0;
 
@@ -139,10 +145,13 @@ pub fn serialize(
     put(0, &MAGIC);
     put(8, &FORMAT_VERSION.to_le_bytes());
     put(10, &(HEADER_LEN as u16).to_le_bytes());
-    put(
-        12,
-        &(if p.nodata_mask { FLAG_NODATA_MASK } else { 0 }).to_le_bytes(),
-    );
+    let flags = if p.nodata_mask { FLAG_NODATA_MASK } else { 0 }
+        | if p.kind == RepoKind::Colour {
+            FLAG_COLOUR
+        } else {
+            0
+        };
+    put(12, &flags.to_le_bytes());
     put(16, &n.to_le_bytes());
     put(18, &[k]);
     put(19, &[p.alpha.to_byte()]);
@@ -328,7 +337,7 @@ impl RepositoryHead {
         // The CRC matched, so what follows are fields some writer meant; still validate each,
         // since a buggy or hostile writer can compute a CRC too.
         let flags = u32_at(b, 12);
-        if flags & !FLAG_NODATA_MASK != 0 {
+        if flags & !(FLAG_NODATA_MASK | FLAG_COLOUR) != 0 {
             return Err(CodecError::unsupported(format!(
                 "unknown header flags {flags:#x}"
             )));
@@ -414,10 +423,40 @@ impl RepositoryHead {
         if !offset.is_finite() {
             return Err(CodecError::corrupt("height offset is not finite"));
         }
-        if !(epsilon.is_finite() && epsilon > 0.0) {
+        let kind = if flags & FLAG_COLOUR != 0 {
+            RepoKind::Colour
+        } else {
+            RepoKind::Elevation
+        };
+        // A colour tolerance of 0 levels is lossless and meaningful; an elevation one is not.
+        let eps_ok = match kind {
+            RepoKind::Elevation => epsilon > 0.0,
+            RepoKind::Colour => epsilon >= 0.0,
+        };
+        if !(epsilon.is_finite() && eps_ok) {
             return Err(CodecError::corrupt(format!(
                 "tolerance {epsilon} is not positive"
             )));
+        }
+        if kind == RepoKind::Colour {
+            if flags & FLAG_NODATA_MASK != 0 {
+                return Err(CodecError::unsupported(
+                    "a colour repository with a nodata mask",
+                ));
+            }
+            if unit != 1.0 || offset != 0.0 || !lattice || representation_error != 0.0 {
+                return Err(CodecError::corrupt(
+                    "a colour repository must have unit 1, offset 0 and lattice input",
+                ));
+            }
+            let bound = ycocg::rgb_bound(quantizer.k() as u32);
+            if bound.iter().any(|&b| f64::from(b) > epsilon) {
+                return Err(CodecError::corrupt(format!(
+                    "colour quantizer k = {} allows RGB errors of {bound:?}, over the stated \
+                     tolerance {epsilon}",
+                    quantizer.k()
+                )));
+            }
         }
         if !(representation_error.is_finite() && representation_error >= 0.0) {
             return Err(CodecError::corrupt(
@@ -533,6 +572,7 @@ impl RepositoryHead {
             data_width,
             data_height,
             nodata_mask: flags & FLAG_NODATA_MASK != 0,
+            kind,
         };
         let plan = QuantPlan {
             unit,
@@ -672,9 +712,19 @@ impl RepositoryHead {
         Ok(())
     }
 
-    /// A decoder over the root field.
+    /// A decoder over the root field (elevation repositories).
     pub fn decoder(&self) -> Result<Decoder, CodecError> {
         Decoder::new(self.params, &self.roots)
+    }
+
+    /// What the repository holds.
+    pub fn kind(&self) -> RepoKind {
+        self.params.kind
+    }
+
+    /// The three-channel decoder over the root field (colour repositories).
+    pub fn colour_decoder(&self) -> Result<ColourDecoder, CodecError> {
+        ColourDecoder::new(self.params, &self.roots)
     }
 }
 
@@ -863,9 +913,19 @@ impl Repository {
         Ok(())
     }
 
-    /// A decoder over the root field.
+    /// A decoder over the root field (elevation repositories).
     pub fn decoder(&self) -> Result<Decoder, CodecError> {
         self.head.decoder()
+    }
+
+    /// What the repository holds.
+    pub fn kind(&self) -> RepoKind {
+        self.head.kind()
+    }
+
+    /// The three-channel decoder over the root field (colour repositories).
+    pub fn colour_decoder(&self) -> Result<ColourDecoder, CodecError> {
+        self.head.colour_decoder()
     }
 
     /// The whole hierarchy in memory (for [`crate::hierarchy::verify`]); checks every record.

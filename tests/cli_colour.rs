@@ -1,0 +1,249 @@
+//! `cbdam build --colour` end to end: build over an elevation repository (`--like`), verify in
+//! RGB, inspect the kind; bad images and mismatched sizes fail cleanly without leaving files.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use cbdam_codec::colour::reconstruct_rgb;
+use cbdam_codec::hierarchy::RepoKind;
+use cbdam_codec::repository::Repository;
+
+fn cbdam(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(args)
+        .output()
+        .expect("run cbdam")
+}
+
+fn s(p: &Path) -> String {
+    p.to_string_lossy().into_owned()
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn write_asc(path: &Path, w: usize, h: usize) {
+    let mut t = format!("ncols {w}\nnrows {h}\nxllcorner 0\nyllcorner 0\ncellsize 1\n");
+    for y in 0..h {
+        let row: Vec<String> = (0..w)
+            .map(|x| format!("{}", 100 + ((x * 7 + y * 3) % 23) + x / 2))
+            .collect();
+        t += &row.join(" ");
+        t.push('\n');
+    }
+    std::fs::write(path, t).unwrap();
+}
+
+/// Colour regions with noise: a hillside-like ramp plus distinct blocks.
+fn pixels(w: usize, h: usize) -> Vec<[u8; 3]> {
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let n = ((i * 2654435761) >> 7) % 7;
+            match (x * 2 / w, y * 2 / h) {
+                (0, 0) => [200, 40 + n as u8, 30],
+                (1, 0) => [30, 160, 50 + n as u8],
+                (0, _) => [(x * 255 / w) as u8, (y * 255 / h) as u8, 90 + n as u8],
+                _ => [40, 70, 210 - n as u8],
+            }
+        })
+        .collect()
+}
+
+fn write_png(
+    path: &Path,
+    w: usize,
+    h: usize,
+    color: png::ColorType,
+    depth: png::BitDepth,
+    data: &[u8],
+) {
+    let f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut e = png::Encoder::new(f, w as u32, h as u32);
+    e.set_color(color);
+    e.set_depth(depth);
+    e.write_header().unwrap().write_image_data(data).unwrap();
+}
+
+fn write_rgb(path: &Path, w: usize, h: usize) -> Vec<[u8; 3]> {
+    let px = pixels(w, h);
+    let data: Vec<u8> = px.iter().flatten().copied().collect();
+    write_png(path, w, h, png::ColorType::Rgb, png::BitDepth::Eight, &data);
+    px
+}
+
+#[test]
+fn colour_build_verify_inspect_over_an_elevation() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem = dir.path().join("dem.asc");
+    write_asc(&dem, 33, 25);
+    let elev = s(&dir.path().join("dem.cbdam"));
+    let o = cbdam(&[
+        "build",
+        &s(&dem),
+        "-o",
+        &elev,
+        "--max-error",
+        "1",
+        "--diamond-size",
+        "9",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    // Twice the elevation's resolution: (33 − 1)·2 + 1 × (25 − 1)·2 + 1.
+    let img = dir.path().join("ortho.png");
+    let px = write_rgb(&img, 65, 49);
+    for max_error in ["0", "4", "10"] {
+        let out = s(&dir.path().join(format!("ortho{max_error}.cbdam")));
+        let o = cbdam(&[
+            "build",
+            &s(&img),
+            "--colour",
+            "--like",
+            &elev,
+            "-o",
+            &out,
+            "--max-error",
+            max_error,
+        ]);
+        assert!(o.status.success(), "{}", text(&o));
+        let repo = Repository::open(Path::new(&out)).unwrap();
+        assert_eq!(repo.kind(), RepoKind::Colour);
+        // --like took the elevation's diamond size, not the default 65.
+        assert_eq!(repo.params().layout.n(), 9);
+        let rgb = reconstruct_rgb(&repo.to_encoded().unwrap()).unwrap();
+        let worst = rgb
+            .iter()
+            .zip(&px)
+            .flat_map(|(a, b)| {
+                (0..3).map(move |c| (i32::from(a[c]) - i32::from(b[c])).unsigned_abs())
+            })
+            .max()
+            .unwrap();
+        let bound: u32 = max_error.parse().unwrap();
+        assert!(worst <= bound, "{max_error}: {worst}");
+        let o = cbdam(&["verify", &out, "--against", &s(&img)]);
+        assert!(o.status.success(), "{}", text(&o));
+        assert!(text(&o).contains("OK"));
+        let o = cbdam(&["inspect", &out]);
+        assert!(o.status.success(), "{}", text(&o));
+        assert!(text(&o).contains("kind            colour"), "{}", text(&o));
+        let o = cbdam(&["inspect", &out, "--json"]);
+        assert!(text(&o).contains("\"kind\": \"colour\""), "{}", text(&o));
+    }
+    // verify catches an image that is not the one built from.
+    let other = dir.path().join("other.png");
+    let mut moved = pixels(65, 49);
+    moved[100] = [moved[100][0] ^ 0x80, 0, 0];
+    let data: Vec<u8> = moved.iter().flatten().copied().collect();
+    write_png(
+        &other,
+        65,
+        49,
+        png::ColorType::Rgb,
+        png::BitDepth::Eight,
+        &data,
+    );
+    let o = cbdam(&[
+        "verify",
+        &s(&dir.path().join("ortho4.cbdam")),
+        "--against",
+        &s(&other),
+    ]);
+    assert!(!o.status.success(), "{}", text(&o));
+    // The elevation inspect says elevation.
+    let o = cbdam(&["inspect", &elev]);
+    assert!(
+        text(&o).contains("kind            elevation"),
+        "{}",
+        text(&o)
+    );
+}
+
+#[test]
+fn bad_colour_inputs_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem = dir.path().join("dem.asc");
+    write_asc(&dem, 33, 25);
+    let elev = s(&dir.path().join("dem.cbdam"));
+    let o = cbdam(&[
+        "build",
+        &s(&dem),
+        "-o",
+        &elev,
+        "--max-error",
+        "1",
+        "--diamond-size",
+        "9",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let grey = dir.path().join("grey.png");
+    write_png(
+        &grey,
+        8,
+        8,
+        png::ColorType::Grayscale,
+        png::BitDepth::Eight,
+        &[7u8; 64],
+    );
+    let deep = dir.path().join("deep.png");
+    write_png(
+        &deep,
+        8,
+        8,
+        png::ColorType::Rgb,
+        png::BitDepth::Sixteen,
+        &[7u8; 8 * 8 * 6],
+    );
+    let wrong = dir.path().join("wrong.png");
+    write_rgb(&wrong, 64, 49);
+    let good = dir.path().join("good.png");
+    write_rgb(&good, 33, 25);
+    let out = dir.path().join("out.cbdam");
+    let cases: [(&Path, &[&str], &str); 6] = [
+        (&grey, &[], "greyscale"),
+        (&deep, &[], "16-bit"),
+        (&wrong, &["--like", &elev], "(W − 1)·2^m + 1"),
+        (&good, &["--like", &s(&grey)], "grey.png"),
+        (&good, &[], "whole number"),
+        (
+            &good,
+            &["--like", &s(&dir.path().join("missing.cbdam"))],
+            "missing.cbdam",
+        ),
+    ];
+    for (i, (input, extra, want)) in cases.into_iter().enumerate() {
+        let max_error = if i == 4 { "2.5" } else { "4" };
+        let mut args = vec!["build", "--colour", "-o"];
+        let o_s = s(&out);
+        let in_s = s(input);
+        args.extend([o_s.as_str(), in_s.as_str(), "--max-error", max_error]);
+        args.extend_from_slice(extra);
+        let o = cbdam(&args);
+        assert!(!o.status.success(), "case {i} succeeded");
+        assert!(text(&o).contains(want), "case {i}: {}", text(&o));
+        assert!(!out.exists(), "case {i} left a file");
+    }
+    // --like on an elevation build is refused rather than ignored.
+    let o = cbdam(&[
+        "build",
+        &s(&dem),
+        "-o",
+        &s(&out),
+        "--max-error",
+        "1",
+        "--like",
+        &elev,
+    ]);
+    assert!(
+        !o.status.success() && text(&o).contains("--colour"),
+        "{}",
+        text(&o)
+    );
+}
