@@ -138,7 +138,16 @@ fn read_tiff(path: &Path, limits: &Limits) -> Result<RgbImage, CodecError> {
             "planar TIFF (PlanarConfiguration 2): a colour image must be chunky (interleaved RGB)",
         ));
     }
-    check_chunks_in_file(&mut dec, file_len)?;
+    let (cw, ch) = dec.chunk_dimensions();
+    if cw == 0 || ch == 0 {
+        return Err(CodecError::corrupt(format!(
+            "TIFF chunks of {cw} x {ch} pixels"
+        )));
+    }
+    // Strips may be taller than the image (RowsPerStrip defaults to 2^32 - 1).
+    let chunk_h = (ch as usize).min(height);
+    let chunks = width.div_ceil(cw as usize) * height.div_ceil(chunk_h.max(1));
+    check_chunks_in_file(&mut dec, file_len, chunks)?;
     let mut tl = tiff::decoder::Limits::default();
     tl.decoding_buffer_size = n.saturating_mul(4).max(tl.decoding_buffer_size);
     tl.intermediate_buffer_size = usize::MAX;
