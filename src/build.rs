@@ -262,7 +262,14 @@ pub fn encode_prepared(
     }
     let pool = pool.build()?;
     Ok(pool.install(|| match resolution {
-        Some(r) => encode_variable(&input.grid, r, input.plan.quantizer, opts, storage, progress),
+        Some(r) => encode_variable(
+            &input.grid,
+            r,
+            input.plan.quantizer,
+            opts,
+            storage,
+            progress,
+        ),
         None => encode_with_storage(&input.grid, input.plan.quantizer, opts, storage, progress),
     })?)
 }
@@ -311,13 +318,8 @@ pub fn run(args: &BuildArgs) -> Result<()> {
             if enc_opts.alpha != Alpha::One {
                 bail!("several inputs (variable resolution) need --alpha one");
             }
-            let (input, res) = prepare_mosaic(
-                paths,
-                args.nodata,
-                args.quantum,
-                args.max_error,
-                limit,
-            )?;
+            let (input, res) =
+                prepare_mosaic(paths, args.nodata, args.quantum, args.max_error, limit)?;
             // The lattice was checked against the limit as a whole, field included.
             (input, Some(res), TempStorage::Memory)
         }

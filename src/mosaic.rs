@@ -78,10 +78,7 @@ impl Mosaic {
 /// mix.
 fn centre(g: &GeoRef) -> (f64, f64) {
     let half = if g.pixel_is_area { 0.5 } else { 0.0 };
-    (
-        g.origin_x + half * g.pixel_x,
-        g.origin_y - half * g.pixel_y,
-    )
+    (g.origin_x + half * g.pixel_x, g.origin_y - half * g.pixel_y)
 }
 
 fn describe(p: &Path, g: &GeoRef) -> String {
@@ -135,7 +132,8 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
     // a lattice without reprojection, which this builder does not do.
     for k in 1..dems.len() {
         if geo(k).epsg != geo(0).epsg {
-            let name = |e: Option<u32>| e.map_or("no EPSG code".to_string(), |e| format!("EPSG:{e}"));
+            let name =
+                |e: Option<u32>| e.map_or("no EPSG code".to_string(), |e| format!("EPSG:{e}"));
             bail!(
                 "{} is in {} but {} is in {}: inputs must share one coordinate reference system \
                  (reproject them first)",
@@ -214,7 +212,12 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
     let lowest = |axis: fn(&(i64, i64, u8)) -> i64| {
         let min = placed.iter().map(axis).min().expect("inputs");
         let c = axis(&placed[coarsest]);
-        c - (c - min).div_euclid(big) * big - if (c - min).rem_euclid(big) == 0 { 0 } else { big }
+        c - (c - min).div_euclid(big) * big
+            - if (c - min).rem_euclid(big) == 0 {
+                0
+            } else {
+                big
+            }
     };
     let (origin_x, origin_y) = (lowest(|p| p.0), lowest(|p| p.1));
     let mut width = 0usize;

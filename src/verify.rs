@@ -30,8 +30,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         [one] => one,
         several => return verify_mosaic(&repo, several, &opts),
     };
-    let dem =
-        read_dem(against, &opts).with_context(|| format!("reading {}", against.display()))?;
+    let dem = read_dem(against, &opts).with_context(|| format!("reading {}", against.display()))?;
     if (dem.width, dem.height) != (p.data_width as usize, p.data_height as usize) {
         bail!(
             "{} is {}×{} samples, the repository was built from {}×{}",
@@ -194,7 +193,11 @@ fn verify_mosaic(repo: &Repository, paths: &[PathBuf], opts: &ReadOptions) -> Re
             i % w,
             i / w,
             state[i],
-            if m.source[i] == HOLE { "no data" } else { "data" }
+            if m.source[i] == HOLE {
+                "no data"
+            } else {
+                "data"
+            }
         );
     }
     if let Some(&i) = unreached.first() {

@@ -49,13 +49,19 @@ const EPS: f64 = 1.0;
 /// Terrain at model point (x, y), whole metres.
 fn terrain(x: usize, y: usize) -> f64 {
     let (xf, yf) = (x as f64, y as f64);
-    (1000.0 + 300.0 * (xf / 23.0).sin() * (yf / 31.0).cos() + ((x * 7 + y * 13) % 5) as f64)
-        .round()
+    (1000.0 + 300.0 * (xf / 23.0).sin() * (yf / 31.0).cos() + ((x * 7 + y * 13) % 5) as f64).round()
 }
 
 /// An ESRI ASCII grid of point samples: `side` × `side` at `spacing`, first (south-west) sample
 /// centre at `(x0, y0)`, value `f(x, y)` in model units.
-fn write_asc(path: &Path, x0: f64, y0: f64, spacing: f64, side: usize, f: impl Fn(f64, f64) -> f64) {
+fn write_asc(
+    path: &Path,
+    x0: f64,
+    y0: f64,
+    spacing: f64,
+    side: usize,
+    f: impl Fn(f64, f64) -> f64,
+) {
     let mut t = format!(
         "ncols {side}\nnrows {side}\nxllcenter {x0}\nyllcenter {y0}\ncellsize {spacing}\n\
          NODATA_value -9999\n"
@@ -99,7 +105,16 @@ fn build(inputs: &[&Path], out: &Path) -> Output {
     let mut args = vec!["build".to_string()];
     args.extend(inputs.iter().map(|p| s(p)));
     args.extend(
-        ["-o", &out_s, "--max-error", "1", "--diamond-size", "17", "--quiet"].map(String::from),
+        [
+            "-o",
+            &out_s,
+            "--max-error",
+            "1",
+            "--diamond-size",
+            "17",
+            "--quiet",
+        ]
+        .map(String::from),
     );
     cbdam(&args.iter().map(String::as_str).collect::<Vec<_>>())
 }
@@ -132,7 +147,10 @@ fn coarse_and_fine_inputs_make_one_variable_resolution_repository() {
         .filter(|k| in_fine(k % side * STRIDE, k / side * STRIDE))
         .count();
     assert!(
-        text.contains(&format!("{} winning samples (stride 1)", FINE_SIDE * FINE_SIDE)),
+        text.contains(&format!(
+            "{} winning samples (stride 1)",
+            FINE_SIDE * FINE_SIDE
+        )),
         "{text}"
     );
     assert!(
@@ -215,7 +233,10 @@ fn coarse_and_fine_inputs_make_one_variable_resolution_repository() {
     // Finest-level diamonds exist only where they meet the fine input: at most a diamond's
     // width (16 samples) around it.
     let ring = (FINE_SIDE + 32) * (FINE_SIDE + 32) - FINE_SIDE * FINE_SIDE;
-    assert!(outside_reached <= ring, "{outside_reached} finest points outside");
+    assert!(
+        outside_reached <= ring,
+        "{outside_reached} finest points outside"
+    );
 
     // The wrong inputs, or the wrong order of equal-stride inputs, do not verify.
     let o = cbdam(&["verify", &s(&out), "--against", &s(&c)]);
@@ -230,7 +251,10 @@ fn build_fails(dir: &Path, inputs: &[&Path], message: &str) {
     let o = build(inputs, &out);
     assert!(!o.status.success(), "{inputs:?} succeeded");
     let err = stderr(&o);
-    assert!(err.contains(message), "{inputs:?}: expected {message:?} in {err:?}");
+    assert!(
+        err.contains(message),
+        "{inputs:?}: expected {message:?} in {err:?}"
+    );
     assert_eq!(listing(dir), before, "{inputs:?} left files behind");
 }
 
@@ -243,13 +267,21 @@ fn inputs_that_cannot_share_a_lattice_are_refused_by_name() {
     // Ratio 3 (as SRTM 1″ with 3″).
     let r3 = dir.path().join("ratio3.asc");
     write_asc(&r3, 0.0, 0.0, 3.0, 40, t);
-    build_fails(dir.path(), &[&r3, &f], "3.000000 × 3.000000 times as coarse");
+    build_fails(
+        dir.path(),
+        &[&r3, &f],
+        "3.000000 × 3.000000 times as coarse",
+    );
     build_fails(dir.path(), &[&r3, &f], "ratio3.asc");
 
     // Half a sample off the fine lattice.
     let off = dir.path().join("half_off.asc");
     write_asc(&off, 0.5, 0.0, 2.0, 40, t);
-    build_fails(dir.path(), &[&off, &f], "must fall on the finest input's sample positions");
+    build_fails(
+        dir.path(),
+        &[&off, &f],
+        "must fall on the finest input's sample positions",
+    );
 
     // On the lattice, but not on the coarse input's stride.
     let odd = dir.path().join("odd.asc");

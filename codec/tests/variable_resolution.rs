@@ -9,8 +9,8 @@ use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Layout;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
-    EncodeOptions, Encoded, Reached, Resolution, TempStorage, encode_variable,
-    encode_with_storage, reconstruct_reached, verify,
+    EncodeOptions, Encoded, Reached, Resolution, TempStorage, encode_variable, encode_with_storage,
+    reconstruct_reached, verify,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, Quantizer};
@@ -64,7 +64,7 @@ fn variable_input(h: &[i32]) -> (HeightGrid, Resolution) {
                 values[k] = h[k];
                 valid[k] = true;
                 class[k] = 0;
-            } else if x % s == 0 && y % s == 0 && coarse_valid(x, y) {
+            } else if x.is_multiple_of(s) && y.is_multiple_of(s) && coarse_valid(x, y) {
                 values[k] = h[k] + COARSE_OFFSET;
                 valid[k] = true;
                 class[k] = COARSE_LOG2;
@@ -72,7 +72,11 @@ fn variable_input(h: &[i32]) -> (HeightGrid, Resolution) {
                 // Drawn when some closed coarse cell holding the point has four valid corners.
                 let starts = |v: usize| {
                     let c = v / s * s;
-                    if v % s == 0 && c >= s { vec![c, c - s] } else { vec![c] }
+                    if v.is_multiple_of(s) && c >= s {
+                        vec![c, c - s]
+                    } else {
+                        vec![c]
+                    }
                 };
                 let cell_ok = |cx: usize, cy: usize| {
                     cx + s < SIDE
@@ -177,7 +181,10 @@ fn every_sample_within_bound_and_coarse_areas_stay_coarse() {
         .iter()
         .filter(|r| r.id.level >= coarse_level)
         .count();
-    assert!(deep * 5 < full_deep, "{deep} vs {full_deep} records below the coarse level");
+    assert!(
+        deep * 5 < full_deep,
+        "{deep} vs {full_deep} records below the coarse level"
+    );
 }
 
 #[test]
@@ -189,11 +196,14 @@ fn a_single_resolution_gives_the_same_hierarchy_as_encode() {
         grid.valid[k] = false;
     }
     let res = Resolution {
-        class: grid.valid.iter().map(|&v| if v { 0 } else { HOLE }).collect(),
+        class: grid
+            .valid
+            .iter()
+            .map(|&v| if v { 0 } else { HOLE })
+            .collect(),
     };
     let q = Quantizer::new(2).unwrap();
-    let single =
-        encode_with_storage(&grid, q, &opts(), &TempStorage::Memory, &|_, _| {}).unwrap();
+    let single = encode_with_storage(&grid, q, &opts(), &TempStorage::Memory, &|_, _| {}).unwrap();
     assert_eq!(encode_var(&grid, &res, q), single);
 }
 

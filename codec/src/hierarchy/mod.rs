@@ -32,9 +32,9 @@ pub use decode::{
 pub use encode::{
     EncodeOptions, encode, encode_variable, encode_with_progress, encode_with_storage,
 };
-pub use resolution::Resolution;
 pub use field::TempStorage;
 pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
+pub use resolution::Resolution;
 pub use roots::root_field_dims;
 
 use crate::entropy::{BandKind, CoderKind};

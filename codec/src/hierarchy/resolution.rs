@@ -97,8 +97,8 @@ pub(crate) fn variable_sets(layout: &Layout, width: usize, res: &Resolution) -> 
             for a in 0..nx {
                 let (x0, x1) = (2 * a * r, ((2 * a + 2) * r).min(width - 1));
                 let (y0, y1) = (2 * b * r, ((2 * b + 2) * r).min(height - 1));
-                let hit = (y0..=y1)
-                    .any(|y| res.class[y * width + x0..=y * width + x1].contains(&j));
+                let hit =
+                    (y0..=y1).any(|y| res.class[y * width + x0..=y * width + x1].contains(&j));
                 if hit {
                     let (cx, cy) = ((2 * a + 1) * r, (2 * b + 1) * r);
                     leaves[level as usize].insert(DiamondId::new(level, cx as u32, cy as u32));
