@@ -694,8 +694,8 @@ mod tests {
     }
 
     fn both_ways(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, storage: &TempStorage) {
-        let old = encode_impl(grid, q, opts, Keeping::PerDiamond, &|_, _| {}).unwrap();
-        let new = encode_impl(grid, q, opts, Keeping::Field(storage), &|_, _| {}).unwrap();
+        let old = encode_impl(grid, None, q, opts, Keeping::PerDiamond, &|_, _| {}).unwrap();
+        let new = encode_impl(grid, None, q, opts, Keeping::Field(storage), &|_, _| {}).unwrap();
         assert!(
             old == new,
             "field and per-diamond encoders differ on {}×{} {opts:?}",
