@@ -89,7 +89,7 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
                 max_error: args.max_error,
             })?;
             let storage = storage_for(&input.grid, &opts, limit)?;
-            let enc = encode_prepared(&input, &opts, &storage, args.threads, &|_, _| {})?;
+            let enc = encode_prepared(&input, None, &opts, &storage, args.threads, &|_, _| {})?;
             write_repository(&out, &enc, &input.plan, input.georef.as_ref(), input.nodata)?;
             times.push(t.elapsed());
             let samples = input.grid.width * input.grid.height;

@@ -109,7 +109,7 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
     let output = dir.join("srtm3_demcompare.cbdam");
     eprintln!("building {} at ε = 1 m …", output.display());
     crate::build::run(&BuildArgs {
-        input,
+        inputs: vec![input],
         output: output.clone(),
         max_error: 1.0,
         diamond_size: 65,

@@ -1,9 +1,11 @@
-//! `cbdam build`: one DEM → one repository file, in parallel, within a memory limit.
+//! `cbdam build`: DEMs → one repository file, in parallel, within a memory limit.
 //!
-//! GeoTIFF and raw float32 input (`--size WxH`) are streamed: planned and quantized block by
-//! block, never held as floats. The other formats are read whole (8 bytes per sample) and
-//! dropped once quantized. The encoder's reconstruction field goes to a memory-mapped temporary file when the
-//! grid and the field together would exceed `--memory-limit`.
+//! Several inputs form one variable-resolution dataset ([`crate::mosaic`]), held in memory.
+//!
+//! A single GeoTIFF or raw float32 input (`--size WxH`) is streamed: planned and quantized block
+//! by block, never held as floats. The other formats are read whole (8 bytes per sample) and
+//! dropped once quantized. The encoder's reconstruction field goes to a memory-mapped temporary
+//! file when the grid and the field together would exceed `--memory-limit`.
 
 use std::io::IsTerminal;
 use std::path::Path;
@@ -13,7 +15,9 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Layout;
-use cbdam_codec::hierarchy::{EncodeOptions, Encoded, TempStorage, encode_with_storage};
+use cbdam_codec::hierarchy::{
+    EncodeOptions, Encoded, Resolution, TempStorage, encode_variable, encode_with_storage,
+};
 use cbdam_codec::input::{
     Format, GeoRef, GeoTiffSource, Limits, RawF32Source, ReadOptions, SampleSource, detect_format,
     read_dem,
@@ -220,9 +224,56 @@ pub fn encode_options(args: &BuildArgs) -> EncodeOptions {
     }
 }
 
-/// Encodes a prepared input with `threads` workers (all cores when `None`).
+/// Reads several georeferenced inputs into one variable-resolution lattice ([`crate::mosaic`])
+/// and quantizes it: one integer mapping for all inputs.
+pub fn prepare_mosaic(
+    paths: &[std::path::PathBuf],
+    nodata: Option<f64>,
+    quantum: Option<f64>,
+    max_error: f64,
+    memory_limit: u64,
+) -> Result<(Prepared, Resolution)> {
+    let opts = ReadOptions {
+        nodata,
+        ..ReadOptions::default()
+    };
+    let t = Instant::now();
+    let m = crate::mosaic::mosaic(paths, &opts, memory_limit)?;
+    let (lo, hi) = m.dem.valid_range().expect("every input has a valid sample");
+    if hi > lo && max_error > hi - lo {
+        bail!(
+            "--max-error {max_error} m exceeds the data's height range ({lo} … {hi} m, {} m); \
+             is the unit right?",
+            hi - lo
+        );
+    }
+    let plan = QuantPlan::for_dem(&m.dem, max_error, quantum)?;
+    let grid = HeightGrid::from_dem(&m.dem, &plan)?;
+    let resolution = m.resolution();
+    // The header holds one nodata value (for extract and verify): the override, else the value
+    // the inputs agree on.
+    let values: Vec<f64> = m.inputs.iter().filter_map(|p| p.dem.nodata).collect();
+    let common = values
+        .first()
+        .copied()
+        .filter(|&v| values.iter().all(|&w| w.to_bits() == v.to_bits()));
+    Ok((
+        Prepared {
+            grid,
+            plan,
+            georef: m.dem.georef,
+            nodata: nodata.or(common),
+            stages: vec![("read, mosaic and quantize", t.elapsed())],
+        },
+        resolution,
+    ))
+}
+
+/// Encodes a prepared input with `threads` workers (all cores when `None`); variable-resolution
+/// data when `resolution` is given.
 pub fn encode_prepared(
     input: &Prepared,
+    resolution: Option<&Resolution>,
     opts: &EncodeOptions,
     storage: &TempStorage,
     threads: Option<usize>,
@@ -236,8 +287,16 @@ pub fn encode_prepared(
         pool = pool.num_threads(t);
     }
     let pool = pool.build()?;
-    Ok(pool.install(|| {
-        encode_with_storage(&input.grid, input.plan.quantizer, opts, storage, progress)
+    Ok(pool.install(|| match resolution {
+        Some(r) => encode_variable(
+            &input.grid,
+            r,
+            input.plan.quantizer,
+            opts,
+            storage,
+            progress,
+        ),
+        None => encode_with_storage(&input.grid, input.plan.quantizer, opts, storage, progress),
     })?)
 }
 
@@ -267,21 +326,47 @@ pub fn run(args: &BuildArgs) -> Result<()> {
         None => default_memory_limit(),
     };
     let raw_size = args.size.as_deref().map(parse_dims).transpose()?;
-    let input = prepare(&InputSpec {
-        path: &args.input,
-        raw_size,
-        nodata: args.nodata,
-        quantum: args.quantum,
-        max_error: args.max_error,
-    })?;
-    let mut stages = input.stages.clone();
     let enc_opts = encode_options(args);
-    let storage = storage_for(&input.grid, &enc_opts, limit)?;
+    let (input, resolution, storage) = match args.inputs.as_slice() {
+        [] => bail!("no input given"),
+        [path] => {
+            let input = prepare(&InputSpec {
+                path,
+                raw_size,
+                nodata: args.nodata,
+                quantum: args.quantum,
+                max_error: args.max_error,
+            })?;
+            let storage = storage_for(&input.grid, &enc_opts, limit)?;
+            (input, None, storage)
+        }
+        paths => {
+            if raw_size.is_some() {
+                bail!(
+                    "--size: raw float32 inputs carry no georeferencing, so several inputs \
+                     cannot include them"
+                );
+            }
+            if enc_opts.alpha != Alpha::One {
+                bail!("several inputs (variable resolution) need --alpha one");
+            }
+            let (input, res) =
+                prepare_mosaic(paths, args.nodata, args.quantum, args.max_error, limit)?;
+            // The lattice was checked against the limit as a whole, field included.
+            (input, Some(res), TempStorage::Memory)
+        }
+    };
     let progress = Progress::new(args.quiet);
+    let mut stages = input.stages.clone();
     let t = Instant::now();
-    let encoded = encode_prepared(&input, &enc_opts, &storage, args.threads, &|done, total| {
-        progress.update(done, total)
-    })?;
+    let encoded = encode_prepared(
+        &input,
+        resolution.as_ref(),
+        &enc_opts,
+        &storage,
+        args.threads,
+        &|done, total| progress.update(done, total),
+    )?;
     progress.finish();
     stages.push(("encode", t.elapsed()));
     let plan = &input.plan;

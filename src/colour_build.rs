@@ -99,8 +99,14 @@ pub fn run(args: &BuildArgs, mut opts: EncodeOptions) -> Result<()> {
             Ok((p, r))
         })
         .transpose()?;
-    let mut img = read_rgb(&args.input, &Limits::default())
-        .with_context(|| format!("reading {}", args.input.display()))?;
+    let [input] = args.inputs.as_slice() else {
+        bail!(
+            "a colour repository is built from one image, not {} files",
+            args.inputs.len()
+        );
+    };
+    let mut img = read_rgb(input, &Limits::default())
+        .with_context(|| format!("reading {}", input.display()))?;
     if let Some((path, like)) = &like {
         let shift = shift_for(&img, like, path)?;
         let lp = like.params().layout;

@@ -24,7 +24,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             repo.display()
         );
         crate::build::run(&BuildArgs {
-            input: root.join("data/srtm3_demcompare.tif"),
+            inputs: vec![root.join("data/srtm3_demcompare.tif")],
             size: None,
             memory_limit: None,
             output: repo.clone(),

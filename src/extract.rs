@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use cbdam_codec::atomic::write_atomically;
-use cbdam_codec::hierarchy::walk_with_validity;
+use cbdam_codec::hierarchy::walk_all_with_validity;
 use cbdam_codec::input::GeoRef;
 use cbdam_codec::input::geokeys::{
     KEY_GEOGRAPHIC_TYPE, KEY_MODEL_TYPE, KEY_PROJECTED_CS_TYPE, KEY_RASTER_TYPE, MODEL_GEOGRAPHIC,
@@ -73,10 +73,13 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     // Points no decoded diamond covers lie in parts of the data rectangle with no valid sample
     // nearby (the encoder stores only diamonds that meet one), and the repository's nodata mask
     // marks the others that had no data: both are written as nodata, or NaN without a value.
+    // In a variable-resolution repository, levels finer than the data at a place are not
+    // reached there either (every level's leaves are visited, so a coarse input's level is
+    // extracted whole).
     let fill = repo.nodata().unwrap_or(f64::NAN);
     let mut values = vec![fill; out_w * out_h];
     let n = p.layout.n();
-    walk_with_validity(&encoded, |id, grid, valid| {
+    walk_all_with_validity(&encoded, |id, grid, valid| {
         if id.level != level {
             return;
         }

@@ -12,6 +12,7 @@ mod colour_build;
 mod demo;
 mod extract;
 mod inspect;
+mod mosaic;
 mod render;
 mod replay;
 mod serve;
@@ -484,11 +485,20 @@ pub enum AlphaArg {
 /// The encoder keeps one 4-byte reconstruction value per lattice point; when that and the
 /// quantized input exceed --memory-limit, the reconstruction goes to a memory-mapped temporary
 /// file (in $TMPDIR). Progress goes to stderr: a bar with ETA on a terminal, a line per quarter
-/// otherwise, nothing with --quiet. Multiple inputs (mosaics) are later work.
+/// otherwise, nothing with --quiet.
+///
+/// Several inputs form one variable-resolution dataset: one lattice at the finest input's
+/// spacing over the union of the inputs, placed by their georeferencing; coarser inputs must be
+/// 2^j times as coarse and aligned to that lattice (no resampling). Where inputs overlap the
+/// finest sample wins; where only coarse data exists the hierarchy stays coarse. This first
+/// version holds the whole lattice in memory (about 18 bytes per lattice point) and refuses
+/// lattices above --memory-limit.
 #[derive(Args, Debug)]
 pub struct BuildArgs {
-    /// DEM file (GeoTIFF, .hgt, ASCII grid, PNG, or raw float32 with --size).
-    input: PathBuf,
+    /// DEM files (GeoTIFF, .hgt, ASCII grid, PNG, or one raw float32 with --size); several
+    /// georeferenced ones at power-of-two spacings make one variable-resolution dataset.
+    #[arg(required = true, num_args = 1..)]
+    inputs: Vec<PathBuf>,
     /// The input is headerless little-endian float32, WIDTHxHEIGHT samples, row 0 north
     /// (streamed: never held in memory as floats).
     #[arg(long, value_name = "WIDTHxHEIGHT")]
@@ -555,9 +565,9 @@ pub struct InspectArgs {
 pub struct VerifyArgs {
     /// Repository file.
     repo: PathBuf,
-    /// The input DEM.
-    #[arg(long)]
-    against: PathBuf,
+    /// The input DEM(s), in the order given to `build`.
+    #[arg(long, required = true, num_args = 1..)]
+    against: Vec<PathBuf>,
 }
 
 /// Output format of `cbdam extract`.

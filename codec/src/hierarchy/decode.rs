@@ -123,6 +123,24 @@ pub fn walk(encoded: &Encoded, mut visit: impl FnMut(DiamondId, &[i32])) -> Resu
 /// all valid).
 pub fn walk_with_validity(
     encoded: &Encoded,
+    visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+) -> Result<(), CodecError> {
+    walk_impl(encoded, false, visit)
+}
+
+/// [`walk_with_validity`], visiting at every level (not only the finest) also the diamonds
+/// without a record whose parents all have one: the leaves of a variable-resolution hierarchy
+/// ([`super::resolution`]), where coarse data ends the refinement above the finest level.
+pub fn walk_all_with_validity(
+    encoded: &Encoded,
+    visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+) -> Result<(), CodecError> {
+    walk_impl(encoded, true, visit)
+}
+
+fn walk_impl(
+    encoded: &Encoded,
+    all_levels: bool,
     mut visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
 ) -> Result<(), CodecError> {
     let params = encoded.params;
@@ -146,7 +164,7 @@ pub fn walk_with_validity(
         if finest == 0 {
             // A single level: the roots are the leaves, and there are no records.
             ids = layout.roots().collect();
-        } else if level == finest {
+        } else if level == finest || (all_levels && level > 0) {
             let mut leaves: Vec<DiamondId> = prev
                 .keys()
                 .flat_map(|&p| layout.children(p))
@@ -159,6 +177,9 @@ pub fn walk_with_validity(
                         .all(|p| prev.contains_key(&p))
                 })
                 .collect();
+            if level != finest {
+                leaves.extend(ids.iter().copied());
+            }
             leaves.sort();
             leaves.dedup();
             ids = leaves;
@@ -235,8 +256,59 @@ pub fn reconstruct_finest_with_validity(
     Ok((out, valid))
 }
 
-/// Decodes the whole hierarchy and compares every reconstructed vertex of every level with the
-/// filtered data of that level (the input itself for α = 1 and at the finest level).
+/// What [`reconstruct_reached`] knows of a lattice point of the data rectangle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reached {
+    /// No decoded diamond has the point on its grid (inside a coarse leaf, or no data).
+    No,
+    /// A grid point whose nodata mask says valid.
+    Valid,
+    /// A grid point whose nodata mask says invalid.
+    Invalid,
+}
+
+/// The reconstruction at every lattice point of the data rectangle that is a grid point of some
+/// diamond of [`walk_all_with_validity`] (values of the same point agree at every level, α = 1
+/// vertices never change; for α = ½ the finest visit wins), and the nodata mask there.
+pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>), CodecError> {
+    let params = encoded.params;
+    let layout = params.layout;
+    let (w, h) = (params.data_width as usize, params.data_height as usize);
+    // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
+    let mut out = Vec::new();
+    let mut state = Vec::new();
+    w.checked_mul(h)
+        .filter(|&len| out.try_reserve_exact(len).is_ok() && state.try_reserve_exact(len).is_ok())
+        .map(|len| {
+            out.resize(len, 0i32);
+            state.resize(len, Reached::No);
+        })
+        .ok_or_else(|| {
+            CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
+        })?;
+    let n = layout.n();
+    walk_impl(encoded, true, |id, p, v| {
+        let g = layout.grid(id);
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = g.point(i as i64, j as i64);
+                if params.in_data(x, y) {
+                    let k = y as usize * w + x as usize;
+                    out[k] = p[j * n + i];
+                    state[k] = if v.is_none_or(|v| v[j * n + i]) {
+                        Reached::Valid
+                    } else {
+                        Reached::Invalid
+                    };
+                }
+            }
+        }
+    })?;
+    Ok((out, state))
+}
+
+/// Decodes the whole hierarchy ([`walk_all_with_validity`]) and compares every reconstructed
+/// vertex of every level with the filtered data of that level (the input itself for α = 1 and at the finest level).
 ///
 /// Corrupt records are errors; a bound violation is reported, not an error, so callers can say
 /// by how much.
@@ -253,7 +325,7 @@ pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, Cod
             max_error: 0,
         })
         .collect();
-    walk(encoded, |id, p| {
+    walk_impl(encoded, true, |id, p, _| {
         let report = &mut levels[id.level as usize];
         let g = layout.grid(id);
         report.diamonds += 1;

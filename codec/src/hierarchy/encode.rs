@@ -9,6 +9,7 @@ use super::field::{ReconField, TempStorage};
 use super::mask::encode_mask;
 use super::object_error::{ErrorInput, surface_error};
 use super::refine::{Refined, gather};
+use super::resolution::{Resolution, variable_sets};
 use super::roots::{encode_roots, root_field_dims, root_grid, root_spacing};
 use super::{CodecParams, Encoded, Record};
 use crate::CodecError;
@@ -46,9 +47,21 @@ impl Default for EncodeOptions {
 struct Targets<'a> {
     grid: &'a HeightGrid,
     fields: Option<Vec<LevelField>>,
+    /// Variable-resolution classes: points without a sample may still be drawn.
+    resolution: Option<&'a Resolution>,
 }
 
 impl Targets<'_> {
+    /// Whether the nodata mask calls `(x, y)` (inside the data rectangle) valid: a sample, or a
+    /// point between a coarser input's samples.
+    #[inline]
+    fn drawn(&self, x: i64, y: i64) -> bool {
+        match self.resolution {
+            Some(r) => r.drawn(self.grid.width, x, y),
+            None => self.grid.get(x, y).is_some(),
+        }
+    }
+
     #[inline]
     fn at(&self, level: u8, x: i64, y: i64) -> Option<i32> {
         let v = self.grid.get(x, y)?;
@@ -98,7 +111,36 @@ pub fn encode_with_storage(
         Alpha::One => Keeping::Field(storage),
         Alpha::Half => Keeping::PerDiamond,
     };
-    encode_impl(grid, quantizer, opts, strategy, progress)
+    encode_impl(grid, None, quantizer, opts, strategy, progress)
+}
+
+/// [`encode_with_storage`] for variable-resolution data ([`super::resolution`]): `grid` holds
+/// the winning sample of every lattice point that has one, `resolution` says at which stride
+/// each sample was taken and which points between coarse samples are drawn. The hierarchy is
+/// refined only as deep as the data at each place. α = 1 only.
+pub fn encode_variable(
+    grid: &HeightGrid,
+    resolution: &Resolution,
+    quantizer: Quantizer,
+    opts: &EncodeOptions,
+    storage: &TempStorage,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Encoded, CodecError> {
+    if opts.alpha != Alpha::One {
+        return Err(CodecError::invalid(
+            "variable-resolution data needs α = 1 (the lifting of α = ½ would constrain the \
+             points between coarse samples)",
+        ));
+    }
+    resolution.check(grid)?;
+    encode_impl(
+        grid,
+        Some(resolution),
+        quantizer,
+        opts,
+        Keeping::Field(storage),
+        progress,
+    )
 }
 
 /// How the encoder keeps the reconstruction between levels.
@@ -113,6 +155,7 @@ enum Keeping<'a> {
 
 fn encode_impl(
     grid: &HeightGrid,
+    resolution: Option<&Resolution>,
     quantizer: Quantizer,
     opts: &EncodeOptions,
     strategy: Keeping<'_>,
@@ -130,15 +173,30 @@ fn encode_impl(
         root_quantizer: super::root_quantizer(quantizer),
         data_width: u32::try_from(grid.width).map_err(|_| CodecError::limit("grid too wide"))?,
         data_height: u32::try_from(grid.height).map_err(|_| CodecError::limit("grid too tall"))?,
-        nodata_mask: grid.valid.iter().any(|v| !v),
+        nodata_mask: match resolution {
+            Some(r) => r.has_holes(),
+            None => grid.valid.iter().any(|v| !v),
+        },
         kind: super::RepoKind::Elevation,
     };
     let targets = Targets {
         grid,
         fields: (opts.alpha == Alpha::Half).then(|| analysis_fields(&layout, grid)),
+        resolution,
     };
-    let stored = stored_sets(&layout, grid);
-    let (root_field, roots) = encode_roots(&params, |x, y| targets.at(0, x, y))?;
+    // Single resolution: every stored diamond above the finest level has a record.
+    let (stored, recorded) = match resolution {
+        Some(r) => {
+            let sets = variable_sets(&layout, grid.width, r);
+            (sets.stored, Some(sets.recorded))
+        }
+        None => (stored_sets(&layout, grid), None),
+    };
+    let (root_field, roots) = encode_roots(
+        &params,
+        |x, y| targets.at(0, x, y),
+        |x, y| targets.drawn(x, y),
+    )?;
 
     let finest = layout.finest_level();
     // Work per diamond is about the data it covers: its bounding box clipped to the data.
@@ -162,6 +220,7 @@ fn encode_impl(
         error_input: ErrorInput::new(grid),
         targets: &targets,
         stored: &stored,
+        recorded: recorded.as_deref(),
         root_field: &root_field,
         tick: &tick,
     };
@@ -216,6 +275,8 @@ struct Levels<'a> {
     error_input: ErrorInput<'a>,
     targets: &'a Targets<'a>,
     stored: &'a [Vec<DiamondId>],
+    /// Which stored diamonds get a record, per level; `None`: all above the finest level.
+    recorded: Option<&'a [BTreeSet<DiamondId>]>,
     root_field: &'a [i32],
     tick: &'a (dyn Fn(&DiamondId) + Sync),
 }
@@ -272,9 +333,13 @@ impl Levels<'_> {
                 .map(|&id| {
                     let p = grids_of(id);
                     let err = surface_error(layout, id, &p, &self.error_input);
-                    let r = refine_encode(self.params, id, &p, |x, y| {
-                        self.targets.at(level + 1, x, y)
-                    })?;
+                    let r = refine_encode(
+                        self.params,
+                        id,
+                        &p,
+                        |x, y| self.targets.at(level + 1, x, y),
+                        |x, y| self.targets.drawn(x, y),
+                    )?;
                     let vertices = r.vertices.as_deref().unwrap_or(&p);
                     let refined = Refined::from_parts(n, vertices, &r.cells);
                     (self.tick)(&id);
@@ -322,10 +387,18 @@ impl Levels<'_> {
                 .map(|&id| {
                     let p = grid_of(id);
                     let err = surface_error(layout, id, &p, &self.error_input);
-                    let record = if level < finest {
-                        let r = refine_encode(self.params, id, &p, |x, y| {
-                            self.targets.at(level + 1, x, y)
-                        })?;
+                    let refines = level < finest
+                        && self
+                            .recorded
+                            .is_none_or(|r| r[level as usize].contains(&id));
+                    let record = if refines {
+                        let r = refine_encode(
+                            self.params,
+                            id,
+                            &p,
+                            |x, y| self.targets.at(level + 1, x, y),
+                            |x, y| self.targets.drawn(x, y),
+                        )?;
                         write_cells(&field, layout, id, &r.cells);
                         Some(Self::record(id, &p, r.bytes))
                     } else {
@@ -377,6 +450,7 @@ fn refine_encode(
     id: DiamondId,
     p: &[i32],
     target: impl Fn(i64, i64) -> Option<i32>,
+    drawn: impl Fn(i64, i64) -> bool,
 ) -> Result<Refinement, CodecError> {
     let layout = &params.layout;
     let n = layout.n();
@@ -467,7 +541,7 @@ fn refine_encode(
             }
             let (x2, y2) = g.point2(a as i64, b as i64);
             let (x, y) = (x2 / 2, y2 / 2);
-            let v = params.in_data(x, y).then(|| target(x, y).is_some());
+            let v = params.in_data(x, y).then(|| drawn(x, y));
             if v == Some(false) {
                 all_valid.set(false);
             }
@@ -621,8 +695,8 @@ mod tests {
     }
 
     fn both_ways(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, storage: &TempStorage) {
-        let old = encode_impl(grid, q, opts, Keeping::PerDiamond, &|_, _| {}).unwrap();
-        let new = encode_impl(grid, q, opts, Keeping::Field(storage), &|_, _| {}).unwrap();
+        let old = encode_impl(grid, None, q, opts, Keeping::PerDiamond, &|_, _| {}).unwrap();
+        let new = encode_impl(grid, None, q, opts, Keeping::Field(storage), &|_, _| {}).unwrap();
         assert!(
             old == new,
             "field and per-diamond encoders differ on {}×{} {opts:?}",

@@ -20,16 +20,21 @@ mod field;
 pub mod mask;
 mod object_error;
 mod refine;
+pub mod resolution;
 mod roots;
 
 pub use analysis::{LevelField, analysis_fields};
 pub use decode::{
-    Decoder, LevelReport, VerifyReport, reconstruct_finest, reconstruct_finest_with_validity,
-    verify, walk, walk_with_validity,
+    Decoder, LevelReport, Reached, VerifyReport, reconstruct_finest,
+    reconstruct_finest_with_validity, reconstruct_reached, verify, walk, walk_all_with_validity,
+    walk_with_validity,
 };
-pub use encode::{EncodeOptions, encode, encode_with_progress, encode_with_storage};
+pub use encode::{
+    EncodeOptions, encode, encode_variable, encode_with_progress, encode_with_storage,
+};
 pub use field::TempStorage;
 pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
+pub use resolution::Resolution;
 pub use roots::root_field_dims;
 
 use crate::entropy::{BandKind, CoderKind};

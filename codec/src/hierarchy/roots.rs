@@ -49,10 +49,12 @@ fn med(field: &[i32], w: usize, x: usize, y: usize) -> i64 {
 }
 
 /// Encodes the root field: `target(x, y)` is the filtered height at lattice point `(x, y)` or
-/// `None` where it is "don't care". Returns the reconstruction and the coded bytes.
+/// `None` where it is "don't care"; `drawn(x, y)` is what the nodata mask says of a point in the
+/// data rectangle. Returns the reconstruction and the coded bytes.
 pub(crate) fn encode_roots(
     params: &CodecParams,
     target: impl Fn(i64, i64) -> Option<i32>,
+    drawn: impl Fn(i64, i64) -> bool,
 ) -> Result<(Vec<i32>, Vec<u8>), CodecError> {
     let (w, h) = root_field_dims(&params.layout);
     let s = root_spacing(&params.layout);
@@ -83,7 +85,7 @@ pub(crate) fn encode_roots(
     if params.nodata_mask {
         let cared = |x: usize, y: usize| {
             let (lx, ly) = (x as i64 * s, y as i64 * s);
-            params.in_data(lx, ly).then(|| target(lx, ly).is_some())
+            params.in_data(lx, ly).then(|| drawn(lx, ly))
         };
         encode_mask(w, h, &cared, &mut bytes);
     }

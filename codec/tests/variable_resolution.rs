@@ -1,0 +1,224 @@
+//! Variable-resolution hierarchies (paper §5, "graph construction"): a coarse input over the whole
+//! area with a hole, a 4× finer one over part of it. Every sample is reconstructed within the
+//! bound at the level where its input ends, the hierarchy is not refined where only coarse data
+//! exists, and the nodata mask keeps holes apart from coarse-only points.
+
+mod common;
+
+use cbdam_codec::entropy::CoderKind;
+use cbdam_codec::geometry::Layout;
+use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
+use cbdam_codec::hierarchy::{
+    EncodeOptions, Encoded, Reached, Resolution, TempStorage, encode_variable, encode_with_storage,
+    reconstruct_reached, verify,
+};
+use cbdam_codec::lifting::Alpha;
+use cbdam_codec::quant::{HeightGrid, Quantizer};
+use common::Rng;
+
+const SIDE: usize = 513;
+/// The coarse input's stride (`2^COARSE_LOG2` lattice points).
+const COARSE_LOG2: u8 = 2;
+/// The fine input's extent, inclusive lattice coordinates.
+const FINE: (usize, usize, usize, usize) = (64, 96, 160, 192);
+/// Coarse samples with both coordinates at or above this are nodata.
+const HOLE_FROM: usize = 448;
+/// The coarse survey is offset from the fine one: where they overlap, a wrong winner shows.
+const COARSE_OFFSET: i32 = 500;
+
+fn opts() -> EncodeOptions {
+    EncodeOptions {
+        n: 17,
+        alpha: Alpha::One,
+        coder: CoderKind::Adaptive,
+        extra_level_pairs: 0,
+    }
+}
+
+/// Rough terrain, so that residuals are not all zero.
+fn terrain(rng: &mut Rng) -> Vec<i32> {
+    (0..SIDE * SIDE)
+        .map(|k| {
+            let (x, y) = ((k % SIDE) as f64, (k / SIDE) as f64);
+            (2000.0 * (x / 23.0).sin() * (y / 31.0).cos()) as i32 + rng.below(40) as i32
+        })
+        .collect()
+}
+
+fn in_fine(x: usize, y: usize) -> bool {
+    (FINE.0..=FINE.2).contains(&x) && (FINE.1..=FINE.3).contains(&y)
+}
+
+/// The grid and classes as the builder would make them from the two inputs (constructed here
+/// independently of the CLI's mosaic code).
+fn variable_input(h: &[i32]) -> (HeightGrid, Resolution) {
+    let s = 1usize << COARSE_LOG2;
+    let coarse_valid = |x: usize, y: usize| !(x >= HOLE_FROM && y >= HOLE_FROM);
+    let mut values = vec![0i32; SIDE * SIDE];
+    let mut valid = vec![false; SIDE * SIDE];
+    let mut class = vec![HOLE; SIDE * SIDE];
+    for y in 0..SIDE {
+        for x in 0..SIDE {
+            let k = y * SIDE + x;
+            if in_fine(x, y) {
+                values[k] = h[k];
+                valid[k] = true;
+                class[k] = 0;
+            } else if x.is_multiple_of(s) && y.is_multiple_of(s) && coarse_valid(x, y) {
+                values[k] = h[k] + COARSE_OFFSET;
+                valid[k] = true;
+                class[k] = COARSE_LOG2;
+            } else {
+                // Drawn when some closed coarse cell holding the point has four valid corners.
+                let starts = |v: usize| {
+                    let c = v / s * s;
+                    if v.is_multiple_of(s) && c >= s {
+                        vec![c, c - s]
+                    } else {
+                        vec![c]
+                    }
+                };
+                let cell_ok = |cx: usize, cy: usize| {
+                    cx + s < SIDE
+                        && cy + s < SIDE
+                        && [(cx, cy), (cx + s, cy), (cx, cy + s), (cx + s, cy + s)]
+                            .iter()
+                            .all(|&(a, b)| coarse_valid(a, b))
+                };
+                let drawn = starts(x)
+                    .into_iter()
+                    .any(|cx| starts(y).into_iter().any(|cy| cell_ok(cx, cy)));
+                if drawn {
+                    class[k] = COARSE_ONLY;
+                }
+            }
+        }
+    }
+    let mut grid = HeightGrid::all_valid(SIDE, SIDE, values);
+    grid.valid = valid;
+    (grid, Resolution { class })
+}
+
+fn encode_var(grid: &HeightGrid, res: &Resolution, q: Quantizer) -> Encoded {
+    encode_variable(grid, res, q, &opts(), &TempStorage::Memory, &|_, _| {}).unwrap()
+}
+
+#[test]
+fn every_sample_within_bound_and_coarse_areas_stay_coarse() {
+    let h = terrain(&mut Rng(7));
+    let (grid, res) = variable_input(&h);
+    let q = Quantizer::new(3).unwrap();
+    let enc = encode_var(&grid, &res, q);
+    assert!(enc.params.nodata_mask, "the hole needs a mask");
+
+    // Every sample of both inputs is reached, within k, and the mask matches the classes.
+    let (values, state) = reconstruct_reached(&enc).unwrap();
+    let (mut fine, mut coarse) = (0, 0);
+    for k in 0..SIDE * SIDE {
+        let (x, y) = (k % SIDE, k / SIDE);
+        match res.class[k] {
+            HOLE => assert_ne!(state[k], Reached::Valid, "hole drawn at ({x}, {y})"),
+            COARSE_ONLY => assert_ne!(state[k], Reached::Invalid, "({x}, {y})"),
+            c => {
+                assert_eq!(state[k], Reached::Valid, "sample ({x}, {y}) not reached");
+                let want = if c == 0 {
+                    fine += 1;
+                    h[k]
+                } else {
+                    coarse += 1;
+                    h[k] + COARSE_OFFSET
+                };
+                assert!(
+                    (values[k] - want).abs() <= q.k(),
+                    "({x}, {y}): {} vs {want}",
+                    values[k]
+                );
+                // The finer input wins where both have data: the coarse value is far off.
+                if in_fine(x, y) {
+                    assert!((values[k] - (h[k] + COARSE_OFFSET)).abs() > q.k());
+                }
+            }
+        }
+    }
+    assert_eq!(fine, 97 * 97);
+    assert!(coarse > 3000, "{coarse}");
+    let report = verify(&enc, &grid).unwrap();
+    assert!(report.within_bound(), "{report:?}");
+
+    // No record refines past the coarse level where there are only coarse samples: every record
+    // at or below the coarse leaf level lies near the fine input — within the few diamonds of
+    // its level that the parent closure adds around the fine leaves' ancestors (each level up
+    // widens it by about one radius of that level, a geometric sum below 4 radii).
+    let layout: Layout = enc.params.layout;
+    let coarse_level = layout.finest_level() - 2 * COARSE_LOG2;
+    let mut deep = 0;
+    for r in &enc.records {
+        if r.id.level >= coarse_level {
+            let (x0, y0, x1, y1) = layout.bounds(r.id);
+            let d = 4 * layout.radius(r.id.level);
+            let near = x1 + d >= FINE.0 as i64
+                && x0 - d <= FINE.2 as i64
+                && y1 + d >= FINE.1 as i64
+                && y0 - d <= FINE.3 as i64;
+            assert!(near, "{} refines a coarse-only area", r.id);
+            deep += 1;
+        }
+    }
+
+    // Far fewer records than the whole area at the fine spacing.
+    let full = encode_with_storage(
+        &HeightGrid::all_valid(SIDE, SIDE, h.clone()),
+        q,
+        &opts(),
+        &TempStorage::Memory,
+        &|_, _| {},
+    )
+    .unwrap();
+    let (v, f) = (enc.records.len(), full.records.len());
+    assert!(v * 3 < f, "{v} records variable vs {f} at the fine spacing");
+    let full_deep = full
+        .records
+        .iter()
+        .filter(|r| r.id.level >= coarse_level)
+        .count();
+    assert!(
+        deep * 5 < full_deep,
+        "{deep} vs {full_deep} records below the coarse level"
+    );
+}
+
+#[test]
+fn a_single_resolution_gives_the_same_hierarchy_as_encode() {
+    let h = terrain(&mut Rng(11));
+    let mut grid = HeightGrid::all_valid(SIDE, SIDE, h);
+    // Some nodata, so the masks are exercised too.
+    for k in (0..SIDE * SIDE).filter(|k| (k % SIDE) * 3 + k / SIDE < 150) {
+        grid.valid[k] = false;
+    }
+    let res = Resolution {
+        class: grid
+            .valid
+            .iter()
+            .map(|&v| if v { 0 } else { HOLE })
+            .collect(),
+    };
+    let q = Quantizer::new(2).unwrap();
+    let single = encode_with_storage(&grid, q, &opts(), &TempStorage::Memory, &|_, _| {}).unwrap();
+    assert_eq!(encode_var(&grid, &res, q), single);
+}
+
+#[test]
+fn inconsistent_classes_and_alpha_half_are_refused() {
+    let h = terrain(&mut Rng(3));
+    let (grid, mut res) = variable_input(&h);
+    let q = Quantizer::new(3).unwrap();
+    let half = EncodeOptions {
+        alpha: Alpha::Half,
+        ..opts()
+    };
+    assert!(encode_variable(&grid, &res, q, &half, &TempStorage::Memory, &|_, _| {}).is_err());
+    res.class[0] = HOLE; // a valid sample called a hole
+    assert!(encode_variable(&grid, &res, q, &opts(), &TempStorage::Memory, &|_, _| {}).is_err());
+    res.class.pop();
+    assert!(encode_variable(&grid, &res, q, &opts(), &TempStorage::Memory, &|_, _| {}).is_err());
+}

@@ -1,0 +1,317 @@
+//! Several georeferenced inputs at power-of-two spacings as one variable-resolution lattice
+//! (paper §5, "graph construction"; [`cbdam_codec::hierarchy::resolution`]).
+//!
+//! The lattice has the finest input's spacing and covers the union of the inputs. A coarser input
+//! must sample it at a stride of `2^j` lattice points, its samples on the lattice and on
+//! multiples of its stride from the lattice origin (so they are vertices of level `L − 2j`).
+//! Nothing is resampled: any other geometry is an error that says what is required. The first
+//! version holds the lattice in memory (17 bytes per lattice point while building) and refuses
+//! lattices above `--memory-limit`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use cbdam_codec::hierarchy::Resolution;
+use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
+use cbdam_codec::input::{Dem, GeoRef, ReadOptions, SampleType, read_dem};
+
+/// Relative tolerance on spacing ratios: GeoTIFF pixel scales are decimal doubles (e.g.
+/// 1/3600°), so ratios of exact powers of two come out within a few ulps.
+const RATIO_TOLERANCE: f64 = 1e-9;
+/// Tolerance, in fine samples, on how far an input's origin may lie from a lattice point:
+/// tie points are printed decimals too.
+const ORIGIN_TOLERANCE: f64 = 1e-6;
+/// Bytes per lattice point while building: the merged heights (f64), the classes (u8), the
+/// quantized grid (i32 + bool) and the encoder's reconstruction field (i32).
+pub const BYTES_PER_POINT: u64 = 8 + 1 + 5 + 4;
+
+/// Where one input lies on the lattice.
+#[derive(Clone, Debug)]
+pub struct Placement {
+    /// The file.
+    pub path: PathBuf,
+    /// Lattice column of its first sample.
+    pub x0: usize,
+    /// Lattice row of its first sample.
+    pub y0: usize,
+    /// Its stride in lattice points, `2^log2`.
+    pub log2: u8,
+    /// Its samples.
+    pub dem: Dem,
+}
+
+impl Placement {
+    fn stride(&self) -> usize {
+        1 << self.log2
+    }
+}
+
+/// The merged lattice.
+pub struct Mosaic {
+    /// The winning sample of every lattice point (NaN where none), georeferenced.
+    pub dem: Dem,
+    /// Per lattice point: the index of the winning input in `inputs`, or [`COARSE_ONLY`] /
+    /// [`HOLE`].
+    pub source: Vec<u8>,
+    /// The inputs in command-line order.
+    pub inputs: Vec<Placement>,
+}
+
+impl Mosaic {
+    /// The encoder's view: the stride of the winning sample at each point.
+    pub fn resolution(&self) -> Resolution {
+        let strides: Vec<u8> = self.inputs.iter().map(|p| p.log2).collect();
+        Resolution {
+            class: self
+                .source
+                .iter()
+                .map(|&s| match s {
+                    COARSE_ONLY | HOLE => s,
+                    i => strides[i as usize],
+                })
+                .collect(),
+        }
+    }
+}
+
+/// Sample-centre position of raster point (0, 0), so that PixelIsArea and PixelIsPoint inputs
+/// mix.
+fn centre(g: &GeoRef) -> (f64, f64) {
+    let half = if g.pixel_is_area { 0.5 } else { 0.0 };
+    (g.origin_x + half * g.pixel_x, g.origin_y - half * g.pixel_y)
+}
+
+fn describe(p: &Path, g: &GeoRef) -> String {
+    let (cx, cy) = centre(g);
+    format!(
+        "{} (spacing {} × {}, first sample centre at ({cx}, {cy}))",
+        p.display(),
+        g.pixel_x,
+        g.pixel_y
+    )
+}
+
+/// Reads `paths` and places them on one lattice; refuses (before allocating it) a lattice whose
+/// build would need more than `memory_limit` bytes.
+pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Result<Mosaic> {
+    if paths.is_empty() {
+        bail!("no input given");
+    }
+    if paths.len() >= usize::from(COARSE_ONLY) {
+        bail!(
+            "{} inputs: at most {} can be combined",
+            paths.len(),
+            COARSE_ONLY - 1
+        );
+    }
+    let mut dems = Vec::new();
+    for path in paths {
+        let dem = read_dem(path, opts).with_context(|| format!("reading {}", path.display()))?;
+        let Some(g) = &dem.georef else {
+            bail!(
+                "{} has no georeferencing (GeoTIFF tie point and pixel scale, or an .hgt/.asc \
+                 position): several inputs are combined by where they lie, so each needs one",
+                path.display()
+            );
+        };
+        if !(g.pixel_x > 0.0 && g.pixel_y > 0.0) {
+            bail!(
+                "{}: sample spacing {} × {} is not positive (only north-up grids are combined)",
+                path.display(),
+                g.pixel_x,
+                g.pixel_y
+            );
+        }
+        if dem.valid_count() == 0 {
+            bail!("{} has no valid sample (all nodata or NaN)", path.display());
+        }
+        dems.push((path.clone(), dem));
+    }
+    let geo = |k: usize| dems[k].1.georef.as_ref().expect("checked above");
+    // One coordinate reference system: heights and positions of different CRSs cannot share
+    // a lattice without reprojection, which this builder does not do.
+    for k in 1..dems.len() {
+        if geo(k).epsg != geo(0).epsg {
+            let name =
+                |e: Option<u32>| e.map_or("no EPSG code".to_string(), |e| format!("EPSG:{e}"));
+            bail!(
+                "{} is in {} but {} is in {}: inputs must share one coordinate reference system \
+                 (reproject them first)",
+                dems[k].0.display(),
+                name(geo(k).epsg),
+                dems[0].0.display(),
+                name(geo(0).epsg)
+            );
+        }
+    }
+    // The finest input sets the lattice; ties go to the first listed.
+    let fine = (0..dems.len())
+        .min_by(|&a, &b| geo(a).pixel_x.total_cmp(&geo(b).pixel_x))
+        .expect("at least one input");
+    let (fx, fy) = (geo(fine).pixel_x, geo(fine).pixel_y);
+    let (fcx, fcy) = centre(geo(fine));
+    let mut placed = Vec::new();
+    for (k, (path, _)) in dems.iter().enumerate() {
+        let g = geo(k);
+        let (rx, ry) = (g.pixel_x / fx, g.pixel_y / fy);
+        let log2 = rx.log2().round();
+        let power = (0.0..31.0).contains(&log2) && {
+            let p = log2.exp2();
+            (rx - p).abs() <= RATIO_TOLERANCE * p && (ry - p).abs() <= RATIO_TOLERANCE * p
+        };
+        if !power {
+            bail!(
+                "{} is {rx:.6} × {ry:.6} times as coarse as {}: combined inputs must be \
+                 2^j times the finest spacing (1, 2, 4, …) on both axes, so that every coarse \
+                 sample is a vertex of the diamond lattice (e.g. SRTM 1″ with 3″ is a ratio of \
+                 3, which would need resampling; resample the coarse input to a power-of-two \
+                 ratio first)",
+                describe(path, g),
+                describe(&dems[fine].0, geo(fine))
+            );
+        }
+        let (cx, cy) = centre(g);
+        let (ox, oy) = ((cx - fcx) / fx, (fcy - cy) / fy);
+        if (ox - ox.round()).abs() > ORIGIN_TOLERANCE || (oy - oy.round()).abs() > ORIGIN_TOLERANCE
+        {
+            bail!(
+                "{} lies {ox:.4} × {oy:.4} samples from {}: its samples must fall on the \
+                 finest input's sample positions (a whole number of fine samples apart)",
+                describe(path, g),
+                describe(&dems[fine].0, geo(fine))
+            );
+        }
+        placed.push((ox.round() as i64, oy.round() as i64, log2 as u8));
+    }
+    // The lattice origin must sit on every input's stride: congruent to the coarsest input's
+    // offset modulo its stride, which every other input must agree with modulo its own.
+    let coarsest = (0..placed.len())
+        .max_by_key(|&k| placed[k].2)
+        .expect("at least one input");
+    let big = 1i64 << placed[coarsest].2;
+    for (k, &(ox, oy, l)) in placed.iter().enumerate() {
+        let s = 1i64 << l;
+        let (dx, dy) = (
+            (ox - placed[coarsest].0).rem_euclid(s),
+            (oy - placed[coarsest].1).rem_euclid(s),
+        );
+        if dx != 0 || dy != 0 {
+            bail!(
+                "{} and {} are misaligned: with a stride of {s} fine samples, {} must start a \
+                 multiple of {s} fine samples from {}, but is {} × {} off (mod {s}); shift or \
+                 crop one of them",
+                describe(&dems[k].0, geo(k)),
+                describe(&dems[coarsest].0, geo(coarsest)),
+                dems[k].0.display(),
+                dems[coarsest].0.display(),
+                dx,
+                dy
+            );
+        }
+    }
+    let lowest = |axis: fn(&(i64, i64, u8)) -> i64| {
+        let min = placed.iter().map(axis).min().expect("inputs");
+        let c = axis(&placed[coarsest]);
+        c - (c - min).div_euclid(big) * big
+            - if (c - min).rem_euclid(big) == 0 {
+                0
+            } else {
+                big
+            }
+    };
+    let (origin_x, origin_y) = (lowest(|p| p.0), lowest(|p| p.1));
+    let mut width = 0usize;
+    let mut height = 0usize;
+    let mut inputs = Vec::new();
+    for ((path, dem), &(ox, oy, log2)) in dems.into_iter().zip(&placed) {
+        let p = Placement {
+            path,
+            x0: (ox - origin_x) as usize,
+            y0: (oy - origin_y) as usize,
+            log2,
+            dem,
+        };
+        width = width.max(p.x0 + (p.dem.width - 1) * p.stride() + 1);
+        height = height.max(p.y0 + (p.dem.height - 1) * p.stride() + 1);
+        inputs.push(p);
+    }
+    let points = (width as u64).saturating_mul(height as u64);
+    let need = points.saturating_mul(BYTES_PER_POINT);
+    if need > memory_limit {
+        bail!(
+            "the combined lattice is {width}×{height} points at the finest spacing, which the \
+             multi-input build holds in memory: about {} MiB, above --memory-limit ({} MiB)",
+            need >> 20,
+            memory_limit >> 20
+        );
+    }
+    let len = width * height;
+    let mut values = vec![f64::NAN; len];
+    let mut source = vec![HOLE; len];
+    // Coarsest first, so finer samples overwrite; among equal strides the first listed wins.
+    let mut order: Vec<usize> = (0..inputs.len()).collect();
+    order.sort_by_key(|&k| (std::cmp::Reverse(inputs[k].log2), std::cmp::Reverse(k)));
+    for &k in &order {
+        let p = &inputs[k];
+        let s = p.stride();
+        for r in 0..p.dem.height {
+            for c in 0..p.dem.width {
+                let i = r * p.dem.width + c;
+                if p.dem.is_valid(i) {
+                    let at = (p.y0 + r * s) * width + p.x0 + c * s;
+                    values[at] = p.dem.values[i];
+                    source[at] = k as u8;
+                }
+            }
+        }
+    }
+    // Points between a coarse input's samples, in a cell whose four corners have data, are drawn
+    // from the coarse level unless some input has a sample there.
+    for p in inputs.iter().filter(|p| p.log2 > 0) {
+        let s = p.stride();
+        let (w, h) = (p.dem.width, p.dem.height);
+        for r in 0..h.saturating_sub(1) {
+            for c in 0..w.saturating_sub(1) {
+                let corners = [(c, r), (c + 1, r), (c, r + 1), (c + 1, r + 1)];
+                if !corners.iter().all(|&(c, r)| p.dem.is_valid(r * w + c)) {
+                    continue;
+                }
+                for y in p.y0 + r * s..=p.y0 + (r + 1) * s {
+                    for x in p.x0 + c * s..=p.x0 + (c + 1) * s {
+                        let at = y * width + x;
+                        if source[at] == HOLE {
+                            source[at] = COARSE_ONLY;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let types: Vec<SampleType> = inputs.iter().map(|p| p.dem.sample_type).collect();
+    let sample_type = if types.iter().all(|&t| t == types[0]) {
+        types[0]
+    } else if types.iter().all(|t| t.is_integer()) {
+        SampleType::I32
+    } else {
+        SampleType::F64
+    };
+    let fine_geo = inputs[fine].dem.georef.clone().expect("checked above");
+    let half = if fine_geo.pixel_is_area { 0.5 } else { 0.0 };
+    let georef = GeoRef {
+        origin_x: fcx + (origin_x as f64 - half) * fx,
+        origin_y: fcy - (origin_y as f64 - half) * fy,
+        ..fine_geo
+    };
+    Ok(Mosaic {
+        dem: Dem {
+            width,
+            height,
+            values,
+            sample_type,
+            nodata: None,
+            georef: Some(georef),
+        },
+        source,
+        inputs,
+    })
+}
