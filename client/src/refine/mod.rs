@@ -1322,14 +1322,24 @@ impl<S: DataSource> Refiner<S> {
         candidates.dedup();
         let mut kept: Vec<DiamondId> = self.candidates.keys().copied().collect();
         kept.sort_unstable();
-        assert_eq!(kept, candidates, "refinement candidates out of step with the cut");
+        assert_eq!(
+            kept, candidates,
+            "refinement candidates out of step with the cut"
+        );
         let mut leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
         leaves.sort_unstable();
         let mut kept: Vec<DiamondId> = self.leaves.keys().copied().collect();
         kept.sort_unstable();
-        assert_eq!(kept, leaves, "coarsening candidates out of step with the cut");
+        assert_eq!(
+            kept, leaves,
+            "coarsening candidates out of step with the cut"
+        );
         let drawn: Vec<(DiamondId, Half)> = self.drawn.values().map(|p| (p.id, p.half)).collect();
-        assert_eq!(drawn, self.cut.drawn_halves(&self.layout), "drawn list out of step");
+        assert_eq!(
+            drawn,
+            self.cut.drawn_halves(&self.layout),
+            "drawn list out of step"
+        );
     }
 
     /// Fills the drawn list of the initial cut (roots only).
