@@ -53,6 +53,10 @@ use crate::camera::{Camera, Frustum};
 use crate::patch::HalfPatch;
 use crate::world::World;
 
+/// Per frame, the remembered overrun past the deadline shrinks by this factor unless a new one
+/// is larger: about 7 frames to halve, so a rare slow tail (a pre-empted thread) is soon
+/// forgotten.
+const OVERRUN_DECAY: f64 = 0.9;
 /// Prefetched diamonds are requested with their error scaled by this, so that they never
 /// overtake what the current view needs.
 const PREFETCH_PRIORITY: f64 = 1.0 / 16.0;
@@ -313,6 +317,12 @@ pub struct Refiner<S: DataSource> {
     errors: Vec<String>,
     frame: u64,
     last_camera: Option<Camera>,
+    /// How far recent frames ran past their refinement deadline (the bookkeeping after the
+    /// loop, the last results applied): the next deadline comes that much earlier, so that the
+    /// whole frame, not only its refinement loop, fits the budget. A decaying maximum, so one
+    /// slow tail is remembered for a while (the budget is a bound on every frame, not on the
+    /// average).
+    overrun: Duration,
     /// Diamonds being refined on worker threads.
     decoding: IdSet,
     done_tx: Sender<Done>,
@@ -406,6 +416,7 @@ impl<S: DataSource> Refiner<S> {
             errors: Vec::new(),
             frame: 0,
             last_camera: None,
+            overrun: Duration::ZERO,
             decoding: IdSet::default(),
             done_tx,
             done_rx,
@@ -799,7 +810,12 @@ impl<S: DataSource> Refiner<S> {
     /// prefetch, cancel what is no longer needed, and every few frames coarsen.
     pub fn frame(&mut self, camera: &Camera) -> FrameStats {
         let start = Instant::now();
-        let deadline = self.config.budget.map(|b| start + b);
+        // At most a quarter of the budget is held back for the tail, so refinement always gets
+        // most of it.
+        let deadline = self
+            .config
+            .budget
+            .map(|b| start + b - self.overrun.min(b / 4));
         self.frame += 1;
         self.source.pump();
         // Move what arrived into RAM; failures are logged now rather than when next wanted.
@@ -991,6 +1007,10 @@ impl<S: DataSource> Refiner<S> {
             }
         }
 
+        if let (Some(d), true) = (deadline, stats.budget_exhausted) {
+            let over = Instant::now().saturating_duration_since(d);
+            self.overrun = over.max(self.overrun.mul_f64(OVERRUN_DECAY));
+        }
         stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
         #[cfg(debug_assertions)]
         self.check_incremental_sets();
