@@ -1,47 +1,13 @@
 //! The `cbdam` binary end to end: build → inspect → verify on real DEMs, bad inputs that must
 //! fail cleanly without leaving files behind, and damaged repositories that `verify` must catch.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::process::{Command, Output};
 
 use cbdam_codec::repository::{Repository, Section};
-
-fn cbdam(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(args)
-        .output()
-        .expect("run cbdam")
-}
-
-fn data(name: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("data")
-        .join(name)
-        .to_string_lossy()
-        .into_owned()
-}
-
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// Files in `dir`, to show that a failed build leaves nothing (not even a temporary).
-fn listing(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<_> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    v.sort();
-    v
-}
+use common::*;
 
 /// An ESRI ASCII grid of `rows` (north first).
 fn write_asc(path: &Path, rows: &[Vec<f64>], nodata: Option<f64>) {

@@ -1,23 +1,15 @@
 //! `cbdam build --colour` end to end: build over an elevation repository (`--like`), verify in
 //! RGB, inspect the kind; bad images and mismatched sizes fail cleanly without leaving files.
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use cbdam_codec::colour::reconstruct_rgb;
 use cbdam_codec::hierarchy::RepoKind;
 use cbdam_codec::repository::Repository;
-
-fn cbdam(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(args)
-        .output()
-        .expect("run cbdam")
-}
-
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
+use common::*;
 
 fn text(o: &Output) -> String {
     format!(

@@ -2,38 +2,13 @@
 //! repository (paper §5, "graph construction"), checked end to end with verify, inspect and
 //! extract, and the geometries that cannot be combined refused by name with nothing left behind.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use cbdam_codec::input::{Dem, ReadOptions, read_dem};
-
-fn cbdam(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(args)
-        .output()
-        .expect("run cbdam")
-}
-
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn listing(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<_> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    v.sort();
-    v
-}
+use common::*;
 
 /// Side of the lattice in fine samples (the coarse input spans it all).
 const SIDE: usize = 513;

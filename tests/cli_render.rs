@@ -1,19 +1,12 @@
 //! `cbdam render` end to end on lavapipe (or a real GPU): a PNG of the requested size, written
 //! atomically, and clean failures for bad arguments.
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 
-fn cbdam(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(args)
-        .output()
-        .expect("run cbdam")
-}
-
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
+use common::*;
 
 fn png_size(path: &Path) -> (u32, u32) {
     let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
@@ -32,23 +25,6 @@ fn png_colours(path: &Path) -> ((u32, u32), usize) {
     buf.truncate(info.buffer_size());
     let colours: std::collections::HashSet<&[u8]> = buf.chunks(4).collect();
     ((info.width, info.height), colours.len())
-}
-
-/// Jacksboro built into `dir` at a loose bound (quick).
-fn jacksboro(dir: &Path) -> std::path::PathBuf {
-    let repo = dir.join("j.cbdam");
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/jacksboro_mpl.tif");
-    let o = cbdam(&[
-        "build",
-        &s(&data),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "2",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    repo
 }
 
 #[test]

@@ -2,22 +2,14 @@
 //! Xvfb this test starts) on lavapipe or a GPU, for a few frames, then its screenshot is checked
 //! for terrain and the HUD.
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+mod common;
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use cbdam_client::draw::hud;
-
-fn cbdam(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(args)
-        .output()
-        .expect("run cbdam")
-}
-
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
+use common::*;
 
 /// An Xvfb started by this test, stopped when dropped.
 struct Xvfb(Child);
@@ -74,33 +66,6 @@ fn start_xvfb() -> Result<(String, Xvfb), String> {
     }
 }
 
-fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
-    let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
-    let mut reader = png::Decoder::new(file).read_info().unwrap();
-    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
-    let info = reader.next_frame(&mut buf).unwrap();
-    assert_eq!(info.color_type, png::ColorType::Rgba);
-    buf.truncate(info.buffer_size());
-    (info.width, info.height, buf)
-}
-
-/// Jacksboro at 2 m in `dir`: small enough that the viewer's cut converges in a few frames.
-fn build_jacksboro(dir: &Path) -> PathBuf {
-    let repo = dir.join("j.cbdam");
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/jacksboro_mpl.tif");
-    let o = cbdam(&[
-        "build",
-        &s(&data),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "2",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    repo
-}
-
 #[test]
 fn help_lists_the_keys() {
     let o = cbdam(&["view", "--help"]);
@@ -128,7 +93,7 @@ fn view_draws_terrain_and_the_hud_in_a_window() {
         }
     };
     let dir = tempfile::tempdir().unwrap();
-    let repo = build_jacksboro(dir.path());
+    let repo = jacksboro(dir.path());
 
     let shot = dir.path().join("shot.png");
     let (w, h) = (320u32, 240u32);
@@ -154,7 +119,7 @@ fn view_draws_terrain_and_the_hud_in_a_window() {
     assert!(o.status.success(), "cbdam view failed:\n{stdout}\n{stderr}");
     assert!(stdout.contains("8 frames"), "{stdout}");
 
-    let (pw, ph, rgba) = read_png(&shot);
+    let (pw, ph, rgba) = read_rgba_png(&shot);
     assert_eq!((pw, ph), (w, h), "the screenshot has the window's size");
     let px = |x: u32, y: u32| {
         let i = 4 * (y * w + x) as usize;
@@ -242,7 +207,7 @@ fn wait_for(path: &Path, viewer: &mut Child) -> (u32, u32, Vec<u8>) {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
-    read_png(path)
+    read_rgba_png(path)
 }
 
 /// The window's pixels as RGBA, read back from the X server with `xwd` (format: X11's XWDFile.h;
@@ -328,7 +293,7 @@ fn keys_and_mouse_drive_the_viewer() {
         Err(why) => return skip(&why),
     };
     let dir = tempfile::tempdir().unwrap();
-    let repo = build_jacksboro(dir.path());
+    let repo = jacksboro(dir.path());
     let (w, h) = (320u32, 240u32);
     let mut viewer = Command::new(env!("CARGO_BIN_EXE_cbdam"))
         .args([
