@@ -26,11 +26,13 @@ use cbdam_codec::repository::{Repository, serialize};
 use cbdam_server::{AppState, Config};
 use glam::DVec3;
 
-const LATENCY: Duration = Duration::from_millis(100);
+const LATENCY: Duration = Duration::from_millis(200);
 const BUDGET: Duration = Duration::from_millis(2);
-/// Over the budget a frame may take on this shared 2-core machine (scheduling noise); a loop that
-/// waited on the network would take at least `LATENCY`.
-const NOISE: Duration = Duration::from_millis(60);
+/// Over the budget a frame may take on a shared 2-core machine (scheduling noise: a fresh-clone
+/// CI run once saw a 74 ms frame with 60 ms allowed, with the two tests of this file, their
+/// servers and the decode workers sharing the cores); a loop that waited on the network would
+/// take at least `LATENCY`, twice this.
+const NOISE: Duration = Duration::from_millis(100);
 
 fn image() -> Vec<u8> {
     let (w, h) = (160usize, 120usize);
