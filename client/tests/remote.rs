@@ -28,10 +28,10 @@ use glam::DVec3;
 
 const LATENCY: Duration = Duration::from_millis(200);
 const BUDGET: Duration = Duration::from_millis(2);
-/// Over the budget a frame may take on a shared 2-core machine (scheduling noise: a fresh-clone
-/// CI run once saw a 74 ms frame with 60 ms allowed, with the two tests of this file, their
-/// servers and the decode workers sharing the cores); a loop that waited on the network would
-/// take at least `LATENCY`, twice this.
+/// Over the budget a frame may take on a shared 2-core machine (scheduling and I/O noise:
+/// fresh-clone CI runs, writing gigabytes of build output, have stalled a frame for 74 ms); a
+/// loop that waited on the network would take at least `LATENCY`, twice this, and would do it
+/// on every frame that needs data, so one frame beyond the margin is tolerated, not two.
 const NOISE: Duration = Duration::from_millis(100);
 
 fn image() -> Vec<u8> {
@@ -151,13 +151,15 @@ fn local_cut(repo: &Arc<Repository>, cam: &Camera) -> HashSet<DiamondId> {
 /// Frames at ~100 fps with a still camera until the cut converges; panics if a frame blocks.
 fn fly_until_converged(r: &mut Refiner<RemoteSource>, cam: &Camera, limit: Duration) -> FrameStats {
     let start = Instant::now();
+    let mut slow = Vec::new();
     while start.elapsed() < limit {
         let s = r.frame(cam);
+        if s.refine_ms >= (BUDGET + NOISE).as_secs_f64() * 1e3 {
+            slow.push((s.frame, s.refine_ms));
+        }
         assert!(
-            s.refine_ms < (BUDGET + NOISE).as_secs_f64() * 1e3,
-            "frame {} took {} ms",
-            s.frame,
-            s.refine_ms
+            slow.len() <= 1,
+            "frames over budget + noise (frame, ms): {slow:?}"
         );
         if s.converged && s.access.in_flight == 0 {
             return s;
