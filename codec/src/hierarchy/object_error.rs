@@ -14,15 +14,24 @@ use crate::quant::HeightGrid;
 /// parallel.
 const PARALLEL_ROWS_FROM: i64 = 512;
 
-/// Odd-level surface rows compared with the input at a time (see [`Scan::rows`]).
-const ODD_BATCH: usize = 32;
+/// Bytes of an odd-level batch of surface rows (see [`Scan::rows`]): small enough to stay in
+/// a core's L2 cache.
+const ODD_BATCH_BYTES: usize = 256 << 10;
 
-/// Row stride of an odd-level batch of rows `len` long: an odd number of 64-byte lines, so the
-/// rows of a batch, read across, fall into different cache sets (a stride near a multiple of
-/// 4 KiB would put them all into the same few).
-fn batch_stride<T>(len: usize) -> usize {
-    let per_line = 64 / std::mem::size_of::<T>();
-    (len.div_ceil(per_line) | 1) * per_line
+/// Fewest odd-level surface rows compared with the input at a time: the batch's width along
+/// each input row it meets, and so how much of each input cache line is used before it leaves.
+const ODD_BATCH_MIN: usize = 32;
+
+/// Rows of an odd-level batch over `rows` surface rows `len` long: as many as the byte budget
+/// allows, and at least [`ODD_BATCH_MIN`].
+fn odd_batch_rows<T>(rows: usize, len: usize) -> usize {
+    let mut b = rows.max(1);
+    while b > ODD_BATCH_MIN
+        && (len.div_ceil(2) + b) * b * std::mem::size_of::<T>() > ODD_BATCH_BYTES
+    {
+        b = b.div_ceil(2);
+    }
+    b
 }
 
 /// The input samples the errors are measured against, with a bound on their magnitude (computed
@@ -252,15 +261,34 @@ impl<'a> Scan<'a> {
                     } else {
                         t0 + self.sp - 1
                     };
-                    self.rows::<MAIN, T>(t0, t1)
+                    self.rows_fast::<MAIN, T>(t0, t1)
                 })
                 .max()
                 .unwrap_or(0)
         } else {
-            self.rows::<MAIN, T>(0, self.side)
+            self.rows_fast::<MAIN, T>(0, self.side)
         };
         let e = (worst_h + self.sp - 1) / self.sp;
         u32::try_from(e).unwrap_or(u32::MAX)
+    }
+
+    /// [`Scan::rows`] compiled for the widest vector unit the CPU has: the scan is a few
+    /// integer operations per sample, and the baseline x86-64 target (SSE2) has no 32-bit
+    /// min/max and half the lanes of AVX2.
+    fn rows_fast<const MAIN: bool, T: Lane>(&self, t0: i64, t1: i64) -> i64 {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && !tests::portable_only() {
+            // SAFETY: the CPU has AVX2, checked just above.
+            return unsafe { self.rows_avx2::<MAIN, T>(t0, t1) };
+        }
+        self.rows::<MAIN, T>(t0, t1)
+    }
+
+    /// [`Scan::rows`] with AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn rows_avx2<const MAIN: bool, T: Lane>(&self, t0: i64, t1: i64) -> i64 {
+        self.rows::<MAIN, T>(t0, t1)
     }
 
     /// The largest scaled error over rows `t0..=t1`.
@@ -270,6 +298,7 @@ impl<'a> Scan<'a> {
     /// rows lies in: constant per cell except at the split diagonal, so a second buffer holds
     /// the steps and only one entry per cell changes from row to row (all of them at a new row
     /// of cells). Both loops over a row are straight and vectorise.
+    #[inline(always)]
     fn rows<const MAIN: bool, T: Lane>(&self, t0: i64, t1: i64) -> i64 {
         let Some(ta) = (t0..=t1).find(|&t| self.data_range(t).is_some()) else {
             return 0;
@@ -375,10 +404,15 @@ impl<'a> Scan<'a> {
         let (values, valid) = (&self.input.values, &self.input.valid);
         let (mut hi_d, mut lo_d) = (T::default(), T::default());
         // Odd levels: a row is an input diagonal, and walking it touches one input row (and
-        // memory page) per sample. So the surface rows of a batch are kept, and the batch is
-        // compared with the input in input-row order instead.
+        // memory page) per sample. So a batch of surface rows is kept, transposed: input row
+        // Δy crosses batch row r at s = 2Δy + t0 + r, so the samples of one input row lie on
+        // one diagonal s − r of the batch, and the batch is stored diagonal by diagonal, each
+        // diagonal's rows adjacent. Then the batch is compared with the input in input-row
+        // order, both sides contiguous. Only entries with s ≡ t (mod 2) are samples, so a
+        // batch's diagonals share one parity and are kept at half resolution.
+        let br = odd_batch_rows::<T>((tb - ta + 1) as usize, len);
         let mut batch = if self.odd {
-            vec![T::default(); ODD_BATCH.min((tb - ta + 1) as usize) * batch_stride::<T>(len)]
+            vec![T::default(); (len.div_ceil(2) + br) * br]
         } else {
             Vec::new()
         };
@@ -387,10 +421,19 @@ impl<'a> Scan<'a> {
         loop {
             if self.odd {
                 let r = (t - batch_from) as usize;
-                let at = r * batch_stride::<T>(len);
-                batch[at..at + len].copy_from_slice(&surface);
-                if r + 1 == ODD_BATCH || t == tb {
-                    (hi_d, lo_d) = self.odd_batch(&batch, batch_from, t, ulo, uhi, (hi_d, lo_d));
+                // The first sample column of row t, and its diagonal's slot.
+                let s0 = ulo + (t - ulo).rem_euclid(2);
+                if s0 <= uhi {
+                    let d0 = odd_diagonal(s0 - r as i64, ulo, br);
+                    let slots = batch[d0 * br + r..].iter_mut().step_by(br);
+                    let row = surface[(s0 - ulo) as usize..].iter().step_by(2);
+                    for (slot, &v) in slots.zip(row) {
+                        *slot = v;
+                    }
+                }
+                if r + 1 == br || t == tb {
+                    let rows = (batch_from, t);
+                    (hi_d, lo_d) = self.odd_batch(&batch, br, rows, ulo, uhi, (hi_d, lo_d));
                     batch_from = t + 1;
                 }
             } else if let Some((lo, hi)) = self.data_range(t) {
@@ -429,20 +472,21 @@ impl<'a> Scan<'a> {
     }
 
     /// Folds into `(hi, lo)` the extremes of `surface − value·sp` over the valid samples of
-    /// odd-level rows `t0..=t1`, whose surfaces (columns `ulo..=uhi`) are the rows of `batch`.
-    /// Walks the input row by row: along an input row, `s` and `t` both grow by one.
+    /// odd-level rows `t0..=t1`, whose surfaces (columns `ulo..=uhi`) are in `batch` of `br`
+    /// rows, diagonal by diagonal (see [`Scan::rows`]). Walks the input row by row: along an input row, `s`
+    /// and `t` both grow by one, so the batch row grows by one along a diagonal.
+    #[inline(always)]
     fn odd_batch<T: Lane>(
         &self,
         batch: &[T],
-        t0: i64,
-        t1: i64,
+        br: usize,
+        (t0, t1): (i64, i64),
         ulo: i64,
         uhi: i64,
         (mut hi, mut lo): (T, T),
     ) -> (T, T) {
         let (ox, oy) = self.origin;
         let (w, h) = (self.input.width as i64, self.input.height as i64);
-        let stride = batch_stride::<T>((uhi - ulo + 1) as usize);
         // s − t = 2·Δy.
         let dy0 = (ulo - t1).div_euclid(2).max(-oy);
         let dy1 = (uhi - t0).div_euclid(2).min(h - 1 - oy);
@@ -453,21 +497,32 @@ impl<'a> Scan<'a> {
             if dx0 > dx1 {
                 continue;
             }
-            let count = (dx1 - dx0 + 1) as usize;
+            let (r0, r1) = (dx0 - dy - t0, dx1 - dy - t0);
+            let base = odd_diagonal(2 * dy + t0, ulo, br) * br;
+            let surface = &batch[base + r0 as usize..=base + r1 as usize];
             let k = ((oy + dy) * w + ox + dx0) as usize;
-            let first = (dx0 - dy - t0) as usize * stride + (dx0 + dy - ulo) as usize;
+            let count = surface.len();
             let vals = &self.input.values[k..k + count];
             let oks = &self.input.valid[k..k + count];
-            let surface = &batch[first..=first + (count - 1) * (stride + 1)];
-            for (i, (&v, &ok)) in vals.iter().zip(oks).enumerate() {
-                let s = surface[i * (stride + 1)];
-                let d = s.sub(T::of(i64::from(v)).shl(self.shift));
-                let d = if ok { d } else { T::default() };
-                hi = hi.max(d);
-                lo = lo.min(d);
-            }
+            (hi, lo) = extremes(surface, vals, oks, self.shift, hi, lo);
         }
         (hi, lo)
+    }
+}
+
+/// Slot of diagonal `d = s − r` of an odd-level batch of `br` rows (columns from `ulo`, so
+/// `d > ulo − br`): one per two diagonals, as a batch uses one parity.
+#[inline]
+fn odd_diagonal(d: i64, ulo: i64, br: usize) -> usize {
+    ((d - ulo + br as i64) >> 1) as usize
+}
+
+#[cfg(not(test))]
+mod tests {
+    /// Outside tests the fastest kernels are always used.
+    #[inline(always)]
+    pub(super) fn portable_only() -> bool {
+        false
     }
 }
 
@@ -475,6 +530,15 @@ impl<'a> Scan<'a> {
 mod tests {
     use super::*;
     use crate::geometry::Layout;
+
+    std::thread_local! {
+        /// Set while a test checks the portable kernels on a CPU that has faster ones.
+        static PORTABLE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    }
+
+    pub(super) fn portable_only() -> bool {
+        PORTABLE.get()
+    }
 
     /// `h ×` the piecewise-linear interpolant at `(is, js)` (grid coordinates times `h`), for a grid
     /// of spacing `h` split along `diag`.
@@ -569,6 +633,12 @@ mod tests {
                         // The same in 64-bit lanes, which the small heights here never pick.
                         proptest::prop_assert_eq!(surface_error_lanes(&layout, d, &p, &ErrorInput::new(&input), parallel, false), want, "{} {} wide", d, parallel);
                     }
+                    // The portable kernels, which a CPU with AVX2 never runs otherwise (one
+                    // thread: the switch is per thread).
+                    PORTABLE.set(true);
+                    let got = [true, false].map(|narrow| surface_error_lanes(&layout, d, &p, &ErrorInput::new(&input), false, narrow));
+                    PORTABLE.set(false);
+                    proptest::prop_assert_eq!(got, [want; 2], "{} portable", d);
                 }
             }
         }
