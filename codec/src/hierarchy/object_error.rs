@@ -8,6 +8,7 @@
 use rayon::prelude::*;
 
 use crate::geometry::{Diagonal, DiamondId, Layout};
+use crate::lifting::MAX_ABS_HEIGHT;
 use crate::quant::HeightGrid;
 
 /// Diamonds whose grid rows span at least this many lattice units have their rows scanned in
@@ -40,6 +41,8 @@ pub(crate) struct ErrorInput<'a> {
     grid: &'a HeightGrid,
     /// The largest `|value|` of a valid sample.
     max_abs: i64,
+    /// No nodata: the scans need not read the validity mask.
+    all_valid: bool,
 }
 
 impl<'a> ErrorInput<'a> {
@@ -47,7 +50,12 @@ impl<'a> ErrorInput<'a> {
         let max_abs = grid
             .range()
             .map_or(0, |(lo, hi)| i64::from(lo).abs().max(i64::from(hi).abs()));
-        Self { grid, max_abs }
+        let all_valid = !grid.valid.contains(&false);
+        Self {
+            grid,
+            max_abs,
+            all_valid,
+        }
     }
 }
 
@@ -60,30 +68,82 @@ impl<'a> ErrorInput<'a> {
 pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &ErrorInput) -> u32 {
     let g = layout.grid(id);
     if id.is_even() && g.u.0 == 1 {
-        // The finest level: every sample is a grid vertex, and grid rows are input rows.
-        let n = layout.n() as i64;
-        let grid = input.grid;
-        let (w, h) = (grid.width as i64, grid.height as i64);
-        let (ox, oy) = g.origin;
-        let (i0, i1) = ((-ox).max(0), (w - ox).min(n));
-        let mut worst = 0i64;
-        for j in (-oy).max(0)..(h - oy).min(n) {
-            if i0 >= i1 {
-                break;
-            }
-            let row = &p[(j * n + i0) as usize..(j * n + i1) as usize];
-            let k = ((oy + j) * w + ox + i0) as usize;
-            let vals = &grid.values[k..k + row.len()];
-            let valid = &grid.valid[k..k + row.len()];
-            for ((&s, &v), &ok) in row.iter().zip(vals).zip(valid) {
-                let e = (i64::from(s) - i64::from(v)).abs();
-                worst = worst.max(if ok { e } else { 0 });
-            }
-        }
-        return u32::try_from(worst).unwrap_or(u32::MAX);
+        return finest_error_fast(layout.n(), g.origin, p, input);
     }
     let parallel = layout.radius(id.level) * 2 >= PARALLEL_ROWS_FROM;
     surface_error_scan(layout, id, p, input, parallel)
+}
+
+/// [`finest_error`] compiled for AVX2 where the CPU has it (see [`Scan::rows_fast`]).
+fn finest_error_fast(n: usize, origin: (i64, i64), p: &[i32], input: &ErrorInput) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && !tests::portable_only() {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { finest_error_avx2(n, origin, p, input) };
+    }
+    finest_error(n, origin, p, input)
+}
+
+/// [`finest_error`] with AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn finest_error_avx2(n: usize, origin: (i64, i64), p: &[i32], input: &ErrorInput) -> u32 {
+    finest_error(n, origin, p, input)
+}
+
+/// [`surface_error`] at the finest level, grid origin `origin`: every sample is a grid vertex,
+/// and grid rows are input rows. Differences of heights within `MAX_ABS_HEIGHT` fit 32-bit
+/// lanes; larger grid values (never from the encoder) take 64-bit ones.
+#[inline(always)]
+fn finest_error(n: usize, origin: (i64, i64), p: &[i32], input: &ErrorInput) -> u32 {
+    let narrow = p.iter().map(|v| v.unsigned_abs()).max().unwrap_or(0) as i64
+        <= MAX_ABS_HEIGHT as i64
+        && input.max_abs <= MAX_ABS_HEIGHT as i64;
+    if narrow {
+        finest_error_lanes::<i32>(n, origin, p, input)
+    } else {
+        finest_error_lanes::<i64>(n, origin, p, input)
+    }
+}
+
+#[inline(always)]
+fn finest_error_lanes<T: Lane>(n: usize, origin: (i64, i64), p: &[i32], input: &ErrorInput) -> u32 {
+    let grid = input.grid;
+    let valid = (!input.all_valid).then_some(&grid.valid[..]);
+    let (n, w, h) = (n as i64, grid.width as i64, grid.height as i64);
+    let (ox, oy) = origin;
+    let (i0, i1) = ((-ox).max(0), (w - ox).min(n));
+    let (j0, j1) = ((-oy).max(0), (h - oy).min(n));
+    if i0 >= i1 {
+        return 0;
+    }
+    let mut row_vals = vec![T::default(); (i1 - i0) as usize];
+    let (mut hi, mut lo) = (T::default(), T::default());
+    for j in j0..j1 {
+        let k = ((oy + j) * w + ox + i0) as usize;
+        if j + PREFETCH_ROWS < j1 {
+            prefetch(
+                &grid.values,
+                valid,
+                k + (PREFETCH_ROWS * w) as usize,
+                row_vals.len(),
+            );
+        }
+        let row = &p[(j * n + i0) as usize..(j * n + i1) as usize];
+        for (o, &v) in row_vals.iter_mut().zip(row) {
+            *o = T::of(i64::from(v));
+        }
+        let vals = &grid.values[k..k + row.len()];
+        (hi, lo) = extremes(
+            &row_vals,
+            vals,
+            valid.map(|v| &v[k..k + row.len()]),
+            0,
+            hi,
+            lo,
+        );
+    }
+    u32::try_from(hi.widen().max(-lo.widen())).unwrap_or(u32::MAX)
 }
 
 /// [`surface_error`] without the finest-level shortcut, rows scanned in parallel or not.
@@ -114,7 +174,7 @@ fn surface_error_lanes(
     parallel: bool,
     narrow: bool,
 ) -> u32 {
-    let scan = Scan::new(layout, id, p, input.grid);
+    let scan = Scan::new(layout, id, p, input);
     debug_assert!(!narrow || 2 * scan.sp * input.max_abs < 1 << 31);
     match (layout.diagonal(id), narrow) {
         (Diagonal::Main, true) => scan.run::<true, i32>(parallel),
@@ -169,23 +229,67 @@ lane!(i32);
 lane!(i64);
 
 /// The extremes of `surface − value·2^shift` over the valid samples of a row, starting from
-/// `(hi, lo)`. Nodata contributes 0, neutral for both. Straight, so it vectorises.
+/// `(hi, lo)`: `valid` is `None` when every sample is. Nodata contributes 0, neutral for both.
+/// Straight, so it vectorises.
 #[inline(always)]
 fn extremes<T: Lane>(
     surface: &[T],
     values: &[i32],
-    valid: &[bool],
+    valid: Option<&[bool]>,
     shift: u32,
     mut hi: T,
     mut lo: T,
 ) -> (T, T) {
-    for ((&s, &v), &ok) in surface.iter().zip(values).zip(valid) {
-        let d = s.sub(T::of(i64::from(v)).shl(shift));
-        let d = if ok { d } else { T::default() };
-        hi = hi.max(d);
-        lo = lo.min(d);
+    let diff = |s: T, v: i32| s.sub(T::of(i64::from(v)).shl(shift));
+    match valid {
+        Some(valid) => {
+            for ((&s, &v), &ok) in surface.iter().zip(values).zip(valid) {
+                let d = if ok { diff(s, v) } else { T::default() };
+                hi = hi.max(d);
+                lo = lo.min(d);
+            }
+        }
+        None => {
+            for (&s, &v) in surface.iter().zip(values) {
+                let d = diff(s, v);
+                hi = hi.max(d);
+                lo = lo.min(d);
+            }
+        }
     }
     (hi, lo)
+}
+
+/// Input rows ahead of the one being compared whose samples are prefetched: a diamond's row
+/// of samples is short (a few cache lines), too short for the hardware prefetcher to follow
+/// the jump to the next input row, so each row would wait on memory.
+const PREFETCH_ROWS: i64 = 4;
+
+/// Asks for `values[k..k + count]` and `valid[k..k + count]` (clipped to the slices) to be
+/// brought into the cache. A hint only: no effect on results.
+#[inline(always)]
+fn prefetch(values: &[i32], valid: Option<&[bool]>, k: usize, count: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        let end = (k + count).min(values.len());
+        if k >= end {
+            return;
+        }
+        // SAFETY: SSE is part of the x86-64 baseline, and a prefetch neither reads into the
+        // program nor faults.
+        let hint = |p: *const i8| unsafe { _mm_prefetch::<_MM_HINT_T0>(p) };
+        for line in values[k..end].chunks(16) {
+            hint(line.as_ptr().cast());
+        }
+        if let Some(valid) = valid {
+            for line in valid[k..end].chunks(64) {
+                hint(line.as_ptr().cast());
+            }
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (values, valid, k, count);
 }
 
 /// One diamond's scan: its grid, spacing and placement over the input.
@@ -193,6 +297,8 @@ struct Scan<'a> {
     p: &'a [i32],
     n: usize,
     input: &'a HeightGrid,
+    /// The validity mask, `None` when every sample is valid.
+    valid: Option<&'a [bool]>,
     odd: bool,
     /// Grid spacing in `(s, t)` units, a power of two, and its log.
     sp: i64,
@@ -203,7 +309,8 @@ struct Scan<'a> {
 }
 
 impl<'a> Scan<'a> {
-    fn new(layout: &Layout, id: DiamondId, p: &'a [i32], input: &'a HeightGrid) -> Self {
+    fn new(layout: &Layout, id: DiamondId, p: &'a [i32], error_input: &ErrorInput<'a>) -> Self {
+        let input = error_input.grid;
         let n = layout.n();
         let g = layout.grid(id);
         let odd = !id.is_even();
@@ -213,6 +320,7 @@ impl<'a> Scan<'a> {
             p,
             n,
             input,
+            valid: (!error_input.all_valid).then_some(&input.valid[..]),
             odd,
             sp,
             shift: sp.trailing_zeros(),
@@ -401,7 +509,7 @@ impl<'a> Scan<'a> {
         }
         let (ox, oy) = self.origin;
         let w = self.input.width as i64;
-        let (values, valid) = (&self.input.values, &self.input.valid);
+        let (values, valid) = (&self.input.values[..], self.valid);
         let (mut hi_d, mut lo_d) = (T::default(), T::default());
         // Odd levels: a row is an input diagonal, and walking it touches one input row (and
         // memory page) per sample. So a batch of surface rows is kept, transposed: input row
@@ -437,10 +545,14 @@ impl<'a> Scan<'a> {
                     batch_from = t + 1;
                 }
             } else if let Some((lo, hi)) = self.data_range(t) {
+                if let Some((lo, hi)) = self.data_range(t + PREFETCH_ROWS).filter(|_| t < tb) {
+                    let k = ((oy + t + PREFETCH_ROWS) * w + ox + lo) as usize;
+                    prefetch(values, valid, k, (hi - lo + 1) as usize);
+                }
                 let buf = &surface[(lo - ulo) as usize..=(hi - ulo) as usize];
                 let k = ((oy + t) * w + ox + lo) as usize;
                 let vals = &values[k..k + buf.len()];
-                let oks = &valid[k..k + buf.len()];
+                let oks = valid.map(|v| &v[k..k + buf.len()]);
                 (hi_d, lo_d) = extremes(buf, vals, oks, shift, hi_d, lo_d);
             }
             if t == tb {
@@ -502,8 +614,15 @@ impl<'a> Scan<'a> {
             let surface = &batch[base + r0 as usize..=base + r1 as usize];
             let k = ((oy + dy) * w + ox + dx0) as usize;
             let count = surface.len();
+            // The row PREFETCH_ROWS below spans about as many samples, shifted by as many.
+            prefetch(
+                &self.input.values,
+                self.valid,
+                k + (PREFETCH_ROWS * w) as usize - PREFETCH_ROWS as usize,
+                count + 2 * PREFETCH_ROWS as usize,
+            );
             let vals = &self.input.values[k..k + count];
-            let oks = &self.input.valid[k..k + count];
+            let oks = self.valid.map(|v| &v[k..k + count]);
             (hi, lo) = extremes(surface, vals, oks, self.shift, hi, lo);
         }
         (hi, lo)
@@ -627,6 +746,15 @@ mod tests {
                 let p: Vec<i32> = (0..n * n).map(|_| rnd(1000) as i32).collect();
                 let want = brute_force(&layout, d, &p, &input);
                 proptest::prop_assert_eq!(surface_error(&layout, d, &p, &ErrorInput::new(&input)), want, "{}", d);
+                if d.level == layout.finest_level() && d.is_even() {
+                    // The shortcut's other lanes and its portable kernel.
+                    let origin = layout.grid(d).origin;
+                    let wide = finest_error_lanes::<i64>(n, origin, &p, &ErrorInput::new(&input));
+                    PORTABLE.set(true);
+                    let portable = finest_error_fast(n, origin, &p, &ErrorInput::new(&input));
+                    PORTABLE.set(false);
+                    proptest::prop_assert_eq!((wide, portable), (want, want), "{} finest", d);
+                }
                 if d.level < layout.finest_level() || !d.is_even() {
                     for parallel in [false, true] {
                         proptest::prop_assert_eq!(surface_error_scan(&layout, d, &p, &ErrorInput::new(&input), parallel), want, "{} {}", d, parallel);
