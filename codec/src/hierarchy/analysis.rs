@@ -7,6 +7,8 @@
 //!
 //! This is the in-core variant: each level's field covers the whole padded domain.
 
+use rayon::prelude::*;
+
 use crate::geometry::{DiamondId, Layout};
 use crate::lifting::predict_vertex_numerator;
 use crate::quant::HeightGrid;
@@ -14,8 +16,9 @@ use crate::quant::HeightGrid;
 /// One level's filtered heights on the lattice points of that level.
 #[derive(Clone, Debug)]
 pub struct LevelField {
-    /// Lattice spacing of the stored grid (the level's points are a subset of it).
-    g: i64,
+    /// Lattice spacing of the stored grid (the level's points are a subset of it), a power of
+    /// two, as its log.
+    shift: u32,
     cols: usize,
     extent: (i64, i64),
     data: Vec<i32>,
@@ -28,11 +31,11 @@ impl LevelField {
         // Even levels: axis steps (h, 0); odd levels: diagonal steps (d, ±d) — either way every
         // point of the level lies on the axis-aligned grid of spacing |u.0|.
         let g = grid.u.0;
+        debug_assert!(g.count_ones() == 1, "lattice spacings are powers of two");
         let (cols, rows) = ((ex / g + 1) as usize, (ey / g + 1) as usize);
         Self {
-            g,
+            shift: g.trailing_zeros(),
             cols,
-
             extent: (ex, ey),
             data: vec![0; cols * rows],
         }
@@ -43,18 +46,22 @@ impl LevelField {
     #[inline]
     pub fn get(&self, x: i64, y: i64) -> i32 {
         let (x, y) = (reflect(x, self.extent.0), reflect(y, self.extent.1));
-        self.data[(y / self.g) as usize * self.cols + (x / self.g) as usize]
+        self.data[self.index(x, y)]
     }
 
+    /// Index of a point of the domain in `data`.
     #[inline]
-    fn set(&mut self, x: i64, y: i64, v: i32) {
-        self.data[(y / self.g) as usize * self.cols + (x / self.g) as usize] = v;
+    fn index(&self, x: i64, y: i64) -> usize {
+        (y >> self.shift) as usize * self.cols + (x >> self.shift) as usize
     }
 }
 
 /// Reflects `x` into `[0, len]` (symmetric extension without repeating the edge sample).
 #[inline]
 fn reflect(x: i64, len: i64) -> i64 {
+    if (0..=len).contains(&x) {
+        return x;
+    }
     if len == 0 {
         return 0;
     }
@@ -70,47 +77,77 @@ pub fn analysis_fields(layout: &Layout, grid: &HeightGrid) -> Vec<LevelField> {
     let finest = layout.finest_level();
     let filled = fill_nodata(grid);
     let mut fine = LevelField::new(layout, finest);
-    let (ex, ey) = layout.extent();
+    let ey = layout.extent().1;
     let (w, h) = (grid.width as i64, grid.height as i64);
-    for y in 0..=ey {
-        for x in 0..=ex {
-            let (sx, sy) = (reflect(x, w - 1), reflect(y, h - 1));
-            fine.set(x, y, filled[(sy * w + sx) as usize]);
-        }
-    }
-    let n = layout.n();
+    let cols = fine.cols;
+    fine.data
+        .par_chunks_mut(cols)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let sy = reflect(y as i64, h - 1);
+            for (x, o) in row.iter_mut().enumerate() {
+                *o = filled[(sy * w + reflect(x as i64, w - 1)) as usize];
+            }
+        });
+    debug_assert_eq!(fine.data.len(), cols * (ey as usize + 1));
     let mut fields = vec![fine];
     for level in (0..finest).rev() {
         let finer = fields.last().expect("at least the finest field");
         let mut field = LevelField::new(layout, level);
-        for id in all_diamonds_of_level(layout, level) {
-            let g = layout.grid(id);
-            for j in 0..n {
-                for i in 0..n {
-                    let (x, y) = g.point(i as i64, j as i64);
-                    if x < 0 || y < 0 || x > ex || y > ey {
-                        continue;
-                    }
-                    let v = i64::from(finer.get(x, y));
-                    let inner = (1..n - 1).contains(&i) && (1..n - 1).contains(&j);
-                    let p = if inner {
-                        let cell = |ci: usize, cj: usize| {
-                            let (x2, y2) = g.point2(2 * ci as i64 + 1, 2 * cj as i64 + 1);
-                            i64::from(finer.get(x2 / 2, y2 / 2))
-                        };
-                        let num = predict_vertex_numerator(cell, n, i, j);
-                        (32 * v + num + 32) >> 6
-                    } else {
-                        v
-                    };
-                    field.set(x, y, p as i32);
-                }
+        // Diamonds of a level share only their sides, whose points every diamond copies from
+        // the finer field: the values do not depend on the order diamonds are written in.
+        for ids in all_diamonds_of_level(layout, level).chunks(DIAMONDS_AT_ONCE) {
+            let parts: Vec<Vec<(usize, i32)>> = ids
+                .par_iter()
+                .map(|&id| filtered_points(layout, id, finer, &field))
+                .collect();
+            for (k, v) in parts.into_iter().flatten() {
+                field.data[k] = v;
             }
         }
         fields.push(field);
     }
     fields.reverse();
     fields
+}
+
+/// Diamonds filtered between writes into the level's field: bounds the points held.
+const DIAMONDS_AT_ONCE: usize = 256;
+
+/// The filtered heights of diamond `id`'s points in the domain, as `(index in field, value)`,
+/// from the next finer level's field.
+fn filtered_points(
+    layout: &Layout,
+    id: DiamondId,
+    finer: &LevelField,
+    field: &LevelField,
+) -> Vec<(usize, i32)> {
+    let n = layout.n();
+    let (ex, ey) = layout.extent();
+    let g = layout.grid(id);
+    let mut out = Vec::with_capacity(n * n);
+    for j in 0..n {
+        for i in 0..n {
+            let (x, y) = g.point(i as i64, j as i64);
+            if x < 0 || y < 0 || x > ex || y > ey {
+                continue;
+            }
+            let v = i64::from(finer.get(x, y));
+            let inner = (1..n - 1).contains(&i) && (1..n - 1).contains(&j);
+            let p = if inner {
+                let cell = |ci: usize, cj: usize| {
+                    let (x2, y2) = g.point2(2 * ci as i64 + 1, 2 * cj as i64 + 1);
+                    i64::from(finer.get(x2 / 2, y2 / 2))
+                };
+                let num = predict_vertex_numerator(cell, n, i, j);
+                (32 * v + num + 32) >> 6
+            } else {
+                v
+            };
+            out.push((field.index(x, y), p as i32));
+        }
+    }
+    out
 }
 
 /// Every diamond of a level, inside the domain or sticking out of it.
@@ -192,4 +229,112 @@ fn fill_nodata(grid: &HeightGrid) -> Vec<i32> {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// The serial analysis that [`analysis_fields`] replaced, point by point with divisions:
+    /// the reference.
+    fn reference(layout: &Layout, grid: &HeightGrid) -> Vec<Vec<i32>> {
+        let (ex, ey) = layout.extent();
+        let at = |data: &[i32], g: i64, x: i64, y: i64| {
+            let (x, y) = (reflect_slow(x, ex), reflect_slow(y, ey));
+            data[(y / g) as usize * (ex / g + 1) as usize + (x / g) as usize]
+        };
+        let spacing = |level: u8| layout.grid(DiamondId::new(level, 0, 0)).u.0;
+        let filled = fill_nodata(grid);
+        let (w, h) = (grid.width as i64, grid.height as i64);
+        let mut finer = Vec::new();
+        for y in 0..=ey {
+            for x in 0..=ex {
+                finer.push(filled[(reflect_slow(y, h - 1) * w + reflect_slow(x, w - 1)) as usize]);
+            }
+        }
+        let n = layout.n();
+        let mut out = vec![finer];
+        for level in (0..layout.finest_level()).rev() {
+            let (gf, g) = (spacing(level + 1), spacing(level));
+            let finer = out.last().unwrap();
+            let mut field = vec![0; ((ex / g + 1) * (ey / g + 1)) as usize];
+            for id in all_diamonds_of_level(layout, level) {
+                let grid = layout.grid(id);
+                for j in 0..n {
+                    for i in 0..n {
+                        let (x, y) = grid.point(i as i64, j as i64);
+                        if x < 0 || y < 0 || x > ex || y > ey {
+                            continue;
+                        }
+                        let v = i64::from(at(finer, gf, x, y));
+                        let p = if (1..n - 1).contains(&i) && (1..n - 1).contains(&j) {
+                            let cell = |ci: usize, cj: usize| {
+                                let (x2, y2) = grid.point2(2 * ci as i64 + 1, 2 * cj as i64 + 1);
+                                i64::from(at(finer, gf, x2 / 2, y2 / 2))
+                            };
+                            (32 * v + predict_vertex_numerator(cell, n, i, j) + 32) >> 6
+                        } else {
+                            v
+                        };
+                        field[(y / g) as usize * (ex / g + 1) as usize + (x / g) as usize] =
+                            p as i32;
+                    }
+                }
+            }
+            out.push(field);
+        }
+        out.reverse();
+        out
+    }
+
+    fn reflect_slow(x: i64, len: i64) -> i64 {
+        if len == 0 {
+            return 0;
+        }
+        let x = x.rem_euclid(2 * len);
+        if x > len { 2 * len - x } else { x }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 32, ..ProptestConfig::default() })]
+        #[test]
+        fn parallel_analysis_matches_the_serial_reference(
+            n_pow in 1u32..5,
+            w in 1usize..80,
+            h in 1usize..80,
+            extra in 0u32..2,
+            holes in proptest::collection::vec(any::<u16>(), 0..20),
+            seed in any::<u64>(),
+        ) {
+            let mut s = seed | 1;
+            let values = (0..w * h)
+                .map(|_| {
+                    s ^= s << 13;
+                    s ^= s >> 7;
+                    s ^= s << 17;
+                    (s % 2001) as i32 - 1000
+                })
+                .collect();
+            let mut grid = HeightGrid::all_valid(w, h, values);
+            for hole in holes {
+                grid.valid[hole as usize % (w * h)] = false;
+            }
+            let layout = Layout::covering((1 << n_pow) + 1, w, h, extra).unwrap();
+            let got: Vec<Vec<i32>> = analysis_fields(&layout, &grid).into_iter().map(|f| f.data).collect();
+            prop_assert_eq!(got, reference(&layout, &grid));
+        }
+    }
+
+    #[test]
+    fn reflection_folds_back_without_repeating_the_edge() {
+        for len in [0, 1, 5, 8] {
+            for x in -40..40 {
+                assert_eq!(reflect(x, len), reflect_slow(x, len), "{x} in [0, {len}]");
+            }
+        }
+        assert_eq!(reflect(-1, 4), 1);
+        assert_eq!(reflect(5, 4), 3);
+        assert_eq!(reflect(9, 4), 1);
+    }
 }
