@@ -55,19 +55,11 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         },
         ..RefineConfig::default()
     };
-    if args.repo.starts_with("http://") || args.repo.starts_with("https://") {
-        let source = RemoteSource::connect(&args.repo, FetchOptions::default())
-            .with_context(|| format!("connecting to {}", args.repo))?;
-        let refiner = Refiner::new(source, config).context("starting the refiner")?;
-        // Over a network, frames are paced at --fps so that fetches take the time they would
-        // take in a viewer; locally nothing waits on I/O and frames run back to back.
-        replay(args, &flight, refiner, true)
-    } else {
-        let source = LocalSource::open(Path::new(&args.repo))
-            .with_context(|| format!("opening {}", args.repo))?;
-        let refiner = Refiner::new(source, config).context("starting the refiner")?;
-        replay(args, &flight, refiner, false)
-    }
+    let (source, remote) = crate::render::terrain_source(&args.repo, args.colour.as_deref())?;
+    let refiner = Refiner::new(source, config).context("starting the refiner")?;
+    // Over a network, frames are paced at --fps so that fetches take the time they would take
+    // in a viewer; locally nothing waits on I/O and frames run back to back.
+    replay(args, &flight, refiner, remote)
 }
 
 fn replay<S: DataSource>(

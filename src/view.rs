@@ -51,22 +51,10 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         bail!("--budget-ms must be positive: the viewer refines within a budget every frame");
     }
     let config = crate::render::refine_config(args.pixel_error, args.budget_ms, args.exaggeration)?;
-    let url = args
-        .repo
-        .to_str()
-        .filter(|s| s.starts_with("http://") || s.starts_with("https://"));
-    if let Some(url) = url {
-        let source = RemoteSource::connect(url, FetchOptions::default())
-            .with_context(|| format!("connecting to {url}"))?;
-        let refiner = Refiner::new(source, config).context("starting the refiner")?;
-        view_with(args, refiner, url.to_string(), true)
-    } else {
-        let repo = Repository::open(&args.repo)
-            .with_context(|| format!("opening {}", args.repo.display()))?;
-        let refiner = Refiner::new(LocalSource::new(Arc::new(repo)), config)
-            .context("starting the refiner")?;
-        view_with(args, refiner, args.repo.display().to_string(), false)
-    }
+    let repo = args.repo.to_string_lossy();
+    let (source, remote) = crate::render::terrain_source(&repo, args.colour.as_deref())?;
+    let refiner = Refiner::new(source, config).context("starting the refiner")?;
+    view_with(args, refiner, repo.into_owned(), remote)
 }
 
 fn view_with<S: DataSource>(
@@ -242,13 +230,14 @@ impl<S: DataSource> App<'_, S> {
         let adapter_name = gpu.describe();
         let hud = Hud::new(&gpu.device, &gpu.queue);
         let presenter = Presenter::new(&gpu.device, format);
-        let renderer = Renderer::new(
+        let renderer = Renderer::with_colour(
             gpu,
             self.world,
             CacheConfig {
                 pool_bytes: self.args.pool_mib.map(|m| m << 20),
                 ..CacheConfig::default()
             },
+            self.refiner.source().drape().is_some(),
         )?;
         eprintln!("cbdam view: {adapter_name}, surface {format:?}, {present_mode:?}");
         self.window = Some(WindowState {
