@@ -5,10 +5,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::DataSource;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner};
-use cbdam_client::remote::FetchOptions;
 
 use crate::ReplayArgs;
 

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
-use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::DataSource;
 use cbdam_client::camera::Camera;
 use cbdam_client::controls::{self, Controls, Mode, Movement};
 use cbdam_client::draw::hud::{self, Hud};
@@ -17,9 +17,7 @@ use cbdam_client::draw::present::Presenter;
 use cbdam_client::draw::{CacheConfig, Gpu, RenderOptions, Renderer};
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, Refiner};
-use cbdam_client::remote::FetchOptions;
 use cbdam_client::world::World;
-use cbdam_codec::repository::Repository;
 use winit::application::ApplicationHandler;
 use winit::dpi::PhysicalSize;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
