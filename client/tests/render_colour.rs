@@ -8,7 +8,9 @@ mod common;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use cbdam_client::access::{ColouredSource, DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::{
+    ColouredSource, DataSource, FlakyConfig, FlakySource, LocalSource, RemoteSource,
+};
 use cbdam_client::camera::Camera;
 use cbdam_client::draw::{CacheConfig, Frame, RenderOptions, Renderer};
 use cbdam_client::patch::{HalfPatch, unpack_rgb};
@@ -484,4 +486,56 @@ fn remote_pair_gives_the_local_patches() {
     let s = remote.source();
     assert!(s.elevation().stats().records_taken > 0);
     assert!(s.colour().stats().records_taken > 0);
+}
+
+/// Over two slow, lossy sources (each record arriving 1–6 frames late, at most 3 per frame,
+/// some corrupt on their first attempt, independently for elevation and colour) the pair still
+/// converges to the local pair's patches: a patch waits until both of its records are in, and a
+/// rejected colour record fails (and retries) the patch like a rejected elevation one.
+#[test]
+fn flaky_pair_converges_to_the_local_patches() {
+    let e = elevation(|x, y| 300.0 + 40.0 * (x / 13.0).sin() * (y / 17.0).cos());
+    let c = colour(&e, 0, 4, ramp_u8);
+    let world = World::of_repository(&e);
+    let cam = above(&world, (480, 360));
+    let local = settle(paired(&e, &c), &cam);
+    let flaky = |r: &Arc<Repository>, corrupt_one_in| {
+        FlakySource::new(
+            r.clone(),
+            FlakyConfig {
+                latency: (1, 6),
+                per_frame: 3,
+                corrupt_one_in,
+                ..FlakyConfig::default()
+            },
+        )
+    };
+    let source = ColouredSource::new(flaky(&e, 5), flaky(&c, 3)).unwrap();
+    let mut r = Refiner::new(
+        source,
+        RefineConfig {
+            budget: Some(Duration::from_millis(2)),
+            max_failures: 10,
+            ..RefineConfig::default()
+        },
+    )
+    .unwrap();
+    let mut frames = 0;
+    while !(r.frame(&cam).converged && r.source().elevation().pending() == 0) {
+        frames += 1;
+        assert!(frames < 5000, "no convergence");
+    }
+    assert!(
+        !r.source().colour().corrupted().is_empty(),
+        "no colour record was corrupted: the test tests nothing"
+    );
+    assert!(
+        r.errors().iter().any(|e| e.contains("its colour record")),
+        "{:?}",
+        r.errors()
+    );
+    assert!(
+        owned(&r) == owned(&local),
+        "flaky patches differ from the local ones"
+    );
 }
