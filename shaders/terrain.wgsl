@@ -28,7 +28,9 @@ struct Frame {
     data_max: vec2<f32>,
     // Whether the data reaches below sea level (water colours below 0 m).
     has_sea: u32,
-    _pad: u32,
+    // 1: a colour repository is draped; each slot holds N² heights, then N² colours (RGB8
+    // packed in a word, red in the low byte), and they replace the hypsometric ramp.
+    draped: u32,
 }
 
 // One drawn half-patch (64 bytes, `PatchInstance` on the CPU).
@@ -42,7 +44,7 @@ struct Patch {
     origin_lat: vec2<i32>,
     u_lat: vec2<i32>,
     v_lat: vec2<i32>,
-    // Slot of the height pool holding this patch's N×N heights.
+    // Slot of the height pool holding this patch's N×N heights (and colours when draped).
     slot: u32,
     level: u32,
     // 0: split diagonal i == j; 1: i + j == N − 1.
@@ -55,6 +57,11 @@ struct Patch {
 @group(0) @binding(1) var<storage, read> patches: array<Patch>;
 @group(0) @binding(2) var<storage, read> heights: array<i32>;
 
+// First word of a patch's slot: slots are N² words, 2·N² when colours follow the heights.
+fn slot_base(p: Patch) -> u32 {
+    return p.slot * frame.n * frame.n * (1u + frame.draped);
+}
+
 struct VsOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) normal: vec3<f32>,
@@ -66,6 +73,8 @@ struct VsOut {
     // 1 at vertices with data (or outside the data rectangle, which `lattice` clips), 0 at
     // nodata; interpolated, so it is exactly 1 only inside triangles whose corners all have data.
     @location(4) valid: f32,
+    // Draped colour (0 when none is draped).
+    @location(5) colour: vec3<f32>,
 }
 
 // `NODATA_BIT` of client/src/draw/mod.rs: nodata heights are stored as `h ^ NODATA_BIT`, which
@@ -108,7 +117,7 @@ fn in_half(p: Patch, a: i32, b: i32) -> bool {
 
 fn height_at(p: Patch, a: i32, b: i32) -> f32 {
     let n = i32(frame.n);
-    return f32(unmark(heights[p.slot * frame.n * frame.n + u32(b * n + a)]));
+    return f32(unmark(heights[slot_base(p) + u32(b * n + a)]));
 }
 
 // Derivative of the height (units per grid step) along (da, db) at (a, b): central where both
@@ -131,7 +140,7 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     let p = patches[ii];
     let i = vi % frame.n;
     let j = vi / frame.n;
-    let raw = heights[p.slot * frame.n * frame.n + vi];
+    let raw = heights[slot_base(p) + vi];
     let h = f32(unmark(raw));
     let xy = p.origin_rel + f32(i) * p.u_world + f32(j) * p.v_world;
     let pos = vec3<f32>(xy, frame.z_base + frame.z_scale * h);
@@ -154,6 +163,11 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     out.level = p.level;
     // The mask is don't care outside the data rectangle, which `outside_data` clips anyway.
     out.valid = select(1.0, 0.0, is_nodata(raw) && !outside_data(vec2<f32>(lat)));
+    out.colour = vec3<f32>(0.0);
+    if frame.draped != 0u {
+        let packed = bitcast<u32>(heights[slot_base(p) + frame.n * frame.n + vi]);
+        out.colour = unpack4x8unorm(packed).rgb;
+    }
     return out;
 }
 
@@ -239,6 +253,9 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     var base: vec3<f32>;
     if frame.mode == 1u {
         base = level_colour(in.level);
+    } else if frame.draped != 0u {
+        // Hillshade × the draped colour: the lighting is the same as the ramp's.
+        base = in.colour;
     } else if frame.has_sea != 0u && in.metres < 0.0 {
         base = water_colour(-in.metres);
     } else {

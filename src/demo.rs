@@ -79,6 +79,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             max_settle_frames: 600,
             detail: false,
             cut_mib: 1024,
+            colour: None,
         })?;
         let render = |output: Option<PathBuf>, path: Option<PathBuf>, out_dir: Option<PathBuf>| {
             crate::render::run(&RenderArgs {
@@ -96,6 +97,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 levels: false,
                 exaggeration: 1.0,
                 pool_mib: None,
+                colour: None,
             })
         };
         eprintln!("demo: rendering an overview over HTTP");
@@ -133,6 +135,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             levels: false,
             exaggeration: 1.0,
             pool_mib: None,
+            colour: None,
         });
         // The offscreen outputs are made; a display that cannot take a window is not a
         // failure of the demo.

@@ -280,6 +280,10 @@ pub struct RenderArgs {
     /// GPU height pool, MiB (default: 256 or what the adapter allows).
     #[arg(long)]
     pool_mib: Option<u64>,
+    /// Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over
+    /// the terrain: hillshaded colour instead of the height ramp.
+    #[arg(long, value_name = "COLOUR_REPO_OR_URL")]
+    colour: Option<String>,
 }
 
 /// Open the interactive viewer (documented on [`Command::View`]).
@@ -317,6 +321,10 @@ pub struct ViewArgs {
     /// GPU height pool, MiB (default: 256 or what the adapter allows).
     #[arg(long)]
     pool_mib: Option<u64>,
+    /// Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over
+    /// the terrain: hillshaded colour instead of the height ramp.
+    #[arg(long, value_name = "COLOUR_REPO_OR_URL")]
+    colour: Option<String>,
 }
 
 /// Time offscreen frames.
@@ -347,6 +355,10 @@ pub struct BenchRenderArgs {
     /// At most this many frames per flight.
     #[arg(long)]
     max_frames: Option<u64>,
+    /// Drape this colour repository over each repository too and time both (the colour must
+    /// match every repository given).
+    #[arg(long, value_name = "COLOUR_REPO")]
+    colour: Option<PathBuf>,
 }
 
 /// Arguments of `cbdam demo`.
@@ -648,6 +660,10 @@ pub struct ReplayArgs {
     /// Synthesise procedural detail past the finest stored level.
     #[arg(long)]
     detail: bool,
+    /// Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over
+    /// the terrain: its records are fetched and decoded with the elevation's.
+    #[arg(long, value_name = "COLOUR_REPO_OR_URL")]
+    colour: Option<String>,
     /// Memory for the cut's decoded diamonds, MiB (0: unlimited). At the limit a refinement
     /// goes ahead only by coarsening diamonds of smaller screen error elsewhere.
     #[arg(long, default_value_t = 1024)]

@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::{ColouredSource, DataSource, LocalSource, RemoteSource};
 use cbdam_client::camera::Camera;
 use cbdam_client::draw::{CacheConfig, Frame, Gpu, RenderOptions, Renderer};
 use cbdam_client::flight::Flight;
@@ -72,20 +72,58 @@ pub fn low_oblique(world: &World, size: (u32, u32)) -> Camera {
 /// Frames a still view may take to converge with an unlimited budget (one, in practice).
 const SETTLE_FRAMES: u32 = 16;
 
+/// Opens a repository file or URL (`http://`, `https://`) as a source; says whether it is
+/// remote.
+pub fn open_source(spec: &str) -> Result<(Box<dyn DataSource>, bool)> {
+    if spec.starts_with("http://") || spec.starts_with("https://") {
+        let source = RemoteSource::connect(spec, FetchOptions::default())
+            .with_context(|| format!("connecting to {spec}"))?;
+        Ok((Box::new(source), true))
+    } else {
+        let source =
+            LocalSource::open(Path::new(spec)).with_context(|| format!("opening {spec}"))?;
+        Ok((Box::new(source), false))
+    }
+}
+
+/// The terrain's source, file or URL, with the colour repository `colour` draped over it when
+/// given (refused, with the mismatch named, when it does not cover the same domain); says
+/// whether either is remote.
+pub fn terrain_source(repo: &str, colour: Option<&str>) -> Result<(Box<dyn DataSource>, bool)> {
+    let (elevation, remote) = open_source(repo)?;
+    let Some(colour) = colour else {
+        return Ok((elevation, remote));
+    };
+    let (c, colour_remote) = open_source(colour)?;
+    let paired = ColouredSource::new(elevation, c)
+        .with_context(|| format!("draping the colour repository {colour} over {repo}"))?;
+    Ok((Box::new(paired), remote || colour_remote))
+}
+
 fn open(path: &Path) -> Result<Arc<Repository>> {
     let repo = Repository::open(path).with_context(|| format!("opening {}", path.display()))?;
     Ok(Arc::new(repo))
 }
 
-/// The refinement loop over `repo`, with heights exaggerated by `exaggeration`.
+/// The refinement loop over `repo` (with `colour` draped over it when given), with heights
+/// exaggerated by `exaggeration`.
 fn refiner(
     repo: &Arc<Repository>,
+    colour: Option<&Arc<Repository>>,
     pixel_error: f64,
     budget_ms: f64,
     exaggeration: f64,
-) -> Result<Refiner<LocalSource>> {
+) -> Result<Refiner<Box<dyn DataSource>>> {
     let config = refine_config(pixel_error, budget_ms, exaggeration)?;
-    Refiner::new(LocalSource::new(repo.clone()), config).context("starting the refiner")
+    let elevation = LocalSource::new(repo.clone());
+    let source: Box<dyn DataSource> = match colour {
+        Some(c) => Box::new(
+            ColouredSource::new(elevation, LocalSource::new(c.clone()))
+                .context("draping the colour repository")?,
+        ),
+        None => Box::new(elevation),
+    };
+    Refiner::new(source, config).context("starting the refiner")
 }
 
 /// The refinement settings of the command line, checked.
@@ -135,21 +173,9 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         0.0
     };
     let config = refine_config(args.pixel_error, budget_ms, args.exaggeration)?;
-    let url = args
-        .repo
-        .to_str()
-        .filter(|s| s.starts_with("http://") || s.starts_with("https://"));
-    if let Some(url) = url {
-        let source = RemoteSource::connect(url, FetchOptions::default())
-            .with_context(|| format!("connecting to {url}"))?;
-        let refiner = Refiner::new(source, config).context("starting the refiner")?;
-        render_with(args, refiner, true)
-    } else {
-        let repo = open(&args.repo)?;
-        let refiner =
-            Refiner::new(LocalSource::new(repo), config).context("starting the refiner")?;
-        render_with(args, refiner, false)
-    }
+    let (source, remote) = terrain_source(&args.repo.to_string_lossy(), args.colour.as_deref())?;
+    let refiner = Refiner::new(source, config).context("starting the refiner")?;
+    render_with(args, refiner, remote)
 }
 
 /// Waits (in real time) until the cut for `cam` converges with every record it needs fetched.
@@ -205,7 +231,8 @@ fn render_with<S: DataSource>(
     let patches: Vec<_> = refiner.drawn().cloned().collect();
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();
-    let mut renderer = Renderer::new(gpu, world, cache_config(args.pool_mib))?;
+    let draped = refiner.source().drape().is_some();
+    let mut renderer = Renderer::with_colour(gpu, world, cache_config(args.pool_mib), draped)?;
     let frame = renderer.render(&cam, &patches, &options)?;
     write_png(output, &frame)?;
     let s = frame.stats;
@@ -255,7 +282,8 @@ fn fly<S: DataSource>(
     let world = *refiner.world();
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();
-    let mut renderer = Renderer::new(gpu, world, cache_config(args.pool_mib))?;
+    let draped = refiner.source().drape().is_some();
+    let mut renderer = Renderer::with_colour(gpu, world, cache_config(args.pool_mib), draped)?;
     let mut frames = (flight.duration() * args.fps).ceil() as u64 + 1;
     if let Some(max) = args.max_frames {
         frames = frames.min(max);
@@ -390,36 +418,52 @@ pub fn bench(args: &BenchRenderArgs) -> Result<()> {
         "| repository | view | half-patches | M triangles | first frame ms | frame ms | M triangles/s |"
     );
     println!("|---|---|---:|---:|---:|---:|---:|");
+    let colour = args.colour.as_deref().map(open).transpose()?;
     for path in &args.repos {
         let repo = open(path)?;
         let world = World::of_repository(&repo);
-        let mut renderer = Renderer::new(Gpu::headless()?, world, cache_config(None))?;
+        let mut renderers = vec![(
+            Renderer::new(Gpu::headless()?, world, cache_config(None))?,
+            None,
+        )];
+        if let Some(c) = &colour {
+            let r = Renderer::with_colour(Gpu::headless()?, world, cache_config(None), true)?;
+            renderers.push((r, Some(c)));
+        }
+        // Plain and draped rows alternate, so that load changes on a shared machine affect both.
         for (view, cam) in [
             ("overview", Camera::overview(&world, args.size)),
             ("low oblique", low_oblique(&world, args.size)),
         ] {
-            let mut refiner = refiner(&repo, args.pixel_error, 0.0, 1.0)?;
-            refiner.settle(&cam, SETTLE_FRAMES);
-            let patches: Vec<_> = refiner.drawn().cloned().collect();
-            let options = RenderOptions::default();
-            let first = renderer.render(&cam, &patches, &options)?.stats;
-            let mut times = Vec::with_capacity(args.runs);
-            let mut last = first;
-            for _ in 0..args.runs {
-                last = renderer.render(&cam, &patches, &options)?.stats;
-                times.push(last.prepare_s + last.gpu_s);
+            for (renderer, colour) in &mut renderers {
+                let view = if colour.is_some() {
+                    format!("{view}, colour")
+                } else {
+                    view.to_string()
+                };
+                let mut refiner = refiner(&repo, *colour, args.pixel_error, 0.0, 1.0)?;
+                refiner.settle(&cam, SETTLE_FRAMES);
+                let patches: Vec<_> = refiner.drawn().cloned().collect();
+                let options = RenderOptions::default();
+                let first = renderer.render(&cam, &patches, &options)?.stats;
+                let mut times = Vec::with_capacity(args.runs);
+                let mut last = first;
+                for _ in 0..args.runs {
+                    last = renderer.render(&cam, &patches, &options)?.stats;
+                    times.push(last.prepare_s + last.gpu_s);
+                }
+                times.sort_by(f64::total_cmp);
+                let median = times[times.len() / 2];
+                println!(
+                    "| {} | {view} | {} | {:.3} | {:.1} | {:.1} | {:.1} |",
+                    path.file_name().unwrap_or_default().to_string_lossy(),
+                    last.drawn,
+                    last.triangles as f64 / 1e6,
+                    (first.prepare_s + first.gpu_s) * 1e3,
+                    median * 1e3,
+                    last.triangles as f64 / median / 1e6,
+                );
             }
-            times.sort_by(f64::total_cmp);
-            let median = times[times.len() / 2];
-            println!(
-                "| {} | {view} | {} | {:.3} | {:.1} | {:.1} | {:.1} |",
-                path.file_name().unwrap_or_default().to_string_lossy(),
-                last.drawn,
-                last.triangles as f64 / 1e6,
-                (first.prepare_s + first.gpu_s) * 1e3,
-                median * 1e3,
-                last.triangles as f64 / median / 1e6,
-            );
         }
     }
     if !args.flights.is_empty() {
@@ -453,7 +497,7 @@ fn bench_flights(args: &BenchRenderArgs) -> Result<()> {
             if let Some(max) = args.max_frames {
                 frames = frames.min(max);
             }
-            let mut refiner = refiner(&repo, args.pixel_error, args.budget_ms, 1.0)?;
+            let mut refiner = refiner(&repo, None, args.pixel_error, args.budget_ms, 1.0)?;
             let mut renderer = Renderer::new(Gpu::headless()?, world, cache_config(None))?;
             let pacing = FlightPacing {
                 fps: args.fps,

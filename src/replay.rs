@@ -5,10 +5,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::DataSource;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner};
-use cbdam_client::remote::FetchOptions;
 
 use crate::ReplayArgs;
 
@@ -55,19 +54,11 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         },
         ..RefineConfig::default()
     };
-    if args.repo.starts_with("http://") || args.repo.starts_with("https://") {
-        let source = RemoteSource::connect(&args.repo, FetchOptions::default())
-            .with_context(|| format!("connecting to {}", args.repo))?;
-        let refiner = Refiner::new(source, config).context("starting the refiner")?;
-        // Over a network, frames are paced at --fps so that fetches take the time they would
-        // take in a viewer; locally nothing waits on I/O and frames run back to back.
-        replay(args, &flight, refiner, true)
-    } else {
-        let source = LocalSource::open(Path::new(&args.repo))
-            .with_context(|| format!("opening {}", args.repo))?;
-        let refiner = Refiner::new(source, config).context("starting the refiner")?;
-        replay(args, &flight, refiner, false)
-    }
+    let (source, remote) = crate::render::terrain_source(&args.repo, args.colour.as_deref())?;
+    let refiner = Refiner::new(source, config).context("starting the refiner")?;
+    // Over a network, frames are paced at --fps so that fetches take the time they would take
+    // in a viewer; locally nothing waits on I/O and frames run back to back.
+    replay(args, &flight, refiner, remote)
 }
 
 fn replay<S: DataSource>(

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
-use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::DataSource;
 use cbdam_client::camera::Camera;
 use cbdam_client::controls::{self, Controls, Mode, Movement};
 use cbdam_client::draw::hud::{self, Hud};
@@ -17,9 +17,7 @@ use cbdam_client::draw::present::Presenter;
 use cbdam_client::draw::{CacheConfig, Gpu, RenderOptions, Renderer};
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, Refiner};
-use cbdam_client::remote::FetchOptions;
 use cbdam_client::world::World;
-use cbdam_codec::repository::Repository;
 use winit::application::ApplicationHandler;
 use winit::dpi::PhysicalSize;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
@@ -51,22 +49,10 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         bail!("--budget-ms must be positive: the viewer refines within a budget every frame");
     }
     let config = crate::render::refine_config(args.pixel_error, args.budget_ms, args.exaggeration)?;
-    let url = args
-        .repo
-        .to_str()
-        .filter(|s| s.starts_with("http://") || s.starts_with("https://"));
-    if let Some(url) = url {
-        let source = RemoteSource::connect(url, FetchOptions::default())
-            .with_context(|| format!("connecting to {url}"))?;
-        let refiner = Refiner::new(source, config).context("starting the refiner")?;
-        view_with(args, refiner, url.to_string(), true)
-    } else {
-        let repo = Repository::open(&args.repo)
-            .with_context(|| format!("opening {}", args.repo.display()))?;
-        let refiner = Refiner::new(LocalSource::new(Arc::new(repo)), config)
-            .context("starting the refiner")?;
-        view_with(args, refiner, args.repo.display().to_string(), false)
-    }
+    let repo = args.repo.to_string_lossy();
+    let (source, remote) = crate::render::terrain_source(&repo, args.colour.as_deref())?;
+    let refiner = Refiner::new(source, config).context("starting the refiner")?;
+    view_with(args, refiner, repo.into_owned(), remote)
 }
 
 fn view_with<S: DataSource>(
@@ -242,13 +228,14 @@ impl<S: DataSource> App<'_, S> {
         let adapter_name = gpu.describe();
         let hud = Hud::new(&gpu.device, &gpu.queue);
         let presenter = Presenter::new(&gpu.device, format);
-        let renderer = Renderer::new(
+        let renderer = Renderer::with_colour(
             gpu,
             self.world,
             CacheConfig {
                 pool_bytes: self.args.pool_mib.map(|m| m << 20),
                 ..CacheConfig::default()
             },
+            self.refiner.source().drape().is_some(),
         )?;
         eprintln!("cbdam view: {adapter_name}, surface {format:?}, {present_mode:?}");
         self.window = Some(WindowState {

@@ -437,3 +437,91 @@ fn keys_and_mouse_drive_the_viewer() {
         "{stdout}"
     );
 }
+
+/// `view --colour`: the draped colour reaches the window (a red west half and a blue east half
+/// of Jacksboro show both colours, on their sides of the view).
+#[test]
+fn view_drapes_a_colour_repository() {
+    let (display, _xvfb) = match display() {
+        Ok(d) => d,
+        Err(why) => {
+            println!("SKIPPED view_drapes_a_colour_repository: {why}");
+            return;
+        }
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    // Jacksboro is 403 × 344 samples: a colour image of the same size covers its domain.
+    let (iw, ih) = (403usize, 344usize);
+    let img = dir.path().join("halves.png");
+    let data: Vec<u8> = (0..iw * ih)
+        .flat_map(|i| {
+            if i % iw < iw / 2 {
+                [200, 30, 30]
+            } else {
+                [30, 60, 200]
+            }
+        })
+        .collect();
+    {
+        let f = std::io::BufWriter::new(std::fs::File::create(&img).unwrap());
+        let mut e = png::Encoder::new(f, iw as u32, ih as u32);
+        e.set_color(png::ColorType::Rgb);
+        e.set_depth(png::BitDepth::Eight);
+        e.write_header().unwrap().write_image_data(&data).unwrap();
+    }
+    let colour = dir.path().join("halves.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(&img),
+        "--colour",
+        "--like",
+        &s(&repo),
+        "-o",
+        &s(&colour),
+        "--max-error",
+        "2",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let shot = dir.path().join("shot.png");
+    let (w, h) = (320u32, 240u32);
+    let o = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args([
+            "view",
+            &s(&repo),
+            "--colour",
+            &s(&colour),
+            "--size",
+            &format!("{w}x{h}"),
+            "--max-frames",
+            "8",
+            "--no-vsync",
+            "--screenshot",
+            &s(&shot),
+        ])
+        .env("DISPLAY", &display)
+        .output()
+        .expect("run cbdam view");
+    assert!(o.status.success(), "cbdam view failed:\n{}", stderr(&o));
+    let (pw, _, rgba) = read_rgba_png(&shot);
+    let (mut red, mut blue) = ((0usize, 0u64), (0usize, 0u64));
+    for (i, p) in rgba.chunks(4).enumerate() {
+        let [r, g, b] = [p[0], p[1], p[2]].map(u32::from);
+        let x = (i % pw as usize) as u64;
+        if r > 2 * g && r > 2 * b {
+            red = (red.0 + 1, red.1 + x);
+        } else if b > 2 * r && 2 * b > 3 * g {
+            blue = (blue.0 + 1, blue.1 + x);
+        }
+    }
+    // The terrain covers about a sixth of the view; each half a twelfth, ≈ 6 000 pixels.
+    assert!(
+        red.0 > 1500 && blue.0 > 1500,
+        "red {}, blue {}",
+        red.0,
+        blue.0
+    );
+    let mean = |(n, sum): (usize, u64)| sum as f64 / n as f64;
+    assert!(mean(red) < mean(blue), "red is not west of blue");
+}

@@ -8,6 +8,7 @@
 use std::collections::HashMap;
 
 use cbdam_codec::CodecError;
+use cbdam_codec::colour::{ColourDecoder, ColourRefined};
 use cbdam_codec::geometry::{Cut, DiamondId, Half, Layout};
 use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use cbdam_codec::repository::Repository;
@@ -32,6 +33,48 @@ pub struct HalfPatch {
     /// mask; `None` when all did. Heights at invalid points are predictions, not data: triangles
     /// touching them are not drawn. Meaningless outside the data rectangle.
     pub valid: Option<Vec<bool>>,
+    /// Per-point colour draped from a colour repository (same layout, [`pack_rgb`]), when one
+    /// is given; like the heights, the other half mirrors this half's.
+    pub colour: Option<Vec<u32>>,
+}
+
+/// RGB8 in one word, red in the low byte (what WGSL's `unpack4x8unorm` reads), alpha 255.
+pub fn pack_rgb([r, g, b]: [u8; 3]) -> u32 {
+    u32::from(r) | u32::from(g) << 8 | u32::from(b) << 16 | 0xFF << 24
+}
+
+/// The inverse of [`pack_rgb`] (alpha dropped).
+pub fn unpack_rgb(c: u32) -> [u8; 3] {
+    [c as u8, (c >> 8) as u8, (c >> 16) as u8]
+}
+
+/// Packed colours of Y, Co, Cg grids.
+pub fn packed(grids: &[Vec<i32>; 3]) -> Vec<u32> {
+    ColourDecoder::rgb(grids)
+        .into_iter()
+        .map(pack_rgb)
+        .collect()
+}
+
+/// The colour of the half of `child` lying in `parent`, from `parent`'s colour refinement, as
+/// [`HalfPatch::from_parent`] gathers its heights. `None` if `parent` is not one of `child`'s
+/// parents.
+pub fn colour_from_parent(
+    layout: &Layout,
+    child: DiamondId,
+    parent: DiamondId,
+    refined: &ColourRefined,
+) -> Option<Vec<u32>> {
+    let half = layout.half_in(child, parent)?;
+    let nn = layout.n() * layout.n();
+    let grids = std::array::from_fn(|c| {
+        let mut parents = [None, None];
+        parents[half as usize] = Some(&refined[c]);
+        let mut g = vec![0i32; nn];
+        gather(layout, child, parents, &mut g);
+        g
+    });
+    Some(packed(&grids))
 }
 
 impl HalfPatch {
@@ -49,6 +92,7 @@ impl HalfPatch {
             half,
             heights: heights.clone(),
             valid: valid.clone(),
+            colour: None,
         })
     }
 
@@ -70,6 +114,7 @@ impl HalfPatch {
             half,
             heights,
             valid: gather_validity(layout, child, parents),
+            colour: None,
         })
     }
 }

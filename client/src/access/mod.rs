@@ -21,11 +21,14 @@
 //!   available from construction on: a remote source fetches and parses the head before it is
 //!   handed to the loop.
 
+pub mod coloured;
 mod flaky;
 mod local;
 mod remote;
 
+pub use coloured::{ColouredSource, Drape};
 pub use flaky::{FlakyConfig, FlakySource};
+
 pub use local::LocalSource;
 pub use remote::RemoteSource;
 
@@ -99,6 +102,12 @@ pub trait DataSource: Send {
         Decoder::new(*self.params(), self.root_bytes())
     }
 
+    /// The colour repository draped over this elevation, when the source pairs one
+    /// ([`ColouredSource`]): its records are then elevation–colour pairs ([`coloured::split`]).
+    fn drape(&self) -> Option<&Drape> {
+        None
+    }
+
     /// Asks for `id`'s record, or re-prioritises a pending request. Never blocks.
     fn request(&mut self, id: DiamondId, priority: Priority);
     /// Withdraws a request the cut no longer needs (a no-op if there is none). A record that
@@ -119,4 +128,54 @@ pub trait DataSource: Send {
     fn pump(&mut self);
     /// Counters.
     fn stats(&self) -> AccessStats;
+}
+
+/// A boxed source is a source: the command line picks local, remote and coloured sources at
+/// run time.
+impl<S: DataSource + ?Sized> DataSource for Box<S> {
+    fn params(&self) -> &CodecParams {
+        (**self).params()
+    }
+    fn plan(&self) -> &QuantPlan {
+        (**self).plan()
+    }
+    fn georef(&self) -> Option<&GeoRef> {
+        (**self).georef()
+    }
+    fn leaf_error(&self) -> u32 {
+        (**self).leaf_error()
+    }
+    fn entries(&self) -> &[IndexEntry] {
+        (**self).entries()
+    }
+    fn root_bytes(&self) -> &[u8] {
+        (**self).root_bytes()
+    }
+    fn decoder(&self) -> Result<Decoder, CodecError> {
+        (**self).decoder()
+    }
+    fn drape(&self) -> Option<&Drape> {
+        (**self).drape()
+    }
+    fn request(&mut self, id: DiamondId, priority: Priority) {
+        (**self).request(id, priority)
+    }
+    fn cancel(&mut self, id: DiamondId) {
+        (**self).cancel(id)
+    }
+    fn is_available(&self, id: DiamondId) -> bool {
+        (**self).is_available(id)
+    }
+    fn always_available(&self) -> bool {
+        (**self).always_available()
+    }
+    fn take(&mut self, id: DiamondId) -> Option<Result<Vec<u8>, AccessError>> {
+        (**self).take(id)
+    }
+    fn pump(&mut self) {
+        (**self).pump()
+    }
+    fn stats(&self) -> AccessStats {
+        (**self).stats()
+    }
 }

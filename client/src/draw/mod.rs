@@ -16,6 +16,10 @@
 //!   CPU, and [`Camera::view_proj_relative`] only rotates and projects.
 //! - **Data rectangle.** Fragments whose lattice position is outside the data rectangle are
 //!   discarded (heights there are unconstrained), and patches entirely outside are not drawn.
+//! - **Draped colour.** With a colour repository ([`Renderer::with_colour`]) a slot holds the
+//!   `N²` heights followed by `N²` colours, RGB8 packed in a word ([`crate::patch::pack_rgb`]):
+//!   twice the bytes per slot, and the shader lights that colour instead of the hypsometric
+//!   ramp. Without one the slots, the shader's work and the image are what they were.
 //! - **Nodata.** Heights at points without data (the repository's nodata mask) are marked in the
 //!   pool ([`NODATA_BIT`]); fragments of triangles touching such a point are discarded, so no
 //!   invented surface is drawn.
@@ -54,6 +58,9 @@ pub const TERRAIN_WGSL: &str = include_str!("../../../shaders/terrain.wgsl");
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 /// See [`COLOR_FORMAT`].
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// Colour of a patch without draped colours in a draped renderer.
+const GREY: u32 = 0xFF80_8080;
 
 /// Default size of the height pool when the adapter allows it.
 pub const DEFAULT_POOL_BYTES: u64 = 256 << 20;
@@ -162,8 +169,8 @@ pub struct FrameUniform {
     pub data_max: [f32; 2],
     /// 1 when the data reaches below sea level.
     pub has_sea: u32,
-    /// Padding to the WGSL struct size.
-    pub _pad: u32,
+    /// 1 when slots hold draped colours after the heights.
+    pub draped: u32,
 }
 const _: () = assert!(std::mem::size_of::<FrameUniform>() == 128);
 
@@ -335,11 +342,25 @@ pub struct Renderer {
     lines: Option<wgpu::RenderPipeline>,
     cache: SlotCache,
     target: Option<Target>,
+    /// Slots hold colours after the heights.
+    draped: bool,
 }
 
 impl Renderer {
-    /// A renderer for `world` (possibly vertically [`exaggerated`]).
+    /// A renderer for `world` (possibly vertically [`exaggerated`]), coloured by height.
     pub fn new(gpu: Gpu, world: World, config: CacheConfig) -> Result<Self, DrawError> {
+        Self::with_colour(gpu, world, config, false)
+    }
+
+    /// A renderer that, when `draped`, colours the terrain with the patches' draped colours
+    /// ([`HalfPatch::colour`]) rather than by height. A patch without colours is then drawn
+    /// mid-grey.
+    pub fn with_colour(
+        gpu: Gpu,
+        world: World,
+        config: CacheConfig,
+        draped: bool,
+    ) -> Result<Self, DrawError> {
         let n = world.layout.n();
         let (ex, ey) = world.layout.extent();
         if ex > i64::from(i32::MAX) || ey > i64::from(i32::MAX) {
@@ -347,7 +368,7 @@ impl Renderer {
                 "lattice extent {ex}×{ey} exceeds the shader's 32-bit lattice coordinates"
             )));
         }
-        let slot_bytes = (n * n * 4) as u64;
+        let slot_bytes = (n * n * 4) as u64 * if draped { 2 } else { 1 };
         let limits = gpu.device.limits();
         let max_pool = limits
             .max_storage_buffer_binding_size
@@ -507,7 +528,18 @@ impl Renderer {
             fill_under_lines,
             lines,
             target: None,
+            draped,
         })
+    }
+
+    /// Whether slots hold draped colours.
+    pub fn draped(&self) -> bool {
+        self.draped
+    }
+
+    /// Bytes of one slot of the height pool: `4 N²`, twice that with draped colour.
+    pub fn slot_bytes(&self) -> u64 {
+        (self.mesh.n * self.mesh.n * 4) as u64 * if self.draped { 2 } else { 1 }
     }
 
     /// The device.
@@ -662,10 +694,6 @@ impl Renderer {
             depth: None,
             stats: FrameStats::default(),
         })
-    }
-
-    fn slot_bytes(&self) -> u64 {
-        (self.mesh.n * self.mesh.n * 4) as u64
     }
 
     /// Records the draw calls of a prepared frame into `pass`; returns how many.
@@ -855,6 +883,13 @@ impl Renderer {
                                 .map(|(&h, &v)| if v { h } else { h ^ NODATA_BIT }),
                         ),
                     }
+                    if self.draped {
+                        match &p.colour {
+                            Some(c) => staging_data.extend(c.iter().map(|&c| c as i32)),
+                            None => staging_data
+                                .extend(std::iter::repeat_n(GREY, n * n).map(|c| c as i32)),
+                        }
+                    }
                     s
                 }
                 Residency::Missing => {
@@ -889,7 +924,8 @@ impl Renderer {
             });
             stats.drawn += 1;
         }
-        debug_assert_eq!(staging_data.len(), upload_slots.len() * n * n);
+        let words = n * n * if self.draped { 2 } else { 1 };
+        debug_assert_eq!(staging_data.len(), upload_slots.len() * words);
         let mut instances = Vec::with_capacity(stats.drawn);
         let mut groups: [std::ops::Range<u32>; 8] = Default::default();
         for (k, list) in by_kind.iter().enumerate() {
@@ -958,7 +994,7 @@ impl Renderer {
                 w.data_height.saturating_sub(1) as f32,
             ],
             has_sea: u32::from(w.min_height < 0.0),
-            _pad: 0,
+            draped: u32::from(self.draped),
         };
         self.gpu
             .queue

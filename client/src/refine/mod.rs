@@ -43,14 +43,15 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use cbdam_codec::CodecError;
+use cbdam_codec::colour::ColourRefined;
 use cbdam_codec::geometry::{Cut, DiamondId, Half, IdMap, IdSet, Layout};
 use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
 
-use crate::access::{AccessStats, DataSource, Priority};
+use crate::access::{AccessStats, DataSource, Drape, Priority, coloured};
 use crate::camera::{Camera, Frustum};
-use crate::patch::HalfPatch;
+use crate::patch::{HalfPatch, colour_from_parent, packed};
 use crate::world::World;
 
 /// Per frame, the remembered overrun past the deadline shrinks by this factor unless a new one
@@ -178,13 +179,19 @@ pub struct CacheUse {
 #[derive(Debug)]
 struct Node {
     refined: Refined,
+    /// Y, Co, Cg refined alike, when a colour repository is draped over the terrain.
+    colour: Option<ColourRefined>,
     /// `halves[i]` is the half of `children[i]` lying in this diamond.
     halves: [Option<Arc<HalfPatch>>; 4],
 }
 
 impl Node {
     fn bytes(&self) -> usize {
-        let heights = Self::bytes_for(self.refined.n(), self.halves.iter().flatten().count());
+        let heights = Self::bytes_for(
+            self.refined.n(),
+            self.halves.iter().flatten().count(),
+            self.colour.is_some(),
+        );
         // Nodata masks, one byte per point, where the record has any nodata.
         let masks = self.refined.validity().map_or(0, <[bool]>::len)
             + self
@@ -198,9 +205,17 @@ impl Node {
     }
 
     /// Bytes of the heights of a node of an `n × n` diamond with `halves` child halves (its
-    /// nodata masks, when it has any, add a quarter: one byte per point against four).
-    fn bytes_for(n: usize, halves: usize) -> usize {
-        4 * ((2 * n - 1) * (2 * n - 1) + halves * n * n)
+    /// nodata masks, when it has any, add a quarter: one byte per point against four), and of
+    /// its colour: three refined channels and a packed colour per child-half point.
+    fn bytes_for(n: usize, halves: usize, colour: bool) -> usize {
+        let refined = (2 * n - 1) * (2 * n - 1);
+        let heights = 4 * (refined + halves * n * n);
+        heights
+            + if colour {
+                4 * (3 * refined + halves * n * n)
+            } else {
+                0
+            }
     }
 }
 
@@ -287,6 +302,8 @@ pub struct Refiner<S: DataSource> {
     source: S,
     config: RefineConfig,
     decoder: Arc<Decoder>,
+    /// The colour draped over the terrain, when the source pairs one.
+    drape: Option<Arc<Drape>>,
     /// The refiner's hierarchy: the source's, with `shift` more level pairs when synthesising
     /// detail (ids then have coordinates `2^shift` times the source's).
     layout: Layout,
@@ -373,11 +390,16 @@ impl<S: DataSource> Refiner<S> {
             stored.insert(id, Info { err_m, lo, hi });
         }
 
+        let drape = source.drape().cloned().map(Arc::new);
         let mut roots = IdMap::default();
         for r in layout.roots() {
             let src = DiamondId::new(r.level, r.x >> shift, r.y >> shift);
             let heights = decoder.grid_of(src, [None, None]);
             let valid = decoder.validity_of(src, [None, None]);
+            let colour = drape
+                .as_ref()
+                .map(|d| root_colour(d, src).map(|g| packed(&g)))
+                .transpose()?;
             roots.insert(
                 r,
                 Half::BOTH.map(|half| {
@@ -386,6 +408,7 @@ impl<S: DataSource> Refiner<S> {
                         half,
                         heights: heights.clone(),
                         valid: valid.clone(),
+                        colour: colour.clone(),
                     })
                 }),
             );
@@ -394,6 +417,7 @@ impl<S: DataSource> Refiner<S> {
         let mut me = Self {
             source,
             decoder: Arc::new(decoder),
+            drape,
             layout,
             world,
             shift,
@@ -1091,6 +1115,7 @@ impl<S: DataSource> Refiner<S> {
             .map(|p| p.map(|p| self.nodes[&p].clone()));
         let job = Job {
             decoder: self.decoder.clone(),
+            drape: self.drape.clone(),
             layout: self.layout,
             parents,
             shift: self.shift,
@@ -1212,7 +1237,7 @@ impl<S: DataSource> Refiner<S> {
             return true;
         };
         // Worst case: every node with all four child halves and nodata masks.
-        let node = Node::bytes_for(self.layout.n(), 4) * 5 / 4;
+        let node = Node::bytes_for(self.layout.n(), 4, self.drape.is_some()) * 5 / 4;
         let fits = |me: &Self| me.cut_bytes + (me.decoding.len() + 1) * node <= limit;
         if fits(self) {
             return true;
@@ -1392,6 +1417,7 @@ struct Done {
 /// What a worker needs to refine one diamond: owned, so it outlives the frame.
 struct Job {
     decoder: Arc<Decoder>,
+    drape: Option<Arc<Drape>>,
     layout: Layout,
     parents: [Option<Arc<Node>>; 2],
     shift: u32,
@@ -1403,18 +1429,60 @@ impl Job {
         match source {
             Source::Cached(node) => Ok(node),
             Source::Record(bytes) => {
+                let (elevation, colour) = match self.drape {
+                    Some(_) => coloured::split(&bytes)?,
+                    None => (&bytes[..], &[][..]),
+                };
                 let grid = self.grid_of(id);
-                let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, &bytes, s))?;
-                Ok(self.node(id, r))
+                let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, elevation, s))?;
+                let c = self.refine_colour(id, colour)?;
+                Ok(self.node(id, r, c))
             }
             Source::Synthetic(amp) => {
                 let grid = self.grid_of(id);
                 let valid = self.validity_of(id);
                 let r =
                     detail::synthesize(&self.layout, id, &grid, valid.as_deref(), amp, self.seed);
-                Ok(self.node(id, r))
+                // Synthetic detail is for the relief; the colour is interpolated.
+                let c = self.refine_colour(id, &[])?;
+                Ok(self.node(id, r, c))
             }
         }
+    }
+
+    /// The colour refinement of `id` by its colour record (empty: the prediction from the
+    /// colour parents), when a colour is draped.
+    fn refine_colour(
+        &self,
+        id: DiamondId,
+        record: &[u8],
+    ) -> Result<Option<ColourRefined>, CodecError> {
+        let Some(drape) = &self.drape else {
+            return Ok(None);
+        };
+        let grids = if id.level == 0 {
+            let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
+            root_colour(drape, sid)?
+        } else {
+            let n = self.layout.n();
+            let mut grids: [Vec<i32>; 3] = Default::default();
+            for (c, g) in grids.iter_mut().enumerate() {
+                let parents = [0, 1].map(|h| {
+                    self.parents[h]
+                        .as_ref()
+                        .and_then(|p| p.colour.as_ref())
+                        .map(|col| &col[c])
+                });
+                *g = vec![0i32; n * n];
+                gather(&self.layout, id, parents, g);
+            }
+            grids
+        };
+        // The colour channels have their own decoder but the elevation's geometry: the same
+        // `N`, and ids that name the same ground (`Alignment`), so the grids gathered in the
+        // elevation's layout are the colour's.
+        let r = SCRATCH.with_borrow_mut(|s| drape.decoder.refine(&grids, record, s))?;
+        Ok(Some(r))
     }
 
     fn grid_of(&self, id: DiamondId) -> Vec<i32> {
@@ -1438,12 +1506,30 @@ impl Job {
         gather_validity(&self.layout, id, parents)
     }
 
-    fn node(&self, id: DiamondId, refined: Refined) -> Arc<Node> {
+    fn node(&self, id: DiamondId, refined: Refined, colour: Option<ColourRefined>) -> Arc<Node> {
         let halves = self.layout.children(id).map(|c| {
-            c.and_then(|c| HalfPatch::from_parent(&self.layout, c, id, &refined).map(Arc::new))
+            c.and_then(|c| {
+                let mut h = HalfPatch::from_parent(&self.layout, c, id, &refined)?;
+                if let Some(col) = &colour {
+                    h.colour = colour_from_parent(&self.layout, c, id, col);
+                }
+                Some(Arc::new(h))
+            })
         });
-        Arc::new(Node { refined, halves })
+        Arc::new(Node {
+            refined,
+            colour,
+            halves,
+        })
     }
+}
+
+/// The Y, Co, Cg grids of the colour root covering elevation root `root`.
+fn root_colour(drape: &Drape, root: DiamondId) -> Result<[Vec<i32>; 3], CodecError> {
+    let c = drape.alignment.colour_id(root).ok_or_else(|| {
+        CodecError::invalid(format!("no colour root covers elevation root {root}"))
+    })?;
+    Ok(drape.decoder.grid_of(c, [None, None]))
 }
 
 thread_local! {
