@@ -1,4 +1,8 @@
-use super::super::{Band, BandKind, BandMut, CoderKind, DecodeLimits, decode_bands, encode_bands};
+use super::super::{
+    Band, BandKind, BandMut, CoderKind, DecodeLimits, DecodeScratch, decode_bands,
+    decode_bands_with, encode_bands,
+};
+use super::{NCLASS, class_of};
 use crate::CodecError;
 use proptest::prelude::*;
 
@@ -247,6 +251,86 @@ fn bit_flips_never_panic() {
         "{detected} of {} flips detected",
         bytes.len() * 8
     );
+}
+
+#[test]
+fn context_class_table_matches_its_definition() {
+    // The definition the format was written with: a table below 64, one class per octave above.
+    let reference = |s: u32| -> usize {
+        let bounds = [0u32, 1, 2, 4, 6, 9, 13, 19, 27, 39, 63];
+        if s < 64 {
+            bounds.iter().position(|&b| s <= b).unwrap()
+        } else {
+            (s.ilog2() as usize + 5).min(NCLASS - 1)
+        }
+    };
+    let large = [1 << 16, 6 * 65535, u32::MAX / 2, u32::MAX];
+    for s in (0..4096).chain(large) {
+        assert_eq!(class_of(s), reference(s), "s = {s}");
+    }
+}
+
+#[test]
+fn reused_scratch_decodes_like_a_fresh_one() {
+    // Records of different shapes and band counts, and damaged ones that fail half-way and leave
+    // the scratch dirty, all through one scratch: every result must equal a fresh decode's.
+    let mut rng = Rng(5);
+    let shapes: [&[(usize, usize)]; 5] = [
+        &[(64, 64), (63, 63)],
+        &[(5, 3)],
+        &[(130, 7)],
+        &[(64, 64)],
+        &[(1, 1), (33, 40)],
+    ];
+    let mut records = Vec::new();
+    for (k, dims) in shapes.iter().cycle().take(12).enumerate() {
+        let bands: Vec<_> = dims
+            .iter()
+            .enumerate()
+            .map(|(i, &(w, h))| {
+                let kind = if i == 0 {
+                    BandKind::Cells
+                } else {
+                    BandKind::Vertices
+                };
+                let scale = [0.2, 1.0, 6.0][k % 3];
+                (kind, w, h, laplace_band(&mut rng, w, h, scale))
+            })
+            .collect();
+        let mut bytes = encode(&bands);
+        if k % 4 == 3 && !bytes.is_empty() {
+            let n = bytes.len();
+            bytes[n / 2] ^= 0x5A;
+        }
+        records.push((bands, bytes));
+    }
+    let mut scratch = DecodeScratch::default();
+    for (bands, bytes) in &records {
+        let fresh = decode(bytes, bands);
+        let mut bufs: Vec<Vec<i32>> = bands.iter().map(|(_, w, h, _)| vec![-9; w * h]).collect();
+        let mut out: Vec<BandMut<'_>> = bands
+            .iter()
+            .zip(bufs.iter_mut())
+            .map(|((kind, w, h, _), buf)| BandMut {
+                kind: *kind,
+                width: *w,
+                height: *h,
+                values: buf,
+            })
+            .collect();
+        let reused = decode_bands_with(
+            CoderKind::Adaptive,
+            bytes,
+            &mut out,
+            DecodeLimits::default(),
+            &mut scratch,
+        );
+        match (fresh, reused) {
+            (Ok(want), Ok(())) => assert_eq!(want, bufs),
+            (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+            (a, b) => panic!("fresh {a:?}, reused {b:?}"),
+        }
+    }
 }
 
 fn band_strategy() -> impl Strategy<Value = (BandKind, usize, usize, Vec<i32>)> {
