@@ -1,5 +1,6 @@
-//! Per-diamond decode speed of one configuration, without criterion: encodes one DEM once, then
-//! refines every record `reps` times and prints M output samples/s and a checksum of the output.
+//! Per-diamond decode speed of one configuration, without criterion: encodes one DEM once (timed,
+//! on one thread), then refines every record `reps` times and prints M output samples/s and a
+//! checksum of the output.
 //! Small enough to run under `valgrind --tool=callgrind` (pass `reps` = 1), and quick to
 //! alternate against another build on a loaded machine.
 //!
@@ -44,7 +45,16 @@ fn main() {
         coder,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).expect("encode");
+    // Timed on one thread, like the `encode/…` rows of the refine bench.
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let t = Instant::now();
+    let enc = one_thread
+        .install(|| encode(&grid, plan.quantizer, &opts))
+        .expect("encode");
+    let encode_s = t.elapsed().as_secs_f64();
     let decoder = Decoder::new(enc.params, &enc.roots).expect("roots");
     let layout = enc.params.layout;
     let mut refined: HashMap<DiamondId, Refined> = HashMap::new();
@@ -91,9 +101,11 @@ fn main() {
     let s = t.elapsed().as_secs_f64();
     let bytes: usize = enc.records.iter().map(|r| r.bytes.len()).sum();
     println!(
-        "{} records, {:.3} bits/output sample, checksum {sum:016x}, {:.2} M samples/s",
+        "{} records, {:.3} bits/output sample, checksum {sum:016x}, encode {:.2} M input \
+         samples/s, {:.2} M samples/s",
         enc.records.len(),
         bytes as f64 * 8.0 / (per_record * enc.records.len()) as f64,
+        (grid.width * grid.height) as f64 / encode_s / 1e6,
         samples / s / 1e6
     );
 }

@@ -17,7 +17,10 @@
 //!
 //! The neighbourhood class quantizes `2|L| + 2|T| + |TL| + |TR|` roughly logarithmically into
 //! [`NCLASS`] classes. Cells and root bands share one model set, vertex bands have their own.
-//! Encoder and decoder run the same generic traversal ([`BinCoder`]), so they cannot drift apart.
+//! Encoder and decoder run the same generic traversal ([`BinCoder`]) for the quadtree and share
+//! the models, the context class and the probability update; the decoder's coefficient pass is
+//! a hand-specialised copy of the encoder's ([`decode_coeffs`], for speed), held to it by the
+//! round-trip tests and the golden hashes.
 
 mod range_coder;
 #[cfg(test)]
