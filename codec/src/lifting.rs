@@ -99,6 +99,45 @@ pub fn predict_cells(p: &[i32], n: usize, out: &mut [i32]) {
     }
 }
 
+/// [`predict_vertex`] of all `(N−2)²` inner vertices, row-major into `out`: the α = ½ decode's
+/// counterpart of [`predict_cells`], with the interior of each row in a branch-free loop.
+///
+/// `c` must satisfy `|value| ≤` [`MAX_ABS_HEIGHT`] (numerators are computed in `i32`).
+pub fn predict_inner_vertices(c: &[i32], n: usize, out: &mut [i32]) {
+    let m = n - 1;
+    let k = n.saturating_sub(2);
+    assert!(c.len() == m * m && out.len() == k * k);
+    for j in 1..n - 1 {
+        let row = &mut out[(j - 1) * k..j * k];
+        if !vertex_uses_order4(n, 2, j) || n < 7 {
+            for (o, i) in row.iter_mut().zip(1..) {
+                *o = predict_vertex(c, n, i, j);
+            }
+            continue;
+        }
+        let (first, last) = (predict_vertex(c, n, 1, j), predict_vertex(c, n, n - 2, j));
+        row[0] = first;
+        row[k - 1] = last;
+        let r_m2 = &c[(j - 2) * m..(j - 1) * m];
+        let r_m1 = &c[(j - 1) * m..j * m];
+        let r0 = &c[j * m..(j + 1) * m];
+        let r1 = &c[(j + 1) * m..(j + 2) * m];
+        // Vertex i (2 ≤ i ≤ N−3) sits at out index i − 1.
+        for (o, i) in row[1..k - 1].iter_mut().zip(2..) {
+            let s4 = r_m1[i - 1] + r_m1[i] + r0[i - 1] + r0[i];
+            let s8 = r_m1[i - 2]
+                + r0[i - 2]
+                + r_m1[i + 1]
+                + r0[i + 1]
+                + r_m2[i - 1]
+                + r_m2[i]
+                + r1[i - 1]
+                + r1[i];
+            *o = (10 * s4 - s8 + 16) >> 5;
+        }
+    }
+}
+
 /// Prediction of inner vertex `(i, j)` (`1 ≤ i, j ≤ N−2`) from the cell grid `c`.
 #[inline]
 pub fn predict_vertex(c: &[i32], n: usize, i: usize, j: usize) -> i32 {
@@ -231,6 +270,39 @@ pub fn synthesis(
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn row_wise_vertex_predictions_match_the_pointwise_ones() {
+        // Extreme values too: the row loop computes numerators in i32.
+        let mut state = 3u64;
+        for n in [3, 5, 7, 9, 17, 65] {
+            let m = n - 1;
+            let c: Vec<i32> = (0..m * m)
+                .map(|_| {
+                    state = state
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    match (state >> 60) % 4 {
+                        0 => MAX_ABS_HEIGHT,
+                        1 => -MAX_ABS_HEIGHT,
+                        _ => ((state >> 33) % 2001) as i32 - 1000,
+                    }
+                })
+                .collect();
+            let k = n - 2;
+            let mut got = vec![0; k * k];
+            predict_inner_vertices(&c, n, &mut got);
+            for j in 1..n - 1 {
+                for i in 1..n - 1 {
+                    assert_eq!(
+                        got[(j - 1) * k + i - 1],
+                        predict_vertex(&c, n, i, j),
+                        "n = {n}, vertex ({i},{j})"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn neville_predictions_are_exact_on_polynomials_and_round_by_floor() {

@@ -129,6 +129,13 @@ pub fn encode_bands(kind: CoderKind, bands: &[Band<'_>], out: &mut Vec<u8>) {
     }
 }
 
+/// Working memory of [`decode_bands_with`], kept between records so that decoding one does not
+/// allocate. Holds no state that affects a result: any scratch decodes any record the same.
+#[derive(Debug, Default)]
+pub struct DecodeScratch {
+    adaptive: adaptive::Scratch,
+}
+
 /// Decodes one record written by [`encode_bands`] with the same band shapes.
 ///
 /// Never panics on any input bytes: garbage gives [`CodecError::Corrupt`] or
@@ -139,6 +146,17 @@ pub fn decode_bands(
     bytes: &[u8],
     bands: &mut [BandMut<'_>],
     limits: DecodeLimits,
+) -> Result<(), CodecError> {
+    decode_bands_with(kind, bytes, bands, limits, &mut DecodeScratch::default())
+}
+
+/// [`decode_bands`] with working memory reused from earlier calls.
+pub fn decode_bands_with(
+    kind: CoderKind,
+    bytes: &[u8],
+    bands: &mut [BandMut<'_>],
+    limits: DecodeLimits,
+    scratch: &mut DecodeScratch,
 ) -> Result<(), CodecError> {
     for b in bands.iter() {
         if b.width > MAX_BAND_SIDE || b.height > MAX_BAND_SIDE {
@@ -155,7 +173,7 @@ pub fn decode_bands(
     }
     match kind {
         CoderKind::EliasGamma => gamma::decode_bands(bytes, bands, limits),
-        CoderKind::Adaptive => adaptive::decode_bands(bytes, bands, limits),
+        CoderKind::Adaptive => adaptive::decode_bands(bytes, bands, limits, &mut scratch.adaptive),
     }
 }
 

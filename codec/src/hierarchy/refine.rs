@@ -4,9 +4,11 @@
 use super::CodecParams;
 use super::mask::decode_mask;
 use crate::CodecError;
-use crate::entropy::{BandKind, BandMut, DecodeLimits, decode_bands};
+use crate::entropy::{BandKind, BandMut, DecodeLimits, DecodeScratch, decode_bands_with};
 use crate::geometry::{Diagonal, DiamondId, Half, Layout};
-use crate::lifting::{Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_vertex};
+use crate::lifting::{
+    Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_inner_vertices,
+};
 
 /// The level-`l+1` values a refinement produces on a level-`l` diamond's square, interleaved on
 /// its `(2N−1)²` half-step grid: vertex `(i, j)` at `(2i, 2j)` (changed only at inner vertices
@@ -28,14 +30,21 @@ impl Refined {
         assert!(vertices.len() == n * n && cells.len() == (n - 1) * (n - 1));
         let side = 2 * n - 1;
         let mut half_step = vec![0i32; side * side];
-        for j in 0..n {
-            for i in 0..n {
-                half_step[2 * j * side + 2 * i] = vertices[j * n + i];
+        // Row by row through iterators: no index arithmetic or bounds check per value.
+        let vertex_rows = vertices.chunks_exact(n);
+        let cell_rows = cells.chunks_exact(n - 1);
+        let mut rows = half_step.chunks_exact_mut(side);
+        for (v, c) in vertex_rows.zip(cell_rows.map(Some).chain([None])) {
+            let even = rows.next().expect("2N − 1 rows");
+            for (o, &x) in even.chunks_exact_mut(2).zip(v) {
+                o[0] = x;
             }
-        }
-        for j in 0..n - 1 {
-            for i in 0..n - 1 {
-                half_step[(2 * j + 1) * side + 2 * i + 1] = cells[j * (n - 1) + i];
+            even[side - 1] = v[n - 1];
+            if let Some(c) = c {
+                let odd = rows.next().expect("2N − 1 rows");
+                for (o, &x) in odd[1..].chunks_exact_mut(2).zip(c) {
+                    o[0] = x;
+                }
             }
         }
         Self {
@@ -211,6 +220,9 @@ pub struct RefineScratch {
     dv: Vec<i32>,
     cells: Vec<i32>,
     vertices: Vec<i32>,
+    /// Inner-vertex predictions (α = ½).
+    vpred: Vec<i32>,
+    entropy: DecodeScratch,
 }
 
 /// Refines a diamond: decodes its record and synthesises its level-`l+1` values from `p`, its
@@ -231,6 +243,8 @@ pub fn refine(
         dv,
         cells,
         vertices,
+        vpred,
+        entropy,
     } = scratch;
     dc.resize(m * m, 0);
     dv.resize((n - 2) * (n - 2), 0);
@@ -257,11 +271,12 @@ pub fn refine(
             values: dv.as_mut_slice(),
         },
     ];
-    decode_bands(
+    decode_bands_with(
         params.coder,
         record,
         &mut bands[..1 + usize::from(half)],
         DecodeLimits::default(),
+        entropy,
     )?;
     let out_of_range = || CodecError::corrupt("record reconstructs heights out of range");
     let step = i64::from(params.quantizer.step());
@@ -278,20 +293,27 @@ pub fn refine(
     if bad {
         return Err(out_of_range());
     }
-    vertices.clear();
-    vertices.extend_from_slice(p);
     if half {
+        vertices.clear();
+        vertices.extend_from_slice(p);
+        let k = n - 2;
+        vpred.resize(k * k, 0);
+        predict_inner_vertices(cells, n, vpred);
         for j in 1..n - 1 {
-            for i in 1..n - 1 {
-                let pred = 2 * i64::from(p[j * n + i]) - i64::from(predict_vertex(cells, n, i, j));
-                let v = clamp_prediction(pred) + step * i64::from(dv[(j - 1) * (n - 2) + (i - 1)]);
+            let row = &mut vertices[j * n + 1..][..k];
+            let pred = &vpred[(j - 1) * k..][..k];
+            let d = &dv[(j - 1) * k..][..k];
+            for ((o, &q), &d) in row.iter_mut().zip(pred).zip(d) {
+                let v = clamp_prediction(2 * i64::from(*o) - i64::from(q)) + step * i64::from(d);
                 bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
-                vertices[j * n + i] = v as i32;
+                *o = v as i32;
             }
         }
         if bad {
             return Err(out_of_range());
         }
     }
+    // With α = 1 a refinement leaves every vertex as it was: interleave `p` itself.
+    let vertices = if half { &vertices[..] } else { p };
     Ok(Refined::from_parts(n, vertices, cells).with_validity(valid))
 }

@@ -17,7 +17,10 @@
 //!
 //! The neighbourhood class quantizes `2|L| + 2|T| + |TL| + |TR|` roughly logarithmically into
 //! [`NCLASS`] classes. Cells and root bands share one model set, vertex bands have their own.
-//! Encoder and decoder run the same generic traversal ([`BinCoder`]), so they cannot drift apart.
+//! Encoder and decoder run the same generic traversal ([`BinCoder`]) for the quadtree and share
+//! the models, the context class and the probability update; the decoder's coefficient pass is
+//! a hand-specialised copy of the encoder's ([`decode_coeffs`], for speed), held to it by the
+//! round-trip tests and the golden hashes.
 
 mod range_coder;
 #[cfg(test)]
@@ -42,9 +45,11 @@ const MAX_EXP: u32 = 29;
 /// Neighbour magnitudes are stored saturated to this.
 const MAG_SAT: u32 = u16::MAX as u32;
 
-/// Class of `s = 2|L| + 2|T| + |TL| + |TR|` for `s < 64`; above, one class per octave.
-const CLASS_LUT: [u8; 64] = {
-    let mut lut = [0u8; 64];
+/// Class of `s = 2|L| + 2|T| + |TL| + |TR|` for `s < 64`; above, one class per octave. From
+/// `s = 1024` (`⌊log2 s⌋ + 5 ≥ 15`) on every class is the last, so the table covers all `s`
+/// through `min(s, 1024)`: a load instead of a branch on the context's critical path.
+const CLASS_LUT: [u8; 1025] = {
+    let mut lut = [0u8; 1025];
     // Upper bounds (inclusive) of classes 0..=10.
     let bounds = [0usize, 1, 2, 4, 6, 9, 13, 19, 27, 39, 63];
     let mut s = 0;
@@ -56,17 +61,18 @@ const CLASS_LUT: [u8; 64] = {
         lut[s] = c as u8;
         s += 1;
     }
+    while s < 1025 {
+        // s ≥ 64 has ilog2 ≥ 6, which continues after class 10.
+        let c = s.ilog2() as usize + 5;
+        lut[s] = if c < NCLASS { c } else { NCLASS - 1 } as u8;
+        s += 1;
+    }
     lut
 };
 
 #[inline(always)]
 fn class_of(s: u32) -> usize {
-    if s < 64 {
-        CLASS_LUT[s as usize] as usize
-    } else {
-        // s ≥ 64 has ilog2 ≥ 6, which continues after class 10.
-        (s.ilog2() as usize + 5).min(NCLASS - 1)
-    }
+    CLASS_LUT[s.min(1024) as usize] as usize
 }
 
 /// The adaptive models of one band kind.
@@ -162,9 +168,10 @@ impl BinCoder for Decoder<'_> {
     }
 }
 
-/// Per-record scratch buffers, reused across bands.
-#[derive(Default)]
-struct Scratch {
+/// Scratch buffers, reused across bands and (through [`super::DecodeScratch`]) records:
+/// [`Scratch::reset`] re-initialises everything a band reads, so no state carries over.
+#[derive(Debug, Default)]
+pub(crate) struct Scratch {
     /// Saturated magnitudes with two rows of zeros above and two columns either side.
     mag: Vec<u16>,
     /// Quadtree flags per level (0 = leaf blocks), each with one padding row above and one
@@ -342,10 +349,13 @@ fn code_band<C: BinCoder>(
         let base = (y + 2) * stride + 2;
         for (bx, _) in frow.iter().enumerate().filter(|&(_, &f)| f != 0) {
             let x0 = bx * B;
+            // The left neighbour is the value just coded: keep it in a register rather than
+            // reload it through the store, which would lengthen the serial chain.
+            let mut left = u32::from(mag[base + x0 - 1]);
             for (dx, r) in row[x0..(x0 + B).min(w)].iter_mut().enumerate() {
                 let x = x0 + dx;
                 let j = base + x;
-                let sum = 2 * (u32::from(mag[j - 1]) + u32::from(mag[j - stride]))
+                let sum = 2 * (left + u32::from(mag[j - stride]))
                     + u32::from(mag[j - stride - 1])
                     + u32::from(mag[j - stride + 1]);
                 let border = row_border | (x < 2 || x + 2 >= w) as usize;
@@ -357,13 +367,100 @@ fn code_band<C: BinCoder>(
                     },
                 )?;
                 *r = v;
-                mag[j] = v.unsigned_abs().min(MAG_SAT) as u16;
+                left = v.unsigned_abs().min(MAG_SAT);
+                mag[j] = left as u16;
             }
         }
         if c.overran() {
             return Err(CodecError::truncated("adaptive record ends early"));
         }
     }
+    Ok(())
+}
+
+/// The decoder's half of [`code_band`]'s coefficient pass, written out for speed: the coder's
+/// state lives in a local copy (registers, not memory), the neighbour rows are sliced once per
+/// block so the loop has no bounds checks, and the magnitude limit is checked once per row on
+/// the largest value seen (decoded magnitudes are below 2^30 whatever the bytes, so the rest of
+/// the row cannot overflow anything). The decisions and their contexts are exactly those of
+/// [`code_band`], which the encoder runs; the round-trip tests hold the two together.
+fn decode_coeffs(
+    dec: &mut Decoder<'_>,
+    m: &mut Models,
+    s: &mut Scratch,
+    values: &mut [i32],
+    w: usize,
+    h: usize,
+    max_abs: u32,
+) -> Result<(), CodecError> {
+    let mut d = *dec;
+    let (gw, _) = s.dims[0];
+    let stride = w + 4;
+    let leaf = &s.flags[0];
+    let mut worst = 0u32;
+    for y in 0..h {
+        let frow = &leaf[(y / B + 1) * (gw + 1) + 1..][..gw];
+        let row_border = (y < 2 || y + 2 >= h) as usize;
+        let row = &mut values[y * w..(y + 1) * w];
+        let base = (y + 2) * stride + 2;
+        // `up[x + 1]` is the top neighbour of column `x`, `cur[x + 1]` the sample itself and
+        // `cur[x]` its left neighbour.
+        let (above, cur) = s.mag.split_at_mut(base - 1);
+        let up = &above[base - stride - 1..][..w + 2];
+        for (bx, _) in frow.iter().enumerate().filter(|&(_, &f)| f != 0) {
+            let x0 = bx * B;
+            let bw = B.min(w - x0);
+            let up = &up[x0..][..bw + 2];
+            let cur = &mut cur[x0..][..bw + 1];
+            let out = &mut row[x0..][..bw];
+            let mut left = u32::from(cur[0]);
+            for dx in 0..bw {
+                let x = x0 + dx;
+                let sum =
+                    2 * (left + u32::from(up[dx + 1])) + u32::from(up[dx]) + u32::from(up[dx + 2]);
+                let class = class_of(sum);
+                let border = row_border | (x < 2 || x + 2 >= w) as usize;
+                let mut a = 0u32;
+                let mut v = 0i32;
+                if d.decode(&mut m.zero[class * 2 + border]) {
+                    let neg = d.decode_bypass(1);
+                    let exp = &mut m.exp[class * EXP_BINS..][..EXP_BINS];
+                    let mut e = 0u32;
+                    while e < MAX_EXP && d.decode(&mut exp[(e as usize).min(EXP_BINS - 1)]) {
+                        e += 1;
+                    }
+                    a = 1;
+                    if e >= 1 {
+                        let ctx = (e as usize).min(MANT_E) - 1;
+                        a = (a << 1) | d.decode(&mut m.mant[ctx]) as u32;
+                        if e >= 2 {
+                            a = (a << 1) | d.decode(&mut m.mant[MANT_E + ctx]) as u32;
+                            if e >= 3 {
+                                let n = e - 2;
+                                a = (a << n) | d.decode_bypass(n);
+                            }
+                        }
+                    }
+                    worst = worst.max(a);
+                    // a < 2^30: the negation cannot overflow.
+                    let sign = (neg as i32).wrapping_neg();
+                    v = (a as i32 ^ sign) - sign;
+                }
+                out[dx] = v;
+                left = a.min(MAG_SAT);
+                cur[dx + 1] = left as u16;
+            }
+        }
+        if worst > max_abs {
+            return Err(CodecError::corrupt(format!(
+                "adaptive: magnitude {worst} exceeds the limit {max_abs}"
+            )));
+        }
+        if d.overran() {
+            return Err(CodecError::truncated("adaptive record ends early"));
+        }
+    }
+    *dec = d;
     Ok(())
 }
 
@@ -411,6 +508,7 @@ pub(crate) fn decode_bands(
     bytes: &[u8],
     bands: &mut [BandMut<'_>],
     limits: DecodeLimits,
+    s: &mut Scratch,
 ) -> Result<(), CodecError> {
     for b in bands.iter_mut() {
         b.values.fill(0);
@@ -420,22 +518,20 @@ pub(crate) fn decode_bands(
     }
     let mut dec = Decoder::new(bytes)?;
     let mut models = [Models::INIT, Models::INIT];
-    let mut s = Scratch::default();
     for b in bands.iter_mut() {
         if b.width == 0 || b.height == 0 {
             continue;
         }
         s.reset(b.width, b.height);
         let m = &mut models[model_set(b.kind)];
-        code_band(
-            &mut dec,
-            m,
-            &mut s,
-            b.values,
-            b.width,
-            b.height,
-            limits.max_abs,
-        )?;
+        let top = s.dims.len() - 1;
+        if !code_node(&mut dec, m, s, top, 0, 0, false) {
+            continue;
+        }
+        if dec.overran() {
+            return Err(CodecError::truncated("adaptive record ends early"));
+        }
+        decode_coeffs(&mut dec, m, s, b.values, b.width, b.height, limits.max_abs)?;
     }
     dec.finish()
 }

@@ -24,6 +24,19 @@ pub(super) const FLUSH_SLACK: usize = 4;
 /// of a record adapt within the record, settling at 1/32.
 const SHIFTS: [u8; 16] = [1, 2, 2, 3, 3, 3, 3, 4, 4, 4, 4, 4, 4, 4, 4, 5];
 
+/// [`SHIFTS`] and the next use count (already in place in the top 4 bits) packed per use count,
+/// so that one load replaces the count's compare and increment on every decision.
+const STEP: [u16; 16] = {
+    let mut t = [0u16; 16];
+    let mut s = 0;
+    while s < 16 {
+        let next = if s < 15 { s + 1 } else { 15 };
+        t[s] = ((next as u16) << 12) | SHIFTS[s] as u16;
+        s += 1;
+    }
+    t
+};
+
 /// One adaptive binary model: the probability of a 0 in the low 12 bits, a use count (saturating
 /// at 15) in the top 4 bits.
 #[derive(Clone, Copy, Debug)]
@@ -49,13 +62,14 @@ impl Prob {
 
     #[inline(always)]
     fn update(&mut self, bit: bool) {
-        let state = self.0 >> 12;
+        let step = STEP[(self.0 >> 12) as usize];
         let p = (self.0 & 0xFFF) as i32;
-        let target = if bit { P_MIN } else { P_MAX };
+        // A select, not a branch: many decisions are close to 50/50, and the mantissa bits'
+        // callers do not branch on the bit at all.
+        let target = P_MAX + ((P_MIN - P_MAX) & (bit as i32).wrapping_neg());
         // Arithmetic shift rounds towards the target's side, so p never leaves [P_MIN, P_MAX].
-        let p = p + ((target - p) >> SHIFTS[state as usize]);
-        let state = state + (state < 15) as u16;
-        self.0 = p as u16 | (state << 12);
+        let p = p + ((target - p) >> (step & 0xF));
+        self.0 = p as u16 | (step & 0xF000);
     }
 }
 
@@ -156,6 +170,9 @@ impl Encoder {
 }
 
 /// Range decoder over a byte slice; reads past the end as zeros and counts how far it went.
+///
+/// `Copy`, so a hot loop can work on a local copy whose fields stay in registers.
+#[derive(Clone, Copy)]
 pub(super) struct Decoder<'a> {
     range: u32,
     code: u32,

@@ -1,4 +1,9 @@
-use super::super::{Band, BandKind, BandMut, CoderKind, DecodeLimits, decode_bands, encode_bands};
+use super::super::{
+    Band, BandKind, BandMut, CoderKind, DecodeLimits, DecodeScratch, decode_bands,
+    decode_bands_with, encode_bands,
+};
+use super::range_coder::Decoder;
+use super::{Models, NCLASS, Scratch, class_of, code_band, model_set};
 use crate::CodecError;
 use proptest::prelude::*;
 
@@ -249,6 +254,161 @@ fn bit_flips_never_panic() {
     );
 }
 
+#[test]
+fn context_class_table_matches_its_definition() {
+    // The definition the format was written with: a table below 64, one class per octave above.
+    let reference = |s: u32| -> usize {
+        let bounds = [0u32, 1, 2, 4, 6, 9, 13, 19, 27, 39, 63];
+        if s < 64 {
+            bounds.iter().position(|&b| s <= b).unwrap()
+        } else {
+            (s.ilog2() as usize + 5).min(NCLASS - 1)
+        }
+    };
+    let large = [1 << 16, 6 * 65535, u32::MAX / 2, u32::MAX];
+    for s in (0..4096).chain(large) {
+        assert_eq!(class_of(s), reference(s), "s = {s}");
+    }
+}
+
+#[test]
+fn reused_scratch_decodes_like_a_fresh_one() {
+    // Records of different shapes and band counts, and damaged ones that fail half-way and leave
+    // the scratch dirty, all through one scratch: every result must equal a fresh decode's.
+    let mut rng = Rng(5);
+    let shapes: [&[(usize, usize)]; 5] = [
+        &[(64, 64), (63, 63)],
+        &[(5, 3)],
+        &[(130, 7)],
+        &[(64, 64)],
+        &[(1, 1), (33, 40)],
+    ];
+    let mut records = Vec::new();
+    for (k, dims) in shapes.iter().cycle().take(12).enumerate() {
+        let bands: Vec<_> = dims
+            .iter()
+            .enumerate()
+            .map(|(i, &(w, h))| {
+                let kind = if i == 0 {
+                    BandKind::Cells
+                } else {
+                    BandKind::Vertices
+                };
+                let scale = [0.2, 1.0, 6.0][k % 3];
+                (kind, w, h, laplace_band(&mut rng, w, h, scale))
+            })
+            .collect();
+        let mut bytes = encode(&bands);
+        if k % 4 == 3 && !bytes.is_empty() {
+            let n = bytes.len();
+            bytes[n / 2] ^= 0x5A;
+        }
+        records.push((bands, bytes));
+    }
+    let mut scratch = DecodeScratch::default();
+    for (bands, bytes) in &records {
+        let fresh = decode(bytes, bands);
+        let mut bufs: Vec<Vec<i32>> = bands.iter().map(|(_, w, h, _)| vec![-9; w * h]).collect();
+        let mut out: Vec<BandMut<'_>> = bands
+            .iter()
+            .zip(bufs.iter_mut())
+            .map(|((kind, w, h, _), buf)| BandMut {
+                kind: *kind,
+                width: *w,
+                height: *h,
+                values: buf,
+            })
+            .collect();
+        let reused = decode_bands_with(
+            CoderKind::Adaptive,
+            bytes,
+            &mut out,
+            DecodeLimits::default(),
+            &mut scratch,
+        );
+        match (fresh, reused) {
+            (Ok(want), Ok(())) => assert_eq!(want, bufs),
+            (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+            (a, b) => panic!("fresh {a:?}, reused {b:?}"),
+        }
+    }
+}
+
+/// The decoder as it was before the coefficient pass was specialised: the generic traversal the
+/// encoder runs, driven by the range decoder. The fast decoder must agree with it on any bytes.
+fn reference_decode(
+    bytes: &[u8],
+    shapes: &[(BandKind, usize, usize, Vec<i32>)],
+) -> Result<Vec<Vec<i32>>, CodecError> {
+    let mut bufs: Vec<Vec<i32>> = shapes.iter().map(|(_, w, h, _)| vec![0; w * h]).collect();
+    if bytes.is_empty() {
+        return Ok(bufs);
+    }
+    let mut dec = Decoder::new(bytes)?;
+    let mut models = [Models::INIT, Models::INIT];
+    let mut s = Scratch::default();
+    for ((kind, w, h, _), buf) in shapes.iter().zip(bufs.iter_mut()) {
+        if *w == 0 || *h == 0 {
+            continue;
+        }
+        s.reset(*w, *h);
+        let m = &mut models[model_set(*kind)];
+        code_band(
+            &mut dec,
+            m,
+            &mut s,
+            buf,
+            *w,
+            *h,
+            DecodeLimits::default().max_abs,
+        )?;
+    }
+    dec.finish()?;
+    Ok(bufs)
+}
+
+/// Same values, or errors of the same kind (messages may name different magnitudes).
+fn assert_same_outcome(
+    fast: Result<Vec<Vec<i32>>, CodecError>,
+    reference: Result<Vec<Vec<i32>>, CodecError>,
+) {
+    match (fast, reference) {
+        (Ok(a), Ok(b)) => assert_eq!(a, b),
+        (Err(a), Err(b)) => assert_eq!(
+            std::mem::discriminant(&a),
+            std::mem::discriminant(&b),
+            "{a} / {b}"
+        ),
+        (a, b) => panic!("fast {a:?}, reference {b:?}"),
+    }
+}
+
+#[test]
+fn fast_decoder_matches_the_reference_on_damaged_records() {
+    let mut rng = Rng(9);
+    for k in 0..200 {
+        let (w, h) = (
+            1 + (rng.next() % 70) as usize,
+            1 + (rng.next() % 70) as usize,
+        );
+        let bands = [
+            (
+                BandKind::Cells,
+                w,
+                h,
+                laplace_band(&mut rng, w, h, [0.3, 2.0, 40.0][k % 3]),
+            ),
+            (BandKind::Vertices, h, w, laplace_band(&mut rng, h, w, 1.0)),
+        ];
+        let mut bytes = encode(&bands);
+        if !bytes.is_empty() {
+            let i = (rng.next() as usize) % bytes.len();
+            bytes[i] ^= 1 << (rng.next() % 8);
+        }
+        assert_same_outcome(decode(&bytes, &bands), reference_decode(&bytes, &bands));
+    }
+}
+
 fn band_strategy() -> impl Strategy<Value = (BandKind, usize, usize, Vec<i32>)> {
     let kind = prop_oneof![
         Just(BandKind::Cells),
@@ -291,6 +451,22 @@ proptest! {
     ) {
         let shapes = [(BandKind::Cells, w, h, vec![]), (BandKind::Vertices, h, w, vec![])];
         let _ = decode(&bytes, &shapes);
+    }
+
+    #[test]
+    fn random_bytes_decode_like_the_reference(
+        bytes in prop::collection::vec(prop_oneof![3 => Just(0u8), 1 => any::<u8>()], 0..300),
+        w in 0usize..80,
+        h in 0usize..80,
+    ) {
+        let shapes = [(BandKind::Cells, w, h, vec![]), (BandKind::Vertices, h, w, vec![])];
+        assert_same_outcome(decode(&bytes, &shapes), reference_decode(&bytes, &shapes));
+    }
+
+    #[test]
+    fn valid_records_decode_like_the_reference(bands in prop::collection::vec(band_strategy(), 1..3)) {
+        let bytes = encode(&bands);
+        assert_same_outcome(decode(&bytes, &bands), reference_decode(&bytes, &bands));
     }
 
     #[test]
