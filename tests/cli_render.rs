@@ -4,7 +4,6 @@
 mod common;
 
 use std::path::Path;
-use std::process::Command;
 
 use common::*;
 
@@ -173,27 +172,9 @@ fn render_path_writes_every_frame() {
 #[cfg(unix)]
 #[test]
 fn render_over_http_equals_render_of_the_file() {
-    use std::io::{BufRead, BufReader};
-    use std::process::Stdio;
-
     let dir = tempfile::tempdir().unwrap();
     let repo = jacksboro(dir.path());
-    let mut server = Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(["serve", &s(&repo), "--addr", "127.0.0.1:0"])
-        .env("RUST_LOG", "info")
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut err = BufReader::new(server.stderr.take().unwrap());
-    let addr = loop {
-        let mut line = String::new();
-        assert!(err.read_line(&mut line).unwrap() > 0, "serve exited early");
-        if let Some(i) = line.find("listening on http://") {
-            break line[i + "listening on http://".len()..].trim().to_string();
-        }
-    };
-    // Drain the access log so the server never blocks on a full pipe.
-    std::thread::spawn(move || for _ in err.lines() {});
+    let (mut server, addr) = spawn_serve(&[&s(&repo)]);
     let local = dir.path().join("local.png");
     let remote = dir.path().join("remote.png");
     let o = cbdam(&["render", &s(&repo), "--size", "200x120", "-o", &s(&local)]);

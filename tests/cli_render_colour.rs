@@ -6,7 +6,6 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use common::*;
 
@@ -100,26 +99,7 @@ fn render_drapes_the_colour_locally_and_over_http_and_refuses_misfits() {
     assert!(red == 0 && blue == 0, "plain: red {red}, blue {blue}");
 
     // Over HTTP: both repositories from one `cbdam serve`, the same bytes.
-    let mut server = Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(["serve", &s(&elev), &s(&colour), "--addr", "127.0.0.1:0"])
-        .env("RUST_LOG", "info")
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let addr = {
-        use std::io::{BufRead, BufReader};
-        let mut err = BufReader::new(server.stderr.take().unwrap());
-        let addr = loop {
-            let mut line = String::new();
-            assert!(err.read_line(&mut line).unwrap() > 0, "serve exited early");
-            if let Some(i) = line.find("listening on http://") {
-                break line[i + "listening on http://".len()..].trim().to_string();
-            }
-        };
-        // Drain the access log so the server never blocks on a full pipe.
-        std::thread::spawn(move || for _ in err.lines() {});
-        addr
-    };
+    let (mut server, addr) = spawn_serve(&[&s(&elev), &s(&colour)]);
     let remote = dir.path().join("remote.png");
     let o = render(
         &format!("http://{addr}/v1/repos/j"),

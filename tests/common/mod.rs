@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output, Stdio};
 
 /// Runs the `cbdam` binary under test with `args`.
 pub fn cbdam(args: &[&str]) -> Output {
@@ -11,6 +11,36 @@ pub fn cbdam(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("run cbdam")
+}
+
+/// Starts `cbdam serve ARGS… --addr 127.0.0.1:0` and returns the process with its `host:port`
+/// once it logs that it listens. The rest of its log is drained on a thread, so the server never
+/// blocks on a full pipe; kill the child when done.
+pub fn spawn_serve(args: &[&str]) -> (Child, String) {
+    use std::io::{BufRead, BufReader};
+    let mut server = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .arg("serve")
+        .args(args)
+        .args(["--addr", "127.0.0.1:0"])
+        .env("RUST_LOG", "info")
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run cbdam serve");
+    let mut err = BufReader::new(server.stderr.take().expect("piped stderr"));
+    let mut seen = String::new();
+    let addr = loop {
+        let mut line = String::new();
+        assert!(
+            err.read_line(&mut line).expect("read the server's log") > 0,
+            "cbdam serve exited early: {seen}"
+        );
+        seen += &line;
+        if let Some(i) = line.find("listening on http://") {
+            break line[i + "listening on http://".len()..].trim().to_string();
+        }
+    };
+    std::thread::spawn(move || for _ in err.lines() {});
+    (server, addr)
 }
 
 /// A path as a command-line argument.
