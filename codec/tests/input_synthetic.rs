@@ -574,6 +574,71 @@ fn tiff_geokeys_and_gdal_nodata() {
     assert!(!g.pixel_is_area);
 }
 
+/// A georeferenced float32 GeoTIFF whose VerticalUnitsGeoKey is `unit` (none when 0).
+fn tiff_with_vertical_unit(unit: u16) -> Vec<u8> {
+    let mut out = Cursor::new(Vec::new());
+    let mut enc = TiffEncoder::new(&mut out).unwrap();
+    let mut img = enc.new_image::<colortype::Gray32Float>(2, 2).unwrap();
+    let d = img.encoder();
+    d.write_tag(Tag::ModelPixelScaleTag, &[10.0f64, 10.0, 0.0][..])
+        .unwrap();
+    d.write_tag(
+        Tag::ModelTiepointTag,
+        &[0.0f64, 0.0, 0.0, 1000.0, 2000.0, 0.0][..],
+    )
+    .unwrap();
+    let mut keys: Vec<u16> = vec![1, 1, 0, 1, 3072, 0, 1, 32633];
+    if unit != 0 {
+        keys[3] = 2;
+        keys.extend([4099, 0, 1, unit]); // VerticalUnitsGeoKey
+    }
+    d.write_tag(Tag::GeoKeyDirectoryTag, &keys[..]).unwrap();
+    img.write_data(&[1.0f32, 2.0, 3.0, 4.0]).unwrap();
+    out.into_inner()
+}
+
+#[test]
+fn tiff_heights_in_feet_are_refused_naming_the_unit() {
+    let dir = TempDir::new().unwrap();
+    for unit in [0u16, 9001] {
+        let path = write(
+            &dir,
+            &format!("unit{unit}.tif"),
+            &tiff_with_vertical_unit(unit),
+        );
+        let dem = read(&path).unwrap_or_else(|e| panic!("unit {unit}: {e}"));
+        assert_eq!(dem.values, [1.0, 2.0, 3.0, 4.0]);
+        assert_eq!(dem.georef.unwrap().epsg, Some(32633));
+    }
+    for (unit, name) in [
+        (9002u16, "(foot)"),
+        (9003, "(US survey foot)"),
+        (9036, "9036"),
+    ] {
+        let path = write(
+            &dir,
+            &format!("unit{unit}.tif"),
+            &tiff_with_vertical_unit(unit),
+        );
+        let e = read(&path).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            matches!(e, CodecError::Unsupported(_)),
+            "unit {unit}: {e:?}"
+        );
+        assert!(
+            msg.contains("VerticalUnitsGeoKey") && msg.contains(name) && msg.contains("metres"),
+            "unit {unit}: {msg}"
+        );
+        // The streamed reader the builder uses for large files refuses it too.
+        let Err(e) = cbdam_codec::input::GeoTiffSource::open(&path, None, &Limits::default())
+        else {
+            panic!("unit {unit}: the streamed reader accepted the file");
+        };
+        assert!(e.to_string().contains("VerticalUnitsGeoKey"), "{e}");
+    }
+}
+
 #[test]
 fn tiff_float32_lowest_nodata_written_by_gdal() {
     // GDAL writes f32::MIN as "-3.402823e+38", which parses to a double that is not f32::MIN.

@@ -9,6 +9,14 @@ pub const KEY_RASTER_TYPE: u16 = 1025;
 pub const KEY_GEOGRAPHIC_TYPE: u16 = 2048;
 /// ProjectedCSTypeGeoKey: EPSG code of a projected CRS.
 pub const KEY_PROJECTED_CS_TYPE: u16 = 3072;
+/// VerticalUnitsGeoKey: EPSG code of the unit of the sample values (heights).
+pub const KEY_VERTICAL_UNITS: u16 = 4099;
+/// EPSG unit: metre.
+pub const UNIT_METRE: u16 = 9001;
+/// EPSG unit: (international) foot.
+pub const UNIT_FOOT: u16 = 9002;
+/// EPSG unit: US survey foot.
+pub const UNIT_US_SURVEY_FOOT: u16 = 9003;
 /// Model type value: projected.
 pub const MODEL_PROJECTED: u16 = 1;
 /// Model type value: geographic.

@@ -22,8 +22,8 @@ use super::{Dem, GeoRef, Limits, SampleType};
 use crate::CodecError;
 
 use super::geokeys::{
-    KEY_GEOGRAPHIC_TYPE, KEY_PROJECTED_CS_TYPE, KEY_RASTER_TYPE, RASTER_PIXEL_IS_POINT,
-    USER_DEFINED,
+    KEY_GEOGRAPHIC_TYPE, KEY_PROJECTED_CS_TYPE, KEY_RASTER_TYPE, KEY_VERTICAL_UNITS,
+    RASTER_PIXEL_IS_POINT, UNIT_FOOT, UNIT_METRE, UNIT_US_SURVEY_FOOT, USER_DEFINED,
 };
 
 /// What a GeoTIFF's tags say about its samples and their layout, checked: one band of a
@@ -66,6 +66,7 @@ impl Header {
             (width.div_ceil(chunk_width), height.div_ceil(chunk_height));
         check_chunks_in_file(&mut dec, file_len, chunks_across * chunks_down)?;
         let nodata = read_nodata(&mut dec)?.map(|v| fit_nodata(v, sample_type));
+        check_vertical_units(&mut dec)?;
         let georef = read_georef(&mut dec)?;
         Ok(Self {
             width,
@@ -291,6 +292,59 @@ fn fit_nodata(v: f64, ty: SampleType) -> f64 {
     }
 }
 
+/// The GeoKeys whose value is the short itself (location 0), as `(key, value)`: the keys read
+/// here are all of that kind. No GeoKeyDirectoryTag: none.
+fn geo_keys<R: std::io::Read + std::io::Seek>(
+    dec: &mut Decoder<R>,
+) -> Result<Vec<(u16, u16)>, CodecError> {
+    let Some(v) = dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(tiff_err)? else {
+        return Ok(Vec::new());
+    };
+    let keys = v
+        .into_u16_vec()
+        .map_err(|_| CodecError::corrupt("GeoKeyDirectoryTag does not hold shorts"))?;
+    if keys.len() < 4 {
+        return Err(CodecError::corrupt(
+            "GeoKeyDirectoryTag shorter than its header",
+        ));
+    }
+    let count = keys[3] as usize;
+    let entries = keys[4..].chunks_exact(4).take(count);
+    if entries.len() < count {
+        return Err(CodecError::corrupt(format!(
+            "GeoKeyDirectoryTag declares {count} keys but holds {}",
+            (keys.len() - 4) / 4
+        )));
+    }
+    Ok(entries
+        .filter(|e| e[1] == 0)
+        .map(|e| (e[0], e[3]))
+        .collect())
+}
+
+/// Refuses elevations whose VerticalUnitsGeoKey names a unit other than the metre: heights and
+/// the error bound are metres throughout (the repository header's vertical unit is 0, metres),
+/// so a DEM in feet would be coded with a bound in feet and drawn 3.28× too tall. Converting
+/// in the reader is not done: it would take integer-foot data off its value lattice.
+fn check_vertical_units<R: std::io::Read + std::io::Seek>(
+    dec: &mut Decoder<R>,
+) -> Result<(), CodecError> {
+    for (key, value) in geo_keys(dec)? {
+        if key == KEY_VERTICAL_UNITS && !matches!(value, 0 | UNIT_METRE | USER_DEFINED) {
+            let name = match value {
+                UNIT_FOOT => " (foot)",
+                UNIT_US_SURVEY_FOOT => " (US survey foot)",
+                _ => "",
+            };
+            return Err(CodecError::unsupported(format!(
+                "GeoTIFF VerticalUnitsGeoKey is EPSG unit {value}{name}: heights must be in \
+                 metres (convert the DEM first, e.g. gdal_calc.py --calc=\"A*0.3048\")"
+            )));
+        }
+    }
+    Ok(())
+}
+
 pub(super) fn read_georef<R: std::io::Read + std::io::Seek>(
     dec: &mut Decoder<R>,
 ) -> Result<Option<GeoRef>, CodecError> {
@@ -305,13 +359,7 @@ pub(super) fn read_georef<R: std::io::Read + std::io::Seek>(
     let scale = f64s(dec, Tag::ModelPixelScaleTag)?;
     let tiepoint = f64s(dec, Tag::ModelTiepointTag)?;
     let transform = f64s(dec, Tag::ModelTransformationTag)?;
-    let keys: Option<Vec<u16>> = match dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(tiff_err)? {
-        None => None,
-        Some(v) => Some(
-            v.into_u16_vec()
-                .map_err(|_| CodecError::corrupt("GeoKeyDirectoryTag does not hold shorts"))?,
-        ),
-    };
+    let keys = geo_keys(dec)?;
 
     let (origin_x, origin_y, pixel_x, pixel_y) = match (scale, tiepoint, transform) {
         (Some(s), Some(t), _) if s.len() >= 2 && t.len() >= 6 => {
@@ -333,36 +381,16 @@ pub(super) fn read_georef<R: std::io::Read + std::io::Seek>(
     let mut epsg = None;
     let mut geographic = None;
     let mut pixel_is_area = true;
-    if let Some(keys) = keys {
-        if keys.len() < 4 {
-            return Err(CodecError::corrupt(
-                "GeoKeyDirectoryTag shorter than its header",
-            ));
-        }
-        let count = keys[3] as usize;
-        let entries = keys[4..].chunks_exact(4).take(count);
-        if entries.len() < count {
-            return Err(CodecError::corrupt(format!(
-                "GeoKeyDirectoryTag declares {count} keys but holds {}",
-                (keys.len() - 4) / 4
-            )));
-        }
-        for e in entries {
-            // Location 0 means the value is the short itself; the keys we want are all shorts.
-            let (key, location, value) = (e[0], e[1], e[3]);
-            if location != 0 {
-                continue;
+    for (key, value) in keys {
+        match key {
+            KEY_RASTER_TYPE => pixel_is_area = value != RASTER_PIXEL_IS_POINT,
+            KEY_PROJECTED_CS_TYPE if value != 0 && value != USER_DEFINED => {
+                epsg = Some(u32::from(value));
             }
-            match key {
-                KEY_RASTER_TYPE => pixel_is_area = value != RASTER_PIXEL_IS_POINT,
-                KEY_PROJECTED_CS_TYPE if value != 0 && value != USER_DEFINED => {
-                    epsg = Some(u32::from(value));
-                }
-                KEY_GEOGRAPHIC_TYPE if value != 0 && value != USER_DEFINED => {
-                    geographic = Some(u32::from(value));
-                }
-                _ => {}
+            KEY_GEOGRAPHIC_TYPE if value != 0 && value != USER_DEFINED => {
+                geographic = Some(u32::from(value));
             }
+            _ => {}
         }
     }
     // A projected CRS also names the datum's geographic CRS; the projected one is where the
