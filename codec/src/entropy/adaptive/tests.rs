@@ -31,7 +31,20 @@ fn decode(
     shapes: &[(BandKind, usize, usize, Vec<i32>)],
 ) -> Result<Vec<Vec<i32>>, CodecError> {
     // Start from garbage: the decoder must overwrite everything.
-    let mut bufs: Vec<Vec<i32>> = shapes.iter().map(|(_, w, h, _)| vec![7; w * h]).collect();
+    decode_into(bytes, shapes, 7, None)
+}
+
+/// Decodes into buffers pre-filled with `fill`, with fresh scratch or with `scratch` reused.
+fn decode_into(
+    bytes: &[u8],
+    shapes: &[(BandKind, usize, usize, Vec<i32>)],
+    fill: i32,
+    scratch: Option<&mut DecodeScratch>,
+) -> Result<Vec<Vec<i32>>, CodecError> {
+    let mut bufs: Vec<Vec<i32>> = shapes
+        .iter()
+        .map(|(_, w, h, _)| vec![fill; w * h])
+        .collect();
     let mut bands: Vec<BandMut<'_>> = shapes
         .iter()
         .zip(bufs.iter_mut())
@@ -42,12 +55,11 @@ fn decode(
             values: buf,
         })
         .collect();
-    decode_bands(
-        CoderKind::Adaptive,
-        bytes,
-        &mut bands,
-        DecodeLimits::default(),
-    )?;
+    let limits = DecodeLimits::default();
+    match scratch {
+        None => decode_bands(CoderKind::Adaptive, bytes, &mut bands, limits)?,
+        Some(s) => decode_bands_with(CoderKind::Adaptive, bytes, &mut bands, limits, s)?,
+    }
     Ok(bufs)
 }
 
@@ -308,26 +320,9 @@ fn reused_scratch_decodes_like_a_fresh_one() {
     let mut scratch = DecodeScratch::default();
     for (bands, bytes) in &records {
         let fresh = decode(bytes, bands);
-        let mut bufs: Vec<Vec<i32>> = bands.iter().map(|(_, w, h, _)| vec![-9; w * h]).collect();
-        let mut out: Vec<BandMut<'_>> = bands
-            .iter()
-            .zip(bufs.iter_mut())
-            .map(|((kind, w, h, _), buf)| BandMut {
-                kind: *kind,
-                width: *w,
-                height: *h,
-                values: buf,
-            })
-            .collect();
-        let reused = decode_bands_with(
-            CoderKind::Adaptive,
-            bytes,
-            &mut out,
-            DecodeLimits::default(),
-            &mut scratch,
-        );
+        let reused = decode_into(bytes, bands, -9, Some(&mut scratch));
         match (fresh, reused) {
-            (Ok(want), Ok(())) => assert_eq!(want, bufs),
+            (Ok(want), Ok(got)) => assert_eq!(want, got),
             (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
             (a, b) => panic!("fresh {a:?}, reused {b:?}"),
         }
