@@ -239,7 +239,7 @@ pub fn prepare_mosaic(
     };
     let t = Instant::now();
     let m = crate::mosaic::mosaic(paths, &opts, memory_limit)?;
-    let (lo, hi) = m.dem.valid_range().expect("every input has a valid sample");
+    let (lo, hi) = m.valid_range().expect("every input has a valid sample");
     if hi > lo && max_error > hi - lo {
         bail!(
             "--max-error {max_error} m exceeds the data's height range ({lo} … {hi} m, {} m); \
@@ -247,8 +247,8 @@ pub fn prepare_mosaic(
             hi - lo
         );
     }
-    let plan = QuantPlan::for_dem(&m.dem, max_error, quantum)?;
-    let grid = HeightGrid::from_dem(&m.dem, &plan)?;
+    // The lattice's rows are composed from the inputs as the quantizer reads them.
+    let (plan, grid) = QuantPlan::quantize_source(&m, max_error, quantum)?;
     let resolution = m.resolution();
     // The header holds one nodata value (for extract and verify): the override, else the value
     // the inputs agree on.
@@ -261,7 +261,7 @@ pub fn prepare_mosaic(
         Prepared {
             grid,
             plan,
-            georef: m.dem.georef,
+            georef: Some(m.georef),
             nodata: nodata.or(common),
             stages: vec![("read, mosaic and quantize", t.elapsed())],
         },
@@ -352,8 +352,10 @@ pub fn run(args: &BuildArgs) -> Result<()> {
             }
             let (input, res) =
                 prepare_mosaic(paths, args.nodata, args.quantum, args.max_error, limit)?;
-            // The lattice was checked against the limit as a whole, field included.
-            (input, Some(res), TempStorage::Memory)
+            // The inputs are gone by now: what stays is the grid, the classes and the field.
+            let classes = res.class.len() as u64;
+            let storage = storage_for(&input.grid, &enc_opts, limit.saturating_sub(classes))?;
+            (input, Some(res), storage)
         }
     };
     let progress = Progress::new(args.quiet);

@@ -4,16 +4,22 @@
 //! The lattice has the finest input's spacing and covers the union of the inputs. A coarser input
 //! must sample it at a stride of `2^j` lattice points, its samples on the lattice and on
 //! multiples of its stride from the lattice origin (so they are vertices of level `L − 2j`).
-//! Nothing is resampled: any other geometry is an error that says what is required. The first
-//! version holds the lattice in memory (17 bytes per lattice point while building) and refuses
-//! lattices above `--memory-limit`.
+//! Nothing is resampled: any other geometry is an error that says what is required.
+//!
+//! The merged heights are never materialised: [`Mosaic`] is a [`SampleSource`] that composes
+//! each block of lattice rows from the inputs when the quantizer asks for it, so what the lattice
+//! itself costs is one byte per point (which input wins where, [`Mosaic::source`]) on top of the
+//! inputs and the quantized grid ([`bytes_in_memory`]). Builds above `--memory-limit` are refused
+//! before the lattice is allocated.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use cbdam_codec::CodecError;
 use cbdam_codec::hierarchy::Resolution;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
-use cbdam_codec::input::{Dem, GeoRef, ReadOptions, SampleType, read_dem};
+use cbdam_codec::input::{BlockFn, Dem, GeoRef, ReadOptions, SampleSource, SampleType, read_dem};
+use rayon::prelude::*;
 
 /// Relative tolerance on spacing ratios: GeoTIFF pixel scales are decimal doubles (e.g.
 /// 1/3600°), so ratios of exact powers of two come out within a few ulps.
@@ -21,9 +27,27 @@ const RATIO_TOLERANCE: f64 = 1e-9;
 /// Tolerance, in fine samples, on how far an input's origin may lie from a lattice point:
 /// tie points are printed decimals too.
 const ORIGIN_TOLERANCE: f64 = 1e-6;
-/// Bytes per lattice point while building: the merged heights (f64), the classes (u8), the
-/// quantized grid (i32 + bool) and the encoder's reconstruction field (i32).
-pub const BYTES_PER_POINT: u64 = 8 + 1 + 5 + 4;
+/// Bytes per lattice point that a multi-input build keeps in memory besides its inputs: the
+/// winning input (u8), the encoder's resolution classes (u8) and the quantized grid (i32 + bool).
+/// The encoder's reconstruction field (4 bytes per point of the domain) comes on top, in memory or
+/// in a temporary file ([`crate::build::storage_for`]).
+pub const BYTES_PER_POINT: u64 = 1 + 1 + 5;
+
+/// Lattice points composed per block (whole rows, at least one): 1 MiB of `f64`, enough rows
+/// for both cores and sequential reads of the inputs.
+const BLOCK_POINTS: usize = 1 << 17;
+
+/// What a multi-input build of a `width × height` lattice from inputs of `input_samples` samples
+/// holds in memory before its reconstruction field: the inputs as read (`f64` each),
+/// [`BYTES_PER_POINT`] per lattice point, and one block of composed rows.
+pub fn bytes_in_memory(width: usize, height: usize, input_samples: u64) -> u64 {
+    let points = (width as u64).saturating_mul(height as u64);
+    let block = 8 * (BLOCK_POINTS.max(width) as u64).min(points);
+    points
+        .saturating_mul(BYTES_PER_POINT)
+        .saturating_add(input_samples.saturating_mul(8))
+        .saturating_add(block)
+}
 
 /// Where one input lies on the lattice.
 #[derive(Clone, Debug)]
@@ -46,10 +70,18 @@ impl Placement {
     }
 }
 
-/// The merged lattice.
+/// The merged lattice. As a [`SampleSource`] it yields the winning sample of every lattice point
+/// (NaN where none, no nodata value), row block by row block.
 pub struct Mosaic {
-    /// The winning sample of every lattice point (NaN where none), georeferenced.
-    pub dem: Dem,
+    /// Lattice columns.
+    pub width: usize,
+    /// Lattice rows.
+    pub height: usize,
+    /// The lattice's georeferencing (the finest input's spacing).
+    pub georef: GeoRef,
+    /// The type the merged samples are stored as: the inputs' common type, else `I32` for
+    /// integer inputs, else `F64`.
+    pub sample_type: SampleType,
     /// Per lattice point: the index of the winning input in `inputs`, or [`COARSE_ONLY`] /
     /// [`HOLE`].
     pub source: Vec<u8>,
@@ -58,6 +90,43 @@ pub struct Mosaic {
 }
 
 impl Mosaic {
+    /// The winning sample at lattice index `i` (row-major), NaN where no input has one.
+    pub fn value(&self, i: usize) -> f64 {
+        match self.source[i] {
+            COARSE_ONLY | HOLE => f64::NAN,
+            k => {
+                let p = &self.inputs[usize::from(k)];
+                let (x, y) = (i % self.width, i / self.width);
+                let (c, r) = ((x - p.x0) >> p.log2, (y - p.y0) >> p.log2);
+                p.dem.values[r * p.dem.width + c]
+            }
+        }
+    }
+
+    /// Smallest and largest winning sample, `None` if there is none.
+    pub fn valid_range(&self) -> Option<(f64, f64)> {
+        (0..self.source.len())
+            .into_par_iter()
+            .filter(|&i| self.source[i] != COARSE_ONLY && self.source[i] != HOLE)
+            .map(|i| {
+                let v = self.value(i);
+                (v, v)
+            })
+            .reduce_with(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+    }
+
+    /// The winning samples of lattice rows `rows` into `out` (row-major).
+    fn compose(&self, rows: std::ops::Range<usize>, out: &mut Vec<f64>) {
+        let w = self.width;
+        out.clear();
+        out.resize(rows.len() * w, f64::NAN);
+        out.par_chunks_mut(w).zip(rows).for_each(|(row, y)| {
+            for (x, v) in row.iter_mut().enumerate() {
+                *v = self.value(y * w + x);
+            }
+        });
+    }
+
     /// The encoder's view: the stride of the winning sample at each point.
     pub fn resolution(&self) -> Resolution {
         let strides: Vec<u8> = self.inputs.iter().map(|p| p.log2).collect();
@@ -71,6 +140,31 @@ impl Mosaic {
                 })
                 .collect(),
         }
+    }
+}
+
+impl SampleSource for Mosaic {
+    fn width(&self) -> usize {
+        self.width
+    }
+    fn height(&self) -> usize {
+        self.height
+    }
+    fn sample_type(&self) -> SampleType {
+        self.sample_type
+    }
+    fn nodata(&self) -> Option<f64> {
+        None
+    }
+    fn for_each_block(&self, f: &mut BlockFn<'_>) -> Result<(), CodecError> {
+        let rows = (BLOCK_POINTS / self.width.max(1)).max(1);
+        let mut block = Vec::new();
+        for y0 in (0..self.height).step_by(rows) {
+            let y1 = (y0 + rows).min(self.height);
+            self.compose(y0..y1, &mut block);
+            f(y0, &block)?;
+        }
+        Ok(())
     }
 }
 
@@ -235,18 +329,21 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         height = height.max(p.y0 + (p.dem.height - 1) * p.stride() + 1);
         inputs.push(p);
     }
-    let points = (width as u64).saturating_mul(height as u64);
-    let need = points.saturating_mul(BYTES_PER_POINT);
+    let input_samples: u64 = inputs
+        .iter()
+        .map(|p| (p.dem.width * p.dem.height) as u64)
+        .sum();
+    let need = bytes_in_memory(width, height, input_samples);
     if need > memory_limit {
         bail!(
-            "the combined lattice is {width}×{height} points at the finest spacing, which the \
-             multi-input build holds in memory: about {} MiB, above --memory-limit ({} MiB)",
+            "the combined lattice is {width}×{height} points at the finest spacing; with the \
+             inputs, which the multi-input build holds in memory, that is about {} MiB, above \
+             --memory-limit ({} MiB)",
             need >> 20,
             memory_limit >> 20
         );
     }
     let len = width * height;
-    let mut values = vec![f64::NAN; len];
     let mut source = vec![HOLE; len];
     // Coarsest first, so finer samples overwrite; among equal strides the first listed wins.
     let mut order: Vec<usize> = (0..inputs.len()).collect();
@@ -258,9 +355,7 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
             for c in 0..p.dem.width {
                 let i = r * p.dem.width + c;
                 if p.dem.is_valid(i) {
-                    let at = (p.y0 + r * s) * width + p.x0 + c * s;
-                    values[at] = p.dem.values[i];
-                    source[at] = k as u8;
+                    source[(p.y0 + r * s) * width + p.x0 + c * s] = k as u8;
                 }
             }
         }
@@ -303,14 +398,10 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         ..fine_geo
     };
     Ok(Mosaic {
-        dem: Dem {
-            width,
-            height,
-            values,
-            sample_type,
-            nodata: None,
-            georef: Some(georef),
-        },
+        width,
+        height,
+        georef,
+        sample_type,
         source,
         inputs,
     })

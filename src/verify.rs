@@ -192,16 +192,16 @@ fn verify_mosaic(repo: &Repository, paths: &[PathBuf], opts: &ReadOptions) -> Re
     let p = *repo.params();
     let plan = *repo.plan();
     let m = mosaic(paths, opts, u64::MAX)?;
-    if (m.dem.width, m.dem.height) != (p.data_width as usize, p.data_height as usize) {
+    if (m.width, m.height) != (p.data_width as usize, p.data_height as usize) {
         bail!(
             "the inputs make a {}×{} lattice, the repository was built from {}×{}",
-            m.dem.width,
-            m.dem.height,
+            m.width,
+            m.height,
             p.data_width,
             p.data_height
         );
     }
-    let grid = HeightGrid::from_dem(&m.dem, &plan)
+    let grid = HeightGrid::from_source(&m, &plan)
         .context("mapping the inputs onto the repository's height lattice")?;
     let encoded = repo.to_encoded()?;
     let report = verify(&encoded, &grid).context("decoding the hierarchy")?;
@@ -219,7 +219,7 @@ fn verify_mosaic(repo: &Repository, paths: &[PathBuf], opts: &ReadOptions) -> Re
             (_, Reached::No) => unreached.push(i),
             (_, Reached::Invalid) => mask_wrong.push(i),
             (k, Reached::Valid) => {
-                let e = (plan.metres(values[i]) - m.dem.values[i]).abs();
+                let e = (plan.metres(values[i]) - m.value(i)).abs();
                 let k = usize::from(k);
                 max_err[k] = max_err[k].max(e);
                 count[k] += 1;
@@ -229,7 +229,7 @@ fn verify_mosaic(repo: &Repository, paths: &[PathBuf], opts: &ReadOptions) -> Re
             }
         }
     }
-    let w = m.dem.width;
+    let w = m.width;
     for (k, input) in m.inputs.iter().enumerate() {
         println!(
             "{}: {} winning samples (stride {}), max error {:.6} m",

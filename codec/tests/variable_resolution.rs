@@ -222,3 +222,22 @@ fn inconsistent_classes_and_alpha_half_are_refused() {
     res.class.pop();
     assert!(encode_variable(&grid, &res, q, &opts(), &TempStorage::Memory, &|_, _| {}).is_err());
 }
+
+/// A multi-input build whose reconstruction field does not fit its memory limit keeps it in a
+/// temporary file: the hierarchy must not depend on where the field lives.
+#[test]
+fn a_file_backed_field_gives_the_same_variable_hierarchy() {
+    let h = terrain(&mut Rng(5));
+    let (grid, res) = variable_input(&h);
+    let q = Quantizer::new(3).unwrap();
+    let in_file = encode_variable(
+        &grid,
+        &res,
+        q,
+        &opts(),
+        &TempStorage::File(None),
+        &|_, _| {},
+    )
+    .unwrap();
+    assert_eq!(in_file, encode_var(&grid, &res, q));
+}
