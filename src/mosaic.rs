@@ -37,16 +37,65 @@ pub const BYTES_PER_POINT: u64 = 1 + 1 + 5;
 /// for both cores and sequential reads of the inputs.
 const BLOCK_POINTS: usize = 1 << 17;
 
-/// What a multi-input build of a `width × height` lattice from inputs of `input_samples` samples
-/// holds in memory before its reconstruction field: the inputs as read (`f64` each),
+/// What a multi-input build of a `width × height` lattice from inputs of `input_bytes` bytes
+/// ([`Samples::bytes`]) holds in memory before its reconstruction field: the inputs,
 /// [`BYTES_PER_POINT`] per lattice point, and one block of composed rows.
-pub fn bytes_in_memory(width: usize, height: usize, input_samples: u64) -> u64 {
+pub fn bytes_in_memory(width: usize, height: usize, input_bytes: u64) -> u64 {
     let points = (width as u64).saturating_mul(height as u64);
     let block = 8 * (BLOCK_POINTS.max(width) as u64).min(points);
     points
         .saturating_mul(BYTES_PER_POINT)
-        .saturating_add(input_samples.saturating_mul(8))
+        .saturating_add(input_bytes)
         .saturating_add(block)
+}
+
+/// An input's samples in the narrowest type that holds every one of them exactly, NaN included:
+/// SRTM's 16-bit integers cost 2 bytes a sample instead of the reader's 8.
+#[derive(Clone, Debug)]
+pub enum Samples {
+    /// Whole numbers in the `i16` range.
+    I16(Vec<i16>),
+    /// Values that `f32` represents exactly, and NaN.
+    F32(Vec<f32>),
+    /// Anything else.
+    F64(Vec<f64>),
+}
+
+impl Samples {
+    /// The narrowest exact representation of `values`.
+    pub fn compact(values: Vec<f64>) -> Self {
+        // `as` saturates and maps NaN to 0, so the round trip fails exactly where the narrow
+        // type cannot hold the value (a zero's sign is the only thing dropped).
+        if values.iter().all(|&v| f64::from(v as i16) == v) {
+            Self::I16(values.iter().map(|&v| v as i16).collect())
+        } else if values
+            .iter()
+            .all(|&v| v.is_nan() || f64::from(v as f32) == v)
+        {
+            Self::F32(values.iter().map(|&v| v as f32).collect())
+        } else {
+            Self::F64(values)
+        }
+    }
+
+    /// Sample `i`.
+    #[inline]
+    pub fn get(&self, i: usize) -> f64 {
+        match self {
+            Self::I16(v) => f64::from(v[i]),
+            Self::F32(v) => f64::from(v[i]),
+            Self::F64(v) => v[i],
+        }
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> u64 {
+        match self {
+            Self::I16(v) => 2 * v.len() as u64,
+            Self::F32(v) => 4 * v.len() as u64,
+            Self::F64(v) => 8 * v.len() as u64,
+        }
+    }
 }
 
 /// Where one input lies on the lattice.
@@ -60,13 +109,21 @@ pub struct Placement {
     pub y0: usize,
     /// Its stride in lattice points, `2^log2`.
     pub log2: u8,
-    /// Its samples.
+    /// Its size, type, nodata value and georeferencing; `values` is empty (see `samples`).
     pub dem: Dem,
+    /// Its samples, row-major.
+    pub samples: Samples,
 }
 
 impl Placement {
     fn stride(&self) -> usize {
         1 << self.log2
+    }
+
+    /// Whether sample `i` holds a height ([`Dem::is_valid`]).
+    fn is_valid(&self, i: usize) -> bool {
+        let v = self.samples.get(i);
+        !v.is_nan() && self.dem.nodata != Some(v)
     }
 }
 
@@ -98,7 +155,7 @@ impl Mosaic {
                 let p = &self.inputs[usize::from(k)];
                 let (x, y) = (i % self.width, i / self.width);
                 let (c, r) = ((x - p.x0) >> p.log2, (y - p.y0) >> p.log2);
-                p.dem.values[r * p.dem.width + c]
+                p.samples.get(r * p.dem.width + c)
             }
         }
     }
@@ -200,7 +257,8 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
     }
     let mut dems = Vec::new();
     for path in paths {
-        let dem = read_dem(path, opts).with_context(|| format!("reading {}", path.display()))?;
+        let mut dem =
+            read_dem(path, opts).with_context(|| format!("reading {}", path.display()))?;
         let Some(g) = &dem.georef else {
             bail!(
                 "{} has no georeferencing (GeoTIFF tie point and pixel scale, or an .hgt/.asc \
@@ -219,7 +277,9 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         if dem.valid_count() == 0 {
             bail!("{} has no valid sample (all nodata or NaN)", path.display());
         }
-        dems.push((path.clone(), dem));
+        // Narrowed as soon as read, so that only one input is ever held at 8 bytes a sample.
+        let samples = Samples::compact(std::mem::take(&mut dem.values));
+        dems.push((path.clone(), dem, samples));
     }
     let geo = |k: usize| dems[k].1.georef.as_ref().expect("checked above");
     // One coordinate reference system: heights and positions of different CRSs cannot share
@@ -245,7 +305,7 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
     let (fx, fy) = (geo(fine).pixel_x, geo(fine).pixel_y);
     let (fcx, fcy) = centre(geo(fine));
     let mut placed = Vec::new();
-    for (k, (path, _)) in dems.iter().enumerate() {
+    for (k, (path, _, _)) in dems.iter().enumerate() {
         let g = geo(k);
         let (rx, ry) = (g.pixel_x / fx, g.pixel_y / fy);
         let log2 = rx.log2().round();
@@ -317,23 +377,21 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
     let mut width = 0usize;
     let mut height = 0usize;
     let mut inputs = Vec::new();
-    for ((path, dem), &(ox, oy, log2)) in dems.into_iter().zip(&placed) {
+    for ((path, dem, samples), &(ox, oy, log2)) in dems.into_iter().zip(&placed) {
         let p = Placement {
             path,
             x0: (ox - origin_x) as usize,
             y0: (oy - origin_y) as usize,
             log2,
             dem,
+            samples,
         };
         width = width.max(p.x0 + (p.dem.width - 1) * p.stride() + 1);
         height = height.max(p.y0 + (p.dem.height - 1) * p.stride() + 1);
         inputs.push(p);
     }
-    let input_samples: u64 = inputs
-        .iter()
-        .map(|p| (p.dem.width * p.dem.height) as u64)
-        .sum();
-    let need = bytes_in_memory(width, height, input_samples);
+    let input_bytes: u64 = inputs.iter().map(|p| p.samples.bytes()).sum();
+    let need = bytes_in_memory(width, height, input_bytes);
     if need > memory_limit {
         bail!(
             "the combined lattice is {width}×{height} points at the finest spacing; with the \
@@ -354,7 +412,7 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         for r in 0..p.dem.height {
             for c in 0..p.dem.width {
                 let i = r * p.dem.width + c;
-                if p.dem.is_valid(i) {
+                if p.is_valid(i) {
                     source[(p.y0 + r * s) * width + p.x0 + c * s] = k as u8;
                 }
             }
@@ -368,7 +426,7 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         for r in 0..h.saturating_sub(1) {
             for c in 0..w.saturating_sub(1) {
                 let corners = [(c, r), (c + 1, r), (c, r + 1), (c + 1, r + 1)];
-                if !corners.iter().all(|&(c, r)| p.dem.is_valid(r * w + c)) {
+                if !corners.iter().all(|&(c, r)| p.is_valid(r * w + c)) {
                     continue;
                 }
                 for y in p.y0 + r * s..=p.y0 + (r + 1) * s {
@@ -405,4 +463,40 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         source,
         inputs,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every value comes back bit for bit (a zero's sign aside) from the narrowest type chosen.
+    #[test]
+    fn samples_narrow_only_where_exact() {
+        let cases: [(&[f64], &str); 5] = [
+            (&[0.0, -32768.0, 32767.0, 1200.0], "i16"),
+            (&[0.0, 32768.0, 1.5], "f32"),
+            (&[f64::NAN, 7.0, -9999.0], "f32"),
+            (&[0.1, 1.0], "f64"),
+            // Beyond f32's range: f32 would make it infinite.
+            (&[3.0e38 * 10.0, 1.0], "f64"),
+        ];
+        for (values, want) in cases {
+            let s = Samples::compact(values.to_vec());
+            let got = match &s {
+                Samples::I16(_) => "i16",
+                Samples::F32(_) => "f32",
+                Samples::F64(_) => "f64",
+            };
+            assert_eq!(got, want, "{values:?}");
+            for (i, &v) in values.iter().enumerate() {
+                let back = s.get(i);
+                assert!(
+                    back == v || (back.is_nan() && v.is_nan()),
+                    "{v} came back as {back}"
+                );
+            }
+        }
+        assert_eq!(Samples::compact(vec![1.0; 10]).bytes(), 20);
+        assert_eq!(Samples::compact(vec![0.1; 10]).bytes(), 80);
+    }
 }
