@@ -10,7 +10,7 @@
 //! each block of lattice rows from the inputs when the quantizer asks for it, so what the lattice
 //! itself costs is one byte per point (which input wins where, [`Mosaic::source`]) on top of the
 //! inputs and the quantized grid ([`bytes_in_memory`]). Builds above `--memory-limit` are refused
-//! before the lattice is allocated.
+//! as soon as the inputs read so far exceed it, else before the lattice is allocated.
 
 use std::path::{Path, PathBuf};
 
@@ -256,6 +256,7 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         );
     }
     let mut dems = Vec::new();
+    let mut held = 0u64;
     for path in paths {
         let mut dem =
             read_dem(path, opts).with_context(|| format!("reading {}", path.display()))?;
@@ -279,6 +280,18 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         }
         // Narrowed as soon as read, so that only one input is ever held at 8 bytes a sample.
         let samples = Samples::compact(std::mem::take(&mut dem.values));
+        // Refuse as soon as the inputs alone are over the limit, not after reading them all.
+        held = held.saturating_add(samples.bytes());
+        if held > memory_limit {
+            bail!(
+                "the first {} inputs (up to {}) take about {} MiB, which the multi-input build \
+                 holds in memory: above --memory-limit ({} MiB)",
+                dems.len() + 1,
+                path.display(),
+                held >> 20,
+                memory_limit >> 20
+            );
+        }
         dems.push((path.clone(), dem, samples));
     }
     let geo = |k: usize| dems[k].1.georef.as_ref().expect("checked above");

@@ -298,4 +298,24 @@ fn inputs_that_cannot_share_a_lattice_are_refused_by_name() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--memory-limit"), "{}", stderr(&o));
     assert_eq!(listing(dir.path()), before);
+    // Inputs over the limit by themselves are refused as soon as they are read: the coarse grid
+    // (129² whole metres, 2 bytes a sample) fits in 40 KiB, the fine one (97²) does not.
+    let o = cbdam(&[
+        "build",
+        &s(&c),
+        &s(&f),
+        "-o",
+        &s(&out),
+        "--max-error",
+        "1",
+        "--memory-limit",
+        "40K",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("the first 2 inputs") && stderr(&o).contains("--memory-limit"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(listing(dir.path()), before);
 }
