@@ -281,41 +281,36 @@ fn inputs_that_cannot_share_a_lattice_are_refused_by_name() {
     }
     build_fails(dir.path(), &[&f, &png_path], "has no georeferencing");
 
-    // Beyond the memory limit: refused, not swapped.
+    // Beyond the memory limit: refused, not swapped, and nothing written.
     let before = listing(dir.path());
     let out = dir.path().join("bad.cbdam");
-    let o = cbdam(&[
-        "build",
-        &s(&c),
-        &s(&f),
-        "-o",
-        &s(&out),
-        "--max-error",
-        "1",
-        "--memory-limit",
-        "64K",
-    ]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("--memory-limit"), "{}", stderr(&o));
-    assert_eq!(listing(dir.path()), before);
-    // Inputs over the limit by themselves are refused as soon as they are read: the coarse grid
-    // (129² whole metres, 2 bytes a sample) fits in 40 KiB, the fine one (97²) does not.
-    let o = cbdam(&[
-        "build",
-        &s(&c),
-        &s(&f),
-        "-o",
-        &s(&out),
-        "--max-error",
-        "1",
-        "--memory-limit",
-        "40K",
-    ]);
-    assert!(!o.status.success());
-    assert!(
-        stderr(&o).contains("the first 2 inputs") && stderr(&o).contains("--memory-limit"),
-        "{}",
+    let refused_under = |limit: &str| -> String {
+        let o = cbdam(&[
+            "build",
+            &s(&c),
+            &s(&f),
+            "-o",
+            &s(&out),
+            "--max-error",
+            "1",
+            "--memory-limit",
+            limit,
+        ]);
+        assert!(!o.status.success(), "built under --memory-limit {limit}");
+        assert_eq!(listing(dir.path()), before);
         stderr(&o)
+    };
+    // The lattice does not fit.
+    let err = refused_under("64K");
+    assert!(
+        err.contains("combined lattice") && err.contains("--memory-limit"),
+        "{err}"
     );
-    assert_eq!(listing(dir.path()), before);
+    // The inputs alone do not fit, which is found as soon as they are read: the coarse grid
+    // (129² whole metres, 2 bytes a sample) fits in 40 KiB, the fine one (97²) does not.
+    let err = refused_under("40K");
+    assert!(
+        err.contains("the first 2 inputs") && err.contains("--memory-limit"),
+        "{err}"
+    );
 }
