@@ -15,7 +15,9 @@ use super::{CodecParams, Encoded, Record};
 use crate::CodecError;
 use crate::entropy::{Band, BandKind, CoderKind, encode_bands};
 use crate::geometry::{DiamondId, Layout};
-use crate::lifting::{Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_vertex};
+use crate::lifting::{
+    Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_inner_vertices,
+};
 use crate::quant::{HeightGrid, Quantizer};
 
 /// Encoder settings besides the tolerance.
@@ -493,13 +495,17 @@ fn refine_encode(
     let mut dv = Vec::new();
     if params.alpha == Alpha::Half {
         let vertices = vertices.insert(p.to_vec());
-        dv = vec![0i32; (n - 2) * (n - 2)];
+        let k = n - 2;
+        dv = vec![0i32; k * k];
+        // The decoder's batch prediction (`refine`), so both sides compute it the same way.
+        let mut vpred = vec![0i32; k * k];
+        predict_inner_vertices(&cells, n, &mut vpred);
         for j in 1..n - 1 {
             for i in 1..n - 1 {
                 let (x, y) = g.point(i as i64, j as i64);
                 // Eq. 8 with P̃: the decoder never has P, so it predicts 2P̃ − Pred_V(C̃).
                 let pred = clamp_prediction(
-                    2 * i64::from(p[j * n + i]) - i64::from(predict_vertex(&cells, n, i, j)),
+                    2 * i64::from(p[j * n + i]) - i64::from(vpred[(j - 1) * k + (i - 1)]),
                 );
                 let (idx, v) = match target(x, y) {
                     Some(t) => {
@@ -511,7 +517,7 @@ fn refine_encode(
                 if v.abs() > i64::from(MAX_ABS_HEIGHT) {
                     return Err(overflow());
                 }
-                dv[(j - 1) * (n - 2) + (i - 1)] = idx as i32;
+                dv[(j - 1) * k + (i - 1)] = idx as i32;
                 vertices[j * n + i] = v as i32;
             }
         }
