@@ -2,7 +2,7 @@
 //! `/v1/repos/{name}/meta`, so the two never drift apart.
 
 use cbdam_codec::lifting::Alpha;
-use cbdam_codec::repository::{FORMAT_VERSION, HEADER_LEN, Repository, Section};
+use cbdam_codec::repository::{HEADER_LEN, Repository, Section};
 use serde_json::{Value, json};
 
 /// Per-level statistics of the stored records.
@@ -125,7 +125,7 @@ pub fn describe(repo: &Repository) -> Value {
     let section = |sec: Section| json!({ "offset": repo.section_offset(sec), "length": repo.section_len(sec) });
     let roots: Vec<String> = p.layout.roots().map(|id| id.to_string()).collect();
     json!({
-        "format_version": FORMAT_VERSION,
+        "format_version": repo.head().format_version(),
         "kind": p.kind.name(),
         "file_bytes": repo.file_len(),
         "header_crc": format!("{:08x}", repo.header_crc()),

@@ -172,6 +172,10 @@ impl Encoded {
 
     /// The serialised record index (see [`crate::repository::index`]).
     pub fn index_bytes(&self) -> Vec<u8> {
-        crate::repository::index::encode_index(&self.params.layout, &self.index_entries())
+        crate::repository::index::encode_index(
+            &self.params.layout,
+            &self.index_entries(),
+            crate::repository::index::range_shift_for(self.params.quantizer),
+        )
     }
 }

@@ -1,4 +1,7 @@
-//! The single-file repository container (format version 1; `docs/FORMAT.md`).
+//! The single-file repository container (format version 2, reading 1 too; `docs/FORMAT.md`).
+//!
+//! The two versions differ only in how the record index is coded ([`IndexCoding`]): version 2
+//! range-codes it, which on smooth terrain is most of what a file holds besides the header.
 //!
 //! Layout: a fixed 256-byte header, then four sections in this order with no gaps — the coded
 //! root field, the record index ([`super::index`]), a table of one CRC-32 per non-empty record in
@@ -16,7 +19,7 @@ use std::io::Write;
 use std::ops::Deref;
 use std::path::Path;
 
-use super::index::{IndexEntry, decode_index, encode_index};
+use super::index::{IndexCoding, IndexEntry, decode_index, encode_index, range_shift_for};
 use crate::CodecError;
 use crate::atomic::write_atomically;
 use crate::colour::{ColourDecoder, ycocg};
@@ -30,9 +33,9 @@ use crate::quant::{QuantPlan, Quantizer};
 /// The first eight bytes of every repository. The CR LF pair catches text-mode transfers that
 /// rewrite line endings; the NUL stops it being mistaken for text.
 pub const MAGIC: [u8; 8] = *b"CBDAM\0\r\n";
-/// The format version this code writes and the newest it reads.
-pub const FORMAT_VERSION: u16 = 1;
-/// Size of the version-1 header, bytes (the header CRC is its last four bytes).
+/// The format version this code writes and the newest it reads (it reads every older one).
+pub const FORMAT_VERSION: u16 = 2;
+/// Size of the header (the same in every version), bytes (the header CRC is its last four bytes).
 pub const HEADER_LEN: usize = 256;
 
 /// Byte offset of the section table in the header.
@@ -127,7 +130,7 @@ pub fn serialize(
         ));
     }
     let entries = encoded.index_entries();
-    let index = encode_index(&p.layout, &entries);
+    let index = encode_index(&p.layout, &entries, range_shift_for(p.quantizer));
     // Empty records (all residuals zero) get no checksum: their length of 0 is already covered
     // by the index's CRC, and smooth terrain has many (all 69 of lidar1m_mn's at 5 m).
     let checksums: Vec<u8> = encoded
@@ -284,6 +287,7 @@ pub struct RepositoryHead {
     roots: Vec<u8>,
     file_len: u64,
     header_crc: u32,
+    format_version: u16,
 }
 
 impl RepositoryHead {
@@ -321,7 +325,7 @@ impl RepositoryHead {
         let header_len = u16_at(b, 10);
         if usize::from(header_len) != HEADER_LEN {
             return Err(CodecError::corrupt(format!(
-                "header length {header_len}, version 1 headers are {HEADER_LEN} bytes"
+                "header length {header_len}, version {version} headers are {HEADER_LEN} bytes"
             )));
         }
         if b.len() < HEADER_LEN {
@@ -506,7 +510,7 @@ impl RepositoryHead {
                     s.name()
                 )));
             }
-            // Sections follow one another without gaps: anything else is not a version-1 file.
+            // Sections follow one another without gaps: anything else is not a repository.
             if info.offset != expected {
                 return Err(CodecError::corrupt(format!(
                     "{} starts at byte {}, expected {expected}",
@@ -549,7 +553,12 @@ impl RepositoryHead {
             }
         }
         let record_count = u64_at(b, RECORD_COUNT_AT);
-        let entries = decode_index(&layout, &b[sections[1].range()], sections[3].length)?;
+        let entries = decode_index(
+            &layout,
+            &b[sections[1].range()],
+            sections[3].length,
+            IndexCoding::for_format_version(version)?,
+        )?;
         if entries.len() as u64 != record_count {
             return Err(CodecError::corrupt(format!(
                 "index holds {} records, header says {record_count}",
@@ -606,7 +615,13 @@ impl RepositoryHead {
             roots: b[sections[0].range()].to_vec(),
             file_len,
             header_crc: stored_crc,
+            format_version: version,
         })
+    }
+
+    /// The format version of the file (1 or 2; [`FORMAT_VERSION`] is the one this code writes).
+    pub fn format_version(&self) -> u16 {
+        self.format_version
     }
 
     /// The decoder's header fields.
@@ -929,6 +944,8 @@ impl Repository {
     }
 
     /// The whole hierarchy in memory (for [`crate::hierarchy::verify`]); checks every record.
+    /// Records' height ranges are the index's (bounds in version-2 files, see
+    /// [`IndexEntry::min`]); serialising the result again gives the same file.
     pub fn to_encoded(&self) -> Result<Encoded, CodecError> {
         let records = self
             .head

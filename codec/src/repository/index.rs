@@ -1,22 +1,46 @@
 //! The record index: which diamonds are stored, and per record its length, object-space error
 //! and height range — everything a renderer needs before it fetches or decodes a record.
 //!
-//! Layout (all integers little-endian / LEB128 varints):
-//! 1. *Stored-set mask*, a bit string (LSB first in each byte, padded to a byte): one bit per
-//!    root in layout order; then, level by level in id order, for every stored diamond `D` below
-//!    level `L − 1` and every existing child `C` of `D` whose *designated parent* is `D` (its
-//!    first existing parent in [`Layout::parents`] order), one bit "C is stored". Each stored
-//!    diamond is named exactly once and ids cost no bytes.
-//! 2. For every stored diamond in id order: `varint(length)`, `varint(object_error)`,
-//!    `zigzag_varint(min − reference min)`, `zigzag_varint(reference max − max)`, where the
-//!    reference is the designated parent's range (a child's range is close to its parent's), or
-//!    the previous root's for roots.
+//! Both versions hold the same information in the same order, little-endian / LEB128 varints:
+//! 1. `varint(count)`, the number of stored diamonds.
+//! 2. The *stored-set mask*: one bit per root in layout order; then, level by level in id
+//!    order, for every stored diamond `D` below level `L − 1` and every existing child `C` of `D`
+//!    whose *designated parent* is `D` (its first existing parent in [`Layout::parents`] order),
+//!    one bit "C is stored". Each stored diamond is named exactly once and ids cost no bytes.
+//! 3. For every stored diamond in id order: its record length, its object error, and its height
+//!    range `min`, `max` against a *reference*: the designated parent's range (a child's range is
+//!    close to its parent's), or the previous root's for roots.
+//!
+//! **Version 1** ([`IndexCoding::Varint`]) packs the mask as bits (LSB first in each byte, padded
+//! to a byte) and writes per entry `varint(length)`, `varint(object_error)`,
+//! `zigzag_varint(min − reference min)`, `zigzag_varint(reference max − max)`: at least four
+//! bytes per entry, which on smooth terrain (lidar1m_mn at 1 m: 69 entries, 13 non-empty
+//! records) made the index larger than all the records together.
+//!
+//! **Version 2** ([`IndexCoding::Adaptive`]) codes everything after the count as one adaptive
+//! range-coded stream (`entropy::adaptive::integers`: adaptive flags, Exp-Golomb integers with
+//! adaptive exponent and top mantissa bits):
+//! - mask bit: a flag, model by the child's level (capped at 15);
+//! - "record is empty" (length 0): a flag, model by the designated parent's state (none: a root;
+//!   empty; non-empty) and the level's parity;
+//! - a non-empty record's `length − 1`: unsigned;
+//! - `reference error − object_error`: signed, where the reference error is the designated
+//!   parent's object error (the saturated errors never grow towards the leaves, so this is
+//!   almost always a small non-negative number), or the previous root's for roots;
+//! - `min − reference min` and `reference max − max`: signed.
+//!
+//! The three signed fields have separate models for empty and non-empty records. Models start
+//! from even odds and adapt as in the band coder.
 //!
 //! Byte offsets of records are the prefix sums of the lengths in id order, so one diamond or a
 //! run of consecutive ids is one contiguous byte range.
 
+use std::collections::HashMap;
+
 use crate::CodecError;
+use crate::entropy::adaptive::integers::{FlagModel, IntDecoder, IntEncoder, IntModel, UintModel};
 use crate::geometry::{DiamondId, Layout};
+use crate::quant::Quantizer;
 
 /// What the index says about one stored diamond.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -29,11 +53,38 @@ pub struct IndexEntry {
     pub length: u32,
     /// Saturated object-space error, integer units.
     pub object_error: u32,
-    /// Smallest vertex height of its grid, units.
+    /// Lower bound of its grid's vertex heights, units: the exact minimum as the encoder gives it
+    /// and in version-1 files; read from a version-2 file, rounded down to a multiple of
+    /// `2^range_shift` ([`range_shift_for`]).
     pub min: i32,
-    /// Largest vertex height of its grid, units.
+    /// Upper bound of its grid's vertex heights, units (like `min`, rounded up).
     pub max: i32,
 }
+
+/// How an index is coded: fixed by the repository's format version.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IndexCoding {
+    /// Format version 1: bit-packed mask and four varints per entry.
+    Varint,
+    /// Format version 2: one adaptive range-coded stream.
+    Adaptive,
+}
+
+impl IndexCoding {
+    /// The coding of a repository of format `version` (1 or 2).
+    pub fn for_format_version(version: u16) -> Result<Self, CodecError> {
+        match version {
+            1 => Ok(Self::Varint),
+            2 => Ok(Self::Adaptive),
+            _ => Err(CodecError::unsupported(format!(
+                "no index coding for format version {version}"
+            ))),
+        }
+    }
+}
+
+/// Mask-bit models: one per level up to this, the rest share the last.
+const MASK_LEVELS: usize = 16;
 
 fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     while v >= 0x80 {
@@ -61,6 +112,7 @@ fn get_varint(bytes: &[u8], pos: &mut usize) -> Result<u64, CodecError> {
     Err(CodecError::corrupt("index number longer than 64 bits"))
 }
 
+#[cfg(test)]
 fn zigzag(v: i64) -> u64 {
     ((v << 1) ^ (v >> 63)) as u64
 }
@@ -78,94 +130,39 @@ fn designated_children(layout: &Layout, d: DiamondId) -> impl Iterator<Item = Di
         .filter(move |&c| layout.parents(c).into_iter().flatten().next() == Some(d))
 }
 
-/// Serialises the index of `entries` (the stored diamonds, any order; offsets are ignored and
-/// implied by the id order). The stored set must be closed under parents, as the encoder's is.
-pub fn encode_index(layout: &Layout, entries: &[IndexEntry]) -> Vec<u8> {
-    let mut sorted: Vec<&IndexEntry> = entries.iter().collect();
-    sorted.sort_by_key(|e| e.id);
+fn designated_parent(layout: &Layout, id: DiamondId) -> Option<DiamondId> {
+    layout.parents(id).into_iter().flatten().next()
+}
+
+/// The stored-set mask's bits in order, for the stored diamonds `sorted` (in id order).
+fn mask_bits(layout: &Layout, sorted: &[&IndexEntry]) -> Vec<(u8, bool)> {
     let stored: std::collections::HashSet<DiamondId> = sorted.iter().map(|e| e.id).collect();
-    let mut bits: Vec<bool> = layout.roots().map(|r| stored.contains(&r)).collect();
+    let mut bits: Vec<(u8, bool)> = layout.roots().map(|r| (0, stored.contains(&r))).collect();
     let last_with_records = layout.finest_level().saturating_sub(1);
-    for e in &sorted {
-        if e.id.level < last_with_records {
-            bits.extend(designated_children(layout, e.id).map(|c| stored.contains(&c)));
-        }
-    }
-    let mut out = Vec::with_capacity(bits.len() / 8 + 8 * sorted.len());
-    put_varint(&mut out, sorted.len() as u64);
-    for chunk in bits.chunks(8) {
-        out.push(
-            chunk
-                .iter()
-                .enumerate()
-                .fold(0u8, |b, (i, &on)| b | (u8::from(on) << i)),
-        );
-    }
-    let mut ranges: std::collections::HashMap<DiamondId, (i64, i64)> =
-        std::collections::HashMap::new();
-    let mut prev_root = (0i64, 0i64);
     for e in sorted {
-        let (min, max) = (i64::from(e.min), i64::from(e.max));
-        let reference = reference_range(layout, e.id, &ranges, prev_root);
-        put_varint(&mut out, u64::from(e.length));
-        put_varint(&mut out, u64::from(e.object_error));
-        put_varint(&mut out, zigzag(min - reference.0));
-        put_varint(&mut out, zigzag(reference.1 - max));
-        ranges.insert(e.id, (min, max));
-        if e.id.level == 0 {
-            prev_root = (min, max);
+        if e.id.level < last_with_records {
+            bits.extend(designated_children(layout, e.id).map(|c| (c.level, stored.contains(&c))));
         }
     }
-    out
+    bits
 }
 
-/// The height range a diamond's range is coded against: its designated parent's, or the
-/// previous root's for roots.
-fn reference_range(
+/// Reads the stored-set mask with `next_bit(level of the named diamond)` and returns the stored
+/// ids in id order; `count` bounds them.
+fn read_mask(
     layout: &Layout,
-    id: DiamondId,
-    ranges: &std::collections::HashMap<DiamondId, (i64, i64)>,
-    prev_root: (i64, i64),
-) -> (i64, i64) {
-    layout
-        .parents(id)
-        .into_iter()
-        .flatten()
-        .next()
-        .and_then(|p| ranges.get(&p).copied())
-        .unwrap_or(prev_root)
-}
-
-/// Parses an index written by [`encode_index`]; `record_area` is the size of the record area,
-/// which the lengths must add up to exactly. Never panics on any bytes.
-pub fn decode_index(
-    layout: &Layout,
-    bytes: &[u8],
-    record_area: u64,
-) -> Result<Vec<IndexEntry>, CodecError> {
-    let mut pos = 0usize;
-    let count = get_varint(bytes, &mut pos)?;
-    // Every record costs at least 4 bytes of entry, which bounds the count before allocating.
-    if count > (bytes.len() as u64) / 4 {
-        return Err(CodecError::corrupt(format!(
-            "index claims {count} records in {} bytes",
-            bytes.len()
-        )));
-    }
-    let mut bit = 0usize;
-    let mask_start = pos;
-    let mut next_bit = |bytes: &[u8]| -> Result<bool, CodecError> {
-        let byte = *bytes
-            .get(mask_start + bit / 8)
-            .ok_or_else(|| CodecError::truncated("index ends inside the stored-set mask"))?;
-        let on = byte >> (bit % 8) & 1 == 1;
-        bit += 1;
-        Ok(on)
-    };
+    count: u64,
+    mut next_bit: impl FnMut(u8) -> Result<bool, CodecError>,
+) -> Result<Vec<DiamondId>, CodecError> {
     let mut ids: Vec<DiamondId> = Vec::new();
     for r in layout.roots() {
-        if next_bit(bytes)? {
+        if next_bit(0)? {
             ids.push(r);
+        }
+        if ids.len() as u64 > count {
+            return Err(CodecError::corrupt(
+                "stored-set mask names more diamonds than the index holds",
+            ));
         }
     }
     let last_with_records = layout.finest_level().saturating_sub(1);
@@ -177,16 +174,16 @@ pub fn decode_index(
         for &d in &ids[level_start..level_end] {
             if d.level < last_with_records {
                 for c in designated_children(layout, d) {
-                    if next_bit(bytes)? {
+                    if next_bit(c.level)? {
                         next.push(c);
+                        if ids.len() as u64 + next.len() as u64 > count {
+                            return Err(CodecError::corrupt(
+                                "stored-set mask names more diamonds than the index holds",
+                            ));
+                        }
                     }
                 }
             }
-        }
-        if ids.len() as u64 + next.len() as u64 > count {
-            return Err(CodecError::corrupt(
-                "stored-set mask names more diamonds than the index holds",
-            ));
         }
         if next.is_empty() {
             break;
@@ -201,6 +198,335 @@ pub fn decode_index(
             ids.len()
         )));
     }
+    Ok(ids)
+}
+
+/// What a diamond's fields are coded against: its designated parent's entry (error, range,
+/// emptiness), or for roots the previous root's error and range.
+#[derive(Clone, Copy)]
+struct Reference {
+    error: i64,
+    min: i64,
+    max: i64,
+    /// 0: a root; 1: the designated parent's record is empty; 2: it is not.
+    parent_state: usize,
+}
+
+/// What [`References`] keeps of a coded entry: object error, range (in the coding's range
+/// units), emptiness.
+type Known = (i64, i64, i64, bool);
+
+/// Tracks the entries coded so far, to give each diamond its [`Reference`].
+#[derive(Default)]
+struct References {
+    known: HashMap<DiamondId, Known>,
+    prev_root: (i64, i64, i64),
+}
+
+impl References {
+    /// The reference of `id`. With `both_parents` the range is the union of both parents'
+    /// ranges (version 2: a diamond's two halves lie in its two parents), else the designated
+    /// parent's (version 1).
+    fn of(&self, layout: &Layout, id: DiamondId, both_parents: bool) -> Reference {
+        match designated_parent(layout, id).and_then(|p| self.known.get(&p)) {
+            Some(&(error, mut min, mut max, empty)) => {
+                if both_parents {
+                    for p in layout.parents(id).into_iter().flatten() {
+                        if let Some(&(_, lo, hi, _)) = self.known.get(&p) {
+                            (min, max) = (min.min(lo), max.max(hi));
+                        }
+                    }
+                }
+                Reference {
+                    error,
+                    min,
+                    max,
+                    parent_state: if empty { 1 } else { 2 },
+                }
+            }
+            None => Reference {
+                error: self.prev_root.0,
+                min: self.prev_root.1,
+                max: self.prev_root.2,
+                parent_state: 0,
+            },
+        }
+    }
+
+    fn record(&mut self, id: DiamondId, known: Known) {
+        self.known.insert(id, known);
+        if id.level == 0 {
+            self.prev_root = (known.0, known.1, known.2);
+        }
+    }
+}
+
+/// What version 1 keeps of an entry: everything exact, in units.
+fn known_exact(e: &IndexEntry) -> Known {
+    (
+        i64::from(e.object_error),
+        i64::from(e.min),
+        i64::from(e.max),
+        e.length == 0,
+    )
+}
+
+/// The adaptive models of a version-2 index.
+#[derive(Default)]
+struct Models {
+    mask: [FlagModel; MASK_LEVELS],
+    empty: [FlagModel; 6],
+    length: UintModel,
+    /// `[non-empty, empty]`.
+    error: [IntModel; 2],
+    min: IntModel,
+    max: IntModel,
+}
+
+fn empty_context(r: &Reference, id: DiamondId) -> usize {
+    2 * r.parent_state + usize::from(id.level % 2)
+}
+
+/// The largest range shift a version-2 index may declare: heights are `i32`.
+const MAX_RANGE_SHIFT: u32 = 30;
+
+/// The range shift [`encode_index`] uses for a repository quantized with `quantizer`: the
+/// largest power of two not above its step `2k + 1`, so the stored height bounds are looser than
+/// the grid's exact range by less than one quantizer step (about 2ε) on either side — far below
+/// what changes a bounding box's culling or distance, and the data is only known within ε.
+/// Lossless repositories (`k = 0`) get exact ranges.
+pub fn range_shift_for(quantizer: Quantizer) -> u32 {
+    (2 * u64::from(quantizer.k().unsigned_abs()) + 1)
+        .ilog2()
+        .min(MAX_RANGE_SHIFT)
+}
+
+/// `(min, max)` rounded outward to multiples of `2^shift`, in those multiples.
+fn coarse_range(min: i32, max: i32, shift: u32) -> (i64, i64) {
+    let q = 1i64 << shift;
+    (
+        i64::from(min).div_euclid(q),
+        (i64::from(max) + q - 1).div_euclid(q),
+    )
+}
+
+/// Serialises the index of `entries` (the stored diamonds, any order; offsets are ignored and
+/// implied by the id order) in the current coding, [`IndexCoding::Adaptive`], with height ranges
+/// rounded outward to multiples of `2^range_shift` units (see [`range_shift_for`]). The stored
+/// set must be closed under parents, as the encoder's is.
+pub fn encode_index(layout: &Layout, entries: &[IndexEntry], range_shift: u32) -> Vec<u8> {
+    let range_shift = range_shift.min(MAX_RANGE_SHIFT);
+    let mut sorted: Vec<&IndexEntry> = entries.iter().collect();
+    sorted.sort_by_key(|e| e.id);
+    let mut out = Vec::new();
+    put_varint(&mut out, sorted.len() as u64);
+    put_varint(&mut out, u64::from(range_shift));
+    let mut enc = IntEncoder::new();
+    let mut m = Models::default();
+    for (level, on) in mask_bits(layout, &sorted) {
+        enc.flag(&mut m.mask[usize::from(level).min(MASK_LEVELS - 1)], on);
+    }
+    let mut refs = References::default();
+    for e in sorted {
+        let r = refs.of(layout, e.id, true);
+        let empty = e.length == 0;
+        enc.flag(&mut m.empty[empty_context(&r, e.id)], empty);
+        if !empty {
+            enc.uint(&mut m.length, u64::from(e.length) - 1);
+        }
+        let error = i64::from(e.object_error);
+        let (min, max) = coarse_range(e.min, e.max, range_shift);
+        enc.int(&mut m.error[usize::from(empty)], r.error - error);
+        enc.int(&mut m.min, min - r.min);
+        enc.int(&mut m.max, r.max - max);
+        refs.record(e.id, (error, min, max, empty));
+    }
+    enc.finish(&mut out);
+    out
+}
+
+/// Serialises `entries` as a version-1 (varint) index, for tests of the version-1 reading path:
+/// writers only write version 2.
+#[cfg(test)]
+pub(crate) fn encode_index_v1(layout: &Layout, entries: &[IndexEntry]) -> Vec<u8> {
+    let mut sorted: Vec<&IndexEntry> = entries.iter().collect();
+    sorted.sort_by_key(|e| e.id);
+    let bits = mask_bits(layout, &sorted);
+    let mut out = Vec::with_capacity(bits.len() / 8 + 8 * sorted.len());
+    put_varint(&mut out, sorted.len() as u64);
+    for chunk in bits.chunks(8) {
+        out.push(
+            chunk
+                .iter()
+                .enumerate()
+                .fold(0u8, |b, (i, &(_, on))| b | (u8::from(on) << i)),
+        );
+    }
+    let mut refs = References::default();
+    for e in sorted {
+        let r = refs.of(layout, e.id, false);
+        put_varint(&mut out, u64::from(e.length));
+        put_varint(&mut out, u64::from(e.object_error));
+        put_varint(&mut out, zigzag(i64::from(e.min) - r.min));
+        put_varint(&mut out, zigzag(r.max - i64::from(e.max)));
+        refs.record(e.id, known_exact(e));
+    }
+    out
+}
+
+/// Parses an index of the given coding; `record_area` is the size of the record area, which the
+/// lengths must add up to exactly. Never panics on any bytes, and allocates in proportion to
+/// `bytes.len()` (see the count bound below).
+pub fn decode_index(
+    layout: &Layout,
+    bytes: &[u8],
+    record_area: u64,
+    coding: IndexCoding,
+) -> Result<Vec<IndexEntry>, CodecError> {
+    match coding {
+        IndexCoding::Varint => decode_varint(layout, bytes, record_area),
+        IndexCoding::Adaptive => decode_adaptive(layout, bytes, record_area),
+    }
+}
+
+/// Checks a decoded entry's range and appends it at `offset`.
+fn push_entry(
+    entries: &mut Vec<IndexEntry>,
+    offset: &mut u64,
+    entry: (DiamondId, u64, u64, i64, i64),
+) -> Result<(), CodecError> {
+    let (id, length, object_error, min, max) = entry;
+    let field = |v: u64, what: &str| -> Result<u32, CodecError> {
+        u32::try_from(v).map_err(|_| CodecError::corrupt(format!("index {what} {v} out of range")))
+    };
+    let height =
+        |v: i64| i32::try_from(v).map_err(|_| CodecError::corrupt("index height out of range"));
+    let (length, object_error) = (
+        field(length, "record length")?,
+        field(object_error, "object error")?,
+    );
+    let (min, max) = (height(min)?, height(max)?);
+    if max < min {
+        return Err(CodecError::corrupt(format!("index range of {id} is empty")));
+    }
+    entries.push(IndexEntry {
+        id,
+        offset: *offset,
+        length,
+        object_error,
+        min,
+        max,
+    });
+    *offset += u64::from(length);
+    Ok(())
+}
+
+fn check_record_area(offset: u64, record_area: u64) -> Result<(), CodecError> {
+    if offset != record_area {
+        return Err(CodecError::corrupt(format!(
+            "record lengths add up to {offset} bytes, the record area has {record_area}"
+        )));
+    }
+    Ok(())
+}
+
+fn decode_adaptive(
+    layout: &Layout,
+    bytes: &[u8],
+    record_area: u64,
+) -> Result<Vec<IndexEntry>, CodecError> {
+    let mut pos = 0usize;
+    let count = get_varint(bytes, &mut pos)?;
+    // Every adaptive decision narrows the range by at least a factor 4065/4096 (the models'
+    // probability bound), i.e. costs at least 0.0109 bits, and an entry takes at least four
+    // decisions (empty, error, min and max), so the stream's bits — its bytes plus the four the
+    // decoder may invent at the end — bound the count before anything is allocated.
+    let max_count = (bytes.len() as u64 + 8) * 8 * 92 / 4;
+    if count > max_count {
+        return Err(CodecError::corrupt(format!(
+            "index claims {count} records in {} bytes",
+            bytes.len()
+        )));
+    }
+    let range_shift = get_varint(bytes, &mut pos)?;
+    if range_shift > u64::from(MAX_RANGE_SHIFT) {
+        return Err(CodecError::corrupt(format!(
+            "index range shift {range_shift} exceeds {MAX_RANGE_SHIFT}"
+        )));
+    }
+    let q = 1i64 << range_shift;
+    let mut dec = IntDecoder::new(&bytes[pos..])?;
+    let mut m = Models::default();
+    let ids = read_mask(layout, count, |level| {
+        dec.flag(&mut m.mask[usize::from(level).min(MASK_LEVELS - 1)])
+    })?;
+    let mut entries = Vec::with_capacity(ids.len());
+    let mut offset = 0u64;
+    let mut refs = References::default();
+    let out_of_range = || CodecError::corrupt("index number out of range");
+    for id in ids {
+        let r = refs.of(layout, id, true);
+        let empty = dec.flag(&mut m.empty[empty_context(&r, id)])?;
+        let length = if empty {
+            0
+        } else {
+            dec.uint(&mut m.length)?
+                .checked_add(1)
+                .ok_or_else(out_of_range)?
+        };
+        let error = r
+            .error
+            .checked_sub(dec.int(&mut m.error[usize::from(empty)])?)
+            .ok_or_else(out_of_range)?;
+        let min = r
+            .min
+            .checked_add(dec.int(&mut m.min)?)
+            .ok_or_else(out_of_range)?;
+        let max = r
+            .max
+            .checked_sub(dec.int(&mut m.max)?)
+            .ok_or_else(out_of_range)?;
+        let object_error = u64::try_from(error)
+            .map_err(|_| CodecError::corrupt("index object error is negative"))?;
+        // In units; i32::MAX rounded up to a multiple of q is 2^31, which the bound may clamp.
+        let height = |v: i64| v.checked_mul(q).ok_or_else(out_of_range);
+        let (lo, hi) = (height(min)?, height(max)?.min(i64::from(i32::MAX)));
+        push_entry(
+            &mut entries,
+            &mut offset,
+            (id, length, object_error, lo, hi),
+        )?;
+        refs.record(id, (error, min, max, empty));
+    }
+    dec.finish()?;
+    check_record_area(offset, record_area)?;
+    Ok(entries)
+}
+
+fn decode_varint(
+    layout: &Layout,
+    bytes: &[u8],
+    record_area: u64,
+) -> Result<Vec<IndexEntry>, CodecError> {
+    let mut pos = 0usize;
+    let count = get_varint(bytes, &mut pos)?;
+    // Every record costs at least 4 bytes of entry, which bounds the count before allocating.
+    if count > (bytes.len() as u64) / 4 {
+        return Err(CodecError::corrupt(format!(
+            "index claims {count} records in {} bytes",
+            bytes.len()
+        )));
+    }
+    let mask_start = pos;
+    let mut bit = 0usize;
+    let ids = read_mask(layout, count, |_| {
+        let byte = *bytes
+            .get(mask_start + bit / 8)
+            .ok_or_else(|| CodecError::truncated("index ends inside the stored-set mask"))?;
+        let on = byte >> (bit % 8) & 1 == 1;
+        bit += 1;
+        Ok(on)
+    })?;
     pos = mask_start + bit.div_ceil(8);
     if pos > bytes.len() {
         return Err(CodecError::truncated(
@@ -209,52 +535,31 @@ pub fn decode_index(
     }
     let mut entries = Vec::with_capacity(ids.len());
     let mut offset = 0u64;
-    let mut ranges: std::collections::HashMap<DiamondId, (i64, i64)> =
-        std::collections::HashMap::new();
-    let mut prev_root = (0i64, 0i64);
-    let field = |v: u64, what: &str| -> Result<u32, CodecError> {
-        u32::try_from(v).map_err(|_| CodecError::corrupt(format!("index {what} {v} out of range")))
-    };
+    let mut refs = References::default();
     for id in ids {
-        let length = field(get_varint(bytes, &mut pos)?, "record length")?;
-        let object_error = field(get_varint(bytes, &mut pos)?, "object error")?;
-        let reference = reference_range(layout, id, &ranges, prev_root);
+        let length = get_varint(bytes, &mut pos)?;
+        let object_error = get_varint(bytes, &mut pos)?;
+        let r = refs.of(layout, id, false);
         let out_of_range = || CodecError::corrupt("index height out of range");
-        let min = reference
-            .0
+        let min = r
+            .min
             .checked_add(unzigzag(get_varint(bytes, &mut pos)?))
-            .and_then(|m| i32::try_from(m).ok())
             .ok_or_else(out_of_range)?;
-        let max = reference
-            .1
+        let max = r
+            .max
             .checked_sub(unzigzag(get_varint(bytes, &mut pos)?))
-            .and_then(|m| i32::try_from(m).ok())
             .ok_or_else(out_of_range)?;
-        if max < min {
-            return Err(CodecError::corrupt(format!("index range of {id} is empty")));
-        }
-        ranges.insert(id, (i64::from(min), i64::from(max)));
-        if id.level == 0 {
-            prev_root = (i64::from(min), i64::from(max));
-        }
-        entries.push(IndexEntry {
-            id,
-            offset,
-            length,
-            object_error,
-            min,
-            max,
-        });
-        offset += u64::from(length);
+        push_entry(
+            &mut entries,
+            &mut offset,
+            (id, length, object_error, min, max),
+        )?;
+        refs.record(id, known_exact(entries.last().expect("just pushed")));
     }
     if pos != bytes.len() {
         return Err(CodecError::corrupt("trailing bytes after the index"));
     }
-    if offset != record_area {
-        return Err(CodecError::corrupt(format!(
-            "record lengths add up to {offset} bytes, the record area has {record_area}"
-        )));
-    }
+    check_record_area(offset, record_area)?;
     Ok(entries)
 }
 
@@ -303,62 +608,165 @@ mod tests {
         (enc.params.layout, entries)
     }
 
+    /// Both codings' writers: version 2's (current; exact ranges) and version 1's (kept for its
+    /// reader).
+    fn both(layout: &Layout, entries: &[IndexEntry]) -> [(IndexCoding, Vec<u8>); 2] {
+        [
+            (IndexCoding::Adaptive, encode_index(layout, entries, 0)),
+            (IndexCoding::Varint, encode_index_v1(layout, entries)),
+        ]
+    }
+
     #[test]
     fn index_round_trips_with_offsets_as_prefix_sums() {
         let (layout, entries) = sample();
         assert!(entries.len() > 20);
-        let bytes = encode_index(&layout, &entries);
-        let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
-        let back = decode_index(&layout, &bytes, area).unwrap();
-        let mut offset = 0;
-        for (a, b) in entries.iter().zip(&back) {
-            assert_eq!(
-                (a.id, a.length, a.object_error, a.min, a.max),
-                (b.id, b.length, b.object_error, b.min, b.max)
+        for (coding, bytes) in both(&layout, &entries) {
+            let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
+            let back = decode_index(&layout, &bytes, area, coding).unwrap();
+            let mut offset = 0;
+            for (a, b) in entries.iter().zip(&back) {
+                assert_eq!(
+                    (a.id, a.length, a.object_error, a.min, a.max),
+                    (b.id, b.length, b.object_error, b.min, b.max)
+                );
+                assert_eq!(b.offset, offset);
+                offset += u64::from(b.length);
+            }
+            assert_eq!(back.len(), entries.len());
+            // A few bytes per record: the point of a compact index.
+            assert!(
+                bytes.len() < 8 * entries.len(),
+                "{coding:?}: {} bytes for {} records",
+                bytes.len(),
+                entries.len()
             );
-            assert_eq!(b.offset, offset);
-            offset += u64::from(b.length);
         }
-        assert_eq!(back.len(), entries.len());
-        // A few bytes per record: the point of a compact index.
+    }
+
+    #[test]
+    fn the_adaptive_index_is_smaller_than_the_varint_one() {
+        let (layout, entries) = sample();
+        let [(_, v2), (_, v1)] = both(&layout, &entries);
         assert!(
-            bytes.len() < 8 * entries.len(),
-            "{} bytes for {} records",
-            bytes.len(),
-            entries.len()
+            v2.len() * 3 < v1.len() * 2,
+            "{} bytes adaptive, {} varint",
+            v2.len(),
+            v1.len()
         );
+    }
+
+    #[test]
+    fn rounded_ranges_contain_the_exact_ones_by_less_than_a_step() {
+        let (layout, entries) = sample();
+        let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
+        let mut sizes = Vec::new();
+        for shift in [0u32, 1, 3, 5, 30] {
+            let bytes = encode_index(&layout, &entries, shift);
+            sizes.push(bytes.len());
+            let back = decode_index(&layout, &bytes, area, IndexCoding::Adaptive).unwrap();
+            let q = 1i64 << shift;
+            for (a, b) in entries.iter().zip(&back) {
+                assert_eq!(
+                    (a.id, a.length, a.object_error),
+                    (b.id, b.length, b.object_error)
+                );
+                let (lo, hi) = (i64::from(b.min), i64::from(b.max));
+                assert!(
+                    lo <= i64::from(a.min) && i64::from(a.max) <= hi,
+                    "{shift}: {a:?} {b:?}"
+                );
+                assert!(
+                    i64::from(a.min) - lo < q && hi - i64::from(a.max) < q,
+                    "{shift}"
+                );
+                assert!(lo % q == 0 && (hi % q == 0 || hi == i64::from(i32::MAX)));
+            }
+        }
+        // Coarser bounds are cheaper: the point of rounding them.
+        assert!(sizes[3] < sizes[0], "{sizes:?}");
+    }
+
+    #[test]
+    fn range_shift_follows_the_quantizer_step() {
+        let shift = |k| range_shift_for(Quantizer::new(k).unwrap());
+        assert_eq!(shift(0), 0); // lossless: exact ranges
+        assert_eq!(shift(1), 1); // step 3
+        assert_eq!(shift(9), 4); // step 19
+        assert_eq!(shift(16), 5); // step 33
+    }
+
+    #[test]
+    fn extreme_fields_round_trip() {
+        let (layout, mut entries) = sample();
+        entries.sort_by_key(|e| e.id);
+        for (k, e) in entries.iter_mut().enumerate() {
+            match k % 4 {
+                0 => (e.min, e.max, e.object_error) = (i32::MIN, i32::MAX, u32::MAX),
+                1 => (e.min, e.max, e.object_error) = (i32::MAX, i32::MAX, 0),
+                2 => (e.min, e.max) = (i32::MIN, i32::MIN),
+                _ => e.length = u32::MAX,
+            }
+        }
+        let rounded = encode_index(&layout, &entries, MAX_RANGE_SHIFT);
+        let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
+        let back = decode_index(&layout, &rounded, area, IndexCoding::Adaptive).unwrap();
+        for (a, b) in entries.iter().zip(&back) {
+            assert!(b.min <= a.min && a.max <= b.max, "{a:?} {b:?}");
+        }
+        for (coding, bytes) in both(&layout, &entries) {
+            let back = decode_index(&layout, &bytes, area, coding).unwrap();
+            let fields = |e: &IndexEntry| (e.id, e.length, e.object_error, e.min, e.max);
+            assert_eq!(
+                back.iter().map(fields).collect::<Vec<_>>(),
+                entries.iter().map(fields).collect::<Vec<_>>(),
+                "{coding:?}"
+            );
+        }
     }
 
     #[test]
     fn damaged_indexes_are_errors_not_panics() {
         let (layout, entries) = sample();
-        let bytes = encode_index(&layout, &entries);
-        let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
-        assert!(decode_index(&layout, &bytes, area + 1).is_err());
-        for cut in 0..bytes.len() {
-            assert!(
-                decode_index(&layout, &bytes[..cut], area).is_err(),
-                "truncated at {cut}"
-            );
-        }
-        let mut extra = bytes.clone();
-        extra.push(0);
-        assert!(decode_index(&layout, &extra, area).is_err());
-        for i in 0..bytes.len() * 8 {
-            let mut b = bytes.clone();
-            b[i / 8] ^= 1 << (i % 8);
-            let _ = decode_index(&layout, &b, area);
-        }
-        for seed in 0..2000u64 {
-            let junk: Vec<u8> = (0..(seed % 64))
-                .map(|k| {
-                    (seed
-                        .wrapping_mul(6364136223846793005)
-                        .wrapping_add(k.wrapping_mul(1442695040888963407))
-                        >> 33) as u8
-                })
-                .collect();
-            let _ = decode_index(&layout, &junk, area);
+        for (coding, bytes) in both(&layout, &entries) {
+            let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
+            assert!(decode_index(&layout, &bytes, area + 1, coding).is_err());
+            for cut in 0..bytes.len() {
+                let got = decode_index(&layout, &bytes[..cut], area, coding);
+                // Version 1 notices every truncation. A range-coded stream has no end marker
+                // (past the end the decoder reads zeros), so a lost final byte can decode to
+                // slightly different last fields: like the records, the version-2 index relies on
+                // its CRC (checked by the container) for integrity, and here only must not panic.
+                assert!(
+                    coding == IndexCoding::Adaptive || got.is_err(),
+                    "{coding:?}: truncated at {cut}"
+                );
+            }
+            // Appended bytes: the range decoder reads up to four zero bytes past the end that
+            // the encoder dropped, so bytes appended there can go unnoticed in version 2 (as in
+            // records); the CRC catches them.
+            for tail in [[0u8].as_slice(), &[1], &[0, 0, 0, 0, 0, 7]] {
+                let mut extra = bytes.clone();
+                extra.extend_from_slice(tail);
+                let got = decode_index(&layout, &extra, area, coding);
+                assert!(coding == IndexCoding::Adaptive || got.is_err(), "{tail:?}");
+            }
+            for i in 0..bytes.len() * 8 {
+                let mut b = bytes.clone();
+                b[i / 8] ^= 1 << (i % 8);
+                let _ = decode_index(&layout, &b, area, coding);
+            }
+            for seed in 0..2000u64 {
+                let junk: Vec<u8> = (0..(seed % 64))
+                    .map(|k| {
+                        (seed
+                            .wrapping_mul(6364136223846793005)
+                            .wrapping_add(k.wrapping_mul(1442695040888963407))
+                            >> 33) as u8
+                    })
+                    .collect();
+                let _ = decode_index(&layout, &junk, area, coding);
+            }
         }
     }
 }

@@ -22,6 +22,7 @@
 //! a hand-specialised copy of the encoder's ([`decode_coeffs`], for speed), held to it by the
 //! round-trip tests and the golden hashes.
 
+pub(crate) mod integers;
 mod range_coder;
 #[cfg(test)]
 mod tests;
