@@ -5,7 +5,40 @@ use cbdam_codec::hierarchy::mask::count_valid_samples;
 use cbdam_codec::repository::{Repository, Section};
 use cbdam_server::summarize;
 
-use crate::InspectArgs;
+use crate::{InspectArgs, UpgradeArgs};
+
+/// `cbdam upgrade`: the repository as the current writer writes it. The file's content is the
+/// encoder's output as read back (`to_encoded`, every record checked), so this is a rewrite of
+/// the containers, never a re-encode.
+pub fn upgrade(args: &UpgradeArgs) -> Result<()> {
+    let repo =
+        Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
+    let from = repo.head().format_version();
+    let encoded = repo
+        .to_encoded()
+        .with_context(|| format!("reading the records of {}", args.repo.display()))?;
+    let (plan, georef, nodata) = (*repo.plan(), repo.georef().cloned(), repo.nodata());
+    let before = repo.file_len();
+    // Unmap before writing: the output may replace the input.
+    drop(repo);
+    cbdam_codec::repository::write_repository(
+        &args.output,
+        &encoded,
+        &plan,
+        georef.as_ref(),
+        nodata,
+    )
+    .with_context(|| format!("writing {}", args.output.display()))?;
+    let after = std::fs::metadata(&args.output)
+        .with_context(|| format!("reading back {}", args.output.display()))?
+        .len();
+    println!(
+        "{}: format version {from} → {}, {before} → {after} bytes",
+        args.output.display(),
+        cbdam_codec::repository::FORMAT_VERSION
+    );
+    Ok(())
+}
 
 pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
@@ -44,6 +77,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     let overhead = s.container_overhead;
     let empty = s.empty_records;
     println!("repository      {}", args.repo.display());
+    println!("format          version {}", repo.head().format_version());
     println!("kind            {}", p.kind.name());
     println!("file            {} bytes", repo.file_len());
     println!(

@@ -40,11 +40,15 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Build a repository from one DEM, in parallel, within a memory limit (multiple inputs are
-    /// not implemented yet).
+    /// Build a repository from one DEM, or from several at power-of-two spacings (one
+    /// variable-resolution dataset), in parallel, within a memory limit.
     Build(BuildArgs),
     /// Print a repository's header, per-level record counts and sizes, and error range.
     Inspect(InspectArgs),
+    /// Rewrite a repository of an older format version in the current one (version 1 → 2: a
+    /// range-coded record index, smaller on smooth terrain); heights, records and errors are
+    /// unchanged. The output is written atomically and may be the input itself.
+    Upgrade(UpgradeArgs),
     /// Check every checksum, decode everything and compare with the input DEM.
     Verify(VerifyArgs),
     /// Decode a repository back to a DEM (GeoTIFF or raw float), whole or a window, at the
@@ -572,6 +576,16 @@ pub struct InspectArgs {
     json: bool,
 }
 
+/// Rewrite a repository in the current format version.
+#[derive(Args, Debug)]
+pub struct UpgradeArgs {
+    /// Repository file to read.
+    repo: PathBuf,
+    /// Where to write the upgraded repository (may be the input).
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
 /// Verify a repository against the DEM it was built from.
 #[derive(Args, Debug)]
 pub struct VerifyArgs {
@@ -675,6 +689,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Build(args) => build::run(&args),
         Command::Inspect(args) => inspect::run(&args),
+        Command::Upgrade(args) => inspect::upgrade(&args),
         Command::Verify(args) => verify::run(&args),
         Command::Extract(args) => extract::run(&args),
         Command::Serve(args) => serve::run(&args),
