@@ -1,6 +1,7 @@
 //! `cbdam build`: DEMs → one repository file, in parallel, within a memory limit.
 //!
-//! Several inputs form one variable-resolution dataset ([`crate::mosaic`]), held in memory.
+//! Several inputs form one variable-resolution dataset ([`crate::mosaic`]), held in memory or,
+//! above the memory limit, in memory-mapped temporary files.
 //!
 //! A single GeoTIFF or raw float32 input (`--size WxH`) is streamed: planned and quantized block
 //! by block, never held as floats. The other formats are read whole (8 bytes per sample) and
@@ -232,6 +233,7 @@ pub fn prepare_mosaic(
     quantum: Option<f64>,
     max_error: f64,
     memory_limit: u64,
+    quiet: bool,
 ) -> Result<(Prepared, Resolution)> {
     let opts = ReadOptions {
         nodata,
@@ -239,6 +241,17 @@ pub fn prepare_mosaic(
     };
     let t = Instant::now();
     let m = crate::mosaic::mosaic(paths, &opts, memory_limit)?;
+    let spilled: Vec<_> = m.inputs.iter().filter(|p| p.samples.is_spilled()).collect();
+    if !quiet && !spilled.is_empty() {
+        let bytes: u64 = spilled.iter().map(|p| p.samples.bytes()).sum();
+        eprintln!(
+            "{} of {} inputs ({} MiB) in memory-mapped temporary files, to stay under \
+             --memory-limit",
+            spilled.len(),
+            m.inputs.len(),
+            bytes.div_ceil(1 << 20)
+        );
+    }
     let (lo, hi) = m.valid_range().expect("every input has a valid sample");
     if hi > lo && max_error > hi - lo {
         bail!(
@@ -350,8 +363,14 @@ pub fn run(args: &BuildArgs) -> Result<()> {
             if enc_opts.alpha != Alpha::One {
                 bail!("several inputs (variable resolution) need --alpha one");
             }
-            let (input, res) =
-                prepare_mosaic(paths, args.nodata, args.quantum, args.max_error, limit)?;
+            let (input, res) = prepare_mosaic(
+                paths,
+                args.nodata,
+                args.quantum,
+                args.max_error,
+                limit,
+                args.quiet,
+            )?;
             // The inputs are gone by now: what stays is the grid, the classes and the field.
             let classes = res.class.len() as u64;
             let storage = storage_for(&input.grid, &enc_opts, limit.saturating_sub(classes))?;

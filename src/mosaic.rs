@@ -9,8 +9,10 @@
 //! The merged heights are never materialised: [`Mosaic`] is a [`SampleSource`] that composes
 //! each block of lattice rows from the inputs when the quantizer asks for it, so what the lattice
 //! itself costs is one byte per point (which input wins where, [`Mosaic::source`]) on top of the
-//! inputs and the quantized grid ([`bytes_in_memory`]). Builds above `--memory-limit` are refused
-//! as soon as the inputs read so far exceed it, else before the lattice is allocated.
+//! inputs and the quantized grid ([`bytes_in_memory`]). Inputs that do not fit under
+//! `--memory-limit` go to memory-mapped temporary files ([`Store`]); a build whose lattice alone
+//! does not fit is refused before the lattice is allocated. Each input is still read whole once
+//! (8 bytes a sample while it is narrowed), one at a time.
 
 use std::path::{Path, PathBuf};
 
@@ -49,33 +51,82 @@ pub fn bytes_in_memory(width: usize, height: usize, input_bytes: u64) -> u64 {
         .saturating_add(block)
 }
 
+/// Where an input's narrowed samples live: in memory, or in a memory-mapped temporary file
+/// (created unlinked in the system temporary directory, so the kernel writes its pages back to
+/// disk under memory pressure and nothing is left behind) once the inputs exceed the build's
+/// memory limit.
+#[derive(Debug)]
+pub enum Store<T> {
+    /// Anonymous memory.
+    Memory(Vec<T>),
+    /// A mapped temporary file holding `len` values.
+    Mapped(memmap2::MmapMut, usize),
+}
+
+impl<T: bytemuck::Pod> Store<T> {
+    /// `values` in a mapped temporary file.
+    fn spill(values: &[T]) -> std::io::Result<Self> {
+        let bytes: &[u8] = bytemuck::cast_slice(values);
+        let file = tempfile::tempfile()?;
+        // A zero-length map is an error on some platforms; an empty input never gets here (it
+        // has a valid sample), but one byte costs nothing.
+        file.set_len(bytes.len().max(1) as u64)?;
+        // SAFETY: the file is ours alone (unlinked at creation), so nothing else can change or
+        // truncate it while mapped.
+        let mut map = unsafe { memmap2::MmapMut::map_mut(&file)? };
+        map[..bytes.len()].copy_from_slice(bytes);
+        Ok(Self::Mapped(map, values.len()))
+    }
+}
+
+impl<T: bytemuck::Pod> std::ops::Deref for Store<T> {
+    type Target = [T];
+    fn deref(&self) -> &[T] {
+        match self {
+            Self::Memory(v) => v,
+            // The map is page-aligned, so the cast never fails on alignment.
+            Self::Mapped(map, len) => &bytemuck::cast_slice(&map[..])[..*len],
+        }
+    }
+}
+
 /// An input's samples in the narrowest type that holds every one of them exactly, NaN included:
 /// SRTM's 16-bit integers cost 2 bytes a sample instead of the reader's 8.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub enum Samples {
     /// Whole numbers in the `i16` range.
-    I16(Vec<i16>),
+    I16(Store<i16>),
     /// Values that `f32` represents exactly, and NaN.
-    F32(Vec<f32>),
+    F32(Store<f32>),
     /// Anything else.
-    F64(Vec<f64>),
+    F64(Store<f64>),
 }
 
 impl Samples {
-    /// The narrowest exact representation of `values`.
+    /// The narrowest exact representation of `values`, in memory.
     pub fn compact(values: Vec<f64>) -> Self {
         // `as` saturates and maps NaN to 0, so the round trip fails exactly where the narrow
         // type cannot hold the value (a zero's sign is the only thing dropped).
         if values.iter().all(|&v| f64::from(v as i16) == v) {
-            Self::I16(values.iter().map(|&v| v as i16).collect())
+            Self::I16(Store::Memory(values.iter().map(|&v| v as i16).collect()))
         } else if values
             .iter()
             .all(|&v| v.is_nan() || f64::from(v as f32) == v)
         {
-            Self::F32(values.iter().map(|&v| v as f32).collect())
+            Self::F32(Store::Memory(values.iter().map(|&v| v as f32).collect()))
         } else {
-            Self::F64(values)
+            Self::F64(Store::Memory(values))
         }
+    }
+
+    /// The same samples in a memory-mapped temporary file (a no-op if they are already).
+    pub fn spill(self) -> std::io::Result<Self> {
+        Ok(match self {
+            Self::I16(Store::Memory(v)) => Self::I16(Store::spill(&v)?),
+            Self::F32(Store::Memory(v)) => Self::F32(Store::spill(&v)?),
+            Self::F64(Store::Memory(v)) => Self::F64(Store::spill(&v)?),
+            mapped => mapped,
+        })
     }
 
     /// Sample `i`.
@@ -88,7 +139,7 @@ impl Samples {
         }
     }
 
-    /// Bytes held.
+    /// Bytes of the samples, wherever they are.
     pub fn bytes(&self) -> u64 {
         match self {
             Self::I16(v) => 2 * v.len() as u64,
@@ -96,10 +147,25 @@ impl Samples {
             Self::F64(v) => 8 * v.len() as u64,
         }
     }
+
+    /// Bytes held in anonymous memory: [`Samples::bytes`], or 0 once spilled.
+    pub fn bytes_in_memory(&self) -> u64 {
+        match self {
+            Self::I16(Store::Mapped(..))
+            | Self::F32(Store::Mapped(..))
+            | Self::F64(Store::Mapped(..)) => 0,
+            _ => self.bytes(),
+        }
+    }
+
+    /// Whether the samples are in a mapped temporary file.
+    pub fn is_spilled(&self) -> bool {
+        self.bytes_in_memory() == 0 && self.bytes() > 0
+    }
 }
 
 /// Where one input lies on the lattice.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct Placement {
     /// The file.
     pub path: PathBuf,
@@ -279,19 +345,15 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
             bail!("{} has no valid sample (all nodata or NaN)", path.display());
         }
         // Narrowed as soon as read, so that only one input is ever held at 8 bytes a sample.
-        let samples = Samples::compact(std::mem::take(&mut dem.values));
-        // Refuse as soon as the inputs alone are over the limit, not after reading them all.
-        held = held.saturating_add(samples.bytes());
-        if held > memory_limit {
-            bail!(
-                "the first {} inputs (up to {}) take about {} MiB, which the multi-input build \
-                 holds in memory: above --memory-limit ({} MiB)",
-                dems.len() + 1,
-                path.display(),
-                held >> 20,
-                memory_limit >> 20
-            );
+        let mut samples = Samples::compact(std::mem::take(&mut dem.values));
+        // Once the inputs read so far exceed the limit, this one and later ones go to mapped
+        // temporary files, which the kernel pages out as it needs to.
+        if held.saturating_add(samples.bytes()) > memory_limit {
+            samples = samples
+                .spill()
+                .with_context(|| format!("spilling {} to a temporary file", path.display()))?;
         }
+        held = held.saturating_add(samples.bytes_in_memory());
         dems.push((path.clone(), dem, samples));
     }
     let geo = |k: usize| dems[k].1.georef.as_ref().expect("checked above");
@@ -403,16 +465,31 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
         height = height.max(p.y0 + (p.dem.height - 1) * p.stride() + 1);
         inputs.push(p);
     }
-    let input_bytes: u64 = inputs.iter().map(|p| p.samples.bytes()).sum();
-    let need = bytes_in_memory(width, height, input_bytes);
-    if need > memory_limit {
-        bail!(
-            "the combined lattice is {width}×{height} points at the finest spacing; with the \
-             inputs, which the multi-input build holds in memory, that is about {} MiB, above \
-             --memory-limit ({} MiB)",
-            need >> 20,
-            memory_limit >> 20
-        );
+    // The lattice's own arrays stay in memory; if inputs and lattice together are over the
+    // limit, spill inputs (largest first) until they fit, and refuse only if the lattice alone
+    // does not.
+    let need = |inputs: &[Placement]| {
+        let input_bytes: u64 = inputs.iter().map(|p| p.samples.bytes_in_memory()).sum();
+        bytes_in_memory(width, height, input_bytes)
+    };
+    while need(&inputs) > memory_limit {
+        let Some(k) = (0..inputs.len())
+            .filter(|&k| inputs[k].samples.bytes_in_memory() > 0)
+            .max_by_key(|&k| inputs[k].samples.bytes_in_memory())
+        else {
+            bail!(
+                "the combined lattice is {width}×{height} points at the finest spacing, which \
+                 needs about {} MiB in memory ({BYTES_PER_POINT} bytes a point) even with every \
+                 input in a temporary file: above --memory-limit ({} MiB)",
+                need(&inputs) >> 20,
+                memory_limit >> 20
+            );
+        };
+        let p = &mut inputs[k];
+        let samples = std::mem::replace(&mut p.samples, Samples::compact(Vec::new()));
+        p.samples = samples
+            .spill()
+            .with_context(|| format!("spilling {} to a temporary file", p.path.display()))?;
     }
     let len = width * height;
     let mut source = vec![HOLE; len];
@@ -510,6 +587,32 @@ mod tests {
             }
         }
         assert_eq!(Samples::compact(vec![1.0; 10]).bytes(), 20);
+        assert_eq!(Samples::compact(vec![1.0; 10]).bytes_in_memory(), 20);
         assert_eq!(Samples::compact(vec![0.1; 10]).bytes(), 80);
+    }
+
+    /// Spilled samples read back exactly what was in memory, and count as not in memory.
+    #[test]
+    fn spilled_samples_are_the_same_samples() {
+        for values in [
+            vec![1.0, -3.0, 32767.0, -32768.0],
+            vec![0.5, f64::NAN, 1e30, -2.25],
+            vec![0.1, 1e-300, -7.0, 123456.789],
+        ] {
+            let memory = Samples::compact(values.clone());
+            let spilled = Samples::compact(values.clone()).spill().unwrap();
+            assert!(spilled.is_spilled() && !memory.is_spilled());
+            assert_eq!(spilled.bytes_in_memory(), 0);
+            assert_eq!(spilled.bytes(), memory.bytes());
+            for i in 0..values.len() {
+                assert_eq!(
+                    spilled.get(i).to_bits(),
+                    memory.get(i).to_bits(),
+                    "{values:?}"
+                );
+            }
+            // Spilling twice is a no-op.
+            assert!(spilled.spill().unwrap().is_spilled());
+        }
     }
 }

@@ -281,36 +281,75 @@ fn inputs_that_cannot_share_a_lattice_are_refused_by_name() {
     }
     build_fails(dir.path(), &[&f, &png_path], "has no georeferencing");
 
-    // Beyond the memory limit: refused, not swapped, and nothing written.
+    // Beyond the memory limit: a lattice that does not fit is refused (not swapped), and
+    // nothing is written.
     let before = listing(dir.path());
     let out = dir.path().join("bad.cbdam");
-    let refused_under = |limit: &str| -> String {
-        let o = cbdam(&[
+    let under = |limit: &str, out: &Path| {
+        cbdam(&[
             "build",
             &s(&c),
             &s(&f),
             "-o",
-            &s(&out),
+            &s(out),
             "--max-error",
             "1",
             "--memory-limit",
             limit,
-        ]);
-        assert!(!o.status.success(), "built under --memory-limit {limit}");
-        assert_eq!(listing(dir.path()), before);
-        stderr(&o)
+        ])
     };
-    // The lattice does not fit.
-    let err = refused_under("64K");
+    let o = under("64K", &out);
+    assert!(!o.status.success(), "built under --memory-limit 64K");
+    assert_eq!(listing(dir.path()), before);
+    let err = stderr(&o);
     assert!(
-        err.contains("combined lattice") && err.contains("--memory-limit"),
+        err.contains("combined lattice")
+            && err.contains("every input in a temporary file")
+            && err.contains("--memory-limit"),
         "{err}"
     );
-    // The inputs alone do not fit, which is found as soon as they are read: the coarse grid
-    // (129² whole metres, 2 bytes a sample) fits in 40 KiB, the fine one (97²) does not.
-    let err = refused_under("40K");
+}
+
+#[test]
+fn inputs_over_the_memory_limit_go_to_temporary_files_with_the_same_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let (c, f) = (coarse(dir.path()), fine(dir.path()));
+    let build_under = |limit: Option<&str>, name: &str| {
+        let out = dir.path().join(name);
+        let mut args = vec![
+            "build".to_string(),
+            s(&c),
+            s(&f),
+            "-o".into(),
+            s(&out),
+            "--max-error".into(),
+            "1".into(),
+        ];
+        if let Some(l) = limit {
+            args.extend(["--memory-limit".to_string(), l.to_string()]);
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = cbdam(&args);
+        assert!(o.status.success(), "{limit:?}: {}", stderr(&o));
+        (std::fs::read(&out).unwrap(), stderr(&o))
+    };
+    let (free, err) = build_under(None, "free.cbdam");
+    assert!(!err.contains("temporary files"), "{err}");
+    // The 513² lattice needs 2 823 KiB (7 bytes a point, and one 1 MiB block of composed rows);
+    // the two inputs (129² and 97² whole metres, 2 bytes a sample) another 51 KiB, so under
+    // 2 830 KiB both must leave memory.
+    let (tight, err) = build_under(Some("2830K"), "tight.cbdam");
     assert!(
-        err.contains("the first 2 inputs") && err.contains("--memory-limit"),
+        err.contains("2 of 2 inputs") && err.contains("memory-mapped temporary files"),
         "{err}"
     );
+    assert_eq!(tight, free, "spilled inputs changed the repository");
+    // Only the temporary files' names are unlinked at creation: nothing is left behind.
+    let mut names: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.ends_with(".cbdam"))
+        .collect();
+    names.sort();
+    assert_eq!(names, ["free.cbdam", "tight.cbdam"]);
 }

@@ -17,4 +17,18 @@ pub mod lifting;
 pub mod quant;
 pub mod repository;
 
+/// Deterministic junk for the decoders' never-panic tests: `len` bytes from an LCG seeded by
+/// `seed`.
+#[cfg(test)]
+pub(crate) fn test_junk(seed: u64, len: u64) -> Vec<u8> {
+    (0..len)
+        .map(|k| {
+            (seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(k.wrapping_mul(1442695040888963407))
+                >> 33) as u8
+        })
+        .collect()
+}
+
 pub use error::CodecError;

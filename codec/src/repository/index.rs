@@ -757,14 +757,7 @@ mod tests {
                 let _ = decode_index(&layout, &b, area, coding);
             }
             for seed in 0..2000u64 {
-                let junk: Vec<u8> = (0..(seed % 64))
-                    .map(|k| {
-                        (seed
-                            .wrapping_mul(6364136223846793005)
-                            .wrapping_add(k.wrapping_mul(1442695040888963407))
-                            >> 33) as u8
-                    })
-                    .collect();
+                let junk = crate::test_junk(seed, seed % 64);
                 let _ = decode_index(&layout, &junk, area, coding);
             }
         }

@@ -269,14 +269,7 @@ mod tests {
     #[test]
     fn arbitrary_bytes_decode_to_values_or_errors() {
         for seed in 0..3000u64 {
-            let junk: Vec<u8> = (0..(seed % 40))
-                .map(|k| {
-                    (seed
-                        .wrapping_mul(6364136223846793005)
-                        .wrapping_add(k.wrapping_mul(1442695040888963407))
-                        >> 33) as u8
-                })
-                .collect();
+            let junk = crate::test_junk(seed, seed % 40);
             let Ok(mut dec) = IntDecoder::new(&junk) else {
                 continue;
             };
