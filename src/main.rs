@@ -684,8 +684,31 @@ pub struct ReplayArgs {
     cut_mib: usize,
 }
 
+/// Lets a closed stdout end the process quietly, as `cbdam inspect … | head` expects, instead of
+/// Rust's default of turning the write error into a panic. Only for the subcommands that touch
+/// no sockets: a server must see EPIPE on a dropped connection, not die of the signal.
+fn default_sigpipe(command: &Command) {
+    #[cfg(unix)]
+    if matches!(
+        command,
+        Command::Inspect(_)
+            | Command::Upgrade(_)
+            | Command::Verify(_)
+            | Command::Extract(_)
+            | Command::Build(_)
+    ) {
+        // SAFETY: restoring a signal's default disposition before any thread is started.
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = command;
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    default_sigpipe(&cli.command);
     let result = match cli.command {
         Command::Build(args) => build::run(&args),
         Command::Inspect(args) => inspect::run(&args),

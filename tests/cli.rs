@@ -352,6 +352,26 @@ fn upgrade_rewrites_version_1_as_the_build_of_today() {
     assert!(!out.exists());
 }
 
+#[test]
+fn a_closed_stdout_ends_inspect_quietly() {
+    let repo = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/codec/tests/data/v1/lidar1m_eps1.cbdam"
+    );
+    let mut child = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(["inspect", repo])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // As `| head -0` does: the reader goes away before anything is read.
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_ne!(o.status.code(), Some(101), "{err}");
+}
+
 // ---- extract ----------------------------------------------------------------------------------
 
 use cbdam_codec::input::{Dem, Format, ReadOptions, read_dem};
