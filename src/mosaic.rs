@@ -84,8 +84,9 @@ impl<T: bytemuck::Pod> std::ops::Deref for Store<T> {
     fn deref(&self) -> &[T] {
         match self {
             Self::Memory(v) => v,
-            // The map is page-aligned, so the cast never fails on alignment.
-            Self::Mapped(map, len) => &bytemuck::cast_slice(&map[..])[..*len],
+            // The map is page-aligned and at least `len` values long (an empty input maps one
+            // byte), so the cast never fails.
+            Self::Mapped(map, len) => bytemuck::cast_slice(&map[..len * std::mem::size_of::<T>()]),
         }
     }
 }
@@ -150,17 +151,17 @@ impl Samples {
 
     /// Bytes held in anonymous memory: [`Samples::bytes`], or 0 once spilled.
     pub fn bytes_in_memory(&self) -> u64 {
-        match self {
-            Self::I16(Store::Mapped(..))
-            | Self::F32(Store::Mapped(..))
-            | Self::F64(Store::Mapped(..)) => 0,
-            _ => self.bytes(),
-        }
+        if self.is_spilled() { 0 } else { self.bytes() }
     }
 
     /// Whether the samples are in a mapped temporary file.
     pub fn is_spilled(&self) -> bool {
-        self.bytes_in_memory() == 0 && self.bytes() > 0
+        matches!(
+            self,
+            Self::I16(Store::Mapped(..))
+                | Self::F32(Store::Mapped(..))
+                | Self::F64(Store::Mapped(..))
+        )
     }
 }
 
@@ -595,6 +596,7 @@ mod tests {
     #[test]
     fn spilled_samples_are_the_same_samples() {
         for values in [
+            vec![],
             vec![1.0, -3.0, 32767.0, -32768.0],
             vec![0.5, f64::NAN, 1e30, -2.25],
             vec![0.1, 1e-300, -7.0, 123456.789],
