@@ -179,12 +179,15 @@ impl<'a> IntDecoder<'a> {
         }
         let negative = self.dec.decode(&mut m.sign);
         let magnitude = self.uint(&mut m.magnitude)?;
-        // |v| − 1 ≤ 2^63 − 1 for positive and ≤ 2^63 − 1 for negative (i64::MIN).
-        if magnitude > i64::MAX as u64 {
-            return Err(CodecError::corrupt("index number out of range"));
+        // |v| − 1 is at most 2^63 − 2 for positive v and 2^63 − 1 for negative (i64::MIN); a
+        // hostile stream can say more, which must be an error, not an overflow.
+        let out_of_range = || CodecError::corrupt("index number out of range");
+        let m1 = i64::try_from(magnitude).map_err(|_| out_of_range())?;
+        if negative {
+            Ok(-m1 - 1)
+        } else {
+            m1.checked_add(1).ok_or_else(out_of_range)
         }
-        let m1 = magnitude as i64;
-        Ok(if negative { -m1 - 1 } else { m1 + 1 })
     }
 
     /// Checks that the stream ended where it should: no bytes left over, none missing.
@@ -252,6 +255,22 @@ mod tests {
             assert_eq!(dec.uint(&mut mu).unwrap(), u);
         }
         dec.finish().unwrap();
+    }
+
+    #[test]
+    fn magnitudes_beyond_i64_are_errors_not_overflows() {
+        // What only a hostile stream holds: a positive value of magnitude 2^63 (and larger).
+        for magnitude in [i64::MAX as u64, u64::MAX] {
+            let mut enc = IntEncoder::new();
+            let mut m = IntModel::default();
+            enc.enc.encode(&mut m.zero, true);
+            enc.enc.encode(&mut m.sign, false);
+            enc.uint(&mut m.magnitude, magnitude);
+            let mut bytes = Vec::new();
+            enc.finish(&mut bytes);
+            let mut dec = IntDecoder::new(&bytes).unwrap();
+            assert!(dec.int(&mut IntModel::default()).is_err(), "{magnitude}");
+        }
     }
 
     #[test]
