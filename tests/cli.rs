@@ -58,9 +58,16 @@ fn round_trip(name: &str, max_error: &str, extra: &[&str]) {
     let levels = v["levels"].as_array().unwrap();
     let records: u64 = levels.iter().map(|l| l["records"].as_u64().unwrap()).sum();
     assert_eq!(v["records"], records);
-    // Header and checksum table: 256 bytes plus 4 per non-empty record.
+    // Header and checksum table: the compact header (format version 3) plus 4 bytes per
+    // non-empty record; the root field starts right after the header.
     let empty = v["empty_records"].as_u64().unwrap();
-    assert_eq!(v["container_overhead_bytes"], 256 + 4 * (records - empty));
+    let header = v["sections"]["header"]["length"].as_u64().unwrap();
+    assert!((16..128).contains(&header), "{header}-byte header");
+    assert_eq!(v["sections"]["roots"]["offset"], header);
+    assert_eq!(
+        v["container_overhead_bytes"],
+        header + 4 * (records - empty)
+    );
     let meta: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(data(&name.replace(".tif", ".json"))).unwrap(),
     )
@@ -325,12 +332,12 @@ fn upgrade_rewrites_version_1_as_the_build_of_today() {
     let o = cbdam(&["upgrade", &copy_s, "-o", &copy_s]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
-        stdout(&o).contains("format version 1 → 2, 1318 → "),
+        stdout(&o).contains("format version 1 → 3, 1318 → "),
         "{}",
         stdout(&o)
     );
     assert_eq!(listing(dir.path()), vec![copy.clone()]);
-    assert!(stdout(&cbdam(&["inspect", &copy_s])).contains("format          version 2"));
+    assert!(stdout(&cbdam(&["inspect", &copy_s])).contains("format          version 3"));
     let o = cbdam(&["verify", &copy_s, "--against", &data("lidar1m_mn.tif")]);
     assert!(o.status.success(), "{}", stderr(&o));
 

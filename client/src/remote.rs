@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::repository::{HEADER_LEN, RepositoryHead, required_head_len};
+use cbdam_codec::repository::{MAX_HEADER_LEN, RepositoryHead, required_head_len};
 use tokio::sync::Notify;
 use tokio::task::AbortHandle;
 
@@ -363,6 +363,24 @@ async fn get_range(
     url: &str,
     range: std::ops::Range<u64>,
 ) -> Result<(Vec<u8>, u64), String> {
+    get_range_impl(client, url, range, false).await
+}
+
+/// [`get_range`] for a range that may run past the end of the file: the bytes up to the end.
+async fn get_range_clipped(
+    client: &reqwest::Client,
+    url: &str,
+    range: std::ops::Range<u64>,
+) -> Result<(Vec<u8>, u64), String> {
+    get_range_impl(client, url, range, true).await
+}
+
+async fn get_range_impl(
+    client: &reqwest::Client,
+    url: &str,
+    range: std::ops::Range<u64>,
+    clip: bool,
+) -> Result<(Vec<u8>, u64), String> {
     let resp = client
         .get(url)
         .header(
@@ -388,10 +406,15 @@ async fn get_range(
         .and_then(|(_, total)| total.parse::<u64>().ok())
         .ok_or("206 response without a Content-Range total")?;
     let body = resp.bytes().await.map_err(|e| e.to_string())?;
-    if body.len() as u64 != range.end - range.start {
+    let end = if clip {
+        range.end.min(total.max(range.start))
+    } else {
+        range.end
+    };
+    if body.len() as u64 != end - range.start {
         return Err(format!(
             "asked for {} bytes, got {}",
-            range.end - range.start,
+            end - range.start,
             body.len()
         ));
     }
@@ -399,7 +422,9 @@ async fn get_range(
 }
 
 async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHead, RemoteError> {
-    let (header, file_len) = get_range(client, url, 0..HEADER_LEN as u64)
+    // A version-3 header is shorter than MAX_HEADER_LEN, and so can be the whole file: a server
+    // answers a range past the end with what there is.
+    let (header, file_len) = get_range_clipped(client, url, 0..MAX_HEADER_LEN as u64)
         .await
         .map_err(|e| http_error(url, e))?;
     let repo_error = |source| RemoteError::Repository {

@@ -22,7 +22,7 @@ use cbdam_client::world::World;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
-use cbdam_codec::repository::{Repository, serialize};
+use cbdam_codec::repository::{MAX_HEADER_LEN, Repository, serialize};
 use cbdam_server::{AppState, Config};
 use glam::DVec3;
 
@@ -266,6 +266,53 @@ async fn static_file(bytes: Arc<Vec<u8>>, headers: HeaderMap) -> Response {
         .into_response()
 }
 
+/// Serves `bytes` as `/data/t.cbdam` from a minimal static server on loopback.
+fn static_server(rt: &tokio::runtime::Runtime, bytes: Arc<Vec<u8>>) -> SocketAddr {
+    let app = axum::Router::new().route(
+        "/data/t.cbdam",
+        axum::routing::get(move |h: HeaderMap| static_file(bytes.clone(), h)),
+    );
+    let l = {
+        let _g = rt.enter();
+        listener("127.0.0.1:0".parse().unwrap())
+    };
+    let addr = l.local_addr().unwrap();
+    rt.spawn(async move { axum::serve(l, app).await.unwrap() });
+    addr
+}
+
+/// A format-3 file can be shorter than the client's first fetch (the longest header of any
+/// version): the server answers with the whole file, and the client takes it.
+#[test]
+fn a_repository_shorter_than_the_first_fetch_connects() {
+    let (w, h) = (9usize, 9usize);
+    let metres: Vec<f64> = (0..w * h).map(|i| 100.0 + (i % 3) as f64).collect();
+    let plan = QuantPlan::new(0.5, None, 0.0, 110.0).unwrap();
+    let grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
+    let opts = EncodeOptions {
+        n: 9,
+        ..EncodeOptions::default()
+    };
+    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let bytes = Arc::new(serialize(&enc, &plan, None, None).unwrap());
+    assert!(bytes.len() < MAX_HEADER_LEN, "{} bytes", bytes.len());
+    let repo = Repository::from_bytes(bytes.to_vec()).unwrap();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let addr = static_server(&rt, bytes.clone());
+    let source = RemoteSource::connect(
+        &format!("http://{addr}/data/t.cbdam"),
+        FetchOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(source.params(), repo.params());
+    assert_eq!(source.entries(), repo.entries());
+    assert_eq!(source.root_bytes(), repo.root_bytes());
+}
+
 #[test]
 fn a_static_server_with_range_requests_gives_the_local_cut() {
     let bytes = Arc::new(image());
@@ -276,17 +323,7 @@ fn a_static_server_with_range_requests_gives_the_local_cut() {
         .enable_all()
         .build()
         .unwrap();
-    let served = bytes.clone();
-    let app = axum::Router::new().route(
-        "/data/t.cbdam",
-        axum::routing::get(move |h: HeaderMap| static_file(served.clone(), h)),
-    );
-    let l = {
-        let _g = rt.enter();
-        listener("127.0.0.1:0".parse().unwrap())
-    };
-    let addr = l.local_addr().unwrap();
-    rt.spawn(async move { axum::serve(l, app).await.unwrap() });
+    let addr = static_server(&rt, bytes.clone());
     // Merge only records that touch, so that no byte is fetched twice by overlapping ranges.
     let options = FetchOptions {
         max_range_gap: 0,

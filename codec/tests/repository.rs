@@ -11,8 +11,8 @@ use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::index::{IndexEntry, range_shift_for};
 use cbdam_codec::repository::{
-    FORMAT_VERSION, HEADER_LEN, Repository, RepositoryHead, Section, required_head_len, serialize,
-    write_repository,
+    FORMAT_VERSION, MAX_HEADER_LEN, Repository, RepositoryHead, Section, required_head_len,
+    reseal_checksums, serialize, write_repository,
 };
 use common::Rng;
 
@@ -85,6 +85,11 @@ fn load(bytes: Vec<u8>) -> Result<Repository, CodecError> {
     let r = Repository::from_bytes(bytes)?;
     r.check_all()?;
     Ok(r)
+}
+
+/// The header length a file states (bytes 10–11).
+fn header_len(b: &[u8]) -> usize {
+    usize::from(u16::from_le_bytes([b[10], b[11]]))
 }
 
 fn is_data_error(e: &CodecError) -> bool {
@@ -250,8 +255,9 @@ fn random_files_are_errors() {
             b[..8].copy_from_slice(&good[..8]);
             b[8..10].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
         }
-        if round % 3 == 2 && len >= HEADER_LEN {
-            b[..HEADER_LEN].copy_from_slice(&good[..HEADER_LEN]);
+        let hl = header_len(&good);
+        if round % 3 == 2 && len >= hl {
+            b[..hl].copy_from_slice(&good[..hl]);
         }
         if let Err(e) = load(b) {
             assert!(is_data_error(&e), "round {round}: {e}");
@@ -270,15 +276,16 @@ fn newer_versions_are_refused_by_name() {
     assert!(e.to_string().contains("newer"), "{e}");
 }
 
-/// A hostile writer can compute a header CRC too: every header byte set to a few values, CRC
-/// fixed up, must still give an error or a repository that decodes without panicking.
+/// A hostile writer can compute checksums too: every header byte set to a few values, every
+/// CRC fixed up, must still give an error or a repository that decodes without panicking.
 #[test]
 fn hostile_headers_with_valid_checksums_never_panic() {
     let good = image();
     let mut rng = Rng(99);
     let mut refused = 0;
     let mut tried = 0;
-    for at in 0..HEADER_LEN - 4 {
+    let hl = header_len(&good);
+    for at in 0..hl - 4 {
         let values = [0u8, 1, 2, 0x7F, 0x80, 0xFF, rng.next() as u8];
         for v in values {
             if good[at] == v {
@@ -286,8 +293,8 @@ fn hostile_headers_with_valid_checksums_never_panic() {
             }
             let mut b = good.clone();
             b[at] = v;
-            let crc = crc32fast::hash(&b[..HEADER_LEN - 4]);
-            b[HEADER_LEN - 4..HEADER_LEN].copy_from_slice(&crc.to_le_bytes());
+            // Every checksum made to match, so the field checks behind them are what answers.
+            reseal_checksums(&mut b);
             tried += 1;
             match load(b) {
                 Err(e) => {
@@ -318,7 +325,9 @@ fn hostile_headers_with_valid_checksums_never_panic() {
 fn head_from_a_prefix_checks_records_like_the_repository() {
     let bytes = image();
     let repo = load(bytes.clone()).unwrap();
-    let len = required_head_len(&bytes[..HEADER_LEN]).unwrap() as usize;
+    let hl = header_len(&bytes);
+    let len = required_head_len(&bytes[..MAX_HEADER_LEN.min(bytes.len())]).unwrap() as usize;
+    assert_eq!(len, required_head_len(&bytes[..hl]).unwrap() as usize);
     assert!(len < bytes.len());
     let head = RepositoryHead::parse(&bytes[..len], bytes.len() as u64).unwrap();
     assert_eq!(head.entries(), repo.entries());
@@ -351,7 +360,12 @@ fn head_from_a_prefix_checks_records_like_the_repository() {
     }
     // The same head bytes claiming a different file length contradict the section table.
     assert!(RepositoryHead::parse(&bytes[..len], bytes.len() as u64 + 1).is_err());
-    assert!(required_head_len(&bytes[..HEADER_LEN - 1]).is_err());
+    for cut in 0..hl {
+        assert!(
+            required_head_len(&bytes[..cut]).is_err(),
+            "header prefix {cut}"
+        );
+    }
 }
 
 /// The accessors a server needs to serve the file verbatim agree with the writer's layout.
@@ -360,18 +374,20 @@ fn raw_accessors_match_the_layout() {
     let (enc, plan, _) = fixture(Alpha::One, CoderKind::Adaptive);
     let bytes = serialize(&enc, &plan, Some(&georef()), None).unwrap();
     let repo = Repository::from_bytes(bytes.clone()).unwrap();
+    let hl = header_len(&bytes);
     assert_eq!(repo.as_bytes(), &bytes[..]);
     assert_eq!(
         repo.header_crc(),
-        u32::from_le_bytes(bytes[HEADER_LEN - 4..HEADER_LEN].try_into().unwrap())
+        u32::from_le_bytes(bytes[hl - 4..hl].try_into().unwrap())
     );
-    assert_eq!(repo.section_offset(Section::Roots), HEADER_LEN as u64);
+    assert_eq!(repo.head().header_len(), hl);
+    assert_eq!(repo.section_offset(Section::Roots), hl as u64);
     // The records area is last: everything before it is header + roots + index + checksums.
     let head = repo.section_offset(Section::Records);
     assert_eq!(head + repo.section_len(Section::Records), repo.file_len());
     assert_eq!(
         head,
-        HEADER_LEN as u64
+        hl as u64
             + repo.section_len(Section::Roots)
             + repo.section_len(Section::Index)
             + repo.section_len(Section::Checksums)

@@ -2,7 +2,7 @@
 //! `/v1/repos/{name}/meta`, so the two never drift apart.
 
 use cbdam_codec::lifting::Alpha;
-use cbdam_codec::repository::{HEADER_LEN, Repository, Section};
+use cbdam_codec::repository::{Repository, Section};
 use serde_json::{Value, json};
 
 /// Per-level statistics of the stored records.
@@ -162,7 +162,7 @@ pub fn describe(repo: &Repository) -> Value {
         "container_overhead_bytes": s.container_overhead,
         "head_len": head_len(repo),
         "sections": {
-            "header": { "offset": 0, "length": HEADER_LEN },
+            "header": { "offset": 0, "length": repo.head().header_len() },
             "roots": section(Section::Roots),
             "index": section(Section::Index),
             "checksums": section(Section::Checksums),

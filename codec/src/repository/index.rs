@@ -71,11 +71,12 @@ pub enum IndexCoding {
 }
 
 impl IndexCoding {
-    /// The coding of a repository of format `version` (1 or 2).
+    /// The coding of a repository of format `version` (1, 2 or 3; 3 differs from 2 only in
+    /// its header).
     pub fn for_format_version(version: u16) -> Result<Self, CodecError> {
         match version {
             1 => Ok(Self::Varint),
-            2 => Ok(Self::Adaptive),
+            2 | 3 => Ok(Self::Adaptive),
             _ => Err(CodecError::unsupported(format!(
                 "no index coding for format version {version}"
             ))),
@@ -86,7 +87,7 @@ impl IndexCoding {
 /// Mask-bit models: one per level up to this, the rest share the last.
 const MASK_LEVELS: usize = 16;
 
-fn put_varint(out: &mut Vec<u8>, mut v: u64) {
+pub(super) fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     while v >= 0x80 {
         out.push((v as u8) | 0x80);
         v >>= 7;

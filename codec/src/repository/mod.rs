@@ -5,9 +5,10 @@
 //! byte by byte in `docs/FORMAT.md`.
 
 pub mod container;
+mod header;
 pub mod index;
 
 pub use container::{
-    FORMAT_VERSION, HEADER_LEN, MAGIC, Repository, RepositoryHead, Section, required_head_len,
-    serialize, write_repository,
+    FORMAT_VERSION, MAGIC, MAX_HEADER_LEN, Repository, RepositoryHead, Section, required_head_len,
+    reseal_checksums, serialize, write_repository,
 };

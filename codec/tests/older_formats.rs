@@ -1,7 +1,9 @@
-//! Repositories written by format version 1 (the varint record index) still open, check and
-//! decode with a version-2 reader, and hold exactly what today's encoder produces apart from the
-//! index's coding. The fixtures in `tests/data/v1/` were written by the version-1 `cbdam`
-//! (commit 278d5a6), before version 2 existed:
+//! Repositories written by older format versions still open, check and decode, and hold
+//! exactly what today's encoder produces apart from what the versions changed. Version 1 coded
+//! the record index as varints; version 2 range-codes it; version 3 (today's) changed only the
+//! header (compact instead of 256 fixed bytes).
+//!
+//! The fixtures in `tests/data/v1/` were written by the version-1 `cbdam` (commit 278d5a6):
 //!
 //! - `lidar1m_eps1.cbdam`: `cbdam build data/lidar1m_mn.tif --max-error 1` (N = 65,
 //!   georeferenced; 69 records, 13 non-empty).
@@ -9,6 +11,9 @@
 //!   --max-error 0.5 --diamond-size 9` (nodata masks in the root field and the records).
 //! - `colour33_n9.cbdam`: a 33×33 RGB PNG of coordinate gradients, `--colour --max-error 4
 //!   --diamond-size 9` (three channels per record).
+//!
+//! `tests/data/v2/` holds the same three, rewritten by the version-2 `cbdam upgrade` (commit
+//! 2a2aeb0).
 
 use std::path::{Path, PathBuf};
 
@@ -18,17 +23,17 @@ use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{FORMAT_VERSION, Repository, Section, serialize};
 
-fn fixture(name: &str) -> PathBuf {
+fn fixture(version: u16, name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/v1")
+        .join(format!("tests/data/v{version}"))
         .join(name)
 }
 
 #[test]
 fn version_1_lidar_opens_and_equals_todays_encoding_but_for_the_index() {
-    let old = Repository::open(&fixture("lidar1m_eps1.cbdam")).unwrap();
+    let old = Repository::open(&fixture(1, "lidar1m_eps1.cbdam")).unwrap();
     assert_eq!(old.head().format_version(), 1);
-    assert_eq!(FORMAT_VERSION, 2);
+    assert_eq!(FORMAT_VERSION, 3);
     old.check_all().unwrap();
 
     let dem = read_dem(
@@ -52,7 +57,7 @@ fn version_1_lidar_opens_and_equals_todays_encoding_but_for_the_index() {
     let new =
         Repository::from_bytes(serialize(&enc, &plan, dem.georef.as_ref(), dem.nodata).unwrap())
             .unwrap();
-    assert_eq!(new.head().format_version(), 2);
+    assert_eq!(new.head().format_version(), FORMAT_VERSION);
     new.check_all().unwrap();
     for s in [Section::Roots, Section::Checksums, Section::Records] {
         assert_eq!(old.section_len(s), new.section_len(s), "{s:?}");
@@ -62,10 +67,7 @@ fn version_1_lidar_opens_and_equals_todays_encoding_but_for_the_index() {
         old.section_len(Section::Index),
         new.section_len(Section::Index),
     );
-    assert!(
-        v2 * 2 < v1,
-        "index: {v2} bytes in version 2, {v1} in version 1"
-    );
+    assert!(v2 * 2 < v1, "index: {v2} bytes today, {v1} in version 1");
     for (a, b) in old.entries().iter().zip(new.entries()) {
         assert_eq!(
             (a.id, a.offset, a.length, a.object_error),
@@ -75,11 +77,42 @@ fn version_1_lidar_opens_and_equals_todays_encoding_but_for_the_index() {
     }
 }
 
+/// Version 2 differs from today's files only in the header: the same sections byte for byte,
+/// and a header of under half the size.
 #[test]
-fn version_1_nodata_and_colour_repositories_open_and_decode() {
-    for name in ["holes_n9.cbdam", "colour33_n9.cbdam"] {
-        let old = Repository::open(&fixture(name)).unwrap();
-        assert_eq!(old.head().format_version(), 1, "{name}");
+fn version_2_files_hold_todays_sections_under_a_longer_header() {
+    for name in ["lidar1m_eps1.cbdam", "holes_n9.cbdam", "colour33_n9.cbdam"] {
+        let old = Repository::open(&fixture(2, name)).unwrap();
+        assert_eq!(old.head().format_version(), 2, "{name}");
+        assert_eq!(old.head().header_len(), 256, "{name}");
+        old.check_all().unwrap();
+        let enc = old.to_encoded().unwrap();
+        let bytes = serialize(&enc, old.plan(), old.georef(), old.nodata()).unwrap();
+        let new = Repository::from_bytes(bytes).unwrap();
+        assert_eq!(new.head().format_version(), 3);
+        let h = new.head().header_len();
+        assert!(h < 128, "{name}: {h}-byte header");
+        let old_bytes = std::fs::read(fixture(2, name)).unwrap();
+        assert_eq!(new.as_bytes()[h..], old_bytes[256..], "{name}");
+        assert_eq!(new.to_encoded().unwrap(), enc, "{name}");
+        assert_eq!(
+            (new.params(), new.plan(), new.georef(), new.nodata()),
+            (old.params(), old.plan(), old.georef(), old.nodata()),
+            "{name}"
+        );
+        assert_eq!(new.leaf_error(), old.leaf_error(), "{name}");
+        assert_eq!(new.entries(), old.entries(), "{name}");
+    }
+}
+
+#[test]
+fn older_nodata_and_colour_repositories_open_and_decode() {
+    for (version, name) in [1, 2]
+        .into_iter()
+        .flat_map(|v| ["holes_n9.cbdam", "colour33_n9.cbdam"].map(|n| (v, n)))
+    {
+        let old = Repository::open(&fixture(version, name)).unwrap();
+        assert_eq!(old.head().format_version(), version, "{name}");
         old.check_all().unwrap();
         let enc = old.to_encoded().unwrap();
         match enc.params.kind {
@@ -93,13 +126,13 @@ fn version_1_nodata_and_colour_repositories_open_and_decode() {
                 assert_eq!(rgb.len(), 33 * 33, "{name}");
             }
         }
-        // Rewritten as version 2: the same records, and it opens again.
+        // Rewritten today: the same records, and it opens again.
         let again = Repository::from_bytes(
             serialize(&enc, old.plan(), old.georef(), old.nodata()).unwrap(),
         )
         .unwrap();
         again.check_all().unwrap();
-        assert_eq!(again.head().format_version(), 2);
+        assert_eq!(again.head().format_version(), FORMAT_VERSION);
         assert_eq!(again.root_bytes(), old.root_bytes());
         for (i, e) in old.entries().iter().enumerate() {
             assert_eq!(

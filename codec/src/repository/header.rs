@@ -1,0 +1,675 @@
+//! The repository header, in its two layouts: the fixed 256 bytes of versions 1 and 2, and the
+//! compact variable-length header of version 3 (`docs/FORMAT.md`, "Header").
+//!
+//! Both layouts carry the same fields ([`HeaderFields`]); [`super::container`] builds them when
+//! writing and validates their meaning when reading, whatever the layout. This module only turns
+//! fields into bytes and back, checking what the bytes themselves can get wrong: magic, length,
+//! checksum, reserved bytes, numbers that do not fit.
+//!
+//! Why version 3: the fixed header was 256 bytes, 35 of them reserved zeros and 96 a section
+//! table whose offsets the file layout already implies. On smooth terrain at loose tolerances a
+//! whole repository is a few hundred bytes (lidar1m_mn at 5 m: 611), so the header was the
+//! largest thing in it. Version 3 writes integers as LEB128 varints and floats as varints of
+//! their byte-reversed bits, which makes the short mantissas of typical values (1.0, 0.5, whole
+//! coordinates) short; section offsets are implied (sections follow the header without gaps).
+
+use crate::CodecError;
+
+/// The first eight bytes of every repository. The CR LF pair catches text-mode transfers that
+/// rewrite line endings; the NUL stops it being mistaken for text.
+pub const MAGIC: [u8; 8] = *b"CBDAM\0\r\n";
+/// The longest header of any version, bytes: reading this many (or the whole file, if shorter)
+/// from the start of a file is always enough to find the header's end.
+pub const MAX_HEADER_LEN: usize = 256;
+/// The header of versions 1 and 2: always exactly this long.
+const FIXED_HEADER_LEN: usize = 256;
+/// Magic, version and header length: the same eight + four bytes in every version.
+const PREFIX_LEN: usize = 12;
+
+/// Byte offset of the section table in a fixed header.
+const SECTIONS_AT: usize = 128;
+/// Bytes per section-table entry: offset u64, length u64, CRC-32 u32, reserved u32.
+const SECTION_ENTRY: usize = 24;
+/// Byte offset of the record count in a fixed header.
+const RECORD_COUNT_AT: usize = SECTIONS_AT + 4 * SECTION_ENTRY;
+/// Byte offset of the input's nodata value (f64, NaN for none) in a fixed header.
+const NODATA_AT: usize = RECORD_COUNT_AT + 8;
+/// Byte offset of the header CRC in a fixed header.
+const FIXED_CRC_AT: usize = FIXED_HEADER_LEN - 4;
+
+/// One section's place and checksum.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub(crate) struct SectionEntry {
+    pub offset: u64,
+    pub length: u64,
+    pub crc: u32,
+}
+
+/// Every header field, as stored (validated for meaning by the container).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct HeaderFields {
+    pub version: u16,
+    /// Length of the header, bytes: 256 in versions 1 and 2.
+    pub header_len: usize,
+    pub flags: u32,
+    pub n: u32,
+    pub level_pairs: u8,
+    pub alpha: u8,
+    pub coder: u8,
+    pub lattice: u8,
+    pub geo_flags: u8,
+    pub nodata_policy: u8,
+    pub vertical_unit: u8,
+    pub roots_x: u32,
+    pub roots_y: u32,
+    pub data_width: u32,
+    pub data_height: u32,
+    pub quantizer_k: u32,
+    /// The root quantizer's `k` where the layout stores it (versions 1 and 2, which require it
+    /// to be `⌊k / 2⌋`); version 3 derives it and stores nothing.
+    pub root_k: Option<u32>,
+    pub leaf_error: u32,
+    pub epsg: u32,
+    pub unit: f64,
+    pub offset: f64,
+    pub epsilon: f64,
+    pub representation_error: f64,
+    /// Origin x, origin y, pixel size x, pixel size y (zeros without georeferencing).
+    pub geo: [f64; 4],
+    /// The input's nodata value, NaN for none.
+    pub nodata: f64,
+    /// Roots, index, checksums, records.
+    pub sections: [SectionEntry; 4],
+    pub record_count: u64,
+    /// The CRC-32 stored at the header's end.
+    pub crc: u32,
+}
+
+fn crc32(bytes: &[u8]) -> u32 {
+    crc32fast::hash(bytes)
+}
+
+fn u16_at(b: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([b[at], b[at + 1]])
+}
+fn u32_at(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
+}
+fn u64_at(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+fn f64_at(b: &[u8], at: usize) -> f64 {
+    f64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+
+/// Checks the magic and reads the version and the header length from a file's first bytes.
+pub(crate) fn read_prefix(b: &[u8]) -> Result<(u16, usize), CodecError> {
+    if b.len() < MAGIC.len() {
+        return Err(CodecError::truncated(format!(
+            "file is {} bytes, too short for the repository magic",
+            b.len()
+        )));
+    }
+    if b[..8] != MAGIC {
+        return Err(CodecError::corrupt(
+            "not a C-BDAM repository (bad magic bytes)",
+        ));
+    }
+    if b.len() < PREFIX_LEN {
+        return Err(CodecError::truncated("file ends inside the header"));
+    }
+    Ok((u16_at(b, 8), usize::from(u16_at(b, 10))))
+}
+
+/// Reads the header at the start of `b` (at least the whole header), checking its length, CRC
+/// and reserved bytes. `version` must be one this code reads (1 … 3).
+pub(crate) fn read_header(b: &[u8]) -> Result<HeaderFields, CodecError> {
+    let (version, header_len) = read_prefix(b)?;
+    let expected = match version {
+        1 | 2 => Some(FIXED_HEADER_LEN),
+        _ => None,
+    };
+    if let Some(len) = expected
+        && header_len != len
+    {
+        return Err(CodecError::corrupt(format!(
+            "header length {header_len}, version {version} headers are {len} bytes"
+        )));
+    }
+    if !(PREFIX_LEN + 4..=MAX_HEADER_LEN).contains(&header_len) {
+        return Err(CodecError::corrupt(format!(
+            "header length {header_len} is outside {} … {MAX_HEADER_LEN}",
+            PREFIX_LEN + 4
+        )));
+    }
+    if b.len() < header_len {
+        return Err(CodecError::truncated(format!(
+            "file is {} bytes, shorter than its {header_len}-byte header",
+            b.len()
+        )));
+    }
+    let crc = u32_at(b, header_len - 4);
+    if crc32(&b[..header_len - 4]) != crc {
+        return Err(CodecError::corrupt("header checksum mismatch"));
+    }
+    // The CRC matched, so what follows are fields some writer meant; the container still
+    // validates each, since a buggy or hostile writer can compute a CRC too.
+    if expected.is_some() {
+        read_fixed(b, version, crc)
+    } else {
+        read_compact(&b[..header_len], version, crc)
+    }
+}
+
+fn read_fixed(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecError> {
+    if b[121..SECTIONS_AT].iter().any(|&x| x != 0)
+        || b[NODATA_AT + 8..FIXED_CRC_AT].iter().any(|&x| x != 0)
+    {
+        return Err(CodecError::corrupt("reserved header bytes are not zero"));
+    }
+    let mut sections = [SectionEntry::default(); 4];
+    for (i, s) in sections.iter_mut().enumerate() {
+        let at = SECTIONS_AT + i * SECTION_ENTRY;
+        if u32_at(b, at + 20) != 0 {
+            return Err(CodecError::corrupt(format!(
+                "reserved bytes of section entry {i} are not zero"
+            )));
+        }
+        *s = SectionEntry {
+            offset: u64_at(b, at),
+            length: u64_at(b, at + 8),
+            crc: u32_at(b, at + 16),
+        };
+    }
+    Ok(HeaderFields {
+        version,
+        header_len: FIXED_HEADER_LEN,
+        flags: u32_at(b, 12),
+        n: u32::from(u16_at(b, 16)),
+        level_pairs: b[18],
+        alpha: b[19],
+        coder: b[20],
+        lattice: b[21],
+        geo_flags: b[22],
+        nodata_policy: b[23],
+        vertical_unit: b[120],
+        roots_x: u32_at(b, 24),
+        roots_y: u32_at(b, 28),
+        data_width: u32_at(b, 32),
+        data_height: u32_at(b, 36),
+        quantizer_k: u32_at(b, 40),
+        root_k: Some(u32_at(b, 44)),
+        leaf_error: u32_at(b, 48),
+        epsg: u32_at(b, 52),
+        unit: f64_at(b, 56),
+        offset: f64_at(b, 64),
+        epsilon: f64_at(b, 72),
+        representation_error: f64_at(b, 80),
+        geo: [f64_at(b, 88), f64_at(b, 96), f64_at(b, 104), f64_at(b, 112)],
+        nodata: f64_at(b, NODATA_AT),
+        sections,
+        record_count: u64_at(b, RECORD_COUNT_AT),
+        crc,
+    })
+}
+
+/// A cursor over a compact header's field bytes (between the prefix and the CRC).
+struct Fields<'a> {
+    b: &'a [u8],
+    pos: usize,
+}
+
+impl Fields<'_> {
+    fn byte(&mut self) -> Result<u8, CodecError> {
+        let v = *self
+            .b
+            .get(self.pos)
+            .ok_or_else(|| CodecError::corrupt("header fields end early"))?;
+        self.pos += 1;
+        Ok(v)
+    }
+
+    /// A canonical LEB128 varint: no value has two spellings, so a file has one header.
+    fn varint(&mut self) -> Result<u64, CodecError> {
+        let mut v = 0u64;
+        for shift in (0..64).step_by(7) {
+            let b = self.byte()?;
+            if shift == 63 && b > 1 {
+                break;
+            }
+            v |= u64::from(b & 0x7f) << shift;
+            if b & 0x80 == 0 {
+                if b == 0 && shift > 0 {
+                    return Err(CodecError::corrupt("header number has a redundant byte"));
+                }
+                return Ok(v);
+            }
+        }
+        Err(CodecError::corrupt("header number longer than 64 bits"))
+    }
+
+    fn u32(&mut self, what: &str) -> Result<u32, CodecError> {
+        let v = self.varint()?;
+        u32::try_from(v).map_err(|_| CodecError::corrupt(format!("header {what} {v} too large")))
+    }
+
+    fn f64(&mut self) -> Result<f64, CodecError> {
+        Ok(f64::from_bits(self.varint()?.swap_bytes()))
+    }
+
+    fn u32_le(&mut self) -> Result<u32, CodecError> {
+        let mut v = [0u8; 4];
+        for x in &mut v {
+            *x = self.byte()?;
+        }
+        Ok(u32::from_le_bytes(v))
+    }
+}
+
+fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecError> {
+    let mut f = Fields {
+        b: &b[PREFIX_LEN..b.len() - 4],
+        pos: 0,
+    };
+    let flags = f.u32("flags")?;
+    let n = f.u32("diamond size")?;
+    let mut small = [0u8; 7];
+    for s in &mut small {
+        *s = f.byte()?;
+    }
+    let [
+        level_pairs,
+        alpha,
+        coder,
+        lattice,
+        geo_flags,
+        nodata_policy,
+        vertical_unit,
+    ] = small;
+    let roots_x = f.u32("root count")?;
+    let roots_y = f.u32("root count")?;
+    let data_width = f.u32("data width")?;
+    let data_height = f.u32("data height")?;
+    let quantizer_k = f.u32("quantizer")?;
+    let leaf_error = f.u32("leaf error")?;
+    let unit = f.f64()?;
+    let offset = f.f64()?;
+    let epsilon = f.f64()?;
+    let representation_error = f.f64()?;
+    // Georeferencing is written only when present; its absence reads as the zeros the fixed
+    // layout stores, so the container checks both layouts the same way.
+    let (epsg, geo) = if geo_flags & 1 == 1 {
+        let epsg = f.u32("EPSG code")?;
+        (epsg, [f.f64()?, f.f64()?, f.f64()?, f.f64()?])
+    } else {
+        (0, [0.0; 4])
+    };
+    let nodata = f.f64()?;
+    let record_count = f.varint()?;
+    let mut sections = [SectionEntry::default(); 4];
+    let mut at = b.len() as u64;
+    for s in &mut sections {
+        let length = f.varint()?;
+        *s = SectionEntry {
+            offset: at,
+            length,
+            crc: 0,
+        };
+        at = at
+            .checked_add(length)
+            .ok_or_else(|| CodecError::corrupt("section lengths overflow"))?;
+    }
+    for s in &mut sections {
+        s.crc = f.u32_le()?;
+    }
+    if f.pos != f.b.len() {
+        return Err(CodecError::corrupt(format!(
+            "{} unexpected bytes at the end of the header fields",
+            f.b.len() - f.pos
+        )));
+    }
+    Ok(HeaderFields {
+        version,
+        header_len: b.len(),
+        flags,
+        n,
+        level_pairs,
+        alpha,
+        coder,
+        lattice,
+        geo_flags,
+        nodata_policy,
+        vertical_unit,
+        roots_x,
+        roots_y,
+        data_width,
+        data_height,
+        quantizer_k,
+        root_k: None,
+        leaf_error,
+        epsg,
+        unit,
+        offset,
+        epsilon,
+        representation_error,
+        geo,
+        nodata,
+        sections,
+        record_count,
+        crc,
+    })
+}
+
+/// Writes `h` as a compact (version 3) header. `h.version`, `h.header_len`, `h.crc`,
+/// `h.root_k` and the section offsets are ignored: the bytes determine them. Georeferencing
+/// fields are written only with `geo_flags` bit 0.
+pub(crate) fn write_compact(h: &HeaderFields, version: u16) -> Result<Vec<u8>, CodecError> {
+    let mut out = Vec::with_capacity(MAX_HEADER_LEN);
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&version.to_le_bytes());
+    out.extend_from_slice(&[0, 0]); // header length, filled in below
+    let varint = |out: &mut Vec<u8>, v: u64| super::index::put_varint(out, v);
+    let float = |out: &mut Vec<u8>, v: f64| super::index::put_varint(out, v.to_bits().swap_bytes());
+    varint(&mut out, u64::from(h.flags));
+    varint(&mut out, u64::from(h.n));
+    out.extend_from_slice(&[
+        h.level_pairs,
+        h.alpha,
+        h.coder,
+        h.lattice,
+        h.geo_flags,
+        h.nodata_policy,
+        h.vertical_unit,
+    ]);
+    for v in [
+        h.roots_x,
+        h.roots_y,
+        h.data_width,
+        h.data_height,
+        h.quantizer_k,
+        h.leaf_error,
+    ] {
+        varint(&mut out, u64::from(v));
+    }
+    for v in [h.unit, h.offset, h.epsilon, h.representation_error] {
+        float(&mut out, v);
+    }
+    if h.geo_flags & 1 == 1 {
+        varint(&mut out, u64::from(h.epsg));
+        for v in h.geo {
+            float(&mut out, v);
+        }
+    }
+    float(&mut out, h.nodata);
+    varint(&mut out, h.record_count);
+    for s in &h.sections {
+        varint(&mut out, s.length);
+    }
+    for s in &h.sections {
+        out.extend_from_slice(&s.crc.to_le_bytes());
+    }
+    let len = out.len() + 4;
+    if len > MAX_HEADER_LEN {
+        return Err(CodecError::limit(format!(
+            "header of {len} bytes is over {MAX_HEADER_LEN}"
+        )));
+    }
+    out[10..12].copy_from_slice(&(len as u16).to_le_bytes());
+    let crc = crc32(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    Ok(out)
+}
+
+/// Where a header keeps its checksums, for [`reseal_header`].
+struct ChecksumPlaces {
+    /// The section ranges the header states (`None` where one leaves the bytes).
+    ranges: [Option<std::ops::Range<usize>>; 4],
+    /// Offsets of the sections' CRCs.
+    crc_at: [usize; 4],
+    /// Offset of the header's own CRC.
+    header_crc_at: usize,
+}
+
+fn checksum_places(b: &[u8]) -> Option<ChecksumPlaces> {
+    let (version, hl) = read_prefix(b).ok()?;
+    if !(PREFIX_LEN + 4..=MAX_HEADER_LEN).contains(&hl) || b.len() < hl {
+        return None;
+    }
+    let (sections, crc_at) = match version {
+        1 | 2 if hl == FIXED_HEADER_LEN => {
+            let f = read_fixed(b, version, 0).ok()?;
+            (
+                f.sections,
+                [0, 1, 2, 3].map(|i| SECTIONS_AT + i * SECTION_ENTRY + 16),
+            )
+        }
+        3.. => {
+            let f = read_compact(&b[..hl], version, 0).ok()?;
+            (f.sections, [0, 1, 2, 3].map(|i| hl - 4 - 16 + 4 * i))
+        }
+        _ => return None,
+    };
+    let ranges = sections.map(|s| {
+        let end = s.offset.checked_add(s.length)?;
+        (end <= b.len() as u64).then_some(s.offset as usize..end as usize)
+    });
+    Some(ChecksumPlaces {
+        ranges,
+        crc_at,
+        header_crc_at: hl - 4,
+    })
+}
+
+/// Recomputes the section CRCs and then the header CRC of a repository-shaped `b`, whatever its
+/// fields say, where the header's structure can be read; returns the checksum table's range.
+pub(crate) fn reseal_header(b: &mut [u8]) -> Option<std::ops::Range<usize>> {
+    let ChecksumPlaces {
+        ranges,
+        crc_at,
+        header_crc_at,
+    } = checksum_places(b)?;
+    for (r, at) in ranges.iter().zip(crc_at) {
+        if let Some(r) = r {
+            let crc = crc32(&b[r.clone()]);
+            b[at..at + 4].copy_from_slice(&crc.to_le_bytes());
+        }
+    }
+    let crc = crc32(&b[..header_crc_at]);
+    b[header_crc_at..header_crc_at + 4].copy_from_slice(&crc.to_le_bytes());
+    ranges[2].clone()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(geo: bool) -> HeaderFields {
+        HeaderFields {
+            version: 3,
+            header_len: 0,
+            flags: 1,
+            n: 65,
+            level_pairs: 3,
+            alpha: 0,
+            coder: 1,
+            lattice: 1,
+            geo_flags: if geo { 3 } else { 0 },
+            nodata_policy: 0,
+            vertical_unit: 0,
+            roots_x: 1,
+            roots_y: 2,
+            data_width: 400,
+            data_height: 333,
+            quantizer_k: 100,
+            root_k: None,
+            leaf_error: 57,
+            epsg: if geo { 26915 } else { 0 },
+            unit: 0.01,
+            offset: -431.5,
+            epsilon: 1.0,
+            representation_error: 0.0,
+            geo: if geo {
+                [512_345.0, 4_900_000.5, 1.0, 1.0]
+            } else {
+                [0.0; 4]
+            },
+            nodata: f64::NAN,
+            sections: [
+                SectionEntry {
+                    offset: 0,
+                    length: 453,
+                    crc: 0xDEAD_BEEF,
+                },
+                SectionEntry {
+                    offset: 0,
+                    length: 81,
+                    crc: 1,
+                },
+                SectionEntry {
+                    offset: 0,
+                    length: 8,
+                    crc: 0,
+                },
+                SectionEntry {
+                    offset: 0,
+                    length: 7,
+                    crc: u32::MAX,
+                },
+            ],
+            record_count: 69,
+            crc: 0,
+        }
+    }
+
+    /// Everything the bytes carry, floats by their bits (NaN payloads and −0 included).
+    fn key(h: &HeaderFields) -> String {
+        let floats: Vec<u64> = [
+            h.unit,
+            h.offset,
+            h.epsilon,
+            h.representation_error,
+            h.nodata,
+        ]
+        .into_iter()
+        .chain(h.geo)
+        .map(f64::to_bits)
+        .collect();
+        let lengths: Vec<(u64, u32)> = h.sections.iter().map(|s| (s.length, s.crc)).collect();
+        format!(
+            "{:?}",
+            (
+                (h.flags, h.n, h.level_pairs, h.alpha, h.coder, h.lattice),
+                (h.geo_flags, h.nodata_policy, h.vertical_unit),
+                (h.roots_x, h.roots_y, h.data_width, h.data_height),
+                (h.quantizer_k, h.leaf_error, h.epsg, h.record_count),
+                floats,
+                lengths
+            )
+        )
+    }
+
+    #[test]
+    fn compact_headers_round_trip_and_imply_the_section_offsets() {
+        for geo in [false, true] {
+            let h = sample(geo);
+            let b = write_compact(&h, 3).unwrap();
+            let r = read_header(&b).unwrap();
+            assert_eq!(key(&r), key(&h));
+            assert_eq!(r.header_len, b.len());
+            assert_eq!(r.root_k, None);
+            // Sections follow the header without gaps.
+            assert_eq!(r.sections[0].offset, b.len() as u64);
+            assert_eq!(r.sections[1].offset, b.len() as u64 + 453);
+            assert_eq!(r.sections[3].offset, b.len() as u64 + 453 + 81 + 8);
+            // The point of version 3: well under the fixed layout's 256 bytes.
+            assert!(b.len() < if geo { 110 } else { 80 }, "{} bytes", b.len());
+        }
+    }
+
+    #[test]
+    fn extreme_fields_round_trip_within_the_maximum_length() {
+        let mut h = sample(true);
+        (h.flags, h.n, h.roots_x, h.roots_y) = (u32::MAX, u32::MAX, u32::MAX, u32::MAX);
+        (h.data_width, h.data_height, h.quantizer_k) = (u32::MAX, u32::MAX, u32::MAX);
+        (h.leaf_error, h.epsg, h.record_count) = (u32::MAX, u32::MAX, u64::MAX);
+        (h.level_pairs, h.alpha, h.coder, h.lattice) = (255, 255, 255, 255);
+        (h.nodata_policy, h.vertical_unit, h.geo_flags) = (255, 255, 255);
+        h.unit = f64::from_bits(u64::MAX);
+        h.offset = -0.0;
+        h.epsilon = f64::MIN_POSITIVE / 3.0;
+        h.representation_error = f64::INFINITY;
+        h.geo = [f64::MAX, f64::MIN, f64::NEG_INFINITY, f64::from_bits(1)];
+        h.nodata = f64::from_bits(0x7FF8_0000_0000_0001);
+        for s in &mut h.sections {
+            s.length = u64::MAX / 8;
+        }
+        let b = write_compact(&h, 3).unwrap();
+        assert!(b.len() <= MAX_HEADER_LEN);
+        assert_eq!(key(&read_header(&b).unwrap()), key(&h));
+        // Lengths that add up past u64 are refused, not wrapped.
+        h.sections[3].length = u64::MAX;
+        let b = write_compact(&h, 3).unwrap();
+        assert!(read_header(&b).is_err());
+    }
+
+    #[test]
+    fn every_truncation_and_bit_flip_of_a_compact_header_is_an_error() {
+        let b = write_compact(&sample(true), 3).unwrap();
+        for cut in 0..b.len() {
+            assert!(read_header(&b[..cut]).is_err(), "cut at {cut}");
+        }
+        for bit in 0..b.len() * 8 {
+            let mut f = b.clone();
+            f[bit / 8] ^= 1 << (bit % 8);
+            assert!(read_header(&f).is_err(), "bit {bit}");
+        }
+    }
+
+    /// Fields re-checksummed by a hostile writer: a redundant varint byte, a field running past
+    /// the CRC, an extra byte before it, a length outside the bounds.
+    #[test]
+    fn malformed_fields_with_valid_checksums_are_errors() {
+        let good = write_compact(&sample(false), 3).unwrap();
+        let reseal = |mut f: Vec<u8>| {
+            let len = f.len() + 4;
+            f[10..12].copy_from_slice(&(len as u16).to_le_bytes());
+            let crc = crc32(&f);
+            f.extend_from_slice(&crc.to_le_bytes());
+            f
+        };
+        let body = &good[..good.len() - 4];
+        // flags = 1 written as the two bytes 0x81 0x00.
+        assert_eq!(body[12], 1);
+        let mut f = body[..12].to_vec();
+        f.extend_from_slice(&[0x81, 0x00]);
+        f.extend_from_slice(&body[13..]);
+        let e = read_header(&reseal(f)).unwrap_err();
+        assert!(e.to_string().contains("redundant"), "{e}");
+        // One byte too many, one too few.
+        let mut f = body.to_vec();
+        f.push(0);
+        assert!(
+            read_header(&reseal(f))
+                .unwrap_err()
+                .to_string()
+                .contains("unexpected")
+        );
+        let f = body[..body.len() - 1].to_vec();
+        assert!(
+            read_header(&reseal(f))
+                .unwrap_err()
+                .to_string()
+                .contains("end early")
+        );
+        // A stated length past 256, or too short for a CRC.
+        for len in [MAX_HEADER_LEN + 1, 3] {
+            let mut f = good.clone();
+            f[10..12].copy_from_slice(&(len as u16).to_le_bytes());
+            assert!(read_header(&f).is_err(), "length {len}");
+        }
+        // Not the magic.
+        let mut f = good.clone();
+        f[0] ^= 1;
+        assert!(read_header(&f).unwrap_err().to_string().contains("magic"));
+    }
+}
