@@ -16,6 +16,7 @@ use cbdam_codec::repository::write_repository;
 use crate::BenchBuildArgs;
 use crate::build::{
     InputSpec, default_memory_limit, encode_prepared, parse_size, prepare, storage_for,
+    with_coarser_roots_if_smaller,
 };
 
 /// Resets the resident high-water mark (Linux ≥ 4.0); false where that is not possible.
@@ -90,6 +91,8 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
             })?;
             let storage = storage_for(&input.grid, &opts, limit)?;
             let enc = encode_prepared(&input, None, &opts, &storage, args.threads, &|_, _| {})?;
+            // What `cbdam build` does by default (`--extra-levels auto`), timed with the rest.
+            let (enc, _) = with_coarser_roots_if_smaller(&input, enc, &opts, limit, args.threads)?;
             write_repository(&out, &enc, &input.plan, input.georef.as_ref(), input.nodata)?;
             times.push(t.elapsed());
             let samples = input.grid.width * input.grid.height;

@@ -113,6 +113,7 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
         output: output.clone(),
         max_error: 1.0,
         diamond_size: 65,
+        extra_levels: crate::build::ExtraLevels::Auto,
         threads: None,
         coder: CoderArg::Adaptive,
         alpha: AlphaArg::One,

@@ -543,6 +543,12 @@ pub struct BuildArgs {
     /// Diamond grid side N (2^k + 1).
     #[arg(long, default_value_t = 65)]
     diamond_size: usize,
+    /// Level pairs above the smallest hierarchy that covers the data: each makes the roots 4×
+    /// sparser and codes the terrain between them as residuals instead. `auto` tries one more
+    /// where the root field is most of the repository (small or smooth inputs at loose
+    /// tolerances) and keeps the smaller file.
+    #[arg(long, default_value = "auto", value_parser = build::parse_extra_levels)]
+    extra_levels: build::ExtraLevels,
     /// Worker threads for encoding (default: all cores).
     #[arg(long)]
     threads: Option<usize>,

@@ -1185,3 +1185,72 @@ fn bench_report_quick() {
         serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(json["cbdam"].as_array().unwrap().len(), 16);
 }
+
+/// `--extra-levels auto` (the default) keeps one more level pair only where that gives the
+/// smaller file: on the smooth lidar tile at 5 m, where the root field is most of the file, it
+/// does; at 1 m, where the extra coarse records cost more than the roots save, it does not.
+/// Either way the result is exactly one of the two fixed builds and verifies within ε.
+#[test]
+fn auto_extra_levels_keep_the_smaller_repository() {
+    let dir = tempfile::tempdir().unwrap();
+    let lidar = data("lidar1m_mn.tif");
+    for (eps, coarser) in [("5", true), ("1", false)] {
+        let build = |extra: &str| {
+            let out = dir.path().join(format!("{eps}_{extra}.cbdam"));
+            let o = cbdam(&[
+                "build",
+                &lidar,
+                "-o",
+                &s(&out),
+                "--max-error",
+                eps,
+                "--quiet",
+                "--extra-levels",
+                extra,
+            ]);
+            assert!(o.status.success(), "{}", stderr(&o));
+            std::fs::read(&out).unwrap()
+        };
+        let (auto, zero, one) = (build("auto"), build("0"), build("1"));
+        assert_eq!(
+            coarser,
+            one.len() < zero.len(),
+            "ε {eps}: {} vs {}",
+            one.len(),
+            zero.len()
+        );
+        assert_eq!(auto, if coarser { one } else { zero }, "ε {eps}");
+        let k = |b: &[u8]| {
+            Repository::from_bytes(b.to_vec())
+                .unwrap()
+                .params()
+                .layout
+                .k()
+        };
+        assert_eq!(k(&auto), k(&build("0")) + u32::from(coarser), "ε {eps}");
+        let o = cbdam(&[
+            "verify",
+            &s(&dir.path().join(format!("{eps}_auto.cbdam"))),
+            "--against",
+            &lidar,
+        ]);
+        assert!(o.status.success(), "ε {eps}: {}", stderr(&o));
+    }
+    let o = cbdam(&[
+        "build",
+        &lidar,
+        "-o",
+        &s(&dir.path().join("x.cbdam")),
+        "--max-error",
+        "1",
+        "--extra-levels",
+        "lots",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("neither `auto` nor a number"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.path().join("x.cbdam").exists());
+}
