@@ -218,16 +218,16 @@ pub enum ExtraLevels {
     Fixed(u32),
 }
 
-/// Parses `--extra-levels`: `auto` or a number of level pairs (at most 8: each doubles the
-/// domain's side).
+/// Parses `--extra-levels`: `auto` or a number of level pairs, at most 2: each quadruples the
+/// domain's area, and with it the encoder's reconstruction field (4 bytes a lattice point).
 pub fn parse_extra_levels(text: &str) -> Result<ExtraLevels, String> {
     if text.eq_ignore_ascii_case("auto") {
         return Ok(ExtraLevels::Auto);
     }
     match text.parse::<u32>() {
-        Ok(n) if n <= 8 => Ok(ExtraLevels::Fixed(n)),
+        Ok(n) if n <= 2 => Ok(ExtraLevels::Fixed(n)),
         _ => Err(format!(
-            "{text:?} is neither `auto` nor a number of level pairs from 0 to 8"
+            "{text:?} is neither `auto` nor a number of level pairs from 0 to 2"
         )),
     }
 }
@@ -388,6 +388,12 @@ pub fn run(args: &BuildArgs) -> Result<()> {
             }
             if enc_opts.alpha != Alpha::One {
                 bail!("several inputs (variable resolution) need --alpha one");
+            }
+            if enc_opts.extra_level_pairs > 0 {
+                bail!(
+                    "--extra-levels above 0 applies to single-input builds (several inputs keep \
+                     the covering hierarchy)"
+                );
             }
             let (input, res) = prepare_mosaic(
                 paths,

@@ -1,11 +1,13 @@
-//! The single-file repository container (format version 2, reading 1 too; `docs/FORMAT.md`).
+//! The single-file repository container (format version 3, reading 1 and 2 too;
+//! `docs/FORMAT.md`).
 //!
-//! The two versions differ only in how the record index is coded ([`IndexCoding`]): version 2
-//! range-codes it, which on smooth terrain is most of what a file holds besides the header.
+//! Version 1 coded the record index as varints, version 2 range-codes it ([`IndexCoding`]), and
+//! version 3 replaces the fixed 256-byte header with a compact one (`header.rs`); on
+//! smooth terrain the index and the header were most of what a file held.
 //!
-//! Layout: a fixed 256-byte header, then four sections in this order with no gaps — the coded
-//! root field, the record index ([`super::index`]), a table of one CRC-32 per non-empty record in
-//! id order, and the records area (record bytes concatenated in id order, so record offsets are the prefix
+//! Layout: the header, then four sections in this order with no gaps — the coded root field,
+//! the record index ([`super::index`]), a table of one CRC-32 per non-empty record in id order,
+//! and the records area (record bytes concatenated in id order, so record offsets are the prefix
 //! sums of the index's lengths). The file ends exactly where the records area ends.
 //!
 //! Why per-record checksums: the entropy decoders accept most byte strings, so a damaged record
