@@ -1252,5 +1252,30 @@ fn auto_extra_levels_keep_the_smaller_repository() {
         "{}",
         stderr(&o)
     );
+    let x = s(&dir.path().join("x.cbdam"));
+    let o = cbdam(&[
+        "build",
+        &lidar,
+        "-o",
+        &x,
+        "--max-error",
+        "1",
+        "--extra-levels",
+        "3",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = cbdam(&[
+        "build",
+        &lidar,
+        &lidar,
+        "-o",
+        &x,
+        "--max-error",
+        "1",
+        "--extra-levels",
+        "1",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("single-input builds"), "{}", stderr(&o));
     assert!(!dir.path().join("x.cbdam").exists());
 }
