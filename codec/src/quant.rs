@@ -231,6 +231,7 @@ impl QuantPlan {
     ) -> Result<Self, CodecError> {
         let nodata = src.nodata();
         let is_valid = |v: f64| !v.is_nan() && nodata != Some(v);
+        let given = quantum.is_some();
         let (lo, hi, quantum) = scan_source(src, quantum)?;
         let Some(u) = quantum else {
             return Self::new(epsilon, None, lo, hi);
@@ -253,7 +254,32 @@ impl QuantPlan {
             deviation = deviation.max(d);
             Ok(())
         })?;
-        Self::with_representation_error(epsilon, Some(u), deviation, lo, hi)
+        let plan = Self::with_representation_error(epsilon, Some(u), deviation, lo, hi)?;
+        Ok(match given {
+            false => plan.coarser_float_plan(lo, hi).unwrap_or(plan),
+            true => plan,
+        })
+    }
+
+    /// Lattice data stored with a representation error (float32 Terrain-RGB: 0.1 m steps that
+    /// float32 cannot hold exactly) lose that error from the budget, which at a tolerance that
+    /// is a multiple of the quantum costs a whole step of `k`: at ε = 0.1 m on 0.1 m steps the
+    /// lattice plan is lossless (step 0.1 m) where the float plan quantizes with a step of
+    /// 0.195 m. Coarser steps code fewer bits, so where the float plan's step is coarser it is
+    /// the better plan (measured on fuji_terrainrgb.tif: 6.27 instead of 7.26 bits/sample at
+    /// 0.1 m, 3.92 instead of 4.06 at 0.5 m). Only for a detected quantum: one the caller
+    /// gives is kept.
+    fn coarser_float_plan(&self, lo: f64, hi: f64) -> Option<Self> {
+        if !self.lattice || self.representation_error == 0.0 {
+            return None;
+        }
+        let float = Self::new(self.epsilon, None, lo, hi).ok()?;
+        (float.step_metres() > self.step_metres()).then_some(float)
+    }
+
+    /// The residual quantizer's step, metres.
+    fn step_metres(&self) -> f64 {
+        f64::from(self.quantizer.step()) * self.unit
     }
 
     /// [`QuantPlan::for_source`] followed by [`HeightGrid::from_source`], with one pass over the
@@ -265,6 +291,7 @@ impl QuantPlan {
         epsilon: f64,
         quantum: Option<f64>,
     ) -> Result<(Self, HeightGrid), CodecError> {
+        let given = quantum.is_some();
         let (lo, hi, quantum) = scan_source(src, quantum)?;
         let Some(u) = quantum else {
             let plan = Self::new(epsilon, None, lo, hi)?;
@@ -297,10 +324,15 @@ impl QuantPlan {
         })?;
         let plan = Self::with_representation_error(epsilon, Some(u), deviation, lo, hi)?;
         debug_assert!(plan.unit == u && plan.offset == offset && plan.lattice);
-        match first_bad {
-            Some(e) => Err(e),
-            None => Ok((plan, grid)),
+        if let Some(e) = first_bad {
+            return Err(e);
         }
+        // The same choice as `for_source`; the float plan needs its own pass over the samples.
+        if !given && let Some(float) = plan.coarser_float_plan(lo, hi) {
+            let grid = HeightGrid::from_source(src, &float)?;
+            return Ok((float, grid));
+        }
+        Ok((plan, grid))
     }
 
     /// The guaranteed bound, metres: `k·u`, plus `u/2` of pre-quantization for float input or

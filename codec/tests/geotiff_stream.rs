@@ -301,7 +301,13 @@ fn fused_plan_and_quantize_equal_the_separate_passes() {
             let grid = HeightGrid::from_source(&src, &plan).unwrap();
             let (fused_plan, fused_grid) = QuantPlan::quantize_source(&src, eps, quantum).unwrap();
             assert_eq!(plan, fused_plan, "ε {eps}");
-            assert!(plan.lattice && plan.representation_error > 0.0, "{plan:?}");
+            // At 0.3 m the representation error costs the lattice plan a step (0.5 m instead of
+            // 0.7) and the float plan's 0.59 m step is coarser: both paths choose it.
+            if eps == 0.3 {
+                assert!(!plan.lattice, "{plan:?}");
+            } else {
+                assert!(plan.lattice && plan.representation_error > 0.0, "{plan:?}");
+            }
             assert_eq!(grid, fused_grid, "ε {eps}");
         }
         // A quantum the data does not honour fails the same way on both paths.

@@ -194,12 +194,45 @@ mod plan_tests {
                 let whole = QuantPlan::for_dem(&dem, eps, None).unwrap();
                 let streamed = QuantPlan::for_source(&src, eps, None).unwrap();
                 assert_eq!(whole, streamed, "lattice {lattice}, ε {eps}");
-                assert_eq!(whole.lattice, lattice);
+                // At 0.3 m the float32 decimetres' representation error costs the lattice plan a
+                // step (k = 2, step 0.5 m), and the float plan's is coarser (0.59 m).
+                assert_eq!(whole.lattice, lattice && eps != 0.3, "ε {eps}");
                 assert_eq!(
                     HeightGrid::from_dem(&dem, &whole).unwrap(),
                     HeightGrid::from_source(&src, &streamed).unwrap()
                 );
             }
         }
+    }
+
+    /// Float32 decimetres at ε = 0.1 m: the representation error leaves the lattice plan
+    /// lossless (step 0.1 m), the float plan's step is coarser, so the float plan is chosen —
+    /// by both planners, with the same grid — and keeps the bound; a quantum the caller gives
+    /// keeps the lattice.
+    #[test]
+    fn float32_decimetres_at_one_quantum_use_the_coarser_float_plan() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (41, 29);
+        let path = dir.path().join("dm.f32");
+        let values: Vec<f32> = (0..w * h)
+            .map(|k| (((k as f32 * 0.37).sin() * 90.0 + 2400.0) * 10.0).round() / 10.0)
+            .collect();
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        std::fs::write(&path, bytes).unwrap();
+        let src = RawF32Source::open(&path, w, h, None, &Limits::default()).unwrap();
+        let plan = QuantPlan::for_source(&src, 0.1, None).unwrap();
+        assert!(!plan.lattice, "{plan:?}");
+        assert!(
+            f64::from(plan.quantizer.step()) * plan.unit > 0.19,
+            "{plan:?}"
+        );
+        assert!(plan.max_error() <= 0.1);
+        let (q_plan, grid) = QuantPlan::quantize_source(&src, 0.1, None).unwrap();
+        assert_eq!(q_plan, plan);
+        assert_eq!(grid, HeightGrid::from_source(&src, &plan).unwrap());
+        let given = QuantPlan::for_source(&src, 0.1, Some(0.1)).unwrap();
+        assert!(given.lattice && given.quantizer.k() == 0, "{given:?}");
+        let (g_plan, _) = QuantPlan::quantize_source(&src, 0.1, Some(0.1)).unwrap();
+        assert_eq!(g_plan, given);
     }
 }
