@@ -21,7 +21,7 @@ use cbdam_codec::hierarchy::{
 };
 use cbdam_codec::input::{
     Format, GeoRef, GeoTiffSource, Limits, RawF32Source, ReadOptions, SampleSource, detect_format,
-    read_dem,
+    read_dem, with_sidecar_crs,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
@@ -110,7 +110,9 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
     if detect_format(path).ok() == Some(Format::GeoTiff) {
         let src = GeoTiffSource::open(path, spec.nodata, &Limits::default())
             .with_context(|| format!("reading {}", path.display()))?;
-        return streamed(&src, src.georef().cloned());
+        let georef = with_sidecar_crs(src.georef().cloned(), path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        return streamed(&src, georef);
     }
     let opts = ReadOptions {
         nodata: spec.nodata,

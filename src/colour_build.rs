@@ -76,6 +76,7 @@ fn scaled_georef(g: &GeoRef, shift: i32) -> GeoRef {
         pixel_x: px,
         pixel_y: py,
         pixel_is_area: g.pixel_is_area,
+        wkt: g.wkt.clone(),
     }
 }
 
@@ -191,6 +192,7 @@ mod tests {
             pixel_x: 2.0,
             pixel_y: 2.0,
             pixel_is_area: true,
+            wkt: None,
         };
         let s = scaled_georef(&g, 1);
         // Centre of sample (0, 0) stays at (101, 199); pixel halves.

@@ -121,10 +121,26 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         georef,
     };
     match args.format {
-        ExtractFormat::Geotiff => write_atomically(&args.output, |f: &mut File| {
-            write_geotiff(f, &raster, repo.nodata(), args.float64)
-        })
-        .with_context(|| format!("writing {}", args.output.display()))?,
+        ExtractFormat::Geotiff => {
+            write_atomically(&args.output, |f: &mut File| {
+                write_geotiff(f, &raster, repo.nodata(), args.float64)
+            })
+            .with_context(|| format!("writing {}", args.output.display()))?;
+            // GeoKeys hold EPSG codes, not definitions: a CRS known only as WKT goes beside the
+            // file as an ESRI `.prj`, where GIS software looks for it.
+            if let Some(wkt) = raster.georef.as_ref().and_then(|g| g.wkt.as_deref()) {
+                let prj = args.output.with_extension("prj");
+                let written = write_atomically(&prj, |f: &mut File| -> Result<()> {
+                    f.write_all(wkt.as_bytes())?;
+                    f.write_all(b"\n")?;
+                    Ok(())
+                });
+                if let Err(e) = written {
+                    let _ = std::fs::remove_file(&args.output);
+                    return Err(e.context(format!("writing {}", prj.display())));
+                }
+            }
+        }
         ExtractFormat::Raw => {
             write_atomically(&args.output, |f: &mut File| {
                 write_raw(f, &raster, args.float64)
@@ -145,6 +161,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
                     "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
                     "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
                     "pixel_is": if g.pixel_is_area { "area" } else { "point" },
+                    "wkt": g.wkt,
                 })),
             });
             let written = write_atomically(&sidecar, |f: &mut File| -> Result<()> {

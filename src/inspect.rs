@@ -139,6 +139,12 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         ),
         None => println!("georeference    none"),
     }
+    if let Some(wkt) = repo.georef().and_then(|g| g.wkt.as_deref()) {
+        // The definition's name is what a reader recognises; the whole is in --json.
+        let head: String = wkt.chars().take(72).collect();
+        let more = if head.len() < wkt.len() { "…" } else { "" };
+        println!("crs (wkt)       {head}{more} ({} bytes)", wkt.len());
+    }
     println!(
         "nodata          value {}, {} of {samples} samples ({:.2} %) without data{}",
         repo.nodata().map_or("none".to_string(), |v| v.to_string()),

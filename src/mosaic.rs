@@ -373,6 +373,20 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
                 name(geo(0).epsg)
             );
         }
+        // Without an EPSG code the CRS is whatever the `.prj` files define: different texts
+        // may name the same CRS, but the builder cannot tell, so it asks rather than guesses.
+        if geo(k).epsg.is_none()
+            && let (Some(a), Some(b)) = (&geo(k).wkt, &geo(0).wkt)
+            && a != b
+        {
+            bail!(
+                "{} and {} have different CRS definitions (.prj) and no EPSG code: inputs must \
+                 share one coordinate reference system (reproject them, or give them the same \
+                 .prj)",
+                dems[k].0.display(),
+                dems[0].0.display()
+            );
+        }
     }
     // The finest input sets the lattice; ties go to the first listed.
     let fine = (0..dems.len())

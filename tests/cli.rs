@@ -1279,3 +1279,76 @@ fn auto_extra_levels_keep_the_smaller_repository() {
     assert!(stderr(&o).contains("single-input builds"), "{}", stderr(&o));
     assert!(!dir.path().join("x.cbdam").exists());
 }
+
+/// A CRS known only as WKT (an ESRI `.prj` beside an ASCII grid) is kept: `inspect --json`
+/// shows it, `extract` writes it back as a `.prj` beside the GeoTIFF and into the raw sidecar,
+/// and a `.prj` that is not text stops the build with its name, writing nothing.
+#[test]
+fn a_prj_crs_definition_travels_from_input_to_extract() {
+    let dir = tempfile::tempdir().unwrap();
+    let rows: Vec<Vec<f64>> = (0..20)
+        .map(|y| (0..24).map(|x| 100.0 + (x * 3 + y * 2) as f64).collect())
+        .collect();
+    let asc = dir.path().join("lcc.asc");
+    write_asc(&asc, &rows, None);
+    let wkt = r#"PROJCS["Custom_LCC",GEOGCS["GCS_WGS_1984",DATUM["D_WGS_1984",SPHEROID["WGS_1984",6378137.0,298.257223563]],PRIMEM["Greenwich",0.0],UNIT["Degree",0.0174532925199433]],PROJECTION["Lambert_Conformal_Conic"],PARAMETER["Central_Meridian",-96.0],PARAMETER["Standard_Parallel_1",33.0],PARAMETER["Standard_Parallel_2",45.0],PARAMETER["Latitude_Of_Origin",39.0],UNIT["Meter",1.0]]"#;
+    std::fs::write(dir.path().join("lcc.prj"), format!("{wkt}\r\n")).unwrap();
+    let repo = dir.path().join("lcc.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(&asc),
+        "-o",
+        &s(&repo),
+        "--max-error",
+        "1",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = cbdam(&["inspect", &s(&repo), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["georef"]["wkt"], wkt);
+    // The definition is longer than the usual first fetch of a remote reader.
+    assert!(v["sections"]["header"]["length"].as_u64().unwrap() > 256);
+    assert!(
+        stdout(&cbdam(&["inspect", &s(&repo)])).contains("crs (wkt)       PROJCS[\"Custom_LCC\"")
+    );
+    let o = cbdam(&["verify", &s(&repo), "--against", &s(&asc)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+
+    let tif = dir.path().join("out.tif");
+    let o = cbdam(&["extract", &s(&repo), "-o", &s(&tif), "--quiet"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("out.prj")).unwrap(),
+        format!("{wkt}\n")
+    );
+    let raw = dir.path().join("out.f32");
+    let o = cbdam(&[
+        "extract",
+        &s(&repo),
+        "-o",
+        &s(&raw),
+        "--format",
+        "raw",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("out.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["georef"]["wkt"], wkt);
+
+    // Not text: refused, naming the file.
+    let bad = dir.path().join("bad.asc");
+    write_asc(&bad, &rows, None);
+    std::fs::write(dir.path().join("bad.prj"), [0xFFu8, 0xFE, 0x00, 0x50]).unwrap();
+    let out = dir.path().join("bad.cbdam");
+    let o = cbdam(&["build", &s(&bad), "-o", &s(&out), "--max-error", "1"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("bad.prj") && stderr(&o).contains("UTF-8"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
+}

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::repository::{MAX_HEADER_LEN, RepositoryHead, required_head_len};
+use cbdam_codec::repository::{HEADER_FETCH_LEN, RepositoryHead, header_len, required_head_len};
 use tokio::sync::Notify;
 use tokio::task::AbortHandle;
 
@@ -422,15 +422,23 @@ async fn get_range_impl(
 }
 
 async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHead, RemoteError> {
-    // A version-3 header is shorter than MAX_HEADER_LEN, and so can be the whole file: a server
-    // answers a range past the end with what there is.
-    let (header, file_len) = get_range_clipped(client, url, 0..MAX_HEADER_LEN as u64)
+    // A version-3 header is usually shorter than HEADER_FETCH_LEN, and so can be the whole
+    // file: a server answers a range past the end with what there is. A long CRS definition
+    // makes it longer: then a second request fetches the rest.
+    let (mut header, file_len) = get_range_clipped(client, url, 0..HEADER_FETCH_LEN as u64)
         .await
         .map_err(|e| http_error(url, e))?;
     let repo_error = |source| RemoteError::Repository {
         url: url.to_owned(),
         source,
     };
+    let len = header_len(&header).map_err(repo_error)?;
+    if len > header.len() && len as u64 <= file_len {
+        header = get_range(client, url, 0..len as u64)
+            .await
+            .map_err(|e| http_error(url, e))?
+            .0;
+    }
     let head_len = required_head_len(&header).map_err(repo_error)?;
     if head_len > file_len {
         return Err(repo_error(CodecError::truncated(format!(

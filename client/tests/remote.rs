@@ -22,7 +22,7 @@ use cbdam_client::world::World;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
-use cbdam_codec::repository::{MAX_HEADER_LEN, Repository, serialize};
+use cbdam_codec::repository::{HEADER_FETCH_LEN, Repository, serialize};
 use cbdam_server::{AppState, Config};
 use glam::DVec3;
 
@@ -284,7 +284,7 @@ fn static_server(rt: &tokio::runtime::Runtime, bytes: Arc<Vec<u8>>) -> SocketAdd
 /// A format-3 file can be shorter than the client's first fetch (the longest header of any
 /// version): the server answers with the whole file, and the client takes it.
 #[test]
-fn a_repository_shorter_than_the_first_fetch_connects() {
+fn repositories_shorter_than_the_first_fetch_or_with_longer_headers_connect() {
     let (w, h) = (9usize, 9usize);
     let metres: Vec<f64> = (0..w * h).map(|i| 100.0 + (i % 3) as f64).collect();
     let plan = QuantPlan::new(0.5, None, 0.0, 110.0).unwrap();
@@ -294,23 +294,45 @@ fn a_repository_shorter_than_the_first_fetch_connects() {
         ..EncodeOptions::default()
     };
     let enc = encode(&grid, plan.quantizer, &opts).unwrap();
-    let bytes = Arc::new(serialize(&enc, &plan, None, None).unwrap());
-    assert!(bytes.len() < MAX_HEADER_LEN, "{} bytes", bytes.len());
-    let repo = Repository::from_bytes(bytes.to_vec()).unwrap();
+    let short = serialize(&enc, &plan, None, None).unwrap();
+    assert!(short.len() < HEADER_FETCH_LEN, "{} bytes", short.len());
+    // And the other way round: a CRS definition (WKT) makes the header longer than the first
+    // fetch, and the client fetches the rest before it can find the head.
+    let geo = cbdam_codec::input::GeoRef {
+        epsg: None,
+        origin_x: 500_000.0,
+        origin_y: 4_000_000.0,
+        pixel_x: 1.0,
+        pixel_y: 1.0,
+        pixel_is_area: true,
+        wkt: Some(format!(
+            "PROJCS[\"long\",{}]",
+            "PARAMETER[\"p\",1.0],".repeat(60)
+        )),
+    };
+    let long = serialize(&enc, &plan, Some(&geo), None).unwrap();
+    let long_header = Repository::from_bytes(long.clone())
+        .unwrap()
+        .head()
+        .header_len();
+    assert!(long_header > HEADER_FETCH_LEN, "{long_header}-byte header");
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()
         .build()
         .unwrap();
-    let addr = static_server(&rt, bytes.clone());
-    let source = RemoteSource::connect(
-        &format!("http://{addr}/data/t.cbdam"),
-        FetchOptions::default(),
-    )
-    .unwrap();
-    assert_eq!(source.params(), repo.params());
-    assert_eq!(source.entries(), repo.entries());
-    assert_eq!(source.root_bytes(), repo.root_bytes());
+    for bytes in [short, long] {
+        let repo = Repository::from_bytes(bytes.clone()).unwrap();
+        let addr = static_server(&rt, Arc::new(bytes));
+        let source = RemoteSource::connect(
+            &format!("http://{addr}/data/t.cbdam"),
+            FetchOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(source.params(), repo.params());
+        assert_eq!(source.entries(), repo.entries());
+        assert_eq!(source.root_bytes(), repo.root_bytes());
+    }
 }
 
 #[test]

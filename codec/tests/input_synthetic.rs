@@ -991,6 +991,7 @@ fn crop_takes_a_window_and_moves_the_georeferencing() {
             pixel_x: 0.5,
             pixel_y: 0.25,
             pixel_is_area: true,
+            wkt: None,
         }),
     };
     let part = dem.crop(1, 1, 2, 2).unwrap();

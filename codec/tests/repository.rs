@@ -11,7 +11,7 @@ use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::index::{IndexEntry, range_shift_for};
 use cbdam_codec::repository::{
-    FORMAT_VERSION, MAX_HEADER_LEN, Repository, RepositoryHead, Section, required_head_len,
+    FORMAT_VERSION, HEADER_FETCH_LEN, Repository, RepositoryHead, Section, required_head_len,
     reseal_checksums, serialize, write_repository,
 };
 use common::Rng;
@@ -52,6 +52,7 @@ fn georef() -> GeoRef {
         pixel_x: 1.0,
         pixel_y: 1.0,
         pixel_is_area: true,
+        wkt: None,
     }
 }
 
@@ -326,7 +327,7 @@ fn head_from_a_prefix_checks_records_like_the_repository() {
     let bytes = image();
     let repo = load(bytes.clone()).unwrap();
     let hl = header_len(&bytes);
-    let len = required_head_len(&bytes[..MAX_HEADER_LEN.min(bytes.len())]).unwrap() as usize;
+    let len = required_head_len(&bytes[..HEADER_FETCH_LEN.min(bytes.len())]).unwrap() as usize;
     assert_eq!(len, required_head_len(&bytes[..hl]).unwrap() as usize);
     assert!(len < bytes.len());
     let head = RepositoryHead::parse(&bytes[..len], bytes.len() as u64).unwrap();

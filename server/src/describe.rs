@@ -95,6 +95,7 @@ pub fn describe(repo: &Repository) -> Value {
             "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
             "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
             "pixel_is": if g.pixel_is_area { "area" } else { "point" },
+            "wkt": g.wkt,
         })
     });
     // The area the data samples cover, in CRS units: cell edges for pixel-is-area data,

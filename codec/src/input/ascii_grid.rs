@@ -123,6 +123,7 @@ pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
             pixel_x: px,
             pixel_y: py,
             pixel_is_area: false,
+            wkt: None,
         }
     } else {
         GeoRef {
@@ -132,6 +133,7 @@ pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
             pixel_x: px,
             pixel_y: py,
             pixel_is_area: true,
+            wkt: None,
         }
     };
     Ok(Dem {

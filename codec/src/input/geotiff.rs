@@ -402,6 +402,8 @@ pub(super) fn read_georef<R: std::io::Read + std::io::Seek>(
         pixel_x,
         pixel_y,
         pixel_is_area,
+        // GeoKeys name CRSs by code; a `.prj` beside the file is read by `read_dem`.
+        wkt: None,
     }))
 }
 

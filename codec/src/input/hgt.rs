@@ -87,5 +87,6 @@ fn georef_from_name(path: &Path, side: usize) -> Option<GeoRef> {
         pixel_x: pixel,
         pixel_y: pixel,
         pixel_is_area: false,
+        wkt: None,
     })
 }

@@ -87,7 +87,14 @@ pub struct GeoRef {
     /// True when a sample stands for a cell (GeoTIFF `PixelIsArea`), false when it is a point
     /// measurement at the cell centre (`PixelIsPoint`, SRTM `.hgt`).
     pub pixel_is_area: bool,
+    /// The CRS as WKT, when the input came with one (an ESRI `.prj` file beside it) — the
+    /// definition for CRSs without an EPSG code, kept verbatim.
+    pub wkt: Option<String>,
 }
+
+/// Longest CRS definition (WKT) a repository keeps, bytes: it lives in the header, whose length
+/// is a `u16`. Real ones are a few hundred bytes to a few kilobytes.
+pub const MAX_WKT_LEN: usize = 32 * 1024;
 
 /// A digital elevation model as read from a file.
 #[derive(Clone, Debug)]
@@ -265,7 +272,50 @@ pub fn read_dem(path: &Path, opts: &ReadOptions) -> Result<Dem, CodecError> {
     if opts.nodata.is_some() {
         dem.nodata = opts.nodata;
     }
+    dem.georef = with_sidecar_crs(dem.georef, path)?;
     Ok(dem)
+}
+
+/// The CRS definition (WKT) in an ESRI `.prj` file beside `path` — same name, extension `prj`
+/// or `PRJ` —, if there is one. ASCII grids carry their CRS only there; GeoTIFFs whose CRS has
+/// no EPSG code often come with one too.
+///
+/// # Errors
+/// A `.prj` that cannot be read, is not UTF-8, is empty or is longer than [`MAX_WKT_LEN`].
+pub fn sidecar_wkt(path: &Path) -> Result<Option<String>, CodecError> {
+    let Some(prj) = ["prj", "PRJ"]
+        .iter()
+        .map(|e| path.with_extension(e))
+        .find(|p| p.is_file())
+    else {
+        return Ok(None);
+    };
+    let bad = |why: String| CodecError::invalid(format!("CRS file {}: {why}", prj.display()));
+    let len = std::fs::metadata(&prj)?.len();
+    if len > MAX_WKT_LEN as u64 {
+        return Err(bad(format!(
+            "{len} bytes, more than the {MAX_WKT_LEN} a repository keeps"
+        )));
+    }
+    let text =
+        String::from_utf8(std::fs::read(&prj)?).map_err(|_| bad("not UTF-8 text".to_owned()))?;
+    let wkt = text.trim();
+    if wkt.is_empty() {
+        return Err(bad("empty".to_owned()));
+    }
+    Ok(Some(wkt.to_owned()))
+}
+
+/// `georef` with the WKT of a `.prj` beside `path` ([`sidecar_wkt`]) when it has none yet.
+/// Without georeferencing a CRS locates nothing, so it is not read.
+pub fn with_sidecar_crs(georef: Option<GeoRef>, path: &Path) -> Result<Option<GeoRef>, CodecError> {
+    Ok(match georef {
+        Some(g) if g.wkt.is_none() => Some(GeoRef {
+            wkt: sidecar_wkt(path)?,
+            ..g
+        }),
+        other => other,
+    })
 }
 
 /// Picks a format from the file name, falling back to the leading bytes when the extension is
@@ -334,4 +384,41 @@ fn read_prefix(path: &Path, buf: &mut [u8]) -> Result<usize, CodecError> {
 /// The length of the file at `path`, in bytes.
 fn file_len(path: &Path) -> Result<u64, CodecError> {
     Ok(std::fs::metadata(path)?.len())
+}
+
+#[cfg(test)]
+mod sidecar_tests {
+    use super::*;
+
+    #[test]
+    fn prj_sidecars_are_read_trimmed_and_bad_ones_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let dem = dir.path().join("a.asc");
+        assert_eq!(sidecar_wkt(&dem).unwrap(), None);
+        std::fs::write(dir.path().join("a.PRJ"), " GEOGCS[\"x\"]\r\n").unwrap();
+        assert_eq!(sidecar_wkt(&dem).unwrap().as_deref(), Some("GEOGCS[\"x\"]"));
+        // Only georeferenced inputs take one, and a WKT already there is kept.
+        assert_eq!(with_sidecar_crs(None, &dem).unwrap(), None);
+        let g = GeoRef {
+            epsg: None,
+            origin_x: 0.0,
+            origin_y: 0.0,
+            pixel_x: 1.0,
+            pixel_y: 1.0,
+            pixel_is_area: true,
+            wkt: Some("kept".to_owned()),
+        };
+        let kept = with_sidecar_crs(Some(g.clone()), &dem).unwrap().unwrap();
+        assert_eq!(kept.wkt.as_deref(), Some("kept"));
+        let read = with_sidecar_crs(Some(GeoRef { wkt: None, ..g }), &dem).unwrap();
+        assert_eq!(read.unwrap().wkt.as_deref(), Some("GEOGCS[\"x\"]"));
+        for (bytes, why) in [
+            (b" \n".to_vec(), "empty"),
+            (vec![b'x'; MAX_WKT_LEN + 1], "more than"),
+        ] {
+            std::fs::write(dir.path().join("a.PRJ"), bytes).unwrap();
+            let e = sidecar_wkt(&dem).unwrap_err().to_string();
+            assert!(e.contains("a.PRJ") && e.contains(why), "{e}");
+        }
+    }
 }

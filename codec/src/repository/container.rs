@@ -35,7 +35,7 @@ use crate::input::GeoRef;
 use crate::lifting::Alpha;
 use crate::quant::{QuantPlan, Quantizer};
 
-pub use super::header::{MAGIC, MAX_HEADER_LEN};
+pub use super::header::{HEADER_FETCH_LEN, MAGIC, MAX_HEADER_LEN, header_len};
 /// The format version this code writes and the newest it reads (it reads every older one).
 pub const FORMAT_VERSION: u16 = 3;
 
@@ -146,6 +146,7 @@ pub fn serialize(
         pixel_x: 0.0,
         pixel_y: 0.0,
         pixel_is_area: false,
+        wkt: None,
     };
     let g = georef.unwrap_or(&no_geo);
     let fields = HeaderFields {
@@ -174,6 +175,7 @@ pub fn serialize(
         representation_error: plan.representation_error,
         geo: [g.origin_x, g.origin_y, g.pixel_x, g.pixel_y],
         nodata: nodata.unwrap_or(f64::NAN),
+        wkt: georef.and_then(|g| g.wkt.clone()),
         sections: [
             section(&encoded.roots),
             section(&index),
@@ -412,6 +414,7 @@ impl RepositoryHead {
                 pixel_x: geo[2],
                 pixel_y: geo[3],
                 pixel_is_area: geo_flags & 2 == 2,
+                wkt: h.wkt.clone(),
             })
         } else {
             if epsg != 0 || geo.iter().any(|&v| v.to_bits() != 0) {
@@ -676,8 +679,9 @@ pub struct Repository {
 }
 
 /// How many bytes from the start of a repository file make up its head (everything before the
-/// records area), read from the file's first [`MAX_HEADER_LEN`] bytes — or all of them, for a
-/// shorter file. Only the magic, header length and header checksum are checked here;
+/// records area), read from the file's header: its first [`header_len`] bytes, which the first
+/// [`HEADER_FETCH_LEN`] bytes almost always hold. Only the magic, header length and header
+/// checksum are checked here;
 /// [`RepositoryHead::parse`] validates the rest.
 pub fn required_head_len(header: &[u8]) -> Result<u64, CodecError> {
     let (version, _) = read_prefix(header)?;
@@ -740,7 +744,7 @@ impl Repository {
     pub fn open(path: &Path) -> Result<Self, CodecError> {
         let file = File::open(path)?;
         let len = file.metadata()?.len();
-        if len < MAX_HEADER_LEN as u64 {
+        if len < HEADER_FETCH_LEN as u64 {
             // Small files are read rather than mapped: mapping an empty file fails on some
             // platforms, and the error should name what is missing, not the mapping.
             let bytes = std::fs::read(path)?;

@@ -18,9 +18,12 @@ use crate::CodecError;
 /// The first eight bytes of every repository. The CR LF pair catches text-mode transfers that
 /// rewrite line endings; the NUL stops it being mistaken for text.
 pub const MAGIC: [u8; 8] = *b"CBDAM\0\r\n";
-/// The longest header of any version, bytes: reading this many (or the whole file, if shorter)
-/// from the start of a file is always enough to find the header's end.
-pub const MAX_HEADER_LEN: usize = 256;
+/// The longest header of any version, bytes (its length is a `u16`).
+pub const MAX_HEADER_LEN: usize = u16::MAX as usize;
+/// A first read of this many bytes from the start of a file (or all of it, if shorter) holds the
+/// whole header in versions 1 and 2, and in version 3 unless a long CRS definition (WKT) makes
+/// it longer; [`header_len`] says how long it is.
+pub const HEADER_FETCH_LEN: usize = 256;
 /// The header of versions 1 and 2: always exactly this long.
 const FIXED_HEADER_LEN: usize = 256;
 /// Magic, version and header length: the same eight + four bytes in every version.
@@ -78,6 +81,8 @@ pub(crate) struct HeaderFields {
     pub geo: [f64; 4],
     /// The input's nodata value, NaN for none.
     pub nodata: f64,
+    /// The CRS as WKT (version 3, with georeferencing only).
+    pub wkt: Option<String>,
     /// Roots, index, checksums, records.
     pub sections: [SectionEntry; 4],
     pub record_count: u64,
@@ -100,6 +105,12 @@ fn u64_at(b: &[u8], at: usize) -> u64 {
 }
 fn f64_at(b: &[u8], at: usize) -> f64 {
     f64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+}
+
+/// The length of the header that `prefix`, a file's first bytes (at least 12), starts: how many
+/// bytes to read before [`super::required_head_len`] can answer. Checks the magic only.
+pub fn header_len(prefix: &[u8]) -> Result<usize, CodecError> {
+    Ok(read_prefix(prefix)?.1)
 }
 
 /// Checks the magic and reads the version and the header length from a file's first bytes.
@@ -207,6 +218,7 @@ fn read_fixed(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecErr
         representation_error: f64_at(b, 80),
         geo: [f64_at(b, 88), f64_at(b, 96), f64_at(b, 104), f64_at(b, 112)],
         nodata: f64_at(b, NODATA_AT),
+        wkt: None,
         sections,
         record_count: u64_at(b, RECORD_COUNT_AT),
         crc,
@@ -257,6 +269,17 @@ impl Fields<'_> {
         Ok(f64::from_bits(self.varint()?.swap_bytes()))
     }
 
+    fn bytes(&mut self, n: usize) -> Result<&[u8], CodecError> {
+        let end = self
+            .pos
+            .checked_add(n)
+            .filter(|&e| e <= self.b.len())
+            .ok_or_else(|| CodecError::corrupt("header fields end early"))?;
+        let v = &self.b[self.pos..end];
+        self.pos = end;
+        Ok(v)
+    }
+
     fn u32_le(&mut self) -> Result<u32, CodecError> {
         let mut v = [0u8; 4];
         for x in &mut v {
@@ -298,11 +321,24 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
     let representation_error = f.f64()?;
     // Georeferencing is written only when present; its absence reads as the zeros the fixed
     // layout stores, so the container checks both layouts the same way.
-    let (epsg, geo) = if geo_flags & 1 == 1 {
+    let (epsg, geo, wkt) = if geo_flags & 1 == 1 {
         let epsg = f.u32("EPSG code")?;
-        (epsg, [f.f64()?, f.f64()?, f.f64()?, f.f64()?])
+        let geo = [f.f64()?, f.f64()?, f.f64()?, f.f64()?];
+        let len = f.varint()?;
+        let wkt = if len == 0 {
+            None
+        } else {
+            let len = usize::try_from(len)
+                .ok()
+                .filter(|&l| l <= crate::input::MAX_WKT_LEN)
+                .ok_or_else(|| CodecError::corrupt(format!("CRS definition of {len} bytes")))?;
+            let text = std::str::from_utf8(f.bytes(len)?)
+                .map_err(|_| CodecError::corrupt("CRS definition is not UTF-8"))?;
+            Some(text.to_owned())
+        };
+        (epsg, geo, wkt)
     } else {
-        (0, [0.0; 4])
+        (0, [0.0; 4], None)
     };
     let nodata = f.f64()?;
     let record_count = f.varint()?;
@@ -354,6 +390,7 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
         representation_error,
         geo,
         nodata,
+        wkt,
         sections,
         record_count,
         crc,
@@ -399,6 +436,16 @@ pub(crate) fn write_compact(h: &HeaderFields, version: u16) -> Result<Vec<u8>, C
         for v in h.geo {
             float(&mut out, v);
         }
+        let wkt = h.wkt.as_deref().unwrap_or("");
+        if wkt.len() > crate::input::MAX_WKT_LEN {
+            return Err(CodecError::limit(format!(
+                "a CRS definition of {} bytes (at most {} are kept)",
+                wkt.len(),
+                crate::input::MAX_WKT_LEN
+            )));
+        }
+        varint(&mut out, wkt.len() as u64);
+        out.extend_from_slice(wkt.as_bytes());
     }
     float(&mut out, h.nodata);
     varint(&mut out, h.record_count);
@@ -514,6 +561,7 @@ mod tests {
                 [0.0; 4]
             },
             nodata: f64::NAN,
+            wkt: None,
             sections: [
                 SectionEntry {
                     offset: 0,
@@ -612,6 +660,41 @@ mod tests {
         assert!(read_header(&b).is_err());
     }
 
+    /// A CRS definition rides in the header, past the usual first fetch when it is long; one
+    /// that is not UTF-8 or over the limit is refused.
+    #[test]
+    fn crs_definitions_round_trip_and_bad_ones_are_refused() {
+        let mut h = sample(true);
+        let wkt = format!("PROJCS[\"x\",{}]", "GEOGCS[\"é\"],".repeat(200));
+        h.wkt = Some(wkt.clone());
+        let b = write_compact(&h, 3).unwrap();
+        assert!(b.len() > HEADER_FETCH_LEN);
+        assert_eq!(header_len(&b[..HEADER_FETCH_LEN]).unwrap(), b.len());
+        let r = read_header(&b).unwrap();
+        assert_eq!(r.wkt.as_deref(), Some(wkt.as_str()));
+        assert_eq!(key(&r), key(&h));
+        assert!(read_header(&b[..HEADER_FETCH_LEN]).is_err());
+        // Without georeferencing nothing is written, even if a WKT is given.
+        let mut plain = sample(false);
+        plain.wkt = Some(wkt);
+        assert_eq!(
+            read_header(&write_compact(&plain, 3).unwrap()).unwrap().wkt,
+            None
+        );
+        h.wkt = Some("x".repeat(crate::input::MAX_WKT_LEN + 1));
+        assert!(write_compact(&h, 3).is_err());
+        // Invalid UTF-8 in place of the definition, checksums matching.
+        h.wkt = Some("PROJCS[]".to_owned());
+        let mut b = write_compact(&h, 3).unwrap();
+        let at = b.windows(8).position(|w| w == b"PROJCS[]").unwrap();
+        b[at] = 0xFF;
+        let n = b.len();
+        let crc = crc32(&b[..n - 4]);
+        b[n - 4..].copy_from_slice(&crc.to_le_bytes());
+        let e = read_header(&b).unwrap_err();
+        assert!(e.to_string().contains("UTF-8"), "{e}");
+    }
+
     #[test]
     fn every_truncation_and_bit_flip_of_a_compact_header_is_an_error() {
         let b = write_compact(&sample(true), 3).unwrap();
@@ -661,8 +744,8 @@ mod tests {
                 .to_string()
                 .contains("end early")
         );
-        // A stated length past 256, or too short for a CRC.
-        for len in [MAX_HEADER_LEN + 1, 3] {
+        // A stated length past the bytes there are, or too short for a CRC.
+        for len in [good.len() + 1, 3] {
             let mut f = good.clone();
             f[10..12].copy_from_slice(&(len as u16).to_le_bytes());
             assert!(read_header(&f).is_err(), "length {len}");

@@ -9,6 +9,6 @@ mod header;
 pub mod index;
 
 pub use container::{
-    FORMAT_VERSION, MAGIC, MAX_HEADER_LEN, Repository, RepositoryHead, Section, required_head_len,
-    reseal_checksums, serialize, write_repository,
+    FORMAT_VERSION, HEADER_FETCH_LEN, MAGIC, MAX_HEADER_LEN, Repository, RepositoryHead, Section,
+    header_len, required_head_len, reseal_checksums, serialize, write_repository,
 };

@@ -49,6 +49,7 @@ pub fn image(seed: u64) -> Vec<u8> {
         pixel_x: 30.0,
         pixel_y: 30.0,
         pixel_is_area: true,
+        wkt: None,
     };
     serialize(&enc, &plan, Some(&geo), Some(-9999.0)).unwrap()
 }
