@@ -58,6 +58,13 @@ pub struct InputSpec<'a> {
     pub max_error: f64,
 }
 
+/// Whether `path` names a raw float32 file (`.raw`, `.f32`, `.bin`), which carries no size.
+pub fn is_raw_path(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "raw" | "f32" | "bin"))
+}
+
 /// Reads, plans and quantizes the input.
 pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
     let path = spec.path;
@@ -96,11 +103,7 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
             .with_context(|| format!("reading {}", path.display()))?;
         return streamed(&src, None);
     }
-    let is_raw = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "raw" | "f32" | "bin"));
-    if is_raw {
+    if is_raw_path(path) {
         bail!(
             "{}: raw float32 files carry no size; pass --size WIDTHxHEIGHT",
             path.display()

@@ -8,7 +8,7 @@ use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
     Reached, RepoKind, VerifyReport, reconstruct_finest_with_validity, reconstruct_reached, verify,
 };
-use cbdam_codec::input::{Limits, ReadOptions, read_dem, read_rgb};
+use cbdam_codec::input::{Format, Limits, ReadOptions, read_dem, read_rgb};
 use cbdam_codec::quant::HeightGrid;
 use cbdam_codec::repository::Repository;
 
@@ -87,6 +87,19 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     let against = match args.against.as_slice() {
         [one] => one,
         several => return verify_mosaic(&repo, several, &opts),
+    };
+    // A raw float32 file has no size of its own: it is the repository's (and a file of another
+    // length is refused by the reader).
+    let opts = if crate::build::is_raw_path(against) {
+        ReadOptions {
+            format: Some(Format::RawF32 {
+                width: p.data_width as usize,
+                height: p.data_height as usize,
+            }),
+            ..opts
+        }
+    } else {
+        opts
     };
     let dem = read_dem(against, &opts).with_context(|| format!("reading {}", against.display()))?;
     if (dem.width, dem.height) != (p.data_width as usize, p.data_height as usize) {

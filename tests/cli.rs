@@ -1352,3 +1352,49 @@ fn a_prj_crs_definition_travels_from_input_to_extract() {
     );
     assert!(!out.exists());
 }
+
+/// `verify --against` a raw float32 file: it carries no size, so the repository's is used; a
+/// file of another length is refused with both sizes named. (It used to fail on every raw
+/// input, asking for a size `verify` has no option for.)
+#[test]
+fn verify_reads_a_raw_input_at_the_repositorys_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (40usize, 30usize);
+    let values: Vec<f32> = (0..w * h)
+        .map(|i| 250.0 + ((i % w) as f32 * 0.3).sin() * 20.0 + (i / w) as f32 * 0.5)
+        .collect();
+    let raw = dir.path().join("plane.f32");
+    std::fs::write(
+        &raw,
+        values
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect::<Vec<u8>>(),
+    )
+    .unwrap();
+    let repo = dir.path().join("plane.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(&raw),
+        "--size",
+        "40x30",
+        "-o",
+        &s(&repo),
+        "--max-error",
+        "0.5",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = cbdam(&["verify", &s(&repo), "--against", &s(&raw)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("OK"), "{}", stdout(&o));
+    let short = dir.path().join("short.f32");
+    std::fs::write(&short, &std::fs::read(&raw).unwrap()[..1000]).unwrap();
+    let o = cbdam(&["verify", &s(&repo), "--against", &s(&short)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("1000 bytes") && stderr(&o).contains("40 x 30"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -336,7 +336,7 @@ pub fn detect_format(path: &Path) -> Result<Format, CodecError> {
         Some("png") => return png::detect(path),
         Some("raw" | "f32" | "bin") => {
             return Err(CodecError::invalid(format!(
-                "{}: raw float32 files carry no size; pass Format::RawF32 {{ width, height }}",
+                "{}: raw float32 files carry no size; give its width and height",
                 path.display()
             )));
         }
