@@ -1398,3 +1398,42 @@ fn verify_reads_a_raw_input_at_the_repositorys_size() {
         stderr(&o)
     );
 }
+
+/// An I/O error is printed once: the codec's, server's and flight's error messages include the
+/// OS error, so it is no longer also their `source` (the chain printed it twice).
+#[test]
+fn io_errors_name_their_cause_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.tif");
+    let out = dir.path().join("x.cbdam");
+    let o = cbdam(&["build", &s(&missing), "-o", &s(&out), "--max-error", "1"]);
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(e.contains("missing.tif"), "{e}");
+    assert_eq!(e.matches("No such file or directory").count(), 1, "{e}");
+    let repo = dir.path().join("lidar.cbdam");
+    let o = cbdam(&[
+        "build",
+        &data("lidar1m_mn.tif"),
+        "-o",
+        &s(&repo),
+        "--max-error",
+        "5",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let flight = dir.path().join("no.json");
+    let csv = dir.path().join("o.csv");
+    let o = cbdam(&[
+        "replay",
+        &s(&repo),
+        "--path",
+        &s(&flight),
+        "--out",
+        &s(&csv),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(e.contains("reading the flight"), "{e}");
+    assert_eq!(e.matches("No such file or directory").count(), 1, "{e}");
+}

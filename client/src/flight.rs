@@ -35,15 +35,29 @@ use serde::{Deserialize, Serialize};
 use crate::camera::Camera;
 use crate::world::World;
 
+impl From<std::io::Error> for FlightError {
+    fn from(e: std::io::Error) -> Self {
+        FlightError::Io(e)
+    }
+}
+
+impl From<serde_json::Error> for FlightError {
+    fn from(e: serde_json::Error) -> Self {
+        FlightError::Json(e)
+    }
+}
+
 /// Why a flight could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum FlightError {
     /// Reading the file failed.
+    // The messages include the cause, so it is not also the `source` (chains would print it
+    // twice).
     #[error("reading the flight: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
     /// The JSON does not match the format.
     #[error("flight JSON: {0}")]
-    Json(#[from] serde_json::Error),
+    Json(serde_json::Error),
     /// The values are unusable.
     #[error("invalid flight: {0}")]
     Invalid(String),

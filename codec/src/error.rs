@@ -10,8 +10,10 @@ use std::borrow::Cow;
 #[derive(Debug, thiserror::Error)]
 pub enum CodecError {
     /// Reading or writing a file failed.
+    // The message includes the OS error, so it is not also the error's `source`: error chains
+    // (`anyhow`'s `{:#}`) would print it twice.
     #[error("I/O error: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
     /// The data is internally inconsistent: a decoder met something no encoder writes.
     #[error("corrupt data: {0}")]
     Corrupt(Cow<'static, str>),
@@ -28,6 +30,12 @@ pub enum CodecError {
     /// A size or magnitude bound would be exceeded; checked before allocating.
     #[error("limit exceeded: {0}")]
     LimitExceeded(Cow<'static, str>),
+}
+
+impl From<std::io::Error> for CodecError {
+    fn from(e: std::io::Error) -> Self {
+        CodecError::Io(e)
+    }
 }
 
 impl CodecError {

@@ -101,6 +101,13 @@ pub enum ServerError {
     #[error("{0}")]
     InvalidCorsOrigin(String),
     /// Binding or serving the socket failed.
+    // Not also the `source`: error chains would print the OS error twice.
     #[error("server I/O: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
+}
+
+impl From<std::io::Error> for ServerError {
+    fn from(e: std::io::Error) -> Self {
+        ServerError::Io(e)
+    }
 }
