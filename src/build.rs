@@ -508,11 +508,13 @@ pub fn with_coarser_roots_if_smaller(
     let size = |e: &Encoded| -> Result<usize> {
         Ok(serialize(e, &input.plan, input.georef.as_ref(), input.nodata)?.len())
     };
-    let samples = input.grid.width * input.grid.height;
+    // Large inputs return before anything is serialised: measuring the size would cost a
+    // second copy of the repository in memory.
+    if input.grid.width * input.grid.height > AUTO_RETRY_MAX_SAMPLES {
+        return Ok((first, false));
+    }
     let first_size = size(&first)?;
-    if samples > AUTO_RETRY_MAX_SAMPLES
-        || first.roots.len() * 100 < first_size * AUTO_RETRY_MIN_ROOT_SHARE
-    {
+    if first.roots.len() * 100 < first_size * AUTO_RETRY_MIN_ROOT_SHARE {
         return Ok((first, false));
     }
     let opts = EncodeOptions {
