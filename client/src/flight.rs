@@ -35,18 +35,6 @@ use serde::{Deserialize, Serialize};
 use crate::camera::Camera;
 use crate::world::World;
 
-impl From<std::io::Error> for FlightError {
-    fn from(e: std::io::Error) -> Self {
-        FlightError::Io(e)
-    }
-}
-
-impl From<serde_json::Error> for FlightError {
-    fn from(e: serde_json::Error) -> Self {
-        FlightError::Json(e)
-    }
-}
-
 /// Why a flight could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum FlightError {
@@ -61,6 +49,18 @@ pub enum FlightError {
     /// The values are unusable.
     #[error("invalid flight: {0}")]
     Invalid(String),
+}
+
+impl From<std::io::Error> for FlightError {
+    fn from(e: std::io::Error) -> Self {
+        FlightError::Io(e)
+    }
+}
+
+impl From<serde_json::Error> for FlightError {
+    fn from(e: serde_json::Error) -> Self {
+        FlightError::Json(e)
+    }
 }
 
 /// One keyframe.
