@@ -1412,16 +1412,7 @@ fn io_errors_name_their_cause_once() {
     assert!(e.contains("missing.tif"), "{e}");
     assert_eq!(e.matches("No such file or directory").count(), 1, "{e}");
     let repo = dir.path().join("lidar.cbdam");
-    let o = cbdam(&[
-        "build",
-        &data("lidar1m_mn.tif"),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "5",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&data("lidar1m_mn.tif"), &repo, "5");
     let flight = dir.path().join("no.json");
     let csv = dir.path().join("o.csv");
     let o = cbdam(&[
