@@ -357,29 +357,13 @@ async fn resolve(client: &reqwest::Client, url: &str) -> Result<Endpoint, Remote
     }
 }
 
-/// GETs `range` of `url`; returns the body and the total file length from `Content-Range`.
+/// GETs `range` of `url`; returns the body and the total file length from `Content-Range`. A
+/// range running past the end of the file gets the bytes up to the end (what a server answers);
+/// any other length is an error.
 async fn get_range(
     client: &reqwest::Client,
     url: &str,
     range: std::ops::Range<u64>,
-) -> Result<(Vec<u8>, u64), String> {
-    get_range_impl(client, url, range, false).await
-}
-
-/// [`get_range`] for a range that may run past the end of the file: the bytes up to the end.
-async fn get_range_clipped(
-    client: &reqwest::Client,
-    url: &str,
-    range: std::ops::Range<u64>,
-) -> Result<(Vec<u8>, u64), String> {
-    get_range_impl(client, url, range, true).await
-}
-
-async fn get_range_impl(
-    client: &reqwest::Client,
-    url: &str,
-    range: std::ops::Range<u64>,
-    clip: bool,
 ) -> Result<(Vec<u8>, u64), String> {
     let resp = client
         .get(url)
@@ -406,11 +390,7 @@ async fn get_range_impl(
         .and_then(|(_, total)| total.parse::<u64>().ok())
         .ok_or("206 response without a Content-Range total")?;
     let body = resp.bytes().await.map_err(|e| e.to_string())?;
-    let end = if clip {
-        range.end.min(total.max(range.start))
-    } else {
-        range.end
-    };
+    let end = range.end.min(total.max(range.start));
     if body.len() as u64 != end - range.start {
         return Err(format!(
             "asked for {} bytes, got {}",
@@ -425,7 +405,7 @@ async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHea
     // A version-3 header is usually shorter than HEADER_FETCH_LEN, and so can be the whole
     // file: a server answers a range past the end with what there is. A long CRS definition
     // makes it longer: then a second request fetches the rest.
-    let (mut header, file_len) = get_range_clipped(client, url, 0..HEADER_FETCH_LEN as u64)
+    let (mut header, file_len) = get_range(client, url, 0..HEADER_FETCH_LEN as u64)
         .await
         .map_err(|e| http_error(url, e))?;
     let repo_error = |source| RemoteError::Repository {
@@ -697,6 +677,11 @@ async fn fetch_ranges(
             "the file is now {total} bytes, the head says {}: it changed on the server",
             shared.head.file_len()
         ));
+    }
+    // The head's records lie inside the file, so only a server that cut the range short gives
+    // fewer bytes; the slicing below needs all of them.
+    if body.len() as u64 != hi - lo {
+        return Err(format!("asked for {} bytes, got {}", hi - lo, body.len()));
     }
     shared
         .stats

@@ -22,7 +22,8 @@ use std::ops::Deref;
 use std::path::Path;
 
 use super::header::{
-    HeaderFields, SectionEntry, read_header, read_prefix, reseal_header, write_compact,
+    HeaderFields, SectionEntry, crc32, read_header, read_prefix, reseal_header, u32_at,
+    write_compact,
 };
 use super::index::{IndexCoding, IndexEntry, decode_index, encode_index, range_shift_for};
 use crate::CodecError;
@@ -92,10 +93,6 @@ fn range_of(s: &SectionEntry) -> std::ops::Range<usize> {
     s.offset as usize..(s.offset + s.length) as usize
 }
 
-fn crc32(bytes: &[u8]) -> u32 {
-    crc32fast::hash(bytes)
-}
-
 /// Serialises `encoded` as a repository file image. `nodata` is the input's effective nodata
 /// value (recorded so that `verify` can re-read the input the same way).
 pub fn serialize(
@@ -139,16 +136,6 @@ pub fn serialize(
         length: bytes.len() as u64,
         crc: crc32(bytes),
     };
-    let no_geo = GeoRef {
-        epsg: None,
-        origin_x: 0.0,
-        origin_y: 0.0,
-        pixel_x: 0.0,
-        pixel_y: 0.0,
-        pixel_is_area: false,
-        wkt: None,
-    };
-    let g = georef.unwrap_or(&no_geo);
     let fields = HeaderFields {
         version: FORMAT_VERSION,
         header_len: 0,
@@ -168,12 +155,12 @@ pub fn serialize(
         quantizer_k: p.quantizer.k() as u32,
         root_k: None,
         leaf_error: encoded.leaf_error,
-        epsg: g.epsg.unwrap_or(0),
+        epsg: georef.and_then(|g| g.epsg).unwrap_or(0),
         unit: plan.unit,
         offset: plan.offset,
         epsilon: plan.epsilon,
         representation_error: plan.representation_error,
-        geo: [g.origin_x, g.origin_y, g.pixel_x, g.pixel_y],
+        geo: georef.map_or([0.0; 4], |g| [g.origin_x, g.origin_y, g.pixel_x, g.pixel_y]),
         nodata: nodata.unwrap_or(f64::NAN),
         wkt: georef.and_then(|g| g.wkt.clone()),
         sections: [
@@ -189,7 +176,7 @@ pub fn serialize(
         record_count: encoded.records.len() as u64,
         crc: 0,
     };
-    let h = write_compact(&fields, FORMAT_VERSION)?;
+    let h = write_compact(&fields)?;
     let offset = h.len() as u64 + fields.sections.iter().map(|s| s.length).sum::<u64>();
 
     let total = usize::try_from(offset).map_err(|_| CodecError::limit("repository too large"))?;
@@ -730,10 +717,6 @@ pub fn reseal_checksums(b: &mut [u8]) {
         }
         reseal_header(b);
     }
-}
-
-fn u32_at(b: &[u8], at: usize) -> u32 {
-    u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
 }
 
 impl Repository {

@@ -90,14 +90,14 @@ pub(crate) struct HeaderFields {
     pub crc: u32,
 }
 
-fn crc32(bytes: &[u8]) -> u32 {
+pub(super) fn crc32(bytes: &[u8]) -> u32 {
     crc32fast::hash(bytes)
 }
 
 fn u16_at(b: &[u8], at: usize) -> u16 {
     u16::from_le_bytes([b[at], b[at + 1]])
 }
-fn u32_at(b: &[u8], at: usize) -> u32 {
+pub(super) fn u32_at(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
 }
 fn u64_at(b: &[u8], at: usize) -> u64 {
@@ -133,7 +133,8 @@ pub(crate) fn read_prefix(b: &[u8]) -> Result<(u16, usize), CodecError> {
 }
 
 /// Reads the header at the start of `b` (at least the whole header), checking its length, CRC
-/// and reserved bytes. `version` must be one this code reads (1 … 3).
+/// and reserved bytes. Versions 1 and 2 have the fixed layout, any later one the compact; the
+/// container refuses versions it does not know before calling this.
 pub(crate) fn read_header(b: &[u8]) -> Result<HeaderFields, CodecError> {
     let (version, header_len) = read_prefix(b)?;
     let expected = match version {
@@ -281,11 +282,7 @@ impl Fields<'_> {
     }
 
     fn u32_le(&mut self) -> Result<u32, CodecError> {
-        let mut v = [0u8; 4];
-        for x in &mut v {
-            *x = self.byte()?;
-        }
-        Ok(u32::from_le_bytes(v))
+        Ok(u32_at(self.bytes(4)?, 0))
     }
 }
 
@@ -296,10 +293,6 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
     };
     let flags = f.u32("flags")?;
     let n = f.u32("diamond size")?;
-    let mut small = [0u8; 7];
-    for s in &mut small {
-        *s = f.byte()?;
-    }
     let [
         level_pairs,
         alpha,
@@ -308,7 +301,7 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
         geo_flags,
         nodata_policy,
         vertical_unit,
-    ] = small;
+    ]: [u8; 7] = f.bytes(7)?.try_into().expect("7 bytes");
     let roots_x = f.u32("root count")?;
     let roots_y = f.u32("root count")?;
     let data_width = f.u32("data width")?;
@@ -397,13 +390,13 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
     })
 }
 
-/// Writes `h` as a compact (version 3) header. `h.version`, `h.header_len`, `h.crc`,
+/// Writes `h` as a compact header (version `h.version`, 3 or later). `h.header_len`, `h.crc`,
 /// `h.root_k` and the section offsets are ignored: the bytes determine them. Georeferencing
 /// fields are written only with `geo_flags` bit 0.
-pub(crate) fn write_compact(h: &HeaderFields, version: u16) -> Result<Vec<u8>, CodecError> {
-    let mut out = Vec::with_capacity(MAX_HEADER_LEN);
+pub(crate) fn write_compact(h: &HeaderFields) -> Result<Vec<u8>, CodecError> {
+    let mut out = Vec::with_capacity(HEADER_FETCH_LEN);
     out.extend_from_slice(&MAGIC);
-    out.extend_from_slice(&version.to_le_bytes());
+    out.extend_from_slice(&h.version.to_le_bytes());
     out.extend_from_slice(&[0, 0]); // header length, filled in below
     let varint = |out: &mut Vec<u8>, v: u64| super::index::put_varint(out, v);
     let float = |out: &mut Vec<u8>, v: f64| super::index::put_varint(out, v.to_bits().swap_bytes());
@@ -620,7 +613,7 @@ mod tests {
     fn compact_headers_round_trip_and_imply_the_section_offsets() {
         for geo in [false, true] {
             let h = sample(geo);
-            let b = write_compact(&h, 3).unwrap();
+            let b = write_compact(&h).unwrap();
             let r = read_header(&b).unwrap();
             assert_eq!(key(&r), key(&h));
             assert_eq!(r.header_len, b.len());
@@ -651,12 +644,12 @@ mod tests {
         for s in &mut h.sections {
             s.length = u64::MAX / 8;
         }
-        let b = write_compact(&h, 3).unwrap();
+        let b = write_compact(&h).unwrap();
         assert!(b.len() <= MAX_HEADER_LEN);
         assert_eq!(key(&read_header(&b).unwrap()), key(&h));
         // Lengths that add up past u64 are refused, not wrapped.
         h.sections[3].length = u64::MAX;
-        let b = write_compact(&h, 3).unwrap();
+        let b = write_compact(&h).unwrap();
         assert!(read_header(&b).is_err());
     }
 
@@ -667,7 +660,7 @@ mod tests {
         let mut h = sample(true);
         let wkt = format!("PROJCS[\"x\",{}]", "GEOGCS[\"é\"],".repeat(200));
         h.wkt = Some(wkt.clone());
-        let b = write_compact(&h, 3).unwrap();
+        let b = write_compact(&h).unwrap();
         assert!(b.len() > HEADER_FETCH_LEN);
         assert_eq!(header_len(&b[..HEADER_FETCH_LEN]).unwrap(), b.len());
         let r = read_header(&b).unwrap();
@@ -678,14 +671,14 @@ mod tests {
         let mut plain = sample(false);
         plain.wkt = Some(wkt);
         assert_eq!(
-            read_header(&write_compact(&plain, 3).unwrap()).unwrap().wkt,
+            read_header(&write_compact(&plain).unwrap()).unwrap().wkt,
             None
         );
         h.wkt = Some("x".repeat(crate::input::MAX_WKT_LEN + 1));
-        assert!(write_compact(&h, 3).is_err());
+        assert!(write_compact(&h).is_err());
         // Invalid UTF-8 in place of the definition, checksums matching.
         h.wkt = Some("PROJCS[]".to_owned());
-        let mut b = write_compact(&h, 3).unwrap();
+        let mut b = write_compact(&h).unwrap();
         let at = b.windows(8).position(|w| w == b"PROJCS[]").unwrap();
         b[at] = 0xFF;
         let n = b.len();
@@ -697,7 +690,7 @@ mod tests {
 
     #[test]
     fn every_truncation_and_bit_flip_of_a_compact_header_is_an_error() {
-        let b = write_compact(&sample(true), 3).unwrap();
+        let b = write_compact(&sample(true)).unwrap();
         for cut in 0..b.len() {
             assert!(read_header(&b[..cut]).is_err(), "cut at {cut}");
         }
@@ -712,7 +705,7 @@ mod tests {
     /// the CRC, an extra byte before it, a length outside the bounds.
     #[test]
     fn malformed_fields_with_valid_checksums_are_errors() {
-        let good = write_compact(&sample(false), 3).unwrap();
+        let good = write_compact(&sample(false)).unwrap();
         let reseal = |mut f: Vec<u8>| {
             let len = f.len() + 4;
             f[10..12].copy_from_slice(&(len as u16).to_le_bytes());
