@@ -178,9 +178,13 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
         Which::Both => vec![Alpha::One, Alpha::Half],
     };
     let coders: Vec<CoderKind> = match args.coder {
-        Which::Default => vec![CoderKind::Adaptive],
-        Which::Other => vec![CoderKind::EliasGamma],
-        Which::Both => vec![CoderKind::Adaptive, CoderKind::EliasGamma],
+        Which::Default => vec![CoderKind::AdaptiveTokens],
+        Which::Other => vec![CoderKind::Adaptive, CoderKind::EliasGamma],
+        Which::Both => vec![
+            CoderKind::AdaptiveTokens,
+            CoderKind::Adaptive,
+            CoderKind::EliasGamma,
+        ],
     };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.max(1))

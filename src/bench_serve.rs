@@ -115,7 +115,7 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
         diamond_size: 65,
         extra_levels: crate::build::ExtraLevels::Auto,
         threads: None,
-        coder: CoderArg::Adaptive,
+        coder: CoderArg::AdaptiveTokens,
         alpha: AlphaArg::One,
         quantum: None,
         nodata: None,

@@ -251,6 +251,7 @@ pub fn encode_options(args: &BuildArgs) -> EncodeOptions {
         },
         coder: match args.coder {
             CoderArg::Adaptive => CoderKind::Adaptive,
+            CoderArg::AdaptiveTokens => CoderKind::AdaptiveTokens,
             CoderArg::EliasGamma => CoderKind::EliasGamma,
         },
     }

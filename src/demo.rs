@@ -32,7 +32,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             diamond_size: 65,
             extra_levels: crate::build::ExtraLevels::Auto,
             threads: None,
-            coder: CoderArg::Adaptive,
+            coder: CoderArg::AdaptiveTokens,
             alpha: AlphaArg::One,
             quantum: None,
             nodata: None,

@@ -411,7 +411,8 @@ pub struct BenchCodecArgs {
     /// Lifting weight: default α = 1, other α = ½.
     #[arg(long, value_enum, default_value_t = Which::Default)]
     alpha: Which,
-    /// Entropy coder: default adaptive, other Elias-gamma.
+    /// Entropy coder: default adaptive-tokens; other the bitwise adaptive and Elias-gamma
+    /// coders; both all three.
     #[arg(long, value_enum, default_value_t = Which::Both)]
     coder: Which,
     /// Diamond grid side N (2^k + 1).
@@ -477,8 +478,11 @@ pub struct BenchReportArgs {
 /// Entropy coder of `cbdam build`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum CoderArg {
-    /// Adaptive binary arithmetic coder (smaller).
+    /// Bitwise adaptive binary arithmetic coder (about 1 % smaller, slower to decode).
     Adaptive,
+    /// Adaptive token coder: the bitwise coder's contexts, a binarisation made for fast
+    /// decoding (the default).
+    AdaptiveTokens,
     /// Elias-gamma codes (simpler, faster to decode).
     EliasGamma,
 }
@@ -553,7 +557,7 @@ pub struct BuildArgs {
     #[arg(long)]
     threads: Option<usize>,
     /// Entropy coder.
-    #[arg(long, value_enum, default_value_t = CoderArg::Adaptive)]
+    #[arg(long, value_enum, default_value_t = CoderArg::AdaptiveTokens)]
     coder: CoderArg,
     /// Lifting weight α.
     #[arg(long, value_enum, default_value_t = AlphaArg::One)]

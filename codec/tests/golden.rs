@@ -6,6 +6,9 @@
 //! values cannot come from an independent source: they were captured from the codec itself and
 //! must only change together with a deliberate, documented format change.
 //!
+//! The token coder's values (`adaptive-tokens`, coder id 2) were captured when it was added;
+//! their reconstruction hashes equal the other coders', which nothing was copied from.
+//!
 //! To re-capture after such a change, print the current values instead of asserting:
 //! `CBDAM_PRINT_GOLDEN=1 cargo test -p cbdam-codec --test golden -- --nocapture`
 
@@ -167,6 +170,11 @@ fn srtm_crop_at_one_metre() {
             (0xf9db822c2c4acfac, 0xfed915baa85c9c34),
         ),
         (
+            Alpha::One,
+            CoderKind::AdaptiveTokens,
+            (0xf7d7c47b37da63ce, 0xfed915baa85c9c34),
+        ),
+        (
             Alpha::Half,
             CoderKind::EliasGamma,
             (0x0b9d7c2e5c8a7b95, 0x7cdbbc091dcb96ac),
@@ -175,6 +183,11 @@ fn srtm_crop_at_one_metre() {
             Alpha::Half,
             CoderKind::Adaptive,
             (0x06ac5be5f8cc277f, 0x7cdbbc091dcb96ac),
+        ),
+        (
+            Alpha::Half,
+            CoderKind::AdaptiveTokens,
+            (0x9533755912adb348, 0x7cdbbc091dcb96ac),
         ),
     ];
     let mut got = Vec::new();
@@ -205,6 +218,10 @@ fn lidar_crop_at_half_a_metre() {
         (
             CoderKind::Adaptive,
             (0x1a3de91ded900f0f, 0x77f1dbb38922226a),
+        ),
+        (
+            CoderKind::AdaptiveTokens,
+            (0x4fc33cad851c18c7, 0x77f1dbb38922226a),
         ),
     ] {
         let name = format!("lidar 160x130 ε=0.5 One {}", coder.name());
@@ -256,6 +273,11 @@ fn synthetic_field_with_holes_and_small_diamonds() {
             (0x7c91c13ac069c30b, 0x0f131d93d6dd1e3d),
         ),
         (
+            Alpha::One,
+            CoderKind::AdaptiveTokens,
+            (0x14a15793873655fb, 0x0f131d93d6dd1e3d),
+        ),
+        (
             Alpha::Half,
             CoderKind::EliasGamma,
             (0xa650db655412fb1c, 0xef24132373bd434f),
@@ -264,6 +286,11 @@ fn synthetic_field_with_holes_and_small_diamonds() {
             Alpha::Half,
             CoderKind::Adaptive,
             (0xce9ee39fa0ed361c, 0xef24132373bd434f),
+        ),
+        (
+            Alpha::Half,
+            CoderKind::AdaptiveTokens,
+            (0x3f820e62cb99cb5b, 0xef24132373bd434f),
         ),
     ];
     let mut got = Vec::new();

@@ -47,7 +47,7 @@ async fn listing_and_meta() {
     assert_eq!(m["data_height"], 45);
     assert_eq!(m["records"], repo.entries().len());
     assert_eq!(m["file_bytes"], repo.file_len());
-    assert_eq!(m["coder"], "adaptive");
+    assert_eq!(m["coder"], "adaptive-tokens");
     assert_eq!(m["alpha"], "1");
     assert_eq!(m["max_error_requested_m"], 0.5);
     assert_eq!(m["georef"]["epsg"], 32632);

@@ -193,6 +193,14 @@ impl<'a> BitReader<'a> {
         self.avail -= n;
     }
 
+    /// [`consume`](Self::consume) for `n < 64`, without the guard for a whole-word shift.
+    #[inline(always)]
+    pub fn consume_short(&mut self, n: u32) {
+        debug_assert!(n < 64 && n <= self.avail);
+        self.buf <<= n & 63;
+        self.avail -= n;
+    }
+
     /// Reads one bit.
     #[inline(always)]
     pub fn get_bit(&mut self) -> bool {

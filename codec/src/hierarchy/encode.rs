@@ -38,7 +38,7 @@ impl Default for EncodeOptions {
         Self {
             n: 65,
             alpha: Alpha::One,
-            coder: CoderKind::Adaptive,
+            coder: CoderKind::AdaptiveTokens,
             extra_level_pairs: 0,
         }
     }
@@ -731,7 +731,7 @@ mod tests {
             let opts = EncodeOptions {
                 n: (1 << n_pow) + 1,
                 extra_level_pairs: extra,
-                coder: if seed % 2 == 0 { CoderKind::Adaptive } else { CoderKind::EliasGamma },
+                coder: CoderKind::ALL[(seed % 3) as usize],
                 ..EncodeOptions::default()
             };
             let storage = if file { TempStorage::File(None) } else { TempStorage::Memory };

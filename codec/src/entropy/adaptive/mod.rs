@@ -21,15 +21,22 @@
 //! the models, the context class and the probability update; the decoder's coefficient pass is
 //! a hand-specialised copy of the encoder's ([`decode_coeffs`], for speed), held to it by the
 //! round-trip tests and the golden hashes.
+//!
+//! [`tokens`] codes the same quadtree with the same neighbourhood classes but binarises each
+//! coefficient differently (a token tree on its high bits, its low bits and sign in a raw
+//! stream) for faster decoding.
 
 pub(crate) mod integers;
 mod range_coder;
 #[cfg(test)]
 mod tests;
+pub(crate) mod tokens;
+mod wide_range_coder;
 
 use super::{Band, BandKind, BandMut, DecodeLimits};
 use crate::CodecError;
 use range_coder::{Decoder, Encoder, Prob};
+use wide_range_coder::{WideDecoder, WideEncoder};
 
 /// Side of a leaf block of the zero-block quadtree.
 const B: usize = 4;
@@ -134,9 +141,13 @@ fn model_set(kind: BandKind) -> usize {
 /// returns it; the decoder ignores `bit` and returns what it reads.
 trait BinCoder {
     fn bit(&mut self, p: &mut Prob, bit: bool) -> bool;
-    fn bypass(&mut self, bits: u32, n: u32) -> u32;
     /// Whether reading has gone past anything a valid record could need.
     fn overran(&self) -> bool;
+}
+
+/// A [`BinCoder`] that also codes equiprobable bits in its own stream.
+trait BypassCoder: BinCoder {
+    fn bypass(&mut self, bits: u32, n: u32) -> u32;
 }
 
 impl BinCoder for Encoder {
@@ -145,13 +156,16 @@ impl BinCoder for Encoder {
         self.encode(p, bit);
         bit
     }
+    fn overran(&self) -> bool {
+        false
+    }
+}
+
+impl BypassCoder for Encoder {
     #[inline(always)]
     fn bypass(&mut self, bits: u32, n: u32) -> u32 {
         self.encode_bypass(bits, n);
         bits
-    }
-    fn overran(&self) -> bool {
-        false
     }
 }
 
@@ -160,12 +174,36 @@ impl BinCoder for Decoder<'_> {
     fn bit(&mut self, p: &mut Prob, _bit: bool) -> bool {
         self.decode(p)
     }
+    fn overran(&self) -> bool {
+        Decoder::overran(self)
+    }
+}
+
+impl BypassCoder for Decoder<'_> {
     #[inline(always)]
     fn bypass(&mut self, _bits: u32, n: u32) -> u32 {
         self.decode_bypass(n)
     }
+}
+
+impl BinCoder for WideEncoder {
+    #[inline(always)]
+    fn bit(&mut self, p: &mut Prob, bit: bool) -> bool {
+        self.encode(p, bit);
+        bit
+    }
     fn overran(&self) -> bool {
-        Decoder::overran(self)
+        false
+    }
+}
+
+impl BinCoder for WideDecoder<'_> {
+    #[inline(always)]
+    fn bit(&mut self, p: &mut Prob, _bit: bool) -> bool {
+        self.decode(p)
+    }
+    fn overran(&self) -> bool {
+        WideDecoder::overran(self)
     }
 }
 
@@ -180,6 +218,8 @@ pub(crate) struct Scratch {
     flags: Vec<Vec<u8>>,
     /// Grid width and height per level.
     dims: Vec<(usize, usize)>,
+    /// The token coder's columns of one block row's non-zero leaf blocks.
+    slots: Vec<u32>,
 }
 
 impl Scratch {
@@ -233,7 +273,7 @@ impl Scratch {
 /// Codes the quadtree node `(gx, gy)` at `level`, whose flag is known non-zero when `inferred`.
 fn code_node<C: BinCoder>(
     c: &mut C,
-    m: &mut Models,
+    node: &mut [Prob; NODE_LEVELS * 3],
     s: &mut Scratch,
     level: usize,
     gx: usize,
@@ -249,7 +289,7 @@ fn code_node<C: BinCoder>(
     } else {
         let neigh = (flags[idx - 1] + flags[idx - stride]) as usize;
         let ctx = level.min(NODE_LEVELS - 1) * 3 + neigh;
-        c.bit(&mut m.node[ctx], flags[idx] != 0)
+        c.bit(&mut node[ctx], flags[idx] != 0)
     };
     flags[idx] = nz as u8;
     if nz && level > 0 {
@@ -263,7 +303,7 @@ fn code_node<C: BinCoder>(
             if exists(kid) {
                 any |= code_node(
                     c,
-                    m,
+                    node,
                     s,
                     level - 1,
                     2 * gx + kid.0,
@@ -282,7 +322,7 @@ struct TooLarge(u32);
 
 /// Codes one coefficient; `v` is the value to write (ignored when decoding).
 #[inline(always)]
-fn code_coeff<C: BinCoder>(
+fn code_coeff<C: BypassCoder>(
     c: &mut C,
     m: &mut Models,
     class: usize,
@@ -323,7 +363,7 @@ fn code_coeff<C: BinCoder>(
 
 /// Codes a `w × h` band. Encoding: `values` holds the band and `s` its flag pyramid. Decoding:
 /// `values` is zero and `s` freshly reset; both are filled in.
-fn code_band<C: BinCoder>(
+fn code_band<C: BypassCoder>(
     c: &mut C,
     m: &mut Models,
     s: &mut Scratch,
@@ -333,7 +373,7 @@ fn code_band<C: BinCoder>(
     max_abs: u32,
 ) -> Result<(), CodecError> {
     let top = s.dims.len() - 1;
-    if !code_node(c, m, s, top, 0, 0, false) {
+    if !code_node(c, &mut m.node, s, top, 0, 0, false) {
         return Ok(());
     }
     if c.overran() {
@@ -526,7 +566,7 @@ pub(crate) fn decode_bands(
         s.reset(b.width, b.height);
         let m = &mut models[model_set(b.kind)];
         let top = s.dims.len() - 1;
-        if !code_node(&mut dec, m, s, top, 0, 0, false) {
+        if !code_node(&mut dec, &mut m.node, s, top, 0, 0, false) {
             continue;
         }
         if dec.overran() {

@@ -9,7 +9,7 @@
 use crate::CodecError;
 
 /// Probability precision.
-const PROB_BITS: u32 = 12;
+pub(super) const PROB_BITS: u32 = 12;
 /// Probabilities stay within `[P_MIN, P_MAX]` (out of 4096). With the range at least 2^24 before
 /// a decision, both sub-ranges are then at least 2^12 · 31 > 2^16, so one byte of renormalisation
 /// always suffices.
@@ -56,12 +56,20 @@ impl Prob {
     }
 
     #[inline(always)]
-    fn p0(self) -> u32 {
+    pub(super) fn p0(self) -> u32 {
         (self.0 & 0xFFF) as u32
     }
 
+    /// Stores `old` updated by `bit`: for callers that loaded the model before they knew
+    /// which one they would need.
     #[inline(always)]
-    fn update(&mut self, bit: bool) {
+    pub(super) fn update_from(&mut self, mut old: Prob, bit: bool) {
+        old.update(bit);
+        *self = old;
+    }
+
+    #[inline(always)]
+    pub(super) fn update(&mut self, bit: bool) {
         let step = STEP[(self.0 >> 12) as usize];
         let p = (self.0 & 0xFFF) as i32;
         // A select, not a branch: many decisions are close to 50/50, and the mantissa bits'

@@ -7,7 +7,7 @@ use super::{Models, NCLASS, Scratch, class_of, code_band, model_set};
 use crate::CodecError;
 use proptest::prelude::*;
 
-const MAX: i32 = ((1u32 << 30) - 1) as i32;
+pub(super) const MAX: i32 = ((1u32 << 30) - 1) as i32;
 
 fn encode(bands: &[(BandKind, usize, usize, Vec<i32>)]) -> Vec<u8> {
     let bands: Vec<Band<'_>> = bands
@@ -73,9 +73,9 @@ fn assert_round_trip(bands: &[(BandKind, usize, usize, Vec<i32>)]) -> Vec<u8> {
 }
 
 /// Deterministic generator (SplitMix64) so rate tests do not depend on proptest's seeds.
-struct Rng(u64);
+pub(super) struct Rng(pub(super) u64);
 impl Rng {
-    fn next(&mut self) -> u64 {
+    pub(super) fn next(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -93,14 +93,21 @@ impl Rng {
     }
 }
 
-fn laplace_band(rng: &mut Rng, w: usize, h: usize, scale: f64) -> Vec<i32> {
+pub(super) fn laplace_band(rng: &mut Rng, w: usize, h: usize, scale: f64) -> Vec<i32> {
     (0..w * h).map(|_| rng.laplace(scale)).collect()
 }
 
 /// Bits the paper's quadtree + Elias-gamma coder spends on a band: one bit per block visited,
 /// split at the ceiling halves in Z order (empty children skipped), and at non-zero 1×1 leaves
 /// gamma(|v|) = 2⌊log2|v|⌋ + 1 bits plus a sign bit.
-fn gamma_bits(v: &[i32], stride: usize, x0: usize, y0: usize, w: usize, h: usize) -> u64 {
+pub(super) fn gamma_bits(
+    v: &[i32],
+    stride: usize,
+    x0: usize,
+    y0: usize,
+    w: usize,
+    h: usize,
+) -> u64 {
     let nonzero = (y0..y0 + h).any(|y| {
         v[y * stride + x0..y * stride + x0 + w]
             .iter()
@@ -404,7 +411,7 @@ fn fast_decoder_matches_the_reference_on_damaged_records() {
     }
 }
 
-fn band_strategy() -> impl Strategy<Value = (BandKind, usize, usize, Vec<i32>)> {
+pub(super) fn band_strategy() -> impl Strategy<Value = (BandKind, usize, usize, Vec<i32>)> {
     let kind = prop_oneof![
         Just(BandKind::Cells),
         Just(BandKind::Vertices),

@@ -1,0 +1,536 @@
+//! The token coder ([`CoderKind::AdaptiveTokens`](crate::entropy::CoderKind::AdaptiveTokens)):
+//! the same zero-block quadtree and neighbourhood contexts as the bitwise adaptive coder
+//! ([`super`]), with a binarisation made for decoding speed.
+//!
+//! The bitwise coder spends one range-coder decision per unary exponent step, per mantissa bit
+//! and per sign, and branches on most of them: at fine tolerances (4–5 bits per coefficient) a
+//! coefficient costs six or more dependent decisions. Here:
+//!
+//! - the neighbourhood sum `s = 2|L| + 2|T| + |TL| + |TR|` picks a shift `k = ⌊log2 s⌋ − 3`
+//!   (0 below 16): the low `k` bits of the magnitude `a` go to a separate **raw bit stream**
+//!   (they are close to uniform when the neighbourhood is that busy), and only `q = a >> k` is
+//!   range coded. Within each octave of `s` the distribution of `q` is then about the same, and
+//!   small;
+//! - `q` is one adaptive "non-zero" decision (context: class of `s` × border) and, when
+//!   non-zero, a 3-level binary tree over 8 tokens (context: class of `s`): `q = 1 … 7`
+//!   directly, token 7 an escape followed by the Elias-gamma code of `q − 7` in the raw stream.
+//!   Each tree decision picks the next model by index, with no branch;
+//! - the sign of every non-zero value is one raw bit, after the magnitude's low bits.
+//!
+//! So a non-zero coefficient is four range-coder decisions, a zero one is one, and the raw bits
+//! are off the range coder's serial dependency chain. The range coder is
+//! [`super::wide_range_coder`] (64-bit range, 32-bit renormalisation).
+//!
+//! Coding order ([`pair_order`]): the non-zero leaf blocks' coefficients of two rows at a time,
+//! the second row two coefficients behind the first, so that a decoder runs two rows'
+//! context chains (each coefficient waits for its left neighbour) side by side.
+//!
+//! Record: empty when every band is zero; otherwise the LEB128 length of the raw stream, the raw
+//! stream (MSB-first, zero-padded to a byte), then the range-coded stream, which holds each
+//! band's quadtree and the coefficients' decisions, bands in order. Models start fresh for
+//! every record.
+
+use super::range_coder::Prob;
+use super::wide_range_coder::{WideDecoder as Decoder, WideEncoder as Encoder};
+use super::{B, MAG_SAT, NCLASS, NODE_LEVELS, Scratch, class_of, code_node, model_set};
+use crate::CodecError;
+use crate::entropy::bitio::{BitReader, BitWriter};
+use crate::entropy::{Band, BandMut, DecodeLimits};
+
+#[cfg(test)]
+#[path = "tokens_tests.rs"]
+mod tests;
+
+/// Levels of the token tree.
+const TREE_LEVELS: u32 = 3;
+/// Tokens: `q = 1 ..= 7`, and the escape.
+const TOKENS: usize = 1 << TREE_LEVELS;
+/// The escape token, `q ≥ 8`.
+const ESCAPE: u32 = TOKENS as u32 - 1;
+/// Longest Elias-gamma prefix an escape may have: `q − 7 < 2^31`.
+const MAX_GAMMA_ZEROS: u32 = 30;
+
+/// How many low magnitude bits go to the raw stream for neighbourhood sum `sum`: none below 16,
+/// one more per octave above. `sum ≤ 6 · MAG_SAT < 2^19`, so at most 15.
+#[inline(always)]
+fn shift_of(sum: u32) -> u32 {
+    (sum | 1).ilog2().saturating_sub(3)
+}
+
+/// The adaptive models of one band kind.
+#[derive(Clone)]
+struct TokenModels {
+    /// "q ≠ 0", by class × border.
+    zero: [Prob; NCLASS * 2],
+    /// Token tree nodes by class; node `n` (1-based, heap order) at `tree[class][n]`.
+    tree: [[Prob; TOKENS]; NCLASS],
+    /// Zero-block quadtree, as in the bitwise coder.
+    node: [Prob; NODE_LEVELS * 3],
+}
+
+/// `P(bit = 0)` out of 4096 for tree node `n` when the tokens are geometric with ratio `rho`
+/// (`P(token t) ∝ rho^t`, the escape holding the tail).
+const fn tree_prior(rho: f64, n: usize) -> u16 {
+    let depth = n.ilog2();
+    let span = TOKENS >> depth;
+    let first = (n - (1 << depth)) * span;
+    let mut mass = [0.0f64; TOKENS];
+    let mut p = 1.0 - rho;
+    let mut t = 0;
+    while t < TOKENS {
+        mass[t] = if t + 1 == TOKENS { p / (1.0 - rho) } else { p };
+        p *= rho;
+        t += 1;
+    }
+    let (mut left, mut all) = (0.0, 0.0);
+    let mut t = first;
+    while t < first + span {
+        if t < first + span / 2 {
+            left += mass[t];
+        }
+        all += mass[t];
+        t += 1;
+    }
+    (left / all * 4096.0) as u16
+}
+
+impl TokenModels {
+    /// Starting points. Below a sum of 16 nothing is shifted and zeros are as likely as in the
+    /// bitwise coder; above, the shift keeps `q` small and a zero about 40 % likely. The rest
+    /// is fast adaptation.
+    const INIT: TokenModels = {
+        let p_zero: [u16; NCLASS] = [
+            3700, 3200, 2900, 2500, 2100, 1700, 1300, 1000, 1700, 1700, 1700, 1700, 1700, 1700,
+            1700, 1700,
+        ];
+        // Ratio of the geometric prior on q − 1 by class: quiet classes are mostly q = 1.
+        let rho: [f64; NCLASS] = [
+            0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5,
+        ];
+        let mut zero = [Prob::new(2048); NCLASS * 2];
+        let mut tree = [[Prob::new(2048); TOKENS]; NCLASS];
+        let mut c = 0;
+        while c < NCLASS {
+            zero[2 * c] = Prob::new(p_zero[c]);
+            // Border residuals come from a lower-order predictor: expect fewer zeros.
+            zero[2 * c + 1] = Prob::new(p_zero[c] * 3 / 4);
+            let mut n = 1;
+            while n < TOKENS {
+                tree[c][n] = Prob::new(tree_prior(rho[c], n));
+                n += 1;
+            }
+            c += 1;
+        }
+        TokenModels {
+            zero,
+            tree,
+            node: [Prob::new(2048); NODE_LEVELS * 3],
+        }
+    };
+}
+
+/// How many coefficients the second row of a pair trails the first by, in coding order: the
+/// top-right neighbour of its coefficient at slot `i` is the first row's slot `i + 1` (or a
+/// zero block), already coded.
+const LAG: usize = 2;
+
+/// The coding order of a block row's coefficients: rows are taken in pairs, and the pair's two
+/// rows are interleaved, the second [`LAG`] coefficients behind the first. `f(slot, row)` is
+/// called for row 0 or 1 of the pair at each of the `n` slots (columns of its non-zero leaf
+/// blocks, left to right). The two rows' contexts do not depend on each other within a step,
+/// so a decoder works on two independent dependency chains at once.
+#[inline(always)]
+fn pair_order(n: usize, pair: bool, mut f: impl FnMut(usize, usize)) {
+    if !pair {
+        for i in 0..n {
+            f(i, 0);
+        }
+        return;
+    }
+    for i in 0..n.min(LAG) {
+        f(i, 0);
+    }
+    for i in LAG..n {
+        f(i, 0);
+        f(i - LAG, 1);
+    }
+    for i in n.saturating_sub(LAG)..n {
+        f(i, 1);
+    }
+}
+
+/// The columns of the non-zero leaf blocks of block row `y / B`, appended to `slots`.
+fn fill_slots(slots: &mut Vec<u32>, s: &Scratch, y: usize, w: usize) {
+    let (gw, _) = s.dims[0];
+    let frow = &s.flags[0][(y / B + 1) * (gw + 1) + 1..][..gw];
+    slots.clear();
+    for (bx, _) in frow.iter().enumerate().filter(|&(_, &f)| f != 0) {
+        slots.extend((bx * B..(bx * B + B).min(w)).map(|x| x as u32));
+    }
+}
+
+/// Codes the coefficients of one band's non-zero leaf blocks (the flag pyramid in `s` is set),
+/// in [`pair_order`].
+fn encode_coeffs(
+    enc: &mut Encoder,
+    raw: &mut BitWriter,
+    m: &mut TokenModels,
+    s: &mut Scratch,
+    values: &[i32],
+    w: usize,
+    h: usize,
+) {
+    let stride = w + 4;
+    let mut slots = Vec::new();
+    for y0 in (0..h).step_by(2) {
+        fill_slots(&mut slots, s, y0, w);
+        let mag = &mut s.mag;
+        pair_order(slots.len(), y0 + 1 < h, |i, r| {
+            let (x, y) = (slots[i] as usize, y0 + r);
+            let j = (y + 2) * stride + 2 + x;
+            let sum = 2 * (u32::from(mag[j - 1]) + u32::from(mag[j - stride]))
+                + u32::from(mag[j - stride - 1])
+                + u32::from(mag[j - stride + 1]);
+            let class = class_of(sum);
+            let border = (y < 2 || y + 2 >= h || x < 2 || x + 2 >= w) as usize;
+            let k = shift_of(sum);
+            let v = values[y * w + x];
+            let a = v.unsigned_abs();
+            let q = a >> k;
+            enc.encode(&mut m.zero[class * 2 + border], q != 0);
+            if q != 0 {
+                let token = (q - 1).min(ESCAPE);
+                let tree = &mut m.tree[class];
+                let mut n = 1;
+                for level in (0..TREE_LEVELS).rev() {
+                    let bit = (token >> level) & 1 != 0;
+                    enc.encode(&mut tree[n], bit);
+                    n = 2 * n + bit as usize;
+                }
+                if token == ESCAPE {
+                    raw.put_gamma(q - ESCAPE);
+                }
+            }
+            raw.put_bits(a & ((1 << k) - 1), k);
+            if a != 0 {
+                raw.put_bit(v < 0);
+            }
+            mag[j] = a.min(MAG_SAT) as u16;
+        });
+    }
+}
+
+/// Decodes one coefficient whose neighbourhood sum is `sum`: `(magnitude, value)`. The
+/// decisions are [`encode_coeffs`]'s, written for speed: no branch in the token tree or the
+/// raw reads but the rare escape, and each tree level's two candidate models loaded while the
+/// level above is decided, so a decision picks its probability with a select instead of
+/// waiting on a load that depends on it. Magnitudes are clamped to below 2^31 whatever the
+/// bytes; an escape that no encoder writes sets `bad_escape`.
+#[inline(always)]
+fn decode_one(
+    d: &mut Decoder<'_>,
+    raw: &mut BitReader<'_>,
+    m: &mut TokenModels,
+    sum: u32,
+    border: usize,
+    bad_escape: &mut bool,
+) -> (u32, i32) {
+    let class = class_of(sum);
+    let k = shift_of(sum);
+    let mut q = 0u32;
+    if d.decode(&mut m.zero[class * 2 + border]) {
+        let tree = &mut m.tree[class];
+        let root = tree[1];
+        let (mut lo, mut hi) = (tree[2], tree[3]);
+        let b0 = d.decode_p(root.p0());
+        tree[1].update_from(root, b0);
+        let n1 = 2 + b0 as usize;
+        let p1 = if b0 { hi } else { lo };
+        lo = tree[(2 * n1) & (TOKENS - 1)];
+        hi = tree[(2 * n1 + 1) & (TOKENS - 1)];
+        let b1 = d.decode_p(p1.p0());
+        tree[n1].update_from(p1, b1);
+        let n2 = 2 * n1 + b1 as usize;
+        let p2 = if b1 { hi } else { lo };
+        let b2 = d.decode_p(p2.p0());
+        tree[n2 & (TOKENS - 1)].update_from(p2, b2);
+        let token = (2 * (n2 - 4) + b2 as usize) as u32;
+        q = token + 1;
+        if token == ESCAPE {
+            // q·2^k stays at most 2^30 (and a below 2^31) whatever the bytes.
+            let q64 = raw
+                .get_gamma(MAX_GAMMA_ZEROS)
+                .map_or(u64::MAX, |r| u64::from(r) + u64::from(ESCAPE));
+            *bad_escape |= q64 >= (1 << 30) >> k;
+            q = q64.min((1 << 30) >> k) as u32;
+        }
+    }
+    raw.ensure(16);
+    let bits = raw.peek(k + 1);
+    let a = (q << k) | (bits >> 1);
+    let nonzero = a != 0;
+    raw.consume_short(k + nonzero as u32);
+    // a < 2^31: the negation cannot overflow.
+    let sign = ((bits & nonzero as u32) as i32).wrapping_neg();
+    (a, (a as i32 ^ sign) - sign)
+}
+
+/// Decodes what [`encode_coeffs`] wrote, in [`pair_order`]: the two rows of a pair are two
+/// independent dependency chains (each coefficient's context waits for its left neighbour),
+/// so the CPU works on both at once. Magnitudes are checked against `max_abs` once per pair.
+// The slot loops spell out `pair_order` step by step, by index, so that they can be compared.
+#[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
+fn decode_coeffs(
+    dec: &mut Decoder<'_>,
+    raw: &mut BitReader<'_>,
+    m: &mut TokenModels,
+    s: &mut Scratch,
+    slots: &mut Vec<u32>,
+    values: &mut [i32],
+    w: usize,
+    h: usize,
+    max_abs: u32,
+) -> Result<(), CodecError> {
+    let mut d = *dec;
+    let stride = w + 4;
+    let mut worst = 0u32;
+    let mut bad_escape = false;
+    for y0 in (0..h).step_by(2) {
+        if y0 % B == 0 {
+            fill_slots(slots, s, y0, w);
+        }
+        let n = slots.len();
+        if n == 0 {
+            continue;
+        }
+        // Magnitude rows (two padding columns either side): `up` above row y0, `ma` row y0
+        // (written by the first row, read by the second), `mb` row y0 + 1.
+        let (above, below) = s.mag.split_at_mut((y0 + 2) * stride);
+        let up = &above[(y0 + 1) * stride..];
+        let (ma, below) = below.split_at_mut(stride);
+        let (va, vb) = values[y0 * w..].split_at_mut(w);
+        let border_a = y0 < 2 || y0 + 2 >= h;
+        let border_b = y0 + 1 < 2 || y0 + 3 >= h;
+        let col_border = |x: usize| x < 2 || x + 2 >= w;
+        let (mut left_a, mut next_a) = (0u32, usize::MAX);
+        let (mut left_b, mut next_b) = (0u32, usize::MAX);
+        // Row y0 at slot i.
+        macro_rules! step_a {
+            ($i:expr) => {{
+                let x = slots[$i] as usize;
+                let t = &up[x + 1..x + 4];
+                // A zero block's magnitudes are zero: the previous coefficient of this row is
+                // the left neighbour only when adjacent.
+                let left = if next_a == x { left_a } else { 0 };
+                let sum = 2 * (left + u32::from(t[1])) + u32::from(t[0]) + u32::from(t[2]);
+                let border = (border_a || col_border(x)) as usize;
+                let (a, v) = decode_one(&mut d, raw, m, sum, border, &mut bad_escape);
+                worst = worst.max(a);
+                va[x] = v;
+                left_a = a.min(MAG_SAT);
+                ma[x + 2] = left_a as u16;
+                next_a = x + 1;
+            }};
+        }
+        if y0 + 1 >= h {
+            for i in 0..n {
+                step_a!(i);
+            }
+        } else {
+            let mb = &mut below[..stride];
+            macro_rules! step_b {
+                ($i:expr) => {{
+                    let x = slots[$i] as usize;
+                    let t = &ma[x + 1..x + 4];
+                    let left = if next_b == x { left_b } else { 0 };
+                    let sum = 2 * (left + u32::from(t[1])) + u32::from(t[0]) + u32::from(t[2]);
+                    let border = (border_b || col_border(x)) as usize;
+                    let (a, v) = decode_one(&mut d, raw, m, sum, border, &mut bad_escape);
+                    worst = worst.max(a);
+                    vb[x] = v;
+                    left_b = a.min(MAG_SAT);
+                    mb[x + 2] = left_b as u16;
+                    next_b = x + 1;
+                }};
+            }
+            for i in 0..n.min(LAG) {
+                step_a!(i);
+            }
+            for i in LAG..n {
+                step_a!(i);
+                step_b!(i - LAG);
+            }
+            for i in n.saturating_sub(LAG)..n {
+                step_b!(i);
+            }
+        }
+        if bad_escape {
+            return Err(CodecError::corrupt(
+                "adaptive tokens: escaped magnitude of 2^30 or more",
+            ));
+        }
+        if worst > max_abs {
+            return Err(CodecError::corrupt(format!(
+                "adaptive tokens: magnitude {worst} exceeds the limit {max_abs}"
+            )));
+        }
+        if d.overran() || raw.is_overrun() {
+            return Err(CodecError::truncated("adaptive tokens record ends early"));
+        }
+    }
+    *dec = d;
+    Ok(())
+}
+
+/// Encodes `bands` as one record appended to `out`.
+pub(crate) fn encode_bands(bands: &[Band<'_>], out: &mut Vec<u8>) {
+    let max_abs = DecodeLimits::default().max_abs;
+    for b in bands {
+        assert!(
+            b.values.iter().all(|v| v.unsigned_abs() <= max_abs),
+            "band value exceeds ±{max_abs}"
+        );
+    }
+    if bands.iter().all(|b| b.values.iter().all(|&v| v == 0)) {
+        return;
+    }
+    let mut enc = Encoder::new();
+    let mut raw = BitWriter::new();
+    let mut models = [TokenModels::INIT, TokenModels::INIT];
+    let mut s = Scratch::default();
+    for b in bands {
+        if b.width == 0 || b.height == 0 {
+            continue;
+        }
+        s.reset(b.width, b.height);
+        s.set_flags(b.values, b.width, b.height);
+        let m = &mut models[model_set(b.kind)];
+        let top = s.dims.len() - 1;
+        if code_node(&mut enc, &mut m.node, &mut s, top, 0, 0, false) {
+            encode_coeffs(&mut enc, &mut raw, m, &mut s, b.values, b.width, b.height);
+        }
+    }
+    let raw = raw.finish();
+    put_len(out, raw.len());
+    out.extend_from_slice(&raw);
+    enc.finish(out);
+}
+
+/// Decodes one record written by [`encode_bands`] into `bands`.
+pub(crate) fn decode_bands(
+    bytes: &[u8],
+    bands: &mut [BandMut<'_>],
+    limits: DecodeLimits,
+    s: &mut Scratch,
+) -> Result<(), CodecError> {
+    for b in bands.iter_mut() {
+        b.values.fill(0);
+    }
+    if bytes.is_empty() {
+        return Ok(());
+    }
+    let (raw_len, header) = get_len(bytes)?;
+    let rest = &bytes[header..];
+    if raw_len > rest.len() {
+        return Err(CodecError::truncated(format!(
+            "adaptive tokens record: raw stream of {raw_len} bytes, {} left",
+            rest.len()
+        )));
+    }
+    let (raw_bytes, coded) = rest.split_at(raw_len);
+    let mut raw = BitReader::new(raw_bytes);
+    let mut dec = Decoder::new(coded);
+    let mut slots = std::mem::take(&mut s.slots);
+    let result = decode_all(&mut dec, &mut raw, s, &mut slots, bands, limits);
+    s.slots = slots;
+    result?;
+    dec.finish()?;
+    // Only the zero padding of the raw stream's last byte may be left.
+    match raw.remaining_padding() {
+        Some((_, 0)) => Ok(()),
+        Some(_) => Err(CodecError::corrupt(
+            "adaptive tokens record: non-zero padding after the raw bits",
+        )),
+        None if raw.is_overrun() => Err(CodecError::truncated(
+            "adaptive tokens record: raw stream ends early",
+        )),
+        None => Err(CodecError::corrupt(
+            "adaptive tokens record: unused bytes in the raw stream",
+        )),
+    }
+}
+
+/// Every band's quadtree and coefficients, in order.
+fn decode_all(
+    dec: &mut Decoder<'_>,
+    raw: &mut BitReader<'_>,
+    s: &mut Scratch,
+    slots: &mut Vec<u32>,
+    bands: &mut [BandMut<'_>],
+    limits: DecodeLimits,
+) -> Result<(), CodecError> {
+    let mut models = [TokenModels::INIT, TokenModels::INIT];
+    for b in bands.iter_mut() {
+        if b.width == 0 || b.height == 0 {
+            continue;
+        }
+        s.reset(b.width, b.height);
+        let m = &mut models[model_set(b.kind)];
+        let top = s.dims.len() - 1;
+        if !code_node(dec, &mut m.node, s, top, 0, 0, false) {
+            continue;
+        }
+        if dec.overran() {
+            return Err(CodecError::truncated("adaptive tokens record ends early"));
+        }
+        decode_coeffs(
+            dec,
+            raw,
+            m,
+            s,
+            slots,
+            b.values,
+            b.width,
+            b.height,
+            limits.max_abs,
+        )?;
+    }
+    Ok(())
+}
+
+/// Appends `len` as LEB128.
+fn put_len(out: &mut Vec<u8>, mut len: usize) {
+    while len >= 0x80 {
+        out.push((len as u8) | 0x80);
+        len >>= 7;
+    }
+    out.push(len as u8);
+}
+
+/// Reads a canonical LEB128 length below 2^32: `(value, bytes read)`.
+fn get_len(bytes: &[u8]) -> Result<(usize, usize), CodecError> {
+    let mut v = 0u64;
+    for (i, &b) in bytes.iter().enumerate().take(5) {
+        v |= u64::from(b & 0x7f) << (7 * i);
+        if b & 0x80 == 0 {
+            if i > 0 && b == 0 {
+                return Err(CodecError::corrupt(
+                    "adaptive tokens record: over-long raw stream length",
+                ));
+            }
+            let v = u32::try_from(v).map_err(|_| {
+                CodecError::corrupt("adaptive tokens record: raw stream length over 4 GiB")
+            })?;
+            return Ok((v as usize, i + 1));
+        }
+    }
+    if bytes.len() < 5 {
+        Err(CodecError::truncated(
+            "adaptive tokens record ends inside its raw stream length",
+        ))
+    } else {
+        Err(CodecError::corrupt(
+            "adaptive tokens record: raw stream length over 4 GiB",
+        ))
+    }
+}
