@@ -172,7 +172,7 @@ fn srtm_crop_at_one_metre() {
         (
             Alpha::One,
             CoderKind::AdaptiveTokens,
-            (0xf7d7c47b37da63ce, 0xfed915baa85c9c34),
+            (0x719371d0ad16f3c1, 0xfed915baa85c9c34),
         ),
         (
             Alpha::Half,
@@ -187,7 +187,7 @@ fn srtm_crop_at_one_metre() {
         (
             Alpha::Half,
             CoderKind::AdaptiveTokens,
-            (0x9533755912adb348, 0x7cdbbc091dcb96ac),
+            (0xd13a107a5c2d51f6, 0x7cdbbc091dcb96ac),
         ),
     ];
     let mut got = Vec::new();
@@ -221,7 +221,7 @@ fn lidar_crop_at_half_a_metre() {
         ),
         (
             CoderKind::AdaptiveTokens,
-            (0x4fc33cad851c18c7, 0x77f1dbb38922226a),
+            (0xd84b8f5474152682, 0x77f1dbb38922226a),
         ),
     ] {
         let name = format!("lidar 160x130 ε=0.5 One {}", coder.name());
@@ -275,7 +275,7 @@ fn synthetic_field_with_holes_and_small_diamonds() {
         (
             Alpha::One,
             CoderKind::AdaptiveTokens,
-            (0x14a15793873655fb, 0x0f131d93d6dd1e3d),
+            (0x83103d16cf52d946, 0x0f131d93d6dd1e3d),
         ),
         (
             Alpha::Half,
@@ -290,7 +290,7 @@ fn synthetic_field_with_holes_and_small_diamonds() {
         (
             Alpha::Half,
             CoderKind::AdaptiveTokens,
-            (0x3f820e62cb99cb5b, 0xef24132373bd434f),
+            (0x0d3261f542e46c7b, 0xef24132373bd434f),
         ),
     ];
     let mut got = Vec::new();

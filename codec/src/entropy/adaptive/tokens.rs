@@ -6,16 +6,16 @@
 //! and per sign, and branches on most of them: at fine tolerances (4–5 bits per coefficient) a
 //! coefficient costs six or more dependent decisions. Here:
 //!
-//! - the neighbourhood sum `s = 2|L| + 2|T| + |TL| + |TR|` picks a shift `k = ⌊log2 s⌋ − 3`
-//!   (0 below 16): the low `k` bits of the magnitude `a` go to a separate **raw bit stream**
-//!   (they are close to uniform when the neighbourhood is that busy), and only `q = a >> k` is
-//!   range coded. Within each octave of `s` the distribution of `q` is then about the same, and
-//!   small;
-//! - `q` is one adaptive "non-zero" decision (context: class of `s` × border) and, when
-//!   non-zero, a 3-level binary tree over 8 tokens (context: class of `s`): `q = 1 … 7`
-//!   directly, token 7 an escape followed by the Elias-gamma code of `q − 7` in the raw stream.
-//!   Each tree decision picks the next model by index, with no branch;
-//! - the sign of every non-zero value is one raw bit, after the magnitude's low bits.
+//! - `v = 0` or not is one adaptive decision (context: class of the neighbourhood sum
+//!   `s = 2|L| + 2|T| + |TL| + |TR|` × border), as in the bitwise coder;
+//! - for `v ≠ 0`, `s` picks a shift `k = ⌊log2 s⌋ − 3` (0 below 16): the low `k` bits of
+//!   `|v| − 1` go to a separate **raw bit stream** (they are close to uniform when the
+//!   neighbourhood is that busy), and only `q = (|v| − 1) >> k` is range coded, so that within
+//!   each octave of `s` the distribution of `q` is about the same, and small;
+//! - `q` is a 3-level binary tree over 8 tokens (context: class of `s`): `q = 0 … 6` directly,
+//!   token 7 an escape followed by the Elias-gamma code of `q − 6` in the raw stream. Each tree
+//!   decision picks the next model by index, with no branch;
+//! - then the sign, one raw bit.
 //!
 //! So a non-zero coefficient is four range-coder decisions, a zero one is one, and the raw bits
 //! are off the range coder's serial dependency chain. The range coder is
@@ -43,14 +43,14 @@ mod tests;
 
 /// Levels of the token tree.
 const TREE_LEVELS: u32 = 3;
-/// Tokens: `q = 1 ..= 7`, and the escape.
+/// Tokens: `q = 0 ..= 6`, and the escape.
 const TOKENS: usize = 1 << TREE_LEVELS;
-/// The escape token, `q ≥ 8`.
+/// The escape token, `q ≥ 7`.
 const ESCAPE: u32 = TOKENS as u32 - 1;
-/// Longest Elias-gamma prefix an escape may have: `q − 7 < 2^31`.
+/// Longest Elias-gamma prefix an escape may have: `q − 6 < 2^31`.
 const MAX_GAMMA_ZEROS: u32 = 30;
 
-/// How many low magnitude bits go to the raw stream for neighbourhood sum `sum`: none below 16,
+/// How many low bits of `|v| − 1` go to the raw stream for neighbourhood sum `sum`: none below 16,
 /// one more per octave above. `sum ≤ 6 · MAG_SAT < 2^19`, so at most 15.
 #[inline(always)]
 fn shift_of(sum: u32) -> u32 {
@@ -60,7 +60,7 @@ fn shift_of(sum: u32) -> u32 {
 /// The adaptive models of one band kind.
 #[derive(Clone)]
 struct TokenModels {
-    /// "q ≠ 0", by class × border.
+    /// "v ≠ 0", by class × border.
     zero: [Prob; NCLASS * 2],
     /// Token tree nodes by class; node `n` (1-based, heap order) at `tree[class][n]`.
     tree: [[Prob; TOKENS]; NCLASS],
@@ -95,15 +95,13 @@ const fn tree_prior(rho: f64, n: usize) -> u16 {
 }
 
 impl TokenModels {
-    /// Starting points. Below a sum of 16 nothing is shifted and zeros are as likely as in the
-    /// bitwise coder; above, the shift keeps `q` small and a zero about 40 % likely. The rest
-    /// is fast adaptation.
+    /// Starting points: zeros as likely as in the bitwise coder, and geometric tokens (the
+    /// shift keeps `q` small in busy neighbourhoods). The rest is fast adaptation.
     const INIT: TokenModels = {
         let p_zero: [u16; NCLASS] = [
-            3700, 3200, 2900, 2500, 2100, 1700, 1300, 1000, 1700, 1700, 1700, 1700, 1700, 1700,
-            1700, 1700,
+            3700, 3200, 2900, 2500, 2100, 1700, 1300, 1000, 700, 500, 350, 250, 180, 120, 80, 60,
         ];
-        // Ratio of the geometric prior on q − 1 by class: quiet classes are mostly q = 1.
+        // Ratio of the geometric prior on q by class: quiet classes are mostly |v| = 1.
         let rho: [f64; NCLASS] = [
             0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5,
         ];
@@ -196,10 +194,10 @@ fn encode_coeffs(
             let k = shift_of(sum);
             let v = values[y * w + x];
             let a = v.unsigned_abs();
-            let q = a >> k;
-            enc.encode(&mut m.zero[class * 2 + border], q != 0);
-            if q != 0 {
-                let token = (q - 1).min(ESCAPE);
+            enc.encode(&mut m.zero[class * 2 + border], a != 0);
+            if a != 0 {
+                let q = (a - 1) >> k;
+                let token = q.min(ESCAPE);
                 let tree = &mut m.tree[class];
                 let mut n = 1;
                 for level in (0..TREE_LEVELS).rev() {
@@ -208,11 +206,9 @@ fn encode_coeffs(
                     n = 2 * n + bit as usize;
                 }
                 if token == ESCAPE {
-                    raw.put_gamma(q - ESCAPE);
+                    raw.put_gamma(q - ESCAPE + 1);
                 }
-            }
-            raw.put_bits(a & ((1 << k) - 1), k);
-            if a != 0 {
+                raw.put_bits((a - 1) & ((1 << k) - 1), k);
                 raw.put_bit(v < 0);
             }
             mag[j] = a.min(MAG_SAT) as u16;
@@ -236,9 +232,11 @@ fn decode_one(
     bad_escape: &mut bool,
 ) -> (u32, i32) {
     let class = class_of(sum);
+    if !d.decode(&mut m.zero[class * 2 + border]) {
+        return (0, 0);
+    }
     let k = shift_of(sum);
-    let mut q = 0u32;
-    if d.decode(&mut m.zero[class * 2 + border]) {
+    {
         let tree = &mut m.tree[class];
         let root = tree[1];
         let (mut lo, mut hi) = (tree[2], tree[3]);
@@ -255,24 +253,23 @@ fn decode_one(
         let b2 = d.decode_p(p2.p0());
         tree[n2 & (TOKENS - 1)].update_from(p2, b2);
         let token = (2 * (n2 - 4) + b2 as usize) as u32;
-        q = token + 1;
+        let mut q = token;
         if token == ESCAPE {
             // q·2^k stays at most 2^30 (and a below 2^31) whatever the bytes.
             let q64 = raw
                 .get_gamma(MAX_GAMMA_ZEROS)
-                .map_or(u64::MAX, |r| u64::from(r) + u64::from(ESCAPE));
+                .map_or(u64::MAX, |r| u64::from(r) + u64::from(ESCAPE) - 1);
             *bad_escape |= q64 >= (1 << 30) >> k;
             q = q64.min((1 << 30) >> k) as u32;
         }
+        raw.ensure(16);
+        let bits = raw.peek(k + 1);
+        let a = ((q << k) | (bits >> 1)) + 1;
+        raw.consume_short(k + 1);
+        // a < 2^31: the negation cannot overflow.
+        let sign = ((bits & 1) as i32).wrapping_neg();
+        (a, (a as i32 ^ sign) - sign)
     }
-    raw.ensure(16);
-    let bits = raw.peek(k + 1);
-    let a = (q << k) | (bits >> 1);
-    let nonzero = a != 0;
-    raw.consume_short(k + nonzero as u32);
-    // a < 2^31: the negation cannot overflow.
-    let sign = ((bits & nonzero as u32) as i32).wrapping_neg();
-    (a, (a as i32 ^ sign) - sign)
 }
 
 /// Decodes what [`encode_coeffs`] wrote, in [`pair_order`]: the two rows of a pair are two

@@ -121,7 +121,7 @@ fn reference_decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, Code
                 let class = class_of(sum);
                 let border = (y < 2 || y + 2 >= h || x < 2 || x + 2 >= w) as usize;
                 let k = shift_of(sum);
-                let mut q = 0u64;
+                let (mut a, mut negative) = (0u64, false);
                 if d.decode(&mut m.zero[class * 2 + border]) {
                     let tree = &mut m.tree[class];
                     let mut n = 1;
@@ -129,17 +129,17 @@ fn reference_decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, Code
                         n = 2 * n + d.decode(&mut tree[n]) as usize;
                     }
                     let token = (n - TOKENS) as u64;
-                    q = token + 1;
+                    let mut q = token;
                     if token == u64::from(ESCAPE) {
                         match raw.get_gamma(MAX_GAMMA_ZEROS) {
-                            Some(g) => q = u64::from(g) + u64::from(ESCAPE),
+                            Some(g) => q = u64::from(g) + u64::from(ESCAPE) - 1,
                             None => q = u64::MAX >> 20,
                         }
                     }
+                    let low = if k > 0 { raw.get_bits(k) } else { 0 };
+                    a = ((q << k) | u64::from(low)) + 1;
+                    negative = raw.get_bit();
                 }
-                let low = if k > 0 { raw.get_bits(k) } else { 0 };
-                let a = (q << k) | u64::from(low);
-                let negative = a != 0 && raw.get_bit();
                 if a > u64::from(DecodeLimits::default().max_abs) {
                     failure.get_or_insert(a);
                     return;
@@ -261,8 +261,8 @@ fn limit_is_enforced() {
 #[test]
 fn an_escape_beyond_two_to_the_thirty_is_an_error_not_an_overflow() {
     // A 1×1 band holding 2^30 − 1 codes as an escape whose Elias-gamma value is about 2^30 in
-    // the raw stream. Raising that value by one bit (the leading one moved up, with one more
-    // zero in the prefix) is what no encoder writes.
+    // the raw stream. One more (|v| = 2^30, just over the limit), 2^30 and the largest value a
+    // gamma code can hold are what no encoder writes.
     let bands = [(BandKind::Cells, 1, 1, vec![MAX])];
     let bytes = encode(&bands);
     let (raw_len, header) = get_len(&bytes).unwrap();
@@ -273,8 +273,9 @@ fn an_escape_beyond_two_to_the_thirty_is_an_error_not_an_overflow() {
     let (raw_bytes, coded) = bytes[header..].split_at(raw_len);
     let mut r = BitReader::new(raw_bytes);
     let g = r.get_gamma(MAX_GAMMA_ZEROS).unwrap();
-    assert_eq!(u64::from(g) + u64::from(ESCAPE), MAX as u64);
-    for hostile in [u32::MAX, 1 << 30] {
+    // |v| − 1 = q = g + 6 (no low bits: k = 0 without neighbours).
+    assert_eq!(u64::from(g) + u64::from(ESCAPE) - 1 + 1, MAX as u64);
+    for hostile in [(1 << 30) - 7, 1 << 30, u32::MAX] {
         let mut w = BitWriter::new();
         w.put_gamma(hostile);
         w.put_bit(false);
