@@ -505,8 +505,9 @@ fn decode_coeffs(
     Ok(())
 }
 
-/// Encodes `bands` as one record appended to `out`.
-pub(crate) fn encode_bands(bands: &[Band<'_>], out: &mut Vec<u8>) {
+/// Whether `bands` make an empty record (all zero); panics on a value the decoders would refuse
+/// (a caller bug, see [`super::encode_bands`]).
+fn all_zero_checked(bands: &[Band<'_>]) -> bool {
     let max_abs = DecodeLimits::default().max_abs;
     for b in bands {
         assert!(
@@ -514,7 +515,12 @@ pub(crate) fn encode_bands(bands: &[Band<'_>], out: &mut Vec<u8>) {
             "band value exceeds ±{max_abs}"
         );
     }
-    if bands.iter().all(|b| b.values.iter().all(|&v| v == 0)) {
+    bands.iter().all(|b| b.values.iter().all(|&v| v == 0))
+}
+
+/// Encodes `bands` as one record appended to `out`.
+pub(crate) fn encode_bands(bands: &[Band<'_>], out: &mut Vec<u8>) {
+    if all_zero_checked(bands) {
         return;
     }
     let mut enc = Encoder::new();

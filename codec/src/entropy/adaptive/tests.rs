@@ -9,7 +9,11 @@ use proptest::prelude::*;
 
 pub(super) const MAX: i32 = ((1u32 << 30) - 1) as i32;
 
-fn encode(bands: &[(BandKind, usize, usize, Vec<i32>)]) -> Vec<u8> {
+/// Bands as tests write them: kind, width, height, values.
+pub(super) type Shapes = [(BandKind, usize, usize, Vec<i32>)];
+
+/// Encodes with `coder`, checking that a record is appended without touching what precedes it.
+pub(super) fn encode_with(coder: CoderKind, bands: &Shapes) -> Vec<u8> {
     let bands: Vec<Band<'_>> = bands
         .iter()
         .map(|(kind, w, h, v)| Band {
@@ -20,25 +24,29 @@ fn encode(bands: &[(BandKind, usize, usize, Vec<i32>)]) -> Vec<u8> {
         })
         .collect();
     let mut out = vec![0xAB]; // records are appended: a prefix must survive untouched
-    encode_bands(CoderKind::Adaptive, &bands, &mut out);
+    encode_bands(coder, &bands, &mut out);
     assert_eq!(out[0], 0xAB);
     out.remove(0);
     out
 }
 
-fn decode(
-    bytes: &[u8],
-    shapes: &[(BandKind, usize, usize, Vec<i32>)],
-) -> Result<Vec<Vec<i32>>, CodecError> {
+fn encode(bands: &Shapes) -> Vec<u8> {
+    encode_with(CoderKind::Adaptive, bands)
+}
+
+fn decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, CodecError> {
     // Start from garbage: the decoder must overwrite everything.
     decode_into(bytes, shapes, 7, None)
 }
 
-/// Decodes into buffers pre-filled with `fill`, with fresh scratch or with `scratch` reused.
-fn decode_into(
+/// Decodes with `coder` into buffers pre-filled with `fill`, with fresh scratch or with
+/// `scratch` reused.
+pub(super) fn decode_with(
+    coder: CoderKind,
     bytes: &[u8],
-    shapes: &[(BandKind, usize, usize, Vec<i32>)],
+    shapes: &Shapes,
     fill: i32,
+    limits: DecodeLimits,
     scratch: Option<&mut DecodeScratch>,
 ) -> Result<Vec<Vec<i32>>, CodecError> {
     let mut bufs: Vec<Vec<i32>> = shapes
@@ -55,12 +63,21 @@ fn decode_into(
             values: buf,
         })
         .collect();
-    let limits = DecodeLimits::default();
     match scratch {
-        None => decode_bands(CoderKind::Adaptive, bytes, &mut bands, limits)?,
-        Some(s) => decode_bands_with(CoderKind::Adaptive, bytes, &mut bands, limits, s)?,
+        None => decode_bands(coder, bytes, &mut bands, limits)?,
+        Some(s) => decode_bands_with(coder, bytes, &mut bands, limits, s)?,
     }
     Ok(bufs)
+}
+
+fn decode_into(
+    bytes: &[u8],
+    shapes: &Shapes,
+    fill: i32,
+    scratch: Option<&mut DecodeScratch>,
+) -> Result<Vec<Vec<i32>>, CodecError> {
+    let limits = DecodeLimits::default();
+    decode_with(CoderKind::Adaptive, bytes, shapes, fill, limits, scratch)
 }
 
 fn assert_round_trip(bands: &[(BandKind, usize, usize, Vec<i32>)]) -> Vec<u8> {
@@ -370,7 +387,7 @@ fn reference_decode(
 }
 
 /// Same values, or errors of the same kind (messages may name different magnitudes).
-fn assert_same_outcome(
+pub(super) fn assert_same_outcome(
     fast: Result<Vec<Vec<i32>>, CodecError>,
     reference: Result<Vec<Vec<i32>>, CodecError>,
 ) {

@@ -32,7 +32,9 @@
 
 use super::range_coder::Prob;
 use super::wide_range_coder::{WideDecoder as Decoder, WideEncoder as Encoder};
-use super::{B, MAG_SAT, NCLASS, NODE_LEVELS, Scratch, class_of, code_node, model_set};
+use super::{
+    B, MAG_SAT, NCLASS, NODE_LEVELS, Scratch, all_zero_checked, class_of, code_node, model_set,
+};
 use crate::CodecError;
 use crate::entropy::bitio::{BitReader, BitWriter};
 use crate::entropy::{Band, BandMut, DecodeLimits};
@@ -381,14 +383,7 @@ fn decode_coeffs(
 
 /// Encodes `bands` as one record appended to `out`.
 pub(crate) fn encode_bands(bands: &[Band<'_>], out: &mut Vec<u8>) {
-    let max_abs = DecodeLimits::default().max_abs;
-    for b in bands {
-        assert!(
-            b.values.iter().all(|v| v.unsigned_abs() <= max_abs),
-            "band value exceeds ±{max_abs}"
-        );
-    }
-    if bands.iter().all(|b| b.values.iter().all(|&v| v == 0)) {
+    if all_zero_checked(bands) {
         return;
     }
     let mut enc = Encoder::new();

@@ -1,35 +1,15 @@
-use super::super::super::{
-    Band, BandKind, BandMut, CoderKind, DecodeLimits, DecodeScratch, decode_bands,
-    decode_bands_with, encode_bands,
+use super::super::super::{BandKind, CoderKind, DecodeLimits, DecodeScratch};
+use super::super::tests::{
+    MAX, Rng, Shapes, assert_same_outcome, band_strategy, decode_with, encode_with, gamma_bits,
+    laplace_band,
 };
-use super::super::tests::{MAX, Rng, band_strategy, gamma_bits, laplace_band};
 use super::*;
 use proptest::prelude::*;
-
-type Shapes = [(BandKind, usize, usize, Vec<i32>)];
-
-fn encode_with(coder: CoderKind, bands: &Shapes) -> Vec<u8> {
-    let bands: Vec<Band<'_>> = bands
-        .iter()
-        .map(|(kind, w, h, v)| Band {
-            kind: *kind,
-            width: *w,
-            height: *h,
-            values: v,
-        })
-        .collect();
-    let mut out = vec![0xAB]; // records are appended: a prefix must survive untouched
-    encode_bands(coder, &bands, &mut out);
-    assert_eq!(out[0], 0xAB);
-    out.remove(0);
-    out
-}
 
 fn encode(bands: &Shapes) -> Vec<u8> {
     encode_with(CoderKind::AdaptiveTokens, bands)
 }
 
-/// Decodes into buffers pre-filled with `fill`, with fresh scratch or with `scratch` reused.
 fn decode_into(
     bytes: &[u8],
     shapes: &Shapes,
@@ -37,26 +17,14 @@ fn decode_into(
     limits: DecodeLimits,
     scratch: Option<&mut DecodeScratch>,
 ) -> Result<Vec<Vec<i32>>, CodecError> {
-    let mut bufs: Vec<Vec<i32>> = shapes
-        .iter()
-        .map(|(_, w, h, _)| vec![fill; w * h])
-        .collect();
-    let mut bands: Vec<BandMut<'_>> = shapes
-        .iter()
-        .zip(bufs.iter_mut())
-        .map(|((kind, w, h, _), buf)| BandMut {
-            kind: *kind,
-            width: *w,
-            height: *h,
-            values: buf,
-        })
-        .collect();
-    let coder = CoderKind::AdaptiveTokens;
-    match scratch {
-        None => decode_bands(coder, bytes, &mut bands, limits)?,
-        Some(s) => decode_bands_with(coder, bytes, &mut bands, limits, s)?,
-    }
-    Ok(bufs)
+    decode_with(
+        CoderKind::AdaptiveTokens,
+        bytes,
+        shapes,
+        fill,
+        limits,
+        scratch,
+    )
 }
 
 fn decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, CodecError> {
@@ -161,22 +129,6 @@ fn reference_decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, Code
         Some(_) => Err(CodecError::corrupt("padding")),
         None if raw.is_overrun() => Err(CodecError::truncated("raw stream")),
         None => Err(CodecError::corrupt("unused raw bytes")),
-    }
-}
-
-/// Same values, or errors of the same kind (messages may differ).
-fn assert_same_outcome(
-    fast: Result<Vec<Vec<i32>>, CodecError>,
-    reference: Result<Vec<Vec<i32>>, CodecError>,
-) {
-    match (fast, reference) {
-        (Ok(a), Ok(b)) => assert_eq!(a, b),
-        (Err(a), Err(b)) => assert_eq!(
-            std::mem::discriminant(&a),
-            std::mem::discriminant(&b),
-            "{a} / {b}"
-        ),
-        (a, b) => panic!("fast {a:?}, reference {b:?}"),
     }
 }
 
