@@ -145,7 +145,7 @@ trait BinCoder {
     fn overran(&self) -> bool;
 }
 
-/// A [`BinCoder`] that also codes equiprobable bits in its own stream.
+/// A [`BinCoder`] that also codes equiprobable (bypass) bits.
 trait BypassCoder: BinCoder {
     fn bypass(&mut self, bits: u32, n: u32) -> u32;
 }
