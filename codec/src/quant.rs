@@ -615,6 +615,15 @@ impl HeightGrid {
         self.valid[k].then(|| self.values[k])
     }
 
+    /// Whether `(x, y)` is a valid sample (inside the grid and not nodata).
+    #[inline]
+    pub fn is_valid(&self, x: i64, y: i64) -> bool {
+        if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
+            return false;
+        }
+        self.valid[y as usize * self.width + x as usize]
+    }
+
     /// Smallest and largest valid height, or `None` if no sample is valid.
     pub fn range(&self) -> Option<(i32, i32)> {
         let mut it = self

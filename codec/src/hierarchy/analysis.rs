@@ -49,6 +49,14 @@ impl LevelField {
         self.data[self.index(x, y)]
     }
 
+    /// [`get`](Self::get) for a point inside the domain (`0 ≤ x ≤ extent.0`, `0 ≤ y ≤ extent.1`),
+    /// which needs no reflection: every sample of the data rectangle is one.
+    #[inline]
+    pub fn get_in_domain(&self, x: i64, y: i64) -> i32 {
+        debug_assert!((0..=self.extent.0).contains(&x) && (0..=self.extent.1).contains(&y));
+        self.data[self.index(x, y)]
+    }
+
     /// Index of a point of the domain in `data`.
     #[inline]
     fn index(&self, x: i64, y: i64) -> usize {
@@ -125,6 +133,15 @@ fn filtered_points(
     let n = layout.n();
     let (ex, ey) = layout.extent();
     let g = layout.grid(id);
+    // Each cell centre feeds up to 12 vertex predictions: fetch them once.
+    let m = n - 1;
+    let mut cells = Vec::with_capacity(m * m);
+    for cj in 0..m {
+        for ci in 0..m {
+            let (x2, y2) = g.point2(2 * ci as i64 + 1, 2 * cj as i64 + 1);
+            cells.push(i64::from(finer.get(x2 / 2, y2 / 2)));
+        }
+    }
     let mut out = Vec::with_capacity(n * n);
     for j in 0..n {
         for i in 0..n {
@@ -132,13 +149,10 @@ fn filtered_points(
             if x < 0 || y < 0 || x > ex || y > ey {
                 continue;
             }
-            let v = i64::from(finer.get(x, y));
+            let v = i64::from(finer.get_in_domain(x, y));
             let inner = (1..n - 1).contains(&i) && (1..n - 1).contains(&j);
             let p = if inner {
-                let cell = |ci: usize, cj: usize| {
-                    let (x2, y2) = g.point2(2 * ci as i64 + 1, 2 * cj as i64 + 1);
-                    i64::from(finer.get(x2 / 2, y2 / 2))
-                };
+                let cell = |ci: usize, cj: usize| cells[cj * m + ci];
                 let num = predict_vertex_numerator(cell, n, i, j);
                 (32 * v + num + 32) >> 6
             } else {

@@ -66,11 +66,15 @@ impl Targets<'_> {
 
     #[inline]
     fn at(&self, level: u8, x: i64, y: i64) -> Option<i32> {
-        let v = self.grid.get(x, y)?;
-        Some(match &self.fields {
-            Some(f) => f[level as usize].get(x, y),
-            None => v,
-        })
+        match &self.fields {
+            // A valid sample lies in the data rectangle, inside the domain: no reflection, and
+            // the input's own value is not needed.
+            Some(f) => self
+                .grid
+                .is_valid(x, y)
+                .then(|| f[level as usize].get_in_domain(x, y)),
+            None => self.grid.get(x, y),
+        }
     }
 }
 

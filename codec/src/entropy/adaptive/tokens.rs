@@ -210,8 +210,8 @@ fn encode_coeffs(
                 if token == ESCAPE {
                     raw.put_gamma(q - ESCAPE + 1);
                 }
-                raw.put_bits((a - 1) & ((1 << k) - 1), k);
-                raw.put_bit(v < 0);
+                // The low bits, then the sign: one write.
+                raw.put_bits((((a - 1) & ((1 << k) - 1)) << 1) | (v < 0) as u32, k + 1);
             }
             mag[j] = a.min(MAG_SAT) as u16;
         });

@@ -43,16 +43,15 @@ impl WideEncoder {
     #[inline(always)]
     pub(super) fn encode(&mut self, prob: &mut Prob, bit: bool) {
         let bound = (self.range >> PROB_BITS) * u64::from(prob.p0());
-        if bit {
-            let (low, carry) = self.low.overflowing_add(bound);
-            self.low = low;
-            if carry {
-                self.propagate_carry();
-            }
-            self.range -= bound;
-        } else {
-            self.range = bound;
+        // Selects rather than a branch on the bit, as in the decoder; only the rare carry
+        // branches.
+        let mask = 0u64.wrapping_sub(bit as u64);
+        let (low, carry) = self.low.overflowing_add(bound & mask);
+        self.low = low;
+        if carry {
+            self.propagate_carry();
         }
+        self.range = (bound & !mask) | (self.range.wrapping_sub(bound) & mask);
         prob.update(bit);
         if self.range < TOP {
             self.out
