@@ -104,12 +104,10 @@ impl Encoder {
     #[inline(always)]
     pub(super) fn encode(&mut self, prob: &mut Prob, bit: bool) {
         let bound = (self.range >> PROB_BITS) * prob.p0();
-        if bit {
-            self.low += u64::from(bound);
-            self.range -= bound;
-        } else {
-            self.range = bound;
-        }
+        // Selects rather than a branch on the bit, as in the decoder.
+        let mask = 0u32.wrapping_sub(bit as u32);
+        self.low += u64::from(bound & mask);
+        self.range = (bound & !mask) | (self.range.wrapping_sub(bound) & mask);
         prob.update(bit);
         if self.range < TOP {
             self.range <<= 8;
