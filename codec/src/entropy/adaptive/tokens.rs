@@ -159,13 +159,17 @@ fn pair_order(n: usize, pair: bool, mut f: impl FnMut(usize, usize)) {
     }
 }
 
-/// The columns of the non-zero leaf blocks of block row `y / B`, appended to `slots`.
-fn fill_slots(slots: &mut Vec<u32>, s: &Scratch, y: usize, w: usize) {
-    let (gw, _) = s.dims[0];
-    let frow = &s.flags[0][(y / B + 1) * (gw + 1) + 1..][..gw];
-    slots.clear();
-    for (bx, _) in frow.iter().enumerate().filter(|&(_, &f)| f != 0) {
-        slots.extend((bx * B..(bx * B + B).min(w)).map(|x| x as u32));
+impl Scratch {
+    /// Sets `slots` to the columns of the non-zero leaf blocks of block row `y / B` of a band
+    /// `w` wide, left to right.
+    fn fill_slots(&mut self, y: usize, w: usize) {
+        let (gw, _) = self.dims[0];
+        let frow = &self.flags[0][(y / B + 1) * (gw + 1) + 1..][..gw];
+        self.slots.clear();
+        for (bx, _) in frow.iter().enumerate().filter(|&(_, &f)| f != 0) {
+            self.slots
+                .extend((bx * B..(bx * B + B).min(w)).map(|x| x as u32));
+        }
     }
 }
 
@@ -181,10 +185,11 @@ fn encode_coeffs(
     h: usize,
 ) {
     let stride = w + 4;
-    let mut slots = Vec::new();
     for y0 in (0..h).step_by(2) {
-        fill_slots(&mut slots, s, y0, w);
-        let mag = &mut s.mag;
+        if y0 % B == 0 {
+            s.fill_slots(y0, w);
+        }
+        let (slots, mag) = (s.slots.as_slice(), &mut s.mag);
         pair_order(slots.len(), y0 + 1 < h, |i, r| {
             let (x, y) = (slots[i] as usize, y0 + r);
             let j = (y + 2) * stride + 2 + x;
@@ -284,7 +289,6 @@ fn decode_coeffs(
     raw: &mut BitReader<'_>,
     m: &mut TokenModels,
     s: &mut Scratch,
-    slots: &mut Vec<u32>,
     values: &mut [i32],
     w: usize,
     h: usize,
@@ -296,8 +300,11 @@ fn decode_coeffs(
     let mut bad_escape = false;
     for y0 in (0..h).step_by(2) {
         if y0 % B == 0 {
-            fill_slots(slots, s, y0, w);
+            s.fill_slots(y0, w);
         }
+        // A slice, not the Vec: its pointer and length then stay in registers across the
+        // stores below.
+        let slots = s.slots.as_slice();
         let n = slots.len();
         if n == 0 {
             continue;
@@ -432,10 +439,7 @@ pub(crate) fn decode_bands(
     let (raw_bytes, coded) = rest.split_at(raw_len);
     let mut raw = BitReader::new(raw_bytes);
     let mut dec = Decoder::new(coded);
-    let mut slots = std::mem::take(&mut s.slots);
-    let result = decode_all(&mut dec, &mut raw, s, &mut slots, bands, limits);
-    s.slots = slots;
-    result?;
+    decode_all(&mut dec, &mut raw, s, bands, limits)?;
     dec.finish()?;
     // Only the zero padding of the raw stream's last byte may be left.
     match raw.remaining_padding() {
@@ -457,7 +461,6 @@ fn decode_all(
     dec: &mut Decoder<'_>,
     raw: &mut BitReader<'_>,
     s: &mut Scratch,
-    slots: &mut Vec<u32>,
     bands: &mut [BandMut<'_>],
     limits: DecodeLimits,
 ) -> Result<(), CodecError> {
@@ -475,17 +478,7 @@ fn decode_all(
         if dec.overran() {
             return Err(CodecError::truncated("adaptive tokens record ends early"));
         }
-        decode_coeffs(
-            dec,
-            raw,
-            m,
-            s,
-            slots,
-            b.values,
-            b.width,
-            b.height,
-            limits.max_abs,
-        )?;
+        decode_coeffs(dec, raw, m, s, b.values, b.width, b.height, limits.max_abs)?;
     }
     Ok(())
 }

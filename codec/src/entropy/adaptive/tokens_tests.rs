@@ -60,7 +60,6 @@ fn reference_decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, Code
     let mut d = Decoder::new(coded);
     let mut models = [TokenModels::INIT, TokenModels::INIT];
     let mut s = Scratch::default();
-    let mut slots = Vec::new();
     for ((kind, w, h, _), values) in shapes.iter().zip(bufs.iter_mut()) {
         let (w, h) = (*w, *h);
         if w == 0 || h == 0 {
@@ -78,8 +77,8 @@ fn reference_decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, Code
         let stride = w + 4;
         let mut failure = None;
         for y0 in (0..h).step_by(2) {
-            fill_slots(&mut slots, &s, y0, w);
-            let mag = &mut s.mag;
+            s.fill_slots(y0, w);
+            let (slots, mag) = (&s.slots, &mut s.mag);
             pair_order(slots.len(), y0 + 1 < h, |i, r| {
                 let (x, y) = (slots[i] as usize, y0 + r);
                 let j = (y + 2) * stride + 2 + x;
