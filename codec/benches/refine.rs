@@ -78,7 +78,7 @@ struct Decoded {
 
 fn decode_all(enc: &Encoded) -> Decoded {
     let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
-    let layout = enc.params.layout;
+    let layout = enc.params.layout();
     let mut refined: HashMap<DiamondId, Refined> = HashMap::new();
     let mut grids = Vec::with_capacity(enc.records.len());
     let mut scratch = RefineScratch::default();
@@ -130,7 +130,7 @@ fn bench(c: &mut Criterion) {
             case.label()
         );
         let dec = decode_all(&enc);
-        let n = enc.params.layout.n() as u64;
+        let n = enc.params.layout().n() as u64;
         let per_record = (n - 1) * (n - 1)
             + if case.alpha == Alpha::Half {
                 (n - 2) * (n - 2)
@@ -157,7 +157,7 @@ fn bench(c: &mut Criterion) {
         });
         g.finish();
 
-        let layout = enc.params.layout;
+        let layout = enc.params.layout();
         let parents: Vec<(DiamondId, [Option<&Refined>; 2])> = enc
             .records
             .iter()

@@ -98,7 +98,7 @@ fn colour_decoder_matches_reconstruction_and_elevation_decoder_refuses() {
     // Refine every stored diamond with the colour decoder, level by level, and compare the
     // finest diamonds' RGB with the whole-image reconstruction.
     let dec = repo.colour_decoder().unwrap();
-    let layout = repo.params().layout;
+    let layout = repo.params().layout();
     let full = reconstruct_rgb(&enc).unwrap();
     let mut refined = std::collections::HashMap::new();
     let mut scratch = Default::default();
@@ -127,7 +127,7 @@ fn colour_decoder_matches_reconstruction_and_elevation_decoder_refuses() {
                 let (x, y) = g.point(i as i64, j as i64);
                 // Points on a side whose parent is absent are not gathered; sides inside the
                 // data always have both parents stored.
-                if repo.params().in_data(x, y) && parents.iter().all(|p| p.is_some()) {
+                if repo.params().domain.data().contains(x, y) && parents.iter().all(|p| p.is_some()) {
                     assert_eq!(rgb[j * n + i], full[y as usize * 33 + x as usize], "{id}");
                     checked += 1;
                 }
@@ -143,7 +143,7 @@ fn hostile_colour_records_error_not_panic() {
     let (enc, plan) = encode_colour(&img, 2, &opts(), &|_, _| {}).unwrap();
     let repo = Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap();
     let dec = repo.colour_decoder().unwrap();
-    let n = repo.params().layout.n();
+    let n = repo.params().layout().n();
     let grids = [vec![0i32; n * n], vec![0; n * n], vec![0; n * n]];
     let mut rng = Rng(5);
     let mut scratch = Default::default();
@@ -179,11 +179,7 @@ fn alignment_accepts_power_of_two_refinements_and_refuses_mismatches() {
         assert_eq!(a.shift, shift, "{w}×{h}");
     }
     let a = Alignment::new(&e, None, &colour(49, 33), None).unwrap();
-    let id = cbdam_codec::geometry::DiamondId {
-        level: 1,
-        x: 16,
-        y: 8,
-    };
+    let id = cbdam_codec::geometry::DiamondId::new(1, 16, 8);
     assert_eq!(a.colour_id(id).map(|c| (c.x, c.y)), Some((32, 16)));
     // Off by one sample, a different aspect, or swapped kinds: refused, naming the domain.
     for (w, h) in [(26, 17), (25, 18), (49, 17), (50, 34)] {

@@ -122,7 +122,7 @@ fn check(
     assert!(plan.max_error() <= eps * (1.0 + 1e-9));
     assert_eq!(
         report.levels.len(),
-        enc.params.layout.finest_level() as usize + 1
+        enc.params.layout().finest_level() as usize + 1
     );
     // Every valid sample is a vertex of some finest diamond, so the finest level checked all.
     assert!(

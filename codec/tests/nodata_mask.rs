@@ -20,14 +20,14 @@ use cbdam_codec::repository::{Repository, serialize};
 fn check_mask(enc: &Encoded, grid: &HeightGrid) -> usize {
     let p = enc.params;
     assert_eq!(p.nodata_mask, grid.valid.iter().any(|v| !v));
-    let n = p.layout.n();
+    let n = p.layout().n();
     let mut checked = 0;
     walk_with_validity(enc, |id, _, valid| {
-        let g = p.layout.grid(id);
+        let g = p.layout().grid(id);
         for j in 0..n {
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);
-                if !p.in_data(x, y) {
+                if !p.domain.data().contains(x, y) {
                     continue;
                 }
                 let want = grid.valid[y as usize * grid.width + x as usize];

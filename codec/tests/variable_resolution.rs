@@ -149,7 +149,7 @@ fn every_sample_within_bound_and_coarse_areas_stay_coarse() {
     // at or below the coarse leaf level lies near the fine input — within the few diamonds of
     // its level that the parent closure adds around the fine leaves' ancestors (each level up
     // widens it by about one radius of that level, a geometric sum below 4 radii).
-    let layout: Layout = enc.params.layout;
+    let layout: Layout = *enc.params.layout();
     let coarse_level = layout.finest_level() - 2 * COARSE_LOG2;
     let mut deep = 0;
     for r in &enc.records {

@@ -36,7 +36,7 @@ pub struct Summary {
 /// Computes the [`Summary`] of `repo` (one pass over the index).
 pub fn summarize(repo: &Repository) -> Summary {
     let p = repo.params();
-    let finest = p.layout.finest_level();
+    let finest = p.layout().finest_level();
     let mut levels = vec![
         LevelStats {
             object_error_min: u32::MAX,
@@ -57,7 +57,7 @@ pub fn summarize(repo: &Repository) -> Summary {
         // Smooth terrain has many all-zero records at coarse tolerances.
         empty_records += usize::from(e.length == 0);
     }
-    let samples = u64::from(p.data_width) * u64::from(p.data_height);
+    let samples = u64::from(p.domain.data().width) * u64::from(p.domain.data().height);
     Summary {
         levels,
         empty_records,
@@ -105,11 +105,11 @@ pub fn describe(repo: &Repository) -> Value {
         let half = if g.pixel_is_area { 0.0 } else { 0.5 };
         let x0 = g.origin_x - half * g.pixel_x;
         let y0 = g.origin_y + half * g.pixel_y;
-        let x1 = x0 + f64::from(p.data_width) * g.pixel_x;
-        let y1 = y0 - f64::from(p.data_height) * g.pixel_y;
+        let x1 = x0 + f64::from(p.domain.data().width) * g.pixel_x;
+        let y1 = y0 - f64::from(p.domain.data().height) * g.pixel_y;
         [x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1)]
     });
-    let (ex, ey) = p.layout.extent();
+    let (ex, ey) = p.layout().face_extent();
     let levels: Vec<Value> = s
         .levels
         .iter()
@@ -124,24 +124,24 @@ pub fn describe(repo: &Repository) -> Value {
         })
         .collect();
     let section = |sec: Section| json!({ "offset": repo.section_offset(sec), "length": repo.section_len(sec) });
-    let roots: Vec<String> = p.layout.roots().map(|id| id.to_string()).collect();
+    let roots: Vec<String> = p.layout().roots().map(|id| id.to_string()).collect();
     json!({
         "format_version": repo.head().format_version(),
         "kind": p.kind.name(),
         "file_bytes": repo.file_len(),
         "header_crc": format!("{:08x}", repo.header_crc()),
-        "diamond_size": p.layout.n(),
-        "level_pairs": p.layout.k(),
-        "finest_level": p.layout.finest_level(),
-        "roots_x": p.layout.roots_x(),
-        "roots_y": p.layout.roots_y(),
+        "diamond_size": p.layout().n(),
+        "level_pairs": p.layout().k(),
+        "finest_level": p.layout().finest_level(),
+        "roots_x": p.layout().roots_x(),
+        "roots_y": p.layout().roots_y(),
         "roots": roots,
         "alpha": alpha_name(p.alpha),
         "coder": p.coder.name(),
         "k": p.quantizer.k(),
         "root_k": p.root_quantizer.k(),
-        "data_width": p.data_width,
-        "data_height": p.data_height,
+        "data_width": p.domain.data().width,
+        "data_height": p.domain.data().height,
         "extent": {
             "lattice_width": ex + 1,
             "lattice_height": ey + 1,

@@ -63,7 +63,7 @@ async fn listing_and_meta() {
     );
     assert_eq!(
         m["levels"].as_array().unwrap().len(),
-        usize::from(repo.params().layout.finest_level()) + 1
+        usize::from(repo.params().layout().finest_level()) + 1
     );
     // head_len: everything before the records area, which is last.
     let head = repo.section_offset(Section::Records);
@@ -84,7 +84,7 @@ async fn listing_and_meta() {
         .iter()
         .map(|r| r.as_str().unwrap().parse().unwrap())
         .collect();
-    assert_eq!(roots, repo.params().layout.roots().collect::<Vec<_>>());
+    assert_eq!(roots, repo.params().layout().roots().collect::<Vec<_>>());
     assert!(!roots.is_empty() && roots.iter().all(|r| r.level == 0));
 
     // Revalidation: the same ETag gives 304 with no body.

@@ -49,7 +49,7 @@ impl Alignment {
                 "the colour repository is an elevation repository, not a colour one",
             ));
         }
-        let (e, c) = (&elevation.layout, &colour.layout);
+        let (e, c) = (elevation.layout(), colour.layout());
         let mismatch = |what: String| {
             Err(CodecError::invalid(format!(
                 "the colour repository does not cover the elevation's domain: {what}"
@@ -62,19 +62,18 @@ impl Alignment {
                 e.n()
             ));
         }
-        if (e.roots_x(), e.roots_y()) != (c.roots_x(), c.roots_y()) {
+        let (er, cr) = (e.root_counts(), c.root_counts());
+        if er != cr {
             return mismatch(format!(
                 "{}×{} root diamonds (colour) vs {}×{} (elevation)",
-                c.roots_x(),
-                c.roots_y(),
-                e.roots_x(),
-                e.roots_y()
+                cr.0, cr.1, er.0, er.1
             ));
         }
         let scaled = |samples: u32, k: u32| u128::from(samples.saturating_sub(1)) << k;
+        let (de, dc) = (elevation.domain.data(), colour.domain.data());
         for (name, we, wc) in [
-            ("width", elevation.data_width, colour.data_width),
-            ("height", elevation.data_height, colour.data_height),
+            ("width", de.width, dc.width),
+            ("height", de.height, dc.height),
         ] {
             if scaled(wc, e.k()) != scaled(we, c.k()) {
                 return mismatch(format!(
@@ -99,10 +98,8 @@ impl Alignment {
                     .max(ge.pixel_y.abs())
                     .max(gc.pixel_y.abs());
             let last = |p: &CodecParams| {
-                (
-                    f64::from(p.data_width) - 1.0,
-                    f64::from(p.data_height) - 1.0,
-                )
+                let d = p.domain.data();
+                (f64::from(d.width) - 1.0, f64::from(d.height) - 1.0)
             };
             let corners = [
                 (sample_centre(ge, 0.0, 0.0), sample_centre(gc, 0.0, 0.0)),
@@ -142,6 +139,7 @@ impl Alignment {
         };
         Some(DiamondId {
             level: id.level,
+            face: id.face,
             x: scale(id.x)?,
             y: scale(id.y)?,
         })

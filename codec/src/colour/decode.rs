@@ -101,8 +101,8 @@ fn split_encoded(encoded: &Encoded) -> Result<[Encoded; 3], CodecError> {
     }))
 }
 
-/// Decodes the finest level of a colour hierarchy onto its image grid (`data_width ×
-/// data_height`, row-major) as RGB.
+/// Decodes the finest level of a colour hierarchy onto its image grid (the domain's data
+/// rectangle, row-major) as RGB.
 pub fn reconstruct_rgb(encoded: &Encoded) -> Result<Vec<[u8; 3]>, CodecError> {
     let [y, co, cg] = split_encoded(encoded)?;
     let (y, co, cg) = (
@@ -143,10 +143,11 @@ impl ColourVerifyReport {
 /// within `k` of the channel's input, and the finest level's RGB within the derived bound.
 pub fn verify_colour(encoded: &Encoded, img: &RgbImage) -> Result<ColourVerifyReport, CodecError> {
     let p = &encoded.params;
-    if (p.data_width as usize, p.data_height as usize) != (img.width, img.height) {
+    let data = p.domain.data();
+    if data.size() != (img.width, img.height) {
         return Err(CodecError::invalid(format!(
             "the repository holds a {}×{} image, the input is {}×{}",
-            p.data_width, p.data_height, img.width, img.height
+            data.width, data.height, img.width, img.height
         )));
     }
     let split = split_encoded(encoded)?;

@@ -2,7 +2,7 @@
 
 use std::collections::{BTreeSet, HashMap};
 
-use super::{Diagonal, DiamondId, Half, IdSet, Layout};
+use super::{Diagonal, DiamondId, Domain, Half, IdSet, Layout};
 
 /// A triangle in lattice coordinates, counter-clockwise (x east, y south counts as a right-handed
 /// frame here: only consistency matters).
@@ -35,18 +35,18 @@ impl Cut {
 
     /// Refines `id`, first forcing its parents (recursively). Returns the diamonds newly
     /// refined, parents before children. Diamonds of the finest level cannot be refined.
-    pub fn refine(&mut self, layout: &Layout, id: DiamondId) -> Vec<DiamondId> {
+    pub fn refine(&mut self, domain: &Domain, id: DiamondId) -> Vec<DiamondId> {
         let mut done = Vec::new();
-        self.refine_into(layout, id, &mut done);
+        self.refine_into(domain, id, &mut done);
         done
     }
 
-    fn refine_into(&mut self, layout: &Layout, id: DiamondId, done: &mut Vec<DiamondId>) {
-        if self.lookup.contains(&id) || id.level >= layout.finest_level() || !layout.contains(id) {
+    fn refine_into(&mut self, domain: &Domain, id: DiamondId, done: &mut Vec<DiamondId>) {
+        if self.lookup.contains(&id) || id.level >= domain.finest_level() || !domain.contains(id) {
             return;
         }
-        for p in layout.parents(id).into_iter().flatten() {
-            self.refine_into(layout, p, done);
+        for p in domain.parents(id).into_iter().flatten() {
+            self.refine_into(domain, p, done);
         }
         self.refined.insert(id);
         self.lookup.insert(id);
@@ -54,8 +54,8 @@ impl Cut {
     }
 
     /// Undoes the refinement of `id` if none of its children is refined. Returns whether it did.
-    pub fn coarsen(&mut self, layout: &Layout, id: DiamondId) -> bool {
-        let blocked = layout
+    pub fn coarsen(&mut self, domain: &Domain, id: DiamondId) -> bool {
+        let blocked = domain
             .children(id)
             .into_iter()
             .flatten()
@@ -65,16 +65,16 @@ impl Cut {
 
     /// The halves the cut draws: the half of `K` lying in parent `A` is drawn iff `A` is refined
     /// and `K` is not; unrefined roots draw both halves.
-    pub fn drawn_halves(&self, layout: &Layout) -> Vec<(DiamondId, Half)> {
-        let mut out: Vec<(DiamondId, Half)> = layout
+    pub fn drawn_halves(&self, domain: &Domain) -> Vec<(DiamondId, Half)> {
+        let mut out: Vec<(DiamondId, Half)> = domain
             .roots()
             .filter(|r| !self.lookup.contains(r))
             .flat_map(|r| Half::BOTH.map(|h| (r, h)))
             .collect();
         for &a in &self.refined {
-            for k in layout.children(a).into_iter().flatten() {
+            for k in domain.children(a).into_iter().flatten() {
                 if !self.lookup.contains(&k) {
-                    let half = layout.half_in(k, a).expect("child lists its parent");
+                    let half = domain.half_in(k, a).expect("child lists its parent");
                     out.push((k, half));
                 }
             }
@@ -83,10 +83,10 @@ impl Cut {
     }
 
     /// All triangles the cut draws, in lattice coordinates.
-    pub fn triangles(&self, layout: &Layout) -> Vec<Triangle> {
+    pub fn triangles(&self, domain: &Domain) -> Vec<Triangle> {
         let mut out = Vec::new();
-        for (id, half) in self.drawn_halves(layout) {
-            half_triangles(layout, id, half, &mut out);
+        for (id, half) in self.drawn_halves(domain) {
+            half_triangles(domain.layout(), id, half, &mut out);
         }
         out
     }
@@ -130,13 +130,13 @@ fn signed_area2(t: &Triangle) -> i64 {
     (t[1].0 - t[0].0) * (t[2].1 - t[0].1) - (t[2].0 - t[0].0) * (t[1].1 - t[0].1)
 }
 
-/// Checks that `triangles` form a conforming triangulation of the layout's whole domain: every
+/// Checks that `triangles` form a conforming triangulation of the whole (planar) domain: every
 /// triangle non-degenerate and inside the domain, their areas adding up to the domain's, and
 /// every directed edge matched by exactly one opposite edge unless it lies on the domain's
 /// boundary. Together these rule out cracks, T-junctions (an edge with a vertex in its interior
 /// has no single matching edge), overlaps and holes.
-pub fn check_conforming(layout: &Layout, triangles: &[Triangle]) -> Result<(), String> {
-    let (ex, ey) = layout.extent();
+pub fn check_conforming(domain: &Domain, triangles: &[Triangle]) -> Result<(), String> {
+    let (ex, ey) = domain.layout().face_extent();
     let mut area2 = 0i64;
     type Edge = ((i64, i64), (i64, i64));
     let mut edges: HashMap<Edge, u32> = HashMap::new();
@@ -184,9 +184,10 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    fn random_cut(layout: &Layout, picks: &[(u8, u32, u32)]) -> Cut {
+    fn random_cut(domain: &Domain, picks: &[(u8, u32, u32)]) -> Cut {
+        let layout = domain.layout();
         let mut cut = Cut::new();
-        let (ex, ey) = layout.extent();
+        let (ex, ey) = layout.face_extent();
         for &(l, fx, fy) in picks {
             let level = l % layout.finest_level().max(1);
             // Snap a random point to the nearest centre of the chosen level, then refine it.
@@ -197,7 +198,7 @@ mod tests {
                 if let (Ok(x), Ok(y)) = (u32::try_from(x + dx), u32::try_from(y + dy)) {
                     let id = DiamondId::new(level, x, y);
                     if layout.contains(id) {
-                        let newly = cut.refine(layout, id);
+                        let newly = cut.refine(domain, id);
                         // Parents come before children in the returned order.
                         for (pos, d) in newly.iter().enumerate() {
                             for p in layout.parents(*d).into_iter().flatten() {
@@ -217,7 +218,7 @@ mod tests {
 
     #[test]
     fn coarsest_and_finest_cuts_conform() {
-        let layout = Layout::new(5, 2, 2, 1).unwrap();
+        let layout = Domain::full_plane(Layout::new(5, 2, 2, 1).unwrap());
         let cut = Cut::new();
         check_conforming(&layout, &cut.triangles(&layout)).unwrap();
         // Refine everything but the finest level.
@@ -233,7 +234,7 @@ mod tests {
         let tris = cut.triangles(&layout);
         check_conforming(&layout, &tris).unwrap();
         // Finest level everywhere: one unit-spaced grid, two triangles per lattice cell.
-        let (ex, ey) = layout.extent();
+        let (ex, ey) = layout.layout().face_extent();
         assert_eq!(tris.len() as i64, 2 * ex * ey);
     }
 
@@ -241,7 +242,7 @@ mod tests {
     fn the_naive_cut_rule_leaves_holes() {
         // "Draw unrefined diamonds whose parents are both refined" is not the same rule: a
         // diamond with one refined parent leaves its half in that parent undrawn.
-        let layout = Layout::new(3, 2, 1, 1).unwrap();
+        let layout = Domain::full_plane(Layout::new(3, 2, 1, 1).unwrap());
         let mut cut = Cut::new();
         let root = layout.roots().next().unwrap();
         cut.refine(&layout, root);
@@ -255,7 +256,7 @@ mod tests {
                 .flatten()
                 .all(|p| cut.is_refined(p));
             if all_parents_refined {
-                half_triangles(&layout, id, half, &mut naive);
+                half_triangles(layout.layout(), id, half, &mut naive);
             }
         }
         assert!(check_conforming(&layout, &naive).is_err());
@@ -264,7 +265,7 @@ mod tests {
 
     #[test]
     fn a_missing_triangle_or_a_t_junction_is_detected() {
-        let layout = Layout::new(3, 1, 1, 1).unwrap();
+        let layout = Domain::full_plane(Layout::new(3, 1, 1, 1).unwrap());
         let mut cut = Cut::new();
         cut.refine(&layout, layout.roots().next().unwrap());
         let mut tris = cut.triangles(&layout);
@@ -280,7 +281,7 @@ mod tests {
         let m = ((t2[0].0 + t2[1].0) / 2, (t2[0].1 + t2[1].1) / 2);
         doubled.push([t2[0], m, t2[2]]);
         doubled.push([m, t2[1], t2[2]]);
-        let big = Layout::new(3, 2, 1, 1).unwrap(); // twice the extent
+        let big = Domain::full_plane(Layout::new(3, 2, 1, 1).unwrap()); // twice the extent
         let err = check_conforming(&big, &doubled).unwrap_err();
         assert!(
             err.contains("T-junction") || err.contains("neighbour"),
@@ -299,7 +300,7 @@ mod tests {
             picks in proptest::collection::vec((any::<u8>(), any::<u32>(), any::<u32>()), 0..40),
             coarsen in proptest::collection::vec(any::<u16>(), 0..20),
         ) {
-            let layout = Layout::new((1 << n_pow) + 1, k, rx, ry).unwrap();
+            let layout = Domain::full_plane(Layout::new((1 << n_pow) + 1, k, rx, ry).unwrap());
             let mut cut = random_cut(&layout, &picks);
             check_conforming(&layout, &cut.triangles(&layout)).map_err(TestCaseError::fail)?;
             // Coarsening (garbage collection) keeps it conforming too.

@@ -1,4 +1,4 @@
-//! The root set and the index arithmetic of the whole hierarchy.
+//! The index arithmetic of the hierarchy on one face: a rectangle of level-0 squares.
 
 use super::{Diagonal, DiamondId, GridMap, Half};
 use crate::CodecError;
@@ -10,11 +10,12 @@ pub const MIN_N: usize = 3;
 /// See [`MIN_N`].
 pub const MAX_N: usize = 1025;
 
-/// The diamond hierarchy over a planar `roots_x × roots_y` grid of level-0 squares.
+/// The diamond hierarchy over one face: a `roots_x × roots_y` grid of level-0 squares.
 ///
-/// The root set is the only thing that knows the domain's shape: everything else asks it
-/// whether a centre exists ([`Layout::contains`]). A cube-sphere root set would answer the same
-/// questions with a face index and wrap-around at face edges.
+/// It knows the integer arithmetic every face shares (grids, radii, bounds, which centres exist
+/// and how they relate inside the face). The shape of the whole surface — how many faces, how
+/// they connect, where data lies — belongs to [`super::Domain`], which callers ask about
+/// existence and relations.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Layout {
     n: usize,
@@ -103,8 +104,12 @@ impl Layout {
     pub fn root_side(&self) -> i64 {
         ((self.n - 1) as i64) << self.k
     }
-    /// Lattice extent of the domain: `[0, ex] × [0, ey]`.
-    pub fn extent(&self) -> (i64, i64) {
+    /// Number of roots along x and y.
+    pub fn root_counts(&self) -> (u32, u32) {
+        (self.roots_x, self.roots_y)
+    }
+    /// Lattice extent of the face: `[0, ex] × [0, ey]`.
+    pub fn face_extent(&self) -> (i64, i64) {
         let s = self.root_side();
         (s * i64::from(self.roots_x), s * i64::from(self.roots_y))
     }
@@ -114,6 +119,23 @@ impl Layout {
         self.root_side() >> (u32::from(level) / 2 + 1)
     }
 
+    /// Every diamond of `level` on the face, in id order (by centre x, then y).
+    pub fn level(&self, level: u8) -> impl Iterator<Item = DiamondId> + '_ {
+        let r = self.radius(level.min(self.finest_level()));
+        let (ex, ey) = self.face_extent();
+        let valid = level <= self.finest_level();
+        let step = r as usize;
+        (0..=ex)
+            .step_by(step)
+            .filter(move |_| valid)
+            .flat_map(move |x| {
+                (0..=ey)
+                    .step_by(step)
+                    .map(move |y| DiamondId::new(level, x as u32, y as u32))
+            })
+            .filter(move |&id| self.contains(id))
+    }
+
     /// Whether `id` is a diamond of this hierarchy (possibly one that sticks out of the domain).
     pub fn contains(&self, id: DiamondId) -> bool {
         if id.level > self.finest_level() {
@@ -121,7 +143,7 @@ impl Layout {
         }
         let r = self.radius(id.level);
         let (x, y) = (i64::from(id.x), i64::from(id.y));
-        let (ex, ey) = self.extent();
+        let (ex, ey) = self.face_extent();
         if id.is_even() {
             x % (2 * r) == r && y % (2 * r) == r && x < ex && y < ey
         } else {
@@ -225,7 +247,12 @@ impl Layout {
     fn at(&self, level: u8, from: DiamondId, o: (i64, i64)) -> Option<DiamondId> {
         let x = i64::from(from.x) + o.0;
         let y = i64::from(from.y) + o.1;
-        let id = DiamondId::new(level, u32::try_from(x).ok()?, u32::try_from(y).ok()?);
+        let id = DiamondId::on_face(
+            from.face,
+            level,
+            u32::try_from(x).ok()?,
+            u32::try_from(y).ok()?,
+        );
         self.contains(id).then_some(id)
     }
 
@@ -365,7 +392,7 @@ mod tests {
                 }
             }
             // Even levels tile the domain with (S0/side)² squares per root.
-            let (ex, ey) = layout.extent();
+            let (ex, ey) = layout.face_extent();
             for (l, &count) in per_level.iter().enumerate() {
                 if l % 2 == 0 {
                     let side = 2 * layout.radius(l as u8);
@@ -425,7 +452,7 @@ mod tests {
             (8, 1, 1, 16384)
         );
         let l = Layout::covering(65, 4320, 2161, 0).unwrap();
-        assert!(l.extent().0 >= 4319 && l.extent().1 >= 2160);
+        assert!(l.face_extent().0 >= 4319 && l.face_extent().1 >= 2160);
         assert!(Layout::covering(65, 0, 5, 0).is_err());
         assert!(Layout::new(64, 1, 1, 1).is_err());
         assert!(Layout::new(65, 30, 1, 1).is_err());

@@ -17,12 +17,14 @@
 
 mod cut;
 mod diamond;
+mod domain;
 mod grid;
 mod id_hash;
 mod layout;
 
 pub use cut::{Cut, Triangle, check_conforming};
 pub use diamond::{DiamondId, Half};
+pub use domain::{DataRect, DomainKind, Domain, RootField};
 pub use grid::{Diagonal, GridMap, IndexMap};
 pub use id_hash::{IdBuildHasher, IdHasher, IdMap, IdSet};
 pub use layout::Layout;

@@ -26,7 +26,7 @@ pub struct LevelField {
 
 impl LevelField {
     fn new(layout: &Layout, level: u8) -> Self {
-        let (ex, ey) = layout.extent();
+        let (ex, ey) = layout.face_extent();
         let grid = layout.grid(DiamondId::new(level, 0, 0));
         // Even levels: axis steps (h, 0); odd levels: diagonal steps (d, ±d) — either way every
         // point of the level lies on the axis-aligned grid of spacing |u.0|.
@@ -85,7 +85,7 @@ pub fn analysis_fields(layout: &Layout, grid: &HeightGrid) -> Vec<LevelField> {
     let finest = layout.finest_level();
     let filled = fill_nodata(grid);
     let mut fine = LevelField::new(layout, finest);
-    let ey = layout.extent().1;
+    let ey = layout.face_extent().1;
     let (w, h) = (grid.width as i64, grid.height as i64);
     let cols = fine.cols;
     fine.data
@@ -131,7 +131,7 @@ fn filtered_points(
     field: &LevelField,
 ) -> Vec<(usize, i32)> {
     let n = layout.n();
-    let (ex, ey) = layout.extent();
+    let (ex, ey) = layout.face_extent();
     let g = layout.grid(id);
     // Each cell centre feeds up to 12 vertex predictions: fetch them once.
     let m = n - 1;
@@ -167,7 +167,7 @@ fn filtered_points(
 /// Every diamond of a level, inside the domain or sticking out of it.
 fn all_diamonds_of_level(layout: &Layout, level: u8) -> Vec<DiamondId> {
     let r = layout.radius(level);
-    let (ex, ey) = layout.extent();
+    let (ex, ey) = layout.face_extent();
     let mut out = Vec::new();
     let mut push = |x: i64, y: i64| {
         let id = DiamondId::new(level, x as u32, y as u32);
@@ -253,7 +253,7 @@ mod tests {
     /// The serial analysis that [`analysis_fields`] replaced, point by point with divisions:
     /// the reference.
     fn reference(layout: &Layout, grid: &HeightGrid) -> Vec<Vec<i32>> {
-        let (ex, ey) = layout.extent();
+        let (ex, ey) = layout.face_extent();
         let at = |data: &[i32], g: i64, x: i64, y: i64| {
             let (x, y) = (reflect_slow(x, ex), reflect_slow(y, ey));
             data[(y / g) as usize * (ex / g + 1) as usize + (x / g) as usize]

@@ -45,12 +45,12 @@ impl Decoder {
     /// The `N × N` grid of `id`: from the root field at level 0, otherwise gathered from the
     /// refinements of its existing parents ([`gather`]).
     pub fn grid_of(&self, id: DiamondId, parents: [Option<&Refined>; 2]) -> Vec<i32> {
-        let n = self.params.layout.n();
+        let n = self.params.layout().n();
         let mut p = vec![0i32; n * n];
         if id.level == 0 {
-            root_grid(&self.params.layout, &self.roots, id, &mut p);
+            root_grid(&self.params.domain, &self.roots, id, &mut p);
         } else {
-            gather(&self.params.layout, id, parents, &mut p);
+            gather(&self.params.domain, id, parents, &mut p);
         }
         p
     }
@@ -59,12 +59,12 @@ impl Decoder {
     /// points are valid. Only points inside the data rectangle are meaningful.
     pub fn validity_of(&self, id: DiamondId, parents: [Option<&Refined>; 2]) -> Option<Vec<bool>> {
         if id.level > 0 {
-            return gather_validity(&self.params.layout, id, parents);
+            return gather_validity(&self.params.domain, id, parents);
         }
         let field = self.root_valid.as_ref()?;
-        let n = self.params.layout.n();
+        let n = self.params.layout().n();
         let mut v = vec![true; n * n];
-        root_grid(&self.params.layout, field, id, &mut v);
+        root_grid(&self.params.domain, field, id, &mut v);
         Some(v)
     }
 
@@ -144,12 +144,12 @@ fn walk_impl(
     mut visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
 ) -> Result<(), CodecError> {
     let params = encoded.params;
-    let layout = params.layout;
+    let (domain, layout) = (&params.domain, params.layout());
     let decoder = Decoder::new(params, &encoded.roots)?;
     let finest = layout.finest_level();
     let mut by_level: Vec<Vec<(DiamondId, &[u8])>> = vec![Vec::new(); finest as usize + 1];
     for r in &encoded.records {
-        if r.id.level >= finest || !layout.contains(r.id) {
+        if r.id.level >= finest || !domain.contains(r.id) {
             return Err(CodecError::corrupt(format!(
                 "record for impossible diamond {}",
                 r.id
@@ -163,11 +163,11 @@ fn walk_impl(
         let mut ids: Vec<DiamondId> = by_level[level as usize].iter().map(|(id, _)| *id).collect();
         if finest == 0 {
             // A single level: the roots are the leaves, and there are no records.
-            ids = layout.roots().collect();
+            ids = domain.roots().collect();
         } else if level == finest || (all_levels && level > 0) {
             let mut leaves: Vec<DiamondId> = prev
                 .keys()
-                .flat_map(|&p| layout.children(p))
+                .flat_map(|&p| domain.children(p))
                 .flatten()
                 .filter(|&c| {
                     layout
@@ -187,7 +187,7 @@ fn walk_impl(
         let mut next = HashMap::new();
         let records: HashMap<DiamondId, &[u8]> = by_level[level as usize].iter().copied().collect();
         for id in ids {
-            let parent_ids = layout.parents(id);
+            let parent_ids = domain.parents(id);
             let parents = parent_ids.map(|p| p.and_then(|p| prev.get(&p)));
             if level > 0
                 && parent_ids
@@ -223,8 +223,8 @@ pub fn reconstruct_finest_with_validity(
     encoded: &Encoded,
 ) -> Result<(Vec<i32>, Vec<bool>), CodecError> {
     let params = encoded.params;
-    let layout = params.layout;
-    let (w, h) = (params.data_width as usize, params.data_height as usize);
+    let layout = params.layout();
+    let (w, h) = params.domain.data().size();
     // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
     let mut out = Vec::new();
     w.checked_mul(h)
@@ -245,7 +245,7 @@ pub fn reconstruct_finest_with_validity(
         for j in 0..n {
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);
-                if params.in_data(x, y) {
+                if params.domain.data().contains(x, y) {
                     let k = y as usize * w + x as usize;
                     out[k] = p[j * n + i];
                     valid[k] = v.is_none_or(|v| v[j * n + i]);
@@ -272,8 +272,8 @@ pub enum Reached {
 /// vertices never change; for α = ½ the finest visit wins), and the nodata mask there.
 pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>), CodecError> {
     let params = encoded.params;
-    let layout = params.layout;
-    let (w, h) = (params.data_width as usize, params.data_height as usize);
+    let layout = params.layout();
+    let (w, h) = params.domain.data().size();
     // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
     let mut out = Vec::new();
     let mut state = Vec::new();
@@ -292,7 +292,7 @@ pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>)
         for j in 0..n {
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);
-                if params.in_data(x, y) {
+                if params.domain.data().contains(x, y) {
                     let k = y as usize * w + x as usize;
                     out[k] = p[j * n + i];
                     state[k] = if v.is_none_or(|v| v[j * n + i]) {
@@ -314,7 +314,7 @@ pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>)
 /// by how much.
 pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, CodecError> {
     let params = encoded.params;
-    let layout = params.layout;
+    let layout = params.layout();
     let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(&layout, input));
     let n = layout.n();
     let mut levels: Vec<LevelReport> = (0..=layout.finest_level())

@@ -10,11 +10,11 @@ use super::mask::encode_mask;
 use super::object_error::{ErrorInput, surface_error};
 use super::refine::{Refined, gather};
 use super::resolution::{Resolution, variable_sets};
-use super::roots::{encode_roots, root_field_dims, root_grid, root_spacing};
+use super::roots::{encode_roots, root_grid};
 use super::{CodecParams, Encoded, Record};
 use crate::CodecError;
 use crate::entropy::{Band, BandKind, CoderKind, encode_bands};
-use crate::geometry::{DiamondId, Layout};
+use crate::geometry::{DiamondId, Domain, Layout};
 use crate::lifting::{
     Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_inner_vertices,
 };
@@ -170,15 +170,14 @@ fn encode_impl(
     if grid.range().is_none() {
         return Err(CodecError::invalid("the input has no valid sample"));
     }
-    let layout = Layout::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
+    let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
+    let layout = *domain.layout();
     let params = CodecParams {
-        layout,
+        domain,
         alpha: opts.alpha,
         coder: opts.coder,
         quantizer,
         root_quantizer: super::root_quantizer(quantizer),
-        data_width: u32::try_from(grid.width).map_err(|_| CodecError::limit("grid too wide"))?,
-        data_height: u32::try_from(grid.height).map_err(|_| CodecError::limit("grid too tall"))?,
         nodata_mask: match resolution {
             Some(r) => r.has_holes(),
             None => grid.valid.iter().any(|v| !v),
@@ -193,10 +192,10 @@ fn encode_impl(
     // Single resolution: every stored diamond above the finest level has a record.
     let (stored, recorded) = match resolution {
         Some(r) => {
-            let sets = variable_sets(&layout, grid.width, r);
+            let sets = variable_sets(&params.domain, grid.width, r);
             (sets.stored, Some(sets.recorded))
         }
-        None => (stored_sets(&layout, grid), None),
+        None => (stored_sets(&params.domain, grid), None),
     };
     let (root_field, roots) = encode_roots(
         &params,
@@ -247,7 +246,7 @@ fn encode_impl(
     let mut saturated: HashMap<DiamondId, u32> = HashMap::new();
     for level in (0..=finest).rev() {
         for &id in &stored[level as usize] {
-            let children = layout.children(id).into_iter().flatten();
+            let children = domain.children(id).into_iter().flatten();
             let e = children
                 .filter_map(|c| saturated.get(&c))
                 .fold(own_error[&id], |a, &b| a.max(b));
@@ -304,7 +303,7 @@ impl Levels<'_> {
 
     /// The levels with the previous level's refinements kept per diamond (any α).
     fn per_diamond(&self) -> Result<LevelOutput, CodecError> {
-        let layout = &self.params.layout;
+        let layout = self.params.layout();
         let (finest, n) = (layout.finest_level(), layout.n());
         let mut records: Vec<Record> = Vec::new();
         let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
@@ -313,10 +312,12 @@ impl Levels<'_> {
             let grids_of = |id: DiamondId| -> Vec<i32> {
                 let mut p = vec![0i32; n * n];
                 if level == 0 {
-                    root_grid(layout, self.root_field, id, &mut p);
+                    root_grid(&self.params.domain, self.root_field, id, &mut p);
                 } else {
-                    let parents = layout.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
-                    gather(layout, id, parents, &mut p);
+                    let parents = (self.params.domain)
+                        .parents(id)
+                        .map(|pid| pid.map(|pid| &prev[&pid]));
+                    gather(&self.params.domain, id, parents, &mut p);
                 }
                 p
             };
@@ -365,13 +366,13 @@ impl Levels<'_> {
     /// The levels with one reconstruction field (α = 1): each refinement writes its new points
     /// into the field, and the next level gathers from it.
     fn field(&self, storage: &TempStorage) -> Result<LevelOutput, CodecError> {
-        let layout = &self.params.layout;
+        let layout = self.params.layout();
         let (finest, n) = (layout.finest_level(), layout.n());
-        let (ex, ey) = layout.extent();
+        let (ex, ey) = layout.face_extent();
         let field = ReconField::new(ex as usize + 1, ey as usize + 1, storage)?;
         // Level 0's vertices: the root field covers the domain at spacing 2^K.
-        let (rw, rh) = root_field_dims(layout);
-        let s = root_spacing(layout);
+        let rf = self.params.domain.root_field();
+        let (rw, rh, s) = (rf.width, rf.height, rf.spacing);
         for (k, &v) in self.root_field.iter().enumerate() {
             field.set((k % rw) as i64 * s, (k / rw) as i64 * s, v);
         }
@@ -382,9 +383,9 @@ impl Levels<'_> {
             let grid_of = |id: DiamondId| -> Vec<i32> {
                 let mut p = vec![0i32; n * n];
                 if level == 0 {
-                    root_grid(layout, self.root_field, id, &mut p);
+                    root_grid(&self.params.domain, self.root_field, id, &mut p);
                 } else {
-                    field.gather(layout, id, &mut p);
+                    field.gather(&self.params.domain, id, &mut p);
                 }
                 p
             };
@@ -458,7 +459,7 @@ fn refine_encode(
     target: impl Fn(i64, i64) -> Option<i32>,
     drawn: impl Fn(i64, i64) -> bool,
 ) -> Result<Refinement, CodecError> {
-    let layout = &params.layout;
+    let layout = params.layout();
     let n = layout.n();
     let m = n - 1;
     let g = layout.grid(id);
@@ -551,7 +552,7 @@ fn refine_encode(
             }
             let (x2, y2) = g.point2(a as i64, b as i64);
             let (x, y) = (x2 / 2, y2 / 2);
-            let v = params.in_data(x, y).then(|| drawn(x, y));
+            let v = params.domain.data().contains(x, y).then(|| drawn(x, y));
             if v == Some(false) {
                 all_valid.set(false);
             }
@@ -577,11 +578,12 @@ fn refine_encode(
 /// The stored diamonds of every level `0..=L`, sorted: the finest diamonds that meet a valid
 /// sample, and all their ancestors (a child's grid comes half from each parent, and some
 /// parents do not touch the data themselves).
-pub(crate) fn stored_sets(layout: &Layout, grid: &HeightGrid) -> Vec<Vec<DiamondId>> {
+pub(crate) fn stored_sets(domain: &Domain, grid: &HeightGrid) -> Vec<Vec<DiamondId>> {
+    let layout = domain.layout();
     let (w, h) = (grid.width, grid.height);
     let finest = layout.finest_level();
     let r = layout.radius(finest) as usize;
-    let (ex, ey) = layout.extent();
+    let (ex, ey) = layout.face_extent();
     // Leaf (a, b) is centred at ((2a+1)r, (2b+1)r); it exists while the centre is inside the
     // domain, and is stored when its closed box [2ar, 2ar + 2r] × [2br, 2br + 2r] holds a valid
     // sample. Scanning each leaf's rows with an early exit keeps this one pass over the mask at
@@ -622,7 +624,7 @@ pub(crate) fn stored_sets(layout: &Layout, grid: &HeightGrid) -> Vec<Vec<Diamond
     for level in (0..finest as usize).rev() {
         let parents: BTreeSet<DiamondId> = sets[level + 1]
             .iter()
-            .flat_map(|&d| layout.parents(d))
+            .flat_map(|&d| domain.parents(d))
             .flatten()
             .collect();
         sets[level] = parents.into_iter().collect();
@@ -663,7 +665,7 @@ mod tests {
         };
         let finest = layout.finest_level();
         let r = layout.radius(finest);
-        let (ex, ey) = layout.extent();
+        let (ex, ey) = layout.face_extent();
         let mut leaves = Vec::new();
         for cy in (r..ey.min(h as i64 - 1 + r + 1)).step_by(2 * r as usize) {
             for cx in (r..ex.min(w as i64 - 1 + r + 1)).step_by(2 * r as usize) {
@@ -751,8 +753,9 @@ mod tests {
             holes in proptest::collection::vec(any::<u16>(), 0..400),
         ) {
             let grid = terrain(w, h, &holes, 7);
-            let layout = Layout::covering((1 << n_pow) + 1, w, h, extra).unwrap();
-            let sets = stored_sets(&layout, &grid);
+            let domain = Domain::covering((1 << n_pow) + 1, w, h, extra).unwrap();
+            let layout = *domain.layout();
+            let sets = stored_sets(&domain, &grid);
             prop_assert_eq!(&sets[layout.finest_level() as usize], &leaves_by_table(&layout, &grid));
         }
     }

@@ -28,7 +28,7 @@ use memmap2::MmapMut;
 
 use super::refine::{half_range, mirror_missing_halves};
 use crate::CodecError;
-use crate::geometry::{DiamondId, Half, Layout};
+use crate::geometry::{DiamondId, Domain, Half};
 
 /// Where the encoder keeps its large temporaries (the reconstruction field).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -131,13 +131,14 @@ impl ReconField {
     /// refinements: the halves whose parent exists are read from the field, a half whose parent
     /// does not exist (a diamond on the domain's edge) is the mirror image of the other across
     /// the split diagonal.
-    pub(crate) fn gather(&self, layout: &Layout, id: DiamondId, out: &mut [i32]) {
+    pub(crate) fn gather(&self, domain: &Domain, id: DiamondId, out: &mut [i32]) {
+        let layout = domain.layout();
         let n = layout.n();
         assert_eq!(out.len(), n * n);
         let cells = self.cells();
         let grid = layout.grid(id);
         let diag = layout.diagonal(id);
-        let parents = layout.parents(id);
+        let parents = domain.parents(id);
         assert!(
             parents.iter().any(Option::is_some),
             "{id} has no parent to gather from"

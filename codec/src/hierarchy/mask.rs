@@ -17,7 +17,6 @@
 //! with zero bits. A bitmap whose cared points are all valid costs 2 bits (one byte).
 
 use super::CodecParams;
-use super::roots::{root_field_dims, root_spacing};
 use crate::CodecError;
 use crate::geometry::DiamondId;
 
@@ -208,23 +207,23 @@ pub fn count_valid_samples<'a>(
     root_bytes: &[u8],
     records: impl IntoIterator<Item = (DiamondId, &'a [u8])>,
 ) -> Result<u64, CodecError> {
-    let layout = &params.layout;
-    let total = u64::from(params.data_width) * u64::from(params.data_height);
+    let domain = &params.domain;
+    let layout = domain.layout();
     if !params.nodata_mask {
-        return Ok(total);
+        return Ok(domain.data().samples() * u64::from(domain.faces()));
     }
-    let (rw, rh) = root_field_dims(layout);
-    let s = root_spacing(layout);
-    let (roots, _) = decode_mask(rw, rh, root_bytes)?;
+    let rf = domain.root_field();
+    let (rw, s) = (rf.width, rf.spacing);
+    let (roots, _) = decode_mask(rw, rf.height, root_bytes)?;
     let mut count = 0u64;
     for (k, &v) in roots.iter().enumerate() {
         let (x, y) = ((k % rw) as i64 * s, (k / rw) as i64 * s);
-        count += u64::from(v && params.in_data(x, y));
+        count += u64::from(v && domain.holds_data(0, x, y));
     }
     let n = layout.n();
     let side = 2 * n - 1;
     for (id, bytes) in records {
-        if id.level >= layout.finest_level() || !layout.contains(id) {
+        if id.level >= layout.finest_level() || !domain.contains(id) {
             return Err(CodecError::corrupt(format!(
                 "record for impossible diamond {id}"
             )));
@@ -239,7 +238,7 @@ pub fn count_valid_samples<'a>(
             for a in (1..side).step_by(2) {
                 let (x2, y2) = g.point2(a as i64, b as i64);
                 let valid = mask.as_ref().is_none_or(|m| m[b * side + a]);
-                count += u64::from(valid && params.in_data(x2 / 2, y2 / 2));
+                count += u64::from(valid && domain.holds_data(id.face, x2 / 2, y2 / 2));
             }
         }
     }

@@ -35,18 +35,17 @@ pub use encode::{
 pub use field::TempStorage;
 pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
 pub use resolution::Resolution;
-pub use roots::root_field_dims;
 
 use crate::entropy::{BandKind, CoderKind};
-use crate::geometry::{DiamondId, Layout};
+use crate::geometry::{DiamondId, Domain, Layout};
 use crate::lifting::Alpha;
 use crate::quant::Quantizer;
 
 /// Everything a decoder needs to know besides the bytes: what a repository header holds.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CodecParams {
-    /// The diamond hierarchy.
-    pub layout: Layout,
+    /// The surface the hierarchy covers: faces, roots, the region that holds data.
+    pub domain: Domain,
     /// Lifting weight of inner vertices.
     pub alpha: Alpha,
     /// Which entropy coder wrote the records.
@@ -55,10 +54,6 @@ pub struct CodecParams {
     pub quantizer: Quantizer,
     /// The root field's quantizer, finer than `quantizer` ([`root_quantizer`]).
     pub root_quantizer: Quantizer,
-    /// Columns of input samples; lattice x of the data is `0..data_width`.
-    pub data_width: u32,
-    /// Rows of input samples; lattice y of the data is `0..data_height`.
-    pub data_height: u32,
     /// Whether the root field and the records carry a nodata mask ([`mask`]); false when every
     /// sample of the data rectangle has data.
     pub nodata_mask: bool,
@@ -97,15 +92,15 @@ pub fn root_quantizer(quantizer: Quantizer) -> Quantizer {
 }
 
 impl CodecParams {
-    /// Whether lattice point `(x, y)` lies in the data rectangle.
+    /// The per-face lattice arithmetic of the domain.
     #[inline]
-    pub fn in_data(&self, x: i64, y: i64) -> bool {
-        x >= 0 && y >= 0 && x < i64::from(self.data_width) && y < i64::from(self.data_height)
+    pub fn layout(&self) -> &Layout {
+        self.domain.layout()
     }
 
     /// The bands of one refinement record: `(kind, width, height)`.
     pub fn record_bands(&self) -> Vec<(BandKind, usize, usize)> {
-        let n = self.layout.n();
+        let n = self.domain.n();
         let mut b = vec![(BandKind::Cells, n - 1, n - 1)];
         if self.alpha == Alpha::Half {
             b.push((BandKind::Vertices, n - 2, n - 2));
@@ -173,7 +168,7 @@ impl Encoded {
     /// The serialised record index (see [`crate::repository::index`]).
     pub fn index_bytes(&self) -> Vec<u8> {
         crate::repository::index::encode_index(
-            &self.params.layout,
+            &self.params.domain,
             &self.index_entries(),
             crate::repository::index::range_shift_for(self.params.quantizer),
         )

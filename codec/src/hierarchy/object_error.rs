@@ -721,7 +721,7 @@ mod tests {
         ) {
             let layout = Layout::new((1 << n_pow) + 1, k, rx, ry).unwrap();
             let n = layout.n();
-            let (ex, ey) = layout.extent();
+            let (ex, ey) = layout.face_extent();
             // Data narrower and shorter than the domain, or reaching its far edge.
             let w = (ex as usize + 1).saturating_sub(cut_w).max(1);
             let h = (ey as usize + 1).saturating_sub(cut_h).max(1);
@@ -776,7 +776,7 @@ mod tests {
     fn extreme_heights_on_coarse_grids_take_wide_lanes_and_stay_exact() {
         // Spacing 2^7 at the root: 44·10⁶ · 2^7 does not fit 32 bits.
         let layout = Layout::new(5, 5, 1, 1).unwrap();
-        let (ex, ey) = layout.extent();
+        let (ex, ey) = layout.face_extent();
         let (w, h) = (ex as usize + 1, ey as usize + 1 - 3);
         let big = crate::lifting::MAX_ABS_HEIGHT;
         let values = (0..w * h)

@@ -5,7 +5,7 @@ use super::CodecParams;
 use super::mask::decode_mask;
 use crate::CodecError;
 use crate::entropy::{BandKind, BandMut, DecodeLimits, DecodeScratch, decode_bands_with};
-use crate::geometry::{Diagonal, DiamondId, Half, Layout};
+use crate::geometry::{Diagonal, DiamondId, Domain, Half};
 use crate::lifting::{
     Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_inner_vertices,
 };
@@ -88,7 +88,7 @@ impl Refined {
 
 /// Gathers the `N × N` grid of a non-root diamond from its parents' refinements.
 ///
-/// `parents[h]` is the refinement of the parent on half `h` ([`Layout::parents`] order); it may
+/// `parents[h]` is the refinement of the parent on half `h` ([`Domain::parents`] order); it may
 /// be `None` only where that parent does not exist (a diamond on the domain's edge), and then
 /// the missing half is the mirror image of the present one across the split diagonal — the
 /// symmetric extension the paper uses for incomplete diamonds.
@@ -96,9 +96,9 @@ impl Refined {
 /// # Panics
 /// If both parents are missing, or if the two parents disagree on the split diagonal (the
 /// parents' sides are never changed by a refinement, so a disagreement is a bug, not bad data).
-pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], out: &mut [i32]) {
+pub fn gather(domain: &Domain, id: DiamondId, parents: [Option<&Refined>; 2], out: &mut [i32]) {
     gather_values(
-        layout,
+        domain,
         id,
         parents.map(|p| p.map(|p| &p.half_step[..])),
         true,
@@ -111,10 +111,11 @@ pub fn gather(layout: &Layout, id: DiamondId, parents: [Option<&Refined>; 2], ou
 /// points inside the data rectangle. Unlike heights, the parents may differ on the diagonal
 /// outside the data rectangle (don't care), so that is not checked.
 pub fn gather_validity(
-    layout: &Layout,
+    domain: &Domain,
     id: DiamondId,
     parents: [Option<&Refined>; 2],
 ) -> Option<Vec<bool>> {
+    let layout = domain.layout();
     if parents.iter().flatten().all(|p| p.valid.is_none()) {
         return None;
     }
@@ -123,18 +124,19 @@ pub fn gather_validity(
     let all = vec![true; side * side];
     let sources = parents.map(|p| p.map(|p| p.valid.as_deref().unwrap_or(&all)));
     let mut out = vec![true; n * n];
-    gather_values(layout, id, sources, false, &mut out);
+    gather_values(domain, id, sources, false, &mut out);
     Some(out)
 }
 
 /// [`gather`] over any per-point values of the parents' half-step grids.
 fn gather_values<T: Copy + PartialEq + std::fmt::Debug>(
-    layout: &Layout,
+    domain: &Domain,
     id: DiamondId,
     parents: [Option<&[T]>; 2],
     check_diagonal: bool,
     out: &mut [T],
 ) {
+    let layout = domain.layout();
     let n = layout.n();
     assert_eq!(out.len(), n * n);
     assert!(
@@ -143,7 +145,7 @@ fn gather_values<T: Copy + PartialEq + std::fmt::Debug>(
     );
     let grid = layout.grid(id);
     let diag = layout.diagonal(id);
-    let ids = layout.parents(id);
+    let ids = domain.parents(id);
     let mut first = true;
     for (h, half) in Half::BOTH.into_iter().enumerate() {
         let Some(parent) = parents[h] else { continue };
@@ -236,7 +238,7 @@ pub fn refine(
     record: &[u8],
     scratch: &mut RefineScratch,
 ) -> Result<Refined, CodecError> {
-    let n = params.layout.n();
+    let n = params.layout().n();
     let m = n - 1;
     let RefineScratch {
         dc,

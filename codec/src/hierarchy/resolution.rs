@@ -19,7 +19,7 @@
 use std::collections::BTreeSet;
 
 use crate::CodecError;
-use crate::geometry::{DiamondId, Layout};
+use crate::geometry::{DiamondId, Domain};
 use crate::quant::HeightGrid;
 
 /// Class of a lattice point between a coarser input's samples (drawn, not constrained).
@@ -75,10 +75,11 @@ pub(crate) struct VariableSets {
 }
 
 /// The stored sets of a variable-resolution grid (module documentation).
-pub(crate) fn variable_sets(layout: &Layout, width: usize, res: &Resolution) -> VariableSets {
+pub(crate) fn variable_sets(domain: &Domain, width: usize, res: &Resolution) -> VariableSets {
+    let layout = domain.layout();
     let height = res.class.len() / width.max(1);
     let finest = layout.finest_level();
-    let (ex, ey) = layout.extent();
+    let (ex, ey) = layout.face_extent();
     let mut strides: Vec<u8> = res.class.iter().copied().filter(|&c| c < 32).collect();
     strides.sort_unstable();
     strides.dedup();
@@ -112,7 +113,7 @@ pub(crate) fn variable_sets(layout: &Layout, width: usize, res: &Resolution) -> 
     for level in (0..finest as usize).rev() {
         let parents: BTreeSet<DiamondId> = stored[level + 1]
             .iter()
-            .flat_map(|&d| layout.parents(d))
+            .flat_map(|&d| domain.parents(d))
             .flatten()
             .collect();
         let all: BTreeSet<DiamondId> = parents.union(&leaves[level]).copied().collect();

@@ -9,22 +9,8 @@ use super::CodecParams;
 use super::mask::{decode_mask, encode_mask};
 use crate::CodecError;
 use crate::entropy::{Band, BandKind, BandMut, DecodeLimits, decode_bands, encode_bands};
-use crate::geometry::{DiamondId, Layout};
+use crate::geometry::{DiamondId, Domain};
 use crate::lifting::MAX_ABS_HEIGHT;
-
-/// Columns and rows of the root field: `roots_x·(N−1)+1 × roots_y·(N−1)+1`.
-pub fn root_field_dims(layout: &Layout) -> (usize, usize) {
-    let n1 = layout.n() - 1;
-    (
-        layout.roots_x() as usize * n1 + 1,
-        layout.roots_y() as usize * n1 + 1,
-    )
-}
-
-/// Lattice spacing of the root field, `2^K`.
-pub(crate) fn root_spacing(layout: &Layout) -> i64 {
-    1i64 << layout.k()
-}
 
 /// Median edge detector prediction of `(x, y)` from the reconstructed left, upper and
 /// upper-left neighbours.
@@ -56,8 +42,8 @@ pub(crate) fn encode_roots(
     target: impl Fn(i64, i64) -> Option<i32>,
     drawn: impl Fn(i64, i64) -> bool,
 ) -> Result<(Vec<i32>, Vec<u8>), CodecError> {
-    let (w, h) = root_field_dims(&params.layout);
-    let s = root_spacing(&params.layout);
+    let rf = params.domain.root_field();
+    let (w, h, s) = (rf.width, rf.height, rf.spacing);
     let q = params.root_quantizer;
     let step = i64::from(q.step());
     let mut recon = vec![0i32; w * h];
@@ -85,7 +71,7 @@ pub(crate) fn encode_roots(
     if params.nodata_mask {
         let cared = |x: usize, y: usize| {
             let (lx, ly) = (x as i64 * s, y as i64 * s);
-            params.in_data(lx, ly).then(|| drawn(lx, ly))
+            params.domain.holds_data(0, lx, ly).then(|| drawn(lx, ly))
         };
         encode_mask(w, h, &cared, &mut bytes);
     }
@@ -100,11 +86,12 @@ pub(crate) fn encode_roots(
 }
 
 /// The decoded root field: heights, and validity when the repository has a nodata mask.
-pub(crate) type RootField = (Vec<i32>, Option<Vec<bool>>);
+pub(crate) type DecodedRoots = (Vec<i32>, Option<Vec<bool>>);
 
 /// Decodes the root field written by [`encode_roots`].
-pub(crate) fn decode_roots(params: &CodecParams, bytes: &[u8]) -> Result<RootField, CodecError> {
-    let (w, h) = root_field_dims(&params.layout);
+pub(crate) fn decode_roots(params: &CodecParams, bytes: &[u8]) -> Result<DecodedRoots, CodecError> {
+    let rf = params.domain.root_field();
+    let (w, h) = (rf.width, rf.height);
     let (valid, bytes) = if params.nodata_mask {
         let (m, used) = decode_mask(w, h, bytes)?;
         (Some(m), &bytes[used..])
@@ -136,11 +123,11 @@ pub(crate) fn decode_roots(params: &CodecParams, bytes: &[u8]) -> Result<RootFie
 }
 
 /// Copies a root diamond's `N × N` grid out of the root field (heights or validity).
-pub(crate) fn root_grid<T: Copy>(layout: &Layout, field: &[T], id: DiamondId, out: &mut [T]) {
-    let n = layout.n();
-    let (w, _) = root_field_dims(layout);
-    let g = layout.grid(id);
-    let s = root_spacing(layout);
+pub(crate) fn root_grid<T: Copy>(domain: &Domain, field: &[T], id: DiamondId, out: &mut [T]) {
+    let n = domain.n();
+    let rf = domain.root_field();
+    let (w, s) = (rf.width, rf.spacing);
+    let g = domain.layout().grid(id);
     let (x0, y0) = ((g.origin.0 / s) as usize, (g.origin.1 / s) as usize);
     for j in 0..n {
         out[j * n..(j + 1) * n].copy_from_slice(&field[(y0 + j) * w + x0..(y0 + j) * w + x0 + n]);

@@ -30,7 +30,7 @@ use crate::CodecError;
 use crate::atomic::write_atomically;
 use crate::colour::{ColourDecoder, ycocg};
 use crate::entropy::CoderKind;
-use crate::geometry::{DiamondId, Layout};
+use crate::geometry::{DataRect, DiamondId, Domain, Layout};
 use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, RepoKind, root_quantizer};
 use crate::input::GeoRef;
 use crate::lifting::Alpha;
@@ -108,7 +108,7 @@ pub fn serialize(
         ));
     }
     let entries = encoded.index_entries();
-    let index = encode_index(&p.layout, &entries, range_shift_for(p.quantizer));
+    let index = encode_index(&p.domain, &entries, range_shift_for(p.quantizer));
     // Empty records (all residuals zero) get no checksum: their length of 0 is already covered
     // by the index's CRC, and smooth terrain has many (all 69 of lidar1m_mn's at 5 m).
     let checksums: Vec<u8> = encoded
@@ -118,8 +118,8 @@ pub fn serialize(
         .flat_map(|r| crc32(&r.bytes).to_le_bytes())
         .collect();
     let records_len: u64 = encoded.records.iter().map(|r| r.bytes.len() as u64).sum();
-    let n = u16::try_from(p.layout.n()).map_err(|_| CodecError::limit("diamond size"))?;
-    let k = u8::try_from(p.layout.k()).map_err(|_| CodecError::limit("level pairs"))?;
+    let n = u16::try_from(p.layout().n()).map_err(|_| CodecError::limit("diamond size"))?;
+    let k = u8::try_from(p.layout().k()).map_err(|_| CodecError::limit("level pairs"))?;
 
     let flags = if p.nodata_mask { FLAG_NODATA_MASK } else { 0 }
         | if p.kind == RepoKind::Colour {
@@ -148,10 +148,10 @@ pub fn serialize(
         geo_flags: georef.map_or(0, |g| 1 | (u8::from(g.pixel_is_area) << 1)),
         nodata_policy: NODATA_DONT_CARE,
         vertical_unit: VERTICAL_METRES,
-        roots_x: p.layout.roots_x(),
-        roots_y: p.layout.roots_y(),
-        data_width: p.data_width,
-        data_height: p.data_height,
+        roots_x: p.layout().roots_x(),
+        roots_y: p.layout().roots_y(),
+        data_width: p.domain.data().width,
+        data_height: p.domain.data().height,
         quantizer_k: p.quantizer.k() as u32,
         root_k: None,
         leaf_error: encoded.leaf_error,
@@ -312,19 +312,15 @@ impl RepositoryHead {
                 h.vertical_unit
             )));
         }
-        let (data_width, data_height) = (h.data_width, h.data_height);
-        let (ex, ey) = layout.extent();
-        if data_width == 0
-            || data_height == 0
-            || i64::from(data_width) > ex + 1
-            || i64::from(data_height) > ey + 1
-        {
-            return Err(CodecError::corrupt(format!(
-                "data size {data_width}×{data_height} does not fit the layout's {}×{} lattice",
-                ex + 1,
-                ey + 1
-            )));
-        }
+        let data = DataRect {
+            width: h.data_width,
+            height: h.data_height,
+        };
+        // A header whose data rectangle does not fit its layout is corrupt, not a bad argument.
+        let domain = Domain::planar(layout, data).map_err(|e| match e {
+            CodecError::InvalidParameter(m) => CodecError::Corrupt(m),
+            e => e,
+        })?;
         let quantizer = Quantizer::new(h.quantizer_k)
             .map_err(|e| CodecError::corrupt(format!("header quantizer: {e}")))?;
         let root_q = root_quantizer(quantizer);
@@ -461,7 +457,7 @@ impl RepositoryHead {
         }
         let record_count = h.record_count;
         let entries = decode_index(
-            &layout,
+            &domain,
             &b[range_of(&sections[1])],
             sections[3].length,
             IndexCoding::for_format_version(version)?,
@@ -480,13 +476,11 @@ impl RepositoryHead {
             )));
         }
         let params = CodecParams {
-            layout,
+            domain,
             alpha,
             coder,
             quantizer,
             root_quantizer: root_q,
-            data_width,
-            data_height,
             nodata_mask: flags & FLAG_NODATA_MASK != 0,
             kind,
         };

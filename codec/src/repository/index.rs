@@ -3,7 +3,7 @@
 //!
 //! Both versions hold the same information in the same order, little-endian / LEB128 varints:
 //! 1. `varint(count)`, the number of stored diamonds.
-//! 2. The *stored-set mask*: one bit per root in layout order; then, level by level in id
+//! 2. The *stored-set mask*: one bit per root in domain order; then, level by level in id
 //!    order, for every stored diamond `D` below level `L − 1` and every existing child `C` of `D`
 //!    whose *designated parent* is `D` (its first existing parent in [`Layout::parents`] order),
 //!    one bit "C is stored". Each stored diamond is named exactly once and ids cost no bytes.
@@ -39,7 +39,7 @@ use std::collections::HashMap;
 
 use crate::CodecError;
 use crate::entropy::adaptive::integers::{FlagModel, IntDecoder, IntEncoder, IntModel, UintModel};
-use crate::geometry::{DiamondId, Layout};
+use crate::geometry::{DiamondId, Domain};
 use crate::quant::Quantizer;
 
 /// What the index says about one stored diamond.
@@ -123,26 +123,26 @@ fn unzigzag(v: u64) -> i64 {
 }
 
 /// The children of `d` for which `d` is the designated parent.
-fn designated_children(layout: &Layout, d: DiamondId) -> impl Iterator<Item = DiamondId> + '_ {
-    layout
+fn designated_children(domain: &Domain, d: DiamondId) -> impl Iterator<Item = DiamondId> + '_ {
+    domain
         .children(d)
         .into_iter()
         .flatten()
-        .filter(move |&c| layout.parents(c).into_iter().flatten().next() == Some(d))
+        .filter(move |&c| domain.parents(c).into_iter().flatten().next() == Some(d))
 }
 
-fn designated_parent(layout: &Layout, id: DiamondId) -> Option<DiamondId> {
-    layout.parents(id).into_iter().flatten().next()
+fn designated_parent(domain: &Domain, id: DiamondId) -> Option<DiamondId> {
+    domain.parents(id).into_iter().flatten().next()
 }
 
 /// The stored-set mask's bits in order, for the stored diamonds `sorted` (in id order).
-fn mask_bits(layout: &Layout, sorted: &[&IndexEntry]) -> Vec<(u8, bool)> {
+fn mask_bits(domain: &Domain, sorted: &[&IndexEntry]) -> Vec<(u8, bool)> {
     let stored: std::collections::HashSet<DiamondId> = sorted.iter().map(|e| e.id).collect();
-    let mut bits: Vec<(u8, bool)> = layout.roots().map(|r| (0, stored.contains(&r))).collect();
-    let last_with_records = layout.finest_level().saturating_sub(1);
+    let mut bits: Vec<(u8, bool)> = domain.roots().map(|r| (0, stored.contains(&r))).collect();
+    let last_with_records = domain.finest_level().saturating_sub(1);
     for e in sorted {
         if e.id.level < last_with_records {
-            bits.extend(designated_children(layout, e.id).map(|c| (c.level, stored.contains(&c))));
+            bits.extend(designated_children(domain, e.id).map(|c| (c.level, stored.contains(&c))));
         }
     }
     bits
@@ -151,12 +151,12 @@ fn mask_bits(layout: &Layout, sorted: &[&IndexEntry]) -> Vec<(u8, bool)> {
 /// Reads the stored-set mask with `next_bit(level of the named diamond)` and returns the stored
 /// ids in id order; `count` bounds them.
 fn read_mask(
-    layout: &Layout,
+    domain: &Domain,
     count: u64,
     mut next_bit: impl FnMut(u8) -> Result<bool, CodecError>,
 ) -> Result<Vec<DiamondId>, CodecError> {
     let mut ids: Vec<DiamondId> = Vec::new();
-    for r in layout.roots() {
+    for r in domain.roots() {
         if next_bit(0)? {
             ids.push(r);
         }
@@ -166,7 +166,7 @@ fn read_mask(
             ));
         }
     }
-    let last_with_records = layout.finest_level().saturating_sub(1);
+    let last_with_records = domain.finest_level().saturating_sub(1);
     // Level by level: the stored diamonds of level l name those of level l + 1.
     let mut level_start = 0;
     loop {
@@ -174,7 +174,7 @@ fn read_mask(
         let mut next: Vec<DiamondId> = Vec::new();
         for &d in &ids[level_start..level_end] {
             if d.level < last_with_records {
-                for c in designated_children(layout, d) {
+                for c in designated_children(domain, d) {
                     if next_bit(c.level)? {
                         next.push(c);
                         if ids.len() as u64 + next.len() as u64 > count {
@@ -228,11 +228,11 @@ impl References {
     /// The reference of `id`. With `both_parents` the range is the union of both parents'
     /// ranges (version 2: a diamond's two halves lie in its two parents), else the designated
     /// parent's (version 1).
-    fn of(&self, layout: &Layout, id: DiamondId, both_parents: bool) -> Reference {
-        match designated_parent(layout, id).and_then(|p| self.known.get(&p)) {
+    fn of(&self, domain: &Domain, id: DiamondId, both_parents: bool) -> Reference {
+        match designated_parent(domain, id).and_then(|p| self.known.get(&p)) {
             Some(&(error, mut min, mut max, empty)) => {
                 if both_parents {
-                    for p in layout.parents(id).into_iter().flatten() {
+                    for p in domain.parents(id).into_iter().flatten() {
                         if let Some(&(_, lo, hi, _)) = self.known.get(&p) {
                             (min, max) = (min.min(lo), max.max(hi));
                         }
@@ -315,7 +315,7 @@ fn coarse_range(min: i32, max: i32, shift: u32) -> (i64, i64) {
 /// implied by the id order) in the current coding, [`IndexCoding::Adaptive`], with height ranges
 /// rounded outward to multiples of `2^range_shift` units (see [`range_shift_for`]). The stored
 /// set must be closed under parents, as the encoder's is.
-pub fn encode_index(layout: &Layout, entries: &[IndexEntry], range_shift: u32) -> Vec<u8> {
+pub fn encode_index(domain: &Domain, entries: &[IndexEntry], range_shift: u32) -> Vec<u8> {
     let range_shift = range_shift.min(MAX_RANGE_SHIFT);
     let mut sorted: Vec<&IndexEntry> = entries.iter().collect();
     sorted.sort_by_key(|e| e.id);
@@ -324,12 +324,12 @@ pub fn encode_index(layout: &Layout, entries: &[IndexEntry], range_shift: u32) -
     put_varint(&mut out, u64::from(range_shift));
     let mut enc = IntEncoder::new();
     let mut m = Models::default();
-    for (level, on) in mask_bits(layout, &sorted) {
+    for (level, on) in mask_bits(domain, &sorted) {
         enc.flag(&mut m.mask[usize::from(level).min(MASK_LEVELS - 1)], on);
     }
     let mut refs = References::default();
     for e in sorted {
-        let r = refs.of(layout, e.id, true);
+        let r = refs.of(domain, e.id, true);
         let empty = e.length == 0;
         enc.flag(&mut m.empty[empty_context(&r, e.id)], empty);
         if !empty {
@@ -349,10 +349,10 @@ pub fn encode_index(layout: &Layout, entries: &[IndexEntry], range_shift: u32) -
 /// Serialises `entries` as a version-1 (varint) index, for tests of the version-1 reading path:
 /// writers only write version 2.
 #[cfg(test)]
-pub(crate) fn encode_index_v1(layout: &Layout, entries: &[IndexEntry]) -> Vec<u8> {
+pub(crate) fn encode_index_v1(domain: &Domain, entries: &[IndexEntry]) -> Vec<u8> {
     let mut sorted: Vec<&IndexEntry> = entries.iter().collect();
     sorted.sort_by_key(|e| e.id);
-    let bits = mask_bits(layout, &sorted);
+    let bits = mask_bits(domain, &sorted);
     let mut out = Vec::with_capacity(bits.len() / 8 + 8 * sorted.len());
     put_varint(&mut out, sorted.len() as u64);
     for chunk in bits.chunks(8) {
@@ -365,7 +365,7 @@ pub(crate) fn encode_index_v1(layout: &Layout, entries: &[IndexEntry]) -> Vec<u8
     }
     let mut refs = References::default();
     for e in sorted {
-        let r = refs.of(layout, e.id, false);
+        let r = refs.of(domain, e.id, false);
         put_varint(&mut out, u64::from(e.length));
         put_varint(&mut out, u64::from(e.object_error));
         put_varint(&mut out, zigzag(i64::from(e.min) - r.min));
@@ -379,14 +379,14 @@ pub(crate) fn encode_index_v1(layout: &Layout, entries: &[IndexEntry]) -> Vec<u8
 /// lengths must add up to exactly. Never panics on any bytes, and allocates in proportion to
 /// `bytes.len()` (see the count bound below).
 pub fn decode_index(
-    layout: &Layout,
+    domain: &Domain,
     bytes: &[u8],
     record_area: u64,
     coding: IndexCoding,
 ) -> Result<Vec<IndexEntry>, CodecError> {
     match coding {
-        IndexCoding::Varint => decode_varint(layout, bytes, record_area),
-        IndexCoding::Adaptive => decode_adaptive(layout, bytes, record_area),
+        IndexCoding::Varint => decode_varint(domain, bytes, record_area),
+        IndexCoding::Adaptive => decode_adaptive(domain, bytes, record_area),
     }
 }
 
@@ -432,7 +432,7 @@ fn check_record_area(offset: u64, record_area: u64) -> Result<(), CodecError> {
 }
 
 fn decode_adaptive(
-    layout: &Layout,
+    domain: &Domain,
     bytes: &[u8],
     record_area: u64,
 ) -> Result<Vec<IndexEntry>, CodecError> {
@@ -458,7 +458,7 @@ fn decode_adaptive(
     let q = 1i64 << range_shift;
     let mut dec = IntDecoder::new(&bytes[pos..])?;
     let mut m = Models::default();
-    let ids = read_mask(layout, count, |level| {
+    let ids = read_mask(domain, count, |level| {
         dec.flag(&mut m.mask[usize::from(level).min(MASK_LEVELS - 1)])
     })?;
     let mut entries = Vec::with_capacity(ids.len());
@@ -466,7 +466,7 @@ fn decode_adaptive(
     let mut refs = References::default();
     let out_of_range = || CodecError::corrupt("index number out of range");
     for id in ids {
-        let r = refs.of(layout, id, true);
+        let r = refs.of(domain, id, true);
         let empty = dec.flag(&mut m.empty[empty_context(&r, id)])?;
         let length = if empty {
             0
@@ -505,7 +505,7 @@ fn decode_adaptive(
 }
 
 fn decode_varint(
-    layout: &Layout,
+    domain: &Domain,
     bytes: &[u8],
     record_area: u64,
 ) -> Result<Vec<IndexEntry>, CodecError> {
@@ -520,7 +520,7 @@ fn decode_varint(
     }
     let mask_start = pos;
     let mut bit = 0usize;
-    let ids = read_mask(layout, count, |_| {
+    let ids = read_mask(domain, count, |_| {
         let byte = *bytes
             .get(mask_start + bit / 8)
             .ok_or_else(|| CodecError::truncated("index ends inside the stored-set mask"))?;
@@ -540,7 +540,7 @@ fn decode_varint(
     for id in ids {
         let length = get_varint(bytes, &mut pos)?;
         let object_error = get_varint(bytes, &mut pos)?;
-        let r = refs.of(layout, id, false);
+        let r = refs.of(domain, id, false);
         let out_of_range = || CodecError::corrupt("index height out of range");
         let min = r
             .min
@@ -570,7 +570,7 @@ mod tests {
     use crate::hierarchy::{EncodeOptions, encode};
     use crate::quant::{HeightGrid, Quantizer};
 
-    fn sample() -> (Layout, Vec<IndexEntry>) {
+    fn sample() -> (Domain, Vec<IndexEntry>) {
         // An L-shaped valid region so the stored set is irregular.
         let (w, h) = (70, 50);
         let mut grid = HeightGrid::all_valid(
@@ -606,25 +606,25 @@ mod tests {
                 max: r.max,
             })
             .collect();
-        (enc.params.layout, entries)
+        (enc.params.domain, entries)
     }
 
     /// Both codings' writers: version 2's (current; exact ranges) and version 1's (kept for its
     /// reader).
-    fn both(layout: &Layout, entries: &[IndexEntry]) -> [(IndexCoding, Vec<u8>); 2] {
+    fn both(domain: &Domain, entries: &[IndexEntry]) -> [(IndexCoding, Vec<u8>); 2] {
         [
-            (IndexCoding::Adaptive, encode_index(layout, entries, 0)),
-            (IndexCoding::Varint, encode_index_v1(layout, entries)),
+            (IndexCoding::Adaptive, encode_index(domain, entries, 0)),
+            (IndexCoding::Varint, encode_index_v1(domain, entries)),
         ]
     }
 
     #[test]
     fn index_round_trips_with_offsets_as_prefix_sums() {
-        let (layout, entries) = sample();
+        let (domain, entries) = sample();
         assert!(entries.len() > 20);
-        for (coding, bytes) in both(&layout, &entries) {
+        for (coding, bytes) in both(&domain, &entries) {
             let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
-            let back = decode_index(&layout, &bytes, area, coding).unwrap();
+            let back = decode_index(&domain, &bytes, area, coding).unwrap();
             let mut offset = 0;
             for (a, b) in entries.iter().zip(&back) {
                 assert_eq!(
@@ -647,8 +647,8 @@ mod tests {
 
     #[test]
     fn the_adaptive_index_is_smaller_than_the_varint_one() {
-        let (layout, entries) = sample();
-        let [(_, v2), (_, v1)] = both(&layout, &entries);
+        let (domain, entries) = sample();
+        let [(_, v2), (_, v1)] = both(&domain, &entries);
         assert!(
             v2.len() * 3 < v1.len() * 2,
             "{} bytes adaptive, {} varint",
@@ -659,13 +659,13 @@ mod tests {
 
     #[test]
     fn rounded_ranges_contain_the_exact_ones_by_less_than_a_step() {
-        let (layout, entries) = sample();
+        let (domain, entries) = sample();
         let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
         let mut sizes = Vec::new();
         for shift in [0u32, 1, 3, 5, 30] {
-            let bytes = encode_index(&layout, &entries, shift);
+            let bytes = encode_index(&domain, &entries, shift);
             sizes.push(bytes.len());
-            let back = decode_index(&layout, &bytes, area, IndexCoding::Adaptive).unwrap();
+            let back = decode_index(&domain, &bytes, area, IndexCoding::Adaptive).unwrap();
             let q = 1i64 << shift;
             for (a, b) in entries.iter().zip(&back) {
                 assert_eq!(
@@ -699,7 +699,7 @@ mod tests {
 
     #[test]
     fn extreme_fields_round_trip() {
-        let (layout, mut entries) = sample();
+        let (domain, mut entries) = sample();
         entries.sort_by_key(|e| e.id);
         for (k, e) in entries.iter_mut().enumerate() {
             match k % 4 {
@@ -709,14 +709,14 @@ mod tests {
                 _ => e.length = u32::MAX,
             }
         }
-        let rounded = encode_index(&layout, &entries, MAX_RANGE_SHIFT);
+        let rounded = encode_index(&domain, &entries, MAX_RANGE_SHIFT);
         let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
-        let back = decode_index(&layout, &rounded, area, IndexCoding::Adaptive).unwrap();
+        let back = decode_index(&domain, &rounded, area, IndexCoding::Adaptive).unwrap();
         for (a, b) in entries.iter().zip(&back) {
             assert!(b.min <= a.min && a.max <= b.max, "{a:?} {b:?}");
         }
-        for (coding, bytes) in both(&layout, &entries) {
-            let back = decode_index(&layout, &bytes, area, coding).unwrap();
+        for (coding, bytes) in both(&domain, &entries) {
+            let back = decode_index(&domain, &bytes, area, coding).unwrap();
             let fields = |e: &IndexEntry| (e.id, e.length, e.object_error, e.min, e.max);
             assert_eq!(
                 back.iter().map(fields).collect::<Vec<_>>(),
@@ -728,12 +728,12 @@ mod tests {
 
     #[test]
     fn damaged_indexes_are_errors_not_panics() {
-        let (layout, entries) = sample();
-        for (coding, bytes) in both(&layout, &entries) {
+        let (domain, entries) = sample();
+        for (coding, bytes) in both(&domain, &entries) {
             let area: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
-            assert!(decode_index(&layout, &bytes, area + 1, coding).is_err());
+            assert!(decode_index(&domain, &bytes, area + 1, coding).is_err());
             for cut in 0..bytes.len() {
-                let got = decode_index(&layout, &bytes[..cut], area, coding);
+                let got = decode_index(&domain, &bytes[..cut], area, coding);
                 // Version 1 notices every truncation. A range-coded stream has no end marker
                 // (past the end the decoder reads zeros), so a lost final byte can decode to
                 // slightly different last fields: like the records, the version-2 index relies on
@@ -749,17 +749,17 @@ mod tests {
             for tail in [[0u8].as_slice(), &[1], &[0, 0, 0, 0, 0, 7]] {
                 let mut extra = bytes.clone();
                 extra.extend_from_slice(tail);
-                let got = decode_index(&layout, &extra, area, coding);
+                let got = decode_index(&domain, &extra, area, coding);
                 assert!(coding == IndexCoding::Adaptive || got.is_err(), "{tail:?}");
             }
             for i in 0..bytes.len() * 8 {
                 let mut b = bytes.clone();
                 b[i / 8] ^= 1 << (i % 8);
-                let _ = decode_index(&layout, &b, area, coding);
+                let _ = decode_index(&domain, &b, area, coding);
             }
             for seed in 0..2000u64 {
                 let junk = crate::test_junk(seed, seed % 64);
-                let _ = decode_index(&layout, &junk, area, coding);
+                let _ = decode_index(&domain, &junk, area, coding);
             }
         }
     }

@@ -1,0 +1,335 @@
+//! The domain: the shape of the surface the hierarchy covers, and the one owner of it.
+//!
+//! Everything that depends on the domain's shape asks a [`Domain`]: which diamonds exist, their
+//! parents, children and neighbours (across root boundaries now, across face edges on the
+//! cube-sphere), the roots, the root field's size, and which lattice points hold data. The rest
+//! of the codec, the server and the client work per face with the integer arithmetic of
+//! [`Layout`] (grids, radii, bounds), which is the same on every face.
+//!
+//! Today the only shape is the plane: one face, a `roots_x × roots_y` grid of level-0 squares,
+//! and a data rectangle in its corner. A cube-sphere is a second [`Shape`] arm: six faces, each
+//! one root square, whose relations cross face edges through one addressing function.
+
+use super::{DiamondId, Half, Layout};
+use crate::CodecError;
+
+/// The kinds of domain (`docs/FORMAT.md`: the header's domain kind).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum DomainKind {
+    /// A plane: one face, a rectangle of roots.
+    Planar,
+}
+
+impl DomainKind {
+    /// The name `inspect` and the server's metadata use.
+    pub fn name(self) -> &'static str {
+        match self {
+            DomainKind::Planar => "planar",
+        }
+    }
+}
+
+/// The lattice points of a face that hold data: `0..width × 0..height`, the input's samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct DataRect {
+    /// Columns of samples; lattice x of the data is `0..width`.
+    pub width: u32,
+    /// Rows of samples; lattice y of the data is `0..height`.
+    pub height: u32,
+}
+
+impl DataRect {
+    /// Whether lattice point `(x, y)` lies in the rectangle.
+    #[inline]
+    pub fn contains(&self, x: i64, y: i64) -> bool {
+        x >= 0 && y >= 0 && x < i64::from(self.width) && y < i64::from(self.height)
+    }
+
+    /// Number of lattice points in the rectangle.
+    pub fn samples(&self) -> u64 {
+        u64::from(self.width) * u64::from(self.height)
+    }
+
+    /// The rectangle's size as `(columns, rows)`.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width as usize, self.height as usize)
+    }
+}
+
+/// The root field of a face: its level-0 vertices as one `width × height` grid, every
+/// `spacing` lattice units.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RootField {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Lattice units between neighbouring root-field points, `2^K`.
+    pub spacing: i64,
+}
+
+impl RootField {
+    /// Number of points.
+    pub fn points(&self) -> usize {
+        self.width * self.height
+    }
+}
+
+/// How the faces are shaped and connected. Private: callers ask [`Domain`], so a second shape
+/// adds an arm here, not a branch at every call site.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Shape {
+    /// One face: the layout's root rectangle, no wrap-around.
+    Planar,
+}
+
+/// The surface a hierarchy covers: its faces, its root set, the region that holds data, and
+/// the relations between diamonds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Domain {
+    shape: Shape,
+    layout: Layout,
+    data: DataRect,
+}
+
+impl Domain {
+    /// A planar domain: `layout`'s root rectangle with data on `data`, which must be non-empty
+    /// and fit the layout's lattice.
+    pub fn planar(layout: Layout, data: DataRect) -> Result<Self, CodecError> {
+        let (ex, ey) = layout.face_extent();
+        if data.width == 0
+            || data.height == 0
+            || i64::from(data.width) > ex + 1
+            || i64::from(data.height) > ey + 1
+        {
+            return Err(CodecError::invalid(format!(
+                "data size {}×{} does not fit the layout's {}×{} lattice",
+                data.width,
+                data.height,
+                ex + 1,
+                ey + 1
+            )));
+        }
+        Ok(Self {
+            shape: Shape::Planar,
+            layout,
+            data,
+        })
+    }
+
+    /// A planar domain with data on every point of `layout`'s lattice.
+    pub fn full_plane(layout: Layout) -> Self {
+        let (ex, ey) = layout.face_extent();
+        let data = DataRect {
+            width: (ex + 1) as u32,
+            height: (ey + 1) as u32,
+        };
+        Self::planar(layout, data).expect("a layout's lattice fits itself")
+    }
+
+    /// The planar domain whose finest level lies on a `width × height` sample grid
+    /// ([`Layout::covering`]), with the data on all of it.
+    pub fn covering(
+        n: usize,
+        width: usize,
+        height: usize,
+        extra_level_pairs: u32,
+    ) -> Result<Self, CodecError> {
+        let layout = Layout::covering(n, width, height, extra_level_pairs)?;
+        let data = DataRect {
+            width: u32::try_from(width).map_err(|_| CodecError::limit("grid too wide"))?,
+            height: u32::try_from(height).map_err(|_| CodecError::limit("grid too tall"))?,
+        };
+        Self::planar(layout, data)
+    }
+
+    /// What kind of domain this is.
+    pub fn kind(&self) -> DomainKind {
+        match self.shape {
+            Shape::Planar => DomainKind::Planar,
+        }
+    }
+
+    /// Number of faces (1 for a plane).
+    pub fn faces(&self) -> u8 {
+        match self.shape {
+            Shape::Planar => 1,
+        }
+    }
+
+    /// The per-face lattice arithmetic: grid side, level pairs, grids, radii, bounds.
+    #[inline]
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// Grid side `N`.
+    #[inline]
+    pub fn n(&self) -> usize {
+        self.layout.n()
+    }
+
+    /// The finest level, `2K`.
+    #[inline]
+    pub fn finest_level(&self) -> u8 {
+        self.layout.finest_level()
+    }
+
+    /// The lattice points of each face that hold data.
+    #[inline]
+    pub fn data(&self) -> DataRect {
+        self.data
+    }
+
+    /// Whether lattice point `(x, y)` of `face` holds data.
+    #[inline]
+    pub fn holds_data(&self, face: u8, x: i64, y: i64) -> bool {
+        match self.shape {
+            Shape::Planar => face == 0 && self.data.contains(x, y),
+        }
+    }
+
+    /// The root field of each face.
+    pub fn root_field(&self) -> RootField {
+        let n1 = self.layout.n() - 1;
+        let (rx, ry) = self.layout.root_counts();
+        RootField {
+            width: rx as usize * n1 + 1,
+            height: ry as usize * n1 + 1,
+            spacing: 1i64 << self.layout.k(),
+        }
+    }
+
+    /// Whether `id` is a diamond of this domain (possibly one that sticks out of the data).
+    #[inline]
+    pub fn contains(&self, id: DiamondId) -> bool {
+        match self.shape {
+            Shape::Planar => id.face == 0 && self.layout.contains(id),
+        }
+    }
+
+    /// The roots, face by face, row by row.
+    pub fn roots(&self) -> impl Iterator<Item = DiamondId> + '_ {
+        match self.shape {
+            Shape::Planar => self.layout.roots(),
+        }
+    }
+
+    /// Every diamond of `level`, face by face, in id order.
+    pub fn level(&self, level: u8) -> impl Iterator<Item = DiamondId> + '_ {
+        let levels = if level <= self.finest_level() {
+            level..level + 1
+        } else {
+            0..0
+        };
+        levels.flat_map(move |l| match self.shape {
+            Shape::Planar => self.layout.level(l),
+        })
+    }
+
+    /// The two parents, `[positive half's, negative half's]`; `None` for roots and for the
+    /// missing parent of a diamond on a plane's edge.
+    #[inline]
+    pub fn parents(&self, id: DiamondId) -> [Option<DiamondId>; 2] {
+        match self.shape {
+            Shape::Planar => self.layout.parents(id),
+        }
+    }
+
+    /// The parent on one side, or `None`.
+    #[inline]
+    pub fn parent(&self, id: DiamondId, half: Half) -> Option<DiamondId> {
+        self.parents(id)[half as usize]
+    }
+
+    /// Which half of `child` lies in `parent`, if `parent` is one of its parents.
+    #[inline]
+    pub fn half_in(&self, child: DiamondId, parent: DiamondId) -> Option<Half> {
+        let p = self.parents(child);
+        if p[0] == Some(parent) {
+            Some(Half::Positive)
+        } else if p[1] == Some(parent) {
+            Some(Half::Negative)
+        } else {
+            None
+        }
+    }
+
+    /// The up to 4 children (fewer on a plane's edge, none at the finest level).
+    #[inline]
+    pub fn children(&self, id: DiamondId) -> [Option<DiamondId>; 4] {
+        match self.shape {
+            Shape::Planar => self.layout.children(id),
+        }
+    }
+
+    /// The diamonds of the same level that share a side with `id` (up to 4).
+    #[inline]
+    pub fn neighbours(&self, id: DiamondId) -> [Option<DiamondId>; 4] {
+        match self.shape {
+            Shape::Planar => self.layout.neighbours(id),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeSet;
+
+    #[test]
+    fn a_plane_is_one_face_whose_data_fits_its_lattice() {
+        let d = Domain::covering(65, 1000, 700, 0).unwrap();
+        assert_eq!((d.kind(), d.faces()), (DomainKind::Planar, 1));
+        assert!(d.holds_data(0, 999, 699) && !d.holds_data(0, 1000, 0));
+        assert!(!d.holds_data(0, -1, 0) && !d.holds_data(1, 0, 0));
+        let rf = d.root_field();
+        assert_eq!((rf.width, rf.height, rf.spacing), (65, 65, 16));
+        let layout = *d.layout();
+        let (ex, _) = layout.face_extent();
+        let too_wide = DataRect {
+            width: ex as u32 + 2,
+            height: 1,
+        };
+        assert!(Domain::planar(layout, too_wide).is_err());
+        assert!(
+            Domain::planar(
+                layout,
+                DataRect {
+                    width: 0,
+                    height: 5
+                }
+            )
+            .is_err()
+        );
+        assert!(!d.contains(DiamondId::on_face(1, 0, 512, 512)));
+    }
+
+    #[test]
+    fn per_level_iteration_is_the_closure_of_the_roots_under_children() {
+        // Independently of `level`: walk children from the roots and collect per level.
+        let d = Domain::planar(
+            Layout::new(5, 2, 3, 2).unwrap(),
+            DataRect {
+                width: 40,
+                height: 30,
+            },
+        )
+        .unwrap();
+        let mut frontier: BTreeSet<DiamondId> = d.roots().collect();
+        for level in 0..=d.finest_level() {
+            let listed: Vec<DiamondId> = d.level(level).collect();
+            let as_set: BTreeSet<DiamondId> = listed.iter().copied().collect();
+            assert_eq!(as_set.len(), listed.len(), "level {level} lists a diamond twice");
+            assert!(listed.windows(2).all(|w| w[0] < w[1]), "level {level} not in id order");
+            assert_eq!(as_set, frontier, "level {level}");
+            frontier = frontier
+                .iter()
+                .flat_map(|&id| d.children(id))
+                .flatten()
+                .collect();
+        }
+        assert!(frontier.is_empty());
+        assert_eq!(d.level(d.finest_level() + 1).count(), 0);
+    }
+}
