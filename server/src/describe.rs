@@ -57,7 +57,7 @@ pub fn summarize(repo: &Repository) -> Summary {
         // Smooth terrain has many all-zero records at coarse tolerances.
         empty_records += usize::from(e.length == 0);
     }
-    let samples = u64::from(p.domain.data().width) * u64::from(p.domain.data().height);
+    let samples = p.domain.data().samples();
     Summary {
         levels,
         empty_records,
@@ -124,7 +124,7 @@ pub fn describe(repo: &Repository) -> Value {
         })
         .collect();
     let section = |sec: Section| json!({ "offset": repo.section_offset(sec), "length": repo.section_len(sec) });
-    let roots: Vec<String> = p.layout().roots().map(|id| id.to_string()).collect();
+    let roots: Vec<String> = p.domain.roots().map(|id| id.to_string()).collect();
     json!({
         "format_version": repo.head().format_version(),
         "kind": p.kind.name(),
