@@ -2,14 +2,13 @@
 //! (lossless at 0), the container round-trips and refuses what does not fit, and the alignment
 //! with an elevation repository refuses mismatched domains.
 
-mod common;
+use crate::util::Rng;
 use cbdam_codec::colour::{
     Alignment, RgbImage, encode_colour, reconstruct_rgb, verify_colour, ycocg,
 };
 use cbdam_codec::hierarchy::{EncodeOptions, RepoKind, encode};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
-use common::Rng;
 
 /// Large flat regions (like fields), a smooth ramp, a sharp-edged pattern and noise: every
 /// kind of content a colour bound must survive.
