@@ -1,15 +1,13 @@
 //! `cbdam build --colour` end to end: build over an elevation repository (`--like`), verify in
 //! RGB, inspect the kind; bad images and mismatched sizes fail cleanly without leaving files.
 
-mod common;
-
 use std::path::Path;
 use std::process::Output;
 
+use crate::util::*;
 use cbdam_codec::colour::reconstruct_rgb;
 use cbdam_codec::hierarchy::RepoKind;
 use cbdam_codec::repository::Repository;
-use common::*;
 
 fn text(o: &Output) -> String {
     format!(

@@ -2,13 +2,11 @@
 //! repository (paper §5, "graph construction"), checked end to end with verify, inspect and
 //! extract, and the geometries that cannot be combined refused by name with nothing left behind.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
+use crate::util::*;
 use cbdam_codec::input::{Dem, ReadOptions, read_dem};
-use common::*;
 
 /// Side of the lattice in fine samples (the coarse input spans it all).
 const SIDE: usize = 513;

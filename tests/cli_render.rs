@@ -1,11 +1,9 @@
 //! `cbdam render` end to end on lavapipe (or a real GPU): a PNG of the requested size, written
 //! atomically, and clean failures for bad arguments.
 
-mod common;
-
 use std::path::Path;
 
-use common::*;
+use crate::util::*;
 
 fn png_size(path: &Path) -> (u32, u32) {
     let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());

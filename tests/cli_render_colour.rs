@@ -3,11 +3,9 @@
 //! east; over `cbdam serve` the PNG is byte-identical; a colour that does not fit is refused
 //! with the reason and no PNG.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 
-use common::*;
+use crate::util::*;
 
 /// Jacksboro's grid, 403 × 344 samples.
 const W: usize = 403;

@@ -2,14 +2,12 @@
 //! Xvfb this test starts) on lavapipe or a GPU, for a few frames, then its screenshot is checked
 //! for terrain and the HUD.
 
-mod common;
-
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use crate::util::*;
 use cbdam_client::draw::hud;
-use common::*;
 
 /// An Xvfb started by this test, stopped when dropped.
 struct Xvfb(Child);

@@ -2,14 +2,13 @@
 //! (lossless at 0), the container round-trips and refuses what does not fit, and the alignment
 //! with an elevation repository refuses mismatched domains.
 
-mod common;
+use crate::util::Rng;
 use cbdam_codec::colour::{
     Alignment, RgbImage, encode_colour, reconstruct_rgb, verify_colour, ycocg,
 };
 use cbdam_codec::hierarchy::{EncodeOptions, RepoKind, encode};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
-use common::Rng;
 
 /// Large flat regions (like fields), a smooth ramp, a sharp-edged pattern and noise: every
 /// kind of content a colour bound must survive.
@@ -127,7 +126,8 @@ fn colour_decoder_matches_reconstruction_and_elevation_decoder_refuses() {
                 let (x, y) = g.point(i as i64, j as i64);
                 // Points on a side whose parent is absent are not gathered; sides inside the
                 // data always have both parents stored.
-                if repo.params().domain.data().contains(x, y) && parents.iter().all(|p| p.is_some()) {
+                if repo.params().domain.data().contains(x, y) && parents.iter().all(|p| p.is_some())
+                {
                     assert_eq!(rgb[j * n + i], full[y as usize * 33 + x as usize], "{id}");
                     checked += 1;
                 }

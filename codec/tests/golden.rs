@@ -10,7 +10,7 @@
 //! their reconstruction hashes equal the other coders', which nothing was copied from.
 //!
 //! To re-capture after such a change, print the current values instead of asserting:
-//! `CBDAM_PRINT_GOLDEN=1 cargo test -p cbdam-codec --test golden -- --nocapture`
+//! `CBDAM_PRINT_GOLDEN=1 cargo test -p cbdam-codec --test tests -- golden:: --nocapture`
 
 use std::path::Path;
 

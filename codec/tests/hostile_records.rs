@@ -5,8 +5,7 @@
 //! whatever damaged data decodes must stay within the heights the format can represent, all the
 //! way down the hierarchy.
 
-mod common;
-use common::Rng;
+use crate::util::Rng;
 use std::collections::HashMap;
 use std::path::Path;
 

@@ -1,11 +1,10 @@
 //! The L∞ guarantee, checked exactly (in integer units) on every level, on adversarial fields.
 
-mod common;
+use crate::util::Rng;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, encode, verify};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
-use common::Rng;
 use proptest::prelude::*;
 
 #[derive(Clone, Copy, Debug)]

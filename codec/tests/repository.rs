@@ -2,7 +2,7 @@
 //! single-bit flips, random bytes) that must give an error — never a panic, never silent
 //! acceptance.
 
-mod common;
+use crate::util::Rng;
 use cbdam_codec::CodecError;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify};
@@ -14,7 +14,6 @@ use cbdam_codec::repository::{
     FORMAT_VERSION, HEADER_FETCH_LEN, Repository, RepositoryHead, Section, required_head_len,
     reseal_checksums, serialize, write_repository,
 };
-use common::Rng;
 
 /// A small hierarchy with nodata holes, rough enough that records are non-trivial.
 fn fixture(alpha: Alpha, coder: CoderKind) -> (Encoded, QuantPlan, HeightGrid) {

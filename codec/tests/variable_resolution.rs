@@ -3,8 +3,7 @@
 //! bound at the level where its input ends, the hierarchy is not refined where only coarse data
 //! exists, and the nodata mask keeps holes apart from coarse-only points.
 
-mod common;
-
+use crate::util::Rng;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Layout;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
@@ -14,7 +13,6 @@ use cbdam_codec::hierarchy::{
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, Quantizer};
-use common::Rng;
 
 const SIDE: usize = 513;
 /// The coarse input's stride (`2^COARSE_LOG2` lattice points).

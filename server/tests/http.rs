@@ -1,13 +1,11 @@
 //! `cbdam serve` end to end: a real server on a loopback port driven by a real HTTP client.
 
-mod common;
-
 use std::time::Duration;
 
+use crate::util::*;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::repository::Section;
 use cbdam_server::{AppState, Config};
-use common::*;
 use reqwest::StatusCode;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 

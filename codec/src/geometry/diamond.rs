@@ -161,7 +161,10 @@ mod tests {
         h.write_u32(96);
         h.write_u32(160);
         assert_eq!(b.hash_one(id), h.finish());
-        assert_ne!(b.hash_one(id), b.hash_one(DiamondId::on_face(1, 5, 96, 160)));
+        assert_ne!(
+            b.hash_one(id),
+            b.hash_one(DiamondId::on_face(1, 5, 96, 160))
+        );
     }
 
     #[test]

@@ -320,8 +320,15 @@ mod tests {
         for level in 0..=d.finest_level() {
             let listed: Vec<DiamondId> = d.level(level).collect();
             let as_set: BTreeSet<DiamondId> = listed.iter().copied().collect();
-            assert_eq!(as_set.len(), listed.len(), "level {level} lists a diamond twice");
-            assert!(listed.windows(2).all(|w| w[0] < w[1]), "level {level} not in id order");
+            assert_eq!(
+                as_set.len(),
+                listed.len(),
+                "level {level} lists a diamond twice"
+            );
+            assert!(
+                listed.windows(2).all(|w| w[0] < w[1]),
+                "level {level} not in id order"
+            );
             assert_eq!(as_set, frontier, "level {level}");
             frontier = frontier
                 .iter()

@@ -24,7 +24,7 @@ mod layout;
 
 pub use cut::{Cut, Triangle, check_conforming};
 pub use diamond::{DiamondId, Half};
-pub use domain::{DataRect, DomainKind, Domain, RootField};
+pub use domain::{DataRect, Domain, DomainKind, RootField};
 pub use grid::{Diagonal, GridMap, IndexMap};
 pub use id_hash::{IdBuildHasher, IdHasher, IdMap, IdSet};
 pub use layout::Layout;

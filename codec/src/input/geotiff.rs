@@ -7,6 +7,9 @@
 //! integers or 32/64-bit floats, compressed with none, LZW, Deflate or PackBits, is reported as
 //! unsupported by name rather than decoded into something that is not a height field. Predictor
 //! codes other than 1-3 exist in no specification; the crate refuses them when opening, as corrupt.
+//!
+//! The samples themselves are decoded by [`super::geotiff_stream`], on top of the [`Header`]
+//! read here; this module does not depend on it.
 
 use std::fs::File;
 use std::io::{BufReader, ErrorKind};
@@ -16,9 +19,7 @@ use tiff::decoder::{ChunkType, Decoder};
 use tiff::tags::Tag;
 use tiff::{TiffError, TiffUnsupportedError};
 
-use super::geotiff_stream::GeoTiffSource;
-use super::stream::SampleSource;
-use super::{Dem, GeoRef, Limits, SampleType};
+use super::{GeoRef, Limits, SampleType};
 use crate::CodecError;
 
 use super::geokeys::{
@@ -106,27 +107,6 @@ impl Header {
         tl.ifd_value_size = 64 << 20;
         tl
     }
-}
-
-/// The whole image, decoded through [`GeoTiffSource`] (in parallel, chunk by chunk).
-pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
-    let mut src = GeoTiffSource::open(path, None, limits)?;
-    // One pass: keeping the chunks would only double the memory.
-    src.set_caching(false);
-    let (width, height) = (src.width(), src.height());
-    let mut values = Vec::with_capacity(width * height);
-    src.for_each_block(&mut |_, block| {
-        values.extend_from_slice(block);
-        Ok(())
-    })?;
-    Ok(Dem {
-        width,
-        height,
-        values,
-        sample_type: src.sample_type(),
-        nodata: src.nodata(),
-        georef: src.georef().cloned(),
-    })
 }
 
 /// Refuses everything that is not one band of a plain numeric type, naming what was found.

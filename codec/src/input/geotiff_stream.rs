@@ -10,6 +10,8 @@
 //! predictor) costs as much as everything else done to a sample before the encoder, so a file
 //! whose decoded samples fit in [`CACHE_BYTES`] is decoded once and its chunks kept for the
 //! later passes; larger files are decoded on every pass and stay within one band.
+//!
+//! [`read`] decodes a whole image through the same source.
 
 use std::fs::File;
 use std::io::{BufReader, ErrorKind};
@@ -21,7 +23,7 @@ use tiff::decoder::{Decoder, DecodingResult};
 
 use super::geotiff::{Header, tiff_err};
 use super::stream::{BLOCK_SAMPLES, BlockFn, SampleSource};
-use super::{GeoRef, Limits, SampleType};
+use super::{Dem, GeoRef, Limits, SampleType};
 use crate::CodecError;
 
 /// Most bytes of decoded samples kept between passes (see the module notes): 64 M samples of
@@ -286,4 +288,25 @@ fn with_context(e: CodecError, context: &str) -> CodecError {
         CodecError::InvalidParameter(m) => CodecError::invalid(format!("{context}: {m}")),
         CodecError::LimitExceeded(m) => CodecError::limit(format!("{context}: {m}")),
     }
+}
+
+/// The whole image, decoded through [`GeoTiffSource`] (in parallel, chunk by chunk).
+pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
+    let mut src = GeoTiffSource::open(path, None, limits)?;
+    // One pass: keeping the chunks would only double the memory.
+    src.set_caching(false);
+    let (width, height) = (src.width(), src.height());
+    let mut values = Vec::with_capacity(width * height);
+    src.for_each_block(&mut |_, block| {
+        values.extend_from_slice(block);
+        Ok(())
+    })?;
+    Ok(Dem {
+        width,
+        height,
+        values,
+        sample_type: src.sample_type(),
+        nodata: src.nodata(),
+        georef: src.georef().cloned(),
+    })
 }

@@ -262,7 +262,7 @@ pub fn read_dem(path: &Path, opts: &ReadOptions) -> Result<Dem, CodecError> {
         None => detect_format(path)?,
     };
     let mut dem = match format {
-        Format::GeoTiff => geotiff::read(path, &opts.limits)?,
+        Format::GeoTiff => geotiff_stream::read(path, &opts.limits)?,
         Format::Png16 { scale, offset } => png::read_png16(path, scale, offset, &opts.limits)?,
         Format::TerrainRgb => png::read_terrain_rgb(path, &opts.limits)?,
         Format::Hgt => hgt::read(path, &opts.limits)?,

@@ -259,257 +259,25 @@ impl RepositoryHead {
     /// a file of `file_len` bytes (the whole file will do). Checks magic, version, header CRC,
     /// every header field, section placement against `file_len`, the CRCs of the root field,
     /// index and checksum table, and the index itself.
+    ///
+    /// One step per part of the file, in file order; each checks what it reads before the
+    /// next one allocates anything sized by it.
     pub fn parse(b: &[u8], file_len: u64) -> Result<Self, CodecError> {
-        let (version, _) = read_prefix(b)?;
-        if version > FORMAT_VERSION {
-            return Err(CodecError::unsupported(format!(
-                "repository format version {version} is newer than this reader (version \
-                 {FORMAT_VERSION}); upgrade cbdam"
-            )));
-        }
-        if version == 0 {
-            return Err(CodecError::corrupt(
-                "repository format version 0 does not exist",
-            ));
-        }
-        let h = read_header(b)?;
-        let flags = h.flags;
-        if flags & !(FLAG_NODATA_MASK | FLAG_COLOUR) != 0 {
-            return Err(CodecError::unsupported(format!(
-                "unknown header flags {flags:#x}"
-            )));
-        }
-        let n = usize::try_from(h.n).map_err(|_| CodecError::corrupt("diamond size too large"))?;
-        let layout = Layout::new(n, u32::from(h.level_pairs), h.roots_x, h.roots_y)
-            .map_err(|e| CodecError::corrupt(format!("header layout: {e}")))?;
-        let alpha = Alpha::from_byte(h.alpha)
-            .ok_or_else(|| CodecError::corrupt(format!("unknown lifting weight id {}", h.alpha)))?;
-        let coder = CoderKind::from_byte(h.coder)?;
-        let lattice = match h.lattice {
-            0 => false,
-            1 => true,
-            v => {
-                return Err(CodecError::corrupt(format!(
-                    "lattice flag {v} is not 0 or 1"
-                )));
-            }
-        };
-        let geo_flags = h.geo_flags;
-        if geo_flags & !3 != 0 || geo_flags == 2 {
-            return Err(CodecError::corrupt(format!(
-                "invalid georeferencing flags {geo_flags:#x}"
-            )));
-        }
-        if h.nodata_policy != NODATA_DONT_CARE {
-            return Err(CodecError::unsupported(format!(
-                "unknown nodata policy {}",
-                h.nodata_policy
-            )));
-        }
-        if h.vertical_unit != VERTICAL_METRES {
-            return Err(CodecError::unsupported(format!(
-                "unknown vertical unit {}",
-                h.vertical_unit
-            )));
-        }
-        let data = DataRect {
-            width: h.data_width,
-            height: h.data_height,
-        };
-        // A header whose data rectangle does not fit its layout is corrupt, not a bad argument.
-        let domain = Domain::planar(layout, data).map_err(|e| match e {
-            CodecError::InvalidParameter(m) => CodecError::Corrupt(m),
-            e => e,
-        })?;
-        let quantizer = Quantizer::new(h.quantizer_k)
-            .map_err(|e| CodecError::corrupt(format!("header quantizer: {e}")))?;
-        let root_q = root_quantizer(quantizer);
-        if let Some(root_k) = h.root_k
-            && root_k != root_q.k() as u32
-        {
-            return Err(CodecError::unsupported(format!(
-                "root quantizer k = {root_k}; this reader derives {} from k = {}",
-                root_q.k(),
-                quantizer.k()
-            )));
-        }
-        let leaf_error = h.leaf_error;
-        let epsg = h.epsg;
-        let (unit, offset, epsilon, representation_error) =
-            (h.unit, h.offset, h.epsilon, h.representation_error);
-        if !(unit.is_finite() && unit > 0.0) {
-            return Err(CodecError::corrupt(format!(
-                "height unit {unit} is not positive"
-            )));
-        }
-        if !offset.is_finite() {
-            return Err(CodecError::corrupt("height offset is not finite"));
-        }
-        let kind = if flags & FLAG_COLOUR != 0 {
-            RepoKind::Colour
-        } else {
-            RepoKind::Elevation
-        };
-        // A colour tolerance of 0 levels is lossless and meaningful; an elevation one is not.
-        let eps_ok = match kind {
-            RepoKind::Elevation => epsilon > 0.0,
-            RepoKind::Colour => epsilon >= 0.0,
-        };
-        if !(epsilon.is_finite() && eps_ok) {
-            return Err(CodecError::corrupt(format!(
-                "tolerance {epsilon} is not positive"
-            )));
-        }
-        if kind == RepoKind::Colour {
-            if flags & FLAG_NODATA_MASK != 0 {
-                return Err(CodecError::unsupported(
-                    "a colour repository with a nodata mask",
-                ));
-            }
-            if unit != 1.0 || offset != 0.0 || !lattice || representation_error != 0.0 {
-                return Err(CodecError::corrupt(
-                    "a colour repository must have unit 1, offset 0 and lattice input",
-                ));
-            }
-            let bound = ycocg::rgb_bound(quantizer.k() as u32);
-            if bound.iter().any(|&b| f64::from(b) > epsilon) {
-                return Err(CodecError::corrupt(format!(
-                    "colour quantizer k = {} allows RGB errors of {bound:?}, over the stated \
-                     tolerance {epsilon}",
-                    quantizer.k()
-                )));
-            }
-        }
-        if !(representation_error.is_finite() && representation_error >= 0.0) {
-            return Err(CodecError::corrupt(
-                "representation error is negative or not finite",
-            ));
-        }
-        let geo = h.geo;
-        let georef = if geo_flags & 1 == 1 {
-            if geo.iter().any(|v| !v.is_finite()) {
-                return Err(CodecError::corrupt("georeferencing values are not finite"));
-            }
-            Some(GeoRef {
-                epsg: (epsg != 0).then_some(epsg),
-                origin_x: geo[0],
-                origin_y: geo[1],
-                pixel_x: geo[2],
-                pixel_y: geo[3],
-                pixel_is_area: geo_flags & 2 == 2,
-                wkt: h.wkt.clone(),
-            })
-        } else {
-            if epsg != 0 || geo.iter().any(|&v| v.to_bits() != 0) {
-                return Err(CodecError::corrupt(
-                    "georeferencing fields are set but the header says there is none",
-                ));
-            }
-            None
-        };
-        let nodata_value = h.nodata;
-        let nodata = (!nodata_value.is_nan()).then_some(nodata_value);
-
+        let h = parse_header(b)?;
+        let (params, plan) = parse_params(&h)?;
+        let georef = parse_georef(&h)?;
+        let nodata = (!h.nodata.is_nan()).then_some(h.nodata);
         let sections = h.sections;
-        let mut expected = h.header_len as u64;
-        for (i, s) in Section::ALL.iter().enumerate() {
-            let info = sections[i];
-            // Sections follow one another without gaps: anything else is not a repository.
-            if info.offset != expected {
-                return Err(CodecError::corrupt(format!(
-                    "{} starts at byte {}, expected {expected}",
-                    s.name(),
-                    info.offset
-                )));
-            }
-            let end = info
-                .offset
-                .checked_add(info.length)
-                .ok_or_else(|| CodecError::corrupt(format!("{} length overflows", s.name())))?;
-            if end > file_len {
-                return Err(CodecError::truncated(format!(
-                    "{} ends at byte {end} but the file is {file_len} bytes",
-                    s.name()
-                )));
-            }
-            expected = end;
-        }
-        if expected != file_len {
-            return Err(CodecError::corrupt(format!(
-                "{} trailing bytes after the records area",
-                file_len - expected
-            )));
-        }
-        if (b.len() as u64) < sections[3].offset {
-            return Err(CodecError::truncated(format!(
-                "{} bytes given, the repository head is {}",
-                b.len(),
-                sections[3].offset
-            )));
-        }
-        for (i, s) in Section::ALL.iter().enumerate().take(3) {
-            if crc32(&b[range_of(&sections[i])]) != sections[i].crc {
-                return Err(CodecError::corrupt(format!(
-                    "{} checksum mismatch",
-                    s.name()
-                )));
-            }
-        }
-        let record_count = h.record_count;
-        let entries = decode_index(
-            &domain,
-            &b[range_of(&sections[1])],
-            sections[3].length,
-            IndexCoding::for_format_version(version)?,
-        )?;
-        if entries.len() as u64 != record_count {
-            return Err(CodecError::corrupt(format!(
-                "index holds {} records, header says {record_count}",
-                entries.len()
-            )));
-        }
-        let non_empty = entries.iter().filter(|e| e.length > 0).count() as u64;
-        if non_empty * 4 != sections[2].length {
-            return Err(CodecError::corrupt(format!(
-                "record checksum table is {} bytes for {non_empty} non-empty records",
-                sections[2].length
-            )));
-        }
-        let params = CodecParams {
-            domain,
-            alpha,
-            coder,
-            quantizer,
-            root_quantizer: root_q,
-            nodata_mask: flags & FLAG_NODATA_MASK != 0,
-            kind,
-        };
-        let plan = QuantPlan {
-            unit,
-            offset,
-            quantizer,
-            lattice,
-            representation_error,
-            epsilon,
-        };
-        let table = &b[range_of(&sections[2])];
-        let mut slot = 0;
-        let record_crcs = entries
-            .iter()
-            .map(|e| {
-                if e.length == 0 {
-                    return 0;
-                }
-                slot += 4;
-                u32_at(table, slot - 4)
-            })
-            .collect();
+        parse_placement(&sections, h.header_len, b.len(), file_len)?;
+        parse_section_checksums(b, &sections)?;
+        let entries = parse_index(b, &h, &params.domain)?;
+        let record_crcs = parse_record_checksums(b, &sections, &entries)?;
         Ok(Self {
             params,
             plan,
             georef,
             nodata,
-            leaf_error,
+            leaf_error: h.leaf_error,
             sections,
             entries,
             record_crcs,
@@ -517,7 +285,7 @@ impl RepositoryHead {
             file_len,
             header_crc: h.crc,
             header_len: h.header_len,
-            format_version: version,
+            format_version: h.version,
         })
     }
 
@@ -650,6 +418,314 @@ impl RepositoryHead {
     pub fn colour_decoder(&self) -> Result<ColourDecoder, CodecError> {
         ColourDecoder::new(self.params, &self.roots)
     }
+}
+
+/// The header step of [`RepositoryHead::parse`]: a version this reader knows, then the header's
+/// bytes (magic, length, CRC, reserved bytes; [`read_header`]).
+fn parse_header(b: &[u8]) -> Result<HeaderFields, CodecError> {
+    let (version, _) = read_prefix(b)?;
+    if version > FORMAT_VERSION {
+        return Err(CodecError::unsupported(format!(
+            "repository format version {version} is newer than this reader (version \
+             {FORMAT_VERSION}); upgrade cbdam"
+        )));
+    }
+    if version == 0 {
+        return Err(CodecError::corrupt(
+            "repository format version 0 does not exist",
+        ));
+    }
+    read_header(b)
+}
+
+/// The decoder's parameters and the quantization plan from the header's fields: the flags,
+/// the layout and the coding ([`parse_layout`]), then the quantizers and the plan
+/// ([`parse_plan`]).
+fn parse_params(h: &HeaderFields) -> Result<(CodecParams, QuantPlan), CodecError> {
+    let (domain, alpha, coder, lattice) = parse_layout(h)?;
+    let (plan, root_quantizer, kind) = parse_plan(h, lattice)?;
+    let params = CodecParams {
+        domain,
+        alpha,
+        coder,
+        quantizer: plan.quantizer,
+        root_quantizer,
+        nodata_mask: h.flags & FLAG_NODATA_MASK != 0,
+        kind,
+    };
+    Ok((params, plan))
+}
+
+/// Flags, layout, lifting weight, coder, lattice flag, georeferencing flags, nodata policy,
+/// vertical unit and the data rectangle (which with the layout makes the domain), checked in
+/// that order.
+fn parse_layout(h: &HeaderFields) -> Result<(Domain, Alpha, CoderKind, bool), CodecError> {
+    let flags = h.flags;
+    if flags & !(FLAG_NODATA_MASK | FLAG_COLOUR) != 0 {
+        return Err(CodecError::unsupported(format!(
+            "unknown header flags {flags:#x}"
+        )));
+    }
+    let n = usize::try_from(h.n).map_err(|_| CodecError::corrupt("diamond size too large"))?;
+    let layout = Layout::new(n, u32::from(h.level_pairs), h.roots_x, h.roots_y)
+        .map_err(|e| CodecError::corrupt(format!("header layout: {e}")))?;
+    let alpha = Alpha::from_byte(h.alpha)
+        .ok_or_else(|| CodecError::corrupt(format!("unknown lifting weight id {}", h.alpha)))?;
+    let coder = CoderKind::from_byte(h.coder)?;
+    let lattice = match h.lattice {
+        0 => false,
+        1 => true,
+        v => {
+            return Err(CodecError::corrupt(format!(
+                "lattice flag {v} is not 0 or 1"
+            )));
+        }
+    };
+    let geo_flags = h.geo_flags;
+    if geo_flags & !3 != 0 || geo_flags == 2 {
+        return Err(CodecError::corrupt(format!(
+            "invalid georeferencing flags {geo_flags:#x}"
+        )));
+    }
+    if h.nodata_policy != NODATA_DONT_CARE {
+        return Err(CodecError::unsupported(format!(
+            "unknown nodata policy {}",
+            h.nodata_policy
+        )));
+    }
+    if h.vertical_unit != VERTICAL_METRES {
+        return Err(CodecError::unsupported(format!(
+            "unknown vertical unit {}",
+            h.vertical_unit
+        )));
+    }
+    let data = DataRect {
+        width: h.data_width,
+        height: h.data_height,
+    };
+    // A header whose data rectangle does not fit its layout is corrupt, not a bad argument.
+    let domain = Domain::planar(layout, data).map_err(|e| match e {
+        CodecError::InvalidParameter(m) => CodecError::Corrupt(m),
+        e => e,
+    })?;
+    Ok((domain, alpha, coder, lattice))
+}
+
+/// The quantizers, the height unit and offset, the tolerance (by kind: colour repositories
+/// have their own rules) and the representation error, checked in that order. Returns the
+/// plan, the root quantizer and the kind.
+fn parse_plan(
+    h: &HeaderFields,
+    lattice: bool,
+) -> Result<(QuantPlan, Quantizer, RepoKind), CodecError> {
+    let flags = h.flags;
+    let quantizer = Quantizer::new(h.quantizer_k)
+        .map_err(|e| CodecError::corrupt(format!("header quantizer: {e}")))?;
+    let root_q = root_quantizer(quantizer);
+    if let Some(root_k) = h.root_k
+        && root_k != root_q.k() as u32
+    {
+        return Err(CodecError::unsupported(format!(
+            "root quantizer k = {root_k}; this reader derives {} from k = {}",
+            root_q.k(),
+            quantizer.k()
+        )));
+    }
+    let (unit, offset, epsilon, representation_error) =
+        (h.unit, h.offset, h.epsilon, h.representation_error);
+    if !(unit.is_finite() && unit > 0.0) {
+        return Err(CodecError::corrupt(format!(
+            "height unit {unit} is not positive"
+        )));
+    }
+    if !offset.is_finite() {
+        return Err(CodecError::corrupt("height offset is not finite"));
+    }
+    let kind = if flags & FLAG_COLOUR != 0 {
+        RepoKind::Colour
+    } else {
+        RepoKind::Elevation
+    };
+    // A colour tolerance of 0 levels is lossless and meaningful; an elevation one is not.
+    let eps_ok = match kind {
+        RepoKind::Elevation => epsilon > 0.0,
+        RepoKind::Colour => epsilon >= 0.0,
+    };
+    if !(epsilon.is_finite() && eps_ok) {
+        return Err(CodecError::corrupt(format!(
+            "tolerance {epsilon} is not positive"
+        )));
+    }
+    if kind == RepoKind::Colour {
+        if flags & FLAG_NODATA_MASK != 0 {
+            return Err(CodecError::unsupported(
+                "a colour repository with a nodata mask",
+            ));
+        }
+        if unit != 1.0 || offset != 0.0 || !lattice || representation_error != 0.0 {
+            return Err(CodecError::corrupt(
+                "a colour repository must have unit 1, offset 0 and lattice input",
+            ));
+        }
+        let bound = ycocg::rgb_bound(quantizer.k() as u32);
+        if bound.iter().any(|&b| f64::from(b) > epsilon) {
+            return Err(CodecError::corrupt(format!(
+                "colour quantizer k = {} allows RGB errors of {bound:?}, over the stated \
+                 tolerance {epsilon}",
+                quantizer.k()
+            )));
+        }
+    }
+    if !(representation_error.is_finite() && representation_error >= 0.0) {
+        return Err(CodecError::corrupt(
+            "representation error is negative or not finite",
+        ));
+    }
+    let plan = QuantPlan {
+        unit,
+        offset,
+        quantizer,
+        lattice,
+        representation_error,
+        epsilon,
+    };
+    Ok((plan, root_q, kind))
+}
+
+/// The georeferencing fields: finite where the flags say they are present, all zero where
+/// they say there are none ([`parse_layout`] checked the flags themselves).
+fn parse_georef(h: &HeaderFields) -> Result<Option<GeoRef>, CodecError> {
+    let (geo_flags, epsg, geo) = (h.geo_flags, h.epsg, h.geo);
+    if geo_flags & 1 == 1 {
+        if geo.iter().any(|v| !v.is_finite()) {
+            return Err(CodecError::corrupt("georeferencing values are not finite"));
+        }
+        Ok(Some(GeoRef {
+            epsg: (epsg != 0).then_some(epsg),
+            origin_x: geo[0],
+            origin_y: geo[1],
+            pixel_x: geo[2],
+            pixel_y: geo[3],
+            pixel_is_area: geo_flags & 2 == 2,
+            wkt: h.wkt.clone(),
+        }))
+    } else {
+        if epsg != 0 || geo.iter().any(|&v| v.to_bits() != 0) {
+            return Err(CodecError::corrupt(
+                "georeferencing fields are set but the header says there is none",
+            ));
+        }
+        Ok(None)
+    }
+}
+
+/// The placement step: the sections follow the header and one another without gaps, end
+/// within `file_len` and the records area ends the file; the `given` bytes hold everything
+/// before the records area.
+fn parse_placement(
+    sections: &[SectionEntry; 4],
+    header_len: usize,
+    given: usize,
+    file_len: u64,
+) -> Result<(), CodecError> {
+    let mut expected = header_len as u64;
+    for (i, s) in Section::ALL.iter().enumerate() {
+        let info = sections[i];
+        // Sections follow one another without gaps: anything else is not a repository.
+        if info.offset != expected {
+            return Err(CodecError::corrupt(format!(
+                "{} starts at byte {}, expected {expected}",
+                s.name(),
+                info.offset
+            )));
+        }
+        let end = info
+            .offset
+            .checked_add(info.length)
+            .ok_or_else(|| CodecError::corrupt(format!("{} length overflows", s.name())))?;
+        if end > file_len {
+            return Err(CodecError::truncated(format!(
+                "{} ends at byte {end} but the file is {file_len} bytes",
+                s.name()
+            )));
+        }
+        expected = end;
+    }
+    if expected != file_len {
+        return Err(CodecError::corrupt(format!(
+            "{} trailing bytes after the records area",
+            file_len - expected
+        )));
+    }
+    if (given as u64) < sections[3].offset {
+        return Err(CodecError::truncated(format!(
+            "{given} bytes given, the repository head is {}",
+            sections[3].offset
+        )));
+    }
+    Ok(())
+}
+
+/// The checksum step: the CRCs of the root field, the index and the record checksum table
+/// (placed by [`parse_placement`]).
+fn parse_section_checksums(b: &[u8], sections: &[SectionEntry; 4]) -> Result<(), CodecError> {
+    for (i, s) in Section::ALL.iter().enumerate().take(3) {
+        if crc32(&b[range_of(&sections[i])]) != sections[i].crc {
+            return Err(CodecError::corrupt(format!(
+                "{} checksum mismatch",
+                s.name()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The index step: the record index, decoded in the coding of the file's version, holds as
+/// many records as the header says.
+fn parse_index(b: &[u8], h: &HeaderFields, domain: &Domain) -> Result<Vec<IndexEntry>, CodecError> {
+    let sections = &h.sections;
+    let record_count = h.record_count;
+    let entries = decode_index(
+        domain,
+        &b[range_of(&sections[1])],
+        sections[3].length,
+        IndexCoding::for_format_version(h.version)?,
+    )?;
+    if entries.len() as u64 != record_count {
+        return Err(CodecError::corrupt(format!(
+            "index holds {} records, header says {record_count}",
+            entries.len()
+        )));
+    }
+    Ok(entries)
+}
+
+/// The record checksum table: one CRC-32 per non-empty record of `entries`, nothing more;
+/// returns one per entry (0 for empty records).
+fn parse_record_checksums(
+    b: &[u8],
+    sections: &[SectionEntry; 4],
+    entries: &[IndexEntry],
+) -> Result<Vec<u32>, CodecError> {
+    let non_empty = entries.iter().filter(|e| e.length > 0).count() as u64;
+    if non_empty * 4 != sections[2].length {
+        return Err(CodecError::corrupt(format!(
+            "record checksum table is {} bytes for {non_empty} non-empty records",
+            sections[2].length
+        )));
+    }
+    let table = &b[range_of(&sections[2])];
+    let mut slot = 0;
+    Ok(entries
+        .iter()
+        .map(|e| {
+            if e.length == 0 {
+                return 0;
+            }
+            slot += 4;
+            u32_at(table, slot - 4)
+        })
+        .collect())
 }
 
 /// An opened, validated repository: the head plus the mapped records.

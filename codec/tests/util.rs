@@ -1,5 +1,4 @@
 //! Helpers shared by the integration tests.
-#![allow(dead_code)] // each test crate uses a different subset
 
 /// SplitMix64: deterministic, so a failure reproduces from its seed alone, and fine from any
 /// seed (zero included).

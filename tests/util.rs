@@ -1,6 +1,5 @@
 //! Helpers shared by the CLI tests: run the binary, read its output, find the bundled data.
-//! Each test file uses some of them.
-#![allow(dead_code)]
+//! Each module of `tests.rs` uses some of them.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};

@@ -1,6 +1,6 @@
 //! Helpers shared by the server's integration tests: a small real repository and a real server
 //! on a loopback port.
-#![allow(dead_code)] // each test crate uses a different subset
+#![allow(dead_code)] // `corrupt.rs`, a binary of its own, uses a subset
 
 use std::net::SocketAddr;
 

@@ -1,0 +1,19 @@
+//! The codec's integration tests, as one test binary (one link instead of one per file): a
+//! module per area, the helpers they share in `util.rs`. Run one area with
+//! `cargo test -p cbdam-codec --test tests -- golden::`.
+
+mod util;
+
+mod colour;
+mod gamma_coder;
+mod geotiff_stream;
+mod golden;
+mod hostile_records;
+mod input_real;
+mod input_synthetic;
+mod linf_bound;
+mod nodata_mask;
+mod older_formats;
+mod real_dems;
+mod repository;
+mod variable_resolution;

@@ -1,0 +1,7 @@
+//! The server's integration tests, as one test binary: a module per area, the helpers they
+//! share (a small real repository, a real server on a loopback port) in `util.rs`.
+//! `corrupt.rs` is a binary of its own: it installs a global log subscriber.
+
+mod util;
+
+mod http;

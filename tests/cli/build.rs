@@ -1,0 +1,394 @@
+//! `cbdam build` end to end: build → inspect → verify on real DEMs, progress and `--quiet`,
+//! bad inputs that must fail cleanly without leaving files behind, out-of-core and streamed
+//! builds, `--extra-levels auto`.
+
+use std::path::Path;
+use std::process::Output;
+
+use cbdam_codec::repository::Repository;
+
+use super::write_asc;
+use crate::util::*;
+
+fn round_trip(name: &str, max_error: &str, extra: &[&str]) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("t.cbdam");
+    let out_s = s(&out);
+    let input = data(name);
+    let mut args = vec!["build", &input, "-o", &out_s, "--max-error", max_error];
+    args.extend_from_slice(extra);
+    let o = cbdam(&args);
+    assert!(o.status.success(), "build {name}: {}", stderr(&o));
+    assert!(stdout(&o).contains("bits/sample"), "{}", stdout(&o));
+    assert_eq!(listing(dir.path()), vec![out.clone()]);
+
+    let o = cbdam(&["inspect", &out_s]);
+    assert!(o.status.success(), "inspect: {}", stderr(&o));
+    assert!(stdout(&o).contains("bits/sample"), "{}", stdout(&o));
+
+    let o = cbdam(&["inspect", &out_s, "--json"]);
+    assert!(o.status.success(), "inspect --json: {}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let file_bytes = std::fs::metadata(&out).unwrap().len();
+    assert_eq!(v["file_bytes"], file_bytes);
+    assert_eq!(
+        v["max_error_requested_m"],
+        max_error.parse::<f64>().unwrap()
+    );
+    let levels = v["levels"].as_array().unwrap();
+    let records: u64 = levels.iter().map(|l| l["records"].as_u64().unwrap()).sum();
+    assert_eq!(v["records"], records);
+    // Header and checksum table: the compact header (format version 3) plus 4 bytes per
+    // non-empty record; the root field starts right after the header.
+    let empty = v["empty_records"].as_u64().unwrap();
+    let header = v["sections"]["header"]["length"].as_u64().unwrap();
+    assert!((16..128).contains(&header), "{header}-byte header");
+    assert_eq!(v["sections"]["roots"]["offset"], header);
+    assert_eq!(
+        v["container_overhead_bytes"],
+        header + 4 * (records - empty)
+    );
+    let meta: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(data(&name.replace(".tif", ".json"))).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(v["data_width"], meta["width"]);
+    assert_eq!(v["data_height"], meta["height"]);
+    assert_eq!(v["georef"]["epsg"], meta["georef"]["epsg"]);
+
+    let o = cbdam(&["verify", &out_s, "--against", &input]);
+    assert!(o.status.success(), "verify {name}: {}", stderr(&o));
+    assert!(stdout(&o).ends_with("OK\n"), "{}", stdout(&o));
+}
+
+#[test]
+fn jacksboro_round_trip() {
+    round_trip("jacksboro_mpl.tif", "1", &[]);
+    round_trip(
+        "jacksboro_mpl.tif",
+        "2.5",
+        &["--alpha", "0.5", "--coder", "elias-gamma", "--threads", "1"],
+    );
+}
+
+#[test]
+fn lidar_round_trip() {
+    round_trip("lidar1m_mn.tif", "0.5", &["--diamond-size", "33"]);
+}
+
+#[test]
+fn quiet_prints_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = s(&dir.path().join("q.cbdam"));
+    let input = data("jacksboro_mpl.tif");
+    let o = cbdam(&["build", &input, "-o", &out, "--max-error", "4", "--quiet"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(o.stdout.is_empty() && o.stderr.is_empty());
+}
+
+#[test]
+fn progress_is_logged_when_stderr_is_not_a_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = s(&dir.path().join("p.cbdam"));
+    let o = cbdam(&[
+        "build",
+        &data("jacksboro_mpl.tif"),
+        "-o",
+        &out,
+        "--max-error",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let log = stderr(&o);
+    // One line per quarter, in order, ending at 100 %, and no terminal control codes.
+    let quarters: Vec<&str> = log
+        .lines()
+        .filter(|l| l.starts_with("encoding: "))
+        .collect();
+    assert_eq!(
+        quarters,
+        [
+            "encoding: 25% done",
+            "encoding: 50% done",
+            "encoding: 75% done",
+            "encoding: 100% done"
+        ],
+        "{log}"
+    );
+    assert!(!log.contains('\u{1b}'), "{log}");
+}
+
+/// Runs a build that must fail with `message` and leave `dir` as it was.
+fn build_fails(dir: &Path, input: &str, out: &Path, extra: &[&str], message: &str) {
+    let before = listing(dir);
+    let out_s = s(out);
+    let mut args = vec!["build", input, "-o", &out_s];
+    args.extend_from_slice(extra);
+    let o = cbdam(&args);
+    assert!(!o.status.success(), "{args:?} succeeded");
+    let err = stderr(&o);
+    assert!(
+        err.contains(message),
+        "{args:?}: expected {message:?} in {err:?}"
+    );
+    assert_eq!(listing(dir), before, "{args:?} left files behind");
+}
+
+#[test]
+fn bad_inputs_fail_without_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.cbdam");
+    let jb = data("jacksboro_mpl.tif");
+    for (e, msg) in [
+        ("0", "positive"),
+        ("-1", "positive"),
+        ("NaN", "positive"),
+        ("inf", "positive"),
+        // Jacksboro spans 236…1076 m.
+        ("900", "height range"),
+    ] {
+        build_fails(dir.path(), &jb, &out, &[&format!("--max-error={e}")], msg);
+    }
+    // Every sample nodata.
+    let asc = dir.path().join("nodata.asc");
+    write_asc(&asc, &vec![vec![-9999.0; 5]; 4], Some(-9999.0));
+    build_fails(
+        dir.path(),
+        &s(&asc),
+        &out,
+        &["--max-error", "1"],
+        "no valid sample",
+    );
+    // The same file becomes valid once its nodata value is overridden, so --nodata is honoured.
+    let o = cbdam(&[
+        "build",
+        &s(&asc),
+        "-o",
+        &s(&out),
+        "--max-error",
+        "1",
+        "--nodata",
+        "-1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::remove_file(&out).unwrap();
+    // --nodata can also make every sample invalid.
+    let flat = dir.path().join("flat.asc");
+    write_asc(&flat, &vec![vec![7.0; 5]; 4], None);
+    build_fails(
+        dir.path(),
+        &s(&flat),
+        &out,
+        &["--max-error", "1", "--nodata", "7"],
+        "no valid sample",
+    );
+    // Unreadable inputs.
+    let missing = s(&dir.path().join("missing.tif"));
+    build_fails(
+        dir.path(),
+        &missing,
+        &out,
+        &["--max-error", "1"],
+        "missing.tif",
+    );
+    let garbage = dir.path().join("garbage.tif");
+    std::fs::write(&garbage, b"this is not a tiff at all").unwrap();
+    build_fails(
+        dir.path(),
+        &s(&garbage),
+        &out,
+        &["--max-error", "1"],
+        "garbage.tif",
+    );
+    // Output is a directory.
+    let sub = dir.path().join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    build_fails(
+        dir.path(),
+        &jb,
+        &sub,
+        &["--max-error", "1"],
+        "is a directory",
+    );
+    assert!(listing(&sub).is_empty());
+    // Output directory missing: an error, nothing created.
+    let deep = dir.path().join("no").join("such").join("out.cbdam");
+    build_fails(dir.path(), &jb, &deep, &["--max-error", "1"], "writing");
+}
+
+#[test]
+fn out_of_core_and_streamed_builds_give_identical_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let ok = |o: &Output| assert!(o.status.success(), "{}", stderr(o));
+    // Bundled DEM with nodata: default memory limit vs a limit that forces the mapped field.
+    let a = dir.path().join("a.cbdam");
+    let b = dir.path().join("b.cbdam");
+    let rhine = data("rhine_nodata.tif");
+    for (out, extra) in [(&a, None), (&b, Some("1M"))] {
+        let mut args = vec!["build", &rhine, "--max-error", "1", "-o"];
+        let out = s(out);
+        args.push(&out);
+        args.push("--quiet");
+        if let Some(limit) = extra {
+            args.extend(["--memory-limit", limit]);
+        }
+        ok(&cbdam(&args));
+    }
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    // An odd-sized float terrain streamed from raw f32, in memory and forced out of core:
+    // identical repositories, within the bound of the same samples read whole (ASCII grid).
+    let (w, h) = (131usize, 77usize);
+    let rows: Vec<Vec<f64>> = (0..h)
+        .map(|y| {
+            (0..w)
+                .map(|x| f64::from((x as f32 * 0.37).sin() * 40.0 + y as f32 * 1.25 + 300.0))
+                .collect()
+        })
+        .collect();
+    let asc = dir.path().join("t.asc");
+    write_asc(&asc, &rows, None);
+    let raw = dir.path().join("t.f32");
+    let bytes: Vec<u8> = rows
+        .iter()
+        .flatten()
+        .flat_map(|&v| (v as f32).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, bytes).unwrap();
+    let (c, d) = (dir.path().join("c.cbdam"), dir.path().join("d.cbdam"));
+    ok(&cbdam(&[
+        "build",
+        &s(&raw),
+        "--size",
+        "131x77",
+        "--max-error",
+        "0.5",
+        "-o",
+        &s(&c),
+        "--quiet",
+    ]));
+    ok(&cbdam(&[
+        "build",
+        &s(&raw),
+        "--size",
+        "131x77",
+        "--max-error",
+        "0.5",
+        "-o",
+        &s(&d),
+        "--quiet",
+        "--memory-limit",
+        "4K",
+    ]));
+    assert_eq!(std::fs::read(&c).unwrap(), std::fs::read(&d).unwrap());
+    ok(&cbdam(&["verify", &s(&d), "--against", &s(&asc)]));
+    // Bad limits and sizes are clear errors.
+    for (flag, bad) in [
+        ("--memory-limit", "lots"),
+        ("--memory-limit", "0"),
+        ("--size", "131"),
+    ] {
+        let mut args = vec!["build", &rhine, "--max-error", "1", "-o"];
+        let out = s(&a);
+        args.push(&out);
+        args.extend([flag, bad]);
+        let o = cbdam(&args);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(flag), "{flag} {bad}: {}", stderr(&o));
+    }
+    let o = cbdam(&["build", &s(&raw), "--max-error", "1", "-o", &s(&a)]);
+    assert!(stderr(&o).contains("--size"), "{}", stderr(&o));
+}
+
+/// `--extra-levels auto` (the default) keeps one more level pair only where that gives the
+/// smaller file: on the smooth lidar tile at 5 m, where the root field is most of the file, it
+/// does; at 1 m, where the extra coarse records cost more than the roots save, it does not.
+/// Either way the result is exactly one of the two fixed builds and verifies within ε.
+#[test]
+fn auto_extra_levels_keep_the_smaller_repository() {
+    let dir = tempfile::tempdir().unwrap();
+    let lidar = data("lidar1m_mn.tif");
+    for (eps, coarser) in [("5", true), ("1", false)] {
+        let build = |extra: &str| {
+            let out = dir.path().join(format!("{eps}_{extra}.cbdam"));
+            let o = cbdam(&[
+                "build",
+                &lidar,
+                "-o",
+                &s(&out),
+                "--max-error",
+                eps,
+                "--quiet",
+                "--extra-levels",
+                extra,
+            ]);
+            assert!(o.status.success(), "{}", stderr(&o));
+            std::fs::read(&out).unwrap()
+        };
+        let (auto, zero, one) = (build("auto"), build("0"), build("1"));
+        assert_eq!(
+            coarser,
+            one.len() < zero.len(),
+            "ε {eps}: {} vs {}",
+            one.len(),
+            zero.len()
+        );
+        assert_eq!(auto, if coarser { one } else { zero }, "ε {eps}");
+        let k = |b: &[u8]| {
+            Repository::from_bytes(b.to_vec())
+                .unwrap()
+                .params()
+                .layout
+                .k()
+        };
+        assert_eq!(k(&auto), k(&build("0")) + u32::from(coarser), "ε {eps}");
+        let o = cbdam(&[
+            "verify",
+            &s(&dir.path().join(format!("{eps}_auto.cbdam"))),
+            "--against",
+            &lidar,
+        ]);
+        assert!(o.status.success(), "ε {eps}: {}", stderr(&o));
+    }
+    let o = cbdam(&[
+        "build",
+        &lidar,
+        "-o",
+        &s(&dir.path().join("x.cbdam")),
+        "--max-error",
+        "1",
+        "--extra-levels",
+        "lots",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("neither `auto` nor a number"),
+        "{}",
+        stderr(&o)
+    );
+    let x = s(&dir.path().join("x.cbdam"));
+    let o = cbdam(&[
+        "build",
+        &lidar,
+        "-o",
+        &x,
+        "--max-error",
+        "1",
+        "--extra-levels",
+        "3",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = cbdam(&[
+        "build",
+        &lidar,
+        &lidar,
+        "-o",
+        &x,
+        "--max-error",
+        "1",
+        "--extra-levels",
+        "1",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("single-input builds"), "{}", stderr(&o));
+    assert!(!dir.path().join("x.cbdam").exists());
+}
