@@ -115,3 +115,18 @@ impl World {
         (a.min(b), a.max(b))
     }
 }
+
+/// `world` with heights scaled by `factor` about 0 m, for vertical exaggeration: hand it to
+/// the renderer and the camera, and the same factor to
+/// [`RefineConfig::exaggeration`](crate::refine::RefineConfig::exaggeration). The colour ramp spans
+/// the data's height range and sea level stays at 0 m, so land colours do not change; only the
+/// water's depth tint (absolute metres) deepens with the factor.
+pub fn exaggerated(world: &World, factor: f64) -> World {
+    World {
+        unit: world.unit * factor,
+        offset: world.offset * factor,
+        min_height: world.min_height * factor,
+        max_height: world.max_height * factor,
+        ..*world
+    }
+}

@@ -23,11 +23,11 @@ use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
 use crate::state::{AppState, ServedRepo};
 
+use cbdam_codec::repository::batch::{BatchWriter, body_len};
 /// The batch framing, defined once in the codec for both ends of the wire.
 pub use cbdam_codec::repository::batch::{
     CONTENT_TYPE as BATCH_CONTENT_TYPE, MAGIC as BATCH_MAGIC, STATUS_NOT_STORED, STATUS_RECORD,
 };
-use cbdam_codec::repository::batch::{BatchWriter, body_len};
 
 /// Records never change for a given URL while the same file is served under the same name.
 const IMMUTABLE: &str = "public, max-age=31536000, immutable";

@@ -5,7 +5,8 @@
 //! diamond in the frustum meets the pixel target or the frame's time budget is spent. Refining a
 //! diamond first forces its unrefined parents. Only diamonds whose record is in RAM are refined;
 //! missing ones are requested from the [`DataSource`] with their screen error as priority and
-//! never waited for. Decoding runs on rayon's worker threads: the frame dispatches the most urgent
+//! never waited for. Decoding runs on the [`Spawner`]'s workers (rayon's on the desktop): the
+//! frame dispatches the most urgent
 //! ready refinements, applies results as they come back while budget remains, and leaves the
 //! rest running; what finishes after the deadline is applied at the start of the next frame, so
 //! a slow decode never stretches a frame. Coarsening is garbage collection: every few frames, refined diamonds with no
@@ -40,7 +41,7 @@ pub use detail::DetailConfig;
 
 use std::collections::{BTreeMap, BinaryHeap};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::colour::ColourRefined;
@@ -48,11 +49,13 @@ use cbdam_codec::geometry::{Cut, DiamondId, Half, IdMap, IdSet, Layout};
 use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
+use web_time::Instant;
 
 use crate::access::{AccessStats, DataSource, Drape, Priority, coloured};
 use crate::camera::{Camera, Frustum};
 use crate::patch::{HalfPatch, colour_from_parent, packed};
-use crate::world::World;
+use crate::spawn::{DefaultSpawner, Spawner};
+use crate::world::{World, exaggerated};
 
 /// Per frame, the remembered overrun past the deadline shrinks by this factor unless a new one
 /// is larger: about 7 frames to halve, so a rare slow tail (a pre-empted thread) is soon
@@ -92,7 +95,7 @@ pub struct RefineConfig {
     /// Synthesise detail past the finest stored level (off by default).
     pub detail: Option<DetailConfig>,
     /// Vertical exaggeration: heights (and so boxes and object-space errors) are scaled by
-    /// this, as [`crate::draw::exaggerated`] scales the renderer's world. 1 by default.
+    /// this, as [`exaggerated`] scales the renderer's world. 1 by default.
     pub exaggeration: f64,
 }
 
@@ -297,9 +300,10 @@ pub fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
     (lo - p).max(p - hi).max(DVec3::ZERO).length()
 }
 
-/// The streaming refinement loop over one data source.
-pub struct Refiner<S: DataSource> {
+/// The streaming refinement loop over one data source, decoding on the spawner `X`'s workers.
+pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     source: S,
+    spawner: X,
     config: RefineConfig,
     decoder: Arc<Decoder>,
     /// The colour draped over the terrain, when the source pairs one.
@@ -347,12 +351,20 @@ pub struct Refiner<S: DataSource> {
 }
 
 impl<S: DataSource> Refiner<S> {
-    /// A refiner with the coarsest cut (roots only).
+    /// A refiner with the coarsest cut (roots only), decoding on the target's
+    /// [`DefaultSpawner`].
     pub fn new(source: S, config: RefineConfig) -> Result<Self, CodecError> {
+        Self::with_spawner(source, config, DefaultSpawner::default())
+    }
+}
+
+impl<S: DataSource, X: Spawner> Refiner<S, X> {
+    /// A refiner with the coarsest cut (roots only), decoding on `spawner`.
+    pub fn with_spawner(source: S, config: RefineConfig, spawner: X) -> Result<Self, CodecError> {
         let decoder = source.decoder()?;
         let params = *source.params();
         let src_layout = params.layout;
-        let mut world = crate::draw::exaggerated(
+        let mut world = exaggerated(
             &World::new(&params, source.plan(), source.georef(), source.entries()),
             config.exaggeration,
         );
@@ -416,6 +428,7 @@ impl<S: DataSource> Refiner<S> {
         let (done_tx, done_rx) = std::sync::mpsc::channel();
         let mut me = Self {
             source,
+            spawner,
             decoder: Arc::new(decoder),
             drape,
             layout,
@@ -874,7 +887,7 @@ impl<S: DataSource> Refiner<S> {
         while let Ok(done) = self.done_rx.try_recv() {
             self.apply(done, &view, &mut heap, &mut stats);
         }
-        let max_in_flight = 2 * rayon::current_num_threads().max(1);
+        let max_in_flight = 2 * self.spawner.parallelism().max(1);
         let mut waiting: Vec<Candidate> = Vec::new();
         let mut coarsening = None;
         loop {
@@ -1123,7 +1136,7 @@ impl<S: DataSource> Refiner<S> {
         };
         let tx = self.done_tx.clone();
         self.decoding.insert(id);
-        rayon::spawn(move || {
+        self.spawner.spawn(move || {
             let t = Instant::now();
             let result = job.refine(id, source);
             // The refiner may be gone; then nobody wants the result.

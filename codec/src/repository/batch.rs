@@ -117,7 +117,10 @@ impl BatchWriter {
 
     /// The body. Debug builds check that as many entries were written as announced.
     pub fn finish(self) -> Vec<u8> {
-        debug_assert_eq!(self.written, self.count, "batch entries written vs announced");
+        debug_assert_eq!(
+            self.written, self.count,
+            "batch entries written vs announced"
+        );
         self.out
     }
 }
@@ -203,7 +206,11 @@ mod tests {
         assert_eq!(write(&[]), b"CBDR\0\0\0\0");
         assert_eq!(
             parse(&want).unwrap(),
-            [Entry::Record(&[7, 8, 9]), Entry::NotStored, Entry::Record(&[])]
+            [
+                Entry::Record(&[7, 8, 9]),
+                Entry::NotStored,
+                Entry::Record(&[])
+            ]
         );
     }
 

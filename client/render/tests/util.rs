@@ -7,7 +7,6 @@ use std::sync::{Arc, OnceLock};
 
 use cbdam_client::access::LocalSource;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{CacheConfig, Gpu, Renderer};
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::world::World;
@@ -16,12 +15,13 @@ use cbdam_codec::hierarchy::{EncodeOptions, encode};
 use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
+use cbdam_render::{CacheConfig, Gpu, Renderer};
 use glam::{DVec3, DVec4};
 
 /// The bundled DEM `name` (in the workspace's `data/`).
 pub fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
+        .join("../..")
         .join("data")
         .join(name)
 }

@@ -9,18 +9,16 @@
 //!
 //! The same checks on the same patches with their masks removed must fail: the test can tell.
 
-mod common;
-
 use std::sync::Arc;
 
+use crate::util::*;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{Frame, RenderOptions};
 use cbdam_client::patch::{HalfPatch, decode_cut};
 use cbdam_client::world::World;
 use cbdam_codec::hierarchy::reconstruct_finest;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::Repository;
-use common::*;
+use cbdam_render::{Frame, RenderOptions};
 use glam::{DVec3, DVec4};
 
 const MAGENTA: [u8; 4] = [255, 0, 255, 255];

@@ -8,13 +8,11 @@
 //! A slot holding another patch's heights, or heights left from an earlier frame, puts
 //! surface in front of the reference or changes colours.
 
-mod common;
-
+use crate::util::*;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{CacheConfig, Frame, RenderOptions, Renderer};
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::world::World;
-use common::*;
+use cbdam_render::{CacheConfig, Frame, RenderOptions, Renderer};
 
 fn options() -> RenderOptions {
     RenderOptions {

@@ -8,14 +8,12 @@
 //! rectangle, between those heights, and seen from above), unless the surface has a hole. Back
 //! faces are culled, so a ray through a hole reaches the background instead of the underside.
 
-mod common;
-
+use crate::util::*;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{Frame, RenderOptions};
 use cbdam_client::patch::decode_cut;
 use cbdam_client::world::World;
 use cbdam_codec::geometry::Cut;
-use common::*;
+use cbdam_render::{Frame, RenderOptions};
 use glam::DVec3;
 
 const MAGENTA: [u8; 4] = [255, 0, 255, 255];
