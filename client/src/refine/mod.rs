@@ -855,7 +855,57 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .map(|b| start + b - self.overrun.min(b / 4));
         self.frame += 1;
         self.source.pump();
-        // Move what arrived into RAM; failures are logged now rather than when next wanted.
+        self.take_arrived();
+
+        let view = View::new(*camera, 0.0);
+        let mut heap = self.refinement_heap(&view);
+        let mut wanted: IdMap<f64> = IdMap::default();
+        let mut stats = FrameStats {
+            frame: self.frame,
+            ..FrameStats::default()
+        };
+        self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
+
+        // What the budget did not reach still gets requested, then prefetch (neither can want
+        // anything from a source that always has everything at hand).
+        let may_want = !self.source.always_available();
+        if may_want {
+            for c in heap.into_vec() {
+                if !self.cut.is_refined(c.id) {
+                    self.want_plan(c.id, c.err, &mut wanted);
+                }
+            }
+        }
+        if self.config.gc_interval > 0
+            && self
+                .frame
+                .is_multiple_of(u64::from(self.config.gc_interval))
+        {
+            stats.coarsenings += self.collect_garbage(&view);
+        }
+        // One pass over the final cut's candidates serves prefetching and the frame's figures.
+        let candidates = self.candidate_list();
+        let errors: Vec<Option<f64>> = candidates
+            .iter()
+            .map(|&(_, info)| info.and_then(|i| view.error(&i)))
+            .collect();
+        if may_want {
+            self.prefetch(camera, &candidates, &errors, &mut wanted);
+        }
+        self.last_camera = Some(*camera);
+
+        self.post_requests(wanted);
+        self.remember_overrun(deadline, &stats);
+        stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
+        #[cfg(debug_assertions)]
+        self.check_incremental_sets();
+        self.figures(&view, &candidates, &errors, &mut stats);
+        stats
+    }
+
+    /// Frame step: moves the records that arrived into RAM; failures are logged now rather than
+    /// when next wanted.
+    fn take_arrived(&mut self) {
         let arrived: Vec<DiamondId> = self
             .requested
             .keys()
@@ -870,22 +920,35 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             let sid = self.source_id(id).expect("requested ids are stored");
             self.take(id, sid);
         }
+    }
 
-        let view = View::new(*camera, 0.0);
+    /// Frame step: the refinement heap, the candidates that violate the target in `view`, most
+    /// urgent on top.
+    fn refinement_heap(&self, view: &View) -> BinaryHeap<Candidate> {
         let mut heap = BinaryHeap::new();
         for (id, info) in self.candidate_list() {
-            if let Some(err) = self.violation_of(id, info, &view) {
+            if let Some(err) = self.violation_of(id, info, view) {
                 heap.push(Candidate { err, id });
             }
         }
-        let mut wanted: IdMap<f64> = IdMap::default();
-        let mut stats = FrameStats {
-            frame: self.frame,
-            ..FrameStats::default()
-        };
+        heap
+    }
+
+    /// Frame step: applies the results of decodes dispatched in earlier frames, then dispatches
+    /// the most urgent ready refinements and applies what comes back until nothing more can
+    /// start or `deadline` passes. What could not be refined (missing records, blocked on an
+    /// ancestor) is left in `heap`; missing records go into `wanted`.
+    fn refine_until(
+        &mut self,
+        deadline: Option<Instant>,
+        view: &View,
+        heap: &mut BinaryHeap<Candidate>,
+        wanted: &mut IdMap<f64>,
+        stats: &mut FrameStats,
+    ) {
         // Results of decodes dispatched in earlier frames first.
         while let Ok(done) = self.done_rx.try_recv() {
-            self.apply(done, &view, &mut heap, &mut stats);
+            self.apply(done, view, heap, stats);
         }
         let max_in_flight = 2 * self.spawner.parallelism().max(1);
         let mut waiting: Vec<Candidate> = Vec::new();
@@ -921,13 +984,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                         }
                         Need::Ready(_)
                             if parents_done
-                                && !self.make_room(
-                                    c.err,
-                                    d,
-                                    &view,
-                                    &mut coarsening,
-                                    &mut stats,
-                                ) =>
+                                && !self.make_room(c.err, d, view, &mut coarsening, stats) =>
                         {
                             stats.memory_limited = true;
                             blocked = true;
@@ -941,9 +998,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                                     result: Ok(node),
                                     secs: None,
                                 },
-                                &view,
-                                &mut heap,
-                                &mut stats,
+                                view,
+                                heap,
+                                stats,
                             );
                             dispatched_self |= d == c.id;
                         }
@@ -978,44 +1035,18 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 stats.budget_exhausted = true;
                 break;
             };
-            self.apply(done, &view, &mut heap, &mut stats);
+            self.apply(done, view, heap, stats);
             while let Ok(done) = self.done_rx.try_recv() {
-                self.apply(done, &view, &mut heap, &mut stats);
+                self.apply(done, view, heap, stats);
             }
             // Candidates that waited for an ancestor may be ready now.
             heap.extend(waiting.drain(..));
         }
         heap.extend(waiting);
+    }
 
-        // What the budget did not reach still gets requested, then prefetch (neither can want
-        // anything from a source that always has everything at hand).
-        let may_want = !self.source.always_available();
-        if may_want {
-            for c in heap.into_vec() {
-                if !self.cut.is_refined(c.id) {
-                    self.want_plan(c.id, c.err, &mut wanted);
-                }
-            }
-        }
-        if self.config.gc_interval > 0
-            && self
-                .frame
-                .is_multiple_of(u64::from(self.config.gc_interval))
-        {
-            stats.coarsenings += self.collect_garbage(&view);
-        }
-        // One pass over the final cut's candidates serves prefetching and the frame's figures.
-        let candidates = self.candidate_list();
-        let errors: Vec<Option<f64>> = candidates
-            .iter()
-            .map(|&(_, info)| info.and_then(|i| view.error(&i)))
-            .collect();
-        if may_want {
-            self.prefetch(camera, &candidates, &errors, &mut wanted);
-        }
-        self.last_camera = Some(*camera);
-
-        // Post new requests, re-prioritise, cancel what is no longer wanted.
+    /// Frame step: posts new requests, re-prioritises, and cancels what is no longer wanted.
+    fn post_requests(&mut self, wanted: IdMap<f64>) {
         let stale: Vec<DiamondId> = self
             .requested
             .keys()
@@ -1043,16 +1074,26 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 self.requested.insert(id, prio);
             }
         }
+    }
 
+    /// Frame step: when the budget ran out, how far past its deadline the frame ran (see
+    /// `overrun`).
+    fn remember_overrun(&mut self, deadline: Option<Instant>, stats: &FrameStats) {
         if let (Some(d), true) = (deadline, stats.budget_exhausted) {
             let over = Instant::now().saturating_duration_since(d);
             self.overrun = over.max(self.overrun.mul_f64(OVERRUN_DECAY));
         }
-        stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
-        #[cfg(debug_assertions)]
-        self.check_incremental_sets();
+    }
 
-        let (max_err, coarsenable) = self.measure(&view, &candidates, &errors);
+    /// Frame step: the frame's figures of the cut it leaves.
+    fn figures(
+        &mut self,
+        view: &View,
+        candidates: &[(DiamondId, Option<Info>)],
+        errors: &[Option<f64>],
+        stats: &mut FrameStats,
+    ) {
+        let (max_err, coarsenable) = self.measure(view, candidates, errors);
         stats.max_screen_error_px = max_err;
         stats.met_target = max_err <= self.config.pixel_error;
         stats.converged = stats.met_target && coarsenable == 0;
@@ -1063,7 +1104,6 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         stats.triangles = self.drawn.len() as u64 * n1 * n1;
         stats.access = self.source.stats();
         stats.failures = self.failure_count;
-        stats
     }
 
     /// Runs frames for one still `camera` until the cut has converged, or for `max_frames`
