@@ -300,6 +300,41 @@ pub fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
     (lo - p).max(p - hi).max(DVec3::ZERO).length()
 }
 
+/// The cut and what is kept up to date with it as it changes.
+struct CutState {
+    cut: Cut,
+    nodes: IdMap<Arc<Node>>,
+    roots: IdMap<[Arc<HalfPatch>; 2]>,
+    /// The drawn half-patches, keyed so that iteration follows [`Cut::drawn_halves`]' order;
+    /// updated on every refinement and coarsening, so a frame's cost follows what changed.
+    drawn: BTreeMap<DrawKey, Arc<HalfPatch>>,
+    /// Refinement candidates (the diamonds with a drawn half) with their metric, kept as the
+    /// cut changes rather than found by a pass over the cut each frame.
+    candidates: IdMap<Option<Info>>,
+    /// Coarsening candidates: refined diamonds with no refined child, with their metric.
+    leaves: IdMap<Option<Info>>,
+}
+
+/// What the refiner holds in RAM besides the cut's structure: compressed records, decoded
+/// diamonds kept after coarsening, and the cut's decoded bytes against
+/// [`RefineConfig::cut_bytes`].
+struct Residency {
+    records: LruCache<DiamondId, Arc<[u8]>>,
+    decoded: LruCache<DiamondId, Arc<Node>>,
+    /// Sum of the cut's nodes' bytes.
+    cut_bytes: usize,
+}
+
+/// The refiner's side of the data source: what is requested, and what failed.
+#[derive(Default)]
+struct Requests {
+    requested: IdMap<Priority>,
+    failures: IdMap<u32>,
+    failure_count: u64,
+    broken: IdSet,
+    errors: Vec<String>,
+}
+
 /// The streaming refinement loop over one data source, decoding on the spawner `X`'s workers.
 pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     source: S,
@@ -316,26 +351,9 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     source_finest: u8,
     stored: IdMap<Info>,
     synthetic: IdMap<Option<Info>>,
-    cut: Cut,
-    nodes: IdMap<Arc<Node>>,
-    /// Sum of `nodes`' bytes.
-    cut_bytes: usize,
-    roots: IdMap<[Arc<HalfPatch>; 2]>,
-    /// The drawn half-patches, keyed so that iteration follows [`Cut::drawn_halves`]' order;
-    /// updated on every refinement and coarsening, so a frame's cost follows what changed.
-    drawn: BTreeMap<DrawKey, Arc<HalfPatch>>,
-    /// Refinement candidates (the diamonds with a drawn half) with their metric, kept as the
-    /// cut changes rather than found by a pass over the cut each frame.
-    candidates: IdMap<Option<Info>>,
-    /// Coarsening candidates: refined diamonds with no refined child, with their metric.
-    leaves: IdMap<Option<Info>>,
-    records: LruCache<DiamondId, Arc<[u8]>>,
-    decoded: LruCache<DiamondId, Arc<Node>>,
-    requested: IdMap<Priority>,
-    failures: IdMap<u32>,
-    failure_count: u64,
-    broken: IdSet,
-    errors: Vec<String>,
+    cut_state: CutState,
+    residency: Residency,
+    requests: Requests,
     frame: u64,
     last_camera: Option<Camera>,
     /// How far recent frames ran past their refinement deadline (the bookkeeping after the
@@ -437,20 +455,20 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             source_finest: src_layout.finest_level(),
             stored,
             synthetic: IdMap::default(),
-            cut: Cut::new(),
-            nodes: IdMap::default(),
-            cut_bytes: 0,
-            roots,
-            drawn: BTreeMap::new(),
-            candidates: IdMap::default(),
-            leaves: IdMap::default(),
-            records: LruCache::new(config.record_cache_bytes),
-            decoded: LruCache::new(config.decoded_cache_bytes),
-            requested: IdMap::default(),
-            failures: IdMap::default(),
-            failure_count: 0,
-            broken: IdSet::default(),
-            errors: Vec::new(),
+            cut_state: CutState {
+                cut: Cut::new(),
+                nodes: IdMap::default(),
+                roots,
+                drawn: BTreeMap::new(),
+                candidates: IdMap::default(),
+                leaves: IdMap::default(),
+            },
+            residency: Residency {
+                records: LruCache::new(config.record_cache_bytes),
+                decoded: LruCache::new(config.decoded_cache_bytes),
+                cut_bytes: 0,
+            },
+            requests: Requests::default(),
             frame: 0,
             last_camera: None,
             overrun: Duration::ZERO,
@@ -463,7 +481,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let roots: Vec<DiamondId> = me.layout.roots().collect();
         for r in roots {
             let info = me.info(r);
-            me.candidates.insert(r, info);
+            me.cut_state.candidates.insert(r, info);
         }
         Ok(me)
     }
@@ -485,17 +503,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// How full the CPU-side caches are.
     pub fn cache_use(&self) -> CacheUse {
         CacheUse {
-            record_bytes: self.records.bytes(),
+            record_bytes: self.residency.records.bytes(),
             record_budget: self.config.record_cache_bytes,
-            decoded_bytes: self.decoded.bytes(),
+            decoded_bytes: self.residency.decoded.bytes(),
             decoded_budget: self.config.decoded_cache_bytes,
-            decoded_evictions: self.decoded.evictions(),
+            decoded_evictions: self.residency.decoded.evictions(),
         }
     }
 
     /// The current cut (in [`Refiner::layout`]'s ids).
     pub fn cut(&self) -> &Cut {
-        &self.cut
+        &self.cut_state.cut
     }
 
     /// The hierarchy the cut lives in: the source's, deeper when synthesising detail.
@@ -520,12 +538,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
     /// The half-patches the cut draws, in [`Cut::drawn_halves`] order.
     pub fn drawn(&self) -> impl Iterator<Item = &Arc<HalfPatch>> {
-        self.drawn.values()
+        self.cut_state.drawn.values()
     }
 
     /// Recent error messages (rejected records), oldest first.
     pub fn errors(&self) -> &[String] {
-        &self.errors
+        &self.requests.errors
     }
 
     /// The source's id of one of the refiner's diamonds (`None` for synthetic levels).
@@ -591,22 +609,22 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     }
 
     fn log_failure(&mut self, id: DiamondId, message: String) {
-        self.failure_count += 1;
-        let n = self.failures.entry(id).or_default();
+        self.requests.failure_count += 1;
+        let n = self.requests.failures.entry(id).or_default();
         *n += 1;
         let gave_up = *n >= self.config.max_failures;
         if gave_up {
-            self.broken.insert(id);
+            self.requests.broken.insert(id);
         }
-        if self.errors.len() >= ERROR_LOG {
-            self.errors.remove(0);
+        if self.requests.errors.len() >= ERROR_LOG {
+            self.requests.errors.remove(0);
         }
-        self.errors.push(if gave_up {
+        self.requests.errors.push(if gave_up {
             format!("{message} (giving up on {id})")
         } else {
             message
         });
-        self.records.remove(&id);
+        self.residency.records.remove(&id);
     }
 
     /// Moves a record that has arrived into RAM.
@@ -614,7 +632,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         match self.source.take(sid)? {
             Ok(bytes) => {
                 let bytes: Arc<[u8]> = bytes.into();
-                self.records.insert(id, bytes.clone(), bytes.len() + 64);
+                self.residency
+                    .records
+                    .insert(id, bytes.clone(), bytes.len() + 64);
                 Some(bytes)
             }
             Err(e) => {
@@ -625,10 +645,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     }
 
     fn need(&mut self, id: DiamondId) -> Need {
-        if self.broken.contains(&id) || self.info(id).is_none() {
+        if self.requests.broken.contains(&id) || self.info(id).is_none() {
             return Need::Impossible;
         }
-        if let Some(n) = self.decoded.get(&id) {
+        if let Some(n) = self.residency.decoded.get(&id) {
             return Need::Ready(Source::Cached(n.clone()));
         }
         if self.is_synthetic(id) {
@@ -639,16 +659,16 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             let amp = detail::amplitude_units(&self.world, &detail, id.level);
             return Need::Ready(Source::Synthetic(amp));
         }
-        if let Some(r) = self.records.get(&id) {
+        if let Some(r) = self.residency.records.get(&id) {
             return Need::Ready(Source::Record(r.clone()));
         }
         let sid = self.source_id(id).expect("stored levels map to the source");
         if self.source.is_available(sid) {
-            self.requested.remove(&id);
+            self.requests.requested.remove(&id);
             if let Some(r) = self.take(id, sid) {
                 return Need::Ready(Source::Record(r));
             }
-            if self.broken.contains(&id) {
+            if self.requests.broken.contains(&id) {
                 return Need::Impossible;
             }
         }
@@ -658,8 +678,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Whether a diamond's data could be had without a request (in RAM, cached, synthetic, or
     /// available from the source). Takes nothing.
     fn have_or_available(&mut self, id: DiamondId) -> bool {
-        self.decoded.contains(&id)
-            || self.records.contains(&id)
+        self.residency.decoded.contains(&id)
+            || self.residency.records.contains(&id)
             || self.is_synthetic(id)
             || self
                 .source_id(id)
@@ -678,88 +698,100 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             out.push(d);
         }
         // Most often only `id` itself is unrefined (a candidate whose parents are refined).
-        if self.cut.is_refined(id) {
+        if self.cut_state.cut.is_refined(id) {
             return Vec::new();
         }
         let parents = self.layout.parents(id);
-        if parents.iter().flatten().all(|&p| self.cut.is_refined(p)) {
+        if parents
+            .iter()
+            .flatten()
+            .all(|&p| self.cut_state.cut.is_refined(p))
+        {
             return vec![id];
         }
         let mut out = Vec::new();
-        visit(&self.cut, &self.layout, id, &mut out);
+        visit(&self.cut_state.cut, &self.layout, id, &mut out);
         out
     }
 
     /// Whether refining `id` needs a diamond that was given up on.
     fn blocked(&self, id: DiamondId) -> bool {
-        !self.broken.is_empty() && self.plan(id).iter().any(|d| self.broken.contains(d))
+        !self.requests.broken.is_empty()
+            && self
+                .plan(id)
+                .iter()
+                .any(|d| self.requests.broken.contains(d))
     }
 
     /// The diamonds with a drawn half (refinement candidates), each once, with their metric.
     fn candidate_list(&self) -> Vec<(DiamondId, Option<Info>)> {
-        self.candidates.iter().map(|(&id, &i)| (id, i)).collect()
+        self.cut_state
+            .candidates
+            .iter()
+            .map(|(&id, &i)| (id, i))
+            .collect()
     }
 
     /// [`Refiner::violation`] for a diamond whose metric is at hand.
     fn violation_of(&self, id: DiamondId, info: Option<Info>, view: &View) -> Option<f64> {
         view.error(&info?)
-            .filter(|&e| e > self.config.pixel_error && !self.broken.contains(&id))
+            .filter(|&e| e > self.config.pixel_error && !self.requests.broken.contains(&id))
     }
 
     /// Refines `id` (whose parents are refined and whose node is in `nodes`) and updates the
     /// drawn halves and both candidate sets.
     fn refine_in_cut(&mut self, id: DiamondId) {
-        let newly = self.cut.refine(&self.layout, id);
+        let newly = self.cut_state.cut.refine(&self.layout, id);
         debug_assert_eq!(newly, vec![id], "parents are refined first");
         if newly.is_empty() {
             return;
         }
         self.hide_halves(id);
-        self.candidates.remove(&id);
-        let halves = self.nodes[&id].halves.clone();
+        self.cut_state.candidates.remove(&id);
+        let halves = self.cut_state.nodes[&id].halves.clone();
         for (slot, k) in self.layout.children(id).into_iter().enumerate() {
             let Some(k) = k else { continue };
             let half = halves[slot]
                 .clone()
                 .expect("refined parents hold their children's halves");
-            self.drawn.insert(DrawKey::Child(id, slot), half);
+            self.cut_state.drawn.insert(DrawKey::Child(id, slot), half);
             let info = self.info(k);
-            self.candidates.insert(k, info);
+            self.cut_state.candidates.insert(k, info);
         }
         let info = self.info(id);
-        self.leaves.insert(id, info);
+        self.cut_state.leaves.insert(id, info);
         for p in self.layout.parents(id).into_iter().flatten() {
-            self.leaves.remove(&p);
+            self.cut_state.leaves.remove(&p);
         }
     }
 
     /// Coarsens `id` if none of its children is refined, updating the drawn halves and both
     /// candidate sets. Returns whether it did.
     fn coarsen_in_cut(&mut self, id: DiamondId) -> bool {
-        if !self.cut.coarsen(&self.layout, id) {
+        if !self.cut_state.cut.coarsen(&self.layout, id) {
             return false;
         }
         for (slot, k) in self.layout.children(id).into_iter().enumerate() {
             let Some(k) = k else { continue };
-            self.drawn.remove(&DrawKey::Child(id, slot));
+            self.cut_state.drawn.remove(&DrawKey::Child(id, slot));
             let still_drawn = self
                 .layout
                 .parents(k)
                 .into_iter()
                 .flatten()
-                .any(|p| self.cut.is_refined(p));
+                .any(|p| self.cut_state.cut.is_refined(p));
             if !still_drawn {
-                self.candidates.remove(&k);
+                self.cut_state.candidates.remove(&k);
             }
         }
         self.show_halves(id);
         let info = self.info(id);
-        self.candidates.insert(id, info);
-        self.leaves.remove(&id);
+        self.cut_state.candidates.insert(id, info);
+        self.cut_state.leaves.remove(&id);
         for p in self.layout.parents(id).into_iter().flatten() {
             if self.is_leaf(p) {
                 let info = self.info(p);
-                self.leaves.insert(p, info);
+                self.cut_state.leaves.insert(p, info);
             }
         }
         true
@@ -777,12 +809,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             return Half::BOTH
                 .iter()
                 .enumerate()
-                .map(|(i, &h)| (DrawKey::Root(idx, i), self.roots[&id][h as usize].clone()))
+                .map(|(i, &h)| {
+                    (
+                        DrawKey::Root(idx, i),
+                        self.cut_state.roots[&id][h as usize].clone(),
+                    )
+                })
                 .collect();
         }
         let mut out = Vec::new();
         for p in self.layout.parents(id).into_iter().flatten() {
-            if !self.cut.is_refined(p) {
+            if !self.cut_state.cut.is_refined(p) {
                 continue;
             }
             let slot = self
@@ -791,7 +828,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 .iter()
                 .position(|c| *c == Some(id))
                 .expect("child of its parent");
-            let half = self.nodes[&p].halves[slot]
+            let half = self.cut_state.nodes[&p].halves[slot]
                 .clone()
                 .expect("refined parents hold their children's halves");
             out.push((DrawKey::Child(p, slot), half));
@@ -802,21 +839,21 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Draws the halves of `id`, just coarsened (or a root).
     fn show_halves(&mut self, id: DiamondId) {
         for (k, h) in self.half_keys(id) {
-            self.drawn.insert(k, h);
+            self.cut_state.drawn.insert(k, h);
         }
     }
 
     /// Stops drawing the halves of `id`, about to be refined (its parents are refined).
     fn hide_halves(&mut self, id: DiamondId) {
         for (k, _) in self.half_keys(id) {
-            self.drawn.remove(&k);
+            self.cut_state.drawn.remove(&k);
         }
     }
 
     fn violation(&mut self, id: DiamondId, view: &View) -> Option<f64> {
         let info = self.info(id)?;
         view.error(&info)
-            .filter(|&e| e > self.config.pixel_error && !self.broken.contains(&id))
+            .filter(|&e| e > self.config.pixel_error && !self.requests.broken.contains(&id))
     }
 
     /// Wants the records that refining `id` (parents first) still lacks.
@@ -833,7 +870,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             return;
         }
         for &d in plan {
-            if self.broken.contains(&d) || self.info(d).is_none() {
+            if self.requests.broken.contains(&d) || self.info(d).is_none() {
                 return;
             }
             if !self.have_or_available(d) {
@@ -871,7 +908,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let may_want = !self.source.always_available();
         if may_want {
             for c in heap.into_vec() {
-                if !self.cut.is_refined(c.id) {
+                if !self.cut_state.cut.is_refined(c.id) {
                     self.want_plan(c.id, c.err, &mut wanted);
                 }
             }
@@ -907,6 +944,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// when next wanted.
     fn take_arrived(&mut self) {
         let arrived: Vec<DiamondId> = self
+            .requests
             .requested
             .keys()
             .copied()
@@ -916,7 +954,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             })
             .collect();
         for id in arrived {
-            self.requested.remove(&id);
+            self.requests.requested.remove(&id);
             let sid = self.source_id(id).expect("requested ids are stored");
             self.take(id, sid);
         }
@@ -957,7 +995,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             // Dispatch the most urgent ready refinements to the workers.
             while self.decoding.len() < max_in_flight {
                 let Some(c) = heap.pop() else { break };
-                if self.cut.is_refined(c.id) {
+                if self.cut_state.cut.is_refined(c.id) {
                     continue;
                 }
                 let mut blocked = false;
@@ -971,7 +1009,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                         .parents(d)
                         .into_iter()
                         .flatten()
-                        .all(|p| self.cut.is_refined(p));
+                        .all(|p| self.cut_state.cut.is_refined(p));
                     match self.need(d) {
                         Need::Impossible => {
                             blocked = true;
@@ -1011,7 +1049,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                         Need::Ready(_) => {}
                     }
                 }
-                if !blocked && !dispatched_self && !self.cut.is_refined(c.id) {
+                if !blocked && !dispatched_self && !self.cut_state.cut.is_refined(c.id) {
                     waiting.push(c);
                 }
             }
@@ -1048,13 +1086,14 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Frame step: posts new requests, re-prioritises, and cancels what is no longer wanted.
     fn post_requests(&mut self, wanted: IdMap<f64>) {
         let stale: Vec<DiamondId> = self
+            .requests
             .requested
             .keys()
             .filter(|id| !wanted.contains_key(id))
             .copied()
             .collect();
         for id in stale {
-            self.requested.remove(&id);
+            self.requests.requested.remove(&id);
             if let Some(sid) = self.source_id(id) {
                 // A remote source may have completed it since the frame began: keep what was
                 // paid for rather than dropping it.
@@ -1067,11 +1106,11 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
         for (id, prio) in wanted {
             let prio = prio as Priority;
-            if self.requested.get(&id) != Some(&prio)
+            if self.requests.requested.get(&id) != Some(&prio)
                 && let Some(sid) = self.source_id(id)
             {
                 self.source.request(sid, prio);
-                self.requested.insert(id, prio);
+                self.requests.requested.insert(id, prio);
             }
         }
     }
@@ -1097,13 +1136,13 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         stats.max_screen_error_px = max_err;
         stats.met_target = max_err <= self.config.pixel_error;
         stats.converged = stats.met_target && coarsenable == 0;
-        stats.refined = self.nodes.len();
-        stats.cut_bytes = self.cut_bytes;
-        stats.drawn_halves = self.drawn.len();
+        stats.refined = self.cut_state.nodes.len();
+        stats.cut_bytes = self.residency.cut_bytes;
+        stats.drawn_halves = self.cut_state.drawn.len();
         let n1 = (self.layout.n() - 1) as u64;
-        stats.triangles = self.drawn.len() as u64 * n1 * n1;
+        stats.triangles = self.cut_state.drawn.len() as u64 * n1 * n1;
         stats.access = self.source.stats();
-        stats.failures = self.failure_count;
+        stats.failures = self.requests.failure_count;
     }
 
     /// Runs frames for one still `camera` until the cut has converged, or for `max_frames`
@@ -1144,8 +1183,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             if let Some(err) = self.violation_of(id, info, &view) {
                 self.want_plan(id, err * PREFETCH_PRIORITY, wanted);
             }
-            let violates_now =
-                err_now.is_some_and(|e| e > self.config.pixel_error) && !self.broken.contains(&id);
+            let violates_now = err_now.is_some_and(|e| e > self.config.pixel_error)
+                && !self.requests.broken.contains(&id);
             if violates_now {
                 for k in self.layout.children(id).into_iter().flatten() {
                     let plan = self.plan(k);
@@ -1165,7 +1204,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let parents = self
             .layout
             .parents(id)
-            .map(|p| p.map(|p| self.nodes[&p].clone()));
+            .map(|p| p.map(|p| self.cut_state.nodes[&p].clone()));
         let job = Job {
             decoder: self.decoder.clone(),
             drape: self.drape.clone(),
@@ -1215,16 +1254,16 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .parents(id)
             .into_iter()
             .flatten()
-            .all(|p| self.cut.is_refined(p));
-        if self.cut.is_refined(id) || !parents_refined {
+            .all(|p| self.cut_state.cut.is_refined(p));
+        if self.cut_state.cut.is_refined(id) || !parents_refined {
             let bytes = node.bytes();
-            self.decoded.insert(id, node, bytes);
+            self.residency.decoded.insert(id, node, bytes);
             return;
         }
-        self.decoded.remove(&id);
-        self.cut_bytes += node.bytes();
-        if let Some(old) = self.nodes.insert(id, node) {
-            self.cut_bytes -= old.bytes();
+        self.residency.decoded.remove(&id);
+        self.residency.cut_bytes += node.bytes();
+        if let Some(old) = self.cut_state.nodes.insert(id, node) {
+            self.residency.cut_bytes -= old.bytes();
         }
         self.refine_in_cut(id);
         stats.refinements += 1;
@@ -1239,7 +1278,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// heap ordered by ascending screen error, re-fed with parents that become leaves).
     fn collect_garbage(&mut self, view: &View) -> usize {
         let mut heap: BinaryHeap<std::cmp::Reverse<Candidate>> = BinaryHeap::new();
-        for (&id, info) in &self.leaves {
+        for (&id, info) in &self.cut_state.leaves {
             let err = info.and_then(|i| view.error(&i)).unwrap_or(0.0);
             if err <= self.config.pixel_error {
                 heap.push(std::cmp::Reverse(Candidate { err, id }));
@@ -1253,7 +1292,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             done += 1;
             self.release(c.id);
             for p in self.layout.parents(c.id).into_iter().flatten() {
-                if self.cut.is_refined(p)
+                if self.cut_state.cut.is_refined(p)
                     && self.is_leaf(p)
                     && let Some(c) = self.unneeded(p, view)
                 {
@@ -1266,10 +1305,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
     /// After `id` was coarsened: its node moves to the decoded cache.
     fn release(&mut self, id: DiamondId) {
-        if let Some(node) = self.nodes.remove(&id) {
+        if let Some(node) = self.cut_state.nodes.remove(&id) {
             let bytes = node.bytes();
-            self.cut_bytes -= bytes;
-            self.decoded.insert(id, node, bytes);
+            self.residency.cut_bytes -= bytes;
+            self.residency.decoded.insert(id, node, bytes);
         }
     }
 
@@ -1291,12 +1330,13 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         };
         // Worst case: every node with all four child halves and nodata masks.
         let node = Node::bytes_for(self.layout.n(), 4, self.drape.is_some()) * 5 / 4;
-        let fits = |me: &Self| me.cut_bytes + (me.decoding.len() + 1) * node <= limit;
+        let fits = |me: &Self| me.residency.cut_bytes + (me.decoding.len() + 1) * node <= limit;
         if fits(self) {
             return true;
         }
         if pool.is_none() {
             let heap = self
+                .cut_state
                 .leaves
                 .iter()
                 .map(|(&id, info)| {
@@ -1318,7 +1358,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 break false;
             };
             // Entries go stale as the frame refines and coarsens.
-            if !self.cut.is_refined(c.id) || !self.is_leaf(c.id) {
+            if !self.cut_state.cut.is_refined(c.id) || !self.is_leaf(c.id) {
                 continue;
             }
             if c.err >= err {
@@ -1336,7 +1376,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             stats.coarsenings += 1;
             self.release(c.id);
             for p in self.layout.parents(c.id).into_iter().flatten() {
-                if self.cut.is_refined(p) && self.is_leaf(p) {
+                if self.cut_state.cut.is_refined(p) && self.is_leaf(p) {
                     let err = self.drawn_error(p, view);
                     heap.push(std::cmp::Reverse(Candidate { err, id: p }));
                 }
@@ -1358,7 +1398,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .children(id)
             .into_iter()
             .flatten()
-            .any(|c| self.cut.is_refined(c))
+            .any(|c| self.cut_state.cut.is_refined(c))
     }
 
     /// `Some` (with its error, for ordering) if a refined diamond is not needed by the view.
@@ -1391,6 +1431,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             return (worst, 0);
         }
         let coarsenable = self
+            .cut_state
             .leaves
             .values()
             .filter(|info| {
@@ -1407,42 +1448,52 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let mut candidates: Vec<DiamondId> = self
             .layout
             .roots()
-            .filter(|r| !self.cut.is_refined(*r))
+            .filter(|r| !self.cut_state.cut.is_refined(*r))
             .collect();
-        for a in self.cut.refined() {
+        for a in self.cut_state.cut.refined() {
             for k in self.layout.children(a).into_iter().flatten() {
-                if !self.cut.is_refined(k) {
+                if !self.cut_state.cut.is_refined(k) {
                     candidates.push(k);
                 }
             }
         }
         candidates.sort_unstable();
         candidates.dedup();
-        let mut kept: Vec<DiamondId> = self.candidates.keys().copied().collect();
+        let mut kept: Vec<DiamondId> = self.cut_state.candidates.keys().copied().collect();
         kept.sort_unstable();
         assert_eq!(
             kept, candidates,
             "refinement candidates out of step with the cut"
         );
-        let mut leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
+        let mut leaves: Vec<DiamondId> = self
+            .cut_state
+            .cut
+            .refined()
+            .filter(|&d| self.is_leaf(d))
+            .collect();
         leaves.sort_unstable();
-        let mut kept: Vec<DiamondId> = self.leaves.keys().copied().collect();
+        let mut kept: Vec<DiamondId> = self.cut_state.leaves.keys().copied().collect();
         kept.sort_unstable();
         assert_eq!(
             kept, leaves,
             "coarsening candidates out of step with the cut"
         );
-        let drawn: Vec<(DiamondId, Half)> = self.drawn.values().map(|p| (p.id, p.half)).collect();
+        let drawn: Vec<(DiamondId, Half)> = self
+            .cut_state
+            .drawn
+            .values()
+            .map(|p| (p.id, p.half))
+            .collect();
         assert_eq!(
             drawn,
-            self.cut.drawn_halves(&self.layout),
+            self.cut_state.cut.drawn_halves(&self.layout),
             "drawn list out of step"
         );
     }
 
     /// Fills the drawn list of the initial cut (roots only).
     fn rebuild_drawn(&mut self) {
-        self.drawn.clear();
+        self.cut_state.drawn.clear();
         let roots: Vec<DiamondId> = self.layout.roots().collect();
         for r in roots {
             self.show_halves(r);
