@@ -148,7 +148,7 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
 /// sample) and the reconstruction field (4 bytes per lattice point of the domain) fit.
 pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<TempStorage> {
     let layout = Layout::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
-    let (ex, ey) = layout.extent();
+    let (ex, ey) = layout.face_extent();
     let field = 4 * (ex as u64 + 1) * (ey as u64 + 1);
     let input = 5 * (grid.width as u64) * (grid.height as u64);
     Ok(if input + field > limit {

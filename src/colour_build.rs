@@ -42,7 +42,7 @@ fn power_of_two_ratio(big: u32, small: u32) -> Option<u32> {
 /// elevation's data rectangle, or a clear error.
 fn shift_for(img: &RgbImage, like: &Repository, like_path: &Path) -> Result<i32> {
     let p = like.params();
-    let (we, he) = (p.data_width, p.data_height);
+    let (we, he) = (p.domain.data().width, p.domain.data().height);
     let (wc, hc) = (img.width as u32, img.height as u32);
     let ratio = |a: u32, b: u32| {
         power_of_two_ratio(a, b)
@@ -110,7 +110,7 @@ pub fn run(args: &BuildArgs, mut opts: EncodeOptions) -> Result<()> {
         .with_context(|| format!("reading {}", input.display()))?;
     if let Some((path, like)) = &like {
         let shift = shift_for(&img, like, path)?;
-        let lp = like.params().layout;
+        let lp = like.params().layout();
         let k = lp.k() as i32 + shift;
         let base = Layout::covering(lp.n(), img.width, img.height, 0)?;
         if k < base.k() as i32 {

@@ -43,7 +43,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
     let p = *repo.params();
     let plan = *repo.plan();
-    let finest = p.layout.finest_level();
+    let finest = p.layout().finest_level();
     let level = args.level.unwrap_or(finest);
     if !level.is_multiple_of(2) || level > finest {
         bail!(
@@ -53,7 +53,10 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     }
     // Lattice spacing of the level's samples: level 2m samples every 2^(K−m) input samples.
     let step = 1i64 << ((finest - level) / 2);
-    let (w, h) = (i64::from(p.data_width), i64::from(p.data_height));
+    let (w, h) = (
+        i64::from(p.domain.data().width),
+        i64::from(p.domain.data().height),
+    );
     let window = match &args.bbox {
         None => (0, 0, w - 1, h - 1),
         Some(b) => bbox_window(b, repo.georef(), w, h)?,
@@ -78,12 +81,12 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     // extracted whole).
     let fill = repo.nodata().unwrap_or(f64::NAN);
     let mut values = vec![fill; out_w * out_h];
-    let n = p.layout.n();
+    let n = p.layout().n();
     walk_all_with_validity(&encoded, |id, grid, valid| {
         if id.level != level {
             return;
         }
-        let g = p.layout.grid(id);
+        let g = p.layout().grid(id);
         for j in 0..n {
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);

@@ -43,7 +43,8 @@ pub fn upgrade(args: &UpgradeArgs) -> Result<()> {
 pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    let samples = u64::from(repo.params().data_width) * u64::from(repo.params().data_height);
+    let samples = u64::from(repo.params().domain.data().width)
+        * u64::from(repo.params().domain.data().height);
     // Without a mask every sample had data; with one, the count reads (and checks) the records.
     let valid = if repo.params().nodata_mask {
         let records = repo
@@ -69,7 +70,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     }
     let p = repo.params();
     let plan = repo.plan();
-    let finest = p.layout.finest_level();
+    let finest = p.layout().finest_level();
     let s = summarize(&repo);
     let metres = |u: u32| f64::from(u) * plan.unit;
     let (err_lo, err_hi) = s.object_error_range;
@@ -82,14 +83,16 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     println!("file            {} bytes", repo.file_len());
     println!(
         "data            {}×{} samples, {:.4} bits/sample",
-        p.data_width, p.data_height, bits
+        p.domain.data().width,
+        p.domain.data().height,
+        bits
     );
     println!(
         "hierarchy       N = {}, K = {} (levels 0…{finest}), {}×{} roots, α = {}, {} coder",
-        p.layout.n(),
-        p.layout.k(),
-        p.layout.roots_x(),
-        p.layout.roots_y(),
+        p.layout().n(),
+        p.layout().k(),
+        p.layout().roots_x(),
+        p.layout().roots_y(),
         if p.alpha == cbdam_codec::lifting::Alpha::One {
             "1"
         } else {

@@ -16,6 +16,7 @@ mod mosaic;
 mod render;
 mod replay;
 mod serve;
+mod session;
 mod synth;
 mod verify;
 mod view;

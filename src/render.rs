@@ -6,18 +6,17 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use cbdam_client::access::{ColouredSource, DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::{ColouredSource, DataSource, LocalSource};
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{CacheConfig, Frame, Gpu, RenderOptions, Renderer};
 use cbdam_client::flight::Flight;
-use cbdam_client::refine::FrameStats;
-use cbdam_client::refine::{RefineConfig, Refiner};
-use cbdam_client::remote::FetchOptions;
+use cbdam_client::refine::{FrameStats, Refiner};
+use cbdam_client::stats::percentile;
 use cbdam_client::world::World;
 use cbdam_codec::repository::Repository;
+use cbdam_render::{CacheConfig, Frame, Gpu, RenderOptions, Renderer, write_png};
 use glam::DVec3;
 
-use crate::replay::percentile;
+use crate::session::{budget_label, refine_config, terrain_source};
 use crate::{BenchRenderArgs, RenderArgs};
 
 /// Parses `WIDTHxHEIGHT`.
@@ -72,34 +71,6 @@ pub fn low_oblique(world: &World, size: (u32, u32)) -> Camera {
 /// Frames a still view may take to converge with an unlimited budget (one, in practice).
 const SETTLE_FRAMES: u32 = 16;
 
-/// Opens a repository file or URL (`http://`, `https://`) as a source; says whether it is
-/// remote.
-pub fn open_source(spec: &str) -> Result<(Box<dyn DataSource>, bool)> {
-    if spec.starts_with("http://") || spec.starts_with("https://") {
-        let source = RemoteSource::connect(spec, FetchOptions::default())
-            .with_context(|| format!("connecting to {spec}"))?;
-        Ok((Box::new(source), true))
-    } else {
-        let source =
-            LocalSource::open(Path::new(spec)).with_context(|| format!("opening {spec}"))?;
-        Ok((Box::new(source), false))
-    }
-}
-
-/// The terrain's source, file or URL, with the colour repository `colour` draped over it when
-/// given (refused, with the mismatch named, when it does not cover the same domain); says
-/// whether either is remote.
-pub fn terrain_source(repo: &str, colour: Option<&str>) -> Result<(Box<dyn DataSource>, bool)> {
-    let (elevation, remote) = open_source(repo)?;
-    let Some(colour) = colour else {
-        return Ok((elevation, remote));
-    };
-    let (c, colour_remote) = open_source(colour)?;
-    let paired = ColouredSource::new(elevation, c)
-        .with_context(|| format!("draping the colour repository {colour} over {repo}"))?;
-    Ok((Box::new(paired), remote || colour_remote))
-}
-
 fn open(path: &Path) -> Result<Arc<Repository>> {
     let repo = Repository::open(path).with_context(|| format!("opening {}", path.display()))?;
     Ok(Arc::new(repo))
@@ -126,25 +97,6 @@ fn refiner(
     Refiner::new(source, config).context("starting the refiner")
 }
 
-/// The refinement settings of the command line, checked.
-pub fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> Result<RefineConfig> {
-    if !(pixel_error.is_finite() && pixel_error > 0.0) {
-        bail!("--pixel-error must be a positive number of pixels");
-    }
-    if !(exaggeration.is_finite() && exaggeration > 0.0) {
-        bail!("--exaggeration must be a positive number, not {exaggeration}");
-    }
-    if !(budget_ms.is_finite() && budget_ms >= 0.0) {
-        bail!("--budget-ms must be 0 (unlimited) or positive");
-    }
-    Ok(RefineConfig {
-        pixel_error,
-        budget: (budget_ms > 0.0).then(|| Duration::from_secs_f64(budget_ms / 1e3)),
-        exaggeration,
-        ..RefineConfig::default()
-    })
-}
-
 /// Longest a remote render waits for the records its cut needs.
 const REMOTE_SETTLE: Duration = Duration::from_secs(60);
 
@@ -153,17 +105,6 @@ fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
         pool_bytes: pool_mib.map(|m| m << 20),
         ..CacheConfig::default()
     }
-}
-
-/// Writes `frame` as a PNG, atomically.
-pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
-    let png = frame.to_png()?;
-    cbdam_codec::atomic::write_atomically::<anyhow::Error>(path, |f| {
-        use std::io::Write;
-        f.write_all(&png)?;
-        Ok(())
-    })
-    .with_context(|| format!("writing {}", path.display()))
 }
 
 pub fn run(args: &RenderArgs) -> Result<()> {
@@ -318,7 +259,7 @@ fn fly<S: DataSource>(
         args.size.0,
         args.size.1,
         args.pixel_error,
-        crate::replay::budget_label(args.budget_ms)
+        budget_label(args.budget_ms)
     );
     println!(
         "refine ms per frame: median {:.3}, p99 {:.3}; budget exhausted in {over} frames; \
@@ -480,7 +421,7 @@ fn bench_flights(args: &BenchRenderArgs) -> Result<()> {
          of the draw (refinement is timed apart); triangle rate = median over frames of \
          triangles / frame time\n",
         args.fps,
-        crate::replay::budget_label(args.budget_ms)
+        budget_label(args.budget_ms)
     );
     println!(
         "| repository | flight | frames | frame ms median | frame ms p99 | M triangles/frame \

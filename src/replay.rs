@@ -8,8 +8,10 @@ use anyhow::{Context, Result, bail};
 use cbdam_client::access::DataSource;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner};
+use cbdam_client::stats::percentile;
 
 use crate::ReplayArgs;
+use crate::session::{budget_label, terrain_source};
 
 /// The CSV header; `tests/cli.rs` checks it. Times in ms; `bytes_fetched` and
 /// `requests_issued` are cumulative, the other counters per frame or current state.
@@ -54,7 +56,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         },
         ..RefineConfig::default()
     };
-    let (source, remote) = crate::render::terrain_source(&args.repo, args.colour.as_deref())?;
+    let (source, remote) = terrain_source(&args.repo, args.colour.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
     // Over a network, frames are paced at --fps so that fetches take the time they would take
     // in a viewer; locally nothing waits on I/O and frames run back to back.
@@ -296,15 +298,6 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     }
 }
 
-/// A refinement budget in words: "2 ms", or "unlimited" for 0.
-pub fn budget_label(budget_ms: f64) -> String {
-    if budget_ms > 0.0 {
-        format!("{budget_ms} ms")
-    } else {
-        "unlimited".into()
-    }
-}
-
 /// CPU time of the calling thread, seconds: what the loop costs the render thread, without
 /// the time the shared machine's scheduler keeps it waiting. NaN where unsupported.
 #[cfg(unix)]
@@ -323,14 +316,4 @@ fn thread_cpu_seconds() -> f64 {
 #[cfg(not(unix))]
 fn thread_cpu_seconds() -> f64 {
     f64::NAN
-}
-
-/// The `q`-quantile of sorted values (nearest rank), or the default of an empty list. Shared by
-/// the replay, render and bench summaries.
-pub fn percentile<T: Copy + Default>(sorted: &[T], q: f64) -> T {
-    if sorted.is_empty() {
-        return T::default();
-    }
-    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
-    sorted[i]
 }

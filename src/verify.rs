@@ -93,8 +93,8 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     let opts = if crate::build::is_raw_path(against) {
         ReadOptions {
             format: Some(Format::RawF32 {
-                width: p.data_width as usize,
-                height: p.data_height as usize,
+                width: p.domain.data().width as usize,
+                height: p.domain.data().height as usize,
             }),
             ..opts
         }
@@ -102,14 +102,19 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         opts
     };
     let dem = read_dem(against, &opts).with_context(|| format!("reading {}", against.display()))?;
-    if (dem.width, dem.height) != (p.data_width as usize, p.data_height as usize) {
+    if (dem.width, dem.height)
+        != (
+            p.domain.data().width as usize,
+            p.domain.data().height as usize,
+        )
+    {
         bail!(
             "{} is {}×{} samples, the repository was built from {}×{}",
             against.display(),
             dem.width,
             dem.height,
-            p.data_width,
-            p.data_height
+            p.domain.data().width,
+            p.domain.data().height
         );
     }
     let grid = HeightGrid::from_dem(&dem, &plan).with_context(|| {
@@ -205,13 +210,18 @@ fn verify_mosaic(repo: &Repository, paths: &[PathBuf], opts: &ReadOptions) -> Re
     let p = *repo.params();
     let plan = *repo.plan();
     let m = mosaic(paths, opts, u64::MAX)?;
-    if (m.width, m.height) != (p.data_width as usize, p.data_height as usize) {
+    if (m.width, m.height)
+        != (
+            p.domain.data().width as usize,
+            p.domain.data().height as usize,
+        )
+    {
         bail!(
             "the inputs make a {}×{} lattice, the repository was built from {}×{}",
             m.width,
             m.height,
-            p.data_width,
-            p.data_height
+            p.domain.data().width,
+            p.domain.data().height
         );
     }
     let grid = HeightGrid::from_source(&m, &plan)

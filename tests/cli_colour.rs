@@ -105,7 +105,7 @@ fn colour_build_verify_inspect_over_an_elevation() {
         let repo = Repository::open(Path::new(&out)).unwrap();
         assert_eq!(repo.kind(), RepoKind::Colour);
         // --like took the elevation's diamond size, not the default 65.
-        assert_eq!(repo.params().layout.n(), 9);
+        assert_eq!(repo.params().layout().n(), 9);
         let rgb = reconstruct_rgb(&repo.to_encoded().unwrap()).unwrap();
         let worst = rgb
             .iter()

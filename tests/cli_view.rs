@@ -7,7 +7,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::util::*;
-use cbdam_client::draw::hud;
+use cbdam_render::hud;
 
 /// An Xvfb started by this test, stopped when dropped.
 struct Xvfb(Child);
@@ -127,7 +127,7 @@ fn view_draws_terrain_and_the_hud_in_a_window() {
 
     // Terrain: the overview puts the data in the middle of the view; there the clear colour
     // must not show.
-    let bg = cbdam_client::draw::RenderOptions::default()
+    let bg = cbdam_render::RenderOptions::default()
         .background
         .map(|c| (c * 255.0).round() as u8);
     let centre: Vec<_> = (h / 2 - 10..h / 2 + 10)

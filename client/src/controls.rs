@@ -258,17 +258,15 @@ pub fn coarser(pixel_error: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cbdam_codec::geometry::Layout;
+    use cbdam_codec::geometry::Domain;
 
     fn world() -> World {
         World {
-            layout: Layout::covering(65, 1000, 800, 0).unwrap(),
+            domain: Domain::covering(65, 1000, 800, 0).unwrap(),
             step_x: 30.0,
             step_y: 30.0,
             unit: 1.0,
             offset: 0.0,
-            data_width: 1000,
-            data_height: 800,
             min_height: 100.0,
             max_height: 2500.0,
         }

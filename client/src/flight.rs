@@ -191,7 +191,7 @@ fn catmull_rom(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3], u: f64) -> [f
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cbdam_codec::geometry::Layout;
+    use cbdam_codec::geometry::Domain;
 
     const JSON: &str = r#"{ "keyframes": [
         { "t": 0, "eye": [0, 0, 2], "target": [0.5, 0.5, 0] },
@@ -200,13 +200,11 @@ mod tests {
 
     fn world() -> World {
         World {
-            layout: Layout::covering(65, 1001, 801, 0).unwrap(),
+            domain: Domain::covering(65, 1001, 801, 0).unwrap(),
             step_x: 30.0,
             step_y: 20.0,
             unit: 1.0,
             offset: 0.0,
-            data_width: 1001,
-            data_height: 801,
             min_height: 100.0,
             max_height: 300.0,
         }

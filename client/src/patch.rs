@@ -9,7 +9,7 @@ use std::collections::HashMap;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::colour::{ColourDecoder, ColourRefined};
-use cbdam_codec::geometry::{Cut, DiamondId, Half, Layout};
+use cbdam_codec::geometry::{Cut, DiamondId, Domain, Half};
 use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use cbdam_codec::repository::Repository;
 
@@ -60,18 +60,18 @@ pub fn packed(grids: &[Vec<i32>; 3]) -> Vec<u32> {
 /// [`HalfPatch::from_parent`] gathers its heights. `None` if `parent` is not one of `child`'s
 /// parents.
 pub fn colour_from_parent(
-    layout: &Layout,
+    domain: &Domain,
     child: DiamondId,
     parent: DiamondId,
     refined: &ColourRefined,
 ) -> Option<Vec<u32>> {
-    let half = layout.half_in(child, parent)?;
-    let nn = layout.n() * layout.n();
+    let half = domain.half_in(child, parent)?;
+    let nn = domain.n() * domain.n();
     let grids = std::array::from_fn(|c| {
         let mut parents = [None, None];
         parents[half as usize] = Some(&refined[c]);
         let mut g = vec![0i32; nn];
-        gather(layout, child, parents, &mut g);
+        gather(domain, child, parents, &mut g);
         g
     });
     Some(packed(&grids))
@@ -99,21 +99,21 @@ impl HalfPatch {
     /// The half of `child` lying in `parent`, from `parent`'s refinement. `None` if `parent`
     /// is not one of `child`'s parents.
     pub fn from_parent(
-        layout: &Layout,
+        domain: &Domain,
         child: DiamondId,
         parent: DiamondId,
         refined: &Refined,
     ) -> Option<HalfPatch> {
-        let half = layout.half_in(child, parent)?;
+        let half = domain.half_in(child, parent)?;
         let mut parents = [None, None];
         parents[half as usize] = Some(refined);
-        let mut heights = vec![0i32; layout.n() * layout.n()];
-        gather(layout, child, parents, &mut heights);
+        let mut heights = vec![0i32; domain.n() * domain.n()];
+        gather(domain, child, parents, &mut heights);
         Some(HalfPatch {
             id: child,
             half,
             heights,
-            valid: gather_validity(layout, child, parents),
+            valid: gather_validity(domain, child, parents),
             colour: None,
         })
     }
@@ -124,28 +124,28 @@ impl HalfPatch {
 /// with, and what offscreen tests render. Every refined diamond must be stored in `repo`.
 pub fn decode_cut(repo: &Repository, cut: &Cut) -> Result<Vec<HalfPatch>, CodecError> {
     let decoder = repo.decoder()?;
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
     let mut refined: HashMap<DiamondId, Refined> = HashMap::new();
     let mut scratch = RefineScratch::default();
     // `Cut::refined` runs coarse to fine, so parents are refined before their children.
     for id in cut.refined() {
-        let parents = layout.parents(id).map(|p| p.and_then(|p| refined.get(&p)));
+        let parents = domain.parents(id).map(|p| p.and_then(|p| refined.get(&p)));
         let grid = decoder.grid_of(id, parents);
         let r = decoder.refine(&grid, repo.record(id)?, &mut scratch)?;
         refined.insert(id, r);
     }
     let mut out = Vec::new();
-    for (id, half) in cut.drawn_halves(&layout) {
+    for (id, half) in cut.drawn_halves(&domain) {
         if id.level == 0 {
             let [pos, neg] = HalfPatch::root_halves(&decoder, id);
             out.push(if half == Half::Positive { pos } else { neg });
             continue;
         }
-        let parent = layout
+        let parent = domain
             .parent(id, half)
             .expect("a drawn child half has its parent");
         let r = &refined[&parent];
-        out.push(HalfPatch::from_parent(&layout, id, parent, r).expect("parent of its half"));
+        out.push(HalfPatch::from_parent(&domain, id, parent, r).expect("parent of its half"));
     }
     Ok(out)
 }
@@ -180,7 +180,8 @@ mod tests {
     #[test]
     fn decode_cut_matches_walk() {
         let repo = repository();
-        let layout = repo.params().layout;
+        let domain = repo.params().domain;
+        let layout = *domain.layout();
         let n = layout.n();
         let mut full: HashMap<DiamondId, Vec<i32>> = HashMap::new();
         walk(&repo.to_encoded().unwrap(), |id, g| {
@@ -195,10 +196,10 @@ mod tests {
                 state = state
                     .wrapping_mul(6364136223846793005)
                     .wrapping_add(1442695040888963407);
-                cut.refine(&layout, stored[(state >> 33) as usize % stored.len()]);
+                cut.refine(&domain, stored[(state >> 33) as usize % stored.len()]);
             }
             let patches = decode_cut(&repo, &cut).unwrap();
-            assert_eq!(patches.len(), cut.drawn_halves(&layout).len());
+            assert_eq!(patches.len(), cut.drawn_halves(&domain).len());
             let mut checked = 0;
             for p in &patches {
                 // `walk` visits the stored diamonds and the finest ones; others (unstored, outside

@@ -3,9 +3,14 @@
 //! The world frame is local and metric: x east, y north, z up, origin at lattice point (0, 0),
 //! z = height in metres. Geographic rasters (spacing in degrees) are flattened around the data's
 //! centre latitude — a local tangent-plane approximation that is what a viewer of one DEM wants;
-//! a planet-wide mosaic would need the cube-sphere root set instead.
+//! a planet-wide mosaic needs the cube-sphere domain and an ellipsoid frame instead.
+//!
+//! What the surface is (faces, roots, where data lies) is the [`Domain`]'s; the world adds only
+//! how lattice units become metres. Callers go through [`World::point`],
+//! [`World::lattice_vector`], [`World::lattice_of`] and the boxes, never through the planar
+//! spacing itself, so a second frame changes this file, not theirs.
 
-use cbdam_codec::geometry::{DiamondId, Layout};
+use cbdam_codec::geometry::{DiamondId, Domain};
 use cbdam_codec::hierarchy::CodecParams;
 use cbdam_codec::input::GeoRef;
 use cbdam_codec::quant::QuantPlan;
@@ -22,20 +27,17 @@ const GEOGRAPHIC_EPSG: [u32; 5] = [4326, 4269, 4258, 4283, 4267];
 /// The mapping from a repository's lattice to world metres, and the data's extent in it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct World {
-    /// The diamond hierarchy.
-    pub layout: Layout,
-    /// Metres per lattice step eastwards.
+    /// The surface the hierarchy covers: faces, roots, the region that holds data.
+    pub domain: Domain,
+    /// The planar frame: metres per lattice step eastwards.
     pub step_x: f64,
-    /// Metres per lattice step southwards (lattice y runs south, world y north).
+    /// The planar frame: metres per lattice step southwards (lattice y runs south, world y
+    /// north).
     pub step_y: f64,
     /// Metres per height unit.
     pub unit: f64,
     /// Height in metres of unit 0.
     pub offset: f64,
-    /// Data rectangle, lattice points `0..data_width × 0..data_height`.
-    pub data_width: u32,
-    /// See `data_width`.
-    pub data_height: u32,
     /// Lowest height of the data in metres (from the index's per-diamond ranges).
     pub min_height: f64,
     /// Highest height of the data in metres.
@@ -52,7 +54,8 @@ impl World {
     ) -> Self {
         let (step_x, step_y) = match georef {
             Some(g) if g.epsg.is_some_and(|e| GEOGRAPHIC_EPSG.contains(&e)) => {
-                let centre_lat = g.origin_y - g.pixel_y * f64::from(params.data_height) / 2.0;
+                let rows = params.domain.data().height;
+                let centre_lat = g.origin_y - g.pixel_y * f64::from(rows) / 2.0;
                 let cos = centre_lat.to_radians().cos().max(1e-3);
                 (
                     g.pixel_x.abs() * METRES_PER_DEGREE * cos,
@@ -65,13 +68,11 @@ impl World {
         let lo = entries.iter().map(|e| e.min).min().unwrap_or(0);
         let hi = entries.iter().map(|e| e.max).max().unwrap_or(0);
         Self {
-            layout: params.layout,
+            domain: params.domain,
             step_x,
             step_y,
             unit: plan.unit,
             offset: plan.offset,
-            data_width: params.data_width,
-            data_height: params.data_height,
             min_height: plan.offset + plan.unit * f64::from(lo),
             max_height: plan.offset + plan.unit * f64::from(hi),
         }
@@ -91,6 +92,35 @@ impl World {
         )
     }
 
+    /// World displacement of lattice vector `(dx, dy)` on the ground (no height).
+    #[inline]
+    pub fn lattice_vector(&self, dx: i64, dy: i64) -> (f64, f64) {
+        (dx as f64 * self.step_x, -dy as f64 * self.step_y)
+    }
+
+    /// Fractional lattice coordinates of the ground under world position `p`.
+    #[inline]
+    pub fn lattice_of(&self, p: DVec3) -> (f64, f64) {
+        (p.x / self.step_x, -p.y / self.step_y)
+    }
+
+    /// Mean metres per lattice step on the ground.
+    pub fn mean_step(&self) -> f64 {
+        0.5 * (self.step_x + self.step_y)
+    }
+
+    /// The same world with `level_pairs` more level pairs of (synthetic) detail below the
+    /// finest: lattice coordinates scale by `2^level_pairs`, metres per step shrink by as much.
+    pub fn with_detail(&self, level_pairs: u32) -> Result<Self, cbdam_codec::CodecError> {
+        let scale = f64::from(1u32 << level_pairs);
+        Ok(Self {
+            domain: self.domain.with_detail(level_pairs)?,
+            step_x: self.step_x / scale,
+            step_y: self.step_y / scale,
+            ..*self
+        })
+    }
+
     /// Metres of height `h` units.
     pub fn height(&self, h: i32) -> f64 {
         self.offset + self.unit * f64::from(h)
@@ -98,20 +128,36 @@ impl World {
 
     /// World bounding box `(min, max)` of a diamond whose heights lie in `min..=max` units.
     pub fn diamond_box(&self, id: DiamondId, min: i32, max: i32) -> (DVec3, DVec3) {
-        let (x0, y0, x1, y1) = self.layout.bounds(id);
+        let (x0, y0, x1, y1) = self.domain.layout().bounds(id);
         let a = self.point(x0, y0, min);
         let b = self.point(x1, y1, max);
         (a.min(b), a.max(b))
     }
 
-    /// World bounding box of the data rectangle, over the data's height range.
+    /// World bounding box of the region that holds data, over the data's height range.
     pub fn data_box(&self) -> (DVec3, DVec3) {
+        let data = self.domain.data();
         let a = DVec3::new(0.0, 0.0, self.min_height);
         let b = DVec3::new(
-            f64::from(self.data_width.saturating_sub(1)) * self.step_x,
-            -f64::from(self.data_height.saturating_sub(1)) * self.step_y,
+            f64::from(data.width.saturating_sub(1)) * self.step_x,
+            -f64::from(data.height.saturating_sub(1)) * self.step_y,
             self.max_height,
         );
         (a.min(b), a.max(b))
+    }
+}
+
+/// `world` with heights scaled by `factor` about 0 m, for vertical exaggeration: hand it to
+/// the renderer and the camera, and the same factor to
+/// [`RefineConfig::exaggeration`](crate::refine::RefineConfig::exaggeration). The colour ramp spans
+/// the data's height range and sea level stays at 0 m, so land colours do not change; only the
+/// water's depth tint (absolute metres) deepens with the factor.
+pub fn exaggerated(world: &World, factor: f64) -> World {
+    World {
+        unit: world.unit * factor,
+        offset: world.offset * factor,
+        min_height: world.min_height * factor,
+        max_height: world.max_height * factor,
+        ..*world
     }
 }

@@ -99,7 +99,8 @@ fn run_until_converged<S: cbdam_client::access::DataSource>(
 /// exceeds the target, and that box meets the frustum.
 fn brute_force(repo: &Repository, cam: &Camera, target: f64) -> HashSet<DiamondId> {
     let world = World::of_repository(repo);
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
+    let layout = *domain.layout();
     let by_id: HashMap<DiamondId, _> = repo.entries().iter().map(|e| (e.id, *e)).collect();
     let frustum = cam.frustum();
     let mut out = HashSet::new();
@@ -136,7 +137,8 @@ fn refined_set(cut: &Cut) -> HashSet<DiamondId> {
 #[test]
 fn the_cut_conforms_after_every_frame_of_random_flights() {
     let repo = repository();
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
+    let layout = *domain.layout();
     let world = World::of_repository(&repo);
     for (seed, latency) in [(1u64, (0, 0)), (2, (1, 4)), (3, (0, 2))] {
         let mut rng = Rng(seed);
@@ -170,8 +172,8 @@ fn the_cut_conforms_after_every_frame_of_random_flights() {
             cam.target = a.target.lerp(b.target, u);
             let s = r.frame(&cam);
             let cut = r.cut();
-            let triangles = cut.triangles(&layout);
-            check_conforming(&layout, &triangles)
+            let triangles = cut.triangles(&domain);
+            check_conforming(&domain, &triangles)
                 .unwrap_or_else(|e| panic!("seed {seed} frame {f}: {e}"));
             assert_eq!(s.triangles, triangles.len() as u64);
             assert_eq!(s.refined, cut.refined().count());
@@ -181,7 +183,7 @@ fn the_cut_conforms_after_every_frame_of_random_flights() {
                 }
             }
             let keys: Vec<_> = r.drawn().map(|p| p.key()).collect();
-            assert_eq!(keys, cut.drawn_halves(&layout));
+            assert_eq!(keys, cut.drawn_halves(&domain));
             refined_any |= cut.refined().count() > 3;
         }
         assert!(
@@ -194,7 +196,7 @@ fn the_cut_conforms_after_every_frame_of_random_flights() {
 #[test]
 fn unlimited_budget_converges_to_the_brute_force_cut() {
     let repo = repository();
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
     let world = World::of_repository(&repo);
     let mut rng = Rng(7);
     let mut r = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
@@ -212,7 +214,7 @@ fn unlimited_budget_converges_to_the_brute_force_cut() {
         // The target holds with plain per-diamond boxes too, everywhere in the frustum: every
         // drawn stored diamond whose own box meets the frustum is within 1 px.
         let frustum = cam.frustum();
-        for (id, _) in r.cut().drawn_halves(&layout) {
+        for (id, _) in r.cut().drawn_halves(&domain) {
             let Ok(i) = repo.entries().binary_search_by(|e| e.id.cmp(&id)) else {
                 continue;
             };
@@ -261,7 +263,7 @@ fn drawn_patches_equal_the_synchronous_decoder() {
 #[test]
 fn a_slow_lossy_source_never_blocks_and_converges_to_the_local_cut() {
     let repo = repository();
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
     let world = World::of_repository(&repo);
     let mut rng = Rng(5);
     let budget = Duration::from_millis(2);
@@ -337,7 +339,7 @@ fn a_slow_lossy_source_never_blocks_and_converges_to_the_local_cut() {
     let x: Vec<_> = r.drawn().collect();
     let y: Vec<_> = local.drawn().collect();
     assert!(x == y, "same cut, same patches");
-    check_conforming(&layout, &r.cut().triangles(&layout)).unwrap();
+    check_conforming(&domain, &r.cut().triangles(&domain)).unwrap();
 }
 
 #[test]
@@ -377,7 +379,8 @@ fn a_record_that_always_fails_is_given_up_on_without_stalling() {
         u64::from(RefineConfig::default().max_failures)
     );
     // Everything that does not depend on the broken diamond is refined as locally.
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
+    let layout = *domain.layout();
     for d in local.cut().refined() {
         let mut ancestors = vec![d];
         let mut depends = false;
@@ -393,7 +396,7 @@ fn a_record_that_always_fails_is_given_up_on_without_stalling() {
 fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
     let repo = repository();
     let world = World::of_repository(&repo);
-    let src_finest = repo.params().layout.finest_level();
+    let src_finest = repo.params().domain.finest_level();
     // Close to the ground, looking along it: the data's resolution is not enough.
     let (lo, hi) = world.data_box();
     let c = (lo + hi) * 0.5;
@@ -406,7 +409,7 @@ fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
     );
     let mut plain = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
     run_until_converged(&mut plain, &cam, 20);
-    assert_eq!(plain.layout(), &repo.params().layout);
+    assert_eq!(plain.layout(), repo.params().layout());
     assert!(plain.cut().refined().all(|d| d.level < src_finest));
 
     let detail = RefineConfig {
@@ -420,9 +423,9 @@ fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
     for _ in 0..2 {
         let mut r = Refiner::new(LocalSource::new(repo.clone()), detail.clone()).unwrap();
         run_until_converged(&mut r, &cam, 20);
-        let layout = *r.layout();
-        assert_eq!(layout.finest_level(), src_finest + 2);
-        check_conforming(&layout, &r.cut().triangles(&layout)).unwrap();
+        let domain = *r.domain();
+        assert_eq!(domain.finest_level(), src_finest + 2);
+        check_conforming(&domain, &r.cut().triangles(&domain)).unwrap();
         assert!(
             r.cut().refined().any(|d| d.level >= src_finest),
             "synthesised"
@@ -433,7 +436,7 @@ fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
             let mut cut = Cut::new();
             for d in r.cut().refined().filter_map(|d| r.source_id(d)) {
                 if d.level < src_finest {
-                    cut.refine(&repo.params().layout, d);
+                    cut.refine(&repo.params().domain, d);
                 }
             }
             cut
@@ -544,8 +547,8 @@ fn a_memory_budget_bounds_the_cut_and_degrades_it_coarser_never_wrong() {
                     "view {view} frame {i}: {} > {limit}",
                     s.cut_bytes
                 );
-                let layout = repo.params().layout;
-                check_conforming(&layout, &r.cut().triangles(&layout))
+                let domain = repo.params().domain;
+                check_conforming(&domain, &r.cut().triangles(&domain))
                     .unwrap_or_else(|e| panic!("view {view} frame {i}: {e}"));
                 if [5, 8, 14].contains(&i) {
                     // At the end of each camera phase (decoding every cut is slow).

@@ -23,14 +23,11 @@ use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
 use crate::state::{AppState, ServedRepo};
 
-/// The first four bytes of a batch response.
-pub const BATCH_MAGIC: [u8; 4] = *b"CBDR";
-/// `Content-Type` of a batch response.
-pub const BATCH_CONTENT_TYPE: &str = "application/x-cbdam-records";
-/// Batch entry status: the record follows.
-pub const STATUS_RECORD: u8 = 0;
-/// Batch entry status: the diamond is not stored in this repository (length 0, no bytes).
-pub const STATUS_NOT_STORED: u8 = 1;
+use cbdam_codec::repository::batch::{BatchWriter, body_len};
+/// The batch framing, defined once in the codec for both ends of the wire.
+pub use cbdam_codec::repository::batch::{
+    CONTENT_TYPE as BATCH_CONTENT_TYPE, MAGIC as BATCH_MAGIC, STATUS_NOT_STORED, STATUS_RECORD,
+};
 
 /// Records never change for a given URL while the same file is served under the same name.
 const IMMUTABLE: &str = "public, max-age=31536000, immutable";
@@ -302,7 +299,7 @@ async fn batch(
     // and so the body can be sized exactly.
     let entries = r.repo.entries();
     let mut slots = Vec::with_capacity(req.ids.len());
-    let mut total = 8;
+    let mut record_bytes = 0;
     for (k, s) in req.ids.iter().enumerate() {
         let id = s.parse::<DiamondId>().map_err(|_| {
             ApiError::BadRequest(format!(
@@ -310,33 +307,26 @@ async fn batch(
             ))
         })?;
         let slot = find(r, id);
-        total += 5 + slot.map_or(0, |i| entries[i].length as usize);
+        record_bytes += slot.map_or(0, |i| entries[i].length as usize);
         slots.push(slot);
     }
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(&BATCH_MAGIC);
     // `max_batch` is a usize from the command line; the count field is u32.
     let count = u32::try_from(slots.len())
         .map_err(|_| ApiError::TooLarge("more than 2^32 ids in one batch".into()))?;
-    out.extend_from_slice(&count.to_le_bytes());
+    let mut out = BatchWriter::new(count, record_bytes);
     let mut found = 0;
     for slot in slots {
         match slot {
             Some(i) => {
-                let rec = &r.repo.as_bytes()[checked_record(&st, r, i)?];
-                out.push(STATUS_RECORD);
-                // Index lengths are u32, so this cannot truncate.
-                out.extend_from_slice(&(rec.len() as u32).to_le_bytes());
-                out.extend_from_slice(rec);
+                // Index lengths are u32, so the writer's length field holds it.
+                out.record(&r.repo.as_bytes()[checked_record(&st, r, i)?]);
                 found += 1;
             }
-            None => {
-                out.push(STATUS_NOT_STORED);
-                out.extend_from_slice(&0u32.to_le_bytes());
-            }
+            None => out.not_stored(),
         }
     }
-    debug_assert_eq!(out.len(), total);
+    let out = out.finish();
+    debug_assert_eq!(out.len(), body_len(count as usize, record_bytes));
     st.metrics().add_records(found);
     Ok(respond(
         StatusCode::OK,

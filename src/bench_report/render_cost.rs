@@ -12,12 +12,13 @@ use anyhow::{Context, Result, bail};
 use cbdam_client::access::LocalSource;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{RefineConfig, Refiner};
+use cbdam_client::stats::percentile;
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
 use cbdam_codec::input::Dem;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 
-use crate::replay::{ReplayPacing, fly, percentile};
+use crate::replay::{ReplayPacing, fly};
 
 /// The viewport of every run: the 1920×1080.
 pub const VIEWPORT: (u32, u32) = (1920, 1080);

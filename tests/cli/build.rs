@@ -337,7 +337,7 @@ fn auto_extra_levels_keep_the_smaller_repository() {
             Repository::from_bytes(b.to_vec())
                 .unwrap()
                 .params()
-                .layout
+                .layout()
                 .k()
         };
         assert_eq!(k(&auto), k(&build("0")) + u32::from(coarser), "ε {eps}");

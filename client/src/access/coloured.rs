@@ -83,8 +83,12 @@ impl<E: DataSource, C: DataSource> ColouredSource<E, C> {
             colour.georef(),
         )?;
         let decoder = ColourDecoder::new(*colour.params(), colour.root_bytes())?;
-        let layout = elevation.params().layout;
-        if layout.roots().any(|r| alignment.colour_id(r).is_none()) {
+        if elevation
+            .params()
+            .domain
+            .roots()
+            .any(|r| alignment.colour_id(r).is_none())
+        {
             return Err(CodecError::invalid(
                 "the colour repository's roots do not line up with the elevation's",
             ));

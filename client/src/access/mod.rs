@@ -1,6 +1,6 @@
 //! The data access layer (paper §6): the one interface through which the refinement loop reaches
-//! a repository, whether it is a memory-mapped file ([`LocalSource`]) or a remote server (an
-//! HTTP implementation written against [`DataSource`]). The loop cannot tell which one it has.
+//! a repository, whether it is a memory-mapped file (`LocalSource`) or a remote server
+//! (`RemoteSource`, over HTTP; both native only). The loop cannot tell which one it has.
 //!
 //! Everything is non-blocking. The loop, once per frame:
 //! 1. calls [`DataSource::pump`] so the source can advance its I/O and collect completions;
@@ -23,14 +23,19 @@
 
 pub mod coloured;
 mod flaky;
+#[cfg(not(target_arch = "wasm32"))]
+mod http;
+#[cfg(not(target_arch = "wasm32"))]
 mod local;
-mod remote;
 
 pub use coloured::{ColouredSource, Drape};
 pub use flaky::{FlakyConfig, FlakySource};
 
+/// The desktop's sources: a memory-mapped file, and HTTP over the tokio-based fetcher.
+#[cfg(not(target_arch = "wasm32"))]
+pub use http::RemoteSource;
+#[cfg(not(target_arch = "wasm32"))]
 pub use local::LocalSource;
-pub use remote::RemoteSource;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;

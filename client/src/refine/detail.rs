@@ -37,7 +37,7 @@ impl Default for DetailConfig {
 
 /// Grid spacing in metres of the diamonds of `level`.
 fn spacing_metres(world: &World, level: u8) -> f64 {
-    let layout = &world.layout;
+    let layout = world.domain.layout();
     let r = layout.radius(level) as f64;
     let n1 = (layout.n() - 1) as f64;
     let lattice = if level.is_multiple_of(2) {
@@ -45,7 +45,7 @@ fn spacing_metres(world: &World, level: u8) -> f64 {
     } else {
         r / n1 * std::f64::consts::SQRT_2
     };
-    lattice * 0.5 * (world.step_x + world.step_y)
+    lattice * world.mean_step()
 }
 
 /// Largest residual, in height units, that refining a diamond of `level` adds (its cells are

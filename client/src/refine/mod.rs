@@ -5,7 +5,8 @@
 //! diamond in the frustum meets the pixel target or the frame's time budget is spent. Refining a
 //! diamond first forces its unrefined parents. Only diamonds whose record is in RAM are refined;
 //! missing ones are requested from the [`DataSource`] with their screen error as priority and
-//! never waited for. Decoding runs on rayon's worker threads: the frame dispatches the most urgent
+//! never waited for. Decoding runs on the [`Spawner`]'s workers (rayon's on the desktop): the
+//! frame dispatches the most urgent
 //! ready refinements, applies results as they come back while budget remains, and leaves the
 //! rest running; what finishes after the deadline is applied at the start of the next frame, so
 //! a slow decode never stretches a frame. Coarsening is garbage collection: every few frames, refined diamonds with no
@@ -40,19 +41,21 @@ pub use detail::DetailConfig;
 
 use std::collections::{BTreeMap, BinaryHeap};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::colour::ColourRefined;
-use cbdam_codec::geometry::{Cut, DiamondId, Half, IdMap, IdSet, Layout};
+use cbdam_codec::geometry::{Cut, DiamondId, Domain, Half, IdMap, IdSet, Layout};
 use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
+use web_time::Instant;
 
 use crate::access::{AccessStats, DataSource, Drape, Priority, coloured};
 use crate::camera::{Camera, Frustum};
 use crate::patch::{HalfPatch, colour_from_parent, packed};
-use crate::world::World;
+use crate::spawn::{DefaultSpawner, Spawner};
+use crate::world::{World, exaggerated};
 
 /// Per frame, the remembered overrun past the deadline shrinks by this factor unless a new one
 /// is larger: about 7 frames to halve, so a rare slow tail (a pre-empted thread) is soon
@@ -92,7 +95,7 @@ pub struct RefineConfig {
     /// Synthesise detail past the finest stored level (off by default).
     pub detail: Option<DetailConfig>,
     /// Vertical exaggeration: heights (and so boxes and object-space errors) are scaled by
-    /// this, as [`crate::draw::exaggerated`] scales the renderer's world. 1 by default.
+    /// this, as [`exaggerated`] scales the renderer's world. 1 by default.
     pub exaggeration: f64,
 }
 
@@ -297,25 +300,10 @@ pub fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
     (lo - p).max(p - hi).max(DVec3::ZERO).length()
 }
 
-/// The streaming refinement loop over one data source.
-pub struct Refiner<S: DataSource> {
-    source: S,
-    config: RefineConfig,
-    decoder: Arc<Decoder>,
-    /// The colour draped over the terrain, when the source pairs one.
-    drape: Option<Arc<Drape>>,
-    /// The refiner's hierarchy: the source's, with `shift` more level pairs when synthesising
-    /// detail (ids then have coordinates `2^shift` times the source's).
-    layout: Layout,
-    world: World,
-    shift: u32,
-    source_finest: u8,
-    stored: IdMap<Info>,
-    synthetic: IdMap<Option<Info>>,
+/// The cut and what is kept up to date with it as it changes.
+struct CutState {
     cut: Cut,
     nodes: IdMap<Arc<Node>>,
-    /// Sum of `nodes`' bytes.
-    cut_bytes: usize,
     roots: IdMap<[Arc<HalfPatch>; 2]>,
     /// The drawn half-patches, keyed so that iteration follows [`Cut::drawn_halves`]' order;
     /// updated on every refinement and coarsening, so a frame's cost follows what changed.
@@ -325,13 +313,47 @@ pub struct Refiner<S: DataSource> {
     candidates: IdMap<Option<Info>>,
     /// Coarsening candidates: refined diamonds with no refined child, with their metric.
     leaves: IdMap<Option<Info>>,
+}
+
+/// What the refiner holds in RAM besides the cut's structure: compressed records, decoded
+/// diamonds kept after coarsening, and the cut's decoded bytes against
+/// [`RefineConfig::cut_bytes`].
+struct Residency {
     records: LruCache<DiamondId, Arc<[u8]>>,
     decoded: LruCache<DiamondId, Arc<Node>>,
+    /// Sum of the cut's nodes' bytes.
+    cut_bytes: usize,
+}
+
+/// The refiner's side of the data source: what is requested, and what failed.
+#[derive(Default)]
+struct Requests {
     requested: IdMap<Priority>,
     failures: IdMap<u32>,
     failure_count: u64,
     broken: IdSet,
     errors: Vec<String>,
+}
+
+/// The streaming refinement loop over one data source, decoding on the spawner `X`'s workers.
+pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
+    source: S,
+    spawner: X,
+    config: RefineConfig,
+    decoder: Arc<Decoder>,
+    /// The colour draped over the terrain, when the source pairs one.
+    drape: Option<Arc<Drape>>,
+    /// The refiner's hierarchy: the source's, with `shift` more level pairs when synthesising
+    /// detail (ids then have coordinates `2^shift` times the source's).
+    domain: Domain,
+    world: World,
+    shift: u32,
+    source_finest: u8,
+    stored: IdMap<Info>,
+    synthetic: IdMap<Option<Info>>,
+    cut_state: CutState,
+    residency: Residency,
+    requests: Requests,
     frame: u64,
     last_camera: Option<Camera>,
     /// How far recent frames ran past their refinement deadline (the bookkeeping after the
@@ -347,32 +369,26 @@ pub struct Refiner<S: DataSource> {
 }
 
 impl<S: DataSource> Refiner<S> {
-    /// A refiner with the coarsest cut (roots only).
+    /// A refiner with the coarsest cut (roots only), decoding on the target's
+    /// [`DefaultSpawner`].
     pub fn new(source: S, config: RefineConfig) -> Result<Self, CodecError> {
+        Self::with_spawner(source, config, DefaultSpawner::default())
+    }
+}
+
+impl<S: DataSource, X: Spawner> Refiner<S, X> {
+    /// A refiner with the coarsest cut (roots only), decoding on `spawner`.
+    pub fn with_spawner(source: S, config: RefineConfig, spawner: X) -> Result<Self, CodecError> {
         let decoder = source.decoder()?;
         let params = *source.params();
-        let src_layout = params.layout;
-        let mut world = crate::draw::exaggerated(
+        let src_finest = params.domain.finest_level();
+        let shift = config.detail.map_or(0, |d| d.level_pairs);
+        let world = exaggerated(
             &World::new(&params, source.plan(), source.georef(), source.entries()),
             config.exaggeration,
-        );
-        let shift = config.detail.map_or(0, |d| d.level_pairs);
-        let layout = if shift > 0 {
-            Layout::new(
-                src_layout.n(),
-                src_layout.k() + shift,
-                src_layout.roots_x(),
-                src_layout.roots_y(),
-            )?
-        } else {
-            src_layout
-        };
-        let scale = f64::from(1u32 << shift);
-        world.layout = layout;
-        world.step_x /= scale;
-        world.step_y /= scale;
-        world.data_width = ((world.data_width.max(1) - 1) << shift) + 1;
-        world.data_height = ((world.data_height.max(1) - 1) << shift) + 1;
+        )
+        .with_detail(shift)?;
+        let domain = world.domain;
 
         // Saturate boxes and errors bottom-up: ids sort coarse to fine, so go in reverse.
         let mut stored: IdMap<Info> = IdMap::default();
@@ -380,7 +396,7 @@ impl<S: DataSource> Refiner<S> {
             let id = DiamondId::new(e.id.level, e.id.x << shift, e.id.y << shift);
             let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
             let mut err_m = f64::from(e.object_error) * world.unit;
-            for c in layout.children(id).into_iter().flatten() {
+            for c in domain.children(id).into_iter().flatten() {
                 if let Some(ci) = stored.get(&c) {
                     lo = lo.min(ci.lo);
                     hi = hi.max(ci.hi);
@@ -392,7 +408,7 @@ impl<S: DataSource> Refiner<S> {
 
         let drape = source.drape().cloned().map(Arc::new);
         let mut roots = IdMap::default();
-        for r in layout.roots() {
+        for r in domain.roots() {
             let src = DiamondId::new(r.level, r.x >> shift, r.y >> shift);
             let heights = decoder.grid_of(src, [None, None]);
             let valid = decoder.validity_of(src, [None, None]);
@@ -416,28 +432,29 @@ impl<S: DataSource> Refiner<S> {
         let (done_tx, done_rx) = std::sync::mpsc::channel();
         let mut me = Self {
             source,
+            spawner,
             decoder: Arc::new(decoder),
             drape,
-            layout,
+            domain,
             world,
             shift,
-            source_finest: src_layout.finest_level(),
+            source_finest: src_finest,
             stored,
             synthetic: IdMap::default(),
-            cut: Cut::new(),
-            nodes: IdMap::default(),
-            cut_bytes: 0,
-            roots,
-            drawn: BTreeMap::new(),
-            candidates: IdMap::default(),
-            leaves: IdMap::default(),
-            records: LruCache::new(config.record_cache_bytes),
-            decoded: LruCache::new(config.decoded_cache_bytes),
-            requested: IdMap::default(),
-            failures: IdMap::default(),
-            failure_count: 0,
-            broken: IdSet::default(),
-            errors: Vec::new(),
+            cut_state: CutState {
+                cut: Cut::new(),
+                nodes: IdMap::default(),
+                roots,
+                drawn: BTreeMap::new(),
+                candidates: IdMap::default(),
+                leaves: IdMap::default(),
+            },
+            residency: Residency {
+                records: LruCache::new(config.record_cache_bytes),
+                decoded: LruCache::new(config.decoded_cache_bytes),
+                cut_bytes: 0,
+            },
+            requests: Requests::default(),
             frame: 0,
             last_camera: None,
             overrun: Duration::ZERO,
@@ -447,10 +464,10 @@ impl<S: DataSource> Refiner<S> {
             config,
         };
         me.rebuild_drawn();
-        let roots: Vec<DiamondId> = me.layout.roots().collect();
+        let roots: Vec<DiamondId> = me.domain.roots().collect();
         for r in roots {
             let info = me.info(r);
-            me.candidates.insert(r, info);
+            me.cut_state.candidates.insert(r, info);
         }
         Ok(me)
     }
@@ -472,22 +489,27 @@ impl<S: DataSource> Refiner<S> {
     /// How full the CPU-side caches are.
     pub fn cache_use(&self) -> CacheUse {
         CacheUse {
-            record_bytes: self.records.bytes(),
+            record_bytes: self.residency.records.bytes(),
             record_budget: self.config.record_cache_bytes,
-            decoded_bytes: self.decoded.bytes(),
+            decoded_bytes: self.residency.decoded.bytes(),
             decoded_budget: self.config.decoded_cache_bytes,
-            decoded_evictions: self.decoded.evictions(),
+            decoded_evictions: self.residency.decoded.evictions(),
         }
     }
 
     /// The current cut (in [`Refiner::layout`]'s ids).
     pub fn cut(&self) -> &Cut {
-        &self.cut
+        &self.cut_state.cut
     }
 
     /// The hierarchy the cut lives in: the source's, deeper when synthesising detail.
     pub fn layout(&self) -> &Layout {
-        &self.layout
+        self.domain.layout()
+    }
+
+    /// The domain of the cut's ids (the repository's, with the synthetic detail levels).
+    pub fn domain(&self) -> &Domain {
+        &self.domain
     }
 
     /// Lattice to world metres for [`Refiner::layout`]'s ids.
@@ -507,12 +529,12 @@ impl<S: DataSource> Refiner<S> {
 
     /// The half-patches the cut draws, in [`Cut::drawn_halves`] order.
     pub fn drawn(&self) -> impl Iterator<Item = &Arc<HalfPatch>> {
-        self.drawn.values()
+        self.cut_state.drawn.values()
     }
 
     /// Recent error messages (rejected records), oldest first.
     pub fn errors(&self) -> &[String] {
-        &self.errors
+        &self.requests.errors
     }
 
     /// The source's id of one of the refiner's diamonds (`None` for synthetic levels).
@@ -539,7 +561,7 @@ impl<S: DataSource> Refiner<S> {
             return Some(*i);
         }
         let detail = self.config.detail?;
-        if id.level < self.source_finest || id.level >= self.layout.finest_level() {
+        if id.level < self.source_finest || id.level >= self.domain.finest_level() {
             return None;
         }
         if let Some(i) = self.synthetic.get(&id) {
@@ -548,7 +570,7 @@ impl<S: DataSource> Refiner<S> {
         // Synthesised only where every parent has data (stored or itself synthesised).
         let mut z = (f64::INFINITY, f64::NEG_INFINITY);
         let mut ok = true;
-        for p in self.layout.parents(id).into_iter().flatten() {
+        for p in self.domain.parents(id).into_iter().flatten() {
             match self.info(p) {
                 Some(pi) => z = (z.0.min(pi.lo.z), z.1.max(pi.hi.z)),
                 None => ok = false,
@@ -558,9 +580,9 @@ impl<S: DataSource> Refiner<S> {
             let amp = |l: u8| {
                 f64::from(detail::amplitude_units(&self.world, &detail, l)) * self.world.unit
             };
-            let below: f64 = (id.level..self.layout.finest_level()).map(amp).sum();
-            let (x0, y0, x1, y1) = self.layout.bounds(id);
-            let pad = 2 * self.layout.radius(id.level);
+            let below: f64 = (id.level..self.domain.finest_level()).map(amp).sum();
+            let (x0, y0, x1, y1) = self.domain.layout().bounds(id);
+            let pad = 2 * self.domain.layout().radius(id.level);
             let a = self.world.point(x0 - pad, y0 - pad, 0);
             let b = self.world.point(x1 + pad, y1 + pad, 0);
             Info {
@@ -578,22 +600,22 @@ impl<S: DataSource> Refiner<S> {
     }
 
     fn log_failure(&mut self, id: DiamondId, message: String) {
-        self.failure_count += 1;
-        let n = self.failures.entry(id).or_default();
+        self.requests.failure_count += 1;
+        let n = self.requests.failures.entry(id).or_default();
         *n += 1;
         let gave_up = *n >= self.config.max_failures;
         if gave_up {
-            self.broken.insert(id);
+            self.requests.broken.insert(id);
         }
-        if self.errors.len() >= ERROR_LOG {
-            self.errors.remove(0);
+        if self.requests.errors.len() >= ERROR_LOG {
+            self.requests.errors.remove(0);
         }
-        self.errors.push(if gave_up {
+        self.requests.errors.push(if gave_up {
             format!("{message} (giving up on {id})")
         } else {
             message
         });
-        self.records.remove(&id);
+        self.residency.records.remove(&id);
     }
 
     /// Moves a record that has arrived into RAM.
@@ -601,7 +623,9 @@ impl<S: DataSource> Refiner<S> {
         match self.source.take(sid)? {
             Ok(bytes) => {
                 let bytes: Arc<[u8]> = bytes.into();
-                self.records.insert(id, bytes.clone(), bytes.len() + 64);
+                self.residency
+                    .records
+                    .insert(id, bytes.clone(), bytes.len() + 64);
                 Some(bytes)
             }
             Err(e) => {
@@ -612,10 +636,10 @@ impl<S: DataSource> Refiner<S> {
     }
 
     fn need(&mut self, id: DiamondId) -> Need {
-        if self.broken.contains(&id) || self.info(id).is_none() {
+        if self.requests.broken.contains(&id) || self.info(id).is_none() {
             return Need::Impossible;
         }
-        if let Some(n) = self.decoded.get(&id) {
+        if let Some(n) = self.residency.decoded.get(&id) {
             return Need::Ready(Source::Cached(n.clone()));
         }
         if self.is_synthetic(id) {
@@ -626,16 +650,16 @@ impl<S: DataSource> Refiner<S> {
             let amp = detail::amplitude_units(&self.world, &detail, id.level);
             return Need::Ready(Source::Synthetic(amp));
         }
-        if let Some(r) = self.records.get(&id) {
+        if let Some(r) = self.residency.records.get(&id) {
             return Need::Ready(Source::Record(r.clone()));
         }
         let sid = self.source_id(id).expect("stored levels map to the source");
         if self.source.is_available(sid) {
-            self.requested.remove(&id);
+            self.requests.requested.remove(&id);
             if let Some(r) = self.take(id, sid) {
                 return Need::Ready(Source::Record(r));
             }
-            if self.broken.contains(&id) {
+            if self.requests.broken.contains(&id) {
                 return Need::Impossible;
             }
         }
@@ -645,8 +669,8 @@ impl<S: DataSource> Refiner<S> {
     /// Whether a diamond's data could be had without a request (in RAM, cached, synthetic, or
     /// available from the source). Takes nothing.
     fn have_or_available(&mut self, id: DiamondId) -> bool {
-        self.decoded.contains(&id)
-            || self.records.contains(&id)
+        self.residency.decoded.contains(&id)
+            || self.residency.records.contains(&id)
             || self.is_synthetic(id)
             || self
                 .source_id(id)
@@ -655,98 +679,110 @@ impl<S: DataSource> Refiner<S> {
 
     /// The unrefined diamonds refining `id` takes, parents before children.
     fn plan(&self, id: DiamondId) -> Vec<DiamondId> {
-        fn visit(me: &Cut, layout: &Layout, d: DiamondId, out: &mut Vec<DiamondId>) {
+        fn visit(me: &Cut, domain: &Domain, d: DiamondId, out: &mut Vec<DiamondId>) {
             if me.is_refined(d) || out.contains(&d) {
                 return;
             }
-            for p in layout.parents(d).into_iter().flatten() {
-                visit(me, layout, p, out);
+            for p in domain.parents(d).into_iter().flatten() {
+                visit(me, domain, p, out);
             }
             out.push(d);
         }
         // Most often only `id` itself is unrefined (a candidate whose parents are refined).
-        if self.cut.is_refined(id) {
+        if self.cut_state.cut.is_refined(id) {
             return Vec::new();
         }
-        let parents = self.layout.parents(id);
-        if parents.iter().flatten().all(|&p| self.cut.is_refined(p)) {
+        let parents = self.domain.parents(id);
+        if parents
+            .iter()
+            .flatten()
+            .all(|&p| self.cut_state.cut.is_refined(p))
+        {
             return vec![id];
         }
         let mut out = Vec::new();
-        visit(&self.cut, &self.layout, id, &mut out);
+        visit(&self.cut_state.cut, &self.domain, id, &mut out);
         out
     }
 
     /// Whether refining `id` needs a diamond that was given up on.
     fn blocked(&self, id: DiamondId) -> bool {
-        !self.broken.is_empty() && self.plan(id).iter().any(|d| self.broken.contains(d))
+        !self.requests.broken.is_empty()
+            && self
+                .plan(id)
+                .iter()
+                .any(|d| self.requests.broken.contains(d))
     }
 
     /// The diamonds with a drawn half (refinement candidates), each once, with their metric.
     fn candidate_list(&self) -> Vec<(DiamondId, Option<Info>)> {
-        self.candidates.iter().map(|(&id, &i)| (id, i)).collect()
+        self.cut_state
+            .candidates
+            .iter()
+            .map(|(&id, &i)| (id, i))
+            .collect()
     }
 
     /// [`Refiner::violation`] for a diamond whose metric is at hand.
     fn violation_of(&self, id: DiamondId, info: Option<Info>, view: &View) -> Option<f64> {
         view.error(&info?)
-            .filter(|&e| e > self.config.pixel_error && !self.broken.contains(&id))
+            .filter(|&e| e > self.config.pixel_error && !self.requests.broken.contains(&id))
     }
 
     /// Refines `id` (whose parents are refined and whose node is in `nodes`) and updates the
     /// drawn halves and both candidate sets.
     fn refine_in_cut(&mut self, id: DiamondId) {
-        let newly = self.cut.refine(&self.layout, id);
+        let newly = self.cut_state.cut.refine(&self.domain, id);
         debug_assert_eq!(newly, vec![id], "parents are refined first");
         if newly.is_empty() {
             return;
         }
         self.hide_halves(id);
-        self.candidates.remove(&id);
-        let halves = self.nodes[&id].halves.clone();
-        for (slot, k) in self.layout.children(id).into_iter().enumerate() {
+        self.cut_state.candidates.remove(&id);
+        let halves = self.cut_state.nodes[&id].halves.clone();
+        for (slot, k) in self.domain.children(id).into_iter().enumerate() {
             let Some(k) = k else { continue };
             let half = halves[slot]
                 .clone()
                 .expect("refined parents hold their children's halves");
-            self.drawn.insert(DrawKey::Child(id, slot), half);
+            self.cut_state.drawn.insert(DrawKey::Child(id, slot), half);
             let info = self.info(k);
-            self.candidates.insert(k, info);
+            self.cut_state.candidates.insert(k, info);
         }
         let info = self.info(id);
-        self.leaves.insert(id, info);
-        for p in self.layout.parents(id).into_iter().flatten() {
-            self.leaves.remove(&p);
+        self.cut_state.leaves.insert(id, info);
+        for p in self.domain.parents(id).into_iter().flatten() {
+            self.cut_state.leaves.remove(&p);
         }
     }
 
     /// Coarsens `id` if none of its children is refined, updating the drawn halves and both
     /// candidate sets. Returns whether it did.
     fn coarsen_in_cut(&mut self, id: DiamondId) -> bool {
-        if !self.cut.coarsen(&self.layout, id) {
+        if !self.cut_state.cut.coarsen(&self.domain, id) {
             return false;
         }
-        for (slot, k) in self.layout.children(id).into_iter().enumerate() {
+        for (slot, k) in self.domain.children(id).into_iter().enumerate() {
             let Some(k) = k else { continue };
-            self.drawn.remove(&DrawKey::Child(id, slot));
+            self.cut_state.drawn.remove(&DrawKey::Child(id, slot));
             let still_drawn = self
-                .layout
+                .domain
                 .parents(k)
                 .into_iter()
                 .flatten()
-                .any(|p| self.cut.is_refined(p));
+                .any(|p| self.cut_state.cut.is_refined(p));
             if !still_drawn {
-                self.candidates.remove(&k);
+                self.cut_state.candidates.remove(&k);
             }
         }
         self.show_halves(id);
         let info = self.info(id);
-        self.candidates.insert(id, info);
-        self.leaves.remove(&id);
-        for p in self.layout.parents(id).into_iter().flatten() {
+        self.cut_state.candidates.insert(id, info);
+        self.cut_state.leaves.remove(&id);
+        for p in self.domain.parents(id).into_iter().flatten() {
             if self.is_leaf(p) {
                 let info = self.info(p);
-                self.leaves.insert(p, info);
+                self.cut_state.leaves.insert(p, info);
             }
         }
         true
@@ -757,28 +793,33 @@ impl<S: DataSource> Refiner<S> {
     fn half_keys(&self, id: DiamondId) -> Vec<(DrawKey, Arc<HalfPatch>)> {
         if id.level == 0 {
             let idx = self
-                .layout
+                .domain
                 .roots()
                 .position(|r| r == id)
                 .expect("level 0 diamonds are roots");
             return Half::BOTH
                 .iter()
                 .enumerate()
-                .map(|(i, &h)| (DrawKey::Root(idx, i), self.roots[&id][h as usize].clone()))
+                .map(|(i, &h)| {
+                    (
+                        DrawKey::Root(idx, i),
+                        self.cut_state.roots[&id][h as usize].clone(),
+                    )
+                })
                 .collect();
         }
         let mut out = Vec::new();
-        for p in self.layout.parents(id).into_iter().flatten() {
-            if !self.cut.is_refined(p) {
+        for p in self.domain.parents(id).into_iter().flatten() {
+            if !self.cut_state.cut.is_refined(p) {
                 continue;
             }
             let slot = self
-                .layout
+                .domain
                 .children(p)
                 .iter()
                 .position(|c| *c == Some(id))
                 .expect("child of its parent");
-            let half = self.nodes[&p].halves[slot]
+            let half = self.cut_state.nodes[&p].halves[slot]
                 .clone()
                 .expect("refined parents hold their children's halves");
             out.push((DrawKey::Child(p, slot), half));
@@ -789,21 +830,21 @@ impl<S: DataSource> Refiner<S> {
     /// Draws the halves of `id`, just coarsened (or a root).
     fn show_halves(&mut self, id: DiamondId) {
         for (k, h) in self.half_keys(id) {
-            self.drawn.insert(k, h);
+            self.cut_state.drawn.insert(k, h);
         }
     }
 
     /// Stops drawing the halves of `id`, about to be refined (its parents are refined).
     fn hide_halves(&mut self, id: DiamondId) {
         for (k, _) in self.half_keys(id) {
-            self.drawn.remove(&k);
+            self.cut_state.drawn.remove(&k);
         }
     }
 
     fn violation(&mut self, id: DiamondId, view: &View) -> Option<f64> {
         let info = self.info(id)?;
         view.error(&info)
-            .filter(|&e| e > self.config.pixel_error && !self.broken.contains(&id))
+            .filter(|&e| e > self.config.pixel_error && !self.requests.broken.contains(&id))
     }
 
     /// Wants the records that refining `id` (parents first) still lacks.
@@ -820,7 +861,7 @@ impl<S: DataSource> Refiner<S> {
             return;
         }
         for &d in plan {
-            if self.broken.contains(&d) || self.info(d).is_none() {
+            if self.requests.broken.contains(&d) || self.info(d).is_none() {
                 return;
             }
             if !self.have_or_available(d) {
@@ -842,8 +883,59 @@ impl<S: DataSource> Refiner<S> {
             .map(|b| start + b - self.overrun.min(b / 4));
         self.frame += 1;
         self.source.pump();
-        // Move what arrived into RAM; failures are logged now rather than when next wanted.
+        self.take_arrived();
+
+        let view = View::new(*camera, 0.0);
+        let mut heap = self.refinement_heap(&view);
+        let mut wanted: IdMap<f64> = IdMap::default();
+        let mut stats = FrameStats {
+            frame: self.frame,
+            ..FrameStats::default()
+        };
+        self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
+
+        // What the budget did not reach still gets requested, then prefetch (neither can want
+        // anything from a source that always has everything at hand).
+        let may_want = !self.source.always_available();
+        if may_want {
+            for c in heap.into_vec() {
+                if !self.cut_state.cut.is_refined(c.id) {
+                    self.want_plan(c.id, c.err, &mut wanted);
+                }
+            }
+        }
+        if self.config.gc_interval > 0
+            && self
+                .frame
+                .is_multiple_of(u64::from(self.config.gc_interval))
+        {
+            stats.coarsenings += self.collect_garbage(&view);
+        }
+        // One pass over the final cut's candidates serves prefetching and the frame's figures.
+        let candidates = self.candidate_list();
+        let errors: Vec<Option<f64>> = candidates
+            .iter()
+            .map(|&(_, info)| info.and_then(|i| view.error(&i)))
+            .collect();
+        if may_want {
+            self.prefetch(camera, &candidates, &errors, &mut wanted);
+        }
+        self.last_camera = Some(*camera);
+
+        self.post_requests(wanted);
+        self.remember_overrun(deadline, &stats);
+        stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
+        #[cfg(debug_assertions)]
+        self.check_incremental_sets();
+        self.figures(&view, &candidates, &errors, &mut stats);
+        stats
+    }
+
+    /// Frame step: moves the records that arrived into RAM; failures are logged now rather than
+    /// when next wanted.
+    fn take_arrived(&mut self) {
         let arrived: Vec<DiamondId> = self
+            .requests
             .requested
             .keys()
             .copied()
@@ -853,35 +945,48 @@ impl<S: DataSource> Refiner<S> {
             })
             .collect();
         for id in arrived {
-            self.requested.remove(&id);
+            self.requests.requested.remove(&id);
             let sid = self.source_id(id).expect("requested ids are stored");
             self.take(id, sid);
         }
+    }
 
-        let view = View::new(*camera, 0.0);
+    /// Frame step: the refinement heap, the candidates that violate the target in `view`, most
+    /// urgent on top.
+    fn refinement_heap(&self, view: &View) -> BinaryHeap<Candidate> {
         let mut heap = BinaryHeap::new();
         for (id, info) in self.candidate_list() {
-            if let Some(err) = self.violation_of(id, info, &view) {
+            if let Some(err) = self.violation_of(id, info, view) {
                 heap.push(Candidate { err, id });
             }
         }
-        let mut wanted: IdMap<f64> = IdMap::default();
-        let mut stats = FrameStats {
-            frame: self.frame,
-            ..FrameStats::default()
-        };
+        heap
+    }
+
+    /// Frame step: applies the results of decodes dispatched in earlier frames, then dispatches
+    /// the most urgent ready refinements and applies what comes back until nothing more can
+    /// start or `deadline` passes. What could not be refined (missing records, blocked on an
+    /// ancestor) is left in `heap`; missing records go into `wanted`.
+    fn refine_until(
+        &mut self,
+        deadline: Option<Instant>,
+        view: &View,
+        heap: &mut BinaryHeap<Candidate>,
+        wanted: &mut IdMap<f64>,
+        stats: &mut FrameStats,
+    ) {
         // Results of decodes dispatched in earlier frames first.
         while let Ok(done) = self.done_rx.try_recv() {
-            self.apply(done, &view, &mut heap, &mut stats);
+            self.apply(done, view, heap, stats);
         }
-        let max_in_flight = 2 * rayon::current_num_threads().max(1);
+        let max_in_flight = 2 * self.spawner.parallelism().max(1);
         let mut waiting: Vec<Candidate> = Vec::new();
         let mut coarsening = None;
         loop {
             // Dispatch the most urgent ready refinements to the workers.
             while self.decoding.len() < max_in_flight {
                 let Some(c) = heap.pop() else { break };
-                if self.cut.is_refined(c.id) {
+                if self.cut_state.cut.is_refined(c.id) {
                     continue;
                 }
                 let mut blocked = false;
@@ -891,11 +996,11 @@ impl<S: DataSource> Refiner<S> {
                         continue;
                     }
                     let parents_done = self
-                        .layout
+                        .domain
                         .parents(d)
                         .into_iter()
                         .flatten()
-                        .all(|p| self.cut.is_refined(p));
+                        .all(|p| self.cut_state.cut.is_refined(p));
                     match self.need(d) {
                         Need::Impossible => {
                             blocked = true;
@@ -908,13 +1013,7 @@ impl<S: DataSource> Refiner<S> {
                         }
                         Need::Ready(_)
                             if parents_done
-                                && !self.make_room(
-                                    c.err,
-                                    d,
-                                    &view,
-                                    &mut coarsening,
-                                    &mut stats,
-                                ) =>
+                                && !self.make_room(c.err, d, view, &mut coarsening, stats) =>
                         {
                             stats.memory_limited = true;
                             blocked = true;
@@ -928,9 +1027,9 @@ impl<S: DataSource> Refiner<S> {
                                     result: Ok(node),
                                     secs: None,
                                 },
-                                &view,
-                                &mut heap,
-                                &mut stats,
+                                view,
+                                heap,
+                                stats,
                             );
                             dispatched_self |= d == c.id;
                         }
@@ -941,7 +1040,7 @@ impl<S: DataSource> Refiner<S> {
                         Need::Ready(_) => {}
                     }
                 }
-                if !blocked && !dispatched_self && !self.cut.is_refined(c.id) {
+                if !blocked && !dispatched_self && !self.cut_state.cut.is_refined(c.id) {
                     waiting.push(c);
                 }
             }
@@ -965,52 +1064,27 @@ impl<S: DataSource> Refiner<S> {
                 stats.budget_exhausted = true;
                 break;
             };
-            self.apply(done, &view, &mut heap, &mut stats);
+            self.apply(done, view, heap, stats);
             while let Ok(done) = self.done_rx.try_recv() {
-                self.apply(done, &view, &mut heap, &mut stats);
+                self.apply(done, view, heap, stats);
             }
             // Candidates that waited for an ancestor may be ready now.
             heap.extend(waiting.drain(..));
         }
         heap.extend(waiting);
+    }
 
-        // What the budget did not reach still gets requested, then prefetch (neither can want
-        // anything from a source that always has everything at hand).
-        let may_want = !self.source.always_available();
-        if may_want {
-            for c in heap.into_vec() {
-                if !self.cut.is_refined(c.id) {
-                    self.want_plan(c.id, c.err, &mut wanted);
-                }
-            }
-        }
-        if self.config.gc_interval > 0
-            && self
-                .frame
-                .is_multiple_of(u64::from(self.config.gc_interval))
-        {
-            stats.coarsenings += self.collect_garbage(&view);
-        }
-        // One pass over the final cut's candidates serves prefetching and the frame's figures.
-        let candidates = self.candidate_list();
-        let errors: Vec<Option<f64>> = candidates
-            .iter()
-            .map(|&(_, info)| info.and_then(|i| view.error(&i)))
-            .collect();
-        if may_want {
-            self.prefetch(camera, &candidates, &errors, &mut wanted);
-        }
-        self.last_camera = Some(*camera);
-
-        // Post new requests, re-prioritise, cancel what is no longer wanted.
+    /// Frame step: posts new requests, re-prioritises, and cancels what is no longer wanted.
+    fn post_requests(&mut self, wanted: IdMap<f64>) {
         let stale: Vec<DiamondId> = self
+            .requests
             .requested
             .keys()
             .filter(|id| !wanted.contains_key(id))
             .copied()
             .collect();
         for id in stale {
-            self.requested.remove(&id);
+            self.requests.requested.remove(&id);
             if let Some(sid) = self.source_id(id) {
                 // A remote source may have completed it since the frame began: keep what was
                 // paid for rather than dropping it.
@@ -1023,34 +1097,43 @@ impl<S: DataSource> Refiner<S> {
         }
         for (id, prio) in wanted {
             let prio = prio as Priority;
-            if self.requested.get(&id) != Some(&prio)
+            if self.requests.requested.get(&id) != Some(&prio)
                 && let Some(sid) = self.source_id(id)
             {
                 self.source.request(sid, prio);
-                self.requested.insert(id, prio);
+                self.requests.requested.insert(id, prio);
             }
         }
+    }
 
+    /// Frame step: when the budget ran out, how far past its deadline the frame ran (see
+    /// `overrun`).
+    fn remember_overrun(&mut self, deadline: Option<Instant>, stats: &FrameStats) {
         if let (Some(d), true) = (deadline, stats.budget_exhausted) {
             let over = Instant::now().saturating_duration_since(d);
             self.overrun = over.max(self.overrun.mul_f64(OVERRUN_DECAY));
         }
-        stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
-        #[cfg(debug_assertions)]
-        self.check_incremental_sets();
+    }
 
-        let (max_err, coarsenable) = self.measure(&view, &candidates, &errors);
+    /// Frame step: the frame's figures of the cut it leaves.
+    fn figures(
+        &mut self,
+        view: &View,
+        candidates: &[(DiamondId, Option<Info>)],
+        errors: &[Option<f64>],
+        stats: &mut FrameStats,
+    ) {
+        let (max_err, coarsenable) = self.measure(view, candidates, errors);
         stats.max_screen_error_px = max_err;
         stats.met_target = max_err <= self.config.pixel_error;
         stats.converged = stats.met_target && coarsenable == 0;
-        stats.refined = self.nodes.len();
-        stats.cut_bytes = self.cut_bytes;
-        stats.drawn_halves = self.drawn.len();
-        let n1 = (self.layout.n() - 1) as u64;
-        stats.triangles = self.drawn.len() as u64 * n1 * n1;
+        stats.refined = self.cut_state.nodes.len();
+        stats.cut_bytes = self.residency.cut_bytes;
+        stats.drawn_halves = self.cut_state.drawn.len();
+        let n1 = (self.domain.n() - 1) as u64;
+        stats.triangles = self.cut_state.drawn.len() as u64 * n1 * n1;
         stats.access = self.source.stats();
-        stats.failures = self.failure_count;
-        stats
+        stats.failures = self.requests.failure_count;
     }
 
     /// Runs frames for one still `camera` until the cut has converged, or for `max_frames`
@@ -1091,10 +1174,10 @@ impl<S: DataSource> Refiner<S> {
             if let Some(err) = self.violation_of(id, info, &view) {
                 self.want_plan(id, err * PREFETCH_PRIORITY, wanted);
             }
-            let violates_now =
-                err_now.is_some_and(|e| e > self.config.pixel_error) && !self.broken.contains(&id);
+            let violates_now = err_now.is_some_and(|e| e > self.config.pixel_error)
+                && !self.requests.broken.contains(&id);
             if violates_now {
-                for k in self.layout.children(id).into_iter().flatten() {
+                for k in self.domain.children(id).into_iter().flatten() {
                     let plan = self.plan(k);
                     if plan.iter().all(|&d| self.have_or_available(d)) {
                         continue; // nothing to want: skip the metric
@@ -1110,20 +1193,20 @@ impl<S: DataSource> Refiner<S> {
     /// Starts refining `id` (whose parents are refined) on a worker thread.
     fn dispatch(&mut self, id: DiamondId, source: Source) {
         let parents = self
-            .layout
+            .domain
             .parents(id)
-            .map(|p| p.map(|p| self.nodes[&p].clone()));
+            .map(|p| p.map(|p| self.cut_state.nodes[&p].clone()));
         let job = Job {
             decoder: self.decoder.clone(),
             drape: self.drape.clone(),
-            layout: self.layout,
+            domain: self.domain,
             parents,
             shift: self.shift,
             seed: self.config.detail.map_or(0, |d| d.seed),
         };
         let tx = self.done_tx.clone();
         self.decoding.insert(id);
-        rayon::spawn(move || {
+        self.spawner.spawn(move || {
             let t = Instant::now();
             let result = job.refine(id, source);
             // The refiner may be gone; then nobody wants the result.
@@ -1158,24 +1241,24 @@ impl<S: DataSource> Refiner<S> {
             }
         };
         let parents_refined = self
-            .layout
+            .domain
             .parents(id)
             .into_iter()
             .flatten()
-            .all(|p| self.cut.is_refined(p));
-        if self.cut.is_refined(id) || !parents_refined {
+            .all(|p| self.cut_state.cut.is_refined(p));
+        if self.cut_state.cut.is_refined(id) || !parents_refined {
             let bytes = node.bytes();
-            self.decoded.insert(id, node, bytes);
+            self.residency.decoded.insert(id, node, bytes);
             return;
         }
-        self.decoded.remove(&id);
-        self.cut_bytes += node.bytes();
-        if let Some(old) = self.nodes.insert(id, node) {
-            self.cut_bytes -= old.bytes();
+        self.residency.decoded.remove(&id);
+        self.residency.cut_bytes += node.bytes();
+        if let Some(old) = self.cut_state.nodes.insert(id, node) {
+            self.residency.cut_bytes -= old.bytes();
         }
         self.refine_in_cut(id);
         stats.refinements += 1;
-        for k in self.layout.children(id).into_iter().flatten() {
+        for k in self.domain.children(id).into_iter().flatten() {
             if let Some(err) = self.violation(k, view) {
                 heap.push(Candidate { err, id: k });
             }
@@ -1186,7 +1269,7 @@ impl<S: DataSource> Refiner<S> {
     /// heap ordered by ascending screen error, re-fed with parents that become leaves).
     fn collect_garbage(&mut self, view: &View) -> usize {
         let mut heap: BinaryHeap<std::cmp::Reverse<Candidate>> = BinaryHeap::new();
-        for (&id, info) in &self.leaves {
+        for (&id, info) in &self.cut_state.leaves {
             let err = info.and_then(|i| view.error(&i)).unwrap_or(0.0);
             if err <= self.config.pixel_error {
                 heap.push(std::cmp::Reverse(Candidate { err, id }));
@@ -1199,8 +1282,8 @@ impl<S: DataSource> Refiner<S> {
             }
             done += 1;
             self.release(c.id);
-            for p in self.layout.parents(c.id).into_iter().flatten() {
-                if self.cut.is_refined(p)
+            for p in self.domain.parents(c.id).into_iter().flatten() {
+                if self.cut_state.cut.is_refined(p)
                     && self.is_leaf(p)
                     && let Some(c) = self.unneeded(p, view)
                 {
@@ -1213,10 +1296,10 @@ impl<S: DataSource> Refiner<S> {
 
     /// After `id` was coarsened: its node moves to the decoded cache.
     fn release(&mut self, id: DiamondId) {
-        if let Some(node) = self.nodes.remove(&id) {
+        if let Some(node) = self.cut_state.nodes.remove(&id) {
             let bytes = node.bytes();
-            self.cut_bytes -= bytes;
-            self.decoded.insert(id, node, bytes);
+            self.residency.cut_bytes -= bytes;
+            self.residency.decoded.insert(id, node, bytes);
         }
     }
 
@@ -1237,13 +1320,14 @@ impl<S: DataSource> Refiner<S> {
             return true;
         };
         // Worst case: every node with all four child halves and nodata masks.
-        let node = Node::bytes_for(self.layout.n(), 4, self.drape.is_some()) * 5 / 4;
-        let fits = |me: &Self| me.cut_bytes + (me.decoding.len() + 1) * node <= limit;
+        let node = Node::bytes_for(self.domain.n(), 4, self.drape.is_some()) * 5 / 4;
+        let fits = |me: &Self| me.residency.cut_bytes + (me.decoding.len() + 1) * node <= limit;
         if fits(self) {
             return true;
         }
         if pool.is_none() {
             let heap = self
+                .cut_state
                 .leaves
                 .iter()
                 .map(|(&id, info)| {
@@ -1265,14 +1349,14 @@ impl<S: DataSource> Refiner<S> {
                 break false;
             };
             // Entries go stale as the frame refines and coarsens.
-            if !self.cut.is_refined(c.id) || !self.is_leaf(c.id) {
+            if !self.cut_state.cut.is_refined(c.id) || !self.is_leaf(c.id) {
                 continue;
             }
             if c.err >= err {
                 heap.push(std::cmp::Reverse(c));
                 break false;
             }
-            let is_parent = |d: DiamondId| self.layout.parents(d).contains(&Some(c.id));
+            let is_parent = |d: DiamondId| self.domain.parents(d).contains(&Some(c.id));
             if is_parent(keep) || self.decoding.iter().any(|&d| is_parent(d)) {
                 kept.push(std::cmp::Reverse(c));
                 continue;
@@ -1282,8 +1366,8 @@ impl<S: DataSource> Refiner<S> {
             }
             stats.coarsenings += 1;
             self.release(c.id);
-            for p in self.layout.parents(c.id).into_iter().flatten() {
-                if self.cut.is_refined(p) && self.is_leaf(p) {
+            for p in self.domain.parents(c.id).into_iter().flatten() {
+                if self.cut_state.cut.is_refined(p) && self.is_leaf(p) {
                     let err = self.drawn_error(p, view);
                     heap.push(std::cmp::Reverse(Candidate { err, id: p }));
                 }
@@ -1301,11 +1385,11 @@ impl<S: DataSource> Refiner<S> {
 
     fn is_leaf(&self, id: DiamondId) -> bool {
         !self
-            .layout
+            .domain
             .children(id)
             .into_iter()
             .flatten()
-            .any(|c| self.cut.is_refined(c))
+            .any(|c| self.cut_state.cut.is_refined(c))
     }
 
     /// `Some` (with its error, for ordering) if a refined diamond is not needed by the view.
@@ -1338,6 +1422,7 @@ impl<S: DataSource> Refiner<S> {
             return (worst, 0);
         }
         let coarsenable = self
+            .cut_state
             .leaves
             .values()
             .filter(|info| {
@@ -1352,45 +1437,55 @@ impl<S: DataSource> Refiner<S> {
     #[cfg(debug_assertions)]
     fn check_incremental_sets(&self) {
         let mut candidates: Vec<DiamondId> = self
-            .layout
+            .domain
             .roots()
-            .filter(|r| !self.cut.is_refined(*r))
+            .filter(|r| !self.cut_state.cut.is_refined(*r))
             .collect();
-        for a in self.cut.refined() {
-            for k in self.layout.children(a).into_iter().flatten() {
-                if !self.cut.is_refined(k) {
+        for a in self.cut_state.cut.refined() {
+            for k in self.domain.children(a).into_iter().flatten() {
+                if !self.cut_state.cut.is_refined(k) {
                     candidates.push(k);
                 }
             }
         }
         candidates.sort_unstable();
         candidates.dedup();
-        let mut kept: Vec<DiamondId> = self.candidates.keys().copied().collect();
+        let mut kept: Vec<DiamondId> = self.cut_state.candidates.keys().copied().collect();
         kept.sort_unstable();
         assert_eq!(
             kept, candidates,
             "refinement candidates out of step with the cut"
         );
-        let mut leaves: Vec<DiamondId> = self.cut.refined().filter(|&d| self.is_leaf(d)).collect();
+        let mut leaves: Vec<DiamondId> = self
+            .cut_state
+            .cut
+            .refined()
+            .filter(|&d| self.is_leaf(d))
+            .collect();
         leaves.sort_unstable();
-        let mut kept: Vec<DiamondId> = self.leaves.keys().copied().collect();
+        let mut kept: Vec<DiamondId> = self.cut_state.leaves.keys().copied().collect();
         kept.sort_unstable();
         assert_eq!(
             kept, leaves,
             "coarsening candidates out of step with the cut"
         );
-        let drawn: Vec<(DiamondId, Half)> = self.drawn.values().map(|p| (p.id, p.half)).collect();
+        let drawn: Vec<(DiamondId, Half)> = self
+            .cut_state
+            .drawn
+            .values()
+            .map(|p| (p.id, p.half))
+            .collect();
         assert_eq!(
             drawn,
-            self.cut.drawn_halves(&self.layout),
+            self.cut_state.cut.drawn_halves(&self.domain),
             "drawn list out of step"
         );
     }
 
     /// Fills the drawn list of the initial cut (roots only).
     fn rebuild_drawn(&mut self) {
-        self.drawn.clear();
-        let roots: Vec<DiamondId> = self.layout.roots().collect();
+        self.cut_state.drawn.clear();
+        let roots: Vec<DiamondId> = self.domain.roots().collect();
         for r in roots {
             self.show_halves(r);
         }
@@ -1418,7 +1513,7 @@ struct Done {
 struct Job {
     decoder: Arc<Decoder>,
     drape: Option<Arc<Drape>>,
-    layout: Layout,
+    domain: Domain,
     parents: [Option<Arc<Node>>; 2],
     shift: u32,
     seed: u64,
@@ -1441,8 +1536,14 @@ impl Job {
             Source::Synthetic(amp) => {
                 let grid = self.grid_of(id);
                 let valid = self.validity_of(id);
-                let r =
-                    detail::synthesize(&self.layout, id, &grid, valid.as_deref(), amp, self.seed);
+                let r = detail::synthesize(
+                    self.domain.layout(),
+                    id,
+                    &grid,
+                    valid.as_deref(),
+                    amp,
+                    self.seed,
+                );
                 // Synthetic detail is for the relief; the colour is interpolated.
                 let c = self.refine_colour(id, &[])?;
                 Ok(self.node(id, r, c))
@@ -1464,7 +1565,7 @@ impl Job {
             let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
             root_colour(drape, sid)?
         } else {
-            let n = self.layout.n();
+            let n = self.domain.n();
             let mut grids: [Vec<i32>; 3] = Default::default();
             for (c, g) in grids.iter_mut().enumerate() {
                 let parents = [0, 1].map(|h| {
@@ -1474,7 +1575,7 @@ impl Job {
                         .map(|col| &col[c])
                 });
                 *g = vec![0i32; n * n];
-                gather(&self.layout, id, parents, g);
+                gather(&self.domain, id, parents, g);
             }
             grids
         };
@@ -1491,9 +1592,9 @@ impl Job {
             return self.decoder.grid_of(sid, [None, None]);
         }
         let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
-        let n = self.layout.n();
+        let n = self.domain.n();
         let mut grid = vec![0i32; n * n];
-        gather(&self.layout, id, parents, &mut grid);
+        gather(&self.domain, id, parents, &mut grid);
         grid
     }
 
@@ -1503,15 +1604,15 @@ impl Job {
             return self.decoder.validity_of(sid, [None, None]);
         }
         let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
-        gather_validity(&self.layout, id, parents)
+        gather_validity(&self.domain, id, parents)
     }
 
     fn node(&self, id: DiamondId, refined: Refined, colour: Option<ColourRefined>) -> Arc<Node> {
-        let halves = self.layout.children(id).map(|c| {
+        let halves = self.domain.children(id).map(|c| {
             c.and_then(|c| {
-                let mut h = HalfPatch::from_parent(&self.layout, c, id, &refined)?;
+                let mut h = HalfPatch::from_parent(&self.domain, c, id, &refined)?;
                 if let Some(col) = &colour {
-                    h.colour = colour_from_parent(&self.layout, c, id, col);
+                    h.colour = colour_from_parent(&self.domain, c, id, col);
                 }
                 Some(Arc::new(h))
             })

@@ -143,6 +143,29 @@ impl Domain {
         Self::planar(layout, data)
     }
 
+    /// The same surface with `level_pairs` more level pairs below the finest level (the
+    /// client's synthetic detail): lattice coordinates scale by `2^level_pairs`, and so does the
+    /// data region (its sample spacing, not its count: `(w − 1)·2^m + 1`).
+    pub fn with_detail(&self, level_pairs: u32) -> Result<Self, CodecError> {
+        if level_pairs == 0 {
+            return Ok(*self);
+        }
+        let l = &self.layout;
+        let (rx, ry) = l.root_counts();
+        let layout = Layout::new(l.n(), l.k() + level_pairs, rx, ry)?;
+        let scale = |v: u32| {
+            u32::try_from((u64::from(v.max(1) - 1) << level_pairs) + 1)
+                .map_err(|_| CodecError::limit("detail levels overflow the lattice"))
+        };
+        let data = DataRect {
+            width: scale(self.data.width)?,
+            height: scale(self.data.height)?,
+        };
+        match self.shape {
+            Shape::Planar => Self::planar(layout, data),
+        }
+    }
+
     /// What kind of domain this is.
     pub fn kind(&self) -> DomainKind {
         match self.shape {
@@ -303,6 +326,14 @@ mod tests {
             .is_err()
         );
         assert!(!d.contains(DiamondId::on_face(1, 0, 512, 512)));
+        // Two more level pairs: the same ground at a quarter of the spacing.
+        let fine = d.with_detail(2).unwrap();
+        assert_eq!(fine.finest_level(), d.finest_level() + 4);
+        assert_eq!(
+            (fine.data().width, fine.data().height),
+            (999 * 4 + 1, 699 * 4 + 1)
+        );
+        assert_eq!(d.with_detail(0).unwrap(), d);
     }
 
     #[test]

@@ -315,7 +315,7 @@ pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>)
 pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, CodecError> {
     let params = encoded.params;
     let layout = params.layout();
-    let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(&layout, input));
+    let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(layout, input));
     let n = layout.n();
     let mut levels: Vec<LevelReport> = (0..=layout.finest_level())
         .map(|level| LevelReport {

@@ -2,8 +2,10 @@
 //!
 //! [`index`] is the compact record index; [`container`] is the single-file, memory-mappable
 //! container around it (header, root field, index, per-record checksums, records), specified
-//! byte by byte in `docs/FORMAT.md`.
+//! byte by byte in `docs/FORMAT.md`. [`batch`] is the framing of many records in one HTTP
+//! response, written by the server and read by the client.
 
+pub mod batch;
 pub mod container;
 mod header;
 pub mod index;

@@ -2,17 +2,17 @@
 //! pool, least-recently-used eviction, and the per-frame upload budget.
 //!
 //! Pure CPU logic (the renderer does the copies), so it is tested without a GPU. Slots are keyed
-//! by [`PatchKey`] and a half-patch never changes once made (see [`crate::patch`]), so a hit is
+//! by [`PatchKey`] and a half-patch never changes once made (see [`cbdam_client::patch`]), so a hit is
 //! always the right heights: a slot can be missing, never stale. Slots used by the frame being
 //! built are pinned: evicting one would overwrite heights that an earlier instance of the same
 //! frame still reads.
 
 use std::collections::{BTreeSet, HashMap};
 
-use crate::patch::PatchKey;
+use cbdam_client::patch::PatchKey;
 
 /// Counters of the patch cache, cumulative since the renderer was made (or since
-/// [`SlotCache::clear`]); [`crate::draw::FrameStats`] has the same counts for one frame.
+/// [`SlotCache::clear`]); [`crate::DrawStats`] has the same counts for one frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CacheStats {
     /// Patches found resident.

@@ -9,18 +9,16 @@
 //!
 //! The same checks on the same patches with their masks removed must fail: the test can tell.
 
-mod common;
-
 use std::sync::Arc;
 
+use crate::util::*;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{Frame, RenderOptions};
 use cbdam_client::patch::{HalfPatch, decode_cut};
 use cbdam_client::world::World;
 use cbdam_codec::hierarchy::reconstruct_finest;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::Repository;
-use common::*;
+use cbdam_render::{Frame, RenderOptions};
 use glam::{DVec3, DVec4};
 
 const MAGENTA: [u8; 4] = [255, 0, 255, 255];
@@ -56,7 +54,10 @@ fn project(cam: &Camera, p: DVec3) -> Option<(u32, u32)> {
 
 fn examine(repo: &Repository, valid: &[bool], cam: &Camera, patches: &[HalfPatch]) -> Findings {
     let world = World::of_repository(repo);
-    let (w, h) = (world.data_width as usize, world.data_height as usize);
+    let (w, h) = (
+        world.domain.data().width as usize,
+        world.domain.data().height as usize,
+    );
     let ok = |x: i64, y: i64| {
         x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && valid[y as usize * w + x as usize]
     };
@@ -162,7 +163,10 @@ fn check(name: &str, repo: &Repository, valid: &[bool], cam: &Camera) {
 fn synthetic_holes_are_not_drawn_and_data_is() {
     let (repo, valid) = holed();
     let world = World::of_repository(repo);
-    let (w, h) = (f64::from(world.data_width), f64::from(world.data_height));
+    let (w, h) = (
+        f64::from(world.domain.data().width),
+        f64::from(world.domain.data().height),
+    );
     // 129 samples across 400 pixels: cells of about 3 pixels.
     let cam = top_view(
         &world,

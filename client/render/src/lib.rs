@@ -1,11 +1,13 @@
-//! The wgpu renderer: draws the half-patches of a cut from a GPU patch cache.
+//! The C-BDAM renderer over the client core (`cbdam-client`): wgpu drawing of the half-patches
+//! of a cut from a GPU patch cache, the HUD ([`hud`]), presenting to a window ([`present`]) and
+//! the viewer's window loop ([`view`]). The shaders are `shaders/*.wgsl`, built in.
 //!
 //! Design (DESIGN.md "GPU", paper §6):
 //! - **Shared grid.** The `N × N` grid's triangle lists are uploaded once ([`mesh`]): 8 index
 //!   lists (split diagonal × half × grid orientation) in one index buffer. There is no vertex
 //!   buffer: an index is the grid vertex number `j·N + i`, which *is* its (u, v).
 //! - **Height pool.** One storage buffer of `i32` heights, `N²` per slot; a slot holds one
-//!   half-patch's grid and nothing else. Slots are an LRU cache keyed by [`PatchKey`](crate::patch::PatchKey)
+//!   half-patch's grid and nothing else. Slots are an LRU cache keyed by [`PatchKey`](cbdam_client::patch::PatchKey)
 //!   ([`cache`]); new patches are copied in one batch per frame from a single staging buffer,
 //!   within a byte budget. Normals are computed in the vertex shader from neighbouring heights.
 //! - **Instances.** Per drawn patch a 64-byte [`PatchInstance`] (slot, level, half, diagonal,
@@ -17,7 +19,7 @@
 //! - **Data rectangle.** Fragments whose lattice position is outside the data rectangle are
 //!   discarded (heights there are unconstrained), and patches entirely outside are not drawn.
 //! - **Draped colour.** With a colour repository ([`Renderer::with_colour`]) a slot holds the
-//!   `N²` heights followed by `N²` colours, RGB8 packed in a word ([`crate::patch::pack_rgb`]):
+//!   `N²` heights followed by `N²` colours, RGB8 packed in a word ([`cbdam_client::patch::pack_rgb`]):
 //!   twice the bytes per slot, and the shader lights that colour instead of the hypsometric
 //!   ramp. Without one the slots, the shader's work and the image are what they were.
 //! - **Nodata.** Heights at points without data (the repository's nodata mask) are marked in the
@@ -26,10 +28,13 @@
 //!
 //! Offscreen rendering ([`Renderer::render`]) reads back colour and optionally depth.
 
+#![deny(missing_docs)]
+
 pub mod cache;
 pub mod hud;
 pub mod mesh;
 pub mod present;
+pub mod view;
 
 use std::borrow::Borrow;
 use std::time::Instant;
@@ -41,9 +46,9 @@ use glam::DVec3;
 pub use cache::{CacheStats, Residency, SlotCache};
 pub use mesh::{MeshKind, SharedMesh};
 
-use crate::camera::Camera;
-use crate::patch::HalfPatch;
-use crate::world::World;
+use cbdam_client::camera::Camera;
+use cbdam_client::patch::HalfPatch;
+use cbdam_client::world::World;
 
 /// Marks a height of the pool as nodata (`h ^ NODATA_BIT`): heights satisfy
 /// `|h| ≤ MAX_ABS_HEIGHT < 2^30`, so the flipped bit 30 puts a marked height outside that range
@@ -231,7 +236,7 @@ impl Default for RenderOptions {
 
 /// What one frame drew.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct FrameStats {
+pub struct DrawStats {
     /// Half-patches in the cut handed over.
     pub patches: usize,
     /// Half-patches drawn.
@@ -264,7 +269,7 @@ pub struct Frame {
     /// Depth 0 (near) – 1 (far, background), when asked for.
     pub depth: Option<Vec<f32>>,
     /// What was drawn.
-    pub stats: FrameStats,
+    pub stats: DrawStats,
 }
 
 impl Frame {
@@ -361,8 +366,8 @@ impl Renderer {
         config: CacheConfig,
         draped: bool,
     ) -> Result<Self, DrawError> {
-        let n = world.layout.n();
-        let (ex, ey) = world.layout.extent();
+        let n = world.domain.n();
+        let (ex, ey) = world.domain.layout().face_extent();
         if ex > i64::from(i32::MAX) || ey > i64::from(i32::MAX) {
             return Err(DrawError::Unsupported(format!(
                 "lattice extent {ex}×{ey} exceeds the shader's 32-bit lattice coordinates"
@@ -565,7 +570,7 @@ impl Renderer {
     /// Renders `patches` (a cut's drawn halves, owned or shared like [`Refiner::drawn`]'s) from
     /// `camera` offscreen and reads the image back.
     ///
-    /// [`Refiner::drawn`]: crate::refine::Refiner::drawn
+    /// [`Refiner::drawn`]: cbdam_client::refine::Refiner::drawn
     pub fn render<P: Borrow<HalfPatch>>(
         &mut self,
         camera: &Camera,
@@ -604,13 +609,13 @@ impl Renderer {
 
     /// Records a frame into the offscreen colour target ([`Renderer::color_texture`]) without
     /// submitting it, so that a window can draw an overlay over it and present it; uploads are
-    /// part of the returned commands. [`FrameStats::gpu_s`] is left 0.
+    /// part of the returned commands. [`DrawStats::gpu_s`] is left 0.
     pub fn encode<P: Borrow<HalfPatch>>(
         &mut self,
         camera: &Camera,
         patches: &[P],
         options: &RenderOptions,
-    ) -> Result<(wgpu::CommandEncoder, FrameStats), DrawError> {
+    ) -> Result<(wgpu::CommandEncoder, DrawStats), DrawError> {
         if options.wireframe && self.lines.is_none() {
             return Err(DrawError::Unsupported(
                 "wireframe needs the POLYGON_MODE_LINE feature, which this adapter lacks".into(),
@@ -692,7 +697,7 @@ impl Renderer {
             height: target.size.1,
             rgba,
             depth: None,
-            stats: FrameStats::default(),
+            stats: DrawStats::default(),
         })
     }
 
@@ -837,16 +842,14 @@ impl Renderer {
         options: &RenderOptions,
     ) -> Prepared {
         let world = self.world;
-        let layout = world.layout;
+        let layout = *world.domain.layout();
         let n = layout.n();
         let frustum = camera.frustum();
         let before = self.cache.stats();
         self.cache.begin_frame();
-        let (dw, dh) = (
-            i64::from(world.data_width) - 1,
-            i64::from(world.data_height) - 1,
-        );
-        let mut stats = FrameStats {
+        let data = world.domain.data();
+        let (dw, dh) = (i64::from(data.width) - 1, i64::from(data.height) - 1);
+        let mut stats = DrawStats {
             patches: patches.len(),
             ..Default::default()
         };
@@ -906,14 +909,14 @@ impl Renderer {
             };
             by_kind[kind.index()].push(PatchInstance {
                 origin_rel: [origin.x as f32, origin.y as f32],
-                u_world: [
-                    (g.u.0 as f64 * world.step_x) as f32,
-                    (-g.u.1 as f64 * world.step_y) as f32,
-                ],
-                v_world: [
-                    (g.v.0 as f64 * world.step_x) as f32,
-                    (-g.v.1 as f64 * world.step_y) as f32,
-                ],
+                u_world: {
+                    let (x, y) = world.lattice_vector(g.u.0, g.u.1);
+                    [x as f32, y as f32]
+                },
+                v_world: {
+                    let (x, y) = world.lattice_vector(g.v.0, g.v.1);
+                    [x as f32, y as f32]
+                },
                 origin_lat: [g.origin.0 as i32, g.origin.1 as i32],
                 u_lat: [g.u.0 as i32, g.u.1 as i32],
                 v_lat: [g.v.0 as i32, g.v.1 as i32],
@@ -987,12 +990,15 @@ impl Renderer {
             m_unit: w.unit as f32,
             ramp_lo: ramp_lo as f32,
             ramp_hi: w.max_height.max(ramp_lo + 1.0) as f32,
-            n: w.layout.n() as u32,
+            n: w.domain.n() as u32,
             mode: u32::from(options.level_colours),
-            data_max: [
-                w.data_width.saturating_sub(1) as f32,
-                w.data_height.saturating_sub(1) as f32,
-            ],
+            data_max: {
+                let data = w.domain.data();
+                [
+                    data.width.saturating_sub(1) as f32,
+                    data.height.saturating_sub(1) as f32,
+                ]
+            },
             has_sea: u32::from(w.min_height < 0.0),
             draped: u32::from(self.draped),
         };
@@ -1003,7 +1009,7 @@ impl Renderer {
 }
 
 struct Prepared {
-    stats: FrameStats,
+    stats: DrawStats,
     groups: [std::ops::Range<u32>; 8],
     upload_slots: Vec<u32>,
     staging: Option<wgpu::Buffer>,
@@ -1059,17 +1065,14 @@ fn bind_group(
     })
 }
 
-/// `world` with heights scaled by `factor` about 0 m, for vertical exaggeration: hand it to
-/// [`Renderer::new`] and the camera, and the same factor to
-/// [`RefineConfig::exaggeration`](crate::refine::RefineConfig::exaggeration). The colour ramp spans
-/// the data's height range and sea level stays at 0 m, so land colours do not change; only the
-/// water's depth tint (absolute metres) deepens with the factor.
-pub fn exaggerated(world: &World, factor: f64) -> World {
-    World {
-        unit: world.unit * factor,
-        offset: world.offset * factor,
-        min_height: world.min_height * factor,
-        max_height: world.max_height * factor,
-        ..*world
-    }
+/// Writes `frame` as a PNG, atomically (a reader never sees half a file).
+pub fn write_png(path: &std::path::Path, frame: &Frame) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let png = frame.to_png()?;
+    cbdam_codec::atomic::write_atomically::<anyhow::Error>(path, |f| {
+        use std::io::Write;
+        f.write_all(&png)?;
+        Ok(())
+    })
+    .with_context(|| format!("writing {}", path.display()))
 }

@@ -1,4 +1,4 @@
-//! Records over HTTP: the [`DataSource`] face of [`crate::remote::RemoteFetcher`].
+//! Records over HTTP: the [`DataSource`] face of [`crate::fetch::RemoteFetcher`].
 //!
 //! The fetcher keeps the network side (batching, priorities, bounded in-flight requests,
 //! cancellation, retries with backoff, checksum checks); this adapter turns the loop's per-diamond
@@ -19,7 +19,7 @@ use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::index::IndexEntry;
 
 use super::{AccessError, AccessStats, DataSource, Priority};
-use crate::remote::{FetchOptions, RemoteError, RemoteFetcher};
+use crate::fetch::{FetchOptions, RemoteError, RemoteFetcher};
 
 /// A repository behind `cbdam serve` or any static server that honours range requests.
 #[derive(Debug)]

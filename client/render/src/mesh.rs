@@ -133,7 +133,7 @@ fn half_indices(n: usize, kind: MeshKind, out: &mut Vec<u32>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cbdam_codec::geometry::{Cut, DiamondId, Layout, Triangle};
+    use cbdam_codec::geometry::{Cut, DiamondId, Domain, Layout, Triangle};
     use std::collections::BTreeSet;
 
     fn world_area2(p: [(i64, i64); 3]) -> i64 {
@@ -147,7 +147,8 @@ mod tests {
     /// every triangle is counter-clockwise in the world frame seen from above.
     #[test]
     fn shared_lists_match_the_codec_triangulation() {
-        let layout = Layout::new(5, 2, 2, 1).unwrap();
+        let domain = Domain::full_plane(Layout::new(5, 2, 2, 1).unwrap());
+        let layout = *domain.layout();
         let mesh = SharedMesh::new(layout.n());
         let n = layout.n() as u32;
         let mut ids = Vec::new();
@@ -162,7 +163,7 @@ mod tests {
         let mut state = 99u64;
         for round in 0..12 {
             let mut ours: Vec<[(i64, i64); 3]> = Vec::new();
-            for (id, half) in cut.drawn_halves(&layout) {
+            for (id, half) in cut.drawn_halves(&domain) {
                 let g = layout.grid(id);
                 let kind = MeshKind {
                     diagonal: layout.diagonal(id),
@@ -177,7 +178,7 @@ mod tests {
                     ours.push(p);
                 }
             }
-            let codec: Vec<Triangle> = cut.triangles(&layout);
+            let codec: Vec<Triangle> = cut.triangles(&domain);
             let norm = |t: &[(i64, i64); 3]| t.iter().copied().collect::<BTreeSet<_>>();
             let a: BTreeSet<_> = ours.iter().map(norm).collect();
             let b: BTreeSet<_> = codec.iter().map(norm).collect();
@@ -192,11 +193,11 @@ mod tests {
                 state = state
                     .wrapping_mul(6364136223846793005)
                     .wrapping_add(1442695040888963407);
-                cut.refine(&layout, ids[(state >> 33) as usize % ids.len()]);
+                cut.refine(&domain, ids[(state >> 33) as usize % ids.len()]);
             }
             if round == 10 {
                 for &d in &ids {
-                    cut.refine(&layout, d);
+                    cut.refine(&domain, d);
                 }
             }
         }

@@ -7,17 +7,15 @@
 //! triangle edges (wireframe lines); a wrong normal, colour ramp, light direction, camera or
 //! patch placement changes far more than 1 % of the pixels or far more than 6 levels.
 //!
-//! Regenerate with `CBDAM_UPDATE_GOLDEN=1 cargo test -p cbdam-client --test render_golden`, and
+//! Regenerate with `CBDAM_UPDATE_GOLDEN=1 cargo test -p cbdam-render --test tests golden::`, and
 //! look at the new PNGs before committing them.
-
-mod common;
 
 use std::path::PathBuf;
 
+use crate::util::*;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{Frame, RenderOptions};
 use cbdam_client::world::World;
-use common::*;
+use cbdam_render::{Frame, RenderOptions};
 
 const TOLERANCE: u8 = 6;
 const MIN_MATCHING: f64 = 0.99;

@@ -8,14 +8,12 @@
 //! rectangle, between those heights, and seen from above), unless the surface has a hole. Back
 //! faces are culled, so a ray through a hole reaches the background instead of the underside.
 
-mod common;
-
+use crate::util::*;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{Frame, RenderOptions};
 use cbdam_client::patch::decode_cut;
 use cbdam_client::world::World;
 use cbdam_codec::geometry::Cut;
-use common::*;
+use cbdam_render::{Frame, RenderOptions};
 use glam::DVec3;
 
 const MAGENTA: [u8; 4] = [255, 0, 255, 255];
@@ -26,8 +24,8 @@ const MAGENTA: [u8; 4] = [255, 0, 255, 255];
 fn footprint(world: &World, cam: &Camera, lo: f64, hi: f64) -> Vec<bool> {
     let margin = 0.5;
     let (xmax, ymax) = (
-        f64::from(world.data_width - 1) - margin,
-        f64::from(world.data_height - 1) - margin,
+        f64::from(world.domain.data().width - 1) - margin,
+        f64::from(world.domain.data().height - 1) - margin,
     );
     let inside = |p: DVec3| {
         let (x, y) = (p.x / world.step_x, -p.y / world.step_y);
@@ -116,7 +114,8 @@ fn cuts(repo: &cbdam_codec::repository::Repository) -> Vec<(String, Cut)> {
 fn mixed_level_cuts_have_no_cracks() {
     let repo = jacksboro();
     let world = World::of_repository(repo);
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
+    let layout = *domain.layout();
     let mut renderer = renderer(repo);
     let options = RenderOptions {
         background: [1.0, 0.0, 1.0, 1.0],
@@ -162,8 +161,8 @@ fn a_missing_patch_is_detected() {
     let (_, cam) = views(&world).into_iter().next().unwrap();
     // Drop the patch nearest the data's centre.
     let centre = (
-        f64::from(world.data_width) / 2.0,
-        f64::from(world.data_height) / 2.0,
+        f64::from(world.domain.data().width) / 2.0,
+        f64::from(world.domain.data().height) / 2.0,
     );
     let k = (0..patches.len())
         .min_by_key(|&k| {

@@ -7,7 +7,6 @@ use std::sync::{Arc, OnceLock};
 
 use cbdam_client::access::LocalSource;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{CacheConfig, Gpu, Renderer};
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::world::World;
@@ -16,12 +15,13 @@ use cbdam_codec::hierarchy::{EncodeOptions, encode};
 use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
+use cbdam_render::{CacheConfig, Gpu, Renderer};
 use glam::{DVec3, DVec4};
 
 /// The bundled DEM `name` (in the workspace's `data/`).
 pub fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
+        .join("../..")
         .join("data")
         .join(name)
 }
@@ -136,7 +136,8 @@ pub fn height_range(world: &World, patches: &[HalfPatch]) -> (f64, f64) {
 /// diamonds are mostly fine, and refining one forces its whole ancestry): the cut then mixes
 /// as many levels side by side as the DAG allows.
 pub fn random_cut(repo: &Repository, count: usize, seed: u64) -> Cut {
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
+    let layout = *domain.layout();
     let mut by_level: Vec<Vec<_>> = vec![Vec::new(); usize::from(layout.finest_level())];
     for e in repo.entries() {
         if let Some(l) = by_level.get_mut(usize::from(e.id.level)) {
@@ -154,7 +155,7 @@ pub fn random_cut(repo: &Repository, count: usize, seed: u64) -> Cut {
     };
     for _ in 0..count {
         let level = &by_level[next() % by_level.len()];
-        cut.refine(&layout, level[next() % level.len()]);
+        cut.refine(&domain, level[next() % level.len()]);
     }
     cut
 }
@@ -172,10 +173,10 @@ pub fn save(name: &str, png: &[u8]) -> PathBuf {
 /// The full-resolution cut: every stored diamond refined, so the finest level is drawn wherever
 /// there is data. The reference that adaptive cuts are compared with.
 pub fn full_resolution_cut(repo: &Repository) -> Cut {
-    let layout = repo.params().layout;
+    let domain = repo.params().domain;
     let mut cut = Cut::new();
     for e in repo.entries() {
-        cut.refine(&layout, e.id);
+        cut.refine(&domain, e.id);
     }
     cut
 }

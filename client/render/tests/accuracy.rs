@@ -20,16 +20,14 @@
 //!   at the lattice points around, except where a coarse edge crosses a fine cell (the coarse
 //!   surface has a crease there, the fine one not); 0.05 px covers that.
 
-mod common;
-
+use crate::util::*;
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::RenderOptions;
 use cbdam_client::patch::decode_cut;
 use cbdam_client::world::World;
 use cbdam_codec::geometry::{Cut, Diagonal, DiamondId, Layout};
 use cbdam_codec::hierarchy::reconstruct_finest;
 use cbdam_codec::repository::Repository;
-use common::*;
+use cbdam_render::RenderOptions;
 
 /// The decoded finest level as a surface.
 struct Finest {
@@ -43,9 +41,9 @@ impl Finest {
     fn new(repo: &Repository) -> Self {
         let p = repo.params();
         Self {
-            layout: p.layout,
-            w: p.data_width as usize,
-            h: p.data_height as usize,
+            layout: *p.layout(),
+            w: p.domain.data().width as usize,
+            h: p.domain.data().height as usize,
             heights: reconstruct_finest(&repo.to_encoded().unwrap()).unwrap(),
         }
     }

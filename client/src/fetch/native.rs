@@ -1,141 +1,26 @@
-//! Fetching records over HTTP: from `cbdam serve` (batched `POST …/diamonds`) or from any static
-//! server holding the repository file (HTTP range requests).
-//!
-//! The frame loop never waits on the network. Each frame it hands the fetcher the set of records
-//! it wants with their priorities ([`RemoteFetcher::want`]) and collects whatever arrived
-//! ([`RemoteFetcher::poll`]). A background tokio runtime sends the most urgent wanted records
-//! first, a batch per request, with a bounded number of requests in flight; records no longer
-//! wanted are dropped from the queue and requests whose records are all unwanted are aborted;
-//! failures (refused connections, time-outs, HTTP errors, records failing their checksum) are
-//! retried with exponential backoff, so a server that goes away and comes back is survived.
-//! Every record is checked against the repository head's checksum before it is handed over.
+//! The desktop transport of the [`fetch`](super)er: a background tokio runtime sending requests
+//! with reqwest. What to fetch next, the backoff and the batch framing are the portable parent
+//! module's; this module only moves bytes.
 
-use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::repository::{HEADER_FETCH_LEN, RepositoryHead, header_len, required_head_len};
 use tokio::sync::Notify;
 use tokio::task::AbortHandle;
+use web_time::Instant;
 
-/// Tuning of the fetcher; every limit is explicit.
-#[derive(Clone, Debug)]
-pub struct FetchOptions {
-    /// Most records asked for in one request.
-    pub max_batch: usize,
-    /// Most requests in flight at once.
-    pub max_in_flight: usize,
-    /// Time-out of one request.
-    pub timeout: Duration,
-    /// First retry delay; doubled per failure of the same record, up to `max_backoff`.
-    pub initial_backoff: Duration,
-    /// Longest retry delay.
-    pub max_backoff: Duration,
-    /// Range requests to a static server merge records separated by at most this many bytes.
-    /// 0 (the default) merges only records that touch: a gap's bytes may belong to records
-    /// another request is fetching, and measured on loopback that doubled the bytes fetched.
-    pub max_range_gap: u64,
-}
-
-impl Default for FetchOptions {
-    fn default() -> Self {
-        Self {
-            max_batch: 64,
-            max_in_flight: 8,
-            timeout: Duration::from_secs(5),
-            initial_backoff: Duration::from_millis(50),
-            max_backoff: Duration::from_secs(2),
-            max_range_gap: 0,
-        }
-    }
-}
-
-/// Counters of the fetcher's work, cumulative.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct FetchStats {
-    /// HTTP requests sent (head requests included).
-    pub requests: u64,
-    /// Requests in flight now.
-    pub in_flight: u64,
-    /// Response body bytes received.
-    pub bytes: u64,
-    /// Records handed over, checked.
-    pub records: u64,
-    /// Failed requests and rejected records (each retried later).
-    pub errors: u64,
-    /// Requests aborted because none of their records was wanted any more.
-    pub cancelled: u64,
-}
-
-/// Where the records come from.
-#[derive(Clone, Debug, PartialEq, Eq)]
-enum Endpoint {
-    /// `cbdam serve`: `base` is `…/v1/repos/{name}`.
-    Server { base: String },
-    /// Any server of the repository file that honours `Range`.
-    File { url: String },
-}
-
-impl Endpoint {
-    fn file_url(&self) -> String {
-        match self {
-            Endpoint::Server { base } => format!("{base}/file"),
-            Endpoint::File { url } => url.clone(),
-        }
-    }
-}
-
-/// Why connecting failed.
-#[derive(Debug, thiserror::Error)]
-pub enum RemoteError {
-    /// The network or the server failed.
-    #[error("{url}: {message}")]
-    Http {
-        /// What was being fetched.
-        url: String,
-        /// What went wrong.
-        message: String,
-    },
-    /// The repository bytes are invalid.
-    #[error("{url}: {source}")]
-    Repository {
-        /// Where they came from.
-        url: String,
-        /// The codec's complaint.
-        source: CodecError,
-    },
-    /// The URL does not name one repository.
-    #[error("{0}")]
-    Url(String),
-}
-
-/// A record that arrived, or a record that could not be had.
-pub type Fetched = (DiamondId, Result<Arc<[u8]>, CodecError>);
-
-struct Pending {
-    priority: f32,
-}
-
-#[derive(Default)]
-struct State {
-    wanted: HashMap<DiamondId, Pending>,
-    in_flight: HashSet<DiamondId>,
-    /// Per record: failures so far and the time before which it is not retried.
-    backoff: HashMap<DiamondId, (u32, Instant)>,
-    batches: Vec<(u64, Vec<DiamondId>, AbortHandle)>,
-    /// Records sent to the frame loop but not yet polled: a `want` racing with their delivery
-    /// must not fetch them again.
-    delivered: HashSet<DiamondId>,
-    next_batch: u64,
-    shutdown: bool,
-}
+use super::{
+    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, classify, http_error,
+    list_url, next_batch, parse_frames, record_range, single_repository,
+};
 
 struct Shared {
-    state: Mutex<State>,
+    state: Mutex<State<AbortHandle>>,
     wake: Notify,
     stats: Counters,
     head: Arc<RepositoryHead>,
@@ -299,32 +184,12 @@ impl Drop for RemoteFetcher {
     }
 }
 
-fn http_error(url: &str, e: impl std::fmt::Display) -> RemoteError {
-    RemoteError::Http {
-        url: url.to_owned(),
-        message: e.to_string(),
-    }
-}
-
-/// Works out what kind of URL this is.
+/// Works out what kind of URL this is, asking a bare server address for its repositories.
 async fn resolve(client: &reqwest::Client, url: &str) -> Result<Endpoint, RemoteError> {
-    let trimmed = url.trim_end_matches('/');
-    if !(trimmed.starts_with("http://") || trimmed.starts_with("https://")) {
-        return Err(RemoteError::Url(format!("{url} is not an http:// URL")));
+    if let Some(endpoint) = classify(url)? {
+        return Ok(endpoint);
     }
-    if trimmed.contains("/v1/repos/") {
-        return Ok(Endpoint::Server {
-            base: trimmed.to_owned(),
-        });
-    }
-    let after_scheme = trimmed.split_once("://").map_or("", |(_, rest)| rest);
-    if after_scheme.contains('/') {
-        return Ok(Endpoint::File {
-            url: trimmed.to_owned(),
-        });
-    }
-    // A bare server address: use its repository if it serves exactly one.
-    let list = format!("{trimmed}/v1/repos");
+    let list = list_url(url);
     let body = client
         .get(&list)
         .send()
@@ -334,27 +199,7 @@ async fn resolve(client: &reqwest::Client, url: &str) -> Result<Endpoint, Remote
         .bytes()
         .await
         .map_err(|e| http_error(&list, e))?;
-    let json: serde_json::Value =
-        serde_json::from_slice(&body).map_err(|e| http_error(&list, format!("not JSON: {e}")))?;
-    let names: Vec<String> = json["repos"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|r| r["name"].as_str().map(str::to_owned))
-                .collect()
-        })
-        .unwrap_or_default();
-    match names.as_slice() {
-        [one] => Ok(Endpoint::Server {
-            base: format!("{trimmed}/v1/repos/{one}"),
-        }),
-        [] => Err(RemoteError::Url(format!("{url} serves no repository"))),
-        many => Err(RemoteError::Url(format!(
-            "{url} serves {} repositories ({}); name one: {trimmed}/v1/repos/NAME",
-            many.len(),
-            many.join(", ")
-        ))),
-    }
+    single_repository(url, &body)
 }
 
 /// GETs `range` of `url`; returns the body and the total file length from `Content-Range`. A
@@ -453,57 +298,10 @@ async fn schedule(shared: Arc<Shared>) {
 }
 
 /// Starts requests while slots are free; returns the earliest backoff expiry among wanted records.
-fn start_batches(shared: &Arc<Shared>, s: &mut State) -> Option<Instant> {
-    let now = Instant::now();
-    let mut next_retry: Option<Instant> = None;
-    let mut ready: Vec<(DiamondId, f32)> = Vec::new();
-    for (&id, p) in &s.wanted {
-        if s.in_flight.contains(&id) {
-            continue;
-        }
-        if let Some(&(_, until)) = s.backoff.get(&id)
-            && until > now
-        {
-            next_retry = Some(next_retry.map_or(until, |t| t.min(until)));
-            continue;
-        }
-        ready.push((id, p.priority));
-    }
-    ready.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
-    let mut ready: VecDeque<DiamondId> = ready.into_iter().map(|(id, _)| id).collect();
+fn start_batches(shared: &Arc<Shared>, s: &mut State<AbortHandle>) -> Option<Instant> {
+    let (mut ready, next_retry) = s.ready(Instant::now());
     while s.batches.len() < shared.options.max_in_flight && !ready.is_empty() {
-        let ids: Vec<DiamondId> = match &shared.endpoint {
-            Endpoint::Server { .. } => {
-                let n = ready.len().min(shared.options.max_batch);
-                ready.drain(..n).collect()
-            }
-            // One range request covers records close together in the file: take the most urgent
-            // record and those of the next few that lie near it; the rest stay queued in order.
-            Endpoint::File { .. } => {
-                let first = ready.pop_front().expect("not empty");
-                let r0 = record_range(&shared.head, first);
-                let (mut lo, mut hi) = (r0.start, r0.end);
-                let gap = shared.options.max_range_gap;
-                let mut ids = vec![first];
-                let mut kept = VecDeque::with_capacity(ready.len());
-                for (scanned, id) in ready.drain(..).enumerate() {
-                    let r = record_range(&shared.head, id);
-                    if scanned < 4 * shared.options.max_batch
-                        && ids.len() < shared.options.max_batch
-                        && r.start <= hi + gap
-                        && r.end + gap >= lo
-                    {
-                        lo = lo.min(r.start);
-                        hi = hi.max(r.end);
-                        ids.push(id);
-                    } else {
-                        kept.push_back(id);
-                    }
-                }
-                ready = kept;
-                ids
-            }
-        };
+        let ids = next_batch(&mut ready, &shared.endpoint, &shared.head, &shared.options);
         for id in &ids {
             s.in_flight.insert(*id);
         }
@@ -515,11 +313,6 @@ fn start_batches(shared: &Arc<Shared>, s: &mut State) -> Option<Instant> {
         shared.stats.requests.fetch_add(1, Ordering::Relaxed);
     }
     next_retry
-}
-
-fn record_range(head: &RepositoryHead, id: DiamondId) -> std::ops::Range<u64> {
-    let i = head.position(id).expect("only stored records are wanted");
-    head.record_range(i).expect("position is in range")
 }
 
 /// Fetches one batch and hands over its records; failures go to backoff.
@@ -561,16 +354,7 @@ async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>) {
     if !failed.is_empty() {
         shared.stats.errors.fetch_add(1, Ordering::Relaxed);
     }
-    let now = Instant::now();
-    for id in failed {
-        let attempts = s.backoff.get(&id).map_or(0, |b| b.0) + 1;
-        let delay = shared
-            .options
-            .initial_backoff
-            .saturating_mul(1 << attempts.min(16))
-            .min(shared.options.max_backoff);
-        s.backoff.insert(id, (attempts, now + delay));
-    }
+    s.back_off(failed, Instant::now(), &shared.options);
     let tx = shared.results.lock().expect("results").clone();
     for (id, r) in delivered {
         s.wanted.remove(&id);
@@ -608,47 +392,6 @@ async fn fetch_from_server(
         .bytes
         .fetch_add(bytes.len() as u64, Ordering::Relaxed);
     parse_frames(&bytes, ids)
-}
-
-/// Splits a batch response body into records, checking its framing.
-pub fn parse_frames(body: &[u8], ids: &[DiamondId]) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
-    let take = |pos: &mut usize, n: usize| -> Result<&[u8], String> {
-        let s = body
-            .get(*pos..*pos + n)
-            .ok_or_else(|| format!("batch response ends at byte {}", body.len()))?;
-        *pos += n;
-        Ok(s)
-    };
-    let mut pos = 0;
-    if take(&mut pos, 4)? != b"CBDR" {
-        return Err("batch response does not start with CBDR".into());
-    }
-    let count = u32::from_le_bytes(take(&mut pos, 4)?.try_into().expect("4 bytes")) as usize;
-    if count != ids.len() {
-        return Err(format!(
-            "asked for {} records, response holds {count}",
-            ids.len()
-        ));
-    }
-    let mut out = Vec::with_capacity(count);
-    for &id in ids {
-        let status = take(&mut pos, 1)?[0];
-        let len = u32::from_le_bytes(take(&mut pos, 4)?.try_into().expect("4 bytes")) as usize;
-        let bytes = take(&mut pos, len)?;
-        match status {
-            0 => out.push((id, bytes.to_vec())),
-            1 => {
-                return Err(format!(
-                    "server says {id} is not stored, the head says it is"
-                ));
-            }
-            s => return Err(format!("unknown record status {s}")),
-        }
-    }
-    if pos != body.len() {
-        return Err(format!("{} bytes after the last record", body.len() - pos));
-    }
-    Ok(out)
 }
 
 /// One range request covering `ids`' records (they were chosen close together).
@@ -697,37 +440,4 @@ async fn fetch_ranges(
             )
         })
         .collect())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn id(l: u8, x: u32, y: u32) -> DiamondId {
-        DiamondId { level: l, x, y }
-    }
-
-    #[test]
-    fn frames_parse_and_bad_frames_are_errors() {
-        let ids = [id(1, 2, 3), id(2, 4, 5)];
-        let mut body = b"CBDR".to_vec();
-        body.extend(2u32.to_le_bytes());
-        body.push(0);
-        body.extend(3u32.to_le_bytes());
-        body.extend([7, 8, 9]);
-        body.push(0);
-        body.extend(0u32.to_le_bytes());
-        let r = parse_frames(&body, &ids).unwrap();
-        assert_eq!(r, vec![(ids[0], vec![7, 8, 9]), (ids[1], vec![])]);
-        for cut in 0..body.len() {
-            assert!(parse_frames(&body[..cut], &ids).is_err(), "cut at {cut}");
-        }
-        let mut longer = body.clone();
-        longer.push(0);
-        assert!(parse_frames(&longer, &ids).is_err());
-        assert!(parse_frames(&body, &ids[..1]).is_err());
-        let mut missing = body.clone();
-        missing[8] = 1;
-        assert!(parse_frames(&missing, &ids).is_err());
-    }
 }

@@ -3,26 +3,24 @@
 //! lights those colours instead of the height ramp, the refinement (and so what is fetched) is
 //! the elevation's alone, and a remote pair served by `cbdam serve` gives the very same patches.
 
-mod common;
-
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use crate::util::*;
 use cbdam_client::access::{
     ColouredSource, DataSource, FlakyConfig, FlakySource, LocalSource, RemoteSource,
 };
 use cbdam_client::camera::Camera;
-use cbdam_client::draw::{CacheConfig, Frame, RenderOptions, Renderer};
+use cbdam_client::fetch::FetchOptions;
 use cbdam_client::patch::{HalfPatch, unpack_rgb};
 use cbdam_client::refine::{RefineConfig, Refiner};
-use cbdam_client::remote::FetchOptions;
 use cbdam_client::world::World;
 use cbdam_codec::colour::{RgbImage, encode_colour, ycocg};
 use cbdam_codec::geometry::Layout;
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
-use common::*;
+use cbdam_render::{CacheConfig, Frame, RenderOptions, Renderer};
 use glam::DVec3;
 
 const N: usize = 17;
@@ -70,7 +68,7 @@ fn colour(
         georef: None,
     };
     let base = Layout::covering(N, w, h, 0).unwrap();
-    let k = like.params().layout.k() as i32 + shift;
+    let k = like.params().layout().k() as i32 + shift;
     let opts = EncodeOptions {
         n: N,
         extra_level_pairs: (k - base.k() as i32) as u32,

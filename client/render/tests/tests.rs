@@ -1,0 +1,16 @@
+//! The renderer's integration tests, one binary (as ripgrep's `tests/tests.rs`), drawing for
+//! real (lavapipe where there is no GPU); [`util`] holds what they share.
+
+/// Adaptive cuts drawn within the pixel-error bound.
+mod accuracy;
+/// The GPU patch cache: a small pool or upload budget never draws a wrong patch.
+mod cache;
+/// Draped colour: patches and pixels follow the colour image.
+mod colour;
+/// Mixed-level cuts have no cracks.
+mod cracks;
+/// Images against the golden files in `tests/golden/`.
+mod golden;
+/// Nodata is not drawn; data is.
+mod nodata;
+mod util;

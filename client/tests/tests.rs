@@ -1,0 +1,8 @@
+//! The client core's integration tests, one binary (as ripgrep's `tests/tests.rs`): each module
+//! is one area.
+
+/// The refinement loop over an HTTP source: `cbdam serve` and a static range server on loopback.
+mod http;
+/// The refinement loop's cut, convergence, failures and memory budget over local and flaky
+/// sources.
+mod streaming;
