@@ -13,11 +13,10 @@ use anyhow::{Result, bail};
 use cbdam_codec::hierarchy::EncodeOptions;
 use cbdam_codec::repository::write_repository;
 
+use cbdam_build::encode::{encode_prepared, with_coarser_roots_if_smaller};
+use cbdam_build::plan::{InputSpec, default_memory_limit, prepare, storage_for};
+
 use crate::BenchBuildArgs;
-use crate::build::{
-    InputSpec, default_memory_limit, encode_prepared, parse_size, prepare, storage_for,
-    with_coarser_roots_if_smaller,
-};
 
 /// Resets the resident high-water mark (Linux ≥ 4.0); false where that is not possible.
 fn reset_peak() -> bool {
@@ -39,10 +38,7 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
     if !(args.max_error.is_finite() && args.max_error > 0.0) {
         bail!("--max-error must be a positive number of metres");
     }
-    let limit = match &args.memory_limit {
-        Some(text) => parse_size(text)?,
-        None => default_memory_limit(),
-    };
+    let limit = args.memory_limit.map_or_else(default_memory_limit, |b| b.0);
     let tmp = tempfile::tempdir()?;
     let mut inputs: Vec<(PathBuf, Option<(usize, usize)>)> = if args.inputs.is_empty() {
         crate::bench_codec::bundled_inputs(&["tif"])?

@@ -23,7 +23,7 @@ use cbdam_server::{AppState, Config, RepoSpec};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
-use crate::{AlphaArg, BenchServeArgs, BuildArgs, CoderArg};
+use crate::BenchServeArgs;
 
 const NAME: &str = "bench";
 
@@ -108,24 +108,10 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
     let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/srtm3_demcompare.tif");
     let output = dir.join("srtm3_demcompare.cbdam");
     eprintln!("building {} at ε = 1 m …", output.display());
-    crate::build::run(&BuildArgs {
-        inputs: vec![input],
-        output: output.clone(),
-        max_error: 1.0,
-        diamond_size: 65,
-        extra_levels: crate::build::ExtraLevels::Auto,
-        threads: None,
-        coder: CoderArg::AdaptiveTokens,
-        alpha: AlphaArg::One,
-        quantum: None,
-        nodata: None,
-        quiet: true,
-        timings: false,
-        size: None,
-        memory_limit: None,
-        colour: false,
-        like: None,
-    })?;
+    cbdam_build::build(
+        &cbdam_build::BuildOptions::new(vec![input], output.clone(), 1.0),
+        &cbdam_build::NoProgress,
+    )?;
     Ok(output)
 }
 

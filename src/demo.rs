@@ -30,7 +30,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             output: repo.clone(),
             max_error: 1.0,
             diamond_size: 65,
-            extra_levels: crate::build::ExtraLevels::Auto,
+            extra_levels: cbdam_build::ExtraLevels::Auto,
             threads: None,
             coder: CoderArg::AdaptiveTokens,
             alpha: AlphaArg::One,

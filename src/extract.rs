@@ -1,31 +1,19 @@
-//! `cbdam extract`: decode a repository (or a window / coarser level of it) back to a DEM file.
+//! `cbdam extract`: decode a repository (or a window / coarser level of it) back to a DEM file,
+//! written by [`cbdam_build::write`].
 
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use cbdam_build::write::{Raster, write_geotiff, write_raw};
 use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::hierarchy::walk_all_with_validity;
 use cbdam_codec::input::GeoRef;
-use cbdam_codec::input::geokeys::{
-    KEY_GEOGRAPHIC_TYPE, KEY_MODEL_TYPE, KEY_PROJECTED_CS_TYPE, KEY_RASTER_TYPE, MODEL_GEOGRAPHIC,
-    MODEL_PROJECTED, RASTER_PIXEL_IS_AREA, RASTER_PIXEL_IS_POINT,
-};
 use cbdam_codec::repository::Repository;
 use serde_json::json;
-use tiff::encoder::{TiffEncoder, colortype};
-use tiff::tags::Tag;
 
 use crate::{ExtractArgs, ExtractFormat};
-
-/// The output raster: heights in metres, row-major, row 0 = north.
-struct Raster {
-    width: usize,
-    height: usize,
-    values: Vec<f64>,
-    georef: Option<GeoRef>,
-}
 
 pub fn run(args: &ExtractArgs) -> Result<()> {
     // Argument checks before the decode, which is the expensive part.
@@ -262,87 +250,4 @@ fn bbox_window(b: &[f64], georef: Option<&GeoRef>, w: i64, h: i64) -> Result<(i6
         );
     }
     Ok((c0 as i64, r0 as i64, c1 as i64, r1 as i64))
-}
-
-fn write_geotiff(f: &mut File, r: &Raster, nodata: Option<f64>, float64: bool) -> Result<()> {
-    let mut enc = TiffEncoder::new(BufWriter::new(f))?;
-    let (w, h) = (u32::try_from(r.width)?, u32::try_from(r.height)?);
-    // Tags first, then the samples: the same for both sample types.
-    macro_rules! image {
-        ($ct:ty, $data:expr) => {{
-            let mut img = enc.new_image::<$ct>(w, h)?;
-            write_geo_tags(img.encoder(), r.georef.as_ref(), nodata)?;
-            img.write_data($data)?;
-        }};
-    }
-    if float64 {
-        image!(colortype::Gray64Float, &r.values);
-    } else {
-        let v: Vec<f32> = r.values.iter().map(|&x| x as f32).collect();
-        image!(colortype::Gray32Float, &v);
-    }
-    Ok(())
-}
-
-/// The GeoTIFF tags `codec/src/input/geotiff.rs` reads back: pixel scale, one tie point at
-/// raster (0, 0), model and raster type, the EPSG code, and GDAL's nodata text.
-fn write_geo_tags<W: Write + std::io::Seek, K: tiff::encoder::TiffKind>(
-    dir: &mut tiff::encoder::DirectoryEncoder<'_, W, K>,
-    georef: Option<&GeoRef>,
-    nodata: Option<f64>,
-) -> Result<()> {
-    if let Some(g) = georef {
-        dir.write_tag(Tag::ModelPixelScaleTag, &[g.pixel_x, g.pixel_y, 0.0][..])?;
-        dir.write_tag(
-            Tag::ModelTiepointTag,
-            &[0.0, 0.0, 0.0, g.origin_x, g.origin_y, 0.0][..],
-        )?;
-        let raster = if g.pixel_is_area {
-            RASTER_PIXEL_IS_AREA
-        } else {
-            RASTER_PIXEL_IS_POINT
-        };
-        let mut keys: Vec<[u16; 2]> = Vec::new();
-        // EPSG codes above 65535 do not fit a GeoKey short; the CRS is then left unnamed, as it
-        // is for repositories built without one.
-        match g.epsg.and_then(|e| u16::try_from(e).ok()) {
-            // 4000…4999 holds the geographic 2-D CRSs (4326 and kin).
-            Some(e) if (4000..5000).contains(&e) => {
-                keys.push([KEY_MODEL_TYPE, MODEL_GEOGRAPHIC]);
-                keys.push([KEY_RASTER_TYPE, raster]);
-                keys.push([KEY_GEOGRAPHIC_TYPE, e]);
-            }
-            Some(e) => {
-                keys.push([KEY_MODEL_TYPE, MODEL_PROJECTED]);
-                keys.push([KEY_RASTER_TYPE, raster]);
-                keys.push([KEY_PROJECTED_CS_TYPE, e]);
-            }
-            None => keys.push([KEY_RASTER_TYPE, raster]),
-        }
-        // Header: directory version 1, revision 1.0, key count; then key, location 0 (value
-        // inline), count 1, value — keys sorted ascending, as the specification requires.
-        let mut dirv: Vec<u16> = vec![1, 1, 0, keys.len() as u16];
-        for [k, v] in keys {
-            dirv.extend_from_slice(&[k, 0, 1, v]);
-        }
-        dir.write_tag(Tag::GeoKeyDirectoryTag, &dirv[..])?;
-    }
-    if let Some(nd) = nodata {
-        // Rust's shortest round-trip formatting: the reader parses back the same f64.
-        dir.write_tag(Tag::GdalNodata, format!("{nd}").as_str())?;
-    }
-    Ok(())
-}
-
-fn write_raw(f: &mut File, r: &Raster, float64: bool) -> Result<()> {
-    let mut out = BufWriter::new(f);
-    for &v in &r.values {
-        if float64 {
-            out.write_all(&v.to_le_bytes())?;
-        } else {
-            out.write_all(&(v as f32).to_le_bytes())?;
-        }
-    }
-    out.flush()?;
-    Ok(())
 }

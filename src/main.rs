@@ -8,11 +8,10 @@ mod bench_codec;
 mod bench_report;
 mod bench_serve;
 mod build;
-mod colour_build;
 mod demo;
 mod extract;
+mod flags;
 mod inspect;
-mod mosaic;
 mod render;
 mod replay;
 mod serve;
@@ -232,8 +231,8 @@ pub struct BenchBuildArgs {
     #[arg(long)]
     threads: Option<usize>,
     /// Memory limit as for `cbdam build --memory-limit`.
-    #[arg(long)]
-    memory_limit: Option<String>,
+    #[arg(long, value_name = "SIZE")]
+    memory_limit: Option<flags::ByteSize>,
 }
 
 /// Render one frame of a repository (documented on [`Command::Render`]).
@@ -244,7 +243,7 @@ pub struct RenderArgs {
     /// honours range requests.
     repo: PathBuf,
     /// Image size WIDTHxHEIGHT.
-    #[arg(long, value_parser = render::parse_size, default_value = "1920x1080")]
+    #[arg(long, value_parser = flags::Size2::pixels, default_value = "1920x1080")]
     size: (u32, u32),
     /// Output PNG (written atomically).
     #[arg(short, long, required_unless_present = "path", conflicts_with = "path")]
@@ -297,7 +296,7 @@ pub struct ViewArgs {
     /// Repository file, or its URL (as for `cbdam render`).
     repo: PathBuf,
     /// Initial window size WIDTHxHEIGHT, pixels.
-    #[arg(long, value_parser = render::parse_size, default_value = "1280x720")]
+    #[arg(long, value_parser = flags::Size2::pixels, default_value = "1280x720")]
     size: (u32, u32),
     /// Screen-space error target, pixels (+/- halve and double it).
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
@@ -339,7 +338,7 @@ pub struct BenchRenderArgs {
     #[arg(required = true)]
     repos: Vec<PathBuf>,
     /// Image size WIDTHxHEIGHT.
-    #[arg(long, value_parser = render::parse_size, default_value = "1920x1080")]
+    #[arg(long, value_parser = flags::Size2::pixels, default_value = "1920x1080")]
     size: (u32, u32),
     /// Screen-space error target, pixels.
     #[arg(long, default_value_t = 1.0)]
@@ -376,7 +375,7 @@ pub struct DemoArgs {
     #[arg(long, default_value = "descent.json")]
     flight: String,
     /// Size of the rendered frames.
-    #[arg(long, value_parser = render::parse_size, default_value = "640x360")]
+    #[arg(long, value_parser = flags::Size2::pixels, default_value = "640x360")]
     size: (u32, u32),
     /// Render at most this many frames of the flight (all by default).
     #[arg(long)]
@@ -522,13 +521,13 @@ pub struct BuildArgs {
     inputs: Vec<PathBuf>,
     /// The input is headerless little-endian float32, WIDTHxHEIGHT samples, row 0 north
     /// (streamed: never held in memory as floats).
-    #[arg(long, value_name = "WIDTHxHEIGHT")]
-    size: Option<String>,
+    #[arg(long, value_name = "WIDTHxHEIGHT", value_parser = flags::Size2::samples)]
+    size: Option<(usize, usize)>,
     /// Memory budget, e.g. 2G or 512M (K, M, G, T are powers of 1024). Above it, the encoder's
     /// reconstruction field is a memory-mapped temporary file instead of anonymous memory.
     /// Default: half of physical memory.
     #[arg(long, value_name = "SIZE")]
-    memory_limit: Option<String>,
+    memory_limit: Option<flags::ByteSize>,
     /// Output repository (written atomically: a temporary file renamed into place).
     #[arg(short, long)]
     output: PathBuf,
@@ -659,7 +658,7 @@ pub struct ReplayArgs {
     #[arg(long)]
     path: PathBuf,
     /// Viewport WIDTHxHEIGHT, pixels.
-    #[arg(long, default_value = "1920x1080", value_parser = replay::parse_size)]
+    #[arg(long, default_value = "1920x1080", value_parser = flags::Size2::pixels)]
     size: (u32, u32),
     /// Target screen-space error, pixels.
     #[arg(long, default_value_t = 1.0)]

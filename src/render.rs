@@ -19,21 +19,6 @@ use glam::DVec3;
 use crate::session::{budget_label, refine_config, terrain_source};
 use crate::{BenchRenderArgs, RenderArgs};
 
-/// Parses `WIDTHxHEIGHT`.
-pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X', '×'])
-        .ok_or_else(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;
-    let parse = |t: &str| {
-        t.trim()
-            .parse::<u32>()
-            .ok()
-            .filter(|&v| (1..=16384).contains(&v))
-            .ok_or_else(|| format!("size {s:?}: {t:?} is not a whole number from 1 to 16384"))
-    };
-    Ok((parse(w)?, parse(h)?))
-}
-
 /// A camera from `eye_x,eye_y,eye_z,target_x,target_y,target_z`, or the overview.
 fn camera(world: &World, spec: Option<&[f64]>, size: (u32, u32)) -> Result<Camera> {
     let Some(v) = spec else {

@@ -19,21 +19,6 @@ pub const HEADER: &str = "frame,t,settling,refine_ms,cpu_ms,decode_ms,decoded,ma
 met_target,converged,diamonds_in_cut,drawn_halves,triangles,refinements,coarsenings,\
 budget_exhausted,bytes_fetched,requests_issued,requests_in_flight,failures,cut_bytes,memory_limited";
 
-/// `WIDTHxHEIGHT`.
-pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("{s:?} is not WIDTHxHEIGHT"))?;
-    let parse = |v: &str| {
-        v.trim()
-            .parse::<u32>()
-            .ok()
-            .filter(|&v| (1..=16384).contains(&v))
-            .ok_or_else(|| format!("{v:?} is not a size between 1 and 16384"))
-    };
-    Ok((parse(w)?, parse(h)?))
-}
-
 pub fn run(args: &ReplayArgs) -> Result<()> {
     if !(args.pixel_error > 0.0 && args.pixel_error.is_finite()) {
         bail!("--pixel-error must be positive, got {}", args.pixel_error);

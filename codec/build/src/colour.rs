@@ -1,17 +1,35 @@
-//! `cbdam build --colour`: an 8-bit RGB image → a colour repository (paper §5), optionally laid
-//! over an elevation repository's domain (`--like`).
+//! Colour builds: an 8-bit RGB image → a colour repository (paper §5), optionally laid over an
+//! elevation repository's domain (`like`).
 
 use std::path::Path;
-use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
 use cbdam_codec::colour::{Alignment, RgbImage, encode_colour};
 use cbdam_codec::geometry::Layout;
-use cbdam_codec::hierarchy::{EncodeOptions, RepoKind};
+use cbdam_codec::hierarchy::RepoKind;
 use cbdam_codec::input::{GeoRef, Limits, read_rgb};
+use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{Repository, write_repository};
 
-use crate::BuildArgs;
+use crate::BuildOptions;
+use crate::error::{Context, Result, bail};
+use crate::progress::{Progress, ProgressEvent, Stage};
+
+/// What a colour build made.
+#[derive(Clone, Debug)]
+pub struct ColourSummary {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Records (stored diamonds) in the repository.
+    pub records: usize,
+    /// The tolerance, whole 8-bit levels.
+    pub max_error: u32,
+    /// The YCoCg integer mapping.
+    pub plan: QuantPlan,
+    /// The bound this gives on each decoded R, G and B component, levels.
+    pub rgb_bound: [u32; 3],
+}
 
 /// `--max-error` for colour: whole 8-bit levels, the bound on every decoded R, G and B.
 pub fn colour_max_error(max_error: f64) -> Result<u32> {
@@ -80,16 +98,18 @@ fn scaled_georef(g: &GeoRef, shift: i32) -> GeoRef {
     }
 }
 
-pub fn run(args: &BuildArgs, mut opts: EncodeOptions) -> Result<()> {
-    let start = Instant::now();
-    let max_error = colour_max_error(args.max_error)?;
-    if args.size.is_some() || args.nodata.is_some() || args.quantum.is_some() {
+/// Builds a colour repository from `opts.inputs` (one image), laid over `opts.like` when given
+/// (whose diamond size and level pairs then replace `opts`'s).
+pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<ColourSummary> {
+    let mut enc_opts = opts.encode_options();
+    let max_error = colour_max_error(opts.max_error)?;
+    if opts.raw_size.is_some() || opts.nodata.is_some() || opts.quantum.is_some() {
         bail!("--size, --nodata and --quantum do not apply to colour images");
     }
-    if args.output.is_dir() {
-        bail!("output path {} is a directory", args.output.display());
+    if opts.output.is_dir() {
+        bail!("output path {} is a directory", opts.output.display());
     }
-    let like = args
+    let like = opts
         .like
         .as_deref()
         .map(|p| {
@@ -100,12 +120,17 @@ pub fn run(args: &BuildArgs, mut opts: EncodeOptions) -> Result<()> {
             Ok((p, r))
         })
         .transpose()?;
-    let [input] = args.inputs.as_slice() else {
+    let [input] = opts.inputs.as_slice() else {
         bail!(
             "a colour repository is built from one image, not {} files",
-            args.inputs.len()
+            opts.inputs.len()
         );
     };
+    progress.event(ProgressEvent {
+        stage: Stage::Prepare,
+        done: 0,
+        total: 1,
+    });
     let mut img = read_rgb(input, &Limits::default())
         .with_context(|| format!("reading {}", input.display()))?;
     if let Some((path, like)) = &like {
@@ -120,21 +145,36 @@ pub fn run(args: &BuildArgs, mut opts: EncodeOptions) -> Result<()> {
                 lp.k()
             );
         }
-        opts.n = lp.n();
-        opts.extra_level_pairs = (k - base.k() as i32) as u32;
+        enc_opts.n = lp.n();
+        enc_opts.extra_level_pairs = (k - base.k() as i32) as u32;
         if img.georef.is_none() {
             img.georef = like.georef().map(|g| scaled_georef(g, shift));
         }
     }
-    let progress = crate::build::Progress::new(args.quiet);
+    progress.event(ProgressEvent {
+        stage: Stage::Prepare,
+        done: 1,
+        total: 1,
+    });
+    // As before this library existed, `threads: Some(0)` means all cores here.
     let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = args.threads {
+    if let Some(t) = opts.threads {
         pool = pool.num_threads(t);
     }
-    let (encoded, plan) = pool
-        .build()?
-        .install(|| encode_colour(&img, max_error, &opts, &|d, t| progress.update(d, t)))?;
-    progress.finish();
+    let (encoded, plan) = pool.build()?.install(|| {
+        encode_colour(&img, max_error, &enc_opts, &|done, total| {
+            progress.event(ProgressEvent {
+                stage: Stage::Encode,
+                done,
+                total,
+            })
+        })
+    })?;
+    progress.event(ProgressEvent {
+        stage: Stage::Write,
+        done: 0,
+        total: 1,
+    });
     if let Some((path, like)) = &like {
         // The same check the client makes when it loads the pair: refuse now, not at view time.
         Alignment::new(
@@ -145,27 +185,21 @@ pub fn run(args: &BuildArgs, mut opts: EncodeOptions) -> Result<()> {
         )
         .with_context(|| format!("laying the colour over {}", path.display()))?;
     }
-    write_repository(&args.output, &encoded, &plan, img.georef.as_ref(), None)
-        .with_context(|| format!("writing {}", args.output.display()))?;
-    if !args.quiet {
-        let bytes = std::fs::metadata(&args.output)?.len();
-        let px = img.width * img.height;
-        let bound = cbdam_codec::colour::ycocg::rgb_bound(plan.quantizer.k() as u32);
-        println!(
-            "{}: colour, {}×{} pixels, {} bytes, {:.3} bits/pixel, {} records, max error \
-             {max_error} levels (YCoCg k = {}: R, G, B within {:?}), {:.2} s",
-            args.output.display(),
-            img.width,
-            img.height,
-            bytes,
-            bytes as f64 * 8.0 / px as f64,
-            encoded.records.len(),
-            plan.quantizer.k(),
-            bound,
-            start.elapsed().as_secs_f64()
-        );
-    }
-    Ok(())
+    write_repository(&opts.output, &encoded, &plan, img.georef.as_ref(), None)
+        .with_context(|| format!("writing {}", opts.output.display()))?;
+    progress.event(ProgressEvent {
+        stage: Stage::Write,
+        done: 1,
+        total: 1,
+    });
+    Ok(ColourSummary {
+        width: img.width,
+        height: img.height,
+        records: encoded.records.len(),
+        max_error,
+        rgb_bound: cbdam_codec::colour::ycocg::rgb_bound(plan.quantizer.k() as u32),
+        plan,
+    })
 }
 
 #[cfg(test)]

@@ -16,7 +16,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use crate::error::{Context, Result, bail};
 use cbdam_codec::CodecError;
 use cbdam_codec::hierarchy::Resolution;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
@@ -32,7 +32,7 @@ const ORIGIN_TOLERANCE: f64 = 1e-6;
 /// Bytes per lattice point that a multi-input build keeps in memory besides its inputs: the
 /// winning input (u8), the encoder's resolution classes (u8) and the quantized grid (i32 + bool).
 /// The encoder's reconstruction field (4 bytes per point of the domain) comes on top, in memory or
-/// in a temporary file ([`crate::build::storage_for`]).
+/// in a temporary file ([`crate::plan::storage_for`]).
 pub const BYTES_PER_POINT: u64 = 1 + 1 + 5;
 
 /// Lattice points composed per block (whole rows, at least one): 1 MiB of `f64`, enough rows

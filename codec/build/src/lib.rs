@@ -1,0 +1,291 @@
+//! The C-BDAM build pipeline as a library: one or several DEMs (or an 8-bit RGB image) → one
+//! repository file, in parallel, within a memory limit.
+//!
+//! [`build`] does what `cbdam build` does after parsing its arguments: read, plan, quantize
+//! ([`plan`]), encode ([`encode`]), write. Everything it needs comes in one [`BuildOptions`];
+//! progress goes to a [`Progress`] callback; failures are [`BuildError`]s that name the file or
+//! option at fault. Besides the build: several inputs as one variable-resolution lattice
+//! ([`mosaic`]), colour repositories ([`colour`]), the comparisons of `cbdam verify`
+//! ([`verify`]) and the GeoTIFF and raw float writers of `cbdam extract` ([`write`]).
+#![deny(missing_docs)]
+
+pub mod colour;
+pub mod encode;
+mod error;
+pub mod mosaic;
+pub mod plan;
+pub mod progress;
+pub mod verify;
+pub mod write;
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use cbdam_codec::entropy::CoderKind;
+use cbdam_codec::hierarchy::EncodeOptions;
+use cbdam_codec::lifting::Alpha;
+use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::repository::write_repository;
+
+pub use colour::ColourSummary;
+pub use encode::ExtraLevels;
+pub use error::{BuildError, Result};
+pub use progress::{NoProgress, Progress, ProgressEvent, Spilled, Stage};
+
+use crate::encode::{encode_prepared, with_coarser_roots_if_smaller};
+use crate::error::{Context, bail};
+use crate::plan::{InputSpec, default_memory_limit, prepare, prepare_mosaic, storage_for};
+
+/// Everything a build needs, given once.
+#[derive(Clone, Debug)]
+pub struct BuildOptions {
+    /// DEM files (GeoTIFF, .hgt, ASCII grid, PNG, or one raw float32 with `raw_size`); several
+    /// georeferenced ones at power-of-two spacings make one variable-resolution dataset. With
+    /// `colour`: one 8-bit RGB/RGBA PNG or RGB GeoTIFF.
+    pub inputs: Vec<PathBuf>,
+    /// The repository to write (atomically: a temporary file renamed into place).
+    pub output: PathBuf,
+    /// Guaranteed maximum error of every reconstructed sample, metres; with `colour`, whole
+    /// 8-bit levels bounding every decoded R, G and B component (0 = lossless).
+    pub max_error: f64,
+    /// `Some((w, h))`: the one input is headerless little-endian float32 of `w × h` samples,
+    /// row 0 north, streamed.
+    pub raw_size: Option<(usize, usize)>,
+    /// Memory budget in bytes; `None`: half of physical memory ([`default_memory_limit`]).
+    pub memory_limit: Option<u64>,
+    /// Build a colour repository from an RGB image ([`colour`]).
+    pub colour: bool,
+    /// With `colour`: lay the colour over this elevation repository's domain.
+    pub like: Option<PathBuf>,
+    /// Diamond grid side N (2^k + 1).
+    pub diamond_size: usize,
+    /// Level pairs above the smallest hierarchy that covers the data.
+    pub extra_levels: ExtraLevels,
+    /// Lifting weight α.
+    pub alpha: Alpha,
+    /// Entropy coder.
+    pub coder: CoderKind,
+    /// Worker threads for encoding (`None`: all cores).
+    pub threads: Option<usize>,
+    /// The data's value quantum in metres (`None`: detected from the samples).
+    pub quantum: Option<f64>,
+    /// Nodata value, overriding the file's own.
+    pub nodata: Option<f64>,
+}
+
+impl BuildOptions {
+    /// Options with the CLI's defaults: N = 65, `--extra-levels auto`, α = 1, the adaptive token
+    /// coder, all cores, the quantum and nodata value from the input, an elevation repository.
+    pub fn new(inputs: Vec<PathBuf>, output: PathBuf, max_error: f64) -> Self {
+        let d = EncodeOptions::default();
+        BuildOptions {
+            inputs,
+            output,
+            max_error,
+            raw_size: None,
+            memory_limit: None,
+            colour: false,
+            like: None,
+            diamond_size: d.n,
+            extra_levels: ExtraLevels::Auto,
+            alpha: d.alpha,
+            coder: d.coder,
+            threads: None,
+            quantum: None,
+            nodata: None,
+        }
+    }
+
+    /// The encoder's options of the first (or only) encode.
+    pub fn encode_options(&self) -> EncodeOptions {
+        EncodeOptions {
+            n: self.diamond_size,
+            extra_level_pairs: self.extra_levels.first(),
+            alpha: self.alpha,
+            coder: self.coder,
+        }
+    }
+}
+
+/// What an elevation build made.
+#[derive(Clone, Debug)]
+pub struct ElevationSummary {
+    /// Samples per row of the (combined) input.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Samples with data.
+    pub valid: usize,
+    /// Records (stored diamonds) in the repository.
+    pub records: usize,
+    /// The integer mapping.
+    pub plan: QuantPlan,
+    /// Wall time of each stage, in order.
+    pub stages: Vec<(&'static str, Duration)>,
+}
+
+/// What [`build`] made.
+#[derive(Clone, Debug)]
+pub enum BuildSummary {
+    /// An elevation repository.
+    Elevation(ElevationSummary),
+    /// A colour repository.
+    Colour(ColourSummary),
+}
+
+/// Builds the repository `opts` describe; progress goes to `progress`.
+pub fn build(opts: &BuildOptions, progress: &dyn Progress) -> Result<BuildSummary> {
+    if opts.colour {
+        return colour::build_colour(opts, progress).map(BuildSummary::Colour);
+    }
+    build_elevation(opts, progress).map(BuildSummary::Elevation)
+}
+
+/// Builds an elevation repository (`opts.colour` is ignored).
+pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<ElevationSummary> {
+    if opts.like.is_some() {
+        bail!("--like only applies to colour repositories (--colour)");
+    }
+    // Cheap checks first, so a typo does not cost a DEM read.
+    if !(opts.max_error.is_finite() && opts.max_error > 0.0) {
+        bail!(
+            "--max-error must be a positive number of metres, not {}",
+            opts.max_error
+        );
+    }
+    if opts.output.is_dir() {
+        bail!("output path {} is a directory", opts.output.display());
+    }
+    if opts.threads == Some(0) {
+        bail!("--threads must be at least 1");
+    }
+    if let ExtraLevels::Fixed(n) = opts.extra_levels
+        && n > ExtraLevels::MAX
+    {
+        bail!(
+            "--extra-levels {n}: at most {} level pairs",
+            ExtraLevels::MAX
+        );
+    }
+    let limit = opts.memory_limit.unwrap_or_else(default_memory_limit);
+    let enc_opts = opts.encode_options();
+    progress.event(ProgressEvent {
+        stage: Stage::Prepare,
+        done: 0,
+        total: 1,
+    });
+    let (input, resolution, storage) = match opts.inputs.as_slice() {
+        [] => bail!("no input given"),
+        [path] => {
+            let input = prepare(&InputSpec {
+                path,
+                raw_size: opts.raw_size,
+                nodata: opts.nodata,
+                quantum: opts.quantum,
+                max_error: opts.max_error,
+            })?;
+            let storage = storage_for(&input.grid, &enc_opts, limit)?;
+            (input, None, storage)
+        }
+        paths => {
+            if opts.raw_size.is_some() {
+                bail!(
+                    "--size: raw float32 inputs carry no georeferencing, so several inputs \
+                     cannot include them"
+                );
+            }
+            if enc_opts.alpha != Alpha::One {
+                bail!("several inputs (variable resolution) need --alpha one");
+            }
+            if enc_opts.extra_level_pairs > 0 {
+                bail!(
+                    "--extra-levels above 0 applies to single-input builds (several inputs keep \
+                     the covering hierarchy)"
+                );
+            }
+            let (input, res) = prepare_mosaic(
+                paths,
+                opts.nodata,
+                opts.quantum,
+                opts.max_error,
+                limit,
+                progress,
+            )?;
+            // The inputs are gone by now: what stays is the grid, the classes and the field.
+            let classes = res.class.len() as u64;
+            let storage = storage_for(&input.grid, &enc_opts, limit.saturating_sub(classes))?;
+            (input, Some(res), storage)
+        }
+    };
+    progress.event(ProgressEvent {
+        stage: Stage::Prepare,
+        done: 1,
+        total: 1,
+    });
+    let mut stages = input.stages.clone();
+    let t = Instant::now();
+    let encoded = encode_prepared(
+        &input,
+        resolution.as_ref(),
+        &enc_opts,
+        &storage,
+        opts.threads,
+        &|done, total| {
+            progress.event(ProgressEvent {
+                stage: Stage::Encode,
+                done,
+                total,
+            })
+        },
+    )?;
+    stages.push(("encode", t.elapsed()));
+    let encoded = if opts.extra_levels == ExtraLevels::Auto && resolution.is_none() {
+        let step = |done| {
+            progress.event(ProgressEvent {
+                stage: Stage::EncodeCoarserRoots,
+                done,
+                total: 1,
+            })
+        };
+        step(0);
+        let t = Instant::now();
+        let (e, tried) =
+            with_coarser_roots_if_smaller(&input, encoded, &enc_opts, limit, opts.threads)?;
+        if tried {
+            stages.push(("encode with coarser roots", t.elapsed()));
+        }
+        step(1);
+        e
+    } else {
+        encoded
+    };
+    let t = Instant::now();
+    progress.event(ProgressEvent {
+        stage: Stage::Write,
+        done: 0,
+        total: 1,
+    });
+    write_repository(
+        &opts.output,
+        &encoded,
+        &input.plan,
+        input.georef.as_ref(),
+        input.nodata,
+    )
+    .with_context(|| format!("writing {}", opts.output.display()))?;
+    stages.push(("write", t.elapsed()));
+    progress.event(ProgressEvent {
+        stage: Stage::Write,
+        done: 1,
+        total: 1,
+    });
+    let grid = &input.grid;
+    Ok(ElevationSummary {
+        width: grid.width,
+        height: grid.height,
+        valid: grid.valid.iter().filter(|&&v| v).count(),
+        records: encoded.records.len(),
+        plan: input.plan,
+        stages,
+    })
+}

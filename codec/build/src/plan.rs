@@ -1,0 +1,209 @@
+//! Reading, planning and quantizing the input(s), and where the encoder's temporaries go.
+//!
+//! A single GeoTIFF or raw float32 input is streamed: planned and quantized block by block,
+//! never held as floats. The other formats are read whole (8 bytes per sample) and dropped once
+//! quantized. Several inputs form one variable-resolution lattice ([`crate::mosaic`]).
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use cbdam_codec::geometry::Domain;
+use cbdam_codec::hierarchy::{EncodeOptions, Resolution, TempStorage};
+use cbdam_codec::input::{
+    Format, GeoRef, GeoTiffSource, Limits, RawF32Source, ReadOptions, SampleSource, detect_format,
+    read_dem, with_sidecar_crs,
+};
+use cbdam_codec::quant::{HeightGrid, QuantPlan};
+
+use crate::error::{Context, Result, bail};
+use crate::progress::{Progress, Spilled};
+
+/// A quantized input, with what the repository header needs from the file.
+pub struct Prepared {
+    /// Integer heights.
+    pub grid: HeightGrid,
+    /// The integer mapping.
+    pub plan: QuantPlan,
+    /// Georeferencing of the file, if any.
+    pub georef: Option<GeoRef>,
+    /// Nodata value of the file (or the override).
+    pub nodata: Option<f64>,
+    /// Wall time of each preparation stage, in order (for `--timings`).
+    pub stages: Vec<(&'static str, Duration)>,
+}
+
+/// How the input is read.
+pub struct InputSpec<'a> {
+    /// The DEM file.
+    pub path: &'a Path,
+    /// `Some((w, h))`: headerless little-endian float32, streamed.
+    pub raw_size: Option<(usize, usize)>,
+    /// Nodata override.
+    pub nodata: Option<f64>,
+    /// Value quantum override.
+    pub quantum: Option<f64>,
+    /// Tolerance, metres.
+    pub max_error: f64,
+}
+
+/// Whether `path` names a raw float32 file (`.raw`, `.f32`, `.bin`), which carries no size.
+pub fn is_raw_path(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "raw" | "f32" | "bin"))
+}
+
+/// Refuses a tolerance above the whole height range `lo … hi`: it would let a flat plane stand
+/// for the terrain, almost certainly a unit mistake (feet, centimetres) rather than intent.
+fn unit_check(max_error: f64, lo: f64, hi: f64) -> Result<()> {
+    if hi > lo && max_error > hi - lo {
+        bail!(
+            "--max-error {max_error} m exceeds the data's height range ({lo} … {hi} m, {} m); \
+             is the unit right?",
+            hi - lo
+        );
+    }
+    Ok(())
+}
+
+/// Reads, plans and quantizes the input.
+pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
+    let path = spec.path;
+    let streamed = |src: &dyn SampleSource, georef: Option<GeoRef>| -> Result<Prepared> {
+        let reading = || format!("reading {}", path.display());
+        let t = Instant::now();
+        let (plan, grid) =
+            QuantPlan::quantize_source(src, spec.max_error, spec.quantum).with_context(reading)?;
+        let stages = vec![("read, plan and quantize", t.elapsed())];
+        if let Some((lo, hi)) = grid.range() {
+            unit_check(spec.max_error, plan.metres(lo), plan.metres(hi))?;
+        }
+        Ok(Prepared {
+            grid,
+            plan,
+            georef,
+            nodata: src.nodata(),
+            stages,
+        })
+    };
+    if let Some((w, h)) = spec.raw_size {
+        let src = RawF32Source::open(path, w, h, spec.nodata, &Limits::default())
+            .with_context(|| format!("reading {}", path.display()))?;
+        return streamed(&src, None);
+    }
+    if is_raw_path(path) {
+        bail!(
+            "{}: raw float32 files carry no size; pass --size WIDTHxHEIGHT",
+            path.display()
+        );
+    }
+    // GeoTIFF is decoded strip by strip or tile by tile, in parallel, and never held whole.
+    if detect_format(path).ok() == Some(Format::GeoTiff) {
+        let src = GeoTiffSource::open(path, spec.nodata, &Limits::default())
+            .with_context(|| format!("reading {}", path.display()))?;
+        let georef = with_sidecar_crs(src.georef().cloned(), path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        return streamed(&src, georef);
+    }
+    let opts = ReadOptions {
+        nodata: spec.nodata,
+        ..ReadOptions::default()
+    };
+    let t = Instant::now();
+    let dem = read_dem(path, &opts).with_context(|| format!("reading {}", path.display()))?;
+    let read = t.elapsed();
+    let Some((lo, hi)) = dem.valid_range() else {
+        bail!("{} has no valid sample (all nodata or NaN)", path.display());
+    };
+    unit_check(spec.max_error, lo, hi)?;
+    let plan = QuantPlan::for_dem(&dem, spec.max_error, spec.quantum)?;
+    let planned = t.elapsed();
+    let grid = HeightGrid::from_dem(&dem, &plan)?;
+    Ok(Prepared {
+        grid,
+        plan,
+        georef: dem.georef,
+        nodata: dem.nodata,
+        stages: vec![
+            ("read", read),
+            ("plan", planned - read),
+            ("quantize", t.elapsed() - planned),
+        ],
+    })
+}
+
+/// Where the encoder's temporaries go under `limit` bytes: in memory when the grid (5 bytes per
+/// sample) and the reconstruction field (4 bytes per lattice point of the domain) fit.
+pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<TempStorage> {
+    let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
+    let (ex, ey) = domain.layout().face_extent();
+    let field = 4 * (ex as u64 + 1) * (ey as u64 + 1);
+    let input = 5 * (grid.width as u64) * (grid.height as u64);
+    Ok(if input + field > limit {
+        TempStorage::File(None)
+    } else {
+        TempStorage::Memory
+    })
+}
+
+/// The default memory limit: half of physical memory (`MemTotal` in `/proc/meminfo`), or 4 GiB
+/// where that cannot be read. Half, because the page cache and other processes need the rest.
+pub fn default_memory_limit() -> u64 {
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|m| {
+            let line = m.lines().find(|l| l.starts_with("MemTotal:"))?;
+            let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            Some(kib * 1024 / 2)
+        })
+        .unwrap_or(4 << 30)
+}
+
+/// Reads several georeferenced inputs into one variable-resolution lattice ([`crate::mosaic`])
+/// and quantizes it: one integer mapping for all inputs. Inputs spilled to temporary files are
+/// reported to `progress` ([`Progress::spilled`]).
+pub fn prepare_mosaic(
+    paths: &[PathBuf],
+    nodata: Option<f64>,
+    quantum: Option<f64>,
+    max_error: f64,
+    memory_limit: u64,
+    progress: &dyn Progress,
+) -> Result<(Prepared, Resolution)> {
+    let opts = ReadOptions {
+        nodata,
+        ..ReadOptions::default()
+    };
+    let t = Instant::now();
+    let m = crate::mosaic::mosaic(paths, &opts, memory_limit)?;
+    let spilled: Vec<_> = m.inputs.iter().filter(|p| p.samples.is_spilled()).collect();
+    if !spilled.is_empty() {
+        progress.spilled(Spilled {
+            inputs: spilled.len(),
+            of: m.inputs.len(),
+            bytes: spilled.iter().map(|p| p.samples.bytes()).sum(),
+        });
+    }
+    let (lo, hi) = m.valid_range().expect("every input has a valid sample");
+    unit_check(max_error, lo, hi)?;
+    // The lattice's rows are composed from the inputs as the quantizer reads them.
+    let (plan, grid) = QuantPlan::quantize_source(&m, max_error, quantum)?;
+    let resolution = m.resolution();
+    // The header holds one nodata value (for extract and verify): the override, else the value
+    // the inputs agree on.
+    let values: Vec<f64> = m.inputs.iter().filter_map(|p| p.dem.nodata).collect();
+    let common = values
+        .first()
+        .copied()
+        .filter(|&v| values.iter().all(|&w| w.to_bits() == v.to_bits()));
+    Ok((
+        Prepared {
+            grid,
+            plan,
+            georef: Some(m.georef),
+            nodata: nodata.or(common),
+            stages: vec![("read, mosaic and quantize", t.elapsed())],
+        },
+        resolution,
+    ))
+}

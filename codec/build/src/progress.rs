@@ -1,0 +1,63 @@
+//! Progress as a callback: the library reports, the caller draws (a bar, log lines, nothing).
+
+/// The stage a [`ProgressEvent`] belongs to, in the order a build goes through them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Stage {
+    /// Reading the input(s), planning the integer mapping and quantizing (one unit).
+    Prepare,
+    /// Encoding the hierarchy: `done` of `total` units of the encoder's work.
+    Encode,
+    /// `--extra-levels auto` of a single-input build: deciding whether to encode again with one
+    /// more level pair, and doing so where the root field dominates the first repository (one
+    /// unit).
+    EncodeCoarserRoots,
+    /// Writing the repository file (one unit).
+    Write,
+}
+
+/// `done` of `total` units of `stage`; `done` never decreases within a stage and reaches
+/// `total` when the stage ends.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ProgressEvent {
+    /// The stage.
+    pub stage: Stage,
+    /// Units done so far.
+    pub done: usize,
+    /// Units in the stage.
+    pub total: usize,
+}
+
+/// Inputs of a multi-input build moved to memory-mapped temporary files to stay under the
+/// memory limit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Spilled {
+    /// Inputs spilled.
+    pub inputs: usize,
+    /// Inputs in all.
+    pub of: usize,
+    /// Bytes of the spilled inputs.
+    pub bytes: u64,
+}
+
+/// Receives a build's progress. Encoder workers report concurrently, hence `Sync` and `&self`;
+/// events of [`Stage::Encode`] may arrive from several threads, out of order by a few units.
+pub trait Progress: Sync {
+    /// One step of a stage.
+    fn event(&self, event: ProgressEvent);
+    /// Inputs were spilled to temporary files (multi-input builds; before encoding).
+    fn spilled(&self, _spilled: Spilled) {}
+}
+
+/// Any `Fn(ProgressEvent) + Sync` closure is a [`Progress`] (spills ignored).
+impl<F: Fn(ProgressEvent) + Sync> Progress for F {
+    fn event(&self, event: ProgressEvent) {
+        self(event)
+    }
+}
+
+/// Reports nothing.
+pub struct NoProgress;
+
+impl Progress for NoProgress {
+    fn event(&self, _event: ProgressEvent) {}
+}

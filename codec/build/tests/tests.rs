@@ -1,0 +1,9 @@
+//! The build library's tests: one integration-test binary, one module per subject.
+
+mod util;
+
+mod cli;
+mod errors;
+mod progress;
+mod streamed;
+mod verify;

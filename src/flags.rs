@@ -1,0 +1,166 @@
+//! Typed values of the command line, parsed once by clap and shared by every subcommand: sizes
+//! `WIDTHxHEIGHT` ([`Size2`]) and byte counts ([`ByteSize`]).
+//!
+//! A bad value is a usage error (exit 2) whose message names the flag (clap puts it in front)
+//! and says what is expected.
+
+/// The largest image or window side accepted (`--size` of render, view, replay, bench render):
+/// what GPUs allow for a texture.
+pub const MAX_PIXELS: u64 = 16384;
+
+/// `WIDTHxHEIGHT`: two whole numbers from 1 to a bound, separated by `x`, `X` or `×`, with
+/// optional spaces around each number.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Size2 {
+    /// The first number.
+    pub width: u64,
+    /// The second number.
+    pub height: u64,
+}
+
+impl Size2 {
+    /// Parses `text` with both numbers from 1 to `max`.
+    pub fn parse(text: &str, max: u64) -> Result<Size2, String> {
+        let bad = || {
+            if max == u64::MAX {
+                format!(
+                    "{text:?} is not WIDTHxHEIGHT of two whole numbers from 1 (e.g. 16385x16385)"
+                )
+            } else {
+                format!(
+                    "{text:?} is not WIDTHxHEIGHT of two whole numbers from 1 to {max} \
+                     (e.g. 1920x1080)"
+                )
+            }
+        };
+        let (w, h) = text.split_once(['x', 'X', '×']).ok_or_else(bad)?;
+        let side = |t: &str| {
+            t.trim()
+                .parse::<u64>()
+                .ok()
+                .filter(|v| (1..=max).contains(v))
+                .ok_or_else(bad)
+        };
+        Ok(Size2 {
+            width: side(w)?,
+            height: side(h)?,
+        })
+    }
+
+    /// clap parser of an image or window size in pixels, each side 1 to [`MAX_PIXELS`].
+    pub fn pixels(text: &str) -> Result<(u32, u32), String> {
+        let s = Size2::parse(text, MAX_PIXELS)?;
+        // Both fit: MAX_PIXELS < u32::MAX.
+        Ok((s.width as u32, s.height as u32))
+    }
+
+    /// clap parser of a grid size in samples (`cbdam build --size`), each side at least 1.
+    pub fn samples(text: &str) -> Result<(usize, usize), String> {
+        let s = Size2::parse(text, usize::MAX as u64)?;
+        Ok((s.width as usize, s.height as usize))
+    }
+}
+
+/// A number of bytes: a number with an optional binary suffix K, M, G or T (also KiB, KB …, any
+/// case), e.g. `2G`, `512M`, `1.5G`, `1073741824`; at least one byte and below 16 EiB.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ByteSize(pub u64);
+
+impl std::str::FromStr for ByteSize {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<ByteSize, String> {
+        let bad = || {
+            format!(
+                "{text:?} is not a size: a number of bytes from 1 to below 16 EiB, with K, M, G \
+                 or T for powers of 1024 (e.g. 2G or 512M)"
+            )
+        };
+        let t = text.trim();
+        let digits = t
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(t.len());
+        let (num, suffix) = t.split_at(digits);
+        let scale: u64 = match suffix.trim().to_ascii_lowercase().as_str() {
+            "" | "b" => 1,
+            "k" | "kb" | "kib" => 1 << 10,
+            "m" | "mb" | "mib" => 1 << 20,
+            "g" | "gb" | "gib" => 1 << 30,
+            "t" | "tb" | "tib" => 1 << 40,
+            _ => return Err(bad()),
+        };
+        let value: f64 = num
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite())
+            .ok_or_else(bad)?;
+        let bytes = value * scale as f64;
+        if bytes < 1.0 || bytes >= u64::MAX as f64 {
+            return Err(bad());
+        }
+        Ok(ByteSize(bytes as u64))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_accept_every_separator_and_refuse_junk() {
+        assert_eq!(Size2::pixels("1920x1080"), Ok((1920, 1080)));
+        assert_eq!(Size2::pixels("3X2"), Ok((3, 2)));
+        assert_eq!(Size2::pixels("64×48"), Ok((64, 48)));
+        assert_eq!(Size2::pixels(" 96 x 64 "), Ok((96, 64)));
+        assert_eq!(Size2::pixels("16384x1"), Ok((16384, 1)));
+        assert_eq!(Size2::samples("16385x16385"), Ok((16385, 16385)));
+        assert_eq!(Size2::samples("131×77"), Ok((131, 77)));
+        // Lattices are not bounded by what a GPU allows.
+        assert_eq!(Size2::samples("100000x3"), Ok((100000, 3)));
+        for bad in [
+            "16385", "0x5", "5x0", "5x", "x5", "ax3", "-1x3", "1.5x2", "2x3x4", "",
+        ] {
+            assert!(Size2::pixels(bad).is_err(), "{bad:?} accepted");
+            assert!(Size2::samples(bad).is_err(), "{bad:?} accepted");
+        }
+        assert!(Size2::pixels("16385x16").is_err());
+        assert!(Size2::pixels("16x99999999999").is_err());
+        // One message: the input, the form, the range.
+        let e = Size2::pixels("0x5").unwrap_err();
+        assert!(
+            e.contains("\"0x5\"") && e.contains("WIDTHxHEIGHT") && e.contains("16384"),
+            "{e}"
+        );
+        let e = Size2::samples("131").unwrap_err();
+        assert!(e.contains("\"131\"") && e.contains("WIDTHxHEIGHT"), "{e}");
+    }
+
+    #[test]
+    fn byte_sizes_parse_with_binary_suffixes_and_junk_is_refused() {
+        let b = |t: &str| t.parse::<ByteSize>().map(|b| b.0);
+        assert_eq!(b("2G"), Ok(2 << 30));
+        assert_eq!(b("512m"), Ok(512 << 20));
+        assert_eq!(b("1.5GiB"), Ok(3 << 29));
+        assert_eq!(b("4096"), Ok(4096));
+        assert_eq!(b(" 64 K "), Ok(64 << 10));
+        assert_eq!(b("4K"), Ok(4096));
+        assert_eq!(b("1M"), Ok(1 << 20));
+        for bad in [
+            "",
+            "G",
+            "-1G",
+            "0",
+            "0.1",
+            "2X",
+            "1e3",
+            "nanG",
+            "1..2G",
+            "99999999999T",
+            "lots",
+        ] {
+            assert!(b(bad).is_err(), "{bad:?} accepted");
+        }
+        let e = b("lots").unwrap_err();
+        assert!(e.contains("\"lots\"") && e.contains("2G"), "{e}");
+    }
+}
