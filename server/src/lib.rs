@@ -25,6 +25,7 @@
 //! record. `cbdam bench serve` measures records/s, latency and CPU time per request.
 #![deny(missing_docs)]
 
+mod cors;
 pub mod describe;
 mod error;
 pub mod metrics;

@@ -15,9 +15,9 @@ use axum::routing::{get, post};
 use bytes::Bytes;
 use cbdam_codec::geometry::DiamondId;
 use serde::Deserialize;
-use tower_http::cors::{AllowOrigin, CorsLayer};
 use tower_http::timeout::TimeoutLayer;
 
+use crate::cors::cors_layer;
 use crate::error::ApiError;
 use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
@@ -64,47 +64,6 @@ pub(crate) fn router(state: AppState) -> Router {
         // Outermost, so that it sees (and counts) timeouts, CORS preflights and 404s too.
         .layer(ObserveLayer::new(state.clone()))
         .with_state(state)
-}
-
-/// Parses `--cors-origin`: `*` or a comma-separated list of origins.
-pub(crate) fn parse_cors_origin(s: &str) -> Result<AllowOrigin, String> {
-    if s.trim() == "*" {
-        return Ok(AllowOrigin::any());
-    }
-    let list = s
-        .split(',')
-        .map(|o| {
-            let o = o.trim();
-            if o.is_empty() || o.contains('*') {
-                return Err(format!("invalid CORS origin {o:?}"));
-            }
-            HeaderValue::from_str(o).map_err(|_| format!("invalid CORS origin {o:?}"))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(AllowOrigin::list(list))
-}
-
-fn cors_layer(origin: &str) -> CorsLayer {
-    // `AppState::new` validated the origin.
-    let origin = parse_cors_origin(origin).unwrap_or_else(|_| AllowOrigin::any());
-    CorsLayer::new()
-        .allow_origin(origin)
-        .allow_methods([Method::GET, Method::HEAD, Method::POST])
-        .allow_headers([
-            header::CONTENT_TYPE,
-            header::RANGE,
-            header::IF_NONE_MATCH,
-            header::IF_RANGE,
-        ])
-        // Browsers hide response headers from scripts unless listed here; a client needs
-        // these to cache records and read ranges.
-        .expose_headers([
-            header::ETAG,
-            header::CONTENT_RANGE,
-            header::ACCEPT_RANGES,
-            header::CONTENT_LENGTH,
-        ])
-        .max_age(std::time::Duration::from_secs(86_400))
 }
 
 async fn not_found(uri: Uri) -> ApiError {

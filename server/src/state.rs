@@ -220,7 +220,7 @@ impl AppState {
             return Err(ServerError::NoRepositories);
         }
         // Checked here so that a bad origin is a startup error, not a silent fallback later.
-        let _valid = crate::routes::parse_cors_origin(&config.cors_origin)
+        let _valid = crate::cors::parse_cors_origin(&config.cors_origin)
             .map_err(ServerError::InvalidCorsOrigin)?;
         let mut map = HashMap::new();
         let mut names = Vec::new();
