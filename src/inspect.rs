@@ -43,8 +43,7 @@ pub fn upgrade(args: &UpgradeArgs) -> Result<()> {
 pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    let samples = u64::from(repo.params().domain.data().width)
-        * u64::from(repo.params().domain.data().height);
+    let samples = repo.params().domain.data().samples();
     // Without a mask every sample had data; with one, the count reads (and checks) the records.
     let valid = if repo.params().nodata_mask {
         let records = repo
@@ -91,8 +90,8 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         "hierarchy       N = {}, K = {} (levels 0…{finest}), {}×{} roots, α = {}, {} coder",
         p.layout().n(),
         p.layout().k(),
-        p.layout().roots_x(),
-        p.layout().roots_y(),
+        p.layout().root_counts().0,
+        p.layout().root_counts().1,
         if p.alpha == cbdam_codec::lifting::Alpha::One {
             "1"
         } else {

@@ -211,7 +211,7 @@ fn walk_impl(
     Ok(())
 }
 
-/// Decodes the finest level onto the input's grid (`data_width × data_height`, row-major):
+/// Decodes the finest level onto the input's grid (the domain's data rectangle, row-major):
 /// within the bound of every valid sample, unconstrained elsewhere.
 pub fn reconstruct_finest(encoded: &Encoded) -> Result<Vec<i32>, CodecError> {
     Ok(reconstruct_finest_with_validity(encoded)?.0)
