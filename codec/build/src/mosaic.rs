@@ -348,12 +348,15 @@ fn place_vrt_tile(path: &Path, dem: &mut Dem, v: &VrtPlacement) -> Result<()> {
         || oy.abs() > ORIGIN_TOLERANCE
     {
         bail!(
-            "{} places {} at {} but the tile's own georeferencing puts it at {} ({ox:.4} × \
-             {oy:.4} samples off): fix the VRT (gdalbuildvrt) or the tile",
+            "{} places {} with spacing {} × {} and its first sample centre at ({wx}, {wy}), but \
+             the tile's own georeferencing says {} × {} and ({cx}, {cy}) ({ox:.4} × {oy:.4} \
+             samples off): fix the VRT or the tile",
             v.vrt.display(),
             path.display(),
-            describe(path, want),
-            describe(path, g)
+            want.pixel_x,
+            want.pixel_y,
+            g.pixel_x,
+            g.pixel_y
         );
     }
     if let (Some(a), Some(b)) = (g.epsg, want.epsg)

@@ -133,7 +133,8 @@ fn expand_glob(input: &Path, pattern: &str, out: &mut Vec<Tile>) -> Result<()> {
         .with_context(|| format!("glob {}: listing {}", input.display(), dir.display()))?;
     let mut found = Vec::new();
     for e in entries {
-        let e = e.with_context(|| format!("glob {}: listing {}", input.display(), dir.display()))?;
+        let e =
+            e.with_context(|| format!("glob {}: listing {}", input.display(), dir.display()))?;
         let name: Vec<char> = e.file_name().to_string_lossy().chars().collect();
         // Like a shell, `*` does not match a leading dot.
         if name.first() == Some(&'.') && pattern.first() != Some(&'.') {
@@ -232,7 +233,12 @@ fn allowed(element: &str) -> Option<(&'static [&'static str], &'static [&'static
         "GeoTransform" | "NoDataValue" | "ColorInterp" | "SourceBand" | "NODATA" => (&[], &[]),
         "VRTRasterBand" => (
             &["dataType", "band"],
-            &["NoDataValue", "ColorInterp", "SimpleSource", "ComplexSource"],
+            &[
+                "NoDataValue",
+                "ColorInterp",
+                "SimpleSource",
+                "ComplexSource",
+            ],
         ),
         "SimpleSource" => (
             &[],
@@ -364,7 +370,8 @@ fn srs_epsg(srs: &str) -> Option<u32> {
 /// each a whole tile placed without scaling. Anything else is refused, naming the element or
 /// attribute; the tiles' own sizes and georeferencing are checked when the mosaic reads them.
 pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
-    let text = std::fs::read_to_string(vrt).with_context(|| format!("reading {}", vrt.display()))?;
+    let text =
+        std::fs::read_to_string(vrt).with_context(|| format!("reading {}", vrt.display()))?;
     let doc = roxmltree::Document::parse(&text)
         .with_context(|| format!("reading {} (XML)", vrt.display()))?;
     let root = doc.root_element();
@@ -420,7 +427,10 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
     if let Some(b) = band.attribute("band")
         && b.trim() != "1"
     {
-        bail!("{}: <VRTRasterBand band=\"{b}\">: only band 1", vrt.display());
+        bail!(
+            "{}: <VRTRasterBand band=\"{b}\">: only band 1",
+            vrt.display()
+        );
     }
     const TYPES: &[&str] = &[
         "Byte", "Int8", "UInt16", "Int16", "UInt32", "Int32", "Float32", "Float64",
@@ -444,9 +454,10 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
     let band_nodata = parse_nodata(child(band, "NoDataValue"), "<NoDataValue>")?;
     let base = vrt.parent().unwrap_or(Path::new(""));
     let mut tiles = Vec::new();
-    for src in band.children().filter(|c| {
-        matches!(c.tag_name().name(), "SimpleSource" | "ComplexSource")
-    }) {
+    for src in band
+        .children()
+        .filter(|c| matches!(c.tag_name().name(), "SimpleSource" | "ComplexSource"))
+    {
         let kind = src.tag_name().name();
         let Some(file) = child(src, "SourceFilename") else {
             bail!("{}: a <{kind}> has no <SourceFilename>", vrt.display());
@@ -473,7 +484,9 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
         let sb: u32 = number(
             vrt,
             &format!("<SourceBand> of {name}"),
-            child(src, "SourceBand").and_then(|b| b.text()).or(Some("1")),
+            child(src, "SourceBand")
+                .and_then(|b| b.text())
+                .or(Some("1")),
         )?;
         if sb != 1 {
             bail!(
