@@ -342,6 +342,31 @@ fn bad_tile_inputs_are_refused_by_name() {
         "{e}"
     );
 
+    // A corrupt tile and a tile in another CRS are named (and nothing is written).
+    write(
+        &bad.join("r1c1.tif"),
+        T + 1,
+        T + 1,
+        vec![0.0; (T + 1) * (T + 1)],
+        None,
+        false,
+    );
+    std::fs::write(bad.join("r1c1.tif"), b"II*\0 not a TIFF").unwrap();
+    let e = build_error(vec![bad.clone()], &out);
+    assert!(
+        e.contains(&bad.join("r1c1.tif").display().to_string()),
+        "{e}"
+    );
+    let mut utm = tile_georef(&g, 1, 1);
+    utm.epsg = Some(32632);
+    let v = read_dem(&tiles[4], &ReadOptions::default()).unwrap().values;
+    write(&bad.join("r1c1.tif"), T + 1, T + 1, v, Some(utm), false);
+    let e = build_error(vec![bad.clone()], &out);
+    assert!(
+        e.contains(&bad.join("r1c1.tif").display().to_string()) && e.contains("EPSG:32632"),
+        "{e}"
+    );
+
     // VRTs: each unsupported thing named.
     let all = entries(&tiles);
     for (extra, named) in [
