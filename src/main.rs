@@ -517,6 +517,15 @@ pub enum AlphaArg {
 pub struct BuildArgs {
     /// DEM files (GeoTIFF, .hgt, ASCII grid, PNG, or one raw float32 with --size); several
     /// georeferenced ones at power-of-two spacings make one variable-resolution dataset.
+    ///
+    /// Tiles: an input may also be a directory (every .tif, .tiff, .hgt, .asc and .png in it,
+    /// sorted by name, not recursive), a glob (`*`, `?`, `[...]` in the last path component;
+    /// quote it), @LIST (one path a line, relative to the list file; blank lines and `#`
+    /// comments skipped) or a GDAL VRT mosaic as gdalbuildvrt writes it (whole tiles placed by
+    /// SrcRect/DstRect without scaling, one band, NoDataValue; any other element or attribute
+    /// is refused by name). Tiles of one spacing that overlap (shared edge rows, as in SRTM)
+    /// must agree there, or the build names the two tiles that disagree and by how much. At most
+    /// 254 inputs in all.
     #[arg(required = true, num_args = 1..)]
     inputs: Vec<PathBuf>,
     /// The input is headerless little-endian float32, WIDTHxHEIGHT samples, row 0 north
@@ -601,7 +610,8 @@ pub struct UpgradeArgs {
 pub struct VerifyArgs {
     /// Repository file.
     repo: PathBuf,
-    /// The input DEM(s), in the order given to `build`.
+    /// The input DEM(s), in the order given to `build`: files, directories, globs, @LIST files
+    /// or GDAL VRTs of tiles, as `build` takes them.
     #[arg(long, required = true, num_args = 1..)]
     against: Vec<PathBuf>,
 }

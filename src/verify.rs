@@ -3,7 +3,8 @@
 
 use anyhow::{Context, Result, bail};
 
-use cbdam_build::verify::{compare_colour, compare_dem, compare_mosaic};
+use cbdam_build::tiles::{Tile, expand_inputs};
+use cbdam_build::verify::{compare_colour, compare_dem, compare_tiles};
 use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
 use cbdam_codec::repository::Repository;
 
@@ -58,11 +59,13 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     if repo.kind() == RepoKind::Colour {
         return verify_colour_repo(&repo, args);
     }
-    let against = match args.against.as_slice() {
-        [one] => one,
+    // Directories, globs, @lists and VRTs are expanded as `cbdam build` expands them.
+    let tiles = expand_inputs(&args.against)?;
+    let against = match tiles.as_slice() {
+        [Tile { path, vrt: None }] => path,
         several => {
             // Several inputs: the build's lattice, rebuilt from them.
-            let c = compare_mosaic(&repo, several)?;
+            let c = compare_tiles(&repo, several)?;
             print_levels(&c.levels, repo.plan().unit);
             for input in &c.inputs {
                 println!(

@@ -9,4 +9,5 @@ mod cli_colour;
 mod cli_multires;
 mod cli_render;
 mod cli_render_colour;
+mod cli_tiles;
 mod cli_view;

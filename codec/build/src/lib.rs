@@ -15,6 +15,7 @@ mod error;
 pub mod mosaic;
 pub mod plan;
 pub mod progress;
+pub mod tiles;
 pub mod verify;
 pub mod write;
 
@@ -40,7 +41,8 @@ use crate::plan::{InputSpec, default_memory_limit, prepare, prepare_mosaic, stor
 #[derive(Clone, Debug)]
 pub struct BuildOptions {
     /// DEM files (GeoTIFF, .hgt, ASCII grid, PNG, or one raw float32 with `raw_size`); several
-    /// georeferenced ones at power-of-two spacings make one variable-resolution dataset. With
+    /// georeferenced ones at power-of-two spacings make one variable-resolution dataset. Each
+    /// may also be a directory, a glob, `@LIST` or a GDAL VRT of tiles ([`tiles`]). With
     /// `colour`: one 8-bit RGB/RGBA PNG or RGB GeoTIFF.
     pub inputs: Vec<PathBuf>,
     /// The repository to write (atomically: a temporary file renamed into place).
@@ -174,9 +176,16 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         done: 0,
         total: 1,
     });
-    let (input, resolution, storage) = match opts.inputs.as_slice() {
+    // Directories, globs, @lists and VRTs become their files; the raw float32 input of
+    // `--size` is a single file, taken as given.
+    let tiles = if opts.raw_size.is_some() {
+        opts.inputs.iter().map(tiles::Tile::file).collect()
+    } else {
+        tiles::expand_inputs(&opts.inputs)?
+    };
+    let (input, resolution, storage) = match tiles.as_slice() {
         [] => bail!("no input given"),
-        [path] => {
+        [tiles::Tile { path, vrt: None }] => {
             let input = prepare(&InputSpec {
                 path,
                 raw_size: opts.raw_size,
@@ -187,7 +196,7 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
             let storage = storage_for(&input.grid, &enc_opts, limit)?;
             (input, None, storage)
         }
-        paths => {
+        tiles => {
             if opts.raw_size.is_some() {
                 bail!(
                     "--size: raw float32 inputs carry no georeferencing, so several inputs \
@@ -204,7 +213,7 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
                 );
             }
             let (input, res) = prepare_mosaic(
-                paths,
+                tiles,
                 opts.nodata,
                 opts.quantum,
                 opts.max_error,

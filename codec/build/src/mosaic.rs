@@ -14,9 +14,11 @@
 //! does not fit is refused before the lattice is allocated. Each input is still read whole once
 //! (8 bytes a sample while it is narrowed), one at a time.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Context, Result, bail};
+use crate::tiles::{Tile, VrtPlacement};
 use cbdam_codec::CodecError;
 use cbdam_codec::hierarchy::Resolution;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
@@ -312,21 +314,90 @@ fn describe(p: &Path, g: &GeoRef) -> String {
 /// Reads `paths` and places them on one lattice; refuses (before allocating it) a lattice whose
 /// build would need more than `memory_limit` bytes.
 pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Result<Mosaic> {
-    if paths.is_empty() {
+    let tiles: Vec<Tile> = paths.iter().map(Tile::file).collect();
+    mosaic_tiles(&tiles, opts, memory_limit)
+}
+
+/// Checks a tile read through a VRT against where the VRT places it, and gives it the VRT's
+/// georeferencing where it has none of its own.
+fn place_vrt_tile(path: &Path, dem: &mut Dem, v: &VrtPlacement) -> Result<()> {
+    if (dem.width, dem.height) != (v.width, v.height) {
+        bail!(
+            "{}: <SrcRect>/<DstRect> of {} are {}×{} but the tile is {}×{}: only whole tiles \
+             placed without scaling are supported",
+            v.vrt.display(),
+            path.display(),
+            v.width,
+            v.height,
+            dem.width,
+            dem.height
+        );
+    }
+    let Some(g) = &dem.georef else {
+        dem.georef = Some(v.georef.clone());
+        return Ok(());
+    };
+    let want = &v.georef;
+    let close = |a: f64, b: f64| (a - b).abs() <= RATIO_TOLERANCE * b.abs();
+    let (cx, cy) = centre(g);
+    let (wx, wy) = centre(want);
+    let (ox, oy) = ((cx - wx) / want.pixel_x, (cy - wy) / want.pixel_y);
+    if !close(g.pixel_x, want.pixel_x)
+        || !close(g.pixel_y, want.pixel_y)
+        || ox.abs() > ORIGIN_TOLERANCE
+        || oy.abs() > ORIGIN_TOLERANCE
+    {
+        bail!(
+            "{} places {} with spacing {} × {} and its first sample centre at ({wx}, {wy}), but \
+             the tile's own georeferencing says {} × {} and ({cx}, {cy}) ({ox:.4} × {oy:.4} \
+             samples off): fix the VRT or the tile",
+            v.vrt.display(),
+            path.display(),
+            want.pixel_x,
+            want.pixel_y,
+            g.pixel_x,
+            g.pixel_y
+        );
+    }
+    if let (Some(a), Some(b)) = (g.epsg, want.epsg)
+        && a != b
+    {
+        bail!(
+            "{}: its SRS is EPSG:{b} but {} is in EPSG:{a}",
+            v.vrt.display(),
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// [`mosaic`] of tiles ([`crate::tiles`]): plain files, or tiles a VRT places (checked against
+/// their own georeferencing, which they keep; a tile without one takes the VRT's). Inputs of the
+/// same spacing that overlap (tiles sharing edge rows) must hold the same valid samples there.
+pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Result<Mosaic> {
+    if tiles.is_empty() {
         bail!("no input given");
     }
-    if paths.len() >= usize::from(COARSE_ONLY) {
+    if tiles.len() >= usize::from(COARSE_ONLY) {
         bail!(
             "{} inputs: at most {} can be combined",
-            paths.len(),
+            tiles.len(),
             COARSE_ONLY - 1
         );
     }
     let mut dems = Vec::new();
     let mut held = 0u64;
-    for path in paths {
+    for tile in tiles {
+        let path = &tile.path;
+        let tile_opts = ReadOptions {
+            nodata: opts.nodata.or(tile.vrt.as_ref().and_then(|v| v.nodata)),
+            ..opts.clone()
+        };
         let mut dem =
-            read_dem(path, opts).with_context(|| format!("reading {}", path.display()))?;
+            read_dem(path, &tile_opts).with_context(|| format!("reading {}", path.display()))?;
+        if let Some(v) = &tile.vrt {
+            place_vrt_tile(path, &mut dem, v)?;
+        }
         let Some(g) = &dem.georef else {
             bail!(
                 "{} has no georeferencing (GeoTIFF tie point and pixel scale, or an .hgt/.asc \
@@ -511,6 +582,9 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
     // Coarsest first, so finer samples overwrite; among equal strides the first listed wins.
     let mut order: Vec<usize> = (0..inputs.len()).collect();
     order.sort_by_key(|&k| (std::cmp::Reverse(inputs[k].log2), std::cmp::Reverse(k)));
+    // Inputs of one spacing that overlap (tiles sharing edge rows) must agree there: per pair
+    // (earlier, later input), the valid samples both hold, how many differ and by how much.
+    let mut shared: BTreeMap<(usize, usize), (usize, usize, f64)> = BTreeMap::new();
     for &k in &order {
         let p = &inputs[k];
         let s = p.stride();
@@ -518,10 +592,38 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
             for c in 0..p.dem.width {
                 let i = r * p.dem.width + c;
                 if p.is_valid(i) {
-                    source[(p.y0 + r * s) * width + p.x0 + c * s] = k as u8;
+                    let at = (p.y0 + r * s) * width + p.x0 + c * s;
+                    let prev = usize::from(source[at]);
+                    if source[at] != HOLE && inputs[prev].log2 == p.log2 {
+                        let q = &inputs[prev];
+                        let (x, y) = (at % width, at / width);
+                        let j = ((y - q.y0) >> q.log2) * q.dem.width + ((x - q.x0) >> q.log2);
+                        let (a, b) = (p.samples.get(i), q.samples.get(j));
+                        let e = shared.entry((k, prev)).or_insert((0, 0, 0.0));
+                        e.0 += 1;
+                        if a != b {
+                            e.1 += 1;
+                            e.2 = e.2.max((a - b).abs());
+                        }
+                    }
+                    source[at] = k as u8;
                 }
             }
         }
+    }
+    let clashes: Vec<_> = shared.iter().filter(|(_, e)| e.1 > 0).collect();
+    if let Some(&(&(a, b), &(n, bad, most))) = clashes.first() {
+        bail!(
+            "tiles {} and {} disagree on {bad} of their {n} shared samples by up to {most} \
+             (height units){}: inputs of the same spacing must hold the same values where they \
+             overlap (shared edge rows)",
+            inputs[a].path.display(),
+            inputs[b].path.display(),
+            match clashes.len() - 1 {
+                0 => String::new(),
+                more => format!(", and {more} more pairs of tiles disagree"),
+            }
+        );
     }
     // Points between a coarse input's samples, in a cell whose four corners have data, are drawn
     // from the coarse level unless some input has a sample there.

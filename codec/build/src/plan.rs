@@ -4,7 +4,7 @@
 //! never held as floats. The other formats are read whole (8 bytes per sample) and dropped once
 //! quantized. Several inputs form one variable-resolution lattice ([`crate::mosaic`]).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use cbdam_codec::geometry::Domain;
@@ -17,6 +17,7 @@ use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
 use crate::error::{Context, Result, bail};
 use crate::progress::{Progress, Spilled};
+use crate::tiles::Tile;
 
 /// A quantized input, with what the repository header needs from the file.
 pub struct Prepared {
@@ -159,11 +160,11 @@ pub fn default_memory_limit() -> u64 {
         .unwrap_or(4 << 30)
 }
 
-/// Reads several georeferenced inputs into one variable-resolution lattice ([`crate::mosaic`])
-/// and quantizes it: one integer mapping for all inputs. Inputs spilled to temporary files are
+/// Reads several georeferenced inputs (files or tiles, [`crate::tiles`]) into one
+/// variable-resolution lattice ([`crate::mosaic`]) and quantizes it: one integer mapping for all inputs. Inputs spilled to temporary files are
 /// reported to `progress` ([`Progress::spilled`]).
 pub fn prepare_mosaic(
-    paths: &[PathBuf],
+    tiles: &[Tile],
     nodata: Option<f64>,
     quantum: Option<f64>,
     max_error: f64,
@@ -175,7 +176,7 @@ pub fn prepare_mosaic(
         ..ReadOptions::default()
     };
     let t = Instant::now();
-    let m = crate::mosaic::mosaic(paths, &opts, memory_limit)?;
+    let m = crate::mosaic::mosaic_tiles(tiles, &opts, memory_limit)?;
     let spilled: Vec<_> = m.inputs.iter().filter(|p| p.samples.is_spilled()).collect();
     if !spilled.is_empty() {
         progress.spilled(Spilled {

@@ -15,8 +15,9 @@ use cbdam_codec::quant::HeightGrid;
 use cbdam_codec::repository::Repository;
 
 use crate::error::{Context, Result, bail};
-use crate::mosaic::mosaic;
+use crate::mosaic::mosaic_tiles;
 use crate::plan::is_raw_path;
+use crate::tiles::{Tile, expand_inputs};
 
 /// A colour repository against its image.
 pub struct ColourComparison {
@@ -287,8 +288,14 @@ impl MosaicComparison {
 
 /// Several inputs: rebuilds the build's lattice from them ([`crate::mosaic`]) and compares every
 /// winning sample of every input, the nodata mask wherever the hierarchy reaches, and whether
-/// every winning sample is reached at all.
+/// every winning sample is reached at all. Directories, globs, `@LIST`s and VRTs are expanded
+/// as the build expands them ([`crate::tiles`]).
 pub fn compare_mosaic(repo: &Repository, paths: &[PathBuf]) -> Result<MosaicComparison> {
+    compare_tiles(repo, &expand_inputs(paths)?)
+}
+
+/// [`compare_mosaic`] of inputs already expanded.
+pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparison> {
     let p = *repo.params();
     let plan = *repo.plan();
     // Read the inputs the way the build did: its nodata value was recorded in the header.
@@ -296,7 +303,7 @@ pub fn compare_mosaic(repo: &Repository, paths: &[PathBuf]) -> Result<MosaicComp
         nodata: repo.nodata(),
         ..ReadOptions::default()
     };
-    let m = mosaic(paths, &opts, u64::MAX)?;
+    let m = mosaic_tiles(tiles, &opts, u64::MAX)?;
     let (width, height) = p.domain.data().size();
     if (m.width, m.height) != (width, height) {
         bail!(

@@ -6,4 +6,5 @@ mod cli;
 mod errors;
 mod progress;
 mod streamed;
+mod tiles;
 mod verify;
