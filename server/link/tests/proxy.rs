@@ -3,9 +3,9 @@
 //!
 //! Timing bounds: the lower bounds are strict (the proxy never releases a byte early: tokio's
 //! timers never fire early and the token bucket never lets more than `burst + rate·t` bytes
-//! through in `t`). The upper bounds are the expected time plus 10 %, plus a stated slack for
-//! scheduling: these tests must pass on a loaded 2-core machine, where a wake-up can come tens
-//! of milliseconds late.
+//! through in `t`). The upper bounds are the expected time plus 10 %, plus [`SLACK`] for
+//! scheduling: these tests must pass on a loaded 2-core machine, where a thread can be stalled
+//! for ~90 ms (seen in CI, see `client/tests/streaming.rs`).
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
@@ -14,8 +14,8 @@ use cbdam_link::{Link, Proxy};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
-/// Scheduling slack on top of the 10 % (see the module's documentation).
-const SLACK: Duration = Duration::from_millis(60);
+/// Scheduling slack on top of the 10 % (see the module's documentation): one ~90 ms stall.
+const SLACK: Duration = Duration::from_millis(100);
 
 fn localhost() -> SocketAddr {
     "127.0.0.1:0".parse().unwrap()
