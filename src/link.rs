@@ -118,6 +118,13 @@ pub fn run(args: &LinkArgs) -> Result<()> {
                         bps(c.bytes_up, last.bytes_up),
                         megabytes(c.bytes_up),
                     );
+                    if c.upstream_errors > last.upstream_errors {
+                        println!(
+                            "          {} connections dropped: {} unreachable",
+                            c.upstream_errors - last.upstream_errors,
+                            args.to
+                        );
+                    }
                     last = c;
                 }
             }
