@@ -1,5 +1,5 @@
 //! Typed values of the command line, parsed once by clap and shared by every subcommand: sizes
-//! `WIDTHxHEIGHT` ([`Size2`]) and byte counts ([`ByteSize`]).
+//! `WIDTHxHEIGHT` ([`Size2`]), byte counts ([`ByteSize`]) and link rates ([`BitRate`]).
 //!
 //! A bad value is a usage error (exit 2) whose message names the flag (clap puts it in front)
 //! and says what is expected.
@@ -102,6 +102,52 @@ impl std::str::FromStr for ByteSize {
     }
 }
 
+/// A rate in bits per second: a number with an optional decimal suffix k, M or G (powers of 1000,
+/// any case, optionally followed by `bit/s`, `bps` or `b`), e.g. `1.2M`, `256k`, `10Mbit/s`,
+/// `5000000`; from 1000 bit/s (1k) to 1000 Gbit/s.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BitRate(pub u64);
+
+impl std::str::FromStr for BitRate {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<BitRate, String> {
+        let bad = || {
+            format!(
+                "{text:?} is not a rate: bits per second from 1k to 1000G, with k, M or G for \
+                 powers of 1000 (e.g. 1.2M or 256k)"
+            )
+        };
+        let t = text.trim();
+        let digits = t
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(t.len());
+        let (num, suffix) = t.split_at(digits);
+        let suffix = suffix.trim().to_ascii_lowercase();
+        let unit = ["bit/s", "bps", "b"]
+            .iter()
+            .find_map(|u| suffix.strip_suffix(u))
+            .unwrap_or(&suffix);
+        let scale: f64 = match unit.trim() {
+            "" => 1.0,
+            "k" => 1e3,
+            "m" => 1e6,
+            "g" => 1e9,
+            _ => return Err(bad()),
+        };
+        let value: f64 = num
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite())
+            .ok_or_else(bad)?;
+        let bps = (value * scale).round();
+        if !(1e3..=1e12).contains(&bps) {
+            return Err(bad());
+        }
+        Ok(BitRate(bps as u64))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -162,5 +208,24 @@ mod tests {
         }
         let e = b("lots").unwrap_err();
         assert!(e.contains("\"lots\"") && e.contains("2G"), "{e}");
+    }
+
+    #[test]
+    fn bit_rates_parse_with_decimal_suffixes_and_junk_is_refused() {
+        let r = |t: &str| t.parse::<BitRate>().map(|b| b.0);
+        assert_eq!(r("1.2M"), Ok(1_200_000));
+        assert_eq!(r("256k"), Ok(256_000));
+        assert_eq!(r("10Mbit/s"), Ok(10_000_000));
+        assert_eq!(r(" 100 mbps "), Ok(100_000_000));
+        assert_eq!(r("1G"), Ok(1_000_000_000));
+        assert_eq!(r("5000000"), Ok(5_000_000));
+        assert_eq!(r("1kb"), Ok(1000));
+        for bad in [
+            "", "M", "-1M", "999", "0.5k", "2X", "1e6", "1001G", "1..2M", "fast",
+        ] {
+            assert!(r(bad).is_err(), "{bad:?} accepted");
+        }
+        let e = r("fast").unwrap_err();
+        assert!(e.contains("\"fast\"") && e.contains("1.2M"), "{e}");
     }
 }

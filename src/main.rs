@@ -12,6 +12,7 @@ mod demo;
 mod extract;
 mod flags;
 mod inspect;
+mod link;
 mod render;
 mod replay;
 mod serve;
@@ -72,6 +73,15 @@ enum Command {
     /// filtered by RUST_LOG (default info, one line per request). Stops on SIGINT/SIGTERM after
     /// the requests in flight finish.
     Serve(ServeArgs),
+    /// Emulate a slower, longer network link in front of a server: a loopback TCP proxy that
+    /// forwards connections on --listen to --to with a one-way delay each way, downstream and
+    /// upstream rate caps shared by all connections, optional jitter and connection resets.
+    ///
+    /// Profiles (rates in bits/s, delays one way): adsl 1.2M down / 256k up, 30 ms; dsl10 10M /
+    /// 1M, 25 ms; fibre 100M / 100M, 10 ms; mobile 5M / 1M, 60 ms ±10 ms, 1 % of connections
+    /// reset; custom: give --down, --up and --delay-ms. Any flag overrides the profile. Prints
+    /// the counters every --interval seconds with traffic; Ctrl-C (or SIGTERM) stops it.
+    Link(LinkArgs),
     /// Run the client's refinement loop over a camera flight without drawing: one CSV row per
     /// frame, then hold the camera still until the cut converges, and print a summary.
     Replay(ReplayArgs),
@@ -182,6 +192,41 @@ pub struct ServeArgs {
     /// Worker threads (default: one per core).
     #[arg(long)]
     threads: Option<usize>,
+}
+
+/// Arguments of `cbdam link` (documented on [`Command::Link`]).
+#[derive(Args, Debug)]
+pub struct LinkArgs {
+    /// Link profile: adsl, dsl10, fibre, mobile or custom.
+    #[arg(long)]
+    profile: String,
+    /// Address to listen on (port 0: any free port, printed).
+    #[arg(long, default_value = "127.0.0.1:9000")]
+    listen: SocketAddr,
+    /// Upstream server to forward each connection to, e.g. the address of `cbdam serve`.
+    #[arg(long)]
+    to: SocketAddr,
+    /// Downstream rate cap (server → client), bits/s with k, M or G (e.g. 1.2M).
+    #[arg(long, value_name = "RATE")]
+    down: Option<flags::BitRate>,
+    /// Upstream rate cap (client → server), bits/s with k, M or G (e.g. 256k).
+    #[arg(long, value_name = "RATE")]
+    up: Option<flags::BitRate>,
+    /// One-way delay each direction, ms (the round trip is twice this).
+    #[arg(long, allow_hyphen_values = true)]
+    delay_ms: Option<f64>,
+    /// Jitter, ms: each piece's delay varies uniformly by ± this (bytes are never reordered).
+    #[arg(long, allow_hyphen_values = true)]
+    jitter_ms: Option<f64>,
+    /// Probability that a connection is reset (within its first 64 KiB, or at its end).
+    #[arg(long, allow_hyphen_values = true)]
+    reset_prob: Option<f64>,
+    /// Seed of the reset and jitter draws.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Seconds between counter lines (0: only the totals when stopped).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    interval: f64,
 }
 
 /// Load-test the HTTP server in-process.
@@ -736,6 +781,7 @@ fn main() -> ExitCode {
         Command::Verify(args) => verify::run(&args),
         Command::Extract(args) => extract::run(&args),
         Command::Serve(args) => serve::run(&args),
+        Command::Link(args) => link::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Demo(args) => demo::run(&args),
         Command::Bench(BenchCommand::Codec(args)) => bench_codec::run(&args),

@@ -5,6 +5,7 @@ mod bench;
 mod build;
 mod extract;
 mod inspect;
+mod link;
 mod replay;
 mod serve;
 mod upgrade;

@@ -1,0 +1,144 @@
+//! `cbdam link`: a loopback shaping proxy in front of a server (the library is `cbdam-link`).
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use cbdam_link::{Counters, Link, Proxy};
+
+use crate::LinkArgs;
+
+/// The link of the arguments: the profile with the overrides applied.
+fn link_of(args: &LinkArgs) -> Result<Link> {
+    let mut link = if args.profile.trim().eq_ignore_ascii_case("custom") {
+        let missing: Vec<&str> = [
+            ("--down", args.down.is_none()),
+            ("--up", args.up.is_none()),
+            ("--delay-ms", args.delay_ms.is_none()),
+        ]
+        .iter()
+        .filter(|(_, m)| *m)
+        .map(|(f, _)| *f)
+        .collect();
+        if !missing.is_empty() {
+            bail!("--profile custom needs {}", missing.join(", "));
+        }
+        Link::custom(0, 0, Duration::ZERO)
+    } else {
+        args.profile.parse::<Link>().map_err(anyhow::Error::msg)?
+    };
+    let ms = |flag: &str, v: f64| -> Result<Duration> {
+        if !(v.is_finite() && (0.0..=60_000.0).contains(&v)) {
+            bail!("{flag} must be a number of milliseconds from 0 to 60000, not {v}");
+        }
+        Ok(Duration::from_secs_f64(v / 1e3))
+    };
+    if let Some(r) = args.down {
+        link.down_bps = r.0;
+    }
+    if let Some(r) = args.up {
+        link.up_bps = r.0;
+    }
+    if let Some(v) = args.delay_ms {
+        link.delay = ms("--delay-ms", v)?;
+    }
+    if let Some(v) = args.jitter_ms {
+        link.jitter = ms("--jitter-ms", v)?;
+    }
+    if let Some(p) = args.reset_prob {
+        if !(0.0..=1.0).contains(&p) {
+            bail!("--reset-prob must be a probability from 0 to 1, not {p}");
+        }
+        link.reset_prob = p;
+    }
+    if let Some(s) = args.seed {
+        link.seed = s;
+    }
+    link.validate().map_err(anyhow::Error::msg)?;
+    Ok(link)
+}
+
+fn megabytes(b: u64) -> String {
+    format!("{:.2} MB", b as f64 / 1e6)
+}
+
+pub fn run(args: &LinkArgs) -> Result<()> {
+    let link = link_of(args)?;
+    if !(args.interval.is_finite() && args.interval >= 0.0) {
+        bail!("--interval must be a number of seconds from 0");
+    }
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    rt.block_on(async {
+        let proxy = Proxy::start(args.listen, args.to, link)
+            .await
+            .with_context(|| format!("listening on {}", args.listen))?;
+        println!(
+            "link: {} -> {} over {} ({link}; bursts {} B down, {} B up)",
+            proxy.local_addr(),
+            args.to,
+            args.profile.trim().to_ascii_lowercase(),
+            Link::burst(link.down_bps),
+            Link::burst(link.up_bps),
+        );
+        println!("listening on {}; Ctrl-C stops", proxy.local_addr());
+        let start = Instant::now();
+        let mut last = Counters::default();
+        let mut tick = (args.interval > 0.0)
+            .then(|| tokio::time::interval(Duration::from_secs_f64(args.interval)));
+        let stop = cbdam_server::shutdown_signal();
+        tokio::pin!(stop);
+        loop {
+            let ticked = async {
+                match tick.as_mut() {
+                    Some(t) => {
+                        t.tick().await;
+                    }
+                    None => std::future::pending().await,
+                }
+            };
+            tokio::select! {
+                () = &mut stop => break,
+                () = ticked => {
+                    let c = proxy.counters();
+                    if c == last {
+                        continue;
+                    }
+                    let bps = |now: u64, then: u64| format!("{:.3} Mbit/s", (now - then) as f64 * 8e-6 / args.interval);
+                    println!(
+                        "{:8.1} s  connections {} (+{})  resets {} (+{})  down {} ({})  up {} ({})",
+                        start.elapsed().as_secs_f64(),
+                        c.connections,
+                        c.connections - last.connections,
+                        c.resets,
+                        c.resets - last.resets,
+                        bps(c.bytes_down, last.bytes_down),
+                        megabytes(c.bytes_down),
+                        bps(c.bytes_up, last.bytes_up),
+                        megabytes(c.bytes_up),
+                    );
+                    if c.upstream_errors > last.upstream_errors {
+                        println!(
+                            "          {} connections dropped: {} unreachable",
+                            c.upstream_errors - last.upstream_errors,
+                            args.to
+                        );
+                    }
+                    last = c;
+                }
+            }
+        }
+        let c = proxy.shutdown().await;
+        println!(
+            "stopped after {:.1} s: {} connections, {} reset, {} down, {} up, {} upstream errors",
+            start.elapsed().as_secs_f64(),
+            c.connections,
+            c.resets,
+            megabytes(c.bytes_down),
+            megabytes(c.bytes_up),
+            c.upstream_errors
+        );
+        Ok(())
+    })
+}
