@@ -21,7 +21,7 @@ pub type PatchKey = (DiamondId, Half);
 pub struct HalfPatch {
     /// The diamond whose half this is.
     pub id: DiamondId,
-    /// Which half ([`Layout::parents`] order: the half lying in that parent).
+    /// Which half ([`Domain::parents`](cbdam_codec::geometry::Domain::parents) order: the half lying in that parent).
     pub half: Half,
     /// `N × N` heights on the diamond's grid ([`Layout::grid`]), row-major, integer units
     /// (metres = `plan.offset + plan.unit · h`). The half's own points, split diagonal included,

@@ -201,23 +201,6 @@ impl Layout {
         offsets.map(|o| self.at(id.level - 1, id, o))
     }
 
-    /// The parent on one side, or `None`.
-    pub fn parent(&self, id: DiamondId, half: Half) -> Option<DiamondId> {
-        self.parents(id)[half as usize]
-    }
-
-    /// Which half of `child` lies in `parent`, if `parent` is one of its parents.
-    pub fn half_in(&self, child: DiamondId, parent: DiamondId) -> Option<Half> {
-        let p = self.parents(child);
-        if p[0] == Some(parent) {
-            Some(Half::Positive)
-        } else if p[1] == Some(parent) {
-            Some(Half::Negative)
-        } else {
-            None
-        }
-    }
-
     /// The up to 4 children (fewer on the domain's edge, none at the finest level).
     pub fn children(&self, id: DiamondId) -> [Option<DiamondId>; 4] {
         if id.level >= self.finest_level() {
@@ -323,6 +306,7 @@ impl Layout {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::Domain;
     use std::collections::HashSet;
 
     fn all_diamonds(layout: &Layout) -> Vec<DiamondId> {
@@ -358,7 +342,7 @@ mod tests {
                 for c in layout.children(d).into_iter().flatten() {
                     assert_eq!(c.level, d.level + 1);
                     assert!(
-                        layout.half_in(c, d).is_some(),
+                        Domain::full_plane(layout).half_in(c, d).is_some(),
                         "{c} does not list {d} as parent"
                     );
                 }
@@ -420,7 +404,7 @@ mod tests {
                     .unwrap();
                 // The half in the parent lands inside the parent's (2N−1)² half-step grid on
                 // points with a + b even (vertices and cell centres, never edge midpoints).
-                let half = layout.half_in(d, p).unwrap();
+                let half = Domain::full_plane(layout).half_in(d, p).unwrap();
                 let mut inside = 0;
                 for i in 0..n {
                     for j in 0..n {

@@ -5,7 +5,7 @@
 //! 1. `varint(count)`, the number of stored diamonds.
 //! 2. The *stored-set mask*: one bit per root in domain order; then, level by level in id
 //!    order, for every stored diamond `D` below level `L − 1` and every existing child `C` of `D`
-//!    whose *designated parent* is `D` (its first existing parent in [`Layout::parents`] order),
+//!    whose *designated parent* is `D` (its first existing parent in [`crate::geometry::Domain::parents`] order),
 //!    one bit "C is stored". Each stored diamond is named exactly once and ids cost no bytes.
 //! 3. For every stored diamond in id order: its record length, its object error, and its height
 //!    range `min`, `max` against a *reference*: the designated parent's range (a child's range is
