@@ -61,6 +61,18 @@ impl Size2 {
     }
 }
 
+/// Splits `text` into a finite decimal number and the unit after it (trimmed, lower case), as
+/// [`ByteSize`] and [`BitRate`] write them; `None` when the number does not parse.
+fn number_and_unit(text: &str) -> Option<(f64, String)> {
+    let t = text.trim();
+    let digits = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (num, unit) = t.split_at(digits);
+    let value: f64 = num.parse().ok().filter(|v: &f64| v.is_finite())?;
+    Some((value, unit.trim().to_ascii_lowercase()))
+}
+
 /// A number of bytes: a number with an optional binary suffix K, M, G or T (also KiB, KB …, any
 /// case), e.g. `2G`, `512M`, `1.5G`, `1073741824`; at least one byte and below 16 EiB.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -76,12 +88,8 @@ impl std::str::FromStr for ByteSize {
                  or T for powers of 1024 (e.g. 2G or 512M)"
             )
         };
-        let t = text.trim();
-        let digits = t
-            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-            .unwrap_or(t.len());
-        let (num, suffix) = t.split_at(digits);
-        let scale: u64 = match suffix.trim().to_ascii_lowercase().as_str() {
+        let (value, suffix) = number_and_unit(text).ok_or_else(bad)?;
+        let scale: u64 = match suffix.as_str() {
             "" | "b" => 1,
             "k" | "kb" | "kib" => 1 << 10,
             "m" | "mb" | "mib" => 1 << 20,
@@ -89,11 +97,6 @@ impl std::str::FromStr for ByteSize {
             "t" | "tb" | "tib" => 1 << 40,
             _ => return Err(bad()),
         };
-        let value: f64 = num
-            .parse()
-            .ok()
-            .filter(|v: &f64| v.is_finite())
-            .ok_or_else(bad)?;
         let bytes = value * scale as f64;
         if bytes < 1.0 || bytes >= u64::MAX as f64 {
             return Err(bad());
@@ -118,12 +121,7 @@ impl std::str::FromStr for BitRate {
                  powers of 1000 (e.g. 1.2M or 256k)"
             )
         };
-        let t = text.trim();
-        let digits = t
-            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-            .unwrap_or(t.len());
-        let (num, suffix) = t.split_at(digits);
-        let suffix = suffix.trim().to_ascii_lowercase();
+        let (value, suffix) = number_and_unit(text).ok_or_else(bad)?;
         let unit = ["bit/s", "bps", "b"]
             .iter()
             .find_map(|u| suffix.strip_suffix(u))
@@ -135,11 +133,6 @@ impl std::str::FromStr for BitRate {
             "g" => 1e9,
             _ => return Err(bad()),
         };
-        let value: f64 = num
-            .parse()
-            .ok()
-            .filter(|v: &f64| v.is_finite())
-            .ok_or_else(bad)?;
         let bps = (value * scale).round();
         if !(1e3..=1e12).contains(&bps) {
             return Err(bad());
