@@ -393,7 +393,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // Saturate boxes and errors bottom-up: ids sort coarse to fine, so go in reverse.
         let mut stored: IdMap<Info> = IdMap::default();
         for e in source.entries().iter().rev() {
-            let id = DiamondId::new(e.id.level, e.id.x << shift, e.id.y << shift);
+            let id = e.id.finer(shift);
             let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
             let mut err_m = f64::from(e.object_error) * world.unit;
             for c in domain.children(id).into_iter().flatten() {
@@ -409,7 +409,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let drape = source.drape().cloned().map(Arc::new);
         let mut roots = IdMap::default();
         for r in domain.roots() {
-            let src = DiamondId::new(r.level, r.x >> shift, r.y >> shift);
+            let src = r.coarser(shift);
             let heights = decoder.grid_of(src, [None, None]);
             let valid = decoder.validity_of(src, [None, None]);
             let colour = drape
@@ -541,12 +541,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     pub fn source_id(&self, id: DiamondId) -> Option<DiamondId> {
         let mask = (1u32 << self.shift) - 1;
         (id.level <= self.source_finest && id.x & mask == 0 && id.y & mask == 0)
-            .then(|| DiamondId::new(id.level, id.x >> self.shift, id.y >> self.shift))
+            .then(|| id.coarser(self.shift))
     }
 
     /// The refiner's id of one of the source's diamonds.
     pub fn refiner_id(&self, id: DiamondId) -> DiamondId {
-        DiamondId::new(id.level, id.x << self.shift, id.y << self.shift)
+        id.finer(self.shift)
     }
 
     /// Screen-space error of a refinable diamond as the loop sees it (`None` if it cannot be
@@ -1562,7 +1562,7 @@ impl Job {
             return Ok(None);
         };
         let grids = if id.level == 0 {
-            let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
+            let sid = id.coarser(self.shift);
             root_colour(drape, sid)?
         } else {
             let n = self.domain.n();
@@ -1588,7 +1588,7 @@ impl Job {
 
     fn grid_of(&self, id: DiamondId) -> Vec<i32> {
         if id.level == 0 {
-            let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
+            let sid = id.coarser(self.shift);
             return self.decoder.grid_of(sid, [None, None]);
         }
         let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
@@ -1600,7 +1600,7 @@ impl Job {
 
     fn validity_of(&self, id: DiamondId) -> Option<Vec<bool>> {
         if id.level == 0 {
-            let sid = DiamondId::new(0, id.x >> self.shift, id.y >> self.shift);
+            let sid = id.coarser(self.shift);
             return self.decoder.validity_of(sid, [None, None]);
         }
         let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));

@@ -55,6 +55,18 @@ impl DiamondId {
         Self { level, face, x, y }
     }
 
+    /// The same diamond on a lattice `2^shift` times finer (level pairs added below the finest,
+    /// as the client's synthetic detail does): the centre scaled up, level and face kept.
+    pub const fn finer(self, shift: u32) -> Self {
+        Self::on_face(self.face, self.level, self.x << shift, self.y << shift)
+    }
+
+    /// The inverse of [`DiamondId::finer`]: the centre scaled down by `2^shift` (low bits
+    /// dropped; callers check they are zero where that matters).
+    pub const fn coarser(self, shift: u32) -> Self {
+        Self::on_face(self.face, self.level, self.x >> shift, self.y >> shift)
+    }
+
     /// Whether the level is even (axis-aligned square) or odd (rotated 45°).
     pub const fn is_even(&self) -> bool {
         self.level.is_multiple_of(2)
