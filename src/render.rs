@@ -43,7 +43,7 @@ fn camera(world: &World, spec: Option<&[f64]>, size: (u32, u32)) -> Result<Camer
 /// A low oblique view: from the south-south-west, 12° above the horizon, close enough that the
 /// near terrain is much finer than the far (the adaptive case).
 pub fn low_oblique(world: &World, size: (u32, u32)) -> Camera {
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let centre = (lo + hi) * 0.5;
     let span = (hi - lo).x.max((hi - lo).y);
     let (az, el) = (200f64.to_radians(), 12f64.to_radians());

@@ -35,7 +35,7 @@ impl Camera {
         fov_y: f64,
         size: (u32, u32),
     ) -> Self {
-        let (lo, hi) = world.data_box();
+        let (lo, hi) = world.bounds();
         let far_corner = DVec3::new(
             if eye.x - lo.x > hi.x - eye.x {
                 lo.x
@@ -66,7 +66,7 @@ impl Camera {
     /// An overview of the whole data: from the south, 35° above the horizon, far enough that the
     /// data rectangle fills most of the view.
     pub fn overview(world: &World, size: (u32, u32)) -> Self {
-        let (lo, hi) = world.data_box();
+        let (lo, hi) = world.bounds();
         let centre = (lo + hi) * 0.5;
         let radius = ((hi - lo) * DVec3::new(0.5, 0.5, 0.5)).length().max(1.0);
         let fov_y = 45f64.to_radians();
@@ -198,15 +198,13 @@ mod tests {
     use cbdam_codec::geometry::Domain;
 
     fn world() -> World {
-        World {
-            domain: Domain::covering(65, 1000, 800, 0).unwrap(),
-            step_x: 30.0,
-            step_y: 30.0,
-            unit: 1.0,
-            offset: 0.0,
-            min_height: 100.0,
-            max_height: 2500.0,
-        }
+        World::planar(
+            Domain::covering(65, 1000, 800, 0).unwrap(),
+            (30.0, 30.0),
+            1.0,
+            0.0,
+            (100.0, 2500.0),
+        )
     }
 
     /// The overview sees every corner of the data box, and the target is at the screen centre.
@@ -214,7 +212,7 @@ mod tests {
     fn overview_sees_the_whole_data() {
         let w = world();
         let cam = Camera::overview(&w, (1920, 1080));
-        let (lo, hi) = w.data_box();
+        let (lo, hi) = w.bounds();
         let m = cam.projection() * cam.view();
         for i in 0..8 {
             let c = DVec3::new(

@@ -76,7 +76,7 @@ impl Controls {
     /// Orbit controls starting from `start` (e.g. [`Camera::overview`]): its target is the orbit
     /// centre and its eye the orbit position.
     pub fn new(world: &World, start: &Camera) -> Self {
-        let (lo, hi) = world.data_box();
+        let (lo, hi) = world.bounds();
         let extent = (hi.x - lo.x).max(hi.y - lo.y).max(1.0);
         let mut me = Self {
             mode: Mode::Orbit,
@@ -261,15 +261,13 @@ mod tests {
     use cbdam_codec::geometry::Domain;
 
     fn world() -> World {
-        World {
-            domain: Domain::covering(65, 1000, 800, 0).unwrap(),
-            step_x: 30.0,
-            step_y: 30.0,
-            unit: 1.0,
-            offset: 0.0,
-            min_height: 100.0,
-            max_height: 2500.0,
-        }
+        World::planar(
+            Domain::covering(65, 1000, 800, 0).unwrap(),
+            (30.0, 30.0),
+            1.0,
+            0.0,
+            (100.0, 2500.0),
+        )
     }
 
     fn close(a: DVec3, b: DVec3, tol: f64) -> bool {

@@ -169,7 +169,7 @@ impl Flight {
 
 /// World position of relative coordinates (see the module documentation).
 pub fn to_world(world: &World, p: [f64; 3]) -> DVec3 {
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let range = (world.max_height - world.min_height).max(1.0);
     DVec3::new(
         lo.x + p[0] * (hi.x - lo.x),
@@ -199,15 +199,13 @@ mod tests {
         { "t": 3, "eye": [1, 1, 3], "target": [0.5, 0.5, 1] } ] }"#;
 
     fn world() -> World {
-        World {
-            domain: Domain::covering(65, 1001, 801, 0).unwrap(),
-            step_x: 30.0,
-            step_y: 20.0,
-            unit: 1.0,
-            offset: 0.0,
-            min_height: 100.0,
-            max_height: 300.0,
-        }
+        World::planar(
+            Domain::covering(65, 1001, 801, 0).unwrap(),
+            (30.0, 20.0),
+            1.0,
+            0.0,
+            (100.0, 300.0),
+        )
     }
 
     #[test]
@@ -234,9 +232,9 @@ mod tests {
     }
 
     #[test]
-    fn relative_coordinates_map_to_the_data_box() {
+    fn relative_coordinates_map_to_the_bounds() {
         let w = world();
-        let (lo, hi) = w.data_box();
+        let (lo, hi) = w.bounds();
         assert_eq!(to_world(&w, [0.0, 0.0, 0.0]), DVec3::new(lo.x, lo.y, 100.0));
         assert_eq!(to_world(&w, [1.0, 1.0, 1.0]), DVec3::new(hi.x, hi.y, 300.0));
         // y = 1 is the north edge: lattice row 0, world y = 0.

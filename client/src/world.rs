@@ -29,11 +29,9 @@ const GEOGRAPHIC_EPSG: [u32; 5] = [4326, 4269, 4258, 4283, 4267];
 pub struct World {
     /// The surface the hierarchy covers: faces, roots, the region that holds data.
     pub domain: Domain,
-    /// The planar frame: metres per lattice step eastwards.
-    pub step_x: f64,
-    /// The planar frame: metres per lattice step southwards (lattice y runs south, world y
-    /// north).
-    pub step_y: f64,
+    /// How lattice units become metres on the ground; private, so that callers go through the
+    /// methods and a second frame (the ellipsoid's) changes this file only.
+    frame: Frame,
     /// Metres per height unit.
     pub unit: f64,
     /// Height in metres of unit 0.
@@ -44,7 +42,37 @@ pub struct World {
     pub max_height: f64,
 }
 
+/// How a lattice of the domain lies in world metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Frame {
+    /// A plane: metres per lattice step eastwards (`step_x`) and southwards (`step_y`; lattice y
+    /// runs south, world y north).
+    Planar { step_x: f64, step_y: f64 },
+}
+
 impl World {
+    /// A planar world: `domain` with `step` metres per lattice step `(east, south)`, heights of
+    /// `unit` metres per unit above `offset`, the data between `heights` metres (low, high).
+    pub fn planar(
+        domain: Domain,
+        step: (f64, f64),
+        unit: f64,
+        offset: f64,
+        heights: (f64, f64),
+    ) -> Self {
+        Self {
+            domain,
+            frame: Frame::Planar {
+                step_x: step.0,
+                step_y: step.1,
+            },
+            unit,
+            offset,
+            min_height: heights.0,
+            max_height: heights.1,
+        }
+    }
+
     /// The world of a repository, from what its head holds.
     pub fn new(
         params: &CodecParams,
@@ -67,15 +95,16 @@ impl World {
         };
         let lo = entries.iter().map(|e| e.min).min().unwrap_or(0);
         let hi = entries.iter().map(|e| e.max).max().unwrap_or(0);
-        Self {
-            domain: params.domain,
-            step_x,
-            step_y,
-            unit: plan.unit,
-            offset: plan.offset,
-            min_height: plan.offset + plan.unit * f64::from(lo),
-            max_height: plan.offset + plan.unit * f64::from(hi),
-        }
+        Self::planar(
+            params.domain,
+            (step_x, step_y),
+            plan.unit,
+            plan.offset,
+            (
+                plan.offset + plan.unit * f64::from(lo),
+                plan.offset + plan.unit * f64::from(hi),
+            ),
+        )
     }
 
     /// The world of an opened repository.
@@ -85,38 +114,53 @@ impl World {
 
     /// World position of lattice point `(x, y)` at height `h` units.
     pub fn point(&self, x: i64, y: i64, h: i32) -> DVec3 {
-        DVec3::new(
-            x as f64 * self.step_x,
-            -(y as f64) * self.step_y,
-            self.height(h),
-        )
+        let (wx, wy) = self.lattice_vector(x, y);
+        DVec3::new(wx, wy, self.height(h))
     }
 
     /// World displacement of lattice vector `(dx, dy)` on the ground (no height).
     #[inline]
     pub fn lattice_vector(&self, dx: i64, dy: i64) -> (f64, f64) {
-        (dx as f64 * self.step_x, -dy as f64 * self.step_y)
+        match self.frame {
+            Frame::Planar { step_x, step_y } => (dx as f64 * step_x, -dy as f64 * step_y),
+        }
     }
 
     /// Fractional lattice coordinates of the ground under world position `p`.
     #[inline]
     pub fn lattice_of(&self, p: DVec3) -> (f64, f64) {
-        (p.x / self.step_x, -p.y / self.step_y)
+        match self.frame {
+            Frame::Planar { step_x, step_y } => (p.x / step_x, -p.y / step_y),
+        }
     }
 
     /// Mean metres per lattice step on the ground.
     pub fn mean_step(&self) -> f64 {
-        0.5 * (self.step_x + self.step_y)
+        match self.frame {
+            Frame::Planar { step_x, step_y } => 0.5 * (step_x + step_y),
+        }
+    }
+
+    /// The shortest metres per lattice step on the ground.
+    pub fn min_step(&self) -> f64 {
+        match self.frame {
+            Frame::Planar { step_x, step_y } => step_x.min(step_y),
+        }
     }
 
     /// The same world with `level_pairs` more level pairs of (synthetic) detail below the
     /// finest: lattice coordinates scale by `2^level_pairs`, metres per step shrink by as much.
     pub fn with_detail(&self, level_pairs: u32) -> Result<Self, cbdam_codec::CodecError> {
         let scale = f64::from(1u32 << level_pairs);
+        let frame = match self.frame {
+            Frame::Planar { step_x, step_y } => Frame::Planar {
+                step_x: step_x / scale,
+                step_y: step_y / scale,
+            },
+        };
         Ok(Self {
             domain: self.domain.with_detail(level_pairs)?,
-            step_x: self.step_x / scale,
-            step_y: self.step_y / scale,
+            frame,
             ..*self
         })
     }
@@ -134,15 +178,16 @@ impl World {
         (a.min(b), a.max(b))
     }
 
-    /// World bounding box of the region that holds data, over the data's height range.
-    pub fn data_box(&self) -> (DVec3, DVec3) {
+    /// World bounding box `(min, max)` of the region that holds data, over the data's height
+    /// range: what a first view frames.
+    pub fn bounds(&self) -> (DVec3, DVec3) {
         let data = self.domain.data();
-        let a = DVec3::new(0.0, 0.0, self.min_height);
-        let b = DVec3::new(
-            f64::from(data.width.saturating_sub(1)) * self.step_x,
-            -f64::from(data.height.saturating_sub(1)) * self.step_y,
-            self.max_height,
+        let (wx, wy) = self.lattice_vector(
+            i64::from(data.width.saturating_sub(1)),
+            i64::from(data.height.saturating_sub(1)),
         );
+        let a = DVec3::new(0.0, 0.0, self.min_height);
+        let b = DVec3::new(wx, wy, self.max_height);
         (a.min(b), a.max(b))
     }
 }

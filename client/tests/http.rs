@@ -173,7 +173,7 @@ fn cameras(repo: &Repository) -> (Camera, Camera) {
     let world = World::of_repository(repo);
     // A tiny viewport: the overview's cut stays coarse, so the close view needs new records.
     let overview = Camera::overview(&world, (48, 27));
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let target = DVec3::new(
         lo.x + 0.7 * (hi.x - lo.x),
         lo.y + 0.3 * (hi.y - lo.y),

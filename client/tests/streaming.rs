@@ -68,7 +68,7 @@ impl Rng {
 
 /// A random camera above the terrain looking at a random point of the data.
 fn random_camera(world: &World, rng: &mut Rng) -> Camera {
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let span = hi - lo;
     let target = lo + DVec3::new(rng.f() * span.x, rng.f() * span.y, rng.f() * span.z);
     let eye = DVec3::new(
@@ -398,7 +398,7 @@ fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
     let world = World::of_repository(&repo);
     let src_finest = repo.params().domain.finest_level();
     // Close to the ground, looking along it: the data's resolution is not enough.
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let c = (lo + hi) * 0.5;
     let cam = Camera::looking_at(
         &world,
@@ -466,7 +466,7 @@ fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
 fn requests_the_view_no_longer_needs_are_cancelled() {
     let repo = repository();
     let world = World::of_repository(&repo);
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let look = |x: f64| {
         let eye = DVec3::new(lo.x + x * (hi.x - lo.x), lo.y - 20.0, hi.z + 30.0);
         let target = DVec3::new(eye.x, (lo.y + hi.y) / 2.0, lo.z);

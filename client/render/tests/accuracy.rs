@@ -112,7 +112,8 @@ fn worst_excess(
                 continue;
             }
             let p = unproject(cam, x, y, d);
-            let Some(h) = finest.height(p.x / world.step_x, -p.y / world.step_y) else {
+            let (fx, fy) = world.lattice_of(p);
+            let Some(h) = finest.height(fx, fy) else {
                 continue;
             };
             let ppm = cam.pixels_per_metre((p - cam.eye).length());
@@ -134,7 +135,7 @@ fn adaptive_cuts_stay_within_the_pixel_error() {
     let world = World::of_repository(repo);
     let finest = Finest::new(repo);
     let size = (240, 160);
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let span = (hi - lo).x.max((hi - lo).y);
     let full = full_resolution_cut(repo).refined().count();
     for (name, cam) in [

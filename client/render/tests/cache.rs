@@ -55,7 +55,7 @@ fn check_against(name: &str, frame: &Frame, reference: &Frame) -> usize {
 }
 
 fn views(world: &World) -> Vec<Camera> {
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let span = (hi - lo).x.max((hi - lo).y);
     let size = (160, 120);
     vec![

@@ -131,7 +131,7 @@ fn settle<S: DataSource>(source: S, cam: &Camera) -> Refiner<S> {
 /// A view from above, slightly tilted (a camera cannot look exactly down its up axis), that
 /// refines to the finest level over much of the data.
 fn above(world: &World, size: (u32, u32)) -> Camera {
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let c = (lo + hi) * 0.5;
     let span = (hi - lo).x.max((hi - lo).y);
     camera(
@@ -247,7 +247,7 @@ fn sample_of(world: &World, cam: &Camera, frame: &Frame, x: u32, y: u32) -> Opti
     let d = frame.depth.as_ref().unwrap()[(y * frame.width + x) as usize];
     (d < 1.0).then(|| {
         let p = unproject(cam, x, y, f64::from(d));
-        (p.x / world.step_x, -p.y / world.step_y)
+        world.lattice_of(p)
     })
 }
 

@@ -28,7 +28,7 @@ fn footprint(world: &World, cam: &Camera, lo: f64, hi: f64) -> Vec<bool> {
         f64::from(world.domain.data().height - 1) - margin,
     );
     let inside = |p: DVec3| {
-        let (x, y) = (p.x / world.step_x, -p.y / world.step_y);
+        let (x, y) = world.lattice_of(p);
         x >= margin && y >= margin && x <= xmax && y <= ymax
     };
     let mut out = Vec::with_capacity((cam.width * cam.height) as usize);
@@ -72,7 +72,7 @@ fn check(name: &str, frame: &Frame, must: &[bool]) {
 
 fn views(world: &World) -> Vec<(&'static str, Camera)> {
     let size = (192, 144);
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let centre = (lo + hi) * 0.5;
     let span = (hi - lo).x.max((hi - lo).y);
     let top = camera(

@@ -81,7 +81,7 @@ fn render(name: &str, cam: &Camera, pixel_error: f64, options: &RenderOptions) -
 #[test]
 fn overview_matches_golden() {
     let world = World::of_repository(jacksboro());
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let span = (hi - lo).x.max((hi - lo).y);
     // From the south, 40° high, close enough that the data fills the frame.
     let cam = orbit(&world, 0.0, 40.0, span * 0.8, (200, 130));
@@ -94,7 +94,7 @@ fn overview_matches_golden() {
 #[test]
 fn oblique_levels_wireframe_matches_golden() {
     let world = World::of_repository(jacksboro());
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let span = (hi - lo).x.max((hi - lo).y);
     let cam = orbit(&world, 220.0, 18.0, span * 0.55, (200, 130));
     let options = RenderOptions {

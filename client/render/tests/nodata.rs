@@ -73,9 +73,9 @@ fn examine(repo: &Repository, valid: &[bool], cam: &Camera, patches: &[HalfPatch
             f.drawn += 1;
             let p = unproject(cam, x, y, d);
             let wobble = (unproject(cam, x, y, d + 4e-7) - unproject(cam, x, y, d - 4e-7)).length()
-                / world.step_x.min(world.step_y);
+                / world.min_step();
             let tol = 0.02 + wobble;
-            let (fx, fy) = (p.x / world.step_x, -p.y / world.step_y);
+            let (fx, fy) = world.lattice_of(p);
             // Some cell within the tolerance has three corners with data.
             let cells = |v: f64| (v - tol).floor() as i64..=(v + tol).floor() as i64;
             let fine = cells(fx).any(|cx| {
@@ -110,8 +110,9 @@ fn examine(repo: &Repository, valid: &[bool], cam: &Camera, patches: &[HalfPatch
 
 /// A camera straight above lattice point `(cx, cy)` seeing about `span` samples across.
 fn top_view(world: &World, cx: f64, cy: f64, span: f64, size: (u32, u32)) -> Camera {
-    let centre = DVec3::new(cx * world.step_x, -cy * world.step_y, world.min_height);
-    let across = span * world.step_x;
+    let (sx, sy) = world.lattice_vector(1, 1);
+    let centre = DVec3::new(cx * sx, cy * sy, world.min_height);
+    let across = span * sx;
     // 45° field of view: the ground `across` wide at distance `across / (2 tan 22.5°)`.
     let up = across / (2.0 * 22.5f64.to_radians().tan());
     let eye = DVec3::new(centre.x, centre.y, world.max_height + up);

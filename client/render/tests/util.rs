@@ -93,7 +93,7 @@ pub fn orbit(
     distance: f64,
     size: (u32, u32),
 ) -> Camera {
-    let (lo, hi) = world.data_box();
+    let (lo, hi) = world.bounds();
     let centre = (lo + hi) * 0.5;
     let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
     let dir = DVec3::new(az.sin() * el.cos(), -az.cos() * el.cos(), el.sin());
