@@ -35,9 +35,13 @@
 
 mod cache;
 mod detail;
+mod node;
+mod state;
 
 pub use cache::LruCache;
 pub use detail::DetailConfig;
+use node::{Info, Node};
+use state::{CutState, DrawKey, Requests, Residency};
 
 use std::collections::{BTreeMap, BinaryHeap};
 use std::sync::Arc;
@@ -64,8 +68,6 @@ const OVERRUN_DECAY: f64 = 0.9;
 /// Prefetched diamonds are requested with their error scaled by this, so that they never
 /// overtake what the current view needs.
 const PREFETCH_PRIORITY: f64 = 1.0 / 16.0;
-/// Recent error messages kept for [`Refiner::errors`].
-const ERROR_LOG: usize = 64;
 
 /// Settings of the refinement loop.
 #[derive(Clone, Debug)]
@@ -178,60 +180,6 @@ pub struct CacheUse {
     pub decoded_evictions: u64,
 }
 
-/// A refined diamond: its refinement and the halves of its children that lie in it.
-#[derive(Debug)]
-struct Node {
-    refined: Refined,
-    /// Y, Co, Cg refined alike, when a colour repository is draped over the terrain.
-    colour: Option<ColourRefined>,
-    /// `halves[i]` is the half of `children[i]` lying in this diamond.
-    halves: [Option<Arc<HalfPatch>>; 4],
-}
-
-impl Node {
-    fn bytes(&self) -> usize {
-        let heights = Self::bytes_for(
-            self.refined.n(),
-            self.halves.iter().flatten().count(),
-            self.colour.is_some(),
-        );
-        // Nodata masks, one byte per point, where the record has any nodata.
-        let masks = self.refined.validity().map_or(0, <[bool]>::len)
-            + self
-                .halves
-                .iter()
-                .flatten()
-                .filter_map(|h| h.valid.as_ref())
-                .map(Vec::len)
-                .sum::<usize>();
-        heights + masks
-    }
-
-    /// Bytes of the heights of a node of an `n × n` diamond with `halves` child halves (its
-    /// nodata masks, when it has any, add a quarter: one byte per point against four), and of
-    /// its colour: three refined channels and a packed colour per child-half point.
-    fn bytes_for(n: usize, halves: usize, colour: bool) -> usize {
-        let refined = (2 * n - 1) * (2 * n - 1);
-        let heights = 4 * (refined + halves * n * n);
-        heights
-            + if colour {
-                4 * (3 * refined + halves * n * n)
-            } else {
-                0
-            }
-    }
-}
-
-/// What the metric knows of a refinable diamond.
-#[derive(Clone, Copy, Debug)]
-struct Info {
-    /// Saturated object-space error, metres.
-    err_m: f64,
-    /// Saturated world bounding box.
-    lo: DVec3,
-    hi: DVec3,
-}
-
 /// How a diamond's refinement can be had.
 enum Source {
     Cached(Arc<Node>),
@@ -298,41 +246,6 @@ impl View {
 /// Distance from `p` to the box `lo..hi` (0 inside).
 pub fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
     (lo - p).max(p - hi).max(DVec3::ZERO).length()
-}
-
-/// The cut and what is kept up to date with it as it changes.
-struct CutState {
-    cut: Cut,
-    nodes: IdMap<Arc<Node>>,
-    roots: IdMap<[Arc<HalfPatch>; 2]>,
-    /// The drawn half-patches, keyed so that iteration follows [`Cut::drawn_halves`]' order;
-    /// updated on every refinement and coarsening, so a frame's cost follows what changed.
-    drawn: BTreeMap<DrawKey, Arc<HalfPatch>>,
-    /// Refinement candidates (the diamonds with a drawn half) with their metric, kept as the
-    /// cut changes rather than found by a pass over the cut each frame.
-    candidates: IdMap<Option<Info>>,
-    /// Coarsening candidates: refined diamonds with no refined child, with their metric.
-    leaves: IdMap<Option<Info>>,
-}
-
-/// What the refiner holds in RAM besides the cut's structure: compressed records, decoded
-/// diamonds kept after coarsening, and the cut's decoded bytes against
-/// [`RefineConfig::cut_bytes`].
-struct Residency {
-    records: LruCache<DiamondId, Arc<[u8]>>,
-    decoded: LruCache<DiamondId, Arc<Node>>,
-    /// Sum of the cut's nodes' bytes.
-    cut_bytes: usize,
-}
-
-/// The refiner's side of the data source: what is requested, and what failed.
-#[derive(Default)]
-struct Requests {
-    requested: IdMap<Priority>,
-    failures: IdMap<u32>,
-    failure_count: u64,
-    broken: IdSet,
-    errors: Vec<String>,
 }
 
 /// The streaming refinement loop over one data source, decoding on the spawner `X`'s workers.
@@ -463,7 +376,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             done_rx,
             config,
         };
-        me.rebuild_drawn();
+        me.cut_state.rebuild_drawn(&me.domain);
         let roots: Vec<DiamondId> = me.domain.roots().collect();
         for r in roots {
             let info = me.info(r);
@@ -599,22 +512,11 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         id.level >= self.source_finest
     }
 
+    /// Records a failure to fetch or decode `id`: the request log counts it (and gives up on
+    /// the diamond after [`RefineConfig::max_failures`]), and its record, if any, is dropped.
     fn log_failure(&mut self, id: DiamondId, message: String) {
-        self.requests.failure_count += 1;
-        let n = self.requests.failures.entry(id).or_default();
-        *n += 1;
-        let gave_up = *n >= self.config.max_failures;
-        if gave_up {
-            self.requests.broken.insert(id);
-        }
-        if self.requests.errors.len() >= ERROR_LOG {
-            self.requests.errors.remove(0);
-        }
-        self.requests.errors.push(if gave_up {
-            format!("{message} (giving up on {id})")
-        } else {
-            message
-        });
+        self.requests
+            .log_failure(id, message, self.config.max_failures);
         self.residency.records.remove(&id);
     }
 
@@ -623,9 +525,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         match self.source.take(sid)? {
             Ok(bytes) => {
                 let bytes: Arc<[u8]> = bytes.into();
-                self.residency
-                    .records
-                    .insert(id, bytes.clone(), bytes.len() + 64);
+                self.residency.keep_record(id, bytes.clone());
                 Some(bytes)
             }
             Err(e) => {
@@ -737,7 +637,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         if newly.is_empty() {
             return;
         }
-        self.hide_halves(id);
+        self.cut_state.hide_halves(&self.domain, id);
         self.cut_state.candidates.remove(&id);
         let halves = self.cut_state.nodes[&id].halves.clone();
         for (slot, k) in self.domain.children(id).into_iter().enumerate() {
@@ -775,70 +675,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 self.cut_state.candidates.remove(&k);
             }
         }
-        self.show_halves(id);
+        self.cut_state.show_halves(&self.domain, id);
         let info = self.info(id);
         self.cut_state.candidates.insert(id, info);
         self.cut_state.leaves.remove(&id);
         for p in self.domain.parents(id).into_iter().flatten() {
-            if self.is_leaf(p) {
+            if self.cut_state.is_leaf(&self.domain, p) {
                 let info = self.info(p);
                 self.cut_state.leaves.insert(p, info);
             }
         }
         true
-    }
-
-    /// The drawn-list keys of the halves of unrefined `id` (one per refined parent, both
-    /// halves for a root).
-    fn half_keys(&self, id: DiamondId) -> Vec<(DrawKey, Arc<HalfPatch>)> {
-        if id.level == 0 {
-            let idx = self
-                .domain
-                .roots()
-                .position(|r| r == id)
-                .expect("level 0 diamonds are roots");
-            return Half::BOTH
-                .iter()
-                .enumerate()
-                .map(|(i, &h)| {
-                    (
-                        DrawKey::Root(idx, i),
-                        self.cut_state.roots[&id][h as usize].clone(),
-                    )
-                })
-                .collect();
-        }
-        let mut out = Vec::new();
-        for p in self.domain.parents(id).into_iter().flatten() {
-            if !self.cut_state.cut.is_refined(p) {
-                continue;
-            }
-            let slot = self
-                .domain
-                .children(p)
-                .iter()
-                .position(|c| *c == Some(id))
-                .expect("child of its parent");
-            let half = self.cut_state.nodes[&p].halves[slot]
-                .clone()
-                .expect("refined parents hold their children's halves");
-            out.push((DrawKey::Child(p, slot), half));
-        }
-        out
-    }
-
-    /// Draws the halves of `id`, just coarsened (or a root).
-    fn show_halves(&mut self, id: DiamondId) {
-        for (k, h) in self.half_keys(id) {
-            self.cut_state.drawn.insert(k, h);
-        }
-    }
-
-    /// Stops drawing the halves of `id`, about to be refined (its parents are refined).
-    fn hide_halves(&mut self, id: DiamondId) {
-        for (k, _) in self.half_keys(id) {
-            self.cut_state.drawn.remove(&k);
-        }
     }
 
     fn violation(&mut self, id: DiamondId, view: &View) -> Option<f64> {
@@ -926,7 +773,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         self.remember_overrun(deadline, &stats);
         stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
         #[cfg(debug_assertions)]
-        self.check_incremental_sets();
+        self.cut_state.check_incremental_sets(&self.domain);
         self.figures(&view, &candidates, &errors, &mut stats);
         stats
     }
@@ -1284,7 +1131,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             self.release(c.id);
             for p in self.domain.parents(c.id).into_iter().flatten() {
                 if self.cut_state.cut.is_refined(p)
-                    && self.is_leaf(p)
+                    && self.cut_state.is_leaf(&self.domain, p)
                     && let Some(c) = self.unneeded(p, view)
                 {
                     heap.push(std::cmp::Reverse(c));
@@ -1297,9 +1144,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// After `id` was coarsened: its node moves to the decoded cache.
     fn release(&mut self, id: DiamondId) {
         if let Some(node) = self.cut_state.nodes.remove(&id) {
-            let bytes = node.bytes();
-            self.residency.cut_bytes -= bytes;
-            self.residency.decoded.insert(id, node, bytes);
+            self.residency.retire(id, node);
         }
     }
 
@@ -1349,7 +1194,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 break false;
             };
             // Entries go stale as the frame refines and coarsens.
-            if !self.cut_state.cut.is_refined(c.id) || !self.is_leaf(c.id) {
+            if !self.cut_state.cut.is_refined(c.id) || !self.cut_state.is_leaf(&self.domain, c.id) {
                 continue;
             }
             if c.err >= err {
@@ -1367,7 +1212,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             stats.coarsenings += 1;
             self.release(c.id);
             for p in self.domain.parents(c.id).into_iter().flatten() {
-                if self.cut_state.cut.is_refined(p) && self.is_leaf(p) {
+                if self.cut_state.cut.is_refined(p) && self.cut_state.is_leaf(&self.domain, p) {
                     let err = self.drawn_error(p, view);
                     heap.push(std::cmp::Reverse(Candidate { err, id: p }));
                 }
@@ -1381,15 +1226,6 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// frustum.
     fn drawn_error(&mut self, id: DiamondId, view: &View) -> f64 {
         self.info(id).and_then(|i| view.error(&i)).unwrap_or(0.0)
-    }
-
-    fn is_leaf(&self, id: DiamondId) -> bool {
-        !self
-            .domain
-            .children(id)
-            .into_iter()
-            .flatten()
-            .any(|c| self.cut_state.cut.is_refined(c))
     }
 
     /// `Some` (with its error, for ordering) if a refined diamond is not needed by the view.
@@ -1431,74 +1267,6 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .count();
         (worst, coarsenable)
     }
-
-    /// Checks the incrementally kept sets against a recomputation from the cut (debug builds,
-    /// so every test frame checks them).
-    #[cfg(debug_assertions)]
-    fn check_incremental_sets(&self) {
-        let mut candidates: Vec<DiamondId> = self
-            .domain
-            .roots()
-            .filter(|r| !self.cut_state.cut.is_refined(*r))
-            .collect();
-        for a in self.cut_state.cut.refined() {
-            for k in self.domain.children(a).into_iter().flatten() {
-                if !self.cut_state.cut.is_refined(k) {
-                    candidates.push(k);
-                }
-            }
-        }
-        candidates.sort_unstable();
-        candidates.dedup();
-        let mut kept: Vec<DiamondId> = self.cut_state.candidates.keys().copied().collect();
-        kept.sort_unstable();
-        assert_eq!(
-            kept, candidates,
-            "refinement candidates out of step with the cut"
-        );
-        let mut leaves: Vec<DiamondId> = self
-            .cut_state
-            .cut
-            .refined()
-            .filter(|&d| self.is_leaf(d))
-            .collect();
-        leaves.sort_unstable();
-        let mut kept: Vec<DiamondId> = self.cut_state.leaves.keys().copied().collect();
-        kept.sort_unstable();
-        assert_eq!(
-            kept, leaves,
-            "coarsening candidates out of step with the cut"
-        );
-        let drawn: Vec<(DiamondId, Half)> = self
-            .cut_state
-            .drawn
-            .values()
-            .map(|p| (p.id, p.half))
-            .collect();
-        assert_eq!(
-            drawn,
-            self.cut_state.cut.drawn_halves(&self.domain),
-            "drawn list out of step"
-        );
-    }
-
-    /// Fills the drawn list of the initial cut (roots only).
-    fn rebuild_drawn(&mut self) {
-        self.cut_state.drawn.clear();
-        let roots: Vec<DiamondId> = self.domain.roots().collect();
-        for r in roots {
-            self.show_halves(r);
-        }
-    }
-}
-
-/// Where a drawn half sits in [`Cut::drawn_halves`]' order: unrefined roots first (by their
-/// index in [`Layout::roots`], then the half's index in [`Half::BOTH`]), then the halves of
-/// refined diamonds' children, by parent (the cut's coarse-to-fine order), then child slot.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-enum DrawKey {
-    Root(usize, usize),
-    Child(DiamondId, usize),
 }
 
 /// A finished (or failed) refinement coming back from a worker.

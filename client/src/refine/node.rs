@@ -1,0 +1,64 @@
+//! What the refiner keeps per diamond: a refined node with its children's halves, and what the
+//! error metric knows of a diamond.
+
+use std::sync::Arc;
+
+use cbdam_codec::colour::ColourRefined;
+use cbdam_codec::hierarchy::Refined;
+use glam::DVec3;
+
+use crate::patch::HalfPatch;
+
+/// A refined diamond: its refinement and the halves of its children that lie in it.
+#[derive(Debug)]
+pub(super) struct Node {
+    pub(super) refined: Refined,
+    /// Y, Co, Cg refined alike, when a colour repository is draped over the terrain.
+    pub(super) colour: Option<ColourRefined>,
+    /// `halves[i]` is the half of `children[i]` lying in this diamond.
+    pub(super) halves: [Option<Arc<HalfPatch>>; 4],
+}
+
+impl Node {
+    pub(super) fn bytes(&self) -> usize {
+        let heights = Self::bytes_for(
+            self.refined.n(),
+            self.halves.iter().flatten().count(),
+            self.colour.is_some(),
+        );
+        // Nodata masks, one byte per point, where the record has any nodata.
+        let masks = self.refined.validity().map_or(0, <[bool]>::len)
+            + self
+                .halves
+                .iter()
+                .flatten()
+                .filter_map(|h| h.valid.as_ref())
+                .map(Vec::len)
+                .sum::<usize>();
+        heights + masks
+    }
+
+    /// Bytes of the heights of a node of an `n × n` diamond with `halves` child halves (its
+    /// nodata masks, when it has any, add a quarter: one byte per point against four), and of
+    /// its colour: three refined channels and a packed colour per child-half point.
+    pub(super) fn bytes_for(n: usize, halves: usize, colour: bool) -> usize {
+        let refined = (2 * n - 1) * (2 * n - 1);
+        let heights = 4 * (refined + halves * n * n);
+        heights
+            + if colour {
+                4 * (3 * refined + halves * n * n)
+            } else {
+                0
+            }
+    }
+}
+
+/// What the metric knows of a refinable diamond.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Info {
+    /// Saturated object-space error, metres.
+    pub(super) err_m: f64,
+    /// Saturated world bounding box.
+    pub(super) lo: DVec3,
+    pub(super) hi: DVec3,
+}

@@ -1,0 +1,208 @@
+//! The refiner's state in three parts: the cut and what is kept up to date with it
+//! ([`CutState`]), what is held in RAM against the memory budgets ([`Residency`]), and the
+//! refiner's side of the data source ([`Requests`]). Each part's methods touch only that part
+//! (and the [`Domain`], for the relations); the refiner's loop coordinates them.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use cbdam_codec::geometry::{Cut, DiamondId, Domain, Half, IdMap, IdSet};
+
+use super::cache::LruCache;
+use super::node::{Info, Node};
+use crate::access::Priority;
+use crate::patch::HalfPatch;
+
+/// Recent error messages kept for [`super::Refiner::errors`].
+const ERROR_LOG: usize = 64;
+
+/// The cut and what is kept up to date with it as it changes.
+pub(super) struct CutState {
+    pub(super) cut: Cut,
+    pub(super) nodes: IdMap<Arc<Node>>,
+    pub(super) roots: IdMap<[Arc<HalfPatch>; 2]>,
+    /// The drawn half-patches, keyed so that iteration follows [`Cut::drawn_halves`]' order;
+    /// updated on every refinement and coarsening, so a frame's cost follows what changed.
+    pub(super) drawn: BTreeMap<DrawKey, Arc<HalfPatch>>,
+    /// Refinement candidates (the diamonds with a drawn half) with their metric, kept as the
+    /// cut changes rather than found by a pass over the cut each frame.
+    pub(super) candidates: IdMap<Option<Info>>,
+    /// Coarsening candidates: refined diamonds with no refined child, with their metric.
+    pub(super) leaves: IdMap<Option<Info>>,
+}
+
+impl CutState {
+    /// The drawn-list keys of the halves of unrefined `id` (one per refined parent, both
+    /// halves for a root).
+    fn half_keys(&self, domain: &Domain, id: DiamondId) -> Vec<(DrawKey, Arc<HalfPatch>)> {
+        if id.level == 0 {
+            let idx = domain
+                .roots()
+                .position(|r| r == id)
+                .expect("level 0 diamonds are roots");
+            return Half::BOTH
+                .iter()
+                .enumerate()
+                .map(|(i, &h)| (DrawKey::Root(idx, i), self.roots[&id][h as usize].clone()))
+                .collect();
+        }
+        let mut out = Vec::new();
+        for p in domain.parents(id).into_iter().flatten() {
+            if !self.cut.is_refined(p) {
+                continue;
+            }
+            let slot = domain
+                .children(p)
+                .iter()
+                .position(|c| *c == Some(id))
+                .expect("child of its parent");
+            let half = self.nodes[&p].halves[slot]
+                .clone()
+                .expect("refined parents hold their children's halves");
+            out.push((DrawKey::Child(p, slot), half));
+        }
+        out
+    }
+
+    /// Draws the halves of `id`, just coarsened (or a root).
+    pub(super) fn show_halves(&mut self, domain: &Domain, id: DiamondId) {
+        for (k, h) in self.half_keys(domain, id) {
+            self.drawn.insert(k, h);
+        }
+    }
+
+    /// Stops drawing the halves of `id`, about to be refined (its parents are refined).
+    pub(super) fn hide_halves(&mut self, domain: &Domain, id: DiamondId) {
+        for (k, _) in self.half_keys(domain, id) {
+            self.drawn.remove(&k);
+        }
+    }
+
+    /// Whether refined `id` has no refined child (a coarsening candidate).
+    pub(super) fn is_leaf(&self, domain: &Domain, id: DiamondId) -> bool {
+        !domain
+            .children(id)
+            .into_iter()
+            .flatten()
+            .any(|c| self.cut.is_refined(c))
+    }
+
+    /// Checks the incrementally kept sets against a recomputation from the cut (debug builds,
+    /// so every test frame checks them).
+    #[cfg(debug_assertions)]
+    pub(super) fn check_incremental_sets(&self, domain: &Domain) {
+        let mut candidates: Vec<DiamondId> = domain
+            .roots()
+            .filter(|r| !self.cut.is_refined(*r))
+            .collect();
+        for a in self.cut.refined() {
+            for k in domain.children(a).into_iter().flatten() {
+                if !self.cut.is_refined(k) {
+                    candidates.push(k);
+                }
+            }
+        }
+        candidates.sort_unstable();
+        candidates.dedup();
+        let mut kept: Vec<DiamondId> = self.candidates.keys().copied().collect();
+        kept.sort_unstable();
+        assert_eq!(
+            kept, candidates,
+            "refinement candidates out of step with the cut"
+        );
+        let mut leaves: Vec<DiamondId> = self
+            .cut
+            .refined()
+            .filter(|&d| self.is_leaf(domain, d))
+            .collect();
+        leaves.sort_unstable();
+        let mut kept: Vec<DiamondId> = self.leaves.keys().copied().collect();
+        kept.sort_unstable();
+        assert_eq!(
+            kept, leaves,
+            "coarsening candidates out of step with the cut"
+        );
+        let drawn: Vec<(DiamondId, Half)> = self.drawn.values().map(|p| (p.id, p.half)).collect();
+        assert_eq!(
+            drawn,
+            self.cut.drawn_halves(domain),
+            "drawn list out of step"
+        );
+    }
+
+    /// Fills the drawn list of the initial cut (roots only).
+    pub(super) fn rebuild_drawn(&mut self, domain: &Domain) {
+        self.drawn.clear();
+        let roots: Vec<DiamondId> = domain.roots().collect();
+        for r in roots {
+            self.show_halves(domain, r);
+        }
+    }
+}
+
+/// Where a drawn half sits in [`Cut::drawn_halves`]' order: unrefined roots first (by their
+/// index in [`Layout::roots`], then the half's index in [`Half::BOTH`]), then the halves of
+/// refined diamonds' children, by parent (the cut's coarse-to-fine order), then child slot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub(super) enum DrawKey {
+    Root(usize, usize),
+    Child(DiamondId, usize),
+}
+
+/// What the refiner holds in RAM besides the cut's structure: compressed records, decoded
+/// diamonds kept after coarsening, and the cut's decoded bytes against
+/// [`RefineConfig::cut_bytes`].
+pub(super) struct Residency {
+    pub(super) records: LruCache<DiamondId, Arc<[u8]>>,
+    pub(super) decoded: LruCache<DiamondId, Arc<Node>>,
+    /// Sum of the cut's nodes' bytes.
+    pub(super) cut_bytes: usize,
+}
+
+impl Residency {
+    /// Keeps a record that has arrived.
+    pub(super) fn keep_record(&mut self, id: DiamondId, bytes: Arc<[u8]>) {
+        let size = bytes.len() + 64;
+        self.records.insert(id, bytes, size);
+    }
+
+    /// Takes in the node of a diamond just coarsened: out of the cut's bytes, into the decoded
+    /// cache.
+    pub(super) fn retire(&mut self, id: DiamondId, node: Arc<Node>) {
+        let bytes = node.bytes();
+        self.cut_bytes -= bytes;
+        self.decoded.insert(id, node, bytes);
+    }
+}
+
+/// The refiner's side of the data source: what is requested, and what failed.
+#[derive(Default)]
+pub(super) struct Requests {
+    pub(super) requested: IdMap<Priority>,
+    pub(super) failures: IdMap<u32>,
+    pub(super) failure_count: u64,
+    pub(super) broken: IdSet,
+    pub(super) errors: Vec<String>,
+}
+
+impl Requests {
+    /// Counts a failure of `id`, gives up on it after `max_failures`, and keeps the message
+    /// (the last [`ERROR_LOG`]).
+    pub(super) fn log_failure(&mut self, id: DiamondId, message: String, max_failures: u32) {
+        self.failure_count += 1;
+        let n = self.failures.entry(id).or_default();
+        *n += 1;
+        let gave_up = *n >= max_failures;
+        if gave_up {
+            self.broken.insert(id);
+        }
+        if self.errors.len() >= ERROR_LOG {
+            self.errors.remove(0);
+        }
+        self.errors.push(if gave_up {
+            format!("{message} (giving up on {id})")
+        } else {
+            message
+        });
+    }
+}
