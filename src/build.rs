@@ -8,8 +8,8 @@ use std::time::Instant;
 
 use anyhow::Result;
 use cbdam_build::{
-    BuildOptions, BuildSummary, ColourSummary, ElevationSummary, Progress, ProgressEvent, Spilled,
-    Stage,
+    AssignedGeoRef, BuildOptions, BuildSummary, ColourSummary, ElevationSummary, Progress,
+    ProgressEvent, Spilled, Stage,
 };
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::lifting::Alpha;
@@ -36,8 +36,12 @@ pub fn parse_extra_levels(text: &str) -> Result<ExtraLevels, String> {
 }
 
 /// The build's options from the command line: the one place its flags become library types.
-pub fn options(args: &BuildArgs) -> BuildOptions {
-    BuildOptions {
+pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
+    let assign_georef = match (&args.bounds, &args.crs) {
+        (Some(b), Some(c)) => Some(AssignedGeoRef::parse(b, c)?),
+        _ => None,
+    };
+    Ok(BuildOptions {
         inputs: args.inputs.clone(),
         output: args.output.clone(),
         max_error: args.max_error,
@@ -59,13 +63,14 @@ pub fn options(args: &BuildArgs) -> BuildOptions {
         threads: args.threads,
         quantum: args.quantum,
         nodata: args.nodata,
-    }
+        assign_georef,
+    })
 }
 
 pub fn run(args: &BuildArgs) -> Result<()> {
     let start = Instant::now();
     let progress = Bars::new(args.quiet);
-    let summary = cbdam_build::build(&options(args), &progress);
+    let summary = cbdam_build::build(&options(args)?, &progress);
     progress.finish();
     match summary? {
         BuildSummary::Elevation(s) => print_elevation(args, &s, start),

@@ -36,6 +36,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             alpha: AlphaArg::One,
             quantum: None,
             nodata: None,
+            bounds: None,
+            crs: None,
             quiet: false,
             timings: false,
             colour: false,

@@ -622,6 +622,19 @@ pub struct BuildArgs {
     /// Nodata value, overriding the file's own.
     #[arg(long, allow_hyphen_values = true)]
     nodata: Option<f64>,
+    /// Georeferences an input that carries none (a raw float32 file, a plain TIFF): the outer
+    /// edges of its raster in the CRS of --crs, west,south,east,north (GDAL's -te order), e.g.
+    /// `--bounds -10,40,2,46 --crs EPSG:4326`. Refused for inputs with their own.
+    #[arg(
+        long,
+        value_name = "MINX,MINY,MAXX,MAXY",
+        requires = "crs",
+        allow_hyphen_values = true
+    )]
+    bounds: Option<String>,
+    /// The CRS of --bounds, as EPSG:N.
+    #[arg(long, value_name = "EPSG:N", requires = "bounds")]
+    crs: Option<String>,
     /// Print nothing on success.
     #[arg(long)]
     quiet: bool,

@@ -392,3 +392,100 @@ fn auto_extra_levels_keep_the_smaller_repository() {
     assert!(stderr(&o).contains("single-input builds"), "{}", stderr(&o));
     assert!(!dir.path().join("x.cbdam").exists());
 }
+
+/// Asserts that a command succeeded, printing its stderr otherwise.
+fn succeeds(o: &Output) {
+    assert!(o.status.success(), "{}", stderr(o));
+}
+
+/// `--bounds` and `--crs` georeference a raw float32 input (which carries none): the repository
+/// records the CRS and the cell size the edges give; an input with its own georeferencing, a
+/// tile set, a malformed box or a missing partner flag are refused, naming the flag.
+#[test]
+fn bounds_and_crs_georeference_a_raw_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (40usize, 30usize);
+    let raw = dir.path().join("t.f32");
+    let bytes: Vec<u8> = (0..w * h)
+        .flat_map(|i| (100.0f32 + (i % 7) as f32).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, bytes).unwrap();
+    let out = dir.path().join("t.cbdam");
+    let build = |extra: &[&str]| {
+        let mut args = vec!["build", raw.to_str().unwrap(), "--size", "40x30"];
+        args.extend(["--max-error", "0.5", "-o", out.to_str().unwrap(), "--quiet"]);
+        args.extend(extra);
+        cbdam(&args)
+    };
+    succeeds(&build(&["--bounds", "-10,40,-6,43", "--crs", "EPSG:4326"]));
+    let o = cbdam(&["inspect", &s(&out), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let g = &v["georef"];
+    assert_eq!(g["epsg"], 4326);
+    // 4° over 40 columns and 3° over 30 rows: 0.1° cells from the north-west corner.
+    assert!((g["pixel_x"].as_f64().unwrap() - 0.1).abs() < 1e-12, "{g}");
+    assert!((g["pixel_y"].as_f64().unwrap() - 0.1).abs() < 1e-12, "{g}");
+    assert_eq!(
+        (g["origin_x"].as_f64(), g["origin_y"].as_f64()),
+        (Some(-10.0), Some(43.0))
+    );
+    for (extra, says) in [
+        (vec!["--bounds", "1,2,3", "--crs", "EPSG:4326"], "--bounds"),
+        (vec!["--bounds", "0,0,1,1", "--crs", "WGS84"], "--crs"),
+        (vec!["--bounds", "0,0,1,1"], "--crs"),
+    ] {
+        let o = build(&extra);
+        assert!(!o.status.success(), "{extra:?} accepted");
+        assert!(stderr(&o).contains(says), "{extra:?}: {}", stderr(&o));
+    }
+    let srtm = data("srtm3_demcompare.tif");
+    let o = cbdam(&[
+        "build",
+        &srtm,
+        "--max-error",
+        "1",
+        "-o",
+        &s(&out),
+        "--bounds",
+        "0,0,1,1",
+        "--crs",
+        "EPSG:4326",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("carries its own georeferencing"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+/// The bundled global DEM is georeferenced (EPSG:4326, PixelIsPoint, lon 0 … 359.917°, lat
+/// 90 … −90°, 5′), so that it builds on the globe's scale instead of as a 1 m grid.
+#[test]
+fn etopo5_carries_its_georeferencing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("e.cbdam");
+    succeeds(&cbdam(&[
+        "build",
+        &data("etopo5_global.tif"),
+        "--max-error",
+        "50",
+        "-o",
+        &s(&out),
+        "--quiet",
+    ]));
+    let o = cbdam(&["inspect", &s(&out), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let g = &v["georef"];
+    assert_eq!(g["epsg"], 4326, "{g}");
+    assert_eq!(g["pixel_is"], "point", "{g}");
+    assert_eq!(
+        (g["origin_x"].as_f64(), g["origin_y"].as_f64()),
+        (Some(0.0), Some(90.0))
+    );
+    let step = g["pixel_x"].as_f64().unwrap();
+    assert!((step - 1.0 / 12.0).abs() < 1e-15, "{g}");
+    // The last column is 359.917°E and the last row the south pole.
+    assert!((step * 4319.0 - 359.916_666_666_666_7).abs() < 1e-9);
+    assert!((90.0 - g["pixel_y"].as_f64().unwrap() * 2160.0 + 90.0).abs() < 1e-9);
+}

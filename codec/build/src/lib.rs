@@ -9,6 +9,7 @@
 //! ([`verify`]) and the GeoTIFF and raw float writers of `cbdam extract` ([`write`]).
 #![deny(missing_docs)]
 
+pub mod assign;
 pub mod colour;
 pub mod encode;
 mod error;
@@ -28,6 +29,7 @@ use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::write_repository;
 
+pub use assign::AssignedGeoRef;
 pub use colour::ColourSummary;
 pub use encode::ExtraLevels;
 pub use error::{BuildError, Result};
@@ -73,6 +75,8 @@ pub struct BuildOptions {
     pub quantum: Option<f64>,
     /// Nodata value, overriding the file's own.
     pub nodata: Option<f64>,
+    /// Georeferencing for the one input when it carries none (`--bounds`, `--crs`).
+    pub assign_georef: Option<AssignedGeoRef>,
 }
 
 impl BuildOptions {
@@ -95,6 +99,7 @@ impl BuildOptions {
             threads: None,
             quantum: None,
             nodata: None,
+            assign_georef: None,
         }
     }
 
@@ -186,17 +191,31 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
     let (input, resolution, storage) = match tiles.as_slice() {
         [] => bail!("no input given"),
         [tiles::Tile { path, vrt: None }] => {
-            let input = prepare(&InputSpec {
+            let mut input = prepare(&InputSpec {
                 path,
                 raw_size: opts.raw_size,
                 nodata: opts.nodata,
                 quantum: opts.quantum,
                 max_error: opts.max_error,
             })?;
+            if let Some(a) = &opts.assign_georef {
+                a.apply(
+                    path,
+                    &mut input.georef,
+                    (input.grid.width, input.grid.height),
+                )?;
+            }
             let storage = storage_for(&input.grid, &enc_opts, limit)?;
             (input, None, storage)
         }
         tiles => {
+            if opts.assign_georef.is_some() {
+                bail!(
+                    "--bounds and --crs georeference one input; these {} inputs (tiles) need \
+                     their own georeferencing",
+                    tiles.len()
+                );
+            }
             if opts.raw_size.is_some() {
                 bail!(
                     "--size: raw float32 inputs carry no georeferencing, so several inputs \
