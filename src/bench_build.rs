@@ -102,10 +102,7 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
         let name = path.file_stem().unwrap_or_default().to_string_lossy();
         println!(
             "| {name} | {samples} | {} | {bits:.3} | {:.2} | {:.2} | {} |",
-            match storage {
-                cbdam_codec::hierarchy::TempStorage::Memory => "memory",
-                cbdam_codec::hierarchy::TempStorage::File(_) => "mapped file",
-            },
+            storage.describe(),
             median.as_secs_f64(),
             samples as f64 / median.as_secs_f64() / 1e6,
             peak.map_or("n/a".to_string(), |b| format!(

@@ -87,10 +87,11 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
             .map(|(name, d)| format!("{name} {:.3} s", d.as_secs_f64()))
             .collect();
         eprintln!(
-            "timings: {}, total {:.3} s ({:.2} M samples/s)",
+            "timings: {}, total {:.3} s ({:.2} M samples/s); reconstruction in {}",
             parts.join(", "),
             total.as_secs_f64(),
-            (s.width * s.height) as f64 / total.as_secs_f64() / 1e6
+            (s.width * s.height) as f64 / total.as_secs_f64() / 1e6,
+            s.temporaries
         );
     }
     if !args.quiet {

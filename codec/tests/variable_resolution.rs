@@ -8,8 +8,8 @@ use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Layout;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
-    EncodeOptions, Encoded, Reached, Resolution, TempStorage, encode_variable, encode_with_storage,
-    reconstruct_reached, verify,
+    BlockPlan, EncodeOptions, Encoded, Reached, Resolution, TempStorage, encode_in_blocks,
+    encode_variable, encode_with_storage, reconstruct_reached, verify,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, Quantizer};
@@ -238,4 +238,31 @@ fn a_file_backed_field_gives_the_same_variable_hierarchy() {
     )
     .unwrap();
     assert_eq!(in_file, encode_var(&grid, &res, q));
+}
+
+/// Encoding block by block ([`BlockPlan`]) gives the same variable-resolution hierarchy as the
+/// whole-domain encoder, for blocks smaller than the fine input, straddling it, and larger.
+#[test]
+fn blocks_encode_the_same_variable_resolution_hierarchy() {
+    let h = terrain(&mut Rng(11));
+    let (grid, res) = variable_input(&h);
+    let q = Quantizer::new(2).unwrap();
+    let whole = encode_var(&grid, &res, q);
+    for (cut_level, block_side) in [(3, 40), (6, 128), (9, 1000)] {
+        let plan = BlockPlan {
+            cut_level,
+            block_side,
+        };
+        let blocks = encode_in_blocks(
+            &grid,
+            Some(&res),
+            q,
+            &opts(),
+            &TempStorage::Memory,
+            &plan,
+            &|_, _| {},
+        )
+        .unwrap();
+        assert!(blocks == whole, "{plan:?} differs");
+    }
 }

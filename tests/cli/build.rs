@@ -489,3 +489,38 @@ fn etopo5_carries_its_georeferencing() {
     assert!((step * 4319.0 - 359.916_666_666_666_7).abs() < 1e-9);
     assert!((90.0 - g["pixel_y"].as_f64().unwrap() * 2160.0 + 90.0).abs() < 1e-9);
 }
+
+/// Under a memory limit that the whole reconstruction field does not fit but blocks do, the
+/// encoder works block by block (`--timings` says so) and writes the same bytes; under one that
+/// nothing fits, the field goes to a mapped file, again with the same bytes.
+#[test]
+fn block_encoding_under_a_memory_limit_writes_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let rhine = data("rhine_nodata.tif");
+    let build = |limit: &str| {
+        let out = dir.path().join(format!("{limit}.cbdam"));
+        let o = cbdam(&[
+            "build",
+            &rhine,
+            "--max-error",
+            "1",
+            "-o",
+            &s(&out),
+            "--quiet",
+            "--timings",
+            "--memory-limit",
+            limit,
+        ]);
+        succeeds(&o);
+        (std::fs::read(&out).unwrap(), stderr(&o))
+    };
+    // 997 × 682 samples: the grid takes 3.4 MB, the whole field 4.2 MB, blocks of 256 2.6 MB.
+    let (whole, said) = build("1G");
+    assert!(said.contains("reconstruction in memory") && !said.contains("blocks"), "{said}");
+    let (blocks, said) = build("6M");
+    assert!(said.contains("blocks of 256"), "{said}");
+    assert!(blocks == whole, "block encoding changed the repository");
+    let (mapped, said) = build("4K");
+    assert!(said.contains("mapped file"), "{said}");
+    assert!(mapped == whole, "the mapped field changed the repository");
+}

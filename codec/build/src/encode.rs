@@ -1,12 +1,12 @@
 //! Encoding a prepared input on a worker pool, and `--extra-levels auto`'s second try.
 
 use cbdam_codec::hierarchy::{
-    EncodeOptions, Encoded, Resolution, TempStorage, encode_variable, encode_with_storage,
+    EncodeOptions, Encoded, Resolution, encode_in_blocks, encode_variable, encode_with_storage,
 };
 use cbdam_codec::repository::serialize;
 
 use crate::error::{Result, bail};
-use crate::plan::{Prepared, storage_for};
+use crate::plan::{Prepared, Temporaries, storage_for};
 
 /// Level pairs above the smallest hierarchy that covers the data: a fixed number, or `auto`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -38,13 +38,23 @@ pub fn encode_prepared(
     input: &Prepared,
     resolution: Option<&Resolution>,
     opts: &EncodeOptions,
-    storage: &TempStorage,
+    temporaries: &Temporaries,
     threads: Option<usize>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Encoded> {
     let pool = thread_pool(threads)?;
-    Ok(pool.install(|| match resolution {
-        Some(r) => encode_variable(
+    let storage = &temporaries.storage;
+    Ok(pool.install(|| match (&temporaries.blocks, resolution) {
+        (Some(plan), r) => encode_in_blocks(
+            &input.grid,
+            r,
+            input.plan.quantizer,
+            opts,
+            storage,
+            plan,
+            progress,
+        ),
+        (None, Some(r)) => encode_variable(
             &input.grid,
             r,
             input.plan.quantizer,
@@ -52,7 +62,9 @@ pub fn encode_prepared(
             storage,
             progress,
         ),
-        None => encode_with_storage(&input.grid, input.plan.quantizer, opts, storage, progress),
+        (None, None) => {
+            encode_with_storage(&input.grid, input.plan.quantizer, opts, storage, progress)
+        }
     })?)
 }
 

@@ -129,6 +129,8 @@ pub struct ElevationSummary {
     pub plan: QuantPlan,
     /// Wall time of each stage, in order.
     pub stages: Vec<(&'static str, Duration)>,
+    /// Where the encoder kept its reconstruction ([`plan::Temporaries::describe`]).
+    pub temporaries: String,
 }
 
 /// What [`build`] made.
@@ -315,5 +317,6 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         records: encoded.records.len(),
         plan: input.plan,
         stages,
+        temporaries: storage.describe(),
     })
 }

@@ -8,11 +8,12 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::hierarchy::{EncodeOptions, Resolution, TempStorage};
+use cbdam_codec::hierarchy::{BlockPlan, EncodeOptions, Resolution, TempStorage};
 use cbdam_codec::input::{
     Format, GeoRef, GeoTiffSource, Limits, RawF32Source, ReadOptions, SampleSource, detect_format,
     read_dem, with_sidecar_crs,
 };
+use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
 use crate::error::{Context, Result, bail};
@@ -133,17 +134,57 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
     })
 }
 
-/// Where the encoder's temporaries go under `limit` bytes: in memory when the grid (5 bytes per
-/// sample) and the reconstruction field (4 bytes per lattice point of the domain) fit.
-pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<TempStorage> {
+/// Where the encoder's temporaries go, and whether it encodes block by block.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Temporaries {
+    /// Memory or a mapped temporary file.
+    pub storage: TempStorage,
+    /// `Some`: the fine levels are encoded block by block, each in a field of its own
+    /// ([`BlockPlan`]); the output is the same.
+    pub blocks: Option<BlockPlan>,
+}
+
+impl Temporaries {
+    /// How `cbdam bench build` and `--timings` name them.
+    pub fn describe(&self) -> String {
+        let storage = match self.storage {
+            TempStorage::Memory => "memory",
+            TempStorage::File(_) => "mapped file",
+        };
+        match &self.blocks {
+            None => storage.to_string(),
+            Some(b) => format!("{storage}, blocks of {}", b.block_side),
+        }
+    }
+}
+
+/// Where the encoder's temporaries go under `limit` bytes: in memory with one reconstruction
+/// field over the domain when the grid (5 bytes per sample) and that field (4 bytes per lattice
+/// point of the domain) fit; in memory block by block ([`BlockPlan::fitting`]) when the grid
+/// and the block fields fit; otherwise the whole field in a mapped temporary file.
+pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<Temporaries> {
     let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
     let (ex, ey) = domain.layout().face_extent();
     let field = 4 * (ex as u64 + 1) * (ey as u64 + 1);
     let input = 5 * (grid.width as u64) * (grid.height as u64);
-    Ok(if input + field > limit {
-        TempStorage::File(None)
-    } else {
-        TempStorage::Memory
+    if input + field <= limit {
+        return Ok(Temporaries {
+            storage: TempStorage::Memory,
+            blocks: None,
+        });
+    }
+    let blocks = (opts.alpha == Alpha::One)
+        .then(|| BlockPlan::fitting(domain.layout(), limit.saturating_sub(input)))
+        .flatten();
+    Ok(match blocks {
+        Some(plan) => Temporaries {
+            storage: TempStorage::Memory,
+            blocks: Some(plan),
+        },
+        None => Temporaries {
+            storage: TempStorage::File(None),
+            blocks: None,
+        },
     })
 }
 

@@ -5,6 +5,7 @@ use std::collections::{BTreeSet, HashMap};
 use rayon::prelude::*;
 
 use super::analysis::{LevelField, analysis_fields};
+use super::blocks::BlockPlan;
 use super::field::{ReconField, TempStorage};
 use super::mask::encode_mask;
 use super::object_error::{ErrorInput, surface_error};
@@ -149,6 +150,37 @@ pub fn encode_variable(
     )
 }
 
+/// [`encode_with_storage`] (α = 1) or [`encode_variable`] (`resolution` given), encoding the
+/// levels from `plan`'s cut down one block at a time ([`super::blocks`]). The output is the
+/// same for every plan.
+pub fn encode_in_blocks(
+    grid: &HeightGrid,
+    resolution: Option<&Resolution>,
+    quantizer: Quantizer,
+    opts: &EncodeOptions,
+    storage: &TempStorage,
+    plan: &BlockPlan,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Encoded, CodecError> {
+    if opts.alpha != Alpha::One {
+        return Err(CodecError::invalid(
+            "encoding in blocks needs α = 1 (α = ½ changes vertices, so a block's diamonds \
+             would depend on more than their ancestors' points)",
+        ));
+    }
+    if let Some(r) = resolution {
+        r.check(grid)?;
+    }
+    encode_impl(
+        grid,
+        resolution,
+        quantizer,
+        opts,
+        Keeping::Blocks(storage, plan),
+        progress,
+    )
+}
+
 /// How the encoder keeps the reconstruction between levels.
 #[derive(Clone, Copy, Debug)]
 enum Keeping<'a> {
@@ -157,6 +189,8 @@ enum Keeping<'a> {
     PerDiamond,
     /// One reconstruction field over the domain ([`ReconField`]); α = 1 only.
     Field(&'a TempStorage),
+    /// An apex field and one per block ([`BlockPlan`]); α = 1 only.
+    Blocks(&'a TempStorage, &'a BlockPlan),
 }
 
 fn encode_impl(
@@ -237,6 +271,10 @@ fn encode_impl(
                 "the reconstruction field needs α = 1"
             );
             levels.field(storage)?
+        }
+        Keeping::Blocks(storage, plan) => {
+            assert!(opts.alpha == Alpha::One, "blocks need α = 1");
+            levels.blocks(storage, plan)?
         }
     };
 
@@ -367,60 +405,121 @@ impl Levels<'_> {
     /// into the field, and the next level gathers from it.
     fn field(&self, storage: &TempStorage) -> Result<LevelOutput, CodecError> {
         let layout = self.params.layout();
-        let (finest, n) = (layout.finest_level(), layout.n());
         let (ex, ey) = layout.face_extent();
         let field = ReconField::new(ex as usize + 1, ey as usize + 1, storage)?;
-        // Level 0's vertices: the root field covers the domain at spacing 2^K.
+        self.seed_roots(&field);
+        let mut records: Vec<Record> = Vec::new();
+        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
+        for level in 0..=layout.finest_level() {
+            let ids = &self.stored[level as usize];
+            for (id, record, err) in self.encode_level(&field, level, ids, &|_| true)? {
+                own_error.insert(id, err);
+                records.extend(record);
+            }
+        }
+        Ok((records, own_error))
+    }
+
+    /// The levels with a reconstruction field per block ([`BlockPlan`], α = 1): an apex field
+    /// holds only the points of the levels above the plan's cut, and each block of the finer
+    /// levels is encoded in a field of its own that holds the block and the reach of its
+    /// diamonds' ancestors ([`BlockPlan::reach`]). Diamonds of that margin are encoded again
+    /// by every block that needs them, but recorded only by the block that owns their centre,
+    /// so the output is the same as [`Levels::field`]'s.
+    fn blocks(&self, storage: &TempStorage, plan: &BlockPlan) -> Result<LevelOutput, CodecError> {
+        let layout = self.params.layout();
+        let finest = layout.finest_level();
+        let cut = plan.cut_level.min(finest);
+        let mut records: Vec<Record> = Vec::new();
+        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
+        let apex = plan.apex_field(layout, storage)?;
+        self.seed_roots(&apex);
+        for level in 0..cut {
+            let ids = &self.stored[level as usize];
+            for (id, record, err) in self.encode_level(&apex, level, ids, &|_| true)? {
+                own_error.insert(id, err);
+                records.extend(record);
+            }
+        }
+        for block in plan.blocks(layout) {
+            let field = block.field(storage)?;
+            // The block's lattice points of the coarse levels, from the apex.
+            for (x, y) in block.apex_points() {
+                field.set(x, y, apex.get(x, y));
+            }
+            for level in cut..=finest {
+                let reach = plan.reach(layout, level);
+                let ids = block.select(&self.stored[level as usize], reach);
+                let owned = |id: DiamondId| block.owns(id);
+                for (id, record, err) in self.encode_level(&field, level, &ids, &owned)? {
+                    if owned(id) {
+                        own_error.insert(id, err);
+                        records.extend(record);
+                    }
+                }
+            }
+        }
+        Ok((records, own_error))
+    }
+
+    /// Writes level 0's vertices (the root field, at spacing `2^K`) into `field`.
+    fn seed_roots(&self, field: &ReconField) {
         let rf = self.params.domain.root_field();
         let (rw, rh, s) = (rf.width, rf.height, rf.spacing);
         for (k, &v) in self.root_field.iter().enumerate() {
             field.set((k % rw) as i64 * s, (k / rw) as i64 * s, v);
         }
         debug_assert_eq!(self.root_field.len(), rw * rh);
-        let mut records: Vec<Record> = Vec::new();
-        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
-        for level in 0..=finest {
-            let grid_of = |id: DiamondId| -> Vec<i32> {
-                let mut p = vec![0i32; n * n];
-                if level == 0 {
-                    root_grid(&self.params.domain, self.root_field, id, &mut p);
-                } else {
-                    field.gather(&self.params.domain, id, &mut p);
-                }
-                p
-            };
-            let results = self.stored[level as usize]
-                .par_iter()
-                .map(|&id| {
-                    let p = grid_of(id);
-                    let err = surface_error(layout, id, &p, &self.error_input);
-                    let refines = level < finest
-                        && self
-                            .recorded
-                            .is_none_or(|r| r[level as usize].contains(&id));
-                    let record = if refines {
-                        let r = refine_encode(
-                            self.params,
-                            id,
-                            &p,
-                            |x, y| self.targets.at(level + 1, x, y),
-                            |x, y| self.targets.drawn(x, y),
-                        )?;
-                        write_cells(&field, layout, id, &r.cells);
-                        Some(Self::record(id, &p, r.bytes))
-                    } else {
-                        None
-                    };
-                    (self.tick)(&id);
-                    Ok((id, record, err))
-                })
-                .collect::<Result<Vec<_>, CodecError>>()?;
-            for (id, record, err) in results {
-                own_error.insert(id, err);
-                records.extend(record);
+    }
+
+    /// Encodes the diamonds `ids` of `level` against `field`, writing their new points into it:
+    /// for each, its record (refined diamonds above the finest level) and own object error.
+    /// Progress counts the diamonds `counted` says.
+    fn encode_level(
+        &self,
+        field: &ReconField,
+        level: u8,
+        ids: &[DiamondId],
+        counted: &(dyn Fn(DiamondId) -> bool + Sync),
+    ) -> Result<Vec<(DiamondId, Option<Record>, u32)>, CodecError> {
+        let layout = self.params.layout();
+        let (finest, n) = (layout.finest_level(), layout.n());
+        let grid_of = |id: DiamondId| -> Vec<i32> {
+            let mut p = vec![0i32; n * n];
+            if level == 0 {
+                root_grid(&self.params.domain, self.root_field, id, &mut p);
+            } else {
+                field.gather(&self.params.domain, id, &mut p);
             }
-        }
-        Ok((records, own_error))
+            p
+        };
+        ids.par_iter()
+            .map(|&id| {
+                let p = grid_of(id);
+                let err = surface_error(layout, id, &p, &self.error_input);
+                let refines = level < finest
+                    && self
+                        .recorded
+                        .is_none_or(|r| r[level as usize].contains(&id));
+                let record = if refines {
+                    let r = refine_encode(
+                        self.params,
+                        id,
+                        &p,
+                        |x, y| self.targets.at(level + 1, x, y),
+                        |x, y| self.targets.drawn(x, y),
+                    )?;
+                    write_cells(field, layout, id, &r.cells);
+                    Some(Self::record(id, &p, r.bytes))
+                } else {
+                    None
+                };
+                if counted(id) {
+                    (self.tick)(&id);
+                }
+                Ok((id, record, err))
+            })
+            .collect()
     }
 }
 
@@ -717,8 +816,55 @@ mod tests {
         );
     }
 
+    /// The whole-domain field encoder against the block encoder with `plan`.
+    fn in_blocks_too(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, plan: &BlockPlan) {
+        let whole = encode_impl(
+            grid,
+            None,
+            q,
+            opts,
+            Keeping::Field(&TempStorage::Memory),
+            &|_, _| {},
+        )
+        .unwrap();
+        let blocks =
+            encode_in_blocks(grid, None, q, opts, &TempStorage::Memory, plan, &|_, _| {}).unwrap();
+        assert!(
+            whole == blocks,
+            "block encoder differs on {}×{} {opts:?} {plan:?}",
+            grid.width,
+            grid.height
+        );
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+        #[test]
+        fn block_encoder_is_bit_identical_to_the_whole_field_one(
+            n_pow in 1u32..5,
+            w in 1usize..120,
+            h in 1usize..120,
+            extra in 0u32..2,
+            k in 0u32..4,
+            holes in proptest::collection::vec(any::<u16>(), 0..30),
+            seed in any::<u64>(),
+            cut in 0u8..12,
+            side in 1i64..200,
+        ) {
+            let mut grid = terrain(w, h, &holes, seed);
+            if grid.range().is_none() {
+                grid.valid[0] = true;
+            }
+            let opts = EncodeOptions {
+                n: (1 << n_pow) + 1,
+                extra_level_pairs: extra,
+                coder: CoderKind::ALL[(seed % 3) as usize],
+                ..EncodeOptions::default()
+            };
+            let plan = BlockPlan { cut_level: cut, block_side: side };
+            in_blocks_too(&grid, Quantizer::new(k).unwrap(), &opts, &plan);
+        }
         #[test]
         fn field_encoder_is_bit_identical_to_the_per_diamond_one(
             n_pow in 1u32..5,
@@ -786,6 +932,14 @@ mod tests {
                     ..EncodeOptions::default()
                 };
                 both_ways(&grid, plan.quantizer, &opts, &TempStorage::Memory);
+                // Blocks of a few finest diamonds (most of the work in margins) and of many.
+                for (cut_level, block_side) in [(2, 64), (5, 300), (8, 97)] {
+                    let blocks = BlockPlan {
+                        cut_level,
+                        block_side,
+                    };
+                    in_blocks_too(&grid, plan.quantizer, &opts, &blocks);
+                }
             }
         }
     }

@@ -47,6 +47,11 @@ pub enum TempStorage {
 /// matters, and safe without proof that no two workers touch one point; the order between
 /// levels comes from rayon's join at the end of each level.
 pub(crate) struct ReconField {
+    /// Lattice point of index 0.
+    origin: (i64, i64),
+    /// Lattice units between neighbouring points of the field, `2^shift`: 1 for the whole
+    /// lattice, coarser for a field that holds only the points of the coarse levels.
+    shift: u32,
     width: usize,
     height: usize,
     ptr: NonNull<AtomicI32>,
@@ -63,6 +68,18 @@ unsafe impl Sync for ReconField {}
 impl ReconField {
     /// A zeroed field of `width × height` points in `storage`.
     pub(crate) fn new(
+        width: usize,
+        height: usize,
+        storage: &TempStorage,
+    ) -> Result<Self, CodecError> {
+        Self::window((0, 0), 0, width, height, storage)
+    }
+
+    /// A field over the `width × height` lattice points `origin + 2^shift · (i, j)`: a block
+    /// of the domain, or the coarse levels' points only.
+    pub(crate) fn window(
+        origin: (i64, i64),
+        shift: u32,
         width: usize,
         height: usize,
         storage: &TempStorage,
@@ -90,6 +107,8 @@ impl ReconField {
         // every bit pattern (zero pages included) is a valid value.
         let ptr = NonNull::new(map.as_mut_ptr().cast::<AtomicI32>()).expect("mmap is non-null");
         Ok(Self {
+            origin,
+            shift,
             width,
             height,
             ptr,
@@ -106,22 +125,30 @@ impl ReconField {
     /// Row-major index of lattice point `(x, y)`, which must lie in the field.
     #[inline]
     fn index(&self, x: i64, y: i64) -> usize {
-        debug_assert!(
-            x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height,
-            "({x}, {y}) outside the {}×{} field",
-            self.width,
-            self.height
-        );
-        y as usize * self.width + x as usize
+        debug_assert!(self.contains(x, y), "({x}, {y}) outside the field");
+        ((y - self.origin.1) >> self.shift) as usize * self.width
+            + ((x - self.origin.0) >> self.shift) as usize
     }
 
-    /// Whether `(x, y)` lies in the field.
+    /// Whether lattice point `(x, y)` is one of the field's.
     #[inline]
     pub(crate) fn contains(&self, x: i64, y: i64) -> bool {
-        x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height
+        let (dx, dy) = (x - self.origin.0, y - self.origin.1);
+        let mask = (1i64 << self.shift) - 1;
+        dx >= 0
+            && dy >= 0
+            && dx & mask == 0
+            && dy & mask == 0
+            && ((dx >> self.shift) as usize) < self.width
+            && ((dy >> self.shift) as usize) < self.height
     }
 
-    /// Stores the value of `(x, y)`.
+    /// The value at lattice point `(x, y)`, one of the field's.
+    #[inline]
+    pub(crate) fn get(&self, x: i64, y: i64) -> i32 {
+        self.cells()[self.index(x, y)].load(Ordering::Relaxed)
+    }
+
     #[inline]
     pub(crate) fn set(&self, x: i64, y: i64, v: i32) {
         self.cells()[self.index(x, y)].store(v, Ordering::Relaxed);
@@ -144,7 +171,12 @@ impl ReconField {
             "{id} has no parent to gather from"
         );
         // Moving one step in i is a fixed step in the row-major index (u has no negative part).
-        let stride = grid.u.1 as usize * self.width + grid.u.0 as usize;
+        debug_assert!(
+            grid.u.0 % (1 << self.shift) == 0 && grid.u.1 % (1 << self.shift) == 0,
+            "{id}'s grid is finer than the field"
+        );
+        let stride =
+            (grid.u.1 >> self.shift) as usize * self.width + (grid.u.0 >> self.shift) as usize;
         for (h, half) in Half::BOTH.into_iter().enumerate() {
             if parents[h].is_none() {
                 continue;

@@ -14,6 +14,7 @@
 //! the finest diamonds that meet valid data.
 
 mod analysis;
+pub mod blocks;
 mod decode;
 mod encode;
 mod field;
@@ -24,13 +25,15 @@ pub mod resolution;
 mod roots;
 
 pub use analysis::{LevelField, analysis_fields};
+pub use blocks::BlockPlan;
 pub use decode::{
     Decoder, LevelReport, Reached, VerifyReport, reconstruct_finest,
     reconstruct_finest_with_validity, reconstruct_reached, verify, walk, walk_all_with_validity,
     walk_with_validity,
 };
 pub use encode::{
-    EncodeOptions, encode, encode_variable, encode_with_progress, encode_with_storage,
+    EncodeOptions, encode, encode_in_blocks, encode_variable, encode_with_progress,
+    encode_with_storage,
 };
 pub use field::TempStorage;
 pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
