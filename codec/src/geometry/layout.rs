@@ -165,7 +165,7 @@ impl Layout {
     /// Lattice offsets from the centre to the two parents' centres, `[positive, negative]`,
     /// and the split diagonal. Level 0 has no parents; its diagonal is chosen the same way as at
     /// other even levels.
-    fn parent_offsets(&self, id: DiamondId) -> ([(i64, i64); 2], Diagonal) {
+    pub(super) fn parent_offsets(&self, id: DiamondId) -> ([(i64, i64); 2], Diagonal) {
         let r = self.radius(id.level);
         let (x, y) = (i64::from(id.x), i64::from(id.y));
         if id.is_even() {
@@ -206,25 +206,34 @@ impl Layout {
         if id.level >= self.finest_level() {
             return [None; 4];
         }
+        self.child_offsets(id).map(|o| self.at(id.level + 1, id, o))
+    }
+
+    /// Lattice offsets from the centre to the 4 children's centres (the midpoints of the
+    /// diamond's sides).
+    pub(super) fn child_offsets(&self, id: DiamondId) -> [(i64, i64); 4] {
         let r = self.radius(id.level);
-        let offsets = if id.is_even() {
+        if id.is_even() {
             [(r, 0), (0, r), (-r, 0), (0, -r)]
         } else {
             let h = r / 2;
             [(h, h), (-h, h), (-h, -h), (h, -h)]
-        };
-        offsets.map(|o| self.at(id.level + 1, id, o))
+        }
     }
 
     /// The diamonds of the same level that share a side with `id` (up to 4).
     pub fn neighbours(&self, id: DiamondId) -> [Option<DiamondId>; 4] {
+        self.neighbour_offsets(id).map(|o| self.at(id.level, id, o))
+    }
+
+    /// Lattice offsets from the centre to the 4 same-level diamonds sharing a side.
+    pub(super) fn neighbour_offsets(&self, id: DiamondId) -> [(i64, i64); 4] {
         let r = self.radius(id.level);
-        let offsets = if id.is_even() {
+        if id.is_even() {
             [(2 * r, 0), (0, 2 * r), (-2 * r, 0), (0, -2 * r)]
         } else {
             [(r, r), (-r, r), (-r, -r), (r, -r)]
-        };
-        offsets.map(|o| self.at(id.level, id, o))
+        }
     }
 
     fn at(&self, level: u8, from: DiamondId, o: (i64, i64)) -> Option<DiamondId> {
