@@ -166,6 +166,7 @@ pub struct FacePoint {
 
 impl FacePoint {
     /// `(face, x, y)`.
+    #[inline]
     pub const fn new(face: u8, x: i64, y: i64) -> Self {
         Self { face, x, y }
     }
@@ -220,6 +221,7 @@ impl Cube {
     }
 
     /// `S`, the lattice side of a face.
+    #[inline]
     pub const fn side(&self) -> i64 {
         self.side
     }
@@ -270,6 +272,7 @@ impl Cube {
 
     /// Which edge of its face a point lies on, if exactly one (`None` inside the face, at a
     /// corner or outside).
+    #[inline]
     pub fn edge_of(&self, p: FacePoint) -> Option<Edge> {
         let s = self.side;
         let inside = |v: i64| 0 < v && v < s;
@@ -287,6 +290,7 @@ impl Cube {
     /// face's coordinates if it lies past an edge). `None` beyond a corner (past two edges at
     /// once, where the cube has no lattice: three faces meet there, not four) or farther out.
     /// A point on an edge keeps this face's coordinates; [`Cube::canonical`] picks its owner.
+    #[inline]
     pub fn locate(&self, face: u8, x: i64, y: i64) -> Option<FacePoint> {
         let s = self.side;
         if face >= FACES {
@@ -337,6 +341,7 @@ impl Cube {
 
     /// The canonical coordinates of a point of the closed face square: those of the
     /// lowest-numbered face holding it.
+    #[inline]
     pub fn canonical(&self, p: FacePoint) -> FacePoint {
         let s = self.side;
         if 0 < p.x && p.x < s && 0 < p.y && p.y < s {

@@ -385,6 +385,7 @@ impl Domain {
 
     /// The diamond of `level` centred at `from`'s centre plus `offset` (in `from`'s face frame,
     /// possibly past one of its edges), under its canonical face.
+    #[inline]
     fn cube_step(
         &self,
         cube: Cube,
@@ -392,19 +393,22 @@ impl Domain {
         level: u8,
         offset: (i64, i64),
     ) -> Option<DiamondId> {
-        let p = cube.locate(
-            from.face,
-            i64::from(from.x) + offset.0,
-            i64::from(from.y) + offset.1,
-        )?;
-        let c = cube.canonical(p);
+        let (x, y) = (i64::from(from.x) + offset.0, i64::from(from.y) + offset.1);
+        let s = cube.side();
+        let c = if 0 < x && x < s && 0 < y && y < s {
+            // Inside the face, off its edges (most steps): the point is its own owner.
+            FacePoint::new(from.face, x, y)
+        } else {
+            cube.canonical(cube.locate(from.face, x, y)?)
+        };
         let id = DiamondId::on_face(
             c.face,
             level,
             u32::try_from(c.x).ok()?,
             u32::try_from(c.y).ok()?,
         );
-        self.contains(id).then_some(id)
+        // Canonical already: only the lattice test of `contains` is left.
+        self.layout.contains(id).then_some(id)
     }
 
     /// The face that half `half` of `id` lies on, and the map from `id`'s face frame to that
