@@ -204,6 +204,23 @@ fn relations_are_consistent_across_all_edges_and_corners() {
 }
 
 #[test]
+fn no_diamond_is_centred_on_a_cube_corner_at_any_level() {
+    // Large lattices, every level, every face, every corner spelling: a corner is only ever a
+    // vertex (the relation test above covers the small lattices diamond by diamond).
+    for (n, k) in [(65, 8), (1025, 3), (3, 20)] {
+        let d = Domain::cube_sphere(n, k).unwrap();
+        let s = d.cube().unwrap().side() as u32;
+        for level in 0..=d.finest_level() {
+            for face in 0..6 {
+                for (x, y) in [(0, 0), (0, s), (s, 0), (s, s)] {
+                    assert!(!d.contains(DiamondId::on_face(face, level, x, y)));
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn child_grids_meet_their_parents_across_cube_edges() {
     // The codec gathers a child's grid from each parent's half-step grid by an affine index
     // map. Carried onto the face its half lies on, a straddling diamond's grid must map into
