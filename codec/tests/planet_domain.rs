@@ -63,6 +63,18 @@ fn a_cube_sphere_is_six_faces_of_one_root_with_data_everywhere() {
         ),
         (DomainKind::CubeSphere, d.finest_level() + 4, 4 * s)
     );
+    // Ids of no face: no relations, no panic.
+    let stray = DiamondId::on_face(9, 3, 64, 128);
+    assert!(!d.contains(stray));
+    assert_eq!(d.parents(stray), [None, None]);
+    assert_eq!(d.children(stray), [None; 4]);
+    assert_eq!(d.neighbours(stray), [None; 4]);
+    assert_eq!(
+        d.half_face(DiamondId::on_face(9, 1, 0, 512), Half::Negative)
+            .0,
+        9
+    );
+    assert_eq!(d.canonical_point(9, 0, 0), None);
     assert!(Domain::cube_sphere(65, 30).is_err());
     assert!(Domain::cube_sphere(64, 1).is_err());
     // A plane stays a plane.

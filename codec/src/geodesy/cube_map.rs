@@ -74,6 +74,9 @@ impl CubeWarp {
 
 /// The cube direction (from the centre, not unit length) of face point `(face, s, t)` under
 /// `warp`.
+///
+/// # Panics
+/// If `face` is not a face (≥ 6); so do the functions below that take a face.
 pub fn face_direction(warp: CubeWarp, face: u8, s: f64, t: f64) -> [f64; 3] {
     let [n, u, v] = FACE_FRAMES[usize::from(face)];
     let a = warp.to_cube(2.0 * s - 1.0);

@@ -259,6 +259,9 @@ impl Cube {
     }
 
     /// The integer map from `face`'s frame to the frame of the face across `edge`.
+    ///
+    /// # Panics
+    /// If `face` is not a face (≥ 6).
     pub fn frame_across(&self, face: u8, edge: Edge) -> FrameMap {
         // The map is affine; read it off the images of three points.
         let o = self.carry(face, edge, (0, 0));
@@ -320,11 +323,15 @@ impl Cube {
     }
 
     /// Every face's coordinates of a point of the closed face square: one for an inner point,
-    /// two on an edge, three at a cube corner. The given face's coordinates come first.
+    /// two on an edge, three at a cube corner. The given face's coordinates come first. A point
+    /// of no face (face ≥ 6) is left alone.
     pub fn representations(&self, p: FacePoint) -> ([FacePoint; 3], usize) {
         let s = self.side;
         let mut out = [p; 3];
         let mut len = 1;
+        if p.face >= FACES {
+            return (out, len);
+        }
         for (on, edge) in [
             (p.y == 0, Edge::Y0),
             (p.x == s, Edge::XS),
@@ -357,6 +364,9 @@ impl Cube {
 
     /// The point on the cube `[−S, S]³` (scaled by `S` so that it is an exact integer; the
     /// face-coordinate pair `(a, b)` is `(2x − S, 2y − S)/S`).
+    ///
+    /// # Panics
+    /// If `p.face` is not a face (≥ 6).
     pub fn cube_point(&self, p: FacePoint) -> [i64; 3] {
         let [n, u, v] = FACE_FRAMES[p.face as usize];
         let s = self.side;

@@ -395,7 +395,7 @@ impl Domain {
     ) -> Option<DiamondId> {
         let (x, y) = (i64::from(from.x) + offset.0, i64::from(from.y) + offset.1);
         let s = cube.side();
-        let c = if 0 < x && x < s && 0 < y && y < s {
+        let c = if 0 < x && x < s && 0 < y && y < s && from.face < FACES {
             // Inside the face, off its edges (most steps): the point is its own owner.
             FacePoint::new(from.face, x, y)
         } else {
@@ -418,7 +418,7 @@ impl Domain {
         let Shape::CubeSphere(cube) = self.shape else {
             return (id.face, None);
         };
-        let Some(edge) = cube.edge_of(centre(id)) else {
+        let Some(edge) = cube.edge_of(centre(id)).filter(|_| id.face < FACES) else {
             return (id.face, None);
         };
         // The half lies on the side of the split diagonal (the edge) where its parent is.
