@@ -362,6 +362,52 @@ mod tests {
     }
 
     #[test]
+    fn cells_on_the_ellipsoid_are_as_even_at_the_poles_as_at_the_equator() {
+        // All six faces of a 64²-cell lattice on WGS84 (cells as two flat triangles between
+        // surface points): the pole faces 4 and 5 hold the same cells as the belt, no
+        // singularity, no stretched cells at the poles or along the antimeridian (face 2).
+        let m = 64;
+        let mut per_face = Vec::new();
+        for face in 0..6u8 {
+            let p = |i: usize, j: usize| {
+                face_st_to_surface(face, i as f64 / m as f64, j as f64 / m as f64)
+            };
+            let tri = |a: [f64; 3], b: [f64; 3], c: [f64; 3]| {
+                let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+                let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+                let x = [
+                    u[1] * v[2] - u[2] * v[1],
+                    u[2] * v[0] - u[0] * v[2],
+                    u[0] * v[1] - u[1] * v[0],
+                ];
+                0.5 * (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt()
+            };
+            let (mut lo, mut hi) = (f64::MAX, 0.0f64);
+            for i in 0..m {
+                for j in 0..m {
+                    let area = tri(p(i, j), p(i + 1, j), p(i + 1, j + 1))
+                        + tri(p(i, j), p(i + 1, j + 1), p(i, j + 1));
+                    lo = lo.min(area);
+                    hi = hi.max(area);
+                }
+            }
+            per_face.push((lo, hi));
+        }
+        let lo = per_face.iter().map(|f| f.0).fold(f64::MAX, f64::min);
+        let hi = per_face.iter().map(|f| f.1).fold(0.0, f64::max);
+        eprintln!(
+            "max/min cell area on WGS84, 64² cells per face, all faces: {:.4}",
+            hi / lo
+        );
+        assert!(hi / lo < 1.3, "{}", hi / lo);
+        // The pole faces' largest and smallest cells are within 1 % of the belt's.
+        for f in [4, 5] {
+            assert!((per_face[f].1 / per_face[0].1 - 1.0).abs() < 0.01);
+            assert!((per_face[f].0 / per_face[0].0 - 1.0).abs() < 0.01);
+        }
+    }
+
+    #[test]
     fn cell_area_ratios_on_the_sphere() {
         let gnomonic = cell_area_ratio(CubeWarp::Gnomonic);
         let equi = cell_area_ratio(CubeWarp::EquiAngular);
