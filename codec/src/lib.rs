@@ -10,6 +10,7 @@ pub mod atomic;
 pub mod colour;
 pub mod entropy;
 pub mod error;
+pub mod geodesy;
 pub mod geometry;
 pub mod hierarchy;
 pub mod input;

@@ -14,6 +14,7 @@ mod input_synthetic;
 mod linf_bound;
 mod nodata_mask;
 mod older_formats;
+mod planet_domain;
 mod real_dems;
 mod repository;
 mod variable_resolution;

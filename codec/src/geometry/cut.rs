@@ -2,11 +2,14 @@
 
 use std::collections::{BTreeSet, HashMap};
 
-use super::{Diagonal, DiamondId, Domain, Half, IdSet, Layout};
+use super::{Diagonal, DiamondId, Domain, FacePoint, GridMap, Half, IdSet, Layout};
 
 /// A triangle in lattice coordinates, counter-clockwise (x east, y south counts as a right-handed
 /// frame here: only consistency matters).
 pub type Triangle = [(i64, i64); 3];
+
+/// A triangle on one face, in that face's lattice coordinates: `(face, triangle)`.
+pub type FaceTriangle = (u8, Triangle);
 
 /// A cut: the set of refined diamonds, closed under "parents of a refined diamond are refined".
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -82,11 +85,27 @@ impl Cut {
         out
     }
 
-    /// All triangles the cut draws, in lattice coordinates.
+    /// All triangles the cut draws, in lattice coordinates of each diamond's own face (on a
+    /// cube-sphere the half of an edge diamond on the neighbouring face comes out past the
+    /// edge; [`Cut::face_triangles`] puts it on its face).
     pub fn triangles(&self, domain: &Domain) -> Vec<Triangle> {
         let mut out = Vec::new();
         for (id, half) in self.drawn_halves(domain) {
             half_triangles(domain.layout(), id, half, &mut out);
+        }
+        out
+    }
+
+    /// All triangles the cut draws, each on the face it lies on, in that face's lattice
+    /// coordinates (on a plane: face 0 and the same triangles as [`Cut::triangles`]).
+    pub fn face_triangles(&self, domain: &Domain) -> Vec<FaceTriangle> {
+        let mut out = Vec::new();
+        let mut tris = Vec::new();
+        for (id, half) in self.drawn_halves(domain) {
+            let (face, grid) = domain.half_grid(id, half);
+            tris.clear();
+            half_triangles_on(domain.layout(), id, half, &grid, &mut tris);
+            out.extend(tris.iter().map(|&t| (face, t)));
         }
         out
     }
@@ -95,7 +114,18 @@ impl Cut {
 /// Appends the triangles of one half of a diamond: its grid cells split parallel to the split
 /// diagonal, so that each half is a union of whole grid triangles.
 pub fn half_triangles(layout: &Layout, id: DiamondId, half: Half, out: &mut Vec<Triangle>) {
-    let g = layout.grid(id);
+    half_triangles_on(layout, id, half, &layout.grid(id), out);
+}
+
+/// [`half_triangles`] with the diamond's grid placed by `g` (its own, or carried onto another
+/// face's frame).
+fn half_triangles_on(
+    layout: &Layout,
+    id: DiamondId,
+    half: Half,
+    g: &GridMap,
+    out: &mut Vec<Triangle>,
+) {
     let n1 = (layout.n() - 1) as i64;
     let diag = layout.diagonal(id);
     for j in 0..n1 {
@@ -130,49 +160,79 @@ fn signed_area2(t: &Triangle) -> i64 {
     (t[1].0 - t[0].0) * (t[2].1 - t[0].1) - (t[2].0 - t[0].0) * (t[1].1 - t[0].1)
 }
 
-/// Checks that `triangles` form a conforming triangulation of the whole (planar) domain: every
-/// triangle non-degenerate and inside the domain, their areas adding up to the domain's, and
-/// every directed edge matched by exactly one opposite edge unless it lies on the domain's
-/// boundary. Together these rule out cracks, T-junctions (an edge with a vertex in its interior
-/// has no single matching edge), overlaps and holes.
+/// Checks that `triangles` form a conforming triangulation of the whole planar domain (see
+/// [`check_conforming_surface`], which this is for face-0 triangles).
 pub fn check_conforming(domain: &Domain, triangles: &[Triangle]) -> Result<(), String> {
+    let on_face: Vec<FaceTriangle> = triangles.iter().map(|&t| (0, t)).collect();
+    check_conforming_surface(domain, &on_face)
+}
+
+/// Checks that `triangles` form a conforming triangulation of the whole domain, every face of
+/// it: every triangle non-degenerate, counter-clockwise and inside its face, their areas adding
+/// up to the domain's, and every directed edge matched by exactly one opposite edge unless it
+/// lies on a plane's outer boundary (a cube-sphere has none). Edges are compared between
+/// canonical points ([`Domain::canonical_point`]), so a crack along a cube edge counts like any
+/// other. Together these rule out cracks, T-junctions (an edge with a vertex in its interior has
+/// no single matching edge), overlaps and holes.
+pub fn check_conforming_surface(domain: &Domain, triangles: &[FaceTriangle]) -> Result<(), String> {
     let (ex, ey) = domain.layout().face_extent();
     let mut area2 = 0i64;
-    type Edge = ((i64, i64), (i64, i64));
+    type Edge = (FacePoint, FacePoint);
     let mut edges: HashMap<Edge, u32> = HashMap::new();
-    for t in triangles {
-        let a = signed_area2(t);
+    for &(face, t) in triangles {
+        let a = signed_area2(&t);
         if a <= 0 {
             return Err(format!("degenerate or clockwise triangle {t:?}"));
         }
-        if t.iter().any(|p| p.0 < 0 || p.1 < 0 || p.0 > ex || p.1 > ey) {
+        if face >= domain.faces() || t.iter().any(|p| p.0 < 0 || p.1 < 0 || p.0 > ex || p.1 > ey) {
             return Err(format!("triangle {t:?} leaves the domain"));
         }
         area2 += a;
+        let canonical = t.map(|p| {
+            domain
+                .canonical_point(face, p.0, p.1)
+                .expect("a point of the face square is on the surface")
+        });
         for e in 0..3 {
-            *edges.entry((t[e], t[(e + 1) % 3])).or_default() += 1;
+            *edges
+                .entry((canonical[e], canonical[(e + 1) % 3]))
+                .or_default() += 1;
         }
     }
-    if area2 != 2 * ex * ey {
+    let faces = i64::from(domain.faces());
+    if area2 != 2 * faces * ex * ey {
         return Err(format!(
             "triangles cover {} but the domain is {}",
             area2 as f64 / 2.0,
-            ex * ey
+            faces * ex * ey
         ));
     }
-    let on_boundary = |p: (i64, i64), q: (i64, i64)| {
-        (p.0 == q.0 && (p.0 == 0 || p.0 == ex)) || (p.1 == q.1 && (p.1 == 0 || p.1 == ey))
+    let closed = domain.cube().is_some();
+    let on_boundary = |p: FacePoint, q: FacePoint| {
+        !closed
+            && ((p.x == q.x && (p.x == 0 || p.x == ex)) || (p.y == q.y && (p.y == 0 || p.y == ey)))
+    };
+    let show = |p: FacePoint| {
+        if closed {
+            format!("f{}{:?}", p.face, (p.x, p.y))
+        } else {
+            format!("{:?}", (p.x, p.y))
+        }
     };
     for (&(p, q), &count) in &edges {
         if count != 1 {
             return Err(format!(
-                "edge {p:?}->{q:?} used {count} times in one direction"
+                "edge {}->{} used {count} times in one direction",
+                show(p),
+                show(q)
             ));
         }
         let back = edges.get(&(q, p)).copied().unwrap_or(0);
         if back == 0 && !on_boundary(p, q) {
             return Err(format!(
-                "edge {p:?}->{q:?} has no neighbour: crack or T-junction"
+                "edge {}->{} has no neighbour: crack or T-junction",
+                show(p),
+                show(q)
             ));
         }
     }

@@ -41,6 +41,7 @@ impl std::hash::Hash for DiamondId {
 impl DiamondId {
     /// A diamond of face 0 (a plane's only face); whether it exists depends on the
     /// [`crate::geometry::Domain`].
+    #[inline]
     pub const fn new(level: u8, x: u32, y: u32) -> Self {
         Self {
             level,
@@ -51,6 +52,7 @@ impl DiamondId {
     }
 
     /// A diamond of face `face`.
+    #[inline]
     pub const fn on_face(face: u8, level: u8, x: u32, y: u32) -> Self {
         Self { level, face, x, y }
     }

@@ -6,11 +6,13 @@
 //! of the codec, the server and the client work per face with the integer arithmetic of
 //! [`Layout`] (grids, radii, bounds), which is the same on every face.
 //!
-//! Today the only shape is the plane: one face, a `roots_x × roots_y` grid of level-0 squares,
-//! and a data rectangle in its corner. A cube-sphere is a second [`Shape`] arm: six faces, each
-//! one root square, whose relations cross face edges through one addressing function.
+//! Two shapes: the plane (one face, a `roots_x × roots_y` grid of level-0 squares, and a data
+//! rectangle in its corner) and the cube-sphere (six faces, each one root square, whose
+//! relations cross face edges through one addressing function, [`Cube::locate`]; see
+//! [`super::cube`] and `docs/PLANET.md`).
 
-use super::{DiamondId, Half, Layout};
+use super::cube::{Cube, Edge, FACES, FacePoint, FrameMap};
+use super::{DiamondId, GridMap, Half, Layout};
 use crate::CodecError;
 
 /// The kinds of domain (`docs/FORMAT.md`: the header's domain kind).
@@ -18,6 +20,8 @@ use crate::CodecError;
 pub enum DomainKind {
     /// A plane: one face, a rectangle of roots.
     Planar,
+    /// A cube-sphere: six faces, one root each, joined along the cube's edges.
+    CubeSphere,
 }
 
 impl DomainKind {
@@ -25,6 +29,7 @@ impl DomainKind {
     pub fn name(self) -> &'static str {
         match self {
             DomainKind::Planar => "planar",
+            DomainKind::CubeSphere => "cube-sphere",
         }
     }
 }
@@ -81,6 +86,8 @@ impl RootField {
 enum Shape {
     /// One face: the layout's root rectangle, no wrap-around.
     Planar,
+    /// Six faces of one root each, the faces of [`Cube`] with side `S`: a closed surface.
+    CubeSphere(Cube),
 }
 
 /// The surface a hierarchy covers: its faces, its root set, the region that holds data, and
@@ -114,6 +121,29 @@ impl Domain {
             shape: Shape::Planar,
             layout,
             data,
+        })
+    }
+
+    /// A cube-sphere: six faces, each one root square with an `(N − 1)·2^K + 1` lattice per
+    /// side, data on every lattice point. The face numbering and orientation are
+    /// [`super::cube::FACE_FRAMES`]'s.
+    pub fn cube_sphere(n: usize, k: u32) -> Result<Self, CodecError> {
+        let layout = Layout::new(n, k, 1, 1)?;
+        let side = layout.root_side();
+        // Crossing an edge handles points up to one face side beyond it: 2S must fit.
+        let points = u32::try_from(side + 1)
+            .ok()
+            .filter(|_| side.checked_mul(2).is_some_and(|d| d < i64::from(u32::MAX)))
+            .ok_or_else(|| {
+                CodecError::limit(format!("a cube-sphere face of side {side} is too large"))
+            })?;
+        Ok(Self {
+            shape: Shape::CubeSphere(Cube::new(side)),
+            layout,
+            data: DataRect {
+                width: points,
+                height: points,
+            },
         })
     }
 
@@ -163,6 +193,7 @@ impl Domain {
         };
         match self.shape {
             Shape::Planar => Self::planar(layout, data),
+            Shape::CubeSphere(_) => Self::cube_sphere(l.n(), l.k() + level_pairs),
         }
     }
 
@@ -170,13 +201,15 @@ impl Domain {
     pub fn kind(&self) -> DomainKind {
         match self.shape {
             Shape::Planar => DomainKind::Planar,
+            Shape::CubeSphere(_) => DomainKind::CubeSphere,
         }
     }
 
-    /// Number of faces (1 for a plane).
+    /// Number of faces (1 for a plane, 6 for a cube-sphere).
     pub fn faces(&self) -> u8 {
         match self.shape {
             Shape::Planar => 1,
+            Shape::CubeSphere(_) => FACES,
         }
     }
 
@@ -204,11 +237,36 @@ impl Domain {
         self.data
     }
 
-    /// Whether lattice point `(x, y)` of `face` holds data.
+    /// Whether lattice point `(x, y)` of `face` holds data. On a cube-sphere every point of
+    /// the closed face square does (an edge point on each face holding it; its values are
+    /// computed once, at [`Domain::canonical_point`]).
     #[inline]
     pub fn holds_data(&self, face: u8, x: i64, y: i64) -> bool {
+        face < self.faces() && self.data.contains(x, y)
+    }
+
+    /// The one coordinate triple of a surface point: `(face, x, y)` of the face's lattice, or a
+    /// point past one of its edges by at most a face side (where relations step), mapped onto
+    /// the face holding it and, on a face edge or cube corner, onto the lowest-numbered face
+    /// holding it. Every face's coordinates of an edge vertex give the same answer, so code that
+    /// computes a vertex from its canonical point computes it once. `None` off the surface
+    /// (outside a plane's lattice; beyond a cube corner).
+    pub fn canonical_point(&self, face: u8, x: i64, y: i64) -> Option<FacePoint> {
         match self.shape {
-            Shape::Planar => face == 0 && self.data.contains(x, y),
+            Shape::Planar => {
+                let (ex, ey) = self.layout.face_extent();
+                (face == 0 && (0..=ex).contains(&x) && (0..=ey).contains(&y))
+                    .then_some(FacePoint::new(0, x, y))
+            }
+            Shape::CubeSphere(cube) => cube.locate(face, x, y).map(|p| cube.canonical(p)),
+        }
+    }
+
+    /// The cube of a cube-sphere (`None` on a plane).
+    pub fn cube(&self) -> Option<&Cube> {
+        match &self.shape {
+            Shape::Planar => None,
+            Shape::CubeSphere(cube) => Some(cube),
         }
     }
 
@@ -224,18 +282,23 @@ impl Domain {
     }
 
     /// Whether `id` is a diamond of this domain (possibly one that sticks out of the data).
+    /// On a cube-sphere, a diamond centred on a face edge exists only under its canonical face.
     #[inline]
     pub fn contains(&self, id: DiamondId) -> bool {
         match self.shape {
             Shape::Planar => id.face == 0 && self.layout.contains(id),
+            Shape::CubeSphere(cube) => {
+                id.face < FACES
+                    && self.layout.contains(id)
+                    && cube.canonical(centre(id)) == centre(id)
+            }
         }
     }
 
     /// The roots, face by face, row by row.
     pub fn roots(&self) -> impl Iterator<Item = DiamondId> + '_ {
-        match self.shape {
-            Shape::Planar => self.layout.roots(),
-        }
+        let faces = self.faces();
+        (0..faces).flat_map(move |face| self.layout.roots().map(move |r| on_face(r, face)))
     }
 
     /// Every diamond of `level`, face by face, in id order.
@@ -245,17 +308,31 @@ impl Domain {
         } else {
             0..0
         };
-        levels.flat_map(move |l| match self.shape {
-            Shape::Planar => self.layout.level(l),
+        let faces = self.faces();
+        levels.flat_map(move |l| {
+            (0..faces).flat_map(move |face| {
+                self.layout
+                    .level(l)
+                    .map(move |id| on_face(id, face))
+                    .filter(move |&id| self.contains(id))
+            })
         })
     }
 
     /// The two parents, `[positive half's, negative half's]`; `None` for roots and for the
-    /// missing parent of a diamond on a plane's edge.
+    /// missing parent of a diamond on a plane's edge. On a cube-sphere every diamond but the
+    /// roots has both; those of a diamond centred on a face edge lie on the two faces.
     #[inline]
     pub fn parents(&self, id: DiamondId) -> [Option<DiamondId>; 2] {
         match self.shape {
             Shape::Planar => self.layout.parents(id),
+            Shape::CubeSphere(cube) => {
+                if id.level == 0 {
+                    return [None, None];
+                }
+                let (offsets, _) = self.layout.parent_offsets(id);
+                offsets.map(|o| self.cube_step(cube, id, id.level - 1, o))
+            }
         }
     }
 
@@ -283,6 +360,14 @@ impl Domain {
     pub fn children(&self, id: DiamondId) -> [Option<DiamondId>; 4] {
         match self.shape {
             Shape::Planar => self.layout.children(id),
+            Shape::CubeSphere(cube) => {
+                if id.level >= self.finest_level() {
+                    return [None; 4];
+                }
+                self.layout
+                    .child_offsets(id)
+                    .map(|o| self.cube_step(cube, id, id.level + 1, o))
+            }
         }
     }
 
@@ -291,8 +376,100 @@ impl Domain {
     pub fn neighbours(&self, id: DiamondId) -> [Option<DiamondId>; 4] {
         match self.shape {
             Shape::Planar => self.layout.neighbours(id),
+            Shape::CubeSphere(cube) => self
+                .layout
+                .neighbour_offsets(id)
+                .map(|o| self.cube_step(cube, id, id.level, o)),
         }
     }
+
+    /// The diamond of `level` centred at `from`'s centre plus `offset` (in `from`'s face frame,
+    /// possibly past one of its edges), under its canonical face.
+    #[inline]
+    fn cube_step(
+        &self,
+        cube: Cube,
+        from: DiamondId,
+        level: u8,
+        offset: (i64, i64),
+    ) -> Option<DiamondId> {
+        let (x, y) = (i64::from(from.x) + offset.0, i64::from(from.y) + offset.1);
+        let s = cube.side();
+        let c = if 0 < x && x < s && 0 < y && y < s && from.face < FACES {
+            // Inside the face, off its edges (most steps): the point is its own owner.
+            FacePoint::new(from.face, x, y)
+        } else {
+            cube.canonical(cube.locate(from.face, x, y)?)
+        };
+        let id = DiamondId::on_face(
+            c.face,
+            level,
+            u32::try_from(c.x).ok()?,
+            u32::try_from(c.y).ok()?,
+        );
+        // Canonical already: only the lattice test of `contains` is left.
+        self.layout.contains(id).then_some(id)
+    }
+
+    /// The face that half `half` of `id` lies on, and the map from `id`'s face frame to that
+    /// face's frame (`None` when it is `id`'s own face). Every half lies on one face: only a
+    /// diamond centred on a cube edge (odd levels) has a half on another face than its own.
+    pub fn half_face(&self, id: DiamondId, half: Half) -> (u8, Option<FrameMap>) {
+        let Shape::CubeSphere(cube) = self.shape else {
+            return (id.face, None);
+        };
+        let Some(edge) = cube.edge_of(centre(id)).filter(|_| id.face < FACES) else {
+            return (id.face, None);
+        };
+        // The half lies on the side of the split diagonal (the edge) where its parent is.
+        let (offsets, _) = self.layout.parent_offsets(id);
+        let o = offsets[half as usize];
+        let (t, out) = match edge {
+            Edge::Y0 => (o.0, -o.1),
+            Edge::XS => (o.1, o.0),
+            Edge::YS => (o.0, o.1),
+            Edge::X0 => (o.1, -o.0),
+        };
+        debug_assert_eq!(
+            t, 0,
+            "a split diagonal on an edge has its parents across it"
+        );
+        if out > 0 {
+            let map = cube.frame_across(id.face, edge);
+            let across = super::cube::ADJACENCY[id.face as usize][edge as usize].face;
+            (across, Some(map))
+        } else {
+            (id.face, None)
+        }
+    }
+
+    /// The grid of `id` in the frame of the face its half `half` lies on: the same `N × N`
+    /// vertices, with origin and steps carried across the cube edge when that half lies on
+    /// the neighbouring face. Returns that face too.
+    pub fn half_grid(&self, id: DiamondId, half: Half) -> (u8, GridMap) {
+        let g = self.layout.grid(id);
+        match self.half_face(id, half) {
+            (face, None) => (face, g),
+            (face, Some(map)) => (
+                face,
+                GridMap {
+                    origin: map.point(g.origin),
+                    u: map.step(g.u),
+                    v: map.step(g.v),
+                    n: g.n,
+                },
+            ),
+        }
+    }
+}
+
+/// A diamond's centre as a face point.
+fn centre(id: DiamondId) -> FacePoint {
+    FacePoint::new(id.face, i64::from(id.x), i64::from(id.y))
+}
+
+fn on_face(id: DiamondId, face: u8) -> DiamondId {
+    DiamondId { face, ..id }
 }
 
 #[cfg(test)]

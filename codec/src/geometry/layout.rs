@@ -101,6 +101,7 @@ impl Layout {
         (2 * self.k) as u8
     }
     /// Side of a root square in lattice units, `S0 = (N − 1)·2^K`.
+    #[inline]
     pub fn root_side(&self) -> i64 {
         ((self.n - 1) as i64) << self.k
     }
@@ -109,12 +110,15 @@ impl Layout {
         (self.roots_x, self.roots_y)
     }
     /// Lattice extent of the face: `[0, ex] × [0, ey]`.
+    #[inline]
     pub fn face_extent(&self) -> (i64, i64) {
         let s = self.root_side();
         (s * i64::from(self.roots_x), s * i64::from(self.roots_y))
     }
 
-    /// Half-side (even level) or half-diagonal (odd level) of a level's diamonds.
+    /// Half-side (even level) or half-diagonal (odd level) of a level's diamonds: a power of
+    /// two, at least 1 up to the finest level.
+    #[inline]
     pub fn radius(&self, level: u8) -> i64 {
         self.root_side() >> (u32::from(level) / 2 + 1)
     }
@@ -137,6 +141,7 @@ impl Layout {
     }
 
     /// Whether `id` is a diamond of this hierarchy (possibly one that sticks out of the domain).
+    #[inline]
     pub fn contains(&self, id: DiamondId) -> bool {
         if id.level > self.finest_level() {
             return false;
@@ -144,11 +149,15 @@ impl Layout {
         let r = self.radius(id.level);
         let (x, y) = (i64::from(id.x), i64::from(id.y));
         let (ex, ey) = self.face_extent();
+        // r is a power of two and x, y are not negative: `v & mask` is `v % 2r`, without the
+        // division (this test runs for every relation the refinement loop asks for).
+        let mask = 2 * r - 1;
+        let (mx, my) = (x & mask, y & mask);
         if id.is_even() {
-            x % (2 * r) == r && y % (2 * r) == r && x < ex && y < ey
+            mx == r && my == r && x < ex && y < ey
         } else {
-            let on_horizontal = x % (2 * r) == r && y % (2 * r) == 0;
-            let on_vertical = x % (2 * r) == 0 && y % (2 * r) == r;
+            let on_horizontal = mx == r && my == 0;
+            let on_vertical = mx == 0 && my == r;
             (on_horizontal || on_vertical) && x <= ex && y <= ey
         }
     }
@@ -165,7 +174,8 @@ impl Layout {
     /// Lattice offsets from the centre to the two parents' centres, `[positive, negative]`,
     /// and the split diagonal. Level 0 has no parents; its diagonal is chosen the same way as at
     /// other even levels.
-    fn parent_offsets(&self, id: DiamondId) -> ([(i64, i64); 2], Diagonal) {
+    #[inline]
+    pub(super) fn parent_offsets(&self, id: DiamondId) -> ([(i64, i64); 2], Diagonal) {
         let r = self.radius(id.level);
         let (x, y) = (i64::from(id.x), i64::from(id.y));
         if id.is_even() {
@@ -206,25 +216,36 @@ impl Layout {
         if id.level >= self.finest_level() {
             return [None; 4];
         }
+        self.child_offsets(id).map(|o| self.at(id.level + 1, id, o))
+    }
+
+    /// Lattice offsets from the centre to the 4 children's centres (the midpoints of the
+    /// diamond's sides).
+    #[inline]
+    pub(super) fn child_offsets(&self, id: DiamondId) -> [(i64, i64); 4] {
         let r = self.radius(id.level);
-        let offsets = if id.is_even() {
+        if id.is_even() {
             [(r, 0), (0, r), (-r, 0), (0, -r)]
         } else {
             let h = r / 2;
             [(h, h), (-h, h), (-h, -h), (h, -h)]
-        };
-        offsets.map(|o| self.at(id.level + 1, id, o))
+        }
     }
 
     /// The diamonds of the same level that share a side with `id` (up to 4).
     pub fn neighbours(&self, id: DiamondId) -> [Option<DiamondId>; 4] {
+        self.neighbour_offsets(id).map(|o| self.at(id.level, id, o))
+    }
+
+    /// Lattice offsets from the centre to the 4 same-level diamonds sharing a side.
+    #[inline]
+    pub(super) fn neighbour_offsets(&self, id: DiamondId) -> [(i64, i64); 4] {
         let r = self.radius(id.level);
-        let offsets = if id.is_even() {
+        if id.is_even() {
             [(2 * r, 0), (0, 2 * r), (-2 * r, 0), (0, -2 * r)]
         } else {
             [(r, r), (-r, r), (-r, -r), (r, -r)]
-        };
-        offsets.map(|o| self.at(id.level, id, o))
+        }
     }
 
     fn at(&self, level: u8, from: DiamondId, o: (i64, i64)) -> Option<DiamondId> {

@@ -15,6 +15,7 @@
 //! Refining a diamond splits it at its centre; its 4 children are centred on the midpoints of
 //! its 4 sides. A child's *split diagonal* is the side its two parents share.
 
+pub mod cube;
 mod cut;
 mod diamond;
 mod domain;
@@ -22,7 +23,8 @@ mod grid;
 mod id_hash;
 mod layout;
 
-pub use cut::{Cut, Triangle, check_conforming};
+pub use cube::{Cube, FacePoint};
+pub use cut::{Cut, FaceTriangle, Triangle, check_conforming, check_conforming_surface};
 pub use diamond::{DiamondId, Half};
 pub use domain::{DataRect, Domain, DomainKind, RootField};
 pub use grid::{Diagonal, GridMap, IndexMap};
