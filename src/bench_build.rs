@@ -86,7 +86,15 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
                 max_error: args.max_error,
             })?;
             let storage = storage_for(&input.grid, &opts, limit)?;
-            let enc = encode_prepared(&input, None, &opts, &storage, args.threads, &|_, _| {})?;
+            let enc = encode_prepared(
+                &input,
+                None,
+                &opts,
+                &storage,
+                &cbdam_codec::hierarchy::NoJournal,
+                args.threads,
+                &|_, _| {},
+            )?;
             // What `cbdam build` does by default (`--extra-levels auto`), timed with the rest.
             let (enc, _) = with_coarser_roots_if_smaller(&input, enc, &opts, limit, args.threads)?;
             write_repository(&out, &enc, &input.plan, input.georef.as_ref(), input.nodata)?;

@@ -7,6 +7,7 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use anyhow::Result;
+use cbdam_build::journal::Resumed;
 use cbdam_build::{
     AssignedGeoRef, BuildOptions, BuildSummary, ColourSummary, ElevationSummary, Progress,
     ProgressEvent, Spilled, Stage,
@@ -178,6 +179,23 @@ impl Progress for Bars {
             Stage::Encode => self.encoded(e.done, e.total),
             // The encode is over: the bar goes.
             Stage::EncodeCoarserRoots | Stage::Write => self.finish(),
+        }
+    }
+
+    fn resumed(&self, r: &Resumed) {
+        if matches!(self, Bars::Quiet) {
+            return;
+        }
+        match r {
+            Resumed::Fresh => {}
+            Resumed::Continuing { blocks } => eprintln!(
+                "resuming: {blocks} blocks finished by an earlier run of this build are kept \
+                 (from OUTPUT.journal/)"
+            ),
+            Resumed::StartedOver { changed } => eprintln!(
+                "starting over: the earlier run's journal was for other inputs or arguments \
+                 ({changed})"
+            ),
         }
     }
 

@@ -8,8 +8,8 @@ use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Layout;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
-    BlockPlan, EncodeOptions, Encoded, Reached, Resolution, TempStorage, encode_in_blocks,
-    encode_variable, encode_with_storage, reconstruct_reached, verify,
+    BlockPlan, EncodeOptions, Encoded, NoJournal, Reached, Resolution, TempStorage,
+    encode_in_blocks, encode_variable, encode_with_storage, reconstruct_reached, verify,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, Quantizer};
@@ -260,6 +260,7 @@ fn blocks_encode_the_same_variable_resolution_hierarchy() {
             &opts(),
             &TempStorage::Memory,
             &plan,
+            &NoJournal,
             &|_, _| {},
         )
         .unwrap();

@@ -516,11 +516,123 @@ fn block_encoding_under_a_memory_limit_writes_the_same_bytes() {
     };
     // 997 × 682 samples: the grid takes 3.4 MB, the whole field 4.2 MB, blocks of 256 2.6 MB.
     let (whole, said) = build("1G");
-    assert!(said.contains("reconstruction in memory") && !said.contains("blocks"), "{said}");
+    assert!(
+        said.contains("reconstruction in memory") && !said.contains("blocks"),
+        "{said}"
+    );
     let (blocks, said) = build("6M");
     assert!(said.contains("blocks of 256"), "{said}");
     assert!(blocks == whole, "block encoding changed the repository");
     let (mapped, said) = build("4K");
     assert!(said.contains("mapped file"), "{said}");
     assert!(mapped == whole, "the mapped field changed the repository");
+}
+
+/// A large build keeps a journal of finished blocks: killed (SIGKILL) before any block, after
+/// one and after several, it resumes when run again and writes the same bytes as a build that
+/// was never interrupted; no partial output is ever left under the output's name, and the
+/// journal is gone once the repository is written. Run again with another tolerance, it starts
+/// over and says why.
+#[test]
+fn a_killed_build_resumes_and_writes_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let raw = dir.path().join("t.f32");
+    // 4097² samples: at the size from which builds keep a journal (2^24).
+    succeeds(&cbdam(&["synth", "--size", "4097", "-o", &s(&raw)]));
+    let args = |out: &Path, eps: &str| -> Vec<String> {
+        [
+            "build",
+            &s(&raw),
+            "--size",
+            "4097x4097",
+            "--max-error",
+            eps,
+            "-o",
+            &s(out),
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let whole = dir.path().join("whole.cbdam");
+    succeeds(&cbdam(
+        &args(&whole, "1")
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    ));
+    let expected = std::fs::read(&whole).unwrap();
+    let journal = dir.path().join("killed.cbdam.journal");
+    let blocks_done = || {
+        std::fs::read_dir(&journal).map_or(0, |d| {
+            d.filter_map(|e| e.ok())
+                .filter(|e| e.file_name().to_string_lossy().starts_with("block-"))
+                .count()
+        })
+    };
+    let out = dir.path().join("killed.cbdam");
+    for kill_after in [0, 1, 6] {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
+            .args(args(&out, "1"))
+            .arg("--quiet")
+            .spawn()
+            .unwrap();
+        // Wait for the journal (its key is written before the encode) and `kill_after` blocks.
+        let start = std::time::Instant::now();
+        while !(journal.join("key").exists() && blocks_done() >= kill_after) {
+            assert!(start.elapsed().as_secs() < 120, "no progress to kill at");
+            if child.try_wait().unwrap().is_some() {
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        child.kill().unwrap(); // SIGKILL
+        child.wait().unwrap();
+        assert!(!out.exists(), "a killed build left {}", out.display());
+    }
+    let before = blocks_done();
+    assert!(before >= 6, "only {before} blocks kept");
+    let o = cbdam(
+        &args(&out, "1")
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    succeeds(&o);
+    assert!(
+        stderr(&o).contains(&format!("resuming: {before} blocks")),
+        "{}",
+        stderr(&o)
+    );
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "the resumed build differs"
+    );
+    assert!(!journal.exists(), "the journal outlived the build");
+    // Killed again after some blocks, then run with another tolerance: it starts over.
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(args(&dir.path().join("killed.cbdam"), "1"))
+        .arg("--quiet")
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while blocks_done() < 2
+        && start.elapsed().as_secs() < 120
+        && child.try_wait().unwrap().is_none()
+    {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let o = cbdam(
+        &args(&out, "2")
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    succeeds(&o);
+    assert!(
+        stderr(&o).contains("starting over") && stderr(&o).contains("max_error: 1 → 2"),
+        "{}",
+        stderr(&o)
+    );
 }

@@ -1,7 +1,8 @@
 //! Encoding a prepared input on a worker pool, and `--extra-levels auto`'s second try.
 
 use cbdam_codec::hierarchy::{
-    EncodeOptions, Encoded, Resolution, encode_in_blocks, encode_variable, encode_with_storage,
+    BlockJournal, EncodeOptions, Encoded, NoJournal, Resolution, encode_in_blocks, encode_variable,
+    encode_with_storage,
 };
 use cbdam_codec::repository::serialize;
 
@@ -39,6 +40,7 @@ pub fn encode_prepared(
     resolution: Option<&Resolution>,
     opts: &EncodeOptions,
     temporaries: &Temporaries,
+    journal: &dyn BlockJournal,
     threads: Option<usize>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Encoded> {
@@ -52,6 +54,7 @@ pub fn encode_prepared(
             opts,
             storage,
             plan,
+            journal,
             progress,
         ),
         (None, Some(r)) => encode_variable(
@@ -117,7 +120,15 @@ pub fn with_coarser_roots_if_smaller(
         ..*opts
     };
     let storage = storage_for(&input.grid, &opts, limit)?;
-    let second = encode_prepared(input, None, &opts, &storage, threads, &|_, _| {})?;
+    let second = encode_prepared(
+        input,
+        None,
+        &opts,
+        &storage,
+        &NoJournal,
+        threads,
+        &|_, _| {},
+    )?;
     Ok((
         if size(&second)? < first_size {
             second

@@ -13,6 +13,7 @@ pub mod assign;
 pub mod colour;
 pub mod encode;
 mod error;
+pub mod journal;
 pub mod mosaic;
 pub mod plan;
 pub mod progress;
@@ -37,7 +38,9 @@ pub use progress::{NoProgress, Progress, ProgressEvent, Spilled, Stage};
 
 use crate::encode::{encode_prepared, with_coarser_roots_if_smaller};
 use crate::error::{Context, bail};
+use crate::journal::Journal;
 use crate::plan::{InputSpec, default_memory_limit, prepare, prepare_mosaic, storage_for};
+use cbdam_codec::hierarchy::{BlockJournal, BlockPlan, NoJournal};
 
 /// Everything a build needs, given once.
 #[derive(Clone, Debug)]
@@ -253,12 +256,24 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         total: 1,
     });
     let mut stages = input.stages.clone();
+    let journal = match &storage.blocks {
+        Some(plan) => {
+            let key = journal_key(opts, &tiles, &enc_opts, plan)?;
+            let (journal, resumed) = Journal::open(&opts.output, &key)?;
+            progress.resumed(&resumed);
+            Some(journal)
+        }
+        None => None,
+    };
     let t = Instant::now();
     let encoded = encode_prepared(
         &input,
         resolution.as_ref(),
         &enc_opts,
         &storage,
+        journal
+            .as_ref()
+            .map_or(&NoJournal as &dyn BlockJournal, |j| j),
         opts.threads,
         &|done, total| {
             progress.event(ProgressEvent {
@@ -303,6 +318,9 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         input.nodata,
     )
     .with_context(|| format!("writing {}", opts.output.display()))?;
+    if let Some(journal) = journal {
+        journal.finish()?;
+    }
     stages.push(("write", t.elapsed()));
     progress.event(ProgressEvent {
         stage: Stage::Write,
@@ -319,4 +337,52 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         stages,
         temporaries: storage.describe(),
     })
+}
+
+/// Everything a block encode's output depends on, one `name=value` line each: the journal of an
+/// earlier run is continued only when all of them are the same ([`journal`]). The memory limit
+/// and the thread count are not among them: only the block plan they lead to is.
+fn journal_key(
+    opts: &BuildOptions,
+    tiles: &[tiles::Tile],
+    enc: &EncodeOptions,
+    plan: &BlockPlan,
+) -> Result<String> {
+    let mut key = format!(
+        "journal=1\ncbdam={}\nformat={}\n",
+        env!("CARGO_PKG_VERSION"),
+        cbdam_codec::repository::FORMAT_VERSION
+    );
+    for t in tiles {
+        let meta =
+            std::fs::metadata(&t.path).with_context(|| format!("reading {}", t.path.display()))?;
+        let modified = meta
+            .modified()
+            .ok()
+            .and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok())
+            .map_or(0, |d| d.as_nanos());
+        key += &format!(
+            "input={} {} bytes, modified {modified} ns, placed {:?}\n",
+            t.path.display(),
+            meta.len(),
+            t.vrt
+        );
+    }
+    key += &format!(
+        "max_error={}\nraw_size={:?}\nquantum={:?}\nnodata={:?}\ndiamond_size={}\n\
+         extra_level_pairs={}\nalpha={:?}\ncoder={:?}\nbounds={:?}\n\
+         blocks=cut {} side {}\n",
+        opts.max_error,
+        opts.raw_size,
+        opts.quantum,
+        opts.nodata,
+        enc.n,
+        enc.extra_level_pairs,
+        enc.alpha,
+        enc.coder,
+        opts.assign_georef,
+        plan.cut_level,
+        plan.block_side
+    );
+    Ok(key)
 }

@@ -158,24 +158,37 @@ impl Temporaries {
     }
 }
 
+/// Inputs of at least this many samples (4097², 2^24) are encoded block by block with a journal
+/// ([`crate::journal`]), so that a killed build resumes: their encode takes seconds to hours.
+pub const JOURNAL_FROM_SAMPLES: usize = 1 << 24;
+
 /// Where the encoder's temporaries go under `limit` bytes: in memory with one reconstruction
 /// field over the domain when the grid (5 bytes per sample) and that field (4 bytes per lattice
-/// point of the domain) fit; in memory block by block ([`BlockPlan::fitting`]) when the grid
+/// point of the domain) fit and the input is smaller than [`JOURNAL_FROM_SAMPLES`]; in memory
+/// block by block ([`BlockPlan::fitting`]; at least 4 × 4 blocks for large inputs) when the grid
 /// and the block fields fit; otherwise the whole field in a mapped temporary file.
 pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<Temporaries> {
     let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
     let (ex, ey) = domain.layout().face_extent();
     let field = 4 * (ex as u64 + 1) * (ey as u64 + 1);
     let input = 5 * (grid.width as u64) * (grid.height as u64);
-    if input + field <= limit {
+    let large = grid.width * grid.height >= JOURNAL_FROM_SAMPLES && opts.alpha == Alpha::One;
+    if input + field <= limit && !large {
         return Ok(Temporaries {
             storage: TempStorage::Memory,
             blocks: None,
         });
     }
-    let blocks = (opts.alpha == Alpha::One)
-        .then(|| BlockPlan::fitting(domain.layout(), limit.saturating_sub(input)))
-        .flatten();
+    let budget = limit.saturating_sub(input);
+    let blocks = if large {
+        // At least 4 × 4 blocks: units of work a killed build resumes from.
+        let max_side = ex.max(ey) / 4;
+        BlockPlan::fitting_at_most(domain.layout(), budget, max_side)
+    } else if opts.alpha == Alpha::One {
+        BlockPlan::fitting(domain.layout(), budget)
+    } else {
+        None
+    };
     Ok(match blocks {
         Some(plan) => Temporaries {
             storage: TempStorage::Memory,

@@ -46,6 +46,9 @@ pub trait Progress: Sync {
     fn event(&self, event: ProgressEvent);
     /// Inputs were spilled to temporary files (multi-input builds; before encoding).
     fn spilled(&self, _spilled: Spilled) {}
+    /// Whether the build continues an earlier run's journal ([`crate::journal`]), starts over,
+    /// or starts fresh; reported once, before the encode, by builds that keep a journal.
+    fn resumed(&self, _resumed: &crate::journal::Resumed) {}
 }
 
 /// Any `Fn(ProgressEvent) + Sync` closure is a [`Progress`] (spills ignored).

@@ -14,9 +14,42 @@
 //! neighbour that needs them and recorded by the block that owns them. The margin's cost is
 //! about `4 · reach / side` of the fine levels' work.
 
+use super::Record;
 use super::field::{ReconField, TempStorage};
 use crate::CodecError;
 use crate::geometry::{DiamondId, Layout};
+
+/// What one block of a [`BlockPlan`] produced: the records of the diamonds it owns (object
+/// errors not yet saturated: that happens once all blocks are in) and their own object errors.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct BlockOutput {
+    /// Records of the block's refined diamonds, object errors 0.
+    pub records: Vec<Record>,
+    /// Own (unsaturated) object error of every stored diamond the block owns.
+    pub own_errors: Vec<(DiamondId, u32)>,
+}
+
+/// Keeps finished blocks, so that an encode that was interrupted continues where it stopped
+/// (`cbdam build`'s journal). The encoder asks for each block before encoding it and hands over
+/// each block it finished.
+pub trait BlockJournal: Sync {
+    /// The output of block `index` from an earlier run of the same encode, if it finished.
+    fn load(&self, index: usize) -> Result<Option<BlockOutput>, CodecError>;
+    /// Keeps block `index`'s output; when this returns, a later run may rely on it.
+    fn save(&self, index: usize, output: &BlockOutput) -> Result<(), CodecError>;
+}
+
+/// Keeps nothing: every block is encoded.
+pub struct NoJournal;
+
+impl BlockJournal for NoJournal {
+    fn load(&self, _index: usize) -> Result<Option<BlockOutput>, CodecError> {
+        Ok(None)
+    }
+    fn save(&self, _index: usize, _output: &BlockOutput) -> Result<(), CodecError> {
+        Ok(())
+    }
+}
 
 /// How the encoder splits the levels into an apex and blocks.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -42,9 +75,19 @@ impl BlockPlan {
     /// (the least work in margins); `None` when no plan fits. Blocks are a root's side halved
     /// `j` times, at least 8 finest radii across.
     pub fn fitting(layout: &Layout, budget: u64) -> Option<BlockPlan> {
+        Self::fitting_at_most(layout, budget, layout.root_side())
+    }
+
+    /// [`BlockPlan::fitting`] with blocks at most `max_side` across (rounded down to a root's
+    /// side halved `j` times): for a build that wants several blocks (units of work to resume
+    /// from) even when one would fit.
+    pub fn fitting_at_most(layout: &Layout, budget: u64, max_side: i64) -> Option<BlockPlan> {
         let finest = layout.finest_level();
         let smallest = (8 * layout.radius(finest)).min(layout.root_side());
         let mut side = layout.root_side();
+        while side > max_side.max(smallest) {
+            side /= 2;
+        }
         while side >= smallest && side > 0 {
             let deepest = (0..=finest)
                 .find(|&l| layout.radius(l) * SIDE_IN_CUT_RADII <= side)

@@ -5,7 +5,7 @@ use std::collections::{BTreeSet, HashMap};
 use rayon::prelude::*;
 
 use super::analysis::{LevelField, analysis_fields};
-use super::blocks::BlockPlan;
+use super::blocks::{Block, BlockJournal, BlockOutput, BlockPlan};
 use super::field::{ReconField, TempStorage};
 use super::mask::encode_mask;
 use super::object_error::{ErrorInput, surface_error};
@@ -151,8 +151,10 @@ pub fn encode_variable(
 }
 
 /// [`encode_with_storage`] (α = 1) or [`encode_variable`] (`resolution` given), encoding the
-/// levels from `plan`'s cut down one block at a time ([`super::blocks`]). The output is the
+/// levels from `plan`'s cut down one block at a time ([`super::blocks`]), asking `journal` for
+/// blocks an earlier run finished and handing it each one this run finishes. The output is the
 /// same for every plan.
+#[allow(clippy::too_many_arguments)]
 pub fn encode_in_blocks(
     grid: &HeightGrid,
     resolution: Option<&Resolution>,
@@ -160,6 +162,7 @@ pub fn encode_in_blocks(
     opts: &EncodeOptions,
     storage: &TempStorage,
     plan: &BlockPlan,
+    journal: &dyn BlockJournal,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Encoded, CodecError> {
     if opts.alpha != Alpha::One {
@@ -176,21 +179,22 @@ pub fn encode_in_blocks(
         resolution,
         quantizer,
         opts,
-        Keeping::Blocks(storage, plan),
+        Keeping::Blocks(storage, plan, journal),
         progress,
     )
 }
 
 /// How the encoder keeps the reconstruction between levels.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy)]
 enum Keeping<'a> {
     /// Every refined diamond of the previous level as a `(2N−1)²` half-step grid: needed for
     /// α = ½, whose refinements change vertices.
     PerDiamond,
     /// One reconstruction field over the domain ([`ReconField`]); α = 1 only.
     Field(&'a TempStorage),
-    /// An apex field and one per block ([`BlockPlan`]); α = 1 only.
-    Blocks(&'a TempStorage, &'a BlockPlan),
+    /// An apex field and one per block ([`BlockPlan`]), finished blocks kept in a journal;
+    /// α = 1 only.
+    Blocks(&'a TempStorage, &'a BlockPlan, &'a dyn BlockJournal),
 }
 
 fn encode_impl(
@@ -272,9 +276,9 @@ fn encode_impl(
             );
             levels.field(storage)?
         }
-        Keeping::Blocks(storage, plan) => {
+        Keeping::Blocks(storage, plan, journal) => {
             assert!(opts.alpha == Alpha::One, "blocks need α = 1");
-            levels.blocks(storage, plan)?
+            levels.blocks(storage, plan, journal)?
         }
     };
 
@@ -426,7 +430,12 @@ impl Levels<'_> {
     /// diamonds' ancestors ([`BlockPlan::reach`]). Diamonds of that margin are encoded again
     /// by every block that needs them, but recorded only by the block that owns their centre,
     /// so the output is the same as [`Levels::field`]'s.
-    fn blocks(&self, storage: &TempStorage, plan: &BlockPlan) -> Result<LevelOutput, CodecError> {
+    fn blocks(
+        &self,
+        storage: &TempStorage,
+        plan: &BlockPlan,
+        journal: &dyn BlockJournal,
+    ) -> Result<LevelOutput, CodecError> {
         let layout = self.params.layout();
         let finest = layout.finest_level();
         let cut = plan.cut_level.min(finest);
@@ -441,25 +450,57 @@ impl Levels<'_> {
                 records.extend(record);
             }
         }
-        for block in plan.blocks(layout) {
-            let field = block.field(storage)?;
-            // The block's lattice points of the coarse levels, from the apex.
-            for (x, y) in block.apex_points() {
-                field.set(x, y, apex.get(x, y));
-            }
-            for level in cut..=finest {
-                let reach = plan.reach(layout, level);
-                let ids = block.select(&self.stored[level as usize], reach);
-                let owned = |id: DiamondId| block.owns(id);
-                for (id, record, err) in self.encode_level(&field, level, &ids, &owned)? {
-                    if owned(id) {
-                        own_error.insert(id, err);
-                        records.extend(record);
+        for (index, block) in plan.blocks(layout).into_iter().enumerate() {
+            let out = match journal.load(index)? {
+                Some(out) => {
+                    for level in cut..=finest {
+                        block
+                            .select(&self.stored[level as usize], 0)
+                            .iter()
+                            .for_each(self.tick);
                     }
+                    out
+                }
+                None => {
+                    let out = self.block(&apex, plan, &block, storage)?;
+                    journal.save(index, &out)?;
+                    out
+                }
+            };
+            own_error.extend(out.own_errors);
+            records.extend(out.records);
+        }
+        Ok((records, own_error))
+    }
+
+    /// One block of the fine levels ([`Levels::blocks`]): its diamonds' records and errors.
+    fn block(
+        &self,
+        apex: &ReconField,
+        plan: &BlockPlan,
+        block: &Block,
+        storage: &TempStorage,
+    ) -> Result<BlockOutput, CodecError> {
+        let layout = self.params.layout();
+        let cut = plan.cut_level.min(layout.finest_level());
+        let field = block.field(storage)?;
+        // The block's lattice points of the coarse levels, from the apex.
+        for (x, y) in block.apex_points() {
+            field.set(x, y, apex.get(x, y));
+        }
+        let mut out = BlockOutput::default();
+        for level in cut..=layout.finest_level() {
+            let reach = plan.reach(layout, level);
+            let ids = block.select(&self.stored[level as usize], reach);
+            let owned = |id: DiamondId| block.owns(id);
+            for (id, record, err) in self.encode_level(&field, level, &ids, &owned)? {
+                if owned(id) {
+                    out.own_errors.push((id, err));
+                    out.records.extend(record);
                 }
             }
         }
-        Ok((records, own_error))
+        Ok(out)
     }
 
     /// Writes level 0's vertices (the root field, at spacing `2^K`) into `field`.
@@ -827,8 +868,17 @@ mod tests {
             &|_, _| {},
         )
         .unwrap();
-        let blocks =
-            encode_in_blocks(grid, None, q, opts, &TempStorage::Memory, plan, &|_, _| {}).unwrap();
+        let blocks = encode_in_blocks(
+            grid,
+            None,
+            q,
+            opts,
+            &TempStorage::Memory,
+            plan,
+            &super::super::blocks::NoJournal,
+            &|_, _| {},
+        )
+        .unwrap();
         assert!(
             whole == blocks,
             "block encoder differs on {}×{} {opts:?} {plan:?}",

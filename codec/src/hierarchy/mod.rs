@@ -25,7 +25,7 @@ pub mod resolution;
 mod roots;
 
 pub use analysis::{LevelField, analysis_fields};
-pub use blocks::BlockPlan;
+pub use blocks::{BlockJournal, BlockOutput, BlockPlan, NoJournal};
 pub use decode::{
     Decoder, LevelReport, Reached, VerifyReport, reconstruct_finest,
     reconstruct_finest_with_validity, reconstruct_reached, verify, walk, walk_all_with_validity,

@@ -1,0 +1,305 @@
+//! The build's journal: the finished blocks of a block encode
+//! ([`cbdam_codec::hierarchy::BlockPlan`]), kept on disk beside the output so that a build that
+//! was killed (SIGKILL, power loss) and run again with the same inputs and arguments continues
+//! from its last finished block and writes the same bytes.
+//!
+//! `OUT.journal/` holds `key` — every input (path, size, modification time) and every argument
+//! that decides the output, one `name=value` line each — and one `block-NNNNNN` file per finished
+//! block, each written to a temporary name, synced and renamed, with a CRC-32 of its contents, so
+//! a file is either whole or absent. A journal whose key differs from this build's is removed,
+//! and the build says which line changed. The journal goes once the repository is written.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use cbdam_codec::CodecError;
+use cbdam_codec::geometry::DiamondId;
+use cbdam_codec::hierarchy::{BlockJournal, BlockOutput, Record};
+
+use crate::error::{Context, Result};
+
+/// Magic bytes of a block file.
+const MAGIC: &[u8; 4] = b"CBDJ";
+/// Version of the block file layout.
+const VERSION: u32 = 1;
+
+/// What opening a journal found.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Resumed {
+    /// No journal: a fresh build.
+    Fresh,
+    /// An earlier run of the same build had finished some blocks.
+    Continuing {
+        /// Blocks finished.
+        blocks: usize,
+    },
+    /// An earlier run's journal was for other inputs or arguments; it was removed.
+    StartedOver {
+        /// The first line that differs, `name: old → new`.
+        changed: String,
+    },
+}
+
+/// The journal of one build.
+#[derive(Debug)]
+pub struct Journal {
+    dir: PathBuf,
+}
+
+impl Journal {
+    /// The journal directory of a build writing `output`.
+    pub fn dir_of(output: &Path) -> PathBuf {
+        let mut name = output.file_name().unwrap_or_default().to_os_string();
+        name.push(".journal");
+        output.with_file_name(name)
+    }
+
+    /// Opens the journal of a build writing `output` whose bytes depend on `key`, continuing an
+    /// earlier run's with the same key and removing one with another.
+    pub fn open(output: &Path, key: &str) -> Result<(Journal, Resumed)> {
+        let dir = Self::dir_of(output);
+        let context = || format!("opening the build journal {}", dir.display());
+        let mut resumed = Resumed::Fresh;
+        if dir.exists() {
+            let old = fs::read_to_string(dir.join("key")).unwrap_or_default();
+            if old == key {
+                let blocks = fs::read_dir(&dir)
+                    .with_context(context)?
+                    .filter_map(|e| e.ok())
+                    .filter(|e| e.file_name().to_string_lossy().starts_with("block-"))
+                    .count();
+                return Ok((Journal { dir }, Resumed::Continuing { blocks }));
+            }
+            resumed = Resumed::StartedOver {
+                changed: first_difference(&old, key),
+            };
+            fs::remove_dir_all(&dir).with_context(context)?;
+        }
+        fs::create_dir_all(&dir).with_context(context)?;
+        write_atomically(&dir, "key", key.as_bytes()).with_context(context)?;
+        Ok((Journal { dir }, resumed))
+    }
+
+    /// Removes the journal: the repository is written.
+    pub fn finish(self) -> Result<()> {
+        fs::remove_dir_all(&self.dir)
+            .with_context(|| format!("removing the build journal {}", self.dir.display()))
+    }
+
+    fn block_path(&self, index: usize) -> PathBuf {
+        self.dir.join(format!("block-{index:06}"))
+    }
+}
+
+impl BlockJournal for Journal {
+    fn load(&self, index: usize) -> Result<Option<BlockOutput>, CodecError> {
+        match fs::read(self.block_path(index)) {
+            // A block file that does not parse (it never should: files are renamed into place
+            // whole) is encoded again.
+            Ok(bytes) => Ok(parse_block(&bytes)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    fn save(&self, index: usize, output: &BlockOutput) -> Result<(), CodecError> {
+        let name = format!("block-{index:06}");
+        write_atomically(&self.dir, &name, &serialize_block(output))?;
+        Ok(())
+    }
+}
+
+/// `name: old → new` for the first `name=value` line of `new` that `old` lacks.
+fn first_difference(old: &str, new: &str) -> String {
+    let value = |text: &str, name: &str| {
+        text.lines()
+            .find_map(|l| l.strip_prefix(name)?.strip_prefix('=').map(str::to_string))
+    };
+    for line in new.lines() {
+        let name = line.split('=').next().unwrap_or(line);
+        let now = value(new, name).unwrap_or_default();
+        match value(old, name) {
+            Some(before) if before == now => continue,
+            Some(before) => return format!("{name}: {before} → {now}"),
+            None => return format!("{name}: (none) → {now}"),
+        }
+    }
+    "the journal's format".to_string()
+}
+
+/// Writes `bytes` to `dir/name` whole or not at all: a temporary file, synced, renamed.
+fn write_atomically(dir: &Path, name: &str, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = dir.join(format!(".{name}.tmp"));
+    let mut f = fs::File::create(&tmp)?;
+    f.write_all(bytes)?;
+    f.sync_all()?;
+    drop(f);
+    fs::rename(&tmp, dir.join(name))?;
+    // The rename itself is durable once the directory is synced.
+    fs::File::open(dir)?.sync_all()
+}
+
+fn put_id(out: &mut Vec<u8>, id: DiamondId) {
+    out.push(id.level);
+    out.push(id.face);
+    out.extend_from_slice(&id.x.to_le_bytes());
+    out.extend_from_slice(&id.y.to_le_bytes());
+}
+
+/// A block file: magic, version, the records (id, min, max, length, bytes), the own errors
+/// (id, error), and a CRC-32 of everything before it; integers little-endian.
+fn serialize_block(b: &BlockOutput) -> Vec<u8> {
+    let mut out = Vec::new();
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&VERSION.to_le_bytes());
+    out.extend_from_slice(&(b.records.len() as u64).to_le_bytes());
+    for r in &b.records {
+        put_id(&mut out, r.id);
+        out.extend_from_slice(&r.min.to_le_bytes());
+        out.extend_from_slice(&r.max.to_le_bytes());
+        out.extend_from_slice(&(r.bytes.len() as u64).to_le_bytes());
+        out.extend_from_slice(&r.bytes);
+    }
+    out.extend_from_slice(&(b.own_errors.len() as u64).to_le_bytes());
+    for &(id, e) in &b.own_errors {
+        put_id(&mut out, id);
+        out.extend_from_slice(&e.to_le_bytes());
+    }
+    let crc = crc32fast::hash(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out
+}
+
+/// Reads bytes off the front of a block file.
+struct Reader<'a>(&'a [u8]);
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        if self.0.len() < n {
+            return None;
+        }
+        let (a, b) = self.0.split_at(n);
+        self.0 = b;
+        Some(a)
+    }
+    fn u8(&mut self) -> Option<u8> {
+        Some(self.take(1)?[0])
+    }
+    fn u32(&mut self) -> Option<u32> {
+        Some(u32::from_le_bytes(self.take(4)?.try_into().ok()?))
+    }
+    fn u64(&mut self) -> Option<u64> {
+        Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
+    }
+    fn id(&mut self) -> Option<DiamondId> {
+        let (level, face) = (self.u8()?, self.u8()?);
+        Some(DiamondId::on_face(face, level, self.u32()?, self.u32()?))
+    }
+}
+
+/// The block in a block file, `None` if it is not one whole (wrong magic or version, cut short,
+/// checksum mismatch, counts beyond the file).
+fn parse_block(bytes: &[u8]) -> Option<BlockOutput> {
+    let (body, crc) = bytes.split_at_checked(bytes.len().checked_sub(4)?)?;
+    if crc32fast::hash(body).to_le_bytes() != crc {
+        return None;
+    }
+    let mut r = Reader(body);
+    if r.take(4)? != MAGIC || r.u32()? != VERSION {
+        return None;
+    }
+    let count = r.u64()?;
+    // Every record takes at least 26 bytes: a count beyond the file is corrupt, not a reason
+    // to allocate.
+    let mut records = Vec::with_capacity(count.min(body.len() as u64 / 26) as usize);
+    for _ in 0..count {
+        let id = r.id()?;
+        let min = r.u32()? as i32;
+        let max = r.u32()? as i32;
+        let len = usize::try_from(r.u64()?).ok()?;
+        let bytes = r.take(len)?.to_vec();
+        records.push(Record {
+            id,
+            bytes,
+            object_error: 0,
+            min,
+            max,
+        });
+    }
+    let count = r.u64()?;
+    let mut own_errors = Vec::with_capacity(count.min(body.len() as u64 / 14) as usize);
+    for _ in 0..count {
+        own_errors.push((r.id()?, r.u32()?));
+    }
+    r.0.is_empty().then_some(BlockOutput {
+        records,
+        own_errors,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> BlockOutput {
+        BlockOutput {
+            records: vec![
+                Record {
+                    id: DiamondId::new(3, 8, 24),
+                    bytes: vec![1, 2, 3, 250],
+                    object_error: 0,
+                    min: -7,
+                    max: 4000,
+                },
+                Record {
+                    id: DiamondId::on_face(2, 5, 16, 0),
+                    bytes: vec![],
+                    object_error: 0,
+                    min: 0,
+                    max: 0,
+                },
+            ],
+            own_errors: vec![(DiamondId::new(3, 8, 24), 12), (DiamondId::new(6, 4, 4), 0)],
+        }
+    }
+
+    #[test]
+    fn block_files_round_trip_and_reject_any_damage() {
+        let b = sample();
+        let bytes = serialize_block(&b);
+        assert_eq!(parse_block(&bytes), Some(b));
+        // Every truncation and every single-bit flip is refused, never a panic.
+        for n in 0..bytes.len() {
+            assert_eq!(parse_block(&bytes[..n]), None, "cut at {n}");
+        }
+        for i in 0..bytes.len() * 8 {
+            let mut d = bytes.clone();
+            d[i / 8] ^= 1 << (i % 8);
+            assert_eq!(parse_block(&d), None, "bit {i}");
+        }
+    }
+
+    #[test]
+    fn a_changed_key_starts_over_naming_the_change() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("x.cbdam");
+        let (j, r) = Journal::open(&out, "input=a 10\nmax_error=1\n").unwrap();
+        assert_eq!(r, Resumed::Fresh);
+        j.save(3, &sample()).unwrap();
+        let (j, r) = Journal::open(&out, "input=a 10\nmax_error=1\n").unwrap();
+        assert_eq!(r, Resumed::Continuing { blocks: 1 });
+        assert_eq!(j.load(3).unwrap(), Some(sample()));
+        assert_eq!(j.load(4).unwrap(), None);
+        let (j, r) = Journal::open(&out, "input=a 10\nmax_error=2\n").unwrap();
+        assert_eq!(
+            r,
+            Resumed::StartedOver {
+                changed: "max_error: 1 → 2".into()
+            }
+        );
+        assert_eq!(j.load(3).unwrap(), None);
+        j.finish().unwrap();
+        assert!(!Journal::dir_of(&out).exists());
+    }
+}
