@@ -50,7 +50,9 @@ impl RemoteSource {
     /// first frame). `url` as in [`RemoteFetcher::connect`].
     #[cfg(target_arch = "wasm32")]
     pub async fn connect(url: &str, options: FetchOptions) -> Result<Self, RemoteError> {
-        Ok(Self::from_fetcher(RemoteFetcher::connect(url, options).await?))
+        Ok(Self::from_fetcher(
+            RemoteFetcher::connect(url, options).await?,
+        ))
     }
 
     fn from_fetcher(fetcher: RemoteFetcher) -> Self {

@@ -406,7 +406,11 @@ fn batch_span(
     ids: &[DiamondId],
 ) -> (std::ops::Range<u64>, Vec<std::ops::Range<u64>>) {
     let ranges: Vec<_> = ids.iter().map(|&id| record_range(head, id)).collect();
-    let lo = ranges.iter().map(|r| r.start).min().expect("non-empty batch");
+    let lo = ranges
+        .iter()
+        .map(|r| r.start)
+        .min()
+        .expect("non-empty batch");
     let hi = ranges.iter().map(|r| r.end).max().expect("non-empty batch");
     (lo..hi, ranges)
 }

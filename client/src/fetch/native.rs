@@ -15,8 +15,8 @@ use web_time::Instant;
 
 use super::{
     Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, batch_request_body,
-    batch_span, check_batch, classify, expect_partial, fetch_head_with, http_error,
-    list_url, next_batch, parse_frames, range_total, single_repository, split_span,
+    batch_span, check_batch, classify, expect_partial, fetch_head_with, http_error, list_url,
+    next_batch, parse_frames, range_total, single_repository, split_span,
 };
 
 struct Shared {
