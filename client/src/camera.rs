@@ -78,49 +78,74 @@ impl Camera {
         Self::looking_at(world, eye, centre, fov_y, size)
     }
 
-    /// A view that frames the data: from the south, 40° above the horizon, as close as it can
-    /// be with every corner of the data box inside the middle 95 % of the frame, so the data
-    /// fills most of it ([`Camera::overview`] keeps a whole sphere around the box in view, which
-    /// leaves much of a frame empty). The browser's first view.
+    /// A view that frames the data: from the south, 55° above the horizon, as close as it can
+    /// be with every corner of the data box inside the middle 95 % of the frame, the box
+    /// centred vertically in the frame, so the data fills most of it ([`Camera::overview`]
+    /// keeps a whole sphere around the box in view, which leaves much of a frame empty). The
+    /// browser's first view.
     pub fn framed(world: &World, size: (u32, u32)) -> Self {
         const MARGIN: f64 = 0.95;
         let (lo, hi) = world.data_box();
-        let centre = (lo + hi) * 0.5;
         let fov_y = 45f64.to_radians();
-        let elevation = 40f64.to_radians();
+        let elevation = 55f64.to_radians();
         let dir = DVec3::new(0.0, -elevation.cos(), elevation.sin());
         let corners = box_corners(lo, hi);
-        let at =
-            |distance: f64| Self::looking_at(world, centre + dir * distance, centre, fov_y, size);
-        let fits = |distance: f64| {
-            let cam = at(distance);
-            let m = cam.projection() * cam.view();
-            corners.iter().all(|c| {
-                let p = m * c.extend(1.0);
-                p.w > 0.0 && (p.x / p.w).abs() <= MARGIN && (p.y / p.w).abs() <= MARGIN
-            })
+        let at = |target: DVec3, distance: f64| {
+            Self::looking_at(world, target + dir * distance, target, fov_y, size)
         };
-        let mut far = ((hi - lo).length()).max(1.0);
-        for _ in 0..64 {
-            if fits(far) {
+        // The corners' vertical extent in normalised device coordinates, when all of them are
+        // inside the margin.
+        let fits = |target: DVec3, distance: f64| {
+            let cam = at(target, distance);
+            let m = cam.projection() * cam.view();
+            let (mut y0, mut y1) = (f64::MAX, f64::MIN);
+            for c in &corners {
+                let p = m * c.extend(1.0);
+                let (x, y) = (p.x / p.w, p.y / p.w);
+                if p.w <= 0.0 || x.abs() > MARGIN || y.abs() > MARGIN {
+                    return None;
+                }
+                y0 = y0.min(y);
+                y1 = y1.max(y);
+            }
+            Some((y0, y1))
+        };
+        // The closest distance that fits, to a thousandth, for a target.
+        let closest = |target: DVec3| {
+            let mut far = (hi - lo).length().max(1.0);
+            for _ in 0..64 {
+                if fits(target, far).is_some() {
+                    break;
+                }
+                far *= 2.0;
+            }
+            let mut near = 0.0;
+            while far - near > far * 1e-3 {
+                let mid = 0.5 * (near + far);
+                if fits(target, mid).is_some() {
+                    far = mid;
+                } else {
+                    near = mid;
+                }
+            }
+            far
+        };
+        let mut target = (lo + hi) * 0.5;
+        let mut distance = closest(target);
+        // Perspective shows the near edge lower and larger than the far one: slide the target
+        // along the ground until the box is centred vertically, coming closer each time.
+        for _ in 0..4 {
+            let Some((y0, y1)) = fits(target, distance) else {
                 break;
-            }
-            far *= 2.0;
+            };
+            let centre = 0.5 * (y0 + y1);
+            // Moving the target by s along the ground (towards the north) moves its image by
+            // about s·sin(elevation) / (distance·tan(fov/2)) in device coordinates.
+            let metres = centre * distance * (fov_y / 2.0).tan() / elevation.sin();
+            target.y += metres;
+            distance = closest(target);
         }
-        let mut near = 0.0;
-        // Bisection to a thousandth of the distance: closer than `far` no longer fits.
-        for _ in 0..40 {
-            let mid = 0.5 * (near + far);
-            if fits(mid) {
-                far = mid;
-            } else {
-                near = mid;
-            }
-            if far - near < far * 1e-3 {
-                break;
-            }
-        }
-        at(far)
+        at(target, distance)
     }
 
     /// World to view (right-handed, looking down −z).
@@ -316,7 +341,8 @@ mod tests {
     }
 
     /// The framed view keeps every corner of the data in the frame (inside the 95 % margin, in
-    /// front of the near plane), touches the margin (no closer view would fit), and covers more
+    /// front of the near plane), centred vertically, touches the margin (no closer view would
+    /// fit), and covers more
     /// of the frame than the overview, in landscape and portrait frames.
     #[test]
     fn framed_view_fills_the_frame_with_the_whole_data() {
