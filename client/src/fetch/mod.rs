@@ -453,13 +453,16 @@ fn split_span(
         .collect())
 }
 
+/// Records that passed their checks.
+type Checked = Vec<(DiamondId, Arc<[u8]>)>;
+
 /// The records of a finished request checked against the head: those that pass, and the ids
 /// to retry (all of them when the request failed).
 fn check_batch(
     head: &RepositoryHead,
     ids: &[DiamondId],
     outcome: Result<Vec<(DiamondId, Vec<u8>)>, String>,
-) -> (Vec<(DiamondId, Arc<[u8]>)>, Vec<DiamondId>) {
+) -> (Checked, Vec<DiamondId>) {
     let mut delivered = Vec::new();
     let mut failed = Vec::new();
     match outcome {

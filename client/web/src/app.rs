@@ -88,7 +88,11 @@ struct App {
 }
 
 impl App {
-    async fn new(canvas: HtmlCanvasElement, repo_url: &str, status: Status) -> Result<Self, String> {
+    async fn new(
+        canvas: HtmlCanvasElement,
+        repo_url: &str,
+        status: Status,
+    ) -> Result<Self, String> {
         status.set("phase", "connecting");
         let source = RemoteSource::connect(repo_url, FetchOptions::default())
             .await
@@ -291,9 +295,12 @@ impl App {
     }
 }
 
+/// The animation-frame callback, shared with itself so it can ask for the next frame.
+type FrameCallback = Rc<RefCell<Option<Closure<dyn FnMut()>>>>;
+
 /// Runs `app`'s frames on `requestAnimationFrame` until one fails.
 fn run(app: Rc<RefCell<App>>) {
-    let callback: Rc<RefCell<Option<Closure<dyn FnMut()>>>> = Rc::new(RefCell::new(None));
+    let callback: FrameCallback = Rc::new(RefCell::new(None));
     let again = callback.clone();
     *callback.borrow_mut() = Some(Closure::new(move || {
         let result = app.borrow_mut().frame();

@@ -36,8 +36,8 @@ impl Input {
         let me = Self::default();
         let on = |event: &str, f: Box<dyn FnMut(MouseEvent)>| {
             let closure = Closure::wrap(f);
-            let _ = canvas
-                .add_event_listener_with_callback(event, closure.as_ref().unchecked_ref());
+            let _ =
+                canvas.add_event_listener_with_callback(event, closure.as_ref().unchecked_ref());
             closure.forget();
         };
         let p = me.pending.clone();
