@@ -37,4 +37,4 @@ work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro.cbdam" \
     --max-error 1 --quiet
-python3 scripts/web_test.py target/web-bundle "$work/jacksboro.cbdam"
+python3 scripts/web_test.py target/web-bundle "$work/jacksboro.cbdam" target/debug/cbdam

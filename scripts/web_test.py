@@ -12,7 +12,10 @@ and checks the pixels of a screenshot, not only the page's word:
   needs WebGPU, and draws nothing.
 
 Prints the times from navigation to the first frame and to the converged cut.
-Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam
+- The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
+- A scripted drag and wheel move the camera, and the page converges to a new cut.
+
+Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
 """
 
 import base64
@@ -269,38 +272,95 @@ class Browser:
             shutil.rmtree(self.profile, ignore_errors=True)
 
 
-def open_viewer(flags, url, until):
-    """Opens `url`; polls window.cbdam until `until(status)` or a failure; returns the status,
-    a screenshot (PNG bytes, overlay hidden) and the browser's console lines."""
+def wait_status(browser, until, timeout=TIMEOUT_S):
+    """Polls window.cbdam until `until(status)` or a failure or `timeout`; returns the status."""
+    deadline = time.time() + timeout
+    status = None
+    while time.time() < deadline:
+        status = json.loads(browser.evaluate("JSON.stringify(window.cbdam || null)") or "null")
+        if status and (status.get("phase") == "failed" or until(status)):
+            break
+        time.sleep(0.1)
+    return status
+
+
+def screenshot(browser):
+    """A PNG of the page with the overlay hidden."""
+    browser.evaluate("document.getElementById('overlay').style.display = 'none'")
+    # Two animation frames so the canvas shows the last state without the overlay.
+    browser.call(
+        "Runtime.evaluate",
+        session=True,
+        expression="new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))",
+        awaitPromise=True,
+    )
+    shot = base64.b64decode(browser.call("Page.captureScreenshot", session=True, format="png")["data"])
+    browser.evaluate("document.getElementById('overlay').style.display = ''")
+    return shot
+
+
+def drag_and_zoom(browser):
+    """A left-button drag across the canvas (rotates the orbit camera), then the wheel towards
+    the terrain (zooms in)."""
+    def mouse(kind, x, y, **extra):
+        browser.call("Input.dispatchMouseEvent", session=True, type=kind, x=x, y=y, **extra)
+
+    mouse("mousePressed", 320, 240, button="left", clickCount=1)
+    for step in range(1, 11):
+        mouse("mouseMoved", 320 + 12 * step, 240 + 4 * step, button="left", buttons=1)
+    mouse("mouseReleased", 440, 280, button="left", clickCount=1)
+    mouse("mouseWheel", 320, 240, deltaX=0, deltaY=-300)
+
+
+converged = lambda s: s.get("converged") and s.get("cut") is not None  # noqa: E731
+
+
+def open_viewer(flags, url, until, interact=False):
+    """Opens `url` and waits for `until(status)`; returns the status, a screenshot (PNG bytes),
+    the browser's console lines and stderr, and with `interact` the status after a scripted
+    drag and wheel once it converged again."""
     browser = Browser(flags)
     try:
         browser.call("Page.navigate", session=True, url=url)
         browser.wait_event("Page.loadEventFired", 30)
-        deadline = time.time() + TIMEOUT_S
-        status = None
-        while time.time() < deadline:
-            status = json.loads(browser.evaluate("JSON.stringify(window.cbdam || null)") or "null")
-            if status and (status.get("phase") == "failed" or until(status)):
-                break
-            time.sleep(0.1)
-        browser.evaluate("document.getElementById('overlay').style.display = 'none'")
-        # Two animation frames so the canvas shows the last state without the overlay.
-        browser.call(
-            "Runtime.evaluate",
-            session=True,
-            expression="new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))",
-            awaitPromise=True,
-        )
-        shot = base64.b64decode(
-            browser.call("Page.captureScreenshot", session=True, format="png")["data"]
-        )
-        return status, shot, browser.console, browser.stderr()
+        status = wait_status(browser, until)
+        shot = screenshot(browser)
+        after = None
+        if interact and status and converged(status):
+            drag_and_zoom(browser)
+            before = status["camera"]
+            after = wait_status(
+                browser, lambda s: s.get("camera") != before and converged(s) and s["cut"] != status["cut"]
+            )
+        return status, shot, browser.console, browser.stderr(), after
     finally:
         browser.close()
 
 
+def start_server(cbdam, repository):
+    """`cbdam serve REPOSITORY` on a free loopback port, any origin allowed; returns the process
+    and its base URL."""
+    proc = subprocess.Popen(
+        [cbdam, "serve", repository, "--addr", "127.0.0.1:0", "--cors-origin", "*"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 30
+    while time.time() < deadline:
+        line = proc.stderr.readline()
+        m = re.search(r"listening on (http://127\.0\.0\.1:\d+)", line)
+        if m:
+            threading.Thread(target=proc.stderr.read, daemon=True).start()
+            return proc, m.group(1)
+        if not line and proc.poll() is not None:
+            break
+    proc.kill()
+    raise RuntimeError("cbdam serve did not start")
+
+
 def main():
-    bundle, repository = sys.argv[1], sys.argv[2]
+    bundle, repository, cbdam = sys.argv[1], sys.argv[2], sys.argv[3]
     root = tempfile.mkdtemp(prefix="cbdam-web-")
     try:
         for name in os.listdir(bundle):
@@ -311,9 +371,7 @@ def main():
         failures = []
 
         t = time.time()
-        status, shot, console, stderr = open_viewer(
-            WEBGPU_FLAGS, url, lambda s: s.get("converged") and s.get("cut") is not None
-        )
+        status, shot, console, stderr, moved = open_viewer(WEBGPU_FLAGS, url, converged, interact=True)
         wall = time.time() - t
         save_screenshot(shot, "webgpu.png")
         share, colours, size = terrain_share(shot)
@@ -339,7 +397,42 @@ def main():
             print("console:\n  " + "\n  ".join(console[-20:]) + "\nstderr:\n" + stderr)
 
         t = time.time()
-        status, shot, console, _ = open_viewer([], url, lambda s: False)
+        static_cut = (status or {}).get("cut")
+        if not moved or not converged(moved):
+            failures.append(f"input: no new converged cut after a drag and the wheel: {moved}")
+        else:
+            print(
+                f"input: the drag and wheel moved the eye from {status['camera'][:3]} to "
+                f"{moved['camera'][:3]}; new cut of {len(moved['cut'])} diamonds"
+            )
+
+        proc, base = start_server(cbdam, repository)
+        try:
+            name = os.path.splitext(os.path.basename(repository))[0]
+            served = f"{url.split('?')[0]}?repo={base}/v1/repos/{name}"
+            status, shot, console, stderr, _ = open_viewer(WEBGPU_FLAGS, served, converged)
+        finally:
+            proc.terminate()
+            proc.wait(10)
+        share, colours, _ = terrain_share(shot)
+        print(
+            f"serve: converged {status and status.get('converged')} at "
+            f"{status and status.get('convergedMs')} ms, {status and status.get('recordsRequested')} "
+            f"records requested; terrain covers {share:.1%}"
+        )
+        if not status or not converged(status):
+            failures.append(f"serve: the page did not converge against cbdam serve: {status}")
+            print("console:\n  " + "\n  ".join(console[-20:]))
+        elif status["cut"] != static_cut:
+            failures.append(
+                f"serve: the cut differs from the static file's: {len(status['cut'])} vs "
+                f"{len(static_cut or [])} diamonds"
+            )
+        if share < 0.5:
+            failures.append(f"serve: terrain covers {share:.1%}")
+
+        t = time.time()
+        status, shot, console, _, _ = open_viewer([], url, lambda s: False)
         wall = time.time() - t
         share, colours, _ = terrain_share(shot)
         print(f"webgl2: status {status}; {share:.1%} non-sky pixels; {wall:.1f} s")

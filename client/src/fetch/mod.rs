@@ -500,6 +500,23 @@ mod tests {
         DiamondId::new(l, x, y)
     }
 
+    /// Range responses: only 206 is accepted; the total comes from `Content-Range`; a range
+    /// past the end of the file gets the bytes up to the end, and any other length is an error.
+    #[test]
+    fn range_responses_are_checked() {
+        let r = 10..20;
+        assert!(expect_partial(&r, 206).is_ok());
+        let e = expect_partial(&r, 200).unwrap_err();
+        assert!(e.contains("HTTP 200") && e.contains("Range"), "{e}");
+        assert_eq!(range_total(&r, Some("bytes 10-19/100"), 10), Ok(100));
+        // The file ends at 15: five bytes are the whole answer.
+        assert_eq!(range_total(&r, Some("bytes 10-14/15"), 5), Ok(15));
+        assert!(range_total(&r, Some("bytes 10-14/15"), 4).is_err());
+        assert!(range_total(&r, Some("bytes 10-19/100"), 9).is_err());
+        assert!(range_total(&r, Some("bytes 10-19/*"), 10).is_err());
+        assert!(range_total(&r, None, 10).is_err());
+    }
+
     #[test]
     fn frames_parse_and_bad_frames_are_errors() {
         let ids = [id(1, 2, 3), id(2, 4, 5)];

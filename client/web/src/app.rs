@@ -266,7 +266,7 @@ impl App {
         s.set("triangles", triangles as f64);
         s.set("maxErrorPx", stats.max_screen_error_px);
         s.set("converged", stats.converged);
-        s.set("requests", stats.access.requests_issued as f64);
+        s.set("recordsRequested", stats.access.requests_issued as f64);
         s.set("bytes", stats.access.bytes_fetched as f64);
         s.set("fetchErrors", stats.access.errors as f64);
         s.set_numbers(

@@ -11,7 +11,7 @@
 //! | `cut` | the refined diamonds' ids (`"L/x/y"`), sorted, once converged |
 //! | `converged` | the last frame's cut is the one this view converges to |
 //! | `maxErrorPx` | the largest screen-space error left, pixels |
-//! | `requests`, `bytes`, `fetchErrors` | the data source's counters |
+//! | `recordsRequested`, `bytes`, `fetchErrors` | the data source's counters: records requested, bytes received, failed requests and rejected records |
 //! | `firstFrameMs`, `convergedMs` | `performance.now()` at the first frame drawn and at the first converged frame (ms since the page's navigation began) |
 //! | `camera` | `[eye x, y, z, target x, y, z]`, metres |
 //!

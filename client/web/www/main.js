@@ -30,7 +30,7 @@ function showStatus() {
     `frames ${fmt(s.frames)} · refined ${fmt(s.refined)} · halves ${fmt(s.drawnHalves)} · ` +
     `triangles ${fmt(s.triangles)}\n` +
     `max error ${fmt(s.maxErrorPx, 2)} px · ${s.converged ? "converged" : "refining"}\n` +
-    `requests ${fmt(s.requests)} · ${fmt((s.bytes || 0) / 1024)} KiB · errors ${fmt(s.fetchErrors)}`;
+    `records requested ${fmt(s.recordsRequested)} · ${fmt((s.bytes || 0) / 1024)} KiB · errors ${fmt(s.fetchErrors)}`;
 }
 
 fitCanvas();
