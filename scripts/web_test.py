@@ -327,6 +327,11 @@ def open_viewer(flags, url, until, interact=False):
         shot = screenshot(browser)
         after = None
         if interact and status and converged(status):
+            # Frame rate with the cut converged (refining nothing, drawing every frame).
+            count = "[window.cbdam.frames, performance.now()]"
+            (f0, t0), _ = browser.evaluate(count), time.sleep(2)
+            f1, t1 = browser.evaluate(count)
+            status["fps"] = (f1 - f0) * 1000 / (t1 - t0)
             drag_and_zoom(browser)
             before = status["camera"]
             after = wait_status(
@@ -380,6 +385,7 @@ def main():
             f"webgpu: first frame {status and status.get('firstFrameMs')} ms, converged "
             f"{status and status.get('convergedMs')} ms after navigation; terrain covers "
             f"{share:.1%} of the {size[0]}x{size[1]} screenshot in {colours} colours; "
+            f"{status and status.get('fps', 0):.1f} frames/s once converged; "
             f"{wall:.1f} s with the browser"
         )
         if not status or status.get("phase") != "running":
