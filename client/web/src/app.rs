@@ -18,6 +18,7 @@ use cbdam_client::spawn::Inline;
 use cbdam_client::world::World;
 use cbdam_render::present::Presenter;
 use cbdam_render::{CacheConfig, Gpu, RenderOptions, Renderer};
+use glam::DVec3;
 use wasm_bindgen::JsCast;
 use wasm_bindgen::closure::Closure;
 use wasm_bindgen::prelude::wasm_bindgen;
@@ -32,6 +33,10 @@ const REFINE_BUDGET: Duration = Duration::from_millis(8);
 /// GPU height pool: about 3 900 patches of 65²; browsers limit a storage binding to 128 MiB
 /// by default.
 const POOL_BYTES: u64 = 64 << 20;
+
+/// Why a browser without WebGPU cannot show terrain.
+const NO_WEBGPU: &str = "this browser offers no WebGPU adapter, which the terrain renderer \
+                         needs (WebGL2 is not supported yet): use a browser with WebGPU";
 
 /// GPU errors reported outside an error scope, collected for the status (the handler must be
 /// `Send + Sync`; the page has one thread).
@@ -105,6 +110,11 @@ impl App {
             .map_err(|e| format!("cannot decode the repository's root: {e}"))?;
         let world = *refiner.world();
 
+        let webgpu = wgpu::util::is_browser_webgpu_supported().await;
+        status.set("webgpu", webgpu);
+        if !webgpu && !cfg!(feature = "webgl") {
+            return Err(NO_WEBGPU.into());
+        }
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = wgpu::Backends::BROWSER_WEBGPU | wgpu::Backends::GL;
         let instance = wgpu::util::new_instance_with_webgpu_detection(desc).await;
@@ -119,7 +129,7 @@ impl App {
                 apply_limit_buckets: false,
             })
             .await
-            .map_err(|e| format!("this browser offers neither WebGPU nor WebGL2 ({e})"))?;
+            .map_err(|e| format!("{NO_WEBGPU} ({e})"))?;
         let info = adapter.get_info();
         let backend = match info.backend {
             wgpu::Backend::BrowserWebGpu => "webgpu",
@@ -178,7 +188,11 @@ impl App {
             ..CacheConfig::default()
         };
         let renderer = Renderer::new(gpu, world, cache).map_err(|e| e.to_string())?;
-        let controls = Controls::new(&world, &Camera::framed(&world, size));
+        let start = match camera_from_hash() {
+            Some((eye, target)) => Camera::looking_at(&world, eye, target, FOV_Y, size),
+            None => Camera::framed(&world, size),
+        };
+        let controls = Controls::new(&world, &start);
         let input = Input::listen(&canvas);
         status.set("phase", "running");
         Ok(Self {
@@ -208,10 +222,12 @@ impl App {
             self.config.height = size.1;
             self.surface.configure(&device, &self.config);
         }
-        if self.input.apply(&mut self.controls, size.1) {
-            self.reported_converged = false;
-        }
+        let moved = self.input.apply(&mut self.controls, size.1);
         let camera = self.controls.camera(&self.world, size);
+        if moved {
+            self.reported_converged = false;
+            camera_to_hash(&camera);
+        }
         let stats = self.refiner.frame(&camera);
         self.patches.clear();
         self.patches.extend(self.refiner.drawn().cloned());
@@ -322,6 +338,40 @@ fn request_frame(callback: &Closure<dyn FnMut()>) {
 /// The canvas's drawing buffer size (at least 1×1).
 fn canvas_size(canvas: &HtmlCanvasElement) -> (u32, u32) {
     (canvas.width().max(1), canvas.height().max(1))
+}
+
+/// Vertical field of view of a camera restored from the URL (that of [`Camera::framed`] and
+/// so of every view here).
+const FOV_Y: f64 = std::f64::consts::FRAC_PI_4;
+
+/// The camera in the page URL's hash, `#camera=EX,EY,EZ,TX,TY,TZ` (eye and target, metres), so
+/// a view can be shared as a link; `None` when there is none or it is not six finite numbers
+/// with the eye apart from the target.
+fn camera_from_hash() -> Option<(DVec3, DVec3)> {
+    let hash = web_sys::window()?.location().hash().ok()?;
+    let values = hash.strip_prefix("#camera=")?;
+    let v: Vec<f64> = values
+        .split(',')
+        .map(|x| x.parse::<f64>().ok().filter(|x| x.is_finite()))
+        .collect::<Option<_>>()?;
+    let [ex, ey, ez, tx, ty, tz] = v[..] else {
+        return None;
+    };
+    let (eye, target) = (DVec3::new(ex, ey, ez), DVec3::new(tx, ty, tz));
+    (eye.distance(target) > 0.0).then_some((eye, target))
+}
+
+/// Writes `camera` into the URL's hash (replacing the history entry, so moving around does not
+/// fill the back button's history); centimetres are plenty.
+fn camera_to_hash(camera: &Camera) {
+    let (e, t) = (camera.eye, camera.target);
+    let hash = format!(
+        "#camera={:.2},{:.2},{:.2},{:.2},{:.2},{:.2}",
+        e.x, e.y, e.z, t.x, t.y, t.z
+    );
+    if let Some(history) = web_sys::window().and_then(|w| w.history().ok()) {
+        let _ = history.replace_state_with_url(&wasm_bindgen::JsValue::NULL, "", Some(&hash));
+    }
 }
 
 /// `performance.now()`, ms since the page's navigation began.

@@ -9,9 +9,10 @@
 //! The page exposes its state on `window.cbdam` ([`status`]) for people and tests.
 //!
 //! This first slice decodes on the page's thread (the core's `Inline` spawner, within the frame
-//! budget); Web Workers running the same module are the next step. WebGL2 (browsers without
-//! WebGPU) is detected and refused with a clear message: the renderer reads heights and
-//! instances from storage buffers in the vertex shader, which WebGL2 does not have.
+//! budget); Web Workers running the same module are the next step. A browser without WebGPU is
+//! told so on the page: the renderer reads heights and instances from storage buffers in the
+//! vertex shader, which WebGL2 does not have. wgpu's WebGL2 backend is the `webgl` feature (off:
+//! it would only name the adapter it refuses, at four times the module's size).
 #![deny(missing_docs)]
 
 #[cfg(target_arch = "wasm32")]

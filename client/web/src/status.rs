@@ -3,7 +3,8 @@
 //! | field | meaning |
 //! |---|---|
 //! | `phase` | `"starting"`, `"connecting"`, `"running"` or `"failed"` |
-//! | `backend` | `"webgpu"` or `"webgl"` once an adapter is found |
+//! | `webgpu` | whether the browser offers a WebGPU adapter |
+//! | `backend` | `"webgpu"` (or `"webgl"`, built with the `webgl` feature) once an adapter is found |
 //! | `adapter` | the adapter's name |
 //! | `error` | why the page failed (`phase == "failed"`), or `""` |
 //! | `frames` | frames drawn |
