@@ -28,7 +28,7 @@ fi
 cargo build --target wasm32-unknown-unknown -p cbdam-web --profile web
 mkdir -p "$out"
 wasm-bindgen --target web --no-typescript --out-dir "$out" \
-    target/wasm32-unknown-unknown/web/cbdam_web.wasm
+    "${CARGO_TARGET_DIR:-target}/wasm32-unknown-unknown/web/cbdam_web.wasm"
 cp client/web/www/index.html client/web/www/main.js "$out/"
 
 wasm="$out/cbdam_web_bg.wasm"

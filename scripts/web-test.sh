@@ -2,8 +2,10 @@
 # The browser viewer's end-to-end test (run by scripts/test.sh after the workspace's tests):
 # builds the web bundle (scripts/web-build.sh), builds a small repository with the cbdam binary,
 # and drives headless Chromium against a loopback static server with Range support
-# (scripts/web_test.py): WebGPU on SwiftShader must converge and draw terrain over most of the
-# frame (screenshot pixels checked), and WebGL2 must be refused with a clear message.
+# and `cbdam serve` (scripts/web_test.py): WebGPU on SwiftShader must converge and draw terrain
+# over most of the frame (screenshot pixels checked), the same cut from both servers; a drag and
+# the wheel move the camera and its URL hash restores the view; without WebGPU the page must say
+# so. About 15 s once built.
 #
 # Sets up what it needs like test.sh sets up lavapipe: Debian's chromium (apt) and
 # websocket-client (pip, pinned). Where neither can be installed (no apt-get, no root/sudo),
@@ -37,4 +39,5 @@ work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro.cbdam" \
     --max-error 1 --quiet
-python3 scripts/web_test.py target/web-bundle "$work/jacksboro.cbdam" target/debug/cbdam
+python3 scripts/web_test.py target/web-bundle "$work/jacksboro.cbdam" \
+    "${CARGO_TARGET_DIR:-target}/debug/cbdam"
