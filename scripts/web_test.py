@@ -12,6 +12,7 @@ and checks the pixels of a screenshot, not only the page's word:
   needs WebGPU, and draws nothing.
 
 Prints the times from navigation to the first frame and to the converged cut.
+- A record corrupted once by the server is rejected (checksum) and fetched again: same cut.
 - The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
 - A scripted drag and wheel move the camera, and the page converges to a new cut; the camera is
   in the URL's hash, and opening that URL restores the view (same camera, same cut).
@@ -21,6 +22,7 @@ Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
 
 import base64
 import http.server
+import io
 import json
 import os
 import re
@@ -59,7 +61,11 @@ TIMEOUT_S = 90
 
 
 class RangeHandler(http.server.SimpleHTTPRequestHandler):
-    """Static files with single-range `Range: bytes=a-b` support (python's server has none)."""
+    """Static files with single-range `Range: bytes=a-b` support (python's server has none).
+    While `corrupt["armed"]`, the next range not starting at 0 (a record, not the head) is
+    answered with its last byte flipped, once."""
+
+    corrupt = {"armed": False, "done": 0}
 
     extensions_map = {
         **http.server.SimpleHTTPRequestHandler.extensions_map,
@@ -85,27 +91,20 @@ class RangeHandler(http.server.SimpleHTTPRequestHandler):
             return None
         start = int(m.group(1))
         end = min(int(m.group(2)) if m.group(2) else size - 1, size - 1)
-        f = open(path, "rb")
-        f.seek(start)
+        with open(path, "rb") as source:
+            source.seek(start)
+            data = bytearray(source.read(end - start + 1))
+        if self.corrupt["armed"] and start > 0 and data:
+            self.corrupt["armed"] = False
+            self.corrupt["done"] += 1
+            data[-1] ^= 0xFF
         self.send_response(206)
         self.send_header("Content-Type", self.guess_type(path))
         self.send_header("Content-Range", f"bytes {start}-{end}/{size}")
         self.send_header("Content-Length", str(end - start + 1))
         self.send_header("Accept-Ranges", "bytes")
         self.end_headers()
-        self.range_left = end - start + 1
-        return f
-
-    def copyfile(self, source, outputfile):
-        left = getattr(self, "range_left", None)
-        if left is None:
-            return super().copyfile(source, outputfile)
-        while left > 0:
-            chunk = source.read(min(left, 1 << 16))
-            if not chunk:
-                break
-            outputfile.write(chunk)
-            left -= len(chunk)
+        return io.BytesIO(bytes(data))
 
 
 class Server(socketserver.ThreadingMixIn, http.server.HTTPServer):
@@ -426,6 +425,21 @@ def main():
                 failures.append(f"hash: camera {restored['camera']} is not {moved['camera']}")
             elif restored["cut"] != moved["cut"]:
                 failures.append("hash: the restored view converged to another cut")
+
+        # A corrupt record (its checksum fails) is rejected and fetched again: the page still
+        # converges to the same cut.
+        RangeHandler.corrupt["armed"] = True
+        status, _, _, _, _ = open_viewer(WEBGPU_FLAGS, url, converged)
+        print(
+            f"corrupt: {RangeHandler.corrupt['done']} record corrupted; converged "
+            f"{status and status.get('converged')}, {status and status.get('fetchErrors')} fetch errors"
+        )
+        if RangeHandler.corrupt["done"] != 1:
+            failures.append("corrupt: no record was corrupted (the test did not test)")
+        elif not status or not converged(status) or status["cut"] != static_cut:
+            failures.append(f"corrupt: no convergence to the clean run's cut: {status}")
+        elif not status.get("fetchErrors"):
+            failures.append("corrupt: the corrupt record was not counted as an error")
 
         proc, base = start_server(cbdam, repository)
         try:
