@@ -15,7 +15,8 @@ Prints the times from navigation to the first frame and to the converged cut.
 - A record corrupted once by the server is rejected (checksum) and fetched again: same cut.
 - The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
 - A scripted drag and wheel move the camera, and the page converges to a new cut; the camera is
-  in the URL's hash, and opening that URL restores the view (same camera, same cut).
+  in the URL's hash, and opening that URL restores the view (same camera, same cut), which is
+  also the cut `cbdam render --camera` (native, from the file) converges to.
 
 Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
 """
@@ -425,6 +426,24 @@ def main():
                 failures.append(f"hash: camera {restored['camera']} is not {moved['camera']}")
             elif restored["cut"] != moved["cut"]:
                 failures.append("hash: the restored view converged to another cut")
+            else:
+                # The same camera on the command line: `cbdam render` converges to the same
+                # diamonds (native refinement over the memory-mapped file, unlimited budget).
+                cut_file = os.path.join(root, "native-cut.txt")
+                subprocess.run(
+                    [cbdam, "render", repository, "-o", os.path.join(root, "native.png"),
+                     "--size", f"{WIDTH}x{HEIGHT}", "--camera", moved["hash"][len("#camera="):],
+                     "--cut-out", cut_file],
+                    check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                )
+                native = open(cut_file).read().split()
+                print(f"render: cbdam render's cut for that camera has {len(native)} diamonds")
+                if native != restored["cut"]:
+                    failures.append(
+                        f"render: the page's cut ({len(restored['cut'])} diamonds) differs from "
+                        f"cbdam render's ({len(native)}): only page {sorted(set(restored['cut']) - set(native))[:5]}, "
+                        f"only native {sorted(set(native) - set(restored['cut']))[:5]}"
+                    )
 
         # A corrupt record (its checksum fails) is rejected and fetched again: the page still
         # converges to the same cut.

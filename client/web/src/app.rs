@@ -189,7 +189,11 @@ impl App {
         };
         let renderer = Renderer::new(gpu, world, cache).map_err(|e| e.to_string())?;
         let start = match camera_from_hash() {
-            Some((eye, target)) => Camera::looking_at(&world, eye, target, FOV_Y, size),
+            // 45°, as `Camera::framed` and `cbdam render --camera`: the same hash gives the same
+            // view and cut as the command line's camera.
+            Some((eye, target)) => {
+                Camera::looking_at(&world, eye, target, 45f64.to_radians(), size)
+            }
             None => Camera::framed(&world, size),
         };
         let controls = Controls::new(&world, &start);
@@ -339,10 +343,6 @@ fn request_frame(callback: &Closure<dyn FnMut()>) {
 fn canvas_size(canvas: &HtmlCanvasElement) -> (u32, u32) {
     (canvas.width().max(1), canvas.height().max(1))
 }
-
-/// Vertical field of view of a camera restored from the URL (that of [`Camera::framed`] and
-/// so of every view here).
-const FOV_Y: f64 = std::f64::consts::FRAC_PI_4;
 
 /// The camera in the page URL's hash, `#camera=EX,EY,EZ,TX,TY,TZ` (eye and target, metres), so
 /// a view can be shared as a link; `None` when there is none or it is not six finite numbers
