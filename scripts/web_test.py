@@ -12,7 +12,8 @@ and checks the pixels of a screenshot, not only the page's word:
   needs WebGPU, and draws nothing.
 
 Prints the times from navigation to the first frame and to the converged cut.
-- A record corrupted once by the server is rejected (checksum) and fetched again: same cut.
+- Record requests refused (503) and a record corrupted once by the server (its checksum
+  fails) are retried: the same cut.
 - The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
 - A scripted drag and wheel move the camera, and the page converges to a new cut; the camera is
   in the URL's hash, and opening that URL restores the view (same camera, same cut), which is
@@ -64,9 +65,11 @@ TIMEOUT_S = 90
 class RangeHandler(http.server.SimpleHTTPRequestHandler):
     """Static files with single-range `Range: bytes=a-b` support (python's server has none).
     While `corrupt["armed"]`, the next range not starting at 0 (a record, not the head) is
-    answered with its last byte flipped, once."""
+    answered with its last byte flipped, once; while `refuse["left"]` > 0, record ranges are
+    answered 503 (a server that is away for a while)."""
 
     corrupt = {"armed": False, "done": 0}
+    refuse = {"left": 0, "done": 0}
 
     extensions_map = {
         **http.server.SimpleHTTPRequestHandler.extensions_map,
@@ -92,6 +95,11 @@ class RangeHandler(http.server.SimpleHTTPRequestHandler):
             return None
         start = int(m.group(1))
         end = min(int(m.group(2)) if m.group(2) else size - 1, size - 1)
+        if self.refuse["left"] > 0 and start > 0:
+            self.refuse["left"] -= 1
+            self.refuse["done"] += 1
+            self.send_error(503, "away for a while")
+            return None
         with open(path, "rb") as source:
             source.seek(start)
             data = bytearray(source.read(end - start + 1))
@@ -445,20 +453,22 @@ def main():
                         f"only native {sorted(set(native) - set(restored['cut']))[:5]}"
                     )
 
-        # A corrupt record (its checksum fails) is rejected and fetched again: the page still
-        # converges to the same cut.
+        # Three record requests refused (503), then a corrupt record (its checksum fails): each
+        # is retried, and the page still converges to the same cut.
+        RangeHandler.refuse["left"] = 3
         RangeHandler.corrupt["armed"] = True
         status, _, _, _, _ = open_viewer(WEBGPU_FLAGS, url, converged)
         print(
-            f"corrupt: {RangeHandler.corrupt['done']} record corrupted; converged "
+            f"faults: {RangeHandler.refuse['done']} requests refused, "
+            f"{RangeHandler.corrupt['done']} record corrupted; converged "
             f"{status and status.get('converged')}, {status and status.get('fetchErrors')} fetch errors"
         )
-        if RangeHandler.corrupt["done"] != 1:
-            failures.append("corrupt: no record was corrupted (the test did not test)")
+        if RangeHandler.corrupt["done"] != 1 or RangeHandler.refuse["done"] != 3:
+            failures.append("faults: not every fault was served (the test did not test)")
         elif not status or not converged(status) or status["cut"] != static_cut:
-            failures.append(f"corrupt: no convergence to the clean run's cut: {status}")
-        elif not status.get("fetchErrors"):
-            failures.append("corrupt: the corrupt record was not counted as an error")
+            failures.append(f"faults: no convergence to the clean run's cut: {status}")
+        elif (status.get("fetchErrors") or 0) < 4:
+            failures.append(f"faults: {status.get('fetchErrors')} fetch errors counted, not 4")
 
         proc, base = start_server(cbdam, repository)
         try:
