@@ -1,6 +1,7 @@
 //! The C-BDAM renderer over the client core (`cbdam-client`): wgpu drawing of the half-patches
 //! of a cut from a GPU patch cache, the HUD ([`hud`]), presenting to a window ([`present`]) and
-//! the viewer's window loop ([`view`]). The shaders are `shaders/*.wgsl`, built in.
+//! the desktop viewer's window loop (`view`, native only: in a browser `cbdam-web` runs the
+//! frames). The shaders are `shaders/*.wgsl`, built in.
 //!
 //! Design (DESIGN.md "GPU", paper §6):
 //! - **Shared grid.** The `N × N` grid's triangle lists are uploaded once ([`mesh`]): 8 index
