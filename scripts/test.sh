@@ -107,3 +107,6 @@ fi
 cargo check --target wasm32-unknown-unknown -p cbdam-client
 
 cargo test --workspace --all-targets
+
+# The browser viewer, end to end in headless Chromium (builds the web bundle; sets up Chromium).
+scripts/web-test.sh

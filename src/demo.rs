@@ -101,6 +101,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 exaggeration: 1.0,
                 pool_mib: None,
                 colour: None,
+                cut_out: None,
             })
         };
         eprintln!("demo: rendering an overview over HTTP");

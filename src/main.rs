@@ -333,6 +333,10 @@ pub struct RenderArgs {
     /// the terrain: hillshaded colour instead of the height ramp.
     #[arg(long, value_name = "COLOUR_REPO_OR_URL")]
     colour: Option<String>,
+    /// Without --path: also write the cut's refined diamonds to this file, one id (`L-x-y`) a
+    /// line, sorted as text (the browser viewer's test compares its cut with it).
+    #[arg(long, value_name = "FILE")]
+    cut_out: Option<PathBuf>,
 }
 
 /// Open the interactive viewer (documented on [`Command::View`]).

@@ -154,6 +154,12 @@ fn render_with<S: DataSource>(
     for e in refiner.errors() {
         eprintln!("cbdam: warning: {e}");
     }
+    if let Some(file) = &args.cut_out {
+        let mut ids: Vec<String> = refiner.cut().refined().map(|id| id.to_string()).collect();
+        ids.sort();
+        let text: String = ids.iter().map(|id| format!("{id}\n")).collect();
+        std::fs::write(file, text).with_context(|| format!("writing {}", file.display()))?;
+    }
     let patches: Vec<_> = refiner.drawn().cloned().collect();
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();

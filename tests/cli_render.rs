@@ -188,6 +188,57 @@ fn render_over_http_equals_render_of_the_file() {
     );
 }
 
+/// `--cut-out` lists the refined diamonds the printed count reports, sorted and distinct, as
+/// `L-x-y` ids; the same from the file and over HTTP.
+#[test]
+fn render_cut_out_lists_the_refined_diamonds() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let (mut server, addr) = spawn_serve(&[&s(&repo)]);
+    let mut cuts = Vec::new();
+    for (name, source) in [("local", s(&repo)), ("remote", format!("http://{addr}/"))] {
+        let cut = dir.path().join(format!("{name}.txt"));
+        let png = dir.path().join(format!("{name}.png"));
+        let o = cbdam(&[
+            "render",
+            &source,
+            "--size",
+            "320x240",
+            "-o",
+            &s(&png),
+            "--cut-out",
+            &s(&cut),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        let refined: usize = stdout
+            .split(" diamonds refined")
+            .next()
+            .and_then(|head| head.rsplit(' ').next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no refined count in {stdout}"));
+        let text = std::fs::read_to_string(&cut).unwrap();
+        let ids: Vec<&str> = text.lines().collect();
+        assert!(refined > 0);
+        assert_eq!(ids.len(), refined, "{text}");
+        assert!(
+            ids.windows(2).all(|w| w[0] < w[1]),
+            "not sorted and distinct: {text}"
+        );
+        for id in &ids {
+            let parts: Vec<&str> = id.split('-').collect();
+            assert!(
+                parts.len() == 3 && parts.iter().all(|p| p.parse::<u32>().is_ok()),
+                "not an L-x-y id: {id}"
+            );
+        }
+        cuts.push(text);
+    }
+    let _ = server.kill();
+    let _ = server.wait();
+    assert_eq!(cuts[0], cuts[1]);
+}
+
 /// `cbdam demo` end to end (build, serve, replay and render over HTTP), bounded to two frames.
 #[test]
 fn demo_builds_serves_replays_and_renders() {

@@ -78,6 +78,76 @@ impl Camera {
         Self::looking_at(world, eye, centre, fov_y, size)
     }
 
+    /// A view that frames the data: from the south, 55° above the horizon, as close as it can
+    /// be with every corner of the data box inside the middle 95 % of the frame, the box
+    /// centred vertically in the frame, so the data fills most of it ([`Camera::overview`]
+    /// keeps a whole sphere around the box in view, which leaves much of a frame empty). The
+    /// browser's first view.
+    pub fn framed(world: &World, size: (u32, u32)) -> Self {
+        const MARGIN: f64 = 0.95;
+        let (lo, hi) = world.data_box();
+        let fov_y = 45f64.to_radians();
+        let elevation = 55f64.to_radians();
+        let dir = DVec3::new(0.0, -elevation.cos(), elevation.sin());
+        let corners = box_corners(lo, hi);
+        let at = |target: DVec3, distance: f64| {
+            Self::looking_at(world, target + dir * distance, target, fov_y, size)
+        };
+        // The corners' vertical extent in normalised device coordinates, when all of them are
+        // inside the margin.
+        let fits = |target: DVec3, distance: f64| {
+            let cam = at(target, distance);
+            let m = cam.projection() * cam.view();
+            let (mut y0, mut y1) = (f64::MAX, f64::MIN);
+            for c in &corners {
+                let p = m * c.extend(1.0);
+                let (x, y) = (p.x / p.w, p.y / p.w);
+                if p.w <= 0.0 || x.abs() > MARGIN || y.abs() > MARGIN {
+                    return None;
+                }
+                y0 = y0.min(y);
+                y1 = y1.max(y);
+            }
+            Some((y0, y1))
+        };
+        // The closest distance that fits, to a thousandth, for a target.
+        let closest = |target: DVec3| {
+            let mut far = (hi - lo).length().max(1.0);
+            for _ in 0..64 {
+                if fits(target, far).is_some() {
+                    break;
+                }
+                far *= 2.0;
+            }
+            let mut near = 0.0;
+            while far - near > far * 1e-3 {
+                let mid = 0.5 * (near + far);
+                if fits(target, mid).is_some() {
+                    far = mid;
+                } else {
+                    near = mid;
+                }
+            }
+            far
+        };
+        let mut target = (lo + hi) * 0.5;
+        let mut distance = closest(target);
+        // Perspective shows the near edge lower and larger than the far one: slide the target
+        // along the ground until the box is centred vertically, coming closer each time.
+        for _ in 0..4 {
+            let Some((y0, y1)) = fits(target, distance) else {
+                break;
+            };
+            let centre = 0.5 * (y0 + y1);
+            // Moving the target by s along the ground (towards the north) moves its image by
+            // about s·sin(elevation) / (distance·tan(fov/2)) in device coordinates.
+            let metres = centre * distance * (fov_y / 2.0).tan() / elevation.sin();
+            target.y += metres;
+            distance = closest(target);
+        }
+        at(target, distance)
+    }
+
     /// World to view (right-handed, looking down −z).
     pub fn view(&self) -> DMat4 {
         look_at(self.eye, self.target)
@@ -192,6 +262,17 @@ impl Frustum {
     }
 }
 
+/// The eight corners of the box `lo`–`hi`.
+fn box_corners(lo: DVec3, hi: DVec3) -> [DVec3; 8] {
+    std::array::from_fn(|i| {
+        DVec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        )
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -231,6 +312,68 @@ mod tests {
         }
         let t = m * cam.target.extend(1.0);
         assert!((t.x / t.w).abs() < 1e-9 && (t.y / t.w).abs() < 1e-9);
+    }
+
+    /// The corners of the data box in normalised device coordinates.
+    fn projected_corners(cam: &Camera, w: &World) -> Vec<DVec3> {
+        let (lo, hi) = w.data_box();
+        let m = cam.projection() * cam.view();
+        box_corners(lo, hi)
+            .iter()
+            .map(|c| {
+                let p = m * c.extend(1.0);
+                p.truncate() / p.w
+            })
+            .collect()
+    }
+
+    /// Area (in NDC, the frame is 4) of the rectangle around the projected corners.
+    fn covered(ndc: &[DVec3]) -> f64 {
+        let (x0, x1) = ndc
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.x), b.max(p.x)));
+        let (y0, y1) = ndc
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.y), b.max(p.y)));
+        (x1 - x0) * (y1 - y0)
+    }
+
+    /// The framed view keeps every corner of the data in the frame (inside the 95 % margin, in
+    /// front of the near plane), centred vertically, touches the margin (no closer view would
+    /// fit), and covers more
+    /// of the frame than the overview, in landscape and portrait frames.
+    #[test]
+    fn framed_view_fills_the_frame_with_the_whole_data() {
+        let w = world();
+        for size in [(640, 480), (1280, 720), (480, 800)] {
+            let cam = Camera::framed(&w, size);
+            let ndc = projected_corners(&cam, &w);
+            for (i, p) in ndc.iter().enumerate() {
+                assert!(
+                    p.x.abs() <= 0.95 && p.y.abs() <= 0.95,
+                    "{size:?}: corner {i} at {p}"
+                );
+                assert!(
+                    (0.0..=1.0).contains(&p.z),
+                    "{size:?}: corner {i} depth {}",
+                    p.z
+                );
+            }
+            let reach = ndc
+                .iter()
+                .map(|p| p.x.abs().max(p.y.abs()))
+                .fold(0.0, f64::max);
+            assert!(
+                reach > 0.94,
+                "{size:?}: the data reaches only {reach} of the margin"
+            );
+            let overview = covered(&projected_corners(&Camera::overview(&w, size), &w));
+            assert!(
+                covered(&ndc) > 1.25 * overview,
+                "{size:?}: framed covers {} of 4, the overview {overview}",
+                covered(&ndc)
+            );
+        }
     }
 
     /// Camera-relative projection equals the absolute one up to f32 rounding, even far from the

@@ -1,6 +1,7 @@
 //! The C-BDAM renderer over the client core (`cbdam-client`): wgpu drawing of the half-patches
 //! of a cut from a GPU patch cache, the HUD ([`hud`]), presenting to a window ([`present`]) and
-//! the viewer's window loop ([`view`]). The shaders are `shaders/*.wgsl`, built in.
+//! the desktop viewer's window loop (`view`, native only: in a browser `cbdam-web` runs the
+//! frames). The shaders are `shaders/*.wgsl`, built in.
 //!
 //! Design (DESIGN.md "GPU", paper §6):
 //! - **Shared grid.** The `N × N` grid's triangle lists are uploaded once ([`mesh`]): 8 index
@@ -34,10 +35,12 @@ pub mod cache;
 pub mod hud;
 pub mod mesh;
 pub mod present;
+#[cfg(not(target_arch = "wasm32"))]
 pub mod view;
 
 use std::borrow::Borrow;
-use std::time::Instant;
+
+use web_time::Instant;
 
 use bytemuck::{Pod, Zeroable};
 use cbdam_codec::geometry::{Diagonal, Half};
@@ -106,7 +109,9 @@ pub struct Gpu {
 impl Gpu {
     /// A device without any window, the adapter wgpu's defaults pick (environment variables such
     /// as `WGPU_BACKEND` apply). Takes every limit the adapter offers (the height pool wants
-    /// large storage buffers) and `POLYGON_MODE_LINE` when available (wireframe).
+    /// large storage buffers) and `POLYGON_MODE_LINE` when available (wireframe). Blocks: native
+    /// targets only.
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn headless() -> Result<Self, DrawError> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
@@ -120,16 +125,26 @@ impl Gpu {
         Self::from_adapter(&adapter)
     }
 
-    /// A device on `adapter`.
+    /// A device on `adapter`. Blocks: native targets only (a browser awaits
+    /// [`Gpu::from_adapter_async`]).
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn from_adapter(adapter: &wgpu::Adapter) -> Result<Self, DrawError> {
+        pollster::block_on(Self::from_adapter_async(adapter))
+    }
+
+    /// A device on `adapter`, every limit the adapter offers and `POLYGON_MODE_LINE` when
+    /// available.
+    pub async fn from_adapter_async(adapter: &wgpu::Adapter) -> Result<Self, DrawError> {
         let features = adapter.features() & wgpu::Features::POLYGON_MODE_LINE;
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("cbdam"),
-            required_features: features,
-            required_limits: adapter.limits(),
-            ..Default::default()
-        }))
-        .map_err(|e| DrawError::Device(e.to_string()))?;
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("cbdam"),
+                required_features: features,
+                required_limits: adapter.limits(),
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| DrawError::Device(e.to_string()))?;
         Ok(Self {
             device,
             queue,
@@ -568,9 +583,10 @@ impl Renderer {
     }
 
     /// Renders `patches` (a cut's drawn halves, owned or shared like [`Refiner::drawn`]'s) from
-    /// `camera` offscreen and reads the image back.
+    /// `camera` offscreen and reads the image back. Waits for the GPU: native targets only.
     ///
     /// [`Refiner::drawn`]: cbdam_client::refine::Refiner::drawn
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn render<P: Borrow<HalfPatch>>(
         &mut self,
         camera: &Camera,
@@ -685,7 +701,8 @@ impl Renderer {
     }
 
     /// Reads the colour target back (RGBA8, top row first) after the commands that drew it were
-    /// submitted; waits for the GPU.
+    /// submitted; waits for the GPU (native targets only).
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn read_color(&self) -> Result<Frame, DrawError> {
         let target = self
             .target
@@ -765,6 +782,7 @@ impl Renderer {
         });
     }
 
+    #[cfg(not(target_arch = "wasm32"))]
     fn wait(&self) -> Result<(), DrawError> {
         self.gpu
             .device
@@ -774,6 +792,7 @@ impl Renderer {
     }
 
     /// Copies a texture with `bpp` bytes per pixel into a tightly packed byte vector.
+    #[cfg(not(target_arch = "wasm32"))]
     fn read_texture(
         &self,
         texture: &wgpu::Texture,

@@ -41,15 +41,29 @@ const SPARE_RECORDS: usize = 4096;
 impl RemoteSource {
     /// Connects and fetches the repository head (blocks until it has it or fails). `url` as in
     /// [`RemoteFetcher::connect`].
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn connect(url: &str, options: FetchOptions) -> Result<Self, RemoteError> {
-        Ok(Self {
-            fetcher: RemoteFetcher::connect(url, options)?,
+        Ok(Self::from_fetcher(RemoteFetcher::connect(url, options)?))
+    }
+
+    /// Connects and fetches the repository head (the browser cannot block: awaited before the
+    /// first frame). `url` as in [`RemoteFetcher::connect`].
+    #[cfg(target_arch = "wasm32")]
+    pub async fn connect(url: &str, options: FetchOptions) -> Result<Self, RemoteError> {
+        Ok(Self::from_fetcher(
+            RemoteFetcher::connect(url, options).await?,
+        ))
+    }
+
+    fn from_fetcher(fetcher: RemoteFetcher) -> Self {
+        Self {
+            fetcher,
             wanted: HashMap::new(),
             wanted_changed: false,
             arrived: HashMap::new(),
             spare: HashMap::new(),
             stats: AccessStats::default(),
-        })
+        }
     }
 }
 

@@ -23,7 +23,6 @@
 
 pub mod coloured;
 mod flaky;
-#[cfg(not(target_arch = "wasm32"))]
 mod http;
 #[cfg(not(target_arch = "wasm32"))]
 mod local;
@@ -31,9 +30,10 @@ mod local;
 pub use coloured::{ColouredSource, Drape};
 pub use flaky::{FlakyConfig, FlakySource};
 
-/// The desktop's sources: a memory-mapped file, and HTTP over the tokio-based fetcher.
-#[cfg(not(target_arch = "wasm32"))]
+/// HTTP over the target's fetcher (tokio and reqwest on the desktop, the page's `fetch` in a
+/// browser).
 pub use http::RemoteSource;
+/// The desktop's memory-mapped file.
 #[cfg(not(target_arch = "wasm32"))]
 pub use local::LocalSource;
 
@@ -86,8 +86,21 @@ pub struct AccessStats {
     pub errors: u64,
 }
 
+/// `Send` where there are threads; nothing on wasm32, whose browser sources hold JavaScript
+/// objects (which never leave the page's thread).
+#[cfg(not(target_arch = "wasm32"))]
+pub trait MaybeSend: Send {}
+#[cfg(not(target_arch = "wasm32"))]
+impl<T: Send + ?Sized> MaybeSend for T {}
+/// `Send` where there are threads; nothing on wasm32, whose browser sources hold JavaScript
+/// objects (which never leave the page's thread).
+#[cfg(target_arch = "wasm32")]
+pub trait MaybeSend {}
+#[cfg(target_arch = "wasm32")]
+impl<T: ?Sized> MaybeSend for T {}
+
 /// Where records come from. See the module documentation for the contract.
-pub trait DataSource: Send {
+pub trait DataSource: MaybeSend {
     /// The decoder's header fields (layout, coder, quantizer, data rectangle).
     fn params(&self) -> &CodecParams;
     /// How integer units map to metres, and the tolerance the repository was built for.

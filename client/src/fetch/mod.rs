@@ -1,5 +1,3 @@
-#![cfg_attr(target_arch = "wasm32", allow(dead_code))]
-// No wasm32 transport is written yet: there the portable policy below has no caller.
 //! Fetching records over HTTP: from `cbdam serve` (batched `POST …/diamonds`) or from any static
 //! server holding the repository file (HTTP range requests).
 //!
@@ -13,9 +11,10 @@
 //! Every record is checked against the repository head's checksum before it is handed over.
 //!
 //! This module is portable (it builds for wasm32): the endpoint, the scheduling policy (which
-//! wanted records go into the next request), the backoff and the batch parsing. The desktop's
-//! transport ([`RemoteFetcher`]: tokio and reqwest) is in `native`, compiled for native targets
-//! only.
+//! wanted records go into the next request), the backoff, reading the head, checking range
+//! responses and records, and the batch parsing. The transports only move bytes: the desktop's
+//! ([`RemoteFetcher`]: tokio and reqwest) is in `native`, the browser's (the page's `fetch`,
+//! driven by its event loop, never blocking) in `web`.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::Duration;
@@ -31,6 +30,10 @@ use web_time::Instant;
 mod native;
 #[cfg(not(target_arch = "wasm32"))]
 pub use native::RemoteFetcher;
+#[cfg(target_arch = "wasm32")]
+mod web;
+#[cfg(target_arch = "wasm32")]
+pub use web::RemoteFetcher;
 
 /// Tuning of the fetcher; every limit is explicit.
 #[derive(Clone, Debug)]
@@ -324,12 +327,194 @@ pub fn parse_frames(body: &[u8], ids: &[DiamondId]) -> Result<Vec<(DiamondId, Ve
         .collect()
 }
 
+/// Checks the status of a response to `Range: bytes=start-(end-1)`: it must be 206 (Partial
+/// Content); anything else means the server ignored the range (and would send the whole file).
+fn expect_partial(range: &std::ops::Range<u64>, status: u16) -> Result<(), String> {
+    if status == 206 {
+        return Ok(());
+    }
+    Err(format!(
+        "asked for bytes {}..{}, got HTTP {status} (does the server honour Range requests?)",
+        range.start, range.end,
+    ))
+}
+
+/// Checks the body of a 206 response to the request for `range`: `content_range` (the header's
+/// value) must carry the file's total length; a range running past the end of the file gets
+/// the bytes up to the end (what a server answers), any other body length is an error. Returns
+/// the total.
+fn range_total(
+    range: &std::ops::Range<u64>,
+    content_range: Option<&str>,
+    body_len: usize,
+) -> Result<u64, String> {
+    let total = content_range
+        .and_then(|v| v.rsplit_once('/'))
+        .and_then(|(_, total)| total.parse::<u64>().ok())
+        .ok_or("206 response without a Content-Range total")?;
+    let end = range.end.min(total.max(range.start));
+    if body_len as u64 != end - range.start {
+        return Err(format!(
+            "asked for {} bytes, got {body_len}",
+            end - range.start
+        ));
+    }
+    Ok(total)
+}
+
+/// Reads the repository head of the file at `url` with `get_range` (a transport's range GET,
+/// returning the body and the file's total length).
+async fn fetch_head_with<F, Fut>(url: &str, get_range: F) -> Result<RepositoryHead, RemoteError>
+where
+    F: Fn(std::ops::Range<u64>) -> Fut,
+    Fut: std::future::Future<Output = Result<(Vec<u8>, u64), String>>,
+{
+    use cbdam_codec::repository::{HEADER_FETCH_LEN, header_len, required_head_len};
+    // A version-3 header is usually shorter than HEADER_FETCH_LEN, and so can be the whole
+    // file: a server answers a range past the end with what there is. A long CRS definition
+    // makes it longer: then a second request fetches the rest.
+    let (mut header, file_len) = get_range(0..HEADER_FETCH_LEN as u64)
+        .await
+        .map_err(|e| http_error(url, e))?;
+    let repo_error = |source| RemoteError::Repository {
+        url: url.to_owned(),
+        source,
+    };
+    let len = header_len(&header).map_err(repo_error)?;
+    if len > header.len() && len as u64 <= file_len {
+        header = get_range(0..len as u64)
+            .await
+            .map_err(|e| http_error(url, e))?
+            .0;
+    }
+    let head_len = required_head_len(&header).map_err(repo_error)?;
+    if head_len > file_len {
+        return Err(repo_error(CodecError::truncated(format!(
+            "the head is {head_len} bytes, the file {file_len}"
+        ))));
+    }
+    let (head, _) = get_range(0..head_len)
+        .await
+        .map_err(|e| http_error(url, e))?;
+    RepositoryHead::parse(&head, file_len).map_err(repo_error)
+}
+
+/// The byte span of one range request for `ids`' records (chosen close together by
+/// [`next_batch`]) and each record's range in the file.
+fn batch_span(
+    head: &RepositoryHead,
+    ids: &[DiamondId],
+) -> (std::ops::Range<u64>, Vec<std::ops::Range<u64>>) {
+    let ranges: Vec<_> = ids.iter().map(|&id| record_range(head, id)).collect();
+    let lo = ranges
+        .iter()
+        .map(|r| r.start)
+        .min()
+        .expect("non-empty batch");
+    let hi = ranges.iter().map(|r| r.end).max().expect("non-empty batch");
+    (lo..hi, ranges)
+}
+
+/// Cuts the body of the range request for `span` into `ids`' records; `total` is the file
+/// length the server reported.
+fn split_span(
+    head: &RepositoryHead,
+    ids: &[DiamondId],
+    span: std::ops::Range<u64>,
+    ranges: Vec<std::ops::Range<u64>>,
+    body: &[u8],
+    total: u64,
+) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
+    if total != head.file_len() {
+        return Err(format!(
+            "the file is now {total} bytes, the head says {}: it changed on the server",
+            head.file_len()
+        ));
+    }
+    // The head's records lie inside the file, so only a server that cut the range short gives
+    // fewer bytes; the slicing below needs all of them.
+    if body.len() as u64 != span.end - span.start {
+        return Err(format!(
+            "asked for {} bytes, got {}",
+            span.end - span.start,
+            body.len()
+        ));
+    }
+    let lo = span.start;
+    Ok(ids
+        .iter()
+        .zip(ranges)
+        .map(|(&id, r)| {
+            (
+                id,
+                body[(r.start - lo) as usize..(r.end - lo) as usize].to_vec(),
+            )
+        })
+        .collect())
+}
+
+/// Records that passed their checks.
+type Checked = Vec<(DiamondId, Arc<[u8]>)>;
+
+/// The records of a finished request checked against the head: those that pass, and the ids
+/// to retry (all of them when the request failed).
+fn check_batch(
+    head: &RepositoryHead,
+    ids: &[DiamondId],
+    outcome: Result<Vec<(DiamondId, Vec<u8>)>, String>,
+) -> (Checked, Vec<DiamondId>) {
+    let mut delivered = Vec::new();
+    let mut failed = Vec::new();
+    match outcome {
+        Ok(records) => {
+            for (id, bytes) in records {
+                let i = head.position(id).expect("stored");
+                match head.check_record(i, &bytes) {
+                    Ok(()) => delivered.push((id, Arc::from(bytes))),
+                    Err(e) => {
+                        tracing::warn!("record {id} rejected: {e}");
+                        failed.push(id);
+                    }
+                }
+            }
+        }
+        Err(message) => {
+            tracing::warn!("request for {} records failed: {message}", ids.len());
+            failed.extend(ids.iter().copied());
+        }
+    }
+    (delivered, failed)
+}
+
+/// The JSON body of a batch request (`POST …/diamonds`) for `ids`.
+fn batch_request_body(ids: &[DiamondId]) -> String {
+    let names: Vec<String> = ids.iter().map(ToString::to_string).collect();
+    serde_json::json!({ "ids": names }).to_string()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn id(l: u8, x: u32, y: u32) -> DiamondId {
         DiamondId::new(l, x, y)
+    }
+
+    /// Range responses: only 206 is accepted; the total comes from `Content-Range`; a range
+    /// past the end of the file gets the bytes up to the end, and any other length is an error.
+    #[test]
+    fn range_responses_are_checked() {
+        let r = 10..20;
+        assert!(expect_partial(&r, 206).is_ok());
+        let e = expect_partial(&r, 200).unwrap_err();
+        assert!(e.contains("HTTP 200") && e.contains("Range"), "{e}");
+        assert_eq!(range_total(&r, Some("bytes 10-19/100"), 10), Ok(100));
+        // The file ends at 15: five bytes are the whole answer.
+        assert_eq!(range_total(&r, Some("bytes 10-14/15"), 5), Ok(15));
+        assert!(range_total(&r, Some("bytes 10-14/15"), 4).is_err());
+        assert!(range_total(&r, Some("bytes 10-19/100"), 9).is_err());
+        assert!(range_total(&r, Some("bytes 10-19/*"), 10).is_err());
+        assert!(range_total(&r, None, 10).is_err());
     }
 
     #[test]

@@ -7,16 +7,16 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::repository::{HEADER_FETCH_LEN, RepositoryHead, header_len, required_head_len};
+use cbdam_codec::repository::RepositoryHead;
 use tokio::sync::Notify;
 use tokio::task::AbortHandle;
 use web_time::Instant;
 
 use super::{
-    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, classify, http_error,
-    list_url, next_batch, parse_frames, record_range, single_repository,
+    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, batch_request_body,
+    batch_span, check_batch, classify, expect_partial, fetch_head_with, http_error, list_url,
+    next_batch, parse_frames, range_total, single_repository, split_span,
 };
 
 struct Shared {
@@ -202,9 +202,8 @@ async fn resolve(client: &reqwest::Client, url: &str) -> Result<Endpoint, Remote
     single_repository(url, &body)
 }
 
-/// GETs `range` of `url`; returns the body and the total file length from `Content-Range`. A
-/// range running past the end of the file gets the bytes up to the end (what a server answers);
-/// any other length is an error.
+/// GETs `range` of `url`; returns the body and the total file length from `Content-Range`
+/// ([`expect_partial`], [`range_total`]).
 async fn get_range(
     client: &reqwest::Client,
     url: &str,
@@ -219,61 +218,19 @@ async fn get_range(
         .send()
         .await
         .map_err(|e| e.to_string())?;
-    if resp.status() != reqwest::StatusCode::PARTIAL_CONTENT {
-        return Err(format!(
-            "asked for bytes {}..{}, got HTTP {} (does the server honour Range requests?)",
-            range.start,
-            range.end,
-            resp.status()
-        ));
-    }
-    let total = resp
+    expect_partial(&range, resp.status().as_u16())?;
+    let content_range = resp
         .headers()
         .get(reqwest::header::CONTENT_RANGE)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.rsplit_once('/'))
-        .and_then(|(_, total)| total.parse::<u64>().ok())
-        .ok_or("206 response without a Content-Range total")?;
+        .map(str::to_owned);
     let body = resp.bytes().await.map_err(|e| e.to_string())?;
-    let end = range.end.min(total.max(range.start));
-    if body.len() as u64 != end - range.start {
-        return Err(format!(
-            "asked for {} bytes, got {}",
-            end - range.start,
-            body.len()
-        ));
-    }
+    let total = range_total(&range, content_range.as_deref(), body.len())?;
     Ok((body.to_vec(), total))
 }
 
 async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHead, RemoteError> {
-    // A version-3 header is usually shorter than HEADER_FETCH_LEN, and so can be the whole
-    // file: a server answers a range past the end with what there is. A long CRS definition
-    // makes it longer: then a second request fetches the rest.
-    let (mut header, file_len) = get_range(client, url, 0..HEADER_FETCH_LEN as u64)
-        .await
-        .map_err(|e| http_error(url, e))?;
-    let repo_error = |source| RemoteError::Repository {
-        url: url.to_owned(),
-        source,
-    };
-    let len = header_len(&header).map_err(repo_error)?;
-    if len > header.len() && len as u64 <= file_len {
-        header = get_range(client, url, 0..len as u64)
-            .await
-            .map_err(|e| http_error(url, e))?
-            .0;
-    }
-    let head_len = required_head_len(&header).map_err(repo_error)?;
-    if head_len > file_len {
-        return Err(repo_error(CodecError::truncated(format!(
-            "the head is {head_len} bytes, the file {file_len}"
-        ))));
-    }
-    let (head, _) = get_range(client, url, 0..head_len)
-        .await
-        .map_err(|e| http_error(url, e))?;
-    RepositoryHead::parse(&head, file_len).map_err(repo_error)
+    fetch_head_with(url, |range| get_range(client, url, range)).await
 }
 
 /// The scheduler: whenever woken (new wants, a finished request, a backoff expiring), starts the
@@ -321,26 +278,7 @@ async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>) {
         Endpoint::Server { base } => fetch_from_server(&shared, base, &ids).await,
         Endpoint::File { url } => fetch_ranges(&shared, url, &ids).await,
     };
-    let mut delivered = Vec::new();
-    let mut failed = Vec::new();
-    match outcome {
-        Ok(records) => {
-            for (id, bytes) in records {
-                let i = shared.head.position(id).expect("stored");
-                match shared.head.check_record(i, &bytes) {
-                    Ok(()) => delivered.push((id, Ok(Arc::from(bytes)))),
-                    Err(e) => {
-                        tracing::warn!("record {id} rejected: {e}");
-                        failed.push(id);
-                    }
-                }
-            }
-        }
-        Err(message) => {
-            tracing::warn!("request for {} records failed: {message}", ids.len());
-            failed.extend(ids.iter().copied());
-        }
-    }
+    let (delivered, failed) = check_batch(&shared.head, &ids, outcome);
     let mut s = shared.state.lock().expect("fetch state");
     let Some(pos) = s.batches.iter().position(|(b, _, _)| *b == batch) else {
         // Cancelled meanwhile: its bookkeeping is already undone.
@@ -362,7 +300,7 @@ async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>) {
         s.delivered.insert(id);
         shared.stats.records.fetch_add(1, Ordering::Relaxed);
         // The receiver is gone only when the fetcher is being dropped.
-        let _ = tx.send((id, r));
+        let _ = tx.send((id, Ok(r)));
     }
     drop(s);
     shared.wake.notify_one();
@@ -375,8 +313,7 @@ async fn fetch_from_server(
     ids: &[DiamondId],
 ) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
     let url = format!("{base}/diamonds");
-    let names: Vec<String> = ids.iter().map(ToString::to_string).collect();
-    let body = serde_json::json!({ "ids": names }).to_string();
+    let body = batch_request_body(ids);
     let resp = shared
         .client
         .post(&url)
@@ -400,44 +337,16 @@ async fn fetch_ranges(
     url: &str,
     ids: &[DiamondId],
 ) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
-    let ranges: Vec<_> = ids
-        .iter()
-        .map(|&id| record_range(&shared.head, id))
-        .collect();
-    let lo = ranges
-        .iter()
-        .map(|r| r.start)
-        .min()
-        .expect("non-empty batch");
-    let hi = ranges.iter().map(|r| r.end).max().expect("non-empty batch");
-    if lo == hi {
+    let (span, ranges) = batch_span(&shared.head, ids);
+    if span.is_empty() {
         // Only empty records: nothing to fetch.
         return Ok(ids.iter().map(|&id| (id, Vec::new())).collect());
     }
-    let (body, total) = get_range(&shared.client, url, lo..hi).await?;
-    if total != shared.head.file_len() {
-        return Err(format!(
-            "the file is now {total} bytes, the head says {}: it changed on the server",
-            shared.head.file_len()
-        ));
-    }
-    // The head's records lie inside the file, so only a server that cut the range short gives
-    // fewer bytes; the slicing below needs all of them.
-    if body.len() as u64 != hi - lo {
-        return Err(format!("asked for {} bytes, got {}", hi - lo, body.len()));
-    }
+    let (body, total) = get_range(&shared.client, url, span.clone()).await?;
+    let records = split_span(&shared.head, ids, span, ranges, &body, total)?;
     shared
         .stats
         .bytes
         .fetch_add(body.len() as u64, Ordering::Relaxed);
-    Ok(ids
-        .iter()
-        .zip(ranges)
-        .map(|(&id, r)| {
-            (
-                id,
-                body[(r.start - lo) as usize..(r.end - lo) as usize].to_vec(),
-            )
-        })
-        .collect())
+    Ok(records)
 }

@@ -896,17 +896,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 // the data at hand.
                 break;
             }
-            let done = match deadline {
-                None => self.done_rx.recv().ok(),
-                Some(d) => {
-                    let now = Instant::now();
-                    if now >= d {
-                        None
-                    } else {
-                        self.done_rx.recv_timeout(d - now).ok()
-                    }
-                }
-            };
+            let done = self.next_done(deadline);
             let Some(done) = done else {
                 stats.budget_exhausted = true;
                 break;
@@ -919,6 +909,36 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             heap.extend(waiting.drain(..));
         }
         heap.extend(waiting);
+    }
+
+    /// The next finished decode: waits for it until `deadline` (forever without one); `None`
+    /// when the deadline passed first.
+    #[cfg(not(target_arch = "wasm32"))]
+    fn next_done(&self, deadline: Option<Instant>) -> Option<Done> {
+        match deadline {
+            None => self.done_rx.recv().ok(),
+            Some(d) => {
+                let now = Instant::now();
+                if now >= d {
+                    None
+                } else {
+                    self.done_rx.recv_timeout(d - now).ok()
+                }
+            }
+        }
+    }
+
+    /// The next finished decode, if one has arrived and `deadline` has not passed: a browser's
+    /// page must never block (and `recv_timeout` would read `std`'s clock, which wasm32 lacks).
+    /// With the [`Inline`](crate::spawn::Inline) spawner every decode has finished when it is
+    /// dispatched, so this loses nothing; with asynchronous workers the frame ends and the
+    /// results are applied next frame.
+    #[cfg(target_arch = "wasm32")]
+    fn next_done(&self, deadline: Option<Instant>) -> Option<Done> {
+        if deadline.is_some_and(|d| Instant::now() >= d) {
+            return None;
+        }
+        self.done_rx.try_recv().ok()
     }
 
     /// Frame step: posts new requests, re-prioritises, and cancels what is no longer wanted.

@@ -1,0 +1,69 @@
+//! The page's state on `window.cbdam`, for the page's overlay and for tests:
+//!
+//! | field | meaning |
+//! |---|---|
+//! | `phase` | `"starting"`, `"connecting"`, `"running"` or `"failed"` |
+//! | `webgpu` | whether the browser offers a WebGPU adapter |
+//! | `backend` | `"webgpu"` (or `"webgl"`, built with the `webgl` feature) once an adapter is found |
+//! | `adapter` | the adapter's name |
+//! | `error` | why the page failed (`phase == "failed"`), or `""` |
+//! | `frames` | frames drawn |
+//! | `refined`, `drawnHalves`, `triangles` | the cut: refined diamonds, half-patches, triangles |
+//! | `cut` | the refined diamonds' ids (`"L/x/y"`), sorted, once converged |
+//! | `converged` | the last frame's cut is the one this view converges to |
+//! | `maxErrorPx` | the largest screen-space error left, pixels |
+//! | `recordsRequested`, `bytes`, `fetchErrors` | the data source's counters: records requested, bytes received, failed requests and rejected records |
+//! | `firstFrameMs`, `convergedMs` | `performance.now()` at the first frame drawn and at the first converged frame (ms since the page's navigation began) |
+//! | `camera` | `[eye x, y, z, target x, y, z]`, metres |
+//!
+//! The page's own "ok" is not proof that anything was drawn (a canvas can stay blank while
+//! wgpu reports success): tests check the pixels of a screenshot too.
+
+use js_sys::{Array, Object, Reflect};
+use wasm_bindgen::JsValue;
+
+/// Writes fields of `window.cbdam`.
+#[derive(Clone, Debug)]
+pub struct Status {
+    object: Object,
+}
+
+impl Status {
+    /// Creates `window.cbdam` (replacing any earlier one), phase `"starting"`.
+    pub fn install() -> Self {
+        let object = Object::new();
+        if let Some(window) = web_sys::window() {
+            let _ = Reflect::set(&window, &"cbdam".into(), &object);
+        }
+        let me = Self { object };
+        me.set("phase", "starting");
+        me.set("error", "");
+        me.set("frames", 0.0);
+        me.set("converged", false);
+        me
+    }
+
+    /// Sets one field.
+    pub fn set(&self, key: &str, value: impl Into<JsValue>) {
+        let _ = Reflect::set(&self.object, &key.into(), &value.into());
+    }
+
+    /// Sets a field to an array of numbers.
+    pub fn set_numbers(&self, key: &str, values: &[f64]) {
+        let array: Array = values.iter().map(|&v| JsValue::from_f64(v)).collect();
+        self.set(key, array);
+    }
+
+    /// Sets a field to an array of strings.
+    pub fn set_strings(&self, key: &str, values: &[String]) {
+        let array: Array = values.iter().map(|v| JsValue::from_str(v)).collect();
+        self.set(key, array);
+    }
+
+    /// Marks the page failed with `message` (also on the console).
+    pub fn fail(&self, message: &str) {
+        self.set("phase", "failed");
+        self.set("error", message);
+        web_sys::console::error_1(&format!("cbdam: {message}").into());
+    }
+}

@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Builds the browser viewer (client/web) into a folder of static files: index.html, main.js, the
+# wasm-bindgen glue and the .wasm. Serve the folder with any static server and open
+#   index.html?repo=URL
+# where URL is a .cbdam file on a server that honours Range requests (relative URLs work), or a
+# `cbdam serve` repository (http://host:port/v1/repos/NAME, which must allow the page's origin).
+#
+# Usage: scripts/web-build.sh [OUT_DIR]   (default target/web-bundle)
+# Sets up what it needs: the wasm32 target (rustup) and wasm-bindgen-cli at exactly the version
+# of the `wasm-bindgen` crate in Cargo.lock (the two must match). `cargo install --locked` is
+# not used: a pinned dependency of the CLI is missing from some registry mirrors.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+out="${1:-target/web-bundle}"
+
+if command -v rustup >/dev/null 2>&1 \
+    && ! rustup target list --installed | grep -qx wasm32-unknown-unknown; then
+    rustup target add wasm32-unknown-unknown
+fi
+
+version="$(awk '/^name = "wasm-bindgen"$/ { getline; gsub(/version = |"/, ""); print; exit }' Cargo.lock)"
+[ -n "$version" ] || { echo "web-build.sh: no wasm-bindgen in Cargo.lock" >&2; exit 1; }
+if ! wasm-bindgen --version 2>/dev/null | grep -qx "wasm-bindgen $version"; then
+    echo "web-build.sh: installing wasm-bindgen-cli $version (a few minutes, once)" >&2
+    cargo install wasm-bindgen-cli --version "$version"
+fi
+
+cargo build --target wasm32-unknown-unknown -p cbdam-web --profile web
+mkdir -p "$out"
+wasm-bindgen --target web --no-typescript --out-dir "$out" \
+    "${CARGO_TARGET_DIR:-target}/wasm32-unknown-unknown/web/cbdam_web.wasm"
+cp client/web/www/index.html client/web/www/main.js "$out/"
+
+wasm="$out/cbdam_web_bg.wasm"
+raw=$(wc -c <"$wasm")
+gz=$(gzip -9 -c "$wasm" | wc -c)
+echo "web-build.sh: $out ready; $(basename "$wasm") $raw bytes ($gz gzipped)"

@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# The browser viewer's end-to-end test (run by scripts/test.sh after the workspace's tests):
+# builds the web bundle (scripts/web-build.sh), builds a small repository with the cbdam binary,
+# and drives headless Chromium against a loopback static server with Range support
+# and `cbdam serve` (scripts/web_test.py): WebGPU on SwiftShader must converge and draw terrain
+# over most of the frame (screenshot pixels checked), the same cut from both servers; a drag and
+# the wheel move the camera and its URL hash restores the view; without WebGPU the page must say
+# so. About 15 s once built.
+#
+# Sets up what it needs like test.sh sets up lavapipe: Debian's chromium (apt) and
+# websocket-client (pip, pinned). Where neither can be installed (no apt-get, no root/sudo),
+# it says so and skips.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+chromium="${CBDAM_CHROMIUM:-/usr/lib/chromium/chromium}"
+if [ ! -x "$chromium" ] && command -v apt-get >/dev/null 2>&1; then
+    sudo=""
+    [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && sudo="sudo -n"
+    if [ "$(id -u)" -eq 0 ] || [ -n "$sudo" ]; then
+        echo "web-test.sh: installing Debian's chromium for the browser test" >&2
+        $sudo apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
+            chromium >/dev/null
+    fi
+fi
+if [ ! -x "$chromium" ]; then
+    echo "web-test.sh: SKIPPED: no Chromium at $chromium and none could be installed" \
+        "(apt-get install chromium, or set CBDAM_CHROMIUM)" >&2
+    exit 0
+fi
+if ! python3 -c 'import websocket' 2>/dev/null; then
+    python3 -m pip install --quiet websocket-client==1.9.2
+fi
+
+scripts/web-build.sh target/web-bundle
+
+work="$(mktemp -d)"
+trap 'rm -rf "$work"' EXIT
+cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro.cbdam" \
+    --max-error 1 --quiet
+python3 scripts/web_test.py target/web-bundle "$work/jacksboro.cbdam" \
+    "${CARGO_TARGET_DIR:-target}/debug/cbdam"

@@ -1,0 +1,519 @@
+#!/usr/bin/env python3
+"""End-to-end test of the browser viewer in headless Chromium (run by scripts/web-test.sh).
+
+Serves the built bundle (scripts/web-build.sh) and a repository file from a loopback static
+server that honours Range requests, opens index.html?repo=FILE in the system's Chromium driven
+over the Chrome DevTools protocol (websocket-client), waits for the page's `window.cbdam` status
+and checks the pixels of a screenshot, not only the page's word:
+
+- WebGPU (the flags of docs/notes: SwiftShader through Vulkan): the page converges, and terrain
+  (pixels that are not the sky colour) covers most of a 640x480 frame, in many colours.
+- No WebGPU flags (the browser offers only WebGL2): the page says clearly that the renderer
+  needs WebGPU, and draws nothing.
+
+Prints the times from navigation to the first frame and to the converged cut.
+- Record requests refused (503) and a record corrupted once by the server (its checksum
+  fails) are retried: the same cut.
+- The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
+- A scripted drag and wheel move the camera, and the page converges to a new cut; the camera is
+  in the URL's hash, and opening that URL restores the view (same camera, same cut), which is
+  also the cut `cbdam render --camera` (native, from the file) converges to.
+
+Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
+"""
+
+import base64
+import http.server
+import io
+import json
+import os
+import re
+import shutil
+import socketserver
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import zlib
+
+import websocket  # websocket-client, pinned by scripts/web-test.sh
+
+CHROMIUM = os.environ.get("CBDAM_CHROMIUM", "/usr/lib/chromium/chromium")
+WEBGPU_FLAGS = [
+    "--enable-unsafe-webgpu",
+    "--enable-features=Vulkan",
+    "--use-vulkan=swiftshader",
+    "--use-angle=swiftshader",
+]
+COMMON_FLAGS = [
+    "--headless=new",
+    "--no-sandbox",
+    "--enable-unsafe-swiftshader",
+    "--disable-component-update",
+    "--disable-background-networking",
+    "--no-first-run",
+    "--remote-debugging-port=0",
+]
+WIDTH, HEIGHT = 640, 480
+# The renderer's clear colour (RenderOptions::default().background) and the page's background.
+SKY = (158, 189, 219)
+TIMEOUT_S = 90
+
+
+class RangeHandler(http.server.SimpleHTTPRequestHandler):
+    """Static files with single-range `Range: bytes=a-b` support (python's server has none).
+    While `corrupt["armed"]`, the next range not starting at 0 (a record, not the head) is
+    answered with its last byte flipped, once; while `refuse["left"]` > 0, record ranges are
+    answered 503 (a server that is away for a while)."""
+
+    corrupt = {"armed": False, "done": 0}
+    refuse = {"left": 0, "done": 0}
+
+    extensions_map = {
+        **http.server.SimpleHTTPRequestHandler.extensions_map,
+        ".wasm": "application/wasm",
+        ".js": "text/javascript",
+    }
+
+    def log_message(self, *args):
+        pass
+
+    def send_head(self):
+        header = self.headers.get("Range")
+        path = self.translate_path(self.path)
+        if header is None or not os.path.isfile(path):
+            return super().send_head()
+        m = re.fullmatch(r"bytes=(\d+)-(\d*)", header.strip())
+        size = os.path.getsize(path)
+        if not m or int(m.group(1)) >= size:
+            self.send_response(416)
+            self.send_header("Content-Range", f"bytes */{size}")
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+            return None
+        start = int(m.group(1))
+        end = min(int(m.group(2)) if m.group(2) else size - 1, size - 1)
+        if self.refuse["left"] > 0 and start > 0:
+            self.refuse["left"] -= 1
+            self.refuse["done"] += 1
+            self.send_error(503, "away for a while")
+            return None
+        with open(path, "rb") as source:
+            source.seek(start)
+            data = bytearray(source.read(end - start + 1))
+        if self.corrupt["armed"] and start > 0 and data:
+            self.corrupt["armed"] = False
+            self.corrupt["done"] += 1
+            data[-1] ^= 0xFF
+        self.send_response(206)
+        self.send_header("Content-Type", self.guess_type(path))
+        self.send_header("Content-Range", f"bytes {start}-{end}/{size}")
+        self.send_header("Content-Length", str(end - start + 1))
+        self.send_header("Accept-Ranges", "bytes")
+        self.end_headers()
+        return io.BytesIO(bytes(data))
+
+
+class Server(socketserver.ThreadingMixIn, http.server.HTTPServer):
+    daemon_threads = True
+
+
+def serve(root):
+    handler = lambda *a, **k: RangeHandler(*a, directory=root, **k)  # noqa: E731
+    server = Server(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server
+
+
+def decode_png(data):
+    """RGB(A) 8-bit non-interlaced PNG -> (width, height, channels, rows of bytes)."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", "not a PNG"
+    pos, idat, header = 8, b"", None
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        kind = data[pos + 4 : pos + 8]
+        body = data[pos + 8 : pos + 8 + length]
+        pos += 12 + length
+        if kind == b"IHDR":
+            header = struct.unpack(">IIBBBBB", body)
+        elif kind == b"IDAT":
+            idat += body
+    width, height, depth, colour, _, _, interlace = header
+    assert depth == 8 and colour in (2, 6) and interlace == 0, f"unsupported PNG {header}"
+    channels = 3 if colour == 2 else 4
+    raw = zlib.decompress(idat)
+    stride = width * channels
+    rows, prev, i = [], bytearray(stride), 0
+    for _ in range(height):
+        kind, line = raw[i], bytearray(raw[i + 1 : i + 1 + stride])
+        i += 1 + stride
+        for x in range(stride):
+            a = line[x - channels] if x >= channels else 0
+            b = prev[x]
+            c = prev[x - channels] if x >= channels else 0
+            if kind == 1:
+                line[x] = (line[x] + a) & 255
+            elif kind == 2:
+                line[x] = (line[x] + b) & 255
+            elif kind == 3:
+                line[x] = (line[x] + (a + b) // 2) & 255
+            elif kind == 4:
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
+                line[x] = (line[x] + pred) & 255
+        rows.append(bytes(line))
+        prev = line
+    return width, height, channels, rows
+
+
+def save_screenshot(png, name):
+    """Keeps a screenshot in $CBDAM_WEB_SHOTS, when set (for a look at what was checked)."""
+    folder = os.environ.get("CBDAM_WEB_SHOTS")
+    if folder:
+        os.makedirs(folder, exist_ok=True)
+        with open(os.path.join(folder, name), "wb") as f:
+            f.write(png)
+
+
+def terrain_share(png):
+    """Share of pixels that are not the sky colour, and how many distinct such colours."""
+    width, height, channels, rows = decode_png(png)
+    terrain, colours = 0, set()
+    for row in rows:
+        for x in range(0, width * channels, channels):
+            r, g, b = row[x], row[x + 1], row[x + 2]
+            if abs(r - SKY[0]) + abs(g - SKY[1]) + abs(b - SKY[2]) > 12:
+                terrain += 1
+                colours.add((r >> 2, g >> 2, b >> 2))
+    return terrain / (width * height), len(colours), (width, height)
+
+
+class Browser:
+    """One headless Chromium with one page, driven over the DevTools protocol."""
+
+    def __init__(self, flags):
+        self.profile = tempfile.mkdtemp(prefix="cbdam-chromium-")
+        self.log = open(os.path.join(self.profile, "stderr.txt"), "w+")
+        self.proc = subprocess.Popen(
+            [CHROMIUM, *COMMON_FLAGS, *flags, f"--user-data-dir={self.profile}", "about:blank"],
+            stdout=subprocess.DEVNULL,
+            stderr=self.log,
+        )
+        port_file = os.path.join(self.profile, "DevToolsActivePort")
+        deadline = time.time() + 30
+        while not os.path.exists(port_file) or os.path.getsize(port_file) == 0:
+            if self.proc.poll() is not None or time.time() > deadline:
+                raise RuntimeError("Chromium did not start: " + self.stderr())
+            time.sleep(0.05)
+        time.sleep(0.05)
+        port, path = open(port_file).read().split("\n")[:2]
+        self.ws = websocket.create_connection(f"ws://127.0.0.1:{port}{path}", timeout=60)
+        self.next_id = 0
+        self.events = []
+        self.console = []
+        target = self.call("Target.createTarget", url="about:blank")["targetId"]
+        self.session = self.call("Target.attachToTarget", targetId=target, flatten=True)[
+            "sessionId"
+        ]
+        for domain in ("Page", "Runtime", "Log"):
+            self.call(f"{domain}.enable", session=True)
+        self.call(
+            "Emulation.setDeviceMetricsOverride",
+            session=True,
+            width=WIDTH,
+            height=HEIGHT,
+            deviceScaleFactor=1,
+            mobile=False,
+        )
+
+    def stderr(self):
+        self.log.flush()
+        self.log.seek(0)
+        return self.log.read()[-3000:]
+
+    def call(self, method, session=False, **params):
+        self.next_id += 1
+        msg = {"id": self.next_id, "method": method, "params": params}
+        if session:
+            msg["sessionId"] = self.session
+        self.ws.send(json.dumps(msg))
+        while True:
+            reply = json.loads(self.ws.recv())
+            if reply.get("id") == self.next_id:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                return reply.get("result", {})
+            self.note(reply)
+
+    def note(self, event):
+        method = event.get("method", "")
+        if method == "Runtime.consoleAPICalled":
+            args = event["params"].get("args", [])
+            self.console.append(" ".join(str(a.get("value", a.get("description", ""))) for a in args))
+        elif method == "Log.entryAdded":
+            self.console.append(event["params"]["entry"].get("text", ""))
+        self.events.append(method)
+
+    def wait_event(self, name, timeout):
+        deadline = time.time() + timeout
+        while name not in self.events:
+            if time.time() > deadline:
+                raise RuntimeError(f"no {name} within {timeout} s")
+            self.ws.settimeout(max(0.1, deadline - time.time()))
+            self.note(json.loads(self.ws.recv()))
+
+    def evaluate(self, expression):
+        r = self.call("Runtime.evaluate", session=True, expression=expression, returnByValue=True)
+        return r.get("result", {}).get("value")
+
+    def close(self):
+        try:
+            self.ws.close()
+        finally:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+            shutil.rmtree(self.profile, ignore_errors=True)
+
+
+def wait_status(browser, until, timeout=TIMEOUT_S):
+    """Polls window.cbdam until `until(status)` or a failure or `timeout`; returns the status."""
+    deadline = time.time() + timeout
+    status = None
+    while time.time() < deadline:
+        status = json.loads(browser.evaluate("JSON.stringify(window.cbdam || null)") or "null")
+        if status and (status.get("phase") == "failed" or until(status)):
+            break
+        time.sleep(0.1)
+    return status
+
+
+def screenshot(browser):
+    """A PNG of the page with the overlay hidden."""
+    browser.evaluate("document.getElementById('overlay').style.display = 'none'")
+    # Two animation frames so the canvas shows the last state without the overlay.
+    browser.call(
+        "Runtime.evaluate",
+        session=True,
+        expression="new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))",
+        awaitPromise=True,
+    )
+    shot = base64.b64decode(browser.call("Page.captureScreenshot", session=True, format="png")["data"])
+    browser.evaluate("document.getElementById('overlay').style.display = ''")
+    return shot
+
+
+def drag_and_zoom(browser):
+    """A left-button drag across the canvas (rotates the orbit camera), then the wheel towards
+    the terrain (zooms in)."""
+    def mouse(kind, x, y, **extra):
+        browser.call("Input.dispatchMouseEvent", session=True, type=kind, x=x, y=y, **extra)
+
+    mouse("mousePressed", 320, 240, button="left", clickCount=1)
+    for step in range(1, 11):
+        mouse("mouseMoved", 320 + 12 * step, 240 + 4 * step, button="left", buttons=1)
+    mouse("mouseReleased", 440, 280, button="left", clickCount=1)
+    mouse("mouseWheel", 320, 240, deltaX=0, deltaY=-300)
+
+
+converged = lambda s: s.get("converged") and s.get("cut") is not None  # noqa: E731
+
+
+def open_viewer(flags, url, until, interact=False):
+    """Opens `url` and waits for `until(status)`; returns the status, a screenshot (PNG bytes),
+    the browser's console lines and stderr, and with `interact` the status after a scripted
+    drag and wheel once it converged again."""
+    browser = Browser(flags)
+    try:
+        browser.call("Page.navigate", session=True, url=url)
+        browser.wait_event("Page.loadEventFired", 30)
+        status = wait_status(browser, until)
+        shot = screenshot(browser)
+        after = None
+        if interact and status and converged(status):
+            # Frame rate with the cut converged (refining nothing, drawing every frame).
+            count = "[window.cbdam.frames, performance.now()]"
+            (f0, t0), _ = browser.evaluate(count), time.sleep(2)
+            f1, t1 = browser.evaluate(count)
+            status["fps"] = (f1 - f0) * 1000 / (t1 - t0)
+            drag_and_zoom(browser)
+            before = status["camera"]
+            after = wait_status(
+                browser, lambda s: s.get("camera") != before and converged(s) and s["cut"] != status["cut"]
+            )
+            if after:
+                after["hash"] = browser.evaluate("location.hash")
+        return status, shot, browser.console, browser.stderr(), after
+    finally:
+        browser.close()
+
+
+def start_server(cbdam, repository):
+    """`cbdam serve REPOSITORY` on a free loopback port, any origin allowed; returns the process
+    and its base URL."""
+    proc = subprocess.Popen(
+        [cbdam, "serve", repository, "--addr", "127.0.0.1:0", "--cors-origin", "*"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 30
+    while time.time() < deadline:
+        line = proc.stderr.readline()
+        m = re.search(r"listening on (http://127\.0\.0\.1:\d+)", line)
+        if m:
+            threading.Thread(target=proc.stderr.read, daemon=True).start()
+            return proc, m.group(1)
+        if not line and proc.poll() is not None:
+            break
+    proc.kill()
+    raise RuntimeError("cbdam serve did not start")
+
+
+def main():
+    bundle, repository, cbdam = sys.argv[1], sys.argv[2], sys.argv[3]
+    root = tempfile.mkdtemp(prefix="cbdam-web-")
+    try:
+        for name in os.listdir(bundle):
+            shutil.copy(os.path.join(bundle, name), root)
+        shutil.copy(repository, os.path.join(root, "repo.cbdam"))
+        server = serve(root)
+        url = f"http://127.0.0.1:{server.server_address[1]}/index.html?repo=repo.cbdam"
+        failures = []
+
+        t = time.time()
+        status, shot, console, stderr, moved = open_viewer(WEBGPU_FLAGS, url, converged, interact=True)
+        wall = time.time() - t
+        save_screenshot(shot, "webgpu.png")
+        share, colours, size = terrain_share(shot)
+        print(f"webgpu: status {json.dumps({k: v for k, v in (status or {}).items() if k != 'cut'})}")
+        print(
+            f"webgpu: first frame {status and status.get('firstFrameMs')} ms, converged "
+            f"{status and status.get('convergedMs')} ms after navigation; terrain covers "
+            f"{share:.1%} of the {size[0]}x{size[1]} screenshot in {colours} colours; "
+            f"{status and status.get('fps', 0):.1f} frames/s once converged; "
+            f"{wall:.1f} s with the browser"
+        )
+        if not status or status.get("phase") != "running":
+            failures.append(f"webgpu: page did not run: {status}")
+        elif status.get("backend") != "webgpu":
+            failures.append(f"webgpu: backend is {status.get('backend')}, not webgpu")
+        elif not status.get("converged"):
+            failures.append(f"webgpu: no convergence within {TIMEOUT_S} s")
+        if size != (WIDTH, HEIGHT):
+            failures.append(f"webgpu: screenshot is {size}, not {(WIDTH, HEIGHT)}")
+        # Measured: 62 % in about 1 100 colours (the framed first view of jacksboro_mpl).
+        if share < 0.5 or colours < 50:
+            failures.append(f"webgpu: terrain covers {share:.1%} in {colours} colours")
+        if failures:
+            print("console:\n  " + "\n  ".join(console[-20:]) + "\nstderr:\n" + stderr)
+
+        t = time.time()
+        static_cut = (status or {}).get("cut")
+        if not moved or not converged(moved):
+            failures.append(f"input: no new converged cut after a drag and the wheel: {moved}")
+        else:
+            print(
+                f"input: the drag and wheel moved the eye from {status['camera'][:3]} to "
+                f"{moved['camera'][:3]}; new cut of {len(moved['cut'])} diamonds"
+            )
+
+        if moved and converged(moved):
+            # The URL with the hash the page wrote restores the view: the same camera (to the
+            # hash's centimetres) and the same converged cut.
+            restored, _, _, _, _ = open_viewer(WEBGPU_FLAGS, url + moved["hash"], converged)
+            print(f"hash: {moved['hash']} restored {restored and restored.get('camera')}")
+            if not restored or not converged(restored):
+                failures.append(f"hash: the page did not converge from {moved['hash']}: {restored}")
+            elif max(abs(a - b) for a, b in zip(restored["camera"], moved["camera"])) > 0.01:
+                failures.append(f"hash: camera {restored['camera']} is not {moved['camera']}")
+            elif restored["cut"] != moved["cut"]:
+                failures.append("hash: the restored view converged to another cut")
+            else:
+                # The same camera on the command line: `cbdam render` converges to the same
+                # diamonds (native refinement over the memory-mapped file, unlimited budget).
+                cut_file = os.path.join(root, "native-cut.txt")
+                subprocess.run(
+                    [cbdam, "render", repository, "-o", os.path.join(root, "native.png"),
+                     "--size", f"{WIDTH}x{HEIGHT}", "--camera", moved["hash"][len("#camera="):],
+                     "--cut-out", cut_file],
+                    check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                )
+                native = open(cut_file).read().split()
+                print(f"render: cbdam render's cut for that camera has {len(native)} diamonds")
+                if native != restored["cut"]:
+                    failures.append(
+                        f"render: the page's cut ({len(restored['cut'])} diamonds) differs from "
+                        f"cbdam render's ({len(native)}): only page {sorted(set(restored['cut']) - set(native))[:5]}, "
+                        f"only native {sorted(set(native) - set(restored['cut']))[:5]}"
+                    )
+
+        # Three record requests refused (503), then a corrupt record (its checksum fails): each
+        # is retried, and the page still converges to the same cut.
+        RangeHandler.refuse["left"] = 3
+        RangeHandler.corrupt["armed"] = True
+        status, _, _, _, _ = open_viewer(WEBGPU_FLAGS, url, converged)
+        print(
+            f"faults: {RangeHandler.refuse['done']} requests refused, "
+            f"{RangeHandler.corrupt['done']} record corrupted; converged "
+            f"{status and status.get('converged')}, {status and status.get('fetchErrors')} fetch errors"
+        )
+        if RangeHandler.corrupt["done"] != 1 or RangeHandler.refuse["done"] != 3:
+            failures.append("faults: not every fault was served (the test did not test)")
+        elif not status or not converged(status) or status["cut"] != static_cut:
+            failures.append(f"faults: no convergence to the clean run's cut: {status}")
+        elif (status.get("fetchErrors") or 0) < 4:
+            failures.append(f"faults: {status.get('fetchErrors')} fetch errors counted, not 4")
+
+        proc, base = start_server(cbdam, repository)
+        try:
+            name = os.path.splitext(os.path.basename(repository))[0]
+            served = f"{url.split('?')[0]}?repo={base}/v1/repos/{name}"
+            status, shot, console, stderr, _ = open_viewer(WEBGPU_FLAGS, served, converged)
+        finally:
+            proc.terminate()
+            proc.wait(10)
+        share, colours, _ = terrain_share(shot)
+        print(
+            f"serve: converged {status and status.get('converged')} at "
+            f"{status and status.get('convergedMs')} ms, {status and status.get('recordsRequested')} "
+            f"records requested; terrain covers {share:.1%}"
+        )
+        if not status or not converged(status):
+            failures.append(f"serve: the page did not converge against cbdam serve: {status}")
+            print("console:\n  " + "\n  ".join(console[-20:]))
+        elif status["cut"] != static_cut:
+            failures.append(
+                f"serve: the cut differs from the static file's: {len(status['cut'])} vs "
+                f"{len(static_cut or [])} diamonds"
+            )
+        if share < 0.5:
+            failures.append(f"serve: terrain covers {share:.1%}")
+
+        t = time.time()
+        status, shot, console, _, _ = open_viewer([], url, lambda s: False)
+        wall = time.time() - t
+        share, colours, _ = terrain_share(shot)
+        print(f"webgl2: status {status}; {share:.1%} non-sky pixels; {wall:.1f} s")
+        if not status or status.get("phase") != "failed" or status.get("webgpu") is not False:
+            failures.append(f"webgl2: expected a clear failure without WebGPU, got {status}")
+        elif "WebGPU" not in status.get("error", ""):
+            failures.append(f"webgl2: the message does not say WebGPU is needed: {status}")
+        if share > 0.01:
+            failures.append(f"webgl2: {share:.1%} of the frame is not sky, nothing should draw")
+
+        server.shutdown()
+        for f in failures:
+            print("FAILED " + f, file=sys.stderr)
+        return 1 if failures else 0
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
