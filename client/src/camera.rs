@@ -85,7 +85,7 @@ impl Camera {
     /// browser's first view.
     pub fn framed(world: &World, size: (u32, u32)) -> Self {
         const MARGIN: f64 = 0.95;
-        let (lo, hi) = world.data_box();
+        let (lo, hi) = world.bounds();
         let fov_y = 45f64.to_radians();
         let elevation = 55f64.to_radians();
         let dir = DVec3::new(0.0, -elevation.cos(), elevation.sin());
@@ -316,7 +316,7 @@ mod tests {
 
     /// The corners of the data box in normalised device coordinates.
     fn projected_corners(cam: &Camera, w: &World) -> Vec<DVec3> {
-        let (lo, hi) = w.data_box();
+        let (lo, hi) = w.bounds();
         let m = cam.projection() * cam.view();
         box_corners(lo, hi)
             .iter()

@@ -62,16 +62,19 @@ pub fn write_atomically<E: From<CodecError> + From<std::io::Error>>(
             Err(e) => return Err(e.into()),
         }
     }
-    let (Some(tmp), Some(mut file)) = (tmp, file) else {
+    let (Some(tmp), Some(file)) = (tmp, file) else {
         return Err(
             CodecError::invalid("could not create a temporary file next to the output").into(),
         );
     };
     let mut guard = TempGuard(Some(tmp.clone()));
-    write(&mut file)?;
-    file.flush()?;
-    file.sync_all()?;
-    drop(file);
+    {
+        // Closed at the end of this block, before the rename.
+        let mut file = file;
+        write(&mut file)?;
+        file.flush()?;
+        file.sync_all()?;
+    }
     std::fs::rename(&tmp, path)?;
     guard.0 = None;
     // Make the rename itself durable; not every platform lets a directory be opened and synced.

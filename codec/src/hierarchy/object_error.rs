@@ -638,7 +638,8 @@ fn odd_diagonal(d: i64, ulo: i64, br: usize) -> usize {
 
 #[cfg(not(test))]
 mod tests {
-    /// Outside tests the fastest kernels are always used.
+    /// Outside tests the fastest kernels are always used (only x86-64 has a choice).
+    #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     pub(super) fn portable_only() -> bool {
         false
