@@ -65,6 +65,22 @@ pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
         quantum: args.quantum,
         nodata: args.nodata,
         assign_georef,
+        block_plan: args.block_plan,
+    })
+}
+
+/// Parses `--block-plan CUT,SIDE`.
+pub fn parse_block_plan(text: &str) -> Result<cbdam_codec::hierarchy::BlockPlan, String> {
+    let bad = || format!("{text:?}: expected CUT,SIDE (a level and a block side in lattice units)");
+    let (cut, side) = text.split_once(',').ok_or_else(bad)?;
+    let cut_level = cut.trim().parse::<u8>().map_err(|_| bad())?;
+    let block_side = side.trim().parse::<i64>().map_err(|_| bad())?;
+    if block_side < 1 {
+        return Err(bad());
+    }
+    Ok(cbdam_codec::hierarchy::BlockPlan {
+        cut_level,
+        block_side,
     })
 }
 

@@ -38,6 +38,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             nodata: None,
             bounds: None,
             crs: None,
+            block_plan: None,
             quiet: false,
             timings: false,
             colour: false,

@@ -639,6 +639,10 @@ pub struct BuildArgs {
     /// The CRS of --bounds, as EPSG:N.
     #[arg(long, value_name = "EPSG:N", requires = "bounds")]
     crs: Option<String>,
+    /// Benchmarks: encode the levels from CUT down in blocks SIDE lattice units across (with a
+    /// journal), whatever the input's size and the memory limit would choose.
+    #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = build::parse_block_plan)]
+    block_plan: Option<cbdam_codec::hierarchy::BlockPlan>,
     /// Print nothing on success.
     #[arg(long)]
     quiet: bool,

@@ -5,8 +5,8 @@
 //!
 //! `OUT.journal/` holds `key` — every input (path, size, modification time) and every argument
 //! that decides the output, one `name=value` line each — and one `block-NNNNNN` file per finished
-//! block, each written to a temporary name, synced and renamed, with a CRC-32 of its contents, so
-//! a file is either whole or absent. A journal whose key differs from this build's is removed,
+//! block, each written to a temporary name and renamed, with a CRC-32 of its contents, so a file
+//! is whole or absent after a kill, and a file a power loss cut short is noticed and redone. A journal whose key differs from this build's is removed,
 //! and the build says which line changed. The journal goes once the repository is written.
 
 use std::fs;
@@ -128,16 +128,16 @@ fn first_difference(old: &str, new: &str) -> String {
     "the journal's format".to_string()
 }
 
-/// Writes `bytes` to `dir/name` whole or not at all: a temporary file, synced, renamed.
+/// Writes `bytes` to `dir/name` under a temporary name and renames it into place, so that a
+/// killed process leaves the file whole or absent. Not synced: after a power loss a block file
+/// may be cut short or empty, which its checksum catches ([`parse_block`]) and the block is
+/// encoded again — syncing every block would cost more than redoing the few the page cache lost.
 fn write_atomically(dir: &Path, name: &str, bytes: &[u8]) -> std::io::Result<()> {
     let tmp = dir.join(format!(".{name}.tmp"));
     let mut f = fs::File::create(&tmp)?;
     f.write_all(bytes)?;
-    f.sync_all()?;
     drop(f);
-    fs::rename(&tmp, dir.join(name))?;
-    // The rename itself is durable once the directory is synced.
-    fs::File::open(dir)?.sync_all()
+    fs::rename(&tmp, dir.join(name))
 }
 
 fn put_id(out: &mut Vec<u8>, id: DiamondId) {

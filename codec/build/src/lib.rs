@@ -80,6 +80,9 @@ pub struct BuildOptions {
     pub nodata: Option<f64>,
     /// Georeferencing for the one input when it carries none (`--bounds`, `--crs`).
     pub assign_georef: Option<AssignedGeoRef>,
+    /// Encode in these blocks (with a journal) instead of what the size and the memory limit
+    /// choose: for benchmarks of the block encoder. α = 1 only.
+    pub block_plan: Option<BlockPlan>,
 }
 
 impl BuildOptions {
@@ -103,6 +106,7 @@ impl BuildOptions {
             quantum: None,
             nodata: None,
             assign_georef: None,
+            block_plan: None,
         }
     }
 
@@ -256,6 +260,13 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         total: 1,
     });
     let mut stages = input.stages.clone();
+    let mut storage = storage;
+    if let Some(plan) = opts.block_plan {
+        if enc_opts.alpha != Alpha::One {
+            bail!("--block-plan needs --alpha one");
+        }
+        storage.blocks = Some(plan);
+    }
     let journal = match &storage.blocks {
         Some(plan) => {
             let key = journal_key(opts, &tiles, &enc_opts, plan)?;
