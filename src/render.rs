@@ -19,10 +19,10 @@ use glam::DVec3;
 use crate::session::{budget_label, refine_config, terrain_source};
 use crate::{BenchRenderArgs, RenderArgs};
 
-/// A camera from `eye_x,eye_y,eye_z,target_x,target_y,target_z`, or the overview.
+/// A camera from `eye_x,eye_y,eye_z,target_x,target_y,target_z`, or the framed first view.
 fn camera(world: &World, spec: Option<&[f64]>, size: (u32, u32)) -> Result<Camera> {
     let Some(v) = spec else {
-        return Ok(Camera::overview(world, size));
+        return Ok(Camera::framed(world, size));
     };
     if v.len() != 6 || v.iter().any(|x| !x.is_finite()) {
         bail!("--camera wants six finite numbers eye_x,eye_y,eye_z,target_x,target_y,target_z");

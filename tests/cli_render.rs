@@ -330,3 +330,35 @@ fn bench_render_flies_the_flights() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--fps must be positive"));
 }
+
+/// Without `--camera`, `cbdam render` frames the data so that it fills most of the frame (the
+/// old overview left about 80 % of a 640×480 frame to the sky on a landscape DEM): the share of
+/// pixels that are not the sky's colour (the top-left corner's, which the framed view leaves
+/// clear) is counted.
+#[test]
+fn the_default_view_fills_most_of_the_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = dir.path().join("r.cbdam");
+    let o = cbdam(&[
+        "build",
+        &data("srtm3_demcompare.tif"),
+        "--max-error",
+        "2",
+        "-o",
+        &s(&repo),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = dir.path().join("v.png");
+    let o = cbdam(&["render", &s(&repo), "--size", "640x480", "-o", &s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let file = std::io::BufReader::new(std::fs::File::open(&out).unwrap());
+    let mut reader = png::Decoder::new(file).read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    let sky = &buf[..4];
+    let terrain = buf.chunks(4).filter(|p| *p != sky).count();
+    let share = terrain as f64 / (640.0 * 480.0);
+    assert!(share > 0.6, "terrain covers only {:.1} % of the frame", 100.0 * share);
+}

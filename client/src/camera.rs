@@ -82,7 +82,7 @@ impl Camera {
     /// be with every corner of the data box inside the middle 95 % of the frame, the box
     /// centred vertically in the frame, so the data fills most of it ([`Camera::overview`]
     /// keeps a whole sphere around the box in view, which leaves much of a frame empty). The
-    /// browser's first view.
+    /// first view of the browser, `cbdam render` without `--camera` and `cbdam view`.
     pub fn framed(world: &World, size: (u32, u32)) -> Self {
         const MARGIN: f64 = 0.95;
         let (lo, hi) = world.bounds();

@@ -80,7 +80,7 @@ pub fn view<S: DataSource>(refiner: Refiner<S>, args: &ViewOptions) -> Result<()
     })?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let world = *refiner.world();
-    let start = Camera::overview(&world, args.size);
+    let start = Camera::framed(&world, args.size);
     let mut app = App {
         args,
         name,
