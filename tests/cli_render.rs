@@ -360,5 +360,9 @@ fn the_default_view_fills_most_of_the_frame() {
     let sky = &buf[..4];
     let terrain = buf.chunks(4).filter(|p| *p != sky).count();
     let share = terrain as f64 / (640.0 * 480.0);
-    assert!(share > 0.6, "terrain covers only {:.1} % of the frame", 100.0 * share);
+    assert!(
+        share > 0.6,
+        "terrain covers only {:.1} % of the frame",
+        100.0 * share
+    );
 }
