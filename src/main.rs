@@ -189,6 +189,11 @@ pub struct ServeArgs {
     /// Time allowed for one request, seconds (then 408).
     #[arg(long, default_value_t = 30.0)]
     timeout: f64,
+    /// The browser viewer's files (the bundle `scripts/web-build.sh` writes, e.g.
+    /// target/web-bundle): `/` then links every repository to the viewer, served under
+    /// `/viewer/HASH/`. Without it `/` only lists the repositories.
+    #[arg(long, value_name = "DIR")]
+    web: Option<std::path::PathBuf>,
     /// Worker threads (default: one per core).
     #[arg(long)]
     threads: Option<usize>,

@@ -37,11 +37,16 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         .map(|s| s.parse::<RepoSpec>())
         .collect::<Result<Vec<_>, _>>()?;
     let timeout = Duration::from_secs_f64(args.timeout);
+    let web = match &args.web {
+        Some(dir) => Some(std::sync::Arc::new(cbdam_server::WebAssets::load(dir)?)),
+        None => None,
+    };
     let config = Config {
         max_batch: args.max_batch,
         max_body: args.max_body,
         cors_origin: args.cors_origin.clone(),
         timeout,
+        web,
     };
     init_logging();
     let state = AppState::open(&specs, config)?;
@@ -65,6 +70,15 @@ pub fn run(args: &ServeArgs) -> Result<()> {
             );
         }
         tracing::info!("listening on http://{addr}");
+        match &state.config().web {
+            Some(web) => tracing::info!(
+                "browser viewer: http://{addr}/ (files under /viewer/{}/)",
+                web.hash()
+            ),
+            None => tracing::info!(
+                "repositories listed at http://{addr}/ (the browser viewer with --web DIR)"
+            ),
+        }
         let (stop, stopped) = oneshot::channel::<()>();
         let mut server = tokio::spawn(cbdam_server::run(listener, state, async {
             let _ = stopped.await;

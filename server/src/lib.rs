@@ -11,6 +11,8 @@
 //! - `POST /v1/repos/{name}/diamonds`: many records in one framed body.
 //! - `GET /v1/repos/{name}/file`: the repository file itself, with range requests.
 //! - `GET /metrics`: Prometheus counters.
+//! - `GET /`: a page listing the repositories; with `--web DIR`, each opens the browser viewer,
+//!   whose files are served under `/viewer/{hash}/` ([`web`]).
 //!
 //! [`app`] builds the router, [`run`] serves it on a listener until a shutdown future
 //! completes.
@@ -33,6 +35,7 @@ mod observe;
 mod range;
 mod routes;
 mod state;
+pub mod web;
 
 use std::future::Future;
 
@@ -45,6 +48,7 @@ pub use error::{ApiError, ServerError};
 pub use range::{RangeRequest, parse_range};
 pub use routes::{BATCH_CONTENT_TYPE, BATCH_MAGIC, STATUS_NOT_STORED, STATUS_RECORD};
 pub use state::{AppState, Config, RepoSpec, ServedRepo, validate_name};
+pub use web::{WebAssets, WebError};
 
 /// The router with every endpoint and middleware (CORS, timeout, metrics and request logs).
 pub fn app(state: AppState) -> Router {

@@ -54,6 +54,8 @@ pub(crate) fn router(state: AppState) -> Router {
             post(batch).layer(DefaultBodyLimit::max(cfg.max_body)),
         )
         .route("/metrics", get(metrics))
+        .route("/", get(index))
+        .route("/viewer/{hash}/{file}", get(viewer_file))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(TimeoutLayer::with_status_code(
@@ -151,6 +153,68 @@ fn headers<const N: usize>(pairs: [(HeaderName, HeaderValue); N]) -> HeaderMap {
         h.insert(k, v);
     }
     h
+}
+
+/// `GET /`: the repositories, each opening the viewer when it is served.
+async fn index(State(st): State<AppState>) -> Response {
+    respond(
+        StatusCode::OK,
+        headers([
+            (header::CONTENT_TYPE, hv("text/html; charset=utf-8")),
+            (header::CACHE_CONTROL, hv(REVALIDATE)),
+        ]),
+        st.inner.index.clone(),
+    )
+}
+
+/// `GET /viewer/{hash}/{file}`: one of the viewer's files, immutable under its content hash,
+/// gzip-compressed when the client accepts it.
+async fn viewer_file(
+    State(st): State<AppState>,
+    path: Result<Path<(String, String)>, PathRejection>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let Path((hash, file)) = path.map_err(bad_path)?;
+    let Some(web) = st.config().web.as_deref() else {
+        return Err(ApiError::NotFound(
+            "the browser viewer is not served (start cbdam serve with --web DIR)".into(),
+        ));
+    };
+    if hash != web.hash() {
+        return Err(ApiError::NotFound(format!(
+            "no viewer {hash} (this server's is /viewer/{}/)",
+            web.hash()
+        )));
+    }
+    let asset = web
+        .get(&file)
+        .ok_or_else(|| ApiError::NotFound(format!("the viewer has no file {file:?}")))?;
+    let accepts_gzip = req
+        .headers()
+        .get_all(header::ACCEPT_ENCODING)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .any(|e| {
+            let mut parts = e.split(';');
+            let coding = parts.next().unwrap_or("").trim();
+            // `gzip;q=0` refuses it.
+            let refused = parts.any(|p| p.trim().replace(' ', "") == "q=0");
+            (coding.eq_ignore_ascii_case("gzip") || coding == "*") && !refused
+        });
+    let mut h = headers([
+        (header::CONTENT_TYPE, hv(asset.content_type)),
+        (header::CACHE_CONTROL, hv(IMMUTABLE)),
+        (header::VARY, hv("accept-encoding")),
+    ]);
+    let body = match (&asset.gzip, accepts_gzip) {
+        (Some(g), true) => {
+            h.insert(header::CONTENT_ENCODING, hv("gzip"));
+            g.clone()
+        }
+        _ => asset.raw.clone(),
+    };
+    Ok(respond(StatusCode::OK, h, body))
 }
 
 async fn list(State(st): State<AppState>) -> Response {

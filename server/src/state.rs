@@ -28,6 +28,8 @@ pub struct Config {
     pub cors_origin: String,
     /// Time allowed to answer one request (`--timeout`).
     pub timeout: Duration,
+    /// The browser viewer's files, served at `/viewer/…` with a page at `/` (`--web`).
+    pub web: Option<Arc<crate::web::WebAssets>>,
 }
 
 impl Default for Config {
@@ -37,6 +39,7 @@ impl Default for Config {
             max_body: 1 << 20,
             cors_origin: "*".to_string(),
             timeout: Duration::from_secs(30),
+            web: None,
         }
     }
 }
@@ -208,6 +211,8 @@ pub(crate) struct Inner {
     pub(crate) names: Vec<String>,
     /// `GET /v1/repos`, built once.
     pub(crate) listing: Bytes,
+    /// `GET /`, built once.
+    pub(crate) index: Bytes,
     pub(crate) config: Config,
     pub(crate) metrics: Metrics,
 }
@@ -237,11 +242,30 @@ impl AppState {
             .map(|n| serde_json::json!({ "name": n, "meta": format!("/v1/repos/{n}/meta") }))
             .collect();
         let listing = Bytes::from(serde_json::json!({ "repos": listing }).to_string());
+        let about: Vec<(String, String)> = names
+            .iter()
+            .map(|n| {
+                let r = &map[n].repo;
+                let data = r.params().domain.data();
+                let size = r.as_bytes().len();
+                (
+                    n.clone(),
+                    format!(
+                        "{} × {} samples, {:.1} MB",
+                        data.width,
+                        data.height,
+                        size as f64 / 1e6
+                    ),
+                )
+            })
+            .collect();
+        let index = Bytes::from(crate::web::index_page(&about, config.web.as_deref()));
         Ok(Self {
             inner: Arc::new(Inner {
                 repos: map,
                 names,
                 listing,
+                index,
                 config,
                 metrics: Metrics::default(),
             }),

@@ -686,3 +686,118 @@ async fn startup_errors_name_the_problem() {
     let st = open(&[spec(&format!("g={}", good.display()))]).unwrap();
     assert!(st.repo("g").is_some());
 }
+
+/// `GET /` lists the repositories; with the viewer's files (`Config::web`) each links to the
+/// viewer, whose files come back under their content hash with their content types, immutable,
+/// gzip-compressed on request (decompressing to the file), whole otherwise; a stale hash, an
+/// unknown file and a server without the viewer answer 404 with the reason.
+#[tokio::test]
+async fn the_index_page_and_the_viewer_files() {
+    use std::io::Read;
+    let dir = tempfile::tempdir().unwrap();
+    let wasm: Vec<u8> = (0..20_000u32).map(|i| (i % 7) as u8).collect();
+    std::fs::write(
+        dir.path().join("index.html"),
+        "<!doctype html><title>viewer</title>",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.path().join("cbdam_web.js"),
+        "export function start() {}\n".repeat(50),
+    )
+    .unwrap();
+    std::fs::write(dir.path().join("cbdam_web_bg.wasm"), &wasm).unwrap();
+    let web = std::sync::Arc::new(cbdam_server::WebAssets::load(dir.path()).unwrap());
+    let hash = web.hash().to_string();
+    let s = start_one(Config {
+        web: Some(web),
+        ..Config::default()
+    })
+    .await;
+    // Plain client: no automatic decompression, so the encoding is seen as sent.
+    let c = client();
+    let r = c.get(s.url("/")).send().await.unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.headers()["content-type"], "text/html; charset=utf-8");
+    assert_eq!(r.headers()["cache-control"], "no-cache");
+    let page = r.text().await.unwrap();
+    let link = format!("/viewer/{hash}/index.html?repo=/v1/repos/t");
+    assert!(page.contains(&link), "{page}");
+
+    let wasm_url = s.url(&format!("/viewer/{hash}/cbdam_web_bg.wasm"));
+    let r = c
+        .get(&wasm_url)
+        .header("accept-encoding", "gzip, br")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.headers()["content-type"], "application/wasm");
+    assert_eq!(r.headers()["content-encoding"], "gzip");
+    assert!(
+        r.headers()["cache-control"]
+            .to_str()
+            .unwrap()
+            .contains("immutable")
+    );
+    let zipped = r.bytes().await.unwrap();
+    assert!(zipped.len() < wasm.len() / 4, "{} bytes", zipped.len());
+    let mut unzipped = Vec::new();
+    flate2::read::GzDecoder::new(&zipped[..])
+        .read_to_end(&mut unzipped)
+        .unwrap();
+    assert_eq!(unzipped, wasm);
+    for refuse in [None, Some("identity"), Some("gzip;q=0")] {
+        let mut q = c.get(&wasm_url);
+        if let Some(v) = refuse {
+            q = q.header("accept-encoding", v);
+        }
+        let r = q.send().await.unwrap();
+        assert!(r.headers().get("content-encoding").is_none(), "{refuse:?}");
+        assert_eq!(r.bytes().await.unwrap(), wasm, "{refuse:?}");
+    }
+    let r = c
+        .get(s.url(&format!("/viewer/{hash}/main.js")))
+        .send()
+        .await
+        .unwrap();
+    assert!(error_body(r, 404).await.contains("no file"));
+    let r = c
+        .get(s.url("/viewer/0000000000000000/index.html"))
+        .send()
+        .await
+        .unwrap();
+    assert!(error_body(r, 404).await.contains(&hash));
+    s.stop().await;
+
+    let s = start_one(Config::default()).await;
+    let page = c
+        .get(s.url("/"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        page.contains("--web") && !page.contains("/viewer/"),
+        "{page}"
+    );
+    let r = c
+        .get(s.url(&format!("/viewer/{hash}/index.html")))
+        .send()
+        .await
+        .unwrap();
+    assert!(error_body(r, 404).await.contains("--web"));
+    s.stop().await;
+
+    // A directory that is not the bundle is refused naming the missing file.
+    std::fs::remove_file(dir.path().join("cbdam_web_bg.wasm")).unwrap();
+    let e = cbdam_server::WebAssets::load(dir.path())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cbdam_web_bg.wasm") && e.contains("web-build.sh"),
+        "{e}"
+    );
+}
