@@ -78,10 +78,10 @@ impl RemoteFetcher {
                 url: url.to_owned(),
                 message: e.to_string(),
             })?;
-        let (endpoint, head) = runtime.block_on(async {
+        let (endpoint, head, head_requests) = runtime.block_on(async {
             let endpoint = resolve(&client, url).await?;
-            let head = fetch_head(&client, &endpoint.file_url()).await?;
-            Ok::<_, RemoteError>((endpoint, head))
+            let (head, requests) = fetch_head(&client, &endpoint.file_url()).await?;
+            Ok::<_, RemoteError>((endpoint, head, requests))
         })?;
         let (tx, rx) = mpsc::channel();
         let shared = Arc::new(Shared {
@@ -94,8 +94,10 @@ impl RemoteFetcher {
             client,
             results: Mutex::new(tx),
         });
-        // The head took two requests.
-        shared.stats.requests.fetch_add(2, Ordering::Relaxed);
+        shared
+            .stats
+            .requests
+            .fetch_add(head_requests, Ordering::Relaxed);
         runtime.spawn(schedule(shared.clone()));
         Ok(Self {
             shared,
@@ -246,7 +248,12 @@ async fn get_range(
     Ok((body.to_vec(), total))
 }
 
-async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHead, RemoteError> {
+/// The head and how many range requests it took (2, or 3 for a header longer than the first
+/// fetch).
+async fn fetch_head(
+    client: &reqwest::Client,
+    url: &str,
+) -> Result<(RepositoryHead, u64), RemoteError> {
     // A version-3 header is usually shorter than HEADER_FETCH_LEN, and so can be the whole
     // file: a server answers a range past the end with what there is. A long CRS definition
     // makes it longer: then a second request fetches the rest.
@@ -258,7 +265,9 @@ async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHea
         source,
     };
     let len = header_len(&header).map_err(repo_error)?;
+    let mut requests = 2;
     if len > header.len() && len as u64 <= file_len {
+        requests += 1;
         header = get_range(client, url, 0..len as u64)
             .await
             .map_err(|e| http_error(url, e))?
@@ -273,7 +282,10 @@ async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHea
     let (head, _) = get_range(client, url, 0..head_len)
         .await
         .map_err(|e| http_error(url, e))?;
-    RepositoryHead::parse(&head, file_len).map_err(repo_error)
+    Ok((
+        RepositoryHead::parse(&head, file_len).map_err(repo_error)?,
+        requests,
+    ))
 }
 
 /// The scheduler: whenever woken (new wants, a finished request, a backoff expiring), starts the
@@ -310,7 +322,6 @@ fn start_batches(shared: &Arc<Shared>, s: &mut State<AbortHandle>) -> Option<Ins
         let task = tokio::spawn(fetch_batch(shared.clone(), batch, ids.clone()));
         s.batches.push((batch, ids, task.abort_handle()));
         shared.stats.in_flight.fetch_add(1, Ordering::Relaxed);
-        shared.stats.requests.fetch_add(1, Ordering::Relaxed);
     }
     next_retry
 }
@@ -377,6 +388,7 @@ async fn fetch_from_server(
     let url = format!("{base}/diamonds");
     let names: Vec<String> = ids.iter().map(ToString::to_string).collect();
     let body = serde_json::json!({ "ids": names }).to_string();
+    shared.stats.requests.fetch_add(1, Ordering::Relaxed);
     let resp = shared
         .client
         .post(&url)
@@ -414,6 +426,7 @@ async fn fetch_ranges(
         // Only empty records: nothing to fetch.
         return Ok(ids.iter().map(|&id| (id, Vec::new())).collect());
     }
+    shared.stats.requests.fetch_add(1, Ordering::Relaxed);
     let (body, total) = get_range(&shared.client, url, lo..hi).await?;
     if total != shared.head.file_len() {
         return Err(format!(
