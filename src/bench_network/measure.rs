@@ -350,17 +350,22 @@ pub fn remote(
     let metrics = state.metrics();
     let server_batches = metrics.requests(Endpoint::Batch, StatusCode::OK);
     let server_ranges = metrics.requests(Endpoint::File, StatusCode::PARTIAL_CONTENT);
+    // Every status the server counts on its own, and one it does not (418): those share the
+    // `other` counter, which any such status reads.
     let all_statuses = [
         StatusCode::OK,
+        StatusCode::NO_CONTENT,
         StatusCode::PARTIAL_CONTENT,
         StatusCode::NOT_MODIFIED,
         StatusCode::BAD_REQUEST,
         StatusCode::NOT_FOUND,
+        StatusCode::METHOD_NOT_ALLOWED,
         StatusCode::REQUEST_TIMEOUT,
         StatusCode::PAYLOAD_TOO_LARGE,
         StatusCode::RANGE_NOT_SATISFIABLE,
         StatusCode::INTERNAL_SERVER_ERROR,
         StatusCode::SERVICE_UNAVAILABLE,
+        StatusCode::IM_A_TEAPOT,
     ];
     let answered: u64 = [
         Endpoint::Repos,

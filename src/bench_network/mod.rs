@@ -257,8 +257,8 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     plot::screen_error(
         &args.out.join(plot_file),
         &format!(
-            "largest screen-space error of the cut against wall time ({}×{}, target {} px dashed; \
-             the camera stops at the dotted line)",
+            "largest screen error of the cut against wall time ({}×{}; target {} px dashed, \
+             camera stop dotted)",
             args.size.0, args.size.1, args.pixel_error
         ),
         &panels,

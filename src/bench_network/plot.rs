@@ -47,7 +47,8 @@ pub fn screen_error(
     let err = |e: &dyn std::fmt::Debug| anyhow!("plotting {}: {e:?}", path.display());
     let columns = columns.max(1);
     let rows = panels.len().div_ceil(columns).max(1);
-    let size = (440 * columns as u32, 40 + 330 * rows as u32);
+    // Wide enough for the title even with one column.
+    let size = ((440 * columns as u32).max(900), 40 + 330 * rows as u32);
     let root = SVGBackend::new(path, size).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let root = root
