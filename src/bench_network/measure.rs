@@ -73,6 +73,8 @@ pub struct FramePoint {
     pub met_target: bool,
     pub converged: bool,
     pub refine_ms: f64,
+    /// CPU time of the refining thread in the frame, ms (NaN where unsupported).
+    pub cpu_ms: f64,
 }
 
 /// What the server and the link saw during a remote run.
@@ -160,6 +162,15 @@ impl Measured {
             .count()
     }
 
+    /// Frames whose refining thread used more than `budget_ms` of CPU time: the overruns that
+    /// are work, not the scheduler keeping the thread waiting on a busy machine.
+    pub fn frames_over_budget_cpu(&self, budget_ms: f64) -> usize {
+        self.frames
+            .iter()
+            .filter(|f| budget_ms > 0.0 && f.cpu_ms > budget_ms)
+            .count()
+    }
+
     pub fn max_refine_ms(&self) -> f64 {
         self.frames.iter().map(|f| f.refine_ms).fold(0.0, f64::max)
     }
@@ -203,11 +214,15 @@ fn fly_and_collect<S: DataSource>(
             met_target: s.met_target,
             converged: s.converged,
             refine_ms: s.refine_ms,
+            cpu_ms: f64::NAN,
         });
         last = *s;
     })?;
     for f in &mut frames[run.flight_frames..] {
         f.settling = true;
+    }
+    for (f, cpu) in frames.iter_mut().zip(&run.cpu_ms) {
+        f.cpu_ms = *cpu;
     }
     let entries = refiner.source().entries();
     let final_cut = refiner.cut().refined().collect();
@@ -407,6 +422,7 @@ mod tests {
                 met_target: met,
                 converged: false,
                 refine_ms: 1.0,
+                cpu_ms: 0.5,
             })
             .collect()
     }
@@ -461,7 +477,15 @@ mod tests {
         let mut r = run(&[(0.1, true), (0.2, true), (0.3, true)], 3);
         r.frames[1].refine_ms = 2.5;
         r.frames[2].refine_ms = 2.0;
+        r.frames[0].cpu_ms = 2.1;
         assert_eq!(r.frames_over_budget(2.0), 1);
+        assert_eq!(r.frames_over_budget_cpu(2.0), 1);
+        r.frames[0].cpu_ms = f64::NAN;
+        assert_eq!(
+            r.frames_over_budget_cpu(2.0),
+            0,
+            "unknown CPU time is not over"
+        );
         assert_eq!(r.frames_over_budget(0.0), 0, "0 is an unlimited budget");
         assert_eq!(r.max_refine_ms(), 2.5);
     }

@@ -325,8 +325,9 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
            the proxy delivered (HTTP heads, the repository head). Requests are the server's \
            count (`serve` runs also read the head with 2 range requests). *Camera stop → \
            target*: from the end of the last flight frame to the end of the first frame from \
-           which on every frame met the target. *Frames over budget*: frames whose refinement \
-           took longer than the budget in wall time (flight and settling). *Final cut = local*: \
+           which on every frame met the target. *Frames over budget*: frames (flight and \
+           settling) whose refinement took longer than the budget in wall time, and those whose \
+           refining thread used more than the budget in CPU time (the rest is waiting for a core). *Final cut = local*: \
            the converged cut's refined diamonds are exactly the local run's.\n\n";
     md += &table;
     md += "\n## The issue's targets (issue 21)\n\n";
