@@ -67,7 +67,9 @@ impl Default for FetchOptions {
 /// Counters of the fetcher's work, cumulative.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FetchStats {
-    /// HTTP requests sent (head requests included).
+    /// HTTP requests sent: the head's range requests and every batch or range request (a batch
+    /// of empty records only needs none). A bare server address's repository list is not
+    /// counted.
     pub requests: u64,
     /// Requests in flight now.
     pub in_flight: u64,
