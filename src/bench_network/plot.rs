@@ -36,6 +36,21 @@ fn colour(name: &str) -> RGBAColor {
     }
 }
 
+/// The points a line needs: of each run of equal values only the first and the last (the
+/// error holds still for seconds while data is awaited; the SVG need not repeat it per frame).
+fn thin(points: impl Iterator<Item = (f64, f64)>) -> Vec<(f64, f64)> {
+    let mut out: Vec<(f64, f64)> = Vec::new();
+    for p in points {
+        let n = out.len();
+        if n >= 2 && out[n - 1].1 == p.1 && out[n - 2].1 == p.1 {
+            out[n - 1] = p;
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}
+
 /// Draws `panels` in a grid of `columns`, to `path`.
 pub fn screen_error(
     path: &Path,
@@ -98,11 +113,11 @@ pub fn screen_error(
                     c.stroke_width(1),
                 ))
                 .map_err(|e| err(&e))?;
-            let pts: Vec<(f64, f64)> = s
-                .points
-                .iter()
-                .map(|&(x, y)| (x, if y.is_finite() { y.max(FLOOR_PX) } else { y_hi }))
-                .collect();
+            let pts = thin(
+                s.points
+                    .iter()
+                    .map(|&(x, y)| (x, if y.is_finite() { y.max(FLOOR_PX) } else { y_hi })),
+            );
             chart
                 .draw_series(LineSeries::new(pts, c.stroke_width(2)))
                 .map_err(|e| err(&e))?
@@ -121,4 +136,27 @@ pub fn screen_error(
     }
     root.present().map_err(|e| err(&e))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::thin;
+
+    #[test]
+    fn runs_of_equal_values_keep_their_ends() {
+        let p = [
+            (0.0, 5.0),
+            (1.0, 3.0),
+            (2.0, 3.0),
+            (3.0, 3.0),
+            (4.0, 3.0),
+            (5.0, 1.0),
+        ];
+        assert_eq!(
+            thin(p.into_iter()),
+            vec![(0.0, 5.0), (1.0, 3.0), (4.0, 3.0), (5.0, 1.0)]
+        );
+        assert_eq!(thin([(0.0, 2.0)].into_iter()), vec![(0.0, 2.0)]);
+        assert!(thin(std::iter::empty()).is_empty());
+    }
 }
