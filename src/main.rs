@@ -5,6 +5,7 @@
 
 mod bench_build;
 mod bench_codec;
+mod bench_network;
 mod bench_report;
 mod bench_serve;
 mod build;
@@ -165,6 +166,13 @@ enum BenchCommand {
     /// terrain at a ladder of tolerances, optionally beside peer codecs (SZ3, ZFP, LERC,
     /// JPEG-LS, zstd) measured in the same run; writes report.md and SVG plots.
     Report(BenchReportArgs),
+    /// Remote browsing over emulated links: each flight replayed in real time against the local
+    /// file and, for each link profile (adsl, dsl10, fibre, mobile), through a loopback shaping
+    /// proxy against `cbdam serve` (batched) and against a static file server (range requests);
+    /// bytes fetched against bytes the cuts used, requests per second, frames at the pixel
+    /// target, seconds from the camera stopping to the target, frames over budget. Writes
+    /// network.md, network.json, per-run CSVs and an SVG of screen error over time.
+    Network(BenchNetworkArgs),
 }
 
 /// Serve repositories over HTTP.
@@ -529,6 +537,58 @@ pub struct BenchReportArgs {
     render_dem: Option<String>,
 }
 
+/// Arguments of `cbdam bench network` (documented on [`BenchCommand::Network`]).
+#[derive(Args, Debug)]
+pub struct BenchNetworkArgs {
+    /// Link profiles, comma-separated: adsl, dsl10, fibre, mobile.
+    #[arg(long, value_delimiter = ',', default_value = "adsl,dsl10,fibre,mobile")]
+    profiles: Vec<String>,
+    /// Flights (JSON, as for `cbdam replay`). Default: every data/flights/*.json.
+    #[arg(long, num_args = 1.., value_name = "FLIGHT.json")]
+    flights: Vec<PathBuf>,
+    /// Servers, comma-separated: serve (`cbdam serve`, batched requests), static (its raw file
+    /// route read with range requests, as from any static server).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_enum,
+        default_value = "serve,static"
+    )]
+    servers: Vec<bench_network::ServerKind>,
+    /// Viewport WIDTHxHEIGHT, pixels.
+    #[arg(long, default_value = "1920x1080", value_parser = flags::Size2::pixels)]
+    size: (u32, u32),
+    /// Target screen-space error, pixels.
+    #[arg(long, default_value_t = 1.0)]
+    pixel_error: f64,
+    /// Refinement time budget per frame, ms (0: unlimited).
+    #[arg(long, default_value_t = 2.0)]
+    budget_ms: f64,
+    /// Frames per second: the flight's and the settling frames' pace in real time.
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// After the flight, at most this many seconds with the camera still, waiting for the cut to
+    /// converge.
+    #[arg(long, default_value_t = 30.0)]
+    max_settle_s: f64,
+    /// Repository to serve. Default: a synthetic fractal terrain of --synth-size² built at
+    /// ε = 1 m (as `cbdam synth` and `cbdam build` make it), kept in --out and reused.
+    #[arg(long)]
+    repo: Option<PathBuf>,
+    /// Side of the default synthetic terrain, samples.
+    #[arg(long, default_value_t = 4097)]
+    synth_size: usize,
+    /// Override every profile's probability of resetting a connection.
+    #[arg(long)]
+    reset_prob: Option<f64>,
+    /// Seed of the links' reset and jitter draws.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Output directory (created): network.md, network.json, csv/, plots/.
+    #[arg(long, default_value = "bench-network")]
+    out: PathBuf,
+}
+
 /// Entropy coder of `cbdam build`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum CoderArg {
@@ -818,6 +878,7 @@ fn main() -> ExitCode {
         Command::View(args) => view::run(&args),
         Command::Bench(BenchCommand::Render(args)) => render::bench(&args),
         Command::Bench(BenchCommand::Report(args)) => bench_report::run(&args),
+        Command::Bench(BenchCommand::Network(args)) => bench_network::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -133,6 +133,18 @@ pub fn fly<S: DataSource>(
     pacing: &ReplayPacing,
     csv_path: &Path,
 ) -> Result<ReplayRun> {
+    fly_observed(flight, refiner, pacing, csv_path, |_, _| {})
+}
+
+/// [`fly`], calling `observe` after every frame with the refiner (its cut, its source) and the
+/// frame's statistics; what `observe` spends is outside the frame's timings.
+pub fn fly_observed<S: DataSource>(
+    flight: &Flight,
+    refiner: &mut Refiner<S>,
+    pacing: &ReplayPacing,
+    csv_path: &Path,
+    mut observe: impl FnMut(&Refiner<S>, &FrameStats),
+) -> Result<ReplayRun> {
     let world = *refiner.world();
     let start = std::time::Instant::now();
 
@@ -186,6 +198,7 @@ pub fn fly<S: DataSource>(
             s.cut_bytes,
             u8::from(s.memory_limited),
         )?;
+        observe(refiner, &s);
         rows.push(s);
         cpu_rows.push(cpu_ms);
         frame += 1;

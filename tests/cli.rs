@@ -2,6 +2,7 @@
 //! concerns every subcommand (how errors are printed).
 
 mod bench;
+mod bench_network;
 mod build;
 mod extract;
 mod inspect;

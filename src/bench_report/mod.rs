@@ -5,9 +5,9 @@
 //! Our figures come from [`crate::bench_codec::measure`], which verifies every point (every
 //! level, every valid sample) and fails the run if any exceeds ε.
 
-mod machine;
+pub(crate) mod machine;
 mod peers;
-mod plot;
+pub(crate) mod plot;
 mod render_cost;
 
 use std::collections::BTreeSet;

@@ -25,7 +25,7 @@ fn span(values: impl Iterator<Item = f64>) -> (f64, f64) {
 }
 
 /// A tick label with three significant digits and no trailing zeros (0.05, 1.5, 20, 300).
-fn tick(v: f64) -> String {
+pub(crate) fn tick(v: f64) -> String {
     if v <= 0.0 || !v.is_finite() {
         return format!("{v}");
     }

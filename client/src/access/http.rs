@@ -19,7 +19,7 @@ use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::index::IndexEntry;
 
 use super::{AccessError, AccessStats, DataSource, Priority};
-use crate::fetch::{FetchOptions, RemoteError, RemoteFetcher};
+use crate::fetch::{FetchOptions, FetchStats, RemoteError, RemoteFetcher};
 
 /// A repository behind `cbdam serve` or any static server that honours range requests.
 #[derive(Debug)]
@@ -64,6 +64,12 @@ impl RemoteSource {
             spare: HashMap::new(),
             stats: AccessStats::default(),
         }
+    }
+
+    /// The fetcher's own counters: HTTP requests sent (the head's included), cancelled and
+    /// failed ones, response body bytes.
+    pub fn fetch_stats(&self) -> FetchStats {
+        self.fetcher.stats()
     }
 }
 

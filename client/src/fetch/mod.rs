@@ -70,7 +70,9 @@ impl Default for FetchOptions {
 /// Counters of the fetcher's work, cumulative.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FetchStats {
-    /// HTTP requests sent (head requests included).
+    /// HTTP requests sent: the head's range requests and every batch or range request (a batch
+    /// of empty records only needs none). A bare server address's repository list is not
+    /// counted.
     pub requests: u64,
     /// Requests in flight now.
     pub in_flight: u64,
@@ -245,11 +247,21 @@ fn record_range(head: &RepositoryHead, id: DiamondId) -> std::ops::Range<u64> {
 }
 
 /// What kind of URL this is, when the URL alone tells: `None` for a bare server address, whose
-/// repository list must be fetched ([`single_repository`]).
+/// repository list must be fetched ([`single_repository`]). `cbdam serve`'s raw file route
+/// (`…/v1/repos/NAME/file`) is a file like any other: read with range requests, no batches.
 fn classify(url: &str) -> Result<Option<Endpoint>, RemoteError> {
     let trimmed = url.trim_end_matches('/');
     if !(trimmed.starts_with("http://") || trimmed.starts_with("https://")) {
         return Err(RemoteError::Url(format!("{url} is not an http:// URL")));
+    }
+    let serve_file = trimmed
+        .split_once("/v1/repos/")
+        .and_then(|(_, rest)| rest.strip_suffix("/file"))
+        .is_some_and(|name| !name.is_empty() && !name.contains('/'));
+    if serve_file {
+        return Ok(Some(Endpoint::File {
+            url: trimmed.to_owned(),
+        }));
     }
     if trimmed.contains("/v1/repos/") {
         return Ok(Some(Endpoint::Server {
@@ -515,6 +527,45 @@ mod tests {
         assert!(range_total(&r, Some("bytes 10-19/100"), 9).is_err());
         assert!(range_total(&r, Some("bytes 10-19/*"), 10).is_err());
         assert!(range_total(&r, None, 10).is_err());
+    }
+
+    #[test]
+    fn urls_name_a_server_repository_a_file_or_a_server() {
+        let server = |base: &str| {
+            Some(Endpoint::Server {
+                base: base.to_owned(),
+            })
+        };
+        let file = |url: &str| {
+            Some(Endpoint::File {
+                url: url.to_owned(),
+            })
+        };
+        let c = |u: &str| classify(u).unwrap();
+        assert_eq!(
+            c("http://h:1/v1/repos/jb"),
+            server("http://h:1/v1/repos/jb")
+        );
+        assert_eq!(
+            c("http://h:1/v1/repos/jb/"),
+            server("http://h:1/v1/repos/jb")
+        );
+        // cbdam serve's raw file route: range requests on the file, not batches.
+        assert_eq!(
+            c("http://h:1/v1/repos/jb/file"),
+            file("http://h:1/v1/repos/jb/file")
+        );
+        // A repository named "file" is still a repository.
+        assert_eq!(
+            c("http://h:1/v1/repos/file"),
+            server("http://h:1/v1/repos/file")
+        );
+        assert_eq!(
+            c("http://h:1/data/jb.cbdam"),
+            file("http://h:1/data/jb.cbdam")
+        );
+        assert_eq!(c("http://h:1/"), None);
+        assert!(classify("ftp://h/x").is_err());
     }
 
     #[test]

@@ -78,10 +78,10 @@ impl RemoteFetcher {
                 url: url.to_owned(),
                 message: e.to_string(),
             })?;
-        let (endpoint, head) = runtime.block_on(async {
+        let (endpoint, head, head_requests) = runtime.block_on(async {
             let endpoint = resolve(&client, url).await?;
-            let head = fetch_head(&client, &endpoint.file_url()).await?;
-            Ok::<_, RemoteError>((endpoint, head))
+            let (head, requests) = fetch_head(&client, &endpoint.file_url()).await?;
+            Ok::<_, RemoteError>((endpoint, head, requests))
         })?;
         let (tx, rx) = mpsc::channel();
         let shared = Arc::new(Shared {
@@ -94,8 +94,10 @@ impl RemoteFetcher {
             client,
             results: Mutex::new(tx),
         });
-        // The head took two requests.
-        shared.stats.requests.fetch_add(2, Ordering::Relaxed);
+        shared
+            .stats
+            .requests
+            .fetch_add(head_requests, Ordering::Relaxed);
         runtime.spawn(schedule(shared.clone()));
         Ok(Self {
             shared,
@@ -229,8 +231,19 @@ async fn get_range(
     Ok((body.to_vec(), total))
 }
 
-async fn fetch_head(client: &reqwest::Client, url: &str) -> Result<RepositoryHead, RemoteError> {
-    fetch_head_with(url, |range| get_range(client, url, range)).await
+/// The head and how many range requests it took (2, or 3 for a header longer than the first
+/// fetch).
+async fn fetch_head(
+    client: &reqwest::Client,
+    url: &str,
+) -> Result<(RepositoryHead, u64), RemoteError> {
+    let requests = std::sync::atomic::AtomicU64::new(0);
+    let head = fetch_head_with(url, |range| {
+        requests.fetch_add(1, Ordering::Relaxed);
+        get_range(client, url, range)
+    })
+    .await?;
+    Ok((head, requests.into_inner()))
 }
 
 /// The scheduler: whenever woken (new wants, a finished request, a backoff expiring), starts the
@@ -267,7 +280,6 @@ fn start_batches(shared: &Arc<Shared>, s: &mut State<AbortHandle>) -> Option<Ins
         let task = tokio::spawn(fetch_batch(shared.clone(), batch, ids.clone()));
         s.batches.push((batch, ids, task.abort_handle()));
         shared.stats.in_flight.fetch_add(1, Ordering::Relaxed);
-        shared.stats.requests.fetch_add(1, Ordering::Relaxed);
     }
     next_retry
 }
@@ -314,6 +326,7 @@ async fn fetch_from_server(
 ) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
     let url = format!("{base}/diamonds");
     let body = batch_request_body(ids);
+    shared.stats.requests.fetch_add(1, Ordering::Relaxed);
     let resp = shared
         .client
         .post(&url)
@@ -342,6 +355,7 @@ async fn fetch_ranges(
         // Only empty records: nothing to fetch.
         return Ok(ids.iter().map(|&id| (id, Vec::new())).collect());
     }
+    shared.stats.requests.fetch_add(1, Ordering::Relaxed);
     let (body, total) = get_range(&shared.client, url, span.clone()).await?;
     let records = split_span(&shared.head, ids, span, ranges, &body, total)?;
     shared

@@ -237,7 +237,8 @@ async fn pipe(
                 Ok(0) | Err(_) => break,
                 Ok(n) => n,
             };
-            // n ≤ 16 KiB ≤ limit: the permits always exist; the semaphore is never closed.
+            // n ≤ 16 KiB ≤ limit: the permits always exist. The semaphore is closed only when
+            // the destination is gone.
             let Ok(permit) = in_flight.acquire_many(n as u32).await else {
                 break;
             };
@@ -268,6 +269,11 @@ async fn pipe(
                 }
             }
             if dst.write_all(&piece[..len]).await.is_err() {
+                // The destination is gone: stop the reader too, so the rest of the stream is
+                // not pulled through the shared cap for nobody (a real sender stops at the
+                // receiver's reset). Its next permit or send fails.
+                rx.close();
+                in_flight.close();
                 return;
             }
             delivered.fetch_add(len as u64, Ordering::Relaxed);

@@ -1,5 +1,6 @@
-//! The proxy over real loopback sockets: delay and rate within 10 %, a shared cap, resets at the
-//! configured rate, bytes unchanged and in order, a clean stop.
+//! The proxy over real loopback sockets: delay and rate within 10 %, a shared cap (which a closed
+//! client stops using), resets at the configured rate, bytes unchanged and in order, a clean
+//! stop.
 //!
 //! Timing bounds: the lower bounds are strict (the proxy never releases a byte early: tokio's
 //! timers never fire early and the token bucket never lets more than `burst + rate·t` bytes
@@ -327,4 +328,37 @@ async fn shutdown_stops_listening_and_drops_connections() {
     let end = tokio::time::timeout(Duration::from_secs(10), s.read(&mut b)).await;
     assert!(matches!(end, Ok(Ok(0)) | Ok(Err(_))), "{end:?}");
     assert_eq!(proxy.counters().upstream_errors, 1);
+}
+
+/// A client that goes away stops costing the link: the rest of its response is not pulled
+/// through the shared cap (as a real sender stops at the receiver's reset), so a transfer
+/// right after takes the time its own size implies. 2 Mbit/s, no delay, 200 000-byte
+/// responses: the first client reads 10 000 bytes and closes; the second's whole response
+/// then takes (200 000 − burst) / 250 000 B/s ≈ 0.79 s. Draining the first's 190 000 bytes
+/// first would take 0.76 s more.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_client_stops_using_the_shared_cap() {
+    const N: usize = 200_000;
+    let link = Link::custom(2_000_000, 2_000_000, Duration::ZERO);
+    let proxy = Proxy::start(localhost(), source(N).await, link)
+        .await
+        .unwrap();
+    let addr = proxy.local_addr();
+    {
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        let mut got = 0;
+        let mut chunk = vec![0u8; 4096];
+        while got < 10_000 {
+            let n = s.read(&mut chunk).await.unwrap();
+            assert!(n > 0);
+            got += n;
+        }
+        // Dropped with unread data: the kernel resets the connection.
+    }
+    // The bucket refills while idle; one burst of it is in the expectation below.
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    let (_, total, data) = fetch(addr).await;
+    assert_eq!(data.len(), N);
+    let burst = Link::burst(link.down_bps) as f64;
+    within("the next transfer", total, (N as f64 - burst) / 250_000.0);
 }

@@ -1,0 +1,346 @@
+//! `cbdam bench network`: remote browsing over emulated links. For each flight, a reference run
+//! on the local file, then for each link profile and each server kind a run over loopback
+//! through a `cbdam-link` proxy: `cbdam serve` (batched) or its raw file route read with range
+//! requests as from any static server. Every run replays the flight in real time (frames paced
+//! at `--fps`, so the link's latency and rate matter), then holds the camera still until the
+//! cut converges or `--max-settle-s` pass.
+//!
+//! Measured per run (see [`measure::Measured`]): bytes fetched, bytes of the records the cuts
+//! used (from the index), requests and range requests as the server counted them (and as the
+//! client did), flight frames at the pixel target, seconds from the camera stopping to the
+//! target, frames over the refinement budget, and whether the final cut is the local file's.
+//! Written to `--out`: `network.md` (the table, the issue's targets), `network.json`, one CSV
+//! per run (`cbdam replay`'s columns) in `csv/`, and `plots/screen_error.svg`.
+
+mod measure;
+mod plot;
+mod report;
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail, ensure};
+use cbdam_client::flight::Flight;
+use cbdam_codec::repository::Repository;
+use cbdam_link::Link;
+
+pub use measure::ServerKind;
+use measure::{Measured, Route, RunSettings};
+
+use crate::BenchNetworkArgs;
+use crate::bench_report::machine::{Machine, load_average};
+use crate::replay::ReplayPacing;
+use crate::session::{budget_label, refine_config};
+
+/// Seed of the default synthetic terrain: `cbdam synth`'s default.
+const SYNTH_SEED: u64 = 1;
+/// Tolerance of the default synthetic terrain's build, metres (the issue's).
+const SYNTH_MAX_ERROR: f64 = 1.0;
+
+/// The profiles of the arguments, with the overrides applied, by name.
+fn links(args: &BenchNetworkArgs) -> Result<Vec<(String, Link)>> {
+    ensure!(
+        !args.profiles.is_empty(),
+        "--profiles must name at least one profile"
+    );
+    let mut out: Vec<(String, Link)> = Vec::new();
+    for p in &args.profiles {
+        let mut link: Link = p.parse().map_err(anyhow::Error::msg)?;
+        if let Some(r) = args.reset_prob {
+            ensure!(
+                (0.0..=1.0).contains(&r),
+                "--reset-prob must be a probability from 0 to 1, not {r}"
+            );
+            link.reset_prob = r;
+        }
+        if let Some(s) = args.seed {
+            link.seed = s;
+        }
+        let name = p.trim().to_ascii_lowercase();
+        if !out.iter().any(|(n, _)| *n == name) {
+            out.push((name, link));
+        }
+    }
+    Ok(out)
+}
+
+/// The repository: `--repo`, or the synthetic terrain built as `cbdam synth --size S` and
+/// `cbdam build --size SxS --max-error 1` would, kept in `out` and reused when there.
+fn repository(args: &BenchNetworkArgs, out: &Path) -> Result<PathBuf> {
+    if let Some(p) = &args.repo {
+        return Ok(p.clone());
+    }
+    let s = args.synth_size;
+    ensure!(s >= 65, "--synth-size must be at least 65, not {s}");
+    let path = out.join(format!("synthetic_{s}.cbdam"));
+    if path.exists() {
+        eprintln!("reusing {} (delete it to rebuild)", path.display());
+        return Ok(path);
+    }
+    let tmp = tempfile::tempdir()?;
+    let raw = tmp.path().join(format!("synthetic_{s}.f32"));
+    eprintln!(
+        "synthesising a {s}² terrain (seed {SYNTH_SEED}) and building it at ε = {SYNTH_MAX_ERROR} m …"
+    );
+    crate::synth::write(&raw, s, SYNTH_SEED)?;
+    let mut opts = cbdam_build::BuildOptions::new(vec![raw], path.clone(), SYNTH_MAX_ERROR);
+    opts.raw_size = Some((s, s));
+    cbdam_build::build(&opts, &cbdam_build::NoProgress)
+        .with_context(|| format!("building {}", path.display()))?;
+    Ok(path)
+}
+
+fn flight_name(path: &Path) -> String {
+    path.file_stem()
+        .unwrap_or_default()
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// One line on stderr per finished run.
+fn progress(m: &Measured) {
+    let what = match &m.route {
+        Route::Local => "local file".to_string(),
+        Route::Remote {
+            profile, server, ..
+        } => format!("{profile}, {}", server.name()),
+    };
+    eprintln!(
+        "  {} / {what}: {:.1} s, {:.2} MB fetched, {:.2} MB used, camera stop → target {}",
+        m.flight,
+        m.wall_s(),
+        m.bytes_fetched as f64 / 1e6,
+        m.bytes_used as f64 / 1e6,
+        m.stop_to_target_s()
+            .map_or_else(|| "not met".into(), |s| format!("{s:.2} s")),
+    );
+}
+
+pub fn run(args: &BenchNetworkArgs) -> Result<()> {
+    if !(args.pixel_error.is_finite() && args.pixel_error > 0.0) {
+        bail!("--pixel-error must be a positive number of pixels");
+    }
+    ensure!(
+        args.fps.is_finite() && args.fps > 0.0,
+        "--fps must be positive, not {}",
+        args.fps
+    );
+    ensure!(
+        args.max_settle_s.is_finite() && args.max_settle_s >= 0.0,
+        "--max-settle-s must be a number of seconds from 0"
+    );
+    let links = links(args)?;
+    let mut servers = args.servers.clone();
+    servers.sort();
+    servers.dedup();
+    ensure!(
+        !servers.is_empty(),
+        "--servers must name serve, static or both"
+    );
+    let flights = if args.flights.is_empty() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flights");
+        crate::bench_codec::files_with(&dir, &["json"])
+            .with_context(|| format!("reading the flights folder {}", dir.display()))?
+    } else {
+        args.flights.clone()
+    };
+    ensure!(!flights.is_empty(), "no flights to replay");
+    let loaded: Vec<(String, Flight)> = flights
+        .iter()
+        .map(|p| {
+            Flight::load(p)
+                .with_context(|| format!("loading {}", p.display()))
+                .map(|f| (flight_name(p), f))
+        })
+        .collect::<Result<_>>()?;
+    for dir in ["csv", "plots"] {
+        std::fs::create_dir_all(args.out.join(dir))
+            .with_context(|| format!("creating {}", args.out.join(dir).display()))?;
+    }
+    let repo_path = repository(args, &args.out)?;
+    let repo =
+        Repository::open(&repo_path).with_context(|| format!("opening {}", repo_path.display()))?;
+    let records = repo.entries().len();
+    let file_len = repo.file_len();
+    drop(repo);
+
+    let settings = RunSettings {
+        config: refine_config(args.pixel_error, args.budget_ms, 1.0)?,
+        pacing: ReplayPacing {
+            fps: args.fps,
+            size: args.size,
+            max_settle_frames: (args.max_settle_s * args.fps).ceil() as usize,
+            paced: true,
+        },
+    };
+    // The servers and proxies of the remote runs; the client has its own runtime (the
+    // fetcher's), as in `cbdam replay`.
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("bench-net")
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+
+    let machine = Machine::probe();
+    let load_start = load_average();
+    eprintln!(
+        "{}: {records} records, {:.2} MB; {} flights × (local + {} profiles × {} servers), \
+         {}×{}, {} px, budget {}, {} fps, up to {} s settling",
+        repo_path.display(),
+        file_len as f64 / 1e6,
+        loaded.len(),
+        links.len(),
+        servers.len(),
+        args.size.0,
+        args.size.1,
+        args.pixel_error,
+        budget_label(args.budget_ms),
+        args.fps,
+        args.max_settle_s
+    );
+    let mut runs: Vec<Measured> = Vec::new();
+    for (name, flight) in &loaded {
+        let csv = args.out.join("csv").join(format!("{name}_local.csv"));
+        let m = measure::local(&repo_path, flight, name, &settings, &csv)
+            .with_context(|| format!("{name}: the local run"))?;
+        progress(&m);
+        runs.push(m);
+        for (profile, link) in &links {
+            for &server in &servers {
+                let csv = args
+                    .out
+                    .join("csv")
+                    .join(format!("{name}_{profile}_{}.csv", server.slug()));
+                let m = measure::remote(
+                    &rt, &repo_path, profile, *link, server, flight, name, &settings, &csv,
+                )
+                .with_context(|| format!("{name} over {profile} from {}", server.name()))?;
+                progress(&m);
+                runs.push(m);
+            }
+        }
+    }
+    let load_end = load_average();
+
+    let table = report::table(&runs, args.budget_ms)?;
+    println!("{table}");
+    let targets = report::targets(&runs)?;
+    println!("{targets}");
+
+    let plot_file = "plots/screen_error.svg";
+    let panels: Vec<plot::Panel> = loaded
+        .iter()
+        .flat_map(|(name, _)| {
+            let runs = &runs;
+            links.iter().map(move |(profile, _)| plot::Panel {
+                title: format!("{name}, {profile}"),
+                series: runs
+                    .iter()
+                    .filter(|m| &m.flight == name)
+                    .filter(|m| match &m.route {
+                        Route::Local => true,
+                        Route::Remote { profile: p, .. } => p == profile,
+                    })
+                    .map(|m| plot::Series {
+                        name: match &m.route {
+                            Route::Local => "local file".into(),
+                            Route::Remote { server, .. } => server.name().into(),
+                        },
+                        points: m.frames.iter().map(|f| (f.wall_s, f.error_px)).collect(),
+                        stop_s: m.frames[m.flight_frames.saturating_sub(1)].wall_s,
+                    })
+                    .collect(),
+            })
+        })
+        .collect();
+    plot::screen_error(
+        &args.out.join(plot_file),
+        &format!(
+            "largest screen error of the cut against wall time ({}×{}; target {} px dashed, \
+             camera stop dotted)",
+            args.size.0, args.size.1, args.pixel_error
+        ),
+        &panels,
+        links.len(),
+        args.pixel_error,
+    )?;
+
+    let mut md = String::new();
+    let command: Vec<String> = std::env::args().skip(1).collect();
+    writeln!(md, "# Remote browsing over emulated links\n")?;
+    writeln!(
+        md,
+        "Generated by `cbdam {}` on {}.\n",
+        command.join(" "),
+        machine.date
+    )?;
+    writeln!(md, "| | |\n|---|---|")?;
+    writeln!(
+        md,
+        "| CPU | {} ({} logical cores) |",
+        machine.cpu, machine.cores
+    )?;
+    writeln!(
+        md,
+        "| load average 1/5/15 min at start / end | {load_start} / {load_end} |"
+    )?;
+    writeln!(md, "| commit | {} |", machine.commit)?;
+    writeln!(
+        md,
+        "| build profile | {} |",
+        if cfg!(debug_assertions) {
+            "debug assertions on (timings not representative)"
+        } else {
+            "release"
+        }
+    )?;
+    writeln!(
+        md,
+        "| repository | {} ({records} records, {:.2} MB) |",
+        repo_path.display(),
+        file_len as f64 / 1e6
+    )?;
+    writeln!(
+        md,
+        "| replay | {}×{}, target {} px, budget {}, {} fps, paced in real time; up to {} s with \
+         the camera still |",
+        args.size.0,
+        args.size.1,
+        args.pixel_error,
+        budget_label(args.budget_ms),
+        args.fps,
+        args.max_settle_s
+    )?;
+    for (profile, link) in &links {
+        writeln!(md, "| link `{profile}` | {link} |")?;
+    }
+    writeln!(md)?;
+    md += "Every run is one process: `cbdam serve` and the `cbdam-link` proxy on a runtime of two \
+           threads, the client's fetcher on its own, the refinement loop on this thread and its \
+           decode workers — all on this machine's cores. *MB fetched*: record bodies received \
+           (batch framing and retries included, and the requests the last frame left in \
+           flight, which the bench waits for after the run: up to 5 s). *MB used by the cuts*: the index's sizes of the \
+           records of every diamond refined in any frame's cut. *MB over the link*: everything \
+           the proxy delivered (HTTP heads, the repository head). Requests are the server's \
+           count (`serve` runs also read the head with 2 range requests). *Camera stop → \
+           target*: from the end of the last flight frame to the end of the first frame from \
+           which on every frame met the target. *Frames over budget*: frames (flight and \
+           settling) whose refinement took longer than the budget in wall time, and those whose \
+           refining thread used more than the budget in CPU time (the rest is waiting for a core). *Final cut = local*: \
+           the converged cut's refined diamonds are exactly the local run's.\n\n";
+    md += &table;
+    md += "\n## The issue's targets (issue 21)\n\n";
+    md += &targets;
+    md += "\n## Requests: the client's count and the server's\n\n";
+    md += &report::wire_table(&runs)?;
+    writeln!(md, "\n![screen error against time]({plot_file})")?;
+    let md_path = args.out.join("network.md");
+    std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+    std::fs::write(
+        args.out.join("network.json"),
+        serde_json::to_vec_pretty(&report::json(&runs, args.budget_ms))?,
+    )?;
+    println!("{}", md_path.display());
+    Ok(())
+}
