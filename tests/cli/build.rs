@@ -516,7 +516,10 @@ fn block_encoding_under_a_memory_limit_writes_the_same_bytes() {
     };
     // 997 × 682 samples: the grid takes 3.4 MB, the whole field 4.2 MB, blocks of 256 2.6 MB.
     let (whole, said) = build("1G");
-    assert!(said.contains("reconstruction in memory") && !said.contains("blocks"), "{said}");
+    assert!(
+        said.contains("reconstruction in memory") && !said.contains("blocks"),
+        "{said}"
+    );
     let (blocks, said) = build("6M");
     assert!(said.contains("blocks of 256"), "{said}");
     assert!(blocks == whole, "block encoding changed the repository");

@@ -143,13 +143,16 @@ fn gather_values<T: Copy + PartialEq + std::fmt::Debug>(
         parents.iter().any(Option::is_some),
         "{id} has no parent to gather from"
     );
-    let grid = layout.grid(id);
     let diag = layout.diagonal(id);
     let ids = domain.parents(id);
     let mut first = true;
     for (h, half) in Half::BOTH.into_iter().enumerate() {
         let Some(parent) = parents[h] else { continue };
         let pid = ids[h].expect("a refinement was passed for a parent that does not exist");
+        // In the parent's face frame: on a cube-sphere a half may lie across a face edge.
+        let grid = domain
+            .grid_in_parent_frame(id, half)
+            .expect("the parent exists");
         let m = grid
             .index_map_into_half_step(&layout.grid(pid))
             .expect("child grid maps into its parent");
