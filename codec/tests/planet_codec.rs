@@ -598,3 +598,60 @@ fn a_peak_under_the_far_half_of_an_edge_diamond_is_in_its_object_error() {
         record.object_error
     );
 }
+
+#[test]
+fn a_planet_repository_is_written_and_read_back_with_its_domain() {
+    use cbdam_codec::hierarchy::Record;
+    use cbdam_codec::input::GeoRef;
+    use cbdam_codec::quant::QuantPlan;
+    use cbdam_codec::repository::{Repository, serialize};
+    let planet = adversarial(5, 2, 3, true);
+    let (lo, hi) = planet.range().unwrap();
+    let plan = QuantPlan::new(2.0, Some(1.0), f64::from(lo), f64::from(hi)).unwrap();
+    let encoded =
+        encode_planet(&planet, plan.quantizer, &opts(5, CoderKind::AdaptiveTokens)).unwrap();
+    let bytes = serialize(&encoded, &plan, None, None).unwrap();
+    // Flags varint at byte 12: nodata mask (1) and cube-sphere (4).
+    assert_eq!(bytes[12], 5);
+    let repo = Repository::from_bytes(bytes).unwrap();
+    assert_eq!(*repo.params(), encoded.params);
+    let records: Vec<Record> = repo
+        .entries()
+        .iter()
+        .map(|e| Record {
+            id: e.id,
+            bytes: repo.record(e.id).unwrap().to_vec(),
+            object_error: e.object_error,
+            min: e.min,
+            max: e.max,
+        })
+        .collect();
+    assert_eq!(records.len(), encoded.records.len());
+    for (a, b) in records.iter().zip(&encoded.records) {
+        assert_eq!(
+            (a.id, &a.bytes, a.object_error),
+            (b.id, &b.bytes, b.object_error)
+        );
+    }
+    assert!(records.iter().any(|r| r.id.face == 5));
+    let back = Encoded {
+        params: *repo.params(),
+        roots: repo.root_bytes().to_vec(),
+        records,
+        leaf_error: repo.leaf_error(),
+    };
+    let report = verify_planet(&back, &planet).unwrap();
+    assert!(report.within_bound(), "{report:?}");
+    check_reconstruction(&planet, &back);
+    // A planet takes no planar georeferencing.
+    let georef = GeoRef {
+        epsg: Some(4326),
+        origin_x: 0.0,
+        origin_y: 0.0,
+        pixel_x: 1.0,
+        pixel_y: 1.0,
+        pixel_is_area: false,
+        wkt: None,
+    };
+    assert!(serialize(&encoded, &plan, Some(&georef), None).is_err());
+}
