@@ -655,3 +655,39 @@ fn a_planet_repository_is_written_and_read_back_with_its_domain() {
     };
     assert!(serialize(&encoded, &plan, Some(&georef), None).is_err());
 }
+
+#[test]
+fn valid_samples_are_counted_once_per_surface_point_from_the_masks() {
+    use cbdam_codec::hierarchy::mask::count_valid_samples;
+    for (n, k, holes) in [(3, 2, true), (5, 2, true), (9, 1, false)] {
+        let planet = adversarial(n, k, 31, holes);
+        let encoded = encode_planet(
+            &planet,
+            Quantizer::new(2).unwrap(),
+            &opts(n, CoderKind::AdaptiveTokens),
+        )
+        .unwrap();
+        // Independently: the valid points whose canonical point is themselves.
+        let d = *planet.domain();
+        let s = d.cube().unwrap().side();
+        let mut want = 0u64;
+        for f in 0..6u8 {
+            for y in 0..=s {
+                for x in 0..=s {
+                    let own = d.canonical_point(f, x, y) == Some(FacePoint::new(f, x, y));
+                    want += u64::from(own && planet.face(f).is_valid(x, y));
+                }
+            }
+        }
+        if !holes {
+            assert_eq!(want, 6 * (s as u64).pow(2) + 2);
+        }
+        let got = count_valid_samples(
+            &encoded.params,
+            &encoded.roots,
+            encoded.records.iter().map(|r| (r.id, &r.bytes[..])),
+        )
+        .unwrap();
+        assert_eq!(got, want, "N = {n}, K = {k}");
+    }
+}
