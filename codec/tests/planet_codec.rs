@@ -691,3 +691,38 @@ fn valid_samples_are_counted_once_per_surface_point_from_the_masks() {
         assert_eq!(got, want, "N = {n}, K = {k}");
     }
 }
+
+/// Throughput of the planet encoder and decoder on a synthetic relief (N = 65, K = 4: six faces
+/// of 1025², 6.3 M lattice points). Run with
+/// `cargo test -p cbdam-codec --test tests -- --ignored planet_codec::throughput --nocapture`.
+#[test]
+#[ignore = "a measurement, not a check; prints figures"]
+fn throughput() {
+    let (n, k) = (65, 4);
+    let t = std::time::Instant::now();
+    let planet = relief(n, k, 3);
+    let points = planet.lattice_points() as f64;
+    eprintln!("input: {:.2} s", t.elapsed().as_secs_f64());
+    for q in [2u32, 8] {
+        let t = std::time::Instant::now();
+        let encoded = encode_planet(
+            &planet,
+            Quantizer::new(q).unwrap(),
+            &opts(n, CoderKind::AdaptiveTokens),
+        )
+        .unwrap();
+        let enc_s = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let report = verify_planet(&encoded, &planet).unwrap();
+        let dec_s = t.elapsed().as_secs_f64();
+        assert!(report.within_bound());
+        eprintln!(
+            "k = {q}: encode {enc_s:.2} s ({:.2} M points/s, {} threads), decode+verify {dec_s:.2} s, \
+             {:.3} bits/point, {} records",
+            points / enc_s / 1e6,
+            rayon::current_num_threads(),
+            encoded.payload_bytes() as f64 * 8.0 / points,
+            encoded.records.len()
+        );
+    }
+}

@@ -237,6 +237,15 @@ impl Domain {
         self.data
     }
 
+    /// The distinct lattice points that can hold data: the data rectangle's samples on a plane,
+    /// `6·S² + 2` on a cube-sphere (a point on a cube edge or corner counted once).
+    pub fn lattice_points(&self) -> u64 {
+        match self.shape {
+            Shape::Planar => self.data.samples(),
+            Shape::CubeSphere(cube) => 6 * (cube.side() as u64).pow(2) + 2,
+        }
+    }
+
     /// Whether lattice point `(x, y)` of `face` holds data. On a cube-sphere every point of
     /// the closed face square does (an edge point on each face holding it; its values are
     /// computed once, at [`Domain::canonical_point`]).
@@ -513,6 +522,7 @@ mod tests {
         let d = Domain::covering(65, 1000, 700, 0).unwrap();
         assert_eq!((d.kind(), d.faces()), (DomainKind::Planar, 1));
         assert!(d.holds_data(0, 999, 699) && !d.holds_data(0, 1000, 0));
+        assert_eq!(d.lattice_points(), 1000 * 700);
         assert!(!d.holds_data(0, -1, 0) && !d.holds_data(1, 0, 0));
         let rf = d.root_field();
         assert_eq!((rf.width, rf.height, rf.spacing), (65, 65, 16));

@@ -214,10 +214,7 @@ pub fn count_valid_samples<'a>(
     let layout = domain.layout();
     let cube = domain.cube();
     if !params.nodata_mask {
-        return Ok(match cube {
-            Some(c) => 6 * (c.side() as u64).pow(2) + 2,
-            None => domain.data().samples(),
-        });
+        return Ok(domain.lattice_points());
     }
     // A point of `face`'s frame (possibly past an edge) that holds a sample, counted once.
     let counts = |face: u8, x: i64, y: i64, root: bool| match cube {

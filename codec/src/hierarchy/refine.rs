@@ -91,7 +91,9 @@ impl Refined {
 /// `parents[h]` is the refinement of the parent on half `h` ([`Domain::parents`] order); it may
 /// be `None` only where that parent does not exist (a diamond on the domain's edge), and then
 /// the missing half is the mirror image of the present one across the split diagonal — the
-/// symmetric extension the paper uses for incomplete diamonds.
+/// symmetric extension the paper uses for incomplete diamonds. On a cube-sphere each half is
+/// read in its parent's face frame ([`Domain::grid_in_parent_frame`]), so a half lying across a
+/// cube edge comes from the neighbouring face's parent.
 ///
 /// # Panics
 /// If both parents are missing, or if the two parents disagree on the split diagonal (the

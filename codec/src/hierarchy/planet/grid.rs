@@ -147,8 +147,7 @@ impl PlanetGrid {
 
     /// Distinct lattice points of the surface: `6·S² + 2` (edge and corner points once).
     pub fn lattice_points(&self) -> u64 {
-        let s = self.domain.cube().expect("a cube-sphere has a cube").side() as u64;
-        6 * s * s + 2
+        self.domain.lattice_points()
     }
 }
 
