@@ -45,12 +45,12 @@ fn adversarial(n: usize, k: u32, seed: u64, holes: bool) -> PlanetGrid {
         let on_x = p.x == 0 || p.x == s;
         let on_y = p.y == 0 || p.y == s;
         let h = noise(p, seed);
-        if holes && (h % 17 == 0 || (on_x && on_y && h % 2 == 0)) {
+        if holes && (h.is_multiple_of(17) || (on_x && on_y && h.is_multiple_of(2))) {
             return None;
         }
         let plateau = [-9000, 4000, 12000, -300, 7000, 0][usize::from(p.face)];
         let spike = if on_x && on_y {
-            if h % 2 == 0 { 30000 } else { -30000 }
+            if h.is_multiple_of(2) { 30000 } else { -30000 }
         } else if (on_x || on_y) && (p.x == s / 2 || p.y == s / 2) {
             -20000
         } else {
@@ -133,7 +133,7 @@ fn smooth_relief_with_noise_decodes_within_the_bound_everywhere() {
                     .all(|l| l.diamonds > 0 && l.vertices > 0)
             );
             let checked = check_reconstruction(&planet, &encoded);
-            let s = (n as usize - 1) << k;
+            let s = (n - 1) << k;
             assert_eq!(checked, 6 * (s + 1) * (s + 1));
             assert!(encoded.leaf_error <= q);
         }
