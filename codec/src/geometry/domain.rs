@@ -473,26 +473,31 @@ impl Domain {
 }
 
 impl Domain {
-    /// The grid of `id` in the frame of its parent on `half` (the frame that parent's own grid
-    /// and refinement use), or `None` where that parent does not exist. Usually `id`'s own grid;
-    /// carried across a cube edge when the half lies on the neighbouring face
-    /// ([`Domain::half_grid`]) or when the parent is a diamond centred on a cube edge whose
-    /// canonical face is not the face the half lies on. Gathering a child from its parents maps
-    /// this grid into the parent's half-step grid.
+    /// The grid of `id` in the frame of `parent`, its parent on `half` (the frame that parent's
+    /// own grid and refinement use). On a plane, `id`'s own grid; on a cube-sphere carried
+    /// across a cube edge when the half lies on the neighbouring face ([`Domain::half_grid`])
+    /// or when the parent is a diamond centred on a cube edge whose canonical face is not the
+    /// face the half lies on. Gathering a child from its parents maps this grid into the
+    /// parent's half-step grid. `None` if no face of the half's borders `parent`'s face (then
+    /// `parent` is not that parent).
     #[inline]
-    pub fn grid_in_parent_frame(&self, id: DiamondId, half: Half) -> Option<GridMap> {
-        let pid = self.parent(id, half)?;
+    pub fn grid_in_parent_frame(
+        &self,
+        id: DiamondId,
+        half: Half,
+        parent: DiamondId,
+    ) -> Option<GridMap> {
         let Shape::CubeSphere(cube) = self.shape else {
             return Some(self.layout.grid(id));
         };
         let (face, g) = self.half_grid(id, half);
-        if pid.face == face {
+        if parent.face == face {
             return Some(g);
         }
         // The parent straddles the edge between the half's face and its own canonical face.
         let edge = Edge::ALL
             .into_iter()
-            .find(|&e| super::cube::ADJACENCY[face as usize][e as usize].face == pid.face)?;
+            .find(|&e| super::cube::ADJACENCY[face as usize][e as usize].face == parent.face)?;
         let map = cube.frame_across(face, edge);
         Some(GridMap {
             origin: map.point(g.origin),

@@ -153,8 +153,8 @@ fn gather_values<T: Copy + PartialEq + std::fmt::Debug>(
         let pid = ids[h].expect("a refinement was passed for a parent that does not exist");
         // In the parent's face frame: on a cube-sphere a half may lie across a face edge.
         let grid = domain
-            .grid_in_parent_frame(id, half)
-            .expect("the parent exists");
+            .grid_in_parent_frame(id, half, pid)
+            .expect("a parent's face borders its child's half");
         let m = grid
             .index_map_into_half_step(&layout.grid(pid))
             .expect("child grid maps into its parent");
