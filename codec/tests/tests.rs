@@ -14,6 +14,7 @@ mod input_synthetic;
 mod linf_bound;
 mod nodata_mask;
 mod older_formats;
+mod planet_codec;
 mod planet_domain;
 mod real_dems;
 mod repository;

@@ -237,6 +237,15 @@ impl Domain {
         self.data
     }
 
+    /// The distinct lattice points that can hold data: the data rectangle's samples on a plane,
+    /// `6·S² + 2` on a cube-sphere (a point on a cube edge or corner counted once).
+    pub fn lattice_points(&self) -> u64 {
+        match self.shape {
+            Shape::Planar => self.data.samples(),
+            Shape::CubeSphere(cube) => 6 * (cube.side() as u64).pow(2) + 2,
+        }
+    }
+
     /// Whether lattice point `(x, y)` of `face` holds data. On a cube-sphere every point of
     /// the closed face square does (an edge point on each face holding it; its values are
     /// computed once, at [`Domain::canonical_point`]).
@@ -463,6 +472,42 @@ impl Domain {
     }
 }
 
+impl Domain {
+    /// The grid of `id` in the frame of `parent`, its parent on `half` (the frame that parent's
+    /// own grid and refinement use). On a plane, `id`'s own grid; on a cube-sphere carried
+    /// across a cube edge when the half lies on the neighbouring face ([`Domain::half_grid`])
+    /// or when the parent is a diamond centred on a cube edge whose canonical face is not the
+    /// face the half lies on. Gathering a child from its parents maps this grid into the
+    /// parent's half-step grid. `None` if no face of the half's borders `parent`'s face (then
+    /// `parent` is not that parent).
+    #[inline]
+    pub fn grid_in_parent_frame(
+        &self,
+        id: DiamondId,
+        half: Half,
+        parent: DiamondId,
+    ) -> Option<GridMap> {
+        let Shape::CubeSphere(cube) = self.shape else {
+            return Some(self.layout.grid(id));
+        };
+        let (face, g) = self.half_grid(id, half);
+        if parent.face == face {
+            return Some(g);
+        }
+        // The parent straddles the edge between the half's face and its own canonical face.
+        let edge = Edge::ALL
+            .into_iter()
+            .find(|&e| super::cube::ADJACENCY[face as usize][e as usize].face == parent.face)?;
+        let map = cube.frame_across(face, edge);
+        Some(GridMap {
+            origin: map.point(g.origin),
+            u: map.step(g.u),
+            v: map.step(g.v),
+            n: g.n,
+        })
+    }
+}
+
 /// A diamond's centre as a face point.
 fn centre(id: DiamondId) -> FacePoint {
     FacePoint::new(id.face, i64::from(id.x), i64::from(id.y))
@@ -482,6 +527,7 @@ mod tests {
         let d = Domain::covering(65, 1000, 700, 0).unwrap();
         assert_eq!((d.kind(), d.faces()), (DomainKind::Planar, 1));
         assert!(d.holds_data(0, 999, 699) && !d.holds_data(0, 1000, 0));
+        assert_eq!(d.lattice_points(), 1000 * 700);
         assert!(!d.holds_data(0, -1, 0) && !d.holds_data(1, 0, 0));
         let rf = d.root_field();
         assert_eq!((rf.width, rf.height, rf.spacing), (65, 65, 16));

@@ -170,7 +170,7 @@ fn walk_impl(
                 .flat_map(|&p| domain.children(p))
                 .flatten()
                 .filter(|&c| {
-                    layout
+                    domain
                         .parents(c)
                         .into_iter()
                         .flatten()
@@ -223,6 +223,7 @@ pub fn reconstruct_finest_with_validity(
     encoded: &Encoded,
 ) -> Result<(Vec<i32>, Vec<bool>), CodecError> {
     let params = encoded.params;
+    planar_only(&params)?;
     let layout = params.layout();
     let (w, h) = params.domain.data().size();
     // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
@@ -256,6 +257,18 @@ pub fn reconstruct_finest_with_validity(
     Ok((out, valid))
 }
 
+/// Refuses a cube-sphere where one planar raster is asked for.
+fn planar_only(params: &CodecParams) -> Result<(), CodecError> {
+    if params.domain.kind() == crate::geometry::DomainKind::Planar {
+        Ok(())
+    } else {
+        Err(CodecError::invalid(
+            "this hierarchy is a cube-sphere: its six faces need the planet decoder \
+             (reconstruct_planet, verify_planet)",
+        ))
+    }
+}
+
 /// What [`reconstruct_reached`] knows of a lattice point of the data rectangle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Reached {
@@ -272,6 +285,7 @@ pub enum Reached {
 /// vertices never change; for α = ½ the finest visit wins), and the nodata mask there.
 pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>), CodecError> {
     let params = encoded.params;
+    planar_only(&params)?;
     let layout = params.layout();
     let (w, h) = params.domain.data().size();
     // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
@@ -314,6 +328,7 @@ pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>)
 /// by how much.
 pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, CodecError> {
     let params = encoded.params;
+    planar_only(&params)?;
     let layout = params.layout();
     let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(layout, input));
     let n = layout.n();

@@ -65,6 +65,16 @@ impl Targets<'_> {
         }
     }
 
+    /// What the nodata mask says of `(x, y)`: `None` (don't care) outside the data rectangle.
+    #[inline]
+    fn mask(&self, params: &CodecParams, x: i64, y: i64) -> Option<bool> {
+        params
+            .domain
+            .data()
+            .contains(x, y)
+            .then(|| self.drawn(x, y))
+    }
+
     #[inline]
     fn at(&self, level: u8, x: i64, y: i64) -> Option<i32> {
         match &self.fields {
@@ -237,11 +247,10 @@ fn encode_impl(
     };
     let (root_field, roots) = encode_roots(
         &params,
-        |x, y| targets.at(0, x, y),
-        |x, y| targets.drawn(x, y),
+        |_, x, y| targets.at(0, x, y),
+        |_, x, y| targets.drawn(x, y),
     )?;
 
-    let finest = layout.finest_level();
     // Work per diamond is about the data it covers: its bounding box clipped to the data.
     let area = |id: &DiamondId| {
         let (x0, y0, x1, y1) = layout.bounds(*id);
@@ -282,9 +291,26 @@ fn encode_impl(
         }
     };
 
-    // Saturate fine to coarse: a diamond's error bounds every descendant's, so the error a
-    // renderer sees never increases when it refines.
-    let mut records = records;
+    let (records, leaf_error) = saturate_errors(&domain, &stored, records, &own_error);
+    Ok(Encoded {
+        params,
+        roots,
+        records,
+        leaf_error,
+    })
+}
+
+/// Sets each record's object error to the largest own error of its diamond and every stored
+/// descendant (fine to coarse: a diamond's error bounds every descendant's, so the error a
+/// renderer sees never increases when it refines), and sorts the records by id. Returns them
+/// with the finest level's largest own error.
+pub(super) fn saturate_errors(
+    domain: &Domain,
+    stored: &[Vec<DiamondId>],
+    mut records: Vec<Record>,
+    own_error: &HashMap<DiamondId, u32>,
+) -> (Vec<Record>, u32) {
+    let finest = domain.finest_level();
     let mut saturated: HashMap<DiamondId, u32> = HashMap::new();
     for level in (0..=finest).rev() {
         for &id in &stored[level as usize] {
@@ -304,12 +330,7 @@ fn encode_impl(
         .max()
         .unwrap_or(0);
     records.sort_by_key(|r| r.id);
-    Ok(Encoded {
-        params,
-        roots,
-        records,
-        leaf_error,
-    })
+    (records, leaf_error)
 }
 
 /// Records (object errors not yet saturated) and each stored diamond's own object error.
@@ -328,19 +349,25 @@ struct Levels<'a> {
     tick: &'a (dyn Fn(&DiamondId) + Sync),
 }
 
+/// The record of a refined diamond with reconstructed grid `p` (object error not yet
+/// saturated).
+pub(super) fn record_of(id: DiamondId, p: &[i32], bytes: Vec<u8>) -> Record {
+    let (min, max) = p
+        .iter()
+        .fold((i32::MAX, i32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    Record {
+        id,
+        bytes,
+        object_error: 0,
+        min,
+        max,
+    }
+}
+
 impl Levels<'_> {
     /// The record of a refined diamond with reconstructed grid `p`.
     fn record(id: DiamondId, p: &[i32], bytes: Vec<u8>) -> Record {
-        let (min, max) = p
-            .iter()
-            .fold((i32::MAX, i32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
-        Record {
-            id,
-            bytes,
-            object_error: 0,
-            min,
-            max,
-        }
+        record_of(id, p, bytes)
     }
 
     /// The levels with the previous level's refinements kept per diamond (any α).
@@ -387,7 +414,7 @@ impl Levels<'_> {
                         id,
                         &p,
                         |x, y| self.targets.at(level + 1, x, y),
-                        |x, y| self.targets.drawn(x, y),
+                        |x, y| self.targets.mask(self.params, x, y),
                     )?;
                     let vertices = r.vertices.as_deref().unwrap_or(&p);
                     let refined = Refined::from_parts(n, vertices, &r.cells);
@@ -548,7 +575,7 @@ impl Levels<'_> {
                         id,
                         &p,
                         |x, y| self.targets.at(level + 1, x, y),
-                        |x, y| self.targets.drawn(x, y),
+                        |x, y| self.targets.mask(self.params, x, y),
                     )?;
                     write_cells(field, layout, id, &r.cells);
                     Some(Self::record(id, &p, r.bytes))
@@ -581,23 +608,24 @@ fn write_cells(field: &ReconField, layout: &Layout, id: DiamondId, cells: &[i32]
 }
 
 /// What one refinement on the encoder side produces.
-struct Refinement {
+pub(super) struct Refinement {
     /// Reconstructed cell centres, `(N−1)²`.
-    cells: Vec<i32>,
+    pub(super) cells: Vec<i32>,
     /// Reconstructed vertices, `N²`, when α = ½ changed them (`None`: the input grid).
     vertices: Option<Vec<i32>>,
     /// The coded record.
-    bytes: Vec<u8>,
+    pub(super) bytes: Vec<u8>,
 }
 
-/// One refinement on the encoder side: quantized residuals against the reconstruction
+/// One refinement on the encoder side (`target` and `mask` in `id`'s face frame, `mask` saying
+/// `Some(valid)` where the nodata mask cares): quantized residuals against the reconstruction
 /// (eqs. 5–8), the refined reconstruction, and the coded record.
-fn refine_encode(
+pub(super) fn refine_encode(
     params: &CodecParams,
     id: DiamondId,
     p: &[i32],
     target: impl Fn(i64, i64) -> Option<i32>,
-    drawn: impl Fn(i64, i64) -> bool,
+    mask: impl Fn(i64, i64) -> Option<bool>,
 ) -> Result<Refinement, CodecError> {
     let layout = params.layout();
     let n = layout.n();
@@ -683,8 +711,8 @@ fn refine_encode(
     }
     let mut bytes = Vec::new();
     if params.nodata_mask {
-        // The validity of the level-`l+1` points of the square (equal-parity half-step points),
-        // in the data rectangle; the rest is don't care.
+        // The validity of the level-`l+1` points of the square (equal-parity half-step points)
+        // where `mask` cares (in the data rectangle); the rest is don't care.
         let all_valid = std::cell::Cell::new(true);
         let cared = |a: usize, b: usize| -> Option<bool> {
             if a % 2 != b % 2 {
@@ -692,7 +720,7 @@ fn refine_encode(
             }
             let (x2, y2) = g.point2(a as i64, b as i64);
             let (x, y) = (x2 / 2, y2 / 2);
-            let v = params.domain.data().contains(x, y).then(|| drawn(x, y));
+            let v = mask(x, y);
             if v == Some(false) {
                 all_valid.set(false);
             }

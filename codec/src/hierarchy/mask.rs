@@ -201,7 +201,10 @@ pub fn decode_mask(w: usize, h: usize, bytes: &[u8]) -> Result<(Vec<bool>, usize
 /// is decoded): every lattice point is either a root-field point or the cell centre of exactly
 /// one diamond's square at the level where it first appears, so the valid root points plus the
 /// valid cell centres of all records count every valid sample once; points in diamonds that are
-/// not stored had no data. `records` are the stored diamonds' ids and bytes.
+/// not stored had no data. `records` are the stored diamonds' ids and bytes. On a cube-sphere
+/// the samples are the surface's distinct lattice points (`6·S² + 2` without nodata): a root
+/// point shared by several faces counts on its owner's face only, and the cell centres of a
+/// diamond centred on a cube edge count on whichever face they lie.
 pub fn count_valid_samples<'a>(
     params: &CodecParams,
     root_bytes: &[u8],
@@ -209,16 +212,26 @@ pub fn count_valid_samples<'a>(
 ) -> Result<u64, CodecError> {
     let domain = &params.domain;
     let layout = domain.layout();
+    let cube = domain.cube();
     if !params.nodata_mask {
-        return Ok(domain.data().samples() * u64::from(domain.faces()));
+        return Ok(domain.lattice_points());
     }
+    // A point of `face`'s frame (possibly past an edge) that holds a sample, counted once.
+    let counts = |face: u8, x: i64, y: i64, root: bool| match cube {
+        // Root points are listed on every face holding them; cell centres once.
+        Some(_) => domain
+            .canonical_point(face, x, y)
+            .is_some_and(|c| !root || c == crate::geometry::FacePoint::new(face, x, y)),
+        None => domain.holds_data(face, x, y),
+    };
     let rf = domain.root_field();
-    let (rw, s) = (rf.width, rf.spacing);
-    let (roots, _) = decode_mask(rw, rf.height, root_bytes)?;
+    let (rw, rh, s) = (rf.width, rf.height, rf.spacing);
+    let (roots, _) = decode_mask(rw, rh * usize::from(domain.faces()), root_bytes)?;
     let mut count = 0u64;
     for (k, &v) in roots.iter().enumerate() {
+        let (face, k) = ((k / rf.points()) as u8, k % rf.points());
         let (x, y) = ((k % rw) as i64 * s, (k / rw) as i64 * s);
-        count += u64::from(v && domain.holds_data(0, x, y));
+        count += u64::from(v && counts(face, x, y, true));
     }
     let n = layout.n();
     let side = 2 * n - 1;
@@ -238,7 +251,7 @@ pub fn count_valid_samples<'a>(
             for a in (1..side).step_by(2) {
                 let (x2, y2) = g.point2(a as i64, b as i64);
                 let valid = mask.as_ref().is_none_or(|m| m[b * side + a]);
-                count += u64::from(valid && domain.holds_data(id.face, x2 / 2, y2 / 2));
+                count += u64::from(valid && counts(id.face, x2 / 2, y2 / 2, false));
             }
         }
     }

@@ -20,6 +20,7 @@ mod encode;
 mod field;
 pub mod mask;
 mod object_error;
+pub mod planet;
 mod refine;
 pub mod resolution;
 mod roots;
@@ -36,6 +37,7 @@ pub use encode::{
     encode_with_storage,
 };
 pub use field::TempStorage;
+pub use planet::{PlanetGrid, encode_planet, reconstruct_planet, verify_planet};
 pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
 pub use resolution::Resolution;
 

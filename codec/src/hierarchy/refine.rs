@@ -91,7 +91,9 @@ impl Refined {
 /// `parents[h]` is the refinement of the parent on half `h` ([`Domain::parents`] order); it may
 /// be `None` only where that parent does not exist (a diamond on the domain's edge), and then
 /// the missing half is the mirror image of the present one across the split diagonal — the
-/// symmetric extension the paper uses for incomplete diamonds.
+/// symmetric extension the paper uses for incomplete diamonds. On a cube-sphere each half is
+/// read in its parent's face frame ([`Domain::grid_in_parent_frame`]), so a half lying across a
+/// cube edge comes from the neighbouring face's parent.
 ///
 /// # Panics
 /// If both parents are missing, or if the two parents disagree on the split diagonal (the
@@ -143,13 +145,16 @@ fn gather_values<T: Copy + PartialEq + std::fmt::Debug>(
         parents.iter().any(Option::is_some),
         "{id} has no parent to gather from"
     );
-    let grid = layout.grid(id);
     let diag = layout.diagonal(id);
     let ids = domain.parents(id);
     let mut first = true;
     for (h, half) in Half::BOTH.into_iter().enumerate() {
         let Some(parent) = parents[h] else { continue };
         let pid = ids[h].expect("a refinement was passed for a parent that does not exist");
+        // In the parent's face frame: on a cube-sphere a half may lie across a face edge.
+        let grid = domain
+            .grid_in_parent_frame(id, half, pid)
+            .expect("a parent's face borders its child's half");
         let m = grid
             .index_map_into_half_step(&layout.grid(pid))
             .expect("child grid maps into its parent");

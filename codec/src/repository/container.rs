@@ -30,7 +30,7 @@ use crate::CodecError;
 use crate::atomic::write_atomically;
 use crate::colour::{ColourDecoder, ycocg};
 use crate::entropy::CoderKind;
-use crate::geometry::{DataRect, DiamondId, Domain, Layout};
+use crate::geometry::{DataRect, DiamondId, Domain, DomainKind, Layout};
 use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, RepoKind, root_quantizer};
 use crate::input::GeoRef;
 use crate::lifting::Alpha;
@@ -53,6 +53,12 @@ pub const FLAG_NODATA_MASK: u32 = 1;
 /// Elevation repositories leave it clear and are unchanged; readers that predate colour refuse
 /// it ("unknown header flags") rather than draw chroma as heights.
 pub const FLAG_COLOUR: u32 = 2;
+/// Header flag bit 2: the domain is a cube-sphere (`Domain::cube_sphere(N, K)`: six faces of
+/// one root each, numbered and oriented as `docs/PLANET.md` says, on the WGS84 ellipsoid through
+/// the algebraic sigmoid cube warp, c = 0.87). Roots along x and y are 1, the data size is every
+/// face's `(S + 1)²` points, and there is no planar georeferencing. Planar repositories leave it
+/// clear and are unchanged; readers that predate it refuse it ("unknown header flags").
+pub const FLAG_CUBE_SPHERE: u32 = 4;
 /// Vertical unit 0: heights are metres.
 const VERTICAL_METRES: u8 = 0;
 
@@ -121,12 +127,20 @@ pub fn serialize(
     let n = u16::try_from(p.layout().n()).map_err(|_| CodecError::limit("diamond size"))?;
     let k = u8::try_from(p.layout().k()).map_err(|_| CodecError::limit("level pairs"))?;
 
+    let cube_sphere = p.domain.kind() == DomainKind::CubeSphere;
+    if cube_sphere && (georef.is_some() || p.kind == RepoKind::Colour) {
+        return Err(CodecError::invalid(
+            "a cube-sphere repository holds elevation placed by its own mapping: no planar \
+             georeferencing, no colour",
+        ));
+    }
     let flags = if p.nodata_mask { FLAG_NODATA_MASK } else { 0 }
         | if p.kind == RepoKind::Colour {
             FLAG_COLOUR
         } else {
             0
-        };
+        }
+        | if cube_sphere { FLAG_CUBE_SPHERE } else { 0 };
     let mut records_hasher = crc32fast::Hasher::new();
     for r in &encoded.records {
         records_hasher.update(&r.bytes);
@@ -461,7 +475,7 @@ fn parse_params(h: &HeaderFields) -> Result<(CodecParams, QuantPlan), CodecError
 /// that order.
 fn parse_layout(h: &HeaderFields) -> Result<(Domain, Alpha, CoderKind, bool), CodecError> {
     let flags = h.flags;
-    if flags & !(FLAG_NODATA_MASK | FLAG_COLOUR) != 0 {
+    if flags & !(FLAG_NODATA_MASK | FLAG_COLOUR | FLAG_CUBE_SPHERE) != 0 {
         return Err(CodecError::unsupported(format!(
             "unknown header flags {flags:#x}"
         )));
@@ -503,12 +517,47 @@ fn parse_layout(h: &HeaderFields) -> Result<(Domain, Alpha, CoderKind, bool), Co
         width: h.data_width,
         height: h.data_height,
     };
+    if flags & FLAG_CUBE_SPHERE != 0 {
+        return cube_sphere_layout(h, data).map(|domain| (domain, alpha, coder, lattice));
+    }
     // A header whose data rectangle does not fit its layout is corrupt, not a bad argument.
     let domain = Domain::planar(layout, data).map_err(|e| match e {
         CodecError::InvalidParameter(m) => CodecError::Corrupt(m),
         e => e,
     })?;
     Ok((domain, alpha, coder, lattice))
+}
+
+/// The domain of a header with [`FLAG_CUBE_SPHERE`]: one root per face, every face's points
+/// holding data, no georeferencing, elevation only.
+fn cube_sphere_layout(h: &HeaderFields, data: DataRect) -> Result<Domain, CodecError> {
+    if h.flags & FLAG_COLOUR != 0 {
+        return Err(CodecError::unsupported(
+            "a colour cube-sphere repository (this reader knows elevation planets only)",
+        ));
+    }
+    if (h.roots_x, h.roots_y) != (1, 1) {
+        return Err(CodecError::corrupt(format!(
+            "a cube-sphere has one root per face, not {}×{}",
+            h.roots_x, h.roots_y
+        )));
+    }
+    if h.geo_flags != 0 {
+        return Err(CodecError::corrupt(
+            "a cube-sphere repository has planar georeferencing",
+        ));
+    }
+    let n = usize::try_from(h.n).map_err(|_| CodecError::corrupt("diamond size too large"))?;
+    let domain = Domain::cube_sphere(n, u32::from(h.level_pairs))
+        .map_err(|e| CodecError::corrupt(format!("header cube-sphere: {e}")))?;
+    if domain.data() != data {
+        let side = domain.data().width;
+        return Err(CodecError::corrupt(format!(
+            "a cube-sphere face of this N and K has {side}×{side} points, the header says {}×{}",
+            data.width, data.height
+        )));
+    }
+    Ok(domain)
 }
 
 /// The quantizers, the height unit and offset, the tolerance (by kind: colour repositories
@@ -967,5 +1016,43 @@ impl Repository {
             records,
             leaf_error: self.head.leaf_error,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
+
+    #[test]
+    fn a_cube_sphere_header_is_checked_field_by_field() {
+        let planet = PlanetGrid::from_fn(3, 1, |p| Some(p.x as i32 - p.y as i32)).unwrap();
+        let plan = QuantPlan::new(1.0, Some(1.0), -2.0, 2.0).unwrap();
+        let opts = EncodeOptions {
+            n: 3,
+            ..EncodeOptions::default()
+        };
+        let encoded = encode_planet(&planet, plan.quantizer, &opts).unwrap();
+        let bytes = serialize(&encoded, &plan, None, None).unwrap();
+        let h = parse_header(&bytes).unwrap();
+        assert_eq!(h.flags, FLAG_CUBE_SPHERE);
+        let (domain, ..) = parse_layout(&h).unwrap();
+        assert_eq!(domain, *planet.domain());
+        let refused = |change: &dyn Fn(&mut HeaderFields), says: &str| {
+            let mut bad = h.clone();
+            change(&mut bad);
+            let e = parse_layout(&bad).unwrap_err().to_string();
+            assert!(e.contains(says), "{e}");
+        };
+        refused(&|h| h.roots_y = 2, "one root per face");
+        refused(&|h| h.geo_flags = 1, "georeferencing");
+        refused(&|h| h.data_width -= 1, "points, the header says");
+        refused(&|h| h.flags |= FLAG_COLOUR, "colour cube-sphere");
+        refused(&|h| h.flags |= 8, "unknown header flags");
+        // Without the flag the same header is a plane.
+        let mut plane = h.clone();
+        plane.flags = 0;
+        let (domain, ..) = parse_layout(&plane).unwrap();
+        assert_eq!(domain.kind(), DomainKind::Planar);
     }
 }

@@ -1,0 +1,285 @@
+//! The hierarchy over a cube-sphere: encoding a [`PlanetGrid`], and the exact verifier and the
+//! per-face reconstruction on the decoding side.
+//!
+//! The planar encoder's steps, per diamond, with every lattice point addressed as
+//! `(face, x, y)`: targets and nodata mask are read through [`PlanetGrid::get`] (points of a
+//! diamond centred on a cube edge that lie past the edge are read on the neighbouring face),
+//! the grids are gathered from the parents' refinements with [`super::gather`] (which carries a
+//! half across a face edge, [`crate::geometry::Domain::grid_in_parent_frame`]), the root field
+//! codes each shared edge and corner vertex once, and the object error of a diamond centred on
+//! a cube edge compares each half with its own face's input. The previous level's refinements
+//! are kept per diamond (as [`super::encode`] does for α = ½); α = 1 only.
+
+mod grid;
+
+pub use grid::PlanetGrid;
+
+use std::collections::HashMap;
+
+use rayon::prelude::*;
+
+use super::decode::{LevelReport, VerifyReport, walk_all_with_validity, walk_with_validity};
+use super::encode::{EncodeOptions, record_of, refine_encode, saturate_errors};
+use super::object_error::{ErrorInput, surface_error};
+use super::refine::{Refined, gather};
+use super::roots::{encode_roots, root_grid};
+use super::{CodecParams, Encoded, Record, RepoKind};
+use crate::CodecError;
+use crate::geometry::{DiamondId, Domain, DomainKind, Half};
+use crate::lifting::Alpha;
+use crate::quant::{HeightGrid, Quantizer};
+
+/// Encodes a planet with residual quantizer `quantizer`: every reconstructed vertex of every
+/// level within `k` units of the input at that point, on every face. `opts.n` must be the
+/// planet's `N`; the planet's lattice fixes the levels, so `extra_level_pairs` must be 0.
+///
+/// Errors for α = ½ (not implemented on a cube-sphere), a planet without data, or heights
+/// that overflow the integer range.
+pub fn encode_planet(
+    planet: &PlanetGrid,
+    quantizer: Quantizer,
+    opts: &EncodeOptions,
+) -> Result<Encoded, CodecError> {
+    let domain = *planet.domain();
+    if opts.alpha != Alpha::One {
+        return Err(CodecError::unsupported(
+            "a cube-sphere is encoded with α = 1 only (the α = ½ analysis filter is planar)",
+        ));
+    }
+    if opts.n != domain.n() {
+        return Err(CodecError::invalid(format!(
+            "the planet's lattice is laid out for N = {}, not N = {}",
+            domain.n(),
+            opts.n
+        )));
+    }
+    if opts.extra_level_pairs != 0 {
+        return Err(CodecError::invalid(
+            "a planet's lattice fixes its levels: extra level pairs do not apply",
+        ));
+    }
+    if planet.range().is_none() {
+        return Err(CodecError::invalid("the planet has no valid sample"));
+    }
+    let params = CodecParams {
+        domain,
+        alpha: opts.alpha,
+        coder: opts.coder,
+        quantizer,
+        root_quantizer: super::root_quantizer(quantizer),
+        nodata_mask: planet.has_nodata(),
+        kind: RepoKind::Elevation,
+    };
+    let stored = stored_sets(planet);
+    let (root_field, roots) = encode_roots(
+        &params,
+        |f, x, y| planet.get(f, x, y),
+        |f, x, y| planet.validity(f, x, y) == Some(true),
+    )?;
+    let inputs: Vec<ErrorInput> = (0..domain.faces())
+        .map(|f| ErrorInput::new(planet.face(f)))
+        .collect();
+    let finest = domain.finest_level();
+    let n = domain.n();
+    let mut records: Vec<Record> = Vec::new();
+    let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
+    let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
+    for level in 0..=finest {
+        type Output = (DiamondId, Option<(Refined, Record)>, u32);
+        let results = stored[level as usize]
+            .par_iter()
+            .map(|&id| -> Result<Output, CodecError> {
+                let mut p = vec![0i32; n * n];
+                if level == 0 {
+                    root_grid(&domain, &root_field, id, &mut p);
+                } else {
+                    let parents = domain.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
+                    gather(&domain, id, parents, &mut p);
+                }
+                let err = planet_surface_error(&domain, id, &p, &inputs);
+                if level == finest {
+                    return Ok((id, None, err));
+                }
+                let r = refine_encode(
+                    &params,
+                    id,
+                    &p,
+                    |x, y| planet.get(id.face, x, y),
+                    |x, y| planet.validity(id.face, x, y),
+                )?;
+                let refined = Refined::from_parts(n, &p, &r.cells);
+                Ok((id, Some((refined, record_of(id, &p, r.bytes))), err))
+            })
+            .collect::<Result<Vec<_>, CodecError>>()?;
+        prev.clear();
+        for (id, refined, err) in results {
+            own_error.insert(id, err);
+            if let Some((refined, record)) = refined {
+                prev.insert(id, refined);
+                records.push(record);
+            }
+        }
+    }
+    let (records, leaf_error) = saturate_errors(&domain, &stored, records, &own_error);
+    Ok(Encoded {
+        params,
+        roots,
+        records,
+        leaf_error,
+    })
+}
+
+/// The stored diamonds of every level: the finest diamonds whose closed square holds a valid
+/// point of their face, and all their ancestors.
+fn stored_sets(planet: &PlanetGrid) -> Vec<Vec<DiamondId>> {
+    let domain = planet.domain();
+    let layout = domain.layout();
+    let finest = domain.finest_level();
+    let leaves: Vec<DiamondId> = domain
+        .level(finest)
+        .filter(|id| {
+            let g = planet.face(id.face);
+            let (x0, y0, x1, y1) = layout.bounds(*id);
+            (y0..=y1).any(|y| (x0..=x1).any(|x| g.is_valid(x, y)))
+        })
+        .collect();
+    let mut sets = vec![Vec::new(); finest as usize + 1];
+    sets[finest as usize] = leaves;
+    for level in (0..finest as usize).rev() {
+        let parents: std::collections::BTreeSet<DiamondId> = sets[level + 1]
+            .iter()
+            .flat_map(|&d| domain.parents(d))
+            .flatten()
+            .collect();
+        sets[level] = parents.into_iter().collect();
+    }
+    sets
+}
+
+/// The object error of `id` with grid `p` against the planet's faces: its own face's input,
+/// and for a diamond centred on a cube edge also the neighbouring face's input under its other
+/// half, measured on the same diamond seen from that face (the grid carried into that face's
+/// frame and re-indexed as that face's diamond of the same centre, whose split diagonal is the
+/// same edge).
+fn planet_surface_error(domain: &Domain, id: DiamondId, p: &[i32], inputs: &[ErrorInput]) -> u32 {
+    let layout = domain.layout();
+    let mut e = surface_error(layout, id, p, &inputs[usize::from(id.face)]);
+    for half in Half::BOTH {
+        let (face, g) = domain.half_grid(id, half);
+        if face == id.face {
+            continue;
+        }
+        let n = layout.n();
+        let mid = (n as i64 - 1) / 2;
+        let (cx, cy) = g.point(mid, mid);
+        let (Ok(cx), Ok(cy)) = (u32::try_from(cx), u32::try_from(cy)) else {
+            continue;
+        };
+        let seen = DiamondId::on_face(face, id.level, cx, cy);
+        let g_seen = layout.grid(seen);
+        let mut q = vec![0i32; n * n];
+        for j in 0..n {
+            for i in 0..n {
+                let (a, b) = g
+                    .index_of(g_seen.point(i as i64, j as i64))
+                    .expect("the same diamond's grid points");
+                q[j * n + i] = p[b as usize * n + a as usize];
+            }
+        }
+        e = e.max(surface_error(layout, seen, &q, &inputs[usize::from(face)]));
+    }
+    e
+}
+
+fn planet_only(encoded: &Encoded, planet: &PlanetGrid) -> Result<(), CodecError> {
+    if encoded.params.domain.kind() != DomainKind::CubeSphere {
+        return Err(CodecError::invalid(
+            "this hierarchy is planar: verify it against a height grid",
+        ));
+    }
+    if encoded.params.domain != *planet.domain() {
+        return Err(CodecError::invalid(
+            "the planet's lattice (N, K) differs from the hierarchy's",
+        ));
+    }
+    Ok(())
+}
+
+/// Decodes the whole hierarchy and compares every reconstructed vertex of every level, on
+/// every face (a diamond centred on a cube edge: both halves, each read on its own face), with
+/// the planet's input there. A bound violation is reported, not an error.
+pub fn verify_planet(encoded: &Encoded, planet: &PlanetGrid) -> Result<VerifyReport, CodecError> {
+    planet_only(encoded, planet)?;
+    let layout = encoded.params.layout();
+    let n = layout.n();
+    let mut levels: Vec<LevelReport> = (0..=layout.finest_level())
+        .map(|level| LevelReport {
+            level,
+            diamonds: 0,
+            vertices: 0,
+            max_error: 0,
+        })
+        .collect();
+    walk_all_with_validity(encoded, |id, p, _| {
+        let report = &mut levels[id.level as usize];
+        let g = layout.grid(id);
+        report.diamonds += 1;
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = g.point(i as i64, j as i64);
+                let Some(want) = planet.get(id.face, x, y) else {
+                    continue;
+                };
+                let e = (i64::from(p[j * n + i]) - i64::from(want)).unsigned_abs();
+                report.max_error = report.max_error.max(u32::try_from(e).unwrap_or(u32::MAX));
+                report.vertices += 1;
+            }
+        }
+    })?;
+    Ok(VerifyReport {
+        levels,
+        bound: encoded.params.quantizer.k() as u32,
+    })
+}
+
+/// Decodes the finest level onto the six faces: one `(S + 1)²` grid per face, every lattice
+/// point of the face (edge and corner points on every face holding them, each written by that
+/// face's own finest diamonds), validity from the nodata mask (`false` where no stored diamond
+/// reaches). Errors on a planar hierarchy.
+pub fn reconstruct_planet(encoded: &Encoded) -> Result<Vec<HeightGrid>, CodecError> {
+    let domain = encoded.params.domain;
+    let Some(cube) = domain.cube() else {
+        return Err(CodecError::invalid(
+            "this hierarchy is planar: reconstruct it onto one grid",
+        ));
+    };
+    let points = cube.side() as usize + 1;
+    let mut faces: Vec<HeightGrid> = (0..domain.faces())
+        .map(|_| HeightGrid {
+            width: points,
+            height: points,
+            values: vec![0; points * points],
+            valid: vec![false; points * points],
+        })
+        .collect();
+    let layout = domain.layout();
+    let n = layout.n();
+    let finest = layout.finest_level();
+    walk_with_validity(encoded, |id, p, v| {
+        if id.level != finest {
+            return;
+        }
+        // Finest diamonds are squares inside their face.
+        let g = layout.grid(id);
+        let face = &mut faces[usize::from(id.face)];
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = g.point(i as i64, j as i64);
+                let k = y as usize * points + x as usize;
+                face.values[k] = p[j * n + i];
+                face.valid[k] = v.is_none_or(|v| v[j * n + i]);
+            }
+        }
+    })?;
+    Ok(faces)
+}
