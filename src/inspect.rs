@@ -43,7 +43,8 @@ pub fn upgrade(args: &UpgradeArgs) -> Result<()> {
 pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    let samples = repo.params().domain.data().samples();
+    // Distinct lattice points that can hold data (a planet's shared edge points once).
+    let samples = repo.params().domain.lattice_points();
     // Without a mask every sample had data; with one, the count reads (and checks) the records.
     let valid = if repo.params().nodata_mask {
         let records = repo
@@ -79,6 +80,16 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     println!("repository      {}", args.repo.display());
     println!("format          version {}", repo.head().format_version());
     println!("kind            {}", p.kind.name());
+    println!(
+        "domain          {}",
+        match p.domain.kind() {
+            cbdam_codec::geometry::DomainKind::Planar => "planar, 1 face".to_string(),
+            cbdam_codec::geometry::DomainKind::CubeSphere => format!(
+                "cube-sphere, {} faces, WGS84 ellipsoid, sigmoid cube map (docs/PLANET.md)",
+                p.domain.faces()
+            ),
+        }
+    );
     println!("file            {} bytes", repo.file_len());
     println!(
         "data            {}×{} samples, {:.4} bits/sample",

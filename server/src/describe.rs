@@ -128,6 +128,8 @@ pub fn describe(repo: &Repository) -> Value {
     json!({
         "format_version": repo.head().format_version(),
         "kind": p.kind.name(),
+        "domain": p.domain.kind().name(),
+        "faces": p.domain.faces(),
         "file_bytes": repo.file_len(),
         "header_crc": format!("{:08x}", repo.header_crc()),
         "diamond_size": p.layout().n(),
@@ -142,6 +144,7 @@ pub fn describe(repo: &Repository) -> Value {
         "root_k": p.root_quantizer.k(),
         "data_width": p.domain.data().width,
         "data_height": p.domain.data().height,
+        "samples": p.domain.lattice_points(),
         "extent": {
             "lattice_width": ex + 1,
             "lattice_height": ey + 1,

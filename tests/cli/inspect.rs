@@ -21,3 +21,48 @@ fn a_closed_stdout_ends_inspect_quietly() {
     assert!(!err.contains("panicked"), "{err}");
     assert_ne!(o.status.code(), Some(101), "{err}");
 }
+
+/// A planet repository (written through the codec: `build --planet` does not exist yet) is
+/// described as one: the cube-sphere domain with its 6 faces, and its distinct lattice points
+/// (6·S² + 2, shared edge points once) as its samples.
+#[test]
+fn inspect_names_a_planet_domain() {
+    use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
+    use cbdam_codec::quant::QuantPlan;
+    let dir = tempfile::tempdir().unwrap();
+    let (n, k) = (5usize, 2u32);
+    // Heights from the canonical point: every face holding an edge point agrees.
+    let planet = PlanetGrid::from_fn(n, k, |p| {
+        Some(i32::from(p.face) * 100 + ((p.x * 7 + p.y * 3) % 50) as i32)
+    })
+    .unwrap();
+    let plan = QuantPlan::new(1.0, Some(1.0), 0.0, 600.0).unwrap();
+    let opts = EncodeOptions {
+        n,
+        ..EncodeOptions::default()
+    };
+    let encoded = encode_planet(&planet, plan.quantizer, &opts).unwrap();
+    let path = dir.path().join("planet.cbdam");
+    let bytes = cbdam_codec::repository::serialize(&encoded, &plan, None, None).unwrap();
+    std::fs::write(&path, bytes).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(["inspect", path.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        text.contains("domain          cube-sphere, 6 faces"),
+        "{text}"
+    );
+    let o = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(["inspect", path.to_str().unwrap(), "--json"])
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["domain"], "cube-sphere");
+    assert_eq!(v["faces"], 6);
+    let s = (n as u64 - 1) << k;
+    assert_eq!(v["nodata_samples"], 0, "{v}");
+    assert_eq!(v["samples"].as_u64(), Some(6 * s * s + 2), "{v}");
+}
