@@ -92,6 +92,20 @@ pub struct LevelReport {
     pub max_error: u32,
 }
 
+impl LevelReport {
+    /// One empty report per level `0..=finest`.
+    pub(crate) fn empty(finest: u8) -> Vec<LevelReport> {
+        (0..=finest)
+            .map(|level| LevelReport {
+                level,
+                diamonds: 0,
+                vertices: 0,
+                max_error: 0,
+            })
+            .collect()
+    }
+}
+
 /// What [`verify`] found.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct VerifyReport {
@@ -332,14 +346,7 @@ pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, Cod
     let layout = params.layout();
     let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(layout, input));
     let n = layout.n();
-    let mut levels: Vec<LevelReport> = (0..=layout.finest_level())
-        .map(|level| LevelReport {
-            level,
-            diamonds: 0,
-            vertices: 0,
-            max_error: 0,
-        })
-        .collect();
+    let mut levels = LevelReport::empty(layout.finest_level());
     walk_impl(encoded, true, |id, p, _| {
         let report = &mut levels[id.level as usize];
         let g = layout.grid(id);

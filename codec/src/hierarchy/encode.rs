@@ -787,6 +787,13 @@ pub(crate) fn stored_sets(domain: &Domain, grid: &HeightGrid) -> Vec<Vec<Diamond
             }
         }
     }
+    with_ancestors(domain, leaves)
+}
+
+/// The stored sets of every level from the finest level's stored diamonds: each coarser level
+/// holds the parents of the next finer level's, in id order.
+pub(crate) fn with_ancestors(domain: &Domain, leaves: Vec<DiamondId>) -> Vec<Vec<DiamondId>> {
+    let finest = domain.finest_level();
     let mut sets = vec![Vec::new(); finest as usize + 1];
     sets[finest as usize] = leaves;
     for level in (0..finest as usize).rev() {

@@ -19,7 +19,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use super::decode::{LevelReport, VerifyReport, walk_all_with_validity, walk_with_validity};
-use super::encode::{EncodeOptions, record_of, refine_encode, saturate_errors};
+use super::encode::{EncodeOptions, record_of, refine_encode, saturate_errors, with_ancestors};
 use super::object_error::{ErrorInput, surface_error};
 use super::refine::{Refined, gather};
 use super::roots::{encode_roots, root_grid};
@@ -143,17 +143,7 @@ fn stored_sets(planet: &PlanetGrid) -> Vec<Vec<DiamondId>> {
             (y0..=y1).any(|y| (x0..=x1).any(|x| g.is_valid(x, y)))
         })
         .collect();
-    let mut sets = vec![Vec::new(); finest as usize + 1];
-    sets[finest as usize] = leaves;
-    for level in (0..finest as usize).rev() {
-        let parents: std::collections::BTreeSet<DiamondId> = sets[level + 1]
-            .iter()
-            .flat_map(|&d| domain.parents(d))
-            .flatten()
-            .collect();
-        sets[level] = parents.into_iter().collect();
-    }
-    sets
+    with_ancestors(domain, leaves)
 }
 
 /// The object error of `id` with grid `p` against the planet's faces: its own face's input,
@@ -212,14 +202,7 @@ pub fn verify_planet(encoded: &Encoded, planet: &PlanetGrid) -> Result<VerifyRep
     planet_only(encoded, planet)?;
     let layout = encoded.params.layout();
     let n = layout.n();
-    let mut levels: Vec<LevelReport> = (0..=layout.finest_level())
-        .map(|level| LevelReport {
-            level,
-            diamonds: 0,
-            vertices: 0,
-            max_error: 0,
-        })
-        .collect();
+    let mut levels = LevelReport::empty(layout.finest_level());
     walk_all_with_validity(encoded, |id, p, _| {
         let report = &mut levels[id.level as usize];
         let g = layout.grid(id);
