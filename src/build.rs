@@ -10,7 +10,7 @@ use anyhow::Result;
 use cbdam_build::journal::Resumed;
 use cbdam_build::{
     AssignedGeoRef, BuildOptions, BuildSummary, ColourSummary, ElevationSummary, Progress,
-    ProgressEvent, Spilled, Stage,
+    ProgressEvent, Spilled, Stage, planet::PlanetSummary,
 };
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::lifting::Alpha;
@@ -66,6 +66,7 @@ pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
         nodata: args.nodata,
         assign_georef,
         block_plan: args.block_plan,
+        planet: args.planet.then_some(args.planet_level),
     })
 }
 
@@ -92,6 +93,7 @@ pub fn run(args: &BuildArgs) -> Result<()> {
     match summary? {
         BuildSummary::Elevation(s) => print_elevation(args, &s, start),
         BuildSummary::Colour(s) => print_colour(args, &s, start),
+        BuildSummary::Planet(s) => print_planet(args, &s, start),
     }
 }
 
@@ -128,6 +130,69 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
             plan.unit,
             plan.quantizer.k(),
             start.elapsed().as_secs_f64()
+        );
+    }
+    Ok(())
+}
+
+fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<()> {
+    if args.timings {
+        let total = start.elapsed();
+        let parts: Vec<String> = s
+            .stages
+            .iter()
+            .map(|(name, d)| format!("{name} {:.3} s", d.as_secs_f64()))
+            .collect();
+        eprintln!(
+            "timings: {}, total {:.3} s ({:.2} M lattice points/s)",
+            parts.join(", "),
+            total.as_secs_f64(),
+            s.lattice_points as f64 / total.as_secs_f64() / 1e6,
+        );
+    }
+    if args.quiet {
+        return Ok(());
+    }
+    let bytes = std::fs::metadata(&args.output)?.len();
+    let plan = &s.plan;
+    println!(
+        "{}: planet (cube-sphere on WGS84), N = {}, K = {} ({:.4}° mean lattice spacing), {} \
+         lattice points ({} with data), {} bytes, {:.3} bits/point, {} records, max error {} m \
+         against the resampled lattice (unit {} m, k = {}), {:.2} s",
+        args.output.display(),
+        s.n,
+        s.level_pairs,
+        s.lattice_deg,
+        s.lattice_points,
+        s.valid,
+        bytes,
+        bytes as f64 * 8.0 / s.valid.max(1) as f64,
+        s.records,
+        plan.max_error(),
+        plan.unit,
+        plan.quantizer.k(),
+        start.elapsed().as_secs_f64()
+    );
+    if s.capped {
+        println!(
+            "  the memory limit capped the lattice: the finest input is finer than {:.4}°, its \
+             samples are area-averaged (--memory-limit or --planet-level to change)",
+            s.lattice_deg
+        );
+    }
+    for r in &s.resampling {
+        println!(
+            "  resampling error of {}: max {:.3} m{}, rms {:.3} m over {} of its {} samples \
+             (the others lie where a finer input won)",
+            r.path.display(),
+            r.max_error,
+            r.worst_at.map_or(String::new(), |p| format!(
+                " (at {:.4}°, {:.4}°)",
+                p.lat, p.lon
+            )),
+            r.rms_error,
+            r.compared,
+            r.samples
         );
     }
     Ok(())

@@ -39,6 +39,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             bounds: None,
             crs: None,
             block_plan: None,
+            planet: false,
+            planet_level: None,
             quiet: false,
             timings: false,
             colour: false,

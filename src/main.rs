@@ -708,6 +708,18 @@ pub struct BuildArgs {
     /// journal), whatever the input's size and the memory limit would choose.
     #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = build::parse_block_plan)]
     block_plan: Option<cbdam_codec::hierarchy::BlockPlan>,
+    /// Build a planet: the inputs (EPSG:4326 latitude/longitude GeoTIFFs, SRTM .hgt, UTM zones)
+    /// resampled onto the cube-sphere lattice on WGS84 (docs/PLANET.md) — bilinear where the
+    /// lattice is finer than an input, area-averaged where coarser, the finest input winning
+    /// where they overlap. The lattice is the coarsest as fine as the finest input, within
+    /// --memory-limit (about 40 bytes per lattice point); the summary says when the limit made
+    /// it coarser, and how far the lattice is from each input's samples.
+    #[arg(long)]
+    planet: bool,
+    /// With --planet: the lattice's level pairs K (faces of (N − 1)·2^K steps, a mean spacing of
+    /// 90°/((N − 1)·2^K)) instead of the one the finest input asks for.
+    #[arg(long, value_name = "K", requires = "planet")]
+    planet_level: Option<u32>,
     /// Print nothing on success.
     #[arg(long)]
     quiet: bool,

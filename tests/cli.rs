@@ -7,6 +7,7 @@ mod build;
 mod extract;
 mod inspect;
 mod link;
+mod planet;
 mod replay;
 mod serve;
 mod upgrade;

@@ -16,6 +16,7 @@ mod error;
 pub mod journal;
 pub mod mosaic;
 pub mod plan;
+pub mod planet;
 pub mod progress;
 pub mod tiles;
 pub mod verify;
@@ -83,6 +84,10 @@ pub struct BuildOptions {
     /// Encode in these blocks (with a journal) instead of what the size and the memory limit
     /// choose: for benchmarks of the block encoder. α = 1 only.
     pub block_plan: Option<BlockPlan>,
+    /// Build a planet: the inputs (geographic or UTM) resampled onto the cube-sphere
+    /// ([`planet`]); `Some(None)`: the lattice the finest input asks for (within the memory
+    /// limit), `Some(Some(k))`: `K = k` level pairs.
+    pub planet: Option<Option<u32>>,
 }
 
 impl BuildOptions {
@@ -107,6 +112,7 @@ impl BuildOptions {
             nodata: None,
             assign_georef: None,
             block_plan: None,
+            planet: None,
         }
     }
 
@@ -147,10 +153,15 @@ pub enum BuildSummary {
     Elevation(ElevationSummary),
     /// A colour repository.
     Colour(ColourSummary),
+    /// A planet.
+    Planet(planet::PlanetSummary),
 }
 
 /// Builds the repository `opts` describe; progress goes to `progress`.
 pub fn build(opts: &BuildOptions, progress: &dyn Progress) -> Result<BuildSummary> {
+    if let Some(level) = opts.planet {
+        return planet::build_planet(opts, level, progress).map(BuildSummary::Planet);
+    }
     if opts.colour {
         return colour::build_colour(opts, progress).map(BuildSummary::Colour);
     }

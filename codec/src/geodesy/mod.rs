@@ -4,7 +4,9 @@
 //! latitude is geodetic.
 
 pub mod cube_map;
+pub mod transverse_mercator;
 pub mod wgs84;
 
 pub use cube_map::{CubeWarp, LatLon, lattice_lat_lon};
+pub use transverse_mercator::Utm;
 pub use wgs84::Geodetic;

@@ -1,0 +1,889 @@
+//! `cbdam build --planet`: geographic and UTM DEMs resampled onto the cube-sphere lattice
+//! (`docs/PLANET.md`) and encoded as one planet.
+//!
+//! Every lattice point takes its height from the finest input that covers it (inputs sorted by
+//! ground spacing, ties in the order given): **bilinear** between the input's four surrounding
+//! samples where the lattice is at least as fine as the input (bilinear never overshoots), the
+//! **area average** of the input's samples within the lattice cell's footprint (a box of the
+//! lattice's mean spacing around the point) where the lattice is coarser. A point whose
+//! neighbourhood holds nodata in the finest input falls through to the next input; a point no
+//! input covers is nodata. Coordinates are exact f64: the lattice point's geodetic latitude and
+//! longitude ([`cbdam_codec::geodesy::lattice_lat_lon`]) and, for projected inputs, the UTM
+//! transform ([`cbdam_codec::geodesy::Utm`]).
+//!
+//! The L∞ bound of the repository holds against the resampled lattice (that is what the encoder
+//! sees). Beside it [`resampling_error`] measures how far the lattice is from the inputs' own
+//! samples: each input sample against the bilinear interpolant of the four lattice points
+//! around it, wherever those four took their height from that input.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::error::{Context, Result, bail};
+use crate::mosaic::Samples;
+use crate::tiles::Tile;
+use crate::{BuildOptions, Progress, ProgressEvent, Stage};
+use cbdam_codec::geodesy::cube_map::lat_lon_to_face_st;
+use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
+use cbdam_codec::geometry::Domain;
+use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
+use cbdam_codec::input::{GeoRef, ReadOptions, read_dem};
+use cbdam_codec::lifting::Alpha;
+use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::repository::write_repository;
+
+/// Metres per degree of arc on the ground (the WGS 84 mean), to compare projected spacings with
+/// angular ones.
+const METRES_PER_DEGREE: f64 = 111_195.0;
+
+/// EPSG codes of the geographic coordinate systems accepted as latitude/longitude on WGS 84:
+/// WGS 84 itself, and NAD83, ETRS89 and GDA94, whose datums are within about 2 m of it.
+pub const GEOGRAPHIC_EPSG: [u32; 4] = [4326, 4269, 4258, 4283];
+
+/// Bytes the planet build holds per lattice point of the six faces, measured on the ETOPO5
+/// planet with margin (`/usr/bin/time -v cbdam build data/etopo5_global.tif --planet
+/// --max-error 16`: 482 MB peak for 25.2 M points, 19.6 B a point): the face grids (5 B), the
+/// resampling winners (1 B) and the encoder's per-diamond refinements of two levels.
+pub const BYTES_PER_LATTICE_POINT: u64 = 24;
+
+/// How an input's pixels lie on the Earth.
+#[derive(Clone, Copy, Debug)]
+enum Frame {
+    /// Latitude/longitude degrees: sample `(c, r)` at `lon0 + c·dlon`, `lat0 − r·dlat`;
+    /// `period`: columns per 360° when the input wraps around the globe.
+    Geographic {
+        lon0: f64,
+        lat0: f64,
+        dlon: f64,
+        dlat: f64,
+        period: Option<usize>,
+    },
+    /// A UTM zone: sample `(c, r)` at easting `x0 + c·dx`, northing `y0 − r·dy`.
+    Projected {
+        utm: Utm,
+        x0: f64,
+        y0: f64,
+        dx: f64,
+        dy: f64,
+    },
+}
+
+/// One input, read and placed on the Earth.
+pub struct PlanetInput {
+    /// The file.
+    pub path: PathBuf,
+    width: usize,
+    height: usize,
+    samples: Samples,
+    nodata: Option<f64>,
+    frame: Frame,
+    /// Ground spacing of its samples, degrees of arc (north–south).
+    pub spacing_deg: f64,
+}
+
+impl PlanetInput {
+    fn sample(&self, c: usize, r: usize) -> Option<f64> {
+        let v = self.samples.get(r * self.width + c);
+        (!v.is_nan() && self.nodata != Some(v)).then_some(v)
+    }
+
+    /// Fractional column and row of a point, or `None` off the input.
+    fn pixel_of(&self, ll: LatLon) -> Option<(f64, f64)> {
+        const SLACK: f64 = 1e-9;
+        let (w, h) = (self.width as f64, self.height as f64);
+        let (c, r) = match self.frame {
+            Frame::Geographic {
+                lon0,
+                lat0,
+                dlon,
+                dlat,
+                period,
+            } => {
+                let r = (lat0 - ll.lat) / dlat;
+                let c = (ll.lon - lon0) / dlon;
+                let c = match period {
+                    Some(p) => c.rem_euclid(p as f64),
+                    None => [c, c + 360.0 / dlon, c - 360.0 / dlon]
+                        .into_iter()
+                        .find(|c| (-SLACK..=w - 1.0 + SLACK).contains(c))?,
+                };
+                (c, r)
+            }
+            Frame::Projected {
+                utm,
+                x0,
+                y0,
+                dx,
+                dy,
+            } => {
+                let (e, n) = utm.forward(ll);
+                ((e - x0) / dx, (y0 - n) / dy)
+            }
+        };
+        let wraps = matches!(
+            self.frame,
+            Frame::Geographic {
+                period: Some(_),
+                ..
+            }
+        );
+        let c_max = if wraps { w } else { w - 1.0 };
+        ((-SLACK..=c_max + SLACK).contains(&c) && (-SLACK..=h - 1.0 + SLACK).contains(&r))
+            .then_some((c.clamp(0.0, c_max), r.clamp(0.0, h - 1.0)))
+    }
+
+    /// The column index of `c`, wrapped for inputs around the globe.
+    fn column(&self, c: i64) -> Option<usize> {
+        match self.frame {
+            Frame::Geographic {
+                period: Some(p), ..
+            } => Some(c.rem_euclid(p as i64) as usize).filter(|&c| c < self.width),
+            _ => usize::try_from(c).ok().filter(|&c| c < self.width),
+        }
+    }
+
+    /// Bilinear interpolation at a fractional pixel; `None` unless all four samples are valid.
+    fn bilinear(&self, (c, r): (f64, f64)) -> Option<f64> {
+        let wraps = matches!(
+            self.frame,
+            Frame::Geographic {
+                period: Some(_),
+                ..
+            }
+        );
+        let c0 = if wraps {
+            c.floor()
+        } else {
+            c.floor().min(self.width.saturating_sub(2) as f64)
+        };
+        let r0 = r.floor().min(self.height.saturating_sub(2) as f64);
+        let (fx, fy) = (c - c0, r - r0);
+        let (c0, r0) = (c0 as i64, r0 as usize);
+        let r1 = (r0 + 1).min(self.height - 1);
+        let (ca, cb) = (
+            self.column(c0)?,
+            self.column(c0 + 1).unwrap_or(self.column(c0)?),
+        );
+        let v = |c, r| self.sample(c, r);
+        let top = v(ca, r0)? * (1.0 - fx) + v(cb, r0)? * fx;
+        let bottom = v(ca, r1)? * (1.0 - fx) + v(cb, r1)? * fx;
+        Some(top * (1.0 - fy) + bottom * fy)
+    }
+
+    /// Mean of the valid samples whose centres lie within `half` (columns, rows) of a pixel.
+    fn area_average(&self, (c, r): (f64, f64), half: (f64, f64)) -> Option<f64> {
+        let (r_lo, r_hi) = (
+            (r - half.1).ceil().max(0.0) as usize,
+            ((r + half.1).floor() as usize).min(self.height - 1),
+        );
+        let (c_lo, c_hi) = ((c - half.0).ceil() as i64, (c + half.0).floor() as i64);
+        let (mut sum, mut count) = (0.0, 0u64);
+        for row in r_lo..=r_hi {
+            for col in c_lo..=c_hi {
+                if let Some(v) = self.column(col).and_then(|col| self.sample(col, row)) {
+                    sum += v;
+                    count += 1;
+                }
+            }
+        }
+        (count > 0).then(|| sum / count as f64)
+    }
+
+    /// The height at a point whose lattice cell is `lattice_deg` degrees across: bilinear where
+    /// the lattice is at least as fine as the input, the area average where it is coarser.
+    fn height_at(&self, ll: LatLon, lattice_deg: f64) -> Option<f64> {
+        let px = self.pixel_of(ll)?;
+        if lattice_deg > self.spacing_deg {
+            let half_deg = lattice_deg / 2.0;
+            let half = match self.frame {
+                Frame::Geographic { dlon, dlat, .. } => {
+                    let cos = ll.lat.to_radians().cos().max(1e-9);
+                    ((half_deg / cos / dlon).min(180.0 / dlon), half_deg / dlat)
+                }
+                Frame::Projected { dx, dy, .. } => (
+                    half_deg * METRES_PER_DEGREE / dx,
+                    half_deg * METRES_PER_DEGREE / dy,
+                ),
+            };
+            if let Some(v) = self.area_average(px, half) {
+                return Some(v);
+            }
+        }
+        self.bilinear(px)
+    }
+
+    /// Latitude and longitude of sample `(c, r)`.
+    fn lat_lon_of(&self, c: usize, r: usize) -> LatLon {
+        match self.frame {
+            Frame::Geographic {
+                lon0,
+                lat0,
+                dlon,
+                dlat,
+                ..
+            } => {
+                let mut lon = lon0 + c as f64 * dlon;
+                lon -= 360.0 * ((lon - 1e-12) / 360.0).round();
+                LatLon {
+                    lat: lat0 - r as f64 * dlat,
+                    lon,
+                }
+            }
+            Frame::Projected {
+                utm,
+                x0,
+                y0,
+                dx,
+                dy,
+            } => utm.inverse(x0 + c as f64 * dx, y0 - r as f64 * dy),
+        }
+    }
+
+    /// The valid height range, metres.
+    fn range(&self) -> Option<(f64, f64)> {
+        (0..self.height)
+            .into_par_iter()
+            .filter_map(|r| {
+                (0..self.width).filter_map(|c| self.sample(c, r)).fold(
+                    None,
+                    |acc: Option<(f64, f64)>, v| {
+                        Some(acc.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))))
+                    },
+                )
+            })
+            .reduce_with(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+    }
+}
+
+/// Reads one input and places it on the Earth, or says why it cannot be.
+fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
+    let path = &tile.path;
+    if tile.vrt.is_some() {
+        bail!(
+            "{}: VRT mosaics are not yet resampled onto planets; give the tiles themselves \
+             (a directory, a glob or @list)",
+            path.display()
+        );
+    }
+    let opts = ReadOptions {
+        nodata,
+        ..ReadOptions::default()
+    };
+    let dem = read_dem(path, &opts).with_context(|| format!("reading {}", path.display()))?;
+    let Some(georef) = dem.georef.clone() else {
+        bail!(
+            "{} carries no georeferencing: a planet needs to know where each input lies \
+             (EPSG:4326 latitude/longitude or a UTM zone)",
+            path.display()
+        );
+    };
+    let frame = frame_of(&georef).with_context(|| path.display().to_string())?;
+    let spacing_deg = match frame {
+        Frame::Geographic { dlat, .. } => dlat,
+        Frame::Projected { dy, .. } => dy / METRES_PER_DEGREE,
+    };
+    let width = dem.width;
+    let height = dem.height;
+    if width < 2 || height < 2 {
+        bail!(
+            "{} is {width}×{height} samples: a planet input needs at least 2×2",
+            path.display()
+        );
+    }
+    Ok(PlanetInput {
+        path: path.clone(),
+        width,
+        height,
+        samples: Samples::compact(dem.values),
+        nodata: dem.nodata,
+        frame,
+        spacing_deg,
+    })
+}
+
+fn frame_of(g: &GeoRef) -> Result<Frame> {
+    let epsg = g.epsg.unwrap_or(0);
+    if !(g.pixel_x > 0.0 && g.pixel_y > 0.0) {
+        bail!(
+            "pixel size {} × {}: rows must run south and columns east",
+            g.pixel_x,
+            g.pixel_y
+        );
+    }
+    // Sample centres: half a pixel in from the corner when pixels are areas.
+    let half = if g.pixel_is_area { 0.5 } else { 0.0 };
+    let (x0, y0) = (g.origin_x + half * g.pixel_x, g.origin_y - half * g.pixel_y);
+    if GEOGRAPHIC_EPSG.contains(&epsg) {
+        let per_turn = 360.0 / g.pixel_x;
+        let period =
+            ((per_turn - per_turn.round()).abs() < 1e-6).then_some(per_turn.round() as usize);
+        return Ok(Frame::Geographic {
+            lon0: x0,
+            lat0: y0,
+            dlon: g.pixel_x,
+            dlat: g.pixel_y,
+            period,
+        });
+    }
+    if let Some(utm) = Utm::from_epsg(epsg) {
+        return Ok(Frame::Projected {
+            utm,
+            x0,
+            y0,
+            dx: g.pixel_x,
+            dy: g.pixel_y,
+        });
+    }
+    bail!(
+        "EPSG:{epsg} cannot be placed on a planet: accepted are latitude/longitude ({}) and UTM \
+         zones (EPSG 32601–32660, 32701–32760 on WGS 84; 26901–26923 NAD83; 25828–25838 ETRS89)",
+        GEOGRAPHIC_EPSG.map(|e| format!("EPSG:{e}")).join(", ")
+    )
+}
+
+/// All inputs of a planet, finest first.
+pub struct PlanetInputs {
+    /// The inputs, by ground spacing (finest first; ties in the order given).
+    pub inputs: Vec<PlanetInput>,
+}
+
+impl PlanetInputs {
+    /// Reads every input ([`crate::tiles::expand_inputs`] already expanded them).
+    pub fn read(tiles: &[Tile], nodata: Option<f64>) -> Result<Self> {
+        if tiles.is_empty() {
+            bail!("no input given");
+        }
+        let mut inputs = tiles
+            .iter()
+            .map(|t| read_input(t, nodata))
+            .collect::<Result<Vec<_>>>()?;
+        inputs.sort_by(|a, b| a.spacing_deg.total_cmp(&b.spacing_deg));
+        Ok(Self { inputs })
+    }
+
+    /// The finest input's spacing, degrees.
+    pub fn finest_deg(&self) -> f64 {
+        self.inputs[0].spacing_deg
+    }
+
+    /// The height range over all inputs, metres.
+    pub fn range(&self) -> Option<(f64, f64)> {
+        self.inputs
+            .iter()
+            .filter_map(PlanetInput::range)
+            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+    }
+
+    /// The height at a lattice point, and which input (index into `inputs`) gave it.
+    fn height_at(&self, ll: LatLon, lattice_deg: f64) -> Option<(f64, u8)> {
+        self.inputs.iter().enumerate().find_map(|(i, input)| {
+            input
+                .height_at(ll, lattice_deg)
+                .map(|v| (v, u8::try_from(i).unwrap_or(u8::MAX)))
+        })
+    }
+}
+
+/// Mean spacing of a cube-sphere lattice, degrees of arc: a face spans 90° over `S` steps.
+pub fn lattice_spacing_deg(n: usize, k: u32) -> f64 {
+    90.0 / ((n as f64 - 1.0) * f64::from(1u32 << k))
+}
+
+/// The lattice's level pairs `K`: the given one, or the coarsest at least as fine as the finest
+/// input; in both cases refused if the build would need more than `memory_limit` bytes
+/// ([`BYTES_PER_LATTICE_POINT`]).
+pub fn choose_level(
+    inputs: &PlanetInputs,
+    n: usize,
+    forced: Option<u32>,
+    memory_limit: u64,
+) -> Result<u32> {
+    const MAX_K: u32 = 16;
+    let fits = |k: u32| {
+        let side = (n as u64 - 1) << k;
+        6 * (side + 1) * (side + 1) * BYTES_PER_LATTICE_POINT <= memory_limit
+    };
+    let need = |k: u32| {
+        let side = (n as u64 - 1) << k;
+        6 * (side + 1) * (side + 1) * BYTES_PER_LATTICE_POINT
+    };
+    if let Some(k) = forced {
+        if k > MAX_K {
+            bail!("--planet-level {k}: at most {MAX_K}");
+        }
+        if !fits(k) {
+            bail!(
+                "--planet-level {k} ({:.3}° lattice) needs about {} MiB, over the memory limit \
+                 of {} MiB",
+                lattice_spacing_deg(n, k),
+                need(k) >> 20,
+                memory_limit >> 20
+            );
+        }
+        return Ok(k);
+    }
+    let finest = inputs.finest_deg();
+    let wanted = (0..=MAX_K)
+        .find(|&k| lattice_spacing_deg(n, k) <= finest * (1.0 + 1e-9))
+        .unwrap_or(MAX_K);
+    if fits(wanted) {
+        return Ok(wanted);
+    }
+    let capped = (0..wanted).rev().find(|&k| fits(k));
+    match capped {
+        Some(k) => Ok(k),
+        None => bail!(
+            "even the coarsest planet lattice needs about {} MiB, over the memory limit of {} MiB",
+            need(0) >> 20,
+            memory_limit >> 20
+        ),
+    }
+}
+
+/// The resampled lattice: integer heights under `plan`, and per face point which input won.
+pub struct Resampled {
+    /// The planet's heights.
+    pub planet: PlanetGrid,
+    /// Per face, per lattice point (row-major): the winning input's index, `u8::MAX` for none.
+    pub winners: Vec<Vec<u8>>,
+}
+
+/// Resamples the inputs onto the `N`, `K` cube-sphere (see the module documentation).
+pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Result<Resampled> {
+    let domain = Domain::cube_sphere(n, k)?;
+    let side = domain.cube().expect("a cube-sphere").side();
+    let points = side as usize + 1;
+    let lattice_deg = lattice_spacing_deg(n, k);
+    let mut faces = Vec::with_capacity(6);
+    let mut winners = Vec::with_capacity(6);
+    for face in 0..domain.faces() {
+        let results: Vec<(Option<i32>, u8)> = (0..points * points)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = ((i % points) as i64, (i / points) as i64);
+                let ll = lattice_lat_lon(&domain, face, x, y).expect("a point of the face");
+                match inputs.height_at(ll, lattice_deg) {
+                    Some((v, w)) => (plan.to_units(v).ok().flatten(), w),
+                    None => (None, u8::MAX),
+                }
+            })
+            .collect();
+        faces.push(HeightGrid {
+            width: points,
+            height: points,
+            values: results.iter().map(|r| r.0.unwrap_or(0)).collect(),
+            valid: results.iter().map(|r| r.0.is_some()).collect(),
+        });
+        winners.push(results.iter().map(|r| r.1).collect());
+    }
+    let planet = PlanetGrid::new(n, k, faces)?;
+    Ok(Resampled { planet, winners })
+}
+
+/// How far the resampled lattice is from one input's own samples.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputResampling {
+    /// The input.
+    pub path: PathBuf,
+    /// Its valid samples.
+    pub samples: u64,
+    /// Of those, the samples compared: those whose four surrounding lattice points all took
+    /// their height from this input.
+    pub compared: u64,
+    /// Largest |lattice − sample|, metres (0 when none was compared).
+    pub max_error: f64,
+    /// Root mean square of the same, metres.
+    pub rms_error: f64,
+    /// Where the largest error is: the sample's latitude and longitude.
+    pub worst_at: Option<LatLon>,
+}
+
+/// Measures each input's samples against the bilinear interpolant of the resampled lattice
+/// (heights in metres under `plan`) in face coordinates.
+pub fn resampling_error(
+    inputs: &PlanetInputs,
+    resampled: &Resampled,
+    plan: &QuantPlan,
+) -> Vec<InputResampling> {
+    let planet = &resampled.planet;
+    let side = planet.domain().cube().expect("a cube-sphere").side();
+    let points = side as usize + 1;
+    inputs
+        .inputs
+        .iter()
+        .enumerate()
+        .map(|(i, input)| {
+            let me = u8::try_from(i).unwrap_or(u8::MAX);
+            let (samples, compared, max, sum2, worst_at) = (0..input.height)
+                .into_par_iter()
+                .map(|r| {
+                    let mut acc = (0u64, 0u64, 0f64, 0f64, None);
+                    for c in 0..input.width {
+                        let Some(v) = input.sample(c, r) else {
+                            continue;
+                        };
+                        acc.0 += 1;
+                        let ll = input.lat_lon_of(c, r);
+                        let (face, s, t) = lat_lon_to_face_st(ll);
+                        let (x, y) = (s * side as f64, t * side as f64);
+                        let (x0, y0) = (
+                            (x.floor() as i64).min(side - 1),
+                            (y.floor() as i64).min(side - 1),
+                        );
+                        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+                        let corner = |dx: i64, dy: i64| {
+                            let (px, py) = (x0 + dx, y0 + dy);
+                            let won = resampled.winners[usize::from(face)]
+                                [py as usize * points + px as usize];
+                            (won == me)
+                                .then(|| planet.get(face, px, py).map(|u| plan.metres(u)))
+                                .flatten()
+                        };
+                        let (Some(a), Some(b), Some(cc), Some(d)) =
+                            (corner(0, 0), corner(1, 0), corner(0, 1), corner(1, 1))
+                        else {
+                            continue;
+                        };
+                        let l = (a * (1.0 - fx) + b * fx) * (1.0 - fy)
+                            + (cc * (1.0 - fx) + d * fx) * fy;
+                        let e = (l - v).abs();
+                        acc.1 += 1;
+                        if e > acc.2 || acc.4.is_none() {
+                            acc.2 = e;
+                            acc.4 = Some(ll);
+                        }
+                        acc.3 += e * e;
+                    }
+                    acc
+                })
+                .reduce(
+                    || (0, 0, 0.0, 0.0, None),
+                    |a, b| {
+                        let (max, at) = if b.2 > a.2 || a.4.is_none() {
+                            (b.2, b.4)
+                        } else {
+                            (a.2, a.4)
+                        };
+                        (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
+                    },
+                );
+            InputResampling {
+                path: input.path.clone(),
+                samples,
+                compared,
+                max_error: max,
+                rms_error: if compared > 0 {
+                    (sum2 / compared as f64).sqrt()
+                } else {
+                    0.0
+                },
+                worst_at,
+            }
+        })
+        .collect()
+}
+
+/// What a planet build made.
+#[derive(Clone, Debug)]
+pub struct PlanetSummary {
+    /// Diamond grid side `N`.
+    pub n: usize,
+    /// Level pairs `K`.
+    pub level_pairs: u32,
+    /// Whether `K` is coarser than the finest input asks for (the memory limit capped it).
+    pub capped: bool,
+    /// Mean lattice spacing, degrees.
+    pub lattice_deg: f64,
+    /// Distinct lattice points (`6·S² + 2`).
+    pub lattice_points: u64,
+    /// Lattice points with data.
+    pub valid: u64,
+    /// Records in the repository.
+    pub records: usize,
+    /// The integer mapping.
+    pub plan: QuantPlan,
+    /// Per input, the resampling error against its samples.
+    pub resampling: Vec<InputResampling>,
+    /// Wall time of each stage.
+    pub stages: Vec<(&'static str, std::time::Duration)>,
+}
+
+/// Distinct lattice points with data (a point on a cube edge or corner counted once).
+pub fn count_valid(planet: &PlanetGrid) -> u64 {
+    let d = planet.domain();
+    (0..d.faces())
+        .map(|f| {
+            let g = planet.face(f);
+            (0..g.height)
+                .into_par_iter()
+                .map(|y| {
+                    (0..g.width)
+                        .filter(|&x| {
+                            g.valid[y * g.width + x]
+                                && d.canonical_point(f, x as i64, y as i64)
+                                    .is_some_and(|c| c.face == f)
+                        })
+                        .count() as u64
+                })
+                .sum::<u64>()
+        })
+        .sum()
+}
+
+/// Checks the options a planet build does not take.
+fn refuse_planar_options(opts: &BuildOptions) -> Result<()> {
+    if opts.colour || opts.like.is_some() {
+        bail!("--planet builds elevation; colour planets are not supported yet");
+    }
+    if opts.raw_size.is_some() {
+        bail!("--planet: raw float32 inputs carry no georeferencing");
+    }
+    if opts.assign_georef.is_some() {
+        bail!(
+            "--planet: --bounds/--crs are not supported with --planet yet; georeference the input"
+        );
+    }
+    if opts.alpha != Alpha::One {
+        bail!("--planet needs --alpha one (the α = ½ analysis filter is planar)");
+    }
+    if opts.block_plan.is_some() {
+        bail!("--planet does not take --block-plan (planets are encoded whole)");
+    }
+    if opts.quantum.is_some() {
+        bail!("--planet: resampled heights lie on no value grid, so --quantum does not apply");
+    }
+    Ok(())
+}
+
+/// Builds a planet repository from `opts.inputs` (each a geographic or UTM DEM, a directory,
+/// glob or `@list` of them).
+pub fn build_planet(
+    opts: &BuildOptions,
+    planet_level: Option<u32>,
+    progress: &dyn Progress,
+) -> Result<PlanetSummary> {
+    refuse_planar_options(opts)?;
+    if !(opts.max_error.is_finite() && opts.max_error > 0.0) {
+        bail!(
+            "--max-error must be a positive number of metres, not {}",
+            opts.max_error
+        );
+    }
+    if opts.output.is_dir() {
+        bail!("output path {} is a directory", opts.output.display());
+    }
+    let limit = opts
+        .memory_limit
+        .unwrap_or_else(crate::plan::default_memory_limit);
+    let event = |stage, done| {
+        progress.event(ProgressEvent {
+            stage,
+            done,
+            total: 1,
+        })
+    };
+    let mut stages = Vec::new();
+    event(Stage::Prepare, 0);
+    let t = Instant::now();
+    let tiles = crate::tiles::expand_inputs(&opts.inputs)?;
+    let inputs = PlanetInputs::read(&tiles, opts.nodata)?;
+    stages.push(("read", t.elapsed()));
+    let n = opts.diamond_size;
+    let k = choose_level(&inputs, n, planet_level, limit)?;
+    let wanted = choose_level(&inputs, n, None, u64::MAX)?;
+    let Some((lo, hi)) = inputs.range() else {
+        bail!("the inputs have no valid sample (all nodata or NaN)");
+    };
+    let plan = QuantPlan::new(opts.max_error, None, lo, hi)?;
+    let t = Instant::now();
+    let resampled = resample(&inputs, n, k, &plan)?;
+    stages.push(("resample", t.elapsed()));
+    let t = Instant::now();
+    let resampling = resampling_error(&inputs, &resampled, &plan);
+    stages.push(("measure resampling error", t.elapsed()));
+    event(Stage::Prepare, 1);
+    event(Stage::Encode, 0);
+    let t = Instant::now();
+    let enc = EncodeOptions {
+        n,
+        extra_level_pairs: 0,
+        alpha: Alpha::One,
+        coder: opts.coder,
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(opts.threads.unwrap_or(0))
+        .build()
+        .context("starting the encoder's threads")?;
+    let encoded = pool.install(|| encode_planet(&resampled.planet, plan.quantizer, &enc))?;
+    stages.push(("encode", t.elapsed()));
+    event(Stage::Encode, 1);
+    event(Stage::Write, 0);
+    let t = Instant::now();
+    write_repository(&opts.output, &encoded, &plan, None, opts.nodata)
+        .with_context(|| format!("writing {}", opts.output.display()))?;
+    stages.push(("write", t.elapsed()));
+    event(Stage::Write, 1);
+    let valid = count_valid(&resampled.planet);
+    Ok(PlanetSummary {
+        n,
+        level_pairs: k,
+        capped: k < wanted && planet_level.is_none(),
+        lattice_deg: lattice_spacing_deg(n, k),
+        lattice_points: resampled.planet.lattice_points(),
+        valid,
+        records: encoded.records.len(),
+        plan,
+        resampling,
+        stages,
+    })
+}
+
+/// A planet repository checked against its inputs ([`compare_planet`]).
+#[derive(Clone, Debug)]
+pub struct PlanetComparison {
+    /// Every level of the hierarchy against the resampled lattice (units; bound `k`).
+    pub report: cbdam_codec::hierarchy::VerifyReport,
+    /// The resampled lattice against each input's samples (what the build reported).
+    pub resampling: Vec<InputResampling>,
+    /// The decoded finest level against each input's samples, measured the same way.
+    pub end_to_end: Vec<InputResampling>,
+    /// The repository's bound in metres.
+    pub max_error: f64,
+}
+
+impl PlanetComparison {
+    /// Errors unless every level is within the bound and, per input, the decoded surface is
+    /// within the bound plus the resampling error of the samples (the triangle inequality: the
+    /// bilinear weights are non-negative and sum to 1).
+    pub fn check(&self) -> Result<()> {
+        if !self.report.within_bound() {
+            bail!(
+                "a level exceeds the bound: max error {} units, bound {}",
+                self.report.max_error(),
+                self.report.bound
+            );
+        }
+        for (r, e) in self.resampling.iter().zip(&self.end_to_end) {
+            let allowed = r.max_error + self.max_error + 1e-9;
+            if e.max_error > allowed {
+                bail!(
+                    "{}: the decoded surface is {:.6} m from a sample, over the {:.6} m of the \
+                     bound plus the resampling error",
+                    e.path.display(),
+                    e.max_error,
+                    allowed
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Checks a planet repository against the inputs it was built from: the inputs are resampled
+/// again onto the repository's lattice (the same arithmetic as the build, so the same integer
+/// lattice), every level is compared with it exactly
+/// ([`cbdam_codec::hierarchy::verify_planet`]), and both the lattice and the decoded finest
+/// level are measured against the inputs' samples.
+pub fn compare_planet(
+    repo: &cbdam_codec::repository::Repository,
+    tiles: &[Tile],
+    nodata: Option<f64>,
+) -> Result<PlanetComparison> {
+    use cbdam_codec::hierarchy::{reconstruct_planet, verify_planet};
+    let domain = repo.params().domain;
+    if domain.cube().is_none() {
+        bail!("this repository is planar: compare it with compare_dem or compare_tiles");
+    }
+    let plan = *repo.plan();
+    let inputs = PlanetInputs::read(tiles, nodata)?;
+    let (n, k) = (domain.n(), domain.layout().k());
+    let resampled = resample(&inputs, n, k, &plan)?;
+    let encoded = repo.to_encoded()?;
+    let report = verify_planet(&encoded, &resampled.planet)?;
+    let resampling = resampling_error(&inputs, &resampled, &plan);
+    let decoded = Resampled {
+        planet: PlanetGrid::new(n, k, reconstruct_planet(&encoded)?)?,
+        winners: resampled.winners,
+    };
+    let end_to_end = resampling_error(&inputs, &decoded, &plan);
+    Ok(PlanetComparison {
+        report,
+        resampling,
+        end_to_end,
+        max_error: plan.max_error(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn input(spacing_deg: f64) -> PlanetInput {
+        PlanetInput {
+            path: PathBuf::from("x.tif"),
+            width: 2,
+            height: 2,
+            samples: Samples::compact(vec![0.0; 4]),
+            nodata: None,
+            frame: Frame::Geographic {
+                lon0: 0.0,
+                lat0: 1.0,
+                dlon: spacing_deg,
+                dlat: spacing_deg,
+                period: None,
+            },
+            spacing_deg,
+        }
+    }
+
+    /// The lattice is the coarsest at least as fine as the finest input, and the memory limit
+    /// caps it (or refuses a forced level above it).
+    #[test]
+    fn the_level_follows_the_finest_input_within_the_memory_limit() {
+        let inputs = PlanetInputs {
+            inputs: vec![input(0.25), input(2.0)],
+        };
+        // 90°/(16·2^K) ≤ 0.25° first at K = 5 (0.176°); K = 4 is 0.352°.
+        assert_eq!(choose_level(&inputs, 17, None, u64::MAX).unwrap(), 5);
+        let at = |k: u32| {
+            let side = 16u64 << k;
+            6 * (side + 1) * (side + 1) * BYTES_PER_LATTICE_POINT
+        };
+        assert_eq!(choose_level(&inputs, 17, None, at(5)).unwrap(), 5);
+        assert_eq!(choose_level(&inputs, 17, None, at(5) - 1).unwrap(), 4);
+        assert!(choose_level(&inputs, 17, Some(6), at(5)).is_err());
+        assert_eq!(choose_level(&inputs, 17, Some(3), at(5)).unwrap(), 3);
+    }
+
+    /// Bilinear interpolation reproduces a function linear in columns and rows, wraps across
+    /// the seam of a global input, and needs all four samples valid.
+    #[test]
+    fn bilinear_wraps_and_needs_four_valid_samples() {
+        // 4 columns of 90°: a global input; value = 10·column + row.
+        let mut values: Vec<f64> = (0..12).map(|i| f64::from(10 * (i % 4) + i / 4)).collect();
+        let mut g = PlanetInput {
+            path: PathBuf::from("g.tif"),
+            width: 4,
+            height: 3,
+            samples: Samples::compact(values.clone()),
+            nodata: Some(-1.0),
+            frame: Frame::Geographic {
+                lon0: 0.0,
+                lat0: 90.0,
+                dlon: 90.0,
+                dlat: 90.0,
+                period: Some(4),
+            },
+            spacing_deg: 90.0,
+        };
+        let at = |g: &PlanetInput, lat, lon| g.bilinear(g.pixel_of(LatLon { lat, lon }).unwrap());
+        assert_eq!(at(&g, 45.0, 45.0), Some(5.0 + 0.5));
+        // Between column 3 (270°) and column 0 (360° = 0°): halfway is 315° = −45°.
+        assert_eq!(at(&g, 0.0, -45.0), Some(0.5 * 30.0 + 0.5 * 0.0 + 1.0));
+        values[4] = -1.0;
+        g.samples = Samples::compact(values);
+        assert_eq!(at(&g, 45.0, 45.0), None);
+    }
+}

@@ -1,0 +1,231 @@
+//! `cbdam build --planet` and `cbdam verify` on planets: geographic and UTM GeoTIFFs resampled
+//! onto the cube-sphere, the finest input winning, the L∞ bound exact at every level against the
+//! resampled lattice and the resampling error measured against the inputs' samples; inputs that
+//! cannot be placed are refused by name, leaving nothing behind.
+
+use std::path::Path;
+
+use cbdam_build::write::{Raster, write_geotiff};
+use cbdam_codec::geodesy::{LatLon, Utm};
+use cbdam_codec::input::GeoRef;
+
+use crate::util::{cbdam, s, stderr, stdout};
+
+/// A smooth relief over the globe, single-valued at the poles: linear in the direction of the
+/// point, ±1000 m towards 0° E on the equator, ±300 m towards the poles.
+fn relief(ll: LatLon) -> f64 {
+    let (lat, lon) = (ll.lat.to_radians(), ll.lon.to_radians());
+    1000.0 * lat.cos() * lon.cos() + 300.0 * lat.sin() + 500.0
+}
+
+/// A hill of 300 m, 2° wide, at 45° N 15° E.
+fn hill(ll: LatLon) -> f64 {
+    let d2 = (ll.lat - 45.0).powi(2) + (ll.lon - 15.0).powi(2);
+    300.0 * (-d2 / 2.0).exp()
+}
+
+fn write(path: &Path, (w, h): (usize, usize), georef: GeoRef, at: impl Fn(usize, usize) -> f64) {
+    let values = (0..w * h).map(|i| at(i % w, i / w)).collect();
+    let r = Raster {
+        width: w,
+        height: h,
+        values,
+        georef: Some(georef),
+    };
+    write_geotiff(std::fs::File::create(path).unwrap(), &r, None, false).unwrap();
+}
+
+fn geographic(origin: (f64, f64), pixel: f64) -> GeoRef {
+    GeoRef {
+        epsg: Some(4326),
+        origin_x: origin.0,
+        origin_y: origin.1,
+        pixel_x: pixel,
+        pixel_y: pixel,
+        pixel_is_area: false,
+        wkt: None,
+    }
+}
+
+/// The global grid: 2° pixel-is-point samples, longitudes 0 … 358 (it wraps), latitudes 90 … −90.
+fn write_global(path: &Path) {
+    write(path, (180, 91), geographic((0.0, 90.0), 2.0), |c, r| {
+        relief(LatLon {
+            lat: 90.0 - 2.0 * r as f64,
+            lon: 2.0 * c as f64,
+        })
+    });
+}
+
+/// Reads `name: N of M samples compared; resampling error … max X m` from verify's output.
+fn compared_and_max(out: &str, name: &str) -> (u64, u64, f64) {
+    let line = out
+        .lines()
+        .find(|l| l.contains(name) && l.contains("resampling error"))
+        .unwrap_or_else(|| panic!("no line for {name} in\n{out}"));
+    let num = |after: &str| -> f64 {
+        let rest = &line[line.find(after).unwrap() + after.len()..];
+        let t: String = rest
+            .trim_start()
+            .chars()
+            .take_while(|c| c.is_ascii_digit() || *c == '.')
+            .collect();
+        t.parse().unwrap()
+    };
+    let compared = num(": ") as u64;
+    let of = num(" of ") as u64;
+    (compared, of, num("max "))
+}
+
+#[test]
+fn a_planet_from_a_global_grid_a_finer_inset_and_a_utm_tile_verifies() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let global = d.join("global.tif");
+    write_global(&global);
+    // The inset: 0.25° over 40…50° N, 10…20° E, the relief plus a hill the global grid lacks.
+    let inset = d.join("inset.tif");
+    write(&inset, (41, 41), geographic((10.0, 50.0), 0.25), |c, r| {
+        let ll = LatLon {
+            lat: 50.0 - 0.25 * r as f64,
+            lon: 10.0 + 0.25 * c as f64,
+        };
+        relief(ll) + hill(ll)
+    });
+    // A UTM tile (zone 33 N, 2 km pixels, 120 km square, near 30° N 15° E: finer than the
+    // lattice, so area-averaged) whose samples are
+    // the relief at each pixel's latitude and longitude (the inverse of UTM, itself checked
+    // against GeographicLib): misplacing it (wrong zone, axes, hemisphere) shows as error.
+    let utm = Utm::from_epsg(32633).unwrap();
+    let utm_tif = d.join("utm33.tif");
+    let (e0, n0) = (440_000.0, 3_380_000.0);
+    let utm_georef = GeoRef {
+        epsg: Some(32633),
+        origin_x: e0,
+        origin_y: n0,
+        pixel_x: 2000.0,
+        pixel_y: 2000.0,
+        pixel_is_area: false,
+        wkt: None,
+    };
+    write(&utm_tif, (61, 61), utm_georef, |c, r| {
+        relief(utm.inverse(e0 + 2000.0 * c as f64, n0 - 2000.0 * r as f64))
+    });
+    let out = d.join("planet.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(&global),
+        &s(&inset),
+        &s(&utm_tif),
+        "--planet",
+        "--diamond-size",
+        "17",
+        "--planet-level",
+        "5",
+        "-o",
+        &s(&out),
+        "--max-error",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    // 90°/(16·2^5) = 0.176° lattice: finer than the inset (bilinear), coarser than the UTM
+    // tile's 2 km (area-averaged).
+    assert!(text.contains("K = 5"), "{text}");
+    assert!(text.contains("cube-sphere"), "{text}");
+
+    let o = cbdam(&[
+        "verify",
+        &s(&out),
+        "--against",
+        &s(&global),
+        &s(&inset),
+        &s(&utm_tif),
+    ]);
+    let text = stdout(&o);
+    assert!(o.status.success(), "{text}\n{}", stderr(&o));
+    assert!(text.contains("OK"), "{text}");
+    // Every level within the bound against the resampled lattice, all 11 levels listed.
+    assert!(text.contains("max error") && text.lines().any(|l| l.trim_start().starts_with("10 ")));
+
+    // The finest input wins where it lies: its samples are compared (all but its edges, where
+    // a lattice cell reaches past it) and the global grid's samples under it are not.
+    let (inset_compared, inset_samples, inset_max) = compared_and_max(&text, "inset.tif");
+    assert_eq!(inset_samples, 41 * 41);
+    assert!(inset_compared > 1000, "{text}");
+    let (global_compared, global_samples, global_max) = compared_and_max(&text, "global.tif");
+    assert_eq!(global_samples, 180 * 91);
+    assert!(global_compared < global_samples, "{text}");
+    let (utm_compared, _, utm_max) = compared_and_max(&text, "utm33.tif");
+    assert!(utm_compared > 2000, "{text}");
+    // The relief is smooth: linear interpolation over a 2° input and a 0.18° lattice is off
+    // by (h²/8)·|f''| ≈ (0.035²/8)·1000 m ≈ 0.15 m per step, twice, plus half a 0.25 m unit,
+    // and averaging 2 km pixels over a 20 km cell by (w²/24)·|f''| ≈ 0.01 m; geocentric
+    // instead of geodetic latitudes would add up to 0.19° × 17 m/° ≈ 3 m, a mirrored or
+    // shifted input hundreds of metres.
+    assert!(
+        global_max < 1.0,
+        "global resampling error {global_max} m\n{text}"
+    );
+    assert!(utm_max < 1.0, "UTM resampling error {utm_max} m\n{text}");
+    // The inset's hill is sharper: |f''| ≤ 300 m/deg², so bilinear over 0.25° samples then
+    // over lattice cells of at most 0.2° is off by at most 2·(0.25² + 0.2²)/8 · 300 ≈ 7.7 m.
+    assert!(
+        inset_max < 7.7,
+        "inset resampling error {inset_max} m\n{text}"
+    );
+
+    let o = cbdam(&["inspect", &s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("cube-sphere"), "{}", stdout(&o));
+}
+
+#[test]
+fn inputs_a_planet_cannot_place_are_refused_by_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let global = d.join("global.tif");
+    write_global(&global);
+    // Lambert-93 (EPSG:2154) is projected but not UTM.
+    let lambert = d.join("lambert.tif");
+    let mut g = geographic((700_000.0, 6_600_000.0), 1000.0);
+    g.epsg = Some(2154);
+    write(&lambert, (8, 8), g, |_, _| 10.0);
+    let out = d.join("p.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(&global),
+        &s(&lambert),
+        "--planet",
+        "-o",
+        &s(&out),
+        "--max-error",
+        "1",
+    ]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(
+        err.contains("lambert.tif") && err.contains("EPSG:2154"),
+        "{err}"
+    );
+    assert!(err.contains("UTM"), "{err}");
+    assert!(!out.exists());
+
+    // A lattice over the memory limit is refused before anything is allocated.
+    let o = cbdam(&[
+        "build",
+        &s(&global),
+        "--planet",
+        "--planet-level",
+        "9",
+        "--memory-limit",
+        "64M",
+        "-o",
+        &s(&out),
+        "--max-error",
+        "1",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("memory limit"), "{}", stderr(&o));
+    assert!(!out.exists());
+}
