@@ -90,13 +90,30 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             ),
         }
     );
+    if let Some(pv) = repo.provenance() {
+        println!("vertical datum  {}", pv.vertical_datum.name());
+        println!(
+            "resampling      lattice − input samples: max {:.3} m, rms {:.3} m (the bound below \
+             holds against the lattice)",
+            pv.resampling_max, pv.resampling_rms
+        );
+    }
     println!("file            {} bytes", repo.file_len());
-    println!(
-        "data            {}×{} samples, {:.4} bits/sample",
-        p.domain.data().width,
-        p.domain.data().height,
-        bits
-    );
+    match p.domain.cube() {
+        None => println!(
+            "data            {}×{} samples, {:.4} bits/sample",
+            p.domain.data().width,
+            p.domain.data().height,
+            bits
+        ),
+        Some(_) => println!(
+            "data            6 faces of {}×{} points, {} distinct lattice points, {:.4} bits/point",
+            p.domain.data().width,
+            p.domain.data().height,
+            p.domain.lattice_points(),
+            bits
+        ),
+    }
     println!(
         "hierarchy       N = {}, K = {} (levels 0…{finest}), {}×{} roots, α = {}, {} coder",
         p.layout().n(),

@@ -57,7 +57,8 @@ pub fn summarize(repo: &Repository) -> Summary {
         // Smooth terrain has many all-zero records at coarse tolerances.
         empty_records += usize::from(e.length == 0);
     }
-    let samples = p.domain.data().samples();
+    // Distinct lattice points: the data rectangle on a plane, 6·S² + 2 on a planet.
+    let samples = p.domain.lattice_points();
     Summary {
         levels,
         empty_records,
@@ -125,7 +126,15 @@ pub fn describe(repo: &Repository) -> Value {
         .collect();
     let section = |sec: Section| json!({ "offset": repo.section_offset(sec), "length": repo.section_len(sec) });
     let roots: Vec<String> = p.domain.roots().map(|id| id.to_string()).collect();
-    json!({
+    // A planet's provenance, null for planes.
+    let planet = repo.provenance().map(|v| {
+        json!({
+            "vertical_datum": v.vertical_datum.code(),
+            "resampling_max_m": v.resampling_max,
+            "resampling_rms_m": v.resampling_rms,
+        })
+    });
+    let mut v = json!({
         "format_version": repo.head().format_version(),
         "kind": p.kind.name(),
         "domain": p.domain.kind().name(),
@@ -176,5 +185,7 @@ pub fn describe(repo: &Repository) -> Value {
         "object_error_range_m": [metres(s.object_error_range.0), metres(s.object_error_range.1)],
         "leaf_error_m": metres(repo.leaf_error()),
         "levels": levels,
-    })
+    });
+    v["planet"] = planet.unwrap_or(Value::Null);
+    v
 }

@@ -175,9 +175,18 @@ fn a_planet_from_a_global_grid_a_finer_inset_and_a_utm_tile_verifies() {
         "inset resampling error {inset_max} m\n{text}"
     );
 
+    // inspect shows the domain, the datum and the resampling error the build measured, the
+    // largest of the three inputs' (the same figure verify measured again above).
     let o = cbdam(&["inspect", &s(&out)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stdout(&o).contains("cube-sphere"), "{}", stdout(&o));
+    let shown = stdout(&o);
+    assert!(shown.contains("cube-sphere"), "{shown}");
+    assert!(shown.contains("vertical datum  orthometric"), "{shown}");
+    let worst = global_max.max(inset_max).max(utm_max);
+    assert!(
+        shown.contains(&format!("max {worst:.3} m")),
+        "expected max {worst:.3} m in\n{shown}"
+    );
 }
 
 #[test]

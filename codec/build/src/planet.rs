@@ -25,14 +25,14 @@ use crate::error::{Context, Result, bail};
 use crate::mosaic::Samples;
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
-use cbdam_codec::geodesy::cube_map::lat_lon_to_face_st;
+use cbdam_codec::geodesy::cube_map::{face_st_to_lat_lon, lat_lon_to_face_st};
 use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
 use cbdam_codec::input::{GeoRef, ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
-use cbdam_codec::repository::write_repository;
+use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
 
 /// Metres per degree of arc on the ground (the WGS 84 mean), to compare projected spacings with
 /// angular ones.
@@ -463,7 +463,13 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
             .into_par_iter()
             .map(|i| {
                 let (x, y) = ((i % points) as i64, (i / points) as i64);
-                let ll = lattice_lat_lon(&domain, face, x, y).expect("a point of the face");
+                // Interior points are their own canonical point; edge and corner points are
+                // computed from their owner, so every face holding one sees the same bits.
+                let ll = if 0 < x && x < side && 0 < y && y < side {
+                    face_st_to_lat_lon(face, x as f64 / side as f64, y as f64 / side as f64)
+                } else {
+                    lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
+                };
                 match inputs.height_at(ll, lattice_deg) {
                     Some((v, w)) => (plan.to_units(v).ok().flatten(), w),
                     None => (None, u8::MAX),
@@ -583,6 +589,26 @@ pub fn resampling_error(
             }
         })
         .collect()
+}
+
+/// The header's summary of the resampling: the largest error over all inputs and the root mean
+/// square over all compared samples; heights as the inputs give them (DEMs are orthometric —
+/// the inputs' vertical GeoKeys are not read yet).
+pub fn provenance_of(resampling: &[InputResampling]) -> PlanetProvenance {
+    let compared: u64 = resampling.iter().map(|r| r.compared).sum();
+    let sum2: f64 = resampling
+        .iter()
+        .map(|r| r.rms_error * r.rms_error * r.compared as f64)
+        .sum();
+    PlanetProvenance {
+        vertical_datum: VerticalDatum::Orthometric,
+        resampling_max: resampling.iter().map(|r| r.max_error).fold(0.0, f64::max),
+        resampling_rms: if compared > 0 {
+            (sum2 / compared as f64).sqrt()
+        } else {
+            0.0
+        },
+    }
 }
 
 /// What a planet build made.
@@ -721,8 +747,14 @@ pub fn build_planet(
     event(Stage::Encode, 1);
     event(Stage::Write, 0);
     let t = Instant::now();
-    write_repository(&opts.output, &encoded, &plan, None, opts.nodata)
-        .with_context(|| format!("writing {}", opts.output.display()))?;
+    write_planet_repository(
+        &opts.output,
+        &encoded,
+        &plan,
+        opts.nodata,
+        &provenance_of(&resampling),
+    )
+    .with_context(|| format!("writing {}", opts.output.display()))?;
     stages.push(("write", t.elapsed()));
     event(Stage::Write, 1);
     let valid = count_valid(&resampled.planet);

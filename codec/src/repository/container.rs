@@ -21,6 +21,7 @@ use std::io::Write;
 use std::ops::Deref;
 use std::path::Path;
 
+pub use super::header::{FLAG_PLANET_PROVENANCE, PlanetProvenance, VerticalDatum};
 use super::header::{
     HeaderFields, SectionEntry, crc32, read_header, read_prefix, reseal_header, u32_at,
     write_compact,
@@ -107,6 +108,17 @@ pub fn serialize(
     georef: Option<&GeoRef>,
     nodata: Option<f64>,
 ) -> Result<Vec<u8>, CodecError> {
+    serialize_with(encoded, plan, georef, nodata, None)
+}
+
+/// [`serialize`] with a planet's provenance in the header (flag bit 3; cube-sphere only).
+fn serialize_with(
+    encoded: &Encoded,
+    plan: &QuantPlan,
+    georef: Option<&GeoRef>,
+    nodata: Option<f64>,
+    provenance: Option<&PlanetProvenance>,
+) -> Result<Vec<u8>, CodecError> {
     let p = &encoded.params;
     if p.quantizer != plan.quantizer {
         return Err(CodecError::invalid(
@@ -140,7 +152,17 @@ pub fn serialize(
         } else {
             0
         }
-        | if cube_sphere { FLAG_CUBE_SPHERE } else { 0 };
+        | if cube_sphere { FLAG_CUBE_SPHERE } else { 0 }
+        | if provenance.is_some() {
+            FLAG_PLANET_PROVENANCE
+        } else {
+            0
+        };
+    if provenance.is_some() && !cube_sphere {
+        return Err(CodecError::invalid(
+            "a planet's provenance belongs in a cube-sphere repository",
+        ));
+    }
     let mut records_hasher = crc32fast::Hasher::new();
     for r in &encoded.records {
         records_hasher.update(&r.bytes);
@@ -177,6 +199,7 @@ pub fn serialize(
         geo: georef.map_or([0.0; 4], |g| [g.origin_x, g.origin_y, g.pixel_x, g.pixel_y]),
         nodata: nodata.unwrap_or(f64::NAN),
         wkt: georef.and_then(|g| g.wkt.clone()),
+        provenance: provenance.copied(),
         sections: [
             section(&encoded.roots),
             section(&index),
@@ -229,6 +252,28 @@ pub fn write_repository(
     })
 }
 
+/// Writes a planet repository with its provenance ([`PlanetProvenance`]) atomically, as
+/// [`write_repository`] does.
+pub fn write_planet_repository(
+    path: &Path,
+    encoded: &Encoded,
+    plan: &QuantPlan,
+    nodata: Option<f64>,
+    provenance: &PlanetProvenance,
+) -> Result<(), CodecError> {
+    if path.is_dir() {
+        return Err(CodecError::invalid(format!(
+            "output path {} is a directory",
+            path.display()
+        )));
+    }
+    let bytes = serialize_with(encoded, plan, None, nodata, Some(provenance))?;
+    write_atomically(path, |f: &mut File| -> Result<(), CodecError> {
+        f.write_all(&bytes)?;
+        Ok(())
+    })
+}
+
 /// The bytes behind a repository: a read-only file mapping, or an owned buffer.
 #[derive(Debug)]
 enum Backing {
@@ -266,6 +311,7 @@ pub struct RepositoryHead {
     header_crc: u32,
     header_len: usize,
     format_version: u16,
+    provenance: Option<PlanetProvenance>,
 }
 
 impl RepositoryHead {
@@ -300,6 +346,7 @@ impl RepositoryHead {
             header_crc: h.crc,
             header_len: h.header_len,
             format_version: h.version,
+            provenance: h.provenance,
         })
     }
 
@@ -333,6 +380,12 @@ impl RepositoryHead {
     /// The input's nodata value at build time, if any.
     pub fn nodata(&self) -> Option<f64> {
         self.nodata
+    }
+
+    /// A planet's provenance: vertical datum and resampling error (`None` for planes and for
+    /// planets written without it).
+    pub fn provenance(&self) -> Option<&PlanetProvenance> {
+        self.provenance.as_ref()
     }
 
     /// Object-space error of the finest diamonds, units.
@@ -475,10 +528,15 @@ fn parse_params(h: &HeaderFields) -> Result<(CodecParams, QuantPlan), CodecError
 /// that order.
 fn parse_layout(h: &HeaderFields) -> Result<(Domain, Alpha, CoderKind, bool), CodecError> {
     let flags = h.flags;
-    if flags & !(FLAG_NODATA_MASK | FLAG_COLOUR | FLAG_CUBE_SPHERE) != 0 {
+    if flags & !(FLAG_NODATA_MASK | FLAG_COLOUR | FLAG_CUBE_SPHERE | FLAG_PLANET_PROVENANCE) != 0 {
         return Err(CodecError::unsupported(format!(
             "unknown header flags {flags:#x}"
         )));
+    }
+    if flags & FLAG_PLANET_PROVENANCE != 0 && flags & FLAG_CUBE_SPHERE == 0 {
+        return Err(CodecError::corrupt(
+            "a planet's provenance (flag bit 3) in a planar repository",
+        ));
     }
     let n = usize::try_from(h.n).map_err(|_| CodecError::corrupt("diamond size too large"))?;
     let layout = Layout::new(n, u32::from(h.level_pairs), h.roots_x, h.roots_y)
@@ -893,6 +951,11 @@ impl Repository {
         self.head.nodata()
     }
 
+    /// A planet's provenance ([`RepositoryHead::provenance`]).
+    pub fn provenance(&self) -> Option<&PlanetProvenance> {
+        self.head.provenance()
+    }
+
     /// Object-space error of the finest diamonds, units.
     pub fn leaf_error(&self) -> u32 {
         self.head.leaf_error()
@@ -1048,11 +1111,56 @@ mod tests {
         refused(&|h| h.geo_flags = 1, "georeferencing");
         refused(&|h| h.data_width -= 1, "points, the header says");
         refused(&|h| h.flags |= FLAG_COLOUR, "colour cube-sphere");
-        refused(&|h| h.flags |= 8, "unknown header flags");
+        refused(&|h| h.flags |= 16, "unknown header flags");
+        refused(
+            &|h| h.flags = FLAG_PLANET_PROVENANCE,
+            "provenance (flag bit 3) in a planar",
+        );
         // Without the flag the same header is a plane.
         let mut plane = h.clone();
         plane.flags = 0;
         let (domain, ..) = parse_layout(&plane).unwrap();
         assert_eq!(domain.kind(), DomainKind::Planar);
+    }
+
+    /// A planet's provenance round-trips through the header (flag bit 3), is absent without
+    /// it, and a planar repository cannot carry it.
+    #[test]
+    fn a_planet_provenance_round_trips() {
+        let planet = PlanetGrid::from_fn(3, 1, |p| Some(p.x as i32 - p.y as i32)).unwrap();
+        let plan = QuantPlan::new(1.0, Some(1.0), -2.0, 2.0).unwrap();
+        let opts = EncodeOptions {
+            n: 3,
+            ..EncodeOptions::default()
+        };
+        let encoded = encode_planet(&planet, plan.quantizer, &opts).unwrap();
+        let pv = PlanetProvenance {
+            vertical_datum: VerticalDatum::Orthometric,
+            resampling_max: 12.25,
+            resampling_rms: 0.5,
+        };
+        let bytes = serialize_with(&encoded, &plan, None, None, Some(&pv)).unwrap();
+        let head = RepositoryHead::parse(&bytes, bytes.len() as u64).unwrap();
+        assert_eq!(head.provenance(), Some(&pv));
+        assert_eq!(
+            parse_header(&bytes).unwrap().flags,
+            FLAG_CUBE_SPHERE | FLAG_PLANET_PROVENANCE
+        );
+        let plain = serialize(&encoded, &plan, None, None).unwrap();
+        assert_eq!(
+            RepositoryHead::parse(&plain, plain.len() as u64)
+                .unwrap()
+                .provenance(),
+            None
+        );
+        // An rms above the max is corrupt (the CRC is resealed so the field check is reached).
+        let mut h = parse_header(&bytes).unwrap();
+        h.provenance = Some(PlanetProvenance {
+            resampling_rms: 20.0,
+            ..pv
+        });
+        let bad = write_compact(&h).unwrap();
+        let e = read_header(&bad).unwrap_err().to_string();
+        assert!(e.contains("resampling error"), "{e}");
     }
 }

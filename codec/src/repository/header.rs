@@ -48,6 +48,76 @@ pub(crate) struct SectionEntry {
     pub crc: u32,
 }
 
+/// Header flag bit 3 (only with bit 2, a cube-sphere): the header holds the planet's
+/// provenance, [`PlanetProvenance`] (`docs/FORMAT.md`, "Cube-sphere repositories").
+pub const FLAG_PLANET_PROVENANCE: u32 = 8;
+
+/// What the heights of a planet are measured from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VerticalDatum {
+    /// Not recorded.
+    Unknown,
+    /// Orthometric: above mean sea level (a geoid such as EGM96), as DEMs give heights; drawn
+    /// along the ellipsoid normal they are off the ellipsoidal height by the geoid undulation
+    /// (up to about ±100 m).
+    Orthometric,
+    /// Ellipsoidal: above the WGS84 ellipsoid.
+    Ellipsoidal,
+}
+
+impl VerticalDatum {
+    /// The byte stored in the header.
+    pub fn to_byte(self) -> u8 {
+        match self {
+            Self::Unknown => 0,
+            Self::Orthometric => 1,
+            Self::Ellipsoidal => 2,
+        }
+    }
+
+    /// The datum of a stored byte, `None` for an unknown one.
+    pub fn from_byte(b: u8) -> Option<Self> {
+        match b {
+            0 => Some(Self::Unknown),
+            1 => Some(Self::Orthometric),
+            2 => Some(Self::Ellipsoidal),
+            _ => None,
+        }
+    }
+
+    /// Its one-word code (JSON).
+    pub fn code(self) -> &'static str {
+        match self {
+            Self::Unknown => "unknown",
+            Self::Orthometric => "orthometric",
+            Self::Ellipsoidal => "ellipsoidal",
+        }
+    }
+
+    /// A phrase for it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Unknown => "unknown",
+            Self::Orthometric => "orthometric (above the geoid, as the inputs give it)",
+            Self::Ellipsoidal => "ellipsoidal (above WGS84)",
+        }
+    }
+}
+
+/// How a planet's lattice came from its inputs: the vertical datum of the heights and how far
+/// the resampled lattice is from the inputs' own samples (`cbdam build --planet`). The L∞
+/// bound of the header holds against the resampled lattice; these say what lies between that
+/// lattice and the source data.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlanetProvenance {
+    /// The inputs' vertical datum.
+    pub vertical_datum: VerticalDatum,
+    /// Largest |lattice − sample| over the inputs' compared samples, metres.
+    pub resampling_max: f64,
+    /// Root mean square of the same, metres.
+    pub resampling_rms: f64,
+}
+
 /// Every header field, as stored (validated for meaning by the container).
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct HeaderFields {
@@ -83,6 +153,8 @@ pub(crate) struct HeaderFields {
     pub nodata: f64,
     /// The CRS as WKT (version 3, with georeferencing only).
     pub wkt: Option<String>,
+    /// A planet's provenance (version 3, with flag bit 3 only).
+    pub provenance: Option<PlanetProvenance>,
     /// Roots, index, checksums, records.
     pub sections: [SectionEntry; 4],
     pub record_count: u64,
@@ -220,6 +292,7 @@ fn read_fixed(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecErr
         geo: [f64_at(b, 88), f64_at(b, 96), f64_at(b, 104), f64_at(b, 112)],
         nodata: f64_at(b, NODATA_AT),
         wkt: None,
+        provenance: None,
         sections,
         record_count: u64_at(b, RECORD_COUNT_AT),
         crc,
@@ -334,6 +407,24 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
         (0, [0.0; 4], None)
     };
     let nodata = f.f64()?;
+    let provenance = if flags & FLAG_PLANET_PROVENANCE != 0 {
+        let datum = f.byte()?;
+        let vertical_datum = VerticalDatum::from_byte(datum)
+            .ok_or_else(|| CodecError::unsupported(format!("unknown vertical datum {datum}")))?;
+        let (resampling_max, resampling_rms) = (f.f64()?, f.f64()?);
+        if !(resampling_max >= 0.0 && resampling_rms >= 0.0 && resampling_rms <= resampling_max) {
+            return Err(CodecError::corrupt(format!(
+                "resampling error max {resampling_max} m, rms {resampling_rms} m"
+            )));
+        }
+        Some(PlanetProvenance {
+            vertical_datum,
+            resampling_max,
+            resampling_rms,
+        })
+    } else {
+        None
+    };
     let record_count = f.varint()?;
     let mut sections = [SectionEntry::default(); 4];
     let mut at = b.len() as u64;
@@ -384,6 +475,7 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
         geo,
         nodata,
         wkt,
+        provenance,
         sections,
         record_count,
         crc,
@@ -441,6 +533,11 @@ pub(crate) fn write_compact(h: &HeaderFields) -> Result<Vec<u8>, CodecError> {
         out.extend_from_slice(wkt.as_bytes());
     }
     float(&mut out, h.nodata);
+    if let Some(p) = &h.provenance {
+        out.push(p.vertical_datum.to_byte());
+        float(&mut out, p.resampling_max);
+        float(&mut out, p.resampling_rms);
+    }
     varint(&mut out, h.record_count);
     for s in &h.sections {
         varint(&mut out, s.length);
@@ -555,6 +652,7 @@ mod tests {
             },
             nodata: f64::NAN,
             wkt: None,
+            provenance: None,
             sections: [
                 SectionEntry {
                     offset: 0,

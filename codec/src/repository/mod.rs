@@ -11,6 +11,7 @@ mod header;
 pub mod index;
 
 pub use container::{
-    FORMAT_VERSION, HEADER_FETCH_LEN, MAGIC, MAX_HEADER_LEN, Repository, RepositoryHead, Section,
-    header_len, required_head_len, reseal_checksums, serialize, write_repository,
+    FORMAT_VERSION, HEADER_FETCH_LEN, MAGIC, MAX_HEADER_LEN, PlanetProvenance, Repository,
+    RepositoryHead, Section, VerticalDatum, header_len, required_head_len, reseal_checksums,
+    serialize, write_planet_repository, write_repository,
 };
