@@ -97,19 +97,26 @@ pub fn run(args: &BuildArgs) -> Result<()> {
     }
 }
 
+/// `timings: STAGE T s, …, total T s (R` — the stage times of `--timings` and the rate of
+/// `count` units over the whole run; the caller names the unit and closes the parenthesis.
+fn timings(stages: &[(&'static str, std::time::Duration)], start: Instant, count: u64) -> String {
+    let total = start.elapsed().as_secs_f64();
+    let parts: Vec<String> = stages
+        .iter()
+        .map(|(name, d)| format!("{name} {:.3} s", d.as_secs_f64()))
+        .collect();
+    format!(
+        "timings: {}, total {total:.3} s ({:.2}",
+        parts.join(", "),
+        count as f64 / total / 1e6
+    )
+}
+
 fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Result<()> {
     if args.timings {
-        let total = start.elapsed();
-        let parts: Vec<String> = s
-            .stages
-            .iter()
-            .map(|(name, d)| format!("{name} {:.3} s", d.as_secs_f64()))
-            .collect();
         eprintln!(
-            "timings: {}, total {:.3} s ({:.2} M samples/s); reconstruction in {}",
-            parts.join(", "),
-            total.as_secs_f64(),
-            (s.width * s.height) as f64 / total.as_secs_f64() / 1e6,
+            "{} M samples/s); reconstruction in {}",
+            timings(&s.stages, start, (s.width * s.height) as u64),
             s.temporaries
         );
     }
@@ -137,17 +144,9 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
 
 fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<()> {
     if args.timings {
-        let total = start.elapsed();
-        let parts: Vec<String> = s
-            .stages
-            .iter()
-            .map(|(name, d)| format!("{name} {:.3} s", d.as_secs_f64()))
-            .collect();
         eprintln!(
-            "timings: {}, total {:.3} s ({:.2} M lattice points/s)",
-            parts.join(", "),
-            total.as_secs_f64(),
-            s.lattice_points as f64 / total.as_secs_f64() / 1e6,
+            "{} M lattice points/s)",
+            timings(&s.stages, start, s.lattice_points)
         );
     }
     if args.quiet {

@@ -174,15 +174,7 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         bail!("--like only applies to colour repositories (--colour)");
     }
     // Cheap checks first, so a typo does not cost a DEM read.
-    if !(opts.max_error.is_finite() && opts.max_error > 0.0) {
-        bail!(
-            "--max-error must be a positive number of metres, not {}",
-            opts.max_error
-        );
-    }
-    if opts.output.is_dir() {
-        bail!("output path {} is a directory", opts.output.display());
-    }
+    check_tolerance_and_output(opts)?;
     if opts.threads == Some(0) {
         bail!("--threads must be at least 1");
     }
@@ -359,6 +351,21 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         stages,
         temporaries: storage.describe(),
     })
+}
+
+/// The checks every elevation build makes before reading anything: a positive finite
+/// tolerance and an output path that is not a directory.
+fn check_tolerance_and_output(opts: &BuildOptions) -> Result<()> {
+    if !(opts.max_error.is_finite() && opts.max_error > 0.0) {
+        bail!(
+            "--max-error must be a positive number of metres, not {}",
+            opts.max_error
+        );
+    }
+    if opts.output.is_dir() {
+        bail!("output path {} is a directory", opts.output.display());
+    }
+    Ok(())
 }
 
 /// Everything a block encode's output depends on, one `name=value` line each: the journal of an

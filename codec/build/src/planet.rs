@@ -691,15 +691,7 @@ pub fn build_planet(
     progress: &dyn Progress,
 ) -> Result<PlanetSummary> {
     refuse_planar_options(opts)?;
-    if !(opts.max_error.is_finite() && opts.max_error > 0.0) {
-        bail!(
-            "--max-error must be a positive number of metres, not {}",
-            opts.max_error
-        );
-    }
-    if opts.output.is_dir() {
-        bail!("output path {} is a directory", opts.output.display());
-    }
+    crate::check_tolerance_and_output(opts)?;
     let limit = opts
         .memory_limit
         .unwrap_or_else(crate::plan::default_memory_limit);

@@ -1087,8 +1087,8 @@ mod tests {
     use super::*;
     use crate::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
 
-    #[test]
-    fn a_cube_sphere_header_is_checked_field_by_field() {
+    /// A small planet (N = 3, K = 1), its plan and its encoding.
+    fn small_planet() -> (PlanetGrid, QuantPlan, Encoded) {
         let planet = PlanetGrid::from_fn(3, 1, |p| Some(p.x as i32 - p.y as i32)).unwrap();
         let plan = QuantPlan::new(1.0, Some(1.0), -2.0, 2.0).unwrap();
         let opts = EncodeOptions {
@@ -1096,6 +1096,12 @@ mod tests {
             ..EncodeOptions::default()
         };
         let encoded = encode_planet(&planet, plan.quantizer, &opts).unwrap();
+        (planet, plan, encoded)
+    }
+
+    #[test]
+    fn a_cube_sphere_header_is_checked_field_by_field() {
+        let (planet, plan, encoded) = small_planet();
         let bytes = serialize(&encoded, &plan, None, None).unwrap();
         let h = parse_header(&bytes).unwrap();
         assert_eq!(h.flags, FLAG_CUBE_SPHERE);
@@ -1127,13 +1133,7 @@ mod tests {
     /// it, and a planar repository cannot carry it.
     #[test]
     fn a_planet_provenance_round_trips() {
-        let planet = PlanetGrid::from_fn(3, 1, |p| Some(p.x as i32 - p.y as i32)).unwrap();
-        let plan = QuantPlan::new(1.0, Some(1.0), -2.0, 2.0).unwrap();
-        let opts = EncodeOptions {
-            n: 3,
-            ..EncodeOptions::default()
-        };
-        let encoded = encode_planet(&planet, plan.quantizer, &opts).unwrap();
+        let (_, plan, encoded) = small_planet();
         let pv = PlanetProvenance {
             vertical_datum: VerticalDatum::Orthometric,
             resampling_max: 12.25,
