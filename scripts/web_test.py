@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """End-to-end test of the browser viewer in headless Chromium (run by scripts/web-test.sh).
 
-Serves the built bundle (scripts/web-build.sh) and a repository file from a loopback static
-server that honours Range requests, opens index.html?repo=FILE in the system's Chromium driven
+Exports the viewer with `cbdam web-export DIR --bundle BUNDLE --repo FILE` (the bundle of
+scripts/web-build.sh and the repository), serves DIR from a loopback static server that honours
+Range requests, opens index.html (which opens the repository) in the system's Chromium driven
 over the Chrome DevTools protocol (websocket-client), waits for the page's `window.cbdam` status
 and checks the pixels of a screenshot, not only the page's word:
 
@@ -379,11 +380,14 @@ def main():
     bundle, repository, cbdam = sys.argv[1], sys.argv[2], sys.argv[3]
     root = tempfile.mkdtemp(prefix="cbdam-web-")
     try:
-        for name in os.listdir(bundle):
-            shutil.copy(os.path.join(bundle, name), root)
-        shutil.copy(repository, os.path.join(root, "repo.cbdam"))
+        # The static site as `cbdam web-export` writes it: the bundle, and the repository the
+        # page opens without ?repo= (so the plain URL of index.html is the viewer on it).
+        subprocess.run(
+            [cbdam, "web-export", root, "--bundle", bundle, "--repo", repository],
+            check=True, stdout=subprocess.DEVNULL,
+        )
         server = serve(root)
-        url = f"http://127.0.0.1:{server.server_address[1]}/index.html?repo=repo.cbdam"
+        url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
         failures = []
 
         t = time.time()

@@ -1,6 +1,7 @@
 // Loads the viewer's wasm module and starts it on the canvas for the repository named by the
 // page URL: ?repo=URL (a .cbdam file on a server with Range support, or a `cbdam serve`
-// repository, http://host:port/v1/repos/NAME; relative URLs are resolved against the page).
+// repository, http://host:port/v1/repos/NAME; relative URLs are resolved against the page), or
+// else by the page's <meta name="cbdam-repo"> (set by `cbdam web-export --repo`).
 import init, { start } from "./cbdam_web.js";
 
 const canvas = document.getElementById("view");
@@ -37,7 +38,9 @@ fitCanvas();
 window.addEventListener("resize", fitCanvas);
 setInterval(showStatus, 250);
 
-const repo = new URLSearchParams(location.search).get("repo");
+const repo =
+  new URLSearchParams(location.search).get("repo") ||
+  document.querySelector('meta[name="cbdam-repo"]')?.content;
 if (!repo) {
   fail("no repository: open this page with ?repo=URL (a .cbdam file or a cbdam serve repository)");
   showStatus();
