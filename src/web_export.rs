@@ -62,14 +62,18 @@ fn find_bundle(given: Option<&Path>) -> Result<PathBuf> {
         return Ok(dir.to_path_buf());
     }
     let candidates = bundle_candidates();
-    candidates.iter().find(|d| is_bundle(d)).cloned().ok_or_else(|| {
-        let looked: Vec<String> = candidates.iter().map(|d| d.display().to_string()).collect();
-        anyhow::anyhow!(
-            "no viewer bundle found (looked in {}): build it with scripts/web-build.sh in the \
+    candidates
+        .iter()
+        .find(|d| is_bundle(d))
+        .cloned()
+        .ok_or_else(|| {
+            let looked: Vec<String> = candidates.iter().map(|d| d.display().to_string()).collect();
+            anyhow::anyhow!(
+                "no viewer bundle found (looked in {}): build it with scripts/web-build.sh in the \
              source tree (it writes target/web-bundle), or pass --bundle DIR",
-            looked.join(", ")
-        )
-    })
+                looked.join(", ")
+            )
+        })
 }
 
 /// What the page opens by default.

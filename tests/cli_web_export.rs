@@ -67,9 +67,7 @@ fn exports_the_bundle_and_the_repository_it_opens() {
     assert!(o.status.success(), "{}", stderr(&o));
     let page = std::fs::read_to_string(out2.join("index.html")).unwrap();
     assert!(
-        page.contains(
-            "content=\"https://example.org/t.cbdam?a=1&amp;b=&quot;2&quot;\""
-        ),
+        page.contains("content=\"https://example.org/t.cbdam?a=1&amp;b=&quot;2&quot;\""),
         "{page}"
     );
     assert_eq!(std::fs::read_dir(&out2).unwrap().count(), 4);
