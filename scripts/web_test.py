@@ -28,6 +28,7 @@ and checks the pixels of a screenshot, not only the page's word:
 Prints the times from navigation to the first frame and to the converged cut.
 
 Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
+       web_test.py --measure WIDTHxHEIGHT BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY  (figures only)
 """
 
 import base64
@@ -656,5 +657,45 @@ def main():
         shutil.rmtree(root, ignore_errors=True)
 
 
+def measure(size, bundle, repository, cbdam, runs=3):
+    """`--measure WxH`: no checks, figures only. For each of `runs` fresh browsers: navigation
+    to the first frame and to the converged cut, then the page's median frame interval and the
+    frame rate over 3 s with the cut converged (drawing every frame, refining nothing)."""
+    global WIDTH, HEIGHT
+    WIDTH, HEIGHT = (int(v) for v in size.split("x"))
+    root = tempfile.mkdtemp(prefix="cbdam-web-")
+    try:
+        subprocess.run([cbdam, "web-export", root, "--bundle", bundle, "--repo", repository],
+                       check=True, stdout=subprocess.DEVNULL)
+        server = serve(root)
+        url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
+        for run in range(runs):
+            browser = Browser(WEBGPU_FLAGS)
+            try:
+                browser.call("Page.navigate", session=True, url=url)
+                browser.wait_event("Page.loadEventFired", 30)
+                s = wait_status(browser, converged)
+                count = "[window.cbdam.frames, performance.now()]"
+                f0, t0 = browser.evaluate(count)
+                time.sleep(3)
+                f1, t1 = browser.evaluate(count)
+                s2 = wait_status(browser, lambda s: True)
+                print(
+                    f"measure {size} run {run + 1}: first frame {s.get('firstFrameMs'):.0f} ms, "
+                    f"converged {s.get('convergedMs'):.0f} ms after navigation "
+                    f"({s.get('refined')} diamonds, {s.get('triangles')} triangles, "
+                    f"{s.get('bytes')} bytes in {s.get('recordsRequested')} requests); converged: "
+                    f"{(f1 - f0) * 1000 / (t1 - t0):.2f} frames/s, median frame "
+                    f"{s2.get('frameMs'):.1f} ms"
+                )
+            finally:
+                browser.close()
+        server.shutdown()
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 if __name__ == "__main__":
+    if sys.argv[1] == "--measure":
+        sys.exit(measure(*sys.argv[2:6]))
     sys.exit(main())
