@@ -17,7 +17,8 @@ and checks the pixels of a screenshot, not only the page's word:
   diamonds); the slider sets it; the static server goes away (its port closed) while the page
   needs new records and comes back on the same port: requests fail meanwhile, the page keeps
   running and converges once it is back; a two-finger pinch (touch) from 100 to 260 pixels
-  apart scales the orbit distance by 100/260.
+  apart scales the orbit distance by 100/260, and a quarter-turn twist turns the view a quarter
+  turn the other way about the same target.
 - Record requests refused (503) and a record corrupted once by the server (its checksum
   fails) are retried: the same cut.
 - The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
@@ -35,6 +36,7 @@ import base64
 import http.server
 import io
 import json
+import math
 import os
 import re
 import shutil
@@ -424,6 +426,29 @@ def keys_slider_away_touch(browser, status, server):
     lines.append(f"touch: the pinch scaled the orbit distance by {ratio}")
     if not ratio or abs(ratio - 100 / 260) > 0.02:
         failures.append(f"touch: a pinch 100 -> 260 px should scale the distance by 0.385, not {ratio}")
+        return failures, lines
+
+    # Two fingers turning a quarter turn clockwise about the centre: the terrain follows them,
+    # the view's azimuth turns a quarter turn anticlockwise, the target stays.
+    def azimuth(camera):
+        return math.atan2(camera[3] - camera[0], camera[4] - camera[1])
+
+    def at(angle):
+        c, s = math.cos(angle), math.sin(angle)
+        return [(320 - 80 * c, 240 - 80 * s), (320 + 80 * c, 240 + 80 * s)]
+
+    touch("touchStart", at(0))
+    for k in range(1, 11):
+        touch("touchMove", at(math.pi / 2 * k / 10))
+    touch("touchEnd", [])
+    turned = wait_status(browser, lambda s: s.get("camera") != pinched["camera"] and converged(s))
+    turn = turned and (azimuth(turned["camera"]) - azimuth(pinched["camera"]) + math.pi) % math.tau - math.pi
+    moved = turned and max(abs(a - b) for a, b in zip(turned["camera"][3:5], pinched["camera"][3:5]))
+    lines.append(f"touch: the twist turned the azimuth by {turn} rad, the target moved {moved} m")
+    # The midpoint stays put when both fingers move in one frame; a frame between their moves
+    # pans a little there and back (at another azimuth): allow 2 % of the orbit distance.
+    if turn is None or abs(turn + math.pi / 2) > 0.02 or moved > 0.02 * distance(pinched["camera"]):
+        failures.append(f"touch: a quarter-turn twist should turn the view by -pi/2, not {turn} (target moved {moved} m)")
     return failures, lines
 
 
