@@ -29,7 +29,8 @@ and checks the pixels of a screenshot, not only the page's word:
 Prints the times from navigation to the first frame and to the converged cut.
 
 Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
-       web_test.py --measure WIDTHxHEIGHT BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY  (figures only)
+       web_test.py --measure WIDTHxHEIGHT BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY [REPO_URL]
+         (figures only; REPO_URL: open that instead of the exported file)
 """
 
 import base64
@@ -682,8 +683,9 @@ def main():
         shutil.rmtree(root, ignore_errors=True)
 
 
-def measure(size, bundle, repository, cbdam, runs=3):
-    """`--measure WxH`: no checks, figures only. For each of `runs` fresh browsers: navigation
+def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
+    """`--measure WxH`: no checks, figures only; the page opens the exported repository, or
+    `repo_url` (e.g. `cbdam serve` behind `cbdam link`). For each of `runs` fresh browsers: navigation
     to the first frame and to the converged cut, then the page's median frame interval and the
     frame rate over 3 s with the cut converged (drawing every frame, refining nothing)."""
     global WIDTH, HEIGHT
@@ -694,6 +696,8 @@ def measure(size, bundle, repository, cbdam, runs=3):
                        check=True, stdout=subprocess.DEVNULL)
         server = serve(root)
         url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
+        if repo_url:
+            url += "?repo=" + repo_url
         for run in range(runs):
             browser = Browser(WEBGPU_FLAGS)
             try:
@@ -722,5 +726,5 @@ def measure(size, bundle, repository, cbdam, runs=3):
 
 if __name__ == "__main__":
     if sys.argv[1] == "--measure":
-        sys.exit(measure(*sys.argv[2:6]))
+        sys.exit(measure(*sys.argv[2:7]))
     sys.exit(main())
