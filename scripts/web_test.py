@@ -393,7 +393,7 @@ def keys_slider_away_touch(browser, status, server):
         "const f = document.getElementById('pixel-error'); f.value = '-2';"
         "f.dispatchEvent(new Event('input'))"
     )
-    time.sleep(2.5)
+    time.sleep(1.5)
     away = wait_status(browser, lambda s: True)
     server["server"] = serve(server["root"], port)
     back = wait_status(browser, lambda s: s.get("pixelError") == 0.25 and converged(s))

@@ -114,6 +114,14 @@ pub fn run(args: &WebExportArgs) -> Result<()> {
     let repo = args.repo.as_deref().map(default_repo).transpose()?;
     let out = &args.dir;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    // Copying the bundle onto itself would truncate its files, and filling in its page would
+    // remove the slot later exports fill.
+    if std::fs::canonicalize(out).ok() == std::fs::canonicalize(&bundle).ok() {
+        bail!(
+            "{} is the viewer's bundle itself: export into another folder",
+            out.display()
+        );
+    }
 
     let mut files = 0;
     let mut entries: Vec<_> = std::fs::read_dir(&bundle)

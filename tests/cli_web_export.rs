@@ -89,6 +89,16 @@ fn refuses_a_missing_bundle_and_a_file_that_is_no_repository() {
     );
 
     fake_bundle(&bundle);
+    let o = cbdam(&["web-export", &s(&bundle), "--bundle", &s(&bundle)]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("is the viewer's bundle itself"), "{e}");
+    assert_eq!(
+        std::fs::read(bundle.join("cbdam_web_bg.wasm")).unwrap(),
+        b"\0asm\x01\0\0\0",
+        "the bundle is left as it was"
+    );
+
     let not_repo = tmp.path().join("x.cbdam");
     std::fs::write(&not_repo, b"not a repository").unwrap();
     let o = cbdam(&[
