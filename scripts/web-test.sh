@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The browser viewer's end-to-end test (run by scripts/test.sh after the workspace's tests):
 # builds the web bundle (scripts/web-build.sh), builds a small repository with the cbdam binary,
-# and drives headless Chromium against a loopback static server with Range support
-# and `cbdam serve` (scripts/web_test.py): WebGPU on SwiftShader must converge and draw terrain
-# over most of the frame (screenshot pixels checked), the same cut from both servers; a drag and
-# the wheel move the camera and its URL hash restores the view; without WebGPU the page must say
-# so. About 15 s once built.
+# exports the viewer with `cbdam web-export` and drives headless Chromium against a loopback
+# static server with Range support and `cbdam serve` (scripts/web_test.py): WebGPU on SwiftShader
+# must converge and draw terrain over most of the frame (screenshot pixels checked), the same cut
+# from both servers and as `cbdam render`; drag, wheel, keys, slider and pinch move the camera or
+# the target, the URL hash restores the view, the server may go away and come back; without
+# WebGPU the page must say so. About 45 s once built on a loaded 2-core machine.
 #
 # Sets up what it needs like test.sh sets up lavapipe: Debian's chromium (apt) and
 # websocket-client (pip, pinned). Where neither can be installed (no apt-get, no root/sudo),

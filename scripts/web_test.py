@@ -1,31 +1,43 @@
 #!/usr/bin/env python3
 """End-to-end test of the browser viewer in headless Chromium (run by scripts/web-test.sh).
 
-Serves the built bundle (scripts/web-build.sh) and a repository file from a loopback static
-server that honours Range requests, opens index.html?repo=FILE in the system's Chromium driven
+Exports the viewer with `cbdam web-export DIR --bundle BUNDLE --repo FILE` (the bundle of
+scripts/web-build.sh and the repository), serves DIR from a loopback static server that honours
+Range requests, opens index.html (which opens the repository) in the system's Chromium driven
 over the Chrome DevTools protocol (websocket-client), waits for the page's `window.cbdam` status
 and checks the pixels of a screenshot, not only the page's word:
 
 - WebGPU (the flags of docs/notes: SwiftShader through Vulkan): the page converges, and terrain
-  (pixels that are not the sky colour) covers most of a 640x480 frame, in many colours.
-- No WebGPU flags (the browser offers only WebGL2): the page says clearly that the renderer
-  needs WebGPU, and draws nothing.
-
-Prints the times from navigation to the first frame and to the converged cut.
-- Record requests refused (503) and a record corrupted once by the server (its checksum
-  fails) are retried: the same cut.
-- The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
+  (pixels that are not the sky colour) covers most of a 640x480 frame, in many colours; the
+  overlay (HUD) shows the status's non-zero request and byte counts.
 - A scripted drag and wheel move the camera, and the page converges to a new cut; the camera is
   in the URL's hash, and opening that URL restores the view (same camera, same cut), which is
   also the cut `cbdam render --camera` (native, from the file) converges to.
+- Then, in the same page: W held moves the camera and `=` halves the pixel-error target (more
+  diamonds); the slider sets it; the static server goes away (its port closed) while the page
+  needs new records and comes back on the same port: requests fail meanwhile, the page keeps
+  running and converges once it is back; a two-finger pinch (touch) from 100 to 260 pixels
+  apart scales the orbit distance by 100/260, and a quarter-turn twist turns the view a quarter
+  turn the other way about the same target.
+- Record requests refused (503) and a record corrupted once by the server (its checksum
+  fails) are retried: the same cut.
+- The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
+- No WebGPU flags (the browser offers only WebGL2): the page says that it has WebGL2 but the
+  renderer needs WebGPU, and draws nothing; with WebGL off too it names both; a repository URL
+  that cannot be read gets "cannot read the repository".
+
+Prints the times from navigation to the first frame and to the converged cut.
 
 Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
+       web_test.py --measure WIDTHxHEIGHT BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY [REPO_URL]
+         (figures only; REPO_URL: open that instead of the exported file)
 """
 
 import base64
 import http.server
 import io
 import json
+import math
 import os
 import re
 import shutil
@@ -120,9 +132,9 @@ class Server(socketserver.ThreadingMixIn, http.server.HTTPServer):
     daemon_threads = True
 
 
-def serve(root):
+def serve(root, port=0):
     handler = lambda *a, **k: RangeHandler(*a, directory=root, **k)  # noqa: E731
-    server = Server(("127.0.0.1", 0), handler)
+    server = Server(("127.0.0.1", port), handler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     return server
 
@@ -293,9 +305,12 @@ def wait_status(browser, until, timeout=TIMEOUT_S):
     return status
 
 
+HIDE = "for (const id of ['overlay', 'panel']) document.getElementById(id).style.display = '{}'"
+
+
 def screenshot(browser):
-    """A PNG of the page with the overlay hidden."""
-    browser.evaluate("document.getElementById('overlay').style.display = 'none'")
+    """A PNG of the page with the overlay and the control panel hidden."""
+    browser.evaluate(HIDE.format("none"))
     # Two animation frames so the canvas shows the last state without the overlay.
     browser.call(
         "Runtime.evaluate",
@@ -304,7 +319,7 @@ def screenshot(browser):
         awaitPromise=True,
     )
     shot = base64.b64decode(browser.call("Page.captureScreenshot", session=True, format="png")["data"])
-    browser.evaluate("document.getElementById('overlay').style.display = ''")
+    browser.evaluate(HIDE.format(""))
     return shot
 
 
@@ -324,10 +339,131 @@ def drag_and_zoom(browser):
 converged = lambda s: s.get("converged") and s.get("cut") is not None  # noqa: E731
 
 
-def open_viewer(flags, url, until, interact=False):
+def key(browser, code, text, down_s=0.0):
+    """Presses and releases a key (`KeyboardEvent.code` and `key`), held `down_s` seconds."""
+    for kind in ("keyDown", "keyUp"):
+        browser.call("Input.dispatchKeyEvent", session=True, type=kind, code=code, key=text)
+        if kind == "keyDown" and down_s:
+            time.sleep(down_s)
+
+
+def distance(camera):
+    return sum((a - b) ** 2 for a, b in zip(camera[:3], camera[3:])) ** 0.5
+
+
+def keys_slider_away_touch(browser, status, server):
+    """After the drag: held W and `=` (finer), the pixel-error slider, the static server going
+    away and coming back, and a two-finger pinch. Returns failures and printed lines."""
+    failures, lines = [], []
+    # W held moves the orbit target forward; `=` halves the pixel-error target: a new camera
+    # and a finer cut.
+    key(browser, "KeyW", "w", down_s=0.4)
+    key(browser, "Equal", "=")
+    keyed = wait_status(
+        browser,
+        lambda s: s.get("camera") != status["camera"] and s.get("pixelError") == 0.5 and converged(s),
+    )
+    if not keyed or keyed.get("pixelError") != 0.5 or keyed.get("camera") == status["camera"]:
+        failures.append(f"keys: W and = did not move the camera and halve the pixel error: {keyed}")
+        return failures, lines
+    lines.append(
+        f"keys: W moved the target from {status['camera'][3:5]} to {keyed['camera'][3:5]}; "
+        f"= halved the pixel error: {len(keyed['cut'])} diamonds (from {len(status['cut'])})"
+    )
+    if len(keyed["cut"]) <= len(status["cut"]):
+        failures.append("keys: a finer target did not refine more diamonds")
+    # The slider sets the target (2 px), through the page's `input` event as a user's drag does.
+    browser.evaluate(
+        "const e = document.getElementById('pixel-error'); e.value = '1';"
+        "e.dispatchEvent(new Event('input'))"
+    )
+    slid = wait_status(browser, lambda s: s.get("pixelError") == 2 and converged(s))
+    if not slid or slid.get("pixelError") != 2:
+        failures.append(f"slider: the pixel error is not 2 px: {slid}")
+        return failures, lines
+
+    # The server goes away (its port refuses connections) while the page needs new records
+    # (the slider at 1/4 px, finer than any cut so far), then comes back on the same port: the
+    # page keeps running and converges.
+    port = server["server"].server_address[1]
+    server["server"].shutdown()
+    server["server"].server_close()
+    before = slid
+    browser.evaluate(
+        "const f = document.getElementById('pixel-error'); f.value = '-2';"
+        "f.dispatchEvent(new Event('input'))"
+    )
+    time.sleep(1.5)
+    away = wait_status(browser, lambda s: True)
+    server["server"] = serve(server["root"], port)
+    back = wait_status(browser, lambda s: s.get("pixelError") == 0.25 and converged(s))
+    lines.append(
+        f"away: {away and away.get('fetchErrors')} failed requests while the server was away "
+        f"(converged: {away and away.get('converged')}); back: converged "
+        f"{back and back.get('converged')}, {back and len(back.get('cut') or [])} diamonds"
+    )
+    if not away or away.get("phase") != "running" or away.get("converged"):
+        failures.append(f"away: the page should keep running and not converge: {away}")
+    elif (away.get("fetchErrors") or 0) <= (before.get("fetchErrors") or 0):
+        failures.append("away: no request failed while the server was away (the test did not test)")
+    elif not back or not converged(back) or back.get("pixelError") != 0.25:
+        failures.append(f"away: no convergence once the server came back: {back}")
+    if failures:
+        return failures, lines
+
+    # Two fingers spreading from 100 to 260 pixels apart: the orbit distance shrinks by 2.6.
+    browser.call("Emulation.setTouchEmulationEnabled", session=True, enabled=True, maxTouchPoints=5)
+
+    def touch(kind, points):
+        browser.call("Input.dispatchTouchEvent", session=True, type=kind,
+                     touchPoints=[{"x": x, "y": y, "id": i} for i, (x, y) in enumerate(points)])
+
+    touch("touchStart", [(270, 240), (370, 240)])
+    for k in range(1, 11):
+        touch("touchMove", [(270 - 8 * k, 240), (370 + 8 * k, 240)])
+    touch("touchEnd", [])
+    pinched = wait_status(browser, lambda s: s.get("camera") != back["camera"] and converged(s))
+    ratio = pinched and distance(pinched["camera"]) / distance(back["camera"])
+    lines.append(f"touch: the pinch scaled the orbit distance by {ratio}")
+    if not ratio or abs(ratio - 100 / 260) > 0.02:
+        failures.append(f"touch: a pinch 100 -> 260 px should scale the distance by 0.385, not {ratio}")
+        return failures, lines
+
+    # Two fingers turning a quarter turn clockwise about the centre: the terrain follows them,
+    # the view's azimuth turns a quarter turn anticlockwise, the target stays.
+    def azimuth(camera):
+        return math.atan2(camera[3] - camera[0], camera[4] - camera[1])
+
+    def at(angle):
+        c, s = math.cos(angle), math.sin(angle)
+        return [(320 - 80 * c, 240 - 80 * s), (320 + 80 * c, 240 + 80 * s)]
+
+    touch("touchStart", at(0))
+    for k in range(1, 11):
+        touch("touchMove", at(math.pi / 2 * k / 10))
+    touch("touchEnd", [])
+    turned = wait_status(browser, lambda s: s.get("camera") != pinched["camera"] and converged(s))
+    turn = turned and (azimuth(turned["camera"]) - azimuth(pinched["camera"]) + math.pi) % math.tau - math.pi
+    moved = turned and max(abs(a - b) for a, b in zip(turned["camera"][3:5], pinched["camera"][3:5]))
+    lines.append(f"touch: the twist turned the azimuth by {turn} rad, the target moved {moved} m")
+    # The midpoint stays put when both fingers move in one frame; a frame between their moves
+    # pans a little there and back (at another azimuth): allow 2 % of the orbit distance.
+    if turn is None or abs(turn + math.pi / 2) > 0.02 or moved > 0.02 * distance(pinched["camera"]):
+        failures.append(f"touch: a quarter-turn twist should turn the view by -pi/2, not {turn} (target moved {moved} m)")
+    return failures, lines
+
+
+def hud_network(text):
+    """(requests, KiB) from the overlay's network line, or None."""
+    m = re.search(r"network: (\d+) requests, ([\d.]+) KiB", text or "")
+    return (int(m.group(1)), float(m.group(2))) if m else None
+
+
+def open_viewer(flags, url, until, interact=None):
     """Opens `url` and waits for `until(status)`; returns the status, a screenshot (PNG bytes),
-    the browser's console lines and stderr, and with `interact` the status after a scripted
-    drag and wheel once it converged again."""
+    the browser's console lines and stderr, and with `interact` (the static server) the status
+    after a scripted drag and wheel once it converged again, with the further checks of
+    `keys_slider_away_touch` in it."""
     browser = Browser(flags)
     try:
         browser.call("Page.navigate", session=True, url=url)
@@ -340,7 +476,8 @@ def open_viewer(flags, url, until, interact=False):
             count = "[window.cbdam.frames, performance.now()]"
             (f0, t0), _ = browser.evaluate(count), time.sleep(2)
             f1, t1 = browser.evaluate(count)
-            status["fps"] = (f1 - f0) * 1000 / (t1 - t0)
+            status["measuredFps"] = (f1 - f0) * 1000 / (t1 - t0)
+            status["hud"] = browser.evaluate("document.getElementById('overlay').textContent")
             drag_and_zoom(browser)
             before = status["camera"]
             after = wait_status(
@@ -348,6 +485,10 @@ def open_viewer(flags, url, until, interact=False):
             )
             if after:
                 after["hash"] = browser.evaluate("location.hash")
+                if converged(after):
+                    after["failures"], after["lines"] = keys_slider_away_touch(
+                        browser, after, interact
+                    )
         return status, shot, browser.console, browser.stderr(), after
     finally:
         browser.close()
@@ -379,24 +520,29 @@ def main():
     bundle, repository, cbdam = sys.argv[1], sys.argv[2], sys.argv[3]
     root = tempfile.mkdtemp(prefix="cbdam-web-")
     try:
-        for name in os.listdir(bundle):
-            shutil.copy(os.path.join(bundle, name), root)
-        shutil.copy(repository, os.path.join(root, "repo.cbdam"))
-        server = serve(root)
-        url = f"http://127.0.0.1:{server.server_address[1]}/index.html?repo=repo.cbdam"
+        # The static site as `cbdam web-export` writes it: the bundle, and the repository the
+        # page opens without ?repo= (so the plain URL of index.html is the viewer on it).
+        subprocess.run(
+            [cbdam, "web-export", root, "--bundle", bundle, "--repo", repository],
+            check=True, stdout=subprocess.DEVNULL,
+        )
+        # Held in a dict: the interaction test stops it and starts another on the same port.
+        static = {"server": serve(root), "root": root}
+        url = f"http://127.0.0.1:{static['server'].server_address[1]}/index.html"
         failures = []
 
         t = time.time()
-        status, shot, console, stderr, moved = open_viewer(WEBGPU_FLAGS, url, converged, interact=True)
+        status, shot, console, stderr, moved = open_viewer(WEBGPU_FLAGS, url, converged, interact=static)
         wall = time.time() - t
         save_screenshot(shot, "webgpu.png")
         share, colours, size = terrain_share(shot)
-        print(f"webgpu: status {json.dumps({k: v for k, v in (status or {}).items() if k != 'cut'})}")
+        print(f"webgpu: status {json.dumps({k: v for k, v in (status or {}).items() if k not in ('cut', 'hud')})}")
         print(
             f"webgpu: first frame {status and status.get('firstFrameMs')} ms, converged "
             f"{status and status.get('convergedMs')} ms after navigation; terrain covers "
             f"{share:.1%} of the {size[0]}x{size[1]} screenshot in {colours} colours; "
-            f"{status and status.get('fps', 0):.1f} frames/s once converged; "
+            f"{status and status.get('measuredFps', 0):.1f} frames/s once converged "
+            f"(the page's median frame: {status and status.get('frameMs')} ms); "
             f"{wall:.1f} s with the browser"
         )
         if not status or status.get("phase") != "running":
@@ -410,6 +556,15 @@ def main():
         # Measured: 62 % in about 1 100 colours (the framed first view of jacksboro_mpl).
         if share < 0.5 or colours < 50:
             failures.append(f"webgpu: terrain covers {share:.1%} in {colours} colours")
+        # The overlay shows the network counters the status has, and they are not zero.
+        shown = hud_network((status or {}).get("hud"))
+        print(f"hud: {(status or {}).get('hud')!r}")
+        if not shown or shown[0] == 0 or shown[1] == 0:
+            failures.append(f"hud: no non-zero requests and bytes in the overlay: {shown}")
+        elif status and (shown[0] != status.get("recordsRequested")
+                         or abs(shown[1] - status.get("bytes", 0) / 1024) > 0.1):
+            failures.append(f"hud: the overlay shows {shown}, the status {status.get('recordsRequested')} "
+                            f"requests and {status.get('bytes')} bytes")
         if failures:
             print("console:\n  " + "\n  ".join(console[-20:]) + "\nstderr:\n" + stderr)
 
@@ -422,6 +577,9 @@ def main():
                 f"input: the drag and wheel moved the eye from {status['camera'][:3]} to "
                 f"{moved['camera'][:3]}; new cut of {len(moved['cut'])} diamonds"
             )
+            for line in moved.get("lines", []):
+                print(line)
+            failures += moved.get("failures", ["keys: not run"])
 
         if moved and converged(moved):
             # The URL with the hash the page wrote restores the view: the same camera (to the
@@ -502,12 +660,22 @@ def main():
         print(f"webgl2: status {status}; {share:.1%} non-sky pixels; {wall:.1f} s")
         if not status or status.get("phase") != "failed" or status.get("webgpu") is not False:
             failures.append(f"webgl2: expected a clear failure without WebGPU, got {status}")
-        elif "WebGPU" not in status.get("error", ""):
-            failures.append(f"webgl2: the message does not say WebGPU is needed: {status}")
+        elif status.get("webgl2") is not True or "WebGL2 but no WebGPU" not in status.get("error", ""):
+            failures.append(f"webgl2: the message does not say WebGL2 is there but WebGPU needed: {status}")
         if share > 0.01:
             failures.append(f"webgl2: {share:.1%} of the frame is not sky, nothing should draw")
 
-        server.shutdown()
+        # Neither WebGPU nor WebGL2; then a repository that cannot be read: clear messages.
+        status, _, _, _, _ = open_viewer(["--disable-webgl"], url, lambda s: False)
+        print(f"neither: {status and status.get('error')}")
+        if not status or status.get("webgl2") is not False or "neither WebGPU nor WebGL2" not in status.get("error", ""):
+            failures.append(f"neither: expected a message that names both APIs, got {status}")
+        status, _, _, _, _ = open_viewer(WEBGPU_FLAGS, url + "?repo=missing.cbdam", lambda s: False)
+        print(f"unreadable: {status and status.get('error')}")
+        if not status or status.get("phase") != "failed" or "cannot read the repository" not in status.get("error", ""):
+            failures.append(f"unreadable: expected 'cannot read the repository', got {status}")
+
+        static["server"].shutdown()
         for f in failures:
             print("FAILED " + f, file=sys.stderr)
         return 1 if failures else 0
@@ -515,5 +683,48 @@ def main():
         shutil.rmtree(root, ignore_errors=True)
 
 
+def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
+    """`--measure WxH`: no checks, figures only; the page opens the exported repository, or
+    `repo_url` (e.g. `cbdam serve` behind `cbdam link`). For each of `runs` fresh browsers: navigation
+    to the first frame and to the converged cut, then the page's median frame interval and the
+    frame rate over 3 s with the cut converged (drawing every frame, refining nothing)."""
+    global WIDTH, HEIGHT
+    WIDTH, HEIGHT = (int(v) for v in size.split("x"))
+    root = tempfile.mkdtemp(prefix="cbdam-web-")
+    try:
+        subprocess.run([cbdam, "web-export", root, "--bundle", bundle, "--repo", repository],
+                       check=True, stdout=subprocess.DEVNULL)
+        server = serve(root)
+        url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
+        if repo_url:
+            url += "?repo=" + repo_url
+        for run in range(runs):
+            browser = Browser(WEBGPU_FLAGS)
+            try:
+                browser.call("Page.navigate", session=True, url=url)
+                browser.wait_event("Page.loadEventFired", 30)
+                s = wait_status(browser, converged)
+                count = "[window.cbdam.frames, performance.now()]"
+                f0, t0 = browser.evaluate(count)
+                time.sleep(3)
+                f1, t1 = browser.evaluate(count)
+                s2 = wait_status(browser, lambda s: True)
+                print(
+                    f"measure {size} run {run + 1}: first frame {s.get('firstFrameMs'):.0f} ms, "
+                    f"converged {s.get('convergedMs'):.0f} ms after navigation "
+                    f"({s.get('refined')} diamonds, {s.get('triangles')} triangles, "
+                    f"{s.get('bytes')} bytes in {s.get('recordsRequested')} requests); converged: "
+                    f"{(f1 - f0) * 1000 / (t1 - t0):.2f} frames/s, median frame "
+                    f"{s2.get('frameMs'):.1f} ms"
+                )
+            finally:
+                browser.close()
+        server.shutdown()
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 if __name__ == "__main__":
+    if sys.argv[1] == "--measure":
+        sys.exit(measure(*sys.argv[2:7]))
     sys.exit(main())

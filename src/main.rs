@@ -21,6 +21,7 @@ mod session;
 mod synth;
 mod verify;
 mod view;
+mod web_export;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -74,6 +75,14 @@ enum Command {
     /// filtered by RUST_LOG (default info, one line per request). Stops on SIGINT/SIGTERM after
     /// the requests in flight finish.
     Serve(ServeArgs),
+    /// Write the browser viewer as static files into DIR, for any static server that honours
+    /// Range requests: open DIR/index.html?repo=URL of a `.cbdam` file (or, with --repo, just
+    /// index.html).
+    ///
+    /// The viewer's files come from the bundle scripts/web-build.sh writes (target/web-bundle):
+    /// --bundle DIR, else $CBDAM_WEB_BUNDLE, else target/web-bundle in the working directory,
+    /// else web-bundle beside or above the cbdam binary.
+    WebExport(WebExportArgs),
     /// Emulate a slower, longer network link in front of a server: a loopback TCP proxy that
     /// forwards connections on --listen to --to with a one-way delay each way, downstream and
     /// upstream rate caps shared by all connections, optional jitter and connection resets.
@@ -205,6 +214,21 @@ pub struct ServeArgs {
     /// Worker threads (default: one per core).
     #[arg(long)]
     threads: Option<usize>,
+}
+
+/// Arguments of `cbdam web-export` (documented on [`Command::WebExport`]).
+#[derive(Args, Debug)]
+pub struct WebExportArgs {
+    /// Folder to write (created if needed; files of the same names are replaced).
+    #[arg(value_name = "DIR")]
+    dir: PathBuf,
+    /// The repository the page opens without `?repo=`: a .cbdam file (copied into DIR) or an
+    /// http(s) URL of one (its server must honour Range requests and allow the page's origin).
+    #[arg(long, value_name = "FILE_OR_URL")]
+    repo: Option<String>,
+    /// The viewer's bundle (default: found as the command's help says).
+    #[arg(long, value_name = "DIR")]
+    bundle: Option<PathBuf>,
 }
 
 /// Arguments of `cbdam link` (documented on [`Command::Link`]).
@@ -879,6 +903,7 @@ fn main() -> ExitCode {
         Command::Verify(args) => verify::run(&args),
         Command::Extract(args) => extract::run(&args),
         Command::Serve(args) => serve::run(&args),
+        Command::WebExport(args) => web_export::run(&args),
         Command::Link(args) => link::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Demo(args) => demo::run(&args),

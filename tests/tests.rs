@@ -11,3 +11,4 @@ mod cli_render;
 mod cli_render_colour;
 mod cli_tiles;
 mod cli_view;
+mod cli_web_export;

@@ -21,9 +21,9 @@ pub const MIN_PITCH: f64 = 2.0 * std::f64::consts::PI / 180.0;
 /// Highest orbit elevation, radians (89°: straight down would make the azimuth undefined).
 pub const MAX_PITCH: f64 = 89.0 * std::f64::consts::PI / 180.0;
 /// Radians of rotation per pixel dragged.
-const TURN_PER_PIXEL: f64 = 0.005;
+pub const TURN_PER_PIXEL: f64 = 0.005;
 /// Zoom factor per wheel step.
-const ZOOM_STEP: f64 = 0.85;
+pub const ZOOM_STEP: f64 = 0.85;
 /// Fly speed in extents per second, and its factor while Shift is held.
 const FLY_SPEED: f64 = 0.1;
 /// Multiplier of the fly speed with Shift held.

@@ -10,8 +10,8 @@ use std::path::Path;
 
 use bytes::Bytes;
 
-/// Files the viewer cannot start without.
-const REQUIRED: [&str; 3] = ["index.html", "cbdam_web.js", "cbdam_web_bg.wasm"];
+/// Files the viewer cannot start without (also checked by `cbdam web-export`).
+pub const REQUIRED: [&str; 3] = ["index.html", "cbdam_web.js", "cbdam_web_bg.wasm"];
 /// Largest viewer file accepted (the wasm module is about 1 MB).
 const MAX_FILE: u64 = 64 << 20;
 

@@ -1,16 +1,17 @@
 //! The viewer on a canvas: connects to the repository, finds a WebGPU adapter, and each
-//! animation frame applies the mouse, runs one step of the refinement loop within its budget
-//! (records arrive between frames; nothing blocks), draws the cut offscreen and copies it onto
-//! the canvas.
+//! animation frame applies the input (`input.rs`), runs one step of the refinement loop
+//! within its budget (records arrive between frames; nothing blocks), draws the cut offscreen and
+//! copies it onto the canvas.
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
+use std::collections::VecDeque;
 use std::rc::Rc;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use cbdam_client::access::RemoteSource;
 use cbdam_client::camera::Camera;
-use cbdam_client::controls::Controls;
+use cbdam_client::controls::{self, Controls, Mode};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
@@ -24,7 +25,7 @@ use wasm_bindgen::closure::Closure;
 use wasm_bindgen::prelude::wasm_bindgen;
 use web_sys::HtmlCanvasElement;
 
-use crate::input::Input;
+use crate::input::{Action, Input};
 use crate::status::Status;
 
 /// Refinement time per frame on the page's thread (decoding included): leaves most of a 60 Hz
@@ -34,9 +35,12 @@ const REFINE_BUDGET: Duration = Duration::from_millis(8);
 /// by default.
 const POOL_BYTES: u64 = 64 << 20;
 
-/// Why a browser without WebGPU cannot show terrain.
-const NO_WEBGPU: &str = "this browser offers no WebGPU adapter, which the terrain renderer \
-                         needs (WebGL2 is not supported yet): use a browser with WebGPU";
+/// Why a browser without WebGPU cannot show terrain (after what it offers instead).
+const NEEDS_WEBGPU: &str = "the terrain renderer needs WebGPU (its WebGL2 path is not written \
+                            yet): use a browser with WebGPU, such as a recent Chrome or Edge, or \
+                            Firefox or Safari with WebGPU turned on";
+/// Frames the frame rate's median spans.
+const FPS_WINDOW: usize = 60;
 
 /// GPU errors reported outside an error scope, collected for the status (the handler must be
 /// `Send + Sync`; the page has one thread).
@@ -60,6 +64,37 @@ pub fn start(canvas: HtmlCanvasElement, repo_url: String) {
 thread_local! {
     /// The page's status, for the panic hook (which must be `Send + Sync`).
     static PAGE_STATUS: RefCell<Option<Status>> = const { RefCell::new(None) };
+    /// A pixel-error target set by the page (its slider), applied at the next frame.
+    static PIXEL_ERROR_REQUEST: Cell<Option<f64>> = const { Cell::new(None) };
+}
+
+/// Sets the pixel-error target (pixels, 1/64 to 256) from the page, e.g. its slider; the
+/// status's `pixelError` shows the value in use.
+#[wasm_bindgen]
+pub fn set_pixel_error(pixels: f64) {
+    if pixels.is_finite() && pixels > 0.0 {
+        PIXEL_ERROR_REQUEST.with(|r| r.set(Some(pixels.clamp(1.0 / 64.0, 256.0))));
+    }
+}
+
+/// Whether the browser gives a WebGL2 context (on a canvas of its own: the viewer's canvas
+/// must stay free for WebGPU).
+fn has_webgl2() -> bool {
+    web_sys::window()
+        .and_then(|w| w.document())
+        .and_then(|d| d.create_element("canvas").ok())
+        .and_then(|c| c.dyn_into::<HtmlCanvasElement>().ok())
+        .and_then(|c| c.get_context("webgl2").ok().flatten())
+        .is_some()
+}
+
+/// The message for a browser without a WebGPU adapter.
+fn no_webgpu_message() -> String {
+    if has_webgl2() {
+        format!("this browser offers WebGL2 but no WebGPU adapter; {NEEDS_WEBGPU}")
+    } else {
+        format!("this browser offers neither WebGPU nor WebGL2; {NEEDS_WEBGPU}")
+    }
 }
 
 /// A panic ends the module: say why on the page and the console.
@@ -90,6 +125,12 @@ struct App {
     frames: u64,
     /// Whether the cut was reported converged for the current camera.
     reported_converged: bool,
+    /// Refinement stopped (F): the camera still moves.
+    frozen: bool,
+    last_stats: FrameStats,
+    /// `performance.now()` of the last frame, and the intervals between the last frames.
+    last_frame_ms: Option<f64>,
+    intervals_ms: VecDeque<f64>,
 }
 
 impl App {
@@ -113,7 +154,8 @@ impl App {
         let webgpu = wgpu::util::is_browser_webgpu_supported().await;
         status.set("webgpu", webgpu);
         if !webgpu && !cfg!(feature = "webgl") {
-            return Err(NO_WEBGPU.into());
+            status.set("webgl2", has_webgl2());
+            return Err(no_webgpu_message());
         }
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = wgpu::Backends::BROWSER_WEBGPU | wgpu::Backends::GL;
@@ -129,7 +171,7 @@ impl App {
                 apply_limit_buckets: false,
             })
             .await
-            .map_err(|e| format!("{NO_WEBGPU} ({e})"))?;
+            .map_err(|e| format!("{} ({e})", no_webgpu_message()))?;
         let info = adapter.get_info();
         let backend = match info.backend {
             wgpu::Backend::BrowserWebGpu => "webgpu",
@@ -214,6 +256,10 @@ impl App {
             patches: Vec::new(),
             frames: 0,
             reported_converged: false,
+            frozen: false,
+            last_stats: FrameStats::default(),
+            last_frame_ms: None,
+            intervals_ms: VecDeque::new(),
         })
     }
 
@@ -226,15 +272,40 @@ impl App {
             self.config.height = size.1;
             self.surface.configure(&device, &self.config);
         }
-        let moved = self.input.apply(&mut self.controls, size.1);
+        let now = now_ms();
+        let dt_ms = self.last_frame_ms.map_or(0.0, |t| now - t);
+        self.last_frame_ms = Some(now);
+        if self.frames > 0 {
+            self.intervals_ms.push_back(dt_ms);
+            if self.intervals_ms.len() > FPS_WINDOW {
+                self.intervals_ms.pop_front();
+            }
+        }
+        // A stalled frame (a hidden tab) must not fling the camera across the map.
+        let (moved, actions) =
+            self.input
+                .apply(&mut self.controls, size.1, (dt_ms / 1e3).min(0.25));
+        let mut changed = moved;
+        for action in actions {
+            changed |= self.act(action);
+        }
+        if let Some(px) = PIXEL_ERROR_REQUEST.with(Cell::take) {
+            self.refiner.set_pixel_error(px);
+            changed = true;
+        }
         let camera = self.controls.camera(&self.world, size);
-        if moved {
+        if changed {
             self.reported_converged = false;
+        }
+        if moved {
             camera_to_hash(&camera);
         }
-        let stats = self.refiner.frame(&camera);
-        self.patches.clear();
-        self.patches.extend(self.refiner.drawn().cloned());
+        if !self.frozen {
+            self.last_stats = self.refiner.frame(&camera);
+            self.patches.clear();
+            self.patches.extend(self.refiner.drawn().cloned());
+        }
+        let stats = self.last_stats;
         let (mut encoder, draw) = self
             .renderer
             .encode(&camera, &self.patches, &self.options)
@@ -274,12 +345,86 @@ impl App {
         Ok(())
     }
 
+    /// Carries out a key's action; whether it changes the cut to converge to.
+    fn act(&mut self, action: Action) -> bool {
+        match action {
+            Action::Finer | Action::Coarser => {
+                let step = if action == Action::Finer {
+                    controls::finer
+                } else {
+                    controls::coarser
+                };
+                let px = step(self.refiner.config().pixel_error);
+                self.refiner.set_pixel_error(px);
+                return true;
+            }
+            Action::Freeze => {
+                self.frozen = !self.frozen;
+                return !self.frozen;
+            }
+            Action::Levels => self.options.level_colours = !self.options.level_colours,
+            Action::Wireframe => {
+                let device = &self.renderer.gpu().device;
+                if device
+                    .features()
+                    .contains(wgpu::Features::POLYGON_MODE_LINE)
+                {
+                    self.options.wireframe = !self.options.wireframe;
+                } else {
+                    self.status
+                        .set("notice", "this browser's adapter cannot draw a wireframe");
+                }
+            }
+            Action::Mode => self.controls.toggle_mode(),
+            Action::Reset => {
+                self.controls.reset();
+                return true;
+            }
+        }
+        false
+    }
+
     fn report(&mut self, stats: &FrameStats, camera: &Camera, triangles: u64) {
         let s = &self.status;
         let now = now_ms();
         if self.frames == 1 {
             s.set("firstFrameMs", now);
         }
+        let mut sorted: Vec<f64> = self.intervals_ms.iter().copied().collect();
+        sorted.sort_by(f64::total_cmp);
+        if let Some(&median) = sorted.get(sorted.len() / 2)
+            && median > 0.0
+        {
+            s.set("fps", 1e3 / median);
+            s.set("frameMs", median);
+        }
+        s.set("pixelError", self.refiner.config().pixel_error);
+        s.set(
+            "mode",
+            match self.controls.mode() {
+                Mode::Orbit => "orbit",
+                Mode::Fly => "fly",
+            },
+        );
+        s.set("frozen", self.frozen);
+        s.set("levels", self.options.level_colours);
+        s.set("wireframe", self.options.wireframe);
+        let c = self.refiner.cache_use();
+        s.set_numbers(
+            "cpuCache",
+            &[
+                c.record_bytes as f64,
+                c.record_budget as f64,
+                c.decoded_bytes as f64,
+                c.decoded_budget as f64,
+            ],
+        );
+        let gpu_cache = self.renderer.cache();
+        s.set_numbers(
+            "gpuCache",
+            &[gpu_cache.resident() as f64, f64::from(gpu_cache.capacity())],
+        );
+        s.set("inFlight", stats.access.in_flight as f64);
         s.set("frames", self.frames as f64);
         s.set("refined", stats.refined as f64);
         s.set("drawnHalves", stats.drawn_halves as f64);

@@ -1,26 +1,69 @@
-//! Mouse input on the canvas, collected by event listeners and applied once a frame: left-drag
-//! rotates the orbit camera, right- (or shift-) drag pans, the wheel zooms.
+//! Input on the page, collected by event listeners and applied once a frame, as in `cbdam view`:
+//!
+//! - Pointer events (mouse, pen and touch alike): one pointer dragging rotates the orbit camera
+//!   (looks around in fly mode); the right or middle button, or Shift, pans. Two touching
+//!   pointers pinch to zoom, twist to turn the view and move together to pan.
+//! - The wheel zooms (orbit) or moves forward (fly).
+//! - Keys on the window: W/A/S/D/Q/E (Shift faster) move; `+`/`-` halve/double the pixel-error
+//!   target, F freezes the cut, L colours by level, Tab or 1 toggles the wireframe, C switches
+//!   orbit/fly, R resets the view.
 
 use std::cell::RefCell;
+use std::collections::HashSet;
 use std::rc::Rc;
 
-use cbdam_client::controls::Controls;
+use cbdam_client::controls::{Controls, Mode, Movement, TURN_PER_PIXEL, ZOOM_STEP};
 use wasm_bindgen::JsCast;
 use wasm_bindgen::closure::Closure;
-use web_sys::{HtmlCanvasElement, MouseEvent, WheelEvent};
+use web_sys::{HtmlCanvasElement, KeyboardEvent, PointerEvent, WheelEvent};
 
-/// What the mouse did since the last frame.
+/// A key press that changes a setting once (not a held movement key).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Action {
+    /// Halve the pixel-error target.
+    Finer,
+    /// Double the pixel-error target.
+    Coarser,
+    /// Freeze / unfreeze the cut.
+    Freeze,
+    /// Colour by diamond level on / off.
+    Levels,
+    /// Wireframe on / off.
+    Wireframe,
+    /// Orbit ↔ fly.
+    Mode,
+    /// Back to the first view.
+    Reset,
+}
+
+/// A pointer held down on the canvas.
+#[derive(Clone, Copy, Debug)]
+struct Pointer {
+    id: i32,
+    x: f64,
+    y: f64,
+    /// A single-pointer drag pans instead of rotating.
+    pan: bool,
+}
+
+/// What happened since the last frame.
 #[derive(Debug, Default)]
 struct Pending {
     rotate: (f64, f64),
     pan: (f64, f64),
-    /// Wheel steps, positive towards the terrain.
+    /// Wheel or pinch steps, positive towards the terrain.
     zoom: f64,
-    /// The button held and the last position, while dragging.
-    drag: Option<(i16, f64, f64, bool)>,
+    pointers: Vec<Pointer>,
+    /// Movement keys held (`KeyboardEvent.code`) and Shift.
+    held: HashSet<String>,
+    /// Movement keys pressed since the last frame, even if already released: a tap between
+    /// two slow frames still moves.
+    tapped: HashSet<String>,
+    shift: bool,
+    actions: Vec<Action>,
 }
 
-/// The canvas's accumulated mouse input.
+/// The page's accumulated input.
 #[derive(Clone, Debug, Default)]
 pub struct Input {
     pending: Rc<RefCell<Pending>>,
@@ -29,58 +72,108 @@ pub struct Input {
 /// Browsers report wheel deltas in pixels (about 100 per notch) or lines (about 3 per notch).
 const PIXELS_PER_STEP: f64 = 100.0;
 const LINES_PER_STEP: f64 = 3.0;
+/// Movement keys, by `KeyboardEvent.code` (the key's place, whatever the layout).
+const MOVEMENT_KEYS: [&str; 6] = ["KeyW", "KeyS", "KeyD", "KeyA", "KeyQ", "KeyE"];
+
+/// Adds a listener for the page's lifetime.
+fn listen<E: wasm_bindgen::convert::FromWasmAbi + 'static>(
+    target: &web_sys::EventTarget,
+    event: &str,
+    f: impl FnMut(E) + 'static,
+) {
+    let closure = Closure::<dyn FnMut(E)>::new(f);
+    let _ = target.add_event_listener_with_callback(event, closure.as_ref().unchecked_ref());
+    closure.forget();
+}
+
+/// The pinch, twist and pan of two pointers moving from `before` to `after`: zoom steps
+/// (positive when they spread), turn (radians, clockwise on screen) and the midpoint's move.
+fn two_finger(before: [(f64, f64); 2], after: [(f64, f64); 2]) -> (f64, f64, (f64, f64)) {
+    let span = |p: [(f64, f64); 2]| (p[1].0 - p[0].0).hypot(p[1].1 - p[0].1);
+    let angle = |p: [(f64, f64); 2]| (p[1].1 - p[0].1).atan2(p[1].0 - p[0].0);
+    let mid = |p: [(f64, f64); 2]| ((p[0].0 + p[1].0) / 2.0, (p[0].1 + p[1].1) / 2.0);
+    let (s0, s1) = (span(before), span(after));
+    let zoom = if s0 > 1.0 && s1 > 1.0 {
+        (s1 / s0).ln() / (1.0 / ZOOM_STEP).ln()
+    } else {
+        0.0
+    };
+    let mut turn = angle(after) - angle(before);
+    if turn > std::f64::consts::PI {
+        turn -= std::f64::consts::TAU;
+    } else if turn < -std::f64::consts::PI {
+        turn += std::f64::consts::TAU;
+    }
+    let (m0, m1) = (mid(before), mid(after));
+    (zoom, turn, (m1.0 - m0.0, m1.1 - m0.1))
+}
 
 impl Input {
-    /// Listens to the mouse on `canvas` (for the page's lifetime).
+    /// Listens to pointers and the wheel on `canvas` and to keys on the window.
     pub fn listen(canvas: &HtmlCanvasElement) -> Self {
         let me = Self::default();
-        let on = |event: &str, f: Box<dyn FnMut(MouseEvent)>| {
-            let closure = Closure::wrap(f);
-            let _ =
-                canvas.add_event_listener_with_callback(event, closure.as_ref().unchecked_ref());
-            closure.forget();
-        };
+        let target: &web_sys::EventTarget = canvas.as_ref();
+
+        let (p, c) = (me.pending.clone(), canvas.clone());
+        listen(target, "pointerdown", move |e: PointerEvent| {
+            let _ = c.set_pointer_capture(e.pointer_id());
+            let mut p = p.borrow_mut();
+            p.pointers.retain(|q| q.id != e.pointer_id());
+            p.pointers.push(Pointer {
+                id: e.pointer_id(),
+                x: f64::from(e.client_x()),
+                y: f64::from(e.client_y()),
+                pan: e.button() == 1 || e.button() == 2 || e.shift_key(),
+            });
+            e.prevent_default();
+        });
         let p = me.pending.clone();
-        on(
-            "mousedown",
-            Box::new(move |e: MouseEvent| {
-                let pan = e.button() == 2 || e.shift_key();
-                p.borrow_mut().drag = Some((
-                    e.button(),
-                    f64::from(e.client_x()),
-                    f64::from(e.client_y()),
-                    pan,
-                ));
-                e.prevent_default();
-            }),
-        );
-        let p = me.pending.clone();
-        on(
-            "mousemove",
-            Box::new(move |e: MouseEvent| {
-                let mut p = p.borrow_mut();
-                let Some((button, x0, y0, pan)) = p.drag else {
-                    return;
-                };
-                let (x, y) = (f64::from(e.client_x()), f64::from(e.client_y()));
-                let d = (x - x0, y - y0);
-                if pan {
-                    p.pan.0 += d.0;
-                    p.pan.1 += d.1;
-                } else {
-                    p.rotate.0 += d.0;
-                    p.rotate.1 += d.1;
+        listen(target, "pointermove", move |e: PointerEvent| {
+            let mut p = p.borrow_mut();
+            let Some(i) = p.pointers.iter().position(|q| q.id == e.pointer_id()) else {
+                return;
+            };
+            let (x, y) = (f64::from(e.client_x()), f64::from(e.client_y()));
+            match p.pointers.len() {
+                1 => {
+                    let q = p.pointers[0];
+                    let d = (x - q.x, y - q.y);
+                    let sum = if q.pan { &mut p.pan } else { &mut p.rotate };
+                    sum.0 += d.0;
+                    sum.1 += d.1;
                 }
-                p.drag = Some((button, x, y, pan));
-            }),
-        );
-        for end in ["mouseup", "mouseleave"] {
+                2 => {
+                    let before = [
+                        (p.pointers[0].x, p.pointers[0].y),
+                        (p.pointers[1].x, p.pointers[1].y),
+                    ];
+                    let mut after = before;
+                    after[i] = (x, y);
+                    let (zoom, turn, moved) = two_finger(before, after);
+                    p.zoom += zoom;
+                    // The terrain follows the fingers: a clockwise twist turns the view
+                    // anticlockwise.
+                    p.rotate.0 -= turn / TURN_PER_PIXEL;
+                    p.pan.0 += moved.0;
+                    p.pan.1 += moved.1;
+                }
+                // Three or more: ignored.
+                _ => {}
+            }
+            p.pointers[i].x = x;
+            p.pointers[i].y = y;
+        });
+        for end in ["pointerup", "pointercancel"] {
             let p = me.pending.clone();
-            on(end, Box::new(move |_| p.borrow_mut().drag = None));
+            listen(target, end, move |e: PointerEvent| {
+                p.borrow_mut().pointers.retain(|q| q.id != e.pointer_id());
+            });
         }
-        on("contextmenu", Box::new(|e: MouseEvent| e.prevent_default()));
+        listen(target, "contextmenu", |e: web_sys::MouseEvent| {
+            e.prevent_default()
+        });
         let p = me.pending.clone();
-        let wheel = Closure::<dyn FnMut(WheelEvent)>::new(move |e: WheelEvent| {
+        listen(target, "wheel", move |e: WheelEvent| {
             let per_step = if e.delta_mode() == WheelEvent::DOM_DELTA_LINE {
                 LINES_PER_STEP
             } else {
@@ -90,15 +183,74 @@ impl Input {
             p.borrow_mut().zoom -= e.delta_y() / per_step;
             e.prevent_default();
         });
-        let _ = canvas.add_event_listener_with_callback("wheel", wheel.as_ref().unchecked_ref());
-        wheel.forget();
+
+        if let Some(window) = web_sys::window() {
+            let window: &web_sys::EventTarget = window.as_ref();
+            let p = me.pending.clone();
+            listen(window, "keydown", move |e: KeyboardEvent| {
+                let mut p = p.borrow_mut();
+                let code = e.code();
+                p.shift = e.shift_key();
+                if MOVEMENT_KEYS.contains(&code.as_str()) {
+                    p.tapped.insert(code.clone());
+                    p.held.insert(code);
+                    return;
+                }
+                if e.repeat() || e.ctrl_key() || e.meta_key() || e.alt_key() {
+                    return;
+                }
+                let action = match (e.key().as_str(), code.as_str()) {
+                    ("+" | "=", _) | (_, "NumpadAdd") => Action::Finer,
+                    ("-" | "_", _) | (_, "NumpadSubtract") => Action::Coarser,
+                    (_, "KeyF") => Action::Freeze,
+                    (_, "KeyL") => Action::Levels,
+                    (_, "Tab" | "Digit1") => Action::Wireframe,
+                    (_, "KeyC") => Action::Mode,
+                    (_, "KeyR") => Action::Reset,
+                    _ => return,
+                };
+                p.actions.push(action);
+                e.prevent_default();
+            });
+            let p = me.pending.clone();
+            listen(window, "keyup", move |e: KeyboardEvent| {
+                let mut p = p.borrow_mut();
+                p.shift = e.shift_key();
+                p.held.remove(&e.code());
+            });
+            // Keys released while the page had no focus never report it.
+            let p = me.pending.clone();
+            listen(window, "blur", move |_: web_sys::FocusEvent| {
+                let mut p = p.borrow_mut();
+                p.held.clear();
+                p.shift = false;
+                p.pointers.clear();
+            });
+        }
         me
     }
 
-    /// Applies what the mouse did since the last call to `controls`; whether anything did.
-    pub fn apply(&self, controls: &mut Controls, height: u32) -> bool {
+    /// Applies what happened since the last call to `controls` (held keys for `dt` seconds);
+    /// returns whether the camera moved and the key actions to carry out.
+    pub fn apply(&self, controls: &mut Controls, height: u32, dt: f64) -> (bool, Vec<Action>) {
         let mut p = self.pending.borrow_mut();
-        let moved = p.rotate != (0.0, 0.0) || p.pan != (0.0, 0.0) || p.zoom != 0.0;
+        let down =
+            |code: &str| f64::from(u8::from(p.held.contains(code) || p.tapped.contains(code)));
+        let axis = |plus: &str, minus: &str| down(plus) - down(minus);
+        let movement = Movement {
+            forward: axis("KeyW", "KeyS"),
+            right: axis("KeyD", "KeyA"),
+            up: axis("KeyQ", "KeyE"),
+            fast: p.shift,
+        };
+        let keys_move = movement.forward != 0.0 || movement.right != 0.0 || movement.up != 0.0;
+        if controls.mode() == Mode::Fly {
+            // Flying, every drag looks around (as in `cbdam view`).
+            p.rotate.0 += p.pan.0;
+            p.rotate.1 += p.pan.1;
+            p.pan = (0.0, 0.0);
+        }
+        let moved = keys_move || p.rotate != (0.0, 0.0) || p.pan != (0.0, 0.0) || p.zoom != 0.0;
         if p.rotate != (0.0, 0.0) {
             controls.rotate(p.rotate.0, p.rotate.1);
         }
@@ -108,9 +260,13 @@ impl Input {
         if p.zoom != 0.0 {
             controls.zoom(p.zoom);
         }
+        if keys_move {
+            controls.update(movement, dt);
+        }
         p.rotate = (0.0, 0.0);
         p.pan = (0.0, 0.0);
         p.zoom = 0.0;
-        moved
+        p.tapped.clear();
+        (moved, std::mem::take(&mut p.actions))
     }
 }

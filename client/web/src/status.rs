@@ -4,6 +4,7 @@
 //! |---|---|
 //! | `phase` | `"starting"`, `"connecting"`, `"running"` or `"failed"` |
 //! | `webgpu` | whether the browser offers a WebGPU adapter |
+//! | `webgl2` | without WebGPU: whether it offers WebGL2 (named in the error) |
 //! | `backend` | `"webgpu"` (or `"webgl"`, built with the `webgl` feature) once an adapter is found |
 //! | `adapter` | the adapter's name |
 //! | `error` | why the page failed (`phase == "failed"`), or `""` |
@@ -15,6 +16,13 @@
 //! | `recordsRequested`, `bytes`, `fetchErrors` | the data source's counters: records requested, bytes received, failed requests and rejected records |
 //! | `firstFrameMs`, `convergedMs` | `performance.now()` at the first frame drawn and at the first converged frame (ms since the page's navigation began) |
 //! | `camera` | `[eye x, y, z, target x, y, z]`, metres |
+//! | `fps`, `frameMs` | frame rate and frame interval, median of the last 60 frames |
+//! | `pixelError` | the pixel-error target in use (keys `+`/`-`, the page's slider) |
+//! | `mode`, `frozen`, `levels`, `wireframe` | `"orbit"` or `"fly"`; the cut frozen (F); colour by level (L); wireframe (Tab) |
+//! | `cpuCache` | `[record bytes, record budget, decoded bytes, decoded budget]` |
+//! | `gpuCache` | `[resident slots, slots]` of the GPU height pool |
+//! | `inFlight` | requests in flight |
+//! | `notice` | a key that could not be honoured (e.g. no wireframe on this adapter) |
 //!
 //! The page's own "ok" is not proof that anything was drawn (a canvas can stay blank while
 //! wgpu reports success): tests check the pixels of a screenshot too.

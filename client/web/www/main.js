@@ -1,10 +1,15 @@
 // Loads the viewer's wasm module and starts it on the canvas for the repository named by the
 // page URL: ?repo=URL (a .cbdam file on a server with Range support, or a `cbdam serve`
-// repository, http://host:port/v1/repos/NAME; relative URLs are resolved against the page).
-import init, { start } from "./cbdam_web.js";
+// repository, http://host:port/v1/repos/NAME; relative URLs are resolved against the page), or
+// else by the page's <meta name="cbdam-repo"> (set by `cbdam web-export --repo`).
+// Shows window.cbdam (the viewer's status, client/web/src/status.rs) in the overlay, and drives
+// the pixel-error slider.
+import init, { start, set_pixel_error } from "./cbdam_web.js";
 
 const canvas = document.getElementById("view");
 const overlay = document.getElementById("overlay");
+const slider = document.getElementById("pixel-error");
+const sliderValue = document.getElementById("pixel-error-value");
 
 function fitCanvas() {
   const ratio = window.devicePixelRatio || 1;
@@ -16,6 +21,12 @@ function fail(message) {
   window.cbdam = { phase: "failed", error: message, frames: 0, converged: false };
 }
 
+const fmt = (v, d = 0) => (v === undefined || v === null ? "-" : Number(v).toFixed(d));
+const mib = (bytes) => fmt(bytes / 1048576, 1);
+// The slider's last value until the viewer uses it (it applies it at its next frame).
+let requested = null;
+const pixels = (px) => (px >= 1 ? `${px}` : `1/${Math.round(1 / px)}`) + " px";
+
 function showStatus() {
   const s = window.cbdam;
   if (!s) return;
@@ -24,20 +35,43 @@ function showStatus() {
     overlay.textContent = "cbdam: " + s.error;
     return;
   }
-  const fmt = (v, d = 0) => (v === undefined ? "-" : Number(v).toFixed(d));
+  const cpu = s.cpuCache || [];
+  const gpu = s.gpuCache || [];
+  const state = s.frozen ? "FROZEN" : s.converged ? "converged" : "refining";
   overlay.textContent =
-    `${s.phase} · ${s.backend || "-"} · ${s.adapter || ""}\n` +
-    `frames ${fmt(s.frames)} · refined ${fmt(s.refined)} · halves ${fmt(s.drawnHalves)} · ` +
-    `triangles ${fmt(s.triangles)}\n` +
-    `max error ${fmt(s.maxErrorPx, 2)} px · ${s.converged ? "converged" : "refining"}\n` +
-    `records requested ${fmt(s.recordsRequested)} · ${fmt((s.bytes || 0) / 1024)} KiB · errors ${fmt(s.fetchErrors)}`;
+    `${s.phase} · ${s.backend || "-"} · ${s.mode || "orbit"} · ${s.adapter || ""}\n` +
+    `fps ${fmt(s.fps, 1)} (${fmt(s.frameMs, 1)} ms) · triangles ${fmt(s.triangles)}\n` +
+    `cut ${fmt(s.refined)} diamonds, ${fmt(s.drawnHalves)} half-patches · ${state}\n` +
+    `pixel error ${s.pixelError ? pixels(s.pixelError) : "-"} target, ${fmt(s.maxErrorPx, 2)} px max\n` +
+    `cache: records ${mib(cpu[0])}/${mib(cpu[1])} MiB, decoded ${mib(cpu[2])}/${mib(cpu[3])} MiB, ` +
+    `GPU ${fmt(gpu[0])}/${fmt(gpu[1])} slots\n` +
+    `network: ${fmt(s.recordsRequested)} requests, ${fmt((s.bytes || 0) / 1024, 1)} KiB, ` +
+    `${fmt(s.inFlight)} in flight, ${fmt(s.fetchErrors)} errors` +
+    (s.notice ? `\n${s.notice}` : "");
+  // The slider follows the target (keys change it too) unless it is being used.
+  if (requested !== null && s.pixelError !== requested) return;
+  requested = null;
+  if (s.pixelError && document.activeElement !== slider) {
+    slider.value = String(Math.round(Math.log2(s.pixelError)));
+    sliderValue.textContent = pixels(s.pixelError);
+  }
 }
 
 fitCanvas();
 window.addEventListener("resize", fitCanvas);
 setInterval(showStatus, 250);
+slider.addEventListener("input", () => {
+  const px = 2 ** Number(slider.value);
+  sliderValue.textContent = pixels(px);
+  requested = px;
+  set_pixel_error(px);
+});
+// The slider keeps keyboard focus after a drag; give it back to the view for the keys.
+slider.addEventListener("change", () => slider.blur());
 
-const repo = new URLSearchParams(location.search).get("repo");
+const repo =
+  new URLSearchParams(location.search).get("repo") ||
+  document.querySelector('meta[name="cbdam-repo"]')?.content;
 if (!repo) {
   fail("no repository: open this page with ?repo=URL (a .cbdam file or a cbdam serve repository)");
   showStatus();

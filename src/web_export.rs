@@ -1,0 +1,186 @@
+//! `cbdam web-export DIR`: the browser viewer as static files, for any static host with Range
+//! support (the page reads a `.cbdam` file with Range requests, like PMTiles).
+//!
+//! The viewer's files are the bundle `scripts/web-build.sh` writes (target/web-bundle); they are
+//! not built into the `cbdam` binary, which would make every native build compile the wasm
+//! module too. The bundle is found at `--bundle DIR`, `$CBDAM_WEB_BUNDLE`, `target/web-bundle`
+//! under the working directory, or `web-bundle` beside or above the binary (target/debug/cbdam
+//! finds target/web-bundle).
+//!
+//! With `--repo FILE` the repository is copied into DIR and the page opens it when no
+//! `?repo=` is given; with `--repo URL` the page opens that URL (its server must allow the
+//! page's origin and honour Range requests).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use cbdam_codec::repository::Repository;
+
+use crate::WebExportArgs;
+
+/// The slot in the bundle's index.html (client/web/www/index.html) that names the repository
+/// opened without `?repo=`.
+const REPO_SLOT: &str = r#"<meta name="cbdam-repo" content="">"#;
+
+/// Where the bundle is looked for when `--bundle` is not given, in order.
+fn bundle_candidates() -> Vec<PathBuf> {
+    let mut dirs = Vec::new();
+    if let Some(dir) = std::env::var_os("CBDAM_WEB_BUNDLE") {
+        dirs.push(PathBuf::from(dir));
+    }
+    dirs.push(PathBuf::from("target/web-bundle"));
+    if let Ok(exe) = std::env::current_exe()
+        && let Some(bin_dir) = exe.parent()
+    {
+        dirs.push(bin_dir.join("web-bundle"));
+        if let Some(up) = bin_dir.parent() {
+            dirs.push(up.join("web-bundle"));
+        }
+    }
+    dirs
+}
+
+fn is_bundle(dir: &Path) -> bool {
+    cbdam_server::web::REQUIRED
+        .iter()
+        .all(|f| dir.join(f).is_file())
+}
+
+/// The bundle to export: `--bundle` (which must be one), else the first candidate that is one.
+fn find_bundle(given: Option<&Path>) -> Result<PathBuf> {
+    if let Some(dir) = given {
+        if let Some(missing) = cbdam_server::web::REQUIRED
+            .iter()
+            .find(|f| !dir.join(f).is_file())
+        {
+            bail!(
+                "{} is not the viewer's bundle: {missing} is missing (build it with \
+                 scripts/web-build.sh, which writes target/web-bundle)",
+                dir.display()
+            );
+        }
+        return Ok(dir.to_path_buf());
+    }
+    let candidates = bundle_candidates();
+    candidates
+        .iter()
+        .find(|d| is_bundle(d))
+        .cloned()
+        .ok_or_else(|| {
+            let looked: Vec<String> = candidates.iter().map(|d| d.display().to_string()).collect();
+            anyhow::anyhow!(
+                "no viewer bundle found (looked in {}): build it with scripts/web-build.sh in the \
+             source tree (it writes target/web-bundle), or pass --bundle DIR",
+                looked.join(", ")
+            )
+        })
+}
+
+/// What the page opens by default.
+enum DefaultRepo {
+    /// A local repository, copied into the export under this file name.
+    File(PathBuf, String),
+    /// A URL, left as it is.
+    Url(String),
+}
+
+fn default_repo(repo: &str) -> Result<DefaultRepo> {
+    if repo.starts_with("http://") || repo.starts_with("https://") {
+        return Ok(DefaultRepo::Url(repo.to_string()));
+    }
+    let path = PathBuf::from(repo);
+    if !path.is_file() {
+        bail!("--repo {repo}: no such file (give a .cbdam file or an http(s):// URL)");
+    }
+    // Checked now, not when someone opens the page.
+    Repository::open(&path).with_context(|| format!("--repo {repo}: not a readable repository"))?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .with_context(|| format!("--repo {repo}: no file name"))?;
+    Ok(DefaultRepo::File(path, name))
+}
+
+/// Escapes text for an HTML attribute.
+fn escape_attribute(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('"', "&quot;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+pub fn run(args: &WebExportArgs) -> Result<()> {
+    let bundle = find_bundle(args.bundle.as_deref())?;
+    let repo = args.repo.as_deref().map(default_repo).transpose()?;
+    let out = &args.dir;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    // Copying the bundle onto itself would truncate its files, and filling in its page would
+    // remove the slot later exports fill.
+    if std::fs::canonicalize(out).ok() == std::fs::canonicalize(&bundle).ok() {
+        bail!(
+            "{} is the viewer's bundle itself: export into another folder",
+            out.display()
+        );
+    }
+
+    let mut files = 0;
+    let mut entries: Vec<_> = std::fs::read_dir(&bundle)
+        .with_context(|| format!("reading {}", bundle.display()))?
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("reading {}", bundle.display()))?;
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        let name = e.file_name();
+        if !e.path().is_file() || name.to_string_lossy().starts_with('.') {
+            continue;
+        }
+        let to = out.join(&name);
+        if name == "index.html" {
+            let page = std::fs::read_to_string(e.path())
+                .with_context(|| format!("reading {}", e.path().display()))?;
+            let page = match &repo {
+                None => page,
+                Some(r) => {
+                    if !page.contains(REPO_SLOT) {
+                        bail!(
+                            "{}/index.html has no default-repository slot (an older bundle?): \
+                             rebuild it with scripts/web-build.sh",
+                            bundle.display()
+                        );
+                    }
+                    let url = match r {
+                        DefaultRepo::File(_, name) => name.as_str(),
+                        DefaultRepo::Url(url) => url.as_str(),
+                    };
+                    let filled = format!(
+                        r#"<meta name="cbdam-repo" content="{}">"#,
+                        escape_attribute(url)
+                    );
+                    page.replacen(REPO_SLOT, &filled, 1)
+                }
+            };
+            std::fs::write(&to, page).with_context(|| format!("writing {}", to.display()))?;
+        } else {
+            std::fs::copy(e.path(), &to)
+                .with_context(|| format!("copying {} to {}", e.path().display(), to.display()))?;
+        }
+        files += 1;
+    }
+    let opens = match &repo {
+        Some(DefaultRepo::File(path, name)) => {
+            let to = out.join(name);
+            std::fs::copy(path, &to)
+                .with_context(|| format!("copying {} to {}", path.display(), to.display()))?;
+            format!("index.html (opens {name})")
+        }
+        Some(DefaultRepo::Url(url)) => format!("index.html (opens {url})"),
+        None => "index.html?repo=URL".to_string(),
+    };
+    println!(
+        "web-export: the viewer ({files} files from {}) is in {}; serve that folder from any \
+         static server with Range support and open {opens}",
+        bundle.display(),
+        out.display()
+    );
+    Ok(())
+}
