@@ -238,3 +238,43 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
     assert!(stderr(&o).contains("memory limit"), "{}", stderr(&o));
     assert!(!out.exists());
 }
+
+/// The bundled global DEM with a bundled 3″ tile as an inset: every level of the planet within
+/// the bound against the resampled lattice, and the decoded surface within bound + resampling
+/// error of every compared sample of both inputs (`verify` refuses otherwise).
+#[test]
+fn etopo5_with_an_srtm_inset_verifies_on_every_level() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("earth.cbdam");
+    let (etopo, srtm) = (
+        crate::util::data("etopo5_global.tif"),
+        crate::util::data("srtm3_demcompare.tif"),
+    );
+    let o = cbdam(&[
+        "build",
+        &etopo,
+        &srtm,
+        "--planet",
+        "--diamond-size",
+        "17",
+        "--planet-level",
+        "5",
+        "-o",
+        &s(&out),
+        "--max-error",
+        "5",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = cbdam(&["verify", &s(&out), "--against", &etopo, &srtm]);
+    let text = stdout(&o);
+    assert!(o.status.success(), "{text}\n{}", stderr(&o));
+    assert!(text.contains("OK"), "{text}");
+    // A 0.18° lattice: ETOPO5's 5′ area-averaged, the 0.83° tile of 3″ data area-averaged
+    // into a few cells, whose inner cells are compared against its samples.
+    let (srtm_compared, srtm_samples, _) = compared_and_max(&text, "srtm3_demcompare.tif");
+    assert_eq!(srtm_samples, 1_000_000);
+    assert!(srtm_compared > 0, "{text}");
+    let (etopo_compared, etopo_samples, _) = compared_and_max(&text, "etopo5_global.tif");
+    assert_eq!(etopo_samples, 4320 * 2161);
+    assert!(etopo_compared > etopo_samples / 2, "{text}");
+}
