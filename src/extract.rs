@@ -30,6 +30,13 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
     let p = *repo.params();
+    if p.domain.cube().is_some() {
+        bail!(
+            "{} is a planet (cube-sphere): extract writes planar rasters, and a planet's six faces \
+             are not resampled back to latitude/longitude yet",
+            args.repo.display()
+        );
+    }
     let plan = *repo.plan();
     let finest = p.layout().finest_level();
     let level = args.level.unwrap_or(finest);

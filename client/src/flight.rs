@@ -26,6 +26,26 @@
 //! positions (the end keyframes are repeated as their own neighbours), so the path is smooth
 //! (continuous velocity at the keyframes) and passes through every keyframe exactly. Before the
 //! first keyframe and after the last the camera holds still.
+//!
+//! # Planets: geodetic keyframes
+//!
+//! A flight over a planet gives `"geodetic"` keyframes instead of `"keyframes"`:
+//!
+//! ```json
+//! { "geodetic": [
+//!     { "t": 0,  "lat": 20, "lon": 30, "height_m": 12000000, "heading_deg": 0, "pitch_deg": -90 },
+//!     { "t": 10, "lat": 40.4, "lon": 40.4, "height_m": 4000, "heading_deg": 30, "pitch_deg": -25 }
+//! ] }
+//! ```
+//!
+//! - `lat`, `lon`: geodetic degrees on WGS84 (latitude −90…90; longitude any, taken modulo
+//!   360°, the path turning the short way round between keyframes).
+//! - `height_m`: metres above the ellipsoid.
+//! - `heading_deg`: clockwise from north (optional, default 0, the short way round between
+//!   keyframes); `pitch_deg`: negative looking down, −90…90 (optional, default −30).
+//!
+//! The same splines run through latitude, unwrapped longitude, height, heading and pitch; the
+//! camera at each time is the geodetic camera of `cbdam render --geo`.
 
 use std::path::Path;
 
@@ -85,8 +105,51 @@ pub struct Flight {
     /// Vertical field of view, degrees.
     #[serde(default = "default_fov")]
     pub fov_deg: f64,
-    /// Keyframes, by increasing time.
+    /// Keyframes, by increasing time (relative form; empty for a geodetic flight).
+    #[serde(default)]
     pub keyframes: Vec<Keyframe>,
+    /// Geodetic keyframes, by increasing time (planets; empty for a relative flight).
+    #[serde(default)]
+    pub geodetic: Vec<GeoKeyframe>,
+}
+
+/// One keyframe of a flight over a planet (see the module documentation).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GeoKeyframe {
+    /// Time, seconds.
+    pub t: f64,
+    /// Geodetic latitude, degrees north.
+    pub lat: f64,
+    /// Longitude, degrees east.
+    pub lon: f64,
+    /// Metres above the WGS84 ellipsoid.
+    pub height_m: f64,
+    /// Degrees clockwise from north.
+    #[serde(default)]
+    pub heading_deg: f64,
+    /// Degrees above the horizontal (negative: looking down).
+    #[serde(default = "default_pitch")]
+    pub pitch_deg: f64,
+}
+
+fn default_pitch() -> f64 {
+    -30.0
+}
+
+/// A geodetic camera pose: where the eye is and which way it looks.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GeoPose {
+    /// Degrees north.
+    pub lat: f64,
+    /// Degrees east, in (−180, 180].
+    pub lon: f64,
+    /// Metres above the ellipsoid.
+    pub height_m: f64,
+    /// Degrees clockwise from north, in [0, 360).
+    pub heading_deg: f64,
+    /// Degrees above the horizontal.
+    pub pitch_deg: f64,
 }
 
 fn default_fov() -> f64 {
@@ -108,11 +171,14 @@ impl Flight {
 
     fn validate(&self) -> Result<(), FlightError> {
         let bad = |m: String| Err(FlightError::Invalid(m));
-        if self.keyframes.len() < 2 {
-            return bad("a flight needs at least two keyframes".into());
-        }
         if !(self.fov_deg > 1.0 && self.fov_deg < 179.0) {
             return bad(format!("fov_deg {} is not between 1 and 179", self.fov_deg));
+        }
+        if !self.geodetic.is_empty() {
+            return self.validate_geodetic();
+        }
+        if self.keyframes.len() < 2 {
+            return bad("a flight needs at least two keyframes".into());
         }
         for (i, k) in self.keyframes.iter().enumerate() {
             let finite = k.t.is_finite() && k.eye.iter().chain(&k.target).all(|v| v.is_finite());
@@ -129,9 +195,90 @@ impl Flight {
         Ok(())
     }
 
+    fn validate_geodetic(&self) -> Result<(), FlightError> {
+        let bad = |m: String| Err(FlightError::Invalid(m));
+        if !self.keyframes.is_empty() {
+            return bad("a flight has either \"keyframes\" or \"geodetic\" keyframes, not both".into());
+        }
+        if self.geodetic.len() < 2 {
+            return bad("a flight needs at least two keyframes".into());
+        }
+        for (i, k) in self.geodetic.iter().enumerate() {
+            let values = [k.t, k.lat, k.lon, k.height_m, k.heading_deg, k.pitch_deg];
+            if !values.iter().all(|v| v.is_finite()) {
+                return bad(format!("geodetic keyframe {i} has a non-finite value"));
+            }
+            if !(-90.0..=90.0).contains(&k.lat) {
+                return bad(format!("geodetic keyframe {i}: latitude {} is not in −90…90", k.lat));
+            }
+            if !(-90.0..=90.0).contains(&k.pitch_deg) {
+                return bad(format!("geodetic keyframe {i}: pitch {} is not in −90…90", k.pitch_deg));
+            }
+            if i > 0 && k.t <= self.geodetic[i - 1].t {
+                return bad(format!("geodetic keyframe {i}: times must increase"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether the keyframes are geodetic (a planet's flight).
+    pub fn is_geodetic(&self) -> bool {
+        !self.geodetic.is_empty()
+    }
+
+    /// The geodetic pose at time `t` (a geodetic flight; `None` for a relative one).
+    /// Longitudes and headings are unwrapped along the keyframes, so the path turns the short
+    /// way round, then interpolated like relative keyframes.
+    pub fn geo_pose(&self, t: f64) -> Option<GeoPose> {
+        let k = &self.geodetic;
+        if k.is_empty() {
+            return None;
+        }
+        // Unwrapped values: each longitude and heading within 180° of the previous one.
+        let mut lon = Vec::with_capacity(k.len());
+        let mut heading = Vec::with_capacity(k.len());
+        for (i, f) in k.iter().enumerate() {
+            let near = |prev: f64, v: f64| v - 360.0 * ((v - prev) / 360.0).round();
+            lon.push(if i == 0 { f.lon } else { near(lon[i - 1], f.lon) });
+            heading.push(if i == 0 {
+                f.heading_deg
+            } else {
+                near(heading[i - 1], f.heading_deg)
+            });
+        }
+        let values = |i: usize| [k[i].lat, lon[i], k[i].height_m, heading[i], k[i].pitch_deg];
+        let last = k.len() - 1;
+        let v = if t <= k[0].t {
+            values(0)
+        } else if t >= k[last].t {
+            values(last)
+        } else {
+            let i = k.partition_point(|f| f.t <= t) - 1;
+            let u = (t - k[i].t) / (k[i + 1].t - k[i].t);
+            let at = |j: isize| values(j.clamp(0, last as isize) as usize);
+            let i = i as isize;
+            let (a, b, c, d) = (at(i - 1), at(i), at(i + 1), at(i + 2));
+            catmull_rom(a, b, c, d, u)
+        };
+        let mut lon = v[1] - 360.0 * (v[1] / 360.0).round();
+        if lon <= -180.0 {
+            lon += 360.0;
+        }
+        Some(GeoPose {
+            lat: v[0].clamp(-90.0, 90.0),
+            lon,
+            height_m: v[2],
+            heading_deg: v[3].rem_euclid(360.0),
+            pitch_deg: v[4].clamp(-90.0, 90.0),
+        })
+    }
+
     /// Time of the last keyframe (the first is usually 0).
     pub fn duration(&self) -> f64 {
-        self.keyframes.last().map_or(0.0, |k| k.t)
+        match self.geodetic.last() {
+            Some(k) => k.t,
+            None => self.keyframes.last().map_or(0.0, |k| k.t),
+        }
     }
 
     /// Eye and target at time `t`, relative coordinates.
@@ -178,7 +325,13 @@ pub fn to_world(world: &World, p: [f64; 3]) -> DVec3 {
     )
 }
 
-fn catmull_rom(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3], u: f64) -> [f64; 3] {
+fn catmull_rom<const N: usize>(
+    a: [f64; N],
+    b: [f64; N],
+    c: [f64; N],
+    d: [f64; N],
+    u: f64,
+) -> [f64; N] {
     let (u2, u3) = (u * u, u * u * u);
     std::array::from_fn(|i| {
         0.5 * (2.0 * b[i]
@@ -244,6 +397,38 @@ mod tests {
         assert_eq!(cam.eye, to_world(&w, [0.0, 0.0, 2.0]));
     }
 
+    const GEO: &str = r#"{ "geodetic": [
+        { "t": 0, "lat": 10, "lon": 170, "height_m": 1e7, "heading_deg": 350, "pitch_deg": -90 },
+        { "t": 2, "lat": 20, "lon": -170, "height_m": 1e5, "heading_deg": 10 },
+        { "t": 4, "lat": 30, "lon": -160, "height_m": 2000, "heading_deg": 20, "pitch_deg": -10 } ] }"#;
+
+    /// Geodetic keyframes pass through every keyframe, cross the antimeridian and north the
+    /// short way (170° E → 170° W through 180°, heading 350° → 10° through 0°), and move
+    /// smoothly.
+    #[test]
+    fn geodetic_keyframes_turn_the_short_way() {
+        let f = Flight::parse(GEO).unwrap();
+        assert!(f.is_geodetic());
+        assert_eq!(f.duration(), 4.0);
+        let p = f.geo_pose(2.0).unwrap();
+        assert!((p.lat - 20.0).abs() < 1e-12 && (p.lon + 170.0).abs() < 1e-12, "{p:?}");
+        assert_eq!(p.pitch_deg, -30.0);
+        let mid = f.geo_pose(1.0).unwrap();
+        // Halfway between 170° E and 170° W lies near 180°, not near 0°.
+        assert!(mid.lon.abs() > 170.0, "{mid:?}");
+        assert!(mid.heading_deg < 15.0 || mid.heading_deg > 345.0, "{mid:?}");
+        assert_eq!(f.geo_pose(-1.0), f.geo_pose(0.0));
+        let mut prev = f.geo_pose(0.0).unwrap();
+        for s in 1..=400 {
+            let p = f.geo_pose(s as f64 * 0.01).unwrap();
+            let mut dlon = p.lon - prev.lon;
+            dlon -= 360.0 * (dlon / 360.0).round();
+            assert!((p.lat - prev.lat).abs() < 0.2 && dlon.abs() < 0.3, "step {s}: {p:?}");
+            prev = p;
+        }
+        assert!(Flight::parse(JSON).unwrap().geo_pose(0.0).is_none());
+    }
+
     #[test]
     fn rejects_bad_flights() {
         for bad in [
@@ -255,6 +440,15 @@ mod tests {
             r#"{ "fov_deg": 0, "keyframes": [ { "t": 0, "eye": [0, 0, 1], "target": [1, 1, 0] },
                                 { "t": 1, "eye": [1, 0, 1], "target": [1, 1, 0] } ] }"#,
             r#"{ "keyframes": [], "extra": 1 }"#,
+            r#"{ "geodetic": [ { "t": 0, "lat": 91, "lon": 0, "height_m": 1 },
+                               { "t": 1, "lat": 0, "lon": 0, "height_m": 1 } ] }"#,
+            r#"{ "geodetic": [ { "t": 0, "lat": 0, "lon": 0, "height_m": 1 } ] }"#,
+            r#"{ "geodetic": [ { "t": 0, "lat": 0, "lon": 0, "height_m": 1, "pitch_deg": -95 },
+                               { "t": 1, "lat": 0, "lon": 0, "height_m": 1 } ] }"#,
+            r#"{ "keyframes": [ { "t": 0, "eye": [0, 0, 1], "target": [1, 1, 0] },
+                                { "t": 1, "eye": [1, 0, 1], "target": [1, 1, 0] } ],
+                 "geodetic": [ { "t": 0, "lat": 0, "lon": 0, "height_m": 1 },
+                               { "t": 1, "lat": 0, "lon": 0, "height_m": 1 } ] }"#,
             "not json",
         ] {
             assert!(Flight::parse(bad).is_err(), "{bad}");

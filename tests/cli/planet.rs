@@ -277,4 +277,10 @@ fn etopo5_with_an_srtm_inset_verifies_on_every_level() {
     let (etopo_compared, etopo_samples, _) = compared_and_max(&text, "etopo5_global.tif");
     assert_eq!(etopo_samples, 4320 * 2161);
     assert!(etopo_compared > etopo_samples / 2, "{text}");
+    // extract writes planar rasters: a planet is refused by name, nothing written.
+    let tif = tmp.path().join("x.tif");
+    let o = cbdam(&["extract", &s(&out), "-o", &s(&tif)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("is a planet"), "{}", stderr(&o));
+    assert!(!tif.exists());
 }
