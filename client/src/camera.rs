@@ -135,9 +135,8 @@ impl Camera {
         let (east, north, up, eye) = if world.is_planet() {
             let (sp, cp) = lat.to_radians().sin_cos();
             let (sl, cl) = lon.to_radians().sin_cos();
-            let eye = DVec3::from_array(
-                cbdam_codec::geodesy::Geodetic::new(lat, lon, height).to_ecef(),
-            );
+            let eye =
+                DVec3::from_array(cbdam_codec::geodesy::Geodetic::new(lat, lon, height).to_ecef());
             (
                 DVec3::new(-sl, cl, 0.0),
                 DVec3::new(-sp * cl, -sp * sl, cp),

@@ -240,10 +240,7 @@ impl View {
         if !self.frustum.intersects_box(info.lo, info.hi) {
             return None;
         }
-        if self
-            .horizon
-            .is_some_and(|h| h.hides_box(info.lo, info.hi))
-        {
+        if self.horizon.is_some_and(|h| h.hides_box(info.lo, info.hi)) {
             return None;
         }
         let e = self.camera.eye;
@@ -324,7 +321,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         for e in source.entries().iter().rev() {
             let id = e.id.finer(shift);
             let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
-            let mut err_m = f64::from(e.object_error) * world.unit;
+            // On a planet the flat triangles' sag under the curved surface counts too.
+            let mut err_m = (f64::from(e.object_error) * world.unit).max(world.chord_error(id));
             for c in domain.children(id).into_iter().flatten() {
                 if let Some(ci) = stored.get(&c) {
                     lo = lo.min(ci.lo);
