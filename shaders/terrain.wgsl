@@ -31,6 +31,13 @@ struct Frame {
     // 1: a colour repository is draped; each slot holds N² heights, then N² colours (RGB8
     // packed in a word, red in the low byte), and they replace the hypsometric ramp.
     draped: u32,
+    // 1 on a planet: after the heights (and colours), a slot holds 6·N² words of vertex
+    // positions relative to the patch origin (per vertex x, y, z rounded to f32, then what the
+    // rounding left, as f32 bits); no data rectangle is clipped.
+    planet: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 // One drawn half-patch (64 bytes, `PatchInstance` on the CPU).
@@ -51,6 +58,17 @@ struct Patch {
     diagonal: u32,
     // 0: positive half, 1: negative half (codec `Half` order).
     half: u32,
+    // Planets: z of the patch origin minus the eye (x, y in `origin_rel`), and +1 when the
+    // cross product of the grid's i and j steps faces out of the globe on this patch, −1 when in.
+    origin_z: f32,
+    facing: f32,
+    pad_a: u32,
+    pad_b: u32,
+    // Planets: what rounding the origin minus the eye to f32 left.
+    origin_lo_x: f32,
+    origin_lo_y: f32,
+    origin_lo_z: f32,
+    pad: u32,
 }
 
 @group(0) @binding(0) var<uniform> frame: Frame;
@@ -59,7 +77,42 @@ struct Patch {
 
 // First word of a patch's slot: slots are N² words, 2·N² when colours follow the heights.
 fn slot_base(p: Patch) -> u32 {
-    return p.slot * frame.n * frame.n * (1u + frame.draped);
+    return p.slot * frame.n * frame.n * (1u + frame.draped + 6u * frame.planet);
+}
+
+fn position_word(p: Patch, v: u32, k: u32) -> f32 {
+    return bitcast<f32>(heights[slot_base(p) + frame.n * frame.n * (1u + frame.draped) + 6u * v + k]);
+}
+
+// A planet vertex's position relative to its patch origin, rounded to f32 (for normals).
+fn offset_at(p: Patch, v: u32) -> vec3<f32> {
+    return vec3<f32>(position_word(p, v, 0u), position_word(p, v, 1u), position_word(p, v, 2u));
+}
+
+// A planet vertex's position minus the eye: the rounded parts first (near the eye they cancel
+// exactly), then what their rounding left.
+fn eye_relative(p: Patch, v: u32) -> vec3<f32> {
+    let big = vec3<f32>(p.origin_rel, p.origin_z) + offset_at(p, v);
+    let small = vec3<f32>(p.origin_lo_x, p.origin_lo_y, p.origin_lo_z)
+        + vec3<f32>(position_word(p, v, 3u), position_word(p, v, 4u), position_word(p, v, 5u));
+    return big + small;
+}
+
+// Position difference along (da, db) at (a, b) on a planet: central where both neighbours are in
+// the half, one-sided at the half's edges (as `slope`).
+fn position_slope(p: Patch, a: i32, b: i32, da: i32, db: i32) -> vec3<f32> {
+    let n = i32(frame.n);
+    let fwd = in_half(p, a + da, b + db);
+    let back = in_half(p, a - da, b - db);
+    let here = offset_at(p, u32(b * n + a));
+    if fwd && back {
+        return 0.5 * (offset_at(p, u32((b + db) * n + a + da)) - offset_at(p, u32((b - db) * n + a - da)));
+    } else if fwd {
+        return offset_at(p, u32((b + db) * n + a + da)) - here;
+    } else if back {
+        return here - offset_at(p, u32((b - db) * n + a - da));
+    }
+    return vec3<f32>(0.0);
 }
 
 struct VsOut {
@@ -142,16 +195,23 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     let j = vi / frame.n;
     let raw = heights[slot_base(p) + vi];
     let h = f32(unmark(raw));
-    let xy = p.origin_rel + f32(i) * p.u_world + f32(j) * p.v_world;
-    let pos = vec3<f32>(xy, frame.z_base + frame.z_scale * h);
+    var pos: vec3<f32>;
+    var nrm: vec3<f32>;
+    if frame.planet != 0u {
+        pos = eye_relative(p, vi);
+        nrm = p.facing * cross(position_slope(p, i32(i), i32(j), 1, 0), position_slope(p, i32(i), i32(j), 0, 1));
+    } else {
+        let xy = p.origin_rel + f32(i) * p.u_world + f32(j) * p.v_world;
+        pos = vec3<f32>(xy, frame.z_base + frame.z_scale * h);
 
-    // Normal from the tangents along i and j (world metres).
-    let dh_di = slope(p, i32(i), i32(j), 1, 0) * frame.z_scale;
-    let dh_dj = slope(p, i32(i), i32(j), 0, 1) * frame.z_scale;
-    var nrm = cross(vec3<f32>(p.u_world, dh_di), vec3<f32>(p.v_world, dh_dj));
-    // Odd levels' grids are mirrored (negative determinant): keep the normal pointing up.
-    if nrm.z < 0.0 {
-        nrm = -nrm;
+        // Normal from the tangents along i and j (world metres).
+        let dh_di = slope(p, i32(i), i32(j), 1, 0) * frame.z_scale;
+        let dh_dj = slope(p, i32(i), i32(j), 0, 1) * frame.z_scale;
+        nrm = cross(vec3<f32>(p.u_world, dh_di), vec3<f32>(p.v_world, dh_dj));
+        // Odd levels' grids are mirrored (negative determinant): keep the normal pointing up.
+        if nrm.z < 0.0 {
+            nrm = -nrm;
+        }
     }
 
     let lat = p.origin_lat + i32(i) * p.u_lat + i32(j) * p.v_lat;
@@ -163,6 +223,9 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     out.level = p.level;
     // The mask is don't care outside the data rectangle, which `outside_data` clips anyway.
     out.valid = select(1.0, 0.0, is_nodata(raw) && !outside_data(vec2<f32>(lat)));
+    if frame.planet != 0u {
+        out.valid = select(1.0, 0.0, is_nodata(raw));
+    }
     out.colour = vec3<f32>(0.0);
     if frame.draped != 0u {
         let packed = bitcast<u32>(heights[slot_base(p) + frame.n * frame.n + vi]);
@@ -219,6 +282,9 @@ const AMBIENT: f32 = 0.35;
 // tolerance (relative to the extent, f32 interpolation being relative too) absorbs rounding of
 // fragments exactly on the rectangle's edge.
 fn outside_data(lattice: vec2<f32>) -> bool {
+    if frame.planet != 0u {
+        return false;
+    }
     let eps = 1e-5 * max(1.0, max(frame.data_max.x, frame.data_max.y));
     return lattice.x < -eps || lattice.y < -eps || lattice.x > frame.data_max.x + eps
         || lattice.y > frame.data_max.y + eps;

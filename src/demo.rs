@@ -98,6 +98,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 budget_ms: 2.0,
                 max_frames: args.max_frames,
                 camera: None,
+                geo: None,
                 pixel_error: 1.0,
                 wireframe: false,
                 levels: false,

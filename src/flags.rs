@@ -1,5 +1,6 @@
 //! Typed values of the command line, parsed once by clap and shared by every subcommand: sizes
-//! `WIDTHxHEIGHT` ([`Size2`]), byte counts ([`ByteSize`]) and link rates ([`BitRate`]).
+//! `WIDTHxHEIGHT` ([`Size2`]), byte counts ([`ByteSize`]), link rates ([`BitRate`]) and
+//! geodetic cameras ([`GeoView`]).
 //!
 //! A bad value is a usage error (exit 2) whose message names the flag (clap puts it in front)
 //! and says what is expected.
@@ -141,9 +142,94 @@ impl std::str::FromStr for BitRate {
     }
 }
 
+/// `LAT,LON,HEIGHT_M[,HEADING_DEG,PITCH_DEG]`: a geodetic camera (`render --geo`): latitude
+/// and longitude in degrees, height in metres above the WGS84 ellipsoid, heading clockwise from
+/// north (default 0), pitch negative looking down (default −30).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GeoView {
+    /// Degrees north, −90 to 90.
+    pub lat: f64,
+    /// Degrees east.
+    pub lon: f64,
+    /// Metres above the ellipsoid.
+    pub height: f64,
+    /// Degrees clockwise from north.
+    pub heading: f64,
+    /// Degrees above the horizon (negative: looking down), −90 to 90.
+    pub pitch: f64,
+}
+
+impl GeoView {
+    /// Parses `LAT,LON,HEIGHT_M[,HEADING_DEG,PITCH_DEG]`.
+    pub fn parse(text: &str) -> Result<GeoView, String> {
+        let v: Vec<f64> = text
+            .split(',')
+            .map(|t| t.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| {
+                format!("{text:?} is not LAT,LON,HEIGHT_M[,HEADING_DEG,PITCH_DEG] of numbers")
+            })?;
+        if !(v.len() == 3 || v.len() == 5) {
+            return Err(format!(
+                "{text:?}: wants 3 or 5 numbers LAT,LON,HEIGHT_M[,HEADING_DEG,PITCH_DEG], got {}",
+                v.len()
+            ));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(format!("{text:?}: every number must be finite"));
+        }
+        let (heading, pitch) = if v.len() == 5 {
+            (v[3], v[4])
+        } else {
+            (0.0, -30.0)
+        };
+        if !(-90.0..=90.0).contains(&v[0]) {
+            return Err(format!("{text:?}: latitude {} is not within −90…90", v[0]));
+        }
+        if !(-90.0..=90.0).contains(&pitch) {
+            return Err(format!("{text:?}: pitch {pitch} is not within −90…90"));
+        }
+        if v[2] <= -1.0e5 {
+            return Err(format!(
+                "{text:?}: height {} m is deep inside the Earth (metres above the ellipsoid)",
+                v[2]
+            ));
+        }
+        Ok(GeoView {
+            lat: v[0],
+            lon: v[1],
+            height: v[2],
+            heading,
+            pitch,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn geo_views_parse_with_defaults_and_refuse_nonsense() {
+        let g = GeoView::parse("45.5, -122.25,1500").unwrap();
+        assert_eq!(
+            (g.lat, g.lon, g.height, g.heading, g.pitch),
+            (45.5, -122.25, 1500.0, 0.0, -30.0)
+        );
+        let g = GeoView::parse("0,180,1,90,-10").unwrap();
+        assert_eq!((g.heading, g.pitch), (90.0, -10.0));
+        for bad in [
+            "1,2",
+            "1,2,3,4",
+            "91,0,10",
+            "0,0,10,0,-91",
+            "a,b,c",
+            "0,0,inf",
+            "0,0,-200000",
+        ] {
+            assert!(GeoView::parse(bad).is_err(), "{bad}");
+        }
+    }
 
     #[test]
     fn sizes_accept_every_separator_and_refuse_junk() {

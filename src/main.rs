@@ -351,6 +351,13 @@ pub struct RenderArgs {
     /// overview of the whole data from the south.
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true, num_args = 1)]
     camera: Option<Vec<f64>>,
+    /// A planet's camera: LAT,LON,HEIGHT_M[,HEADING_DEG,PITCH_DEG], geodetic degrees, height in
+    /// metres above the WGS84 ellipsoid, heading clockwise from north (default 0), pitch
+    /// negative when looking down (default -30). Without it (and --camera) a planet is shown
+    /// whole, centred.
+    #[arg(long, value_parser = flags::GeoView::parse, allow_hyphen_values = true,
+          conflicts_with_all = ["camera", "path"])]
+    geo: Option<flags::GeoView>,
     /// Screen-space error target, pixels.
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
     pixel_error: f64,

@@ -40,6 +40,23 @@ fn camera(world: &World, spec: Option<&[f64]>, size: (u32, u32)) -> Result<Camer
     ))
 }
 
+/// The camera of `--geo` (planets only).
+fn geo_camera(world: &World, g: &crate::flags::GeoView, size: (u32, u32)) -> Result<Camera> {
+    if !world.is_planet() {
+        bail!(
+            "--geo needs a planet (a cube-sphere repository, `cbdam build --planet`); this \
+             repository is planar: use --camera"
+        );
+    }
+    Ok(Camera::geodetic(
+        world,
+        (g.lat, g.lon, g.height),
+        (g.heading, g.pitch),
+        45f64.to_radians(),
+        size,
+    ))
+}
+
 /// A low oblique view: from the south-south-west, 12° above the horizon, close enough that the
 /// near terrain is much finer than the far (the adaptive case).
 pub fn low_oblique(world: &World, size: (u32, u32)) -> Camera {
@@ -136,7 +153,10 @@ fn render_with<S: DataSource>(
         .output
         .as_deref()
         .expect("clap requires -o without --path");
-    let cam = camera(&world, args.camera.as_deref(), args.size)?;
+    let cam = match &args.geo {
+        Some(g) => geo_camera(&world, g, args.size)?,
+        None => camera(&world, args.camera.as_deref(), args.size)?,
+    };
     let t = Instant::now();
     let settled = if remote {
         settle_remote(&mut refiner, &cam)
@@ -189,11 +209,28 @@ fn render_with<S: DataSource>(
         s.triangles as f64 / (s.prepare_s + s.gpu_s) / 1e6,
         adapter,
     );
-    eprintln!(
-        "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (world metres: x east, y north of the \
-         data's north-west corner, z height)",
-        cam.eye.x, cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z
-    );
+    if world.is_planet() {
+        let g = cbdam_codec::geodesy::Geodetic::from_ecef(cam.eye.to_array());
+        eprintln!(
+            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (ECEF metres); eye at lat {:.6}, \
+             lon {:.6}, {:.1} m above the ellipsoid",
+            cam.eye.x,
+            cam.eye.y,
+            cam.eye.z,
+            cam.target.x,
+            cam.target.y,
+            cam.target.z,
+            g.lat,
+            g.lon,
+            g.height
+        );
+    } else {
+        eprintln!(
+            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (world metres: x east, y north of \
+             the data's north-west corner, z height)",
+            cam.eye.x, cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z
+        );
+    }
     Ok(())
 }
 

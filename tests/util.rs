@@ -99,3 +99,33 @@ pub fn read_rgba_png(path: &Path) -> (u32, u32, Vec<u8>) {
     buf.truncate(info.buffer_size());
     (info.width, info.height, buf)
 }
+
+/// A small synthetic planet repository (cube-sphere, N = 9, K = 2: 33 points per face side),
+/// written through the codec (`build --planet` is not used): a smooth relief from geodetic
+/// latitude and longitude and one 4 km mountain at 30° N, 20° E.
+pub fn planet(dir: &Path) -> PathBuf {
+    use cbdam_codec::geodesy::lattice_lat_lon;
+    use cbdam_codec::geometry::Domain;
+    use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
+    use cbdam_codec::quant::QuantPlan;
+    let (n, k) = (9usize, 2u32);
+    let domain = Domain::cube_sphere(n, k).unwrap();
+    let plan = QuantPlan::new(5.0, None, -3000.0, 5000.0).unwrap();
+    let grid = PlanetGrid::from_fn(n, k, |p| {
+        let ll = lattice_lat_lon(&domain, p.face, p.x, p.y)?;
+        let (la, lo) = (ll.lat.to_radians(), ll.lon.to_radians());
+        let d2 = (ll.lat - 30.0).powi(2) + (ll.lon - 20.0).powi(2);
+        let h = 800.0 * (2.0 * la).sin() * (3.0 * lo).cos() + 4000.0 * (-d2 / 200.0).exp();
+        plan.to_units(h).ok().flatten()
+    })
+    .unwrap();
+    let opts = EncodeOptions {
+        n,
+        ..EncodeOptions::default()
+    };
+    let encoded = encode_planet(&grid, plan.quantizer, &opts).unwrap();
+    let path = dir.join("planet.cbdam");
+    let bytes = cbdam_codec::repository::serialize(&encoded, &plan, None, None).unwrap();
+    std::fs::write(&path, bytes).unwrap();
+    path
+}

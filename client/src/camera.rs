@@ -1,18 +1,27 @@
 //! The perspective camera shared by refinement (frustum culling, screen-space error) and the
 //! renderer (projection). World positions are `f64`; what reaches the GPU is relative to the eye
 //! (`view_proj_relative`), so large extents do not jitter in `f32`.
+//!
+//! On a planet (ECEF world positions) cameras have an infinite far plane and **reversed-Z**
+//! depth (1 at the near plane, 0 at infinity): float depth is then about as precise at 10 000 km
+//! as at 1 m, so the ground seen from orbit and a pebble at the eye's feet share one depth
+//! buffer. Planar cameras keep the finite 0..1 projection they always had.
 
 use glam::{DMat4, DVec3, DVec4, Mat4};
 
 use crate::world::World;
 
-/// A perspective camera looking from `eye` at `target`, z up.
+/// A perspective camera looking from `eye` at `target`, with `up` up on the screen (z on a
+/// plane).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
     /// Eye position, world metres.
     pub eye: DVec3,
     /// Point looked at, world metres.
     pub target: DVec3,
+    /// The world direction shown up on the screen (projected across the view direction): `+z`
+    /// on a plane, the local normal (or north, for a whole globe) on a planet.
+    pub up: DVec3,
     /// Vertical field of view, radians.
     pub fov_y: f64,
     /// Viewport width, pixels.
@@ -21,9 +30,13 @@ pub struct Camera {
     pub height: u32,
     /// Near plane distance, metres.
     pub near: f64,
-    /// Far plane distance, metres.
+    /// Far plane distance, metres; infinite for a reversed-Z projection (planets).
     pub far: f64,
 }
+
+/// What a globe's default view leaves around the globe: its disc spans this fraction of the
+/// frame's shorter side.
+const GLOBE_FILL: f64 = 0.9;
 
 impl Camera {
     /// A camera with near and far planes chosen for `world`: far enough to see the whole data
@@ -35,6 +48,9 @@ impl Camera {
         fov_y: f64,
         size: (u32, u32),
     ) -> Self {
+        if world.is_planet() {
+            return Self::on_planet(world, eye, target, world.up(eye), fov_y, size);
+        }
         let (lo, hi) = world.bounds();
         let far_corner = DVec3::new(
             if eye.x - lo.x > hi.x - eye.x {
@@ -55,12 +71,90 @@ impl Camera {
         Self {
             eye,
             target,
+            up: DVec3::Z,
             fov_y,
             width: size.0,
             height: size.1,
             near,
             far,
         }
+    }
+
+    /// A planet's camera: reversed-Z with an infinite far plane, the near plane half the eye's
+    /// clearance above the highest terrain (at least 0.1 m).
+    fn on_planet(
+        world: &World,
+        eye: DVec3,
+        target: DVec3,
+        up: DVec3,
+        fov_y: f64,
+        size: (u32, u32),
+    ) -> Self {
+        let height = cbdam_codec::geodesy::Geodetic::from_ecef(eye.to_array()).height;
+        let clearance = height - world.max_height;
+        Self {
+            eye,
+            target,
+            up,
+            fov_y,
+            width: size.0,
+            height: size.1,
+            near: (clearance * 0.5).max(0.1),
+            far: f64::INFINITY,
+        }
+    }
+
+    /// The whole globe of a planet, centred, its disc filling most of the frame
+    /// ([`GLOBE_FILL`] of the shorter side), seen from above latitude 25° N, longitude 15° E,
+    /// north up.
+    pub fn globe(world: &World, size: (u32, u32)) -> Self {
+        let (_, hi) = world.bounds();
+        let radius = hi.x.max(hi.z);
+        let fov_y = 45f64.to_radians();
+        let aspect = f64::from(size.0) / f64::from(size.1.max(1));
+        let half = (fov_y / 2.0).tan() * aspect.min(1.0) * GLOBE_FILL;
+        // A sphere of radius r at distance d subtends a half-angle asin(r/d).
+        let distance = radius / half.atan().sin();
+        let (lat, lon) = (25f64.to_radians(), 15f64.to_radians());
+        let dir = DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin());
+        Self::on_planet(world, dir * distance, DVec3::ZERO, DVec3::Z, fov_y, size)
+    }
+
+    /// A camera at geodetic `lat`, `lon` (degrees) and `height` metres above the ellipsoid,
+    /// looking towards `heading` degrees (clockwise from north) and `pitch` degrees (negative
+    /// down), the local normal up on the screen (the heading's direction when looking straight
+    /// down or up). On a plane the same angles in the local frame (x east, y north), `lat` and
+    /// `lon` read as world y and x metres.
+    pub fn geodetic(
+        world: &World,
+        (lat, lon, height): (f64, f64, f64),
+        (heading, pitch): (f64, f64),
+        fov_y: f64,
+        size: (u32, u32),
+    ) -> Self {
+        let (east, north, up, eye) = if world.is_planet() {
+            let (sp, cp) = lat.to_radians().sin_cos();
+            let (sl, cl) = lon.to_radians().sin_cos();
+            let eye =
+                DVec3::from_array(cbdam_codec::geodesy::Geodetic::new(lat, lon, height).to_ecef());
+            (
+                DVec3::new(-sl, cl, 0.0),
+                DVec3::new(-sp * cl, -sp * sl, cp),
+                DVec3::new(cp * cl, cp * sl, sp),
+                eye,
+            )
+        } else {
+            (DVec3::X, DVec3::Y, DVec3::Z, DVec3::new(lon, lat, height))
+        };
+        let (sh, ch) = heading.to_radians().sin_cos();
+        let (spi, cpi) = pitch.to_radians().sin_cos();
+        let level = north * ch + east * sh;
+        let forward = level * cpi + up * spi;
+        let screen_up = if cpi.abs() < 1e-6 { level } else { up };
+        let target = eye + forward * height.abs().max(100.0);
+        let mut cam = Self::looking_at(world, eye, target, fov_y, size);
+        cam.up = screen_up;
+        cam
     }
 
     /// An overview of the whole data: from the south, 35° above the horizon, far enough that the
@@ -84,6 +178,9 @@ impl Camera {
     /// keeps a whole sphere around the box in view, which leaves much of a frame empty). The
     /// first view of the browser, `cbdam render` without `--camera` and `cbdam view`.
     pub fn framed(world: &World, size: (u32, u32)) -> Self {
+        if world.is_planet() {
+            return Self::globe(world, size);
+        }
         const MARGIN: f64 = 0.95;
         let (lo, hi) = world.bounds();
         let fov_y = 45f64.to_radians();
@@ -150,17 +247,27 @@ impl Camera {
 
     /// World to view (right-handed, looking down −z).
     pub fn view(&self) -> DMat4 {
-        look_at(self.eye, self.target)
+        look_at(self.eye, self.target, self.up)
     }
 
-    /// View to clip space, depth 0 (near) to 1 (far), as wgpu expects.
+    /// View to clip space, depth 0 (near) to 1 (far), as wgpu expects; with an infinite far
+    /// plane, reversed: 1 at the near plane, 0 at infinity ([`Camera::reversed_z`]).
     pub fn projection(&self) -> DMat4 {
-        perspective(self.fov_y, self.aspect(), self.near, self.far)
+        if self.reversed_z() {
+            reversed_infinite(self.fov_y, self.aspect(), self.near)
+        } else {
+            perspective(self.fov_y, self.aspect(), self.near, self.far)
+        }
+    }
+
+    /// Whether depth is reversed (infinite far plane): nearer is greater, cleared to 0.
+    pub fn reversed_z(&self) -> bool {
+        self.far.is_infinite()
     }
 
     /// World-minus-eye to clip space, in `f32` for the GPU: vertices are sent relative to the eye.
     pub fn view_proj_relative(&self) -> Mat4 {
-        let rotation = look_at(DVec3::ZERO, self.target - self.eye);
+        let rotation = look_at(DVec3::ZERO, self.target - self.eye, self.up);
         (self.projection() * rotation).as_mat4()
     }
 
@@ -180,10 +287,10 @@ impl Camera {
     }
 }
 
-/// Right-handed world-to-view matrix (view looks down −z, y up on screen), z-up world.
-fn look_at(eye: DVec3, target: DVec3) -> DMat4 {
+/// Right-handed world-to-view matrix (view looks down −z, y up on screen), `up` up on the screen.
+fn look_at(eye: DVec3, target: DVec3, up: DVec3) -> DMat4 {
     let f = (target - eye).normalize();
-    let s = f.cross(up_for(f)).normalize();
+    let s = f.cross(up_for(f, up)).normalize();
     let u = s.cross(f);
     DMat4::from_cols(
         DVec4::new(s.x, u.x, -f.x, 0.0),
@@ -205,13 +312,30 @@ fn perspective(fov_y: f64, aspect: f64, near: f64, far: f64) -> DMat4 {
     )
 }
 
-/// An up vector that is never parallel to the viewing direction (looking straight down works).
-fn up_for(dir: DVec3) -> DVec3 {
+/// Perspective projection with an infinite far plane and reversed depth: `near / distance`,
+/// 1 at `near`, towards 0 at infinity.
+fn reversed_infinite(fov_y: f64, aspect: f64, near: f64) -> DMat4 {
+    let f = 1.0 / (fov_y / 2.0).tan();
+    DMat4::from_cols(
+        DVec4::new(f / aspect, 0.0, 0.0, 0.0),
+        DVec4::new(0.0, f, 0.0, 0.0),
+        DVec4::new(0.0, 0.0, 0.0, -1.0),
+        DVec4::new(0.0, 0.0, near, 0.0),
+    )
+}
+
+/// An up vector that is never parallel to the viewing direction (looking straight down works):
+/// `up`, or when the view runs along it, +y for a z up and any perpendicular otherwise.
+fn up_for(dir: DVec3, up: DVec3) -> DVec3 {
     let d = dir.normalize_or_zero();
-    if d.cross(DVec3::Z).length_squared() < 1e-12 {
-        DVec3::Y
+    if d.cross(up).length_squared() < 1e-12 {
+        if up == DVec3::Z {
+            DVec3::Y
+        } else {
+            up.any_orthonormal_vector()
+        }
     } else {
-        DVec3::Z
+        up
     }
 }
 
@@ -234,7 +358,16 @@ impl Frustum {
             r(2),
             r(3) - r(2),
         ]
-        .map(|p| p / p.truncate().length());
+        // A reversed infinite projection's depth ≥ 0 plane is no plane at all (0, 0, 0, near):
+        // always inside.
+        .map(|p| {
+            let l = p.truncate().length();
+            if l > 0.0 {
+                p / l
+            } else {
+                DVec4::new(0.0, 0.0, 0.0, 1.0)
+            }
+        });
         Self { planes }
     }
 

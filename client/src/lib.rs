@@ -16,6 +16,7 @@ pub mod camera;
 pub mod controls;
 pub mod fetch;
 pub mod flight;
+pub mod horizon;
 pub mod patch;
 pub mod refine;
 pub mod spawn;

@@ -27,6 +27,19 @@
 //!   pool ([`NODATA_BIT`]); fragments of triangles touching such a point are discarded, so no
 //!   invented surface is drawn.
 //!
+//! - **Planets.** On a cube-sphere world positions are ECEF metres, curved: a slot holds, after
+//!   the `N²` heights, the `N²` vertex positions relative to the patch's origin (its grid point
+//!   (0, 0) on the ellipsoid), computed once in `f64` when the patch is uploaded; per frame only
+//!   the origin minus the eye is computed in `f64`. Both are sent as pairs of `f32` (the value
+//!   rounded, and what the rounding left), and the shader adds the large parts first: near the
+//!   eye they cancel exactly (Sterbenz), so a vertex is placed to about `1e-7` of its distance
+//!   from the eye, however large its patch, anywhere on the globe — no Earth radius and no
+//!   patch size ever reaches a single `f32`. Depth
+//!   is reversed with an infinite far plane ([`Camera::reversed_z`]), normals come from the
+//!   neighbouring positions (so they include the ellipsoid's curvature), the sun is given in
+//!   the local frame (east, north, up) at the point under the eye, and there is no data
+//!   rectangle to clip to.
+//!
 //! Offscreen rendering ([`Renderer::render`]) reads back colour and optionally depth.
 
 #![deny(missing_docs)]
@@ -191,8 +204,12 @@ pub struct FrameUniform {
     pub has_sea: u32,
     /// 1 when slots hold draped colours after the heights.
     pub draped: u32,
+    /// 1 on a planet: slots hold positions after the heights, no data rectangle.
+    pub planet: u32,
+    /// Padding to 16 bytes.
+    pub pad: [u32; 3],
 }
-const _: () = assert!(std::mem::size_of::<FrameUniform>() == 128);
+const _: () = assert!(std::mem::size_of::<FrameUniform>() == 144);
 
 /// One drawn half-patch (`Patch` in the shader).
 #[repr(C)]
@@ -218,8 +235,19 @@ pub struct PatchInstance {
     pub diagonal: u32,
     /// 0 positive half, 1 negative.
     pub half: u32,
+    /// On a planet: z of the patch origin minus the eye (x and y in `origin_rel`), metres.
+    pub origin_z: f32,
+    /// On a planet: `+1` when the cross product of the grid's `i` and `j` steps faces out of
+    /// the globe on this patch, `−1` when it faces in (the shader turns normals out with it).
+    pub facing: f32,
+    /// Padding.
+    pub pad0: [u32; 2],
+    /// On a planet: what rounding `origin_rel` and `origin_z` to `f32` left, x, y, z.
+    pub origin_lo: [f32; 3],
+    /// Padding to 8 bytes.
+    pub pad: u32,
 }
-const _: () = assert!(std::mem::size_of::<PatchInstance>() == 64);
+const _: () = assert!(std::mem::size_of::<PatchInstance>() == 96);
 
 /// How a frame looks.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -388,7 +416,7 @@ impl Renderer {
                 "lattice extent {ex}×{ey} exceeds the shader's 32-bit lattice coordinates"
             )));
         }
-        let slot_bytes = (n * n * 4) as u64 * if draped { 2 } else { 1 };
+        let slot_bytes = slot_bytes(n, draped, world.is_planet());
         let limits = gpu.device.limits();
         let max_pool = limits
             .max_storage_buffer_binding_size
@@ -501,21 +529,31 @@ impl Renderer {
                 cache: None,
             })
         };
-        let fill = pipeline(
-            wgpu::PolygonMode::Fill,
-            Default::default(),
-            wgpu::CompareFunction::Less,
-            "fs_main",
-        );
+        // Planets draw with reversed depth (nearer is greater).
+        let reversed = world.is_planet();
+        let (less, less_equal, back) = if reversed {
+            (
+                wgpu::CompareFunction::Greater,
+                wgpu::CompareFunction::GreaterEqual,
+                -1,
+            )
+        } else {
+            (
+                wgpu::CompareFunction::Less,
+                wgpu::CompareFunction::LessEqual,
+                1,
+            )
+        };
+        let fill = pipeline(wgpu::PolygonMode::Fill, Default::default(), less, "fs_main");
         // Under a wireframe the surface is pushed back a little so the lines win the depth test.
         let fill_under_lines = pipeline(
             wgpu::PolygonMode::Fill,
             wgpu::DepthBiasState {
-                constant: 2,
-                slope_scale: 1.0,
+                constant: 2 * back,
+                slope_scale: back as f32,
                 clamp: 0.0,
             },
-            wgpu::CompareFunction::Less,
+            less,
             "fs_main",
         );
         let lines = device
@@ -525,7 +563,7 @@ impl Renderer {
                 pipeline(
                     wgpu::PolygonMode::Line,
                     Default::default(),
-                    wgpu::CompareFunction::LessEqual,
+                    less_equal,
                     "fs_wire",
                 )
             });
@@ -557,9 +595,10 @@ impl Renderer {
         self.draped
     }
 
-    /// Bytes of one slot of the height pool: `4 N²`, twice that with draped colour.
+    /// Bytes of one slot of the height pool: `4 N²`, twice that with draped colour, and
+    /// `12 N²` more of positions on a planet.
     pub fn slot_bytes(&self) -> u64 {
-        (self.mesh.n * self.mesh.n * 4) as u64 * if self.draped { 2 } else { 1 }
+        slot_bytes(self.mesh.n, self.draped, self.world.is_planet())
     }
 
     /// The device.
@@ -637,6 +676,13 @@ impl Renderer {
                 "wireframe needs the POLYGON_MODE_LINE feature, which this adapter lacks".into(),
             ));
         }
+        if camera.reversed_z() != self.world.is_planet() {
+            return Err(DrawError::Unsupported(
+                "planets are drawn with reversed-Z cameras (infinite far plane) and planes \
+                 with finite ones: make the camera with Camera::looking_at for this world"
+                    .into(),
+            ));
+        }
         let size = (camera.width, camera.height);
         self.ensure_target(size);
         let start = Instant::now();
@@ -680,7 +726,7 @@ impl Renderer {
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &depth_view,
                     depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(1.0),
+                        load: wgpu::LoadOp::Clear(if camera.reversed_z() { 0.0 } else { 1.0 }),
                         store: wgpu::StoreOp::Store,
                     }),
                     stencil_ops: None,
@@ -864,6 +910,8 @@ impl Renderer {
         let layout = *world.domain.layout();
         let n = layout.n();
         let frustum = camera.frustum();
+        let planet = world.is_planet();
+        let horizon = world.occluder().and_then(|o| o.from_eye(camera.eye));
         let before = self.cache.stats();
         self.cache.begin_frame();
         let data = world.domain.data();
@@ -879,7 +927,7 @@ impl Renderer {
         for p in patches {
             let p = p.borrow();
             let (x0, y0, x1, y1) = layout.bounds(p.id);
-            if x1 < 0 || y1 < 0 || x0 > dw || y0 > dh {
+            if !planet && (x1 < 0 || y1 < 0 || x0 > dw || y0 > dh) {
                 stats.culled += 1;
                 continue;
             }
@@ -888,10 +936,14 @@ impl Renderer {
                 .iter()
                 .fold((i32::MAX, i32::MIN), |(a, b), &h| (a.min(h), b.max(h)));
             let (blo, bhi) = world.diamond_box(p.id, lo, hi);
-            if !frustum.intersects_box(blo, bhi) {
+            if !frustum.intersects_box(blo, bhi) || horizon.is_some_and(|h| h.hides_box(blo, bhi)) {
                 stats.culled += 1;
                 continue;
             }
+            let g = layout.grid(p.id);
+            // On a planet the patch's origin: its grid point (0, 0) on the ellipsoid.
+            let origin_abs =
+                planet.then(|| world.face_point(p.id.face, g.origin.0, g.origin.1, 0.0));
             let slot = match self.cache.request(p.key()) {
                 Residency::Hit(s) => s,
                 Residency::Upload(s) => {
@@ -912,6 +964,9 @@ impl Renderer {
                                 .extend(std::iter::repeat_n(GREY, n * n).map(|c| c as i32)),
                         }
                     }
+                    if let Some(o) = origin_abs {
+                        planet_positions(&world, p, o, &mut staging_data);
+                    }
                     s
                 }
                 Residency::Missing => {
@@ -919,8 +974,20 @@ impl Renderer {
                     continue;
                 }
             };
-            let g = layout.grid(p.id);
-            let origin = world.point(g.origin.0, g.origin.1, 0) - eye;
+            let origin = origin_abs.unwrap_or_else(|| world.point(g.origin.0, g.origin.1, 0)) - eye;
+            let facing = origin_abs.map_or(1.0, |o| {
+                // The grid map keeps or flips orientation on the whole patch: its first cell says
+                // which.
+                let at = |i, j| {
+                    let (x, y) = g.point(i, j);
+                    world.face_point(p.id.face, x, y, 0.0) - o
+                };
+                if at(1, 0).cross(at(0, 1)).dot(o) >= 0.0 {
+                    1.0
+                } else {
+                    -1.0
+                }
+            });
             let kind = MeshKind {
                 diagonal: layout.diagonal(p.id),
                 half: p.half,
@@ -943,10 +1010,15 @@ impl Renderer {
                 level: u32::from(p.id.level),
                 diagonal: u32::from(kind.diagonal == Diagonal::Anti),
                 half: u32::from(p.half == Half::Negative),
+                origin_z: if planet { origin.z as f32 } else { 0.0 },
+                facing,
+                pad0: [0; 2],
+                origin_lo: if planet { split(origin).1 } else { [0.0; 3] },
+                pad: 0,
             });
             stats.drawn += 1;
         }
-        let words = n * n * if self.draped { 2 } else { 1 };
+        let words = self.slot_bytes() as usize / 4;
         debug_assert_eq!(staging_data.len(), upload_slots.len() * words);
         let mut instances = Vec::with_capacity(stats.drawn);
         let mut groups: [std::ops::Range<u32>; 8] = Default::default();
@@ -998,6 +1070,18 @@ impl Renderer {
     fn write_uniform(&self, camera: &Camera, options: &RenderOptions) {
         let w = &self.world;
         let sun = options.sun.normalize_or_zero();
+        // On a planet the sun is given in the local frame under the eye.
+        let sun = if w.is_planet() {
+            let g = cbdam_codec::geodesy::Geodetic::from_ecef(camera.eye.to_array());
+            let (sp, cp) = g.lat.to_radians().sin_cos();
+            let (sl, cl) = g.lon.to_radians().sin_cos();
+            let east = DVec3::new(-sl, cl, 0.0);
+            let north = DVec3::new(-sp * cl, -sp * sl, cp);
+            let up = DVec3::new(cp * cl, cp * sl, sp);
+            east * sun.x + north * sun.y + up * sun.z
+        } else {
+            sun
+        };
         // The colour ramp spans the land's true heights; below sea level is water when present.
         let ramp_lo = w.min_height.max(0.0);
         let uniform = FrameUniform {
@@ -1020,10 +1104,40 @@ impl Renderer {
             },
             has_sea: u32::from(w.min_height < 0.0),
             draped: u32::from(self.draped),
+            planet: u32::from(w.is_planet()),
+            pad: [0; 3],
         };
         self.gpu
             .queue
             .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&uniform));
+    }
+}
+
+/// Bytes of one slot: `N²` heights, `N²` colours when draped, `6 N²` position words on a planet.
+fn slot_bytes(n: usize, draped: bool, planet: bool) -> u64 {
+    (n * n * 4) as u64 * (1 + u64::from(draped) + 6 * u64::from(planet))
+}
+
+/// `v` as `f32` pairs: the rounded value and what the rounding left.
+fn split(v: DVec3) -> ([f32; 3], [f32; 3]) {
+    let hi = v.as_vec3();
+    let lo = (v - hi.as_dvec3()).as_vec3();
+    (hi.to_array(), lo.to_array())
+}
+
+/// Appends a planet patch's vertex positions relative to `origin` (ECEF, metres): per grid
+/// vertex in grid order, the [`split`] pair as 6 words of `f32` bits (x, y, z rounded, then
+/// what rounding left), computed in `f64` from each vertex's canonical point.
+fn planet_positions(world: &World, p: &HalfPatch, origin: DVec3, out: &mut Vec<i32>) {
+    let g = world.domain.layout().grid(p.id);
+    let n = g.n;
+    for j in 0..n {
+        for i in 0..n {
+            let (x, y) = g.point(i as i64, j as i64);
+            let h = world.height(p.heights[j * n + i]);
+            let (hi, lo) = split(world.face_point(p.id.face, x, y, h) - origin);
+            out.extend(hi.iter().chain(&lo).map(|c| c.to_bits() as i32));
+        }
     }
 }
 

@@ -37,7 +37,7 @@ fn read_png(path: &std::path::Path) -> (u32, u32, Vec<u8>) {
     (info.width, info.height, buf)
 }
 
-fn compare(name: &str, frame: &Frame) {
+pub fn compare(name: &str, frame: &Frame) {
     let path = golden_path(name);
     if std::env::var_os("CBDAM_UPDATE_GOLDEN").is_some() {
         std::fs::write(&path, frame.to_png().unwrap()).unwrap();

@@ -13,4 +13,6 @@ mod cracks;
 mod golden;
 /// Nodata is not drawn; data is.
 mod nodata;
+/// A planet drawn as a globe: framing, cracks at cube corners and edges, precision near the eye.
+mod planet;
 mod util;

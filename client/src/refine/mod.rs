@@ -57,6 +57,7 @@ use web_time::Instant;
 
 use crate::access::{AccessStats, DataSource, Drape, Priority, coloured};
 use crate::camera::{Camera, Frustum};
+use crate::horizon::Horizon;
 use crate::patch::{HalfPatch, colour_from_parent, packed};
 use crate::spawn::{DefaultSpawner, Spawner};
 use crate::world::{World, exaggerated};
@@ -214,18 +215,22 @@ impl PartialOrd for Candidate {
 struct View {
     camera: Camera,
     frustum: Frustum,
+    /// On a planet, what the globe hides from the eye: diamonds wholly behind the horizon are
+    /// culled like those outside the frustum.
+    horizon: Option<Horizon>,
     /// `2 tan(fov_y / 2)`, the part of [`Camera::pixels_per_metre`] that does not depend on the
     /// distance: computed once per view, with the same arithmetic, so errors are bit-identical.
     two_tan: f64,
 }
 
 impl View {
-    fn new(camera: Camera, margin: f64) -> Self {
+    fn new(camera: Camera, margin: f64, world: &World) -> Self {
         let f = camera.frustum();
         let frustum = if margin > 0.0 { f.enlarged(margin) } else { f };
         Self {
             camera,
             frustum,
+            horizon: world.occluder().and_then(|o| o.from_eye(camera.eye)),
             two_tan: 2.0 * (camera.fov_y / 2.0).tan(),
         }
     }
@@ -233,6 +238,9 @@ impl View {
     /// Screen-space error of a diamond, `None` outside the frustum.
     fn error(&self, info: &Info) -> Option<f64> {
         if !self.frustum.intersects_box(info.lo, info.hi) {
+            return None;
+        }
+        if self.horizon.is_some_and(|h| h.hides_box(info.lo, info.hi)) {
             return None;
         }
         let e = self.camera.eye;
@@ -301,6 +309,11 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             config.exaggeration,
         )
         .with_detail(shift)?;
+        if world.is_planet() && shift > 0 {
+            return Err(CodecError::unsupported(
+                "synthetic detail below the finest level is planar only",
+            ));
+        }
         let domain = world.domain;
 
         // Saturate boxes and errors bottom-up: ids sort coarse to fine, so go in reverse.
@@ -308,7 +321,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         for e in source.entries().iter().rev() {
             let id = e.id.finer(shift);
             let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
-            let mut err_m = f64::from(e.object_error) * world.unit;
+            // On a planet the flat triangles' sag under the curved surface counts too.
+            let mut err_m = (f64::from(e.object_error) * world.unit).max(world.chord_error(id));
             for c in domain.children(id).into_iter().flatten() {
                 if let Some(ci) = stored.get(&c) {
                     lo = lo.min(ci.lo);
@@ -466,7 +480,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// refined or lies outside the frustum).
     pub fn screen_error(&mut self, id: DiamondId, camera: &Camera) -> Option<f64> {
         let info = self.info(id)?;
-        View::new(*camera, 0.0).error(&info)
+        View::new(*camera, 0.0, &self.world).error(&info)
     }
 
     fn info(&mut self, id: DiamondId) -> Option<Info> {
@@ -732,7 +746,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         self.source.pump();
         self.take_arrived();
 
-        let view = View::new(*camera, 0.0);
+        let view = View::new(*camera, 0.0, &self.world);
         let mut heap = self.refinement_heap(&view);
         let mut wanted: IdMap<f64> = IdMap::default();
         let mut stats = FrameStats {
@@ -1035,8 +1049,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         future.eye += ahead;
         future.target += ahead;
         let margin = self.config.prefetch_margin * (camera.target - camera.eye).length();
-        let view = View::new(future, margin);
-        let now = View::new(*camera, 0.0);
+        let view = View::new(future, margin, &self.world);
+        let now = View::new(*camera, 0.0, &self.world);
         for (&(id, info), &err_now) in candidates.iter().zip(errors) {
             if let Some(err) = self.violation_of(id, info, &view) {
                 self.want_plan(id, err * PREFETCH_PRIORITY, wanted);
