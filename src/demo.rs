@@ -1,7 +1,8 @@
 //! `cbdam demo`: the whole pipeline on the bundled SRTM tile, over HTTP on loopback — build (once),
 //! serve, then the client against the server: the replay statistics of a flight and offscreen
 //! frames rendered from what the client fetched, then the interactive viewer on the same URL
-//! when a display is available.
+//! when a display is available. `--planet`: the same on a planet built from the bundled ETOPO5
+//! global DEM with the bundled SRTM and Jacksboro tiles as insets.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -15,20 +16,43 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let out = &args.out_dir;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let repo = out.join("srtm.cbdam");
+    let (name, repo) = if args.planet {
+        ("earth", out.join("earth.cbdam"))
+    } else {
+        ("srtm", out.join("srtm.cbdam"))
+    };
     if repo.exists() {
         eprintln!("demo: using {} (delete it to rebuild)", repo.display());
     } else {
-        eprintln!(
-            "demo: building {} from the bundled SRTM tile, ε = 1 m",
-            repo.display()
-        );
+        let (inputs, max_error, planet_level) = if args.planet {
+            eprintln!(
+                "demo: building the planet {} from the bundled ETOPO5 (5′) with the SRTM and \
+                 Jacksboro tiles (3″) as insets, K = 6 (0.022° lattice), ε = 4 m",
+                repo.display()
+            );
+            let data = |f: &str| root.join("data").join(f);
+            (
+                vec![
+                    data("etopo5_global.tif"),
+                    data("srtm3_demcompare.tif"),
+                    data("jacksboro_mpl.tif"),
+                ],
+                4.0,
+                Some(6),
+            )
+        } else {
+            eprintln!(
+                "demo: building {} from the bundled SRTM tile, ε = 1 m",
+                repo.display()
+            );
+            (vec![root.join("data/srtm3_demcompare.tif")], 1.0, None)
+        };
         crate::build::run(&BuildArgs {
-            inputs: vec![root.join("data/srtm3_demcompare.tif")],
+            inputs,
             size: None,
             memory_limit: None,
             output: repo.clone(),
-            max_error: 1.0,
+            max_error,
             diamond_size: 65,
             extra_levels: cbdam_build::ExtraLevels::Auto,
             threads: None,
@@ -39,8 +63,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             bounds: None,
             crs: None,
             block_plan: None,
-            planet: false,
-            planet_level: None,
+            planet: args.planet,
+            planet_level,
             quiet: false,
             timings: false,
             colour: false,
@@ -49,7 +73,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     }
 
     // The server runs on its own runtime thread for the whole demo.
-    let spec: RepoSpec = format!("srtm={}", repo.display()).parse()?;
+    let spec: RepoSpec = format!("{name}={}", repo.display()).parse()?;
     let state = AppState::open(&[spec], Config::default())?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -64,10 +88,16 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let server = rt.spawn(cbdam_server::run(listener, state, async {
         let _ = stopped.await;
     }));
-    let url = format!("http://{addr}/v1/repos/srtm");
+    let url = format!("http://{addr}/v1/repos/{name}");
     eprintln!("demo: serving {} at {url}", repo.display());
 
-    let flight = root.join("data/flights").join(&args.flight);
+    let flight = root
+        .join("data/flights")
+        .join(args.flight.as_deref().unwrap_or(if args.planet {
+            "planet/descent.json"
+        } else {
+            "descent.json"
+        }));
     let csv = out.join("replay.csv");
     let frames = out.join("frames");
     let overview = out.join("overview.png");

@@ -464,9 +464,14 @@ pub struct DemoArgs {
     /// Where the repository, CSV and PNGs go.
     #[arg(long, default_value = "demo-out")]
     out_dir: PathBuf,
-    /// Flight from data/flights/.
-    #[arg(long, default_value = "descent.json")]
-    flight: String,
+    /// Flight from data/flights/ (default descent.json; with --planet planet/descent.json).
+    #[arg(long)]
+    flight: Option<String>,
+    /// A planet instead of the SRTM tile: the bundled ETOPO5 global DEM with the bundled SRTM and
+    /// Jacksboro tiles as insets, resampled onto the cube-sphere on WGS84 (K = 6, 0.022°
+    /// lattice), served, and flown from orbit down to the SRTM tile's summit.
+    #[arg(long)]
+    planet: bool,
     /// Size of the rendered frames.
     #[arg(long, value_parser = flags::Size2::pixels, default_value = "640x360")]
     size: (u32, u32),

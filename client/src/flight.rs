@@ -198,7 +198,9 @@ impl Flight {
     fn validate_geodetic(&self) -> Result<(), FlightError> {
         let bad = |m: String| Err(FlightError::Invalid(m));
         if !self.keyframes.is_empty() {
-            return bad("a flight has either \"keyframes\" or \"geodetic\" keyframes, not both".into());
+            return bad(
+                "a flight has either \"keyframes\" or \"geodetic\" keyframes, not both".into(),
+            );
         }
         if self.geodetic.len() < 2 {
             return bad("a flight needs at least two keyframes".into());
@@ -209,10 +211,16 @@ impl Flight {
                 return bad(format!("geodetic keyframe {i} has a non-finite value"));
             }
             if !(-90.0..=90.0).contains(&k.lat) {
-                return bad(format!("geodetic keyframe {i}: latitude {} is not in −90…90", k.lat));
+                return bad(format!(
+                    "geodetic keyframe {i}: latitude {} is not in −90…90",
+                    k.lat
+                ));
             }
             if !(-90.0..=90.0).contains(&k.pitch_deg) {
-                return bad(format!("geodetic keyframe {i}: pitch {} is not in −90…90", k.pitch_deg));
+                return bad(format!(
+                    "geodetic keyframe {i}: pitch {} is not in −90…90",
+                    k.pitch_deg
+                ));
             }
             if i > 0 && k.t <= self.geodetic[i - 1].t {
                 return bad(format!("geodetic keyframe {i}: times must increase"));
@@ -239,7 +247,11 @@ impl Flight {
         let mut heading = Vec::with_capacity(k.len());
         for (i, f) in k.iter().enumerate() {
             let near = |prev: f64, v: f64| v - 360.0 * ((v - prev) / 360.0).round();
-            lon.push(if i == 0 { f.lon } else { near(lon[i - 1], f.lon) });
+            lon.push(if i == 0 {
+                f.lon
+            } else {
+                near(lon[i - 1], f.lon)
+            });
             heading.push(if i == 0 {
                 f.heading_deg
             } else {
@@ -281,9 +293,11 @@ impl Flight {
         }
     }
 
-    /// Eye and target at time `t`, relative coordinates.
+    /// Eye and target at time `t`, relative coordinates (a relative flight; a geodetic one has
+    /// [`Flight::geo_pose`] and panics here).
     pub fn pose(&self, t: f64) -> ([f64; 3], [f64; 3]) {
         let k = &self.keyframes;
+        assert!(!k.is_empty(), "a geodetic flight has no relative pose");
         let last = k.len() - 1;
         if t <= k[0].t {
             return (k[0].eye, k[0].target);
@@ -302,8 +316,19 @@ impl Flight {
         )
     }
 
-    /// The camera at time `t` over `world`, for a `size` viewport.
+    /// The camera at time `t` over `world`, for a `size` viewport: a geodetic flight's
+    /// [`Camera::geodetic`] (on a plane its latitude and longitude read as world metres, as
+    /// `--geo` does), a relative flight's eye and target mapped onto the world's bounds.
     pub fn camera(&self, world: &World, t: f64, size: (u32, u32)) -> Camera {
+        if let Some(p) = self.geo_pose(t) {
+            return Camera::geodetic(
+                world,
+                (p.lat, p.lon, p.height_m),
+                (p.heading_deg, p.pitch_deg),
+                self.fov_deg.to_radians(),
+                size,
+            );
+        }
         let (eye, target) = self.pose(t);
         let (eye, mut target) = (to_world(world, eye), to_world(world, target));
         if (target - eye).length_squared() < 1e-12 {
@@ -411,7 +436,10 @@ mod tests {
         assert!(f.is_geodetic());
         assert_eq!(f.duration(), 4.0);
         let p = f.geo_pose(2.0).unwrap();
-        assert!((p.lat - 20.0).abs() < 1e-12 && (p.lon + 170.0).abs() < 1e-12, "{p:?}");
+        assert!(
+            (p.lat - 20.0).abs() < 1e-12 && (p.lon + 170.0).abs() < 1e-12,
+            "{p:?}"
+        );
         assert_eq!(p.pitch_deg, -30.0);
         let mid = f.geo_pose(1.0).unwrap();
         // Halfway between 170° E and 170° W lies near 180°, not near 0°.
@@ -423,10 +451,29 @@ mod tests {
             let p = f.geo_pose(s as f64 * 0.01).unwrap();
             let mut dlon = p.lon - prev.lon;
             dlon -= 360.0 * (dlon / 360.0).round();
-            assert!((p.lat - prev.lat).abs() < 0.2 && dlon.abs() < 0.3, "step {s}: {p:?}");
+            assert!(
+                (p.lat - prev.lat).abs() < 0.2 && dlon.abs() < 0.3,
+                "step {s}: {p:?}"
+            );
             prev = p;
         }
         assert!(Flight::parse(JSON).unwrap().geo_pose(0.0).is_none());
+    }
+
+    /// A geodetic flight's camera is the geodetic camera of its pose: at the end keyframe the
+    /// eye is that latitude, longitude and height on WGS84.
+    #[test]
+    fn a_geodetic_flight_places_the_eye_on_the_ellipsoid() {
+        use cbdam_codec::geodesy::Geodetic;
+        let w = World::planet(Domain::cube_sphere(17, 2).unwrap(), 1.0, 0.0, (0.0, 100.0));
+        let f = Flight::parse(GEO).unwrap();
+        let cam = f.camera(&w, 4.0, (640, 480));
+        let g = Geodetic::from_ecef(cam.eye.to_array());
+        assert!(
+            (g.lat - 30.0).abs() < 1e-9 && (g.lon + 160.0).abs() < 1e-9,
+            "{g:?}"
+        );
+        assert!((g.height - 2000.0).abs() < 1e-6, "{g:?}");
     }
 
     #[test]

@@ -277,6 +277,23 @@ fn etopo5_with_an_srtm_inset_verifies_on_every_level() {
     let (etopo_compared, etopo_samples, _) = compared_and_max(&text, "etopo5_global.tif");
     assert_eq!(etopo_samples, 4320 * 2161);
     assert!(etopo_compared > etopo_samples / 2, "{text}");
+    // The bundled planet flight (geodetic keyframes, orbit to the SRTM tile's summit) replays
+    // on it and ends where its last keyframe says, over the tile.
+    let csv = tmp.path().join("replay.csv");
+    let flight = crate::util::data("flights/planet/descent.json");
+    let o = cbdam(&[
+        "replay",
+        &s(&out),
+        "--path",
+        &flight,
+        "--size",
+        "640x360",
+        "--out",
+        &s(&csv),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rows = std::fs::read_to_string(&csv).unwrap();
+    assert!(rows.lines().count() > 15 * 30, "{rows}");
     // extract writes planar rasters: a planet is refused by name, nothing written.
     let tif = tmp.path().join("x.tif");
     let o = cbdam(&["extract", &s(&out), "-o", &s(&tif)]);
