@@ -49,7 +49,12 @@ impl Camera {
         size: (u32, u32),
     ) -> Self {
         if world.is_planet() {
-            return Self::on_planet(world, eye, target, world.up(eye), fov_y, size);
+            // The local normal up, so the horizon stays level; looking within ~11° of straight
+            // down (a globe orbited from afar, where the normal runs along the view) north up.
+            let normal = world.up(eye);
+            let down = (target - eye).normalize_or_zero().dot(normal).abs();
+            let up = if down > 0.98 { DVec3::Z } else { normal };
+            return Self::on_planet(world, eye, target, up, fov_y, size);
         }
         let (lo, hi) = world.bounds();
         let far_corner = DVec3::new(
@@ -525,6 +530,46 @@ mod tests {
         let r = rel * (p - cam.eye).as_vec3().extend(1.0);
         let (a, r) = (a.truncate() / a.w, r.truncate().as_dvec3() / f64::from(r.w));
         assert!((a - r).abs().max_element() < 1e-5, "{a} vs {r}");
+    }
+
+    /// On a planet: a camera near the ground keeps the horizon level (the screen's right is
+    /// perpendicular to the local normal, whatever the heading), a camera orbiting the globe
+    /// from afar has north up, and the projection is reversed-Z: 1 at the near plane, towards 0
+    /// far away, the frustum's near plane still culling what is behind the eye.
+    #[test]
+    fn planet_cameras_keep_the_horizon_level_and_reverse_depth() {
+        let w = World::planet(
+            Domain::cube_sphere(5, 2).unwrap(),
+            1.0,
+            0.0,
+            (-100.0, 2000.0),
+        );
+        for heading in [0.0, 37.0, 90.0, 200.0] {
+            let cam = Camera::geodetic(&w, (41.0, -73.0, 3000.0), (heading, -5.0), 0.8, (64, 48));
+            let right = cam.view().row(0).truncate();
+            assert!(right.dot(w.up(cam.eye)).abs() < 1e-9, "heading {heading}");
+            // The same from the generic constructor, whose up is chosen for it.
+            let again = Camera::looking_at(&w, cam.eye, cam.target, 0.8, (64, 48));
+            assert!(again.view().row(0).truncate().dot(w.up(cam.eye)).abs() < 1e-9);
+            assert!(cam.reversed_z() && cam.far.is_infinite());
+            let m = cam.projection() * cam.view();
+            let depth = |p: DVec3| {
+                let c = m * p.extend(1.0);
+                c.z / c.w
+            };
+            let fwd = (cam.target - cam.eye).normalize();
+            assert!((depth(cam.eye + fwd * cam.near) - 1.0).abs() < 1e-9);
+            // near / distance: 1 at the near plane, towards 0 at infinity.
+            let d = depth(cam.eye + fwd * 1e7);
+            assert!((d - cam.near / 1e7).abs() < 1e-12, "{d}");
+            let behind = cam.eye - fwd * 10.0;
+            assert!(!cam.frustum().intersects_box(behind, behind));
+            let ahead = cam.eye + fwd * cam.near * 2.0;
+            assert!(cam.frustum().intersects_box(ahead, ahead));
+        }
+        let far = Camera::looking_at(&w, DVec3::new(2e7, 1e7, 5e6), DVec3::ZERO, 0.8, (64, 48));
+        let up_on_screen = far.view().row(1).truncate();
+        assert!(up_on_screen.z > 0.9, "{up_on_screen}");
     }
 
     /// Boxes behind the camera or beside the frustum are culled; boxes in front are kept.

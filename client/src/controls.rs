@@ -10,6 +10,12 @@
 //!
 //! Speeds and distances are fractions of the data's horizontal extent, so a 1 km tile and a
 //! continent feel the same.
+//!
+//! On a planet the orbit circles the globe's centre (elevation is latitude-like, from −89° to
+//! 89°, north up), and the fly camera works in the local frame under the eye: its heading and
+//! pitch are measured from the local east-north-up frame, "up" moves along the ellipsoid normal
+//! and speeds scale with the height above the ellipsoid, so the horizon stays level from orbit
+//! to the ground.
 
 use glam::DVec3;
 
@@ -70,6 +76,8 @@ pub struct Controls {
     extent: f64,
     /// Where [`Controls::reset`] returns to.
     home: (DVec3, DVec3),
+    /// Whether the world is a planet (ECEF, local frames under the eye).
+    planet: bool,
 }
 
 impl Controls {
@@ -88,6 +96,7 @@ impl Controls {
             fov_y: start.fov_y,
             extent,
             home: (start.eye, start.target),
+            planet: world.is_planet(),
         };
         me.orbit_from(start.eye, start.target);
         me
@@ -110,10 +119,23 @@ impl Controls {
     /// looking above the horizon, a point at the old orbit distance).
     pub fn toggle_mode(&mut self) {
         match self.mode {
+            Mode::Orbit if self.planet => {
+                // The same view direction, as heading and pitch in the frame under the eye.
+                let dir = self.look_dir();
+                self.eye = self.eye();
+                let (east, north, up) = local_frame(self.eye);
+                self.pitch = dir.dot(up).clamp(-1.0, 1.0).asin();
+                self.yaw = dir.dot(east).atan2(dir.dot(north));
+                self.mode = Mode::Fly;
+            }
             Mode::Orbit => {
                 self.eye = self.eye();
                 self.pitch = -self.pitch;
                 self.mode = Mode::Fly;
+            }
+            Mode::Fly if self.planet => {
+                self.mode = Mode::Orbit;
+                self.orbit_from(self.eye, DVec3::ZERO);
             }
             Mode::Fly => {
                 let dir = self.look_dir();
@@ -137,7 +159,7 @@ impl Controls {
         match self.mode {
             // Dragging down raises the eye, as if pulling the terrain towards the viewer.
             Mode::Orbit => {
-                self.pitch = (self.pitch + dy * TURN_PER_PIXEL).clamp(MIN_PITCH, MAX_PITCH)
+                self.pitch = (self.pitch + dy * TURN_PER_PIXEL).clamp(self.min_pitch(), MAX_PITCH)
             }
             Mode::Fly => {
                 self.pitch = (self.pitch - dy * TURN_PER_PIXEL).clamp(-MAX_PITCH, MAX_PITCH)
@@ -167,17 +189,40 @@ impl Controls {
                 self.distance = (self.distance * ZOOM_STEP.powf(steps))
                     .clamp(self.extent * 1e-4, self.extent * 10.0)
             }
-            Mode::Fly => self.eye += self.look_dir() * steps * self.extent * 0.02,
+            Mode::Fly => self.eye += self.look_dir() * steps * self.fly_scale() * 0.02,
+        }
+    }
+
+    /// Lowest orbit elevation: [`MIN_PITCH`] above a plane, −[`MAX_PITCH`] around a globe.
+    fn min_pitch(&self) -> f64 {
+        if self.planet { -MAX_PITCH } else { MIN_PITCH }
+    }
+
+    /// Metres that fly speeds are fractions of: the data's extent on a plane; on a planet the
+    /// eye's height above the ellipsoid (at least 50 m), so flying slows towards the ground.
+    fn fly_scale(&self) -> f64 {
+        if self.planet {
+            let h = cbdam_codec::geodesy::Geodetic::from_ecef(self.eye.to_array()).height;
+            h.max(50.0)
+        } else {
+            self.extent
         }
     }
 
     /// Applies held movement keys for `dt` seconds (fly mode; in orbit mode they move the target
     /// horizontally, like panning).
     pub fn update(&mut self, m: Movement, dt: f64) {
-        let speed = FLY_SPEED * self.extent * if m.fast { FAST } else { 1.0 } * dt;
+        let fast = if m.fast { FAST } else { 1.0 };
+        let speed = FLY_SPEED * self.extent * fast * dt;
         let (s, c) = self.yaw.sin_cos();
         let right = DVec3::new(c, -s, 0.0);
         match self.mode {
+            Mode::Fly if self.planet => {
+                let (east, north, up) = local_frame(self.eye);
+                let right = east * c - north * s;
+                let speed = FLY_SPEED * self.fly_scale() * fast * dt;
+                self.eye += (self.look_dir() * m.forward + right * m.right + up * m.up) * speed;
+            }
             Mode::Fly => {
                 self.eye +=
                     (self.look_dir() * m.forward + right * m.right + DVec3::Z * m.up) * speed
@@ -208,6 +253,12 @@ impl Controls {
     pub fn look_dir(&self) -> DVec3 {
         match self.mode {
             Mode::Orbit => (self.target - self.eye()).normalize(),
+            Mode::Fly if self.planet => {
+                let (sy, cy) = self.yaw.sin_cos();
+                let (sp, cp) = self.pitch.sin_cos();
+                let (east, north, up) = local_frame(self.eye);
+                east * (sy * cp) + north * (cy * cp) + up * sp
+            }
             Mode::Fly => {
                 let (sy, cy) = self.yaw.sin_cos();
                 let (sp, cp) = self.pitch.sin_cos();
@@ -235,13 +286,25 @@ impl Controls {
         self.target = target;
         self.distance = d.length().max(self.extent * 1e-4);
         let horizontal = d.x.hypot(d.y);
-        self.pitch = d.z.atan2(horizontal).clamp(MIN_PITCH, MAX_PITCH);
+        self.pitch = d.z.atan2(horizontal).clamp(self.min_pitch(), MAX_PITCH);
         self.yaw = if horizontal > 0.0 {
             (-d.x).atan2(-d.y)
         } else {
             0.0
         };
     }
+}
+
+/// East, north and up (the ellipsoid normal) at the point under ECEF position `p`.
+fn local_frame(p: DVec3) -> (DVec3, DVec3, DVec3) {
+    let g = cbdam_codec::geodesy::Geodetic::from_ecef(p.to_array());
+    let (sp, cp) = g.lat.to_radians().sin_cos();
+    let (sl, cl) = g.lon.to_radians().sin_cos();
+    (
+        DVec3::new(-sl, cl, 0.0),
+        DVec3::new(-sp * cl, -sp * sl, cp),
+        DVec3::new(cp * cl, cp * sl, sp),
+    )
 }
 
 /// The pixel-error target's steps: `+` halves it (finer), `-` doubles it (coarser), within
@@ -272,6 +335,43 @@ mod tests {
 
     fn close(a: DVec3, b: DVec3, tol: f64) -> bool {
         (a - b).length() <= tol
+    }
+
+    /// Around a planet: the orbit reaches the southern hemisphere; switching to fly keeps the
+    /// view direction; flying up moves along the local normal (latitude and longitude stay) and
+    /// slower near the ground; a fly camera looking ahead keeps the horizon level.
+    #[test]
+    fn planet_controls_orbit_the_globe_and_fly_with_the_local_up() {
+        use cbdam_codec::geodesy::Geodetic;
+        let w = World::planet(Domain::cube_sphere(5, 2).unwrap(), 1.0, 0.0, (0.0, 1000.0));
+        let mut c = Controls::new(&w, &Camera::globe(&w, (800, 600)));
+        c.rotate(0.0, -20000.0);
+        assert!(c.eye().z < -1e6, "orbit reaches the south: {}", c.eye());
+        c.rotate(0.0, 20000.0 - 2000.0);
+        let dir = c.look_dir();
+        c.toggle_mode();
+        assert!(close(c.look_dir(), dir, 1e-9), "{} vs {dir}", c.look_dir());
+        let before = Geodetic::from_ecef(c.eye().to_array());
+        c.update(
+            Movement {
+                up: 1.0,
+                ..Default::default()
+            },
+            1.0,
+        );
+        let after = Geodetic::from_ecef(c.eye().to_array());
+        assert!((after.lat - before.lat).abs() < 1e-9 && (after.lon - before.lon).abs() < 1e-9);
+        let climbed = after.height - before.height;
+        assert!((climbed - FLY_SPEED * before.height).abs() < 1e-3 * climbed);
+        // Look ahead at a level pitch: the camera's screen right is horizontal.
+        c.rotate(0.0, (c.pitch + 0.1) / TURN_PER_PIXEL);
+        assert!((c.pitch + 0.1).abs() < 1e-9, "{}", c.pitch);
+        let cam = c.camera(&w, (800, 600));
+        let right = cam.view().row(0).truncate();
+        assert!(right.dot(w.up(cam.eye)).abs() < 1e-9);
+        c.toggle_mode();
+        assert_eq!(c.mode(), Mode::Orbit);
+        assert!(close(c.target(), DVec3::ZERO, 1e-9));
     }
 
     #[test]
