@@ -33,7 +33,7 @@ pub use decode::{
     walk_with_validity,
 };
 pub use encode::{
-    EncodeOptions, encode, encode_in_blocks, encode_variable, encode_with_progress,
+    ApexOutput, EncodeOptions, ShardedEncode, encode, encode_in_blocks, encode_variable, encode_with_progress,
     encode_with_storage,
 };
 pub use field::TempStorage;
