@@ -9,6 +9,7 @@ mod inspect;
 mod link;
 mod replay;
 mod serve;
+mod shard;
 mod upgrade;
 mod verify;
 
