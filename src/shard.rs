@@ -20,7 +20,7 @@ pub enum ShardCommand {
     /// e.g. a shared file system). Prints one JSON line: {"shards", "blocks", "reused",
     /// "output"}. With the inputs and arguments of the plan already there it does nothing; a
     /// work directory of another build is refused.
-    Plan(ShardPlanArgs),
+    Plan(Box<ShardPlanArgs>),
     /// Encode the coarse levels over the whole domain (reads the prepared grid, writes the apex).
     Apex(ShardStepArgs),
     /// Encode one shard's blocks (reads the prepared grid and the apex, writes the shard's block
@@ -42,6 +42,10 @@ pub struct ShardPlanArgs {
     /// How many shards (runs of consecutive blocks); default one per block, at most one per block.
     #[arg(long)]
     shards: Option<usize>,
+    /// Also encode the apex (what `cbdam shard apex` does) from the grid the plan holds, saving
+    /// that step a read of the prepared grid.
+    #[arg(long)]
+    apex: bool,
 }
 
 /// Arguments of `cbdam shard apex` and `cbdam shard merge`.
@@ -74,6 +78,7 @@ pub fn run(command: &ShardCommand) -> Result<()> {
                 &opts,
                 &args.work,
                 args.shards,
+                args.apex,
                 &cbdam_build::NoProgress,
             )?;
             println!(

@@ -14,15 +14,7 @@ use crate::util::*;
 const BLOCKS: &str = "8,300";
 
 fn build(input: &str, out: &Path) -> Vec<u8> {
-    let o = cbdam(&[
-        "build",
-        input,
-        "-o",
-        &s(out),
-        "--max-error",
-        "1",
-        "--quiet",
-    ]);
+    let o = cbdam(&["build", input, "-o", &s(out), "--max-error", "1", "--quiet"]);
     assert!(o.status.success(), "{}", stderr(&o));
     std::fs::read(out).unwrap()
 }
@@ -79,9 +71,15 @@ fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
         e.contains("2 of 3 shards have not finished: shards 0, 1"),
         "{e}"
     );
-    assert!(!d.join("sharded.cbdam").exists(), "a merge without shards wrote");
+    assert!(
+        !d.join("sharded.cbdam").exists(),
+        "a merge without shards wrote"
+    );
     let e = refused(&["shard", "run", "--work", &work, "--shard", "3"]);
-    assert!(e.contains("shard 3 does not exist") && e.contains("3 shards"), "{e}");
+    assert!(
+        e.contains("shard 3 does not exist") && e.contains("3 shards"),
+        "{e}"
+    );
     for shard in ["1", "0"] {
         let line = ok(&["shard", "run", "--work", &work, "--shard", shard]);
         assert!(line.contains("0 kept"), "{line}");
@@ -91,7 +89,10 @@ fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
     assert!(again.contains(", 0 encoded,"), "{again}");
     ok(&["shard", "merge", "--work", &work]);
     let got = std::fs::read(&out).unwrap();
-    assert!(got == want, "the merged repository differs from cbdam build's");
+    assert!(
+        got == want,
+        "the merged repository differs from cbdam build's"
+    );
     // The same plan again is a no-op; another build's is refused, naming the difference.
     assert!(ok(&plan_args("1")).contains("\"reused\":true"));
     let e = refused(&plan_args("2"));
@@ -153,7 +154,10 @@ fn dask_python() -> Option<PathBuf> {
             run(Command::new(&python)
                 .args(["-m", "pip", "install", "--quiet", "-r"])
                 .arg(&requirements));
-            assert!(imports(&python), "dask.distributed does not import after install");
+            assert!(
+                imports(&python),
+                "dask.distributed does not import after install"
+            );
             Some(python)
         })
         .clone()
@@ -195,8 +199,14 @@ fn dask_build_of_a_mosaic_is_byte_identical_to_cbdam_build() {
     let log = dask_build(&python, &s(&tiles), &out, None);
     // One line per shard when not on a terminal: 2 shards per worker.
     assert_eq!(log.matches("] shard ").count(), 6, "{log}");
-    assert!(std::fs::read(&out).unwrap() == want, "the Dask build differs");
-    assert!(!d.join("dask.cbdam.shards").exists(), "the work directory is left");
+    assert!(
+        std::fs::read(&out).unwrap() == want,
+        "the Dask build differs"
+    );
+    assert!(
+        !d.join("dask.cbdam.shards").exists(),
+        "the work directory is left"
+    );
 }
 
 #[test]
@@ -212,5 +222,8 @@ fn dask_build_survives_a_worker_killed_mid_build() {
     let marker = d.join("killed");
     let log = dask_build(&python, &dem, &out, Some(&marker));
     assert!(marker.exists(), "the kill hook never ran: {log}");
-    assert!(std::fs::read(&out).unwrap() == want, "the Dask build differs");
+    assert!(
+        std::fs::read(&out).unwrap() == want,
+        "the Dask build differs"
+    );
 }

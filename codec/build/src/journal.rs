@@ -99,7 +99,6 @@ impl Journal {
         fs::remove_dir_all(&self.dir)
             .with_context(|| format!("removing the build journal {}", self.dir.display()))
     }
-
 }
 
 impl BlockJournal for Journal {

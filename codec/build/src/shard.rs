@@ -22,7 +22,7 @@
 //! half-written.
 
 use std::fs;
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufWriter, Read, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -159,7 +159,9 @@ impl ShardPlan {
                 f(g.pixel_x),
                 f(g.pixel_y),
                 g.pixel_is_area,
-                g.wkt.as_deref().map_or("-".to_string(), |w| hex(w.as_bytes())),
+                g.wkt
+                    .as_deref()
+                    .map_or("-".to_string(), |w| hex(w.as_bytes())),
             );
         }
         t
@@ -279,19 +281,26 @@ pub struct PlanSummary {
 /// Reads and quantizes the inputs of the build `opts` describes (as `cbdam build` would), chooses
 /// the block plan (`opts.block_plan`, else the build's own, else blocks a quarter of the domain
 /// across at most) and `shards` shards (default one per block; at most one per block), and writes
-/// them to `work`. With the same inputs and arguments as the plan already there it does nothing.
+/// them to `work`. With `with_apex`, it also encodes the apex ([`apex`]) from the grid it holds,
+/// saving the apex step a read of it. With the same inputs and arguments as the plan already
+/// there it does nothing (but the apex, if asked for and missing).
 pub fn plan(
     opts: &BuildOptions,
     work: &Path,
     shards: Option<usize>,
+    with_apex: bool,
     progress: &dyn Progress,
 ) -> Result<PlanSummary> {
     let t = Instant::now();
     if opts.colour {
-        bail!("sharded builds make elevation repositories; build colour with `cbdam build --colour`");
+        bail!(
+            "sharded builds make elevation repositories; build colour with `cbdam build --colour`"
+        );
     }
     if opts.alpha != Alpha::One {
-        bail!("a sharded build needs --alpha 1 (its blocks rely on the coarse levels being subsamples)");
+        bail!(
+            "a sharded build needs --alpha 1 (its blocks rely on the coarse levels being subsamples)"
+        );
     }
     if shards == Some(0) {
         bail!("--shards must be at least 1");
@@ -302,7 +311,12 @@ pub fn plan(
         std::env::current_dir()?.join(&opts.output)
     };
     let tiles = input_tiles(opts)?;
-    let mut key = journal_key(opts, &tiles, &opts.encode_options(), opts.block_plan.as_ref())?;
+    let mut key = journal_key(
+        opts,
+        &tiles,
+        &opts.encode_options(),
+        opts.block_plan.as_ref(),
+    )?;
     key += &format!(
         "shard_layout={VERSION}\noutput={}\nmemory_limit={}\nshards={}\n",
         output.display(),
@@ -311,6 +325,9 @@ pub fn plan(
     );
     if let Ok(old) = fs::read_to_string(work.join(KEY)) {
         if old == key {
+            if with_apex {
+                apex(work, opts.threads)?;
+            }
             return Ok(PlanSummary {
                 plan: read_plan(work)?,
                 reused: true,
@@ -371,6 +388,15 @@ pub fn plan(
     let writing = || format!("writing the plan in {}", work.display());
     write_atomically(work, PLAN, plan.to_text().as_bytes()).with_context(writing)?;
     write_atomically(work, KEY, key.as_bytes()).with_context(writing)?;
+    if with_apex {
+        encode_apex(
+            work,
+            &plan,
+            grid,
+            prepared.resolution.as_ref(),
+            opts.threads,
+        )?;
+    }
     Ok(PlanSummary {
         plan,
         reused: false,
@@ -434,7 +460,8 @@ fn write_prepared(work: &Path, grid: &HeightGrid, classes: Option<&Resolution>) 
     out.write_all(&head).with_context(context)?;
     for chunk in grid.values.chunks(1 << 18) {
         let le: Vec<i32> = chunk.iter().map(|v| v.to_le()).collect();
-        out.write_all(bytemuck::cast_slice(&le)).with_context(context)?;
+        out.write_all(bytemuck::cast_slice(&le))
+            .with_context(context)?;
     }
     for chunk in grid.valid.chunks(1 << 20) {
         let bytes: Vec<u8> = chunk.iter().map(|&v| u8::from(v)).collect();
@@ -479,7 +506,11 @@ impl<W: Write> Write for Crc32Writer<W> {
 }
 
 /// Reads `n` bytes into `out`, updating `crc`.
-fn read_checked(r: &mut impl Read, crc: &mut crc32fast::Hasher, out: &mut [u8]) -> std::io::Result<()> {
+fn read_checked(
+    r: &mut impl Read,
+    crc: &mut crc32fast::Hasher,
+    out: &mut [u8],
+) -> std::io::Result<()> {
     r.read_exact(out)?;
     crc.update(out);
     Ok(())
@@ -494,8 +525,8 @@ fn read_prepared(work: &Path, plan: &ShardPlan) -> Result<(HeightGrid, Option<Re
             path.display()
         ))
     };
-    let file = fs::File::open(&path).with_context(|| format!("reading {}", path.display()))?;
-    let mut r = BufReader::with_capacity(1 << 20, file);
+    // Unbuffered: every read but the first is megabytes, straight into its destination.
+    let mut r = fs::File::open(&path).with_context(|| format!("reading {}", path.display()))?;
     let mut crc = crc32fast::Hasher::new();
     let io = |e: std::io::Error| damaged(&format!("{e}"));
     let mut head = [0u8; 25];
@@ -626,8 +657,20 @@ pub fn apex(work: &Path, threads: Option<usize>) -> Result<bool> {
         return Ok(false);
     }
     let (grid, classes) = read_prepared(work, &plan)?;
+    encode_apex(work, &plan, &grid, classes.as_ref(), threads)?;
+    Ok(true)
+}
+
+/// Encodes the apex of `grid` and writes it to `work`.
+fn encode_apex(
+    work: &Path,
+    plan: &ShardPlan,
+    grid: &HeightGrid,
+    classes: Option<&Resolution>,
+    threads: Option<usize>,
+) -> Result<()> {
     let out = thread_pool(threads)?.install(|| {
-        sharded(&grid, classes.as_ref(), &plan)?
+        sharded(grid, classes, plan)?
             .apex(&TempStorage::Memory)
             .map_err(crate::BuildError::from)
     })?;
@@ -635,7 +678,7 @@ pub fn apex(work: &Path, threads: Option<usize>) -> Result<bool> {
     // The field first: `apex` present means both are.
     write_apex_field(work, &out.field).with_context(writing)?;
     write_atomically(work, APEX, &serialize_block(&out.output)).with_context(writing)?;
-    Ok(true)
+    Ok(())
 }
 
 /// What [`run`] did.
@@ -733,7 +776,7 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<MergeSummary> {
     let (grid, classes) = read_prepared(work, &plan)?;
     let input = Prepared {
         grid,
-        plan: plan.quant.clone(),
+        plan: plan.quant,
         georef: plan.georef.clone(),
         nodata: plan.nodata,
         stages: Vec::new(),

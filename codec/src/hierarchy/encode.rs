@@ -254,7 +254,8 @@ fn encode_impl(
 /// What every part of an encode needs besides the reconstruction: the header fields, the
 /// targets, the stored diamonds and the coded roots.
 struct Setup<'a> {
-    grid: &'a HeightGrid,
+    /// The input, for the object-space errors (its bounds scanned once: a whole-grid pass).
+    error_input: ErrorInput<'a>,
     params: CodecParams,
     targets: Targets<'a>,
     stored: Vec<Vec<DiamondId>>,
@@ -306,7 +307,7 @@ impl<'a> Setup<'a> {
             |_, x, y| targets.drawn(x, y),
         )?;
         Ok(Setup {
-            grid,
+            error_input: ErrorInput::new(grid),
             params,
             targets,
             stored,
@@ -319,7 +320,7 @@ impl<'a> Setup<'a> {
     fn levels<'b>(&'b self, tick: &'b (dyn Fn(&DiamondId) + Sync)) -> Levels<'b> {
         Levels {
             params: &self.params,
-            error_input: ErrorInput::new(self.grid),
+            error_input: self.error_input,
             targets: &self.targets,
             stored: &self.stored,
             recorded: self.recorded.as_deref(),
@@ -399,7 +400,7 @@ impl<'a> ShardedEncode<'a> {
     /// Encodes the levels above the cut.
     pub fn apex(&self, storage: &TempStorage) -> Result<ApexOutput, CodecError> {
         let levels = self.setup.levels(&|_| {});
-        let (apex, records, own_errors) = levels.apex(storage, &self.plan)?;
+        let (apex, (records, own_errors)) = levels.apex(storage, &self.plan)?;
         Ok(ApexOutput {
             output: BlockOutput {
                 records,
@@ -441,7 +442,13 @@ impl<'a> ShardedEncode<'a> {
             own_error.extend(part.own_errors);
         }
         // Every stored diamond's own error is needed to saturate its ancestors'.
-        if let Some(id) = self.setup.stored.iter().flatten().find(|id| !own_error.contains_key(id)) {
+        if let Some(id) = self
+            .setup
+            .stored
+            .iter()
+            .flatten()
+            .find(|id| !own_error.contains_key(id))
+        {
             return Err(CodecError::invalid(format!(
                 "diamond {id} is in none of the parts given: a block is missing"
             )));
@@ -616,7 +623,7 @@ impl Levels<'_> {
         let layout = self.params.layout();
         let finest = layout.finest_level();
         let cut = plan.cut_level.min(finest);
-        let (apex, mut records, mut own_error) = self.apex(storage, plan)?;
+        let (apex, (mut records, mut own_error)) = self.apex(storage, plan)?;
         for (index, block) in plan.blocks(layout).into_iter().enumerate() {
             let out = match journal.load(index)? {
                 Some(out) => {
@@ -646,7 +653,7 @@ impl Levels<'_> {
         &self,
         storage: &TempStorage,
         plan: &BlockPlan,
-    ) -> Result<(ReconField, Vec<Record>, HashMap<DiamondId, u32>), CodecError> {
+    ) -> Result<(ReconField, LevelOutput), CodecError> {
         let layout = self.params.layout();
         let cut = plan.cut_level.min(layout.finest_level());
         let mut records: Vec<Record> = Vec::new();
@@ -660,7 +667,7 @@ impl Levels<'_> {
                 records.extend(record);
             }
         }
-        Ok((apex, records, own_error))
+        Ok((apex, (records, own_error)))
     }
 
     /// One block of the fine levels ([`Levels::blocks`]): its diamonds' records and errors.
@@ -1109,7 +1116,10 @@ mod tests {
             let any_owned = parts.last().is_some_and(|p| !p.own_errors.is_empty());
             if any_owned {
                 let fresh = ShardedEncode::new(grid, None, q, opts, *plan).unwrap();
-                assert!(fresh.finish(short).is_err(), "a missing block went unnoticed");
+                assert!(
+                    fresh.finish(short).is_err(),
+                    "a missing block went unnoticed"
+                );
             }
         }
         let sharded = merger.finish(parts).unwrap();

@@ -1,8 +1,8 @@
 """`python -m cbdam_dask build`: a sharded cbdam build whose steps are Dask tasks.
 
 The steps are the `cbdam shard` subcommands (docs/SHARDING.md), each run by a task as a
-subprocess of a Dask worker: plan (reads the inputs once), apex, one task per shard, merge. They
-share a work directory, which must be a path every worker reaches (a shared file system or an
+subprocess of a Dask worker: plan with the apex (reads the inputs once), one task per shard,
+merge. They share a work directory, which must be a path every worker reaches (a shared file system or an
 object-store mount), as must the inputs and the output. Dask does the scheduling: tasks are
 submitted with `retries=`, and a task whose worker dies is rerun elsewhere; every step is
 idempotent, so a rerun is harmless.
@@ -38,7 +38,7 @@ def _kill_hook():
 
 
 def run_step(cbdam, args, kill_hook=False):
-    """Runs `cbdam shard ARGS...`; returns its stdout. A failure with a message (exit 1 or 2)
+    """Runs `cbdam shard ARGS...`; returns ("ok", its stdout). A failure with a message (exit 1 or 2)
     comes back as ("error", message) so that it is reported once, not retried; anything else (a
     signal, a missing binary) raises, and Dask retries the task."""
     command = [cbdam, "shard", *args]
@@ -67,11 +67,13 @@ def _absolute_input(text):
 def _parse(argv):
     p = argparse.ArgumentParser(
         prog="python -m cbdam_dask",
+        allow_abbrev=False,
         description="Sharded cbdam builds on Dask distributed. Flags not listed here go to "
         "`cbdam shard plan` as they go to `cbdam build` (e.g. --diamond-size, --memory-limit).",
     )
     sub = p.add_subparsers(dest="command", required=True)
-    b = sub.add_parser("build", help="build a repository with a Dask cluster")
+    # No abbreviations: a `cbdam build` flag must reach `cbdam shard plan` as written.
+    b = sub.add_parser("build", help="build a repository with a Dask cluster", allow_abbrev=False)
     b.add_argument("inputs", nargs="+", help="DEM files, directories, globs, @LIST or VRTs")
     b.add_argument("-o", "--output", required=True, help="the repository to write")
     b.add_argument("--max-error", required=True, help="guaranteed maximum error, metres")
@@ -176,15 +178,13 @@ def main(argv):
     try:
         plan_args = ["plan", *map(_absolute_input, args.inputs), "-o", output,
                      "--max-error", args.max_error, "--work", work,
-                     "--shards", str(args.shards or 2 * workers), *extra]
+                     "--shards", str(args.shards or 2 * workers), "--apex", *extra]
         import json
 
         plan = json.loads(result(step("plan", plan_args)))
         shards = plan["shards"]
-        print(f"cbdam_dask: planned {shards} shards of {plan['blocks']} blocks in {work}",
-              file=sys.stderr)
-        apex = result(step("apex", ["apex", "--work", work]))
-        print(f"cbdam_dask: {apex}", file=sys.stderr)
+        print(f"cbdam_dask: planned {shards} shards of {plan['blocks']} blocks in {work} and "
+              "encoded the apex", file=sys.stderr)
         thread_args = ["--threads", str(threads)] if threads else []
         futures = [
             step(f"shard-{i}", ["run", "--work", work, "--shard", str(i), *thread_args],
