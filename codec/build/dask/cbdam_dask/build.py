@@ -86,7 +86,12 @@ def _parse(argv):
     b.add_argument(
         "--work", help="work directory on a shared path (default: OUTPUT.shards beside it)"
     )
-    b.add_argument("--shards", type=int, help="shards (default: 2 per worker)")
+    b.add_argument(
+        "--shards",
+        type=int,
+        help="shards (default: one per worker; a retried shard keeps the blocks it finished, so "
+        "more only balance uneven workers, at a read of the prepared grid each)",
+    )
     b.add_argument("--retries", type=int, default=3, help="Dask retries per task")
     b.add_argument(
         "--threads",
@@ -178,7 +183,7 @@ def main(argv):
     try:
         plan_args = ["plan", *map(_absolute_input, args.inputs), "-o", output,
                      "--max-error", args.max_error, "--work", work,
-                     "--shards", str(args.shards or 2 * workers), "--apex", *extra]
+                     "--shards", str(args.shards or workers), "--apex", *extra]
         import json
 
         plan = json.loads(result(step("plan", plan_args)))
