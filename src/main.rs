@@ -18,6 +18,7 @@ mod render;
 mod replay;
 mod serve;
 mod session;
+mod shard;
 mod synth;
 mod verify;
 mod view;
@@ -121,6 +122,12 @@ enum Command {
     /// loopback, replays a flight against the server over HTTP and renders an overview and the
     /// flight's frames offscreen from what the client fetched; prints where the outputs are.
     Demo(DemoArgs),
+    /// A build split into steps that run as separate processes, on other machines (Dask, a
+    /// Kubernetes Indexed Job, a Slurm array), merged into the repository `cbdam build` writes
+    /// with the same arguments, byte for byte: plan, apex, run each shard, merge
+    /// (docs/SHARDING.md).
+    #[command(subcommand)]
+    Shard(shard::ShardCommand),
     /// Measure the codec and other parts of the pipeline.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -895,6 +902,7 @@ fn default_sigpipe(command: &Command) {
             | Command::Verify(_)
             | Command::Extract(_)
             | Command::Build(_)
+            | Command::Shard(_)
     ) {
         // SAFETY: restoring a signal's default disposition before any thread is started.
         unsafe {
@@ -910,6 +918,7 @@ fn main() -> ExitCode {
     default_sigpipe(&cli.command);
     let result = match cli.command {
         Command::Build(args) => build::run(&args),
+        Command::Shard(command) => shard::run(&command),
         Command::Inspect(args) => inspect::run(&args),
         Command::Upgrade(args) => inspect::upgrade(&args),
         Command::Verify(args) => verify::run(&args),

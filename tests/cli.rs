@@ -10,6 +10,7 @@ mod link;
 mod planet;
 mod replay;
 mod serve;
+mod shard;
 mod upgrade;
 mod verify;
 

@@ -23,6 +23,28 @@ fn write(path: &Path, w: usize, values: Vec<f64>, georef: GeoRef) {
     write_geotiff(std::fs::File::create(path).unwrap(), &r, None, false).unwrap();
 }
 
+/// Cuts the north-west `(n·t + 1)²` samples of the DEM `dem` into `n × n` GeoTIFF tiles of
+/// `t + 1` samples sharing their edge rows and columns (as SRTM's do), written to `dir`.
+pub fn cut_into_tiles(dem: &str, dir: &Path, t: usize, n: usize) {
+    let dem = read_dem(Path::new(dem), &ReadOptions::default()).unwrap();
+    let g = dem.georef.clone().unwrap();
+    let at = |r: usize, c: usize| dem.values[r * dem.width + c];
+    std::fs::create_dir(dir).unwrap();
+    for tr in 0..n {
+        for tc in 0..n {
+            let v: Vec<f64> = (0..(t + 1) * (t + 1))
+                .map(|i| at(tr * t + i / (t + 1), tc * t + i % (t + 1)))
+                .collect();
+            let tg = GeoRef {
+                origin_x: g.origin_x + (tc * t) as f64 * g.pixel_x,
+                origin_y: g.origin_y - (tr * t) as f64 * g.pixel_y,
+                ..g.clone()
+            };
+            write(&dir.join(format!("N{tr}E{tc}.tif")), t + 1, v, tg);
+        }
+    }
+}
+
 #[test]
 fn a_directory_of_tiles_builds_and_verifies_like_one_file() {
     let tmp = tempfile::tempdir().unwrap();
@@ -37,20 +59,7 @@ fn a_directory_of_tiles_builds_and_verifies_like_one_file() {
     let whole: Vec<f64> = (0..SIDE * SIDE).map(|i| at(i / SIDE, i % SIDE)).collect();
     write(&d.join("whole.tif"), SIDE, whole, g.clone());
     let tiles = d.join("tiles");
-    std::fs::create_dir(&tiles).unwrap();
-    for tr in 0..2 {
-        for tc in 0..2 {
-            let v: Vec<f64> = (0..(T + 1) * (T + 1))
-                .map(|i| at(tr * T + i / (T + 1), tc * T + i % (T + 1)))
-                .collect();
-            let tg = GeoRef {
-                origin_x: g.origin_x + (tc * T) as f64 * g.pixel_x,
-                origin_y: g.origin_y - (tr * T) as f64 * g.pixel_y,
-                ..g.clone()
-            };
-            write(&tiles.join(format!("N{tr}E{tc}.tif")), T + 1, v, tg);
-        }
-    }
+    cut_into_tiles(&data("srtm3_demcompare.tif"), &tiles, T, 2);
     let build = |input: &Path, out: &Path| {
         let o = cbdam(&[
             "build",

@@ -81,14 +81,23 @@ impl Journal {
         Ok((Journal { dir }, resumed))
     }
 
+    /// The journal in `dir` as it is, created if absent, with no key: for a caller that checks
+    /// what the blocks belong to itself (a sharded build's work directory, [`crate::shard`]).
+    pub fn in_dir(dir: PathBuf) -> Result<Journal> {
+        fs::create_dir_all(&dir)
+            .with_context(|| format!("creating the block directory {}", dir.display()))?;
+        Ok(Journal { dir })
+    }
+
+    /// The path of block `index`'s file.
+    pub fn block_path(&self, index: usize) -> PathBuf {
+        self.dir.join(format!("block-{index:06}"))
+    }
+
     /// Removes the journal: the repository is written.
     pub fn finish(self) -> Result<()> {
         fs::remove_dir_all(&self.dir)
             .with_context(|| format!("removing the build journal {}", self.dir.display()))
-    }
-
-    fn block_path(&self, index: usize) -> PathBuf {
-        self.dir.join(format!("block-{index:06}"))
     }
 }
 
@@ -111,7 +120,7 @@ impl BlockJournal for Journal {
 }
 
 /// `name: old → new` for the first `name=value` line of `new` that `old` lacks.
-fn first_difference(old: &str, new: &str) -> String {
+pub(crate) fn first_difference(old: &str, new: &str) -> String {
     let value = |text: &str, name: &str| {
         text.lines()
             .find_map(|l| l.strip_prefix(name)?.strip_prefix('=').map(str::to_string))
@@ -132,8 +141,10 @@ fn first_difference(old: &str, new: &str) -> String {
 /// killed process leaves the file whole or absent. Not synced: after a power loss a block file
 /// may be cut short or empty, which its checksum catches ([`parse_block`]) and the block is
 /// encoded again — syncing every block would cost more than redoing the few the page cache lost.
-fn write_atomically(dir: &Path, name: &str, bytes: &[u8]) -> std::io::Result<()> {
-    let tmp = dir.join(format!(".{name}.tmp"));
+pub(crate) fn write_atomically(dir: &Path, name: &str, bytes: &[u8]) -> std::io::Result<()> {
+    // The process id keeps two processes writing the same file (a retried shard whose first
+    // run is still going) off each other's temporary.
+    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
     let mut f = fs::File::create(&tmp)?;
     f.write_all(bytes)?;
     drop(f);
@@ -149,7 +160,7 @@ fn put_id(out: &mut Vec<u8>, id: DiamondId) {
 
 /// A block file: magic, version, the records (id, min, max, length, bytes), the own errors
 /// (id, error), and a CRC-32 of everything before it; integers little-endian.
-fn serialize_block(b: &BlockOutput) -> Vec<u8> {
+pub(crate) fn serialize_block(b: &BlockOutput) -> Vec<u8> {
     let mut out = Vec::new();
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&VERSION.to_le_bytes());
@@ -200,7 +211,7 @@ impl<'a> Reader<'a> {
 
 /// The block in a block file, `None` if it is not one whole (wrong magic or version, cut short,
 /// checksum mismatch, counts beyond the file).
-fn parse_block(bytes: &[u8]) -> Option<BlockOutput> {
+pub(crate) fn parse_block(bytes: &[u8]) -> Option<BlockOutput> {
     let (body, crc) = bytes.split_at_checked(bytes.len().checked_sub(4)?)?;
     if crc32fast::hash(body).to_le_bytes() != crc {
         return None;

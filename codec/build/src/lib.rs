@@ -18,6 +18,7 @@ pub mod mosaic;
 pub mod plan;
 pub mod planet;
 pub mod progress;
+pub mod shard;
 pub mod tiles;
 pub mod verify;
 pub mod write;
@@ -168,8 +169,38 @@ pub fn build(opts: &BuildOptions, progress: &dyn Progress) -> Result<BuildSummar
     build_elevation(opts, progress).map(BuildSummary::Elevation)
 }
 
-/// Builds an elevation repository (`opts.colour` is ignored).
-pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<ElevationSummary> {
+/// An elevation build's input, read and quantized, and how it is to be encoded.
+pub(crate) struct PreparedBuild {
+    /// The input files, directories, globs, lists and VRTs expanded.
+    pub(crate) tiles: Vec<tiles::Tile>,
+    /// The quantized input.
+    pub(crate) input: plan::Prepared,
+    /// The classes of a variable-resolution input (several inputs).
+    pub(crate) resolution: Option<cbdam_codec::hierarchy::Resolution>,
+    /// Where the encoder's temporaries go, and its blocks (`--block-plan` applied).
+    pub(crate) storage: plan::Temporaries,
+    /// The first encode's options.
+    pub(crate) enc_opts: EncodeOptions,
+    /// The memory limit, bytes.
+    pub(crate) limit: u64,
+}
+
+/// The input files: directories, globs, @lists and VRTs become their files; the raw float32
+/// input of `--size` is a single file, taken as given.
+pub(crate) fn input_tiles(opts: &BuildOptions) -> Result<Vec<tiles::Tile>> {
+    if opts.raw_size.is_some() {
+        Ok(opts.inputs.iter().map(tiles::Tile::file).collect())
+    } else {
+        tiles::expand_inputs(&opts.inputs)
+    }
+}
+
+/// Checks `opts`, reads and quantizes the input and chooses the temporaries: everything of an
+/// elevation build before the encode.
+pub(crate) fn prepare_elevation(
+    opts: &BuildOptions,
+    progress: &dyn Progress,
+) -> Result<PreparedBuild> {
     if opts.like.is_some() {
         bail!("--like only applies to colour repositories (--colour)");
     }
@@ -193,13 +224,7 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         done: 0,
         total: 1,
     });
-    // Directories, globs, @lists and VRTs become their files; the raw float32 input of
-    // `--size` is a single file, taken as given.
-    let tiles = if opts.raw_size.is_some() {
-        opts.inputs.iter().map(tiles::Tile::file).collect()
-    } else {
-        tiles::expand_inputs(&opts.inputs)?
-    };
+    let tiles = input_tiles(opts)?;
     let (input, resolution, storage) = match tiles.as_slice() {
         [] => bail!("no input given"),
         [tiles::Tile { path, vrt: None }] => {
@@ -262,7 +287,6 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         done: 1,
         total: 1,
     });
-    let mut stages = input.stages.clone();
     let mut storage = storage;
     if let Some(plan) = opts.block_plan {
         if enc_opts.alpha != Alpha::One {
@@ -270,9 +294,30 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         }
         storage.blocks = Some(plan);
     }
+    Ok(PreparedBuild {
+        tiles,
+        input,
+        resolution,
+        storage,
+        enc_opts,
+        limit,
+    })
+}
+
+/// Builds an elevation repository (`opts.colour` is ignored).
+pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<ElevationSummary> {
+    let PreparedBuild {
+        tiles,
+        input,
+        resolution,
+        storage,
+        enc_opts,
+        limit,
+    } = prepare_elevation(opts, progress)?;
+    let mut stages = input.stages.clone();
     let journal = match &storage.blocks {
         Some(plan) => {
-            let key = journal_key(opts, &tiles, &enc_opts, plan)?;
+            let key = journal_key(opts, &tiles, &enc_opts, Some(plan))?;
             let (journal, resumed) = Journal::open(&opts.output, &key)?;
             progress.resumed(&resumed);
             Some(journal)
@@ -371,11 +416,11 @@ fn check_tolerance_and_output(opts: &BuildOptions) -> Result<()> {
 /// Everything a block encode's output depends on, one `name=value` line each: the journal of an
 /// earlier run is continued only when all of them are the same ([`journal`]). The memory limit
 /// and the thread count are not among them: only the block plan they lead to is.
-fn journal_key(
+pub(crate) fn journal_key(
     opts: &BuildOptions,
     tiles: &[tiles::Tile],
     enc: &EncodeOptions,
-    plan: &BlockPlan,
+    plan: Option<&BlockPlan>,
 ) -> Result<String> {
     let mut key = format!(
         "journal=1\ncbdam={}\nformat={}\n",
@@ -399,8 +444,7 @@ fn journal_key(
     }
     key += &format!(
         "max_error={}\nraw_size={:?}\nquantum={:?}\nnodata={:?}\ndiamond_size={}\n\
-         extra_level_pairs={}\nalpha={:?}\ncoder={:?}\nbounds={:?}\n\
-         blocks=cut {} side {}\n",
+         extra_level_pairs={}\nalpha={:?}\ncoder={:?}\nbounds={:?}\nblocks={}\n",
         opts.max_error,
         opts.raw_size,
         opts.quantum,
@@ -410,8 +454,10 @@ fn journal_key(
         enc.alpha,
         enc.coder,
         opts.assign_georef,
-        plan.cut_level,
-        plan.block_side
+        plan.map_or("auto".to_string(), |p| format!(
+            "cut {} side {}",
+            p.cut_level, p.block_side
+        ))
     );
     Ok(key)
 }

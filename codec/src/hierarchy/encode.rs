@@ -215,42 +215,8 @@ fn encode_impl(
     strategy: Keeping<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Encoded, CodecError> {
-    if grid.range().is_none() {
-        return Err(CodecError::invalid("the input has no valid sample"));
-    }
-    let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
-    let layout = *domain.layout();
-    let params = CodecParams {
-        domain,
-        alpha: opts.alpha,
-        coder: opts.coder,
-        quantizer,
-        root_quantizer: super::root_quantizer(quantizer),
-        nodata_mask: match resolution {
-            Some(r) => r.has_holes(),
-            None => grid.valid.iter().any(|v| !v),
-        },
-        kind: super::RepoKind::Elevation,
-    };
-    let targets = Targets {
-        grid,
-        fields: (opts.alpha == Alpha::Half).then(|| analysis_fields(&layout, grid)),
-        resolution,
-    };
-    // Single resolution: every stored diamond above the finest level has a record.
-    let (stored, recorded) = match resolution {
-        Some(r) => {
-            let sets = variable_sets(&params.domain, grid.width, r);
-            (sets.stored, Some(sets.recorded))
-        }
-        None => (stored_sets(&params.domain, grid), None),
-    };
-    let (root_field, roots) = encode_roots(
-        &params,
-        |_, x, y| targets.at(0, x, y),
-        |_, x, y| targets.drawn(x, y),
-    )?;
-
+    let setup = Setup::new(grid, resolution, quantizer, opts)?;
+    let layout = *setup.params.domain.layout();
     // Work per diamond is about the data it covers: its bounding box clipped to the data.
     let area = |id: &DiamondId| {
         let (x0, y0, x1, y1) = layout.bounds(*id);
@@ -258,7 +224,7 @@ fn encode_impl(
             |a: i64, b: i64, len: usize| (b.min(len as i64 - 1) - a.max(0) + 1).max(1) as usize;
         span(x0, x1, grid.width) * span(y0, y1, grid.height)
     };
-    let total: usize = stored.iter().flatten().map(area).sum();
+    let total: usize = setup.stored.iter().flatten().map(area).sum();
     let done = std::sync::atomic::AtomicUsize::new(0);
     let tick = |id: &DiamondId| {
         let a = area(id);
@@ -267,15 +233,7 @@ fn encode_impl(
             total,
         );
     };
-    let levels = Levels {
-        params: &params,
-        error_input: ErrorInput::new(grid),
-        targets: &targets,
-        stored: &stored,
-        recorded: recorded.as_deref(),
-        root_field: &root_field,
-        tick: &tick,
-    };
+    let levels = setup.levels(&tick);
     let (records, own_error) = match strategy {
         Keeping::PerDiamond => levels.per_diamond()?,
         Keeping::Field(storage) => {
@@ -290,14 +248,213 @@ fn encode_impl(
             levels.blocks(storage, plan, journal)?
         }
     };
+    Ok(setup.finish(records, &own_error))
+}
 
-    let (records, leaf_error) = saturate_errors(&domain, &stored, records, &own_error);
-    Ok(Encoded {
-        params,
-        roots,
-        records,
-        leaf_error,
-    })
+/// What every part of an encode needs besides the reconstruction: the header fields, the
+/// targets, the stored diamonds and the coded roots.
+struct Setup<'a> {
+    /// The input, for the object-space errors (its bounds scanned once: a whole-grid pass).
+    error_input: ErrorInput<'a>,
+    params: CodecParams,
+    targets: Targets<'a>,
+    stored: Vec<Vec<DiamondId>>,
+    recorded: Option<Vec<BTreeSet<DiamondId>>>,
+    root_field: Vec<i32>,
+    roots: Vec<u8>,
+}
+
+impl<'a> Setup<'a> {
+    fn new(
+        grid: &'a HeightGrid,
+        resolution: Option<&'a Resolution>,
+        quantizer: Quantizer,
+        opts: &EncodeOptions,
+    ) -> Result<Self, CodecError> {
+        if grid.range().is_none() {
+            return Err(CodecError::invalid("the input has no valid sample"));
+        }
+        let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
+        let layout = *domain.layout();
+        let params = CodecParams {
+            domain,
+            alpha: opts.alpha,
+            coder: opts.coder,
+            quantizer,
+            root_quantizer: super::root_quantizer(quantizer),
+            nodata_mask: match resolution {
+                Some(r) => r.has_holes(),
+                None => grid.valid.iter().any(|v| !v),
+            },
+            kind: super::RepoKind::Elevation,
+        };
+        let targets = Targets {
+            grid,
+            fields: (opts.alpha == Alpha::Half).then(|| analysis_fields(&layout, grid)),
+            resolution,
+        };
+        // Single resolution: every stored diamond above the finest level has a record.
+        let (stored, recorded) = match resolution {
+            Some(r) => {
+                let sets = variable_sets(&params.domain, grid.width, r);
+                (sets.stored, Some(sets.recorded))
+            }
+            None => (stored_sets(&params.domain, grid), None),
+        };
+        let (root_field, roots) = encode_roots(
+            &params,
+            |_, x, y| targets.at(0, x, y),
+            |_, x, y| targets.drawn(x, y),
+        )?;
+        Ok(Setup {
+            error_input: ErrorInput::new(grid),
+            params,
+            targets,
+            stored,
+            recorded,
+            root_field,
+            roots,
+        })
+    }
+
+    fn levels<'b>(&'b self, tick: &'b (dyn Fn(&DiamondId) + Sync)) -> Levels<'b> {
+        Levels {
+            params: &self.params,
+            error_input: self.error_input,
+            targets: &self.targets,
+            stored: &self.stored,
+            recorded: self.recorded.as_deref(),
+            root_field: &self.root_field,
+            tick,
+        }
+    }
+
+    /// The encoded hierarchy from every stored diamond's record and own error.
+    fn finish(self, records: Vec<Record>, own_error: &HashMap<DiamondId, u32>) -> Encoded {
+        let (records, leaf_error) =
+            saturate_errors(&self.params.domain, &self.stored, records, own_error);
+        Encoded {
+            params: self.params,
+            roots: self.roots,
+            records,
+            leaf_error,
+        }
+    }
+}
+
+/// An α = 1 encode split as [`encode_in_blocks`] splits it, into parts that run apart (in other
+/// processes, on other machines) and are put together without encoding again: the apex (the
+/// levels above the plan's cut, over the whole domain), each block of the finer levels, seeded
+/// from the apex's field, and [`ShardedEncode::finish`], which saturates the object errors over
+/// all of them. The result is the same as [`encode_in_blocks`]'s, bit for bit.
+pub struct ShardedEncode<'a> {
+    setup: Setup<'a>,
+    plan: BlockPlan,
+    blocks: Vec<Block>,
+}
+
+/// What the apex of a [`ShardedEncode`] produced: the records and own errors of the levels
+/// above the cut (as a [`BlockOutput`]), and the values of its field, which every block starts
+/// from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ApexOutput {
+    /// Records (object errors not yet saturated) and own errors of the apex levels.
+    pub output: BlockOutput,
+    /// The apex field's values, row-major over the lattice of spacing
+    /// `2^`[`BlockPlan::apex_shift`].
+    pub field: Vec<i32>,
+}
+
+impl<'a> ShardedEncode<'a> {
+    /// The encode of `grid` (variable resolution with `resolution`) in `plan`'s blocks.
+    pub fn new(
+        grid: &'a HeightGrid,
+        resolution: Option<&'a Resolution>,
+        quantizer: Quantizer,
+        opts: &EncodeOptions,
+        plan: BlockPlan,
+    ) -> Result<Self, CodecError> {
+        if opts.alpha != Alpha::One {
+            return Err(CodecError::invalid(
+                "a sharded encode needs α = 1 (α = ½ changes vertices, so a block's diamonds \
+                 would depend on more than their ancestors' points)",
+            ));
+        }
+        if let Some(r) = resolution {
+            r.check(grid)?;
+        }
+        let setup = Setup::new(grid, resolution, quantizer, opts)?;
+        let blocks = plan.blocks(setup.params.layout());
+        Ok(ShardedEncode {
+            setup,
+            plan,
+            blocks,
+        })
+    }
+
+    /// How many blocks the plan makes.
+    pub fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// Encodes the levels above the cut.
+    pub fn apex(&self, storage: &TempStorage) -> Result<ApexOutput, CodecError> {
+        let levels = self.setup.levels(&|_| {});
+        let (apex, (records, own_errors)) = levels.apex(storage, &self.plan)?;
+        Ok(ApexOutput {
+            output: BlockOutput {
+                records,
+                own_errors: own_errors.into_iter().collect(),
+            },
+            field: apex.to_vec(),
+        })
+    }
+
+    /// Encodes block `index` from the apex's field `apex_field` ([`ApexOutput::field`]).
+    pub fn block(
+        &self,
+        apex_field: &[i32],
+        index: usize,
+        storage: &TempStorage,
+    ) -> Result<BlockOutput, CodecError> {
+        let Some(block) = self.blocks.get(index) else {
+            return Err(CodecError::invalid(format!(
+                "block {index} does not exist: the plan has {} blocks",
+                self.blocks.len()
+            )));
+        };
+        let apex = self.plan.apex_field(self.setup.params.layout(), storage)?;
+        apex.fill_from(apex_field)?;
+        self.setup
+            .levels(&|_| {})
+            .block(&apex, &self.plan, block, storage)
+    }
+
+    /// The encoded hierarchy from the apex's output and every block's, in any order.
+    pub fn finish(
+        self,
+        parts: impl IntoIterator<Item = BlockOutput>,
+    ) -> Result<Encoded, CodecError> {
+        let mut records = Vec::new();
+        let mut own_error = HashMap::new();
+        for part in parts {
+            records.extend(part.records);
+            own_error.extend(part.own_errors);
+        }
+        // Every stored diamond's own error is needed to saturate its ancestors'.
+        if let Some(id) = self
+            .setup
+            .stored
+            .iter()
+            .flatten()
+            .find(|id| !own_error.contains_key(id))
+        {
+            return Err(CodecError::invalid(format!(
+                "diamond {id} is in none of the parts given: a block is missing"
+            )));
+        }
+        Ok(self.setup.finish(records, &own_error))
+    }
 }
 
 /// Sets each record's object error to the largest own error of its diamond and every stored
@@ -466,17 +623,7 @@ impl Levels<'_> {
         let layout = self.params.layout();
         let finest = layout.finest_level();
         let cut = plan.cut_level.min(finest);
-        let mut records: Vec<Record> = Vec::new();
-        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
-        let apex = plan.apex_field(layout, storage)?;
-        self.seed_roots(&apex);
-        for level in 0..cut {
-            let ids = &self.stored[level as usize];
-            for (id, record, err) in self.encode_level(&apex, level, ids, &|_| true)? {
-                own_error.insert(id, err);
-                records.extend(record);
-            }
-        }
+        let (apex, (mut records, mut own_error)) = self.apex(storage, plan)?;
         for (index, block) in plan.blocks(layout).into_iter().enumerate() {
             let out = match journal.load(index)? {
                 Some(out) => {
@@ -498,6 +645,29 @@ impl Levels<'_> {
             records.extend(out.records);
         }
         Ok((records, own_error))
+    }
+
+    /// The levels above `plan`'s cut, in the apex field ([`Levels::blocks`]): the field, the
+    /// records and the own errors.
+    fn apex(
+        &self,
+        storage: &TempStorage,
+        plan: &BlockPlan,
+    ) -> Result<(ReconField, LevelOutput), CodecError> {
+        let layout = self.params.layout();
+        let cut = plan.cut_level.min(layout.finest_level());
+        let mut records: Vec<Record> = Vec::new();
+        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
+        let apex = plan.apex_field(layout, storage)?;
+        self.seed_roots(&apex);
+        for level in 0..cut {
+            let ids = &self.stored[level as usize];
+            for (id, record, err) in self.encode_level(&apex, level, ids, &|_| true)? {
+                own_error.insert(id, err);
+                records.extend(record);
+            }
+        }
+        Ok((apex, (records, own_error)))
     }
 
     /// One block of the fine levels ([`Levels::blocks`]): its diamonds' records and errors.
@@ -917,6 +1087,45 @@ mod tests {
         assert!(
             whole == blocks,
             "block encoder differs on {}×{} {opts:?} {plan:?}",
+            grid.width,
+            grid.height
+        );
+        // The same split run as shards would run it: each part from its own encoder (another
+        // process), the apex's field passed as values, the parts put together in reverse.
+        let apex = ShardedEncode::new(grid, None, q, opts, *plan)
+            .unwrap()
+            .apex(&TempStorage::Memory)
+            .unwrap();
+        let count = ShardedEncode::new(grid, None, q, opts, *plan)
+            .unwrap()
+            .block_count();
+        let mut parts: Vec<BlockOutput> = (0..count)
+            .map(|i| {
+                ShardedEncode::new(grid, None, q, opts, *plan)
+                    .unwrap()
+                    .block(&apex.field, i, &TempStorage::Memory)
+                    .unwrap()
+            })
+            .collect();
+        parts.push(apex.output);
+        parts.reverse();
+        let merger = ShardedEncode::new(grid, None, q, opts, *plan).unwrap();
+        if count > 0 {
+            // A missing block is an error, not a repository with holes.
+            let short: Vec<BlockOutput> = parts[..parts.len() - 1].to_vec();
+            let any_owned = parts.last().is_some_and(|p| !p.own_errors.is_empty());
+            if any_owned {
+                let fresh = ShardedEncode::new(grid, None, q, opts, *plan).unwrap();
+                assert!(
+                    fresh.finish(short).is_err(),
+                    "a missing block went unnoticed"
+                );
+            }
+        }
+        let sharded = merger.finish(parts).unwrap();
+        assert!(
+            whole == sharded,
+            "sharded encode differs on {}×{} {opts:?} {plan:?}",
             grid.width,
             grid.height
         );

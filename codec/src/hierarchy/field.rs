@@ -154,6 +154,31 @@ impl ReconField {
         self.cells()[self.index(x, y)].store(v, Ordering::Relaxed);
     }
 
+    /// Every value, row-major.
+    pub(crate) fn to_vec(&self) -> Vec<i32> {
+        self.cells()
+            .iter()
+            .map(|c| c.load(Ordering::Relaxed))
+            .collect()
+    }
+
+    /// Sets every value from `values` (row-major, as [`ReconField::to_vec`] gives them).
+    pub(crate) fn fill_from(&self, values: &[i32]) -> Result<(), CodecError> {
+        let cells = self.cells();
+        if values.len() != cells.len() {
+            return Err(CodecError::invalid(format!(
+                "a field of {} × {} points cannot take {} values",
+                self.width,
+                self.height,
+                values.len()
+            )));
+        }
+        for (c, &v) in cells.iter().zip(values) {
+            c.store(v, Ordering::Relaxed);
+        }
+        Ok(())
+    }
+
     /// Gathers the `N × N` grid of diamond `id`, like [`super::gather`] from its parents'
     /// refinements: the halves whose parent exists are read from the field, a half whose parent
     /// does not exist (a diamond on the domain's edge) is the mirror image of the other across

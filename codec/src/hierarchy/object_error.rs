@@ -37,6 +37,7 @@ fn odd_batch_rows<T>(rows: usize, len: usize) -> usize {
 
 /// The input samples the errors are measured against, with a bound on their magnitude (computed
 /// once per encode) that lets most diamonds be scanned in 32-bit lanes.
+#[derive(Clone, Copy)]
 pub(crate) struct ErrorInput<'a> {
     grid: &'a HeightGrid,
     /// The largest `|value|` of a valid sample.
