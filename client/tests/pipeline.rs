@@ -95,3 +95,53 @@ fn decoding_ahead_draws_what_the_reference_decoder_draws_and_converges_to_the_sa
         );
     }
 }
+
+/// The codec's `refine` benchmark on a repository file: every record refined once, in file
+/// order, on one thread, its grid gathered beforehand (not timed), output samples `(N−1)²` per
+/// record — what `cbdam replay`'s "M cells/s" (in-loop decoding, per second of worker time)
+/// is compared with. `CBDAM_BENCH_REPO=FILE cargo test --release -p cbdam-client --test tests
+/// refine_bench -- --ignored --nocapture`
+#[test]
+#[ignore = "a benchmark: needs CBDAM_BENCH_REPO"]
+fn refine_bench_on_a_repository() {
+    use cbdam_codec::hierarchy::{RefineScratch, Refined};
+    use cbdam_codec::repository::Repository;
+    use std::collections::HashMap;
+    let path = std::env::var("CBDAM_BENCH_REPO").expect("CBDAM_BENCH_REPO=FILE");
+    let repo = Repository::open(Path::new(&path)).unwrap();
+    let decoder = repo.decoder().unwrap();
+    let domain = repo.params().domain;
+    let mut refined: HashMap<_, Refined> = HashMap::new();
+    let mut grids = Vec::new();
+    let mut scratch = RefineScratch::default();
+    for e in repo.entries() {
+        let parents = domain.parents(e.id).map(|p| p.and_then(|p| refined.get(&p)));
+        let grid = decoder.grid_of(e.id, parents);
+        let r = decoder
+            .refine(&grid, repo.record(e.id).unwrap(), &mut scratch)
+            .unwrap();
+        grids.push(grid);
+        refined.insert(e.id, r);
+    }
+    let cells = (domain.n() - 1).pow(2) * repo.entries().len();
+    let mut runs = Vec::new();
+    for _ in 0..5 {
+        let t = std::time::Instant::now();
+        for (e, grid) in repo.entries().iter().zip(&grids) {
+            std::hint::black_box(
+                decoder
+                    .refine(grid, repo.record(e.id).unwrap(), &mut scratch)
+                    .unwrap(),
+            );
+        }
+        runs.push(cells as f64 / t.elapsed().as_secs_f64() / 1e6);
+    }
+    runs.sort_by(f64::total_cmp);
+    println!(
+        "{path}: {} records, refine {:.1} M cells/s (median of 5; min {:.1}, max {:.1})",
+        repo.entries().len(),
+        runs[2],
+        runs[0],
+        runs[4]
+    );
+}

@@ -9,7 +9,11 @@
 //! frame dispatches the most urgent
 //! ready refinements, applies results as they come back while budget remains, and leaves the
 //! rest running; what finishes after the deadline is applied at the start of the next frame, so
-//! a slow decode never stretches a frame. Coarsening is garbage collection: every few frames, refined diamonds with no
+//! a slow decode never stretches a frame. **Between frames the workers keep decoding** (issue
+//! 21's pipelined decoder): at the end of each frame, jobs sized to last until the next one take
+//! the diamonds the view still needs, most urgent first, as far down as their parents' data
+//! exists (decoded, not necessarily refined); their results wait in the decoded cache and a
+//! later frame refines them without waiting, within its budget. Coarsening is garbage collection: every few frames, refined diamonds with no
 //! refined child that the view no longer needs are undone, least needed first, and their decoded
 //! data moves to an LRU cache so that refining them again is free.
 //!
