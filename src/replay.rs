@@ -236,9 +236,7 @@ pub fn fly_observed<S: DataSource>(
         cpu_ms: cpu_rows,
         converged_after,
         converged_after_s,
-        met_target_after_s: stopped_at
-            .zip(met_since)
-            .map(|(t0, t)| (t - t0).max(0.0)),
+        met_target_after_s: stopped_at.zip(met_since).map(|(t0, t)| (t - t0).max(0.0)),
         duration_s: flight.duration(),
         cells_per_side: refiner.layout().n() - 1,
     })

@@ -28,7 +28,11 @@ fn flights() -> Vec<(String, Flight)> {
         })
         .collect();
     out.sort_by(|a, b| a.0.cmp(&b.0));
-    assert!(out.len() >= 2, "the example flights are in {}", dir.display());
+    assert!(
+        out.len() >= 2,
+        "the example flights are in {}",
+        dir.display()
+    );
     out
 }
 
@@ -115,7 +119,9 @@ fn refine_bench_on_a_repository() {
     let mut grids = Vec::new();
     let mut scratch = RefineScratch::default();
     for e in repo.entries() {
-        let parents = domain.parents(e.id).map(|p| p.and_then(|p| refined.get(&p)));
+        let parents = domain
+            .parents(e.id)
+            .map(|p| p.and_then(|p| refined.get(&p)));
         let grid = decoder.grid_of(e.id, parents);
         let r = decoder
             .refine(&grid, repo.record(e.id).unwrap(), &mut scratch)

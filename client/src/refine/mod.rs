@@ -1221,7 +1221,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                         ok &= job.is_none_or(|k| k == j);
                         job = Some(j);
                     } else {
-                        ok &= self.cut_state.cut.is_refined(p) || self.residency.decoded.contains(&p);
+                        ok &=
+                            self.cut_state.cut.is_refined(p) || self.residency.decoded.contains(&p);
                     }
                 }
                 let j = job.unwrap_or_else(|| {
@@ -1535,7 +1536,11 @@ impl Job {
                         .map(|(_, n)| n.clone())
                 })
             });
-            let complete = id.level == 0 || ids.iter().zip(&parents).all(|(i, n)| i.is_some() == n.is_some());
+            let complete = id.level == 0
+                || ids
+                    .iter()
+                    .zip(&parents)
+                    .all(|(i, n)| i.is_some() == n.is_some());
             let t = Instant::now();
             let (result, secs) = if complete {
                 let r = self.refine(id, source, &parents);
