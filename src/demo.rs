@@ -116,6 +116,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             detail: false,
             cut_mib: 1024,
             colour: None,
+            paced: false,
+            no_decode_ahead: false,
         })?;
         let render = |output: Option<PathBuf>, path: Option<PathBuf>, out_dir: Option<PathBuf>| {
             crate::render::run(&RenderArgs {

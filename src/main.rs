@@ -888,6 +888,14 @@ pub struct ReplayArgs {
     /// goes ahead only by coarsening diamonds of smaller screen error elsewhere.
     #[arg(long, default_value_t = 1024)]
     cut_mib: usize,
+    /// Pace the frames at --fps in real time on a local file too (a viewer's timing: the
+    /// workers have the time between frames), not back to back.
+    #[arg(long)]
+    paced: bool,
+    /// Do not decode ahead of the cut between frames (the loop before issue 21's pipelining;
+    /// for comparisons).
+    #[arg(long)]
+    no_decode_ahead: bool,
 }
 
 /// Lets a closed stdout end the process quietly, as `cbdam inspect … | head` expects, instead of

@@ -39,13 +39,14 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
             0 => None,
             m => Some(m.checked_mul(1 << 20).context("--cut-mib is too large")?),
         },
+        decode_ahead: !args.no_decode_ahead,
         ..RefineConfig::default()
     };
     let (source, remote) = terrain_source(&args.repo, args.colour.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
     // Over a network, frames are paced at --fps so that fetches take the time they would take
     // in a viewer; locally nothing waits on I/O and frames run back to back.
-    replay(args, &flight, refiner, remote)
+    replay(args, &flight, refiner, remote || args.paced)
 }
 
 fn replay<S: DataSource>(
@@ -79,6 +80,12 @@ pub struct ReplayRun {
     pub flight_frames: usize,
     /// Settling frames until the cut converged; `None` if it did not within the limit.
     pub converged_after: Option<u64>,
+    /// Wall seconds from the end of the last flight frame (the camera stopping) to the end of
+    /// the frame that converged; `None` if it did not.
+    pub converged_after_s: Option<f64>,
+    /// Wall seconds from the camera stopping to the end of the first frame from which on every
+    /// frame met the target; `None` if the last frame did not.
+    pub met_target_after_s: Option<f64>,
     /// The flight's duration, seconds.
     pub duration_s: f64,
     /// Grid intervals per diamond side (N − 1), to turn decoded diamonds into cells.
@@ -157,6 +164,11 @@ pub fn fly_observed<S: DataSource>(
     let mut rows: Vec<FrameStats> = Vec::new();
     let mut cpu_rows: Vec<f64> = Vec::new();
     let mut converged_after = None;
+    let mut converged_after_s = None;
+    // Wall time at the end of the last flight frame, and of the first frame of the current run
+    // of frames at target.
+    let mut stopped_at: Option<f64> = None;
+    let mut met_since: Option<f64> = None;
     let mut frame = 0u64;
     loop {
         let settling = frame >= flight_frames;
@@ -198,12 +210,22 @@ pub fn fly_observed<S: DataSource>(
             s.cut_bytes,
             u8::from(s.memory_limited),
         )?;
+        let now = start.elapsed().as_secs_f64();
+        if !settling && frame + 1 == flight_frames {
+            stopped_at = Some(now);
+        }
+        met_since = match (s.met_target, met_since) {
+            (false, _) => None,
+            (true, None) => Some(now),
+            (true, kept) => kept,
+        };
         observe(refiner, &s);
         rows.push(s);
         cpu_rows.push(cpu_ms);
         frame += 1;
         if settling && s.converged {
             converged_after = Some(frame - flight_frames);
+            converged_after_s = stopped_at.map(|t0| now - t0);
             break;
         }
     }
@@ -213,6 +235,8 @@ pub fn fly_observed<S: DataSource>(
         rows,
         cpu_ms: cpu_rows,
         converged_after,
+        converged_after_s,
+        met_target_after_s: stopped_at.zip(met_since).map(|(t0, t)| (t - t0).max(0.0)),
         duration_s: flight.duration(),
         cells_per_side: refiner.layout().n() - 1,
     })
@@ -267,6 +291,12 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
             decoded as f64 / decode_s,
             decoded as f64 * n1 * n1 / decode_s / 1e6
         );
+        let ahead: usize = run.rows.iter().map(|s| s.decoded_ahead).sum();
+        let used: usize = run.rows.iter().map(|s| s.refined_ahead).sum();
+        let refinements: usize = run.rows.iter().map(|s| s.refinements).sum();
+        println!(
+            "decoded ahead of the cut: {ahead} diamonds, {used} of them refined since; {refinements} refinements in all"
+        );
     }
     let flight_bytes = run.flight_bytes();
     println!(
@@ -278,12 +308,21 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     );
     match run.converged_after {
         Some(n) => println!(
-            "converged {n} frames after the flight: {} diamonds refined, {} triangles, max error {:.3} px",
-            last.refined, last.triangles, last.max_screen_error_px
+            "converged {n} frames ({:.3} s wall; target met after {:.3} s) after the flight: {} diamonds refined, {} triangles, max error {:.3} px",
+            run.converged_after_s.unwrap_or(f64::NAN),
+            run.met_target_after_s.unwrap_or(f64::NAN),
+            last.refined,
+            last.triangles,
+            last.max_screen_error_px
         ),
         None => println!(
-            "not converged within {} frames after the flight (max error {:.3} px)",
-            args.max_settle_frames, last.max_screen_error_px
+            "not converged within {} frames after the flight (max error {:.3} px{})",
+            args.max_settle_frames,
+            last.max_screen_error_px,
+            match run.met_target_after_s {
+                Some(t) => format!("; target met after {t:.3} s wall"),
+                None => String::new(),
+            }
         ),
     }
     if memory_limited > 0 {

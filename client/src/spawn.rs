@@ -12,6 +12,12 @@ pub trait Spawner {
     fn spawn<F: FnOnce() + Send + 'static>(&self, job: F);
     /// How many jobs can run at once: the refiner keeps about twice that many in flight.
     fn parallelism(&self) -> usize;
+    /// Whether jobs run in the background, so that work handed over at the end of a frame
+    /// overlaps the time until the next one (the refiner decodes ahead speculatively only
+    /// then). True unless jobs run on the calling thread.
+    fn runs_in_background(&self) -> bool {
+        true
+    }
 }
 
 /// Rayon's global thread pool.
@@ -41,6 +47,9 @@ impl Spawner for Inline {
     }
     fn parallelism(&self) -> usize {
         1
+    }
+    fn runs_in_background(&self) -> bool {
+        false
     }
 }
 

@@ -19,7 +19,7 @@ use glam::DVec3;
 
 /// A 200 × 150 terrain (ridges, a valley and noise) with 9 × 9 grids: levels 0…10, a data
 /// rectangle smaller than the domain (so some diamonds are not stored).
-fn repository() -> Arc<Repository> {
+pub(crate) fn repository() -> Arc<Repository> {
     let (w, h) = (200usize, 150usize);
     let mut state = 0x2545_f491_4f6c_dd1d_u64;
     let metres: Vec<f64> = (0..w * h)
@@ -97,7 +97,7 @@ fn run_until_converged<S: cbdam_client::access::DataSource>(
 /// error, saturated over its stored descendants (found here by explicit search, not the
 /// refiner's bottom-up pass), projected at the distance of the union of its descendants' boxes,
 /// exceeds the target, and that box meets the frustum.
-fn brute_force(repo: &Repository, cam: &Camera, target: f64) -> HashSet<DiamondId> {
+pub(crate) fn brute_force(repo: &Repository, cam: &Camera, target: f64) -> HashSet<DiamondId> {
     let world = World::of_repository(repo);
     let domain = repo.params().domain;
     let layout = *domain.layout();
@@ -130,7 +130,7 @@ fn brute_force(repo: &Repository, cam: &Camera, target: f64) -> HashSet<DiamondI
     out
 }
 
-fn refined_set(cut: &Cut) -> HashSet<DiamondId> {
+pub(crate) fn refined_set(cut: &Cut) -> HashSet<DiamondId> {
     cut.refined().collect()
 }
 

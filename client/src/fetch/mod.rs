@@ -42,7 +42,16 @@ pub struct FetchOptions {
     pub max_batch: usize,
     /// Most requests in flight at once.
     pub max_in_flight: usize,
-    /// Time-out of one request.
+    /// Bytes of records in flight at most what the link was measured to deliver in this long
+    /// (but always two requests): a slow link is not committed to seconds of requests whose
+    /// order can no longer follow the view, and none of them waits long enough in the link's
+    /// queue to time out. A batch is cut to half that many bytes.
+    pub queue_seconds: f64,
+    /// The byte limit of records in flight before the link's rate is measured.
+    pub initial_window: u64,
+    /// Longest silence of one request: connecting, or between two reads of its response (a
+    /// slow link that keeps delivering never times out; the browser transport has no such
+    /// timer and uses it as the time-out of the whole request).
     pub timeout: Duration,
     /// First retry delay; doubled per failure of the same record, up to `max_backoff`.
     pub initial_backoff: Duration,
@@ -59,6 +68,8 @@ impl Default for FetchOptions {
         Self {
             max_batch: 64,
             max_in_flight: 8,
+            queue_seconds: 0.5,
+            initial_window: 256 << 10,
             timeout: Duration::from_secs(5),
             initial_backoff: Duration::from_millis(50),
             max_backoff: Duration::from_secs(2),
@@ -147,6 +158,60 @@ struct State<H> {
     delivered: HashSet<DiamondId>,
     next_batch: u64,
     shutdown: bool,
+    /// The link's measured rate and the bytes in flight against it.
+    window: Window,
+}
+
+/// A byte window over the requests in flight, sized by the link's measured delivery rate (the
+/// desktop transport's; the browser's keeps to [`FetchOptions::max_in_flight`]).
+#[derive(Default)]
+#[cfg_attr(target_arch = "wasm32", allow(dead_code))]
+struct Window {
+    /// Record bytes of the requests in flight.
+    in_flight: u64,
+    /// Per request in flight: its record bytes, when it started, and `delivered` then.
+    started: HashMap<u64, (u64, Instant, u64)>,
+    /// Bytes delivered by finished requests so far.
+    delivered: u64,
+    /// Smoothed delivery rate, bytes per second; 0 until measured.
+    rate: f64,
+}
+
+#[cfg_attr(target_arch = "wasm32", allow(dead_code))]
+impl Window {
+    /// The byte limit of records in flight.
+    fn limit(&self, options: &FetchOptions) -> u64 {
+        if self.rate > 0.0 {
+            ((self.rate * options.queue_seconds) as u64).max(16 << 10)
+        } else {
+            options.initial_window
+        }
+    }
+
+    fn start(&mut self, batch: u64, bytes: u64, now: Instant) {
+        self.in_flight += bytes;
+        self.started.insert(batch, (bytes, now, self.delivered));
+    }
+
+    /// A request ended: `received` bytes if it succeeded (a rate sample: everything delivered
+    /// while it was in flight over its duration), `None` if it failed or was cancelled.
+    fn end(&mut self, batch: u64, received: Option<u64>, now: Instant) {
+        let Some((bytes, t0, delivered_then)) = self.started.remove(&batch) else {
+            return;
+        };
+        self.in_flight -= bytes;
+        let Some(received) = received else { return };
+        self.delivered += received;
+        let secs = now.saturating_duration_since(t0).as_secs_f64();
+        if secs > 0.0 && received > 0 {
+            let sample = (self.delivered - delivered_then) as f64 / secs;
+            self.rate = if self.rate > 0.0 {
+                self.rate + 0.25 * (sample - self.rate)
+            } else {
+                sample
+            };
+        }
+    }
 }
 
 impl<H> Default for State<H> {
@@ -159,11 +224,26 @@ impl<H> Default for State<H> {
             delivered: HashSet::new(),
             next_batch: 0,
             shutdown: false,
+            window: Window::default(),
         }
     }
 }
 
 impl<H> State<H> {
+    #[cfg_attr(target_arch = "wasm32", allow(dead_code))]
+    /// Whether another request may start: a free slot, and room in the byte window (always
+    /// for the first two).
+    fn may_start(&self, options: &FetchOptions) -> bool {
+        self.batches.len() < options.max_in_flight
+            && (self.batches.len() < 2 || self.window.in_flight < self.window.limit(options))
+    }
+
+    #[cfg_attr(target_arch = "wasm32", allow(dead_code))]
+    /// Most record bytes in the next request.
+    fn batch_bytes(&self, options: &FetchOptions) -> u64 {
+        (self.window.limit(options) / 2).max(1)
+    }
+
     /// The wanted records neither in flight nor backing off, most urgent first, and the earliest
     /// backoff expiry among the others.
     fn ready(&self, now: Instant) -> (VecDeque<DiamondId>, Option<Instant>) {
@@ -208,10 +288,20 @@ fn next_batch(
     endpoint: &Endpoint,
     head: &RepositoryHead,
     options: &FetchOptions,
+    max_bytes: u64,
 ) -> Vec<DiamondId> {
     match endpoint {
         Endpoint::Server { .. } => {
-            let n = ready.len().min(options.max_batch);
+            let mut bytes = 0;
+            let mut n = 0;
+            while n < ready.len().min(options.max_batch) {
+                let r = record_range(head, ready[n]);
+                if n > 0 && bytes + (r.end - r.start) > max_bytes {
+                    break;
+                }
+                bytes += r.end - r.start;
+                n += 1;
+            }
             ready.drain(..n).collect()
         }
         Endpoint::File { .. } => {
@@ -225,6 +315,7 @@ fn next_batch(
                 let r = record_range(head, id);
                 if scanned < 4 * options.max_batch
                     && ids.len() < options.max_batch
+                    && hi.max(r.end) - lo.min(r.start) <= max_bytes
                     && r.start <= hi + gap
                     && r.end + gap >= lo
                 {
@@ -239,6 +330,17 @@ fn next_batch(
             ids
         }
     }
+}
+
+/// Record bytes of `ids`.
+#[cfg_attr(target_arch = "wasm32", allow(dead_code))]
+fn record_bytes(head: &RepositoryHead, ids: &[DiamondId]) -> u64 {
+    ids.iter()
+        .map(|&id| {
+            let r = record_range(head, id);
+            r.end - r.start
+        })
+        .sum()
 }
 
 fn record_range(head: &RepositoryHead, id: DiamondId) -> std::ops::Range<u64> {
@@ -510,6 +612,32 @@ mod tests {
 
     fn id(l: u8, x: u32, y: u32) -> DiamondId {
         DiamondId::new(l, x, y)
+    }
+
+    #[test]
+    fn the_byte_window_follows_the_measured_delivery_rate() {
+        let o = FetchOptions::default();
+        let mut w = Window::default();
+        let t0 = Instant::now();
+        assert_eq!(w.limit(&o), o.initial_window, "before any measurement");
+        w.start(1, 100_000, t0);
+        w.start(2, 100_000, t0);
+        assert_eq!(w.in_flight, 200_000);
+        // The first delivers 100 kB in 1 s: 100 kB/s, half a second's worth in flight at most.
+        w.end(1, Some(100_000), t0 + Duration::from_secs(1));
+        assert!((w.rate - 100_000.0).abs() < 1.0, "{}", w.rate);
+        assert_eq!(w.limit(&o), 50_000);
+        // Everything delivered while the second was in flight counts: 200 kB in 4 s.
+        w.end(2, Some(100_000), t0 + Duration::from_secs(4));
+        assert!((w.rate - (100_000.0 + 0.25 * (50_000.0 - 100_000.0))).abs() < 1.0);
+        // A failed or cancelled request frees its bytes and is no sample.
+        w.start(3, 7, t0);
+        let rate = w.rate;
+        w.end(3, None, t0 + Duration::from_secs(9));
+        assert_eq!((w.in_flight, w.rate), (0, rate));
+        // A very slow link still gets a usable window.
+        w.rate = 10.0;
+        assert_eq!(w.limit(&o), 16 << 10);
     }
 
     /// Range responses: only 206 is accepted; the total comes from `Content-Range`; a range

@@ -16,7 +16,7 @@ use web_time::Instant;
 use super::{
     Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, batch_request_body,
     batch_span, check_batch, classify, expect_partial, fetch_head_with, http_error, list_url,
-    next_batch, parse_frames, range_total, single_repository, split_span,
+    next_batch, parse_frames, range_total, record_bytes, single_repository, split_span,
 };
 
 struct Shared {
@@ -72,7 +72,8 @@ impl RemoteFetcher {
                 message: format!("cannot start the network runtime: {e}"),
             })?;
         let client = reqwest::Client::builder()
-            .timeout(options.timeout)
+            .connect_timeout(options.timeout)
+            .read_timeout(options.timeout)
             .build()
             .map_err(|e| RemoteError::Http {
                 url: url.to_owned(),
@@ -126,13 +127,15 @@ impl RemoteFetcher {
             wanted,
             batches,
             in_flight,
+            window,
             ..
         } = &mut *s;
-        batches.retain(|(_, ids, handle)| {
+        batches.retain(|(batch, ids, handle)| {
             if ids.iter().any(|id| wanted.contains_key(id)) {
                 return true;
             }
             handle.abort();
+            window.end(*batch, None, Instant::now());
             for id in ids {
                 in_flight.remove(id);
             }
@@ -270,13 +273,22 @@ async fn schedule(shared: Arc<Shared>) {
 /// Starts requests while slots are free; returns the earliest backoff expiry among wanted records.
 fn start_batches(shared: &Arc<Shared>, s: &mut State<AbortHandle>) -> Option<Instant> {
     let (mut ready, next_retry) = s.ready(Instant::now());
-    while s.batches.len() < shared.options.max_in_flight && !ready.is_empty() {
-        let ids = next_batch(&mut ready, &shared.endpoint, &shared.head, &shared.options);
+    while s.may_start(&shared.options) && !ready.is_empty() {
+        let max_bytes = s.batch_bytes(&shared.options);
+        let ids = next_batch(
+            &mut ready,
+            &shared.endpoint,
+            &shared.head,
+            &shared.options,
+            max_bytes,
+        );
         for id in &ids {
             s.in_flight.insert(*id);
         }
         let batch = s.next_batch;
         s.next_batch += 1;
+        s.window
+            .start(batch, record_bytes(&shared.head, &ids), Instant::now());
         let task = tokio::spawn(fetch_batch(shared.clone(), batch, ids.clone()));
         s.batches.push((batch, ids, task.abort_handle()));
         shared.stats.in_flight.fetch_add(1, Ordering::Relaxed);
@@ -297,6 +309,10 @@ async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>) {
         return;
     };
     s.batches.swap_remove(pos);
+    let received = failed
+        .is_empty()
+        .then(|| delivered.iter().map(|(_, r)| r.len() as u64).sum());
+    s.window.end(batch, received, Instant::now());
     shared.stats.in_flight.fetch_sub(1, Ordering::Relaxed);
     for id in &ids {
         s.in_flight.remove(id);

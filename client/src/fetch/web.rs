@@ -173,7 +173,13 @@ fn start_batches(shared: &Rc<Shared>) {
     }
     let (mut ready, _) = s.ready(Instant::now());
     while s.batches.len() < shared.options.max_in_flight && !ready.is_empty() {
-        let ids = next_batch(&mut ready, &shared.endpoint, &shared.head, &shared.options);
+        let ids = next_batch(
+            &mut ready,
+            &shared.endpoint,
+            &shared.head,
+            &shared.options,
+            u64::MAX,
+        );
         let Ok(controller) = AbortController::new() else {
             // Without an AbortController (very old browsers) nothing can be fetched safely.
             break;

@@ -9,7 +9,11 @@
 //! frame dispatches the most urgent
 //! ready refinements, applies results as they come back while budget remains, and leaves the
 //! rest running; what finishes after the deadline is applied at the start of the next frame, so
-//! a slow decode never stretches a frame. Coarsening is garbage collection: every few frames, refined diamonds with no
+//! a slow decode never stretches a frame. **Between frames the workers keep decoding** (issue
+//! 21's pipelined decoder): at the end of each frame, jobs sized to last until the next one take
+//! the diamonds the view still needs, most urgent first, as far down as their parents' data
+//! exists (decoded, not necessarily refined); their results wait in the decoded cache and a
+//! later frame refines them without waiting, within its budget. Coarsening is garbage collection: every few frames, refined diamonds with no
 //! refined child that the view no longer needs are undone, least needed first, and their decoded
 //! data moves to an LRU cache so that refining them again is free.
 //!
@@ -69,6 +73,18 @@ const OVERRUN_DECAY: f64 = 0.9;
 /// Prefetched diamonds are requested with their error scaled by this, so that they never
 /// overtake what the current view needs.
 const PREFETCH_PRIORITY: f64 = 1.0 / 16.0;
+/// Fewest and most diamonds one speculative decode job refines, parents before children. In
+/// between, a job is sized to keep its worker busy until the next frame (the interval between
+/// frames over the time a decode takes, both smoothed), so that a job still running does not
+/// hold up the next frame's urgent decodes for long.
+const SPECULATIVE_STEPS: std::ops::RangeInclusive<usize> = 4..=128;
+/// Most diamonds decoded ahead of the cut and not yet refined (in the decoded cache or being
+/// decoded): a few frames' worth of refinements (a frame applies about a hundred within a
+/// 2 ms budget), so that a moving view does not have the workers decode far more than the cut
+/// can take before the view moves on (about 34 MB of nodes at N = 65).
+const AHEAD_LIMIT: usize = 256;
+/// Weight of the newest sample in the smoothed frame interval and decode time.
+const SMOOTHING: f64 = 0.1;
 
 /// Settings of the refinement loop.
 #[derive(Clone, Debug)]
@@ -100,6 +116,9 @@ pub struct RefineConfig {
     /// Vertical exaggeration: heights (and so boxes and object-space errors) are scaled by
     /// this, as [`exaggerated`] scales the renderer's world. 1 by default.
     pub exaggeration: f64,
+    /// Between frames, keep the workers decoding what the view still needs, ahead of the cut
+    /// (on by default; only with a spawner whose jobs run in the background).
+    pub decode_ahead: bool,
 }
 
 impl Default for RefineConfig {
@@ -117,6 +136,7 @@ impl Default for RefineConfig {
             max_failures: 3,
             detail: None,
             exaggeration: 1.0,
+            decode_ahead: true,
         }
     }
 }
@@ -151,6 +171,10 @@ pub struct FrameStats {
     pub triangles: u64,
     /// Refinements this frame.
     pub refinements: usize,
+    /// Of `decoded`, the diamonds decoded ahead of the cut (speculatively, between frames).
+    pub decoded_ahead: usize,
+    /// Of `refinements`, those that took a diamond decoded ahead.
+    pub refined_ahead: usize,
     /// Coarsenings this frame.
     pub coarsenings: usize,
     /// The budget ran out with work left.
@@ -283,8 +307,21 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     /// slow tail is remembered for a while (the budget is a bound on every frame, not on the
     /// average).
     overrun: Duration,
-    /// Diamonds being refined on worker threads.
+    /// Diamonds being refined on worker threads (speculative ones included).
     decoding: IdSet,
+    /// The part of `decoding` decoded ahead of the cut by speculative jobs: their results go to
+    /// the decoded cache, from which a later refinement takes them at no cost.
+    speculative: IdSet,
+    /// Speculative jobs dispatched and not finished.
+    speculative_jobs: usize,
+    /// Diamonds decoded ahead that came back and are not refined yet (some may have left the
+    /// decoded cache since: pruned when speculating).
+    ahead: IdSet,
+    /// When the last frame started, and the smoothed interval between frames, seconds.
+    last_frame_start: Option<Instant>,
+    frame_interval_s: f64,
+    /// Smoothed worker time of one decode, seconds.
+    decode_s: f64,
     done_tx: Sender<Done>,
     done_rx: Receiver<Done>,
 }
@@ -386,6 +423,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             last_camera: None,
             overrun: Duration::ZERO,
             decoding: IdSet::default(),
+            speculative: IdSet::default(),
+            speculative_jobs: 0,
+            ahead: IdSet::default(),
+            last_frame_start: None,
+            frame_interval_s: 1.0 / 30.0,
+            decode_s: 1e-3,
             done_tx,
             done_rx,
             config,
@@ -736,6 +779,11 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// prefetch, cancel what is no longer needed, and every few frames coarsen.
     pub fn frame(&mut self, camera: &Camera) -> FrameStats {
         let start = Instant::now();
+        if let Some(last) = self.last_frame_start {
+            let dt = start.duration_since(last).as_secs_f64();
+            self.frame_interval_s += SMOOTHING * (dt - self.frame_interval_s);
+        }
+        self.last_frame_start = Some(start);
         // At most a quarter of the budget is held back for the tail, so refinement always gets
         // most of it.
         let deadline = self
@@ -758,8 +806,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // What the budget did not reach still gets requested, then prefetch (neither can want
         // anything from a source that always has everything at hand).
         let may_want = !self.source.always_available();
+        let leftovers = heap.into_vec();
         if may_want {
-            for c in heap.into_vec() {
+            for c in &leftovers {
                 if !self.cut_state.cut.is_refined(c.id) {
                     self.want_plan(c.id, c.err, &mut wanted);
                 }
@@ -771,6 +820,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 .is_multiple_of(u64::from(self.config.gc_interval))
         {
             stats.coarsenings += self.collect_garbage(&view);
+        }
+        // The workers keep decoding what the view still needs until the next frame.
+        if self.config.decode_ahead && self.spawner.runs_in_background() {
+            self.speculate(&view, leftovers);
         }
         // One pass over the final cut's candidates serves prefetching and the frame's figures.
         let candidates = self.candidate_list();
@@ -843,9 +896,16 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let max_in_flight = 2 * self.spawner.parallelism().max(1);
         let mut waiting: Vec<Candidate> = Vec::new();
         let mut coarsening = None;
+        let past = |d: Option<Instant>| d.is_some_and(|d| Instant::now() >= d);
         loop {
-            // Dispatch the most urgent ready refinements to the workers.
-            while self.decoding.len() < max_in_flight {
+            // Dispatch the most urgent ready refinements to the workers. Refinements decoded
+            // ahead (the decoded cache) are applied here at once, so the deadline is checked
+            // here too.
+            while self.decoding.len() - self.speculative.len() < max_in_flight {
+                if past(deadline) {
+                    stats.budget_exhausted = true;
+                    break;
+                }
                 let Some(c) = heap.pop() else { break };
                 if self.cut_state.cut.is_refined(c.id) {
                     continue;
@@ -881,12 +941,15 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                             break;
                         }
                         Need::Ready(Source::Cached(node)) if parents_done => {
-                            // Decoded before and coarsened since: refining again is free.
+                            // Decoded before (ahead of the cut, or coarsened since): refining
+                            // is free.
                             self.apply(
                                 Done {
                                     id: d,
-                                    result: Ok(node),
+                                    result: Some(Ok(node)),
                                     secs: None,
+                                    speculative: false,
+                                    last: false,
                                 },
                                 view,
                                 heap,
@@ -905,9 +968,11 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                     waiting.push(c);
                 }
             }
-            if self.decoding.is_empty() {
-                // Nothing in flight and nothing more could be started: locally optimal for
-                // the data at hand.
+            let regular = self.decoding.len() - self.speculative.len();
+            if stats.budget_exhausted || (regular == 0 && waiting.is_empty()) {
+                // Nothing in flight that this frame waits for and nothing more could be
+                // started: locally optimal for the data at hand (speculative decodes still
+                // running are applied when they come back).
                 break;
             }
             let done = self.next_done(deadline);
@@ -1073,30 +1138,147 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
     /// Starts refining `id` (whose parents are refined) on a worker thread.
     fn dispatch(&mut self, id: DiamondId, source: Source) {
-        let parents = self
+        let given = self
             .domain
             .parents(id)
-            .map(|p| p.map(|p| self.cut_state.nodes[&p].clone()));
+            .into_iter()
+            .flatten()
+            .map(|p| (p, self.cut_state.nodes[&p].clone()))
+            .collect();
+        self.dispatch_job(vec![(id, source)], given, false);
+    }
+
+    /// Starts one job on a worker thread: `steps` refined in order, each step's parents found
+    /// among the earlier steps or in `given`.
+    fn dispatch_job(
+        &mut self,
+        steps: Vec<(DiamondId, Source)>,
+        given: Vec<(DiamondId, Arc<Node>)>,
+        speculative: bool,
+    ) {
+        for &(id, _) in &steps {
+            self.decoding.insert(id);
+            if speculative {
+                self.speculative.insert(id);
+            }
+        }
+        if speculative {
+            self.speculative_jobs += 1;
+        }
         let job = Job {
             decoder: self.decoder.clone(),
             drape: self.drape.clone(),
             domain: self.domain,
-            parents,
+            given,
             shift: self.shift,
             seed: self.config.detail.map_or(0, |d| d.seed),
         };
         let tx = self.done_tx.clone();
-        self.decoding.insert(id);
-        self.spawner.spawn(move || {
-            let t = Instant::now();
-            let result = job.refine(id, source);
-            // The refiner may be gone; then nobody wants the result.
-            let _ = tx.send(Done {
-                id,
-                result,
-                secs: Some(t.elapsed().as_secs_f64()),
-            });
-        });
+        self.spawner.spawn(move || job.run(steps, &tx, speculative));
+    }
+
+    /// Frame step, after the refinement loop: hands the workers the refinements the view still
+    /// needs, so that they decode until the next frame instead of idling. From the most urgent
+    /// `leftovers` (refinement candidates the budget did not reach) down, most urgent first, it
+    /// takes every diamond that violates the target in `view` and whose parents' data exists
+    /// (refined, decoded ahead, or taken earlier in this pass: it does not need the cut),
+    /// followed by its children. Each job refines its diamonds in that order; a diamond goes
+    /// to the job holding its parents (skipped if they are in two), else to the least loaded.
+    /// The results go to the decoded cache; the next frames' refinements take them from there
+    /// without waiting. Because the metric is monotone (a child's error is at most its
+    /// parents'), parents come before their children, and what a still view speculates is
+    /// exactly what its converged cut refines: nothing is decoded in vain unless the view moves.
+    fn speculate(&mut self, view: &View, leftovers: Vec<Candidate>) {
+        let max_jobs = self.spawner.parallelism().max(1);
+        let free = max_jobs.saturating_sub(self.speculative_jobs);
+        if free == 0 {
+            return;
+        }
+        let per_job = (self.frame_interval_s / self.decode_s.max(1e-6)) as usize;
+        let max_steps = per_job.clamp(*SPECULATIVE_STEPS.start(), *SPECULATIVE_STEPS.end());
+        let decoded = &self.residency.decoded;
+        self.ahead.retain(|id| decoded.contains(id));
+        let room = AHEAD_LIMIT.saturating_sub(self.ahead.len() + self.speculative.len());
+        let max_taken = (max_steps * free).min(room);
+        struct Planned {
+            steps: Vec<(DiamondId, Source)>,
+            given: Vec<(DiamondId, Arc<Node>)>,
+        }
+        let mut jobs: Vec<Planned> = (0..free)
+            .map(|_| Planned {
+                steps: Vec::new(),
+                given: Vec::new(),
+            })
+            .collect();
+        // Which job refines a diamond taken in this pass; decoded ones (cut, cache) are
+        // looked up when a job needs them.
+        let mut job_of: IdMap<usize> = IdMap::default();
+        let mut seen = IdSet::default();
+        let mut frontier = BinaryHeap::from(leftovers);
+        let mut taken = 0;
+        while let Some(Candidate { id, .. }) = frontier.pop() {
+            if taken >= max_taken {
+                break;
+            }
+            if !seen.insert(id) || self.cut_state.cut.is_refined(id) || self.decoding.contains(&id)
+            {
+                continue;
+            }
+            let decoded = self.residency.decoded.contains(&id);
+            if !decoded {
+                // The job of the parents taken in this pass, if any; the others must be at
+                // hand.
+                let mut job = None;
+                let mut ok = true;
+                for p in self.domain.parents(id).into_iter().flatten() {
+                    if let Some(&j) = job_of.get(&p) {
+                        ok &= job.is_none_or(|k| k == j);
+                        job = Some(j);
+                    } else {
+                        ok &=
+                            self.cut_state.cut.is_refined(p) || self.residency.decoded.contains(&p);
+                    }
+                }
+                let j = job.unwrap_or_else(|| {
+                    (0..free)
+                        .min_by_key(|&j| jobs[j].steps.len())
+                        .expect("at least one job")
+                });
+                if !ok || jobs[j].steps.len() >= max_steps {
+                    continue;
+                }
+                let source = match self.need(id) {
+                    Need::Ready(Source::Cached(_)) | Need::Missing | Need::Impossible => continue,
+                    Need::Ready(source) => source,
+                };
+                for p in self.domain.parents(id).into_iter().flatten() {
+                    if job_of.contains_key(&p) || jobs[j].given.iter().any(|(g, _)| *g == p) {
+                        continue;
+                    }
+                    let node = self
+                        .cut_state
+                        .nodes
+                        .get(&p)
+                        .or_else(|| self.residency.decoded.get(&p))
+                        .cloned()
+                        .expect("checked above");
+                    jobs[j].given.push((p, node));
+                }
+                jobs[j].steps.push((id, source));
+                job_of.insert(id, j);
+                taken += 1;
+            }
+            for k in self.domain.children(id).into_iter().flatten() {
+                if let Some(err) = self.violation(k, view) {
+                    frontier.push(Candidate { err, id: k });
+                }
+            }
+        }
+        for job in jobs {
+            if !job.steps.is_empty() {
+                self.dispatch_job(job.steps, job.given, true);
+            }
+        }
     }
 
     /// Puts a finished refinement into the cut, or into the cache if the cut moved on (a
@@ -1109,17 +1291,26 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         stats: &mut FrameStats,
     ) {
         let id = done.id;
+        if done.speculative {
+            self.speculative.remove(&id);
+            if done.last {
+                self.speculative_jobs -= 1;
+            }
+        }
         self.decoding.remove(&id);
         if let Some(secs) = done.secs {
             stats.decode_ms += secs * 1e3;
             stats.decoded += 1;
+            self.decode_s += SMOOTHING * (secs - self.decode_s);
         }
         let node = match done.result {
-            Ok(node) => node,
-            Err(e) => {
+            Some(Ok(node)) => node,
+            Some(Err(e)) => {
                 self.log_failure(id, format!("decoding {id} failed: {e}"));
                 return;
             }
+            // Not decoded: a step before it in its job failed.
+            None => return,
         };
         let parents_refined = self
             .domain
@@ -1127,12 +1318,23 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .into_iter()
             .flatten()
             .all(|p| self.cut_state.cut.is_refined(p));
-        if self.cut_state.cut.is_refined(id) || !parents_refined {
+        // Decoded ahead: into the cache, from which the refinement loop takes it (within its
+        // budget and the cut's memory limit).
+        if done.speculative {
+            self.ahead.insert(id);
+            if done.secs.is_some() {
+                stats.decoded_ahead += 1;
+            }
+        }
+        if done.speculative || self.cut_state.cut.is_refined(id) || !parents_refined {
             let bytes = node.bytes();
             self.residency.decoded.insert(id, node, bytes);
             return;
         }
         self.residency.decoded.remove(&id);
+        if self.ahead.remove(&id) {
+            stats.refined_ahead += 1;
+        }
         self.residency.cut_bytes += node.bytes();
         if let Some(old) = self.cut_state.nodes.insert(id, node) {
             self.residency.cut_bytes -= old.bytes();
@@ -1200,7 +1402,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         };
         // Worst case: every node with all four child halves and nodata masks.
         let node = Node::bytes_for(self.domain.n(), 4, self.drape.is_some()) * 5 / 4;
-        let fits = |me: &Self| me.residency.cut_bytes + (me.decoding.len() + 1) * node <= limit;
+        let fits = |me: &Self| {
+            let regular = me.decoding.len() - me.speculative.len();
+            me.residency.cut_bytes + (regular + 1) * node <= limit
+        };
         if fits(self) {
             return true;
         }
@@ -1306,23 +1511,77 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 /// A finished (or failed) refinement coming back from a worker.
 struct Done {
     id: DiamondId,
-    result: Result<Arc<Node>, CodecError>,
+    /// `None`: not decoded, because a step before it in its job failed.
+    result: Option<Result<Arc<Node>, CodecError>>,
     /// Worker time; `None` when nothing was decoded (served from the cache).
     secs: Option<f64>,
+    /// Decoded ahead of the cut by a speculative job.
+    speculative: bool,
+    /// The last step of its job.
+    last: bool,
 }
 
-/// What a worker needs to refine one diamond: owned, so it outlives the frame.
+/// The parents' nodes of a diamond being refined, in [`Domain::parents`] order.
+type ParentNodes = [Option<Arc<Node>>; 2];
+
+/// What a worker needs to refine diamonds: owned, so it outlives the frame.
 struct Job {
     decoder: Arc<Decoder>,
     drape: Option<Arc<Drape>>,
     domain: Domain,
-    parents: [Option<Arc<Node>>; 2],
+    /// Nodes of the steps' parents that are not steps themselves.
+    given: Vec<(DiamondId, Arc<Node>)>,
     shift: u32,
     seed: u64,
 }
 
 impl Job {
-    fn refine(&self, id: DiamondId, source: Source) -> Result<Arc<Node>, CodecError> {
+    /// Refines `steps` in order (each step's parents are earlier steps or given), sending each
+    /// result as soon as it is made. A step whose parent failed is skipped.
+    fn run(mut self, steps: Vec<(DiamondId, Source)>, tx: &Sender<Done>, speculative: bool) {
+        let count = steps.len();
+        for (i, (id, source)) in steps.into_iter().enumerate() {
+            let ids = self.domain.parents(id);
+            let parents: ParentNodes = ids.map(|p| {
+                p.and_then(|p| {
+                    self.given
+                        .iter()
+                        .find(|(g, _)| *g == p)
+                        .map(|(_, n)| n.clone())
+                })
+            });
+            let complete = id.level == 0
+                || ids
+                    .iter()
+                    .zip(&parents)
+                    .all(|(i, n)| i.is_some() == n.is_some());
+            let t = Instant::now();
+            let (result, secs) = if complete {
+                let r = self.refine(id, source, &parents);
+                (Some(r), Some(t.elapsed().as_secs_f64()))
+            } else {
+                (None, None)
+            };
+            if let Some(Ok(node)) = &result {
+                self.given.push((id, node.clone()));
+            }
+            // The refiner may be gone; then nobody wants the result.
+            let _ = tx.send(Done {
+                id,
+                result,
+                secs,
+                speculative,
+                last: i + 1 == count,
+            });
+        }
+    }
+
+    fn refine(
+        &self,
+        id: DiamondId,
+        source: Source,
+        parents: &ParentNodes,
+    ) -> Result<Arc<Node>, CodecError> {
         match source {
             Source::Cached(node) => Ok(node),
             Source::Record(bytes) => {
@@ -1330,14 +1589,14 @@ impl Job {
                     Some(_) => coloured::split(&bytes)?,
                     None => (&bytes[..], &[][..]),
                 };
-                let grid = self.grid_of(id);
+                let grid = self.grid_of(id, parents);
                 let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, elevation, s))?;
-                let c = self.refine_colour(id, colour)?;
+                let c = self.refine_colour(id, colour, parents)?;
                 Ok(self.node(id, r, c))
             }
             Source::Synthetic(amp) => {
-                let grid = self.grid_of(id);
-                let valid = self.validity_of(id);
+                let grid = self.grid_of(id, parents);
+                let valid = self.validity_of(id, parents);
                 let r = detail::synthesize(
                     self.domain.layout(),
                     id,
@@ -1347,7 +1606,7 @@ impl Job {
                     self.seed,
                 );
                 // Synthetic detail is for the relief; the colour is interpolated.
-                let c = self.refine_colour(id, &[])?;
+                let c = self.refine_colour(id, &[], parents)?;
                 Ok(self.node(id, r, c))
             }
         }
@@ -1359,6 +1618,7 @@ impl Job {
         &self,
         id: DiamondId,
         record: &[u8],
+        parents: &ParentNodes,
     ) -> Result<Option<ColourRefined>, CodecError> {
         let Some(drape) = &self.drape else {
             return Ok(None);
@@ -1371,7 +1631,7 @@ impl Job {
             let mut grids: [Vec<i32>; 3] = Default::default();
             for (c, g) in grids.iter_mut().enumerate() {
                 let parents = [0, 1].map(|h| {
-                    self.parents[h]
+                    parents[h]
                         .as_ref()
                         .and_then(|p| p.colour.as_ref())
                         .map(|col| &col[c])
@@ -1388,24 +1648,24 @@ impl Job {
         Ok(Some(r))
     }
 
-    fn grid_of(&self, id: DiamondId) -> Vec<i32> {
+    fn grid_of(&self, id: DiamondId, parents: &ParentNodes) -> Vec<i32> {
         if id.level == 0 {
             let sid = id.coarser(self.shift);
             return self.decoder.grid_of(sid, [None, None]);
         }
-        let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
+        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
         let n = self.domain.n();
         let mut grid = vec![0i32; n * n];
         gather(&self.domain, id, parents, &mut grid);
         grid
     }
 
-    fn validity_of(&self, id: DiamondId) -> Option<Vec<bool>> {
+    fn validity_of(&self, id: DiamondId, parents: &ParentNodes) -> Option<Vec<bool>> {
         if id.level == 0 {
             let sid = id.coarser(self.shift);
             return self.decoder.validity_of(sid, [None, None]);
         }
-        let parents = [0, 1].map(|h| self.parents[h].as_ref().map(|n| &n.refined));
+        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
         gather_validity(&self.domain, id, parents)
     }
 

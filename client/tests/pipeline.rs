@@ -1,0 +1,153 @@
+//! The pipelined decoder (issue 21): decoding ahead of the cut between frames must not change
+//! what is drawn. Replays the example flights on a small repository with a tight budget, so
+//! that refinements are decoded ahead and taken from the decoded cache, and checks the drawn
+//! patches against the synchronous reference decoder ([`decode_cut`]) along the way, and the
+//! converged cut against the cut computed directly from the index (`brute_force`) and the
+//! patches again.
+
+use std::path::Path;
+use std::time::Duration;
+
+use cbdam_client::access::LocalSource;
+use cbdam_client::flight::Flight;
+use cbdam_client::patch::{HalfPatch, decode_cut};
+use cbdam_client::refine::{RefineConfig, Refiner};
+use cbdam_client::world::World;
+
+use crate::streaming::{brute_force, refined_set, repository};
+
+fn flights() -> Vec<(String, Flight)> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/flights");
+    let mut out: Vec<(String, Flight)> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "json"))
+        .map(|p| {
+            let name = p.file_stem().unwrap().to_string_lossy().into_owned();
+            (name, Flight::load(&p).unwrap())
+        })
+        .collect();
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    assert!(
+        out.len() >= 2,
+        "the example flights are in {}",
+        dir.display()
+    );
+    out
+}
+
+fn drawn(r: &Refiner<LocalSource>) -> Vec<HalfPatch> {
+    r.drawn().map(|p| (**p).clone()).collect()
+}
+
+#[test]
+fn decoding_ahead_draws_what_the_reference_decoder_draws_and_converges_to_the_same_cut() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let size = (640, 480);
+    let fps = 10.0;
+    for (name, flight) in flights() {
+        let config = RefineConfig {
+            budget: Some(Duration::from_micros(300)),
+            gc_interval: 3,
+            ..RefineConfig::default()
+        };
+        assert!(config.decode_ahead, "on by default");
+        let mut r = Refiner::new(LocalSource::new(repo.clone()), config).unwrap();
+        let frames = (flight.duration() * fps).ceil() as usize + 1;
+        let (mut ahead, mut refined_ahead, mut checked) = (0, 0, 0);
+        for f in 0..frames {
+            let cam = flight.camera(&world, (f as f64 / fps).min(flight.duration()), size);
+            let s = r.frame(&cam);
+            ahead += s.decoded_ahead;
+            refined_ahead += s.refined_ahead;
+            if f % 16 == 0 {
+                let reference = decode_cut(&repo, r.cut()).unwrap();
+                assert!(
+                    drawn(&r) == reference,
+                    "{name}, frame {f}: patches differ from decode_cut"
+                );
+                checked += 1;
+            }
+        }
+        let cam = flight.camera(&world, flight.duration(), size);
+        let mut converged = false;
+        for _ in 0..2000 {
+            let s = r.frame(&cam);
+            ahead += s.decoded_ahead;
+            refined_ahead += s.refined_ahead;
+            if s.converged {
+                converged = true;
+                break;
+            }
+            // Give the workers time, as a viewer's frame interval does.
+            std::thread::sleep(Duration::from_micros(500));
+        }
+        assert!(converged, "{name}: no convergence");
+        let expected = brute_force(&repo, &cam, 1.0);
+        assert!(expected.len() > 20, "{name}: the view must need detail");
+        assert_eq!(refined_set(r.cut()), expected, "{name}: converged cut");
+        let reference = decode_cut(&repo, r.cut()).unwrap();
+        assert!(
+            drawn(&r) == reference,
+            "{name}: converged patches differ from decode_cut"
+        );
+        assert!(checked > 3);
+        assert!(
+            ahead > 0 && refined_ahead > 0,
+            "{name}: nothing was decoded ahead ({ahead}) or refined from it ({refined_ahead})"
+        );
+    }
+}
+
+/// The codec's `refine` benchmark on a repository file: every record refined once, in file
+/// order, on one thread, its grid gathered beforehand (not timed), output samples `(N−1)²` per
+/// record — what `cbdam replay`'s "M cells/s" (in-loop decoding, per second of worker time)
+/// is compared with. `CBDAM_BENCH_REPO=FILE cargo test --release -p cbdam-client --test tests
+/// refine_bench -- --ignored --nocapture`
+#[test]
+#[ignore = "a benchmark: needs CBDAM_BENCH_REPO"]
+fn refine_bench_on_a_repository() {
+    use cbdam_codec::hierarchy::{RefineScratch, Refined};
+    use cbdam_codec::repository::Repository;
+    use std::collections::HashMap;
+    let path = std::env::var("CBDAM_BENCH_REPO").expect("CBDAM_BENCH_REPO=FILE");
+    let repo = Repository::open(Path::new(&path)).unwrap();
+    let decoder = repo.decoder().unwrap();
+    let domain = repo.params().domain;
+    let mut refined: HashMap<_, Refined> = HashMap::new();
+    let mut grids = Vec::new();
+    let mut scratch = RefineScratch::default();
+    for e in repo.entries() {
+        let parents = domain
+            .parents(e.id)
+            .map(|p| p.and_then(|p| refined.get(&p)));
+        let grid = decoder.grid_of(e.id, parents);
+        let r = decoder
+            .refine(&grid, repo.record(e.id).unwrap(), &mut scratch)
+            .unwrap();
+        grids.push(grid);
+        refined.insert(e.id, r);
+    }
+    let cells = (domain.n() - 1).pow(2) * repo.entries().len();
+    let mut runs = Vec::new();
+    for _ in 0..5 {
+        let t = std::time::Instant::now();
+        for (e, grid) in repo.entries().iter().zip(&grids) {
+            std::hint::black_box(
+                decoder
+                    .refine(grid, repo.record(e.id).unwrap(), &mut scratch)
+                    .unwrap(),
+            );
+        }
+        runs.push(cells as f64 / t.elapsed().as_secs_f64() / 1e6);
+    }
+    runs.sort_by(f64::total_cmp);
+    println!(
+        "{path}: {} records, refine {:.1} M cells/s (median of 5; min {:.1}, max {:.1})",
+        repo.entries().len(),
+        runs[2],
+        runs[0],
+        runs[4]
+    );
+}
