@@ -533,7 +533,13 @@ pub(crate) fn write_compact(h: &HeaderFields) -> Result<Vec<u8>, CodecError> {
         out.extend_from_slice(wkt.as_bytes());
     }
     float(&mut out, h.nodata);
-    if let Some(p) = &h.provenance {
+    // The flag decides, as it does for the reader; a flag without values writes zeros.
+    if h.flags & FLAG_PLANET_PROVENANCE != 0 {
+        let p = h.provenance.unwrap_or(PlanetProvenance {
+            vertical_datum: VerticalDatum::Unknown,
+            resampling_max: 0.0,
+            resampling_rms: 0.0,
+        });
         out.push(p.vertical_datum.to_byte());
         float(&mut out, p.resampling_max);
         float(&mut out, p.resampling_rms);
