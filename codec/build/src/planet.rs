@@ -645,11 +645,15 @@ pub fn count_valid(planet: &PlanetGrid) -> u64 {
             (0..g.height)
                 .into_par_iter()
                 .map(|y| {
+                    let edge_row = y == 0 || y + 1 == g.height;
                     (0..g.width)
                         .filter(|&x| {
+                            // Interior points are their own; an edge point is counted on the
+                            // face that owns it.
                             g.valid[y * g.width + x]
-                                && d.canonical_point(f, x as i64, y as i64)
-                                    .is_some_and(|c| c.face == f)
+                                && (!(edge_row || x == 0 || x + 1 == g.width)
+                                    || d.canonical_point(f, x as i64, y as i64)
+                                        .is_some_and(|c| c.face == f))
                         })
                         .count() as u64
                 })
