@@ -39,7 +39,8 @@ function showStatus() {
   const gpu = s.gpuCache || [];
   const state = s.frozen ? "FROZEN" : s.converged ? "converged" : "refining";
   overlay.textContent =
-    `${s.phase} · ${s.backend || "-"} · ${s.mode || "orbit"} · ${s.adapter || ""}\n` +
+    `${s.phase} · ${s.backend || "-"}${s.vertexFetch === "texture" ? " (texture path)" : ""} · ` +
+    `${s.mode || "orbit"} · ${s.adapter || ""}\n` +
     `fps ${fmt(s.fps, 1)} (${fmt(s.frameMs, 1)} ms) · triangles ${fmt(s.triangles)}\n` +
     `cut ${fmt(s.refined)} diamonds, ${fmt(s.drawnHalves)} half-patches · ${state}\n` +
     `pixel error ${s.pixelError ? pixels(s.pixelError) : "-"} target, ${fmt(s.maxErrorPx, 2)} px max\n` +
