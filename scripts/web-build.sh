@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Builds the browser viewer (client/web) into a folder of static files: index.html, main.js, the
-# wasm-bindgen glue and the .wasm. Serve the folder with any static server and open
+# wasm-bindgen glue and the .wasm, twice (WebGPU only; with WebGL2, loaded without WebGPU). Serve the folder with any static server and open
 #   index.html?repo=URL
 # where URL is a .cbdam file on a server that honours Range requests (relative URLs work), or a
 # `cbdam serve` repository (http://host:port/v1/repos/NAME, which must allow the page's origin).
@@ -25,13 +25,27 @@ if ! wasm-bindgen --version 2>/dev/null | grep -qx "wasm-bindgen $version"; then
     cargo install wasm-bindgen-cli --version "$version"
 fi
 
-cargo build --target wasm32-unknown-unknown -p cbdam-web --profile web
+# Two modules of the same viewer: cbdam_web (WebGPU only, small) and cbdam_web_gl (with wgpu's
+# WebGL2 backend, which brings wgpu-core and naga: about four times the bytes). main.js loads
+# the second only in browsers without a WebGPU adapter, so WebGPU browsers never download it.
 mkdir -p "$out"
-wasm-bindgen --target web --no-typescript --out-dir "$out" \
-    "${CARGO_TARGET_DIR:-target}/wasm32-unknown-unknown/web/cbdam_web.wasm"
+wasm_out="${CARGO_TARGET_DIR:-target}/wasm32-unknown-unknown/web/cbdam_web.wasm"
+for variant in cbdam_web cbdam_web_gl; do
+    if [ "$variant" = cbdam_web ]; then features=--no-default-features; else features=; fi
+    cargo build --target wasm32-unknown-unknown -p cbdam-web --profile web $features
+    wasm-bindgen --target web --no-typescript --out-dir "$out" --out-name "$variant" "$wasm_out"
+done
 cp client/web/www/index.html client/web/www/main.js "$out/"
 
-wasm="$out/cbdam_web_bg.wasm"
-raw=$(wc -c <"$wasm")
-gz=$(gzip -9 -c "$wasm" | wc -c)
-echo "web-build.sh: $out ready; $(basename "$wasm") $raw bytes ($gz gzipped)"
+for variant in cbdam_web cbdam_web_gl; do
+    wasm="$out/${variant}_bg.wasm"
+    raw=$(wc -c <"$wasm")
+    gz=$(gzip -9 -c "$wasm" | wc -c)
+    echo "web-build.sh: $(basename "$wasm") $raw bytes ($gz gzipped)"
+done
+# Each build must have written its own module (cargo copies a fresh artifact out again).
+if cmp -s "$out/cbdam_web_bg.wasm" "$out/cbdam_web_gl_bg.wasm"; then
+    echo "web-build.sh: the WebGPU and WebGL2 modules are the same file" >&2
+    exit 1
+fi
+echo "web-build.sh: $out ready"

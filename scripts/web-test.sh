@@ -6,7 +6,8 @@
 # must converge and draw terrain over most of the frame (screenshot pixels checked), the same cut
 # from both servers and as `cbdam render`; drag, wheel, keys, slider and pinch move the camera or
 # the target, the URL hash restores the view, the server may go away and come back; without
-# WebGPU the page must say so. About 45 s once built on a loaded 2-core machine.
+# WebGPU flags the page must draw the same view through WebGL2 (the renderer's texture path), and
+# with WebGL off too say that neither is there. About 45 s once built on a loaded 2-core machine.
 #
 # Sets up what it needs like test.sh sets up lavapipe: Debian's chromium (apt) and
 # websocket-client (pip, pinned). Where neither can be installed (no apt-get, no root/sudo),

@@ -1,9 +1,15 @@
 // Terrain of a C-BDAM cut: every drawn half-patch is one instance of the shared N×N grid.
 //
-// Vertex pulling: there is no vertex buffer. The shared index buffer holds grid vertex numbers
-// `j·N + i` (so the index *is* the patch's (u, v) position); the instance picks its slot of
-// heights and its placement from storage buffers. Positions are relative to the eye, in metres,
-// computed from per-patch origins the CPU subtracted in f64: no large numbers reach f32.
+// Vertex pulling: there is no per-vertex buffer. The shared index buffer holds grid vertex
+// numbers `j·N + i` (so the index *is* the patch's (u, v) position); the instance picks its slot
+// of the height pool and its placement. Positions are relative to the eye, in metres, computed
+// from per-patch origins the CPU subtracted in f64: no large numbers reach f32.
+//
+// This file is not a whole module: the renderer appends one of two small variants, which say
+// where the instance's `Patch` and the pool's words come from (`pool_word`) and hold the entry
+// point `vs_main`: `terrain_storage.wgsl` (storage buffers: WebGPU, Vulkan, Metal, DX12) or
+// `terrain_texture.wgsl` (an instance-stepped vertex buffer and an integer texture: WebGL2).
+// Everything else — placement, normals, nodata, colours — is this file's, shared by both.
 
 struct Frame {
     // World-minus-eye to clip space.
@@ -72,8 +78,8 @@ struct Patch {
 }
 
 @group(0) @binding(0) var<uniform> frame: Frame;
-@group(0) @binding(1) var<storage, read> patches: array<Patch>;
-@group(0) @binding(2) var<storage, read> heights: array<i32>;
+// Binding 2 is the height pool (`pool_word`), binding 1 the patches where they are in storage:
+// see the variants.
 
 // First word of a patch's slot: slots are N² words, 2·N² when colours follow the heights.
 fn slot_base(p: Patch) -> u32 {
@@ -81,7 +87,7 @@ fn slot_base(p: Patch) -> u32 {
 }
 
 fn position_word(p: Patch, v: u32, k: u32) -> f32 {
-    return bitcast<f32>(heights[slot_base(p) + frame.n * frame.n * (1u + frame.draped) + 6u * v + k]);
+    return bitcast<f32>(pool_word(slot_base(p) + frame.n * frame.n * (1u + frame.draped) + 6u * v + k));
 }
 
 // A planet vertex's position relative to its patch origin, rounded to f32 (for normals).
@@ -170,7 +176,7 @@ fn in_half(p: Patch, a: i32, b: i32) -> bool {
 
 fn height_at(p: Patch, a: i32, b: i32) -> f32 {
     let n = i32(frame.n);
-    return f32(unmark(heights[slot_base(p) + u32(b * n + a)]));
+    return f32(unmark(pool_word(slot_base(p) + u32(b * n + a))));
 }
 
 // Derivative of the height (units per grid step) along (da, db) at (a, b): central where both
@@ -188,12 +194,11 @@ fn slope(p: Patch, a: i32, b: i32, da: i32, db: i32) -> f32 {
     return 0.0;
 }
 
-@vertex
-fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
-    let p = patches[ii];
+// Grid vertex `vi` (= j·N + i) of patch `p`: the vertex stage of both variants' `vs_main`.
+fn terrain_vertex(vi: u32, p: Patch) -> VsOut {
     let i = vi % frame.n;
     let j = vi / frame.n;
-    let raw = heights[slot_base(p) + vi];
+    let raw = pool_word(slot_base(p) + vi);
     let h = f32(unmark(raw));
     var pos: vec3<f32>;
     var nrm: vec3<f32>;
@@ -228,7 +233,7 @@ fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> 
     }
     out.colour = vec3<f32>(0.0);
     if frame.draped != 0u {
-        let packed = bitcast<u32>(heights[slot_base(p) + frame.n * frame.n + vi]);
+        let packed = bitcast<u32>(pool_word(slot_base(p) + frame.n * frame.n + vi));
         out.colour = unpack4x8unorm(packed).rgb;
     }
     return out;

@@ -7,14 +7,17 @@
 //! - **Shared grid.** The `N × N` grid's triangle lists are uploaded once ([`mesh`]): 8 index
 //!   lists (split diagonal × half × grid orientation) in one index buffer. There is no vertex
 //!   buffer: an index is the grid vertex number `j·N + i`, which *is* its (u, v).
-//! - **Height pool.** One storage buffer of `i32` heights, `N²` per slot; a slot holds one
+//! - **Height pool.** One storage buffer of `i32` heights, `N²` per slot (or, where vertex
+//!   shaders cannot read storage buffers — WebGL2 —, an integer texture of the same words:
+//!   [`pool`], [`VertexFetch`]); a slot holds one
 //!   half-patch's grid and nothing else. Slots are an LRU cache keyed by [`PatchKey`](cbdam_client::patch::PatchKey)
-//!   ([`cache`]); new patches are copied in one batch per frame from a single staging buffer,
-//!   within a byte budget. Normals are computed in the vertex shader from neighbouring heights.
-//! - **Instances.** Per drawn patch a 64-byte [`PatchInstance`] (slot, level, half, diagonal,
+//!   ([`cache`]); new patches are copied in one batch per frame from a single staging buffer
+//!   (into the texture, through the queue), within a byte budget. Normals are computed in the vertex shader from neighbouring heights.
+//! - **Instances.** Per drawn patch a 96-byte [`PatchInstance`] (slot, level, half, diagonal,
 //!   grid origin and axes relative to the eye in metres, and the same in lattice integers for
-//!   clipping) in a storage buffer, sorted by mesh kind: the whole cut is at most 8 instanced
-//!   draw calls (16 with the wireframe overlay).
+//!   clipping) in a storage buffer (an instance-stepped vertex buffer on the texture path),
+//!   sorted by mesh kind: the whole cut is at most 8 instanced draw calls (16 with the
+//!   wireframe overlay).
 //! - **Precision.** Positions are relative to the eye: origins are subtracted in `f64` on the
 //!   CPU, and [`Camera::view_proj_relative`] only rotates and projects.
 //! - **Data rectangle.** Fragments whose lattice position is outside the data rectangle are
@@ -47,6 +50,7 @@
 pub mod cache;
 pub mod hud;
 pub mod mesh;
+pub mod pool;
 pub mod present;
 #[cfg(not(target_arch = "wasm32"))]
 pub mod view;
@@ -61,6 +65,8 @@ use glam::DVec3;
 
 pub use cache::{CacheStats, Residency, SlotCache};
 pub use mesh::{MeshKind, SharedMesh};
+use pool::HeightPool;
+pub use pool::{POOL_TEXTURE_WIDTH, VertexFetch};
 
 use cbdam_client::camera::Camera;
 use cbdam_client::patch::HalfPatch;
@@ -72,8 +78,29 @@ use cbdam_client::world::World;
 /// memory, no extra buffer and no extra upload; `shaders/terrain.wgsl` has the same constant.
 pub const NODATA_BIT: i32 = 1 << 30;
 
-/// The terrain shader (entry points `vs_main`, `fs_main`).
+/// The terrain shader's shared part (`fs_main`, `fs_wire` and the vertex maths), completed by
+/// one of the two variants below ([`terrain_shader`]).
 pub const TERRAIN_WGSL: &str = include_str!("../../../shaders/terrain.wgsl");
+/// The terrain shader's storage-buffer variant (`vs_main`, the patches and the pool in storage).
+pub const TERRAIN_STORAGE_WGSL: &str = include_str!("../../../shaders/terrain_storage.wgsl");
+/// The terrain shader's texture variant (`vs_main`, the patches as instance attributes, the pool
+/// in an integer texture): for WebGL2.
+pub const TERRAIN_TEXTURE_WGSL: &str = include_str!("../../../shaders/terrain_texture.wgsl");
+
+/// The whole terrain shader for a vertex fetch path ([`VertexFetch::Auto`] is the storage one).
+///
+/// One source and two small variants appended as text, rather than two shaders or overrides:
+/// the variants differ in binding types (storage buffer or texture) and in the entry point's
+/// inputs (instance index or vertex attributes), which pipeline overrides cannot change, and a
+/// second copy of the maths would drift; every assembled module is validated when the pipeline
+/// is made, and the tests draw through both.
+pub fn terrain_shader(fetch: VertexFetch) -> String {
+    let variant = match fetch {
+        VertexFetch::Texture => TERRAIN_TEXTURE_WGSL,
+        VertexFetch::Auto | VertexFetch::StorageBuffers => TERRAIN_STORAGE_WGSL,
+    };
+    format!("{TERRAIN_WGSL}\n{variant}")
+}
 
 /// Colour and depth formats of the offscreen targets.
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
@@ -117,6 +144,9 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     /// Adapter name, driver, device type.
     pub info: wgpu::AdapterInfo,
+    /// Whether vertex shaders can read (two) storage buffers (`DownlevelFlags::VERTEX_STORAGE`;
+    /// not on WebGL2): [`VertexFetch::Auto`] draws through storage buffers when they can.
+    pub vertex_storage: bool,
 }
 
 impl Gpu {
@@ -158,10 +188,16 @@ impl Gpu {
             })
             .await
             .map_err(|e| DrawError::Device(e.to_string()))?;
+        let vertex_storage = adapter
+            .get_downlevel_capabilities()
+            .flags
+            .contains(wgpu::DownlevelFlags::VERTEX_STORAGE)
+            && adapter.limits().max_storage_buffers_per_shader_stage >= 2;
         Ok(Self {
             device,
             queue,
             info: adapter.get_info(),
+            vertex_storage,
         })
     }
 
@@ -352,10 +388,14 @@ pub fn encode_png(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, DrawE
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CacheConfig {
     /// Height pool size in bytes (rounded down to whole slots). `None`: the smaller of
-    /// [`DEFAULT_POOL_BYTES`] and what one storage binding may hold on this adapter.
+    /// [`DEFAULT_POOL_BYTES`] and what one storage binding (or, on the texture path, the
+    /// largest pool texture) may hold on this adapter.
     pub pool_bytes: Option<u64>,
     /// Bytes of heights copied to the GPU per frame at most.
     pub upload_budget: u64,
+    /// Where the vertex shader reads patches and heights from: by default storage buffers
+    /// where the adapter allows it, else a texture (WebGL2).
+    pub vertex_fetch: VertexFetch,
 }
 
 impl Default for CacheConfig {
@@ -363,6 +403,7 @@ impl Default for CacheConfig {
         Self {
             pool_bytes: None,
             upload_budget: u64::MAX,
+            vertex_fetch: VertexFetch::Auto,
         }
     }
 }
@@ -379,7 +420,8 @@ pub struct Renderer {
     world: World,
     mesh: SharedMesh,
     index_buffer: wgpu::Buffer,
-    heights: wgpu::Buffer,
+    pool: HeightPool,
+    fetch: VertexFetch,
     instances: wgpu::Buffer,
     instance_capacity: u64,
     uniform: wgpu::Buffer,
@@ -417,10 +459,9 @@ impl Renderer {
             )));
         }
         let slot_bytes = slot_bytes(n, draped, world.is_planet());
+        let fetch = config.vertex_fetch.resolve(gpu.vertex_storage)?;
         let limits = gpu.device.limits();
-        let max_pool = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
+        let max_pool = HeightPool::max_bytes(fetch, &limits);
         let pool = config
             .pool_bytes
             .unwrap_or(DEFAULT_POOL_BYTES)
@@ -439,12 +480,7 @@ impl Renderer {
             bytemuck::cast_slice(&mesh.indices),
             wgpu::BufferUsages::INDEX,
         );
-        let heights = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("height pool"),
-            size: u64::from(slots) * slot_bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let heights = HeightPool::new(device, fetch, u64::from(slots) * slot_bytes)?;
         let uniform = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("frame uniform"),
             size: std::mem::size_of::<FrameUniform>() as u64,
@@ -461,27 +497,40 @@ impl Renderer {
             },
             count: None,
         };
+        let mut entries = vec![wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        }];
+        if fetch == VertexFetch::StorageBuffers {
+            entries.push(storage(1));
+        }
+        entries.push(heights.layout_entry());
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("terrain"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
-                storage(1),
-                storage(2),
-            ],
+            entries: &entries,
         });
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("terrain.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(TERRAIN_WGSL.into()),
+            source: wgpu::ShaderSource::Wgsl(terrain_shader(fetch).into()),
         });
+        // The texture path's patches: one `PatchInstance` per instance (terrain_texture.wgsl).
+        let instance_attributes = patch_attributes();
+        let instance_layout = [Some(wgpu::VertexBufferLayout {
+            array_stride: std::mem::size_of::<PatchInstance>() as u64,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &instance_attributes,
+        })];
+        let vertex_buffers: &[Option<wgpu::VertexBufferLayout>] = if fetch == VertexFetch::Texture {
+            &instance_layout
+        } else {
+            &[]
+        };
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("terrain"),
             bind_group_layouts: &[Some(&layout)],
@@ -496,7 +545,7 @@ impl Renderer {
                     module: &shader,
                     entry_point: Some("vs_main"),
                     compilation_options: Default::default(),
-                    buffers: &[],
+                    buffers: vertex_buffers,
                 },
                 primitive: wgpu::PrimitiveState {
                     topology: wgpu::PrimitiveTopology::TriangleList,
@@ -568,7 +617,7 @@ impl Renderer {
                 )
             });
         let instance_capacity = 1024;
-        let instances = instance_buffer(device, instance_capacity);
+        let instances = instance_buffer(device, fetch, instance_capacity);
         let bind_group = bind_group(device, &layout, &uniform, &instances, &heights);
         Ok(Self {
             cache: SlotCache::new(slots, slot_bytes, config.upload_budget),
@@ -576,7 +625,8 @@ impl Renderer {
             world,
             mesh,
             index_buffer,
-            heights,
+            pool: heights,
+            fetch,
             instances,
             instance_capacity,
             uniform,
@@ -588,6 +638,12 @@ impl Renderer {
             target: None,
             draped,
         })
+    }
+
+    /// Where the vertex shader reads patches and heights from on this renderer: storage
+    /// buffers or a texture (never [`VertexFetch::Auto`]).
+    pub fn vertex_fetch(&self) -> VertexFetch {
+        self.fetch
     }
 
     /// Whether slots hold draped colours.
@@ -690,16 +746,36 @@ impl Renderer {
         let mut stats = prepared.stats;
         let device = &self.gpu.device;
         let mut encoder = device.create_command_encoder(&Default::default());
-        if let Some(staging) = &prepared.staging {
-            let slot_bytes = self.slot_bytes();
-            for (k, &slot) in prepared.upload_slots.iter().enumerate() {
-                encoder.copy_buffer_to_buffer(
-                    staging,
-                    k as u64 * slot_bytes,
-                    &self.heights,
-                    u64::from(slot) * slot_bytes,
-                    slot_bytes,
+        let slot_bytes = self.slot_bytes();
+        match &self.pool {
+            HeightPool::Buffer(heights) if !prepared.staging.is_empty() => {
+                let staging = buffer_init(
+                    device,
+                    "height uploads",
+                    bytemuck::cast_slice(&prepared.staging),
+                    wgpu::BufferUsages::COPY_SRC,
                 );
+                for (k, &slot) in prepared.upload_slots.iter().enumerate() {
+                    encoder.copy_buffer_to_buffer(
+                        &staging,
+                        k as u64 * slot_bytes,
+                        heights,
+                        u64::from(slot) * slot_bytes,
+                        slot_bytes,
+                    );
+                }
+            }
+            HeightPool::Buffer(_) => {}
+            HeightPool::Texture(_) => {
+                // Through the queue: done before this encoder's commands run once submitted.
+                let words = slot_bytes as usize / 4;
+                for (k, &slot) in prepared.upload_slots.iter().enumerate() {
+                    self.pool.write_texture(
+                        &self.gpu.queue,
+                        u64::from(slot) * words as u64,
+                        &prepared.staging[k * words..(k + 1) * words],
+                    );
+                }
             }
         }
         let target = self.target.as_ref().expect("target made above");
@@ -783,13 +859,25 @@ impl Renderer {
         if options.wireframe {
             passes.push(self.lines.as_ref().expect("checked by render"));
         }
+        let stride = std::mem::size_of::<PatchInstance>() as u64;
         for pipeline in passes {
             pass.set_pipeline(pipeline);
             for (kind, instances) in groups.iter().enumerate() {
-                if !instances.is_empty() {
-                    pass.draw_indexed(self.mesh.ranges[kind].clone(), 0, instances.clone());
-                    calls += 1;
+                if instances.is_empty() {
+                    continue;
                 }
+                let indices = self.mesh.ranges[kind].clone();
+                if self.fetch == VertexFetch::Texture {
+                    // The group's instances through the buffer's offset, not `first_instance`
+                    // (which some GL versions lack: wgpu would emulate it by rebinding).
+                    let bytes =
+                        u64::from(instances.start) * stride..u64::from(instances.end) * stride;
+                    pass.set_vertex_buffer(0, self.instances.slice(bytes));
+                    pass.draw_indexed(indices, 0, 0..instances.len() as u32);
+                } else {
+                    pass.draw_indexed(indices, 0, instances.clone());
+                }
+                calls += 1;
             }
         }
         calls
@@ -1031,19 +1119,11 @@ impl Renderer {
         stats.cache = self.cache.stats().since(&before);
         self.write_instances(&instances);
         self.write_uniform(camera, options);
-        let staging = (!staging_data.is_empty()).then(|| {
-            buffer_init(
-                &self.gpu.device,
-                "height uploads",
-                bytemuck::cast_slice(&staging_data),
-                wgpu::BufferUsages::COPY_SRC,
-            )
-        });
         Prepared {
             stats,
             groups,
             upload_slots,
-            staging,
+            staging: staging_data,
         }
     }
 
@@ -1051,13 +1131,13 @@ impl Renderer {
         let needed = instances.len() as u64;
         if needed > self.instance_capacity {
             self.instance_capacity = needed.next_power_of_two();
-            self.instances = instance_buffer(&self.gpu.device, self.instance_capacity);
+            self.instances = instance_buffer(&self.gpu.device, self.fetch, self.instance_capacity);
             self.bind_group = bind_group(
                 &self.gpu.device,
                 &self.layout,
                 &self.uniform,
                 &self.instances,
-                &self.heights,
+                &self.pool,
             );
         }
         if !instances.is_empty() {
@@ -1145,7 +1225,8 @@ struct Prepared {
     stats: DrawStats,
     groups: [std::ops::Range<u32>; 8],
     upload_slots: Vec<u32>,
-    staging: Option<wgpu::Buffer>,
+    /// The uploaded slots' words, slot after slot in `upload_slots` order.
+    staging: Vec<i32>,
 }
 
 fn buffer_init(
@@ -1162,13 +1243,39 @@ fn buffer_init(
     })
 }
 
-fn instance_buffer(device: &wgpu::Device, capacity: u64) -> wgpu::Buffer {
+fn instance_buffer(device: &wgpu::Device, fetch: VertexFetch, capacity: u64) -> wgpu::Buffer {
+    let usage = if fetch == VertexFetch::Texture {
+        wgpu::BufferUsages::VERTEX
+    } else {
+        wgpu::BufferUsages::STORAGE
+    };
     device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("patch instances"),
         size: capacity * std::mem::size_of::<PatchInstance>() as u64,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        usage: usage | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     })
+}
+
+/// `PatchInstance` as the texture path's vertex attributes (`PatchAttributes` in
+/// `shaders/terrain_texture.wgsl`); the padding is not read.
+fn patch_attributes() -> [wgpu::VertexAttribute; 7] {
+    use std::mem::offset_of;
+    use wgpu::VertexFormat as F;
+    let attribute = |shader_location, format, offset: usize| wgpu::VertexAttribute {
+        format,
+        offset: offset as u64,
+        shader_location,
+    };
+    [
+        attribute(0, F::Float32x4, offset_of!(PatchInstance, origin_rel)),
+        attribute(1, F::Float32x2, offset_of!(PatchInstance, v_world)),
+        attribute(2, F::Sint32x4, offset_of!(PatchInstance, origin_lat)),
+        attribute(3, F::Sint32x2, offset_of!(PatchInstance, v_lat)),
+        attribute(4, F::Uint32x4, offset_of!(PatchInstance, slot)),
+        attribute(5, F::Float32x2, offset_of!(PatchInstance, origin_z)),
+        attribute(6, F::Float32x3, offset_of!(PatchInstance, origin_lo)),
+    ]
 }
 
 fn bind_group(
@@ -1176,16 +1283,15 @@ fn bind_group(
     layout: &wgpu::BindGroupLayout,
     uniform: &wgpu::Buffer,
     instances: &wgpu::Buffer,
-    heights: &wgpu::Buffer,
+    pool: &HeightPool,
 ) -> wgpu::BindGroup {
-    device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("terrain"),
-        layout,
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: uniform.as_entire_binding(),
-            },
+    let view;
+    let mut entries = vec![wgpu::BindGroupEntry {
+        binding: 0,
+        resource: uniform.as_entire_binding(),
+    }];
+    match pool {
+        HeightPool::Buffer(heights) => entries.extend([
             wgpu::BindGroupEntry {
                 binding: 1,
                 resource: instances.as_entire_binding(),
@@ -1194,7 +1300,19 @@ fn bind_group(
                 binding: 2,
                 resource: heights.as_entire_binding(),
             },
-        ],
+        ]),
+        HeightPool::Texture(texture) => {
+            view = texture.create_view(&Default::default());
+            entries.push(wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(&view),
+            });
+        }
+    }
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("terrain"),
+        layout,
+        entries: &entries,
     })
 }
 

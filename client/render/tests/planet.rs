@@ -42,7 +42,7 @@ fn relief(lat: f64, lon: f64) -> f64 {
 
 /// The synthetic planet: N = 17, K = 3 (a 129 × 129 lattice per face, about 78 km steps), 5 m
 /// tolerance, written and read back as a repository through the codec.
-fn planet() -> &'static Arc<Repository> {
+pub fn planet() -> &'static Arc<Repository> {
     static REPO: OnceLock<Arc<Repository>> = OnceLock::new();
     REPO.get_or_init(|| {
         let (n, k) = (17usize, 3u32);

@@ -16,3 +16,5 @@ mod nodata;
 /// A planet drawn as a globe: framing, cracks at cube corners and edges, precision near the eye.
 mod planet;
 mod util;
+/// The texture path (WebGL2's) draws exactly the storage-buffer path's images.
+mod vertex_fetch;

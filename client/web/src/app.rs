@@ -1,4 +1,5 @@
-//! The viewer on a canvas: connects to the repository, finds a WebGPU adapter, and each
+//! The viewer on a canvas: connects to the repository, finds a WebGPU adapter (or, built with
+//! the `webgl` feature, a WebGL2 one where the browser has no WebGPU), and each
 //! animation frame applies the input (`input.rs`), runs one step of the refinement loop
 //! within its budget (records arrive between frames; nothing blocks), draws the cut offscreen and
 //! copies it onto the canvas.
@@ -18,7 +19,7 @@ use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
 use cbdam_client::spawn::Inline;
 use cbdam_client::world::World;
 use cbdam_render::present::Presenter;
-use cbdam_render::{CacheConfig, Gpu, RenderOptions, Renderer};
+use cbdam_render::{CacheConfig, Gpu, RenderOptions, Renderer, VertexFetch};
 use glam::DVec3;
 use wasm_bindgen::JsCast;
 use wasm_bindgen::closure::Closure;
@@ -32,13 +33,19 @@ use crate::status::Status;
 /// frame to drawing and the browser.
 const REFINE_BUDGET: Duration = Duration::from_millis(8);
 /// GPU height pool: about 3 900 patches of 65²; browsers limit a storage binding to 128 MiB
-/// by default.
+/// by default. On WebGL2 the pool texture may hold less (2048 words a row, as many rows as the
+/// largest texture side: 64 MiB at 8192).
 const POOL_BYTES: u64 = 64 << 20;
 
-/// Why a browser without WebGPU cannot show terrain (after what it offers instead).
-const NEEDS_WEBGPU: &str = "the terrain renderer needs WebGPU (its WebGL2 path is not written \
-                            yet): use a browser with WebGPU, such as a recent Chrome or Edge, or \
-                            Firefox or Safari with WebGPU turned on";
+/// What a browser needs to show terrain (after what it offers instead).
+const NEEDS: &str = if cfg!(feature = "webgl") {
+    "the viewer draws through WebGPU or WebGL2: use a browser with either (any recent Chrome, \
+     Edge, Firefox or Safari), with hardware acceleration or WebGL turned on"
+} else {
+    "this build of the viewer draws through WebGPU only (built without its `webgl` feature): \
+     use a browser with WebGPU, such as a recent Chrome or Edge, or Firefox or Safari with \
+     WebGPU turned on"
+};
 /// Frames the frame rate's median spans.
 const FPS_WINDOW: usize = 60;
 
@@ -88,12 +95,12 @@ fn has_webgl2() -> bool {
         .is_some()
 }
 
-/// The message for a browser without a WebGPU adapter.
-fn no_webgpu_message() -> String {
+/// The message for a browser without an adapter this build can draw with.
+fn no_adapter_message() -> String {
     if has_webgl2() {
-        format!("this browser offers WebGL2 but no WebGPU adapter; {NEEDS_WEBGPU}")
+        format!("this browser offers WebGL2 but no WebGPU adapter; {NEEDS}")
     } else {
-        format!("this browser offers neither WebGPU nor WebGL2; {NEEDS_WEBGPU}")
+        format!("this browser offers neither WebGPU nor WebGL2; {NEEDS}")
     }
 }
 
@@ -153,9 +160,12 @@ impl App {
 
         let webgpu = wgpu::util::is_browser_webgpu_supported().await;
         status.set("webgpu", webgpu);
-        if !webgpu && !cfg!(feature = "webgl") {
-            status.set("webgl2", has_webgl2());
-            return Err(no_webgpu_message());
+        if !webgpu {
+            let webgl2 = has_webgl2();
+            status.set("webgl2", webgl2);
+            if !webgl2 || !cfg!(feature = "webgl") {
+                return Err(no_adapter_message());
+            }
         }
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = wgpu::Backends::BROWSER_WEBGPU | wgpu::Backends::GL;
@@ -171,7 +181,7 @@ impl App {
                 apply_limit_buckets: false,
             })
             .await
-            .map_err(|e| format!("{} ({e})", no_webgpu_message()))?;
+            .map_err(|e| format!("{} ({e})", no_adapter_message()))?;
         let info = adapter.get_info();
         let backend = match info.backend {
             wgpu::Backend::BrowserWebGpu => "webgpu",
@@ -180,19 +190,6 @@ impl App {
         };
         status.set("backend", backend);
         status.set("adapter", info.name.as_str());
-        if adapter.limits().max_storage_buffers_per_shader_stage < 2
-            || !adapter
-                .get_downlevel_capabilities()
-                .flags
-                .contains(wgpu::DownlevelFlags::VERTEX_STORAGE)
-        {
-            return Err(format!(
-                "this browser offers only {backend} ({}), without storage buffers in vertex \
-                 shaders, which the terrain renderer needs: use a browser with WebGPU (WebGL2 \
-                 support is not written yet)",
-                info.name
-            ));
-        }
         let gpu = Gpu::from_adapter_async(&adapter)
             .await
             .map_err(|e| e.to_string())?;
@@ -230,6 +227,14 @@ impl App {
             ..CacheConfig::default()
         };
         let renderer = Renderer::new(gpu, world, cache).map_err(|e| e.to_string())?;
+        // Storage buffers (WebGPU) or the texture path (WebGL2, no storage in vertex shaders).
+        status.set(
+            "vertexFetch",
+            match renderer.vertex_fetch() {
+                VertexFetch::Texture => "texture",
+                _ => "storage",
+            },
+        );
         let start = match camera_from_hash() {
             // 45°, as `Camera::framed` and `cbdam render --camera`: the same hash gives the same
             // view and cut as the command line's camera.

@@ -1,6 +1,6 @@
 //! C-BDAM in the browser: the client core (`cbdam-client`: HTTP access through the page's
 //! `fetch`, the time-critical refinement loop) and the wgpu renderer (`cbdam-render`) drawing on a
-//! canvas through WebGPU, one step per `requestAnimationFrame`. Pointer (mouse and touch),
+//! canvas through WebGPU (or WebGL2), one step per `requestAnimationFrame`. Pointer (mouse and touch),
 //! wheel and keys as in `cbdam view` (`input.rs`); the page's slider sets the pixel-error target
 //! ([`set_pixel_error`]).
 //!
@@ -18,14 +18,16 @@
 //! decoder settings) to a worker that instantiates this module and returns the node's heights,
 //! with the refiner collecting results asynchronously.
 //!
-//! A browser without WebGPU is told so on the page (naming whether it has WebGL2): the renderer
-//! reads its instances and heights from storage buffers in the vertex shader, which WebGL2 does
-//! not have. A WebGL2 path needs, in `cbdam-render`: the instances as a per-instance vertex
-//! buffer, the height pool (and draped colours) as an `R32Sint` texture atlas read with
-//! `textureLoad` (a 4096² atlas holds 63² slots of 65²; WebGL2 has too few array layers), slot
-//! uploads through `write_texture`, a shader variant, and WebGL2's downlevel limits; here, the
-//! `webgl` feature, which takes the module from about 0.9 MB to 3.6 MB (0.3 to 1.2 MB gzipped),
-//! over the 2.5 MB target without `wasm-opt`.
+//! Where the browser offers no WebGPU adapter, the viewer draws through WebGL2 (the `webgl`
+//! feature, on by default: wgpu's GL backend, `new_instance_with_webgpu_detection`): WebGL2 has
+//! no storage buffers in vertex shaders, so the renderer takes its texture path
+//! (`cbdam_render::VertexFetch::Texture`: the instances as a per-instance vertex buffer, the
+//! height pool as an `R32Sint` texture read with `textureLoad`), the same shader maths; the
+//! status's `backend` and `vertexFetch` and the overlay say which. A browser with neither is
+//! told so on the page. The GL backend brings wgpu-core and naga (WGSL → GLSL) into the module
+//! (1.0 MB → 3.7 MB), so `scripts/web-build.sh` builds the crate twice, without the feature
+//! (`cbdam_web`) and with it (`cbdam_web_gl`), and the page's `main.js` loads the second only
+//! in browsers without a WebGPU adapter.
 #![deny(missing_docs)]
 
 #[cfg(target_arch = "wasm32")]

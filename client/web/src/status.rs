@@ -5,7 +5,8 @@
 //! | `phase` | `"starting"`, `"connecting"`, `"running"` or `"failed"` |
 //! | `webgpu` | whether the browser offers a WebGPU adapter |
 //! | `webgl2` | without WebGPU: whether it offers WebGL2 (named in the error) |
-//! | `backend` | `"webgpu"` (or `"webgl"`, built with the `webgl` feature) once an adapter is found |
+//! | `backend` | `"webgpu"` or `"webgl"` (WebGL2, built with the `webgl` feature, the default) once an adapter is found |
+//! | `vertexFetch` | the renderer's path: `"storage"` (storage buffers, WebGPU) or `"texture"` (WebGL2) |
 //! | `adapter` | the adapter's name |
 //! | `error` | why the page failed (`phase == "failed"`), or `""` |
 //! | `frames` | frames drawn |

@@ -4,7 +4,28 @@
 // else by the page's <meta name="cbdam-repo"> (set by `cbdam web-export --repo`).
 // Shows window.cbdam (the viewer's status, client/web/src/status.rs) in the overlay, and drives
 // the pixel-error slider.
-import init, { start, set_pixel_error } from "./cbdam_web.js";
+// Two builds of the viewer (scripts/web-build.sh): cbdam_web.js draws through WebGPU only;
+// cbdam_web_gl.js also has wgpu's WebGL2 backend and is about four times larger, so only a
+// browser without a WebGPU adapter loads it (a bundle without it falls back to the first, which
+// then says WebGPU is needed).
+async function hasWebGpu() {
+  try {
+    return Boolean(navigator.gpu && (await navigator.gpu.requestAdapter()));
+  } catch {
+    return false;
+  }
+}
+async function loadViewer() {
+  if (!(await hasWebGpu())) {
+    try {
+      return await import("./cbdam_web_gl.js");
+    } catch (e) {
+      console.warn("cbdam: no WebGL2 build of the viewer (" + e + "), trying the WebGPU one");
+    }
+  }
+  return await import("./cbdam_web.js");
+}
+let viewer = null;
 
 const canvas = document.getElementById("view");
 const overlay = document.getElementById("overlay");
@@ -39,7 +60,8 @@ function showStatus() {
   const gpu = s.gpuCache || [];
   const state = s.frozen ? "FROZEN" : s.converged ? "converged" : "refining";
   overlay.textContent =
-    `${s.phase} · ${s.backend || "-"} · ${s.mode || "orbit"} · ${s.adapter || ""}\n` +
+    `${s.phase} · ${s.backend || "-"}${s.vertexFetch === "texture" ? " (texture path)" : ""} · ` +
+    `${s.mode || "orbit"} · ${s.adapter || ""}\n` +
     `fps ${fmt(s.fps, 1)} (${fmt(s.frameMs, 1)} ms) · triangles ${fmt(s.triangles)}\n` +
     `cut ${fmt(s.refined)} diamonds, ${fmt(s.drawnHalves)} half-patches · ${state}\n` +
     `pixel error ${s.pixelError ? pixels(s.pixelError) : "-"} target, ${fmt(s.maxErrorPx, 2)} px max\n` +
@@ -64,7 +86,7 @@ slider.addEventListener("input", () => {
   const px = 2 ** Number(slider.value);
   sliderValue.textContent = pixels(px);
   requested = px;
-  set_pixel_error(px);
+  viewer?.set_pixel_error(px);
 });
 // The slider keeps keyboard focus after a drag; give it back to the view for the keys.
 slider.addEventListener("change", () => slider.blur());
@@ -77,8 +99,10 @@ if (!repo) {
   showStatus();
 } else {
   try {
-    await init();
-    start(canvas, new URL(repo, location.href).href);
+    const module = await loadViewer();
+    await module.default();
+    viewer = module;
+    module.start(canvas, new URL(repo, location.href).href);
   } catch (e) {
     fail("cannot load the viewer: " + e);
     showStatus();
