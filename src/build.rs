@@ -180,6 +180,16 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
         );
     }
     for r in &s.resampling {
+        if r.stride > 0 {
+            println!(
+                "  {} is coarser than the lattice: sampled on every {}-step lattice point, its \
+                 region ends the hierarchy at level {} of {} (variable resolution)",
+                r.path.display(),
+                1u32 << r.stride,
+                2 * s.level_pairs - 2 * r.stride,
+                2 * s.level_pairs
+            );
+        }
         println!(
             "  resampling error of {}: max {:.3} m{}, rms {:.3} m over {} of its {} samples \
              (the others lie where a finer input won)",

@@ -726,3 +726,139 @@ fn throughput() {
         );
     }
 }
+
+/// The class of a canonical point of the variable-resolution test planet: a hole where the
+/// noise says so, a sample of stride 1 north of 20° N (across cube edges and the corners of
+/// the north face), a sample of stride 4 elsewhere, coarse only between those.
+fn variable_class(domain: &Domain, p: FacePoint) -> u8 {
+    use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
+    if noise(p, 3).is_multiple_of(29) {
+        return HOLE;
+    }
+    let ll = lattice_lat_lon(domain, p.face, p.x, p.y).unwrap();
+    if ll.lat > 20.0 {
+        0
+    } else if p.x % 4 == 0 && p.y % 4 == 0 {
+        2
+    } else {
+        COARSE_ONLY
+    }
+}
+
+/// A variable-resolution planet: fine data north of 20° N, data at a 4 times coarser stride
+/// elsewhere, holes. Every level is within the bound where there is data, the hierarchy stops
+/// at the coarse data's level (L − 4) away from the fine data, the reconstruction holds the
+/// coarse samples, and edge and corner points agree between faces.
+#[test]
+fn a_variable_resolution_planet_stops_refining_where_only_coarse_data_lies() {
+    use cbdam_codec::hierarchy::Resolution;
+    let (n, k, q) = (9usize, 4u32, 3u32);
+    let domain = Domain::cube_sphere(n, k).unwrap();
+    let values = adversarial(n, k, 5, false);
+    let planet = PlanetGrid::from_fn(n, k, |p| {
+        let class = variable_class(&domain, p);
+        (class < 32).then(|| values.get(p.face, p.x, p.y).unwrap())
+    })
+    .unwrap();
+    let s = ((n - 1) << k) as i64;
+    let classes: Vec<Resolution> = (0..6u8)
+        .map(|f| Resolution {
+            class: (0..=s)
+                .flat_map(|y| (0..=s).map(move |x| (x, y)))
+                .map(|(x, y)| variable_class(&domain, domain.canonical_point(f, x, y).unwrap()))
+                .collect(),
+        })
+        .collect();
+    let variable = planet.clone().with_classes(classes.clone()).unwrap();
+    // Classes must agree with the grid: a sample class where a point has no value is refused.
+    let mut wrong = classes.clone();
+    let i = wrong[0]
+        .class
+        .iter()
+        .position(|&c| c == cbdam_codec::hierarchy::resolution::COARSE_ONLY)
+        .unwrap();
+    wrong[0].class[i] = 2;
+    assert!(planet.clone().with_classes(wrong).is_err());
+
+    let encoded = encode_planet(
+        &variable,
+        Quantizer::new(q).unwrap(),
+        &opts(n, EncodeOptions::default().coder),
+    )
+    .unwrap();
+    let report = verify_planet(&encoded, &variable).unwrap();
+    assert!(report.within_bound(), "{report:?}");
+    let finest = domain.finest_level();
+    let coarse_leaf = finest - 4;
+    // No diamond finer than the coarse data's leaves is refined far from the fine data: a
+    // record there has a finest leaf below it, within a few radii of 20° N. The same planet at
+    // one resolution (every point a sample) refines everywhere.
+    let far_south = |id: DiamondId| {
+        lattice_lat_lon(&domain, id.face, i64::from(id.x), i64::from(id.y))
+            .unwrap()
+            .lat
+            < -10.0
+    };
+    let deep_records = |e: &Encoded| {
+        e.records
+            .iter()
+            .filter(|r| r.id.level >= coarse_leaf && far_south(r.id))
+            .count()
+    };
+    assert_eq!(deep_records(&encoded), 0);
+    let full = encode_planet(
+        &values,
+        Quantizer::new(q).unwrap(),
+        &opts(n, EncodeOptions::default().coder),
+    )
+    .unwrap();
+    assert!(deep_records(&full) > 100, "{}", deep_records(&full));
+    assert!(encoded.records.len() < full.records.len());
+    // Records at the coarse leaves' level and above exist far south: the coarse data is coded.
+    assert!(
+        encoded
+            .records
+            .iter()
+            .any(|r| r.id.level == coarse_leaf - 1 && far_south(r.id))
+    );
+    // The reconstruction holds every sample within the bound (coarse samples from the leaves at
+    // level L − 4), and each edge or corner point decodes the same on every face holding it.
+    let faces = reconstruct_planet(&encoded).unwrap();
+    let cube = *domain.cube().unwrap();
+    let mut coarse_checked = 0;
+    for f in 0..6u8 {
+        for y in 0..=s {
+            for x in 0..=s {
+                let at = (y * (s + 1) + x) as usize;
+                let got = &faces[usize::from(f)];
+                if let Some(want) = variable.get(f, x, y) {
+                    assert!(got.valid[at], "face {f} ({x}, {y}) not decoded");
+                    assert!(
+                        (i64::from(got.values[at]) - i64::from(want)).abs() <= i64::from(q),
+                        "face {f} ({x}, {y}): decoded {}, input {want}",
+                        got.values[at]
+                    );
+                    if classes[usize::from(f)].class[at] == 2 {
+                        coarse_checked += 1;
+                    }
+                }
+                let (reps, len) = cube.representations(FacePoint::new(f, x, y));
+                for r in &reps[1..len] {
+                    let other = (r.y * (s + 1) + r.x) as usize;
+                    assert_eq!(
+                        (got.values[at], got.valid[at]),
+                        (
+                            faces[usize::from(r.face)].values[other],
+                            faces[usize::from(r.face)].valid[other]
+                        ),
+                        "face {f} ({x}, {y}) and face {} ({}, {}) decode differently",
+                        r.face,
+                        r.x,
+                        r.y
+                    );
+                }
+            }
+        }
+    }
+    assert!(coarse_checked > 1000, "{coarse_checked}");
+}

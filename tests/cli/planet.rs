@@ -133,6 +133,17 @@ fn a_planet_from_a_global_grid_a_finer_inset_and_a_utm_tile_verifies() {
     // tile's 2 km (area-averaged).
     assert!(text.contains("K = 5"), "{text}");
     assert!(text.contains("cube-sphere"), "{text}");
+    // The 2° global grid is 11 lattice steps wide: sampled on every 8th point (1.41°), the
+    // hierarchy ends at level 10 − 6 = 4 where it is the finest data (variable resolution);
+    // the inset (0.25°) and the UTM tile are sampled at every point.
+    assert!(
+        text.lines()
+            .any(|l| l.contains("global.tif is coarser than the lattice")
+                && l.contains("every 8-step")
+                && l.contains("level 4 of 10")),
+        "{text}"
+    );
+    assert!(!text.contains("inset.tif is coarser"), "{text}");
 
     let o = cbdam(&[
         "verify",
@@ -158,8 +169,8 @@ fn a_planet_from_a_global_grid_a_finer_inset_and_a_utm_tile_verifies() {
     assert!(global_compared < global_samples, "{text}");
     let (utm_compared, _, utm_max) = compared_and_max(&text, "utm33.tif");
     assert!(utm_compared > 2000, "{text}");
-    // The relief is smooth: linear interpolation over a 2° input and a 0.18° lattice is off
-    // by (h²/8)·|f''| ≈ (0.035²/8)·1000 m ≈ 0.15 m per step, twice, plus half a 0.25 m unit,
+    // The relief is smooth: linear interpolation over a 2° input and its 1.41° lattice stride
+    // is off by (h²/8)·|f''| ≤ (0.035²/8)·1000 m ≈ 0.15 m per step, twice, plus half a unit,
     // and averaging 2 km pixels over a 20 km cell by (w²/24)·|f''| ≈ 0.01 m; geocentric
     // instead of geodetic latitudes would add up to 0.19° × 17 m/° ≈ 3 m, a mirrored or
     // shifted input hundreds of metres.

@@ -28,7 +28,8 @@ use crate::{BuildOptions, Progress, ProgressEvent, Stage};
 use cbdam_codec::geodesy::cube_map::{face_st_to_lat_lon, lat_lon_to_face_st};
 use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
+use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
+use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, Resolution, encode_planet};
 use cbdam_codec::input::{GeoRef, ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
@@ -376,14 +377,59 @@ impl PlanetInputs {
             .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
     }
 
-    /// The height at a lattice point, and which input (index into `inputs`) gave it.
-    fn height_at(&self, ll: LatLon, lattice_deg: f64) -> Option<(f64, u8)> {
+    /// The stride of each input on a lattice of `n`, `k` (see [`input_stride`]).
+    pub fn strides(&self, n: usize, k: u32) -> Vec<u32> {
+        self.inputs
+            .iter()
+            .map(|i| input_stride(i.spacing_deg, lattice_spacing_deg(n, k), k))
+            .collect()
+    }
+
+    /// What lattice point `(x, y)` at `ll` takes: the first input (finest first) that covers it.
+    /// On that input's stride the point is one of its samples ([`PointSource::Sample`]; the
+    /// height for a lattice cell `2^stride` times the lattice's, `lattice_deg` across); between
+    /// them it is coarse only. `None`: no input covers it.
+    fn source_at(
+        &self,
+        ll: LatLon,
+        (x, y): (i64, i64),
+        lattice_deg: f64,
+        strides: &[u32],
+    ) -> Option<PointSource> {
         self.inputs.iter().enumerate().find_map(|(i, input)| {
-            input
-                .height_at(ll, lattice_deg)
-                .map(|v| (v, u8::try_from(i).unwrap_or(u8::MAX)))
+            let j = strides[i];
+            let step = 1i64 << j;
+            let v = input.height_at(ll, lattice_deg * step as f64)?;
+            let winner = u8::try_from(i).unwrap_or(u8::MAX);
+            Some(if x % step == 0 && y % step == 0 {
+                PointSource::Sample(v, winner, j as u8)
+            } else {
+                PointSource::CoarseOnly(winner)
+            })
         })
     }
+}
+
+/// What a lattice point takes from the inputs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum PointSource {
+    /// Height (metres), the winning input and its stride's `log2`.
+    Sample(f64, u8, u8),
+    /// Between the samples of this (coarser) input: drawn from its level, not constrained.
+    CoarseOnly(u8),
+}
+
+/// `log2` of the stride at which an input of ground spacing `input_deg` samples a lattice of
+/// spacing `lattice_deg` with `k` level pairs: the largest `j ≤ k` with `2^j` lattice steps no
+/// wider than the input's spacing. Its samples are the lattice points on multiples of `2^j`,
+/// vertices of level `2K − 2j`, and the lattice points between them are *coarse only*: the
+/// hierarchy ends at that level where this input is the finest data (variable resolution: an
+/// ETOPO ocean stays as coarse as ETOPO under a fine inset's lattice).
+pub fn input_stride(input_deg: f64, lattice_deg: f64, k: u32) -> u32 {
+    (0..=k)
+        .rev()
+        .find(|&j| lattice_deg * f64::from(1u32 << j) <= input_deg * (1.0 + 1e-9))
+        .unwrap_or(0)
 }
 
 /// Mean spacing of a cube-sphere lattice, degrees of arc: a face spans 90° over `S` steps.
@@ -444,22 +490,30 @@ pub fn choose_level(
 
 /// The resampled lattice: integer heights under `plan`, and per face point which input won.
 pub struct Resampled {
-    /// The planet's heights.
+    /// The planet's heights (with resolution classes when an input is coarser than the
+    /// lattice, [`input_stride`]).
     pub planet: PlanetGrid,
     /// Per face, per lattice point (row-major): the winning input's index, `u8::MAX` for none.
     pub winners: Vec<Vec<u8>>,
+    /// Per input, `log2` of its stride on the lattice ([`input_stride`]).
+    pub strides: Vec<u32>,
 }
 
-/// Resamples the inputs onto the `N`, `K` cube-sphere (see the module documentation).
+/// Resamples the inputs onto the `N`, `K` cube-sphere (see the module documentation): the
+/// finest input covering a point gives its height where the point lies on that input's
+/// stride ([`input_stride`]), and makes it coarse only between.
 pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Result<Resampled> {
     let domain = Domain::cube_sphere(n, k)?;
     let side = domain.cube().expect("a cube-sphere").side();
     let points = side as usize + 1;
     let lattice_deg = lattice_spacing_deg(n, k);
+    let strides = inputs.strides(n, k);
+    let variable = strides.iter().any(|&j| j > 0);
     let mut faces = Vec::with_capacity(6);
     let mut winners = Vec::with_capacity(6);
+    let mut classes = Vec::with_capacity(6);
     for face in 0..domain.faces() {
-        let results: Vec<(Option<i32>, u8)> = (0..points * points)
+        let results: Vec<(Option<i32>, u8, u8)> = (0..points * points)
             .into_par_iter()
             .map(|i| {
                 let (x, y) = ((i % points) as i64, (i / points) as i64);
@@ -470,9 +524,13 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
                 } else {
                     lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
                 };
-                match inputs.height_at(ll, lattice_deg) {
-                    Some((v, w)) => (plan.to_units(v).ok().flatten(), w),
-                    None => (None, u8::MAX),
+                match inputs.source_at(ll, (x, y), lattice_deg, &strides) {
+                    Some(PointSource::Sample(v, w, j)) => match plan.to_units(v).ok().flatten() {
+                        Some(u) => (Some(u), w, j),
+                        None => (None, u8::MAX, HOLE),
+                    },
+                    Some(PointSource::CoarseOnly(w)) => (None, w, COARSE_ONLY),
+                    None => (None, u8::MAX, HOLE),
                 }
             })
             .collect();
@@ -483,9 +541,21 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
             valid: results.iter().map(|r| r.0.is_some()).collect(),
         });
         winners.push(results.iter().map(|r| r.1).collect());
+        if variable {
+            classes.push(Resolution {
+                class: results.iter().map(|r| r.2).collect(),
+            });
+        }
     }
-    let planet = PlanetGrid::new(n, k, faces)?;
-    Ok(Resampled { planet, winners })
+    let mut planet = PlanetGrid::new(n, k, faces)?;
+    if variable {
+        planet = planet.with_classes(classes)?;
+    }
+    Ok(Resampled {
+        planet,
+        winners,
+        strides,
+    })
 }
 
 /// How far the resampled lattice is from one input's own samples.
@@ -504,6 +574,9 @@ pub struct InputResampling {
     pub rms_error: f64,
     /// Where the largest error is: the sample's latitude and longitude.
     pub worst_at: Option<LatLon>,
+    /// `log2` of the input's stride on the lattice ([`input_stride`]): 0 when it is sampled at
+    /// every lattice point.
+    pub stride: u32,
 }
 
 /// Measures each input's samples against the bilinear interpolant of the resampled lattice
@@ -522,6 +595,9 @@ pub fn resampling_error(
         .enumerate()
         .map(|(i, input)| {
             let me = u8::try_from(i).unwrap_or(u8::MAX);
+            // The input's samples are the lattice points on its stride: the surface drawn
+            // where it is the finest data interpolates those.
+            let step = 1i64 << resampled.strides[i];
             let (samples, compared, max, sum2, worst_at) = (0..input.height)
                 .into_par_iter()
                 .map(|r| {
@@ -533,14 +609,15 @@ pub fn resampling_error(
                         acc.0 += 1;
                         let ll = input.lat_lon_of(c, r);
                         let (face, s, t) = lat_lon_to_face_st(ll);
-                        let (x, y) = (s * side as f64, t * side as f64);
+                        let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
+                        let cells = side / step;
                         let (x0, y0) = (
-                            (x.floor() as i64).min(side - 1),
-                            (y.floor() as i64).min(side - 1),
+                            (x.floor() as i64).min(cells - 1),
+                            (y.floor() as i64).min(cells - 1),
                         );
                         let (fx, fy) = (x - x0 as f64, y - y0 as f64);
                         let corner = |dx: i64, dy: i64| {
-                            let (px, py) = (x0 + dx, y0 + dy);
+                            let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
                             let won = resampled.winners[usize::from(face)]
                                 [py as usize * points + px as usize];
                             (won == me)
@@ -586,6 +663,7 @@ pub fn resampling_error(
                     0.0
                 },
                 worst_at,
+                stride: resampled.strides[i],
             }
         })
         .collect()
@@ -834,6 +912,7 @@ pub fn compare_planet(
     let decoded = Resampled {
         planet: PlanetGrid::new(n, k, reconstruct_planet(&encoded)?)?,
         winners: resampled.winners,
+        strides: resampled.strides,
     };
     let end_to_end = resampling_error(&inputs, &decoded, &plan);
     Ok(PlanetComparison {

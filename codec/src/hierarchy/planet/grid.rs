@@ -4,6 +4,7 @@ use rayon::prelude::*;
 
 use crate::CodecError;
 use crate::geometry::{Domain, FacePoint};
+use crate::hierarchy::Resolution;
 use crate::quant::HeightGrid;
 
 /// Integer heights (and validity) at every lattice point of the six faces of a cube-sphere
@@ -11,10 +12,16 @@ use crate::quant::HeightGrid;
 /// indexed by the face's lattice `(x, y)`. A point on a cube edge or corner lies on two or
 /// three faces; every face holding it holds the same value and validity (checked by
 /// [`PlanetGrid::new`], by construction in [`PlanetGrid::from_fn`]).
+///
+/// A variable-resolution planet ([`PlanetGrid::with_classes`]) also says, per face point, what
+/// the point is ([`Resolution`]): a sample of an input of stride `2^j` (a vertex of level
+/// `L − 2j`, constrained from that level on), *coarse only* (between a coarser input's samples:
+/// drawn, not constrained, so the hierarchy stops at that input's level there) or a hole.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PlanetGrid {
     domain: Domain,
     faces: Vec<HeightGrid>,
+    classes: Option<Vec<Resolution>>,
 }
 
 impl PlanetGrid {
@@ -67,7 +74,57 @@ impl PlanetGrid {
                 }
             }
         }
-        Ok(Self { domain, faces })
+        Ok(Self {
+            domain,
+            faces,
+            classes: None,
+        })
+    }
+
+    /// The same planet at variable resolution: `classes[f]` classifies face `f`'s points
+    /// ([`Resolution`], row-major like the face grid). Errors if a face's classes do not match
+    /// its grid (samples exactly where it is valid) or two faces classify a shared edge or
+    /// corner point differently.
+    pub fn with_classes(self, classes: Vec<Resolution>) -> Result<Self, CodecError> {
+        if classes.len() != self.faces.len() {
+            return Err(CodecError::invalid(format!(
+                "{} faces of classes for a planet of {} faces",
+                classes.len(),
+                self.faces.len()
+            )));
+        }
+        for (f, (c, g)) in classes.iter().zip(&self.faces).enumerate() {
+            c.check(g)
+                .map_err(|e| CodecError::invalid(format!("face {f}: {e}")))?;
+        }
+        let cube = *self.domain.cube().expect("a cube-sphere has a cube");
+        let side = cube.side();
+        let points = side as usize + 1;
+        let class =
+            |p: FacePoint| classes[usize::from(p.face)].class[p.y as usize * points + p.x as usize];
+        for face in 0..self.domain.faces() {
+            for p in boundary(face, side) {
+                let (reps, len) = cube.representations(p);
+                if let Some(r) = reps[1..len].iter().find(|r| class(**r) != class(p)) {
+                    return Err(CodecError::invalid(format!(
+                        "face {} ({}, {}) and face {} ({}, {}), the same point of a cube edge, \
+                         have different resolution classes ({} and {})",
+                        p.face,
+                        p.x,
+                        p.y,
+                        r.face,
+                        r.x,
+                        r.y,
+                        class(p),
+                        class(*r)
+                    )));
+                }
+            }
+        }
+        Ok(Self {
+            classes: Some(classes),
+            ..self
+        })
     }
 
     /// The planet whose height at every lattice point is `height` of the point's canonical
@@ -100,7 +157,11 @@ impl PlanetGrid {
                 }
             })
             .collect();
-        Ok(Self { domain, faces })
+        Ok(Self {
+            domain,
+            faces,
+            classes: None,
+        })
     }
 
     /// The cube-sphere the grids cover.
@@ -132,9 +193,31 @@ impl PlanetGrid {
         Some(self.faces[usize::from(c.face)].is_valid(c.x, c.y))
     }
 
-    /// Whether some point has no data.
+    /// The resolution classes of face `face`, for a variable-resolution planet.
+    pub fn classes(&self, face: u8) -> Option<&Resolution> {
+        self.classes.as_ref().map(|c| &c[usize::from(face)])
+    }
+
+    /// Whether `(x, y)` of `face`'s frame (as for [`PlanetGrid::get`]) is drawn: a sample, or
+    /// coarse only on a variable-resolution planet (what the nodata mask records); `None` off
+    /// the surface.
+    #[inline]
+    pub fn drawn(&self, face: u8, x: i64, y: i64) -> Option<bool> {
+        let c = self.domain.canonical_point(face, x, y)?;
+        let g = &self.faces[usize::from(c.face)];
+        Some(match &self.classes {
+            Some(classes) => classes[usize::from(c.face)].drawn(g.width, c.x, c.y),
+            None => g.is_valid(c.x, c.y),
+        })
+    }
+
+    /// Whether some point is not drawn (no data at all): the hierarchy then carries a nodata
+    /// mask.
     pub fn has_nodata(&self) -> bool {
-        self.faces.iter().any(|g| g.valid.contains(&false))
+        match &self.classes {
+            Some(classes) => classes.iter().any(Resolution::has_holes),
+            None => self.faces.iter().any(|g| g.valid.contains(&false)),
+        }
     }
 
     /// Smallest and largest valid height, `None` when no point has data.

@@ -14,12 +14,12 @@ mod grid;
 
 pub use grid::PlanetGrid;
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 
 use rayon::prelude::*;
 
-use super::decode::{LevelReport, VerifyReport, walk_all_with_validity, walk_with_validity};
-use super::encode::{EncodeOptions, record_of, refine_encode, saturate_errors, with_ancestors};
+use super::decode::{LevelReport, VerifyReport, walk_all_with_validity};
+use super::encode::{EncodeOptions, record_of, refine_encode, saturate_errors};
 use super::object_error::{ErrorInput, surface_error};
 use super::refine::{Refined, gather};
 use super::roots::{encode_roots, root_grid};
@@ -70,11 +70,11 @@ pub fn encode_planet(
         nodata_mask: planet.has_nodata(),
         kind: RepoKind::Elevation,
     };
-    let stored = stored_sets(planet);
+    let (stored, recorded) = stored_sets(planet);
     let (root_field, roots) = encode_roots(
         &params,
         |f, x, y| planet.get(f, x, y),
-        |f, x, y| planet.validity(f, x, y) == Some(true),
+        |f, x, y| planet.drawn(f, x, y) == Some(true),
     )?;
     let inputs: Vec<ErrorInput> = (0..domain.faces())
         .map(|f| ErrorInput::new(planet.face(f)))
@@ -97,7 +97,8 @@ pub fn encode_planet(
                     gather(&domain, id, parents, &mut p);
                 }
                 let err = planet_surface_error(&domain, id, &p, &inputs);
-                if level == finest {
+                // Leaves: the finest level, and where coarse data ends the hierarchy above it.
+                if !recorded[level as usize].contains(&id) {
                     return Ok((id, None, err));
                 }
                 let r = refine_encode(
@@ -105,7 +106,7 @@ pub fn encode_planet(
                     id,
                     &p,
                     |x, y| planet.get(id.face, x, y),
-                    |x, y| planet.validity(id.face, x, y),
+                    |x, y| planet.drawn(id.face, x, y),
                 )?;
                 let refined = Refined::from_parts(n, &p, &r.cells);
                 Ok((id, Some((refined, record_of(id, &p, r.bytes))), err))
@@ -129,21 +130,58 @@ pub fn encode_planet(
     })
 }
 
-/// The stored diamonds of every level: the finest diamonds whose closed square holds a valid
-/// point of their face, and all their ancestors.
-fn stored_sets(planet: &PlanetGrid) -> Vec<Vec<DiamondId>> {
+/// The stored diamonds of every level and, per level, those that get a record (the parents of
+/// the next level's stored diamonds).
+///
+/// At one resolution the leaves are the finest diamonds whose closed square holds a valid point
+/// of their face. At variable resolution ([`PlanetGrid::with_classes`]), as on a plane
+/// ([`super::resolution`]): for each stride `2^j` a face's samples have, the level-`L − 2j`
+/// diamonds (squares inside the face, as every even level's) whose closed square holds a sample
+/// of that stride. Then all their ancestors, across face edges.
+fn stored_sets(planet: &PlanetGrid) -> (Vec<Vec<DiamondId>>, Vec<BTreeSet<DiamondId>>) {
     let domain = planet.domain();
     let layout = domain.layout();
     let finest = domain.finest_level();
-    let leaves: Vec<DiamondId> = domain
-        .level(finest)
-        .filter(|id| {
-            let g = planet.face(id.face);
-            let (x0, y0, x1, y1) = layout.bounds(*id);
-            (y0..=y1).any(|y| (x0..=x1).any(|x| g.is_valid(x, y)))
-        })
-        .collect();
-    with_ancestors(domain, leaves)
+    let mut leaves: Vec<BTreeSet<DiamondId>> = vec![BTreeSet::new(); finest as usize + 1];
+    for face in 0..domain.faces() {
+        let g = planet.face(face);
+        match planet.classes(face) {
+            None => leaves[finest as usize].extend(domain.level(finest).filter(|id| {
+                let (x0, y0, x1, y1) = layout.bounds(*id);
+                id.face == face && (y0..=y1).any(|y| (x0..=x1).any(|x| g.is_valid(x, y)))
+            })),
+            Some(res) => {
+                let mut strides: Vec<u8> = res.class.iter().copied().filter(|&c| c < 32).collect();
+                strides.sort_unstable();
+                strides.dedup();
+                for j in strides {
+                    // Strides above the root spacing are root points: their leaves are roots.
+                    let level = finest.saturating_sub(2 * j);
+                    leaves[level as usize].extend(domain.level(level).filter(|id| {
+                        let (x0, y0, x1, y1) = layout.bounds(*id);
+                        id.face == face
+                            && (y0..=y1).any(|y| {
+                                let row = y as usize * g.width;
+                                res.class[row + x0 as usize..=row + x1 as usize].contains(&j)
+                            })
+                    }));
+                }
+            }
+        }
+    }
+    let mut stored = vec![Vec::new(); finest as usize + 1];
+    let mut recorded = vec![BTreeSet::new(); finest as usize + 1];
+    stored[finest as usize] = leaves[finest as usize].iter().copied().collect();
+    for level in (0..finest as usize).rev() {
+        let parents: BTreeSet<DiamondId> = stored[level + 1]
+            .iter()
+            .flat_map(|&d| domain.parents(d))
+            .flatten()
+            .collect();
+        stored[level] = parents.union(&leaves[level]).copied().collect();
+        recorded[level] = parents;
+    }
+    (stored, recorded)
 }
 
 /// The object error of `id` with grid `p` against the planet's faces: its own face's input,
@@ -248,11 +286,15 @@ pub fn reconstruct_planet(encoded: &Encoded) -> Result<Vec<HeightGrid>, CodecErr
     let layout = domain.layout();
     let n = layout.n();
     let finest = layout.finest_level();
-    walk_with_validity(encoded, |id, p, v| {
-        if id.level != finest {
+    // Every level, coarse to fine: where coarse data ends the hierarchy above the finest level
+    // (a variable-resolution planet), the leaves' points are the lattice's there. With α = 1 a
+    // point keeps its value at every finer level, so the finest diamonds write the same values
+    // again elsewhere. Even levels' diamonds are squares inside their face; odd levels' points
+    // are all points of the next (even) level.
+    walk_all_with_validity(encoded, |id, p, v| {
+        if id.level % 2 != finest % 2 {
             return;
         }
-        // Finest diamonds are squares inside their face.
         let g = layout.grid(id);
         let face = &mut faces[usize::from(id.face)];
         for j in 0..n {
