@@ -279,7 +279,7 @@ fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
             path.display()
         );
     };
-    let frame = frame_of(&georef).with_context(|| path.display().to_string())?;
+    let frame = frame_of(&georef, dem.width).with_context(|| path.display().to_string())?;
     let spacing_deg = match frame {
         Frame::Geographic { dlat, .. } => dlat,
         Frame::Projected { dy, .. } => dy / METRES_PER_DEGREE,
@@ -303,7 +303,8 @@ fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
     })
 }
 
-fn frame_of(g: &GeoRef) -> Result<Frame> {
+/// How the `width` columns of an input georeferenced by `g` lie on the Earth.
+fn frame_of(g: &GeoRef, width: usize) -> Result<Frame> {
     let epsg = g.epsg.unwrap_or(0);
     if !(g.pixel_x > 0.0 && g.pixel_y > 0.0) {
         bail!(
@@ -316,9 +317,13 @@ fn frame_of(g: &GeoRef) -> Result<Frame> {
     let half = if g.pixel_is_area { 0.5 } else { 0.0 };
     let (x0, y0) = (g.origin_x + half * g.pixel_x, g.origin_y - half * g.pixel_y);
     if GEOGRAPHIC_EPSG.contains(&epsg) {
+        // It wraps only when its columns go all the way round: a spacing that divides 360°
+        // (3″, 5′, 2⁻¹⁰ of 90°) is not enough — an inset of it would take the point up to one
+        // column east of its last one as its own, clamped onto the last column.
         let per_turn = 360.0 / g.pixel_x;
-        let period =
-            ((per_turn - per_turn.round()).abs() < 1e-6).then_some(per_turn.round() as usize);
+        let period = ((per_turn - per_turn.round()).abs() < 1e-6
+            && width as f64 >= per_turn.round())
+        .then_some(per_turn.round() as usize);
         return Ok(Frame::Geographic {
             lon0: x0,
             lat0: y0,
@@ -913,5 +918,53 @@ mod tests {
         values[4] = -1.0;
         g.samples = Samples::compact(values);
         assert_eq!(at(&g, 45.0, 45.0), None);
+    }
+
+    /// Only an input whose columns go all the way round wraps: an inset whose spacing divides
+    /// 360° (3″, as SRTM's) covers nothing east of its last column.
+    #[test]
+    fn only_inputs_around_the_globe_wrap() {
+        let georef = |pixel: f64| GeoRef {
+            epsg: Some(4326),
+            origin_x: 10.0,
+            origin_y: 50.0,
+            pixel_x: pixel,
+            pixel_y: pixel,
+            pixel_is_area: false,
+            wkt: None,
+        };
+        let wraps = |f: Frame| {
+            matches!(
+                f,
+                Frame::Geographic {
+                    period: Some(_),
+                    ..
+                }
+            )
+        };
+        assert!(wraps(frame_of(&georef(5.0 / 60.0), 4320).unwrap()));
+        assert!(!wraps(frame_of(&georef(5.0 / 60.0), 100).unwrap()));
+        assert!(!wraps(frame_of(&georef(3.0 / 3600.0), 1201).unwrap()));
+        let mut inset = input(0.5);
+        inset.width = 3;
+        inset.samples = Samples::compact(vec![0.0; 6]);
+        inset.frame = frame_of(&georef(0.5), 3).unwrap();
+        // Columns at 10°, 10.5° and 11° E: 11.2° E is off the inset, 10.9° E on it.
+        assert!(
+            inset
+                .pixel_of(LatLon {
+                    lat: 49.8,
+                    lon: 11.2
+                })
+                .is_none()
+        );
+        assert!(
+            inset
+                .pixel_of(LatLon {
+                    lat: 49.8,
+                    lon: 10.9
+                })
+                .is_some()
+        );
     }
 }
