@@ -25,7 +25,7 @@ use crate::error::{Context, Result, bail};
 use crate::mosaic::Samples;
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
-use cbdam_codec::geodesy::cube_map::{face_st_to_lat_lon, lat_lon_to_face_st};
+use cbdam_codec::geodesy::cube_map::{FaceLattice, lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
@@ -104,7 +104,7 @@ impl PlanetInput {
                 let r = (lat0 - ll.lat) / dlat;
                 let c = (ll.lon - lon0) / dlon;
                 let c = match period {
-                    Some(p) => c.rem_euclid(p as f64),
+                    Some(p) => rem_euclid(c, p as f64),
                     None => [c, c + 360.0 / dlon, c - 360.0 / dlon]
                         .into_iter()
                         .find(|c| (-SLACK..=w - 1.0 + SLACK).contains(c))?,
@@ -254,6 +254,23 @@ impl PlanetInput {
                 )
             })
             .reduce_with(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+    }
+}
+
+/// `c.rem_euclid(p)` bit for bit, without the `fmod` of `%` where `c` is less than a period
+/// out of `[0, p)` (every longitude of a global input): below 0, `c % p` is `c` and
+/// `rem_euclid` adds `p`, as here; in `[p, 2p)` the exact remainder is `c − p`, which is exact
+/// in floating point there (Sterbenz).
+#[inline]
+fn rem_euclid(c: f64, p: f64) -> f64 {
+    if (0.0..p).contains(&c) {
+        c
+    } else if (-p..0.0).contains(&c) {
+        c + p
+    } else if (p..2.0 * p).contains(&c) {
+        c - p
+    } else {
+        c.rem_euclid(p)
     }
 }
 
@@ -464,30 +481,42 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
     let mut faces = Vec::with_capacity(6);
     let mut winners = Vec::with_capacity(6);
     for face in 0..domain.faces() {
-        let results: Vec<(Option<i32>, u8)> = (0..points * points)
-            .into_par_iter()
-            .map(|i| {
-                let (x, y) = ((i % points) as i64, (i / points) as i64);
-                // Interior points are their own canonical point; edge and corner points are
-                // computed from their owner, so every face holding one sees the same bits.
-                let ll = if 0 < x && x < side && 0 < y && y < side {
-                    face_st_to_lat_lon(face, x as f64 / side as f64, y as f64 / side as f64)
-                } else {
-                    lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
-                };
-                match inputs.height_at(ll, lattice_deg) {
-                    Some((v, w)) => (plan.to_units(v).ok().flatten(), w),
-                    None => (None, u8::MAX),
+        let lattice = FaceLattice::new(face, side);
+        let mut values = vec![0; points * points];
+        let mut valid = vec![false; points * points];
+        let mut won = vec![u8::MAX; points * points];
+        values
+            .par_chunks_mut(points)
+            .zip(valid.par_chunks_mut(points))
+            .zip(won.par_chunks_mut(points))
+            .enumerate()
+            .for_each(|(y, ((values, valid), won))| {
+                let y = y as i64;
+                for x in 0..points {
+                    let xi = x as i64;
+                    // Interior points are their own canonical point; edge and corner points
+                    // are computed from their owner, so every face holding one sees the same
+                    // bits.
+                    let ll = if 0 < xi && xi < side && 0 < y && y < side {
+                        lattice.lat_lon(x, y as usize)
+                    } else {
+                        lattice_lat_lon(&domain, face, xi, y).expect("a point of the face")
+                    };
+                    if let Some((v, w)) = inputs.height_at(ll, lattice_deg) {
+                        let units = plan.to_units(v).ok().flatten();
+                        values[x] = units.unwrap_or(0);
+                        valid[x] = units.is_some();
+                        won[x] = w;
+                    }
                 }
-            })
-            .collect();
+            });
         faces.push(HeightGrid {
             width: points,
             height: points,
-            values: results.iter().map(|r| r.0.unwrap_or(0)).collect(),
-            valid: results.iter().map(|r| r.0.is_some()).collect(),
+            values,
+            valid,
         });
-        winners.push(results.iter().map(|r| r.1).collect());
+        winners.push(won);
     }
     let planet = PlanetGrid::new(n, k, faces)?;
     Ok(Resampled { planet, winners })
@@ -527,29 +556,45 @@ pub fn resampling_error(
         .enumerate()
         .map(|(i, input)| {
             let me = u8::try_from(i).unwrap_or(u8::MAX);
+            // On a latitude/longitude grid the longitude's sine and cosine depend on the
+            // column only (the latitude's on the row): computed once each.
+            let columns: Option<Vec<(f64, f64)>> = match input.frame {
+                Frame::Geographic { .. } => Some(
+                    (0..input.width)
+                        .map(|c| input.lat_lon_of(c, 0).lon.to_radians().sin_cos())
+                        .collect(),
+                ),
+                Frame::Projected { .. } => None,
+            };
             let (samples, compared, max, sum2, worst_at) = (0..input.height)
                 .into_par_iter()
                 .map(|r| {
                     let mut acc = (0u64, 0u64, 0f64, 0f64, None);
+                    let row = input.lat_lon_of(0, r).lat.to_radians().sin_cos();
                     for c in 0..input.width {
                         let Some(v) = input.sample(c, r) else {
                             continue;
                         };
                         acc.0 += 1;
-                        let ll = input.lat_lon_of(c, r);
-                        let (face, s, t) = lat_lon_to_face_st(ll);
+                        let (face, s, t) = match &columns {
+                            Some(columns) => sin_cos_to_face_st(row, columns[c]),
+                            None => lat_lon_to_face_st(input.lat_lon_of(c, r)),
+                        };
                         let (x, y) = (s * side as f64, t * side as f64);
                         let (x0, y0) = (
                             (x.floor() as i64).min(side - 1),
                             (y.floor() as i64).min(side - 1),
                         );
                         let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+                        // Corners inside the face (x0, y0 < S): its own grid holds them, equal
+                        // to every other face's on shared points (`PlanetGrid::new` checks).
+                        let grid = planet.face(face);
                         let corner = |dx: i64, dy: i64| {
                             let (px, py) = (x0 + dx, y0 + dy);
                             let won = resampled.winners[usize::from(face)]
                                 [py as usize * points + px as usize];
                             (won == me)
-                                .then(|| planet.get(face, px, py).map(|u| plan.metres(u)))
+                                .then(|| grid.get(px, py).map(|u| plan.metres(u)))
                                 .flatten()
                         };
                         let (Some(a), Some(b), Some(cc), Some(d)) =
@@ -563,7 +608,7 @@ pub fn resampling_error(
                         acc.1 += 1;
                         if e > acc.2 || acc.4.is_none() {
                             acc.2 = e;
-                            acc.4 = Some(ll);
+                            acc.4 = Some(input.lat_lon_of(c, r));
                         }
                         acc.3 += e * e;
                     }
