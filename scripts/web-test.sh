@@ -43,7 +43,7 @@ cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksbor
     --max-error 1 --quiet
 python3 scripts/web_test.py target/web-bundle "$work/jacksboro.cbdam" \
     "${CARGO_TARGET_DIR:-target}/debug/cbdam"
-# A planet (ETOPO5 on a coarse lattice, K = 3: 1.6 M points, built in about a second): the
+# A planet (ETOPO5 on a coarse lattice, K = 3: 1.6 M points, built in about 2 s): the
 # page draws the whole globe, centred.
 cargo run --quiet --bin cbdam -- build data/etopo5_global.tif --planet --planet-level 3 \
     -o "$work/earth.cbdam" --max-error 16 --quiet
