@@ -31,6 +31,8 @@ and checks the pixels of a screenshot, not only the page's word:
 Prints the times from navigation to the first frame and to the converged cut (both backends).
 
 Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
+       web_test.py --planet BUNDLE_DIR PLANET.cbdam CBDAM_BINARY
+         (a planet: the page draws the whole globe, centred; see check_planet)
        web_test.py --measure WIDTHxHEIGHT BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY [REPO_URL]
          (figures only; REPO_URL: open that instead of the exported file)
 """
@@ -784,7 +786,71 @@ def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
         shutil.rmtree(root, ignore_errors=True)
 
 
+def check_planet(bundle, repository, cbdam):
+    """`--planet`: a planet (cube-sphere repository) exported and opened like a plane; the page
+    converges and draws the whole globe, centred: the screenshot's non-sky pixels form a disc
+    about 90 % of the frame's height (`Camera::globe`) around the frame's centre, filled with
+    terrain in many colours, and the sky is left around it. Returns the failures."""
+    root = tempfile.mkdtemp(prefix="cbdam-web-planet-")
+    try:
+        subprocess.run([cbdam, "web-export", root, "--bundle", bundle, "--repo", repository],
+                       check=True, stdout=subprocess.DEVNULL)
+        server = serve(root)
+        url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
+        t = time.time()
+        status, shot, console, _, _ = open_viewer(WEBGPU_FLAGS, url, converged)
+        wall = time.time() - t
+        server.shutdown()
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    save_screenshot(shot, "planet.png")
+    width, height, channels, rows = decode_png(shot)
+    points, colours = [], set()
+    for y, row in enumerate(rows):
+        for x in range(width):
+            r, g, b = row[x * channels : x * channels + 3]
+            if abs(r - SKY[0]) + abs(g - SKY[1]) + abs(b - SKY[2]) > 12:
+                points.append((x, y))
+                colours.add((r >> 2, g >> 2, b >> 2))
+    failures = []
+    if not status or not converged(status):
+        print("console:\n  " + "\n  ".join(console[-20:]))
+        return [f"planet: the page did not converge: {status}"]
+    if not points:
+        return ["planet: nothing but sky in the screenshot"]
+    # The disc: centred where the non-sky pixels' box is, of the radius their area gives.
+    xs, ys = [p[0] for p in points], [p[1] for p in points]
+    cx, cy = (min(xs) + max(xs) + 1) / 2, (min(ys) + max(ys) + 1) / 2
+    radius = math.sqrt(len(points) / math.pi)
+    inside = sum(1 for y in range(height) for x in range(width)
+                 if math.hypot(x + 0.5 - cx, y + 0.5 - cy) < radius - 2)
+    inner = sum(1 for x, y in points if math.hypot(x + 0.5 - cx, y + 0.5 - cy) < radius - 2)
+    outer = sum(1 for x, y in points if math.hypot(x + 0.5 - cx, y + 0.5 - cy) > radius + 2)
+    print(
+        f"planet: first frame {status.get('firstFrameMs')} ms, converged {status.get('convergedMs')} ms "
+        f"after navigation ({status.get('refined')} diamonds, {status.get('triangles')} triangles); "
+        f"disc centred at {cx:.1f}, {cy:.1f} of {width}x{height}, radius {radius:.1f} px "
+        f"(box {max(xs) - min(xs) + 1}x{max(ys) - min(ys) + 1}), {len(colours)} colours; "
+        f"{inside - inner} sky pixels inside it, {outer} terrain pixels outside; {wall:.1f} s"
+    )
+    # Measured: centred to a pixel, radius 216 px (0.9 of 480 / 2), no sky inside.
+    if abs(cx - width / 2) > 3 or abs(cy - height / 2) > 3:
+        failures.append(f"planet: the globe is centred at {cx:.1f}, {cy:.1f}, not the frame's centre")
+    if abs(2 * radius - 0.9 * min(width, height)) > 10:
+        failures.append(f"planet: the disc is {2 * radius:.1f} px across, not 90 % of {min(width, height)}")
+    if inside - inner > 0.001 * inside or outer > 0.001 * inside:
+        failures.append(f"planet: not a disc: {inside - inner} sky pixels inside, {outer} terrain outside")
+    if len(colours) < 50:
+        failures.append(f"planet: only {len(colours)} colours: no terrain drawn on the globe")
+    return failures
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "--measure":
         sys.exit(measure(*sys.argv[2:7]))
+    if sys.argv[1] == "--planet":
+        planet_failures = check_planet(*sys.argv[2:5])
+        for f in planet_failures:
+            print("FAILED " + f, file=sys.stderr)
+        sys.exit(1 if planet_failures else 0)
     sys.exit(main())

@@ -7,6 +7,7 @@ mod util;
 mod cli;
 mod cli_colour;
 mod cli_multires;
+mod cli_planet_closeup;
 mod cli_render;
 mod cli_render_colour;
 mod cli_tiles;

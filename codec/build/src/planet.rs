@@ -25,7 +25,7 @@ use crate::error::{Context, Result, bail};
 use crate::mosaic::Samples;
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
-use cbdam_codec::geodesy::cube_map::{face_st_to_lat_lon, lat_lon_to_face_st};
+use cbdam_codec::geodesy::cube_map::{FaceLattice, lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
@@ -105,7 +105,7 @@ impl PlanetInput {
                 let r = (lat0 - ll.lat) / dlat;
                 let c = (ll.lon - lon0) / dlon;
                 let c = match period {
-                    Some(p) => c.rem_euclid(p as f64),
+                    Some(p) => rem_euclid(c, p as f64),
                     None => [c, c + 360.0 / dlon, c - 360.0 / dlon]
                         .into_iter()
                         .find(|c| (-SLACK..=w - 1.0 + SLACK).contains(c))?,
@@ -258,6 +258,23 @@ impl PlanetInput {
     }
 }
 
+/// `c.rem_euclid(p)` bit for bit, without the `fmod` of `%` where `c` is less than a period
+/// out of `[0, p)` (every longitude of a global input): below 0, `c % p` is `c` and
+/// `rem_euclid` adds `p`, as here; in `[p, 2p)` the exact remainder is `c − p`, which is exact
+/// in floating point there (Sterbenz).
+#[inline]
+fn rem_euclid(c: f64, p: f64) -> f64 {
+    if (0.0..p).contains(&c) {
+        c
+    } else if (-p..0.0).contains(&c) {
+        c + p
+    } else if (p..2.0 * p).contains(&c) {
+        c - p
+    } else {
+        c.rem_euclid(p)
+    }
+}
+
 /// Reads one input and places it on the Earth, or says why it cannot be.
 fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
     let path = &tile.path;
@@ -280,7 +297,7 @@ fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
             path.display()
         );
     };
-    let frame = frame_of(&georef).with_context(|| path.display().to_string())?;
+    let frame = frame_of(&georef, dem.width).with_context(|| path.display().to_string())?;
     let spacing_deg = match frame {
         Frame::Geographic { dlat, .. } => dlat,
         Frame::Projected { dy, .. } => dy / METRES_PER_DEGREE,
@@ -304,7 +321,8 @@ fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
     })
 }
 
-fn frame_of(g: &GeoRef) -> Result<Frame> {
+/// How the `width` columns of an input georeferenced by `g` lie on the Earth.
+fn frame_of(g: &GeoRef, width: usize) -> Result<Frame> {
     let epsg = g.epsg.unwrap_or(0);
     if !(g.pixel_x > 0.0 && g.pixel_y > 0.0) {
         bail!(
@@ -317,9 +335,13 @@ fn frame_of(g: &GeoRef) -> Result<Frame> {
     let half = if g.pixel_is_area { 0.5 } else { 0.0 };
     let (x0, y0) = (g.origin_x + half * g.pixel_x, g.origin_y - half * g.pixel_y);
     if GEOGRAPHIC_EPSG.contains(&epsg) {
+        // It wraps only when its columns go all the way round: a spacing that divides 360°
+        // (3″, 5′, 2⁻¹⁰ of 90°) is not enough — an inset of it would take the point up to one
+        // column east of its last one as its own, clamped onto the last column.
         let per_turn = 360.0 / g.pixel_x;
-        let period =
-            ((per_turn - per_turn.round()).abs() < 1e-6).then_some(per_turn.round() as usize);
+        let period = ((per_turn - per_turn.round()).abs() < 1e-6
+            && width as f64 >= per_turn.round())
+        .then_some(per_turn.round() as usize);
         return Ok(Frame::Geographic {
             lon0: x0,
             lat0: y0,
@@ -513,38 +535,55 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
     let mut winners = Vec::with_capacity(6);
     let mut classes = Vec::with_capacity(6);
     for face in 0..domain.faces() {
-        let results: Vec<(Option<i32>, u8, u8)> = (0..points * points)
-            .into_par_iter()
-            .map(|i| {
-                let (x, y) = ((i % points) as i64, (i / points) as i64);
-                // Interior points are their own canonical point; edge and corner points are
-                // computed from their owner, so every face holding one sees the same bits.
-                let ll = if 0 < x && x < side && 0 < y && y < side {
-                    face_st_to_lat_lon(face, x as f64 / side as f64, y as f64 / side as f64)
-                } else {
-                    lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
-                };
-                match inputs.source_at(ll, (x, y), lattice_deg, &strides) {
-                    Some(PointSource::Sample(v, w, j)) => match plan.to_units(v).ok().flatten() {
-                        Some(u) => (Some(u), w, j),
-                        None => (None, u8::MAX, HOLE),
-                    },
-                    Some(PointSource::CoarseOnly(w)) => (None, w, COARSE_ONLY),
-                    None => (None, u8::MAX, HOLE),
+        let lattice = FaceLattice::new(face, side);
+        let mut values = vec![0; points * points];
+        let mut valid = vec![false; points * points];
+        let mut won = vec![u8::MAX; points * points];
+        let mut class = vec![HOLE; points * points];
+        values
+            .par_chunks_mut(points)
+            .zip(valid.par_chunks_mut(points))
+            .zip(won.par_chunks_mut(points))
+            .zip(class.par_chunks_mut(points))
+            .enumerate()
+            .for_each(|(y, (((values, valid), won), class))| {
+                let y = y as i64;
+                for x in 0..points {
+                    let xi = x as i64;
+                    // Interior points are their own canonical point; edge and corner points
+                    // are computed from their owner, so every face holding one sees the same
+                    // bits.
+                    let ll = if 0 < xi && xi < side && 0 < y && y < side {
+                        lattice.lat_lon(x, y as usize)
+                    } else {
+                        lattice_lat_lon(&domain, face, xi, y).expect("a point of the face")
+                    };
+                    match inputs.source_at(ll, (xi, y), lattice_deg, &strides) {
+                        Some(PointSource::Sample(v, w, j)) => {
+                            if let Some(u) = plan.to_units(v).ok().flatten() {
+                                values[x] = u;
+                                valid[x] = true;
+                                won[x] = w;
+                                class[x] = j;
+                            }
+                        }
+                        Some(PointSource::CoarseOnly(w)) => {
+                            won[x] = w;
+                            class[x] = COARSE_ONLY;
+                        }
+                        None => {}
+                    }
                 }
-            })
-            .collect();
+            });
         faces.push(HeightGrid {
             width: points,
             height: points,
-            values: results.iter().map(|r| r.0.unwrap_or(0)).collect(),
-            valid: results.iter().map(|r| r.0.is_some()).collect(),
+            values,
+            valid,
         });
-        winners.push(results.iter().map(|r| r.1).collect());
+        winners.push(won);
         if variable {
-            classes.push(Resolution {
-                class: results.iter().map(|r| r.2).collect(),
-            });
+            classes.push(Resolution { class });
         }
     }
     let mut planet = PlanetGrid::new(n, k, faces)?;
@@ -598,17 +637,30 @@ pub fn resampling_error(
             // The input's samples are the lattice points on its stride: the surface drawn
             // where it is the finest data interpolates those.
             let step = 1i64 << resampled.strides[i];
+            // On a latitude/longitude grid the longitude's sine and cosine depend on the
+            // column only (the latitude's on the row): computed once each.
+            let columns: Option<Vec<(f64, f64)>> = match input.frame {
+                Frame::Geographic { .. } => Some(
+                    (0..input.width)
+                        .map(|c| input.lat_lon_of(c, 0).lon.to_radians().sin_cos())
+                        .collect(),
+                ),
+                Frame::Projected { .. } => None,
+            };
             let (samples, compared, max, sum2, worst_at) = (0..input.height)
                 .into_par_iter()
                 .map(|r| {
                     let mut acc = (0u64, 0u64, 0f64, 0f64, None);
+                    let row = input.lat_lon_of(0, r).lat.to_radians().sin_cos();
                     for c in 0..input.width {
                         let Some(v) = input.sample(c, r) else {
                             continue;
                         };
                         acc.0 += 1;
-                        let ll = input.lat_lon_of(c, r);
-                        let (face, s, t) = lat_lon_to_face_st(ll);
+                        let (face, s, t) = match &columns {
+                            Some(columns) => sin_cos_to_face_st(row, columns[c]),
+                            None => lat_lon_to_face_st(input.lat_lon_of(c, r)),
+                        };
                         let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
                         let cells = side / step;
                         let (x0, y0) = (
@@ -616,12 +668,15 @@ pub fn resampling_error(
                             (y.floor() as i64).min(cells - 1),
                         );
                         let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+                        // Corners inside the face (x0, y0 < S): its own grid holds them, equal
+                        // to every other face's on shared points (`PlanetGrid::new` checks).
+                        let grid = planet.face(face);
                         let corner = |dx: i64, dy: i64| {
                             let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
                             let won = resampled.winners[usize::from(face)]
                                 [py as usize * points + px as usize];
                             (won == me)
-                                .then(|| planet.get(face, px, py).map(|u| plan.metres(u)))
+                                .then(|| grid.get(px, py).map(|u| plan.metres(u)))
                                 .flatten()
                         };
                         let (Some(a), Some(b), Some(cc), Some(d)) =
@@ -635,7 +690,7 @@ pub fn resampling_error(
                         acc.1 += 1;
                         if e > acc.2 || acc.4.is_none() {
                             acc.2 = e;
-                            acc.4 = Some(ll);
+                            acc.4 = Some(input.lat_lon_of(c, r));
                         }
                         acc.3 += e * e;
                     }
@@ -992,5 +1047,53 @@ mod tests {
         values[4] = -1.0;
         g.samples = Samples::compact(values);
         assert_eq!(at(&g, 45.0, 45.0), None);
+    }
+
+    /// Only an input whose columns go all the way round wraps: an inset whose spacing divides
+    /// 360° (3″, as SRTM's) covers nothing east of its last column.
+    #[test]
+    fn only_inputs_around_the_globe_wrap() {
+        let georef = |pixel: f64| GeoRef {
+            epsg: Some(4326),
+            origin_x: 10.0,
+            origin_y: 50.0,
+            pixel_x: pixel,
+            pixel_y: pixel,
+            pixel_is_area: false,
+            wkt: None,
+        };
+        let wraps = |f: Frame| {
+            matches!(
+                f,
+                Frame::Geographic {
+                    period: Some(_),
+                    ..
+                }
+            )
+        };
+        assert!(wraps(frame_of(&georef(5.0 / 60.0), 4320).unwrap()));
+        assert!(!wraps(frame_of(&georef(5.0 / 60.0), 100).unwrap()));
+        assert!(!wraps(frame_of(&georef(3.0 / 3600.0), 1201).unwrap()));
+        let mut inset = input(0.5);
+        inset.width = 3;
+        inset.samples = Samples::compact(vec![0.0; 6]);
+        inset.frame = frame_of(&georef(0.5), 3).unwrap();
+        // Columns at 10°, 10.5° and 11° E: 11.2° E is off the inset, 10.9° E on it.
+        assert!(
+            inset
+                .pixel_of(LatLon {
+                    lat: 49.8,
+                    lon: 11.2
+                })
+                .is_none()
+        );
+        assert!(
+            inset
+                .pixel_of(LatLon {
+                    lat: 49.8,
+                    lon: 10.9
+                })
+                .is_some()
+        );
     }
 }

@@ -78,9 +78,17 @@ impl CubeWarp {
 /// # Panics
 /// If `face` is not a face (≥ 6); so do the functions below that take a face.
 pub fn face_direction(warp: CubeWarp, face: u8, s: f64, t: f64) -> [f64; 3] {
+    cube_direction(
+        face,
+        warp.to_cube(2.0 * s - 1.0),
+        warp.to_cube(2.0 * t - 1.0),
+    )
+}
+
+/// The direction `normal + a·u + b·v` of `face`'s frame at cube coordinates `a, b`.
+#[inline]
+fn cube_direction(face: u8, a: f64, b: f64) -> [f64; 3] {
     let [n, u, v] = FACE_FRAMES[usize::from(face)];
-    let a = warp.to_cube(2.0 * s - 1.0);
-    let b = warp.to_cube(2.0 * t - 1.0);
     std::array::from_fn(|k| f64::from(n[k]) + a * f64::from(u[k]) + b * f64::from(v[k]))
 }
 
@@ -101,6 +109,62 @@ pub fn face_st_to_lat_lon(face: u8, s: f64, t: f64) -> LatLon {
     lat_lon_of_direction(face_direction(CubeWarp::PLANET, face, s, t))
 }
 
+/// The geodetic latitude and longitude of every point of one face's lattice (`S` steps a
+/// side), bit for bit [`face_st_to_lat_lon`]`(face, x/S, y/S)`, with what depends on one
+/// coordinate alone computed once: the warp of each column and row, and on the four
+/// equatorial faces (whose lattice y runs along the Earth's axis, so a direction's x and y
+/// components depend on the column only) the longitude and the distance from the axis of
+/// each column — one `atan2` a point instead of two and a `hypot`.
+pub struct FaceLattice {
+    face: u8,
+    /// `CubeWarp::PLANET.to_cube(2·i/S − 1)`, `i = 0..=S`.
+    cube: Vec<f64>,
+    /// Equatorial faces: per column, `(1 − e²)·√(x² + y²)` of the direction and its
+    /// longitude in degrees.
+    columns: Option<Vec<(f64, f64)>>,
+}
+
+impl FaceLattice {
+    /// The lattice of `face` with `side` steps a side.
+    pub fn new(face: u8, side: i64) -> Self {
+        let cube: Vec<f64> = (0..=side)
+            .map(|i| CubeWarp::PLANET.to_cube(2.0 * (i as f64 / side as f64) - 1.0))
+            .collect();
+        let [n, u, v] = FACE_FRAMES[usize::from(face)];
+        // x and y of `n + a·u + b·v` do not depend on b when v has none (and adding b·0, a
+        // zero, to a sum that is never −0 changes no bit).
+        let columns = (v[0] == 0 && v[1] == 0 && n[2] == 0 && u[2] == 0).then(|| {
+            cube.iter()
+                .map(|&a| {
+                    let d = cube_direction(face, a, 0.0);
+                    ((1.0 - E2) * d[0].hypot(d[1]), d[1].atan2(d[0]).to_degrees())
+                })
+                .collect()
+        });
+        Self {
+            face,
+            cube,
+            columns,
+        }
+    }
+
+    /// Latitude and longitude of lattice point `(x, y)`, `0 ≤ x, y ≤ S`.
+    #[inline]
+    pub fn lat_lon(&self, x: usize, y: usize) -> LatLon {
+        let d = cube_direction(self.face, self.cube[x], self.cube[y]);
+        match &self.columns {
+            Some(columns) => {
+                let (p, lon) = columns[x];
+                LatLon {
+                    lat: d[2].atan2(p).to_degrees(),
+                    lon,
+                }
+            }
+            None => lat_lon_of_direction(d),
+        }
+    }
+}
+
 /// The ECEF position (metres) where the ray of face point `(face, s, t)` meets the WGS84
 /// ellipsoid.
 pub fn face_st_to_surface(face: u8, s: f64, t: f64) -> [f64; 3] {
@@ -114,8 +178,13 @@ pub fn face_st_to_surface(face: u8, s: f64, t: f64) -> [f64; 3] {
 /// the surface point's direction (the lowest-numbered on a tie, as the domain's canonical
 /// owner is), and `s, t ∈ [0, 1]` on it.
 pub fn lat_lon_to_face_st(ll: LatLon) -> (u8, f64, f64) {
-    let (sp, cp) = ll.lat.to_radians().sin_cos();
-    let (sl, cl) = ll.lon.to_radians().sin_cos();
+    sin_cos_to_face_st(ll.lat.to_radians().sin_cos(), ll.lon.to_radians().sin_cos())
+}
+
+/// [`lat_lon_to_face_st`] from the sine and cosine of the latitude and of the longitude, bit
+/// for bit: a caller walking a latitude/longitude grid computes them once per row and column.
+#[inline]
+pub fn sin_cos_to_face_st((sp, cp): (f64, f64), (sl, cl): (f64, f64)) -> (u8, f64, f64) {
     // The surface point, up to the positive factor ν: (cos φ cos λ, cos φ sin λ, (1 − e²) sin φ).
     let d = [cp * cl, cp * sl, (1.0 - E2) * sp];
     let dot = |w: [i8; 3]| (0..3).map(|k| d[k] * f64::from(w[k])).sum::<f64>();
@@ -160,6 +229,33 @@ mod tests {
     fn unit(d: [f64; 3]) -> [f64; 3] {
         let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         d.map(|c| c / n)
+    }
+
+    /// A face's lattice gives every point's latitude and longitude bit for bit as
+    /// `face_st_to_lat_lon` does, on all six faces (the equatorial ones from per-column terms).
+    #[test]
+    fn face_lattices_are_face_st_to_lat_lon_bit_for_bit() {
+        for side in [96i64, 100] {
+            for face in 0..6u8 {
+                let lattice = FaceLattice::new(face, side);
+                assert_eq!(lattice.columns.is_some(), face < 4);
+                for y in 0..=side {
+                    for x in 0..=side {
+                        let want = face_st_to_lat_lon(
+                            face,
+                            x as f64 / side as f64,
+                            y as f64 / side as f64,
+                        );
+                        let got = lattice.lat_lon(x as usize, y as usize);
+                        assert_eq!(
+                            (got.lat.to_bits(), got.lon.to_bits()),
+                            (want.lat.to_bits(), want.lon.to_bits()),
+                            "face {face} ({x}, {y}) of {side}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     /// Angle between two geodetic positions on the ellipsoid, degrees (via their normals, so it
