@@ -10,6 +10,7 @@
 #![deny(missing_docs)]
 
 pub mod assign;
+pub mod band_cache;
 pub mod colour;
 pub mod encode;
 mod error;
@@ -274,7 +275,6 @@ pub(crate) fn prepare_elevation(
                 opts.quantum,
                 opts.max_error,
                 limit,
-                progress,
             )?;
             // The inputs are gone by now: what stays is the grid, the classes and the field.
             let classes = res.class.len() as u64;
