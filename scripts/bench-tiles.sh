@@ -39,8 +39,7 @@ run() { # name input
     echo "== $1: wall ${wall} s, peak RSS $((rss / 1024)) MiB," \
         "$(awk -v s="$SAMPLES" -v w="$wall" 'BEGIN { printf "%.2f M samples/s", s / w / 1e6 }')" \
         "$([ "$1" = tiles ] && awk -v n=$((N * N)) -v w="$wall" 'BEGIN { printf ", %.1f tiles/s", n / w }')"
-    grep -iE '^ *(index|survey|mosaic|read|encode|write|total)' "$DIR/$1.out" "$DIR/$1.err" |
-        sed 's/^[^:]*://' || true
+    grep -h '^timings:' "$DIR/$1.err" || true
 }
 run whole whole.tif
 run tiles tiles

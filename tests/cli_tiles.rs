@@ -150,8 +150,14 @@ fn mosaic_peak_memory_does_not_grow_with_the_tile_count() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     };
     synth(&[], &d.join("whole.f32"));
-    synth(&["--tiff", "plain", "--int16", "--tiles", "2"], &d.join("t4"));
-    synth(&["--tiff", "plain", "--int16", "--tiles", "8"], &d.join("t64"));
+    synth(
+        &["--tiff", "plain", "--int16", "--tiles", "2"],
+        &d.join("t4"),
+    );
+    synth(
+        &["--tiff", "plain", "--int16", "--tiles", "8"],
+        &d.join("t64"),
+    );
     let tile_bytes: u64 = std::fs::read_dir(d.join("t64"))
         .unwrap()
         .map(|e| e.unwrap().metadata().unwrap().len())

@@ -213,7 +213,7 @@ impl Placement {
         self.x0 + (self.width - 1) * self.stride()
     }
 
-    /// Whether `v` is a height ([`Dem::is_valid`]).
+    /// Whether `v` is a height ([`cbdam_codec::input::Dem::is_valid`]).
     #[inline]
     fn is_valid(&self, v: f64) -> bool {
         !v.is_nan() && self.nodata != Some(v)
@@ -288,10 +288,7 @@ impl Block {
     #[inline]
     fn row(&self, p: &Placement, j: usize, r: usize) -> (&Samples, usize) {
         let (first, bands) = &self.bands[j];
-        (
-            &bands[r / p.band_rows - first],
-            (r % p.band_rows) * p.width,
-        )
+        (&bands[r / p.band_rows - first], (r % p.band_rows) * p.width)
     }
 }
 
@@ -503,12 +500,7 @@ impl Mosaic {
                     let y = ya + i;
                     let mut shared = SharedSamples::new();
                     let mut seen = vec![false; block.inputs.len()];
-                    self.paint_row(
-                        &block,
-                        y,
-                        values,
-                        Some((winners, &mut shared, &mut seen)),
-                    );
+                    self.paint_row(&block, y, values, Some((winners, &mut shared, &mut seen)));
                     for (j, _) in seen.iter().enumerate().filter(|(_, s)| **s) {
                         seen_any[block.inputs[j]].store(true, std::sync::atomic::Ordering::Relaxed);
                     }
@@ -538,7 +530,10 @@ impl Mosaic {
             .find(|&k| !seen_any[k].load(std::sync::atomic::Ordering::Relaxed))
             .map(|k| &self.inputs[k])
         {
-            bail!("{} has no valid sample (all nodata or NaN)", p.path.display());
+            bail!(
+                "{} has no valid sample (all nodata or NaN)",
+                p.path.display()
+            );
         }
         let clashes: Vec<_> = shared.iter().filter(|(_, e)| e.1 > 0).collect();
         if let Some(&(&(a, b), &(n, bad, most))) = clashes.first() {
@@ -744,7 +739,10 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
         bail!("no input given");
     }
     if tiles.len() > NO_WINNER as usize {
-        bail!("{} inputs: at most {NO_WINNER} can be combined", tiles.len());
+        bail!(
+            "{} inputs: at most {NO_WINNER} can be combined",
+            tiles.len()
+        );
     }
     let mut dems: Vec<(PathBuf, TileReader, GeoRef)> = Vec::with_capacity(tiles.len());
     for tile in tiles {
@@ -1144,7 +1142,10 @@ mod tests {
             m.block_points = points;
             m.cache = BandCache::new(budget);
             let survey = m.survey().unwrap();
-            assert!(survey.resolution.class == class, "classes, blocks of {points}");
+            assert!(
+                survey.resolution.class == class,
+                "classes, blocks of {points}"
+            );
             let valid: Vec<f64> = values.iter().copied().filter(|v| !v.is_nan()).collect();
             let lo = valid.iter().copied().fold(f64::INFINITY, f64::min);
             let hi = valid.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -1176,7 +1177,13 @@ mod tests {
             values: b.values,
             georef: b.georef,
         };
-        write_geotiff(std::fs::File::create(&paths[2]).unwrap(), &r, Some(ND), false).unwrap();
+        write_geotiff(
+            std::fs::File::create(&paths[2]).unwrap(),
+            &r,
+            Some(ND),
+            false,
+        )
+        .unwrap();
         let e = mosaic(&paths, &ReadOptions::default(), 1 << 30)
             .unwrap()
             .survey()

@@ -81,9 +81,7 @@ pub fn write_geotiff_i16<W: Write + Seek>(
     }
     let dim = |v: usize| {
         u32::try_from(v).map_err(|_| {
-            BuildError::Invalid(format!(
-                "a {width}×{height} raster is too large for a TIFF"
-            ))
+            BuildError::Invalid(format!("a {width}×{height} raster is too large for a TIFF"))
         })
     };
     let mut enc = TiffEncoder::new(BufWriter::new(out))?.with_compression(if deflate {

@@ -486,7 +486,14 @@ fn hundreds_of_tiles_build_like_one_file() {
     let g = dem.georef.clone().unwrap();
     let at = |r: usize, c: usize| dem.values[r * dem.width + c];
     let whole: Vec<f64> = (0..SIDE * SIDE).map(|i| at(i / SIDE, i % SIDE)).collect();
-    write(&d.join("whole.tif"), SIDE, SIDE, whole, Some(g.clone()), false);
+    write(
+        &d.join("whole.tif"),
+        SIDE,
+        SIDE,
+        whole,
+        Some(g.clone()),
+        false,
+    );
     let want = build_bytes(vec![d.join("whole.tif")], &d.join("whole.cbdam"));
     let tiles = d.join("tiles");
     std::fs::create_dir(&tiles).unwrap();

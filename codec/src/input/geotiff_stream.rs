@@ -118,7 +118,10 @@ impl GeoTiffSource {
                 rows.start, rows.end, h.height
             )));
         }
-        let (c0, c1) = (rows.start / h.chunk_height, (rows.end - 1) / h.chunk_height + 1);
+        let (c0, c1) = (
+            rows.start / h.chunk_height,
+            (rows.end - 1) / h.chunk_height + 1,
+        );
         let first = c0 * h.chunks_across;
         let pool = Mutex::new(Vec::new());
         let chunks = (first..c1 * h.chunks_across)
@@ -127,16 +130,14 @@ impl GeoTiffSource {
             .collect::<Result<Vec<_>, CodecError>>()?;
         out.clear();
         out.resize(rows.len() * h.width, 0.0);
-        out.par_chunks_mut(h.width)
-            .zip(rows)
-            .for_each(|(row, y)| {
-                let (band_row, in_chunk) = (y / h.chunk_height - c0, y % h.chunk_height);
-                for c in 0..h.chunks_across {
-                    let k = band_row * h.chunks_across + c;
-                    let (x0, _, w, _) = h.chunk_rect(first + k);
-                    widen(&chunks[k], in_chunk * w, &mut row[x0..x0 + w]);
-                }
-            });
+        out.par_chunks_mut(h.width).zip(rows).for_each(|(row, y)| {
+            let (band_row, in_chunk) = (y / h.chunk_height - c0, y % h.chunk_height);
+            for c in 0..h.chunks_across {
+                let k = band_row * h.chunks_across + c;
+                let (x0, _, w, _) = h.chunk_rect(first + k);
+                widen(&chunks[k], in_chunk * w, &mut row[x0..x0 + w]);
+            }
+        });
         Ok(())
     }
 

@@ -11,7 +11,7 @@
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use super::{Dem, Format, GeoRef, GeoTiffSource, ReadOptions, SampleType, SampleSource};
+use super::{Dem, Format, GeoRef, GeoTiffSource, ReadOptions, SampleSource, SampleType};
 use crate::CodecError;
 
 /// Samples a band of rows of a tile should hold at least (see [`TileReader::band_rows`]): large
@@ -214,7 +214,8 @@ mod tests {
                 let mut got = Vec::new();
                 let mut out = Vec::new();
                 for r in (0..t.height()).step_by(band) {
-                    t.read_rows(r..(r + band).min(t.height()), &mut out).unwrap();
+                    t.read_rows(r..(r + band).min(t.height()), &mut out)
+                        .unwrap();
                     got.extend_from_slice(&out);
                 }
                 assert!(
