@@ -156,7 +156,7 @@ pub fn write_tiff_i16(
     use cbdam_codec::input::GeoRef;
     const SPACING: f64 = 30.0;
     let n = tiles.unwrap_or(1);
-    if n == 0 || (size - 1) % n != 0 {
+    if n == 0 || !(size - 1).is_multiple_of(n) {
         bail!("--size {size} is not N·t + 1 for --tiles {n}");
     }
     let t = (size - 1) / n;

@@ -267,6 +267,9 @@ impl Placement {
 /// No input has a valid sample at this point (in [`Mosaic::for_each_block_winners`]).
 pub const NO_WINNER: u32 = u32::MAX;
 
+/// What [`Mosaic::for_each_block_winners`] calls on each block: `(first_row, values, winners)`.
+pub type WinnersFn<'a> = dyn FnMut(usize, &[f64], &[u32]) -> Result<()> + 'a;
+
 /// Lattice rows per bucket of the row index.
 const BUCKET_ROWS: usize = 256;
 
@@ -403,7 +406,7 @@ impl Mosaic {
         for (j, &k) in block.inputs.iter().enumerate() {
             let p = &self.inputs[k];
             let s = p.stride();
-            if y < p.y0 || (y - p.y0) % s != 0 || (y - p.y0) / s >= p.height {
+            if y < p.y0 || !(y - p.y0).is_multiple_of(s) || (y - p.y0) / s >= p.height {
                 continue;
             }
             let (band, at) = block.row(p, j, (y - p.y0) / s);
@@ -450,7 +453,10 @@ impl Mosaic {
             let s = p.stride();
             let (d, ra) = (y - p.y0, (y - p.y0) / s);
             // A row on a sample row bounds the cells above and below it.
-            let cells = [(d % s == 0).then(|| ra.checked_sub(1)).flatten(), Some(ra)];
+            let cells = [
+                d.is_multiple_of(s).then(|| ra.checked_sub(1)).flatten(),
+                Some(ra),
+            ];
             for r in cells.into_iter().flatten().filter(|&r| r + 1 < p.height) {
                 let (top, a) = block.row(p, j, r);
                 let (bottom, b) = block.row(p, j, r + 1);
@@ -461,9 +467,9 @@ impl Mosaic {
                         && valid(bottom, b + c)
                         && valid(bottom, b + c + 1)
                     {
-                        for x in p.x0 + c * s..=p.x0 + (c + 1) * s {
-                            if class[x] == HOLE {
-                                class[x] = COARSE_ONLY;
+                        for point in &mut class[p.x0 + c * s..=p.x0 + (c + 1) * s] {
+                            if *point == HOLE {
+                                *point = COARSE_ONLY;
                             }
                         }
                     }
@@ -558,10 +564,7 @@ impl Mosaic {
     /// One pass over the lattice: `f(first_row, values, winners)` per block of rows, with the
     /// winning sample (NaN where none) and the index in [`Mosaic::inputs`] of the input it comes
     /// from ([`NO_WINNER`] where none).
-    pub fn for_each_block_winners(
-        &self,
-        f: &mut dyn FnMut(usize, &[f64], &[u32]) -> Result<()>,
-    ) -> Result<()> {
+    pub fn for_each_block_winners(&self, f: &mut WinnersFn<'_>) -> Result<()> {
         let w = self.width;
         let rows = self.block_rows();
         let (mut values, mut winners) = (Vec::new(), Vec::new());
