@@ -152,6 +152,14 @@ pub struct SynthArgs {
     /// Write a float32 BigTIFF (strips of 16 rows) instead of raw float32.
     #[arg(long, value_enum)]
     tiff: Option<TiffArg>,
+    /// With --tiff: heights rounded to whole metres as an int16 GeoTIFF (strips of about 1 MB),
+    /// georeferenced at 30 m in EPSG:32632.
+    #[arg(long, requires = "tiff")]
+    int16: bool,
+    /// With --int16: OUTPUT is a new directory of N × N tiles of the grid sharing their edge
+    /// rows and columns (as SRTM's do), `rRRRcCCC.tif`; --size must be N·t + 1.
+    #[arg(long, value_name = "N", requires = "int16")]
+    tiles: Option<usize>,
 }
 
 /// Compression of `cbdam synth --tiff`.
@@ -681,8 +689,8 @@ pub struct BuildArgs {
     /// comments skipped) or a GDAL VRT mosaic as gdalbuildvrt writes it (whole tiles placed by
     /// SrcRect/DstRect without scaling, one band, NoDataValue; any other element or attribute
     /// is refused by name). Tiles of one spacing that overlap (shared edge rows, as in SRTM)
-    /// must agree there, or the build names the two tiles that disagree and by how much. At most
-    /// 254 inputs in all.
+    /// must agree there, or the build names the two tiles that disagree and by how much. Any
+    /// number of tiles: they are placed from their headers and read a band of rows at a time.
     #[arg(required = true, num_args = 1..)]
     inputs: Vec<PathBuf>,
     /// The input is headerless little-endian float32, WIDTHxHEIGHT samples, row 0 north

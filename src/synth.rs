@@ -141,9 +141,69 @@ pub fn write(path: &Path, size: usize, seed: u64) -> Result<()> {
     })
 }
 
+/// `terrain(size, seed)` rounded to whole metres as int16 GeoTIFF, georeferenced at 30 m in
+/// EPSG:32632: one file at `path`, or with `tiles = Some(n)` a new directory `path` of `n × n`
+/// tiles sharing their edge rows and columns (`size` = `n·t + 1`), named `rRRRcCCC.tif` so that
+/// name order is row-major. The input of `scripts/bench-tiles.sh`.
+pub fn write_tiff_i16(
+    path: &Path,
+    size: usize,
+    seed: u64,
+    deflate: bool,
+    tiles: Option<usize>,
+) -> Result<()> {
+    use cbdam_build::write::write_geotiff_i16;
+    use cbdam_codec::input::GeoRef;
+    const SPACING: f64 = 30.0;
+    let n = tiles.unwrap_or(1);
+    if n == 0 || !(size - 1).is_multiple_of(n) {
+        bail!("--size {size} is not N·t + 1 for --tiles {n}");
+    }
+    let t = (size - 1) / n;
+    let heights: Vec<i16> = terrain(size, seed)
+        .into_iter()
+        .map(|v| v.round().clamp(-32767.0, 32767.0) as i16)
+        .collect();
+    let georef = |row: usize, col: usize| GeoRef {
+        epsg: Some(32632),
+        origin_x: 500_000.0 + col as f64 * SPACING,
+        origin_y: 4_000_000.0 - row as f64 * SPACING,
+        pixel_x: SPACING,
+        pixel_y: SPACING,
+        pixel_is_area: true,
+        wkt: None,
+    };
+    let write = |file: &Path, side: (usize, usize), values: &[i16], g: &GeoRef| {
+        write_atomically::<anyhow::Error>(file, |f| {
+            write_geotiff_i16(f, side, values, Some(g), None, deflate)?;
+            Ok(())
+        })
+    };
+    let Some(n) = tiles else {
+        return write(path, (size, size), &heights, &georef(0, 0));
+    };
+    std::fs::create_dir(path)?;
+    let mut tile = Vec::with_capacity((t + 1) * (t + 1));
+    for tr in 0..n {
+        for tc in 0..n {
+            tile.clear();
+            for r in tr * t..=tr * t + t {
+                tile.extend_from_slice(&heights[r * size + tc * t..=r * size + tc * t + t]);
+            }
+            let file = path.join(format!("r{tr:03}c{tc:03}.tif"));
+            write(&file, (t + 1, t + 1), &tile, &georef(tr * t, tc * t))?;
+        }
+    }
+    Ok(())
+}
+
 pub fn run(args: &SynthArgs) -> Result<()> {
     if args.size < 2 {
         bail!("--size must be at least 2");
+    }
+    if args.int16 {
+        let deflate = matches!(args.tiff, Some(TiffArg::Deflate));
+        return write_tiff_i16(&args.output, args.size, args.seed, deflate, args.tiles);
     }
     match args.tiff {
         None => write(&args.output, args.size, args.seed),

@@ -105,3 +105,111 @@ fn a_directory_of_tiles_builds_and_verifies_like_one_file() {
     assert!(!o.status.success() && err.contains(&s(&empty)), "{err}");
     assert!(!out.exists());
 }
+
+/// Peak resident memory (KiB) of `cbdam ARGS`, as GNU time reports it (`/usr/bin/time -f %M`:
+/// the child's `ru_maxrss`); panics if the command fails.
+fn peak_rss_kib(args: &[&str]) -> u64 {
+    let o = std::process::Command::new("/usr/bin/time")
+        .args(["-f", "peak-rss-kib %M", env!("CARGO_BIN_EXE_cbdam")])
+        .args(args)
+        .output()
+        .expect("run /usr/bin/time (GNU time)");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "cbdam {args:?}: {err}");
+    err.lines()
+        .rev()
+        .find_map(|l| l.strip_prefix("peak-rss-kib "))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no peak RSS in: {err}"))
+}
+
+/// The peak memory of a mosaic build does not grow with the number of tiles, and stays within
+/// the lattice's own arrays of a streamed single-file build: the same 8193² int16 grid (134 MB
+/// of tiles) as 4 and as 64 GeoTIFF tiles sharing their edges, against the grid as one raw
+/// float32 file (streamed, no cache). Under a --memory-limit that leaves the mosaic's cache of
+/// decoded tile rows 8 MiB, holding the tiles (≥ 134 MB) would show far beyond the bounds:
+/// - RSS(64 tiles) − RSS(4 tiles) < ⅛ of the tiles' bytes;
+/// - RSS(64 tiles) − RSS(one file) < the resolution classes (1 byte a lattice point, which only
+///   several inputs have) + ¼ of the tiles' bytes.
+///
+/// Minutes in a debug build: run it with
+/// `cargo test --release -p cbdam --test tests -- --ignored cli_tiles::mosaic_peak_memory`.
+#[test]
+#[ignore = "minutes: builds a 67 M-sample grid three times"]
+fn mosaic_peak_memory_does_not_grow_with_the_tile_count() {
+    const SIZE: usize = 8193;
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let synth = |extra: &[&str], out: &Path| {
+        let size = SIZE.to_string();
+        let mut args = vec!["synth", "--size", &size];
+        args.extend_from_slice(extra);
+        let out = s(out);
+        args.extend(["-o", &out]);
+        let o = cbdam(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    synth(&[], &d.join("whole.f32"));
+    synth(
+        &["--tiff", "plain", "--int16", "--tiles", "2"],
+        &d.join("t4"),
+    );
+    synth(
+        &["--tiff", "plain", "--int16", "--tiles", "8"],
+        &d.join("t64"),
+    );
+    let tile_bytes: u64 = std::fs::read_dir(d.join("t64"))
+        .unwrap()
+        .map(|e| e.unwrap().metadata().unwrap().len())
+        .sum();
+    let points = (SIZE * SIZE) as u64;
+    // What the mosaic itself needs (cbdam_build::mosaic::bytes_in_memory): 6 bytes a point and
+    // a block of 2^20 points at 12 bytes; 16 MiB more leave its cache 8 MiB.
+    let limit = format!("{}K", (6 * points + 12 * (1 << 20) + (16 << 20)) / 1024);
+    let build = |input: &Path, out: &str, raw: bool| {
+        let (input, out) = (s(input), s(&d.join(out)));
+        let mut args = vec![
+            "build",
+            &input,
+            "-o",
+            &out,
+            "--max-error",
+            "1",
+            "--memory-limit",
+            &limit,
+            "--quiet",
+        ];
+        let size = format!("{SIZE}x{SIZE}");
+        if raw {
+            args.extend(["--size", &size]);
+        }
+        peak_rss_kib(&args) * 1024
+    };
+    let one = build(&d.join("whole.f32"), "one.cbdam", true);
+    let four = build(&d.join("t4"), "t4.cbdam", false);
+    let many = build(&d.join("t64"), "t64.cbdam", false);
+    assert!(
+        std::fs::read(d.join("t4.cbdam")).unwrap() == std::fs::read(d.join("t64.cbdam")).unwrap(),
+        "4 and 64 tiles built different bytes"
+    );
+    let mib = |b: u64| b as f64 / (1 << 20) as f64;
+    eprintln!(
+        "peak RSS: one file {:.0} MiB, 4 tiles {:.0} MiB, 64 tiles {:.0} MiB; tiles {:.0} MiB",
+        mib(one),
+        mib(four),
+        mib(many),
+        mib(tile_bytes)
+    );
+    assert!(
+        many.abs_diff(four) < tile_bytes / 8,
+        "64 tiles {:.0} MiB, 4 tiles {:.0} MiB",
+        mib(many),
+        mib(four)
+    );
+    assert!(
+        many.saturating_sub(one) < points + tile_bytes / 4,
+        "64 tiles {:.0} MiB, one file {:.0} MiB",
+        mib(many),
+        mib(one)
+    );
+}

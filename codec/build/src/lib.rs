@@ -10,6 +10,7 @@
 #![deny(missing_docs)]
 
 pub mod assign;
+pub mod band_cache;
 pub mod colour;
 pub mod encode;
 mod error;
@@ -268,14 +269,8 @@ pub(crate) fn prepare_elevation(
                      the covering hierarchy)"
                 );
             }
-            let (input, res) = prepare_mosaic(
-                tiles,
-                opts.nodata,
-                opts.quantum,
-                opts.max_error,
-                limit,
-                progress,
-            )?;
+            let (input, res) =
+                prepare_mosaic(tiles, opts.nodata, opts.quantum, opts.max_error, limit)?;
             // The inputs are gone by now: what stays is the grid, the classes and the field.
             let classes = res.class.len() as u64;
             let storage = storage_for(&input.grid, &enc_opts, limit.saturating_sub(classes))?;

@@ -6,23 +6,33 @@
 //! multiples of its stride from the lattice origin (so they are vertices of level `L − 2j`).
 //! Nothing is resampled: any other geometry is an error that says what is required.
 //!
-//! The merged heights are never materialised: [`Mosaic`] is a [`SampleSource`] that composes
-//! each block of lattice rows from the inputs when the quantizer asks for it, so what the lattice
-//! itself costs is one byte per point (which input wins where, [`Mosaic::source`]) on top of the
-//! inputs and the quantized grid ([`bytes_in_memory`]). Inputs that do not fit under
-//! `--memory-limit` go to memory-mapped temporary files ([`Store`]); a build whose lattice alone
-//! does not fit is refused before the lattice is allocated. Each input is still read whole once
-//! (8 bytes a sample while it is narrowed), one at a time.
+//! Out of core for any number of tiles: [`mosaic_tiles`] reads only the inputs' headers
+//! ([`TileReader`]) and places them, with a row index of their extents; no sample is decoded
+//! and none is held. [`Mosaic`] is a [`SampleSource`] that composes each block of lattice rows
+//! when the quantizer asks for it, from the bands of rows of the inputs that reach the block,
+//! decoded on demand and kept in a cache bounded by a share of `--memory-limit`
+//! ([`crate::band_cache`]): blocks go north to south, so a band is decoded once per pass and
+//! reused by the blocks that cross it. Inputs are painted coarsest first, then the last listed
+//! first, valid samples only: the finest input wins, ties go to the first listed, and nodata
+//! falls through to what lies below. Which input wins a point is never stored: it is computed
+//! from the index when a block is composed.
+//!
+//! Memory is therefore independent of the number and size of the inputs. What the lattice
+//! itself costs is unchanged: the resolution classes (1 byte per point, [`Mosaic::survey`]) and
+//! the quantized grid (5 bytes per point) are held whole ([`bytes_in_memory`]); a build whose
+//! lattice alone does not fit under `--memory-limit` is refused before anything is allocated.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
+use crate::band_cache::BandCache;
 use crate::error::{Context, Result, bail};
 use crate::tiles::{Tile, VrtPlacement};
 use cbdam_codec::CodecError;
 use cbdam_codec::hierarchy::Resolution;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
-use cbdam_codec::input::{BlockFn, Dem, GeoRef, ReadOptions, SampleSource, SampleType, read_dem};
+use cbdam_codec::input::{BlockFn, GeoRef, ReadOptions, SampleSource, SampleType, TileReader};
 use rayon::prelude::*;
 
 /// Relative tolerance on spacing ratios: GeoTIFF pixel scales are decimal doubles (e.g.
@@ -31,26 +41,23 @@ const RATIO_TOLERANCE: f64 = 1e-9;
 /// Tolerance, in fine samples, on how far an input's origin may lie from a lattice point:
 /// tie points are printed decimals too.
 const ORIGIN_TOLERANCE: f64 = 1e-6;
-/// Bytes per lattice point that a multi-input build keeps in memory besides its inputs: the
-/// winning input (u8), the encoder's resolution classes (u8) and the quantized grid (i32 + bool).
-/// The encoder's reconstruction field (4 bytes per point of the domain) comes on top, in memory or
-/// in a temporary file ([`crate::plan::storage_for`]).
-pub const BYTES_PER_POINT: u64 = 1 + 1 + 5;
+/// Bytes per lattice point that a multi-input build keeps in memory: the encoder's resolution
+/// classes (u8) and the quantized grid (i32 + bool). The encoder's reconstruction field (4 bytes
+/// per point of the domain) comes on top, in memory or in a temporary file
+/// ([`crate::plan::storage_for`]).
+pub const BYTES_PER_POINT: u64 = 1 + 5;
 
-/// Lattice points composed per block (whole rows, at least one): 1 MiB of `f64`, enough rows
-/// for both cores and sequential reads of the inputs.
-const BLOCK_POINTS: usize = 1 << 17;
+/// Lattice points composed per block (whole rows, at least one): 8 MiB of `f64`, enough rows
+/// for every core and for bands of tile rows to be reused by the next block.
+const BLOCK_POINTS: usize = 1 << 20;
 
-/// What a multi-input build of a `width × height` lattice from inputs of `input_bytes` bytes
-/// ([`Samples::bytes`]) holds in memory before its reconstruction field: the inputs,
-/// [`BYTES_PER_POINT`] per lattice point, and one block of composed rows.
-pub fn bytes_in_memory(width: usize, height: usize, input_bytes: u64) -> u64 {
+/// What a multi-input build of a `width × height` lattice holds in memory besides its cache of
+/// decoded tile rows and its reconstruction field: [`BYTES_PER_POINT`] per lattice point, and
+/// one block of composed rows (values and winners).
+pub fn bytes_in_memory(width: usize, height: usize) -> u64 {
     let points = (width as u64).saturating_mul(height as u64);
-    let block = 8 * (BLOCK_POINTS.max(width) as u64).min(points);
-    points
-        .saturating_mul(BYTES_PER_POINT)
-        .saturating_add(input_bytes)
-        .saturating_add(block)
+    let block = 12 * (BLOCK_POINTS.max(width) as u64).min(points);
+    points.saturating_mul(BYTES_PER_POINT).saturating_add(block)
 }
 
 /// Where an input's narrowed samples live: in memory, or in a memory-mapped temporary file
@@ -167,7 +174,7 @@ impl Samples {
     }
 }
 
-/// Where one input lies on the lattice.
+/// Where one input lies on the lattice, and how its rows are read.
 #[derive(Debug)]
 pub struct Placement {
     /// The file.
@@ -178,10 +185,18 @@ pub struct Placement {
     pub y0: usize,
     /// Its stride in lattice points, `2^log2`.
     pub log2: u8,
-    /// Its size, type, nodata value and georeferencing; `values` is empty (see `samples`).
-    pub dem: Dem,
-    /// Its samples, row-major.
-    pub samples: Samples,
+    /// Samples per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// The type its samples are stored as.
+    pub sample_type: SampleType,
+    /// Its nodata value (the override, a VRT's, else the file's).
+    pub nodata: Option<f64>,
+    /// Header read; rows decoded on demand.
+    reader: TileReader,
+    /// Rows per band of decoded samples ([`TileReader::band_rows`]).
+    band_rows: usize,
 }
 
 impl Placement {
@@ -189,15 +204,108 @@ impl Placement {
         1 << self.log2
     }
 
-    /// Whether sample `i` holds a height ([`Dem::is_valid`]).
-    fn is_valid(&self, i: usize) -> bool {
-        let v = self.samples.get(i);
-        !v.is_nan() && self.dem.nodata != Some(v)
+    /// The last lattice row and column its samples reach.
+    fn last_row(&self) -> usize {
+        self.y0 + (self.height - 1) * self.stride()
+    }
+
+    fn last_col(&self) -> usize {
+        self.x0 + (self.width - 1) * self.stride()
+    }
+
+    /// Whether `v` is a height ([`cbdam_codec::input::Dem::is_valid`]).
+    #[inline]
+    fn is_valid(&self, v: f64) -> bool {
+        !v.is_nan() && self.nodata != Some(v)
+    }
+
+    /// Its rows with a sample on lattice rows `ya..yb`.
+    fn rows_on(&self, ya: usize, yb: usize) -> std::ops::Range<usize> {
+        let s = self.stride();
+        let lo = ya.saturating_sub(self.y0).div_ceil(s);
+        let hi = if yb <= self.y0 {
+            0
+        } else {
+            ((yb - 1 - self.y0) / s + 1).min(self.height)
+        };
+        lo..hi.max(lo)
+    }
+
+    /// Its rows bounding the cells that lattice rows `ya..yb` cross (one more on each side than
+    /// [`Placement::rows_on`]): what [`COARSE_ONLY`] points are drawn from.
+    fn rows_around(&self, ya: usize, yb: usize) -> std::ops::Range<usize> {
+        if yb <= self.y0 || ya > self.last_row() {
+            return 0..0;
+        }
+        let s = self.stride();
+        let lo = (ya.saturating_sub(self.y0) / s).saturating_sub(1);
+        let hi = ((yb - 1 - self.y0) / s + 2).min(self.height);
+        lo..hi
+    }
+
+    /// Reads band `band` of its rows, narrowed ([`Samples::compact`]).
+    fn read_band(&self, band: usize) -> Result<Samples> {
+        let r0 = band * self.band_rows;
+        let r1 = (r0 + self.band_rows).min(self.height);
+        let mut values = Vec::new();
+        self.reader
+            .read_rows(r0..r1, &mut values)
+            .with_context(|| format!("reading {}", self.path.display()))?;
+        if values.len() != (r1 - r0) * self.width {
+            bail!(
+                "reading {}: rows {r0}..{r1} came back as {} samples, not {} × {}",
+                self.path.display(),
+                values.len(),
+                r1 - r0,
+                self.width
+            );
+        }
+        Ok(Samples::compact(values))
     }
 }
 
+/// No input has a valid sample at this point (in [`Mosaic::for_each_block_winners`]).
+pub const NO_WINNER: u32 = u32::MAX;
+
+/// What [`Mosaic::for_each_block_winners`] calls on each block: `(first_row, values, winners)`.
+pub type WinnersFn<'a> = dyn FnMut(usize, &[f64], &[u32]) -> Result<()> + 'a;
+
+/// Lattice rows per bucket of the row index.
+const BUCKET_ROWS: usize = 256;
+
+/// Per pair of inputs of one spacing (the one painted over, the one below it): the valid samples
+/// both hold, how many differ and by how much at most.
+type SharedSamples = BTreeMap<(usize, usize), (usize, usize, f64)>;
+
+/// The bands of rows a block of lattice rows reads, per input that reaches it.
+struct Block {
+    /// Inputs reaching the block, in painting order (coarsest first; among equal strides the
+    /// last listed first, so that the first listed wins).
+    inputs: Vec<usize>,
+    /// Per input (same order): its first band held and the bands.
+    bands: Vec<(usize, Vec<Arc<Samples>>)>,
+}
+
+impl Block {
+    /// Row `r` of the `j`-th input of the block: its band and the offset of the row in it.
+    #[inline]
+    fn row(&self, p: &Placement, j: usize, r: usize) -> (&Samples, usize) {
+        let (first, bands) = &self.bands[j];
+        (&bands[r / p.band_rows - first], (r % p.band_rows) * p.width)
+    }
+}
+
+/// What the survey pass ([`Mosaic::survey`]) found.
+pub struct Survey {
+    /// The encoder's view: the stride of the winning sample at each lattice point.
+    pub resolution: Resolution,
+    /// Smallest and largest winning sample.
+    pub range: (f64, f64),
+}
+
 /// The merged lattice. As a [`SampleSource`] it yields the winning sample of every lattice point
-/// (NaN where none, no nodata value), row block by row block.
+/// (NaN where none, no nodata value), row block by row block, decoding the inputs' rows as the
+/// blocks reach them.
 pub struct Mosaic {
     /// Lattice columns.
     pub width: usize,
@@ -208,64 +316,301 @@ pub struct Mosaic {
     /// The type the merged samples are stored as: the inputs' common type, else `I32` for
     /// integer inputs, else `F64`.
     pub sample_type: SampleType,
-    /// Per lattice point: the index of the winning input in `inputs`, or [`COARSE_ONLY`] /
-    /// [`HOLE`].
-    pub source: Vec<u8>,
     /// The inputs in command-line order.
     pub inputs: Vec<Placement>,
+    /// Per bucket of [`BUCKET_ROWS`] lattice rows: the inputs whose rows reach into it.
+    buckets: Vec<Vec<u32>>,
+    /// Decoded bands of the inputs' rows.
+    cache: BandCache,
+    /// Lattice points per block ([`BLOCK_POINTS`]; fewer in tests, to cross block edges).
+    block_points: usize,
 }
 
 impl Mosaic {
-    /// The winning sample at lattice index `i` (row-major), NaN where no input has one.
-    pub fn value(&self, i: usize) -> f64 {
-        match self.source[i] {
-            COARSE_ONLY | HOLE => f64::NAN,
-            k => {
-                let p = &self.inputs[usize::from(k)];
-                let (x, y) = (i % self.width, i / self.width);
-                let (c, r) = ((x - p.x0) >> p.log2, (y - p.y0) >> p.log2);
-                p.samples.get(r * p.dem.width + c)
-            }
-        }
+    /// Lattice rows per block: `block_points` points, at least one row.
+    fn block_rows(&self) -> usize {
+        (self.block_points / self.width.max(1)).max(1)
     }
 
-    /// Smallest and largest winning sample, `None` if there is none.
-    pub fn valid_range(&self) -> Option<(f64, f64)> {
-        (0..self.source.len())
-            .into_par_iter()
-            .filter(|&i| self.source[i] != COARSE_ONLY && self.source[i] != HOLE)
-            .map(|i| {
-                let v = self.value(i);
-                (v, v)
+    /// Bytes of decoded tile rows the mosaic keeps between blocks, besides the block's own.
+    pub fn cache_budget(&self) -> u64 {
+        self.cache.budget()
+    }
+
+    /// Bands of tile rows decoded so far.
+    pub fn bands_decoded(&self) -> u64 {
+        self.cache.decoded()
+    }
+
+    /// The painting order key of input `k`: coarsest first, then the last listed first.
+    fn paint_key(&self, k: usize) -> (std::cmp::Reverse<u8>, std::cmp::Reverse<usize>) {
+        (std::cmp::Reverse(self.inputs[k].log2), std::cmp::Reverse(k))
+    }
+
+    /// The bands lattice rows `ya..yb` need: of the inputs whose samples reach them, the rows on
+    /// them (`around`: and the rows bounding the cells they cross).
+    fn block(&self, ya: usize, yb: usize, around: bool) -> Result<Block> {
+        let mut inputs: Vec<usize> = (ya / BUCKET_ROWS..=(yb - 1) / BUCKET_ROWS)
+            .flat_map(|b| self.buckets[b].iter().map(|&k| k as usize))
+            .filter(|&k| {
+                let p = &self.inputs[k];
+                p.y0 < yb && p.last_row() >= ya
             })
-            .reduce_with(|a, b| (a.0.min(b.0), a.1.max(b.1)))
-    }
-
-    /// The winning samples of lattice rows `rows` into `out` (row-major).
-    fn compose(&self, rows: std::ops::Range<usize>, out: &mut Vec<f64>) {
-        let w = self.width;
-        out.clear();
-        out.resize(rows.len() * w, f64::NAN);
-        out.par_chunks_mut(w).zip(rows).for_each(|(row, y)| {
-            for (x, v) in row.iter_mut().enumerate() {
-                *v = self.value(y * w + x);
-            }
-        });
-    }
-
-    /// The encoder's view: the stride of the winning sample at each point.
-    pub fn resolution(&self) -> Resolution {
-        let strides: Vec<u8> = self.inputs.iter().map(|p| p.log2).collect();
-        Resolution {
-            class: self
-                .source
-                .iter()
-                .map(|&s| match s {
-                    COARSE_ONLY | HOLE => s,
-                    i => strides[i as usize],
-                })
-                .collect(),
+            .collect();
+        inputs.sort_unstable_by_key(|&k| self.paint_key(k));
+        inputs.dedup();
+        let mut keys = Vec::new();
+        let mut spans = Vec::with_capacity(inputs.len());
+        for &k in &inputs {
+            let p = &self.inputs[k];
+            let rows = if around && p.log2 > 0 {
+                p.rows_around(ya, yb)
+            } else {
+                p.rows_on(ya, yb)
+            };
+            let span = if rows.is_empty() {
+                0..0
+            } else {
+                rows.start / p.band_rows..(rows.end - 1) / p.band_rows + 1
+            };
+            keys.extend(span.clone().map(|b| (k, b)));
+            spans.push(span);
         }
+        let mut got = self
+            .cache
+            .get(&keys, |(k, b)| self.inputs[k].read_band(b))?
+            .into_iter();
+        let bands = spans
+            .into_iter()
+            .map(|span| (span.start, got.by_ref().take(span.len()).collect()))
+            .collect();
+        Ok(Block { inputs, bands })
+    }
+
+    /// Paints lattice row `y` of `block` into `values` (NaN where no input has a sample), in
+    /// painting order so that the finest, first listed valid sample wins. With `winners`: the
+    /// winning input of each point ([`NO_WINNER`] where none), inputs of one spacing that
+    /// overlap compared into `shared`, and `seen[j]` set for every input of the block with a
+    /// valid sample on the row.
+    fn paint_row(
+        &self,
+        block: &Block,
+        y: usize,
+        values: &mut [f64],
+        mut winners: Option<(&mut [u32], &mut SharedSamples, &mut [bool])>,
+    ) {
+        values.fill(f64::NAN);
+        if let Some((w, _, _)) = &mut winners {
+            w.fill(NO_WINNER);
+        }
+        for (j, &k) in block.inputs.iter().enumerate() {
+            let p = &self.inputs[k];
+            let s = p.stride();
+            if y < p.y0 || !(y - p.y0).is_multiple_of(s) || (y - p.y0) / s >= p.height {
+                continue;
+            }
+            let (band, at) = block.row(p, j, (y - p.y0) / s);
+            match &mut winners {
+                None => match band {
+                    Samples::I16(v) => paint(p, &v[at..at + p.width], values),
+                    Samples::F32(v) => paint(p, &v[at..at + p.width], values),
+                    Samples::F64(v) => paint(p, &v[at..at + p.width], values),
+                },
+                Some((w, shared, seen)) => {
+                    for c in 0..p.width {
+                        let v = band.get(at + c);
+                        if !p.is_valid(v) {
+                            continue;
+                        }
+                        seen[j] = true;
+                        let x = p.x0 + c * s;
+                        let prev = w[x];
+                        if prev != NO_WINNER && self.inputs[prev as usize].log2 == p.log2 {
+                            let e = shared.entry((k, prev as usize)).or_insert((0, 0, 0.0));
+                            e.0 += 1;
+                            if v != values[x] {
+                                e.1 += 1;
+                                e.2 = e.2.max((v - values[x]).abs());
+                            }
+                        }
+                        w[x] = k as u32;
+                        values[x] = v;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Marks [`COARSE_ONLY`] the points of lattice row `y` without a sample (`class` [`HOLE`])
+    /// that lie in a cell of a coarse input whose four corners have data: they are drawn from
+    /// the coarse level.
+    fn mark_coarse_only(&self, block: &Block, y: usize, class: &mut [u8]) {
+        for (j, &k) in block.inputs.iter().enumerate() {
+            let p = &self.inputs[k];
+            if p.log2 == 0 || y < p.y0 || y > p.last_row() || p.height < 2 || p.width < 2 {
+                continue;
+            }
+            let s = p.stride();
+            let (d, ra) = (y - p.y0, (y - p.y0) / s);
+            // A row on a sample row bounds the cells above and below it.
+            let cells = [
+                d.is_multiple_of(s).then(|| ra.checked_sub(1)).flatten(),
+                Some(ra),
+            ];
+            for r in cells.into_iter().flatten().filter(|&r| r + 1 < p.height) {
+                let (top, a) = block.row(p, j, r);
+                let (bottom, b) = block.row(p, j, r + 1);
+                let valid = |band: &Samples, at: usize| p.is_valid(band.get(at));
+                for c in 0..p.width - 1 {
+                    if valid(top, a + c)
+                        && valid(top, a + c + 1)
+                        && valid(bottom, b + c)
+                        && valid(bottom, b + c + 1)
+                    {
+                        for point in &mut class[p.x0 + c * s..=p.x0 + (c + 1) * s] {
+                            if *point == HOLE {
+                                *point = COARSE_ONLY;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// One pass over the inputs before quantizing: the resolution classes, the range of the
+    /// winning samples, and the checks that need the samples — every input has a valid one,
+    /// inputs of one spacing agree where they overlap (shared edge rows).
+    pub fn survey(&self) -> Result<Survey> {
+        let w = self.width;
+        let mut class = vec![HOLE; w * self.height];
+        let seen_any: Vec<std::sync::atomic::AtomicBool> = (0..self.inputs.len())
+            .map(|_| std::sync::atomic::AtomicBool::new(false))
+            .collect();
+        let mut shared = SharedSamples::new();
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let rows = self.block_rows();
+        let mut values = Vec::new();
+        let mut winners = Vec::new();
+        for ya in (0..self.height).step_by(rows) {
+            let yb = (ya + rows).min(self.height);
+            let block = self.block(ya, yb, true)?;
+            values.resize((yb - ya) * w, f64::NAN);
+            winners.resize((yb - ya) * w, NO_WINNER);
+            let part = values
+                .par_chunks_mut(w)
+                .zip(winners.par_chunks_mut(w))
+                .zip(class[ya * w..yb * w].par_chunks_mut(w))
+                .enumerate()
+                .map(|(i, ((values, winners), class))| {
+                    let y = ya + i;
+                    let mut shared = SharedSamples::new();
+                    let mut seen = vec![false; block.inputs.len()];
+                    self.paint_row(&block, y, values, Some((winners, &mut shared, &mut seen)));
+                    for (j, _) in seen.iter().enumerate().filter(|(_, s)| **s) {
+                        seen_any[block.inputs[j]].store(true, std::sync::atomic::Ordering::Relaxed);
+                    }
+                    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+                    for ((c, &k), &v) in class.iter_mut().zip(winners.iter()).zip(values.iter()) {
+                        if k != NO_WINNER {
+                            *c = self.inputs[k as usize].log2;
+                            lo = lo.min(v);
+                            hi = hi.max(v);
+                        }
+                    }
+                    self.mark_coarse_only(&block, y, class);
+                    (shared, lo, hi)
+                })
+                .reduce(
+                    || (SharedSamples::new(), f64::INFINITY, f64::NEG_INFINITY),
+                    |mut a, b| {
+                        merge_shared(&mut a.0, b.0);
+                        (a.0, a.1.min(b.1), a.2.max(b.2))
+                    },
+                );
+            merge_shared(&mut shared, part.0);
+            lo = lo.min(part.1);
+            hi = hi.max(part.2);
+        }
+        if let Some(p) = (0..self.inputs.len())
+            .find(|&k| !seen_any[k].load(std::sync::atomic::Ordering::Relaxed))
+            .map(|k| &self.inputs[k])
+        {
+            bail!(
+                "{} has no valid sample (all nodata or NaN)",
+                p.path.display()
+            );
+        }
+        let clashes: Vec<_> = shared.iter().filter(|(_, e)| e.1 > 0).collect();
+        if let Some(&(&(a, b), &(n, bad, most))) = clashes.first() {
+            bail!(
+                "tiles {} and {} disagree on {bad} of their {n} shared samples by up to {most} \
+                 (height units){}: inputs of the same spacing must hold the same values where \
+                 they overlap (shared edge rows)",
+                self.inputs[a].path.display(),
+                self.inputs[b].path.display(),
+                match clashes.len() - 1 {
+                    0 => String::new(),
+                    more => format!(", and {more} more pairs of tiles disagree"),
+                }
+            );
+        }
+        Ok(Survey {
+            resolution: Resolution { class },
+            range: (lo, hi),
+        })
+    }
+
+    /// One pass over the lattice: `f(first_row, values, winners)` per block of rows, with the
+    /// winning sample (NaN where none) and the index in [`Mosaic::inputs`] of the input it comes
+    /// from ([`NO_WINNER`] where none).
+    pub fn for_each_block_winners(&self, f: &mut WinnersFn<'_>) -> Result<()> {
+        let w = self.width;
+        let rows = self.block_rows();
+        let (mut values, mut winners) = (Vec::new(), Vec::new());
+        for ya in (0..self.height).step_by(rows) {
+            let yb = (ya + rows).min(self.height);
+            let block = self.block(ya, yb, false)?;
+            values.resize((yb - ya) * w, f64::NAN);
+            winners.resize((yb - ya) * w, NO_WINNER);
+            values
+                .par_chunks_mut(w)
+                .zip(winners.par_chunks_mut(w))
+                .enumerate()
+                .for_each(|(i, (values, winners))| {
+                    let mut shared = SharedSamples::new();
+                    let mut seen = vec![false; block.inputs.len()];
+                    self.paint_row(
+                        &block,
+                        ya + i,
+                        values,
+                        Some((winners, &mut shared, &mut seen)),
+                    );
+                });
+            f(ya, &values, &winners)?;
+        }
+        Ok(())
+    }
+}
+
+/// Paints the valid samples of one row of input `p` onto `values` at its stride.
+#[inline]
+fn paint<T: Copy + Into<f64>>(p: &Placement, row: &[T], values: &mut [f64]) {
+    let s = p.stride();
+    for (c, &v) in row.iter().enumerate() {
+        let v: f64 = v.into();
+        if p.is_valid(v) {
+            values[p.x0 + c * s] = v;
+        }
+    }
+}
+
+fn merge_shared(into: &mut SharedSamples, from: SharedSamples) {
+    for (key, (n, bad, most)) in from {
+        let e = into.entry(key).or_insert((0, 0, 0.0));
+        e.0 += n;
+        e.1 += bad;
+        e.2 = e.2.max(most);
     }
 }
 
@@ -283,12 +628,20 @@ impl SampleSource for Mosaic {
         None
     }
     fn for_each_block(&self, f: &mut BlockFn<'_>) -> Result<(), CodecError> {
-        let rows = (BLOCK_POINTS / self.width.max(1)).max(1);
-        let mut block = Vec::new();
-        for y0 in (0..self.height).step_by(rows) {
-            let y1 = (y0 + rows).min(self.height);
-            self.compose(y0..y1, &mut block);
-            f(y0, &block)?;
+        let w = self.width;
+        let rows = self.block_rows();
+        let mut values = Vec::new();
+        for ya in (0..self.height).step_by(rows) {
+            let yb = (ya + rows).min(self.height);
+            let block = self
+                .block(ya, yb, false)
+                .map_err(|e| CodecError::invalid(e.to_string()))?;
+            values.resize((yb - ya) * w, f64::NAN);
+            values
+                .par_chunks_mut(w)
+                .enumerate()
+                .for_each(|(i, row)| self.paint_row(&block, ya + i, row, None));
+            f(ya, &values)?;
         }
         Ok(())
     }
@@ -318,10 +671,16 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
     mosaic_tiles(&tiles, opts, memory_limit)
 }
 
-/// Checks a tile read through a VRT against where the VRT places it, and gives it the VRT's
-/// georeferencing where it has none of its own.
-fn place_vrt_tile(path: &Path, dem: &mut Dem, v: &VrtPlacement) -> Result<()> {
-    if (dem.width, dem.height) != (v.width, v.height) {
+/// Checks a tile read through a VRT against where the VRT places it (its size `width × height`
+/// and its own georeferencing `georef`), and gives it the VRT's georeferencing where it has
+/// none of its own.
+fn place_vrt_tile(
+    path: &Path,
+    (width, height): (usize, usize),
+    georef: &mut Option<GeoRef>,
+    v: &VrtPlacement,
+) -> Result<()> {
+    if (width, height) != (v.width, v.height) {
         bail!(
             "{}: <SrcRect>/<DstRect> of {} are {}×{} but the tile is {}×{}: only whole tiles \
              placed without scaling are supported",
@@ -329,12 +688,12 @@ fn place_vrt_tile(path: &Path, dem: &mut Dem, v: &VrtPlacement) -> Result<()> {
             path.display(),
             v.width,
             v.height,
-            dem.width,
-            dem.height
+            width,
+            height
         );
     }
-    let Some(g) = &dem.georef else {
-        dem.georef = Some(v.georef.clone());
+    let Some(g) = georef.as_ref() else {
+        *georef = Some(v.georef.clone());
         return Ok(());
     };
     let want = &v.georef;
@@ -372,33 +731,36 @@ fn place_vrt_tile(path: &Path, dem: &mut Dem, v: &VrtPlacement) -> Result<()> {
 }
 
 /// [`mosaic`] of tiles ([`crate::tiles`]): plain files, or tiles a VRT places (checked against
-/// their own georeferencing, which they keep; a tile without one takes the VRT's). Inputs of the
-/// same spacing that overlap (tiles sharing edge rows) must hold the same valid samples there.
+/// their own georeferencing, which they keep; a tile without one takes the VRT's). Only the
+/// tiles' headers are read here: every check of where the tiles lie is made before any sample
+/// is decoded; the checks that need the samples (each tile has a valid one; inputs of the same
+/// spacing that overlap hold the same valid samples there) are made by [`Mosaic::survey`].
+/// Decoded rows are kept in a cache of at most half of what `memory_limit` leaves beside the
+/// lattice ([`bytes_in_memory`]).
 pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Result<Mosaic> {
     if tiles.is_empty() {
         bail!("no input given");
     }
-    if tiles.len() >= usize::from(COARSE_ONLY) {
+    if tiles.len() > NO_WINNER as usize {
         bail!(
-            "{} inputs: at most {} can be combined",
-            tiles.len(),
-            COARSE_ONLY - 1
+            "{} inputs: at most {NO_WINNER} can be combined",
+            tiles.len()
         );
     }
-    let mut dems = Vec::new();
-    let mut held = 0u64;
+    let mut dems: Vec<(PathBuf, TileReader, GeoRef)> = Vec::with_capacity(tiles.len());
     for tile in tiles {
         let path = &tile.path;
         let tile_opts = ReadOptions {
             nodata: opts.nodata.or(tile.vrt.as_ref().and_then(|v| v.nodata)),
             ..opts.clone()
         };
-        let mut dem =
-            read_dem(path, &tile_opts).with_context(|| format!("reading {}", path.display()))?;
+        let reader = TileReader::open(path, &tile_opts)
+            .with_context(|| format!("reading {}", path.display()))?;
+        let mut georef = reader.georef().cloned();
         if let Some(v) = &tile.vrt {
-            place_vrt_tile(path, &mut dem, v)?;
+            place_vrt_tile(path, (reader.width(), reader.height()), &mut georef, v)?;
         }
-        let Some(g) = &dem.georef else {
+        let Some(g) = georef else {
             bail!(
                 "{} has no georeferencing (GeoTIFF tie point and pixel scale, or an .hgt/.asc \
                  position): several inputs are combined by where they lie, so each needs one",
@@ -413,22 +775,12 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
                 g.pixel_y
             );
         }
-        if dem.valid_count() == 0 {
+        if reader.width() == 0 || reader.height() == 0 {
             bail!("{} has no valid sample (all nodata or NaN)", path.display());
         }
-        // Narrowed as soon as read, so that only one input is ever held at 8 bytes a sample.
-        let mut samples = Samples::compact(std::mem::take(&mut dem.values));
-        // Once the inputs read so far exceed the limit, this one and later ones go to mapped
-        // temporary files, which the kernel pages out as it needs to.
-        if held.saturating_add(samples.bytes()) > memory_limit {
-            samples = samples
-                .spill()
-                .with_context(|| format!("spilling {} to a temporary file", path.display()))?;
-        }
-        held = held.saturating_add(samples.bytes_in_memory());
-        dems.push((path.clone(), dem, samples));
+        dems.push((path.clone(), reader, g));
     }
-    let geo = |k: usize| dems[k].1.georef.as_ref().expect("checked above");
+    let geo = |k: usize| &dems[k].2;
     // One coordinate reference system: heights and positions of different CRSs cannot share
     // a lattice without reprojection, which this builder does not do.
     for k in 1..dems.len() {
@@ -463,6 +815,7 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
     let fine = (0..dems.len())
         .min_by(|&a, &b| geo(a).pixel_x.total_cmp(&geo(b).pixel_x))
         .expect("at least one input");
+    let fine_georef = geo(fine).clone();
     let (fx, fy) = (geo(fine).pixel_x, geo(fine).pixel_y);
     let (fcx, fcy) = centre(geo(fine));
     let mut placed = Vec::new();
@@ -538,116 +891,41 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
     let mut width = 0usize;
     let mut height = 0usize;
     let mut inputs = Vec::new();
-    for ((path, dem, samples), &(ox, oy, log2)) in dems.into_iter().zip(&placed) {
+    for ((path, reader, _), &(ox, oy, log2)) in dems.into_iter().zip(&placed) {
         let p = Placement {
             path,
             x0: (ox - origin_x) as usize,
             y0: (oy - origin_y) as usize,
             log2,
-            dem,
-            samples,
+            width: reader.width(),
+            height: reader.height(),
+            sample_type: reader.sample_type(),
+            nodata: reader.nodata(),
+            band_rows: reader.band_rows(),
+            reader,
         };
-        width = width.max(p.x0 + (p.dem.width - 1) * p.stride() + 1);
-        height = height.max(p.y0 + (p.dem.height - 1) * p.stride() + 1);
+        width = width.max(p.last_col() + 1);
+        height = height.max(p.last_row() + 1);
         inputs.push(p);
     }
-    // The lattice's own arrays stay in memory; if inputs and lattice together are over the
-    // limit, spill inputs (largest first) until they fit, and refuse only if the lattice alone
-    // does not.
-    let need = |inputs: &[Placement]| {
-        let input_bytes: u64 = inputs.iter().map(|p| p.samples.bytes_in_memory()).sum();
-        bytes_in_memory(width, height, input_bytes)
-    };
-    while need(&inputs) > memory_limit {
-        let Some(k) = (0..inputs.len())
-            .filter(|&k| inputs[k].samples.bytes_in_memory() > 0)
-            .max_by_key(|&k| inputs[k].samples.bytes_in_memory())
-        else {
-            bail!(
-                "the combined lattice is {width}×{height} points at the finest spacing, which \
-                 needs about {} MiB in memory ({BYTES_PER_POINT} bytes a point) even with every \
-                 input in a temporary file: above --memory-limit ({} MiB)",
-                need(&inputs) >> 20,
-                memory_limit >> 20
-            );
-        };
-        let p = &mut inputs[k];
-        let samples = std::mem::replace(&mut p.samples, Samples::compact(Vec::new()));
-        p.samples = samples
-            .spill()
-            .with_context(|| format!("spilling {} to a temporary file", p.path.display()))?;
-    }
-    let len = width * height;
-    let mut source = vec![HOLE; len];
-    // Coarsest first, so finer samples overwrite; among equal strides the first listed wins.
-    let mut order: Vec<usize> = (0..inputs.len()).collect();
-    order.sort_by_key(|&k| (std::cmp::Reverse(inputs[k].log2), std::cmp::Reverse(k)));
-    // Inputs of one spacing that overlap (tiles sharing edge rows) must agree there: per pair
-    // (earlier, later input), the valid samples both hold, how many differ and by how much.
-    let mut shared: BTreeMap<(usize, usize), (usize, usize, f64)> = BTreeMap::new();
-    for &k in &order {
-        let p = &inputs[k];
-        let s = p.stride();
-        for r in 0..p.dem.height {
-            for c in 0..p.dem.width {
-                let i = r * p.dem.width + c;
-                if p.is_valid(i) {
-                    let at = (p.y0 + r * s) * width + p.x0 + c * s;
-                    let prev = usize::from(source[at]);
-                    if source[at] != HOLE && inputs[prev].log2 == p.log2 {
-                        let q = &inputs[prev];
-                        let (x, y) = (at % width, at / width);
-                        let j = ((y - q.y0) >> q.log2) * q.dem.width + ((x - q.x0) >> q.log2);
-                        let (a, b) = (p.samples.get(i), q.samples.get(j));
-                        let e = shared.entry((k, prev)).or_insert((0, 0, 0.0));
-                        e.0 += 1;
-                        if a != b {
-                            e.1 += 1;
-                            e.2 = e.2.max((a - b).abs());
-                        }
-                    }
-                    source[at] = k as u8;
-                }
-            }
-        }
-    }
-    let clashes: Vec<_> = shared.iter().filter(|(_, e)| e.1 > 0).collect();
-    if let Some(&(&(a, b), &(n, bad, most))) = clashes.first() {
+    // The lattice's own arrays stay in memory; the inputs are read a band of rows at a time.
+    let need = bytes_in_memory(width, height);
+    if need > memory_limit {
         bail!(
-            "tiles {} and {} disagree on {bad} of their {n} shared samples by up to {most} \
-             (height units){}: inputs of the same spacing must hold the same values where they \
-             overlap (shared edge rows)",
-            inputs[a].path.display(),
-            inputs[b].path.display(),
-            match clashes.len() - 1 {
-                0 => String::new(),
-                more => format!(", and {more} more pairs of tiles disagree"),
-            }
+            "the combined lattice is {width}×{height} points at the finest spacing, which \
+             needs about {} MiB in memory ({BYTES_PER_POINT} bytes a point): above \
+             --memory-limit ({} MiB)",
+            need >> 20,
+            memory_limit >> 20
         );
     }
-    // Points between a coarse input's samples, in a cell whose four corners have data, are drawn
-    // from the coarse level unless some input has a sample there.
-    for p in inputs.iter().filter(|p| p.log2 > 0) {
-        let s = p.stride();
-        let (w, h) = (p.dem.width, p.dem.height);
-        for r in 0..h.saturating_sub(1) {
-            for c in 0..w.saturating_sub(1) {
-                let corners = [(c, r), (c + 1, r), (c, r + 1), (c + 1, r + 1)];
-                if !corners.iter().all(|&(c, r)| p.is_valid(r * w + c)) {
-                    continue;
-                }
-                for y in p.y0 + r * s..=p.y0 + (r + 1) * s {
-                    for x in p.x0 + c * s..=p.x0 + (c + 1) * s {
-                        let at = y * width + x;
-                        if source[at] == HOLE {
-                            source[at] = COARSE_ONLY;
-                        }
-                    }
-                }
-            }
+    let mut buckets = vec![Vec::new(); height.div_ceil(BUCKET_ROWS)];
+    for (k, p) in inputs.iter().enumerate() {
+        for bucket in &mut buckets[p.y0 / BUCKET_ROWS..=p.last_row() / BUCKET_ROWS] {
+            bucket.push(k as u32);
         }
     }
-    let types: Vec<SampleType> = inputs.iter().map(|p| p.dem.sample_type).collect();
+    let types: Vec<SampleType> = inputs.iter().map(|p| p.sample_type).collect();
     let sample_type = if types.iter().all(|&t| t == types[0]) {
         types[0]
     } else if types.iter().all(|t| t.is_integer()) {
@@ -655,7 +933,7 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
     } else {
         SampleType::F64
     };
-    let fine_geo = inputs[fine].dem.georef.clone().expect("checked above");
+    let fine_geo = fine_georef;
     let half = if fine_geo.pixel_is_area { 0.5 } else { 0.0 };
     let georef = GeoRef {
         origin_x: fcx + (origin_x as f64 - half) * fx,
@@ -667,8 +945,10 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
         height,
         georef,
         sample_type,
-        source,
         inputs,
+        buckets,
+        cache: BandCache::new((memory_limit - need) / 2),
+        block_points: BLOCK_POINTS,
     })
 }
 
@@ -732,5 +1012,193 @@ mod tests {
             // Spilling twice is a no-op.
             assert!(spilled.spill().unwrap().is_spilled());
         }
+    }
+
+    /// The lattice the former in-memory mosaic built, point by point from the whole inputs:
+    /// winners (painting coarsest first, the last listed first, valid samples only), values and
+    /// resolution classes (coarse cells with four valid corners drawn from the coarse level).
+    fn reference(m: &Mosaic) -> (Vec<u32>, Vec<f64>, Vec<u8>) {
+        let (w, h) = (m.width, m.height);
+        let dems: Vec<_> = m
+            .inputs
+            .iter()
+            .map(|p| {
+                let opts = ReadOptions {
+                    nodata: p.nodata,
+                    ..ReadOptions::default()
+                };
+                cbdam_codec::input::read_dem(&p.path, &opts).unwrap()
+            })
+            .collect();
+        let mut winner = vec![NO_WINNER; w * h];
+        let mut order: Vec<usize> = (0..m.inputs.len()).collect();
+        order.sort_by_key(|&k| m.paint_key(k));
+        for &k in &order {
+            let (p, d) = (&m.inputs[k], &dems[k]);
+            for r in 0..p.height {
+                for c in 0..p.width {
+                    if d.is_valid(r * p.width + c) {
+                        winner[(p.y0 + r * p.stride()) * w + p.x0 + c * p.stride()] = k as u32;
+                    }
+                }
+            }
+        }
+        let mut class: Vec<u8> = winner
+            .iter()
+            .map(|&k| match k {
+                NO_WINNER => HOLE,
+                k => m.inputs[k as usize].log2,
+            })
+            .collect();
+        let values = (0..w * h)
+            .map(|i| match winner[i] {
+                NO_WINNER => f64::NAN,
+                k => {
+                    let p = &m.inputs[k as usize];
+                    let (c, r) = ((i % w - p.x0) >> p.log2, (i / w - p.y0) >> p.log2);
+                    dems[k as usize].values[r * p.width + c]
+                }
+            })
+            .collect();
+        for (p, d) in m.inputs.iter().zip(&dems).filter(|(p, _)| p.log2 > 0) {
+            let s = p.stride();
+            for r in 0..p.height - 1 {
+                for c in 0..p.width - 1 {
+                    let corners = [(c, r), (c + 1, r), (c, r + 1), (c + 1, r + 1)];
+                    if corners.iter().all(|&(c, r)| d.is_valid(r * p.width + c)) {
+                        for y in p.y0 + r * s..=p.y0 + (r + 1) * s {
+                            for x in p.x0 + c * s..=p.x0 + (c + 1) * s {
+                                if class[y * w + x] == HOLE {
+                                    class[y * w + x] = COARSE_ONLY;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        (winner, values, class)
+    }
+
+    /// Inputs at strides 1, 2 and 4 that overlap (agreeing where they share a spacing), with
+    /// nodata that falls through to coarser inputs: every block size, down to one row a block
+    /// and under a cache that keeps nothing, composes the lattice the whole inputs make.
+    #[test]
+    fn blocks_of_any_size_compose_the_whole_inputs_lattice() {
+        use crate::write::{Raster, write_geotiff};
+        let dir = tempfile::tempdir().unwrap();
+        const ND: f64 = -9999.0;
+        // (name, lattice column and row of the first sample, stride, columns, rows)
+        let inputs = [
+            ("fine_a", 5, 7, 1, 30, 25),
+            ("coarse", 0, 0, 4, 20, 15),
+            ("fine_b", 21, 19, 1, 20, 22),
+            ("medium", 2, 30, 2, 16, 12),
+        ];
+        let mut paths = Vec::new();
+        for (name, x0, y0, s, w, h) in inputs {
+            let values = (0..w * h)
+                .map(|i| {
+                    let (x, y) = (x0 + (i % w) * s, y0 + (i / w) * s);
+                    // Holes: a block in `fine_a` (where `fine_b` and `coarse` show through), a
+                    // coarse sample, a diagonal of `medium`.
+                    let hole = match name {
+                        "fine_a" => (22..27).contains(&x) && (20..30).contains(&y),
+                        "coarse" => (x, y) == (40, 20),
+                        _ => name == "medium" && i % (w + 1) == 3,
+                    };
+                    if hole {
+                        ND
+                    } else {
+                        // One function of the lattice point per stride: inputs of one spacing
+                        // agree where they overlap.
+                        ((x * 7 + y * 13) % 50) as f64 + 100.0 * s as f64
+                    }
+                })
+                .collect();
+            let r = Raster {
+                width: w,
+                height: h,
+                values,
+                georef: Some(GeoRef {
+                    epsg: Some(32632),
+                    origin_x: 500_000.0 + x0 as f64 * 10.0,
+                    origin_y: 4_000_000.0 - y0 as f64 * 10.0,
+                    pixel_x: 10.0 * s as f64,
+                    pixel_y: 10.0 * s as f64,
+                    pixel_is_area: false,
+                    wkt: None,
+                }),
+            };
+            let path = dir.path().join(format!("{name}.tif"));
+            write_geotiff(std::fs::File::create(&path).unwrap(), &r, Some(ND), false).unwrap();
+            paths.push(path);
+        }
+        let mut m = mosaic(&paths, &ReadOptions::default(), 1 << 30).unwrap();
+        assert_eq!((m.width, m.height), (77, 57));
+        let (winner, values, class) = reference(&m);
+        assert!(class.contains(&COARSE_ONLY) && class.contains(&HOLE) && class.contains(&1));
+        let same = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        for (points, budget) in [(BLOCK_POINTS, 1 << 30), (1, 0), (3 * 77 + 5, 4096)] {
+            m.block_points = points;
+            m.cache = BandCache::new(budget);
+            let survey = m.survey().unwrap();
+            assert!(
+                survey.resolution.class == class,
+                "classes, blocks of {points}"
+            );
+            let valid: Vec<f64> = values.iter().copied().filter(|v| !v.is_nan()).collect();
+            let lo = valid.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = valid.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            assert_eq!(survey.range, (lo, hi));
+            let (mut got_w, mut got_v) = (Vec::new(), Vec::new());
+            m.for_each_block_winners(&mut |y0, v, w| {
+                assert_eq!(y0 * m.width, got_v.len());
+                got_v.extend_from_slice(v);
+                got_w.extend_from_slice(w);
+                Ok(())
+            })
+            .unwrap();
+            assert!(got_w == winner, "winners, blocks of {points}");
+            assert!(same(&got_v, &values), "values, blocks of {points}");
+            let mut streamed = Vec::new();
+            m.for_each_block(&mut |_, v| {
+                streamed.extend_from_slice(v);
+                Ok(())
+            })
+            .unwrap();
+            assert!(same(&streamed, &values), "source, blocks of {points}");
+        }
+        // A sample of `fine_b` changed where it overlaps `fine_a`: refused, naming both.
+        let mut b = cbdam_codec::input::read_dem(&paths[2], &ReadOptions::default()).unwrap();
+        b.values[0] += 2.5;
+        let r = Raster {
+            width: b.width,
+            height: b.height,
+            values: b.values,
+            georef: b.georef,
+        };
+        write_geotiff(
+            std::fs::File::create(&paths[2]).unwrap(),
+            &r,
+            Some(ND),
+            false,
+        )
+        .unwrap();
+        let e = mosaic(&paths, &ReadOptions::default(), 1 << 30)
+            .unwrap()
+            .survey()
+            .err()
+            .expect("disagreeing tiles accepted")
+            .to_string();
+        assert!(
+            e.contains("fine_b.tif")
+                && e.contains("fine_a.tif")
+                && e.contains("disagree on 1 of their")
+                && e.contains("by up to 2.5"),
+            "{e}"
+        );
     }
 }

@@ -2,7 +2,8 @@
 //!
 //! A single GeoTIFF or raw float32 input is streamed: planned and quantized block by block,
 //! never held as floats. The other formats are read whole (8 bytes per sample) and dropped once
-//! quantized. Several inputs form one variable-resolution lattice ([`crate::mosaic`]).
+//! quantized. Several inputs form one variable-resolution lattice ([`crate::mosaic`]), read
+//! a band of tile rows at a time.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -17,7 +18,6 @@ use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
 use crate::error::{Context, Result, bail};
-use crate::progress::{Progress, Spilled};
 use crate::tiles::Tile;
 
 /// A quantized input, with what the repository header needs from the file.
@@ -215,15 +215,15 @@ pub fn default_memory_limit() -> u64 {
 }
 
 /// Reads several georeferenced inputs (files or tiles, [`crate::tiles`]) into one
-/// variable-resolution lattice ([`crate::mosaic`]) and quantizes it: one integer mapping for all inputs. Inputs spilled to temporary files are
-/// reported to `progress` ([`Progress::spilled`]).
+/// variable-resolution lattice ([`crate::mosaic`]) and quantizes it: one integer mapping for all
+/// inputs. The tiles' headers are read first; their samples are decoded band by band as the
+/// survey and the quantizer's passes reach them, within the mosaic's cache.
 pub fn prepare_mosaic(
     tiles: &[Tile],
     nodata: Option<f64>,
     quantum: Option<f64>,
     max_error: f64,
     memory_limit: u64,
-    progress: &dyn Progress,
 ) -> Result<(Prepared, Resolution)> {
     let opts = ReadOptions {
         nodata,
@@ -231,22 +231,16 @@ pub fn prepare_mosaic(
     };
     let t = Instant::now();
     let m = crate::mosaic::mosaic_tiles(tiles, &opts, memory_limit)?;
-    let spilled: Vec<_> = m.inputs.iter().filter(|p| p.samples.is_spilled()).collect();
-    if !spilled.is_empty() {
-        progress.spilled(Spilled {
-            inputs: spilled.len(),
-            of: m.inputs.len(),
-            bytes: spilled.iter().map(|p| p.samples.bytes()).sum(),
-        });
-    }
-    let (lo, hi) = m.valid_range().expect("every input has a valid sample");
+    let indexed = t.elapsed();
+    let survey = m.survey()?;
+    let surveyed = t.elapsed();
+    let (lo, hi) = survey.range;
     unit_check(max_error, lo, hi)?;
     // The lattice's rows are composed from the inputs as the quantizer reads them.
     let (plan, grid) = QuantPlan::quantize_source(&m, max_error, quantum)?;
-    let resolution = m.resolution();
     // The header holds one nodata value (for extract and verify): the override, else the value
     // the inputs agree on.
-    let values: Vec<f64> = m.inputs.iter().filter_map(|p| p.dem.nodata).collect();
+    let values: Vec<f64> = m.inputs.iter().filter_map(|p| p.nodata).collect();
     let common = values
         .first()
         .copied()
@@ -255,10 +249,14 @@ pub fn prepare_mosaic(
         Prepared {
             grid,
             plan,
-            georef: Some(m.georef),
+            georef: Some(m.georef.clone()),
             nodata: nodata.or(common),
-            stages: vec![("read, mosaic and quantize", t.elapsed())],
+            stages: vec![
+                ("index tile headers", indexed),
+                ("survey tiles", surveyed - indexed),
+                ("mosaic, plan and quantize", t.elapsed() - surveyed),
+            ],
         },
-        resolution,
+        survey.resolution,
     ))
 }

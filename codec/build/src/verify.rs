@@ -15,7 +15,7 @@ use cbdam_codec::quant::HeightGrid;
 use cbdam_codec::repository::Repository;
 
 use crate::error::{Context, Result, bail};
-use crate::mosaic::mosaic_tiles;
+use crate::mosaic::{NO_WINNER, mosaic_tiles};
 use crate::plan::is_raw_path;
 use crate::tiles::{Tile, expand_inputs};
 
@@ -303,7 +303,7 @@ pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparis
         nodata: repo.nodata(),
         ..ReadOptions::default()
     };
-    let m = mosaic_tiles(tiles, &opts, u64::MAX)?;
+    let m = mosaic_tiles(tiles, &opts, crate::plan::default_memory_limit())?;
     let (width, height) = p.domain.data().size();
     if (m.width, m.height) != (width, height) {
         bail!(
@@ -314,6 +314,7 @@ pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparis
             height
         );
     }
+    let class = m.survey()?.resolution.class;
     let grid = HeightGrid::from_source(&m, &plan)
         .context("mapping the inputs onto the repository's height lattice")?;
     let encoded = repo.to_encoded()?;
@@ -323,24 +324,31 @@ pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparis
     let mut count = vec![0usize; m.inputs.len()];
     let mut unreached = Vec::new();
     let mut mask_wrong = Vec::new();
-    let mut worst: Option<(f64, usize)> = None;
-    for (i, (&src, &st)) in m.source.iter().zip(&state).enumerate() {
-        match (src, st) {
-            (HOLE, Reached::Valid) | (COARSE_ONLY, Reached::Invalid) => mask_wrong.push(i),
-            (HOLE | COARSE_ONLY, _) => {}
-            (_, Reached::No) => unreached.push(i),
-            (_, Reached::Invalid) => mask_wrong.push(i),
-            (k, Reached::Valid) => {
-                let e = (plan.metres(values[i]) - m.value(i)).abs();
-                let k = usize::from(k);
-                max_err[k] = max_err[k].max(e);
-                count[k] += 1;
-                if worst.is_none_or(|(w, _)| e > w) {
-                    worst = Some((e, i));
+    let mut worst: Option<(f64, usize, usize)> = None;
+    m.for_each_block_winners(&mut |y0, block, winners| {
+        let first = y0 * m.width;
+        for (j, (&v, &k)) in block.iter().zip(winners).enumerate() {
+            let i = first + j;
+            match (k, class[i], state[i]) {
+                (NO_WINNER, HOLE, Reached::Valid) | (NO_WINNER, COARSE_ONLY, Reached::Invalid) => {
+                    mask_wrong.push(i)
+                }
+                (NO_WINNER, _, _) => {}
+                (_, _, Reached::No) => unreached.push(i),
+                (_, _, Reached::Invalid) => mask_wrong.push(i),
+                (k, _, Reached::Valid) => {
+                    let e = (plan.metres(values[i]) - v).abs();
+                    let k = k as usize;
+                    max_err[k] = max_err[k].max(e);
+                    count[k] += 1;
+                    if worst.is_none_or(|(w, _, _)| e > w) {
+                        worst = Some((e, i, k));
+                    }
                 }
             }
         }
-    }
+        Ok(())
+    })?;
     let inputs = m
         .inputs
         .iter()
@@ -356,10 +364,10 @@ pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparis
         levels,
         inputs,
         reached_valid: state.iter().filter(|&&s| s == Reached::Valid).count(),
-        first_mismatch_has_data: mask_wrong.first().is_some_and(|&i| m.source[i] != HOLE),
+        first_mismatch_has_data: mask_wrong.first().is_some_and(|&i| class[i] != HOLE),
         mask_mismatches: mask_wrong.iter().map(|&i| (i, state[i])).collect(),
         unreached,
-        worst: worst.map(|(e, i)| (e, i, usize::from(m.source[i]))),
+        worst,
         width: m.width,
         epsilon: plan.epsilon,
     })

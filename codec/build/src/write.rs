@@ -60,6 +60,41 @@ pub fn write_geotiff<W: Write + Seek>(
     Ok(())
 }
 
+/// Writes `width × height` int16 samples (row-major, row 0 north) as a single-band GeoTIFF with
+/// the same tags as [`write_geotiff`], in strips of about 1 MB, Deflate-compressed with
+/// `deflate`: tiles like SRTM's and GLO-30's, for the benchmarks and tests of tile mosaics.
+pub fn write_geotiff_i16<W: Write + Seek>(
+    out: W,
+    (width, height): (usize, usize),
+    values: &[i16],
+    georef: Option<&GeoRef>,
+    nodata: Option<f64>,
+    deflate: bool,
+) -> Result<()> {
+    use tiff::encoder::Compression;
+    use tiff::encoder::compression::DeflateLevel;
+    if values.len() != width.saturating_mul(height) {
+        return Err(BuildError::Invalid(format!(
+            "{} samples for a {width}×{height} raster",
+            values.len()
+        )));
+    }
+    let dim = |v: usize| {
+        u32::try_from(v).map_err(|_| {
+            BuildError::Invalid(format!("a {width}×{height} raster is too large for a TIFF"))
+        })
+    };
+    let mut enc = TiffEncoder::new(BufWriter::new(out))?.with_compression(if deflate {
+        Compression::Deflate(DeflateLevel::Fast)
+    } else {
+        Compression::Uncompressed
+    });
+    let mut img = enc.new_image::<colortype::GrayI16>(dim(width)?, dim(height)?)?;
+    write_geo_tags(img.encoder(), georef, nodata)?;
+    img.write_data(values)?;
+    Ok(())
+}
+
 /// The GeoTIFF tags `codec/src/input/geotiff.rs` reads back: pixel scale, one tie point at
 /// raster (0, 0), model and raster type, the EPSG code, and GDAL's nodata text.
 fn write_geo_tags<W: Write + Seek, K: tiff::encoder::TiffKind>(

@@ -472,3 +472,46 @@ fn bad_tile_inputs_are_refused_by_name() {
         );
     }
 }
+
+/// More tiles than the former cap of 253 inputs: 19 × 19 tiles of 51² samples sharing their
+/// edges, listed in a directory, build the same bytes as the 951² DEM they were cut from.
+#[test]
+fn hundreds_of_tiles_build_like_one_file() {
+    const T: usize = 50;
+    const GRID: usize = 19;
+    const SIDE: usize = GRID * T + 1;
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let dem = read_dem(&data("srtm3_demcompare.tif"), &ReadOptions::default()).unwrap();
+    let g = dem.georef.clone().unwrap();
+    let at = |r: usize, c: usize| dem.values[r * dem.width + c];
+    let whole: Vec<f64> = (0..SIDE * SIDE).map(|i| at(i / SIDE, i % SIDE)).collect();
+    write(
+        &d.join("whole.tif"),
+        SIDE,
+        SIDE,
+        whole,
+        Some(g.clone()),
+        false,
+    );
+    let want = build_bytes(vec![d.join("whole.tif")], &d.join("whole.cbdam"));
+    let tiles = d.join("tiles");
+    std::fs::create_dir(&tiles).unwrap();
+    for tr in 0..GRID {
+        for tc in 0..GRID {
+            let v: Vec<f64> = (0..(T + 1) * (T + 1))
+                .map(|i| at(tr * T + i / (T + 1), tc * T + i % (T + 1)))
+                .collect();
+            let tg = GeoRef {
+                origin_x: g.origin_x + (tc * T) as f64 * g.pixel_x,
+                origin_y: g.origin_y - (tr * T) as f64 * g.pixel_y,
+                ..g.clone()
+            };
+            let name = format!("r{tr:02}c{tc:02}.tif");
+            write(&tiles.join(name), T + 1, T + 1, v, Some(tg), false);
+        }
+    }
+    assert_eq!(std::fs::read_dir(&tiles).unwrap().count(), GRID * GRID);
+    let got = build_bytes(vec![tiles], &d.join("tiles.cbdam"));
+    assert!(got == want, "{} tiles built different bytes", GRID * GRID);
+}

@@ -97,6 +97,50 @@ impl GeoTiffSource {
         self.header.tiled
     }
 
+    /// Rows per chunk (strip, or row of tiles): [`GeoTiffSource::read_rows`] decodes whole
+    /// chunks, so reads of rows aligned to this decode each chunk once.
+    pub fn chunk_rows(&self) -> usize {
+        self.header.chunk_height
+    }
+
+    /// Rows `rows` into `out` (replacing its contents), row-major, each sample converted exactly
+    /// to `f64`: the chunks covering them are decoded, in parallel, and dropped. What a mosaic
+    /// reads of one tile at a time, without a pass over the whole file.
+    pub fn read_rows(
+        &self,
+        rows: std::ops::Range<usize>,
+        out: &mut Vec<f64>,
+    ) -> Result<(), CodecError> {
+        let h = &self.header;
+        if rows.start >= rows.end || rows.end > h.height {
+            return Err(CodecError::invalid(format!(
+                "rows {}..{} of a {}-row image",
+                rows.start, rows.end, h.height
+            )));
+        }
+        let (c0, c1) = (
+            rows.start / h.chunk_height,
+            (rows.end - 1) / h.chunk_height + 1,
+        );
+        let first = c0 * h.chunks_across;
+        let pool = Mutex::new(Vec::new());
+        let chunks = (first..c1 * h.chunks_across)
+            .into_par_iter()
+            .map(|i| self.decode_chunk(&pool, i))
+            .collect::<Result<Vec<_>, CodecError>>()?;
+        out.clear();
+        out.resize(rows.len() * h.width, 0.0);
+        out.par_chunks_mut(h.width).zip(rows).for_each(|(row, y)| {
+            let (band_row, in_chunk) = (y / h.chunk_height - c0, y % h.chunk_height);
+            for c in 0..h.chunks_across {
+                let k = band_row * h.chunks_across + c;
+                let (x0, _, w, _) = h.chunk_rect(first + k);
+                widen(&chunks[k], in_chunk * w, &mut row[x0..x0 + w]);
+            }
+        });
+        Ok(())
+    }
+
     fn what(&self) -> &'static str {
         if self.header.tiled { "tile" } else { "strip" }
     }

@@ -10,7 +10,8 @@ const HGT_NODATA: f64 = -32768.0;
 /// 3 and 1 arc-second tiles: one degree plus the shared edge row and column.
 const SIDES: [usize; 2] = [1201, 3601];
 
-pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
+/// The side of the square tile at `path`, from its length.
+fn side_of(path: &Path, limits: &Limits) -> Result<usize, CodecError> {
     let len = super::file_len(path)?;
     let side = SIDES
         .into_iter()
@@ -29,6 +30,58 @@ pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
             }
         })?;
     limits.check(side, side)?;
+    Ok(side)
+}
+
+/// What [`read`] returns but the samples (`values` empty): size from the length, position from
+/// the name. Nothing but the file's length is read.
+pub(super) fn read_header(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
+    let side = side_of(path, limits)?;
+    Ok(Dem {
+        width: side,
+        height: side,
+        values: Vec::new(),
+        sample_type: SampleType::I16,
+        nodata: Some(HGT_NODATA),
+        georef: georef_from_name(path, side),
+    })
+}
+
+/// Rows `rows` of the `side`-sample tile at `path` into `out` (replacing its contents).
+pub(super) fn read_rows(
+    path: &Path,
+    side: usize,
+    rows: std::ops::Range<usize>,
+    out: &mut Vec<f64>,
+) -> Result<(), CodecError> {
+    use std::io::{Read, Seek, SeekFrom};
+    if rows.start >= rows.end || rows.end > side {
+        return Err(CodecError::invalid(format!(
+            "rows {}..{} of a {side}-row HGT tile",
+            rows.start, rows.end
+        )));
+    }
+    let mut f = std::fs::File::open(path)?;
+    if f.metadata()?.len() != (side * side * 2) as u64 {
+        return Err(CodecError::truncated(format!(
+            "HGT file {} changed size while being read",
+            path.display()
+        )));
+    }
+    f.seek(SeekFrom::Start((rows.start * side * 2) as u64))?;
+    let mut bytes = vec![0u8; rows.len() * side * 2];
+    f.read_exact(&mut bytes)?;
+    out.clear();
+    out.extend(
+        bytes
+            .chunks_exact(2)
+            .map(|b| f64::from(i16::from_be_bytes([b[0], b[1]]))),
+    );
+    Ok(())
+}
+
+pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
+    let side = side_of(path, limits)?;
     let bytes = std::fs::read(path)?;
     if bytes.len() != side * side * 2 {
         return Err(CodecError::truncated(format!(
@@ -41,12 +94,8 @@ pub(super) fn read(path: &Path, limits: &Limits) -> Result<Dem, CodecError> {
         .map(|b| f64::from(i16::from_be_bytes([b[0], b[1]])))
         .collect();
     Ok(Dem {
-        width: side,
-        height: side,
         values,
-        sample_type: SampleType::I16,
-        nodata: Some(HGT_NODATA),
-        georef: georef_from_name(path, side),
+        ..read_header(path, limits)?
     })
 }
 

@@ -15,6 +15,7 @@ mod quantum;
 mod raw;
 mod rgb;
 mod stream;
+mod tile_reader;
 
 use std::path::Path;
 
@@ -24,6 +25,7 @@ pub use geotiff_stream::GeoTiffSource;
 pub use quantum::{QuantumScan, detect_quantum};
 pub use rgb::read_rgb;
 pub use stream::{BlockFn, RawF32Source, SampleSource};
+pub use tile_reader::TileReader;
 
 /// The numeric type a DEM's samples were stored as.
 ///

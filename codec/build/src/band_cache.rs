@@ -1,0 +1,158 @@
+//! Decoded bands of rows of a mosaic's tiles, kept while they fit a byte budget.
+//!
+//! The mosaic ([`crate::mosaic`]) composes the lattice block of rows by block of rows, north to
+//! south; a band of a tile's rows is usually crossed by several blocks, so it is decoded once
+//! and kept until it is the least recently used band and the budget is exceeded. The bands of
+//! the block being composed are never evicted by that block's own insertions (they are in use),
+//! so memory is the budget plus one block's bands, whatever the number and size of the tiles.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::{Arc, Mutex};
+
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::mosaic::Samples;
+
+/// A band: tile index and band number within the tile.
+pub type BandKey = (usize, usize);
+
+#[derive(Default)]
+struct State {
+    /// Band → samples and the tick of its last use.
+    bands: HashMap<BandKey, (Arc<Samples>, u64)>,
+    /// Tick of last use → band: the eviction order.
+    by_use: BTreeMap<u64, BandKey>,
+    bytes: u64,
+    tick: u64,
+}
+
+/// The cache; see the module notes.
+pub struct BandCache {
+    budget: u64,
+    state: Mutex<State>,
+    decoded: std::sync::atomic::AtomicU64,
+}
+
+impl BandCache {
+    /// An empty cache holding at most `budget` bytes of bands besides those in use.
+    pub fn new(budget: u64) -> Self {
+        Self {
+            budget,
+            state: Mutex::new(State::default()),
+            decoded: std::sync::atomic::AtomicU64::new(0),
+        }
+    }
+
+    /// The bytes it may keep.
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Bands decoded so far (hits excluded).
+    pub fn decoded(&self) -> u64 {
+        self.decoded.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// The samples of every band in `keys` (in that order): kept ones, and the others decoded
+    /// by `decode` in parallel and kept while the budget allows.
+    pub fn get(
+        &self,
+        keys: &[BandKey],
+        decode: impl Fn(BandKey) -> Result<Samples> + Sync,
+    ) -> Result<Vec<Arc<Samples>>> {
+        let lock = || self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut found: Vec<Option<Arc<Samples>>> = Vec::with_capacity(keys.len());
+        let first_tick;
+        {
+            let mut s = lock();
+            s.tick += 1;
+            first_tick = s.tick;
+            for key in keys {
+                let tick = s.tick;
+                let hit = match s.bands.get_mut(key) {
+                    Some((samples, used)) => {
+                        let old = std::mem::replace(used, tick);
+                        Some((samples.clone(), old))
+                    }
+                    None => None,
+                };
+                found.push(hit.map(|(samples, old)| {
+                    s.by_use.remove(&old);
+                    s.by_use.insert(tick, *key);
+                    s.tick += 1;
+                    samples
+                }));
+            }
+        }
+        let missing: Vec<usize> = (0..keys.len()).filter(|&i| found[i].is_none()).collect();
+        let decoded = missing
+            .par_iter()
+            .map(|&i| decode(keys[i]).map(Arc::new))
+            .collect::<Result<Vec<_>>>()?;
+        self.decoded
+            .fetch_add(decoded.len() as u64, std::sync::atomic::Ordering::Relaxed);
+        let mut s = lock();
+        for (&i, samples) in missing.iter().zip(decoded) {
+            let tick = s.tick;
+            s.tick += 1;
+            s.bytes += samples.bytes();
+            if let Some((_, old)) = s.bands.insert(keys[i], (samples.clone(), tick)) {
+                // Decoded twice by concurrent callers: the older copy goes.
+                s.by_use.remove(&old);
+            }
+            s.by_use.insert(tick, keys[i]);
+            found[i] = Some(samples);
+        }
+        // Evict the least recently used bands of earlier calls while over budget.
+        while s.bytes > self.budget {
+            let Some((&tick, &key)) = s.by_use.iter().next() else {
+                break;
+            };
+            if tick >= first_tick {
+                break;
+            }
+            s.by_use.remove(&tick);
+            if let Some((samples, _)) = s.bands.remove(&key) {
+                s.bytes -= samples.bytes();
+            }
+        }
+        Ok(found
+            .into_iter()
+            .map(|f| f.expect("every band found or decoded"))
+            .collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Hits are not decoded again; bands of earlier calls are evicted least recently used first
+    /// once over budget, but never those of the current call.
+    #[test]
+    fn keeps_recent_bands_within_the_budget() {
+        let decodes = std::sync::atomic::AtomicUsize::new(0);
+        let decode = |(t, b): BandKey| {
+            decodes.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            Ok(Samples::compact(vec![(t * 10 + b) as f64; 100]))
+        };
+        // 200 bytes a band (i16), budget of two bands.
+        let cache = BandCache::new(400);
+        let got = cache.get(&[(0, 0), (0, 1), (1, 0)], decode).unwrap();
+        assert_eq!(got[2].get(0), 10.0);
+        assert_eq!(decodes.load(std::sync::atomic::Ordering::Relaxed), 3);
+        // Over budget, but all three were in use. The next call evicts the least recently used
+        // band of earlier calls, (0, 0), down to the budget.
+        cache.get(&[(0, 1)], decode).unwrap();
+        assert_eq!(decodes.load(std::sync::atomic::Ordering::Relaxed), 3);
+        // A new band evicts (1, 0); (0, 1) and (2, 0) stay.
+        cache.get(&[(2, 0)], decode).unwrap();
+        cache.get(&[(0, 1), (2, 0)], decode).unwrap();
+        assert_eq!(decodes.load(std::sync::atomic::Ordering::Relaxed), 4);
+        cache.get(&[(0, 0)], decode).unwrap();
+        assert_eq!(decodes.load(std::sync::atomic::Ordering::Relaxed), 5);
+        assert_eq!(cache.decoded(), 5);
+        assert!(cache.state.lock().unwrap().bytes <= 400);
+    }
+}

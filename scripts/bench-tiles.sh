@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Benchmark of a tile mosaic build (issue 20): a synthetic grid of N × N int16 GeoTIFF tiles of
+# (T+1)² samples sharing their edges, built with --timings under /usr/bin/time -v, against the
+# same grid as one int16 GeoTIFF; the two repositories must be byte-identical. Prints samples/s,
+# tiles/s and peak RSS of each build, then deletes everything it generated.
+#
+#   scripts/bench-tiles.sh                      # 16 × 16 tiles of 1025² (16385², 268 M samples)
+#   N=8 T=512 LIMIT=1G scripts/bench-tiles.sh   # smaller, under --memory-limit 1G
+#
+# Environment: N, T (tile side between shared edges), LIMIT (--memory-limit, default: the
+# build's own), DEFLATE=1 (Deflate-compressed tiles), CBDAM (binary, default
+# target/release/cbdam: build it with `cargo build --release -p cbdam`), TMPDIR (where the
+# tiles go: N·T² · 2 bytes twice, once tiled and once whole).
+set -euo pipefail
+N=${N:-16}
+T=${T:-1024}
+CBDAM=${CBDAM:-target/release/cbdam}
+SIZE=$((N * T + 1))
+SAMPLES=$((SIZE * SIZE))
+COMPRESSION=plain
+[ "${DEFLATE:-0}" = 1 ] && COMPRESSION=deflate
+DIR=$(mktemp -d)
+trap 'rm -rf "$DIR"' EXIT
+
+"$CBDAM" synth --size "$SIZE" --tiff "$COMPRESSION" --int16 -o "$DIR/whole.tif"
+"$CBDAM" synth --size "$SIZE" --tiff "$COMPRESSION" --int16 --tiles "$N" -o "$DIR/tiles"
+echo "grid ${SIZE}² = $SAMPLES samples; $((N * N)) tiles of $((T + 1))², $COMPRESSION;" \
+    "tiles $(du -sm "$DIR/tiles" | cut -f1) MB, whole $(du -sm "$DIR/whole.tif" | cut -f1) MB"
+
+run() { # name input
+    local limit=()
+    [ -n "${LIMIT:-}" ] && limit=(--memory-limit "$LIMIT")
+    /usr/bin/time -v "$CBDAM" build "$DIR/$2" -o "$DIR/$1.cbdam" --max-error 1 --timings \
+        "${limit[@]}" >"$DIR/$1.out" 2>"$DIR/$1.err"
+    local wall rss
+    wall=$(grep 'Elapsed (wall clock)' "$DIR/$1.err" | awk '{print $NF}' |
+        awk -F: '{ if (NF == 3) print $1 * 3600 + $2 * 60 + $3; else print $1 * 60 + $2 }')
+    rss=$(grep 'Maximum resident' "$DIR/$1.err" | awk '{print $NF}')
+    echo "== $1: wall ${wall} s, peak RSS $((rss / 1024)) MiB," \
+        "$(awk -v s="$SAMPLES" -v w="$wall" 'BEGIN { printf "%.2f M samples/s", s / w / 1e6 }')" \
+        "$([ "$1" = tiles ] && awk -v n=$((N * N)) -v w="$wall" 'BEGIN { printf ", %.1f tiles/s", n / w }')"
+    grep -h '^timings:' "$DIR/$1.err" || true
+}
+run whole whole.tif
+run tiles tiles
+if cmp -s "$DIR/whole.cbdam" "$DIR/tiles.cbdam"; then
+    echo "repositories byte-identical ($(stat -c %s "$DIR/tiles.cbdam") bytes)"
+else
+    echo "repositories DIFFER" >&2
+    exit 1
+fi
