@@ -120,7 +120,11 @@ fn records_arrive_most_urgent_first_and_urgent_late_wants_overtake_the_queue() {
     want.push(urgent.0);
     want.extend(&sorted[4..]);
     assert_eq!(got, want);
-    assert_eq!(f.stats().requests, 2 + 4, "the head's two, then batches of four");
+    assert_eq!(
+        f.stats().requests,
+        2 + 4,
+        "the head's two, then batches of four"
+    );
 }
 
 #[test]
@@ -162,5 +166,9 @@ fn a_request_the_view_no_longer_needs_is_dropped_and_the_server_stops_sending() 
         .iter()
         .map(|&id| 5 + repo.record(id).unwrap().len() as u64)
         .sum();
-    assert_eq!(unsent, 8 + all, "not a byte of the dropped request was sent");
+    assert_eq!(
+        unsent,
+        8 + all,
+        "not a byte of the dropped request was sent"
+    );
 }

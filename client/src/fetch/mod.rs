@@ -697,12 +697,17 @@ mod tests {
             .expect("four records of one size")[..4]
             .to_vec();
         let o = FetchOptions::default();
-        let wanted = |n: usize| -> HashMap<DiamondId, ()> {
-            four[..n].iter().map(|&id| (id, ())).collect()
-        };
+        let wanted =
+            |n: usize| -> HashMap<DiamondId, ()> { four[..n].iter().map(|&id| (id, ())).collect() };
         assert!(!not_worth_finishing(&four, &wanted(4), head, &o));
-        assert!(!not_worth_finishing(&four, &wanted(3), head, &o), "a quarter unwanted");
-        assert!(not_worth_finishing(&four, &wanted(2), head, &o), "half unwanted");
+        assert!(
+            !not_worth_finishing(&four, &wanted(3), head, &o),
+            "a quarter unwanted"
+        );
+        assert!(
+            not_worth_finishing(&four, &wanted(2), head, &o),
+            "half unwanted"
+        );
         assert!(not_worth_finishing(&four, &wanted(0), head, &o));
         // Only what is still to come counts: the two wanted ones delivered, the rest unwanted.
         assert!(not_worth_finishing(&four[2..], &wanted(2), head, &o));

@@ -318,7 +318,9 @@ fn start_batches(shared: &Arc<Shared>, s: &mut State<AbortHandle>) -> Option<Ins
 /// goes to backoff.
 async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>, priorities: Vec<f32>) {
     let outcome = match &shared.endpoint {
-        Endpoint::Server { base } => stream_from_server(&shared, batch, base, &ids, &priorities).await,
+        Endpoint::Server { base } => {
+            stream_from_server(&shared, batch, base, &ids, &priorities).await
+        }
         Endpoint::File { url } => match fetch_ranges(&shared, url, &ids).await {
             Ok(records) => {
                 let received = records.iter().map(|(_, r)| r.len() as u64).sum();

@@ -239,7 +239,10 @@ impl StreamParser {
                 return Err(BatchError::BadMagic);
             }
             self.count = Some(u32::from_le_bytes([
-                self.buf[4], self.buf[5], self.buf[6], self.buf[7],
+                self.buf[4],
+                self.buf[5],
+                self.buf[6],
+                self.buf[7],
             ]));
             pos = PREAMBLE_LEN;
         }
@@ -419,7 +422,10 @@ mod tests {
         );
         assert_eq!(p.entries_parsed(), 2);
         assert!(p.finish().is_err(), "one entry is missing");
-        assert_eq!(p.push(&body[21..]).unwrap(), vec![OwnedEntry::Record(vec![4])]);
+        assert_eq!(
+            p.push(&body[21..]).unwrap(),
+            vec![OwnedEntry::Record(vec![4])]
+        );
         p.finish().unwrap();
         assert_eq!(stream(b"XB", 1), Err(BatchError::BadMagic));
         assert_eq!(stream(b"CB", 1), Err(BatchError::BadMagic));
