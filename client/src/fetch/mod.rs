@@ -614,24 +614,38 @@ fn check_batch(
 }
 
 /// The JSON body of a batch request (`POST …/diamonds`) for `ids` with their `priorities`
-/// (screen errors; the server answers the highest first, see
-/// [`batch::answer_order`]). Non-finite priorities are sent as 0 (JSON has no infinities).
+/// (screen errors; the server answers the highest first, see [`batch::answer_order`]), as
+/// [`wire_priorities`] writes them.
 fn batch_request_body(ids: &[DiamondId], priorities: &[f32]) -> String {
     let names: Vec<String> = ids.iter().map(ToString::to_string).collect();
-    let priorities: Vec<f32> = priorities
+    serde_json::json!({ "ids": names, "priorities": wire_priorities(priorities) }).to_string()
+}
+
+/// Priorities as a batch request carries them: three significant digits (about 4 bytes of
+/// JSON each instead of 9: the order, not the value, is what the server needs, and rounding
+/// keeps a sorted list sorted), non-finite ones as 0 (JSON has no infinities).
+fn wire_priorities(priorities: &[f32]) -> Vec<f64> {
+    priorities
         .iter()
-        .map(|&p| if p.is_finite() { p } else { 0.0 })
-        .collect();
-    serde_json::json!({ "ids": names, "priorities": priorities }).to_string()
+        .map(|&p| {
+            if !p.is_finite() || p == 0.0 {
+                return 0.0;
+            }
+            let p = f64::from(p);
+            let scale = 10f64.powi(2 - p.abs().log10().floor() as i32);
+            (p * scale).round() / scale
+        })
+        .collect()
 }
 
 /// The ids of a batch request in the order the server answers them.
 fn answer_ids(ids: &[DiamondId], priorities: &[f32]) -> Vec<DiamondId> {
-    let finite: Vec<f32> = priorities
-        .iter()
-        .map(|&p| if p.is_finite() { p } else { 0.0 })
+    // As the server reads them: f32.
+    let read: Vec<f32> = wire_priorities(priorities)
+        .into_iter()
+        .map(|p| p as f32)
         .collect();
-    batch::answer_order(&finite)
+    batch::answer_order(&read)
         .into_iter()
         .map(|k| ids[k])
         .collect()
@@ -726,6 +740,14 @@ mod tests {
         let v: serde_json::Value = serde_json::from_str(&body).unwrap();
         assert_eq!(v["ids"], serde_json::json!(["1-2-3", "2-4-5", "3-1-1"]));
         assert_eq!(v["priorities"], serde_json::json!([1.0, 0.0, 4.5]));
+        let short = batch_request_body(&ids[..2], &[3.141_592_7, 0.012_345_67]);
+        assert!(short.contains("[3.14,0.0123]"), "{short}");
+        // Rounding keeps a sorted list sorted (ties are answered in request order).
+        let sorted = [1234.5f32, 999.6, 999.4, 10.04, 9.996, 0.5, 0.0];
+        let wire = wire_priorities(&sorted);
+        assert!(wire.windows(2).all(|w| w[0] >= w[1]), "{wire:?}");
+        let read: Vec<f32> = wire.iter().map(|&p| p as f32).collect();
+        assert_eq!(batch::answer_order(&read), (0..sorted.len()).collect::<Vec<_>>());
         assert_eq!(
             answer_ids(&ids, &[1.0, f32::INFINITY, 4.5]),
             vec![ids[2], ids[0], ids[1]]
