@@ -27,6 +27,7 @@
 //! record. `cbdam bench serve` measures records/s, latency and CPU time per request.
 #![deny(missing_docs)]
 
+mod batch_body;
 mod cors;
 pub mod describe;
 mod error;

@@ -106,6 +106,8 @@ pub struct Metrics {
     latency_sum_us: [AtomicU64; NE],
     records: AtomicU64,
     corrupt_records: AtomicU64,
+    aborted_batches: AtomicU64,
+    unsent_batch_bytes: AtomicU64,
 }
 
 impl Default for Metrics {
@@ -117,6 +119,8 @@ impl Default for Metrics {
             latency_sum_us: std::array::from_fn(|_| AtomicU64::new(0)),
             records: AtomicU64::new(0),
             corrupt_records: AtomicU64::new(0),
+            aborted_batches: AtomicU64::new(0),
+            unsent_batch_bytes: AtomicU64::new(0),
         }
     }
 }
@@ -144,6 +148,21 @@ impl Metrics {
     /// Counts a request that met a corrupt record.
     pub fn add_corrupt(&self) {
         self.corrupt_records.fetch_add(1, Relaxed);
+    }
+
+    /// Counts a batch response dropped unfinished (the client closed the connection or reset
+    /// the stream) with `unsent` bytes of its body never written.
+    pub fn add_aborted_batch(&self, unsent: u64) {
+        self.aborted_batches.fetch_add(1, Relaxed);
+        self.unsent_batch_bytes.fetch_add(unsent, Relaxed);
+    }
+
+    /// Batch responses dropped unfinished so far, and the bytes of them never written.
+    pub fn aborted_batches(&self) -> (u64, u64) {
+        (
+            self.aborted_batches.load(Relaxed),
+            self.unsent_batch_bytes.load(Relaxed),
+        )
     }
 
     /// Requests answered so far with `status` on `e` (for tests and the benchmark).
@@ -246,9 +265,17 @@ impl Metrics {
              cbdam_records_sent_total {}\n\
              # HELP cbdam_corrupt_record_requests_total Requests that met a record failing its checksum.\n\
              # TYPE cbdam_corrupt_record_requests_total counter\n\
-             cbdam_corrupt_record_requests_total {}",
+             cbdam_corrupt_record_requests_total {}\n\
+             # HELP cbdam_batches_aborted_total Batch responses dropped unfinished (the client closed the connection).\n\
+             # TYPE cbdam_batches_aborted_total counter\n\
+             cbdam_batches_aborted_total {}\n\
+             # HELP cbdam_batch_bytes_unsent_total Bytes of aborted batch responses never written.\n\
+             # TYPE cbdam_batch_bytes_unsent_total counter\n\
+             cbdam_batch_bytes_unsent_total {}",
             self.records.load(Relaxed),
-            self.corrupt_records.load(Relaxed)
+            self.corrupt_records.load(Relaxed),
+            self.aborted_batches.load(Relaxed),
+            self.unsent_batch_bytes.load(Relaxed)
         );
         o
     }

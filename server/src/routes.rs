@@ -17,13 +17,14 @@ use cbdam_codec::geometry::DiamondId;
 use serde::Deserialize;
 use tower_http::timeout::TimeoutLayer;
 
+use crate::batch_body::BatchBody;
 use crate::cors::cors_layer;
 use crate::error::ApiError;
 use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
 use crate::state::{AppState, ServedRepo};
 
-use cbdam_codec::repository::batch::{BatchWriter, body_len};
+use cbdam_codec::repository::batch::answer_order;
 /// The batch framing, defined once in the codec for both ends of the wire.
 pub use cbdam_codec::repository::batch::{
     CONTENT_TYPE as BATCH_CONTENT_TYPE, MAGIC as BATCH_MAGIC, STATUS_NOT_STORED, STATUS_RECORD,
@@ -284,11 +285,15 @@ async fn diamond(
 }
 
 /// `POST /v1/repos/{name}/diamonds` body. Ids are borrowed from the body when they contain no
-/// JSON escapes, which is always for well-formed ids.
+/// JSON escapes, which is always for well-formed ids. `priorities`, if given, has one number
+/// per id (the client's screen error): the answer comes highest first
+/// ([`batch::answer_order`](cbdam_codec::repository::batch::answer_order)).
 #[derive(Deserialize)]
 struct BatchRequest<'a> {
     #[serde(borrow)]
     ids: Vec<Cow<'a, str>>,
+    #[serde(default)]
+    priorities: Option<Vec<f32>>,
 }
 
 async fn batch(
@@ -308,7 +313,7 @@ async fn batch(
     })?;
     let req: BatchRequest = serde_json::from_slice(&body).map_err(|e| {
         ApiError::BadRequest(format!(
-            "malformed batch request: {e} (want {{\"ids\": [\"level-x-y\", ...]}})"
+            "malformed batch request: {e} (want {{\"ids\": [\"level-x-y\", ...], \"priorities\": [number, ...] (optional)}})"
         ))
     })?;
     if req.ids.len() > cfg.max_batch {
@@ -318,38 +323,42 @@ async fn batch(
             cfg.max_batch
         )));
     }
-    // Resolve every id before sending anything, so a malformed one fails the request whole,
-    // and so the body can be sized exactly.
-    let entries = r.repo.entries();
+    let order = match &req.priorities {
+        None => (0..req.ids.len()).collect(),
+        Some(p) if p.len() != req.ids.len() => {
+            return Err(ApiError::BadRequest(format!(
+                "{} priorities for {} ids (want one per id)",
+                p.len(),
+                req.ids.len()
+            )));
+        }
+        Some(p) => answer_order(p),
+    };
+    // Resolve and check every record before sending anything, so a malformed id or a damaged
+    // record fails the request whole, and so the body can be sized exactly.
     let mut slots = Vec::with_capacity(req.ids.len());
-    let mut record_bytes = 0;
     for (k, s) in req.ids.iter().enumerate() {
         let id = s.parse::<DiamondId>().map_err(|_| {
             ApiError::BadRequest(format!(
                 "malformed diamond id {s:?} at position {k} (want level-x-y)"
             ))
         })?;
-        let slot = find(r, id);
-        record_bytes += slot.map_or(0, |i| entries[i].length as usize);
-        slots.push(slot);
+        slots.push(find(r, id));
     }
     // `max_batch` is a usize from the command line; the count field is u32.
-    let count = u32::try_from(slots.len())
+    u32::try_from(slots.len())
         .map_err(|_| ApiError::TooLarge("more than 2^32 ids in one batch".into()))?;
-    let mut out = BatchWriter::new(count, record_bytes);
+    let mut entries = Vec::with_capacity(slots.len());
     let mut found = 0;
-    for slot in slots {
-        match slot {
+    for k in order {
+        entries.push(match slots[k] {
             Some(i) => {
-                // Index lengths are u32, so the writer's length field holds it.
-                out.record(&r.repo.as_bytes()[checked_record(&st, r, i)?]);
                 found += 1;
+                Some(checked_record(&st, r, i)?)
             }
-            None => out.not_stored(),
-        }
+            None => None,
+        });
     }
-    let out = out.finish();
-    debug_assert_eq!(out.len(), body_len(count as usize, record_bytes));
     st.metrics().add_records(found);
     Ok(respond(
         StatusCode::OK,
@@ -360,7 +369,8 @@ async fn batch(
             ),
             (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
         ]),
-        out,
+        // Streamed in answer order, most urgent first; dropped unsent if the client goes.
+        Body::new(BatchBody::new(st.clone(), Arc::clone(r), entries)),
     ))
 }
 

@@ -86,6 +86,12 @@ pub struct Wire {
     pub client_in_flight: u64,
     pub client_cancelled: u64,
     pub client_errors: u64,
+    /// Records of cancelled requests that were still wanted and asked for again.
+    pub client_requeued: u64,
+    /// Batch responses the server dropped unfinished (their client closed the connection),
+    /// and the bytes of them it never wrote.
+    pub server_aborted: u64,
+    pub server_unsent_bytes: u64,
     /// Requests the server answered: batch POSTs (200) and range GETs of the file (206).
     pub server_batches: u64,
     pub server_ranges: u64,
@@ -398,6 +404,9 @@ pub fn remote(
         client_cancelled: f.cancelled,
         client_in_flight: f.in_flight,
         client_errors: f.errors,
+        client_requeued: f.requeued,
+        server_aborted: metrics.aborted_batches().0,
+        server_unsent_bytes: metrics.aborted_batches().1,
         server_batches,
         server_ranges,
         server_other: answered - server_batches - server_ranges,

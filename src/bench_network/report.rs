@@ -94,20 +94,24 @@ pub fn table(runs: &[Measured], budget_ms: f64) -> Result<String> {
 /// The requests as the client counted them beside the server's count, and the link's side.
 pub fn wire_table(runs: &[Measured]) -> Result<String> {
     let mut out = String::new();
-    out += "| profile | server | flight | client requests | cancelled | failed \
-            | server: batch POSTs | server: Range GETs | server: other | connections | resets \
-            | MB up |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+    out += "| profile | server | flight | client requests | cancelled (records re-queued) | failed \
+            | server: batch POSTs | server: batches aborted (MB unsent) | server: Range GETs \
+            | server: other | connections | resets | MB up |\n\
+            |---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
     for m in runs {
         let Some(w) = &m.wire else { continue };
         let (profile, server) = labels(m);
         writeln!(
             out,
-            "| {profile} | {server} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {profile} | {server} | {} | {} | {} ({}) | {} | {} | {} ({}) | {} | {} | {} | {} | {} |",
             m.flight,
             w.client_requests,
             w.client_cancelled,
+            w.client_requeued,
             w.client_errors,
             w.server_batches,
+            w.server_aborted,
+            mb(w.server_unsent_bytes),
             w.server_ranges,
             w.server_other,
             w.connections,
@@ -225,6 +229,9 @@ pub fn json(all: &[Measured], budget_ms: f64) -> serde_json::Value {
                     "client_cancelled": w.client_cancelled,
                     "client_in_flight_at_end": w.client_in_flight,
                     "client_errors": w.client_errors,
+                    "client_requeued": w.client_requeued,
+                    "server_batches_aborted": w.server_aborted,
+                    "server_batch_bytes_unsent": w.server_unsent_bytes,
                     "server_batch_requests": w.server_batches,
                     "server_range_requests": w.server_ranges,
                     "server_other_requests": w.server_other,

@@ -61,6 +61,11 @@ pub struct FetchOptions {
     /// 0 (the default) merges only records that touch: a gap's bytes may belong to records
     /// another request is fetching, and measured on loopback that doubled the bytes fetched.
     pub max_range_gap: u64,
+    /// A request in flight is dropped (closing its connection, so the server stops sending)
+    /// when at least this fraction of the record bytes it has still to deliver is no longer
+    /// wanted; the records of it that are still wanted are requested again. 1 drops only
+    /// requests none of whose remaining records is wanted.
+    pub cancel_waste: f64,
 }
 
 impl Default for FetchOptions {
@@ -74,6 +79,7 @@ impl Default for FetchOptions {
             initial_backoff: Duration::from_millis(50),
             max_backoff: Duration::from_secs(2),
             max_range_gap: 0,
+            cancel_waste: 0.5,
         }
     }
 }
@@ -93,8 +99,11 @@ pub struct FetchStats {
     pub records: u64,
     /// Failed requests and rejected records (each retried later).
     pub errors: u64,
-    /// Requests aborted because none of their records was wanted any more.
+    /// Requests aborted because (enough of) their records were not wanted any more
+    /// ([`FetchOptions::cancel_waste`]).
     pub cancelled: u64,
+    /// Records still wanted that a cancelled request was carrying, queued again.
+    pub requeued: u64,
 }
 
 /// Where the records come from.
@@ -146,7 +155,9 @@ struct Pending {
     priority: f32,
 }
 
-/// The scheduler's bookkeeping; `H` is the transport's handle for aborting a request.
+/// The scheduler's bookkeeping; `H` is the transport's handle for aborting a request. Each
+/// entry of `batches` lists the records its request has still to deliver (a streamed response
+/// delivers them one by one).
 struct State<H> {
     wanted: HashMap<DiamondId, Pending>,
     in_flight: HashSet<DiamondId>,
@@ -571,7 +582,9 @@ fn split_span(
 type Checked = Vec<(DiamondId, Arc<[u8]>)>;
 
 /// The records of a finished request checked against the head: those that pass, and the ids
-/// to retry (all of them when the request failed).
+/// to retry (all of them when the request failed). The browser's transport; the desktop's
+/// checks records as they stream in.
+#[cfg_attr(not(target_arch = "wasm32"), allow(dead_code))]
 fn check_batch(
     head: &RepositoryHead,
     ids: &[DiamondId],
@@ -600,10 +613,65 @@ fn check_batch(
     (delivered, failed)
 }
 
-/// The JSON body of a batch request (`POST …/diamonds`) for `ids`.
-fn batch_request_body(ids: &[DiamondId]) -> String {
+/// The JSON body of a batch request (`POST …/diamonds`) for `ids` with their `priorities`
+/// (screen errors; the server answers the highest first, see [`batch::answer_order`]), as
+/// [`wire_priorities`] writes them.
+fn batch_request_body(ids: &[DiamondId], priorities: &[f32]) -> String {
     let names: Vec<String> = ids.iter().map(ToString::to_string).collect();
-    serde_json::json!({ "ids": names }).to_string()
+    serde_json::json!({ "ids": names, "priorities": wire_priorities(priorities) }).to_string()
+}
+
+/// Priorities as a batch request carries them: three significant digits (about 4 bytes of
+/// JSON each instead of 9: the order, not the value, is what the server needs, and rounding
+/// keeps a sorted list sorted), non-finite ones as 0 (JSON has no infinities).
+fn wire_priorities(priorities: &[f32]) -> Vec<f64> {
+    priorities
+        .iter()
+        .map(|&p| {
+            if !p.is_finite() || p == 0.0 {
+                return 0.0;
+            }
+            let p = f64::from(p);
+            let scale = 10f64.powi(2 - p.abs().log10().floor() as i32);
+            (p * scale).round() / scale
+        })
+        .collect()
+}
+
+/// The ids of a batch request in the order the server answers them.
+fn answer_ids(ids: &[DiamondId], priorities: &[f32]) -> Vec<DiamondId> {
+    // As the server reads them: f32.
+    let read: Vec<f32> = wire_priorities(priorities)
+        .into_iter()
+        .map(|p| p as f32)
+        .collect();
+    batch::answer_order(&read)
+        .into_iter()
+        .map(|k| ids[k])
+        .collect()
+}
+
+/// Whether a request whose still-to-come records are `remaining` should be dropped now that
+/// `wanted` is what the view wants: none of them is wanted, or at least
+/// [`FetchOptions::cancel_waste`] of their bytes (each with its entry's framing) is not.
+#[cfg_attr(target_arch = "wasm32", allow(dead_code))]
+fn not_worth_finishing<V>(
+    remaining: &[DiamondId],
+    wanted: &HashMap<DiamondId, V>,
+    head: &RepositoryHead,
+    options: &FetchOptions,
+) -> bool {
+    let (mut useful, mut waste) = (0u64, 0u64);
+    for &id in remaining {
+        let r = record_range(head, id);
+        let bytes = r.end - r.start + batch::ENTRY_HEAD_LEN as u64;
+        if wanted.contains_key(&id) {
+            useful += bytes;
+        } else {
+            waste += bytes;
+        }
+    }
+    useful == 0 || waste as f64 >= options.cancel_waste * (useful + waste) as f64
 }
 
 #[cfg(test)]
@@ -612,6 +680,83 @@ mod tests {
 
     fn id(l: u8, x: u32, y: u32) -> DiamondId {
         DiamondId::new(l, x, y)
+    }
+
+    #[test]
+    fn batches_are_dropped_when_most_of_what_they_still_carry_is_unwanted() {
+        use cbdam_codec::hierarchy::{EncodeOptions, encode};
+        use cbdam_codec::quant::{HeightGrid, QuantPlan};
+        let (w, h) = (33usize, 33usize);
+        let metres: Vec<f64> = (0..w * h)
+            .map(|i| ((i * 7919) % 97) as f64 + (i % w) as f64)
+            .collect();
+        let plan = QuantPlan::new(0.25, None, 0.0, 200.0).unwrap();
+        let grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
+        let opts = EncodeOptions {
+            n: 9,
+            ..EncodeOptions::default()
+        };
+        let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+        let bytes = cbdam_codec::repository::serialize(&enc, &plan, None, None).unwrap();
+        let repo = cbdam_codec::repository::Repository::from_bytes(bytes).unwrap();
+        let head = repo.head();
+        // Four records of the same size, so that fractions are exact.
+        let mut by_len: HashMap<u32, Vec<DiamondId>> = HashMap::new();
+        for e in repo.entries() {
+            by_len.entry(e.length).or_default().push(e.id);
+        }
+        let four: Vec<DiamondId> = by_len
+            .into_values()
+            .find(|v| v.len() >= 4)
+            .expect("four records of one size")[..4]
+            .to_vec();
+        let o = FetchOptions::default();
+        let wanted =
+            |n: usize| -> HashMap<DiamondId, ()> { four[..n].iter().map(|&id| (id, ())).collect() };
+        assert!(!not_worth_finishing(&four, &wanted(4), head, &o));
+        assert!(
+            !not_worth_finishing(&four, &wanted(3), head, &o),
+            "a quarter unwanted"
+        );
+        assert!(
+            not_worth_finishing(&four, &wanted(2), head, &o),
+            "half unwanted"
+        );
+        assert!(not_worth_finishing(&four, &wanted(0), head, &o));
+        // Only what is still to come counts: the two wanted ones delivered, the rest unwanted.
+        assert!(not_worth_finishing(&four[2..], &wanted(2), head, &o));
+        let lenient = FetchOptions {
+            cancel_waste: 1.0,
+            ..FetchOptions::default()
+        };
+        assert!(!not_worth_finishing(&four, &wanted(1), head, &lenient));
+        assert!(not_worth_finishing(&four, &wanted(0), head, &lenient));
+    }
+
+    #[test]
+    fn batch_requests_carry_priorities_and_answers_follow_them() {
+        let ids = [id(1, 2, 3), id(2, 4, 5), id(3, 1, 1)];
+        let body = batch_request_body(&ids, &[1.0, f32::INFINITY, 4.5]);
+        let v: serde_json::Value = serde_json::from_str(&body).unwrap();
+        assert_eq!(v["ids"], serde_json::json!(["1-2-3", "2-4-5", "3-1-1"]));
+        assert_eq!(v["priorities"], serde_json::json!([1.0, 0.0, 4.5]));
+        let short = batch_request_body(&ids[..2], &[2.718_4, 0.012_345_67]);
+        assert!(short.contains("[2.72,0.0123]"), "{short}");
+        // Rounding keeps a sorted list sorted (ties are answered in request order).
+        let sorted = [1234.5f32, 999.6, 999.4, 10.04, 9.996, 0.5, 0.0];
+        let wire = wire_priorities(&sorted);
+        assert!(wire.windows(2).all(|w| w[0] >= w[1]), "{wire:?}");
+        let read: Vec<f32> = wire.iter().map(|&p| p as f32).collect();
+        assert_eq!(
+            batch::answer_order(&read),
+            (0..sorted.len()).collect::<Vec<_>>()
+        );
+        assert_eq!(
+            answer_ids(&ids, &[1.0, f32::INFINITY, 4.5]),
+            vec![ids[2], ids[0], ids[1]]
+        );
+        // What the client sends (most urgent first) comes back as sent.
+        assert_eq!(answer_ids(&ids, &[9.0, 9.0, 1.0]), ids.to_vec());
     }
 
     #[test]

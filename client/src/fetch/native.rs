@@ -14,10 +14,12 @@ use tokio::task::AbortHandle;
 use web_time::Instant;
 
 use super::{
-    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, batch_request_body,
-    batch_span, check_batch, classify, expect_partial, fetch_head_with, http_error, list_url,
-    next_batch, parse_frames, range_total, record_bytes, single_repository, split_span,
+    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, answer_ids,
+    batch_request_body, batch_span, classify, expect_partial, fetch_head_with, http_error,
+    list_url, next_batch, not_worth_finishing, range_total, record_bytes, single_repository,
+    split_span,
 };
+use cbdam_codec::repository::batch::{OwnedEntry, StreamParser};
 
 struct Shared {
     state: Mutex<State<AbortHandle>>,
@@ -38,6 +40,7 @@ struct Counters {
     records: AtomicU64,
     errors: AtomicU64,
     cancelled: AtomicU64,
+    requeued: AtomicU64,
 }
 
 /// Fetches records of one remote repository in the background.
@@ -113,7 +116,10 @@ impl RemoteFetcher {
     }
 
     /// Replaces the set of wanted records (higher priority first). Queued records not in the set
-    /// are forgotten, and requests none of whose records are wanted any more are aborted.
+    /// are forgotten, and requests in flight that are no longer worth finishing (none of their
+    /// remaining records wanted, or [`FetchOptions::cancel_waste`] of their bytes unwanted) are
+    /// aborted: their connection closes, so the server stops sending, and their records that
+    /// are still wanted are queued again.
     pub fn want(&self, wanted: impl IntoIterator<Item = (DiamondId, f32)>) {
         let mut s = self.shared.state.lock().expect("fetch state");
         let delivered = std::mem::take(&mut s.delivered);
@@ -130,15 +136,22 @@ impl RemoteFetcher {
             window,
             ..
         } = &mut *s;
+        let (head, options) = (&self.shared.head, &self.shared.options);
         batches.retain(|(batch, ids, handle)| {
-            if ids.iter().any(|id| wanted.contains_key(id)) {
+            if !not_worth_finishing(ids, wanted, head, options) {
                 return true;
             }
             handle.abort();
             window.end(*batch, None, Instant::now());
+            let mut requeued = 0;
             for id in ids {
                 in_flight.remove(id);
+                requeued += u64::from(wanted.contains_key(id));
             }
+            self.shared
+                .stats
+                .requeued
+                .fetch_add(requeued, Ordering::Relaxed);
             self.shared.stats.cancelled.fetch_add(1, Ordering::Relaxed);
             self.shared.stats.in_flight.fetch_sub(1, Ordering::Relaxed);
             false
@@ -175,6 +188,7 @@ impl RemoteFetcher {
             records: c.records.load(Ordering::Relaxed),
             errors: c.errors.load(Ordering::Relaxed),
             cancelled: c.cancelled.load(Ordering::Relaxed),
+            requeued: c.requeued.load(Ordering::Relaxed),
         }
     }
 }
@@ -285,65 +299,121 @@ fn start_batches(shared: &Arc<Shared>, s: &mut State<AbortHandle>) -> Option<Ins
         for id in &ids {
             s.in_flight.insert(*id);
         }
+        let priorities: Vec<f32> = ids
+            .iter()
+            .map(|id| s.wanted.get(id).map_or(0.0, |p| p.priority))
+            .collect();
         let batch = s.next_batch;
         s.next_batch += 1;
         s.window
             .start(batch, record_bytes(&shared.head, &ids), Instant::now());
-        let task = tokio::spawn(fetch_batch(shared.clone(), batch, ids.clone()));
+        let task = tokio::spawn(fetch_batch(shared.clone(), batch, ids.clone(), priorities));
         s.batches.push((batch, ids, task.abort_handle()));
         shared.stats.in_flight.fetch_add(1, Ordering::Relaxed);
     }
     next_retry
 }
 
-/// Fetches one batch and hands over its records; failures go to backoff.
-async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>) {
+/// Fetches one batch and hands over its records as they arrive; what it failed to deliver
+/// goes to backoff.
+async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>, priorities: Vec<f32>) {
     let outcome = match &shared.endpoint {
-        Endpoint::Server { base } => fetch_from_server(&shared, base, &ids).await,
-        Endpoint::File { url } => fetch_ranges(&shared, url, &ids).await,
+        Endpoint::Server { base } => {
+            stream_from_server(&shared, batch, base, &ids, &priorities).await
+        }
+        Endpoint::File { url } => match fetch_ranges(&shared, url, &ids).await {
+            Ok(records) => {
+                let received = records.iter().map(|(_, r)| r.len() as u64).sum();
+                deliver(&shared, batch, records);
+                Ok(received)
+            }
+            Err(e) => Err(e),
+        },
     };
-    let (delivered, failed) = check_batch(&shared.head, &ids, outcome);
     let mut s = shared.state.lock().expect("fetch state");
     let Some(pos) = s.batches.iter().position(|(b, _, _)| *b == batch) else {
         // Cancelled meanwhile: its bookkeeping is already undone.
         return;
     };
-    s.batches.swap_remove(pos);
-    let received = failed
-        .is_empty()
-        .then(|| delivered.iter().map(|(_, r)| r.len() as u64).sum());
+    // What the request did not deliver: all of it if it failed, records that failed their
+    // check, and (from a server that broke the framing) whatever did not come.
+    let (_, failed, _) = s.batches.swap_remove(pos);
+    if let Err(message) = &outcome {
+        tracing::warn!("request for {} records failed: {message}", ids.len());
+    }
+    let received = outcome.ok().filter(|_| failed.is_empty());
     s.window.end(batch, received, Instant::now());
     shared.stats.in_flight.fetch_sub(1, Ordering::Relaxed);
-    for id in &ids {
+    for id in &failed {
         s.in_flight.remove(id);
     }
     if !failed.is_empty() {
         shared.stats.errors.fetch_add(1, Ordering::Relaxed);
     }
     s.back_off(failed, Instant::now(), &shared.options);
-    let tx = shared.results.lock().expect("results").clone();
-    for (id, r) in delivered {
-        s.wanted.remove(&id);
-        s.backoff.remove(&id);
-        s.delivered.insert(id);
-        shared.stats.records.fetch_add(1, Ordering::Relaxed);
-        // The receiver is gone only when the fetcher is being dropped.
-        let _ = tx.send((id, Ok(r)));
-    }
     drop(s);
     shared.wake.notify_one();
 }
 
-/// `POST …/diamonds`, framing `CBDR`, `u32 count`, then per id `u8 status`, `u32 length`, bytes.
-async fn fetch_from_server(
+/// Checks `records` of `batch` against the head and hands over those that pass, unless the
+/// batch was cancelled meanwhile; each one handed over leaves the batch's list of records to
+/// come (those that fail stay there, to be backed off when the batch ends).
+fn deliver(shared: &Shared, batch: u64, records: Vec<(DiamondId, Vec<u8>)>) {
+    let mut checked = Vec::with_capacity(records.len());
+    for (id, bytes) in records {
+        let i = shared.head.position(id).expect("stored");
+        match shared.head.check_record(i, &bytes) {
+            Ok(()) => checked.push((id, Arc::<[u8]>::from(bytes))),
+            Err(e) => tracing::warn!("record {id} rejected: {e}"),
+        }
+    }
+    if checked.is_empty() {
+        return;
+    }
+    let mut s = shared.state.lock().expect("fetch state");
+    let State {
+        batches,
+        in_flight,
+        wanted,
+        backoff,
+        delivered,
+        ..
+    } = &mut *s;
+    let Some((_, remaining, _)) = batches.iter_mut().find(|(b, _, _)| *b == batch) else {
+        return;
+    };
+    let tx = shared.results.lock().expect("results").clone();
+    for (id, r) in checked {
+        let Some(k) = remaining.iter().position(|&d| d == id) else {
+            continue; // a duplicate: already handed over
+        };
+        remaining.swap_remove(k);
+        in_flight.remove(&id);
+        wanted.remove(&id);
+        backoff.remove(&id);
+        delivered.insert(id);
+        shared.stats.records.fetch_add(1, Ordering::Relaxed);
+        // The receiver is gone only when the fetcher is being dropped.
+        let _ = tx.send((id, Ok(r)));
+    }
+}
+
+/// `POST …/diamonds` with the ids and their priorities; the response (framing `CBDR`,
+/// `u32 count`, then per id `u8 status`, `u32 length`, bytes, in the server's answer order:
+/// most urgent first) is read as it streams in, each record handed over as soon as it is
+/// complete. Returns the record bytes received.
+async fn stream_from_server(
     shared: &Shared,
+    batch: u64,
     base: &str,
     ids: &[DiamondId],
-) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
+    priorities: &[f32],
+) -> Result<u64, String> {
     let url = format!("{base}/diamonds");
-    let body = batch_request_body(ids);
+    let body = batch_request_body(ids, priorities);
+    let order = answer_ids(ids, priorities);
     shared.stats.requests.fetch_add(1, Ordering::Relaxed);
-    let resp = shared
+    let mut resp = shared
         .client
         .post(&url)
         .header(reqwest::header::CONTENT_TYPE, "application/json")
@@ -352,12 +422,49 @@ async fn fetch_from_server(
         .await
         .and_then(|r| r.error_for_status())
         .map_err(|e| e.to_string())?;
-    let bytes = resp.bytes().await.map_err(|e| e.to_string())?;
-    shared
-        .stats
-        .bytes
-        .fetch_add(bytes.len() as u64, Ordering::Relaxed);
-    parse_frames(&bytes, ids)
+    let mut parser = StreamParser::new();
+    let mut received = 0;
+    loop {
+        let chunk = resp.chunk().await.map_err(|e| e.to_string())?;
+        let Some(chunk) = chunk else { break };
+        shared
+            .stats
+            .bytes
+            .fetch_add(chunk.len() as u64, Ordering::Relaxed);
+        let first = parser.entries_parsed();
+        let entries = parser.push(&chunk).map_err(|e| e.to_string())?;
+        if first + entries.len() > order.len() {
+            return Err(format!(
+                "asked for {} records, the response holds more",
+                order.len()
+            ));
+        }
+        let mut records = Vec::with_capacity(entries.len());
+        for (k, entry) in entries.into_iter().enumerate() {
+            let id = order[first + k];
+            match entry {
+                OwnedEntry::Record(bytes) => {
+                    received += bytes.len() as u64;
+                    records.push((id, bytes));
+                }
+                OwnedEntry::NotStored => {
+                    return Err(format!(
+                        "server says {id} is not stored, the head says it is"
+                    ));
+                }
+            }
+        }
+        deliver(shared, batch, records);
+    }
+    parser.finish().map_err(|e| e.to_string())?;
+    if parser.entries_parsed() != order.len() {
+        return Err(format!(
+            "asked for {} records, response holds {}",
+            order.len(),
+            parser.entries_parsed()
+        ));
+    }
+    Ok(received)
 }
 
 /// One range request covering `ids`' records (they were chosen close together).

@@ -21,9 +21,9 @@ use web_sys::{AbortController, Request, RequestInit, Response};
 use web_time::Instant;
 
 use super::{
-    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, batch_request_body,
-    batch_span, check_batch, classify, expect_partial, fetch_head_with, http_error, list_url,
-    next_batch, parse_frames, range_total, single_repository, split_span,
+    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, answer_ids,
+    batch_request_body, batch_span, check_batch, classify, expect_partial, fetch_head_with,
+    http_error, list_url, next_batch, parse_frames, range_total, single_repository, split_span,
 };
 
 struct Shared {
@@ -187,6 +187,10 @@ fn start_batches(shared: &Rc<Shared>) {
         for id in &ids {
             s.in_flight.insert(*id);
         }
+        let priorities: Vec<f32> = ids
+            .iter()
+            .map(|id| s.wanted.get(id).map_or(0.0, |p| p.priority))
+            .collect();
         let batch = s.next_batch;
         s.next_batch += 1;
         let signal = controller.signal();
@@ -197,7 +201,13 @@ fn start_batches(shared: &Rc<Shared>) {
             stats.in_flight += 1;
             stats.requests += 1;
         }
-        wasm_bindgen_futures::spawn_local(fetch_batch(shared.clone(), batch, ids, signal));
+        wasm_bindgen_futures::spawn_local(fetch_batch(
+            shared.clone(),
+            batch,
+            ids,
+            priorities,
+            signal,
+        ));
     }
 }
 
@@ -217,10 +227,13 @@ async fn fetch_batch(
     shared: Rc<Shared>,
     batch: u64,
     ids: Vec<DiamondId>,
+    priorities: Vec<f32>,
     signal: web_sys::AbortSignal,
 ) {
     let outcome = match &shared.endpoint {
-        Endpoint::Server { base } => fetch_from_server(&shared, base, &ids, &signal).await,
+        Endpoint::Server { base } => {
+            fetch_from_server(&shared, base, &ids, &priorities, &signal).await
+        }
         Endpoint::File { url } => fetch_ranges(&shared, url, &ids, &signal).await,
     };
     let (delivered, failed) = check_batch(&shared.head, &ids, outcome);
@@ -252,15 +265,17 @@ async fn fetch_batch(
     start_batches(&shared);
 }
 
-/// `POST …/diamonds` with the ids; the response's framing is parsed by [`parse_frames`].
+/// `POST …/diamonds` with the ids and their priorities; the response's framing is parsed by
+/// [`parse_frames`], its entries in the server's answer order (most urgent first).
 async fn fetch_from_server(
     shared: &Shared,
     base: &str,
     ids: &[DiamondId],
+    priorities: &[f32],
     signal: &web_sys::AbortSignal,
 ) -> Result<Vec<(DiamondId, Vec<u8>)>, String> {
     let url = format!("{base}/diamonds");
-    let body = batch_request_body(ids);
+    let body = batch_request_body(ids, priorities);
     let (status, bytes) = send(
         &url,
         "POST",
@@ -273,7 +288,7 @@ async fn fetch_from_server(
         return Err(format!("{url}: HTTP {status}"));
     }
     shared.stats.borrow_mut().bytes += bytes.len() as u64;
-    parse_frames(&bytes, ids)
+    parse_frames(&bytes, &answer_ids(ids, priorities))
 }
 
 /// One range request covering `ids`' records (they were chosen close together).

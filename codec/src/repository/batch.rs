@@ -175,6 +175,146 @@ pub fn parse(body: &[u8]) -> Result<Vec<Entry<'_>>, BatchError> {
     Ok(entries)
 }
 
+/// The order a server answers a batch in when the request gives each id a priority: highest
+/// first, ties (and NaNs, which sort lowest) in request order. Returns, for each answer
+/// position, the index of the requested id it answers. Both ends compute it with this one
+/// definition, so a client that sends its ids most urgent first gets them back in that order.
+pub fn answer_order(priorities: &[f32]) -> Vec<usize> {
+    let key = |p: f32| if p.is_nan() { f32::NEG_INFINITY } else { p };
+    let mut order: Vec<usize> = (0..priorities.len()).collect();
+    // A stable sort: equal priorities keep the request's order.
+    order.sort_by(|&a, &b| key(priorities[b]).total_cmp(&key(priorities[a])));
+    order
+}
+
+/// An entry that owns its record (from [`StreamParser`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum OwnedEntry {
+    /// The record (possibly empty).
+    Record(Vec<u8>),
+    /// The diamond is not stored in the repository.
+    NotStored,
+}
+
+/// Parses a batch body as it arrives, chunk by chunk, handing over each entry as soon as its
+/// last byte is in: a streamed response's first records are usable before the rest arrive.
+/// Accepts exactly the bodies [`parse`] accepts.
+#[derive(Debug, Default)]
+pub struct StreamParser {
+    /// Bytes received and not yet parsed into entries.
+    buf: Vec<u8>,
+    /// Bytes received so far.
+    received: usize,
+    /// The announced count, once the preamble is in.
+    count: Option<u32>,
+    /// Entries handed over so far.
+    parsed: u32,
+}
+
+impl StreamParser {
+    /// A parser at the start of a body.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Entries handed over so far.
+    pub fn entries_parsed(&self) -> usize {
+        self.parsed as usize
+    }
+
+    /// Feeds the next bytes of the body; returns the entries they complete, in order.
+    pub fn push(&mut self, chunk: &[u8]) -> Result<Vec<OwnedEntry>, BatchError> {
+        self.received += chunk.len();
+        self.buf.extend_from_slice(chunk);
+        let mut pos = 0;
+        if self.count.is_none() {
+            if self.buf.len() < PREAMBLE_LEN {
+                let n = self.buf.len().min(4);
+                if self.buf[..n] != MAGIC[..n] {
+                    return Err(BatchError::BadMagic);
+                }
+                return Ok(Vec::new());
+            }
+            if self.buf[..4] != MAGIC {
+                return Err(BatchError::BadMagic);
+            }
+            self.count = Some(u32::from_le_bytes([
+                self.buf[4],
+                self.buf[5],
+                self.buf[6],
+                self.buf[7],
+            ]));
+            pos = PREAMBLE_LEN;
+        }
+        let count = self.count.expect("set above");
+        let mut out = Vec::new();
+        while self.parsed < count {
+            let Some(head) = self.buf.get(pos..pos + ENTRY_HEAD_LEN) else {
+                break;
+            };
+            let status = head[0];
+            let length = u32::from_le_bytes([head[1], head[2], head[3], head[4]]);
+            let entry = self.parsed as usize;
+            match status {
+                STATUS_RECORD => {
+                    let start = pos + ENTRY_HEAD_LEN;
+                    let Some(end) = start.checked_add(length as usize) else {
+                        return Err(self.truncated(usize::MAX));
+                    };
+                    let Some(record) = self.buf.get(start..end) else {
+                        break;
+                    };
+                    out.push(OwnedEntry::Record(record.to_vec()));
+                    pos = end;
+                }
+                STATUS_NOT_STORED if length == 0 => {
+                    out.push(OwnedEntry::NotStored);
+                    pos += ENTRY_HEAD_LEN;
+                }
+                STATUS_NOT_STORED => return Err(BatchError::NotStoredWithBytes { entry, length }),
+                status => return Err(BatchError::UnknownStatus { entry, status }),
+            }
+            self.parsed += 1;
+        }
+        self.buf.drain(..pos);
+        if self.parsed == count && !self.buf.is_empty() {
+            return Err(BatchError::Trailing(self.buf.len()));
+        }
+        Ok(out)
+    }
+
+    /// The body ended: an error unless every announced entry was complete.
+    pub fn finish(&self) -> Result<(), BatchError> {
+        match self.count {
+            None if self.buf.len() < 4 || self.buf[..4] != MAGIC => Err(BatchError::BadMagic),
+            None => Err(self.truncated(PREAMBLE_LEN)),
+            Some(count) if self.parsed < count => {
+                // At least the heads of the missing entries and whatever the current one
+                // announced.
+                let missing = (count - self.parsed) as usize;
+                let current = match self.buf.get(..ENTRY_HEAD_LEN) {
+                    Some(h) if h[0] == STATUS_RECORD => {
+                        u32::from_le_bytes([h[1], h[2], h[3], h[4]]) as usize
+                    }
+                    _ => 0,
+                };
+                let needed = (self.received - self.buf.len())
+                    .saturating_add(missing * ENTRY_HEAD_LEN)
+                    .saturating_add(current);
+                Err(self.truncated(needed))
+            }
+            Some(_) => Ok(()),
+        }
+    }
+
+    fn truncated(&self, needed: usize) -> BatchError {
+        BatchError::Truncated {
+            len: self.received,
+            needed,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -249,7 +389,95 @@ mod tests {
         }
     }
 
+    /// Feeds `body` to a [`StreamParser`] in chunks of `chunk` bytes.
+    fn stream(body: &[u8], chunk: usize) -> Result<Vec<OwnedEntry>, BatchError> {
+        let mut p = StreamParser::new();
+        let mut out = Vec::new();
+        for c in body.chunks(chunk.max(1)) {
+            out.extend(p.push(c)?);
+        }
+        p.finish()?;
+        Ok(out)
+    }
+
+    #[test]
+    fn answer_order_is_by_priority_then_request_order() {
+        assert_eq!(answer_order(&[]), Vec::<usize>::new());
+        assert_eq!(answer_order(&[1.0, 3.0, 2.0, 3.0]), vec![1, 3, 2, 0]);
+        assert_eq!(answer_order(&[f32::NAN, -1.0, 0.5]), vec![2, 1, 0]);
+        // Already sorted (what the client sends): unchanged.
+        assert_eq!(answer_order(&[9.0, 9.0, 4.0, 0.0]), vec![0, 1, 2, 3]);
+    }
+
+    #[test]
+    fn the_stream_parser_hands_over_entries_as_their_last_byte_arrives() {
+        let body = write(&[Some(vec![1, 2, 3]), None, Some(vec![4])]);
+        let mut p = StreamParser::new();
+        // Preamble and the first entry's head and two of its bytes: nothing complete yet.
+        assert_eq!(p.push(&body[..15]).unwrap(), vec![]);
+        // Its last byte, and the whole "not stored" entry.
+        assert_eq!(
+            p.push(&body[15..21]).unwrap(),
+            vec![OwnedEntry::Record(vec![1, 2, 3]), OwnedEntry::NotStored]
+        );
+        assert_eq!(p.entries_parsed(), 2);
+        assert!(p.finish().is_err(), "one entry is missing");
+        assert_eq!(
+            p.push(&body[21..]).unwrap(),
+            vec![OwnedEntry::Record(vec![4])]
+        );
+        p.finish().unwrap();
+        assert_eq!(stream(b"XB", 1), Err(BatchError::BadMagic));
+        assert_eq!(stream(b"CB", 1), Err(BatchError::BadMagic));
+        let mut trailing = body.clone();
+        trailing.push(0);
+        assert_eq!(stream(&trailing, 4), Err(BatchError::Trailing(1)));
+    }
+
     proptest! {
+        #[test]
+        fn streamed_parsing_matches_whole_parsing(
+            mut bytes in prop::collection::vec(any::<u8>(), 0..200),
+            magic: bool,
+            chunk in 1usize..40,
+        ) {
+            if magic && bytes.len() >= 8 {
+                bytes[..4].copy_from_slice(&MAGIC);
+                let count = u32::from(bytes[4] % 4);
+                bytes[4..8].copy_from_slice(&count.to_le_bytes());
+            }
+            let whole = parse(&bytes).map(|entries| {
+                entries
+                    .iter()
+                    .map(|e| match e {
+                        Entry::Record(r) => OwnedEntry::Record(r.to_vec()),
+                        Entry::NotStored => OwnedEntry::NotStored,
+                    })
+                    .collect::<Vec<_>>()
+            });
+            let streamed = stream(&bytes, chunk);
+            prop_assert_eq!(whole.is_ok(), streamed.is_ok(), "{:?} vs {:?}", whole, streamed);
+            if let (Ok(w), Ok(s)) = (whole, streamed) {
+                prop_assert_eq!(w, s);
+            }
+        }
+
+        #[test]
+        fn written_bodies_stream_back_in_any_chunks(entries in prop::collection::vec(
+            prop::option::of(prop::collection::vec(any::<u8>(), 0..40)), 0..20),
+            chunk in 1usize..64,
+        ) {
+            let body = write(&entries);
+            let want: Vec<OwnedEntry> = entries
+                .iter()
+                .map(|e| e.clone().map_or(OwnedEntry::NotStored, OwnedEntry::Record))
+                .collect();
+            prop_assert_eq!(stream(&body, chunk).unwrap(), want);
+            for cut in 0..body.len() {
+                prop_assert!(stream(&body[..cut], chunk).is_err());
+            }
+        }
+
         #[test]
         fn round_trips(entries in prop::collection::vec(
             prop::option::of(prop::collection::vec(any::<u8>(), 0..40)), 0..20)
