@@ -143,30 +143,36 @@ fn stored_sets(planet: &PlanetGrid) -> (Vec<Vec<DiamondId>>, Vec<BTreeSet<Diamon
     let layout = domain.layout();
     let finest = domain.finest_level();
     let mut leaves: Vec<BTreeSet<DiamondId>> = vec![BTreeSet::new(); finest as usize + 1];
-    for face in 0..domain.faces() {
-        let g = planet.face(face);
-        match planet.classes(face) {
-            None => leaves[finest as usize].extend(domain.level(finest).filter(|id| {
-                let (x0, y0, x1, y1) = layout.bounds(*id);
-                id.face == face && (y0..=y1).any(|y| (x0..=x1).any(|x| g.is_valid(x, y)))
-            })),
-            Some(res) => {
-                let mut strides: Vec<u8> = res.class.iter().copied().filter(|&c| c < 32).collect();
-                strides.sort_unstable();
-                strides.dedup();
-                for j in strides {
-                    // Strides above the root spacing are root points: their leaves are roots.
-                    let level = finest.saturating_sub(2 * j);
-                    leaves[level as usize].extend(domain.level(level).filter(|id| {
-                        let (x0, y0, x1, y1) = layout.bounds(*id);
-                        id.face == face
-                            && (y0..=y1).any(|y| {
-                                let row = y as usize * g.width;
-                                res.class[row + x0 as usize..=row + x1 as usize].contains(&j)
-                            })
-                    }));
+    // Whether the closed square of `id` (inside its face) holds a point `hit` accepts.
+    let holds = |id: &DiamondId, hit: &dyn Fn(&HeightGrid, usize) -> bool| {
+        let g = planet.face(id.face);
+        let (x0, y0, x1, y1) = layout.bounds(*id);
+        (y0..=y1).any(|y| (x0..=x1).any(|x| hit(g, y as usize * g.width + x as usize)))
+    };
+    if planet.classes(0).is_none() {
+        leaves[finest as usize] = domain
+            .level(finest)
+            .filter(|id| holds(id, &|g, i| g.valid[i]))
+            .collect();
+    } else {
+        let class = |face: u8| planet.classes(face).expect("every face has classes");
+        let mut present = [false; 32];
+        for f in 0..domain.faces() {
+            for &c in &class(f).class {
+                if c < 32 {
+                    present[usize::from(c)] = true;
                 }
             }
+        }
+        let strides = (0..32u8).filter(|&j| present[usize::from(j)]);
+        for j in strides {
+            // Strides above the root spacing are root points: their leaves are roots.
+            let level = finest.saturating_sub(2 * j);
+            leaves[level as usize].extend(
+                domain
+                    .level(level)
+                    .filter(|id| holds(id, &|_, i| class(id.face).class[i] == j)),
+            );
         }
     }
     let mut stored = vec![Vec::new(); finest as usize + 1];
