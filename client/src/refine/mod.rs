@@ -1189,7 +1189,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// parents'), parents come before their children, and what a still view speculates is
     /// exactly what its converged cut refines: nothing is decoded in vain unless the view moves.
     fn speculate(&mut self, view: &View, leftovers: Vec<Candidate>) {
-        let max_jobs = self.spawner.parallelism().max(1);
+        // One core fewer than the workers have: the frame's own thread keeps a core, so that
+        // decoding ahead does not pre-empt the next frame's refinement (measured on 2 cores).
+        let max_jobs = self.spawner.parallelism().saturating_sub(1).max(1);
         let free = max_jobs.saturating_sub(self.speculative_jobs);
         if free == 0 {
             return;
