@@ -107,17 +107,24 @@ pub(crate) fn variable_sets(domain: &Domain, width: usize, res: &Resolution) -> 
             }
         }
     }
-    let mut stored = vec![Vec::new(); finest as usize + 1];
-    let mut recorded = vec![BTreeSet::new(); finest as usize + 1];
-    stored[finest as usize] = leaves[finest as usize].iter().copied().collect();
-    for level in (0..finest as usize).rev() {
+    with_parents(domain, &leaves)
+}
+
+/// The stored sets of leaves at several levels (`leaves[l]`: the leaves of level `l`): every
+/// leaf and all its ancestors (across face edges on a cube-sphere); the recorded ones are those
+/// with a stored child.
+pub(crate) fn with_parents(domain: &Domain, leaves: &[BTreeSet<DiamondId>]) -> VariableSets {
+    let finest = leaves.len() - 1;
+    let mut stored = vec![Vec::new(); finest + 1];
+    let mut recorded = vec![BTreeSet::new(); finest + 1];
+    stored[finest] = leaves[finest].iter().copied().collect();
+    for level in (0..finest).rev() {
         let parents: BTreeSet<DiamondId> = stored[level + 1]
             .iter()
             .flat_map(|&d| domain.parents(d))
             .flatten()
             .collect();
-        let all: BTreeSet<DiamondId> = parents.union(&leaves[level]).copied().collect();
-        stored[level] = all.into_iter().collect();
+        stored[level] = parents.union(&leaves[level]).copied().collect();
         recorded[level] = parents;
     }
     VariableSets { stored, recorded }

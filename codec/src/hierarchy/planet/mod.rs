@@ -22,6 +22,7 @@ use super::decode::{LevelReport, VerifyReport, walk_all_with_validity};
 use super::encode::{EncodeOptions, record_of, refine_encode, saturate_errors};
 use super::object_error::{ErrorInput, surface_error};
 use super::refine::{Refined, gather};
+use super::resolution::with_parents;
 use super::roots::{encode_roots, root_grid};
 use super::{CodecParams, Encoded, Record, RepoKind};
 use crate::CodecError;
@@ -175,19 +176,8 @@ fn stored_sets(planet: &PlanetGrid) -> (Vec<Vec<DiamondId>>, Vec<BTreeSet<Diamon
             );
         }
     }
-    let mut stored = vec![Vec::new(); finest as usize + 1];
-    let mut recorded = vec![BTreeSet::new(); finest as usize + 1];
-    stored[finest as usize] = leaves[finest as usize].iter().copied().collect();
-    for level in (0..finest as usize).rev() {
-        let parents: BTreeSet<DiamondId> = stored[level + 1]
-            .iter()
-            .flat_map(|&d| domain.parents(d))
-            .flatten()
-            .collect();
-        stored[level] = parents.union(&leaves[level]).copied().collect();
-        recorded[level] = parents;
-    }
-    (stored, recorded)
+    let sets = with_parents(domain, &leaves);
+    (sets.stored, sets.recorded)
 }
 
 /// The object error of `id` with grid `p` against the planet's faces: its own face's input,
