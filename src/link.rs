@@ -82,12 +82,13 @@ pub fn run(args: &LinkArgs) -> Result<()> {
             Link::burst(link.down_bps),
             Link::burst(link.up_bps),
         );
+        // Signal handlers before the address is announced (see `shutdown_signal`).
+        let stop = cbdam_server::shutdown_signal();
         println!("listening on {}; Ctrl-C stops", proxy.local_addr());
         let start = Instant::now();
         let mut last = Counters::default();
         let mut tick = (args.interval > 0.0)
             .then(|| tokio::time::interval(Duration::from_secs_f64(args.interval)));
-        let stop = cbdam_server::shutdown_signal();
         tokio::pin!(stop);
         loop {
             let ticked = async {

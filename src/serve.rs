@@ -63,6 +63,8 @@ pub fn run(args: &ServeArgs) -> Result<()> {
             .await
             .with_context(|| format!("binding {}", args.addr))?;
         let addr = listener.local_addr()?;
+        // Signal handlers first: a client (or a test) may signal as soon as it reads the address.
+        let shutdown = cbdam_server::shutdown_signal();
         for (name, spec) in state.names().iter().zip(&specs) {
             tracing::info!(
                 "serving {} as http://{addr}/v1/repos/{name}/meta",
@@ -89,7 +91,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
                 r.context("server task")??;
                 return Ok(());
             }
-            () = cbdam_server::shutdown_signal() => {}
+            () = shutdown => {}
         }
         let _ = stop.send(());
         // In-flight requests get their timeout plus a little to finish; then exit regardless
