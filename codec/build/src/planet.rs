@@ -696,17 +696,18 @@ pub fn resampling_error(
                     }
                     acc
                 })
-                .reduce(
-                    || (0, 0, 0.0, 0.0, None),
-                    |a, b| {
-                        let (max, at) = if b.2 > a.2 || a.4.is_none() {
-                            (b.2, b.4)
-                        } else {
-                            (a.2, a.4)
-                        };
-                        (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
-                    },
-                );
+                // Rows summed in order, not in rayon's reduction tree (whose shape depends on
+                // scheduling): the stored RMS has the same bits every build.
+                .collect::<Vec<_>>()
+                .into_iter()
+                .fold((0, 0, 0.0, 0.0, None), |a, b| {
+                    let (max, at) = if b.2 > a.2 || a.4.is_none() {
+                        (b.2, b.4)
+                    } else {
+                        (a.2, a.4)
+                    };
+                    (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
+                });
             InputResampling {
                 path: input.path.clone(),
                 samples,
@@ -852,12 +853,14 @@ pub fn build_planet(
         bail!("the inputs have no valid sample (all nodata or NaN)");
     };
     let plan = QuantPlan::new(opts.max_error, None, lo, hi)?;
+    // Every stage runs on the build's own workers (`--threads`).
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(opts.threads.unwrap_or(0))
+        .build()
+        .context("starting the build's threads")?;
     let t = Instant::now();
-    let resampled = resample(&inputs, n, k, &plan)?;
+    let resampled = pool.install(|| resample(&inputs, n, k, &plan))?;
     stages.push(("resample", t.elapsed()));
-    let t = Instant::now();
-    let resampling = resampling_error(&inputs, &resampled, &plan);
-    stages.push(("measure resampling error", t.elapsed()));
     event(Stage::Prepare, 1);
     event(Stage::Encode, 0);
     let t = Instant::now();
@@ -867,12 +870,16 @@ pub fn build_planet(
         alpha: Alpha::One,
         coder: opts.coder,
     };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(opts.threads.unwrap_or(0))
-        .build()
-        .context("starting the encoder's threads")?;
-    let encoded = pool.install(|| encode_planet(&resampled.planet, plan.quantizer, &enc))?;
-    stages.push(("encode", t.elapsed()));
+    // The resampling error only reads the lattice, as the encoder does: measured alongside, it
+    // fills the cores the encoder's coarse levels leave idle.
+    let (encoded, resampling) = pool.install(|| {
+        rayon::join(
+            || encode_planet(&resampled.planet, plan.quantizer, &enc),
+            || resampling_error(&inputs, &resampled, &plan),
+        )
+    });
+    let encoded = encoded?;
+    stages.push(("encode and measure resampling error", t.elapsed()));
     event(Stage::Encode, 1);
     event(Stage::Write, 0);
     let t = Instant::now();
