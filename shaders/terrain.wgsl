@@ -121,6 +121,36 @@ fn position_slope(p: Patch, a: i32, b: i32, da: i32, db: i32) -> vec3<f32> {
     return vec3<f32>(0.0);
 }
 
+// The (unnormalised) normal of a planet patch at grid point (a, b), up to the patch's `facing`:
+// the cross product of the tangents along i and j. At the ends of the split diagonal one of them
+// has no neighbour in the half on either side (`position_slope` gives 0, and the cross product
+// with it a zero normal, which normalises to NaN and darkens every triangle around the vertex);
+// there the diagonal, which always has a neighbour in the half, stands in for it:
+// e_i + e_j (diagonal 0) or e_i − e_j (diagonal 1).
+fn planet_normal(p: Patch, a: i32, b: i32) -> vec3<f32> {
+    var ti = position_slope(p, a, b, 1, 0);
+    var tj = position_slope(p, a, b, 0, 1);
+    let zero = vec3<f32>(0.0);
+    if all(ti == zero) || all(tj == zero) {
+        if p.diagonal == 0u {
+            let td = position_slope(p, a, b, 1, 1);
+            if all(ti == zero) {
+                ti = td - tj;
+            } else {
+                tj = td - ti;
+            }
+        } else {
+            let td = position_slope(p, a, b, 1, -1);
+            if all(ti == zero) {
+                ti = td + tj;
+            } else {
+                tj = ti - td;
+            }
+        }
+    }
+    return cross(ti, tj);
+}
+
 struct VsOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) normal: vec3<f32>,
@@ -204,7 +234,7 @@ fn terrain_vertex(vi: u32, p: Patch) -> VsOut {
     var nrm: vec3<f32>;
     if frame.planet != 0u {
         pos = eye_relative(p, vi);
-        nrm = p.facing * cross(position_slope(p, i32(i), i32(j), 1, 0), position_slope(p, i32(i), i32(j), 0, 1));
+        nrm = p.facing * planet_normal(p, i32(i), i32(j));
     } else {
         let xy = p.origin_rel + f32(i) * p.u_world + f32(j) * p.v_world;
         pos = vec3<f32>(xy, frame.z_base + frame.z_scale * h);
@@ -318,6 +348,7 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     if outside_data(in.lattice) || touches_nodata(in.valid) {
         discard;
     }
+    if !(length(in.normal) > 1e-6) { return vec4<f32>(1.0, 0.0, 0.0, 1.0); }
     let nrm = normalize(in.normal);
     let lambert = max(dot(nrm, frame.sun.xyz), 0.0);
     let shade = AMBIENT + (1.0 - AMBIENT) * lambert;
