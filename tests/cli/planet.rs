@@ -250,6 +250,112 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
     assert!(!out.exists());
 }
 
+/// Two 0.5° tiles sharing their edge column (as SRTM tiles do), 50° … 40° N, 0° … 10° E and
+/// 10° … 20° E, and a GDAL VRT placing them; `shift` moves the second tile's `DstRect` that many
+/// columns (a VRT that disagrees with the tile's own georeferencing).
+fn write_tiles_and_vrt(d: &Path, shift: usize) -> std::path::PathBuf {
+    for (name, lon0) in [("a.tif", 0.0), ("b.tif", 10.0)] {
+        write(
+            &d.join(name),
+            (21, 21),
+            geographic((lon0, 50.0), 0.5),
+            |c, r| {
+                let ll = LatLon {
+                    lat: 50.0 - 0.5 * r as f64,
+                    lon: lon0 + 0.5 * c as f64,
+                };
+                relief(ll) + hill(ll)
+            },
+        );
+    }
+    let source = |name: &str, x: usize| {
+        format!(
+            r#"    <SimpleSource>
+      <SourceFilename relativeToVRT="1">{name}</SourceFilename>
+      <SourceBand>1</SourceBand>
+      <SrcRect xOff="0" yOff="0" xSize="21" ySize="21" />
+      <DstRect xOff="{x}" yOff="0" xSize="21" ySize="21" />
+    </SimpleSource>
+"#
+        )
+    };
+    // PixelIsArea, as GDAL writes it: the origin is the first sample's north-west corner.
+    let vrt = format!(
+        r#"<VRTDataset rasterXSize="{}" rasterYSize="21">
+  <SRS>EPSG:4326</SRS>
+  <GeoTransform> -0.25, 0.5, 0, 50.25, 0, -0.5</GeoTransform>
+  <VRTRasterBand dataType="Float32" band="1">
+{}{}  </VRTRasterBand>
+</VRTDataset>
+"#,
+        41 + shift,
+        source("a.tif", 0),
+        source("b.tif", 20 + shift)
+    );
+    let path = d.join("tiles.vrt");
+    std::fs::write(&path, vrt).unwrap();
+    path
+}
+
+/// A VRT of tiles builds the planet its tiles build, byte for byte; a VRT that places a tile
+/// elsewhere than the tile's own georeferencing says is refused naming both; more inputs than
+/// a planet can tell apart are refused before any is read.
+#[test]
+fn a_vrt_of_tiles_builds_the_planet_of_its_tiles() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let global = d.join("global.tif");
+    write_global(&global);
+    let vrt = write_tiles_and_vrt(d, 0);
+    let build = |inputs: &[&Path], out: &Path| {
+        let mut args = vec!["build".to_string()];
+        args.extend(inputs.iter().map(|p| s(p)));
+        args.extend(
+            ["--planet", "--planet-level", "3", "--max-error", "2", "-o"].map(String::from),
+        );
+        args.push(s(out));
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        cbdam(&args)
+    };
+    let (from_tiles, from_vrt) = (d.join("tiles.cbdam"), d.join("vrt.cbdam"));
+    let o = build(&[&global, &d.join("a.tif"), &d.join("b.tif")], &from_tiles);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = build(&[&global, &vrt], &from_vrt);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (a, b) = (
+        std::fs::read(&from_tiles).unwrap(),
+        std::fs::read(&from_vrt).unwrap(),
+    );
+    assert!(
+        a == b,
+        "the VRT's planet differs from its tiles' ({} vs {} bytes)",
+        b.len(),
+        a.len()
+    );
+    // The inset was used: its samples were compared in the resampling error.
+    assert!(
+        stdout(&o).contains("resampling error of") && stdout(&o).contains("b.tif"),
+        "{}",
+        stdout(&o)
+    );
+
+    let vrt = write_tiles_and_vrt(d, 2);
+    let out = d.join("shifted.cbdam");
+    let o = build(&[&global, &vrt], &out);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains("tiles.vrt") && err.contains("b.tif"), "{err}");
+    assert!(!out.exists());
+
+    let list = d.join("many.txt");
+    let line = format!("{}\n", s(&d.join("a.tif")));
+    std::fs::write(&list, line.repeat(255)).unwrap();
+    let o = build(&[Path::new(&format!("@{}", s(&list)))], &out);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("255 inputs"), "{}", stderr(&o));
+    assert!(!out.exists());
+}
+
 /// The bundled global DEM with a bundled 3″ tile as an inset: every level of the planet within
 /// the bound against the resampled lattice, and the decoded surface within bound + resampling
 /// error of every compared sample of both inputs (`verify` refuses otherwise).

@@ -674,7 +674,7 @@ pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Resul
 /// Checks a tile read through a VRT against where the VRT places it (its size `width × height`
 /// and its own georeferencing `georef`), and gives it the VRT's georeferencing where it has
 /// none of its own.
-fn place_vrt_tile(
+pub(crate) fn place_vrt_tile(
     path: &Path,
     (width, height): (usize, usize),
     georef: &mut Option<GeoRef>,

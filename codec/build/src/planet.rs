@@ -278,19 +278,18 @@ fn rem_euclid(c: f64, p: f64) -> f64 {
 /// Reads one input and places it on the Earth, or says why it cannot be.
 fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
     let path = &tile.path;
-    if tile.vrt.is_some() {
-        bail!(
-            "{}: VRT mosaics are not yet resampled onto planets; give the tiles themselves \
-             (a directory, a glob or @list)",
-            path.display()
-        );
-    }
+    // A tile a VRT places keeps its own georeferencing (checked against the VRT's) or takes
+    // the VRT's, and the VRT's nodata value where none is given, as in a planar mosaic.
     let opts = ReadOptions {
-        nodata,
+        nodata: nodata.or(tile.vrt.as_ref().and_then(|v| v.nodata)),
         ..ReadOptions::default()
     };
     let dem = read_dem(path, &opts).with_context(|| format!("reading {}", path.display()))?;
-    let Some(georef) = dem.georef.clone() else {
+    let mut georef = dem.georef.clone();
+    if let Some(v) = &tile.vrt {
+        crate::mosaic::place_vrt_tile(path, (dem.width, dem.height), &mut georef, v)?;
+    }
+    let Some(georef) = georef else {
         bail!(
             "{} carries no georeferencing: a planet needs to know where each input lies \
              (EPSG:4326 latitude/longitude or a UTM zone)",
@@ -377,6 +376,15 @@ impl PlanetInputs {
     pub fn read(tiles: &[Tile], nodata: Option<f64>) -> Result<Self> {
         if tiles.is_empty() {
             bail!("no input given");
+        }
+        // Which input wins a lattice point is kept in a byte, `u8::MAX` meaning none.
+        if tiles.len() >= usize::from(u8::MAX) {
+            bail!(
+                "{} inputs: a planet combines at most {} (each is held whole while it is \
+                 resampled); merge tiles of the same source into larger ones first",
+                tiles.len(),
+                u8::MAX - 1
+            );
         }
         let mut inputs = tiles
             .iter()
