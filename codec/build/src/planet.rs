@@ -16,7 +16,7 @@
 //! samples: each input sample against the bilinear interpolant of the four lattice points
 //! around it, wherever those four took their height from that input.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -25,12 +25,13 @@ use crate::error::{Context, Result, bail};
 use crate::mosaic::Samples;
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
+use cbdam_codec::error::CodecError;
 use cbdam_codec::geodesy::cube_map::{FaceLattice, lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, Resolution, encode_planet};
-use cbdam_codec::input::{GeoRef, ReadOptions, read_dem};
+use cbdam_codec::input::{Dem, GeoRef, ReadOptions, TileReader};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
@@ -275,6 +276,33 @@ fn rem_euclid(c: f64, p: f64) -> f64 {
     }
 }
 
+/// [`cbdam_codec::input::read_dem`], with the bands of a GeoTIFF's strips or tiles decoded on all the build's
+/// workers (the same samples: [`TileReader`] reads rows as `read_dem` would).
+fn read_whole(path: &Path, opts: &ReadOptions) -> std::result::Result<Dem, CodecError> {
+    let reader = TileReader::open(path, opts)?;
+    let (width, height) = (reader.width(), reader.height());
+    let band = reader.band_rows().max(1);
+    let mut values = vec![0.0; width * height];
+    values
+        .par_chunks_mut((band * width).max(1))
+        .enumerate()
+        .try_for_each(|(b, out)| {
+            let start = b * band;
+            let mut rows = Vec::new();
+            reader.read_rows(start..(start + band).min(height), &mut rows)?;
+            out.copy_from_slice(&rows);
+            Ok::<_, CodecError>(())
+        })?;
+    Ok(Dem {
+        width,
+        height,
+        values,
+        sample_type: reader.sample_type(),
+        nodata: reader.nodata(),
+        georef: reader.georef().cloned(),
+    })
+}
+
 /// Reads one input and places it on the Earth, or says why it cannot be.
 fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
     let path = &tile.path;
@@ -284,7 +312,7 @@ fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
         nodata: nodata.or(tile.vrt.as_ref().and_then(|v| v.nodata)),
         ..ReadOptions::default()
     };
-    let dem = read_dem(path, &opts).with_context(|| format!("reading {}", path.display()))?;
+    let dem = read_whole(path, &opts).with_context(|| format!("reading {}", path.display()))?;
     let mut georef = dem.georef.clone();
     if let Some(v) = &tile.vrt {
         crate::mosaic::place_vrt_tile(path, (dem.width, dem.height), &mut georef, v)?;
@@ -850,9 +878,14 @@ pub fn build_planet(
     };
     let mut stages = Vec::new();
     event(Stage::Prepare, 0);
+    // Every stage runs on the build's own workers (`--threads`).
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(opts.threads.unwrap_or(0))
+        .build()
+        .context("starting the build's threads")?;
     let t = Instant::now();
     let tiles = crate::tiles::expand_inputs(&opts.inputs)?;
-    let inputs = PlanetInputs::read(&tiles, opts.nodata)?;
+    let inputs = pool.install(|| PlanetInputs::read(&tiles, opts.nodata))?;
     stages.push(("read", t.elapsed()));
     let n = opts.diamond_size;
     let k = choose_level(&inputs, n, planet_level, limit)?;
@@ -861,11 +894,6 @@ pub fn build_planet(
         bail!("the inputs have no valid sample (all nodata or NaN)");
     };
     let plan = QuantPlan::new(opts.max_error, None, lo, hi)?;
-    // Every stage runs on the build's own workers (`--threads`).
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(opts.threads.unwrap_or(0))
-        .build()
-        .context("starting the build's threads")?;
     let t = Instant::now();
     let resampled = pool.install(|| resample(&inputs, n, k, &plan))?;
     stages.push(("resample", t.elapsed()));
