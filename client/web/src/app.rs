@@ -16,7 +16,6 @@ use cbdam_client::controls::{self, Controls, Mode};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
-use cbdam_client::spawn::Inline;
 use cbdam_client::world::World;
 use cbdam_render::present::Presenter;
 use cbdam_render::{CacheConfig, Gpu, RenderOptions, Renderer, VertexFetch};
@@ -28,9 +27,10 @@ use web_sys::HtmlCanvasElement;
 
 use crate::input::{Action, Input};
 use crate::status::Status;
+use crate::workers::{WorkerPool, worker_count};
 
-/// Refinement time per frame on the page's thread (decoding included): leaves most of a 60 Hz
-/// frame to drawing and the browser.
+/// Refinement time per frame on the page's thread (applying the workers' results; decoding too
+/// when no worker runs): leaves most of a 60 Hz frame to drawing and the browser.
 const REFINE_BUDGET: Duration = Duration::from_millis(8);
 /// GPU height pool: about 3 900 patches of 65²; browsers limit a storage binding to 128 MiB
 /// by default. On WebGL2 the pool texture may hold less (2048 words a row, as many rows as the
@@ -54,14 +54,15 @@ const FPS_WINDOW: usize = 60;
 static GPU_ERRORS: Mutex<Vec<String>> = Mutex::new(Vec::new());
 
 /// Starts the viewer on `canvas` for the repository at `repo_url` (absolute: a `.cbdam` file on
-/// a server with Range support, or a `cbdam serve` repository). Returns at once; progress and
-/// errors go to `window.cbdam` ([`Status`]).
+/// a server with Range support, or a `cbdam serve` repository), decoding in Web Workers
+/// started from `worker_script` (the URL of `worker.js`; `None`: decode on the page). Returns
+/// at once; progress and errors go to `window.cbdam` ([`Status`]).
 #[wasm_bindgen]
-pub fn start(canvas: HtmlCanvasElement, repo_url: String) {
+pub fn start(canvas: HtmlCanvasElement, repo_url: String, worker_script: Option<String>) {
     let status = Status::install();
     install_panic_hook(status.clone());
     wasm_bindgen_futures::spawn_local(async move {
-        match App::new(canvas, &repo_url, status.clone()).await {
+        match App::new(canvas, &repo_url, worker_script.as_deref(), status.clone()).await {
             Ok(app) => run(Rc::new(RefCell::new(app))),
             Err(message) => status.fail(&message),
         }
@@ -120,7 +121,9 @@ struct App {
     canvas: HtmlCanvasElement,
     status: Status,
     world: World,
-    refiner: Refiner<RemoteSource, Inline>,
+    refiner: Refiner<RemoteSource, WorkerPool>,
+    /// Where the refiner's decode jobs run (a clone of its spawner), for the status.
+    workers: WorkerPool,
     renderer: Renderer,
     presenter: Presenter,
     surface: wgpu::Surface<'static>,
@@ -144,6 +147,7 @@ impl App {
     async fn new(
         canvas: HtmlCanvasElement,
         repo_url: &str,
+        worker_script: Option<&str>,
         status: Status,
     ) -> Result<Self, String> {
         status.set("phase", "connecting");
@@ -154,8 +158,19 @@ impl App {
             budget: Some(REFINE_BUDGET),
             ..RefineConfig::default()
         };
-        let refiner = Refiner::with_spawner(source, config, Inline)
+        let workers = WorkerPool::new();
+        let refiner = Refiner::with_spawner(source, config, workers.clone())
             .map_err(|e| format!("cannot decode the repository's root: {e}"))?;
+        // The same module as the page's (this build's), in each worker.
+        let module = if cfg!(feature = "webgl") {
+            "cbdam_web_gl"
+        } else {
+            "cbdam_web"
+        };
+        if let Some(script) = worker_script {
+            let context = refiner.worker_context(refiner.source().head_bytes(), None);
+            workers.start(script, module, &context, worker_count());
+        }
         let world = *refiner.world();
 
         let webgpu = wgpu::util::is_browser_webgpu_supported().await;
@@ -251,6 +266,7 @@ impl App {
             status,
             world,
             refiner,
+            workers,
             renderer,
             presenter,
             surface,
@@ -430,6 +446,18 @@ impl App {
             &[gpu_cache.resident() as f64, f64::from(gpu_cache.capacity())],
         );
         s.set("inFlight", stats.access.in_flight as f64);
+        let w = self.workers.status();
+        s.set_object(
+            "workers",
+            &[
+                ("count", (w.count as f64).into()),
+                ("ready", (w.ready as f64).into()),
+                ("decoded", (w.decoded as f64).into()),
+                ("busyMs", w.busy_ms.into()),
+                ("onPage", (w.on_page as f64).into()),
+                ("problem", w.problem.unwrap_or_default().into()),
+            ],
+        );
         s.set("frames", self.frames as f64);
         s.set("refined", stats.refined as f64);
         s.set("drawnHalves", stats.drawn_halves as f64);

@@ -36,6 +36,10 @@ mod app;
 mod input;
 #[cfg(target_arch = "wasm32")]
 pub mod status;
+#[cfg(target_arch = "wasm32")]
+pub mod workers;
 
 #[cfg(target_arch = "wasm32")]
 pub use app::{set_pixel_error, start};
+#[cfg(target_arch = "wasm32")]
+pub use workers::{decode_job, init_worker};
