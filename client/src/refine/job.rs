@@ -11,7 +11,7 @@ use std::sync::mpsc::Sender;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::colour::ColourRefined;
-use cbdam_codec::geometry::{DiamondId, Domain};
+use cbdam_codec::geometry::{Diagonal, DiamondId, Domain};
 use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
 use web_time::Instant;
 
@@ -60,6 +60,9 @@ pub struct DecodeJob {
     /// Decoded ahead of the cut (the results go to the decoded cache).
     pub(super) speculative: bool,
     pub(super) tx: Sender<Done>,
+    /// Read from a message (in a worker): the given parents are not the refiner's own, so each
+    /// step first checks that its two parents agree on its diagonal (gathering assumes it).
+    pub(super) from_message: bool,
 }
 
 impl Portable for DecodeJob {
@@ -118,12 +121,18 @@ impl DecodeJob {
                     .zip(&parents)
                     .all(|(i, n)| i.is_some() == n.is_some());
             let t = Instant::now();
-            let (result, secs) = if complete {
-                let r = self.refine(id, source, &parents);
-                (Some(r), Some(t.elapsed().as_secs_f64()))
-            } else {
-                (None, None)
-            };
+            let (result, secs) =
+                if complete && self.from_message && !self.parents_agree(id, &parents) {
+                    let e = CodecError::corrupt(format!(
+                        "the parents of {id} disagree on its diagonal"
+                    ));
+                    (Some(Err(e)), None)
+                } else if complete {
+                    let r = self.refine(id, source, &parents);
+                    (Some(r), Some(t.elapsed().as_secs_f64()))
+                } else {
+                    (None, None)
+                };
             if let Some(Ok(node)) = &result {
                 self.given.push((id, node.clone()));
             }
@@ -136,6 +145,36 @@ impl DecodeJob {
                 last: i + 1 == count,
             });
         }
+    }
+
+    /// Whether both parents (if there are two) give the same values on `id`'s diagonal, for
+    /// the heights and the colour channels.
+    fn parents_agree(&self, id: DiamondId, parents: &ParentNodes) -> bool {
+        let [Some(a), Some(b)] = parents else {
+            return true;
+        };
+        let ids = self.domain.parents(id);
+        let n = self.domain.n();
+        let diagonal = self.domain.layout().diagonal(id);
+        let on_diagonal = |j: usize| match diagonal {
+            Diagonal::Main => j * n + j,
+            Diagonal::Anti => j * n + (n - 1 - j),
+        };
+        // Each parent alone (the other half mirrored): their diagonals must be the same.
+        let agree = |x: &Refined, y: &Refined| {
+            let (mut gx, mut gy) = (vec![0i32; n * n], vec![0i32; n * n]);
+            gather(&self.domain, id, [Some(x), None], &mut gx);
+            gather(&self.domain, id, [None, Some(y)], &mut gy);
+            (0..n).all(|j| gx[on_diagonal(j)] == gy[on_diagonal(j)])
+        };
+        if ids.iter().any(Option::is_none) {
+            return true;
+        }
+        agree(&a.refined, &b.refined)
+            && match (&a.colour, &b.colour) {
+                (Some(ca), Some(cb)) => (0..3).all(|c| agree(&ca[c], &cb[c])),
+                _ => true,
+            }
     }
 
     fn refine(

@@ -1180,6 +1180,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             steps,
             speculative,
             tx: self.done_tx.clone(),
+            from_message: false,
         });
     }
 

@@ -188,7 +188,13 @@ fn decode_job(
                 Source::Cached(bare_node(refined, colour))
             }
             1 => Source::Record(r.bytes()?.into()),
-            2 => Source::Synthetic(r.i32()?),
+            2 => {
+                let amp = r.i32()?;
+                if !(0..=MAX_ABS_HEIGHT).contains(&amp) {
+                    return Err(r.bad(format!("synthetic amplitude {amp}")));
+                }
+                Source::Synthetic(amp)
+            }
             t => return Err(r.bad(format!("step source {t}"))),
         };
         steps.push((id, source));
@@ -204,6 +210,7 @@ fn decode_job(
         steps,
         speculative,
         tx,
+        from_message: true,
     })
 }
 
