@@ -815,7 +815,10 @@ def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
                 print(
                     f"measure {size} {s.get('backend')} {mode} run {run + 1}: "
                     f"{w.get('count')} workers decoded {w.get('decoded')} diamonds in {busy:.1f} ms "
-                    f"({w.get('decoded', 0) * 1000 / busy if busy else 0:.0f}/s), {w.get('onPage')} on the page; first frame {s.get('firstFrameMs'):.0f} ms, "
+                    f"({w.get('decoded', 0) * 1000 / busy if busy else 0:.0f}/s), {w.get('onPage')} on the page; "
+                    f"decode time {s.get('decodeMs', 0):.1f} ms for {s.get('decoded')} diamonds "
+                    f"({s.get('decoded', 0) * 1000 / max(s.get('decodeMs', 0), 1e-9):.0f}/s); page refinement "
+                    f"{s.get('refineMs', [0, 0])[0]:.0f} ms in all, {s.get('refineMs', [0, 0])[1]:.1f} ms at most; first frame {s.get('firstFrameMs'):.0f} ms, "
                     f"converged {s.get('convergedMs'):.0f} ms after navigation "
                     f"({s.get('refined')} diamonds, {s.get('triangles')} triangles, "
                     f"{s.get('bytes')} bytes in {s.get('recordsRequested')} requests); converged: "

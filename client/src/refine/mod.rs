@@ -5,7 +5,8 @@
 //! diamond in the frustum meets the pixel target or the frame's time budget is spent. Refining a
 //! diamond first forces its unrefined parents. Only diamonds whose record is in RAM are refined;
 //! missing ones are requested from the [`DataSource`] with their screen error as priority and
-//! never waited for. Decoding runs on the [`Spawner`]'s workers (rayon's on the desktop): the
+//! never waited for. Decoding runs on the [`Spawner`]'s workers (rayon's on the desktop; a page's
+//! Web Workers, the jobs sent as bytes: `job.rs`, `wire.rs`): the
 //! frame dispatches the most urgent
 //! ready refinements, applies results as they come back while budget remains, and leaves the
 //! rest running; what finishes after the deadline is applied at the start of the next frame, so

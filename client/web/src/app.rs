@@ -138,6 +138,14 @@ struct App {
     /// Refinement stopped (F): the camera still moves.
     frozen: bool,
     last_stats: FrameStats,
+    /// The camera of the last frame, for refinement steps between frames.
+    last_camera: Option<Camera>,
+    /// Since the page started: diamonds decoded (in workers or on the page) and their decode
+    /// time where they ran, ms; the page's time in the refinement step, ms, total and largest.
+    decoded: u64,
+    decode_ms: f64,
+    refine_ms: f64,
+    refine_ms_max: f64,
     /// `performance.now()` of the last frame, and the intervals between the last frames.
     last_frame_ms: Option<f64>,
     intervals_ms: VecDeque<f64>,
@@ -279,6 +287,11 @@ impl App {
             reported_converged: false,
             frozen: false,
             last_stats: FrameStats::default(),
+            last_camera: None,
+            decoded: 0,
+            decode_ms: 0.0,
+            refine_ms: 0.0,
+            refine_ms_max: 0.0,
             last_frame_ms: None,
             intervals_ms: VecDeque::new(),
         })
@@ -321,11 +334,8 @@ impl App {
         if moved {
             camera_to_hash(&camera);
         }
-        if !self.frozen {
-            self.last_stats = self.refiner.frame(&camera);
-            self.patches.clear();
-            self.patches.extend(self.refiner.drawn().cloned());
-        }
+        self.last_camera = Some(camera);
+        self.refine(&camera);
         let stats = self.last_stats;
         let (mut encoder, draw) = self
             .renderer
@@ -405,6 +415,30 @@ impl App {
         false
     }
 
+    /// One step of the refinement loop for `camera` (unless frozen): the cut and its patches.
+    fn refine(&mut self, camera: &Camera) {
+        if self.frozen {
+            return;
+        }
+        self.last_stats = self.refiner.frame(camera);
+        let st = &self.last_stats;
+        self.decoded += st.decoded as u64;
+        self.decode_ms += st.decode_ms;
+        self.refine_ms += st.refine_ms;
+        self.refine_ms_max = self.refine_ms_max.max(st.refine_ms);
+        self.patches.clear();
+        self.patches.extend(self.refiner.drawn().cloned());
+    }
+
+    /// A refinement step between animation frames, when a worker's answer arrived: it is
+    /// applied (and what it unblocks handed to the workers) now rather than at the next frame,
+    /// which on a slow page is hundreds of milliseconds away. The next frame draws the result.
+    fn refine_between_frames(&mut self) {
+        if let Some(camera) = self.last_camera {
+            self.refine(&camera);
+        }
+    }
+
     fn report(&mut self, stats: &FrameStats, camera: &Camera, triangles: u64) {
         let s = &self.status;
         let now = now_ms();
@@ -446,6 +480,9 @@ impl App {
             &[gpu_cache.resident() as f64, f64::from(gpu_cache.capacity())],
         );
         s.set("inFlight", stats.access.in_flight as f64);
+        s.set("decoded", self.decoded as f64);
+        s.set("decodeMs", self.decode_ms);
+        s.set_numbers("refineMs", &[self.refine_ms, self.refine_ms_max]);
         let w = self.workers.status();
         s.set_object(
             "workers",
@@ -498,6 +535,14 @@ type FrameCallback = Rc<RefCell<Option<Closure<dyn FnMut()>>>>;
 
 /// Runs `app`'s frames on `requestAnimationFrame` until one fails.
 fn run(app: Rc<RefCell<App>>) {
+    let weak = Rc::downgrade(&app);
+    app.borrow().workers.on_answer(Rc::new(move || {
+        if let Some(app) = weak.upgrade()
+            && let Ok(mut app) = app.try_borrow_mut()
+        {
+            app.refine_between_frames();
+        }
+    }));
     let callback: FrameCallback = Rc::new(RefCell::new(None));
     let again = callback.clone();
     *callback.borrow_mut() = Some(Closure::new(move || {

@@ -23,6 +23,8 @@
 //! | `cpuCache` | `[record bytes, record budget, decoded bytes, decoded budget]` |
 //! | `gpuCache` | `[resident slots, slots]` of the GPU height pool |
 //! | `inFlight` | requests in flight |
+//! | `decoded`, `decodeMs` | diamonds decoded since the page started (in workers or on the page) and their decode time where they ran, ms |
+//! | `refineMs` | `[total, largest]` time of the page's refinement step per frame since the page started, ms |
 //! | `workers` | decoding in Web Workers: `{count, ready, decoded, busyMs, onPage, problem}`: workers running and set up, diamonds they decoded and their time on it (ms), diamonds decoded on the page instead, and why (`""` if none) |
 //! | `notice` | a key that could not be honoured (e.g. no wireframe on this adapter) |
 //!

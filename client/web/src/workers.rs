@@ -27,6 +27,11 @@ use web_sys::{ErrorEvent, MessageEvent, Worker, WorkerOptions, WorkerType};
 
 /// Most workers: beyond four, decoding outruns what the page's frame can apply and fetch.
 const MAX_WORKERS: usize = 4;
+/// Jobs the refiner may keep in flight per worker, as if each worker were this many threads:
+/// answers come back only at the next frame (a frame never waits), and a worker runs its queue
+/// in order, so a frame hands over what the workers can do until the next one rather than one
+/// job each (on a slow page, frames are hundreds of milliseconds apart).
+const JOBS_PER_WORKER: usize = 8;
 
 thread_local! {
     /// In a worker: the decoder its context message set up.
@@ -103,6 +108,8 @@ struct Pool {
     on_page: Cell<u64>,
     /// Why workers are not (all) in use.
     problem: RefCell<Option<String>>,
+    /// Called after a worker's answer went into the refiner's channel.
+    on_answer: RefCell<Option<Rc<dyn Fn()>>>,
 }
 
 /// Counters of a [`WorkerPool`] for the page's status.
@@ -185,6 +192,12 @@ impl WorkerPool {
         }
     }
 
+    /// Calls `f` after each worker's answer has gone into the refiner's channel (the page then
+    /// applies it at once rather than at the next animation frame).
+    pub fn on_answer(&self, f: Rc<dyn Fn()>) {
+        *self.pool.on_answer.borrow_mut() = Some(f);
+    }
+
     /// The counters.
     pub fn status(&self) -> PoolStatus {
         let p = &self.pool;
@@ -244,6 +257,10 @@ impl WorkerPool {
                         p.decoded.set(p.decoded.get() + job.steps() as u64);
                         p.busy_ms
                             .set(p.busy_ms.get() + get("ms").as_f64().unwrap_or(0.0));
+                        let hook = p.on_answer.borrow().clone();
+                        if let Some(hook) = hook {
+                            hook();
+                        }
                     }
                     Err(e) => {
                         self.fail(format!("a decode worker's job failed: {e}"));
@@ -323,7 +340,10 @@ impl Spawner for WorkerPool {
     }
 
     fn parallelism(&self) -> usize {
-        self.alive().max(1)
+        match self.alive() {
+            0 => 1,
+            n => n * JOBS_PER_WORKER,
+        }
     }
 
     fn runs_in_background(&self) -> bool {
