@@ -206,8 +206,12 @@ fn answers_arriving_between_frames_converge_to_the_cut_refined_in_place() {
     assert_eq!(drawn(&r), drawn(&reference));
 }
 
-/// Captures the job messages and answers of a refiner's first frames (never applied).
-fn captured(repo: &Arc<Repository>) -> (Vec<u8>, Vec<(Box<dyn Queued>, Vec<u8>, Vec<u8>)>) {
+/// A job held back, its message and its worker's answer.
+type Exchange = (Box<dyn Queued>, Vec<u8>, Vec<u8>);
+
+/// Captures the context message, and the job messages and answers of a refiner's first frames
+/// (never applied).
+fn captured(repo: &Arc<Repository>) -> (Vec<u8>, Vec<Exchange>) {
     let world = World::of_repository(repo);
     let messages = Messages {
         deferred: true,

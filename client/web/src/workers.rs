@@ -85,6 +85,9 @@ impl<J: Portable> Waiting for J {
     }
 }
 
+/// A job posted to a worker: the worker's index and the job.
+type Posted = (usize, Box<dyn Waiting>);
+
 struct Slot {
     worker: Worker,
     alive: bool,
@@ -96,8 +99,8 @@ struct Slot {
 #[derive(Default)]
 struct Pool {
     slots: RefCell<Vec<Slot>>,
-    /// Jobs posted and not answered: their worker and the job.
-    waiting: RefCell<HashMap<u64, (usize, Box<dyn Waiting>)>>,
+    /// Jobs posted and not answered, by message id.
+    waiting: RefCell<HashMap<u64, Posted>>,
     next_job: Cell<u64>,
     /// Workers that answered their context message.
     ready: Cell<usize>,
