@@ -276,6 +276,15 @@ impl DecodeJob {
         refined: Refined,
         colour: Option<ColourRefined>,
     ) -> Arc<Node> {
+        // In a worker the node is only sent back (the refiner rebuilds the halves from its
+        // refinement) or gathered from: its children's halves would be thrown away.
+        if self.from_message {
+            return Arc::new(Node {
+                refined,
+                colour,
+                halves: [None, None, None, None],
+            });
+        }
         let halves = self.domain.children(id).map(|c| {
             c.and_then(|c| {
                 let mut h = HalfPatch::from_parent(&self.domain, c, id, &refined)?;
