@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Builds the browser viewer (client/web) into a folder of static files: index.html, main.js, the
+# Builds the browser viewer (client/web) into a folder of static files: index.html, main.js,
+# worker.js (the decode workers, which load the same module as the page), the
 # wasm-bindgen glue and the .wasm, twice (WebGPU only; with WebGL2, loaded without WebGPU). Serve the folder with any static server and open
 #   index.html?repo=URL
 # where URL is a .cbdam file on a server that honours Range requests (relative URLs work), or a
@@ -35,7 +36,7 @@ for variant in cbdam_web cbdam_web_gl; do
     cargo build --target wasm32-unknown-unknown -p cbdam-web --profile web $features
     wasm-bindgen --target web --no-typescript --out-dir "$out" --out-name "$variant" "$wasm_out"
 done
-cp client/web/www/index.html client/web/www/main.js "$out/"
+cp client/web/www/index.html client/web/www/main.js client/web/www/worker.js "$out/"
 
 for variant in cbdam_web cbdam_web_gl; do
     wasm="$out/${variant}_bg.wasm"

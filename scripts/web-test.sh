@@ -7,7 +7,9 @@
 # from both servers and as `cbdam render`; drag, wheel, keys, slider and pinch move the camera or
 # the target, the URL hash restores the view, the server may go away and come back; without
 # WebGPU flags the page must draw the same view through WebGL2 (the renderer's texture path), and
-# with WebGL off too say that neither is there; a small planet draws as a whole globe, centred.
+# with WebGL off too say that neither is there; decoding runs in Web Workers (and on the page with
+# ?workers=0, to the same cut); a small planet draws as a whole globe, centred, through WebGPU and
+# through WebGL2.
 # About 55 s once built on a loaded 2-core machine.
 #
 # Sets up what it needs like test.sh sets up lavapipe: Debian's chromium (apt) and
@@ -45,7 +47,7 @@ cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksbor
 python3 scripts/web_test.py target/web-bundle "$work/jacksboro.cbdam" \
     "${CARGO_TARGET_DIR:-target}/debug/cbdam"
 # A planet (ETOPO5 on a coarse lattice, K = 3: 1.6 M points, built in about 2 s): the
-# page draws the whole globe, centred.
+# page draws the whole globe, centred, through WebGPU and through WebGL2.
 cargo run --quiet --bin cbdam -- build data/etopo5_global.tif --planet --planet-level 3 \
     -o "$work/earth.cbdam" --max-error 16 --quiet
 python3 scripts/web_test.py --planet target/web-bundle "$work/earth.cbdam" \

@@ -22,13 +22,17 @@ and checks the pixels of a screenshot, not only the page's word:
 - Record requests refused (503) and a record corrupted once by the server (its checksum
   fails) are retried: the same cut.
 - The same page against `cbdam serve` (batched POSTs, cross-origin) converges to the same cut.
+- Decoding runs in Web Workers (`window.cbdam.workers`): at least one started, and they decoded
+  diamonds (WebGPU and WebGL2 pages, and with faults); with `?workers=0` the page decodes on its
+  own thread and converges to the same cut.
 - No WebGPU flags (the browser offers only WebGL2): the page loads the bundle's WebGL2 module
   (a WebGPU browser loads only the small WebGPU one) and draws through WebGL2 (backend "webgl",
   the renderer's texture path), converges to the same cut, and terrain covers most of
   the frame (screenshot pixels), nearly the WebGPU screenshot's pixels; with WebGL off too it
   names both APIs; a repository URL that cannot be read gets "cannot read the repository".
 
-Prints the times from navigation to the first frame and to the converged cut (both backends).
+Prints the times from navigation to the first frame and to the converged cut (both backends),
+and the workers' decode throughput (diamonds per second of worker time).
 
 Usage: web_test.py BUNDLE_DIR REPOSITORY.cbdam CBDAM_BINARY
        web_test.py --planet BUNDLE_DIR PLANET.cbdam CBDAM_BINARY
@@ -526,6 +530,21 @@ def open_viewer(flags, url, until, interact=None):
         browser.close()
 
 
+def check_workers(name, status, failures):
+    """The page decoded in Web Workers: some started, none failed, and they decoded diamonds.
+    Prints their throughput (diamonds per second of worker time)."""
+    w = (status or {}).get("workers") or {}
+    busy = w.get("busyMs") or 0
+    rate = w.get("decoded", 0) * 1000 / busy if busy > 0 else 0
+    print(
+        f"{name}: {w.get('count')} decode workers ({w.get('ready')} ready) decoded "
+        f"{w.get('decoded')} diamonds in {busy:.1f} ms of worker time ({rate:.0f} diamonds/s), "
+        f"{w.get('onPage')} on the page{'; ' + w['problem'] if w.get('problem') else ''}"
+    )
+    if not w.get("count") or not w.get("decoded") or w.get("problem") or w.get("onPage"):
+        failures.append(f"{name}: the page did not decode in its workers: {w}")
+
+
 def start_server(cbdam, repository):
     """`cbdam serve REPOSITORY` on a free loopback port, any origin allowed; returns the process
     and its base URL."""
@@ -600,8 +619,22 @@ def main():
                          or abs(shown[1] - status.get("bytes", 0) / 1024) > 0.1):
             failures.append(f"hud: the overlay shows {shown}, the status {status.get('recordsRequested')} "
                             f"requests and {status.get('bytes')} bytes")
+        check_workers("webgpu", status, failures)
         if failures:
             print("console:\n  " + "\n  ".join(console[-20:]) + "\nstderr:\n" + stderr)
+
+        # Decoding on the page's own thread (no workers): the same cut.
+        status_page, _, _, _, _ = open_viewer(WEBGPU_FLAGS, url + "?workers=0", converged)
+        w = (status_page or {}).get("workers") or {}
+        print(
+            f"page decoding: converged {status_page and status_page.get('convergedMs')} ms after "
+            f"navigation (first frame {status_page and status_page.get('firstFrameMs')} ms), "
+            f"{w.get('onPage')} diamonds decoded on the page, {w.get('count')} workers"
+        )
+        if not status_page or not converged(status_page) or status_page["cut"] != (status or {}).get("cut"):
+            failures.append(f"page decoding: no convergence to the workers' cut: {status_page}")
+        elif w.get("count") != 0 or not w.get("onPage"):
+            failures.append(f"page decoding: ?workers=0 still decoded in workers: {w}")
 
         t = time.time()
         static_cut = (status or {}).get("cut")
@@ -662,6 +695,7 @@ def main():
             failures.append(f"faults: no convergence to the clean run's cut: {status}")
         elif (status.get("fetchErrors") or 0) < 4:
             failures.append(f"faults: {status.get('fetchErrors')} fetch errors counted, not 4")
+        check_workers("faults", status, failures)
 
         proc, base = start_server(cbdam, repository)
         try:
@@ -718,6 +752,7 @@ def main():
             failures.append("webgl2: the page converged to another cut than with WebGPU")
         if share < 0.5 or colours < 50:
             failures.append(f"webgl2: terrain covers {share:.1%} in {colours} colours")
+        check_workers("webgl2", status, failures)
         # Same cut, same shader maths, both on SwiftShader: nearly the same pixels.
         if alike < WEBGL2_ALIKE:
             failures.append(f"webgl2: only {alike:.1%} of pixels match the WebGPU screenshot")
@@ -755,12 +790,16 @@ def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
         subprocess.run([cbdam, "web-export", root, "--bundle", bundle, "--repo", repository],
                        check=True, stdout=subprocess.DEVNULL)
         server = serve(root)
-        url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
+        base = f"http://127.0.0.1:{server.server_address[1]}/index.html?"
         if repo_url:
-            url += "?repo=" + repo_url
-        # WebGPU, then WebGL2 (no WebGPU flags).
-        for run, flags in enumerate([WEBGPU_FLAGS] * runs + [[]] * runs):
-            run %= runs
+            base += "repo=" + repo_url + "&"
+        # WebGPU, then WebGL2 (no WebGPU flags); decoding in workers, then on the page
+        # (CBDAM_MEASURE_PAGE=1 adds the page runs), alternated.
+        modes = ["workers"] + (["page"] if os.environ.get("CBDAM_MEASURE_PAGE") == "1" else [])
+        plan = [(f, m) for f in [WEBGPU_FLAGS, []] for _ in range(runs) for m in modes]
+        for run, (flags, mode) in enumerate(plan):
+            run = (run // len(modes)) % runs
+            url = base + ("workers=0" if mode == "page" else "")
             browser = Browser(flags)
             try:
                 browser.call("Page.navigate", session=True, url=url)
@@ -771,8 +810,15 @@ def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
                 time.sleep(3)
                 f1, t1 = browser.evaluate(count)
                 s2 = wait_status(browser, lambda s: True)
+                w = s.get("workers") or {}
+                busy = w.get("busyMs") or 0
                 print(
-                    f"measure {size} {s.get('backend')} run {run + 1}: first frame {s.get('firstFrameMs'):.0f} ms, "
+                    f"measure {size} {s.get('backend')} {mode} run {run + 1}: "
+                    f"{w.get('count')} workers decoded {w.get('decoded')} diamonds in {busy:.1f} ms "
+                    f"({w.get('decoded', 0) * 1000 / busy if busy else 0:.0f}/s), {w.get('onPage')} on the page; "
+                    f"decode time {s.get('decodeMs', 0):.1f} ms for {s.get('decoded')} diamonds "
+                    f"({s.get('decoded', 0) * 1000 / max(s.get('decodeMs', 0), 1e-9):.0f}/s); page refinement "
+                    f"{s.get('refineMs', [0, 0])[0]:.0f} ms in all, {s.get('refineMs', [0, 0])[1]:.1f} ms at most; first frame {s.get('firstFrameMs'):.0f} ms, "
                     f"converged {s.get('convergedMs'):.0f} ms after navigation "
                     f"({s.get('refined')} diamonds, {s.get('triangles')} triangles, "
                     f"{s.get('bytes')} bytes in {s.get('recordsRequested')} requests); converged: "
@@ -786,11 +832,13 @@ def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
         shutil.rmtree(root, ignore_errors=True)
 
 
-def check_planet(bundle, repository, cbdam):
+def check_planet(bundle, repository, cbdam, name="planet", flags=None):
     """`--planet`: a planet (cube-sphere repository) exported and opened like a plane; the page
     converges and draws the whole globe, centred: the screenshot's non-sky pixels form a disc
     about 90 % of the frame's height (`Camera::globe`) around the frame's centre, filled with
-    terrain in many colours, and the sky is left around it. Returns the failures."""
+    terrain in many colours, and the sky is left around it. `flags`: the browser's (WebGPU's by
+    default; `[]` for WebGL2). Returns the failures."""
+    flags = WEBGPU_FLAGS if flags is None else flags
     root = tempfile.mkdtemp(prefix="cbdam-web-planet-")
     try:
         subprocess.run([cbdam, "web-export", root, "--bundle", bundle, "--repo", repository],
@@ -798,12 +846,12 @@ def check_planet(bundle, repository, cbdam):
         server = serve(root)
         url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
         t = time.time()
-        status, shot, console, _, _ = open_viewer(WEBGPU_FLAGS, url, converged)
+        status, shot, console, _, _ = open_viewer(flags, url, converged)
         wall = time.time() - t
         server.shutdown()
     finally:
         shutil.rmtree(root, ignore_errors=True)
-    save_screenshot(shot, "planet.png")
+    save_screenshot(shot, f"{name}.png")
     width, height, channels, rows = decode_png(shot)
     points, colours = [], set()
     for y, row in enumerate(rows):
@@ -815,9 +863,12 @@ def check_planet(bundle, repository, cbdam):
     failures = []
     if not status or not converged(status):
         print("console:\n  " + "\n  ".join(console[-20:]))
-        return [f"planet: the page did not converge: {status}"]
+        return [f"{name}: the page did not converge: {status}"]
+    backend = "webgpu" if flags else "webgl"
+    if status.get("backend") != backend:
+        failures.append(f"{name}: drew through {status.get('backend')}, not {backend}")
     if not points:
-        return ["planet: nothing but sky in the screenshot"]
+        return [f"{name}: nothing but sky in the screenshot"]
     # The disc: centred where the non-sky pixels' box is, of the radius their area gives.
     xs, ys = [p[0] for p in points], [p[1] for p in points]
     cx, cy = (min(xs) + max(xs) + 1) / 2, (min(ys) + max(ys) + 1) / 2
@@ -827,7 +878,7 @@ def check_planet(bundle, repository, cbdam):
     inner = sum(1 for x, y in points if math.hypot(x + 0.5 - cx, y + 0.5 - cy) < radius - 2)
     outer = sum(1 for x, y in points if math.hypot(x + 0.5 - cx, y + 0.5 - cy) > radius + 2)
     print(
-        f"planet: first frame {status.get('firstFrameMs')} ms, converged {status.get('convergedMs')} ms "
+        f"{name}: first frame {status.get('firstFrameMs')} ms, converged {status.get('convergedMs')} ms "
         f"after navigation ({status.get('refined')} diamonds, {status.get('triangles')} triangles); "
         f"disc centred at {cx:.1f}, {cy:.1f} of {width}x{height}, radius {radius:.1f} px "
         f"(box {max(xs) - min(xs) + 1}x{max(ys) - min(ys) + 1}), {len(colours)} colours; "
@@ -835,13 +886,13 @@ def check_planet(bundle, repository, cbdam):
     )
     # Measured: centred to a pixel, radius 216 px (0.9 of 480 / 2), no sky inside.
     if abs(cx - width / 2) > 3 or abs(cy - height / 2) > 3:
-        failures.append(f"planet: the globe is centred at {cx:.1f}, {cy:.1f}, not the frame's centre")
+        failures.append(f"{name}: the globe is centred at {cx:.1f}, {cy:.1f}, not the frame's centre")
     if abs(2 * radius - 0.9 * min(width, height)) > 10:
-        failures.append(f"planet: the disc is {2 * radius:.1f} px across, not 90 % of {min(width, height)}")
+        failures.append(f"{name}: the disc is {2 * radius:.1f} px across, not 90 % of {min(width, height)}")
     if inside - inner > 0.001 * inside or outer > 0.001 * inside:
-        failures.append(f"planet: not a disc: {inside - inner} sky pixels inside, {outer} terrain outside")
+        failures.append(f"{name}: not a disc: {inside - inner} sky pixels inside, {outer} terrain outside")
     if len(colours) < 50:
-        failures.append(f"planet: only {len(colours)} colours: no terrain drawn on the globe")
+        failures.append(f"{name}: only {len(colours)} colours: no terrain drawn on the globe")
     return failures
 
 
@@ -849,7 +900,9 @@ if __name__ == "__main__":
     if sys.argv[1] == "--measure":
         sys.exit(measure(*sys.argv[2:7]))
     if sys.argv[1] == "--planet":
+        # The globe through WebGPU, then through WebGL2 (no WebGPU flags).
         planet_failures = check_planet(*sys.argv[2:5])
+        planet_failures += check_planet(*sys.argv[2:5], name="planet-webgl2", flags=[])
         for f in planet_failures:
             print("FAILED " + f, file=sys.stderr)
         sys.exit(1 if planet_failures else 0)

@@ -5,11 +5,38 @@
 //! is passed straight to `rayon::spawn`: no boxing beyond rayon's own); [`Inline`] runs them on
 //! the calling thread, for targets without threads (wasm32 in a browser's main thread) and for
 //! tests that want a deterministic order. [`DefaultSpawner`] is the target's natural choice.
+//!
+//! The refiner's decode jobs are [`Portable`]: besides running in place they can be written as
+//! bytes and their results read back, so that a spawner whose workers share no memory with the
+//! caller (a page's Web Workers, which get messages) can run them elsewhere
+//! ([`Spawner::spawn_job`]). Spawners with threads run them in place, as closures.
+
+use cbdam_codec::CodecError;
+
+/// A job that runs in place or crosses to a worker that shares no memory with the caller as
+/// bytes. It reports its results itself either way (into the channel it carries).
+pub trait Portable: Send + 'static {
+    /// Runs the job here and reports its results.
+    fn run(self);
+    /// The job as a message for a worker (which answers with the bytes for [`Portable::receive`]).
+    fn encode(&self) -> Vec<u8>;
+    /// Reports the results a worker answered with. A malformed answer is an error and reports
+    /// nothing (the caller may then [`Portable::run`] the job itself).
+    fn receive(&self, answer: &[u8]) -> Result<(), CodecError>;
+    /// How many items (diamonds) the job works on, for counters.
+    fn steps(&self) -> usize;
+}
 
 /// Runs decode jobs.
 pub trait Spawner {
     /// Runs `job`, now or later, on this thread or another. The job reports its result itself.
     fn spawn<F: FnOnce() + Send + 'static>(&self, job: F);
+    /// Runs a [`Portable`] job, now or later, here or elsewhere: in place on the spawner's
+    /// threads unless a spawner overrides this (one whose workers take messages).
+    #[inline]
+    fn spawn_job<J: Portable>(&self, job: J) {
+        self.spawn(move || job.run());
+    }
     /// How many jobs can run at once: the refiner keeps about twice that many in flight.
     fn parallelism(&self) -> usize;
     /// Whether jobs run in the background, so that work handed over at the end of a frame

@@ -1,6 +1,9 @@
 //! The client core's integration tests, one binary (as ripgrep's `tests/tests.rs`): each module
 //! is one area.
 
+/// Decode jobs sent as bytes (to workers that share no memory): the same refinement as in
+/// place, and bad bytes are errors.
+mod decode_jobs;
 /// The refinement loop over an HTTP source: `cbdam serve` and a static range server on loopback.
 mod http;
 /// The pipelined decoder: decoding ahead of the cut draws what the reference decoder draws.

@@ -66,6 +66,16 @@ impl RemoteSource {
         }
     }
 
+    /// The bytes the repository's head was read from, with the file's length: what a decode
+    /// worker builds its decoder from ([`crate::refine::Refiner::worker_context`]).
+    #[cfg(target_arch = "wasm32")]
+    pub fn head_bytes(&self) -> crate::refine::HeadBytes<'_> {
+        crate::refine::HeadBytes {
+            bytes: self.fetcher.head_bytes(),
+            file_len: self.fetcher.head().file_len(),
+        }
+    }
+
     /// The fetcher's own counters: HTTP requests sent (the head's included), cancelled and
     /// failed ones, response body bytes.
     pub fn fetch_stats(&self) -> FetchStats {

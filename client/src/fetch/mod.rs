@@ -488,8 +488,11 @@ fn range_total(
 }
 
 /// Reads the repository head of the file at `url` with `get_range` (a transport's range GET,
-/// returning the body and the file's total length).
-async fn fetch_head_with<F, Fut>(url: &str, get_range: F) -> Result<RepositoryHead, RemoteError>
+/// returning the body and the file's total length); also returns the head's bytes.
+async fn fetch_head_with<F, Fut>(
+    url: &str,
+    get_range: F,
+) -> Result<(RepositoryHead, Vec<u8>), RemoteError>
 where
     F: Fn(std::ops::Range<u64>) -> Fut,
     Fut: std::future::Future<Output = Result<(Vec<u8>, u64), String>>,
@@ -521,7 +524,8 @@ where
     let (head, _) = get_range(0..head_len)
         .await
         .map_err(|e| http_error(url, e))?;
-    RepositoryHead::parse(&head, file_len).map_err(repo_error)
+    let parsed = RepositoryHead::parse(&head, file_len).map_err(repo_error)?;
+    Ok((parsed, head))
 }
 
 /// The byte span of one range request for `ids`' records (chosen close together by

@@ -255,7 +255,7 @@ async fn fetch_head(
     url: &str,
 ) -> Result<(RepositoryHead, u64), RemoteError> {
     let requests = std::sync::atomic::AtomicU64::new(0);
-    let head = fetch_head_with(url, |range| {
+    let (head, _) = fetch_head_with(url, |range| {
         requests.fetch_add(1, Ordering::Relaxed);
         get_range(client, url, range)
     })

@@ -30,6 +30,8 @@ struct Shared {
     state: RefCell<State<AbortController>>,
     stats: RefCell<FetchStats>,
     head: Arc<RepositoryHead>,
+    /// The bytes the head was parsed from (for workers that decode: [`RemoteFetcher::head_bytes`]).
+    head_bytes: Arc<[u8]>,
     endpoint: Endpoint,
     options: FetchOptions,
     /// Records checked and waiting for [`RemoteFetcher::poll`].
@@ -70,7 +72,8 @@ impl RemoteFetcher {
             }
         };
         let file_url = endpoint.file_url();
-        let head = fetch_head_with(&file_url, |range| get_range(file_url.clone(), range)).await?;
+        let (head, head_bytes) =
+            fetch_head_with(&file_url, |range| get_range(file_url.clone(), range)).await?;
         let shared = Rc::new(Shared {
             state: RefCell::new(State::default()),
             // The head took two requests.
@@ -79,6 +82,7 @@ impl RemoteFetcher {
                 ..FetchStats::default()
             }),
             head: Arc::new(head),
+            head_bytes: head_bytes.into(),
             endpoint,
             options,
             arrived: RefCell::new(Vec::new()),
@@ -89,6 +93,12 @@ impl RemoteFetcher {
     /// The repository's head.
     pub fn head(&self) -> &Arc<RepositoryHead> {
         &self.shared.head
+    }
+
+    /// The bytes the head was read from (the file's first bytes, at least its head): what a
+    /// decode worker builds its decoder from ([`crate::refine::Refiner::worker_context`]).
+    pub fn head_bytes(&self) -> &[u8] {
+        &self.shared.head_bytes
     }
 
     /// Replaces the set of wanted records (higher priority first). Queued records not in the set

@@ -5,7 +5,8 @@
 //! diamond in the frustum meets the pixel target or the frame's time budget is spent. Refining a
 //! diamond first forces its unrefined parents. Only diamonds whose record is in RAM are refined;
 //! missing ones are requested from the [`DataSource`] with their screen error as priority and
-//! never waited for. Decoding runs on the [`Spawner`]'s workers (rayon's on the desktop): the
+//! never waited for. Decoding runs on the [`Spawner`]'s workers (rayon's on the desktop; a page's
+//! Web Workers, the jobs sent as bytes: `job.rs`, `wire.rs`): the
 //! frame dispatches the most urgent
 //! ready refinements, applies results as they come back while budget remains, and leaves the
 //! rest running; what finishes after the deadline is applied at the start of the next frame, so
@@ -39,30 +40,34 @@
 
 mod cache;
 mod detail;
+mod job;
 mod node;
 mod state;
+mod wire;
 
 pub use cache::LruCache;
 pub use detail::DetailConfig;
+pub use job::{DecodeJob, Done};
+use job::{Source, root_colour};
 use node::{Info, Node};
 use state::{CutState, DrawKey, Requests, Residency};
+pub use wire::{HeadBytes, WorkerDecoder};
 
 use std::collections::{BTreeMap, BinaryHeap};
 use std::sync::Arc;
 use std::time::Duration;
 
 use cbdam_codec::CodecError;
-use cbdam_codec::colour::ColourRefined;
 use cbdam_codec::geometry::{Cut, DiamondId, Domain, Half, IdMap, IdSet, Layout};
-use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
+use cbdam_codec::hierarchy::Decoder;
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
 use web_time::Instant;
 
-use crate::access::{AccessStats, DataSource, Drape, Priority, coloured};
+use crate::access::{AccessStats, DataSource, Drape, Priority};
 use crate::camera::{Camera, Frustum};
 use crate::horizon::Horizon;
-use crate::patch::{HalfPatch, colour_from_parent, packed};
+use crate::patch::{HalfPatch, packed};
 use crate::spawn::{DefaultSpawner, Spawner};
 use crate::world::{World, exaggerated};
 
@@ -203,13 +208,6 @@ pub struct CacheUse {
     pub decoded_budget: usize,
     /// Decoded diamonds evicted so far.
     pub decoded_evictions: u64,
-}
-
-/// How a diamond's refinement can be had.
-enum Source {
-    Cached(Arc<Node>),
-    Record(Arc<[u8]>),
-    Synthetic(i32),
 }
 
 enum Need {
@@ -440,6 +438,14 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             me.cut_state.candidates.insert(r, info);
         }
         Ok(me)
+    }
+
+    /// The message that sets up a [`WorkerDecoder`] to run this refiner's decode jobs from
+    /// their bytes (for workers that share no memory with it): the heads of the repository the
+    /// source reads (and of the draped colour one, if any) and the detail settings.
+    pub fn worker_context(&self, elevation: HeadBytes, colour: Option<HeadBytes>) -> Vec<u8> {
+        let seed = self.config.detail.map_or(0, |d| d.seed);
+        wire::encode_context(elevation, colour, self.shift, seed)
     }
 
     /// The settings.
@@ -1165,16 +1171,18 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         if speculative {
             self.speculative_jobs += 1;
         }
-        let job = Job {
+        self.spawner.spawn_job(DecodeJob {
             decoder: self.decoder.clone(),
             drape: self.drape.clone(),
             domain: self.domain,
             given,
             shift: self.shift,
             seed: self.config.detail.map_or(0, |d| d.seed),
-        };
-        let tx = self.done_tx.clone();
-        self.spawner.spawn(move || job.run(steps, &tx, speculative));
+            steps,
+            speculative,
+            tx: self.done_tx.clone(),
+            from_message: false,
+        });
     }
 
     /// Frame step, after the refinement loop: hands the workers the refinements the view still
@@ -1508,196 +1516,4 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .count();
         (worst, coarsenable)
     }
-}
-
-/// A finished (or failed) refinement coming back from a worker.
-struct Done {
-    id: DiamondId,
-    /// `None`: not decoded, because a step before it in its job failed.
-    result: Option<Result<Arc<Node>, CodecError>>,
-    /// Worker time; `None` when nothing was decoded (served from the cache).
-    secs: Option<f64>,
-    /// Decoded ahead of the cut by a speculative job.
-    speculative: bool,
-    /// The last step of its job.
-    last: bool,
-}
-
-/// The parents' nodes of a diamond being refined, in [`Domain::parents`] order.
-type ParentNodes = [Option<Arc<Node>>; 2];
-
-/// What a worker needs to refine diamonds: owned, so it outlives the frame.
-struct Job {
-    decoder: Arc<Decoder>,
-    drape: Option<Arc<Drape>>,
-    domain: Domain,
-    /// Nodes of the steps' parents that are not steps themselves.
-    given: Vec<(DiamondId, Arc<Node>)>,
-    shift: u32,
-    seed: u64,
-}
-
-impl Job {
-    /// Refines `steps` in order (each step's parents are earlier steps or given), sending each
-    /// result as soon as it is made. A step whose parent failed is skipped.
-    fn run(mut self, steps: Vec<(DiamondId, Source)>, tx: &Sender<Done>, speculative: bool) {
-        let count = steps.len();
-        for (i, (id, source)) in steps.into_iter().enumerate() {
-            let ids = self.domain.parents(id);
-            let parents: ParentNodes = ids.map(|p| {
-                p.and_then(|p| {
-                    self.given
-                        .iter()
-                        .find(|(g, _)| *g == p)
-                        .map(|(_, n)| n.clone())
-                })
-            });
-            let complete = id.level == 0
-                || ids
-                    .iter()
-                    .zip(&parents)
-                    .all(|(i, n)| i.is_some() == n.is_some());
-            let t = Instant::now();
-            let (result, secs) = if complete {
-                let r = self.refine(id, source, &parents);
-                (Some(r), Some(t.elapsed().as_secs_f64()))
-            } else {
-                (None, None)
-            };
-            if let Some(Ok(node)) = &result {
-                self.given.push((id, node.clone()));
-            }
-            // The refiner may be gone; then nobody wants the result.
-            let _ = tx.send(Done {
-                id,
-                result,
-                secs,
-                speculative,
-                last: i + 1 == count,
-            });
-        }
-    }
-
-    fn refine(
-        &self,
-        id: DiamondId,
-        source: Source,
-        parents: &ParentNodes,
-    ) -> Result<Arc<Node>, CodecError> {
-        match source {
-            Source::Cached(node) => Ok(node),
-            Source::Record(bytes) => {
-                let (elevation, colour) = match self.drape {
-                    Some(_) => coloured::split(&bytes)?,
-                    None => (&bytes[..], &[][..]),
-                };
-                let grid = self.grid_of(id, parents);
-                let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, elevation, s))?;
-                let c = self.refine_colour(id, colour, parents)?;
-                Ok(self.node(id, r, c))
-            }
-            Source::Synthetic(amp) => {
-                let grid = self.grid_of(id, parents);
-                let valid = self.validity_of(id, parents);
-                let r = detail::synthesize(
-                    self.domain.layout(),
-                    id,
-                    &grid,
-                    valid.as_deref(),
-                    amp,
-                    self.seed,
-                );
-                // Synthetic detail is for the relief; the colour is interpolated.
-                let c = self.refine_colour(id, &[], parents)?;
-                Ok(self.node(id, r, c))
-            }
-        }
-    }
-
-    /// The colour refinement of `id` by its colour record (empty: the prediction from the
-    /// colour parents), when a colour is draped.
-    fn refine_colour(
-        &self,
-        id: DiamondId,
-        record: &[u8],
-        parents: &ParentNodes,
-    ) -> Result<Option<ColourRefined>, CodecError> {
-        let Some(drape) = &self.drape else {
-            return Ok(None);
-        };
-        let grids = if id.level == 0 {
-            let sid = id.coarser(self.shift);
-            root_colour(drape, sid)?
-        } else {
-            let n = self.domain.n();
-            let mut grids: [Vec<i32>; 3] = Default::default();
-            for (c, g) in grids.iter_mut().enumerate() {
-                let parents = [0, 1].map(|h| {
-                    parents[h]
-                        .as_ref()
-                        .and_then(|p| p.colour.as_ref())
-                        .map(|col| &col[c])
-                });
-                *g = vec![0i32; n * n];
-                gather(&self.domain, id, parents, g);
-            }
-            grids
-        };
-        // The colour channels have their own decoder but the elevation's geometry: the same
-        // `N`, and ids that name the same ground (`Alignment`), so the grids gathered in the
-        // elevation's layout are the colour's.
-        let r = SCRATCH.with_borrow_mut(|s| drape.decoder.refine(&grids, record, s))?;
-        Ok(Some(r))
-    }
-
-    fn grid_of(&self, id: DiamondId, parents: &ParentNodes) -> Vec<i32> {
-        if id.level == 0 {
-            let sid = id.coarser(self.shift);
-            return self.decoder.grid_of(sid, [None, None]);
-        }
-        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
-        let n = self.domain.n();
-        let mut grid = vec![0i32; n * n];
-        gather(&self.domain, id, parents, &mut grid);
-        grid
-    }
-
-    fn validity_of(&self, id: DiamondId, parents: &ParentNodes) -> Option<Vec<bool>> {
-        if id.level == 0 {
-            let sid = id.coarser(self.shift);
-            return self.decoder.validity_of(sid, [None, None]);
-        }
-        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
-        gather_validity(&self.domain, id, parents)
-    }
-
-    fn node(&self, id: DiamondId, refined: Refined, colour: Option<ColourRefined>) -> Arc<Node> {
-        let halves = self.domain.children(id).map(|c| {
-            c.and_then(|c| {
-                let mut h = HalfPatch::from_parent(&self.domain, c, id, &refined)?;
-                if let Some(col) = &colour {
-                    h.colour = colour_from_parent(&self.domain, c, id, col);
-                }
-                Some(Arc::new(h))
-            })
-        });
-        Arc::new(Node {
-            refined,
-            colour,
-            halves,
-        })
-    }
-}
-
-/// The Y, Co, Cg grids of the colour root covering elevation root `root`.
-fn root_colour(drape: &Drape, root: DiamondId) -> Result<[Vec<i32>; 3], CodecError> {
-    let c = drape.alignment.colour_id(root).ok_or_else(|| {
-        CodecError::invalid(format!("no colour root covers elevation root {root}"))
-    })?;
-    Ok(drape.decoder.grid_of(c, [None, None]))
-}
-
-thread_local! {
-    /// Decoding buffers, one set per worker thread.
-    static SCRATCH: std::cell::RefCell<RefineScratch> = std::cell::RefCell::default();
 }

@@ -16,7 +16,6 @@ use cbdam_client::controls::{self, Controls, Mode};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
-use cbdam_client::spawn::Inline;
 use cbdam_client::world::World;
 use cbdam_render::present::Presenter;
 use cbdam_render::{CacheConfig, Gpu, RenderOptions, Renderer, VertexFetch};
@@ -28,9 +27,10 @@ use web_sys::HtmlCanvasElement;
 
 use crate::input::{Action, Input};
 use crate::status::Status;
+use crate::workers::{WorkerPool, worker_count};
 
-/// Refinement time per frame on the page's thread (decoding included): leaves most of a 60 Hz
-/// frame to drawing and the browser.
+/// Refinement time per frame on the page's thread (applying the workers' results; decoding too
+/// when no worker runs): leaves most of a 60 Hz frame to drawing and the browser.
 const REFINE_BUDGET: Duration = Duration::from_millis(8);
 /// GPU height pool: about 3 900 patches of 65²; browsers limit a storage binding to 128 MiB
 /// by default. On WebGL2 the pool texture may hold less (2048 words a row, as many rows as the
@@ -54,14 +54,15 @@ const FPS_WINDOW: usize = 60;
 static GPU_ERRORS: Mutex<Vec<String>> = Mutex::new(Vec::new());
 
 /// Starts the viewer on `canvas` for the repository at `repo_url` (absolute: a `.cbdam` file on
-/// a server with Range support, or a `cbdam serve` repository). Returns at once; progress and
-/// errors go to `window.cbdam` ([`Status`]).
+/// a server with Range support, or a `cbdam serve` repository), decoding in Web Workers
+/// started from `worker_script` (the URL of `worker.js`; `None`: decode on the page). Returns
+/// at once; progress and errors go to `window.cbdam` ([`Status`]).
 #[wasm_bindgen]
-pub fn start(canvas: HtmlCanvasElement, repo_url: String) {
+pub fn start(canvas: HtmlCanvasElement, repo_url: String, worker_script: Option<String>) {
     let status = Status::install();
     install_panic_hook(status.clone());
     wasm_bindgen_futures::spawn_local(async move {
-        match App::new(canvas, &repo_url, status.clone()).await {
+        match App::new(canvas, &repo_url, worker_script.as_deref(), status.clone()).await {
             Ok(app) => run(Rc::new(RefCell::new(app))),
             Err(message) => status.fail(&message),
         }
@@ -120,7 +121,9 @@ struct App {
     canvas: HtmlCanvasElement,
     status: Status,
     world: World,
-    refiner: Refiner<RemoteSource, Inline>,
+    refiner: Refiner<RemoteSource, WorkerPool>,
+    /// Where the refiner's decode jobs run (a clone of its spawner), for the status.
+    workers: WorkerPool,
     renderer: Renderer,
     presenter: Presenter,
     surface: wgpu::Surface<'static>,
@@ -135,6 +138,14 @@ struct App {
     /// Refinement stopped (F): the camera still moves.
     frozen: bool,
     last_stats: FrameStats,
+    /// The camera of the last frame, for refinement steps between frames.
+    last_camera: Option<Camera>,
+    /// Since the page started: diamonds decoded (in workers or on the page) and their decode
+    /// time where they ran, ms; the page's time in the refinement step, ms, total and largest.
+    decoded: u64,
+    decode_ms: f64,
+    refine_ms: f64,
+    refine_ms_max: f64,
     /// `performance.now()` of the last frame, and the intervals between the last frames.
     last_frame_ms: Option<f64>,
     intervals_ms: VecDeque<f64>,
@@ -144,6 +155,7 @@ impl App {
     async fn new(
         canvas: HtmlCanvasElement,
         repo_url: &str,
+        worker_script: Option<&str>,
         status: Status,
     ) -> Result<Self, String> {
         status.set("phase", "connecting");
@@ -154,8 +166,19 @@ impl App {
             budget: Some(REFINE_BUDGET),
             ..RefineConfig::default()
         };
-        let refiner = Refiner::with_spawner(source, config, Inline)
+        let workers = WorkerPool::new();
+        let refiner = Refiner::with_spawner(source, config, workers.clone())
             .map_err(|e| format!("cannot decode the repository's root: {e}"))?;
+        // The same module as the page's (this build's), in each worker.
+        let module = if cfg!(feature = "webgl") {
+            "cbdam_web_gl"
+        } else {
+            "cbdam_web"
+        };
+        if let Some(script) = worker_script {
+            let context = refiner.worker_context(refiner.source().head_bytes(), None);
+            workers.start(script, module, &context, worker_count());
+        }
         let world = *refiner.world();
 
         let webgpu = wgpu::util::is_browser_webgpu_supported().await;
@@ -251,6 +274,7 @@ impl App {
             status,
             world,
             refiner,
+            workers,
             renderer,
             presenter,
             surface,
@@ -263,6 +287,11 @@ impl App {
             reported_converged: false,
             frozen: false,
             last_stats: FrameStats::default(),
+            last_camera: None,
+            decoded: 0,
+            decode_ms: 0.0,
+            refine_ms: 0.0,
+            refine_ms_max: 0.0,
             last_frame_ms: None,
             intervals_ms: VecDeque::new(),
         })
@@ -305,11 +334,8 @@ impl App {
         if moved {
             camera_to_hash(&camera);
         }
-        if !self.frozen {
-            self.last_stats = self.refiner.frame(&camera);
-            self.patches.clear();
-            self.patches.extend(self.refiner.drawn().cloned());
-        }
+        self.last_camera = Some(camera);
+        self.refine(&camera);
         let stats = self.last_stats;
         let (mut encoder, draw) = self
             .renderer
@@ -389,6 +415,30 @@ impl App {
         false
     }
 
+    /// One step of the refinement loop for `camera` (unless frozen): the cut and its patches.
+    fn refine(&mut self, camera: &Camera) {
+        if self.frozen {
+            return;
+        }
+        self.last_stats = self.refiner.frame(camera);
+        let st = &self.last_stats;
+        self.decoded += st.decoded as u64;
+        self.decode_ms += st.decode_ms;
+        self.refine_ms += st.refine_ms;
+        self.refine_ms_max = self.refine_ms_max.max(st.refine_ms);
+        self.patches.clear();
+        self.patches.extend(self.refiner.drawn().cloned());
+    }
+
+    /// A refinement step between animation frames, when a worker's answer arrived: it is
+    /// applied (and what it unblocks handed to the workers) now rather than at the next frame,
+    /// which on a slow page is hundreds of milliseconds away. The next frame draws the result.
+    fn refine_between_frames(&mut self) {
+        if let Some(camera) = self.last_camera {
+            self.refine(&camera);
+        }
+    }
+
     fn report(&mut self, stats: &FrameStats, camera: &Camera, triangles: u64) {
         let s = &self.status;
         let now = now_ms();
@@ -430,6 +480,21 @@ impl App {
             &[gpu_cache.resident() as f64, f64::from(gpu_cache.capacity())],
         );
         s.set("inFlight", stats.access.in_flight as f64);
+        s.set("decoded", self.decoded as f64);
+        s.set("decodeMs", self.decode_ms);
+        s.set_numbers("refineMs", &[self.refine_ms, self.refine_ms_max]);
+        let w = self.workers.status();
+        s.set_object(
+            "workers",
+            &[
+                ("count", (w.count as f64).into()),
+                ("ready", (w.ready as f64).into()),
+                ("decoded", (w.decoded as f64).into()),
+                ("busyMs", w.busy_ms.into()),
+                ("onPage", (w.on_page as f64).into()),
+                ("problem", w.problem.unwrap_or_default().into()),
+            ],
+        );
         s.set("frames", self.frames as f64);
         s.set("refined", stats.refined as f64);
         s.set("drawnHalves", stats.drawn_halves as f64);
@@ -470,6 +535,14 @@ type FrameCallback = Rc<RefCell<Option<Closure<dyn FnMut()>>>>;
 
 /// Runs `app`'s frames on `requestAnimationFrame` until one fails.
 fn run(app: Rc<RefCell<App>>) {
+    let weak = Rc::downgrade(&app);
+    app.borrow().workers.on_answer(Rc::new(move || {
+        if let Some(app) = weak.upgrade()
+            && let Ok(mut app) = app.try_borrow_mut()
+        {
+            app.refine_between_frames();
+        }
+    }));
     let callback: FrameCallback = Rc::new(RefCell::new(None));
     let again = callback.clone();
     *callback.borrow_mut() = Some(Closure::new(move || {

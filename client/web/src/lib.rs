@@ -5,18 +5,22 @@
 //! ([`set_pixel_error`]).
 //!
 //! Built for `wasm32-unknown-unknown` by `scripts/web-build.sh` (wasm-bindgen `--target web`,
-//! with `web/index.html` and `web/main.js`). On other targets this crate is an empty library, so
+//! with `www/index.html`, `www/main.js` and `www/worker.js`). On other targets this crate is an empty library, so
 //! that the workspace's native `cargo clippy` and `cargo test` build it without a browser.
 //!
 //! The page exposes its state on `window.cbdam` ([`status`]) for people and tests.
 //!
-//! Decoding runs on the page's thread (the core's `Inline` spawner, within the frame budget).
-//! Web Workers running the same module need a decode seam that crosses a `postMessage`: the
-//! core's `Spawner` runs closures, and a refinement job holds its parents' decoded nodes
-//! (`Arc<Node>`), the decoder and the drape; without shared memory (wasm threads need nightly
-//! `build-std`) each job would have to be sent as bytes (record, parents' heights, the header's
-//! decoder settings) to a worker that instantiates this module and returns the node's heights,
-//! with the refiner collecting results asynchronously.
+//! Decoding runs in Web Workers ([`workers`]): `navigator.hardwareConcurrency − 1` of them (at
+//! least 1, at most 4), each running `worker.js`, which instantiates this same module (the
+//! WebGPU or the WebGL2 build, whichever the page loaded) and calls [`init_worker`] with the
+//! repository head's bytes, then [`decode_job`] per job. Without shared memory (wasm threads
+//! need nightly `build-std`, and cross-origin isolation headers static hosts lack) a job crosses
+//! a `postMessage` as bytes: the core's decode-job seam (`cbdam_client::spawn::Portable`,
+//! `cbdam_client::refine::WorkerDecoder`: the records, the given parents' refinements, the
+//! results), the buffers transferred. The results go into the refiner's channel and are applied
+//! by the next frame within its budget. Where no worker can start (or one fails) the jobs run on
+//! the page, as the core's `Inline` spawner would, and the status and overlay say so;
+//! `index.html?workers=0` decodes on the page on purpose (for comparisons).
 //!
 //! Where the browser offers no WebGPU adapter, the viewer draws through WebGL2 (the `webgl`
 //! feature, on by default: wgpu's GL backend, `new_instance_with_webgpu_detection`): WebGL2 has
@@ -36,6 +40,10 @@ mod app;
 mod input;
 #[cfg(target_arch = "wasm32")]
 pub mod status;
+#[cfg(target_arch = "wasm32")]
+pub mod workers;
 
 #[cfg(target_arch = "wasm32")]
 pub use app::{set_pixel_error, start};
+#[cfg(target_arch = "wasm32")]
+pub use workers::{decode_job, init_worker};

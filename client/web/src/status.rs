@@ -23,6 +23,9 @@
 //! | `cpuCache` | `[record bytes, record budget, decoded bytes, decoded budget]` |
 //! | `gpuCache` | `[resident slots, slots]` of the GPU height pool |
 //! | `inFlight` | requests in flight |
+//! | `decoded`, `decodeMs` | diamonds decoded since the page started (in workers or on the page) and their decode time where they ran, ms |
+//! | `refineMs` | `[total, largest]` time of the page's refinement step per frame since the page started, ms |
+//! | `workers` | decoding in Web Workers: `{count, ready, decoded, busyMs, onPage, problem}`: workers running and set up, diamonds they decoded and their time on it (ms), diamonds decoded on the page instead, and why (`""` if none) |
 //! | `notice` | a key that could not be honoured (e.g. no wireframe on this adapter) |
 //!
 //! The page's own "ok" is not proof that anything was drawn (a canvas can stay blank while
@@ -61,6 +64,15 @@ impl Status {
     pub fn set_numbers(&self, key: &str, values: &[f64]) {
         let array: Array = values.iter().map(|&v| JsValue::from_f64(v)).collect();
         self.set(key, array);
+    }
+
+    /// Sets a field to an object of the given fields.
+    pub fn set_object(&self, key: &str, fields: &[(&str, JsValue)]) {
+        let object = Object::new();
+        for (k, v) in fields {
+            let _ = Reflect::set(&object, &(*k).into(), v);
+        }
+        self.set(key, object);
     }
 
     /// Sets a field to an array of strings.

@@ -48,6 +48,14 @@ const mib = (bytes) => fmt(bytes / 1048576, 1);
 let requested = null;
 const pixels = (px) => (px >= 1 ? `${px}` : `1/${Math.round(1 / px)}`) + " px";
 
+// Where the decoding runs: Web Workers (how many, diamonds decoded), or the page and why.
+function decoding(w) {
+  if (!w) return "decoding: -";
+  const where = w.count > 0 ? `${w.count} workers, ${fmt(w.decoded)} diamonds` : "on the page";
+  return `decoding: ${where}` + (w.onPage > 0 ? `, ${fmt(w.onPage)} on the page` : "") +
+    (w.problem ? ` (${w.problem})` : "");
+}
+
 function showStatus() {
   const s = window.cbdam;
   if (!s) return;
@@ -68,7 +76,8 @@ function showStatus() {
     `cache: records ${mib(cpu[0])}/${mib(cpu[1])} MiB, decoded ${mib(cpu[2])}/${mib(cpu[3])} MiB, ` +
     `GPU ${fmt(gpu[0])}/${fmt(gpu[1])} slots\n` +
     `network: ${fmt(s.recordsRequested)} requests, ${fmt((s.bytes || 0) / 1024, 1)} KiB, ` +
-    `${fmt(s.inFlight)} in flight, ${fmt(s.fetchErrors)} errors` +
+    `${fmt(s.inFlight)} in flight, ${fmt(s.fetchErrors)} errors\n` +
+    decoding(s.workers) +
     (s.notice ? `\n${s.notice}` : "");
   // The slider follows the target (keys change it too) unless it is being used.
   if (requested !== null && s.pixelError !== requested) return;
@@ -102,7 +111,11 @@ if (!repo) {
     const module = await loadViewer();
     await module.default();
     viewer = module;
-    module.start(canvas, new URL(repo, location.href).href);
+    // Decoding runs in Web Workers (worker.js, next to this file) that load the same module;
+    // ?workers=0 decodes on the page instead (for comparisons).
+    const workers = new URLSearchParams(location.search).get("workers") !== "0";
+    const script = workers ? new URL("./worker.js", import.meta.url).href : undefined;
+    module.start(canvas, new URL(repo, location.href).href, script);
   } catch (e) {
     fail("cannot load the viewer: " + e);
     showStatus();

@@ -1,0 +1,316 @@
+//! A decode job: what a worker needs to refine a few diamonds, owned so that it outlives the
+//! frame, and what comes back ([`Done`]).
+//!
+//! A [`DecodeJob`] is a [`Portable`] job: a spawner with threads runs it in place
+//! ([`Portable::run`], no copying), and one whose workers share no memory with the refiner (Web
+//! Workers) sends it as bytes ([`Portable::encode`]) to a [`WorkerDecoder`](super::WorkerDecoder)
+//! and hands the answer back ([`Portable::receive`]); the byte formats are in `wire.rs`.
+
+use std::sync::Arc;
+use std::sync::mpsc::Sender;
+
+use cbdam_codec::CodecError;
+use cbdam_codec::colour::ColourRefined;
+use cbdam_codec::geometry::{Diagonal, DiamondId, Domain};
+use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
+use web_time::Instant;
+
+use super::detail;
+use super::node::Node;
+use crate::access::{Drape, coloured};
+use crate::patch::{HalfPatch, colour_from_parent};
+use crate::spawn::Portable;
+
+/// How a diamond's refinement can be had.
+pub(super) enum Source {
+    Cached(Arc<Node>),
+    Record(Arc<[u8]>),
+    Synthetic(i32),
+}
+
+/// A finished (or failed) refinement coming back from a worker.
+#[derive(Debug)]
+pub struct Done {
+    pub(super) id: DiamondId,
+    /// `None`: not decoded, because a step before it in its job failed.
+    pub(super) result: Option<Result<Arc<Node>, CodecError>>,
+    /// Worker time; `None` when nothing was decoded (served from the cache).
+    pub(super) secs: Option<f64>,
+    /// Decoded ahead of the cut by a speculative job.
+    pub(super) speculative: bool,
+    /// The last step of its job.
+    pub(super) last: bool,
+}
+
+/// The parents' nodes of a diamond being refined, in [`Domain::parents`] order.
+type ParentNodes = [Option<Arc<Node>>; 2];
+
+/// What a worker needs to refine diamonds, owned so that it outlives the frame: the decoding
+/// settings, the diamonds to refine in order (`steps`, each step's parents found among the
+/// earlier steps or in `given`), and where to send each result.
+pub struct DecodeJob {
+    pub(super) decoder: Arc<Decoder>,
+    pub(super) drape: Option<Arc<Drape>>,
+    pub(super) domain: Domain,
+    /// Nodes of the steps' parents that are not steps themselves.
+    pub(super) given: Vec<(DiamondId, Arc<Node>)>,
+    pub(super) shift: u32,
+    pub(super) seed: u64,
+    pub(super) steps: Vec<(DiamondId, Source)>,
+    /// Decoded ahead of the cut (the results go to the decoded cache).
+    pub(super) speculative: bool,
+    pub(super) tx: Sender<Done>,
+    /// Read from a message (in a worker): the given parents are not the refiner's own, so each
+    /// step first checks that its two parents agree on its diagonal (gathering assumes it).
+    pub(super) from_message: bool,
+}
+
+impl Portable for DecodeJob {
+    fn run(self) {
+        self.run_steps();
+    }
+
+    fn encode(&self) -> Vec<u8> {
+        super::wire::encode_job(self)
+    }
+
+    fn receive(&self, answer: &[u8]) -> Result<(), CodecError> {
+        let done = super::wire::decode_results(self, answer)?;
+        for d in done {
+            // The refiner may be gone; then nobody wants the result.
+            let _ = self.tx.send(d);
+        }
+        Ok(())
+    }
+
+    fn steps(&self) -> usize {
+        self.steps.len()
+    }
+}
+
+impl DecodeJob {
+    /// How many diamonds the job refines.
+    pub fn len(&self) -> usize {
+        self.steps.len()
+    }
+
+    /// Whether the job refines nothing.
+    pub fn is_empty(&self) -> bool {
+        self.steps.is_empty()
+    }
+
+    /// Refines the steps in order (each step's parents are earlier steps or given), sending each
+    /// result as soon as it is made. A step whose parent failed is skipped.
+    pub(super) fn run_steps(mut self) {
+        let steps = std::mem::take(&mut self.steps);
+        let speculative = self.speculative;
+        let count = steps.len();
+        for (i, (id, source)) in steps.into_iter().enumerate() {
+            let ids = self.domain.parents(id);
+            let parents: ParentNodes = ids.map(|p| {
+                p.and_then(|p| {
+                    self.given
+                        .iter()
+                        .find(|(g, _)| *g == p)
+                        .map(|(_, n)| n.clone())
+                })
+            });
+            let complete = id.level == 0
+                || ids
+                    .iter()
+                    .zip(&parents)
+                    .all(|(i, n)| i.is_some() == n.is_some());
+            let t = Instant::now();
+            let (result, secs) =
+                if complete && self.from_message && !self.parents_agree(id, &parents) {
+                    let e = CodecError::corrupt(format!(
+                        "the parents of {id} disagree on its diagonal"
+                    ));
+                    (Some(Err(e)), None)
+                } else if complete {
+                    let r = self.refine(id, source, &parents);
+                    (Some(r), Some(t.elapsed().as_secs_f64()))
+                } else {
+                    (None, None)
+                };
+            if let Some(Ok(node)) = &result {
+                self.given.push((id, node.clone()));
+            }
+            // The refiner may be gone; then nobody wants the result.
+            let _ = self.tx.send(Done {
+                id,
+                result,
+                secs,
+                speculative,
+                last: i + 1 == count,
+            });
+        }
+    }
+
+    /// Whether both parents (if there are two) give the same values on `id`'s diagonal, for
+    /// the heights and the colour channels.
+    fn parents_agree(&self, id: DiamondId, parents: &ParentNodes) -> bool {
+        let [Some(a), Some(b)] = parents else {
+            return true;
+        };
+        let ids = self.domain.parents(id);
+        let n = self.domain.n();
+        let diagonal = self.domain.layout().diagonal(id);
+        let on_diagonal = |j: usize| match diagonal {
+            Diagonal::Main => j * n + j,
+            Diagonal::Anti => j * n + (n - 1 - j),
+        };
+        // Each parent alone (the other half mirrored): their diagonals must be the same.
+        let agree = |x: &Refined, y: &Refined| {
+            let (mut gx, mut gy) = (vec![0i32; n * n], vec![0i32; n * n]);
+            gather(&self.domain, id, [Some(x), None], &mut gx);
+            gather(&self.domain, id, [None, Some(y)], &mut gy);
+            (0..n).all(|j| gx[on_diagonal(j)] == gy[on_diagonal(j)])
+        };
+        if ids.iter().any(Option::is_none) {
+            return true;
+        }
+        agree(&a.refined, &b.refined)
+            && match (&a.colour, &b.colour) {
+                (Some(ca), Some(cb)) => (0..3).all(|c| agree(&ca[c], &cb[c])),
+                _ => true,
+            }
+    }
+
+    fn refine(
+        &self,
+        id: DiamondId,
+        source: Source,
+        parents: &ParentNodes,
+    ) -> Result<Arc<Node>, CodecError> {
+        match source {
+            Source::Cached(node) => Ok(node),
+            Source::Record(bytes) => {
+                let (elevation, colour) = match self.drape {
+                    Some(_) => coloured::split(&bytes)?,
+                    None => (&bytes[..], &[][..]),
+                };
+                let grid = self.grid_of(id, parents);
+                let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, elevation, s))?;
+                let c = self.refine_colour(id, colour, parents)?;
+                Ok(self.node(id, r, c))
+            }
+            Source::Synthetic(amp) => {
+                let grid = self.grid_of(id, parents);
+                let valid = self.validity_of(id, parents);
+                let r = detail::synthesize(
+                    self.domain.layout(),
+                    id,
+                    &grid,
+                    valid.as_deref(),
+                    amp,
+                    self.seed,
+                );
+                // Synthetic detail is for the relief; the colour is interpolated.
+                let c = self.refine_colour(id, &[], parents)?;
+                Ok(self.node(id, r, c))
+            }
+        }
+    }
+
+    /// The colour refinement of `id` by its colour record (empty: the prediction from the
+    /// colour parents), when a colour is draped.
+    fn refine_colour(
+        &self,
+        id: DiamondId,
+        record: &[u8],
+        parents: &ParentNodes,
+    ) -> Result<Option<ColourRefined>, CodecError> {
+        let Some(drape) = &self.drape else {
+            return Ok(None);
+        };
+        let grids = if id.level == 0 {
+            let sid = id.coarser(self.shift);
+            root_colour(drape, sid)?
+        } else {
+            let n = self.domain.n();
+            let mut grids: [Vec<i32>; 3] = Default::default();
+            for (c, g) in grids.iter_mut().enumerate() {
+                let parents = [0, 1].map(|h| {
+                    parents[h]
+                        .as_ref()
+                        .and_then(|p| p.colour.as_ref())
+                        .map(|col| &col[c])
+                });
+                *g = vec![0i32; n * n];
+                gather(&self.domain, id, parents, g);
+            }
+            grids
+        };
+        // The colour channels have their own decoder but the elevation's geometry: the same
+        // `N`, and ids that name the same ground (`Alignment`), so the grids gathered in the
+        // elevation's layout are the colour's.
+        let r = SCRATCH.with_borrow_mut(|s| drape.decoder.refine(&grids, record, s))?;
+        Ok(Some(r))
+    }
+
+    fn grid_of(&self, id: DiamondId, parents: &ParentNodes) -> Vec<i32> {
+        if id.level == 0 {
+            let sid = id.coarser(self.shift);
+            return self.decoder.grid_of(sid, [None, None]);
+        }
+        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
+        let n = self.domain.n();
+        let mut grid = vec![0i32; n * n];
+        gather(&self.domain, id, parents, &mut grid);
+        grid
+    }
+
+    fn validity_of(&self, id: DiamondId, parents: &ParentNodes) -> Option<Vec<bool>> {
+        if id.level == 0 {
+            let sid = id.coarser(self.shift);
+            return self.decoder.validity_of(sid, [None, None]);
+        }
+        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
+        gather_validity(&self.domain, id, parents)
+    }
+
+    pub(super) fn node(
+        &self,
+        id: DiamondId,
+        refined: Refined,
+        colour: Option<ColourRefined>,
+    ) -> Arc<Node> {
+        // In a worker the node is only sent back (the refiner rebuilds the halves from its
+        // refinement) or gathered from: its children's halves would be thrown away.
+        if self.from_message {
+            return Arc::new(Node {
+                refined,
+                colour,
+                halves: [None, None, None, None],
+            });
+        }
+        let halves = self.domain.children(id).map(|c| {
+            c.and_then(|c| {
+                let mut h = HalfPatch::from_parent(&self.domain, c, id, &refined)?;
+                if let Some(col) = &colour {
+                    h.colour = colour_from_parent(&self.domain, c, id, col);
+                }
+                Some(Arc::new(h))
+            })
+        });
+        Arc::new(Node {
+            refined,
+            colour,
+            halves,
+        })
+    }
+}
+
+/// The Y, Co, Cg grids of the colour root covering elevation root `root`.
+pub(super) fn root_colour(drape: &Drape, root: DiamondId) -> Result<[Vec<i32>; 3], CodecError> {
+    let c = drape.alignment.colour_id(root).ok_or_else(|| {
+        CodecError::invalid(format!("no colour root covers elevation root {root}"))
+    })?;
+    Ok(drape.decoder.grid_of(c, [None, None]))
+}
+
+thread_local! {
+    /// Decoding buffers, one set per worker thread.
+    static SCRATCH: std::cell::RefCell<RefineScratch> = std::cell::RefCell::default();
+}

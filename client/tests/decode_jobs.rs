@@ -1,0 +1,349 @@
+//! The decode-job seam for workers that share no memory with the refiner (a page's Web
+//! Workers): jobs sent as bytes to a [`WorkerDecoder`] and their answers read back must give
+//! the refiner exactly what running them in place gives, and bad bytes must be errors.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+use std::sync::Arc;
+use std::time::Duration;
+
+use cbdam_client::access::LocalSource;
+use cbdam_client::camera::Camera;
+use cbdam_client::patch::HalfPatch;
+use cbdam_client::refine::{HeadBytes, RefineConfig, Refiner, WorkerDecoder};
+use cbdam_client::spawn::{Inline, Portable, Spawner};
+use cbdam_client::world::World;
+use cbdam_codec::CodecError;
+use cbdam_codec::repository::Repository;
+use glam::DVec3;
+
+use crate::streaming::{refined_set, repository};
+
+/// A job with its type erased, as a spawner that queues jobs holds them.
+trait Queued {
+    fn encode(&self) -> Vec<u8>;
+    fn receive(&self, answer: &[u8]) -> Result<(), CodecError>;
+}
+impl<J: Portable> Queued for J {
+    fn encode(&self) -> Vec<u8> {
+        Portable::encode(self)
+    }
+    fn receive(&self, answer: &[u8]) -> Result<(), CodecError> {
+        Portable::receive(self, answer)
+    }
+}
+
+/// A spawner like the page's: every job crosses to a [`WorkerDecoder`] as bytes and comes back
+/// as bytes. `deferred`: jobs wait in a queue until [`Messages::deliver`] (between frames, like
+/// a worker's answers arriving), and the refiner decodes ahead; otherwise each is answered at
+/// once.
+#[derive(Clone, Default)]
+struct Messages {
+    worker: Rc<RefCell<Option<WorkerDecoder>>>,
+    queue: Rc<RefCell<Vec<Box<dyn Queued>>>>,
+    deferred: bool,
+    /// Diamonds answered through bytes.
+    answered: Rc<RefCell<usize>>,
+}
+
+impl Messages {
+    fn set_up(&self, refiner: &Refiner<LocalSource, Messages>, repo: &Repository) {
+        let context = refiner.worker_context(head_bytes(repo), None);
+        *self.worker.borrow_mut() = Some(WorkerDecoder::new(&context).unwrap());
+    }
+
+    fn answer(&self, job: &dyn Queued) {
+        let bytes = job.encode();
+        let answer = self.worker.borrow().as_ref().unwrap().run(&bytes).unwrap();
+        job.receive(&answer).unwrap();
+    }
+
+    fn deliver(&self) {
+        let jobs = std::mem::take(&mut *self.queue.borrow_mut());
+        for job in jobs {
+            self.answer(&*job);
+        }
+    }
+}
+
+impl Spawner for Messages {
+    fn spawn<F: FnOnce() + Send + 'static>(&self, job: F) {
+        job();
+    }
+    fn spawn_job<J: Portable>(&self, job: J) {
+        *self.answered.borrow_mut() += job.steps();
+        if self.deferred {
+            self.queue.borrow_mut().push(Box::new(job));
+        } else {
+            self.answer(&job);
+        }
+    }
+    fn parallelism(&self) -> usize {
+        2
+    }
+    fn runs_in_background(&self) -> bool {
+        self.deferred
+    }
+}
+
+fn head_bytes(repo: &Repository) -> HeadBytes<'_> {
+    HeadBytes {
+        bytes: repo.as_bytes(),
+        file_len: repo.file_len(),
+    }
+}
+
+fn drawn<X: Spawner>(r: &Refiner<LocalSource, X>) -> Vec<HalfPatch> {
+    r.drawn().map(|p| (**p).clone()).collect()
+}
+
+/// Cameras sweeping over the terrain, from far to close.
+fn cameras(world: &World) -> Vec<Camera> {
+    let (lo, hi) = world.bounds();
+    let span = hi - lo;
+    (0..12)
+        .map(|i| {
+            let t = f64::from(i) / 11.0;
+            let target = lo + DVec3::new(span.x * (0.2 + 0.6 * t), span.y * 0.5, span.z * 0.5);
+            let eye = target
+                + DVec3::new(
+                    -span.x * 0.3,
+                    -span.y * (0.8 - 0.6 * t),
+                    span.x * (0.6 - 0.5 * t),
+                );
+            Camera::looking_at(world, eye, target, 50f64.to_radians(), (640, 480))
+        })
+        .collect()
+}
+
+#[test]
+fn jobs_sent_as_bytes_refine_what_jobs_run_in_place_refine() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let config = RefineConfig {
+        budget: None,
+        gc_interval: 2,
+        ..RefineConfig::default()
+    };
+    let mut in_place =
+        Refiner::with_spawner(LocalSource::new(repo.clone()), config.clone(), Inline).unwrap();
+    let messages = Messages::default();
+    let mut by_bytes =
+        Refiner::with_spawner(LocalSource::new(repo.clone()), config, messages.clone()).unwrap();
+    messages.set_up(&by_bytes, &repo);
+    for (i, cam) in cameras(&world).iter().enumerate() {
+        let a = in_place.frame(cam);
+        let b = by_bytes.frame(cam);
+        assert_eq!(a.refinements, b.refinements, "frame {i}");
+        assert_eq!(
+            refined_set(in_place.cut()),
+            refined_set(by_bytes.cut()),
+            "frame {i}"
+        );
+        assert_eq!(
+            drawn(&in_place),
+            drawn(&by_bytes),
+            "frame {i}: drawn patches"
+        );
+    }
+    let answered = *messages.answered.borrow();
+    assert!(answered > 50, "{answered} diamonds went through bytes");
+}
+
+#[test]
+fn answers_arriving_between_frames_converge_to_the_cut_refined_in_place() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let cams = cameras(&world);
+    let cam = cams[8];
+    let mut reference = Refiner::with_spawner(
+        LocalSource::new(repo.clone()),
+        RefineConfig {
+            budget: None,
+            ..RefineConfig::default()
+        },
+        Inline,
+    )
+    .unwrap();
+    let settled = reference.settle(&cam, 50);
+    assert!(settled.converged);
+
+    let messages = Messages {
+        deferred: true,
+        ..Messages::default()
+    };
+    let config = RefineConfig {
+        // Short: answers arrive only between frames, so a frame waits for them in vain.
+        budget: Some(Duration::from_millis(2)),
+        gc_interval: 3,
+        ..RefineConfig::default()
+    };
+    let mut r =
+        Refiner::with_spawner(LocalSource::new(repo.clone()), config, messages.clone()).unwrap();
+    messages.set_up(&r, &repo);
+    // Fly in, then hold still until converged; answers come between frames.
+    let (mut ahead, mut frames) = (0, 0);
+    let mut last = None;
+    for (i, c) in cams
+        .iter()
+        .take(8)
+        .chain(std::iter::repeat_n(&cam, 200))
+        .enumerate()
+    {
+        let stats = r.frame(c);
+        ahead += stats.decoded_ahead;
+        frames += 1;
+        messages.deliver();
+        if i >= 8 && stats.converged {
+            last = Some(stats);
+            break;
+        }
+    }
+    let last = last.unwrap_or_else(|| panic!("no convergence in {frames} frames"));
+    assert!(last.met_target);
+    assert!(ahead > 0, "nothing was decoded ahead through bytes");
+    assert_eq!(refined_set(r.cut()), refined_set(reference.cut()));
+    assert_eq!(drawn(&r), drawn(&reference));
+}
+
+/// A job held back, its message and its worker's answer.
+type Exchange = (Box<dyn Queued>, Vec<u8>, Vec<u8>);
+
+/// Captures the context message, and the job messages and answers of a refiner's first frames
+/// (never applied).
+fn captured(repo: &Arc<Repository>) -> (Vec<u8>, Vec<Exchange>) {
+    let world = World::of_repository(repo);
+    let messages = Messages {
+        deferred: true,
+        ..Messages::default()
+    };
+    let mut r = Refiner::with_spawner(
+        LocalSource::new(repo.clone()),
+        RefineConfig::default(),
+        messages.clone(),
+    )
+    .unwrap();
+    let context = r.worker_context(head_bytes(repo), None);
+    messages.set_up(&r, repo);
+    let cam = cameras(&world)[10];
+    // Frames whose answers are delivered, so that later jobs carry given parents.
+    for _ in 0..3 {
+        r.frame(&cam);
+        messages.deliver();
+    }
+    r.frame(&cam);
+    let jobs: Vec<Box<dyn Queued>> = std::mem::take(&mut *messages.queue.borrow_mut());
+    assert!(!jobs.is_empty(), "the frame dispatched jobs");
+    let worker = WorkerDecoder::new(&context).unwrap();
+    let out = jobs
+        .into_iter()
+        .map(|j| {
+            let bytes = j.encode();
+            let answer = worker.run(&bytes).unwrap();
+            (j, bytes, answer)
+        })
+        .collect();
+    (context, out)
+}
+
+/// Flips byte `at` and, if `fix_crc`, recomputes the trailing checksum.
+fn flipped(bytes: &[u8], at: usize, fix_crc: bool) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    b[at] ^= 0x5a;
+    if fix_crc {
+        let n = b.len() - 4;
+        let crc = crc32fast::hash(&b[..n]);
+        b[n..].copy_from_slice(&crc.to_le_bytes());
+    }
+    b
+}
+
+#[test]
+fn bad_messages_are_errors_never_panics() {
+    let repo = repository();
+    let (context, jobs) = captured(&repo);
+    let worker = WorkerDecoder::new(&context).unwrap();
+    let (job, bytes, answer) = jobs.iter().max_by_key(|(_, b, _)| b.len()).expect("jobs");
+    assert!(bytes.len() > 100 && answer.len() > 100);
+
+    // Truncated, and any byte flipped: the length or the checksum gives it away.
+    for len in 0..bytes.len() {
+        assert!(worker.run(&bytes[..len]).is_err(), "job truncated to {len}");
+    }
+    for len in 0..answer.len() {
+        assert!(
+            job.receive(&answer[..len]).is_err(),
+            "answer truncated to {len}"
+        );
+    }
+    for len in (0..context.len()).step_by(97) {
+        assert!(
+            WorkerDecoder::new(&context[..len]).is_err(),
+            "context truncated to {len}"
+        );
+    }
+    for at in 0..bytes.len() {
+        assert!(
+            worker.run(&flipped(bytes, at, false)).is_err(),
+            "job byte {at} flipped"
+        );
+    }
+    for at in 0..answer.len() {
+        assert!(
+            job.receive(&flipped(answer, at, false)).is_err(),
+            "answer byte {at} flipped"
+        );
+    }
+    for at in (0..context.len()).step_by(13) {
+        assert!(
+            WorkerDecoder::new(&flipped(&context, at, false)).is_err(),
+            "context byte {at}"
+        );
+    }
+    // Each message read as another kind: the magic differs.
+    assert!(worker.run(answer).is_err());
+    assert!(job.receive(bytes).is_err());
+    assert!(WorkerDecoder::new(bytes).is_err());
+    // Another job's answer does not match this job's steps (when they differ).
+    for (other, _, other_answer) in &jobs {
+        if other.encode() != job.encode() {
+            assert!(job.receive(other_answer).is_err());
+        }
+    }
+
+    // Random bytes, some with a valid magic, version and checksum: errors.
+    let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for i in 0..3000 {
+        let len = (next() % 600) as usize;
+        let mut b: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+        if i % 2 == 0 && len >= 9 {
+            let magic = [b"CBDJ", b"CBDR", b"CBDC"][i % 3];
+            b[..4].copy_from_slice(magic);
+            b[4] = 1;
+            let n = b.len() - 4;
+            let crc = crc32fast::hash(&b[..n]);
+            b[n..].copy_from_slice(&crc.to_le_bytes());
+        }
+        assert!(worker.run(&b).is_err(), "random job {i}");
+        assert!(job.receive(&b).is_err(), "random answer {i}");
+        assert!(WorkerDecoder::new(&b).is_err(), "random context {i}");
+    }
+
+    // A flipped byte behind a valid checksum (a message built wrong, not damaged): whatever it
+    // says, reading it and running it returns (an error, or results), never panics. The
+    // answers go to a refiner that is not used again.
+    for (_, bytes, answer) in &jobs {
+        for at in 5..bytes.len() - 4 {
+            let _ = worker.run(&flipped(bytes, at, true));
+        }
+        for at in 5..answer.len() - 4 {
+            let _ = job.receive(&flipped(answer, at, true));
+        }
+    }
+}
