@@ -51,7 +51,7 @@ impl<'a> ErrorInput<'a> {
         let max_abs = grid
             .range()
             .map_or(0, |(lo, hi)| i64::from(lo).abs().max(i64::from(hi).abs()));
-        let all_valid = !grid.valid.contains(&false);
+        let all_valid = !grid.has_invalid();
         Self {
             grid,
             max_abs,
@@ -69,7 +69,9 @@ impl<'a> ErrorInput<'a> {
 pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &ErrorInput) -> u32 {
     let g = layout.grid(id);
     if id.is_even() && g.u.0 == 1 {
-        return finest_error_fast(layout.n(), g.origin, p, input);
+        let e = finest_error_fast(layout.n(), g.origin, p, input);
+        input.grid.touched(layout.n() * layout.n());
+        return e;
     }
     let parallel = layout.radius(id.level) * 2 >= PARALLEL_ROWS_FROM;
     surface_error_scan(layout, id, p, input, parallel)
@@ -370,12 +372,20 @@ impl<'a> Scan<'a> {
                     } else {
                         t0 + self.sp - 1
                     };
-                    self.rows_fast::<MAIN, T>(t0, t1)
+                    let e = self.rows_fast::<MAIN, T>(t0, t1);
+                    // About the lattice points under these rows (a mapped input drops its
+                    // resident pages every window read).
+                    self.input
+                        .touched((t1 - t0 + 1) as usize * (self.side + 1) as usize);
+                    e
                 })
                 .max()
                 .unwrap_or(0)
         } else {
-            self.rows_fast::<MAIN, T>(0, self.side)
+            let e = self.rows_fast::<MAIN, T>(0, self.side);
+            self.input
+                .touched(((self.side + 1) * (self.side + 1)) as usize);
+            e
         };
         let e = (worst_h + self.sp - 1) / self.sp;
         u32::try_from(e).unwrap_or(u32::MAX)
