@@ -342,7 +342,8 @@ impl QuantPlan {
         }
         // The same choice as `for_source`; the float plan needs its own pass over the samples.
         if !given && let Some(float) = plan.coarser_float_plan(lo, hi) {
-            let grid = HeightGrid::from_source(src, &float)?;
+            drop(grid);
+            let grid = HeightGrid::from_source_in(src, &float, storage)?;
             return Ok((float, grid));
         }
         Ok((plan, grid))
@@ -627,12 +628,20 @@ impl HeightGrid {
     /// Bytes per lattice point of a grid: an `i32` height and a validity flag.
     pub const BYTES_PER_POINT: u64 = 5;
 
-    /// Notes that a pass read about `points` lattice points (heights and validity), so that a
-    /// mapped grid drops its resident pages every window ([`LatticeArray::touched`]).
+    /// Notes that a pass read `rows` runs of about `row_len` lattice points each (heights and
+    /// validity), so that a mapped grid drops its resident pages every window
+    /// ([`LatticeArray::touched_rows`]).
     #[inline]
-    pub fn touched(&self, points: usize) {
-        self.values.touched(points);
-        self.valid.touched(points);
+    pub fn touched_rows(&self, rows: usize, row_len: usize) {
+        self.values.touched_rows(rows, row_len);
+        self.valid.touched_rows(rows, row_len);
+    }
+
+    /// [`HeightGrid::touched_rows`] for runs far apart ([`LatticeArray::touched_sparse_rows`]).
+    #[inline]
+    pub fn touched_sparse_rows(&self, rows: usize, row_len: usize) {
+        self.values.touched_sparse_rows(rows, row_len);
+        self.valid.touched_sparse_rows(rows, row_len);
     }
 
     /// Whether some sample is nodata; a scan by windows.

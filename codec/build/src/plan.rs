@@ -180,7 +180,8 @@ pub const JOURNAL_FROM_SAMPLES: usize = 1 << 24;
 
 /// Where the encoder's temporaries go under `limit` bytes: in memory with one reconstruction
 /// field over the domain when the grid (5 bytes per sample in memory, or the resident windows
-/// of a mapped grid) and that field (4 bytes per lattice point of the domain) fit and the input is smaller than [`JOURNAL_FROM_SAMPLES`]; in memory
+/// of a mapped grid, [`HeightGrid::resident_bytes`]) and that field (4 bytes per lattice point
+/// of the domain) fit and the input is smaller than [`JOURNAL_FROM_SAMPLES`]; in memory
 /// block by block ([`BlockPlan::fitting`]; at least 4 × 4 blocks for large inputs) when the grid
 /// and the block fields fit; otherwise the whole field in a mapped temporary file.
 pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<Temporaries> {

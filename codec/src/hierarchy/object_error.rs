@@ -70,7 +70,7 @@ pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &E
     let g = layout.grid(id);
     if id.is_even() && g.u.0 == 1 {
         let e = finest_error_fast(layout.n(), g.origin, p, input);
-        input.grid.touched(layout.n() * layout.n());
+        input.grid.touched_rows(layout.n(), layout.n());
         return e;
     }
     let parallel = layout.radius(id.level) * 2 >= PARALLEL_ROWS_FROM;
@@ -372,20 +372,12 @@ impl<'a> Scan<'a> {
                     } else {
                         t0 + self.sp - 1
                     };
-                    let e = self.rows_fast::<MAIN, T>(t0, t1);
-                    // About the lattice points under these rows (a mapped input drops its
-                    // resident pages every window read).
-                    self.input
-                        .touched((t1 - t0 + 1) as usize * (self.side + 1) as usize);
-                    e
+                    self.rows_fast::<MAIN, T>(t0, t1)
                 })
                 .max()
                 .unwrap_or(0)
         } else {
-            let e = self.rows_fast::<MAIN, T>(0, self.side);
-            self.input
-                .touched(((self.side + 1) * (self.side + 1)) as usize);
-            e
+            self.rows_fast::<MAIN, T>(0, self.side)
         };
         let e = (worst_h + self.sp - 1) / self.sp;
         u32::try_from(e).unwrap_or(u32::MAX)
@@ -565,6 +557,8 @@ impl<'a> Scan<'a> {
                 let vals = &values[k..k + buf.len()];
                 let oks = valid.map(|v| &v[k..k + buf.len()]);
                 (hi_d, lo_d) = extremes(buf, vals, oks, shift, hi_d, lo_d);
+                // A mapped input drops its resident pages every window read.
+                self.input.touched_sparse_rows(1, buf.len());
             }
             if t == tb {
                 break;
@@ -635,6 +629,8 @@ impl<'a> Scan<'a> {
             let vals = &self.input.values[k..k + count];
             let oks = self.valid.map(|v| &v[k..k + count]);
             (hi, lo) = extremes(surface, vals, oks, self.shift, hi, lo);
+            // A mapped input drops its resident pages every window read.
+            self.input.touched_sparse_rows(1, count);
         }
         (hi, lo)
     }

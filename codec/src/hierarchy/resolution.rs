@@ -115,7 +115,7 @@ pub(crate) fn variable_sets(domain: &Domain, width: usize, res: &Resolution) -> 
                 let (y0, y1) = (2 * b * r, ((2 * b + 2) * r).min(height - 1));
                 let hit =
                     (y0..=y1).any(|y| res.class[y * width + x0..=y * width + x1].contains(&j));
-                res.class.touched((y1 - y0 + 1) * (x1 - x0 + 1));
+                res.class.touched_rows(y1 - y0 + 1, x1 - x0 + 1);
                 if hit {
                     let (cx, cy) = ((2 * a + 1) * r, (2 * b + 1) * r);
                     leaves[level as usize].insert(DiamondId::new(level, cx as u32, cy as u32));
