@@ -349,7 +349,10 @@ mod tests {
         let mut peak = 0;
         let mut sum = 0u64;
         for chunk in (0..len).step_by(1 << 20) {
-            sum += a[chunk..chunk + (1 << 20)].iter().map(|&v| u64::from(v)).sum::<u64>();
+            sum += a[chunk..chunk + (1 << 20)]
+                .iter()
+                .map(|&v| u64::from(v))
+                .sum::<u64>();
             a.touched(1 << 20);
             peak = peak.max(rss_file_kib().unwrap().saturating_sub(before));
         }

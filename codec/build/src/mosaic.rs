@@ -1072,7 +1072,7 @@ mod tests {
             m.cache = BandCache::new(budget);
             let survey = m.survey().unwrap();
             assert!(
-                survey.resolution.class == class,
+                survey.resolution.class[..] == class[..],
                 "classes, blocks of {points}"
             );
             let valid: Vec<f64> = values.iter().copied().filter(|v| !v.is_nan()).collect();
