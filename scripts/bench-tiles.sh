@@ -6,6 +6,7 @@
 #
 #   scripts/bench-tiles.sh                      # 16 × 16 tiles of 1025² (16385², 268 M samples)
 #   N=8 T=512 LIMIT=1G scripts/bench-tiles.sh   # smaller, under --memory-limit 1G
+#   LIMIT=512M scripts/bench-tiles.sh           # lattice (5-6 B a point) past the limit: mapped
 #
 # Environment: N, T (tile side between shared edges), LIMIT (--memory-limit, default: the
 # build's own), DEFLATE=1 (Deflate-compressed tiles), CBDAM (binary, default

@@ -84,6 +84,7 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
                 nodata: None,
                 quantum: None,
                 max_error: args.max_error,
+                memory_limit: limit,
             })?;
             let storage = storage_for(&input.grid, &opts, limit)?;
             let enc = encode_prepared(

@@ -10,7 +10,7 @@ use anyhow::Result;
 use cbdam_build::journal::Resumed;
 use cbdam_build::{
     AssignedGeoRef, BuildOptions, BuildSummary, ColourSummary, ElevationSummary, Progress,
-    ProgressEvent, Spilled, Stage, planet::PlanetSummary,
+    ProgressEvent, Stage, planet::PlanetSummary,
 };
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::lifting::Alpha;
@@ -121,6 +121,13 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
         );
     }
     if !args.quiet {
+        if s.lattice_mapped {
+            eprintln!(
+                "the {}×{} lattice went to memory-mapped temporary files, to stay under \
+                 --memory-limit",
+                s.width, s.height
+            );
+        }
         let bytes = std::fs::metadata(&args.output)?.len();
         let plan = &s.plan;
         println!(
@@ -230,7 +237,7 @@ fn print_colour(args: &BuildArgs, s: &ColourSummary, start: Instant) -> Result<(
 }
 
 /// Progress of the encode: a bar with ETA on a terminal, a log line per quarter otherwise (so
-/// CI logs and pipes stay readable), nothing with `--quiet`; spilled inputs as a line.
+/// CI logs and pipes stay readable), nothing with `--quiet`.
 enum Bars {
     Quiet,
     Bar(ProgressBar),
@@ -286,18 +293,6 @@ impl Progress for Bars {
                 "starting over: the earlier run's journal was for other inputs or arguments \
                  ({changed})"
             ),
-        }
-    }
-
-    fn spilled(&self, s: Spilled) {
-        if !matches!(self, Bars::Quiet) {
-            eprintln!(
-                "{} of {} inputs ({} MiB) in memory-mapped temporary files, to stay under \
-                 --memory-limit",
-                s.inputs,
-                s.of,
-                s.bytes.div_ceil(1 << 20)
-            );
         }
     }
 }

@@ -278,32 +278,6 @@ fn inputs_that_cannot_share_a_lattice_are_refused_by_name() {
         w.write_image_data(&data).unwrap();
     }
     build_fails(dir.path(), &[&f, &png_path], "has no georeferencing");
-
-    // Beyond the memory limit: a lattice that does not fit is refused (not swapped), and
-    // nothing is written.
-    let before = listing(dir.path());
-    let out = dir.path().join("bad.cbdam");
-    let under = |limit: &str, out: &Path| {
-        cbdam(&[
-            "build",
-            &s(&c),
-            &s(&f),
-            "-o",
-            &s(out),
-            "--max-error",
-            "1",
-            "--memory-limit",
-            limit,
-        ])
-    };
-    let o = under("64K", &out);
-    assert!(!o.status.success(), "built under --memory-limit 64K");
-    assert_eq!(listing(dir.path()), before);
-    let err = stderr(&o);
-    assert!(
-        err.contains("combined lattice") && err.contains("--memory-limit"),
-        "{err}"
-    );
 }
 
 #[test]
@@ -335,21 +309,48 @@ fn a_memory_limit_that_leaves_no_cache_of_tile_rows_builds_the_same_bytes() {
     // of rows is decoded again each time a block needs it.
     let tight = build_under(Some("4630K"), "tight.cbdam");
     assert!(tight == free, "a cache-less build changed the repository");
-    let o = cbdam(&[
-        "build",
-        &s(&c),
-        &s(&f),
-        "-o",
-        &s(&dir.path().join("refused.cbdam")),
-        "--max-error",
-        "1",
-        "--memory-limit",
-        "4620K",
-    ]);
-    assert!(!o.status.success(), "built under 4620K");
-    assert!(
-        stderr(&o).contains("combined lattice") && stderr(&o).contains("--memory-limit"),
-        "{}",
-        stderr(&o)
-    );
+}
+
+/// A lattice larger than half of `--memory-limit` (here far larger than all of it) goes to
+/// memory-mapped temporary files, classes included, and the variable-resolution build writes
+/// the same bytes, saying where the lattice went; nothing is left beside the output.
+#[test]
+fn a_variable_resolution_lattice_beyond_the_memory_limit_is_mapped_with_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (c, f) = (coarse(dir.path()), fine(dir.path()));
+    let build_under = |limit: &str, name: &str| {
+        let out = dir.path().join(name);
+        let o = cbdam(&[
+            "build",
+            &s(&c),
+            &s(&f),
+            "-o",
+            &s(&out),
+            "--max-error",
+            "1",
+            "--timings",
+            "--memory-limit",
+            limit,
+        ]);
+        assert!(o.status.success(), "{limit}: {}", stderr(&o));
+        (std::fs::read(&out).unwrap(), stderr(&o))
+    };
+    let (free, said) = build_under("1G", "free.cbdam");
+    assert!(!said.contains("lattice in mapped files"), "{said}");
+    let before = listing(dir.path());
+    // 513² points at 6 bytes: 1.5 MiB, mapped under 2 MiB; under 64 KiB the field is mapped too.
+    for limit in ["2M", "64K"] {
+        let (mapped, said) = build_under(limit, "mapped.cbdam");
+        assert!(
+            said.contains("lattice in mapped files") && said.contains("memory-mapped temporary"),
+            "{limit}: {said}"
+        );
+        assert!(
+            mapped == free,
+            "{limit}: the mapped lattice changed the repository"
+        );
+        let mut after = listing(dir.path());
+        after.retain(|p| !p.ends_with("mapped.cbdam"));
+        assert_eq!(after, before, "{limit}: files left behind");
+    }
 }

@@ -163,8 +163,10 @@ fn mosaic_peak_memory_does_not_grow_with_the_tile_count() {
         .map(|e| e.unwrap().metadata().unwrap().len())
         .sum();
     let points = (SIZE * SIZE) as u64;
-    // What the mosaic itself needs (cbdam_build::mosaic::bytes_in_memory): 6 bytes a point and
-    // a block of 2^20 points at 12 bytes; 16 MiB more leave its cache 8 MiB.
+    // What the mosaic's lattice took in memory: 6 bytes a point and a block of 2^20 points at
+    // 12 bytes, and 16 MiB more. Above half the limit the lattice is now mapped
+    // (cbdam_build::mosaic::bytes_in_memory counts a resident window of each array), which
+    // leaves the cache of tile rows more room: the same for every tile count.
     let limit = format!("{}K", (6 * points + 12 * (1 << 20) + (16 << 20)) / 1024);
     let build = |input: &Path, out: &str, raw: bool| {
         let (input, out) = (s(input), s(&d.join(out)));

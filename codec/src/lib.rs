@@ -17,6 +17,7 @@ pub mod input;
 pub mod lifting;
 pub mod quant;
 pub mod repository;
+pub mod temp;
 
 /// Deterministic junk for the decoders' never-panic tests: `len` bytes from an LCG seeded by
 /// `seed`.

@@ -20,6 +20,7 @@ use rayon::prelude::*;
 use crate::input::detect_quantum;
 use crate::input::{Dem, QuantumScan, SampleSource};
 use crate::lifting::{MAX_ABS_HEIGHT, PREDICTION_LIMIT};
+use crate::temp::{LatticeArray, TempStorage};
 
 /// Samples per parallel work item of the passes over the input.
 const CHUNK: usize = 1 << 16;
@@ -292,11 +293,22 @@ impl QuantPlan {
         epsilon: f64,
         quantum: Option<f64>,
     ) -> Result<(Self, HeightGrid), CodecError> {
+        Self::quantize_source_in(src, epsilon, quantum, &TempStorage::Memory)
+    }
+
+    /// [`QuantPlan::quantize_source`] with the grid in `storage` (a mapped file for lattices
+    /// larger than the memory limit allows): the same plan and values either way.
+    pub fn quantize_source_in(
+        src: &dyn SampleSource,
+        epsilon: f64,
+        quantum: Option<f64>,
+        storage: &TempStorage,
+    ) -> Result<(Self, HeightGrid), CodecError> {
         let given = quantum.is_some();
         let (lo, hi, quantum) = scan_source(src, quantum)?;
         let Some(u) = quantum else {
             let plan = Self::new(epsilon, None, lo, hi)?;
-            let grid = HeightGrid::from_source(src, &plan)?;
+            let grid = HeightGrid::from_source_in(src, &plan, storage)?;
             return Ok((plan, grid));
         };
         // What `to_units` uses of a lattice plan is its unit and offset, both known now.
@@ -309,7 +321,7 @@ impl QuantPlan {
             representation_error: 0.0,
             epsilon,
         };
-        let mut grid = HeightGrid::empty(src.width(), src.height())?;
+        let mut grid = HeightGrid::empty(src.width(), src.height(), storage)?;
         let nodata = src.nodata();
         let mut deviation = 0.0f64;
         let mut first_bad = None;
@@ -330,7 +342,8 @@ impl QuantPlan {
         }
         // The same choice as `for_source`; the float plan needs its own pass over the samples.
         if !given && let Some(float) = plan.coarser_float_plan(lo, hi) {
-            let grid = HeightGrid::from_source(src, &float)?;
+            drop(grid);
+            let grid = HeightGrid::from_source_in(src, &float, storage)?;
             return Ok((float, grid));
         }
         Ok((plan, grid))
@@ -454,9 +467,9 @@ pub struct HeightGrid {
     /// Rows (row 0 = north).
     pub height: usize,
     /// Row-major integer heights; meaningless where `valid` is false.
-    pub values: Vec<i32>,
+    pub values: LatticeArray<i32>,
     /// Row-major: false at nodata.
-    pub valid: Vec<bool>,
+    pub valid: LatticeArray<bool>,
 }
 
 impl HeightGrid {
@@ -476,8 +489,8 @@ impl HeightGrid {
         let mut grid = Self {
             width,
             height,
-            values: vec![0i32; samples.len()],
-            valid: vec![false; samples.len()],
+            values: vec![0i32; samples.len()].into(),
+            valid: vec![false; samples.len()].into(),
         };
         grid.quantize_rows(0, samples, nodata, plan)?;
         Ok(grid)
@@ -557,6 +570,10 @@ impl HeightGrid {
                     (da.max(db), bad)
                 },
             );
+        // A mapped grid drops the rows it has written from the resident set (they stay in the
+        // file); the quantizer never comes back to them.
+        self.values.release(start..end);
+        self.valid.release(start..end);
         let bad = bad.map(|(idx, e)| {
             CodecError::invalid(format!(
                 "at column {}, row {}: {e}",
@@ -570,23 +587,74 @@ impl HeightGrid {
     /// Quantizes streamed samples under `plan` (see [`QuantPlan::for_source`]); the same grid
     /// as [`HeightGrid::from_metres`] on the same samples.
     pub fn from_source(src: &dyn SampleSource, plan: &QuantPlan) -> Result<Self, CodecError> {
-        let mut grid = Self::empty(src.width(), src.height())?;
+        Self::from_source_in(src, plan, &TempStorage::Memory)
+    }
+
+    /// [`HeightGrid::from_source`] with the grid in `storage`.
+    pub fn from_source_in(
+        src: &dyn SampleSource,
+        plan: &QuantPlan,
+        storage: &TempStorage,
+    ) -> Result<Self, CodecError> {
+        let mut grid = Self::empty(src.width(), src.height(), storage)?;
         let nodata = src.nodata();
         src.for_each_block(&mut |row, block| grid.quantize_rows(row, block, nodata, plan))?;
         Ok(grid)
     }
 
-    /// A `width × height` grid with no valid sample yet.
-    fn empty(width: usize, height: usize) -> Result<Self, CodecError> {
+    /// A `width × height` grid in `storage` with no valid sample yet.
+    pub fn empty(width: usize, height: usize, storage: &TempStorage) -> Result<Self, CodecError> {
         let len = width
             .checked_mul(height)
             .ok_or_else(|| CodecError::limit("grid too large"))?;
         Ok(Self {
             width,
             height,
-            values: vec![0i32; len],
-            valid: vec![false; len],
+            values: LatticeArray::filled(len, 0i32, storage)?,
+            valid: LatticeArray::filled(len, false, storage)?,
         })
+    }
+
+    /// Whether the grid lives in mapped files ([`crate::temp`]).
+    pub fn is_mapped(&self) -> bool {
+        self.values.is_mapped()
+    }
+
+    /// Bytes the grid keeps resident ([`LatticeArray::resident_bytes`]).
+    pub fn resident_bytes(&self) -> u64 {
+        self.values.resident_bytes() + self.valid.resident_bytes()
+    }
+
+    /// Bytes per lattice point of a grid: an `i32` height and a validity flag.
+    pub const BYTES_PER_POINT: u64 = 5;
+
+    /// Notes that a pass read `rows` runs of about `row_len` lattice points each (heights and
+    /// validity), so that a mapped grid drops its resident pages every window
+    /// ([`LatticeArray::touched_rows`]).
+    #[inline]
+    pub fn touched_rows(&self, rows: usize, row_len: usize) {
+        self.values.touched_rows(rows, row_len);
+        self.valid.touched_rows(rows, row_len);
+    }
+
+    /// [`HeightGrid::touched_rows`] for runs far apart ([`LatticeArray::touched_sparse_rows`]).
+    #[inline]
+    pub fn touched_sparse_rows(&self, rows: usize, row_len: usize) {
+        self.values.touched_sparse_rows(rows, row_len);
+        self.valid.touched_sparse_rows(rows, row_len);
+    }
+
+    /// Whether some sample is nodata; a scan by windows.
+    pub fn has_invalid(&self) -> bool {
+        self.valid.any(|&v| !v)
+    }
+
+    /// How many samples are valid; a scan by windows.
+    pub fn valid_count(&self) -> usize {
+        let mut count = 0;
+        self.valid
+            .for_each_window(|_, w| count += w.iter().filter(|&&v| v).count());
+        count
     }
 
     /// Converts a DEM under `plan` (see [`QuantPlan::for_dem`]).
@@ -600,8 +668,8 @@ impl HeightGrid {
         Self {
             width,
             height,
-            valid: vec![true; values.len()],
-            values,
+            valid: vec![true; values.len()].into(),
+            values: values.into(),
         }
     }
 
@@ -625,15 +693,23 @@ impl HeightGrid {
     }
 
     /// Smallest and largest valid height, or `None` if no sample is valid.
+    /// A scan by windows: a mapped grid's resident set stays one window.
     pub fn range(&self) -> Option<(i32, i32)> {
-        let mut it = self
-            .values
-            .iter()
-            .zip(&self.valid)
-            .filter(|(_, ok)| **ok)
-            .map(|(v, _)| *v);
-        let first = it.next()?;
-        Some(it.fold((first, first), |(lo, hi), v| (lo.min(v), hi.max(v))))
+        let mut range: Option<(i32, i32)> = None;
+        self.values.for_each_window(|start, values| {
+            let valid = &self.valid[start..start + values.len()];
+            let mut it = values
+                .iter()
+                .zip(valid)
+                .filter(|(_, ok)| **ok)
+                .map(|(v, _)| *v);
+            if let Some(first) = range.map(|r| r.0).or_else(|| it.next()) {
+                let (lo, hi) = range.unwrap_or((first, first));
+                range = Some(it.fold((lo, hi), |(lo, hi), v| (lo.min(v), hi.max(v))));
+            }
+            self.valid.release(start..start + values.len());
+        });
+        range
     }
 }
 

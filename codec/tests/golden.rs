@@ -257,8 +257,8 @@ fn synthetic_field_with_holes_and_small_diamonds() {
     let grid = HeightGrid {
         width: w,
         height: h,
-        values,
-        valid,
+        values: values.into(),
+        valid: valid.into(),
     };
     let q = Quantizer::new(3).unwrap();
     let cases = [

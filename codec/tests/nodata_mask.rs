@@ -39,7 +39,10 @@ fn check_mask(enc: &Encoded, grid: &HeightGrid) -> usize {
     })
     .unwrap();
     let (_, valid) = reconstruct_finest_with_validity(enc).unwrap();
-    assert!(valid == grid.valid, "finest reconstruction's mask differs");
+    assert!(
+        valid[..] == grid.valid[..],
+        "finest reconstruction's mask differs"
+    );
     let count = count_valid_samples(
         &p,
         &enc.roots,

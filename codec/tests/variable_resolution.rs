@@ -93,8 +93,13 @@ fn variable_input(h: &[i32]) -> (HeightGrid, Resolution) {
         }
     }
     let mut grid = HeightGrid::all_valid(SIDE, SIDE, values);
-    grid.valid = valid;
-    (grid, Resolution { class })
+    grid.valid = valid.into();
+    (
+        grid,
+        Resolution {
+            class: class.into(),
+        },
+    )
 }
 
 fn encode_var(grid: &HeightGrid, res: &Resolution, q: Quantizer) -> Encoded {
@@ -217,7 +222,7 @@ fn inconsistent_classes_and_alpha_half_are_refused() {
     assert!(encode_variable(&grid, &res, q, &half, &TempStorage::Memory, &|_, _| {}).is_err());
     res.class[0] = HOLE; // a valid sample called a hole
     assert!(encode_variable(&grid, &res, q, &opts(), &TempStorage::Memory, &|_, _| {}).is_err());
-    res.class.pop();
+    res.class = res.class[..res.class.len() - 1].to_vec().into();
     assert!(encode_variable(&grid, &res, q, &opts(), &TempStorage::Memory, &|_, _| {}).is_err());
 }
 

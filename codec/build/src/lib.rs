@@ -37,7 +37,7 @@ pub use assign::AssignedGeoRef;
 pub use colour::ColourSummary;
 pub use encode::ExtraLevels;
 pub use error::{BuildError, Result};
-pub use progress::{NoProgress, Progress, ProgressEvent, Spilled, Stage};
+pub use progress::{NoProgress, Progress, ProgressEvent, Stage};
 
 use crate::encode::{encode_prepared, with_coarser_roots_if_smaller};
 use crate::error::{Context, bail};
@@ -146,6 +146,9 @@ pub struct ElevationSummary {
     pub stages: Vec<(&'static str, Duration)>,
     /// Where the encoder kept its reconstruction ([`plan::Temporaries::describe`]).
     pub temporaries: String,
+    /// Whether the quantized lattice (and a mosaic's classes) went to mapped temporary files
+    /// because it exceeded half of the memory limit.
+    pub lattice_mapped: bool,
 }
 
 /// What [`build`] made.
@@ -235,6 +238,7 @@ pub(crate) fn prepare_elevation(
                 nodata: opts.nodata,
                 quantum: opts.quantum,
                 max_error: opts.max_error,
+                memory_limit: limit,
             })?;
             if let Some(a) = &opts.assign_georef {
                 a.apply(
@@ -272,7 +276,7 @@ pub(crate) fn prepare_elevation(
             let (input, res) =
                 prepare_mosaic(tiles, opts.nodata, opts.quantum, opts.max_error, limit)?;
             // The inputs are gone by now: what stays is the grid, the classes and the field.
-            let classes = res.class.len() as u64;
+            let classes = res.class.resident_bytes();
             let storage = storage_for(&input.grid, &enc_opts, limit.saturating_sub(classes))?;
             (input, Some(res), storage)
         }
@@ -385,11 +389,12 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
     Ok(ElevationSummary {
         width: grid.width,
         height: grid.height,
-        valid: grid.valid.iter().filter(|&&v| v).count(),
+        valid: grid.valid_count(),
         records: encoded.records.len(),
         plan: input.plan,
         stages,
         temporaries: storage.describe(),
+        lattice_mapped: grid.is_mapped(),
     })
 }
 

@@ -17,10 +17,12 @@
 //! falls through to what lies below. Which input wins a point is never stored: it is computed
 //! from the index when a block is composed.
 //!
-//! Memory is therefore independent of the number and size of the inputs. What the lattice
-//! itself costs is unchanged: the resolution classes (1 byte per point, [`Mosaic::survey`]) and
-//! the quantized grid (5 bytes per point) are held whole ([`bytes_in_memory`]); a build whose
-//! lattice alone does not fit under `--memory-limit` is refused before anything is allocated.
+//! Memory is therefore independent of the number and size of the inputs. The lattice itself —
+//! the resolution classes (1 byte per point, [`Mosaic::survey`]) and the quantized grid (5 bytes
+//! per point) — is held in memory when it takes at most half of `--memory-limit`, and otherwise
+//! in memory-mapped temporary files whose passes keep about a window of each resident
+//! ([`cbdam_codec::temp`], [`Mosaic::lattice`]): memory is then independent of the lattice's
+//! size too ([`bytes_in_memory`]).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -33,6 +35,8 @@ use cbdam_codec::CodecError;
 use cbdam_codec::hierarchy::Resolution;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::input::{BlockFn, GeoRef, ReadOptions, SampleSource, SampleType, TileReader};
+use cbdam_codec::quant::HeightGrid;
+use cbdam_codec::temp::{LatticeArray, MAPPED_RESIDENT_BYTES, TempStorage};
 use rayon::prelude::*;
 
 /// Relative tolerance on spacing ratios: GeoTIFF pixel scales are decimal doubles (e.g.
@@ -41,63 +45,39 @@ const RATIO_TOLERANCE: f64 = 1e-9;
 /// Tolerance, in fine samples, on how far an input's origin may lie from a lattice point:
 /// tie points are printed decimals too.
 const ORIGIN_TOLERANCE: f64 = 1e-6;
-/// Bytes per lattice point that a multi-input build keeps in memory: the encoder's resolution
-/// classes (u8) and the quantized grid (i32 + bool). The encoder's reconstruction field (4 bytes
-/// per point of the domain) comes on top, in memory or in a temporary file
+/// Bytes per lattice point of a multi-input build's lattice: the encoder's resolution classes
+/// (u8) and the quantized grid (i32 + bool). The encoder's reconstruction field (4 bytes per
+/// point of the domain) comes on top, in memory or in a temporary file
 /// ([`crate::plan::storage_for`]).
-pub const BYTES_PER_POINT: u64 = 1 + 5;
+pub const BYTES_PER_POINT: u64 = 1 + HeightGrid::BYTES_PER_POINT;
 
 /// Lattice points composed per block (whole rows, at least one): 8 MiB of `f64`, enough rows
 /// for every core and for bands of tile rows to be reused by the next block.
 const BLOCK_POINTS: usize = 1 << 20;
 
-/// What a multi-input build of a `width × height` lattice holds in memory besides its cache of
-/// decoded tile rows and its reconstruction field: [`BYTES_PER_POINT`] per lattice point, and
-/// one block of composed rows (values and winners).
-pub fn bytes_in_memory(width: usize, height: usize) -> u64 {
+/// Where a multi-input build under `memory_limit` keeps its `width × height` lattice
+/// ([`TempStorage::for_lattice`]).
+pub fn lattice_storage(width: usize, height: usize, memory_limit: u64) -> TempStorage {
+    let points = (width as u64).saturating_mul(height as u64);
+    TempStorage::for_lattice(points.saturating_mul(BYTES_PER_POINT), memory_limit)
+}
+
+/// What a multi-input build of a `width × height` lattice in `lattice` holds in memory besides
+/// its cache of decoded tile rows and its reconstruction field: [`BYTES_PER_POINT`] per lattice
+/// point in memory, or a resident window of each of its three mapped arrays, and one block of
+/// composed rows (values and winners).
+pub fn bytes_in_memory(width: usize, height: usize, lattice: &TempStorage) -> u64 {
     let points = (width as u64).saturating_mul(height as u64);
     let block = 12 * (BLOCK_POINTS.max(width) as u64).min(points);
-    points.saturating_mul(BYTES_PER_POINT).saturating_add(block)
-}
-
-/// Where an input's narrowed samples live: in memory, or in a memory-mapped temporary file
-/// (created unlinked in the system temporary directory, so the kernel writes its pages back to
-/// disk under memory pressure and nothing is left behind) once the inputs exceed the build's
-/// memory limit.
-#[derive(Debug)]
-pub enum Store<T> {
-    /// Anonymous memory.
-    Memory(Vec<T>),
-    /// A mapped temporary file holding `len` values.
-    Mapped(memmap2::MmapMut, usize),
-}
-
-impl<T: bytemuck::Pod> Store<T> {
-    /// `values` in a mapped temporary file.
-    fn spill(values: &[T]) -> std::io::Result<Self> {
-        let bytes: &[u8] = bytemuck::cast_slice(values);
-        let file = tempfile::tempfile()?;
-        // A zero-length map is an error on some platforms; an empty input never gets here (it
-        // has a valid sample), but one byte costs nothing.
-        file.set_len(bytes.len().max(1) as u64)?;
-        // SAFETY: the file is ours alone (unlinked at creation), so nothing else can change or
-        // truncate it while mapped.
-        let mut map = unsafe { memmap2::MmapMut::map_mut(&file)? };
-        map[..bytes.len()].copy_from_slice(bytes);
-        Ok(Self::Mapped(map, values.len()))
-    }
-}
-
-impl<T: bytemuck::Pod> std::ops::Deref for Store<T> {
-    type Target = [T];
-    fn deref(&self) -> &[T] {
-        match self {
-            Self::Memory(v) => v,
-            // The map is page-aligned and at least `len` values long (an empty input maps one
-            // byte), so the cast never fails.
-            Self::Mapped(map, len) => bytemuck::cast_slice(&map[..len * std::mem::size_of::<T>()]),
+    let arrays = match lattice {
+        TempStorage::Memory => points.saturating_mul(BYTES_PER_POINT),
+        TempStorage::File(_) => {
+            // Heights (4 bytes a point), validity and classes (1 byte each).
+            let resident = |bytes: u64| bytes.min(MAPPED_RESIDENT_BYTES);
+            resident(points.saturating_mul(4)) + 2 * resident(points)
         }
-    }
+    };
+    arrays.saturating_add(block)
 }
 
 /// An input's samples in the narrowest type that holds every one of them exactly, NaN included:
@@ -105,11 +85,11 @@ impl<T: bytemuck::Pod> std::ops::Deref for Store<T> {
 #[derive(Debug)]
 pub enum Samples {
     /// Whole numbers in the `i16` range.
-    I16(Store<i16>),
+    I16(Vec<i16>),
     /// Values that `f32` represents exactly, and NaN.
-    F32(Store<f32>),
+    F32(Vec<f32>),
     /// Anything else.
-    F64(Store<f64>),
+    F64(Vec<f64>),
 }
 
 impl Samples {
@@ -118,25 +98,15 @@ impl Samples {
         // `as` saturates and maps NaN to 0, so the round trip fails exactly where the narrow
         // type cannot hold the value (a zero's sign is the only thing dropped).
         if values.iter().all(|&v| f64::from(v as i16) == v) {
-            Self::I16(Store::Memory(values.iter().map(|&v| v as i16).collect()))
+            Self::I16(values.iter().map(|&v| v as i16).collect())
         } else if values
             .iter()
             .all(|&v| v.is_nan() || f64::from(v as f32) == v)
         {
-            Self::F32(Store::Memory(values.iter().map(|&v| v as f32).collect()))
+            Self::F32(values.iter().map(|&v| v as f32).collect())
         } else {
-            Self::F64(Store::Memory(values))
+            Self::F64(values)
         }
-    }
-
-    /// The same samples in a memory-mapped temporary file (a no-op if they are already).
-    pub fn spill(self) -> std::io::Result<Self> {
-        Ok(match self {
-            Self::I16(Store::Memory(v)) => Self::I16(Store::spill(&v)?),
-            Self::F32(Store::Memory(v)) => Self::F32(Store::spill(&v)?),
-            Self::F64(Store::Memory(v)) => Self::F64(Store::spill(&v)?),
-            mapped => mapped,
-        })
     }
 
     /// Sample `i`.
@@ -149,28 +119,13 @@ impl Samples {
         }
     }
 
-    /// Bytes of the samples, wherever they are.
+    /// Bytes of the samples.
     pub fn bytes(&self) -> u64 {
         match self {
             Self::I16(v) => 2 * v.len() as u64,
             Self::F32(v) => 4 * v.len() as u64,
             Self::F64(v) => 8 * v.len() as u64,
         }
-    }
-
-    /// Bytes held in anonymous memory: [`Samples::bytes`], or 0 once spilled.
-    pub fn bytes_in_memory(&self) -> u64 {
-        if self.is_spilled() { 0 } else { self.bytes() }
-    }
-
-    /// Whether the samples are in a mapped temporary file.
-    pub fn is_spilled(&self) -> bool {
-        matches!(
-            self,
-            Self::I16(Store::Mapped(..))
-                | Self::F32(Store::Mapped(..))
-                | Self::F64(Store::Mapped(..))
-        )
     }
 }
 
@@ -324,6 +279,8 @@ pub struct Mosaic {
     cache: BandCache,
     /// Lattice points per block ([`BLOCK_POINTS`]; fewer in tests, to cross block edges).
     block_points: usize,
+    /// Where the lattice's arrays (classes, quantized grid) go ([`lattice_storage`]).
+    pub lattice: TempStorage,
 }
 
 impl Mosaic {
@@ -483,7 +440,7 @@ impl Mosaic {
     /// inputs of one spacing agree where they overlap (shared edge rows).
     pub fn survey(&self) -> Result<Survey> {
         let w = self.width;
-        let mut class = vec![HOLE; w * self.height];
+        let mut class = LatticeArray::filled(w * self.height, HOLE, &self.lattice)?;
         let seen_any: Vec<std::sync::atomic::AtomicBool> = (0..self.inputs.len())
             .map(|_| std::sync::atomic::AtomicBool::new(false))
             .collect();
@@ -528,6 +485,8 @@ impl Mosaic {
                         (a.0, a.1.min(b.1), a.2.max(b.2))
                     },
                 );
+            // A mapped lattice drops the rows written from the resident set.
+            class.release(ya * w..yb * w);
             merge_shared(&mut shared, part.0);
             lo = lo.min(part.1);
             hi = hi.max(part.2);
@@ -908,17 +867,10 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
         height = height.max(p.last_row() + 1);
         inputs.push(p);
     }
-    // The lattice's own arrays stay in memory; the inputs are read a band of rows at a time.
-    let need = bytes_in_memory(width, height);
-    if need > memory_limit {
-        bail!(
-            "the combined lattice is {width}×{height} points at the finest spacing, which \
-             needs about {} MiB in memory ({BYTES_PER_POINT} bytes a point): above \
-             --memory-limit ({} MiB)",
-            need >> 20,
-            memory_limit >> 20
-        );
-    }
+    // The lattice's own arrays stay in memory when they fit half the limit, else they are
+    // mapped; the inputs are read a band of rows at a time.
+    let lattice = lattice_storage(width, height, memory_limit);
+    let need = bytes_in_memory(width, height, &lattice);
     let mut buckets = vec![Vec::new(); height.div_ceil(BUCKET_ROWS)];
     for (k, p) in inputs.iter().enumerate() {
         for bucket in &mut buckets[p.y0 / BUCKET_ROWS..=p.last_row() / BUCKET_ROWS] {
@@ -947,8 +899,9 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
         sample_type,
         inputs,
         buckets,
-        cache: BandCache::new((memory_limit - need) / 2),
+        cache: BandCache::new(memory_limit.saturating_sub(need) / 2),
         block_points: BLOCK_POINTS,
+        lattice,
     })
 }
 
@@ -984,34 +937,7 @@ mod tests {
             }
         }
         assert_eq!(Samples::compact(vec![1.0; 10]).bytes(), 20);
-        assert_eq!(Samples::compact(vec![1.0; 10]).bytes_in_memory(), 20);
         assert_eq!(Samples::compact(vec![0.1; 10]).bytes(), 80);
-    }
-
-    /// Spilled samples read back exactly what was in memory, and count as not in memory.
-    #[test]
-    fn spilled_samples_are_the_same_samples() {
-        for values in [
-            vec![],
-            vec![1.0, -3.0, 32767.0, -32768.0],
-            vec![0.5, f64::NAN, 1e30, -2.25],
-            vec![0.1, 1e-300, -7.0, 123456.789],
-        ] {
-            let memory = Samples::compact(values.clone());
-            let spilled = Samples::compact(values.clone()).spill().unwrap();
-            assert!(spilled.is_spilled() && !memory.is_spilled());
-            assert_eq!(spilled.bytes_in_memory(), 0);
-            assert_eq!(spilled.bytes(), memory.bytes());
-            for i in 0..values.len() {
-                assert_eq!(
-                    spilled.get(i).to_bits(),
-                    memory.get(i).to_bits(),
-                    "{values:?}"
-                );
-            }
-            // Spilling twice is a no-op.
-            assert!(spilled.spill().unwrap().is_spilled());
-        }
     }
 
     /// The lattice the former in-memory mosaic built, point by point from the whole inputs:
@@ -1146,7 +1072,7 @@ mod tests {
             m.cache = BandCache::new(budget);
             let survey = m.survey().unwrap();
             assert!(
-                survey.resolution.class == class,
+                survey.resolution.class[..] == class[..],
                 "classes, blocks of {points}"
             );
             let valid: Vec<f64> = values.iter().copied().filter(|v| !v.is_nan()).collect();

@@ -46,6 +46,9 @@ pub struct InputSpec<'a> {
     pub quantum: Option<f64>,
     /// Tolerance, metres.
     pub max_error: f64,
+    /// The build's memory limit, bytes: a streamed input's lattice larger than half of it goes
+    /// to mapped temporary files ([`TempStorage::for_lattice`]).
+    pub memory_limit: u64,
 }
 
 /// Whether `path` names a raw float32 file (`.raw`, `.f32`, `.bin`), which carries no size.
@@ -74,8 +77,14 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
     let streamed = |src: &dyn SampleSource, georef: Option<GeoRef>| -> Result<Prepared> {
         let reading = || format!("reading {}", path.display());
         let t = Instant::now();
+        let points = (src.width() as u64).saturating_mul(src.height() as u64);
+        let lattice = TempStorage::for_lattice(
+            points.saturating_mul(HeightGrid::BYTES_PER_POINT),
+            spec.memory_limit,
+        );
         let (plan, grid) =
-            QuantPlan::quantize_source(src, spec.max_error, spec.quantum).with_context(reading)?;
+            QuantPlan::quantize_source_in(src, spec.max_error, spec.quantum, &lattice)
+                .with_context(reading)?;
         let stages = vec![("read, plan and quantize", t.elapsed())];
         if let Some((lo, hi)) = grid.range() {
             unit_check(spec.max_error, plan.metres(lo), plan.metres(hi))?;
@@ -142,6 +151,8 @@ pub struct Temporaries {
     /// `Some`: the fine levels are encoded block by block, each in a field of its own
     /// ([`BlockPlan`]); the output is the same.
     pub blocks: Option<BlockPlan>,
+    /// Whether the quantized lattice (and a mosaic's classes) is in mapped temporary files.
+    pub lattice_mapped: bool,
 }
 
 impl Temporaries {
@@ -151,9 +162,14 @@ impl Temporaries {
             TempStorage::Memory => "memory",
             TempStorage::File(_) => "mapped file",
         };
-        match &self.blocks {
+        let field = match &self.blocks {
             None => storage.to_string(),
             Some(b) => format!("{storage}, blocks of {}", b.block_side),
+        };
+        if self.lattice_mapped {
+            format!("{field}; lattice in mapped files")
+        } else {
+            field
         }
     }
 }
@@ -163,20 +179,23 @@ impl Temporaries {
 pub const JOURNAL_FROM_SAMPLES: usize = 1 << 24;
 
 /// Where the encoder's temporaries go under `limit` bytes: in memory with one reconstruction
-/// field over the domain when the grid (5 bytes per sample) and that field (4 bytes per lattice
-/// point of the domain) fit and the input is smaller than [`JOURNAL_FROM_SAMPLES`]; in memory
+/// field over the domain when the grid (5 bytes per sample in memory, or the resident windows
+/// of a mapped grid, [`HeightGrid::resident_bytes`]) and that field (4 bytes per lattice point
+/// of the domain) fit and the input is smaller than [`JOURNAL_FROM_SAMPLES`]; in memory
 /// block by block ([`BlockPlan::fitting`]; at least 4 × 4 blocks for large inputs) when the grid
 /// and the block fields fit; otherwise the whole field in a mapped temporary file.
 pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<Temporaries> {
     let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
     let (ex, ey) = domain.layout().face_extent();
     let field = 4 * (ex as u64 + 1) * (ey as u64 + 1);
-    let input = 5 * (grid.width as u64) * (grid.height as u64);
+    let input = grid.resident_bytes();
+    let lattice_mapped = grid.is_mapped();
     let large = grid.width * grid.height >= JOURNAL_FROM_SAMPLES && opts.alpha == Alpha::One;
     if input + field <= limit && !large {
         return Ok(Temporaries {
             storage: TempStorage::Memory,
             blocks: None,
+            lattice_mapped,
         });
     }
     let budget = limit.saturating_sub(input);
@@ -193,10 +212,12 @@ pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Resul
         Some(plan) => Temporaries {
             storage: TempStorage::Memory,
             blocks: Some(plan),
+            lattice_mapped,
         },
         None => Temporaries {
             storage: TempStorage::File(None),
             blocks: None,
+            lattice_mapped,
         },
     })
 }
@@ -237,7 +258,7 @@ pub fn prepare_mosaic(
     let (lo, hi) = survey.range;
     unit_check(max_error, lo, hi)?;
     // The lattice's rows are composed from the inputs as the quantizer reads them.
-    let (plan, grid) = QuantPlan::quantize_source(&m, max_error, quantum)?;
+    let (plan, grid) = QuantPlan::quantize_source_in(&m, max_error, quantum, &m.lattice)?;
     // The header holds one nodata value (for extract and verify): the override, else the value
     // the inputs agree on.
     let values: Vec<f64> = m.inputs.iter().filter_map(|p| p.nodata).collect();

@@ -614,12 +614,14 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
         faces.push(HeightGrid {
             width: points,
             height: points,
-            values,
-            valid,
+            values: values.into(),
+            valid: valid.into(),
         });
         winners.push(won);
         if variable {
-            classes.push(Resolution { class });
+            classes.push(Resolution {
+                class: class.into(),
+            });
         }
     }
     let mut planet = PlanetGrid::new(n, k, faces)?;

@@ -27,31 +27,17 @@ pub struct ProgressEvent {
     pub total: usize,
 }
 
-/// Inputs of a multi-input build moved to memory-mapped temporary files to stay under the
-/// memory limit.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Spilled {
-    /// Inputs spilled.
-    pub inputs: usize,
-    /// Inputs in all.
-    pub of: usize,
-    /// Bytes of the spilled inputs.
-    pub bytes: u64,
-}
-
 /// Receives a build's progress. Encoder workers report concurrently, hence `Sync` and `&self`;
 /// events of [`Stage::Encode`] may arrive from several threads, out of order by a few units.
 pub trait Progress: Sync {
     /// One step of a stage.
     fn event(&self, event: ProgressEvent);
-    /// Inputs were spilled to temporary files (multi-input builds; before encoding).
-    fn spilled(&self, _spilled: Spilled) {}
     /// Whether the build continues an earlier run's journal ([`crate::journal`]), starts over,
     /// or starts fresh; reported once, before the encode, by builds that keep a journal.
     fn resumed(&self, _resumed: &crate::journal::Resumed) {}
 }
 
-/// Any `Fn(ProgressEvent) + Sync` closure is a [`Progress`] (spills ignored).
+/// Any `Fn(ProgressEvent) + Sync` closure is a [`Progress`] (resumption not reported).
 impl<F: Fn(ProgressEvent) + Sync> Progress for F {
     fn event(&self, event: ProgressEvent) {
         self(event)

@@ -550,7 +550,9 @@ fn read_prepared(work: &Path, plan: &ShardPlan) -> Result<(HeightGrid, Option<Re
     let valid: Vec<bool> = bytes.iter().map(|&b| b != 0).collect();
     let classes = if plan.variable {
         read_checked(&mut r, &mut crc, &mut bytes).map_err(io)?;
-        Some(Resolution { class: bytes })
+        Some(Resolution {
+            class: bytes.into(),
+        })
     } else {
         None
     };
@@ -563,8 +565,8 @@ fn read_prepared(work: &Path, plan: &ShardPlan) -> Result<(HeightGrid, Option<Re
         HeightGrid {
             width: w,
             height: h,
-            values,
-            valid,
+            values: values.into(),
+            valid: valid.into(),
         },
         classes,
     ))

@@ -315,7 +315,7 @@ pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparis
         );
     }
     let class = m.survey()?.resolution.class;
-    let grid = HeightGrid::from_source(&m, &plan)
+    let grid = HeightGrid::from_source_in(&m, &plan, &m.lattice)
         .context("mapping the inputs onto the repository's height lattice")?;
     let encoded = repo.to_encoded()?;
     let levels = verify(&encoded, &grid).context("decoding the hierarchy")?;

@@ -24,6 +24,7 @@ fn streamed_geotiff_builds_the_same_repository_as_the_whole_file() {
             nodata: None,
             quantum: None,
             max_error: 1.0,
+            memory_limit: u64::MAX,
         };
         let streamed = prepare(&spec).unwrap();
         let mut dem = read_dem(&path, &ReadOptions::default()).unwrap();

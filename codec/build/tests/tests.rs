@@ -4,6 +4,7 @@ mod util;
 
 mod cli;
 mod errors;
+mod lattice;
 mod progress;
 mod streamed;
 mod tiles;

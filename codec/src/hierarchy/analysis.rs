@@ -196,7 +196,7 @@ fn all_diamonds_of_level(layout: &Layout, level: u8) -> Vec<DiamondId> {
 /// only have to be plausible.
 fn fill_nodata(grid: &HeightGrid) -> Vec<i32> {
     let (w, h) = (grid.width, grid.height);
-    let mut out = grid.values.clone();
+    let mut out = grid.values.to_vec();
     if grid.valid.iter().all(|&v| v) {
         return out;
     }

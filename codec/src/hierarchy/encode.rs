@@ -284,7 +284,7 @@ impl<'a> Setup<'a> {
             root_quantizer: super::root_quantizer(quantizer),
             nodata_mask: match resolution {
                 Some(r) => r.has_holes(),
-                None => grid.valid.iter().any(|v| !v),
+                None => grid.has_invalid(),
             },
             kind: super::RepoKind::Elevation,
         };
@@ -938,6 +938,7 @@ pub(crate) fn stored_sets(domain: &Domain, grid: &HeightGrid) -> Vec<Vec<Diamond
             let mut hit = vec![false; nx];
             for y in (2 * b * r)..=((2 * b + 2) * r).min(h - 1) {
                 let row = &grid.valid[y * w..(y + 1) * w];
+                grid.valid.touched(w);
                 for (a, hit) in hit.iter_mut().enumerate() {
                     if !*hit {
                         let (x0, x1) = (2 * a * r, ((2 * a + 2) * r).min(w - 1));

@@ -20,7 +20,6 @@
 //! ([`TempStorage`]); either way its pages are zero until touched, so parts of the domain no
 //! stored diamond reaches cost nothing.
 
-use std::path::PathBuf;
 use std::ptr::NonNull;
 use std::sync::atomic::{AtomicI32, Ordering};
 
@@ -29,18 +28,7 @@ use memmap2::MmapMut;
 use super::refine::{half_range, mirror_missing_halves};
 use crate::CodecError;
 use crate::geometry::{DiamondId, Domain, Half};
-
-/// Where the encoder keeps its large temporaries (the reconstruction field).
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub enum TempStorage {
-    /// Anonymous memory.
-    #[default]
-    Memory,
-    /// A memory-mapped temporary file, created already unlinked in this directory (the system
-    /// temporary directory when `None`), so the kernel can write pages back to disk under memory
-    /// pressure instead of failing.
-    File(Option<PathBuf>),
-}
+pub use crate::temp::TempStorage;
 
 /// Integer heights over the lattice points `[0, width) × [0, height)`, shared by the workers of
 /// one level. Accesses are relaxed atomics: plain loads and stores on every platform that

@@ -51,7 +51,7 @@ impl<'a> ErrorInput<'a> {
         let max_abs = grid
             .range()
             .map_or(0, |(lo, hi)| i64::from(lo).abs().max(i64::from(hi).abs()));
-        let all_valid = !grid.valid.contains(&false);
+        let all_valid = !grid.has_invalid();
         Self {
             grid,
             max_abs,
@@ -69,7 +69,9 @@ impl<'a> ErrorInput<'a> {
 pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &ErrorInput) -> u32 {
     let g = layout.grid(id);
     if id.is_even() && g.u.0 == 1 {
-        return finest_error_fast(layout.n(), g.origin, p, input);
+        let e = finest_error_fast(layout.n(), g.origin, p, input);
+        input.grid.touched_rows(layout.n(), layout.n());
+        return e;
     }
     let parallel = layout.radius(id.level) * 2 >= PARALLEL_ROWS_FROM;
     surface_error_scan(layout, id, p, input, parallel)
@@ -555,6 +557,8 @@ impl<'a> Scan<'a> {
                 let vals = &values[k..k + buf.len()];
                 let oks = valid.map(|v| &v[k..k + buf.len()]);
                 (hi_d, lo_d) = extremes(buf, vals, oks, shift, hi_d, lo_d);
+                // A mapped input drops its resident pages every window read.
+                self.input.touched_sparse_rows(1, buf.len());
             }
             if t == tb {
                 break;
@@ -625,6 +629,8 @@ impl<'a> Scan<'a> {
             let vals = &self.input.values[k..k + count];
             let oks = self.valid.map(|v| &v[k..k + count]);
             (hi, lo) = extremes(surface, vals, oks, self.shift, hi, lo);
+            // A mapped input drops its resident pages every window read.
+            self.input.touched_sparse_rows(1, count);
         }
         (hi, lo)
     }

@@ -21,6 +21,7 @@ use std::collections::BTreeSet;
 use crate::CodecError;
 use crate::geometry::{DiamondId, Domain};
 use crate::quant::HeightGrid;
+use crate::temp::LatticeArray;
 
 /// Class of a lattice point between a coarser input's samples (drawn, not constrained).
 pub const COARSE_ONLY: u8 = 0xFE;
@@ -32,7 +33,7 @@ pub const HOLE: u8 = 0xFF;
 pub struct Resolution {
     /// Row-major like the [`HeightGrid`]: `log2` of the winning input's stride at a sample,
     /// [`COARSE_ONLY`] or [`HOLE`] elsewhere.
-    pub class: Vec<u8>,
+    pub class: LatticeArray<u8>,
 }
 
 impl Resolution {
@@ -44,13 +45,21 @@ impl Resolution {
                 "resolution classes do not match the grid's size",
             ));
         }
-        for (&c, &v) in self.class.iter().zip(&grid.valid) {
-            let sample = c < 32;
-            if sample != v || (c >= 32 && c != COARSE_ONLY && c != HOLE) {
-                return Err(CodecError::invalid(
-                    "resolution classes disagree with the grid's valid samples",
-                ));
-            }
+        // By windows: a mapped lattice's resident set stays one window.
+        let mut agree = true;
+        self.class.for_each_window(|start, class| {
+            let valid = &grid.valid[start..start + class.len()];
+            agree = agree
+                && class.iter().zip(valid).all(|(&c, &v)| {
+                    let sample = c < 32;
+                    sample == v && (c < 32 || c == COARSE_ONLY || c == HOLE)
+                });
+            grid.valid.release(start..start + class.len());
+        });
+        if !agree {
+            return Err(CodecError::invalid(
+                "resolution classes disagree with the grid's valid samples",
+            ));
         }
         Ok(())
     }
@@ -63,7 +72,7 @@ impl Resolution {
 
     /// Whether some point has no data at all.
     pub fn has_holes(&self) -> bool {
-        self.class.contains(&HOLE)
+        self.class.any(|&c| c == HOLE)
     }
 }
 
@@ -80,9 +89,15 @@ pub(crate) fn variable_sets(domain: &Domain, width: usize, res: &Resolution) -> 
     let height = res.class.len() / width.max(1);
     let finest = layout.finest_level();
     let (ex, ey) = layout.face_extent();
-    let mut strides: Vec<u8> = res.class.iter().copied().filter(|&c| c < 32).collect();
-    strides.sort_unstable();
-    strides.dedup();
+    let mut present = [false; 32];
+    res.class.for_each_window(|_, class| {
+        for &c in class {
+            if c < 32 {
+                present[usize::from(c)] = true;
+            }
+        }
+    });
+    let strides = (0..32u8).filter(|&j| present[usize::from(j)]);
     let mut leaves: Vec<BTreeSet<DiamondId>> = vec![BTreeSet::new(); finest as usize + 1];
     for j in strides {
         // Strides above the root spacing are root points: their leaves are roots.
@@ -100,6 +115,7 @@ pub(crate) fn variable_sets(domain: &Domain, width: usize, res: &Resolution) -> 
                 let (y0, y1) = (2 * b * r, ((2 * b + 2) * r).min(height - 1));
                 let hit =
                     (y0..=y1).any(|y| res.class[y * width + x0..=y * width + x1].contains(&j));
+                res.class.touched_rows(y1 - y0 + 1, x1 - x0 + 1);
                 if hit {
                     let (cx, cy) = ((2 * a + 1) * r, (2 * b + 1) * r);
                     leaves[level as usize].insert(DiamondId::new(level, cx as u32, cy as u32));

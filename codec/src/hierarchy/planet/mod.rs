@@ -275,8 +275,8 @@ pub fn reconstruct_planet(encoded: &Encoded) -> Result<Vec<HeightGrid>, CodecErr
         .map(|_| HeightGrid {
             width: points,
             height: points,
-            values: vec![0; points * points],
-            valid: vec![false; points * points],
+            values: vec![0; points * points].into(),
+            valid: vec![false; points * points].into(),
         })
         .collect();
     let layout = domain.layout();

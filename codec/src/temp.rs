@@ -1,0 +1,370 @@
+//! The build's large temporaries: where they live ([`TempStorage`]) and the lattice arrays
+//! ([`LatticeArray`]) that hold one value per input lattice point (quantized heights, validity,
+//! resolution classes).
+//!
+//! In memory a lattice array is a plain `Vec`. Past the build's memory limit it is a
+//! memory-mapped file, created already unlinked: its pages are the kernel's page cache, written
+//! back to disk as needed, and a page the process has touched counts in its resident set until
+//! it is unmapped. So the passes over a mapped array drop the pages they are done with
+//! (`madvise(MADV_DONTNEED)`, which on a shared file mapping keeps the data in the file):
+//! sequential passes ([`LatticeArray::release`]) the rows behind them, the encoder's scans
+//! every [`MAPPED_WINDOW_BYTES`] they report having read ([`LatticeArray::touched`]). The
+//! resident part of a mapped array is then about one window, whatever the lattice's size.
+//!
+//! Chosen over `pread`/`pwrite` of windows because the encoder reads the lattice at random
+//! under every diamond of every level, through slices: a mapping keeps those reads zero-copy and
+//! the code the same for both storages.
+
+use std::fmt;
+use std::ops::{Deref, DerefMut, Range};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use memmap2::{MmapMut, UncheckedAdvice};
+
+use crate::CodecError;
+
+/// Where the build keeps a large temporary (the reconstruction field, the lattice).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum TempStorage {
+    /// Anonymous memory.
+    #[default]
+    Memory,
+    /// A memory-mapped temporary file, created already unlinked in this directory (the system
+    /// temporary directory when `None`), so the kernel can write pages back to disk under memory
+    /// pressure instead of failing.
+    File(Option<PathBuf>),
+}
+
+impl TempStorage {
+    /// Where a build keeps a lattice of `bytes` (all its arrays) under a memory limit of
+    /// `limit` bytes: in memory when it takes at most half of the limit, the other half being
+    /// for the encoder's reconstruction fields and a mosaic's cache of decoded tiles; otherwise
+    /// in mapped temporary files, of which about [`MAPPED_RESIDENT_BYTES`] an array stay
+    /// resident.
+    pub fn for_lattice(bytes: u64, limit: u64) -> Self {
+        if bytes <= limit / 2 {
+            TempStorage::Memory
+        } else {
+            TempStorage::File(None)
+        }
+    }
+}
+
+/// Bytes a mapped [`LatticeArray`] lets its readers touch before it drops its resident pages.
+pub const MAPPED_WINDOW_BYTES: u64 = 64 << 20;
+
+/// What a build counts resident of one mapped lattice array: a window, and as much again for
+/// the pages the other workers touch while one drops them.
+pub const MAPPED_RESIDENT_BYTES: u64 = 2 * MAPPED_WINDOW_BYTES;
+
+/// Element types a lattice array can hold in a zero-filled mapped file: every one has the
+/// all-zero bit pattern as a valid value (0, `false`), and the file is written only through
+/// typed slices.
+pub trait LatticeElement: Copy + Send + Sync + fmt::Debug + PartialEq + 'static {}
+impl LatticeElement for i32 {}
+impl LatticeElement for u8 {}
+impl LatticeElement for bool {}
+
+/// One value per lattice point, in memory or in a mapped unlinked file (module documentation).
+/// Reads and writes go through `Deref`/`DerefMut` to a slice either way.
+pub struct LatticeArray<T: LatticeElement> {
+    inner: Inner<T>,
+}
+
+enum Inner<T> {
+    Heap(Vec<T>),
+    Mapped {
+        map: MmapMut,
+        len: usize,
+        /// Bytes reported read since the resident pages were last dropped.
+        touched: AtomicU64,
+    },
+}
+
+impl<T: LatticeElement> LatticeArray<T> {
+    /// `len` copies of `value` in `storage`.
+    pub fn filled(len: usize, value: T, storage: &TempStorage) -> Result<Self, CodecError> {
+        let dir = match storage {
+            TempStorage::Memory => {
+                return Ok(Self {
+                    inner: Inner::Heap(vec![value; len]),
+                });
+            }
+            TempStorage::File(dir) => dir,
+        };
+        let bytes = len
+            .checked_mul(size_of::<T>())
+            .ok_or_else(|| CodecError::limit("lattice too large for the address space"))?;
+        let file = match dir {
+            Some(d) => tempfile::tempfile_in(d),
+            None => tempfile::tempfile(),
+        }
+        .map_err(|e| {
+            CodecError::Io(std::io::Error::new(
+                e.kind(),
+                format!("creating a temporary file for the lattice: {e}"),
+            ))
+        })?;
+        // Sparse: blocks are allocated only where pages are written.
+        file.set_len(bytes.max(1) as u64)?;
+        // SAFETY: the file is unlinked and private to this process, so nothing else can truncate
+        // or modify it while it is mapped.
+        let map = unsafe { MmapMut::map_mut(&file)? };
+        let mut array = Self {
+            inner: Inner::Mapped {
+                map,
+                len,
+                touched: AtomicU64::new(0),
+            },
+        };
+        // SAFETY: `T`'s all-zero bit pattern is a valid value (see `LatticeElement`).
+        let zero: T = unsafe { std::mem::zeroed() };
+        if value != zero {
+            let window = (MAPPED_WINDOW_BYTES as usize / size_of::<T>()).max(1);
+            let mut start = 0;
+            while start < len {
+                let end = (start + window).min(len);
+                array[start..end].fill(value);
+                array.release(start..end);
+                start = end;
+            }
+        }
+        Ok(array)
+    }
+
+    /// Whether the values live in a mapped file.
+    pub fn is_mapped(&self) -> bool {
+        matches!(self.inner, Inner::Mapped { .. })
+    }
+
+    /// Bytes the array keeps resident: all of them in memory, at most
+    /// [`MAPPED_RESIDENT_BYTES`] mapped.
+    pub fn resident_bytes(&self) -> u64 {
+        let bytes = (self.len() * size_of::<T>()) as u64;
+        match self.inner {
+            Inner::Heap(_) => bytes,
+            Inner::Mapped { .. } => bytes.min(MAPPED_RESIDENT_BYTES),
+        }
+    }
+
+    /// Drops the resident pages of elements `range` of a mapped array (their values stay in the
+    /// file); nothing in memory. Safe while other threads read or write them: they fault the
+    /// pages back in from the page cache.
+    pub fn release(&self, range: Range<usize>) {
+        if let Inner::Mapped { map, len, .. } = &self.inner {
+            let (start, end) = (range.start.min(*len), range.end.min(*len));
+            if start < end {
+                let size = size_of::<T>();
+                // SAFETY: MADV_DONTNEED on a shared file mapping only unmaps pages: their
+                // contents stay in the page cache and the file, and later accesses read them
+                // back, so no value the program can observe changes.
+                let _ = unsafe {
+                    map.unchecked_advise_range(
+                        UncheckedAdvice::DontNeed,
+                        start * size,
+                        (end - start) * size,
+                    )
+                };
+            }
+        }
+    }
+
+    /// Notes that a pass read about `elements` consecutive values; a mapped array drops all its
+    /// resident pages every [`MAPPED_WINDOW_BYTES`] of pages read. Nothing in memory.
+    #[inline]
+    pub fn touched(&self, elements: usize) {
+        self.touched_rows(1, elements);
+    }
+
+    /// Notes that a pass read `rows` runs of about `row_len` consecutive values each (rows of
+    /// the lattice): counted in whole pages, since a run of a few values maps a page of 4 KiB,
+    /// or two where it straddles one. Nothing in memory.
+    #[inline]
+    pub fn touched_rows(&self, rows: usize, row_len: usize) {
+        self.touched_in(rows, row_len, 4096);
+    }
+
+    /// [`LatticeArray::touched_rows`] for runs far apart (rows of a coarse diamond, diagonals):
+    /// a read fault on a file mapping maps up to 64 KiB around the page (the kernel's fault
+    /// around), so each run counts in granules of that.
+    #[inline]
+    pub fn touched_sparse_rows(&self, rows: usize, row_len: usize) {
+        self.touched_in(rows, row_len, 64 << 10);
+    }
+
+    #[inline]
+    fn touched_in(&self, rows: usize, row_len: usize, granule: usize) {
+        if let Inner::Mapped { touched, len, .. } = &self.inner {
+            let granules = (row_len * size_of::<T>()).div_ceil(granule) + 1;
+            let bytes = (rows * granules * granule) as u64;
+            let before = touched.fetch_add(bytes, Ordering::Relaxed);
+            if before < MAPPED_WINDOW_BYTES && before + bytes >= MAPPED_WINDOW_BYTES {
+                touched.store(0, Ordering::Relaxed);
+                self.release(0..*len);
+            }
+        }
+    }
+
+    /// Calls `f` with consecutive windows of the values (their start and the slice), dropping
+    /// each window's pages of a mapped array once `f` is done with it: a whole-array scan
+    /// whose resident set stays one window.
+    pub fn for_each_window(&self, mut f: impl FnMut(usize, &[T])) {
+        let window = (MAPPED_WINDOW_BYTES as usize / size_of::<T>()).max(1);
+        let mut start = 0;
+        while start < self.len() {
+            let end = (start + window).min(self.len());
+            f(start, &self[start..end]);
+            self.release(start..end);
+            start = end;
+        }
+    }
+
+    /// Whether some value satisfies `pred`, scanned by windows ([`LatticeArray::for_each_window`]).
+    pub fn any(&self, pred: impl Fn(&T) -> bool) -> bool {
+        let mut found = false;
+        self.for_each_window(|_, w| found = found || w.iter().any(&pred));
+        found
+    }
+}
+
+impl<T: LatticeElement> Deref for LatticeArray<T> {
+    type Target = [T];
+
+    fn deref(&self) -> &[T] {
+        match &self.inner {
+            Inner::Heap(v) => v,
+            // SAFETY: the mapping holds `len` elements (see `filled`), page-aligned so aligned
+            // for `T`, every one a valid `T` (zero or written through this slice type), and it
+            // lives as long as `self`.
+            Inner::Mapped { map, len, .. } => unsafe {
+                std::slice::from_raw_parts(map.as_ptr().cast::<T>(), *len)
+            },
+        }
+    }
+}
+
+impl<T: LatticeElement> DerefMut for LatticeArray<T> {
+    fn deref_mut(&mut self) -> &mut [T] {
+        match &mut self.inner {
+            Inner::Heap(v) => v,
+            // SAFETY: as in `deref`, and `&mut self` makes this the only access.
+            Inner::Mapped { map, len, .. } => unsafe {
+                std::slice::from_raw_parts_mut(map.as_mut_ptr().cast::<T>(), *len)
+            },
+        }
+    }
+}
+
+impl<T: LatticeElement> From<Vec<T>> for LatticeArray<T> {
+    fn from(v: Vec<T>) -> Self {
+        Self {
+            inner: Inner::Heap(v),
+        }
+    }
+}
+
+impl<T: LatticeElement> FromIterator<T> for LatticeArray<T> {
+    fn from_iter<I: IntoIterator<Item = T>>(iter: I) -> Self {
+        iter.into_iter().collect::<Vec<T>>().into()
+    }
+}
+
+impl<'a, T: LatticeElement> IntoIterator for &'a LatticeArray<T> {
+    type Item = &'a T;
+    type IntoIter = std::slice::Iter<'a, T>;
+
+    fn into_iter(self) -> Self::IntoIter {
+        self.iter()
+    }
+}
+
+/// A copy in memory, whichever storage the original is in.
+impl<T: LatticeElement> Clone for LatticeArray<T> {
+    fn clone(&self) -> Self {
+        self.to_vec().into()
+    }
+}
+
+impl<T: LatticeElement> PartialEq for LatticeArray<T> {
+    fn eq(&self, other: &Self) -> bool {
+        self[..] == other[..]
+    }
+}
+
+impl<T: LatticeElement + Eq> Eq for LatticeArray<T> {}
+
+impl<T: LatticeElement> fmt::Debug for LatticeArray<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match &self.inner {
+            Inner::Heap(v) => v.fmt(f),
+            Inner::Mapped { len, .. } => write!(f, "LatticeArray(mapped, {len} values)"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn both_storages_hold_the_same_values_through_releases() {
+        let len = MAPPED_WINDOW_BYTES as usize / 4 + 12345;
+        for storage in [TempStorage::Memory, TempStorage::File(None)] {
+            let mut a = LatticeArray::filled(len, -7i32, &storage).unwrap();
+            assert_eq!(a.is_mapped(), storage != TempStorage::Memory);
+            assert!(a.iter().all(|&v| v == -7));
+            a[len - 1] = 99;
+            a[17] = 5;
+            a.release(0..len);
+            a.touched(len);
+            assert_eq!((a[17], a[len - 1], a[18]), (5, 99, -7));
+            let mut sum = 0i64;
+            a.for_each_window(|_, w| sum += w.iter().map(|&v| i64::from(v)).sum::<i64>());
+            assert_eq!(sum, -7 * (len as i64 - 2) + 5 + 99);
+            assert!(a.any(|&v| v == 99) && !a.any(|&v| v == 100));
+            let b = LatticeArray::filled(5, false, &storage).unwrap();
+            assert_eq!(&b[..], &[false; 5]);
+            assert_eq!(a.clone(), a);
+        }
+    }
+
+    /// Resident file-backed pages of this process, KiB (`RssFile` in `/proc/self/status`).
+    fn rss_file_kib() -> Option<u64> {
+        let status = std::fs::read_to_string("/proc/self/status").ok()?;
+        let line = status.lines().find(|l| l.starts_with("RssFile:"))?;
+        line.split_whitespace().nth(1)?.parse().ok()
+    }
+
+    /// A pass over a mapped array four windows long, reporting what it reads, keeps about a
+    /// window resident; without the reports the whole array would be.
+    #[test]
+    fn passes_over_a_mapped_array_keep_about_a_window_resident() {
+        let Some(before) = rss_file_kib() else {
+            return; // no /proc: nothing to measure
+        };
+        let window = MAPPED_WINDOW_BYTES as usize;
+        let len = 4 * window;
+        let a = LatticeArray::filled(len, 1u8, &TempStorage::File(None)).unwrap();
+        let mut peak = 0;
+        let mut sum = 0u64;
+        for chunk in (0..len).step_by(1 << 20) {
+            sum += a[chunk..chunk + (1 << 20)]
+                .iter()
+                .map(|&v| u64::from(v))
+                .sum::<u64>();
+            a.touched(1 << 20);
+            peak = peak.max(rss_file_kib().unwrap().saturating_sub(before));
+        }
+        assert_eq!(sum, len as u64);
+        // Other tests' mappings come and go meanwhile: a margin of a window.
+        assert!(peak < 2 * window as u64 / 1024, "{peak} KiB resident");
+    }
+
+    #[test]
+    fn an_unusable_temporary_directory_is_an_error_not_a_panic() {
+        let missing = std::env::temp_dir().join("cbdam-no-such-dir/sub");
+        let err = LatticeArray::filled(4, 0u8, &TempStorage::File(Some(missing))).unwrap_err();
+        assert!(err.to_string().contains("lattice"), "{err}");
+    }
+}
