@@ -205,7 +205,7 @@ pub fn holed() -> &'static (Arc<Repository>, Vec<bool>) {
             .collect();
         let plan = QuantPlan::new(0.5, None, 80.0, 160.0).unwrap();
         let mut grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
-        grid.valid.clone_from(&valid);
+        grid.valid.copy_from_slice(&valid);
         let opts = EncodeOptions {
             n: 17,
             ..EncodeOptions::default()
