@@ -20,7 +20,9 @@ use std::ops::{Deref, DerefMut, Range};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use memmap2::{MmapMut, UncheckedAdvice};
+use memmap2::MmapMut;
+#[cfg(unix)]
+use memmap2::UncheckedAdvice;
 
 use crate::CodecError;
 
@@ -152,6 +154,8 @@ impl<T: LatticeElement> LatticeArray<T> {
     /// file); nothing in memory. Safe while other threads read or write them: they fault the
     /// pages back in from the page cache.
     pub fn release(&self, range: Range<usize>) {
+        // Only Unix has `madvise`; elsewhere the pages stay until the kernel needs them.
+        #[cfg(unix)]
         if let Inner::Mapped { map, len, .. } = &self.inner {
             let (start, end) = (range.start.min(*len), range.end.min(*len));
             if start < end {
@@ -168,6 +172,8 @@ impl<T: LatticeElement> LatticeArray<T> {
                 };
             }
         }
+        #[cfg(not(unix))]
+        let _ = range;
     }
 
     /// Notes that a pass read about `elements` consecutive values; a mapped array drops all its
