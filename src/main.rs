@@ -635,9 +635,31 @@ pub struct BenchNetworkArgs {
     /// Seed of the links' reset and jitter draws.
     #[arg(long)]
     seed: Option<u64>,
+    /// When the client prefetches: off, always (alongside what the view needs, at a lower
+    /// priority), when-idle (only in frames whose cut wants no record).
+    #[arg(long, value_enum, default_value = "when-idle")]
+    prefetch: PrefetchArg,
     /// Output directory (created): network.md, network.json, csv/, plots/.
     #[arg(long, default_value = "bench-network")]
     out: PathBuf,
+}
+
+/// [`cbdam_client::refine::Prefetch`] on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum PrefetchArg {
+    Off,
+    Always,
+    WhenIdle,
+}
+
+impl From<PrefetchArg> for cbdam_client::refine::Prefetch {
+    fn from(p: PrefetchArg) -> Self {
+        match p {
+            PrefetchArg::Off => Self::Off,
+            PrefetchArg::Always => Self::Always,
+            PrefetchArg::WhenIdle => Self::WhenIdle,
+        }
+    }
 }
 
 /// Entropy coder of `cbdam build`.

@@ -33,6 +33,10 @@ pub struct RemoteSource {
     /// fetch the same records over and over.
     spare: HashMap<DiamondId, Arc<[u8]>>,
     stats: AccessStats,
+    /// Every record received, with the number of the [`DataSource::pump`] call that collected
+    /// it (from 1; a refiner pumps once per frame).
+    received: Vec<(DiamondId, u64)>,
+    pumps: u64,
 }
 
 /// Most spare records kept.
@@ -63,7 +67,15 @@ impl RemoteSource {
             arrived: HashMap::new(),
             spare: HashMap::new(),
             stats: AccessStats::default(),
+            received: Vec::new(),
+            pumps: 0,
         }
+    }
+
+    /// Every record received so far (wanted or not when it came), with the number of the
+    /// [`DataSource::pump`] call that collected it, from 1: with a refiner, the frame.
+    pub fn received(&self) -> &[(DiamondId, u64)] {
+        &self.received
     }
 
     /// The fetcher's own counters: HTTP requests sent (the head's included), cancelled and
@@ -146,7 +158,11 @@ impl DataSource for RemoteSource {
                 .want(self.wanted.iter().map(|(&id, &p)| (id, p)));
             self.wanted_changed = false;
         }
+        self.pumps += 1;
         for (id, result) in self.fetcher.poll() {
+            if result.is_ok() {
+                self.received.push((id, self.pumps));
+            }
             if self.wanted.remove(&id).is_none() {
                 if let Ok(bytes) = result
                     && self.spare.len() < SPARE_RECORDS

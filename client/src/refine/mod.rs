@@ -95,6 +95,8 @@ pub struct RefineConfig {
     pub budget: Option<Duration>,
     /// Garbage-collect (coarsen) every this many frames.
     pub gc_interval: u32,
+    /// When to prefetch (see [`Prefetch`]).
+    pub prefetch: Prefetch,
     /// Prefetch what a frustum enlarged by this fraction of the eye–target distance sees.
     pub prefetch_margin: f64,
     /// Prefetch where the eye will be this many frames ahead at its current velocity.
@@ -127,6 +129,7 @@ impl Default for RefineConfig {
             pixel_error: 1.0,
             budget: Some(Duration::from_millis(2)),
             gc_interval: 8,
+            prefetch: Prefetch::WhenIdle,
             prefetch_margin: 0.25,
             lookahead_frames: 15.0,
             decoded_cache_bytes: 256 << 20,
@@ -137,6 +140,33 @@ impl Default for RefineConfig {
             detail: None,
             exaggeration: 1.0,
             decode_ahead: true,
+        }
+    }
+}
+
+/// When the refiner asks a remote source for records the current view does not need yet (the
+/// children of diamonds it will refine next, what the camera is about to see).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Prefetch {
+    /// Never.
+    Off,
+    /// Every frame, at a lower priority than what the view needs (both share the link: the
+    /// fetcher sends the most urgent first but keeps the link full with prefetches).
+    Always,
+    /// Only in frames where the view's cut wants no record that it lacks (none queued, none in
+    /// flight): prefetches use the link only while it would idle, and the first frame that
+    /// wants a record again withdraws them, which cancels their requests in flight.
+    #[default]
+    WhenIdle,
+}
+
+impl Prefetch {
+    /// Whether a frame whose cut still lacks `cut_wants` records prefetches.
+    pub fn allows(self, cut_wants: usize) -> bool {
+        match self {
+            Prefetch::Off => false,
+            Prefetch::Always => true,
+            Prefetch::WhenIdle => cut_wants == 0,
         }
     }
 }
@@ -184,6 +214,10 @@ pub struct FrameStats {
     pub memory_limited: bool,
     /// Bytes of the cut's decoded diamonds after the frame.
     pub cut_bytes: usize,
+    /// Records the view's cut lacks, wanted this frame (queued or in flight).
+    pub cut_wants: usize,
+    /// Records wanted this frame only as prefetches (see [`RefineConfig::prefetch`]).
+    pub prefetch_wants: usize,
     /// The data source's counters after the frame.
     pub access: AccessStats,
     /// Records rejected so far (failed fetches and failed decodes).
@@ -831,10 +865,24 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .iter()
             .map(|&(_, info)| info.and_then(|i| view.error(&i)))
             .collect();
-        if may_want {
-            self.prefetch(camera, &candidates, &errors, &mut wanted);
+        stats.cut_wants = wanted.len();
+        let mut ahead: IdMap<f64> = IdMap::default();
+        if may_want && self.config.prefetch.allows(wanted.len()) {
+            self.prefetch(camera, &candidates, &errors, &mut ahead);
         }
         self.last_camera = Some(*camera);
+        for (&id, &prio) in &ahead {
+            if !wanted.contains_key(&id) {
+                wanted.insert(id, prio);
+                stats.prefetch_wants += 1;
+                self.requests.last_class.insert(id, true);
+            }
+        }
+        for id in wanted.keys() {
+            if !ahead.contains_key(id) {
+                self.requests.last_class.insert(*id, false);
+            }
+        }
 
         self.post_requests(wanted);
         self.remember_overrun(deadline, &stats);
@@ -1134,6 +1182,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 }
             }
         }
+    }
+
+    /// The source ids of the records whose last request was a prefetch only (see
+    /// [`FrameStats::prefetch_wants`]): with the records fetched and those the cuts used, what
+    /// prefetching fetched that no cut used.
+    pub fn last_requested_as_prefetch(&self) -> impl Iterator<Item = DiamondId> + '_ {
+        self.requests
+            .last_class
+            .iter()
+            .filter(|&(_, &prefetch)| prefetch)
+            .filter_map(|(&id, _)| self.source_id(id))
     }
 
     /// Starts refining `id` (whose parents are refined) on a worker thread.
