@@ -639,6 +639,14 @@ pub struct BenchNetworkArgs {
     /// priority), when-idle (only in frames whose cut wants no record).
     #[arg(long, value_enum, default_value = "when-idle")]
     prefetch: PrefetchArg,
+    /// The order records are asked for in: screen-error (the worst first), error-per-byte (the
+    /// most screen error removed per byte first).
+    #[arg(long, value_enum, default_value = "screen-error")]
+    fetch_order: FetchOrderArg,
+    /// Ask only for the records of this many of the cut's most urgent candidates beyond what
+    /// each frame refined (0: all).
+    #[arg(long, default_value_t = 0)]
+    want_limit: usize,
     /// Output directory (created): network.md, network.json, csv/, plots/.
     #[arg(long, default_value = "bench-network")]
     out: PathBuf,
@@ -658,6 +666,22 @@ impl From<PrefetchArg> for cbdam_client::refine::Prefetch {
             PrefetchArg::Off => Self::Off,
             PrefetchArg::Always => Self::Always,
             PrefetchArg::WhenIdle => Self::WhenIdle,
+        }
+    }
+}
+
+/// [`cbdam_client::refine::FetchOrder`] on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum FetchOrderArg {
+    ScreenError,
+    ErrorPerByte,
+}
+
+impl From<FetchOrderArg> for cbdam_client::refine::FetchOrder {
+    fn from(o: FetchOrderArg) -> Self {
+        match o {
+            FetchOrderArg::ScreenError => Self::ScreenError,
+            FetchOrderArg::ErrorPerByte => Self::ScreenErrorPerByte,
         }
     }
 }

@@ -1,14 +1,14 @@
 //! One run of `cbdam bench network`: a flight replayed in real time against the local file, or
 //! against a server behind a `cbdam-link` proxy, and what it measured.
 
-use std::collections::{BTreeSet, HashSet};
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow};
 use axum::http::StatusCode;
-use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::{DataSource, LocalSource, Received as Arrival, RemoteSource};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
@@ -110,11 +110,24 @@ pub struct Wire {
 pub struct Received {
     /// Distinct records received.
     pub bytes: u64,
+    /// Records received again after they had come once (each repeat counted).
+    pub repeated: u64,
+    /// Records received after the run's last frame (the requests it left in flight).
+    pub after_last_frame: u64,
     /// Of those, records no cut used whose last request was a prefetch: what prefetching
     /// fetched that did not earn its bytes.
     pub prefetch_unused: u64,
     /// Records no cut used that the view's cut had wanted when last requested.
     pub other_unused: u64,
+    /// Of `prefetch_unused + other_unused`, the records that came after their request was
+    /// withdrawn (the view moved on while they were on their way).
+    pub unused_after_withdrawal: u64,
+    /// Records of the final cut.
+    pub final_bytes: u64,
+    /// Seconds after the stop that even a policy knowing the flight in advance needs: the
+    /// final cut's bytes beyond what the link could deliver during the whole flight, over its
+    /// rate.
+    pub any_policy_bound_s: f64,
     /// Records of the final cut not yet received when the camera stopped (received by the
     /// first frame after the stop counts as received, so this errs low).
     pub final_missing_at_stop: u64,
@@ -317,19 +330,32 @@ pub fn local(
 /// converge after the camera stops.
 fn received(
     entries: &[IndexEntry],
-    log: &[(DiamondId, u64)],
+    log: &[Arrival],
     prefetched: &HashSet<DiamondId>,
     m: &Measured,
     link: Link,
 ) -> Received {
-    let all: HashSet<DiamondId> = log.iter().map(|&(id, _)| id).collect();
+    let all: HashSet<DiamondId> = log.iter().map(|a| a.id).collect();
     // Frame numbers start at 1: the first settling frame is flight_frames + 1, and what it
     // collected may have arrived before the stop.
     let by_stop: HashSet<DiamondId> = log
         .iter()
-        .filter(|&&(_, frame)| frame <= m.flight_frames as u64 + 1)
-        .map(|&(id, _)| id)
+        .filter(|a| a.pump <= m.flight_frames as u64 + 1)
+        .map(|a| a.id)
         .collect();
+    // A record's last arrival decides (one can come twice: cancelled, then asked for again).
+    let mut last_wanted: HashMap<DiamondId, bool> = HashMap::new();
+    for a in log {
+        last_wanted.insert(a.id, a.wanted);
+    }
+    let after_withdrawal: HashSet<DiamondId> = last_wanted
+        .iter()
+        .filter(|&(id, &wanted)| !wanted && !m.used_ids.contains(id))
+        .map(|(&id, _)| id)
+        .collect();
+    let rate = link.down_bps as f64 / 8.0;
+    let final_bytes = record_bytes(entries, &m.final_sources);
+    let flight_s = m.frames[m.flight_frames.saturating_sub(1)].wall_s;
     let unused = |prefetch: bool| -> HashSet<DiamondId> {
         all.iter()
             .filter(|id| !m.used_ids.contains(id) && prefetched.contains(id) == prefetch)
@@ -338,12 +364,27 @@ fn received(
     };
     let missing: HashSet<DiamondId> = m.final_sources.difference(&by_stop).copied().collect();
     let final_missing_at_stop = record_bytes(entries, &missing);
+    let repeated: u64 = log
+        .iter()
+        .map(|a| record_bytes(entries, &HashSet::from([a.id])))
+        .sum::<u64>()
+        - record_bytes(entries, &all);
+    let late: HashSet<DiamondId> = log
+        .iter()
+        .filter(|a| a.pump > m.frames.len() as u64)
+        .map(|a| a.id)
+        .collect();
     Received {
         bytes: record_bytes(entries, &all),
+        repeated,
+        after_last_frame: record_bytes(entries, &late),
         prefetch_unused: record_bytes(entries, &unused(true)),
         other_unused: record_bytes(entries, &unused(false)),
+        unused_after_withdrawal: record_bytes(entries, &after_withdrawal),
         final_missing_at_stop,
-        lower_bound_s: final_missing_at_stop as f64 * 8.0 / link.down_bps as f64,
+        lower_bound_s: final_missing_at_stop as f64 / rate,
+        final_bytes,
+        any_policy_bound_s: (final_bytes as f64 - rate * flight_s).max(0.0) / rate,
     }
 }
 
@@ -422,6 +463,8 @@ pub fn remote(
         while refiner.source().fetch_stats().in_flight > 0 && Instant::now() < drain {
             std::thread::sleep(Duration::from_millis(10));
         }
+        // What the drain brought in, so that the log of received records holds it too.
+        refiner.source_mut().pump();
         let f = refiner.source().fetch_stats();
         for e in refiner.errors() {
             eprintln!("  warning: {e}");

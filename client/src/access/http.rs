@@ -34,9 +34,22 @@ pub struct RemoteSource {
     spare: HashMap<DiamondId, Arc<[u8]>>,
     stats: AccessStats,
     /// Every record received, with the number of the [`DataSource::pump`] call that collected
-    /// it (from 1; a refiner pumps once per frame).
-    received: Vec<(DiamondId, u64)>,
+    /// it (from 1; a refiner pumps once per frame) and whether it was still wanted then.
+    received: Vec<Received>,
     pumps: u64,
+}
+
+/// A record [`RemoteSource`] received.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Received {
+    /// The record.
+    pub id: DiamondId,
+    /// The number of the [`DataSource::pump`] call that collected it, from 1: with a refiner,
+    /// the frame.
+    pub pump: u64,
+    /// Whether it was still requested when it came (otherwise its request had been cancelled,
+    /// and it was kept as a spare).
+    pub wanted: bool,
 }
 
 /// Most spare records kept.
@@ -72,9 +85,8 @@ impl RemoteSource {
         }
     }
 
-    /// Every record received so far (wanted or not when it came), with the number of the
-    /// [`DataSource::pump`] call that collected it, from 1: with a refiner, the frame.
-    pub fn received(&self) -> &[(DiamondId, u64)] {
+    /// Every record received so far, in order.
+    pub fn received(&self) -> &[Received] {
         &self.received
     }
 
@@ -161,7 +173,11 @@ impl DataSource for RemoteSource {
         self.pumps += 1;
         for (id, result) in self.fetcher.poll() {
             if result.is_ok() {
-                self.received.push((id, self.pumps));
+                self.received.push(Received {
+                    id,
+                    pump: self.pumps,
+                    wanted: self.wanted.contains_key(&id),
+                });
             }
             if self.wanted.remove(&id).is_none() {
                 if let Ok(bytes) = result

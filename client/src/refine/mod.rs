@@ -97,6 +97,12 @@ pub struct RefineConfig {
     pub gc_interval: u32,
     /// When to prefetch (see [`Prefetch`]).
     pub prefetch: Prefetch,
+    /// The order in which missing records are asked for (see [`FetchOrder`]).
+    pub fetch_order: FetchOrder,
+    /// Ask only for the records of this many of the cut's candidates that the frame's budget
+    /// did not reach (the most urgent ones; `None`: all of them). A source faster than the
+    /// refinement otherwise delivers records that wait in RAM until the view has moved on.
+    pub want_limit: Option<usize>,
     /// Prefetch what a frustum enlarged by this fraction of the eye–target distance sees.
     pub prefetch_margin: f64,
     /// Prefetch where the eye will be this many frames ahead at its current velocity.
@@ -130,6 +136,8 @@ impl Default for RefineConfig {
             budget: Some(Duration::from_millis(2)),
             gc_interval: 8,
             prefetch: Prefetch::WhenIdle,
+            fetch_order: FetchOrder::ScreenError,
+            want_limit: None,
             prefetch_margin: 0.25,
             lookahead_frames: 15.0,
             decoded_cache_bytes: 256 << 20,
@@ -169,6 +177,19 @@ impl Prefetch {
             Prefetch::WhenIdle => cut_wants == 0,
         }
     }
+}
+
+/// The priority a remote source gets for the records a refinement lacks (all of them, parents
+/// and the diamond, get the same; the source fetches the highest first).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FetchOrder {
+    /// The diamond's screen error, pixels: the worst error first.
+    #[default]
+    ScreenError,
+    /// The screen error over the kilobytes of the records still missing: the most error
+    /// removed per byte of the link first, so that on a slow link the largest screen error
+    /// falls fastest.
+    ScreenErrorPerByte,
 }
 
 /// What one frame did.
@@ -798,6 +819,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         if plan.iter().all(|&d| self.have_or_available(d)) {
             return;
         }
+        let priority = match self.config.fetch_order {
+            FetchOrder::ScreenError => priority,
+            FetchOrder::ScreenErrorPerByte => {
+                priority * 1024.0 / self.missing_bytes(plan).max(1) as f64
+            }
+        };
         for &d in plan {
             if self.requests.broken.contains(&d) || self.info(d).is_none() {
                 return;
@@ -807,6 +834,24 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 *w = w.max(priority);
             }
         }
+    }
+
+    /// Bytes of the records of `plan` that are not at hand.
+    fn missing_bytes(&mut self, plan: &[DiamondId]) -> u64 {
+        let mut missing = Vec::with_capacity(plan.len());
+        for &d in plan {
+            if !self.have_or_available(d)
+                && let Some(sid) = self.source_id(d)
+            {
+                missing.push(sid);
+            }
+        }
+        let entries = self.source.entries();
+        missing
+            .iter()
+            .filter_map(|sid| entries.binary_search_by(|e| e.id.cmp(sid)).ok())
+            .map(|i| u64::from(entries[i].length))
+            .sum()
     }
 
     /// Runs one frame for `camera`: refine within the budget, request what is missing,
@@ -842,10 +887,18 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let may_want = !self.source.always_available();
         let leftovers = heap.into_vec();
         if may_want {
-            for c in &leftovers {
-                if !self.cut_state.cut.is_refined(c.id) {
-                    self.want_plan(c.id, c.err, &mut wanted);
-                }
+            let mut order: Vec<&Candidate> = leftovers
+                .iter()
+                .filter(|c| !self.cut_state.cut.is_refined(c.id))
+                .collect();
+            if let Some(limit) = self.config.want_limit
+                && order.len() > limit
+            {
+                order.select_nth_unstable_by(limit, |a, b| b.cmp(a));
+                order.truncate(limit);
+            }
+            for c in order {
+                self.want_plan(c.id, c.err, &mut wanted);
             }
         }
         if self.config.gc_interval > 0
