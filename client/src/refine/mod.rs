@@ -925,8 +925,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
         self.last_camera = Some(*camera);
         for (&id, &prio) in &ahead {
-            if !wanted.contains_key(&id) {
-                wanted.insert(id, prio);
+            if let std::collections::hash_map::Entry::Vacant(e) = wanted.entry(id) {
+                e.insert(prio);
                 stats.prefetch_wants += 1;
                 self.requests.last_class.insert(id, true);
             }
