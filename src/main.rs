@@ -643,10 +643,14 @@ pub struct BenchNetworkArgs {
     /// most screen error removed per byte first).
     #[arg(long, value_enum, default_value = "screen-error")]
     fetch_order: FetchOrderArg,
-    /// Ask only for the records of this many of the cut's most urgent candidates beyond what
-    /// each frame refined (0: all).
-    #[arg(long, default_value_t = 0)]
-    want_limit: usize,
+    /// Ask only for the records of the cut's most urgent candidates beyond what each frame
+    /// refined: as many as the loop refines in a second, and at least this many (0: all;
+    /// default: the viewer's, 128).
+    #[arg(long)]
+    want_limit: Option<usize>,
+    /// Most records a frame prefetches (0: no limit; default: the viewer's, 32).
+    #[arg(long)]
+    prefetch_limit: Option<usize>,
     /// Output directory (created): network.md, network.json, csv/, plots/.
     #[arg(long, default_value = "bench-network")]
     out: PathBuf,

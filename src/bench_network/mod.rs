@@ -185,13 +185,23 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     let file_len = repo.file_len();
     drop(repo);
 
+    let viewer = refine_config(args.pixel_error, args.budget_ms, 1.0)?;
+    // A limit given on the command line replaces the viewer's; 0 is none.
+    let limit = |arg: Option<usize>, default: Option<usize>| match arg {
+        Some(0) => None,
+        Some(n) => Some(n),
+        None => default,
+    };
+    let config = cbdam_client::refine::RefineConfig {
+        prefetch: args.prefetch.into(),
+        fetch_order: args.fetch_order.into(),
+        want_limit: limit(args.want_limit, viewer.want_limit),
+        prefetch_limit: limit(args.prefetch_limit, viewer.prefetch_limit),
+        ..viewer
+    };
+    let (want_limit, prefetch_limit) = (config.want_limit, config.prefetch_limit);
     let settings = RunSettings {
-        config: cbdam_client::refine::RefineConfig {
-            prefetch: args.prefetch.into(),
-            fetch_order: args.fetch_order.into(),
-            want_limit: (args.want_limit > 0).then_some(args.want_limit),
-            ..refine_config(args.pixel_error, args.budget_ms, 1.0)?
-        },
+        config,
         pacing: ReplayPacing {
             fps: args.fps,
             size: args.size,
@@ -212,7 +222,7 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     let load_start = load_average();
     eprintln!(
         "{}: {records} records, {:.2} MB; {} flights × (local + {} profiles × {} servers), \
-         {}×{}, {} px, budget {}, {} fps, up to {} s settling, prefetch {:?}, fetch order {:?}, want limit {}",
+         {}×{}, {} px, budget {}, {} fps, up to {} s settling, prefetch {:?}, fetch order {:?}, want limit {:?}, prefetch limit {:?}",
         repo_path.display(),
         file_len as f64 / 1e6,
         loaded.len(),
@@ -226,7 +236,8 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
         args.max_settle_s,
         args.prefetch,
         args.fetch_order,
-        args.want_limit
+        want_limit,
+        prefetch_limit
     );
     let mut runs: Vec<Measured> = Vec::new();
     for (name, flight) in &loaded {
@@ -333,7 +344,7 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     writeln!(
         md,
         "| replay | {}×{}, target {} px, budget {}, {} fps, paced in real time; up to {} s with \
-         the camera still; prefetch {:?}, fetch order {:?}, want limit {} (0: none) |",
+         the camera still; prefetch {:?}, fetch order {:?}, want limit {:?}, prefetch limit {:?} |",
         args.size.0,
         args.size.1,
         args.pixel_error,
@@ -342,7 +353,8 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
         args.max_settle_s,
         args.prefetch,
         args.fetch_order,
-        args.want_limit
+        want_limit,
+        prefetch_limit
     )?;
     for (profile, link) in &links {
         writeln!(md, "| link `{profile}` | {link} |")?;

@@ -83,6 +83,9 @@ const SPECULATIVE_STEPS: std::ops::RangeInclusive<usize> = 4..=128;
 /// 2 ms budget), so that a moving view does not have the workers decode far more than the cut
 /// can take before the view moves on (about 34 MB of nodes at N = 65).
 const AHEAD_LIMIT: usize = 256;
+/// With [`RefineConfig::want_limit`], the cut asks for the records of as many candidates as
+/// the loop refines in this long.
+pub const WANT_HORIZON_S: f64 = 1.0;
 /// Weight of the newest sample in the smoothed frame interval and decode time.
 const SMOOTHING: f64 = 0.1;
 
@@ -97,10 +100,14 @@ pub struct RefineConfig {
     pub gc_interval: u32,
     /// When to prefetch (see [`Prefetch`]).
     pub prefetch: Prefetch,
+    /// Most records a frame prefetches (the most urgent; `None`: no limit): what the last
+    /// frames leave in flight when the view stops needing them is at most this many records.
+    pub prefetch_limit: Option<usize>,
     /// The order in which missing records are asked for (see [`FetchOrder`]).
     pub fetch_order: FetchOrder,
-    /// Ask only for the records of this many of the cut's candidates that the frame's budget
-    /// did not reach (the most urgent ones; `None`: all of them). A source faster than the
+    /// Ask only for the records of the most urgent of the cut's candidates that the frame's
+    /// budget did not reach: as many as the loop refined in the last [`WANT_HORIZON_S`]
+    /// (smoothed), and at least this many (`None`: all of them). A source faster than the
     /// refinement otherwise delivers records that wait in RAM until the view has moved on.
     pub want_limit: Option<usize>,
     /// Prefetch what a frustum enlarged by this fraction of the eye–target distance sees.
@@ -136,8 +143,9 @@ impl Default for RefineConfig {
             budget: Some(Duration::from_millis(2)),
             gc_interval: 8,
             prefetch: Prefetch::WhenIdle,
+            prefetch_limit: Some(32),
             fetch_order: FetchOrder::ScreenError,
-            want_limit: None,
+            want_limit: Some(128),
             prefetch_margin: 0.25,
             lookahead_frames: 15.0,
             decoded_cache_bytes: 256 << 20,
@@ -375,6 +383,8 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     /// When the last frame started, and the smoothed interval between frames, seconds.
     last_frame_start: Option<Instant>,
     frame_interval_s: f64,
+    /// Smoothed refinements per second.
+    refinement_rate: f64,
     /// Smoothed worker time of one decode, seconds.
     decode_s: f64,
     done_tx: Sender<Done>,
@@ -483,6 +493,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             ahead: IdSet::default(),
             last_frame_start: None,
             frame_interval_s: 1.0 / 30.0,
+            refinement_rate: 0.0,
             decode_s: 1e-3,
             done_tx,
             done_rx,
@@ -881,6 +892,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             ..FrameStats::default()
         };
         self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
+        let rate = stats.refinements as f64 / self.frame_interval_s.max(1e-3);
+        self.refinement_rate += SMOOTHING * (rate - self.refinement_rate);
 
         // What the budget did not reach still gets requested, then prefetch (neither can want
         // anything from a source that always has everything at hand).
@@ -891,7 +904,11 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 .iter()
                 .filter(|c| !self.cut_state.cut.is_refined(c.id))
                 .collect();
-            if let Some(limit) = self.config.want_limit
+            let limit = self
+                .config
+                .want_limit
+                .map(|min| min.max((self.refinement_rate * WANT_HORIZON_S) as usize));
+            if let Some(limit) = limit
                 && order.len() > limit
             {
                 order.select_nth_unstable_by(limit, |a, b| b.cmp(a));
@@ -924,6 +941,16 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             self.prefetch(camera, &candidates, &errors, &mut ahead);
         }
         self.last_camera = Some(*camera);
+        if let Some(limit) = self.config.prefetch_limit
+            && ahead.len() > limit
+        {
+            // The most urgent first; between equals the coarser (parents before children).
+            let mut by_priority: Vec<(DiamondId, f64)> = ahead.into_iter().collect();
+            by_priority
+                .select_nth_unstable_by(limit, |a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+            by_priority.truncate(limit);
+            ahead = by_priority.into_iter().collect();
+        }
         for (&id, &prio) in &ahead {
             if let std::collections::hash_map::Entry::Vacant(e) = wanted.entry(id) {
                 e.insert(prio);
