@@ -1,7 +1,8 @@
 //! The prefetch policy over loopback HTTP against `cbdam serve`'s router with latency: with
 //! [`Prefetch::WhenIdle`] a frame whose cut still lacks records asks for nothing else (the
-//! source holds no prefetch request then), and prefetches do go out while the cut lacks nothing;
-//! [`Prefetch::Always`] prefetches alongside what the cut wants.
+//! source holds no prefetch request then), and prefetches do go out while the cut lacks nothing,
+//! at most [`RefineConfig::prefetch_limit`] records a frame; [`Prefetch::Always`] prefetches
+//! alongside what the cut wants.
 
 use std::time::{Duration, Instant};
 
@@ -106,7 +107,9 @@ fn prefetching_when_idle_waits_for_the_cut_to_lack_nothing() {
     let url = serve(&rt, &bytes, Duration::from_millis(60));
 
     let idle = fly(&url, Prefetch::WhenIdle, &world);
+    let limit = RefineConfig::default().prefetch_limit.unwrap();
     for s in &idle {
+        assert!(s.prefetch_wants <= limit, "frame {}: {s:?}", s.frame);
         if s.cut_wants > 0 {
             assert_eq!(s.prefetch_wants, 0, "frame {}: {s:?}", s.frame);
             // What the source is asked for is exactly what the cut lacks: any prefetch of an
