@@ -951,16 +951,14 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             by_priority.truncate(limit);
             ahead = by_priority.into_iter().collect();
         }
+        for id in wanted.keys() {
+            self.requests.last_class.insert(*id, false);
+        }
         for (&id, &prio) in &ahead {
             if let std::collections::hash_map::Entry::Vacant(e) = wanted.entry(id) {
                 e.insert(prio);
                 stats.prefetch_wants += 1;
                 self.requests.last_class.insert(id, true);
-            }
-        }
-        for id in wanted.keys() {
-            if !ahead.contains_key(id) {
-                self.requests.last_class.insert(*id, false);
             }
         }
 
