@@ -107,8 +107,9 @@ pub struct RefineConfig {
     pub fetch_order: FetchOrder,
     /// Ask only for the records of the most urgent of the cut's candidates that the frame's
     /// budget did not reach: as many as the loop refined in the last [`WANT_HORIZON_S`]
-    /// (smoothed), and at least this many (`None`: all of them). A source faster than the
-    /// refinement otherwise delivers records that wait in RAM until the view has moved on.
+    /// (smoothed), and at least this many (`None`: all of them), and for those already
+    /// requested. A source faster than the refinement otherwise delivers records that wait in
+    /// RAM until the view has moved on.
     pub want_limit: Option<usize>,
     /// Prefetch what a frustum enlarged by this fraction of the eye–target distance sees.
     pub prefetch_margin: f64,
@@ -911,8 +912,14 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             if let Some(limit) = limit
                 && order.len() > limit
             {
+                // Past the most urgent, only what is already on its way stays wanted: dropping
+                // it would cancel requests the link has carried part of.
                 order.select_nth_unstable_by(limit, |a, b| b.cmp(a));
-                order.truncate(limit);
+                let rest = order.split_off(limit);
+                order.extend(
+                    rest.into_iter()
+                        .filter(|c| self.requests.requested.contains_key(&c.id)),
+                );
             }
             for c in order {
                 self.want_plan(c.id, c.err, &mut wanted);
