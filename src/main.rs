@@ -635,9 +635,59 @@ pub struct BenchNetworkArgs {
     /// Seed of the links' reset and jitter draws.
     #[arg(long)]
     seed: Option<u64>,
+    /// When the client prefetches: off, always (alongside what the view needs, at a lower
+    /// priority), when-idle (only in frames whose cut wants no record).
+    #[arg(long, value_enum, default_value = "when-idle")]
+    prefetch: PrefetchArg,
+    /// The order records are asked for in: screen-error (the worst first), error-per-byte (the
+    /// most screen error removed per byte first).
+    #[arg(long, value_enum, default_value = "screen-error")]
+    fetch_order: FetchOrderArg,
+    /// Ask only for the records of the cut's most urgent candidates beyond what each frame
+    /// refined: as many as the loop refines in a second, and at least this many (0: all;
+    /// default: the viewer's, 128).
+    #[arg(long)]
+    want_limit: Option<usize>,
+    /// Most records a frame prefetches (0: no limit; default: the viewer's, 32).
+    #[arg(long)]
+    prefetch_limit: Option<usize>,
     /// Output directory (created): network.md, network.json, csv/, plots/.
     #[arg(long, default_value = "bench-network")]
     out: PathBuf,
+}
+
+/// [`cbdam_client::refine::Prefetch`] on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum PrefetchArg {
+    Off,
+    Always,
+    WhenIdle,
+}
+
+impl From<PrefetchArg> for cbdam_client::refine::Prefetch {
+    fn from(p: PrefetchArg) -> Self {
+        match p {
+            PrefetchArg::Off => Self::Off,
+            PrefetchArg::Always => Self::Always,
+            PrefetchArg::WhenIdle => Self::WhenIdle,
+        }
+    }
+}
+
+/// [`cbdam_client::refine::FetchOrder`] on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum FetchOrderArg {
+    ScreenError,
+    ErrorPerByte,
+}
+
+impl From<FetchOrderArg> for cbdam_client::refine::FetchOrder {
+    fn from(o: FetchOrderArg) -> Self {
+        match o {
+            FetchOrderArg::ScreenError => Self::ScreenError,
+            FetchOrderArg::ErrorPerByte => Self::ScreenErrorPerByte,
+        }
+    }
 }
 
 /// Entropy coder of `cbdam build`.

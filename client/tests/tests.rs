@@ -8,6 +8,8 @@ mod decode_jobs;
 mod http;
 /// The pipelined decoder: decoding ahead of the cut draws what the reference decoder draws.
 mod pipeline;
+/// The prefetch policy over loopback HTTP: when-idle prefetching waits for the cut.
+mod prefetch;
 /// Request priorities and cancellation against `cbdam serve` on loopback.
 mod priorities;
 /// The refinement loop's cut, convergence, failures and memory budget over local and flaky

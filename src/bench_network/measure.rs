@@ -1,14 +1,14 @@
 //! One run of `cbdam bench network`: a flight replayed in real time against the local file, or
 //! against a server behind a `cbdam-link` proxy, and what it measured.
 
-use std::collections::{BTreeSet, HashSet};
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow};
 use axum::http::StatusCode;
-use cbdam_client::access::{DataSource, LocalSource, RemoteSource};
+use cbdam_client::access::{DataSource, LocalSource, Received as Arrival, RemoteSource};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
@@ -104,6 +104,38 @@ pub struct Wire {
     pub resets: u64,
 }
 
+/// What a remote run received, against what its cuts used (record bytes, from the index; no
+/// framing, no partial records of cancelled requests).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Received {
+    /// Distinct records received.
+    pub bytes: u64,
+    /// Records received again after they had come once (each repeat counted).
+    pub repeated: u64,
+    /// Records received after the run's last frame (the requests it left in flight).
+    pub after_last_frame: u64,
+    /// Of those, records no cut used whose last request was a prefetch: what prefetching
+    /// fetched that did not earn its bytes.
+    pub prefetch_unused: u64,
+    /// Records no cut used that the view's cut had wanted when last requested.
+    pub other_unused: u64,
+    /// Of `prefetch_unused + other_unused`, the records that came after their request was
+    /// withdrawn (the view moved on while they were on their way).
+    pub unused_after_withdrawal: u64,
+    /// Records of the final cut.
+    pub final_bytes: u64,
+    /// Seconds after the stop that even a policy knowing the flight in advance needs: the
+    /// final cut's bytes beyond what the link could deliver during the whole flight, over its
+    /// rate.
+    pub any_policy_bound_s: f64,
+    /// Records of the final cut not yet received when the camera stopped (received by the
+    /// first frame after the stop counts as received, so this errs low).
+    pub final_missing_at_stop: u64,
+    /// `final_missing_at_stop` over the link's downstream rate, seconds: no fetch order
+    /// converges sooner after the camera stops (latency, framing and decoding only add to it).
+    pub lower_bound_s: f64,
+}
+
 /// The measurements of one run.
 #[derive(Clone, Debug)]
 pub struct Measured {
@@ -118,9 +150,15 @@ pub struct Measured {
     /// Bytes of the records of every diamond that was ever refined in a cut of this run.
     pub bytes_used: u64,
     pub records_used: usize,
+    /// The source ids of the records of every diamond ever refined.
+    pub used_ids: HashSet<DiamondId>,
     /// The refined diamonds of the last frame.
     pub final_cut: BTreeSet<DiamondId>,
+    /// Their source ids.
+    pub final_sources: HashSet<DiamondId>,
     pub wire: Option<Wire>,
+    /// Remote runs: what was received and what of it no cut used.
+    pub received: Option<Received>,
     /// The per-frame CSV (`cbdam replay`'s columns).
     pub csv: PathBuf,
 }
@@ -143,15 +181,22 @@ impl Measured {
     /// first frame from which on every frame met the target: 0 if the last flight frame met it
     /// already, `None` if the last frame did not.
     pub fn stop_to_target_s(&self) -> Option<f64> {
+        self.stop_to(|f| f.met_target)
+    }
+
+    /// [`Measured::stop_to_target_s`] for a looser target: the largest screen error at most
+    /// `px` pixels.
+    pub fn stop_to_px_s(&self, px: f64) -> Option<f64> {
+        self.stop_to(|f| f.error_px <= px)
+    }
+
+    fn stop_to(&self, met: impl Fn(&FramePoint) -> bool) -> Option<f64> {
         let stop = self.frames.get(self.flight_frames.checked_sub(1)?)?.wall_s;
         let tail = &self.frames[self.flight_frames - 1..];
-        if !tail.last()?.met_target {
+        if !met(tail.last()?) {
             return None;
         }
-        let first_met = tail
-            .iter()
-            .rposition(|f| !f.met_target)
-            .map_or(0, |i| i + 1);
+        let first_met = tail.iter().rposition(|f| !met(f)).map_or(0, |i| i + 1);
         Some(tail[first_met].wall_s - stop)
     }
 
@@ -231,7 +276,11 @@ fn fly_and_collect<S: DataSource>(
         f.cpu_ms = *cpu;
     }
     let entries = refiner.source().entries();
-    let final_cut = refiner.cut().refined().collect();
+    let final_cut: BTreeSet<DiamondId> = refiner.cut().refined().collect();
+    let final_sources = final_cut
+        .iter()
+        .filter_map(|&id| refiner.source_id(id))
+        .collect();
     Ok((
         Measured {
             route,
@@ -241,8 +290,11 @@ fn fly_and_collect<S: DataSource>(
             bytes_fetched: last.access.bytes_fetched,
             bytes_used: record_bytes(entries, &used),
             records_used: used.len(),
+            used_ids: used,
             final_cut,
+            final_sources,
             wire: None,
+            received: None,
             csv: csv.to_path_buf(),
         },
         last,
@@ -271,6 +323,69 @@ pub fn local(
     // The local source counts the records it read; nothing crosses a network.
     m.bytes_fetched = last.access.bytes_fetched;
     Ok(m)
+}
+
+/// What a remote run received (`log`: record ids with the frame that collected them), split
+/// by whether a cut used it and how it was last requested, and the lower bound of the time to
+/// converge after the camera stops.
+fn received(
+    entries: &[IndexEntry],
+    log: &[Arrival],
+    prefetched: &HashSet<DiamondId>,
+    m: &Measured,
+    link: Link,
+) -> Received {
+    let all: HashSet<DiamondId> = log.iter().map(|a| a.id).collect();
+    // Frame numbers start at 1: the first settling frame is flight_frames + 1, and what it
+    // collected may have arrived before the stop.
+    let by_stop: HashSet<DiamondId> = log
+        .iter()
+        .filter(|a| a.pump <= m.flight_frames as u64 + 1)
+        .map(|a| a.id)
+        .collect();
+    // A record's last arrival decides (one can come twice: cancelled, then asked for again).
+    let mut last_wanted: HashMap<DiamondId, bool> = HashMap::new();
+    for a in log {
+        last_wanted.insert(a.id, a.wanted);
+    }
+    let after_withdrawal: HashSet<DiamondId> = last_wanted
+        .iter()
+        .filter(|&(id, &wanted)| !wanted && !m.used_ids.contains(id))
+        .map(|(&id, _)| id)
+        .collect();
+    let rate = link.down_bps as f64 / 8.0;
+    let final_bytes = record_bytes(entries, &m.final_sources);
+    let flight_s = m.frames[m.flight_frames.saturating_sub(1)].wall_s;
+    let unused = |prefetch: bool| -> HashSet<DiamondId> {
+        all.iter()
+            .filter(|id| !m.used_ids.contains(id) && prefetched.contains(id) == prefetch)
+            .copied()
+            .collect()
+    };
+    let missing: HashSet<DiamondId> = m.final_sources.difference(&by_stop).copied().collect();
+    let final_missing_at_stop = record_bytes(entries, &missing);
+    let repeated: u64 = log
+        .iter()
+        .map(|a| record_bytes(entries, &HashSet::from([a.id])))
+        .sum::<u64>()
+        - record_bytes(entries, &all);
+    let late: HashSet<DiamondId> = log
+        .iter()
+        .filter(|a| a.pump > m.frames.len() as u64)
+        .map(|a| a.id)
+        .collect();
+    Received {
+        bytes: record_bytes(entries, &all),
+        repeated,
+        after_last_frame: record_bytes(entries, &late),
+        prefetch_unused: record_bytes(entries, &unused(true)),
+        other_unused: record_bytes(entries, &unused(false)),
+        unused_after_withdrawal: record_bytes(entries, &after_withdrawal),
+        final_missing_at_stop,
+        lower_bound_s: final_missing_at_stop as f64 / rate,
+        final_bytes,
+        any_policy_bound_s: (final_bytes as f64 - rate * flight_s).max(0.0) / rate,
+    }
 }
 
 /// The network side of a remote run: `cbdam serve` on loopback and the shaping proxy in front
@@ -330,8 +445,9 @@ pub fn remote(
         ServerKind::Static => format!("{base}/file"),
     };
     let outcome = (|| {
-        let source = RemoteSource::connect(&url, FetchOptions::default())
+        let mut source = RemoteSource::connect(&url, FetchOptions::default())
             .with_context(|| format!("connecting to {url}"))?;
+        source.log_received();
         let mut refiner =
             Refiner::new(source, settings.config.clone()).context("starting the refiner")?;
         let route = Route::Remote {
@@ -348,12 +464,28 @@ pub fn remote(
         while refiner.source().fetch_stats().in_flight > 0 && Instant::now() < drain {
             std::thread::sleep(Duration::from_millis(10));
         }
+        // What the drain brought in, so that the log of received records holds it too.
+        refiner.source_mut().pump();
         let f = refiner.source().fetch_stats();
         for e in refiner.errors() {
             eprintln!("  warning: {e}");
         }
+        let prefetched: HashSet<DiamondId> = refiner.last_requested_as_prefetch().collect();
+        let received = received(
+            refiner.source().entries(),
+            refiner.source().received(),
+            &prefetched,
+            &m,
+            link,
+        );
         // The refiner (and its fetcher) goes before the servers stop.
-        Ok::<_, anyhow::Error>((m, f))
+        Ok::<_, anyhow::Error>((
+            Measured {
+                received: Some(received),
+                ..m
+            },
+            f,
+        ))
     })();
     let Servers {
         state,
@@ -445,8 +577,11 @@ mod tests {
             bytes_fetched: 0,
             bytes_used: 0,
             records_used: 0,
+            used_ids: HashSet::new(),
             final_cut: BTreeSet::new(),
+            final_sources: HashSet::new(),
             wire: None,
+            received: None,
             csv: PathBuf::new(),
         }
     }

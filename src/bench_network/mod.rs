@@ -114,6 +114,27 @@ fn progress(m: &Measured) {
         m.stop_to_target_s()
             .map_or_else(|| "not met".into(), |s| format!("{s:.2} s")),
     );
+    if let Some(r) = &m.received {
+        eprintln!(
+            "    received {:.2} MB ({:.2} MB again, {:.2} MB after the last frame); unused: {:.2} MB prefetched, {:.2} MB wanted by the cut ({:.2} MB came after \
+             withdrawal); final cut {:.2} MB, lacked {:.2} MB at the stop (≥ {:.2} s; any \
+             policy ≥ {:.2} s); stop → 2 px {}, → 4 px {}",
+            r.bytes as f64 / 1e6,
+            r.repeated as f64 / 1e6,
+            r.after_last_frame as f64 / 1e6,
+            r.prefetch_unused as f64 / 1e6,
+            r.other_unused as f64 / 1e6,
+            r.unused_after_withdrawal as f64 / 1e6,
+            r.final_bytes as f64 / 1e6,
+            r.final_missing_at_stop as f64 / 1e6,
+            r.lower_bound_s,
+            r.any_policy_bound_s,
+            m.stop_to_px_s(2.0)
+                .map_or_else(|| "not met".into(), |s| format!("{s:.2} s")),
+            m.stop_to_px_s(4.0)
+                .map_or_else(|| "not met".into(), |s| format!("{s:.2} s")),
+        );
+    }
 }
 
 pub fn run(args: &BenchNetworkArgs) -> Result<()> {
@@ -164,8 +185,23 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     let file_len = repo.file_len();
     drop(repo);
 
+    let viewer = refine_config(args.pixel_error, args.budget_ms, 1.0)?;
+    // A limit given on the command line replaces the viewer's; 0 is none.
+    let limit = |arg: Option<usize>, default: Option<usize>| match arg {
+        Some(0) => None,
+        Some(n) => Some(n),
+        None => default,
+    };
+    let config = cbdam_client::refine::RefineConfig {
+        prefetch: args.prefetch.into(),
+        fetch_order: args.fetch_order.into(),
+        want_limit: limit(args.want_limit, viewer.want_limit),
+        prefetch_limit: limit(args.prefetch_limit, viewer.prefetch_limit),
+        ..viewer
+    };
+    let (want_limit, prefetch_limit) = (config.want_limit, config.prefetch_limit);
     let settings = RunSettings {
-        config: refine_config(args.pixel_error, args.budget_ms, 1.0)?,
+        config,
         pacing: ReplayPacing {
             fps: args.fps,
             size: args.size,
@@ -186,7 +222,7 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     let load_start = load_average();
     eprintln!(
         "{}: {records} records, {:.2} MB; {} flights × (local + {} profiles × {} servers), \
-         {}×{}, {} px, budget {}, {} fps, up to {} s settling",
+         {}×{}, {} px, budget {}, {} fps, up to {} s settling, prefetch {:?}, fetch order {:?}, want limit {:?}, prefetch limit {:?}",
         repo_path.display(),
         file_len as f64 / 1e6,
         loaded.len(),
@@ -197,7 +233,11 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
         args.pixel_error,
         budget_label(args.budget_ms),
         args.fps,
-        args.max_settle_s
+        args.max_settle_s,
+        args.prefetch,
+        args.fetch_order,
+        want_limit,
+        prefetch_limit
     );
     let mut runs: Vec<Measured> = Vec::new();
     for (name, flight) in &loaded {
@@ -304,13 +344,17 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     writeln!(
         md,
         "| replay | {}×{}, target {} px, budget {}, {} fps, paced in real time; up to {} s with \
-         the camera still |",
+         the camera still; prefetch {:?}, fetch order {:?}, want limit {:?}, prefetch limit {:?} |",
         args.size.0,
         args.size.1,
         args.pixel_error,
         budget_label(args.budget_ms),
         args.fps,
-        args.max_settle_s
+        args.max_settle_s,
+        args.prefetch,
+        args.fetch_order,
+        want_limit,
+        prefetch_limit
     )?;
     for (profile, link) in &links {
         writeln!(md, "| link `{profile}` | {link} |")?;
@@ -330,6 +374,19 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
            refining thread used more than the budget in CPU time (the rest is waiting for a core). *Final cut = local*: \
            the converged cut's refined diamonds are exactly the local run's.\n\n";
     md += &table;
+    md += "\n## What was received and no cut used; the lower bound of settling\n\n";
+    md += "*MB received*: distinct records received (record bytes); *received again*: records that came more than once, each repeat; *after the last frame*: records of the requests the last frame left in flight. *Unused, prefetched*: \
+           of those, the records no cut of the run used whose last request was a prefetch; \
+           *unused, wanted by the cut*: those no cut used that the view's cut had wanted; \
+           *came after withdrawal*: of all unused, those whose request had been withdrawn when \
+           they came. \
+           *Final cut lacked at stop*: records of the final cut not received by the first frame \
+           after the camera stopped; *lower bound*: that over the link's downstream rate — \
+           no fetch order converges sooner; *any policy's bound*: the final cut's bytes beyond \
+           what the link could deliver during the whole flight, over its rate — not even a \
+           policy that knew the flight in advance converges sooner. Then the time from the stop until every frame's \
+           largest screen error is within 1, 2 and 4 px.\n\n";
+    md += &report::received_table(&runs)?;
     md += "\n## The issue's targets (issue 21)\n\n";
     md += &targets;
     md += "\n## Requests: the client's count and the server's\n\n";

@@ -91,6 +91,41 @@ pub fn table(runs: &[Measured], budget_ms: f64) -> Result<String> {
     Ok(out)
 }
 
+/// What the remote runs received and no cut used, the lower bound of the time to converge
+/// after the camera stops, and the times to 1, 2 and 4 px.
+pub fn received_table(runs: &[Measured]) -> Result<String> {
+    let mut out = String::new();
+    out += "| profile | server | flight | MB received | received again (MB) | after the last frame (MB) | unused, prefetched (MB) \
+            | unused, wanted by the cut (MB) | unused, came after withdrawal (MB) \
+            | final cut (MB) | final cut lacked at stop (MB) | lower bound (s) \
+            | any policy's bound (s) | stop → 1 px (s) | → 2 px (s) | → 4 px (s) |\n\
+            |---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+    for m in runs {
+        let Some(r) = &m.received else { continue };
+        let (profile, server) = labels(m);
+        writeln!(
+            out,
+            "| {profile} | {server} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} \
+             | {} | {} | {} |",
+            m.flight,
+            mb(r.bytes),
+            mb(r.repeated),
+            mb(r.after_last_frame),
+            mb(r.prefetch_unused),
+            mb(r.other_unused),
+            mb(r.unused_after_withdrawal),
+            mb(r.final_bytes),
+            mb(r.final_missing_at_stop),
+            r.lower_bound_s,
+            r.any_policy_bound_s,
+            seconds(m.stop_to_px_s(1.0)),
+            seconds(m.stop_to_px_s(2.0)),
+            seconds(m.stop_to_px_s(4.0)),
+        )?;
+    }
+    Ok(out)
+}
+
 /// The requests as the client counted them beside the server's count, and the link's side.
 pub fn wire_table(runs: &[Measured]) -> Result<String> {
     let mut out = String::new();
@@ -218,6 +253,20 @@ pub fn json(all: &[Measured], budget_ms: f64) -> serde_json::Value {
                 "records_used": m.records_used,
                 "flight_frames_at_target": m.flight_frames_at_target(),
                 "stop_to_target_s": m.stop_to_target_s(),
+                "stop_to_2px_s": m.stop_to_px_s(2.0),
+                "stop_to_4px_s": m.stop_to_px_s(4.0),
+                "received": m.received.map(|r| json!({
+                    "record_bytes": r.bytes,
+                    "repeated_record_bytes": r.repeated,
+                    "after_last_frame_bytes": r.after_last_frame,
+                    "prefetch_unused_bytes": r.prefetch_unused,
+                    "cut_wanted_unused_bytes": r.other_unused,
+                    "unused_after_withdrawal_bytes": r.unused_after_withdrawal,
+                    "final_cut_bytes": r.final_bytes,
+                    "any_policy_bound_s": r.any_policy_bound_s,
+                    "final_cut_missing_at_stop_bytes": r.final_missing_at_stop,
+                    "lower_bound_s": r.lower_bound_s,
+                })),
                 "converged": m.converged(),
                 "frames_over_budget": m.frames_over_budget(budget_ms),
                 "max_refine_ms": m.max_refine_ms(),

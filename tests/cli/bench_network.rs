@@ -82,6 +82,22 @@ fn through_a_mobile_link_with_resets_both_servers_converge_to_the_local_cut() {
         // Every record a cut used came over the link at least once.
         assert!(u(r, "bytes_used") > 0, "{r}");
         assert!(u(r, "bytes_fetched") >= u(r, "bytes_used"), "{r}");
+        // The records received are those the cuts used and those they did not, prefetched or
+        // wanted by the cut: the log of arrivals covers every record a cut used.
+        let got = &r["received"];
+        assert_eq!(
+            u(got, "record_bytes"),
+            u(r, "bytes_used")
+                + u(got, "prefetch_unused_bytes")
+                + u(got, "cut_wanted_unused_bytes"),
+            "{r}"
+        );
+        assert!(u(got, "final_cut_missing_at_stop_bytes") <= u(got, "final_cut_bytes"));
+        // mobile: 5 Mbit/s down.
+        let bound = got["lower_bound_s"].as_f64().unwrap();
+        let missing = u(got, "final_cut_missing_at_stop_bytes") as f64;
+        assert!((bound - missing * 8.0 / 5e6).abs() < 1e-9, "{r}");
+        assert!(got["any_policy_bound_s"].as_f64().unwrap() >= 0.0, "{r}");
         resets += u(&r["wire"], "resets");
     }
     assert!(resets >= 1, "no connection was reset: {runs:?}");

@@ -33,6 +33,26 @@ pub struct RemoteSource {
     /// fetch the same records over and over.
     spare: HashMap<DiamondId, Arc<[u8]>>,
     stats: AccessStats,
+    /// Every record received, with the number of the [`DataSource::pump`] call that collected
+    /// it (from 1; a refiner pumps once per frame) and whether it was still wanted then — kept
+    /// only after [`RemoteSource::log_received`] (benchmarks): a viewer running for hours
+    /// would otherwise grow it without bound.
+    received: Vec<Received>,
+    log_received: bool,
+    pumps: u64,
+}
+
+/// A record [`RemoteSource`] received.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Received {
+    /// The record.
+    pub id: DiamondId,
+    /// The number of the [`DataSource::pump`] call that collected it, from 1: with a refiner,
+    /// the frame.
+    pub pump: u64,
+    /// Whether it was still requested when it came (otherwise its request had been cancelled,
+    /// and it was kept as a spare).
+    pub wanted: bool,
 }
 
 /// Most spare records kept.
@@ -63,6 +83,9 @@ impl RemoteSource {
             arrived: HashMap::new(),
             spare: HashMap::new(),
             stats: AccessStats::default(),
+            received: Vec::new(),
+            log_received: false,
+            pumps: 0,
         }
     }
 
@@ -74,6 +97,16 @@ impl RemoteSource {
             bytes: self.fetcher.head_bytes(),
             file_len: self.fetcher.head().file_len(),
         }
+    }
+
+    /// Keeps a log of every record received from now on ([`RemoteSource::received`]).
+    pub fn log_received(&mut self) {
+        self.log_received = true;
+    }
+
+    /// Every record received since [`RemoteSource::log_received`], in order (empty without it).
+    pub fn received(&self) -> &[Received] {
+        &self.received
     }
 
     /// The fetcher's own counters: HTTP requests sent (the head's included), cancelled and
@@ -156,7 +189,15 @@ impl DataSource for RemoteSource {
                 .want(self.wanted.iter().map(|(&id, &p)| (id, p)));
             self.wanted_changed = false;
         }
+        self.pumps += 1;
         for (id, result) in self.fetcher.poll() {
+            if self.log_received && result.is_ok() {
+                self.received.push(Received {
+                    id,
+                    pump: self.pumps,
+                    wanted: self.wanted.contains_key(&id),
+                });
+            }
             if self.wanted.remove(&id).is_none() {
                 if let Ok(bytes) = result
                     && self.spare.len() < SPARE_RECORDS

@@ -32,7 +32,7 @@ pub use flaky::{FlakyConfig, FlakySource};
 
 /// HTTP over the target's fetcher (tokio and reqwest on the desktop, the page's `fetch` in a
 /// browser).
-pub use http::RemoteSource;
+pub use http::{Received, RemoteSource};
 /// The desktop's memory-mapped file.
 #[cfg(not(target_arch = "wasm32"))]
 pub use local::LocalSource;

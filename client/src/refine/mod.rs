@@ -88,6 +88,9 @@ const SPECULATIVE_STEPS: std::ops::RangeInclusive<usize> = 4..=128;
 /// 2 ms budget), so that a moving view does not have the workers decode far more than the cut
 /// can take before the view moves on (about 34 MB of nodes at N = 65).
 const AHEAD_LIMIT: usize = 256;
+/// With [`RefineConfig::want_limit`], the cut asks for the records of as many candidates as
+/// the loop refines in this long.
+pub const WANT_HORIZON_S: f64 = 1.0;
 /// Weight of the newest sample in the smoothed frame interval and decode time.
 const SMOOTHING: f64 = 0.1;
 
@@ -100,6 +103,19 @@ pub struct RefineConfig {
     pub budget: Option<Duration>,
     /// Garbage-collect (coarsen) every this many frames.
     pub gc_interval: u32,
+    /// When to prefetch (see [`Prefetch`]).
+    pub prefetch: Prefetch,
+    /// Most records a frame prefetches (the most urgent; `None`: no limit): what the last
+    /// frames leave in flight when the view stops needing them is at most this many records.
+    pub prefetch_limit: Option<usize>,
+    /// The order in which missing records are asked for (see [`FetchOrder`]).
+    pub fetch_order: FetchOrder,
+    /// Ask only for the records of the most urgent of the cut's candidates that the frame's
+    /// budget did not reach: as many as the loop refined in the last [`WANT_HORIZON_S`]
+    /// (smoothed), and at least this many (`None`: all of them), and for those already
+    /// requested. A source faster than the refinement otherwise delivers records that wait in
+    /// RAM until the view has moved on.
+    pub want_limit: Option<usize>,
     /// Prefetch what a frustum enlarged by this fraction of the eye–target distance sees.
     pub prefetch_margin: f64,
     /// Prefetch where the eye will be this many frames ahead at its current velocity.
@@ -132,6 +148,10 @@ impl Default for RefineConfig {
             pixel_error: 1.0,
             budget: Some(Duration::from_millis(2)),
             gc_interval: 8,
+            prefetch: Prefetch::WhenIdle,
+            prefetch_limit: Some(32),
+            fetch_order: FetchOrder::ScreenError,
+            want_limit: Some(128),
             prefetch_margin: 0.25,
             lookahead_frames: 15.0,
             decoded_cache_bytes: 256 << 20,
@@ -144,6 +164,46 @@ impl Default for RefineConfig {
             decode_ahead: true,
         }
     }
+}
+
+/// When the refiner asks a remote source for records the current view does not need yet (the
+/// children of diamonds it will refine next, what the camera is about to see).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Prefetch {
+    /// Never.
+    Off,
+    /// Every frame, at a lower priority than what the view needs (both share the link: the
+    /// fetcher sends the most urgent first but keeps the link full with prefetches).
+    Always,
+    /// Only in frames where the view's cut wants no record that it lacks (none queued, none in
+    /// flight): prefetches use the link only while it would idle, and the first frame that
+    /// wants a record again withdraws them, which cancels their requests in flight.
+    #[default]
+    WhenIdle,
+}
+
+impl Prefetch {
+    /// Whether a frame whose cut still lacks `cut_wants` records prefetches.
+    pub fn allows(self, cut_wants: usize) -> bool {
+        match self {
+            Prefetch::Off => false,
+            Prefetch::Always => true,
+            Prefetch::WhenIdle => cut_wants == 0,
+        }
+    }
+}
+
+/// The priority a remote source gets for the records a refinement lacks (all of them, parents
+/// and the diamond, get the same; the source fetches the highest first).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FetchOrder {
+    /// The diamond's screen error, pixels: the worst error first.
+    #[default]
+    ScreenError,
+    /// The screen error over the kilobytes of the records still missing: the most error
+    /// removed per byte of the link first, so that on a slow link the largest screen error
+    /// falls fastest.
+    ScreenErrorPerByte,
 }
 
 /// What one frame did.
@@ -189,6 +249,10 @@ pub struct FrameStats {
     pub memory_limited: bool,
     /// Bytes of the cut's decoded diamonds after the frame.
     pub cut_bytes: usize,
+    /// Records the view's cut lacks, wanted this frame (queued or in flight).
+    pub cut_wants: usize,
+    /// Records wanted this frame only as prefetches (see [`RefineConfig::prefetch`]).
+    pub prefetch_wants: usize,
     /// The data source's counters after the frame.
     pub access: AccessStats,
     /// Records rejected so far (failed fetches and failed decodes).
@@ -318,6 +382,8 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     /// When the last frame started, and the smoothed interval between frames, seconds.
     last_frame_start: Option<Instant>,
     frame_interval_s: f64,
+    /// Smoothed refinements per second.
+    refinement_rate: f64,
     /// Smoothed worker time of one decode, seconds.
     decode_s: f64,
     done_tx: Sender<Done>,
@@ -426,6 +492,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             ahead: IdSet::default(),
             last_frame_start: None,
             frame_interval_s: 1.0 / 30.0,
+            refinement_rate: 0.0,
             decode_s: 1e-3,
             done_tx,
             done_rx,
@@ -770,6 +837,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         if plan.iter().all(|&d| self.have_or_available(d)) {
             return;
         }
+        let priority = match self.config.fetch_order {
+            FetchOrder::ScreenError => priority,
+            FetchOrder::ScreenErrorPerByte => {
+                priority * 1024.0 / self.missing_bytes(plan).max(1) as f64
+            }
+        };
         for &d in plan {
             if self.requests.broken.contains(&d) || self.info(d).is_none() {
                 return;
@@ -779,6 +852,24 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 *w = w.max(priority);
             }
         }
+    }
+
+    /// Bytes of the records of `plan` that are not at hand.
+    fn missing_bytes(&mut self, plan: &[DiamondId]) -> u64 {
+        let mut missing = Vec::with_capacity(plan.len());
+        for &d in plan {
+            if !self.have_or_available(d)
+                && let Some(sid) = self.source_id(d)
+            {
+                missing.push(sid);
+            }
+        }
+        let entries = self.source.entries();
+        missing
+            .iter()
+            .filter_map(|sid| entries.binary_search_by(|e| e.id.cmp(sid)).ok())
+            .map(|i| u64::from(entries[i].length))
+            .sum()
     }
 
     /// Runs one frame for `camera`: refine within the budget, request what is missing,
@@ -808,16 +899,36 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             ..FrameStats::default()
         };
         self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
+        let rate = stats.refinements as f64 / self.frame_interval_s.max(1e-3);
+        self.refinement_rate += SMOOTHING * (rate - self.refinement_rate);
 
         // What the budget did not reach still gets requested, then prefetch (neither can want
         // anything from a source that always has everything at hand).
         let may_want = !self.source.always_available();
         let leftovers = heap.into_vec();
         if may_want {
-            for c in &leftovers {
-                if !self.cut_state.cut.is_refined(c.id) {
-                    self.want_plan(c.id, c.err, &mut wanted);
-                }
+            let mut order: Vec<&Candidate> = leftovers
+                .iter()
+                .filter(|c| !self.cut_state.cut.is_refined(c.id))
+                .collect();
+            let limit = self
+                .config
+                .want_limit
+                .map(|min| min.max((self.refinement_rate * WANT_HORIZON_S) as usize));
+            if let Some(limit) = limit
+                && order.len() > limit
+            {
+                // Past the most urgent, only what is already on its way stays wanted: dropping
+                // it would cancel requests the link has carried part of.
+                order.select_nth_unstable_by(limit, |a, b| b.cmp(a));
+                let rest = order.split_off(limit);
+                order.extend(
+                    rest.into_iter()
+                        .filter(|c| self.requests.requested.contains_key(&c.id)),
+                );
+            }
+            for c in order {
+                self.want_plan(c.id, c.err, &mut wanted);
             }
         }
         if self.config.gc_interval > 0
@@ -837,10 +948,32 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .iter()
             .map(|&(_, info)| info.and_then(|i| view.error(&i)))
             .collect();
-        if may_want {
-            self.prefetch(camera, &candidates, &errors, &mut wanted);
+        stats.cut_wants = wanted.len();
+        let mut ahead: IdMap<f64> = IdMap::default();
+        if may_want && self.config.prefetch.allows(wanted.len()) {
+            self.prefetch(camera, &candidates, &errors, &mut ahead);
         }
         self.last_camera = Some(*camera);
+        if let Some(limit) = self.config.prefetch_limit
+            && ahead.len() > limit
+        {
+            // The most urgent first; between equals the coarser (parents before children).
+            let mut by_priority: Vec<(DiamondId, f64)> = ahead.into_iter().collect();
+            by_priority
+                .select_nth_unstable_by(limit, |a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+            by_priority.truncate(limit);
+            ahead = by_priority.into_iter().collect();
+        }
+        for id in wanted.keys() {
+            self.requests.last_class.insert(*id, false);
+        }
+        for (&id, &prio) in &ahead {
+            if let std::collections::hash_map::Entry::Vacant(e) = wanted.entry(id) {
+                e.insert(prio);
+                stats.prefetch_wants += 1;
+                self.requests.last_class.insert(id, true);
+            }
+        }
 
         self.post_requests(wanted);
         self.remember_overrun(deadline, &stats);
@@ -1140,6 +1273,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 }
             }
         }
+    }
+
+    /// The source ids of the records whose last request was a prefetch only (see
+    /// [`FrameStats::prefetch_wants`]): with the records fetched and those the cuts used, what
+    /// prefetching fetched that no cut used.
+    pub fn last_requested_as_prefetch(&self) -> impl Iterator<Item = DiamondId> + '_ {
+        self.requests
+            .last_class
+            .iter()
+            .filter(|&(_, &prefetch)| prefetch)
+            .filter_map(|(&id, _)| self.source_id(id))
     }
 
     /// Starts refining `id` (whose parents are refined) on a worker thread.

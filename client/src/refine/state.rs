@@ -183,6 +183,8 @@ pub(super) struct Requests {
     pub(super) failure_count: u64,
     pub(super) broken: IdSet,
     pub(super) errors: Vec<String>,
+    /// Per record ever requested: whether its last request was a prefetch only.
+    pub(super) last_class: IdMap<bool>,
 }
 
 impl Requests {
