@@ -1,10 +1,11 @@
 //! A decode job: what a worker needs to refine a few diamonds, owned so that it outlives the
 //! frame, and what comes back ([`Done`]).
 //!
-//! A [`DecodeJob`] is a [`Portable`] job: a spawner with threads runs it in place
-//! ([`Portable::run`], no copying), and one whose workers share no memory with the refiner (Web
-//! Workers) sends it as bytes ([`Portable::encode`]) to a [`WorkerDecoder`](super::WorkerDecoder)
-//! and hands the answer back ([`Portable::receive`]); the byte formats are in `wire.rs`.
+//! A [`DecodeJob`] is a [`Portable`](crate::spawn::Portable) job: a spawner with threads runs
+//! it in place (`Portable::run`, no copying), and one whose workers share no memory with the
+//! refiner (Web Workers) sends it as bytes (`Portable::encode`) to a
+//! [`WorkerDecoder`](super::WorkerDecoder) and hands the answer back (`Portable::receive`); the
+//! byte formats, and that implementation, are in `wire.rs`.
 
 use std::sync::Arc;
 use std::sync::mpsc::Sender;
@@ -19,7 +20,6 @@ use super::detail;
 use super::node::Node;
 use crate::access::{Drape, coloured};
 use crate::patch::{HalfPatch, colour_from_parent};
-use crate::spawn::Portable;
 
 /// How a diamond's refinement can be had.
 pub(super) enum Source {
@@ -63,29 +63,6 @@ pub struct DecodeJob {
     /// Read from a message (in a worker): the given parents are not the refiner's own, so each
     /// step first checks that its two parents agree on its diagonal (gathering assumes it).
     pub(super) from_message: bool,
-}
-
-impl Portable for DecodeJob {
-    fn run(self) {
-        self.run_steps();
-    }
-
-    fn encode(&self) -> Vec<u8> {
-        super::wire::encode_job(self)
-    }
-
-    fn receive(&self, answer: &[u8]) -> Result<(), CodecError> {
-        let done = super::wire::decode_results(self, answer)?;
-        for d in done {
-            // The refiner may be gone; then nobody wants the result.
-            let _ = self.tx.send(d);
-        }
-        Ok(())
-    }
-
-    fn steps(&self) -> usize {
-        self.steps.len()
-    }
 }
 
 impl DecodeJob {

@@ -31,6 +31,7 @@ use cbdam_codec::repository::RepositoryHead;
 use super::job::{DecodeJob, Done, Source};
 use super::node::Node;
 use crate::access::Drape;
+use crate::spawn::Portable;
 
 const CONTEXT_MAGIC: &[u8; 4] = b"CBDC";
 const JOB_MAGIC: &[u8; 4] = b"CBDJ";
@@ -123,6 +124,31 @@ impl WorkerDecoder {
         job.run_steps();
         let done: Vec<Done> = rx.try_iter().collect();
         Ok(encode_results(&done))
+    }
+}
+
+/// A decode job crosses to a worker as `encode_job`'s bytes and comes back through
+/// `decode_results` (here rather than in `job.rs`, which knows nothing of the wire).
+impl Portable for DecodeJob {
+    fn run(self) {
+        self.run_steps();
+    }
+
+    fn encode(&self) -> Vec<u8> {
+        encode_job(self)
+    }
+
+    fn receive(&self, answer: &[u8]) -> Result<(), CodecError> {
+        let done = decode_results(self, answer)?;
+        for d in done {
+            // The refiner may be gone; then nobody wants the result.
+            let _ = self.tx.send(d);
+        }
+        Ok(())
+    }
+
+    fn steps(&self) -> usize {
+        self.steps.len()
     }
 }
 
