@@ -276,8 +276,8 @@ fn rem_euclid(c: f64, p: f64) -> f64 {
     }
 }
 
-/// [`cbdam_codec::input::read_dem`], with the bands of a GeoTIFF's strips or tiles decoded on all the build's
-/// workers (the same samples: [`TileReader`] reads rows as `read_dem` would).
+/// [`cbdam_codec::input::read_dem`], with the bands of a GeoTIFF's strips or tiles decoded on
+/// all the build's workers (the same samples: [`TileReader`] reads rows as `read_dem` would).
 fn read_whole(path: &Path, opts: &ReadOptions) -> std::result::Result<Dem, CodecError> {
     let reader = TileReader::open(path, opts)?;
     let (width, height) = (reader.width(), reader.height());
