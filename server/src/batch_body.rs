@@ -68,9 +68,11 @@ impl BatchBody {
             self.preamble_sent = true;
         }
         let file = self.repo.repo.as_bytes();
+        let mut records = 0;
         while self.next < self.entries.len() && out.len() < CHUNK_BYTES {
             match &self.entries[self.next] {
                 Some(range) => {
+                    records += 1;
                     out.push(STATUS_RECORD);
                     // Index lengths are u32.
                     out.extend_from_slice(&(range.len() as u32).to_le_bytes());
@@ -84,6 +86,11 @@ impl BatchBody {
             self.next += 1;
         }
         self.unsent -= out.len() as u64;
+        // Counted as handed over, so the records of an aborted batch that were never written
+        // are not counted as sent.
+        if records > 0 {
+            self.state.metrics().add_records(records);
+        }
         out
     }
 }

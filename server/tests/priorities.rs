@@ -129,6 +129,13 @@ async fn a_dropped_batch_stops_the_server_writing() {
     assert!(unsent > full / 2, "{unsent} of {full} bytes unsent");
     let text = s.state.metrics().render();
     assert!(text.contains("cbdam_batches_aborted_total 1"), "{text}");
+    // Only the records handed over count as sent, not the whole batch.
+    let sent: u64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("cbdam_records_sent_total "))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no records_sent_total in {text}"));
+    assert!(sent < 50_000, "{sent} of 100000 records counted as sent");
     s.stop().await;
 }
 
