@@ -450,6 +450,7 @@ pub fn remote(
         source.log_received();
         let mut refiner =
             Refiner::new(source, settings.config.clone()).context("starting the refiner")?;
+        refiner.track_prefetch_requests();
         let route = Route::Remote {
             profile: profile.to_string(),
             link,

@@ -964,14 +964,19 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             by_priority.truncate(limit);
             ahead = by_priority.into_iter().collect();
         }
-        for id in wanted.keys() {
-            self.requests.last_class.insert(*id, false);
+        let track = self.requests.track_classes;
+        if track {
+            for id in wanted.keys() {
+                self.requests.last_class.insert(*id, false);
+            }
         }
         for (&id, &prio) in &ahead {
             if let std::collections::hash_map::Entry::Vacant(e) = wanted.entry(id) {
                 e.insert(prio);
                 stats.prefetch_wants += 1;
-                self.requests.last_class.insert(id, true);
+                if track {
+                    self.requests.last_class.insert(id, true);
+                }
             }
         }
 
@@ -1275,9 +1280,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
     }
 
+    /// Remembers from now on, per record requested, whether its last request was a prefetch
+    /// only ([`Refiner::last_requested_as_prefetch`]; benchmarks: an entry per record ever
+    /// requested).
+    pub fn track_prefetch_requests(&mut self) {
+        self.requests.track_classes = true;
+    }
+
     /// The source ids of the records whose last request was a prefetch only (see
-    /// [`FrameStats::prefetch_wants`]): with the records fetched and those the cuts used, what
-    /// prefetching fetched that no cut used.
+    /// [`FrameStats::prefetch_wants`]), since [`Refiner::track_prefetch_requests`] (none
+    /// without it): with the records fetched and those the cuts used, what prefetching fetched
+    /// that no cut used.
     pub fn last_requested_as_prefetch(&self) -> impl Iterator<Item = DiamondId> + '_ {
         self.requests
             .last_class

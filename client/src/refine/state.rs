@@ -183,8 +183,10 @@ pub(super) struct Requests {
     pub(super) failure_count: u64,
     pub(super) broken: IdSet,
     pub(super) errors: Vec<String>,
-    /// Per record ever requested: whether its last request was a prefetch only.
+    /// Per record requested while `track_classes`: whether its last request was a prefetch only.
     pub(super) last_class: IdMap<bool>,
+    /// Whether `last_class` is kept (benchmarks).
+    pub(super) track_classes: bool,
 }
 
 impl Requests {
