@@ -372,3 +372,115 @@ fn a_static_server_with_range_requests_gives_the_local_cut() {
         "{fetched} for {needed}"
     );
 }
+
+/// Range requests carry a few KiB each, so over a link with a round trip of tens of
+/// milliseconds the fetcher must keep many of them in flight to use its rate: a static server
+/// that answers each one after 100 ms sees more than the 8 requests at once that batches to
+/// `cbdam serve` are limited to, and never more than `max_ranges_in_flight`.
+#[test]
+fn range_requests_to_a_static_server_are_many_in_flight() {
+    let (w, h) = (257usize, 257usize);
+    let metres: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f64, (i / w) as f64);
+            100.0 + 40.0 * (x / 7.0).sin() * (y / 11.0).cos()
+        })
+        .collect();
+    let plan = QuantPlan::new(0.25, None, 0.0, 200.0).unwrap();
+    let grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
+    let opts = EncodeOptions {
+        n: 9,
+        ..EncodeOptions::default()
+    };
+    let bytes = serialize(
+        &encode(&grid, plan.quantizer, &opts).unwrap(),
+        &plan,
+        None,
+        None,
+    )
+    .unwrap();
+    let repo = Repository::from_bytes(bytes.clone()).unwrap();
+    let bytes = Arc::new(bytes);
+
+    let now = Arc::new(AtomicUsize::new(0));
+    let peak = Arc::new(AtomicUsize::new(0));
+    let app = {
+        let (bytes, now, peak) = (bytes.clone(), now.clone(), peak.clone());
+        axum::Router::new().route(
+            "/data/t.cbdam",
+            axum::routing::get(move |h: HeaderMap| {
+                let (bytes, now, peak) = (bytes.clone(), now.clone(), peak.clone());
+                async move {
+                    let ranged = h.contains_key(header::RANGE);
+                    if ranged {
+                        let n = now.fetch_add(1, Ordering::SeqCst) + 1;
+                        peak.fetch_max(n, Ordering::SeqCst);
+                        tokio::time::sleep(Duration::from_millis(100)).await;
+                        now.fetch_sub(1, Ordering::SeqCst);
+                    }
+                    static_file(bytes, h).await
+                }
+            }),
+        )
+    };
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let l = {
+        let _g = rt.enter();
+        listener("127.0.0.1:0".parse().unwrap())
+    };
+    let addr = l.local_addr().unwrap();
+    rt.spawn(async move { axum::serve(l, app).await.unwrap() });
+
+    let options = FetchOptions::default();
+    let limit = options.max_ranges_in_flight;
+    let fetcher = cbdam_client::fetch::RemoteFetcher::connect(
+        &format!("http://{addr}/data/t.cbdam"),
+        options,
+    )
+    .unwrap();
+    // Every other record in file order: no two wanted records touch, so each is a request.
+    let mut by_offset: Vec<usize> = (0..repo.entries().len()).collect();
+    by_offset.sort_by_key(|&i| repo.head().record_range(i).unwrap().start);
+    let wanted: Vec<DiamondId> = by_offset
+        .iter()
+        .step_by(2)
+        .map(|&i| repo.entries()[i].id)
+        .filter(|&id| {
+            !repo
+                .head()
+                .record_range(repo.head().position(id).unwrap())
+                .unwrap()
+                .is_empty()
+        })
+        .collect();
+    assert!(wanted.len() >= 4 * limit, "{} records", wanted.len());
+    fetcher.want(wanted.iter().enumerate().map(|(k, &id)| (id, -(k as f32))));
+    let mut got = HashSet::new();
+    let start = Instant::now();
+    while got.len() < wanted.len() {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "{} of {} arrived",
+            got.len(),
+            wanted.len()
+        );
+        for (id, record) in fetcher.poll() {
+            assert_eq!(*record.unwrap(), *repo.record(id).unwrap());
+            got.insert(id);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let peak = peak.load(Ordering::SeqCst);
+    println!(
+        "{} records, at most {peak} range requests at once",
+        wanted.len()
+    );
+    assert!(
+        peak > 8 && peak <= limit,
+        "{peak} range requests at once (limit {limit})"
+    );
+}

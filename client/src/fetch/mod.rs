@@ -40,8 +40,13 @@ pub use web::RemoteFetcher;
 pub struct FetchOptions {
     /// Most records asked for in one request.
     pub max_batch: usize,
-    /// Most requests in flight at once.
+    /// Most batch requests to `cbdam serve` in flight at once.
     pub max_in_flight: usize,
+    /// Most range requests to a static server in flight at once. A range request carries only a
+    /// run of adjacent records (a few KiB), so a link with a round trip of tens of milliseconds
+    /// needs many of them in flight to be kept busy (HTTP/2 multiplexes them on one connection;
+    /// HTTP/1.1 opens a connection each, which browsers queue at 6 per host).
+    pub max_ranges_in_flight: usize,
     /// Bytes of records in flight at most what the link was measured to deliver in this long
     /// (but always two requests): a slow link is not committed to seconds of requests whose
     /// order can no longer follow the view, and none of them waits long enough in the link's
@@ -73,6 +78,7 @@ impl Default for FetchOptions {
         Self {
             max_batch: 64,
             max_in_flight: 8,
+            max_ranges_in_flight: 32,
             queue_seconds: 0.5,
             initial_window: 256 << 10,
             timeout: Duration::from_secs(5),
@@ -116,6 +122,14 @@ enum Endpoint {
 }
 
 impl Endpoint {
+    /// Most requests in flight at once to this endpoint.
+    fn max_in_flight(&self, options: &FetchOptions) -> usize {
+        match self {
+            Endpoint::Server { .. } => options.max_in_flight,
+            Endpoint::File { .. } => options.max_ranges_in_flight,
+        }
+    }
+
     fn file_url(&self) -> String {
         match self {
             Endpoint::Server { base } => format!("{base}/file"),
@@ -244,8 +258,8 @@ impl<H> State<H> {
     #[cfg_attr(target_arch = "wasm32", allow(dead_code))]
     /// Whether another request may start: a free slot, and room in the byte window (always
     /// for the first two).
-    fn may_start(&self, options: &FetchOptions) -> bool {
-        self.batches.len() < options.max_in_flight
+    fn may_start(&self, options: &FetchOptions, endpoint: &Endpoint) -> bool {
+        self.batches.len() < endpoint.max_in_flight(options)
             && (self.batches.len() < 2 || self.window.in_flight < self.window.limit(options))
     }
 

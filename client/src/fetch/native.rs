@@ -287,7 +287,7 @@ async fn schedule(shared: Arc<Shared>) {
 /// Starts requests while slots are free; returns the earliest backoff expiry among wanted records.
 fn start_batches(shared: &Arc<Shared>, s: &mut State<AbortHandle>) -> Option<Instant> {
     let (mut ready, next_retry) = s.ready(Instant::now());
-    while s.may_start(&shared.options) && !ready.is_empty() {
+    while s.may_start(&shared.options, &shared.endpoint) && !ready.is_empty() {
         let max_bytes = s.batch_bytes(&shared.options);
         let ids = next_batch(
             &mut ready,

@@ -182,7 +182,7 @@ fn start_batches(shared: &Rc<Shared>) {
         return;
     }
     let (mut ready, _) = s.ready(Instant::now());
-    while s.batches.len() < shared.options.max_in_flight && !ready.is_empty() {
+    while s.batches.len() < shared.endpoint.max_in_flight(&shared.options) && !ready.is_empty() {
         let ids = next_batch(
             &mut ready,
             &shared.endpoint,
