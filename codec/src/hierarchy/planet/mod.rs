@@ -82,6 +82,7 @@ pub fn encode_planet(
         .collect();
     let finest = domain.finest_level();
     let n = domain.n();
+    let side = domain.cube().expect("a cube-sphere").side();
     let mut records: Vec<Record> = Vec::new();
     let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
     let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
@@ -102,13 +103,23 @@ pub fn encode_planet(
                 if !recorded[level as usize].contains(&id) {
                     return Ok((id, None, err));
                 }
-                let r = refine_encode(
-                    &params,
-                    id,
-                    &p,
-                    |x, y| planet.get(id.face, x, y),
-                    |x, y| planet.drawn(id.face, x, y),
-                )?;
+                let drawn = |x, y| planet.drawn(id.face, x, y);
+                let (x0, y0, x1, y1) = domain.layout().bounds(id);
+                let r = if 0 < x0.min(y0) && x1.max(y1) < side {
+                    // Strictly inside its face, every point of the diamond is its own canonical
+                    // point: read the face's samples directly (what `PlanetGrid::get` returns
+                    // there, without locating each point).
+                    let g = planet.face(id.face);
+                    let (values, valid): (&[i32], &[bool]) = (&g.values, &g.valid);
+                    let w = g.width;
+                    let target = |x: i64, y: i64| {
+                        let k = y as usize * w + x as usize;
+                        valid[k].then(|| values[k])
+                    };
+                    refine_encode(&params, id, &p, target, drawn)?
+                } else {
+                    refine_encode(&params, id, &p, |x, y| planet.get(id.face, x, y), drawn)?
+                };
                 let refined = Refined::from_parts(n, &p, &r.cells);
                 Ok((id, Some((refined, record_of(id, &p, r.bytes))), err))
             })
