@@ -13,7 +13,8 @@ use cbdam_client::access::{
 use cbdam_client::camera::Camera;
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::patch::{HalfPatch, unpack_rgb};
-use cbdam_client::refine::{RefineConfig, Refiner};
+use cbdam_client::refine::{HeadBytes, RefineConfig, Refiner, WorkerDecoder};
+use cbdam_client::spawn::{Portable, Spawner};
 use cbdam_client::world::World;
 use cbdam_codec::colour::{RgbImage, encode_colour, ycocg};
 use cbdam_codec::geometry::Layout;
@@ -103,11 +104,11 @@ fn ramp_u8(x: f64, y: f64) -> [u8; 3] {
     ramp(x, y).map(|c| c.round() as u8)
 }
 
-fn keys<S: DataSource>(r: &Refiner<S>) -> Vec<cbdam_client::patch::PatchKey> {
+fn keys<S: DataSource, X: Spawner>(r: &Refiner<S, X>) -> Vec<cbdam_client::patch::PatchKey> {
     r.drawn().map(|p| p.key()).collect()
 }
 
-fn owned<S: DataSource>(r: &Refiner<S>) -> Vec<HalfPatch> {
+fn owned<S: DataSource, X: Spawner>(r: &Refiner<S, X>) -> Vec<HalfPatch> {
     r.drawn().map(|p| (**p).clone()).collect()
 }
 
@@ -536,4 +537,68 @@ fn flaky_pair_converges_to_the_local_patches() {
         owned(&r) == owned(&local),
         "flaky patches differ from the local ones"
     );
+}
+
+/// A spawner like the page's Web Workers: every decode job crosses to a [`WorkerDecoder`] as
+/// bytes (the context message carrying both heads) and its answer comes back as bytes.
+#[derive(Clone, Default)]
+struct ThroughBytes {
+    worker: std::rc::Rc<std::cell::RefCell<Option<WorkerDecoder>>>,
+    answered: std::rc::Rc<std::cell::Cell<usize>>,
+}
+
+impl Spawner for ThroughBytes {
+    fn spawn<F: FnOnce() + Send + 'static>(&self, job: F) {
+        job();
+    }
+    fn spawn_job<J: Portable>(&self, job: J) {
+        self.answered.set(self.answered.get() + job.steps());
+        let answer = self.worker.borrow().as_ref().unwrap().run(&job.encode());
+        job.receive(&answer.unwrap()).unwrap();
+    }
+    fn parallelism(&self) -> usize {
+        2
+    }
+    fn runs_in_background(&self) -> bool {
+        false
+    }
+}
+
+fn head(repo: &Repository) -> HeadBytes<'_> {
+    HeadBytes {
+        bytes: repo.as_bytes(),
+        file_len: repo.file_len(),
+    }
+}
+
+/// A draped pair decoded by workers that share no memory with the refiner (the browser's):
+/// the same cut and the very same patches, colours included, as decoding in place, for a
+/// colour hierarchy as dense as the elevation, twice as dense and half as dense.
+#[test]
+fn a_draped_pair_decoded_through_bytes_gives_the_patches_decoded_in_place() {
+    let e = elevation(|x, y| 300.0 + 40.0 * (x / 13.0).sin() * (y / 17.0).cos());
+    let world = World::of_repository(&e);
+    let cam = above(&world, (640, 480));
+    for shift in [0, 1, -1] {
+        let c = colour(&e, shift, 4, ramp_u8);
+        let in_place = settle(paired(&e, &c), &cam);
+        let spawner = ThroughBytes::default();
+        let mut by_bytes =
+            Refiner::with_spawner(paired(&e, &c), config(), spawner.clone()).unwrap();
+        let context = by_bytes.worker_context(head(&e), Some(head(&c)));
+        *spawner.worker.borrow_mut() = Some(WorkerDecoder::new(&context).unwrap());
+        assert!(by_bytes.settle(&cam, 16).converged, "shift {shift}");
+        assert!(
+            spawner.answered.get() > 20,
+            "shift {shift}: {} through bytes",
+            spawner.answered.get()
+        );
+        assert_eq!(keys(&in_place), keys(&by_bytes), "shift {shift}");
+        let (a, b) = (owned(&in_place), owned(&by_bytes));
+        assert!(
+            a.iter().any(|p| p.colour.is_some()),
+            "shift {shift}: no colour drawn"
+        );
+        assert_eq!(a, b, "shift {shift}: patches");
+    }
 }
