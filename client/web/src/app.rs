@@ -181,6 +181,8 @@ impl App {
         }
         let world = *refiner.world();
 
+        // Always false in a module built without the `webgpu` feature (the WebGL2 one, which
+        // main.js loads only where the browser has no WebGPU adapter): it cannot use WebGPU.
         let webgpu = wgpu::util::is_browser_webgpu_supported().await;
         status.set("webgpu", webgpu);
         if !webgpu {

@@ -5,9 +5,9 @@
 // Shows window.cbdam (the viewer's status, client/web/src/status.rs) in the overlay, and drives
 // the pixel-error slider.
 // Two builds of the viewer (scripts/web-build.sh): cbdam_web.js draws through WebGPU only;
-// cbdam_web_gl.js also has wgpu's WebGL2 backend and is about four times larger, so only a
-// browser without a WebGPU adapter loads it (a bundle without it falls back to the first, which
-// then says WebGPU is needed).
+// cbdam_web_gl.js through WebGL2 only (wgpu's GL backend) and is about three times larger, so
+// only a browser without a WebGPU adapter loads it (a bundle without it falls back to the first,
+// which then says WebGPU is needed).
 async function hasWebGpu() {
   try {
     return Boolean(navigator.gpu && (await navigator.gpu.requestAdapter()));
