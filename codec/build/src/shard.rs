@@ -6,17 +6,23 @@
 //!
 //! - [`plan`] reads the inputs once (as `cbdam build` does), chooses the block plan and the shards
 //!   (runs of consecutive blocks) and writes `prepared` (the quantized grid, 5 bytes a sample,
-//!   6 with several inputs), `plan` (what the other steps need: output path, options,
-//!   quantization, georeferencing, blocks, shards) and, last, `key` (every input and argument
-//!   that decides the output): a work directory with a `key` is planned. Planning again with the
-//!   same key does nothing; with another it is refused, naming the first difference.
-//! - [`apex`] reads `prepared`, encodes the levels above the cut over the whole domain and writes
-//!   `apex.field` (the reconstruction at the cut, 4 bytes a point) and `apex` (its records).
-//! - [`run`] reads `prepared` and `apex.field` and writes one file per block of its shard in
-//!   `blocks/`: the build journal's block files ([`crate::journal`]), each renamed into place
-//!   whole with a CRC. Blocks already there are kept, so a retried or repeated shard is harmless.
-//! - [`merge`] reads `prepared`, `apex` and every block file, saturates the object errors over
-//!   all of them, and writes the repository atomically. A missing shard is named.
+//!   6 with several inputs, in tiles with a CRC each: [`crate::shard_grid`]), `summary` (what
+//!   the encoder's setup measures of the whole grid, so no later step scans it), `plan` (what
+//!   the other steps need: output path, options, quantization, georeferencing, blocks, shards)
+//!   and, last, `key` (every input and argument that decides the output): a work directory with
+//!   a `key` is planned. Planning again with the same key does nothing; with another it is
+//!   refused, naming the first difference.
+//! - [`apex`] reads `prepared`, refines the levels above the cut over the whole domain and
+//!   writes `apex.field` (the reconstruction at the cut, 4 bytes a point) and `apex` (its
+//!   records; the blocks measure its object errors).
+//! - [`run`] reads the tiles of `prepared` under its blocks' fields and `apex.field`, and
+//!   writes one file per block of its shard in `blocks/`: the build journal's block files
+//!   ([`crate::journal`]), each renamed into place whole with a CRC, holding besides the block's
+//!   records and errors the apex's errors over the block's square. Blocks already there are
+//!   kept, so a retried or repeated shard is harmless.
+//! - [`merge`] reads `summary`, `apex` and every block file (no sample, but for
+//!   `--extra-levels auto`'s second try on small inputs), saturates the object errors over all
+//!   of them, and writes the repository atomically. A missing shard is named.
 //!
 //! Every file is written under a temporary name and renamed, so a killed step leaves nothing
 //! half-written.

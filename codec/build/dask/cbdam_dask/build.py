@@ -96,7 +96,7 @@ def _parse(argv):
         "--shards",
         type=int,
         help="shards (default: one per worker; a retried shard keeps the blocks it finished, so "
-        "more only balance uneven workers, at a read of the prepared grid each)",
+        "more only balance uneven workers, at a read of the apex field each)",
     )
     b.add_argument("--retries", type=int, default=3, help="Dask retries per task")
     b.add_argument(
