@@ -371,6 +371,9 @@ pub(crate) fn read_summary(work: &Path) -> Result<GridSummary> {
 mod tests {
     use super::*;
 
+    /// Lattice rectangles `(x0, y0, x1, y1)` (inclusive) and the tiles `(i, j)` they read.
+    type Case<'a> = (&'a [(i64, i64, i64, i64)], &'a [(usize, usize)]);
+
     /// A `w` × `h` grid with nodata here and there, and classes when `variable`.
     fn grid(w: usize, h: usize) -> HeightGrid {
         let mut g = HeightGrid::all_valid(
@@ -404,22 +407,26 @@ mod tests {
             let (all, all_c) = read_prepared(dir.path(), (w, h, variable), None, &memory).unwrap();
             assert!(all == g, "the whole grid reads back");
             assert_eq!(all_c.map(|r| r.class.to_vec()), c.map(|r| r.class.to_vec()));
-            // Tile (2, 1) only: the last column of tiles, 17 wide, in the last row, 3 high.
-            let rect = (
-                2 * TILE as i64 + 5,
-                TILE as i64 + 1,
-                9 * TILE as i64,
-                9 * TILE as i64,
-            );
-            let (part, _) =
-                read_prepared(dir.path(), (w, h, variable), Some(&[rect]), &memory).unwrap();
-            for y in 0..h {
-                for x in 0..w {
-                    let k = y * w + x;
-                    if x >= 2 * TILE && y >= TILE {
-                        assert_eq!((part.values[k], part.valid[k]), (g.values[k], g.valid[k]));
-                    } else {
-                        assert_eq!((part.values[k], part.valid[k]), (0, false), "({x}, {y})");
+            // Tile (2, 1) alone (the last column of tiles, 17 wide, in the last row, 3 high,
+            // from a rectangle reaching past the grid); tiles (0, 0) and (1, 0) from a
+            // rectangle across their edge; (1, 0) and (1, 1) from one from beyond the first row.
+            let t = TILE as i64;
+            let cases: [Case; 3] = [
+                (&[(2 * t + 5, t + 1, 9 * t, 9 * t)], &[(2, 1)]),
+                (&[(t - 1, 0, t, 0)], &[(0, 0), (1, 0)]),
+                (&[(t + 3, -5, t + 4, t)], &[(1, 0), (1, 1)]),
+            ];
+            for (rects, tiles) in cases {
+                let (part, _) =
+                    read_prepared(dir.path(), (w, h, variable), Some(rects), &memory).unwrap();
+                for y in 0..h {
+                    for x in 0..w {
+                        let k = y * w + x;
+                        if tiles.contains(&(x / TILE, y / TILE)) {
+                            assert_eq!((part.values[k], part.valid[k]), (g.values[k], g.valid[k]));
+                        } else {
+                            assert_eq!((part.values[k], part.valid[k]), (0, false), "({x}, {y})");
+                        }
                     }
                 }
             }
