@@ -442,11 +442,22 @@ fn claim_work_dir(work: &Path) -> Result<()> {
 
 /// The plan of a planned work directory.
 pub fn read_plan(work: &Path) -> Result<ShardPlan> {
-    if !work.join(KEY).exists() {
+    let Ok(key) = fs::read_to_string(work.join(KEY)) else {
         bail!(
             "{} holds no finished plan: run `cbdam shard plan INPUTS... -o OUT --max-error E \
              --work {}` first",
             work.display(),
+            work.display()
+        );
+    };
+    let layout = key
+        .lines()
+        .find_map(|l| l.strip_prefix("shard_layout="))
+        .unwrap_or("?");
+    if layout != VERSION.to_string() {
+        bail!(
+            "{} was planned by another cbdam version (work directory layout {layout}, this one \
+             reads {VERSION}): plan again in a new work directory",
             work.display()
         );
     }
