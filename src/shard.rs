@@ -21,10 +21,10 @@ pub enum ShardCommand {
     /// "output"}. With the inputs and arguments of the plan already there it does nothing; a
     /// work directory of another build is refused.
     Plan(Box<ShardPlanArgs>),
-    /// Encode the coarse levels over the whole domain (reads the prepared grid, writes the apex).
+    /// Refine the coarse levels over the whole domain (reads the prepared grid, writes the apex).
     Apex(ShardStepArgs),
-    /// Encode one shard's blocks (reads the prepared grid and the apex, writes the shard's block
-    /// files). Blocks already written are kept: a retried task is harmless.
+    /// Encode one shard's blocks (reads the prepared grid under them and the apex, writes the
+    /// shard's block files). Blocks already written are kept: a retried task is harmless.
     Run(ShardRunArgs),
     /// Put the apex and every shard together into the repository (written atomically); a
     /// missing shard is named.

@@ -100,6 +100,18 @@ fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
         e.contains("holds the plan of another build") && e.contains("max_error: 1 → 2"),
         "{e}"
     );
+    // A work directory of another layout version is refused by every step, saying so.
+    let key = Path::new(&work).join("key");
+    let text = std::fs::read_to_string(&key).unwrap();
+    std::fs::write(&key, text.replace("shard_layout=2\n", "shard_layout=1\n")).unwrap();
+    for step in ["apex", "merge"] {
+        let e = refused(&["shard", step, "--work", &work]);
+        assert!(
+            e.contains("planned by another cbdam version (work directory layout 1"),
+            "{e}"
+        );
+    }
+    std::fs::write(&key, text).unwrap();
     // A directory that is not a work directory is never cleared.
     let other = d.join("other");
     std::fs::create_dir(&other).unwrap();

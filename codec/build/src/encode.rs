@@ -84,7 +84,7 @@ pub(crate) fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
 }
 
 /// `--extra-levels auto` tries one more level pair only where a second encode is cheap ...
-const AUTO_RETRY_MAX_SAMPLES: usize = 16 << 20;
+pub(crate) const AUTO_RETRY_MAX_SAMPLES: usize = 16 << 20;
 /// ... and the root field is at least this share of the repository (percent): only there can
 /// sparser roots pay for the coarse records that replace them. Measured on the bundled DEMs
 /// (`--extra-levels 0` vs `1`): lidar1m_mn's root field is 47–70 % of the file at 0.5–5 m and

@@ -20,6 +20,7 @@ pub mod plan;
 pub mod planet;
 pub mod progress;
 pub mod shard;
+mod shard_grid;
 pub mod tiles;
 pub mod verify;
 pub mod write;

@@ -6,23 +6,28 @@
 //!
 //! - [`plan`] reads the inputs once (as `cbdam build` does), chooses the block plan and the shards
 //!   (runs of consecutive blocks) and writes `prepared` (the quantized grid, 5 bytes a sample,
-//!   6 with several inputs), `plan` (what the other steps need: output path, options,
-//!   quantization, georeferencing, blocks, shards) and, last, `key` (every input and argument
-//!   that decides the output): a work directory with a `key` is planned. Planning again with the
-//!   same key does nothing; with another it is refused, naming the first difference.
-//! - [`apex`] reads `prepared`, encodes the levels above the cut over the whole domain and writes
-//!   `apex.field` (the reconstruction at the cut, 4 bytes a point) and `apex` (its records).
-//! - [`run`] reads `prepared` and `apex.field` and writes one file per block of its shard in
-//!   `blocks/`: the build journal's block files ([`crate::journal`]), each renamed into place
-//!   whole with a CRC. Blocks already there are kept, so a retried or repeated shard is harmless.
-//! - [`merge`] reads `prepared`, `apex` and every block file, saturates the object errors over
-//!   all of them, and writes the repository atomically. A missing shard is named.
+//!   6 with several inputs, in tiles with a CRC each: [`crate::shard_grid`]), `summary` (what
+//!   the encoder's setup measures of the whole grid, so no later step scans it), `plan` (what
+//!   the other steps need: output path, options, quantization, georeferencing, blocks, shards)
+//!   and, last, `key` (every input and argument that decides the output): a work directory with
+//!   a `key` is planned. Planning again with the same key does nothing; with another it is
+//!   refused, naming the first difference.
+//! - [`apex`] reads `prepared`, refines the levels above the cut over the whole domain and
+//!   writes `apex.field` (the reconstruction at the cut, 4 bytes a point) and `apex` (its
+//!   records; the blocks measure its object errors).
+//! - [`run`] reads the tiles of `prepared` under its blocks' fields and `apex.field`, and
+//!   writes one file per block of its shard in `blocks/`: the build journal's block files
+//!   ([`crate::journal`]), each renamed into place whole with a CRC, holding besides the block's
+//!   records and errors the apex's errors over the block's square. Blocks already there are
+//!   kept, so a retried or repeated shard is harmless.
+//! - [`merge`] reads `summary`, `apex` and every block file (no sample, but for
+//!   `--extra-levels auto`'s second try on small inputs), saturates the object errors over all
+//!   of them, and writes the repository atomically. A missing shard is named.
 //!
 //! Every file is written under a temporary name and renamed, so a killed step leaves nothing
 //! half-written.
 
 use std::fs;
-use std::io::{BufWriter, Read, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -30,34 +35,35 @@ use std::time::{Duration, Instant};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::{
-    BlockJournal, BlockOutput, BlockPlan, EncodeOptions, Resolution, ShardedEncode, TempStorage,
+    BlockJournal, BlockOutput, BlockPlan, EncodeOptions, GridSummary, Resolution, ShardedEncode,
+    TempStorage,
 };
 use cbdam_codec::input::GeoRef;
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan, Quantizer};
 use cbdam_codec::repository::write_repository;
 
-use crate::encode::{ExtraLevels, thread_pool, with_coarser_roots_if_smaller};
+use crate::encode::{
+    AUTO_RETRY_MAX_SAMPLES, ExtraLevels, thread_pool, with_coarser_roots_if_smaller,
+};
 use crate::error::{Context, Result, bail};
 use crate::journal::{Journal, parse_block, serialize_block, write_atomically};
 use crate::plan::Prepared;
+use crate::shard_grid::{read_prepared, read_summary, write_prepared, write_summary};
 use crate::{BuildOptions, Progress, input_tiles, journal_key, prepare_elevation};
 
 const KEY: &str = "key";
 const PLAN: &str = "plan";
-const PREPARED: &str = "prepared";
 const APEX: &str = "apex";
 const APEX_FIELD: &str = "apex.field";
 const BLOCKS: &str = "blocks";
 /// Marks a directory as a work directory, so that planning never clears one it did not make.
 const MARKER: &str = ".cbdam-shard";
 
-/// Magic bytes of the `prepared` file.
-const PREPARED_MAGIC: &[u8; 4] = b"CBDP";
 /// Magic bytes of the `apex.field` file.
 const FIELD_MAGIC: &[u8; 4] = b"CBDF";
-/// Version of the work directory's layout.
-const VERSION: u32 = 1;
+/// Version of the work directory's layout (2: the blocks measure the apex's object errors).
+const VERSION: u32 = 2;
 
 /// What a sharded build's steps share: read from the work directory's `plan` file.
 #[derive(Clone, Debug, PartialEq)]
@@ -385,17 +391,25 @@ pub fn plan(
         shards: shards.unwrap_or(block_count).min(block_count).max(1),
     };
     write_prepared(work, grid, prepared.resolution.as_ref())?;
+    // The setup's scans of the whole grid, once: the other steps read its summary.
+    let pool = thread_pool(opts.threads)?;
+    let encode = pool.install(|| {
+        let e = ShardedEncode::new(
+            grid,
+            prepared.resolution.as_ref(),
+            plan.quant.quantizer,
+            &plan.encode_options(),
+            plan.blocks,
+        )?;
+        check_block_count(&e, &plan)?;
+        Ok::<_, crate::BuildError>(e)
+    })?;
+    write_summary(work, &encode.summary())?;
     let writing = || format!("writing the plan in {}", work.display());
     write_atomically(work, PLAN, plan.to_text().as_bytes()).with_context(writing)?;
     write_atomically(work, KEY, key.as_bytes()).with_context(writing)?;
     if with_apex {
-        encode_apex(
-            work,
-            &plan,
-            grid,
-            prepared.resolution.as_ref(),
-            opts.threads,
-        )?;
+        encode_apex(work, &encode, &pool)?;
     }
     Ok(PlanSummary {
         plan,
@@ -428,148 +442,28 @@ fn claim_work_dir(work: &Path) -> Result<()> {
 
 /// The plan of a planned work directory.
 pub fn read_plan(work: &Path) -> Result<ShardPlan> {
-    if !work.join(KEY).exists() {
+    let Ok(key) = fs::read_to_string(work.join(KEY)) else {
         bail!(
             "{} holds no finished plan: run `cbdam shard plan INPUTS... -o OUT --max-error E \
              --work {}` first",
             work.display(),
             work.display()
         );
+    };
+    let layout = key
+        .lines()
+        .find_map(|l| l.strip_prefix("shard_layout="))
+        .unwrap_or("?");
+    if layout != VERSION.to_string() {
+        bail!(
+            "{} was planned by another cbdam version (work directory layout {layout}, this one \
+             reads {VERSION}): plan again in a new work directory",
+            work.display()
+        );
     }
     let file = work.join(PLAN);
     let text = fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
     ShardPlan::parse(&text, &file)
-}
-
-/// Writes the quantized grid (and a variable-resolution input's classes): magic, version,
-/// width, height, whether classes follow (u8), the heights (i32), validity (u8), the classes
-/// (u8), a CRC-32 of everything before it; little-endian.
-fn write_prepared(work: &Path, grid: &HeightGrid, classes: Option<&Resolution>) -> Result<()> {
-    let tmp = work.join(format!(".{PREPARED}.{}.tmp", std::process::id()));
-    let context = || format!("writing {}", tmp.display());
-    let mut out = Crc32Writer::new(BufWriter::with_capacity(
-        1 << 20,
-        fs::File::create(&tmp).with_context(context)?,
-    ));
-    let mut head = Vec::new();
-    head.extend_from_slice(PREPARED_MAGIC);
-    head.extend_from_slice(&VERSION.to_le_bytes());
-    head.extend_from_slice(&(grid.width as u64).to_le_bytes());
-    head.extend_from_slice(&(grid.height as u64).to_le_bytes());
-    head.push(u8::from(classes.is_some()));
-    out.write_all(&head).with_context(context)?;
-    for chunk in grid.values.chunks(1 << 18) {
-        let le: Vec<i32> = chunk.iter().map(|v| v.to_le()).collect();
-        out.write_all(bytemuck::cast_slice(&le))
-            .with_context(context)?;
-    }
-    for chunk in grid.valid.chunks(1 << 20) {
-        let bytes: Vec<u8> = chunk.iter().map(|&v| u8::from(v)).collect();
-        out.write_all(&bytes).with_context(context)?;
-    }
-    if let Some(r) = classes {
-        out.write_all(&r.class).with_context(context)?;
-    }
-    let crc = out.crc.clone().finalize();
-    let mut inner = out.inner;
-    inner.write_all(&crc.to_le_bytes()).with_context(context)?;
-    inner.flush().with_context(context)?;
-    drop(inner);
-    fs::rename(&tmp, work.join(PREPARED)).with_context(context)?;
-    Ok(())
-}
-
-/// A writer that keeps a CRC-32 of what passed through.
-struct Crc32Writer<W> {
-    inner: W,
-    crc: crc32fast::Hasher,
-}
-
-impl<W: Write> Crc32Writer<W> {
-    fn new(inner: W) -> Self {
-        Crc32Writer {
-            inner,
-            crc: crc32fast::Hasher::new(),
-        }
-    }
-}
-
-impl<W: Write> Write for Crc32Writer<W> {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.crc.update(&buf[..n]);
-        Ok(n)
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.inner.flush()
-    }
-}
-
-/// Reads `n` bytes into `out`, updating `crc`.
-fn read_checked(
-    r: &mut impl Read,
-    crc: &mut crc32fast::Hasher,
-    out: &mut [u8],
-) -> std::io::Result<()> {
-    r.read_exact(out)?;
-    crc.update(out);
-    Ok(())
-}
-
-/// The quantized grid (and classes) [`plan`] wrote, checked against the plan and its CRC.
-fn read_prepared(work: &Path, plan: &ShardPlan) -> Result<(HeightGrid, Option<Resolution>)> {
-    let path = work.join(PREPARED);
-    let damaged = |why: &str| {
-        crate::BuildError::Invalid(format!(
-            "{} is damaged ({why}); plan again in a new work directory",
-            path.display()
-        ))
-    };
-    // Unbuffered: every read but the first is megabytes, straight into its destination.
-    let mut r = fs::File::open(&path).with_context(|| format!("reading {}", path.display()))?;
-    let mut crc = crc32fast::Hasher::new();
-    let io = |e: std::io::Error| damaged(&format!("{e}"));
-    let mut head = [0u8; 25];
-    read_checked(&mut r, &mut crc, &mut head).map_err(io)?;
-    let u64_at = |i: usize| u64::from_le_bytes(head[i..i + 8].try_into().expect("8 bytes"));
-    if &head[..4] != PREPARED_MAGIC || head[4..8] != VERSION.to_le_bytes() {
-        return Err(damaged("not a prepared grid of this cbdam version"));
-    }
-    let (w, h) = (u64_at(8) as usize, u64_at(16) as usize);
-    if (w, h) != (plan.width, plan.height) || (head[24] == 1) != plan.variable {
-        return Err(damaged("its size does not match the plan"));
-    }
-    let count = w * h;
-    let mut values = vec![0i32; count];
-    for chunk in values.chunks_mut(1 << 18) {
-        read_checked(&mut r, &mut crc, bytemuck::cast_slice_mut(chunk)).map_err(io)?;
-        chunk.iter_mut().for_each(|v| *v = i32::from_le(*v));
-    }
-    let mut bytes = vec![0u8; count];
-    read_checked(&mut r, &mut crc, &mut bytes).map_err(io)?;
-    let valid: Vec<bool> = bytes.iter().map(|&b| b != 0).collect();
-    let classes = if plan.variable {
-        read_checked(&mut r, &mut crc, &mut bytes).map_err(io)?;
-        Some(Resolution {
-            class: bytes.into(),
-        })
-    } else {
-        None
-    };
-    let mut stored = [0u8; 4];
-    r.read_exact(&mut stored).map_err(io)?;
-    if u32::from_le_bytes(stored) != crc.finalize() || r.read(&mut [0u8; 1]).map_err(io)? != 0 {
-        return Err(damaged("checksum mismatch"));
-    }
-    Ok((
-        HeightGrid {
-            width: w,
-            height: h,
-            values: values.into(),
-            valid: valid.into(),
-        },
-        classes,
-    ))
 }
 
 /// Writes the apex field: magic, version, count, the values (i32), CRC-32; little-endian.
@@ -627,19 +521,27 @@ fn read_apex_records(work: &Path) -> Result<Option<BlockOutput>> {
     }
 }
 
-/// The encode of the prepared grid in the plan's blocks.
+/// The encode of the prepared grid (or the part of it a step reads) in the plan's blocks, set
+/// up from the plan's summary of the grid.
 fn sharded<'a>(
     grid: &'a HeightGrid,
     classes: Option<&'a Resolution>,
     plan: &ShardPlan,
+    summary: GridSummary,
 ) -> Result<ShardedEncode<'a>> {
-    let e = ShardedEncode::new(
+    let e = ShardedEncode::with_summary(
         grid,
         classes,
         plan.quant.quantizer,
         &plan.encode_options(),
         plan.blocks,
+        summary,
     )?;
+    check_block_count(&e, plan)?;
+    Ok(e)
+}
+
+fn check_block_count(e: &ShardedEncode, plan: &ShardPlan) -> Result<()> {
     if e.block_count() != plan.block_count {
         bail!(
             "the plan counts {} blocks where its block plan makes {}: plan again in a new work \
@@ -648,7 +550,22 @@ fn sharded<'a>(
             e.block_count()
         );
     }
-    Ok(e)
+    Ok(())
+}
+
+/// The prepared grid (and classes), holding the samples under `rects` (`None`: all).
+fn read_grid(
+    work: &Path,
+    plan: &ShardPlan,
+    rects: Option<&[(i64, i64, i64, i64)]>,
+) -> Result<(HeightGrid, Option<Resolution>)> {
+    let bytes = (5 + u64::from(plan.variable)) * (plan.width as u64) * (plan.height as u64);
+    read_prepared(
+        work,
+        (plan.width, plan.height, plan.variable),
+        rects,
+        &TempStorage::for_lattice(bytes, plan.memory_limit),
+    )
 }
 
 /// Encodes the apex (the levels above the cut) of a planned work directory, unless it is there.
@@ -658,24 +575,16 @@ pub fn apex(work: &Path, threads: Option<usize>) -> Result<bool> {
     if read_apex_records(work)?.is_some() && read_apex_field(work).is_ok() {
         return Ok(false);
     }
-    let (grid, classes) = read_prepared(work, &plan)?;
-    encode_apex(work, &plan, &grid, classes.as_ref(), threads)?;
+    let summary = read_summary(work)?;
+    let (grid, classes) = read_grid(work, &plan, None)?;
+    let encode = sharded(&grid, classes.as_ref(), &plan, summary)?;
+    encode_apex(work, &encode, &thread_pool(threads)?)?;
     Ok(true)
 }
 
-/// Encodes the apex of `grid` and writes it to `work`.
-fn encode_apex(
-    work: &Path,
-    plan: &ShardPlan,
-    grid: &HeightGrid,
-    classes: Option<&Resolution>,
-    threads: Option<usize>,
-) -> Result<()> {
-    let out = thread_pool(threads)?.install(|| {
-        sharded(grid, classes, plan)?
-            .apex(&TempStorage::Memory)
-            .map_err(crate::BuildError::from)
-    })?;
+/// Encodes the apex and writes it to `work`.
+fn encode_apex(work: &Path, encode: &ShardedEncode, pool: &rayon::ThreadPool) -> Result<()> {
+    let out = pool.install(|| encode.apex(&TempStorage::Memory))?;
     let writing = || format!("writing the apex in {}", work.display());
     // The field first: `apex` present means both are.
     write_apex_field(work, &out.field).with_context(writing)?;
@@ -715,11 +624,28 @@ pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSumma
         return Ok(RunSummary { blocks, encoded: 0 });
     }
     let field = read_apex_field(work)?;
-    let (grid, classes) = read_prepared(work, &plan)?;
+    let summary = read_summary(work)?;
+    // Only the tiles under the blocks' fields are read.
+    let rects: Vec<_> = {
+        let domain = Domain::covering(
+            plan.diamond_size,
+            plan.width,
+            plan.height,
+            plan.extra_levels.first(),
+        )?;
+        let blocks = plan.blocks.blocks(domain.layout());
+        todo.iter()
+            .filter_map(|&b| blocks.get(b))
+            .map(|b| b.field_rect)
+            .collect()
+    };
+    let (grid, classes) = read_grid(work, &plan, Some(&rects))?;
     thread_pool(threads)?.install(|| -> Result<()> {
-        let encode = sharded(&grid, classes.as_ref(), &plan)?;
+        let encode = sharded(&grid, classes.as_ref(), &plan, summary)?;
+        let apex = encode.apex_field(&field, &TempStorage::Memory)?;
+        drop(field);
         for &b in &todo {
-            let out = encode.block(&field, b, &TempStorage::Memory)?;
+            let out = encode.block(&apex, b, &TempStorage::Memory)?;
             journal.save(b, &out)?;
         }
         Ok(())
@@ -775,7 +701,12 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<MergeSummary> {
             work.display()
         );
     };
-    let (grid, classes) = read_prepared(work, &plan)?;
+    let summary = read_summary(work)?;
+    // The merge reads no sample, but for `--extra-levels auto`'s second try on small inputs.
+    let retry = plan.extra_levels == ExtraLevels::Auto
+        && !plan.variable
+        && plan.width * plan.height <= AUTO_RETRY_MAX_SAMPLES;
+    let (grid, classes) = read_grid(work, &plan, (!retry).then_some(&[][..]))?;
     let input = Prepared {
         grid,
         plan: plan.quant,
@@ -784,7 +715,7 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<MergeSummary> {
         stages: Vec::new(),
     };
     let encoded = thread_pool(threads)?.install(|| -> Result<_> {
-        let encode = sharded(&input.grid, classes.as_ref(), &plan)?;
+        let encode = sharded(&input.grid, classes.as_ref(), &plan, summary)?;
         let mut parts = vec![apex];
         for b in 0..plan.block_count {
             match journal.load(b)? {

@@ -271,28 +271,17 @@ impl<'a> Setup<'a> {
         quantizer: Quantizer,
         opts: &EncodeOptions,
     ) -> Result<Self, CodecError> {
-        if grid.range().is_none() {
-            return Err(CodecError::invalid("the input has no valid sample"));
-        }
-        let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
-        let layout = *domain.layout();
-        let params = CodecParams {
-            domain,
-            alpha: opts.alpha,
-            coder: opts.coder,
+        let (params, targets) = Self::params(
+            grid,
+            resolution,
             quantizer,
-            root_quantizer: super::root_quantizer(quantizer),
-            nodata_mask: match resolution {
+            opts,
+            grid.range().is_some(),
+            match resolution {
                 Some(r) => r.has_holes(),
                 None => grid.has_invalid(),
             },
-            kind: super::RepoKind::Elevation,
-        };
-        let targets = Targets {
-            grid,
-            fields: (opts.alpha == Alpha::Half).then(|| analysis_fields(&layout, grid)),
-            resolution,
-        };
+        )?;
         // Single resolution: every stored diamond above the finest level has a record.
         let (stored, recorded) = match resolution {
             Some(r) => {
@@ -315,6 +304,90 @@ impl<'a> Setup<'a> {
             root_field,
             roots,
         })
+    }
+
+    /// The header fields and the targets; `any_valid` and `nodata_mask` measured by the caller.
+    fn params(
+        grid: &'a HeightGrid,
+        resolution: Option<&'a Resolution>,
+        quantizer: Quantizer,
+        opts: &EncodeOptions,
+        any_valid: bool,
+        nodata_mask: bool,
+    ) -> Result<(CodecParams, Targets<'a>), CodecError> {
+        if !any_valid {
+            return Err(CodecError::invalid("the input has no valid sample"));
+        }
+        let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
+        let layout = *domain.layout();
+        let params = CodecParams {
+            domain,
+            alpha: opts.alpha,
+            coder: opts.coder,
+            quantizer,
+            root_quantizer: super::root_quantizer(quantizer),
+            nodata_mask,
+            kind: super::RepoKind::Elevation,
+        };
+        let targets = Targets {
+            grid,
+            fields: (opts.alpha == Alpha::Half).then(|| analysis_fields(&layout, grid)),
+            resolution,
+        };
+        Ok((params, targets))
+    }
+
+    /// [`Setup::new`] from what an earlier one measured of the grid ([`GridSummary`]): reads
+    /// nothing of the grid, so `grid` need hold only the samples the caller will encode.
+    fn from_summary(
+        grid: &'a HeightGrid,
+        resolution: Option<&'a Resolution>,
+        quantizer: Quantizer,
+        opts: &EncodeOptions,
+        summary: GridSummary,
+    ) -> Result<Self, CodecError> {
+        let (params, targets) =
+            Self::params(grid, resolution, quantizer, opts, true, summary.nodata_mask)?;
+        let layout = params.domain.layout();
+        let rf = params.domain.root_field();
+        let levels = usize::from(layout.finest_level()) + 1;
+        if summary.stored.len() != levels
+            || summary.recorded.as_ref().is_some_and(|r| r.len() != levels)
+            || summary.recorded.is_some() != resolution.is_some()
+            || summary.root_field.len() != rf.width * rf.height
+        {
+            return Err(CodecError::invalid(
+                "the grid summary does not match the grid and options",
+            ));
+        }
+        Ok(Setup {
+            error_input: ErrorInput::with_bounds(grid, summary.max_abs, summary.all_valid),
+            params,
+            targets,
+            stored: summary.stored,
+            recorded: summary
+                .recorded
+                .map(|r| r.into_iter().map(|l| l.into_iter().collect()).collect()),
+            root_field: summary.root_field,
+            roots: summary.roots,
+        })
+    }
+
+    /// What this setup measured of the grid.
+    fn summary(&self) -> GridSummary {
+        let (max_abs, all_valid) = self.error_input.bounds();
+        GridSummary {
+            max_abs,
+            all_valid,
+            nodata_mask: self.params.nodata_mask,
+            stored: self.stored.clone(),
+            recorded: self
+                .recorded
+                .as_ref()
+                .map(|r| r.iter().map(|l| l.iter().copied().collect()).collect()),
+            root_field: self.root_field.clone(),
+            roots: self.roots.clone(),
+        }
     }
 
     fn levels<'b>(&'b self, tick: &'b (dyn Fn(&DiamondId) + Sync)) -> Levels<'b> {
@@ -342,23 +415,52 @@ impl<'a> Setup<'a> {
     }
 }
 
+/// What an encode's setup measures of the whole grid (scans of every sample), kept so that a
+/// sharded encode's other steps need not read the whole grid again
+/// ([`ShardedEncode::summary`], [`ShardedEncode::with_summary`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GridSummary {
+    /// The largest `|height|` of a valid sample.
+    pub max_abs: i64,
+    /// Whether every sample is valid.
+    pub all_valid: bool,
+    /// Whether the repository carries a nodata mask.
+    pub nodata_mask: bool,
+    /// The stored diamonds of every level, in id order.
+    pub stored: Vec<Vec<DiamondId>>,
+    /// Variable resolution only: which stored diamonds get a record, per level, in id order.
+    pub recorded: Option<Vec<Vec<DiamondId>>>,
+    /// The root field's reconstructed values.
+    pub root_field: Vec<i32>,
+    /// The coded root field.
+    pub roots: Vec<u8>,
+}
+
 /// An α = 1 encode split as [`encode_in_blocks`] splits it, into parts that run apart (in other
 /// processes, on other machines) and are put together without encoding again: the apex (the
 /// levels above the plan's cut, over the whole domain), each block of the finer levels, seeded
 /// from the apex's field, and [`ShardedEncode::finish`], which saturates the object errors over
 /// all of them. The result is the same as [`encode_in_blocks`]'s, bit for bit.
+///
+/// The apex only refines: the object errors of its levels (a scan of every sample per level,
+/// about half its work) are measured by the blocks, each over its own square, and the finish
+/// takes each diamond's largest. So the apex is quick, and that work is shared out.
 pub struct ShardedEncode<'a> {
     setup: Setup<'a>,
     plan: BlockPlan,
     blocks: Vec<Block>,
 }
 
-/// What the apex of a [`ShardedEncode`] produced: the records and own errors of the levels
-/// above the cut (as a [`BlockOutput`]), and the values of its field, which every block starts
-/// from.
+/// The apex's reconstruction at the cut, as the blocks of a [`ShardedEncode`] read it.
+pub struct ApexField(ReconField);
+
+/// What the apex of a [`ShardedEncode`] produced: the records of the levels above the cut (as a
+/// [`BlockOutput`], own errors 0: the blocks measure them), and the values of its field, which
+/// every block starts from.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ApexOutput {
-    /// Records (object errors not yet saturated) and own errors of the apex levels.
+    /// Records (object errors not yet saturated) of the apex levels, and their diamonds with
+    /// own error 0 (the blocks' measures replace it).
     pub output: BlockOutput,
     /// The apex field's values, row-major over the lattice of spacing
     /// `2^`[`BlockPlan::apex_shift`].
@@ -374,22 +476,67 @@ impl<'a> ShardedEncode<'a> {
         opts: &EncodeOptions,
         plan: BlockPlan,
     ) -> Result<Self, CodecError> {
+        Self::check_alpha(opts)?;
+        if let Some(r) = resolution {
+            r.check(grid)?;
+        }
+        Ok(Self::of(
+            Setup::new(grid, resolution, quantizer, opts)?,
+            plan,
+        ))
+    }
+
+    fn check_alpha(opts: &EncodeOptions) -> Result<(), CodecError> {
         if opts.alpha != Alpha::One {
             return Err(CodecError::invalid(
                 "a sharded encode needs α = 1 (α = ½ changes vertices, so a block's diamonds \
                  would depend on more than their ancestors' points)",
             ));
         }
-        if let Some(r) = resolution {
-            r.check(grid)?;
-        }
-        let setup = Setup::new(grid, resolution, quantizer, opts)?;
+        Ok(())
+    }
+
+    fn of(setup: Setup<'a>, plan: BlockPlan) -> Self {
         let blocks = plan.blocks(setup.params.layout());
-        Ok(ShardedEncode {
+        ShardedEncode {
             setup,
             plan,
             blocks,
-        })
+        }
+    }
+
+    /// [`ShardedEncode::new`] from the [`GridSummary`] of an earlier one over the same grid
+    /// ([`ShardedEncode::summary`]): nothing of the grid is read until a block (or the apex) is
+    /// encoded, and a block reads only its field's rectangle
+    /// ([`ShardedEncode::block_field_rect`]), so `grid` need hold only those samples (and
+    /// [`ShardedEncode::finish`] needs none). The output is the same.
+    pub fn with_summary(
+        grid: &'a HeightGrid,
+        resolution: Option<&'a Resolution>,
+        quantizer: Quantizer,
+        opts: &EncodeOptions,
+        plan: BlockPlan,
+        summary: GridSummary,
+    ) -> Result<Self, CodecError> {
+        Self::check_alpha(opts)?;
+        if resolution.is_some_and(|r| r.class.len() != grid.valid.len()) {
+            return Err(CodecError::invalid(
+                "resolution classes do not match the grid's size",
+            ));
+        }
+        let setup = Setup::from_summary(grid, resolution, quantizer, opts, summary)?;
+        Ok(Self::of(setup, plan))
+    }
+
+    /// What the setup measured of the whole grid, for [`ShardedEncode::with_summary`].
+    pub fn summary(&self) -> GridSummary {
+        self.setup.summary()
+    }
+
+    /// The lattice rectangle `(x0, y0, x1, y1)` (inclusive, possibly beyond the grid) whose
+    /// samples block `index` reads.
+    pub fn block_field_rect(&self, index: usize) -> Option<(i64, i64, i64, i64)> {
+        self.blocks.get(index).map(|b| b.field_rect)
     }
 
     /// How many blocks the plan makes.
@@ -397,10 +544,10 @@ impl<'a> ShardedEncode<'a> {
         self.blocks.len()
     }
 
-    /// Encodes the levels above the cut.
+    /// Encodes the levels above the cut (their refinements; not their errors).
     pub fn apex(&self, storage: &TempStorage) -> Result<ApexOutput, CodecError> {
         let levels = self.setup.levels(&|_| {});
-        let (apex, (records, own_errors)) = levels.apex(storage, &self.plan)?;
+        let (apex, (records, own_errors)) = levels.apex(storage, &self.plan, false)?;
         Ok(ApexOutput {
             output: BlockOutput {
                 records,
@@ -410,10 +557,24 @@ impl<'a> ShardedEncode<'a> {
         })
     }
 
-    /// Encodes block `index` from the apex's field `apex_field` ([`ApexOutput::field`]).
+    /// The apex's field from its values ([`ApexOutput::field`]), for [`ShardedEncode::block`]:
+    /// made once for all the blocks of a shard.
+    pub fn apex_field(
+        &self,
+        values: &[i32],
+        storage: &TempStorage,
+    ) -> Result<ApexField, CodecError> {
+        let apex = self.plan.apex_field(self.setup.params.layout(), storage)?;
+        apex.fill_from(values)?;
+        Ok(ApexField(apex))
+    }
+
+    /// Encodes block `index` from the apex's field ([`ShardedEncode::apex_field`]). Its own
+    /// errors include, besides its diamonds', those of the apex's diamonds over the block's
+    /// square.
     pub fn block(
         &self,
-        apex_field: &[i32],
+        apex: &ApexField,
         index: usize,
         storage: &TempStorage,
     ) -> Result<BlockOutput, CodecError> {
@@ -423,23 +584,27 @@ impl<'a> ShardedEncode<'a> {
                 self.blocks.len()
             )));
         };
-        let apex = self.plan.apex_field(self.setup.params.layout(), storage)?;
-        apex.fill_from(apex_field)?;
-        self.setup
-            .levels(&|_| {})
-            .block(&apex, &self.plan, block, storage)
+        let levels = self.setup.levels(&|_| {});
+        let mut out = levels.block(&apex.0, &self.plan, block, storage)?;
+        out.own_errors
+            .extend(levels.apex_errors(&apex.0, &self.plan, block));
+        Ok(out)
     }
 
-    /// The encoded hierarchy from the apex's output and every block's, in any order.
+    /// The encoded hierarchy from the apex's output and every block's, in any order. A
+    /// diamond's own error is the largest any part gives it.
     pub fn finish(
         self,
         parts: impl IntoIterator<Item = BlockOutput>,
     ) -> Result<Encoded, CodecError> {
         let mut records = Vec::new();
-        let mut own_error = HashMap::new();
+        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
         for part in parts {
             records.extend(part.records);
-            own_error.extend(part.own_errors);
+            for (id, e) in part.own_errors {
+                let max = own_error.entry(id).or_insert(e);
+                *max = (*max).max(e);
+            }
         }
         // Every stored diamond's own error is needed to saturate its ancestors'.
         if let Some(id) = self
@@ -600,7 +765,7 @@ impl Levels<'_> {
         let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
         for level in 0..=layout.finest_level() {
             let ids = &self.stored[level as usize];
-            for (id, record, err) in self.encode_level(&field, level, ids, &|_| true)? {
+            for (id, record, err) in self.encode_level(&field, level, ids, &|_| true, true)? {
                 own_error.insert(id, err);
                 records.extend(record);
             }
@@ -623,7 +788,7 @@ impl Levels<'_> {
         let layout = self.params.layout();
         let finest = layout.finest_level();
         let cut = plan.cut_level.min(finest);
-        let (apex, (mut records, mut own_error)) = self.apex(storage, plan)?;
+        let (apex, (mut records, mut own_error)) = self.apex(storage, plan, true)?;
         for (index, block) in plan.blocks(layout).into_iter().enumerate() {
             let out = match journal.load(index)? {
                 Some(out) => {
@@ -648,11 +813,13 @@ impl Levels<'_> {
     }
 
     /// The levels above `plan`'s cut, in the apex field ([`Levels::blocks`]): the field, the
-    /// records and the own errors.
+    /// records and the own errors (0 unless `measure_errors`: a sharded encode measures them
+    /// in its blocks, [`Levels::apex_errors`]).
     fn apex(
         &self,
         storage: &TempStorage,
         plan: &BlockPlan,
+        measure_errors: bool,
     ) -> Result<(ReconField, LevelOutput), CodecError> {
         let layout = self.params.layout();
         let cut = plan.cut_level.min(layout.finest_level());
@@ -662,7 +829,9 @@ impl Levels<'_> {
         self.seed_roots(&apex);
         for level in 0..cut {
             let ids = &self.stored[level as usize];
-            for (id, record, err) in self.encode_level(&apex, level, ids, &|_| true)? {
+            for (id, record, err) in
+                self.encode_level(&apex, level, ids, &|_| true, measure_errors)?
+            {
                 own_error.insert(id, err);
                 records.extend(record);
             }
@@ -690,7 +859,7 @@ impl Levels<'_> {
             let reach = plan.reach(layout, level);
             let ids = block.select(&self.stored[level as usize], reach);
             let owned = |id: DiamondId| block.owns(id);
-            for (id, record, err) in self.encode_level(&field, level, &ids, &owned)? {
+            for (id, record, err) in self.encode_level(&field, level, &ids, &owned, true)? {
                 if owned(id) {
                     out.own_errors.push((id, err));
                     out.records.extend(record);
@@ -698,6 +867,44 @@ impl Levels<'_> {
             }
         }
         Ok(out)
+    }
+
+    /// The object errors of the levels above `plan`'s cut (the apex's diamonds, reconstructed
+    /// in `apex`) over the samples of `block`'s owned rectangle: for each stored apex diamond
+    /// that reaches the rectangle. The blocks' rectangles tile the domain, so the largest of a
+    /// diamond's errors over all blocks is its own error ([`ShardedEncode::finish`] takes it).
+    fn apex_errors(
+        &self,
+        apex: &ReconField,
+        plan: &BlockPlan,
+        block: &Block,
+    ) -> Vec<(DiamondId, u32)> {
+        let layout = self.params.layout();
+        let n = layout.n();
+        let cut = plan.cut_level.min(layout.finest_level());
+        let (x0, y0, x1, y1) = block.owned;
+        let input = self.error_input.clipped(block.owned);
+        let reaches = |id: &DiamondId| {
+            let (a0, b0, a1, b1) = layout.bounds(*id);
+            a0 <= x1 && a1 >= x0 && b0 <= y1 && b1 >= y0
+        };
+        let ids: Vec<DiamondId> = self.stored[..cut as usize]
+            .iter()
+            .flatten()
+            .copied()
+            .filter(reaches)
+            .collect();
+        ids.par_iter()
+            .map(|&id| {
+                let mut p = vec![0i32; n * n];
+                if id.level == 0 {
+                    root_grid(&self.params.domain, self.root_field, id, &mut p);
+                } else {
+                    apex.gather(&self.params.domain, id, &mut p);
+                }
+                (id, surface_error(layout, id, &p, &input))
+            })
+            .collect()
     }
 
     /// Writes level 0's vertices (the root field, at spacing `2^K`) into `field`.
@@ -711,14 +918,15 @@ impl Levels<'_> {
     }
 
     /// Encodes the diamonds `ids` of `level` against `field`, writing their new points into it:
-    /// for each, its record (refined diamonds above the finest level) and own object error.
-    /// Progress counts the diamonds `counted` says.
+    /// for each, its record (refined diamonds above the finest level) and own object error (0
+    /// unless `measure_errors`). Progress counts the diamonds `counted` says.
     fn encode_level(
         &self,
         field: &ReconField,
         level: u8,
         ids: &[DiamondId],
         counted: &(dyn Fn(DiamondId) -> bool + Sync),
+        measure_errors: bool,
     ) -> Result<Vec<(DiamondId, Option<Record>, u32)>, CodecError> {
         let layout = self.params.layout();
         let (finest, n) = (layout.finest_level(), layout.n());
@@ -734,7 +942,11 @@ impl Levels<'_> {
         ids.par_iter()
             .map(|&id| {
                 let p = grid_of(id);
-                let err = surface_error(layout, id, &p, &self.error_input);
+                let err = if measure_errors {
+                    surface_error(layout, id, &p, &self.error_input)
+                } else {
+                    0
+                };
                 let refines = level < finest
                     && self
                         .recorded
@@ -1092,29 +1304,54 @@ mod tests {
             grid.height
         );
         // The same split run as shards would run it: each part from its own encoder (another
-        // process), the apex's field passed as values, the parts put together in reverse.
-        let apex = ShardedEncode::new(grid, None, q, opts, *plan)
-            .unwrap()
-            .apex(&TempStorage::Memory)
-            .unwrap();
-        let count = ShardedEncode::new(grid, None, q, opts, *plan)
-            .unwrap()
-            .block_count();
+        // process), the apex's field passed as values, the parts put together in reverse. The
+        // blocks and the merge are set up from the apex's summary of the grid, each block
+        // given only the samples of its field's rectangle (the rest nodata) and the merge none:
+        // what they read beyond that would change the output.
+        let first = ShardedEncode::new(grid, None, q, opts, *plan).unwrap();
+        let apex = first.apex(&TempStorage::Memory).unwrap();
+        let summary = first.summary();
+        let count = first.block_count();
+        let finest = first.setup.params.layout().finest_level();
+        let windowed = |rect: Option<(i64, i64, i64, i64)>| {
+            let mut part = grid.clone();
+            for y in 0..grid.height {
+                for x in 0..grid.width {
+                    let (x, y) = (x as i64, y as i64);
+                    let inside = rect.is_some_and(|(x0, y0, x1, y1)| {
+                        (x0..=x1).contains(&x) && (y0..=y1).contains(&y)
+                    });
+                    if !inside {
+                        let k = y as usize * grid.width + x as usize;
+                        part.values[k] = 0;
+                        part.valid[k] = false;
+                    }
+                }
+            }
+            part
+        };
         let mut parts: Vec<BlockOutput> = (0..count)
             .map(|i| {
-                ShardedEncode::new(grid, None, q, opts, *plan)
-                    .unwrap()
-                    .block(&apex.field, i, &TempStorage::Memory)
-                    .unwrap()
+                let part = windowed(first.block_field_rect(i));
+                let shard =
+                    ShardedEncode::with_summary(&part, None, q, opts, *plan, summary.clone())
+                        .unwrap();
+                let field = shard.apex_field(&apex.field, &TempStorage::Memory).unwrap();
+                shard.block(&field, i, &TempStorage::Memory).unwrap()
             })
             .collect();
         parts.push(apex.output);
         parts.reverse();
-        let merger = ShardedEncode::new(grid, None, q, opts, *plan).unwrap();
+        let nothing = windowed(None);
+        let merger =
+            ShardedEncode::with_summary(&nothing, None, q, opts, *plan, summary.clone()).unwrap();
         if count > 0 {
             // A missing block is an error, not a repository with holes.
             let short: Vec<BlockOutput> = parts[..parts.len() - 1].to_vec();
-            let any_owned = parts.last().is_some_and(|p| !p.own_errors.is_empty());
+            let cut = plan.cut_level.min(finest);
+            let any_owned = parts
+                .last()
+                .is_some_and(|p| p.own_errors.iter().any(|(id, _)| id.level >= cut));
             if any_owned {
                 let fresh = ShardedEncode::new(grid, None, q, opts, *plan).unwrap();
                 assert!(

@@ -33,8 +33,8 @@ pub use decode::{
     walk_with_validity,
 };
 pub use encode::{
-    ApexOutput, EncodeOptions, ShardedEncode, encode, encode_in_blocks, encode_variable,
-    encode_with_progress, encode_with_storage,
+    ApexField, ApexOutput, EncodeOptions, GridSummary, ShardedEncode, encode, encode_in_blocks,
+    encode_variable, encode_with_progress, encode_with_storage,
 };
 pub use field::TempStorage;
 pub use planet::{PlanetGrid, encode_planet, reconstruct_planet, verify_planet};

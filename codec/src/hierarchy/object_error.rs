@@ -44,6 +44,9 @@ pub(crate) struct ErrorInput<'a> {
     max_abs: i64,
     /// No nodata: the scans need not read the validity mask.
     all_valid: bool,
+    /// The samples measured: `(x0, y0, x1, y1)`, inclusive; the whole grid but for
+    /// [`ErrorInput::clipped`].
+    clip: (i64, i64, i64, i64),
 }
 
 impl<'a> ErrorInput<'a> {
@@ -51,12 +54,46 @@ impl<'a> ErrorInput<'a> {
         let max_abs = grid
             .range()
             .map_or(0, |(lo, hi)| i64::from(lo).abs().max(i64::from(hi).abs()));
-        let all_valid = !grid.has_invalid();
+        Self::with_bounds(grid, max_abs, !grid.has_invalid())
+    }
+
+    /// [`ErrorInput::new`] with the largest `|value|` of a valid sample and whether every
+    /// sample is valid given (as [`ErrorInput::bounds`] measured them), so that nothing scans
+    /// the grid here.
+    pub(crate) fn with_bounds(grid: &'a HeightGrid, max_abs: i64, all_valid: bool) -> Self {
         Self {
             grid,
             max_abs,
             all_valid,
+            clip: (0, 0, grid.width as i64 - 1, grid.height as i64 - 1),
         }
+    }
+
+    /// The same input with only the samples in the rectangle `(x0, y0, x1, y1)` (inclusive)
+    /// measured: the error of a diamond over rectangles that cover the grid is the largest of
+    /// its errors over each (a sharded encode measures the apex's errors block by block).
+    pub(crate) fn clipped(self, (x0, y0, x1, y1): (i64, i64, i64, i64)) -> Self {
+        let (a0, b0, a1, b1) = self.clip;
+        Self {
+            clip: (x0.max(a0), y0.max(b0), x1.min(a1), y1.min(b1)),
+            ..self
+        }
+    }
+
+    /// The largest `|value|` of a valid sample, and whether every sample is valid.
+    pub(crate) fn bounds(&self) -> (i64, bool) {
+        (self.max_abs, self.all_valid)
+    }
+
+    /// Whether only part of the grid is measured.
+    fn is_clipped(&self) -> bool {
+        self.clip
+            != (
+                0,
+                0,
+                self.grid.width as i64 - 1,
+                self.grid.height as i64 - 1,
+            )
     }
 }
 
@@ -68,7 +105,7 @@ impl<'a> ErrorInput<'a> {
 /// levels (s = Δx + Δy, t = Δx − Δy) an input diagonal. See [`surface_error_scan`].
 pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &ErrorInput) -> u32 {
     let g = layout.grid(id);
-    if id.is_even() && g.u.0 == 1 {
+    if id.is_even() && g.u.0 == 1 && !input.is_clipped() {
         let e = finest_error_fast(layout.n(), g.origin, p, input);
         input.grid.touched_rows(layout.n(), layout.n());
         return e;
@@ -309,6 +346,8 @@ struct Scan<'a> {
     /// Last row / column of `(s, t)`: `sp·(N − 1)`.
     side: i64,
     origin: (i64, i64),
+    /// The samples measured ([`ErrorInput::clipped`]).
+    clip: (i64, i64, i64, i64),
 }
 
 impl<'a> Scan<'a> {
@@ -329,6 +368,7 @@ impl<'a> Scan<'a> {
             shift: sp.trailing_zeros(),
             side: sp * (n as i64 - 1),
             origin: g.origin,
+            clip: error_input.clip,
         }
     }
 
@@ -336,19 +376,17 @@ impl<'a> Scan<'a> {
     #[inline]
     fn data_range(&self, t: i64) -> Option<(i64, i64)> {
         let (ox, oy) = self.origin;
-        let (w, h) = (self.input.width as i64, self.input.height as i64);
+        let (x0, y0, x1, y1) = self.clip;
         let (mut lo, mut hi) = if self.odd {
             (
-                (-2 * ox - t).max(t - 2 * oy).max(0),
-                (2 * (w - 1 - ox) - t)
-                    .min(2 * (h - 1 - oy) + t)
-                    .min(self.side),
+                (2 * (x0 - ox) - t).max(t + 2 * (y0 - oy)).max(0),
+                (2 * (x1 - ox) - t).min(2 * (y1 - oy) + t).min(self.side),
             )
         } else {
-            if oy + t < 0 || oy + t >= h {
+            if oy + t < y0 || oy + t > y1 {
                 return None;
             }
-            ((-ox).max(0), (w - 1 - ox).min(self.side))
+            ((x0 - ox).max(0), (x1 - ox).min(self.side))
         };
         if self.odd {
             lo += (lo - t).rem_euclid(2);
@@ -603,14 +641,15 @@ impl<'a> Scan<'a> {
         (mut hi, mut lo): (T, T),
     ) -> (T, T) {
         let (ox, oy) = self.origin;
-        let (w, h) = (self.input.width as i64, self.input.height as i64);
+        let w = self.input.width as i64;
+        let (x0, y0, x1, y1) = self.clip;
         // s − t = 2·Δy.
-        let dy0 = (ulo - t1).div_euclid(2).max(-oy);
-        let dy1 = (uhi - t0).div_euclid(2).min(h - 1 - oy);
+        let dy0 = (ulo - t1).div_euclid(2).max(y0 - oy);
+        let dy1 = (uhi - t0).div_euclid(2).min(y1 - oy);
         for dy in dy0..=dy1 {
             // t = Δx − Δy in [t0, t1], s = Δx + Δy in [ulo, uhi], x in the data.
-            let dx0 = (t0 + dy).max(ulo - dy).max(-ox);
-            let dx1 = (t1 + dy).min(uhi - dy).min(w - 1 - ox);
+            let dx0 = (t0 + dy).max(ulo - dy).max(x0 - ox);
+            let dx1 = (t1 + dy).min(uhi - dy).min(x1 - ox);
             if dx0 > dx1 {
                 continue;
             }
@@ -754,6 +793,24 @@ mod tests {
                 let p: Vec<i32> = (0..n * n).map(|_| rnd(1000) as i32).collect();
                 let want = brute_force(&layout, d, &p, &input);
                 proptest::prop_assert_eq!(surface_error(&layout, d, &p, &ErrorInput::new(&input)), want, "{}", d);
+                // Clipped to a rectangle (possibly empty or beyond the grid): the samples
+                // outside it are as if nodata.
+                let mut corner = |len: usize| rnd(len as i64 + 1);
+                let (xa, xb, ya, yb) = (corner(w), corner(w), corner(h), corner(h));
+                let rect = (xa.min(xb), ya.min(yb), xa.max(xb) + rnd(1), ya.max(yb));
+                let mut masked = input.clone();
+                for y in 0..h {
+                    for x in 0..w {
+                        let (xi, yi) = (x as i64, y as i64);
+                        if xi < rect.0 || xi > rect.2 || yi < rect.1 || yi > rect.3 {
+                            masked.valid[y * w + x] = false;
+                        }
+                    }
+                }
+                let want_clipped = brute_force(&layout, d, &p, &masked);
+                let clipped = ErrorInput::new(&input).clipped(rect);
+                proptest::prop_assert_eq!(surface_error(&layout, d, &p, &clipped), want_clipped, "{} clipped to {:?}", d, rect);
+                proptest::prop_assert_eq!(surface_error_scan(&layout, d, &p, &clipped, true), want_clipped, "{} clipped to {:?}, parallel", d, rect);
                 if d.level == layout.finest_level() && d.is_even() {
                     // The shortcut's other lanes and its portable kernel.
                     let origin = layout.grid(d).origin;

@@ -48,13 +48,19 @@ def run_step(cbdam, args, kill_hook=False):
         child.kill()
         os.kill(os.getpid(), signal.SIGKILL)
     done = subprocess.run(command, capture_output=True, text=True)
-    if done.returncode in (1, 2):
-        return ("error", f"{' '.join(command)}: {done.stderr.strip()}")
-    if done.returncode != 0:
+    return _finish_step(command, done.returncode, done.stdout, done.stderr)
+
+
+def _finish_step(command, returncode, stdout, stderr):
+    """`run_step`'s reading of a finished `cbdam shard` step: ("ok", stdout) or ("error", message)
+    for a failure with a message (exit 1 or 2); raises on anything else."""
+    if returncode in (1, 2):
+        return ("error", f"{' '.join(command)}: {stderr.strip()}")
+    if returncode != 0:
         raise RuntimeError(
-            f"{' '.join(command)} ended with status {done.returncode}: {done.stderr.strip()}"
+            f"{' '.join(command)} ended with status {returncode}: {stderr.strip()}"
         )
-    return ("ok", done.stdout.strip())
+    return ("ok", stdout.strip())
 
 
 def _absolute_input(text):
@@ -90,7 +96,7 @@ def _parse(argv):
         "--shards",
         type=int,
         help="shards (default: one per worker; a retried shard keeps the blocks it finished, so "
-        "more only balance uneven workers, at a read of the prepared grid each)",
+        "more only balance uneven workers, at a read of the apex field each)",
     )
     b.add_argument("--retries", type=int, default=3, help="Dask retries per task")
     b.add_argument(
@@ -137,10 +143,14 @@ def main(argv):
     output = os.path.abspath(args.output)
     work = os.path.abspath(args.work or output + ".shards")
 
-    # Imported here: `--help` and argument errors need no Dask.
-    from dask.distributed import Client, LocalCluster, as_completed
-
     started = time.monotonic()
+
+    def plan_args(workers):
+        return ["plan", *map(_absolute_input, args.inputs), "-o", output,
+                "--max-error", args.max_error, "--work", work,
+                "--shards", str(args.shards or workers), "--apex", *extra]
+
+    early_plan = None
     if args.scheduler.startswith("local:"):
         try:
             workers = int(args.scheduler[len("local:"):])
@@ -150,6 +160,16 @@ def main(argv):
             print(f"cbdam_dask: error: --scheduler {args.scheduler}: expected local:WORKERS",
                   file=sys.stderr)
             return 2
+        # A local cluster runs on this machine: the plan starts here at once, while Dask is
+        # imported and the cluster starts (about 2 s), instead of as the first task after.
+        command = [cbdam, "shard", *plan_args(workers)]
+        early_plan = (command, subprocess.Popen(command, stdout=subprocess.PIPE,
+                                                stderr=subprocess.PIPE, text=True))
+
+    # Imported here: `--help` and argument errors need no Dask.
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    if early_plan is not None:
         cluster = LocalCluster(
             n_workers=workers,
             threads_per_worker=1,
@@ -181,12 +201,20 @@ def main(argv):
         return text
 
     try:
-        plan_args = ["plan", *map(_absolute_input, args.inputs), "-o", output,
-                     "--max-error", args.max_error, "--work", work,
-                     "--shards", str(args.shards or workers), "--apex", *extra]
         import json
 
-        plan = json.loads(result(step("plan", plan_args)))
+        if early_plan is not None:
+            command, process = early_plan
+            stdout, stderr = process.communicate()
+            try:
+                status, text = _finish_step(command, process.returncode, stdout, stderr)
+            except RuntimeError as e:  # no Dask task to retry here
+                raise StepFailed(str(e))
+            if status == "error":
+                raise StepFailed(text)
+        else:
+            text = result(step("plan", plan_args(workers)))
+        plan = json.loads(text)
         shards = plan["shards"]
         print(f"cbdam_dask: planned {shards} shards of {plan['blocks']} blocks in {work} and "
               "encoded the apex", file=sys.stderr)
