@@ -160,6 +160,12 @@ pub struct SynthArgs {
     /// rows and columns (as SRTM's do), `rRRRcCCC.tif`; --size must be N·t + 1.
     #[arg(long, value_name = "N", requires = "int16")]
     tiles: Option<usize>,
+    /// With --tiles: every tile is the same (t+1)² terrain, mirrored across each tile edge (so
+    /// neighbours agree on their shared rows and columns), generated in the memory of one tile
+    /// instead of the whole grid's: for mosaics larger than memory (the 4.3 G-sample benchmark
+    /// of scripts/bench-tiles.sh). The grid is then periodic, not one terrain.
+    #[arg(long, requires = "tiles")]
+    mirrored: bool,
 }
 
 /// Compression of `cbdam synth --tiff`.

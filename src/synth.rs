@@ -151,6 +151,7 @@ pub fn write_tiff_i16(
     seed: u64,
     deflate: bool,
     tiles: Option<usize>,
+    mirrored: bool,
 ) -> Result<()> {
     use cbdam_build::write::write_geotiff_i16;
     use cbdam_codec::input::GeoRef;
@@ -160,10 +161,7 @@ pub fn write_tiff_i16(
         bail!("--size {size} is not N·t + 1 for --tiles {n}");
     }
     let t = (size - 1) / n;
-    let heights: Vec<i16> = terrain(size, seed)
-        .into_iter()
-        .map(|v| v.round().clamp(-32767.0, 32767.0) as i16)
-        .collect();
+    let to_i16 = |v: f32| v.round().clamp(-32767.0, 32767.0) as i16;
     let georef = |row: usize, col: usize| GeoRef {
         epsg: Some(32632),
         origin_x: 500_000.0 + col as f64 * SPACING,
@@ -179,6 +177,29 @@ pub fn write_tiff_i16(
             Ok(())
         })
     };
+    if mirrored {
+        // One tile's terrain; tile (tr, tc) reads it flipped left–right when tc is odd and
+        // top–bottom when tr is odd, so that a shared edge is the same row or column of it.
+        std::fs::create_dir(path)?;
+        let base: Vec<i16> = terrain(t + 1, seed).into_iter().map(to_i16).collect();
+        let side = t + 1;
+        let mut tile = vec![0i16; side * side];
+        for tr in 0..n {
+            for tc in 0..n {
+                for r in 0..side {
+                    let br = if tr % 2 == 1 { t - r } else { r };
+                    for c in 0..side {
+                        let bc = if tc % 2 == 1 { t - c } else { c };
+                        tile[r * side + c] = base[br * side + bc];
+                    }
+                }
+                let file = path.join(format!("r{tr:03}c{tc:03}.tif"));
+                write(&file, (side, side), &tile, &georef(tr * t, tc * t))?;
+            }
+        }
+        return Ok(());
+    }
+    let heights: Vec<i16> = terrain(size, seed).into_iter().map(to_i16).collect();
     let Some(n) = tiles else {
         return write(path, (size, size), &heights, &georef(0, 0));
     };
@@ -203,7 +224,14 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     }
     if args.int16 {
         let deflate = matches!(args.tiff, Some(TiffArg::Deflate));
-        return write_tiff_i16(&args.output, args.size, args.seed, deflate, args.tiles);
+        return write_tiff_i16(
+            &args.output,
+            args.size,
+            args.seed,
+            deflate,
+            args.tiles,
+            args.mirrored,
+        );
     }
     match args.tiff {
         None => write(&args.output, args.size, args.seed),
