@@ -183,27 +183,32 @@ pub(crate) fn serialize_block(b: &BlockOutput) -> Vec<u8> {
 }
 
 /// Reads bytes off the front of a block file.
-struct Reader<'a>(&'a [u8]);
+/// Reads little-endian fields off the front of a checked file body (the journal's block files,
+/// the sharded build's summary): `None` when the bytes run out.
+pub(crate) struct Reader<'a>(pub(crate) &'a [u8]);
 
 impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
-        if self.0.len() < n {
-            return None;
-        }
-        let (a, b) = self.0.split_at(n);
+    pub(crate) fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        let (a, b) = self.0.split_at_checked(n)?;
         self.0 = b;
         Some(a)
     }
-    fn u8(&mut self) -> Option<u8> {
+    pub(crate) fn u8(&mut self) -> Option<u8> {
         Some(self.take(1)?[0])
     }
-    fn u32(&mut self) -> Option<u32> {
+    pub(crate) fn u32(&mut self) -> Option<u32> {
         Some(u32::from_le_bytes(self.take(4)?.try_into().ok()?))
     }
-    fn u64(&mut self) -> Option<u64> {
+    pub(crate) fn u64(&mut self) -> Option<u64> {
         Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
     }
-    fn id(&mut self) -> Option<DiamondId> {
+    /// A count of items of at least `size` bytes each, no more than the bytes left allow.
+    pub(crate) fn count(&mut self, size: usize) -> Option<usize> {
+        usize::try_from(self.u64()?)
+            .ok()
+            .filter(|&n| n.checked_mul(size).is_some_and(|b| b <= self.0.len()))
+    }
+    pub(crate) fn id(&mut self) -> Option<DiamondId> {
         let (level, face) = (self.u8()?, self.u8()?);
         Some(DiamondId::on_face(face, level, self.u32()?, self.u32()?))
     }

@@ -15,7 +15,7 @@ use cbdam_codec::quant::HeightGrid;
 use cbdam_codec::temp::LatticeArray;
 
 use crate::error::{Context, Result};
-use crate::journal::write_atomically;
+use crate::journal::{Reader, write_atomically};
 
 const PREPARED: &str = "prepared";
 const SUMMARY: &str = "summary";
@@ -280,44 +280,15 @@ pub(crate) fn write_summary(work: &Path, s: &GridSummary) -> Result<()> {
     Ok(())
 }
 
-/// Reads bytes off the front of the summary.
-struct Reader<'a>(&'a [u8]);
-
-impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
-        let (a, b) = self.0.split_at_checked(n)?;
-        self.0 = b;
-        Some(a)
-    }
-    fn u8(&mut self) -> Option<u8> {
-        Some(self.take(1)?[0])
-    }
-    fn u32(&mut self) -> Option<u32> {
-        Some(u32::from_le_bytes(self.take(4)?.try_into().ok()?))
-    }
-    fn u64(&mut self) -> Option<u64> {
-        Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
-    }
-    /// A count of items of at least `size` bytes each, no more than the bytes left allow.
-    fn count(&mut self, size: usize) -> Option<usize> {
-        usize::try_from(self.u64()?)
-            .ok()
-            .filter(|&n| n.checked_mul(size).is_some_and(|b| b <= self.0.len()))
-    }
-    fn levels(&mut self) -> Option<Vec<Vec<DiamondId>>> {
-        let levels = self.count(8)?;
-        (0..levels)
-            .map(|_| {
-                let n = self.count(10)?;
-                (0..n)
-                    .map(|_| {
-                        let (level, face) = (self.u8()?, self.u8()?);
-                        Some(DiamondId::on_face(face, level, self.u32()?, self.u32()?))
-                    })
-                    .collect()
-            })
-            .collect()
-    }
+/// The summary's stored sets: per level, its diamonds.
+fn read_levels(r: &mut Reader) -> Option<Vec<Vec<DiamondId>>> {
+    let levels = r.count(8)?;
+    (0..levels)
+        .map(|_| {
+            let n = r.count(10)?;
+            (0..n).map(|_| r.id()).collect()
+        })
+        .collect()
 }
 
 /// The summary [`write_summary`] wrote.
@@ -343,10 +314,10 @@ pub(crate) fn read_summary(work: &Path) -> Result<GridSummary> {
         }
         let max_abs = r.u64()? as i64;
         let (all_valid, nodata_mask) = (r.u8()? != 0, r.u8()? != 0);
-        let stored = r.levels()?;
+        let stored = read_levels(r)?;
         let recorded = match r.u8()? {
             0 => None,
-            _ => Some(r.levels()?),
+            _ => Some(read_levels(r)?),
         };
         let n = r.count(4)?;
         let root_field = (0..n)
