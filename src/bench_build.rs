@@ -86,7 +86,7 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
                 max_error: args.max_error,
                 memory_limit: limit,
             })?;
-            let storage = storage_for(&input.grid, &opts, limit)?;
+            let storage = storage_for(&input.grid, None, &opts, limit)?;
             let enc = encode_prepared(
                 &input,
                 None,

@@ -628,6 +628,58 @@ impl HeightGrid {
     /// Bytes per lattice point of a grid: an `i32` height and a validity flag.
     pub const BYTES_PER_POINT: u64 = 5;
 
+    /// Whether [`HeightGrid::window`] copies: the grid is in mapped files (on Unix), where
+    /// reading a block's samples in place would fault them in page by page.
+    pub fn windows(&self) -> bool {
+        self.values.windows()
+    }
+
+    /// The samples of the rectangle `(x0, y0, x1, y1)` (inclusive, clipped to the grid) in a
+    /// grid of the same size that holds nothing else (nodata elsewhere), in memory
+    /// ([`LatticeArray::window`]): [`HeightGrid::window_bytes`] of it.
+    pub fn window(&self, rect: (i64, i64, i64, i64)) -> Result<Self, CodecError> {
+        Ok(Self {
+            width: self.width,
+            height: self.height,
+            values: self.values.window(self.width, rect)?,
+            valid: self.valid.window(self.width, rect)?,
+        })
+    }
+
+    /// A copy of the grid in `storage`.
+    pub fn copied_to(&self, storage: &TempStorage) -> Result<Self, CodecError> {
+        Ok(Self {
+            width: self.width,
+            height: self.height,
+            values: self.values.copied_to(storage)?,
+            valid: self.valid.copied_to(storage)?,
+        })
+    }
+
+    /// The samples at multiples of `2^shift` in both directions, as a compact grid in memory
+    /// ([`LatticeArray::strided`]): `((width − 1) >> shift) + 1` columns.
+    pub fn strided(&self, shift: u32) -> Result<Self, CodecError> {
+        let cols = |len: usize| {
+            if len == 0 {
+                0
+            } else {
+                ((len - 1) >> shift) + 1
+            }
+        };
+        Ok(Self {
+            width: cols(self.width),
+            height: cols(self.height),
+            values: self.values.strided(self.width, shift)?,
+            valid: self.valid.strided(self.width, shift)?,
+        })
+    }
+
+    /// Bytes of a [`HeightGrid::window`] of `rows` rows of `row_len` points.
+    pub fn window_bytes(&self, rows: usize, row_len: usize) -> u64 {
+        LatticeArray::<i32>::window_bytes(rows, row_len, self.width)
+            + LatticeArray::<bool>::window_bytes(rows, row_len, self.width)
+    }
+
     /// Notes that a pass read `rows` runs of about `row_len` lattice points each (heights and
     /// validity), so that a mapped grid drops its resident pages every window
     /// ([`LatticeArray::touched_rows`]).
@@ -642,6 +694,13 @@ impl HeightGrid {
     pub fn touched_sparse_rows(&self, rows: usize, row_len: usize) {
         self.values.touched_sparse_rows(rows, row_len);
         self.valid.touched_sparse_rows(rows, row_len);
+    }
+
+    /// Drops every resident page of a mapped grid (the values stay in its files); nothing in
+    /// memory.
+    pub fn release_all(&self) {
+        self.values.release(0..self.values.len());
+        self.valid.release(0..self.valid.len());
     }
 
     /// Whether some sample is nodata; a scan by windows.

@@ -270,5 +270,23 @@ fn blocks_encode_the_same_variable_resolution_hierarchy() {
         )
         .unwrap();
         assert!(blocks == whole, "{plan:?} differs");
+        // From mapped files, whose apex points and block windows are read as copies.
+        let file = TempStorage::File(None);
+        let mapped = grid.copied_to(&file).unwrap();
+        let classes = Resolution {
+            class: res.class.copied_to(&file).unwrap(),
+        };
+        let from_files = encode_in_blocks(
+            &mapped,
+            Some(&classes),
+            q,
+            &opts(),
+            &TempStorage::Memory,
+            &plan,
+            &NoJournal,
+            &|_, _| {},
+        )
+        .unwrap();
+        assert!(from_files == whole, "{plan:?} from mapped files differs");
     }
 }

@@ -119,7 +119,7 @@ pub fn with_coarser_roots_if_smaller(
         extra_level_pairs: opts.extra_level_pairs + 1,
         ..*opts
     };
-    let storage = storage_for(&input.grid, &opts, limit)?;
+    let storage = storage_for(&input.grid, None, &opts, limit)?;
     let second = encode_prepared(
         input,
         None,

@@ -248,7 +248,7 @@ pub(crate) fn prepare_elevation(
                     (input.grid.width, input.grid.height),
                 )?;
             }
-            let storage = storage_for(&input.grid, &enc_opts, limit)?;
+            let storage = storage_for(&input.grid, None, &enc_opts, limit)?;
             (input, None, storage)
         }
         tiles => {
@@ -277,8 +277,7 @@ pub(crate) fn prepare_elevation(
             let (input, res) =
                 prepare_mosaic(tiles, opts.nodata, opts.quantum, opts.max_error, limit)?;
             // The inputs are gone by now: what stays is the grid, the classes and the field.
-            let classes = res.class.resident_bytes();
-            let storage = storage_for(&input.grid, &enc_opts, limit.saturating_sub(classes))?;
+            let storage = storage_for(&input.grid, Some(&res), &enc_opts, limit)?;
             (input, Some(res), storage)
         }
     };
@@ -424,7 +423,7 @@ pub(crate) fn journal_key(
     plan: Option<&BlockPlan>,
 ) -> Result<String> {
     let mut key = format!(
-        "journal=1\ncbdam={}\nformat={}\n",
+        "journal=2\ncbdam={}\nformat={}\n",
         env!("CARGO_PKG_VERSION"),
         cbdam_codec::repository::FORMAT_VERSION
     );

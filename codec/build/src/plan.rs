@@ -16,6 +16,7 @@ use cbdam_codec::input::{
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::temp::LatticeArray;
 
 use crate::error::{Context, Result, bail};
 use crate::tiles::Tile;
@@ -183,28 +184,52 @@ pub const JOURNAL_FROM_SAMPLES: usize = 1 << 24;
 /// of a mapped grid, [`HeightGrid::resident_bytes`]) and that field (4 bytes per lattice point
 /// of the domain) fit and the input is smaller than [`JOURNAL_FROM_SAMPLES`]; in memory
 /// block by block ([`BlockPlan::fitting`]; at least 4 × 4 blocks for large inputs) when the grid
-/// and the block fields fit; otherwise the whole field in a mapped temporary file.
-pub fn storage_for(grid: &HeightGrid, opts: &EncodeOptions, limit: u64) -> Result<Temporaries> {
+/// and the block fields fit, with the window of the input each block of a mapped grid (and
+/// its `classes`) reads ([`HeightGrid::window`]); otherwise the whole field in a mapped
+/// temporary file.
+pub fn storage_for(
+    grid: &HeightGrid,
+    classes: Option<&Resolution>,
+    opts: &EncodeOptions,
+    limit: u64,
+) -> Result<Temporaries> {
     let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
     let (ex, ey) = domain.layout().face_extent();
     let field = 4 * (ex as u64 + 1) * (ey as u64 + 1);
-    let input = grid.resident_bytes();
+    let resident = grid.resident_bytes() + classes.map_or(0, |c| c.class.resident_bytes());
     let lattice_mapped = grid.is_mapped();
     let large = grid.width * grid.height >= JOURNAL_FROM_SAMPLES && opts.alpha == Alpha::One;
-    if input + field <= limit && !large {
+    if resident + field <= limit && !large {
         return Ok(Temporaries {
             storage: TempStorage::Memory,
             blocks: None,
             lattice_mapped,
         });
     }
-    let budget = limit.saturating_sub(input);
+    // The apex and the blocks of a mapped grid read copies of parts of it (the apex's points,
+    // [`HeightGrid::strided`]; a block's field, [`HeightGrid::window`]), after its resident
+    // pages are dropped: the copies take the place of those pages, not their sum.
+    let windowed = grid.windows();
+    let budget = if windowed {
+        limit
+    } else {
+        limit.saturating_sub(resident)
+    };
+    let window = |rows: usize, row_len: usize| -> u64 {
+        if !windowed {
+            return 0;
+        }
+        grid.window_bytes(rows, row_len)
+            + classes.map_or(0, |_| {
+                LatticeArray::<u8>::window_bytes(rows, row_len, grid.width)
+            })
+    };
+    let layout = domain.layout();
     let blocks = if large {
         // At least 4 × 4 blocks: units of work a killed build resumes from.
-        let max_side = ex.max(ey) / 4;
-        BlockPlan::fitting_at_most(domain.layout(), budget, max_side)
+        BlockPlan::fitting_at_most(layout, budget, ex.max(ey) / 4, &window)
     } else if opts.alpha == Alpha::One {
-        BlockPlan::fitting(domain.layout(), budget)
+        BlockPlan::fitting_at_most(layout, budget, layout.root_side(), &window)
     } else {
         None
     };

@@ -35,8 +35,8 @@ use std::time::{Duration, Instant};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::{
-    BlockJournal, BlockOutput, BlockPlan, EncodeOptions, GridSummary, Resolution, ShardedEncode,
-    TempStorage,
+    BlockJournal, BlockOutput, BlockPlan, EncodeOptions, GridSummary, NO_WINDOW, Resolution,
+    ShardedEncode, TempStorage,
 };
 use cbdam_codec::input::GeoRef;
 use cbdam_codec::lifting::Alpha;
@@ -361,6 +361,7 @@ pub fn plan(
                 domain.layout(),
                 prepared.limit.saturating_sub(input),
                 ex.max(ey) / 4,
+                &NO_WINDOW,
             )
             .ok_or_else(|| {
                 crate::BuildError::Invalid(format!(

@@ -51,6 +51,14 @@ impl BlockJournal for NoJournal {
     }
 }
 
+/// Bytes a block holds besides its reconstruction field, for a field of `rows` rows of
+/// `row_len` points: the window of an input in mapped files it reads
+/// ([`crate::quant::HeightGrid::window_bytes`]), or nothing ([`NO_WINDOW`]).
+pub type WindowBytes<'a> = dyn Fn(usize, usize) -> u64 + Sync + 'a;
+
+/// An input read in place: no window.
+pub const NO_WINDOW: fn(usize, usize) -> u64 = |_, _| 0;
+
 /// How the encoder splits the levels into an apex and blocks.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BlockPlan {
@@ -78,13 +86,19 @@ impl BlockPlan {
     /// (the least work in margins); `None` when no plan fits. Blocks are a root's side halved
     /// `j` times, at least 8 finest radii across.
     pub fn fitting(layout: &Layout, budget: u64) -> Option<BlockPlan> {
-        Self::fitting_at_most(layout, budget, layout.root_side())
+        Self::fitting_at_most(layout, budget, layout.root_side(), &NO_WINDOW)
     }
 
     /// [`BlockPlan::fitting`] with blocks at most `max_side` across (rounded down to a root's
     /// side halved `j` times): for a build that wants several blocks (units of work to resume
-    /// from) even when one would fit.
-    pub fn fitting_at_most(layout: &Layout, budget: u64, max_side: i64) -> Option<BlockPlan> {
+    /// from) even when one would fit; and with a block's `window` of the input counted
+    /// besides its field.
+    pub fn fitting_at_most(
+        layout: &Layout,
+        budget: u64,
+        max_side: i64,
+        window: &WindowBytes<'_>,
+    ) -> Option<BlockPlan> {
         let finest = layout.finest_level();
         let smallest = (8 * layout.radius(finest)).min(layout.root_side());
         let mut side = layout.root_side();
@@ -104,7 +118,7 @@ impl BlockPlan {
                     cut_level,
                     block_side: side,
                 };
-                if plan.field_bytes(layout) <= budget {
+                if plan.field_bytes(layout, window) <= budget {
                     return Some(plan);
                 }
             }
@@ -114,21 +128,24 @@ impl BlockPlan {
     }
 
     /// Bytes of the fields a block encode holds at once: the apex's and one block's (the
-    /// largest).
-    pub fn field_bytes(&self, layout: &Layout) -> u64 {
+    /// largest), with the block's `window` of the input; or, while the apex is encoded, the
+    /// apex's field and its `window` of the input.
+    pub fn field_bytes(&self, layout: &Layout, window: &WindowBytes<'_>) -> u64 {
         let shift = self.apex_shift(layout);
         let (ex, ey) = layout.face_extent();
-        let apex = ((ex >> shift) as u64 + 1) * ((ey >> shift) as u64 + 1);
+        let (aw, ah) = ((ex >> shift) as usize + 1, (ey >> shift) as usize + 1);
+        let apex = (aw * ah) as u64;
         let block = self
             .blocks(layout)
             .iter()
             .map(|b| {
                 let (x0, y0, x1, y1) = b.field_rect;
-                (x1 - x0 + 1) as u64 * (y1 - y0 + 1) as u64
+                let (w, h) = ((x1 - x0 + 1) as usize, (y1 - y0 + 1) as usize);
+                4 * (w as u64) * (h as u64) + window(h, w)
             })
             .max()
             .unwrap_or(0);
-        4 * (apex + block)
+        4 * apex + block.max(window(ah, aw))
     }
 
     /// How far (L∞, lattice units) a diamond's ancestors at `level` or finer can lie from it.
@@ -359,7 +376,7 @@ mod tests {
         for budget in [whole / 2, whole / 4, whole / 8] {
             let plan = BlockPlan::fitting(&layout, budget).expect("a plan fits");
             assert!(
-                plan.field_bytes(&layout) <= budget,
+                plan.field_bytes(&layout, &NO_WINDOW) <= budget,
                 "{plan:?} over {budget}"
             );
         }

@@ -52,6 +52,9 @@ struct Targets<'a> {
     fields: Option<Vec<LevelField>>,
     /// Variable-resolution classes: points without a sample may still be drawn.
     resolution: Option<&'a Resolution>,
+    /// `grid` (and `resolution`) hold only the points at multiples of `2^shift`, compacted
+    /// ([`HeightGrid::strided`]): the levels above a block plan's cut read no others.
+    shift: u32,
 }
 
 impl Targets<'_> {
@@ -59,10 +62,23 @@ impl Targets<'_> {
     /// point between a coarser input's samples.
     #[inline]
     fn drawn(&self, x: i64, y: i64) -> bool {
+        let (x, y) = self.compact(x, y);
         match self.resolution {
             Some(r) => r.drawn(self.grid.width, x, y),
             None => self.grid.get(x, y).is_some(),
         }
+    }
+
+    /// `(x, y)` in `grid`'s points.
+    #[inline]
+    fn compact(&self, x: i64, y: i64) -> (i64, i64) {
+        let mask = (1i64 << self.shift) - 1;
+        debug_assert!(
+            x & mask == 0 && y & mask == 0,
+            "({x}, {y}) is not on the targets' lattice of spacing 2^{}",
+            self.shift
+        );
+        (x >> self.shift, y >> self.shift)
     }
 
     /// What the nodata mask says of `(x, y)`: `None` (don't care) outside the data rectangle.
@@ -75,6 +91,14 @@ impl Targets<'_> {
             .then(|| self.drawn(x, y))
     }
 
+    /// Drops the resident pages of a mapped input ([`HeightGrid::release_all`]).
+    fn release_all(&self) {
+        self.grid.release_all();
+        if let Some(r) = self.resolution {
+            r.class.release(0..r.class.len());
+        }
+    }
+
     #[inline]
     fn at(&self, level: u8, x: i64, y: i64) -> Option<i32> {
         match &self.fields {
@@ -84,7 +108,10 @@ impl Targets<'_> {
                 .grid
                 .is_valid(x, y)
                 .then(|| f[level as usize].get_in_domain(x, y)),
-            None => self.grid.get(x, y),
+            None => {
+                let (x, y) = self.compact(x, y);
+                self.grid.get(x, y)
+            }
         }
     }
 }
@@ -333,6 +360,7 @@ impl<'a> Setup<'a> {
             grid,
             fields: (opts.alpha == Alpha::Half).then(|| analysis_fields(&layout, grid)),
             resolution,
+            shift: 0,
         };
         Ok((params, targets))
     }
@@ -584,11 +612,9 @@ impl<'a> ShardedEncode<'a> {
                 self.blocks.len()
             )));
         };
-        let levels = self.setup.levels(&|_| {});
-        let mut out = levels.block(&apex.0, &self.plan, block, storage)?;
-        out.own_errors
-            .extend(levels.apex_errors(&apex.0, &self.plan, block));
-        Ok(out)
+        self.setup
+            .levels(&|_| {})
+            .block_and_apex_errors(&apex.0, &self.plan, block, storage)
     }
 
     /// The encoded hierarchy from the apex's output and every block's, in any order. A
@@ -788,7 +814,14 @@ impl Levels<'_> {
         let layout = self.params.layout();
         let finest = layout.finest_level();
         let cut = plan.cut_level.min(finest);
-        let (apex, (mut records, mut own_error)) = self.apex(storage, plan, true)?;
+        // The apex's own errors are measured by the blocks, each over its square, as in a
+        // sharded encode: a whole-grid scan per apex level would read a mapped input whole.
+        if self.targets.grid.windows() {
+            // The setup's scans are over: the apex and the blocks read copies of parts of the
+            // mapped input, not the mapping.
+            self.targets.release_all();
+        }
+        let (apex, (mut records, mut own_error)) = self.apex(storage, plan, false)?;
         for (index, block) in plan.blocks(layout).into_iter().enumerate() {
             let out = match journal.load(index)? {
                 Some(out) => {
@@ -801,12 +834,16 @@ impl Levels<'_> {
                     out
                 }
                 None => {
-                    let out = self.block(&apex, plan, &block, storage)?;
+                    let out = self.block_and_apex_errors(&apex, plan, &block, storage)?;
                     journal.save(index, &out)?;
                     out
                 }
             };
-            own_error.extend(out.own_errors);
+            // An apex diamond's own error is the largest over the blocks' squares.
+            for (id, e) in out.own_errors {
+                let max = own_error.entry(id).or_insert(e);
+                *max = (*max).max(e);
+            }
             records.extend(out.records);
         }
         Ok((records, own_error))
@@ -822,6 +859,30 @@ impl Levels<'_> {
         measure_errors: bool,
     ) -> Result<(ReconField, LevelOutput), CodecError> {
         let layout = self.params.layout();
+        let grid = self.targets.grid;
+        if grid.windows() && !measure_errors && self.targets.shift == 0 {
+            // Its points, copied from the mapped files: read in place, each scattered point
+            // would map a whole folio of the page cache (up to 2 MiB, measured on Linux 6.18).
+            let shift = plan.apex_shift(layout);
+            debug_assert!(self.targets.fields.is_none(), "blocks need α = 1");
+            let points = grid.strided(shift)?;
+            let classes = self
+                .targets
+                .resolution
+                .map(|r| r.strided(grid.width, shift))
+                .transpose()?;
+            let targets = Targets {
+                grid: &points,
+                fields: None,
+                resolution: classes.as_ref(),
+                shift,
+            };
+            return Levels {
+                targets: &targets,
+                ..*self
+            }
+            .apex(storage, plan, false);
+        }
         let cut = plan.cut_level.min(layout.finest_level());
         let mut records: Vec<Record> = Vec::new();
         let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
@@ -837,6 +898,47 @@ impl Levels<'_> {
             }
         }
         Ok((apex, (records, own_error)))
+    }
+
+    /// One block of the fine levels ([`Levels::block`]) and the errors of the apex's diamonds
+    /// over its square ([`Levels::apex_errors`]). An input in mapped files is read through a
+    /// window of the block's field ([`HeightGrid::window`]): the block's reads, at random under
+    /// every diamond, then touch memory instead of faulting in the file's pages.
+    fn block_and_apex_errors(
+        &self,
+        apex: &ReconField,
+        plan: &BlockPlan,
+        block: &Block,
+        storage: &TempStorage,
+    ) -> Result<BlockOutput, CodecError> {
+        let both = |levels: &Levels| -> Result<BlockOutput, CodecError> {
+            let mut out = levels.block(apex, plan, block, storage)?;
+            out.own_errors.extend(levels.apex_errors(apex, plan, block));
+            Ok(out)
+        };
+        let grid = self.targets.grid;
+        if !grid.windows() {
+            return both(self);
+        }
+        debug_assert!(self.targets.fields.is_none(), "blocks need α = 1");
+        let window = grid.window(block.field_rect)?;
+        let classes = self
+            .targets
+            .resolution
+            .map(|r| r.window(grid.width, block.field_rect))
+            .transpose()?;
+        let targets = Targets {
+            grid: &window,
+            fields: None,
+            resolution: classes.as_ref(),
+            shift: 0,
+        };
+        let (max_abs, all_valid) = self.error_input.bounds();
+        both(&Levels {
+            error_input: ErrorInput::with_bounds(&window, max_abs, all_valid),
+            targets: &targets,
+            ..*self
+        })
     }
 
     /// One block of the fine levels ([`Levels::blocks`]): its diamonds' records and errors.
@@ -1300,6 +1402,27 @@ mod tests {
         assert!(
             whole == blocks,
             "block encoder differs on {}×{} {opts:?} {plan:?}",
+            grid.width,
+            grid.height
+        );
+        // The same grid in mapped files: the apex reads a copy of its points and each block a
+        // window of its field, not the mapping (on Unix; elsewhere the mapping in place).
+        let mapped = grid.copied_to(&TempStorage::File(None)).unwrap();
+        assert_eq!(mapped.windows(), cfg!(unix));
+        let from_files = encode_in_blocks(
+            &mapped,
+            None,
+            q,
+            opts,
+            &TempStorage::Memory,
+            plan,
+            &super::super::blocks::NoJournal,
+            &|_, _| {},
+        )
+        .unwrap();
+        assert!(
+            whole == from_files,
+            "block encoder of a mapped grid differs on {}×{} {opts:?} {plan:?}",
             grid.width,
             grid.height
         );

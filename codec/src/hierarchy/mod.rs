@@ -26,7 +26,7 @@ pub mod resolution;
 mod roots;
 
 pub use analysis::{LevelField, analysis_fields};
-pub use blocks::{BlockJournal, BlockOutput, BlockPlan, NoJournal};
+pub use blocks::{BlockJournal, BlockOutput, BlockPlan, NO_WINDOW, NoJournal, WindowBytes};
 pub use decode::{
     Decoder, LevelReport, Reached, VerifyReport, reconstruct_finest,
     reconstruct_finest_with_validity, reconstruct_reached, verify, walk, walk_all_with_validity,

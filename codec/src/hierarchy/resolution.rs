@@ -70,6 +70,23 @@ impl Resolution {
         self.class[y as usize * width + x as usize] != HOLE
     }
 
+    /// The classes of the rectangle `(x0, y0, x1, y1)` of a grid `width` wide in an array of
+    /// the same length that holds nothing else (0 elsewhere: meaningless, so read only inside
+    /// the rectangle, as under a [`HeightGrid::window`] of it).
+    pub fn window(&self, width: usize, rect: (i64, i64, i64, i64)) -> Result<Self, CodecError> {
+        Ok(Self {
+            class: self.class.window(width, rect)?,
+        })
+    }
+
+    /// The classes at multiples of `2^shift` of a grid `width` wide, as
+    /// [`HeightGrid::strided`] makes its samples.
+    pub fn strided(&self, width: usize, shift: u32) -> Result<Self, CodecError> {
+        Ok(Self {
+            class: self.class.strided(width, shift)?,
+        })
+    }
+
     /// Whether some point has no data at all.
     pub fn has_holes(&self) -> bool {
         self.class.any(|&c| c == HOLE)
