@@ -119,6 +119,22 @@ fn serialize_with(
     nodata: Option<f64>,
     provenance: Option<&PlanetProvenance>,
 ) -> Result<Vec<u8>, CodecError> {
+    let mut out = Vec::new();
+    let total = serialize_to(&mut out, encoded, plan, georef, nodata, provenance)?;
+    debug_assert_eq!(out.len() as u64, total);
+    Ok(out)
+}
+
+/// Writes the file image of [`serialize_with`] to `out`, section by section (a large
+/// repository's records are not copied into one buffer first); returns its length.
+fn serialize_to(
+    out: &mut dyn Write,
+    encoded: &Encoded,
+    plan: &QuantPlan,
+    georef: Option<&GeoRef>,
+    nodata: Option<f64>,
+    provenance: Option<&PlanetProvenance>,
+) -> Result<u64, CodecError> {
     let p = &encoded.params;
     if p.quantizer != plan.quantizer {
         return Err(CodecError::invalid(
@@ -216,17 +232,31 @@ fn serialize_with(
     let h = write_compact(&fields)?;
     let offset = h.len() as u64 + fields.sections.iter().map(|s| s.length).sum::<u64>();
 
-    let total = usize::try_from(offset).map_err(|_| CodecError::limit("repository too large"))?;
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(&h);
-    out.extend_from_slice(&encoded.roots);
-    out.extend_from_slice(&index);
-    out.extend_from_slice(&checksums);
+    out.write_all(&h)?;
+    out.write_all(&encoded.roots)?;
+    out.write_all(&index)?;
+    out.write_all(&checksums)?;
     for r in &encoded.records {
-        out.extend_from_slice(&r.bytes);
+        out.write_all(&r.bytes)?;
     }
-    debug_assert_eq!(out.len(), total);
-    Ok(out)
+    Ok(offset)
+}
+
+/// Writes a repository to `path` atomically, streamed through a buffer.
+fn write_streamed(
+    path: &Path,
+    encoded: &Encoded,
+    plan: &QuantPlan,
+    georef: Option<&GeoRef>,
+    nodata: Option<f64>,
+    provenance: Option<&PlanetProvenance>,
+) -> Result<(), CodecError> {
+    write_atomically(path, |f: &mut File| -> Result<(), CodecError> {
+        let mut out = std::io::BufWriter::with_capacity(1 << 20, f);
+        serialize_to(&mut out, encoded, plan, georef, nodata, provenance)?;
+        out.flush()?;
+        Ok(())
+    })
 }
 
 /// Writes `encoded` to `path` atomically ([`crate::atomic::write_atomically`]): a reader never
@@ -239,17 +269,7 @@ pub fn write_repository(
     georef: Option<&GeoRef>,
     nodata: Option<f64>,
 ) -> Result<(), CodecError> {
-    if path.is_dir() {
-        return Err(CodecError::invalid(format!(
-            "output path {} is a directory",
-            path.display()
-        )));
-    }
-    let bytes = serialize(encoded, plan, georef, nodata)?;
-    write_atomically(path, |f: &mut File| -> Result<(), CodecError> {
-        f.write_all(&bytes)?;
-        Ok(())
-    })
+    write_streamed(path, encoded, plan, georef, nodata, None)
 }
 
 /// Writes a planet repository with its provenance ([`PlanetProvenance`]) atomically, as
@@ -261,17 +281,7 @@ pub fn write_planet_repository(
     nodata: Option<f64>,
     provenance: &PlanetProvenance,
 ) -> Result<(), CodecError> {
-    if path.is_dir() {
-        return Err(CodecError::invalid(format!(
-            "output path {} is a directory",
-            path.display()
-        )));
-    }
-    let bytes = serialize_with(encoded, plan, None, nodata, Some(provenance))?;
-    write_atomically(path, |f: &mut File| -> Result<(), CodecError> {
-        f.write_all(&bytes)?;
-        Ok(())
-    })
+    write_streamed(path, encoded, plan, None, nodata, Some(provenance))
 }
 
 /// The bytes behind a repository: a read-only file mapping, or an owned buffer.
