@@ -281,6 +281,7 @@ pub(crate) fn prepare_elevation(
             (input, Some(res), storage)
         }
     };
+    plan::return_freed_memory();
     progress.event(ProgressEvent {
         stage: Stage::Prepare,
         done: 1,

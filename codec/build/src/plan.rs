@@ -247,6 +247,20 @@ pub fn storage_for(
     })
 }
 
+/// Hands the heap's free pages back to the system, once the input is prepared. The mosaic's
+/// cache of decoded tile rows (up to half the memory limit) and the decoders' buffers are
+/// freed in pieces the allocator keeps, resident, for reuse; the encoder's large fields are
+/// mapped afresh, so without this that memory would stay in the build's resident set beside
+/// them (16385² as 256 tiles under `--memory-limit 2G`: peak 953–1 020 MiB without, 556–560
+/// with).
+pub(crate) fn return_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: `malloc_trim` only releases free memory of glibc's own heap.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// The default memory limit: half of physical memory (`MemTotal` in `/proc/meminfo`), or 4 GiB
 /// where that cannot be read. Half, because the page cache and other processes need the rest.
 pub fn default_memory_limit() -> u64 {
