@@ -89,14 +89,17 @@ enum Inner<T> {
     Heap(Vec<T>),
     Mapped {
         map: MmapMut,
-        /// The mapped file, read by [`LatticeArray::window`].
+        /// The mapped file, read by [`LatticeArray::window`] (on Unix).
+        #[cfg_attr(not(unix), allow(dead_code))]
         file: std::fs::File,
         len: usize,
         /// Bytes reported read since the resident pages were last dropped.
         touched: AtomicU64,
     },
     /// [`LatticeArray::window`]: an anonymous mapping of `len` elements, allocated (by the
-    /// kernel, as pages are first written) only under the window's rows.
+    /// kernel, as pages are first written) only under the window's rows (Unix only; elsewhere
+    /// a window is a plain `Vec`).
+    #[cfg_attr(not(unix), allow(dead_code))]
     Sparse {
         map: MmapMut,
         len: usize,

@@ -58,7 +58,7 @@ fn grids(enc: &Encoded) -> HashMap<DiamondId, Vec<i32>> {
 /// drives the synthesis with extreme (but in-range) inputs. An error part-way is fine.
 fn walk_damaged(enc: &Encoded, record: usize, bytes: &[u8]) -> usize {
     let mut damaged = enc.clone();
-    damaged.records[record].bytes = bytes.to_vec();
+    damaged.records[record].bytes = bytes.to_vec().into();
     walk_checked(&damaged)
 }
 
@@ -133,7 +133,7 @@ fn bit_flipped_records_never_panic_and_stay_in_range() {
         for _ in 0..FLIPS {
             let ri = rng.below(enc.records.len());
             let r = &enc.records[ri];
-            let mut bytes = r.bytes.clone();
+            let mut bytes = r.bytes.to_vec();
             let bit = rng.below(bytes.len() * 8);
             bytes[bit / 8] ^= 1 << (bit % 8);
             if decoder.refine(&grids[&r.id], &bytes, &mut scratch).is_ok() {

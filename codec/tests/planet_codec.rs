@@ -354,7 +354,7 @@ fn damaged_planet_bytes_are_errors_or_wrong_heights_never_panics() {
         let bytes = if target == bad.records.len() {
             &mut bad.roots
         } else {
-            &mut bad.records[target].bytes
+            bad.records[target].bytes.to_mut()
         };
         if bytes.is_empty() {
             continue;
@@ -620,7 +620,7 @@ fn a_planet_repository_is_written_and_read_back_with_its_domain() {
         .iter()
         .map(|e| Record {
             id: e.id,
-            bytes: repo.record(e.id).unwrap().to_vec(),
+            bytes: repo.record(e.id).unwrap().to_vec().into(),
             object_error: e.object_error,
             min: e.min,
             max: e.max,

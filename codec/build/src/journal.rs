@@ -237,7 +237,7 @@ pub(crate) fn parse_block(bytes: &[u8]) -> Option<BlockOutput> {
         let bytes = r.take(len)?.to_vec();
         records.push(Record {
             id,
-            bytes,
+            bytes: bytes.into(),
             object_error: 0,
             min,
             max,
@@ -263,14 +263,14 @@ mod tests {
             records: vec![
                 Record {
                     id: DiamondId::new(3, 8, 24),
-                    bytes: vec![1, 2, 3, 250],
+                    bytes: vec![1, 2, 3, 250].into(),
                     object_error: 0,
                     min: -7,
                     max: 4000,
                 },
                 Record {
                     id: DiamondId::on_face(2, 5, 16, 0),
-                    bytes: vec![],
+                    bytes: Vec::new().into(),
                     object_error: 0,
                     min: 0,
                     max: 0,

@@ -91,7 +91,7 @@ fn split_encoded(encoded: &Encoded) -> Result<[Encoded; 3], CodecError> {
             .zip(&parts)
             .map(|(r, p)| Record {
                 id: r.id,
-                bytes: p[c].to_vec(),
+                bytes: p[c].to_vec().into(),
                 object_error: r.object_error,
                 min: r.min,
                 max: r.max,

@@ -64,7 +64,7 @@ pub fn encode_colour(
             let (a, b, c) = (&y.records[i], &co.records[i], &cg.records[i]);
             Record {
                 id: a.id,
-                bytes: join([&a.bytes, &b.bytes, &c.bytes], false),
+                bytes: join([&a.bytes, &b.bytes, &c.bytes], false).into(),
                 // The client's refinement is driven by the elevation repository; the index keeps
                 // the worst channel's error (YCoCg levels) and the luma range.
                 object_error: a.object_error.max(b.object_error).max(c.object_error),

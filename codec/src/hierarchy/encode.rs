@@ -9,6 +9,7 @@ use super::blocks::{Block, BlockJournal, BlockOutput, BlockPlan};
 use super::field::{ReconField, TempStorage};
 use super::mask::encode_mask;
 use super::object_error::{ErrorInput, surface_error};
+use super::record_bytes::RecordSpill;
 use super::refine::{Refined, gather};
 use super::resolution::{Resolution, variable_sets};
 use super::roots::{encode_roots, root_grid};
@@ -705,7 +706,7 @@ pub(super) fn record_of(id: DiamondId, p: &[i32], bytes: Vec<u8>) -> Record {
         .fold((i32::MAX, i32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)));
     Record {
         id,
-        bytes,
+        bytes: bytes.into(),
         object_error: 0,
         min,
         max,
@@ -822,6 +823,16 @@ impl Levels<'_> {
             self.targets.release_all();
         }
         let (apex, (mut records, mut own_error)) = self.apex(storage, plan, false)?;
+        // A mapped lattice's records go to a temporary file as their blocks finish: the
+        // repository would otherwise be held in memory beside the fields ([`RecordSpill`]).
+        let mut spill = match self.targets.grid.windows() {
+            true => RecordSpill::new(&TempStorage::File(None))?,
+            false => None,
+        };
+        let mut spans = Vec::new();
+        if let Some(s) = spill.as_mut() {
+            spans = s.spill(&mut records)?;
+        }
         for (index, block) in plan.blocks(layout).into_iter().enumerate() {
             let out = match journal.load(index)? {
                 Some(out) => {
@@ -844,7 +855,14 @@ impl Levels<'_> {
                 let max = own_error.entry(id).or_insert(e);
                 *max = (*max).max(e);
             }
-            records.extend(out.records);
+            let mut block_records = out.records;
+            if let Some(s) = spill.as_mut() {
+                spans.extend(s.spill(&mut block_records)?);
+            }
+            records.extend(block_records);
+        }
+        if let Some(s) = spill {
+            s.finish(&mut records, &spans)?;
         }
         Ok((records, own_error))
     }

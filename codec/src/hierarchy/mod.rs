@@ -21,6 +21,7 @@ mod field;
 pub mod mask;
 mod object_error;
 pub mod planet;
+mod record_bytes;
 mod refine;
 pub mod resolution;
 mod roots;
@@ -38,6 +39,7 @@ pub use encode::{
 };
 pub use field::TempStorage;
 pub use planet::{PlanetGrid, encode_planet, reconstruct_planet, verify_planet};
+pub use record_bytes::RecordBytes;
 pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
 pub use resolution::Resolution;
 
@@ -120,7 +122,7 @@ pub struct Record {
     /// The diamond this record refines.
     pub id: DiamondId,
     /// The entropy-coded residual bands.
-    pub bytes: Vec<u8>,
+    pub bytes: RecordBytes,
     /// Saturated bound, in units (rounded up), of the distance between this diamond's surface —
     /// or that of any descendant — and the input samples under it.
     pub object_error: u32,

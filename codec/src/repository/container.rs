@@ -1076,7 +1076,7 @@ impl Repository {
             .map(|(i, e)| {
                 Ok(Record {
                     id: e.id,
-                    bytes: self.record_at(i)?.to_vec(),
+                    bytes: self.record_at(i)?.to_vec().into(),
                     object_error: e.object_error,
                     min: e.min,
                     max: e.max,
