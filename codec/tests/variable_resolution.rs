@@ -253,40 +253,34 @@ fn blocks_encode_the_same_variable_resolution_hierarchy() {
     let (grid, res) = variable_input(&h);
     let q = Quantizer::new(2).unwrap();
     let whole = encode_var(&grid, &res, q);
+    // Also from mapped files, whose apex points and block windows are read as copies.
+    let file = TempStorage::File(None);
+    let mapped = grid.copied_to(&file).unwrap();
+    let mapped_classes = Resolution {
+        class: res.class.copied_to(&file).unwrap(),
+    };
     for (cut_level, block_side) in [(3, 40), (6, 128), (9, 1000)] {
         let plan = BlockPlan {
             cut_level,
             block_side,
         };
-        let blocks = encode_in_blocks(
-            &grid,
-            Some(&res),
-            q,
-            &opts(),
-            &TempStorage::Memory,
-            &plan,
-            &NoJournal,
-            &|_, _| {},
-        )
-        .unwrap();
-        assert!(blocks == whole, "{plan:?} differs");
-        // From mapped files, whose apex points and block windows are read as copies.
-        let file = TempStorage::File(None);
-        let mapped = grid.copied_to(&file).unwrap();
-        let classes = Resolution {
-            class: res.class.copied_to(&file).unwrap(),
-        };
-        let from_files = encode_in_blocks(
-            &mapped,
-            Some(&classes),
-            q,
-            &opts(),
-            &TempStorage::Memory,
-            &plan,
-            &NoJournal,
-            &|_, _| {},
-        )
-        .unwrap();
-        assert!(from_files == whole, "{plan:?} from mapped files differs");
+        for (input, classes) in [(&grid, &res), (&mapped, &mapped_classes)] {
+            let blocks = encode_in_blocks(
+                input,
+                Some(classes),
+                q,
+                &opts(),
+                &TempStorage::Memory,
+                &plan,
+                &NoJournal,
+                &|_, _| {},
+            )
+            .unwrap();
+            assert!(
+                blocks == whole,
+                "{plan:?} differs (mapped: {})",
+                input.is_mapped()
+            );
+        }
     }
 }

@@ -1406,44 +1406,30 @@ mod tests {
             &|_, _| {},
         )
         .unwrap();
-        let blocks = encode_in_blocks(
-            grid,
-            None,
-            q,
-            opts,
-            &TempStorage::Memory,
-            plan,
-            &super::super::blocks::NoJournal,
-            &|_, _| {},
-        )
-        .unwrap();
-        assert!(
-            whole == blocks,
-            "block encoder differs on {}×{} {opts:?} {plan:?}",
-            grid.width,
-            grid.height
-        );
-        // The same grid in mapped files: the apex reads a copy of its points and each block a
-        // window of its field, not the mapping (on Unix; elsewhere the mapping in place).
+        // In memory, and the same grid in mapped files: there the apex reads a copy of its
+        // points and each block a window of its field, not the mapping (on Unix; elsewhere the
+        // mapping in place), and the records go to a spill file.
         let mapped = grid.copied_to(&TempStorage::File(None)).unwrap();
         assert_eq!(mapped.windows(), cfg!(unix));
-        let from_files = encode_in_blocks(
-            &mapped,
-            None,
-            q,
-            opts,
-            &TempStorage::Memory,
-            plan,
-            &super::super::blocks::NoJournal,
-            &|_, _| {},
-        )
-        .unwrap();
-        assert!(
-            whole == from_files,
-            "block encoder of a mapped grid differs on {}×{} {opts:?} {plan:?}",
-            grid.width,
-            grid.height
-        );
+        for (input, storage) in [(grid, "memory"), (&mapped, "mapped files")] {
+            let blocks = encode_in_blocks(
+                input,
+                None,
+                q,
+                opts,
+                &TempStorage::Memory,
+                plan,
+                &super::super::blocks::NoJournal,
+                &|_, _| {},
+            )
+            .unwrap();
+            assert!(
+                whole == blocks,
+                "block encoder of a grid in {storage} differs on {}×{} {opts:?} {plan:?}",
+                grid.width,
+                grid.height
+            );
+        }
         // The same split run as shards would run it: each part from its own encoder (another
         // process), the apex's field passed as values, the parts put together in reverse. The
         // blocks and the merge are set up from the apex's summary of the grid, each block
