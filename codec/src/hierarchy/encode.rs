@@ -815,13 +815,13 @@ impl Levels<'_> {
         let layout = self.params.layout();
         let finest = layout.finest_level();
         let cut = plan.cut_level.min(finest);
-        // The apex's own errors are measured by the blocks, each over its square, as in a
-        // sharded encode: a whole-grid scan per apex level would read a mapped input whole.
         if self.targets.grid.windows() {
             // The setup's scans are over: the apex and the blocks read copies of parts of the
             // mapped input, not the mapping.
             self.targets.release_all();
         }
+        // The apex's own errors are measured by the blocks, each over its square, as in a
+        // sharded encode: a whole-grid scan per apex level would read a mapped input whole.
         let (apex, (mut records, mut own_error)) = self.apex(storage, plan, false)?;
         // A mapped lattice's records go to a temporary file as their blocks finish: the
         // repository would otherwise be held in memory beside the fields ([`RecordSpill`]).
