@@ -9,7 +9,7 @@ use super::blocks::{Block, BlockJournal, BlockOutput, BlockPlan};
 use super::field::{ReconField, TempStorage};
 use super::mask::encode_mask;
 use super::object_error::{ErrorInput, surface_error};
-use super::record_bytes::RecordSpill;
+use super::record_bytes::KeptRecords;
 use super::refine::{Refined, gather};
 use super::resolution::{Resolution, variable_sets};
 use super::roots::{encode_roots, root_grid};
@@ -624,10 +624,11 @@ impl<'a> ShardedEncode<'a> {
         self,
         parts: impl IntoIterator<Item = BlockOutput>,
     ) -> Result<Encoded, CodecError> {
-        let mut records = Vec::new();
+        // A merge of a mapped lattice's shards spills their records, as `cbdam build` does.
+        let mut records = KeptRecords::new(self.setup.targets.grid.windows())?;
         let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
         for part in parts {
-            records.extend(part.records);
+            records.extend(part.records)?;
             for (id, e) in part.own_errors {
                 let max = own_error.entry(id).or_insert(e);
                 *max = (*max).max(e);
@@ -645,7 +646,7 @@ impl<'a> ShardedEncode<'a> {
                 "diamond {id} is in none of the parts given: a block is missing"
             )));
         }
-        Ok(self.setup.finish(records, &own_error))
+        Ok(self.setup.finish(records.finish()?, &own_error))
     }
 }
 
@@ -822,17 +823,11 @@ impl Levels<'_> {
         }
         // The apex's own errors are measured by the blocks, each over its square, as in a
         // sharded encode: a whole-grid scan per apex level would read a mapped input whole.
-        let (apex, (mut records, mut own_error)) = self.apex(storage, plan, false)?;
+        let (apex, (apex_records, mut own_error)) = self.apex(storage, plan, false)?;
         // A mapped lattice's records go to a temporary file as their blocks finish: the
-        // repository would otherwise be held in memory beside the fields ([`RecordSpill`]).
-        let mut spill = match self.targets.grid.windows() {
-            true => RecordSpill::new(&TempStorage::File(None))?,
-            false => None,
-        };
-        let mut spans = Vec::new();
-        if let Some(s) = spill.as_mut() {
-            spans = s.spill(&mut records)?;
-        }
+        // repository would otherwise be held in memory beside the fields ([`KeptRecords`]).
+        let mut records = KeptRecords::new(self.targets.grid.windows())?;
+        records.extend(apex_records)?;
         for (index, block) in plan.blocks(layout).into_iter().enumerate() {
             let out = match journal.load(index)? {
                 Some(out) => {
@@ -855,16 +850,9 @@ impl Levels<'_> {
                 let max = own_error.entry(id).or_insert(e);
                 *max = (*max).max(e);
             }
-            let mut block_records = out.records;
-            if let Some(s) = spill.as_mut() {
-                spans.extend(s.spill(&mut block_records)?);
-            }
-            records.extend(block_records);
+            records.extend(out.records)?;
         }
-        if let Some(s) = spill {
-            s.finish(&mut records, &spans)?;
-        }
-        Ok((records, own_error))
+        Ok((records.finish()?, own_error))
     }
 
     /// The levels above `plan`'s cut, in the apex field ([`Levels::blocks`]): the field, the
@@ -1480,7 +1468,8 @@ mod tests {
             .collect();
         parts.push(apex.output);
         parts.reverse();
-        let nothing = windowed(None);
+        // The merge's grid in mapped files: it spills the records it gathers.
+        let nothing = windowed(None).copied_to(&TempStorage::File(None)).unwrap();
         let merger =
             ShardedEncode::with_summary(&nothing, None, q, opts, *plan, summary.clone()).unwrap();
         if count > 0 {

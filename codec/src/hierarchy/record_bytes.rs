@@ -89,6 +89,44 @@ impl fmt::Debug for RecordBytes {
     }
 }
 
+/// The records an encode has finished, their bytes in memory or spilled ([`RecordSpill`]).
+pub(crate) struct KeptRecords {
+    records: Vec<Record>,
+    spill: Option<(RecordSpill, Vec<(usize, usize)>)>,
+}
+
+impl KeptRecords {
+    /// Keeps records in memory, or (`spill`) their bytes in a temporary file.
+    pub(crate) fn new(spill: bool) -> Result<Self, CodecError> {
+        let spill = match spill {
+            true => RecordSpill::new(&TempStorage::File(None))?.map(|s| (s, Vec::new())),
+            false => None,
+        };
+        Ok(Self {
+            records: Vec::new(),
+            spill,
+        })
+    }
+
+    /// Keeps `records`.
+    pub(crate) fn extend(&mut self, mut records: Vec<Record>) -> Result<(), CodecError> {
+        if let Some((spill, spans)) = self.spill.as_mut() {
+            spans.extend(spill.spill(&mut records)?);
+        }
+        self.records.extend(records);
+        Ok(())
+    }
+
+    /// Every record kept, with its bytes.
+    pub(crate) fn finish(self) -> Result<Vec<Record>, CodecError> {
+        let mut records = self.records;
+        if let Some((spill, spans)) = self.spill {
+            spill.finish(&mut records, &spans)?;
+        }
+        Ok(records)
+    }
+}
+
 /// Moves records' bytes to an unlinked temporary file as an encode finishes them, and back
 /// (as mappings of it) when it is done (see the module documentation).
 pub(crate) struct RecordSpill {
