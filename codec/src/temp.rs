@@ -176,9 +176,10 @@ impl<T: LatticeElement> LatticeArray<T> {
     }
 
     /// Whether [`LatticeArray::window`] can copy this array: a mapped one, on a system with
-    /// anonymous mappings reserved without allocating (Unix). The others are read in place.
+    /// anonymous mappings reserved without allocating (Unix) that grants one of its length
+    /// (tried: a system that does not overcommit refuses it). The others are read in place.
     pub fn windows(&self) -> bool {
-        cfg!(unix) && self.is_mapped()
+        cfg!(unix) && self.is_mapped() && Self::sparse(self.len()).is_ok()
     }
 
     /// Bytes a [`LatticeArray::window`] of `rows` rows of `row_len` elements of an array of

@@ -53,7 +53,9 @@ impl BlockJournal for NoJournal {
 
 /// Bytes a block holds besides its reconstruction field, for a field of `rows` rows of
 /// `row_len` points: the window of an input in mapped files it reads
-/// ([`crate::quant::HeightGrid::window_bytes`]), or nothing ([`NO_WINDOW`]).
+/// ([`crate::quant::HeightGrid::window_bytes`]), or nothing ([`NO_WINDOW`]). Asked also with
+/// the apex field's size, for the apex's copy of its points of such an input (an upper bound:
+/// that copy is compact).
 pub type WindowBytes<'a> = dyn Fn(usize, usize) -> u64 + Sync + 'a;
 
 /// An input read in place: no window.
