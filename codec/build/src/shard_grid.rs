@@ -124,6 +124,14 @@ pub(crate) fn write_prepared(
             table.extend_from_slice(&crc32fast::hash(&tile).to_le_bytes());
             out.write_all(&tile).with_context(context)?;
         }
+        // A mapped grid drops the band of rows it has read from the resident set.
+        let (_, y0, _, y1) = t.rect(0, j);
+        let band = y0 * t.width..y1 * t.width;
+        grid.values.release(band.clone());
+        grid.valid.release(band.clone());
+        if let Some(c) = classes {
+            c.class.release(band);
+        }
     }
     let mut crc = crc32fast::Hasher::new();
     crc.update(&head);
@@ -203,8 +211,28 @@ pub(crate) fn read_prepared(
         }
     }
     let mut tile = Vec::new();
+    // A mapped grid drops each band of tile rows from the resident set once it is written (the
+    // values stay in its files): the encoder reads copies of it, and the band's pages would
+    // otherwise stay resident, the whole grid for the apex.
+    let mut band: Option<usize> = None;
+    let release = |j: usize,
+                   values: &LatticeArray<i32>,
+                   valid: &LatticeArray<bool>,
+                   class: Option<&LatticeArray<u8>>| {
+        let (_, y0, _, y1) = t.rect(0, j);
+        let rows = y0 * width..y1 * width;
+        values.release(rows.clone());
+        valid.release(rows.clone());
+        if let Some(c) = class {
+            c.release(rows);
+        }
+    };
     for (k, _) in wanted.iter().enumerate().filter(|(_, w)| **w) {
         let (i, j) = (k % t.across(), k / t.across());
+        if let Some(b) = band.filter(|&b| b != j) {
+            release(b, &values, &valid, class.as_ref());
+        }
+        band = Some(j);
         let (x0, y0, x1, y1) = t.rect(i, j);
         let n = (x1 - x0) * (y1 - y0);
         tile.resize(t.bps * n, 0);
@@ -228,6 +256,9 @@ pub(crate) fn read_prepared(
                 c[row].copy_from_slice(&classes[w * r..w * (r + 1)]);
             }
         }
+    }
+    if let Some(j) = band {
+        release(j, &values, &valid, class.as_ref());
     }
     Ok((
         HeightGrid {
