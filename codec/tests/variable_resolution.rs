@@ -5,11 +5,12 @@
 
 use crate::util::Rng;
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::geometry::Layout;
+use cbdam_codec::geometry::{DiamondId, Layout};
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
-    BlockPlan, EncodeOptions, Encoded, NoJournal, Reached, Resolution, TempStorage,
+    BlockPlan, EncodeOptions, Encoded, NoJournal, Reached, Resolution, TempStorage, block_walk,
     encode_in_blocks, encode_variable, encode_with_storage, reconstruct_reached, verify,
+    walk_all_with_validity,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, Quantizer};
@@ -283,4 +284,101 @@ fn blocks_encode_the_same_variable_resolution_hierarchy() {
             );
         }
     }
+}
+
+/// What a walk visits, point by point: each data point's last value and validity, as
+/// [`reconstruct_reached`] keeps them.
+struct Points {
+    values: Vec<i32>,
+    state: Vec<Reached>,
+}
+
+impl Points {
+    fn new() -> Self {
+        Self {
+            values: vec![0; SIDE * SIDE],
+            state: vec![Reached::No; SIDE * SIDE],
+        }
+    }
+
+    /// Writes the grid points of `id` that `keep` accepts.
+    fn visit(
+        &mut self,
+        layout: &Layout,
+        id: DiamondId,
+        p: &[i32],
+        valid: Option<&[bool]>,
+        keep: impl Fn(i64, i64) -> bool,
+    ) {
+        let n = layout.n();
+        let g = layout.grid(id);
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = g.point(i as i64, j as i64);
+                if (0..SIDE as i64).contains(&x) && (0..SIDE as i64).contains(&y) && keep(x, y) {
+                    let k = y as usize * SIDE + x as usize;
+                    self.values[k] = p[j * n + i];
+                    self.state[k] = if valid.is_none_or(|v| v[j * n + i]) {
+                        Reached::Valid
+                    } else {
+                        Reached::Invalid
+                    };
+                }
+            }
+        }
+    }
+}
+
+/// Decoding block by block ([`BlockWalk`]) visits exactly the diamonds the whole walk visits
+/// (each owned by one block, or in the apex), and within each block's owned rectangle leaves
+/// every point as the whole walk does: on a variable-resolution hierarchy with holes, for cuts
+/// shallow and deep and blocks smaller than the fine input, straddling it, and larger.
+#[test]
+fn a_block_walk_reaches_every_point_as_the_whole_walk_does() {
+    let h = terrain(&mut Rng(13));
+    let (grid, res) = variable_input(&h);
+    let enc = encode_var(&grid, &res, Quantizer::new(2).unwrap());
+    let layout: Layout = *enc.params.layout();
+    let (values, state) = reconstruct_reached(&enc).unwrap();
+    let mut whole_ids = Vec::new();
+    walk_all_with_validity(&enc, |id, _, _| whole_ids.push(id)).unwrap();
+    whole_ids.sort_unstable();
+    for (cut_level, block_side) in [(0, 512), (2, 128), (3, 40), (6, 64), (8, 100), (8, 512)] {
+        let plan = BlockPlan {
+            cut_level,
+            block_side,
+        };
+        let mut points = Points::new();
+        let mut ids = Vec::new();
+        let walk = block_walk(&enc, plan, |id, p, v| {
+            assert!(id.level < cut_level, "{plan:?}: apex visits {id}");
+            ids.push(id);
+            points.visit(&layout, id, p, v, |_, _| true);
+        })
+        .unwrap();
+        for (b, block) in walk.blocks().iter().enumerate() {
+            let (x0, y0, x1, y1) = block.owned;
+            walk.walk_block(b, |id, owned, p, v| {
+                assert!(id.level >= cut_level, "{plan:?}: block visits {id}");
+                if owned {
+                    ids.push(id);
+                }
+                points.visit(&layout, id, p, v, |x, y| {
+                    (x0..=x1).contains(&x) && (y0..=y1).contains(&y)
+                });
+            })
+            .unwrap();
+        }
+        ids.sort_unstable();
+        assert!(ids == whole_ids, "{plan:?}: visits differ");
+        assert!(points.state == state, "{plan:?}: nodata states differ");
+        assert!(points.values == values, "{plan:?}: values differ");
+    }
+    // Cut at or below the finest level: nothing left to the blocks.
+    let finest = layout.finest_level();
+    let deep = BlockPlan {
+        cut_level: finest,
+        block_side: 64,
+    };
+    assert!(block_walk(&enc, deep, |_, _, _| {}).is_err());
 }

@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 
 use super::analysis::analysis_fields;
+use super::decode_blocks::{LevelRecords, leaves_of, records_by_level};
 use super::refine::{RefineScratch, Refined, gather, gather_validity, refine};
 use super::roots::{decode_roots, root_grid};
 use super::{CodecParams, Encoded};
@@ -158,71 +159,67 @@ fn walk_impl(
     mut visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
 ) -> Result<(), CodecError> {
     let params = encoded.params;
-    let (domain, layout) = (&params.domain, params.layout());
     let decoder = Decoder::new(params, &encoded.roots)?;
-    let finest = layout.finest_level();
-    let mut by_level: Vec<Vec<(DiamondId, &[u8])>> = vec![Vec::new(); finest as usize + 1];
-    for r in &encoded.records {
-        if r.id.level >= finest || !domain.contains(r.id) {
-            return Err(CodecError::corrupt(format!(
-                "record for impossible diamond {}",
-                r.id
-            )));
-        }
-        by_level[r.id.level as usize].push((r.id, &r.bytes));
-    }
+    let finest = params.layout().finest_level();
+    let levels = records_by_level(
+        &params,
+        encoded.records.iter().map(|r| (r.id, &r.bytes[..])),
+    )?;
     let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
     let mut scratch = RefineScratch::default();
     for level in 0..=finest {
-        let mut ids: Vec<DiamondId> = by_level[level as usize].iter().map(|(id, _)| *id).collect();
-        if finest == 0 {
+        let stored = &levels[level as usize];
+        let ids = if finest == 0 {
             // A single level: the roots are the leaves, and there are no records.
-            ids = domain.roots().collect();
+            params.domain.roots().collect()
         } else if level == finest || (all_levels && level > 0) {
-            let mut leaves: Vec<DiamondId> = prev
-                .keys()
-                .flat_map(|&p| domain.children(p))
-                .flatten()
-                .filter(|&c| {
-                    domain
-                        .parents(c)
-                        .into_iter()
-                        .flatten()
-                        .all(|p| prev.contains_key(&p))
-                })
-                .collect();
-            if level != finest {
-                leaves.extend(ids.iter().copied());
-            }
-            leaves.sort();
-            leaves.dedup();
-            ids = leaves;
-        }
-        let mut next = HashMap::new();
-        let records: HashMap<DiamondId, &[u8]> = by_level[level as usize].iter().copied().collect();
-        for id in ids {
-            let parent_ids = domain.parents(id);
-            let parents = parent_ids.map(|p| p.and_then(|p| prev.get(&p)));
-            if level > 0
-                && parent_ids
-                    .iter()
-                    .zip(&parents)
-                    .any(|(id, r)| id.is_some() && r.is_none())
-            {
-                return Err(CodecError::corrupt(format!(
-                    "{id} is stored but a parent is not"
-                )));
-            }
-            let p = decoder.grid_of(id, parents);
-            let valid = decoder.validity_of(id, parents);
-            visit(id, &p, valid.as_deref());
-            if let Some(bytes) = records.get(&id) {
-                next.insert(id, decoder.refine(&p, bytes, &mut scratch)?);
-            }
-        }
-        prev = next;
+            let mut ids = leaves_of(&params, prev.keys().copied(), &prev, |_| true);
+            ids.extend_from_slice(&stored.ids);
+            ids.sort_unstable();
+            ids.dedup();
+            ids
+        } else {
+            stored.ids.clone()
+        };
+        prev = walk_level(&decoder, &ids, stored, &prev, &mut scratch, &mut visit)?;
     }
     Ok(())
+}
+
+/// Visits the diamonds `ids` of one level (in that order) and refines those with a record in
+/// `records`, gathering each grid from `prev`, the refinements of the level above; gives the
+/// refinements of this level. A stored diamond with a parent that is not is corrupt.
+pub(super) fn walk_level(
+    decoder: &Decoder,
+    ids: &[DiamondId],
+    records: &LevelRecords<'_>,
+    prev: &HashMap<DiamondId, Refined>,
+    scratch: &mut RefineScratch,
+    visit: &mut impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+) -> Result<HashMap<DiamondId, Refined>, CodecError> {
+    let domain = &decoder.params().domain;
+    let mut next = HashMap::new();
+    for &id in ids {
+        let parent_ids = domain.parents(id);
+        let parents = parent_ids.map(|p| p.and_then(|p| prev.get(&p)));
+        if id.level > 0
+            && parent_ids
+                .iter()
+                .zip(&parents)
+                .any(|(id, r)| id.is_some() && r.is_none())
+        {
+            return Err(CodecError::corrupt(format!(
+                "{id} is stored but a parent is not"
+            )));
+        }
+        let p = decoder.grid_of(id, parents);
+        let valid = decoder.validity_of(id, parents);
+        visit(id, &p, valid.as_deref());
+        if let Some(bytes) = records.get(id) {
+            next.insert(id, decoder.refine(&p, bytes, scratch)?);
+        }
+    }
+    Ok(next)
 }
 
 /// Decodes the finest level onto the input's grid (the domain's data rectangle, row-major):

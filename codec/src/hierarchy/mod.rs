@@ -16,6 +16,7 @@
 mod analysis;
 pub mod blocks;
 mod decode;
+mod decode_blocks;
 mod encode;
 mod field;
 pub mod mask;
@@ -33,6 +34,7 @@ pub use decode::{
     reconstruct_finest_with_validity, reconstruct_reached, verify, walk, walk_all_with_validity,
     walk_with_validity,
 };
+pub use decode_blocks::{BlockWalk, block_walk};
 pub use encode::{
     ApexField, ApexOutput, EncodeOptions, GridSummary, ShardedEncode, encode, encode_in_blocks,
     encode_variable, encode_with_progress, encode_with_storage,
