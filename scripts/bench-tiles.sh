@@ -10,8 +10,10 @@
 #   N=16 T=4096 MIRRORED=1 LIMIT=2G scripts/bench-tiles.sh
 #       # issue 20's 4.3 G-sample benchmark: 256 tiles of 4097², 8.6 GB, and about 26 GB of
 #       # mapped lattice in TMPDIR; with MIRRORED=1 there is no single-file build to compare
-#       # with (the grid would not fit in memory): the mosaic is built and inspected (`verify
-#       # --against` reconstructs the whole grid in memory: 17 GB here).
+#       # with (the grid would not fit in memory): the mosaic is built, inspected and verified.
+#
+# The tile build is then verified against its tiles (`cbdam verify --against`, block by block,
+# under the same LIMIT), timed the same way.
 #
 # Environment: N, T (tile side between shared edges), LIMIT (--memory-limit, default: the
 # build's own), DEFLATE=1 (Deflate-compressed tiles), MIRRORED=1 (`synth --mirrored`: every
@@ -56,9 +58,26 @@ run() { # name input
         "$([ "$1" = tiles ] && awk -v n=$((N * N)) -v w="$wall" 'BEGIN { printf ", %.1f tiles/s", n / w }')"
     grep -h '^timings:' "$DIR/$1.err" || true
 }
+verify_tiles() {
+    local limit=()
+    [ -n "${LIMIT:-}" ] && limit=(--memory-limit "$LIMIT")
+    local status=OK
+    /usr/bin/time -v "$CBDAM" verify "$DIR/tiles.cbdam" --against "$DIR/tiles" "${limit[@]}" \
+        >"$DIR/verify.out" 2>"$DIR/verify.err" || status=FAILED
+    local wall rss
+    wall=$(grep 'Elapsed (wall clock)' "$DIR/verify.err" | awk '{print $NF}' |
+        awk -F: '{ if (NF == 3) print $1 * 3600 + $2 * 60 + $3; else print $1 * 60 + $2 }')
+    rss=$(grep 'Maximum resident' "$DIR/verify.err" | awk '{print $NF}')
+    echo "== verify: $status, wall ${wall} s, peak RSS $((rss / 1024)) MiB," \
+        "$(awk -v s="$SAMPLES" -v w="$wall" 'BEGIN { printf "%.2f M samples/s", s / w / 1e6 }')"
+    grep -h '^decoded in\|^nodata mask\|^cbdam: error' "$DIR/verify.out" "$DIR/verify.err" || true
+    awk '/^ *[0-9]+ +[0-9]+ +[0-9]+ +[0-9]+ /' "$DIR/verify.out" | tail -n 1
+    [ "$status" = OK ]
+}
 if [ "$MIRRORED" = 1 ]; then
     run tiles tiles
     "$CBDAM" inspect "$DIR/tiles.cbdam" | head -n 5
+    verify_tiles
     exit 0
 fi
 run whole whole.tif
@@ -69,3 +88,4 @@ else
     echo "repositories DIFFER" >&2
     exit 1
 fi
+verify_tiles

@@ -864,6 +864,13 @@ pub struct VerifyArgs {
     /// or GDAL VRTs of tiles, as `build` takes them.
     #[arg(long, required = true, num_args = 1..)]
     against: Vec<PathBuf>,
+    /// Memory to stay within (e.g. 2G, 512M; default half of RAM): a hierarchy from several
+    /// inputs is decoded block by block, the inputs' lattice kept in temporary files above it.
+    #[arg(long, value_name = "SIZE")]
+    memory_limit: Option<flags::ByteSize>,
+    /// Decode blocks of this plan (testing).
+    #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = build::parse_block_plan)]
+    block_plan: Option<cbdam_codec::hierarchy::BlockPlan>,
 }
 
 /// Output format of `cbdam extract`.

@@ -3,9 +3,10 @@
 
 use anyhow::{Context, Result, bail};
 
+use cbdam_build::plan::default_memory_limit;
 use cbdam_build::planet::compare_planet;
 use cbdam_build::tiles::{Tile, expand_inputs};
-use cbdam_build::verify::{compare_colour, compare_dem, compare_tiles};
+use cbdam_build::verify::{compare_colour, compare_dem, compare_tiles_with};
 use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
 use cbdam_codec::repository::Repository;
 
@@ -69,7 +70,18 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         [Tile { path, vrt: None }] => path,
         several => {
             // Several inputs: the build's lattice, rebuilt from them.
-            let c = compare_tiles(&repo, several)?;
+            let limit = args.memory_limit.map_or_else(default_memory_limit, |b| b.0);
+            let c = compare_tiles_with(&repo, several, limit, args.block_plan)?;
+            if let Some(plan) = c.blocks {
+                let layout = repo.params().layout();
+                println!(
+                    "decoded in {} block(s) of {} lattice points square, levels {} and finer \
+                     (the coarser ones over the whole domain)",
+                    plan.blocks(layout).len(),
+                    plan.block_side,
+                    plan.cut_level
+                );
+            }
             print_levels(&c.levels, repo.plan().unit);
             for input in &c.inputs {
                 println!(

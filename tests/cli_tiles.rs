@@ -7,7 +7,7 @@ use std::path::Path;
 use cbdam_build::write::{Raster, write_geotiff};
 use cbdam_codec::input::{GeoRef, ReadOptions, read_dem};
 
-use crate::util::{cbdam, data, s, stdout};
+use crate::util::{cbdam, data, s, stderr, stdout};
 
 /// Tile side between shared edges; 2 × 2 tiles of `T + 1` samples.
 const T: usize = 96;
@@ -90,6 +90,47 @@ fn a_directory_of_tiles_builds_and_verifies_like_one_file() {
         4,
         "{}",
         stdout(&o)
+    );
+    // Decoded in smaller blocks (the smallest a memory limit picks here is the whole domain),
+    // the same findings; below what the smallest blocks need, verify says so.
+    let small = cbdam(&[
+        "verify",
+        &s(&d.join("tiles.cbdam")),
+        "--against",
+        &s(&tiles),
+        "--block-plan",
+        "1,64",
+    ]);
+    assert!(small.status.success(), "{}", stderr(&small));
+    let without_plan = |text: &str| {
+        text.lines()
+            .filter(|l| !l.starts_with("decoded in"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    assert_eq!(without_plan(&stdout(&small)), without_plan(&stdout(&o)));
+    let blocks = |text: &str| {
+        let line = text.lines().find(|l| l.starts_with("decoded in")).unwrap();
+        line.split(' ').nth(2).unwrap().parse::<usize>().unwrap()
+    };
+    assert!(
+        blocks(&stdout(&small)) > blocks(&stdout(&o)),
+        "{}",
+        stdout(&small)
+    );
+    let tiny = cbdam(&[
+        "verify",
+        &s(&d.join("tiles.cbdam")),
+        "--against",
+        &s(&tiles),
+        "--memory-limit",
+        "1M",
+    ]);
+    assert!(!tiny.status.success());
+    assert!(
+        stderr(&tiny).contains("raise --memory-limit"),
+        "{}",
+        stderr(&tiny)
     );
 
     let help = stdout(&cbdam(&["build", "--help"]));

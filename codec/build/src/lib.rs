@@ -23,6 +23,7 @@ pub mod shard;
 mod shard_grid;
 pub mod tiles;
 pub mod verify;
+mod verify_blocks;
 pub mod write;
 
 use std::path::PathBuf;

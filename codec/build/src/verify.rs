@@ -6,18 +6,25 @@
 use std::path::{Path, PathBuf};
 
 use cbdam_codec::colour::{ColourVerifyReport, verify_colour};
+use cbdam_codec::geometry::DomainKind;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
-    Reached, VerifyReport, reconstruct_finest_with_validity, reconstruct_reached, verify,
+    BlockPlan, BlockWalk, Reached, VerifyReport, reconstruct_finest_with_validity,
+    reconstruct_reached, verify,
 };
 use cbdam_codec::input::{Format, Limits, ReadOptions, read_dem, read_rgb};
+use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::HeightGrid;
 use cbdam_codec::repository::Repository;
+use cbdam_codec::temp::LatticeArray;
 
 use crate::error::{Context, Result, bail};
-use crate::mosaic::{NO_WINNER, mosaic_tiles};
+use crate::mosaic::{Mosaic, NO_WINNER, mosaic_tiles};
 use crate::plan::is_raw_path;
 use crate::tiles::{Tile, expand_inputs};
+use crate::verify_blocks::{
+    ApexPoints, BlockPoints, Visits, decode_plan, decode_row, rows_of_blocks, visit_apex,
+};
 
 /// A colour repository against its image.
 pub struct ColourComparison {
@@ -233,6 +240,8 @@ pub struct MosaicComparison {
     pub width: usize,
     /// The tolerance, metres.
     pub epsilon: f64,
+    /// The blocks the hierarchy was decoded in, `None` when it was decoded whole.
+    pub blocks: Option<BlockPlan>,
 }
 
 impl MosaicComparison {
@@ -294,8 +303,129 @@ pub fn compare_mosaic(repo: &Repository, paths: &[PathBuf]) -> Result<MosaicComp
     compare_tiles(repo, &expand_inputs(paths)?)
 }
 
-/// [`compare_mosaic`] of inputs already expanded.
+/// [`compare_mosaic`] of inputs already expanded, under the default memory limit
+/// ([`crate::plan::default_memory_limit`]).
 pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparison> {
+    compare_tiles_with(repo, tiles, crate::plan::default_memory_limit(), None)
+}
+
+/// [`compare_tiles`] within `memory_limit` bytes: a planar α = 1 hierarchy is decoded block by
+/// block ([`crate::verify_blocks`]) under `plan`, or the largest plan that fits; any other, and
+/// a hierarchy too shallow for blocks, whole ([`compare_tiles_whole`]).
+pub fn compare_tiles_with(
+    repo: &Repository,
+    tiles: &[Tile],
+    memory_limit: u64,
+    plan: Option<BlockPlan>,
+) -> Result<MosaicComparison> {
+    let p = *repo.params();
+    let layout = *p.layout();
+    let blockwise = p.alpha == Alpha::One
+        && p.domain.kind() == DomainKind::Planar
+        && layout.finest_level() >= 2;
+    if !blockwise {
+        return compare_tiles_whole(repo, tiles, memory_limit);
+    }
+    // Half for the decode, half for the mosaic (its lattice and its cache of tile rows).
+    let (width, height) = p.domain.data().size();
+    let workers = rayon::current_num_threads();
+    let plan = match plan {
+        Some(plan) => plan,
+        None => decode_plan(&layout, width, workers, memory_limit / 2)?,
+    };
+    let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit / 2)?;
+    let records = repo
+        .entries()
+        .iter()
+        .map(|e| Ok((e.id, repo.record(e.id)?)))
+        .collect::<Result<Vec<_>>>()?;
+    let mut levels = Visits::new(layout.finest_level());
+    let mut apex = ApexPoints::new(plan.apex_shift(&layout), (width, height));
+    let apex_input = grid.strided(plan.apex_shift(&layout))?;
+    let walk = BlockWalk::new(
+        p,
+        repo.root_bytes(),
+        records,
+        plan,
+        visit_apex(
+            &layout,
+            &apex_input,
+            (width, height),
+            &mut apex,
+            &mut levels,
+        ),
+    )
+    .context("decoding the hierarchy")?;
+    let rows = rows_of_blocks(walk.blocks());
+    let mut next_row = 0;
+    let mut row: Vec<BlockPoints> = Vec::new();
+    let mut tally = Tally::new(m.inputs.len());
+    m.for_each_block_winners(&mut |ya, block, winners| {
+        let yb = ya + block.len() / width;
+        for y in ya..yb {
+            while row.first().is_none_or(|b| y >= b.y0 + b.height) {
+                let Some(range) = rows.get(next_row).cloned() else {
+                    bail!("lattice row {y} lies in no block of {plan:?}");
+                };
+                next_row += 1;
+                row = decode_row(&walk, range, &apex, &grid, (width, height))
+                    .context("decoding the hierarchy")?;
+                for b in &row {
+                    levels.merge(&b.visits);
+                }
+            }
+            let first = y * width;
+            let (values, winners) = (
+                &block[(y - ya) * width..][..width],
+                &winners[(y - ya) * width..][..width],
+            );
+            for b in &row {
+                let (decoded, state) = b.row(y);
+                for (j, (&d, &s)) in decoded.iter().zip(state).enumerate() {
+                    let x = b.x0 + j;
+                    tally.point(
+                        first + x,
+                        values[x],
+                        winners[x],
+                        class[first + x],
+                        s,
+                        || plan_metres(repo, d),
+                    );
+                }
+            }
+        }
+        class.release(ya * width..yb * width);
+        Ok(())
+    })?;
+    // Blocks below the data rectangle own diamonds too (their grids may reach into it).
+    for range in &rows[next_row..] {
+        for b in decode_row(&walk, range.clone(), &apex, &grid, (width, height))? {
+            levels.merge(&b.visits);
+        }
+    }
+    Ok(tally.finish(
+        VerifyReport {
+            levels: levels.levels,
+            bound: p.quantizer.k() as u32,
+        },
+        &m,
+        repo,
+        Some(plan),
+    ))
+}
+
+/// A height in units, in metres.
+fn plan_metres(repo: &Repository, units: i32) -> f64 {
+    repo.plan().metres(units)
+}
+
+/// The inputs composed as the build composed them: the mosaic, its resolution classes and its
+/// quantized heights, each checked against the repository's lattice.
+fn mosaic_lattice(
+    repo: &Repository,
+    tiles: &[Tile],
+    memory_limit: u64,
+) -> Result<(Mosaic, LatticeArray<u8>, HeightGrid)> {
     let p = *repo.params();
     let plan = *repo.plan();
     // Read the inputs the way the build did: its nodata value was recorded in the header.
@@ -303,7 +433,7 @@ pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparis
         nodata: repo.nodata(),
         ..ReadOptions::default()
     };
-    let m = mosaic_tiles(tiles, &opts, crate::plan::default_memory_limit())?;
+    let m = mosaic_tiles(tiles, &opts, memory_limit)?;
     let (width, height) = p.domain.data().size();
     if (m.width, m.height) != (width, height) {
         bail!(
@@ -317,58 +447,125 @@ pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparis
     let class = m.survey()?.resolution.class;
     let grid = HeightGrid::from_source_in(&m, &plan, &m.lattice)
         .context("mapping the inputs onto the repository's height lattice")?;
+    Ok((m, class, grid))
+}
+
+/// [`compare_tiles`] decoding the whole hierarchy at once: the reconstruction and the nodata
+/// states of every lattice point in memory.
+pub fn compare_tiles_whole(
+    repo: &Repository,
+    tiles: &[Tile],
+    memory_limit: u64,
+) -> Result<MosaicComparison> {
+    let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit)?;
     let encoded = repo.to_encoded()?;
     let levels = verify(&encoded, &grid).context("decoding the hierarchy")?;
     let (values, state) = reconstruct_reached(&encoded)?;
-    let mut max_err = vec![0f64; m.inputs.len()];
-    let mut count = vec![0usize; m.inputs.len()];
-    let mut unreached = Vec::new();
-    let mut mask_wrong = Vec::new();
-    let mut worst: Option<(f64, usize, usize)> = None;
+    let mut tally = Tally::new(m.inputs.len());
     m.for_each_block_winners(&mut |y0, block, winners| {
         let first = y0 * m.width;
         for (j, (&v, &k)) in block.iter().zip(winners).enumerate() {
             let i = first + j;
-            match (k, class[i], state[i]) {
-                (NO_WINNER, HOLE, Reached::Valid) | (NO_WINNER, COARSE_ONLY, Reached::Invalid) => {
-                    mask_wrong.push(i)
-                }
-                (NO_WINNER, _, _) => {}
-                (_, _, Reached::No) => unreached.push(i),
-                (_, _, Reached::Invalid) => mask_wrong.push(i),
-                (k, _, Reached::Valid) => {
-                    let e = (plan.metres(values[i]) - v).abs();
-                    let k = k as usize;
-                    max_err[k] = max_err[k].max(e);
-                    count[k] += 1;
-                    if worst.is_none_or(|(w, _, _)| e > w) {
-                        worst = Some((e, i, k));
-                    }
-                }
-            }
+            tally.point(i, v, k, class[i], state[i], || plan_metres(repo, values[i]));
         }
         Ok(())
     })?;
-    let inputs = m
-        .inputs
-        .iter()
-        .enumerate()
-        .map(|(k, input)| InputComparison {
-            path: input.path.clone(),
-            winning: count[k],
-            stride: 1u32 << input.log2,
-            max_error: max_err[k],
-        })
-        .collect();
-    Ok(MosaicComparison {
-        levels,
-        inputs,
-        reached_valid: state.iter().filter(|&&s| s == Reached::Valid).count(),
-        first_mismatch_has_data: mask_wrong.first().is_some_and(|&i| class[i] != HOLE),
-        mask_mismatches: mask_wrong.iter().map(|&i| (i, state[i])).collect(),
-        unreached,
-        worst,
-        width: m.width,
-        epsilon: plan.epsilon,
-    })
+    Ok(tally.finish(levels, &m, repo, None))
+}
+
+/// What [`MosaicComparison`] counts, lattice point by lattice point.
+struct Tally {
+    max_err: Vec<f64>,
+    count: Vec<usize>,
+    unreached: Vec<usize>,
+    mask_wrong: Vec<(usize, Reached)>,
+    first_mismatch_has_data: bool,
+    worst: Option<(f64, usize, usize)>,
+    reached_valid: usize,
+}
+
+impl Tally {
+    fn new(inputs: usize) -> Self {
+        Self {
+            max_err: vec![0.0; inputs],
+            count: vec![0; inputs],
+            unreached: Vec::new(),
+            mask_wrong: Vec::new(),
+            first_mismatch_has_data: false,
+            worst: None,
+            reached_valid: 0,
+        }
+    }
+
+    /// Lattice point `i`: the winning sample `v` of input `k` ([`NO_WINNER`]: none), its class,
+    /// and what the hierarchy left there (`state`, and the decoded height in metres).
+    #[inline]
+    fn point(
+        &mut self,
+        i: usize,
+        v: f64,
+        k: u32,
+        class: u8,
+        state: Reached,
+        metres: impl FnOnce() -> f64,
+    ) {
+        self.reached_valid += usize::from(state == Reached::Valid);
+        let mask_wrong = match (k, class, state) {
+            (NO_WINNER, HOLE, Reached::Valid) | (NO_WINNER, COARSE_ONLY, Reached::Invalid) => true,
+            (NO_WINNER, _, _) => false,
+            (_, _, Reached::No) => {
+                self.unreached.push(i);
+                false
+            }
+            (_, _, Reached::Invalid) => true,
+            (k, _, Reached::Valid) => {
+                let e = (metres() - v).abs();
+                let k = k as usize;
+                self.max_err[k] = self.max_err[k].max(e);
+                self.count[k] += 1;
+                if self.worst.is_none_or(|(w, _, _)| e > w) {
+                    self.worst = Some((e, i, k));
+                }
+                false
+            }
+        };
+        if mask_wrong {
+            if self.mask_wrong.is_empty() {
+                self.first_mismatch_has_data = class != HOLE;
+            }
+            self.mask_wrong.push((i, state));
+        }
+    }
+
+    fn finish(
+        self,
+        levels: VerifyReport,
+        m: &Mosaic,
+        repo: &Repository,
+        blocks: Option<BlockPlan>,
+    ) -> MosaicComparison {
+        let inputs = m
+            .inputs
+            .iter()
+            .enumerate()
+            .map(|(k, input)| InputComparison {
+                path: input.path.clone(),
+                winning: self.count[k],
+                stride: 1u32 << input.log2,
+                max_error: self.max_err[k],
+            })
+            .collect();
+        MosaicComparison {
+            levels,
+            inputs,
+            reached_valid: self.reached_valid,
+            first_mismatch_has_data: self.first_mismatch_has_data,
+            mask_mismatches: self.mask_wrong,
+            unreached: self.unreached,
+            worst: self.worst,
+            width: m.width,
+            epsilon: repo.plan().epsilon,
+            blocks,
+        }
+    }
 }

@@ -6,9 +6,13 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use cbdam_build::tiles::expand_inputs;
+use cbdam_build::verify::{MosaicComparison, compare_tiles_whole, compare_tiles_with};
 use cbdam_build::write::{Raster, write_geotiff};
 use cbdam_build::{BuildOptions, NoProgress, build};
+use cbdam_codec::hierarchy::BlockPlan;
 use cbdam_codec::input::{GeoRef, ReadOptions, read_dem};
+use cbdam_codec::repository::Repository;
 
 use crate::util::data;
 
@@ -514,4 +518,115 @@ fn hundreds_of_tiles_build_like_one_file() {
     assert_eq!(std::fs::read_dir(&tiles).unwrap().count(), GRID * GRID);
     let got = build_bytes(vec![tiles], &d.join("tiles.cbdam"));
     assert!(got == want, "{} tiles built different bytes", GRID * GRID);
+}
+
+/// Every field of two comparisons is the same.
+fn same_comparison(a: &MosaicComparison, b: &MosaicComparison, what: &str) {
+    assert_eq!(a.levels, b.levels, "{what}: levels");
+    assert_eq!(a.reached_valid, b.reached_valid, "{what}: reached");
+    assert_eq!(a.mask_mismatches, b.mask_mismatches, "{what}: mask");
+    assert_eq!(
+        a.first_mismatch_has_data, b.first_mismatch_has_data,
+        "{what}: first mismatch"
+    );
+    assert_eq!(a.unreached, b.unreached, "{what}: unreached");
+    assert_eq!(a.worst, b.worst, "{what}: worst");
+    assert_eq!(a.inputs.len(), b.inputs.len(), "{what}: inputs");
+    for (x, y) in a.inputs.iter().zip(&b.inputs) {
+        assert_eq!(
+            (&x.path, x.winning, x.stride, x.max_error),
+            (&y.path, y.winning, y.stride, y.max_error),
+            "{what}: input"
+        );
+    }
+}
+
+/// `cbdam verify` of tiles decodes block by block: on tiles with a gap and nodata over a coarse
+/// input with a hole of its own, every plan — blocks smaller than a tile, cuts shallow and deep,
+/// and the one a small memory limit picks — finds exactly what decoding the whole hierarchy
+/// finds (the comparison `cbdam verify` made before, still used for α = ½), when the repository
+/// matches its inputs and when the inputs are wrong (a coarse input 10 m off, and one left out,
+/// which leaves the gap without data).
+#[test]
+fn verify_in_blocks_finds_what_the_whole_comparison_finds() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let (values, g) = source();
+    let mut tiled = values.clone();
+    for r in 10..20 {
+        for c in 10..30 {
+            tiled[r * SIDE + c] = NODATA;
+        }
+    }
+    cut(
+        &d.join("tiles"),
+        &tiled,
+        &g,
+        |r, c| (r, c) != (1, 1),
+        true,
+        true,
+    );
+    // Every other sample, with a hole where the gap's tile would be.
+    let cs = (SIDE - 1) / 2 + 1;
+    // Its first sample centre on the fine one's.
+    let half = if g.pixel_is_area { 0.5 } else { 0.0 };
+    let coarse_geo = GeoRef {
+        pixel_x: 2.0 * g.pixel_x,
+        pixel_y: 2.0 * g.pixel_y,
+        origin_x: g.origin_x - half * g.pixel_x,
+        origin_y: g.origin_y + half * g.pixel_y,
+        ..g.clone()
+    };
+    let coarse = |dir: &str, raise: f64| {
+        let mut v = Vec::with_capacity(cs * cs);
+        for r in 0..cs {
+            for c in 0..cs {
+                let hole = (70..80).contains(&r) && (90..110).contains(&c);
+                v.push(if hole {
+                    NODATA
+                } else {
+                    values[2 * r * SIDE + 2 * c] + raise
+                });
+            }
+        }
+        std::fs::create_dir_all(d.join(dir)).unwrap();
+        let p = d.join(dir).join("coarse.tif");
+        write(&p, cs, cs, v, Some(coarse_geo.clone()), true);
+        p
+    };
+    let inputs = vec![d.join("tiles"), coarse("c", 0.0)];
+    let out = d.join("var.cbdam");
+    build_bytes(inputs.clone(), &out);
+    let repo = Repository::open(&out).unwrap();
+    let layout = *repo.params().layout();
+    assert!(layout.finest_level() >= 4, "{layout:?}");
+    let limit = 1 << 30;
+    let raised = vec![d.join("tiles"), coarse("raised", 10.0)];
+    let left_out = vec![d.join("tiles")];
+    for (inputs, good) in [(inputs, true), (raised, false), (left_out, false)] {
+        let tiles = expand_inputs(&inputs).unwrap();
+        let whole = compare_tiles_whole(&repo, &tiles, limit).unwrap();
+        assert_eq!(whole.check().is_ok(), good, "{inputs:?}");
+        let mut plans: Vec<Option<BlockPlan>> = [(1, 48), (2, 64), (3, 128), (4, 100)]
+            .into_iter()
+            .map(|(cut_level, block_side)| {
+                Some(BlockPlan {
+                    cut_level,
+                    block_side,
+                })
+            })
+            .collect();
+        plans.push(None);
+        for plan in plans {
+            // 48 MiB leaves the decode 24: blocks smaller than the domain.
+            let blocks = compare_tiles_with(&repo, &tiles, 48 << 20, plan).unwrap();
+            same_comparison(&whole, &blocks, &format!("{inputs:?} {plan:?}"));
+            let used = blocks.blocks.expect("decoded in blocks");
+            assert!(
+                plan.is_none_or(|p| p == used),
+                "{plan:?} asked, {used:?} used"
+            );
+            assert!(used.block_side < layout.root_side(), "{used:?}");
+        }
+    }
 }

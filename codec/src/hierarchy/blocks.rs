@@ -101,6 +101,19 @@ impl BlockPlan {
         max_side: i64,
         window: &WindowBytes<'_>,
     ) -> Option<BlockPlan> {
+        Self::first_fitting(layout, max_side, |plan| {
+            plan.field_bytes(layout, window) <= budget
+        })
+    }
+
+    /// The first plan that `fits` accepts, trying the largest blocks first (a root's side halved
+    /// `j` times, at most `max_side` and at least 8 finest radii across) and for each side the
+    /// deepest cut first (the least work in margins; see [`SIDE_IN_CUT_RADII`]).
+    pub fn first_fitting(
+        layout: &Layout,
+        max_side: i64,
+        fits: impl Fn(&BlockPlan) -> bool,
+    ) -> Option<BlockPlan> {
         let finest = layout.finest_level();
         let smallest = (8 * layout.radius(finest)).min(layout.root_side());
         let mut side = layout.root_side();
@@ -120,7 +133,7 @@ impl BlockPlan {
                     cut_level,
                     block_side: side,
                 };
-                if plan.field_bytes(layout, window) <= budget {
+                if fits(&plan) {
                     return Some(plan);
                 }
             }

@@ -173,6 +173,11 @@ impl<'a> BlockWalk<'a> {
         &self.blocks
     }
 
+    /// The header fields.
+    pub fn params(&self) -> &CodecParams {
+        self.decoder.params()
+    }
+
     /// The plan.
     pub fn plan(&self) -> &BlockPlan {
         &self.plan
