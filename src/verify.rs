@@ -58,6 +58,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
     repo.check_all()
         .with_context(|| format!("checking {}", args.repo.display()))?;
+    repo.release_pages();
     if repo.kind() == RepoKind::Colour {
         return verify_colour_repo(&repo, args);
     }

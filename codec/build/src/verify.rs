@@ -316,9 +316,10 @@ pub fn compare_tiles_with(
     repo: &Repository,
     tiles: &[Tile],
     memory_limit: u64,
-    plan: Option<BlockPlan>,
+    blocks: Option<BlockPlan>,
 ) -> Result<MosaicComparison> {
     let p = *repo.params();
+    let quant = *repo.plan();
     let layout = *p.layout();
     let blockwise = p.alpha == Alpha::One
         && p.domain.kind() == DomainKind::Planar
@@ -329,7 +330,7 @@ pub fn compare_tiles_with(
     // Half for the decode, half for the mosaic (its lattice and its cache of tile rows).
     let (width, height) = p.domain.data().size();
     let workers = rayon::current_num_threads();
-    let plan = match plan {
+    let plan = match blocks {
         Some(plan) => plan,
         None => decode_plan(&layout, width, workers, memory_limit / 2)?,
     };
@@ -339,6 +340,7 @@ pub fn compare_tiles_with(
         .iter()
         .map(|e| Ok((e.id, repo.record(e.id)?)))
         .collect::<Result<Vec<_>>>()?;
+    repo.release_pages();
     let mut levels = Visits::new(layout.finest_level());
     let mut apex = ApexPoints::new(plan.apex_shift(&layout), (width, height));
     let apex_input = grid.strided(plan.apex_shift(&layout))?;
@@ -370,6 +372,7 @@ pub fn compare_tiles_with(
                 next_row += 1;
                 row = decode_row(&walk, range, &apex, &grid, (width, height))
                     .context("decoding the hierarchy")?;
+                repo.release_pages();
                 for b in &row {
                     levels.merge(&b.visits);
                 }
@@ -389,7 +392,7 @@ pub fn compare_tiles_with(
                         winners[x],
                         class[first + x],
                         s,
-                        || plan_metres(repo, d),
+                        || quant.metres(d),
                     );
                 }
             }
@@ -412,11 +415,6 @@ pub fn compare_tiles_with(
         repo,
         Some(plan),
     ))
-}
-
-/// A height in units, in metres.
-fn plan_metres(repo: &Repository, units: i32) -> f64 {
-    repo.plan().metres(units)
 }
 
 /// The inputs composed as the build composed them: the mosaic, its resolution classes and its
@@ -461,12 +459,13 @@ pub fn compare_tiles_whole(
     let encoded = repo.to_encoded()?;
     let levels = verify(&encoded, &grid).context("decoding the hierarchy")?;
     let (values, state) = reconstruct_reached(&encoded)?;
+    let quant = *repo.plan();
     let mut tally = Tally::new(m.inputs.len());
     m.for_each_block_winners(&mut |y0, block, winners| {
         let first = y0 * m.width;
         for (j, (&v, &k)) in block.iter().zip(winners).enumerate() {
             let i = first + j;
-            tally.point(i, v, k, class[i], state[i], || plan_metres(repo, values[i]));
+            tally.point(i, v, k, class[i], state[i], || quant.metres(values[i]));
         }
         Ok(())
     })?;

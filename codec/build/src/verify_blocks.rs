@@ -20,10 +20,12 @@ use rayon::prelude::*;
 
 use crate::error::{Result, bail};
 
-/// Bytes per lattice point of a walk's refinements at the finest level they reach: a level's
-/// `(2N−1)²` half-step grids (16 bytes a point of the level below, 20 with a nodata mask), and
-/// the level above's (half as many points) while the level is decoded.
-const REFINED_BYTES: u64 = 30;
+/// Bytes per lattice point of a walk's refinements while the level above the finest is
+/// decoded: each diamond's refinement is a `(2N−1)²` half-step grid of 4-byte heights and, with
+/// a nodata mask, 1-byte validities; a level has `2^l` diamonds per root of `(N−1)²·2^finest`
+/// lattice points, so that level's refinements take 10 bytes a lattice point and the level
+/// above's, held while it is decoded, 5. Each level up halves both.
+const REFINED_BYTES: u64 = 15;
 /// Bytes per lattice point of a row of blocks' reconstruction: the value and its [`Reached`].
 const POINT_BYTES: u64 = 5;
 
@@ -34,7 +36,7 @@ const POINT_BYTES: u64 = 5;
 pub(crate) fn decode_bytes(layout: &Layout, plan: &BlockPlan, width: usize, workers: usize) -> u64 {
     let finest = layout.finest_level();
     let (ex, ey) = layout.face_extent();
-    // Refinements of level `l` over a square of side `s`: level l + 1's points in it.
+    // Refinements held while level `l + 1` is decoded, over a square of side `s`.
     let refined = |l: u8, s: i64| {
         (REFINED_BYTES * (s.max(0) as u64).pow(2)) >> (finest - l.min(finest - 1) - 1)
     };
@@ -345,4 +347,33 @@ pub(crate) fn decode_row(
         .into_par_iter()
         .map(|b| decode_block(walk, b, apex, input, data))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decode_plans_fit_their_budget_and_grow_with_it() {
+        // 65537² as one root of N = 65 (issue 20's 4.3 G-sample benchmark), and a small lattice.
+        for (layout, width) in [
+            (Layout::new(65, 10, 1, 1).unwrap(), 65537),
+            (Layout::new(17, 5, 3, 2).unwrap(), 1500),
+        ] {
+            let mut last: Option<BlockPlan> = None;
+            for budget in [64u64 << 20, 256 << 20, 1280 << 20, 4 << 30, 64 << 30] {
+                let Ok(plan) = decode_plan(&layout, width, 2, budget) else {
+                    assert!(last.is_none(), "{budget} refused after {last:?} fitted");
+                    continue;
+                };
+                assert!(decode_bytes(&layout, &plan, width, 2) <= budget, "{plan:?}");
+                assert!(plan.cut_level < layout.finest_level(), "{plan:?}");
+                if let Some(last) = last {
+                    assert!(plan.block_side >= last.block_side, "{last:?} then {plan:?}");
+                }
+                last = Some(plan);
+            }
+            assert!(last.is_some(), "no budget fits {layout:?}");
+        }
+    }
 }
