@@ -95,8 +95,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
             }
             println!(
                 "nodata mask: {} lattice points with data reached, {} mismatches",
-                c.reached_valid,
-                c.mask_mismatches.len()
+                c.reached_valid, c.mask_mismatch_count
             );
             c.check()?;
             println!("OK");

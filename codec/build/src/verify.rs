@@ -228,12 +228,17 @@ pub struct MosaicComparison {
     pub inputs: Vec<InputComparison>,
     /// Lattice points with data that the hierarchy reaches.
     pub reached_valid: usize,
-    /// Lattice points whose nodata state the repository gets wrong, with what it says there.
+    /// Lattice points whose nodata state the repository gets wrong, with what it says there:
+    /// the first [`LISTED`] of them.
     pub mask_mismatches: Vec<(usize, Reached)>,
+    /// How many lattice points the repository gets the nodata state of wrong.
+    pub mask_mismatch_count: u64,
     /// Whether the inputs have data at the first mismatch.
     pub first_mismatch_has_data: bool,
-    /// Winning samples never reconstructed.
+    /// Winning samples never reconstructed: the first [`LISTED`].
     pub unreached: Vec<usize>,
+    /// How many winning samples are never reconstructed.
+    pub unreached_count: u64,
     /// The largest error of any winning sample, metres, where, and from which input.
     pub worst: Option<(f64, usize, usize)>,
     /// Lattice points per row.
@@ -253,7 +258,7 @@ impl MosaicComparison {
             bail!(
                 "nodata mask disagrees with the inputs at {} lattice points, first at column {}, \
                  row {} (repository says {:?}, inputs say {})",
-                self.mask_mismatches.len(),
+                self.mask_mismatch_count,
                 i % w,
                 i / w,
                 state,
@@ -267,7 +272,7 @@ impl MosaicComparison {
         if let Some(&i) = self.unreached.first() {
             bail!(
                 "{} winning samples are never reconstructed, first at lattice column {}, row {}",
-                self.unreached.len(),
+                self.unreached_count,
                 i % w,
                 i / w
             );
@@ -327,14 +332,16 @@ pub fn compare_tiles_with(
     if !blockwise {
         return compare_tiles_whole(repo, tiles, memory_limit);
     }
-    // Half for the decode, half for the mosaic (its lattice and its cache of tile rows).
+    // Half for the decode, three eighths for the mosaic (its lattice and its cache of tile
+    // rows), an eighth for the pages of mapped files being read (the lattice's windows, the
+    // repository's records) and the allocator's slack.
     let (width, height) = p.domain.data().size();
     let workers = rayon::current_num_threads();
     let plan = match blocks {
         Some(plan) => plan,
         None => decode_plan(&layout, width, workers, memory_limit / 2)?,
     };
-    let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit / 2)?;
+    let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit / 8 * 3)?;
     let records = repo
         .entries()
         .iter()
@@ -370,6 +377,8 @@ pub fn compare_tiles_with(
                     bail!("lattice row {y} lies in no block of {plan:?}");
                 };
                 next_row += 1;
+                // The finished row goes before the next is decoded: one row in memory, not two.
+                row = Vec::new();
                 row = decode_row(&walk, range, &apex, &grid, (width, height))
                     .context("decoding the hierarchy")?;
                 repo.release_pages();
@@ -472,12 +481,18 @@ pub fn compare_tiles_whole(
     Ok(tally.finish(levels, &m, repo, None))
 }
 
+/// How many of the lattice points that fail a check a [`MosaicComparison`] lists: all are
+/// counted, but against the wrong inputs every point of a lattice of billions may fail.
+pub const LISTED: usize = 1000;
+
 /// What [`MosaicComparison`] counts, lattice point by lattice point.
 struct Tally {
     max_err: Vec<f64>,
     count: Vec<usize>,
     unreached: Vec<usize>,
+    unreached_count: u64,
     mask_wrong: Vec<(usize, Reached)>,
+    mask_wrong_count: u64,
     first_mismatch_has_data: bool,
     worst: Option<(f64, usize, usize)>,
     reached_valid: usize,
@@ -489,7 +504,9 @@ impl Tally {
             max_err: vec![0.0; inputs],
             count: vec![0; inputs],
             unreached: Vec::new(),
+            unreached_count: 0,
             mask_wrong: Vec::new(),
+            mask_wrong_count: 0,
             first_mismatch_has_data: false,
             worst: None,
             reached_valid: 0,
@@ -513,7 +530,10 @@ impl Tally {
             (NO_WINNER, HOLE, Reached::Valid) | (NO_WINNER, COARSE_ONLY, Reached::Invalid) => true,
             (NO_WINNER, _, _) => false,
             (_, _, Reached::No) => {
-                self.unreached.push(i);
+                if self.unreached.len() < LISTED {
+                    self.unreached.push(i);
+                }
+                self.unreached_count += 1;
                 false
             }
             (_, _, Reached::Invalid) => true,
@@ -532,7 +552,10 @@ impl Tally {
             if self.mask_wrong.is_empty() {
                 self.first_mismatch_has_data = class != HOLE;
             }
-            self.mask_wrong.push((i, state));
+            if self.mask_wrong.len() < LISTED {
+                self.mask_wrong.push((i, state));
+            }
+            self.mask_wrong_count += 1;
         }
     }
 
@@ -560,7 +583,9 @@ impl Tally {
             reached_valid: self.reached_valid,
             first_mismatch_has_data: self.first_mismatch_has_data,
             mask_mismatches: self.mask_wrong,
+            mask_mismatch_count: self.mask_wrong_count,
             unreached: self.unreached,
+            unreached_count: self.unreached_count,
             worst: self.worst,
             width: m.width,
             epsilon: repo.plan().epsilon,

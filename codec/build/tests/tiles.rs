@@ -530,6 +530,11 @@ fn same_comparison(a: &MosaicComparison, b: &MosaicComparison, what: &str) {
         "{what}: first mismatch"
     );
     assert_eq!(a.unreached, b.unreached, "{what}: unreached");
+    assert_eq!(
+        (a.mask_mismatch_count, a.unreached_count),
+        (b.mask_mismatch_count, b.unreached_count),
+        "{what}: counts"
+    );
     assert_eq!(a.worst, b.worst, "{what}: worst");
     assert_eq!(a.inputs.len(), b.inputs.len(), "{what}: inputs");
     for (x, y) in a.inputs.iter().zip(&b.inputs) {
