@@ -142,13 +142,15 @@ pub(crate) fn first_difference(old: &str, new: &str) -> String {
 /// may be cut short or empty, which its checksum catches ([`parse_block`]) and the block is
 /// encoded again — syncing every block would cost more than redoing the few the page cache lost.
 pub(crate) fn write_atomically(dir: &Path, name: &str, bytes: &[u8]) -> std::io::Result<()> {
-    // The process id keeps two processes writing the same file (a retried shard whose first
-    // run is still going) off each other's temporary.
-    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-    let mut f = fs::File::create(&tmp)?;
-    f.write_all(bytes)?;
-    drop(f);
-    fs::rename(&tmp, dir.join(name))
+    // A temporary of its own keeps two processes writing the same file (a retried shard whose
+    // first run is still going) off each other's; it is removed if the write fails.
+    let mut tmp = tempfile::Builder::new()
+        .prefix(&format!(".{name}."))
+        .suffix(".tmp")
+        .tempfile_in(dir)?;
+    tmp.write_all(bytes)?;
+    tmp.persist(dir.join(name)).map_err(|e| e.error)?;
+    Ok(())
 }
 
 fn put_id(out: &mut Vec<u8>, id: DiamondId) {

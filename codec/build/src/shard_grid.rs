@@ -96,9 +96,16 @@ pub(crate) fn write_prepared(
         height: grid.height,
         bps: if classes.is_some() { 6 } else { 5 },
     };
-    let tmp = work.join(format!(".{PREPARED}.{}.tmp", std::process::id()));
-    let context = || format!("writing {}", tmp.display());
-    let mut out = BufWriter::with_capacity(1 << 20, fs::File::create(&tmp).with_context(context)?);
+    // Removed when dropped before it is renamed into place: a failed write (a full disk)
+    // leaves nothing behind.
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!(".{PREPARED}."))
+        .suffix(".tmp")
+        .tempfile_in(work)
+        .with_context(|| format!("creating a temporary file in {}", work.display()))?;
+    let tmp_path = tmp.path().to_path_buf();
+    let context = || format!("writing {}", tmp_path.display());
+    let mut out = BufWriter::with_capacity(1 << 20, tmp.as_file());
     let head = head(&t, classes.is_some());
     out.write_all(&head).with_context(context)?;
     let mut table = Vec::with_capacity(4 * t.count());
@@ -141,7 +148,9 @@ pub(crate) fn write_prepared(
         .with_context(context)?;
     out.flush().with_context(context)?;
     drop(out);
-    fs::rename(&tmp, work.join(PREPARED)).with_context(context)?;
+    tmp.persist(work.join(PREPARED))
+        .map_err(|e| e.error)
+        .with_context(context)?;
     Ok(())
 }
 
@@ -389,6 +398,21 @@ mod tests {
             g.valid[k] = false;
         }
         g
+    }
+
+    /// A write that fails leaves no temporary behind (a full disk would leave gigabytes): here
+    /// the final name is taken by a directory, so the rename fails after every byte is written.
+    #[test]
+    fn a_failed_write_leaves_nothing_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        fs::create_dir(dir.path().join(PREPARED)).unwrap();
+        assert!(write_prepared(dir.path(), &grid(40, 30), None).is_err());
+        assert!(crate::journal::write_atomically(dir.path(), PREPARED, b"x").is_err());
+        let left: Vec<_> = fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(left, [std::ffi::OsString::from(PREPARED)], "{left:?}");
     }
 
     #[test]
