@@ -139,8 +139,9 @@ impl Visits {
         }
     }
 
-    /// Counts a diamond's grid against the quantized heights `input` (valid samples only).
-    fn check(&mut self, layout: &Layout, id: DiamondId, p: &[i32], input: &HeightGrid) {
+    /// Counts a diamond's grid against the quantized heights `input` (valid samples only),
+    /// which holds lattice point `(x, y)` at `(x >> shift, y >> shift)` ([`HeightGrid::strided`]).
+    fn check(&mut self, layout: &Layout, id: DiamondId, p: &[i32], input: &HeightGrid, shift: u32) {
         let n = layout.n();
         let g = layout.grid(id);
         let report = &mut self.levels[id.level as usize];
@@ -148,7 +149,8 @@ impl Visits {
         for j in 0..n {
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);
-                let Some(want) = input.get(x, y) else {
+                debug_assert!(x & ((1 << shift) - 1) == 0 && y & ((1 << shift) - 1) == 0);
+                let Some(want) = input.get(x >> shift, y >> shift) else {
                     continue;
                 };
                 let e = (i64::from(p[j * n + i]) - i64::from(want)).unsigned_abs();
@@ -208,29 +210,12 @@ pub(crate) fn visit_apex<'a>(
     visits: &'a mut Visits,
 ) -> impl FnMut(DiamondId, &[i32], Option<&[bool]>) + 'a {
     let data = (0, 0, width as i64 - 1, height as i64 - 1);
-    let shift = points.shift;
     move |id, p, valid| {
-        let n = layout.n();
-        let g = layout.grid(id);
-        let report = &mut visits.levels[id.level as usize];
-        report.diamonds += 1;
-        for j in 0..n {
-            for i in 0..n {
-                let (x, y) = g.point(i as i64, j as i64);
-                // Every point of the levels above the cut is on the apex lattice.
-                debug_assert!(x & ((1 << shift) - 1) == 0 && y & ((1 << shift) - 1) == 0);
-                let k = j * n + i;
-                if x < data.0 || y < data.1 || x > data.2 || y > data.3 {
-                    continue;
-                }
-                points.set(x, y, p[k], state_of(valid, k));
-                if let Some(want) = input.get(x >> shift, y >> shift) {
-                    let e = (i64::from(p[k]) - i64::from(want)).unsigned_abs();
-                    report.max_error = report.max_error.max(u32::try_from(e).unwrap_or(u32::MAX));
-                    report.vertices += 1;
-                }
-            }
-        }
+        // Every point of the levels above the cut is on the apex lattice.
+        visits.check(layout, id, p, input, points.shift);
+        grid_points_in(layout, id, data, |x, y, k| {
+            points.set(x, y, p[k], state_of(valid, k));
+        });
     }
 }
 
@@ -305,7 +290,7 @@ pub(crate) fn decode_block(
     let mut visits = Visits::new(layout.finest_level());
     walk.walk_block(index, |id, owned, p, valid| {
         if owned {
-            visits.check(&layout, id, p, input);
+            visits.check(&layout, id, p, input, 0);
         }
         grid_points_in(&layout, id, rect, |x, y, k| {
             values[at(x, y)] = p[k];
