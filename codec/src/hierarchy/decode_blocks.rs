@@ -112,7 +112,7 @@ pub struct BlockWalk<'a> {
 impl<'a> BlockWalk<'a> {
     /// Decodes the apex — the levels above `plan`'s cut, over the whole domain — handing `visit`
     /// every diamond it visits there as the whole walk does ([`super::walk_all_with_validity`]:
-    /// stored diamonds, and leaves below level 0), in the same order.
+    /// the stored diamonds, and from level 1 on the leaves), in the same order.
     ///
     /// Refuses a cube-sphere, α = ½ (whose refinements change the vertices they start from) and
     /// a plan whose cut is not above the finest level.
