@@ -21,82 +21,12 @@
 use std::collections::HashMap;
 
 use super::blocks::{Block, BlockPlan};
-use super::decode::{Decoder, walk_level};
+use super::decode::{Decoder, LevelRecords, leaves_of, records_by_level, walk_level};
 use super::refine::{RefineScratch, Refined};
 use super::{CodecParams, Encoded};
 use crate::CodecError;
 use crate::geometry::{DiamondId, DomainKind, Layout};
 use crate::lifting::Alpha;
-
-/// One level's records, sorted by id, looked up by binary search.
-#[derive(Default)]
-pub(super) struct LevelRecords<'a> {
-    pub(super) ids: Vec<DiamondId>,
-    bytes: Vec<&'a [u8]>,
-}
-
-impl<'a> LevelRecords<'a> {
-    /// The record of `id`, if stored on this level.
-    pub(super) fn get(&self, id: DiamondId) -> Option<&'a [u8]> {
-        self.ids.binary_search(&id).ok().map(|i| self.bytes[i])
-    }
-}
-
-/// `records` grouped by level and sorted; a record of a diamond that cannot be stored (at the
-/// finest level or beyond, or outside the domain) is corrupt.
-pub(super) fn records_by_level<'a>(
-    params: &CodecParams,
-    records: impl IntoIterator<Item = (DiamondId, &'a [u8])>,
-) -> Result<Vec<LevelRecords<'a>>, CodecError> {
-    let finest = params.layout().finest_level();
-    let mut by_level: Vec<Vec<(DiamondId, &'a [u8])>> = vec![Vec::new(); finest as usize + 1];
-    for (id, bytes) in records {
-        if id.level >= finest || !params.domain.contains(id) {
-            return Err(CodecError::corrupt(format!(
-                "record for impossible diamond {id}"
-            )));
-        }
-        by_level[id.level as usize].push((id, bytes));
-    }
-    Ok(by_level
-        .into_iter()
-        .map(|mut level| {
-            if !level.is_sorted_by_key(|r| r.0) {
-                level.sort_by_key(|r| r.0);
-            }
-            let (ids, bytes) = level.into_iter().unzip();
-            LevelRecords { ids, bytes }
-        })
-        .collect())
-}
-
-/// The children of `parents` (one level's diamonds) that `keep` accepts and whose existing
-/// parents are all in `prev` (decoded and stored): the leaves a walk visits without a record of
-/// their own. Sorted, without repeats.
-pub(super) fn leaves_of(
-    params: &CodecParams,
-    parents: impl IntoIterator<Item = DiamondId>,
-    prev: &HashMap<DiamondId, Refined>,
-    keep: impl Fn(DiamondId) -> bool,
-) -> Vec<DiamondId> {
-    let domain = &params.domain;
-    let mut leaves: Vec<DiamondId> = parents
-        .into_iter()
-        .flat_map(|p| domain.children(p))
-        .flatten()
-        .filter(|&c| {
-            keep(c)
-                && domain
-                    .parents(c)
-                    .into_iter()
-                    .flatten()
-                    .all(|p| prev.contains_key(&p))
-        })
-        .collect();
-    leaves.sort_unstable();
-    leaves.dedup();
-    leaves
-}
 
 /// A planar α = 1 hierarchy decoded block by block (see the module documentation): built with
 /// the apex decoded; [`BlockWalk::walk_block`] then decodes any block, from any thread.
