@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use cbdam_build::plan::default_memory_limit;
 use cbdam_build::planet::compare_planet;
 use cbdam_build::tiles::{Tile, expand_inputs};
-use cbdam_build::verify::{compare_colour, compare_dem, compare_tiles_with};
+use cbdam_build::verify::{compare_colour, compare_dem, compare_tiles_with, one_file_in_blocks};
 use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
 use cbdam_codec::repository::Repository;
 
@@ -67,11 +67,16 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     if repo.params().domain.cube().is_some() {
         return verify_planet_repo(&repo, &tiles);
     }
+    let limit = args.memory_limit.map_or_else(default_memory_limit, |b| b.0);
     let against = match tiles.as_slice() {
-        [Tile { path, vrt: None }] => path,
+        [Tile { path, vrt: None }]
+            if args.block_plan.is_none() && !one_file_in_blocks(&repo, path, limit) =>
+        {
+            path
+        }
         several => {
-            // Several inputs: the build's lattice, rebuilt from them.
-            let limit = args.memory_limit.map_or_else(default_memory_limit, |b| b.0);
+            // Several inputs, or one too large to decode whole: the build's lattice, rebuilt
+            // from them, and the hierarchy decoded block by block.
             let c = compare_tiles_with(&repo, several, limit, args.block_plan)?;
             if let Some(plan) = c.blocks {
                 let layout = repo.params().layout();

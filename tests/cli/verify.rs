@@ -171,3 +171,70 @@ fn verify_reads_a_raw_input_at_the_repositorys_size() {
         stderr(&o)
     );
 }
+
+/// One input file decoded block by block (what a file too large to decode whole gets): the same
+/// per-level findings as decoding it whole, and the same DEM 10 m higher refused.
+#[test]
+fn one_file_verifies_block_by_block() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r.cbdam");
+    let input = data("rhine_nodata.tif");
+    let o = cbdam(&[
+        "build",
+        &input,
+        "-o",
+        &s(&out),
+        "--max-error",
+        "1",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let verify_in_blocks = |against: &str| {
+        cbdam(&[
+            "verify",
+            &s(&out),
+            "--against",
+            against,
+            "--block-plan",
+            "2,64",
+        ])
+    };
+    let blocks = verify_in_blocks(&input);
+    let text = stdout(&blocks);
+    assert!(blocks.status.success(), "{text}{}", stderr(&blocks));
+    assert!(text.contains("decoded in") && text.contains("OK"), "{text}");
+    let whole = stdout(&cbdam(&["verify", &s(&out), "--against", &input]));
+    let levels = |t: &str| -> Vec<String> {
+        t.lines()
+            .filter(|l| l.trim_start().starts_with(|c: char| c.is_ascii_digit()))
+            .map(String::from)
+            .collect()
+    };
+    assert!(!levels(&whole).is_empty());
+    assert_eq!(levels(&text), levels(&whole));
+    // Every sample with data 10 m higher (nodata left as it is).
+    let mut dem = cbdam_codec::input::read_dem(
+        std::path::Path::new(&input),
+        &cbdam_codec::input::ReadOptions::default(),
+    )
+    .unwrap();
+    let nodata = dem.nodata;
+    for v in &mut dem.values {
+        if Some(*v) != nodata && !v.is_nan() {
+            *v += 10.0;
+        }
+    }
+    let shifted = dir.path().join("shifted.tif");
+    let raster = cbdam_build::write::Raster {
+        width: dem.width,
+        height: dem.height,
+        values: dem.values,
+        georef: dem.georef,
+    };
+    let file = std::fs::File::create(&shifted).unwrap();
+    cbdam_build::write::write_geotiff(file, &raster, nodata, false).unwrap();
+    let o = verify_in_blocks(&s(&shifted));
+    assert!(!o.status.success(), "{}", stdout(&o));
+    // 10 m is 80 units: every level is past the bound of 7.
+    assert!(stderr(&o).contains("L∞ bound violated"), "{}", stderr(&o));
+}

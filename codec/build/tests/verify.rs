@@ -1,7 +1,7 @@
 //! Verify's comparisons accept a repository against its own input and refuse it against
 //! another.
 
-use cbdam_build::verify::compare_dem;
+use cbdam_build::verify::{compare_dem, one_file_in_blocks};
 use cbdam_build::{BuildOptions, NoProgress, build};
 use cbdam_codec::repository::Repository;
 
@@ -22,6 +22,10 @@ fn a_repository_matches_its_input_and_not_another() {
     c.check().unwrap();
     assert!(c.max_error <= 1.0 && c.max_error > 0.0, "{}", c.max_error);
     assert!(c.nodata > 0 && c.mask_mismatches.is_empty());
+    // Decoded block by block only when decoding it whole would not fit the limit.
+    assert!(one_file_in_blocks(&repo, &rhine, 1 << 20));
+    assert!(!one_file_in_blocks(&repo, &rhine, 1 << 30));
+    assert!(!one_file_in_blocks(&repo, &dir.path().join("r.f32"), 1 << 20));
     // Another DEM of another size is refused by name.
     let other = data("jacksboro_mpl.tif");
     let e = compare_dem(&repo, &other).err().unwrap().to_string();
