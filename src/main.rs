@@ -865,7 +865,8 @@ pub struct VerifyArgs {
     #[arg(long, required = true, num_args = 1..)]
     against: Vec<PathBuf>,
     /// Memory to stay within (e.g. 2G, 512M; default half of RAM): a hierarchy from several
-    /// inputs is decoded block by block, the inputs' lattice kept in temporary files above it.
+    /// inputs, or from one too large to decode whole (26 bytes a sample), is decoded block by
+    /// block, the inputs' lattice kept in temporary files above it.
     #[arg(long, value_name = "SIZE")]
     memory_limit: Option<flags::ByteSize>,
     /// Decode blocks of this plan (testing).

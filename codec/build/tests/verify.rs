@@ -25,7 +25,11 @@ fn a_repository_matches_its_input_and_not_another() {
     // Decoded block by block only when decoding it whole would not fit the limit.
     assert!(one_file_in_blocks(&repo, &rhine, 1 << 20));
     assert!(!one_file_in_blocks(&repo, &rhine, 1 << 30));
-    assert!(!one_file_in_blocks(&repo, &dir.path().join("r.f32"), 1 << 20));
+    assert!(!one_file_in_blocks(
+        &repo,
+        &dir.path().join("r.f32"),
+        1 << 20
+    ));
     // Another DEM of another size is refused by name.
     let other = data("jacksboro_mpl.tif");
     let e = compare_dem(&repo, &other).err().unwrap().to_string();
