@@ -85,6 +85,7 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
                 quantum: None,
                 max_error: args.max_error,
                 memory_limit: limit,
+                lattice_dir: None,
             })?;
             let storage = storage_for(&input.grid, None, &opts, limit)?;
             let enc = encode_prepared(

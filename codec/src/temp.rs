@@ -28,7 +28,7 @@
 
 use std::fmt;
 use std::ops::{Deref, DerefMut, Range};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use memmap2::MmapMut;
@@ -47,6 +47,10 @@ pub enum TempStorage {
     /// temporary directory when `None`), so the kernel can write pages back to disk under memory
     /// pressure instead of failing.
     File(Option<PathBuf>),
+    /// A memory-mapped file in this directory under a temporary name, removed when the array
+    /// is dropped unless [`LatticeArray::persist`] gives it a lasting one: a lattice that other
+    /// processes read afterwards (a sharded build's prepared grid) without a second copy.
+    Named(PathBuf),
 }
 
 impl TempStorage {
@@ -62,7 +66,23 @@ impl TempStorage {
             TempStorage::File(None)
         }
     }
+
+    /// This storage, with its mapped files named in `dir` when given ([`TempStorage::Named`]);
+    /// memory stays memory.
+    pub fn named_in(self, dir: Option<&Path>) -> Self {
+        match (self, dir) {
+            (TempStorage::File(_) | TempStorage::Named(_), Some(dir)) => {
+                TempStorage::Named(dir.to_path_buf())
+            }
+            (storage, _) => storage,
+        }
+    }
 }
+
+/// The start of the names of a lattice's temporary files in a directory
+/// ([`TempStorage::Named`], [`LatticeArray::persist`]): removed when the array is dropped or
+/// the file persisted, left behind only by a killed process.
+pub const LATTICE_TEMP_PREFIX: &str = ".lattice.";
 
 /// Bytes a mapped [`LatticeArray`] lets its readers touch before it drops its resident pages.
 pub const MAPPED_WINDOW_BYTES: u64 = 64 << 20;
@@ -92,6 +112,8 @@ enum Inner<T> {
         /// The mapped file, read by [`LatticeArray::window`] (on Unix).
         #[cfg_attr(not(unix), allow(dead_code))]
         file: std::fs::File,
+        /// Its temporary name ([`TempStorage::Named`]), removed on drop unless persisted.
+        name: Option<tempfile::TempPath>,
         len: usize,
         /// Bytes reported read since the resident pages were last dropped.
         touched: AtomicU64,
@@ -109,20 +131,24 @@ enum Inner<T> {
 impl<T: LatticeElement> LatticeArray<T> {
     /// `len` copies of `value` in `storage`.
     pub fn filled(len: usize, value: T, storage: &TempStorage) -> Result<Self, CodecError> {
-        let dir = match storage {
+        let bytes = len
+            .checked_mul(size_of::<T>())
+            .ok_or_else(|| CodecError::limit("lattice too large for the address space"))?;
+        let (file, name) = match storage {
             TempStorage::Memory => {
                 return Ok(Self {
                     inner: Inner::Heap(vec![value; len]),
                 });
             }
-            TempStorage::File(dir) => dir,
-        };
-        let bytes = len
-            .checked_mul(size_of::<T>())
-            .ok_or_else(|| CodecError::limit("lattice too large for the address space"))?;
-        let file = match dir {
-            Some(d) => tempfile::tempfile_in(d),
-            None => tempfile::tempfile(),
+            TempStorage::File(Some(d)) => tempfile::tempfile_in(d).map(|f| (f, None)),
+            TempStorage::File(None) => tempfile::tempfile().map(|f| (f, None)),
+            TempStorage::Named(d) => tempfile::Builder::new()
+                .prefix(LATTICE_TEMP_PREFIX)
+                .tempfile_in(d)
+                .map(|f| {
+                    let (file, name) = f.into_parts();
+                    (file, Some(name))
+                }),
         }
         .map_err(|e| {
             CodecError::Io(std::io::Error::new(
@@ -132,13 +158,14 @@ impl<T: LatticeElement> LatticeArray<T> {
         })?;
         // Sparse: blocks are allocated only where pages are written.
         file.set_len(bytes.max(1) as u64)?;
-        // SAFETY: the file is unlinked and private to this process, so nothing else can truncate
-        // or modify it while it is mapped.
+        // SAFETY: the file is unlinked, or has a temporary name nothing else writes, so
+        // nothing else truncates or modifies it while it is mapped.
         let map = unsafe { MmapMut::map_mut(&file)? };
         let mut array = Self {
             inner: Inner::Mapped {
                 map,
                 file,
+                name,
                 len,
                 touched: AtomicU64::new(0),
             },
@@ -161,6 +188,81 @@ impl<T: LatticeElement> LatticeArray<T> {
     /// Whether the values live in a mapped file.
     pub fn is_mapped(&self) -> bool {
         matches!(self.inner, Inner::Mapped { .. })
+    }
+
+    /// Gives the values a lasting file at `path` (replacing any file there), in the host's
+    /// byte order: a mapped array of [`TempStorage::Named`] is renamed (no copy; `path` must
+    /// be on the same file system, e.g. in the same directory), any other array is written
+    /// out under a temporary name and renamed. The array keeps working as before; a later
+    /// write to a renamed mapped array changes the file.
+    pub fn persist(&mut self, path: &Path) -> Result<(), CodecError> {
+        let failed = |e: std::io::Error| {
+            CodecError::Io(std::io::Error::new(
+                e.kind(),
+                format!("writing {}: {e}", path.display()),
+            ))
+        };
+        if let Inner::Mapped { name, .. } = &mut self.inner
+            && let Some(temp) = name.take()
+        {
+            return temp.persist(path).map(|_| ()).map_err(|e| failed(e.error));
+        }
+        let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+        let mut tmp = tempfile::Builder::new()
+            .prefix(LATTICE_TEMP_PREFIX)
+            .tempfile_in(dir.unwrap_or(Path::new(".")))
+            .map_err(failed)?;
+        {
+            use std::io::Write;
+            let mut out = std::io::BufWriter::with_capacity(1 << 20, tmp.as_file_mut());
+            let window = (MAPPED_WINDOW_BYTES as usize / size_of::<T>()).max(1);
+            for start in (0..self.len()).step_by(window) {
+                let end = (start + window).min(self.len());
+                out.write_all(as_bytes(&self[start..end])).map_err(failed)?;
+                self.release(start..end);
+            }
+            out.flush().map_err(failed)?;
+        }
+        tmp.persist(path).map(|_| ()).map_err(|e| failed(e.error))
+    }
+
+    /// The `len` values of `file` (in the host's byte order, as [`LatticeArray::persist`]
+    /// writes them), mapped privately: the file is not changed by writes to the array, and
+    /// holds memory only where it is read through the mapping. [`LatticeArray::window`] and
+    /// [`LatticeArray::strided`] read it without the mapping, and give `false` for any nonzero
+    /// byte of a `bool` array that is not 1.
+    ///
+    /// # Safety
+    ///
+    /// Every element read through the mapping (`Deref`) must hold a valid `T` in the file (for
+    /// `bool`, a byte 0 or 1), and nothing may modify or truncate the file while the array
+    /// lives.
+    pub unsafe fn map_file(file: std::fs::File, len: usize) -> Result<Self, CodecError> {
+        let bytes = len
+            .checked_mul(size_of::<T>())
+            .ok_or_else(|| CodecError::limit("lattice too large for the address space"))?;
+        let found = file.metadata()?.len();
+        if found != bytes as u64 {
+            return Err(CodecError::Io(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("a lattice file of {found} bytes where {len} values take {bytes}"),
+            )));
+        }
+        // SAFETY: the caller guarantees that nothing modifies the file while it is mapped.
+        let map = if bytes == 0 {
+            memmap2::MmapOptions::new().len(1).map_anon()?
+        } else {
+            unsafe { memmap2::MmapOptions::new().map_copy(&file)? }
+        };
+        Ok(Self {
+            inner: Inner::Mapped {
+                map,
+                file,
+                name: None,
+                len,
+                touched: AtomicU64::new(0),
+            },
+        })
     }
 
     /// Bytes the array keeps resident: all of them in memory, at most
@@ -293,6 +395,11 @@ impl<T: LatticeElement> LatticeArray<T> {
                     std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<u8>(), size_of_val(out))
                 };
                 file.read_exact_at(bytes, (start * size) as u64)?;
+                // A file mapped by `map_file` was written by another process: a `bool` is
+                // made valid before it is read as one.
+                if std::any::TypeId::of::<T>() == std::any::TypeId::of::<bool>() {
+                    bytes.iter_mut().for_each(|b| *b = u8::from(*b == 1));
+                }
             }
             _ => out.copy_from_slice(&self[start..start + out.len()]),
         }
@@ -381,6 +488,13 @@ impl<T: LatticeElement> LatticeArray<T> {
         self.for_each_window(|_, w| found = found || w.iter().any(&pred));
         found
     }
+}
+
+/// The bytes of `values`, in the host's byte order.
+fn as_bytes<T: LatticeElement>(values: &[T]) -> &[u8] {
+    // SAFETY: the element types (`i32`, `u8`, `bool`) have no padding, so every byte of the
+    // slice is initialized, and `u8` has no alignment or validity requirement.
+    unsafe { std::slice::from_raw_parts(values.as_ptr().cast::<u8>(), size_of_val(values)) }
 }
 
 impl<T: LatticeElement> Deref for LatticeArray<T> {
@@ -567,6 +681,98 @@ mod tests {
                 assert_eq!(s[j * cw + i], a[(j << shift) * w + (i << shift)], "{shift}");
             }
         }
+    }
+
+    /// The names in `dir`.
+    fn names(dir: &Path) -> Vec<String> {
+        let mut n: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        n.sort();
+        n
+    }
+
+    /// Persisting gives each storage's values a file, in the host's byte order; a named mapped
+    /// array's own file is renamed (it stays the array's: a later write shows in it), the
+    /// others are written out; no temporary is left; a file mapped back reads the same values.
+    #[test]
+    fn persisted_arrays_map_back_with_their_values() {
+        let dir = tempfile::tempdir().unwrap();
+        // Small: another test measures this process's resident file pages meanwhile.
+        let len = 100_003;
+        let storages = [
+            TempStorage::Memory,
+            TempStorage::File(None),
+            TempStorage::Named(dir.path().to_path_buf()),
+        ];
+        for (k, storage) in storages.iter().enumerate() {
+            let mut a = LatticeArray::filled(len, 0i32, storage).unwrap();
+            for (i, v) in a.iter_mut().enumerate() {
+                *v = (i as i32).wrapping_mul(2_654_435_761_u32 as i32);
+            }
+            if let TempStorage::Named(_) = storage {
+                let temp = names(dir.path());
+                assert!(
+                    temp.iter().any(|n| n.starts_with(LATTICE_TEMP_PREFIX)),
+                    "{temp:?}"
+                );
+            }
+            let path = dir.path().join(format!("a{k}"));
+            a.persist(&path).unwrap();
+            let bytes = std::fs::read(&path).unwrap();
+            assert_eq!(bytes.len(), 4 * len);
+            assert_eq!(bytes[4 * 7..4 * 8], a[7].to_ne_bytes());
+            // A named mapped array is its file now: a write to it shows there.
+            a[3] = 12345;
+            let renamed = matches!(storage, TempStorage::Named(_));
+            let now = std::fs::read(&path).unwrap();
+            assert_eq!(
+                now[12..16] == 12345i32.to_ne_bytes(),
+                renamed,
+                "{storage:?}"
+            );
+            assert!(
+                !names(dir.path())
+                    .iter()
+                    .any(|n| n.starts_with(LATTICE_TEMP_PREFIX)),
+                "a temporary left: {:?}",
+                names(dir.path())
+            );
+            let file = std::fs::File::open(&path).unwrap();
+            // SAFETY: an `i32` file nothing else writes meanwhile.
+            let back = unsafe { LatticeArray::<i32>::map_file(file, len) }.unwrap();
+            assert!(back.is_mapped() && back.windows() == cfg!(unix));
+            assert_eq!(back[len - 1], a[len - 1]);
+            assert_eq!(back.window(1000, (5, 2, 9, 3)).unwrap()[2005], a[2005]);
+            // Another length than the file's is refused.
+            let file = std::fs::File::open(&path).unwrap();
+            // SAFETY: as above.
+            let e = unsafe { LatticeArray::<i32>::map_file(file, len + 1) }.unwrap_err();
+            assert!(e.to_string().contains("lattice file of"), "{e}");
+        }
+        // A named array dropped unpersisted leaves nothing.
+        drop(LatticeArray::filled(10, 1u8, &storages[2]).unwrap());
+        assert_eq!(names(dir.path()), ["a0", "a1", "a2"]);
+    }
+
+    /// A `bool` file holding other bytes than 0 and 1 (written by another process, damaged)
+    /// still reads as valid `bool`s through windows and strided copies (1 is true, the rest
+    /// false), which never read the mapping.
+    #[cfg(unix)]
+    #[test]
+    fn a_bool_file_with_other_bytes_reads_as_valid_bools_through_windows() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("valid");
+        std::fs::write(&path, [0u8, 1, 2, 255, 1, 0, 7, 1]).unwrap();
+        let file = std::fs::File::open(&path).unwrap();
+        // SAFETY: read only through `window` and `strided`, which do not use the mapping.
+        let a = unsafe { LatticeArray::<bool>::map_file(file, 8) }.unwrap();
+        let w = a.window(4, (0, 0, 3, 1)).unwrap();
+        let bytes: Vec<u8> = w.iter().map(|&b| u8::from(b)).collect();
+        assert_eq!(bytes, [0, 1, 0, 0, 1, 0, 0, 1]);
+        let s = a.strided(4, 1).unwrap();
+        assert_eq!(s.iter().map(|&b| u8::from(b)).collect::<Vec<_>>(), [0, 0]);
     }
 
     #[test]

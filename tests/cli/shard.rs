@@ -103,7 +103,7 @@ fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
     // A work directory of another layout version is refused by every step, saying so.
     let key = Path::new(&work).join("key");
     let text = std::fs::read_to_string(&key).unwrap();
-    std::fs::write(&key, text.replace("shard_layout=2\n", "shard_layout=1\n")).unwrap();
+    std::fs::write(&key, text.replace("shard_layout=3\n", "shard_layout=1\n")).unwrap();
     for step in ["apex", "merge"] {
         let e = refused(&["shard", step, "--work", &work]);
         assert!(

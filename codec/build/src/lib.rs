@@ -26,7 +26,7 @@ pub mod verify;
 mod verify_blocks;
 pub mod write;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use cbdam_codec::entropy::CoderKind;
@@ -202,10 +202,12 @@ pub(crate) fn input_tiles(opts: &BuildOptions) -> Result<Vec<tiles::Tile>> {
 }
 
 /// Checks `opts`, reads and quantizes the input and chooses the temporaries: everything of an
-/// elevation build before the encode.
+/// elevation build before the encode. A lattice too large for memory goes to mapped files named
+/// in `lattice_dir` when given (a sharded plan's work directory), else unlinked temporaries.
 pub(crate) fn prepare_elevation(
     opts: &BuildOptions,
     progress: &dyn Progress,
+    lattice_dir: Option<&Path>,
 ) -> Result<PreparedBuild> {
     if opts.like.is_some() {
         bail!("--like only applies to colour repositories (--colour)");
@@ -241,6 +243,7 @@ pub(crate) fn prepare_elevation(
                 quantum: opts.quantum,
                 max_error: opts.max_error,
                 memory_limit: limit,
+                lattice_dir,
             })?;
             if let Some(a) = &opts.assign_georef {
                 a.apply(
@@ -275,8 +278,14 @@ pub(crate) fn prepare_elevation(
                      the covering hierarchy)"
                 );
             }
-            let (input, res) =
-                prepare_mosaic(tiles, opts.nodata, opts.quantum, opts.max_error, limit)?;
+            let (input, res) = prepare_mosaic(
+                tiles,
+                opts.nodata,
+                opts.quantum,
+                opts.max_error,
+                limit,
+                lattice_dir,
+            )?;
             // The inputs are gone by now: what stays is the grid, the classes and the field.
             let storage = storage_for(&input.grid, Some(&res), &enc_opts, limit)?;
             (input, Some(res), storage)
@@ -314,7 +323,7 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         storage,
         enc_opts,
         limit,
-    } = prepare_elevation(opts, progress)?;
+    } = prepare_elevation(opts, progress, None)?;
     let mut stages = input.stages.clone();
     let journal = match &storage.blocks {
         Some(plan) => {

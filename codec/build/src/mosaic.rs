@@ -71,7 +71,7 @@ pub fn bytes_in_memory(width: usize, height: usize, lattice: &TempStorage) -> u6
     let block = 12 * (BLOCK_POINTS.max(width) as u64).min(points);
     let arrays = match lattice {
         TempStorage::Memory => points.saturating_mul(BYTES_PER_POINT),
-        TempStorage::File(_) => {
+        TempStorage::File(_) | TempStorage::Named(_) => {
             // Heights (4 bytes a point), validity and classes (1 byte each).
             let resident = |bytes: u64| bytes.min(MAPPED_RESIDENT_BYTES);
             resident(points.saturating_mul(4)) + 2 * resident(points)

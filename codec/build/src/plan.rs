@@ -50,6 +50,10 @@ pub struct InputSpec<'a> {
     /// The build's memory limit, bytes: a streamed input's lattice larger than half of it goes
     /// to mapped temporary files ([`TempStorage::for_lattice`]).
     pub memory_limit: u64,
+    /// Where those files go, named, when given ([`TempStorage::Named`]: a sharded build's
+    /// work directory keeps them as its prepared grid); else unlinked in the system's
+    /// temporary directory.
+    pub lattice_dir: Option<&'a Path>,
 }
 
 /// Whether `path` names a raw float32 file (`.raw`, `.f32`, `.bin`), which carries no size.
@@ -82,7 +86,8 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
         let lattice = TempStorage::for_lattice(
             points.saturating_mul(HeightGrid::BYTES_PER_POINT),
             spec.memory_limit,
-        );
+        )
+        .named_in(spec.lattice_dir);
         let (plan, grid) =
             QuantPlan::quantize_source_in(src, spec.max_error, spec.quantum, &lattice)
                 .with_context(reading)?;
@@ -161,7 +166,7 @@ impl Temporaries {
     pub fn describe(&self) -> String {
         let storage = match self.storage {
             TempStorage::Memory => "memory",
-            TempStorage::File(_) => "mapped file",
+            TempStorage::File(_) | TempStorage::Named(_) => "mapped file",
         };
         let field = match &self.blocks {
             None => storage.to_string(),
@@ -277,20 +282,23 @@ pub fn default_memory_limit() -> u64 {
 /// Reads several georeferenced inputs (files or tiles, [`crate::tiles`]) into one
 /// variable-resolution lattice ([`crate::mosaic`]) and quantizes it: one integer mapping for all
 /// inputs. The tiles' headers are read first; their samples are decoded band by band as the
-/// survey and the quantizer's passes reach them, within the mosaic's cache.
+/// survey and the quantizer's passes reach them, within the mosaic's cache. A mapped lattice's
+/// files go to `lattice_dir`, named, when given ([`InputSpec::lattice_dir`]).
 pub fn prepare_mosaic(
     tiles: &[Tile],
     nodata: Option<f64>,
     quantum: Option<f64>,
     max_error: f64,
     memory_limit: u64,
+    lattice_dir: Option<&Path>,
 ) -> Result<(Prepared, Resolution)> {
     let opts = ReadOptions {
         nodata,
         ..ReadOptions::default()
     };
     let t = Instant::now();
-    let m = crate::mosaic::mosaic_tiles(tiles, &opts, memory_limit)?;
+    let mut m = crate::mosaic::mosaic_tiles(tiles, &opts, memory_limit)?;
+    m.lattice = m.lattice.named_in(lattice_dir);
     let indexed = t.elapsed();
     let survey = m.survey()?;
     let surveyed = t.elapsed();

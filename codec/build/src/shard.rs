@@ -5,8 +5,8 @@
 //! Every step reads and writes one *work directory* on a path all machines share:
 //!
 //! - [`plan`] reads the inputs once (as `cbdam build` does), chooses the block plan and the shards
-//!   (runs of consecutive blocks) and writes `prepared` (the quantized grid, 5 bytes a sample,
-//!   6 with several inputs, in tiles with a CRC each: [`crate::shard_grid`]), `summary` (what
+//!   (runs of consecutive blocks) and keeps the quantized grid as `prepared` (the lattice's own
+//!   arrays, made in the work directory, and a CRC of each tile: [`crate::shard_grid`]), writes `summary` (what
 //!   the encoder's setup measures of the whole grid, so no later step scans it), `plan` (what
 //!   the other steps need: output path, options, quantization, georeferencing, blocks, shards)
 //!   and, last, `key` (every input and argument that decides the output): a work directory with
@@ -15,7 +15,8 @@
 //! - [`apex`] reads `prepared`, refines the levels above the cut over the whole domain and
 //!   writes `apex.field` (the reconstruction at the cut, 4 bytes a point) and `apex` (its
 //!   records; the blocks measure its object errors).
-//! - [`run`] reads the tiles of `prepared` under its blocks' fields and `apex.field`, and
+//! - [`run`] checks the tiles of `prepared` under its blocks' fields, reads them (and
+//!   nothing else of the grid) block by block, reads `apex.field`, and
 //!   writes one file per block of its shard in `blocks/`: the build journal's block files
 //!   ([`crate::journal`]), each renamed into place whole with a CRC, holding besides the block's
 //!   records and errors the apex's errors over the block's square. Blocks already there are
@@ -42,6 +43,7 @@ use cbdam_codec::input::GeoRef;
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan, Quantizer};
 use cbdam_codec::repository::write_repository;
+use cbdam_codec::temp::LATTICE_TEMP_PREFIX;
 
 use crate::encode::{
     AUTO_RETRY_MAX_SAMPLES, ExtraLevels, thread_pool, with_coarser_roots_if_smaller,
@@ -62,8 +64,9 @@ const MARKER: &str = ".cbdam-shard";
 
 /// Magic bytes of the `apex.field` file.
 const FIELD_MAGIC: &[u8; 4] = b"CBDF";
-/// Version of the work directory's layout (2: the blocks measure the apex's object errors).
-const VERSION: u32 = 2;
+/// Version of the work directory's layout (2: the blocks measure the apex's object errors;
+/// 3: the prepared grid is the lattice's own arrays, with a table of tile checksums).
+const VERSION: u32 = 3;
 
 /// What a sharded build's steps share: read from the work directory's `plan` file.
 #[derive(Clone, Debug, PartialEq)]
@@ -348,7 +351,9 @@ pub fn plan(
         );
     }
     claim_work_dir(work)?;
-    let prepared = prepare_elevation(opts, progress)?;
+    // The lattice's mapped files are made in the work directory, and kept as `prepared`.
+    let mut prepared = prepare_elevation(opts, progress, Some(work))?;
+    write_prepared(work, &mut prepared.input.grid, prepared.resolution.as_mut())?;
     let enc = prepared.enc_opts;
     let grid = &prepared.input.grid;
     let blocks = match prepared.storage.blocks {
@@ -391,7 +396,6 @@ pub fn plan(
         block_count,
         shards: shards.unwrap_or(block_count).min(block_count).max(1),
     };
-    write_prepared(work, grid, prepared.resolution.as_ref())?;
     // The setup's scans of the whole grid, once: the other steps read its summary.
     let pool = thread_pool(opts.threads)?;
     let encode = pool.install(|| {
@@ -433,8 +437,18 @@ fn claim_work_dir(work: &Path) -> Result<()> {
                 work.display()
             );
         }
-        // An unfinished plan's leftovers: its blocks would belong to no key.
+        // An unfinished plan's leftovers: its blocks would belong to no key, and the lattice
+        // files of a killed plan (removed when it ends any other way) are as large as the grid.
         let _ = fs::remove_dir_all(work.join(BLOCKS));
+        for entry in fs::read_dir(work).with_context(context)?.flatten() {
+            if entry
+                .file_name()
+                .to_string_lossy()
+                .starts_with(LATTICE_TEMP_PREFIX)
+            {
+                let _ = fs::remove_file(entry.path());
+            }
+        }
     }
     fs::create_dir_all(work).with_context(context)?;
     fs::write(work.join(MARKER), b"a work directory of `cbdam shard`\n").with_context(context)?;
@@ -560,13 +574,7 @@ fn read_grid(
     plan: &ShardPlan,
     rects: Option<&[(i64, i64, i64, i64)]>,
 ) -> Result<(HeightGrid, Option<Resolution>)> {
-    let bytes = (5 + u64::from(plan.variable)) * (plan.width as u64) * (plan.height as u64);
-    read_prepared(
-        work,
-        (plan.width, plan.height, plan.variable),
-        rects,
-        &TempStorage::for_lattice(bytes, plan.memory_limit),
-    )
+    read_prepared(work, (plan.width, plan.height, plan.variable), rects)
 }
 
 /// Encodes the apex (the levels above the cut) of a planned work directory, unless it is there.

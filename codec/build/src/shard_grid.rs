@@ -1,20 +1,23 @@
 //! The files of a sharded build's work directory that hold the input: `prepared`, the quantized
-//! grid in square tiles, each with its own CRC-32, so that a step reads (and checks) only the
-//! tiles under the rectangles it encodes; and `summary`, what the encoder's setup measured of
-//! the whole grid once in the plan (stored diamonds, roots, bounds), so that no later step scans
-//! the whole grid again. Both are internal to the work directory (not a repository format);
-//! a file of another layout version is refused.
+//! grid — its arrays as the build made them (`prepared.values`, `prepared.valid`,
+//! `prepared.classes`: the lattice's own mapped files, renamed into the work directory, so the
+//! plan writes no second copy) and a header with a CRC-32 of each square tile of them, so that
+//! a step checks only the tiles under the rectangles it encodes; and `summary`, what the
+//! encoder's setup measured of the whole grid once in the plan (stored diamonds, roots,
+//! bounds), so that no later step scans the whole grid again. Both are internal to the work
+//! directory (not a repository format); a file of another layout version is refused.
 
 use std::fs;
-use std::io::{BufWriter, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
 
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{GridSummary, Resolution, TempStorage};
+use cbdam_codec::hierarchy::{GridSummary, Resolution};
 use cbdam_codec::quant::HeightGrid;
 use cbdam_codec::temp::LatticeArray;
 
-use crate::error::{Context, Result};
+use crate::error::{Context, Result, bail};
 use crate::journal::{Reader, write_atomically};
 
 const PREPARED: &str = "prepared";
@@ -24,20 +27,31 @@ const PREPARED_MAGIC: &[u8; 4] = b"CBDP";
 /// Magic bytes of the `summary` file.
 const SUMMARY_MAGIC: &[u8; 4] = b"CBDS";
 /// Version of these files' layout.
-const VERSION: u32 = 2;
+const VERSION: u32 = 3;
 /// Side of a tile of `prepared`, samples: 320 KiB of a single-resolution grid.
 const TILE: usize = 256;
+/// Tiles a worker checks at once, side by side in a band of tile rows: its buffers hold
+/// `TILE` rows of this many tiles (12 MiB with classes).
+const TILES_AT_ONCE: usize = 32;
 /// Bytes of the header of `prepared`: magic, version, width, height, classes flag, tile side.
 const HEAD: usize = 29;
 
-/// Where the tiles of a `width` × `height` grid of `bps` bytes a sample lie in `prepared`: row
-/// by row of tiles, each tile's values (i32), validity (u8) and classes (u8) row by row.
+/// The arrays of the prepared grid, by file name, and their bytes a sample: heights (`i32`),
+/// validity (`bool`: 0 or 1), classes (`u8`, with several inputs).
+const ARRAYS: [(&str, usize); 3] = [
+    ("prepared.values", 4),
+    ("prepared.valid", 1),
+    ("prepared.classes", 1),
+];
+
+/// The square tiles of a `width` × `height` grid, row by row of tiles, each checksummed over
+/// its rows of each array in turn.
 #[derive(Clone, Copy)]
 struct Tiling {
     width: usize,
     height: usize,
-    /// Bytes a sample: 5, or 6 with classes.
-    bps: usize,
+    /// With the classes array.
+    classes: bool,
 }
 
 impl Tiling {
@@ -57,156 +71,206 @@ impl Tiling {
             (y0 + TILE).min(self.height),
         )
     }
-    /// Byte offset of tile `(i, j)` in the file: the rows of tiles above it are whole rows of
-    /// the grid, and the tiles before it in its row are `TILE` wide.
-    fn offset(&self, i: usize, j: usize) -> u64 {
-        let (_, y0, _, y1) = self.rect(i, j);
-        (HEAD + self.bps * (y0 * self.width + (y1 - y0) * i * TILE)) as u64
+    /// The arrays: their file names and bytes a sample.
+    fn arrays(&self) -> &'static [(&'static str, usize)] {
+        &ARRAYS[..2 + usize::from(self.classes)]
     }
-    /// Offset of the table of the tiles' CRCs, after the last tile.
-    fn table(&self) -> u64 {
-        (HEAD + self.bps * self.width * self.height) as u64
-    }
+    /// Length of the `prepared` file: the header, a CRC-32 a tile, and the CRC-32 of both.
     fn file_len(&self) -> u64 {
-        self.table() + 4 * self.count() as u64 + 4
+        (HEAD + 4 * self.count() + 4) as u64
     }
 }
 
-fn head(t: &Tiling, classes: bool) -> Vec<u8> {
+fn head(t: &Tiling) -> Vec<u8> {
     let mut head = Vec::with_capacity(HEAD);
     head.extend_from_slice(PREPARED_MAGIC);
     head.extend_from_slice(&VERSION.to_le_bytes());
     head.extend_from_slice(&(t.width as u64).to_le_bytes());
     head.extend_from_slice(&(t.height as u64).to_le_bytes());
-    head.push(u8::from(classes));
+    head.push(u8::from(t.classes));
     head.extend_from_slice(&(TILE as u32).to_le_bytes());
     head
 }
 
-/// Writes `work/prepared`: the header, the tiles (each: values i32, validity u8, classes u8,
-/// row by row), the tiles' CRC-32s, and a CRC-32 of the header and that table; little-endian.
-/// Written under a temporary name and renamed.
+/// Refuses a big-endian host: the arrays are the lattice's own files, in the host's byte order,
+/// which the format fixes as little-endian.
+fn little_endian() -> Result<()> {
+    if cfg!(target_endian = "big") {
+        bail!("sharded builds need a little-endian machine (their grid files are little-endian)");
+    }
+    Ok(())
+}
+
+/// The CRC-32 of each tile `wanted` (row by row of tiles; `None` for the others), read from
+/// the array files `files` (heights, validity and classes, as `t.arrays()`), in parallel bands
+/// of tiles. A validity byte other than 0 or 1 is an error naming its tile.
+fn tile_crcs(t: &Tiling, files: &[fs::File], wanted: &[bool]) -> Result<Vec<Option<u32>>, String> {
+    use std::os::unix::fs::FileExt;
+    // Runs of up to `TILES_AT_ONCE` wanted tiles in a row of tiles: (j, i0, i1).
+    let mut runs = Vec::new();
+    for j in 0..t.height.div_ceil(TILE) {
+        let mut i = 0;
+        while i < t.across() {
+            if !wanted[j * t.across() + i] {
+                i += 1;
+                continue;
+            }
+            let i0 = i;
+            while i < t.across() && i - i0 < TILES_AT_ONCE && wanted[j * t.across() + i] {
+                i += 1;
+            }
+            runs.push((j, i0, i));
+        }
+    }
+    let crcs = runs
+        .par_iter()
+        .map_init(Vec::new, |buf: &mut Vec<u8>, &(j, i0, i1)| {
+            let (x0, y0, _, y1) = t.rect(i0, j);
+            let x1 = t.rect(i1 - 1, j).2;
+            let (w, rows) = (x1 - x0, y1 - y0);
+            let mut hashers = vec![crc32fast::Hasher::new(); i1 - i0];
+            for (a, (&(name, bps), file)) in t.arrays().iter().zip(files).enumerate() {
+                buf.resize(bps * w * rows, 0);
+                for (r, y) in (y0..y1).enumerate() {
+                    let at = (bps * (y * t.width + x0)) as u64;
+                    file.read_exact_at(&mut buf[bps * w * r..bps * w * (r + 1)], at)
+                        .map_err(|e| format!("reading {name}: {e}"))?;
+                }
+                if a == 1
+                    && let Some(p) = buf.iter().position(|&b| b > 1)
+                {
+                    let x = x0 + p % w;
+                    return Err(format!(
+                        "a validity byte {} in tile ({}, {j})",
+                        buf[p],
+                        x / TILE
+                    ));
+                }
+                for (k, hasher) in hashers.iter_mut().enumerate() {
+                    let (tx0, _, tx1, _) = t.rect(i0 + k, j);
+                    for r in 0..rows {
+                        let row = bps * (w * r + tx0 - x0)..bps * (w * r + tx1 - x0);
+                        hasher.update(&buf[row]);
+                    }
+                }
+            }
+            Ok(hashers
+                .into_iter()
+                .map(|h| h.finalize())
+                .collect::<Vec<_>>())
+        })
+        .collect::<Result<Vec<_>, String>>()?;
+    let mut out = vec![None; t.count()];
+    for (&(j, i0, _), run) in runs.iter().zip(crcs) {
+        for (k, crc) in run.into_iter().enumerate() {
+            out[j * t.across() + i0 + k] = Some(crc);
+        }
+    }
+    Ok(out)
+}
+
+/// Makes the grid (and classes) the work directory's prepared grid: each array given its file
+/// there ([`LatticeArray::persist`]: a mapped array of the lattice, made in `work`, is renamed,
+/// not copied), then `work/prepared` written: the header, each tile's CRC-32 (over its rows of
+/// heights, of validity and of classes in turn) and a CRC-32 of the header and that table;
+/// little-endian, under a temporary name and renamed, last. The grid stays usable.
 pub(crate) fn write_prepared(
     work: &Path,
-    grid: &HeightGrid,
-    classes: Option<&Resolution>,
+    grid: &mut HeightGrid,
+    classes: Option<&mut Resolution>,
 ) -> Result<()> {
+    little_endian()?;
     let t = Tiling {
         width: grid.width,
         height: grid.height,
-        bps: if classes.is_some() { 6 } else { 5 },
+        classes: classes.is_some(),
     };
-    // Removed when dropped before it is renamed into place: a failed write (a full disk)
-    // leaves nothing behind.
-    let tmp = tempfile::Builder::new()
-        .prefix(&format!(".{PREPARED}."))
-        .suffix(".tmp")
-        .tempfile_in(work)
-        .with_context(|| format!("creating a temporary file in {}", work.display()))?;
-    let tmp_path = tmp.path().to_path_buf();
-    let context = || format!("writing {}", tmp_path.display());
-    let mut out = BufWriter::with_capacity(1 << 20, tmp.as_file());
-    let head = head(&t, classes.is_some());
-    out.write_all(&head).with_context(context)?;
-    let mut table = Vec::with_capacity(4 * t.count());
-    let mut tile = Vec::with_capacity(t.bps * TILE * TILE);
-    for j in 0..t.height.div_ceil(TILE) {
-        for i in 0..t.across() {
-            let (x0, y0, x1, y1) = t.rect(i, j);
-            tile.clear();
-            let rows = || (y0..y1).map(|y| y * t.width + x0..y * t.width + x1);
-            for r in rows() {
-                grid.values[r]
-                    .iter()
-                    .for_each(|v| tile.extend(v.to_le_bytes()));
-            }
-            for r in rows() {
-                tile.extend(grid.valid[r].iter().map(|&v| u8::from(v)));
-            }
-            if let Some(c) = classes {
-                for r in rows() {
-                    tile.extend_from_slice(&c.class[r]);
-                }
-            }
-            table.extend_from_slice(&crc32fast::hash(&tile).to_le_bytes());
-            out.write_all(&tile).with_context(context)?;
-        }
-        // A mapped grid drops the band of rows it has read from the resident set.
-        let (_, y0, _, y1) = t.rect(0, j);
-        let band = y0 * t.width..y1 * t.width;
-        grid.values.release(band.clone());
-        grid.valid.release(band.clone());
-        if let Some(c) = classes {
-            c.class.release(band);
-        }
+    let path = |name: &str| work.join(name);
+    let context = |name: &'static str| move || format!("writing {}", work.join(name).display());
+    grid.values
+        .persist(&path(ARRAYS[0].0))
+        .with_context(context(ARRAYS[0].0))?;
+    grid.valid
+        .persist(&path(ARRAYS[1].0))
+        .with_context(context(ARRAYS[1].0))?;
+    if let Some(c) = classes {
+        c.class
+            .persist(&path(ARRAYS[2].0))
+            .with_context(context(ARRAYS[2].0))?;
     }
-    let mut crc = crc32fast::Hasher::new();
-    crc.update(&head);
-    crc.update(&table);
-    out.write_all(&table).with_context(context)?;
-    out.write_all(&crc.finalize().to_le_bytes())
-        .with_context(context)?;
-    out.flush().with_context(context)?;
-    drop(out);
-    tmp.persist(work.join(PREPARED))
-        .map_err(|e| e.error)
-        .with_context(context)?;
+    let files = t
+        .arrays()
+        .iter()
+        .map(|(name, _)| fs::File::open(path(name)).with_context(context(name)))
+        .collect::<Result<Vec<_>>>()?;
+    let crcs = tile_crcs(&t, &files, &vec![true; t.count()])
+        .map_err(|e| crate::BuildError::Invalid(format!("checksumming the prepared grid: {e}")))?;
+    let head = head(&t);
+    let mut out = head.clone();
+    crcs.iter()
+        .for_each(|c| out.extend_from_slice(&c.expect("every tile").to_le_bytes()));
+    let crc = crc32fast::hash(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    write_atomically(work, PREPARED, &out).with_context(context(PREPARED))?;
     Ok(())
 }
 
 /// The grid (and classes) of `work/prepared`, `width` × `height` with classes when `variable`
-/// (as the plan says), holding the samples of the tiles under `rects` (lattice rectangles
-/// `(x0, y0, x1, y1)`, inclusive, clipped to the grid; `None`: all of them) and zeros (nodata)
-/// elsewhere, each tile checked against its CRC. The arrays are kept in `storage`; in memory,
-/// the pages of the tiles not read are never touched.
+/// (as the plan says): its array files mapped, not read, after every tile under `rects`
+/// (lattice rectangles `(x0, y0, x1, y1)`, inclusive, clipped to the grid; `None`: all of them)
+/// has been checked against its CRC. The caller reads only those tiles, through
+/// [`LatticeArray::window`] or [`LatticeArray::strided`] (which read the files, not the
+/// mapping): nothing else of the grid is read or held in memory.
 pub(crate) fn read_prepared(
     work: &Path,
     (width, height, variable): (usize, usize, bool),
     rects: Option<&[(i64, i64, i64, i64)]>,
-    storage: &TempStorage,
 ) -> Result<(HeightGrid, Option<Resolution>)> {
-    use std::os::unix::fs::FileExt;
+    little_endian()?;
     let path = work.join(PREPARED);
-    let damaged = |why: &str| {
+    let damaged = |file: &Path, why: &str| {
         crate::BuildError::Invalid(format!(
             "{} is damaged ({why}); plan again in a new work directory",
-            path.display()
+            file.display()
         ))
     };
-    let file = fs::File::open(&path).with_context(|| format!("reading {}", path.display()))?;
-    let io = |e: std::io::Error| damaged(&format!("{e}"));
-    let mut found = [0u8; HEAD];
-    file.read_exact_at(&mut found, 0).map_err(io)?;
-    if &found[..4] != PREPARED_MAGIC || found[4..8] != VERSION.to_le_bytes() {
-        return Err(damaged("not a prepared grid of this cbdam version"));
-    }
+    let header = fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
     let t = Tiling {
         width,
         height,
-        bps: if variable { 6 } else { 5 },
+        classes: variable,
     };
-    if found[..] != head(&t, variable)[..] {
-        return Err(damaged("its size does not match the plan"));
+    if header.len() < HEAD
+        || &header[..4] != PREPARED_MAGIC
+        || header[4..8] != VERSION.to_le_bytes()
+    {
+        return Err(damaged(&path, "not a prepared grid of this cbdam version"));
     }
-    if file.metadata().map_err(io)?.len() != t.file_len() {
-        return Err(damaged("its length does not match its size"));
+    if header[..HEAD] != head(&t)[..] {
+        return Err(damaged(&path, "its size does not match the plan"));
     }
-    let mut table = vec![0u8; 4 * t.count() + 4];
-    file.read_exact_at(&mut table, t.table()).map_err(io)?;
-    let (table, stored) = table.split_at(4 * t.count());
-    let mut crc = crc32fast::Hasher::new();
-    crc.update(&found);
-    crc.update(table);
-    if crc.finalize().to_le_bytes() != stored {
-        return Err(damaged("checksum mismatch in its header"));
+    if header.len() as u64 != t.file_len() {
+        return Err(damaged(&path, "its length does not match its size"));
     }
+    let (body, stored) = header.split_at(header.len() - 4);
+    if crc32fast::hash(body).to_le_bytes() != stored {
+        return Err(damaged(&path, "checksum mismatch in its header"));
+    }
+    let table = &body[HEAD..];
     let count = width * height;
-    let mut values = LatticeArray::filled(count, 0i32, storage)?;
-    let mut valid = LatticeArray::filled(count, false, storage)?;
-    let mut class = match variable {
-        true => Some(LatticeArray::filled(count, 0u8, storage)?),
-        false => None,
-    };
+    let mut files = Vec::new();
+    for &(name, bps) in t.arrays() {
+        let p: PathBuf = work.join(name);
+        let file = fs::File::open(&p).with_context(|| format!("reading {}", p.display()))?;
+        let len = file
+            .metadata()
+            .with_context(|| format!("reading {}", p.display()))?
+            .len();
+        if len != (bps * count) as u64 {
+            return Err(damaged(&p, "its length does not match the grid's size"));
+        }
+        files.push(file);
+    }
     let mut wanted = vec![rects.is_none(); t.count()];
     for &(x0, y0, x1, y1) in rects.unwrap_or(&[]) {
         let clip = |a: i64, len: usize| a.clamp(0, len as i64 - 1) as usize / TILE;
@@ -219,56 +283,35 @@ pub(crate) fn read_prepared(
             }
         }
     }
-    let mut tile = Vec::new();
-    // A mapped grid drops each band of tile rows from the resident set once it is written (the
-    // values stay in its files): the encoder reads copies of it, and the band's pages would
-    // otherwise stay resident, the whole grid for the apex.
-    let mut band: Option<usize> = None;
-    let release = |j: usize,
-                   values: &LatticeArray<i32>,
-                   valid: &LatticeArray<bool>,
-                   class: Option<&LatticeArray<u8>>| {
-        let (_, y0, _, y1) = t.rect(0, j);
-        let rows = y0 * width..y1 * width;
-        values.release(rows.clone());
-        valid.release(rows.clone());
-        if let Some(c) = class {
-            c.release(rows);
+    let crcs = tile_crcs(&t, &files, &wanted).map_err(|e| damaged(&path, &e))?;
+    for (k, crc) in crcs.iter().enumerate() {
+        if let Some(crc) = crc
+            && crc.to_le_bytes() != table[4 * k..4 * k + 4]
+        {
+            let (i, j) = (k % t.across(), k / t.across());
+            return Err(damaged(
+                &path,
+                &format!("checksum mismatch in tile ({i}, {j})"),
+            ));
         }
+    }
+    let mut files = files.into_iter();
+    let mut next = || files.next().expect("one file an array");
+    let mapping = |e: cbdam_codec::CodecError| damaged(&path, &format!("mapping its arrays: {e}"));
+    // SAFETY: the files are the work directory's, written once by the plan before `prepared`
+    // and never changed after it; the arrays are read only through `window` and `strided`
+    // (the caller's contract, above), which read the files and make every validity byte a
+    // valid `bool`, and only under the tiles just checked.
+    let (values, valid, class) = unsafe {
+        (
+            LatticeArray::map_file(next(), count).map_err(mapping)?,
+            LatticeArray::map_file(next(), count).map_err(mapping)?,
+            match variable {
+                true => Some(LatticeArray::map_file(next(), count).map_err(mapping)?),
+                false => None,
+            },
+        )
     };
-    for (k, _) in wanted.iter().enumerate().filter(|(_, w)| **w) {
-        let (i, j) = (k % t.across(), k / t.across());
-        if let Some(b) = band.filter(|&b| b != j) {
-            release(b, &values, &valid, class.as_ref());
-        }
-        band = Some(j);
-        let (x0, y0, x1, y1) = t.rect(i, j);
-        let n = (x1 - x0) * (y1 - y0);
-        tile.resize(t.bps * n, 0);
-        file.read_exact_at(&mut tile, t.offset(i, j)).map_err(io)?;
-        if crc32fast::hash(&tile).to_le_bytes() != table[4 * k..4 * k + 4] {
-            return Err(damaged(&format!("checksum mismatch in tile ({i}, {j})")));
-        }
-        let (vals, rest) = tile.split_at(4 * n);
-        let (oks, classes) = rest.split_at(n);
-        let w = x1 - x0;
-        for (r, y) in (y0..y1).enumerate() {
-            let row = y * width + x0..y * width + x1;
-            let src = &vals[4 * w * r..4 * w * (r + 1)];
-            for (v, b) in values[row.clone()].iter_mut().zip(src.chunks_exact(4)) {
-                *v = i32::from_le_bytes(b.try_into().expect("4 bytes"));
-            }
-            for (v, &b) in valid[row.clone()].iter_mut().zip(&oks[w * r..w * (r + 1)]) {
-                *v = b != 0;
-            }
-            if let Some(c) = &mut class {
-                c[row].copy_from_slice(&classes[w * r..w * (r + 1)]);
-            }
-        }
-    }
-    if let Some(j) = band {
-        release(j, &values, &valid, class.as_ref());
-    }
     Ok((
         HeightGrid {
             width,
@@ -381,9 +424,7 @@ pub(crate) fn read_summary(work: &Path) -> Result<GridSummary> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Lattice rectangles `(x0, y0, x1, y1)` (inclusive) and the tiles `(i, j)` they read.
-    type Case<'a> = (&'a [(i64, i64, i64, i64)], &'a [(usize, usize)]);
+    use cbdam_codec::temp::TempStorage;
 
     /// A `w` × `h` grid with nodata here and there, and classes when `variable`.
     fn grid(w: usize, h: usize) -> HeightGrid {
@@ -400,23 +441,46 @@ mod tests {
         g
     }
 
-    /// A write that fails leaves no temporary behind (a full disk would leave gigabytes): here
-    /// the final name is taken by a directory, so the rename fails after every byte is written.
-    #[test]
-    fn a_failed_write_leaves_nothing_behind() {
-        let dir = tempfile::tempdir().unwrap();
-        fs::create_dir(dir.path().join(PREPARED)).unwrap();
-        assert!(write_prepared(dir.path(), &grid(40, 30), None).is_err());
-        assert!(crate::journal::write_atomically(dir.path(), PREPARED, b"x").is_err());
-        let left: Vec<_> = fs::read_dir(dir.path())
+    /// The names in `dir`, sorted.
+    fn names(dir: &Path) -> Vec<String> {
+        let mut n: Vec<String> = fs::read_dir(dir)
             .unwrap()
-            .map(|e| e.unwrap().file_name())
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();
-        assert_eq!(left, [std::ffi::OsString::from(PREPARED)], "{left:?}");
+        n.sort();
+        n
     }
 
+    /// A write that fails leaves no temporary behind (a full disk would leave gigabytes), from
+    /// a grid in memory (written out) and from one in named mapped files in the work directory
+    /// (renamed), once the grid is dropped: here the final name of the heights is taken by a
+    /// directory.
     #[test]
-    fn a_window_holds_the_tiles_under_its_rectangles_each_checked() {
+    fn a_failed_write_leaves_nothing_behind() {
+        for named in [false, true] {
+            let dir = tempfile::tempdir().unwrap();
+            fs::create_dir(dir.path().join(ARRAYS[0].0)).unwrap();
+            let mut g = grid(40, 30);
+            if named {
+                g = g
+                    .copied_to(&TempStorage::Named(dir.path().to_path_buf()))
+                    .unwrap();
+            }
+            assert!(write_prepared(dir.path(), &mut g, None).is_err());
+            // The arrays not yet renamed are the grid's own files until it is dropped.
+            drop(g);
+            assert_eq!(names(dir.path()), [ARRAYS[0].0], "named: {named}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        fs::create_dir(dir.path().join(PREPARED)).unwrap();
+        assert!(crate::journal::write_atomically(dir.path(), PREPARED, b"x").is_err());
+        assert_eq!(names(dir.path()), [PREPARED]);
+    }
+
+    /// The grid reads back whole; a step checks only the tiles under its rectangles and reads
+    /// their points; a grid made in named mapped files is renamed into the work directory.
+    #[test]
+    fn a_step_checks_the_tiles_under_its_rectangles_and_reads_them() {
         let dir = tempfile::tempdir().unwrap();
         let (w, h) = (2 * TILE + 17, TILE + 3);
         let g = grid(w, h);
@@ -426,75 +490,103 @@ mod tests {
                 .collect::<Vec<u8>>()
                 .into(),
         };
-        for variable in [false, true] {
-            let c = variable.then_some(&classes);
-            write_prepared(dir.path(), &g, c).unwrap();
-            let memory = TempStorage::Memory;
-            let (all, all_c) = read_prepared(dir.path(), (w, h, variable), None, &memory).unwrap();
+        for (variable, named) in [(false, false), (true, false), (true, true)] {
+            let named_in = TempStorage::Named(dir.path().to_path_buf());
+            let (mut g, mut c) = (g.clone(), classes.clone());
+            if named {
+                g = g.copied_to(&named_in).unwrap();
+                c.class = c.class.copied_to(&named_in).unwrap();
+            }
+            let c = variable.then_some(&mut c);
+            write_prepared(dir.path(), &mut g, c).unwrap();
+            let mut want = vec![PREPARED, ARRAYS[0].0, ARRAYS[1].0];
+            if variable {
+                want.push(ARRAYS[2].0);
+            }
+            want.sort();
+            assert_eq!(
+                names(dir.path()),
+                want,
+                "variable {variable}, named {named}"
+            );
+            let (all, all_c) = read_prepared(dir.path(), (w, h, variable), None).unwrap();
             assert!(all == g, "the whole grid reads back");
-            assert_eq!(all_c.map(|r| r.class.to_vec()), c.map(|r| r.class.to_vec()));
-            // Tile (2, 1) alone (the last column of tiles, 17 wide, in the last row, 3 high,
-            // from a rectangle reaching past the grid); tiles (0, 0) and (1, 0) from a
-            // rectangle across their edge; (1, 0) and (1, 1) from one from beyond the first row.
+            assert_eq!(
+                all_c.map(|r| r.class.to_vec()),
+                variable.then(|| classes.class.to_vec())
+            );
             let t = TILE as i64;
-            let cases: [Case; 3] = [
-                (&[(2 * t + 5, t + 1, 9 * t, 9 * t)], &[(2, 1)]),
-                (&[(t - 1, 0, t, 0)], &[(0, 0), (1, 0)]),
-                (&[(t + 3, -5, t + 4, t)], &[(1, 0), (1, 1)]),
-            ];
-            for (rects, tiles) in cases {
-                let (part, _) =
-                    read_prepared(dir.path(), (w, h, variable), Some(rects), &memory).unwrap();
-                for y in 0..h {
-                    for x in 0..w {
+            for rect in [(2 * t + 5, t + 1, 9 * t, 9 * t), (t - 1, -5, t + 4, t)] {
+                let (part, part_c) =
+                    read_prepared(dir.path(), (w, h, variable), Some(&[rect])).unwrap();
+                let values = part.values.window(w, rect).unwrap();
+                let valid = part.valid.window(w, rect).unwrap();
+                let (x0, y0) = (rect.0.max(0) as usize, rect.1.max(0) as usize);
+                let (x1, y1) = ((rect.2 as usize).min(w - 1), (rect.3 as usize).min(h - 1));
+                for y in y0..=y1 {
+                    for x in x0..=x1 {
                         let k = y * w + x;
-                        if tiles.contains(&(x / TILE, y / TILE)) {
-                            assert_eq!((part.values[k], part.valid[k]), (g.values[k], g.valid[k]));
-                        } else {
-                            assert_eq!((part.values[k], part.valid[k]), (0, false), "({x}, {y})");
-                        }
+                        assert_eq!((values[k], valid[k]), (g.values[k], g.valid[k]));
                     }
                 }
+                if let Some(pc) = part_c {
+                    assert_eq!(
+                        pc.class.window(w, rect).unwrap()[y1 * w + x1],
+                        classes.class[y1 * w + x1]
+                    );
+                }
             }
-            // Nothing read: all nodata.
-            let (none, _) =
-                read_prepared(dir.path(), (w, h, variable), Some(&[]), &memory).unwrap();
-            assert!(!none.valid.iter().any(|&v| v));
         }
-        // A damaged tile is refused when read, naming it, and does not matter when not.
-        let path = dir.path().join(PREPARED);
-        write_prepared(dir.path(), &g, None).unwrap();
-        let good = fs::read(&path).unwrap();
-        let mut bytes = good.clone();
-        let t = Tiling {
-            width: w,
-            height: h,
-            bps: 5,
-        };
-        bytes[t.offset(1, 0) as usize + 3] ^= 1;
-        fs::write(&path, &bytes).unwrap();
+    }
+
+    /// A damaged tile is refused when a step's rectangles cover it, naming it, and does not
+    /// matter when they do not; so is a validity byte other than 0 or 1 (which a `bool` cannot
+    /// hold); another size than the plan's, or an array cut short, is refused.
+    #[test]
+    fn damaged_tiles_and_files_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (2 * TILE + 17, TILE + 3);
+        write_prepared(dir.path(), &mut grid(w, h), None).unwrap();
         let read = |rect: (i64, i64, i64, i64)| {
-            read_prepared(
-                dir.path(),
-                (w, h, false),
-                Some(&[rect]),
-                &TempStorage::Memory,
-            )
+            read_prepared(dir.path(), (w, h, false), Some(&[rect])).map(|_| ())
         };
-        let e = read((TILE as i64, 0, TILE as i64, 0))
-            .err()
-            .unwrap()
-            .to_string();
+        let t = TILE as i64;
+        let damage = |name: &str, at: usize, byte: Option<u8>| {
+            let path = dir.path().join(name);
+            let good = fs::read(&path).unwrap();
+            let mut bytes = good.clone();
+            bytes[at] = byte.unwrap_or(bytes[at] ^ 1);
+            fs::write(&path, &bytes).unwrap();
+            good
+        };
+        // Heights of point (TILE + 3, 0): tile (1, 0).
+        let good = damage(ARRAYS[0].0, 4 * (TILE + 3), None);
+        let e = read((t, 0, t, 0)).unwrap_err().to_string();
         assert!(e.contains("checksum mismatch in tile (1, 0)"), "{e}");
-        assert!(read((0, TILE as i64, 10, TILE as i64)).is_ok());
-        // Another size than the plan's, or a file cut short, is refused.
-        let e = read_prepared(dir.path(), (w, h + 1, false), None, &TempStorage::Memory)
+        assert!(read((0, t, 10, t)).is_ok());
+        fs::write(dir.path().join(ARRAYS[0].0), &good).unwrap();
+        // Validity of point (2 TILE + 1, TILE + 2): tile (2, 1).
+        let good = damage(ARRAYS[1].0, (TILE + 2) * w + 2 * TILE + 1, Some(2));
+        let e = read((2 * t, t, 2 * t, t)).unwrap_err().to_string();
+        assert!(e.contains("a validity byte 2 in tile (2, 1)"), "{e}");
+        assert!(read((0, 0, t, t)).is_ok());
+        fs::write(dir.path().join(ARRAYS[1].0), &good).unwrap();
+        assert!(read((0, 0, 3 * t, 2 * t)).is_ok());
+        let e = read_prepared(dir.path(), (w, h + 1, false), None)
             .err()
             .unwrap()
             .to_string();
         assert!(e.contains("does not match the plan"), "{e}");
+        let path = dir.path().join(ARRAYS[1].0);
         fs::write(&path, &good[..good.len() - 1]).unwrap();
-        assert!(read((0, 0, 0, 0)).is_err());
+        let e = read((0, 0, 0, 0)).unwrap_err().to_string();
+        assert!(e.contains("prepared.valid") && e.contains("length"), "{e}");
+        let header = dir.path().join(PREPARED);
+        let mut bytes = fs::read(&header).unwrap();
+        bytes[HEAD + 1] ^= 1;
+        fs::write(&header, &bytes).unwrap();
+        let e = read((0, 0, 0, 0)).unwrap_err().to_string();
+        assert!(e.contains("checksum mismatch in its header"), "{e}");
     }
 
     #[test]

@@ -25,6 +25,7 @@ fn streamed_geotiff_builds_the_same_repository_as_the_whole_file() {
             quantum: None,
             max_error: 1.0,
             memory_limit: u64::MAX,
+            lattice_dir: None,
         };
         let streamed = prepare(&spec).unwrap();
         let mut dem = read_dem(&path, &ReadOptions::default()).unwrap();

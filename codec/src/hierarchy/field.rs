@@ -79,10 +79,11 @@ impl ReconField {
             .ok_or_else(too_big)?;
         let mut map = match storage {
             TempStorage::Memory => MmapMut::map_anon(bytes.max(1))?,
-            TempStorage::File(dir) => {
-                let file = match dir {
-                    Some(d) => tempfile::tempfile_in(d)?,
-                    None => tempfile::tempfile()?,
+            TempStorage::File(_) | TempStorage::Named(_) => {
+                // A field is never kept: unlinked, in the storage's directory.
+                let file = match storage {
+                    TempStorage::File(Some(d)) | TempStorage::Named(d) => tempfile::tempfile_in(d)?,
+                    _ => tempfile::tempfile()?,
                 };
                 // A sparse file: blocks are allocated only where pages are written.
                 file.set_len(bytes.max(1) as u64)?;

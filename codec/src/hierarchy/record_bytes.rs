@@ -141,7 +141,7 @@ impl RecordSpill {
     pub(crate) fn new(storage: &TempStorage) -> Result<Option<Self>, CodecError> {
         let file = match storage {
             TempStorage::Memory => return Ok(None),
-            TempStorage::File(Some(dir)) => tempfile::tempfile_in(dir),
+            TempStorage::File(Some(dir)) | TempStorage::Named(dir) => tempfile::tempfile_in(dir),
             TempStorage::File(None) => tempfile::tempfile(),
         }
         .map_err(|e| {
