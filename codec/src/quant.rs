@@ -304,11 +304,24 @@ impl QuantPlan {
         quantum: Option<f64>,
         storage: &TempStorage,
     ) -> Result<(Self, HeightGrid), CodecError> {
+        Self::quantize_source_watched(src, epsilon, quantum, storage, &mut |_, _| {})
+    }
+
+    /// [`QuantPlan::quantize_source_in`] calling `watch` after each block of rows is written
+    /// ([`RowsWritten`]). A second pass over the samples (a float plan chosen after the first)
+    /// writes every row again, from row 0.
+    pub fn quantize_source_watched(
+        src: &dyn SampleSource,
+        epsilon: f64,
+        quantum: Option<f64>,
+        storage: &TempStorage,
+        watch: &mut RowsWritten<'_>,
+    ) -> Result<(Self, HeightGrid), CodecError> {
         let given = quantum.is_some();
         let (lo, hi, quantum) = scan_source(src, quantum)?;
         let Some(u) = quantum else {
             let plan = Self::new(epsilon, None, lo, hi)?;
-            let grid = HeightGrid::from_source_in(src, &plan, storage)?;
+            let grid = HeightGrid::from_source_watched(src, &plan, storage, watch)?;
             return Ok((plan, grid));
         };
         // What `to_units` uses of a lattice plan is its unit and offset, both known now.
@@ -329,6 +342,7 @@ impl QuantPlan {
             // Keep measuring past a bad sample: the plan's own error, which `for_source` would
             // have reported first, depends on every sample's deviation.
             let (d, bad) = grid.quantize_rows_measuring(row, block, nodata, &provisional, true);
+            grid.written(row, block.len(), watch);
             deviation = deviation.max(d);
             if first_bad.is_none() {
                 first_bad = bad;
@@ -343,7 +357,7 @@ impl QuantPlan {
         // The same choice as `for_source`; the float plan needs its own pass over the samples.
         if !given && let Some(float) = plan.coarser_float_plan(lo, hi) {
             drop(grid);
-            let grid = HeightGrid::from_source_in(src, &float, storage)?;
+            let grid = HeightGrid::from_source_watched(src, &float, storage, watch)?;
             return Ok((float, grid));
         }
         Ok((plan, grid))
@@ -459,6 +473,12 @@ fn scan_source(
     Ok((lo, hi, quantum.or_else(|| total.quantum.finish())))
 }
 
+/// What the quantizer calls after each block of rows it has written
+/// ([`QuantPlan::quantize_source_watched`]): the grid and the rows, in order, while they are
+/// still in memory — before a mapped grid drops them — so that a caller can checksum or copy
+/// them without reading the file back.
+pub type RowsWritten<'a> = dyn FnMut(&HeightGrid, std::ops::Range<usize>) + 'a;
+
 /// A grid of integer heights ready for the encoder.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct HeightGrid {
@@ -570,10 +590,6 @@ impl HeightGrid {
                     (da.max(db), bad)
                 },
             );
-        // A mapped grid drops the rows it has written from the resident set (they stay in the
-        // file); the quantizer never comes back to them.
-        self.values.release(start..end);
-        self.valid.release(start..end);
         let bad = bad.map(|(idx, e)| {
             CodecError::invalid(format!(
                 "at column {}, row {}: {e}",
@@ -596,10 +612,35 @@ impl HeightGrid {
         plan: &QuantPlan,
         storage: &TempStorage,
     ) -> Result<Self, CodecError> {
+        Self::from_source_watched(src, plan, storage, &mut |_, _| {})
+    }
+
+    /// [`HeightGrid::from_source_in`] calling `watch` after each block of rows is written.
+    fn from_source_watched(
+        src: &dyn SampleSource,
+        plan: &QuantPlan,
+        storage: &TempStorage,
+        watch: &mut RowsWritten<'_>,
+    ) -> Result<Self, CodecError> {
         let mut grid = Self::empty(src.width(), src.height(), storage)?;
         let nodata = src.nodata();
-        src.for_each_block(&mut |row, block| grid.quantize_rows(row, block, nodata, plan))?;
+        src.for_each_block(&mut |row, block| {
+            let written = grid.quantize_rows(row, block, nodata, plan);
+            grid.written(row, block.len(), watch);
+            written
+        })?;
         Ok(grid)
+    }
+
+    /// After a block of `samples` samples from row `first_row` has been quantized: `watch`
+    /// sees its rows, then a mapped grid drops them from the resident set (they stay in the
+    /// file; the quantizer never comes back to them).
+    fn written(&self, first_row: usize, samples: usize, watch: &mut RowsWritten<'_>) {
+        let start = first_row * self.width;
+        let rows = samples.checked_div(self.width).unwrap_or(0);
+        watch(self, first_row..first_row + rows);
+        self.values.release(start..start + samples);
+        self.valid.release(start..start + samples);
     }
 
     /// A `width × height` grid in `storage` with no valid sample yet.

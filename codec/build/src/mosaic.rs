@@ -25,6 +25,7 @@
 //! size too ([`bytes_in_memory`]).
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -439,6 +440,12 @@ impl Mosaic {
     /// winning samples, and the checks that need the samples — every input has a valid one,
     /// inputs of one spacing agree where they overlap (shared edge rows).
     pub fn survey(&self) -> Result<Survey> {
+        self.survey_watched(&mut |_, _| {})
+    }
+
+    /// [`Mosaic::survey`] calling `watch(classes, rows)` after each block of rows of the
+    /// classes is written, in order, while they are still in memory.
+    pub fn survey_watched(&self, watch: &mut dyn FnMut(&[u8], Range<usize>)) -> Result<Survey> {
         let w = self.width;
         let mut class = LatticeArray::filled(w * self.height, HOLE, &self.lattice)?;
         let seen_any: Vec<std::sync::atomic::AtomicBool> = (0..self.inputs.len())
@@ -485,6 +492,7 @@ impl Mosaic {
                         (a.0, a.1.min(b.1), a.2.max(b.2))
                     },
                 );
+            watch(&class[ya * w..yb * w], ya..yb);
             // A mapped lattice drops the rows written from the resident set.
             class.release(ya * w..yb * w);
             merge_shared(&mut shared, part.0);

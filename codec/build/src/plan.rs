@@ -19,6 +19,7 @@ use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::temp::LatticeArray;
 
 use crate::error::{Context, Result, bail};
+use crate::shard_grid::WrittenCrcs;
 use crate::tiles::Tile;
 
 /// A quantized input, with what the repository header needs from the file.
@@ -33,6 +34,9 @@ pub struct Prepared {
     pub nodata: Option<f64>,
     /// Wall time of each preparation stage, in order (for `--timings`).
     pub stages: Vec<(&'static str, Duration)>,
+    /// The CRC-32s of the grid's tiles (and a mosaic's classes'), computed as they were written
+    /// when the lattice went to a sharded plan's work directory ([`InputSpec::lattice_dir`]).
+    pub(crate) written: Option<WrittenCrcs>,
 }
 
 /// How the input is read.
@@ -88,9 +92,19 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
             spec.memory_limit,
         )
         .named_in(spec.lattice_dir);
-        let (plan, grid) =
-            QuantPlan::quantize_source_in(src, spec.max_error, spec.quantum, &lattice)
-                .with_context(reading)?;
+        let mut written = spec.lattice_dir.map(|_| WrittenCrcs::default());
+        let (plan, grid) = QuantPlan::quantize_source_watched(
+            src,
+            spec.max_error,
+            spec.quantum,
+            &lattice,
+            &mut |grid, rows| {
+                if let Some(w) = written.as_mut() {
+                    w.grid_rows(grid, rows);
+                }
+            },
+        )
+        .with_context(reading)?;
         let stages = vec![("read, plan and quantize", t.elapsed())];
         if let Some((lo, hi)) = grid.range() {
             unit_check(spec.max_error, plan.metres(lo), plan.metres(hi))?;
@@ -101,6 +115,7 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
             georef,
             nodata: src.nodata(),
             stages,
+            written,
         })
     };
     if let Some((w, h)) = spec.raw_size {
@@ -146,6 +161,7 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
             ("plan", planned - read),
             ("quantize", t.elapsed() - planned),
         ],
+        written: None,
     })
 }
 
@@ -300,12 +316,29 @@ pub fn prepare_mosaic(
     let mut m = crate::mosaic::mosaic_tiles(tiles, &opts, memory_limit)?;
     m.lattice = m.lattice.named_in(lattice_dir);
     let indexed = t.elapsed();
-    let survey = m.survey()?;
+    // A sharded plan's lattice: its tiles' CRCs as the rows are written.
+    let mut written = lattice_dir.map(|_| WrittenCrcs::default());
+    let size = (m.width(), m.height());
+    let survey = m.survey_watched(&mut |class, rows| {
+        if let Some(w) = written.as_mut() {
+            w.class_rows(size, class, rows);
+        }
+    })?;
     let surveyed = t.elapsed();
     let (lo, hi) = survey.range;
     unit_check(max_error, lo, hi)?;
     // The lattice's rows are composed from the inputs as the quantizer reads them.
-    let (plan, grid) = QuantPlan::quantize_source_in(&m, max_error, quantum, &m.lattice)?;
+    let (plan, grid) = QuantPlan::quantize_source_watched(
+        &m,
+        max_error,
+        quantum,
+        &m.lattice,
+        &mut |grid, rows| {
+            if let Some(w) = written.as_mut() {
+                w.grid_rows(grid, rows);
+            }
+        },
+    )?;
     // The header holds one nodata value (for extract and verify): the override, else the value
     // the inputs agree on.
     let values: Vec<f64> = m.inputs.iter().filter_map(|p| p.nodata).collect();
@@ -324,6 +357,7 @@ pub fn prepare_mosaic(
                 ("survey tiles", surveyed - indexed),
                 ("mosaic, plan and quantize", t.elapsed() - surveyed),
             ],
+            written,
         },
         survey.resolution,
     ))

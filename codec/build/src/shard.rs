@@ -51,7 +51,7 @@ use crate::encode::{
 use crate::error::{Context, Result, bail};
 use crate::journal::{Journal, parse_block, serialize_block, write_atomically};
 use crate::plan::Prepared;
-use crate::shard_grid::{read_prepared, read_summary, write_prepared, write_summary};
+use crate::shard_grid::{PreparedGrid, read_prepared, read_summary, write_prepared, write_summary};
 use crate::{BuildOptions, Progress, input_tiles, journal_key, prepare_elevation};
 
 const KEY: &str = "key";
@@ -353,7 +353,12 @@ pub fn plan(
     claim_work_dir(work)?;
     // The lattice's mapped files are made in the work directory, and kept as `prepared`.
     let mut prepared = prepare_elevation(opts, progress, Some(work))?;
-    write_prepared(work, &mut prepared.input.grid, prepared.resolution.as_mut())?;
+    write_prepared(
+        work,
+        &mut prepared.input.grid,
+        prepared.resolution.as_mut(),
+        prepared.input.written.as_ref(),
+    )?;
     let enc = prepared.enc_opts;
     let grid = &prepared.input.grid;
     let blocks = match prepared.storage.blocks {
@@ -568,13 +573,9 @@ fn check_block_count(e: &ShardedEncode, plan: &ShardPlan) -> Result<()> {
     Ok(())
 }
 
-/// The prepared grid (and classes), holding the samples under `rects` (`None`: all).
-fn read_grid(
-    work: &Path,
-    plan: &ShardPlan,
-    rects: Option<&[(i64, i64, i64, i64)]>,
-) -> Result<(HeightGrid, Option<Resolution>)> {
-    read_prepared(work, (plan.width, plan.height, plan.variable), rects)
+/// The prepared grid (and classes), mapped; no tile checked yet.
+fn read_grid(work: &Path, plan: &ShardPlan) -> Result<PreparedGrid> {
+    read_prepared(work, (plan.width, plan.height, plan.variable))
 }
 
 /// Encodes the apex (the levels above the cut) of a planned work directory, unless it is there.
@@ -585,7 +586,12 @@ pub fn apex(work: &Path, threads: Option<usize>) -> Result<bool> {
         return Ok(false);
     }
     let summary = read_summary(work)?;
-    let (grid, classes) = read_grid(work, &plan, None)?;
+    let PreparedGrid {
+        grid,
+        classes,
+        mut tiles,
+    } = read_grid(work, &plan)?;
+    tiles.check(None)?;
     let encode = sharded(&grid, classes.as_ref(), &plan, summary)?;
     encode_apex(work, &encode, &thread_pool(threads)?)?;
     Ok(true)
@@ -634,8 +640,9 @@ pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSumma
     }
     let field = read_apex_field(work)?;
     let summary = read_summary(work)?;
-    // Only the tiles under the blocks' fields are read.
-    let rects: Vec<_> = {
+    // Only the tiles under the blocks' fields are read, each block's checked just before it
+    // is encoded (so the encoder finds them in the page cache).
+    let fields: Vec<_> = {
         let domain = Domain::covering(
             plan.diamond_size,
             plan.width,
@@ -644,16 +651,20 @@ pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSumma
         )?;
         let blocks = plan.blocks.blocks(domain.layout());
         todo.iter()
-            .filter_map(|&b| blocks.get(b))
-            .map(|b| b.field_rect)
+            .map(|&b| blocks.get(b).map(|b| b.field_rect))
             .collect()
     };
-    let (grid, classes) = read_grid(work, &plan, Some(&rects))?;
+    let PreparedGrid {
+        grid,
+        classes,
+        mut tiles,
+    } = read_grid(work, &plan)?;
     thread_pool(threads)?.install(|| -> Result<()> {
         let encode = sharded(&grid, classes.as_ref(), &plan, summary)?;
         let apex = encode.apex_field(&field, &TempStorage::Memory)?;
         drop(field);
-        for &b in &todo {
+        for (&b, field) in todo.iter().zip(&fields) {
+            tiles.check(Some(field.as_slice()))?;
             let out = encode.block(&apex, b, &TempStorage::Memory)?;
             journal.save(b, &out)?;
         }
@@ -715,13 +726,21 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<MergeSummary> {
     let retry = plan.extra_levels == ExtraLevels::Auto
         && !plan.variable
         && plan.width * plan.height <= AUTO_RETRY_MAX_SAMPLES;
-    let (grid, classes) = read_grid(work, &plan, (!retry).then_some(&[][..]))?;
+    let PreparedGrid {
+        grid,
+        classes,
+        mut tiles,
+    } = read_grid(work, &plan)?;
+    if retry {
+        tiles.check(None)?;
+    }
     let input = Prepared {
         grid,
         plan: plan.quant,
         georef: plan.georef.clone(),
         nodata: plan.nodata,
         stages: Vec::new(),
+        written: None,
     };
     let encoded = thread_pool(threads)?.install(|| -> Result<_> {
         let encode = sharded(&input.grid, classes.as_ref(), &plan, summary)?;

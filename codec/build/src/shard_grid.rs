@@ -169,15 +169,126 @@ fn tile_crcs(t: &Tiling, files: &[fs::File], wanted: &[bool]) -> Result<Vec<Opti
     Ok(out)
 }
 
+/// The tiles' CRC-32s computed as the plan writes the arrays, block of rows by block of rows
+/// in order, while the rows are still in memory — so the plan does not read the grid back (at
+/// 4.3 G samples the lattice no longer fits the page cache, and that read went to disk). Each
+/// array is hashed on its own; [`crc32fast::Hasher::combine`] joins a tile's three into its
+/// CRC over its heights, validity and classes in turn, as [`tile_crcs`] reads it. Rows from
+/// row 0 again (a second quantizer pass) start that array over; rows out of order or of
+/// another grid make it give nothing, and [`write_prepared`] reads the grid instead.
+#[derive(Default)]
+pub(crate) struct WrittenCrcs {
+    /// Width and height of the grid, from the first rows seen.
+    size: Option<(usize, usize)>,
+    /// Heights, validity, classes.
+    arrays: [ArrayCrcs; 3],
+    /// Rows came out of order, or of another size.
+    broken: bool,
+}
+
+#[derive(Default)]
+struct ArrayCrcs {
+    /// The next row expected.
+    next_row: usize,
+    /// Each tile's hasher, by column of tiles, then row of tiles.
+    columns: Vec<Vec<crc32fast::Hasher>>,
+}
+
+impl WrittenCrcs {
+    /// Rows `rows` of the heights and validity of `grid`, just written.
+    pub(crate) fn grid_rows(&mut self, grid: &HeightGrid, rows: std::ops::Range<usize>) {
+        let (w, h) = (grid.width, grid.height);
+        let span = rows.start * w..rows.end * w;
+        self.rows(
+            0,
+            (w, h),
+            bytemuck::cast_slice(&grid.values[span.clone()]),
+            rows.clone(),
+        );
+        self.rows(1, (w, h), bytemuck::cast_slice(&grid.valid[span]), rows);
+    }
+
+    /// Rows `rows` of the resolution classes of a `width` × `height` grid, just written.
+    pub(crate) fn class_rows(
+        &mut self,
+        (width, height): (usize, usize),
+        class: &[u8],
+        rows: std::ops::Range<usize>,
+    ) {
+        self.rows(2, (width, height), class, rows);
+    }
+
+    fn rows(
+        &mut self,
+        array: usize,
+        size: (usize, usize),
+        bytes: &[u8],
+        rows: std::ops::Range<usize>,
+    ) {
+        if *self.size.get_or_insert(size) != size {
+            self.broken = true;
+        }
+        let (w, h) = size;
+        let bps = ARRAYS[array].1;
+        let a = &mut self.arrays[array];
+        if rows.start == 0 {
+            a.next_row = 0;
+            a.columns = vec![vec![crc32fast::Hasher::new(); h.div_ceil(TILE)]; w.div_ceil(TILE)];
+        }
+        if self.broken || rows.start != a.next_row || bytes.len() != bps * w * rows.len() {
+            self.broken = true;
+            return;
+        }
+        a.columns
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(i, column)| {
+                let (x0, x1) = (i * TILE, ((i + 1) * TILE).min(w));
+                for (r, y) in rows.clone().enumerate() {
+                    column[y / TILE].update(&bytes[bps * (r * w + x0)..bps * (r * w + x1)]);
+                }
+            });
+        a.next_row = rows.end;
+    }
+
+    /// Each tile's CRC-32 (row by row of tiles), when every row of the heights, the validity
+    /// and (with `classes`) the classes was seen in order.
+    fn finish(&self, classes: bool) -> Option<Vec<u32>> {
+        let (w, h) = self.size?;
+        let arrays = &self.arrays[..2 + usize::from(classes)];
+        if self.broken || arrays.iter().any(|a| a.next_row != h) {
+            return None;
+        }
+        let t = Tiling {
+            width: w,
+            height: h,
+            classes,
+        };
+        let mut out = Vec::with_capacity(t.count());
+        for j in 0..h.div_ceil(TILE) {
+            for i in 0..t.across() {
+                let mut tile = arrays[0].columns[i][j].clone();
+                for a in &arrays[1..] {
+                    tile.combine(&a.columns[i][j]);
+                }
+                out.push(tile.finalize());
+            }
+        }
+        Some(out)
+    }
+}
+
 /// Makes the grid (and classes) the work directory's prepared grid: each array given its file
 /// there ([`LatticeArray::persist`]: a mapped array of the lattice, made in `work`, is renamed,
 /// not copied), then `work/prepared` written: the header, each tile's CRC-32 (over its rows of
 /// heights, of validity and of classes in turn) and a CRC-32 of the header and that table;
-/// little-endian, under a temporary name and renamed, last. The grid stays usable.
+/// little-endian, under a temporary name and renamed, last. The CRCs are `written`'s where it
+/// saw every row written, else read from the files. The grid stays usable.
 pub(crate) fn write_prepared(
     work: &Path,
     grid: &mut HeightGrid,
     classes: Option<&mut Resolution>,
+    written: Option<&WrittenCrcs>,
 ) -> Result<()> {
     little_endian()?;
     let t = Tiling {
@@ -203,37 +314,112 @@ pub(crate) fn write_prepared(
         .iter()
         .map(|(name, _)| fs::File::open(path(name)).with_context(context(name)))
         .collect::<Result<Vec<_>>>()?;
-    let crcs = tile_crcs(&t, &files, &vec![true; t.count()])
-        .map_err(|e| crate::BuildError::Invalid(format!("checksumming the prepared grid: {e}")))?;
+    let read = || {
+        tile_crcs(&t, &files, &vec![true; t.count()])
+            .map(|crcs| crcs.into_iter().map(|c| c.expect("every tile")).collect())
+            .map_err(|e| crate::BuildError::Invalid(format!("checksumming the prepared grid: {e}")))
+    };
+    let crcs: Vec<u32> = match written.and_then(|w| w.finish(t.classes)) {
+        Some(crcs) => {
+            // Tests (debug builds) check the streamed CRCs against the files themselves.
+            debug_assert!(
+                crcs == read()?,
+                "CRCs of the rows written differ from the files'"
+            );
+            crcs
+        }
+        None => read()?,
+    };
     let head = head(&t);
     let mut out = head.clone();
     crcs.iter()
-        .for_each(|c| out.extend_from_slice(&c.expect("every tile").to_le_bytes()));
+        .for_each(|c| out.extend_from_slice(&c.to_le_bytes()));
     let crc = crc32fast::hash(&out);
     out.extend_from_slice(&crc.to_le_bytes());
     write_atomically(work, PREPARED, &out).with_context(context(PREPARED))?;
     Ok(())
 }
 
+/// The prepared grid of a work directory, mapped ([`read_prepared`]), and the check of its
+/// tiles against their CRCs, made as the caller comes to them ([`TileCheck::check`]).
+pub(crate) struct PreparedGrid {
+    /// Heights and validity.
+    pub(crate) grid: HeightGrid,
+    /// Resolution classes, with several inputs.
+    pub(crate) classes: Option<Resolution>,
+    /// What checks the tiles.
+    pub(crate) tiles: TileCheck,
+}
+
+/// The check of a prepared grid's tiles ([`TileCheck::check`]).
+pub(crate) struct TileCheck {
+    /// `work/prepared`, for errors.
+    path: PathBuf,
+    tiling: Tiling,
+    /// The array files, as `tiling.arrays()`.
+    files: Vec<fs::File>,
+    /// The CRC-32 table of `prepared`: 4 bytes a tile.
+    table: Vec<u8>,
+    /// Tiles checked so far.
+    checked: Vec<bool>,
+}
+
+impl TileCheck {
+    /// Checks every tile under `rects` (lattice rectangles `(x0, y0, x1, y1)`, inclusive,
+    /// clipped to the grid; `None`: all of them) not checked yet against its CRC. A shard checks
+    /// each block's field just before encoding it, so the encoder reads tiles the check has
+    /// just brought into the page cache rather than reading the grid from disk twice.
+    pub(crate) fn check(&mut self, rects: Option<&[(i64, i64, i64, i64)]>) -> Result<()> {
+        let t = self.tiling;
+        let mut wanted = vec![rects.is_none(); t.count()];
+        for &(x0, y0, x1, y1) in rects.unwrap_or(&[]) {
+            let clip = |a: i64, len: usize| a.clamp(0, len as i64 - 1) as usize / TILE;
+            if x0 > x1 || y0 > y1 || x1 < 0 || y1 < 0 {
+                continue;
+            }
+            for j in clip(y0, t.height)..=clip(y1, t.height) {
+                for i in clip(x0, t.width)..=clip(x1, t.width) {
+                    wanted[j * t.across() + i] = true;
+                }
+            }
+        }
+        for (w, &done) in wanted.iter_mut().zip(&self.checked) {
+            *w &= !done;
+        }
+        let crcs = tile_crcs(&t, &self.files, &wanted).map_err(|e| damaged(&self.path, &e))?;
+        for (k, crc) in crcs.iter().enumerate() {
+            let Some(crc) = crc else { continue };
+            if crc.to_le_bytes() != self.table[4 * k..4 * k + 4] {
+                let (i, j) = (k % t.across(), k / t.across());
+                return Err(damaged(
+                    &self.path,
+                    &format!("checksum mismatch in tile ({i}, {j})"),
+                ));
+            }
+            self.checked[k] = true;
+        }
+        Ok(())
+    }
+}
+
+fn damaged(file: &Path, why: &str) -> crate::BuildError {
+    crate::BuildError::Invalid(format!(
+        "{} is damaged ({why}); plan again in a new work directory",
+        file.display()
+    ))
+}
+
 /// The grid (and classes) of `work/prepared`, `width` × `height` with classes when `variable`
-/// (as the plan says): its array files mapped, not read, after every tile under `rects`
-/// (lattice rectangles `(x0, y0, x1, y1)`, inclusive, clipped to the grid; `None`: all of them)
-/// has been checked against its CRC. The caller reads only those tiles, through
+/// (as the plan says): its header checked and its array files mapped, not read; no tile is
+/// checked yet ([`TileCheck::check`]). The caller reads only tiles it has checked, through
 /// [`LatticeArray::window`] or [`LatticeArray::strided`] (which read the files, not the
 /// mapping): nothing else of the grid is read or held in memory.
 pub(crate) fn read_prepared(
     work: &Path,
     (width, height, variable): (usize, usize, bool),
-    rects: Option<&[(i64, i64, i64, i64)]>,
-) -> Result<(HeightGrid, Option<Resolution>)> {
+) -> Result<PreparedGrid> {
     little_endian()?;
     let path = work.join(PREPARED);
-    let damaged = |file: &Path, why: &str| {
-        crate::BuildError::Invalid(format!(
-            "{} is damaged ({why}); plan again in a new work directory",
-            file.display()
-        ))
-    };
     let header = fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
     let t = Tiling {
         width,
@@ -256,7 +442,7 @@ pub(crate) fn read_prepared(
     if crc32fast::hash(body).to_le_bytes() != stored {
         return Err(damaged(&path, "checksum mismatch in its header"));
     }
-    let table = &body[HEAD..];
+    let table = body[HEAD..].to_vec();
     let count = width * height;
     let mut files = Vec::new();
     for &(name, bps) in t.arrays() {
@@ -271,56 +457,41 @@ pub(crate) fn read_prepared(
         }
         files.push(file);
     }
-    let mut wanted = vec![rects.is_none(); t.count()];
-    for &(x0, y0, x1, y1) in rects.unwrap_or(&[]) {
-        let clip = |a: i64, len: usize| a.clamp(0, len as i64 - 1) as usize / TILE;
-        if x0 > x1 || y0 > y1 || x1 < 0 || y1 < 0 {
-            continue;
-        }
-        for j in clip(y0, height)..=clip(y1, height) {
-            for i in clip(x0, width)..=clip(x1, width) {
-                wanted[j * t.across() + i] = true;
-            }
-        }
-    }
-    let crcs = tile_crcs(&t, &files, &wanted).map_err(|e| damaged(&path, &e))?;
-    for (k, crc) in crcs.iter().enumerate() {
-        if let Some(crc) = crc
-            && crc.to_le_bytes() != table[4 * k..4 * k + 4]
-        {
-            let (i, j) = (k % t.across(), k / t.across());
-            return Err(damaged(
-                &path,
-                &format!("checksum mismatch in tile ({i}, {j})"),
-            ));
-        }
-    }
-    let mut files = files.into_iter();
-    let mut next = || files.next().expect("one file an array");
     let mapping = |e: cbdam_codec::CodecError| damaged(&path, &format!("mapping its arrays: {e}"));
+    let map_copy = |f: &fs::File| {
+        f.try_clone()
+            .with_context(|| format!("reading {}", path.display()))
+    };
     // SAFETY: the files are the work directory's, written once by the plan before `prepared`
     // and never changed after it; the arrays are read only through `window` and `strided`
     // (the caller's contract, above), which read the files and make every validity byte a
-    // valid `bool`, and only under the tiles just checked.
+    // valid `bool`, and only under the tiles checked.
     let (values, valid, class) = unsafe {
         (
-            LatticeArray::map_file(next(), count).map_err(mapping)?,
-            LatticeArray::map_file(next(), count).map_err(mapping)?,
+            LatticeArray::map_file(map_copy(&files[0])?, count).map_err(mapping)?,
+            LatticeArray::map_file(map_copy(&files[1])?, count).map_err(mapping)?,
             match variable {
-                true => Some(LatticeArray::map_file(next(), count).map_err(mapping)?),
+                true => Some(LatticeArray::map_file(map_copy(&files[2])?, count).map_err(mapping)?),
                 false => None,
             },
         )
     };
-    Ok((
-        HeightGrid {
+    Ok(PreparedGrid {
+        grid: HeightGrid {
             width,
             height,
             values,
             valid,
         },
-        class.map(|class| Resolution { class }),
-    ))
+        classes: class.map(|class| Resolution { class }),
+        tiles: TileCheck {
+            path,
+            tiling: t,
+            files,
+            table,
+            checked: vec![false; t.count()],
+        },
+    })
 }
 
 /// Writes `work/summary`: magic, version, max |height|, all valid, nodata mask, the stored
@@ -441,6 +612,17 @@ mod tests {
         g
     }
 
+    /// The prepared grid of `dir` with the tiles under `rects` checked.
+    fn read(
+        dir: &Path,
+        dims: (usize, usize, bool),
+        rects: Option<&[(i64, i64, i64, i64)]>,
+    ) -> Result<(HeightGrid, Option<Resolution>)> {
+        let mut p = read_prepared(dir, dims)?;
+        p.tiles.check(rects)?;
+        Ok((p.grid, p.classes))
+    }
+
     /// The names in `dir`, sorted.
     fn names(dir: &Path) -> Vec<String> {
         let mut n: Vec<String> = fs::read_dir(dir)
@@ -466,7 +648,7 @@ mod tests {
                     .copied_to(&TempStorage::Named(dir.path().to_path_buf()))
                     .unwrap();
             }
-            assert!(write_prepared(dir.path(), &mut g, None).is_err());
+            assert!(write_prepared(dir.path(), &mut g, None, None).is_err());
             // The arrays not yet renamed are the grid's own files until it is dropped.
             drop(g);
             assert_eq!(names(dir.path()), [ARRAYS[0].0], "named: {named}");
@@ -498,7 +680,7 @@ mod tests {
                 c.class = c.class.copied_to(&named_in).unwrap();
             }
             let c = variable.then_some(&mut c);
-            write_prepared(dir.path(), &mut g, c).unwrap();
+            write_prepared(dir.path(), &mut g, c, None).unwrap();
             let mut want = vec![PREPARED, ARRAYS[0].0, ARRAYS[1].0];
             if variable {
                 want.push(ARRAYS[2].0);
@@ -509,7 +691,7 @@ mod tests {
                 want,
                 "variable {variable}, named {named}"
             );
-            let (all, all_c) = read_prepared(dir.path(), (w, h, variable), None).unwrap();
+            let (all, all_c) = read(dir.path(), (w, h, variable), None).unwrap();
             assert!(all == g, "the whole grid reads back");
             assert_eq!(
                 all_c.map(|r| r.class.to_vec()),
@@ -517,8 +699,7 @@ mod tests {
             );
             let t = TILE as i64;
             for rect in [(2 * t + 5, t + 1, 9 * t, 9 * t), (t - 1, -5, t + 4, t)] {
-                let (part, part_c) =
-                    read_prepared(dir.path(), (w, h, variable), Some(&[rect])).unwrap();
+                let (part, part_c) = read(dir.path(), (w, h, variable), Some(&[rect])).unwrap();
                 let values = part.values.window(w, rect).unwrap();
                 let valid = part.valid.window(w, rect).unwrap();
                 let (x0, y0) = (rect.0.max(0) as usize, rect.1.max(0) as usize);
@@ -546,9 +727,9 @@ mod tests {
     fn damaged_tiles_and_files_are_refused() {
         let dir = tempfile::tempdir().unwrap();
         let (w, h) = (2 * TILE + 17, TILE + 3);
-        write_prepared(dir.path(), &mut grid(w, h), None).unwrap();
+        write_prepared(dir.path(), &mut grid(w, h), None, None).unwrap();
         let read = |rect: (i64, i64, i64, i64)| {
-            read_prepared(dir.path(), (w, h, false), Some(&[rect])).map(|_| ())
+            super::tests::read(dir.path(), (w, h, false), Some(&[rect])).map(|_| ())
         };
         let t = TILE as i64;
         let damage = |name: &str, at: usize, byte: Option<u8>| {
@@ -572,7 +753,7 @@ mod tests {
         assert!(read((0, 0, t, t)).is_ok());
         fs::write(dir.path().join(ARRAYS[1].0), &good).unwrap();
         assert!(read((0, 0, 3 * t, 2 * t)).is_ok());
-        let e = read_prepared(dir.path(), (w, h + 1, false), None)
+        let e = read_prepared(dir.path(), (w, h + 1, false))
             .err()
             .unwrap()
             .to_string();
@@ -587,6 +768,121 @@ mod tests {
         fs::write(&header, &bytes).unwrap();
         let e = read((0, 0, 0, 0)).unwrap_err().to_string();
         assert!(e.contains("checksum mismatch in its header"), "{e}");
+    }
+
+    /// The CRCs computed from the rows as they are written, in blocks of any size, equal
+    /// those read from the files (a grid a few tiles wide with a ragged last tile, with and
+    /// without classes); a second pass from row 0 starts over; rows out of order, missing or
+    /// of another size give none, so the files are read instead.
+    #[test]
+    fn crcs_of_the_rows_written_equal_the_files_ones() {
+        let (w, h) = (2 * TILE + 17, 2 * TILE + 3);
+        let g = grid(w, h);
+        let class: Vec<u8> = (0..w * h).map(|k| (k * 31 % 7) as u8).collect();
+        let t = |classes| Tiling {
+            width: w,
+            height: h,
+            classes,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let files = |classes: bool| {
+            let mut paths = vec![ARRAYS[0].0, ARRAYS[1].0];
+            fs::write(
+                dir.path().join(ARRAYS[0].0),
+                bytemuck::cast_slice(&g.values[..]),
+            )
+            .unwrap();
+            fs::write(
+                dir.path().join(ARRAYS[1].0),
+                bytemuck::cast_slice(&g.valid[..]),
+            )
+            .unwrap();
+            if classes {
+                fs::write(dir.path().join(ARRAYS[2].0), &class).unwrap();
+                paths.push(ARRAYS[2].0);
+            }
+            paths
+                .iter()
+                .map(|p| fs::File::open(dir.path().join(p)).unwrap())
+                .collect::<Vec<_>>()
+        };
+        let feed = |c: &mut WrittenCrcs, block: usize, rows: std::ops::Range<usize>| {
+            for y in rows.clone().step_by(block) {
+                let ys = y..(y + block).min(rows.end);
+                c.class_rows((w, h), &class[ys.start * w..ys.end * w], ys.clone());
+                c.grid_rows(&g, ys);
+            }
+        };
+        for classes in [false, true] {
+            let want: Vec<u32> = tile_crcs(
+                &t(classes),
+                &files(classes),
+                &vec![true; t(classes).count()],
+            )
+            .unwrap()
+            .into_iter()
+            .map(Option::unwrap)
+            .collect();
+            for block in [1, 7, TILE, 300, h] {
+                let mut c = WrittenCrcs::default();
+                feed(&mut c, block, 0..h);
+                assert_eq!(
+                    c.finish(classes).as_ref(),
+                    Some(&want),
+                    "blocks of {block} rows"
+                );
+            }
+            let mut again = WrittenCrcs::default();
+            feed(&mut again, 50, 0..100);
+            feed(&mut again, 64, 0..h);
+            assert_eq!(again.finish(classes), Some(want.clone()), "a second pass");
+        }
+        let mut short = WrittenCrcs::default();
+        feed(&mut short, 64, 0..h - 1);
+        assert_eq!(short.finish(false), None, "a row missing");
+        let mut skipped = WrittenCrcs::default();
+        feed(&mut skipped, 64, 0..64);
+        feed(&mut skipped, 64, 128..h);
+        assert_eq!(skipped.finish(false), None, "rows skipped");
+        let mut other = WrittenCrcs::default();
+        feed(&mut other, 64, 0..h);
+        other.class_rows((w + 1, h), &vec![0; w + 1], 0..1);
+        assert_eq!(other.finish(true), None, "rows of another size");
+        let mut no_classes = WrittenCrcs::default();
+        for y in 0..h {
+            no_classes.grid_rows(&g, y..y + 1);
+        }
+        assert_eq!(no_classes.finish(true), None, "classes never written");
+        assert!(no_classes.finish(false).is_some());
+    }
+
+    /// Tiles are checked as a step comes to them: a damaged tile is found only by the check
+    /// that covers it, and a tile is read once however many checks cover it.
+    #[test]
+    fn tiles_are_checked_when_a_step_comes_to_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (3 * TILE, 2 * TILE);
+        write_prepared(dir.path(), &mut grid(w, h), None, None).unwrap();
+        let t = TILE as i64;
+        let mut p = read_prepared(dir.path(), (w, h, false)).unwrap();
+        p.tiles.check(Some(&[(0, 0, t - 1, t - 1)])).unwrap();
+        // Damage tile (0, 0), already checked, and tile (2, 1), not yet.
+        let path = dir.path().join(ARRAYS[0].0);
+        let mut bytes = fs::read(&path).unwrap();
+        bytes[0] ^= 1;
+        bytes[4 * ((TILE + 1) * w + 2 * TILE + 1)] ^= 1;
+        fs::write(&path, &bytes).unwrap();
+        p.tiles.check(Some(&[(0, 0, 2 * t - 1, t - 1)])).unwrap();
+        let e = p
+            .tiles
+            .check(Some(&[(2 * t, t, 2 * t, t)]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("checksum mismatch in tile (2, 1)"), "{e}");
+        let e = read(dir.path(), (w, h, false), None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("checksum mismatch in tile (0, 0)"), "{e}");
     }
 
     #[test]
