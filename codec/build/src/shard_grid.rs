@@ -170,8 +170,8 @@ fn tile_crcs(t: &Tiling, files: &[fs::File], wanted: &[bool]) -> Result<Vec<Opti
 }
 
 /// The tiles' CRC-32s computed as the plan writes the arrays, block of rows by block of rows
-/// in order, while the rows are still in memory — so the plan does not read the grid back (at
-/// 4.3 G samples the lattice no longer fits the page cache, and that read went to disk). Each
+/// in order, while the rows are still in memory — so the plan does not read the whole grid
+/// back (at 4.3 G samples the lattice is larger than the page cache). Each
 /// array is hashed on its own; [`crc32fast::Hasher::combine`] joins a tile's three into its
 /// CRC over its heights, validity and classes in turn, as [`tile_crcs`] reads it. Rows from
 /// row 0 again (a second quantizer pass) start that array over; rows out of order or of
