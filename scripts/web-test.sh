@@ -8,7 +8,8 @@
 # the target, the URL hash restores the view, the server may go away and come back; without
 # WebGPU flags the page must draw the same view through WebGL2 (the renderer's texture path), and
 # with WebGL off too say that neither is there; decoding runs in Web Workers (and on the page with
-# ?workers=0, to the same cut); a small planet draws as a whole globe, centred, through WebGPU and
+# ?workers=0, to the same cut); a camera flight (?flight=) plays to its end, at the cut
+# `cbdam render` gives for its last camera, and a drag ends one early; a small planet draws as a whole globe, centred, through WebGPU and
 # through WebGL2.
 # About 55 s once built on a loaded 2-core machine.
 #

@@ -25,6 +25,11 @@ and checks the pixels of a screenshot, not only the page's word:
 - Decoding runs in Web Workers (`window.cbdam.workers`): at least one started, and they decoded
   diamonds (WebGPU and WebGL2 pages, and with faults); with `?workers=0` the page decodes on its
   own thread and converges to the same cut.
+- A camera flight (`?flight=URL`, descent.json's keyframes sped up) plays to its last frame, one
+  frame of flight time per animation frame, and reports its refinement and frame times; it
+  ends at a camera whose converged cut is the one `cbdam render --camera` gives for it; a drag
+  ends a flight early; a flight that does not parse, or is not there, is named in the status
+  with the reason.
 - No WebGPU flags (the browser offers only WebGL2): the page loads the bundle's WebGL2 module
   (a WebGPU browser loads only the small WebGPU one) and draws through WebGL2 (backend "webgl",
   the renderer's texture path), converges to the same cut, and terrain covers most of
@@ -143,6 +148,11 @@ class RangeHandler(http.server.SimpleHTTPRequestHandler):
 
 class Server(socketserver.ThreadingMixIn, http.server.HTTPServer):
     daemon_threads = True
+
+    def handle_error(self, request, client_address):
+        # A browser closed while a response was being written: not the server's failure.
+        if not isinstance(sys.exc_info()[1], (BrokenPipeError, ConnectionResetError)):
+            super().handle_error(request, client_address)
 
 
 def serve(root, port=0):
@@ -505,6 +515,7 @@ def open_viewer(flags, url, until, interact=None):
                 "performance.getEntriesByType('resource').map(e => e.name.split('/').pop())"
                 ".filter(n => n.endsWith('.wasm'))"
             )
+            status["hash"] = browser.evaluate("location.hash")
         shot = screenshot(browser)
         after = None
         if interact and status and converged(status):
@@ -543,6 +554,93 @@ def check_workers(name, status, failures):
     )
     if not w.get("count") or not w.get("decoded") or w.get("problem") or w.get("onPage"):
         failures.append(f"{name}: the page did not decode in its workers: {w}")
+
+
+# The flight the page plays in the test: data/flights/descent.json's cameras, 15 times faster
+# (about 1.1 s of flight, 34 frames at 30 fps), so it takes seconds on SwiftShader.
+FLIGHT_SPEED_UP = 15
+
+
+def write_flight(root, name, speed_up=FLIGHT_SPEED_UP):
+    """Writes data/flights/descent.json into `root` as `name`, its times divided by `speed_up`;
+    returns the flight's duration, s."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    with open(os.path.join(here, "..", "data", "flights", "descent.json")) as f:
+        flight = json.load(f)
+    for k in flight["keyframes"]:
+        k["t"] /= speed_up
+    with open(os.path.join(root, name), "w") as f:
+        json.dump(flight, f)
+    return flight["keyframes"][-1]["t"]
+
+
+def check_flight(url, root, repository, cbdam, failures):
+    """The page plays a flight to its end, reports its figures, and ends at a camera whose
+    converged cut equals `cbdam render`'s for that camera; bad flights are named."""
+    duration = write_flight(root, "flight.json")
+    frames = math.ceil(duration * 30) + 1
+    done = lambda s: (s.get("flight") or {}).get("done") and converged(s)  # noqa: E731
+    status, _, console, _, _ = open_viewer(WEBGPU_FLAGS, url + "?flight=flight.json", done)
+    f = (status or {}).get("flight") or {}
+    print(f"flight: {json.dumps(f)}")
+    if not status or not done(status):
+        failures.append(f"flight: not played to its end and converged: {f} {status and status.get('error')}")
+        print("console:\n  " + "\n  ".join(console[-20:]))
+        return
+    refine, frame = f.get("refineMs") or [], f.get("frameMs") or []
+    if f.get("frames") != frames or f.get("frame") != frames or f.get("stopped"):
+        failures.append(f"flight: {f.get('frame')} of {f.get('frames')} frames flown, not {frames}")
+    elif len(refine) != 3 or not 0 < refine[0] <= refine[1] <= refine[2]:
+        failures.append(f"flight: refinement times are not a median <= p99 <= largest: {refine}")
+    elif len(frame) != 3 or not 0 < frame[0] <= frame[1] <= frame[2]:
+        failures.append(f"flight: frame times are not a median <= p99 <= largest: {frame}")
+    elif not 0 < f.get("seconds", 0) < TIMEOUT_S:
+        failures.append(f"flight: took {f.get('seconds')} s")
+    # Where it ended: the flight's last camera (written into the hash too), whose cut the
+    # native renderer converges to as well.
+    hash_camera = [float(v) for v in status.get("hash", "").split("=")[-1].split(",") if v]
+    cut_file = os.path.join(root, "flight-cut.txt")
+    subprocess.run(
+        [cbdam, "render", repository, "-o", os.path.join(root, "flight-end.png"),
+         "--size", f"{WIDTH}x{HEIGHT}", "--camera", ",".join(repr(v) for v in status["camera"]),
+         "--cut-out", cut_file],
+        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    native = open(cut_file).read().split()
+    print(f"flight: ended at {status['camera'][:3]}; the page's cut {len(status['cut'])} diamonds, "
+          f"cbdam render's {len(native)}")
+    if native != status["cut"]:
+        failures.append(f"flight: the page's cut at the flight's end differs from cbdam render's "
+                        f"({len(status['cut'])} vs {len(native)} diamonds)")
+    if len(hash_camera) != 6 or max(abs(a - b) for a, b in zip(hash_camera, status["camera"])) > 0.01:
+        failures.append(f"flight: the hash {status.get('hash')!r} is not the last camera {status['camera']}")
+    # A drag and the wheel during a flight (at its own speed: 451 frames) end it there.
+    write_flight(root, "slow-flight.json", speed_up=1)
+    browser = Browser(WEBGPU_FLAGS)
+    try:
+        browser.call("Page.navigate", session=True, url=url + "?flight=slow-flight.json")
+        browser.wait_event("Page.loadEventFired", 30)
+        flying = wait_status(browser, lambda s: (s.get("flight") or {}).get("frame", 0) >= 3)
+        drag_and_zoom(browser)
+        stopped = wait_status(browser, lambda s: (s.get("flight") or {}).get("stopped"))
+    finally:
+        browser.close()
+    f = (stopped or {}).get("flight") or {}
+    print(f"flight stopped by a drag: {f.get('frame')} of {f.get('frames')} frames flown")
+    if not flying or not f.get("stopped") or f.get("done") or not f.get("refineMs"):
+        failures.append(f"flight: a drag did not end the flight with its figures: {f}")
+    # A flight whose times go backwards, and one that is not there: named, with the reason.
+    with open(os.path.join(root, "bad-flight.json"), "w") as out:
+        json.dump({"keyframes": [{"t": 1, "eye": [0, 0, 1], "target": [1, 1, 0]},
+                                 {"t": 0, "eye": [1, 0, 1], "target": [1, 1, 0]}]}, out)
+    for name, reason in [("bad-flight.json", "times must increase"), ("missing.json", "HTTP 404")]:
+        # The viewer runs on (the error may come before it has connected).
+        has_error = lambda s: (s.get("flight") or {}).get("error") and s.get("phase") == "running"  # noqa: E731
+        status, _, _, _, _ = open_viewer(WEBGPU_FLAGS, url + "?flight=" + name, has_error)
+        error = ((status or {}).get("flight") or {}).get("error", "")
+        print(f"flight {name}: {error!r}")
+        if name not in error or reason not in error or (status or {}).get("phase") != "running":
+            failures.append(f"flight {name}: expected an error naming it and {reason!r}, got {status}")
 
 
 def start_server(cbdam, repository):
@@ -679,6 +777,8 @@ def main():
                         f"only native {sorted(set(native) - set(restored['cut']))[:5]}"
                     )
 
+        check_flight(url, root, repository, cbdam, failures)
+
         # Three record requests refused (503), then a corrupt record (its checksum fails): each
         # is retried, and the page still converges to the same cut.
         RangeHandler.refuse["left"] = 3
@@ -777,12 +877,14 @@ def main():
         shutil.rmtree(root, ignore_errors=True)
 
 
-def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
+def measure(size, bundle, repository, cbdam, repo_url=None, runs=int(os.environ.get("CBDAM_MEASURE_RUNS", "3"))):
     """`--measure WxH`: no checks, figures only; the page opens the exported repository, or
     `repo_url` (e.g. `cbdam serve` behind `cbdam link`). For each of `runs` fresh browsers: navigation
     to the first frame and to the converged cut, then the page's median frame interval and the
     frame rate over 3 s with the cut converged (drawing every frame, refining nothing); for
-    WebGPU, then for WebGL2."""
+    WebGPU, then for WebGL2. With CBDAM_MEASURE_FLIGHT=FLIGHT.json the page plays that flight
+    (CBDAM_MEASURE_FPS frames of flight time a second, default 30, as `cbdam render --path
+    --fps`) and the figures of its frames are printed too (refinement step and frame interval: median, p99, largest)."""
     global WIDTH, HEIGHT
     WIDTH, HEIGHT = (int(v) for v in size.split("x"))
     root = tempfile.mkdtemp(prefix="cbdam-web-")
@@ -793,6 +895,11 @@ def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
         base = f"http://127.0.0.1:{server.server_address[1]}/index.html?"
         if repo_url:
             base += "repo=" + repo_url + "&"
+        flight = os.environ.get("CBDAM_MEASURE_FLIGHT")
+        if flight:
+            shutil.copy(flight, os.path.join(root, "flight.json"))
+            base += f"flight=flight.json&fps={os.environ.get('CBDAM_MEASURE_FPS', '30')}&"
+        until = (lambda s: (s.get("flight") or {}).get("done") and converged(s)) if flight else converged
         # WebGPU, then WebGL2 (no WebGPU flags); decoding in workers, then on the page
         # (CBDAM_MEASURE_PAGE=1 adds the page runs), alternated.
         modes = ["workers"] + (["page"] if os.environ.get("CBDAM_MEASURE_PAGE") == "1" else [])
@@ -804,7 +911,8 @@ def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
             try:
                 browser.call("Page.navigate", session=True, url=url)
                 browser.wait_event("Page.loadEventFired", 30)
-                s = wait_status(browser, converged)
+                # A flight's frames on SwiftShader at 1280x720 take a second or more each.
+                s = wait_status(browser, until, timeout=600 if flight else TIMEOUT_S)
                 count = "[window.cbdam.frames, performance.now()]"
                 f0, t0 = browser.evaluate(count)
                 time.sleep(3)
@@ -825,6 +933,16 @@ def measure(size, bundle, repository, cbdam, repo_url=None, runs=3):
                     f"{(f1 - f0) * 1000 / (t1 - t0):.2f} frames/s, median frame "
                     f"{s2.get('frameMs'):.1f} ms"
                 )
+                if flight:
+                    f = s.get("flight") or {}
+                    print(
+                        f"measure {size} {s.get('backend')} {mode} run {run + 1} flight: {f.get('frame')} of "
+                        f"{f.get('frames')} frames in {f.get('seconds', 0):.1f} s; refinement ms per frame "
+                        f"median/p99/max {f.get('refineMs')}; frame interval ms {f.get('frameMs')}; "
+                        f"{f.get('overBudget')} frames whose refinement step overran its budget "
+                        f"(frames {[i for i, v in enumerate(f.get('refineMsPerFrame') or []) if v > 8][:12]}); "
+                        f"largest error {f.get('maxErrorPx', 0):.2f} px"
+                    )
             finally:
                 browser.close()
         server.shutdown()

@@ -25,13 +25,14 @@ use wasm_bindgen::closure::Closure;
 use wasm_bindgen::prelude::wasm_bindgen;
 use web_sys::HtmlCanvasElement;
 
+use crate::flight::{self, Playback};
 use crate::input::{Action, Input};
 use crate::status::Status;
 use crate::workers::{WorkerPool, worker_count};
 
 /// Refinement time per frame on the page's thread (applying the workers' results; decoding too
 /// when no worker runs): leaves most of a 60 Hz frame to drawing and the browser.
-const REFINE_BUDGET: Duration = Duration::from_millis(8);
+pub(crate) const REFINE_BUDGET: Duration = Duration::from_millis(8);
 /// GPU height pool: about 3 900 patches of 65²; browsers limit a storage binding to 128 MiB
 /// by default. On WebGL2 the pool texture may hold less (2048 words a row, as many rows as the
 /// largest texture side: 64 MiB at 8192).
@@ -149,6 +150,8 @@ struct App {
     /// `performance.now()` of the last frame, and the intervals between the last frames.
     last_frame_ms: Option<f64>,
     intervals_ms: VecDeque<f64>,
+    /// A camera flight being played (`flight.rs`): it moves the camera instead of the controls.
+    playback: Option<Playback>,
 }
 
 impl App {
@@ -296,6 +299,7 @@ impl App {
             refine_ms_max: 0.0,
             last_frame_ms: None,
             intervals_ms: VecDeque::new(),
+            playback: None,
         })
     }
 
@@ -322,6 +326,17 @@ impl App {
             self.input
                 .apply(&mut self.controls, size.1, (dt_ms / 1e3).min(0.25));
         let mut changed = moved;
+        if let Some(requested) = flight::requested() {
+            self.playback = Some(requested);
+        }
+        // Moving the camera by hand ends a flight; the controls go on from where it was.
+        if moved && let Some(playback) = self.playback.take() {
+            if let Some(camera) = &self.last_camera {
+                self.controls = Controls::new(&self.world, camera);
+            }
+            self.status
+                .set_object("flight", &playback.status(now, true));
+        }
         for action in actions {
             changed |= self.act(action);
         }
@@ -329,7 +344,13 @@ impl App {
             self.refiner.set_pixel_error(px);
             changed = true;
         }
-        let camera = self.controls.camera(&self.world, size);
+        let camera = match &self.playback {
+            Some(playback) => {
+                changed = true;
+                playback.camera(&self.world, size)
+            }
+            None => self.controls.camera(&self.world, size),
+        };
         if changed {
             self.reported_converged = false;
         }
@@ -338,6 +359,9 @@ impl App {
         }
         self.last_camera = Some(camera);
         self.refine(&camera);
+        if self.playback.is_some() {
+            self.flown(&camera, dt_ms, now);
+        }
         let stats = self.last_stats;
         let (mut encoder, draw) = self
             .renderer
@@ -430,6 +454,23 @@ impl App {
         self.refine_ms_max = self.refine_ms_max.max(st.refine_ms);
         self.patches.clear();
         self.patches.extend(self.refiner.drawn().cloned());
+    }
+
+    /// Records the flight's frame just refined for `camera`; at the flight's end the controls
+    /// take over from its last camera, which goes into the URL's hash.
+    fn flown(&mut self, camera: &Camera, interval_ms: f64, now: f64) {
+        let Some(playback) = &mut self.playback else {
+            return;
+        };
+        let st = &self.last_stats;
+        playback.flown(st.refine_ms, st.max_screen_error_px, interval_ms, now);
+        self.status
+            .set_object("flight", &playback.status(now, false));
+        if playback.finished() {
+            self.playback = None;
+            self.controls = Controls::new(&self.world, camera);
+            camera_to_hash(camera);
+        }
     }
 
     /// A refinement step between animation frames, when a worker's answer arrived: it is

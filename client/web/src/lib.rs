@@ -9,6 +9,8 @@
 //! that the workspace's native `cargo clippy` and `cargo test` build it without a browser.
 //!
 //! The page exposes its state on `window.cbdam` ([`status`]) for people and tests.
+//! `index.html?flight=URL` plays a camera flight of `cbdam render --path` ([`flight`]) and
+//! measures its frames.
 //!
 //! Decoding runs in Web Workers ([`workers`]): `navigator.hardwareConcurrency − 1` of them (at
 //! least 1, at most 4), each running `worker.js`, which instantiates this same module (the
@@ -38,6 +40,8 @@
 #[cfg(target_arch = "wasm32")]
 mod app;
 #[cfg(target_arch = "wasm32")]
+pub mod flight;
+#[cfg(target_arch = "wasm32")]
 mod input;
 #[cfg(target_arch = "wasm32")]
 pub mod status;
@@ -46,5 +50,7 @@ pub mod workers;
 
 #[cfg(target_arch = "wasm32")]
 pub use app::{set_pixel_error, start};
+#[cfg(target_arch = "wasm32")]
+pub use flight::play_flight;
 #[cfg(target_arch = "wasm32")]
 pub use workers::{decode_job, init_worker};

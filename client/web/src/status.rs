@@ -26,6 +26,7 @@
 //! | `decoded`, `decodeMs` | diamonds decoded since the page started (in workers or on the page) and their decode time where they ran, ms |
 //! | `refineMs` | `[total, largest]` time of the page's refinement step per frame since the page started, ms |
 //! | `workers` | decoding in Web Workers: `{count, ready, decoded, busyMs, onPage, problem}`: workers running and set up, diamonds they decoded and their time on it (ms), diamonds decoded on the page instead, and why (`""` if none) |
+//! | `flight` | a camera flight played by the page (`?flight=URL`, `flight.rs`): `{frame, frames, fps, done, stopped}`, and once it ended `refineMs` and `frameMs` (`[median, p99, largest]` per frame of the flight: the refinement step; the interval between animation frames), `overBudget` (frames whose step took longer than its budget), `refineMsPerFrame`, `maxErrorPx`, `seconds`; or `{error}` when it could not be fetched or parsed |
 //! | `notice` | a key that could not be honoured (e.g. no wireframe on this adapter) |
 //!
 //! The page's own "ok" is not proof that anything was drawn (a canvas can stay blank while

@@ -56,6 +56,18 @@ function decoding(w) {
     (w.problem ? ` (${w.problem})` : "");
 }
 
+// A camera flight played by the page (?flight=URL): its progress, then its figures.
+function flightLine(f) {
+  if (!f) return "";
+  if (f.error) return `\nflight: ${f.error}`;
+  const how = f.stopped ? "stopped" : f.done ? "done" : "flying";
+  const figures = f.refineMs
+    ? ` · refine ms p50 ${fmt(f.refineMs[0], 2)} p99 ${fmt(f.refineMs[1], 2)}` +
+      ` · frame ms p50 ${fmt(f.frameMs[0], 1)} p99 ${fmt(f.frameMs[1], 1)}`
+    : "";
+  return `\nflight: ${how}, frame ${fmt(f.frame)}/${fmt(f.frames)} at ${fmt(f.fps)} fps${figures}`;
+}
+
 function showStatus() {
   const s = window.cbdam;
   if (!s) return;
@@ -78,6 +90,7 @@ function showStatus() {
     `network: ${fmt(s.recordsRequested)} requests, ${fmt((s.bytes || 0) / 1024, 1)} KiB, ` +
     `${fmt(s.inFlight)} in flight, ${fmt(s.fetchErrors)} errors\n` +
     decoding(s.workers) +
+    flightLine(s.flight) +
     (s.notice ? `\n${s.notice}` : "");
   // The slider follows the target (keys change it too) unless it is being used.
   if (requested !== null && s.pixelError !== requested) return;
@@ -100,6 +113,19 @@ slider.addEventListener("input", () => {
 // The slider keeps keyboard focus after a drag; give it back to the view for the keys.
 slider.addEventListener("change", () => slider.blur());
 
+// ?flight=URL[&fps=N]: plays a camera flight (the JSON of `cbdam render --path`), one frame of
+// flight time (1/N s, default 30) per animation frame; the overlay and window.cbdam.flight
+// show its progress and, at its end, its refinement and frame times.
+async function playFlight(module, url, fps) {
+  try {
+    const response = await fetch(new URL(url, location.href));
+    if (!response.ok) throw new Error(`HTTP ${response.status} for ${url}`);
+    module.play_flight(await response.text(), fps);
+  } catch (e) {
+    if (window.cbdam) window.cbdam.flight = { error: `cannot play the flight ${url}: ${e.message || e}` };
+  }
+}
+
 const repo =
   new URLSearchParams(location.search).get("repo") ||
   document.querySelector('meta[name="cbdam-repo"]')?.content;
@@ -116,6 +142,8 @@ if (!repo) {
     const workers = new URLSearchParams(location.search).get("workers") !== "0";
     const script = workers ? new URL("./worker.js", import.meta.url).href : undefined;
     module.start(canvas, new URL(repo, location.href).href, script);
+    const params = new URLSearchParams(location.search);
+    if (params.get("flight")) playFlight(module, params.get("flight"), Number(params.get("fps") || 30));
   } catch (e) {
     fail("cannot load the viewer: " + e);
     showStatus();
