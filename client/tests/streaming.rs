@@ -9,7 +9,9 @@ use std::time::Duration;
 use cbdam_client::access::{FlakyConfig, FlakySource, LocalSource};
 use cbdam_client::camera::Camera;
 use cbdam_client::patch::{HalfPatch, decode_cut};
-use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner, box_distance};
+use cbdam_client::refine::{
+    DetailConfig, FrameStats, GC_MIN_COARSENINGS, RefineConfig, Refiner, box_distance,
+};
 use cbdam_client::world::World;
 use cbdam_codec::geometry::{Cut, DiamondId, check_conforming};
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
@@ -580,4 +582,66 @@ fn a_memory_budget_bounds_the_cut_and_degrades_it_coarser_never_wrong() {
         assert!(errors[1] <= errors[0] + 1e-9, "view {view}: {errors:?}");
     }
     assert!(checked > 4, "too few detailed views: {checked}");
+}
+
+/// A garbage collection stops at the frame's budget and goes on in the next frames: a view that
+/// suddenly needs far less (here the pixel target raised 64-fold) leaves hundreds of diamonds
+/// to coarsen, which a collection without a budget does in one frame; with a budget already
+/// spent each frame coarsens `GC_MIN_COARSENINGS`, and the frames end at the same cut.
+#[test]
+fn garbage_collection_stops_at_the_budget_and_goes_on_in_the_next_frames() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let (lo, hi) = world.bounds();
+    let c = (lo + hi) * 0.5;
+    let cam = Camera::looking_at(
+        &world,
+        DVec3::new(c.x, c.y - 40.0, hi.z + 20.0),
+        DVec3::new(c.x, c.y + 20.0, lo.z),
+        50f64.to_radians(),
+        (640, 480),
+    );
+    let settled = || {
+        let mut r = Refiner::new(LocalSource::new(repo.clone()), unlimited(4)).unwrap();
+        r.set_pixel_error(0.25);
+        assert!(run_until_converged(&mut r, &cam, 20).converged);
+        r.set_pixel_error(16.0);
+        r
+    };
+    let (mut whole, mut bounded) = (settled(), settled());
+    let before = refined_set(whole.cut());
+    // The collection runs every 4 frames: the whole one in the first of them.
+    let mut coarsened_whole = 0;
+    for _ in 0..4 {
+        coarsened_whole += whole.frame(&cam).coarsenings;
+    }
+    let after = refined_set(whole.cut());
+    assert!(
+        coarsened_whole > 4 * GC_MIN_COARSENINGS && after.len() < before.len(),
+        "too little garbage to test with: {coarsened_whole} of {}",
+        before.len()
+    );
+    // The budget spent before the collection starts: it does its least each frame.
+    bounded.set_budget(Some(Duration::from_nanos(1)));
+    let (mut frames, mut coarsened) = (0, 0);
+    for _ in 0..400 {
+        let s = bounded.frame(&cam);
+        assert!(
+            s.coarsenings <= GC_MIN_COARSENINGS,
+            "{} coarsened in one frame over budget",
+            s.coarsenings
+        );
+        coarsened += s.coarsenings;
+        frames += usize::from(s.coarsenings > 0);
+        if refined_set(bounded.cut()) == after {
+            break;
+        }
+    }
+    assert_eq!(
+        refined_set(bounded.cut()),
+        after,
+        "the collection did not finish"
+    );
+    assert_eq!(coarsened, coarsened_whole);
+    assert!(frames > 4, "coarsened in {frames} frames only");
 }

@@ -93,6 +93,10 @@ const AHEAD_LIMIT: usize = 256;
 pub const WANT_HORIZON_S: f64 = 1.0;
 /// Weight of the newest sample in the smoothed frame interval and decode time.
 const SMOOTHING: f64 = 0.1;
+/// Fewest diamonds a garbage collection coarsens in a frame before it looks at the frame's
+/// budget (about 8 µs each at N = 65): a collection always advances, even in a frame whose
+/// budget is already spent.
+pub const GC_MIN_COARSENINGS: usize = 16;
 
 /// Settings of the refinement loop.
 #[derive(Clone, Debug)]
@@ -101,7 +105,9 @@ pub struct RefineConfig {
     pub pixel_error: f64,
     /// Time budget per frame; `None` refines until the cut is locally optimal.
     pub budget: Option<Duration>,
-    /// Garbage-collect (coarsen) every this many frames.
+    /// Garbage-collect (coarsen) every this many frames. With a budget, a collection coarsens
+    /// only until the frame's budget is spent (at least [`GC_MIN_COARSENINGS`]) and goes on in
+    /// the next frames until it has coarsened everything it found.
     pub gc_interval: u32,
     /// When to prefetch (see [`Prefetch`]).
     pub prefetch: Prefetch,
@@ -369,6 +375,8 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     /// slow tail is remembered for a while (the budget is a bound on every frame, not on the
     /// average).
     overrun: Duration,
+    /// A garbage collection stopped at its frame's budget: the next frame goes on with it.
+    collecting: bool,
     /// Diamonds being refined on worker threads (speculative ones included).
     decoding: IdSet,
     /// The part of `decoding` decoded ahead of the cut by speculative jobs: their results go to
@@ -486,6 +494,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             frame: 0,
             last_camera: None,
             overrun: Duration::ZERO,
+            collecting: false,
             decoding: IdSet::default(),
             speculative: IdSet::default(),
             speculative_jobs: 0,
@@ -527,6 +536,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         if pixel_error.is_finite() && pixel_error > 0.0 {
             self.config.pixel_error = pixel_error;
         }
+    }
+
+    /// Changes the time budget per frame from the next frame on (`None`: refine until the cut
+    /// is locally optimal).
+    pub fn set_budget(&mut self, budget: Option<Duration>) {
+        self.config.budget = budget;
     }
 
     /// How full the CPU-side caches are.
@@ -932,11 +947,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             }
         }
         if self.config.gc_interval > 0
-            && self
-                .frame
-                .is_multiple_of(u64::from(self.config.gc_interval))
+            && (self.collecting
+                || self
+                    .frame
+                    .is_multiple_of(u64::from(self.config.gc_interval)))
         {
-            stats.coarsenings += self.collect_garbage(&view);
+            // Within the frame's budget: coarsening costs microseconds a diamond, and a view
+            // moving fast leaves hundreds to coarsen at once.
+            let until = self.config.budget.map(|b| start + b);
+            let (coarsened, finished) = self.collect_garbage(&view, until);
+            stats.coarsenings += coarsened;
+            self.collecting = !finished;
         }
         // The workers keep decoding what the view still needs until the next frame.
         if self.config.decode_ahead && self.spawner.runs_in_background() {
@@ -1516,8 +1537,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     }
 
     /// Coarsens every refined diamond the view does not need, finest first (a coarsening
-    /// heap ordered by ascending screen error, re-fed with parents that become leaves).
-    fn collect_garbage(&mut self, view: &View) -> usize {
+    /// heap ordered by ascending screen error, re-fed with parents that become leaves), or
+    /// those it reaches by `until` (after at least [`GC_MIN_COARSENINGS`]). Returns how many
+    /// it coarsened and whether it found none left.
+    fn collect_garbage(&mut self, view: &View, until: Option<Instant>) -> (usize, bool) {
         let mut heap: BinaryHeap<std::cmp::Reverse<Candidate>> = BinaryHeap::new();
         for (&id, info) in &self.cut_state.leaves {
             let err = info.and_then(|i| view.error(&i)).unwrap_or(0.0);
@@ -1527,6 +1550,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
         let mut done = 0;
         while let Some(std::cmp::Reverse(c)) = heap.pop() {
+            if done >= GC_MIN_COARSENINGS && until.is_some_and(|u| Instant::now() >= u) {
+                return (done, false);
+            }
             if !self.coarsen_in_cut(c.id) {
                 continue;
             }
@@ -1541,7 +1567,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 }
             }
         }
-        done
+        (done, true)
     }
 
     /// After `id` was coarsened: its node moves to the decoded cache.
