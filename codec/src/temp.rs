@@ -77,6 +77,28 @@ impl TempStorage {
             (storage, _) => storage,
         }
     }
+
+    /// A temporary file created already unlinked in this storage's directory (the system's
+    /// temporary directory for `File(None)`), private to this process: a `Named` storage's
+    /// directory too, for what is never kept. `None` for [`TempStorage::Memory`]. An error
+    /// says the file was for `what`.
+    pub fn unlinked_file(&self, what: &str) -> Result<Option<std::fs::File>, CodecError> {
+        match self {
+            TempStorage::Memory => return Ok(None),
+            TempStorage::File(Some(dir)) | TempStorage::Named(dir) => tempfile::tempfile_in(dir),
+            TempStorage::File(None) => tempfile::tempfile(),
+        }
+        .map(Some)
+        .map_err(|e| creating(what, e))
+    }
+}
+
+/// The error of creating a temporary file for `what`.
+fn creating(what: &str, e: std::io::Error) -> CodecError {
+    CodecError::Io(std::io::Error::new(
+        e.kind(),
+        format!("creating a temporary file for {what}: {e}"),
+    ))
 }
 
 /// The start of the names of a lattice's temporary files in a directory
@@ -140,22 +162,19 @@ impl<T: LatticeElement> LatticeArray<T> {
                     inner: Inner::Heap(vec![value; len]),
                 });
             }
-            TempStorage::File(Some(d)) => tempfile::tempfile_in(d).map(|f| (f, None)),
-            TempStorage::File(None) => tempfile::tempfile().map(|f| (f, None)),
-            TempStorage::Named(d) => tempfile::Builder::new()
-                .prefix(LATTICE_TEMP_PREFIX)
-                .tempfile_in(d)
-                .map(|f| {
-                    let (file, name) = f.into_parts();
-                    (file, Some(name))
-                }),
-        }
-        .map_err(|e| {
-            CodecError::Io(std::io::Error::new(
-                e.kind(),
-                format!("creating a temporary file for the lattice: {e}"),
-            ))
-        })?;
+            TempStorage::File(_) => {
+                let file = storage.unlinked_file("the lattice")?;
+                (file.expect("a file storage makes a file"), None)
+            }
+            TempStorage::Named(d) => {
+                let (file, name) = tempfile::Builder::new()
+                    .prefix(LATTICE_TEMP_PREFIX)
+                    .tempfile_in(d)
+                    .map_err(|e| creating("the lattice", e))?
+                    .into_parts();
+                (file, Some(name))
+            }
+        };
         // Sparse: blocks are allocated only where pages are written.
         file.set_len(bytes.max(1) as u64)?;
         // SAFETY: the file is unlinked, or has a temporary name nothing else writes, so

@@ -77,14 +77,10 @@ impl ReconField {
             .checked_mul(height)
             .and_then(|c| c.checked_mul(4))
             .ok_or_else(too_big)?;
-        let mut map = match storage {
-            TempStorage::Memory => MmapMut::map_anon(bytes.max(1))?,
-            TempStorage::File(_) | TempStorage::Named(_) => {
-                // A field is never kept: unlinked, in the storage's directory.
-                let file = match storage {
-                    TempStorage::File(Some(d)) | TempStorage::Named(d) => tempfile::tempfile_in(d)?,
-                    _ => tempfile::tempfile()?,
-                };
+        // A field is never kept: unlinked, in the storage's directory.
+        let mut map = match storage.unlinked_file("the reconstruction field")? {
+            None => MmapMut::map_anon(bytes.max(1))?,
+            Some(file) => {
                 // A sparse file: blocks are allocated only where pages are written.
                 file.set_len(bytes.max(1) as u64)?;
                 // SAFETY: the file is unlinked and private to this process, so nothing else can

@@ -139,17 +139,9 @@ impl RecordSpill {
     /// A spill file in `storage`'s directory; `None` for [`TempStorage::Memory`] (nothing to
     /// spill to).
     pub(crate) fn new(storage: &TempStorage) -> Result<Option<Self>, CodecError> {
-        let file = match storage {
-            TempStorage::Memory => return Ok(None),
-            TempStorage::File(Some(dir)) | TempStorage::Named(dir) => tempfile::tempfile_in(dir),
-            TempStorage::File(None) => tempfile::tempfile(),
-        }
-        .map_err(|e| {
-            CodecError::Io(std::io::Error::new(
-                e.kind(),
-                format!("creating a temporary file for the records: {e}"),
-            ))
-        })?;
+        let Some(file) = storage.unlinked_file("the records")? else {
+            return Ok(None);
+        };
         Ok(Some(Self {
             file: BufWriter::with_capacity(1 << 20, file),
             len: 0,
