@@ -32,7 +32,7 @@ use crate::workers::{WorkerPool, worker_count};
 
 /// Refinement time per frame on the page's thread (applying the workers' results; decoding too
 /// when no worker runs): leaves most of a 60 Hz frame to drawing and the browser.
-pub(crate) const REFINE_BUDGET: Duration = Duration::from_millis(8);
+const REFINE_BUDGET: Duration = Duration::from_millis(8);
 /// GPU height pool: about 3 900 patches of 65²; browsers limit a storage binding to 128 MiB
 /// by default. On WebGL2 the pool texture may hold less (2048 words a row, as many rows as the
 /// largest texture side: 64 MiB at 8192).
@@ -463,7 +463,16 @@ impl App {
             return;
         };
         let st = &self.last_stats;
-        playback.flown(st.refine_ms, st.max_screen_error_px, interval_ms, now);
+        // Timed, not the step's `budget_exhausted`: a step on the page never waits for the
+        // workers, so it also ends "exhausted" whenever decodes are still out.
+        let over_budget = st.refine_ms > REFINE_BUDGET.as_secs_f64() * 1e3;
+        playback.flown(
+            st.refine_ms,
+            over_budget,
+            st.max_screen_error_px,
+            interval_ms,
+            now,
+        );
         self.status
             .set_object("flight", &playback.status(now, false));
         if playback.finished() {

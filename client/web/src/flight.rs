@@ -53,9 +53,8 @@ pub struct Playback {
     /// animation frame, ms (from the second frame).
     refine_ms: Vec<f64>,
     interval_ms: Vec<f64>,
-    /// The refinement step's time budget, ms; frames whose step took longer; the largest
-    /// screen error left, px.
-    budget_ms: f64,
+    /// Frames whose refinement step took longer than its budget; the largest screen error
+    /// left, px.
     over_budget: u64,
     max_error_px: f64,
     /// `performance.now()` at the first frame flown.
@@ -72,7 +71,6 @@ impl Playback {
             frames,
             refine_ms: Vec::new(),
             interval_ms: Vec::new(),
-            budget_ms: crate::app::REFINE_BUDGET.as_secs_f64() * 1e3,
             over_budget: 0,
             max_error_px: 0.0,
             started_ms: None,
@@ -85,18 +83,24 @@ impl Playback {
         self.flight.camera(world, t, size)
     }
 
-    /// Records the frame just flown: its refinement step's time, the screen error left, and
-    /// the interval since the animation frame before.
-    pub fn flown(&mut self, refine_ms: f64, error_px: f64, interval_ms: f64, now_ms: f64) {
+    /// Records the frame just flown: its refinement step's time and whether that overran the
+    /// step's budget, the screen error left, and the interval since the animation frame
+    /// before.
+    pub fn flown(
+        &mut self,
+        refine_ms: f64,
+        over_budget: bool,
+        error_px: f64,
+        interval_ms: f64,
+        now_ms: f64,
+    ) {
         if self.started_ms.is_none() {
             self.started_ms = Some(now_ms);
         } else {
             self.interval_ms.push(interval_ms);
         }
         self.refine_ms.push(refine_ms);
-        // (Not the step's `budget_exhausted`: on the page a step never waits for the workers,
-        // so it also ends "exhausted" whenever decodes are still out.)
-        self.over_budget += u64::from(refine_ms > self.budget_ms);
+        self.over_budget += u64::from(over_budget);
         self.max_error_px = self.max_error_px.max(error_px);
         self.frame += 1;
     }
