@@ -9,7 +9,8 @@
 # WebGPU flags the page must draw the same view through WebGL2 (the renderer's texture path), and
 # with WebGL off too say that neither is there; decoding runs in Web Workers (and on the page with
 # ?workers=0, to the same cut); a camera flight (?flight=) plays to its end, at the cut
-# `cbdam render` gives for its last camera, and a drag ends one early; a small planet draws as a whole globe, centred, through WebGPU and
+# `cbdam render` gives for its last camera, and a drag ends one early; a colour repository
+# (?colour=) drapes red and blue over the same cut through both APIs; a small planet draws as a whole globe, centred, through WebGPU and
 # through WebGL2.
 # About 55 s once built on a loaded 2-core machine.
 #

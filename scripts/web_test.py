@@ -30,6 +30,9 @@ and checks the pixels of a screenshot, not only the page's word:
   ends at a camera whose converged cut is the one `cbdam render --camera` gives for it; a drag
   ends a flight early; a flight that does not parse, or is not there, is named in the status
   with the reason.
+- A colour repository draped over the terrain (`?colour=URL`; built by `cbdam build IMAGE
+  --colour --like`, red in the west and blue in the east): the same cut, and the terrain drawn
+  red on the left and blue on the right, through WebGPU and WebGL2.
 - No WebGPU flags (the browser offers only WebGL2): the page loads the bundle's WebGL2 module
   (a WebGPU browser loads only the small WebGPU one) and draws through WebGL2 (backend "webgl",
   the renderer's texture path), converges to the same cut, and terrain covers most of
@@ -643,6 +646,64 @@ def check_flight(url, root, repository, cbdam, failures):
             failures.append(f"flight {name}: expected an error naming it and {reason!r}, got {status}")
 
 
+def write_png(path, width, height, rgb):
+    """An 8-bit RGB PNG whose pixel (x, y) is `rgb(x, y)`."""
+    raw = b"".join(b"\0" + bytes(c for x in range(width) for c in rgb(x, y)) for y in range(height))
+    chunk = lambda kind, data: (struct.pack(">I", len(data)) + kind + data  # noqa: E731
+                                + struct.pack(">I", zlib.crc32(kind + data)))
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+                + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+
+
+def red_and_blue(png):
+    """(pixels, mean x) of the clearly red and of the clearly blue pixels of a screenshot."""
+    width, _, channels, rows = decode_png(png)
+    red, blue = [0, 0.0], [0, 0.0]
+    for row in rows:
+        for x in range(width):
+            r, g, b = row[x * channels : x * channels + 3]
+            if r > 2 * g and r > 2 * b:
+                red[0], red[1] = red[0] + 1, red[1] + x
+            elif b > 2 * r and b > 1.5 * g:
+                blue[0], blue[1] = blue[0] + 1, blue[1] + x
+    return [(n, total / max(n, 1)) for n, total in (red, blue)]
+
+
+def check_colour(url, root, repository, cbdam, static_cut, plain_shot, failures):
+    """A colour repository draped over the terrain: red in the west, blue in the east of the
+    screenshot, through WebGPU and WebGL2, with the cut of the plain terrain (the elevation
+    alone drives refinement)."""
+    width, height = (int(v) for v in re.findall(
+        r"(\d+)×(\d+) samples",
+        subprocess.run([cbdam, "inspect", repository], check=True, capture_output=True, text=True).stdout,
+    )[0])
+    image = os.path.join(root, "colour.png")
+    write_png(image, width, height, lambda x, y: (200, 30, 30) if x < width // 2 else (30, 60, 200))
+    subprocess.run([cbdam, "build", image, "--colour", "--like", repository, "-o",
+                    os.path.join(root, "colour.cbdam"), "--max-error", "2", "--quiet"], check=True)
+    for name, flags in [("colour webgpu", WEBGPU_FLAGS), ("colour webgl2", [])]:
+        status, shot, console, _, _ = open_viewer(flags, url + "?colour=colour.cbdam", converged)
+        save_screenshot(shot, name.replace(" ", "-") + ".png")
+        (reds, red_x), (blues, blue_x) = red_and_blue(shot)
+        print(f"{name}: backend {status and status.get('backend')}, draped {status and status.get('draped')}; "
+              f"{reds} red pixels at mean x {red_x:.0f}, {blues} blue at {blue_x:.0f}")
+        if not status or not converged(status) or not status.get("draped"):
+            failures.append(f"{name}: no draped convergence: {status}")
+            print("console:\n  " + "\n  ".join(console[-20:]))
+        elif status["cut"] != static_cut:
+            failures.append(f"{name}: the draped cut differs from the plain one")
+        # Measured: 95 523 red and 95 446 blue pixels of the 640x480 frame (Jacksboro's first
+        # view), both APIs; the plain terrain has none.
+        elif min(reds, blues) < 0.1 * WIDTH * HEIGHT or not red_x < WIDTH / 2 < blue_x:
+            failures.append(f"{name}: not red in the west and blue in the east: {reds} at {red_x:.0f}, "
+                            f"{blues} at {blue_x:.0f}")
+    # Without the colour, the height ramp: hardly any pure red or blue.
+    (reds, _), (blues, _) = red_and_blue(plain_shot)
+    if reds + blues > 0.01 * WIDTH * HEIGHT:
+        failures.append(f"colour: the plain terrain has {reds} red and {blues} blue pixels (the test cannot tell)")
+
+
 def start_server(cbdam, repository):
     """`cbdam serve REPOSITORY` on a free loopback port, any origin allowed; returns the process
     and its base URL."""
@@ -778,6 +839,7 @@ def main():
                     )
 
         check_flight(url, root, repository, cbdam, failures)
+        check_colour(url, root, repository, cbdam, static_cut, webgpu_shot, failures)
 
         # Three record requests refused (503), then a corrupt record (its checksum fails): each
         # is retried, and the page still converges to the same cut.

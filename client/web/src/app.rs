@@ -10,12 +10,12 @@ use std::rc::Rc;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use cbdam_client::access::RemoteSource;
+use cbdam_client::access::{ColouredSource, DataSource, RemoteSource};
 use cbdam_client::camera::Camera;
 use cbdam_client::controls::{self, Controls, Mode};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::patch::HalfPatch;
-use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
+use cbdam_client::refine::{FrameStats, HeadBytes, RefineConfig, Refiner};
 use cbdam_client::world::World;
 use cbdam_render::present::Presenter;
 use cbdam_render::{CacheConfig, Gpu, RenderOptions, Renderer, VertexFetch};
@@ -55,15 +55,22 @@ const FPS_WINDOW: usize = 60;
 static GPU_ERRORS: Mutex<Vec<String>> = Mutex::new(Vec::new());
 
 /// Starts the viewer on `canvas` for the repository at `repo_url` (absolute: a `.cbdam` file on
-/// a server with Range support, or a `cbdam serve` repository), decoding in Web Workers
-/// started from `worker_script` (the URL of `worker.js`; `None`: decode on the page). Returns
-/// at once; progress and errors go to `window.cbdam` ([`Status`]).
+/// a server with Range support, or a `cbdam serve` repository), with the colour repository at
+/// `colour_url` draped over it if given (`cbdam build IMAGE --colour --like REPO`), decoding in
+/// Web Workers started from `worker_script` (the URL of `worker.js`; `None`: decode on the
+/// page). Returns at once; progress and errors go to `window.cbdam` ([`Status`]).
 #[wasm_bindgen]
-pub fn start(canvas: HtmlCanvasElement, repo_url: String, worker_script: Option<String>) {
+pub fn start(
+    canvas: HtmlCanvasElement,
+    repo_url: String,
+    worker_script: Option<String>,
+    colour_url: Option<String>,
+) {
     let status = Status::install();
     install_panic_hook(status.clone());
     wasm_bindgen_futures::spawn_local(async move {
-        match App::new(canvas, &repo_url, worker_script.as_deref(), status.clone()).await {
+        let urls = (repo_url.as_str(), colour_url.as_deref());
+        match App::new(canvas, urls, worker_script.as_deref(), status.clone()).await {
             Ok(app) => run(Rc::new(RefCell::new(app))),
             Err(message) => status.fail(&message),
         }
@@ -122,7 +129,8 @@ struct App {
     canvas: HtmlCanvasElement,
     status: Status,
     world: World,
-    refiner: Refiner<RemoteSource, WorkerPool>,
+    /// Over the repository alone, or over it and a draped colour repository.
+    refiner: Refiner<Box<dyn DataSource>, WorkerPool>,
     /// Where the refiner's decode jobs run (a clone of its spawner), for the status.
     workers: WorkerPool,
     renderer: Renderer,
@@ -157,14 +165,35 @@ struct App {
 impl App {
     async fn new(
         canvas: HtmlCanvasElement,
-        repo_url: &str,
+        (repo_url, colour_url): (&str, Option<&str>),
         worker_script: Option<&str>,
         status: Status,
     ) -> Result<Self, String> {
         status.set("phase", "connecting");
-        let source = RemoteSource::connect(repo_url, FetchOptions::default())
+        let elevation = RemoteSource::connect(repo_url, FetchOptions::default())
             .await
             .map_err(|e| format!("cannot read the repository: {e}"))?;
+        // The heads the decode workers are set up from, kept: the sources move into the
+        // refiner.
+        let head = |s: &RemoteSource| {
+            let h = s.head_bytes();
+            (h.bytes.to_vec(), h.file_len)
+        };
+        let elevation_head = head(&elevation);
+        let (source, colour_head): (Box<dyn DataSource>, _) = match colour_url {
+            None => (Box::new(elevation), None),
+            Some(url) => {
+                let colour = RemoteSource::connect(url, FetchOptions::default())
+                    .await
+                    .map_err(|e| format!("cannot read the colour repository: {e}"))?;
+                let colour_head = head(&colour);
+                let paired = ColouredSource::new(elevation, colour).map_err(|e| {
+                    format!("cannot drape the colour repository {url} over the terrain: {e}")
+                })?;
+                (Box::new(paired), Some(colour_head))
+            }
+        };
+        status.set("draped", colour_head.is_some());
         let config = RefineConfig {
             budget: Some(REFINE_BUDGET),
             ..RefineConfig::default()
@@ -179,7 +208,10 @@ impl App {
             "cbdam_web"
         };
         if let Some(script) = worker_script {
-            let context = refiner.worker_context(refiner.source().head_bytes(), None);
+            let context = refiner.worker_context(
+                head_bytes(&elevation_head),
+                colour_head.as_ref().map(head_bytes),
+            );
             workers.start(script, module, &context, worker_count());
         }
         let world = *refiner.world();
@@ -254,7 +286,9 @@ impl App {
             pool_bytes: Some(POOL_BYTES),
             ..CacheConfig::default()
         };
-        let renderer = Renderer::new(gpu, world, cache).map_err(|e| e.to_string())?;
+        let draped = refiner.source().drape().is_some();
+        let renderer =
+            Renderer::with_colour(gpu, world, cache, draped).map_err(|e| e.to_string())?;
         // Storage buffers (WebGPU) or the texture path (WebGL2, no storage in vertex shaders).
         status.set(
             "vertexFetch",
@@ -611,6 +645,15 @@ fn run(app: Rc<RefCell<App>>) {
 fn request_frame(callback: &Closure<dyn FnMut()>) {
     if let Some(window) = web_sys::window() {
         let _ = window.request_animation_frame(callback.as_ref().unchecked_ref());
+    }
+}
+
+/// A repository's head as the decode workers' context takes it: its bytes and the file's
+/// length.
+fn head_bytes((bytes, file_len): &(Vec<u8>, u64)) -> HeadBytes<'_> {
+    HeadBytes {
+        bytes,
+        file_len: *file_len,
     }
 }
 

@@ -10,7 +10,8 @@
 //!
 //! The page exposes its state on `window.cbdam` ([`status`]) for people and tests.
 //! `index.html?flight=URL` plays a camera flight of `cbdam render --path` ([`flight`]) and
-//! measures its frames.
+//! measures its frames; `index.html?colour=URL` drapes a colour repository over the terrain
+//! (the core's `ColouredSource`, decoded in the workers beside the heights).
 //!
 //! Decoding runs in Web Workers ([`workers`]): `navigator.hardwareConcurrency − 1` of them (at
 //! least 1, at most 4), each running `worker.js`, which instantiates this same module (the

@@ -8,6 +8,7 @@
 //! | `backend` | `"webgpu"` or `"webgl"` (WebGL2, built with the `webgl` feature, the default) once an adapter is found |
 //! | `vertexFetch` | the renderer's path: `"storage"` (storage buffers, WebGPU) or `"texture"` (WebGL2) |
 //! | `adapter` | the adapter's name |
+//! | `draped` | whether a colour repository is draped over the terrain (`?colour=URL`) |
 //! | `error` | why the page failed (`phase == "failed"`), or `""` |
 //! | `frames` | frames drawn |
 //! | `refined`, `drawnHalves`, `triangles` | the cut: refined diamonds, half-patches, triangles |

@@ -1,7 +1,8 @@
 // Loads the viewer's wasm module and starts it on the canvas for the repository named by the
 // page URL: ?repo=URL (a .cbdam file on a server with Range support, or a `cbdam serve`
 // repository, http://host:port/v1/repos/NAME; relative URLs are resolved against the page), or
-// else by the page's <meta name="cbdam-repo"> (set by `cbdam web-export --repo`).
+// else by the page's <meta name="cbdam-repo"> (set by `cbdam web-export --repo`),
+// with ?colour=URL a colour repository draped over it.
 // Shows window.cbdam (the viewer's status, client/web/src/status.rs) in the overlay, and drives
 // the pixel-error slider.
 // Two builds of the viewer (scripts/web-build.sh): cbdam_web.js draws through WebGPU only;
@@ -81,7 +82,7 @@ function showStatus() {
   const state = s.frozen ? "FROZEN" : s.converged ? "converged" : "refining";
   overlay.textContent =
     `${s.phase} · ${s.backend || "-"}${s.vertexFetch === "texture" ? " (texture path)" : ""} · ` +
-    `${s.mode || "orbit"} · ${s.adapter || ""}\n` +
+    `${s.mode || "orbit"}${s.draped ? " · colour draped" : ""} · ${s.adapter || ""}\n` +
     `fps ${fmt(s.fps, 1)} (${fmt(s.frameMs, 1)} ms) · triangles ${fmt(s.triangles)}\n` +
     `cut ${fmt(s.refined)} diamonds, ${fmt(s.drawnHalves)} half-patches · ${state}\n` +
     `pixel error ${s.pixelError ? pixels(s.pixelError) : "-"} target, ${fmt(s.maxErrorPx, 2)} px max\n` +
@@ -141,8 +142,11 @@ if (!repo) {
     // ?workers=0 decodes on the page instead (for comparisons).
     const workers = new URLSearchParams(location.search).get("workers") !== "0";
     const script = workers ? new URL("./worker.js", import.meta.url).href : undefined;
-    module.start(canvas, new URL(repo, location.href).href, script);
     const params = new URLSearchParams(location.search);
+    // ?colour=URL drapes a colour repository (`cbdam build IMAGE --colour --like REPO`).
+    const colour = params.get("colour");
+    module.start(canvas, new URL(repo, location.href).href, script,
+      colour ? new URL(colour, location.href).href : undefined);
     if (params.get("flight")) playFlight(module, params.get("flight"), Number(params.get("fps") || 30));
   } catch (e) {
     fail("cannot load the viewer: " + e);
