@@ -32,7 +32,7 @@
 //! height pool as an `R32Sint` texture read with `textureLoad`), the same shader maths; the
 //! status's `backend` and `vertexFetch` and the overlay say which. A browser with neither is
 //! told so on the page. The GL backend brings wgpu-core and naga (WGSL → GLSL) into the module
-//! (0.73 MB → 2.44 MB after wasm-opt), so `scripts/web-build.sh` builds the crate twice, with
+//! (0.74 MB → 2.45 MB after wasm-opt), so `scripts/web-build.sh` builds the crate twice, with
 //! the `webgpu` feature alone (`cbdam_web`) and with the `webgl` feature alone (`cbdam_web_gl`),
 //! and the page's `main.js` loads the second only in browsers without a WebGPU adapter. The
 //! default features (both) give one module that picks its backend at run time.
