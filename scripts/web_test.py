@@ -30,9 +30,10 @@ and checks the pixels of a screenshot, not only the page's word:
   ends at a camera whose converged cut is the one `cbdam render --camera` gives for it; a drag
   ends a flight early; a flight that does not parse, or is not there, is named in the status
   with the reason.
-- A colour repository draped over the terrain (`?colour=URL`; built by `cbdam build IMAGE
-  --colour --like`, red in the west and blue in the east): the same cut, and the terrain drawn
-  red on the left and blue on the right, through WebGPU and WebGL2.
+- A colour repository draped over the terrain (`?colour=URL`, or written into the page by
+  `cbdam web-export --colour`; built by `cbdam build IMAGE --colour --like`, red in the west and
+  blue in the east): the same cut, and the terrain drawn red on the left and blue on the
+  right, through WebGPU and WebGL2.
 - No WebGPU flags (the browser offers only WebGL2): the page loads the bundle's WebGL2 module
   (a WebGPU browser loads only the small WebGPU one) and draws through WebGL2 (backend "webgl",
   the renderer's texture path), converges to the same cut, and terrain covers most of
@@ -670,7 +671,7 @@ def red_and_blue(png):
     return [(n, total / max(n, 1)) for n, total in (red, blue)]
 
 
-def check_colour(url, root, repository, cbdam, static_cut, plain_shot, failures):
+def check_colour(url, root, bundle, repository, cbdam, static_cut, plain_shot, failures):
     """A colour repository draped over the terrain: red in the west, blue in the east of the
     screenshot, through WebGPU and WebGL2, with the cut of the plain terrain (the elevation
     alone drives refinement)."""
@@ -682,8 +683,17 @@ def check_colour(url, root, repository, cbdam, static_cut, plain_shot, failures)
     write_png(image, width, height, lambda x, y: (200, 30, 30) if x < width // 2 else (30, 60, 200))
     subprocess.run([cbdam, "build", image, "--colour", "--like", repository, "-o",
                     os.path.join(root, "colour.cbdam"), "--max-error", "2", "--quiet"], check=True)
-    for name, flags in [("colour webgpu", WEBGPU_FLAGS), ("colour webgl2", [])]:
-        status, shot, console, _, _ = open_viewer(flags, url + "?colour=colour.cbdam", converged)
+    # The same export with the colour written into the page (`web-export --colour`): drawn
+    # without ?colour=.
+    meta_root = os.path.join(root, "draped")
+    subprocess.run([cbdam, "web-export", meta_root, "--bundle", bundle,
+                    "--repo", repository, "--colour", os.path.join(root, "colour.cbdam")],
+                   check=True, stdout=subprocess.DEVNULL)
+    runs = [("colour webgpu", WEBGPU_FLAGS, url + "?colour=colour.cbdam"),
+            ("colour webgl2", [], url + "?colour=colour.cbdam"),
+            ("colour web-export", WEBGPU_FLAGS, url.replace("/index.html", "/draped/index.html"))]
+    for name, flags, page in runs:
+        status, shot, console, _, _ = open_viewer(flags, page, converged)
         save_screenshot(shot, name.replace(" ", "-") + ".png")
         (reds, red_x), (blues, blue_x) = red_and_blue(shot)
         print(f"{name}: backend {status and status.get('backend')}, draped {status and status.get('draped')}; "
@@ -839,7 +849,7 @@ def main():
                     )
 
         check_flight(url, root, repository, cbdam, failures)
-        check_colour(url, root, repository, cbdam, static_cut, webgpu_shot, failures)
+        check_colour(url, root, bundle, repository, cbdam, static_cut, webgpu_shot, failures)
 
         # Three record requests refused (503), then a corrupt record (its checksum fails): each
         # is retried, and the page still converges to the same cut.

@@ -78,7 +78,7 @@ enum Command {
     Serve(ServeArgs),
     /// Write the browser viewer as static files into DIR, for any static server that honours
     /// Range requests: open DIR/index.html?repo=URL of a `.cbdam` file (or, with --repo, just
-    /// index.html).
+    /// index.html; --colour adds a colour repository draped over it, as `?colour=URL` does).
     ///
     /// The viewer's files come from the bundle scripts/web-build.sh writes (target/web-bundle):
     /// --bundle DIR, else $CBDAM_WEB_BUNDLE, else target/web-bundle in the working directory,
@@ -247,6 +247,11 @@ pub struct WebExportArgs {
     /// http(s) URL of one (its server must honour Range requests and allow the page's origin).
     #[arg(long, value_name = "FILE_OR_URL")]
     repo: Option<String>,
+    /// A colour repository the page drapes over --repo without `?colour=` (built by `cbdam
+    /// build IMAGE --colour --like REPO`): a .cbdam file (copied into DIR; checked to pair with
+    /// --repo) or an http(s) URL.
+    #[arg(long, value_name = "FILE_OR_URL", requires = "repo")]
+    colour: Option<String>,
     /// The viewer's bundle (default: found as the command's help says).
     #[arg(long, value_name = "DIR")]
     bundle: Option<PathBuf>,

@@ -9,18 +9,21 @@
 //!
 //! With `--repo FILE` the repository is copied into DIR and the page opens it when no
 //! `?repo=` is given; with `--repo URL` the page opens that URL (its server must allow the
-//! page's origin and honour Range requests).
+//! page's origin and honour Range requests). `--colour FILE_OR_URL` does the same for a colour
+//! repository the page drapes over it without `?colour=` (two files are checked to pair first).
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use cbdam_client::access::{ColouredSource, LocalSource};
 use cbdam_codec::repository::Repository;
 
 use crate::WebExportArgs;
 
-/// The slot in the bundle's index.html (client/web/www/index.html) that names the repository
-/// opened without `?repo=`.
-const REPO_SLOT: &str = r#"<meta name="cbdam-repo" content="">"#;
+/// The slots in the bundle's index.html (client/web/www/index.html) that name the repository
+/// opened without `?repo=` and the colour repository draped without `?colour=`.
+const REPO_SLOT: &str = "cbdam-repo";
+const COLOUR_SLOT: &str = "cbdam-colour";
 
 /// Where the bundle is looked for when `--bundle` is not given, in order.
 fn bundle_candidates() -> Vec<PathBuf> {
@@ -84,21 +87,66 @@ enum DefaultRepo {
     Url(String),
 }
 
-fn default_repo(repo: &str) -> Result<DefaultRepo> {
+impl DefaultRepo {
+    /// What the page's slot says: the copy's file name, or the URL.
+    fn location(&self) -> &str {
+        match self {
+            DefaultRepo::File(_, name) => name,
+            DefaultRepo::Url(url) => url,
+        }
+    }
+}
+
+/// The repository given to `flag` (`--repo`, `--colour`).
+fn default_repo(flag: &str, repo: &str) -> Result<DefaultRepo> {
     if repo.starts_with("http://") || repo.starts_with("https://") {
         return Ok(DefaultRepo::Url(repo.to_string()));
     }
     let path = PathBuf::from(repo);
     if !path.is_file() {
-        bail!("--repo {repo}: no such file (give a .cbdam file or an http(s):// URL)");
+        bail!("{flag} {repo}: no such file (give a .cbdam file or an http(s):// URL)");
     }
     // Checked now, not when someone opens the page.
-    Repository::open(&path).with_context(|| format!("--repo {repo}: not a readable repository"))?;
+    Repository::open(&path).with_context(|| format!("{flag} {repo}: not a readable repository"))?;
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
-        .with_context(|| format!("--repo {repo}: no file name"))?;
+        .with_context(|| format!("{flag} {repo}: no file name"))?;
     Ok(DefaultRepo::File(path, name))
+}
+
+/// A colour repository for the terrain `repo`: two files are checked to pair as `cbdam render
+/// --colour` pairs them (a URL is the page's to check), and must not share a file name.
+fn default_colour(repo: &DefaultRepo, colour: &str) -> Result<DefaultRepo> {
+    let c = default_repo("--colour", colour)?;
+    if let (DefaultRepo::File(rp, rn), DefaultRepo::File(cp, cn)) = (repo, &c) {
+        if rn == cn {
+            bail!("--colour {colour}: the same file name as --repo's ({rn}): rename one");
+        }
+        let open =
+            |p: &Path| LocalSource::open(p).with_context(|| format!("opening {}", p.display()));
+        ColouredSource::new(open(rp)?, open(cp)?)
+            .with_context(|| format!("--colour {colour} does not drape over {}", rp.display()))?;
+    }
+    Ok(c)
+}
+
+/// `page` with the slot `<meta name="NAME" content="">` filled with `value`; an error if the
+/// bundle's page has no such slot.
+fn fill_slot(page: &str, name: &str, value: &str, bundle: &Path) -> Result<String> {
+    let slot = format!(r#"<meta name="{name}" content="">"#);
+    if !page.contains(&slot) {
+        bail!(
+            "{}/index.html has no {name} slot (an older bundle?): rebuild it with \
+             scripts/web-build.sh",
+            bundle.display()
+        );
+    }
+    let filled = format!(
+        r#"<meta name="{name}" content="{}">"#,
+        escape_attribute(value)
+    );
+    Ok(page.replacen(&slot, &filled, 1))
 }
 
 /// Escapes text for an HTML attribute.
@@ -111,7 +159,15 @@ fn escape_attribute(s: &str) -> String {
 
 pub fn run(args: &WebExportArgs) -> Result<()> {
     let bundle = find_bundle(args.bundle.as_deref())?;
-    let repo = args.repo.as_deref().map(default_repo).transpose()?;
+    let repo = args
+        .repo
+        .as_deref()
+        .map(|r| default_repo("--repo", r))
+        .transpose()?;
+    let colour = match (&repo, args.colour.as_deref()) {
+        (Some(r), Some(c)) => Some(default_colour(r, c)?),
+        _ => None,
+    };
     let out = &args.dir;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     // Copying the bundle onto itself would truncate its files, and filling in its page would
@@ -138,27 +194,13 @@ pub fn run(args: &WebExportArgs) -> Result<()> {
         if name == "index.html" {
             let page = std::fs::read_to_string(e.path())
                 .with_context(|| format!("reading {}", e.path().display()))?;
-            let page = match &repo {
-                None => page,
-                Some(r) => {
-                    if !page.contains(REPO_SLOT) {
-                        bail!(
-                            "{}/index.html has no default-repository slot (an older bundle?): \
-                             rebuild it with scripts/web-build.sh",
-                            bundle.display()
-                        );
-                    }
-                    let url = match r {
-                        DefaultRepo::File(_, name) => name.as_str(),
-                        DefaultRepo::Url(url) => url.as_str(),
-                    };
-                    let filled = format!(
-                        r#"<meta name="cbdam-repo" content="{}">"#,
-                        escape_attribute(url)
-                    );
-                    page.replacen(REPO_SLOT, &filled, 1)
-                }
-            };
+            let mut page = page;
+            if let Some(r) = &repo {
+                page = fill_slot(&page, REPO_SLOT, r.location(), &bundle)?;
+            }
+            if let Some(c) = &colour {
+                page = fill_slot(&page, COLOUR_SLOT, c.location(), &bundle)?;
+            }
             std::fs::write(&to, page).with_context(|| format!("writing {}", to.display()))?;
         } else {
             std::fs::copy(e.path(), &to)
@@ -166,15 +208,21 @@ pub fn run(args: &WebExportArgs) -> Result<()> {
         }
         files += 1;
     }
-    let opens = match &repo {
-        Some(DefaultRepo::File(path, name)) => {
+    for r in repo.iter().chain(&colour) {
+        if let DefaultRepo::File(path, name) = r {
             let to = out.join(name);
             std::fs::copy(path, &to)
                 .with_context(|| format!("copying {} to {}", path.display(), to.display()))?;
-            format!("index.html (opens {name})")
         }
-        Some(DefaultRepo::Url(url)) => format!("index.html (opens {url})"),
-        None => "index.html?repo=URL".to_string(),
+    }
+    let opens = match (&repo, &colour) {
+        (Some(r), None) => format!("index.html (opens {})", r.location()),
+        (Some(r), Some(c)) => format!(
+            "index.html (opens {} with {} draped)",
+            r.location(),
+            c.location()
+        ),
+        (None, _) => "index.html?repo=URL".to_string(),
     };
     println!(
         "web-export: the viewer ({files} files from {}) is in {}; serve that folder from any \

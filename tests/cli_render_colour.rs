@@ -8,12 +8,12 @@ use std::path::{Path, PathBuf};
 use crate::util::*;
 
 /// Jacksboro's grid, 403 × 344 samples.
-const W: usize = 403;
-const H: usize = 344;
+pub(crate) const W: usize = 403;
+pub(crate) const H: usize = 344;
 const RED: [u8; 3] = [200, 30, 30];
 const BLUE: [u8; 3] = [30, 60, 200];
 
-fn write_png(path: &Path, w: usize, h: usize, rgb: impl Fn(usize, usize) -> [u8; 3]) {
+pub(crate) fn write_png(path: &Path, w: usize, h: usize, rgb: impl Fn(usize, usize) -> [u8; 3]) {
     let data: Vec<u8> = (0..w * h).flat_map(|i| rgb(i % w, i / w)).collect();
     let f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut e = png::Encoder::new(f, w as u32, h as u32);
@@ -22,7 +22,7 @@ fn write_png(path: &Path, w: usize, h: usize, rgb: impl Fn(usize, usize) -> [u8;
     e.write_header().unwrap().write_image_data(&data).unwrap();
 }
 
-fn build_colour(dir: &Path, img: &Path, like: Option<&Path>, name: &str) -> PathBuf {
+pub(crate) fn build_colour(dir: &Path, img: &Path, like: Option<&Path>, name: &str) -> PathBuf {
     let out = dir.join(name);
     let mut args = vec![
         "build".to_string(),

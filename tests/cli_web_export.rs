@@ -4,6 +4,7 @@
 
 use std::path::Path;
 
+use crate::cli_render_colour::{H, W, build_colour, write_png};
 use crate::util::{cbdam, jacksboro, s, stderr};
 
 /// A stand-in for target/web-bundle: the files `cbdam serve --web` and the export require, with
@@ -12,7 +13,8 @@ fn fake_bundle(dir: &Path) {
     std::fs::create_dir_all(dir).unwrap();
     std::fs::write(
         dir.join("index.html"),
-        "<head>\n<meta name=\"cbdam-repo\" content=\"\">\n</head>\n",
+        "<head>\n<meta name=\"cbdam-repo\" content=\"\">\n\
+         <meta name=\"cbdam-colour\" content=\"\">\n</head>\n",
     )
     .unwrap();
     std::fs::write(dir.join("cbdam_web.js"), "export default 1;\n").unwrap();
@@ -113,4 +115,84 @@ fn refuses_a_missing_bundle_and_a_file_that_is_no_repository() {
     let e = stderr(&o);
     assert!(e.contains("not a readable repository"), "{e}");
     assert!(!out.exists(), "nothing is written when the input is bad");
+}
+
+/// `--colour`: a colour repository copied beside the terrain and written into the page's colour
+/// slot; one that does not drape over the terrain (here the terrain itself), or one with the
+/// terrain's file name, is refused with the reason and nothing is written.
+#[test]
+fn exports_a_colour_repository_draped_over_the_terrain() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bundle = tmp.path().join("bundle");
+    fake_bundle(&bundle);
+    let repo = jacksboro(tmp.path());
+    let img = tmp.path().join("ortho.png");
+    write_png(&img, W, H, |x, _| {
+        if x < W / 2 {
+            [200, 30, 30]
+        } else {
+            [30, 60, 200]
+        }
+    });
+    let colour = build_colour(tmp.path(), &img, Some(&repo), "ortho.cbdam");
+    let out = tmp.path().join("site");
+    let export = |out: &Path, colour: &Path| {
+        cbdam(&[
+            "web-export",
+            &s(out),
+            "--bundle",
+            &s(&bundle),
+            "--repo",
+            &s(&repo),
+            "--colour",
+            &s(colour),
+        ])
+    };
+    let o = export(&out, &colour);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(out.join("ortho.cbdam")).unwrap(),
+        std::fs::read(&colour).unwrap()
+    );
+    let page = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(
+        page.contains("<meta name=\"cbdam-repo\" content=\"j.cbdam\">")
+            && page.contains("<meta name=\"cbdam-colour\" content=\"ortho.cbdam\">"),
+        "{page}"
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).contains("with ortho.cbdam draped"));
+
+    let bad = tmp.path().join("bad");
+    let o = export(&bad, &repo);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("the same file name as --repo's (j.cbdam)"),
+        "{e}"
+    );
+    let elevation = tmp.path().join("elevation.cbdam");
+    std::fs::copy(&repo, &elevation).unwrap();
+    let o = export(&bad, &elevation);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("does not drape over") && e.contains("colour"),
+        "{e}"
+    );
+    assert!(!bad.exists(), "nothing is written when the colour is bad");
+
+    // --colour needs --repo.
+    let o = cbdam(&[
+        "web-export",
+        &s(&bad),
+        "--bundle",
+        &s(&bundle),
+        "--colour",
+        &s(&colour),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("--repo"),
+        "{}",
+        stderr(&o)
+    );
 }

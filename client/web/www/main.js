@@ -2,7 +2,7 @@
 // page URL: ?repo=URL (a .cbdam file on a server with Range support, or a `cbdam serve`
 // repository, http://host:port/v1/repos/NAME; relative URLs are resolved against the page), or
 // else by the page's <meta name="cbdam-repo"> (set by `cbdam web-export --repo`),
-// with ?colour=URL a colour repository draped over it.
+// with ?colour=URL (or <meta name="cbdam-colour">) a colour repository draped over it.
 // Shows window.cbdam (the viewer's status, client/web/src/status.rs) in the overlay, and drives
 // the pixel-error slider.
 // Two builds of the viewer (scripts/web-build.sh): cbdam_web.js draws through WebGPU only;
@@ -144,7 +144,8 @@ if (!repo) {
     const script = workers ? new URL("./worker.js", import.meta.url).href : undefined;
     const params = new URLSearchParams(location.search);
     // ?colour=URL drapes a colour repository (`cbdam build IMAGE --colour --like REPO`).
-    const colour = params.get("colour");
+    const colour = params.get("colour") ||
+      document.querySelector('meta[name="cbdam-colour"]')?.content;
     module.start(canvas, new URL(repo, location.href).href, script,
       colour ? new URL(colour, location.href).href : undefined);
     if (params.get("flight")) playFlight(module, params.get("flight"), Number(params.get("fps") || 30));
