@@ -11,6 +11,7 @@ patches with their own tint below 60 % of the height range, and ±3 levels of ha
 flat regions, smooth gradients, sharp edges and sensor-like noise together. Standard library
 only (no numpy / PIL).
 """
+import os
 import struct
 import sys
 import zlib
@@ -58,16 +59,21 @@ def main():
             n = ((i * 2654435761 + j * 40503) >> 8) % 7 - 3
             row += bytes(max(0, min(255, int(v * shade) + n)) for v in c)
         rows.append(bytes(row))
+    write_png(out, W, H, rows)
+    print(f"{out}: {W}x{H} RGB")
+
+
+def write_png(path, width, height, rows):
+    """Writes an 8-bit RGB PNG (atomically) from `rows`, each a filter byte (0) and
+    3 * `width` bytes; also used by scripts/web_test.py."""
     def chunk(kind, data):
         return (struct.pack(">I", len(data)) + kind + data
                 + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
-    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 2, 0, 0, 0))
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
            + chunk(b"IDAT", zlib.compress(b"".join(rows), 9)) + chunk(b"IEND", b""))
-    with open(out + ".tmp", "wb") as f:
+    with open(path + ".tmp", "wb") as f:
         f.write(png)
-    import os
-    os.replace(out + ".tmp", out)
-    print(f"{out}: {W}x{H} RGB")
+    os.replace(path + ".tmp", path)
 
 
 if __name__ == "__main__":

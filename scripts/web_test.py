@@ -67,6 +67,8 @@ import threading
 import time
 import zlib
 
+from ortho_from_dem import write_png
+
 import websocket  # websocket-client, pinned by scripts/web-test.sh
 
 CHROMIUM = os.environ.get("CBDAM_CHROMIUM", "/usr/lib/chromium/chromium")
@@ -647,16 +649,6 @@ def check_flight(url, root, repository, cbdam, failures):
             failures.append(f"flight {name}: expected an error naming it and {reason!r}, got {status}")
 
 
-def write_png(path, width, height, rgb):
-    """An 8-bit RGB PNG whose pixel (x, y) is `rgb(x, y)`."""
-    raw = b"".join(b"\0" + bytes(c for x in range(width) for c in rgb(x, y)) for y in range(height))
-    chunk = lambda kind, data: (struct.pack(">I", len(data)) + kind + data  # noqa: E731
-                                + struct.pack(">I", zlib.crc32(kind + data)))
-    with open(path, "wb") as f:
-        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
-                + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
-
-
 def red_and_blue(png):
     """(pixels, mean x) of the clearly red and of the clearly blue pixels of a screenshot."""
     width, _, channels, rows = decode_png(png)
@@ -680,7 +672,9 @@ def check_colour(url, root, bundle, repository, cbdam, static_cut, plain_shot, f
         subprocess.run([cbdam, "inspect", repository], check=True, capture_output=True, text=True).stdout,
     )[0])
     image = os.path.join(root, "colour.png")
-    write_png(image, width, height, lambda x, y: (200, 30, 30) if x < width // 2 else (30, 60, 200))
+    # Red west, blue east (PNG rows: a filter byte, then RGB).
+    row = b"\0" + bytes((200, 30, 30)) * (width // 2) + bytes((30, 60, 200)) * (width - width // 2)
+    write_png(image, width, height, [row] * height)
     subprocess.run([cbdam, "build", image, "--colour", "--like", repository, "-o",
                     os.path.join(root, "colour.cbdam"), "--max-error", "2", "--quiet"], check=True)
     # The same export with the colour written into the page (`web-export --colour`): drawn

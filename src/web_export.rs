@@ -15,7 +15,6 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use cbdam_client::access::{ColouredSource, LocalSource};
 use cbdam_codec::repository::Repository;
 
 use crate::WebExportArgs;
@@ -123,10 +122,9 @@ fn default_colour(repo: &DefaultRepo, colour: &str) -> Result<DefaultRepo> {
         if rn == cn {
             bail!("--colour {colour}: the same file name as --repo's ({rn}): rename one");
         }
-        let open =
-            |p: &Path| LocalSource::open(p).with_context(|| format!("opening {}", p.display()));
-        ColouredSource::new(open(rp)?, open(cp)?)
-            .with_context(|| format!("--colour {colour} does not drape over {}", rp.display()))?;
+        // Paired as `cbdam render --colour` pairs them.
+        crate::session::terrain_source(&rp.to_string_lossy(), Some(&cp.to_string_lossy()))
+            .with_context(|| format!("--colour {colour}"))?;
     }
     Ok(c)
 }

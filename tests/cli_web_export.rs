@@ -176,7 +176,7 @@ fn exports_a_colour_repository_draped_over_the_terrain() {
     assert!(!o.status.success());
     let e = stderr(&o);
     assert!(
-        e.contains("does not drape over") && e.contains("colour"),
+        e.contains("draping the colour repository") && e.contains("not a colour one"),
         "{e}"
     );
     assert!(!bad.exists(), "nothing is written when the colour is bad");
