@@ -153,7 +153,7 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
     if args.timings {
         eprintln!(
             "{} M lattice points/s)",
-            timings(&s.stages, start, s.lattice_points)
+            timings(&s.stages, start, s.lattice_points.min(s.held_points))
         );
     }
     if args.quiet {
@@ -179,6 +179,14 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
         plan.quantizer.k(),
         start.elapsed().as_secs_f64()
     );
+    if s.held_points < s.lattice_points {
+        println!(
+            "  the build held {} of the lattice's points ({:.3} %): every point around the finest \
+             inputs, every 2^s-th where only inputs of stride 2^s lie",
+            s.held_points,
+            100.0 * s.held_points as f64 / s.lattice_points as f64
+        );
+    }
     if s.capped {
         println!(
             "  the memory limit capped the lattice: the finest input is finer than {:.4}°, its \

@@ -79,7 +79,7 @@ fn check_reconstruction(planet: &PlanetGrid, encoded: &Encoded) -> usize {
     let s = cube.side();
     let mut checked = 0;
     for f in 0..6u8 {
-        let input = planet.face(f);
+        let input = &planet.face_grid(f);
         for y in 0..=s {
             for x in 0..=s {
                 let at = (y * (s + 1) + x) as usize;
@@ -290,7 +290,7 @@ fn random_cuts_conform_and_their_halves_agree_along_the_cube_edges() {
 #[test]
 fn inconsistent_or_misshapen_planets_are_refused() {
     let planet = relief(3, 2, 1);
-    let faces: Vec<HeightGrid> = (0..6).map(|f| planet.face(f).clone()).collect();
+    let faces: Vec<HeightGrid> = (0..6).map(|f| planet.face_grid(f)).collect();
     assert!(PlanetGrid::new(3, 2, faces.clone()).is_ok());
     // Face 0's corner (0, 0) is shared with two other faces.
     let mut bad = faces.clone();
@@ -329,7 +329,7 @@ fn planar_and_planet_decoders_refuse_each_others_hierarchies() {
     let encoded = encode_planet(&planet, q, &opts(3, CoderKind::AdaptiveTokens)).unwrap();
     let e: CodecError = reconstruct_finest(&encoded).unwrap_err();
     assert!(e.to_string().contains("cube-sphere"), "{e}");
-    assert!(verify(&encoded, planet.face(0)).is_err());
+    assert!(verify(&encoded, &planet.face_grid(0)).is_err());
     let plane = HeightGrid::all_valid(9, 9, (0..81).collect());
     let flat = encode(&plane, q, &opts(3, CoderKind::AdaptiveTokens)).unwrap();
     assert!(verify_planet(&flat, &planet).is_err());
@@ -450,7 +450,7 @@ fn measured_surface_error(planet: &PlanetGrid, id: DiamondId, p: &[i32]) -> f64 
         let uu = (g.u.0 * g.u.0 + g.u.1 * g.u.1) as f64;
         for y in y0..=y1 {
             for x in x0..=x1 {
-                let Some(want) = planet.face(face).get(x, y) else {
+                let Some(want) = planet.get(face, x, y) else {
                     continue;
                 };
                 let d = (x - g.origin.0, y - g.origin.1);
@@ -675,7 +675,7 @@ fn valid_samples_are_counted_once_per_surface_point_from_the_masks() {
             for y in 0..=s {
                 for x in 0..=s {
                     let own = d.canonical_point(f, x, y) == Some(FacePoint::new(f, x, y));
-                    want += u64::from(own && planet.face(f).is_valid(x, y));
+                    want += u64::from(own && planet.validity(f, x, y) == Some(true));
                 }
             }
         }

@@ -29,8 +29,9 @@ use cbdam_codec::error::CodecError;
 use cbdam_codec::geodesy::cube_map::{FaceLattice, lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
 use cbdam_codec::geometry::Domain;
+use cbdam_codec::hierarchy::planet::tile_log2;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
-use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, Resolution, encode_planet};
+use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, PlanetTile, encode_planet};
 use cbdam_codec::input::{Dem, GeoRef, ReadOptions, TileReader};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
@@ -44,10 +45,11 @@ const METRES_PER_DEGREE: f64 = 111_195.0;
 /// WGS 84 itself, and NAD83, ETRS89 and GDA94, whose datums are within about 2 m of it.
 pub const GEOGRAPHIC_EPSG: [u32; 4] = [4326, 4269, 4258, 4283];
 
-/// Bytes the planet build holds per lattice point of the six faces, measured on the ETOPO5
-/// planet with margin (`/usr/bin/time -v cbdam build data/etopo5_global.tif --planet
-/// --max-error 16`: 482 MB peak for 25.2 M points, 19.6 B a point): the face grids (5 B), the
-/// resampling winners (1 B) and the encoder's per-diamond refinements of two levels.
+/// Bytes the planet build holds per lattice point its tiles hold ([`PlanetGrid`]), measured on
+/// the ETOPO5 planet with margin (`/usr/bin/time -v cbdam build data/etopo5_global.tif --planet
+/// --max-error 16`: 482 MB peak for 25.2 M points, 19.6 B a point): the tiles (6 B with
+/// classes), the resampling winners (1 B) and the encoder's per-diamond refinements of two
+/// levels.
 pub const BYTES_PER_LATTICE_POINT: u64 = 24;
 
 /// How an input's pixels lie on the Earth.
@@ -497,7 +499,7 @@ pub fn lattice_spacing_deg(n: usize, k: u32) -> f64 {
 
 /// The lattice's level pairs `K`: the given one, or the coarsest at least as fine as the finest
 /// input; in both cases refused if the build would need more than `memory_limit` bytes
-/// ([`BYTES_PER_LATTICE_POINT`]).
+/// ([`BYTES_PER_LATTICE_POINT`] per point its tiles hold, [`plan_tiles`]).
 pub fn choose_level(
     inputs: &PlanetInputs,
     n: usize,
@@ -505,24 +507,20 @@ pub fn choose_level(
     memory_limit: u64,
 ) -> Result<u32> {
     const MAX_K: u32 = 16;
-    let fits = |k: u32| {
-        let side = (n as u64 - 1) << k;
-        6 * (side + 1) * (side + 1) * BYTES_PER_LATTICE_POINT <= memory_limit
-    };
-    let need = |k: u32| {
-        let side = (n as u64 - 1) << k;
-        6 * (side + 1) * (side + 1) * BYTES_PER_LATTICE_POINT
+    let need = |k: u32| -> Result<u64> {
+        Ok(held_points(n, k, &plan_tiles(inputs, n, k)?)? * BYTES_PER_LATTICE_POINT)
     };
     if let Some(k) = forced {
         if k > MAX_K {
             bail!("--planet-level {k}: at most {MAX_K}");
         }
-        if !fits(k) {
+        let need = need(k)?;
+        if need > memory_limit {
             bail!(
                 "--planet-level {k} ({:.3}° lattice) needs about {} MiB, over the memory limit \
                  of {} MiB",
                 lattice_spacing_deg(n, k),
-                need(k) >> 20,
+                need >> 20,
                 memory_limit >> 20
             );
         }
@@ -532,102 +530,221 @@ pub fn choose_level(
     let wanted = (0..=MAX_K)
         .find(|&k| lattice_spacing_deg(n, k) <= finest * (1.0 + 1e-9))
         .unwrap_or(MAX_K);
-    if fits(wanted) {
-        return Ok(wanted);
+    for k in (0..=wanted).rev() {
+        if need(k)? <= memory_limit {
+            return Ok(k);
+        }
     }
-    let capped = (0..wanted).rev().find(|&k| fits(k));
-    match capped {
-        Some(k) => Ok(k),
-        None => bail!(
-            "even the coarsest planet lattice needs about {} MiB, over the memory limit of {} MiB",
-            need(0) >> 20,
-            memory_limit >> 20
-        ),
-    }
+    bail!(
+        "even the coarsest planet lattice needs about {} MiB, over the memory limit of {} MiB",
+        need(0)? >> 20,
+        memory_limit >> 20
+    )
 }
 
-/// The resampled lattice: integer heights under `plan`, and per face point which input won.
+/// The points the tiles of an `n`, `k` planet hold under `plan` (per face, per tile, `log2` of
+/// the stride).
+fn held_points(n: usize, k: u32, plan: &[Vec<u32>]) -> Result<u64> {
+    let domain = Domain::cube_sphere(n, k)?;
+    let rects = PlanetGrid::tile_rects(&domain);
+    Ok(plan
+        .iter()
+        .flat_map(|strides| {
+            strides.iter().zip(&rects).map(|(&s, &(x0, y0, x1, y1))| {
+                (((x1 - x0) >> s) as u64 + 1) * (((y1 - y0) >> s) as u64 + 1)
+            })
+        })
+        .sum())
+}
+
+/// The stride (`log2`) at which each tile of each face of the `n`, `k` lattice holds its
+/// points ([`PlanetGrid`]): the finest stride of the inputs whose samples lie in or near it
+/// (within a few of their cells, across face edges too), and where only the coarsest inputs
+/// lie, their stride (at most the tile's side). An input's footprint is found from its sample
+/// positions (every `q`-th, close enough that no covered lattice point is farther than the
+/// margin from one), so a fine inset makes only the tiles around it dense. [`resample`] makes
+/// a tile denser still should one of its points turn out to take a finer input's sample.
+pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<Vec<Vec<u32>>> {
+    let domain = Domain::cube_sphere(n, k)?;
+    let cube = *domain.cube().expect("a cube-sphere");
+    let side = cube.side();
+    let t = tile_log2(side);
+    let rects = PlanetGrid::tile_rects(&domain);
+    let strides = inputs.strides(n, k);
+    let coarsest = strides.iter().copied().max().unwrap_or(0);
+    let mut plan = vec![vec![coarsest.min(t); rects.len()]; usize::from(domain.faces())];
+    let tile_index = |x: i64, y: i64| {
+        let across = ((side + (1 << t) - 1) >> t).max(1);
+        let (bx, by) = ((x >> t).min(across - 1), (y >> t).min(across - 1));
+        (by * across + bx) as usize
+    };
+    for (input, &j) in inputs.inputs.iter().zip(&strides) {
+        if j >= coarsest {
+            continue;
+        }
+        let mark = j.min(t);
+        // Sample positions `q` apart are at most `q·2^(j+1)` lattice steps apart (an input's
+        // spacing is under twice its stride); a lattice point it covers lies within one cell
+        // of its samples.
+        let cell = 2i64 << j;
+        let q = ((1i64 << t) / (4 * cell)).max(1) as usize;
+        let margin = (q as i64 * cell + cell).min(side);
+        let along = |len: usize| (0..len).step_by(q).chain([len - 1]);
+        let positions: Vec<(usize, usize)> = along(input.height)
+            .flat_map(|r| along(input.width).map(move |c| (c, r)))
+            .collect();
+        let hits: Vec<(u8, usize)> = positions
+            .par_iter()
+            .flat_map_iter(|&(c, r)| {
+                let (face, s, tt) = lat_lon_to_face_st(input.lat_lon_of(c, r));
+                let (x, y) = (
+                    (s * side as f64).round() as i64,
+                    (tt * side as f64).round() as i64,
+                );
+                let mut hits = Vec::new();
+                for dy in [-margin, 0, margin] {
+                    for dx in [-margin, 0, margin] {
+                        let Some(p) = cube.locate(face, x + dx, y + dy) else {
+                            continue;
+                        };
+                        let (reps, len) = cube.representations(p);
+                        for r in &reps[..len] {
+                            hits.push((r.face, tile_index(r.x, r.y)));
+                        }
+                    }
+                }
+                hits
+            })
+            .collect();
+        for (face, i) in hits {
+            let s = &mut plan[usize::from(face)][i];
+            *s = (*s).min(mark);
+        }
+    }
+    Ok(plan)
+}
+
+/// The resampled lattice: integer heights under `plan`, and per point held which input won.
 pub struct Resampled {
     /// The planet's heights (with resolution classes when an input is coarser than the
     /// lattice, [`input_stride`]).
     pub planet: PlanetGrid,
-    /// Per face, per lattice point (row-major): the winning input's index, `u8::MAX` for none.
-    pub winners: Vec<Vec<u8>>,
+    /// Per face, per tile, per point the tile holds: the winning input's index, `u8::MAX` for
+    /// none.
+    pub winners: Vec<Vec<Vec<u8>>>,
     /// Per input, `log2` of its stride on the lattice ([`input_stride`]).
     pub strides: Vec<u32>,
 }
 
+impl Resampled {
+    /// The input that won lattice point `(x, y)` of `face` (inside the face) on that face's
+    /// tile, if the tile holds the point.
+    #[inline]
+    fn winner(&self, face: u8, x: i64, y: i64) -> Option<u8> {
+        let i = self.planet.tile_index(x, y);
+        let k = self.planet.tiles(face)[i].index(x, y)?;
+        Some(self.winners[usize::from(face)][i][k])
+    }
+}
+
 /// Resamples the inputs onto the `N`, `K` cube-sphere (see the module documentation): the
 /// finest input covering a point gives its height where the point lies on that input's
-/// stride ([`input_stride`]), and makes it coarse only between.
+/// stride ([`input_stride`]), and makes it coarse only between. Tile by tile, each at the
+/// stride [`plan_tiles`] gives it.
 pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Result<Resampled> {
     let domain = Domain::cube_sphere(n, k)?;
     let side = domain.cube().expect("a cube-sphere").side();
-    let points = side as usize + 1;
     let lattice_deg = lattice_spacing_deg(n, k);
     let strides = inputs.strides(n, k);
     let variable = strides.iter().any(|&j| j > 0);
-    let mut faces = Vec::with_capacity(6);
-    let mut winners = Vec::with_capacity(6);
-    let mut classes = Vec::with_capacity(6);
-    for face in 0..domain.faces() {
-        let lattice = FaceLattice::new(face, side);
-        let mut values = vec![0; points * points];
-        let mut valid = vec![false; points * points];
-        let mut won = vec![u8::MAX; points * points];
-        let mut class = vec![HOLE; points * points];
+    let tile_strides = plan_tiles(inputs, n, k)?;
+    let rects = PlanetGrid::tile_rects(&domain);
+    let lattices: Vec<FaceLattice> = (0..domain.faces())
+        .map(|face| FaceLattice::new(face, side))
+        .collect();
+    // One tile's points at stride 2^s: heights, validity, classes and winners.
+    let evaluate = |face: u8, rect: (i64, i64, i64, i64), s: u32| {
+        let (x0, y0, x1, y1) = rect;
+        let (w, h) = (((x1 - x0) >> s) as usize + 1, ((y1 - y0) >> s) as usize + 1);
+        let lattice = &lattices[usize::from(face)];
+        let mut values = vec![0; w * h];
+        let mut valid = vec![false; w * h];
+        let mut won = vec![u8::MAX; w * h];
+        let mut class = vec![HOLE; w * h];
         values
-            .par_chunks_mut(points)
-            .zip(valid.par_chunks_mut(points))
-            .zip(won.par_chunks_mut(points))
-            .zip(class.par_chunks_mut(points))
+            .par_chunks_mut(w)
+            .zip(valid.par_chunks_mut(w))
+            .zip(won.par_chunks_mut(w))
+            .zip(class.par_chunks_mut(w))
             .enumerate()
-            .for_each(|(y, (((values, valid), won), class))| {
-                let y = y as i64;
-                for x in 0..points {
-                    let xi = x as i64;
+            .for_each(|(row, (((values, valid), won), class))| {
+                let y = y0 + ((row as i64) << s);
+                for i in 0..w {
+                    let x = x0 + ((i as i64) << s);
                     // Interior points are their own canonical point; edge and corner points
                     // are computed from their owner, so every face holding one sees the same
                     // bits.
-                    let ll = if 0 < xi && xi < side && 0 < y && y < side {
-                        lattice.lat_lon(x, y as usize)
+                    let ll = if 0 < x && x < side && 0 < y && y < side {
+                        lattice.lat_lon(x as usize, y as usize)
                     } else {
-                        lattice_lat_lon(&domain, face, xi, y).expect("a point of the face")
+                        lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
                     };
-                    match inputs.source_at(ll, (xi, y), lattice_deg, &strides) {
-                        Some(PointSource::Sample(v, w, j)) => {
+                    match inputs.source_at(ll, (x, y), lattice_deg, &strides) {
+                        Some(PointSource::Sample(v, wi, j)) => {
                             if let Some(u) = plan.to_units(v).ok().flatten() {
-                                values[x] = u;
-                                valid[x] = true;
-                                won[x] = w;
-                                class[x] = j;
+                                values[i] = u;
+                                valid[i] = true;
+                                won[i] = wi;
+                                class[i] = j;
                             }
                         }
-                        Some(PointSource::CoarseOnly(w)) => {
-                            won[x] = w;
-                            class[x] = COARSE_ONLY;
+                        Some(PointSource::CoarseOnly(wi)) => {
+                            won[i] = wi;
+                            class[i] = COARSE_ONLY;
                         }
                         None => {}
                     }
                 }
             });
-        faces.push(HeightGrid {
-            width: points,
-            height: points,
-            values: values.into(),
-            valid: valid.into(),
-        });
-        winners.push(won);
-        if variable {
-            classes.push(Resolution {
-                class: class.into(),
-            });
-        }
+        let finest = class.iter().copied().filter(|&c| c < 32).min();
+        (values, valid, won, class, finest)
+    };
+    let faces: Vec<Vec<(PlanetTile, Vec<u8>)>> = (0..domain.faces())
+        .map(|face| {
+            rects
+                .par_iter()
+                .zip(&tile_strides[usize::from(face)])
+                .map(|(&rect, &planned)| {
+                    let mut s = planned;
+                    let mut tile = evaluate(face, rect, s);
+                    // A point that took a finer input's sample than planned: the tile holds
+                    // every point of that input's stride.
+                    if let Some(j) = tile.4.filter(|&j| u32::from(j) < s) {
+                        s = u32::from(j);
+                        tile = evaluate(face, rect, s);
+                    }
+                    let (values, valid, won, class, _) = tile;
+                    let (x0, y0, x1, y1) = rect;
+                    let grid = HeightGrid {
+                        width: ((x1 - x0) >> s) as usize + 1,
+                        height: ((y1 - y0) >> s) as usize + 1,
+                        values: values.into(),
+                        valid: valid.into(),
+                    };
+                    let tile = PlanetTile::new(s, rect, grid, variable.then_some(class))?;
+                    Ok((tile, won))
+                })
+                .collect::<std::result::Result<Vec<_>, CodecError>>()
+        })
+        .collect::<std::result::Result<Vec<_>, CodecError>>()?;
+    let mut winners = Vec::with_capacity(faces.len());
+    let mut tiles = Vec::with_capacity(faces.len());
+    for face in faces {
+        let (t, w): (Vec<_>, Vec<_>) = face.into_iter().unzip();
+        tiles.push(t);
+        winners.push(w);
     }
-    let mut planet = PlanetGrid::new(n, k, faces)?;
-    if variable {
-        planet = planet.with_classes(classes)?;
-    }
+    let planet = PlanetGrid::from_tiles(n, k, tiles, variable)?;
     Ok(Resampled {
         planet,
         winners,
@@ -665,7 +782,6 @@ pub fn resampling_error(
 ) -> Vec<InputResampling> {
     let planet = &resampled.planet;
     let side = planet.domain().cube().expect("a cube-sphere").side();
-    let points = side as usize + 1;
     inputs
         .inputs
         .iter()
@@ -706,16 +822,18 @@ pub fn resampling_error(
                             (y.floor() as i64).min(cells - 1),
                         );
                         let (fx, fy) = (x - x0 as f64, y - y0 as f64);
-                        // Corners inside the face (x0, y0 < S): its own grid holds them, equal
-                        // to every other face's on shared points (`PlanetGrid::new` checks).
-                        let grid = planet.face(face);
+                        // Corners inside the face (x0, y0 < S): its own tiles hold them (the
+                        // input's samples made them dense enough, `plan_tiles`), equal to every
+                        // other face's on shared points.
+                        let tiles = planet.tiles(face);
                         let corner = |dx: i64, dy: i64| {
                             let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
-                            let won = resampled.winners[usize::from(face)]
-                                [py as usize * points + px as usize];
-                            (won == me)
-                                .then(|| grid.get(px, py).map(|u| plan.metres(u)))
-                                .flatten()
+                            if resampled.winner(face, px, py)? != me {
+                                return None;
+                            }
+                            let t = &tiles[planet.tile_index(px, py)];
+                            let k = t.index(px, py)?;
+                            t.grid.valid[k].then(|| plan.metres(t.grid.values[k]))
                         };
                         let (Some(a), Some(b), Some(cc), Some(d)) =
                             (corner(0, 0), corner(1, 0), corner(0, 1), corner(1, 1))
@@ -796,6 +914,9 @@ pub struct PlanetSummary {
     pub lattice_deg: f64,
     /// Distinct lattice points (`6·S² + 2`).
     pub lattice_points: u64,
+    /// Points the planet's tiles held ([`PlanetGrid::held_points`]): what the build's memory
+    /// and time follow.
+    pub held_points: u64,
     /// Lattice points with data.
     pub valid: u64,
     /// Records in the repository.
@@ -808,28 +929,37 @@ pub struct PlanetSummary {
     pub stages: Vec<(&'static str, std::time::Duration)>,
 }
 
-/// Distinct lattice points with data (a point on a cube edge or corner counted once).
+/// Distinct lattice points with data (a point on a cube edge or corner counted once, a point
+/// on a tile's side once).
 pub fn count_valid(planet: &PlanetGrid) -> u64 {
     let d = planet.domain();
+    let side = d.cube().expect("a cube-sphere").side();
     (0..d.faces())
-        .map(|f| {
-            let g = planet.face(f);
-            (0..g.height)
-                .into_par_iter()
-                .map(|y| {
-                    let edge_row = y == 0 || y + 1 == g.height;
-                    (0..g.width)
-                        .filter(|&x| {
-                            // Interior points are their own; an edge point is counted on the
-                            // face that owns it.
-                            g.valid[y * g.width + x]
-                                && (!(edge_row || x == 0 || x + 1 == g.width)
-                                    || d.canonical_point(f, x as i64, y as i64)
-                                        .is_some_and(|c| c.face == f))
-                        })
-                        .count() as u64
-                })
-                .sum::<u64>()
+        .flat_map(|f| planet.tiles(f).iter().map(move |t| (f, t)))
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|(f, t)| {
+            let (x0, y0, x1, y1) = t.rect;
+            let step = 1usize << t.stride;
+            let mut count = 0u64;
+            for (j, y) in (y0..=y1).step_by(step).enumerate() {
+                // A tile owns its first row and column, and its last only on the face's edge.
+                if y == y1 && y1 < side {
+                    continue;
+                }
+                for (i, x) in (x0..=x1).step_by(step).enumerate() {
+                    if (x == x1 && x1 < side) || !t.grid.valid[j * t.grid.width + i] {
+                        continue;
+                    }
+                    // Interior points are their own; an edge point is counted on the face
+                    // that owns it.
+                    let edge = x == 0 || y == 0 || x == side || y == side;
+                    if !edge || d.canonical_point(f, x, y).is_some_and(|c| c.face == f) {
+                        count += 1;
+                    }
+                }
+            }
+            count
         })
         .sum()
 }
@@ -938,6 +1068,7 @@ pub fn build_planet(
         capped: k < wanted && planet_level.is_none(),
         lattice_deg: lattice_spacing_deg(n, k),
         lattice_points: resampled.planet.lattice_points(),
+        held_points: resampled.planet.held_points(),
         valid,
         records: encoded.records.len(),
         plan,
@@ -997,7 +1128,7 @@ pub fn compare_planet(
     tiles: &[Tile],
     nodata: Option<f64>,
 ) -> Result<PlanetComparison> {
-    use cbdam_codec::hierarchy::{reconstruct_planet, verify_planet};
+    use cbdam_codec::hierarchy::{reconstruct_planet_like, verify_planet};
     let domain = repo.params().domain;
     if domain.cube().is_none() {
         bail!("this repository is planar: compare it with compare_dem or compare_tiles");
@@ -1010,7 +1141,7 @@ pub fn compare_planet(
     let report = verify_planet(&encoded, &resampled.planet)?;
     let resampling = resampling_error(&inputs, &resampled, &plan);
     let decoded = Resampled {
-        planet: PlanetGrid::new(n, k, reconstruct_planet(&encoded)?)?,
+        planet: reconstruct_planet_like(&encoded, &resampled.planet)?,
         winners: resampled.winners,
         strides: resampled.strides,
     };
@@ -1054,13 +1185,25 @@ mod tests {
         };
         // 90°/(16·2^K) ≤ 0.25° first at K = 5 (0.176°); K = 4 is 0.352°.
         assert_eq!(choose_level(&inputs, 17, None, u64::MAX).unwrap(), 5);
+        // Faces of 512 (K = 5) and 256 (K = 4) steps are one tile each. The 2° input takes
+        // every 8th point at K = 5 (8 · 0.176° ≤ 2°) and every 4th at K = 4; the face under the
+        // fine input holds every point.
         let at = |k: u32| {
             let side = 16u64 << k;
-            6 * (side + 1) * (side + 1) * BYTES_PER_LATTICE_POINT
+            let coarse = side / if k == 5 { 8 } else { 4 } + 1;
+            ((side + 1) * (side + 1) + 5 * coarse * coarse) * BYTES_PER_LATTICE_POINT
         };
+        assert_eq!(
+            held_points(17, 5, &plan_tiles(&inputs, 17, 5).unwrap()).unwrap()
+                * BYTES_PER_LATTICE_POINT,
+            at(5)
+        );
         assert_eq!(choose_level(&inputs, 17, None, at(5)).unwrap(), 5);
         assert_eq!(choose_level(&inputs, 17, None, at(5) - 1).unwrap(), 4);
-        assert!(choose_level(&inputs, 17, Some(6), at(5)).is_err());
+        assert!(choose_level(&inputs, 17, Some(5), at(5) - 1).is_err());
+        // Beyond the finest input's spacing a lattice holds every 2nd point (or 4th...) of
+        // the input's tiles: K = 6 costs what K = 5 did, so a forced finer level fits too.
+        assert_eq!(choose_level(&inputs, 17, Some(6), at(5)).unwrap(), 6);
         assert_eq!(choose_level(&inputs, 17, Some(3), at(5)).unwrap(), 3);
     }
 

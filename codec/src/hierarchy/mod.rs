@@ -40,7 +40,10 @@ pub use encode::{
     encode_variable, encode_with_progress, encode_with_storage,
 };
 pub use field::TempStorage;
-pub use planet::{PlanetGrid, encode_planet, reconstruct_planet, verify_planet};
+pub use planet::{
+    PlanetGrid, PlanetTile, encode_planet, reconstruct_planet, reconstruct_planet_like,
+    verify_planet,
+};
 pub use record_bytes::RecordBytes;
 pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
 pub use resolution::Resolution;

@@ -47,6 +47,9 @@ pub(crate) struct ErrorInput<'a> {
     /// The samples measured: `(x0, y0, x1, y1)`, inclusive; the whole grid but for
     /// [`ErrorInput::clipped`].
     clip: (i64, i64, i64, i64),
+    /// The lattice point of the grid's first sample: `(0, 0)` but for
+    /// [`ErrorInput::placed_at`].
+    offset: (i64, i64),
 }
 
 impl<'a> ErrorInput<'a> {
@@ -66,7 +69,14 @@ impl<'a> ErrorInput<'a> {
             max_abs,
             all_valid,
             clip: (0, 0, grid.width as i64 - 1, grid.height as i64 - 1),
+            offset: (0, 0),
         }
+    }
+
+    /// The same input with its first sample at lattice point `offset`: a window of the
+    /// lattice (a planet's tile).
+    pub(crate) fn placed_at(self, offset: (i64, i64)) -> Self {
+        Self { offset, ..self }
     }
 
     /// The same input with only the samples in the rectangle `(x0, y0, x1, y1)` (inclusive)
@@ -106,7 +116,8 @@ impl<'a> ErrorInput<'a> {
 pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &ErrorInput) -> u32 {
     let g = layout.grid(id);
     if id.is_even() && g.u.0 == 1 && !input.is_clipped() {
-        let e = finest_error_fast(layout.n(), g.origin, p, input);
+        let origin = (g.origin.0 - input.offset.0, g.origin.1 - input.offset.1);
+        let e = finest_error_fast(layout.n(), origin, p, input);
         input.grid.touched_rows(layout.n(), layout.n());
         return e;
     }
@@ -367,7 +378,10 @@ impl<'a> Scan<'a> {
             sp,
             shift: sp.trailing_zeros(),
             side: sp * (n as i64 - 1),
-            origin: g.origin,
+            origin: (
+                g.origin.0 - error_input.offset.0,
+                g.origin.1 - error_input.offset.1,
+            ),
             clip: error_input.clip,
         }
     }

@@ -12,7 +12,7 @@
 
 mod grid;
 
-pub use grid::PlanetGrid;
+pub use grid::{MAX_TILES_ACROSS, PlanetGrid, PlanetTile, TILE_MIN_LOG2, tile_log2};
 
 use std::collections::{BTreeSet, HashMap};
 
@@ -26,7 +26,7 @@ use super::resolution::with_parents;
 use super::roots::{encode_roots, root_grid};
 use super::{CodecParams, Encoded, Record, RepoKind};
 use crate::CodecError;
-use crate::geometry::{DiamondId, Domain, DomainKind, Half};
+use crate::geometry::{DiamondId, Domain, DomainKind, Half, Layout};
 use crate::lifting::Alpha;
 use crate::quant::{HeightGrid, Quantizer};
 
@@ -77,9 +77,7 @@ pub fn encode_planet(
         |f, x, y| planet.get(f, x, y),
         |f, x, y| planet.drawn(f, x, y) == Some(true),
     )?;
-    let inputs: Vec<ErrorInput> = (0..domain.faces())
-        .map(|f| ErrorInput::new(planet.face(f)))
-        .collect();
+    let errors = TiledError::new(planet)?;
     let finest = domain.finest_level();
     let n = domain.n();
     let side = domain.cube().expect("a cube-sphere").side();
@@ -98,22 +96,32 @@ pub fn encode_planet(
                     let parents = domain.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
                     gather(&domain, id, parents, &mut p);
                 }
-                let err = planet_surface_error(&domain, id, &p, &inputs);
+                let err = planet_surface_error(&domain, id, &p, &errors);
                 // Leaves: the finest level, and where coarse data ends the hierarchy above it.
                 if !recorded[level as usize].contains(&id) {
                     return Ok((id, None, err));
                 }
                 let drawn = |x, y| planet.drawn(id.face, x, y);
                 let (x0, y0, x1, y1) = domain.layout().bounds(id);
-                let r = if 0 < x0.min(y0) && x1.max(y1) < side {
-                    // Strictly inside its face, every point of the diamond is its own canonical
-                    // point: read the face's samples directly (what `PlanetGrid::get` returns
-                    // there, without locating each point).
-                    let g = planet.face(id.face);
+                let tile = &planet.tiles(id.face)[planet.tile_index(x0.max(0), y0.max(0))];
+                let (tx0, ty0, tx1, ty1) = tile.rect;
+                let r = if 0 < x0.min(y0)
+                    && x1.max(y1) < side
+                    && tile.stride == 0
+                    && (tx0..=tx1).contains(&x0)
+                    && (tx0..=tx1).contains(&x1)
+                    && (ty0..=ty1).contains(&y0)
+                    && (ty0..=ty1).contains(&y1)
+                {
+                    // Strictly inside its face and inside one tile holding every point, every
+                    // point of the diamond is its own canonical point: read the tile's samples
+                    // directly (what `PlanetGrid::get` returns there, without locating each
+                    // point).
+                    let g = &tile.grid;
                     let (values, valid): (&[i32], &[bool]) = (&g.values, &g.valid);
                     let w = g.width;
                     let target = |x: i64, y: i64| {
-                        let k = y as usize * w + x as usize;
+                        let k = (y - ty0) as usize * w + (x - tx0) as usize;
                         valid[k].then(|| values[k])
                     };
                     refine_encode(&params, id, &p, target, drawn)?
@@ -149,46 +157,165 @@ pub fn encode_planet(
 /// of their face. At variable resolution ([`PlanetGrid::with_classes`]), as on a plane
 /// ([`super::resolution`]): for each stride `2^j` a face's samples have, the level-`L − 2j`
 /// diamonds (squares inside the face, as every even level's) whose closed square holds a sample
-/// of that stride. Then all their ancestors, across face edges.
+/// of that stride. Then all their ancestors, across face edges. Found tile by tile, from the
+/// points the tiles hold.
 fn stored_sets(planet: &PlanetGrid) -> (Vec<Vec<DiamondId>>, Vec<BTreeSet<DiamondId>>) {
     let domain = planet.domain();
     let layout = domain.layout();
     let finest = domain.finest_level();
-    let mut leaves: Vec<BTreeSet<DiamondId>> = vec![BTreeSet::new(); finest as usize + 1];
-    // Whether the closed square of `id` (inside its face) holds a point `hit` accepts.
-    let holds = |id: &DiamondId, hit: &dyn Fn(&HeightGrid, usize) -> bool| {
-        let g = planet.face(id.face);
-        let (x0, y0, x1, y1) = layout.bounds(*id);
-        (y0..=y1).any(|y| (x0..=x1).any(|x| hit(g, y as usize * g.width + x as usize)))
+    let side = domain.cube().expect("a cube-sphere").side();
+    // The class of the point held at `k`: its stride's log2 for a sample, ≥ 32 otherwise.
+    let class_of = |t: &PlanetTile, k: usize| match &t.class {
+        Some(class) => class[k],
+        None if t.grid.valid[k] => 0,
+        None => u8::MAX,
     };
-    if planet.classes(0).is_none() {
-        leaves[finest as usize] = domain
-            .level(finest)
-            .filter(|id| holds(id, &|g, i| g.valid[i]))
-            .collect();
-    } else {
-        let class = |face: u8| planet.classes(face).expect("every face has classes");
-        let mut present = [false; 32];
-        for f in 0..domain.faces() {
-            for &c in &class(f).class {
+    let found: Vec<Vec<BTreeSet<DiamondId>>> = (0..domain.faces())
+        .flat_map(|f| planet.tiles(f).iter().map(move |t| (f, t)))
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|(face, t)| {
+            let mut leaves = vec![BTreeSet::new(); finest as usize + 1];
+            let mut present = 0u32;
+            for k in 0..t.points() {
+                let c = class_of(t, k);
                 if c < 32 {
-                    present[usize::from(c)] = true;
+                    present |= 1 << c;
                 }
             }
-        }
-        let strides = (0..32u8).filter(|&j| present[usize::from(j)]);
-        for j in strides {
-            // Strides above the root spacing are root points: their leaves are roots.
-            let level = finest.saturating_sub(2 * j);
-            leaves[level as usize].extend(
-                domain
-                    .level(level)
-                    .filter(|id| holds(id, &|_, i| class(id.face).class[i] == j)),
-            );
+            let (tx0, ty0, tx1, ty1) = t.rect;
+            let step = 1i64 << t.stride;
+            for j in (0..32u8).filter(|j| present & (1 << j) != 0) {
+                // Strides above the root spacing are root points: their leaves are roots.
+                let level = finest.saturating_sub(2 * j);
+                let r = layout.radius(level);
+                // The squares of the level meeting the tile (closed), inside the face.
+                let squares = |a0: i64, a1: i64| {
+                    let first = ((a0 - 1).max(0)) / (2 * r);
+                    let last = (a1 / (2 * r)).min(side / (2 * r) - 1);
+                    first..=last
+                };
+                for sy in squares(ty0, ty1) {
+                    for sx in squares(tx0, tx1) {
+                        let (x0, y0) = ((2 * sx * r).max(tx0), (2 * sy * r).max(ty0));
+                        let (x1, y1) = ((2 * (sx + 1) * r).min(tx1), (2 * (sy + 1) * r).min(ty1));
+                        if x0 > x1 || y0 > y1 {
+                            continue;
+                        }
+                        // The held points of the square's part in the tile.
+                        let up = |v: i64, o: i64| o + (v - o + step - 1) / step * step;
+                        let hit = (up(y0, ty0)..=y1).step_by(step as usize).any(|y| {
+                            (up(x0, tx0)..=x1)
+                                .step_by(step as usize)
+                                .any(|x| t.index(x, y).is_some_and(|k| class_of(t, k) == j))
+                        });
+                        if hit {
+                            leaves[level as usize].insert(DiamondId::on_face(
+                                face,
+                                level,
+                                ((2 * sx + 1) * r) as u32,
+                                ((2 * sy + 1) * r) as u32,
+                            ));
+                        }
+                    }
+                }
+            }
+            leaves
+        })
+        .collect();
+    let mut leaves: Vec<BTreeSet<DiamondId>> = vec![BTreeSet::new(); finest as usize + 1];
+    for tile in found {
+        for (all, some) in leaves.iter_mut().zip(tile) {
+            all.extend(some);
         }
     }
     let sets = with_parents(domain, &leaves);
     (sets.stored, sets.recorded)
+}
+
+/// The object errors of diamonds against a planet's tiles: each tile measured in a lattice
+/// coarsened to its stride ([`ErrorInput::placed_at`] on a layout of `K − s` level pairs, where
+/// the diamond's grid spacing is the same number of the tile's points), or, for a diamond finer
+/// than a tile's points (next to finer data), on a grid of the points it covers at the
+/// diamond's finest spacing.
+struct TiledError<'a> {
+    planet: &'a PlanetGrid,
+    /// Index `s`: the layout of the lattice coarsened `2^s` times.
+    layouts: Vec<Layout>,
+}
+
+impl<'a> TiledError<'a> {
+    fn new(planet: &'a PlanetGrid) -> Result<Self, CodecError> {
+        let domain = planet.domain();
+        let layout = domain.layout();
+        let layouts = (0..=layout.k())
+            .map(|s| Ok(*Domain::cube_sphere(layout.n(), layout.k() - s)?.layout()))
+            .collect::<Result<Vec<_>, CodecError>>()?;
+        Ok(Self { planet, layouts })
+    }
+
+    /// The error of `id`'s grid `p` (in `face`'s frame, `id.face == face`) against the valid
+    /// points of `face` under it.
+    fn face_error(&self, id: DiamondId, p: &[i32]) -> u32 {
+        let planet = self.planet;
+        let layout = planet.domain().layout();
+        let finest = layout.finest_level();
+        let bounds = layout.bounds(id);
+        let tiles = planet.tiles(id.face);
+        let one = |i: usize| -> u32 {
+            let t = &tiles[i];
+            let (max_abs, all_valid) = t.bounds();
+            // The coarsest spacing, in lattice steps, at which the diamond's grid lies on
+            // lattice points: its level's finest.
+            let fits = u32::from(finest - id.level) / 2;
+            let scaled = |s: u32| DiamondId::on_face(id.face, id.level, id.x >> s, id.y >> s);
+            if t.stride <= fits {
+                let s = t.stride;
+                let input = ErrorInput::with_bounds(&t.grid, max_abs, all_valid)
+                    .placed_at((t.rect.0 >> s, t.rect.1 >> s));
+                return surface_error(&self.layouts[s as usize], scaled(s), p, &input);
+            }
+            // Finer than the tile's points: its part of the tile at spacing 2^fits, the
+            // tile's points valid where they are.
+            let s = fits;
+            let step = 1i64 << t.stride;
+            let (tx0, ty0, tx1, ty1) = t.rect;
+            let down = |v: i64, o: i64| o + (v - o).div_euclid(step) * step;
+            let (x0, y0) = (down(bounds.0.max(tx0), tx0), down(bounds.1.max(ty0), ty0));
+            let up = |v: i64, o: i64| down(v + step - 1, o);
+            let (x1, y1) = (up(bounds.2.min(tx1), tx0), up(bounds.3.min(ty1), ty0));
+            if x0 > x1 || y0 > y1 {
+                return 0;
+            }
+            let (w, h) = (((x1 - x0) >> s) as usize + 1, ((y1 - y0) >> s) as usize + 1);
+            let mut values = vec![0; w * h];
+            let mut valid = vec![false; w * h];
+            for y in (y0..=y1).step_by(step as usize) {
+                for x in (x0..=x1).step_by(step as usize) {
+                    if let Some(k) = t.index(x, y) {
+                        let at = ((y - y0) >> s) as usize * w + ((x - x0) >> s) as usize;
+                        values[at] = t.grid.values[k];
+                        valid[at] = t.grid.valid[k];
+                    }
+                }
+            }
+            let grid = HeightGrid {
+                width: w,
+                height: h,
+                values: values.into(),
+                valid: valid.into(),
+            };
+            let input =
+                ErrorInput::with_bounds(&grid, max_abs, false).placed_at((x0 >> s, y0 >> s));
+            surface_error(&self.layouts[s as usize], scaled(s), p, &input)
+        };
+        let meeting: Vec<usize> = planet.tiles_meeting(bounds).collect();
+        if meeting.len() > 2 {
+            meeting.into_par_iter().map(one).max().unwrap_or(0)
+        } else {
+            meeting.into_iter().map(one).max().unwrap_or(0)
+        }
+    }
 }
 
 /// The object error of `id` with grid `p` against the planet's faces: its own face's input,
@@ -196,9 +323,9 @@ fn stored_sets(planet: &PlanetGrid) -> (Vec<Vec<DiamondId>>, Vec<BTreeSet<Diamon
 /// half, measured on the same diamond seen from that face (the grid carried into that face's
 /// frame and re-indexed as that face's diamond of the same centre, whose split diagonal is the
 /// same edge).
-fn planet_surface_error(domain: &Domain, id: DiamondId, p: &[i32], inputs: &[ErrorInput]) -> u32 {
+fn planet_surface_error(domain: &Domain, id: DiamondId, p: &[i32], errors: &TiledError) -> u32 {
     let layout = domain.layout();
-    let mut e = surface_error(layout, id, p, &inputs[usize::from(id.face)]);
+    let mut e = errors.face_error(id, p);
     for half in Half::BOTH {
         let (face, g) = domain.half_grid(id, half);
         if face == id.face {
@@ -221,7 +348,7 @@ fn planet_surface_error(domain: &Domain, id: DiamondId, p: &[i32], inputs: &[Err
                 q[j * n + i] = p[b as usize * n + a as usize];
             }
         }
-        e = e.max(surface_error(layout, seen, &q, &inputs[usize::from(face)]));
+        e = e.max(errors.face_error(seen, &q));
     }
     e
 }
@@ -314,4 +441,34 @@ pub fn reconstruct_planet(encoded: &Encoded) -> Result<Vec<HeightGrid>, CodecErr
         }
     })?;
     Ok(faces)
+}
+
+/// Decodes the finest level onto the points `like` holds (the same tiles; a resampled planet
+/// of any size, where [`reconstruct_planet`] would need every lattice point): every point of
+/// a tile written by its face's own diamonds, validity from the nodata mask. Errors on a
+/// planar hierarchy or a planet of another lattice.
+pub fn reconstruct_planet_like(
+    encoded: &Encoded,
+    like: &PlanetGrid,
+) -> Result<PlanetGrid, CodecError> {
+    planet_only(encoded, like)?;
+    let layout = encoded.params.domain.layout();
+    let n = layout.n();
+    let finest = layout.finest_level();
+    let mut out = like.blank_like();
+    // As in `reconstruct_planet`: coarse to fine, even levels of the finest level's parity.
+    walk_all_with_validity(encoded, |id, p, v| {
+        if id.level % 2 != finest % 2 {
+            return;
+        }
+        let g = layout.grid(id);
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = g.point(i as i64, j as i64);
+                let k = j * n + i;
+                out.set(id.face, x, y, p[k], v.is_none_or(|v| v[k]));
+            }
+        }
+    })?;
+    Ok(out)
 }
