@@ -862,3 +862,181 @@ fn a_variable_resolution_planet_stops_refining_where_only_coarse_data_lies() {
     }
     assert!(coarse_checked > 1000, "{coarse_checked}");
 }
+
+/// The class of a canonical point of the tiled test planet: a sample of stride 1 north of
+/// 50° N, elsewhere a sample of stride 4 (a hole where the noise says so), and between those
+/// coarse only when the corners of its 4-step cell all have data, a hole otherwise (what a
+/// tile holding only every 4th point says of the points between).
+fn tiled_class(domain: &Domain, p: FacePoint) -> u8 {
+    use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
+    let p = domain.canonical_point(p.face, p.x, p.y).unwrap();
+    let fine = |p: FacePoint| lattice_lat_lon(domain, p.face, p.x, p.y).unwrap().lat > 50.0;
+    let sample = |p: FacePoint| {
+        let p = domain.canonical_point(p.face, p.x, p.y).unwrap();
+        if fine(p) {
+            0
+        } else if noise(p, 11).is_multiple_of(13) {
+            HOLE
+        } else {
+            2
+        }
+    };
+    if fine(p) || (p.x % 4 == 0 && p.y % 4 == 0) {
+        return sample(p);
+    }
+    let around = |v: i64| {
+        let lo = v & !3;
+        if lo == v { [v, v] } else { [lo, lo + 4] }
+    };
+    let drawn = around(p.y).iter().all(|&y| {
+        around(p.x)
+            .iter()
+            .all(|&x| sample(FacePoint::new(p.face, x, y)) != HOLE)
+    });
+    if drawn { COARSE_ONLY } else { HOLE }
+}
+
+/// A variable-resolution planet held in small tiles — every point of the tiles that hold fine
+/// data, every 4th point of the others — reads as the same planet held whole (heights, data,
+/// what is drawn, at every point of every face), encodes to the same hierarchy (records, roots,
+/// object errors: the tiled object-error scans, including diamonds finer than a tile's
+/// points next to fine data, find what the whole faces' scans find), verifies within the
+/// bound and decodes onto its tiles as the whole planet decodes onto its faces.
+#[test]
+fn a_planet_in_strided_tiles_encodes_as_the_same_planet_held_whole() {
+    use cbdam_codec::hierarchy::resolution::HOLE;
+    use cbdam_codec::hierarchy::{PlanetTile, Resolution, reconstruct_planet_like};
+    let (n, k, q, tile_log2) = (9usize, 3u32, 2u32, 3u32);
+    let domain = Domain::cube_sphere(n, k).unwrap();
+    let s = ((n - 1) << k) as i64;
+    let values = relief(n, k, 21);
+    let whole = PlanetGrid::from_fn(n, k, |p| {
+        (tiled_class(&domain, p) < 32).then(|| values.get(p.face, p.x, p.y).unwrap())
+    })
+    .unwrap();
+    let classes: Vec<Resolution> = (0..6u8)
+        .map(|f| Resolution {
+            class: (0..=s)
+                .flat_map(|y| (0..=s).map(move |x| (x, y)))
+                .map(|(x, y)| tiled_class(&domain, FacePoint::new(f, x, y)))
+                .collect(),
+        })
+        .collect();
+    let whole = whole.with_classes(classes.clone()).unwrap();
+    assert!(whole.has_nodata());
+    // The same points in tiles of 8 steps: every point where a tile holds a stride-1 sample,
+    // every 4th elsewhere.
+    let rects = PlanetGrid::tile_rects(&domain, tile_log2);
+    let tiles = |thin: bool| -> Vec<Vec<PlanetTile>> {
+        (0..6u8)
+            .map(|f| {
+                let class = &classes[usize::from(f)].class;
+                rects
+                    .iter()
+                    .map(|&(x0, y0, x1, y1)| {
+                        let at = |x: i64, y: i64| (y * (s + 1) + x) as usize;
+                        let fine = (y0..=y1).any(|y| (x0..=x1).any(|x| class[at(x, y)] == 0));
+                        let stride = if thin && !fine { 2 } else { 0 };
+                        let step = 1usize << stride;
+                        let points: Vec<(i64, i64)> = (y0..=y1)
+                            .step_by(step)
+                            .flat_map(|y| (x0..=x1).step_by(step).map(move |x| (x, y)))
+                            .collect();
+                        let grid = HeightGrid {
+                            width: ((x1 - x0) >> stride) as usize + 1,
+                            height: ((y1 - y0) >> stride) as usize + 1,
+                            values: points
+                                .iter()
+                                .map(|&(x, y)| whole.get(f, x, y).unwrap_or(0))
+                                .collect(),
+                            valid: points
+                                .iter()
+                                .map(|&(x, y)| whole.get(f, x, y).is_some())
+                                .collect(),
+                        };
+                        let held = points.iter().map(|&(x, y)| class[at(x, y)]).collect();
+                        PlanetTile::new(stride, (x0, y0, x1, y1), grid, Some(held)).unwrap()
+                    })
+                    .collect()
+            })
+            .collect()
+    };
+    let thin = PlanetGrid::from_tiles(n, k, tile_log2, tiles(true), true).unwrap();
+    let dense = PlanetGrid::from_tiles(n, k, tile_log2, tiles(false), true).unwrap();
+    // Strided tiles exist, and hold far fewer points.
+    let strided = (0..6u8)
+        .flat_map(|f| thin.tiles(f))
+        .filter(|t| t.stride > 0)
+        .count();
+    assert!(strided > 100 && strided < 6 * rects.len(), "{strided}");
+    assert!(
+        thin.held_points() * 2 < dense.held_points(),
+        "{} of {}",
+        thin.held_points(),
+        dense.held_points()
+    );
+    let mut holes_between = 0;
+    for f in 0..6u8 {
+        for y in 0..=s {
+            for x in 0..=s {
+                let want = (whole.get(f, x, y), whole.drawn(f, x, y));
+                assert_eq!(
+                    (thin.get(f, x, y), thin.drawn(f, x, y)),
+                    want,
+                    "face {f} ({x}, {y})"
+                );
+                assert_eq!((dense.get(f, x, y), dense.drawn(f, x, y)), want);
+                let between = x % 4 != 0 || y % 4 != 0;
+                holes_between += usize::from(
+                    between && classes[usize::from(f)].class[(y * (s + 1) + x) as usize] == HOLE,
+                );
+            }
+        }
+    }
+    // The cell rule is exercised: points between the held ones that are holes.
+    assert!(holes_between > 50, "{holes_between}");
+
+    let quantizer = Quantizer::new(q).unwrap();
+    let o = opts(n, CoderKind::AdaptiveTokens);
+    let from_whole = encode_planet(&whole, quantizer, &o).unwrap();
+    // (Compared whole; `assert_eq!` would print every record's bytes.)
+    let same = |p: &PlanetGrid| encode_planet(p, quantizer, &o).unwrap() == from_whole;
+    assert!(
+        same(&thin),
+        "the planet in strided tiles encodes differently"
+    );
+    assert!(
+        same(&dense),
+        "the planet in dense tiles encodes differently"
+    );
+    // The variable resolution matters: the planet at one resolution has more records.
+    assert!(
+        encode_planet(&values, quantizer, &o).unwrap().records.len() > from_whole.records.len()
+    );
+    let report = verify_planet(&from_whole, &thin).unwrap();
+    assert!(report.within_bound(), "{report:?}");
+
+    let decoded = reconstruct_planet(&from_whole).unwrap();
+    let on_tiles = reconstruct_planet_like(&from_whole, &thin).unwrap();
+    let mut checked = 0;
+    for f in 0..6u8 {
+        for t in on_tiles.tiles(f) {
+            let (x0, y0, x1, y1) = t.rect;
+            let step = 1usize << t.stride;
+            for y in (y0..=y1).step_by(step) {
+                for x in (x0..=x1).step_by(step) {
+                    let k = t.index(x, y).unwrap();
+                    let at = (y * (s + 1) + x) as usize;
+                    let face = &decoded[usize::from(f)];
+                    assert_eq!(
+                        (t.grid.values[k], t.grid.valid[k]),
+                        (face.values[at], face.valid[at]),
+                        "face {f} ({x}, {y})"
+                    );
+                    checked += usize::from(face.valid[at]);
+                }
+            }
+        }
+    }
+    assert!(checked > 5_000, "{checked}");
+}

@@ -231,7 +231,9 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
     assert!(err.contains("UTM"), "{err}");
     assert!(!out.exists());
 
-    // A lattice over the memory limit is refused before anything is allocated.
+    // A lattice over the memory limit is refused before anything is allocated: the 2° grid
+    // alone on a K = 9 lattice holds every 512th point (3 × 3 in each of 6 · 32² tiles, about
+    // 1.3 MB at 24 B a point).
     let o = cbdam(&[
         "build",
         &s(&global),
@@ -239,7 +241,7 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
         "--planet-level",
         "9",
         "--memory-limit",
-        "64M",
+        "1M",
         "-o",
         &s(&out),
         "--max-error",
@@ -417,4 +419,98 @@ fn etopo5_with_an_srtm_inset_verifies_on_every_level() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("is a planet"), "{}", stderr(&o));
     assert!(!tif.exists());
+}
+
+/// A 0.005° inset (18″) in the 2° global grid builds at its own lattice, K = 11 (0.0027°, a
+/// face of 32 768 steps: 6.4·10⁹ lattice points, 155 GB at the build's 24 B a point if held
+/// whole): the faces are held in tiles, every point only around the inset and every 512th
+/// elsewhere. The build says so, verify finds every level within the bound and the inset's
+/// samples within bound + resampling error, and a memory limit below what the tiles need
+/// still caps the lattice, naming it.
+#[test]
+fn a_fine_inset_builds_at_its_own_lattice_holding_only_the_points_around_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let global = d.join("global.tif");
+    write_global(&global);
+    let inset = d.join("inset.tif");
+    write(&inset, (41, 41), geographic((14.9, 45.1), 0.005), |c, r| {
+        let ll = LatLon {
+            lat: 45.1 - 0.005 * r as f64,
+            lon: 14.9 + 0.005 * c as f64,
+        };
+        relief(ll) + hill(ll)
+    });
+    let out = d.join("planet.cbdam");
+    let build = |limit: &str| {
+        cbdam(&[
+            "build",
+            &s(&global),
+            &s(&inset),
+            "--planet",
+            "--diamond-size",
+            "17",
+            "--memory-limit",
+            limit,
+            "-o",
+            &s(&out),
+            "--max-error",
+            "1",
+        ])
+    };
+    let o = build("256M");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    // 90°/(16·2^11) = 0.0027° ≤ 0.005° < 0.0055° (K = 10).
+    assert!(
+        text.contains("K = 11") && text.contains("6442450946 lattice points"),
+        "{text}"
+    );
+    assert!(!text.contains("capped"), "{text}");
+    // What the tiles held: the inset's few dense tiles of 1025² points (one to four, and
+    // their neighbours within the inset's margin), 9 points in each other tile.
+    let held: u64 = text
+        .lines()
+        .find_map(|l| l.trim_start().strip_prefix("the build held "))
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no held points in\n{text}"));
+    assert!((50_000..10_000_000).contains(&held), "{held}\n{text}");
+    // The 2° grid is every 512th lattice point: it ends the hierarchy at level 22 − 18.
+    assert!(
+        text.lines()
+            .any(|l| l.contains("global.tif is coarser") && l.contains("level 4 of 22")),
+        "{text}"
+    );
+
+    let o = cbdam(&["verify", &s(&out), "--against", &s(&global), &s(&inset)]);
+    let text = stdout(&o);
+    assert!(o.status.success(), "{text}\n{}", stderr(&o));
+    assert!(text.contains("OK"), "{text}");
+    assert!(
+        text.lines().any(|l| l.trim_start().starts_with("22 ")),
+        "{text}"
+    );
+    let (compared, samples, inset_max) = compared_and_max(&text, "inset.tif");
+    assert_eq!(samples, 41 * 41);
+    assert!(compared > 1000, "{text}");
+    // Bilinear over 0.005° samples and again over cells of at most 0.004° on the hill (|f''| ≤
+    // 300 m/deg²) is off by 2·(0.005² + 0.004²)/8 · 300 m ≈ 3 mm; the lattice's integer
+    // heights add up to half a unit (at most 1 m here).
+    assert!(
+        inset_max < 0.6,
+        "inset resampling error {inset_max} m\n{text}"
+    );
+    let (global_compared, _, global_max) = compared_and_max(&text, "global.tif");
+    assert!(global_compared > 10_000, "{text}");
+    assert!(global_max < 1.0, "{text}");
+
+    // Below what the tiles need, the lattice is capped (and says so), not refused.
+    let o = build("16M");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    assert!(
+        text.contains("capped") && !text.contains("K = 11"),
+        "{text}"
+    );
 }

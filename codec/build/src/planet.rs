@@ -546,7 +546,8 @@ pub fn choose_level(
 /// the stride).
 fn held_points(n: usize, k: u32, plan: &[Vec<u32>]) -> Result<u64> {
     let domain = Domain::cube_sphere(n, k)?;
-    let rects = PlanetGrid::tile_rects(&domain);
+    let side = domain.cube().expect("a cube-sphere").side();
+    let rects = PlanetGrid::tile_rects(&domain, tile_log2(side));
     Ok(plan
         .iter()
         .flat_map(|strides| {
@@ -569,7 +570,7 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<Vec<Vec<u32
     let cube = *domain.cube().expect("a cube-sphere");
     let side = cube.side();
     let t = tile_log2(side);
-    let rects = PlanetGrid::tile_rects(&domain);
+    let rects = PlanetGrid::tile_rects(&domain, t);
     let strides = inputs.strides(n, k);
     let coarsest = strides.iter().copied().max().unwrap_or(0);
     let mut plan = vec![vec![coarsest.min(t); rects.len()]; usize::from(domain.faces())];
@@ -658,7 +659,7 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
     let strides = inputs.strides(n, k);
     let variable = strides.iter().any(|&j| j > 0);
     let tile_strides = plan_tiles(inputs, n, k)?;
-    let rects = PlanetGrid::tile_rects(&domain);
+    let rects = PlanetGrid::tile_rects(&domain, tile_log2(side));
     let lattices: Vec<FaceLattice> = (0..domain.faces())
         .map(|face| FaceLattice::new(face, side))
         .collect();
@@ -744,7 +745,7 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
         tiles.push(t);
         winners.push(w);
     }
-    let planet = PlanetGrid::from_tiles(n, k, tiles, variable)?;
+    let planet = PlanetGrid::from_tiles(n, k, tile_log2(side), tiles, variable)?;
     Ok(Resampled {
         planet,
         winners,

@@ -114,42 +114,69 @@ impl<'a> ErrorInput<'a> {
 /// diamond's scaled grid coordinates `(s, t)`; for even levels a row is an input row, for odd
 /// levels (s = Δx + Δy, t = Δx − Δy) an input diagonal. See [`surface_error_scan`].
 pub(crate) fn surface_error(layout: &Layout, id: DiamondId, p: &[i32], input: &ErrorInput) -> u32 {
+    surface_error_of(layout, id, p, grid_abs(p), input)
+}
+
+/// The largest `|value|` of a diamond's grid, what [`surface_error_of`] takes.
+pub(crate) fn grid_abs(p: &[i32]) -> i64 {
+    p.iter().map(|&v| i64::from(v).abs()).max().unwrap_or(0)
+}
+
+/// [`surface_error`] with the largest `|value|` of `p` given ([`grid_abs`]): a diamond measured
+/// against many inputs (a planet's tiles) computes it once.
+pub(crate) fn surface_error_of(
+    layout: &Layout,
+    id: DiamondId,
+    p: &[i32],
+    p_abs: i64,
+    input: &ErrorInput,
+) -> u32 {
     let g = layout.grid(id);
     if id.is_even() && g.u.0 == 1 && !input.is_clipped() {
         let origin = (g.origin.0 - input.offset.0, g.origin.1 - input.offset.1);
-        let e = finest_error_fast(layout.n(), origin, p, input);
+        let e = finest_error_fast(layout.n(), origin, p, p_abs, input);
         input.grid.touched_rows(layout.n(), layout.n());
         return e;
     }
     let parallel = layout.radius(id.level) * 2 >= PARALLEL_ROWS_FROM;
-    surface_error_scan(layout, id, p, input, parallel)
+    surface_error_scan(layout, id, p, p_abs, input, parallel)
 }
 
 /// [`finest_error`] compiled for AVX2 where the CPU has it (see [`Scan::rows_fast`]).
-fn finest_error_fast(n: usize, origin: (i64, i64), p: &[i32], input: &ErrorInput) -> u32 {
+fn finest_error_fast(
+    n: usize,
+    origin: (i64, i64),
+    p: &[i32],
+    p_abs: i64,
+    input: &ErrorInput,
+) -> u32 {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && !tests::portable_only() {
         // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { finest_error_avx2(n, origin, p, input) };
+        return unsafe { finest_error_avx2(n, origin, p, p_abs, input) };
     }
-    finest_error(n, origin, p, input)
+    finest_error(n, origin, p, p_abs, input)
 }
 
 /// [`finest_error`] with AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn finest_error_avx2(n: usize, origin: (i64, i64), p: &[i32], input: &ErrorInput) -> u32 {
-    finest_error(n, origin, p, input)
+fn finest_error_avx2(
+    n: usize,
+    origin: (i64, i64),
+    p: &[i32],
+    p_abs: i64,
+    input: &ErrorInput,
+) -> u32 {
+    finest_error(n, origin, p, p_abs, input)
 }
 
 /// [`surface_error`] at the finest level, grid origin `origin`: every sample is a grid vertex,
 /// and grid rows are input rows. Differences of heights within `MAX_ABS_HEIGHT` fit 32-bit
 /// lanes; larger grid values (never from the encoder) take 64-bit ones.
 #[inline(always)]
-fn finest_error(n: usize, origin: (i64, i64), p: &[i32], input: &ErrorInput) -> u32 {
-    let narrow = p.iter().map(|v| v.unsigned_abs()).max().unwrap_or(0) as i64
-        <= MAX_ABS_HEIGHT as i64
-        && input.max_abs <= MAX_ABS_HEIGHT as i64;
+fn finest_error(n: usize, origin: (i64, i64), p: &[i32], p_abs: i64, input: &ErrorInput) -> u32 {
+    let narrow = p_abs <= MAX_ABS_HEIGHT as i64 && input.max_abs <= MAX_ABS_HEIGHT as i64;
     if narrow {
         finest_error_lanes::<i32>(n, origin, p, input)
     } else {
@@ -205,10 +232,10 @@ fn surface_error_scan(
     layout: &Layout,
     id: DiamondId,
     p: &[i32],
+    p_abs: i64,
     input: &ErrorInput,
     parallel: bool,
 ) -> u32 {
-    let p_abs = p.iter().map(|&v| i64::from(v).abs()).max().unwrap_or(0);
     let sp = layout.grid(id).u.0 << u32::from(!id.is_even());
     // Lanes wrap, so only the results need to fit: surface values and differences, at most
     // 2·max|height|·sp (with a margin).
@@ -409,6 +436,23 @@ impl<'a> Scan<'a> {
         (lo <= hi).then_some((lo, hi))
     }
 
+    /// The rows `t` that can hold data, a range containing every row [`Scan::data_range`]
+    /// accepts (a diamond much larger than its input, a planet's tile, meets few of its rows).
+    #[inline]
+    fn data_rows(&self) -> (i64, i64) {
+        let (ox, oy) = self.origin;
+        let (x0, y0, x1, y1) = self.clip;
+        let (lo, hi) = if self.odd {
+            // s ≥ 2(x0 − ox) − t and s ≤ t + 2(y1 − oy) meet only for t ≥ (x0 − ox) − (y1 −
+            // oy); likewise s ≥ t + 2(y0 − oy) and s ≤ 2(x1 − ox) − t for t ≤ (x1 − ox) − (y0
+            // − oy).
+            ((x0 - ox) - (y1 - oy), (x1 - ox) - (y0 - oy))
+        } else {
+            (y0 - oy, y1 - oy)
+        };
+        (lo.max(0), hi.min(self.side))
+    }
+
     /// The largest scaled error over the diamond, rows split across threads or not.
     fn run<const MAIN: bool, T: Lane>(&self, parallel: bool) -> u32 {
         let last = self.n as i64 - 2;
@@ -463,6 +507,8 @@ impl<'a> Scan<'a> {
     /// of cells). Both loops over a row are straight and vectorise.
     #[inline(always)]
     fn rows<const MAIN: bool, T: Lane>(&self, t0: i64, t1: i64) -> i64 {
+        let (lo, hi) = self.data_rows();
+        let (t0, t1) = (t0.max(lo), t1.min(hi));
         let Some(ta) = (t0..=t1).find(|&t| self.data_range(t).is_some()) else {
             return 0;
         };
@@ -824,19 +870,19 @@ mod tests {
                 let want_clipped = brute_force(&layout, d, &p, &masked);
                 let clipped = ErrorInput::new(&input).clipped(rect);
                 proptest::prop_assert_eq!(surface_error(&layout, d, &p, &clipped), want_clipped, "{} clipped to {:?}", d, rect);
-                proptest::prop_assert_eq!(surface_error_scan(&layout, d, &p, &clipped, true), want_clipped, "{} clipped to {:?}, parallel", d, rect);
+                proptest::prop_assert_eq!(surface_error_scan(&layout, d, &p, grid_abs(&p), &clipped, true), want_clipped, "{} clipped to {:?}, parallel", d, rect);
                 if d.level == layout.finest_level() && d.is_even() {
                     // The shortcut's other lanes and its portable kernel.
                     let origin = layout.grid(d).origin;
                     let wide = finest_error_lanes::<i64>(n, origin, &p, &ErrorInput::new(&input));
                     PORTABLE.set(true);
-                    let portable = finest_error_fast(n, origin, &p, &ErrorInput::new(&input));
+                    let portable = finest_error_fast(n, origin, &p, grid_abs(&p), &ErrorInput::new(&input));
                     PORTABLE.set(false);
                     proptest::prop_assert_eq!((wide, portable), (want, want), "{} finest", d);
                 }
                 if d.level < layout.finest_level() || !d.is_even() {
                     for parallel in [false, true] {
-                        proptest::prop_assert_eq!(surface_error_scan(&layout, d, &p, &ErrorInput::new(&input), parallel), want, "{} {}", d, parallel);
+                        proptest::prop_assert_eq!(surface_error_scan(&layout, d, &p, grid_abs(&p), &ErrorInput::new(&input), parallel), want, "{} {}", d, parallel);
                         // The same in 64-bit lanes, which the small heights here never pick.
                         proptest::prop_assert_eq!(surface_error_lanes(&layout, d, &p, &ErrorInput::new(&input), parallel, false), want, "{} {} wide", d, parallel);
                     }

@@ -235,20 +235,26 @@ impl PlanetGrid {
         })
     }
 
-    /// A planet of the given tiles: `faces[f]` are face `f`'s tiles in row-major order
-    /// ([`PlanetGrid::tile_rects`]), each at its own stride. `variable`: every tile carries
-    /// resolution classes. The caller computes every shared edge point from its canonical
-    /// point (reads go through it anyway); errors if the tiles do not cut the faces as
-    /// [`PlanetGrid::tile_rects`] says, or a stride is wider than a tile.
+    /// A planet of the given tiles of `2^tile_log2` steps ([`tile_log2`] is what a build
+    /// uses): `faces[f]` are face `f`'s tiles in row-major order ([`PlanetGrid::tile_rects`]),
+    /// each at its own stride. `variable`: every tile carries resolution classes. The caller
+    /// computes every shared edge point from its canonical point (reads go through it anyway);
+    /// errors if the tiles do not cut the faces as [`PlanetGrid::tile_rects`] says, or a
+    /// stride is wider than a tile.
     pub fn from_tiles(
         n: usize,
         k: u32,
+        tile_log2: u32,
         faces: Vec<Vec<PlanetTile>>,
         variable: bool,
     ) -> Result<Self, CodecError> {
         let domain = Domain::cube_sphere(n, k)?;
         let side = domain.cube().expect("a cube-sphere has a cube").side();
-        let tile_log2 = tile_log2(side);
+        if tile_log2 >= 32 {
+            return Err(CodecError::invalid(format!(
+                "tiles of 2^{tile_log2} lattice steps"
+            )));
+        }
         let rects = tile_rects(side, tile_log2);
         if faces.len() != usize::from(domain.faces()) {
             return Err(CodecError::invalid(format!(
@@ -288,11 +294,11 @@ impl PlanetGrid {
         })
     }
 
-    /// The tiles' rectangles of every face of `domain`, row-major: what
-    /// [`PlanetGrid::from_tiles`] takes.
-    pub fn tile_rects(domain: &Domain) -> Vec<(i64, i64, i64, i64)> {
+    /// The rectangles of tiles of `2^tile_log2` steps on every face of `domain`, row-major:
+    /// what [`PlanetGrid::from_tiles`] takes.
+    pub fn tile_rects(domain: &Domain, tile_log2: u32) -> Vec<(i64, i64, i64, i64)> {
         let side = domain.cube().map_or(0, |c| c.side());
-        tile_rects(side, tile_log2(side))
+        tile_rects(side, tile_log2)
     }
 
     /// The same planet at variable resolution: `classes[f]` classifies face `f`'s points

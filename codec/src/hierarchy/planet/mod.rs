@@ -20,7 +20,7 @@ use rayon::prelude::*;
 
 use super::decode::{LevelReport, VerifyReport, walk_all_with_validity};
 use super::encode::{EncodeOptions, record_of, refine_encode, saturate_errors};
-use super::object_error::{ErrorInput, surface_error};
+use super::object_error::{ErrorInput, grid_abs, surface_error_of};
 use super::refine::{Refined, gather};
 use super::resolution::with_parents;
 use super::roots::{encode_roots, root_grid};
@@ -262,6 +262,7 @@ impl<'a> TiledError<'a> {
         let finest = layout.finest_level();
         let bounds = layout.bounds(id);
         let tiles = planet.tiles(id.face);
+        let p_abs = grid_abs(p);
         let one = |i: usize| -> u32 {
             let t = &tiles[i];
             let (max_abs, all_valid) = t.bounds();
@@ -273,7 +274,7 @@ impl<'a> TiledError<'a> {
                 let s = t.stride;
                 let input = ErrorInput::with_bounds(&t.grid, max_abs, all_valid)
                     .placed_at((t.rect.0 >> s, t.rect.1 >> s));
-                return surface_error(&self.layouts[s as usize], scaled(s), p, &input);
+                return surface_error_of(&self.layouts[s as usize], scaled(s), p, p_abs, &input);
             }
             // Finer than the tile's points: its part of the tile at spacing 2^fits, the
             // tile's points valid where they are.
@@ -307,7 +308,7 @@ impl<'a> TiledError<'a> {
             };
             let input =
                 ErrorInput::with_bounds(&grid, max_abs, false).placed_at((x0 >> s, y0 >> s));
-            surface_error(&self.layouts[s as usize], scaled(s), p, &input)
+            surface_error_of(&self.layouts[s as usize], scaled(s), p, p_abs, &input)
         };
         let meeting: Vec<usize> = planet.tiles_meeting(bounds).collect();
         if meeting.len() > 2 {
