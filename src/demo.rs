@@ -27,7 +27,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let (inputs, max_error, planet_level) = if args.planet {
             eprintln!(
                 "demo: building the planet {} from the bundled ETOPO5 (5′) with the SRTM and \
-                 Jacksboro tiles (3″) as insets, K = 6 (0.022° lattice), ε = 4 m",
+                 Jacksboro tiles (3″) as insets at their own spacing (K = 11, 0.0007° lattice, \
+                 held in tiles: every point around the insets, every 64th elsewhere), ε = 4 m",
                 repo.display()
             );
             let data = |f: &str| root.join("data").join(f);
@@ -38,7 +39,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                     data("jacksboro_mpl.tif"),
                 ],
                 4.0,
-                Some(6),
+                None,
             )
         } else {
             eprintln!(

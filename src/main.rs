@@ -494,8 +494,8 @@ pub struct DemoArgs {
     #[arg(long)]
     flight: Option<String>,
     /// A planet instead of the SRTM tile: the bundled ETOPO5 global DEM with the bundled SRTM and
-    /// Jacksboro tiles as insets, resampled onto the cube-sphere on WGS84 (K = 6, 0.022°
-    /// lattice), served, and flown from orbit down to the SRTM tile's summit.
+    /// Jacksboro tiles as insets, resampled onto the cube-sphere on WGS84 at the insets' own 3″
+    /// (K = 11, 0.0007° lattice), served, and flown from orbit down to the SRTM tile's summit.
     #[arg(long)]
     planet: bool,
     /// Size of the rendered frames.

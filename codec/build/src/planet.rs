@@ -48,7 +48,7 @@ pub const GEOGRAPHIC_EPSG: [u32; 4] = [4326, 4269, 4258, 4283];
 /// Bytes the planet build holds per lattice point its tiles hold ([`PlanetGrid`]), measured on
 /// the ETOPO5 planet with margin (`/usr/bin/time -v cbdam build data/etopo5_global.tif --planet
 /// --max-error 16`: 482 MB peak for 25.2 M points, 19.6 B a point): the tiles (6 B with
-/// classes), the resampling winners (1 B) and the encoder's per-diamond refinements of two
+/// classes), the resampling winners (2 B) and the encoder's per-diamond refinements of two
 /// levels.
 pub const BYTES_PER_LATTICE_POINT: u64 = 24;
 
@@ -395,6 +395,10 @@ fn frame_of(g: &GeoRef, width: usize) -> Result<Frame> {
     )
 }
 
+/// Inputs a planet combines at most: which one wins a lattice point is kept in 16 bits,
+/// `u16::MAX` meaning none.
+pub const MAX_PLANET_INPUTS: usize = u16::MAX as usize - 1;
+
 /// All inputs of a planet, finest first.
 pub struct PlanetInputs {
     /// The inputs, by ground spacing (finest first; ties in the order given).
@@ -407,13 +411,11 @@ impl PlanetInputs {
         if tiles.is_empty() {
             bail!("no input given");
         }
-        // Which input wins a lattice point is kept in a byte, `u8::MAX` meaning none.
-        if tiles.len() >= usize::from(u8::MAX) {
+        if tiles.len() > MAX_PLANET_INPUTS {
             bail!(
-                "{} inputs: a planet combines at most {} (each is held whole while it is \
-                 resampled); merge tiles of the same source into larger ones first",
+                "{} inputs: a planet combines at most {MAX_PLANET_INPUTS}; merge tiles of the \
+                 same source into larger ones first",
                 tiles.len(),
-                u8::MAX - 1
             );
         }
         let mut inputs = tiles
@@ -445,26 +447,27 @@ impl PlanetInputs {
             .collect()
     }
 
-    /// What lattice point `(x, y)` at `ll` takes: the first input (finest first) that covers it.
-    /// On that input's stride the point is one of its samples ([`PointSource::Sample`]; the
-    /// height for a lattice cell `2^stride` times the lattice's, `lattice_deg` across); between
-    /// them it is coarse only. `None`: no input covers it.
+    /// What lattice point `(x, y)` at `ll` takes: the first of the `candidates` (indices of
+    /// the inputs that can cover it, finest first: [`TilePlan::candidates`]) that covers it. On
+    /// that input's stride the point is one of its samples ([`PointSource::Sample`]; the height
+    /// for a lattice cell `2^stride` times the lattice's, `lattice_deg` across); between them it
+    /// is coarse only. `None`: no input covers it.
     fn source_at(
         &self,
+        candidates: &[u16],
         ll: LatLon,
         (x, y): (i64, i64),
         lattice_deg: f64,
         strides: &[u32],
     ) -> Option<PointSource> {
-        self.inputs.iter().enumerate().find_map(|(i, input)| {
-            let j = strides[i];
+        candidates.iter().find_map(|&i| {
+            let j = strides[usize::from(i)];
             let step = 1i64 << j;
-            let v = input.height_at(ll, lattice_deg * step as f64)?;
-            let winner = u8::try_from(i).unwrap_or(u8::MAX);
+            let v = self.inputs[usize::from(i)].height_at(ll, lattice_deg * step as f64)?;
             Some(if x % step == 0 && y % step == 0 {
-                PointSource::Sample(v, winner, j as u8)
+                PointSource::Sample(v, i, j as u8)
             } else {
-                PointSource::CoarseOnly(winner)
+                PointSource::CoarseOnly(i)
             })
         })
     }
@@ -474,9 +477,9 @@ impl PlanetInputs {
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum PointSource {
     /// Height (metres), the winning input and its stride's `log2`.
-    Sample(f64, u8, u8),
+    Sample(f64, u16, u8),
     /// Between the samples of this (coarser) input: drawn from its level, not constrained.
-    CoarseOnly(u8),
+    CoarseOnly(u16),
 }
 
 /// `log2` of the stride at which an input of ground spacing `input_deg` samples a lattice of
@@ -508,7 +511,7 @@ pub fn choose_level(
 ) -> Result<u32> {
     const MAX_K: u32 = 16;
     let need = |k: u32| -> Result<u64> {
-        Ok(held_points(n, k, &plan_tiles(inputs, n, k)?)? * BYTES_PER_LATTICE_POINT)
+        Ok(held_points(n, k, &plan_tiles(inputs, n, k)?.strides)? * BYTES_PER_LATTICE_POINT)
     };
     if let Some(k) = forced {
         if k > MAX_K {
@@ -558,43 +561,80 @@ fn held_points(n: usize, k: u32, plan: &[Vec<u32>]) -> Result<u64> {
         .sum())
 }
 
+/// What each tile of a planet's faces holds ([`plan_tiles`]).
+pub struct TilePlan {
+    /// Per face, per tile: `log2` of the stride of the points it holds.
+    pub strides: Vec<Vec<u32>>,
+    /// Per face, per tile: the inputs that can cover a point of it, finest first (indices into
+    /// [`PlanetInputs::inputs`]): the inputs around the globe, and the others whose samples lie
+    /// in or near the tile. Only these are asked for the tile's points, so a planet of
+    /// thousands of tiles asks a handful for each point.
+    pub candidates: Vec<Vec<Vec<u16>>>,
+}
+
 /// The stride (`log2`) at which each tile of each face of the `n`, `k` lattice holds its
-/// points ([`PlanetGrid`]): the finest stride of the inputs whose samples lie in or near it
-/// (within a few of their cells, across face edges too), and where only the coarsest inputs
-/// lie, their stride (at most the tile's side). An input's footprint is found from its sample
-/// positions (every `q`-th, close enough that no covered lattice point is farther than the
-/// margin from one), so a fine inset makes only the tiles around it dense. [`resample`] makes
-/// a tile denser still should one of its points turn out to take a finer input's sample.
-pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<Vec<Vec<u32>>> {
+/// points ([`PlanetGrid`]), and the inputs that can cover it: the finest stride (at most the
+/// tile's side) of the inputs around the globe and of those whose samples lie in or near it
+/// (within a few of their cells, across face edges too); the tile's side where none does
+/// (its corners only, holes). An input's
+/// footprint is found from its sample positions (every `q`-th, close enough that no covered
+/// lattice point is farther than the margin from one), so a fine inset makes only the tiles
+/// around it dense. [`resample`] makes a tile denser still should one of its points turn out to
+/// take a finer input's sample.
+pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
     let domain = Domain::cube_sphere(n, k)?;
     let cube = *domain.cube().expect("a cube-sphere");
     let side = cube.side();
     let t = tile_log2(side);
     let rects = PlanetGrid::tile_rects(&domain, t);
     let strides = inputs.strides(n, k);
-    let coarsest = strides.iter().copied().max().unwrap_or(0);
-    let mut plan = vec![vec![coarsest.min(t); rects.len()]; usize::from(domain.faces())];
+    let faces = usize::from(domain.faces());
+    // A tile no input reaches holds its corners only (holes all).
+    let mut plan = vec![vec![t; rects.len()]; faces];
+    let mut candidates: Vec<Vec<Vec<u16>>> = vec![vec![Vec::new(); rects.len()]; faces];
     let tile_index = |x: i64, y: i64| {
         let across = ((side + (1 << t) - 1) >> t).max(1);
         let (bx, by) = ((x >> t).min(across - 1), (y >> t).min(across - 1));
         (by * across + bx) as usize
     };
-    for (input, &j) in inputs.inputs.iter().zip(&strides) {
-        if j >= coarsest {
+    for (i, (input, &j)) in inputs.inputs.iter().zip(&strides).enumerate() {
+        let i = u16::try_from(i).expect("at most MAX_PLANET_INPUTS inputs");
+        let mark = j.min(t);
+        if matches!(
+            input.frame,
+            Frame::Geographic {
+                period: Some(_),
+                ..
+            }
+        ) {
+            // Around the globe: a candidate everywhere.
+            for (tiles, strides) in candidates.iter_mut().zip(&mut plan) {
+                for (c, s) in tiles.iter_mut().zip(strides.iter_mut()) {
+                    c.push(i);
+                    *s = (*s).min(mark);
+                }
+            }
             continue;
         }
-        let mark = j.min(t);
         // Sample positions `q` apart are at most `q·2^(j+1)` lattice steps apart (an input's
         // spacing is under twice its stride); a lattice point it covers lies within one cell
         // of its samples.
         let cell = 2i64 << j;
         let q = ((1i64 << t) / (4 * cell)).max(1) as usize;
-        let margin = (q as i64 * cell + cell).min(side);
+        let margin = ((q as i64 + 2) * cell).min(side);
+        // Offsets no farther apart than half a tile, so that every tile within the margin is
+        // met.
+        let reach = margin.min(1 << (t - 1)).max(1);
+        let mut offsets: Vec<i64> = (0..)
+            .map(|m| -margin + m * reach)
+            .take_while(|&o| o < margin)
+            .collect();
+        offsets.push(margin);
         let along = |len: usize| (0..len).step_by(q).chain([len - 1]);
         let positions: Vec<(usize, usize)> = along(input.height)
             .flat_map(|r| along(input.width).map(move |c| (c, r)))
             .collect();
-        let hits: Vec<(u8, usize)> = positions
+        let mut hits: Vec<(u8, usize)> = positions
             .par_iter()
             .flat_map_iter(|&(c, r)| {
                 let (face, s, tt) = lat_lon_to_face_st(input.lat_lon_of(c, r));
@@ -603,8 +643,8 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<Vec<Vec<u32
                     (tt * side as f64).round() as i64,
                 );
                 let mut hits = Vec::new();
-                for dy in [-margin, 0, margin] {
-                    for dx in [-margin, 0, margin] {
+                for &dy in &offsets {
+                    for &dx in &offsets {
                         let Some(p) = cube.locate(face, x + dx, y + dy) else {
                             continue;
                         };
@@ -617,12 +657,21 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<Vec<Vec<u32
                 hits
             })
             .collect();
-        for (face, i) in hits {
-            let s = &mut plan[usize::from(face)][i];
-            *s = (*s).min(mark);
+        hits.sort_unstable();
+        hits.dedup();
+        for (face, tile) in hits {
+            let f = usize::from(face);
+            plan[f][tile] = plan[f][tile].min(mark);
+            let c = &mut candidates[f][tile];
+            if c.last() != Some(&i) {
+                c.push(i);
+            }
         }
     }
-    Ok(plan)
+    Ok(TilePlan {
+        strides: plan,
+        candidates,
+    })
 }
 
 /// The resampled lattice: integer heights under `plan`, and per point held which input won.
@@ -630,22 +679,11 @@ pub struct Resampled {
     /// The planet's heights (with resolution classes when an input is coarser than the
     /// lattice, [`input_stride`]).
     pub planet: PlanetGrid,
-    /// Per face, per tile, per point the tile holds: the winning input's index, `u8::MAX` for
-    /// none.
-    pub winners: Vec<Vec<Vec<u8>>>,
+    /// Per face, per tile, per point the tile holds: the winning input's index, `u16::MAX`
+    /// for none.
+    pub winners: Vec<Vec<Vec<u16>>>,
     /// Per input, `log2` of its stride on the lattice ([`input_stride`]).
     pub strides: Vec<u32>,
-}
-
-impl Resampled {
-    /// The input that won lattice point `(x, y)` of `face` (inside the face) on that face's
-    /// tile, if the tile holds the point.
-    #[inline]
-    fn winner(&self, face: u8, x: i64, y: i64) -> Option<u8> {
-        let i = self.planet.tile_index(x, y);
-        let k = self.planet.tiles(face)[i].index(x, y)?;
-        Some(self.winners[usize::from(face)][i][k])
-    }
 }
 
 /// Resamples the inputs onto the `N`, `K` cube-sphere (see the module documentation): the
@@ -658,19 +696,23 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
     let lattice_deg = lattice_spacing_deg(n, k);
     let strides = inputs.strides(n, k);
     let variable = strides.iter().any(|&j| j > 0);
-    let tile_strides = plan_tiles(inputs, n, k)?;
+    let TilePlan {
+        strides: tile_strides,
+        candidates,
+    } = plan_tiles(inputs, n, k)?;
     let rects = PlanetGrid::tile_rects(&domain, tile_log2(side));
     let lattices: Vec<FaceLattice> = (0..domain.faces())
         .map(|face| FaceLattice::new(face, side))
         .collect();
     // One tile's points at stride 2^s: heights, validity, classes and winners.
-    let evaluate = |face: u8, rect: (i64, i64, i64, i64), s: u32| {
+    let evaluate = |face: u8, tile: usize, rect: (i64, i64, i64, i64), s: u32| {
+        let candidates = &candidates[usize::from(face)][tile];
         let (x0, y0, x1, y1) = rect;
         let (w, h) = (((x1 - x0) >> s) as usize + 1, ((y1 - y0) >> s) as usize + 1);
         let lattice = &lattices[usize::from(face)];
         let mut values = vec![0; w * h];
         let mut valid = vec![false; w * h];
-        let mut won = vec![u8::MAX; w * h];
+        let mut won = vec![u16::MAX; w * h];
         let mut class = vec![HOLE; w * h];
         values
             .par_chunks_mut(w)
@@ -690,7 +732,7 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
                     } else {
                         lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
                     };
-                    match inputs.source_at(ll, (x, y), lattice_deg, &strides) {
+                    match inputs.source_at(candidates, ll, (x, y), lattice_deg, &strides) {
                         Some(PointSource::Sample(v, wi, j)) => {
                             if let Some(u) = plan.to_units(v).ok().flatten() {
                                 values[i] = u;
@@ -710,19 +752,20 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
         let finest = class.iter().copied().filter(|&c| c < 32).min();
         (values, valid, won, class, finest)
     };
-    let faces: Vec<Vec<(PlanetTile, Vec<u8>)>> = (0..domain.faces())
+    let faces: Vec<Vec<(PlanetTile, Vec<u16>)>> = (0..domain.faces())
         .map(|face| {
             rects
                 .par_iter()
                 .zip(&tile_strides[usize::from(face)])
-                .map(|(&rect, &planned)| {
+                .enumerate()
+                .map(|(i, (&rect, &planned))| {
                     let mut s = planned;
-                    let mut tile = evaluate(face, rect, s);
+                    let mut tile = evaluate(face, i, rect, s);
                     // A point that took a finer input's sample than planned: the tile holds
                     // every point of that input's stride.
                     if let Some(j) = tile.4.filter(|&j| u32::from(j) < s) {
                         s = u32::from(j);
-                        tile = evaluate(face, rect, s);
+                        tile = evaluate(face, i, rect, s);
                     }
                     let (values, valid, won, class, _) = tile;
                     let (x0, y0, x1, y1) = rect;
@@ -788,7 +831,7 @@ pub fn resampling_error(
         .iter()
         .enumerate()
         .map(|(i, input)| {
-            let me = u8::try_from(i).unwrap_or(u8::MAX);
+            let me = u16::try_from(i).unwrap_or(u16::MAX);
             // The input's samples are the lattice points on its stride: the surface drawn
             // where it is the finest data interpolates those.
             let step = 1i64 << resampled.strides[i];
@@ -826,15 +869,24 @@ pub fn resampling_error(
                         // Corners inside the face (x0, y0 < S): its own tiles hold them (the
                         // input's samples made them dense enough, `plan_tiles`), equal to every
                         // other face's on shared points.
+                        // The four corners lie in the tile of the first but where the cell
+                        // crosses a tile's side.
                         let tiles = planet.tiles(face);
+                        let winners = &resampled.winners[usize::from(face)];
+                        let first = planet.tile_index(x0 * step, y0 * step);
+                        let (_, _, tx1, ty1) = tiles[first].rect;
+                        let one_tile = (x0 + 1) * step <= tx1 && (y0 + 1) * step <= ty1;
                         let corner = |dx: i64, dy: i64| {
                             let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
-                            if resampled.winner(face, px, py)? != me {
-                                return None;
-                            }
-                            let t = &tiles[planet.tile_index(px, py)];
+                            let i = if one_tile {
+                                first
+                            } else {
+                                planet.tile_index(px, py)
+                            };
+                            let t = &tiles[i];
                             let k = t.index(px, py)?;
-                            t.grid.valid[k].then(|| plan.metres(t.grid.values[k]))
+                            (winners[i][k] == me && t.grid.valid[k])
+                                .then(|| plan.metres(t.grid.values[k]))
                         };
                         let (Some(a), Some(b), Some(cc), Some(d)) =
                             (corner(0, 0), corner(1, 0), corner(0, 1), corner(1, 1))
@@ -1186,16 +1238,15 @@ mod tests {
         };
         // 90°/(16·2^K) ≤ 0.25° first at K = 5 (0.176°); K = 4 is 0.352°.
         assert_eq!(choose_level(&inputs, 17, None, u64::MAX).unwrap(), 5);
-        // Faces of 512 (K = 5) and 256 (K = 4) steps are one tile each. The 2° input takes
-        // every 8th point at K = 5 (8 · 0.176° ≤ 2°) and every 4th at K = 4; the face under the
-        // fine input holds every point.
+        // Faces of 512 (K = 5) and 256 (K = 4) steps are one tile each: the face under the two
+        // inputs (both near 0° N 0° E) holds every point for the fine one, the five others,
+        // which no input reaches, their 4 corners.
         let at = |k: u32| {
             let side = 16u64 << k;
-            let coarse = side / if k == 5 { 8 } else { 4 } + 1;
-            ((side + 1) * (side + 1) + 5 * coarse * coarse) * BYTES_PER_LATTICE_POINT
+            ((side + 1) * (side + 1) + 5 * 4) * BYTES_PER_LATTICE_POINT
         };
         assert_eq!(
-            held_points(17, 5, &plan_tiles(&inputs, 17, 5).unwrap()).unwrap()
+            held_points(17, 5, &plan_tiles(&inputs, 17, 5).unwrap().strides).unwrap()
                 * BYTES_PER_LATTICE_POINT,
             at(5)
         );
@@ -1206,6 +1257,25 @@ mod tests {
         // the input's tiles: K = 6 costs what K = 5 did, so a forced finer level fits too.
         assert_eq!(choose_level(&inputs, 17, Some(6), at(5)).unwrap(), 6);
         assert_eq!(choose_level(&inputs, 17, Some(3), at(5)).unwrap(), 3);
+    }
+
+    /// More inputs than a winner index holds are refused by count, before any is read.
+    #[test]
+    fn more_inputs_than_a_planet_tells_apart_are_refused_before_reading() {
+        let tiles: Vec<Tile> = (0..=MAX_PLANET_INPUTS)
+            .map(|i| Tile {
+                path: PathBuf::from(format!("/nonexistent/{i}.tif")),
+                vrt: None,
+            })
+            .collect();
+        let e = PlanetInputs::read(&tiles, None).err().unwrap().to_string();
+        assert!(
+            e.contains("65535 inputs") && e.contains("at most 65534"),
+            "{e}"
+        );
+        // One fewer is read (and fails on the first missing file, naming it).
+        let e = PlanetInputs::read(&tiles[1..], None).err().unwrap();
+        assert!(format!("{e:#}").contains("/nonexistent/1.tif"), "{e:#}");
     }
 
     /// Bilinear interpolation reproduces a function linear in columns and rows, wraps across
