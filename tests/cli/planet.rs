@@ -513,6 +513,48 @@ fn a_fine_inset_builds_at_its_own_lattice_holding_only_the_points_around_it() {
     assert!(global_compared > 10_000, "{text}");
     assert!(global_max < 1.0, "{text}");
 
+    // The inset cut into 8 × 8 tiles of 6 × 6 samples sharing their edge rows and columns
+    // (as SRTM's do): each lattice tile asks only the small inputs whose rectangles reach its
+    // points, and the planet is the same (its records and roots; the header's resampling
+    // figures count samples per input, so they differ).
+    let mut cut = vec![s(&global)];
+    for tr in 0..8 {
+        for tc in 0..8 {
+            let tile = d.join(format!("t{tr}{tc}.tif"));
+            let (lat0, lon0) = (45.1 - 0.025 * tr as f64, 14.9 + 0.025 * tc as f64);
+            write(&tile, (6, 6), geographic((lon0, lat0), 0.005), |c, r| {
+                let ll = LatLon {
+                    lat: 45.1 - 0.005 * (5 * tr + r) as f64,
+                    lon: 14.9 + 0.005 * (5 * tc + c) as f64,
+                };
+                relief(ll) + hill(ll)
+            });
+            cut.push(s(&tile));
+        }
+    }
+    let tiled = d.join("tiled.cbdam");
+    let mut args: Vec<&str> = vec!["build"];
+    args.extend(cut.iter().map(String::as_str));
+    args.extend(["--planet", "--diamond-size", "17", "--max-error", "1", "-o"]);
+    let tiled_s = s(&tiled);
+    args.push(&tiled_s);
+    let o = cbdam(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("K = 11"), "{}", stdout(&o));
+    let open = |p: &Path| {
+        cbdam_codec::repository::Repository::open(p)
+            .unwrap()
+            .to_encoded()
+            .unwrap()
+    };
+    let (whole, pieces) = (open(&out), open(&tiled));
+    assert!(
+        whole.records == pieces.records && whole.roots == pieces.roots,
+        "the inset cut into 64 tiles builds another planet ({} and {} records)",
+        whole.records.len(),
+        pieces.records.len()
+    );
+
     // Below what the tiles need, the lattice is capped (and says so), not refused.
     let o = build("16M");
     assert!(o.status.success(), "{}", stderr(&o));

@@ -447,28 +447,25 @@ impl PlanetInputs {
             .collect()
     }
 
-    /// What lattice point `(x, y)` at `ll` takes: the first of the `candidates` (indices of
-    /// the inputs that can cover it, finest first: [`TilePlan::candidates`]) that covers it. On
-    /// that input's stride the point is one of its samples ([`PointSource::Sample`]; the height
-    /// for a lattice cell `2^stride` times the lattice's, `lattice_deg` across); between them it
-    /// is coarse only. `None`: no input covers it.
-    fn source_at(
+    /// What lattice point `(x, y)` at `ll` takes from input `i`, if it covers it: on that
+    /// input's stride the point is one of its samples ([`PointSource::Sample`]; the height for
+    /// a lattice cell `2^stride` times the lattice's, `lattice_deg` across); between them it is
+    /// coarse only. A point takes the first input (finest first) that covers it.
+    fn source_of(
         &self,
-        candidates: &[u16],
+        i: u16,
         ll: LatLon,
         (x, y): (i64, i64),
         lattice_deg: f64,
         strides: &[u32],
     ) -> Option<PointSource> {
-        candidates.iter().find_map(|&i| {
-            let j = strides[usize::from(i)];
-            let step = 1i64 << j;
-            let v = self.inputs[usize::from(i)].height_at(ll, lattice_deg * step as f64)?;
-            Some(if x % step == 0 && y % step == 0 {
-                PointSource::Sample(v, i, j as u8)
-            } else {
-                PointSource::CoarseOnly(i)
-            })
+        let j = strides[usize::from(i)];
+        let step = 1i64 << j;
+        let v = self.inputs[usize::from(i)].height_at(ll, lattice_deg * step as f64)?;
+        Some(if x % step == 0 && y % step == 0 {
+            PointSource::Sample(v, i, j as u8)
+        } else {
+            PointSource::CoarseOnly(i)
         })
     }
 }
@@ -561,15 +558,20 @@ fn held_points(n: usize, k: u32, plan: &[Vec<u32>]) -> Result<u64> {
         .sum())
 }
 
+/// An input that can cover part of a lattice tile: its index, and the rectangle of the tile
+/// (`(x0, y0, x1, y1)`, inclusive) it can cover (`None`: the whole tile).
+pub type Candidate = (u16, Option<(i64, i64, i64, i64)>);
+
 /// What each tile of a planet's faces holds ([`plan_tiles`]).
 pub struct TilePlan {
     /// Per face, per tile: `log2` of the stride of the points it holds.
     pub strides: Vec<Vec<u32>>,
     /// Per face, per tile: the inputs that can cover a point of it, finest first (indices into
-    /// [`PlanetInputs::inputs`]): the inputs around the globe, and the others whose samples lie
-    /// in or near the tile. Only these are asked for the tile's points, so a planet of
-    /// thousands of tiles asks a handful for each point.
-    pub candidates: Vec<Vec<Vec<u16>>>,
+    /// [`PlanetInputs::inputs`]), each with the rectangle of the tile it can cover: the inputs
+    /// around the globe (`None`: all of it), and the others whose samples lie in or near the
+    /// tile. Only these are asked, and only inside their rectangles, so a planet of thousands
+    /// of tiles asks a handful for each point.
+    pub candidates: Vec<Vec<Vec<Candidate>>>,
 }
 
 /// The stride (`log2`) at which each tile of each face of the `n`, `k` lattice holds its
@@ -591,7 +593,7 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
     let faces = usize::from(domain.faces());
     // A tile no input reaches holds its corners only (holes all).
     let mut plan = vec![vec![t; rects.len()]; faces];
-    let mut candidates: Vec<Vec<Vec<u16>>> = vec![vec![Vec::new(); rects.len()]; faces];
+    let mut candidates: Vec<Vec<Vec<Candidate>>> = vec![vec![Vec::new(); rects.len()]; faces];
     let tile_index = |x: i64, y: i64| {
         let across = ((side + (1 << t) - 1) >> t).max(1);
         let (bx, by) = ((x >> t).min(across - 1), (y >> t).min(across - 1));
@@ -610,7 +612,7 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
             // Around the globe: a candidate everywhere.
             for (tiles, strides) in candidates.iter_mut().zip(&mut plan) {
                 for (c, s) in tiles.iter_mut().zip(strides.iter_mut()) {
-                    c.push(i);
+                    c.push((i, None));
                     *s = (*s).min(mark);
                 }
             }
@@ -620,13 +622,16 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
         // spacing is under twice its stride); a lattice point it covers lies within one cell
         // of its samples.
         let cell = 2i64 << j;
-        let q = ((1i64 << t) / (4 * cell)).max(1) as usize;
+        // At most a quarter of the tile or of the input apart.
+        let q = ((1i64 << t) / (4 * cell))
+            .min((input.width.min(input.height) / 4) as i64)
+            .max(1) as usize;
         let margin = ((q as i64 + 2) * cell).min(side);
         // Offsets no farther apart than half a tile, so that every tile within the margin is
         // met.
-        let reach = margin.min(1 << (t - 1)).max(1);
+        let step = margin.min(1 << (t - 1)).max(1);
         let mut offsets: Vec<i64> = (0..)
-            .map(|m| -margin + m * reach)
+            .map(|m| -margin + m * step)
             .take_while(|&o| o < margin)
             .collect();
         offsets.push(margin);
@@ -634,7 +639,7 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
         let positions: Vec<(usize, usize)> = along(input.height)
             .flat_map(|r| along(input.width).map(move |c| (c, r)))
             .collect();
-        let mut hits: Vec<(u8, usize)> = positions
+        let hits: Vec<(u8, usize, i64, i64)> = positions
             .par_iter()
             .flat_map_iter(|&(c, r)| {
                 let (face, s, tt) = lat_lon_to_face_st(input.lat_lon_of(c, r));
@@ -650,22 +655,34 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
                         };
                         let (reps, len) = cube.representations(p);
                         for r in &reps[..len] {
-                            hits.push((r.face, tile_index(r.x, r.y)));
+                            hits.push((r.face, tile_index(r.x, r.y), r.x, r.y));
                         }
                     }
                 }
                 hits
             })
             .collect();
-        hits.sort_unstable();
-        hits.dedup();
-        for (face, tile) in hits {
+        // Per tile met, the rectangle of the points met (the footprint and its margin there).
+        let mut reach_of: std::collections::BTreeMap<(u8, usize), (i64, i64, i64, i64)> =
+            std::collections::BTreeMap::new();
+        for (face, tile, x, y) in hits {
+            let r = reach_of.entry((face, tile)).or_insert((x, y, x, y));
+            *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y));
+        }
+        // A covered point of a tile lies within one offset step of a point met there (the
+        // offsets are a grid no coarser than `step` over each position's square, and a tile
+        // is wider than that).
+        for ((face, tile), r) in reach_of {
             let f = usize::from(face);
             plan[f][tile] = plan[f][tile].min(mark);
-            let c = &mut candidates[f][tile];
-            if c.last() != Some(&i) {
-                c.push(i);
-            }
+            let (tx0, ty0, tx1, ty1) = rects[tile];
+            let grown = (
+                (r.0 - step).max(tx0),
+                (r.1 - step).max(ty0),
+                (r.2 + step).min(tx1),
+                (r.3 + step).min(ty1),
+            );
+            candidates[f][tile].push((i, Some(grown)));
         }
     }
     Ok(TilePlan {
@@ -705,8 +722,10 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
         .map(|face| FaceLattice::new(face, side))
         .collect();
     // One tile's points at stride 2^s: heights, validity, classes and winners.
+    // One tile's points at stride 2^s: heights, validity, classes and winners. The inputs
+    // that can cover the tile paint it finest first, each over its own rectangle, each point
+    // taking the first that covers it.
     let evaluate = |face: u8, tile: usize, rect: (i64, i64, i64, i64), s: u32| {
-        let candidates = &candidates[usize::from(face)][tile];
         let (x0, y0, x1, y1) = rect;
         let (w, h) = (((x1 - x0) >> s) as usize + 1, ((y1 - y0) >> s) as usize + 1);
         let lattice = &lattices[usize::from(face)];
@@ -714,41 +733,64 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
         let mut valid = vec![false; w * h];
         let mut won = vec![u16::MAX; w * h];
         let mut class = vec![HOLE; w * h];
-        values
-            .par_chunks_mut(w)
-            .zip(valid.par_chunks_mut(w))
-            .zip(won.par_chunks_mut(w))
-            .zip(class.par_chunks_mut(w))
-            .enumerate()
-            .for_each(|(row, (((values, valid), won), class))| {
-                let y = y0 + ((row as i64) << s);
-                for i in 0..w {
-                    let x = x0 + ((i as i64) << s);
-                    // Interior points are their own canonical point; edge and corner points
-                    // are computed from their owner, so every face holding one sees the same
-                    // bits.
-                    let ll = if 0 < x && x < side && 0 < y && y < side {
-                        lattice.lat_lon(x as usize, y as usize)
-                    } else {
-                        lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
-                    };
-                    match inputs.source_at(candidates, ll, (x, y), lattice_deg, &strides) {
-                        Some(PointSource::Sample(v, wi, j)) => {
-                            if let Some(u) = plan.to_units(v).ok().flatten() {
-                                values[i] = u;
-                                valid[i] = true;
-                                won[i] = wi;
-                                class[i] = j;
+        let mut done = vec![false; w * h];
+        let step = 1i64 << s;
+        for &(input, reach) in &candidates[usize::from(face)][tile] {
+            // The tile's points (on its stride) in the input's rectangle.
+            let (rx0, ry0, rx1, ry1) = reach.unwrap_or(rect);
+            let first = |lo: i64, o: i64| ((lo.max(o) - o + step - 1) / step) as usize;
+            let last = |hi: i64, o: i64, n: usize| (((hi - o) / step) as usize).min(n - 1);
+            if rx1 < x0 || ry1 < y0 || rx0 > x1 || ry0 > y1 {
+                continue;
+            }
+            let (c0, c1) = (first(rx0, x0), last(rx1, x0, w));
+            let (r0, r1) = (first(ry0, y0), last(ry1, y0, h));
+            if c0 > c1 || r0 > r1 {
+                continue;
+            }
+            let rows = (r0 * w)..((r1 + 1) * w);
+            values[rows.clone()]
+                .par_chunks_mut(w)
+                .zip(valid[rows.clone()].par_chunks_mut(w))
+                .zip(won[rows.clone()].par_chunks_mut(w))
+                .zip(class[rows.clone()].par_chunks_mut(w))
+                .zip(done[rows].par_chunks_mut(w))
+                .enumerate()
+                .for_each(|(row, ((((values, valid), won), class), done))| {
+                    let y = y0 + (((r0 + row) as i64) << s);
+                    for i in c0..=c1 {
+                        if done[i] {
+                            continue;
+                        }
+                        let x = x0 + ((i as i64) << s);
+                        // Interior points are their own canonical point; edge and corner
+                        // points are computed from their owner, so every face holding one sees
+                        // the same bits.
+                        let ll = if 0 < x && x < side && 0 < y && y < side {
+                            lattice.lat_lon(x as usize, y as usize)
+                        } else {
+                            lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
+                        };
+                        match inputs.source_of(input, ll, (x, y), lattice_deg, &strides) {
+                            Some(PointSource::Sample(v, wi, j)) => {
+                                if let Some(u) = plan.to_units(v).ok().flatten() {
+                                    values[i] = u;
+                                    valid[i] = true;
+                                    won[i] = wi;
+                                    class[i] = j;
+                                }
+                                done[i] = true;
                             }
+                            Some(PointSource::CoarseOnly(wi)) => {
+                                won[i] = wi;
+                                class[i] = COARSE_ONLY;
+                                done[i] = true;
+                            }
+                            None => {}
                         }
-                        Some(PointSource::CoarseOnly(wi)) => {
-                            won[i] = wi;
-                            class[i] = COARSE_ONLY;
-                        }
-                        None => {}
                     }
-                }
-            });
+                });
+        }
         let finest = class.iter().copied().filter(|&c| c < 32).min();
         (values, valid, won, class, finest)
     };
