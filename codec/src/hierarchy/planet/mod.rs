@@ -105,8 +105,8 @@ pub fn encode_planet(
                 let (x0, y0, x1, y1) = domain.layout().bounds(id);
                 let tile = &planet.tiles(id.face)[planet.tile_index(x0.max(0), y0.max(0))];
                 let (tx0, ty0, tx1, ty1) = tile.rect;
-                let r = if 0 < x0.min(y0)
-                    && x1.max(y1) < side
+                let inside = 0 < x0.min(y0) && x1.max(y1) < side;
+                let r = if inside
                     && tile.stride == 0
                     && (tx0..=tx1).contains(&x0)
                     && (tx0..=tx1).contains(&x1)
@@ -123,6 +123,14 @@ pub fn encode_planet(
                     let target = |x: i64, y: i64| {
                         let k = (y - ty0) as usize * w + (x - tx0) as usize;
                         valid[k].then(|| values[k])
+                    };
+                    refine_encode(&params, id, &p, target, drawn)?
+                } else if inside {
+                    // Inside the face but over several tiles: each point read on its tile,
+                    // still without locating it.
+                    let target = |x: i64, y: i64| {
+                        let (t, k) = planet.held(id.face, x, y)?;
+                        t.grid.valid[k].then(|| t.grid.values[k])
                     };
                     refine_encode(&params, id, &p, target, drawn)?
                 } else {
