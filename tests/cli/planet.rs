@@ -564,3 +564,54 @@ fn a_fine_inset_builds_at_its_own_lattice_holding_only_the_points_around_it() {
         "{text}"
     );
 }
+
+/// A 0.005° inset centred on a cube corner (45° E, 35.446° N geodetic: three faces meet there)
+/// builds at its own lattice (K = 11) with the tiles of all three faces around the corner
+/// asking it: its samples are compared wherever the lattice points around them took its heights
+/// (all but its outer ring, where a lattice cell reaches past it), with the resampling error of
+/// a smooth relief, and every level verifies. A face whose tiles did not ask the inset would
+/// leave the global grid's heights under its part of the inset: those samples would go
+/// uncompared, or compared against the wrong heights.
+#[test]
+fn an_inset_on_a_cube_corner_is_resampled_on_all_three_faces() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let global = d.join("global.tif");
+    write_global(&global);
+    let inset = d.join("corner.tif");
+    let (lat0, lon0) = (35.446 + 0.1, 45.0 - 0.1);
+    write(&inset, (41, 41), geographic((lon0, lat0), 0.005), |c, r| {
+        relief(LatLon {
+            lat: lat0 - 0.005 * r as f64,
+            lon: lon0 + 0.005 * c as f64,
+        })
+    });
+    let out = d.join("planet.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(&global),
+        &s(&inset),
+        "--planet",
+        "--diamond-size",
+        "17",
+        "-o",
+        &s(&out),
+        "--max-error",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("K = 11"), "{}", stdout(&o));
+    let o = cbdam(&["verify", &s(&out), "--against", &s(&global), &s(&inset)]);
+    let text = stdout(&o);
+    assert!(o.status.success(), "{text}\n{}", stderr(&o));
+    let (compared, samples, max) = compared_and_max(&text, "corner.tif");
+    assert_eq!(samples, 41 * 41);
+    // The 39 × 39 inner samples at least (the outer ring's cells may reach past the inset).
+    assert!(
+        compared >= 39 * 39,
+        "{compared} of {samples} compared\n{text}"
+    );
+    // Bilinear twice over cells of at most 0.005° on a relief with |f''| ≤ 1300 m/rad² ≈
+    // 0.4 m/deg²: micrometres; half a unit (0.0625 m) of rounding dominates.
+    assert!(max < 0.1, "resampling error {max} m\n{text}");
+}
