@@ -262,8 +262,8 @@ impl<'a> TiledError<'a> {
         Ok(Self { planet, layouts })
     }
 
-    /// The error of `id`'s grid `p` (in `face`'s frame, `id.face == face`) against the valid
-    /// points of `face` under it.
+    /// The error of `id`'s grid `p` (in the frame of `id.face`) against the valid points of
+    /// that face under it.
     fn face_error(&self, id: DiamondId, p: &[i32]) -> u32 {
         let planet = self.planet;
         let layout = planet.domain().layout();
