@@ -482,36 +482,6 @@ impl PlanetGrid {
         )
     }
 
-    /// The resolution classes of face `face` (every point, row-major), for a variable-
-    /// resolution planet; points between those a tile holds are [`COARSE_ONLY`] or [`HOLE`]
-    /// as [`PlanetGrid::drawn`] says. For small planets (tests): it is a whole face.
-    pub fn face_classes(&self, face: u8) -> Option<Resolution> {
-        if !self.variable {
-            return None;
-        }
-        let side = self.domain.cube().expect("a cube-sphere").side();
-        let points = side as usize + 1;
-        let mut class = vec![HOLE; points * points];
-        for y in 0..=side {
-            for x in 0..=side {
-                let k = y as usize * points + x as usize;
-                class[k] = match self.held(face, x, y) {
-                    Some((t, i)) => t.class.as_ref().expect("classes on every tile")[i],
-                    None if self.drawn(face, x, y) == Some(true) => COARSE_ONLY,
-                    None => HOLE,
-                };
-            }
-        }
-        Some(Resolution {
-            class: class.into(),
-        })
-    }
-
-    /// Whether the planet is at variable resolution (its tiles carry classes).
-    pub fn is_variable(&self) -> bool {
-        self.variable
-    }
-
     /// Face `face` as one grid of every lattice point (points between those held are invalid).
     /// For small planets (tests, whole-face comparisons).
     pub fn face_grid(&self, face: u8) -> HeightGrid {
@@ -580,16 +550,6 @@ impl PlanetGrid {
             .flatten()
             .filter_map(|t| t.grid.range())
             .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
-    }
-
-    /// Largest `|value|` of a valid point.
-    pub fn max_abs(&self) -> i64 {
-        self.faces
-            .iter()
-            .flatten()
-            .map(|t| t.max_abs)
-            .max()
-            .unwrap_or(0)
     }
 
     /// Distinct lattice points of the surface: `6·S² + 2` (edge and corner points once).
