@@ -805,7 +805,8 @@ pub struct BuildArgs {
     nodata: Option<f64>,
     /// Georeferences an input that carries none (a raw float32 file, a plain TIFF): the outer
     /// edges of its raster in the CRS of --crs, west,south,east,north (GDAL's -te order), e.g.
-    /// `--bounds -10,40,2,46 --crs EPSG:4326`. Refused for inputs with their own.
+    /// `--bounds -10,40,2,46 --crs EPSG:4326`. Refused for inputs with their own. With
+    /// --planet, for the one input among several that carries none (verify takes the same).
     #[arg(
         long,
         value_name = "MINX,MINY,MAXX,MAXY",
@@ -877,6 +878,18 @@ pub struct VerifyArgs {
     /// Decode blocks of this plan (testing).
     #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = build::parse_block_plan)]
     block_plan: Option<cbdam_codec::hierarchy::BlockPlan>,
+    /// A planet's input without georeferencing of its own placed as `build --planet` placed it:
+    /// the same --bounds (west,south,east,north edges) and --crs.
+    #[arg(
+        long,
+        value_name = "MINX,MINY,MAXX,MAXY",
+        requires = "crs",
+        allow_hyphen_values = true
+    )]
+    bounds: Option<String>,
+    /// The CRS of --bounds, as EPSG:N.
+    #[arg(long, value_name = "EPSG:N", requires = "bounds")]
+    crs: Option<String>,
 }
 
 /// Output format of `cbdam extract`.

@@ -3,6 +3,7 @@
 
 use anyhow::{Context, Result, bail};
 
+use cbdam_build::assign::AssignedGeoRef;
 use cbdam_build::plan::default_memory_limit;
 use cbdam_build::planet::compare_planet;
 use cbdam_build::tiles::{Tile, expand_inputs};
@@ -64,8 +65,19 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     }
     // Directories, globs, @lists and VRTs are expanded as `cbdam build` expands them.
     let tiles = expand_inputs(&args.against)?;
+    let assign = match (&args.bounds, &args.crs) {
+        (Some(b), Some(c)) => Some(AssignedGeoRef::parse(b, c)?),
+        _ => None,
+    };
     if repo.params().domain.cube().is_some() {
-        return verify_planet_repo(&repo, &tiles);
+        return verify_planet_repo(&repo, &tiles, assign.as_ref());
+    }
+    if assign.is_some() {
+        bail!(
+            "--bounds and --crs place a planet's input; {} is planar, compared sample by sample \
+             with its inputs wherever they lie",
+            args.repo.display()
+        );
     }
     let limit = args.memory_limit.map_or_else(default_memory_limit, |b| b.0);
     let against = match tiles.as_slice() {
@@ -131,8 +143,12 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
 
 /// A planet against the inputs it was built from: every level against the resampled lattice,
 /// then the lattice and the decoded surface against each input's samples.
-fn verify_planet_repo(repo: &Repository, tiles: &[Tile]) -> Result<()> {
-    let c = compare_planet(repo, tiles, repo.nodata())?;
+fn verify_planet_repo(
+    repo: &Repository,
+    tiles: &[Tile],
+    assign: Option<&AssignedGeoRef>,
+) -> Result<()> {
+    let c = compare_planet(repo, tiles, repo.nodata(), assign)?;
     print_levels(&c.report, repo.plan().unit);
     println!(
         "every level against the resampled lattice: max error {} units, bound {} ({} m)",

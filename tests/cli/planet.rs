@@ -615,3 +615,93 @@ fn an_inset_on_a_cube_corner_is_resampled_on_all_three_faces() {
     // 0.4 m/deg²: micrometres; half a unit (0.0625 m) of rounding dominates.
     assert!(max < 0.1, "resampling error {max} m\n{text}");
 }
+
+/// An inset without georeferencing placed on the planet with `--bounds`/`--crs` (its outer
+/// edges, GDAL's convention) builds the same planet, byte for byte, as the same inset carrying
+/// that georeferencing; `verify` takes the same flags. Given when every input has its own, or
+/// when two inputs have none, the flags are refused naming why, and nothing is written.
+#[test]
+fn bounds_and_crs_place_an_ungeoreferenced_planet_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let global = d.join("global.tif");
+    write_global(&global);
+    // 40 × 40 cells of 0.0125° (exact in binary) over 14.75…15.25° E, 44.75…45.25° N.
+    let height = |c: usize, r: usize| {
+        let ll = LatLon {
+            lat: 45.25 - 0.0125 * (r as f64 + 0.5),
+            lon: 14.75 + 0.0125 * (c as f64 + 0.5),
+        };
+        relief(ll) + hill(ll)
+    };
+    let placed = d.join("placed.tif");
+    let mut georef = geographic((14.75, 45.25), 0.0125);
+    georef.pixel_is_area = true;
+    write(&placed, (40, 40), georef, height);
+    let bare = d.join("bare.tif");
+    let r = Raster {
+        width: 40,
+        height: 40,
+        values: (0..1600).map(|i| height(i % 40, i / 40)).collect(),
+        georef: None,
+    };
+    write_geotiff(std::fs::File::create(&bare).unwrap(), &r, None, false).unwrap();
+    let build = |inputs: &[&Path], extra: &[&str], out: &Path| {
+        let mut args = vec!["build".to_string()];
+        args.extend(inputs.iter().map(|p| s(p)));
+        args.extend(["--planet", "--diamond-size", "17", "--max-error", "1"].map(String::from));
+        args.extend(extra.iter().map(|a| a.to_string()));
+        args.extend(["-o".to_string(), s(out)]);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        cbdam(&args)
+    };
+    let flags = ["--bounds", "14.75,44.75,15.25,45.25", "--crs", "EPSG:4326"];
+    let (a, b) = (d.join("a.cbdam"), d.join("b.cbdam"));
+    let o = build(&[&global, &placed], &[], &a);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("K = 9"), "{}", stdout(&o));
+    let o = build(&[&global, &bare], &flags, &b);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap(),
+        "the inset placed by --bounds builds another planet than the georeferenced one"
+    );
+    let mut args = vec!["verify", &s(&b), "--against", &s(&global), &s(&bare)]
+        .into_iter()
+        .map(String::from)
+        .collect::<Vec<_>>();
+    args.extend(flags.map(String::from));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = cbdam(&args);
+    let text = stdout(&o);
+    assert!(o.status.success(), "{text}\n{}", stderr(&o));
+    let (compared, _, _) = compared_and_max(&text, "bare.tif");
+    assert!(compared > 1000, "{text}");
+    // Without the flags the bare input cannot be placed.
+    let o = cbdam(&["verify", &s(&b), "--against", &s(&global), &s(&bare)]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("bare.tif carries no georeferencing"),
+        "{}",
+        stderr(&o)
+    );
+
+    let out = d.join("refused.cbdam");
+    let o = build(&[&global, &placed], &flags, &out);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("every input here has its own"),
+        "{}",
+        stderr(&o)
+    );
+    let bare2 = d.join("bare2.tif");
+    std::fs::copy(&bare, &bare2).unwrap();
+    let o = build(&[&global, &bare, &bare2], &flags, &out);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(
+        err.contains("bare.tif") && err.contains("bare2.tif"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

@@ -21,6 +21,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use crate::assign::AssignedGeoRef;
 use crate::error::{Context, Result, bail};
 use crate::mosaic::Samples;
 use crate::tiles::Tile;
@@ -305,8 +306,13 @@ fn read_whole(path: &Path, opts: &ReadOptions) -> std::result::Result<Dem, Codec
     })
 }
 
-/// Reads one input and places it on the Earth, or says why it cannot be.
-fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
+/// Reads one input and places it on the Earth, or says why it cannot be. An input without
+/// georeferencing of its own takes `assign`'s (`--bounds`/`--crs`); the flag says it did.
+fn read_input(
+    tile: &Tile,
+    nodata: Option<f64>,
+    assign: Option<&AssignedGeoRef>,
+) -> Result<(PlanetInput, bool)> {
     let path = &tile.path;
     // A tile a VRT places keeps its own georeferencing (checked against the VRT's) or takes
     // the VRT's, and the VRT's nodata value where none is given, as in a planar mosaic.
@@ -319,10 +325,15 @@ fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
     if let Some(v) = &tile.vrt {
         crate::mosaic::place_vrt_tile(path, (dem.width, dem.height), &mut georef, v)?;
     }
+    let assigned = georef.is_none() && assign.is_some();
+    if let (None, Some(a)) = (&georef, assign) {
+        georef = Some(a.georef(dem.width, dem.height));
+    }
     let Some(georef) = georef else {
         bail!(
             "{} carries no georeferencing: a planet needs to know where each input lies \
-             (EPSG:4326 latitude/longitude or a UTM zone)",
+             (EPSG:4326 latitude/longitude or a UTM zone; --bounds and --crs give it to one \
+             input without)",
             path.display()
         );
     };
@@ -339,15 +350,18 @@ fn read_input(tile: &Tile, nodata: Option<f64>) -> Result<PlanetInput> {
             path.display()
         );
     }
-    Ok(PlanetInput {
-        path: path.clone(),
-        width,
-        height,
-        samples: Samples::compact(dem.values),
-        nodata: dem.nodata,
-        frame,
-        spacing_deg,
-    })
+    Ok((
+        PlanetInput {
+            path: path.clone(),
+            width,
+            height,
+            samples: Samples::compact(dem.values),
+            nodata: dem.nodata,
+            frame,
+            spacing_deg,
+        },
+        assigned,
+    ))
 }
 
 /// How the `width` columns of an input georeferenced by `g` lie on the Earth.
@@ -406,8 +420,14 @@ pub struct PlanetInputs {
 }
 
 impl PlanetInputs {
-    /// Reads every input ([`crate::tiles::expand_inputs`] already expanded them).
-    pub fn read(tiles: &[Tile], nodata: Option<f64>) -> Result<Self> {
+    /// Reads every input ([`crate::tiles::expand_inputs`] already expanded them); `assign`
+    /// (`--bounds`/`--crs`) georeferences the one input that carries none, and is refused when
+    /// none or several do.
+    pub fn read(
+        tiles: &[Tile],
+        nodata: Option<f64>,
+        assign: Option<&AssignedGeoRef>,
+    ) -> Result<Self> {
         if tiles.is_empty() {
             bail!("no input given");
         }
@@ -418,10 +438,28 @@ impl PlanetInputs {
                 tiles.len(),
             );
         }
-        let mut inputs = tiles
+        let read = tiles
             .iter()
-            .map(|t| read_input(t, nodata))
+            .map(|t| read_input(t, nodata, assign))
             .collect::<Result<Vec<_>>>()?;
+        if assign.is_some() {
+            let assigned: Vec<&PlanetInput> =
+                read.iter().filter(|(_, a)| *a).map(|(i, _)| i).collect();
+            match assigned.as_slice() {
+                [] => bail!(
+                    "--bounds and --crs georeference an input that carries none, and every \
+                     input here has its own"
+                ),
+                [_] => {}
+                [a, b, ..] => bail!(
+                    "--bounds and --crs georeference one input, but {} and {} both carry none \
+                     (give each its own georeferencing)",
+                    a.path.display(),
+                    b.path.display()
+                ),
+            }
+        }
+        let mut inputs: Vec<PlanetInput> = read.into_iter().map(|(i, _)| i).collect();
         inputs.sort_by(|a, b| a.spacing_deg.total_cmp(&b.spacing_deg));
         Ok(Self { inputs })
     }
@@ -1067,11 +1105,6 @@ fn refuse_planar_options(opts: &BuildOptions) -> Result<()> {
     if opts.raw_size.is_some() {
         bail!("--planet: raw float32 inputs carry no georeferencing");
     }
-    if opts.assign_georef.is_some() {
-        bail!(
-            "--planet: --bounds/--crs are not supported with --planet yet; georeference the input"
-        );
-    }
     if opts.alpha != Alpha::One {
         bail!("--planet needs --alpha one (the α = ½ analysis filter is planar)");
     }
@@ -1112,7 +1145,8 @@ pub fn build_planet(
         .context("starting the build's threads")?;
     let t = Instant::now();
     let tiles = crate::tiles::expand_inputs(&opts.inputs)?;
-    let inputs = pool.install(|| PlanetInputs::read(&tiles, opts.nodata))?;
+    let inputs =
+        pool.install(|| PlanetInputs::read(&tiles, opts.nodata, opts.assign_georef.as_ref()))?;
     stages.push(("read", t.elapsed()));
     let n = opts.diamond_size;
     let k = choose_level(&inputs, n, planet_level, limit)?;
@@ -1222,6 +1256,7 @@ pub fn compare_planet(
     repo: &cbdam_codec::repository::Repository,
     tiles: &[Tile],
     nodata: Option<f64>,
+    assign: Option<&AssignedGeoRef>,
 ) -> Result<PlanetComparison> {
     use cbdam_codec::hierarchy::{reconstruct_planet_like, verify_planet};
     let domain = repo.params().domain;
@@ -1229,7 +1264,7 @@ pub fn compare_planet(
         bail!("this repository is planar: compare it with compare_dem or compare_tiles");
     }
     let plan = *repo.plan();
-    let inputs = PlanetInputs::read(tiles, nodata)?;
+    let inputs = PlanetInputs::read(tiles, nodata, assign)?;
     let (n, k) = (domain.n(), domain.layout().k());
     let resampled = resample(&inputs, n, k, &plan)?;
     let encoded = repo.to_encoded()?;
@@ -1310,13 +1345,16 @@ mod tests {
                 vrt: None,
             })
             .collect();
-        let e = PlanetInputs::read(&tiles, None).err().unwrap().to_string();
+        let e = PlanetInputs::read(&tiles, None, None)
+            .err()
+            .unwrap()
+            .to_string();
         assert!(
             e.contains("65535 inputs") && e.contains("at most 65534"),
             "{e}"
         );
         // One fewer is read (and fails on the first missing file, naming it).
-        let e = PlanetInputs::read(&tiles[1..], None).err().unwrap();
+        let e = PlanetInputs::read(&tiles[1..], None, None).err().unwrap();
         assert!(format!("{e:#}").contains("/nonexistent/1.tif"), "{e:#}");
     }
 
