@@ -9,8 +9,8 @@ use std::time::Instant;
 use anyhow::Result;
 use cbdam_build::journal::Resumed;
 use cbdam_build::{
-    AssignedGeoRef, BuildOptions, BuildSummary, ColourSummary, ElevationSummary, Progress,
-    ProgressEvent, Stage, planet::PlanetSummary,
+    BuildOptions, BuildSummary, ColourSummary, ElevationSummary, Progress, ProgressEvent, Stage,
+    planet::PlanetSummary,
 };
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::lifting::Alpha;
@@ -38,10 +38,7 @@ pub fn parse_extra_levels(text: &str) -> Result<ExtraLevels, String> {
 
 /// The build's options from the command line: the one place its flags become library types.
 pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
-    let assign_georef = match (&args.bounds, &args.crs) {
-        (Some(b), Some(c)) => Some(AssignedGeoRef::parse(b, c)?),
-        _ => None,
-    };
+    let assign_georef = args.georef.assigned()?;
     Ok(BuildOptions {
         inputs: args.inputs.clone(),
         output: args.output.clone(),

@@ -803,20 +803,8 @@ pub struct BuildArgs {
     /// Nodata value, overriding the file's own.
     #[arg(long, allow_hyphen_values = true)]
     nodata: Option<f64>,
-    /// Georeferences an input that carries none (a raw float32 file, a plain TIFF): the outer
-    /// edges of its raster in the CRS of --crs, west,south,east,north (GDAL's -te order), e.g.
-    /// `--bounds -10,40,2,46 --crs EPSG:4326`. Refused for inputs with their own. With
-    /// --planet, for the one input among several that carries none (verify takes the same).
-    #[arg(
-        long,
-        value_name = "MINX,MINY,MAXX,MAXY",
-        requires = "crs",
-        allow_hyphen_values = true
-    )]
-    bounds: Option<String>,
-    /// The CRS of --bounds, as EPSG:N.
-    #[arg(long, value_name = "EPSG:N", requires = "bounds")]
-    crs: Option<String>,
+    #[command(flatten)]
+    georef: GeorefArgs,
     /// Benchmarks: encode the levels from CUT down in blocks SIDE lattice units across (with a
     /// journal), whatever the input's size and the memory limit would choose.
     #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = build::parse_block_plan)]
@@ -878,8 +866,19 @@ pub struct VerifyArgs {
     /// Decode blocks of this plan (testing).
     #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = build::parse_block_plan)]
     block_plan: Option<cbdam_codec::hierarchy::BlockPlan>,
-    /// A planet's input without georeferencing of its own placed as `build --planet` placed it:
-    /// the same --bounds (west,south,east,north edges) and --crs.
+    #[command(flatten)]
+    georef: GeorefArgs,
+}
+
+/// `--bounds MINX,MINY,MAXX,MAXY --crs EPSG:N`, of `build` and `verify`: georeferencing for an
+/// input that carries none.
+#[derive(Args, Debug, Default)]
+pub struct GeorefArgs {
+    /// Georeferences an input that carries none (a raw float32 file, a plain TIFF, one of a
+    /// planet's inputs): the outer edges of its raster in the CRS of --crs,
+    /// west,south,east,north (GDAL's -te order), e.g. `--bounds -10,40,2,46 --crs EPSG:4326`.
+    /// Refused for inputs with their own; among a planet's inputs, for the one that carries
+    /// none (`verify --against` takes the same flags to place it again).
     #[arg(
         long,
         value_name = "MINX,MINY,MAXX,MAXY",
@@ -890,6 +889,16 @@ pub struct VerifyArgs {
     /// The CRS of --bounds, as EPSG:N.
     #[arg(long, value_name = "EPSG:N", requires = "bounds")]
     crs: Option<String>,
+}
+
+impl GeorefArgs {
+    /// The georeferencing the flags give, checked; `None` without them.
+    pub fn assigned(&self) -> anyhow::Result<Option<cbdam_build::assign::AssignedGeoRef>> {
+        match (&self.bounds, &self.crs) {
+            (Some(b), Some(c)) => Ok(Some(cbdam_build::assign::AssignedGeoRef::parse(b, c)?)),
+            _ => Ok(None),
+        }
+    }
 }
 
 /// Output format of `cbdam extract`.

@@ -65,10 +65,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     }
     // Directories, globs, @lists and VRTs are expanded as `cbdam build` expands them.
     let tiles = expand_inputs(&args.against)?;
-    let assign = match (&args.bounds, &args.crs) {
-        (Some(b), Some(c)) => Some(AssignedGeoRef::parse(b, c)?),
-        _ => None,
-    };
+    let assign = args.georef.assigned()?;
     if repo.params().domain.cube().is_some() {
         return verify_planet_repo(&repo, &tiles, assign.as_ref());
     }
