@@ -30,7 +30,7 @@ use cbdam_codec::error::CodecError;
 use cbdam_codec::geodesy::cube_map::{FaceLattice, lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::hierarchy::planet::tile_log2;
+use cbdam_codec::hierarchy::planet::{tile_log2, tile_of};
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, PlanetTile, encode_planet};
 use cbdam_codec::input::{Dem, GeoRef, ReadOptions, TileReader};
@@ -632,11 +632,6 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
     // A tile no input reaches holds its corners only (holes all).
     let mut plan = vec![vec![t; rects.len()]; faces];
     let mut candidates: Vec<Vec<Vec<Candidate>>> = vec![vec![Vec::new(); rects.len()]; faces];
-    let tile_index = |x: i64, y: i64| {
-        let across = ((side + (1 << t) - 1) >> t).max(1);
-        let (bx, by) = ((x >> t).min(across - 1), (y >> t).min(across - 1));
-        (by * across + bx) as usize
-    };
     for (i, (input, &j)) in inputs.inputs.iter().zip(&strides).enumerate() {
         let i = u16::try_from(i).expect("at most MAX_PLANET_INPUTS inputs");
         let mark = j.min(t);
@@ -693,7 +688,7 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
                         };
                         let (reps, len) = cube.representations(p);
                         for r in &reps[..len] {
-                            hits.push((r.face, tile_index(r.x, r.y), r.x, r.y));
+                            hits.push((r.face, tile_of(side, t, r.x, r.y), r.x, r.y));
                         }
                     }
                 }

@@ -420,11 +420,7 @@ impl PlanetGrid {
     /// a face (`0 ≤ x, y ≤ S`): the one starting at or before it (the last one for `S`).
     #[inline]
     pub fn tile_index(&self, x: i64, y: i64) -> usize {
-        let last = self.tiles_across - 1;
-        let (bx, by) = (
-            ((x >> self.tile_log2) as usize).min(last),
-            ((y >> self.tile_log2) as usize).min(last),
-        );
+        let (bx, by) = tile_cell(self.tiles_across, self.tile_log2, x, y);
         by * self.tiles_across + bx
     }
 
@@ -603,11 +599,7 @@ impl PlanetGrid {
     pub fn set(&mut self, face: u8, x: i64, y: i64, value: i32, valid: bool) {
         let tiles = &mut self.faces[usize::from(face)];
         let across = self.tiles_across;
-        let last = across - 1;
-        let (bx, by) = (
-            ((x >> self.tile_log2) as usize).min(last),
-            ((y >> self.tile_log2) as usize).min(last),
-        );
+        let (bx, by) = tile_cell(across, self.tile_log2, x, y);
         // The owner, and the tiles before it along each axis when the point is on their side.
         for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
             let (Some(tx), Some(ty)) = (bx.checked_sub(dx), by.checked_sub(dy)) else {
@@ -620,6 +612,26 @@ impl PlanetGrid {
             }
         }
     }
+}
+
+/// The row-major index of the tile of `2^log2` steps that owns lattice point `(x, y)` of a face
+/// of `side` steps (`0 ≤ x, y ≤ side`): what [`PlanetGrid::tile_index`] says of a planet cut so,
+/// for code that plans the tiles before they exist.
+pub fn tile_of(side: i64, log2: u32, x: i64, y: i64) -> usize {
+    let across = tiles_across(side, log2);
+    let (bx, by) = tile_cell(across, log2, x, y);
+    by * across + bx
+}
+
+/// Column and row of the tile owning `(x, y)`: the one starting at or before it, the last one
+/// for the face's far side.
+#[inline]
+fn tile_cell(across: usize, log2: u32, x: i64, y: i64) -> (usize, usize) {
+    let last = across - 1;
+    (
+        ((x >> log2) as usize).min(last),
+        ((y >> log2) as usize).min(last),
+    )
 }
 
 /// Tiles along a face side of `side` steps in tiles of `2^log2`.

@@ -12,7 +12,7 @@
 
 mod grid;
 
-pub use grid::{MAX_TILES_ACROSS, PlanetGrid, PlanetTile, TILE_MIN_LOG2, tile_log2};
+pub use grid::{MAX_TILES_ACROSS, PlanetGrid, PlanetTile, TILE_MIN_LOG2, tile_log2, tile_of};
 
 use std::collections::{BTreeSet, HashMap};
 
