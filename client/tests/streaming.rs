@@ -645,3 +645,56 @@ fn garbage_collection_stops_at_the_budget_and_goes_on_in_the_next_frames() {
     assert_eq!(coarsened, coarsened_whole);
     assert!(frames > 4, "coarsened in {frames} frames only");
 }
+
+/// The desktop's decode workers run below the frame thread's priority (Linux keeps a nice value
+/// per thread, `/proc/self/task/*/stat` field 19): the frame loop has a deadline and they have
+/// none, so at equal priority a worker sharing the frame thread's core makes frames end late.
+#[cfg(target_os = "linux")]
+#[test]
+fn decode_workers_run_below_the_frame_threads_priority() {
+    use cbdam_client::spawn::{DECODE_NICE, DecodePool, Spawner};
+    if std::env::var_os("CBDAM_DECODE_NICE").is_some() {
+        eprintln!("CBDAM_DECODE_NICE is set: the workers' priority is the caller's choice");
+        return;
+    }
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let mut r = Refiner::new(LocalSource::new(repo), unlimited(4)).unwrap();
+    let mut rng = Rng(7);
+    for _ in 0..3 {
+        r.frame(&random_camera(&world, &mut rng));
+    }
+    let nice_of = |stat: &str| -> i32 {
+        // "tid (comm) state ppid …": fields after the last ')' start at field 3.
+        let rest = &stat[stat.rfind(')').expect("a stat line") + 1..];
+        rest.split_whitespace()
+            .nth(19 - 3)
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let own = nice_of(&std::fs::read_to_string("/proc/thread-self/stat").unwrap());
+    let mut workers = Vec::new();
+    for task in std::fs::read_dir("/proc/self/task").unwrap() {
+        let dir = task.unwrap().path();
+        let Ok(comm) = std::fs::read_to_string(dir.join("comm")) else {
+            continue; // a thread that ended meanwhile
+        };
+        if comm.trim().starts_with("cbdam-decode-")
+            && let Ok(stat) = std::fs::read_to_string(dir.join("stat"))
+        {
+            workers.push((comm.trim().to_string(), nice_of(&stat)));
+        }
+    }
+    assert_eq!(
+        workers.len(),
+        DecodePool.parallelism(),
+        "decode threads found: {workers:?}"
+    );
+    for (name, nice) in &workers {
+        assert_eq!(
+            *nice, DECODE_NICE,
+            "{name}'s nice value (the frame thread's: {own})"
+        );
+    }
+}
