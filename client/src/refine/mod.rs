@@ -5,18 +5,18 @@
 //! diamond in the frustum meets the pixel target or the frame's time budget is spent. Refining a
 //! diamond first forces its unrefined parents. Only diamonds whose record is in RAM are refined;
 //! missing ones are requested from the [`DataSource`] with their screen error as priority and
-//! never waited for. Decoding runs on the [`Spawner`]'s workers (rayon's on the desktop; a page's
-//! Web Workers, the jobs sent as bytes: `job.rs`, `wire.rs`): the
-//! frame dispatches the most urgent
-//! ready refinements, applies results as they come back while budget remains, and leaves the
-//! rest running; what finishes after the deadline is applied at the start of the next frame, so
-//! a slow decode never stretches a frame. **Between frames the workers keep decoding** (issue
-//! 21's pipelined decoder): at the end of each frame, jobs sized to last until the next one take
-//! the diamonds the view still needs, most urgent first, as far down as their parents' data
-//! exists (decoded, not necessarily refined); their results wait in the decoded cache and a
-//! later frame refines them without waiting, within its budget. Coarsening is garbage collection: every few frames, refined diamonds with no
-//! refined child that the view no longer needs are undone, least needed first, and their decoded
-//! data moves to an LRU cache so that refining them again is free.
+//! never waited for. Decoding runs on the [`Spawner`]'s workers (on the desktop a rayon pool below
+//! the frame thread's priority; a page's Web Workers, the jobs sent as bytes: `job.rs`, `wire.rs`):
+//! the frame dispatches the most urgent ready refinements, applies results as they come back while
+//! budget remains, and leaves the rest running; what finishes after the deadline is applied at the
+//! start of the next frame, so a slow decode never stretches a frame. **Between frames the workers
+//! keep decoding** (issue 21's pipelined decoder): at the end of each frame, jobs sized to last
+//! until the next one take the diamonds the view still needs, most urgent first, as far down as
+//! their parents' data exists (decoded, not necessarily refined); their results wait in the decoded
+//! cache and a later frame refines them without waiting, within its budget. Coarsening is garbage
+//! collection: every few frames, refined diamonds with no refined child that the view no longer
+//! needs are undone, least needed first, and their decoded data moves to an LRU cache so that
+//! refining them again is free.
 //!
 //! **A frame's cost follows what changes, not the size of the cut.** The refinement candidates
 //! (diamonds with a drawn half), the coarsening candidates (refined diamonds with no refined
@@ -71,10 +71,20 @@ use crate::patch::{HalfPatch, packed};
 use crate::spawn::{DefaultSpawner, Spawner};
 use crate::world::{World, exaggerated};
 
-/// Per frame, the remembered overrun past the deadline shrinks by this factor unless a new one
-/// is larger: about 7 frames to halve, so a rare slow tail (a pre-empted thread) is soon
-/// forgotten.
-const OVERRUN_DECAY: f64 = 0.9;
+/// Per frame of its kind, the remembered overrun past the deadline shrinks by this factor
+/// unless a new one is larger: about 34 frames to halve, so a slow tail is remembered for about
+/// a second of frames and a rare one (a pre-empted thread) is still forgotten. (At 0.9, 7 frames
+/// to halve, `low_pass` ran a third of its frames past the budget: a tail forgotten before the
+/// next as long.)
+const OVERRUN_DECAY: f64 = 0.98;
+/// The deadline holds back the remembered overrun times this: frames of one kind differ in
+/// what their tails find to do (leaves to collect, diamonds to decode ahead), by about this
+/// much in traces of `low_pass` (1920×1080, 2 ms).
+const OVERRUN_SPREAD: f64 = 1.3;
+/// What the overrun memory starts from (a fraction of the budget) before a frame of its kind
+/// has measured one: the first frame, which starts the decode workers, and the first
+/// collection otherwise always run past the budget.
+const OVERRUN_PRIOR: u32 = 8;
 /// Prefetched diamonds are requested with their error scaled by this, so that they never
 /// overtake what the current view needs.
 const PREFETCH_PRIORITY: f64 = 1.0 / 16.0;
@@ -94,7 +104,7 @@ pub const WANT_HORIZON_S: f64 = 1.0;
 /// Weight of the newest sample in the smoothed frame interval and decode time.
 const SMOOTHING: f64 = 0.1;
 /// Fewest diamonds a garbage collection coarsens in a frame before it looks at the frame's
-/// budget (about 8 µs each at N = 65): a collection always advances, even in a frame whose
+/// deadline (about 8 µs each at N = 65): a collection always advances, even in a frame whose
 /// budget is already spent.
 pub const GC_MIN_COARSENINGS: usize = 16;
 
@@ -106,8 +116,9 @@ pub struct RefineConfig {
     /// Time budget per frame; `None` refines until the cut is locally optimal.
     pub budget: Option<Duration>,
     /// Garbage-collect (coarsen) every this many frames. With a budget, a collection coarsens
-    /// only until the frame's budget is spent (at least [`GC_MIN_COARSENINGS`]) and goes on in
-    /// the next frames until it has coarsened everything it found.
+    /// only until the frame's deadline (the budget less what the frame's last steps are
+    /// expected to take; at least [`GC_MIN_COARSENINGS`]) and goes on in the next frames until
+    /// it has coarsened everything it found.
     pub gc_interval: u32,
     /// When to prefetch (see [`Prefetch`]).
     pub prefetch: Prefetch,
@@ -373,8 +384,10 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     /// loop, the last results applied): the next deadline comes that much earlier, so that the
     /// whole frame, not only its refinement loop, fits the budget. A decaying maximum, so one
     /// slow tail is remembered for a while (the budget is a bound on every frame, not on the
-    /// average).
-    overrun: Duration,
+    /// average). Remembered apart for frames that collect garbage (index 1) and frames that do
+    /// not (index 0): a collection's least work makes its frames' tails longer, and a memory
+    /// shared with the frames in between would have decayed by the next collection.
+    overrun: [Duration; 2],
     /// A garbage collection stopped at its frame's budget: the next frame goes on with it.
     collecting: bool,
     /// Diamonds being refined on worker threads (speculative ones included).
@@ -493,7 +506,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             requests: Requests::default(),
             frame: 0,
             last_camera: None,
-            overrun: Duration::ZERO,
+            overrun: [config.budget.map_or(Duration::ZERO, |b| b / OVERRUN_PRIOR); 2],
             collecting: false,
             decoding: IdSet::default(),
             speculative: IdSet::default(),
@@ -896,13 +909,18 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             self.frame_interval_s += SMOOTHING * (dt - self.frame_interval_s);
         }
         self.last_frame_start = Some(start);
+        self.frame += 1;
+        let collects = self.config.gc_interval > 0
+            && (self.collecting
+                || self
+                    .frame
+                    .is_multiple_of(u64::from(self.config.gc_interval)));
         // At most a quarter of the budget is held back for the tail, so refinement always gets
         // most of it.
-        let deadline = self
-            .config
-            .budget
-            .map(|b| start + b - self.overrun.min(b / 4));
-        self.frame += 1;
+        let deadline = self.config.budget.map(|b| {
+            let held_back = self.overrun[usize::from(collects)].mul_f64(OVERRUN_SPREAD);
+            start + b - held_back.min(b / 4)
+        });
         self.source.pump();
         self.take_arrived();
 
@@ -946,16 +964,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 self.want_plan(c.id, c.err, &mut wanted);
             }
         }
-        if self.config.gc_interval > 0
-            && (self.collecting
-                || self
-                    .frame
-                    .is_multiple_of(u64::from(self.config.gc_interval)))
-        {
-            // Within the frame's budget: coarsening costs microseconds a diamond, and a view
+        if collects {
+            // Within the frame's deadline: coarsening costs microseconds a diamond, and a view
             // moving fast leaves hundreds to coarsen at once.
-            let until = self.config.budget.map(|b| start + b);
-            let (coarsened, finished) = self.collect_garbage(&view, until);
+            let (coarsened, finished) = self.collect_garbage(&view, deadline);
             stats.coarsenings += coarsened;
             self.collecting = !finished;
         }
@@ -1002,7 +1014,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
 
         self.post_requests(wanted);
-        self.remember_overrun(deadline, &stats);
+        self.remember_overrun(deadline, collects, &stats);
         stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
         #[cfg(debug_assertions)]
         self.cut_state.check_incremental_sets(&self.domain);
@@ -1219,10 +1231,11 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
     /// Frame step: when the budget ran out, how far past its deadline the frame ran (see
     /// `overrun`).
-    fn remember_overrun(&mut self, deadline: Option<Instant>, stats: &FrameStats) {
+    fn remember_overrun(&mut self, deadline: Option<Instant>, collects: bool, stats: &FrameStats) {
         if let (Some(d), true) = (deadline, stats.budget_exhausted) {
             let over = Instant::now().saturating_duration_since(d);
-            self.overrun = over.max(self.overrun.mul_f64(OVERRUN_DECAY));
+            let memory = &mut self.overrun[usize::from(collects)];
+            *memory = over.max(memory.mul_f64(OVERRUN_DECAY));
         }
     }
 
