@@ -52,50 +52,77 @@ pub trait Spawner {
 /// `RAYON_NUM_THREADS`), named `cbdam-decode-N`, made on first use and shared by every refiner
 /// of the process.
 ///
-/// **The workers run below the frame thread's priority** (Linux: nice [`DECODE_NICE`], or the
-/// value of the `CBDAM_DECODE_NICE` environment variable, 0 to 19; 0 leaves them at the
-/// caller's). The frame loop has a deadline and the workers have none: with as many workers as
-/// cores, a frame thread at the same priority shares its core with a worker and ends its
-/// frames late: `cbdam replay` of the 8193² synthetic's `low_pass` (1920×1080, 2 ms budget, 2
-/// cores), 4 runs each, alternated: wall p99 2.75–2.99 ms and 79–98 of ~600 frames over 2 ms
-/// at equal priority, 2.02–2.15 ms and 10–15 frames below it. What the frame thread does not
-/// use the workers still get, so decoding is no slower while the loop waits for it (the same
-/// runs: camera stop → converged 0.41–0.54 against 0.39–0.52 s). Elsewhere the workers run at
-/// the caller's priority.
+/// **The workers run below the frame thread's priority** ([`DecodePriority`]; Linux only,
+/// elsewhere at the caller's). The frame loop has a deadline and the workers have none: with as
+/// many workers as cores, a frame thread at the same priority shares its core with a worker and
+/// ends its frames late. What the frame thread does not use the workers still get, so decoding
+/// is no slower while the loop waits for it. Figures: `docs/bench/` and the closing notes of
+/// issue 21.
 #[cfg(not(target_arch = "wasm32"))]
 #[derive(Clone, Copy, Debug, Default)]
 pub struct DecodePool;
 
-/// The decode workers' nice value on Linux (see [`DecodePool`]): the lowest priority, which
-/// CFS weighs at 15 against the frame thread's 1 024.
-pub const DECODE_NICE: i32 = 19;
+/// How the decode workers yield to the frame thread (Linux).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DecodePriority {
+    /// `SCHED_IDLE`: a worker runs only on a core nothing else wants, and a waking frame thread
+    /// always takes the core from it at once. A frame thread at nice 0 that sleeps between
+    /// frames (a viewer's pacing) wakes with a credit that a worker even at nice 19 does not
+    /// always yield to: paced `low_pass` (1920×1080, 2 ms, 2 cores) ran wall p99 6.7–7.0 ms
+    /// with nice-19 workers and 2.9 ms with idle ones. The default.
+    Idle,
+    /// A nice value, 0 to 19 (0: the caller's priority, as before issue 21's measurements).
+    Nice(i32),
+}
+
+impl DecodePriority {
+    /// The default, or the `CBDAM_DECODE_PRIORITY` environment variable's choice: `idle` or a
+    /// nice value 0–19 (for comparisons; anything else is the default).
+    pub fn from_env() -> Self {
+        match std::env::var("CBDAM_DECODE_PRIORITY") {
+            Ok(v) => match v.trim().parse::<i32>() {
+                Ok(n) => Self::Nice(n.clamp(0, 19)),
+                Err(_) => Self::Idle,
+            },
+            Err(_) => Self::Idle,
+        }
+    }
+}
 
 #[cfg(not(target_arch = "wasm32"))]
 impl DecodePool {
     fn pool() -> &'static rayon::ThreadPool {
         static POOL: std::sync::OnceLock<rayon::ThreadPool> = std::sync::OnceLock::new();
         POOL.get_or_init(|| {
-            let nice = std::env::var("CBDAM_DECODE_NICE")
-                .ok()
-                .and_then(|v| v.trim().parse::<i32>().ok())
-                .map_or(DECODE_NICE, |n| n.clamp(0, 19));
+            let priority = DecodePriority::from_env();
             rayon::ThreadPoolBuilder::new()
                 .thread_name(|i| format!("cbdam-decode-{i}"))
-                .start_handler(move |_| lower_priority(nice))
+                .start_handler(move |_| lower_priority(priority))
                 .build()
                 .expect("starting the decode threads")
         })
     }
 }
 
-/// Lowers the calling thread's priority by `nice` (Linux keeps a nice value per thread).
-/// Raising it back needs privileges, which the workers never ask for; a failure leaves the
-/// thread as it was.
+/// Lowers the calling thread's priority (Linux keeps the scheduling policy and the nice value
+/// per thread). Raising it back needs privileges, which the workers never ask for; a failure
+/// (a kernel without `SCHED_IDLE`) falls back to nice 19, or leaves the thread as it was.
 #[cfg(target_os = "linux")]
-fn lower_priority(nice: i32) {
+fn lower_priority(priority: DecodePriority) {
+    let nice = match priority {
+        DecodePriority::Idle => {
+            let param = libc::sched_param { sched_priority: 0 };
+            // SAFETY: `param` outlives the call, which only reads it; pid 0 is the calling
+            // thread.
+            if unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) } == 0 {
+                return;
+            }
+            19
+        }
+        DecodePriority::Nice(n) => n,
+    };
     if nice > 0 {
-        // SAFETY: setpriority takes plain integers and touches no memory of ours; `who` 0 is
-        // the calling thread.
+        // SAFETY: plain integers, no memory of ours; `who` 0 is the calling thread.
         unsafe {
             libc::setpriority(libc::PRIO_PROCESS, 0, nice);
         }
@@ -103,7 +130,7 @@ fn lower_priority(nice: i32) {
 }
 
 #[cfg(all(not(target_os = "linux"), not(target_arch = "wasm32")))]
-fn lower_priority(_nice: i32) {}
+fn lower_priority(_priority: DecodePriority) {}
 
 #[cfg(not(target_arch = "wasm32"))]
 impl Spawner for DecodePool {

@@ -14,9 +14,9 @@
 //! until the next one take the diamonds the view still needs, most urgent first, as far down as
 //! their parents' data exists (decoded, not necessarily refined); their results wait in the decoded
 //! cache and a later frame refines them without waiting, within its budget. Coarsening is garbage
-//! collection: every few frames, refined diamonds with no refined child that the view no longer
-//! needs are undone, least needed first, and their decoded data moves to an LRU cache so that
-//! refining them again is free.
+//! collection: every few frames, first in the frame, refined diamonds with no refined child that
+//! the view no longer needs are undone, least needed first, and their decoded data moves to an
+//! LRU cache so that refining them again is free.
 //!
 //! **A frame's cost follows what changes, not the size of the cut.** The refinement candidates
 //! (diamonds with a drawn half), the coarsening candidates (refined diamonds with no refined
@@ -71,20 +71,24 @@ use crate::patch::{HalfPatch, packed};
 use crate::spawn::{DefaultSpawner, Spawner};
 use crate::world::{World, exaggerated};
 
-/// Per frame of its kind, the remembered overrun past the deadline shrinks by this factor
-/// unless a new one is larger: about 34 frames to halve, so a slow tail is remembered for about
-/// a second of frames and a rare one (a pre-empted thread) is still forgotten. (At 0.9, 7 frames
-/// to halve, `low_pass` ran a third of its frames past the budget: a tail forgotten before the
-/// next as long.)
+/// Per frame, the remembered overrun past the deadline shrinks by this factor unless a new one
+/// is larger: about 34 frames to halve, so a slow tail is remembered for about a second of
+/// frames and a rare one (a pre-empted thread) is still forgotten. (At 0.9, 7 frames to halve,
+/// a tail was forgotten before the next as long one came.)
 const OVERRUN_DECAY: f64 = 0.98;
-/// The deadline holds back the remembered overrun times this: frames of one kind differ in
-/// what their tails find to do (leaves to collect, diamonds to decode ahead), by about this
-/// much in traces of `low_pass` (1920×1080, 2 ms).
+/// The deadline holds back the remembered overrun times this: frames differ in what their
+/// tails find to do (diamonds to decode ahead, candidates to look at), by about this much in
+/// traces of `low_pass` (1920×1080, 2 ms).
 const OVERRUN_SPREAD: f64 = 1.3;
-/// What the overrun memory starts from (a fraction of the budget) before a frame of its kind
-/// has measured one: the first frame, which starts the decode workers, and the first
-/// collection otherwise always run past the budget.
+/// What the overrun memory starts from (a fraction of the budget) before a frame has measured
+/// one: the first frame, which starts the decode workers, otherwise always runs past the
+/// budget.
 const OVERRUN_PRIOR: u32 = 8;
+/// At most the budget over this is held back for the tail. A frame whose steps around the loop
+/// cost more than the budget allows (a viewer's frames, paced, start with cold caches: about
+/// 0.8 ms of a 2 ms budget on `low_pass`) needs half; a quarter left 150 of 390 paced frames
+/// over the budget.
+const OVERRUN_CAP: u32 = 2;
 /// Prefetched diamonds are requested with their error scaled by this, so that they never
 /// overtake what the current view needs.
 const PREFETCH_PRIORITY: f64 = 1.0 / 16.0;
@@ -103,10 +107,14 @@ const AHEAD_LIMIT: usize = 256;
 pub const WANT_HORIZON_S: f64 = 1.0;
 /// Weight of the newest sample in the smoothed frame interval and decode time.
 const SMOOTHING: f64 = 0.1;
-/// Fewest diamonds a garbage collection coarsens in a frame before it looks at the frame's
-/// deadline (about 8 µs each at N = 65): a collection always advances, even in a frame whose
+/// Fewest diamonds a garbage collection coarsens in a frame before it looks at the clock
+/// (about 8 µs each at N = 65): a collection always advances, even in a frame whose
 /// budget is already spent.
 pub const GC_MIN_COARSENINGS: usize = 16;
+/// A collection runs first in its frame, for at most the budget over this (after its least,
+/// [`GC_MIN_COARSENINGS`]). Run after the refinement loop it got what the loop left, which in a
+/// viewer's paced frames was nothing: 16 a frame, fewer than the view left behind.
+const GC_SHARE: u32 = 4;
 
 /// Settings of the refinement loop.
 #[derive(Clone, Debug)]
@@ -115,10 +123,9 @@ pub struct RefineConfig {
     pub pixel_error: f64,
     /// Time budget per frame; `None` refines until the cut is locally optimal.
     pub budget: Option<Duration>,
-    /// Garbage-collect (coarsen) every this many frames. With a budget, a collection coarsens
-    /// only until the frame's deadline (the budget less what the frame's last steps are
-    /// expected to take; at least [`GC_MIN_COARSENINGS`]) and goes on in the next frames until
-    /// it has coarsened everything it found.
+    /// Garbage-collect (coarsen) every this many frames. With a budget, a collection runs first
+    /// in its frame for at most a quarter of the budget (at least [`GC_MIN_COARSENINGS`]) and
+    /// goes on in the next frames until it has coarsened everything it found.
     pub gc_interval: u32,
     /// When to prefetch (see [`Prefetch`]).
     pub prefetch: Prefetch,
@@ -384,10 +391,8 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     /// loop, the last results applied): the next deadline comes that much earlier, so that the
     /// whole frame, not only its refinement loop, fits the budget. A decaying maximum, so one
     /// slow tail is remembered for a while (the budget is a bound on every frame, not on the
-    /// average). Remembered apart for frames that collect garbage (index 1) and frames that do
-    /// not (index 0): a collection's least work makes its frames' tails longer, and a memory
-    /// shared with the frames in between would have decayed by the next collection.
-    overrun: [Duration; 2],
+    /// average).
+    overrun: Duration,
     /// A garbage collection stopped at its frame's budget: the next frame goes on with it.
     collecting: bool,
     /// Diamonds being refined on worker threads (speculative ones included).
@@ -506,7 +511,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             requests: Requests::default(),
             frame: 0,
             last_camera: None,
-            overrun: [config.budget.map_or(Duration::ZERO, |b| b / OVERRUN_PRIOR); 2],
+            overrun: config.budget.map_or(Duration::ZERO, |b| b / OVERRUN_PRIOR),
             collecting: false,
             decoding: IdSet::default(),
             speculative: IdSet::default(),
@@ -915,22 +920,33 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 || self
                     .frame
                     .is_multiple_of(u64::from(self.config.gc_interval)));
-        // At most a quarter of the budget is held back for the tail, so refinement always gets
-        // most of it.
+        // At most half the budget is held back for the tail, so refinement always gets the
+        // other half.
         let deadline = self.config.budget.map(|b| {
-            let held_back = self.overrun[usize::from(collects)].mul_f64(OVERRUN_SPREAD);
-            start + b - held_back.min(b / 4)
+            let held_back = self.overrun.mul_f64(OVERRUN_SPREAD);
+            start + b - held_back.min(b / OVERRUN_CAP)
         });
         self.source.pump();
         self.take_arrived();
 
         let view = View::new(*camera, 0.0, &self.world);
-        let mut heap = self.refinement_heap(&view);
-        let mut wanted: IdMap<f64> = IdMap::default();
         let mut stats = FrameStats {
             frame: self.frame,
             ..FrameStats::default()
         };
+        if collects {
+            // First, for a share of the budget: coarsening costs microseconds a diamond, a view
+            // moving fast leaves hundreds to coarsen at once, and a collection left what the
+            // refinement loop leaves would get nothing in a frame whose budget the loop spends.
+            // Coarsening before refining changes nothing the loop does: what is coarsened meets
+            // the target, what is refined does not.
+            let until = self.config.budget.map(|b| start + b / GC_SHARE);
+            let (coarsened, finished) = self.collect_garbage(&view, until);
+            stats.coarsenings += coarsened;
+            self.collecting = !finished;
+        }
+        let mut heap = self.refinement_heap(&view);
+        let mut wanted: IdMap<f64> = IdMap::default();
         self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
         let rate = stats.refinements as f64 / self.frame_interval_s.max(1e-3);
         self.refinement_rate += SMOOTHING * (rate - self.refinement_rate);
@@ -963,13 +979,6 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             for c in order {
                 self.want_plan(c.id, c.err, &mut wanted);
             }
-        }
-        if collects {
-            // Within the frame's deadline: coarsening costs microseconds a diamond, and a view
-            // moving fast leaves hundreds to coarsen at once.
-            let (coarsened, finished) = self.collect_garbage(&view, deadline);
-            stats.coarsenings += coarsened;
-            self.collecting = !finished;
         }
         // The workers keep decoding what the view still needs until the next frame.
         if self.config.decode_ahead && self.spawner.runs_in_background() {
@@ -1014,7 +1023,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
 
         self.post_requests(wanted);
-        self.remember_overrun(deadline, collects, &stats);
+        self.remember_overrun(deadline, &stats);
         stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
         #[cfg(debug_assertions)]
         self.cut_state.check_incremental_sets(&self.domain);
@@ -1231,11 +1240,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
     /// Frame step: when the budget ran out, how far past its deadline the frame ran (see
     /// `overrun`).
-    fn remember_overrun(&mut self, deadline: Option<Instant>, collects: bool, stats: &FrameStats) {
+    fn remember_overrun(&mut self, deadline: Option<Instant>, stats: &FrameStats) {
         if let (Some(d), true) = (deadline, stats.budget_exhausted) {
             let over = Instant::now().saturating_duration_since(d);
-            let memory = &mut self.overrun[usize::from(collects)];
-            *memory = over.max(memory.mul_f64(OVERRUN_DECAY));
+            self.overrun = over.max(self.overrun.mul_f64(OVERRUN_DECAY));
         }
     }
 
