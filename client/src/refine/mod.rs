@@ -941,13 +941,23 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             // Coarsening before refining changes nothing the loop does: what is coarsened meets
             // the target, what is refined does not.
             let until = self.config.budget.map(|b| start + b / GC_SHARE);
-            let (coarsened, finished) = self.collect_garbage(&view, until);
+            let (coarsened, finished) = self.collect_garbage(&view, GC_MIN_COARSENINGS, until);
             stats.coarsenings += coarsened;
             self.collecting = !finished;
         }
         let mut heap = self.refinement_heap(&view);
         let mut wanted: IdMap<f64> = IdMap::default();
         self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
+        if let (Some(d), Some(b)) = (deadline, self.config.budget)
+            && self.collecting
+            && d.saturating_duration_since(Instant::now()) >= b / GC_SHARE
+        {
+            // The loop left time (nothing it could refine now): the collection goes on in it,
+            // with no least amount, up to the deadline.
+            let (coarsened, finished) = self.collect_garbage(&view, 0, deadline);
+            stats.coarsenings += coarsened;
+            self.collecting = !finished;
+        }
         let rate = stats.refinements as f64 / self.frame_interval_s.max(1e-3);
         self.refinement_rate += SMOOTHING * (rate - self.refinement_rate);
 
@@ -985,16 +995,25 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             self.speculate(&view, leftovers);
         }
         // One pass over the final cut's candidates serves prefetching and the frame's figures.
-        let candidates = self.candidate_list();
-        let errors: Vec<Option<f64>> = candidates
-            .iter()
-            .map(|&(_, info)| info.and_then(|i| view.error(&i)))
-            .collect();
+        // Without prefetching the figures need only the largest error: no list is made.
         stats.cut_wants = wanted.len();
         let mut ahead: IdMap<f64> = IdMap::default();
-        if may_want && self.config.prefetch.allows(wanted.len()) {
+        let worst = if may_want && self.config.prefetch.allows(wanted.len()) {
+            let candidates = self.candidate_list();
+            let errors: Vec<Option<f64>> = candidates
+                .iter()
+                .map(|&(_, info)| info.and_then(|i| view.error(&i)))
+                .collect();
             self.prefetch(camera, &candidates, &errors, &mut ahead);
-        }
+            self.worst_error(candidates.iter().zip(&errors).map(|(&(id, _), &e)| (id, e)))
+        } else {
+            self.worst_error(
+                self.cut_state
+                    .candidates
+                    .iter()
+                    .map(|(&id, info)| (id, info.and_then(|i| view.error(&i)))),
+            )
+        };
         self.last_camera = Some(*camera);
         if let Some(limit) = self.config.prefetch_limit
             && ahead.len() > limit
@@ -1027,7 +1046,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
         #[cfg(debug_assertions)]
         self.cut_state.check_incremental_sets(&self.domain);
-        self.figures(&view, &candidates, &errors, &mut stats);
+        self.figures(&view, worst, &mut stats);
         stats
     }
 
@@ -1054,13 +1073,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Frame step: the refinement heap, the candidates that violate the target in `view`, most
     /// urgent on top.
     fn refinement_heap(&self, view: &View) -> BinaryHeap<Candidate> {
-        let mut heap = BinaryHeap::new();
-        for (id, info) in self.candidate_list() {
-            if let Some(err) = self.violation_of(id, info, view) {
-                heap.push(Candidate { err, id });
-            }
-        }
-        heap
+        // Collected, then made a heap in one pass (the order is total: ties go by id).
+        let violations: Vec<Candidate> = self
+            .cut_state
+            .candidates
+            .iter()
+            .filter_map(|(&id, &info)| {
+                self.violation_of(id, info, view)
+                    .map(|err| Candidate { err, id })
+            })
+            .collect();
+        BinaryHeap::from(violations)
     }
 
     /// Frame step: applies the results of decodes dispatched in earlier frames, then dispatches
@@ -1248,14 +1271,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     }
 
     /// Frame step: the frame's figures of the cut it leaves.
-    fn figures(
-        &mut self,
-        view: &View,
-        candidates: &[(DiamondId, Option<Info>)],
-        errors: &[Option<f64>],
-        stats: &mut FrameStats,
-    ) {
-        let (max_err, coarsenable) = self.measure(view, candidates, errors);
+    fn figures(&mut self, view: &View, worst: f64, stats: &mut FrameStats) {
+        let (max_err, coarsenable) = self.measure(view, worst);
         stats.max_screen_error_px = max_err;
         stats.met_target = max_err <= self.config.pixel_error;
         stats.converged = stats.met_target && coarsenable == 0;
@@ -1559,9 +1576,14 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
     /// Coarsens every refined diamond the view does not need, finest first (a coarsening
     /// heap ordered by ascending screen error, re-fed with parents that become leaves), or
-    /// those it reaches by `until` (after at least [`GC_MIN_COARSENINGS`]). Returns how many
+    /// those it reaches by `until` (after at least `least`). Returns how many
     /// it coarsened and whether it found none left.
-    fn collect_garbage(&mut self, view: &View, until: Option<Instant>) -> (usize, bool) {
+    fn collect_garbage(
+        &mut self,
+        view: &View,
+        least: usize,
+        until: Option<Instant>,
+    ) -> (usize, bool) {
         let mut heap: BinaryHeap<std::cmp::Reverse<Candidate>> = BinaryHeap::new();
         for (&id, info) in &self.cut_state.leaves {
             let err = info.and_then(|i| view.error(&i)).unwrap_or(0.0);
@@ -1571,7 +1593,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
         let mut done = 0;
         while let Some(std::cmp::Reverse(c)) = heap.pop() {
-            if done >= GC_MIN_COARSENINGS && until.is_some_and(|u| Instant::now() >= u) {
+            if done >= least && until.is_some_and(|u| Instant::now() >= u) {
                 return (done, false);
             }
             if !self.coarsen_in_cut(c.id) {
@@ -1687,17 +1709,11 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         (err <= self.config.pixel_error).then_some(Candidate { err, id })
     }
 
-    /// The largest screen error a refinement could still fix, and how many refined diamonds
-    /// garbage collection would remove (0, uncounted, when the error is above the target).
-    /// `candidates` are the cut's, `errors` their screen errors in `view`.
-    fn measure(
-        &mut self,
-        view: &View,
-        candidates: &[(DiamondId, Option<Info>)],
-        errors: &[Option<f64>],
-    ) -> (f64, usize) {
+    /// The largest of `errors` (the cut's candidates with their screen errors) that a
+    /// refinement could still fix.
+    fn worst_error(&self, errors: impl Iterator<Item = (DiamondId, Option<f64>)>) -> f64 {
         let mut worst = 0f64;
-        for (&(id, _), &e) in candidates.iter().zip(errors) {
+        for (id, e) in errors {
             if let Some(e) = e
                 && e > worst
                 && !self.blocked(id)
@@ -1705,6 +1721,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 worst = e;
             }
         }
+        worst
+    }
+
+    /// `worst` (from [`Refiner::worst_error`]), and how many refined diamonds garbage
+    /// collection would remove (0, uncounted, when `worst` is above the target).
+    fn measure(&mut self, view: &View, worst: f64) -> (f64, usize) {
         // Only a cut that meets the target can be converged, so only then does the count
         // matter: skip the pass over the whole cut otherwise.
         if worst > self.config.pixel_error {
