@@ -14,9 +14,10 @@
 //! until the next one take the diamonds the view still needs, most urgent first, as far down as
 //! their parents' data exists (decoded, not necessarily refined); their results wait in the decoded
 //! cache and a later frame refines them without waiting, within its budget. Coarsening is garbage
-//! collection: every few frames, first in the frame, refined diamonds with no refined child that
-//! the view no longer needs are undone, least needed first, and their decoded data moves to an
-//! LRU cache so that refining them again is free.
+//! collection: every few frames (first in the frame while the view moves, after the loop while it
+//! is still), refined diamonds with no refined child that the view no longer needs are undone,
+//! least needed first, and their decoded data moves to an LRU cache so that refining them again
+//! is free.
 //!
 //! **A frame's cost follows what changes, not the size of the cut.** The refinement candidates
 //! (diamonds with a drawn half), the coarsening candidates (refined diamonds with no refined
@@ -111,9 +112,14 @@ const SMOOTHING: f64 = 0.1;
 /// (about 8 µs each at N = 65): a collection always advances, even in a frame whose
 /// budget is already spent.
 pub const GC_MIN_COARSENINGS: usize = 16;
-/// A collection runs first in its frame, for at most the budget over this (after its least,
-/// [`GC_MIN_COARSENINGS`]). Run after the refinement loop it got what the loop left, which in a
-/// viewer's paced frames was nothing: 16 a frame, fewer than the view left behind.
+/// A frame looks at up to this many candidates past its deadline for one refinement it can
+/// start, when it has started none (see `refine_until`).
+const LEAST_LOOKS: usize = 8;
+/// While the view moves, a collection runs first in its frame, for at most the budget over this
+/// (after its least, [`GC_MIN_COARSENINGS`]). Run after the refinement loop it got what the
+/// loop left, which in a viewer's paced frames was nothing: 16 a frame, fewer than the moving
+/// view left behind. An unfinished collection also goes on after the loop when the loop leaves
+/// at least this share of the budget.
 const GC_SHARE: u32 = 4;
 
 /// Settings of the refinement loop.
@@ -124,8 +130,10 @@ pub struct RefineConfig {
     /// Time budget per frame; `None` refines until the cut is locally optimal.
     pub budget: Option<Duration>,
     /// Garbage-collect (coarsen) every this many frames. With a budget, a collection runs first
-    /// in its frame for at most a quarter of the budget (at least [`GC_MIN_COARSENINGS`]) and
-    /// goes on in the next frames until it has coarsened everything it found.
+    /// in its frame for at most a quarter of the budget while the view moves, after the
+    /// refinement loop while it is still (at least [`GC_MIN_COARSENINGS`] either way; more when
+    /// the loop leaves time), and goes on in the next frames until it has coarsened everything
+    /// it found.
     pub gc_interval: u32,
     /// When to prefetch (see [`Prefetch`]).
     pub prefetch: Prefetch,
@@ -934,12 +942,14 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             frame: self.frame,
             ..FrameStats::default()
         };
-        if collects {
-            // First, for a share of the budget: coarsening costs microseconds a diamond, a view
-            // moving fast leaves hundreds to coarsen at once, and a collection left what the
-            // refinement loop leaves would get nothing in a frame whose budget the loop spends.
-            // Coarsening before refining changes nothing the loop does: what is coarsened meets
-            // the target, what is refined does not.
+        // While the view moves a collection comes first, for a share of the budget:
+        // coarsening costs microseconds a diamond, a view moving fast leaves hundreds to
+        // coarsen at once, and a collection left what the refinement loop leaves would get
+        // nothing in frames whose budget the loop spends. Coarsening before refining changes
+        // nothing the loop does: what is coarsened meets the target, what is refined does not.
+        // A still view's refinement comes first: its collection takes its least after the loop.
+        let still = self.config.budget.is_some() && self.last_camera == Some(*camera);
+        if collects && !still {
             let until = self.config.budget.map(|b| start + b / GC_SHARE);
             let (coarsened, finished) = self.collect_garbage(&view, GC_MIN_COARSENINGS, until);
             stats.coarsenings += coarsened;
@@ -948,13 +958,15 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let mut heap = self.refinement_heap(&view);
         let mut wanted: IdMap<f64> = IdMap::default();
         self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
+        let deferred = collects && still;
         if let (Some(d), Some(b)) = (deadline, self.config.budget)
-            && self.collecting
-            && d.saturating_duration_since(Instant::now()) >= b / GC_SHARE
+            && (deferred
+                || (self.collecting && d.saturating_duration_since(Instant::now()) >= b / GC_SHARE))
         {
-            // The loop left time (nothing it could refine now): the collection goes on in it,
-            // with no least amount, up to the deadline.
-            let (coarsened, finished) = self.collect_garbage(&view, 0, deadline);
+            // The still view's collection, or one that goes on in the time the loop left
+            // (nothing it could refine now), up to the deadline.
+            let least = if deferred { GC_MIN_COARSENINGS } else { 0 };
+            let (coarsened, finished) = self.collect_garbage(&view, least, deadline);
             stats.coarsenings += coarsened;
             self.collecting = !finished;
         }
@@ -1106,16 +1118,22 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let mut waiting: Vec<Candidate> = Vec::new();
         let mut coarsening = None;
         let past = |d: Option<Instant>| d.is_some_and(|d| Instant::now() >= d);
+        // Candidates looked at this frame before one could start: a frame whose deadline has
+        // passed before its loop began (a loaded machine, a tiny budget) still starts one
+        // refinement when one of its first few candidates can, so that every frame advances.
+        let mut looked = 0;
+        let mut started = false;
         loop {
             // Dispatch the most urgent ready refinements to the workers. Refinements decoded
             // ahead (the decoded cache) are applied here at once, so the deadline is checked
             // here too.
             while self.decoding.len() - self.speculative.len() < max_in_flight {
-                if past(deadline) {
+                if past(deadline) && (started || looked >= LEAST_LOOKS) {
                     stats.budget_exhausted = true;
                     break;
                 }
                 let Some(c) = heap.pop() else { break };
+                looked += 1;
                 if self.cut_state.cut.is_refined(c.id) {
                     continue;
                 }
@@ -1165,10 +1183,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                                 stats,
                             );
                             dispatched_self |= d == c.id;
+                            started = true;
                         }
                         Need::Ready(s) if parents_done => {
                             self.dispatch(d, s);
                             dispatched_self |= d == c.id;
+                            started = true;
                         }
                         Need::Ready(_) => {}
                     }
