@@ -11,6 +11,15 @@ use cbdam_codec::input::GeoRef;
 
 use crate::util::{cbdam, s, stderr, stdout};
 
+/// Asserts that `o` failed with a message naming each of `says`.
+fn refused(o: &std::process::Output, says: &[&str]) {
+    assert!(!o.status.success(), "succeeded: {}", stdout(o));
+    let err = stderr(o);
+    for word in says {
+        assert!(err.contains(word), "no {word:?} in: {err}");
+    }
+}
+
 /// A smooth relief over the globe, single-valued at the poles: linear in the direction of the
 /// point, ±1000 m towards 0° E on the equator, ±300 m towards the poles.
 fn relief(ll: LatLon) -> f64 {
@@ -222,13 +231,7 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
         "--max-error",
         "1",
     ]);
-    assert!(!o.status.success());
-    let err = stderr(&o);
-    assert!(
-        err.contains("lambert.tif") && err.contains("EPSG:2154"),
-        "{err}"
-    );
-    assert!(err.contains("UTM"), "{err}");
+    refused(&o, &["lambert.tif", "EPSG:2154", "UTM"]);
     assert!(!out.exists());
 
     // A lattice over the memory limit is refused before anything is allocated: the 2° grid
@@ -247,8 +250,7 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
         "--max-error",
         "1",
     ]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("memory limit"), "{}", stderr(&o));
+    refused(&o, &["memory limit"]);
     assert!(!out.exists());
 }
 
@@ -344,9 +346,7 @@ fn a_vrt_of_tiles_builds_the_planet_of_its_tiles() {
     let vrt = write_tiles_and_vrt(d, 2);
     let out = d.join("shifted.cbdam");
     let o = build(&[&global, &vrt], &out);
-    assert!(!o.status.success());
-    let err = stderr(&o);
-    assert!(err.contains("tiles.vrt") && err.contains("b.tif"), "{err}");
+    refused(&o, &["tiles.vrt", "b.tif"]);
     assert!(!out.exists());
 
     // More inputs than a byte can tell apart (the limit until winners took 16 bits): 300
@@ -424,8 +424,7 @@ fn etopo5_with_an_srtm_inset_verifies_on_every_level() {
     // extract writes planar rasters: a planet is refused by name, nothing written.
     let tif = tmp.path().join("x.tif");
     let o = cbdam(&["extract", &s(&out), "-o", &s(&tif)]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("is a planet"), "{}", stderr(&o));
+    refused(&o, &["is a planet"]);
     assert!(!tif.exists());
 }
 
@@ -679,29 +678,14 @@ fn bounds_and_crs_place_an_ungeoreferenced_planet_input() {
     assert!(compared > 1000, "{text}");
     // Without the flags the bare input cannot be placed.
     let o = cbdam(&["verify", &s(&b), "--against", &s(&global), &s(&bare)]);
-    assert!(!o.status.success());
-    assert!(
-        stderr(&o).contains("bare.tif carries no georeferencing"),
-        "{}",
-        stderr(&o)
-    );
+    refused(&o, &["bare.tif carries no georeferencing"]);
 
     let out = d.join("refused.cbdam");
     let o = build(&[&global, &placed], &flags, &out);
-    assert!(!o.status.success());
-    assert!(
-        stderr(&o).contains("every input here has its own"),
-        "{}",
-        stderr(&o)
-    );
+    refused(&o, &["every input here has its own"]);
     let bare2 = d.join("bare2.tif");
     std::fs::copy(&bare, &bare2).unwrap();
     let o = build(&[&global, &bare, &bare2], &flags, &out);
-    assert!(!o.status.success());
-    let err = stderr(&o);
-    assert!(
-        err.contains("bare.tif") && err.contains("bare2.tif"),
-        "{err}"
-    );
+    refused(&o, &["bare.tif", "bare2.tif"]);
     assert!(!out.exists());
 }
