@@ -46,6 +46,12 @@ pub trait Spawner {
     fn runs_in_background(&self) -> bool {
         true
     }
+    /// Whether the workers run below the calling thread's priority, so that a job on every
+    /// worker still leaves the caller its core the moment it wants it (the refiner then decodes
+    /// ahead on all of them, not on all but one). False unless a spawner says so.
+    fn yields_to_caller(&self) -> bool {
+        false
+    }
 }
 
 /// The desktop's decode workers: a rayon pool of its own, one thread per core (or
@@ -140,6 +146,9 @@ impl Spawner for DecodePool {
     }
     fn parallelism(&self) -> usize {
         Self::pool().current_num_threads()
+    }
+    fn yields_to_caller(&self) -> bool {
+        cfg!(target_os = "linux")
     }
 }
 

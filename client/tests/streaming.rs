@@ -646,6 +646,59 @@ fn garbage_collection_stops_at_the_budget_and_goes_on_in_the_next_frames() {
     assert!(frames > 4, "coarsened in {frames} frames only");
 }
 
+/// A still view whose budget ends with refinements left does not collect garbage in that
+/// frame: its collection waits until the loop has refined all it could, then coarsens what
+/// the previous view left, so the cut still converges to the view's own (the brute-force
+/// one) and every diamond left behind is collected.
+#[test]
+fn a_still_view_refines_before_it_collects() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let mut rng = Rng(11);
+    let (first, second) = (
+        random_camera(&world, &mut rng),
+        random_camera(&world, &mut rng),
+    );
+    let mut r = Refiner::new(LocalSource::new(repo.clone()), unlimited(2)).unwrap();
+    run_until_converged(&mut r, &first, 20);
+    // Every frame over budget: each starts one refinement.
+    r.set_budget(Some(Duration::from_nanos(1)));
+    let left_behind: Vec<DiamondId> = refined_set(r.cut())
+        .difference(&brute_force(&repo, &second, 1.0))
+        .copied()
+        .collect();
+    // The first frame of the new view moves the camera: its collection comes first.
+    r.frame(&second);
+    let (mut waited, mut collected_after) = (0, 0);
+    let mut last = None;
+    for _ in 0..4000 {
+        let s = r.frame(&second);
+        if s.budget_exhausted && s.refinements > 0 {
+            assert_eq!(
+                s.coarsenings, 0,
+                "frame {} coarsened with refinements left",
+                s.frame
+            );
+            waited += 1;
+        } else {
+            collected_after += s.coarsenings;
+        }
+        last = Some(s);
+        if s.converged {
+            break;
+        }
+    }
+    let last = last.expect("frames ran");
+    assert!(last.converged, "no convergence: {last:?}");
+    assert_eq!(refined_set(r.cut()), brute_force(&repo, &second, 1.0));
+    assert!(
+        waited > 0 && collected_after > 0 && !left_behind.is_empty(),
+        "nothing tested: {waited} frames waited, {collected_after} coarsened after, {} left \
+         behind",
+        left_behind.len()
+    );
+}
+
 /// The desktop's decode workers run below the frame thread's priority (Linux keeps the
 /// scheduling policy and the nice value per thread: `/proc/self/task/*/stat` fields 41 and 19):
 /// the frame loop has a deadline and they have none, so at equal priority a worker sharing the

@@ -62,6 +62,12 @@ impl<K: Copy + Eq + Hash, V> LruCache<K, V> {
         Some(&e.0)
     }
 
+    /// The value of `key`, leaving its recency as it was (for a look that takes the value out
+    /// next, or only asks what kind of data is at hand).
+    pub fn peek(&self, key: &K) -> Option<&V> {
+        self.map.get(key).map(|(v, _, _)| v)
+    }
+
     /// Whether `key` is cached (does not change recency).
     pub fn contains(&self, key: &K) -> bool {
         self.map.contains_key(key)
@@ -105,6 +111,7 @@ mod tests {
         let mut c = LruCache::new(10);
         c.insert(1, "a", 4);
         c.insert(2, "b", 4);
+        assert_eq!(c.peek(&2), Some(&"b")); // a peek leaves 2 the oldest
         assert_eq!(c.get(&1), Some(&"a")); // 2 is now the oldest
         c.insert(3, "c", 4);
         assert!(c.contains(&1) && !c.contains(&2) && c.contains(&3));

@@ -14,19 +14,20 @@
 //! until the next one take the diamonds the view still needs, most urgent first, as far down as
 //! their parents' data exists (decoded, not necessarily refined); their results wait in the decoded
 //! cache and a later frame refines them without waiting, within its budget. Coarsening is garbage
-//! collection: every few frames (first in the frame while the view moves, after the loop while it
-//! is still), refined diamonds with no refined child that the view no longer needs are undone,
-//! least needed first, and their decoded data moves to an LRU cache so that refining them again
-//! is free.
+//! collection: every few frames (first in the frame while the view moves; while it is still,
+//! after a loop that refined all it could), refined diamonds with no refined child that the view
+//! no longer needs are undone, least needed first, and their decoded data moves to an LRU cache
+//! so that refining them again is free.
 //!
 //! **A frame's cost follows what changes, not the size of the cut.** The refinement candidates
 //! (diamonds with a drawn half), the coarsening candidates (refined diamonds with no refined
 //! child) and the drawn half-patches are kept up to date on every refinement and coarsening, each
 //! with its saturated metric at hand, so no frame walks the cut or looks diamonds up in the
 //! repository's index: what remains per frame is one screen error per candidate (a box test and a
-//! distance), for the heaps and the frame's figures. A source that always has every record at
-//! hand (a local repository) makes the passes that look for records to request unnecessary; they
-//! are skipped.
+//! distance), for the heaps and the frame's figures. A still view skips even that for its
+//! refinement heap: the last frame's leftovers are still exact (see `KeptHeap`). A source that
+//! always has every record at hand (a local repository) makes the passes that look for records to
+//! request unnecessary; they are skipped.
 //!
 //! **The error metric is made monotone** so that the cut the loop converges to is unique (it does
 //! not depend on latency or on the order of past frames): a diamond's error is its stored
@@ -113,6 +114,12 @@ const AHEAD_LIMIT: usize = 256;
 pub const WANT_HORIZON_S: f64 = 1.0;
 /// Weight of the newest sample in the smoothed frame interval and decode time.
 const SMOOTHING: f64 = 0.1;
+/// Decoding ahead runs on every worker (when they yield to the frame thread) only while frames
+/// come at least this many budgets apart: a viewer's paced frames, not frames run back to back.
+/// Back to back, a speculative job on every worker holds up the decodes the next frame
+/// dispatches and waits for (`low_pass` back to back, 1920×1080, 2 ms, 2 cores: wall p99
+/// 2.19–2.53 ms with two jobs against 1.99–2.18 with one).
+const PACED_BUDGETS: f64 = 4.0;
 /// Fewest diamonds a garbage collection coarsens in a frame before it looks at the clock
 /// (about 8 µs each at N = 65): a collection always advances, even in a frame whose
 /// budget is already spent.
@@ -135,10 +142,10 @@ pub struct RefineConfig {
     /// Time budget per frame; `None` refines until the cut is locally optimal.
     pub budget: Option<Duration>,
     /// Garbage-collect (coarsen) every this many frames. With a budget, a collection runs first
-    /// in its frame for at most a quarter of the budget while the view moves, after the
-    /// refinement loop while it is still (at least [`GC_MIN_COARSENINGS`] either way; more when
-    /// the loop leaves time), and goes on in the next frames until it has coarsened everything
-    /// it found.
+    /// in its frame for at most a quarter of the budget while the view moves; while it is still,
+    /// after a refinement loop that refined all it could (it waits while the budget ends with
+    /// refinements left); at least [`GC_MIN_COARSENINGS`] either way, more when the loop leaves
+    /// time; and it goes on in the next frames until it has coarsened everything it found.
     pub gc_interval: u32,
     /// When to prefetch (see [`Prefetch`]).
     pub prefetch: Prefetch,
@@ -275,7 +282,8 @@ pub struct FrameStats {
     pub refinements: usize,
     /// Of `decoded`, the diamonds decoded ahead of the cut (speculatively, between frames).
     pub decoded_ahead: usize,
-    /// Of `refinements`, those that took a diamond decoded ahead.
+    /// Of `refinements`, those that took a diamond decoded ahead (one decoded ahead of a view
+    /// that then moved away from it counts as a plain refinement from the decoded cache).
     pub refined_ahead: usize,
     /// Coarsenings this frame.
     pub coarsenings: usize,
@@ -332,6 +340,13 @@ impl PartialOrd for Candidate {
     fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
         Some(self.cmp(o))
     }
+}
+
+/// A frame's refinement heap after its loop, for the next frame if its view is the same.
+struct KeptHeap {
+    camera: Camera,
+    pixel_error: f64,
+    heap: BinaryHeap<Candidate>,
 }
 
 /// The view a frame is refined for.
@@ -408,6 +423,13 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     overrun: Duration,
     /// A garbage collection stopped at its frame's budget: the next frame goes on with it.
     collecting: bool,
+    /// The last frame's refinement heap (see [`KeptHeap`]), kept when `heap_whole`.
+    kept_heap: Option<KeptHeap>,
+    /// No candidate that violates the target has left this frame's heap without being refined
+    /// (none missing its record, given up on, held back by the memory limit, decoded for a
+    /// parent coarsened since or failed; none coarsened to make room): the heap after the loop
+    /// holds every violating candidate but those being decoded, which come back refined.
+    heap_whole: bool,
     /// Diamonds being refined on worker threads (speculative ones included).
     decoding: IdSet,
     /// The part of `decoding` decoded ahead of the cut by speculative jobs: their results go to
@@ -415,9 +437,14 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     speculative: IdSet,
     /// Speculative jobs dispatched and not finished.
     speculative_jobs: usize,
-    /// Diamonds decoded ahead that came back and are not refined yet (some may have left the
-    /// decoded cache since: pruned when speculating).
+    /// Diamonds decoded ahead that came back and are not refined yet, and that the view of
+    /// `ahead_view` needs (pruned when speculating: those that left the decoded cache, and
+    /// those the view has moved away from).
     ahead: IdSet,
+    /// Diamonds decoded ahead that came back since the last pruning, not looked at yet.
+    ahead_arrived: IdSet,
+    /// The camera `ahead` was last pruned for.
+    ahead_view: Option<Camera>,
     /// When the last frame started, and the smoothed interval between frames, seconds.
     last_frame_start: Option<Instant>,
     frame_interval_s: f64,
@@ -526,10 +553,14 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             last_camera: None,
             overrun: config.budget.map_or(Duration::ZERO, |b| b / OVERRUN_PRIOR),
             collecting: false,
+            kept_heap: None,
+            heap_whole: false,
             decoding: IdSet::default(),
             speculative: IdSet::default(),
             speculative_jobs: 0,
             ahead: IdSet::default(),
+            ahead_arrived: IdSet::default(),
+            ahead_view: None,
             last_frame_start: None,
             frame_interval_s: 1.0 / 30.0,
             refinement_rate: 0.0,
@@ -691,6 +722,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Records a failure to fetch or decode `id`: the request log counts it (and gives up on
     /// the diamond after [`RefineConfig::max_failures`]), and its record, if any, is dropped.
     fn log_failure(&mut self, id: DiamondId, message: String) {
+        self.heap_whole = false;
         self.requests
             .log_failure(id, message, self.config.max_failures);
         self.residency.records.remove(&id);
@@ -715,7 +747,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         if self.requests.broken.contains(&id) || self.info(id).is_none() {
             return Need::Impossible;
         }
-        if let Some(n) = self.residency.decoded.get(&id) {
+        // A peek: the loop takes a cached node out of the cache at once, and decoding ahead
+        // only asks whether it is there.
+        if let Some(n) = self.residency.decoded.peek(&id) {
             return Need::Ready(Source::Cached(n.clone()));
         }
         if self.is_synthetic(id) {
@@ -806,15 +840,20 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     }
 
     /// Refines `id` (whose parents are refined and whose node is in `nodes`) and updates the
-    /// drawn halves and both candidate sets.
-    fn refine_in_cut(&mut self, id: DiamondId) {
+    /// drawn halves and both candidate sets. Returns its children with their metric (the new
+    /// candidates among them), so that the caller need not look them up again.
+    fn refine_in_cut(&mut self, id: DiamondId) -> [Option<(DiamondId, Option<Info>)>; 4] {
+        let mut children = [None; 4];
         let newly = self.cut_state.cut.refine(&self.domain, id);
         debug_assert_eq!(newly, vec![id], "parents are refined first");
         if newly.is_empty() {
-            return;
+            return children;
         }
         self.cut_state.hide_halves(&self.domain, id);
-        self.cut_state.candidates.remove(&id);
+        let info = match self.cut_state.candidates.remove(&id) {
+            Some(info) => info,
+            None => self.info(id),
+        };
         let halves = self.cut_state.nodes[&id].halves.clone();
         for (slot, k) in self.domain.children(id).into_iter().enumerate() {
             let Some(k) = k else { continue };
@@ -824,12 +863,13 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             self.cut_state.drawn.insert(DrawKey::Child(id, slot), half);
             let info = self.info(k);
             self.cut_state.candidates.insert(k, info);
+            children[slot] = Some((k, info));
         }
-        let info = self.info(id);
         self.cut_state.leaves.insert(id, info);
         for p in self.domain.parents(id).into_iter().flatten() {
             self.cut_state.leaves.remove(&p);
         }
+        children
     }
 
     /// Coarsens `id` if none of its children is refined, updating the drawn halves and both
@@ -960,10 +1000,30 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             stats.coarsenings += coarsened;
             self.collecting = !finished;
         }
-        let mut heap = self.refinement_heap(&view);
+        // A still view's heap is the last frame's leftovers when nothing left it since but
+        // what was refined: the same screen errors, and the pass over every candidate skipped.
+        let mut heap = match self.kept_heap.take() {
+            Some(kept)
+                if still
+                    && kept.camera == *camera
+                    && kept.pixel_error == self.config.pixel_error =>
+            {
+                #[cfg(debug_assertions)]
+                self.check_kept_heap(&view, &kept.heap);
+                kept.heap
+            }
+            _ => self.refinement_heap(&view),
+        };
+        self.heap_whole = true;
         let mut wanted: IdMap<f64> = IdMap::default();
         self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
-        let deferred = collects && still;
+        // A still view collects only once its loop has refined all it could: until then its
+        // collection waits (its garbage is the moving view's, and the loop's refinements are
+        // what the view lacks).
+        let deferred = collects && still && !stats.budget_exhausted;
+        if collects && still && stats.budget_exhausted {
+            self.collecting = true;
+        }
         if let (Some(d), Some(b)) = (deadline, self.config.budget)
             && (deferred
                 || (self.collecting && d.saturating_duration_since(Instant::now()) >= b / GC_SHARE))
@@ -981,7 +1041,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // What the budget did not reach still gets requested, then prefetch (neither can want
         // anything from a source that always has everything at hand).
         let may_want = !self.source.always_available();
-        let leftovers = heap.into_vec();
+        let leftovers: Vec<Candidate> = heap.iter().copied().collect();
         if may_want {
             let mut order: Vec<&Candidate> = leftovers
                 .iter()
@@ -1011,6 +1071,16 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         if self.config.decode_ahead && self.spawner.runs_in_background() {
             self.speculate(&view, leftovers);
         }
+        let worst_violating = if self.heap_whole {
+            self.worst_violating(&view, &heap)
+        } else {
+            None
+        };
+        self.kept_heap = (self.config.budget.is_some() && self.heap_whole).then_some(KeptHeap {
+            camera: *camera,
+            pixel_error: self.config.pixel_error,
+            heap,
+        });
         // One pass over the final cut's candidates serves prefetching and the frame's figures.
         // Without prefetching the figures need only the largest error: no list is made.
         stats.cut_wants = wanted.len();
@@ -1023,13 +1093,16 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 .collect();
             self.prefetch(camera, &candidates, &errors, &mut ahead);
             self.worst_error(candidates.iter().zip(&errors).map(|(&(id, _), &e)| (id, e)))
+        } else if let Some(worst) = worst_violating {
+            #[cfg(debug_assertions)]
+            assert_eq!(
+                worst,
+                self.worst_of_candidates(&view),
+                "largest error from the heap"
+            );
+            worst
         } else {
-            self.worst_error(
-                self.cut_state
-                    .candidates
-                    .iter()
-                    .map(|(&id, info)| (id, info.and_then(|i| view.error(&i)))),
-            )
+            self.worst_of_candidates(&view)
         };
         self.last_camera = Some(*camera);
         if let Some(limit) = self.config.prefetch_limit
@@ -1101,6 +1174,21 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             })
             .collect();
         BinaryHeap::from(violations)
+    }
+
+    /// Checks that a kept heap holds every candidate that violates the target in `view` but
+    /// those being decoded (debug builds, so every test frame of a still view checks it).
+    #[cfg(debug_assertions)]
+    fn check_kept_heap(&self, view: &View, kept: &BinaryHeap<Candidate>) {
+        let held: IdSet = kept.iter().map(|c| c.id).collect();
+        for c in self.refinement_heap(view).into_vec() {
+            assert!(
+                held.contains(&c.id) || self.decoding.contains(&c.id),
+                "the kept refinement heap lacks {} ({} px)",
+                c.id,
+                c.err
+            );
+        }
     }
 
     /// Frame step: applies the results of decodes dispatched in earlier frames, then dispatches
@@ -1198,7 +1286,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                         Need::Ready(_) => {}
                     }
                 }
-                if !blocked && !dispatched_self && !self.cut_state.cut.is_refined(c.id) {
+                if blocked {
+                    self.heap_whole = false;
+                } else if !dispatched_self && !self.cut_state.cut.is_refined(c.id) {
                     waiting.push(c);
                 }
             }
@@ -1289,8 +1379,14 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Frame step: when the budget ran out, how far past its deadline the frame ran (see
     /// `overrun`).
     fn remember_overrun(&mut self, deadline: Option<Instant>, stats: &FrameStats) {
-        if let (Some(d), true) = (deadline, stats.budget_exhausted) {
-            let over = Instant::now().saturating_duration_since(d);
+        if let (Some(d), Some(b), true) = (deadline, self.config.budget, stats.budget_exhausted) {
+            // Remembered at most as the most the deadline can hold back: a longer one is a
+            // stall (the thread off its core for a scheduler tick, 4 ms on this machine), which
+            // no deadline avoids, and remembered whole it held the next 80 frames' deadlines at
+            // the cap.
+            let over = Instant::now()
+                .saturating_duration_since(d)
+                .min(b / OVERRUN_CAP);
             self.overrun = over.max(self.overrun.mul_f64(OVERRUN_DECAY));
         }
     }
@@ -1438,17 +1534,44 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// parents'), parents come before their children, and what a still view speculates is
     /// exactly what its converged cut refines: nothing is decoded in vain unless the view moves.
     fn speculate(&mut self, view: &View, leftovers: Vec<Candidate>) {
-        // One core fewer than the workers have: the frame's own thread keeps a core, so that
-        // decoding ahead does not pre-empt the next frame's refinement (measured on 2 cores).
-        let max_jobs = self.spawner.parallelism().saturating_sub(1).max(1);
+        // Workers at the frame thread's priority get one job fewer than there are of them, so
+        // that the frame's own thread keeps a core (decoding ahead would pre-empt the next
+        // frame's refinement: measured on 2 cores); workers that yield to it get one each
+        // while frames are paced (PACED_BUDGETS).
+        let workers = self.spawner.parallelism().max(1);
+        let paced = self
+            .config
+            .budget
+            .is_some_and(|b| self.frame_interval_s > PACED_BUDGETS * b.as_secs_f64());
+        let max_jobs = if self.spawner.yields_to_caller() && paced {
+            workers
+        } else {
+            workers.saturating_sub(1).max(1)
+        };
         let free = max_jobs.saturating_sub(self.speculative_jobs);
         if free == 0 {
             return;
         }
         let per_job = (self.frame_interval_s / self.decode_s.max(1e-6)) as usize;
         let max_steps = per_job.clamp(*SPECULATIVE_STEPS.start(), *SPECULATIVE_STEPS.end());
-        let decoded = &self.residency.decoded;
-        self.ahead.retain(|id| decoded.contains(id));
+        // What was decoded ahead for a view that has moved on (a diamond this view does not
+        // refine) stays in the decoded cache like anything coarsened, but is no longer counted
+        // as ahead: counted, it would take room that what this view needs could use (a fast
+        // flight leaves such diamonds behind every frame). For a still view only what came
+        // back since the last frame is looked at.
+        let mut look_at: Vec<DiamondId> = self.ahead_arrived.drain().collect();
+        if self.ahead_view == Some(view.camera) {
+            let decoded = &self.residency.decoded;
+            self.ahead.retain(|id| decoded.contains(id));
+        } else {
+            look_at.extend(self.ahead.drain());
+            self.ahead_view = Some(view.camera);
+        }
+        for id in look_at {
+            if self.residency.decoded.contains(&id) && self.violation(id, view).is_some() {
+                self.ahead.insert(id);
+            }
+        }
         let room = AHEAD_LIMIT.saturating_sub(self.ahead.len() + self.speculative.len());
         let max_taken = (max_steps * free).min(room);
         struct Planned {
@@ -1465,6 +1588,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // looked up when a job needs them.
         let mut job_of: IdMap<usize> = IdMap::default();
         let mut seen = IdSet::default();
+        // Children pushed, each once (one that is also among the leftovers may come twice: the
+        // second is passed over as seen; filling this with every leftover cost more, over a
+        // network, where thousands lack their records).
+        let mut queued = IdSet::default();
         let mut frontier = BinaryHeap::from(leftovers);
         let mut taken = 0;
         let mut looked = 0;
@@ -1522,6 +1649,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 taken += 1;
             }
             for k in self.domain.children(id).into_iter().flatten() {
+                // A child of two parents is looked at once.
+                if !queued.insert(k) {
+                    continue;
+                }
                 if let Some(err) = self.violation(k, view) {
                     frontier.push(Candidate { err, id: k });
                 }
@@ -1563,7 +1694,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 return;
             }
             // Not decoded: a step before it in its job failed.
-            None => return,
+            None => {
+                self.heap_whole = false;
+                return;
+            }
         };
         let parents_refined = self
             .domain
@@ -1574,10 +1708,13 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // Decoded ahead: into the cache, from which the refinement loop takes it (within its
         // budget and the cut's memory limit).
         if done.speculative {
-            self.ahead.insert(id);
+            self.ahead_arrived.insert(id);
             if done.secs.is_some() {
                 stats.decoded_ahead += 1;
             }
+        }
+        if !done.speculative && !parents_refined {
+            self.heap_whole = false;
         }
         if done.speculative || self.cut_state.cut.is_refined(id) || !parents_refined {
             let bytes = node.bytes();
@@ -1585,17 +1722,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             return;
         }
         self.residency.decoded.remove(&id);
-        if self.ahead.remove(&id) {
+        if self.ahead.remove(&id) | self.ahead_arrived.remove(&id) {
             stats.refined_ahead += 1;
         }
         self.residency.cut_bytes += node.bytes();
         if let Some(old) = self.cut_state.nodes.insert(id, node) {
             self.residency.cut_bytes -= old.bytes();
         }
-        self.refine_in_cut(id);
+        let children = self.refine_in_cut(id);
         stats.refinements += 1;
-        for k in self.domain.children(id).into_iter().flatten() {
-            if let Some(err) = self.violation(k, view) {
+        for (k, info) in children.into_iter().flatten() {
+            if let Some(err) = self.violation_of(k, info, view) {
                 heap.push(Candidate { err, id: k });
             }
         }
@@ -1712,6 +1849,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 continue;
             }
             stats.coarsenings += 1;
+            self.heap_whole = false;
             self.release(c.id);
             for p in self.domain.parents(c.id).into_iter().flatten() {
                 if self.cut_state.cut.is_refined(p) && self.cut_state.is_leaf(&self.domain, p) {
@@ -1734,6 +1872,43 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     fn unneeded(&mut self, id: DiamondId, view: &View) -> Option<Candidate> {
         let err = self.info(id).and_then(|i| view.error(&i)).unwrap_or(0.0);
         (err <= self.config.pixel_error).then_some(Candidate { err, id })
+    }
+
+    /// [`Refiner::worst_error`] over the cut's candidates in `view`.
+    fn worst_of_candidates(&self, view: &View) -> f64 {
+        self.worst_error(
+            self.cut_state
+                .candidates
+                .iter()
+                .map(|(&id, info)| (id, info.and_then(|i| view.error(&i)))),
+        )
+    }
+
+    /// With a whole heap (see `heap_whole`), the frame's largest error found without a pass
+    /// over every candidate: every candidate that violates the target is in `heap` or being
+    /// decoded, so when one of them could still be refined, the largest of theirs is the
+    /// largest of all. `None` when none could (the largest error is then within the target,
+    /// and only the pass finds it).
+    fn worst_violating(&self, view: &View, heap: &BinaryHeap<Candidate>) -> Option<f64> {
+        let mut worst: Option<f64> = None;
+        let mut consider = |me: &Self, id: DiamondId, err: f64| {
+            if worst.is_none_or(|w| err > w)
+                && me.cut_state.candidates.contains_key(&id)
+                && !me.blocked(id)
+            {
+                worst = Some(err);
+            }
+        };
+        for c in heap.iter() {
+            consider(self, c.id, c.err);
+        }
+        for &id in &self.decoding {
+            let info = self.cut_state.candidates.get(&id).copied().flatten();
+            if let Some(err) = self.violation_of(id, info, view) {
+                consider(self, id, err);
+            }
+        }
+        worst
     }
 
     /// The largest of `errors` (the cut's candidates with their screen errors) that a

@@ -32,8 +32,30 @@ pub(super) struct CutState {
 }
 
 impl CutState {
+    /// The drawn-list keys of the halves of unrefined, non-root `id` in its refined parents:
+    /// `(parent, slot of id among the parent's children)`.
+    fn parent_slots(
+        &self,
+        domain: &Domain,
+        id: DiamondId,
+    ) -> impl Iterator<Item = (DiamondId, usize)> {
+        domain
+            .parents(id)
+            .into_iter()
+            .flatten()
+            .filter(|&p| self.cut.is_refined(p))
+            .map(move |p| {
+                let slot = domain
+                    .children(p)
+                    .iter()
+                    .position(|c| *c == Some(id))
+                    .expect("child of its parent");
+                (p, slot)
+            })
+    }
+
     /// The drawn-list keys of the halves of unrefined `id` (one per refined parent, both
-    /// halves for a root).
+    /// halves for a root), with the halves.
     fn half_keys(&self, domain: &Domain, id: DiamondId) -> Vec<(DrawKey, Arc<HalfPatch>)> {
         if id.level == 0 {
             let idx = domain
@@ -46,22 +68,14 @@ impl CutState {
                 .map(|(i, &h)| (DrawKey::Root(idx, i), self.roots[&id][h as usize].clone()))
                 .collect();
         }
-        let mut out = Vec::new();
-        for p in domain.parents(id).into_iter().flatten() {
-            if !self.cut.is_refined(p) {
-                continue;
-            }
-            let slot = domain
-                .children(p)
-                .iter()
-                .position(|c| *c == Some(id))
-                .expect("child of its parent");
-            let half = self.nodes[&p].halves[slot]
-                .clone()
-                .expect("refined parents hold their children's halves");
-            out.push((DrawKey::Child(p, slot), half));
-        }
-        out
+        self.parent_slots(domain, id)
+            .map(|(p, slot)| {
+                let half = self.nodes[&p].halves[slot]
+                    .clone()
+                    .expect("refined parents hold their children's halves");
+                (DrawKey::Child(p, slot), half)
+            })
+            .collect()
     }
 
     /// Draws the halves of `id`, just coarsened (or a root).
@@ -71,9 +85,20 @@ impl CutState {
         }
     }
 
-    /// Stops drawing the halves of `id`, about to be refined (its parents are refined).
+    /// Stops drawing the halves of `id`, about to be refined (its parents are refined): the
+    /// keys [`CutState::half_keys`] gives, found without cloning the halves.
     pub(super) fn hide_halves(&mut self, domain: &Domain, id: DiamondId) {
-        for (k, _) in self.half_keys(domain, id) {
+        let keys: Vec<DrawKey> = if id.level == 0 {
+            self.half_keys(domain, id)
+                .into_iter()
+                .map(|(k, _)| k)
+                .collect()
+        } else {
+            self.parent_slots(domain, id)
+                .map(|(p, slot)| DrawKey::Child(p, slot))
+                .collect()
+        };
+        for k in keys {
             self.drawn.remove(&k);
         }
     }
