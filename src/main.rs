@@ -966,7 +966,11 @@ pub struct ReplayArgs {
     /// max_screen_error_px, met_target, converged, diamonds_in_cut, drawn_halves, triangles,
     /// refinements, coarsenings, budget_exhausted, bytes_fetched (cumulative), requests_issued
     /// (cumulative), requests_in_flight, failures, cut_bytes (decoded diamonds in the cut),
-    /// memory_limited (a refinement waited for --cut-mib).
+    /// memory_limited (a refinement waited for --cut-mib), then where refine_ms went, step by
+    /// step: before_ms (arrivals, a moving view's collection, the refinement heap), loop_ms
+    /// (the refinement loop), collect_ms (a collection after the loop), want_ms (choosing
+    /// requests), ahead_ms (planning the decoding ahead), after_ms (largest error, prefetch,
+    /// posting requests).
     #[arg(long)]
     out: PathBuf,
     /// Frames per second of flight time.

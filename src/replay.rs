@@ -17,7 +17,8 @@ use crate::session::{budget_label, terrain_source};
 /// `requests_issued` are cumulative, the other counters per frame or current state.
 pub const HEADER: &str = "frame,t,settling,refine_ms,cpu_ms,decode_ms,decoded,max_screen_error_px,\
 met_target,converged,diamonds_in_cut,drawn_halves,triangles,refinements,coarsenings,\
-budget_exhausted,bytes_fetched,requests_issued,requests_in_flight,failures,cut_bytes,memory_limited";
+budget_exhausted,bytes_fetched,requests_issued,requests_in_flight,failures,cut_bytes,memory_limited,\
+before_ms,loop_ms,collect_ms,want_ms,ahead_ms,after_ms";
 
 pub fn run(args: &ReplayArgs) -> Result<()> {
     if !(args.pixel_error > 0.0 && args.pixel_error.is_finite()) {
@@ -186,7 +187,7 @@ pub fn fly_observed<S: DataSource>(
         let cpu_ms = (thread_cpu_seconds() - cpu) * 1e3;
         writeln!(
             csv,
-            "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
             s.frame,
             t,
             u8::from(settling),
@@ -209,6 +210,12 @@ pub fn fly_observed<S: DataSource>(
             s.failures,
             s.cut_bytes,
             u8::from(s.memory_limited),
+            s.steps.before_ms,
+            s.steps.loop_ms,
+            s.steps.collect_ms,
+            s.steps.want_ms,
+            s.steps.ahead_ms,
+            s.steps.after_ms,
         )?;
         let now = start.elapsed().as_secs_f64();
         if !settling && frame + 1 == flight_frames {

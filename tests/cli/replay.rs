@@ -53,6 +53,12 @@ fn replay_writes_documented_csv_and_converges() {
             "requests_in_flight",
             "cut_bytes",
             "memory_limited",
+            "before_ms",
+            "loop_ms",
+            "collect_ms",
+            "want_ms",
+            "ahead_ms",
+            "after_ms",
         ] {
             assert!(header.contains(&col), "{flight}: no column {col}");
         }
@@ -76,6 +82,24 @@ fn replay_writes_documented_csv_and_converges() {
         // The default cut memory (1 GiB) is far above what this small tile needs.
         assert!(last[col("cut_bytes")] > 0.0);
         assert!(rows.iter().all(|r| r[col("memory_limited")] == 0.0));
+        // The steps of a frame add up to its wall time (each is rounded to 0.1 µs).
+        let steps = [
+            "before_ms",
+            "loop_ms",
+            "collect_ms",
+            "want_ms",
+            "ahead_ms",
+            "after_ms",
+        ];
+        for r in &rows {
+            let sum: f64 = steps.iter().map(|s| r[col(s)]).sum();
+            assert!(steps.iter().all(|s| r[col(s)] >= 0.0));
+            assert!(
+                (sum - r[col("refine_ms")]).abs() < 1e-3,
+                "{flight}: {sum} ≠ {r:?}"
+            );
+        }
+        assert!(rows.iter().map(|r| r[col("loop_ms")]).sum::<f64>() > 0.0);
     }
 }
 

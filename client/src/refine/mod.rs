@@ -302,6 +302,27 @@ pub struct FrameStats {
     pub access: AccessStats,
     /// Records rejected so far (failed fetches and failed decodes).
     pub failures: u64,
+    /// Where `refine_ms` went, step by step.
+    pub steps: FrameSteps,
+}
+
+/// Where a frame's wall time went, ms: the steps of [`Refiner::frame`] in order; they add up to
+/// [`FrameStats::refine_ms`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameSteps {
+    /// Before the refinement loop: the source's arrivals, a moving view's collection, the
+    /// refinement heap.
+    pub before_ms: f64,
+    /// The refinement loop: dispatching, waiting for and applying decodes.
+    pub loop_ms: f64,
+    /// A collection after the loop (a still view's, or one going on in time the loop left).
+    pub collect_ms: f64,
+    /// Choosing the records to request for what the budget did not reach.
+    pub want_ms: f64,
+    /// Planning the decoding ahead of the cut.
+    pub ahead_ms: f64,
+    /// The rest: the frame's largest error, prefetching, posting the requests.
+    pub after_ms: f64,
 }
 
 /// Bytes held by the refiner's CPU caches ([`Refiner::cache_use`]).
@@ -1016,7 +1037,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         };
         self.heap_whole = true;
         let mut wanted: IdMap<f64> = IdMap::default();
+        let loop_start = Instant::now();
         self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
+        let loop_end = Instant::now();
         // A still view collects only once its loop has refined all it could: until then its
         // collection waits (its garbage is the moving view's, and the loop's refinements are
         // what the view lacks).
@@ -1037,6 +1060,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
         let rate = stats.refinements as f64 / self.frame_interval_s.max(1e-3);
         self.refinement_rate += SMOOTHING * (rate - self.refinement_rate);
+        let collect_end = Instant::now();
 
         // What the budget did not reach still gets requested, then prefetch (neither can want
         // anything from a source that always has everything at hand).
@@ -1067,10 +1091,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 self.want_plan(c.id, c.err, &mut wanted);
             }
         }
+        let want_end = Instant::now();
         // The workers keep decoding what the view still needs until the next frame.
         if self.config.decode_ahead && self.spawner.runs_in_background() {
             self.speculate(&view, leftovers);
         }
+        let ahead_end = Instant::now();
         let worst_violating = if self.heap_whole {
             self.worst_violating(&view, &heap)
         } else {
@@ -1133,7 +1159,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
         self.post_requests(wanted);
         self.remember_overrun(deadline, &stats);
-        stats.refine_ms = start.elapsed().as_secs_f64() * 1e3;
+        let end = Instant::now();
+        stats.refine_ms = (end - start).as_secs_f64() * 1e3;
+        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+        stats.steps = FrameSteps {
+            before_ms: ms(start, loop_start),
+            loop_ms: ms(loop_start, loop_end),
+            collect_ms: ms(loop_end, collect_end),
+            want_ms: ms(collect_end, want_end),
+            ahead_ms: ms(want_end, ahead_end),
+            after_ms: ms(ahead_end, end),
+        };
         #[cfg(debug_assertions)]
         self.cut_state.check_incremental_sets(&self.domain);
         self.figures(&view, worst, &mut stats);
