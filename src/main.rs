@@ -969,8 +969,8 @@ pub struct ReplayArgs {
     /// memory_limited (a refinement waited for --cut-mib), then where refine_ms went, step by
     /// step: before_ms (arrivals, a moving view's collection, the refinement heap), loop_ms
     /// (the refinement loop), collect_ms (a collection after the loop), want_ms (choosing
-    /// requests), ahead_ms (planning the decoding ahead), after_ms (largest error, prefetch,
-    /// posting requests).
+    /// requests), after_ms (largest error, prefetch, posting requests), ahead_ms (planning the
+    /// decoding ahead, last in the frame; the column comes before after_ms).
     #[arg(long)]
     out: PathBuf,
     /// Frames per second of flight time.

@@ -12,6 +12,7 @@ use cbdam_client::access::LocalSource;
 use cbdam_client::flight::Flight;
 use cbdam_client::patch::{HalfPatch, decode_cut};
 use cbdam_client::refine::{RefineConfig, Refiner};
+use cbdam_client::spawn::{DecodePool, Spawner};
 use cbdam_client::world::World;
 
 use crate::streaming::{brute_force, refined_set, repository};
@@ -96,6 +97,37 @@ fn decoding_ahead_draws_what_the_reference_decoder_draws_and_converges_to_the_sa
         assert!(
             ahead > 0 && refined_ahead > 0,
             "{name}: nothing was decoded ahead ({ahead}) or refined from it ({refined_ahead})"
+        );
+    }
+}
+
+/// Decoding ahead is planned last in its frame and stops at the end of the budget once it has
+/// taken a diamond per free worker: with a budget that is always spent, a frame hands each
+/// worker at most one diamond to decode ahead, and still hands them one.
+#[test]
+fn decoding_ahead_stops_at_the_budget_but_keeps_the_workers_busy() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let workers = DecodePool.parallelism();
+    for (name, flight) in flights() {
+        let config = RefineConfig {
+            budget: Some(Duration::from_nanos(1)),
+            ..RefineConfig::default()
+        };
+        let mut r = Refiner::new(LocalSource::new(repo.clone()), config).unwrap();
+        let frames = 40;
+        let mut ahead = 0;
+        for f in 0..frames {
+            let t = flight.duration() * f as f64 / frames as f64;
+            ahead += r.frame(&flight.camera(&world, t, (640, 480))).decoded_ahead;
+            // Time for the workers to finish what they were given, as a viewer's frame
+            // interval gives them.
+            std::thread::sleep(Duration::from_millis(4));
+        }
+        assert!(ahead > 0, "{name}: nothing was decoded ahead");
+        assert!(
+            ahead <= frames * workers,
+            "{name}: {ahead} diamonds decoded ahead in {frames} frames with {workers} workers"
         );
     }
 }
