@@ -5,6 +5,16 @@ use std::path::Path;
 use super::build_quiet;
 use crate::util::*;
 
+/// The per-step columns of a frame's wall time, in the CSV's order.
+const STEPS: [&str; 6] = [
+    "before_ms",
+    "loop_ms",
+    "collect_ms",
+    "want_ms",
+    "ahead_ms",
+    "after_ms",
+];
+
 /// `cbdam replay` over a real repository and both shipped flights: the documented header, one
 /// row per frame, and a last row (camera held still) that meets the target and has converged.
 #[test]
@@ -53,13 +63,10 @@ fn replay_writes_documented_csv_and_converges() {
             "requests_in_flight",
             "cut_bytes",
             "memory_limited",
-            "before_ms",
-            "loop_ms",
-            "collect_ms",
-            "want_ms",
-            "ahead_ms",
-            "after_ms",
-        ] {
+        ]
+        .into_iter()
+        .chain(STEPS)
+        {
             assert!(header.contains(&col), "{flight}: no column {col}");
         }
         let rows: Vec<Vec<f64>> = lines
@@ -83,17 +90,9 @@ fn replay_writes_documented_csv_and_converges() {
         assert!(last[col("cut_bytes")] > 0.0);
         assert!(rows.iter().all(|r| r[col("memory_limited")] == 0.0));
         // The steps of a frame add up to its wall time (each is rounded to 0.1 µs).
-        let steps = [
-            "before_ms",
-            "loop_ms",
-            "collect_ms",
-            "want_ms",
-            "ahead_ms",
-            "after_ms",
-        ];
         for r in &rows {
-            let sum: f64 = steps.iter().map(|s| r[col(s)]).sum();
-            assert!(steps.iter().all(|s| r[col(s)] >= 0.0));
+            let sum: f64 = STEPS.iter().map(|s| r[col(s)]).sum();
+            assert!(STEPS.iter().all(|s| r[col(s)] >= 0.0));
             assert!(
                 (sum - r[col("refine_ms")]).abs() < 1e-3,
                 "{flight}: {sum} ≠ {r:?}"
