@@ -970,7 +970,8 @@ pub struct ReplayArgs {
     /// step: before_ms (arrivals, a moving view's collection, the refinement heap), loop_ms
     /// (the refinement loop), collect_ms (a collection after the loop), want_ms (choosing
     /// requests), after_ms (largest error, prefetch, posting requests), ahead_ms (planning the
-    /// decoding ahead, last in the frame; the column comes before after_ms).
+    /// decoding ahead, last in the frame; the column comes before after_ms), and decode_cpu_ms
+    /// (of decode_ms, the workers' CPU time: without what they waited for a core; Linux).
     #[arg(long)]
     out: PathBuf,
     /// Frames per second of flight time.

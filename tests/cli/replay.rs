@@ -99,6 +99,16 @@ fn replay_writes_documented_csv_and_converges() {
             );
         }
         assert!(rows.iter().map(|r| r[col("loop_ms")]).sum::<f64>() > 0.0);
+        // The workers' CPU time is part of their wall time, and measured on Linux.
+        for r in &rows {
+            assert!(
+                r[col("decode_cpu_ms")] <= r[col("decode_ms")] + 1e-3,
+                "{flight}: {r:?}"
+            );
+        }
+        if cfg!(target_os = "linux") {
+            assert!(rows.iter().map(|r| r[col("decode_cpu_ms")]).sum::<f64>() > 0.0);
+        }
     }
 }
 

@@ -264,6 +264,9 @@ pub struct FrameStats {
     pub refine_ms: f64,
     /// Worker time spent decoding the refinements that came back this frame, ms.
     pub decode_ms: f64,
+    /// Of `decode_ms`, the workers' CPU time where the platform measures it (Linux; 0
+    /// elsewhere): without the time they waited for a core.
+    pub decode_cpu_ms: f64,
     /// Diamonds decoded that came back this frame (refinements served from the cache do not
     /// count).
     pub decoded: usize,
@@ -1312,6 +1315,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                                     id: d,
                                     result: Some(Ok(node)),
                                     secs: None,
+                                    cpu_secs: None,
                                     speculative: false,
                                     last: false,
                                 },
@@ -1732,6 +1736,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         self.decoding.remove(&id);
         if let Some(secs) = done.secs {
             stats.decode_ms += secs * 1e3;
+            stats.decode_cpu_ms += done.cpu_secs.unwrap_or(0.0) * 1e3;
             stats.decoded += 1;
             self.decode_s += SMOOTHING * (secs - self.decode_s);
         }

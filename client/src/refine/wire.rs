@@ -323,6 +323,8 @@ pub(super) fn decode_results(job: &DecodeJob, bytes: &[u8]) -> Result<Vec<Done>,
             id,
             result,
             secs,
+            // A worker's answer carries its wall time only.
+            cpu_secs: None,
             speculative: job.speculative,
             last: i + 1 == count,
         });
