@@ -971,7 +971,7 @@ pub struct ReplayArgs {
     /// (the refinement loop), collect_ms (a collection after the loop), want_ms (choosing
     /// requests), after_ms (largest error, prefetch, posting requests), ahead_ms (planning the
     /// decoding ahead, last in the frame; the column comes before after_ms), and decode_cpu_ms
-    /// (of decode_ms, the workers' CPU time: without what they waited for a core; Linux).
+    /// (of decode_ms, the workers' CPU time: without what they waited for a core; Unix).
     #[arg(long)]
     out: PathBuf,
     /// Frames per second of flight time.

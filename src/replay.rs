@@ -355,20 +355,6 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
 
 /// CPU time of the calling thread, seconds: what the loop costs the render thread, without
 /// the time the shared machine's scheduler keeps it waiting. NaN where unsupported.
-#[cfg(unix)]
 fn thread_cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant the C library
-    // defines. On failure `ts` stays zero and the difference of two calls is meaningless but
-    // harmless, so the result is not checked.
-    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
-#[cfg(not(unix))]
-fn thread_cpu_seconds() -> f64 {
-    f64::NAN
+    cbdam_client::stats::thread_cpu_seconds().unwrap_or(f64::NAN)
 }

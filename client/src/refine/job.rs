@@ -36,7 +36,7 @@ pub struct Done {
     pub(super) result: Option<Result<Arc<Node>, CodecError>>,
     /// Worker time (wall); `None` when nothing was decoded (served from the cache).
     pub(super) secs: Option<f64>,
-    /// Of `secs`, the worker thread's CPU time where the platform measures it (Linux): the
+    /// Of `secs`, the worker thread's CPU time where the platform measures it (Unix): the
     /// wall time also holds what the worker waited for a core (its priority is below the
     /// frame thread's).
     pub(super) cpu_secs: Option<f64>,
@@ -102,7 +102,7 @@ impl DecodeJob {
                     .zip(&parents)
                     .all(|(i, n)| i.is_some() == n.is_some());
             let t = Instant::now();
-            let cpu = thread_cpu_seconds();
+            let cpu = crate::stats::thread_cpu_seconds();
             let (result, secs) =
                 if complete && self.from_message && !self.parents_agree(id, &parents) {
                     let e = CodecError::corrupt(format!(
@@ -118,7 +118,10 @@ impl DecodeJob {
             if let Some(Ok(node)) = &result {
                 self.given.push((id, node.clone()));
             }
-            let cpu_secs = secs.and(cpu).zip(thread_cpu_seconds()).map(|(a, b)| b - a);
+            let cpu_secs = secs
+                .and(cpu)
+                .zip(crate::stats::thread_cpu_seconds())
+                .map(|(a, b)| b - a);
             // The refiner may be gone; then nobody wants the result.
             let _ = self.tx.send(Done {
                 id,
@@ -297,23 +300,4 @@ pub(super) fn root_colour(drape: &Drape, root: DiamondId) -> Result<[Vec<i32>; 3
 thread_local! {
     /// Decoding buffers, one set per worker thread.
     static SCRATCH: std::cell::RefCell<RefineScratch> = std::cell::RefCell::default();
-}
-
-/// CPU time of the calling thread, seconds (Linux); `None` elsewhere.
-#[cfg(target_os = "linux")]
-fn thread_cpu_seconds() -> Option<f64> {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant the C library
-    // defines.
-    let ok = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0;
-    ok.then_some(ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
-}
-
-/// CPU time of the calling thread, seconds (Linux); `None` elsewhere.
-#[cfg(not(target_os = "linux"))]
-fn thread_cpu_seconds() -> Option<f64> {
-    None
 }

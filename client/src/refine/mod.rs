@@ -264,7 +264,7 @@ pub struct FrameStats {
     pub refine_ms: f64,
     /// Worker time spent decoding the refinements that came back this frame, ms.
     pub decode_ms: f64,
-    /// Of `decode_ms`, the workers' CPU time where the platform measures it (Linux; 0
+    /// Of `decode_ms`, the workers' CPU time where the platform measures it (Unix; 0
     /// elsewhere): without the time they waited for a core.
     pub decode_cpu_ms: f64,
     /// Diamonds decoded that came back this frame (refinements served from the cache do not
@@ -1073,7 +1073,13 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // What the budget did not reach still gets requested, then prefetch (neither can want
         // anything from a source that always has everything at hand).
         let may_want = !self.source.always_available();
-        let leftovers: Vec<Candidate> = heap.iter().copied().collect();
+        // A whole heap is still needed after this (the frame's largest error, the next frame's
+        // heap): copied; otherwise taken.
+        let leftovers: Vec<Candidate> = if self.heap_whole {
+            heap.iter().copied().collect()
+        } else {
+            std::mem::take(&mut heap).into_vec()
+        };
         if may_want {
             let mut order: Vec<&Candidate> = leftovers
                 .iter()
