@@ -101,27 +101,28 @@ impl DecodeJob {
                     .iter()
                     .zip(&parents)
                     .all(|(i, n)| i.is_some() == n.is_some());
+            // The CPU clock is read inside the wall clock's interval, so that its own cost (a
+            // system call) never makes the CPU time exceed the wall time.
             let t = Instant::now();
             let cpu = crate::stats::thread_cpu_seconds();
-            let (result, secs) =
+            let (result, secs, cpu_secs) =
                 if complete && self.from_message && !self.parents_agree(id, &parents) {
                     let e = CodecError::corrupt(format!(
                         "the parents of {id} disagree on its diagonal"
                     ));
-                    (Some(Err(e)), None)
+                    (Some(Err(e)), None, None)
                 } else if complete {
                     let r = self.refine(id, source, &parents);
-                    (Some(r), Some(t.elapsed().as_secs_f64()))
+                    let cpu_secs = cpu
+                        .zip(crate::stats::thread_cpu_seconds())
+                        .map(|(a, b)| b - a);
+                    (Some(r), Some(t.elapsed().as_secs_f64()), cpu_secs)
                 } else {
-                    (None, None)
+                    (None, None, None)
                 };
             if let Some(Ok(node)) = &result {
                 self.given.push((id, node.clone()));
             }
-            let cpu_secs = secs
-                .and(cpu)
-                .zip(crate::stats::thread_cpu_seconds())
-                .map(|(a, b)| b - a);
             // The refiner may be gone; then nobody wants the result.
             let _ = self.tx.send(Done {
                 id,
