@@ -13,7 +13,9 @@ use std::sync::mpsc::Sender;
 use cbdam_codec::CodecError;
 use cbdam_codec::colour::ColourRefined;
 use cbdam_codec::geometry::{Diagonal, DiamondId, Domain};
-use cbdam_codec::hierarchy::{Decoder, RefineScratch, Refined, gather, gather_validity};
+use cbdam_codec::hierarchy::{
+    Decoder, RefineScratch, Refined, gather, gather_validity, join_halves,
+};
 use web_time::Instant;
 
 use super::detail;
@@ -242,17 +244,69 @@ impl DecodeJob {
             let sid = id.coarser(self.shift);
             return self.decoder.grid_of(sid, [None, None]);
         }
-        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
         let n = self.domain.n();
         let mut grid = vec![0i32; n * n];
+        if let Some(halves) = self.halves_of(id, parents) {
+            let heights = halves.map(|h| h.map(|h| &h.heights[..]));
+            let diagonal = self.domain.layout().diagonal(id);
+            join_halves(diagonal, n, heights, &mut grid);
+            debug_assert!(
+                heights.iter().flatten().all(|h| (0..n).all(|j| {
+                    let k = match diagonal {
+                        Diagonal::Main => j * n + j,
+                        Diagonal::Anti => j * n + n - 1 - j,
+                    };
+                    h[k] == grid[k]
+                })),
+                "the parents of {id} disagree on its diagonal"
+            );
+            return grid;
+        }
+        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
         gather(&self.domain, id, parents, &mut grid);
         grid
+    }
+
+    /// The halves of `id` that its parents' nodes hold (made when each parent was refined),
+    /// in [`Domain::parents`] order: gathering `id`'s grid from them is a copy of rows, where
+    /// gathering from the parents' refinements reads them on diagonals. `None` when a parent's
+    /// node has no halves (one read from a message).
+    fn halves_of<'a>(
+        &self,
+        id: DiamondId,
+        parents: &'a ParentNodes,
+    ) -> Option<[Option<&'a HalfPatch>; 2]> {
+        let ids = self.domain.parents(id);
+        let mut halves = [None, None];
+        for h in 0..2 {
+            let (Some(pid), Some(node)) = (ids[h], &parents[h]) else {
+                continue;
+            };
+            let slot = self
+                .domain
+                .children(pid)
+                .iter()
+                .position(|c| *c == Some(id))?;
+            halves[h] = Some(node.halves[slot].as_deref()?);
+        }
+        Some(halves)
     }
 
     fn validity_of(&self, id: DiamondId, parents: &ParentNodes) -> Option<Vec<bool>> {
         if id.level == 0 {
             let sid = id.coarser(self.shift);
             return self.decoder.validity_of(sid, [None, None]);
+        }
+        if let Some(halves) = self.halves_of(id, parents) {
+            if halves.iter().flatten().all(|h| h.valid.is_none()) {
+                return None;
+            }
+            let n = self.domain.n();
+            let all = vec![true; n * n];
+            let valid = halves.map(|h| h.map(|h| h.valid.as_deref().unwrap_or(&all)));
+            let mut out = vec![true; n * n];
+            join_halves(self.domain.layout().diagonal(id), n, valid, &mut out);
+            return Some(out);
         }
         let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
         gather_validity(&self.domain, id, parents)

@@ -45,7 +45,7 @@ pub use planet::{
     verify_planet,
 };
 pub use record_bytes::RecordBytes;
-pub use refine::{RefineScratch, Refined, gather, gather_validity, refine};
+pub use refine::{RefineScratch, Refined, gather, gather_validity, join_halves, refine};
 pub use resolution::Resolution;
 
 use crate::entropy::{BandKind, CoderKind};
