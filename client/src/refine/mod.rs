@@ -1860,7 +1860,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             return true;
         };
         // Worst case: every node with all four child halves and nodata masks.
-        let node = Node::bytes_for(self.domain.n(), 4, self.drape.is_some()) * 5 / 4;
+        let node = Node::worst_bytes(self.domain.n(), self.drape.is_some());
         let fits = |me: &Self| {
             let regular = me.decoding.len() - me.speculative.len();
             me.residency.cut_bytes + (regular + 1) * node <= limit

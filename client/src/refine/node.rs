@@ -38,11 +38,11 @@ impl Node {
         heights + masks
     }
 
-    /// Bytes of the heights of a node of an `n × n` diamond with `halves` child halves (its
-    /// nodata masks, when it has any, add a quarter: one byte per point against four), and of
-    /// its colour: three refined channels and a packed colour per child-half point.
+    /// Bytes of the heights of a node of an `n × n` diamond with `halves` child halves, and of
+    /// its colour: three refined channels and a packed colour per child-half point. A refinement
+    /// holds `n² + (n−1)²` values ([`Refined`]).
     pub(super) fn bytes_for(n: usize, halves: usize, colour: bool) -> usize {
-        let refined = (2 * n - 1) * (2 * n - 1);
+        let refined = n * n + (n - 1) * (n - 1);
         let heights = 4 * (refined + halves * n * n);
         heights
             + if colour {
@@ -50,6 +50,12 @@ impl Node {
             } else {
                 0
             }
+    }
+
+    /// The most bytes a node of an `n × n` diamond can take: all four child halves, and nodata
+    /// masks (one byte per point) on its `(2n−1)²` half-step grid and on each half.
+    pub(super) fn worst_bytes(n: usize, colour: bool) -> usize {
+        Self::bytes_for(n, 4, colour) + (2 * n - 1) * (2 * n - 1) + 4 * n * n
     }
 }
 

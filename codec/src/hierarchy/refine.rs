@@ -10,57 +10,41 @@ use crate::lifting::{
     Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_inner_vertices,
 };
 
-/// The level-`l+1` values a refinement produces on a level-`l` diamond's square, interleaved on
-/// its `(2N−1)²` half-step grid: vertex `(i, j)` at `(2i, 2j)` (changed only at inner vertices
-/// and only when α = ½), cell centre `(i, j)` at `(2i+1, 2j+1)`; the other half-step points
-/// (edge midpoints) are finer than level `l+1` and unused. Interleaving makes gathering a
-/// child's grid a strided copy.
+/// The level-`l+1` values a refinement produces on a level-`l` diamond's square: the values of
+/// its `N²` vertices (changed only at inner vertices and only when α = ½) and of its `(N−1)²`
+/// cell centres. On the square's `(2N−1)²` half-step grid, vertex `(i, j)` sits at `(2i, 2j)`
+/// and cell centre `(i, j)` at `(2i+1, 2j+1)`; the other half-step points (edge midpoints) are
+/// finer than level `l+1` and not stored. A child's grid steps are the half-step grid's
+/// diagonals, so gathering one reads vertices and cells alternately, each at a fixed stride.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Refined {
     n: usize,
-    half_step: Vec<i32>,
-    /// Validity of the same half-step points from the record's nodata mask, trusted only at
-    /// vertices and cell centres inside the data rectangle; `None` when all of those are valid.
+    /// The vertices (`N²`, row-major), then the cells (`(N−1)²`, row-major).
+    values: Vec<i32>,
+    /// Validity of the `(2N−1)²` half-step points from the record's nodata mask, trusted only
+    /// at vertices and cell centres inside the data rectangle; `None` when all of those are
+    /// valid.
     valid: Option<Vec<bool>>,
 }
 
 impl Refined {
-    /// Interleaves vertex values (`N²`, row-major) and cell values (`(N−1)²`, row-major).
+    /// From vertex values (`N²`, row-major) and cell values (`(N−1)²`, row-major).
     pub fn from_parts(n: usize, vertices: &[i32], cells: &[i32]) -> Self {
         assert!(vertices.len() == n * n && cells.len() == (n - 1) * (n - 1));
-        let side = 2 * n - 1;
-        let mut half_step = vec![0i32; side * side];
-        // Row by row through iterators: no index arithmetic or bounds check per value.
-        let vertex_rows = vertices.chunks_exact(n);
-        let cell_rows = cells.chunks_exact(n - 1);
-        let mut rows = half_step.chunks_exact_mut(side);
-        for (v, c) in vertex_rows.zip(cell_rows.map(Some).chain([None])) {
-            let even = rows.next().expect("2N − 1 rows");
-            for (o, &x) in even.chunks_exact_mut(2).zip(v) {
-                o[0] = x;
-            }
-            even[side - 1] = v[n - 1];
-            if let Some(c) = c {
-                let odd = rows.next().expect("2N − 1 rows");
-                for (o, &x) in odd[1..].chunks_exact_mut(2).zip(c) {
-                    o[0] = x;
-                }
-            }
-        }
+        let mut values = Vec::with_capacity(vertices.len() + cells.len());
+        values.extend_from_slice(vertices);
+        values.extend_from_slice(cells);
         Self {
             n,
-            half_step,
+            values,
             valid: None,
         }
     }
 
     /// Attaches the validity of the `(2N−1)²` half-step points (`None`: all valid).
     pub fn with_validity(mut self, valid: Option<Vec<bool>>) -> Self {
-        assert!(
-            valid
-                .as_ref()
-                .is_none_or(|v| v.len() == self.half_step.len())
-        );
+        let side = 2 * self.n - 1;
+        assert!(valid.as_ref().is_none_or(|v| v.len() == side * side));
         self.valid = valid;
         self
     }
@@ -77,12 +61,25 @@ impl Refined {
 
     /// The refined value of vertex `(i, j)`.
     pub fn vertex(&self, i: usize, j: usize) -> i32 {
-        self.half_step[2 * j * (2 * self.n - 1) + 2 * i]
+        assert!(i < self.n && j < self.n);
+        self.values[j * self.n + i]
     }
 
     /// The value of cell centre `(i, j)`.
     pub fn cell(&self, i: usize, j: usize) -> i32 {
-        self.half_step[(2 * j + 1) * (2 * self.n - 1) + 2 * i + 1]
+        let m = self.n - 1;
+        assert!(i < m && j < m);
+        self.values[self.n * self.n + j * m + i]
+    }
+
+    /// The value at half-step point `(a, b)`, a vertex (both even) or a cell centre (both odd).
+    fn at_half_step(&self, a: i64, b: i64) -> i32 {
+        assert_eq!(a % 2, b % 2, "({a}, {b}) is an edge midpoint");
+        if a % 2 == 0 {
+            self.vertex((a / 2) as usize, (b / 2) as usize)
+        } else {
+            self.cell((a / 2) as usize, (b / 2) as usize)
+        }
     }
 }
 
@@ -99,13 +96,7 @@ impl Refined {
 /// If both parents are missing, or if the two parents disagree on the split diagonal (the
 /// parents' sides are never changed by a refinement, so a disagreement is a bug, not bad data).
 pub fn gather(domain: &Domain, id: DiamondId, parents: [Option<&Refined>; 2], out: &mut [i32]) {
-    gather_values(
-        domain,
-        id,
-        parents.map(|p| p.map(|p| &p.half_step[..])),
-        true,
-        out,
-    );
+    gather_values(domain, id, parents, true, out);
 }
 
 /// The validity of `id`'s `N × N` grid, gathered from its parents' refinements like
@@ -124,17 +115,96 @@ pub fn gather_validity(
     let n = layout.n();
     let side = 2 * n - 1;
     let all = vec![true; side * side];
-    let sources = parents.map(|p| p.map(|p| p.valid.as_deref().unwrap_or(&all)));
+    let sources = parents.map(|p| {
+        p.map(|p| HalfStepGrid {
+            side,
+            values: p.valid.as_deref().unwrap_or(&all),
+        })
+    });
     let mut out = vec![true; n * n];
     gather_values(domain, id, sources, false, &mut out);
     Some(out)
 }
 
+/// Where [`gather_values`] reads a parent's values on its half-step grid.
+trait HalfStepSource<T>: Copy {
+    /// The value at half-step point `(a, b)`.
+    fn at(&self, a: i64, b: i64) -> T;
+    /// `out[k]` = the value at `(a + k·da, b + k·db)`, `da` and `db` ±1.
+    fn read_diagonal(&self, a: i64, b: i64, da: i64, db: i64, out: &mut [T]);
+}
+
+/// Values on every point of a `side × side` half-step grid, row-major.
+#[derive(Clone, Copy)]
+struct HalfStepGrid<'a, T> {
+    side: usize,
+    values: &'a [T],
+}
+
+impl<T: Copy> HalfStepSource<T> for HalfStepGrid<'_, T> {
+    fn at(&self, a: i64, b: i64) -> T {
+        self.values[b as usize * self.side + a as usize]
+    }
+
+    fn read_diagonal(&self, a: i64, b: i64, da: i64, db: i64, out: &mut [T]) {
+        let stride = db * self.side as i64 + da;
+        let mut k = b * self.side as i64 + a;
+        for o in out {
+            *o = self.values[k as usize];
+            k += stride;
+        }
+    }
+}
+
+impl HalfStepSource<i32> for &Refined {
+    fn at(&self, a: i64, b: i64) -> i32 {
+        self.at_half_step(a, b)
+    }
+
+    fn read_diagonal(&self, a: i64, b: i64, da: i64, db: i64, out: &mut [i32]) {
+        assert!(
+            da.abs() == 1 && db.abs() == 1 && a % 2 == b % 2,
+            "a diagonal through vertices and cell centres"
+        );
+        // Vertices and cells alternate along a diagonal; every second step each moves by one
+        // step of its own grid.
+        let n = self.n as i64;
+        let (vertices, cells) = self.values.split_at(self.n * self.n);
+        let vertex = |a: i64, b: i64| b / 2 * n + a / 2;
+        let cell = |a: i64, b: i64| (b - 1) / 2 * (n - 1) + (a - 1) / 2;
+        let (vertex_stride, cell_stride) = (db * n + da, db * (n - 1) + da);
+        let (a1, b1) = (a + da, b + db);
+        // The first stream starts at (a, b), the second at the next point (an index only when
+        // the diagonal has one).
+        let ((first, mut k0, d0), (second, mut k1, d1)) = if a % 2 == 0 {
+            (
+                (vertices, vertex(a, b), vertex_stride),
+                (cells, cell(a1, b1), cell_stride),
+            )
+        } else {
+            (
+                (cells, cell(a, b), cell_stride),
+                (vertices, vertex(a1, b1), vertex_stride),
+            )
+        };
+        let mut pairs = out.chunks_exact_mut(2);
+        for pair in &mut pairs {
+            pair[0] = first[k0 as usize];
+            pair[1] = second[k1 as usize];
+            k0 += d0;
+            k1 += d1;
+        }
+        if let [last] = pairs.into_remainder() {
+            *last = first[k0 as usize];
+        }
+    }
+}
+
 /// [`gather`] over any per-point values of the parents' half-step grids.
-fn gather_values<T: Copy + PartialEq + std::fmt::Debug>(
+fn gather_values<T: Copy + PartialEq + std::fmt::Debug, G: HalfStepSource<T>>(
     domain: &Domain,
     id: DiamondId,
-    parents: [Option<&[T]>; 2],
+    parents: [Option<G>; 2],
     check_diagonal: bool,
     out: &mut [T],
 ) {
@@ -160,14 +230,13 @@ fn gather_values<T: Copy + PartialEq + std::fmt::Debug>(
             .expect("child grid maps into its parent");
         if check_diagonal && maps.iter().any(Option::is_some) {
             // The diagonal of `id` was written from the first parent: the second must agree.
-            let side = (2 * n - 1) as i64;
             for j in 0..n {
                 let d = match diag {
                     Diagonal::Main => j,
                     Diagonal::Anti => n - 1 - j,
                 };
                 let (a, b) = m.apply(d as i64, j as i64);
-                let v = parent[(b * side + a) as usize];
+                let v = parent.at(a, b);
                 assert_eq!(
                     out[j * n + d],
                     v,
@@ -219,26 +288,20 @@ fn mirrored(m: &IndexMap, diag: Diagonal, n: usize) -> IndexMap {
 }
 
 /// Copies the points of `half` (split diagonal included) of a child's `n × n` grid from a
-/// parent's `(2n−1)²` half-step grid through `m`: row by row of the child, each row a strided
-/// read of the parent.
-fn copy_half<T: Copy>(
+/// parent's half-step grid through `m`: row by row of the child, each row a diagonal of the
+/// parent's.
+fn copy_half<T: Copy, G: HalfStepSource<T>>(
     m: &IndexMap,
     diag: Diagonal,
     half: Half,
     n: usize,
-    parent: &[T],
+    parent: G,
     out: &mut [T],
 ) {
-    let side = (2 * n - 1) as i64;
-    let stride = m.bi * side + m.ai;
     for j in 0..n {
         let (lo, hi) = half_range(diag, half, n, j);
         let (a, b) = m.apply(lo as i64, j as i64);
-        let mut k = b * side + a;
-        for o in &mut out[j * n + lo..=j * n + hi] {
-            *o = parent[k as usize];
-            k += stride;
-        }
+        parent.read_diagonal(a, b, m.ai, m.bi, &mut out[j * n + lo..=j * n + hi]);
     }
 }
 
@@ -503,8 +566,36 @@ mod tests {
                 let parents: [Option<&[u32]>; 2] =
                     std::array::from_fn(|h| present[h].then_some(&grids[h][..]));
                 let mut got = vec![u32::MAX; n * n];
-                gather_values(&domain, id, parents, false, &mut got);
-                assert_eq!(got, gather_by_definition(&domain, id, parents), "{id}");
+                let grids = parents.map(|p| p.map(|values| HalfStepGrid { side, values }));
+                gather_values(&domain, id, grids, false, &mut got);
+                let expected = gather_by_definition(&domain, id, parents);
+                assert_eq!(got, expected, "{id}");
+                // Heights: the same gather from refinements that store only the vertices and
+                // cell centres of those half-step grids.
+                let refined = parents.map(|p| {
+                    p.map(|g| {
+                        let pick = |o: usize, side_of: usize| -> Vec<i32> {
+                            (0..side_of * side_of)
+                                .map(|q| {
+                                    let (i, j) = (q % side_of, q / side_of);
+                                    g[(2 * j + o) * side + 2 * i + o] as i32
+                                })
+                                .collect()
+                        };
+                        Refined::from_parts(n, &pick(0, n), &pick(1, n - 1))
+                    })
+                });
+                let mut heights = vec![i32::MIN; n * n];
+                gather_values(
+                    &domain,
+                    id,
+                    refined.each_ref().map(Option::as_ref),
+                    false,
+                    &mut heights,
+                );
+                for (k, (&h, &e)) in heights.iter().zip(&expected).enumerate() {
+                    assert_eq!(h, e as i32, "{id} point {k}");
+                }
                 checked[usize::from(present.iter().all(|&p| p))] += 1;
             }
             // Both kinds of diamond were checked where the domain has them.
