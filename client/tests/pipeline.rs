@@ -15,7 +15,7 @@ use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::spawn::{DecodePool, Spawner};
 use cbdam_client::world::World;
 
-use crate::streaming::{brute_force, refined_set, repository};
+use crate::streaming::{brute_force, refined_set, repository, repository_with};
 
 fn flights() -> Vec<(String, Flight)> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/flights");
@@ -99,6 +99,53 @@ fn decoding_ahead_draws_what_the_reference_decoder_draws_and_converges_to_the_sa
             "{name}: nothing was decoded ahead ({ahead}) or refined from it ({refined_ahead})"
         );
     }
+}
+
+/// Where the repository has nodata, the halves drawn while decoding ahead carry the nodata
+/// masks the reference decoder gives them (each half's mask read from its parent's record
+/// mask), along a flight and converged.
+#[test]
+fn decoding_ahead_draws_the_reference_nodata_masks() {
+    // A disc and a diagonal strip of nodata, crossing many diamonds' split diagonals.
+    let repo =
+        repository_with(|x, y| (x - 60.0).hypot(y - 70.0) < 18.0 || (x - y - 90.0).abs() < 4.0);
+    let world = World::of_repository(&repo);
+    let size = (640, 480);
+    let (name, flight) = flights().into_iter().next().expect("a flight");
+    let config = RefineConfig {
+        budget: Some(Duration::from_micros(300)),
+        ..RefineConfig::default()
+    };
+    let mut r = Refiner::new(LocalSource::new(repo.clone()), config).unwrap();
+    let mut masked = 0;
+    let mut compare = |r: &Refiner<LocalSource>, when: &str| {
+        let patches = drawn(r);
+        assert!(
+            patches == decode_cut(&repo, r.cut()).unwrap(),
+            "{name}, {when}: patches differ from decode_cut"
+        );
+        masked += patches.iter().filter(|p| p.valid.is_some()).count();
+    };
+    let frames = (flight.duration() * 10.0).ceil() as usize + 1;
+    for f in 0..frames {
+        let cam = flight.camera(&world, (f as f64 / 10.0).min(flight.duration()), size);
+        r.frame(&cam);
+        if f % 16 == 0 {
+            compare(&r, &format!("frame {f}"));
+        }
+    }
+    let cam = flight.camera(&world, flight.duration(), size);
+    let mut converged = false;
+    for _ in 0..2000 {
+        if r.frame(&cam).converged {
+            converged = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_micros(500));
+    }
+    assert!(converged, "{name}: no convergence");
+    compare(&r, "converged");
+    assert!(masked > 0, "{name}: no drawn half had a nodata mask");
 }
 
 /// Decoding ahead is planned last in its frame and stops at the end of the budget once it has

@@ -22,6 +22,12 @@ use glam::DVec3;
 /// A 200 × 150 terrain (ridges, a valley and noise) with 9 × 9 grids: levels 0…10, a data
 /// rectangle smaller than the domain (so some diamonds are not stored).
 pub(crate) fn repository() -> Arc<Repository> {
+    repository_with(|_, _| false)
+}
+
+/// [`repository`]'s terrain with nodata wherever `hole(x, y)`: the repository then carries a
+/// nodata mask.
+pub(crate) fn repository_with(hole: impl Fn(f64, f64) -> bool) -> Arc<Repository> {
     let (w, h) = (200usize, 150usize);
     let mut state = 0x2545_f491_4f6c_dd1d_u64;
     let metres: Vec<f64> = (0..w * h)
@@ -36,6 +42,11 @@ pub(crate) fn repository() -> Arc<Repository> {
                 + 40.0 * ((x + y) / 11.0).sin()
                 + 0.01 * (x - 100.0).powi(2)
                 + 3.0 * noise
+        })
+        .enumerate()
+        .map(|(i, m)| {
+            let (x, y) = ((i % w) as f64, (i / w) as f64);
+            if hole(x, y) { f64::NAN } else { m }
         })
         .collect();
     let plan = QuantPlan::new(0.25, None, -50.0, 400.0).unwrap();
