@@ -79,17 +79,46 @@ pub enum DecodePriority {
     Idle,
     /// A nice value, 0 to 19 (0: the caller's priority, as before issue 21's measurements).
     Nice(i32),
+    /// `SCHED_OTHER` at a nice value with a short time slice (`sched_setattr`, Linux 6.12 and
+    /// later): a waking frame thread waits at most that slice for a worker's core.
+    Sliced {
+        /// 0 to 19.
+        nice: i32,
+        /// The slice, microseconds.
+        slice_us: u32,
+    },
 }
 
 impl DecodePriority {
-    /// The default, or the `CBDAM_DECODE_PRIORITY` environment variable's choice: `idle` or a
-    /// nice value 0–19 (for comparisons; anything else is the default).
+    /// The default, or the `CBDAM_DECODE_PRIORITY` environment variable's choice
+    /// ([`DecodePriority::parse`]).
     pub fn from_env() -> Self {
-        match std::env::var("CBDAM_DECODE_PRIORITY") {
-            Ok(v) => match v.trim().parse::<i32>() {
-                Ok(n) => Self::Nice(n.clamp(0, 19)),
-                Err(_) => Self::Idle,
-            },
+        std::env::var("CBDAM_DECODE_PRIORITY").map_or(Self::Idle, |v| Self::parse(&v))
+    }
+
+    /// `idle`; a nice value `0`…`19`; or `slice`, `slice:NICE` or `slice:NICE:MICROSECONDS`
+    /// (defaults nice 0 and 100 µs, the slice 100 µs to 100 ms). Anything else is the default,
+    /// `idle`; values out of range are clamped.
+    pub fn parse(v: &str) -> Self {
+        let v = v.trim();
+        if let Some(rest) = v.strip_prefix("slice") {
+            let parts: Vec<&str> = rest.split(':').collect();
+            let number = |i: usize, default: i64| -> Option<i64> {
+                parts.get(i).map_or(Some(default), |p| p.parse().ok())
+            };
+            if parts[0].is_empty()
+                && parts.len() <= 3
+                && let (Some(nice), Some(us)) = (number(1, 0), number(2, 100))
+            {
+                return Self::Sliced {
+                    nice: nice.clamp(0, 19) as i32,
+                    slice_us: us.clamp(100, 100_000) as u32,
+                };
+            }
+            return Self::Idle;
+        }
+        match v.parse::<i32>() {
+            Ok(n) => Self::Nice(n.clamp(0, 19)),
             Err(_) => Self::Idle,
         }
     }
@@ -126,6 +155,24 @@ fn lower_priority(priority: DecodePriority) {
             19
         }
         DecodePriority::Nice(n) => n,
+        DecodePriority::Sliced { nice, slice_us } => {
+            let attr = libc::sched_attr {
+                size: std::mem::size_of::<libc::sched_attr>() as u32,
+                sched_policy: libc::SCHED_OTHER as u32,
+                sched_flags: 0,
+                sched_nice: nice,
+                sched_priority: 0,
+                sched_runtime: u64::from(slice_us) * 1000,
+                sched_deadline: 0,
+                sched_period: 0,
+            };
+            // SAFETY: `attr` outlives the call, which only reads it; pid 0 is the calling
+            // thread, flags 0.
+            if unsafe { libc::syscall(libc::SYS_sched_setattr, 0, &attr as *const _, 0) } == 0 {
+                return;
+            }
+            nice
+        }
     };
     if nice > 0 {
         // SAFETY: plain integers, no memory of ours; `who` 0 is the calling thread.
@@ -175,3 +222,43 @@ pub type DefaultSpawner = DecodePool;
 /// The target's spawner: [`Inline`] on wasm32, which has no threads of its own.
 #[cfg(target_arch = "wasm32")]
 pub type DefaultSpawner = Inline;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decode_priorities_parse_with_defaults_and_clamps() {
+        assert_eq!(DecodePriority::parse("idle"), DecodePriority::Idle);
+        assert_eq!(DecodePriority::parse(" 7 "), DecodePriority::Nice(7));
+        assert_eq!(DecodePriority::parse("40"), DecodePriority::Nice(19));
+        let sliced = |nice, slice_us| DecodePriority::Sliced { nice, slice_us };
+        assert_eq!(DecodePriority::parse("slice"), sliced(0, 100));
+        assert_eq!(DecodePriority::parse("slice:5"), sliced(5, 100));
+        assert_eq!(DecodePriority::parse("slice:5:250"), sliced(5, 250));
+        assert_eq!(DecodePriority::parse("slice:-3:1"), sliced(0, 100));
+        for bad in ["", "fast", "slicex", "slice:a", "slice:1:2:3", "slice:1:b"] {
+            assert_eq!(DecodePriority::parse(bad), DecodePriority::Idle, "{bad:?}");
+        }
+    }
+
+    /// A sliced worker keeps the normal policy at its nice value (with the slice where the
+    /// kernel takes one, Linux 6.12 and later).
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_sliced_worker_runs_at_its_nice_value() {
+        let nice = std::thread::spawn(|| {
+            lower_priority(DecodePriority::Sliced {
+                nice: 3,
+                slice_us: 200,
+            });
+            // SAFETY: plain integers; `who` 0 is the calling thread.
+            let policy = unsafe { libc::sched_getscheduler(0) };
+            // SAFETY: as above.
+            (policy, unsafe { libc::getpriority(libc::PRIO_PROCESS, 0) })
+        })
+        .join()
+        .unwrap();
+        assert_eq!(nice, (libc::SCHED_OTHER, 3));
+    }
+}
