@@ -315,6 +315,12 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
         println!(
             "decoded ahead of the cut: {ahead} diamonds, {used} of them refined since; {refinements} refinements in all"
         );
+        let rescued = cbdam_client::spawn::DecodePool::rescued();
+        if rescued > 0 {
+            println!(
+                "decode workers starved (another program's load): the standby pool ran {rescued} jobs"
+            );
+        }
     }
     let flight_bytes = run.flight_bytes();
     println!(

@@ -1,11 +1,11 @@
 //! The executor seam: where the refinement loop's decode jobs run.
 //!
 //! The refiner hands each decode to a [`Spawner`] and collects the result from a channel, so it
-//! never names a thread pool. On the desktop [`DecodePool`] puts jobs on a rayon pool of its own
-//! whose threads run below the caller's priority (the job is passed straight to the pool's
-//! `spawn`: no boxing beyond rayon's own); [`Inline`] runs them on
-//! the calling thread, for targets without threads (wasm32 in a browser's main thread) and for
-//! tests that want a deterministic order. [`DefaultSpawner`] is the target's natural choice.
+//! never names a thread pool. On the desktop [`DecodePool`] queues jobs for a rayon pool of its
+//! own whose threads run below the caller's priority, with a standby pool for when those starve
+//! ([`rescue`]); [`Inline`] runs them on the calling thread, for targets without threads (wasm32
+//! in a browser's main thread) and for tests that want a deterministic order.
+//! [`DefaultSpawner`] is the target's natural choice.
 //!
 //! The refiner's decode jobs are [`Portable`]: besides running in place they can be written as
 //! bytes and their results read back, so that a spawner whose workers share no memory with the
@@ -14,11 +14,24 @@
 
 use cbdam_codec::CodecError;
 
+#[cfg(not(target_arch = "wasm32"))]
+pub mod rescue;
+
 /// A job that runs in place or crosses to a worker that shares no memory with the caller as
 /// bytes. It reports its results itself either way (into the channel it carries).
 pub trait Portable: Send + 'static {
     /// Runs the job here and reports its results.
     fn run(self);
+    /// Runs the job here, asking `stop` between its steps; when told to stop, returns the job
+    /// of the steps not run yet. Jobs that cannot stop run whole ([`Portable::run`]).
+    fn run_until(self, stop: &dyn Fn() -> bool) -> Option<Self>
+    where
+        Self: Sized,
+    {
+        let _ = stop;
+        self.run();
+        None
+    }
     /// The job as a message for a worker (which answers with the bytes for [`Portable::receive`]).
     fn encode(&self) -> Vec<u8>;
     /// Reports the results a worker answered with. A malformed answer is an error and reports
@@ -57,6 +70,10 @@ pub trait Spawner {
 /// The desktop's decode workers: a rayon pool of its own, one thread per core (or
 /// `RAYON_NUM_THREADS`), named `cbdam-decode-N`, made on first use and shared by every refiner
 /// of the process.
+///
+/// Beside them waits a standby pool as large, `cbdam-standby-N`, at the caller's policy with a
+/// short time slice: it takes the jobs only while the workers starve (another program keeps
+/// every core busy and idle-priority workers get none; see [`rescue`]).
 ///
 /// **The workers run below the frame thread's priority** ([`DecodePriority`]; Linux only,
 /// elsewhere at the caller's). The frame loop has a deadline and the workers have none: with as
@@ -126,16 +143,30 @@ impl DecodePriority {
 
 #[cfg(not(target_arch = "wasm32"))]
 impl DecodePool {
-    fn pool() -> &'static rayon::ThreadPool {
-        static POOL: std::sync::OnceLock<rayon::ThreadPool> = std::sync::OnceLock::new();
+    fn pool() -> &'static std::sync::Arc<rescue::Tiers> {
+        static POOL: std::sync::OnceLock<std::sync::Arc<rescue::Tiers>> =
+            std::sync::OnceLock::new();
         POOL.get_or_init(|| {
             let priority = DecodePriority::from_env();
-            rayon::ThreadPoolBuilder::new()
+            let workers = rayon::ThreadPoolBuilder::new()
                 .thread_name(|i| format!("cbdam-decode-{i}"))
                 .start_handler(move |_| lower_priority(priority))
                 .build()
-                .expect("starting the decode threads")
+                .expect("starting the decode threads");
+            let standby = rayon::ThreadPoolBuilder::new()
+                .num_threads(workers.current_num_threads())
+                .thread_name(|i| format!("cbdam-standby-{i}"))
+                .start_handler(|_| lower_priority(STANDBY_PRIORITY))
+                .build()
+                .expect("starting the standby decode threads");
+            rescue::Tiers::new(workers, standby)
         })
+    }
+
+    /// How many jobs, or rests of one, the standby pool has run since the process started
+    /// (see [`rescue`]).
+    pub fn rescued() -> u64 {
+        Self::pool().rescued()
     }
 }
 
@@ -185,14 +216,26 @@ fn lower_priority(priority: DecodePriority) {
 #[cfg(all(not(target_os = "linux"), not(target_arch = "wasm32")))]
 fn lower_priority(_priority: DecodePriority) {}
 
+/// The standby pool's priority: the caller's, with the shortest slice (measured beside two
+/// busy loops on 2 cores: paced `low_pass` at 1 px 1.1–1.2 s after the camera stopped, where
+/// idle workers never got there).
+#[cfg(not(target_arch = "wasm32"))]
+const STANDBY_PRIORITY: DecodePriority = DecodePriority::Sliced {
+    nice: 0,
+    slice_us: 100,
+};
+
 #[cfg(not(target_arch = "wasm32"))]
 impl Spawner for DecodePool {
     #[inline]
     fn spawn<F: FnOnce() + Send + 'static>(&self, job: F) {
         Self::pool().spawn(job);
     }
+    fn spawn_job<J: Portable>(&self, job: J) {
+        Self::pool().spawn_job(job);
+    }
     fn parallelism(&self) -> usize {
-        Self::pool().current_num_threads()
+        Self::pool().parallelism()
     }
     fn yields_to_caller(&self) -> bool {
         cfg!(target_os = "linux")

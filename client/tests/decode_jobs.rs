@@ -406,3 +406,96 @@ fn bad_messages_are_errors_never_panics() {
         }
     }
 }
+
+/// A spawner whose jobs wait in a queue until [`Stopping::deliver`] (between frames, like a
+/// worker's answers arriving, so that the refiner decodes ahead in jobs of several steps), and
+/// each job stops after every step and goes on as the job of the steps left — as a job on a
+/// starving decode worker hands its rest to the standby pool.
+#[derive(Clone, Default)]
+struct Stopping {
+    /// Each job run to its end answers how many times it stopped.
+    queue: Rc<RefCell<Vec<StoppingJob>>>,
+    /// Times a job stopped and went on.
+    stops: Rc<RefCell<usize>>,
+}
+
+type StoppingJob = Box<dyn FnOnce() -> usize>;
+
+impl Stopping {
+    fn deliver(&self) {
+        let jobs = std::mem::take(&mut *self.queue.borrow_mut());
+        for job in jobs {
+            *self.stops.borrow_mut() += job();
+        }
+    }
+}
+
+impl Spawner for Stopping {
+    fn spawn<F: FnOnce() + Send + 'static>(&self, job: F) {
+        job();
+    }
+    fn spawn_job<J: Portable>(&self, job: J) {
+        self.queue.borrow_mut().push(Box::new(move || {
+            let (mut job, mut stops) = (job, 0);
+            while let Some(rest) = job.run_until(&|| true) {
+                job = rest;
+                stops += 1;
+            }
+            stops
+        }));
+    }
+    fn parallelism(&self) -> usize {
+        2
+    }
+}
+
+#[test]
+fn jobs_that_stop_after_every_step_and_go_on_converge_to_the_cut_refined_in_place() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let cams = cameras(&world);
+    let cam = cams[8];
+    let mut reference = Refiner::with_spawner(
+        LocalSource::new(repo.clone()),
+        RefineConfig {
+            budget: None,
+            ..RefineConfig::default()
+        },
+        Inline,
+    )
+    .unwrap();
+    assert!(reference.settle(&cam, 50).converged);
+
+    let stopping = Stopping::default();
+    let config = RefineConfig {
+        // Short: results arrive only between frames, so a frame waits for them in vain.
+        budget: Some(Duration::from_millis(2)),
+        gc_interval: 3,
+        ..RefineConfig::default()
+    };
+    let mut r =
+        Refiner::with_spawner(LocalSource::new(repo.clone()), config, stopping.clone()).unwrap();
+    let mut converged = false;
+    for (i, c) in cams
+        .iter()
+        .take(8)
+        .chain(std::iter::repeat_n(&cam, 200))
+        .enumerate()
+    {
+        let stats = r.frame(c);
+        stopping.deliver();
+        if i >= 8 && stats.converged {
+            converged = true;
+            break;
+        }
+    }
+    assert!(converged, "no convergence");
+    // Decoding ahead made jobs of several steps, and they did stop.
+    assert!(
+        *stopping.stops.borrow() > 20,
+        "{} stops",
+        stopping.stops.borrow()
+    );
+    assert_eq!(refined_set(r.cut()), refined_set(reference.cut()));
+    assert_eq!(drawn(&r), drawn(&reference));
+}

@@ -737,23 +737,37 @@ fn decode_workers_run_below_the_frame_threads_priority() {
     };
     let own = std::fs::read_to_string("/proc/thread-self/stat").unwrap();
     let (own_policy, own_nice) = (field(&own, 41), field(&own, 19));
-    let mut workers = Vec::new();
-    for task in std::fs::read_dir("/proc/self/task").unwrap() {
-        let dir = task.unwrap().path();
-        let Ok(comm) = std::fs::read_to_string(dir.join("comm")) else {
-            continue; // a thread that ended meanwhile
-        };
-        if comm.trim().starts_with("cbdam-decode-")
-            && let Ok(stat) = std::fs::read_to_string(dir.join("stat"))
-        {
-            workers.push((comm.trim().to_string(), field(&stat, 41), field(&stat, 19)));
+    let threads = |prefix: &str| {
+        let mut found = Vec::new();
+        for task in std::fs::read_dir("/proc/self/task").unwrap() {
+            let dir = task.unwrap().path();
+            let Ok(comm) = std::fs::read_to_string(dir.join("comm")) else {
+                continue; // a thread that ended meanwhile
+            };
+            if comm.trim().starts_with(prefix)
+                && let Ok(stat) = std::fs::read_to_string(dir.join("stat"))
+            {
+                found.push((comm.trim().to_string(), field(&stat, 41), field(&stat, 19)));
+            }
         }
-    }
+        found
+    };
+    let workers = threads("cbdam-decode-");
     assert_eq!(
         workers.len(),
         DecodePool.parallelism(),
         "decode threads found: {workers:?}"
     );
+    // The standby pool, for when the workers starve, runs at the frame thread's policy.
+    let standby = threads("cbdam-standby-");
+    assert_eq!(
+        standby.len(),
+        DecodePool.parallelism(),
+        "standby threads found: {standby:?}"
+    );
+    for (name, policy, nice) in &standby {
+        assert_eq!((*policy, *nice), (own_policy, own_nice), "{name}");
+    }
     for (name, policy, nice) in &workers {
         // SCHED_IDLE, or where a kernel refuses it the fallback: nice 19.
         assert!(

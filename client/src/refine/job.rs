@@ -84,11 +84,19 @@ impl DecodeJob {
 
     /// Refines the steps in order (each step's parents are earlier steps or given), sending each
     /// result as soon as it is made. A step whose parent failed is skipped.
-    pub(super) fn run_steps(mut self) {
-        let steps = std::mem::take(&mut self.steps);
+    pub(super) fn run_steps(self) {
+        let rest = self.run_until(&|| false);
+        debug_assert!(rest.is_none());
+    }
+
+    /// [`DecodeJob::run_steps`], asking `stop` after each step but the last: when it says so,
+    /// returns the job of the steps not run yet (its parents given: the results so far), which
+    /// goes on where this one stopped.
+    pub(super) fn run_until(mut self, stop: &dyn Fn() -> bool) -> Option<Self> {
+        let mut steps = std::mem::take(&mut self.steps);
+        steps.reverse();
         let speculative = self.speculative;
-        let count = steps.len();
-        for (i, (id, source)) in steps.into_iter().enumerate() {
+        while let Some((id, source)) = steps.pop() {
             let ids = self.domain.parents(id);
             let parents: ParentNodes = ids.map(|p| {
                 p.and_then(|p| {
@@ -132,9 +140,15 @@ impl DecodeJob {
                 secs,
                 cpu_secs,
                 speculative,
-                last: i + 1 == count,
+                last: steps.is_empty(),
             });
+            if !steps.is_empty() && stop() {
+                steps.reverse();
+                self.steps = steps;
+                return Some(self);
+            }
         }
+        None
     }
 
     /// Whether both parents (if there are two) give the same values on `id`'s diagonal, for

@@ -134,6 +134,10 @@ impl Portable for DecodeJob {
         self.run_steps();
     }
 
+    fn run_until(self, stop: &dyn Fn() -> bool) -> Option<Self> {
+        DecodeJob::run_until(self, stop)
+    }
+
     fn encode(&self) -> Vec<u8> {
         encode_job(self)
     }
