@@ -209,12 +209,18 @@ fn compare_in_place_and_by_bytes(
     *messages.answered.borrow()
 }
 
-#[test]
-fn answers_arriving_between_frames_converge_to_the_cut_refined_in_place() {
-    let repo = repository();
-    let world = World::of_repository(&repo);
-    let cams = cameras(&world);
-    let cam = cams[8];
+/// For results that arrive only between frames: a short budget, since a frame waits for them
+/// in vain.
+fn between_frames_config() -> RefineConfig {
+    RefineConfig {
+        budget: Some(Duration::from_millis(2)),
+        gc_interval: 3,
+        ..RefineConfig::default()
+    }
+}
+
+/// The cut `cam` converges to, refined in place without a budget.
+fn converged_in_place(repo: &Arc<Repository>, cam: &Camera) -> Refiner<LocalSource, Inline> {
     let mut reference = Refiner::with_spawner(
         LocalSource::new(repo.clone()),
         RefineConfig {
@@ -224,19 +230,23 @@ fn answers_arriving_between_frames_converge_to_the_cut_refined_in_place() {
         Inline,
     )
     .unwrap();
-    let settled = reference.settle(&cam, 50);
-    assert!(settled.converged);
+    assert!(reference.settle(cam, 50).converged);
+    reference
+}
+
+#[test]
+fn answers_arriving_between_frames_converge_to_the_cut_refined_in_place() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let cams = cameras(&world);
+    let cam = cams[8];
+    let reference = converged_in_place(&repo, &cam);
 
     let messages = Messages {
         deferred: true,
         ..Messages::default()
     };
-    let config = RefineConfig {
-        // Short: answers arrive only between frames, so a frame waits for them in vain.
-        budget: Some(Duration::from_millis(2)),
-        gc_interval: 3,
-        ..RefineConfig::default()
-    };
+    let config = between_frames_config();
     let mut r =
         Refiner::with_spawner(LocalSource::new(repo.clone()), config, messages.clone()).unwrap();
     messages.set_up(&r, &repo);
@@ -455,24 +465,10 @@ fn jobs_that_stop_after_every_step_and_go_on_converge_to_the_cut_refined_in_plac
     let world = World::of_repository(&repo);
     let cams = cameras(&world);
     let cam = cams[8];
-    let mut reference = Refiner::with_spawner(
-        LocalSource::new(repo.clone()),
-        RefineConfig {
-            budget: None,
-            ..RefineConfig::default()
-        },
-        Inline,
-    )
-    .unwrap();
-    assert!(reference.settle(&cam, 50).converged);
+    let reference = converged_in_place(&repo, &cam);
 
     let stopping = Stopping::default();
-    let config = RefineConfig {
-        // Short: results arrive only between frames, so a frame waits for them in vain.
-        budget: Some(Duration::from_millis(2)),
-        gc_interval: 3,
-        ..RefineConfig::default()
-    };
+    let config = between_frames_config();
     let mut r =
         Refiner::with_spawner(LocalSource::new(repo.clone()), config, stopping.clone()).unwrap();
     let mut converged = false;
