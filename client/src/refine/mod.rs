@@ -114,8 +114,12 @@ const AHEAD_RESERVE: u32 = 16;
 /// can take before the view moves on (about 34 MB of nodes at N = 65).
 const AHEAD_LIMIT: usize = 256;
 /// With [`RefineConfig::want_limit`], the cut asks for the records of as many candidates as
-/// the loop refines in this long.
-pub const WANT_HORIZON_S: f64 = 1.0;
+/// the loop refines in this long. Records asked for further ahead arrive for a cut the moving
+/// view has left: at 1 s the batched server's runs on dsl10 fetched 1.17–1.23× the bytes their
+/// cuts used (`cbdam bench network`, 8193² synthetic, 4 runs of each flight), at 0.4 s
+/// 1.10–1.13× (3 runs each), converging as fast (`low_pass` 1.03–1.43 s against 1.13–1.50 s)
+/// and with fewer frames over budget (the want list and its requests are shorter).
+pub const WANT_HORIZON_S: f64 = 0.4;
 /// Weight of the newest sample in the smoothed frame interval and decode time.
 const SMOOTHING: f64 = 0.1;
 /// Decoding ahead runs on every worker (when they yield to the frame thread) only while frames
