@@ -41,13 +41,6 @@ impl LocalSource {
     pub fn repository(&self) -> &Arc<Repository> {
         &self.repo
     }
-
-    fn stored(&self, id: DiamondId) -> bool {
-        self.repo
-            .entries()
-            .binary_search_by(|e| e.id.cmp(&id))
-            .is_ok()
-    }
 }
 
 impl DataSource for LocalSource {
@@ -87,10 +80,10 @@ impl DataSource for LocalSource {
     }
 
     fn take(&mut self, id: DiamondId) -> Option<Result<Vec<u8>, AccessError>> {
-        let result = if self.stored(id) {
-            self.repo.record(id).map(<[u8]>::to_vec)
-        } else {
-            Err(CodecError::invalid(format!("diamond {id} is not stored")))
+        // One search of the index (a take per diamond the refiner decodes, on its frame thread).
+        let result = match self.repo.head().position(id) {
+            Some(i) => self.repo.record_at(i).map(<[u8]>::to_vec),
+            None => Err(CodecError::invalid(format!("diamond {id} is not stored"))),
         };
         Some(match result {
             Ok(bytes) => {
