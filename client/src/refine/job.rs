@@ -335,11 +335,7 @@ impl DecodeJob {
         // In a worker the node is only sent back (the refiner rebuilds the halves from its
         // refinement) or gathered from: its children's halves would be thrown away.
         if self.from_message {
-            return Arc::new(Node {
-                refined,
-                colour,
-                halves: [None, None, None, None],
-            });
+            return Arc::new(Node::new(refined, colour, [None, None, None, None]));
         }
         let halves = self.domain.children(id).map(|c| {
             c.and_then(|c| {
@@ -350,11 +346,7 @@ impl DecodeJob {
                 Some(Arc::new(h))
             })
         });
-        Arc::new(Node {
-            refined,
-            colour,
-            halves,
-        })
+        Arc::new(Node::new(refined, colour, halves))
     }
 }
 

@@ -17,25 +17,43 @@ pub(super) struct Node {
     pub(super) colour: Option<ColourRefined>,
     /// `halves[i]` is the half of `children[i]` lying in this diamond.
     pub(super) halves: [Option<Arc<HalfPatch>>; 4],
+    /// What [`Node::bytes`] answers, counted once: the refiner asks on every refinement,
+    /// coarsening and cache move, and counting touches every half (four cache lines that the
+    /// frame thread otherwise never reads).
+    bytes: usize,
 }
 
 impl Node {
-    pub(super) fn bytes(&self) -> usize {
+    /// A node of these parts (immutable after: it is shared as `Arc<Node>`).
+    pub(super) fn new(
+        refined: Refined,
+        colour: Option<ColourRefined>,
+        halves: [Option<Arc<HalfPatch>>; 4],
+    ) -> Self {
         let heights = Self::bytes_for(
-            self.refined.n(),
-            self.halves.iter().flatten().count(),
-            self.colour.is_some(),
+            refined.n(),
+            halves.iter().flatten().count(),
+            colour.is_some(),
         );
         // Nodata masks, one byte per point, where the record has any nodata.
-        let masks = self.refined.validity().map_or(0, <[bool]>::len)
-            + self
-                .halves
+        let masks = refined.validity().map_or(0, <[bool]>::len)
+            + halves
                 .iter()
                 .flatten()
                 .filter_map(|h| h.valid.as_ref())
                 .map(Vec::len)
                 .sum::<usize>();
-        heights + masks
+        Self {
+            refined,
+            colour,
+            halves,
+            bytes: heights + masks,
+        }
+    }
+
+    /// Bytes it holds: heights, colour and nodata masks of the refinement and the halves.
+    pub(super) fn bytes(&self) -> usize {
+        self.bytes
     }
 
     /// Bytes of the heights of a node of an `n × n` diamond with `halves` child halves, and of

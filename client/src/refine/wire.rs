@@ -245,11 +245,7 @@ fn decode_job(
 }
 
 fn bare_node(refined: Refined, colour: Option<ColourRefined>) -> Arc<Node> {
-    Arc::new(Node {
-        refined,
-        colour,
-        halves: [None, None, None, None],
-    })
+    Arc::new(Node::new(refined, colour, [None, None, None, None]))
 }
 
 /// A worker's results as a message.
