@@ -895,7 +895,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             let half = halves[slot]
                 .clone()
                 .expect("refined parents hold their children's halves");
-            self.cut_state.drawn.insert(DrawKey::Child(id, slot), half);
+            self.cut_state
+                .drawn
+                .insert(DrawKey::Child(id, slot).packed(), half);
             let info = self.info(k);
             self.cut_state.candidates.insert(k, info);
             children[slot] = Some((k, info));
@@ -915,7 +917,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
         for (slot, k) in self.domain.children(id).into_iter().enumerate() {
             let Some(k) = k else { continue };
-            self.cut_state.drawn.remove(&DrawKey::Child(id, slot));
+            self.cut_state
+                .drawn
+                .remove(&DrawKey::Child(id, slot).packed());
             let still_drawn = self
                 .domain
                 .parents(k)

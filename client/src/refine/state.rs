@@ -21,9 +21,10 @@ pub(super) struct CutState {
     pub(super) cut: Cut,
     pub(super) nodes: IdMap<Arc<Node>>,
     pub(super) roots: IdMap<[Arc<HalfPatch>; 2]>,
-    /// The drawn half-patches, keyed so that iteration follows [`Cut::drawn_halves`]' order;
-    /// updated on every refinement and coarsening, so a frame's cost follows what changed.
-    pub(super) drawn: BTreeMap<DrawKey, Arc<HalfPatch>>,
+    /// The drawn half-patches, keyed by [`DrawKey::packed`] so that iteration follows
+    /// [`Cut::drawn_halves`]' order; updated on every refinement and coarsening, so a frame's
+    /// cost follows what changed.
+    pub(super) drawn: BTreeMap<u128, Arc<HalfPatch>>,
     /// Refinement candidates (the diamonds with a drawn half) with their metric, kept as the
     /// cut changes rather than found by a pass over the cut each frame.
     pub(super) candidates: IdMap<Option<Info>>,
@@ -81,7 +82,7 @@ impl CutState {
     /// Draws the halves of `id`, just coarsened (or a root).
     pub(super) fn show_halves(&mut self, domain: &Domain, id: DiamondId) {
         for (k, h) in self.half_keys(domain, id) {
-            self.drawn.insert(k, h);
+            self.drawn.insert(k.packed(), h);
         }
     }
 
@@ -99,7 +100,7 @@ impl CutState {
                 .collect()
         };
         for k in keys {
-            self.drawn.remove(&k);
+            self.drawn.remove(&k.packed());
         }
     }
 
@@ -174,6 +175,27 @@ pub(super) enum DrawKey {
     Child(DiamondId, usize),
 }
 
+impl DrawKey {
+    /// The key as one integer in the same order: the drawn list's map compares integers, not
+    /// enums of ids (its searches were a quarter of applying a refinement on the frame thread,
+    /// in perf of a paced `low_pass` settling).
+    /// Roots below `2^127`, children above; a child's id in [`DiamondId`]'s field order
+    /// (level, face, x, y: 80 bits), then the slot (below 4).
+    pub(super) fn packed(self) -> u128 {
+        match self {
+            DrawKey::Root(index, half) => (index as u128) << 2 | half as u128,
+            DrawKey::Child(id, slot) => {
+                1 << 127
+                    | u128::from(id.level) << 74
+                    | u128::from(id.face) << 66
+                    | u128::from(id.x) << 34
+                    | u128::from(id.y) << 2
+                    | slot as u128
+            }
+        }
+    }
+}
+
 /// What the refiner holds in RAM besides the cut's structure: compressed records, decoded
 /// diamonds kept after coarsening, and the cut's decoded bytes against
 /// [`RefineConfig::cut_bytes`].
@@ -233,5 +255,39 @@ impl Requests {
         } else {
             message
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The packed keys sort as the keys do (the drawn list's order is the cut's), over every
+    /// pair of keys made of a few values of each field, the extremes among them, so that pairs
+    /// tie on the leading fields and each later one decides somewhere.
+    #[test]
+    fn packed_draw_keys_keep_the_order() {
+        let bytes = [0, 1, 2, u8::MAX];
+        let coords = [0, 1, 2, u32::MAX - 1, u32::MAX];
+        let mut keys: Vec<DrawKey> = (0..3)
+            .flat_map(|i| (0..2).map(move |h| DrawKey::Root(i, h)))
+            .collect();
+        for level in bytes {
+            for face in bytes {
+                for x in coords {
+                    for y in coords {
+                        for slot in 0..4 {
+                            let id = DiamondId::on_face(face, level, x, y);
+                            keys.push(DrawKey::Child(id, slot));
+                        }
+                    }
+                }
+            }
+        }
+        for a in &keys {
+            for b in &keys {
+                assert_eq!(a.packed().cmp(&b.packed()), a.cmp(b), "{a:?} against {b:?}");
+            }
+        }
     }
 }
