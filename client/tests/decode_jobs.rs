@@ -10,7 +10,9 @@ use std::time::Duration;
 use cbdam_client::access::LocalSource;
 use cbdam_client::camera::Camera;
 use cbdam_client::patch::HalfPatch;
-use cbdam_client::refine::{DetailConfig, HeadBytes, RefineConfig, Refiner, WorkerDecoder};
+use cbdam_client::refine::{
+    DetailConfig, FrameStats, HeadBytes, RefineConfig, Refiner, WorkerDecoder,
+};
 use cbdam_client::spawn::{Inline, Portable, Spawner};
 use cbdam_client::world::World;
 use cbdam_codec::CodecError;
@@ -219,6 +221,26 @@ fn between_frames_config() -> RefineConfig {
     }
 }
 
+/// Flies `r` through the first 8 of `cams`, then holds it at `cam` for up to 200 frames until
+/// its cut converges; `after` sees every frame's stats (answers delivered between frames go
+/// there). The converged frame's stats, if any.
+fn fly_in_and_settle<X: Spawner>(
+    r: &mut Refiner<LocalSource, X>,
+    cams: &[Camera],
+    cam: &Camera,
+    mut after: impl FnMut(&FrameStats),
+) -> Option<FrameStats> {
+    let flight = cams.iter().take(8).chain(std::iter::repeat_n(cam, 200));
+    for (i, c) in flight.enumerate() {
+        let stats = r.frame(c);
+        after(&stats);
+        if i >= 8 && stats.converged {
+            return Some(stats);
+        }
+    }
+    None
+}
+
 /// The cut `cam` converges to, refined in place without a budget.
 fn converged_in_place(repo: &Arc<Repository>, cam: &Camera) -> Refiner<LocalSource, Inline> {
     let mut reference = Refiner::with_spawner(
@@ -252,22 +274,11 @@ fn answers_arriving_between_frames_converge_to_the_cut_refined_in_place() {
     messages.set_up(&r, &repo);
     // Fly in, then hold still until converged; answers come between frames.
     let (mut ahead, mut frames) = (0, 0);
-    let mut last = None;
-    for (i, c) in cams
-        .iter()
-        .take(8)
-        .chain(std::iter::repeat_n(&cam, 200))
-        .enumerate()
-    {
-        let stats = r.frame(c);
+    let last = fly_in_and_settle(&mut r, &cams, &cam, |stats| {
         ahead += stats.decoded_ahead;
         frames += 1;
         messages.deliver();
-        if i >= 8 && stats.converged {
-            last = Some(stats);
-            break;
-        }
-    }
+    });
     let last = last.unwrap_or_else(|| panic!("no convergence in {frames} frames"));
     assert!(last.met_target);
     assert!(ahead > 0, "nothing was decoded ahead through bytes");
@@ -471,21 +482,8 @@ fn jobs_that_stop_after_every_step_and_go_on_converge_to_the_cut_refined_in_plac
     let config = between_frames_config();
     let mut r =
         Refiner::with_spawner(LocalSource::new(repo.clone()), config, stopping.clone()).unwrap();
-    let mut converged = false;
-    for (i, c) in cams
-        .iter()
-        .take(8)
-        .chain(std::iter::repeat_n(&cam, 200))
-        .enumerate()
-    {
-        let stats = r.frame(c);
-        stopping.deliver();
-        if i >= 8 && stats.converged {
-            converged = true;
-            break;
-        }
-    }
-    assert!(converged, "no convergence");
+    let converged = fly_in_and_settle(&mut r, &cams, &cam, |_| stopping.deliver());
+    assert!(converged.is_some(), "no convergence");
     // Decoding ahead made jobs of several steps, and they did stop.
     assert!(
         *stopping.stops.borrow() > 20,
