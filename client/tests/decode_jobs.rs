@@ -16,6 +16,7 @@ use cbdam_client::refine::{
 use cbdam_client::spawn::{Inline, Portable, Spawner};
 use cbdam_client::world::World;
 use cbdam_codec::CodecError;
+use cbdam_codec::geometry::{DiamondId, Domain};
 use cbdam_codec::repository::Repository;
 use glam::DVec3;
 
@@ -127,7 +128,7 @@ fn jobs_sent_as_bytes_refine_what_jobs_run_in_place_refine() {
         gc_interval: 2,
         ..RefineConfig::default()
     };
-    let answered = compare_in_place_and_by_bytes(&repo, config, &cameras(&world));
+    let (_, answered) = compare_in_place_and_by_bytes(&repo, config, &cameras(&world));
     assert!(answered > 50, "{answered} diamonds went through bytes");
 }
 
@@ -176,17 +177,18 @@ fn jobs_sent_as_bytes_synthesise_the_nodata_masks_jobs_run_in_place_do() {
         masked_synthetic > 0,
         "no synthesised half with a nodata mask was drawn"
     );
-    let answered = compare_in_place_and_by_bytes(&repo, config, &cams);
+    let (_, answered) = compare_in_place_and_by_bytes(&repo, config, &cams);
     assert!(answered > 50, "{answered} diamonds went through bytes");
 }
 
 /// Runs `cams` through a refiner decoding in place and one whose jobs cross as bytes, checking
-/// after each that they refine and draw the same; returns how many diamonds crossed.
+/// after each that they refine, draw and report failures the same; returns the refiner decoding
+/// in place and how many diamonds crossed.
 fn compare_in_place_and_by_bytes(
     repo: &Arc<Repository>,
     config: RefineConfig,
     cams: &[Camera],
-) -> usize {
+) -> (Refiner<LocalSource, Inline>, usize) {
     let mut in_place =
         Refiner::with_spawner(LocalSource::new(repo.clone()), config.clone(), Inline).unwrap();
     let messages = Messages::default();
@@ -207,8 +209,85 @@ fn compare_in_place_and_by_bytes(
             drawn(&by_bytes),
             "frame {i}: drawn patches"
         );
+        assert_eq!(in_place.errors(), by_bytes.errors(), "frame {i}: failures");
     }
-    *messages.answered.borrow()
+    let answered = *messages.answered.borrow();
+    (in_place, answered)
+}
+
+/// A record of the mapped file that fails its checksum (read by the worker that decodes it in
+/// place, or before its job goes out as bytes) fails its diamond alike: the same failures,
+/// cut and patches either way, the diamond given up on after its retries, and everything else
+/// refined.
+#[test]
+fn a_corrupt_mapped_record_fails_its_diamond_in_place_and_through_bytes() {
+    let good = repository();
+    let world = World::of_repository(&good);
+    let cams = cameras(&world);
+    let config = RefineConfig {
+        budget: None,
+        gc_interval: 2,
+        ..RefineConfig::default()
+    };
+    // The diamond of level 3 that the sweep's closest view refines first.
+    let mut reference =
+        Refiner::with_spawner(LocalSource::new(good.clone()), config.clone(), Inline).unwrap();
+    reference.settle(&cams[11], 50);
+    let (index, id) = good
+        .entries()
+        .iter()
+        .enumerate()
+        .find(|(_, e)| e.id.level == 3 && e.length > 0 && reference.cut().is_refined(e.id))
+        .map(|(i, e)| (i, e.id))
+        .expect("the closest view refines a stored level-3 diamond");
+    let bad = with_corrupt_record(&good, index);
+
+    let (r, answered) = compare_in_place_and_by_bytes(&bad, config.clone(), &cams);
+    assert!(answered > 50, "{answered} diamonds went through bytes");
+    assert!(
+        !r.cut().is_refined(id),
+        "{id} was refined from a corrupt record"
+    );
+    let failures: Vec<&String> = r
+        .errors()
+        .iter()
+        .filter(|e| e.contains("checksum mismatch"))
+        .collect();
+    assert_eq!(
+        failures.len(),
+        config.max_failures as usize,
+        "one failure per try, then given up: {:?}",
+        r.errors()
+    );
+    assert!(
+        failures.iter().all(|e| e.contains(&id.to_string())),
+        "{failures:?}"
+    );
+    // Everything the good file refines but the corrupt diamond's descendants is refined.
+    let below: Vec<_> = reference
+        .cut()
+        .refined()
+        .filter(|d| !r.cut().is_refined(*d))
+        .collect();
+    assert!(!below.is_empty());
+    let domain = good.params().domain;
+    for d in below {
+        assert!(
+            descends_from(&domain, d, id),
+            "{d} is not refined, and does not lie below {id}"
+        );
+    }
+}
+
+/// Whether `d` is `ancestor` or lies below it (through any parent).
+fn descends_from(domain: &Domain, d: DiamondId, ancestor: DiamondId) -> bool {
+    d == ancestor
+        || (d.level > ancestor.level
+            && domain
+                .parents(d)
+                .into_iter()
+                .flatten()
+                .any(|p| descends_from(domain, p, ancestor)))
 }
 
 /// For results that arrive only between frames: a short budget, since a frame waits for them
@@ -338,6 +417,14 @@ fn flipped(bytes: &[u8], at: usize, fix_crc: bool) -> Vec<u8> {
     b
 }
 
+/// `repo` with one byte of record `index` changed (its checksum no longer matches).
+fn with_corrupt_record(repo: &Repository, index: usize) -> Arc<Repository> {
+    let range = repo.head().record_range(index).unwrap();
+    let mut bytes = repo.as_bytes().to_vec();
+    bytes[((range.start + range.end) / 2) as usize] ^= 0x10;
+    Arc::new(Repository::from_bytes(bytes).unwrap())
+}
+
 #[test]
 fn bad_messages_are_errors_never_panics() {
     let repo = repository();
@@ -345,41 +432,24 @@ fn bad_messages_are_errors_never_panics() {
     let worker = WorkerDecoder::new(&context).unwrap();
     let (job, bytes, answer) = jobs.iter().max_by_key(|(_, b, _)| b.len()).expect("jobs");
     assert!(bytes.len() > 100 && answer.len() > 100);
+    damaged_messages_are_errors(&worker, &context, &**job, bytes, answer);
 
-    // Truncated, and any byte flipped: the length or the checksum gives it away.
-    for len in 0..bytes.len() {
-        assert!(worker.run(&bytes[..len]).is_err(), "job truncated to {len}");
+    // A job with a step whose record failed its check where the job was made (the first
+    // level-1 record is corrupt): its answer is an error for that step; damaged, an error.
+    let level_1 = repo.entries().iter().position(|e| e.id.level == 1).unwrap();
+    let (bad_context, bad_jobs) = captured(&with_corrupt_record(&repo, level_1));
+    let bad_worker = WorkerDecoder::new(&bad_context).unwrap();
+    let unreadable = |b: &[u8]| b.windows(17).any(|w| w == b"checksum mismatch");
+    let (bad_job, bad_bytes, bad_answer) = bad_jobs
+        .iter()
+        .find(|(_, b, _)| unreadable(b))
+        .expect("a job carries the unreadable record");
+    assert!(unreadable(bad_answer), "the answer carries the failure");
+    damaged_messages_are_errors(&bad_worker, &bad_context, &**bad_job, bad_bytes, bad_answer);
+    for at in 5..bad_bytes.len() - 4 {
+        let _ = bad_worker.run(&flipped(bad_bytes, at, true));
     }
-    for len in 0..answer.len() {
-        assert!(
-            job.receive(&answer[..len]).is_err(),
-            "answer truncated to {len}"
-        );
-    }
-    for len in (0..context.len()).step_by(97) {
-        assert!(
-            WorkerDecoder::new(&context[..len]).is_err(),
-            "context truncated to {len}"
-        );
-    }
-    for at in 0..bytes.len() {
-        assert!(
-            worker.run(&flipped(bytes, at, false)).is_err(),
-            "job byte {at} flipped"
-        );
-    }
-    for at in 0..answer.len() {
-        assert!(
-            job.receive(&flipped(answer, at, false)).is_err(),
-            "answer byte {at} flipped"
-        );
-    }
-    for at in (0..context.len()).step_by(13) {
-        assert!(
-            WorkerDecoder::new(&flipped(&context, at, false)).is_err(),
-            "context byte {at}"
-        );
-    }
+
     // Each message read as another kind: the magic differs.
     assert!(worker.run(answer).is_err());
     assert!(job.receive(bytes).is_err());
@@ -425,6 +495,50 @@ fn bad_messages_are_errors_never_panics() {
         for at in 5..answer.len() - 4 {
             let _ = job.receive(&flipped(answer, at, true));
         }
+    }
+}
+
+/// A job message, its answer and the context, truncated or with any byte flipped: errors (the
+/// length or the checksum gives them away).
+fn damaged_messages_are_errors(
+    worker: &WorkerDecoder,
+    context: &[u8],
+    job: &dyn Queued,
+    bytes: &[u8],
+    answer: &[u8],
+) {
+    for len in 0..bytes.len() {
+        assert!(worker.run(&bytes[..len]).is_err(), "job truncated to {len}");
+    }
+    for len in 0..answer.len() {
+        assert!(
+            job.receive(&answer[..len]).is_err(),
+            "answer truncated to {len}"
+        );
+    }
+    for len in (0..context.len()).step_by(97) {
+        assert!(
+            WorkerDecoder::new(&context[..len]).is_err(),
+            "context truncated to {len}"
+        );
+    }
+    for at in 0..bytes.len() {
+        assert!(
+            worker.run(&flipped(bytes, at, false)).is_err(),
+            "job byte {at} flipped"
+        );
+    }
+    for at in 0..answer.len() {
+        assert!(
+            job.receive(&flipped(answer, at, false)).is_err(),
+            "answer byte {at} flipped"
+        );
+    }
+    for at in (0..context.len()).step_by(13) {
+        assert!(
+            WorkerDecoder::new(&flipped(context, at, false)).is_err(),
+            "context byte {at}"
+        );
     }
 }
 

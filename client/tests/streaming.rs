@@ -147,6 +147,38 @@ pub(crate) fn refined_set(cut: &Cut) -> HashSet<DiamondId> {
     cut.refined().collect()
 }
 
+/// A local source hands out its records mapped (read and checked by whoever decodes them) or
+/// taken (copied): the same bytes, counted alike; an unstored diamond maps to nothing (taking it
+/// is the error that names it).
+#[test]
+fn mapped_records_read_what_taken_records_copy_and_count_alike() {
+    use cbdam_client::access::DataSource;
+    let repo = repository();
+    let (mut taken, mapped) = (
+        LocalSource::new(repo.clone()),
+        LocalSource::new(repo.clone()),
+    );
+    let handles: Vec<_> = repo
+        .entries()
+        .iter()
+        .map(|e| (e.id, mapped.mapped(e.id).expect("stored")))
+        .collect();
+    assert_eq!(
+        mapped.stats().records_taken,
+        0,
+        "counted when read, not when handed out"
+    );
+    for (id, handle) in &handles {
+        let copy = taken.take(*id).unwrap().unwrap();
+        assert_eq!(handle.bytes().unwrap(), &copy[..], "{id}");
+    }
+    assert_eq!(mapped.stats(), taken.stats());
+    assert_eq!(mapped.stats().records_taken, repo.entries().len() as u64);
+    let unstored = DiamondId::new(repo.params().domain.finest_level() + 1, 0, 0);
+    assert!(mapped.mapped(unstored).is_none());
+    assert!(matches!(taken.take(unstored), Some(Err(_))));
+}
+
 #[test]
 fn the_cut_conforms_after_every_frame_of_random_flights() {
     let repo = repository();

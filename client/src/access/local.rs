@@ -11,16 +11,20 @@ use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::Repository;
 use cbdam_codec::repository::index::IndexEntry;
 
-use super::{AccessError, AccessStats, DataSource, Priority};
+use super::mapped::MappedReads;
+use super::{AccessError, AccessStats, DataSource, MappedRecord, Priority};
 
 /// A local repository. Every stored record is "immediately available" in the paper's sense: it
-/// is mapped, so [`DataSource::take`] only copies and CRC-checks it, and the loop never needs
-/// to request anything. Requests are still accepted (and complete at once) so that code written
-/// for remote sources runs unchanged.
+/// is mapped, so [`DataSource::take`] only copies and CRC-checks it, [`DataSource::mapped`]
+/// hands out a handle that a worker reads and checks, and the loop never needs to request
+/// anything. Requests are still accepted (and complete at once) so that code written for
+/// remote sources runs unchanged.
 #[derive(Debug)]
 pub struct LocalSource {
     repo: Arc<Repository>,
     stats: AccessStats,
+    /// What the handed-out mapped records counted when read.
+    reads: Arc<MappedReads>,
 }
 
 impl LocalSource {
@@ -34,6 +38,7 @@ impl LocalSource {
         Self {
             repo,
             stats: AccessStats::default(),
+            reads: Arc::default(),
         }
     }
 
@@ -98,9 +103,14 @@ impl DataSource for LocalSource {
         })
     }
 
+    fn mapped(&self, id: DiamondId) -> Option<MappedRecord> {
+        let i = self.repo.head().position(id)?;
+        Some(MappedRecord::new(self.repo.clone(), i, self.reads.clone()))
+    }
+
     fn pump(&mut self) {}
 
     fn stats(&self) -> AccessStats {
-        self.stats
+        self.reads.add_to(self.stats)
     }
 }

@@ -5,8 +5,10 @@
 //! Everything is non-blocking. The loop, once per frame:
 //! 1. calls [`DataSource::pump`] so the source can advance its I/O and collect completions;
 //! 2. for each diamond it wants, asks [`DataSource::is_available`] and, if so, moves the record
-//!    into its own RAM with [`DataSource::take`]; otherwise it posts [`DataSource::request`] with
-//!    a priority (the diamond's screen-space error in pixels: larger is more urgent) and moves on;
+//!    into its own RAM with [`DataSource::take`] (or, from a memory-mapped file, gets a
+//!    [`DataSource::mapped`] handle that the worker decoding it reads); otherwise it posts
+//!    [`DataSource::request`] with a priority (the diamond's screen-space error in pixels: larger
+//!    is more urgent) and moves on;
 //! 3. calls [`DataSource::cancel`] for requests the cut no longer needs.
 //!
 //! Contract for implementers:
@@ -26,9 +28,11 @@ mod flaky;
 mod http;
 #[cfg(not(target_arch = "wasm32"))]
 mod local;
+mod mapped;
 
 pub use coloured::{ColouredSource, Drape};
 pub use flaky::{FlakyConfig, FlakySource};
+pub use mapped::MappedRecord;
 
 /// HTTP over the target's fetcher (tokio and reqwest on the desktop, the page's `fetch` in a
 /// browser).
@@ -78,7 +82,7 @@ pub struct AccessStats {
     pub requests_cancelled: u64,
     /// Requests posted but not yet taken, failed or cancelled.
     pub in_flight: u64,
-    /// Records handed out by [`DataSource::take`].
+    /// Records handed out by [`DataSource::take`], or read through [`DataSource::mapped`].
     pub records_taken: u64,
     /// Bytes of records handed out (for a remote source: bytes received, retries included).
     pub bytes_fetched: u64,
@@ -142,6 +146,14 @@ pub trait DataSource: MaybeSend {
     /// Moves `id`'s validated record into the caller's RAM, or reports why it failed; `None`
     /// when it is not available yet. Never blocks.
     fn take(&mut self, id: DiamondId) -> Option<Result<Vec<u8>, AccessError>>;
+    /// A handle on `id`'s record in a memory-mapped file, for whoever decodes it to read and
+    /// check (a worker thread: nothing is copied on the caller's); its reads count in
+    /// [`DataSource::stats`] like takes. `None` when the source maps no file or does not store
+    /// `id`: the caller then takes the record. Never blocks.
+    fn mapped(&self, id: DiamondId) -> Option<MappedRecord> {
+        let _ = id;
+        None
+    }
     /// Advances I/O: called once per frame before anything else.
     fn pump(&mut self);
     /// Counters.
@@ -189,6 +201,9 @@ impl<S: DataSource + ?Sized> DataSource for Box<S> {
     }
     fn take(&mut self, id: DiamondId) -> Option<Result<Vec<u8>, AccessError>> {
         (**self).take(id)
+    }
+    fn mapped(&self, id: DiamondId) -> Option<MappedRecord> {
+        (**self).mapped(id)
     }
     fn pump(&mut self) {
         (**self).pump()

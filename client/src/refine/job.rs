@@ -20,13 +20,18 @@ use web_time::Instant;
 
 use super::detail;
 use super::node::Node;
-use crate::access::{Drape, coloured};
+use crate::access::{Drape, MappedRecord, coloured};
 use crate::patch::{HalfPatch, colour_from_parent};
 
 /// How a diamond's refinement can be had.
 pub(super) enum Source {
     Cached(Arc<Node>),
     Record(Arc<[u8]>),
+    /// A record of a mapped file, read and checked by the worker.
+    Mapped(MappedRecord),
+    /// A record that could not be read where the job was made (a job sent as bytes reads its
+    /// mapped records before it goes): the step fails with this error.
+    Unreadable(CodecError),
     Synthetic(i32),
 }
 
@@ -189,16 +194,9 @@ impl DecodeJob {
     ) -> Result<Arc<Node>, CodecError> {
         match source {
             Source::Cached(node) => Ok(node),
-            Source::Record(bytes) => {
-                let (elevation, colour) = match self.drape {
-                    Some(_) => coloured::split(&bytes)?,
-                    None => (&bytes[..], &[][..]),
-                };
-                let grid = self.grid_of(id, parents);
-                let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, elevation, s))?;
-                let c = self.refine_colour(id, colour, parents)?;
-                Ok(self.node(id, r, c))
-            }
+            Source::Record(bytes) => self.decode_record(id, &bytes, parents),
+            Source::Mapped(record) => self.decode_record(id, record.bytes()?, parents),
+            Source::Unreadable(e) => Err(e),
             Source::Synthetic(amp) => {
                 let grid = self.grid_of(id, parents);
                 let valid = self.validity_of(id, parents);
@@ -215,6 +213,23 @@ impl DecodeJob {
                 Ok(self.node(id, r, c))
             }
         }
+    }
+
+    /// Refines `id` by its record (an elevation–colour pair when a colour is draped).
+    fn decode_record(
+        &self,
+        id: DiamondId,
+        bytes: &[u8],
+        parents: &ParentNodes,
+    ) -> Result<Arc<Node>, CodecError> {
+        let (elevation, colour) = match self.drape {
+            Some(_) => coloured::split(bytes)?,
+            None => (bytes, &[][..]),
+        };
+        let grid = self.grid_of(id, parents);
+        let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, elevation, s))?;
+        let c = self.refine_colour(id, colour, parents)?;
+        Ok(self.node(id, r, c))
     }
 
     /// The colour refinement of `id` by its colour record (empty: the prediction from the

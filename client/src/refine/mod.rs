@@ -802,6 +802,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             return Need::Ready(Source::Record(r.clone()));
         }
         let sid = self.source_id(id).expect("stored levels map to the source");
+        if let Some(record) = self.source.mapped(sid) {
+            // Read by the worker that decodes it: nothing to keep in RAM.
+            return Need::Ready(Source::Mapped(record));
+        }
         if self.source.is_available(sid) {
             self.requests.requested.remove(&id);
             if let Some(r) = self.take(id, sid) {

@@ -7,7 +7,8 @@
 //!   worker builds the decoder, as the refiner's source did), those of the draped colour
 //!   repository if any, and the refiner's detail shift and seed;
 //! - a **job** (`CBDJ`): whether it decodes ahead, the given parents' nodes, and the steps
-//!   (diamond id and its record bytes, synthetic amplitude, or cached node);
+//!   (diamond id and its record bytes, synthetic amplitude, cached node, or why its record
+//!   could not be read);
 //! - its **results** (`CBDR`): per step, the refined node, the decoding error, or nothing (a
 //!   parent failed), with the worker's time.
 //!
@@ -177,6 +178,15 @@ pub(super) fn encode_job(job: &DecodeJob) -> Vec<u8> {
                 w.u8(1);
                 w.bytes(bytes);
             }
+            // Read (and checked) here: the worker has no map.
+            Source::Mapped(record) => match record.bytes() {
+                Ok(bytes) => {
+                    w.u8(1);
+                    w.bytes(bytes);
+                }
+                Err(e) => w.unreadable(&e),
+            },
+            Source::Unreadable(e) => w.unreadable(e),
             Source::Synthetic(amp) => {
                 w.u8(2);
                 w.i32(*amp);
@@ -225,6 +235,7 @@ fn decode_job(
                 }
                 Source::Synthetic(amp)
             }
+            3 => Source::Unreadable(r.error()?),
             t => return Err(r.bad(format!("step source {t}"))),
         };
         steps.push((id, source));
@@ -262,9 +273,7 @@ pub(super) fn encode_results(done: &[Done]) -> Vec<u8> {
             }
             Some(Err(e)) => {
                 w.u8(2);
-                let (kind, message) = error_parts(e);
-                w.u8(kind);
-                w.bytes(message.as_bytes());
+                w.error(e);
             }
         }
         match d.secs {
@@ -299,13 +308,7 @@ pub(super) fn decode_results(job: &DecodeJob, bytes: &[u8]) -> Result<Vec<Done>,
                 let (refined, colour) = r.node(n, job.drape.is_some())?;
                 Some(Ok(job.node(id, refined, colour)))
             }
-            2 => {
-                let kind = r.u8()?;
-                let message = String::from_utf8(r.bytes()?.to_vec())
-                    .map_err(|_| r.bad("an error message that is not UTF-8".into()))?;
-                Some(Err(error_from_parts(kind, message)
-                    .ok_or_else(|| r.bad(format!("error kind {kind}")))?))
-            }
+            2 => Some(Err(r.error()?)),
             t => return Err(r.bad(format!("result tag {t}"))),
         };
         let secs = match r.u8()? {
@@ -386,6 +389,18 @@ impl Writer {
     fn f64(&mut self, v: f64) {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
+    /// A step whose record could not be read: why (as a result's error is written).
+    fn unreadable(&mut self, e: &CodecError) {
+        self.u8(3);
+        self.error(e);
+    }
+
+    fn error(&mut self, e: &CodecError) {
+        let (kind, message) = error_parts(e);
+        self.u8(kind);
+        self.bytes(message.as_bytes());
+    }
+
     fn bytes(&mut self, b: &[u8]) {
         self.u32(b.len() as u32);
         self.0.extend_from_slice(b);
@@ -523,6 +538,14 @@ impl<'a> Reader<'a> {
         Ok(f64::from_le_bytes(self.array()?))
     }
     /// A length-prefixed byte string.
+    /// An error written by `Writer::error`.
+    fn error(&mut self) -> Result<CodecError, CodecError> {
+        let kind = self.u8()?;
+        let message = String::from_utf8(self.bytes()?.to_vec())
+            .map_err(|_| self.bad("an error message that is not UTF-8".into()))?;
+        error_from_parts(kind, message).ok_or_else(|| self.bad(format!("error kind {kind}")))
+    }
+
     fn bytes(&mut self) -> Result<&'a [u8], CodecError> {
         let len = self.u32()? as usize;
         self.take(len)
