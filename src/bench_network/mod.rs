@@ -364,7 +364,9 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
            threads, the client's fetcher on its own, the refinement loop on this thread and its \
            decode workers — all on this machine's cores. *MB fetched*: record bodies received \
            (batch framing and retries included, and the requests the last frame left in \
-           flight, which the bench waits for after the run: up to 5 s). *MB used by the cuts*: the index's sizes of the \
+           flight, which the bench waits for after the run: up to 5 s); for the local file, \
+           record bytes its decode workers read from the map (a record decoded twice, read \
+           twice). *MB used by the cuts*: the index's sizes of the \
            records of every diamond refined in any frame's cut. *MB over the link*: everything \
            the proxy delivered (HTTP heads, the repository head). Requests are the server's \
            count (`serve` runs also read the head with 2 range requests). *Camera stop → \
