@@ -42,6 +42,7 @@
 
 mod cache;
 mod detail;
+mod drawn;
 mod job;
 mod node;
 mod state;
@@ -49,13 +50,14 @@ mod wire;
 
 pub use cache::LruCache;
 pub use detail::DetailConfig;
+use drawn::DrawnList;
 pub use job::{DecodeJob, Done};
 use job::{Source, root_colour};
 use node::{Info, Node};
-use state::{CutState, DrawKey, Requests, Residency};
+use state::{CutState, Requests, Residency};
 pub use wire::{HeadBytes, WorkerDecoder};
 
-use std::collections::{BTreeMap, BinaryHeap};
+use std::collections::BinaryHeap;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -577,7 +579,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 cut: Cut::new(),
                 nodes: IdMap::default(),
                 roots,
-                drawn: BTreeMap::new(),
+                drawn: DrawnList::default(),
                 candidates: IdMap::default(),
                 leaves: IdMap::default(),
             },
@@ -687,7 +689,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
     /// The half-patches the cut draws, in [`Cut::drawn_halves`] order.
     pub fn drawn(&self) -> impl Iterator<Item = &Arc<HalfPatch>> {
-        self.cut_state.drawn.values()
+        self.cut_state.drawn.iter()
     }
 
     /// Recent error messages (rejected records), oldest first.
@@ -896,19 +898,19 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             Some(info) => info,
             None => self.info(id),
         };
-        let halves = self.cut_state.nodes[&id].halves.clone();
+        let node = self.cut_state.nodes[&id].clone();
         for (slot, k) in self.domain.children(id).into_iter().enumerate() {
+            debug_assert_eq!(
+                k.is_some(),
+                node.halves[slot].is_some(),
+                "refined diamonds hold their children's halves"
+            );
             let Some(k) = k else { continue };
-            let half = halves[slot]
-                .clone()
-                .expect("refined parents hold their children's halves");
-            self.cut_state
-                .drawn
-                .insert(DrawKey::Child(id, slot).packed(), half);
             let info = self.info(k);
             self.cut_state.candidates.insert(k, info);
             children[slot] = Some((k, info));
         }
+        self.cut_state.drawn.show_children(id, node);
         self.cut_state.leaves.insert(id, info);
         for p in self.domain.parents(id).into_iter().flatten() {
             self.cut_state.leaves.remove(&p);
@@ -922,11 +924,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         if !self.cut_state.cut.coarsen(&self.domain, id) {
             return false;
         }
-        for (slot, k) in self.domain.children(id).into_iter().enumerate() {
-            let Some(k) = k else { continue };
-            self.cut_state
-                .drawn
-                .remove(&DrawKey::Child(id, slot).packed());
+        self.cut_state.drawn.hide_children(id);
+        for k in self.domain.children(id).into_iter().flatten() {
             let still_drawn = self
                 .domain
                 .parents(k)

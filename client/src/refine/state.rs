@@ -3,12 +3,12 @@
 //! refiner's side of the data source ([`Requests`]). Each part's methods touch only that part
 //! (and the [`Domain`], for the relations); the refiner's loop coordinates them.
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use cbdam_codec::geometry::{Cut, DiamondId, Domain, Half, IdMap, IdSet};
 
 use super::cache::LruCache;
+use super::drawn::DrawnList;
 use super::node::{Info, Node};
 use crate::access::Priority;
 use crate::patch::HalfPatch;
@@ -21,10 +21,9 @@ pub(super) struct CutState {
     pub(super) cut: Cut,
     pub(super) nodes: IdMap<Arc<Node>>,
     pub(super) roots: IdMap<[Arc<HalfPatch>; 2]>,
-    /// The drawn half-patches, keyed by [`DrawKey::packed`] so that iteration follows
-    /// [`Cut::drawn_halves`]' order; updated on every refinement and coarsening, so a frame's
-    /// cost follows what changed.
-    pub(super) drawn: BTreeMap<u128, Arc<HalfPatch>>,
+    /// The drawn half-patches in [`Cut::drawn_halves`]' order; updated on every refinement and
+    /// coarsening, so a frame's cost follows what changed.
+    pub(super) drawn: DrawnList,
     /// Refinement candidates (the diamonds with a drawn half) with their metric, kept as the
     /// cut changes rather than found by a pass over the cut each frame.
     pub(super) candidates: IdMap<Option<Info>>,
@@ -55,52 +54,47 @@ impl CutState {
             })
     }
 
-    /// The drawn-list keys of the halves of unrefined `id` (one per refined parent, both
-    /// halves for a root), with the halves.
-    fn half_keys(&self, domain: &Domain, id: DiamondId) -> Vec<(DrawKey, Arc<HalfPatch>)> {
-        if id.level == 0 {
-            let idx = domain
-                .roots()
-                .position(|r| r == id)
-                .expect("level 0 diamonds are roots");
-            return Half::BOTH
-                .iter()
-                .enumerate()
-                .map(|(i, &h)| (DrawKey::Root(idx, i), self.roots[&id][h as usize].clone()))
-                .collect();
-        }
-        self.parent_slots(domain, id)
-            .map(|(p, slot)| {
-                let half = self.nodes[&p].halves[slot]
-                    .clone()
-                    .expect("refined parents hold their children's halves");
-                (DrawKey::Child(p, slot), half)
-            })
-            .collect()
+    /// The index of root `id` in the layout's roots.
+    fn root_index(domain: &Domain, id: DiamondId) -> usize {
+        domain
+            .roots()
+            .position(|r| r == id)
+            .expect("level 0 diamonds are roots")
     }
 
-    /// Draws the halves of `id`, just coarsened (or a root).
+    /// Draws the halves of `id`, just coarsened (or a root): both halves of a root, else its
+    /// half in each refined parent.
     pub(super) fn show_halves(&mut self, domain: &Domain, id: DiamondId) {
-        for (k, h) in self.half_keys(domain, id) {
-            self.drawn.insert(k.packed(), h);
+        if id.level == 0 {
+            let index = Self::root_index(domain, id);
+            for (i, &h) in Half::BOTH.iter().enumerate() {
+                let patch = self.roots[&id][h as usize].clone();
+                self.drawn.show_root(index, i, patch);
+            }
+            return;
+        }
+        let slots: Vec<(DiamondId, usize)> = self.parent_slots(domain, id).collect();
+        for (p, slot) in slots {
+            self.drawn.show_child(p, slot, &self.nodes[&p]);
         }
     }
 
-    /// Stops drawing the halves of `id`, about to be refined (its parents are refined): the
-    /// keys [`CutState::half_keys`] gives, found without cloning the halves.
+    /// Stops drawing the halves of `id`, about to be refined (its parents are refined).
     pub(super) fn hide_halves(&mut self, domain: &Domain, id: DiamondId) {
-        let keys: Vec<DrawKey> = if id.level == 0 {
-            self.half_keys(domain, id)
-                .into_iter()
-                .map(|(k, _)| k)
-                .collect()
-        } else {
-            self.parent_slots(domain, id)
-                .map(|(p, slot)| DrawKey::Child(p, slot))
-                .collect()
-        };
-        for k in keys {
-            self.drawn.remove(&k.packed());
+        if id.level == 0 {
+            let index = Self::root_index(domain, id);
+            for i in 0..Half::BOTH.len() {
+                self.drawn.hide_root(index, i);
+            }
+            return;
+        }
+        // At most two parents: no allocation on the refinement's path.
+        let mut slots = [None; 2];
+        for (s, ps) in slots.iter_mut().zip(self.parent_slots(domain, id)) {
+            *s = Some(ps);
+        }
+        for (p, slot) in slots.into_iter().flatten() {
+            self.drawn.hide_child(p, slot);
         }
     }
 
@@ -148,7 +142,8 @@ impl CutState {
             kept, leaves,
             "coarsening candidates out of step with the cut"
         );
-        let drawn: Vec<(DiamondId, Half)> = self.drawn.values().map(|p| (p.id, p.half)).collect();
+        let drawn: Vec<(DiamondId, Half)> = self.drawn.iter().map(|p| (p.id, p.half)).collect();
+        assert_eq!(drawn.len(), self.drawn.len(), "drawn count out of step");
         assert_eq!(
             drawn,
             self.cut.drawn_halves(domain),
@@ -162,36 +157,6 @@ impl CutState {
         let roots: Vec<DiamondId> = domain.roots().collect();
         for r in roots {
             self.show_halves(domain, r);
-        }
-    }
-}
-
-/// Where a drawn half sits in [`Cut::drawn_halves`]' order: unrefined roots first (by their
-/// index in [`Layout::roots`], then the half's index in [`Half::BOTH`]), then the halves of
-/// refined diamonds' children, by parent (the cut's coarse-to-fine order), then child slot.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-pub(super) enum DrawKey {
-    Root(usize, usize),
-    Child(DiamondId, usize),
-}
-
-impl DrawKey {
-    /// The key as one integer in the same order: the drawn list's map compares integers, not
-    /// enums of ids (its searches were a quarter of applying a refinement on the frame thread,
-    /// in perf of a paced `low_pass` settling).
-    /// Roots below `2^127`, children above; a child's id in [`DiamondId`]'s field order
-    /// (level, face, x, y: 80 bits), then the slot (below 4).
-    pub(super) fn packed(self) -> u128 {
-        match self {
-            DrawKey::Root(index, half) => (index as u128) << 2 | half as u128,
-            DrawKey::Child(id, slot) => {
-                1 << 127
-                    | u128::from(id.level) << 74
-                    | u128::from(id.face) << 66
-                    | u128::from(id.x) << 34
-                    | u128::from(id.y) << 2
-                    | slot as u128
-            }
         }
     }
 }
@@ -255,39 +220,5 @@ impl Requests {
         } else {
             message
         });
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The packed keys sort as the keys do (the drawn list's order is the cut's), over every
-    /// pair of keys made of a few values of each field, the extremes among them, so that pairs
-    /// tie on the leading fields and each later one decides somewhere.
-    #[test]
-    fn packed_draw_keys_keep_the_order() {
-        let bytes = [0, 1, 2, u8::MAX];
-        let coords = [0, 1, 2, u32::MAX - 1, u32::MAX];
-        let mut keys: Vec<DrawKey> = (0..3)
-            .flat_map(|i| (0..2).map(move |h| DrawKey::Root(i, h)))
-            .collect();
-        for level in bytes {
-            for face in bytes {
-                for x in coords {
-                    for y in coords {
-                        for slot in 0..4 {
-                            let id = DiamondId::on_face(face, level, x, y);
-                            keys.push(DrawKey::Child(id, slot));
-                        }
-                    }
-                }
-            }
-        }
-        for a in &keys {
-            for b in &keys {
-                assert_eq!(a.packed().cmp(&b.packed()), a.cmp(b), "{a:?} against {b:?}");
-            }
-        }
     }
 }
