@@ -394,13 +394,12 @@ impl Writer {
         self.u8(3);
         self.error(e);
     }
-
+    /// An error: its kind and message.
     fn error(&mut self, e: &CodecError) {
         let (kind, message) = error_parts(e);
         self.u8(kind);
         self.bytes(message.as_bytes());
     }
-
     fn bytes(&mut self, b: &[u8]) {
         self.u32(b.len() as u32);
         self.0.extend_from_slice(b);
@@ -537,7 +536,6 @@ impl<'a> Reader<'a> {
     fn f64(&mut self) -> Result<f64, CodecError> {
         Ok(f64::from_le_bytes(self.array()?))
     }
-    /// A length-prefixed byte string.
     /// An error written by `Writer::error`.
     fn error(&mut self) -> Result<CodecError, CodecError> {
         let kind = self.u8()?;
@@ -545,7 +543,7 @@ impl<'a> Reader<'a> {
             .map_err(|_| self.bad("an error message that is not UTF-8".into()))?;
         error_from_parts(kind, message).ok_or_else(|| self.bad(format!("error kind {kind}")))
     }
-
+    /// A length-prefixed byte string.
     fn bytes(&mut self) -> Result<&'a [u8], CodecError> {
         let len = self.u32()? as usize;
         self.take(len)
