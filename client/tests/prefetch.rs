@@ -2,7 +2,8 @@
 //! [`Prefetch::WhenIdle`] a frame whose cut still lacks records asks for nothing else (the
 //! source holds no prefetch request then), and prefetches do go out while the cut lacks nothing,
 //! at most [`RefineConfig::prefetch_limit`] records a frame; [`Prefetch::Always`] prefetches
-//! alongside what the cut wants.
+//! alongside what the cut wants; a prefetch that the frame's budget cuts short cancels none of
+//! the last frame's prefetches still on their way.
 
 use std::time::{Duration, Instant};
 
@@ -40,6 +41,17 @@ fn image() -> Vec<u8> {
 
 /// `cbdam serve`'s router on loopback, every request answered after `latency`.
 fn serve(rt: &tokio::runtime::Runtime, bytes: &[u8], latency: Duration) -> String {
+    serve_delaying(rt, bytes, latency, |_| true)
+}
+
+/// `cbdam serve`'s router on loopback, the requests whose path `delayed` picks answered after
+/// `latency`.
+fn serve_delaying(
+    rt: &tokio::runtime::Runtime,
+    bytes: &[u8],
+    latency: Duration,
+    delayed: fn(&str) -> bool,
+) -> String {
     let state = AppState::new(
         vec![("t".into(), Repository::from_bytes(bytes.to_vec()).unwrap())],
         Config::default(),
@@ -47,7 +59,9 @@ fn serve(rt: &tokio::runtime::Runtime, bytes: &[u8], latency: Duration) -> Strin
     .unwrap();
     let app = cbdam_server::app(state).layer(axum::middleware::from_fn(
         move |req: Request, next: Next| async move {
-            tokio::time::sleep(latency).await;
+            if delayed(req.uri().path()) {
+                tokio::time::sleep(latency).await;
+            }
             next.run(req).await
         },
     ));
@@ -140,4 +154,48 @@ fn prefetching_when_idle_waits_for_the_cut_to_lack_nothing() {
     );
     let off = fly(&url, Prefetch::Off, &world);
     assert!(off.iter().all(|s| s.prefetch_wants == 0));
+}
+
+#[test]
+fn a_prefetch_the_budget_cuts_short_keeps_what_is_on_its_way() {
+    let bytes = image();
+    let repo = Repository::from_bytes(bytes.clone()).unwrap();
+    let world = World::of_repository(&repo);
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    // No record arrives while the test runs: what the source holds is what was asked for.
+    let url = serve_delaying(&rt, &bytes, Duration::from_secs(60), |path| {
+        path.contains("/diamonds")
+    });
+    let source = RemoteSource::connect(&url, FetchOptions::default()).unwrap();
+    let config = RefineConfig {
+        prefetch: Prefetch::Always,
+        budget: None,
+        ..RefineConfig::default()
+    };
+    let mut r = Refiner::new(source, config).unwrap();
+    let camera = panning(&world, 0.5);
+    let whole = r.frame(&camera);
+    assert!(whole.prefetch_wants > 0, "{whole:?}");
+    assert_eq!(
+        whole.access.in_flight as usize,
+        whole.cut_wants + whole.prefetch_wants,
+        "{whole:?}"
+    );
+
+    // A budget that has run out before prefetching begins: nothing new is planned, and the
+    // last frame's prefetches stay requested rather than being cancelled.
+    r.set_budget(Some(Duration::from_nanos(1)));
+    let short = r.frame(&camera);
+    assert_eq!(short.cut_wants, whole.cut_wants, "{short:?}");
+    assert_eq!(short.prefetch_wants, whole.prefetch_wants, "{short:?}");
+    assert_eq!(short.access.in_flight, whole.access.in_flight, "{short:?}");
+
+    // Without the budget the next frame plans them again: the same ones.
+    r.set_budget(None);
+    let again = r.frame(&camera);
+    assert_eq!(again.prefetch_wants, whole.prefetch_wants, "{again:?}");
+    assert_eq!(again.access.in_flight, whole.access.in_flight, "{again:?}");
+    // A prefetch that could not have been kept (the cut wants them all) is no test: the
+    // source was asked for more than the cut lacks.
+    assert!(again.access.in_flight as usize > again.cut_wants);
 }

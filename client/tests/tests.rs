@@ -8,7 +8,8 @@ mod decode_jobs;
 mod http;
 /// The pipelined decoder: decoding ahead of the cut draws what the reference decoder draws.
 mod pipeline;
-/// The prefetch policy over loopback HTTP: when-idle prefetching waits for the cut.
+/// The prefetch policy over loopback HTTP: when-idle prefetching waits for the cut, and a
+/// prefetch cut short by the budget keeps what is on its way.
 mod prefetch;
 /// Request priorities and cancellation against `cbdam serve` on loopback.
 mod priorities;

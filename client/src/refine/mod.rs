@@ -96,6 +96,12 @@ const OVERRUN_CAP: u32 = 2;
 /// Prefetched diamonds are requested with their error scaled by this, so that they never
 /// overtake what the current view needs.
 const PREFETCH_PRIORITY: f64 = 1.0 / 16.0;
+/// Prefetching stops this fraction of the budget before its end: posting the requests and
+/// handing the workers their jobs come after it.
+const PREFETCH_RESERVE: u32 = 8;
+/// Prefetching looks at the clock once per this many candidates whose screen errors it
+/// computes, and once per this many plans.
+const PREFETCH_CLOCK_STRIDE: usize = 32;
 /// Fewest and most diamonds one speculative decode job refines, parents before children. In
 /// between, a job is sized to keep its worker busy until the next frame (the interval between
 /// frames over the time a decode takes, both smoothed), so that a job still running does not
@@ -478,6 +484,9 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     overrun: Duration,
     /// A garbage collection stopped at its frame's budget: the next frame goes on with it.
     collecting: bool,
+    /// What the last frame prefetched, each diamond with its priority: a prefetch that the
+    /// budget cuts short keeps those of them still on their way (see [`Refiner::prefetch`]).
+    last_ahead: IdMap<f64>,
     /// The last frame's refinement heap (see [`KeptHeap`]), kept when `heap_whole`.
     kept_heap: Option<KeptHeap>,
     /// No candidate that violates the target has left this frame's heap without being refined
@@ -609,6 +618,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             overrun: config.budget.map_or(Duration::ZERO, |b| b / OVERRUN_PRIOR),
             collecting: false,
             kept_heap: None,
+            last_ahead: IdMap::default(),
             heap_whole: false,
             decoding: IdSet::default(),
             speculative: IdSet::default(),
@@ -1150,14 +1160,16 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // One pass over the final cut's candidates serves prefetching and the frame's figures.
         // Without prefetching the figures need only the largest error: no list is made.
         stats.cut_wants = wanted.len();
+        let prefetching = may_want && self.config.prefetch.allows(wanted.len());
         let mut ahead: IdMap<f64> = IdMap::default();
-        let worst = if may_want && self.config.prefetch.allows(wanted.len()) {
+        let worst = if prefetching {
             let candidates = self.candidate_list();
             let errors: Vec<Option<f64>> = candidates
                 .iter()
                 .map(|&(_, info)| info.and_then(|i| view.error(&i)))
                 .collect();
-            ahead = self.prefetch(camera, &candidates, &errors);
+            let until = self.config.budget.map(|b| start + b - b / PREFETCH_RESERVE);
+            ahead = self.prefetch(camera, &candidates, &errors, until);
             self.worst_error(candidates.iter().zip(&errors).map(|(&(id, _), &e)| (id, e)))
         } else if let Some(worst) = worst_violating {
             #[cfg(debug_assertions)]
@@ -1171,6 +1183,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             self.worst_of_candidates(&view)
         };
         self.last_camera = Some(*camera);
+        self.last_ahead.clone_from(&ahead);
         let track = self.requests.track_classes;
         if track {
             for id in wanted.keys() {
@@ -1511,12 +1524,24 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// ~1 500 are planned, in 1.2–1.7 ms. The same diamonds and priorities as planning every
     /// contribution (checked in debug builds): a diamond's priority is the largest of its
     /// contributions', and every contribution at least as urgent as the kept ones is planned.
+    ///
+    /// Prefetching stops at `until` (the budget's end less [`PREFETCH_RESERVE`]): cut short
+    /// while planning, it keeps the most urgent of what it planned (their priorities are
+    /// final: a diamond's first contribution is its most urgent), and cut short sooner,
+    /// nothing new; either way the last frame's prefetches still on their way stay wanted
+    /// ([`Refiner::keep_last_ahead`]), so that a frame short of time cancels nothing the link
+    /// carries. (By screen error per byte, once begun every plan is looked at.)
     fn prefetch(
         &mut self,
         camera: &Camera,
         candidates: &[(DiamondId, Option<Info>)],
         errors: &[Option<f64>],
+        until: Option<Instant>,
     ) -> IdMap<f64> {
+        let past = || until.is_some_and(|u| Instant::now() >= u);
+        if past() {
+            return self.keep_last_ahead(IdMap::default(), self.config.prefetch_limit);
+        }
         let velocity = self.last_camera.map_or(DVec3::ZERO, |c| camera.eye - c.eye);
         let ahead = velocity * self.config.lookahead_frames;
         let mut future = *camera;
@@ -1537,7 +1562,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         };
         // Each contribution: a diamond whose plan is wanted, at its priority.
         let mut contributions = Vec::new();
-        for (&(id, info), &err_now) in candidates.iter().zip(errors) {
+        for (n, (&(id, info), &err_now)) in candidates.iter().zip(errors).enumerate() {
+            if n % PREFETCH_CLOCK_STRIDE == PREFETCH_CLOCK_STRIDE - 1 && past() {
+                return self.keep_last_ahead(IdMap::default(), Some(limit));
+            }
             if let Some(err) = self.violation_of(id, info, &view) {
                 contributions.push(Candidate {
                     err: err * PREFETCH_PRIORITY,
@@ -1560,9 +1588,23 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // The priority of the contribution that brought `wanted` to the limit: every later one
         // as urgent is planned too (it may add diamonds that tie with the kept ones).
         let mut least_kept: Option<f64> = None;
+        let mut planned = 0;
         while let Some(c) = contributions.pop() {
             if limit == 0 || least_kept.is_some_and(|p| c.err < p) {
                 break;
+            }
+            planned += 1;
+            if planned % PREFETCH_CLOCK_STRIDE == 0 && past() {
+                #[cfg(debug_assertions)]
+                {
+                    let mut all = IdMap::default();
+                    self.prefetch_all(&view, &now, candidates, errors, &mut all);
+                    for (d, p) in &wanted {
+                        assert_eq!(all.get(d), Some(p), "a prefetch cut short: {d}'s priority");
+                    }
+                }
+                let kept = most_urgent(wanted, Some(limit));
+                return self.keep_last_ahead(kept, Some(limit));
             }
             self.want_plan(c.id, c.err, &mut wanted);
             if least_kept.is_none() && wanted.len() >= limit {
@@ -1583,6 +1625,19 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             assert_eq!(sorted(&kept), sorted(&all), "prefetch from the most urgent");
         }
         kept
+    }
+
+    /// A prefetch cut short: `kept`, and what the last frame prefetched that is still on its
+    /// way (requested, not arrived), each at the larger of its priorities; at most `limit`, the
+    /// most urgent.
+    fn keep_last_ahead(&self, mut kept: IdMap<f64>, limit: Option<usize>) -> IdMap<f64> {
+        for (&id, &p) in &self.last_ahead {
+            if self.requests.requested.contains_key(&id) {
+                let w = kept.entry(id).or_insert(p);
+                *w = w.max(p);
+            }
+        }
+        most_urgent(kept, limit)
     }
 
     /// [`Refiner::prefetch`] planning every contribution, in candidate order.
