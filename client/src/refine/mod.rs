@@ -1161,16 +1161,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // Without prefetching the figures need only the largest error: no list is made.
         stats.cut_wants = wanted.len();
         let prefetching = may_want && self.config.prefetch.allows(wanted.len());
-        let mut ahead: IdMap<f64> = IdMap::default();
-        let worst = if prefetching {
+        let (worst, ahead) = if prefetching {
             let candidates = self.candidate_list();
             let errors: Vec<Option<f64>> = candidates
                 .iter()
                 .map(|&(_, info)| info.and_then(|i| view.error(&i)))
                 .collect();
             let until = self.config.budget.map(|b| start + b - b / PREFETCH_RESERVE);
-            ahead = self.prefetch(camera, &candidates, &errors, until);
-            self.worst_error(candidates.iter().zip(&errors).map(|(&(id, _), &e)| (id, e)))
+            let ahead = self.prefetch(camera, &candidates, &errors, until);
+            let worst =
+                self.worst_error(candidates.iter().zip(&errors).map(|(&(id, _), &e)| (id, e)));
+            (worst, ahead)
         } else if let Some(worst) = worst_violating {
             #[cfg(debug_assertions)]
             assert_eq!(
@@ -1178,9 +1179,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 self.worst_of_candidates(&view),
                 "largest error from the heap"
             );
-            worst
+            (worst, IdMap::default())
         } else {
-            self.worst_of_candidates(&view)
+            (self.worst_of_candidates(&view), IdMap::default())
         };
         self.last_camera = Some(*camera);
         self.last_ahead.clone_from(&ahead);

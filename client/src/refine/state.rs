@@ -33,25 +33,18 @@ pub(super) struct CutState {
 
 impl CutState {
     /// The drawn-list keys of the halves of unrefined, non-root `id` in its refined parents:
-    /// `(parent, slot of id among the parent's children)`.
-    fn parent_slots(
-        &self,
-        domain: &Domain,
-        id: DiamondId,
-    ) -> impl Iterator<Item = (DiamondId, usize)> {
-        domain
-            .parents(id)
-            .into_iter()
-            .flatten()
-            .filter(|&p| self.cut.is_refined(p))
-            .map(move |p| {
-                let slot = domain
-                    .children(p)
-                    .iter()
-                    .position(|c| *c == Some(id))
-                    .expect("child of its parent");
-                (p, slot)
-            })
+    /// `(parent, slot of id among the parent's children)`, one per parent (at most two: no
+    /// allocation on the paths of refining and coarsening).
+    fn parent_slots(&self, domain: &Domain, id: DiamondId) -> [Option<(DiamondId, usize)>; 2] {
+        domain.parents(id).map(|p| {
+            let p = p.filter(|&p| self.cut.is_refined(p))?;
+            let slot = domain
+                .children(p)
+                .iter()
+                .position(|c| *c == Some(id))
+                .expect("child of its parent");
+            Some((p, slot))
+        })
     }
 
     /// The index of root `id` in the layout's roots.
@@ -73,8 +66,7 @@ impl CutState {
             }
             return;
         }
-        let slots: Vec<(DiamondId, usize)> = self.parent_slots(domain, id).collect();
-        for (p, slot) in slots {
+        for (p, slot) in self.parent_slots(domain, id).into_iter().flatten() {
             self.drawn.show_child(p, slot, &self.nodes[&p]);
         }
     }
@@ -88,12 +80,7 @@ impl CutState {
             }
             return;
         }
-        // At most two parents: no allocation on the refinement's path.
-        let mut slots = [None; 2];
-        for (s, ps) in slots.iter_mut().zip(self.parent_slots(domain, id)) {
-            *s = Some(ps);
-        }
-        for (p, slot) in slots.into_iter().flatten() {
+        for (p, slot) in self.parent_slots(domain, id).into_iter().flatten() {
             self.drawn.hide_child(p, slot);
         }
     }
