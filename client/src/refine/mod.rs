@@ -172,6 +172,8 @@ pub struct RefineConfig {
     pub prefetch: Prefetch,
     /// Most records a frame prefetches (the most urgent; `None`: no limit): what the last
     /// frames leave in flight when the view stops needing them is at most this many records.
+    /// With a budget, prefetching stops an eighth of the budget before its end; a frame it
+    /// cuts short keeps the last frame's prefetches that are still on their way.
     pub prefetch_limit: Option<usize>,
     /// The order in which missing records are asked for (see [`FetchOrder`]).
     pub fetch_order: FetchOrder,
@@ -185,7 +187,8 @@ pub struct RefineConfig {
     pub prefetch_margin: f64,
     /// Prefetch where the eye will be this many frames ahead at its current velocity.
     pub lookahead_frames: f64,
-    /// Bytes of decoded diamonds kept after they are coarsened.
+    /// Bytes of decoded diamonds kept after they are coarsened (and decoded ahead): a view
+    /// that comes back over ground evicted from it decodes that ground again.
     pub decoded_cache_bytes: usize,
     /// Bytes of compressed records kept in RAM.
     pub record_cache_bytes: usize,
