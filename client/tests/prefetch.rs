@@ -166,36 +166,56 @@ fn a_prefetch_the_budget_cuts_short_keeps_what_is_on_its_way() {
     let url = serve_delaying(&rt, &bytes, Duration::from_secs(60), |path| {
         path.contains("/diamonds")
     });
-    let source = RemoteSource::connect(&url, FetchOptions::default()).unwrap();
-    let config = RefineConfig {
-        prefetch: Prefetch::Always,
-        budget: None,
-        ..RefineConfig::default()
-    };
-    let mut r = Refiner::new(source, config).unwrap();
-    let camera = panning(&world, 0.5);
-    let whole = r.frame(&camera);
-    assert!(whole.prefetch_wants > 0, "{whole:?}");
-    assert_eq!(
-        whole.access.in_flight as usize,
-        whole.cut_wants + whole.prefetch_wants,
-        "{whole:?}"
-    );
+    // With the default limit, and without one (every contribution planned, most urgent
+    // first, so that a deadline cuts off the least urgent).
+    for prefetch_limit in [RefineConfig::default().prefetch_limit, None] {
+        let source = RemoteSource::connect(&url, FetchOptions::default()).unwrap();
+        let config = RefineConfig {
+            prefetch: Prefetch::Always,
+            prefetch_limit,
+            budget: None,
+            ..RefineConfig::default()
+        };
+        let mut r = Refiner::new(source, config).unwrap();
+        let camera = panning(&world, 0.5);
+        let whole = r.frame(&camera);
+        assert!(whole.prefetch_wants > 0, "{prefetch_limit:?}: {whole:?}");
+        assert_eq!(
+            whole.access.in_flight as usize,
+            whole.cut_wants + whole.prefetch_wants,
+            "{prefetch_limit:?}: {whole:?}"
+        );
 
-    // A budget that has run out before prefetching begins: nothing new is planned, and the
-    // last frame's prefetches stay requested rather than being cancelled.
-    r.set_budget(Some(Duration::from_nanos(1)));
-    let short = r.frame(&camera);
-    assert_eq!(short.cut_wants, whole.cut_wants, "{short:?}");
-    assert_eq!(short.prefetch_wants, whole.prefetch_wants, "{short:?}");
-    assert_eq!(short.access.in_flight, whole.access.in_flight, "{short:?}");
+        // A budget that has run out before prefetching begins: nothing new is planned, and the
+        // last frame's prefetches stay requested rather than being cancelled.
+        r.set_budget(Some(Duration::from_nanos(1)));
+        let short = r.frame(&camera);
+        assert_eq!(
+            short.cut_wants, whole.cut_wants,
+            "{prefetch_limit:?}: {short:?}"
+        );
+        assert_eq!(
+            short.prefetch_wants, whole.prefetch_wants,
+            "{prefetch_limit:?}: {short:?}"
+        );
+        assert_eq!(
+            short.access.in_flight, whole.access.in_flight,
+            "{prefetch_limit:?}: {short:?}"
+        );
 
-    // Without the budget the next frame plans them again: the same ones.
-    r.set_budget(None);
-    let again = r.frame(&camera);
-    assert_eq!(again.prefetch_wants, whole.prefetch_wants, "{again:?}");
-    assert_eq!(again.access.in_flight, whole.access.in_flight, "{again:?}");
-    // A prefetch that could not have been kept (the cut wants them all) is no test: the
-    // source was asked for more than the cut lacks.
-    assert!(again.access.in_flight as usize > again.cut_wants);
+        // Without the budget the next frame plans them again: the same ones.
+        r.set_budget(None);
+        let again = r.frame(&camera);
+        assert_eq!(
+            again.prefetch_wants, whole.prefetch_wants,
+            "{prefetch_limit:?}: {again:?}"
+        );
+        assert_eq!(
+            again.access.in_flight, whole.access.in_flight,
+            "{prefetch_limit:?}: {again:?}"
+        );
+        // A prefetch that could not have been kept (the cut wants them all) is no test: the
+        // source was asked for more than the cut lacks.
+        assert!(again.access.in_flight as usize > again.cut_wants);
+    }
 }

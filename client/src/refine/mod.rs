@@ -1554,16 +1554,15 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         let margin = self.config.prefetch_margin * (camera.target - camera.eye).length();
         let view = View::new(future, margin, &self.world);
         let now = View::new(*camera, 0.0, &self.world);
-        let limit = match self.config.fetch_order {
-            FetchOrder::ScreenError => self.config.prefetch_limit,
+        if self.config.fetch_order == FetchOrder::ScreenErrorPerByte {
             // The priority then depends on what a plan lacks: every plan is looked at.
-            FetchOrder::ScreenErrorPerByte => None,
-        };
-        let Some(limit) = limit else {
             let mut wanted = IdMap::default();
             self.prefetch_all(&view, &now, candidates, errors, &mut wanted);
             return most_urgent(wanted, self.config.prefetch_limit);
-        };
+        }
+        // Without a limit every contribution is planned, still most urgent first: what a
+        // deadline cuts off is the least urgent.
+        let limit = self.config.prefetch_limit.unwrap_or(usize::MAX);
         // Each contribution: a diamond whose plan is wanted, at its priority.
         let mut contributions = Vec::new();
         for (n, (&(id, info), &err_now)) in candidates.iter().zip(errors).enumerate() {
