@@ -186,34 +186,23 @@ fn a_prefetch_the_budget_cuts_short_keeps_what_is_on_its_way() {
             "{prefetch_limit:?}: {whole:?}"
         );
 
+        // What the source holds after `s` is what it held after the whole prefetch.
+        let holds_the_same = |s: &FrameStats| {
+            let label = format!("{prefetch_limit:?}, frame {}: {s:?}", s.frame);
+            assert_eq!(s.cut_wants, whole.cut_wants, "{label}");
+            assert_eq!(s.prefetch_wants, whole.prefetch_wants, "{label}");
+            assert_eq!(s.access.in_flight, whole.access.in_flight, "{label}");
+        };
+
         // A budget that has run out before prefetching begins: nothing new is planned, and the
         // last frame's prefetches stay requested rather than being cancelled.
         r.set_budget(Some(Duration::from_nanos(1)));
-        let short = r.frame(&camera);
-        assert_eq!(
-            short.cut_wants, whole.cut_wants,
-            "{prefetch_limit:?}: {short:?}"
-        );
-        assert_eq!(
-            short.prefetch_wants, whole.prefetch_wants,
-            "{prefetch_limit:?}: {short:?}"
-        );
-        assert_eq!(
-            short.access.in_flight, whole.access.in_flight,
-            "{prefetch_limit:?}: {short:?}"
-        );
+        holds_the_same(&r.frame(&camera));
 
         // Without the budget the next frame plans them again: the same ones.
         r.set_budget(None);
         let again = r.frame(&camera);
-        assert_eq!(
-            again.prefetch_wants, whole.prefetch_wants,
-            "{prefetch_limit:?}: {again:?}"
-        );
-        assert_eq!(
-            again.access.in_flight, whole.access.in_flight,
-            "{prefetch_limit:?}: {again:?}"
-        );
+        holds_the_same(&again);
         // A prefetch that could not have been kept (the cut wants them all) is no test: the
         // source was asked for more than the cut lacks.
         assert!(again.access.in_flight as usize > again.cut_wants);
