@@ -1187,7 +1187,6 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             (self.worst_of_candidates(&view), IdMap::default())
         };
         self.last_camera = Some(*camera);
-        self.last_ahead.clone_from(&ahead);
         let track = self.requests.track_classes;
         if track {
             for id in wanted.keys() {
@@ -1203,6 +1202,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 }
             }
         }
+        self.last_ahead = ahead;
 
         self.post_requests(wanted);
         let after_end = Instant::now();
