@@ -116,6 +116,13 @@ const SPECULATION_MISSES: usize = 512;
 /// handing the jobs to the workers comes after (dsl10 `low_pass`, static server, planning up
 /// to the budget's very end: 101 of 1 618 frames ended 0–0.05 ms over 2 ms).
 const AHEAD_RESERVE: u32 = 16;
+/// Between paced frames that decode ahead, at least the budget over this is held back from the
+/// refinement loop for the frame's tail, whatever the tails measured (see `Refiner::overrun`).
+/// Without it a loop that spent its budget waiting for the decodes it had dispatched left
+/// decoding ahead no time to plan, so the next loop found nothing decoded and waited again: a
+/// cold start at `low_pass`'s last view (1920×1080, 2 ms, paced) settled in 23–34 frames, or
+/// in 45–62 (about 20 refinements a frame) when it fell into that state.
+const AHEAD_SHARE: u32 = 4;
 /// Most diamonds decoded ahead of the cut and not yet refined (in the decoded cache or being
 /// decoded): a few frames' worth of refinements (a frame applies about a hundred within a
 /// 2 ms budget), so that a moving view does not have the workers decode far more than the cut
@@ -912,8 +919,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     }
 
     /// Refines `id` (whose parents are refined and whose node is in `nodes`) and updates the
-    /// drawn halves and both candidate sets. Returns its children with their metric (the new
-    /// candidates among them), so that the caller need not look them up again.
+    /// drawn halves and both candidate sets. Returns the children that became candidates, with
+    /// their metric so that the caller need not look them up again: a child of two parents
+    /// became one when the first was refined, and is in the refinement heap already (pushed
+    /// twice, half the heap's entries were duplicates in a settling `low_pass`).
     fn refine_in_cut(&mut self, id: DiamondId) -> [Option<(DiamondId, Option<Info>)>; 4] {
         let mut children = [None; 4];
         let newly = self.cut_state.cut.refine(&self.domain, id);
@@ -934,6 +943,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 "refined diamonds hold their children's halves"
             );
             let Some(k) = k else { continue };
+            if self.cut_state.candidates.contains_key(&k) {
+                continue;
+            }
             let info = self.info(k);
             self.cut_state.candidates.insert(k, info);
             children[slot] = Some((k, info));
@@ -1047,9 +1059,13 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                     .frame
                     .is_multiple_of(u64::from(self.config.gc_interval)));
         // At most half the budget is held back for the tail, so refinement always gets the
-        // other half.
+        // other half; between paced frames that decode ahead, at least AHEAD_SHARE of it.
+        let ahead_floor = match self.config.budget {
+            Some(b) if self.decodes_ahead() && self.paced() => b / AHEAD_SHARE,
+            _ => Duration::ZERO,
+        };
         let deadline = self.config.budget.map(|b| {
-            let held_back = self.overrun.mul_f64(OVERRUN_SPREAD);
+            let held_back = self.overrun.mul_f64(OVERRUN_SPREAD).max(ahead_floor);
             start + b - held_back.min(b / OVERRUN_CAP)
         });
         self.source.pump();
@@ -1209,7 +1225,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // The workers keep decoding what the view still needs until the next frame. Last in
         // the frame, so that what it may take is known: the rest of the budget (its plan is
         // cut there, but each free worker gets a job; see AHEAD_RESERVE).
-        if self.config.decode_ahead && self.spawner.runs_in_background() {
+        if self.decodes_ahead() {
             let budget_end = self.config.budget.map(|b| start + b - b / AHEAD_RESERVE);
             self.speculate(&view, leftovers, budget_end);
         }
@@ -1229,6 +1245,19 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         self.cut_state.check_incremental_sets(&self.domain);
         self.figures(&view, worst, &mut stats);
         stats
+    }
+
+    /// Whether frames end by decoding ahead of the cut (see [`Refiner::speculate`]).
+    fn decodes_ahead(&self) -> bool {
+        self.config.decode_ahead && self.spawner.runs_in_background()
+    }
+
+    /// Whether frames come at least [`PACED_BUDGETS`] budgets apart: a viewer's frames, whose
+    /// workers have the time between them.
+    fn paced(&self) -> bool {
+        self.config
+            .budget
+            .is_some_and(|b| self.frame_interval_s > PACED_BUDGETS * b.as_secs_f64())
     }
 
     /// Frame step: moves the records that arrived into RAM; failures are logged now rather than
@@ -1755,10 +1784,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // frame's refinement: measured on 2 cores); workers that yield to it get one each
         // while frames are paced (PACED_BUDGETS).
         let workers = self.spawner.parallelism().max(1);
-        let paced = self
-            .config
-            .budget
-            .is_some_and(|b| self.frame_interval_s > PACED_BUDGETS * b.as_secs_f64());
+        let paced = self.paced();
         let max_jobs = if self.spawner.yields_to_caller() && paced {
             workers
         } else {
