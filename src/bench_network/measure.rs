@@ -257,7 +257,7 @@ fn fly_and_collect<S: DataSource>(
     let start = Instant::now();
     let run = fly_observed(flight, refiner, &settings.pacing, csv, |r, s| {
         let wall_s = start.elapsed().as_secs_f64();
-        used.extend(r.cut().refined().filter_map(|id| r.source_id(id)));
+        used.extend(r.cut().refined_unordered().filter_map(|id| r.source_id(id)));
         frames.push(FramePoint {
             wall_s,
             settling: false,
