@@ -14,9 +14,9 @@ pub type FaceTriangle = (u8, Triangle);
 /// A cut: the set of refined diamonds, closed under "parents of a refined diamond are refined".
 ///
 /// Kept as a hash set only: the refinement loop refines and looks up thousands of diamonds a
-/// frame, and asks for them in order only when something is drawn or compared whole (an ordered
-/// set beside it cost a tenth of applying a refinement on the frame thread, in perf of a paced
-/// `low_pass` settling).
+/// frame, and asks for them in order only when something is drawn or compared whole. With an
+/// ordered set beside it, `refine` took 10.6 % of the client's refinement loop (perf samples of
+/// a paced `low_pass` replay's last 1.5 s), without 4.9 %.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Cut {
     lookup: IdSet,
