@@ -119,9 +119,9 @@ const AHEAD_RESERVE: u32 = 16;
 /// Between paced frames that decode ahead, at least the budget over this is held back from the
 /// refinement loop for the frame's tail, whatever the tails measured (see `Refiner::overrun`).
 /// Without it a loop that spent its budget waiting for the decodes it had dispatched left
-/// decoding ahead no time to plan, so the next loop found nothing decoded and waited again: a
-/// cold start at `low_pass`'s last view (1920×1080, 2 ms, paced) settled in 23–34 frames, or
-/// in 45–62 (about 20 refinements a frame) when it fell into that state.
+/// decoding ahead no time to plan, so the next loop found nothing decoded and waited again
+/// (14–36 refinements a frame, for 25–35 frames): a cold start at `low_pass`'s last view
+/// (1920×1080, 2 ms, paced) settled in 24–58 frames (12 runs; 3 over 40), with this in 21–32.
 const AHEAD_SHARE: u32 = 4;
 /// Most diamonds decoded ahead of the cut and not yet refined (in the decoded cache or being
 /// decoded): a few frames' worth of refinements (a frame applies about a hundred within a
