@@ -149,7 +149,7 @@ pub(crate) fn refined_set(cut: &Cut) -> HashSet<DiamondId> {
 
 /// A local source hands out its records mapped (read and checked by whoever decodes them) or
 /// taken (copied): the same bytes, counted alike; an unstored diamond maps to nothing (taking it
-/// is the error that names it).
+/// is the error that names it). Mapped by position in the index, the same records.
 #[test]
 fn mapped_records_read_what_taken_records_copy_and_count_alike() {
     use cbdam_client::access::DataSource;
@@ -177,6 +177,18 @@ fn mapped_records_read_what_taken_records_copy_and_count_alike() {
     let unstored = DiamondId::new(repo.params().domain.finest_level() + 1, 0, 0);
     assert!(mapped.mapped(unstored).is_none());
     assert!(matches!(taken.take(unstored), Some(Err(_))));
+    // Found by its position in the index (the refiner knows it) without a search: the same
+    // record; a position that is not the diamond's is searched for instead, so still the same.
+    let entries = repo.entries();
+    for (i, e) in entries.iter().enumerate() {
+        let expected = mapped.mapped(e.id).unwrap();
+        let expected = expected.bytes().unwrap();
+        for index in [i, (i + 1) % entries.len(), usize::MAX] {
+            let found = mapped.mapped_entry(e.id, index).expect("stored");
+            assert_eq!(found.bytes().unwrap(), expected, "{} at {index}", e.id);
+        }
+    }
+    assert!(mapped.mapped_entry(unstored, 0).is_none());
 }
 
 #[test]

@@ -108,6 +108,18 @@ impl DataSource for LocalSource {
         Some(MappedRecord::new(self.repo.clone(), i, self.reads.clone()))
     }
 
+    fn mapped_entry(&self, id: DiamondId, index: usize) -> Option<MappedRecord> {
+        if self.repo.entries().get(index).is_some_and(|e| e.id == id) {
+            Some(MappedRecord::new(
+                self.repo.clone(),
+                index,
+                self.reads.clone(),
+            ))
+        } else {
+            self.mapped(id)
+        }
+    }
+
     fn pump(&mut self) {}
 
     fn stats(&self) -> AccessStats {

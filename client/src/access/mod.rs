@@ -154,6 +154,13 @@ pub trait DataSource: MaybeSend {
         let _ = id;
         None
     }
+    /// [`DataSource::mapped`] for `id`, whose entry is the `index`-th of
+    /// [`DataSource::entries`]: a source that maps a file finds the record without searching
+    /// its index (it checks that the entry is `id`'s, and searches if not).
+    fn mapped_entry(&self, id: DiamondId, index: usize) -> Option<MappedRecord> {
+        let _ = index;
+        self.mapped(id)
+    }
     /// Advances I/O: called once per frame before anything else.
     fn pump(&mut self);
     /// Counters.
@@ -204,6 +211,9 @@ impl<S: DataSource + ?Sized> DataSource for Box<S> {
     }
     fn mapped(&self, id: DiamondId) -> Option<MappedRecord> {
         (**self).mapped(id)
+    }
+    fn mapped_entry(&self, id: DiamondId, index: usize) -> Option<MappedRecord> {
+        (**self).mapped_entry(id, index)
     }
     fn pump(&mut self) {
         (**self).pump()
