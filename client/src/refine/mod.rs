@@ -822,7 +822,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     }
 
     fn need(&mut self, id: DiamondId) -> Need {
-        if self.requests.broken.contains(&id) || self.info(id).is_none() {
+        // A stored diamond's entry (one lookup for its metric and its place in the index).
+        let entry = self.stored.get(&id).map(|&(_, index)| index);
+        if self.requests.broken.contains(&id) || (entry.is_none() && self.info(id).is_none()) {
             return Need::Impossible;
         }
         // A peek: the loop takes a cached node out of the cache at once, and decoding ahead
@@ -842,8 +844,8 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             return Need::Ready(Source::Record(r.clone()));
         }
         let sid = self.source_id(id).expect("stored levels map to the source");
-        let mapped = match self.stored.get(&id) {
-            Some(&(_, index)) => self.source.mapped_entry(sid, index),
+        let mapped = match entry {
+            Some(index) => self.source.mapped_entry(sid, index),
             None => self.source.mapped(sid),
         };
         if let Some(record) = mapped {
