@@ -39,7 +39,13 @@ impl<K: Copy + Eq + Hash, V> LruCache<K, V> {
     /// Inserts or replaces `key`, marks it most recent and evicts down to the budget. A value
     /// larger than the whole budget is not kept.
     pub fn insert(&mut self, key: K, value: V, bytes: usize) {
-        self.remove(&key);
+        self.insert_evicting(key, value, bytes, &mut Vec::new());
+    }
+
+    /// [`LruCache::insert`], moving what it evicts (and a value it replaces) into `evicted`
+    /// rather than dropping it: the caller chooses where and when values are dropped.
+    pub fn insert_evicting(&mut self, key: K, value: V, bytes: usize, evicted: &mut Vec<V>) {
+        evicted.extend(self.remove(&key));
         self.tick += 1;
         self.map.insert(key, (value, bytes, self.tick));
         self.order.push_back((self.tick, key));
@@ -49,10 +55,11 @@ impl<K: Copy + Eq + Hash, V> LruCache<K, V> {
                 break;
             };
             if self.is_current(t, &k)
-                && let Some((_, b, _)) = self.map.remove(&k)
+                && let Some((v, b, _)) = self.map.remove(&k)
             {
                 self.bytes -= b;
                 self.evictions += 1;
+                evicted.push(v);
             }
         }
         self.compact();
@@ -167,7 +174,8 @@ mod tests {
 
     /// Against a model that keeps every entry's last use and evicts the oldest: the same
     /// entries, bytes and evictions after every operation of random sequences (uses of few
-    /// keys, so that the queue fills with stale entries and is compacted).
+    /// keys, so that the queue fills with stale entries and is compacted), and every insertion
+    /// hands out the values the model evicted and replaced.
     #[test]
     fn evicts_as_a_model_of_last_uses_does() {
         use proptest::prelude::*;
@@ -193,14 +201,18 @@ mod tests {
                 let v = i as u32;
                 match op {
                     Op::Insert(k, b) => {
-                        c.insert(k, v, b);
+                        let mut out = Vec::new();
+                        c.insert_evicting(k, v, b, &mut out);
                         tick += 1;
-                        model.insert(k, (v, b, tick));
+                        let mut gone: Vec<u32> = model.insert(k, (v, b, tick)).map(|e| e.0).into_iter().collect();
                         while model.values().map(|e| e.1).sum::<usize>() > 20 {
                             let oldest = *model.iter().min_by_key(|(_, e)| e.2).unwrap().0;
-                            model.remove(&oldest);
+                            gone.push(model.remove(&oldest).unwrap().0);
                             evictions += 1;
                         }
+                        out.sort_unstable();
+                        gone.sort_unstable();
+                        prop_assert_eq!(out, gone);
                     }
                     Op::Get(k) => {
                         let got = c.get(&k).copied();

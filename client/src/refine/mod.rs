@@ -624,6 +624,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 records: LruCache::new(config.record_cache_bytes),
                 decoded: LruCache::new(config.decoded_cache_bytes),
                 cut_bytes: 0,
+                evicted: Vec::new(),
             },
             requests: Requests::default(),
             frame: 0,
@@ -1239,6 +1240,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             self.speculate(&view, leftovers, budget_end);
         }
         self.remember_overrun(deadline, &stats);
+        self.release_evicted();
         let end = Instant::now();
         stats.refine_ms = (end - start).as_secs_f64() * 1e3;
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
@@ -1254,6 +1256,18 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         self.cut_state.check_incremental_sets(&self.domain);
         self.figures(&view, worst, &mut stats);
         stats
+    }
+
+    /// Frame step: hands the nodes the decoded cache evicted this frame to a worker to drop.
+    /// Dropping a node frees its five buffers (~100 KB at N = 65), allocated by the worker that
+    /// decoded it: on the frame thread that was a fifth of garbage collection's time in a paced
+    /// `low_pass` flight (each coarsening moves a node into the full cache, which evicts one).
+    /// A spawner without threads drops them here.
+    fn release_evicted(&mut self) {
+        if !self.residency.evicted.is_empty() {
+            let evicted = std::mem::take(&mut self.residency.evicted);
+            self.spawner.spawn(move || drop(evicted));
+        }
     }
 
     /// Whether frames end by decoding ahead of the cut (see [`Refiner::speculate`]).
@@ -1995,8 +2009,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             self.heap_whole = false;
         }
         if done.speculative || self.cut_state.cut.is_refined(id) || !parents_refined {
-            let bytes = node.bytes();
-            self.residency.decoded.insert(id, node, bytes);
+            self.residency.keep_decoded(id, node);
             return;
         }
         self.residency.decoded.remove(&id);

@@ -156,6 +156,9 @@ pub(super) struct Residency {
     pub(super) decoded: LruCache<DiamondId, Arc<Node>>,
     /// Sum of the cut's nodes' bytes.
     pub(super) cut_bytes: usize,
+    /// Nodes evicted from `decoded` this frame, dropped off the frame thread at its end
+    /// (`Refiner::release_evicted`).
+    pub(super) evicted: Vec<Arc<Node>>,
 }
 
 impl Residency {
@@ -170,7 +173,14 @@ impl Residency {
     pub(super) fn retire(&mut self, id: DiamondId, node: Arc<Node>) {
         let bytes = node.bytes();
         self.cut_bytes -= bytes;
-        self.decoded.insert(id, node, bytes);
+        self.keep_decoded(id, node);
+    }
+
+    /// Keeps a decoded node in the decoded cache; what that evicts waits in `evicted`.
+    pub(super) fn keep_decoded(&mut self, id: DiamondId, node: Arc<Node>) {
+        let bytes = node.bytes();
+        self.decoded
+            .insert_evicting(id, node, bytes, &mut self.evicted);
     }
 }
 
