@@ -2039,13 +2039,17 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         least: usize,
         until: Option<Instant>,
     ) -> (usize, bool) {
-        let mut heap: BinaryHeap<std::cmp::Reverse<Candidate>> = BinaryHeap::new();
-        for (&id, info) in &self.cut_state.leaves {
-            let err = info.and_then(|i| view.error(&i)).unwrap_or(0.0);
-            if err <= self.config.pixel_error {
-                heap.push(std::cmp::Reverse(Candidate { err, id }));
-            }
-        }
+        // Collected, then made a heap in one pass.
+        let unneeded: Vec<std::cmp::Reverse<Candidate>> = self
+            .cut_state
+            .leaves
+            .iter()
+            .filter_map(|(&id, info)| {
+                let err = info.and_then(|i| view.error(&i)).unwrap_or(0.0);
+                (err <= self.config.pixel_error).then_some(std::cmp::Reverse(Candidate { err, id }))
+            })
+            .collect();
+        let mut heap = BinaryHeap::from(unneeded);
         let mut done = 0;
         while let Some(std::cmp::Reverse(c)) = heap.pop() {
             if done >= least && until.is_some_and(|u| Instant::now() >= u) {
