@@ -17,7 +17,7 @@
 //! collection: every few frames (first in the frame while the view moves; while it is still,
 //! after a loop that refined all it could), refined diamonds with no refined child that the view
 //! no longer needs are undone, least needed first, and their decoded data moves to an LRU cache
-//! so that refining them again is free.
+//! so that refining them again is free (what the cache evicts is freed by a worker).
 //!
 //! **A frame's cost follows what changes, not the size of the cut.** The refinement candidates
 //! (diamonds with a drawn half), the coarsening candidates (refined diamonds with no refined
