@@ -204,7 +204,8 @@ mod tests {
                         let mut out = Vec::new();
                         c.insert_evicting(k, v, b, &mut out);
                         tick += 1;
-                        let mut gone: Vec<u32> = model.insert(k, (v, b, tick)).map(|e| e.0).into_iter().collect();
+                        let replaced = model.insert(k, (v, b, tick));
+                        let mut gone: Vec<u32> = replaced.map(|e| e.0).into_iter().collect();
                         while model.values().map(|e| e.1).sum::<usize>() > 20 {
                             let oldest = *model.iter().min_by_key(|(_, e)| e.2).unwrap().0;
                             gone.push(model.remove(&oldest).unwrap().0);
