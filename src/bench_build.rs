@@ -13,8 +13,8 @@ use anyhow::{Result, bail};
 use cbdam_codec::hierarchy::EncodeOptions;
 use cbdam_codec::repository::write_repository;
 
-use cbdam_build::encode::{encode_prepared, with_coarser_roots_if_smaller};
-use cbdam_build::plan::{InputSpec, default_memory_limit, prepare, storage_for};
+use cbdam_builder::encode::{encode_prepared, with_coarser_roots_if_smaller};
+use cbdam_builder::plan::{InputSpec, default_memory_limit, prepare, storage_for};
 
 use crate::BenchBuildArgs;
 

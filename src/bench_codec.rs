@@ -7,12 +7,13 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify, walk};
-use cbdam_codec::input::{Dem, ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::serialize;
+use cbdam_codec::samples::Dem;
 
 use crate::{BenchCodecArgs, Which};
 

@@ -108,9 +108,9 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
     let input = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/srtm3_demcompare.tif");
     let output = dir.join("srtm3_demcompare.cbdam");
     eprintln!("building {} at ε = 1 m …", output.display());
-    cbdam_build::build(
-        &cbdam_build::BuildOptions::new(vec![input], output.clone(), 1.0),
-        &cbdam_build::NoProgress,
+    cbdam_builder::build(
+        &cbdam_builder::BuildOptions::new(vec![input], output.clone(), 1.0),
+        &cbdam_builder::NoProgress,
     )?;
     Ok(output)
 }

@@ -1,4 +1,4 @@
-//! `cbdam build`: the arguments become one [`BuildOptions`], [`cbdam_build::build`] does the
+//! `cbdam build`: the arguments become one [`BuildOptions`], [`cbdam_builder::build`] does the
 //! work, and this prints progress (a bar with ETA on a terminal, a line per quarter otherwise,
 //! nothing with `--quiet`), the summary and, with `--timings`, the stage times.
 
@@ -7,8 +7,8 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use anyhow::Result;
-use cbdam_build::journal::Resumed;
-use cbdam_build::{
+use cbdam_builder::journal::Resumed;
+use cbdam_builder::{
     BuildOptions, BuildSummary, ColourSummary, ElevationSummary, Progress, ProgressEvent, Stage,
     planet::PlanetSummary,
 };
@@ -18,7 +18,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::{AlphaArg, BuildArgs, CoderArg};
 
-pub use cbdam_build::ExtraLevels;
+pub use cbdam_builder::ExtraLevels;
 
 /// Parses `--extra-levels`: `auto` or a number of level pairs, at most
 /// [`ExtraLevels::MAX`]: each quadruples the domain's area, and with it the encoder's
@@ -85,7 +85,7 @@ pub fn parse_block_plan(text: &str) -> Result<cbdam_codec::hierarchy::BlockPlan,
 pub fn run(args: &BuildArgs) -> Result<()> {
     let start = Instant::now();
     let progress = Bars::new(args.quiet);
-    let summary = cbdam_build::build(&options(args)?, &progress);
+    let summary = cbdam_builder::build(&options(args)?, &progress);
     progress.finish();
     match summary? {
         BuildSummary::Elevation(s) => print_elevation(args, &s, start),

@@ -55,7 +55,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             output: repo.clone(),
             max_error,
             diamond_size: 65,
-            extra_levels: cbdam_build::ExtraLevels::Auto,
+            extra_levels: cbdam_builder::ExtraLevels::Auto,
             threads: None,
             coder: CoderArg::AdaptiveTokens,
             alpha: AlphaArg::One,

@@ -1,15 +1,15 @@
 //! `cbdam extract`: decode a repository (or a window / coarser level of it) back to a DEM file,
-//! written by [`cbdam_build::write`].
+//! written by [`cbdam_builder::write`].
 
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use cbdam_build::write::{Raster, write_geotiff, write_raw};
+use cbdam_builder::write::{Raster, write_geotiff, write_raw};
 use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::hierarchy::walk_all_with_validity;
-use cbdam_codec::input::GeoRef;
+use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
 use serde_json::json;
 

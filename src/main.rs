@@ -893,9 +893,9 @@ pub struct GeorefArgs {
 
 impl GeorefArgs {
     /// The georeferencing the flags give, checked; `None` without them.
-    pub fn assigned(&self) -> anyhow::Result<Option<cbdam_build::assign::AssignedGeoRef>> {
+    pub fn assigned(&self) -> anyhow::Result<Option<cbdam_builder::assign::AssignedGeoRef>> {
         match (&self.bounds, &self.crs) {
-            (Some(b), Some(c)) => Ok(Some(cbdam_build::assign::AssignedGeoRef::parse(b, c)?)),
+            (Some(b), Some(c)) => Ok(Some(cbdam_builder::assign::AssignedGeoRef::parse(b, c)?)),
             _ => Ok(None),
         }
     }

@@ -1,7 +1,7 @@
 //! `cbdam shard plan|apex|run|merge`: a build split into steps that run as separate processes
 //! (on other machines, under Dask, a Kubernetes Indexed Job or a Slurm array) and are merged
 //! into the repository `cbdam build` writes with the same arguments, byte for byte. A thin layer
-//! over [`cbdam_build::shard`], which documents the work directory; docs/SHARDING.md shows the
+//! over [`cbdam_builder::shard`], which documents the work directory; docs/SHARDING.md shows the
 //! steps on each engine.
 
 use std::path::PathBuf;
@@ -74,12 +74,12 @@ pub fn run(command: &ShardCommand) -> Result<()> {
     match command {
         ShardCommand::Plan(args) => {
             let opts = crate::build::options(&args.build)?;
-            let s = cbdam_build::shard::plan(
+            let s = cbdam_builder::shard::plan(
                 &opts,
                 &args.work,
                 args.shards,
                 args.apex,
-                &cbdam_build::NoProgress,
+                &cbdam_builder::NoProgress,
             )?;
             println!(
                 "{}",
@@ -92,7 +92,7 @@ pub fn run(command: &ShardCommand) -> Result<()> {
             );
         }
         ShardCommand::Apex(args) => {
-            let encoded = cbdam_build::shard::apex(&args.work, args.threads)?;
+            let encoded = cbdam_builder::shard::apex(&args.work, args.threads)?;
             println!(
                 "apex: {}, {:.2} s",
                 if encoded {
@@ -104,7 +104,7 @@ pub fn run(command: &ShardCommand) -> Result<()> {
             );
         }
         ShardCommand::Run(args) => {
-            let s = cbdam_build::shard::run(&args.step.work, args.shard, args.step.threads)?;
+            let s = cbdam_builder::shard::run(&args.step.work, args.shard, args.step.threads)?;
             println!(
                 "shard {}: blocks {}…{}, {} encoded, {} kept from an earlier run, {:.2} s",
                 args.shard,
@@ -116,7 +116,7 @@ pub fn run(command: &ShardCommand) -> Result<()> {
             );
         }
         ShardCommand::Merge(args) => {
-            let s = cbdam_build::shard::merge(&args.work, args.threads)?;
+            let s = cbdam_builder::shard::merge(&args.work, args.threads)?;
             let bytes = std::fs::metadata(&s.output)?.len();
             println!(
                 "{}: {}×{} samples, {} bytes, {} records, max error {} m, {:.2} s",

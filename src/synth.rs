@@ -11,7 +11,7 @@ use std::path::Path;
 
 use anyhow::{Result, bail};
 use cbdam_codec::atomic::write_atomically;
-use cbdam_codec::input::{Dem, SampleType};
+use cbdam_codec::samples::{Dem, SampleType};
 
 use crate::{SynthArgs, TiffArg};
 
@@ -153,8 +153,8 @@ pub fn write_tiff_i16(
     tiles: Option<usize>,
     mirrored: bool,
 ) -> Result<()> {
-    use cbdam_build::write::write_geotiff_i16;
-    use cbdam_codec::input::GeoRef;
+    use cbdam_builder::write::write_geotiff_i16;
+    use cbdam_codec::repository::GeoRef;
     const SPACING: f64 = 30.0;
     let n = tiles.unwrap_or(1);
     if n == 0 || !(size - 1).is_multiple_of(n) {

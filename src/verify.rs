@@ -1,13 +1,13 @@
 //! `cbdam verify`: every checksum, every level, every sample. The comparisons are
-//! [`cbdam_build::verify`]'s; this prints them.
+//! [`cbdam_builder::verify`]'s; this prints them.
 
 use anyhow::{Context, Result, bail};
 
-use cbdam_build::assign::AssignedGeoRef;
-use cbdam_build::plan::default_memory_limit;
-use cbdam_build::planet::compare_planet;
-use cbdam_build::tiles::{Tile, expand_inputs};
-use cbdam_build::verify::{compare_colour, compare_dem, compare_tiles_with, one_file_in_blocks};
+use cbdam_builder::assign::AssignedGeoRef;
+use cbdam_builder::plan::default_memory_limit;
+use cbdam_builder::planet::compare_planet;
+use cbdam_builder::tiles::{Tile, expand_inputs};
+use cbdam_builder::verify::{compare_colour, compare_dem, compare_tiles_with, one_file_in_blocks};
 use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
 use cbdam_codec::repository::Repository;
 

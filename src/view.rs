@@ -1,11 +1,11 @@
-//! `cbdam view`: opens the terrain and hands it to the renderer's window loop
-//! ([`cbdam_render::view`]).
+//! `cbdam view`: opens the terrain and hands it to the desktop viewer's window loop
+//! ([`cbdam_desktop::view`]).
 
 use anyhow::{Context, Result, bail};
 use cbdam_client::refine::Refiner;
-use cbdam_render::view::{ViewOptions, view};
+use cbdam_desktop::{ViewOptions, view};
 
-pub use cbdam_render::view::KEY_HELP;
+pub use cbdam_desktop::KEY_HELP;
 
 use crate::ViewArgs;
 use crate::session::{refine_config, terrain_source};

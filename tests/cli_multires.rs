@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use crate::util::*;
-use cbdam_codec::input::{Dem, ReadOptions, read_dem};
+use cbdam_builder::input::{ReadOptions, read_dem};
+use cbdam_codec::samples::Dem;
 
 /// Side of the lattice in fine samples (the coarse input spans it all).
 const SIDE: usize = 513;
@@ -356,7 +357,7 @@ fn a_variable_resolution_lattice_beyond_the_memory_limit_is_mapped_with_the_same
 }
 
 #[test]
-fn a_sharded_build_of_coarse_and_fine_inputs_has_the_bytes_of_cbdam_build() {
+fn a_sharded_build_of_coarse_and_fine_inputs_has_the_bytes_of_cbdam_builder() {
     let dir = tempfile::tempdir().unwrap();
     let (c, f) = (coarse(dir.path()), fine(dir.path()));
     let want_path = dir.path().join("whole.cbdam");

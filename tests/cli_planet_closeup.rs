@@ -49,7 +49,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use cbdam_build::write::{Raster, write_geotiff};
+use cbdam_builder::write::{Raster, write_geotiff};
 use cbdam_client::access::LocalSource;
 use cbdam_client::camera::Camera;
 use cbdam_client::refine::{RefineConfig, Refiner};
@@ -57,7 +57,7 @@ use cbdam_client::world::World;
 use cbdam_codec::geodesy::cube_map::lat_lon_to_face_st;
 use cbdam_codec::geodesy::{LatLon, lattice_lat_lon, wgs84};
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::input::GeoRef;
+use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
 use cbdam_render::{CacheConfig, Frame, Gpu, RenderOptions, Renderer};
 use glam::{DVec3, DVec4};

@@ -4,8 +4,9 @@
 
 use std::path::Path;
 
-use cbdam_build::write::{Raster, write_geotiff};
-use cbdam_codec::input::{GeoRef, ReadOptions, read_dem};
+use cbdam_builder::input::{ReadOptions, read_dem};
+use cbdam_builder::write::{Raster, write_geotiff};
+use cbdam_codec::repository::GeoRef;
 
 use crate::util::{cbdam, data, s, stderr, stdout};
 
@@ -206,7 +207,7 @@ fn mosaic_peak_memory_does_not_grow_with_the_tile_count() {
     let points = (SIZE * SIZE) as u64;
     // What the mosaic's lattice took in memory: 6 bytes a point and a block of 2^20 points at
     // 12 bytes, and 16 MiB more. Above half the limit the lattice is now mapped
-    // (cbdam_build::mosaic::bytes_in_memory counts a resident window of each array), which
+    // (cbdam_builder::mosaic::bytes_in_memory counts a resident window of each array), which
     // leaves the cache of tile rows more room: the same for every tile count.
     let limit = format!("{}K", (6 * points + 12 * (1 << 20) + (16 << 20)) / 1024);
     let build = |input: &Path, out: &str, raw: bool| {
@@ -285,7 +286,7 @@ fn mirrored_synthetic_tiles_agree_on_their_shared_edges() {
         read("r001c000.tif"),
     );
     assert_eq!((a.width, a.height), (17, 17));
-    let at = |d: &cbdam_codec::input::Dem, x: usize, y: usize| d.values[y * d.width + x];
+    let at = |d: &cbdam_codec::samples::Dem, x: usize, y: usize| d.values[y * d.width + x];
     for i in 0..17 {
         for j in 0..17 {
             assert_eq!(

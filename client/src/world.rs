@@ -17,8 +17,8 @@ use cbdam_codec::geodesy::cube_map::{CubeWarp, face_direction};
 use cbdam_codec::geodesy::wgs84;
 use cbdam_codec::geometry::{DiamondId, Domain, DomainKind, FacePoint};
 use cbdam_codec::hierarchy::CodecParams;
-use cbdam_codec::input::GeoRef;
 use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::index::IndexEntry;
 use glam::DVec3;
 

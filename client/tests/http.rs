@@ -298,7 +298,7 @@ fn repositories_shorter_than_the_first_fetch_or_with_longer_headers_connect() {
     assert!(short.len() < HEADER_FETCH_LEN, "{} bytes", short.len());
     // And the other way round: a CRS definition (WKT) makes the header longer than the first
     // fetch, and the client fetches the rest before it can find the head.
-    let geo = cbdam_codec::input::GeoRef {
+    let geo = cbdam_codec::repository::GeoRef {
         epsg: None,
         origin_x: 500_000.0,
         origin_y: 4_000_000.0,

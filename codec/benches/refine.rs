@@ -16,12 +16,12 @@ use std::hint::black_box;
 use std::path::Path;
 use std::time::Duration;
 
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{
     Decoder, EncodeOptions, Encoded, RefineScratch, Refined, encode, verify,
 };
-use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};

@@ -1,6 +1,7 @@
 //! The C-BDAM codec (Gobbetti et al. 2006, with the decisions of `DESIGN.md`).
 //!
-//! Pipeline, fine to coarse and back: [`input`] reads a DEM, [`quant`] maps it onto an integer
+//! The repository format and the coding, fine to coarse and back: [`samples`] are a DEM's
+//! heights as the builder (`cbdam-builder`) reads them, [`quant`] maps them onto an integer
 //! lattice of heights, [`geometry`] lays the diamond DAG over it, [`lifting`] holds the Neville
 //! quincunx filters, [`hierarchy`] runs the closed-loop two-stage near-lossless encoder and the
 //! decoder diamond by diamond, and [`entropy`] turns residual matrices into bytes and back.
@@ -13,10 +14,10 @@ pub mod error;
 pub mod geodesy;
 pub mod geometry;
 pub mod hierarchy;
-pub mod input;
 pub mod lifting;
 pub mod quant;
 pub mod repository;
+pub mod samples;
 pub mod temp;
 
 /// Deterministic junk for the decoders' never-panic tests: `len` bytes from an LCG seeded by

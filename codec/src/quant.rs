@@ -16,10 +16,10 @@
 use crate::CodecError;
 use rayon::prelude::*;
 
-#[cfg(doc)]
-use crate::input::detect_quantum;
-use crate::input::{Dem, QuantumScan, SampleSource};
 use crate::lifting::{MAX_ABS_HEIGHT, PREDICTION_LIMIT};
+#[cfg(doc)]
+use crate::samples::detect_quantum;
+use crate::samples::{Dem, QuantumScan, SampleSource};
 use crate::temp::{LatticeArray, TempStorage};
 
 /// Samples per parallel work item of the passes over the input.

@@ -14,11 +14,12 @@
 
 use std::path::Path;
 
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify};
-use cbdam_codec::input::{Dem, ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan, Quantizer};
+use cbdam_codec::samples::Dem;
 
 /// 64-bit FNV-1a: tiny, dependency-free and fully specified, so the hash itself can never be
 /// the thing that changed.

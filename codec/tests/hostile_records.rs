@@ -9,12 +9,12 @@ use crate::util::Rng;
 use std::collections::HashMap;
 use std::path::Path;
 
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{
     Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk, walk_with_validity,
 };
-use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::lifting::{Alpha, MAX_ABS_HEIGHT};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 

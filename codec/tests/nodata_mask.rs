@@ -5,12 +5,12 @@
 
 use std::path::Path;
 
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::mask::count_valid_samples;
 use cbdam_codec::hierarchy::{
     EncodeOptions, Encoded, encode, reconstruct_finest_with_validity, walk_with_validity,
 };
-use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan, Quantizer};
 use cbdam_codec::repository::{Repository, serialize};

@@ -17,10 +17,10 @@
 
 use std::path::{Path, PathBuf};
 
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::colour::reconstruct_rgb;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, RepoKind, encode, verify, walk_all_with_validity};
-use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{FORMAT_VERSION, Repository, Section, serialize};
 

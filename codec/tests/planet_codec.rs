@@ -602,8 +602,8 @@ fn a_peak_under_the_far_half_of_an_edge_diamond_is_in_its_object_error() {
 #[test]
 fn a_planet_repository_is_written_and_read_back_with_its_domain() {
     use cbdam_codec::hierarchy::Record;
-    use cbdam_codec::input::GeoRef;
     use cbdam_codec::quant::QuantPlan;
+    use cbdam_codec::repository::GeoRef;
     use cbdam_codec::repository::{Repository, serialize};
     let planet = adversarial(5, 2, 3, true);
     let (lo, hi) = planet.range().unwrap();

@@ -6,11 +6,12 @@
 use std::path::Path;
 use std::time::Instant;
 
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, encode, reconstruct_finest, verify};
-use cbdam_codec::input::{Dem, ReadOptions, read_dem};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::samples::Dem;
 
 fn read(name: &str) -> Dem {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -6,9 +6,9 @@ use crate::util::Rng;
 use cbdam_codec::CodecError;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify};
-use cbdam_codec::input::GeoRef;
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::index::{IndexEntry, range_shift_for};
 use cbdam_codec::repository::{
     FORMAT_VERSION, HEADER_FETCH_LEN, Repository, RepositoryHead, Section, required_head_len,

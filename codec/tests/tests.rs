@@ -6,11 +6,8 @@ mod util;
 
 mod colour;
 mod gamma_coder;
-mod geotiff_stream;
 mod golden;
 mod hostile_records;
-mod input_real;
-mod input_synthetic;
 mod linf_bound;
 mod nodata_mask;
 mod older_formats;

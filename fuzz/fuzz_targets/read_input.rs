@@ -11,7 +11,8 @@
 
 use std::io::Write;
 
-use cbdam_codec::input::{GeoTiffSource, Limits, ReadOptions, SampleSource, read_dem, read_rgb};
+use cbdam_builder::input::{GeoTiffSource, Limits, ReadOptions, read_dem, read_rgb};
+use cbdam_codec::samples::SampleSource;
 use libfuzzer_sys::fuzz_target;
 
 /// 2^20 samples: far above any seed, far below what would trip the RSS limit.

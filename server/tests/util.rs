@@ -5,8 +5,8 @@
 use std::net::SocketAddr;
 
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
-use cbdam_codec::input::GeoRef;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::{Repository, serialize};
 use cbdam_server::{AppState, Config};
 use tokio::sync::oneshot;

@@ -83,9 +83,9 @@ fn repository(args: &BenchNetworkArgs, out: &Path) -> Result<PathBuf> {
         "synthesising a {s}² terrain (seed {SYNTH_SEED}) and building it at ε = {SYNTH_MAX_ERROR} m …"
     );
     crate::synth::write(&raw, s, SYNTH_SEED)?;
-    let mut opts = cbdam_build::BuildOptions::new(vec![raw], path.clone(), SYNTH_MAX_ERROR);
+    let mut opts = cbdam_builder::BuildOptions::new(vec![raw], path.clone(), SYNTH_MAX_ERROR);
     opts.raw_size = Some((s, s));
-    cbdam_build::build(&opts, &cbdam_build::NoProgress)
+    cbdam_builder::build(&opts, &cbdam_builder::NoProgress)
         .with_context(|| format!("building {}", path.display()))?;
     Ok(path)
 }

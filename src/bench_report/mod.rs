@@ -14,8 +14,9 @@ use std::collections::BTreeSet;
 use std::fmt::Write as _;
 
 use anyhow::{Context, Result, bail};
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::hierarchy::EncodeOptions;
-use cbdam_codec::input::{Dem, ReadOptions, detect_quantum, read_dem};
+use cbdam_codec::samples::{Dem, detect_quantum};
 
 use crate::BenchReportArgs;
 use crate::bench_codec::{Measurement, bundled_inputs, measure};

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 use anyhow::{Context, Result, bail};
-use cbdam_codec::input::{Dem, detect_quantum};
+use cbdam_codec::samples::{Dem, detect_quantum};
 use serde_json::Value;
 
 /// One peer measurement (or a skipped point, with the reason).

@@ -14,9 +14,9 @@ use cbdam_client::flight::Flight;
 use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::stats::percentile;
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
-use cbdam_codec::input::Dem;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
+use cbdam_codec::samples::Dem;
 
 use crate::replay::{ReplayPacing, fly};
 

@@ -3,8 +3,9 @@
 
 use std::path::Path;
 
-use cbdam_codec::input::{Dem, Format, ReadOptions, read_dem};
+use cbdam_builder::input::{Format, ReadOptions, read_dem};
 use cbdam_codec::repository::{Repository, Section};
+use cbdam_codec::samples::Dem;
 
 use super::{build_quiet, write_asc};
 use crate::util::*;

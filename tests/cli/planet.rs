@@ -5,9 +5,9 @@
 
 use std::path::Path;
 
-use cbdam_build::write::{Raster, write_geotiff};
+use cbdam_builder::write::{Raster, write_geotiff};
 use cbdam_codec::geodesy::{LatLon, Utm};
-use cbdam_codec::input::GeoRef;
+use cbdam_codec::repository::GeoRef;
 
 use crate::util::{cbdam, s, stderr, stdout};
 

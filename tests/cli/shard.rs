@@ -32,7 +32,7 @@ fn refused(args: &[&str]) -> String {
 }
 
 #[test]
-fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
+fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_builder() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let dem = data("srtm3_demcompare.tif");
@@ -125,7 +125,7 @@ fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
     assert!(other.join("keep.txt").exists());
 }
 
-/// The Python of a venv under target/ with codec/build/dask/requirements.txt installed (made
+/// The Python of a venv under target/ with codec/builder/dask/requirements.txt installed (made
 /// once per target directory); `None`, with the reason printed, only when pip is missing.
 fn dask_python() -> Option<PathBuf> {
     static PYTHON: OnceLock<Option<PathBuf>> = OnceLock::new();
@@ -148,7 +148,7 @@ fn dask_python() -> Option<PathBuf> {
             if !pip.is_ok_and(|o| o.status.success()) {
                 eprintln!(
                     "SKIPPED: `python3 -m pip` is not available, so the Dask requirements \
-                     (codec/build/dask/requirements.txt) cannot be installed"
+                     (codec/builder/dask/requirements.txt) cannot be installed"
                 );
                 return None;
             }
@@ -162,7 +162,7 @@ fn dask_python() -> Option<PathBuf> {
             };
             run(Command::new("python3").args(["-m", "venv"]).arg(&venv));
             let requirements =
-                Path::new(env!("CARGO_MANIFEST_DIR")).join("codec/build/dask/requirements.txt");
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("codec/builder/dask/requirements.txt");
             run(Command::new(&python)
                 .args(["-m", "pip", "install", "--quiet", "-r"])
                 .arg(&requirements));
@@ -186,7 +186,7 @@ fn dask_build(python: &Path, input: &str, out: &Path, kill_marker: Option<&Path>
         .args(["--block-plan", BLOCKS])
         .env(
             "PYTHONPATH",
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("codec/build/dask"),
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("codec/builder/dask"),
         );
     if let Some(m) = kill_marker {
         cmd.env("CBDAM_DASK_TEST_KILL_ONCE", m);
@@ -198,7 +198,7 @@ fn dask_build(python: &Path, input: &str, out: &Path, kill_marker: Option<&Path>
 }
 
 #[test]
-fn dask_build_of_a_mosaic_is_byte_identical_to_cbdam_build() {
+fn dask_build_of_a_mosaic_is_byte_identical_to_cbdam_builder() {
     let Some(python) = dask_python() else {
         return;
     };

@@ -213,9 +213,9 @@ fn one_file_verifies_block_by_block() {
     assert!(!levels(&whole).is_empty());
     assert_eq!(levels(&text), levels(&whole));
     // Every sample with data 10 m higher (nodata left as it is).
-    let mut dem = cbdam_codec::input::read_dem(
+    let mut dem = cbdam_builder::input::read_dem(
         std::path::Path::new(&input),
-        &cbdam_codec::input::ReadOptions::default(),
+        &cbdam_builder::input::ReadOptions::default(),
     )
     .unwrap();
     let nodata = dem.nodata;
@@ -225,14 +225,14 @@ fn one_file_verifies_block_by_block() {
         }
     }
     let shifted = dir.path().join("shifted.tif");
-    let raster = cbdam_build::write::Raster {
+    let raster = cbdam_builder::write::Raster {
         width: dem.width,
         height: dem.height,
         values: dem.values,
         georef: dem.georef,
     };
     let file = std::fs::File::create(&shifted).unwrap();
-    cbdam_build::write::write_geotiff(file, &raster, nodata, false).unwrap();
+    cbdam_builder::write::write_geotiff(file, &raster, nodata, false).unwrap();
     let o = verify_in_blocks(&s(&shifted));
     assert!(!o.status.success(), "{}", stdout(&o));
     // 10 m is 80 units: every level is past the bound of 7.

@@ -1,7 +1,7 @@
 //! The C-BDAM renderer over the client core (`cbdam-client`): wgpu drawing of the half-patches
-//! of a cut from a GPU patch cache, the HUD ([`hud`]), presenting to a window ([`present`]) and
-//! the desktop viewer's window loop (`view`, native only: in a browser `cbdam-web` runs the
-//! frames). The shaders are `shaders/*.wgsl`, built in.
+//! of a cut from a GPU patch cache, the HUD ([`hud`]) and presenting to a window ([`present`]).
+//! The windows are the shells': `cbdam-desktop` (winit) and `cbdam-web` (a browser canvas). The
+//! shaders are `shaders/*.wgsl`, built in.
 //!
 //! Design (DESIGN.md "GPU", paper §6):
 //! - **Shared grid.** The `N × N` grid's triangle lists are uploaded once ([`mesh`]): 8 index
@@ -52,8 +52,6 @@ pub mod hud;
 pub mod mesh;
 pub mod pool;
 pub mod present;
-#[cfg(not(target_arch = "wasm32"))]
-pub mod view;
 
 use std::borrow::Borrow;
 

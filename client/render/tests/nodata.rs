@@ -181,9 +181,9 @@ fn synthetic_holes_are_not_drawn_and_data_is() {
 
 #[test]
 fn rhine_nodata_is_not_drawn_and_data_is() {
-    let dem = cbdam_codec::input::read_dem(
+    let dem = cbdam_builder::input::read_dem(
         &data("rhine_nodata.tif"),
-        &cbdam_codec::input::ReadOptions::default(),
+        &cbdam_builder::input::ReadOptions::default(),
     )
     .unwrap();
     let plan = QuantPlan::for_dem(&dem, 1.0, None).unwrap();

@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
 
+use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_client::access::LocalSource;
 use cbdam_client::camera::Camera;
 use cbdam_client::patch::HalfPatch;
@@ -12,7 +13,6 @@ use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::world::World;
 use cbdam_codec::geometry::Cut;
 use cbdam_codec::hierarchy::{EncodeOptions, encode};
-use cbdam_codec::input::{ReadOptions, read_dem};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 use cbdam_render::{CacheConfig, Gpu, Renderer};

@@ -14,8 +14,8 @@ use std::sync::Arc;
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::CodecParams;
-use cbdam_codec::input::GeoRef;
 use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::index::IndexEntry;
 
 use super::{AccessError, AccessStats, DataSource, Priority};

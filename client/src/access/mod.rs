@@ -44,8 +44,8 @@ pub use local::LocalSource;
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{CodecParams, Decoder};
-use cbdam_codec::input::GeoRef;
 use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::index::IndexEntry;
 
 /// Priority of a request: screen-space error in pixels. Larger is fetched first; prefetches use

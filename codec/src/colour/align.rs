@@ -9,7 +9,7 @@
 use crate::CodecError;
 use crate::geometry::DiamondId;
 use crate::hierarchy::{CodecParams, RepoKind};
-use crate::input::GeoRef;
+use crate::repository::GeoRef;
 
 /// The correspondence between an elevation and a colour hierarchy ([`Alignment::new`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

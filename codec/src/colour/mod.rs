@@ -22,7 +22,7 @@ pub use decode::{
 };
 pub use encode::{colour_plan, encode_colour};
 
-use crate::input::GeoRef;
+use crate::repository::GeoRef;
 
 /// An 8-bit RGB image, row-major, row 0 = north (alpha, if the file had it, dropped).
 #[derive(Clone, Debug, PartialEq)]

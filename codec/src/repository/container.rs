@@ -33,9 +33,9 @@ use crate::colour::{ColourDecoder, ycocg};
 use crate::entropy::CoderKind;
 use crate::geometry::{DataRect, DiamondId, Domain, DomainKind, Layout};
 use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, RepoKind, root_quantizer};
-use crate::input::GeoRef;
 use crate::lifting::Alpha;
 use crate::quant::{QuantPlan, Quantizer};
+use crate::repository::GeoRef;
 
 pub use super::header::{HEADER_FETCH_LEN, MAGIC, MAX_HEADER_LEN, header_len};
 /// The format version this code writes and the newest it reads (it reads every older one).

@@ -396,7 +396,7 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
         } else {
             let len = usize::try_from(len)
                 .ok()
-                .filter(|&l| l <= crate::input::MAX_WKT_LEN)
+                .filter(|&l| l <= crate::repository::MAX_WKT_LEN)
                 .ok_or_else(|| CodecError::corrupt(format!("CRS definition of {len} bytes")))?;
             let text = std::str::from_utf8(f.bytes(len)?)
                 .map_err(|_| CodecError::corrupt("CRS definition is not UTF-8"))?;
@@ -522,11 +522,11 @@ pub(crate) fn write_compact(h: &HeaderFields) -> Result<Vec<u8>, CodecError> {
             float(&mut out, v);
         }
         let wkt = h.wkt.as_deref().unwrap_or("");
-        if wkt.len() > crate::input::MAX_WKT_LEN {
+        if wkt.len() > crate::repository::MAX_WKT_LEN {
             return Err(CodecError::limit(format!(
                 "a CRS definition of {} bytes (at most {} are kept)",
                 wkt.len(),
-                crate::input::MAX_WKT_LEN
+                crate::repository::MAX_WKT_LEN
             )));
         }
         varint(&mut out, wkt.len() as u64);
@@ -778,7 +778,7 @@ mod tests {
             read_header(&write_compact(&plain).unwrap()).unwrap().wkt,
             None
         );
-        h.wkt = Some("x".repeat(crate::input::MAX_WKT_LEN + 1));
+        h.wkt = Some("x".repeat(crate::repository::MAX_WKT_LEN + 1));
         assert!(write_compact(&h).is_err());
         // Invalid UTF-8 in place of the definition, checksums matching.
         h.wkt = Some("PROJCS[]".to_owned());

@@ -7,6 +7,7 @@
 
 pub mod batch;
 pub mod container;
+mod georef;
 mod header;
 pub mod index;
 
@@ -15,3 +16,4 @@ pub use container::{
     RepositoryHead, Section, VerticalDatum, header_len, required_head_len, reseal_checksums,
     serialize, write_planet_repository, write_repository,
 };
+pub use georef::{GeoRef, MAX_WKT_LEN};

@@ -1,0 +1,617 @@
+//! The comparisons of `cbdam verify`: a repository against the input(s) it was built from.
+//!
+//! Each `compare_*` decodes everything and measures; the caller prints what it likes from the
+//! result, then asks it to `check` (errors name the sample and the bound it breaks).
+
+use std::path::{Path, PathBuf};
+
+use crate::input::{Format, Limits, ReadOptions, TileReader, read_dem, read_rgb};
+use cbdam_codec::colour::{ColourVerifyReport, verify_colour};
+use cbdam_codec::geometry::DomainKind;
+use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
+use cbdam_codec::hierarchy::{
+    BlockPlan, BlockWalk, Reached, VerifyReport, reconstruct_finest_with_validity,
+    reconstruct_reached, verify,
+};
+use cbdam_codec::lifting::Alpha;
+use cbdam_codec::quant::HeightGrid;
+use cbdam_codec::repository::Repository;
+use cbdam_codec::temp::LatticeArray;
+
+use crate::error::{Context, Result, bail};
+use crate::mosaic::{Mosaic, NO_WINNER, mosaic_tiles};
+use crate::plan::is_raw_path;
+use crate::tiles::{Tile, expand_inputs};
+use crate::verify_blocks::{
+    ApexPoints, BlockPoints, Visits, decode_plan, decode_row, rows_of_blocks, visit_apex,
+};
+
+/// A colour repository against its image.
+pub struct ColourComparison {
+    /// Per-channel, per-level errors and the decoded RGB error.
+    pub report: ColourVerifyReport,
+    /// The bound on each of Y, Co, Cg, levels.
+    pub k: i32,
+    /// The tolerance on each decoded R, G, B, levels.
+    pub epsilon: f64,
+}
+
+impl ColourComparison {
+    /// Every level of Y, Co, Cg within `k`, and every decoded R, G, B within the tolerance.
+    pub fn check(&self) -> Result<()> {
+        let (report, k, eps) = (&self.report, self.k, self.epsilon);
+        if let Some(c) = report.channels.iter().position(|c| !c.within_bound()) {
+            bail!(
+                "L∞ bound violated in channel {}: {} levels, bound {k}",
+                ["Y", "Co", "Cg"][c],
+                report.channels[c].max_error()
+            );
+        }
+        if report.rgb_max.iter().any(|&e| f64::from(e) > eps) {
+            bail!(
+                "RGB error {:?} above the {eps}-level tolerance",
+                report.rgb_max
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Decodes a colour repository and compares it with the image `against`.
+pub fn compare_colour(repo: &Repository, against: &Path) -> Result<ColourComparison> {
+    let img = read_rgb(against, &Limits::default())
+        .with_context(|| format!("reading {}", against.display()))?;
+    let encoded = repo.to_encoded()?;
+    let report = verify_colour(&encoded, &img)
+        .with_context(|| format!("checking against {}", against.display()))?;
+    Ok(ColourComparison {
+        report,
+        k: repo.params().quantizer.k(),
+        epsilon: repo.plan().epsilon,
+    })
+}
+
+/// An elevation repository against the one DEM it was built from.
+pub struct DemComparison {
+    /// Errors per level, in units, and their bound.
+    pub levels: VerifyReport,
+    /// Samples per row of the DEM.
+    pub width: usize,
+    /// Samples of the DEM.
+    pub samples: usize,
+    /// Samples of the DEM without data.
+    pub nodata: usize,
+    /// Samples whose nodata state the repository gets wrong, with what the repository says
+    /// there (`true`: data).
+    pub mask_mismatches: Vec<(usize, bool)>,
+    /// Largest error of the finest level against the DEM's samples, metres.
+    pub max_error: f64,
+    /// Where it is (sample index).
+    pub worst: usize,
+    /// The tolerance, metres.
+    pub epsilon: f64,
+    /// The guaranteed bound, metres.
+    pub guaranteed: f64,
+}
+
+impl DemComparison {
+    /// The nodata mask states exactly which samples had data.
+    pub fn check_mask(&self) -> Result<()> {
+        if let Some(&(i, repo_valid)) = self.mask_mismatches.first() {
+            bail!(
+                "nodata mask disagrees with the input at {} samples, first at column {}, row {} \
+                 (repository says {}, input says {})",
+                self.mask_mismatches.len(),
+                i % self.width,
+                i / self.width,
+                if repo_valid { "data" } else { "nodata" },
+                if repo_valid { "nodata" } else { "data" }
+            );
+        }
+        Ok(())
+    }
+
+    /// Every level within the bound, and every sample within the tolerance.
+    pub fn check_error(&self) -> Result<()> {
+        if !self.levels.within_bound() {
+            bail!(
+                "L∞ bound violated: {} units on some level, bound {} units",
+                self.levels.max_error(),
+                self.levels.bound
+            );
+        }
+        // f64 evaluation of offset + n·u is good to ~1e-16 relative; the bound itself was
+        // checked exactly in integers above.
+        if self.max_error > self.epsilon * (1.0 + 1e-12) {
+            bail!(
+                "sample at column {}, row {} is off by {} m, above the {} m tolerance",
+                self.worst % self.width,
+                self.worst / self.width,
+                self.max_error,
+                self.epsilon
+            );
+        }
+        Ok(())
+    }
+
+    /// [`DemComparison::check_mask`], then [`DemComparison::check_error`].
+    pub fn check(&self) -> Result<()> {
+        self.check_mask()?;
+        self.check_error()
+    }
+}
+
+/// Decodes an elevation repository and compares it with the DEM `against`, read as the build
+/// read it: with the nodata value the header records, and a raw float32 file at the
+/// repository's size.
+pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
+    let p = *repo.params();
+    let plan = *repo.plan();
+    let mut opts = ReadOptions {
+        nodata: repo.nodata(),
+        ..ReadOptions::default()
+    };
+    // A raw float32 file has no size of its own: it is the repository's (and a file of another
+    // length is refused by the reader).
+    let (width, height) = p.domain.data().size();
+    if is_raw_path(against) {
+        opts.format = Some(Format::RawF32 { width, height });
+    }
+    let dem = read_dem(against, &opts).with_context(|| format!("reading {}", against.display()))?;
+    if (dem.width, dem.height) != (width, height) {
+        bail!(
+            "{} is {}×{} samples, the repository was built from {}×{}",
+            against.display(),
+            dem.width,
+            dem.height,
+            width,
+            height
+        );
+    }
+    let grid = HeightGrid::from_dem(&dem, &plan).with_context(|| {
+        format!(
+            "mapping {} onto the repository's height lattice",
+            against.display()
+        )
+    })?;
+    let encoded = repo.to_encoded()?;
+    let levels = verify(&encoded, &grid).context("decoding the hierarchy")?;
+    // Against the samples as stored, in metres: what the user was promised.
+    let (finest, valid) = reconstruct_finest_with_validity(&encoded)?;
+    // The nodata mask must state exactly which samples had data: a sample drawn that had none
+    // shows invented surface, one hidden that had data loses it.
+    let mask_mismatches: Vec<(usize, bool)> = (0..valid.len())
+        .filter(|&i| valid[i] != grid.valid[i])
+        .map(|i| (i, valid[i]))
+        .collect();
+    let mut max_error = 0f64;
+    let mut worst = 0usize;
+    for (i, &n) in finest.iter().enumerate() {
+        if grid.valid[i] {
+            let e = (plan.metres(n) - dem.values[i]).abs();
+            if e > max_error {
+                max_error = e;
+                worst = i;
+            }
+        }
+    }
+    Ok(DemComparison {
+        levels,
+        width: dem.width,
+        samples: grid.valid.len(),
+        nodata: grid.valid.iter().filter(|v| !**v).count(),
+        mask_mismatches,
+        max_error,
+        worst,
+        epsilon: plan.epsilon,
+        guaranteed: plan.max_error(),
+    })
+}
+
+/// What one input of a multi-input build contributes.
+pub struct InputComparison {
+    /// The input.
+    pub path: PathBuf,
+    /// Its samples that win on the lattice.
+    pub winning: usize,
+    /// Its stride on the lattice, fine samples.
+    pub stride: u32,
+    /// Largest error of its winning samples, metres.
+    pub max_error: f64,
+}
+
+/// An elevation repository against the several inputs it was built from.
+pub struct MosaicComparison {
+    /// Errors per level, in units, and their bound.
+    pub levels: VerifyReport,
+    /// Per input, in the order given.
+    pub inputs: Vec<InputComparison>,
+    /// Lattice points with data that the hierarchy reaches.
+    pub reached_valid: usize,
+    /// Lattice points whose nodata state the repository gets wrong, with what it says there:
+    /// the first [`LISTED`] of them.
+    pub mask_mismatches: Vec<(usize, Reached)>,
+    /// How many lattice points the repository gets the nodata state of wrong.
+    pub mask_mismatch_count: u64,
+    /// Whether the inputs have data at the first mismatch.
+    pub first_mismatch_has_data: bool,
+    /// Winning samples never reconstructed: the first [`LISTED`].
+    pub unreached: Vec<usize>,
+    /// How many winning samples are never reconstructed.
+    pub unreached_count: u64,
+    /// The largest error of any winning sample, metres, where, and from which input.
+    pub worst: Option<(f64, usize, usize)>,
+    /// Lattice points per row.
+    pub width: usize,
+    /// The tolerance, metres.
+    pub epsilon: f64,
+    /// The blocks the hierarchy was decoded in, `None` when it was decoded whole.
+    pub blocks: Option<BlockPlan>,
+}
+
+impl MosaicComparison {
+    /// The nodata mask, that every winning sample is reached, the bound on every level, and the
+    /// tolerance on every winning sample, in that order.
+    pub fn check(&self) -> Result<()> {
+        let w = self.width;
+        if let Some(&(i, state)) = self.mask_mismatches.first() {
+            bail!(
+                "nodata mask disagrees with the inputs at {} lattice points, first at column {}, \
+                 row {} (repository says {:?}, inputs say {})",
+                self.mask_mismatch_count,
+                i % w,
+                i / w,
+                state,
+                if self.first_mismatch_has_data {
+                    "data"
+                } else {
+                    "no data"
+                }
+            );
+        }
+        if let Some(&i) = self.unreached.first() {
+            bail!(
+                "{} winning samples are never reconstructed, first at lattice column {}, row {}",
+                self.unreached_count,
+                i % w,
+                i / w
+            );
+        }
+        if !self.levels.within_bound() {
+            bail!(
+                "L∞ bound violated: {} units on some level, bound {} units",
+                self.levels.max_error(),
+                self.levels.bound
+            );
+        }
+        if let Some((e, i, k)) = self.worst
+            && e > self.epsilon * (1.0 + 1e-12)
+        {
+            bail!(
+                "lattice point at column {}, row {} (from {}) is off by {e} m, above the {} m \
+                 tolerance",
+                i % w,
+                i / w,
+                self.inputs[k].path.display(),
+                self.epsilon
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Several inputs: rebuilds the build's lattice from them ([`crate::mosaic`]) and compares every
+/// winning sample of every input, the nodata mask wherever the hierarchy reaches, and whether
+/// every winning sample is reached at all. Directories, globs, `@LIST`s and VRTs are expanded
+/// as the build expands them ([`crate::tiles`]).
+pub fn compare_mosaic(repo: &Repository, paths: &[PathBuf]) -> Result<MosaicComparison> {
+    compare_tiles(repo, &expand_inputs(paths)?)
+}
+
+/// Bytes a lattice point that decoding a hierarchy whole ([`compare_dem`],
+/// [`compare_tiles_whole`]) holds: the reconstruction, its nodata states and a level's
+/// refinements, with the input's quantized heights (measured: 6.9 GB peak at 16385²).
+pub const WHOLE_DECODE_BYTES: u64 = 26;
+
+/// Whether comparing `repo` with the one file `against` decodes block by block (through
+/// [`compare_tiles_with`]) rather than whole ([`compare_dem`]): when decoding it whole would
+/// take more than `memory_limit` ([`WHOLE_DECODE_BYTES`]) and the blocks can read the file
+/// (not a raw float32 file, which only [`compare_dem`] reads at the repository's size; one
+/// whose header places it, as the mosaic needs) and decode the hierarchy (planar, α = 1).
+pub fn one_file_in_blocks(repo: &Repository, against: &Path, memory_limit: u64) -> bool {
+    let p = repo.params();
+    let (w, h) = p.domain.data().size();
+    let placed =
+        || TileReader::open(against, &ReadOptions::default()).is_ok_and(|r| r.georef().is_some());
+    p.alpha == Alpha::One
+        && p.domain.kind() == DomainKind::Planar
+        && !is_raw_path(against)
+        && (w as u64 * h as u64).saturating_mul(WHOLE_DECODE_BYTES) > memory_limit
+        && placed()
+}
+
+/// [`compare_mosaic`] of inputs already expanded, under the default memory limit
+/// ([`crate::plan::default_memory_limit`]).
+pub fn compare_tiles(repo: &Repository, tiles: &[Tile]) -> Result<MosaicComparison> {
+    compare_tiles_with(repo, tiles, crate::plan::default_memory_limit(), None)
+}
+
+/// [`compare_tiles`] within `memory_limit` bytes: a planar α = 1 hierarchy is decoded block by
+/// block ([`crate::verify_blocks`]) under `plan`, or the largest plan that fits; any other, and
+/// a hierarchy too shallow for blocks, whole ([`compare_tiles_whole`]).
+pub fn compare_tiles_with(
+    repo: &Repository,
+    tiles: &[Tile],
+    memory_limit: u64,
+    blocks: Option<BlockPlan>,
+) -> Result<MosaicComparison> {
+    let p = *repo.params();
+    let quant = *repo.plan();
+    let layout = *p.layout();
+    let blockwise = p.alpha == Alpha::One
+        && p.domain.kind() == DomainKind::Planar
+        && layout.finest_level() >= 2;
+    if !blockwise {
+        return compare_tiles_whole(repo, tiles, memory_limit);
+    }
+    // Half for the decode, three eighths for the mosaic (its lattice and its cache of tile
+    // rows), an eighth for the pages of mapped files being read (the lattice's windows, the
+    // repository's records) and the allocator's slack.
+    let (width, height) = p.domain.data().size();
+    let workers = rayon::current_num_threads();
+    let plan = match blocks {
+        Some(plan) => plan,
+        None => decode_plan(&layout, width, workers, memory_limit / 2)?,
+    };
+    let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit / 8 * 3)?;
+    let records = repo
+        .entries()
+        .iter()
+        .map(|e| Ok((e.id, repo.record(e.id)?)))
+        .collect::<Result<Vec<_>>>()?;
+    repo.release_pages();
+    let mut levels = Visits::new(layout.finest_level());
+    let mut apex = ApexPoints::new(plan.apex_shift(&layout), (width, height));
+    let apex_input = grid.strided(plan.apex_shift(&layout))?;
+    let walk = BlockWalk::new(
+        p,
+        repo.root_bytes(),
+        records,
+        plan,
+        visit_apex(
+            &layout,
+            &apex_input,
+            (width, height),
+            &mut apex,
+            &mut levels,
+        ),
+    )
+    .context("decoding the hierarchy")?;
+    let rows = rows_of_blocks(walk.blocks());
+    let mut next_row = 0;
+    let mut row: Vec<BlockPoints> = Vec::new();
+    let mut tally = Tally::new(m.inputs.len());
+    m.for_each_block_winners(&mut |ya, block, winners| {
+        let yb = ya + block.len() / width;
+        for y in ya..yb {
+            while row.first().is_none_or(|b| y >= b.y0 + b.height) {
+                let Some(range) = rows.get(next_row).cloned() else {
+                    bail!("lattice row {y} lies in no block of {plan:?}");
+                };
+                next_row += 1;
+                // The finished row goes before the next is decoded: one row in memory, not two.
+                row = Vec::new();
+                row = decode_row(&walk, range, &apex, &grid, (width, height))
+                    .context("decoding the hierarchy")?;
+                repo.release_pages();
+                for b in &row {
+                    levels.merge(&b.visits);
+                }
+            }
+            let first = y * width;
+            let (values, winners) = (
+                &block[(y - ya) * width..][..width],
+                &winners[(y - ya) * width..][..width],
+            );
+            for b in &row {
+                let (decoded, state) = b.row(y);
+                for (j, (&d, &s)) in decoded.iter().zip(state).enumerate() {
+                    let x = b.x0 + j;
+                    tally.point(
+                        first + x,
+                        values[x],
+                        winners[x],
+                        class[first + x],
+                        s,
+                        || quant.metres(d),
+                    );
+                }
+            }
+        }
+        class.release(ya * width..yb * width);
+        Ok(())
+    })?;
+    // Blocks below the data rectangle own diamonds too (their grids may reach into it).
+    for range in &rows[next_row..] {
+        for b in decode_row(&walk, range.clone(), &apex, &grid, (width, height))? {
+            levels.merge(&b.visits);
+        }
+    }
+    Ok(tally.finish(
+        VerifyReport {
+            levels: levels.levels,
+            bound: p.quantizer.k() as u32,
+        },
+        &m,
+        repo,
+        Some(plan),
+    ))
+}
+
+/// The inputs composed as the build composed them: the mosaic, its resolution classes and its
+/// quantized heights, each checked against the repository's lattice.
+fn mosaic_lattice(
+    repo: &Repository,
+    tiles: &[Tile],
+    memory_limit: u64,
+) -> Result<(Mosaic, LatticeArray<u8>, HeightGrid)> {
+    let p = *repo.params();
+    let plan = *repo.plan();
+    // Read the inputs the way the build did: its nodata value was recorded in the header.
+    let opts = ReadOptions {
+        nodata: repo.nodata(),
+        ..ReadOptions::default()
+    };
+    let m = mosaic_tiles(tiles, &opts, memory_limit)?;
+    let (width, height) = p.domain.data().size();
+    if (m.width, m.height) != (width, height) {
+        bail!(
+            "the inputs make a {}×{} lattice, the repository was built from {}×{}",
+            m.width,
+            m.height,
+            width,
+            height
+        );
+    }
+    let class = m.survey()?.resolution.class;
+    let grid = HeightGrid::from_source_in(&m, &plan, &m.lattice)
+        .context("mapping the inputs onto the repository's height lattice")?;
+    Ok((m, class, grid))
+}
+
+/// [`compare_tiles`] decoding the whole hierarchy at once: the reconstruction and the nodata
+/// states of every lattice point in memory.
+pub fn compare_tiles_whole(
+    repo: &Repository,
+    tiles: &[Tile],
+    memory_limit: u64,
+) -> Result<MosaicComparison> {
+    let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit)?;
+    let encoded = repo.to_encoded()?;
+    let levels = verify(&encoded, &grid).context("decoding the hierarchy")?;
+    let (values, state) = reconstruct_reached(&encoded)?;
+    let quant = *repo.plan();
+    let mut tally = Tally::new(m.inputs.len());
+    m.for_each_block_winners(&mut |y0, block, winners| {
+        let first = y0 * m.width;
+        for (j, (&v, &k)) in block.iter().zip(winners).enumerate() {
+            let i = first + j;
+            tally.point(i, v, k, class[i], state[i], || quant.metres(values[i]));
+        }
+        Ok(())
+    })?;
+    Ok(tally.finish(levels, &m, repo, None))
+}
+
+/// How many of the lattice points that fail a check a [`MosaicComparison`] lists: all are
+/// counted, but against the wrong inputs every point of a lattice of billions may fail.
+pub const LISTED: usize = 1000;
+
+/// What [`MosaicComparison`] counts, lattice point by lattice point.
+struct Tally {
+    max_err: Vec<f64>,
+    count: Vec<usize>,
+    unreached: Vec<usize>,
+    unreached_count: u64,
+    mask_wrong: Vec<(usize, Reached)>,
+    mask_wrong_count: u64,
+    first_mismatch_has_data: bool,
+    worst: Option<(f64, usize, usize)>,
+    reached_valid: usize,
+}
+
+impl Tally {
+    fn new(inputs: usize) -> Self {
+        Self {
+            max_err: vec![0.0; inputs],
+            count: vec![0; inputs],
+            unreached: Vec::new(),
+            unreached_count: 0,
+            mask_wrong: Vec::new(),
+            mask_wrong_count: 0,
+            first_mismatch_has_data: false,
+            worst: None,
+            reached_valid: 0,
+        }
+    }
+
+    /// Lattice point `i`: the winning sample `v` of input `k` ([`NO_WINNER`]: none), its class,
+    /// and what the hierarchy left there (`state`, and the decoded height in metres).
+    #[inline]
+    fn point(
+        &mut self,
+        i: usize,
+        v: f64,
+        k: u32,
+        class: u8,
+        state: Reached,
+        metres: impl FnOnce() -> f64,
+    ) {
+        self.reached_valid += usize::from(state == Reached::Valid);
+        let mask_wrong = match (k, class, state) {
+            (NO_WINNER, HOLE, Reached::Valid) | (NO_WINNER, COARSE_ONLY, Reached::Invalid) => true,
+            (NO_WINNER, _, _) => false,
+            (_, _, Reached::No) => {
+                if self.unreached.len() < LISTED {
+                    self.unreached.push(i);
+                }
+                self.unreached_count += 1;
+                false
+            }
+            (_, _, Reached::Invalid) => true,
+            (k, _, Reached::Valid) => {
+                let e = (metres() - v).abs();
+                let k = k as usize;
+                self.max_err[k] = self.max_err[k].max(e);
+                self.count[k] += 1;
+                if self.worst.is_none_or(|(w, _, _)| e > w) {
+                    self.worst = Some((e, i, k));
+                }
+                false
+            }
+        };
+        if mask_wrong {
+            if self.mask_wrong.is_empty() {
+                self.first_mismatch_has_data = class != HOLE;
+            }
+            if self.mask_wrong.len() < LISTED {
+                self.mask_wrong.push((i, state));
+            }
+            self.mask_wrong_count += 1;
+        }
+    }
+
+    fn finish(
+        self,
+        levels: VerifyReport,
+        m: &Mosaic,
+        repo: &Repository,
+        blocks: Option<BlockPlan>,
+    ) -> MosaicComparison {
+        let inputs = m
+            .inputs
+            .iter()
+            .enumerate()
+            .map(|(k, input)| InputComparison {
+                path: input.path.clone(),
+                winning: self.count[k],
+                stride: 1u32 << input.log2,
+                max_error: self.max_err[k],
+            })
+            .collect();
+        MosaicComparison {
+            levels,
+            inputs,
+            reached_valid: self.reached_valid,
+            first_mismatch_has_data: self.first_mismatch_has_data,
+            mask_mismatches: self.mask_wrong,
+            mask_mismatch_count: self.mask_wrong_count,
+            unreached: self.unreached,
+            unreached_count: self.unreached_count,
+            worst: self.worst,
+            width: m.width,
+            epsilon: repo.plan().epsilon,
+            blocks,
+        }
+    }
+}
