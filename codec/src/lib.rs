@@ -1,4 +1,4 @@
-//! The C-BDAM codec (Gobbetti et al. 2006, with the decisions of `DESIGN.md`).
+//! The C-BDAM codec (Gobbetti et al. 2006, with the decisions of `docs/DESIGN.md`).
 //!
 //! Pipeline, fine to coarse and back: [`input`] reads a DEM, [`quant`] maps it onto an integer
 //! lattice of heights, [`geometry`] lays the diamond DAG over it, [`lifting`] holds the Neville
