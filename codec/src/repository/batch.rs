@@ -1,5 +1,5 @@
 //! The batch framing: many records in one response body, as `POST /v1/repos/{name}/diamonds`
-//! answers (`docs/FORMAT.md`, "HTTP API"). Written by the server ([`BatchWriter`]) and read by
+//! answers (`docs/HTTP-API.md`). Written by the server ([`BatchWriter`]) and read by
 //! the client ([`parse`]), so both ends share one definition of the wire format.
 //!
 //! All integers are little-endian:
