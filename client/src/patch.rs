@@ -1,6 +1,6 @@
 //! Half-patches: what a cut draws, what the CPU cache keeps and what a GPU slot holds.
 //!
-//! The cut rule (DESIGN.md) draws the half of diamond `K` lying in its parent `A` iff `A` is
+//! The cut rule (docs/DESIGN.md) draws the half of diamond `K` lying in its parent `A` iff `A` is
 //! refined and `K` is not; unrefined roots draw both halves. The heights of that half are exactly
 //! what refining `A` produced on it, so a half-patch is made from `A`'s [`Refined`] alone, and it
 //! never changes once made: it can be cached and uploaded by its [`PatchKey`].

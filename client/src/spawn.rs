@@ -79,8 +79,8 @@ pub trait Spawner {
 /// elsewhere at the caller's). The frame loop has a deadline and the workers have none: with as
 /// many workers as cores, a frame thread at the same priority shares its core with a worker and
 /// ends its frames late. What the frame thread does not use the workers still get, so decoding
-/// is no slower while the loop waits for it. Figures: the README, "Decode workers below the
-/// frame thread".
+/// is no slower while the loop waits for it. See docs/REFINEMENT.md, "Decode workers below the
+/// frame thread"; figures: docs/RESULTS.md.
 #[cfg(not(target_arch = "wasm32"))]
 #[derive(Clone, Copy, Debug, Default)]
 pub struct DecodePool;

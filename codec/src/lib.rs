@@ -1,4 +1,4 @@
-//! The C-BDAM codec (Gobbetti et al. 2006, with the decisions of `DESIGN.md`).
+//! The C-BDAM codec (Gobbetti et al. 2006, with the decisions of `docs/DESIGN.md`).
 //!
 //! The repository format and the coding, fine to coarse and back: [`samples`] are a DEM's
 //! heights as the builder (`cbdam-builder`) reads them, [`quant`] maps them onto an integer

@@ -175,7 +175,7 @@ pub fn predict_vertex_numerator(
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Alpha {
     /// Predict-only lifting: coarse vertices are subsamples, records hold ΔC only. The default
-    /// (DESIGN.md: α = ½'s ΔV is mostly quantization noise and costs ≈ 2 bits/sample).
+    /// (docs/DESIGN.md: α = ½'s ΔV is mostly quantization noise and costs ≈ 2 bits/sample).
     One,
     /// The paper's smoothing: `P = (V + Pred_V(C)) / 2` on inner vertices; records add ΔV.
     Half,

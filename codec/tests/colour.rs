@@ -193,7 +193,7 @@ fn alignment_accepts_power_of_two_refinements_and_refuses_mismatches() {
 
 #[test]
 fn bound_table_is_what_the_docs_state() {
-    // docs/FORMAT.md and the README state these; keep them honest.
+    // docs/FORMAT.md and docs/RESULTS.md ("Colour") state these; keep them honest.
     assert_eq!(ycocg::channel_k(4), 2);
     assert_eq!(ycocg::rgb_bound(2), [4, 3, 4]);
     assert_eq!(ycocg::channel_k(10), 4);

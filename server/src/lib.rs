@@ -2,7 +2,7 @@
 //!
 //! Serves per-diamond records of one or more memory-mapped repositories over HTTP/1.1 and
 //! HTTP/2 cleartext (prior knowledge). The endpoints and the batch framing are specified in
-//! `docs/FORMAT.md`, section "HTTP API":
+//! `docs/HTTP-API.md`:
 //!
 //! - `GET /v1/repos`: the repositories served.
 //! - `GET /v1/repos/{name}/meta`: a repository's header as JSON ([`describe::describe`] plus

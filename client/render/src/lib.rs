@@ -3,7 +3,7 @@
 //! The windows are the shells': `cbdam-desktop` (winit) and `cbdam-web` (a browser canvas). The
 //! shaders are `shaders/*.wgsl`, built in.
 //!
-//! Design (DESIGN.md "GPU", paper §6):
+//! Design (docs/DESIGN.md "GPU", paper §6):
 //! - **Shared grid.** The `N × N` grid's triangle lists are uploaded once ([`mesh`]): 8 index
 //!   lists (split diagonal × half × grid orientation) in one index buffer. There is no vertex
 //!   buffer: an index is the grid vertex number `j·N + i`, which *is* its (u, v).

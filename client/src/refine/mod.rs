@@ -135,7 +135,7 @@ const AHEAD_LIMIT: usize = 256;
 /// 1.10–1.13× (4 runs each), converging as fast (`low_pass` 1.03–1.43 s against 1.13–1.50 s)
 /// and with fewer frames over budget (the want list and its requests are shorter). The cost:
 /// static Range requests' `low_pass` reached 1 px in 1.70–1.87 s against 1.47–1.53 s (2 runs
-/// each; README "A shorter want horizon").
+/// each; docs/REFINEMENT.md, "The frame").
 pub const WANT_HORIZON_S: f64 = 0.4;
 /// Weight of the newest sample in the smoothed frame interval and decode time.
 const SMOOTHING: f64 = 0.1;

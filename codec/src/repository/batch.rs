@@ -1,5 +1,5 @@
 //! The batch framing: many records in one response body, as `POST /v1/repos/{name}/diamonds`
-//! answers (`docs/FORMAT.md`, "HTTP API"). Written by the server ([`BatchWriter`]) and read by
+//! answers (`docs/HTTP-API.md`). Written by the server ([`BatchWriter`]) and read by
 //! the client ([`parse`]), so both ends share one definition of the wire format.
 //!
 //! All integers are little-endian:
@@ -336,7 +336,7 @@ mod tests {
 
     #[test]
     fn writes_the_documented_bytes() {
-        // Spelled out from docs/FORMAT.md's table, independently of the writer.
+        // Spelled out from docs/HTTP-API.md's table, independently of the writer.
         let mut want = b"CBDR".to_vec();
         want.extend([3, 0, 0, 0]);
         want.extend([0, 3, 0, 0, 0, 7, 8, 9]);

@@ -179,7 +179,7 @@ mod tests {
     /// an `.hgt` tile; the header is the whole read's.
     #[test]
     fn bands_of_rows_equal_the_whole_read() {
-        let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data");
+        let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data");
         let tmp = tempfile::tempdir().unwrap();
         let hgt = tmp.path().join("N45E006.hgt");
         let side = 1201usize;
