@@ -1,7 +1,7 @@
 //! The patch grid's triangle lists, shared by every patch and uploaded once.
 //!
-//! A half-patch is drawn as the triangles of its half of the `N × N` grid, cells split parallel
-//! to the split diagonal exactly as [`cbdam_codec::geometry::Cut::triangles`] does (any other
+//! A half-patch is drawn as the triangles of its half of the `N × N` grid that
+//! [`half_grid_triangles`] lists, the triangulation the codec's cut is made of too (any other
 //! split would leave T-junctions against the neighbouring patches). Which triangles those are
 //! depends on the split diagonal and the half; which way round they wind in the world depends
 //! on the grid map's orientation: even levels map `(i, j)` to the lattice with a positive
@@ -11,7 +11,7 @@
 
 use std::ops::Range;
 
-use cbdam_codec::geometry::{Diagonal, Half};
+use cbdam_codec::geometry::{Diagonal, Half, half_grid_triangles};
 
 /// Which of the 8 shared index lists a half-patch uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -91,41 +91,15 @@ impl SharedMesh {
 
 /// Appends the triangles of one half, counter-clockwise in the world seen from above.
 fn half_indices(n: usize, kind: MeshKind, out: &mut Vec<u32>) {
-    let n1 = n as i64 - 1;
     let vertex = |(i, j): (i64, i64)| (j * n as i64 + i) as u32;
-    for j in 0..n1 {
-        for i in 0..n1 {
-            let tris = match kind.diagonal {
-                Diagonal::Main => [
-                    [(i, j), (i + 1, j), (i + 1, j + 1)],
-                    [(i, j), (i + 1, j + 1), (i, j + 1)],
-                ],
-                Diagonal::Anti => [
-                    [(i, j), (i + 1, j), (i, j + 1)],
-                    [(i + 1, j), (i + 1, j + 1), (i, j + 1)],
-                ],
-            };
-            for t in tris {
-                // The same centroid rule as `Layout::half_of_centroid3`, in thirds of a step.
-                let si = t[0].0 + t[1].0 + t[2].0;
-                let sj = t[0].1 + t[1].1 + t[2].1;
-                let positive = match kind.diagonal {
-                    Diagonal::Main => si > sj,
-                    Diagonal::Anti => si + sj > 3 * n1,
-                };
-                if positive != (kind.half == Half::Positive) {
-                    continue;
-                }
-                // Both listed triangles are counter-clockwise in (i, j) with j down, i.e.
-                // clockwise in a right-handed (i, j). Even levels keep that handedness into the
-                // lattice (x east, y south); the world flips y; odd levels flip once more.
-                let [a, b, c] = t;
-                if kind.mirrored {
-                    out.extend([vertex(a), vertex(b), vertex(c)]);
-                } else {
-                    out.extend([vertex(a), vertex(c), vertex(b)]);
-                }
-            }
+    for [a, b, c] in half_grid_triangles(n, kind.diagonal, kind.half) {
+        // Listed counter-clockwise in (i, j) with j down, i.e. clockwise in a right-handed
+        // (i, j). Even levels keep that handedness into the lattice (x east, y south); the world
+        // flips y; odd levels flip once more.
+        if kind.mirrored {
+            out.extend([vertex(a), vertex(b), vertex(c)]);
+        } else {
+            out.extend([vertex(a), vertex(c), vertex(b)]);
         }
     }
 }

@@ -2,7 +2,8 @@
 
 use std::collections::HashMap;
 
-use super::{Diagonal, DiamondId, Domain, FacePoint, GridMap, Half, IdSet, Layout};
+use super::grid::half_grid_triangles;
+use super::{DiamondId, Domain, FacePoint, GridMap, Half, IdSet, Layout};
 
 /// A triangle in lattice coordinates, counter-clockwise (x east, y south counts as a right-handed
 /// frame here: only consistency matters).
@@ -144,33 +145,12 @@ fn half_triangles_on(
     g: &GridMap,
     out: &mut Vec<Triangle>,
 ) {
-    let n1 = (layout.n() - 1) as i64;
-    let diag = layout.diagonal(id);
-    for j in 0..n1 {
-        for i in 0..n1 {
-            let tris: [[(i64, i64); 3]; 2] = match diag {
-                Diagonal::Main => [
-                    [(i, j), (i + 1, j), (i + 1, j + 1)],
-                    [(i, j), (i + 1, j + 1), (i, j + 1)],
-                ],
-                Diagonal::Anti => [
-                    [(i, j), (i + 1, j), (i, j + 1)],
-                    [(i + 1, j), (i + 1, j + 1), (i, j + 1)],
-                ],
-            };
-            for t in tris {
-                let si = t[0].0 + t[1].0 + t[2].0;
-                let sj = t[0].1 + t[1].1 + t[2].1;
-                if layout.half_of_centroid3(id, si, sj) != half {
-                    continue;
-                }
-                let mut p = t.map(|(a, b)| g.point(a, b));
-                if signed_area2(&p) < 0 {
-                    p.swap(1, 2);
-                }
-                out.push(p);
-            }
+    for t in half_grid_triangles(layout.n(), layout.diagonal(id), half) {
+        let mut p = t.map(|(a, b)| g.point(a, b));
+        if signed_area2(&p) < 0 {
+            p.swap(1, 2);
         }
+        out.push(p);
     }
 }
 

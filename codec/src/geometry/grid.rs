@@ -1,4 +1,7 @@
-//! Affine integer maps between a diamond's grid indices and lattice coordinates.
+//! Affine integer maps between a diamond's grid indices and lattice coordinates, and the
+//! triangulation of a diamond's grid.
+
+use super::Half;
 
 /// Maps grid index `(i, j)`, `0 ≤ i, j < N`, of a diamond to the lattice point
 /// `origin + i·u + j·v`.
@@ -21,6 +24,56 @@ pub enum Diagonal {
     Main,
     /// `i + j == N − 1`.
     Anti,
+}
+
+impl Diagonal {
+    /// Which half of an `n × n` grid split along this diagonal holds the point whose grid
+    /// coordinates, times three, are `(si, sj)` (integers, so a triangle's centroid has no
+    /// rounding); points on the diagonal count as [`Half::Negative`].
+    pub fn half_of_centroid3(self, n: usize, si: i64, sj: i64) -> Half {
+        let n1 = n as i64 - 1;
+        let positive = match self {
+            Diagonal::Main => si > sj,
+            Diagonal::Anti => si + sj > 3 * n1,
+        };
+        if positive {
+            Half::Positive
+        } else {
+            Half::Negative
+        }
+    }
+}
+
+/// The triangles of one half of an `n × n` diamond grid split along `diagonal`, in grid
+/// coordinates `(i, j)`: every cell split parallel to the split diagonal, so that each half is a
+/// union of whole grid triangles, row by row, each triangle counter-clockwise with `j` down.
+///
+/// The one triangulation of a diamond half: the cut's triangles ([`crate::geometry::Cut`]) and
+/// the renderer's shared index lists are both made of it, so what is drawn is what the crack
+/// tests check (any other split would leave T-junctions against the neighbouring halves).
+pub fn half_grid_triangles(
+    n: usize,
+    diagonal: Diagonal,
+    half: Half,
+) -> impl Iterator<Item = [(i64, i64); 3]> {
+    let n1 = n as i64 - 1;
+    (0..n1)
+        .flat_map(move |j| (0..n1).map(move |i| (i, j)))
+        .flat_map(move |(i, j)| match diagonal {
+            Diagonal::Main => [
+                [(i, j), (i + 1, j), (i + 1, j + 1)],
+                [(i, j), (i + 1, j + 1), (i, j + 1)],
+            ],
+            Diagonal::Anti => [
+                [(i, j), (i + 1, j), (i, j + 1)],
+                [(i + 1, j), (i + 1, j + 1), (i, j + 1)],
+            ],
+        })
+        .filter(move |t| {
+            let si = t[0].0 + t[1].0 + t[2].0;
+            let sj = t[0].1 + t[1].1 + t[2].1;
+            diagonal.half_of_centroid3(n, si, sj) == half
+        })
 }
 
 impl GridMap {

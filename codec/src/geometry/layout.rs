@@ -311,16 +311,7 @@ impl Layout {
     /// Which half of `id` grid index `(i, j)` of a cell-split triangle belongs to, from three
     /// times its centroid `(si, sj)` (integers, so no rounding).
     pub(crate) fn half_of_centroid3(&self, id: DiamondId, si: i64, sj: i64) -> Half {
-        let n1 = (self.n - 1) as i64;
-        let positive = match self.diagonal(id) {
-            Diagonal::Main => si > sj,
-            Diagonal::Anti => si + sj > 3 * n1,
-        };
-        if positive {
-            Half::Positive
-        } else {
-            Half::Negative
-        }
+        self.diagonal(id).half_of_centroid3(self.n, si, sj)
     }
 }
 

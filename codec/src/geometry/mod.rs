@@ -27,6 +27,6 @@ pub use cube::{Cube, FacePoint};
 pub use cut::{Cut, FaceTriangle, Triangle, check_conforming, check_conforming_surface};
 pub use diamond::{DiamondId, Half};
 pub use domain::{DataRect, Domain, DomainKind, RootField};
-pub use grid::{Diagonal, GridMap, IndexMap};
+pub use grid::{Diagonal, GridMap, IndexMap, half_grid_triangles};
 pub use id_hash::{IdBuildHasher, IdHasher, IdMap, IdSet};
 pub use layout::Layout;
