@@ -142,7 +142,7 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
     // Only records that pass their checksum: a damaged one would answer 500 and fail the run.
     repo.check_all()
         .with_context(|| format!("checking {}", path.display()))?;
-    let entries = repo.entries();
+    let entries = repo.head().entries();
     ensure!(!entries.is_empty(), "{} stores no records", path.display());
     let singles: Vec<Job> = entries
         .iter()
@@ -175,8 +175,10 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
             })
             .collect()
     };
-    let mean_record =
-        repo.section_len(cbdam_codec::repository::Section::Records) as f64 / entries.len() as f64;
+    let mean_record = repo
+        .head()
+        .section_len(cbdam_codec::repository::Section::Records) as f64
+        / entries.len() as f64;
 
     let server_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(args.server_threads.max(1))

@@ -29,7 +29,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     }
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    let p = *repo.params();
+    let p = *repo.head().params();
     if p.domain.cube().is_some() {
         bail!(
             "{} is a planet (cube-sphere): extract writes planar rasters, and a planet's six faces \
@@ -37,7 +37,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
             args.repo.display()
         );
     }
-    let plan = *repo.plan();
+    let plan = *repo.head().plan();
     let finest = p.layout().finest_level();
     let level = args.level.unwrap_or(finest);
     if !level.is_multiple_of(2) || level > finest {
@@ -54,7 +54,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     );
     let window = match &args.bbox {
         None => (0, 0, w - 1, h - 1),
-        Some(b) => bbox_window(b, repo.georef(), w, h)?,
+        Some(b) => bbox_window(b, repo.head().georef(), w, h)?,
     };
     // The level's lattice points inside the window: multiples of `step`.
     let first = |lo: i64| (lo + step - 1).div_euclid(step) * step;
@@ -74,7 +74,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     // In a variable-resolution repository, levels finer than the data at a place are not
     // reached there either (every level's leaves are visited, so a coarse input's level is
     // extracted whole).
-    let fill = repo.nodata().unwrap_or(f64::NAN);
+    let fill = repo.head().nodata().unwrap_or(f64::NAN);
     let mut values = vec![fill; out_w * out_h];
     let n = p.layout().n();
     walk_all_with_validity(&encoded, |id, grid, valid| {
@@ -99,7 +99,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     })
     .with_context(|| format!("decoding {}", args.repo.display()))?;
 
-    let georef = repo.georef().map(|g| {
+    let georef = repo.head().georef().map(|g| {
         // Raster point (0, 0) of the output is lattice point (x0, y0); a PixelIsArea origin is the
         // outer corner of a cell `step` samples wide centred on that point.
         let half = if g.pixel_is_area { 0.5 } else { 0.0 };
@@ -121,7 +121,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     match args.format {
         ExtractFormat::Geotiff => {
             write_atomically(&args.output, |f: &mut File| {
-                write_geotiff(f, &raster, repo.nodata(), args.float64)
+                write_geotiff(f, &raster, repo.head().nodata(), args.float64)
             })
             .with_context(|| format!("writing {}", args.output.display()))?;
             // GeoKeys hold EPSG codes, not definitions: a CRS known only as WKT goes beside the
@@ -151,7 +151,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
                 "byte_order": "little",
                 "row_order": "north-up (row 0 = north edge)",
                 "unit": "m",
-                "nodata": repo.nodata(),
+                "nodata": repo.head().nodata(),
                 "max_error_m": plan.epsilon,
                 "guaranteed_max_error_m": plan.max_error(),
                 "level": level,

@@ -17,8 +17,12 @@ pub fn upgrade(args: &UpgradeArgs) -> Result<()> {
     let encoded = repo
         .to_encoded()
         .with_context(|| format!("reading the records of {}", args.repo.display()))?;
-    let (plan, georef, nodata) = (*repo.plan(), repo.georef().cloned(), repo.nodata());
-    let before = repo.file_len();
+    let (plan, georef, nodata) = (
+        *repo.head().plan(),
+        repo.head().georef().cloned(),
+        repo.head().nodata(),
+    );
+    let before = repo.head().file_len();
     // Unmap before writing: the output may replace the input.
     drop(repo);
     cbdam_codec::repository::write_repository(
@@ -44,16 +48,17 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
     // Distinct lattice points that can hold data (a planet's shared edge points once).
-    let samples = repo.params().domain.lattice_points();
+    let samples = repo.head().params().domain.lattice_points();
     // Without a mask every sample had data; with one, the count reads (and checks) the records.
-    let valid = if repo.params().nodata_mask {
+    let valid = if repo.head().params().nodata_mask {
         let records = repo
+            .head()
             .entries()
             .iter()
             .map(|e| Ok((e.id, repo.record(e.id)?)))
             .collect::<Result<Vec<_>, cbdam_codec::CodecError>>()
             .with_context(|| format!("reading the records of {}", args.repo.display()))?;
-        count_valid_samples(repo.params(), repo.root_bytes(), records)
+        count_valid_samples(repo.head().params(), repo.head().root_bytes(), records)
             .with_context(|| format!("reading the nodata mask of {}", args.repo.display()))?
     } else {
         samples
@@ -62,14 +67,14 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     if args.json {
         // The same description the server's meta endpoint starts from.
         let mut v = cbdam_server::describe(&repo);
-        v["nodata_mask"] = repo.params().nodata_mask.into();
+        v["nodata_mask"] = repo.head().params().nodata_mask.into();
         v["nodata_samples"] = (samples - valid).into();
         v["nodata_fraction"] = nodata_fraction.into();
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    let p = repo.params();
-    let plan = repo.plan();
+    let p = repo.head().params();
+    let plan = repo.head().plan();
     let finest = p.layout().finest_level();
     let s = summarize(&repo);
     let metres = |u: u32| f64::from(u) * plan.unit;
@@ -90,7 +95,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             ),
         }
     );
-    if let Some(pv) = repo.provenance() {
+    if let Some(pv) = repo.head().provenance() {
         println!("vertical datum  {}", pv.vertical_datum.name());
         println!(
             "resampling      lattice − input samples: max {:.3} m, rms {:.3} m (the bound below \
@@ -98,7 +103,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             pv.resampling_max, pv.resampling_rms
         );
     }
-    println!("file            {} bytes", repo.file_len());
+    println!("file            {} bytes", repo.head().file_len());
     match p.domain.cube() {
         None => println!(
             "data            {}×{} samples, {:.4} bits/sample",
@@ -157,7 +162,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             plan.max_error()
         );
     }
-    match repo.georef() {
+    match repo.head().georef() {
         Some(g) => println!(
             "georeference    EPSG {}, origin ({}, {}), pixel {} × {}, pixel is {}",
             g.epsg.map_or("unknown".to_string(), |c| c.to_string()),
@@ -169,7 +174,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         ),
         None => println!("georeference    none"),
     }
-    if let Some(wkt) = repo.georef().and_then(|g| g.wkt.as_deref()) {
+    if let Some(wkt) = repo.head().georef().and_then(|g| g.wkt.as_deref()) {
         // The definition's name is what a reader recognises; the whole is in --json.
         let head: String = wkt.chars().take(72).collect();
         let more = if head.len() < wkt.len() { "…" } else { "" };
@@ -177,7 +182,9 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     }
     println!(
         "nodata          value {}, {} of {samples} samples ({:.2} %) without data{}",
-        repo.nodata().map_or("none".to_string(), |v| v.to_string()),
+        repo.head()
+            .nodata()
+            .map_or("none".to_string(), |v| v.to_string()),
         samples - valid,
         100.0 * nodata_fraction,
         if p.nodata_mask {
@@ -188,17 +195,20 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     );
     println!(
         "sections        roots {} B, index {} B, records {} B, header + checksums {} B",
-        repo.section_len(Section::Roots),
-        repo.section_len(Section::Index),
-        repo.section_len(Section::Records),
+        repo.head().section_len(Section::Roots),
+        repo.head().section_len(Section::Index),
+        repo.head().section_len(Section::Records),
         overhead
     );
-    println!("records         {} ({empty} empty)", repo.entries().len());
+    println!(
+        "records         {} ({empty} empty)",
+        repo.head().entries().len()
+    );
     println!(
         "object error    {} … {} m (finest level {} m)",
         metres(err_lo),
         metres(err_hi),
-        metres(repo.leaf_error())
+        metres(repo.head().leaf_error())
     );
     println!("level  records        bytes   object error (m)");
     for (i, l) in s.levels.iter().enumerate() {

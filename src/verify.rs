@@ -60,13 +60,13 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     repo.check_all()
         .with_context(|| format!("checking {}", args.repo.display()))?;
     repo.release_pages();
-    if repo.kind() == RepoKind::Colour {
+    if repo.head().kind() == RepoKind::Colour {
         return verify_colour_repo(&repo, args);
     }
     // Directories, globs, @lists and VRTs are expanded as `cbdam build` expands them.
     let tiles = expand_inputs(&args.against)?;
     let assign = args.georef.assigned()?;
-    if repo.params().domain.cube().is_some() {
+    if repo.head().params().domain.cube().is_some() {
         return verify_planet_repo(&repo, &tiles, assign.as_ref());
     }
     if assign.is_some() {
@@ -88,7 +88,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
             // from them, and the hierarchy decoded block by block.
             let c = compare_tiles_with(&repo, several, limit, args.block_plan)?;
             if let Some(plan) = c.blocks {
-                let layout = repo.params().layout();
+                let layout = repo.head().params().layout();
                 println!(
                     "decoded in {} block(s) of {} lattice points square, levels {} and finer \
                      (the coarser ones over the whole domain)",
@@ -97,7 +97,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
                     plan.cut_level
                 );
             }
-            print_levels(&c.levels, repo.plan().unit);
+            print_levels(&c.levels, repo.head().plan().unit);
             for input in &c.inputs {
                 println!(
                     "{}: {} winning samples (stride {}), max error {:.6} m",
@@ -117,7 +117,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         }
     };
     let c = compare_dem(&repo, against)?;
-    print_levels(&c.levels, repo.plan().unit);
+    print_levels(&c.levels, repo.head().plan().unit);
     println!(
         "nodata mask: {} of {} samples without data in {}, {} mismatches",
         c.nodata,
@@ -145,8 +145,8 @@ fn verify_planet_repo(
     tiles: &[Tile],
     assign: Option<&AssignedGeoRef>,
 ) -> Result<()> {
-    let c = compare_planet(repo, tiles, repo.nodata(), assign)?;
-    print_levels(&c.report, repo.plan().unit);
+    let c = compare_planet(repo, tiles, repo.head().nodata(), assign)?;
+    print_levels(&c.report, repo.head().plan().unit);
     println!(
         "every level against the resampled lattice: max error {} units, bound {} ({} m)",
         c.report.max_error(),

@@ -103,9 +103,9 @@ fn colour_build_verify_inspect_over_an_elevation() {
         ]);
         assert!(o.status.success(), "{}", text(&o));
         let repo = Repository::open(Path::new(&out)).unwrap();
-        assert_eq!(repo.kind(), RepoKind::Colour);
+        assert_eq!(repo.head().kind(), RepoKind::Colour);
         // --like took the elevation's diamond size, not the default 65.
-        assert_eq!(repo.params().layout().n(), 9);
+        assert_eq!(repo.head().params().layout().n(), 9);
         let rgb = reconstruct_rgb(&repo.to_encoded().unwrap()).unwrap();
         let worst = rgb
             .iter()

@@ -209,6 +209,7 @@ fn a_close_up_over_an_inset_is_the_same_on_the_planet_and_on_the_plane() {
     // half a height unit. An inset taken to wrap round the globe because its spacing divides
     // 360° gave 5.0 m here (its last column stretched one column east).
     let resampling = planet
+        .head()
         .provenance()
         .expect("a planet records its resampling")
         .resampling_max;
@@ -216,7 +217,7 @@ fn a_close_up_over_an_inset_is_the_same_on_the_planet_and_on_the_plane() {
 
     // The eye: above the planet lattice vertex nearest the inset's centre.
     let domain = Domain::cube_sphere(N, K).unwrap();
-    assert_eq!(planet.params().domain, domain);
+    assert_eq!(planet.head().params().domain, domain);
     let side = domain.cube().unwrap().side() as f64;
     let (face, s_, t_) = lat_lon_to_face_st(sample_centre(7.5, 7.5));
     let (x, y) = ((s_ * side).round() as i64, (t_ * side).round() as i64);

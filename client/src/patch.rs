@@ -123,8 +123,8 @@ impl HalfPatch {
 /// [`Cut::drawn_halves`] order: the synchronous reference that the streaming client must agree
 /// with, and what offscreen tests render. Every refined diamond must be stored in `repo`.
 pub fn decode_cut(repo: &Repository, cut: &Cut) -> Result<Vec<HalfPatch>, CodecError> {
-    let decoder = repo.decoder()?;
-    let domain = repo.params().domain;
+    let decoder = repo.head().decoder()?;
+    let domain = repo.head().params().domain;
     let mut refined: HashMap<DiamondId, Refined> = HashMap::new();
     let mut scratch = RefineScratch::default();
     // `Cut::refined` runs coarse to fine, so parents are refined before their children.
@@ -180,7 +180,7 @@ mod tests {
     #[test]
     fn decode_cut_matches_walk() {
         let repo = repository();
-        let domain = repo.params().domain;
+        let domain = repo.head().params().domain;
         let layout = *domain.layout();
         let n = layout.n();
         let mut full: HashMap<DiamondId, Vec<i32>> = HashMap::new();
@@ -188,7 +188,7 @@ mod tests {
             full.insert(id, g.to_vec());
         })
         .unwrap();
-        let stored: Vec<DiamondId> = repo.entries().iter().map(|e| e.id).collect();
+        let stored: Vec<DiamondId> = repo.head().entries().iter().map(|e| e.id).collect();
         let mut state = 0x1234_5678_u64;
         for round in 0..8 {
             let mut cut = Cut::new();

@@ -156,7 +156,12 @@ impl World {
 
     /// The world of an opened repository.
     pub fn of_repository(repo: &cbdam_codec::repository::Repository) -> Self {
-        Self::new(repo.params(), repo.plan(), repo.georef(), repo.entries())
+        Self::new(
+            repo.head().params(),
+            repo.head().plan(),
+            repo.head().georef(),
+            repo.head().entries(),
+        )
     }
 
     /// World position of lattice point `(x, y)` at height `h` units (of face 0 on a planet:

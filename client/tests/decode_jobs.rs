@@ -92,7 +92,7 @@ impl Spawner for Messages {
 fn head_bytes(repo: &Repository) -> HeadBytes<'_> {
     HeadBytes {
         bytes: repo.as_bytes(),
-        file_len: repo.file_len(),
+        file_len: repo.head().file_len(),
     }
 }
 
@@ -140,7 +140,7 @@ fn jobs_sent_as_bytes_synthesise_the_nodata_masks_jobs_run_in_place_do() {
     let repo =
         repository_with(|x, y| (x - 60.0).hypot(y - 70.0) < 18.0 || (x - y - 40.0).abs() < 3.0);
     let world = World::of_repository(&repo);
-    let src_finest = repo.params().domain.finest_level();
+    let src_finest = repo.head().params().domain.finest_level();
     let config = RefineConfig {
         budget: None,
         gc_interval: 2,
@@ -234,6 +234,7 @@ fn a_corrupt_mapped_record_fails_its_diamond_in_place_and_through_bytes() {
         Refiner::with_spawner(LocalSource::new(good.clone()), config.clone(), Inline).unwrap();
     reference.settle(&cams[11], 50);
     let (index, id) = good
+        .head()
         .entries()
         .iter()
         .enumerate()
@@ -270,7 +271,7 @@ fn a_corrupt_mapped_record_fails_its_diamond_in_place_and_through_bytes() {
         .filter(|d| !r.cut().is_refined(*d))
         .collect();
     assert!(!below.is_empty());
-    let domain = good.params().domain;
+    let domain = good.head().params().domain;
     for d in below {
         assert!(
             descends_from(&domain, d, id),
@@ -436,7 +437,12 @@ fn bad_messages_are_errors_never_panics() {
 
     // A job with a step whose record failed its check where the job was made (the first
     // level-1 record is corrupt): its answer is an error for that step; damaged, an error.
-    let level_1 = repo.entries().iter().position(|e| e.id.level == 1).unwrap();
+    let level_1 = repo
+        .head()
+        .entries()
+        .iter()
+        .position(|e| e.id.level == 1)
+        .unwrap();
     let (bad_context, bad_jobs) = captured(&with_corrupt_record(&repo, level_1));
     let bad_worker = WorkerDecoder::new(&bad_context).unwrap();
     let unreadable = |b: &[u8]| b.windows(17).any(|w| w == b"checksum mismatch");

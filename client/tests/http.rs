@@ -329,9 +329,9 @@ fn repositories_shorter_than_the_first_fetch_or_with_longer_headers_connect() {
             FetchOptions::default(),
         )
         .unwrap();
-        assert_eq!(source.params(), repo.params());
-        assert_eq!(source.entries(), repo.entries());
-        assert_eq!(source.root_bytes(), repo.root_bytes());
+        assert_eq!(source.head().params(), repo.head().params());
+        assert_eq!(source.head().entries(), repo.head().entries());
+        assert_eq!(source.head().root_bytes(), repo.head().root_bytes());
     }
 }
 
@@ -360,8 +360,12 @@ fn a_static_server_with_range_requests_gives_the_local_cut() {
     let needed: u64 = refined(&r)
         .iter()
         .map(|id| {
-            let i = repo.entries().binary_search_by(|e| e.id.cmp(id)).unwrap();
-            u64::from(repo.entries()[i].length)
+            let i = repo
+                .head()
+                .entries()
+                .binary_search_by(|e| e.id.cmp(id))
+                .unwrap();
+            u64::from(repo.head().entries()[i].length)
         })
         .sum();
     let records_area = bytes.len() as u64 - repo.head().records_offset();
@@ -443,12 +447,12 @@ fn range_requests_to_a_static_server_are_many_in_flight() {
     )
     .unwrap();
     // Every other record in file order: no two wanted records touch, so each is a request.
-    let mut by_offset: Vec<usize> = (0..repo.entries().len()).collect();
+    let mut by_offset: Vec<usize> = (0..repo.head().entries().len()).collect();
     by_offset.sort_by_key(|&i| repo.head().record_range(i).unwrap().start);
     let wanted: Vec<DiamondId> = by_offset
         .iter()
         .step_by(2)
-        .map(|&i| repo.entries()[i].id)
+        .map(|&i| repo.head().entries()[i].id)
         .filter(|&id| {
             !repo
                 .head()

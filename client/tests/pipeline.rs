@@ -192,12 +192,12 @@ fn refine_bench_on_a_repository() {
     use std::collections::HashMap;
     let path = std::env::var("CBDAM_BENCH_REPO").expect("CBDAM_BENCH_REPO=FILE");
     let repo = Repository::open(Path::new(&path)).unwrap();
-    let decoder = repo.decoder().unwrap();
-    let domain = repo.params().domain;
+    let decoder = repo.head().decoder().unwrap();
+    let domain = repo.head().params().domain;
     let mut refined: HashMap<_, Refined> = HashMap::new();
     let mut grids = Vec::new();
     let mut scratch = RefineScratch::default();
-    for e in repo.entries() {
+    for e in repo.head().entries() {
         let parents = domain
             .parents(e.id)
             .map(|p| p.and_then(|p| refined.get(&p)));
@@ -208,11 +208,11 @@ fn refine_bench_on_a_repository() {
         grids.push(grid);
         refined.insert(e.id, r);
     }
-    let cells = (domain.n() - 1).pow(2) * repo.entries().len();
+    let cells = (domain.n() - 1).pow(2) * repo.head().entries().len();
     let mut runs = Vec::new();
     for _ in 0..5 {
         let t = std::time::Instant::now();
-        for (e, grid) in repo.entries().iter().zip(&grids) {
+        for (e, grid) in repo.head().entries().iter().zip(&grids) {
             std::hint::black_box(
                 decoder
                     .refine(grid, repo.record(e.id).unwrap(), &mut scratch)
@@ -224,7 +224,7 @@ fn refine_bench_on_a_repository() {
     runs.sort_by(f64::total_cmp);
     println!(
         "{path}: {} records, refine {:.1} M cells/s (median of 5; min {:.1}, max {:.1})",
-        repo.entries().len(),
+        repo.head().entries().len(),
         runs[2],
         runs[0],
         runs[4]

@@ -77,6 +77,7 @@ fn collect(f: &RemoteFetcher, n: usize) -> Vec<DiamondId> {
 /// Stored diamonds with non-empty records, finest first.
 fn stored(repo: &Repository) -> Vec<DiamondId> {
     let mut ids: Vec<DiamondId> = repo
+        .head()
         .entries()
         .iter()
         .filter(|e| e.length > 0)

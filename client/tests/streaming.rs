@@ -112,12 +112,12 @@ fn run_until_converged<S: cbdam_client::access::DataSource>(
 /// exceeds the target, and that box meets the frustum.
 pub(crate) fn brute_force(repo: &Repository, cam: &Camera, target: f64) -> HashSet<DiamondId> {
     let world = World::of_repository(repo);
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     let layout = *domain.layout();
-    let by_id: HashMap<DiamondId, _> = repo.entries().iter().map(|e| (e.id, *e)).collect();
+    let by_id: HashMap<DiamondId, _> = repo.head().entries().iter().map(|e| (e.id, *e)).collect();
     let frustum = cam.frustum();
     let mut out = HashSet::new();
-    for e in repo.entries() {
+    for e in repo.head().entries() {
         let (mut lo, mut hi) = world.diamond_box(e.id, e.min, e.max);
         let mut err = e.object_error;
         let mut stack = vec![e.id];
@@ -159,6 +159,7 @@ fn mapped_records_read_what_taken_records_copy_and_count_alike() {
         LocalSource::new(repo.clone()),
     );
     let handles: Vec<_> = repo
+        .head()
         .entries()
         .iter()
         .map(|e| (e.id, mapped.mapped(e.id).expect("stored")))
@@ -173,13 +174,16 @@ fn mapped_records_read_what_taken_records_copy_and_count_alike() {
         assert_eq!(handle.bytes().unwrap(), &copy[..], "{id}");
     }
     assert_eq!(mapped.stats(), taken.stats());
-    assert_eq!(mapped.stats().records_taken, repo.entries().len() as u64);
-    let unstored = DiamondId::new(repo.params().domain.finest_level() + 1, 0, 0);
+    assert_eq!(
+        mapped.stats().records_taken,
+        repo.head().entries().len() as u64
+    );
+    let unstored = DiamondId::new(repo.head().params().domain.finest_level() + 1, 0, 0);
     assert!(mapped.mapped(unstored).is_none());
     assert!(matches!(taken.take(unstored), Some(Err(_))));
     // Found by its position in the index (the refiner knows it) without a search: the same
     // record; a position that is not the diamond's is searched for instead, so still the same.
-    let entries = repo.entries();
+    let entries = repo.head().entries();
     for (i, e) in entries.iter().enumerate() {
         let expected = mapped.mapped(e.id).unwrap();
         let expected = expected.bytes().unwrap();
@@ -194,7 +198,7 @@ fn mapped_records_read_what_taken_records_copy_and_count_alike() {
 #[test]
 fn the_cut_conforms_after_every_frame_of_random_flights() {
     let repo = repository();
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     let layout = *domain.layout();
     let world = World::of_repository(&repo);
     for (seed, latency) in [(1u64, (0, 0)), (2, (1, 4)), (3, (0, 2))] {
@@ -253,7 +257,7 @@ fn the_cut_conforms_after_every_frame_of_random_flights() {
 #[test]
 fn unlimited_budget_converges_to_the_brute_force_cut() {
     let repo = repository();
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     let world = World::of_repository(&repo);
     let mut rng = Rng(7);
     let mut r = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
@@ -272,10 +276,10 @@ fn unlimited_budget_converges_to_the_brute_force_cut() {
         // drawn stored diamond whose own box meets the frustum is within 1 px.
         let frustum = cam.frustum();
         for (id, _) in r.cut().drawn_halves(&domain) {
-            let Ok(i) = repo.entries().binary_search_by(|e| e.id.cmp(&id)) else {
+            let Ok(i) = repo.head().entries().binary_search_by(|e| e.id.cmp(&id)) else {
                 continue;
             };
-            let e = repo.entries()[i];
+            let e = repo.head().entries()[i];
             let (lo, hi) = world.diamond_box(id, e.min, e.max);
             if frustum.intersects_box(lo, hi) {
                 let px = f64::from(e.object_error)
@@ -320,7 +324,7 @@ fn drawn_patches_equal_the_synchronous_decoder() {
 #[test]
 fn a_slow_lossy_source_never_blocks_and_converges_to_the_local_cut() {
     let repo = repository();
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     let world = World::of_repository(&repo);
     let mut rng = Rng(5);
     let budget = Duration::from_millis(2);
@@ -436,7 +440,7 @@ fn a_record_that_always_fails_is_given_up_on_without_stalling() {
         u64::from(RefineConfig::default().max_failures)
     );
     // Everything that does not depend on the broken diamond is refined as locally.
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     let layout = *domain.layout();
     for d in local.cut().refined() {
         let mut ancestors = vec![d];
@@ -453,7 +457,7 @@ fn a_record_that_always_fails_is_given_up_on_without_stalling() {
 fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
     let repo = repository();
     let world = World::of_repository(&repo);
-    let src_finest = repo.params().domain.finest_level();
+    let src_finest = repo.head().params().domain.finest_level();
     // Close to the ground, looking along it: the data's resolution is not enough.
     let (lo, hi) = world.bounds();
     let c = (lo + hi) * 0.5;
@@ -466,7 +470,7 @@ fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
     );
     let mut plain = Refiner::new(LocalSource::new(repo.clone()), unlimited(1)).unwrap();
     run_until_converged(&mut plain, &cam, 20);
-    assert_eq!(plain.layout(), repo.params().layout());
+    assert_eq!(plain.layout(), repo.head().params().layout());
     assert!(plain.cut().refined().all(|d| d.level < src_finest));
 
     let detail = RefineConfig {
@@ -493,7 +497,7 @@ fn detail_synthesis_is_off_by_default_deterministic_and_conforming() {
             let mut cut = Cut::new();
             for d in r.cut().refined().filter_map(|d| r.source_id(d)) {
                 if d.level < src_finest {
-                    cut.refine(&repo.params().domain, d);
+                    cut.refine(&repo.head().params().domain, d);
                 }
             }
             cut
@@ -604,7 +608,7 @@ fn a_memory_budget_bounds_the_cut_and_degrades_it_coarser_never_wrong() {
                     "view {view} frame {i}: {} > {limit}",
                     s.cut_bytes
                 );
-                let domain = repo.params().domain;
+                let domain = repo.head().params().domain;
                 check_conforming(&domain, &r.cut().triangles(&domain))
                     .unwrap_or_else(|e| panic!("view {view} frame {i}: {e}"));
                 if [5, 8, 14].contains(&i) {

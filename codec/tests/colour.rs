@@ -58,7 +58,7 @@ fn rgb_bound_holds_at_every_tolerance_and_zero_is_lossless() {
         let (enc, plan) = encode_colour(&img, max_error, &opts(), &|_, _| {}).unwrap();
         let file = serialize(&enc, &plan, None, None).unwrap();
         let repo = Repository::from_bytes(file.clone()).unwrap();
-        assert_eq!(repo.kind(), RepoKind::Colour);
+        assert_eq!(repo.head().kind(), RepoKind::Colour);
         repo.check_all().unwrap();
         let back = repo.to_encoded().unwrap();
         let report = verify_colour(&back, &img).unwrap();
@@ -92,19 +92,19 @@ fn colour_decoder_matches_reconstruction_and_elevation_decoder_refuses() {
     let img = image(33, 33, 3);
     let (enc, plan) = encode_colour(&img, 4, &opts(), &|_, _| {}).unwrap();
     let repo = Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap();
-    let err = repo.decoder().unwrap_err().to_string();
+    let err = repo.head().decoder().unwrap_err().to_string();
     assert!(err.contains("colour"), "{err}");
     // Refine every stored diamond with the colour decoder, level by level, and compare the
     // finest diamonds' RGB with the whole-image reconstruction.
-    let dec = repo.colour_decoder().unwrap();
-    let layout = repo.params().layout();
+    let dec = repo.head().colour_decoder().unwrap();
+    let layout = repo.head().params().layout();
     let full = reconstruct_rgb(&enc).unwrap();
     let mut refined = std::collections::HashMap::new();
     let mut scratch = Default::default();
     let n = layout.n();
     let mut checked = 0;
     let mut finest = std::collections::BTreeSet::new();
-    for e in repo.entries() {
+    for e in repo.head().entries() {
         let parents = layout
             .parents(e.id)
             .map(|p| p.and_then(|p| refined.get(&p)));
@@ -126,7 +126,8 @@ fn colour_decoder_matches_reconstruction_and_elevation_decoder_refuses() {
                 let (x, y) = g.point(i as i64, j as i64);
                 // Points on a side whose parent is absent are not gathered; sides inside the
                 // data always have both parents stored.
-                if repo.params().domain.data().contains(x, y) && parents.iter().all(|p| p.is_some())
+                if repo.head().params().domain.data().contains(x, y)
+                    && parents.iter().all(|p| p.is_some())
                 {
                     assert_eq!(rgb[j * n + i], full[y as usize * 33 + x as usize], "{id}");
                     checked += 1;
@@ -142,8 +143,8 @@ fn hostile_colour_records_error_not_panic() {
     let img = image(21, 17, 11);
     let (enc, plan) = encode_colour(&img, 2, &opts(), &|_, _| {}).unwrap();
     let repo = Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap();
-    let dec = repo.colour_decoder().unwrap();
-    let n = repo.params().layout().n();
+    let dec = repo.head().colour_decoder().unwrap();
+    let n = repo.head().params().layout().n();
     let grids = [vec![0i32; n * n], vec![0; n * n], vec![0; n * n]];
     let mut rng = Rng(5);
     let mut scratch = Default::default();
@@ -153,7 +154,7 @@ fn hostile_colour_records_error_not_panic() {
     }
     for len in [0usize, 3, 8, 9] {
         let bytes: Vec<u8> = (0..len).map(|_| 0xFF).collect();
-        let params = *repo.params();
+        let params = *repo.head().params();
         assert!(cbdam_codec::colour::ColourDecoder::new(params, &bytes).is_err());
     }
 }

@@ -131,7 +131,7 @@ fn rhine_mask_round_trips_through_the_repository() {
     let enc = encode(&grid, plan.quantizer, &EncodeOptions::default()).unwrap();
     let bytes = serialize(&enc, &plan, None, Some(-9999.0)).unwrap();
     let repo = Repository::from_bytes(bytes).unwrap();
-    assert!(repo.params().nodata_mask);
+    assert!(repo.head().params().nodata_mask);
     let back = repo.to_encoded().unwrap();
     check_mask(&back, &grid);
 }

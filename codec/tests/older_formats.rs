@@ -43,7 +43,7 @@ fn version_1_lidar_opens_and_equals_todays_encoding_but_for_the_index() {
     )
     .unwrap();
     let plan = QuantPlan::for_dem(&dem, 1.0, None).unwrap();
-    assert_eq!(*old.plan(), plan);
+    assert_eq!(*old.head().plan(), plan);
     let grid = HeightGrid::from_dem(&dem, &plan).unwrap();
     // With the defaults of its day: the bitwise adaptive coder (the token coder, id 2, came
     // with version 3 and is today's default).
@@ -67,15 +67,19 @@ fn version_1_lidar_opens_and_equals_todays_encoding_but_for_the_index() {
     assert_eq!(new.head().format_version(), FORMAT_VERSION);
     new.check_all().unwrap();
     for s in [Section::Roots, Section::Checksums, Section::Records] {
-        assert_eq!(old.section_len(s), new.section_len(s), "{s:?}");
+        assert_eq!(
+            old.head().section_len(s),
+            new.head().section_len(s),
+            "{s:?}"
+        );
     }
-    assert_eq!(old.root_bytes(), new.root_bytes());
+    assert_eq!(old.head().root_bytes(), new.head().root_bytes());
     let (v1, v2) = (
-        old.section_len(Section::Index),
-        new.section_len(Section::Index),
+        old.head().section_len(Section::Index),
+        new.head().section_len(Section::Index),
     );
     assert!(v2 * 2 < v1, "index: {v2} bytes today, {v1} in version 1");
-    for (a, b) in old.entries().iter().zip(new.entries()) {
+    for (a, b) in old.head().entries().iter().zip(new.head().entries()) {
         assert_eq!(
             (a.id, a.offset, a.length, a.object_error),
             (b.id, b.offset, b.length, b.object_error)
@@ -94,7 +98,13 @@ fn version_2_files_hold_todays_sections_under_a_longer_header() {
         assert_eq!(old.head().header_len(), 256, "{name}");
         old.check_all().unwrap();
         let enc = old.to_encoded().unwrap();
-        let bytes = serialize(&enc, old.plan(), old.georef(), old.nodata()).unwrap();
+        let bytes = serialize(
+            &enc,
+            old.head().plan(),
+            old.head().georef(),
+            old.head().nodata(),
+        )
+        .unwrap();
         let new = Repository::from_bytes(bytes).unwrap();
         assert_eq!(new.head().format_version(), 3);
         let h = new.head().header_len();
@@ -103,12 +113,22 @@ fn version_2_files_hold_todays_sections_under_a_longer_header() {
         assert_eq!(new.as_bytes()[h..], old_bytes[256..], "{name}");
         assert_eq!(new.to_encoded().unwrap(), enc, "{name}");
         assert_eq!(
-            (new.params(), new.plan(), new.georef(), new.nodata()),
-            (old.params(), old.plan(), old.georef(), old.nodata()),
+            (
+                new.head().params(),
+                new.head().plan(),
+                new.head().georef(),
+                new.head().nodata()
+            ),
+            (
+                old.head().params(),
+                old.head().plan(),
+                old.head().georef(),
+                old.head().nodata()
+            ),
             "{name}"
         );
-        assert_eq!(new.leaf_error(), old.leaf_error(), "{name}");
-        assert_eq!(new.entries(), old.entries(), "{name}");
+        assert_eq!(new.head().leaf_error(), old.head().leaf_error(), "{name}");
+        assert_eq!(new.head().entries(), old.head().entries(), "{name}");
     }
 }
 
@@ -135,13 +155,19 @@ fn older_nodata_and_colour_repositories_open_and_decode() {
         }
         // Rewritten today: the same records, and it opens again.
         let again = Repository::from_bytes(
-            serialize(&enc, old.plan(), old.georef(), old.nodata()).unwrap(),
+            serialize(
+                &enc,
+                old.head().plan(),
+                old.head().georef(),
+                old.head().nodata(),
+            )
+            .unwrap(),
         )
         .unwrap();
         again.check_all().unwrap();
         assert_eq!(again.head().format_version(), FORMAT_VERSION);
-        assert_eq!(again.root_bytes(), old.root_bytes());
-        for (i, e) in old.entries().iter().enumerate() {
+        assert_eq!(again.head().root_bytes(), old.head().root_bytes());
+        for (i, e) in old.head().entries().iter().enumerate() {
             assert_eq!(
                 again.record(e.id).unwrap(),
                 old.record_at(i).unwrap(),

@@ -614,8 +614,9 @@ fn a_planet_repository_is_written_and_read_back_with_its_domain() {
     // Flags varint at byte 12: nodata mask (1) and cube-sphere (4).
     assert_eq!(bytes[12], 5);
     let repo = Repository::from_bytes(bytes).unwrap();
-    assert_eq!(*repo.params(), encoded.params);
+    assert_eq!(*repo.head().params(), encoded.params);
     let records: Vec<Record> = repo
+        .head()
         .entries()
         .iter()
         .map(|e| Record {
@@ -635,10 +636,10 @@ fn a_planet_repository_is_written_and_read_back_with_its_domain() {
     }
     assert!(records.iter().any(|r| r.id.face == 5));
     let back = Encoded {
-        params: *repo.params(),
-        roots: repo.root_bytes().to_vec(),
+        params: *repo.head().params(),
+        roots: repo.head().root_bytes().to_vec(),
         records,
-        leaf_error: repo.leaf_error(),
+        leaf_error: repo.head().leaf_error(),
     };
     let report = verify_planet(&back, &planet).unwrap();
     assert!(report.within_bound(), "{report:?}");

@@ -113,26 +113,29 @@ fn round_trip_every_configuration() {
                     serialize(&repo.to_encoded().unwrap(), &plan, geo.as_ref(), None).unwrap(),
                     bytes
                 );
-                assert_eq!(*repo.plan(), plan);
-                assert_eq!(repo.georef(), geo.as_ref());
-                assert_eq!(repo.nodata(), None);
-                assert_eq!(repo.leaf_error(), enc.leaf_error);
+                assert_eq!(*repo.head().plan(), plan);
+                assert_eq!(repo.head().georef(), geo.as_ref());
+                assert_eq!(repo.head().nodata(), None);
+                assert_eq!(repo.head().leaf_error(), enc.leaf_error);
                 let ids = |e: &[IndexEntry]| {
                     e.iter()
                         .map(|e| (e.id, e.offset, e.length))
                         .collect::<Vec<_>>()
                 };
-                assert_eq!(ids(repo.entries()), ids(&enc.index_entries()));
-                assert_eq!(repo.file_len(), bytes.len() as u64);
+                assert_eq!(ids(repo.head().entries()), ids(&enc.index_entries()));
+                assert_eq!(repo.head().file_len(), bytes.len() as u64);
                 let non_empty = enc.records.iter().filter(|r| !r.bytes.is_empty()).count();
-                assert_eq!(repo.section_len(Section::Checksums), 4 * non_empty as u64);
+                assert_eq!(
+                    repo.head().section_len(Section::Checksums),
+                    4 * non_empty as u64
+                );
                 for r in &enc.records {
                     assert_eq!(repo.record(r.id).unwrap(), &r.bytes[..]);
                 }
                 let report = verify(&repo.to_encoded().unwrap(), &grid).unwrap();
                 assert!(report.within_bound());
                 // The decoder from the file decodes the same root field as the in-memory one.
-                assert_eq!(repo.decoder().unwrap().params(), &enc.params);
+                assert_eq!(repo.head().decoder().unwrap().params(), &enc.params);
                 assert_eq!(
                     reconstruct_finest(&repo.to_encoded().unwrap()).unwrap(),
                     reconstruct_finest(&enc).unwrap()
@@ -155,7 +158,7 @@ fn write_is_atomic_and_open_maps_the_same_bytes() {
     assert_eq!(names.len(), 1, "temporary file left behind: {names:?}");
     let repo = Repository::open(&path).unwrap();
     repo.check_all().unwrap();
-    assert_eq!(repo.nodata(), Some(-9999.0));
+    assert_eq!(repo.head().nodata(), Some(-9999.0));
     assert_same_hierarchy(&repo.to_encoded().unwrap(), &enc);
 
     // A directory is refused and left alone.
@@ -201,13 +204,18 @@ fn every_single_bit_flip_is_an_error() {
     let repo = Repository::from_bytes(bytes.clone()).unwrap();
     // Enough records that flips land in several of them and in the index's mask and fields.
     assert!(
-        repo.entries().len() >= 8,
+        repo.head().entries().len() >= 8,
         "{} records",
-        repo.entries().len()
+        repo.head().entries().len()
     );
-    let empty = repo.entries().iter().filter(|e| e.length == 0).count();
+    let empty = repo
+        .head()
+        .entries()
+        .iter()
+        .filter(|e| e.length == 0)
+        .count();
     assert!(
-        empty > 0 && empty < repo.entries().len() - 4,
+        empty > 0 && empty < repo.head().entries().len() - 4,
         "{empty} empty records: the fixture should have both kinds"
     );
     for bit in 0..bytes.len() * 8 {
@@ -224,19 +232,19 @@ fn every_single_bit_flip_is_an_error() {
 fn a_damaged_record_names_itself() {
     let bytes = image();
     let repo = load(bytes.clone()).unwrap();
-    let records_at = bytes.len() - repo.section_len(Section::Records) as usize;
+    let records_at = bytes.len() - repo.head().section_len(Section::Records) as usize;
     // Some records are empty (all residuals zero); damage the longest.
-    let victim = (0..repo.entries().len())
-        .max_by_key(|&i| repo.entries()[i].length)
+    let victim = (0..repo.head().entries().len())
+        .max_by_key(|&i| repo.head().entries()[i].length)
         .unwrap();
-    let e = repo.entries()[victim];
+    let e = repo.head().entries()[victim];
     let mut b = bytes;
     b[records_at + e.offset as usize] ^= 0x10;
     // Opening does not scan records; reading the damaged one does, and only that one fails.
     let repo = Repository::from_bytes(b).unwrap();
     let err = repo.record(e.id).unwrap_err().to_string();
     assert!(err.contains(&format!("record {victim}")), "{err}");
-    for i in (0..repo.entries().len()).filter(|&i| i != victim) {
+    for i in (0..repo.head().entries().len()).filter(|&i| i != victim) {
         assert!(repo.record_at(i).is_ok(), "record {i}");
     }
     assert!(repo.to_encoded().is_err());
@@ -330,9 +338,9 @@ fn head_from_a_prefix_checks_records_like_the_repository() {
     assert_eq!(len, required_head_len(&bytes[..hl]).unwrap() as usize);
     assert!(len < bytes.len());
     let head = RepositoryHead::parse(&bytes[..len], bytes.len() as u64).unwrap();
-    assert_eq!(head.entries(), repo.entries());
-    assert_eq!(head.params(), repo.params());
-    assert_eq!(head.root_bytes(), repo.root_bytes());
+    assert_eq!(head.entries(), repo.head().entries());
+    assert_eq!(head.params(), repo.head().params());
+    assert_eq!(head.root_bytes(), repo.head().root_bytes());
     assert_eq!(head.records_offset() as usize, len);
     let mut non_empty = 0;
     for (i, _) in head.entries().iter().enumerate() {
@@ -377,24 +385,27 @@ fn raw_accessors_match_the_layout() {
     let hl = header_len(&bytes);
     assert_eq!(repo.as_bytes(), &bytes[..]);
     assert_eq!(
-        repo.header_crc(),
+        repo.head().header_crc(),
         u32::from_le_bytes(bytes[hl - 4..hl].try_into().unwrap())
     );
     assert_eq!(repo.head().header_len(), hl);
-    assert_eq!(repo.section_offset(Section::Roots), hl as u64);
+    assert_eq!(repo.head().section_offset(Section::Roots), hl as u64);
     // The records area is last: everything before it is header + roots + index + checksums.
-    let head = repo.section_offset(Section::Records);
-    assert_eq!(head + repo.section_len(Section::Records), repo.file_len());
+    let head = repo.head().section_offset(Section::Records);
+    assert_eq!(
+        head + repo.head().section_len(Section::Records),
+        repo.head().file_len()
+    );
     assert_eq!(
         head,
         hl as u64
-            + repo.section_len(Section::Roots)
-            + repo.section_len(Section::Index)
-            + repo.section_len(Section::Checksums)
+            + repo.head().section_len(Section::Roots)
+            + repo.head().section_len(Section::Index)
+            + repo.head().section_len(Section::Checksums)
     );
     let mut empty = 0;
     for (i, r) in enc.records.iter().enumerate() {
-        match repo.record_checksum(i) {
+        match repo.head().record_checksum(i) {
             Some(c) => assert_eq!(c, crc32fast::hash(&r.bytes)),
             None => {
                 assert!(r.bytes.is_empty());
@@ -403,5 +414,5 @@ fn raw_accessors_match_the_layout() {
         }
     }
     assert!(empty > 0, "the fixture has a flat strip of empty records");
-    assert_eq!(repo.record_checksum(enc.records.len()), None);
+    assert_eq!(repo.head().record_checksum(enc.records.len()), None);
 }

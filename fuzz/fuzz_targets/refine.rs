@@ -85,7 +85,7 @@ fuzz_target!(|data: &[u8]| {
     }
     // It decoded: the whole hierarchy with this record in place must stay representable.
     let mut damaged = f.enc.clone();
-    damaged.records[ri].bytes = record.to_vec();
+    damaged.records[ri].bytes = record.to_vec().into();
     let _ = walk_with_validity(&damaged, |id, p, _| {
         if let Some(v) = p.iter().find(|v| v.unsigned_abs() > MAX_ABS_HEIGHT as u32) {
             panic!("{id}: decoded height {v} out of range");

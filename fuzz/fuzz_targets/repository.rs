@@ -26,10 +26,10 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let _ = repo.check_all();
-    for i in 0..repo.entries().len() {
+    for i in 0..repo.head().entries().len() {
         let _ = repo.record_at(i);
     }
-    let _ = repo.decoder();
+    let _ = repo.head().decoder();
     if let Ok(enc) = repo.to_encoded() {
         let _ = walk(&enc, |_, _| {});
     }

@@ -25,7 +25,7 @@ fuzz_target!(|data: &[u8]| {
     let Ok(enc) = repo.to_encoded() else {
         return;
     };
-    match repo.params().kind {
+    match repo.head().params().kind {
         RepoKind::Elevation => {
             let _ = walk_all_with_validity(&enc, |_, _, _| {});
         }

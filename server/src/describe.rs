@@ -35,7 +35,7 @@ pub struct Summary {
 
 /// Computes the [`Summary`] of `repo` (one pass over the index).
 pub fn summarize(repo: &Repository) -> Summary {
-    let p = repo.params();
+    let p = repo.head().params();
     let finest = p.layout().finest_level();
     let mut levels = vec![
         LevelStats {
@@ -44,9 +44,9 @@ pub fn summarize(repo: &Repository) -> Summary {
         };
         usize::from(finest) + 1
     ];
-    let (mut lo, mut hi) = (repo.leaf_error(), repo.leaf_error());
+    let (mut lo, mut hi) = (repo.head().leaf_error(), repo.head().leaf_error());
     let mut empty_records = 0;
-    for e in repo.entries() {
+    for e in repo.head().entries() {
         let l = &mut levels[usize::from(e.id.level)];
         l.records += 1;
         l.bytes += u64::from(e.length);
@@ -63,11 +63,11 @@ pub fn summarize(repo: &Repository) -> Summary {
         levels,
         empty_records,
         object_error_range: (lo, hi),
-        container_overhead: repo.file_len()
-            - repo.section_len(Section::Roots)
-            - repo.section_len(Section::Index)
-            - repo.section_len(Section::Records),
-        bits_per_sample: repo.file_len() as f64 * 8.0 / samples as f64,
+        container_overhead: repo.head().file_len()
+            - repo.head().section_len(Section::Roots)
+            - repo.head().section_len(Section::Index)
+            - repo.head().section_len(Section::Records),
+        bits_per_sample: repo.head().file_len() as f64 * 8.0 / samples as f64,
     }
 }
 
@@ -75,7 +75,7 @@ pub fn summarize(repo: &Repository) -> Summary {
 /// table. A client that fetches `bytes=0-(head_len − 1)` of the file has everything but the
 /// records, and can open it with the codec.
 pub fn head_len(repo: &Repository) -> u64 {
-    repo.section_offset(Section::Records)
+    repo.head().section_offset(Section::Records)
 }
 
 /// `"1"` or `"0.5"`: the lifting weight as the CLI spells it.
@@ -87,11 +87,11 @@ pub fn alpha_name(a: Alpha) -> &'static str {
 /// sizes and offsets, root ids, and per-level record statistics. This is the output of
 /// `cbdam inspect --json`; the server's meta endpoint adds links to it.
 pub fn describe(repo: &Repository) -> Value {
-    let p = repo.params();
-    let plan = repo.plan();
+    let p = repo.head().params();
+    let plan = repo.head().plan();
     let s = summarize(repo);
     let metres = |u: u32| f64::from(u) * plan.unit;
-    let geo = repo.georef().map(|g| {
+    let geo = repo.head().georef().map(|g| {
         json!({
             "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
             "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
@@ -102,7 +102,7 @@ pub fn describe(repo: &Repository) -> Value {
     // The area the data samples cover, in CRS units: cell edges for pixel-is-area data,
     // sample centres widened by half a pixel for pixel-is-point data (GDAL's convention), so
     // both read as "the extent of the raster".
-    let bbox = repo.georef().map(|g| {
+    let bbox = repo.head().georef().map(|g| {
         let half = if g.pixel_is_area { 0.0 } else { 0.5 };
         let x0 = g.origin_x - half * g.pixel_x;
         let y0 = g.origin_y + half * g.pixel_y;
@@ -124,10 +124,10 @@ pub fn describe(repo: &Repository) -> Value {
             })
         })
         .collect();
-    let section = |sec: Section| json!({ "offset": repo.section_offset(sec), "length": repo.section_len(sec) });
+    let section = |sec: Section| json!({ "offset": repo.head().section_offset(sec), "length": repo.head().section_len(sec) });
     let roots: Vec<String> = p.domain.roots().map(|id| id.to_string()).collect();
     // A planet's provenance, null for planes.
-    let planet = repo.provenance().map(|v| {
+    let planet = repo.head().provenance().map(|v| {
         json!({
             "vertical_datum": v.vertical_datum.code(),
             "resampling_max_m": v.resampling_max,
@@ -139,8 +139,8 @@ pub fn describe(repo: &Repository) -> Value {
         "kind": p.kind.name(),
         "domain": p.domain.kind().name(),
         "faces": p.domain.faces(),
-        "file_bytes": repo.file_len(),
-        "header_crc": format!("{:08x}", repo.header_crc()),
+        "file_bytes": repo.head().file_len(),
+        "header_crc": format!("{:08x}", repo.head().header_crc()),
         "diamond_size": p.layout().n(),
         "level_pairs": p.layout().k(),
         "finest_level": p.layout().finest_level(),
@@ -165,13 +165,13 @@ pub fn describe(repo: &Repository) -> Value {
         "max_error_guaranteed_m": plan.max_error(),
         "representation_error_m": plan.representation_error,
         "lattice": plan.lattice,
-        "nodata": repo.nodata(),
+        "nodata": repo.head().nodata(),
         "georef": geo,
-        "records": repo.entries().len(),
+        "records": repo.head().entries().len(),
         "empty_records": s.empty_records,
-        "roots_bytes": repo.section_len(Section::Roots),
-        "index_bytes": repo.section_len(Section::Index),
-        "records_bytes": repo.section_len(Section::Records),
+        "roots_bytes": repo.head().section_len(Section::Roots),
+        "index_bytes": repo.head().section_len(Section::Index),
+        "records_bytes": repo.head().section_len(Section::Records),
         "container_overhead_bytes": s.container_overhead,
         "head_len": head_len(repo),
         "sections": {
@@ -183,7 +183,7 @@ pub fn describe(repo: &Repository) -> Value {
         },
         "bits_per_sample": s.bits_per_sample,
         "object_error_range_m": [metres(s.object_error_range.0), metres(s.object_error_range.1)],
-        "leaf_error_m": metres(repo.leaf_error()),
+        "leaf_error_m": metres(repo.head().leaf_error()),
         "levels": levels,
     });
     v["planet"] = planet.unwrap_or(Value::Null);

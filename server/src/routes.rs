@@ -92,7 +92,11 @@ fn parse_id(s: &str) -> Result<DiamondId, ApiError> {
 }
 
 fn find(r: &ServedRepo, id: DiamondId) -> Option<usize> {
-    r.repo.entries().binary_search_by(|e| e.id.cmp(&id)).ok()
+    r.repo
+        .head()
+        .entries()
+        .binary_search_by(|e| e.id.cmp(&id))
+        .ok()
 }
 
 /// Whether `If-None-Match` matches `etag` (weak comparison, as RFC 9110 asks for this header).
@@ -125,7 +129,7 @@ fn checked_record(st: &AppState, r: &ServedRepo, i: usize) -> Result<Range<usize
         }
         Err(e) => {
             st.metrics().add_corrupt();
-            let id = r.repo.entries()[i].id;
+            let id = r.repo.head().entries()[i].id;
             if !r.corrupt_logged[i].swap(true, Relaxed) {
                 tracing::error!(
                     repo = %r.name,
@@ -390,7 +394,7 @@ async fn file(
 ) -> Result<Response, ApiError> {
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
-    let len = r.repo.file_len();
+    let len = r.repo.head().file_len();
     let mut h = headers([
         (header::ETAG, r.file_etag.clone()),
         (header::CACHE_CONTROL, hv(REVALIDATE)),

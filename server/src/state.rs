@@ -141,8 +141,8 @@ impl ServedRepo {
         let mut meta = describe(&repo);
         let m = meta.as_object_mut().expect("describe returns an object");
         let base = format!("/v1/repos/{name}");
-        let roots_at = repo.section_offset(Section::Roots);
-        let roots_end = roots_at + repo.section_len(Section::Roots);
+        let roots_at = repo.head().section_offset(Section::Roots);
+        let roots_end = roots_at + repo.head().section_len(Section::Roots);
         m.insert("name".into(), name.clone().into());
         m.insert("file".into(), format!("{base}/file").into());
         m.insert("diamonds".into(), format!("{base}/diamonds").into());
@@ -159,17 +159,17 @@ impl ServedRepo {
             }),
         );
         let meta = Bytes::from(serde_json::to_vec_pretty(&meta).expect("JSON of plain values"));
-        let hdr = repo.header_crc();
+        let hdr = repo.head().header_crc();
         let meta_etag = format!("\"{hdr:08x}-m{:08x}\"", crc32fast::hash(&meta));
-        let file_etag = format!("\"{hdr:08x}-f{:016x}\"", repo.file_len());
-        let n = repo.entries().len();
+        let file_etag = format!("\"{hdr:08x}-f{:016x}\"", repo.head().file_len());
+        let n = repo.head().entries().len();
         let flags = || (0..n).map(|_| AtomicBool::new(false)).collect();
         let mut etags = String::with_capacity(n * 20);
         let mut etag_at = Vec::with_capacity(n + 1);
         etag_at.push(0);
         for i in 0..n {
             // `write!` into a String cannot fail.
-            let _ = match repo.record_checksum(i) {
+            let _ = match repo.head().record_checksum(i) {
                 Some(c) => write!(etags, "\"{hdr:08x}-r{c:08x}\""),
                 None => write!(etags, "\"{hdr:08x}-e\""),
             };
@@ -246,7 +246,7 @@ impl AppState {
             .iter()
             .map(|n| {
                 let r = &map[n].repo;
-                let data = r.params().domain.data();
+                let data = r.head().params().domain.data();
                 let size = r.as_bytes().len();
                 (
                     n.clone(),

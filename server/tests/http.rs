@@ -43,8 +43,8 @@ async fn listing_and_meta() {
     assert_eq!(m["diamond_size"], 9);
     assert_eq!(m["data_width"], 61);
     assert_eq!(m["data_height"], 45);
-    assert_eq!(m["records"], repo.entries().len());
-    assert_eq!(m["file_bytes"], repo.file_len());
+    assert_eq!(m["records"], repo.head().entries().len());
+    assert_eq!(m["file_bytes"], repo.head().file_len());
     assert_eq!(m["coder"], "adaptive-tokens");
     assert_eq!(m["alpha"], "1");
     assert_eq!(m["max_error_requested_m"], 0.5);
@@ -61,16 +61,19 @@ async fn listing_and_meta() {
     );
     assert_eq!(
         m["levels"].as_array().unwrap().len(),
-        usize::from(repo.params().layout().finest_level()) + 1
+        usize::from(repo.head().params().layout().finest_level()) + 1
     );
     // head_len: everything before the records area, which is last.
-    let head = repo.section_offset(Section::Records);
+    let head = repo.head().section_offset(Section::Records);
     assert_eq!(m["head_len"], head);
-    assert_eq!(head + repo.section_len(Section::Records), repo.file_len());
+    assert_eq!(
+        head + repo.head().section_len(Section::Records),
+        repo.head().file_len()
+    );
     assert_eq!(m["sections"]["records"]["offset"], head);
     assert_eq!(
         m["sections"]["roots"]["length"],
-        repo.section_len(Section::Roots)
+        repo.head().section_len(Section::Roots)
     );
     assert_eq!(
         m["root_values"]["head_range"],
@@ -82,7 +85,10 @@ async fn listing_and_meta() {
         .iter()
         .map(|r| r.as_str().unwrap().parse().unwrap())
         .collect();
-    assert_eq!(roots, repo.params().layout().roots().collect::<Vec<_>>());
+    assert_eq!(
+        roots,
+        repo.head().params().layout().roots().collect::<Vec<_>>()
+    );
     assert!(!roots.is_empty() && roots.iter().all(|r| r.level == 0));
 
     // Revalidation: the same ETag gives 304 with no body.
@@ -108,7 +114,7 @@ async fn single_records_with_etags() {
     let repo = &s.state.repo("t").unwrap().repo;
     let mut empty = 0;
     let mut etags = std::collections::HashSet::new();
-    for e in repo.entries() {
+    for e in repo.head().entries() {
         let r = c
             .get(s.url(&format!("/v1/repos/t/diamonds/{}", e.id)))
             .send()
@@ -135,9 +141,9 @@ async fn single_records_with_etags() {
         "the fixture has empty records, served as 200 with no body"
     );
     // Distinct non-empty records almost surely have distinct CRCs here.
-    assert!(etags.len() > repo.entries().len() / 2);
+    assert!(etags.len() > repo.head().entries().len() / 2);
 
-    let e = repo.entries().iter().find(|e| e.length > 0).unwrap();
+    let e = repo.head().entries().iter().find(|e| e.length > 0).unwrap();
     let url = s.url(&format!("/v1/repos/t/diamonds/{}", e.id));
     let etag = c.get(&url).send().await.unwrap().headers()["etag"].clone();
     for inm in [
@@ -226,9 +232,15 @@ async fn batches_in_request_order() {
     let c = client();
     let repo = &s.state.repo("t").unwrap().repo;
     let url = s.url("/v1/repos/t/diamonds");
-    let stored: Vec<DiamondId> = repo.entries().iter().map(|e| e.id).collect();
+    let stored: Vec<DiamondId> = repo.head().entries().iter().map(|e| e.id).collect();
     // Out of order, with duplicates, an empty record and ids that are not stored.
-    let empty = repo.entries().iter().find(|e| e.length == 0).unwrap().id;
+    let empty = repo
+        .head()
+        .entries()
+        .iter()
+        .find(|e| e.length == 0)
+        .unwrap()
+        .id;
     let mut ids: Vec<String> = vec![
         stored[stored.len() - 1].to_string(),
         "0-999999-0".into(),
@@ -342,8 +354,8 @@ async fn file_with_ranges() {
     let got = r.bytes().await.unwrap();
     assert_eq!(&got[..], &file[..head]);
     // Every record is the same range of the file as what the record endpoint serves.
-    let rec_at = repo.section_offset(Section::Records) as usize;
-    let e = repo.entries().iter().find(|e| e.length > 3).unwrap();
+    let rec_at = repo.head().section_offset(Section::Records) as usize;
+    let e = repo.head().entries().iter().find(|e| e.length > 3).unwrap();
     let a = rec_at + e.offset as usize;
     let r = get(Some(&format!("bytes={a}-{}", a + e.length as usize - 1)))
         .await
@@ -481,7 +493,7 @@ async fn h2c_prior_knowledge() {
         .build()
         .unwrap();
     let repo = &s.state.repo("t").unwrap().repo;
-    let e = repo.entries().iter().find(|e| e.length > 0).unwrap();
+    let e = repo.head().entries().iter().find(|e| e.length > 0).unwrap();
     // Several requests concurrently on the one HTTP/2 connection.
     let urls: Vec<String> = (0..8)
         .map(|_| s.url(&format!("/v1/repos/t/diamonds/{}", e.id)))
@@ -526,7 +538,7 @@ async fn metrics_count_requests() {
     let s = start_one(Config::default()).await;
     let c = client();
     let repo = &s.state.repo("t").unwrap().repo;
-    let id = repo.entries()[0].id;
+    let id = repo.head().entries()[0].id;
     for _ in 0..3 {
         let r = c
             .get(s.url(&format!("/v1/repos/t/diamonds/{id}")))
@@ -561,7 +573,7 @@ async fn metrics_count_requests() {
     has(r#"cbdam_http_errors_total{endpoint="diamond",class="client"} 1"#);
     has(r#"cbdam_http_request_duration_seconds_count{endpoint="diamond"} 4"#);
     has("cbdam_records_sent_total 5");
-    let bytes = 3 * repo.entries()[0].length as u64;
+    let bytes = 3 * repo.head().entries()[0].length as u64;
     let sent = t
         .lines()
         .find_map(|l| l.strip_prefix(r#"cbdam_http_response_bytes_total{endpoint="diamond"} "#))

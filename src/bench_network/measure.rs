@@ -275,7 +275,7 @@ fn fly_and_collect<S: DataSource>(
     for (f, cpu) in frames.iter_mut().zip(&run.cpu_ms) {
         f.cpu_ms = *cpu;
     }
-    let entries = refiner.source().entries();
+    let entries = refiner.source().head().entries();
     let final_cut: BTreeSet<DiamondId> = refiner.cut().refined().collect();
     let final_sources = final_cut
         .iter()
@@ -473,7 +473,7 @@ pub fn remote(
         }
         let prefetched: HashSet<DiamondId> = refiner.last_requested_as_prefetch().collect();
         let received = received(
-            refiner.source().entries(),
+            refiner.source().head().entries(),
             refiner.source().received(),
             &prefetched,
             &m,

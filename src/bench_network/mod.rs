@@ -181,8 +181,8 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     let repo_path = repository(args, &args.out)?;
     let repo =
         Repository::open(&repo_path).with_context(|| format!("opening {}", repo_path.display()))?;
-    let records = repo.entries().len();
-    let file_len = repo.file_len();
+    let records = repo.head().entries().len();
+    let file_len = repo.head().file_len();
     drop(repo);
 
     let viewer = refine_config(args.pixel_error, args.budget_ms, 1.0)?;

@@ -336,6 +336,7 @@ fn auto_extra_levels_keep_the_smaller_repository() {
         let k = |b: &[u8]| {
             Repository::from_bytes(b.to_vec())
                 .unwrap()
+                .head()
                 .params()
                 .layout()
                 .k()

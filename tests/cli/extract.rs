@@ -242,11 +242,11 @@ fn extract_bad_inputs_fail_without_output() {
     // A damaged record: named, and nothing written.
     let bad = dir.path().join("bad.cbdam");
     let rp = Repository::open(&repo).unwrap();
-    let records = rp.section_len(Section::Records) as usize;
-    let victim = (0..rp.entries().len())
-        .max_by_key(|&i| rp.entries()[i].length)
+    let records = rp.head().section_len(Section::Records) as usize;
+    let victim = (0..rp.head().entries().len())
+        .max_by_key(|&i| rp.head().entries()[i].length)
         .unwrap();
-    let e = rp.entries()[victim];
+    let e = rp.head().entries()[victim];
     drop(rp);
     let mut bytes = std::fs::read(&repo).unwrap();
     let at = bytes.len() - records + e.offset as usize + e.length as usize / 2;

@@ -22,12 +22,12 @@ fn verify_catches_a_damaged_record_by_name() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let repo = Repository::open(&out).unwrap();
-    let records = repo.section_len(Section::Records) as usize;
+    let records = repo.head().section_len(Section::Records) as usize;
     // The longest record (some records are empty: all residuals zero).
-    let victim = (0..repo.entries().len())
-        .max_by_key(|&i| repo.entries()[i].length)
+    let victim = (0..repo.head().entries().len())
+        .max_by_key(|&i| repo.head().entries()[i].length)
         .unwrap();
-    let e = repo.entries()[victim];
+    let e = repo.head().entries()[victim];
     drop(repo);
     let mut bytes = std::fs::read(&out).unwrap();
     let at = bytes.len() - records + e.offset as usize + e.length as usize / 2;

@@ -39,7 +39,7 @@ struct Finest {
 
 impl Finest {
     fn new(repo: &Repository) -> Self {
-        let p = repo.params();
+        let p = repo.head().params();
         Self {
             layout: *p.layout(),
             w: p.domain.data().width as usize,
@@ -103,7 +103,7 @@ fn worst_excess(
         )
         .unwrap();
     let depth = frame.depth.as_ref().unwrap();
-    let k_metres = f64::from(repo.params().quantizer.k()) * world.unit;
+    let k_metres = f64::from(repo.head().params().quantizer.k()) * world.unit;
     let (mut excess, mut worst, mut counted) = (f64::NEG_INFINITY, 0f64, 0);
     for y in 0..cam.height {
         for x in 0..cam.width {

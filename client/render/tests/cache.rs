@@ -76,7 +76,7 @@ fn a_pool_too_small_draws_fewer_patches_never_wrong_ones() {
     let repo = jacksboro();
     let world = World::of_repository(repo);
     let mut ample = renderer(repo);
-    let n = repo.params().layout().n() as u64;
+    let n = repo.head().params().layout().n() as u64;
     let slot_bytes = n * n * 4;
     let views = views(&world);
     let first = cut_patches(&views[0]);
@@ -135,7 +135,7 @@ fn an_upload_budget_converges_to_the_full_picture() {
     let cam = &views(&world)[1];
     let patches = cut_patches(cam);
     let reference = renderer(repo).render(cam, &patches, &options()).unwrap();
-    let n = repo.params().layout().n() as u64;
+    let n = repo.head().params().layout().n() as u64;
     let per_frame = 40;
     let mut r = Renderer::new(
         gpu(),

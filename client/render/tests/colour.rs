@@ -69,7 +69,7 @@ fn colour(
         georef: None,
     };
     let base = Layout::covering(N, w, h, 0).unwrap();
-    let k = like.params().layout().k() as i32 + shift;
+    let k = like.head().params().layout().k() as i32 + shift;
     let opts = EncodeOptions {
         n: N,
         extra_level_pairs: (k - base.k() as i32) as u32,
@@ -567,7 +567,7 @@ impl Spawner for ThroughBytes {
 fn head(repo: &Repository) -> HeadBytes<'_> {
     HeadBytes {
         bytes: repo.as_bytes(),
-        file_len: repo.file_len(),
+        file_len: repo.head().file_len(),
     }
 }
 

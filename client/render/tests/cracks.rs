@@ -99,7 +99,7 @@ fn views(world: &World) -> Vec<(&'static str, Camera)> {
 }
 
 fn cuts(repo: &cbdam_codec::repository::Repository) -> Vec<(String, Cut)> {
-    let n = repo.entries().len();
+    let n = repo.head().entries().len();
     let mut out = vec![
         ("coarsest".to_string(), Cut::new()),
         ("full".to_string(), full_resolution_cut(repo)),
@@ -114,7 +114,7 @@ fn cuts(repo: &cbdam_codec::repository::Repository) -> Vec<(String, Cut)> {
 fn mixed_level_cuts_have_no_cracks() {
     let repo = jacksboro();
     let world = World::of_repository(repo);
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     let layout = *domain.layout();
     let mut renderer = renderer(repo);
     let options = RenderOptions {

@@ -136,10 +136,10 @@ pub fn height_range(world: &World, patches: &[HalfPatch]) -> (f64, f64) {
 /// diamonds are mostly fine, and refining one forces its whole ancestry): the cut then mixes
 /// as many levels side by side as the DAG allows.
 pub fn random_cut(repo: &Repository, count: usize, seed: u64) -> Cut {
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     let layout = *domain.layout();
     let mut by_level: Vec<Vec<_>> = vec![Vec::new(); usize::from(layout.finest_level())];
-    for e in repo.entries() {
+    for e in repo.head().entries() {
         if let Some(l) = by_level.get_mut(usize::from(e.id.level)) {
             l.push(e.id);
         }
@@ -173,9 +173,9 @@ pub fn save(name: &str, png: &[u8]) -> PathBuf {
 /// The full-resolution cut: every stored diamond refined, so the finest level is drawn wherever
 /// there is data. The reference that adaptive cuts are compared with.
 pub fn full_resolution_cut(repo: &Repository) -> Cut {
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     let mut cut = Cut::new();
-    for e in repo.entries() {
+    for e in repo.head().entries() {
         cut.refine(&domain, e.id);
     }
     cut

@@ -86,7 +86,7 @@ fn texture_path_draws_the_storage_path_image() {
     let world = World::of_repository(repo);
     let (lo, hi) = world.bounds();
     let span = (hi - lo).x.max((hi - lo).y);
-    let n = repo.params().layout().n() as u64;
+    let n = repo.head().params().layout().n() as u64;
     let mut both = renderers(repo, false, Some(300 * n * n * 4));
     let wire = gpu()
         .device
@@ -134,7 +134,7 @@ fn texture_path_reads_nodata_marks_and_draped_colours() {
     let span = (hi - lo).x.max((hi - lo).y);
     let cam = orbit(&world, 30.0, 50.0, span * 0.7, (240, 160));
     let (_, patches) = refined_cut(repo, &cam, 1.0);
-    let n = repo.params().layout().n();
+    let n = repo.head().params().layout().n();
     let marked: Vec<Arc<HalfPatch>> = patches
         .iter()
         .enumerate()

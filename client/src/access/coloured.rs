@@ -16,10 +16,7 @@
 use cbdam_codec::CodecError;
 use cbdam_codec::colour::{Alignment, ColourDecoder};
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::CodecParams;
-use cbdam_codec::quant::QuantPlan;
-use cbdam_codec::repository::GeoRef;
-use cbdam_codec::repository::index::IndexEntry;
+use cbdam_codec::repository::RepositoryHead;
 
 use super::{AccessError, AccessStats, DataSource, Priority};
 
@@ -77,13 +74,14 @@ impl<E: DataSource, C: DataSource> ColouredSource<E, C> {
     /// error names the mismatch.
     pub fn new(elevation: E, colour: C) -> Result<Self, CodecError> {
         let alignment = Alignment::new(
-            elevation.params(),
-            elevation.georef(),
-            colour.params(),
-            colour.georef(),
+            elevation.head().params(),
+            elevation.head().georef(),
+            colour.head().params(),
+            colour.head().georef(),
         )?;
-        let decoder = ColourDecoder::new(*colour.params(), colour.root_bytes())?;
+        let decoder = ColourDecoder::new(*colour.head().params(), colour.head().root_bytes())?;
         if elevation
+            .head()
             .params()
             .domain
             .roots()
@@ -115,6 +113,7 @@ impl<E: DataSource, C: DataSource> ColouredSource<E, C> {
     pub fn colour_id(&self, id: DiamondId) -> Option<DiamondId> {
         let c = self.drape.alignment.colour_id(id)?;
         self.colour
+            .head()
             .entries()
             .binary_search_by(|e| e.id.cmp(&c))
             .is_ok()
@@ -123,23 +122,8 @@ impl<E: DataSource, C: DataSource> ColouredSource<E, C> {
 }
 
 impl<E: DataSource, C: DataSource> DataSource for ColouredSource<E, C> {
-    fn params(&self) -> &CodecParams {
-        self.elevation.params()
-    }
-    fn plan(&self) -> &QuantPlan {
-        self.elevation.plan()
-    }
-    fn georef(&self) -> Option<&GeoRef> {
-        self.elevation.georef()
-    }
-    fn leaf_error(&self) -> u32 {
-        self.elevation.leaf_error()
-    }
-    fn entries(&self) -> &[IndexEntry] {
-        self.elevation.entries()
-    }
-    fn root_bytes(&self) -> &[u8] {
-        self.elevation.root_bytes()
+    fn head(&self) -> &RepositoryHead {
+        self.elevation.head()
     }
     fn drape(&self) -> Option<&Drape> {
         Some(&self.drape)

@@ -8,11 +8,8 @@ use std::sync::Arc;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::CodecParams;
-use cbdam_codec::quant::QuantPlan;
-use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
-use cbdam_codec::repository::index::IndexEntry;
+use cbdam_codec::repository::RepositoryHead;
 
 use super::{AccessError, AccessStats, DataSource, Priority};
 
@@ -123,23 +120,8 @@ impl FlakySource {
 }
 
 impl DataSource for FlakySource {
-    fn params(&self) -> &CodecParams {
-        self.repo.params()
-    }
-    fn plan(&self) -> &QuantPlan {
-        self.repo.plan()
-    }
-    fn georef(&self) -> Option<&GeoRef> {
-        self.repo.georef()
-    }
-    fn leaf_error(&self) -> u32 {
-        self.repo.leaf_error()
-    }
-    fn entries(&self) -> &[IndexEntry] {
-        self.repo.entries()
-    }
-    fn root_bytes(&self) -> &[u8] {
-        self.repo.root_bytes()
+    fn head(&self) -> &RepositoryHead {
+        self.repo.head()
     }
 
     fn request(&mut self, id: DiamondId, priority: Priority) {

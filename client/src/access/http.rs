@@ -13,10 +13,7 @@ use std::sync::Arc;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::CodecParams;
-use cbdam_codec::quant::QuantPlan;
-use cbdam_codec::repository::GeoRef;
-use cbdam_codec::repository::index::IndexEntry;
+use cbdam_codec::repository::RepositoryHead;
 
 use super::{AccessError, AccessStats, DataSource, Priority};
 use crate::fetch::{FetchOptions, FetchStats, RemoteError, RemoteFetcher};
@@ -117,23 +114,8 @@ impl RemoteSource {
 }
 
 impl DataSource for RemoteSource {
-    fn params(&self) -> &CodecParams {
-        self.fetcher.head().params()
-    }
-    fn plan(&self) -> &QuantPlan {
-        self.fetcher.head().plan()
-    }
-    fn georef(&self) -> Option<&GeoRef> {
-        self.fetcher.head().georef()
-    }
-    fn leaf_error(&self) -> u32 {
-        self.fetcher.head().leaf_error()
-    }
-    fn entries(&self) -> &[IndexEntry] {
-        self.fetcher.head().entries()
-    }
-    fn root_bytes(&self) -> &[u8] {
-        self.fetcher.head().root_bytes()
+    fn head(&self) -> &RepositoryHead {
+        self.fetcher.head()
     }
 
     fn request(&mut self, id: DiamondId, priority: Priority) {

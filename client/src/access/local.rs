@@ -5,11 +5,8 @@ use std::sync::Arc;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::CodecParams;
-use cbdam_codec::quant::QuantPlan;
-use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
-use cbdam_codec::repository::index::IndexEntry;
+use cbdam_codec::repository::RepositoryHead;
 
 use super::mapped::MappedReads;
 use super::{AccessError, AccessStats, DataSource, MappedRecord, Priority};
@@ -49,23 +46,8 @@ impl LocalSource {
 }
 
 impl DataSource for LocalSource {
-    fn params(&self) -> &CodecParams {
-        self.repo.params()
-    }
-    fn plan(&self) -> &QuantPlan {
-        self.repo.plan()
-    }
-    fn georef(&self) -> Option<&GeoRef> {
-        self.repo.georef()
-    }
-    fn leaf_error(&self) -> u32 {
-        self.repo.leaf_error()
-    }
-    fn entries(&self) -> &[IndexEntry] {
-        self.repo.entries()
-    }
-    fn root_bytes(&self) -> &[u8] {
-        self.repo.root_bytes()
+    fn head(&self) -> &RepositoryHead {
+        self.repo.head()
     }
 
     fn request(&mut self, _id: DiamondId, _priority: Priority) {
@@ -109,7 +91,13 @@ impl DataSource for LocalSource {
     }
 
     fn mapped_entry(&self, id: DiamondId, index: usize) -> Option<MappedRecord> {
-        if self.repo.entries().get(index).is_some_and(|e| e.id == id) {
+        if self
+            .repo
+            .head()
+            .entries()
+            .get(index)
+            .is_some_and(|e| e.id == id)
+        {
             Some(MappedRecord::new(
                 self.repo.clone(),
                 index,

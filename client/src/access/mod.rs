@@ -43,10 +43,8 @@ pub use local::LocalSource;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{CodecParams, Decoder};
-use cbdam_codec::quant::QuantPlan;
-use cbdam_codec::repository::GeoRef;
-use cbdam_codec::repository::index::IndexEntry;
+use cbdam_codec::hierarchy::Decoder;
+use cbdam_codec::repository::RepositoryHead;
 
 /// Priority of a request: screen-space error in pixels. Larger is fetched first; prefetches use
 /// a scaled-down error so that they never overtake what the current view needs.
@@ -105,23 +103,14 @@ impl<T: ?Sized> MaybeSend for T {}
 
 /// Where records come from. See the module documentation for the contract.
 pub trait DataSource: MaybeSend {
-    /// The decoder's header fields (layout, coder, quantizer, data rectangle).
-    fn params(&self) -> &CodecParams;
-    /// How integer units map to metres, and the tolerance the repository was built for.
-    fn plan(&self) -> &QuantPlan;
-    /// Georeferencing of the data grid, when the input had one.
-    fn georef(&self) -> Option<&GeoRef>;
-    /// Object-space error of the finest diamonds, units.
-    fn leaf_error(&self) -> u32;
-    /// The index: every stored diamond in id order, with record length, object-space error and
-    /// height range.
-    fn entries(&self) -> &[IndexEntry];
-    /// The coded root field.
-    fn root_bytes(&self) -> &[u8];
+    /// The repository's validated head: its header fields (layout, coder, quantizer, data
+    /// rectangle, georeferencing), the index of every stored diamond with its record length,
+    /// object-space error and height range, and the coded root field.
+    fn head(&self) -> &RepositoryHead;
 
     /// A decoder over the root field.
     fn decoder(&self) -> Result<Decoder, CodecError> {
-        Decoder::new(*self.params(), self.root_bytes())
+        self.head().decoder()
     }
 
     /// The colour repository draped over this elevation, when the source pairs one
@@ -170,23 +159,8 @@ pub trait DataSource: MaybeSend {
 /// A boxed source is a source: the command line picks local, remote and coloured sources at
 /// run time.
 impl<S: DataSource + ?Sized> DataSource for Box<S> {
-    fn params(&self) -> &CodecParams {
-        (**self).params()
-    }
-    fn plan(&self) -> &QuantPlan {
-        (**self).plan()
-    }
-    fn georef(&self) -> Option<&GeoRef> {
-        (**self).georef()
-    }
-    fn leaf_error(&self) -> u32 {
-        (**self).leaf_error()
-    }
-    fn entries(&self) -> &[IndexEntry] {
-        (**self).entries()
-    }
-    fn root_bytes(&self) -> &[u8] {
-        (**self).root_bytes()
+    fn head(&self) -> &RepositoryHead {
+        (**self).head()
     }
     fn decoder(&self) -> Result<Decoder, CodecError> {
         (**self).decoder()

@@ -720,7 +720,7 @@ mod tests {
         let head = repo.head();
         // Four records of the same size, so that fractions are exact.
         let mut by_len: HashMap<u32, Vec<DiamondId>> = HashMap::new();
-        for e in repo.entries() {
+        for e in repo.head().entries() {
             by_len.entry(e.length).or_default().push(e.id);
         }
         let four: Vec<DiamondId> = by_len

@@ -545,11 +545,16 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// A refiner with the coarsest cut (roots only), decoding on `spawner`.
     pub fn with_spawner(source: S, config: RefineConfig, spawner: X) -> Result<Self, CodecError> {
         let decoder = source.decoder()?;
-        let params = *source.params();
+        let params = *source.head().params();
         let src_finest = params.domain.finest_level();
         let shift = config.detail.map_or(0, |d| d.level_pairs);
         let world = exaggerated(
-            &World::new(&params, source.plan(), source.georef(), source.entries()),
+            &World::new(
+                &params,
+                source.head().plan(),
+                source.head().georef(),
+                source.head().entries(),
+            ),
             config.exaggeration,
         )
         .with_detail(shift)?;
@@ -562,7 +567,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
 
         // Saturate boxes and errors bottom-up: ids sort coarse to fine, so go in reverse.
         let mut stored: IdMap<(Info, usize)> = IdMap::default();
-        for (index, e) in source.entries().iter().enumerate().rev() {
+        for (index, e) in source.head().entries().iter().enumerate().rev() {
             let id = e.id.finer(shift);
             let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
             // On a planet the flat triangles' sag under the curved surface counts too.
@@ -1045,7 +1050,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 missing.push(sid);
             }
         }
-        let entries = self.source.entries();
+        let entries = self.source.head().entries();
         missing
             .iter()
             .filter_map(|sid| entries.binary_search_by(|e| e.id.cmp(sid)).ok())

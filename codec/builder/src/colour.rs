@@ -60,7 +60,7 @@ fn power_of_two_ratio(big: u32, small: u32) -> Option<u32> {
 /// The level-pair shift `K_colour − K_elevation` that makes an image of `w × h` cover the
 /// elevation's data rectangle, or a clear error.
 fn shift_for(img: &RgbImage, like: &Repository, like_path: &Path) -> Result<i32> {
-    let p = like.params();
+    let p = like.head().params();
     let (we, he) = (p.domain.data().width, p.domain.data().height);
     let (wc, hc) = (img.width as u32, img.height as u32);
     let ratio = |a: u32, b: u32| {
@@ -115,7 +115,7 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
         .as_deref()
         .map(|p| {
             let r = Repository::open(p).with_context(|| format!("opening {}", p.display()))?;
-            if r.kind() != RepoKind::Elevation {
+            if r.head().kind() != RepoKind::Elevation {
                 bail!("--like {} is not an elevation repository", p.display());
             }
             Ok((p, r))
@@ -136,7 +136,7 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
         .with_context(|| format!("reading {}", input.display()))?;
     if let Some((path, like)) = &like {
         let shift = shift_for(&img, like, path)?;
-        let lp = like.params().layout();
+        let lp = like.head().params().layout();
         let k = lp.k() as i32 + shift;
         let base = Layout::covering(lp.n(), img.width, img.height, 0)?;
         if k < base.k() as i32 {
@@ -149,7 +149,7 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
         enc_opts.n = lp.n();
         enc_opts.extra_level_pairs = (k - base.k() as i32) as u32;
         if img.georef.is_none() {
-            img.georef = like.georef().map(|g| scaled_georef(g, shift));
+            img.georef = like.head().georef().map(|g| scaled_georef(g, shift));
         }
     }
     progress.event(ProgressEvent {
@@ -179,8 +179,8 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
     if let Some((path, like)) = &like {
         // The same check the client makes when it loads the pair: refuse now, not at view time.
         Alignment::new(
-            like.params(),
-            like.georef(),
+            like.head().params(),
+            like.head().georef(),
             &encoded.params,
             img.georef.as_ref(),
         )

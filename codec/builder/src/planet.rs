@@ -1256,11 +1256,11 @@ pub fn compare_planet(
     assign: Option<&AssignedGeoRef>,
 ) -> Result<PlanetComparison> {
     use cbdam_codec::hierarchy::{reconstruct_planet_like, verify_planet};
-    let domain = repo.params().domain;
+    let domain = repo.head().params().domain;
     if domain.cube().is_none() {
         bail!("this repository is planar: compare it with compare_dem or compare_tiles");
     }
-    let plan = *repo.plan();
+    let plan = *repo.head().plan();
     let inputs = PlanetInputs::read(tiles, nodata, assign)?;
     let (n, k) = (domain.n(), domain.layout().k());
     let resampled = resample(&inputs, n, k, &plan)?;

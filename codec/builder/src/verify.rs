@@ -66,8 +66,8 @@ pub fn compare_colour(repo: &Repository, against: &Path) -> Result<ColourCompari
         .with_context(|| format!("checking against {}", against.display()))?;
     Ok(ColourComparison {
         report,
-        k: repo.params().quantizer.k(),
-        epsilon: repo.plan().epsilon,
+        k: repo.head().params().quantizer.k(),
+        epsilon: repo.head().plan().epsilon,
     })
 }
 
@@ -145,10 +145,10 @@ impl DemComparison {
 /// read it: with the nodata value the header records, and a raw float32 file at the
 /// repository's size.
 pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
-    let p = *repo.params();
-    let plan = *repo.plan();
+    let p = *repo.head().params();
+    let plan = *repo.head().plan();
     let mut opts = ReadOptions {
-        nodata: repo.nodata(),
+        nodata: repo.head().nodata(),
         ..ReadOptions::default()
     };
     // A raw float32 file has no size of its own: it is the repository's (and a file of another
@@ -319,7 +319,7 @@ pub const WHOLE_DECODE_BYTES: u64 = 26;
 /// (not a raw float32 file, which only [`compare_dem`] reads at the repository's size; one
 /// whose header places it, as the mosaic needs) and decode the hierarchy (planar, α = 1).
 pub fn one_file_in_blocks(repo: &Repository, against: &Path, memory_limit: u64) -> bool {
-    let p = repo.params();
+    let p = repo.head().params();
     let (w, h) = p.domain.data().size();
     let placed =
         || TileReader::open(against, &ReadOptions::default()).is_ok_and(|r| r.georef().is_some());
@@ -345,8 +345,8 @@ pub fn compare_tiles_with(
     memory_limit: u64,
     blocks: Option<BlockPlan>,
 ) -> Result<MosaicComparison> {
-    let p = *repo.params();
-    let quant = *repo.plan();
+    let p = *repo.head().params();
+    let quant = *repo.head().plan();
     let layout = *p.layout();
     let blockwise = p.alpha == Alpha::One
         && p.domain.kind() == DomainKind::Planar
@@ -365,6 +365,7 @@ pub fn compare_tiles_with(
     };
     let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit / 8 * 3)?;
     let records = repo
+        .head()
         .entries()
         .iter()
         .map(|e| Ok((e.id, repo.record(e.id)?)))
@@ -375,7 +376,7 @@ pub fn compare_tiles_with(
     let apex_input = grid.strided(plan.apex_shift(&layout))?;
     let walk = BlockWalk::new(
         p,
-        repo.root_bytes(),
+        repo.head().root_bytes(),
         records,
         plan,
         visit_apex(
@@ -455,11 +456,11 @@ fn mosaic_lattice(
     tiles: &[Tile],
     memory_limit: u64,
 ) -> Result<(Mosaic, LatticeArray<u8>, HeightGrid)> {
-    let p = *repo.params();
-    let plan = *repo.plan();
+    let p = *repo.head().params();
+    let plan = *repo.head().plan();
     // Read the inputs the way the build did: its nodata value was recorded in the header.
     let opts = ReadOptions {
-        nodata: repo.nodata(),
+        nodata: repo.head().nodata(),
         ..ReadOptions::default()
     };
     let m = mosaic_tiles(tiles, &opts, memory_limit)?;
@@ -490,7 +491,7 @@ pub fn compare_tiles_whole(
     let encoded = repo.to_encoded()?;
     let levels = verify(&encoded, &grid).context("decoding the hierarchy")?;
     let (values, state) = reconstruct_reached(&encoded)?;
-    let quant = *repo.plan();
+    let quant = *repo.head().plan();
     let mut tally = Tally::new(m.inputs.len());
     m.for_each_block_winners(&mut |y0, block, winners| {
         let first = y0 * m.width;
@@ -610,7 +611,7 @@ impl Tally {
             unreached_count: self.unreached_count,
             worst: self.worst,
             width: m.width,
-            epsilon: repo.plan().epsilon,
+            epsilon: repo.head().plan().epsilon,
             blocks,
         }
     }

@@ -604,7 +604,7 @@ fn verify_in_blocks_finds_what_the_whole_comparison_finds() {
     let out = d.join("var.cbdam");
     build_bytes(inputs.clone(), &out);
     let repo = Repository::open(&out).unwrap();
-    let layout = *repo.params().layout();
+    let layout = *repo.head().params().layout();
     assert!(layout.finest_level() >= 4, "{layout:?}");
     let limit = 1 << 30;
     let raised = vec![d.join("tiles"), coarse("raised", 10.0)];

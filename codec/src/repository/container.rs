@@ -954,76 +954,11 @@ impl Repository {
     pub fn head(&self) -> &RepositoryHead {
         &self.head
     }
-    /// The decoder's header fields.
-    pub fn params(&self) -> &CodecParams {
-        self.head.params()
-    }
-
-    /// How integer units map to metres, and the tolerance the repository was built for.
-    pub fn plan(&self) -> &QuantPlan {
-        self.head.plan()
-    }
-
-    /// Georeferencing of the data grid, when the input had one.
-    pub fn georef(&self) -> Option<&GeoRef> {
-        self.head.georef()
-    }
-
-    /// The input's nodata value at build time, if any.
-    pub fn nodata(&self) -> Option<f64> {
-        self.head.nodata()
-    }
-
-    /// A planet's provenance ([`RepositoryHead::provenance`]).
-    pub fn provenance(&self) -> Option<&PlanetProvenance> {
-        self.head.provenance()
-    }
-
-    /// Object-space error of the finest diamonds, units.
-    pub fn leaf_error(&self) -> u32 {
-        self.head.leaf_error()
-    }
-
-    /// The index entries, in id order.
-    pub fn entries(&self) -> &[IndexEntry] {
-        self.head.entries()
-    }
-
-    /// Total file size, bytes.
-    pub fn file_len(&self) -> u64 {
-        self.head.file_len()
-    }
-
-    /// Length of a section, bytes.
-    pub fn section_len(&self, s: Section) -> u64 {
-        self.head.section_len(s)
-    }
-
-    /// The coded root field.
-    pub fn root_bytes(&self) -> &[u8] {
-        self.head.root_bytes()
-    }
 
     /// The whole file, as validated by [`Repository::open`] (the records area unchecked). For
     /// serving the file verbatim, e.g. to HTTP range requests.
     pub fn as_bytes(&self) -> &[u8] {
         &self.bytes
-    }
-
-    /// Byte offset of a section from the start of the file. The records area is the last
-    /// section, so its offset is the length of everything a reader needs besides the records.
-    pub fn section_offset(&self, s: Section) -> u64 {
-        self.head.section_offset(s)
-    }
-
-    /// The header's CRC-32 (see [`RepositoryHead::header_crc`]).
-    pub fn header_crc(&self) -> u32 {
-        self.head.header_crc()
-    }
-
-    /// The CRC-32 stored for the `i`-th record (see [`RepositoryHead::record_checksum`]).
-    pub fn record_checksum(&self, i: usize) -> Option<u32> {
-        self.head.record_checksum(i)
     }
 
     /// The bytes of the `i`-th record in id order, checked against its CRC.
@@ -1062,21 +997,6 @@ impl Repository {
         Ok(())
     }
 
-    /// A decoder over the root field (elevation repositories).
-    pub fn decoder(&self) -> Result<Decoder, CodecError> {
-        self.head.decoder()
-    }
-
-    /// What the repository holds.
-    pub fn kind(&self) -> RepoKind {
-        self.head.kind()
-    }
-
-    /// The three-channel decoder over the root field (colour repositories).
-    pub fn colour_decoder(&self) -> Result<ColourDecoder, CodecError> {
-        self.head.colour_decoder()
-    }
-
     /// The whole hierarchy in memory (for [`crate::hierarchy::verify`]); checks every record.
     /// Records' height ranges are the index's (bounds in version-2 files, see
     /// [`IndexEntry::min`]); serialising the result again gives the same file.
@@ -1098,7 +1018,7 @@ impl Repository {
             .collect::<Result<Vec<_>, CodecError>>()?;
         Ok(Encoded {
             params: self.head.params,
-            roots: self.root_bytes().to_vec(),
+            roots: self.head().root_bytes().to_vec(),
             records,
             leaf_error: self.head.leaf_error,
         })
