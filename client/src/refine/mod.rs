@@ -41,11 +41,17 @@
 //! holds for the plain per-diamond boxes.
 
 mod cache;
+mod collect;
 mod detail;
 mod drawn;
+mod figures;
 mod job;
 mod node;
+mod pacing;
+mod refine_loop;
+mod speculate;
 mod state;
+mod wants;
 mod wire;
 
 pub use cache::LruCache;
@@ -54,6 +60,8 @@ use drawn::DrawnList;
 pub use job::{DecodeJob, Done};
 use job::{Source, root_colour};
 use node::{Info, Node};
+use pacing::Pacing;
+use speculate::Ahead;
 use state::{CutState, Requests, Residency};
 pub use wire::{HeadBytes, WorkerDecoder};
 
@@ -360,6 +368,22 @@ pub struct FrameSteps {
     pub ahead_ms: f64,
 }
 
+impl FrameSteps {
+    /// The steps' times from the instants that end them: the frame's start, then the end of
+    /// each step in the order of the fields.
+    fn between(t: [Instant; 7]) -> Self {
+        let ms = |i: usize| (t[i + 1] - t[i]).as_secs_f64() * 1e3;
+        FrameSteps {
+            before_ms: ms(0),
+            loop_ms: ms(1),
+            collect_ms: ms(2),
+            want_ms: ms(3),
+            after_ms: ms(4),
+            ahead_ms: ms(5),
+        }
+    }
+}
+
 /// Bytes held by the refiner's CPU caches ([`Refiner::cache_use`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CacheUse {
@@ -489,12 +513,8 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     requests: Requests,
     frame: u64,
     last_camera: Option<Camera>,
-    /// How far recent frames ran past their refinement deadline (the bookkeeping after the
-    /// loop, the last results applied): the next deadline comes that much earlier, so that the
-    /// whole frame, not only its refinement loop, fits the budget. A decaying maximum, so one
-    /// slow tail is remembered for a while (the budget is a bound on every frame, not on the
-    /// average).
-    overrun: Duration,
+    /// The frames' timing: deadlines, overruns, smoothed rates (`pacing.rs`).
+    pacing: Pacing,
     /// A garbage collection stopped at its frame's budget: the next frame goes on with it.
     collecting: bool,
     /// What the last frame prefetched, each diamond with its priority: a prefetch that the
@@ -509,26 +529,8 @@ pub struct Refiner<S: DataSource, X: Spawner = DefaultSpawner> {
     heap_whole: bool,
     /// Diamonds being refined on worker threads (speculative ones included).
     decoding: IdSet,
-    /// The part of `decoding` decoded ahead of the cut by speculative jobs: their results go to
-    /// the decoded cache, from which a later refinement takes them at no cost.
-    speculative: IdSet,
-    /// Speculative jobs dispatched and not finished.
-    speculative_jobs: usize,
-    /// Diamonds decoded ahead that came back and are not refined yet, and that the view of
-    /// `ahead_view` needs (pruned when speculating: those that left the decoded cache, and
-    /// those the view has moved away from).
-    ahead: IdSet,
-    /// Diamonds decoded ahead that came back since the last pruning, not looked at yet.
-    ahead_arrived: IdSet,
-    /// The camera `ahead` was last pruned for.
-    ahead_view: Option<Camera>,
-    /// When the last frame started, and the smoothed interval between frames, seconds.
-    last_frame_start: Option<Instant>,
-    frame_interval_s: f64,
-    /// Smoothed refinements per second.
-    refinement_rate: f64,
-    /// Smoothed worker time of one decode, seconds.
-    decode_s: f64,
+    /// What is decoded ahead of the cut (`speculate.rs`).
+    ahead: Ahead,
     done_tx: Sender<Done>,
     done_rx: Receiver<Done>,
 }
@@ -634,21 +636,13 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             requests: Requests::default(),
             frame: 0,
             last_camera: None,
-            overrun: config.budget.map_or(Duration::ZERO, |b| b / OVERRUN_PRIOR),
+            pacing: Pacing::new(config.budget),
             collecting: false,
             kept_heap: None,
             last_ahead: IdMap::default(),
             heap_whole: false,
             decoding: IdSet::default(),
-            speculative: IdSet::default(),
-            speculative_jobs: 0,
-            ahead: IdSet::default(),
-            ahead_arrived: IdSet::default(),
-            ahead_view: None,
-            last_frame_start: None,
-            frame_interval_s: 1.0 / 30.0,
-            refinement_rate: 0.0,
-            decode_s: 1e-3,
+            ahead: Ahead::default(),
             done_tx,
             done_rx,
             config,
@@ -1010,79 +1004,12 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             .filter(|&e| e > self.config.pixel_error && !self.requests.broken.contains(&id))
     }
 
-    /// Wants the records that refining `id` (parents first) still lacks.
-    fn want_plan(&mut self, id: DiamondId, priority: f64, wanted: &mut IdMap<f64>) {
-        let plan = self.plan(id);
-        self.want_planned(&plan, priority, wanted);
-    }
-
-    /// [`Refiner::want_plan`] for a plan at hand.
-    fn want_planned(&mut self, plan: &[DiamondId], priority: f64, wanted: &mut IdMap<f64>) {
-        // Usually everything is at hand (always with a local source): then nothing is wanted
-        // whatever the metric says, and the metric's lookups can be skipped.
-        if plan.iter().all(|&d| self.have_or_available(d)) {
-            return;
-        }
-        let priority = match self.config.fetch_order {
-            FetchOrder::ScreenError => priority,
-            FetchOrder::ScreenErrorPerByte => {
-                priority * 1024.0 / self.missing_bytes(plan).max(1) as f64
-            }
-        };
-        for &d in plan {
-            if self.requests.broken.contains(&d) || self.info(d).is_none() {
-                return;
-            }
-            if !self.have_or_available(d) {
-                let w = wanted.entry(d).or_insert(priority);
-                *w = w.max(priority);
-            }
-        }
-    }
-
-    /// Bytes of the records of `plan` that are not at hand.
-    fn missing_bytes(&mut self, plan: &[DiamondId]) -> u64 {
-        let mut missing = Vec::with_capacity(plan.len());
-        for &d in plan {
-            if !self.have_or_available(d)
-                && let Some(sid) = self.source_id(d)
-            {
-                missing.push(sid);
-            }
-        }
-        let entries = self.source.head().entries();
-        missing
-            .iter()
-            .filter_map(|sid| entries.binary_search_by(|e| e.id.cmp(sid)).ok())
-            .map(|i| u64::from(entries[i].length))
-            .sum()
-    }
-
     /// Runs one frame for `camera`: refine within the budget, request what is missing,
     /// prefetch, cancel what is no longer needed, and every few frames coarsen.
     pub fn frame(&mut self, camera: &Camera) -> FrameStats {
         let start = Instant::now();
-        if let Some(last) = self.last_frame_start {
-            let dt = start.duration_since(last).as_secs_f64();
-            self.frame_interval_s += SMOOTHING * (dt - self.frame_interval_s);
-        }
-        self.last_frame_start = Some(start);
-        self.frame += 1;
-        let collects = self.config.gc_interval > 0
-            && (self.collecting
-                || self
-                    .frame
-                    .is_multiple_of(u64::from(self.config.gc_interval)));
-        // At most half the budget is held back for the tail, so refinement always gets the
-        // other half; between paced frames that decode ahead, at least AHEAD_SHARE of it.
-        let ahead_floor = match self.config.budget {
-            Some(b) if self.decodes_ahead() && self.paced() => b / AHEAD_SHARE,
-            _ => Duration::ZERO,
-        };
-        let deadline = self.config.budget.map(|b| {
-            let held_back = self.overrun.mul_f64(OVERRUN_SPREAD).max(ahead_floor);
-            start + b - held_back.min(b / OVERRUN_CAP)
-        });
+        let collects = self.start_frame(start);
+        let deadline = self.refinement_deadline(start);
         self.source.pump();
         self.take_arrived();
 
@@ -1091,94 +1018,27 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             frame: self.frame,
             ..FrameStats::default()
         };
-        // While the view moves a collection comes first, for a share of the budget:
-        // coarsening costs microseconds a diamond, a view moving fast leaves hundreds to
-        // coarsen at once, and a collection left what the refinement loop leaves would get
-        // nothing in frames whose budget the loop spends. Coarsening before refining changes
-        // nothing the loop does: what is coarsened meets the target, what is refined does not.
-        // A still view's refinement comes first: its collection takes its least after the loop.
+        // A moving view collects first, a still view after its loop (see `collect_before`).
         let still = self.config.budget.is_some() && self.last_camera == Some(*camera);
         if collects && !still {
-            let until = self.config.budget.map(|b| start + b / GC_SHARE);
-            let (coarsened, finished) = self.collect_garbage(&view, GC_MIN_COARSENINGS, until);
-            stats.coarsenings += coarsened;
-            self.collecting = !finished;
+            self.collect_before(&view, start, &mut stats);
         }
-        // A still view's heap is the last frame's leftovers when nothing left it since but
-        // what was refined: the same screen errors, and the pass over every candidate skipped.
-        let mut heap = match self.kept_heap.take() {
-            Some(kept)
-                if still
-                    && kept.camera == *camera
-                    && kept.pixel_error == self.config.pixel_error =>
-            {
-                #[cfg(debug_assertions)]
-                self.check_kept_heap(&view, &kept.heap);
-                kept.heap
-            }
-            _ => self.refinement_heap(&view),
-        };
+        let mut heap = self.frame_heap(camera, &view, still);
         self.heap_whole = true;
         let mut wanted: IdMap<f64> = IdMap::default();
         let loop_start = Instant::now();
         self.refine_until(deadline, &view, &mut heap, &mut wanted, &mut stats);
         let loop_end = Instant::now();
-        // A still view collects only once its loop has refined all it could: until then its
-        // collection waits (its garbage is the moving view's, and the loop's refinements are
-        // what the view lacks).
-        let deferred = collects && still && !stats.budget_exhausted;
-        if collects && still && stats.budget_exhausted {
-            self.collecting = true;
-        }
-        if let (Some(d), Some(b)) = (deadline, self.config.budget)
-            && (deferred
-                || (self.collecting && d.saturating_duration_since(Instant::now()) >= b / GC_SHARE))
-        {
-            // The still view's collection, or one that goes on in the time the loop left
-            // (nothing it could refine now), up to the deadline.
-            let least = if deferred { GC_MIN_COARSENINGS } else { 0 };
-            let (coarsened, finished) = self.collect_garbage(&view, least, deadline);
-            stats.coarsenings += coarsened;
-            self.collecting = !finished;
-        }
-        let rate = stats.refinements as f64 / self.frame_interval_s.max(1e-3);
-        self.refinement_rate += SMOOTHING * (rate - self.refinement_rate);
+        self.collect_after(collects && still, deadline, &view, &mut stats);
+        self.smooth_refinement_rate(&stats);
         let collect_end = Instant::now();
 
         // What the budget did not reach still gets requested, then prefetch (neither can want
         // anything from a source that always has everything at hand).
         let may_want = !self.source.always_available();
-        // A whole heap is still needed after this (the frame's largest error, the next frame's
-        // heap): copied; otherwise taken.
-        let leftovers: Vec<Candidate> = if self.heap_whole {
-            heap.iter().copied().collect()
-        } else {
-            std::mem::take(&mut heap).into_vec()
-        };
+        let leftovers = self.leftovers(&mut heap);
         if may_want {
-            let mut order: Vec<&Candidate> = leftovers
-                .iter()
-                .filter(|c| !self.cut_state.cut.is_refined(c.id))
-                .collect();
-            let limit = self
-                .config
-                .want_limit
-                .map(|min| min.max((self.refinement_rate * WANT_HORIZON_S) as usize));
-            if let Some(limit) = limit
-                && order.len() > limit
-            {
-                // Past the most urgent, only what is already on its way stays wanted: dropping
-                // it would cancel requests the link has carried part of.
-                order.select_nth_unstable_by(limit, |a, b| b.cmp(a));
-                let rest = order.split_off(limit);
-                order.extend(
-                    rest.into_iter()
-                        .filter(|c| self.requests.requested.contains_key(&c.id)),
-                );
-            }
-            for c in order {
-                self.want_plan(c.id, c.err, &mut wanted);
-            }
+            self.want_leftovers(&leftovers, &mut wanted);
         }
         let want_end = Instant::now();
         let worst_violating = if self.heap_whole {
@@ -1186,16 +1046,93 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         } else {
             None
         };
+        self.keep_heap(camera, heap);
+        stats.cut_wants = wanted.len();
+        let prefetching = may_want && self.config.prefetch.allows(wanted.len());
+        let (worst, ahead) =
+            self.worst_and_prefetch(camera, &view, start, prefetching, worst_violating);
+        self.last_camera = Some(*camera);
+        self.add_prefetches(ahead, &mut wanted, &mut stats);
+        self.post_requests(wanted);
+        let after_end = Instant::now();
+        // The workers keep decoding what the view still needs until the next frame. Last in
+        // the frame, so that what it may take is known: the rest of the budget (its plan is
+        // cut there, but each free worker gets a job; see AHEAD_RESERVE).
+        if self.decodes_ahead() {
+            let budget_end = self.config.budget.map(|b| start + b - b / AHEAD_RESERVE);
+            self.speculate(&view, leftovers, budget_end);
+        }
+        self.remember_overrun(deadline, &stats);
+        self.release_evicted();
+        let end = Instant::now();
+        stats.refine_ms = (end - start).as_secs_f64() * 1e3;
+        stats.steps = FrameSteps::between([
+            start,
+            loop_start,
+            loop_end,
+            collect_end,
+            want_end,
+            after_end,
+            end,
+        ]);
+        #[cfg(debug_assertions)]
+        self.cut_state.check_incremental_sets(&self.domain);
+        self.figures(&view, worst, &mut stats);
+        stats
+    }
+
+    /// Frame step: the refinement heap of this frame. A still view's is the last frame's
+    /// leftovers when nothing left it since but what was refined: the same screen errors, and
+    /// the pass over every candidate skipped.
+    fn frame_heap(&mut self, camera: &Camera, view: &View, still: bool) -> BinaryHeap<Candidate> {
+        match self.kept_heap.take() {
+            Some(kept)
+                if still
+                    && kept.camera == *camera
+                    && kept.pixel_error == self.config.pixel_error =>
+            {
+                #[cfg(debug_assertions)]
+                self.check_kept_heap(view, &kept.heap);
+                kept.heap
+            }
+            _ => self.refinement_heap(view),
+        }
+    }
+
+    /// Frame step: what the loop left in the heap, for wants and decoding ahead. A whole heap
+    /// is still needed after this (the frame's largest error, the next frame's heap): copied;
+    /// otherwise taken.
+    fn leftovers(&self, heap: &mut BinaryHeap<Candidate>) -> Vec<Candidate> {
+        if self.heap_whole {
+            heap.iter().copied().collect()
+        } else {
+            std::mem::take(heap).into_vec()
+        }
+    }
+
+    /// Frame step: keeps a whole heap for the next frame, which reuses it if the view stays
+    /// still (see [`KeptHeap`]).
+    fn keep_heap(&mut self, camera: &Camera, heap: BinaryHeap<Candidate>) {
         self.kept_heap = (self.config.budget.is_some() && self.heap_whole).then_some(KeptHeap {
             camera: *camera,
             pixel_error: self.config.pixel_error,
             heap,
         });
-        // One pass over the final cut's candidates serves prefetching and the frame's figures.
-        // Without prefetching the figures need only the largest error: no list is made.
-        stats.cut_wants = wanted.len();
-        let prefetching = may_want && self.config.prefetch.allows(wanted.len());
-        let (worst, ahead) = if prefetching {
+    }
+
+    /// Frame step: the frame's largest screen error and what to prefetch. One pass over the
+    /// final cut's candidates serves prefetching and the figures; without prefetching the
+    /// figures need only the largest error (from a whole heap when there is one): no list is
+    /// made.
+    fn worst_and_prefetch(
+        &mut self,
+        camera: &Camera,
+        view: &View,
+        start: Instant,
+        prefetching: bool,
+        worst_violating: Option<f64>,
+    ) -> (f64, IdMap<f64>) {
+        if prefetching {
             let candidates = self.candidate_list();
             let errors: Vec<Option<f64>> = candidates
                 .iter()
@@ -1210,349 +1147,13 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             #[cfg(debug_assertions)]
             assert_eq!(
                 worst,
-                self.worst_of_candidates(&view),
+                self.worst_of_candidates(view),
                 "largest error from the heap"
             );
             (worst, IdMap::default())
         } else {
-            (self.worst_of_candidates(&view), IdMap::default())
-        };
-        self.last_camera = Some(*camera);
-        let track = self.requests.track_classes;
-        if track {
-            for id in wanted.keys() {
-                self.requests.last_class.insert(*id, false);
-            }
+            (self.worst_of_candidates(view), IdMap::default())
         }
-        for (&id, &prio) in &ahead {
-            if let std::collections::hash_map::Entry::Vacant(e) = wanted.entry(id) {
-                e.insert(prio);
-                stats.prefetch_wants += 1;
-                if track {
-                    self.requests.last_class.insert(id, true);
-                }
-            }
-        }
-        self.last_ahead = ahead;
-
-        self.post_requests(wanted);
-        let after_end = Instant::now();
-        // The workers keep decoding what the view still needs until the next frame. Last in
-        // the frame, so that what it may take is known: the rest of the budget (its plan is
-        // cut there, but each free worker gets a job; see AHEAD_RESERVE).
-        if self.decodes_ahead() {
-            let budget_end = self.config.budget.map(|b| start + b - b / AHEAD_RESERVE);
-            self.speculate(&view, leftovers, budget_end);
-        }
-        self.remember_overrun(deadline, &stats);
-        self.release_evicted();
-        let end = Instant::now();
-        stats.refine_ms = (end - start).as_secs_f64() * 1e3;
-        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
-        stats.steps = FrameSteps {
-            before_ms: ms(start, loop_start),
-            loop_ms: ms(loop_start, loop_end),
-            collect_ms: ms(loop_end, collect_end),
-            want_ms: ms(collect_end, want_end),
-            after_ms: ms(want_end, after_end),
-            ahead_ms: ms(after_end, end),
-        };
-        #[cfg(debug_assertions)]
-        self.cut_state.check_incremental_sets(&self.domain);
-        self.figures(&view, worst, &mut stats);
-        stats
-    }
-
-    /// Frame step: hands the nodes the decoded cache evicted this frame to a worker to drop.
-    /// Dropping a node frees its five buffers (~100 KB at N = 65), allocated by the worker that
-    /// decoded it: on the frame thread that was a fifth of garbage collection's time in a paced
-    /// `low_pass` flight (each coarsening moves a node into the full cache, which evicts one).
-    /// A spawner without threads drops them here.
-    fn release_evicted(&mut self) {
-        if !self.residency.evicted.is_empty() {
-            let evicted = std::mem::take(&mut self.residency.evicted);
-            self.spawner.spawn(move || drop(evicted));
-        }
-    }
-
-    /// Whether frames end by decoding ahead of the cut (see [`Refiner::speculate`]).
-    fn decodes_ahead(&self) -> bool {
-        self.config.decode_ahead && self.spawner.runs_in_background()
-    }
-
-    /// Whether frames come at least [`PACED_BUDGETS`] budgets apart: a viewer's frames, whose
-    /// workers have the time between them.
-    fn paced(&self) -> bool {
-        self.config
-            .budget
-            .is_some_and(|b| self.frame_interval_s > PACED_BUDGETS * b.as_secs_f64())
-    }
-
-    /// Frame step: moves the records that arrived into RAM; failures are logged now rather than
-    /// when next wanted.
-    fn take_arrived(&mut self) {
-        let arrived: Vec<DiamondId> = self
-            .requests
-            .requested
-            .keys()
-            .copied()
-            .filter(|id| {
-                self.source_id(*id)
-                    .is_some_and(|s| self.source.is_available(s))
-            })
-            .collect();
-        for id in arrived {
-            self.requests.requested.remove(&id);
-            let sid = self.source_id(id).expect("requested ids are stored");
-            self.take(id, sid);
-        }
-    }
-
-    /// Frame step: the refinement heap, the candidates that violate the target in `view`, most
-    /// urgent on top.
-    fn refinement_heap(&self, view: &View) -> BinaryHeap<Candidate> {
-        // Collected, then made a heap in one pass (the order is total: ties go by id).
-        let violations: Vec<Candidate> = self
-            .cut_state
-            .candidates
-            .iter()
-            .filter_map(|(&id, &info)| {
-                self.violation_of(id, info, view)
-                    .map(|err| Candidate { err, id })
-            })
-            .collect();
-        BinaryHeap::from(violations)
-    }
-
-    /// Checks that a kept heap holds every candidate that violates the target in `view` but
-    /// those being decoded (debug builds, so every test frame of a still view checks it).
-    #[cfg(debug_assertions)]
-    fn check_kept_heap(&self, view: &View, kept: &BinaryHeap<Candidate>) {
-        let held: IdSet = kept.iter().map(|c| c.id).collect();
-        for c in self.refinement_heap(view).into_vec() {
-            assert!(
-                held.contains(&c.id) || self.decoding.contains(&c.id),
-                "the kept refinement heap lacks {} ({} px)",
-                c.id,
-                c.err
-            );
-        }
-    }
-
-    /// Frame step: applies the results of decodes dispatched in earlier frames, then dispatches
-    /// the most urgent ready refinements and applies what comes back until nothing more can
-    /// start or `deadline` passes. What could not be refined (missing records, blocked on an
-    /// ancestor) is left in `heap`; missing records go into `wanted`.
-    fn refine_until(
-        &mut self,
-        deadline: Option<Instant>,
-        view: &View,
-        heap: &mut BinaryHeap<Candidate>,
-        wanted: &mut IdMap<f64>,
-        stats: &mut FrameStats,
-    ) {
-        // Results of decodes dispatched in earlier frames first.
-        while let Ok(done) = self.done_rx.try_recv() {
-            self.apply(done, view, heap, stats);
-        }
-        let max_in_flight = 2 * self.spawner.parallelism().max(1);
-        let mut waiting: Vec<Candidate> = Vec::new();
-        let mut coarsening = None;
-        let past = |d: Option<Instant>| d.is_some_and(|d| Instant::now() >= d);
-        // Candidates looked at this frame before one could start: a frame whose deadline has
-        // passed before its loop began (a loaded machine, a tiny budget) still starts one
-        // refinement when one of its first few candidates can, so that every frame advances.
-        let mut looked = 0;
-        let mut started = false;
-        loop {
-            // Dispatch the most urgent ready refinements to the workers. Refinements decoded
-            // ahead (the decoded cache) are applied here at once, so the deadline is checked
-            // here too.
-            while self.decoding.len() - self.speculative.len() < max_in_flight {
-                if past(deadline) && (started || looked >= LEAST_LOOKS) {
-                    stats.budget_exhausted = true;
-                    break;
-                }
-                let Some(c) = heap.pop() else { break };
-                looked += 1;
-                if self.cut_state.cut.is_refined(c.id) {
-                    continue;
-                }
-                let mut blocked = false;
-                let mut dispatched_self = false;
-                for d in self.plan(c.id) {
-                    if self.decoding.contains(&d) {
-                        continue;
-                    }
-                    let parents_done = self
-                        .domain
-                        .parents(d)
-                        .into_iter()
-                        .flatten()
-                        .all(|p| self.cut_state.cut.is_refined(p));
-                    match self.need(d) {
-                        Need::Impossible => {
-                            blocked = true;
-                            break;
-                        }
-                        Need::Missing => {
-                            let w = wanted.entry(d).or_insert(c.err);
-                            *w = w.max(c.err);
-                            blocked = true;
-                        }
-                        Need::Ready(_)
-                            if parents_done
-                                && !self.make_room(c.err, d, view, &mut coarsening, stats) =>
-                        {
-                            stats.memory_limited = true;
-                            blocked = true;
-                            break;
-                        }
-                        Need::Ready(Source::Cached(node)) if parents_done => {
-                            // Decoded before (ahead of the cut, or coarsened since): refining
-                            // is free.
-                            self.apply(
-                                Done {
-                                    id: d,
-                                    result: Some(Ok(node)),
-                                    secs: None,
-                                    cpu_secs: None,
-                                    speculative: false,
-                                    last: false,
-                                },
-                                view,
-                                heap,
-                                stats,
-                            );
-                            dispatched_self |= d == c.id;
-                            started = true;
-                        }
-                        Need::Ready(s) if parents_done => {
-                            self.dispatch(d, s);
-                            dispatched_self |= d == c.id;
-                            started = true;
-                        }
-                        Need::Ready(_) => {}
-                    }
-                }
-                if blocked {
-                    self.heap_whole = false;
-                } else if !dispatched_self && !self.cut_state.cut.is_refined(c.id) {
-                    waiting.push(c);
-                }
-            }
-            let regular = self.decoding.len() - self.speculative.len();
-            if stats.budget_exhausted || (regular == 0 && waiting.is_empty()) {
-                // Nothing in flight that this frame waits for and nothing more could be
-                // started: locally optimal for the data at hand (speculative decodes still
-                // running are applied when they come back).
-                break;
-            }
-            let done = self.next_done(deadline);
-            let Some(done) = done else {
-                stats.budget_exhausted = true;
-                break;
-            };
-            self.apply(done, view, heap, stats);
-            while let Ok(done) = self.done_rx.try_recv() {
-                self.apply(done, view, heap, stats);
-            }
-            // Candidates that waited for an ancestor may be ready now.
-            heap.extend(waiting.drain(..));
-        }
-        heap.extend(waiting);
-    }
-
-    /// The next finished decode: waits for it until `deadline` (forever without one); `None`
-    /// when the deadline passed first.
-    #[cfg(not(target_arch = "wasm32"))]
-    fn next_done(&self, deadline: Option<Instant>) -> Option<Done> {
-        match deadline {
-            None => self.done_rx.recv().ok(),
-            Some(d) => {
-                let now = Instant::now();
-                if now >= d {
-                    None
-                } else {
-                    self.done_rx.recv_timeout(d - now).ok()
-                }
-            }
-        }
-    }
-
-    /// The next finished decode, if one has arrived and `deadline` has not passed: a browser's
-    /// page must never block (and `recv_timeout` would read `std`'s clock, which wasm32 lacks).
-    /// With the [`Inline`](crate::spawn::Inline) spawner every decode has finished when it is
-    /// dispatched, so this loses nothing; with asynchronous workers the frame ends and the
-    /// results are applied next frame.
-    #[cfg(target_arch = "wasm32")]
-    fn next_done(&self, deadline: Option<Instant>) -> Option<Done> {
-        if deadline.is_some_and(|d| Instant::now() >= d) {
-            return None;
-        }
-        self.done_rx.try_recv().ok()
-    }
-
-    /// Frame step: posts new requests, re-prioritises, and cancels what is no longer wanted.
-    fn post_requests(&mut self, wanted: IdMap<f64>) {
-        let stale: Vec<DiamondId> = self
-            .requests
-            .requested
-            .keys()
-            .filter(|id| !wanted.contains_key(id))
-            .copied()
-            .collect();
-        for id in stale {
-            self.requests.requested.remove(&id);
-            if let Some(sid) = self.source_id(id) {
-                // A remote source may have completed it since the frame began: keep what was
-                // paid for rather than dropping it.
-                if self.source.is_available(sid) {
-                    self.take(id, sid);
-                } else {
-                    self.source.cancel(sid);
-                }
-            }
-        }
-        for (id, prio) in wanted {
-            let prio = prio as Priority;
-            if self.requests.requested.get(&id) != Some(&prio)
-                && let Some(sid) = self.source_id(id)
-            {
-                self.source.request(sid, prio);
-                self.requests.requested.insert(id, prio);
-            }
-        }
-    }
-
-    /// Frame step: when the budget ran out, how far past its deadline the frame ran (see
-    /// `overrun`).
-    fn remember_overrun(&mut self, deadline: Option<Instant>, stats: &FrameStats) {
-        if let (Some(d), Some(b), true) = (deadline, self.config.budget, stats.budget_exhausted) {
-            // Remembered at most as the most the deadline can hold back: a longer one is a
-            // stall (the thread off its core for a scheduler tick, 4 ms on this machine), which
-            // no deadline avoids, and remembered whole it held the next 80 frames' deadlines at
-            // the cap.
-            let over = Instant::now()
-                .saturating_duration_since(d)
-                .min(b / OVERRUN_CAP);
-            self.overrun = over.max(self.overrun.mul_f64(OVERRUN_DECAY));
-        }
-    }
-
-    /// Frame step: the frame's figures of the cut it leaves.
-    fn figures(&mut self, view: &View, worst: f64, stats: &mut FrameStats) {
-        let (max_err, coarsenable) = self.measure(view, worst);
-        stats.max_screen_error_px = max_err;
-        stats.met_target = max_err <= self.config.pixel_error;
-        stats.converged = stats.met_target && coarsenable == 0;
-        stats.refined = self.cut_state.nodes.len();
-        stats.cut_bytes = self.residency.cut_bytes;
-        stats.drawn_halves = self.cut_state.drawn.len();
-        let n1 = (self.domain.n() - 1) as u64;
-        stats.triangles = self.cut_state.drawn.len() as u64 * n1 * n1;
-        stats.access = self.source.stats();
-        stats.failures = self.requests.failure_count;
     }
 
     /// Runs frames for one still `camera` until the cut has converged, or for `max_frames`
@@ -1568,680 +1169,5 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             stats = self.frame(camera);
         }
         stats
-    }
-
-    /// Frame step: what to prefetch, each diamond with its priority: the records that refining
-    /// the candidates that violate the target in the view `lookahead_frames` ahead at the
-    /// camera's velocity (with a margin) would take, and those of the children of the
-    /// candidates that violate it now, at [`PREFETCH_PRIORITY`] of their screen errors; at most
-    /// [`RefineConfig::prefetch_limit`] of them, the most urgent (between equals the coarser).
-    ///
-    /// With a limit (and priorities that are screen errors), only the most urgent contributions
-    /// are planned: each candidate's and child's screen error is computed, and the plans (and
-    /// what they lack) are looked at from the most urgent down until the limit is reached and
-    /// the next contribution is less urgent than everything kept. In the frames of a fast
-    /// flight over a network that prefetch, planning every one of ~3 700 contributions wanted
-    /// ~1 000 diamonds to keep 32, in 2.1–2.7 ms of a 2 ms budget; from the most urgent down,
-    /// ~1 500 are planned, in 1.2–1.7 ms. The same diamonds and priorities as planning every
-    /// contribution (checked in debug builds): a diamond's priority is the largest of its
-    /// contributions', and every contribution at least as urgent as the kept ones is planned.
-    ///
-    /// Prefetching stops at `until` (the budget's end less [`PREFETCH_RESERVE`]): cut short
-    /// while planning, it keeps the most urgent of what it planned (their priorities are
-    /// final: a diamond's first contribution is its most urgent), and cut short sooner,
-    /// nothing new; either way the last frame's prefetches still on their way stay wanted
-    /// ([`Refiner::keep_last_ahead`]), so that a frame short of time cancels nothing the link
-    /// carries. (By screen error per byte, once begun every plan is looked at.)
-    fn prefetch(
-        &mut self,
-        camera: &Camera,
-        candidates: &[(DiamondId, Option<Info>)],
-        errors: &[Option<f64>],
-        until: Option<Instant>,
-    ) -> IdMap<f64> {
-        let past = || until.is_some_and(|u| Instant::now() >= u);
-        if past() {
-            return self.keep_last_ahead(IdMap::default(), self.config.prefetch_limit);
-        }
-        let velocity = self.last_camera.map_or(DVec3::ZERO, |c| camera.eye - c.eye);
-        let ahead = velocity * self.config.lookahead_frames;
-        let mut future = *camera;
-        future.eye += ahead;
-        future.target += ahead;
-        let margin = self.config.prefetch_margin * (camera.target - camera.eye).length();
-        let view = View::new(future, margin, &self.world);
-        let now = View::new(*camera, 0.0, &self.world);
-        if self.config.fetch_order == FetchOrder::ScreenErrorPerByte {
-            // The priority then depends on what a plan lacks: every plan is looked at.
-            let mut wanted = IdMap::default();
-            self.prefetch_all(&view, &now, candidates, errors, &mut wanted);
-            return most_urgent(wanted, self.config.prefetch_limit);
-        }
-        // Without a limit every contribution is planned, still most urgent first: what a
-        // deadline cuts off is the least urgent.
-        let limit = self.config.prefetch_limit.unwrap_or(usize::MAX);
-        // Each contribution: a diamond whose plan is wanted, at its priority.
-        let mut contributions = Vec::new();
-        for (n, (&(id, info), &err_now)) in candidates.iter().zip(errors).enumerate() {
-            if n % PREFETCH_CLOCK_STRIDE == PREFETCH_CLOCK_STRIDE - 1 && past() {
-                return self.keep_last_ahead(IdMap::default(), Some(limit));
-            }
-            if let Some(err) = self.violation_of(id, info, &view) {
-                contributions.push(Candidate {
-                    err: err * PREFETCH_PRIORITY,
-                    id,
-                });
-            }
-            if self.violates(id, err_now) {
-                for k in self.domain.children(id).into_iter().flatten() {
-                    if let Some(err) = self.violation(k, &now) {
-                        contributions.push(Candidate {
-                            err: err * PREFETCH_PRIORITY,
-                            id: k,
-                        });
-                    }
-                }
-            }
-        }
-        let mut contributions = BinaryHeap::from(contributions);
-        let mut wanted = IdMap::default();
-        // The priority of the contribution that brought `wanted` to the limit: every later one
-        // as urgent is planned too (it may add diamonds that tie with the kept ones).
-        let mut least_kept: Option<f64> = None;
-        let mut planned = 0;
-        while let Some(c) = contributions.pop() {
-            if limit == 0 || least_kept.is_some_and(|p| c.err < p) {
-                break;
-            }
-            planned += 1;
-            if planned % PREFETCH_CLOCK_STRIDE == 0 && past() {
-                #[cfg(debug_assertions)]
-                {
-                    let mut all = IdMap::default();
-                    self.prefetch_all(&view, &now, candidates, errors, &mut all);
-                    for (d, p) in &wanted {
-                        assert_eq!(all.get(d), Some(p), "a prefetch cut short: {d}'s priority");
-                    }
-                }
-                let kept = most_urgent(wanted, Some(limit));
-                return self.keep_last_ahead(kept, Some(limit));
-            }
-            self.want_plan(c.id, c.err, &mut wanted);
-            if least_kept.is_none() && wanted.len() >= limit {
-                least_kept = Some(c.err);
-            }
-        }
-        let kept = most_urgent(wanted, Some(limit));
-        #[cfg(debug_assertions)]
-        {
-            let mut all = IdMap::default();
-            self.prefetch_all(&view, &now, candidates, errors, &mut all);
-            let all = most_urgent(all, Some(limit));
-            let sorted = |m: &IdMap<f64>| {
-                let mut v: Vec<(DiamondId, f64)> = m.iter().map(|(&d, &p)| (d, p)).collect();
-                v.sort_unstable_by_key(|&(d, _)| d);
-                v
-            };
-            assert_eq!(sorted(&kept), sorted(&all), "prefetch from the most urgent");
-        }
-        kept
-    }
-
-    /// A prefetch cut short: `kept`, and what the last frame prefetched that is still on its
-    /// way (requested, not arrived), each at the larger of its priorities; at most `limit`, the
-    /// most urgent.
-    fn keep_last_ahead(&self, mut kept: IdMap<f64>, limit: Option<usize>) -> IdMap<f64> {
-        for (&id, &p) in &self.last_ahead {
-            if self.requests.requested.contains_key(&id) {
-                let w = kept.entry(id).or_insert(p);
-                *w = w.max(p);
-            }
-        }
-        most_urgent(kept, limit)
-    }
-
-    /// [`Refiner::prefetch`] planning every contribution, in candidate order.
-    fn prefetch_all(
-        &mut self,
-        view: &View,
-        now: &View,
-        candidates: &[(DiamondId, Option<Info>)],
-        errors: &[Option<f64>],
-        wanted: &mut IdMap<f64>,
-    ) {
-        for (&(id, info), &err_now) in candidates.iter().zip(errors) {
-            if let Some(err) = self.violation_of(id, info, view) {
-                self.want_plan(id, err * PREFETCH_PRIORITY, wanted);
-            }
-            if self.violates(id, err_now) {
-                for k in self.domain.children(id).into_iter().flatten() {
-                    let plan = self.plan(k);
-                    if plan.iter().all(|&d| self.have_or_available(d)) {
-                        continue; // nothing to want: skip the metric
-                    }
-                    if let Some(err) = self.violation(k, now) {
-                        self.want_planned(&plan, err * PREFETCH_PRIORITY, wanted);
-                    }
-                }
-            }
-        }
-    }
-
-    /// Whether a candidate whose screen error is `err` violates the target (and has not been
-    /// given up on).
-    fn violates(&self, id: DiamondId, err: Option<f64>) -> bool {
-        err.is_some_and(|e| e > self.config.pixel_error) && !self.requests.broken.contains(&id)
-    }
-
-    /// Remembers from now on, per record requested, whether its last request was a prefetch
-    /// only ([`Refiner::last_requested_as_prefetch`]; benchmarks: an entry per record ever
-    /// requested).
-    pub fn track_prefetch_requests(&mut self) {
-        self.requests.track_classes = true;
-    }
-
-    /// The source ids of the records whose last request was a prefetch only (see
-    /// [`FrameStats::prefetch_wants`]), since [`Refiner::track_prefetch_requests`] (none
-    /// without it): with the records fetched and those the cuts used, what prefetching fetched
-    /// that no cut used.
-    pub fn last_requested_as_prefetch(&self) -> impl Iterator<Item = DiamondId> + '_ {
-        self.requests
-            .last_class
-            .iter()
-            .filter(|&(_, &prefetch)| prefetch)
-            .filter_map(|(&id, _)| self.source_id(id))
-    }
-
-    /// Starts refining `id` (whose parents are refined) on a worker thread.
-    fn dispatch(&mut self, id: DiamondId, source: Source) {
-        let given = self
-            .domain
-            .parents(id)
-            .into_iter()
-            .flatten()
-            .map(|p| (p, self.cut_state.nodes[&p].clone()))
-            .collect();
-        self.dispatch_job(vec![(id, source)], given, false);
-    }
-
-    /// Starts one job on a worker thread: `steps` refined in order, each step's parents found
-    /// among the earlier steps or in `given`.
-    fn dispatch_job(
-        &mut self,
-        steps: Vec<(DiamondId, Source)>,
-        given: Vec<(DiamondId, Arc<Node>)>,
-        speculative: bool,
-    ) {
-        for &(id, _) in &steps {
-            self.decoding.insert(id);
-            if speculative {
-                self.speculative.insert(id);
-            }
-        }
-        if speculative {
-            self.speculative_jobs += 1;
-        }
-        self.spawner.spawn_job(DecodeJob {
-            decoder: self.decoder.clone(),
-            drape: self.drape.clone(),
-            domain: self.domain,
-            given,
-            shift: self.shift,
-            seed: self.config.detail.map_or(0, |d| d.seed),
-            steps,
-            speculative,
-            tx: self.done_tx.clone(),
-            from_message: false,
-        });
-    }
-
-    /// Frame step, after the refinement loop: hands the workers the refinements the view still
-    /// needs, so that they decode until the next frame instead of idling. From the most urgent
-    /// `leftovers` (refinement candidates the budget did not reach) down, most urgent first, it
-    /// takes every diamond that violates the target in `view` and whose parents' data exists
-    /// (refined, decoded ahead, or taken earlier in this pass: it does not need the cut),
-    /// followed by its children. Each job refines its diamonds in that order; a diamond goes
-    /// to the job holding its parents (skipped if they are in two), else to the least loaded.
-    /// The results go to the decoded cache; the next frames' refinements take them from there
-    /// without waiting. Because the metric is monotone (a child's error is at most its
-    /// parents'), parents come before their children, and what a still view speculates is
-    /// exactly what its converged cut refines: nothing is decoded in vain unless the view moves.
-    fn speculate(&mut self, view: &View, leftovers: Vec<Candidate>, until: Option<Instant>) {
-        // Workers at the frame thread's priority get one job fewer than there are of them, so
-        // that the frame's own thread keeps a core (decoding ahead would pre-empt the next
-        // frame's refinement: measured on 2 cores); workers that yield to it get one each
-        // while frames are paced (PACED_BUDGETS).
-        let workers = self.spawner.parallelism().max(1);
-        let paced = self.paced();
-        let max_jobs = if self.spawner.yields_to_caller() && paced {
-            workers
-        } else {
-            workers.saturating_sub(1).max(1)
-        };
-        let free = max_jobs.saturating_sub(self.speculative_jobs);
-        if free == 0 {
-            return;
-        }
-        let per_job = (self.frame_interval_s / self.decode_s.max(1e-6)) as usize;
-        let max_steps = per_job.clamp(*SPECULATIVE_STEPS.start(), *SPECULATIVE_STEPS.end());
-        // What was decoded ahead for a view that has moved on (a diamond this view does not
-        // refine) stays in the decoded cache like anything coarsened, but is no longer counted
-        // as ahead: counted, it would take room that what this view needs could use (a fast
-        // flight leaves such diamonds behind every frame). For a still view only what came
-        // back since the last frame is looked at.
-        let mut look_at: Vec<DiamondId> = self.ahead_arrived.drain().collect();
-        if self.ahead_view == Some(view.camera) {
-            let decoded = &self.residency.decoded;
-            self.ahead.retain(|id| decoded.contains(id));
-        } else {
-            look_at.extend(self.ahead.drain());
-            self.ahead_view = Some(view.camera);
-        }
-        for id in look_at {
-            if self.residency.decoded.contains(&id) && self.violation(id, view).is_some() {
-                self.ahead.insert(id);
-            }
-        }
-        let room = AHEAD_LIMIT.saturating_sub(self.ahead.len() + self.speculative.len());
-        let max_taken = (max_steps * free).min(room);
-        struct Planned {
-            steps: Vec<(DiamondId, Source)>,
-            given: Vec<(DiamondId, Arc<Node>)>,
-        }
-        let mut jobs: Vec<Planned> = (0..free)
-            .map(|_| Planned {
-                steps: Vec::new(),
-                given: Vec::new(),
-            })
-            .collect();
-        // Which job refines a diamond taken in this pass; decoded ones (cut, cache) are
-        // looked up when a job needs them.
-        let mut job_of: IdMap<usize> = IdMap::default();
-        let mut seen = IdSet::default();
-        // Children pushed, each once (one that is also among the leftovers may come twice: the
-        // second is passed over as seen; filling this with every leftover cost more, over a
-        // network, where thousands lack their records).
-        let mut queued = IdSet::default();
-        let mut frontier = BinaryHeap::from(leftovers);
-        let mut taken = 0;
-        let mut looked = 0;
-        // Diamonds to decode that could not be taken (record missing, parents not at hand, job
-        // full), counted once `until` has passed.
-        let mut missed_late: Option<usize> = None;
-        while let Some(Candidate { id, .. }) = frontier.pop() {
-            if taken >= max_taken || looked - taken >= SPECULATION_MISSES {
-                break;
-            }
-            // Past `until`, the plan stops once it has taken a diamond per free worker, or has
-            // missed LEAST_LOOKS a free worker since (until a diamond per worker is taken, the
-            // clock is read every LEAST_LOOKS looks).
-            if missed_late.is_none()
-                && (taken >= free || looked % LEAST_LOOKS == 0)
-                && until.is_some_and(|u| Instant::now() >= u)
-            {
-                missed_late = Some(0);
-            }
-            if let Some(missed) = missed_late
-                && (taken >= free || missed >= LEAST_LOOKS * free)
-            {
-                break;
-            }
-            looked += 1;
-            if !seen.insert(id) || self.cut_state.cut.is_refined(id) || self.decoding.contains(&id)
-            {
-                continue;
-            }
-            let decoded = self.residency.decoded.contains(&id);
-            if !decoded {
-                // The job of the parents taken in this pass, if any; the others must be at
-                // hand.
-                let mut job = None;
-                let mut ok = true;
-                for p in self.domain.parents(id).into_iter().flatten() {
-                    if let Some(&j) = job_of.get(&p) {
-                        ok &= job.is_none_or(|k| k == j);
-                        job = Some(j);
-                    } else {
-                        ok &=
-                            self.cut_state.cut.is_refined(p) || self.residency.decoded.contains(&p);
-                    }
-                }
-                let j = job.unwrap_or_else(|| {
-                    (0..free)
-                        .min_by_key(|&j| jobs[j].steps.len())
-                        .expect("at least one job")
-                });
-                let late_miss = |m: &mut Option<usize>| {
-                    if let Some(m) = m {
-                        *m += 1;
-                    }
-                };
-                if !ok || jobs[j].steps.len() >= max_steps {
-                    late_miss(&mut missed_late);
-                    continue;
-                }
-                let source = match self.need(id) {
-                    Need::Ready(Source::Cached(_)) | Need::Missing | Need::Impossible => {
-                        late_miss(&mut missed_late);
-                        continue;
-                    }
-                    Need::Ready(source) => source,
-                };
-                for p in self.domain.parents(id).into_iter().flatten() {
-                    if job_of.contains_key(&p) || jobs[j].given.iter().any(|(g, _)| *g == p) {
-                        continue;
-                    }
-                    let node = self
-                        .cut_state
-                        .nodes
-                        .get(&p)
-                        .or_else(|| self.residency.decoded.get(&p))
-                        .cloned()
-                        .expect("checked above");
-                    jobs[j].given.push((p, node));
-                }
-                jobs[j].steps.push((id, source));
-                job_of.insert(id, j);
-                taken += 1;
-            }
-            for k in self.domain.children(id).into_iter().flatten() {
-                // A child of two parents is looked at once.
-                if !queued.insert(k) {
-                    continue;
-                }
-                if let Some(err) = self.violation(k, view) {
-                    frontier.push(Candidate { err, id: k });
-                }
-            }
-        }
-        for job in jobs {
-            if !job.steps.is_empty() {
-                self.dispatch_job(job.steps, job.given, true);
-            }
-        }
-    }
-
-    /// Puts a finished refinement into the cut, or into the cache if the cut moved on (a
-    /// parent was coarsened meanwhile).
-    fn apply(
-        &mut self,
-        done: Done,
-        view: &View,
-        heap: &mut BinaryHeap<Candidate>,
-        stats: &mut FrameStats,
-    ) {
-        let id = done.id;
-        if done.speculative {
-            self.speculative.remove(&id);
-            if done.last {
-                self.speculative_jobs -= 1;
-            }
-        }
-        self.decoding.remove(&id);
-        if let Some(secs) = done.secs {
-            stats.decode_ms += secs * 1e3;
-            stats.decode_cpu_ms += done.cpu_secs.unwrap_or(0.0) * 1e3;
-            stats.decoded += 1;
-            self.decode_s += SMOOTHING * (secs - self.decode_s);
-        }
-        let node = match done.result {
-            Some(Ok(node)) => node,
-            Some(Err(e)) => {
-                self.log_failure(id, format!("decoding {id} failed: {e}"));
-                return;
-            }
-            // Not decoded: a step before it in its job failed.
-            None => {
-                self.heap_whole = false;
-                return;
-            }
-        };
-        let parents_refined = self
-            .domain
-            .parents(id)
-            .into_iter()
-            .flatten()
-            .all(|p| self.cut_state.cut.is_refined(p));
-        // Decoded ahead: into the cache, from which the refinement loop takes it (within its
-        // budget and the cut's memory limit).
-        if done.speculative {
-            self.ahead_arrived.insert(id);
-            if done.secs.is_some() {
-                stats.decoded_ahead += 1;
-            }
-        }
-        if !done.speculative && !parents_refined {
-            self.heap_whole = false;
-        }
-        if done.speculative || self.cut_state.cut.is_refined(id) || !parents_refined {
-            self.residency.keep_decoded(id, node);
-            return;
-        }
-        self.residency.decoded.remove(&id);
-        if self.ahead.remove(&id) | self.ahead_arrived.remove(&id) {
-            stats.refined_ahead += 1;
-        }
-        self.residency.cut_bytes += node.bytes();
-        if let Some(old) = self.cut_state.nodes.insert(id, node) {
-            self.residency.cut_bytes -= old.bytes();
-        }
-        let children = self.refine_in_cut(id);
-        stats.refinements += 1;
-        for (k, info) in children.into_iter().flatten() {
-            if let Some(err) = self.violation_of(k, info, view) {
-                heap.push(Candidate { err, id: k });
-            }
-        }
-    }
-
-    /// Coarsens every refined diamond the view does not need, finest first (a coarsening
-    /// heap ordered by ascending screen error, re-fed with parents that become leaves), or
-    /// those it reaches by `until` (after at least `least`). Returns how many
-    /// it coarsened and whether it found none left.
-    fn collect_garbage(
-        &mut self,
-        view: &View,
-        least: usize,
-        until: Option<Instant>,
-    ) -> (usize, bool) {
-        // Collected, then made a heap in one pass.
-        let unneeded: Vec<std::cmp::Reverse<Candidate>> = self
-            .cut_state
-            .leaves
-            .iter()
-            .filter_map(|(&id, info)| {
-                let err = info.and_then(|i| view.error(&i)).unwrap_or(0.0);
-                (err <= self.config.pixel_error).then_some(std::cmp::Reverse(Candidate { err, id }))
-            })
-            .collect();
-        let mut heap = BinaryHeap::from(unneeded);
-        let mut done = 0;
-        while let Some(std::cmp::Reverse(c)) = heap.pop() {
-            if done >= least && until.is_some_and(|u| Instant::now() >= u) {
-                return (done, false);
-            }
-            if !self.coarsen_in_cut(c.id) {
-                continue;
-            }
-            done += 1;
-            self.release(c.id);
-            for p in self.domain.parents(c.id).into_iter().flatten() {
-                if self.cut_state.cut.is_refined(p)
-                    && self.cut_state.is_leaf(&self.domain, p)
-                    && let Some(c) = self.unneeded(p, view)
-                {
-                    heap.push(std::cmp::Reverse(c));
-                }
-            }
-        }
-        (done, true)
-    }
-
-    /// After `id` was coarsened: its node moves to the decoded cache.
-    fn release(&mut self, id: DiamondId) {
-        if let Some(node) = self.cut_state.nodes.remove(&id) {
-            self.residency.retire(id, node);
-        }
-    }
-
-    /// Makes room in the cut budget for one more node before `keep` is refined (or dispatched
-    /// for decoding) to fix a screen error of `err`: coarsens refined leaves, smallest screen
-    /// error first, while theirs is below `err`. Parents of `keep` and of diamonds being
-    /// decoded stay. `pool` is this frame's coarsening heap, built on first need. False if the
-    /// budget cannot be met that way.
-    fn make_room(
-        &mut self,
-        err: f64,
-        keep: DiamondId,
-        view: &View,
-        pool: &mut Option<BinaryHeap<std::cmp::Reverse<Candidate>>>,
-        stats: &mut FrameStats,
-    ) -> bool {
-        let Some(limit) = self.config.cut_bytes else {
-            return true;
-        };
-        // Worst case: every node with all four child halves and nodata masks.
-        let node = Node::worst_bytes(self.domain.n(), self.drape.is_some());
-        let fits = |me: &Self| {
-            let regular = me.decoding.len() - me.speculative.len();
-            me.residency.cut_bytes + (regular + 1) * node <= limit
-        };
-        if fits(self) {
-            return true;
-        }
-        if pool.is_none() {
-            let heap = self
-                .cut_state
-                .leaves
-                .iter()
-                .map(|(&id, info)| {
-                    std::cmp::Reverse(Candidate {
-                        err: info.and_then(|i| view.error(&i)).unwrap_or(0.0),
-                        id,
-                    })
-                })
-                .collect();
-            *pool = Some(heap);
-        }
-        let heap = pool.as_mut().expect("built above");
-        let mut kept = Vec::new();
-        let ok = loop {
-            if fits(self) {
-                break true;
-            }
-            let Some(std::cmp::Reverse(c)) = heap.pop() else {
-                break false;
-            };
-            // Entries go stale as the frame refines and coarsens.
-            if !self.cut_state.cut.is_refined(c.id) || !self.cut_state.is_leaf(&self.domain, c.id) {
-                continue;
-            }
-            if c.err >= err {
-                heap.push(std::cmp::Reverse(c));
-                break false;
-            }
-            let is_parent = |d: DiamondId| self.domain.parents(d).contains(&Some(c.id));
-            if is_parent(keep) || self.decoding.iter().any(|&d| is_parent(d)) {
-                kept.push(std::cmp::Reverse(c));
-                continue;
-            }
-            if !self.coarsen_in_cut(c.id) {
-                continue;
-            }
-            stats.coarsenings += 1;
-            self.heap_whole = false;
-            self.release(c.id);
-            for p in self.domain.parents(c.id).into_iter().flatten() {
-                if self.cut_state.cut.is_refined(p) && self.cut_state.is_leaf(&self.domain, p) {
-                    let err = self.drawn_error(p, view);
-                    heap.push(std::cmp::Reverse(Candidate { err, id: p }));
-                }
-            }
-        };
-        heap.extend(kept);
-        ok
-    }
-
-    /// The screen error a refined diamond would show if coarsened: its own, 0 outside the
-    /// frustum.
-    fn drawn_error(&mut self, id: DiamondId, view: &View) -> f64 {
-        self.info(id).and_then(|i| view.error(&i)).unwrap_or(0.0)
-    }
-
-    /// `Some` (with its error, for ordering) if a refined diamond is not needed by the view.
-    fn unneeded(&mut self, id: DiamondId, view: &View) -> Option<Candidate> {
-        let err = self.info(id).and_then(|i| view.error(&i)).unwrap_or(0.0);
-        (err <= self.config.pixel_error).then_some(Candidate { err, id })
-    }
-
-    /// [`Refiner::worst_error`] over the cut's candidates in `view`.
-    fn worst_of_candidates(&self, view: &View) -> f64 {
-        self.worst_error(
-            self.cut_state
-                .candidates
-                .iter()
-                .map(|(&id, info)| (id, info.and_then(|i| view.error(&i)))),
-        )
-    }
-
-    /// With a whole heap (see `heap_whole`), the frame's largest error found without a pass
-    /// over every candidate: every candidate that violates the target is in `heap` or being
-    /// decoded, so when one of them could still be refined, the largest of theirs is the
-    /// largest of all. `None` when none could (the largest error is then within the target,
-    /// and only the pass finds it).
-    fn worst_violating(&self, view: &View, heap: &BinaryHeap<Candidate>) -> Option<f64> {
-        let mut worst: Option<f64> = None;
-        let mut consider = |me: &Self, id: DiamondId, err: f64| {
-            if worst.is_none_or(|w| err > w)
-                && me.cut_state.candidates.contains_key(&id)
-                && !me.blocked(id)
-            {
-                worst = Some(err);
-            }
-        };
-        for c in heap.iter() {
-            consider(self, c.id, c.err);
-        }
-        for &id in &self.decoding {
-            let info = self.cut_state.candidates.get(&id).copied().flatten();
-            if let Some(err) = self.violation_of(id, info, view) {
-                consider(self, id, err);
-            }
-        }
-        worst
-    }
-
-    /// The largest of `errors` (the cut's candidates with their screen errors) that a
-    /// refinement could still fix.
-    fn worst_error(&self, errors: impl Iterator<Item = (DiamondId, Option<f64>)>) -> f64 {
-        let mut worst = 0f64;
-        for (id, e) in errors {
-            if let Some(e) = e
-                && e > worst
-                && !self.blocked(id)
-            {
-                worst = e;
-            }
-        }
-        worst
-    }
-
-    /// `worst` (from [`Refiner::worst_error`]), and how many refined diamonds garbage
-    /// collection would remove (0, uncounted, when `worst` is above the target).
-    fn measure(&mut self, view: &View, worst: f64) -> (f64, usize) {
-        // Only a cut that meets the target can be converged, so only then does the count
-        // matter: skip the pass over the whole cut otherwise.
-        if worst > self.config.pixel_error {
-            return (worst, 0);
-        }
-        let coarsenable = self
-            .cut_state
-            .leaves
-            .values()
-            .filter(|info| {
-                info.and_then(|i| view.error(&i)).unwrap_or(0.0) <= self.config.pixel_error
-            })
-            .count();
-        (worst, coarsenable)
     }
 }
