@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify, walk};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoded, Encoder, reconstruct_finest, verify, walk};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::serialize;
@@ -113,7 +113,7 @@ pub fn measure(
         let plan = QuantPlan::for_dem(dem, eps, None)?;
         let grid = HeightGrid::from_dem(dem, &plan)?;
         let te = Instant::now();
-        let e = pool.install(|| encode(&grid, plan.quantizer, opts))?;
+        let e = pool.install(|| Encoder::new(&grid, plan.quantizer, opts).encode())?;
         enc_times.push(te.elapsed());
         let file = serialize(&e, &plan, dem.georef.as_ref(), dem.nodata)?;
         build_times.push(t.elapsed());

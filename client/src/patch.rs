@@ -153,7 +153,7 @@ pub fn decode_cut(repo: &Repository, cut: &Cut) -> Result<Vec<HalfPatch>, CodecE
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cbdam_codec::hierarchy::{EncodeOptions, encode, walk};
+    use cbdam_codec::hierarchy::{EncodeOptions, Encoder, walk};
     use cbdam_codec::quant::{HeightGrid, QuantPlan};
     use cbdam_codec::repository::serialize;
 
@@ -171,7 +171,7 @@ mod tests {
             n: 5,
             ..EncodeOptions::default()
         };
-        let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
         Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap()
     }
 

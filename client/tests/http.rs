@@ -20,7 +20,7 @@ use cbdam_client::fetch::FetchOptions;
 use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
 use cbdam_client::world::World;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{HEADER_FETCH_LEN, Repository, serialize};
 use cbdam_server::{AppState, Config};
@@ -52,7 +52,7 @@ fn image() -> Vec<u8> {
         n: 9,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     serialize(&enc, &plan, None, None).unwrap()
 }
 
@@ -293,7 +293,7 @@ fn repositories_shorter_than_the_first_fetch_or_with_longer_headers_connect() {
         n: 9,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     let short = serialize(&enc, &plan, None, None).unwrap();
     assert!(short.len() < HEADER_FETCH_LEN, "{} bytes", short.len());
     // And the other way round: a CRS definition (WKT) makes the header longer than the first
@@ -397,7 +397,7 @@ fn range_requests_to_a_static_server_are_many_in_flight() {
         ..EncodeOptions::default()
     };
     let bytes = serialize(
-        &encode(&grid, plan.quantizer, &opts).unwrap(),
+        &Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap(),
         &plan,
         None,
         None,

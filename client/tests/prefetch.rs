@@ -14,7 +14,7 @@ use cbdam_client::camera::Camera;
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::refine::{FrameStats, Prefetch, RefineConfig, Refiner};
 use cbdam_client::world::World;
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 use cbdam_server::{AppState, Config};
@@ -35,7 +35,7 @@ fn image() -> Vec<u8> {
         n: 9,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     serialize(&enc, &plan, None, None).unwrap()
 }
 

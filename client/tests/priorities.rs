@@ -9,7 +9,7 @@ use axum::extract::Request;
 use axum::middleware::Next;
 use cbdam_client::fetch::{FetchOptions, RemoteFetcher};
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 use cbdam_server::{AppState, Config};
@@ -29,7 +29,7 @@ fn image() -> Vec<u8> {
         n: 9,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     serialize(&enc, &plan, None, None).unwrap()
 }
 

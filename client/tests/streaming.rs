@@ -14,7 +14,7 @@ use cbdam_client::refine::{
 };
 use cbdam_client::world::World;
 use cbdam_codec::geometry::{Cut, DiamondId, check_conforming};
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 use glam::DVec3;
@@ -55,7 +55,7 @@ pub(crate) fn repository_with(hole: impl Fn(f64, f64) -> bool) -> Arc<Repository
         n: 9,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     Arc::new(Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap())
 }
 

@@ -20,7 +20,7 @@ use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{
-    Decoder, EncodeOptions, Encoded, RefineScratch, Refined, encode, verify,
+    Decoder, EncodeOptions, Encoded, Encoder, RefineScratch, Refined, verify,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
@@ -122,7 +122,7 @@ fn bench(c: &mut Criterion) {
             coder: case.coder,
             ..EncodeOptions::default()
         };
-        let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
         // A fast wrong decoder is worth nothing: the benchmarked hierarchy must be correct.
         assert!(
             verify(&enc, &grid).unwrap().within_bound(),
@@ -182,7 +182,10 @@ fn bench(c: &mut Criterion) {
         let mut g = c.benchmark_group("encode");
         g.throughput(Throughput::Elements((grid.width * grid.height) as u64));
         g.bench_function(&label, |b| {
-            b.iter(|| one_thread.install(|| black_box(encode(&grid, plan.quantizer, &opts))))
+            b.iter(|| {
+                one_thread
+                    .install(|| black_box(Encoder::new(&grid, plan.quantizer, &opts).encode()))
+            })
         });
         g.finish();
     }

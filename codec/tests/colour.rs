@@ -6,7 +6,7 @@ use crate::util::Rng;
 use cbdam_codec::colour::{
     Alignment, RgbImage, encode_colour, reconstruct_rgb, verify_colour, ycocg,
 };
-use cbdam_codec::hierarchy::{EncodeOptions, RepoKind, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder, RepoKind};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 
@@ -165,7 +165,10 @@ fn alignment_accepts_power_of_two_refinements_and_refuses_mismatches() {
         let plan = QuantPlan::new(1.0, None, 0.0, 100.0).unwrap();
         let metres: Vec<f64> = (0..w * h).map(|i| (i % 97) as f64).collect();
         let grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
-        encode(&grid, plan.quantizer, &opts()).unwrap().params
+        Encoder::new(&grid, plan.quantizer, &opts())
+            .encode()
+            .unwrap()
+            .params
     };
     let colour = |w: usize, h: usize| {
         encode_colour(&image(w, h, 1), 4, &opts(), &|_, _| {})

@@ -16,7 +16,7 @@ use std::path::Path;
 
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoded, Encoder, reconstruct_finest, verify};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan, Quantizer};
 use cbdam_codec::samples::Dem;
@@ -90,7 +90,7 @@ fn golden(
     opts: EncodeOptions,
     want: (u64, u64),
 ) -> (u64, u64) {
-    let enc = encode(grid, quantizer, &opts).unwrap();
+    let enc = Encoder::new(grid, quantizer, &opts).encode().unwrap();
     // A golden value is only worth pinning if the output it pins is correct.
     let report = verify(&enc, grid).unwrap();
     assert!(report.within_bound(), "{name}: {report:?}");

@@ -13,7 +13,7 @@ use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{
-    Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk, walk_with_validity,
+    Decoder, EncodeOptions, Encoded, Encoder, RefineScratch, walk, walk_with_validity,
 };
 use cbdam_codec::lifting::{Alpha, MAX_ABS_HEIGHT};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
@@ -40,7 +40,7 @@ fn hierarchy(alpha: Alpha, coder: CoderKind, nodata: bool) -> Encoded {
         coder,
         ..EncodeOptions::default()
     };
-    encode(&grid, plan.quantizer, &opts).unwrap()
+    Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap()
 }
 
 /// Every stored diamond's reconstructed grid, from an undamaged decode.

@@ -2,7 +2,7 @@
 
 use crate::util::Rng;
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, encode, verify};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder, verify};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use proptest::prelude::*;
@@ -108,7 +108,7 @@ fn check(
         }
     };
     let grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     let report = verify(&enc, &grid).unwrap();
     assert!(
         report.within_bound(),
@@ -203,7 +203,7 @@ fn planet_relief_at_the_smallest_accepted_tolerance_does_not_overflow() {
     let plan = QuantPlan::new(hi, None, -11_000.0, 9_000.0).unwrap();
     let grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
     for opts in both_coders_and_alphas(5) {
-        let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
         let report = verify(&enc, &grid).unwrap();
         assert!(report.within_bound(), "{opts:?}: {report:?}");
     }
@@ -216,7 +216,7 @@ fn lossless_when_the_tolerance_is_below_the_quantum() {
         let metres: Vec<f64> = metres.iter().map(|v| v.round()).collect();
         let plan = QuantPlan::new(0.4, Some(1.0), -3000.0, 5000.0).unwrap();
         let grid = HeightGrid::from_metres(70, 50, &metres, None, &plan).unwrap();
-        let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
         let report = verify(&enc, &grid).unwrap();
         assert_eq!((report.bound, report.max_error()), (0, 0), "{opts:?}");
     }

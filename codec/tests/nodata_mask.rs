@@ -9,7 +9,7 @@ use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::mask::count_valid_samples;
 use cbdam_codec::hierarchy::{
-    EncodeOptions, Encoded, encode, reconstruct_finest_with_validity, walk_with_validity,
+    EncodeOptions, Encoded, Encoder, reconstruct_finest_with_validity, walk_with_validity,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan, Quantizer};
@@ -108,7 +108,9 @@ fn adversarial_patterns_round_trip_at_every_level() {
                 coder,
                 extra_level_pairs: 0,
             };
-            let enc = encode(&grid, Quantizer::new(2).unwrap(), &opts).unwrap();
+            let enc = Encoder::new(&grid, Quantizer::new(2).unwrap(), &opts)
+                .encode()
+                .unwrap();
             // Every sample with data lies in a stored leaf, so it is checked at least once.
             let checked = check_mask(&enc, &grid);
             let with_data = grid.valid.iter().filter(|v| **v).count();
@@ -128,7 +130,9 @@ fn rhine_mask_round_trips_through_the_repository() {
     let grid = HeightGrid::from_dem(&dem, &plan).unwrap();
     let nodata = grid.valid.iter().filter(|v| !**v).count() as f64 / grid.valid.len() as f64;
     assert!(nodata > 0.3, "the fixture is mostly nodata: {nodata}");
-    let enc = encode(&grid, plan.quantizer, &EncodeOptions::default()).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &EncodeOptions::default())
+        .encode()
+        .unwrap();
     let bytes = serialize(&enc, &plan, None, Some(-9999.0)).unwrap();
     let repo = Repository::from_bytes(bytes).unwrap();
     assert!(repo.head().params().nodata_mask);
@@ -139,11 +143,15 @@ fn rhine_mask_round_trips_through_the_repository() {
 #[test]
 fn inputs_without_nodata_carry_no_mask() {
     let grid = terrain(45, 37, |_, _| false);
-    let enc = encode(&grid, Quantizer::new(1).unwrap(), &EncodeOptions::default()).unwrap();
+    let enc = Encoder::new(&grid, Quantizer::new(1).unwrap(), &EncodeOptions::default())
+        .encode()
+        .unwrap();
     assert!(!enc.params.nodata_mask);
     check_mask(&enc, &grid);
     // Outside the data rectangle is not nodata: a grid ending mid-diamond still has no mask.
     let grid = terrain(1, 1, |_, _| false);
-    let enc = encode(&grid, Quantizer::new(1).unwrap(), &EncodeOptions::default()).unwrap();
+    let enc = Encoder::new(&grid, Quantizer::new(1).unwrap(), &EncodeOptions::default())
+        .encode()
+        .unwrap();
     assert!(!enc.params.nodata_mask);
 }

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::colour::reconstruct_rgb;
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, RepoKind, encode, verify, walk_all_with_validity};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder, RepoKind, verify, walk_all_with_validity};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{FORMAT_VERSION, Repository, Section, serialize};
 
@@ -51,7 +51,7 @@ fn version_1_lidar_opens_and_equals_todays_encoding_but_for_the_index() {
         coder: CoderKind::Adaptive,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     // Version 1 stored exact height ranges, so the whole hierarchy compares equal.
     assert_eq!(old.to_encoded().unwrap(), enc);
     assert!(

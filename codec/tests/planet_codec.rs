@@ -9,7 +9,7 @@ use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::{Cut, DiamondId, Domain, FacePoint, check_conforming_surface};
 use cbdam_codec::hierarchy::{
-    Decoder, EncodeOptions, Encoded, PlanetGrid, RefineScratch, Refined, encode, encode_planet,
+    Decoder, EncodeOptions, Encoded, Encoder, PlanetGrid, RefineScratch, Refined, encode_planet,
     gather, reconstruct_finest, reconstruct_planet, verify, verify_planet,
 };
 use cbdam_codec::lifting::Alpha;
@@ -331,7 +331,9 @@ fn planar_and_planet_decoders_refuse_each_others_hierarchies() {
     assert!(e.to_string().contains("cube-sphere"), "{e}");
     assert!(verify(&encoded, &planet.face_grid(0)).is_err());
     let plane = HeightGrid::all_valid(9, 9, (0..81).collect());
-    let flat = encode(&plane, q, &opts(3, CoderKind::AdaptiveTokens)).unwrap();
+    let flat = Encoder::new(&plane, q, &opts(3, CoderKind::AdaptiveTokens))
+        .encode()
+        .unwrap();
     assert!(verify_planet(&flat, &planet).is_err());
     assert!(reconstruct_planet(&flat).is_err());
     let other = relief(3, 3, 1);

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, encode, reconstruct_finest, verify};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder, reconstruct_finest, verify};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::samples::Dem;
@@ -31,7 +31,9 @@ fn check(name: &str, dem: &Dem, eps: f64, alpha: Alpha, coder: CoderKind) -> f64
         coder,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap_or_else(|e| panic!("{what}: {e}"));
+    let enc = Encoder::new(&grid, plan.quantizer, &opts)
+        .encode()
+        .unwrap_or_else(|e| panic!("{what}: {e}"));
     let report = verify(&enc, &grid).unwrap();
     assert!(
         report.within_bound(),

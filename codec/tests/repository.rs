@@ -5,7 +5,7 @@
 use crate::util::Rng;
 use cbdam_codec::CodecError;
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, Encoded, encode, reconstruct_finest, verify};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoded, Encoder, reconstruct_finest, verify};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::GeoRef;
@@ -40,7 +40,11 @@ fn fixture(alpha: Alpha, coder: CoderKind) -> (Encoded, QuantPlan, HeightGrid) {
         coder,
         ..EncodeOptions::default()
     };
-    (encode(&grid, plan.quantizer, &opts).unwrap(), plan, grid)
+    (
+        Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap(),
+        plan,
+        grid,
+    )
 }
 
 fn georef() -> GeoRef {

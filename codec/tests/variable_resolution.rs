@@ -8,9 +8,8 @@ use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::{DiamondId, Layout};
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
-    BlockPlan, EncodeOptions, Encoded, NoJournal, Reached, Resolution, TempStorage, block_walk,
-    encode_in_blocks, encode_variable, encode_with_storage, reconstruct_reached, verify,
-    walk_all_with_validity,
+    BlockPlan, EncodeOptions, Encoded, Encoder, NoJournal, Reached, Resolution, TempStorage,
+    block_walk, reconstruct_reached, verify, walk_all_with_validity,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, Quantizer};
@@ -104,7 +103,10 @@ fn variable_input(h: &[i32]) -> (HeightGrid, Resolution) {
 }
 
 fn encode_var(grid: &HeightGrid, res: &Resolution, q: Quantizer) -> Encoded {
-    encode_variable(grid, res, q, &opts(), &TempStorage::Memory, &|_, _| {}).unwrap()
+    Encoder::new(grid, q, &opts())
+        .resolution(Some(res))
+        .encode()
+        .unwrap()
 }
 
 #[test]
@@ -170,14 +172,9 @@ fn every_sample_within_bound_and_coarse_areas_stay_coarse() {
     }
 
     // Far fewer records than the whole area at the fine spacing.
-    let full = encode_with_storage(
-        &HeightGrid::all_valid(SIDE, SIDE, h.clone()),
-        q,
-        &opts(),
-        &TempStorage::Memory,
-        &|_, _| {},
-    )
-    .unwrap();
+    let full = Encoder::new(&HeightGrid::all_valid(SIDE, SIDE, h.clone()), q, &opts())
+        .encode()
+        .unwrap();
     let (v, f) = (enc.records.len(), full.records.len());
     assert!(v * 3 < f, "{v} records variable vs {f} at the fine spacing");
     let full_deep = full
@@ -207,7 +204,7 @@ fn a_single_resolution_gives_the_same_hierarchy_as_encode() {
             .collect(),
     };
     let q = Quantizer::new(2).unwrap();
-    let single = encode_with_storage(&grid, q, &opts(), &TempStorage::Memory, &|_, _| {}).unwrap();
+    let single = Encoder::new(&grid, q, &opts()).encode().unwrap();
     assert_eq!(encode_var(&grid, &res, q), single);
 }
 
@@ -220,11 +217,26 @@ fn inconsistent_classes_and_alpha_half_are_refused() {
         alpha: Alpha::Half,
         ..opts()
     };
-    assert!(encode_variable(&grid, &res, q, &half, &TempStorage::Memory, &|_, _| {}).is_err());
+    assert!(
+        Encoder::new(&grid, q, &half)
+            .resolution(Some(&res))
+            .encode()
+            .is_err()
+    );
     res.class[0] = HOLE; // a valid sample called a hole
-    assert!(encode_variable(&grid, &res, q, &opts(), &TempStorage::Memory, &|_, _| {}).is_err());
+    assert!(
+        Encoder::new(&grid, q, &opts())
+            .resolution(Some(&res))
+            .encode()
+            .is_err()
+    );
     res.class = res.class[..res.class.len() - 1].to_vec().into();
-    assert!(encode_variable(&grid, &res, q, &opts(), &TempStorage::Memory, &|_, _| {}).is_err());
+    assert!(
+        Encoder::new(&grid, q, &opts())
+            .resolution(Some(&res))
+            .encode()
+            .is_err()
+    );
 }
 
 /// A multi-input build whose reconstruction field does not fit its memory limit keeps it in a
@@ -234,15 +246,11 @@ fn a_file_backed_field_gives_the_same_variable_hierarchy() {
     let h = terrain(&mut Rng(5));
     let (grid, res) = variable_input(&h);
     let q = Quantizer::new(3).unwrap();
-    let in_file = encode_variable(
-        &grid,
-        &res,
-        q,
-        &opts(),
-        &TempStorage::File(None),
-        &|_, _| {},
-    )
-    .unwrap();
+    let in_file = Encoder::new(&grid, q, &opts())
+        .resolution(Some(&res))
+        .storage(&TempStorage::File(None))
+        .encode()
+        .unwrap();
     assert_eq!(in_file, encode_var(&grid, &res, q));
 }
 
@@ -266,17 +274,11 @@ fn blocks_encode_the_same_variable_resolution_hierarchy() {
             block_side,
         };
         for (input, classes) in [(&grid, &res), (&mapped, &mapped_classes)] {
-            let blocks = encode_in_blocks(
-                input,
-                Some(classes),
-                q,
-                &opts(),
-                &TempStorage::Memory,
-                &plan,
-                &NoJournal,
-                &|_, _| {},
-            )
-            .unwrap();
+            let blocks = Encoder::new(input, q, &opts())
+                .resolution(Some(classes))
+                .in_blocks(&plan, &NoJournal)
+                .encode()
+                .unwrap();
             assert!(
                 blocks == whole,
                 "{plan:?} differs (mapped: {})",

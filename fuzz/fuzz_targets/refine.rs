@@ -10,9 +10,7 @@
 use std::sync::OnceLock;
 
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{
-    Decoder, EncodeOptions, Encoded, RefineScratch, encode, walk, walk_with_validity,
-};
+use cbdam_codec::hierarchy::{Decoder, EncodeOptions, Encoded, RefineScratch, Encoder, walk, walk_with_validity};
 use cbdam_codec::lifting::{Alpha, MAX_ABS_HEIGHT};
 use cbdam_codec::quant::{HeightGrid, Quantizer};
 use libfuzzer_sys::fuzz_target;
@@ -51,7 +49,7 @@ fn fixtures() -> &'static [Fixture] {
                         coder,
                         ..EncodeOptions::default()
                     };
-                    let enc = encode(&grid, Quantizer::new(2).unwrap(), &opts).unwrap();
+                    let enc = Encoder::new(&grid, Quantizer::new(2).unwrap(), &opts).encode().unwrap();
                     let decoder = Decoder::new(enc.params, &enc.roots).unwrap();
                     let mut by_id = std::collections::HashMap::new();
                     walk(&enc, |id, p| {

@@ -4,7 +4,7 @@
 
 use std::net::SocketAddr;
 
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::{Repository, serialize};
@@ -41,7 +41,7 @@ pub fn image(seed: u64) -> Vec<u8> {
         n: 9,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     let geo = GeoRef {
         epsg: Some(32632),
         origin_x: 400_000.0,

@@ -13,7 +13,7 @@ use cbdam_client::access::LocalSource;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::stats::percentile;
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 use cbdam_codec::samples::Dem;
@@ -66,7 +66,7 @@ pub fn measure(
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     let plan = QuantPlan::for_dem(dem, eps, None)?;
     let grid = HeightGrid::from_dem(dem, &plan)?;
-    let encoded = encode(&grid, plan.quantizer, &EncodeOptions::default())?;
+    let encoded = Encoder::new(&grid, plan.quantizer, &EncodeOptions::default()).encode()?;
     let bytes = serialize(&encoded, &plan, dem.georef.as_ref(), dem.nodata)?;
     let repo_path = out_dir.join(format!("{name}.cbdam"));
     std::fs::write(&repo_path, &bytes)

@@ -18,7 +18,7 @@ use cbdam_client::spawn::{Portable, Spawner};
 use cbdam_client::world::World;
 use cbdam_codec::colour::{RgbImage, encode_colour, ycocg};
 use cbdam_codec::geometry::Layout;
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 use cbdam_render::{CacheConfig, Frame, RenderOptions, Renderer};
@@ -43,7 +43,7 @@ fn elevation(metres: impl Fn(f64, f64) -> f64) -> Arc<Repository> {
         n: N,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     Arc::new(Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap())
 }
 

@@ -12,7 +12,7 @@ use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::world::World;
 use cbdam_codec::geometry::Cut;
-use cbdam_codec::hierarchy::{EncodeOptions, encode};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 use cbdam_render::{CacheConfig, Gpu, Renderer};
@@ -35,7 +35,7 @@ pub fn repository(name: &str, max_error: f64, n: usize) -> Repository {
         n,
         ..EncodeOptions::default()
     };
-    let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
     let bytes = serialize(&enc, &plan, dem.georef.as_ref(), dem.nodata).unwrap();
     Repository::from_bytes(bytes).unwrap()
 }
@@ -210,7 +210,7 @@ pub fn holed() -> &'static (Arc<Repository>, Vec<bool>) {
             n: 17,
             ..EncodeOptions::default()
         };
-        let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
         let bytes = serialize(&enc, &plan, None, None).unwrap();
         (Arc::new(Repository::from_bytes(bytes).unwrap()), valid)
     })

@@ -702,7 +702,7 @@ mod tests {
 
     #[test]
     fn batches_are_dropped_when_most_of_what_they_still_carry_is_unwanted() {
-        use cbdam_codec::hierarchy::{EncodeOptions, encode};
+        use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
         use cbdam_codec::quant::{HeightGrid, QuantPlan};
         let (w, h) = (33usize, 33usize);
         let metres: Vec<f64> = (0..w * h)
@@ -714,7 +714,7 @@ mod tests {
             n: 9,
             ..EncodeOptions::default()
         };
-        let enc = encode(&grid, plan.quantizer, &opts).unwrap();
+        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
         let bytes = cbdam_codec::repository::serialize(&enc, &plan, None, None).unwrap();
         let repo = cbdam_codec::repository::Repository::from_bytes(bytes).unwrap();
         let head = repo.head();

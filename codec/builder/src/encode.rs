@@ -1,8 +1,7 @@
 //! Encoding a prepared input on a worker pool, and `--extra-levels auto`'s second try.
 
 use cbdam_codec::hierarchy::{
-    BlockJournal, EncodeOptions, Encoded, NoJournal, Resolution, encode_in_blocks, encode_variable,
-    encode_with_storage,
+    BlockJournal, EncodeOptions, Encoded, Encoder, NoJournal, Resolution,
 };
 use cbdam_codec::repository::serialize;
 
@@ -47,27 +46,21 @@ pub fn encode_prepared(
     let pool = thread_pool(threads)?;
     let storage = &temporaries.storage;
     Ok(pool.install(|| match (&temporaries.blocks, resolution) {
-        (Some(plan), r) => encode_in_blocks(
-            &input.grid,
-            r,
-            input.plan.quantizer,
-            opts,
-            storage,
-            plan,
-            journal,
-            progress,
-        ),
-        (None, Some(r)) => encode_variable(
-            &input.grid,
-            r,
-            input.plan.quantizer,
-            opts,
-            storage,
-            progress,
-        ),
-        (None, None) => {
-            encode_with_storage(&input.grid, input.plan.quantizer, opts, storage, progress)
-        }
+        (Some(plan), r) => Encoder::new(&input.grid, input.plan.quantizer, opts)
+            .resolution(r)
+            .storage(storage)
+            .in_blocks(plan, journal)
+            .progress(progress)
+            .encode(),
+        (None, Some(r)) => Encoder::new(&input.grid, input.plan.quantizer, opts)
+            .resolution(Some(r))
+            .storage(storage)
+            .progress(progress)
+            .encode(),
+        (None, None) => Encoder::new(&input.grid, input.plan.quantizer, opts)
+            .storage(storage)
+            .progress(progress)
+            .encode(),
     })?)
 }
 

@@ -3,7 +3,7 @@
 use super::channels::join;
 use super::{RgbImage, ycocg};
 use crate::CodecError;
-use crate::hierarchy::{EncodeOptions, Encoded, Record, RepoKind, encode_with_progress};
+use crate::hierarchy::{EncodeOptions, Encoded, Encoder, Record, RepoKind};
 use crate::quant::{HeightGrid, QuantPlan, Quantizer};
 
 /// The plan a colour repository is written with: integer unit 1 (one colour level), offset 0,
@@ -48,7 +48,11 @@ pub fn encode_colour(
     for c in 0..3 {
         let grid = HeightGrid::all_valid(img.width, img.height, ycc.iter().map(|v| v[c]).collect());
         let tick = |done: usize, total: usize| progress(c * total + done, 3 * total);
-        channels.push(encode_with_progress(&grid, plan.quantizer, opts, &tick)?);
+        channels.push(
+            Encoder::new(&grid, plan.quantizer, opts)
+                .progress(&tick)
+                .encode()?,
+        );
     }
     let [y, co, cg]: [Encoded; 3] = channels.try_into().expect("three channels");
     // Same grid size, all samples valid: the three hierarchies have the same layout and the

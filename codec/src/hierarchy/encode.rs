@@ -117,109 +117,114 @@ impl Targets<'_> {
     }
 }
 
-/// Encodes `grid` (integer heights) with residual quantizer `quantizer`.
+/// The encoder of a lattice of integer heights: [`Encoder::new`], the settings that differ
+/// from the defaults, then [`Encoder::encode`].
 ///
-/// Errors if the grid has no valid sample, or if the reconstruction would leave the integer
-/// range (a tolerance far too fine for the heights; [`crate::quant::QuantPlan`] normally refuses
-/// those first).
-pub fn encode(
-    grid: &HeightGrid,
+/// ```ignore
+/// let encoded = Encoder::new(&grid, plan.quantizer, &opts)
+///     .storage(&storage)
+///     .in_blocks(&block_plan, &journal)
+///     .progress(&tick)
+///     .encode()?;
+/// ```
+///
+/// The output depends only on the grid, the quantizer, the options and the resolution; where
+/// temporaries live and whether the levels are encoded whole or block by block do not change a
+/// byte.
+#[derive(Clone, Copy)]
+pub struct Encoder<'a> {
+    grid: &'a HeightGrid,
     quantizer: Quantizer,
-    opts: &EncodeOptions,
-) -> Result<Encoded, CodecError> {
-    encode_with_progress(grid, quantizer, opts, &|_, _| {})
+    opts: &'a EncodeOptions,
+    resolution: Option<&'a Resolution>,
+    storage: &'a TempStorage,
+    blocks: Option<(&'a BlockPlan, &'a dyn BlockJournal)>,
+    progress: &'a (dyn Fn(usize, usize) + Sync),
 }
 
-/// [`encode`], calling `progress(done, total)` after each diamond (from worker threads). The
-/// units are input samples covered: every level covers the data once and costs about the same,
-/// while a coarse diamond costs as much as thousands of fine ones, so covered area gives a usable
-/// ETA where a diamond count would not.
-pub fn encode_with_progress(
-    grid: &HeightGrid,
-    quantizer: Quantizer,
-    opts: &EncodeOptions,
-    progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<Encoded, CodecError> {
-    encode_with_storage(grid, quantizer, opts, &TempStorage::Memory, progress)
-}
-
-/// [`encode_with_progress`], keeping the encoder's large temporaries in `storage`. The output
-/// does not depend on `storage`.
-pub fn encode_with_storage(
-    grid: &HeightGrid,
-    quantizer: Quantizer,
-    opts: &EncodeOptions,
-    storage: &TempStorage,
-    progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<Encoded, CodecError> {
-    let strategy = match opts.alpha {
-        Alpha::One => Keeping::Field(storage),
-        Alpha::Half => Keeping::PerDiamond,
-    };
-    encode_impl(grid, None, quantizer, opts, strategy, progress)
-}
-
-/// [`encode_with_storage`] for variable-resolution data ([`super::resolution`]): `grid` holds
-/// the winning sample of every lattice point that has one, `resolution` says at which stride
-/// each sample was taken and which points between coarse samples are drawn. The hierarchy is
-/// refined only as deep as the data at each place. α = 1 only.
-pub fn encode_variable(
-    grid: &HeightGrid,
-    resolution: &Resolution,
-    quantizer: Quantizer,
-    opts: &EncodeOptions,
-    storage: &TempStorage,
-    progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<Encoded, CodecError> {
-    if opts.alpha != Alpha::One {
-        return Err(CodecError::invalid(
-            "variable-resolution data needs α = 1 (the lifting of α = ½ would constrain the \
-             points between coarse samples)",
-        ));
+impl<'a> Encoder<'a> {
+    /// Encodes `grid` with residual quantizer `quantizer` and `opts`: by default the whole
+    /// domain at once, temporaries in memory, no progress reports.
+    pub fn new(grid: &'a HeightGrid, quantizer: Quantizer, opts: &'a EncodeOptions) -> Self {
+        Encoder {
+            grid,
+            quantizer,
+            opts,
+            resolution: None,
+            storage: &TempStorage::Memory,
+            blocks: None,
+            progress: &|_, _| {},
+        }
     }
-    resolution.check(grid)?;
-    encode_impl(
-        grid,
-        Some(resolution),
-        quantizer,
-        opts,
-        Keeping::Field(storage),
-        progress,
-    )
-}
 
-/// [`encode_with_storage`] (α = 1) or [`encode_variable`] (`resolution` given), encoding the
-/// levels from `plan`'s cut down one block at a time ([`super::blocks`]), asking `journal` for
-/// blocks an earlier run finished and handing it each one this run finishes. The output is the
-/// same for every plan.
-#[allow(clippy::too_many_arguments)]
-pub fn encode_in_blocks(
-    grid: &HeightGrid,
-    resolution: Option<&Resolution>,
-    quantizer: Quantizer,
-    opts: &EncodeOptions,
-    storage: &TempStorage,
-    plan: &BlockPlan,
-    journal: &dyn BlockJournal,
-    progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<Encoded, CodecError> {
-    if opts.alpha != Alpha::One {
-        return Err(CodecError::invalid(
-            "encoding in blocks needs α = 1 (α = ½ changes vertices, so a block's diamonds \
-             would depend on more than their ancestors' points)",
-        ));
+    /// Variable-resolution data ([`super::resolution`]), when `resolution` is given: `grid`
+    /// holds the winning sample of every lattice point that has one, `resolution` says at which
+    /// stride each sample was taken and which points between coarse samples are drawn. The
+    /// hierarchy is refined only as deep as the data at each place. α = 1 only.
+    pub fn resolution(mut self, resolution: Option<&'a Resolution>) -> Self {
+        self.resolution = resolution;
+        self
     }
-    if let Some(r) = resolution {
-        r.check(grid)?;
+
+    /// Keeps the encoder's large temporaries in `storage` (memory by default).
+    pub fn storage(mut self, storage: &'a TempStorage) -> Self {
+        self.storage = storage;
+        self
     }
-    encode_impl(
-        grid,
-        resolution,
-        quantizer,
-        opts,
-        Keeping::Blocks(storage, plan, journal),
-        progress,
-    )
+
+    /// Encodes the levels from `plan`'s cut down one block at a time ([`super::blocks`]),
+    /// asking `journal` for blocks an earlier run finished and handing it each one this run
+    /// finishes. α = 1 only.
+    pub fn in_blocks(mut self, plan: &'a BlockPlan, journal: &'a dyn BlockJournal) -> Self {
+        self.blocks = Some((plan, journal));
+        self
+    }
+
+    /// Calls `progress(done, total)` after each diamond (from worker threads). The units are
+    /// input samples covered: every level covers the data once and costs about the same, while
+    /// a coarse diamond costs as much as thousands of fine ones, so covered area gives a usable
+    /// ETA where a diamond count would not.
+    pub fn progress(mut self, progress: &'a (dyn Fn(usize, usize) + Sync)) -> Self {
+        self.progress = progress;
+        self
+    }
+
+    /// Encodes.
+    ///
+    /// Errors if the grid has no valid sample, if the reconstruction would leave the integer
+    /// range (a tolerance far too fine for the heights; [`crate::quant::QuantPlan`] normally
+    /// refuses those first), or if variable resolution or blocks are asked for with α = ½.
+    pub fn encode(self) -> Result<Encoded, CodecError> {
+        let one = self.opts.alpha == Alpha::One;
+        if self.blocks.is_some() && !one {
+            return Err(CodecError::invalid(
+                "encoding in blocks needs α = 1 (α = ½ changes vertices, so a block's diamonds \
+                 would depend on more than their ancestors' points)",
+            ));
+        }
+        if self.resolution.is_some() && !one {
+            return Err(CodecError::invalid(
+                "variable-resolution data needs α = 1 (the lifting of α = ½ would constrain the \
+                 points between coarse samples)",
+            ));
+        }
+        if let Some(r) = self.resolution {
+            r.check(self.grid)?;
+        }
+        let keeping = match (self.blocks, self.opts.alpha) {
+            (Some((plan, journal)), _) => Keeping::Blocks(self.storage, plan, journal),
+            (None, Alpha::One) => Keeping::Field(self.storage),
+            (None, Alpha::Half) => Keeping::PerDiamond,
+        };
+        encode_impl(
+            self.grid,
+            self.resolution,
+            self.quantizer,
+            self.opts,
+            keeping,
+            self.progress,
+        )
+    }
 }
 
 /// How the encoder keeps the reconstruction between levels.
@@ -465,11 +470,11 @@ pub struct GridSummary {
     pub roots: Vec<u8>,
 }
 
-/// An α = 1 encode split as [`encode_in_blocks`] splits it, into parts that run apart (in other
+/// An α = 1 encode split as [`Encoder::in_blocks`] splits it, into parts that run apart (in other
 /// processes, on other machines) and are put together without encoding again: the apex (the
 /// levels above the plan's cut, over the whole domain), each block of the finer levels, seeded
 /// from the apex's field, and [`ShardedEncode::finish`], which saturates the object errors over
-/// all of them. The result is the same as [`encode_in_blocks`]'s, bit for bit.
+/// all of them. The result is the same as [`Encoder::in_blocks`]'s, bit for bit.
 ///
 /// The apex only refines: the object errors of its levels (a scan of every sample per level,
 /// about half its work) are measured by the blocks, each over its own square, and the finish
@@ -1400,17 +1405,10 @@ mod tests {
         let mapped = grid.copied_to(&TempStorage::File(None)).unwrap();
         assert_eq!(mapped.windows(), cfg!(unix));
         for (input, storage) in [(grid, "memory"), (&mapped, "mapped files")] {
-            let blocks = encode_in_blocks(
-                input,
-                None,
-                q,
-                opts,
-                &TempStorage::Memory,
-                plan,
-                &super::super::blocks::NoJournal,
-                &|_, _| {},
-            )
-            .unwrap();
+            let blocks = Encoder::new(input, q, opts)
+                .in_blocks(plan, &super::super::blocks::NoJournal)
+                .encode()
+                .unwrap();
             assert!(
                 whole == blocks,
                 "block encoder of a grid in {storage} differs on {}×{} {opts:?} {plan:?}",

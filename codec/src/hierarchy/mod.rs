@@ -35,10 +35,7 @@ pub use decode::{
     walk_with_validity,
 };
 pub use decode_blocks::{BlockWalk, block_walk};
-pub use encode::{
-    ApexField, ApexOutput, EncodeOptions, GridSummary, ShardedEncode, encode, encode_in_blocks,
-    encode_variable, encode_with_progress, encode_with_storage,
-};
+pub use encode::{ApexField, ApexOutput, EncodeOptions, Encoder, GridSummary, ShardedEncode};
 pub use field::TempStorage;
 pub use planet::{
     PlanetGrid, PlanetTile, encode_planet, reconstruct_planet, reconstruct_planet_like,

@@ -567,7 +567,7 @@ fn decode_varint(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::hierarchy::{EncodeOptions, encode};
+    use crate::hierarchy::{EncodeOptions, Encoder};
     use crate::quant::{HeightGrid, Quantizer};
 
     fn sample() -> (Domain, Vec<IndexEntry>) {
@@ -585,7 +585,7 @@ mod tests {
                 }
             }
         }
-        let enc = encode(
+        let enc = Encoder::new(
             &grid,
             Quantizer::new(1).unwrap(),
             &EncodeOptions {
@@ -593,6 +593,7 @@ mod tests {
                 ..Default::default()
             },
         )
+        .encode()
         .unwrap();
         let entries = enc
             .records
