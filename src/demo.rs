@@ -9,8 +9,45 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use cbdam_server::{AppState, Config, RepoSpec};
+use clap::Args;
 
-use crate::{AlphaArg, BuildArgs, CoderArg, DemoArgs, RenderArgs, ReplayArgs, ViewArgs};
+use crate::build::{AlphaArg, BuildArgs, CoderArg};
+use crate::flags;
+use crate::render::RenderArgs;
+use crate::replay::ReplayArgs;
+use crate::view::ViewArgs;
+
+/// The whole pipeline on the bundled SRTM tile: builds a repository (once), serves it on
+/// loopback, replays a flight against the server over HTTP and renders an overview and the
+/// flight's frames offscreen from what the client fetched; prints where the outputs are.
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Where the repository, CSV and PNGs go.
+    #[arg(long, default_value = "demo-out")]
+    out_dir: PathBuf,
+    /// Flight from data/flights/ (default descent.json; with --planet planet/descent.json).
+    #[arg(long)]
+    flight: Option<String>,
+    /// A planet instead of the SRTM tile: the bundled ETOPO5 global DEM with the bundled SRTM and
+    /// Jacksboro tiles as insets, resampled onto the cube-sphere on WGS84 at the insets' own 3″
+    /// (K = 11, 0.0007° lattice), served, and flown from orbit down to the SRTM tile's summit.
+    #[arg(long)]
+    planet: bool,
+    /// Size of the rendered frames.
+    #[arg(long, value_parser = flags::Size2::pixels, default_value = "640x360")]
+    size: (u32, u32),
+    /// Render at most this many frames of the flight (all by default).
+    #[arg(long)]
+    max_frames: Option<u64>,
+    /// Do not open the interactive viewer at the end (it opens when a display is available:
+    /// DISPLAY or WAYLAND_DISPLAY set).
+    #[arg(long)]
+    no_view: bool,
+    /// Close the viewer after this many frames (for scripts and tests; by default it stays open
+    /// until Esc).
+    #[arg(long)]
+    view_frames: Option<u64>,
+}
 
 pub fn run(args: &DemoArgs) -> Result<()> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -61,7 +98,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             alpha: AlphaArg::One,
             quantum: None,
             nodata: None,
-            georef: crate::GeorefArgs::default(),
+            georef: flags::GeorefArgs::default(),
             block_plan: None,
             planet: args.planet,
             planet_level,

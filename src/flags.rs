@@ -5,6 +5,8 @@
 //! A bad value is a usage error (exit 2) whose message names the flag (clap puts it in front)
 //! and says what is expected.
 
+use clap::Args;
+
 /// The largest image or window side accepted (`--size` of render, view, replay, bench render):
 /// what GPUs allow for a texture.
 pub const MAX_PIXELS: u64 = 16384;
@@ -202,6 +204,37 @@ impl GeoView {
             heading,
             pitch,
         })
+    }
+}
+
+/// `--bounds MINX,MINY,MAXX,MAXY --crs EPSG:N`, of `build` and `verify`: georeferencing for an
+/// input that carries none.
+#[derive(Args, Debug, Default)]
+pub struct GeorefArgs {
+    /// Georeferences an input that carries none (a raw float32 file, a plain TIFF, one of a
+    /// planet's inputs): the outer edges of its raster in the CRS of --crs,
+    /// west,south,east,north (GDAL's -te order), e.g. `--bounds -10,40,2,46 --crs EPSG:4326`.
+    /// Refused for inputs with their own; among a planet's inputs, for the one that carries
+    /// none (`verify --against` takes the same flags to place it again).
+    #[arg(
+        long,
+        value_name = "MINX,MINY,MAXX,MAXY",
+        requires = "crs",
+        allow_hyphen_values = true
+    )]
+    bounds: Option<String>,
+    /// The CRS of --bounds, as EPSG:N.
+    #[arg(long, value_name = "EPSG:N", requires = "bounds")]
+    crs: Option<String>,
+}
+
+impl GeorefArgs {
+    /// The georeferencing the flags give, checked; `None` without them.
+    pub fn assigned(&self) -> anyhow::Result<Option<cbdam_build::assign::AssignedGeoRef>> {
+        match (&self.bounds, &self.crs) {
+            (Some(b), Some(c)) => Ok(Some(cbdam_build::assign::AssignedGeoRef::parse(b, c)?)),
+            _ => Ok(None),
+        }
     }
 }
 

@@ -1,11 +1,34 @@
 //! `cbdam inspect`: what a repository holds.
 
+use std::path::PathBuf;
+
 use anyhow::{Context, Result};
 use cbdam_codec::hierarchy::mask::count_valid_samples;
 use cbdam_codec::repository::{Repository, Section};
 use cbdam_server::summarize;
+use clap::Args;
 
-use crate::{InspectArgs, UpgradeArgs};
+/// Print a repository's header, per-level record counts and sizes, and error range.
+#[derive(Args, Debug)]
+pub struct InspectArgs {
+    /// Repository file.
+    repo: PathBuf,
+    /// Machine-readable output.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Rewrite a repository of an older format version in the current one (version 1 → 2: a
+/// range-coded record index, smaller on smooth terrain); heights, records and errors are
+/// unchanged. The output is written atomically and may be the input itself.
+#[derive(Args, Debug)]
+pub struct UpgradeArgs {
+    /// Repository file to read.
+    repo: PathBuf,
+    /// Where to write the upgraded repository (may be the input).
+    #[arg(short, long)]
+    output: PathBuf,
+}
 
 /// `cbdam upgrade`: the repository as the current writer writes it. The file's content is the
 /// encoder's output as read back (`to_encoded`, every record checked), so this is a rewrite of

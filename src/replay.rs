@@ -1,7 +1,7 @@
 //! `cbdam replay`: the real refinement loop over a camera flight, one CSV row per frame.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -9,9 +9,71 @@ use cbdam_client::access::DataSource;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner};
 use cbdam_client::stats::percentile;
+use clap::Args;
 
-use crate::ReplayArgs;
+use crate::flags;
 use crate::session::{budget_label, terrain_source};
+
+/// Run the client's refinement loop over a camera flight without drawing: one CSV row per
+/// frame, then hold the camera still until the cut converges, and print a summary.
+#[derive(Args, Debug)]
+pub struct ReplayArgs {
+    /// Repository file, or the URL of one (`cbdam serve`'s repository URL or a .cbdam file on
+    /// any server that honours Range).
+    #[arg(value_name = "REPO_OR_URL")]
+    pub(crate) repo: String,
+    /// Flight file (JSON keyframes relative to the data's extent; see data/flights/).
+    #[arg(long)]
+    pub(crate) path: PathBuf,
+    /// Viewport WIDTHxHEIGHT, pixels.
+    #[arg(long, default_value = "1920x1080", value_parser = flags::Size2::pixels)]
+    pub(crate) size: (u32, u32),
+    /// Target screen-space error, pixels.
+    #[arg(long, default_value_t = 1.0)]
+    pub(crate) pixel_error: f64,
+    /// Refinement time budget per frame, ms (0: unlimited).
+    #[arg(long, default_value_t = 2.0)]
+    pub(crate) budget_ms: f64,
+    /// Output CSV, one row per frame: frame, t, settling, refine_ms (wall), cpu_ms (CPU time of
+    /// the refining thread), decode_ms (worker time), decoded,
+    /// max_screen_error_px, met_target, converged, diamonds_in_cut, drawn_halves, triangles,
+    /// refinements, coarsenings, budget_exhausted, bytes_fetched (cumulative), requests_issued
+    /// (cumulative), requests_in_flight, failures, cut_bytes (decoded diamonds in the cut),
+    /// memory_limited (a refinement waited for --cut-mib), then where refine_ms went, step by
+    /// step: before_ms (arrivals, a moving view's collection, the refinement heap), loop_ms
+    /// (the refinement loop), collect_ms (a collection after the loop), want_ms (choosing
+    /// requests), after_ms (largest error, prefetch, posting requests), ahead_ms (planning the
+    /// decoding ahead, last in the frame; the column comes before after_ms), and decode_cpu_ms
+    /// (of decode_ms, the workers' CPU time: without what they waited for a core; Unix).
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+    /// Frames per second of flight time.
+    #[arg(long, default_value_t = 30.0)]
+    pub(crate) fps: f64,
+    /// After the flight, at most this many frames with the camera still waiting for the cut to
+    /// converge.
+    #[arg(long, default_value_t = 600)]
+    pub(crate) max_settle_frames: usize,
+    /// Synthesise procedural detail past the finest stored level.
+    #[arg(long)]
+    pub(crate) detail: bool,
+    /// Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over
+    /// the terrain: its records are fetched and decoded with the elevation's.
+    #[arg(long, value_name = "COLOUR_REPO_OR_URL")]
+    pub(crate) colour: Option<String>,
+    /// Memory for the cut's decoded diamonds, MiB (0: unlimited). At the limit a refinement
+    /// goes ahead only by coarsening diamonds of smaller screen error elsewhere.
+    #[arg(long, default_value_t = 1024)]
+    pub(crate) cut_mib: usize,
+    /// Pace the frames at --fps in real time on a local file too (a viewer's timing: the
+    /// workers have the time between frames), not back to back.
+    #[arg(long)]
+    pub(crate) paced: bool,
+    /// Do not decode ahead of the cut between frames (the loop before issue 21's pipelining;
+    /// for comparisons).
+    #[arg(long)]
+    pub(crate) no_decode_ahead: bool,
+}
 
 /// The CSV header; `tests/cli.rs` checks it. Times in ms; `bytes_fetched` and
 /// `requests_issued` are cumulative, the other counters per frame or current state.

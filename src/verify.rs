@@ -1,6 +1,8 @@
 //! `cbdam verify`: every checksum, every level, every sample. The comparisons are
 //! [`cbdam_build::verify`]'s; this prints them.
 
+use std::path::PathBuf;
+
 use anyhow::{Context, Result, bail};
 
 use cbdam_build::assign::AssignedGeoRef;
@@ -10,8 +12,30 @@ use cbdam_build::tiles::{Tile, expand_inputs};
 use cbdam_build::verify::{compare_colour, compare_dem, compare_tiles_with, one_file_in_blocks};
 use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
 use cbdam_codec::repository::Repository;
+use clap::Args;
 
-use crate::VerifyArgs;
+use crate::flags;
+
+/// Check every checksum, decode everything and compare with the input DEM.
+#[derive(Args, Debug)]
+pub struct VerifyArgs {
+    /// Repository file.
+    repo: PathBuf,
+    /// The input DEM(s), in the order given to `build`: files, directories, globs, @LIST files
+    /// or GDAL VRTs of tiles, as `build` takes them.
+    #[arg(long, required = true, num_args = 1..)]
+    against: Vec<PathBuf>,
+    /// Memory to stay within (e.g. 2G, 512M; default half of RAM): a hierarchy from several
+    /// inputs, or from one too large to decode whole (26 bytes a sample), is decoded block by
+    /// block, the inputs' lattice kept in temporary files above it.
+    #[arg(long, value_name = "SIZE")]
+    memory_limit: Option<flags::ByteSize>,
+    /// Decode blocks of this plan (testing).
+    #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = crate::build::parse_block_plan)]
+    block_plan: Option<cbdam_codec::hierarchy::BlockPlan>,
+    #[command(flatten)]
+    georef: flags::GeorefArgs,
+}
 
 /// A colour repository against its image: every level of Y, Co, Cg within `k`, and every
 /// decoded R, G, B within the tolerance (`--max-error`, levels).

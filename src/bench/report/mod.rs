@@ -2,7 +2,7 @@
 //! synthetic terrain, optionally beside peer codecs measured in the same run, as `report.md`,
 //! `results.json` and SVG plots.
 //!
-//! Our figures come from [`crate::bench_codec::measure`], which verifies every point (every
+//! Our figures come from [`super::codec::measure`], which verifies every point (every
 //! level, every valid sample) and fails the run if any exceeds ε.
 
 pub(crate) mod machine;
@@ -12,15 +12,64 @@ mod render_cost;
 
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
+use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use cbdam_codec::hierarchy::EncodeOptions;
 use cbdam_codec::input::{Dem, ReadOptions, detect_quantum, read_dem};
+use clap::Args;
 
-use crate::BenchReportArgs;
-use crate::bench_codec::{Measurement, bundled_inputs, measure};
+use super::codec::{Measurement, bundled_inputs, measure};
 use machine::{Machine, load_average};
 use peers::{PeerRow, Peers};
+
+/// Rate–distortion and time-against-error report: every bundled DEM and a synthetic fractal
+/// terrain at a ladder of tolerances, optionally beside peer codecs (SZ3, ZFP, LERC,
+/// JPEG-LS, zstd) measured in the same run; writes report.md and SVG plots.
+#[derive(Args, Debug)]
+pub struct BenchReportArgs {
+    /// DEM files. Default: every .tif and .png in data/.
+    inputs: Vec<PathBuf>,
+    /// Output directory (created): report.md, results.json, plots/*.svg, replay/ (the
+    /// rendering-cost repository and per-frame CSVs).
+    #[arg(long, default_value = "bench-report")]
+    out: PathBuf,
+    /// Small and fast: one run per point and a 257² synthetic terrain unless given explicitly.
+    #[arg(long)]
+    quick: bool,
+    /// Also measure the peer codecs (bench/peers.py in a Python venv; skipped with a message
+    /// when Python or pip is unavailable).
+    #[arg(long)]
+    peers: bool,
+    /// Tolerances ε, metres, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = vec![0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0])]
+    max_error: Vec<f64>,
+    /// Timed repetitions per point; medians are reported (default 3, 1 with --quick).
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Side of the synthetic fractal terrain (2^k + 1; 0 for none; default 4097, 257 with
+    /// --quick).
+    #[arg(long)]
+    synthetic: Option<usize>,
+    /// Worker threads for building (default 1, as the peers are single-threaded; the decode is
+    /// single-threaded by construction).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// Python virtual environment for the peers (default ~/.cache/cbdam-bench-venv).
+    #[arg(long)]
+    venv: Option<PathBuf>,
+    /// Rendering cost: the flights (every *.json in this folder; default data/flights).
+    #[arg(long)]
+    flights: Option<PathBuf>,
+    /// Rendering cost: pixel-error targets, comma-separated (default 0.5,1,2,4,8; 1,4 with
+    /// --quick).
+    #[arg(long, value_delimiter = ',')]
+    pixel_errors: Option<Vec<f64>>,
+    /// Rendering cost: the dataset to fly over, by its name in the report (default the SRTM
+    /// sample when it is an input, else the first input).
+    #[arg(long)]
+    render_dem: Option<String>,
+}
 
 /// Seed of the synthetic terrain: fixed, so every machine measures the same heights.
 const SYNTH_SEED: u64 = 2006;

@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{Result, anyhow};
 use plotters::prelude::*;
 
-use crate::bench_report::plot::tick;
+use crate::bench::report::plot::tick;
 
 /// One line: its name and (wall seconds, error px) points.
 pub struct Series {

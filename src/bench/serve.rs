@@ -20,10 +20,39 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail, ensure};
 use cbdam_codec::repository::Repository;
 use cbdam_server::{AppState, Config, RepoSpec};
+use clap::Args;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
-use crate::BenchServeArgs;
+/// Load test of the HTTP server: concurrent clients fetching random stored diamonds, one per
+/// request and in batches, over loopback; records/s, MB/s and latency as a Markdown table.
+#[derive(Args, Debug)]
+pub struct BenchServeArgs {
+    /// Repository to serve. Default: built from data/srtm3_demcompare.tif at ε = 1 m into a
+    /// temporary directory.
+    repo: Option<PathBuf>,
+    /// Concurrent clients, each on its own keep-alive HTTP/1.1 connection.
+    #[arg(long, default_value_t = 64)]
+    clients: usize,
+    /// Seconds per measured run.
+    #[arg(long, default_value_t = 5.0)]
+    seconds: f64,
+    /// Most requests per run (the other bound besides --seconds).
+    #[arg(long, default_value_t = 5_000_000)]
+    max_requests: u64,
+    /// Ids per batch request (0: skip the batched runs).
+    #[arg(long, default_value_t = 64)]
+    batch: usize,
+    /// Runs per mode; the median run (by records/s) is reported.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Server worker threads.
+    #[arg(long, default_value_t = 1)]
+    server_threads: usize,
+    /// Load-generator worker threads (its own runtime, so the two do not share a scheduler).
+    #[arg(long, default_value_t = 1)]
+    client_threads: usize,
+}
 
 const NAME: &str = "bench";
 

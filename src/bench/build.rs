@@ -12,11 +12,36 @@ use std::time::{Duration, Instant};
 use anyhow::{Result, bail};
 use cbdam_codec::hierarchy::EncodeOptions;
 use cbdam_codec::repository::write_repository;
+use clap::Args;
 
 use cbdam_build::encode::{encode_prepared, with_coarser_roots_if_smaller};
 use cbdam_build::plan::{InputSpec, default_memory_limit, prepare, storage_for};
 
-use crate::BenchBuildArgs;
+use crate::flags;
+
+/// Build throughput (million input samples per second, median of runs) and peak resident
+/// memory of `cbdam build` on DEM files (default: the bundled samples) and a synthetic
+/// fractal terrain, as a Markdown table.
+#[derive(Args, Debug)]
+pub struct BenchBuildArgs {
+    /// DEM files (GeoTIFF, .hgt, ASCII grid, PNG). Default: every .tif in data/.
+    inputs: Vec<PathBuf>,
+    /// Side of a synthetic square fractal terrain to add (0: none), e.g. 16385.
+    #[arg(long, default_value_t = 4097)]
+    synthetic: usize,
+    /// Maximum error, metres.
+    #[arg(long, default_value_t = 1.0)]
+    max_error: f64,
+    /// Timed repetitions; the median is reported.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Memory limit as for `cbdam build --memory-limit`.
+    #[arg(long, value_name = "SIZE")]
+    memory_limit: Option<flags::ByteSize>,
+}
 
 /// Resets the resident high-water mark (Linux ≥ 4.0); false where that is not possible.
 fn reset_peak() -> bool {
@@ -41,7 +66,7 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
     let limit = args.memory_limit.map_or_else(default_memory_limit, |b| b.0);
     let tmp = tempfile::tempdir()?;
     let mut inputs: Vec<(PathBuf, Option<(usize, usize)>)> = if args.inputs.is_empty() {
-        crate::bench_codec::bundled_inputs(&["tif"])?
+        super::codec::bundled_inputs(&["tif"])?
             .into_iter()
             .map(|p| (p, None))
             .collect()

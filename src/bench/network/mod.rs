@@ -23,14 +23,122 @@ use anyhow::{Context, Result, bail, ensure};
 use cbdam_client::flight::Flight;
 use cbdam_codec::repository::Repository;
 use cbdam_link::Link;
+use clap::{Args, ValueEnum};
 
 pub use measure::ServerKind;
 use measure::{Measured, Route, RunSettings};
 
-use crate::BenchNetworkArgs;
-use crate::bench_report::machine::{Machine, load_average};
+use crate::bench::report::machine::{Machine, load_average};
+use crate::flags;
 use crate::replay::ReplayPacing;
 use crate::session::{budget_label, refine_config};
+
+/// Remote browsing over emulated links: each flight replayed in real time against the local
+/// file and, for each link profile (adsl, dsl10, fibre, mobile), through a loopback shaping
+/// proxy against `cbdam serve` (batched) and against a static file server (range requests);
+/// bytes fetched against bytes the cuts used, requests per second, frames at the pixel
+/// target, seconds from the camera stopping to the target, frames over budget. Writes
+/// network.md, network.json, per-run CSVs and an SVG of screen error over time.
+#[derive(Args, Debug)]
+pub struct BenchNetworkArgs {
+    /// Link profiles, comma-separated: adsl, dsl10, fibre, mobile.
+    #[arg(long, value_delimiter = ',', default_value = "adsl,dsl10,fibre,mobile")]
+    profiles: Vec<String>,
+    /// Flights (JSON, as for `cbdam replay`). Default: every data/flights/*.json.
+    #[arg(long, num_args = 1.., value_name = "FLIGHT.json")]
+    flights: Vec<PathBuf>,
+    /// Servers, comma-separated: serve (`cbdam serve`, batched requests), static (its raw file
+    /// route read with range requests, as from any static server).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_enum,
+        default_value = "serve,static"
+    )]
+    servers: Vec<ServerKind>,
+    /// Viewport WIDTHxHEIGHT, pixels.
+    #[arg(long, default_value = "1920x1080", value_parser = flags::Size2::pixels)]
+    size: (u32, u32),
+    /// Target screen-space error, pixels.
+    #[arg(long, default_value_t = 1.0)]
+    pixel_error: f64,
+    /// Refinement time budget per frame, ms (0: unlimited).
+    #[arg(long, default_value_t = 2.0)]
+    budget_ms: f64,
+    /// Frames per second: the flight's and the settling frames' pace in real time.
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// After the flight, at most this many seconds with the camera still, waiting for the cut to
+    /// converge.
+    #[arg(long, default_value_t = 30.0)]
+    max_settle_s: f64,
+    /// Repository to serve. Default: a synthetic fractal terrain of --synth-size² built at
+    /// ε = 1 m (as `cbdam synth` and `cbdam build` make it), kept in --out and reused.
+    #[arg(long)]
+    repo: Option<PathBuf>,
+    /// Side of the default synthetic terrain, samples.
+    #[arg(long, default_value_t = 4097)]
+    synth_size: usize,
+    /// Override every profile's probability of resetting a connection.
+    #[arg(long)]
+    reset_prob: Option<f64>,
+    /// Seed of the links' reset and jitter draws.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// When the client prefetches: off, always (alongside what the view needs, at a lower
+    /// priority), when-idle (only in frames whose cut wants no record).
+    #[arg(long, value_enum, default_value = "when-idle")]
+    prefetch: PrefetchArg,
+    /// The order records are asked for in: screen-error (the worst first), error-per-byte (the
+    /// most screen error removed per byte first).
+    #[arg(long, value_enum, default_value = "screen-error")]
+    fetch_order: FetchOrderArg,
+    /// Ask only for the records of the cut's most urgent candidates beyond what each frame
+    /// refined: as many as the loop refines in a second, and at least this many (0: all;
+    /// default: the viewer's, 128).
+    #[arg(long)]
+    want_limit: Option<usize>,
+    /// Most records a frame prefetches (0: no limit; default: the viewer's, 32).
+    #[arg(long)]
+    prefetch_limit: Option<usize>,
+    /// Output directory (created): network.md, network.json, csv/, plots/.
+    #[arg(long, default_value = "bench-network")]
+    out: PathBuf,
+}
+
+/// [`cbdam_client::refine::Prefetch`] on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum PrefetchArg {
+    Off,
+    Always,
+    WhenIdle,
+}
+
+impl From<PrefetchArg> for cbdam_client::refine::Prefetch {
+    fn from(p: PrefetchArg) -> Self {
+        match p {
+            PrefetchArg::Off => Self::Off,
+            PrefetchArg::Always => Self::Always,
+            PrefetchArg::WhenIdle => Self::WhenIdle,
+        }
+    }
+}
+
+/// [`cbdam_client::refine::FetchOrder`] on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum FetchOrderArg {
+    ScreenError,
+    ErrorPerByte,
+}
+
+impl From<FetchOrderArg> for cbdam_client::refine::FetchOrder {
+    fn from(o: FetchOrderArg) -> Self {
+        match o {
+            FetchOrderArg::ScreenError => Self::ScreenError,
+            FetchOrderArg::ErrorPerByte => Self::ScreenErrorPerByte,
+        }
+    }
+}
 
 /// Seed of the default synthetic terrain: `cbdam synth`'s default.
 const SYNTH_SEED: u64 = 1;
@@ -160,7 +268,7 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     );
     let flights = if args.flights.is_empty() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flights");
-        crate::bench_codec::files_with(&dir, &["json"])
+        crate::bench::codec::files_with(&dir, &["json"])
             .with_context(|| format!("reading the flights folder {}", dir.display()))?
     } else {
         args.flights.clone()
