@@ -87,9 +87,8 @@ pub struct BuildArgs {
     /// PNG gets its georeferencing, scaled).
     #[arg(long, value_name = "ELEVATION.cbdam")]
     pub(crate) like: Option<PathBuf>,
-    /// Diamond grid side N (2^k + 1).
-    #[arg(long, default_value_t = 65)]
-    pub(crate) diamond_size: usize,
+    #[command(flatten)]
+    pub(crate) diamond_size: flags::DiamondSize,
     /// Level pairs above the smallest hierarchy that covers the data: each makes the roots 4×
     /// sparser and codes the terrain between them as residuals instead. `auto` tries one more
     /// where the root field is most of the repository (small or smooth inputs at loose
@@ -129,9 +128,8 @@ pub struct BuildArgs {
     /// 90°/((N − 1)·2^K)) instead of the one the finest input asks for.
     #[arg(long, value_name = "K", requires = "planet")]
     pub(crate) planet_level: Option<u32>,
-    /// Print nothing on success.
-    #[arg(long)]
-    pub(crate) quiet: bool,
+    #[command(flatten)]
+    pub(crate) quiet: flags::Quiet,
     /// Print the wall time of each stage (read and plan, quantize, encode, write) to stderr.
     #[arg(long)]
     pub(crate) timings: bool,
@@ -164,7 +162,7 @@ pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
         memory_limit: args.memory_limit.map(|b| b.0),
         colour: args.colour,
         like: args.like.clone(),
-        diamond_size: args.diamond_size,
+        diamond_size: args.diamond_size.value,
         extra_levels: args.extra_levels,
         alpha: match args.alpha {
             AlphaArg::One => Alpha::One,
@@ -201,7 +199,7 @@ pub fn parse_block_plan(text: &str) -> Result<cbdam_codec::hierarchy::BlockPlan,
 
 pub fn run(args: &BuildArgs) -> Result<()> {
     let start = Instant::now();
-    let progress = Bars::new(args.quiet);
+    let progress = Bars::new(args.quiet.value);
     let summary = cbdam_build::build(&options(args)?, &progress);
     progress.finish();
     match summary? {
@@ -234,7 +232,7 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
             s.temporaries
         );
     }
-    if !args.quiet {
+    if !args.quiet.value {
         if s.lattice_mapped {
             eprintln!(
                 "the {}×{} lattice went to memory-mapped temporary files, to stay under \
@@ -270,7 +268,7 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
             timings(&s.stages, start, s.lattice_points.min(s.held_points))
         );
     }
-    if args.quiet {
+    if args.quiet.value {
         return Ok(());
     }
     let bytes = std::fs::metadata(&args.output)?.len();
@@ -337,7 +335,7 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
 }
 
 fn print_colour(args: &BuildArgs, s: &ColourSummary, start: Instant) -> Result<()> {
-    if !args.quiet {
+    if !args.quiet.value {
         let bytes = std::fs::metadata(&args.output)?.len();
         let px = s.width * s.height;
         println!(

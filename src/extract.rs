@@ -14,6 +14,8 @@ use cbdam_codec::repository::Repository;
 use clap::{Args, ValueEnum};
 use serde_json::json;
 
+use crate::flags;
+
 /// Output format of `cbdam extract`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum ExtractFormat {
@@ -62,9 +64,8 @@ pub struct ExtractArgs {
     /// Write float64 samples: the decoded heights exactly, without float32 rounding.
     #[arg(long)]
     float64: bool,
-    /// Print nothing on success.
-    #[arg(long)]
-    quiet: bool,
+    #[command(flatten)]
+    quiet: flags::Quiet,
 }
 
 pub fn run(args: &ExtractArgs) -> Result<()> {
@@ -226,7 +227,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
             }
         }
     }
-    if !args.quiet {
+    if !args.quiet.value {
         println!(
             "{}: {}×{} samples of level {level} (spacing {step}), max error {} m",
             args.output.display(),

@@ -30,6 +30,12 @@ use crate::session::{budget_label, refine_config, terrain_source};
 /// does, and writes each frame to --out-dir/frame_NNNNN.png. Prints the frame time and
 /// triangle count (with --path, median and p99 refine and render times).
 #[derive(Args, Debug)]
+#[command(mut_arg("fps", |a| a
+    .help("With --path: frames per second of flight")
+    .requires("path")))]
+#[command(mut_arg("budget_ms", |a| a
+    .help("With --path: refinement time budget per frame, ms (0 = unlimited)")
+    .requires("path")))]
 pub struct RenderArgs {
     /// Repository file, or its URL: http://HOST:PORT/v1/repos/NAME (cbdam serve),
     /// http://HOST:PORT/ (a server with one repository), or a .cbdam file on any server that
@@ -48,12 +54,10 @@ pub struct RenderArgs {
     /// each written atomically).
     #[arg(long, requires = "path")]
     pub(crate) out_dir: Option<PathBuf>,
-    /// With --path: frames per second of flight.
-    #[arg(long, default_value_t = 30.0, requires = "path")]
-    pub(crate) fps: f64,
-    /// With --path: refinement time budget per frame, ms (0 = unlimited).
-    #[arg(long, default_value_t = 2.0, requires = "path")]
-    pub(crate) budget_ms: f64,
+    #[command(flatten)]
+    pub(crate) fps: flags::Fps,
+    #[command(flatten)]
+    pub(crate) budget_ms: flags::BudgetMs,
     /// With --path: stop after this many frames.
     #[arg(long, requires = "path")]
     pub(crate) max_frames: Option<u64>,
@@ -69,9 +73,8 @@ pub struct RenderArgs {
     #[arg(long, value_parser = flags::GeoView::parse, allow_hyphen_values = true,
           conflicts_with_all = ["camera", "path"])]
     pub(crate) geo: Option<flags::GeoView>,
-    /// Screen-space error target, pixels.
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
-    pub(crate) pixel_error: f64,
+    #[command(flatten)]
+    pub(crate) pixel_error: flags::PixelError,
     /// Draw triangle edges over the surface.
     #[arg(long)]
     pub(crate) wireframe: bool,
@@ -79,15 +82,12 @@ pub struct RenderArgs {
     #[arg(long)]
     pub(crate) levels: bool,
     /// Vertical exaggeration (heights and the camera's z are scaled by it).
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 1.0, value_parser = flags::positive_finite, allow_hyphen_values = true)]
     pub(crate) exaggeration: f64,
-    /// GPU height pool, MiB (default: 256 or what the adapter allows).
-    #[arg(long)]
-    pub(crate) pool_mib: Option<u64>,
-    /// Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over
-    /// the terrain: hillshaded colour instead of the height ramp.
-    #[arg(long, value_name = "COLOUR_REPO_OR_URL")]
-    pub(crate) colour: Option<String>,
+    #[command(flatten)]
+    pub(crate) pool_mib: flags::PoolMib,
+    #[command(flatten)]
+    pub(crate) colour: flags::Colour,
     /// Without --path: also write the cut's refined diamonds to this file, one id (`L-x-y`) a
     /// line, sorted as text (the browser viewer's test compares its cut with it).
     #[arg(long, value_name = "FILE")]
@@ -186,12 +186,13 @@ pub(crate) fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
 
 pub fn run(args: &RenderArgs) -> Result<()> {
     let budget_ms = if args.path.is_some() {
-        args.budget_ms
+        args.budget_ms.value
     } else {
         0.0
     };
-    let config = refine_config(args.pixel_error, budget_ms, args.exaggeration)?;
-    let (source, remote) = terrain_source(&args.repo.to_string_lossy(), args.colour.as_deref())?;
+    let config = refine_config(args.pixel_error.value, budget_ms, args.exaggeration)?;
+    let (source, remote) =
+        terrain_source(&args.repo.to_string_lossy(), args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
     render_with(args, refiner, remote)
 }
@@ -259,7 +260,8 @@ fn render_with<S: DataSource>(
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();
     let draped = refiner.source().drape().is_some();
-    let mut renderer = Renderer::with_colour(gpu, world, cache_config(args.pool_mib), draped)?;
+    let mut renderer =
+        Renderer::with_colour(gpu, world, cache_config(args.pool_mib.value), draped)?;
     let frame = renderer.render(&cam, &patches, &options)?;
     write_png(output, &frame)?;
     let s = frame.stats;
@@ -318,17 +320,15 @@ fn fly<S: DataSource>(
     options: &RenderOptions,
     remote: bool,
 ) -> Result<()> {
-    if !(args.fps > 0.0 && args.fps.is_finite()) {
-        bail!("--fps must be positive, got {}", args.fps);
-    }
     let flight = Flight::load(path).with_context(|| format!("loading {}", path.display()))?;
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let world = *refiner.world();
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();
     let draped = refiner.source().drape().is_some();
-    let mut renderer = Renderer::with_colour(gpu, world, cache_config(args.pool_mib), draped)?;
-    let mut frames = (flight.duration() * args.fps).ceil() as u64 + 1;
+    let mut renderer =
+        Renderer::with_colour(gpu, world, cache_config(args.pool_mib.value), draped)?;
+    let mut frames = (flight.duration() * args.fps.value).ceil() as u64 + 1;
     if let Some(max) = args.max_frames {
         frames = frames.min(max);
     }
@@ -337,7 +337,7 @@ fn fly<S: DataSource>(
         &mut renderer,
         &flight,
         FlightPacing {
-            fps: args.fps,
+            fps: args.fps.value,
             frames,
             size: args.size,
             real_time: remote,
@@ -358,11 +358,11 @@ fn fly<S: DataSource>(
     println!(
         "{}: {frames} frames at {} fps, {}×{}, target {} px, budget {}, on {adapter}",
         dir.display(),
-        args.fps,
+        args.fps.value,
         args.size.0,
         args.size.1,
-        args.pixel_error,
-        budget_label(args.budget_ms)
+        args.pixel_error.value,
+        budget_label(args.budget_ms.value)
     );
     println!(
         "refine ms per frame: median {:.3}, p99 {:.3}; budget exhausted in {over} frames; \

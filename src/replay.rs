@@ -17,6 +17,10 @@ use crate::session::{budget_label, terrain_source};
 /// Run the client's refinement loop over a camera flight without drawing: one CSV row per
 /// frame, then hold the camera still until the cut converges, and print a summary.
 #[derive(Args, Debug)]
+#[command(mut_arg("colour", |a| a.help(
+    "Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over \
+     the terrain: its records are fetched and decoded with the elevation's"
+)))]
 pub struct ReplayArgs {
     /// Repository file, or the URL of one (`cbdam serve`'s repository URL or a .cbdam file on
     /// any server that honours Range).
@@ -28,12 +32,10 @@ pub struct ReplayArgs {
     /// Viewport WIDTHxHEIGHT, pixels.
     #[arg(long, default_value = "1920x1080", value_parser = flags::Size2::pixels)]
     pub(crate) size: (u32, u32),
-    /// Target screen-space error, pixels.
-    #[arg(long, default_value_t = 1.0)]
-    pub(crate) pixel_error: f64,
-    /// Refinement time budget per frame, ms (0: unlimited).
-    #[arg(long, default_value_t = 2.0)]
-    pub(crate) budget_ms: f64,
+    #[command(flatten)]
+    pub(crate) pixel_error: flags::PixelError,
+    #[command(flatten)]
+    pub(crate) budget_ms: flags::BudgetMs,
     /// Output CSV, one row per frame: frame, t, settling, refine_ms (wall), cpu_ms (CPU time of
     /// the refining thread), decode_ms (worker time), decoded,
     /// max_screen_error_px, met_target, converged, diamonds_in_cut, drawn_halves, triangles,
@@ -47,9 +49,8 @@ pub struct ReplayArgs {
     /// (of decode_ms, the workers' CPU time: without what they waited for a core; Unix).
     #[arg(long)]
     pub(crate) out: PathBuf,
-    /// Frames per second of flight time.
-    #[arg(long, default_value_t = 30.0)]
-    pub(crate) fps: f64,
+    #[command(flatten)]
+    pub(crate) fps: flags::Fps,
     /// After the flight, at most this many frames with the camera still waiting for the cut to
     /// converge.
     #[arg(long, default_value_t = 600)]
@@ -57,10 +58,8 @@ pub struct ReplayArgs {
     /// Synthesise procedural detail past the finest stored level.
     #[arg(long)]
     pub(crate) detail: bool,
-    /// Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over
-    /// the terrain: its records are fetched and decoded with the elevation's.
-    #[arg(long, value_name = "COLOUR_REPO_OR_URL")]
-    pub(crate) colour: Option<String>,
+    #[command(flatten)]
+    pub(crate) colour: flags::Colour,
     /// Memory for the cut's decoded diamonds, MiB (0: unlimited). At the limit a refinement
     /// goes ahead only by coarsening diamonds of smaller screen error elsewhere.
     #[arg(long, default_value_t = 1024)]
@@ -83,20 +82,15 @@ budget_exhausted,bytes_fetched,requests_issued,requests_in_flight,failures,cut_b
 before_ms,loop_ms,collect_ms,want_ms,ahead_ms,after_ms,decode_cpu_ms";
 
 pub fn run(args: &ReplayArgs) -> Result<()> {
-    if !(args.pixel_error > 0.0 && args.pixel_error.is_finite()) {
-        bail!("--pixel-error must be positive, got {}", args.pixel_error);
-    }
-    if !(args.fps > 0.0 && args.fps.is_finite()) {
-        bail!("--fps must be positive, got {}", args.fps);
-    }
-    if !(args.budget_ms >= 0.0 && args.budget_ms.is_finite()) {
+    if !(args.budget_ms.value >= 0.0 && args.budget_ms.value.is_finite()) {
         bail!("--budget-ms must be 0 (unlimited) or positive");
     }
     let flight =
         Flight::load(&args.path).with_context(|| format!("loading {}", args.path.display()))?;
     let config = RefineConfig {
-        pixel_error: args.pixel_error,
-        budget: (args.budget_ms > 0.0).then(|| Duration::from_secs_f64(args.budget_ms / 1e3)),
+        pixel_error: args.pixel_error.value,
+        budget: (args.budget_ms.value > 0.0)
+            .then(|| Duration::from_secs_f64(args.budget_ms.value / 1e3)),
         detail: args.detail.then(DetailConfig::default),
         cut_bytes: match args.cut_mib {
             0 => None,
@@ -105,7 +99,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         decode_ahead: !args.no_decode_ahead,
         ..RefineConfig::default()
     };
-    let (source, remote) = terrain_source(&args.repo, args.colour.as_deref())?;
+    let (source, remote) = terrain_source(&args.repo, args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
     // Over a network, frames are paced at --fps so that fetches take the time they would take
     // in a viewer; locally nothing waits on I/O and frames run back to back.
@@ -119,7 +113,7 @@ fn replay<S: DataSource>(
     paced: bool,
 ) -> Result<()> {
     let pacing = ReplayPacing {
-        fps: args.fps,
+        fps: args.fps.value,
         size: args.size,
         max_settle_frames: args.max_settle_frames,
         paced,
@@ -330,12 +324,12 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     println!(
         "flight: {} frames at {} fps ({:.1} s), {}×{}, target {} px, budget {}",
         flight_rows.len(),
-        args.fps,
+        args.fps.value,
         run.duration_s,
         args.size.0,
         args.size.1,
-        args.pixel_error,
-        budget_label(args.budget_ms)
+        args.pixel_error.value,
+        budget_label(args.budget_ms.value)
     );
     println!(
         "refine ms per frame, wall: median {:.3}, p99 {:.3}, max {:.3}; budget exhausted in {over} frames",

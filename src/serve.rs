@@ -36,7 +36,7 @@ pub struct ServeArgs {
     #[arg(long, default_value = "*")]
     cors_origin: String,
     /// Time allowed for one request, seconds (then 408).
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = crate::flags::positive_finite)]
     timeout: f64,
     /// The browser viewer's files (the bundle `scripts/web-build.sh` writes, e.g.
     /// target/web-bundle): `/` then links every repository to the viewer, served under
@@ -62,9 +62,6 @@ fn init_logging() {
 }
 
 pub fn run(args: &ServeArgs) -> Result<()> {
-    if !(args.timeout.is_finite() && args.timeout > 0.0) {
-        bail!("--timeout must be a positive number of seconds");
-    }
     if args.max_batch == 0 {
         bail!("--max-batch must be at least 1");
     }

@@ -1,5 +1,5 @@
 //! What `cbdam replay`, `render` and `view` share: opening the terrain (file or URL, with a
-//! draped colour repository) and checking the refinement settings of the command line.
+//! draped colour repository) and the refinement settings of the command line.
 
 use std::path::Path;
 use std::time::Duration;
@@ -37,14 +37,9 @@ pub fn terrain_source(repo: &str, colour: Option<&str>) -> Result<(Box<dyn DataS
     Ok((Box::new(paired), remote || colour_remote))
 }
 
-/// The refinement settings of the command line, checked.
+/// The refinement settings of the command line (`pixel_error` and `exaggeration` already checked
+/// by [`crate::flags::positive_finite`]), with the budget checked.
 pub fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> Result<RefineConfig> {
-    if !(pixel_error.is_finite() && pixel_error > 0.0) {
-        bail!("--pixel-error must be a positive number of pixels");
-    }
-    if !(exaggeration.is_finite() && exaggeration > 0.0) {
-        bail!("--exaggeration must be a positive number, not {exaggeration}");
-    }
     if !(budget_ms.is_finite() && budget_ms >= 0.0) {
         bail!("--budget-ms must be 0 (unlimited) or positive");
     }

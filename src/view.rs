@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use cbdam_client::refine::Refiner;
 use cbdam_render::view::{ViewOptions, view};
 use clap::Args;
@@ -25,17 +25,19 @@ use crate::session::{refine_config, terrain_source};
 /// server, or Xvfb.
 #[derive(Args, Debug)]
 #[command(after_help = KEY_HELP)]
+#[command(mut_arg("pixel_error", |a| a.help(
+    "Screen-space error target, pixels (+/- halve and double it)"
+)))]
 pub struct ViewArgs {
     /// Repository file, or its URL (as for `cbdam render`).
     pub(crate) repo: PathBuf,
     /// Initial window size WIDTHxHEIGHT, pixels.
     #[arg(long, value_parser = flags::Size2::pixels, default_value = "1280x720")]
     pub(crate) size: (u32, u32),
-    /// Screen-space error target, pixels (+/- halve and double it).
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
-    pub(crate) pixel_error: f64,
+    #[command(flatten)]
+    pub(crate) pixel_error: flags::PixelError,
     /// Refinement time budget per frame, ms.
-    #[arg(long, default_value_t = 2.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 2.0, value_parser = flags::positive_finite, allow_hyphen_values = true)]
     pub(crate) budget_ms: f64,
     /// Present as fast as possible (immediate or mailbox) instead of waiting for vsync.
     #[arg(long)]
@@ -53,25 +55,18 @@ pub struct ViewArgs {
     #[arg(long)]
     pub(crate) levels: bool,
     /// Vertical exaggeration.
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 1.0, value_parser = flags::positive_finite, allow_hyphen_values = true)]
     pub(crate) exaggeration: f64,
-    /// GPU height pool, MiB (default: 256 or what the adapter allows).
-    #[arg(long)]
-    pub(crate) pool_mib: Option<u64>,
-    /// Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over
-    /// the terrain: hillshaded colour instead of the height ramp.
-    #[arg(long, value_name = "COLOUR_REPO_OR_URL")]
-    pub(crate) colour: Option<String>,
+    #[command(flatten)]
+    pub(crate) pool_mib: flags::PoolMib,
+    #[command(flatten)]
+    pub(crate) colour: flags::Colour,
 }
 
 pub fn run(args: &ViewArgs) -> Result<()> {
-    // Unlike `render` (0 = refine to convergence), a window refines within a budget every frame.
-    if !(args.budget_ms.is_finite() && args.budget_ms > 0.0) {
-        bail!("--budget-ms must be positive: the viewer refines within a budget every frame");
-    }
-    let config = refine_config(args.pixel_error, args.budget_ms, args.exaggeration)?;
+    let config = refine_config(args.pixel_error.value, args.budget_ms, args.exaggeration)?;
     let repo = args.repo.to_string_lossy();
-    let (source, remote) = terrain_source(&repo, args.colour.as_deref())?;
+    let (source, remote) = terrain_source(&repo, args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
     view(
         refiner,
@@ -84,7 +79,7 @@ pub fn run(args: &ViewArgs) -> Result<()> {
             screenshot: args.screenshot.clone(),
             wireframe: args.wireframe,
             levels: args.levels,
-            pool_mib: args.pool_mib,
+            pool_mib: args.pool_mib.value,
         },
     )
 }

@@ -30,7 +30,7 @@ pub struct BenchBuildArgs {
     #[arg(long, default_value_t = 4097)]
     synthetic: usize,
     /// Maximum error, metres.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = flags::positive_finite)]
     max_error: f64,
     /// Timed repetitions; the median is reported.
     #[arg(long, default_value_t = 3)]
@@ -59,9 +59,6 @@ fn peak_rss() -> Option<u64> {
 pub fn run(args: &BenchBuildArgs) -> Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
-    }
-    if !(args.max_error.is_finite() && args.max_error > 0.0) {
-        bail!("--max-error must be a positive number of metres");
     }
     let limit = args.memory_limit.map_or_else(default_memory_limit, |b| b.0);
     let tmp = tempfile::tempdir()?;

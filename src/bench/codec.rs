@@ -15,6 +15,8 @@ use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::serialize;
 use clap::{Args, ValueEnum};
 
+use crate::flags;
+
 /// Which value(s) of a two-way option to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Which {
@@ -42,9 +44,8 @@ pub struct BenchCodecArgs {
     /// coders; both all three.
     #[arg(long, value_enum, default_value_t = Which::Both)]
     coder: Which,
-    /// Diamond grid side N (2^k + 1).
-    #[arg(long, default_value_t = 65)]
-    diamond_size: usize,
+    #[command(flatten)]
+    diamond_size: flags::DiamondSize,
     /// Level pairs above the smallest covering hierarchy (coarser roots).
     #[arg(long, default_value_t = EncodeOptions::default().extra_level_pairs)]
     extra_levels: u32,
@@ -241,7 +242,7 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
             for &alpha in &alphas {
                 for &coder in &coders {
                     let opts = EncodeOptions {
-                        n: args.diamond_size,
+                        n: args.diamond_size.value,
                         alpha,
                         coder,
                         extra_level_pairs: args.extra_levels,

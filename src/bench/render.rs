@@ -27,9 +27,8 @@ pub struct BenchRenderArgs {
     /// Image size WIDTHxHEIGHT.
     #[arg(long, value_parser = flags::Size2::pixels, default_value = "1920x1080")]
     size: (u32, u32),
-    /// Screen-space error target, pixels.
-    #[arg(long, default_value_t = 1.0)]
-    pixel_error: f64,
+    #[command(flatten)]
+    pixel_error: flags::PixelError,
     /// Timed frames per view; the median is reported.
     #[arg(long, default_value_t = 5)]
     runs: usize,
@@ -37,12 +36,10 @@ pub struct BenchRenderArgs {
     /// within --budget-ms and is drawn; frame time percentiles and triangle rate are reported.
     #[arg(long = "flight", value_name = "FLIGHT.json")]
     flights: Vec<PathBuf>,
-    /// Frames per second of flight time.
-    #[arg(long, default_value_t = 30.0)]
-    fps: f64,
-    /// Refinement time budget per flight frame, ms.
-    #[arg(long, default_value_t = 2.0)]
-    budget_ms: f64,
+    #[command(flatten)]
+    fps: flags::Fps,
+    #[command(flatten)]
+    budget_ms: flags::BudgetMs,
     /// At most this many frames per flight.
     #[arg(long)]
     max_frames: Option<u64>,
@@ -56,13 +53,10 @@ pub fn run(args: &BenchRenderArgs) -> Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
     }
-    if !(args.fps > 0.0 && args.fps.is_finite()) {
-        bail!("--fps must be positive, got {}", args.fps);
-    }
     let gpu_name = Gpu::headless()?.describe();
     println!(
         "{gpu_name}, {}×{}, {} px, median of {} frames after one warm-up frame (uploads)\n",
-        args.size.0, args.size.1, args.pixel_error, args.runs
+        args.size.0, args.size.1, args.pixel_error.value, args.runs
     );
     println!(
         "| repository | view | half-patches | M triangles | first frame ms | frame ms | M triangles/s |"
@@ -91,7 +85,7 @@ pub fn run(args: &BenchRenderArgs) -> Result<()> {
                 } else {
                     view.to_string()
                 };
-                let mut refiner = refiner(&repo, *colour, args.pixel_error, 0.0, 1.0)?;
+                let mut refiner = refiner(&repo, *colour, args.pixel_error.value, 0.0, 1.0)?;
                 refiner.settle(&cam, SETTLE_FRAMES);
                 let patches: Vec<_> = refiner.drawn().cloned().collect();
                 let options = RenderOptions::default();
@@ -129,8 +123,8 @@ fn bench_flights(args: &BenchRenderArgs) -> Result<()> {
         "\nflights: {} fps of flight time, refinement budget {}; frame = CPU preparation + GPU \
          of the draw (refinement is timed apart); triangle rate = median over frames of \
          triangles / frame time\n",
-        args.fps,
-        budget_label(args.budget_ms)
+        args.fps.value,
+        budget_label(args.budget_ms.value)
     );
     println!(
         "| repository | flight | frames | frame ms median | frame ms p99 | M triangles/frame \
@@ -143,14 +137,20 @@ fn bench_flights(args: &BenchRenderArgs) -> Result<()> {
         for flight_path in &args.flights {
             let flight = Flight::load(flight_path)
                 .with_context(|| format!("loading {}", flight_path.display()))?;
-            let mut frames = (flight.duration() * args.fps).ceil() as u64 + 1;
+            let mut frames = (flight.duration() * args.fps.value).ceil() as u64 + 1;
             if let Some(max) = args.max_frames {
                 frames = frames.min(max);
             }
-            let mut refiner = refiner(&repo, None, args.pixel_error, args.budget_ms, 1.0)?;
+            let mut refiner = refiner(
+                &repo,
+                None,
+                args.pixel_error.value,
+                args.budget_ms.value,
+                1.0,
+            )?;
             let mut renderer = Renderer::new(Gpu::headless()?, world, cache_config(None))?;
             let pacing = FlightPacing {
-                fps: args.fps,
+                fps: args.fps.value,
                 frames,
                 size: args.size,
                 real_time: false,

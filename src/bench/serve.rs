@@ -35,7 +35,7 @@ pub struct BenchServeArgs {
     #[arg(long, default_value_t = 64)]
     clients: usize,
     /// Seconds per measured run.
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, value_parser = crate::flags::positive_finite)]
     seconds: f64,
     /// Most requests per run (the other bound besides --seconds).
     #[arg(long, default_value_t = 5_000_000)]
@@ -147,10 +147,6 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
 pub fn run(args: &BenchServeArgs) -> Result<()> {
     ensure!(args.clients > 0, "--clients must be at least 1");
     ensure!(args.runs > 0, "--runs must be at least 1");
-    ensure!(
-        args.seconds.is_finite() && args.seconds > 0.0,
-        "--seconds must be positive"
-    );
     let tmp = tempfile::tempdir()?;
     let path = match &args.repo {
         Some(p) => p.clone(),

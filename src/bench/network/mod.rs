@@ -19,7 +19,7 @@ mod report;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail, ensure};
+use anyhow::{Context, Result, ensure};
 use cbdam_client::flight::Flight;
 use cbdam_codec::repository::Repository;
 use cbdam_link::Link;
@@ -40,6 +40,9 @@ use crate::session::{budget_label, refine_config};
 /// target, seconds from the camera stopping to the target, frames over budget. Writes
 /// network.md, network.json, per-run CSVs and an SVG of screen error over time.
 #[derive(Args, Debug)]
+#[command(mut_arg("fps", |a| a.help(
+    "Frames per second: the flight's and the settling frames' pace in real time"
+)))]
 pub struct BenchNetworkArgs {
     /// Link profiles, comma-separated: adsl, dsl10, fibre, mobile.
     #[arg(long, value_delimiter = ',', default_value = "adsl,dsl10,fibre,mobile")]
@@ -59,15 +62,12 @@ pub struct BenchNetworkArgs {
     /// Viewport WIDTHxHEIGHT, pixels.
     #[arg(long, default_value = "1920x1080", value_parser = flags::Size2::pixels)]
     size: (u32, u32),
-    /// Target screen-space error, pixels.
-    #[arg(long, default_value_t = 1.0)]
-    pixel_error: f64,
-    /// Refinement time budget per frame, ms (0: unlimited).
-    #[arg(long, default_value_t = 2.0)]
-    budget_ms: f64,
-    /// Frames per second: the flight's and the settling frames' pace in real time.
-    #[arg(long, default_value_t = 30.0)]
-    fps: f64,
+    #[command(flatten)]
+    pixel_error: flags::PixelError,
+    #[command(flatten)]
+    budget_ms: flags::BudgetMs,
+    #[command(flatten)]
+    fps: flags::Fps,
     /// After the flight, at most this many seconds with the camera still, waiting for the cut to
     /// converge.
     #[arg(long, default_value_t = 30.0)]
@@ -246,14 +246,6 @@ fn progress(m: &Measured) {
 }
 
 pub fn run(args: &BenchNetworkArgs) -> Result<()> {
-    if !(args.pixel_error.is_finite() && args.pixel_error > 0.0) {
-        bail!("--pixel-error must be a positive number of pixels");
-    }
-    ensure!(
-        args.fps.is_finite() && args.fps > 0.0,
-        "--fps must be positive, not {}",
-        args.fps
-    );
     ensure!(
         args.max_settle_s.is_finite() && args.max_settle_s >= 0.0,
         "--max-settle-s must be a number of seconds from 0"
@@ -293,7 +285,7 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     let file_len = repo.file_len();
     drop(repo);
 
-    let viewer = refine_config(args.pixel_error, args.budget_ms, 1.0)?;
+    let viewer = refine_config(args.pixel_error.value, args.budget_ms.value, 1.0)?;
     // A limit given on the command line replaces the viewer's; 0 is none.
     let limit = |arg: Option<usize>, default: Option<usize>| match arg {
         Some(0) => None,
@@ -311,9 +303,9 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     let settings = RunSettings {
         config,
         pacing: ReplayPacing {
-            fps: args.fps,
+            fps: args.fps.value,
             size: args.size,
-            max_settle_frames: (args.max_settle_s * args.fps).ceil() as usize,
+            max_settle_frames: (args.max_settle_s * args.fps.value).ceil() as usize,
             paced: true,
         },
     };
@@ -338,9 +330,9 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
         servers.len(),
         args.size.0,
         args.size.1,
-        args.pixel_error,
-        budget_label(args.budget_ms),
-        args.fps,
+        args.pixel_error.value,
+        budget_label(args.budget_ms.value),
+        args.fps.value,
         args.max_settle_s,
         args.prefetch,
         args.fetch_order,
@@ -371,7 +363,7 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     }
     let load_end = load_average();
 
-    let table = report::table(&runs, args.budget_ms)?;
+    let table = report::table(&runs, args.budget_ms.value)?;
     println!("{table}");
     let targets = report::targets(&runs)?;
     println!("{targets}");
@@ -407,11 +399,11 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
         &format!(
             "largest screen error of the cut against wall time ({}×{}; target {} px dashed, \
              camera stop dotted)",
-            args.size.0, args.size.1, args.pixel_error
+            args.size.0, args.size.1, args.pixel_error.value
         ),
         &panels,
         links.len(),
-        args.pixel_error,
+        args.pixel_error.value,
     )?;
 
     let mut md = String::new();
@@ -455,9 +447,9 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
          the camera still; prefetch {:?}, fetch order {:?}, want limit {:?}, prefetch limit {:?} |",
         args.size.0,
         args.size.1,
-        args.pixel_error,
-        budget_label(args.budget_ms),
-        args.fps,
+        args.pixel_error.value,
+        budget_label(args.budget_ms.value),
+        args.fps.value,
         args.max_settle_s,
         args.prefetch,
         args.fetch_order,
@@ -506,7 +498,7 @@ pub fn run(args: &BenchNetworkArgs) -> Result<()> {
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
     std::fs::write(
         args.out.join("network.json"),
-        serde_json::to_vec_pretty(&report::json(&runs, args.budget_ms))?,
+        serde_json::to_vec_pretty(&report::json(&runs, args.budget_ms.value))?,
     )?;
     println!("{}", md_path.display());
     Ok(())

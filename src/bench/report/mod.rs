@@ -42,7 +42,12 @@ pub struct BenchReportArgs {
     #[arg(long)]
     peers: bool,
     /// Tolerances ε, metres, comma-separated.
-    #[arg(long, value_delimiter = ',', default_values_t = vec![0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0])]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_values_t = vec![0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0],
+        value_parser = crate::flags::positive_finite
+    )]
     max_error: Vec<f64>,
     /// Timed repetitions per point; medians are reported (default 3, 1 with --quick).
     #[arg(long)]
@@ -63,7 +68,7 @@ pub struct BenchReportArgs {
     flights: Option<PathBuf>,
     /// Rendering cost: pixel-error targets, comma-separated (default 0.5,1,2,4,8; 1,4 with
     /// --quick).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = crate::flags::positive_finite)]
     pixel_errors: Option<Vec<f64>>,
     /// Rendering cost: the dataset to fly over, by its name in the report (default the SRTM
     /// sample when it is an input, else the first input).
@@ -101,9 +106,6 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
     let runs = args.runs.unwrap_or(if args.quick { 1 } else { 3 });
     if runs == 0 {
         bail!("--runs must be at least 1");
-    }
-    if args.max_error.is_empty() || args.max_error.iter().any(|e| !(e.is_finite() && *e > 0.0)) {
-        bail!("--max-error must list positive numbers of metres");
     }
     let mut eps = args.max_error.clone();
     eps.sort_by(f64::total_cmp);
@@ -256,9 +258,6 @@ fn rendering_cost(args: &BenchReportArgs, datasets: &[Dataset]) -> Result<String
             vec![0.5, 1.0, 2.0, 4.0, 8.0]
         }
     });
-    if targets.is_empty() || targets.iter().any(|p| !(p.is_finite() && *p > 0.0)) {
-        bail!("--pixel-errors must list positive numbers of pixels");
-    }
     targets.sort_by(f64::total_cmp);
     targets.dedup();
     let name = file_safe(&pick.name);
