@@ -35,11 +35,10 @@ pub enum ExtractFormat {
 /// the value (about 0.5 mm at 9 000 m, 0.015 mm at 500 m) to the repository's error bound. With
 /// --float64 the decoded heights are written exactly and the bound holds as stated.
 ///
-/// The repository keeps the data rectangle but not the per-sample nodata mask (nodata samples
-/// are "don't care" to the encoder), so decoded heights are written for every sample inside the
-/// rectangle, nodata samples of the input included, whose values there are arbitrary. Only
-/// samples in regions with no valid input sample nearby (no stored diamond) are written as the
-/// recorded nodata value (NaN when the repository recorded none).
+/// Samples without data are written as the recorded nodata value (NaN when the repository
+/// recorded none): the input's nodata samples, which the repository's nodata mask keeps exactly,
+/// and samples in regions with no valid input sample nearby (no stored diamond). In a
+/// variable-resolution repository so are the samples of a level finer than the data there.
 #[derive(Args, Debug)]
 pub struct ExtractArgs {
     /// Repository file.

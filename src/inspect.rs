@@ -18,9 +18,10 @@ pub struct InspectArgs {
     json: bool,
 }
 
-/// Rewrite a repository of an older format version in the current one (version 1 → 2: a
-/// range-coded record index, smaller on smooth terrain); heights, records and errors are
-/// unchanged. The output is written atomically and may be the input itself.
+/// Rewrite a repository of an older format version in the current one, 3 (from version 1: a
+/// range-coded record index and the compact header; from version 2: the compact header; both
+/// smaller on smooth terrain); heights, records and errors are unchanged. The output is written
+/// atomically and may be the input itself.
 #[derive(Args, Debug)]
 pub struct UpgradeArgs {
     /// Repository file to read.
