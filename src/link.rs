@@ -105,6 +105,32 @@ fn megabytes(b: u64) -> String {
     format!("{:.2} MB", b as f64 / 1e6)
 }
 
+/// One counter line: the totals since the start and what changed since `last`, with the rates
+/// over the last --interval, and the connections the upstream server dropped.
+fn print_counters(c: &Counters, last: &Counters, elapsed_s: f64, args: &LinkArgs) {
+    let bps =
+        |now: u64, then: u64| format!("{:.3} Mbit/s", (now - then) as f64 * 8e-6 / args.interval);
+    println!(
+        "{:8.1} s  connections {} (+{})  resets {} (+{})  down {} ({})  up {} ({})",
+        elapsed_s,
+        c.connections,
+        c.connections - last.connections,
+        c.resets,
+        c.resets - last.resets,
+        bps(c.bytes_down, last.bytes_down),
+        megabytes(c.bytes_down),
+        bps(c.bytes_up, last.bytes_up),
+        megabytes(c.bytes_up),
+    );
+    if c.upstream_errors > last.upstream_errors {
+        println!(
+            "          {} connections dropped: {} unreachable",
+            c.upstream_errors - last.upstream_errors,
+            args.to
+        );
+    }
+}
+
 pub fn run(args: &LinkArgs) -> Result<()> {
     let link = link_of(args)?;
     if !(args.interval.is_finite() && args.interval >= 0.0) {
@@ -150,26 +176,7 @@ pub fn run(args: &LinkArgs) -> Result<()> {
                     if c == last {
                         continue;
                     }
-                    let bps = |now: u64, then: u64| format!("{:.3} Mbit/s", (now - then) as f64 * 8e-6 / args.interval);
-                    println!(
-                        "{:8.1} s  connections {} (+{})  resets {} (+{})  down {} ({})  up {} ({})",
-                        start.elapsed().as_secs_f64(),
-                        c.connections,
-                        c.connections - last.connections,
-                        c.resets,
-                        c.resets - last.resets,
-                        bps(c.bytes_down, last.bytes_down),
-                        megabytes(c.bytes_down),
-                        bps(c.bytes_up, last.bytes_up),
-                        megabytes(c.bytes_up),
-                    );
-                    if c.upstream_errors > last.upstream_errors {
-                        println!(
-                            "          {} connections dropped: {} unreachable",
-                            c.upstream_errors - last.upstream_errors,
-                            args.to
-                        );
-                    }
+                    print_counters(&c, &last, start.elapsed().as_secs_f64(), args);
                     last = c;
                 }
             }

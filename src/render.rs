@@ -209,6 +209,41 @@ fn settle_remote<S: DataSource>(refiner: &mut Refiner<S>, cam: &Camera) -> Frame
     }
 }
 
+/// Prints the camera's eye and target to stderr: world metres, or on a planet ECEF metres and
+/// the eye's latitude, longitude and height.
+fn print_camera(world: &World, cam: &Camera) {
+    if world.is_planet() {
+        let g = cbdam_codec::geodesy::Geodetic::from_ecef(cam.eye.to_array());
+        eprintln!(
+            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (ECEF metres); eye at lat {:.6}, \
+         lon {:.6}, {:.1} m above the ellipsoid",
+            cam.eye.x,
+            cam.eye.y,
+            cam.eye.z,
+            cam.target.x,
+            cam.target.y,
+            cam.target.z,
+            g.lat,
+            g.lon,
+            g.height
+        );
+    } else {
+        eprintln!(
+            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (world metres: x east, y north of \
+         the data's north-west corner, z height)",
+            cam.eye.x, cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z
+        );
+    }
+}
+
+/// Writes the cut's refined diamonds to `file`, one id (`L-x-y`) a line, sorted as text.
+fn write_cut<S: DataSource>(refiner: &Refiner<S>, file: &Path) -> Result<()> {
+    let mut ids: Vec<String> = refiner.cut().refined().map(|id| id.to_string()).collect();
+    ids.sort();
+    let text: String = ids.iter().map(|id| format!("{id}\n")).collect();
+    std::fs::write(file, text).with_context(|| format!("writing {}", file.display()))
+}
+
 /// One frame or a flight, from any source. `remote`: records arrive over the network, so the
 /// loop waits for them in real time (single frames) or paces the flight at `--fps`.
 fn render_with<S: DataSource>(
@@ -251,10 +286,7 @@ fn render_with<S: DataSource>(
         eprintln!("cbdam: warning: {e}");
     }
     if let Some(file) = &args.cut_out {
-        let mut ids: Vec<String> = refiner.cut().refined().map(|id| id.to_string()).collect();
-        ids.sort();
-        let text: String = ids.iter().map(|id| format!("{id}\n")).collect();
-        std::fs::write(file, text).with_context(|| format!("writing {}", file.display()))?;
+        write_cut(&refiner, file)?;
     }
     let patches: Vec<_> = refiner.drawn().cloned().collect();
     let gpu = Gpu::headless()?;
@@ -286,28 +318,7 @@ fn render_with<S: DataSource>(
         s.triangles as f64 / (s.prepare_s + s.gpu_s) / 1e6,
         adapter,
     );
-    if world.is_planet() {
-        let g = cbdam_codec::geodesy::Geodetic::from_ecef(cam.eye.to_array());
-        eprintln!(
-            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (ECEF metres); eye at lat {:.6}, \
-             lon {:.6}, {:.1} m above the ellipsoid",
-            cam.eye.x,
-            cam.eye.y,
-            cam.eye.z,
-            cam.target.x,
-            cam.target.y,
-            cam.target.z,
-            g.lat,
-            g.lon,
-            g.height
-        );
-    } else {
-        eprintln!(
-            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (world metres: x east, y north of \
-             the data's north-west corner, z height)",
-            cam.eye.x, cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z
-        );
-    }
+    print_camera(&world, &cam);
     Ok(())
 }
 

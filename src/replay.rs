@@ -200,6 +200,50 @@ pub fn fly<S: DataSource>(
     fly_observed(flight, refiner, pacing, csv_path, |_, _| {})
 }
 
+/// One CSV row ([`HEADER`]) of the frame `s`, at flight time `t`, with the refining thread's
+/// CPU time `cpu_ms`.
+fn write_row(
+    csv: &mut impl Write,
+    s: &FrameStats,
+    t: f64,
+    settling: bool,
+    cpu_ms: f64,
+) -> std::io::Result<()> {
+    writeln!(
+        csv,
+        "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+        s.frame,
+        t,
+        u8::from(settling),
+        s.refine_ms,
+        cpu_ms,
+        s.decode_ms,
+        s.decoded,
+        s.max_screen_error_px,
+        u8::from(s.met_target),
+        u8::from(s.converged),
+        s.refined,
+        s.drawn_halves,
+        s.triangles,
+        s.refinements,
+        s.coarsenings,
+        u8::from(s.budget_exhausted),
+        s.access.bytes_fetched,
+        s.access.requests_issued,
+        s.access.in_flight,
+        s.failures,
+        s.cut_bytes,
+        u8::from(s.memory_limited),
+        s.steps.before_ms,
+        s.steps.loop_ms,
+        s.steps.collect_ms,
+        s.steps.want_ms,
+        s.steps.ahead_ms,
+        s.steps.after_ms,
+        s.decode_cpu_ms,
+    )
+}
+
 /// [`fly`], calling `observe` after every frame with the refiner (its cut, its source) and the
 /// frame's statistics; what `observe` spends is outside the frame's timings.
 pub fn fly_observed<S: DataSource>(
@@ -241,39 +285,7 @@ pub fn fly_observed<S: DataSource>(
         let cpu = thread_cpu_seconds();
         let s = refiner.frame(&camera);
         let cpu_ms = (thread_cpu_seconds() - cpu) * 1e3;
-        writeln!(
-            csv,
-            "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
-            s.frame,
-            t,
-            u8::from(settling),
-            s.refine_ms,
-            cpu_ms,
-            s.decode_ms,
-            s.decoded,
-            s.max_screen_error_px,
-            u8::from(s.met_target),
-            u8::from(s.converged),
-            s.refined,
-            s.drawn_halves,
-            s.triangles,
-            s.refinements,
-            s.coarsenings,
-            u8::from(s.budget_exhausted),
-            s.access.bytes_fetched,
-            s.access.requests_issued,
-            s.access.in_flight,
-            s.failures,
-            s.cut_bytes,
-            u8::from(s.memory_limited),
-            s.steps.before_ms,
-            s.steps.loop_ms,
-            s.steps.collect_ms,
-            s.steps.want_ms,
-            s.steps.ahead_ms,
-            s.steps.after_ms,
-            s.decode_cpu_ms,
-        )?;
+        write_row(&mut csv, &s, t, settling, cpu_ms)?;
         let now = start.elapsed().as_secs_f64();
         if !settling && frame + 1 == flight_frames {
             stopped_at = Some(now);
@@ -306,6 +318,45 @@ pub fn fly_observed<S: DataSource>(
     })
 }
 
+/// The summary's decoding lines: diamonds and cells per second (wall and the workers' CPU time)
+/// and the decoding done ahead of the cut; nothing when nothing was decoded.
+fn print_decoding(run: &ReplayRun) {
+    let decoded: usize = run.rows.iter().map(|s| s.decoded).sum();
+    let decode_s: f64 = run.rows.iter().map(|s| s.decode_ms).sum::<f64>() / 1e3;
+    let decode_cpu_s: f64 = run.rows.iter().map(|s| s.decode_cpu_ms).sum::<f64>() / 1e3;
+    let n1 = run.cells_per_side as f64;
+    if decode_s <= 0.0 {
+        return;
+    }
+    println!(
+        "decoding: {decoded} diamonds in {:.1} ms, {:.0} diamonds/s, {:.1} M cells/s",
+        decode_s * 1e3,
+        decoded as f64 / decode_s,
+        decoded as f64 * n1 * n1 / decode_s / 1e6
+    );
+    if decode_cpu_s > 0.0 {
+        // The wall time above holds what the workers waited for a core; their CPU time
+        // is what a diamond costs.
+        println!(
+            "decoding, workers' CPU time: {:.1} ms, {:.1} M cells/s",
+            decode_cpu_s * 1e3,
+            decoded as f64 * n1 * n1 / decode_cpu_s / 1e6
+        );
+    }
+    let ahead: usize = run.rows.iter().map(|s| s.decoded_ahead).sum();
+    let used: usize = run.rows.iter().map(|s| s.refined_ahead).sum();
+    let refinements: usize = run.rows.iter().map(|s| s.refinements).sum();
+    println!(
+        "decoded ahead of the cut: {ahead} diamonds, {used} of them refined since; {refinements} refinements in all"
+    );
+    let rescued = cbdam_client::spawn::DecodePool::rescued();
+    if rescued > 0 {
+        println!(
+            "decode workers starved (another program's load): the standby pool ran {rescued} jobs"
+        );
+    }
+}
+
 /// Prints the summary of `cbdam replay`.
 fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     let flight_rows = run.flight();
@@ -313,10 +364,6 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     ms.sort_by(f64::total_cmp);
     let cpu = run.flight_cpu_sorted();
     let tris = run.flight_triangles_sorted();
-    let decoded: usize = run.rows.iter().map(|s| s.decoded).sum();
-    let decode_s: f64 = run.rows.iter().map(|s| s.decode_ms).sum::<f64>() / 1e3;
-    let decode_cpu_s: f64 = run.rows.iter().map(|s| s.decode_cpu_ms).sum::<f64>() / 1e3;
-    let n1 = run.cells_per_side as f64;
     let pixels = f64::from(args.size.0) * f64::from(args.size.1);
     let last = run.last();
     let over = flight_rows.iter().filter(|s| s.budget_exhausted).count();
@@ -349,35 +396,7 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
         tris.last().copied().unwrap_or(0),
         percentile(&tris, 0.5) as f64 / pixels
     );
-    if decode_s > 0.0 {
-        println!(
-            "decoding: {decoded} diamonds in {:.1} ms, {:.0} diamonds/s, {:.1} M cells/s",
-            decode_s * 1e3,
-            decoded as f64 / decode_s,
-            decoded as f64 * n1 * n1 / decode_s / 1e6
-        );
-        if decode_cpu_s > 0.0 {
-            // The wall time above holds what the workers waited for a core; their CPU time
-            // is what a diamond costs.
-            println!(
-                "decoding, workers' CPU time: {:.1} ms, {:.1} M cells/s",
-                decode_cpu_s * 1e3,
-                decoded as f64 * n1 * n1 / decode_cpu_s / 1e6
-            );
-        }
-        let ahead: usize = run.rows.iter().map(|s| s.decoded_ahead).sum();
-        let used: usize = run.rows.iter().map(|s| s.refined_ahead).sum();
-        let refinements: usize = run.rows.iter().map(|s| s.refinements).sum();
-        println!(
-            "decoded ahead of the cut: {ahead} diamonds, {used} of them refined since; {refinements} refinements in all"
-        );
-        let rescued = cbdam_client::spawn::DecodePool::rescued();
-        if rescued > 0 {
-            println!(
-                "decode workers starved (another program's load): the standby pool ran {rescued} jobs"
-            );
-        }
-    }
+    print_decoding(run);
     let flight_bytes = run.flight_bytes();
     println!(
         "fetched: {} bytes during the flight ({:.0} bytes per second of flight), {} in all, {} failures",

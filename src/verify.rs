@@ -10,7 +10,7 @@ use cbdam_build::plan::default_memory_limit;
 use cbdam_build::planet::compare_planet;
 use cbdam_build::tiles::{Tile, expand_inputs};
 use cbdam_build::verify::{compare_colour, compare_dem, compare_tiles_with, one_file_in_blocks};
-use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
+use cbdam_codec::hierarchy::{BlockPlan, RepoKind, VerifyReport};
 use cbdam_codec::repository::Repository;
 use clap::Args;
 
@@ -78,6 +78,44 @@ fn verify_colour_repo(repo: &Repository, args: &VerifyArgs) -> Result<()> {
     Ok(())
 }
 
+/// Several inputs, or one too large to decode whole: compared with the build's lattice, rebuilt
+/// from them, and the hierarchy decoded block by block.
+fn verify_tiles(
+    repo: &Repository,
+    tiles: &[Tile],
+    limit: u64,
+    block_plan: Option<BlockPlan>,
+) -> Result<()> {
+    let c = compare_tiles_with(repo, tiles, limit, block_plan)?;
+    if let Some(plan) = c.blocks {
+        let layout = repo.params().layout();
+        println!(
+            "decoded in {} block(s) of {} lattice points square, levels {} and finer \
+             (the coarser ones over the whole domain)",
+            plan.blocks(layout).len(),
+            plan.block_side,
+            plan.cut_level
+        );
+    }
+    print_levels(&c.levels, repo.plan().unit);
+    for input in &c.inputs {
+        println!(
+            "{}: {} winning samples (stride {}), max error {:.6} m",
+            input.path.display(),
+            input.winning,
+            input.stride,
+            input.max_error
+        );
+    }
+    println!(
+        "nodata mask: {} lattice points with data reached, {} mismatches",
+        c.reached_valid, c.mask_mismatch_count
+    );
+    c.check()?;
+    println!("OK");
+    Ok(())
+}
+
 pub fn run(args: &VerifyArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
@@ -107,38 +145,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         {
             path
         }
-        several => {
-            // Several inputs, or one too large to decode whole: the build's lattice, rebuilt
-            // from them, and the hierarchy decoded block by block.
-            let c = compare_tiles_with(&repo, several, limit, args.block_plan)?;
-            if let Some(plan) = c.blocks {
-                let layout = repo.params().layout();
-                println!(
-                    "decoded in {} block(s) of {} lattice points square, levels {} and finer \
-                     (the coarser ones over the whole domain)",
-                    plan.blocks(layout).len(),
-                    plan.block_side,
-                    plan.cut_level
-                );
-            }
-            print_levels(&c.levels, repo.plan().unit);
-            for input in &c.inputs {
-                println!(
-                    "{}: {} winning samples (stride {}), max error {:.6} m",
-                    input.path.display(),
-                    input.winning,
-                    input.stride,
-                    input.max_error
-                );
-            }
-            println!(
-                "nodata mask: {} lattice points with data reached, {} mismatches",
-                c.reached_valid, c.mask_mismatch_count
-            );
-            c.check()?;
-            println!("OK");
-            return Ok(());
-        }
+        several => return verify_tiles(&repo, several, limit, args.block_plan),
     };
     let c = compare_dem(&repo, against)?;
     print_levels(&c.levels, repo.plan().unit);

@@ -6,7 +6,7 @@
 //! (`VmHWM`), reset before each dataset through `/proc/self/clear_refs`, so each row shows its
 //! own peak; mapped temporaries count while resident.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
@@ -15,7 +15,7 @@ use cbdam_codec::repository::write_repository;
 use clap::Args;
 
 use cbdam_build::encode::{encode_prepared, with_coarser_roots_if_smaller};
-use cbdam_build::plan::{InputSpec, default_memory_limit, prepare, storage_for};
+use cbdam_build::plan::{InputSpec, Temporaries, default_memory_limit, prepare, storage_for};
 
 use crate::flags;
 
@@ -56,6 +56,41 @@ fn peak_rss() -> Option<u64> {
     Some(kib * 1024)
 }
 
+/// One timed build of `path` into `out`, as `cbdam build` does it: the input samples and where
+/// the encoder's temporaries were kept.
+fn build_once(
+    path: &Path,
+    raw_size: Option<(usize, usize)>,
+    args: &BenchBuildArgs,
+    limit: u64,
+    out: &Path,
+) -> Result<(usize, Temporaries)> {
+    let opts = EncodeOptions::default();
+    let input = prepare(&InputSpec {
+        path,
+        raw_size,
+        nodata: None,
+        quantum: None,
+        max_error: args.max_error,
+        memory_limit: limit,
+        lattice_dir: None,
+    })?;
+    let storage = storage_for(&input.grid, None, &opts, limit)?;
+    let enc = encode_prepared(
+        &input,
+        None,
+        &opts,
+        &storage,
+        &cbdam_codec::hierarchy::NoJournal,
+        args.threads,
+        &|_, _| {},
+    )?;
+    // What `cbdam build` does by default (`--extra-levels auto`), timed with the rest.
+    let (enc, _) = with_coarser_roots_if_smaller(&input, enc, &opts, limit, args.threads)?;
+    write_repository(out, &enc, &input.plan, input.georef.as_ref(), input.nodata)?;
+    Ok((input.grid.width * input.grid.height, storage))
+}
+
 pub fn run(args: &BenchBuildArgs) -> Result<()> {
     if args.runs == 0 {
         bail!("--runs must be at least 1");
@@ -93,37 +128,14 @@ pub fn run(args: &BenchBuildArgs) -> Result<()> {
     );
     println!("|---|---:|---|---:|---:|---:|---:|");
     let out = tmp.path().join("bench.cbdam");
-    let opts = EncodeOptions::default();
     for (path, raw_size) in &inputs {
         let can_reset = reset_peak();
         let mut times = Vec::new();
         let mut summary = None;
         for _ in 0..args.runs {
             let t = Instant::now();
-            let input = prepare(&InputSpec {
-                path,
-                raw_size: *raw_size,
-                nodata: None,
-                quantum: None,
-                max_error: args.max_error,
-                memory_limit: limit,
-                lattice_dir: None,
-            })?;
-            let storage = storage_for(&input.grid, None, &opts, limit)?;
-            let enc = encode_prepared(
-                &input,
-                None,
-                &opts,
-                &storage,
-                &cbdam_codec::hierarchy::NoJournal,
-                args.threads,
-                &|_, _| {},
-            )?;
-            // What `cbdam build` does by default (`--extra-levels auto`), timed with the rest.
-            let (enc, _) = with_coarser_roots_if_smaller(&input, enc, &opts, limit, args.threads)?;
-            write_repository(&out, &enc, &input.plan, input.georef.as_ref(), input.nodata)?;
+            let (samples, storage) = build_once(path, *raw_size, args, limit, &out)?;
             times.push(t.elapsed());
-            let samples = input.grid.width * input.grid.height;
             let bits = std::fs::metadata(&out)?.len() as f64 * 8.0 / samples as f64;
             summary = Some((samples, bits, storage));
         }

@@ -102,6 +102,81 @@ impl PeerOutcome {
     }
 }
 
+/// The inputs read whole, by file name, and the synthetic terrain of side `synth_side` (none
+/// for 0).
+fn read_dems(inputs: &[PathBuf], synth_side: usize) -> Result<Vec<(String, Dem)>> {
+    let mut dems: Vec<(String, Dem)> = Vec::new();
+    for path in inputs {
+        let dem = read_dem(path, &ReadOptions::default())
+            .with_context(|| format!("reading {}", path.display()))?;
+        let name = path
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        dems.push((name, dem));
+    }
+    if synth_side != 0 {
+        dems.push((
+            format!("synthetic fractal {synth_side}²"),
+            crate::synth::dem(synth_side, SYNTH_SEED),
+        ));
+    }
+    Ok(dems)
+}
+
+/// Our codec on `dem` at every tolerance of `eps`, each point verified, in ε order.
+fn measure_ours(
+    name: &str,
+    dem: &Dem,
+    eps: &[f64],
+    runs: usize,
+    pool: &rayon::ThreadPool,
+) -> Result<Vec<(f64, Measurement)>> {
+    let opts = EncodeOptions::default();
+    let mut ours = Vec::new();
+    for &e in eps {
+        let m = measure(dem, e, &opts, runs, pool)
+            .with_context(|| format!("{name}: the codec failed its own bound"))?;
+        eprintln!(
+            "{name} ε={e}: {:.3} bits/sample (file), max err {:.4} m, build {:.2} MS/s, \
+             decode {:.2} MS/s",
+            m.file_bps(),
+            m.max_err,
+            m.msps(m.build),
+            m.msps(m.decode)
+        );
+        ours.push((e, m));
+    }
+    Ok(ours)
+}
+
+/// The peer codecs on every dataset (`--peers`), or why they were skipped.
+fn measure_peers(
+    args: &BenchReportArgs,
+    datasets: &[Dataset],
+    eps: &[f64],
+    runs: usize,
+) -> PeerOutcome {
+    let list: Vec<(String, &Dem)> = datasets
+        .iter()
+        .map(|d| (file_safe(&d.name), &d.dem))
+        .collect();
+    match peers::measure(
+        &list,
+        eps,
+        runs,
+        &args.out.join("peers"),
+        args.venv.as_deref(),
+    ) {
+        Ok(p) => PeerOutcome::Measured(p),
+        Err(why) => {
+            eprintln!("peers skipped: {why}");
+            PeerOutcome::Skipped(why)
+        }
+    }
+}
+
 pub fn run(args: &BenchReportArgs) -> Result<()> {
     let runs = args.runs.unwrap_or(if args.quick { 1 } else { 3 });
     if runs == 0 {
@@ -129,63 +204,16 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.max(1))
         .build()?;
-    let opts = EncodeOptions::default();
-
-    let mut dems: Vec<(String, Dem)> = Vec::new();
-    for path in &inputs {
-        let dem = read_dem(path, &ReadOptions::default())
-            .with_context(|| format!("reading {}", path.display()))?;
-        let name = path
-            .file_name()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .into_owned();
-        dems.push((name, dem));
-    }
-    if synth_side != 0 {
-        dems.push((
-            format!("synthetic fractal {synth_side}²"),
-            crate::synth::dem(synth_side, SYNTH_SEED),
-        ));
-    }
+    let dems = read_dems(&inputs, synth_side)?;
 
     let mut datasets = Vec::new();
     for (name, dem) in dems {
-        let mut ours = Vec::new();
-        for &e in &eps {
-            let m = measure(&dem, e, &opts, runs, &pool)
-                .with_context(|| format!("{name}: the codec failed its own bound"))?;
-            eprintln!(
-                "{name} ε={e}: {:.3} bits/sample (file), max err {:.4} m, build {:.2} MS/s, \
-                 decode {:.2} MS/s",
-                m.file_bps(),
-                m.max_err,
-                m.msps(m.build),
-                m.msps(m.decode)
-            );
-            ours.push((e, m));
-        }
+        let ours = measure_ours(&name, &dem, &eps, runs, &pool)?;
         datasets.push(Dataset { name, dem, ours });
     }
 
     let peers = if args.peers {
-        let list: Vec<(String, &Dem)> = datasets
-            .iter()
-            .map(|d| (file_safe(&d.name), &d.dem))
-            .collect();
-        match peers::measure(
-            &list,
-            &eps,
-            runs,
-            &args.out.join("peers"),
-            args.venv.as_deref(),
-        ) {
-            Ok(p) => PeerOutcome::Measured(p),
-            Err(why) => {
-                eprintln!("peers skipped: {why}");
-                PeerOutcome::Skipped(why)
-            }
-        }
+        measure_peers(args, &datasets, &eps, runs)
     } else {
         PeerOutcome::NotRequested
     };
@@ -477,6 +505,26 @@ fn summary(
     Ok(())
 }
 
+/// A table's head: `ours` (the first columns' titles) and `align` (their alignment row), then a
+/// right-aligned column per peer codec.
+fn table_head(
+    md: &mut String,
+    ours: &str,
+    align: &str,
+    codecs: &[impl std::fmt::Display],
+) -> Result<()> {
+    write!(md, "{ours}")?;
+    for c in codecs {
+        write!(md, " {c} |")?;
+    }
+    write!(md, "\n{align}")?;
+    for _ in codecs {
+        write!(md, "---:|")?;
+    }
+    md.push('\n');
+    Ok(())
+}
+
 fn per_dataset(md: &mut String, d: &Dataset, rows: &[&PeerRow], plot: &str) -> Result<()> {
     let cs = codecs(rows);
     writeln!(md, "## {}\n", d.name)?;
@@ -489,18 +537,12 @@ fn per_dataset(md: &mut String, d: &Dataset, rows: &[&PeerRow], plot: &str) -> R
         md,
         "Rate–distortion (bits per sample; peers: bits per sample (verified max error, m)):\n"
     )?;
-    write!(
+    table_head(
         md,
-        "| ε (m) | cbdam file bits/sample | cbdam payload bits/sample | cbdam max err (m) | cbdam RMS (m) |"
+        "| ε (m) | cbdam file bits/sample | cbdam payload bits/sample | cbdam max err (m) | cbdam RMS (m) |",
+        "|---:|---:|---:|---:|---:|",
+        &cs,
     )?;
-    for c in &cs {
-        write!(md, " {c} |")?;
-    }
-    write!(md, "\n|---:|---:|---:|---:|---:|")?;
-    for _ in &cs {
-        write!(md, "---:|")?;
-    }
-    md.push('\n');
     for (e, m) in &d.ours {
         write!(
             md,
@@ -519,15 +561,12 @@ fn per_dataset(md: &mut String, d: &Dataset, rows: &[&PeerRow], plot: &str) -> R
         md,
         "\nTime against error (M samples/s; peers: encode / decode):\n"
     )?;
-    write!(md, "| ε (m) | cbdam build | cbdam encode | cbdam decode |")?;
-    for c in &cs {
-        write!(md, " {c} |")?;
-    }
-    write!(md, "\n|---:|---:|---:|---:|")?;
-    for _ in &cs {
-        write!(md, "---:|")?;
-    }
-    md.push('\n');
+    table_head(
+        md,
+        "| ε (m) | cbdam build | cbdam encode | cbdam decode |",
+        "|---:|---:|---:|---:|",
+        &cs,
+    )?;
     for (e, m) in &d.ours {
         write!(
             md,
