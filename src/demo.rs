@@ -71,10 +71,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         } else {
             "descent.json"
         }));
-    let result = fly_over_http(args, &server.url, &repo, &flight).and_then(|()| {
-        open_viewer(args, &server.url);
-        Ok(())
-    });
+    let result =
+        fly_over_http(args, &server.url, &repo, &flight).map(|()| open_viewer(args, &server.url));
     server.stop();
     result
 }

@@ -239,8 +239,8 @@ pub struct PixelError {
     pub value: f64,
 }
 
-/// `--budget-ms`: the refinement loop's time per frame, 0 for unlimited (checked where it is
-/// used, as `view` refuses 0).
+/// `--budget-ms`: the refinement loop's time per frame, 0 for unlimited (a negative one is
+/// refused where it is used). `view`, which refines within a budget every frame, has its own.
 #[derive(Args, Clone, Copy, Debug)]
 pub struct BudgetMs {
     /// Refinement time budget per frame, ms (0: unlimited).
