@@ -1,6 +1,7 @@
 //! What several subcommands share on the command line: typed values parsed once by clap — sizes
 //! `WIDTHxHEIGHT` ([`Size2`]), byte counts ([`ByteSize`]), link rates ([`BitRate`]), geodetic
-//! cameras ([`GeoView`]), numbers that must be positive ([`positive_finite`]) — and the flags
+//! cameras ([`GeoView`]), numbers that must be positive ([`positive_finite`]) or not negative
+//! ([`non_negative_finite`]) — and the flags
 //! defined once and flattened into each command that takes them ([`PixelError`], [`BudgetMs`],
 //! [`Fps`], [`Colour`], [`PoolMib`], [`DiamondSize`], [`Quiet`], [`GeorefArgs`]). A command
 //! whose help says more about one of them (`render --fps` only with `--path`) adds it with
@@ -224,6 +225,19 @@ pub fn positive_finite(text: &str) -> Result<f64, String> {
     }
 }
 
+/// clap parser of a number that must be 0 or positive and finite (`--budget-ms`, where 0 means
+/// unlimited; `--interval` …); clap names the flag in front of the message.
+pub fn non_negative_finite(text: &str) -> Result<f64, String> {
+    let value: f64 = text
+        .parse()
+        .map_err(|e: std::num::ParseFloatError| e.to_string())?;
+    if value.is_finite() && value >= 0.0 {
+        Ok(value)
+    } else {
+        Err("must be 0 or a positive finite number".into())
+    }
+}
+
 /// `--pixel-error`: the screen-space error target of the refinement loop.
 #[derive(Args, Clone, Copy, Debug)]
 pub struct PixelError {
@@ -239,8 +253,8 @@ pub struct PixelError {
     pub value: f64,
 }
 
-/// `--budget-ms`: the refinement loop's time per frame, 0 for unlimited (a negative one is
-/// refused where it is used). `view`, which refines within a budget every frame, has its own.
+/// `--budget-ms`: the refinement loop's time per frame, 0 for unlimited. `view`, which refines
+/// within a budget every frame, has its own.
 #[derive(Args, Clone, Copy, Debug)]
 pub struct BudgetMs {
     /// Refinement time budget per frame, ms (0: unlimited).
@@ -249,6 +263,7 @@ pub struct BudgetMs {
         long = "budget-ms",
         value_name = "BUDGET_MS",
         default_value_t = 2.0,
+        value_parser = non_negative_finite,
         allow_hyphen_values = true
     )]
     pub value: f64,
@@ -357,6 +372,23 @@ mod tests {
         // Not a number at all: the standard library's reason, as clap's own f64 parser gives.
         assert_eq!(positive_finite("abc"), Err("invalid float literal".into()));
         assert!(positive_finite("").is_err());
+    }
+
+    #[test]
+    fn non_negative_finite_numbers_pass_with_zero_and_the_rest_is_refused() {
+        assert_eq!(non_negative_finite("0"), Ok(0.0));
+        assert_eq!(non_negative_finite("2"), Ok(2.0));
+        for bad in ["-1", "-1e-9", "NaN", "inf"] {
+            assert_eq!(
+                non_negative_finite(bad),
+                Err("must be 0 or a positive finite number".into()),
+                "{bad}"
+            );
+        }
+        assert_eq!(
+            non_negative_finite("x"),
+            Err("invalid float literal".into())
+        );
     }
 
     #[test]

@@ -47,7 +47,12 @@ pub struct LinkArgs {
     #[arg(long)]
     seed: Option<u64>,
     /// Seconds between counter lines (0: only the totals when stopped).
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    #[arg(
+        long,
+        default_value_t = 1.0,
+        value_parser = flags::non_negative_finite,
+        allow_hyphen_values = true
+    )]
     interval: f64,
 }
 
@@ -133,9 +138,6 @@ fn print_counters(c: &Counters, last: &Counters, elapsed_s: f64, args: &LinkArgs
 
 pub fn run(args: &LinkArgs) -> Result<()> {
     let link = link_of(args)?;
-    if !(args.interval.is_finite() && args.interval >= 0.0) {
-        bail!("--interval must be a number of seconds from 0");
-    }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

@@ -162,7 +162,7 @@ pub(crate) fn refiner(
     budget_ms: f64,
     exaggeration: f64,
 ) -> Result<Refiner<Box<dyn DataSource>>> {
-    let config = refine_config(pixel_error, budget_ms, exaggeration)?;
+    let config = refine_config(pixel_error, budget_ms, exaggeration);
     let elevation = LocalSource::new(repo.clone());
     let source: Box<dyn DataSource> = match colour {
         Some(c) => Box::new(
@@ -190,7 +190,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     } else {
         0.0
     };
-    let config = refine_config(args.pixel_error.value, budget_ms, args.exaggeration)?;
+    let config = refine_config(args.pixel_error.value, budget_ms, args.exaggeration);
     let (source, remote) =
         terrain_source(&args.repo.to_string_lossy(), args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;

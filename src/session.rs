@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use cbdam_client::access::{ColouredSource, DataSource, LocalSource, RemoteSource};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::refine::RefineConfig;
@@ -37,18 +37,15 @@ pub fn terrain_source(repo: &str, colour: Option<&str>) -> Result<(Box<dyn DataS
     Ok((Box::new(paired), remote || colour_remote))
 }
 
-/// The refinement settings of the command line (`pixel_error` and `exaggeration` already checked
-/// by [`crate::flags::positive_finite`]), with the budget checked.
-pub fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> Result<RefineConfig> {
-    if !(budget_ms.is_finite() && budget_ms >= 0.0) {
-        bail!("--budget-ms must be 0 (unlimited) or positive");
-    }
-    Ok(RefineConfig {
+/// The refinement settings of the command line, as its value parsers checked them: a positive
+/// `pixel_error` and `exaggeration`, a budget of 0 (unlimited) or more.
+pub fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> RefineConfig {
+    RefineConfig {
         pixel_error,
         budget: (budget_ms > 0.0).then(|| Duration::from_secs_f64(budget_ms / 1e3)),
         exaggeration,
         ..RefineConfig::default()
-    })
+    }
 }
 
 /// A refinement budget in words: "2 ms", or "unlimited" for 0.

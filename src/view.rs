@@ -64,7 +64,7 @@ pub struct ViewArgs {
 }
 
 pub fn run(args: &ViewArgs) -> Result<()> {
-    let config = refine_config(args.pixel_error.value, args.budget_ms, args.exaggeration)?;
+    let config = refine_config(args.pixel_error.value, args.budget_ms, args.exaggeration);
     let repo = args.repo.to_string_lossy();
     let (source, remote) = terrain_source(&repo, args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
