@@ -3,6 +3,7 @@
 //! nothing with `--quiet`), the summary and, with `--timings`, the stage times.
 
 use std::io::IsTerminal;
+use std::path::PathBuf;
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -14,11 +15,125 @@ use cbdam_builder::{
 };
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::lifting::Alpha;
+use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::{AlphaArg, BuildArgs, CoderArg};
+use crate::flags;
 
 pub use cbdam_builder::ExtraLevels;
+
+/// Entropy coder of `cbdam build`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum CoderArg {
+    /// Bitwise adaptive binary arithmetic coder (about 1 % smaller, slower to decode).
+    Adaptive,
+    /// Adaptive token coder: the bitwise coder's contexts, a binarisation made for fast
+    /// decoding (the default).
+    AdaptiveTokens,
+    /// Elias-gamma codes (simpler, faster to decode).
+    EliasGamma,
+}
+
+/// Lifting weight of `cbdam build`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum AlphaArg {
+    /// α = 1: the coarse levels are subsamples of the input.
+    #[value(name = "1")]
+    One,
+    /// α = ½: the coarse levels are low-pass filtered.
+    #[value(name = "0.5")]
+    Half,
+}
+
+/// Build a repository from one DEM, or from several at power-of-two spacings (one
+/// variable-resolution dataset), in parallel, within a memory limit.
+#[derive(Args, Debug)]
+pub struct BuildArgs {
+    /// DEM files (GeoTIFF, .hgt, ASCII grid, PNG, or one raw float32 with --size); several
+    /// georeferenced ones at power-of-two spacings make one variable-resolution dataset.
+    ///
+    /// Tiles: an input may also be a directory (every .tif, .tiff, .hgt, .asc and .png in it,
+    /// sorted by name, not recursive), a glob (`*`, `?`, `[...]` in the last path component;
+    /// quote it), @LIST (one path a line, relative to the list file; blank lines and `#`
+    /// comments skipped) or a GDAL VRT mosaic as gdalbuildvrt writes it (whole tiles placed by
+    /// SrcRect/DstRect without scaling, one band, NoDataValue; any other element or attribute
+    /// is refused by name). Tiles of one spacing that overlap (shared edge rows, as in SRTM)
+    /// must agree there, or the build names the two tiles that disagree and by how much. Any
+    /// number of tiles: they are placed from their headers and read a band of rows at a time.
+    #[arg(required = true, num_args = 1..)]
+    pub(crate) inputs: Vec<PathBuf>,
+    /// The input is headerless little-endian float32, WIDTHxHEIGHT samples, row 0 north
+    /// (streamed: never held in memory as floats).
+    #[arg(long, value_name = "WIDTHxHEIGHT", value_parser = flags::Size2::samples)]
+    pub(crate) size: Option<(usize, usize)>,
+    /// Memory budget, e.g. 2G or 512M (K, M, G, T are powers of 1024). Above it, the encoder's
+    /// reconstruction field is a memory-mapped temporary file instead of anonymous memory.
+    /// Default: half of physical memory.
+    #[arg(long, value_name = "SIZE")]
+    pub(crate) memory_limit: Option<flags::ByteSize>,
+    /// Output repository (written atomically: a temporary file renamed into place).
+    #[arg(short, long)]
+    pub(crate) output: PathBuf,
+    /// Guaranteed maximum error of every reconstructed sample, metres; with --colour, whole
+    /// 8-bit levels bounding every decoded R, G and B component (0 = lossless).
+    #[arg(long, allow_hyphen_values = true)]
+    pub(crate) max_error: f64,
+    /// The input is an 8-bit RGB/RGBA PNG or RGB GeoTIFF: build a colour repository (YCoCg-R,
+    /// each component coded like elevation) to drape over an elevation repository.
+    #[arg(long)]
+    pub(crate) colour: bool,
+    /// With --colour: lay the colour over this elevation repository's domain (its diamond size
+    /// and roots; the image must be (W − 1)·2^m + 1 × (H − 1)·2^m + 1 of its W × H samples; a
+    /// PNG gets its georeferencing, scaled).
+    #[arg(long, value_name = "ELEVATION.cbdam")]
+    pub(crate) like: Option<PathBuf>,
+    #[command(flatten)]
+    pub(crate) diamond_size: flags::DiamondSize,
+    /// Level pairs above the smallest hierarchy that covers the data: each makes the roots 4×
+    /// sparser and codes the terrain between them as residuals instead. `auto` tries one more
+    /// where the root field is most of the repository (small or smooth inputs at loose
+    /// tolerances) and keeps the smaller file.
+    #[arg(long, default_value = "auto", value_parser = parse_extra_levels)]
+    pub(crate) extra_levels: ExtraLevels,
+    /// Worker threads for encoding (default: all cores).
+    #[arg(long)]
+    pub(crate) threads: Option<usize>,
+    /// Entropy coder.
+    #[arg(long, value_enum, default_value_t = CoderArg::AdaptiveTokens)]
+    pub(crate) coder: CoderArg,
+    /// Lifting weight α.
+    #[arg(long, value_enum, default_value_t = AlphaArg::One)]
+    pub(crate) alpha: AlphaArg,
+    /// The data's value quantum in metres (default: detected from the samples).
+    #[arg(long)]
+    pub(crate) quantum: Option<f64>,
+    /// Nodata value, overriding the file's own.
+    #[arg(long, allow_hyphen_values = true)]
+    pub(crate) nodata: Option<f64>,
+    #[command(flatten)]
+    pub(crate) georef: flags::GeorefArgs,
+    /// Benchmarks: encode the levels from CUT down in blocks SIDE lattice units across (with a
+    /// journal), whatever the input's size and the memory limit would choose.
+    #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = parse_block_plan)]
+    pub(crate) block_plan: Option<cbdam_codec::hierarchy::BlockPlan>,
+    /// Build a planet: the inputs (EPSG:4326 latitude/longitude GeoTIFFs, SRTM .hgt, UTM zones)
+    /// resampled onto the cube-sphere lattice on WGS84 (docs/PLANET.md) — bilinear where the
+    /// lattice is finer than an input, area-averaged where coarser, the finest input winning
+    /// where they overlap. The lattice is the coarsest as fine as the finest input, within
+    /// --memory-limit (about 40 bytes per lattice point); the summary says when the limit made
+    /// it coarser, and how far the lattice is from each input's samples.
+    #[arg(long)]
+    pub(crate) planet: bool,
+    /// With --planet: the lattice's level pairs K (faces of (N − 1)·2^K steps, a mean spacing of
+    /// 90°/((N − 1)·2^K)) instead of the one the finest input asks for.
+    #[arg(long, value_name = "K", requires = "planet")]
+    pub(crate) planet_level: Option<u32>,
+    #[command(flatten)]
+    pub(crate) quiet: flags::Quiet,
+    /// Print the wall time of each stage (read and plan, quantize, encode, write) to stderr.
+    #[arg(long)]
+    pub(crate) timings: bool,
+}
 
 /// Parses `--extra-levels`: `auto` or a number of level pairs, at most
 /// [`ExtraLevels::MAX`]: each quadruples the domain's area, and with it the encoder's
@@ -47,7 +162,7 @@ pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
         memory_limit: args.memory_limit.map(|b| b.0),
         colour: args.colour,
         like: args.like.clone(),
-        diamond_size: args.diamond_size,
+        diamond_size: args.diamond_size.value,
         extra_levels: args.extra_levels,
         alpha: match args.alpha {
             AlphaArg::One => Alpha::One,
@@ -84,7 +199,7 @@ pub fn parse_block_plan(text: &str) -> Result<cbdam_codec::hierarchy::BlockPlan,
 
 pub fn run(args: &BuildArgs) -> Result<()> {
     let start = Instant::now();
-    let progress = Bars::new(args.quiet);
+    let progress = Bars::new(args.quiet.value);
     let summary = cbdam_builder::build(&options(args)?, &progress);
     progress.finish();
     match summary? {
@@ -117,7 +232,7 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
             s.temporaries
         );
     }
-    if !args.quiet {
+    if !args.quiet.value {
         if s.lattice_mapped {
             eprintln!(
                 "the {}×{} lattice went to memory-mapped temporary files, to stay under \
@@ -153,7 +268,7 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
             timings(&s.stages, start, s.lattice_points.min(s.held_points))
         );
     }
-    if args.quiet {
+    if args.quiet.value {
         return Ok(());
     }
     let bytes = std::fs::metadata(&args.output)?.len();
@@ -220,7 +335,7 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
 }
 
 fn print_colour(args: &BuildArgs, s: &ColourSummary, start: Instant) -> Result<()> {
-    if !args.quiet {
+    if !args.quiet.value {
         let bytes = std::fs::metadata(&args.output)?.len();
         let px = s.width * s.height;
         println!(

@@ -9,8 +9,45 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use cbdam_server::{AppState, Config, RepoSpec};
+use clap::Args;
 
-use crate::{AlphaArg, BuildArgs, CoderArg, DemoArgs, RenderArgs, ReplayArgs, ViewArgs};
+use crate::build::{AlphaArg, BuildArgs, CoderArg};
+use crate::flags;
+use crate::render::RenderArgs;
+use crate::replay::ReplayArgs;
+use crate::view::ViewArgs;
+
+/// The whole pipeline on the bundled SRTM tile: builds a repository (once), serves it on
+/// loopback, replays a flight against the server over HTTP and renders an overview and the
+/// flight's frames offscreen from what the client fetched; prints where the outputs are.
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Where the repository, CSV and PNGs go.
+    #[arg(long, default_value = "demo-out")]
+    out_dir: PathBuf,
+    /// Flight from data/flights/ (default descent.json; with --planet planet/descent.json).
+    #[arg(long)]
+    flight: Option<String>,
+    /// A planet instead of the SRTM tile: the bundled ETOPO5 global DEM with the bundled SRTM and
+    /// Jacksboro tiles as insets, resampled onto the cube-sphere on WGS84 at the insets' own 3″
+    /// (K = 11, 0.0007° lattice), served, and flown from orbit down to the SRTM tile's summit.
+    #[arg(long)]
+    planet: bool,
+    /// Size of the rendered frames.
+    #[arg(long, value_parser = flags::Size2::pixels, default_value = "640x360")]
+    size: (u32, u32),
+    /// Render at most this many frames of the flight (all by default).
+    #[arg(long)]
+    max_frames: Option<u64>,
+    /// Do not open the interactive viewer at the end (it opens when a display is available:
+    /// DISPLAY or WAYLAND_DISPLAY set).
+    #[arg(long)]
+    no_view: bool,
+    /// Close the viewer after this many frames (for scripts and tests; by default it stays open
+    /// until Esc).
+    #[arg(long)]
+    view_frames: Option<u64>,
+}
 
 pub fn run(args: &DemoArgs) -> Result<()> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -24,73 +61,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     if repo.exists() {
         eprintln!("demo: using {} (delete it to rebuild)", repo.display());
     } else {
-        let (inputs, max_error, planet_level) = if args.planet {
-            eprintln!(
-                "demo: building the planet {} from the bundled ETOPO5 (5′) with the SRTM and \
-                 Jacksboro tiles (3″) as insets at their own spacing (K = 11, 0.0007° lattice, \
-                 held in tiles: every point around the insets, every 64th elsewhere), ε = 4 m",
-                repo.display()
-            );
-            let data = |f: &str| root.join("data").join(f);
-            (
-                vec![
-                    data("etopo5_global.tif"),
-                    data("srtm3_demcompare.tif"),
-                    data("jacksboro_mpl.tif"),
-                ],
-                4.0,
-                None,
-            )
-        } else {
-            eprintln!(
-                "demo: building {} from the bundled SRTM tile, ε = 1 m",
-                repo.display()
-            );
-            (vec![root.join("data/srtm3_demcompare.tif")], 1.0, None)
-        };
-        crate::build::run(&BuildArgs {
-            inputs,
-            size: None,
-            memory_limit: None,
-            output: repo.clone(),
-            max_error,
-            diamond_size: 65,
-            extra_levels: cbdam_builder::ExtraLevels::Auto,
-            threads: None,
-            coder: CoderArg::AdaptiveTokens,
-            alpha: AlphaArg::One,
-            quantum: None,
-            nodata: None,
-            georef: crate::GeorefArgs::default(),
-            block_plan: None,
-            planet: args.planet,
-            planet_level,
-            quiet: false,
-            timings: false,
-            colour: false,
-            like: None,
-        })?;
+        build_repository(root, &repo, args.planet)?;
     }
-
-    // The server runs on its own runtime thread for the whole demo.
-    let spec: RepoSpec = format!("{name}={}", repo.display()).parse()?;
-    let state = AppState::open(&[spec], Config::default())?;
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .context("starting the server runtime")?;
-    let listener = rt
-        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
-        .context("binding a loopback port")?;
-    let addr = listener.local_addr()?;
-    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-    let server = rt.spawn(cbdam_server::run(listener, state, async {
-        let _ = stopped.await;
-    }));
-    let url = format!("http://{addr}/v1/repos/{name}");
-    eprintln!("demo: serving {} at {url}", repo.display());
-
+    let server = LoopbackServer::start(name, &repo)?;
     let flight = root
         .join("data/flights")
         .join(args.flight.as_deref().unwrap_or(if args.planet {
@@ -98,96 +71,195 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         } else {
             "descent.json"
         }));
+    let result =
+        fly_over_http(args, &server.url, &repo, &flight).map(|()| open_viewer(args, &server.url));
+    server.stop();
+    result
+}
+
+/// Builds the demo's repository `repo` from the bundled data: the SRTM tile, or with `planet`
+/// the ETOPO5 globe with the SRTM and Jacksboro tiles as insets.
+fn build_repository(root: &Path, repo: &Path, planet: bool) -> Result<()> {
+    let data = |f: &str| root.join("data").join(f);
+    let (inputs, max_error) = if planet {
+        eprintln!(
+            "demo: building the planet {} from the bundled ETOPO5 (5′) with the SRTM and \
+             Jacksboro tiles (3″) as insets at their own spacing (K = 11, 0.0007° lattice, \
+             held in tiles: every point around the insets, every 64th elsewhere), ε = 4 m",
+            repo.display()
+        );
+        let tiles = [
+            "etopo5_global.tif",
+            "srtm3_demcompare.tif",
+            "jacksboro_mpl.tif",
+        ];
+        (tiles.map(data).to_vec(), 4.0)
+    } else {
+        eprintln!(
+            "demo: building {} from the bundled SRTM tile, ε = 1 m",
+            repo.display()
+        );
+        (vec![data("srtm3_demcompare.tif")], 1.0)
+    };
+    crate::build::run(&BuildArgs {
+        inputs,
+        size: None,
+        memory_limit: None,
+        output: repo.to_path_buf(),
+        max_error,
+        diamond_size: flags::DiamondSize { value: 65 },
+        extra_levels: cbdam_builder::ExtraLevels::Auto,
+        threads: None,
+        coder: CoderArg::AdaptiveTokens,
+        alpha: AlphaArg::One,
+        quantum: None,
+        nodata: None,
+        georef: flags::GeorefArgs::default(),
+        block_plan: None,
+        planet,
+        planet_level: None,
+        quiet: flags::Quiet { value: false },
+        timings: false,
+        colour: false,
+        like: None,
+    })
+}
+
+/// `cbdam serve` of one repository on a loopback port, on its own runtime thread for the whole
+/// demo.
+struct LoopbackServer {
+    /// The repository's URL.
+    url: String,
+    runtime: tokio::runtime::Runtime,
+    stop: tokio::sync::oneshot::Sender<()>,
+    server: tokio::task::JoinHandle<Result<(), cbdam_server::ServerError>>,
+}
+
+impl LoopbackServer {
+    fn start(name: &str, repo: &Path) -> Result<LoopbackServer> {
+        let spec: RepoSpec = format!("{name}={}", repo.display()).parse()?;
+        let state = AppState::open(&[spec], Config::default())?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+            .context("starting the server runtime")?;
+        let listener = runtime
+            .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+            .context("binding a loopback port")?;
+        let addr = listener.local_addr()?;
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let server = runtime.spawn(cbdam_server::run(listener, state, async {
+            let _ = stopped.await;
+        }));
+        let url = format!("http://{addr}/v1/repos/{name}");
+        eprintln!("demo: serving {} at {url}", repo.display());
+        Ok(LoopbackServer {
+            url,
+            runtime,
+            stop,
+            server,
+        })
+    }
+
+    fn stop(self) {
+        let _ = self.stop.send(());
+        let _ = self.runtime.block_on(self.server);
+    }
+}
+
+/// The client against the server at `url`: replays `flight` to a CSV, renders an overview and
+/// the flight's frames offscreen, and prints where the outputs are.
+fn fly_over_http(args: &DemoArgs, url: &str, repo: &Path, flight: &Path) -> Result<()> {
+    let out = &args.out_dir;
     let csv = out.join("replay.csv");
     let frames = out.join("frames");
     let overview = out.join("overview.png");
     let t = Instant::now();
-    let result = (|| -> Result<()> {
-        eprintln!("demo: replaying {} over HTTP", flight.display());
-        crate::replay::run(&ReplayArgs {
-            repo: url.clone(),
-            path: flight.clone(),
-            size: (1920, 1080),
-            pixel_error: 1.0,
-            budget_ms: 2.0,
-            out: csv.clone(),
-            fps: 30.0,
-            max_settle_frames: 600,
-            detail: false,
-            cut_mib: 1024,
-            colour: None,
-            paced: false,
-            no_decode_ahead: false,
-        })?;
-        let render = |output: Option<PathBuf>, path: Option<PathBuf>, out_dir: Option<PathBuf>| {
-            crate::render::run(&RenderArgs {
-                repo: PathBuf::from(&url),
-                size: args.size,
-                output,
-                path,
-                out_dir,
-                fps: 30.0,
-                budget_ms: 2.0,
-                max_frames: args.max_frames,
-                camera: None,
-                geo: None,
-                pixel_error: 1.0,
-                wireframe: false,
-                levels: false,
-                exaggeration: 1.0,
-                pool_mib: None,
-                colour: None,
-                cut_out: None,
-            })
-        };
-        eprintln!("demo: rendering an overview over HTTP");
-        render(Some(overview.clone()), None, None)?;
-        eprintln!("demo: rendering the flight's frames over HTTP (offscreen)");
-        render(None, Some(flight.clone()), Some(frames.clone()))?;
-        println!(
-            "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png",
-            t.elapsed().as_secs_f64(),
-            repo.display(),
-            csv.display(),
-            overview.display(),
-            frames.display()
-        );
-        if args.no_view {
-            return Ok(());
-        }
-        if !display_available() {
-            eprintln!(
-                "demo: no display (DISPLAY / WAYLAND_DISPLAY unset), so no viewer; \
-                 the outputs above are offscreen renders"
-            );
-            return Ok(());
-        }
-        eprintln!("demo: opening the viewer on {url} (Esc quits; the server stops with it)");
-        let viewed = crate::view::run(&ViewArgs {
-            repo: PathBuf::from(&url),
-            size: (1280, 720),
-            pixel_error: 1.0,
-            budget_ms: 2.0,
-            no_vsync: false,
-            max_frames: args.view_frames,
-            screenshot: None,
+    eprintln!("demo: replaying {} over HTTP", flight.display());
+    crate::replay::run(&ReplayArgs {
+        repo: url.to_string(),
+        path: flight.to_path_buf(),
+        size: (1920, 1080),
+        pixel_error: flags::PixelError { value: 1.0 },
+        budget_ms: flags::BudgetMs { value: 2.0 },
+        out: csv.clone(),
+        fps: flags::Fps { value: 30.0 },
+        max_settle_frames: 600,
+        detail: false,
+        cut_mib: 1024,
+        colour: flags::Colour { value: None },
+        paced: false,
+        no_decode_ahead: false,
+    })?;
+    let render = |output: Option<PathBuf>, path: Option<PathBuf>, out_dir: Option<PathBuf>| {
+        crate::render::run(&RenderArgs {
+            repo: PathBuf::from(url),
+            size: args.size,
+            output,
+            path,
+            out_dir,
+            fps: flags::Fps { value: 30.0 },
+            budget_ms: flags::BudgetMs { value: 2.0 },
+            max_frames: args.max_frames,
+            camera: None,
+            geo: None,
+            pixel_error: flags::PixelError { value: 1.0 },
             wireframe: false,
             levels: false,
             exaggeration: 1.0,
-            pool_mib: None,
-            colour: None,
-        });
-        // The offscreen outputs are made; a display that cannot take a window is not a
-        // failure of the demo.
-        match viewed {
-            Ok(()) => eprintln!("demo: viewer closed"),
-            Err(e) => eprintln!("demo: the viewer could not run: {e:#}"),
-        }
-        Ok(())
-    })();
-    let _ = stop.send(());
-    let _ = rt.block_on(server);
-    result
+            pool_mib: flags::PoolMib { value: None },
+            colour: flags::Colour { value: None },
+            cut_out: None,
+        })
+    };
+    eprintln!("demo: rendering an overview over HTTP");
+    render(Some(overview.clone()), None, None)?;
+    eprintln!("demo: rendering the flight's frames over HTTP (offscreen)");
+    render(None, Some(flight.to_path_buf()), Some(frames.clone()))?;
+    println!(
+        "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png",
+        t.elapsed().as_secs_f64(),
+        repo.display(),
+        csv.display(),
+        overview.display(),
+        frames.display()
+    );
+    Ok(())
+}
+
+/// The interactive viewer on `url`, unless --no-view or there is no display. The offscreen
+/// outputs are made; a display that cannot take a window is not a failure of the demo.
+fn open_viewer(args: &DemoArgs, url: &str) {
+    if args.no_view {
+        return;
+    }
+    if !display_available() {
+        eprintln!(
+            "demo: no display (DISPLAY / WAYLAND_DISPLAY unset), so no viewer; \
+             the outputs above are offscreen renders"
+        );
+        return;
+    }
+    eprintln!("demo: opening the viewer on {url} (Esc quits; the server stops with it)");
+    let viewed = crate::view::run(&ViewArgs {
+        repo: PathBuf::from(url),
+        size: (1280, 720),
+        pixel_error: flags::PixelError { value: 1.0 },
+        budget_ms: 2.0,
+        no_vsync: false,
+        max_frames: args.view_frames,
+        screenshot: None,
+        wireframe: false,
+        levels: false,
+        exaggeration: 1.0,
+        pool_mib: flags::PoolMib { value: None },
+        colour: flags::Colour { value: None },
+    });
+    match viewed {
+        Ok(()) => eprintln!("demo: viewer closed"),
+        Err(e) => eprintln!("demo: the viewer could not run: {e:#}"),
+    }
 }
 
 fn display_available() -> bool {

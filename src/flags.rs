@@ -1,9 +1,16 @@
-//! Typed values of the command line, parsed once by clap and shared by every subcommand: sizes
-//! `WIDTHxHEIGHT` ([`Size2`]), byte counts ([`ByteSize`]), link rates ([`BitRate`]) and
-//! geodetic cameras ([`GeoView`]).
+//! What several subcommands share on the command line: typed values parsed once by clap — sizes
+//! `WIDTHxHEIGHT` ([`Size2`]), byte counts ([`ByteSize`]), link rates ([`BitRate`]), geodetic
+//! cameras ([`GeoView`]), numbers that must be positive ([`positive_finite`]) or not negative
+//! ([`non_negative_finite`]) — and the flags
+//! defined once and flattened into each command that takes them ([`PixelError`], [`BudgetMs`],
+//! [`Fps`], [`Colour`], [`PoolMib`], [`DiamondSize`], [`Quiet`], [`GeorefArgs`]). A command
+//! whose help says more about one of them (`render --fps` only with `--path`) adds it with
+//! `mut_arg` on its own arguments.
 //!
 //! A bad value is a usage error (exit 2) whose message names the flag (clap puts it in front)
 //! and says what is expected.
+
+use clap::Args;
 
 /// The largest image or window side accepted (`--size` of render, view, replay, bench render):
 /// what GPUs allow for a texture.
@@ -205,9 +212,184 @@ impl GeoView {
     }
 }
 
+/// clap parser of a number that must be positive and finite (`--fps`, `--pixel-error`,
+/// `--timeout` …); clap names the flag in front of the message.
+pub fn positive_finite(text: &str) -> Result<f64, String> {
+    let value: f64 = text
+        .parse()
+        .map_err(|e: std::num::ParseFloatError| e.to_string())?;
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err("must be a positive finite number".into())
+    }
+}
+
+/// clap parser of a number that must be 0 or positive and finite (`--budget-ms`, where 0 means
+/// unlimited; `--interval` …); clap names the flag in front of the message.
+pub fn non_negative_finite(text: &str) -> Result<f64, String> {
+    let value: f64 = text
+        .parse()
+        .map_err(|e: std::num::ParseFloatError| e.to_string())?;
+    if value.is_finite() && value >= 0.0 {
+        Ok(value)
+    } else {
+        Err("must be 0 or a positive finite number".into())
+    }
+}
+
+/// `--pixel-error`: the screen-space error target of the refinement loop.
+#[derive(Args, Clone, Copy, Debug)]
+pub struct PixelError {
+    /// Screen-space error target, pixels.
+    #[arg(
+        id = "pixel_error",
+        long = "pixel-error",
+        value_name = "PIXEL_ERROR",
+        default_value_t = 1.0,
+        value_parser = positive_finite,
+        allow_hyphen_values = true
+    )]
+    pub value: f64,
+}
+
+/// `--budget-ms`: the refinement loop's time per frame, 0 for unlimited. `view`, which refines
+/// within a budget every frame, has its own.
+#[derive(Args, Clone, Copy, Debug)]
+pub struct BudgetMs {
+    /// Refinement time budget per frame, ms (0: unlimited).
+    #[arg(
+        id = "budget_ms",
+        long = "budget-ms",
+        value_name = "BUDGET_MS",
+        default_value_t = 2.0,
+        value_parser = non_negative_finite,
+        allow_hyphen_values = true
+    )]
+    pub value: f64,
+}
+
+/// `--fps`: frames per second of a camera flight.
+#[derive(Args, Clone, Copy, Debug)]
+pub struct Fps {
+    /// Frames per second of flight time.
+    #[arg(
+        id = "fps",
+        long = "fps",
+        value_name = "FPS",
+        default_value_t = 30.0,
+        value_parser = positive_finite,
+        allow_hyphen_values = true
+    )]
+    pub value: f64,
+}
+
+/// `--colour`: a colour repository, file or URL, draped over the terrain.
+#[derive(Args, Clone, Debug)]
+pub struct Colour {
+    /// Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over
+    /// the terrain: hillshaded colour instead of the height ramp.
+    #[arg(id = "colour", long = "colour", value_name = "COLOUR_REPO_OR_URL")]
+    pub value: Option<String>,
+}
+
+/// `--pool-mib`: the renderer's GPU height pool.
+#[derive(Args, Clone, Copy, Debug)]
+pub struct PoolMib {
+    /// GPU height pool, MiB (default: 256 or what the adapter allows).
+    #[arg(id = "pool_mib", long = "pool-mib", value_name = "POOL_MIB")]
+    pub value: Option<u64>,
+}
+
+/// `--diamond-size`: the side of a diamond's grid.
+#[derive(Args, Clone, Copy, Debug)]
+pub struct DiamondSize {
+    /// Diamond grid side N (2^k + 1).
+    #[arg(
+        id = "diamond_size",
+        long = "diamond-size",
+        value_name = "DIAMOND_SIZE",
+        default_value_t = 65
+    )]
+    pub value: usize,
+}
+
+/// `--quiet`: nothing printed on success.
+#[derive(Args, Clone, Copy, Debug)]
+pub struct Quiet {
+    /// Print nothing on success.
+    #[arg(id = "quiet", long = "quiet")]
+    pub value: bool,
+}
+
+/// `--bounds MINX,MINY,MAXX,MAXY --crs EPSG:N`, of `build` and `verify`: georeferencing for an
+/// input that carries none.
+#[derive(Args, Debug, Default)]
+pub struct GeorefArgs {
+    /// Georeferences an input that carries none (a raw float32 file, a plain TIFF, one of a
+    /// planet's inputs): the outer edges of its raster in the CRS of --crs,
+    /// west,south,east,north (GDAL's -te order), e.g. `--bounds -10,40,2,46 --crs EPSG:4326`.
+    /// Refused for inputs with their own; among a planet's inputs, for the one that carries
+    /// none (`verify --against` takes the same flags to place it again).
+    #[arg(
+        long,
+        value_name = "MINX,MINY,MAXX,MAXY",
+        requires = "crs",
+        allow_hyphen_values = true
+    )]
+    bounds: Option<String>,
+    /// The CRS of --bounds, as EPSG:N.
+    #[arg(long, value_name = "EPSG:N", requires = "bounds")]
+    crs: Option<String>,
+}
+
+impl GeorefArgs {
+    /// The georeferencing the flags give, checked; `None` without them.
+    pub fn assigned(&self) -> anyhow::Result<Option<cbdam_builder::assign::AssignedGeoRef>> {
+        match (&self.bounds, &self.crs) {
+            (Some(b), Some(c)) => Ok(Some(cbdam_builder::assign::AssignedGeoRef::parse(b, c)?)),
+            _ => Ok(None),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn positive_finite_numbers_pass_and_the_rest_is_refused_with_the_reason() {
+        assert_eq!(positive_finite("30"), Ok(30.0));
+        assert_eq!(positive_finite("0.25"), Ok(0.25));
+        assert_eq!(positive_finite("1e-3"), Ok(0.001));
+        for bad in ["0", "-0", "-1", "NaN", "inf", "-inf"] {
+            assert_eq!(
+                positive_finite(bad),
+                Err("must be a positive finite number".into()),
+                "{bad}"
+            );
+        }
+        // Not a number at all: the standard library's reason, as clap's own f64 parser gives.
+        assert_eq!(positive_finite("abc"), Err("invalid float literal".into()));
+        assert!(positive_finite("").is_err());
+    }
+
+    #[test]
+    fn non_negative_finite_numbers_pass_with_zero_and_the_rest_is_refused() {
+        assert_eq!(non_negative_finite("0"), Ok(0.0));
+        assert_eq!(non_negative_finite("2"), Ok(2.0));
+        for bad in ["-1", "-1e-9", "NaN", "inf"] {
+            assert_eq!(
+                non_negative_finite(bad),
+                Err("must be 0 or a positive finite number".into()),
+                "{bad}"
+            );
+        }
+        assert_eq!(
+            non_negative_finite("x"),
+            Err("invalid float literal".into())
+        );
+    }
 
     #[test]
     fn geo_views_parse_with_defaults_and_refuse_nonsense() {

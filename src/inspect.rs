@@ -1,11 +1,36 @@
 //! `cbdam inspect`: what a repository holds.
 
+use std::path::{Path, PathBuf};
+
 use anyhow::{Context, Result};
 use cbdam_codec::hierarchy::mask::count_valid_samples;
 use cbdam_codec::repository::{Repository, Section};
+use cbdam_server::describe::Summary;
 use cbdam_server::summarize;
+use clap::Args;
 
-use crate::{InspectArgs, UpgradeArgs};
+/// Print a repository's header, per-level record counts and sizes, and error range.
+#[derive(Args, Debug)]
+pub struct InspectArgs {
+    /// Repository file.
+    repo: PathBuf,
+    /// Machine-readable output.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Rewrite a repository of an older format version in the current one, 3 (from version 1: a
+/// range-coded record index and the compact header; from version 2: the compact header; both
+/// smaller on smooth terrain); heights, records and errors are unchanged. The output is written
+/// atomically and may be the input itself.
+#[derive(Args, Debug)]
+pub struct UpgradeArgs {
+    /// Repository file to read.
+    repo: PathBuf,
+    /// Where to write the upgraded repository (may be the input).
+    #[arg(short, long)]
+    output: PathBuf,
+}
 
 /// `cbdam upgrade`: the repository as the current writer writes it. The file's content is the
 /// encoder's output as read back (`to_encoded`, every record checked), so this is a rewrite of
@@ -44,45 +69,30 @@ pub fn upgrade(args: &UpgradeArgs) -> Result<()> {
     Ok(())
 }
 
-pub fn run(args: &InspectArgs) -> Result<()> {
-    let repo =
-        Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    // Distinct lattice points that can hold data (a planet's shared edge points once).
-    let samples = repo.head().params().domain.lattice_points();
-    // Without a mask every sample had data; with one, the count reads (and checks) the records.
-    let valid = if repo.head().params().nodata_mask {
+/// The lattice points of `repo` that hold data, of `samples`: all of them without a nodata mask;
+/// with one, the count reads (and checks) the records.
+fn count_valid(repo: &Repository, path: &Path, samples: u64) -> Result<u64> {
+    Ok(if repo.head().params().nodata_mask {
         let records = repo
             .head()
             .entries()
             .iter()
             .map(|e| Ok((e.id, repo.record(e.id)?)))
             .collect::<Result<Vec<_>, cbdam_codec::CodecError>>()
-            .with_context(|| format!("reading the records of {}", args.repo.display()))?;
+            .with_context(|| format!("reading the records of {}", path.display()))?;
         count_valid_samples(repo.head().params(), repo.head().root_bytes(), records)
-            .with_context(|| format!("reading the nodata mask of {}", args.repo.display()))?
+            .with_context(|| format!("reading the nodata mask of {}", path.display()))?
     } else {
         samples
-    };
-    let nodata_fraction = 1.0 - valid as f64 / samples as f64;
-    if args.json {
-        // The same description the server's meta endpoint starts from.
-        let mut v = cbdam_server::describe(&repo);
-        v["nodata_mask"] = repo.head().params().nodata_mask.into();
-        v["nodata_samples"] = (samples - valid).into();
-        v["nodata_fraction"] = nodata_fraction.into();
-        println!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
-    }
+    })
+}
+
+/// The text description's first part: the file, its kind and domain, the data and the hierarchy.
+fn print_layout(repo: &Repository, path: &Path, s: &Summary) {
     let p = repo.head().params();
-    let plan = repo.head().plan();
     let finest = p.layout().finest_level();
-    let s = summarize(&repo);
-    let metres = |u: u32| f64::from(u) * plan.unit;
-    let (err_lo, err_hi) = s.object_error_range;
     let bits = s.bits_per_sample;
-    let overhead = s.container_overhead;
-    let empty = s.empty_records;
-    println!("repository      {}", args.repo.display());
+    println!("repository      {}", path.display());
     println!("format          version {}", repo.head().format_version());
     println!("kind            {}", p.kind.name());
     println!(
@@ -132,6 +142,40 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         },
         p.coder.name()
     );
+}
+
+/// The georeferencing lines of the text description: EPSG, origin and pixel, and the start of
+/// a WKT definition.
+fn print_georef(repo: &Repository) {
+    match repo.head().georef() {
+        Some(g) => println!(
+            "georeference    EPSG {}, origin ({}, {}), pixel {} × {}, pixel is {}",
+            g.epsg.map_or("unknown".to_string(), |c| c.to_string()),
+            g.origin_x,
+            g.origin_y,
+            g.pixel_x,
+            g.pixel_y,
+            if g.pixel_is_area { "area" } else { "point" }
+        ),
+        None => println!("georeference    none"),
+    }
+    if let Some(wkt) = repo.head().georef().and_then(|g| g.wkt.as_deref()) {
+        // The definition's name is what a reader recognises; the whole is in --json.
+        let head: String = wkt.chars().take(72).collect();
+        let more = if head.len() < wkt.len() { "…" } else { "" };
+        println!("crs (wkt)       {head}{more} ({} bytes)", wkt.len());
+    }
+}
+
+/// The text description's second part: quantization, error bound, georeferencing, nodata,
+/// sections, records and the object error of every level.
+fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
+    let (p, plan) = (repo.head().params(), repo.head().plan());
+    let nodata_fraction = 1.0 - valid as f64 / samples as f64;
+    let metres = |u: u32| f64::from(u) * plan.unit;
+    let (err_lo, err_hi) = s.object_error_range;
+    let overhead = s.container_overhead;
+    let empty = s.empty_records;
     println!(
         "quantization    unit {} m, offset {} m, k = {} (root k = {}), {}",
         plan.unit,
@@ -162,24 +206,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             plan.max_error()
         );
     }
-    match repo.head().georef() {
-        Some(g) => println!(
-            "georeference    EPSG {}, origin ({}, {}), pixel {} × {}, pixel is {}",
-            g.epsg.map_or("unknown".to_string(), |c| c.to_string()),
-            g.origin_x,
-            g.origin_y,
-            g.pixel_x,
-            g.pixel_y,
-            if g.pixel_is_area { "area" } else { "point" }
-        ),
-        None => println!("georeference    none"),
-    }
-    if let Some(wkt) = repo.head().georef().and_then(|g| g.wkt.as_deref()) {
-        // The definition's name is what a reader recognises; the whole is in --json.
-        let head: String = wkt.chars().take(72).collect();
-        let more = if head.len() < wkt.len() { "…" } else { "" };
-        println!("crs (wkt)       {head}{more} ({} bytes)", wkt.len());
-    }
+    print_georef(repo);
     println!(
         "nodata          value {}, {} of {samples} samples ({:.2} %) without data{}",
         repo.head()
@@ -224,5 +251,26 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             );
         }
     }
+}
+
+pub fn run(args: &InspectArgs) -> Result<()> {
+    let repo =
+        Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
+    // Distinct lattice points that can hold data (a planet's shared edge points once).
+    let samples = repo.head().params().domain.lattice_points();
+    let valid = count_valid(&repo, &args.repo, samples)?;
+    let nodata_fraction = 1.0 - valid as f64 / samples as f64;
+    if args.json {
+        // The same description the server's meta endpoint starts from.
+        let mut v = cbdam_server::describe(&repo);
+        v["nodata_mask"] = repo.head().params().nodata_mask.into();
+        v["nodata_samples"] = (samples - valid).into();
+        v["nodata_fraction"] = nodata_fraction.into();
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    let summary = summarize(&repo);
+    print_layout(&repo, &args.repo, &summary);
+    print_coding(&repo, &summary, samples, valid);
     Ok(())
 }

@@ -1,11 +1,60 @@
 //! `cbdam link`: a loopback shaping proxy in front of a server (the library is `cbdam-link`).
 
+use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use cbdam_link::{Counters, Link, Proxy};
+use clap::Args;
 
-use crate::LinkArgs;
+use crate::flags;
+
+/// Emulate a slower, longer network link in front of a server: a loopback TCP proxy that
+/// forwards connections on --listen to --to with a one-way delay each way, downstream and
+/// upstream rate caps shared by all connections, optional jitter and connection resets.
+///
+/// Profiles (rates in bits/s, delays one way): adsl 1.2M down / 256k up, 30 ms; dsl10 10M /
+/// 1M, 25 ms; fibre 100M / 100M, 10 ms; mobile 5M / 1M, 60 ms ±10 ms, 1 % of connections
+/// reset; custom: give --down, --up and --delay-ms. Any flag overrides the profile. Prints
+/// the counters every --interval seconds with traffic; Ctrl-C (or SIGTERM) stops it.
+#[derive(Args, Debug)]
+pub struct LinkArgs {
+    /// Link profile: adsl, dsl10, fibre, mobile or custom.
+    #[arg(long)]
+    profile: String,
+    /// Address to listen on (port 0: any free port, printed).
+    #[arg(long, default_value = "127.0.0.1:9000")]
+    listen: SocketAddr,
+    /// Upstream server to forward each connection to, e.g. the address of `cbdam serve`.
+    #[arg(long)]
+    to: SocketAddr,
+    /// Downstream rate cap (server → client), bits/s with k, M or G (e.g. 1.2M).
+    #[arg(long, value_name = "RATE")]
+    down: Option<flags::BitRate>,
+    /// Upstream rate cap (client → server), bits/s with k, M or G (e.g. 256k).
+    #[arg(long, value_name = "RATE")]
+    up: Option<flags::BitRate>,
+    /// One-way delay each direction, ms (the round trip is twice this).
+    #[arg(long, allow_hyphen_values = true)]
+    delay_ms: Option<f64>,
+    /// Jitter, ms: each piece's delay varies uniformly by ± this (bytes are never reordered).
+    #[arg(long, allow_hyphen_values = true)]
+    jitter_ms: Option<f64>,
+    /// Probability that a connection is reset (within its first 64 KiB, or at its end).
+    #[arg(long, allow_hyphen_values = true)]
+    reset_prob: Option<f64>,
+    /// Seed of the reset and jitter draws.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Seconds between counter lines (0: only the totals when stopped).
+    #[arg(
+        long,
+        default_value_t = 1.0,
+        value_parser = flags::non_negative_finite,
+        allow_hyphen_values = true
+    )]
+    interval: f64,
+}
 
 /// The link of the arguments: the profile with the overrides applied.
 fn link_of(args: &LinkArgs) -> Result<Link> {
@@ -61,11 +110,34 @@ fn megabytes(b: u64) -> String {
     format!("{:.2} MB", b as f64 / 1e6)
 }
 
+/// One counter line: the totals since the start and what changed since `last`, with the rates
+/// over the last --interval, and the connections the upstream server dropped.
+fn print_counters(c: &Counters, last: &Counters, elapsed_s: f64, args: &LinkArgs) {
+    let bps =
+        |now: u64, then: u64| format!("{:.3} Mbit/s", (now - then) as f64 * 8e-6 / args.interval);
+    println!(
+        "{:8.1} s  connections {} (+{})  resets {} (+{})  down {} ({})  up {} ({})",
+        elapsed_s,
+        c.connections,
+        c.connections - last.connections,
+        c.resets,
+        c.resets - last.resets,
+        bps(c.bytes_down, last.bytes_down),
+        megabytes(c.bytes_down),
+        bps(c.bytes_up, last.bytes_up),
+        megabytes(c.bytes_up),
+    );
+    if c.upstream_errors > last.upstream_errors {
+        println!(
+            "          {} connections dropped: {} unreachable",
+            c.upstream_errors - last.upstream_errors,
+            args.to
+        );
+    }
+}
+
 pub fn run(args: &LinkArgs) -> Result<()> {
     let link = link_of(args)?;
-    if !(args.interval.is_finite() && args.interval >= 0.0) {
-        bail!("--interval must be a number of seconds from 0");
-    }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -106,26 +178,7 @@ pub fn run(args: &LinkArgs) -> Result<()> {
                     if c == last {
                         continue;
                     }
-                    let bps = |now: u64, then: u64| format!("{:.3} Mbit/s", (now - then) as f64 * 8e-6 / args.interval);
-                    println!(
-                        "{:8.1} s  connections {} (+{})  resets {} (+{})  down {} ({})  up {} ({})",
-                        start.elapsed().as_secs_f64(),
-                        c.connections,
-                        c.connections - last.connections,
-                        c.resets,
-                        c.resets - last.resets,
-                        bps(c.bytes_down, last.bytes_down),
-                        megabytes(c.bytes_down),
-                        bps(c.bytes_up, last.bytes_up),
-                        megabytes(c.bytes_up),
-                    );
-                    if c.upstream_errors > last.upstream_errors {
-                        println!(
-                            "          {} connections dropped: {} unreachable",
-                            c.upstream_errors - last.upstream_errors,
-                            args.to
-                        );
-                    }
+                    print_counters(&c, &last, start.elapsed().as_secs_f64(), args);
                     last = c;
                 }
             }

@@ -1,7 +1,7 @@
 //! `cbdam render` (one offscreen frame, or a flight's frames, to PNG) and `cbdam bench render`
 //! (frame times). Cuts come from the streaming client's refinement loop, as in `cbdam replay`.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -14,10 +14,85 @@ use cbdam_client::stats::percentile;
 use cbdam_client::world::World;
 use cbdam_codec::repository::Repository;
 use cbdam_render::{CacheConfig, Frame, Gpu, RenderOptions, Renderer, write_png};
+use clap::Args;
 use glam::DVec3;
 
+use crate::flags;
 use crate::session::{budget_label, refine_config, terrain_source};
-use crate::{BenchRenderArgs, RenderArgs};
+
+/// Render offscreen to PNG: one frame, or every frame of a camera flight (lavapipe works
+/// where there is no GPU).
+///
+/// The cut is the streaming client's: the time-critical refinement loop of `cbdam replay`
+/// over the local repository. For one frame (-o) it runs with an unlimited budget until the
+/// cut converges for the view (every diamond in it within --pixel-error), then draws it. With
+/// --path it flies the camera path at --fps with the real per-frame --budget-ms, as replay
+/// does, and writes each frame to --out-dir/frame_NNNNN.png. Prints the frame time and
+/// triangle count (with --path, median and p99 refine and render times).
+#[derive(Args, Debug)]
+#[command(mut_arg("fps", |a| a
+    .help("With --path: frames per second of flight")
+    .requires("path")))]
+#[command(mut_arg("budget_ms", |a| a
+    .help("With --path: refinement time budget per frame, ms (0 = unlimited)")
+    .requires("path")))]
+pub struct RenderArgs {
+    /// Repository file, or its URL: http://HOST:PORT/v1/repos/NAME (cbdam serve),
+    /// http://HOST:PORT/ (a server with one repository), or a .cbdam file on any server that
+    /// honours range requests.
+    pub(crate) repo: PathBuf,
+    /// Image size WIDTHxHEIGHT.
+    #[arg(long, value_parser = flags::Size2::pixels, default_value = "1920x1080")]
+    pub(crate) size: (u32, u32),
+    /// Output PNG (written atomically).
+    #[arg(short, long, required_unless_present = "path", conflicts_with = "path")]
+    pub(crate) output: Option<PathBuf>,
+    /// Render every frame of this camera flight (JSON, as for `cbdam replay`) instead of one.
+    #[arg(long, requires = "out_dir", conflicts_with = "camera")]
+    pub(crate) path: Option<PathBuf>,
+    /// With --path: directory for frame_00000.png, frame_00001.png, … (created if missing;
+    /// each written atomically).
+    #[arg(long, requires = "path")]
+    pub(crate) out_dir: Option<PathBuf>,
+    #[command(flatten)]
+    pub(crate) fps: flags::Fps,
+    #[command(flatten)]
+    pub(crate) budget_ms: flags::BudgetMs,
+    /// With --path: stop after this many frames.
+    #[arg(long, requires = "path")]
+    pub(crate) max_frames: Option<u64>,
+    /// Camera eye_x,eye_y,eye_z,target_x,target_y,target_z in world metres: x east and y north
+    /// of the data's north-west corner (so y is negative over the data), z height. Default: an
+    /// overview of the whole data from the south.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true, num_args = 1)]
+    pub(crate) camera: Option<Vec<f64>>,
+    /// A planet's camera: LAT,LON,HEIGHT_M[,HEADING_DEG,PITCH_DEG], geodetic degrees, height in
+    /// metres above the WGS84 ellipsoid, heading clockwise from north (default 0), pitch
+    /// negative when looking down (default -30). Without it (and --camera) a planet is shown
+    /// whole, centred.
+    #[arg(long, value_parser = flags::GeoView::parse, allow_hyphen_values = true,
+          conflicts_with_all = ["camera", "path"])]
+    pub(crate) geo: Option<flags::GeoView>,
+    #[command(flatten)]
+    pub(crate) pixel_error: flags::PixelError,
+    /// Draw triangle edges over the surface.
+    #[arg(long)]
+    pub(crate) wireframe: bool,
+    /// Colour by diamond level instead of height.
+    #[arg(long)]
+    pub(crate) levels: bool,
+    /// Vertical exaggeration (heights and the camera's z are scaled by it).
+    #[arg(long, default_value_t = 1.0, value_parser = flags::positive_finite, allow_hyphen_values = true)]
+    pub(crate) exaggeration: f64,
+    #[command(flatten)]
+    pub(crate) pool_mib: flags::PoolMib,
+    #[command(flatten)]
+    pub(crate) colour: flags::Colour,
+    /// Without --path: also write the cut's refined diamonds to this file, one id (`L-x-y`) a
+    /// line, sorted as text (the browser viewer's test compares its cut with it).
+    #[arg(long, value_name = "FILE")]
+    pub(crate) cut_out: Option<PathBuf>,
+}
 
 /// A camera from `eye_x,eye_y,eye_z,target_x,target_y,target_z`, or the framed first view.
 fn camera(world: &World, spec: Option<&[f64]>, size: (u32, u32)) -> Result<Camera> {
@@ -59,7 +134,7 @@ fn geo_camera(world: &World, g: &crate::flags::GeoView, size: (u32, u32)) -> Res
 
 /// A low oblique view: from the south-south-west, 12° above the horizon, close enough that the
 /// near terrain is much finer than the far (the adaptive case).
-pub fn low_oblique(world: &World, size: (u32, u32)) -> Camera {
+pub(crate) fn low_oblique(world: &World, size: (u32, u32)) -> Camera {
     let (lo, hi) = world.bounds();
     let centre = (lo + hi) * 0.5;
     let span = (hi - lo).x.max((hi - lo).y);
@@ -71,23 +146,23 @@ pub fn low_oblique(world: &World, size: (u32, u32)) -> Camera {
 }
 
 /// Frames a still view may take to converge with an unlimited budget (one, in practice).
-const SETTLE_FRAMES: u32 = 16;
+pub(crate) const SETTLE_FRAMES: u32 = 16;
 
-fn open(path: &Path) -> Result<Arc<Repository>> {
+pub(crate) fn open(path: &Path) -> Result<Arc<Repository>> {
     let repo = Repository::open(path).with_context(|| format!("opening {}", path.display()))?;
     Ok(Arc::new(repo))
 }
 
 /// The refinement loop over `repo` (with `colour` draped over it when given), with heights
 /// exaggerated by `exaggeration`.
-fn refiner(
+pub(crate) fn refiner(
     repo: &Arc<Repository>,
     colour: Option<&Arc<Repository>>,
     pixel_error: f64,
     budget_ms: f64,
     exaggeration: f64,
 ) -> Result<Refiner<Box<dyn DataSource>>> {
-    let config = refine_config(pixel_error, budget_ms, exaggeration)?;
+    let config = refine_config(pixel_error, budget_ms, exaggeration);
     let elevation = LocalSource::new(repo.clone());
     let source: Box<dyn DataSource> = match colour {
         Some(c) => Box::new(
@@ -102,7 +177,7 @@ fn refiner(
 /// Longest a remote render waits for the records its cut needs.
 const REMOTE_SETTLE: Duration = Duration::from_secs(60);
 
-fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
+pub(crate) fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
     CacheConfig {
         pool_bytes: pool_mib.map(|m| m << 20),
         ..CacheConfig::default()
@@ -111,12 +186,13 @@ fn cache_config(pool_mib: Option<u64>) -> CacheConfig {
 
 pub fn run(args: &RenderArgs) -> Result<()> {
     let budget_ms = if args.path.is_some() {
-        args.budget_ms
+        args.budget_ms.value
     } else {
         0.0
     };
-    let config = refine_config(args.pixel_error, budget_ms, args.exaggeration)?;
-    let (source, remote) = terrain_source(&args.repo.to_string_lossy(), args.colour.as_deref())?;
+    let config = refine_config(args.pixel_error.value, budget_ms, args.exaggeration);
+    let (source, remote) =
+        terrain_source(&args.repo.to_string_lossy(), args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
     render_with(args, refiner, remote)
 }
@@ -131,6 +207,41 @@ fn settle_remote<S: DataSource>(refiner: &mut Refiner<S>, cam: &Camera) -> Frame
         }
         std::thread::sleep(Duration::from_millis(5));
     }
+}
+
+/// Prints the camera's eye and target to stderr: world metres, or on a planet ECEF metres and
+/// the eye's latitude, longitude and height.
+fn print_camera(world: &World, cam: &Camera) {
+    if world.is_planet() {
+        let g = cbdam_codec::geodesy::Geodetic::from_ecef(cam.eye.to_array());
+        eprintln!(
+            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (ECEF metres); eye at lat {:.6}, \
+         lon {:.6}, {:.1} m above the ellipsoid",
+            cam.eye.x,
+            cam.eye.y,
+            cam.eye.z,
+            cam.target.x,
+            cam.target.y,
+            cam.target.z,
+            g.lat,
+            g.lon,
+            g.height
+        );
+    } else {
+        eprintln!(
+            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (world metres: x east, y north of \
+         the data's north-west corner, z height)",
+            cam.eye.x, cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z
+        );
+    }
+}
+
+/// Writes the cut's refined diamonds to `file`, one id (`L-x-y`) a line, sorted as text.
+fn write_cut<S: DataSource>(refiner: &Refiner<S>, file: &Path) -> Result<()> {
+    let mut ids: Vec<String> = refiner.cut().refined().map(|id| id.to_string()).collect();
+    ids.sort();
+    let text: String = ids.iter().map(|id| format!("{id}\n")).collect();
+    std::fs::write(file, text).with_context(|| format!("writing {}", file.display()))
 }
 
 /// One frame or a flight, from any source. `remote`: records arrive over the network, so the
@@ -175,16 +286,14 @@ fn render_with<S: DataSource>(
         eprintln!("cbdam: warning: {e}");
     }
     if let Some(file) = &args.cut_out {
-        let mut ids: Vec<String> = refiner.cut().refined().map(|id| id.to_string()).collect();
-        ids.sort();
-        let text: String = ids.iter().map(|id| format!("{id}\n")).collect();
-        std::fs::write(file, text).with_context(|| format!("writing {}", file.display()))?;
+        write_cut(&refiner, file)?;
     }
     let patches: Vec<_> = refiner.drawn().cloned().collect();
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();
     let draped = refiner.source().drape().is_some();
-    let mut renderer = Renderer::with_colour(gpu, world, cache_config(args.pool_mib), draped)?;
+    let mut renderer =
+        Renderer::with_colour(gpu, world, cache_config(args.pool_mib.value), draped)?;
     let frame = renderer.render(&cam, &patches, &options)?;
     write_png(output, &frame)?;
     let s = frame.stats;
@@ -209,28 +318,7 @@ fn render_with<S: DataSource>(
         s.triangles as f64 / (s.prepare_s + s.gpu_s) / 1e6,
         adapter,
     );
-    if world.is_planet() {
-        let g = cbdam_codec::geodesy::Geodetic::from_ecef(cam.eye.to_array());
-        eprintln!(
-            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (ECEF metres); eye at lat {:.6}, \
-             lon {:.6}, {:.1} m above the ellipsoid",
-            cam.eye.x,
-            cam.eye.y,
-            cam.eye.z,
-            cam.target.x,
-            cam.target.y,
-            cam.target.z,
-            g.lat,
-            g.lon,
-            g.height
-        );
-    } else {
-        eprintln!(
-            "eye {:.1},{:.1},{:.1} target {:.1},{:.1},{:.1} (world metres: x east, y north of \
-             the data's north-west corner, z height)",
-            cam.eye.x, cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z
-        );
-    }
+    print_camera(&world, &cam);
     Ok(())
 }
 
@@ -243,17 +331,15 @@ fn fly<S: DataSource>(
     options: &RenderOptions,
     remote: bool,
 ) -> Result<()> {
-    if !(args.fps > 0.0 && args.fps.is_finite()) {
-        bail!("--fps must be positive, got {}", args.fps);
-    }
     let flight = Flight::load(path).with_context(|| format!("loading {}", path.display()))?;
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let world = *refiner.world();
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();
     let draped = refiner.source().drape().is_some();
-    let mut renderer = Renderer::with_colour(gpu, world, cache_config(args.pool_mib), draped)?;
-    let mut frames = (flight.duration() * args.fps).ceil() as u64 + 1;
+    let mut renderer =
+        Renderer::with_colour(gpu, world, cache_config(args.pool_mib.value), draped)?;
+    let mut frames = (flight.duration() * args.fps.value).ceil() as u64 + 1;
     if let Some(max) = args.max_frames {
         frames = frames.min(max);
     }
@@ -262,7 +348,7 @@ fn fly<S: DataSource>(
         &mut renderer,
         &flight,
         FlightPacing {
-            fps: args.fps,
+            fps: args.fps.value,
             frames,
             size: args.size,
             real_time: remote,
@@ -283,11 +369,11 @@ fn fly<S: DataSource>(
     println!(
         "{}: {frames} frames at {} fps, {}×{}, target {} px, budget {}, on {adapter}",
         dir.display(),
-        args.fps,
+        args.fps.value,
         args.size.0,
         args.size.1,
-        args.pixel_error,
-        budget_label(args.budget_ms)
+        args.pixel_error.value,
+        budget_label(args.budget_ms.value)
     );
     println!(
         "refine ms per frame: median {:.3}, p99 {:.3}; budget exhausted in {over} frames; \
@@ -314,26 +400,26 @@ fn fly<S: DataSource>(
 /// How a flight is stepped: `frames` frames at `fps`, of `size`; `real_time` waits for each
 /// frame's due time (records arriving over a network need it).
 #[derive(Clone, Copy)]
-struct FlightPacing {
-    fps: f64,
-    frames: u64,
-    size: (u32, u32),
-    real_time: bool,
+pub(crate) struct FlightPacing {
+    pub(crate) fps: f64,
+    pub(crate) frames: u64,
+    pub(crate) size: (u32, u32),
+    pub(crate) real_time: bool,
 }
 
 /// Per-frame figures of one flight: refinement and render (CPU preparation + GPU) ms, triangles
 /// drawn, frames that ran out of refinement budget and the largest screen error of any frame.
-struct FlightRun {
-    refine_ms: Vec<f64>,
-    render_ms: Vec<f64>,
-    tris: Vec<u64>,
-    over: usize,
-    max_err: f64,
+pub(crate) struct FlightRun {
+    pub(crate) refine_ms: Vec<f64>,
+    pub(crate) render_ms: Vec<f64>,
+    pub(crate) tris: Vec<u64>,
+    pub(crate) over: usize,
+    pub(crate) max_err: f64,
 }
 
 /// Flies `flight`: each frame refines (within the refiner's budget), draws the cut and hands the
 /// frame to `each` (which is not timed).
-fn draw_flight<S: DataSource>(
+pub(crate) fn draw_flight<S: DataSource>(
     refiner: &mut Refiner<S>,
     renderer: &mut Renderer,
     flight: &Flight,
@@ -369,144 +455,4 @@ fn draw_flight<S: DataSource>(
         run.max_err = run.max_err.max(s.max_screen_error_px);
     }
     Ok(run)
-}
-
-pub fn bench(args: &BenchRenderArgs) -> Result<()> {
-    if args.runs == 0 {
-        bail!("--runs must be at least 1");
-    }
-    if !(args.fps > 0.0 && args.fps.is_finite()) {
-        bail!("--fps must be positive, got {}", args.fps);
-    }
-    let gpu_name = Gpu::headless()?.describe();
-    println!(
-        "{gpu_name}, {}×{}, {} px, median of {} frames after one warm-up frame (uploads)\n",
-        args.size.0, args.size.1, args.pixel_error, args.runs
-    );
-    println!(
-        "| repository | view | half-patches | M triangles | first frame ms | frame ms | M triangles/s |"
-    );
-    println!("|---|---|---:|---:|---:|---:|---:|");
-    let colour = args.colour.as_deref().map(open).transpose()?;
-    for path in &args.repos {
-        let repo = open(path)?;
-        let world = World::of_repository(&repo);
-        let mut renderers = vec![(
-            Renderer::new(Gpu::headless()?, world, cache_config(None))?,
-            None,
-        )];
-        if let Some(c) = &colour {
-            let r = Renderer::with_colour(Gpu::headless()?, world, cache_config(None), true)?;
-            renderers.push((r, Some(c)));
-        }
-        // Plain and draped rows alternate, so that load changes on a shared machine affect both.
-        for (view, cam) in [
-            ("overview", Camera::overview(&world, args.size)),
-            ("low oblique", low_oblique(&world, args.size)),
-        ] {
-            for (renderer, colour) in &mut renderers {
-                let view = if colour.is_some() {
-                    format!("{view}, colour")
-                } else {
-                    view.to_string()
-                };
-                let mut refiner = refiner(&repo, *colour, args.pixel_error, 0.0, 1.0)?;
-                refiner.settle(&cam, SETTLE_FRAMES);
-                let patches: Vec<_> = refiner.drawn().cloned().collect();
-                let options = RenderOptions::default();
-                let first = renderer.render(&cam, &patches, &options)?.stats;
-                let mut times = Vec::with_capacity(args.runs);
-                let mut last = first;
-                for _ in 0..args.runs {
-                    last = renderer.render(&cam, &patches, &options)?.stats;
-                    times.push(last.prepare_s + last.gpu_s);
-                }
-                times.sort_by(f64::total_cmp);
-                let median = times[times.len() / 2];
-                println!(
-                    "| {} | {view} | {} | {:.3} | {:.1} | {:.1} | {:.1} |",
-                    path.file_name().unwrap_or_default().to_string_lossy(),
-                    last.drawn,
-                    last.triangles as f64 / 1e6,
-                    (first.prepare_s + first.gpu_s) * 1e3,
-                    median * 1e3,
-                    last.triangles as f64 / median / 1e6,
-                );
-            }
-        }
-    }
-    if !args.flights.is_empty() {
-        bench_flights(args)?;
-    }
-    Ok(())
-}
-
-/// `bench render --flight`: each flight over each repository, drawn frame by frame as
-/// `render --path` does (without writing the frames).
-fn bench_flights(args: &BenchRenderArgs) -> Result<()> {
-    println!(
-        "\nflights: {} fps of flight time, refinement budget {}; frame = CPU preparation + GPU \
-         of the draw (refinement is timed apart); triangle rate = median over frames of \
-         triangles / frame time\n",
-        args.fps,
-        budget_label(args.budget_ms)
-    );
-    println!(
-        "| repository | flight | frames | frame ms median | frame ms p99 | M triangles/frame \
-         median | M triangles/s | refine ms p99 |"
-    );
-    println!("|---|---|---:|---:|---:|---:|---:|---:|");
-    for path in &args.repos {
-        let repo = open(path)?;
-        let world = World::of_repository(&repo);
-        for flight_path in &args.flights {
-            let flight = Flight::load(flight_path)
-                .with_context(|| format!("loading {}", flight_path.display()))?;
-            let mut frames = (flight.duration() * args.fps).ceil() as u64 + 1;
-            if let Some(max) = args.max_frames {
-                frames = frames.min(max);
-            }
-            let mut refiner = refiner(&repo, None, args.pixel_error, args.budget_ms, 1.0)?;
-            let mut renderer = Renderer::new(Gpu::headless()?, world, cache_config(None))?;
-            let pacing = FlightPacing {
-                fps: args.fps,
-                frames,
-                size: args.size,
-                real_time: false,
-            };
-            let options = RenderOptions::default();
-            let mut run = draw_flight(
-                &mut refiner,
-                &mut renderer,
-                &flight,
-                pacing,
-                &options,
-                |_, _| Ok(()),
-            )?;
-            let mut rate: Vec<f64> = run
-                .tris
-                .iter()
-                .zip(&run.render_ms)
-                .map(|(&t, &ms)| t as f64 / (ms / 1e3) / 1e6)
-                .collect();
-            run.render_ms.sort_by(f64::total_cmp);
-            run.refine_ms.sort_by(f64::total_cmp);
-            run.tris.sort_unstable();
-            rate.sort_by(f64::total_cmp);
-            println!(
-                "| {} | {} | {frames} | {:.1} | {:.1} | {:.3} | {:.1} | {:.3} |",
-                path.file_name().unwrap_or_default().to_string_lossy(),
-                flight_path
-                    .file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy(),
-                percentile(&run.render_ms, 0.5),
-                percentile(&run.render_ms, 0.99),
-                percentile(&run.tris, 0.5) as f64 / 1e6,
-                percentile(&rate, 0.5),
-                percentile(&run.refine_ms, 0.99),
-            );
-        }
-    }
-    Ok(())
 }

@@ -1,17 +1,78 @@
 //! `cbdam replay`: the real refinement loop over a camera flight, one CSV row per frame.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use cbdam_client::access::DataSource;
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{DetailConfig, FrameStats, RefineConfig, Refiner};
 use cbdam_client::stats::percentile;
+use clap::Args;
 
-use crate::ReplayArgs;
+use crate::flags;
 use crate::session::{budget_label, terrain_source};
+
+/// Run the client's refinement loop over a camera flight without drawing: one CSV row per
+/// frame, then hold the camera still until the cut converges, and print a summary.
+#[derive(Args, Debug)]
+#[command(mut_arg("colour", |a| a.help(
+    "Drape this colour repository (`cbdam build IMG --colour --like REPO`), file or URL, over \
+     the terrain: its records are fetched and decoded with the elevation's"
+)))]
+pub struct ReplayArgs {
+    /// Repository file, or the URL of one (`cbdam serve`'s repository URL or a .cbdam file on
+    /// any server that honours Range).
+    #[arg(value_name = "REPO_OR_URL")]
+    pub(crate) repo: String,
+    /// Flight file (JSON keyframes relative to the data's extent; see data/flights/).
+    #[arg(long)]
+    pub(crate) path: PathBuf,
+    /// Viewport WIDTHxHEIGHT, pixels.
+    #[arg(long, default_value = "1920x1080", value_parser = flags::Size2::pixels)]
+    pub(crate) size: (u32, u32),
+    #[command(flatten)]
+    pub(crate) pixel_error: flags::PixelError,
+    #[command(flatten)]
+    pub(crate) budget_ms: flags::BudgetMs,
+    /// Output CSV, one row per frame: frame, t, settling, refine_ms (wall), cpu_ms (CPU time of
+    /// the refining thread), decode_ms (worker time), decoded,
+    /// max_screen_error_px, met_target, converged, diamonds_in_cut, drawn_halves, triangles,
+    /// refinements, coarsenings, budget_exhausted, bytes_fetched (cumulative), requests_issued
+    /// (cumulative), requests_in_flight, failures, cut_bytes (decoded diamonds in the cut),
+    /// memory_limited (a refinement waited for --cut-mib), then where refine_ms went, step by
+    /// step: before_ms (arrivals, a moving view's collection, the refinement heap), loop_ms
+    /// (the refinement loop), collect_ms (a collection after the loop), want_ms (choosing
+    /// requests), after_ms (largest error, prefetch, posting requests), ahead_ms (planning the
+    /// decoding ahead, last in the frame; the column comes before after_ms), and decode_cpu_ms
+    /// (of decode_ms, the workers' CPU time: without what they waited for a core; Unix).
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+    #[command(flatten)]
+    pub(crate) fps: flags::Fps,
+    /// After the flight, at most this many frames with the camera still waiting for the cut to
+    /// converge.
+    #[arg(long, default_value_t = 600)]
+    pub(crate) max_settle_frames: usize,
+    /// Synthesise procedural detail past the finest stored level.
+    #[arg(long)]
+    pub(crate) detail: bool,
+    #[command(flatten)]
+    pub(crate) colour: flags::Colour,
+    /// Memory for the cut's decoded diamonds, MiB (0: unlimited). At the limit a refinement
+    /// goes ahead only by coarsening diamonds of smaller screen error elsewhere.
+    #[arg(long, default_value_t = 1024)]
+    pub(crate) cut_mib: usize,
+    /// Pace the frames at --fps in real time on a local file too (a viewer's timing: the
+    /// workers have the time between frames), not back to back.
+    #[arg(long)]
+    pub(crate) paced: bool,
+    /// Do not decode ahead of the cut between frames (the loop before issue 21's pipelining;
+    /// for comparisons).
+    #[arg(long)]
+    pub(crate) no_decode_ahead: bool,
+}
 
 /// The CSV header; `tests/cli.rs` checks it. Times in ms; `bytes_fetched` and
 /// `requests_issued` are cumulative, the other counters per frame or current state.
@@ -21,20 +82,12 @@ budget_exhausted,bytes_fetched,requests_issued,requests_in_flight,failures,cut_b
 before_ms,loop_ms,collect_ms,want_ms,ahead_ms,after_ms,decode_cpu_ms";
 
 pub fn run(args: &ReplayArgs) -> Result<()> {
-    if !(args.pixel_error > 0.0 && args.pixel_error.is_finite()) {
-        bail!("--pixel-error must be positive, got {}", args.pixel_error);
-    }
-    if !(args.fps > 0.0 && args.fps.is_finite()) {
-        bail!("--fps must be positive, got {}", args.fps);
-    }
-    if !(args.budget_ms >= 0.0 && args.budget_ms.is_finite()) {
-        bail!("--budget-ms must be 0 (unlimited) or positive");
-    }
     let flight =
         Flight::load(&args.path).with_context(|| format!("loading {}", args.path.display()))?;
     let config = RefineConfig {
-        pixel_error: args.pixel_error,
-        budget: (args.budget_ms > 0.0).then(|| Duration::from_secs_f64(args.budget_ms / 1e3)),
+        pixel_error: args.pixel_error.value,
+        budget: (args.budget_ms.value > 0.0)
+            .then(|| Duration::from_secs_f64(args.budget_ms.value / 1e3)),
         detail: args.detail.then(DetailConfig::default),
         cut_bytes: match args.cut_mib {
             0 => None,
@@ -43,7 +96,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         decode_ahead: !args.no_decode_ahead,
         ..RefineConfig::default()
     };
-    let (source, remote) = terrain_source(&args.repo, args.colour.as_deref())?;
+    let (source, remote) = terrain_source(&args.repo, args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
     // Over a network, frames are paced at --fps so that fetches take the time they would take
     // in a viewer; locally nothing waits on I/O and frames run back to back.
@@ -57,7 +110,7 @@ fn replay<S: DataSource>(
     paced: bool,
 ) -> Result<()> {
     let pacing = ReplayPacing {
-        fps: args.fps,
+        fps: args.fps.value,
         size: args.size,
         max_settle_frames: args.max_settle_frames,
         paced,
@@ -144,6 +197,50 @@ pub fn fly<S: DataSource>(
     fly_observed(flight, refiner, pacing, csv_path, |_, _| {})
 }
 
+/// One CSV row ([`HEADER`]) of the frame `s`, at flight time `t`, with the refining thread's
+/// CPU time `cpu_ms`.
+fn write_row(
+    csv: &mut impl Write,
+    s: &FrameStats,
+    t: f64,
+    settling: bool,
+    cpu_ms: f64,
+) -> std::io::Result<()> {
+    writeln!(
+        csv,
+        "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+        s.frame,
+        t,
+        u8::from(settling),
+        s.refine_ms,
+        cpu_ms,
+        s.decode_ms,
+        s.decoded,
+        s.max_screen_error_px,
+        u8::from(s.met_target),
+        u8::from(s.converged),
+        s.refined,
+        s.drawn_halves,
+        s.triangles,
+        s.refinements,
+        s.coarsenings,
+        u8::from(s.budget_exhausted),
+        s.access.bytes_fetched,
+        s.access.requests_issued,
+        s.access.in_flight,
+        s.failures,
+        s.cut_bytes,
+        u8::from(s.memory_limited),
+        s.steps.before_ms,
+        s.steps.loop_ms,
+        s.steps.collect_ms,
+        s.steps.want_ms,
+        s.steps.ahead_ms,
+        s.steps.after_ms,
+        s.decode_cpu_ms,
+    )
+}
+
 /// [`fly`], calling `observe` after every frame with the refiner (its cut, its source) and the
 /// frame's statistics; what `observe` spends is outside the frame's timings.
 pub fn fly_observed<S: DataSource>(
@@ -185,39 +282,7 @@ pub fn fly_observed<S: DataSource>(
         let cpu = thread_cpu_seconds();
         let s = refiner.frame(&camera);
         let cpu_ms = (thread_cpu_seconds() - cpu) * 1e3;
-        writeln!(
-            csv,
-            "{},{:.4},{},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
-            s.frame,
-            t,
-            u8::from(settling),
-            s.refine_ms,
-            cpu_ms,
-            s.decode_ms,
-            s.decoded,
-            s.max_screen_error_px,
-            u8::from(s.met_target),
-            u8::from(s.converged),
-            s.refined,
-            s.drawn_halves,
-            s.triangles,
-            s.refinements,
-            s.coarsenings,
-            u8::from(s.budget_exhausted),
-            s.access.bytes_fetched,
-            s.access.requests_issued,
-            s.access.in_flight,
-            s.failures,
-            s.cut_bytes,
-            u8::from(s.memory_limited),
-            s.steps.before_ms,
-            s.steps.loop_ms,
-            s.steps.collect_ms,
-            s.steps.want_ms,
-            s.steps.ahead_ms,
-            s.steps.after_ms,
-            s.decode_cpu_ms,
-        )?;
+        write_row(&mut csv, &s, t, settling, cpu_ms)?;
         let now = start.elapsed().as_secs_f64();
         if !settling && frame + 1 == flight_frames {
             stopped_at = Some(now);
@@ -250,6 +315,45 @@ pub fn fly_observed<S: DataSource>(
     })
 }
 
+/// The summary's decoding lines: diamonds and cells per second (wall and the workers' CPU time)
+/// and the decoding done ahead of the cut; nothing when nothing was decoded.
+fn print_decoding(run: &ReplayRun) {
+    let decoded: usize = run.rows.iter().map(|s| s.decoded).sum();
+    let decode_s: f64 = run.rows.iter().map(|s| s.decode_ms).sum::<f64>() / 1e3;
+    let decode_cpu_s: f64 = run.rows.iter().map(|s| s.decode_cpu_ms).sum::<f64>() / 1e3;
+    let n1 = run.cells_per_side as f64;
+    if decode_s <= 0.0 {
+        return;
+    }
+    println!(
+        "decoding: {decoded} diamonds in {:.1} ms, {:.0} diamonds/s, {:.1} M cells/s",
+        decode_s * 1e3,
+        decoded as f64 / decode_s,
+        decoded as f64 * n1 * n1 / decode_s / 1e6
+    );
+    if decode_cpu_s > 0.0 {
+        // The wall time above holds what the workers waited for a core; their CPU time
+        // is what a diamond costs.
+        println!(
+            "decoding, workers' CPU time: {:.1} ms, {:.1} M cells/s",
+            decode_cpu_s * 1e3,
+            decoded as f64 * n1 * n1 / decode_cpu_s / 1e6
+        );
+    }
+    let ahead: usize = run.rows.iter().map(|s| s.decoded_ahead).sum();
+    let used: usize = run.rows.iter().map(|s| s.refined_ahead).sum();
+    let refinements: usize = run.rows.iter().map(|s| s.refinements).sum();
+    println!(
+        "decoded ahead of the cut: {ahead} diamonds, {used} of them refined since; {refinements} refinements in all"
+    );
+    let rescued = cbdam_client::spawn::DecodePool::rescued();
+    if rescued > 0 {
+        println!(
+            "decode workers starved (another program's load): the standby pool ran {rescued} jobs"
+        );
+    }
+}
+
 /// Prints the summary of `cbdam replay`.
 fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     let flight_rows = run.flight();
@@ -257,10 +361,6 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     ms.sort_by(f64::total_cmp);
     let cpu = run.flight_cpu_sorted();
     let tris = run.flight_triangles_sorted();
-    let decoded: usize = run.rows.iter().map(|s| s.decoded).sum();
-    let decode_s: f64 = run.rows.iter().map(|s| s.decode_ms).sum::<f64>() / 1e3;
-    let decode_cpu_s: f64 = run.rows.iter().map(|s| s.decode_cpu_ms).sum::<f64>() / 1e3;
-    let n1 = run.cells_per_side as f64;
     let pixels = f64::from(args.size.0) * f64::from(args.size.1);
     let last = run.last();
     let over = flight_rows.iter().filter(|s| s.budget_exhausted).count();
@@ -268,12 +368,12 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
     println!(
         "flight: {} frames at {} fps ({:.1} s), {}×{}, target {} px, budget {}",
         flight_rows.len(),
-        args.fps,
+        args.fps.value,
         run.duration_s,
         args.size.0,
         args.size.1,
-        args.pixel_error,
-        budget_label(args.budget_ms)
+        args.pixel_error.value,
+        budget_label(args.budget_ms.value)
     );
     println!(
         "refine ms per frame, wall: median {:.3}, p99 {:.3}, max {:.3}; budget exhausted in {over} frames",
@@ -293,35 +393,7 @@ fn print_summary(args: &ReplayArgs, run: &ReplayRun) {
         tris.last().copied().unwrap_or(0),
         percentile(&tris, 0.5) as f64 / pixels
     );
-    if decode_s > 0.0 {
-        println!(
-            "decoding: {decoded} diamonds in {:.1} ms, {:.0} diamonds/s, {:.1} M cells/s",
-            decode_s * 1e3,
-            decoded as f64 / decode_s,
-            decoded as f64 * n1 * n1 / decode_s / 1e6
-        );
-        if decode_cpu_s > 0.0 {
-            // The wall time above holds what the workers waited for a core; their CPU time
-            // is what a diamond costs.
-            println!(
-                "decoding, workers' CPU time: {:.1} ms, {:.1} M cells/s",
-                decode_cpu_s * 1e3,
-                decoded as f64 * n1 * n1 / decode_cpu_s / 1e6
-            );
-        }
-        let ahead: usize = run.rows.iter().map(|s| s.decoded_ahead).sum();
-        let used: usize = run.rows.iter().map(|s| s.refined_ahead).sum();
-        let refinements: usize = run.rows.iter().map(|s| s.refinements).sum();
-        println!(
-            "decoded ahead of the cut: {ahead} diamonds, {used} of them refined since; {refinements} refinements in all"
-        );
-        let rescued = cbdam_client::spawn::DecodePool::rescued();
-        if rescued > 0 {
-            println!(
-                "decode workers starved (another program's load): the standby pool ran {rescued} jobs"
-            );
-        }
-    }
+    print_decoding(run);
     let flight_bytes = run.flight_bytes();
     println!(
         "fetched: {} bytes during the flight ({:.0} bytes per second of flight), {} in all, {} failures",

@@ -1,15 +1,52 @@
 //! `cbdam serve`: the HTTP server of diamond records (the library is `cbdam-server`).
 
 use std::io::IsTerminal;
+use std::net::SocketAddr;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use cbdam_server::{AppState, Config, RepoSpec};
+use clap::Args;
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
 use tracing_subscriber::EnvFilter;
 
-use crate::ServeArgs;
+/// Serve repositories over HTTP/1.1 and HTTP/2 (cleartext): per-diamond records, batches,
+/// the header as JSON, the raw file with range requests, and Prometheus metrics.
+///
+/// Endpoints and the batch framing: docs/FORMAT.md, "HTTP API". Logs go to stderr,
+/// filtered by RUST_LOG (default info, one line per request). Stops on SIGINT/SIGTERM after
+/// the requests in flight finish.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Repositories: PATH (served under its file stem) or NAME=PATH. Names may use
+    /// A-Z a-z 0-9 . _ - and must be unique.
+    #[arg(required = true, value_name = "REPO")]
+    repos: Vec<String>,
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    addr: SocketAddr,
+    /// Most diamond ids in one batch request (more: 413).
+    #[arg(long, default_value_t = 4096)]
+    max_batch: usize,
+    /// Largest request body, bytes (more: 413).
+    #[arg(long, default_value_t = 1 << 20)]
+    max_body: usize,
+    /// Access-Control-Allow-Origin: `*` or a comma-separated list of origins.
+    #[arg(long, default_value = "*")]
+    cors_origin: String,
+    /// Time allowed for one request, seconds (then 408).
+    #[arg(long, default_value_t = 30.0, value_parser = crate::flags::positive_finite)]
+    timeout: f64,
+    /// The browser viewer's files (the bundle `scripts/web-build.sh` writes, e.g.
+    /// target/web-bundle): `/` then links every repository to the viewer, served under
+    /// `/viewer/HASH/`. Without it `/` only lists the repositories.
+    #[arg(long, value_name = "DIR")]
+    web: Option<std::path::PathBuf>,
+    /// Worker threads (default: one per core).
+    #[arg(long)]
+    threads: Option<usize>,
+}
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`: startup, errors, one line per
 /// request except successful record requests, which log at debug:
@@ -25,9 +62,6 @@ fn init_logging() {
 }
 
 pub fn run(args: &ServeArgs) -> Result<()> {
-    if !(args.timeout.is_finite() && args.timeout > 0.0) {
-        bail!("--timeout must be a positive number of seconds");
-    }
     if args.max_batch == 0 {
         bail!("--max-batch must be at least 1");
     }

@@ -1,10 +1,10 @@
 //! What `cbdam replay`, `render` and `view` share: opening the terrain (file or URL, with a
-//! draped colour repository) and checking the refinement settings of the command line.
+//! draped colour repository) and the refinement settings of the command line.
 
 use std::path::Path;
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use cbdam_client::access::{ColouredSource, DataSource, LocalSource, RemoteSource};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::refine::RefineConfig;
@@ -37,23 +37,15 @@ pub fn terrain_source(repo: &str, colour: Option<&str>) -> Result<(Box<dyn DataS
     Ok((Box::new(paired), remote || colour_remote))
 }
 
-/// The refinement settings of the command line, checked.
-pub fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> Result<RefineConfig> {
-    if !(pixel_error.is_finite() && pixel_error > 0.0) {
-        bail!("--pixel-error must be a positive number of pixels");
-    }
-    if !(exaggeration.is_finite() && exaggeration > 0.0) {
-        bail!("--exaggeration must be a positive number, not {exaggeration}");
-    }
-    if !(budget_ms.is_finite() && budget_ms >= 0.0) {
-        bail!("--budget-ms must be 0 (unlimited) or positive");
-    }
-    Ok(RefineConfig {
+/// The refinement settings of the command line, as its value parsers checked them: a positive
+/// `pixel_error` and `exaggeration`, a budget of 0 (unlimited) or more.
+pub fn refine_config(pixel_error: f64, budget_ms: f64, exaggeration: f64) -> RefineConfig {
+    RefineConfig {
         pixel_error,
         budget: (budget_ms > 0.0).then(|| Duration::from_secs_f64(budget_ms / 1e3)),
         exaggeration,
         ..RefineConfig::default()
-    })
+    }
 }
 
 /// A refinement budget in words: "2 ms", or "unlimited" for 0.

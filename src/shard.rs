@@ -10,9 +10,12 @@ use std::time::Instant;
 use anyhow::Result;
 use clap::{Args, Subcommand};
 
-use crate::BuildArgs;
+use crate::build::BuildArgs;
 
-/// The steps of a sharded build.
+/// A build split into steps that run as separate processes, on other machines (Dask, a
+/// Kubernetes Indexed Job, a Slurm array), merged into the repository `cbdam build` writes
+/// with the same arguments, byte for byte: plan, apex, run each shard, merge
+/// (docs/SHARDING.md).
 #[derive(Subcommand, Debug)]
 pub enum ShardCommand {
     /// Read and quantize the inputs once (as `cbdam build` would, same arguments), choose the

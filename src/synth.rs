@@ -7,13 +7,53 @@
 //! are metres, roughly −500 … 4 500.
 
 use std::io::{BufWriter, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::samples::{Dem, SampleType};
+use clap::{Args, ValueEnum};
 
-use crate::{SynthArgs, TiffArg};
+/// Write a synthetic fractal terrain (deterministic diamond-square) as raw little-endian
+/// float32, for benchmarks.
+#[derive(Args, Debug)]
+pub struct SynthArgs {
+    /// Side of the square grid in samples.
+    #[arg(long)]
+    size: usize,
+    /// Output raw float32 file.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Seed of the pseudo-random displacements.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Write a float32 BigTIFF (strips of 16 rows) instead of raw float32.
+    #[arg(long, value_enum)]
+    tiff: Option<TiffArg>,
+    /// With --tiff: heights rounded to whole metres as an int16 GeoTIFF (strips of about 1 MB),
+    /// georeferenced at 30 m in EPSG:32632.
+    #[arg(long, requires = "tiff")]
+    int16: bool,
+    /// With --int16: OUTPUT is a new directory of N × N tiles of the grid sharing their edge
+    /// rows and columns (as SRTM's do), `rRRRcCCC.tif`; --size must be N·t + 1.
+    #[arg(long, value_name = "N", requires = "int16")]
+    tiles: Option<usize>,
+    /// With --tiles: every tile is the same (t+1)² terrain, mirrored across each tile edge (so
+    /// neighbours agree on their shared rows and columns), generated in the memory of one tile
+    /// instead of the whole grid's: for mosaics larger than memory (the 4.3 G-sample benchmark
+    /// of scripts/bench-tiles.sh). The grid is then periodic, not one terrain.
+    #[arg(long, requires = "tiles")]
+    mirrored: bool,
+}
+
+/// Compression of `cbdam synth --tiff`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum TiffArg {
+    /// Uncompressed.
+    Plain,
+    /// Deflate (fast level).
+    Deflate,
+}
 
 /// A uniform value in `[-1, 1)` from a position and a seed (splitmix64 finaliser).
 fn noise(x: usize, y: usize, seed: u64) -> f32 {

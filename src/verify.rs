@@ -1,6 +1,8 @@
 //! `cbdam verify`: every checksum, every level, every sample. The comparisons are
 //! [`cbdam_builder::verify`]'s; this prints them.
 
+use std::path::PathBuf;
+
 use anyhow::{Context, Result, bail};
 
 use cbdam_builder::assign::AssignedGeoRef;
@@ -8,10 +10,32 @@ use cbdam_builder::plan::default_memory_limit;
 use cbdam_builder::planet::compare_planet;
 use cbdam_builder::tiles::{Tile, expand_inputs};
 use cbdam_builder::verify::{compare_colour, compare_dem, compare_tiles_with, one_file_in_blocks};
-use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
+use cbdam_codec::hierarchy::{BlockPlan, RepoKind, VerifyReport};
 use cbdam_codec::repository::Repository;
+use clap::Args;
 
-use crate::VerifyArgs;
+use crate::flags;
+
+/// Check every checksum, decode everything and compare with the input DEM.
+#[derive(Args, Debug)]
+pub struct VerifyArgs {
+    /// Repository file.
+    repo: PathBuf,
+    /// The input DEM(s), in the order given to `build`: files, directories, globs, @LIST files
+    /// or GDAL VRTs of tiles, as `build` takes them.
+    #[arg(long, required = true, num_args = 1..)]
+    against: Vec<PathBuf>,
+    /// Memory to stay within (e.g. 2G, 512M; default half of RAM): a hierarchy from several
+    /// inputs, or from one too large to decode whole (26 bytes a sample), is decoded block by
+    /// block, the inputs' lattice kept in temporary files above it.
+    #[arg(long, value_name = "SIZE")]
+    memory_limit: Option<flags::ByteSize>,
+    /// Decode blocks of this plan (testing).
+    #[arg(long, value_name = "CUT,SIDE", hide = true, value_parser = crate::build::parse_block_plan)]
+    block_plan: Option<cbdam_codec::hierarchy::BlockPlan>,
+    #[command(flatten)]
+    georef: flags::GeorefArgs,
+}
 
 /// A colour repository against its image: every level of Y, Co, Cg within `k`, and every
 /// decoded R, G, B within the tolerance (`--max-error`, levels).
@@ -54,6 +78,44 @@ fn verify_colour_repo(repo: &Repository, args: &VerifyArgs) -> Result<()> {
     Ok(())
 }
 
+/// Several inputs, or one too large to decode whole: compared with the build's lattice, rebuilt
+/// from them, and the hierarchy decoded block by block.
+fn verify_tiles(
+    repo: &Repository,
+    tiles: &[Tile],
+    limit: u64,
+    block_plan: Option<BlockPlan>,
+) -> Result<()> {
+    let c = compare_tiles_with(repo, tiles, limit, block_plan)?;
+    if let Some(plan) = c.blocks {
+        let layout = repo.head().params().layout();
+        println!(
+            "decoded in {} block(s) of {} lattice points square, levels {} and finer \
+             (the coarser ones over the whole domain)",
+            plan.blocks(layout).len(),
+            plan.block_side,
+            plan.cut_level
+        );
+    }
+    print_levels(&c.levels, repo.head().plan().unit);
+    for input in &c.inputs {
+        println!(
+            "{}: {} winning samples (stride {}), max error {:.6} m",
+            input.path.display(),
+            input.winning,
+            input.stride,
+            input.max_error
+        );
+    }
+    println!(
+        "nodata mask: {} lattice points with data reached, {} mismatches",
+        c.reached_valid, c.mask_mismatch_count
+    );
+    c.check()?;
+    println!("OK");
+    Ok(())
+}
+
 pub fn run(args: &VerifyArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
@@ -83,38 +145,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         {
             path
         }
-        several => {
-            // Several inputs, or one too large to decode whole: the build's lattice, rebuilt
-            // from them, and the hierarchy decoded block by block.
-            let c = compare_tiles_with(&repo, several, limit, args.block_plan)?;
-            if let Some(plan) = c.blocks {
-                let layout = repo.head().params().layout();
-                println!(
-                    "decoded in {} block(s) of {} lattice points square, levels {} and finer \
-                     (the coarser ones over the whole domain)",
-                    plan.blocks(layout).len(),
-                    plan.block_side,
-                    plan.cut_level
-                );
-            }
-            print_levels(&c.levels, repo.head().plan().unit);
-            for input in &c.inputs {
-                println!(
-                    "{}: {} winning samples (stride {}), max error {:.6} m",
-                    input.path.display(),
-                    input.winning,
-                    input.stride,
-                    input.max_error
-                );
-            }
-            println!(
-                "nodata mask: {} lattice points with data reached, {} mismatches",
-                c.reached_valid, c.mask_mismatch_count
-            );
-            c.check()?;
-            println!("OK");
-            return Ok(());
-        }
+        several => return verify_tiles(&repo, several, limit, args.block_plan),
     };
     let c = compare_dem(&repo, against)?;
     print_levels(&c.levels, repo.head().plan().unit);

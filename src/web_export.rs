@@ -16,8 +16,33 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use cbdam_codec::repository::Repository;
+use clap::Args;
 
-use crate::WebExportArgs;
+/// Write the browser viewer as static files into DIR, for any static server that honours
+/// Range requests: open DIR/index.html?repo=URL of a `.cbdam` file (or, with --repo, just
+/// index.html; --colour adds a colour repository draped over it, as `?colour=URL` does).
+///
+/// The viewer's files come from the bundle scripts/web-build.sh writes (target/web-bundle):
+/// --bundle DIR, else $CBDAM_WEB_BUNDLE, else target/web-bundle in the working directory,
+/// else web-bundle beside or above the cbdam binary.
+#[derive(Args, Debug)]
+pub struct WebExportArgs {
+    /// Folder to write (created if needed; files of the same names are replaced).
+    #[arg(value_name = "DIR")]
+    dir: PathBuf,
+    /// The repository the page opens without `?repo=`: a .cbdam file (copied into DIR) or an
+    /// http(s) URL of one (its server must honour Range requests and allow the page's origin).
+    #[arg(long, value_name = "FILE_OR_URL")]
+    repo: Option<String>,
+    /// A colour repository the page drapes over --repo without `?colour=` (built by `cbdam
+    /// build IMAGE --colour --like REPO`): a .cbdam file (copied into DIR; checked to pair with
+    /// --repo) or an http(s) URL.
+    #[arg(long, value_name = "FILE_OR_URL", requires = "repo")]
+    colour: Option<String>,
+    /// The viewer's bundle (default: found as the command's help says).
+    #[arg(long, value_name = "DIR")]
+    bundle: Option<PathBuf>,
+}
 
 /// The slots in the bundle's index.html (client/web/www/index.html) that name the repository
 /// opened without `?repo=` and the colour repository draped without `?colour=`.

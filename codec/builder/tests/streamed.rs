@@ -54,7 +54,9 @@ fn streamed_geotiff_builds_the_same_repository_as_the_whole_file() {
                 streamed.nodata,
             ),
         ] {
-            let enc = cbdam_codec::hierarchy::Encoder::new(grid, plan.quantizer, &opts).encode().unwrap();
+            let enc = cbdam_codec::hierarchy::Encoder::new(grid, plan.quantizer, &opts)
+                .encode()
+                .unwrap();
             let out = dir.path().join("r.cbdam");
             write_repository(&out, &enc, plan, georef, nodata).unwrap();
             bytes.push(std::fs::read(&out).unwrap());

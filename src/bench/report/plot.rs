@@ -123,6 +123,25 @@ pub fn dataset(path: &Path, title: &str, series: &[Series]) -> Result<()> {
     Ok(())
 }
 
+/// What a rendering-cost panel shows of a point: its value and, where it has one, a second
+/// (dashed) value.
+type Pick = fn(&super::render_cost::CostPoint) -> (f64, Option<f64>);
+
+/// The top of a rendering-cost panel's linear axis: 15 % above the largest finite value `pick`
+/// gives.
+fn y_top(points: &[super::render_cost::CostPoint], pick: Pick) -> f64 {
+    points
+        .iter()
+        .flat_map(|p| {
+            let (a, b) = pick(p);
+            [Some(a), b].into_iter().flatten()
+        })
+        .filter(|v| v.is_finite())
+        .fold(0f64, f64::max)
+        .max(1e-9)
+        * 1.15
+}
+
 /// The rendering-cost plot: triangles per frame, CPU ms per frame (median, dashed p99) and KB
 /// read during the flight against the pixel-error target, one series per flight. Both axes
 /// logarithmic: targets span 0.5…8 px and costs fall roughly with their square.
@@ -141,7 +160,6 @@ pub fn render_cost(
     let mut flights: Vec<&str> = points.iter().map(|p| p.flight.as_str()).collect();
     flights.dedup();
     let (x_lo, x_hi) = span(points.iter().map(|p| p.pixel_error));
-    type Pick = fn(&super::render_cost::CostPoint) -> (f64, Option<f64>);
     let what: [(&str, Pick); 3] = [
         ("triangles per frame (median)", |p| {
             (p.triangles_median as f64, None)
@@ -156,16 +174,7 @@ pub fn render_cost(
     for (k, (panel, (label, pick))) in panels.iter().zip(what).enumerate() {
         // Linear from zero: a factor of 2–4 over the range, where a log axis would show no
         // labelled tick at all.
-        let y_hi = points
-            .iter()
-            .flat_map(|p| {
-                let (a, b) = pick(p);
-                [Some(a), b].into_iter().flatten()
-            })
-            .filter(|v| v.is_finite())
-            .fold(0f64, f64::max)
-            .max(1e-9)
-            * 1.15;
+        let y_hi = y_top(points, pick);
         let mut chart = ChartBuilder::on(panel)
             .margin(12)
             .x_label_area_size(40)

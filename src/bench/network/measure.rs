@@ -9,13 +9,13 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, anyhow};
 use axum::http::StatusCode;
 use cbdam_client::access::{DataSource, LocalSource, Received as Arrival, RemoteSource};
-use cbdam_client::fetch::FetchOptions;
+use cbdam_client::fetch::{FetchOptions, FetchStats};
 use cbdam_client::flight::Flight;
 use cbdam_client::refine::{FrameStats, RefineConfig, Refiner};
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::repository::index::IndexEntry;
 use cbdam_link::{Link, Proxy};
-use cbdam_server::metrics::Endpoint;
+use cbdam_server::metrics::{Endpoint, Metrics};
 use cbdam_server::{AppState, Config, RepoSpec};
 
 use crate::replay::{ReplayPacing, fly_observed};
@@ -424,86 +424,57 @@ async fn start_servers(repo: &Path, link: Link) -> Result<Servers> {
     })
 }
 
-/// A run over the emulated `link` against `server`. The server and proxy are fresh for each
-/// run, so their counters are the run's own.
-#[allow(clippy::too_many_arguments)]
-pub fn remote(
-    rt: &tokio::runtime::Runtime,
-    repo: &Path,
-    profile: &str,
-    link: Link,
-    server: ServerKind,
+/// The client's side of [`remote`]: `flight` replayed against `url`, then the requests the last
+/// frames left in flight drained; the measurement and the fetcher's counters.
+fn fly_remote(
+    url: &str,
+    (route, link): (Route, Link),
     flight: &Flight,
     flight_name: &str,
     settings: &RunSettings,
     csv: &Path,
-) -> Result<Measured> {
-    let servers = rt.block_on(start_servers(repo, link))?;
-    let base = format!("http://{}/v1/repos/{REPO_NAME}", servers.proxy.local_addr());
-    let url = match server {
-        ServerKind::Serve => base,
-        ServerKind::Static => format!("{base}/file"),
-    };
-    let outcome = (|| {
-        let mut source = RemoteSource::connect(&url, FetchOptions::default())
-            .with_context(|| format!("connecting to {url}"))?;
-        source.log_received();
-        let mut refiner =
-            Refiner::new(source, settings.config.clone()).context("starting the refiner")?;
-        refiner.track_prefetch_requests();
-        let route = Route::Remote {
-            profile: profile.to_string(),
-            link,
-            server,
-        };
-        let (m, _) = fly_and_collect(flight, flight_name, &mut refiner, settings, csv, route)?;
-        // Let the requests the last frames left in flight (prefetches) finish, so that the
-        // client's count and the server's describe the same requests; the fetcher starts no
-        // more once what was wanted has arrived. Their bytes count as fetched: a viewer would
-        // have fetched them too.
-        let drain = Instant::now() + Duration::from_secs(5);
-        while refiner.source().fetch_stats().in_flight > 0 && Instant::now() < drain {
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        // What the drain brought in, so that the log of received records holds it too.
-        refiner.source_mut().pump();
-        let f = refiner.source().fetch_stats();
-        for e in refiner.errors() {
-            eprintln!("  warning: {e}");
-        }
-        let prefetched: HashSet<DiamondId> = refiner.last_requested_as_prefetch().collect();
-        let received = received(
-            refiner.source().head().entries(),
-            refiner.source().received(),
-            &prefetched,
-            &m,
-            link,
-        );
-        // The refiner (and its fetcher) goes before the servers stop.
-        Ok::<_, anyhow::Error>((
-            Measured {
-                received: Some(received),
-                ..m
-            },
-            f,
-        ))
-    })();
-    let Servers {
-        state,
-        proxy,
-        stop,
-        server: task,
-    } = servers;
-    let link_counters = rt.block_on(proxy.shutdown());
-    let _ = stop.send(());
-    rt.block_on(async { tokio::time::timeout(Duration::from_secs(10), task).await })
-        .map_err(|_| anyhow!("the server did not stop within 10 s"))?
-        .context("the server task failed")??;
-    let (mut m, f) = outcome?;
-    m.bytes_fetched = f.bytes;
-    let metrics = state.metrics();
-    let server_batches = metrics.requests(Endpoint::Batch, StatusCode::OK);
-    let server_ranges = metrics.requests(Endpoint::File, StatusCode::PARTIAL_CONTENT);
+) -> Result<(Measured, FetchStats)> {
+    let mut source = RemoteSource::connect(url, FetchOptions::default())
+        .with_context(|| format!("connecting to {url}"))?;
+    source.log_received();
+    let mut refiner =
+        Refiner::new(source, settings.config.clone()).context("starting the refiner")?;
+    refiner.track_prefetch_requests();
+    let (m, _) = fly_and_collect(flight, flight_name, &mut refiner, settings, csv, route)?;
+    // Let the requests the last frames left in flight (prefetches) finish, so that the
+    // client's count and the server's describe the same requests; the fetcher starts no
+    // more once what was wanted has arrived. Their bytes count as fetched: a viewer would
+    // have fetched them too.
+    let drain = Instant::now() + Duration::from_secs(5);
+    while refiner.source().fetch_stats().in_flight > 0 && Instant::now() < drain {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // What the drain brought in, so that the log of received records holds it too.
+    refiner.source_mut().pump();
+    let f = refiner.source().fetch_stats();
+    for e in refiner.errors() {
+        eprintln!("  warning: {e}");
+    }
+    let prefetched: HashSet<DiamondId> = refiner.last_requested_as_prefetch().collect();
+    let received = received(
+        refiner.source().head().entries(),
+        refiner.source().received(),
+        &prefetched,
+        &m,
+        link,
+    );
+    // The refiner (and its fetcher) goes before the servers stop.
+    Ok((
+        Measured {
+            received: Some(received),
+            ..m
+        },
+        f,
+    ))
+}
+
+/// Every request the server answered, whatever the endpoint and status.
+fn answered_requests(metrics: &Metrics) -> u64 {
     // Every status the server counts on its own, and one it does not (418): those share the
     // `other` counter, which any such status reads.
     let all_statuses = [
@@ -521,7 +492,7 @@ pub fn remote(
         StatusCode::SERVICE_UNAVAILABLE,
         StatusCode::IM_A_TEAPOT,
     ];
-    let answered: u64 = [
+    [
         Endpoint::Repos,
         Endpoint::Meta,
         Endpoint::Diamond,
@@ -531,7 +502,52 @@ pub fn remote(
     ]
     .iter()
     .flat_map(|&e| all_statuses.iter().map(move |&s| metrics.requests(e, s)))
-    .sum();
+    .sum()
+}
+
+/// A run over the emulated `link` against `server`. The server and proxy are fresh for each
+/// run, so their counters are the run's own.
+#[allow(clippy::too_many_arguments)]
+pub fn remote(
+    rt: &tokio::runtime::Runtime,
+    repo: &Path,
+    profile: &str,
+    link: Link,
+    server: ServerKind,
+    flight: &Flight,
+    flight_name: &str,
+    settings: &RunSettings,
+    csv: &Path,
+) -> Result<Measured> {
+    let servers = rt.block_on(start_servers(repo, link))?;
+    let route = Route::Remote {
+        profile: profile.to_string(),
+        link,
+        server,
+    };
+    let base = format!("http://{}/v1/repos/{REPO_NAME}", servers.proxy.local_addr());
+    let url = match server {
+        ServerKind::Serve => base,
+        ServerKind::Static => format!("{base}/file"),
+    };
+    let outcome = fly_remote(&url, (route, link), flight, flight_name, settings, csv);
+    let Servers {
+        state,
+        proxy,
+        stop,
+        server: task,
+    } = servers;
+    let link_counters = rt.block_on(proxy.shutdown());
+    let _ = stop.send(());
+    rt.block_on(async { tokio::time::timeout(Duration::from_secs(10), task).await })
+        .map_err(|_| anyhow!("the server did not stop within 10 s"))?
+        .context("the server task failed")??;
+    let (mut m, f) = outcome?;
+    m.bytes_fetched = f.bytes;
+    let metrics = state.metrics();
+    let server_batches = metrics.requests(Endpoint::Batch, StatusCode::OK);
+    let server_ranges = metrics.requests(Endpoint::File, StatusCode::PARTIAL_CONTENT);
+    let answered = answered_requests(metrics);
     m.wire = Some(Wire {
         client_requests: f.requests,
         client_cancelled: f.cancelled,

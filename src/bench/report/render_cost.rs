@@ -49,7 +49,7 @@ pub struct CostPoint {
 
 /// The flights to fly: every `*.json` in `dir`, sorted by name.
 pub fn flights_in(dir: &Path) -> Result<Vec<PathBuf>> {
-    crate::bench_codec::files_with(dir, &["json"])
+    crate::bench::codec::files_with(dir, &["json"])
         .with_context(|| format!("reading the flights folder {}", dir.display()))
 }
 

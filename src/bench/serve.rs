@@ -19,11 +19,41 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail, ensure};
 use cbdam_codec::repository::Repository;
+use cbdam_codec::repository::index::IndexEntry;
 use cbdam_server::{AppState, Config, RepoSpec};
+use clap::Args;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
-use crate::BenchServeArgs;
+/// Load test of the HTTP server: concurrent clients fetching random stored diamonds, one per
+/// request and in batches, over loopback; records/s, MB/s and latency as a Markdown table.
+#[derive(Args, Debug)]
+pub struct BenchServeArgs {
+    /// Repository to serve. Default: built from data/srtm3_demcompare.tif at ε = 1 m into a
+    /// temporary directory.
+    repo: Option<PathBuf>,
+    /// Concurrent clients, each on its own keep-alive HTTP/1.1 connection.
+    #[arg(long, default_value_t = 64)]
+    clients: usize,
+    /// Seconds per measured run.
+    #[arg(long, default_value_t = 5.0, value_parser = crate::flags::positive_finite)]
+    seconds: f64,
+    /// Most requests per run (the other bound besides --seconds).
+    #[arg(long, default_value_t = 5_000_000)]
+    max_requests: u64,
+    /// Ids per batch request (0: skip the batched runs).
+    #[arg(long, default_value_t = 64)]
+    batch: usize,
+    /// Runs per mode; the median run (by records/s) is reported.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Server worker threads.
+    #[arg(long, default_value_t = 1)]
+    server_threads: usize,
+    /// Load-generator worker threads (its own runtime, so the two do not share a scheduler).
+    #[arg(long, default_value_t = 1)]
+    client_threads: usize,
+}
 
 const NAME: &str = "bench";
 
@@ -115,13 +145,120 @@ fn default_repo(dir: &Path) -> Result<PathBuf> {
     Ok(output)
 }
 
+/// One GET of each stored record.
+fn single_jobs(entries: &[IndexEntry]) -> Vec<Job> {
+    entries
+        .iter()
+        .map(|e| Job {
+            request: get_request(&format!("/v1/repos/{NAME}/diamonds/{}", e.id)),
+            records: 1,
+            bytes: e.length as usize,
+        })
+        .collect()
+}
+
+/// 256 batch POSTs of `batch` records each, drawn at random (a fixed seed); none for 0.
+fn batch_jobs(entries: &[IndexEntry], batch: usize) -> Vec<Job> {
+    if batch == 0 {
+        return Vec::new();
+    }
+    let mut rng = Rng(0x5EED);
+    (0..256)
+        .map(|_| {
+            let picks: Vec<usize> = (0..batch).map(|_| rng.below(entries.len())).collect();
+            let ids: Vec<String> = picks.iter().map(|&i| entries[i].id.to_string()).collect();
+            let bytes = 8 + picks
+                .iter()
+                .map(|&i| 5 + entries[i].length as usize)
+                .sum::<usize>();
+            Job {
+                request: post_request(
+                    &format!("/v1/repos/{NAME}/diamonds"),
+                    &serde_json::json!({ "ids": ids }).to_string(),
+                ),
+                records: batch as u64,
+                bytes,
+            }
+        })
+        .collect()
+}
+
+/// The table row of one mode: its median run by records/s, after every run's rate.
+fn print_median_run(mode: &str, per: usize, runs: &mut [RunResult]) {
+    runs.sort_by(|a, b| a.records_per_s().total_cmp(&b.records_per_s()));
+    let all: Vec<String> = runs
+        .iter()
+        .map(|r| format!("{:.0}", r.records_per_s()))
+        .collect();
+    let m = &runs[runs.len() / 2];
+    println!(
+        "| {mode} (median of {}: {} records/s) | {per} | {} | {} | {:.0} | {:.1} | {:.3} | {:.3} \
+         | {:.1} | {:.1} | {:.2} |",
+        runs.len(),
+        all.join(" / "),
+        m.requests,
+        m.records,
+        m.records_per_s(),
+        m.bytes as f64 / 1e6 / m.elapsed.as_secs_f64(),
+        f64::from(m.p50_us) / 1000.0,
+        f64::from(m.p99_us) / 1000.0,
+        m.server_cpu * 1e6 / m.requests as f64,
+        m.client_cpu * 1e6 / m.requests as f64,
+        (m.server_cpu + m.client_cpu) / m.elapsed.as_secs_f64(),
+    );
+}
+
+/// Every mode's runs against the server at `addr` (single GETs, then batch POSTs unless
+/// --batch 0), a table row each.
+fn measure_modes(
+    args: &BenchServeArgs,
+    client_rt: &tokio::runtime::Runtime,
+    addr: SocketAddr,
+    singles: Vec<Job>,
+    batches: Vec<Job>,
+) -> Result<()> {
+    let singles = Arc::new(singles);
+    let batches = Arc::new(batches);
+    let modes: Vec<(&str, usize, &Arc<Vec<Job>>)> = if args.batch == 0 {
+        vec![("single GET", 1, &singles)]
+    } else {
+        vec![
+            ("single GET", 1, &singles),
+            ("batch POST", args.batch, &batches),
+        ]
+    };
+    for (mode, per, jobs) in modes {
+        let mut runs = Vec::new();
+        for run in 0..args.runs {
+            let r = client_rt.block_on(load_run(addr, jobs, args, run as u64))?;
+            runs.push(r);
+        }
+        print_median_run(mode, per, &mut runs);
+    }
+    Ok(())
+}
+
+/// A tokio runtime of `threads` workers (at least one) named `name`.
+fn runtime(threads: usize, name: &str) -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(threads.max(1))
+        .thread_name(name)
+        .enable_all()
+        .build()?)
+}
+
+/// The 1, 5 and 15 minute load averages (empty where /proc/loadavg is not).
+fn load_average() -> String {
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    load.split_whitespace()
+        .take(3)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 pub fn run(args: &BenchServeArgs) -> Result<()> {
     ensure!(args.clients > 0, "--clients must be at least 1");
     ensure!(args.runs > 0, "--runs must be at least 1");
-    ensure!(
-        args.seconds.is_finite() && args.seconds > 0.0,
-        "--seconds must be positive"
-    );
     let tmp = tempfile::tempdir()?;
     let path = match &args.repo {
         Some(p) => p.clone(),
@@ -144,52 +281,15 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
         .with_context(|| format!("checking {}", path.display()))?;
     let entries = repo.head().entries();
     ensure!(!entries.is_empty(), "{} stores no records", path.display());
-    let singles: Vec<Job> = entries
-        .iter()
-        .map(|e| Job {
-            request: get_request(&format!("/v1/repos/{NAME}/diamonds/{}", e.id)),
-            records: 1,
-            bytes: e.length as usize,
-        })
-        .collect();
-    let mut rng = Rng(0x5EED);
-    let batches: Vec<Job> = if args.batch == 0 {
-        Vec::new()
-    } else {
-        (0..256)
-            .map(|_| {
-                let picks: Vec<usize> = (0..args.batch).map(|_| rng.below(entries.len())).collect();
-                let ids: Vec<String> = picks.iter().map(|&i| entries[i].id.to_string()).collect();
-                let bytes = 8 + picks
-                    .iter()
-                    .map(|&i| 5 + entries[i].length as usize)
-                    .sum::<usize>();
-                Job {
-                    request: post_request(
-                        &format!("/v1/repos/{NAME}/diamonds"),
-                        &serde_json::json!({ "ids": ids }).to_string(),
-                    ),
-                    records: args.batch as u64,
-                    bytes,
-                }
-            })
-            .collect()
-    };
+    let singles = single_jobs(entries);
+    let batches = batch_jobs(entries, args.batch);
     let mean_record = repo
         .head()
         .section_len(cbdam_codec::repository::Section::Records) as f64
         / entries.len() as f64;
 
-    let server_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(args.server_threads.max(1))
-        .thread_name("server")
-        .enable_all()
-        .build()?;
-    let client_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(args.client_threads.max(1))
-        .thread_name("client")
-        .enable_all()
-        .build()?;
+    let server_rt = runtime(args.server_threads, "server")?;
+    let client_rt = runtime(args.client_threads, "client")?;
     let listener = server_rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;
     let addr = listener.local_addr()?;
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
@@ -197,7 +297,6 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
         let _ = stopped.await;
     }));
 
-    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
     println!(
         "repository {}: {} records, mean {:.0} B; {} clients, {} s × {} runs per mode, \
          server threads {}, client threads {}; load average before: {}",
@@ -209,10 +308,7 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
         args.runs,
         args.server_threads,
         args.client_threads,
-        load.split_whitespace()
-            .take(3)
-            .collect::<Vec<_>>()
-            .join(" ")
+        load_average()
     );
     println!();
     println!(
@@ -220,52 +316,11 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
          server CPU µs/request | client CPU µs/request | CPU used (cores) |"
     );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let singles = Arc::new(singles);
-    let batches = Arc::new(batches);
-    let modes: Vec<(&str, usize, &Arc<Vec<Job>>)> = if args.batch == 0 {
-        vec![("single GET", 1, &singles)]
-    } else {
-        vec![
-            ("single GET", 1, &singles),
-            ("batch POST", args.batch, &batches),
-        ]
-    };
-    for (mode, per, jobs) in modes {
-        let mut runs = Vec::new();
-        for run in 0..args.runs {
-            let r = client_rt.block_on(load_run(addr, jobs, args, run as u64))?;
-            runs.push(r);
-        }
-        runs.sort_by(|a, b| a.records_per_s().total_cmp(&b.records_per_s()));
-        let all: Vec<String> = runs
-            .iter()
-            .map(|r| format!("{:.0}", r.records_per_s()))
-            .collect();
-        let m = &runs[runs.len() / 2];
-        println!(
-            "| {mode} (median of {}: {} records/s) | {per} | {} | {} | {:.0} | {:.1} | {:.3} | {:.3} \
-             | {:.1} | {:.1} | {:.2} |",
-            runs.len(),
-            all.join(" / "),
-            m.requests,
-            m.records,
-            m.records_per_s(),
-            m.bytes as f64 / 1e6 / m.elapsed.as_secs_f64(),
-            f64::from(m.p50_us) / 1000.0,
-            f64::from(m.p99_us) / 1000.0,
-            m.server_cpu * 1e6 / m.requests as f64,
-            m.client_cpu * 1e6 / m.requests as f64,
-            (m.server_cpu + m.client_cpu) / m.elapsed.as_secs_f64(),
-        );
-    }
-    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    measure_modes(args, &client_rt, addr, singles, batches)?;
+    let load = load_average();
     println!();
     println!(
-        "load average after: {}; MB/s counts response bodies (records and batch framing).",
-        load.split_whitespace()
-            .take(3)
-            .collect::<Vec<_>>()
-            .join(" ")
+        "load average after: {load}; MB/s counts response bodies (records and batch framing)."
     );
     let _ = stop.send(());
     server_rt

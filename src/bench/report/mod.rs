@@ -2,7 +2,7 @@
 //! synthetic terrain, optionally beside peer codecs measured in the same run, as `report.md`,
 //! `results.json` and SVG plots.
 //!
-//! Our figures come from [`crate::bench_codec::measure`], which verifies every point (every
+//! Our figures come from [`super::codec::measure`], which verifies every point (every
 //! level, every valid sample) and fails the run if any exceeds ε.
 
 pub(crate) mod machine;
@@ -12,16 +12,70 @@ mod render_cost;
 
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
+use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::hierarchy::EncodeOptions;
 use cbdam_codec::samples::{Dem, detect_quantum};
+use clap::Args;
 
-use crate::BenchReportArgs;
-use crate::bench_codec::{Measurement, bundled_inputs, measure};
+use super::codec::{Measurement, bundled_inputs, measure};
 use machine::{Machine, load_average};
 use peers::{PeerRow, Peers};
+
+/// Rate–distortion and time-against-error report: every bundled DEM and a synthetic fractal
+/// terrain at a ladder of tolerances, optionally beside peer codecs (SZ3, ZFP, LERC,
+/// JPEG-LS, zstd) measured in the same run; writes report.md and SVG plots.
+#[derive(Args, Debug)]
+pub struct BenchReportArgs {
+    /// DEM files. Default: every .tif and .png in data/.
+    inputs: Vec<PathBuf>,
+    /// Output directory (created): report.md, results.json, plots/*.svg, replay/ (the
+    /// rendering-cost repository and per-frame CSVs).
+    #[arg(long, default_value = "bench-report")]
+    out: PathBuf,
+    /// Small and fast: one run per point and a 257² synthetic terrain unless given explicitly.
+    #[arg(long)]
+    quick: bool,
+    /// Also measure the peer codecs (bench/peers.py in a Python venv; skipped with a message
+    /// when Python or pip is unavailable).
+    #[arg(long)]
+    peers: bool,
+    /// Tolerances ε, metres, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_values_t = vec![0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0],
+        value_parser = crate::flags::positive_finite
+    )]
+    max_error: Vec<f64>,
+    /// Timed repetitions per point; medians are reported (default 3, 1 with --quick).
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Side of the synthetic fractal terrain (2^k + 1; 0 for none; default 4097, 257 with
+    /// --quick).
+    #[arg(long)]
+    synthetic: Option<usize>,
+    /// Worker threads for building (default 1, as the peers are single-threaded; the decode is
+    /// single-threaded by construction).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// Python virtual environment for the peers (default ~/.cache/cbdam-bench-venv).
+    #[arg(long)]
+    venv: Option<PathBuf>,
+    /// Rendering cost: the flights (every *.json in this folder; default data/flights).
+    #[arg(long)]
+    flights: Option<PathBuf>,
+    /// Rendering cost: pixel-error targets, comma-separated (default 0.5,1,2,4,8; 1,4 with
+    /// --quick).
+    #[arg(long, value_delimiter = ',', value_parser = crate::flags::positive_finite)]
+    pixel_errors: Option<Vec<f64>>,
+    /// Rendering cost: the dataset to fly over, by its name in the report (default the SRTM
+    /// sample when it is an input, else the first input).
+    #[arg(long)]
+    render_dem: Option<String>,
+}
 
 /// Seed of the synthetic terrain: fixed, so every machine measures the same heights.
 const SYNTH_SEED: u64 = 2006;
@@ -49,13 +103,85 @@ impl PeerOutcome {
     }
 }
 
+/// The inputs read whole, by file name, and the synthetic terrain of side `synth_side` (none
+/// for 0).
+fn read_dems(inputs: &[PathBuf], synth_side: usize) -> Result<Vec<(String, Dem)>> {
+    let mut dems: Vec<(String, Dem)> = Vec::new();
+    for path in inputs {
+        let dem = read_dem(path, &ReadOptions::default())
+            .with_context(|| format!("reading {}", path.display()))?;
+        let name = path
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        dems.push((name, dem));
+    }
+    if synth_side != 0 {
+        dems.push((
+            format!("synthetic fractal {synth_side}²"),
+            crate::synth::dem(synth_side, SYNTH_SEED),
+        ));
+    }
+    Ok(dems)
+}
+
+/// Our codec on `dem` at every tolerance of `eps`, each point verified, in ε order.
+fn measure_ours(
+    name: &str,
+    dem: &Dem,
+    eps: &[f64],
+    runs: usize,
+    pool: &rayon::ThreadPool,
+) -> Result<Vec<(f64, Measurement)>> {
+    let opts = EncodeOptions::default();
+    let mut ours = Vec::new();
+    for &e in eps {
+        let m = measure(dem, e, &opts, runs, pool)
+            .with_context(|| format!("{name}: the codec failed its own bound"))?;
+        eprintln!(
+            "{name} ε={e}: {:.3} bits/sample (file), max err {:.4} m, build {:.2} MS/s, \
+             decode {:.2} MS/s",
+            m.file_bps(),
+            m.max_err,
+            m.msps(m.build),
+            m.msps(m.decode)
+        );
+        ours.push((e, m));
+    }
+    Ok(ours)
+}
+
+/// The peer codecs on every dataset (`--peers`), or why they were skipped.
+fn measure_peers(
+    args: &BenchReportArgs,
+    datasets: &[Dataset],
+    eps: &[f64],
+    runs: usize,
+) -> PeerOutcome {
+    let list: Vec<(String, &Dem)> = datasets
+        .iter()
+        .map(|d| (file_safe(&d.name), &d.dem))
+        .collect();
+    match peers::measure(
+        &list,
+        eps,
+        runs,
+        &args.out.join("peers"),
+        args.venv.as_deref(),
+    ) {
+        Ok(p) => PeerOutcome::Measured(p),
+        Err(why) => {
+            eprintln!("peers skipped: {why}");
+            PeerOutcome::Skipped(why)
+        }
+    }
+}
+
 pub fn run(args: &BenchReportArgs) -> Result<()> {
     let runs = args.runs.unwrap_or(if args.quick { 1 } else { 3 });
     if runs == 0 {
         bail!("--runs must be at least 1");
-    }
-    if args.max_error.is_empty() || args.max_error.iter().any(|e| !(e.is_finite() && *e > 0.0)) {
-        bail!("--max-error must list positive numbers of metres");
     }
     let mut eps = args.max_error.clone();
     eps.sort_by(f64::total_cmp);
@@ -79,63 +205,16 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.max(1))
         .build()?;
-    let opts = EncodeOptions::default();
-
-    let mut dems: Vec<(String, Dem)> = Vec::new();
-    for path in &inputs {
-        let dem = read_dem(path, &ReadOptions::default())
-            .with_context(|| format!("reading {}", path.display()))?;
-        let name = path
-            .file_name()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .into_owned();
-        dems.push((name, dem));
-    }
-    if synth_side != 0 {
-        dems.push((
-            format!("synthetic fractal {synth_side}²"),
-            crate::synth::dem(synth_side, SYNTH_SEED),
-        ));
-    }
+    let dems = read_dems(&inputs, synth_side)?;
 
     let mut datasets = Vec::new();
     for (name, dem) in dems {
-        let mut ours = Vec::new();
-        for &e in &eps {
-            let m = measure(&dem, e, &opts, runs, &pool)
-                .with_context(|| format!("{name}: the codec failed its own bound"))?;
-            eprintln!(
-                "{name} ε={e}: {:.3} bits/sample (file), max err {:.4} m, build {:.2} MS/s, \
-                 decode {:.2} MS/s",
-                m.file_bps(),
-                m.max_err,
-                m.msps(m.build),
-                m.msps(m.decode)
-            );
-            ours.push((e, m));
-        }
+        let ours = measure_ours(&name, &dem, &eps, runs, &pool)?;
         datasets.push(Dataset { name, dem, ours });
     }
 
     let peers = if args.peers {
-        let list: Vec<(String, &Dem)> = datasets
-            .iter()
-            .map(|d| (file_safe(&d.name), &d.dem))
-            .collect();
-        match peers::measure(
-            &list,
-            &eps,
-            runs,
-            &args.out.join("peers"),
-            args.venv.as_deref(),
-        ) {
-            Ok(p) => PeerOutcome::Measured(p),
-            Err(why) => {
-                eprintln!("peers skipped: {why}");
-                PeerOutcome::Skipped(why)
-            }
-        }
+        measure_peers(args, &datasets, &eps, runs)
     } else {
         PeerOutcome::NotRequested
     };
@@ -208,9 +287,6 @@ fn rendering_cost(args: &BenchReportArgs, datasets: &[Dataset]) -> Result<String
             vec![0.5, 1.0, 2.0, 4.0, 8.0]
         }
     });
-    if targets.is_empty() || targets.iter().any(|p| !(p.is_finite() && *p > 0.0)) {
-        bail!("--pixel-errors must list positive numbers of pixels");
-    }
     targets.sort_by(f64::total_cmp);
     targets.dedup();
     let name = file_safe(&pick.name);
@@ -430,6 +506,26 @@ fn summary(
     Ok(())
 }
 
+/// A table's head: `ours` (the first columns' titles) and `align` (their alignment row), then a
+/// right-aligned column per peer codec.
+fn table_head(
+    md: &mut String,
+    ours: &str,
+    align: &str,
+    codecs: &[impl std::fmt::Display],
+) -> Result<()> {
+    write!(md, "{ours}")?;
+    for c in codecs {
+        write!(md, " {c} |")?;
+    }
+    write!(md, "\n{align}")?;
+    for _ in codecs {
+        write!(md, "---:|")?;
+    }
+    md.push('\n');
+    Ok(())
+}
+
 fn per_dataset(md: &mut String, d: &Dataset, rows: &[&PeerRow], plot: &str) -> Result<()> {
     let cs = codecs(rows);
     writeln!(md, "## {}\n", d.name)?;
@@ -442,18 +538,12 @@ fn per_dataset(md: &mut String, d: &Dataset, rows: &[&PeerRow], plot: &str) -> R
         md,
         "Rate–distortion (bits per sample; peers: bits per sample (verified max error, m)):\n"
     )?;
-    write!(
+    table_head(
         md,
-        "| ε (m) | cbdam file bits/sample | cbdam payload bits/sample | cbdam max err (m) | cbdam RMS (m) |"
+        "| ε (m) | cbdam file bits/sample | cbdam payload bits/sample | cbdam max err (m) | cbdam RMS (m) |",
+        "|---:|---:|---:|---:|---:|",
+        &cs,
     )?;
-    for c in &cs {
-        write!(md, " {c} |")?;
-    }
-    write!(md, "\n|---:|---:|---:|---:|---:|")?;
-    for _ in &cs {
-        write!(md, "---:|")?;
-    }
-    md.push('\n');
     for (e, m) in &d.ours {
         write!(
             md,
@@ -472,15 +562,12 @@ fn per_dataset(md: &mut String, d: &Dataset, rows: &[&PeerRow], plot: &str) -> R
         md,
         "\nTime against error (M samples/s; peers: encode / decode):\n"
     )?;
-    write!(md, "| ε (m) | cbdam build | cbdam encode | cbdam decode |")?;
-    for c in &cs {
-        write!(md, " {c} |")?;
-    }
-    write!(md, "\n|---:|---:|---:|---:|")?;
-    for _ in &cs {
-        write!(md, "---:|")?;
-    }
-    md.push('\n');
+    table_head(
+        md,
+        "| ε (m) | cbdam build | cbdam encode | cbdam decode |",
+        "|---:|---:|---:|---:|",
+        &cs,
+    )?;
     for (e, m) in &d.ours {
         write!(
             md,

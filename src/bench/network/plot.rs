@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{Result, anyhow};
 use plotters::prelude::*;
 
-use crate::bench_report::plot::tick;
+use crate::bench::report::plot::tick;
 
 /// One line: its name and (wall seconds, error px) points.
 pub struct Series {
@@ -51,6 +51,26 @@ fn thin(points: impl Iterator<Item = (f64, f64)>) -> Vec<(f64, f64)> {
     out
 }
 
+/// The top of every panel's error axis: half again above the largest finite error, and at least
+/// ten times the target.
+fn error_top(panels: &[Panel], target_px: f64) -> f64 {
+    panels
+        .iter()
+        .flat_map(|p| p.series.iter().flat_map(|s| s.points.iter().map(|q| q.1)))
+        .filter(|v| v.is_finite())
+        .fold(target_px * 10.0, f64::max)
+        * 1.5
+}
+
+/// The latest wall time of any series of `panel`, and at least one second.
+fn last_second(panel: &Panel) -> f64 {
+    panel
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter().map(|q| q.0))
+        .fold(1.0, f64::max)
+}
+
 /// Draws `panels` in a grid of `columns`, to `path`.
 pub fn screen_error(
     path: &Path,
@@ -69,18 +89,9 @@ pub fn screen_error(
     let root = root
         .titled(title, ("sans-serif", 20))
         .map_err(|e| err(&e))?;
-    let y_hi = panels
-        .iter()
-        .flat_map(|p| p.series.iter().flat_map(|s| s.points.iter().map(|q| q.1)))
-        .filter(|v| v.is_finite())
-        .fold(target_px * 10.0, f64::max)
-        * 1.5;
+    let y_hi = error_top(panels, target_px);
     for (panel, area) in panels.iter().zip(root.split_evenly((rows, columns))) {
-        let x_hi = panel
-            .series
-            .iter()
-            .flat_map(|s| s.points.iter().map(|q| q.0))
-            .fold(1.0, f64::max);
+        let x_hi = last_second(panel);
         let mut chart = ChartBuilder::on(&area)
             .caption(&panel.title, ("sans-serif", 15))
             .margin(10)

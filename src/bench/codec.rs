@@ -14,8 +14,49 @@ use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::serialize;
 use cbdam_codec::samples::Dem;
+use clap::{Args, ValueEnum};
 
-use crate::{BenchCodecArgs, Which};
+use crate::flags;
+
+/// Which value(s) of a two-way option to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Which {
+    /// The first (α = 1 / adaptive coder): the defaults.
+    Default,
+    /// The other (α = ½ / Elias-gamma coder).
+    Other,
+    /// Both.
+    Both,
+}
+
+/// Rate, verified maximum error and speed of the codec on DEM files (default: the bundled
+/// samples), as a Markdown table.
+#[derive(Args, Debug)]
+pub struct BenchCodecArgs {
+    /// DEM files (GeoTIFF, .hgt, ASCII grid, PNG). Default: every .tif in data/.
+    inputs: Vec<PathBuf>,
+    /// Maximum errors to measure, metres, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = vec![0.5, 1.0, 2.0, 5.0])]
+    max_error: Vec<f64>,
+    /// Lifting weight: default α = 1, other α = ½.
+    #[arg(long, value_enum, default_value_t = Which::Default)]
+    alpha: Which,
+    /// Entropy coder: default adaptive-tokens; other the bitwise adaptive and Elias-gamma
+    /// coders; both all three.
+    #[arg(long, value_enum, default_value_t = Which::Both)]
+    coder: Which,
+    #[command(flatten)]
+    diamond_size: flags::DiamondSize,
+    /// Level pairs above the smallest covering hierarchy (coarser roots).
+    #[arg(long, default_value_t = EncodeOptions::default().extra_level_pairs)]
+    extra_levels: u32,
+    /// Timed repetitions; the median is reported.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Worker threads for encoding (the decode is single-threaded by construction).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+}
 
 /// Median of repeated timings (the upper median for an even count).
 pub fn median(mut v: Vec<Duration>) -> Duration {
@@ -202,7 +243,7 @@ pub fn run(args: &BenchCodecArgs) -> Result<()> {
             for &alpha in &alphas {
                 for &coder in &coders {
                     let opts = EncodeOptions {
-                        n: args.diamond_size,
+                        n: args.diamond_size.value,
                         alpha,
                         coder,
                         extra_level_pairs: args.extra_levels,
