@@ -13,7 +13,7 @@ use cbdam_client::refine::{FrameStats, Refiner};
 use cbdam_client::stats::percentile;
 use cbdam_client::world::World;
 use cbdam_codec::repository::Repository;
-use cbdam_render::{CacheConfig, Frame, Gpu, RenderOptions, Renderer, write_png};
+use cbdam_render::{CacheConfig, Colouring, Frame, Gpu, RenderOptions, Renderer, write_png};
 use clap::Args;
 use glam::DVec3;
 
@@ -292,8 +292,12 @@ fn render_with<S: DataSource>(
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();
     let draped = refiner.source().drape().is_some();
-    let mut renderer =
-        Renderer::with_colour(gpu, world, cache_config(args.pool_mib.value), draped)?;
+    let mut renderer = Renderer::with_colour(
+        gpu,
+        world,
+        cache_config(args.pool_mib.value),
+        Colouring::draped_if(draped),
+    )?;
     let frame = renderer.render(&cam, &patches, &options)?;
     write_png(output, &frame)?;
     let s = frame.stats;
@@ -337,8 +341,12 @@ fn fly<S: DataSource>(
     let gpu = Gpu::headless()?;
     let adapter = gpu.describe();
     let draped = refiner.source().drape().is_some();
-    let mut renderer =
-        Renderer::with_colour(gpu, world, cache_config(args.pool_mib.value), draped)?;
+    let mut renderer = Renderer::with_colour(
+        gpu,
+        world,
+        cache_config(args.pool_mib.value),
+        Colouring::draped_if(draped),
+    )?;
     let mut frames = (flight.duration() * args.fps.value).ceil() as u64 + 1;
     if let Some(max) = args.max_frames {
         frames = frames.min(max);

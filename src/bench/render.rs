@@ -8,7 +8,7 @@ use cbdam_client::camera::Camera;
 use cbdam_client::flight::Flight;
 use cbdam_client::stats::percentile;
 use cbdam_client::world::World;
-use cbdam_render::{Gpu, RenderOptions, Renderer};
+use cbdam_render::{Colouring, Gpu, RenderOptions, Renderer};
 use clap::Args;
 
 use crate::flags;
@@ -71,7 +71,12 @@ pub fn run(args: &BenchRenderArgs) -> Result<()> {
             None,
         )];
         if let Some(c) = &colour {
-            let r = Renderer::with_colour(Gpu::headless()?, world, cache_config(None), true)?;
+            let r = Renderer::with_colour(
+                Gpu::headless()?,
+                world,
+                cache_config(None),
+                Colouring::Draped,
+            )?;
             renderers.push((r, Some(c)));
         }
         // Plain and draped rows alternate, so that load changes on a shared machine affect both.

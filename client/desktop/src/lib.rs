@@ -26,7 +26,7 @@ use cbdam_client::stats::percentile;
 
 use cbdam_render::hud::{self, Hud};
 use cbdam_render::present::Presenter;
-use cbdam_render::{CacheConfig, DrawStats, Gpu, RenderOptions, Renderer, write_png};
+use cbdam_render::{CacheConfig, Colouring, DrawStats, Gpu, RenderOptions, Renderer, write_png};
 
 /// Printed at start and in `cbdam view --help`.
 pub const KEY_HELP: &str = "\
@@ -245,7 +245,7 @@ impl<S: DataSource> App<'_, S> {
                 pool_bytes: self.args.pool_mib.map(|m| m << 20),
                 ..CacheConfig::default()
             },
-            self.refiner.source().drape().is_some(),
+            Colouring::draped_if(self.refiner.source().drape().is_some()),
         )?;
         eprintln!("cbdam view: {adapter_name}, surface {format:?}, {present_mode:?}");
         self.window = Some(WindowState {

@@ -430,25 +430,47 @@ pub struct Renderer {
     lines: Option<wgpu::RenderPipeline>,
     cache: SlotCache,
     target: Option<Target>,
-    /// Slots hold colours after the heights.
-    draped: bool,
+    /// How the terrain is coloured; draped: slots hold colours after the heights.
+    colouring: Colouring,
+}
+
+/// How a [`Renderer`] colours the terrain.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Colouring {
+    /// By height (and slope and light): the terrain's own colours.
+    #[default]
+    ByHeight,
+    /// With the colours of a colour repository draped over the terrain (`cbdam build --colour`).
+    Draped,
+}
+
+impl Colouring {
+    /// Draped when `draped`, else by height.
+    pub fn draped_if(draped: bool) -> Self {
+        if draped {
+            Colouring::Draped
+        } else {
+            Colouring::ByHeight
+        }
+    }
 }
 
 impl Renderer {
     /// A renderer for `world` (possibly vertically [`exaggerated`]), coloured by height.
     pub fn new(gpu: Gpu, world: World, config: CacheConfig) -> Result<Self, DrawError> {
-        Self::with_colour(gpu, world, config, false)
+        Self::with_colour(gpu, world, config, Colouring::ByHeight)
     }
 
-    /// A renderer that, when `draped`, colours the terrain with the patches' draped colours
-    /// ([`HalfPatch::colour`]) rather than by height. A patch without colours is then drawn
-    /// mid-grey.
+    /// A renderer that colours the terrain as `colouring` says: by height, or with the
+    /// patches' draped colours ([`HalfPatch::colour`]; a patch without colours is then drawn
+    /// mid-grey).
     pub fn with_colour(
         gpu: Gpu,
         world: World,
         config: CacheConfig,
-        draped: bool,
+        colouring: Colouring,
     ) -> Result<Self, DrawError> {
+        let draped = colouring == Colouring::Draped;
         let n = world.domain.n();
         let (ex, ey) = world.domain.layout().face_extent();
         if ex > i64::from(i32::MAX) || ey > i64::from(i32::MAX) {
@@ -485,135 +507,9 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let storage = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::VERTEX,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only: true },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let mut entries = vec![wgpu::BindGroupLayoutEntry {
-            binding: 0,
-            visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        }];
-        if fetch == VertexFetch::StorageBuffers {
-            entries.push(storage(1));
-        }
-        entries.push(heights.layout_entry());
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("terrain"),
-            entries: &entries,
-        });
-        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("terrain.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(terrain_shader(fetch).into()),
-        });
-        // The texture path's patches: one `PatchInstance` per instance (terrain_texture.wgsl).
-        let instance_attributes = patch_attributes();
-        let instance_layout = [Some(wgpu::VertexBufferLayout {
-            array_stride: std::mem::size_of::<PatchInstance>() as u64,
-            step_mode: wgpu::VertexStepMode::Instance,
-            attributes: &instance_attributes,
-        })];
-        let vertex_buffers: &[Option<wgpu::VertexBufferLayout>] = if fetch == VertexFetch::Texture {
-            &instance_layout
-        } else {
-            &[]
-        };
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("terrain"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = |polygon_mode, bias: wgpu::DepthBiasState, compare, fs| {
-            let blend = (fs == "fs_wire").then_some(wgpu::BlendState::ALPHA_BLENDING);
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("terrain"),
-                layout: Some(&pipeline_layout),
-                vertex: wgpu::VertexState {
-                    module: &shader,
-                    entry_point: Some("vs_main"),
-                    compilation_options: Default::default(),
-                    buffers: vertex_buffers,
-                },
-                primitive: wgpu::PrimitiveState {
-                    topology: wgpu::PrimitiveTopology::TriangleList,
-                    front_face: wgpu::FrontFace::Ccw,
-                    // Terrain is a height field seen from above: back faces are never wanted,
-                    // and culling them makes any crack show the background.
-                    cull_mode: Some(wgpu::Face::Back),
-                    polygon_mode,
-                    ..Default::default()
-                },
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: DEPTH_FORMAT,
-                    depth_write_enabled: Some(true),
-                    depth_compare: Some(compare),
-                    stencil: Default::default(),
-                    bias,
-                }),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &shader,
-                    entry_point: Some(fs),
-                    compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format: COLOR_FORMAT,
-                        blend,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
+        let layout = terrain_layout(device, fetch, &heights);
         // Planets draw with reversed depth (nearer is greater).
-        let reversed = world.is_planet();
-        let (less, less_equal, back) = if reversed {
-            (
-                wgpu::CompareFunction::Greater,
-                wgpu::CompareFunction::GreaterEqual,
-                -1,
-            )
-        } else {
-            (
-                wgpu::CompareFunction::Less,
-                wgpu::CompareFunction::LessEqual,
-                1,
-            )
-        };
-        let fill = pipeline(wgpu::PolygonMode::Fill, Default::default(), less, "fs_main");
-        // Under a wireframe the surface is pushed back a little so the lines win the depth test.
-        let fill_under_lines = pipeline(
-            wgpu::PolygonMode::Fill,
-            wgpu::DepthBiasState {
-                constant: 2 * back,
-                slope_scale: back as f32,
-                clamp: 0.0,
-            },
-            less,
-            "fs_main",
-        );
-        let lines = device
-            .features()
-            .contains(wgpu::Features::POLYGON_MODE_LINE)
-            .then(|| {
-                pipeline(
-                    wgpu::PolygonMode::Line,
-                    Default::default(),
-                    less_equal,
-                    "fs_wire",
-                )
-            });
+        let pipelines = TerrainPipelines::new(device, &layout, fetch, world.is_planet());
         let instance_capacity = 1024;
         let instances = instance_buffer(device, fetch, instance_capacity);
         let bind_group = bind_group(device, &layout, &uniform, &instances, &heights);
@@ -630,11 +526,11 @@ impl Renderer {
             uniform,
             layout,
             bind_group,
-            fill,
-            fill_under_lines,
-            lines,
+            fill: pipelines.fill,
+            fill_under_lines: pipelines.fill_under_lines,
+            lines: pipelines.lines,
             target: None,
-            draped,
+            colouring,
         })
     }
 
@@ -646,13 +542,13 @@ impl Renderer {
 
     /// Whether slots hold draped colours.
     pub fn draped(&self) -> bool {
-        self.draped
+        self.colouring == Colouring::Draped
     }
 
     /// Bytes of one slot of the height pool: `4 N²`, twice that with draped colour, and
     /// `12 N²` more of positions on a planet.
     pub fn slot_bytes(&self) -> u64 {
-        slot_bytes(self.mesh.n, self.draped, self.world.is_planet())
+        slot_bytes(self.mesh.n, self.draped(), self.world.is_planet())
     }
 
     /// The device.
@@ -1043,7 +939,7 @@ impl Renderer {
                                 .map(|(&h, &v)| if v { h } else { h ^ NODATA_BIT }),
                         ),
                     }
-                    if self.draped {
+                    if self.draped() {
                         match &p.colour {
                             Some(c) => staging_data.extend(c.iter().map(|&c| c as i32)),
                             None => staging_data
@@ -1181,13 +1077,174 @@ impl Renderer {
                 ]
             },
             has_sea: u32::from(w.min_height < 0.0),
-            draped: u32::from(self.draped),
+            draped: u32::from(self.draped()),
             planet: u32::from(w.is_planet()),
             pad: [0; 3],
         };
         self.gpu
             .queue
             .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&uniform));
+    }
+}
+
+/// The terrain bind group's layout: the frame uniform, the patch instances when vertices read
+/// storage buffers, and the height pool.
+fn terrain_layout(
+    device: &wgpu::Device,
+    fetch: VertexFetch,
+    heights: &HeightPool,
+) -> wgpu::BindGroupLayout {
+    let storage = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::VERTEX,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: true },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    };
+    let mut entries = vec![wgpu::BindGroupLayoutEntry {
+        binding: 0,
+        visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }];
+    if fetch == VertexFetch::StorageBuffers {
+        entries.push(storage(1));
+    }
+    entries.push(heights.layout_entry());
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("terrain"),
+        entries: &entries,
+    })
+}
+
+/// The terrain's three pipelines: filled, filled under a wireframe, and the wireframe (where the
+/// device draws lines).
+struct TerrainPipelines {
+    fill: wgpu::RenderPipeline,
+    fill_under_lines: wgpu::RenderPipeline,
+    lines: Option<wgpu::RenderPipeline>,
+}
+
+impl TerrainPipelines {
+    /// The pipelines over `layout` for `fetch`, with reversed depth (nearer is greater) when
+    /// `reversed`.
+    fn new(
+        device: &wgpu::Device,
+        layout: &wgpu::BindGroupLayout,
+        fetch: VertexFetch,
+        reversed: bool,
+    ) -> Self {
+        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("terrain.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(terrain_shader(fetch).into()),
+        });
+        // The texture path's patches: one `PatchInstance` per instance (terrain_texture.wgsl).
+        let instance_attributes = patch_attributes();
+        let instance_layout = [Some(wgpu::VertexBufferLayout {
+            array_stride: std::mem::size_of::<PatchInstance>() as u64,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &instance_attributes,
+        })];
+        let vertex_buffers: &[Option<wgpu::VertexBufferLayout>] = if fetch == VertexFetch::Texture {
+            &instance_layout
+        } else {
+            &[]
+        };
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("terrain"),
+            bind_group_layouts: &[Some(layout)],
+            immediate_size: 0,
+        });
+        let pipeline = |polygon_mode, bias: wgpu::DepthBiasState, compare, fs| {
+            let blend = (fs == "fs_wire").then_some(wgpu::BlendState::ALPHA_BLENDING);
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("terrain"),
+                layout: Some(&pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: vertex_buffers,
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology: wgpu::PrimitiveTopology::TriangleList,
+                    front_face: wgpu::FrontFace::Ccw,
+                    // Terrain is a height field seen from above: back faces are never wanted,
+                    // and culling them makes any crack show the background.
+                    cull_mode: Some(wgpu::Face::Back),
+                    polygon_mode,
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(compare),
+                    stencil: Default::default(),
+                    bias,
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some(fs),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: COLOR_FORMAT,
+                        blend,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let (less, less_equal, back) = if reversed {
+            (
+                wgpu::CompareFunction::Greater,
+                wgpu::CompareFunction::GreaterEqual,
+                -1,
+            )
+        } else {
+            (
+                wgpu::CompareFunction::Less,
+                wgpu::CompareFunction::LessEqual,
+                1,
+            )
+        };
+        let fill = pipeline(wgpu::PolygonMode::Fill, Default::default(), less, "fs_main");
+        // Under a wireframe the surface is pushed back a little so the lines win the depth test.
+        let fill_under_lines = pipeline(
+            wgpu::PolygonMode::Fill,
+            wgpu::DepthBiasState {
+                constant: 2 * back,
+                slope_scale: back as f32,
+                clamp: 0.0,
+            },
+            less,
+            "fs_main",
+        );
+        let lines = device
+            .features()
+            .contains(wgpu::Features::POLYGON_MODE_LINE)
+            .then(|| {
+                pipeline(
+                    wgpu::PolygonMode::Line,
+                    Default::default(),
+                    less_equal,
+                    "fs_wire",
+                )
+            });
+        TerrainPipelines {
+            fill,
+            fill_under_lines,
+            lines,
+        }
     }
 }
 

@@ -21,7 +21,7 @@ use cbdam_codec::geometry::Layout;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
-use cbdam_render::{CacheConfig, Frame, RenderOptions, Renderer};
+use cbdam_render::{CacheConfig, Colouring, Frame, RenderOptions, Renderer};
 use glam::DVec3;
 
 const N: usize = 17;
@@ -279,7 +279,7 @@ fn rendered_colour_follows_the_image_and_differs_from_the_ramp() {
         ..RenderOptions::default()
     };
     let mut coloured_renderer =
-        Renderer::with_colour(gpu(), world, CacheConfig::default(), true).unwrap();
+        Renderer::with_colour(gpu(), world, CacheConfig::default(), Colouring::Draped).unwrap();
     let mut plain_renderer = renderer(&e);
     assert_eq!(
         coloured_renderer.slot_bytes(),

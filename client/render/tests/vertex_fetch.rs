@@ -13,7 +13,7 @@ use cbdam_client::camera::Camera;
 use cbdam_client::patch::{HalfPatch, pack_rgb};
 use cbdam_client::world::World;
 use cbdam_codec::repository::Repository;
-use cbdam_render::{CacheConfig, Frame, RenderOptions, Renderer, VertexFetch};
+use cbdam_render::{CacheConfig, Colouring, Frame, RenderOptions, Renderer, VertexFetch};
 
 fn renderers(
     repo: &Repository,
@@ -26,7 +26,13 @@ fn renderers(
             vertex_fetch: fetch,
             ..CacheConfig::default()
         };
-        let r = Renderer::with_colour(gpu(), World::of_repository(repo), config, draped).unwrap();
+        let r = Renderer::with_colour(
+            gpu(),
+            World::of_repository(repo),
+            config,
+            Colouring::draped_if(draped),
+        )
+        .unwrap();
         assert_eq!(r.vertex_fetch(), fetch);
         (fetch, r)
     })

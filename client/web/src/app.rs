@@ -18,7 +18,7 @@ use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, HeadBytes, RefineConfig, Refiner};
 use cbdam_client::world::World;
 use cbdam_render::present::Presenter;
-use cbdam_render::{CacheConfig, Gpu, RenderOptions, Renderer, VertexFetch};
+use cbdam_render::{CacheConfig, Colouring, Gpu, RenderOptions, Renderer, VertexFetch};
 use glam::DVec3;
 use wasm_bindgen::JsCast;
 use wasm_bindgen::closure::Closure;
@@ -287,8 +287,8 @@ impl App {
             ..CacheConfig::default()
         };
         let draped = refiner.source().drape().is_some();
-        let renderer =
-            Renderer::with_colour(gpu, world, cache, draped).map_err(|e| e.to_string())?;
+        let renderer = Renderer::with_colour(gpu, world, cache, Colouring::draped_if(draped))
+            .map_err(|e| e.to_string())?;
         // Storage buffers (WebGPU) or the texture path (WebGL2, no storage in vertex shaders).
         status.set(
             "vertexFetch",
