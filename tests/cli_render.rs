@@ -239,6 +239,38 @@ fn render_cut_out_lists_the_refined_diamonds() {
     assert_eq!(cuts[0], cuts[1]);
 }
 
+/// Without a usable `XDG_RUNTIME_DIR` (a server, a container, CI), a render says nothing about
+/// it — Mesa's drivers would print "error: XDG_RUNTIME_DIR is invalid or not set" twice: `cbdam`
+/// gives itself a private runtime directory, and removes it at exit (`TMPDIR`, where it is made,
+/// is empty again). Unset, and set to a directory that does not exist.
+#[test]
+fn render_without_a_runtime_dir_prints_no_error_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let tmp = dir.path().join("tmp");
+    std::fs::create_dir(&tmp).unwrap();
+    let not_ours = dir.path().join("missing");
+    for runtime in [None, Some(&not_ours)] {
+        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"));
+        command
+            .args(["render", &s(&repo), "--size", "64x48", "-o"])
+            .arg(dir.path().join("f.png"))
+            .env("TMPDIR", &tmp);
+        match runtime {
+            None => command.env_remove("XDG_RUNTIME_DIR"),
+            Some(d) => command.env("XDG_RUNTIME_DIR", d),
+        };
+        let o = command.output().expect("run cbdam render");
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(
+            !stderr(&o).contains("XDG_RUNTIME_DIR"),
+            "XDG_RUNTIME_DIR {runtime:?}:\n{}",
+            stderr(&o)
+        );
+        assert_eq!(listing(&tmp), Vec::<std::path::PathBuf>::new());
+    }
+}
+
 /// `cbdam demo` end to end (build, serve, replay and render over HTTP), bounded to two frames.
 #[test]
 fn demo_builds_serves_replays_and_renders() {
