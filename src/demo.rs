@@ -2,7 +2,10 @@
 //! serve, then the client against the server: the replay statistics of a flight and offscreen
 //! frames rendered from what the client fetched, then the interactive viewer on the same URL
 //! when a display is available. `--planet`: the same on a planet built from the bundled ETOPO5
-//! global DEM with the bundled SRTM and Jacksboro tiles as insets.
+//! global DEM with the bundled SRTM and Jacksboro tiles as insets. The flight's frames are also
+//! written as one video ([`video`]).
+
+mod video;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -11,6 +14,9 @@ use anyhow::{Context, Result};
 use cbdam_server::{AppState, Config, RepoSpec};
 
 use crate::{AlphaArg, BuildArgs, CoderArg, DemoArgs, RenderArgs, ReplayArgs, ViewArgs};
+
+/// Frames per second of the flight (replay, frames and video).
+const FPS: f64 = 30.0;
 
 pub fn run(args: &DemoArgs) -> Result<()> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -111,7 +117,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             pixel_error: 1.0,
             budget_ms: 2.0,
             out: csv.clone(),
-            fps: 30.0,
+            fps: FPS,
             max_settle_frames: 600,
             detail: false,
             cut_mib: 1024,
@@ -126,7 +132,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 output,
                 path,
                 out_dir,
-                fps: 30.0,
+                fps: FPS,
                 budget_ms: 2.0,
                 max_frames: args.max_frames,
                 camera: None,
@@ -143,14 +149,23 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         eprintln!("demo: rendering an overview over HTTP");
         render(Some(overview.clone()), None, None)?;
         eprintln!("demo: rendering the flight's frames over HTTP (offscreen)");
+        // Frames of an earlier, longer run would end up in the video.
+        for stale in video::frames_in(&frames) {
+            std::fs::remove_file(&stale)
+                .with_context(|| format!("removing the earlier {}", stale.display()))?;
+        }
         render(None, Some(flight.clone()), Some(frames.clone()))?;
+        eprintln!("demo: writing the flight as one video");
+        let video = video::write_flight(&frames, FPS, &out.join("flight"))?;
         println!(
-            "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png",
+            "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png\n  flight video    {} ({})",
             t.elapsed().as_secs_f64(),
             repo.display(),
             csv.display(),
             overview.display(),
-            frames.display()
+            frames.display(),
+            video.path.display(),
+            video.description
         );
         if args.no_view {
             return Ok(());

@@ -307,6 +307,88 @@ fn demo_builds_serves_replays_and_renders() {
         assert!(colours > 50, "frame {i} shows terrain");
     }
     assert!(!out.join("frames/frame_00002.png").exists());
+    check_flight_video(&out, &stdout);
+}
+
+/// The demo's flight as one video (two frames of 160×90 at 30 fps): an MP4 where `ffmpeg` is on
+/// the PATH (its frames counted with `ffprobe` when that is there too), else an animated PNG
+/// whose frames are the flight's frames, pixel for pixel (a flight this short and narrow is kept
+/// whole).
+fn check_flight_video(out: &Path, stdout: &str) {
+    use std::process::Command;
+    let runs = |tool: &str| {
+        Command::new(tool)
+            .arg("-version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    if runs("ffmpeg") {
+        let mp4 = out.join("flight.mp4");
+        assert!(
+            stdout.contains(&format!(
+                "{} (H.264 MP4, 2 frames at 30 fps)",
+                mp4.display()
+            )),
+            "{stdout}"
+        );
+        let bytes = std::fs::read(&mp4).unwrap();
+        assert_eq!(
+            &bytes[4..8],
+            b"ftyp",
+            "an MP4 file starts with its ftyp box"
+        );
+        if runs("ffprobe") {
+            let o = Command::new("ffprobe")
+                .args(["-v", "error", "-count_frames", "-select_streams", "v:0"])
+                .args([
+                    "-show_entries",
+                    "stream=nb_read_frames,width,height,codec_name",
+                ])
+                .args(["-of", "default=noprint_wrappers=1"])
+                .arg(&mp4)
+                .output()
+                .unwrap();
+            let probe = String::from_utf8_lossy(&o.stdout);
+            for line in [
+                "codec_name=h264",
+                "width=160",
+                "height=90",
+                "nb_read_frames=2",
+            ] {
+                assert!(probe.lines().any(|l| l == line), "{line} not in\n{probe}");
+            }
+        }
+        return;
+    }
+    let apng = out.join("flight.png");
+    assert!(
+        stdout.contains(&format!(
+            "{} (animated PNG, 2 frames of 160×90 at 30 fps)",
+            apng.display()
+        )),
+        "{stdout}"
+    );
+    let file = std::io::BufReader::new(std::fs::File::open(&apng).unwrap());
+    let mut reader = png::Decoder::new(file).read_info().unwrap();
+    let control = reader.info().animation_control.expect("an animated PNG");
+    assert_eq!(control.num_frames, 2);
+    for i in 0..2 {
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        buf.truncate(info.buffer_size());
+        assert_eq!((info.width, info.height), (160, 90));
+        let frame = out.join(format!("frames/frame_{i:05}.png"));
+        let file = std::io::BufReader::new(std::fs::File::open(&frame).unwrap());
+        let mut still = png::Decoder::new(file).read_info().unwrap();
+        let mut want = vec![0; still.output_buffer_size().unwrap()];
+        let info = still.next_frame(&mut want).unwrap();
+        want.truncate(info.buffer_size());
+        assert!(
+            buf == want,
+            "video frame {i} differs from {}",
+            frame.display()
+        );
+    }
 }
 
 /// `cbdam bench render --flight`: one table row per repository and flight, with frame counts
