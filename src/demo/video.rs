@@ -223,8 +223,11 @@ mod tests {
         frames_in(dir)
     }
 
-    /// Every frame of an APNG: its size, its delay (numerator, denominator) and its pixels.
-    fn read_apng(path: &Path) -> (u32, Vec<((u32, u32), (u16, u16), Vec<u8>)>) {
+    /// A frame of an APNG: its size, its delay (numerator, denominator) and its pixels.
+    type ApngFrame = ((u32, u32), (u16, u16), Vec<u8>);
+
+    /// An APNG's play count and frames.
+    fn read_apng(path: &Path) -> (u32, Vec<ApngFrame>) {
         let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
         let mut reader = png::Decoder::new(file).read_info().unwrap();
         let control = reader.info().animation_control.expect("an APNG");
