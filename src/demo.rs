@@ -7,6 +7,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+mod video;
+
 use anyhow::{Context, Result};
 use cbdam_server::{AppState, Config, RepoSpec};
 use clap::Args;
@@ -17,12 +19,16 @@ use crate::render::RenderArgs;
 use crate::replay::ReplayArgs;
 use crate::view::ViewArgs;
 
+/// Frames per second of the flight (replay, frames and video).
+const FPS: f64 = 30.0;
+
 /// The whole pipeline on the bundled SRTM tile: builds a repository (once), serves it on
 /// loopback, replays a flight against the server over HTTP and renders an overview and the
-/// flight's frames offscreen from what the client fetched; prints where the outputs are.
+/// flight's frames offscreen from what the client fetched, and writes the flight as one video
+/// (MP4 where ffmpeg is on the PATH, else an animated PNG); prints where the outputs are.
 #[derive(Args, Debug)]
 pub struct DemoArgs {
-    /// Where the repository, CSV and PNGs go.
+    /// Where the repository, CSV, PNGs and the video go.
     #[arg(long, default_value = "demo-out")]
     out_dir: PathBuf,
     /// Flight from data/flights/ (default descent.json; with --planet planet/descent.json).
@@ -184,7 +190,7 @@ fn fly_over_http(args: &DemoArgs, url: &str, repo: &Path, flight: &Path) -> Resu
         pixel_error: flags::PixelError { value: 1.0 },
         budget_ms: flags::BudgetMs { value: 2.0 },
         out: csv.clone(),
-        fps: flags::Fps { value: 30.0 },
+        fps: flags::Fps { value: FPS },
         max_settle_frames: 600,
         detail: false,
         cut_mib: 1024,
@@ -199,7 +205,7 @@ fn fly_over_http(args: &DemoArgs, url: &str, repo: &Path, flight: &Path) -> Resu
             output,
             path,
             out_dir,
-            fps: flags::Fps { value: 30.0 },
+            fps: flags::Fps { value: FPS },
             budget_ms: flags::BudgetMs { value: 2.0 },
             max_frames: args.max_frames,
             camera: None,
@@ -216,14 +222,23 @@ fn fly_over_http(args: &DemoArgs, url: &str, repo: &Path, flight: &Path) -> Resu
     eprintln!("demo: rendering an overview over HTTP");
     render(Some(overview.clone()), None, None)?;
     eprintln!("demo: rendering the flight's frames over HTTP (offscreen)");
+    // Frames of an earlier, longer run would end up in the video.
+    for stale in video::frames_in(&frames) {
+        std::fs::remove_file(&stale)
+            .with_context(|| format!("removing the earlier {}", stale.display()))?;
+    }
     render(None, Some(flight.to_path_buf()), Some(frames.clone()))?;
+    eprintln!("demo: writing the flight as one video");
+    let video = video::write_flight(&frames, FPS, &out.join("flight"))?;
     println!(
-        "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png",
+        "demo finished in {:.1} s. Outputs:\n  repository      {}\n  replay CSV      {}\n  overview        {}\n  flight frames   {}/frame_*.png\n  flight video    {} ({})",
         t.elapsed().as_secs_f64(),
         repo.display(),
         csv.display(),
         overview.display(),
-        frames.display()
+        frames.display(),
+        video.path.display(),
+        video.description
     );
     Ok(())
 }

@@ -12,6 +12,7 @@ mod inspect;
 mod link;
 mod render;
 mod replay;
+mod runtime_dir;
 mod serve;
 mod session;
 mod shard;
@@ -83,6 +84,8 @@ fn default_sigpipe(command: &Command) {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // SAFETY: no other thread exists yet (parsing the arguments starts none).
+    let _runtime_dir = unsafe { runtime_dir::ensure(runtime_dir::needed(&cli.command)) };
     default_sigpipe(&cli.command);
     let result = match cli.command {
         Command::Build(args) => build::run(&args),

@@ -235,6 +235,38 @@ fn render_cut_out_lists_the_refined_diamonds() {
     assert_eq!(cuts[0], cuts[1]);
 }
 
+/// Without a usable `XDG_RUNTIME_DIR` (a server, a container, CI), a render says nothing about
+/// it — Mesa's drivers would print "error: XDG_RUNTIME_DIR is invalid or not set" twice: `cbdam`
+/// gives itself a private runtime directory, and removes it at exit (`TMPDIR`, where it is made,
+/// is empty again). Unset, and set to a directory that does not exist.
+#[test]
+fn render_without_a_runtime_dir_prints_no_error_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let tmp = dir.path().join("tmp");
+    std::fs::create_dir(&tmp).unwrap();
+    let not_ours = dir.path().join("missing");
+    for runtime in [None, Some(&not_ours)] {
+        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"));
+        command
+            .args(["render", &s(&repo), "--size", "64x48", "-o"])
+            .arg(dir.path().join("f.png"))
+            .env("TMPDIR", &tmp);
+        match runtime {
+            None => command.env_remove("XDG_RUNTIME_DIR"),
+            Some(d) => command.env("XDG_RUNTIME_DIR", d),
+        };
+        let o = command.output().expect("run cbdam render");
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(
+            !stderr(&o).contains("XDG_RUNTIME_DIR"),
+            "XDG_RUNTIME_DIR {runtime:?}:\n{}",
+            stderr(&o)
+        );
+        assert_eq!(listing(&tmp), Vec::<std::path::PathBuf>::new());
+    }
+}
+
 /// `cbdam demo` end to end (build, serve, replay and render over HTTP), bounded to two frames.
 #[test]
 fn demo_builds_serves_replays_and_renders() {
@@ -271,6 +303,97 @@ fn demo_builds_serves_replays_and_renders() {
         assert!(colours > 50, "frame {i} shows terrain");
     }
     assert!(!out.join("frames/frame_00002.png").exists());
+    check_flight_video(&out, &stdout);
+}
+
+/// The demo's flight as one video (two frames of 160×90 at 30 fps): an MP4 where `ffmpeg` is on
+/// the PATH (its frames counted with `ffprobe` when that is there too), else an animated PNG
+/// whose frames are the flight's frames, pixel for pixel (a flight this short and narrow is kept
+/// whole).
+fn check_flight_video(out: &Path, stdout: &str) {
+    use std::process::Command;
+    let runs = |tool: &str| {
+        Command::new(tool)
+            .arg("-version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    if runs("ffmpeg") {
+        let mp4 = out.join("flight.mp4");
+        assert!(
+            stdout.contains(&format!(
+                "{} (H.264 MP4, 2 frames at 30 fps)",
+                mp4.display()
+            )),
+            "{stdout}"
+        );
+        let bytes = std::fs::read(&mp4).unwrap();
+        assert_eq!(
+            &bytes[4..8],
+            b"ftyp",
+            "an MP4 file starts with its ftyp box"
+        );
+        for tag in [b"moov", b"avc1"] {
+            assert!(
+                bytes.windows(4).any(|w| w == tag),
+                "no {} box in the MP4",
+                String::from_utf8_lossy(tag)
+            );
+        }
+        if !runs("ffprobe") {
+            println!("ffprobe is not installed: the MP4's frames are not counted");
+        } else {
+            let o = Command::new("ffprobe")
+                .args(["-v", "error", "-count_frames", "-select_streams", "v:0"])
+                .args([
+                    "-show_entries",
+                    "stream=nb_read_frames,width,height,codec_name",
+                ])
+                .args(["-of", "default=noprint_wrappers=1"])
+                .arg(&mp4)
+                .output()
+                .unwrap();
+            let probe = String::from_utf8_lossy(&o.stdout);
+            for line in [
+                "codec_name=h264",
+                "width=160",
+                "height=90",
+                "nb_read_frames=2",
+            ] {
+                assert!(probe.lines().any(|l| l == line), "{line} not in\n{probe}");
+            }
+        }
+        return;
+    }
+    let apng = out.join("flight.png");
+    assert!(
+        stdout.contains(&format!(
+            "{} (animated PNG, 2 frames of 160×90 at 30 fps)",
+            apng.display()
+        )),
+        "{stdout}"
+    );
+    let file = std::io::BufReader::new(std::fs::File::open(&apng).unwrap());
+    let mut reader = png::Decoder::new(file).read_info().unwrap();
+    let control = reader.info().animation_control.expect("an animated PNG");
+    assert_eq!(control.num_frames, 2);
+    for i in 0..2 {
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        buf.truncate(info.buffer_size());
+        assert_eq!((info.width, info.height), (160, 90));
+        let frame = out.join(format!("frames/frame_{i:05}.png"));
+        let file = std::io::BufReader::new(std::fs::File::open(&frame).unwrap());
+        let mut still = png::Decoder::new(file).read_info().unwrap();
+        let mut want = vec![0; still.output_buffer_size().unwrap()];
+        let info = still.next_frame(&mut want).unwrap();
+        want.truncate(info.buffer_size());
+        assert!(
+            buf == want,
+            "video frame {i} differs from {}",
+            frame.display()
+        );
+    }
 }
 
 /// `cbdam bench render --flight`: one table row per repository and flight, with frame counts

@@ -75,6 +75,7 @@ fn help_lists_the_keys() {
         "--max-frames",
         "--screenshot",
         "--no-vsync",
+        "hide / show the HUD",
         "Esc",
     ] {
         assert!(help.contains(needle), "--help lacks {needle:?}:\n{help}");
@@ -273,9 +274,9 @@ fn centre_brightness(rgba: &[u8], w: u32, h: u32, r: u32) -> f64 {
 }
 
 /// The viewer driven by real X11 input events (XTEST, through `xdotool`): P saves a screenshot,
-/// which matches what the window shows; Tab switches to wireframe, a left drag rotates the orbit
-/// camera, Esc quits. Always on a
-/// private Xvfb, never on the session's display, so no key lands in someone's desktop.
+/// which matches what the window shows; H hides and shows the HUD; Tab switches to wireframe, a
+/// left drag rotates the orbit camera, Esc quits. Always on a private Xvfb, never on the
+/// session's display, so no key lands in someone's desktop.
 #[test]
 fn keys_and_mouse_drive_the_viewer() {
     let skip = |why: &str| println!("SKIPPED keys_and_mouse_drive_the_viewer: {why}");
@@ -350,6 +351,31 @@ fn keys_and_mouse_drive_the_viewer() {
         lower_half_changes(&still, &shown, w, h),
         0,
         "the window differs from the screenshot"
+    );
+
+    // H hides the HUD: no text-coloured pixel is left in the frame, and the view is the
+    // same below it; H again shows it.
+    let text_pixels = |rgba: &[u8]| rgba.chunks(4).filter(|p| *p == hud::TEXT_RGBA).count();
+    assert!(text_pixels(&still) > 200, "the HUD shows at first");
+    press(&["h", "p"]);
+    n += 1;
+    let (_, _, bare) = wait_for(&shot(n), &mut viewer);
+    assert!(
+        text_pixels(&bare) < 10,
+        "H left {} text pixels",
+        text_pixels(&bare)
+    );
+    assert_eq!(
+        lower_half_changes(&still, &bare, w, h),
+        0,
+        "H changed the view"
+    );
+    press(&["h", "p"]);
+    n += 1;
+    let (_, _, shown) = wait_for(&shot(n), &mut viewer);
+    assert!(
+        text_pixels(&shown) > 200,
+        "H twice did not bring the HUD back"
     );
 
     // Tab: wireframe. The shaded surface is replaced by lines over the background, so the

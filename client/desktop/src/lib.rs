@@ -28,6 +28,8 @@ use cbdam_render::hud::{self, Hud};
 use cbdam_render::present::Presenter;
 use cbdam_render::{CacheConfig, Colouring, DrawStats, Gpu, RenderOptions, Renderer, write_png};
 
+mod hud_text;
+
 /// Printed at start and in `cbdam view --help`.
 pub const KEY_HELP: &str = "\
 Keys and mouse of `cbdam view`:
@@ -38,6 +40,7 @@ Keys and mouse of `cbdam view`:
   +  finer (pixel-error target / 2)   -  coarser (target x 2)
   F  freeze the cut (the camera still moves; refinement stops)
   Tab or 1  wireframe          L  colour by diamond level
+  H  hide / show the HUD (the figures in the top-left corner)
   P  save a screenshot (cbdam-view-NNNN.png)     Esc  quit";
 
 /// Frames the HUD's frame-time median spans.
@@ -95,6 +98,7 @@ pub fn view<S: DataSource>(refiner: Refiner<S>, args: &ViewOptions) -> Result<()
             ..RenderOptions::default()
         },
         frozen: false,
+        show_hud: true,
         input: Input::default(),
         window: None,
         last_refine: FrameStats::default(),
@@ -161,6 +165,8 @@ struct App<'a, S: DataSource> {
     patches: Vec<Arc<HalfPatch>>,
     options: RenderOptions,
     frozen: bool,
+    /// The HUD is drawn (H toggles it).
+    show_hud: bool,
     input: Input,
     window: Option<WindowState>,
     last_refine: FrameStats,
@@ -300,7 +306,11 @@ impl<S: DataSource> App<'_, S> {
                 self.frame_times.pop_front();
             }
         }
-        let lines = hud_lines(self, size);
+        let lines = if self.show_hud {
+            hud_text::lines(&hud_figures(self, size))
+        } else {
+            Vec::new()
+        };
         let Some(ws) = &mut self.window else {
             return Ok(());
         };
@@ -437,6 +447,7 @@ impl<S: DataSource> App<'_, S> {
                 }
             }
             (_, PhysicalKey::Code(KeyCode::KeyF)) => self.frozen = !self.frozen,
+            (_, PhysicalKey::Code(KeyCode::KeyH)) => self.show_hud = !self.show_hud,
             (_, PhysicalKey::Code(KeyCode::KeyL)) => {
                 self.options.level_colours = !self.options.level_colours
             }
@@ -527,110 +538,35 @@ impl<S: DataSource> ApplicationHandler for App<'_, S> {
     }
 }
 
-/// The HUD's text.
-fn hud_lines<S: DataSource>(app: &App<'_, S>, size: (u32, u32)) -> Vec<String> {
+/// The HUD's figures of this frame.
+fn hud_figures<'a, S: DataSource>(app: &'a App<'_, S>, size: (u32, u32)) -> hud_text::Figures<'a> {
     let mut sorted: Vec<f64> = app.frame_times.iter().copied().collect();
     sorted.sort_by(f64::total_cmp);
-    let median = if sorted.is_empty() {
-        0.0
-    } else {
-        percentile(&sorted, 0.5)
-    };
-    let d = &app.last_draw;
-    let r = &app.last_refine;
-    let rate = if median > 0.0 {
-        format!(
-            "{:.1} fps ({:.1} ms median of {})",
-            1.0 / median,
-            median * 1e3,
-            sorted.len()
-        )
-    } else {
-        "fps: measuring".into()
-    };
     let ws = app.window.as_ref();
-    let adapter = ws.map_or("", |w| w.adapter.as_str());
-    let mut lines = vec![
-        format!(
-            "cbdam view  {}x{}  {}  {}",
-            size.0,
-            size.1,
-            match app.controls.mode() {
-                Mode::Orbit => "orbit",
-                Mode::Fly => "fly",
-            },
-            adapter
-        ),
-        rate,
-        format!(
-            "triangles {:.3} M/frame  {:.1} M/s  ({} draw calls)",
-            d.triangles as f64 / 1e6,
-            if median > 0.0 {
-                d.triangles as f64 / median / 1e6
-            } else {
-                0.0
-            },
-            d.draw_calls
-        ),
-        format!(
-            "cut {} diamonds refined, {} half-patches ({} drawn, {} culled, {} not resident)",
-            r.refined, d.patches, d.drawn, d.culled, d.missing
-        ),
-        format!(
-            "pixel error target {} px, cut max {:.2} px{}{}",
-            app.refiner.config().pixel_error,
-            r.max_screen_error_px,
-            if app.frozen { "  [FROZEN]" } else { "" },
-            if !app.frozen && !r.converged {
-                "  refining"
-            } else {
-                ""
+    hud_text::Figures {
+        size,
+        mode: app.controls.mode(),
+        adapter: ws.map_or("", |w| w.adapter.as_str()),
+        frame_s: if sorted.is_empty() {
+            0.0
+        } else {
+            percentile(&sorted, 0.5)
+        },
+        draw: app.last_draw,
+        refine: app.last_refine,
+        pixel_error: app.refiner.config().pixel_error,
+        frozen: app.frozen,
+        cpu: app.refiner.cache_use(),
+        gpu: ws.map(|w| {
+            let cache = w.renderer.cache();
+            hud_text::GpuCache {
+                resident: cache.resident(),
+                capacity: cache.capacity(),
+                stats: cache.stats(),
             }
-        ),
-    ];
-    let c = app.refiner.cache_use();
-    lines.push(format!(
-        "CPU cache: records {:.1}/{:.0} MiB, decoded {:.1}/{:.0} MiB",
-        mib(c.record_bytes as u64),
-        mib(c.record_budget as u64),
-        mib(c.decoded_bytes as u64),
-        mib(c.decoded_budget as u64)
-    ));
-    if let Some(ws) = ws {
-        let cache = ws.renderer.cache();
-        let s = cache.stats();
-        lines.push(format!(
-            "GPU cache: {}/{} slots, {} hits, {} uploads, {} evictions",
-            cache.resident(),
-            cache.capacity(),
-            s.hits,
-            s.uploads,
-            s.evictions
-        ));
+        }),
+        remote: app.remote,
     }
-    let a = &r.access;
-    lines.push(if app.remote {
-        format!(
-            "network: {} in flight, {} requests, {:.2} MB fetched, {} errors",
-            a.in_flight,
-            a.requests_issued,
-            a.bytes_fetched as f64 / 1e6,
-            a.errors
-        )
-    } else {
-        format!(
-            "local file: {} records read, {:.2} MB",
-            a.records_taken,
-            a.bytes_fetched as f64 / 1e6
-        )
-    });
-    lines
-        .push("keys: +/- error  F freeze  Tab wire  L levels  C fly/orbit  R reset  P shot".into());
-    lines
-}
-
-fn mib(bytes: u64) -> f64 {
-    bytes as f64 / f64::from(1u32 << 20)
 }
 
 /// `cbdam-view-0001.png`, `…0002.png`, …: the first name not taken in the working directory.

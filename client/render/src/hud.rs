@@ -1,5 +1,8 @@
-//! The viewer's text overlay (HUD): lines of ASCII text in an 8×8 bitmap font over a translucent
-//! box in the top-left corner, drawn over a frame already in the offscreen colour target.
+//! The viewer's text overlay (HUD): a few short lines of ASCII text in an 8×8 bitmap font over
+//! a translucent box in the top-left corner, drawn over a frame already in the offscreen colour
+//! target. It is meant as a small label, not a panel: the viewer keeps its text within
+//! [`MAX_LINES`] lines of [`MAX_COLUMNS`] characters, and glyphs are drawn at their own size
+//! (8 pixels) unless the window is very tall.
 //!
 //! [`layout`] is pure (one [`HudQuad`] per visible glyph plus the box) so it can be tested
 //! without a GPU; [`Hud`] uploads the font once as an R8 texture and draws the quads instanced
@@ -14,18 +17,25 @@ pub const HUD_WGSL: &str = include_str!("../../../shaders/hud.wgsl");
 
 /// Text colour, RGBA8 (opaque, so text pixels have exactly this colour).
 pub const TEXT_RGBA: [u8; 4] = [255, 214, 64, 255];
-/// Background box colour, RGBA8: black at 65 % opacity, so what is under it stays faintly
-/// visible and every channel under it is at most 35 % (+ rounding) of what was there.
-pub const BOX_RGBA: [u8; 4] = [0, 0, 0, 166];
+/// Background box colour, RGBA8: black at 50 % opacity, so the terrain under it stays visible
+/// (every channel under it is half, + rounding, of what was there) and the text stays legible.
+pub const BOX_RGBA: [u8; 4] = [0, 0, 0, 128];
 /// Glyph code of the background box in [`HudQuad::glyph`] (past ASCII).
 pub const BOX_GLYPH: u32 = 0x100;
 
 /// Pixels from the viewport's top-left corner to the box, at scale 1.
 const MARGIN: u32 = 8;
 /// Pixels between the box edge and the text, at scale 1.
-const PADDING: u32 = 6;
+const PADDING: u32 = 4;
 /// Line pitch at scale 1: 8-pixel glyphs and a 2-pixel gap.
 const LINE: u32 = 10;
+/// Most lines the viewer shows (its tests check its text against this budget).
+pub const MAX_LINES: usize = 9;
+/// Most characters in a line the viewer shows.
+pub const MAX_COLUMNS: usize = 44;
+/// Windows this tall and taller (4K and most 1440p screens, whose pixels are small) get glyphs
+/// at twice their size.
+const LARGE_ROWS: u32 = 1440;
 
 /// One instanced quad: a glyph cell or the box, in viewport pixels (y down).
 #[repr(C)]
@@ -41,9 +51,9 @@ pub struct HudQuad {
     pub rgba: [u8; 4],
 }
 
-/// Glyph scale for a viewport: 16-pixel text on full-HD and larger, 8 pixels below.
+/// Glyph scale for a viewport: 8-pixel text, 16-pixel from [`LARGE_ROWS`] rows up.
 pub fn scale_for(viewport: (u32, u32)) -> u32 {
-    if viewport.1 >= 700 { 2 } else { 1 }
+    if viewport.1 >= LARGE_ROWS { 2 } else { 1 }
 }
 
 /// The box (first) and glyph quads of `lines` at `scale` in a `viewport`. Characters outside
@@ -370,6 +380,58 @@ mod tests {
         let large = layout(&text, (1000, 1000), 1).len();
         assert!(small < large, "{small} vs {large}");
         assert!(layout(&[], (100, 100), 1).is_empty());
+    }
+
+    #[test]
+    fn glyphs_are_doubled_only_on_very_tall_windows() {
+        for size in [
+            (320, 240),
+            (1280, 720),
+            (1920, 1080),
+            (1920, 1200),
+            (2560, 1439),
+        ] {
+            assert_eq!(scale_for(size), 1, "{size:?}");
+        }
+        for size in [(2560, 1440), (3840, 2160)] {
+            assert_eq!(scale_for(size), 2, "{size:?}");
+        }
+    }
+
+    /// The fullest HUD the viewer shows (its budget of lines and columns, every cell a glyph)
+    /// is a label in the top-left corner, not a panel over the view: under 2 % of a full-HD
+    /// window (360 × 96 pixels; the HUD before this budget covered about 13 %, 1 380 × 200),
+    /// under 4 % of the viewer's default 1280×720 window and of the common screen sizes, and
+    /// nowhere past the top-left quarter of the window.
+    #[test]
+    fn a_full_hud_is_a_small_label_in_the_corner() {
+        let text = vec!["W".repeat(MAX_COLUMNS); MAX_LINES];
+        let area = |viewport: (u32, u32)| {
+            let quads = layout(&text, viewport, scale_for(viewport));
+            assert_eq!(
+                quads.len(),
+                1 + MAX_LINES * MAX_COLUMNS,
+                "{viewport:?}: all shown"
+            );
+            let b = quads[0];
+            assert_eq!(b.glyph, BOX_GLYPH);
+            assert_eq!(b.pos, [(MARGIN * scale_for(viewport)) as f32; 2]);
+            assert!(
+                b.pos[0] + b.size[0] <= viewport.0 as f32 / 2.0,
+                "{viewport:?}: {b:?}"
+            );
+            assert!(
+                b.pos[1] + b.size[1] <= viewport.1 as f32 / 2.0,
+                "{viewport:?}: {b:?}"
+            );
+            f64::from(b.size[0] * b.size[1]) / f64::from(viewport.0 * viewport.1)
+        };
+        let full_hd = area((1920, 1080));
+        assert!(full_hd < 0.02, "{:.1} % of 1920×1080", 100.0 * full_hd);
+        for viewport in [(1280, 720), (1366, 768), (2560, 1440), (3840, 2160)] {
+            let a = area(viewport);
+            assert!(a < 0.04, "{:.1} % of {viewport:?}", 100.0 * a);
+        }
     }
 
     #[test]
