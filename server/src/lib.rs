@@ -28,9 +28,11 @@
 #![deny(missing_docs)]
 
 mod batch_body;
+mod conn;
 mod cors;
 pub mod describe;
 mod error;
+mod file_body;
 pub mod metrics;
 mod observe;
 mod range;
@@ -41,7 +43,6 @@ pub mod web;
 use std::future::Future;
 
 use axum::Router;
-use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 
 pub use describe::{describe, head_len, summarize};
@@ -59,21 +60,26 @@ pub fn app(state: AppState) -> Router {
 /// Serves `state` on `listener` until `shutdown` completes, then stops accepting, lets the
 /// requests in flight finish and returns. HTTP/1.1 and HTTP/2 are told apart per connection
 /// (HTTP/2 cleartext needs prior knowledge: there is no `Upgrade: h2c` dance).
+///
+/// Hostile or broken clients cannot exhaust it (see [`Config`] for the settings):
+///
+/// - a request's headers must arrive within [`Config::header_read_timeout`] (hyper's
+///   HTTP/1.1 timeout, and the server's own from the accept until the first request);
+/// - a connection moving no byte for [`Config::idle_timeout`] is closed;
+/// - at most [`Config::max_connections`] are open at once (fewer when the file-descriptor
+///   limit is lower): a new connection beyond it closes the least recently active one of the
+///   client address that holds the most, so an idle flood cannot keep other clients out;
+/// - hyper buffers a bounded part of each answer (16 KiB for HTTP/1.1, 32 KiB per HTTP/2
+///   stream) and bodies are produced as it asks for them, so a client that never reads its
+///   batch answer holds tens of kilobytes, not the answer;
+/// - request heads are limited to 16 KiB (431 beyond).
 pub async fn run(
     listener: TcpListener,
     state: AppState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), ServerError> {
-    // Without TCP_NODELAY a small response can wait for the client's delayed ACK (Nagle's
-    // algorithm): tens of milliseconds on a request that takes microseconds.
-    let listener = listener.tap_io(|tcp| {
-        if let Err(e) = tcp.set_nodelay(true) {
-            tracing::debug!("set_nodelay: {e}");
-        }
-    });
-    axum::serve(listener, app(state))
-        .with_graceful_shutdown(shutdown)
-        .await?;
+    let cfg = state.config().clone();
+    conn::serve(listener, app(state), &cfg, shutdown).await?;
     Ok(())
 }
 

@@ -17,12 +17,13 @@ use cbdam_codec::geometry::DiamondId;
 use serde::Deserialize;
 use tower_http::timeout::TimeoutLayer;
 
-use crate::batch_body::BatchBody;
+use crate::batch_body::{BatchBody, NOT_STORED};
 use crate::cors::cors_layer;
 use crate::error::ApiError;
+use crate::file_body::FileBody;
 use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
-use crate::state::{AppState, ServedRepo};
+use crate::state::{AppState, RecordError, ServedRepo, Source};
 
 use cbdam_codec::repository::batch::answer_order;
 /// The batch framing, defined once in the codec for both ends of the wire.
@@ -107,23 +108,16 @@ fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
         .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t).as_bytes() == ours)
 }
 
-/// Record `i`'s byte range in the file, its bytes checked against their CRC (once per record:
-/// repositories are immutable while served). A damaged record is answered with 500 and logged the first time
-/// only.
-fn checked_record(st: &AppState, r: &ServedRepo, i: usize) -> Result<Range<usize>, ApiError> {
-    // `i` comes from a search of the index, and the index was checked against the file.
-    let range = r.repo.head().record_range(i).expect("an index position");
-    // The file is mapped, so its offsets fit in usize.
-    let range = range.start as usize..range.end as usize;
-    if r.verified[i].load(Relaxed) {
-        return Ok(range);
-    }
-    match r.repo.record_at(i) {
-        Ok(_) => {
+/// Record `i`'s bytes appended to `out`, read from the file and checked against their CRC. A
+/// damaged record is answered with 500 and logged the first time only.
+fn read_record(st: &AppState, r: &ServedRepo, i: usize, out: &mut Vec<u8>) -> Result<(), ApiError> {
+    match r.read_record_into(i, out) {
+        Ok(()) => {
             r.verified[i].store(true, Relaxed);
-            Ok(range)
+            Ok(())
         }
-        Err(e) => {
+        Err(RecordError::Read(e)) => Err(e),
+        Err(RecordError::Damaged(e)) => {
             st.metrics().add_corrupt();
             let id = r.repo.entries()[i].id;
             if !r.corrupt_logged[i].swap(true, Relaxed) {
@@ -236,6 +230,8 @@ async fn meta(
 ) -> Result<Response, ApiError> {
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
+    // A file rebuilt in place has another header than the one described.
+    r.check_unchanged()?;
     let h = headers([
         (header::ETAG, r.meta_etag.clone()),
         (header::CACHE_CONTROL, hv(REVALIDATE)),
@@ -267,7 +263,9 @@ async fn diamond(
             Body::empty(),
         ));
     }
-    let range = checked_record(&st, r, i)?;
+    r.check_unchanged()?;
+    let mut bytes = Vec::with_capacity(r.repo.entries()[i].length as usize);
+    read_record(&st, r, i, &mut bytes)?;
     st.metrics().add_records(1);
     Ok(respond(
         StatusCode::OK,
@@ -276,11 +274,7 @@ async fn diamond(
             (header::ETAG, etag),
             (header::CACHE_CONTROL, hv(IMMUTABLE)),
         ]),
-        // The mapped bytes themselves, not a copy.
-        Bytes::from_owner(FileSlice {
-            repo: Arc::clone(r),
-            range,
-        }),
+        bytes,
     ))
 }
 
@@ -336,7 +330,7 @@ async fn batch(
     };
     // Resolve and check every record before sending anything, so a malformed id or a damaged
     // record fails the request whole, and so the body can be sized exactly.
-    let mut slots = Vec::with_capacity(req.ids.len());
+    let mut slots: Vec<Option<usize>> = Vec::with_capacity(req.ids.len());
     for (k, s) in req.ids.iter().enumerate() {
         let id = s.parse::<DiamondId>().map_err(|_| {
             ApiError::BadRequest(format!(
@@ -348,11 +342,22 @@ async fn batch(
     // `max_batch` is a usize from the command line; the count field is u32.
     u32::try_from(slots.len())
         .map_err(|_| ApiError::TooLarge("more than 2^32 ids in one batch".into()))?;
+    r.check_unchanged()?;
+    // Records not checked before are read and checked now, so that a damaged one fails the
+    // whole request; the body reads (and checks) each again as it sends it.
+    let mut scratch = Vec::new();
     let mut entries = Vec::with_capacity(slots.len());
     for k in order {
         entries.push(match slots[k] {
-            Some(i) => Some(checked_record(&st, r, i)?),
-            None => None,
+            Some(i) => {
+                if !r.verified[i].load(Relaxed) {
+                    scratch.clear();
+                    read_record(&st, r, i, &mut scratch)?;
+                }
+                // Index positions fit in u32 (index lengths and counts are u32).
+                i as u32
+            }
+            None => NOT_STORED,
         });
     }
     // The records are counted as the body hands them over (`BatchBody`).
@@ -370,8 +375,8 @@ async fn batch(
     ))
 }
 
-/// A byte range of a served file, owned by the repository's `Arc`: the body is the mapped
-/// bytes themselves, never copied.
+/// A byte range of a repository held in memory, owned by the repository's `Arc`: the body is
+/// its bytes themselves, never copied.
 struct FileSlice {
     repo: Arc<ServedRepo>,
     range: Range<usize>,
@@ -390,6 +395,7 @@ async fn file(
 ) -> Result<Response, ApiError> {
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
+    r.check_unchanged()?;
     let len = r.repo.file_len();
     let mut h = headers([
         (header::ETAG, r.file_etag.clone()),
@@ -423,11 +429,15 @@ async fn file(
         }
         RangeRequest::Unsatisfiable => return Err(ApiError::RangeNotSatisfiable(len)),
     };
-    // The file is mapped, so its length fits in usize.
-    let body = Bytes::from_owner(FileSlice {
-        repo: Arc::clone(r),
-        range: range.start as usize..range.end as usize,
-    });
+    let body = match r.source {
+        // An in-memory repository's bytes themselves, not a copy.
+        Source::Memory => Body::from(Bytes::from_owner(FileSlice {
+            repo: Arc::clone(r),
+            range: range.start as usize..range.end as usize,
+        })),
+        // Read a chunk at a time as the client takes them.
+        Source::File { .. } => Body::new(FileBody::new(Arc::clone(r), range)),
+    };
     Ok(respond(status, h, body))
 }
 
