@@ -118,6 +118,8 @@ fn read_record(st: &AppState, r: &ServedRepo, i: usize, out: &mut Vec<u8>) -> Re
         }
         Err(RecordError::Read(e)) => Err(e),
         Err(RecordError::Damaged(e)) => {
+            // Checked once, damaged since (a file changed in place): no longer known good.
+            r.verified[i].store(false, Relaxed);
             st.metrics().add_corrupt();
             let id = r.repo.entries()[i].id;
             if !r.corrupt_logged[i].swap(true, Relaxed) {
@@ -255,6 +257,9 @@ async fn diamond(
     let i = find(r, id).ok_or_else(|| {
         ApiError::NotFound(format!("diamond {id} is not stored in repository {name:?}"))
     })?;
+    // Before any answer, a 304 included: a file rebuilt in place no longer holds what the
+    // ETag names.
+    r.check_unchanged()?;
     let etag = r.record_etag(i);
     if not_modified(req.headers(), &etag) {
         return Ok(respond(
@@ -263,7 +268,6 @@ async fn diamond(
             Body::empty(),
         ));
     }
-    r.check_unchanged()?;
     let mut bytes = Vec::with_capacity(r.repo.entries()[i].length as usize);
     read_record(&st, r, i, &mut bytes)?;
     st.metrics().add_records(1);

@@ -4,5 +4,6 @@
 
 mod util;
 
+mod hostile;
 mod http;
 mod priorities;
