@@ -28,6 +28,14 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     if !(args.timeout.is_finite() && args.timeout > 0.0) {
         bail!("--timeout must be a positive number of seconds");
     }
+    for (flag, v) in [
+        ("--header-timeout", args.header_timeout),
+        ("--idle-timeout", args.idle_timeout),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            bail!("{flag} must be a positive number of seconds");
+        }
+    }
     if args.max_batch == 0 {
         bail!("--max-batch must be at least 1");
     }
@@ -47,6 +55,9 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         cors_origin: args.cors_origin.clone(),
         timeout,
         web,
+        header_read_timeout: Duration::from_secs_f64(args.header_timeout),
+        idle_timeout: Duration::from_secs_f64(args.idle_timeout),
+        max_connections: args.max_connections,
     };
     init_logging();
     let state = AppState::open(&specs, config)?;
