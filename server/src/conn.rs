@@ -50,6 +50,9 @@ use crate::state::Config;
 /// for more. The default (about 400 KiB) let a thousand clients that never read their batch
 /// answers hold hundreds of megabytes.
 pub(crate) const H1_MAX_BUF: usize = 16 << 10;
+/// hyper's limit on header fields in an HTTP/1.1 request (431 beyond, with an empty body): above
+/// the server's own limit, which answers in JSON.
+pub(crate) const H1_MAX_HEADERS: usize = 128;
 /// The HTTP/2 counterpart per stream (hyper's default is 400 KiB).
 const H2_MAX_SEND_BUF: usize = 32 << 10;
 /// HTTP/2 streams a connection may have open at once.
@@ -100,10 +103,11 @@ impl Registry {
     }
 
     /// Closes the least recently active connection of the address holding the most. It leaves
-    /// the registry at once (its task closes the socket as soon as it runs).
-    fn evict_one(&mut self) {
+    /// the registry at once (its task closes the socket as soon as it runs). False when there
+    /// is none.
+    fn evict_one(&mut self) -> bool {
         let Some((&ip, _)) = self.per_ip.iter().max_by_key(|(_, n)| **n) else {
-            return;
+            return false;
         };
         let Some((&id, _)) = self
             .conns
@@ -111,11 +115,12 @@ impl Registry {
             .filter(|(_, s)| s.ip == ip)
             .min_by_key(|(_, s)| s.last_io.load(Relaxed))
         else {
-            return;
+            return false;
         };
         let slot = Arc::clone(&self.conns[&id]);
         self.remove(id);
         slot.evict.notify_one();
+        true
     }
 }
 
@@ -151,7 +156,8 @@ fn builder(cfg: &Config) -> Builder<TokioExecutor> {
     b.http1()
         .timer(TokioTimer::new())
         .header_read_timeout(cfg.header_read_timeout)
-        .max_buf_size(H1_MAX_BUF);
+        .max_buf_size(H1_MAX_BUF)
+        .max_headers(H1_MAX_HEADERS);
     b.http2()
         .timer(TokioTimer::new())
         .max_send_buf_size(H2_MAX_SEND_BUF)
@@ -212,9 +218,7 @@ pub(crate) async fn serve(
         });
         let id = {
             let mut reg = registry.lock().expect("not poisoned");
-            while reg.conns.len() >= cap {
-                reg.evict_one();
-            }
+            while reg.conns.len() >= cap && reg.evict_one() {}
             reg.add(Arc::clone(&slot))
         };
         let io = TokioIo::new(Tracked {
@@ -271,7 +275,7 @@ async fn accept_error(e: &std::io::Error, registry: &Mutex<Registry>) {
         Some(libc::EMFILE | libc::ENFILE | libc::ENOBUFS | libc::ENOMEM)
     ) {
         tracing::warn!("accept: {e}: closing the least recently active connection");
-        registry.lock().expect("not poisoned").evict_one();
+        let _ = registry.lock().expect("not poisoned").evict_one();
         tokio::time::sleep(Duration::from_millis(10)).await;
         return;
     }

@@ -20,11 +20,28 @@
 //! # Performance
 //!
 //! A single-record `GET` is the hot path (a client refining a view asks for many small
-//! records). It formats nothing and copies nothing: each record's ETag is sliced from one
-//! buffer built at startup, its body is the mapped bytes, and its CRC is checked on its first
-//! request only. The metrics and the access log are one hand-written layer, and successful
-//! record requests log at debug, so the default `info` level does not write a line per
-//! record. `cbdam bench serve` measures records/s, latency and CPU time per request.
+//! records). It formats nothing: each record's ETag is sliced from one buffer built at startup,
+//! its body is one positioned read of the file, checked against the record's CRC. The metrics
+//! and the access log are one hand-written layer, and successful record requests log at debug,
+//! so the default `info` level does not write a line per record. `cbdam bench serve` measures
+//! records/s, latency and CPU time per request.
+//!
+//! # A served file rebuilt while the server runs
+//!
+//! The server holds each repository file open and reads it with positioned reads (never through
+//! a memory map, so nothing done to the file can crash it):
+//!
+//! - **Replaced by a rename** (a new file written next to it and renamed over it, which is what
+//!   `cbdam build` does): the server keeps serving the file it opened, unchanged and under the
+//!   same ETags, until it is restarted; then it serves the new one.
+//! - **Overwritten or truncated in place** (`cp` onto it, a build writing into it): every
+//!   request that reads the repository (meta, records, batches, the file, revalidations
+//!   included) is answered 500 with a JSON error saying the file changed on disk, logged once,
+//!   until the server is restarted. The change is seen by the file's length and modification
+//!   time, checked on each such request; records are also checked against their CRC every time
+//!   they are sent, so bytes that changed without either (a modification time put back) are
+//!   answered 500 as damaged, never served under the old ETag. An answer under way when the file
+//!   changes is cut short (the connection is closed) rather than finished with other bytes.
 #![deny(missing_docs)]
 
 mod batch_body;

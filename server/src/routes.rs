@@ -7,8 +7,8 @@ use std::sync::atomic::Ordering::Relaxed;
 
 use axum::Router;
 use axum::body::Body;
-use axum::extract::rejection::{BytesRejection, PathRejection};
-use axum::extract::{DefaultBodyLimit, Path, Request, State};
+use axum::extract::rejection::PathRejection;
+use axum::extract::{Path, Request, State};
 use axum::http::{HeaderMap, HeaderName, HeaderValue, Method, StatusCode, Uri, header};
 use axum::response::Response;
 use axum::routing::{get, post};
@@ -51,10 +51,7 @@ pub(crate) fn router(state: AppState) -> Router {
         .route("/v1/repos/{name}/meta", get(meta))
         .route("/v1/repos/{name}/file", get(file))
         .route("/v1/repos/{name}/diamonds/{id}", get(diamond))
-        .route(
-            "/v1/repos/{name}/diamonds",
-            post(batch).layer(DefaultBodyLimit::max(cfg.max_body)),
-        )
+        .route("/v1/repos/{name}/diamonds", post(batch))
         .route("/metrics", get(metrics))
         .route("/", get(index))
         .route("/viewer/{hash}/{file}", get(viewer_file))
@@ -282,6 +279,39 @@ async fn diamond(
     ))
 }
 
+/// How far past `--max-body` a request body is read (and dropped) before the 413.
+const DRAIN_BYTES: usize = 16 << 20;
+
+/// The request body, at most `max` bytes. A longer one is read on to its end (at most
+/// [`DRAIN_BYTES`] more, within `--timeout`) and dropped before the 413 is sent: an HTTP/2
+/// client still sending when the answer came would otherwise see its stream reset, not the
+/// 413.
+async fn read_body(mut body: Body, max: usize) -> Result<Bytes, ApiError> {
+    use http_body::Body as _;
+    let mut kept = Vec::new();
+    let mut total = 0usize;
+    while let Some(frame) =
+        std::future::poll_fn(|cx| std::pin::Pin::new(&mut body).poll_frame(cx)).await
+    {
+        let frame =
+            frame.map_err(|e| ApiError::BadRequest(format!("reading the request body: {e}")))?;
+        if let Ok(data) = frame.into_data() {
+            total = total.saturating_add(data.len());
+            if total <= max {
+                kept.extend_from_slice(&data);
+            } else if total > max.saturating_add(DRAIN_BYTES) {
+                break;
+            }
+        }
+    }
+    if total > max {
+        return Err(ApiError::TooLarge(format!(
+            "request body is over {max} bytes"
+        )));
+    }
+    Ok(Bytes::from(kept))
+}
+
 /// `POST /v1/repos/{name}/diamonds` body. Ids are borrowed from the body when they contain no
 /// JSON escapes, which is always for well-formed ids. `priorities`, if given, has one number
 /// per id (the client's screen error): the answer comes highest first
@@ -297,18 +327,12 @@ struct BatchRequest<'a> {
 async fn batch(
     State(st): State<AppState>,
     path: Result<Path<String>, PathRejection>,
-    body: Result<Bytes, BytesRejection>,
+    http: Request,
 ) -> Result<Response, ApiError> {
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
     let cfg = st.config();
-    let body = body.map_err(|e| {
-        if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-            ApiError::TooLarge(format!("request body is over {} bytes", cfg.max_body))
-        } else {
-            ApiError::BadRequest(format!("reading the request body: {}", e.body_text()))
-        }
-    })?;
+    let body = read_body(http.into_body(), cfg.max_body).await?;
     let req: BatchRequest = serde_json::from_slice(&body).map_err(|e| {
         ApiError::BadRequest(format!(
             "malformed batch request: {e} (want {{\"ids\": [\"level-x-y\", ...], \"priorities\": [number, ...] (optional)}})"

@@ -192,8 +192,8 @@ async fn an_idle_flood_does_not_keep_a_normal_request_out() {
     // 128 file descriptors: 300 idle connections would take every one of them.
     let mut server = Child::start("nofile=128");
     let flood = idle_connections(server.addr, 300).await;
-    // The listen backlog takes them whether or not the server accepts them.
-    assert_eq!(flood.len(), 300);
+    // More than the server has descriptors for (connections left in the listen backlog count).
+    assert!(flood.len() > 128, "{} connections", flood.len());
     // Let the server take them in (not a bound on anything).
     tokio::time::sleep(Duration::from_millis(300)).await;
     let c = client();
@@ -479,4 +479,131 @@ async fn a_file_changed_in_place_is_refused_not_served() {
     let r = c.get(s.url("/v1/repos")).send().await.unwrap();
     assert_eq!(r.status(), 200);
     s.stop().await;
+}
+
+#[tokio::test]
+async fn oversized_requests_get_json_errors_over_http1_and_h2() {
+    let s = start_one(Config {
+        max_body: 4096,
+        ..Config::default()
+    })
+    .await;
+    let h2 = reqwest::Client::builder()
+        .http2_prior_knowledge()
+        .build()
+        .unwrap();
+    // A body over --max-body, still being sent when the server answers.
+    let huge = format!(r#"{{"ids":["{}"]}}"#, "1".repeat(1 << 20));
+    for c in [&client(), &h2] {
+        let r = c
+            .post(s.url("/v1/repos/t/diamonds"))
+            .body(huge.clone())
+            .send()
+            .await
+            .expect("an answer, not a reset stream");
+        let msg = error_body(r, 413).await;
+        assert!(msg.contains("4096"), "{msg}");
+    }
+    // Heads larger than the server reads: a long target, many or long header fields.
+    let c = client();
+    let long = s.url(&format!("/v1/repos/{}", "a".repeat(10_000)));
+    error_body(c.get(&long).send().await.unwrap(), 414).await;
+    let mut many = c.get(s.url("/v1/repos"));
+    for i in 0..110 {
+        many = many.header(format!("x-h{i}"), "1");
+    }
+    error_body(many.send().await.unwrap(), 431).await;
+    let r = c
+        .get(s.url("/v1/repos"))
+        .header("x-long", "v".repeat(12_000))
+        .send()
+        .await
+        .unwrap();
+    error_body(r, 431).await;
+    // Over h2 too.
+    error_body(h2.get(&long).send().await.unwrap(), 414).await;
+    s.stop().await;
+}
+
+/// Latencies of `n` sequential `GET url` on one keep-alive client, each given 1 s: the 50th and
+/// 99th percentiles and the slowest, and how many were not answered 200 in time.
+async fn latencies(
+    c: &reqwest::Client,
+    url: &str,
+    n: usize,
+) -> (Duration, Duration, Duration, usize) {
+    let mut took = Vec::with_capacity(n);
+    let mut failed = 0;
+    for _ in 0..n {
+        let t = Instant::now();
+        let answered = tokio::time::timeout(Duration::from_secs(1), async {
+            let r = c.get(url).send().await.ok()?;
+            (r.status() == 200).then_some(())?;
+            r.bytes().await.ok()
+        })
+        .await;
+        match answered {
+            Ok(Some(_)) => took.push(t.elapsed()),
+            _ => failed += 1,
+        }
+    }
+    took.sort();
+    let at = |q: f64| {
+        took.get(((took.len() as f64 * q) as usize).min(took.len().saturating_sub(1)))
+            .copied()
+            .unwrap_or_default()
+    };
+    (at(0.5), at(0.99), at(1.0), failed)
+}
+
+/// The figures of the server under floods: file descriptors, resident memory and the latency of
+/// normal requests during 10 000 idle connections, then during 1 000 unread batch answers.
+/// Minutes long; run it alone:
+/// `cargo test -p cbdam-server --test tests hostile::flood_figures -- --ignored --nocapture`
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "a measurement, not a check: run it alone"]
+async fn flood_figures() {
+    let limit = set_fd_limit(u64::MAX);
+    assert!(
+        limit > 12_000,
+        "needs a file-descriptor hard limit over 12 000, not {limit}"
+    );
+    let mut server = Child::start(&format!("nofile={limit}"));
+    let c = client();
+    let meta = server.url("/v1/repos/t/meta");
+    let report = |phase: &str, server: &Child, l: (Duration, Duration, Duration, usize)| {
+        eprintln!(
+            "{phase}: {} fds, RSS {} MB, GET meta p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms, {} of 200 not answered within 1 s",
+            server.fds(),
+            server.rss() >> 20,
+            l.0.as_secs_f64() * 1e3,
+            l.1.as_secs_f64() * 1e3,
+            l.2.as_secs_f64() * 1e3,
+            l.3
+        );
+    };
+    let l = latencies(&c, &meta, 200).await;
+    report("idle server", &server, l);
+
+    let idle = idle_connections(server.addr, 10_000).await;
+    eprintln!("{} idle connections opened", idle.len());
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let l = latencies(&c, &meta, 200).await;
+    report("10 000 idle connections", &server, l);
+    drop(idle);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+
+    let (req, answer) = big_batch(4096);
+    let mut held = Vec::with_capacity(1000);
+    for _ in 0..1000 {
+        held.push(unread_request(server.addr, &req).await);
+    }
+    settled_rss(&server, Duration::from_secs(20)).await;
+    let l = latencies(&c, &meta, 200).await;
+    report(
+        &format!("1 000 unread batch answers of {} MB", answer >> 20),
+        &server,
+        l,
+    );
+    assert!(server.alive());
 }
