@@ -125,6 +125,8 @@ impl Registry {
 }
 
 /// The soft limit on open file descriptors, if there is one.
+// `rlim_t` is u64 on Linux, not on every Unix.
+#[allow(clippy::unnecessary_cast)]
 fn fd_limit() -> Option<u64> {
     #[cfg(unix)]
     {
