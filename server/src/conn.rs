@@ -63,9 +63,9 @@ const FD_RESERVE: u64 = 64;
 /// One connection as the cap sees it.
 struct Slot {
     ip: IpAddr,
-    /// Milliseconds since the server started, when the connection was accepted.
+    /// Microseconds since the server started, when the connection was accepted.
     accepted: u64,
-    /// Milliseconds since the server started, when a byte last moved either way (or the
+    /// Microseconds since the server started, when a byte last moved either way (or the
     /// connection was accepted).
     last_io: AtomicU64,
     /// Whether a request has reached the router.
@@ -113,7 +113,8 @@ impl Registry {
             .conns
             .iter()
             .filter(|(_, s)| s.ip == ip)
-            .min_by_key(|(_, s)| s.last_io.load(Relaxed))
+            // Of equally recent ones, the first accepted.
+            .min_by_key(|&(&id, s)| (s.last_io.load(Relaxed), id))
         else {
             return false;
         };
@@ -302,17 +303,17 @@ struct Limits {
 
 impl Limits {
     fn now(&self) -> u64 {
-        self.clock.elapsed().as_millis() as u64
+        self.clock.elapsed().as_micros() as u64
     }
 
     /// When the connection is to close unless something happens: its first request's headers
     /// are due `header` after the accept, and after that a byte every `idle`.
     fn deadline(&self, slot: &Slot) -> Instant {
-        let last = self.clock + Duration::from_millis(slot.last_io.load(Relaxed));
+        let last = self.clock + Duration::from_micros(slot.last_io.load(Relaxed));
         if slot.requested.load(Relaxed) {
             last + self.idle
         } else {
-            self.clock + Duration::from_millis(slot.accepted) + self.header
+            self.clock + Duration::from_micros(slot.accepted) + self.header
         }
     }
 }
@@ -349,7 +350,7 @@ pin_project! {
 impl Tracked {
     fn touch(slot: &Slot, clock: Instant) {
         slot.last_io
-            .store(clock.elapsed().as_millis() as u64, Relaxed);
+            .store(clock.elapsed().as_micros() as u64, Relaxed);
     }
 }
 

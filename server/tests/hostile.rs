@@ -214,6 +214,37 @@ async fn an_idle_flood_does_not_keep_a_normal_request_out() {
     drop(flood);
 }
 
+#[tokio::test]
+async fn a_flood_over_max_connections_does_not_keep_a_normal_request_out() {
+    let s = start_one(Config {
+        max_connections: 16,
+        ..Config::default()
+    })
+    .await;
+    let flood = idle_connections(s.addr, 100).await;
+    assert_eq!(flood.len(), 100);
+    let c = client();
+    for _ in 0..3 {
+        let r = tokio::time::timeout(
+            Duration::from_secs(1),
+            c.get(s.url("/v1/repos/t/meta")).send(),
+        )
+        .await
+        .expect("a normal request is answered within 1 s during the flood")
+        .unwrap();
+        assert_eq!(r.status(), 200);
+    }
+    // The flood's oldest connections were closed to make room.
+    let mut closed = 0;
+    for mut f in flood.into_iter().take(50) {
+        if closed_by_server(&mut f, Duration::from_secs(5)).await {
+            closed += 1;
+        }
+    }
+    assert_eq!(closed, 50);
+    s.stop().await;
+}
+
 /// Reads from `s` until the server closes it, for at most `limit`; whether it did.
 async fn closed_by_server(s: &mut TcpStream, limit: Duration) -> bool {
     let mut buf = [0u8; 4096];
