@@ -289,6 +289,7 @@ async fn accept_error(e: &std::io::Error, registry: &Mutex<Registry>) {
     ) {
         return;
     }
+    #[cfg(not(unix))]
     let _ = registry;
     tracing::error!("accept: {e}");
     tokio::time::sleep(Duration::from_millis(100)).await;
