@@ -694,3 +694,40 @@ async fn an_oversized_h2_body_gets_its_413_without_a_stream_reset() {
     assert!(reset.is_none(), "the stream was reset: {reset:?}");
     s.stop().await;
 }
+
+/// The hot path's figure: sequential single-record `GET`s on one keep-alive connection against
+/// a repository served from its file. Run alone:
+/// `cargo test -p cbdam-server --test tests hostile::record_figures -- --ignored --nocapture`
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "a measurement, not a check: run it alone"]
+async fn record_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.cbdam");
+    let repo = noise_repo();
+    std::fs::write(&path, repo.as_bytes()).unwrap();
+    let s = serve_file(&path).await;
+    let c = client();
+    let urls: Vec<String> = repo
+        .entries()
+        .iter()
+        .filter(|e| e.length > 0)
+        .map(|e| s.url(&format!("/v1/repos/t/diamonds/{}", e.id)))
+        .collect();
+    let mut bytes = 0;
+    for round in 0..6 {
+        let n = 4000;
+        let t = Instant::now();
+        for u in urls.iter().cycle().take(n) {
+            bytes += c.get(u).send().await.unwrap().bytes().await.unwrap().len();
+        }
+        let took = t.elapsed();
+        if round > 0 {
+            eprintln!(
+                "{n} record GETs: {:.1} µs each",
+                took.as_secs_f64() * 1e6 / n as f64
+            );
+        }
+    }
+    assert!(bytes > 0);
+    s.stop().await;
+}
