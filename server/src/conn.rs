@@ -55,8 +55,10 @@ pub(crate) const H1_MAX_BUF: usize = 16 << 10;
 pub(crate) const H1_MAX_HEADERS: usize = 128;
 /// The HTTP/2 counterpart per stream (hyper's default is 400 KiB).
 const H2_MAX_SEND_BUF: usize = 32 << 10;
-/// HTTP/2 streams a connection may have open at once.
-const H2_MAX_STREAMS: u32 = 100;
+/// HTTP/2 streams a connection may have open at once (hyper's default is 200): each may hold
+/// an unread answer's buffers, so this multiplies what one connection can hold; a client
+/// asking for more waits for a stream to end.
+const H2_MAX_STREAMS: u32 = 32;
 /// File descriptors kept out of the connection cap: repositories, the runtime's, the log's.
 const FD_RESERVE: u64 = 64;
 
