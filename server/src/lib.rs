@@ -87,8 +87,8 @@ pub fn app(state: AppState) -> Router {
 ///   limit is lower): a new connection beyond it closes the least recently active one of the
 ///   client address that holds the most, so an idle flood cannot keep other clients out;
 /// - hyper buffers a bounded part of each answer (16 KiB for HTTP/1.1, 32 KiB per HTTP/2
-///   stream) and bodies are produced as it asks for them, so a client that never reads its
-///   batch answer holds tens of kilobytes, not the answer;
+///   stream, at most 32 streams a connection) and bodies are produced as it asks for them, so
+///   a client that never reads its batch answer holds tens of kilobytes, not the answer;
 /// - request heads are limited to 16 KiB (431 beyond).
 pub async fn run(
     listener: TcpListener,
