@@ -38,6 +38,19 @@ pub struct ServeArgs {
     /// Time allowed for one request, seconds (then 408).
     #[arg(long, default_value_t = 30.0, value_parser = crate::flags::positive_finite)]
     timeout: f64,
+    /// Time a connection has to send a request's headers, seconds: from its accept for the
+    /// first request, from the last answer for the next (an idle keep-alive connection is
+    /// closed then).
+    #[arg(long, default_value_t = 10.0, value_parser = crate::flags::positive_finite)]
+    header_timeout: f64,
+    /// A connection that moves no byte either way for this long is closed, seconds (an idle
+    /// HTTP/2 connection, a client that does not read its answer).
+    #[arg(long, default_value_t = 60.0, value_parser = crate::flags::positive_finite)]
+    idle_timeout: f64,
+    /// Most connections open at once (fewer if the file-descriptor limit is lower): one more
+    /// closes the least recently active connection of the client address holding the most.
+    #[arg(long, default_value_t = 10_000)]
+    max_connections: usize,
     /// The browser viewer's files (the bundle `scripts/web-build.sh` writes, e.g.
     /// target/web-bundle): `/` then links every repository to the viewer, served under
     /// `/viewer/HASH/`. Without it `/` only lists the repositories.
@@ -81,6 +94,9 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         cors_origin: args.cors_origin.clone(),
         timeout,
         web,
+        header_read_timeout: Duration::from_secs_f64(args.header_timeout),
+        idle_timeout: Duration::from_secs_f64(args.idle_timeout),
+        max_connections: args.max_connections,
     };
     init_logging();
     let state = AppState::open(&specs, config)?;

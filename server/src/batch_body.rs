@@ -1,10 +1,12 @@
 //! The streamed body of a batch response: entries are handed to the connection a chunk at a
-//! time, in answer order (most urgent first), straight from the memory map. A client that
-//! drops the request (its view moved on) closes the connection; the body is then dropped
-//! unfinished, nothing more of it is written, and the metrics count the batch as aborted with
-//! the bytes it did not send.
+//! time, in answer order (most urgent first), each record read from the file and checked
+//! against its CRC as its chunk is made. The connection asks for a chunk only when its write
+//! buffer (bounded, see [`crate::run`]) has room, so a client that does not read its answer
+//! holds one chunk and that buffer, never the whole answer. A client that drops the request
+//! (its view moved on) closes the connection; the body is then dropped unfinished, nothing
+//! more of it is read or written, and the metrics count the batch as aborted with the bytes it
+//! did not send.
 
-use std::ops::Range;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::task::{Context, Poll};
@@ -15,19 +17,23 @@ use cbdam_codec::repository::batch::{
 };
 use http_body::{Frame, SizeHint};
 
-use crate::state::{AppState, ServedRepo};
+use crate::state::{AppState, RecordError, ServedRepo};
 
 /// A chunk is cut after the entry that takes it past this many bytes: small enough that a
-/// closed connection stops the body soon, large enough to keep per-chunk costs negligible.
-const CHUNK_BYTES: usize = 16 << 10;
+/// closed connection stops the body soon and an unread one holds little, large enough to keep
+/// per-chunk costs negligible.
+pub(crate) const CHUNK_BYTES: usize = 16 << 10;
+
+/// An entry that is not stored (in [`BatchBody::entries`]).
+pub(crate) const NOT_STORED: u32 = u32::MAX;
 
 /// One batch response's body: the preamble, then `entries` in order.
 pub(crate) struct BatchBody {
     state: AppState,
     repo: Arc<ServedRepo>,
-    /// Per entry in answer order: the record's bytes in the mapped file, or `None` when the
-    /// diamond is not stored.
-    entries: Vec<Option<Range<usize>>>,
+    /// Per entry in answer order: the record's position in the index, or [`NOT_STORED`]. Four
+    /// bytes an entry: a 4 096-id batch waiting on a slow reader holds 16 KiB of them.
+    entries: Vec<u32>,
     /// Entries handed over so far.
     next: usize,
     preamble_sent: bool,
@@ -37,13 +43,13 @@ pub(crate) struct BatchBody {
 
 impl BatchBody {
     /// The body answering `entries` (in answer order) from `repo`'s file.
-    pub(crate) fn new(
-        state: AppState,
-        repo: Arc<ServedRepo>,
-        entries: Vec<Option<Range<usize>>>,
-    ) -> Self {
-        let records: usize = entries.iter().flatten().map(|r| r.len()).sum();
-        let unsent = (PREAMBLE_LEN + ENTRY_HEAD_LEN * entries.len() + records) as u64;
+    pub(crate) fn new(state: AppState, repo: Arc<ServedRepo>, entries: Vec<u32>) -> Self {
+        let records: u64 = entries
+            .iter()
+            .filter(|&&i| i != NOT_STORED)
+            .map(|&i| u64::from(repo.repo.head().entries()[i as usize].length))
+            .sum();
+        let unsent = (PREAMBLE_LEN + ENTRY_HEAD_LEN * entries.len()) as u64 + records;
         Self {
             state,
             repo,
@@ -59,7 +65,10 @@ impl BatchBody {
     }
 
     /// The next chunk: whole entries (and the preamble first) up to about [`CHUNK_BYTES`].
-    fn next_chunk(&mut self) -> Vec<u8> {
+    /// Fails when a record can no longer be read as it was checked before the answer started
+    /// (the file changed underneath): the connection is then cut, so the client sees a
+    /// truncated answer, never wrong bytes.
+    fn next_chunk(&mut self) -> Result<Vec<u8>, std::io::Error> {
         let mut out = Vec::with_capacity(CHUNK_BYTES + 64);
         if !self.preamble_sent {
             out.extend_from_slice(&MAGIC);
@@ -67,20 +76,30 @@ impl BatchBody {
             out.extend_from_slice(&(self.entries.len() as u32).to_le_bytes());
             self.preamble_sent = true;
         }
-        let file = self.repo.repo.as_bytes();
         let mut records = 0;
         while self.next < self.entries.len() && out.len() < CHUNK_BYTES {
-            match &self.entries[self.next] {
-                Some(range) => {
+            match self.entries[self.next] {
+                NOT_STORED => {
+                    out.push(STATUS_NOT_STORED);
+                    out.extend_from_slice(&0u32.to_le_bytes());
+                }
+                i => {
+                    let i = i as usize;
                     records += 1;
                     out.push(STATUS_RECORD);
                     // Index lengths are u32.
-                    out.extend_from_slice(&(range.len() as u32).to_le_bytes());
-                    out.extend_from_slice(&file[range.clone()]);
-                }
-                None => {
-                    out.push(STATUS_NOT_STORED);
-                    out.extend_from_slice(&0u32.to_le_bytes());
+                    out.extend_from_slice(&self.repo.repo.head().entries()[i].length.to_le_bytes());
+                    if let Err(e) = self.repo.read_record_into(i, &mut out) {
+                        let why = match e {
+                            RecordError::Read(e) => e.to_string(),
+                            RecordError::Damaged(e) => e.to_string(),
+                        };
+                        tracing::error!(
+                            repo = %self.repo.name,
+                            "batch cut short: record {i} can no longer be read as checked: {why}"
+                        );
+                        return Err(std::io::Error::other(why));
+                    }
                 }
             }
             self.next += 1;
@@ -91,13 +110,13 @@ impl BatchBody {
         if records > 0 {
             self.state.metrics().add_records(records);
         }
-        out
+        Ok(out)
     }
 }
 
 impl http_body::Body for BatchBody {
     type Data = Bytes;
-    type Error = std::convert::Infallible;
+    type Error = std::io::Error;
 
     fn poll_frame(
         self: Pin<&mut Self>,
@@ -107,7 +126,7 @@ impl http_body::Body for BatchBody {
         if me.finished() {
             return Poll::Ready(None);
         }
-        Poll::Ready(Some(Ok(Frame::data(Bytes::from(me.next_chunk())))))
+        Poll::Ready(Some(me.next_chunk().map(|c| Frame::data(Bytes::from(c)))))
     }
 
     fn is_end_stream(&self) -> bool {

@@ -20,6 +20,12 @@ pub enum ApiError {
     /// The request body or batch is over the configured limit (413).
     #[error("{0}")]
     TooLarge(String),
+    /// The request target is longer than the server reads (414).
+    #[error("{0}")]
+    UriTooLong(String),
+    /// The request's header fields are more or longer than the server reads (431).
+    #[error("{0}")]
+    HeadersTooLarge(String),
     /// The method is not allowed on this path (405).
     #[error("{0}")]
     MethodNotAllowed(String),
@@ -43,6 +49,8 @@ impl ApiError {
             ApiError::BadRequest(_) => StatusCode::BAD_REQUEST,
             ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
+            ApiError::UriTooLong(_) => StatusCode::URI_TOO_LONG,
+            ApiError::HeadersTooLarge(_) => StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE,
             ApiError::RangeNotSatisfiable(_) => StatusCode::RANGE_NOT_SATISFIABLE,
             ApiError::Timeout(_) => StatusCode::REQUEST_TIMEOUT,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,

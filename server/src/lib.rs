@@ -20,17 +20,36 @@
 //! # Performance
 //!
 //! A single-record `GET` is the hot path (a client refining a view asks for many small
-//! records). It formats nothing and copies nothing: each record's ETag is sliced from one
-//! buffer built at startup, its body is the mapped bytes, and its CRC is checked on its first
-//! request only. The metrics and the access log are one hand-written layer, and successful
-//! record requests log at debug, so the default `info` level does not write a line per
-//! record. `cbdam bench serve` measures records/s, latency and CPU time per request.
+//! records). It formats nothing: each record's ETag is sliced from one buffer built at startup,
+//! its body is one positioned read of the file, checked against the record's CRC. The metrics
+//! and the access log are one hand-written layer, and successful record requests log at debug,
+//! so the default `info` level does not write a line per record. `cbdam bench serve` measures
+//! records/s, latency and CPU time per request.
+//!
+//! # A served file rebuilt while the server runs
+//!
+//! The server holds each repository file open and reads it with positioned reads (never through
+//! a memory map, so nothing done to the file can crash it):
+//!
+//! - **Replaced by a rename** (a new file written next to it and renamed over it, which is what
+//!   `cbdam build` does): the server keeps serving the file it opened, unchanged and under the
+//!   same ETags, until it is restarted; then it serves the new one.
+//! - **Overwritten or truncated in place** (`cp` onto it, a build writing into it): every
+//!   request that reads the repository (meta, records, batches, the file, revalidations
+//!   included) is answered 500 with a JSON error saying the file changed on disk, logged once,
+//!   until the server is restarted. The change is seen by the file's length and modification
+//!   time, checked on each such request; records are also checked against their CRC every time
+//!   they are sent, so bytes that changed without either (a modification time put back) are
+//!   answered 500 as damaged, never served under the old ETag. An answer under way when the file
+//!   changes is cut short (the connection is closed) rather than finished with other bytes.
 #![deny(missing_docs)]
 
 mod batch_body;
+mod conn;
 mod cors;
 pub mod describe;
 mod error;
+mod file_body;
 pub mod metrics;
 mod observe;
 mod range;
@@ -41,7 +60,6 @@ pub mod web;
 use std::future::Future;
 
 use axum::Router;
-use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 
 pub use describe::{describe, head_len, summarize};
@@ -59,21 +77,26 @@ pub fn app(state: AppState) -> Router {
 /// Serves `state` on `listener` until `shutdown` completes, then stops accepting, lets the
 /// requests in flight finish and returns. HTTP/1.1 and HTTP/2 are told apart per connection
 /// (HTTP/2 cleartext needs prior knowledge: there is no `Upgrade: h2c` dance).
+///
+/// Hostile or broken clients cannot exhaust it (see [`Config`] for the settings):
+///
+/// - a request's headers must arrive within [`Config::header_read_timeout`] (hyper's
+///   HTTP/1.1 timeout, and the server's own from the accept until the first request);
+/// - a connection moving no byte for [`Config::idle_timeout`] is closed;
+/// - at most [`Config::max_connections`] are open at once (fewer when the file-descriptor
+///   limit is lower): a new connection beyond it closes the least recently active one of the
+///   client address that holds the most, so an idle flood cannot keep other clients out;
+/// - hyper buffers a bounded part of each answer (16 KiB for HTTP/1.1, 32 KiB per HTTP/2
+///   stream, at most 32 streams a connection) and bodies are produced as it asks for them, so
+///   a client that never reads its batch answer holds tens of kilobytes, not the answer;
+/// - request heads are limited to 16 KiB (431 beyond).
 pub async fn run(
     listener: TcpListener,
     state: AppState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), ServerError> {
-    // Without TCP_NODELAY a small response can wait for the client's delayed ACK (Nagle's
-    // algorithm): tens of milliseconds on a request that takes microseconds.
-    let listener = listener.tap_io(|tcp| {
-        if let Err(e) = tcp.set_nodelay(true) {
-            tracing::debug!("set_nodelay: {e}");
-        }
-    });
-    axum::serve(listener, app(state))
-        .with_graceful_shutdown(shutdown)
-        .await?;
+    let cfg = state.config().clone();
+    conn::serve(listener, app(state), &cfg, shutdown).await?;
     Ok(())
 }
 

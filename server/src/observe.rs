@@ -1,5 +1,5 @@
 //! The outermost middleware: counts every request in the metrics and writes its access log
-//! line.
+//! line, and refuses request heads over the server's limits with the JSON error shape.
 //!
 //! A hand-written tower layer rather than `axum::middleware::from_fn`: that boxes a future
 //! and clones the inner service on every request, which on the record endpoint costs about as
@@ -67,13 +67,18 @@ where
 
     fn call(&mut self, req: Request) -> Self::Future {
         let start = Instant::now();
+        let early = too_large(&req);
         let endpoint = Endpoint::classify(req.method(), req.uri().path());
         // Cloning the method and URI only when the access log is on keeps the hot path free
         // of them when it is off.
         let log = tracing::enabled!(target: "cbdam_server::access", tracing::Level::INFO);
         let seen = log.then(|| (req.method().clone(), req.uri().clone(), req.version()));
         ObserveFuture {
-            inner: self.inner.call(req),
+            inner: match early {
+                Some(_) => None,
+                None => Some(self.inner.call(req)),
+            },
+            early,
             st: self.st.clone(),
             start,
             endpoint,
@@ -86,7 +91,9 @@ pin_project! {
     /// [`Observe`]'s response future.
     pub(crate) struct ObserveFuture<F> {
         #[pin]
-        inner: F,
+        inner: Option<F>,
+        // The answer when the request was refused before reaching `inner`.
+        early: Option<ApiError>,
         st: AppState,
         start: Instant,
         endpoint: Endpoint,
@@ -102,7 +109,17 @@ where
 
     fn poll(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Self::Output> {
         let this = self.project();
-        let Ok(resp) = ready!(this.inner.poll(cx));
+        let resp = match this.inner.as_pin_mut() {
+            Some(inner) => {
+                let Ok(resp) = ready!(inner.poll(cx));
+                resp
+            }
+            None => this
+                .early
+                .take()
+                .expect("polled after completion")
+                .into_response(),
+        };
         Poll::Ready(Ok(finish(
             this.st,
             *this.endpoint,
@@ -156,6 +173,40 @@ fn finish(
         }
     }
     resp
+}
+
+/// Longest request target answered (longer: 414).
+const MAX_URI: usize = 8 << 10;
+/// Most header fields in a request (more: 431).
+const MAX_HEADERS: usize = 100;
+/// Most bytes of header names and values in a request (more: 431).
+const MAX_HEADER_BYTES: usize = 8 << 10;
+
+/// Refuses a request head over the limits. hyper refuses larger ones on its own, before any
+/// handler, with an empty body: these limits are below its own (`conn::H1_MAX_BUF`,
+/// `conn::H1_MAX_HEADERS`), so that every head a client plausibly sends gets the JSON shape.
+fn too_large(req: &Request) -> Option<ApiError> {
+    let uri = req.uri();
+    let uri_len = uri.path_and_query().map_or(0, |p| p.as_str().len());
+    if uri_len > MAX_URI {
+        return Some(ApiError::UriTooLong(format!(
+            "the request target is {uri_len} bytes, at most {MAX_URI} are read"
+        )));
+    }
+    let h = req.headers();
+    if h.len() > MAX_HEADERS {
+        return Some(ApiError::HeadersTooLarge(format!(
+            "{} header fields, at most {MAX_HEADERS} are read",
+            h.len()
+        )));
+    }
+    let bytes: usize = h.iter().map(|(k, v)| k.as_str().len() + v.len()).sum();
+    if bytes > MAX_HEADER_BYTES {
+        return Some(ApiError::HeadersTooLarge(format!(
+            "{bytes} bytes of header fields, at most {MAX_HEADER_BYTES} are read"
+        )));
+    }
+    None
 }
 
 fn http_body_size(b: &Body) -> u64 {

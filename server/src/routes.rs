@@ -7,8 +7,8 @@ use std::sync::atomic::Ordering::Relaxed;
 
 use axum::Router;
 use axum::body::Body;
-use axum::extract::rejection::{BytesRejection, PathRejection};
-use axum::extract::{DefaultBodyLimit, Path, Request, State};
+use axum::extract::rejection::PathRejection;
+use axum::extract::{Path, Request, State};
 use axum::http::{HeaderMap, HeaderName, HeaderValue, Method, StatusCode, Uri, header};
 use axum::response::Response;
 use axum::routing::{get, post};
@@ -17,12 +17,13 @@ use cbdam_codec::geometry::DiamondId;
 use serde::Deserialize;
 use tower_http::timeout::TimeoutLayer;
 
-use crate::batch_body::BatchBody;
+use crate::batch_body::{BatchBody, NOT_STORED};
 use crate::cors::cors_layer;
 use crate::error::ApiError;
+use crate::file_body::FileBody;
 use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
-use crate::state::{AppState, ServedRepo};
+use crate::state::{AppState, RecordError, ServedRepo, Source};
 
 use cbdam_codec::repository::batch::answer_order;
 /// The batch framing, defined once in the codec for both ends of the wire.
@@ -50,10 +51,7 @@ pub(crate) fn router(state: AppState) -> Router {
         .route("/v1/repos/{name}/meta", get(meta))
         .route("/v1/repos/{name}/file", get(file))
         .route("/v1/repos/{name}/diamonds/{id}", get(diamond))
-        .route(
-            "/v1/repos/{name}/diamonds",
-            post(batch).layer(DefaultBodyLimit::max(cfg.max_body)),
-        )
+        .route("/v1/repos/{name}/diamonds", post(batch))
         .route("/metrics", get(metrics))
         .route("/", get(index))
         .route("/viewer/{hash}/{file}", get(viewer_file))
@@ -111,23 +109,18 @@ fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
         .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t).as_bytes() == ours)
 }
 
-/// Record `i`'s byte range in the file, its bytes checked against their CRC (once per record:
-/// repositories are immutable while served). A damaged record is answered with 500 and logged the first time
-/// only.
-fn checked_record(st: &AppState, r: &ServedRepo, i: usize) -> Result<Range<usize>, ApiError> {
-    // `i` comes from a search of the index, and the index was checked against the file.
-    let range = r.repo.head().record_range(i).expect("an index position");
-    // The file is mapped, so its offsets fit in usize.
-    let range = range.start as usize..range.end as usize;
-    if r.verified[i].load(Relaxed) {
-        return Ok(range);
-    }
-    match r.repo.record_at(i) {
-        Ok(_) => {
+/// Record `i`'s bytes appended to `out`, read from the file and checked against their CRC. A
+/// damaged record is answered with 500 and logged the first time only.
+fn read_record(st: &AppState, r: &ServedRepo, i: usize, out: &mut Vec<u8>) -> Result<(), ApiError> {
+    match r.read_record_into(i, out) {
+        Ok(()) => {
             r.verified[i].store(true, Relaxed);
-            Ok(range)
+            Ok(())
         }
-        Err(e) => {
+        Err(RecordError::Read(e)) => Err(e),
+        Err(RecordError::Damaged(e)) => {
+            // Checked once, damaged since (a file changed in place): no longer known good.
+            r.verified[i].store(false, Relaxed);
             st.metrics().add_corrupt();
             let id = r.repo.head().entries()[i].id;
             if !r.corrupt_logged[i].swap(true, Relaxed) {
@@ -240,6 +233,8 @@ async fn meta(
 ) -> Result<Response, ApiError> {
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
+    // A file rebuilt in place has another header than the one described.
+    r.check_unchanged()?;
     let h = headers([
         (header::ETAG, r.meta_etag.clone()),
         (header::CACHE_CONTROL, hv(REVALIDATE)),
@@ -263,6 +258,9 @@ async fn diamond(
     let i = find(r, id).ok_or_else(|| {
         ApiError::NotFound(format!("diamond {id} is not stored in repository {name:?}"))
     })?;
+    // Before any answer, a 304 included: a file rebuilt in place no longer holds what the
+    // ETag names.
+    r.check_unchanged()?;
     let etag = r.record_etag(i);
     if not_modified(req.headers(), &etag) {
         return Ok(respond(
@@ -271,7 +269,8 @@ async fn diamond(
             Body::empty(),
         ));
     }
-    let range = checked_record(&st, r, i)?;
+    let mut bytes = Vec::with_capacity(r.repo.head().entries()[i].length as usize);
+    read_record(&st, r, i, &mut bytes)?;
     st.metrics().add_records(1);
     Ok(respond(
         StatusCode::OK,
@@ -280,12 +279,41 @@ async fn diamond(
             (header::ETAG, etag),
             (header::CACHE_CONTROL, hv(IMMUTABLE)),
         ]),
-        // The mapped bytes themselves, not a copy.
-        Bytes::from_owner(FileSlice {
-            repo: Arc::clone(r),
-            range,
-        }),
+        bytes,
     ))
+}
+
+/// How far past `--max-body` a request body is read (and dropped) before the 413.
+const DRAIN_BYTES: usize = 16 << 20;
+
+/// The request body, at most `max` bytes. A longer one is read on to its end (at most
+/// [`DRAIN_BYTES`] more, within `--timeout`) and dropped before the 413 is sent: an HTTP/2
+/// client still sending when the answer came would otherwise see its stream reset, not the
+/// 413.
+async fn read_body(mut body: Body, max: usize) -> Result<Bytes, ApiError> {
+    use http_body::Body as _;
+    let mut kept = Vec::new();
+    let mut total = 0usize;
+    while let Some(frame) =
+        std::future::poll_fn(|cx| std::pin::Pin::new(&mut body).poll_frame(cx)).await
+    {
+        let frame =
+            frame.map_err(|e| ApiError::BadRequest(format!("reading the request body: {e}")))?;
+        if let Ok(data) = frame.into_data() {
+            total = total.saturating_add(data.len());
+            if total <= max {
+                kept.extend_from_slice(&data);
+            } else if total > max.saturating_add(DRAIN_BYTES) {
+                break;
+            }
+        }
+    }
+    if total > max {
+        return Err(ApiError::TooLarge(format!(
+            "request body is over {max} bytes"
+        )));
+    }
+    Ok(Bytes::from(kept))
 }
 
 /// `POST /v1/repos/{name}/diamonds` body. Ids are borrowed from the body when they contain no
@@ -303,18 +331,12 @@ struct BatchRequest<'a> {
 async fn batch(
     State(st): State<AppState>,
     path: Result<Path<String>, PathRejection>,
-    body: Result<Bytes, BytesRejection>,
+    http: Request,
 ) -> Result<Response, ApiError> {
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
     let cfg = st.config();
-    let body = body.map_err(|e| {
-        if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-            ApiError::TooLarge(format!("request body is over {} bytes", cfg.max_body))
-        } else {
-            ApiError::BadRequest(format!("reading the request body: {}", e.body_text()))
-        }
-    })?;
+    let body = read_body(http.into_body(), cfg.max_body).await?;
     let req: BatchRequest = serde_json::from_slice(&body).map_err(|e| {
         ApiError::BadRequest(format!(
             "malformed batch request: {e} (want {{\"ids\": [\"level-x-y\", ...], \"priorities\": [number, ...] (optional)}})"
@@ -340,7 +362,7 @@ async fn batch(
     };
     // Resolve and check every record before sending anything, so a malformed id or a damaged
     // record fails the request whole, and so the body can be sized exactly.
-    let mut slots = Vec::with_capacity(req.ids.len());
+    let mut slots: Vec<Option<usize>> = Vec::with_capacity(req.ids.len());
     for (k, s) in req.ids.iter().enumerate() {
         let id = s.parse::<DiamondId>().map_err(|_| {
             ApiError::BadRequest(format!(
@@ -352,11 +374,22 @@ async fn batch(
     // `max_batch` is a usize from the command line; the count field is u32.
     u32::try_from(slots.len())
         .map_err(|_| ApiError::TooLarge("more than 2^32 ids in one batch".into()))?;
+    r.check_unchanged()?;
+    // Records not checked before are read and checked now, so that a damaged one fails the
+    // whole request; the body reads (and checks) each again as it sends it.
+    let mut scratch = Vec::new();
     let mut entries = Vec::with_capacity(slots.len());
     for k in order {
         entries.push(match slots[k] {
-            Some(i) => Some(checked_record(&st, r, i)?),
-            None => None,
+            Some(i) => {
+                if !r.verified[i].load(Relaxed) {
+                    scratch.clear();
+                    read_record(&st, r, i, &mut scratch)?;
+                }
+                // Index positions fit in u32 (index lengths and counts are u32).
+                i as u32
+            }
+            None => NOT_STORED,
         });
     }
     // The records are counted as the body hands them over (`BatchBody`).
@@ -374,8 +407,8 @@ async fn batch(
     ))
 }
 
-/// A byte range of a served file, owned by the repository's `Arc`: the body is the mapped
-/// bytes themselves, never copied.
+/// A byte range of a repository held in memory, owned by the repository's `Arc`: the body is
+/// its bytes themselves, never copied.
 struct FileSlice {
     repo: Arc<ServedRepo>,
     range: Range<usize>,
@@ -394,6 +427,7 @@ async fn file(
 ) -> Result<Response, ApiError> {
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
+    r.check_unchanged()?;
     let len = r.repo.head().file_len();
     let mut h = headers([
         (header::ETAG, r.file_etag.clone()),
@@ -427,11 +461,15 @@ async fn file(
         }
         RangeRequest::Unsatisfiable => return Err(ApiError::RangeNotSatisfiable(len)),
     };
-    // The file is mapped, so its length fits in usize.
-    let body = Bytes::from_owner(FileSlice {
-        repo: Arc::clone(r),
-        range: range.start as usize..range.end as usize,
-    });
+    let body = match r.source {
+        // An in-memory repository's bytes themselves, not a copy.
+        Source::Memory => Body::from(Bytes::from_owner(FileSlice {
+            repo: Arc::clone(r),
+            range: range.start as usize..range.end as usize,
+        })),
+        // Read a chunk at a time as the client takes them.
+        Source::File { .. } => Body::new(FileBody::new(Arc::clone(r), range)),
+    };
     Ok(respond(status, h, body))
 }
 

@@ -2,6 +2,7 @@
 
 use std::collections::HashMap;
 use std::fmt::Write;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::Arc;
@@ -13,7 +14,7 @@ use bytes::Bytes;
 use cbdam_codec::repository::{Repository, Section};
 
 use crate::describe::{describe, head_len};
-use crate::error::ServerError;
+use crate::error::{ApiError, ServerError};
 use crate::metrics::Metrics;
 
 /// Server settings.
@@ -30,6 +31,19 @@ pub struct Config {
     pub timeout: Duration,
     /// The browser viewer's files, served at `/viewer/…` with a page at `/` (`--web`).
     pub web: Option<Arc<crate::web::WebAssets>>,
+    /// Time a connection has to deliver a request's headers (`--header-timeout`): from its
+    /// accept for the first request (protocol detection included), from the end of the last
+    /// answer for the next ones on an HTTP/1.1 keep-alive connection, which this also closes
+    /// when it stays idle that long.
+    pub header_read_timeout: Duration,
+    /// A connection that moves no byte either way for this long is closed
+    /// (`--idle-timeout`): an idle HTTP/2 connection, or a client that stopped reading its
+    /// answer. Longer than [`Config::timeout`], so a request being answered is not cut.
+    pub idle_timeout: Duration,
+    /// Most connections held open at once (`--max-connections`; lowered to what the process's
+    /// file-descriptor limit allows). A connection beyond it closes the least recently active
+    /// one of the client address holding the most connections (see [`crate::run`]).
+    pub max_connections: usize,
 }
 
 impl Default for Config {
@@ -40,6 +54,9 @@ impl Default for Config {
             cors_origin: "*".to_string(),
             timeout: Duration::from_secs(30),
             web: None,
+            header_read_timeout: Duration::from_secs(10),
+            idle_timeout: Duration::from_secs(60),
+            max_connections: 10_000,
         }
     }
 }
@@ -109,25 +126,49 @@ pub fn validate_name(name: &str) -> Result<(), ServerError> {
     Ok(())
 }
 
+/// Where a served repository's bytes are read from once it is open.
+#[derive(Debug)]
+pub(crate) enum Source {
+    /// The repository's own bytes ([`AppState::new`]: repositories given in memory).
+    Memory,
+    /// The file opened at startup ([`AppState::open`]), read with positioned reads from its
+    /// descriptor, never through a memory map: a file truncated underneath a map kills the
+    /// process with SIGBUS on the next read of a vanished page, a short read is only an error.
+    /// Its length and modification time at startup are checked before each request reads it.
+    File {
+        file: std::fs::File,
+        path: PathBuf,
+        len: u64,
+        modified: Option<std::time::SystemTime>,
+    },
+}
+
 /// One repository as served: the validated repository plus what the server precomputes.
 #[derive(Debug)]
 pub struct ServedRepo {
     /// The name in URLs.
     pub name: String,
-    /// The repository.
+    /// The repository. For one opened from a file ([`AppState::open`]) only its head (header,
+    /// index, checksums) is used once serving: records and file ranges are read from the file
+    /// descriptor the server holds, never from this repository's map.
     pub repo: Repository,
+    /// Where records and file ranges are read from.
+    pub(crate) source: Source,
     /// The meta document (JSON), built once.
     pub(crate) meta: Bytes,
     /// Strong validator of [`ServedRepo::meta`].
     pub(crate) meta_etag: HeaderValue,
     /// Strong validator of the whole file.
     pub(crate) file_etag: HeaderValue,
+    /// Whether the file's change on disk has been logged (once).
+    changed_logged: AtomicBool,
     /// Per record: whether its corruption has been logged (log once per record, not per
     /// request: a client retrying a damaged record must not flood the log).
     pub(crate) corrupt_logged: Vec<AtomicBool>,
-    /// Per record: whether its bytes have passed their CRC once. A served repository is
-    /// immutable, so one check per record suffices; a damaged record never passes and is
-    /// checked (and refused) on every request.
+    /// Per record: whether its bytes have passed their CRC once, so that a batch can refuse a
+    /// damaged record before sending anything without reading every record twice. Bytes are
+    /// checked again whenever they are sent: a file overwritten underneath the server must not
+    /// send new bytes under an old ETag.
     pub(crate) verified: Vec<AtomicBool>,
     /// Every record's ETag, concatenated: a response takes its slice of this shared buffer
     /// (a reference count, no allocation, no formatting per request).
@@ -137,7 +178,7 @@ pub struct ServedRepo {
 }
 
 impl ServedRepo {
-    fn new(name: String, repo: Repository) -> Self {
+    fn new(name: String, repo: Repository, source: Source) -> Self {
         let mut meta = describe(&repo);
         let m = meta.as_object_mut().expect("describe returns an object");
         let base = format!("/v1/repos/{name}");
@@ -178,9 +219,11 @@ impl ServedRepo {
         Self {
             name,
             repo,
+            source,
             meta,
             meta_etag: HeaderValue::from_str(&meta_etag).expect("ASCII"),
             file_etag: HeaderValue::from_str(&file_etag).expect("ASCII"),
+            changed_logged: AtomicBool::new(false),
             corrupt_logged: flags(),
             verified: flags(),
             etags: Bytes::from(etags),
@@ -196,6 +239,130 @@ impl ServedRepo {
             .slice(self.etag_at[i] as usize..self.etag_at[i + 1] as usize);
         HeaderValue::from_maybe_shared(v).expect("ASCII")
     }
+
+    /// Checks that the file served is still the one opened: same length, same modification
+    /// time. A file rebuilt in place (overwritten or truncated rather than replaced by a
+    /// rename) is refused with a 500 naming the problem until the server is restarted.
+    pub(crate) fn check_unchanged(&self) -> Result<(), ApiError> {
+        let Source::File {
+            file,
+            path,
+            len,
+            modified,
+        } = &self.source
+        else {
+            return Ok(());
+        };
+        let changed = match file.metadata() {
+            Ok(m) => m.len() != *len || m.modified().ok() != *modified,
+            Err(e) => {
+                tracing::error!(repo = %self.name, "cannot stat {}: {e}", path.display());
+                true
+            }
+        };
+        if changed {
+            Err(self.changed_error())
+        } else {
+            Ok(())
+        }
+    }
+
+    fn changed_error(&self) -> ApiError {
+        if !self
+            .changed_logged
+            .swap(true, std::sync::atomic::Ordering::Relaxed)
+        {
+            let Source::File { path, .. } = &self.source else {
+                unreachable!("only files change")
+            };
+            tracing::error!(
+                repo = %self.name,
+                "{} was modified or truncated on disk while served: answering 500 for it \
+                 until restarted (rebuild into a new file and rename it over the old one)",
+                path.display()
+            );
+        }
+        ApiError::Internal(format!(
+            "the file of repository {:?} changed on disk while being served (modified or \
+             truncated in place); the server must be restarted to serve it",
+            self.name
+        ))
+    }
+
+    /// Appends `range` of the file to `out`, refusing a file that changed underneath (a read
+    /// short of the length opened).
+    pub(crate) fn read_into(&self, range: Range<u64>, out: &mut Vec<u8>) -> Result<(), ApiError> {
+        match &self.source {
+            Source::Memory => {
+                // Ranges come from the validated index or from `parse_range` against the length.
+                out.extend_from_slice(
+                    &self.repo.as_bytes()[range.start as usize..range.end as usize],
+                );
+                Ok(())
+            }
+            Source::File { file, path, .. } => {
+                let at = out.len();
+                out.resize(at + (range.end - range.start) as usize, 0);
+                match read_exact_at(file, &mut out[at..], range.start) {
+                    Ok(()) => Ok(()),
+                    Err(e) => {
+                        out.truncate(at);
+                        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                            Err(self.changed_error())
+                        } else {
+                            tracing::error!(repo = %self.name, "reading {}: {e}", path.display());
+                            Err(ApiError::Internal(format!(
+                                "reading the file of repository {:?} failed",
+                                self.name
+                            )))
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Record `i`'s bytes appended to `out`, checked against their CRC (always: see
+    /// [`ServedRepo::verified`]).
+    pub(crate) fn read_record_into(&self, i: usize, out: &mut Vec<u8>) -> Result<(), RecordError> {
+        // `i` comes from a search of the index, and the index was checked against the file.
+        let range = self.repo.head().record_range(i).expect("an index position");
+        let at = out.len();
+        self.read_into(range, out).map_err(RecordError::Read)?;
+        self.repo.head().check_record(i, &out[at..]).map_err(|e| {
+            out.truncate(at);
+            RecordError::Damaged(e)
+        })
+    }
+}
+
+/// Why a record could not be read.
+#[derive(Debug)]
+pub(crate) enum RecordError {
+    /// The file could not be read, or changed underneath: the error to answer with.
+    Read(ApiError),
+    /// Its bytes fail their CRC.
+    Damaged(cbdam_codec::CodecError),
+}
+
+#[cfg(unix)]
+fn read_exact_at(file: &std::fs::File, buf: &mut [u8], at: u64) -> std::io::Result<()> {
+    std::os::unix::fs::FileExt::read_exact_at(file, buf, at)
+}
+
+#[cfg(windows)]
+fn read_exact_at(file: &std::fs::File, mut buf: &mut [u8], mut at: u64) -> std::io::Result<()> {
+    use std::os::windows::fs::FileExt;
+    while !buf.is_empty() {
+        match file.seek_read(buf, at)? {
+            0 => return Err(std::io::ErrorKind::UnexpectedEof.into()),
+            n => {
+                buf = &mut buf[n..];
+                at += n as u64;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Everything the handlers share. Cheap to clone.
@@ -221,6 +388,19 @@ impl AppState {
     /// Serves already opened repositories under the given names (checked with
     /// [`validate_name`], unique).
     pub fn new(repos: Vec<(String, Repository)>, config: Config) -> Result<Self, ServerError> {
+        Self::with_sources(
+            repos
+                .into_iter()
+                .map(|(name, repo)| (name, repo, Source::Memory))
+                .collect(),
+            config,
+        )
+    }
+
+    fn with_sources(
+        repos: Vec<(String, Repository, Source)>,
+        config: Config,
+    ) -> Result<Self, ServerError> {
         if repos.is_empty() {
             return Err(ServerError::NoRepositories);
         }
@@ -229,13 +409,13 @@ impl AppState {
             .map_err(ServerError::InvalidCorsOrigin)?;
         let mut map = HashMap::new();
         let mut names = Vec::new();
-        for (name, repo) in repos {
+        for (name, repo, source) in repos {
             validate_name(&name)?;
             if map.contains_key(&name) {
                 return Err(ServerError::DuplicateName(name));
             }
             names.push(name.clone());
-            map.insert(name.clone(), Arc::new(ServedRepo::new(name, repo)));
+            map.insert(name.clone(), Arc::new(ServedRepo::new(name, repo, source)));
         }
         let listing: Vec<_> = names
             .iter()
@@ -284,9 +464,12 @@ impl AppState {
         }
         let repos = specs
             .iter()
-            .map(|s| Ok((s.name.clone(), open_one(&s.path)?)))
+            .map(|s| {
+                let (repo, source) = open_one(&s.path)?;
+                Ok((s.name.clone(), repo, source))
+            })
             .collect::<Result<Vec<_>, ServerError>>()?;
-        Self::new(repos, config)
+        Self::with_sources(repos, config)
     }
 
     /// The request counters.
@@ -310,11 +493,39 @@ impl AppState {
     }
 }
 
-fn open_one(path: &Path) -> Result<Repository, ServerError> {
-    Repository::open(path).map_err(|error| ServerError::Open {
+/// Opens the file, validates the repository at its path, and checks that both are the same
+/// bytes (the head, whose checksums cover everything else, read back through the descriptor),
+/// so that a file replaced between the two opens is not served half old, half new.
+fn open_one(path: &Path) -> Result<(Repository, Source), ServerError> {
+    let open_err = |error: std::io::Error| ServerError::Open {
+        path: path.to_path_buf(),
+        error: error.into(),
+    };
+    let file = std::fs::File::open(path).map_err(open_err)?;
+    let meta = file.metadata().map_err(open_err)?;
+    let repo = Repository::open(path).map_err(|error| ServerError::Open {
         path: path.to_path_buf(),
         error,
-    })
+    })?;
+    let head = repo.head().section_offset(Section::Records) as usize;
+    let mut back = vec![0; head];
+    let same = meta.len() == repo.head().file_len()
+        && read_exact_at(&file, &mut back, 0).is_ok()
+        && back[..] == repo.as_bytes()[..head];
+    if !same {
+        return Err(open_err(std::io::Error::other(
+            "the file changed while it was being opened",
+        )));
+    }
+    // Nothing reads the map any more: its pages need not stay resident.
+    repo.release_pages();
+    let source = Source::File {
+        file,
+        path: path.to_path_buf(),
+        len: meta.len(),
+        modified: meta.modified().ok(),
+    };
+    Ok((repo, source))
 }
 
 #[cfg(test)]

@@ -4,5 +4,8 @@
 
 mod util;
 
+// Child processes with their own limits, measured through /proc.
+#[cfg(target_os = "linux")]
+mod hostile;
 mod http;
 mod priorities;
