@@ -14,7 +14,7 @@ use tracing_subscriber::EnvFilter;
 /// Serve repositories over HTTP/1.1 and HTTP/2 (cleartext): per-diamond records, batches,
 /// the header as JSON, the raw file with range requests, and Prometheus metrics.
 ///
-/// Endpoints and the batch framing: docs/FORMAT.md, "HTTP API". Logs go to stderr,
+/// Endpoints and the batch framing: docs/HTTP-API.md. Logs go to stderr,
 /// filtered by RUST_LOG (default info, one line per request). Stops on SIGINT/SIGTERM after
 /// the requests in flight finish.
 #[derive(Args, Debug)]

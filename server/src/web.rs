@@ -203,6 +203,6 @@ pub(crate) fn index_page(repos: &[(String, String)], web: Option<&WebAssets>) ->
          <h1>cbdam serve</h1>\n<p>{note}</p>\n<table>\n\
          <tr><th align=left>repository</th><th align=left>data</th><th align=left>API</th></tr>\n\
          {rows}</table>\n<p>API: <a href=\"/v1/repos\">/v1/repos</a> · \
-         <a href=\"/metrics\">/metrics</a> (docs/FORMAT.md, \"HTTP API\")</p>\n</body></html>\n"
+         <a href=\"/metrics\">/metrics</a> (docs/HTTP-API.md)</p>\n</body></html>\n"
     )
 }
