@@ -24,6 +24,7 @@
 //!   handed to the loop.
 
 pub mod coloured;
+#[cfg(feature = "test-doubles")]
 mod flaky;
 mod http;
 #[cfg(not(target_arch = "wasm32"))]
@@ -31,6 +32,8 @@ mod local;
 mod mapped;
 
 pub use coloured::{ColouredSource, Drape};
+/// A test double (feature `test-doubles`): a repository with latency and failures.
+#[cfg(feature = "test-doubles")]
 pub use flaky::{FlakyConfig, FlakySource};
 pub use mapped::MappedRecord;
 
