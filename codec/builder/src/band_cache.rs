@@ -12,7 +12,55 @@ use std::sync::{Arc, Mutex};
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::mosaic::Samples;
+
+/// An input's samples in the narrowest type that holds every one of them exactly, NaN included:
+/// SRTM's 16-bit integers cost 2 bytes a sample instead of the reader's 8.
+#[derive(Debug)]
+pub enum Samples {
+    /// Whole numbers in the `i16` range.
+    I16(Vec<i16>),
+    /// Values that `f32` represents exactly, and NaN.
+    F32(Vec<f32>),
+    /// Anything else.
+    F64(Vec<f64>),
+}
+
+impl Samples {
+    /// The narrowest exact representation of `values`, in memory.
+    pub fn compact(values: Vec<f64>) -> Self {
+        // `as` saturates and maps NaN to 0, so the round trip fails exactly where the narrow
+        // type cannot hold the value (a zero's sign is the only thing dropped).
+        if values.iter().all(|&v| f64::from(v as i16) == v) {
+            Self::I16(values.iter().map(|&v| v as i16).collect())
+        } else if values
+            .iter()
+            .all(|&v| v.is_nan() || f64::from(v as f32) == v)
+        {
+            Self::F32(values.iter().map(|&v| v as f32).collect())
+        } else {
+            Self::F64(values)
+        }
+    }
+
+    /// Sample `i`.
+    #[inline]
+    pub fn get(&self, i: usize) -> f64 {
+        match self {
+            Self::I16(v) => f64::from(v[i]),
+            Self::F32(v) => f64::from(v[i]),
+            Self::F64(v) => v[i],
+        }
+    }
+
+    /// Bytes of the samples.
+    pub fn bytes(&self) -> u64 {
+        match self {
+            Self::I16(v) => 2 * v.len() as u64,
+            Self::F32(v) => 4 * v.len() as u64,
+            Self::F64(v) => 8 * v.len() as u64,
+        }
+    }
+}
 
 /// A band: tile index and band number within the tile.
 pub type BandKey = (usize, usize);

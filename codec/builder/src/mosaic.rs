@@ -29,7 +29,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use crate::band_cache::BandCache;
+use crate::band_cache::{BandCache, Samples};
 use crate::error::{Context, Result, bail};
 use crate::input::{ReadOptions, TileReader};
 use crate::tiles::{Tile, VrtPlacement};
@@ -81,55 +81,6 @@ pub fn bytes_in_memory(width: usize, height: usize, lattice: &TempStorage) -> u6
         }
     };
     arrays.saturating_add(block)
-}
-
-/// An input's samples in the narrowest type that holds every one of them exactly, NaN included:
-/// SRTM's 16-bit integers cost 2 bytes a sample instead of the reader's 8.
-#[derive(Debug)]
-pub enum Samples {
-    /// Whole numbers in the `i16` range.
-    I16(Vec<i16>),
-    /// Values that `f32` represents exactly, and NaN.
-    F32(Vec<f32>),
-    /// Anything else.
-    F64(Vec<f64>),
-}
-
-impl Samples {
-    /// The narrowest exact representation of `values`, in memory.
-    pub fn compact(values: Vec<f64>) -> Self {
-        // `as` saturates and maps NaN to 0, so the round trip fails exactly where the narrow
-        // type cannot hold the value (a zero's sign is the only thing dropped).
-        if values.iter().all(|&v| f64::from(v as i16) == v) {
-            Self::I16(values.iter().map(|&v| v as i16).collect())
-        } else if values
-            .iter()
-            .all(|&v| v.is_nan() || f64::from(v as f32) == v)
-        {
-            Self::F32(values.iter().map(|&v| v as f32).collect())
-        } else {
-            Self::F64(values)
-        }
-    }
-
-    /// Sample `i`.
-    #[inline]
-    pub fn get(&self, i: usize) -> f64 {
-        match self {
-            Self::I16(v) => f64::from(v[i]),
-            Self::F32(v) => f64::from(v[i]),
-            Self::F64(v) => v[i],
-        }
-    }
-
-    /// Bytes of the samples.
-    pub fn bytes(&self) -> u64 {
-        match self {
-            Self::I16(v) => 2 * v.len() as u64,
-            Self::F32(v) => 4 * v.len() as u64,
-            Self::F64(v) => 8 * v.len() as u64,
-        }
-    }
 }
 
 /// Where one input lies on the lattice, and how its rows are read.

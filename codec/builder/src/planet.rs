@@ -22,9 +22,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::assign::AssignedGeoRef;
+use crate::band_cache::Samples;
 use crate::error::{Context, Result, bail};
 use crate::input::{ReadOptions, TileReader};
-use crate::mosaic::Samples;
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
 use cbdam_codec::error::CodecError;
