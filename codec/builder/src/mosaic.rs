@@ -667,7 +667,92 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
             tiles.len()
         );
     }
-    let mut dems: Vec<(PathBuf, TileReader, GeoRef)> = Vec::with_capacity(tiles.len());
+    let dems = open_tiles(tiles, opts)?;
+    check_one_crs(&dems)?;
+    // The finest input sets the lattice; ties go to the first listed.
+    let fine = (0..dems.len())
+        .min_by(|&a, &b| dems[a].2.pixel_x.total_cmp(&dems[b].2.pixel_x))
+        .expect("at least one input");
+    let fine_georef = dems[fine].2.clone();
+    let (fx, fy) = (fine_georef.pixel_x, fine_georef.pixel_y);
+    let (fcx, fcy) = centre(&fine_georef);
+    let placed = place_on_finest(&dems, fine)?;
+    let coarsest = (0..placed.len())
+        .max_by_key(|&k| placed[k].2)
+        .expect("at least one input");
+    check_strides(&dems, &placed, coarsest)?;
+    let (origin_x, origin_y) = lattice_origin(&placed, coarsest);
+    let mut width = 0usize;
+    let mut height = 0usize;
+    let mut inputs = Vec::new();
+    for ((path, reader, _), &(ox, oy, log2)) in dems.into_iter().zip(&placed) {
+        let p = Placement {
+            path,
+            x0: (ox - origin_x) as usize,
+            y0: (oy - origin_y) as usize,
+            log2,
+            width: reader.width(),
+            height: reader.height(),
+            sample_type: reader.sample_type(),
+            nodata: reader.nodata(),
+            band_rows: reader.band_rows(),
+            reader,
+        };
+        width = width.max(p.last_col() + 1);
+        height = height.max(p.last_row() + 1);
+        inputs.push(p);
+    }
+    // The lattice's own arrays stay in memory when they fit half the limit, else they are
+    // mapped; the inputs are read a band of rows at a time.
+    let lattice = lattice_storage(width, height, memory_limit);
+    let need = bytes_in_memory(width, height, &lattice);
+    let mut buckets = vec![Vec::new(); height.div_ceil(BUCKET_ROWS)];
+    for (k, p) in inputs.iter().enumerate() {
+        for bucket in &mut buckets[p.y0 / BUCKET_ROWS..=p.last_row() / BUCKET_ROWS] {
+            bucket.push(k as u32);
+        }
+    }
+    let sample_type = common_sample_type(&inputs);
+    let fine_geo = fine_georef;
+    let half = if fine_geo.pixel_is_area { 0.5 } else { 0.0 };
+    let georef = GeoRef {
+        origin_x: fcx + (origin_x as f64 - half) * fx,
+        origin_y: fcy - (origin_y as f64 - half) * fy,
+        ..fine_geo
+    };
+    Ok(Mosaic {
+        width,
+        height,
+        georef,
+        sample_type,
+        inputs,
+        buckets,
+        cache: BandCache::new(memory_limit.saturating_sub(need) / 2),
+        block_points: BLOCK_POINTS,
+        lattice,
+    })
+}
+
+/// The type every input's samples fit exactly: theirs when they agree, else `i32` for integers
+/// and `f64` for anything else.
+fn common_sample_type(inputs: &[Placement]) -> SampleType {
+    let types: Vec<SampleType> = inputs.iter().map(|p| p.sample_type).collect();
+    if types.iter().all(|&t| t == types[0]) {
+        types[0]
+    } else if types.iter().all(|t| t.is_integer()) {
+        SampleType::I32
+    } else {
+        SampleType::F64
+    }
+}
+
+/// An input tile opened: its path, its reader, and where it lies.
+type OpenTile = (PathBuf, TileReader, GeoRef);
+
+/// Opens every tile, each with its georeferencing (a VRT's placement over the file's own), and
+/// refuses one without georeferencing, with a spacing that is not positive or without samples.
+fn open_tiles(tiles: &[Tile], opts: &ReadOptions) -> Result<Vec<OpenTile>> {
+    let mut dems: Vec<OpenTile> = Vec::with_capacity(tiles.len());
     for tile in tiles {
         let path = &tile.path;
         let tile_opts = ReadOptions {
@@ -700,9 +785,13 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
         }
         dems.push((path.clone(), reader, g));
     }
+    Ok(dems)
+}
+
+/// One coordinate reference system: heights and positions of different CRSs cannot share a
+/// lattice without reprojection, which this builder does not do.
+fn check_one_crs(dems: &[OpenTile]) -> Result<()> {
     let geo = |k: usize| &dems[k].2;
-    // One coordinate reference system: heights and positions of different CRSs cannot share
-    // a lattice without reprojection, which this builder does not do.
     for k in 1..dems.len() {
         if geo(k).epsg != geo(0).epsg {
             let name =
@@ -731,11 +820,14 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
             );
         }
     }
-    // The finest input sets the lattice; ties go to the first listed.
-    let fine = (0..dems.len())
-        .min_by(|&a, &b| geo(a).pixel_x.total_cmp(&geo(b).pixel_x))
-        .expect("at least one input");
-    let fine_georef = geo(fine).clone();
+    Ok(())
+}
+
+/// Each input's offset from the finest input (`fine`), in fine samples, and its stride as a
+/// power of two: refused unless its spacing is 2^j times the finest and its samples fall on
+/// the finest input's sample positions.
+fn place_on_finest(dems: &[OpenTile], fine: usize) -> Result<Vec<(i64, i64, u8)>> {
+    let geo = |k: usize| &dems[k].2;
     let (fx, fy) = (geo(fine).pixel_x, geo(fine).pixel_y);
     let (fcx, fcy) = centre(geo(fine));
     let mut placed = Vec::new();
@@ -771,12 +863,13 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
         }
         placed.push((ox.round() as i64, oy.round() as i64, log2 as u8));
     }
-    // The lattice origin must sit on every input's stride: congruent to the coarsest input's
-    // offset modulo its stride, which every other input must agree with modulo its own.
-    let coarsest = (0..placed.len())
-        .max_by_key(|&k| placed[k].2)
-        .expect("at least one input");
-    let big = 1i64 << placed[coarsest].2;
+    Ok(placed)
+}
+
+/// The lattice origin must sit on every input's stride: congruent to the coarsest input's
+/// offset modulo its stride, which every other input must agree with modulo its own.
+fn check_strides(dems: &[OpenTile], placed: &[(i64, i64, u8)], coarsest: usize) -> Result<()> {
+    let geo = |k: usize| &dems[k].2;
     for (k, &(ox, oy, l)) in placed.iter().enumerate() {
         let s = 1i64 << l;
         let (dx, dy) = (
@@ -797,6 +890,13 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
             );
         }
     }
+    Ok(())
+}
+
+/// The lattice's origin, in fine samples from the finest input: the lowest point on the
+/// coarsest input's stride at or before every input's first sample.
+fn lattice_origin(placed: &[(i64, i64, u8)], coarsest: usize) -> (i64, i64) {
+    let big = 1i64 << placed[coarsest].2;
     let lowest = |axis: fn(&(i64, i64, u8)) -> i64| {
         let min = placed.iter().map(axis).min().expect("inputs");
         let c = axis(&placed[coarsest]);
@@ -807,63 +907,7 @@ pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Re
                 big
             }
     };
-    let (origin_x, origin_y) = (lowest(|p| p.0), lowest(|p| p.1));
-    let mut width = 0usize;
-    let mut height = 0usize;
-    let mut inputs = Vec::new();
-    for ((path, reader, _), &(ox, oy, log2)) in dems.into_iter().zip(&placed) {
-        let p = Placement {
-            path,
-            x0: (ox - origin_x) as usize,
-            y0: (oy - origin_y) as usize,
-            log2,
-            width: reader.width(),
-            height: reader.height(),
-            sample_type: reader.sample_type(),
-            nodata: reader.nodata(),
-            band_rows: reader.band_rows(),
-            reader,
-        };
-        width = width.max(p.last_col() + 1);
-        height = height.max(p.last_row() + 1);
-        inputs.push(p);
-    }
-    // The lattice's own arrays stay in memory when they fit half the limit, else they are
-    // mapped; the inputs are read a band of rows at a time.
-    let lattice = lattice_storage(width, height, memory_limit);
-    let need = bytes_in_memory(width, height, &lattice);
-    let mut buckets = vec![Vec::new(); height.div_ceil(BUCKET_ROWS)];
-    for (k, p) in inputs.iter().enumerate() {
-        for bucket in &mut buckets[p.y0 / BUCKET_ROWS..=p.last_row() / BUCKET_ROWS] {
-            bucket.push(k as u32);
-        }
-    }
-    let types: Vec<SampleType> = inputs.iter().map(|p| p.sample_type).collect();
-    let sample_type = if types.iter().all(|&t| t == types[0]) {
-        types[0]
-    } else if types.iter().all(|t| t.is_integer()) {
-        SampleType::I32
-    } else {
-        SampleType::F64
-    };
-    let fine_geo = fine_georef;
-    let half = if fine_geo.pixel_is_area { 0.5 } else { 0.0 };
-    let georef = GeoRef {
-        origin_x: fcx + (origin_x as f64 - half) * fx,
-        origin_y: fcy - (origin_y as f64 - half) * fy,
-        ..fine_geo
-    };
-    Ok(Mosaic {
-        width,
-        height,
-        georef,
-        sample_type,
-        inputs,
-        buckets,
-        cache: BandCache::new(memory_limit.saturating_sub(need) / 2),
-        block_points: BLOCK_POINTS,
-        lattice,
-    })
+    (lowest(|p| p.0), lowest(|p| p.1))
 }
 
 #[cfg(test)]
