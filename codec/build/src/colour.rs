@@ -126,6 +126,8 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
             opts.inputs.len()
         );
     };
+    crate::tiles::check_regular_file(input, "input")?;
+    crate::check_output_is_not_an_input(opts, &[])?;
     progress.event(ProgressEvent {
         stage: Stage::Prepare,
         done: 0,

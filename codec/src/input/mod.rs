@@ -259,6 +259,7 @@ pub struct ReadOptions {
 /// [`CodecError::InvalidParameter`] when the format cannot be determined or the given format
 /// does not fit the file.
 pub fn read_dem(path: &Path, opts: &ReadOptions) -> Result<Dem, CodecError> {
+    check_regular_file(path)?;
     let format = match opts.format {
         Some(f) => f,
         None => detect_format(path)?,
@@ -320,6 +321,46 @@ pub fn with_sidecar_crs(georef: Option<GeoRef>, path: &Path) -> Result<Option<Ge
     })
 }
 
+/// Refuses a path that exists but is not a regular file — a FIFO, a socket, a device, a
+/// directory — by its type, before anything opens it: opening a FIFO for reading waits for a
+/// writer, forever if none comes, and a device may never end. Symlinks are followed. A path
+/// that does not exist is left to the open that follows, which names it.
+///
+/// # Errors
+/// [`CodecError::InvalidParameter`] naming the file and what it is.
+pub fn check_regular_file(path: &Path) -> Result<(), CodecError> {
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() => Err(CodecError::invalid(format!(
+            "{} is {}, not a regular file",
+            path.display(),
+            file_kind(&m.file_type())
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// What a file type is, in words.
+fn file_kind(t: &std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a FIFO (named pipe)";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+        if t.is_block_device() || t.is_char_device() {
+            return "a device";
+        }
+    }
+    if t.is_dir() {
+        "a directory"
+    } else {
+        "a special file"
+    }
+}
+
 /// Picks a format from the file name, falling back to the leading bytes when the extension is
 /// unknown, so that e.g. a GeoTIFF saved without extension still reads.
 ///
@@ -327,6 +368,7 @@ pub fn with_sidecar_crs(georef: Option<GeoRef>, path: &Path) -> Result<Option<Ge
 /// [`CodecError::InvalidParameter`] when neither tells (and for raw float32, which needs a size),
 /// [`CodecError::Io`] when the file cannot be read.
 pub fn detect_format(path: &Path) -> Result<Format, CodecError> {
+    check_regular_file(path)?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

@@ -68,6 +68,7 @@ impl RawF32Source {
         nodata: Option<f64>,
         limits: &Limits,
     ) -> Result<Self, CodecError> {
+        super::check_regular_file(path)?;
         let n = limits.check(width, height)?;
         super::raw::check_len(path, n, width, height)?;
         Ok(Self {

@@ -1099,6 +1099,8 @@ impl Repository {
     /// checksum table, and the index itself. Record bytes are checked when read
     /// ([`Repository::record`]) or by [`Repository::check_all`].
     pub fn open(path: &Path) -> Result<Self, CodecError> {
+        // A FIFO would block the open until a writer came; a device would map or read forever.
+        crate::input::check_regular_file(path)?;
         let file = File::open(path)?;
         let len = file.metadata()?.len();
         if len < HEADER_FETCH_LEN as u64 {
