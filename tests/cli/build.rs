@@ -211,9 +211,18 @@ fn bad_inputs_fail_without_output() {
         "is a directory",
     );
     assert!(listing(&sub).is_empty());
-    // Output directory missing: an error, nothing created.
+    // Output directory missing: an error naming it before any work (it used to surface only
+    // when the finished repository was written, after the encode), nothing created.
     let deep = dir.path().join("no").join("such").join("out.cbdam");
-    build_fails(dir.path(), &jb, &deep, &["--max-error", "1"], "writing");
+    build_fails(
+        dir.path(),
+        &jb,
+        &deep,
+        &["--max-error", "1"],
+        "such does not exist",
+    );
+    let o = cbdam(&["build", &jb, "-o", &s(&deep), "--max-error", "1"]);
+    assert!(!stderr(&o).contains("encod"), "{}", stderr(&o));
 }
 
 /// Runs `cbdam args…`, failing the test (and killing the build) if it has not finished within
@@ -354,6 +363,31 @@ fn an_output_that_is_an_input_is_refused() {
         "1",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// A VRT whose `GeoTransform` holds NaN or an infinity is refused by name, not accepted with
+/// a NaN origin.
+#[test]
+fn a_vrt_with_a_non_finite_geotransform_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let asc = dir.path().join("a.asc");
+    write_asc(&asc, &vec![vec![1.0, 2.0, 3.0, 4.0, 5.0]; 4], None);
+    let out = dir.path().join("out.cbdam");
+    for gt in [
+        "NaN, 1, 0, 4, 0, -1",
+        "0, 1, 0, inf, 0, -1",
+        "-inf, 1, 0, 4, 0, -1",
+    ] {
+        let vrt = dir.path().join("tiles.vrt");
+        write_vrt(&vrt, "a.asc", gt);
+        build_fails(
+            dir.path(),
+            &s(&vrt),
+            &out,
+            &["--max-error", "1"],
+            "every term must be a finite number",
+        );
+    }
 }
 
 #[test]

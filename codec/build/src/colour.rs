@@ -106,9 +106,7 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
     if opts.raw_size.is_some() || opts.nodata.is_some() || opts.quantum.is_some() {
         bail!("--size, --nodata and --quantum do not apply to colour images");
     }
-    if opts.output.is_dir() {
-        bail!("output path {} is a directory", opts.output.display());
-    }
+    crate::check_output(&opts.output)?;
     let like = opts
         .like
         .as_deref()

@@ -483,8 +483,24 @@ fn check_tolerance_and_output(opts: &BuildOptions) -> Result<()> {
             opts.max_error
         );
     }
-    if opts.output.is_dir() {
-        bail!("output path {} is a directory", opts.output.display());
+    check_output(&opts.output)
+}
+
+/// Checks the output path before any work: not a directory, and in a directory that exists (a
+/// build that is not journaled would otherwise find out only when it writes, after encoding).
+pub(crate) fn check_output(output: &Path) -> Result<()> {
+    if output.is_dir() {
+        bail!("output path {} is a directory", output.display());
+    }
+    let dir = match output.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        bail!(
+            "the output's directory {} does not exist (or is not a directory); create it first",
+            dir.display()
+        );
     }
     Ok(())
 }

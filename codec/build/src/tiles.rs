@@ -415,6 +415,12 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
             gt.len()
         );
     }
+    if let Some(t) = gt.iter().find(|t| !t.is_finite()) {
+        bail!(
+            "{}: <GeoTransform> {gt:?} holds {t}: every term must be a finite number",
+            vrt.display()
+        );
+    }
     if gt[2] != 0.0 || gt[4] != 0.0 || !(gt[1] > 0.0 && gt[5] < 0.0) {
         bail!(
             "{}: <GeoTransform> {gt:?} is not north-up (rotation terms 0, positive x and \
