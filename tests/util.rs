@@ -42,6 +42,41 @@ pub fn spawn_serve(args: &[&str]) -> (Child, String) {
     (server, addr)
 }
 
+/// Whether `ci`, the value of the `CI` environment variable, marks a CI run: set, as CI
+/// services set it (`true`, `1`, …), and not `false`, `0` or empty.
+fn is_ci(ci: Option<&std::ffi::OsStr>) -> bool {
+    ci.is_some_and(|v| !matches!(v.to_str(), Some("" | "0" | "false" | "FALSE" | "False")))
+}
+
+/// A test whose prerequisite (a program, a display, pip) is missing: outside CI it prints
+/// `SKIPPED test: why` and the caller returns; under CI (`CI` set, see [`is_ci`]) a missing
+/// prerequisite is a failure, never a skip, so a green CI run has run every test.
+pub fn skip_unless_ci(test: &str, why: &str) {
+    skip_or_fail(std::env::var_os("CI").as_deref(), test, why);
+}
+
+fn skip_or_fail(ci: Option<&std::ffi::OsStr>, test: &str, why: &str) {
+    assert!(
+        !is_ci(ci),
+        "{test}: a prerequisite is missing and CI is set, so this fails instead of skipping: \
+         {why}"
+    );
+    println!("SKIPPED {test}: {why}");
+}
+
+/// Under CI a missing prerequisite fails the test; elsewhere it is skipped.
+#[test]
+fn a_missing_prerequisite_fails_under_ci_and_skips_elsewhere() {
+    use std::ffi::OsStr;
+    for ci in [None, Some(""), Some("0"), Some("false")] {
+        skip_or_fail(ci.map(OsStr::new), "t", "no tool");
+    }
+    for ci in ["true", "1", "yes"] {
+        let r = std::panic::catch_unwind(|| skip_or_fail(Some(OsStr::new(ci)), "t", "no tool"));
+        assert!(r.is_err(), "CI={ci} skipped");
+    }
+}
+
 /// A path as a command-line argument.
 pub fn s(p: &Path) -> String {
     p.to_string_lossy().into_owned()
