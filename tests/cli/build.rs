@@ -398,15 +398,31 @@ fn out_of_core_and_streamed_builds_give_identical_bytes() {
     let a = dir.path().join("a.cbdam");
     let b = dir.path().join("b.cbdam");
     let rhine = data("rhine_nodata.tif");
+    // `--timings` names where the reconstruction and the lattice went: the limited builds must
+    // have taken the other path, or the comparison compares a path with itself.
+    let path_taken = |o: &Output| -> String {
+        ok(o);
+        let err = stderr(o);
+        let line = err.lines().find(|l| l.starts_with("timings:"));
+        line.unwrap_or_else(|| panic!("no timings in {err}"))
+            .to_owned()
+    };
+    let in_memory = |t: &str| t.ends_with("reconstruction in memory");
+    let out_of_core =
+        |t: &str| t.contains("reconstruction in mapped file; lattice in mapped files");
     for (out, extra) in [(&a, None), (&b, Some("1M"))] {
         let mut args = vec!["build", &rhine, "--max-error", "1", "-o"];
         let out = s(out);
         args.push(&out);
-        args.push("--quiet");
+        args.extend(["--quiet", "--timings"]);
         if let Some(limit) = extra {
             args.extend(["--memory-limit", limit]);
         }
-        ok(&cbdam(&args));
+        let t = path_taken(&cbdam(&args));
+        match extra {
+            None => assert!(in_memory(&t), "{t}"),
+            Some(_) => assert!(out_of_core(&t), "{t}"),
+        }
     }
     assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
     // An odd-sized float terrain streamed from raw f32, in memory and forced out of core:
@@ -429,7 +445,7 @@ fn out_of_core_and_streamed_builds_give_identical_bytes() {
         .collect();
     std::fs::write(&raw, bytes).unwrap();
     let (c, d) = (dir.path().join("c.cbdam"), dir.path().join("d.cbdam"));
-    ok(&cbdam(&[
+    let t = path_taken(&cbdam(&[
         "build",
         &s(&raw),
         "--size",
@@ -439,8 +455,10 @@ fn out_of_core_and_streamed_builds_give_identical_bytes() {
         "-o",
         &s(&c),
         "--quiet",
+        "--timings",
     ]));
-    ok(&cbdam(&[
+    assert!(in_memory(&t), "{t}");
+    let t = path_taken(&cbdam(&[
         "build",
         &s(&raw),
         "--size",
@@ -450,9 +468,11 @@ fn out_of_core_and_streamed_builds_give_identical_bytes() {
         "-o",
         &s(&d),
         "--quiet",
+        "--timings",
         "--memory-limit",
         "4K",
     ]));
+    assert!(out_of_core(&t), "{t}");
     assert_eq!(std::fs::read(&c).unwrap(), std::fs::read(&d).unwrap());
     ok(&cbdam(&["verify", &s(&d), "--against", &s(&asc)]));
     // Bad limits and sizes are clear errors.
