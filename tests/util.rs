@@ -12,6 +12,28 @@ pub fn cbdam(args: &[&str]) -> Output {
         .expect("run cbdam")
 }
 
+/// Runs `cbdam args…`, failing the test (and killing the process) if it has not finished
+/// within `secs` seconds: for commands that must refuse at once rather than wait (on a FIFO, or
+/// serving what they should have refused).
+pub fn cbdam_within(args: &[&str], secs: u64) -> Output {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(secs);
+    while child.try_wait().unwrap().is_none() {
+        if std::time::Instant::now() > deadline {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            panic!("{args:?} still running after {secs} s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child.wait_with_output().unwrap()
+}
+
 /// Starts `cbdam serve ARGS… --addr 127.0.0.1:0` and returns the process with its `host:port`
 /// once it logs that it listens. The rest of its log is drained on a thread, so the server never
 /// blocks on a full pipe; kill the child when done.

@@ -225,27 +225,6 @@ fn bad_inputs_fail_without_output() {
     assert!(!stderr(&o).contains("encod"), "{}", stderr(&o));
 }
 
-/// Runs `cbdam args…`, failing the test (and killing the build) if it has not finished within
-/// `secs` seconds: a build that waits on a FIFO never would.
-fn cbdam_within(args: &[&str], secs: u64) -> Output {
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(args)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(secs);
-    while child.try_wait().unwrap().is_none() {
-        if std::time::Instant::now() > deadline {
-            child.kill().unwrap();
-            child.wait().unwrap();
-            panic!("{args:?} still running after {secs} s");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
-    child.wait_with_output().unwrap()
-}
-
 #[cfg(unix)]
 fn mkfifo(path: &Path) {
     use std::os::unix::ffi::OsStrExt;

@@ -101,4 +101,8 @@ fn a_crafted_header_with_infinite_heights_is_refused_by_name() {
         assert!(!stderr(&o).contains("panicked"), "{args:?}: {}", stderr(&o));
     }
     assert!(!tif.exists());
+    // A server refuses to serve it, at startup, instead of handing it to clients.
+    let o = cbdam_within(&["serve", &bad, "--addr", "127.0.0.1:0"], 60);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("height unit 1e308"), "{}", stderr(&o));
 }
