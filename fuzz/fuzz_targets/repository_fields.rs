@@ -16,9 +16,7 @@
 use cbdam_codec::colour::reconstruct_rgb;
 use cbdam_codec::hierarchy::{RepoKind, walk_all_with_validity};
 use cbdam_codec::lifting::MAX_ABS_HEIGHT;
-use cbdam_codec::repository::{
-    CRAFTABLE_FIELDS, MAGIC, MAX_MAGNITUDE, Repository, craft_header,
-};
+use cbdam_codec::repository::{CRAFTABLE_FIELDS, MAGIC, MAX_MAGNITUDE, Repository, craft_header};
 use libfuzzer_sys::fuzz_target;
 
 /// Floats that break arithmetic that trusts its inputs.
