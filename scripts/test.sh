@@ -52,7 +52,8 @@ fi
 # The viewer's tests (tests/cli_view.rs) open a real window: on a machine without a display they
 # need Xvfb (and the X client libraries winit loads at run time), xdotool to press keys and
 # drag the mouse, and xwd (x11-apps) to read the window back. Install them when missing, like
-# lavapipe above; without them those tests print SKIPPED and pass.
+# lavapipe above; without them those tests print SKIPPED and pass, except under CI (CI set),
+# where a missing prerequisite fails the test.
 if ! command -v Xvfb >/dev/null 2>&1 || ! command -v xdotool >/dev/null 2>&1 \
     || ! command -v xwd >/dev/null 2>&1; then
     if command -v apt-get >/dev/null 2>&1; then
@@ -68,6 +69,32 @@ if ! command -v Xvfb >/dev/null 2>&1 || ! command -v xdotool >/dev/null 2>&1 \
             echo "test.sh: no Xvfb/xdotool/xwd and no root/sudo to install them: the viewer's tests are skipped." >&2
         fi
     fi
+fi
+# The Dask tests (tests/cli/shard.rs) install codec/builder/dask/requirements.txt into a venv:
+# they need pip and venv (Debian splits them out of python3). Installed when missing, like the
+# above; without them those tests are skipped, except under CI, where they fail.
+if ! python3 -c 'import pip' >/dev/null 2>&1 || ! python3 -c 'import venv, ensurepip' >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null 2>&1; then
+        sudo=""
+        [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && sudo="sudo -n"
+        if [ "$(id -u)" -eq 0 ] || [ -n "$sudo" ]; then
+            echo "test.sh: no pip or venv for python3; installing python3-pip python3-venv for the Dask tests" >&2
+            $sudo apt-get update -qq
+            DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
+                python3-pip python3-venv >/dev/null
+        fi
+    fi
+fi
+# What could not be set up, named once before the run (under CI the tests needing it fail).
+missing=()
+has_vulkan_icd && has_vulkan_loader || missing+=("a Vulkan driver (mesa-vulkan-drivers libvulkan1)")
+for tool in Xvfb xdotool xwd; do
+    command -v "$tool" >/dev/null 2>&1 || missing+=("$tool")
+done
+python3 -c 'import pip' >/dev/null 2>&1 || missing+=("python3-pip")
+python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || missing+=("python3-venv")
+if [ ${#missing[@]} -gt 0 ]; then
+    echo "test.sh: could not set up: ${missing[*]}; the tests that need them fail under CI and are skipped otherwise" >&2
 fi
 cleanup=()
 trap 'for c in "${cleanup[@]}"; do eval "$c"; done' EXIT

@@ -15,8 +15,8 @@
 # About 55 s once built on a loaded 2-core machine.
 #
 # Sets up what it needs like test.sh sets up lavapipe: Debian's chromium (apt) and
-# websocket-client (pip, pinned). Where neither can be installed (no apt-get, no root/sudo),
-# it says so and skips.
+# websocket-client (pip, pinned). Where Chromium cannot be installed (no apt-get, no root/sudo),
+# it says so and skips, except under CI (CI set, and not false or 0), where that fails.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -32,6 +32,15 @@ if [ ! -x "$chromium" ] && command -v apt-get >/dev/null 2>&1; then
     fi
 fi
 if [ ! -x "$chromium" ]; then
+    case "${CI:-}" in
+    "" | 0 | false | FALSE | False) ;;
+    *)
+        echo "web-test.sh: FAILED: no Chromium at $chromium and none could be installed" \
+            "(apt-get install chromium, or set CBDAM_CHROMIUM); under CI a missing" \
+            "prerequisite fails the run" >&2
+        exit 1
+        ;;
+    esac
     echo "web-test.sh: SKIPPED: no Chromium at $chromium and none could be installed" \
         "(apt-get install chromium, or set CBDAM_CHROMIUM)" >&2
     exit 0

@@ -86,6 +86,9 @@ COMMON_FLAGS = [
     "--disable-background-networking",
     "--no-first-run",
     "--remote-debugging-port=0",
+    # Chromium 111 and later refuse DevTools WebSocket connections that send an Origin header
+    # unless it is allowed; older and newer builds alike accept this flag.
+    "--remote-allow-origins=*",
 ]
 WIDTH, HEIGHT = 640, 480
 # The renderer's clear colour (RenderOptions::default().background) and the page's background.

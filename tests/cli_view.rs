@@ -86,10 +86,7 @@ fn help_lists_the_keys() {
 fn view_draws_terrain_and_the_hud_in_a_window() {
     let (display, _xvfb) = match display() {
         Ok(d) => d,
-        Err(why) => {
-            println!("SKIPPED view_draws_terrain_and_the_hud_in_a_window: {why}");
-            return;
-        }
+        Err(why) => return skip_unless_ci("view_draws_terrain_and_the_hud_in_a_window", &why),
     };
     let dir = tempfile::tempdir().unwrap();
     let repo = jacksboro(dir.path());
@@ -279,7 +276,7 @@ fn centre_brightness(rgba: &[u8], w: u32, h: u32, r: u32) -> f64 {
 /// session's display, so no key lands in someone's desktop.
 #[test]
 fn keys_and_mouse_drive_the_viewer() {
-    let skip = |why: &str| println!("SKIPPED keys_and_mouse_drive_the_viewer: {why}");
+    let skip = |why: &str| skip_unless_ci("keys_and_mouse_drive_the_viewer", why);
     for tool in ["xdotool", "xwd"] {
         if Command::new(tool).arg("-version").output().is_err() {
             return skip(&format!(
@@ -468,10 +465,7 @@ fn keys_and_mouse_drive_the_viewer() {
 fn view_drapes_a_colour_repository() {
     let (display, _xvfb) = match display() {
         Ok(d) => d,
-        Err(why) => {
-            println!("SKIPPED view_drapes_a_colour_repository: {why}");
-            return;
-        }
+        Err(why) => return skip_unless_ci("view_drapes_a_colour_repository", &why),
     };
     let dir = tempfile::tempdir().unwrap();
     let repo = jacksboro(dir.path());

@@ -12,6 +12,28 @@ pub fn cbdam(args: &[&str]) -> Output {
         .expect("run cbdam")
 }
 
+/// Runs `cbdam args…`, failing the test (and killing the process) if it has not finished
+/// within `secs` seconds: for commands that must refuse at once rather than wait (on a FIFO, or
+/// serving what they should have refused).
+pub fn cbdam_within(args: &[&str], secs: u64) -> Output {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(secs);
+    while child.try_wait().unwrap().is_none() {
+        if std::time::Instant::now() > deadline {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            panic!("{args:?} still running after {secs} s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child.wait_with_output().unwrap()
+}
+
 /// Starts `cbdam serve ARGS… --addr 127.0.0.1:0` and returns the process with its `host:port`
 /// once it logs that it listens. The rest of its log is drained on a thread, so the server never
 /// blocks on a full pipe; kill the child when done.
@@ -40,6 +62,41 @@ pub fn spawn_serve(args: &[&str]) -> (Child, String) {
     };
     std::thread::spawn(move || for _ in err.lines() {});
     (server, addr)
+}
+
+/// Whether `ci`, the value of the `CI` environment variable, marks a CI run: set, as CI
+/// services set it (`true`, `1`, …), and not `false`, `0` or empty.
+fn is_ci(ci: Option<&std::ffi::OsStr>) -> bool {
+    ci.is_some_and(|v| !matches!(v.to_str(), Some("" | "0" | "false" | "FALSE" | "False")))
+}
+
+/// A test whose prerequisite (a program, a display, pip) is missing: outside CI it prints
+/// `SKIPPED test: why` and the caller returns; under CI (`CI` set, see [`is_ci`]) a missing
+/// prerequisite is a failure, never a skip, so a green CI run has run every test.
+pub fn skip_unless_ci(test: &str, why: &str) {
+    skip_or_fail(std::env::var_os("CI").as_deref(), test, why);
+}
+
+fn skip_or_fail(ci: Option<&std::ffi::OsStr>, test: &str, why: &str) {
+    assert!(
+        !is_ci(ci),
+        "{test}: a prerequisite is missing and CI is set, so this fails instead of skipping: \
+         {why}"
+    );
+    println!("SKIPPED {test}: {why}");
+}
+
+/// Under CI a missing prerequisite fails the test; elsewhere it is skipped.
+#[test]
+fn a_missing_prerequisite_fails_under_ci_and_skips_elsewhere() {
+    use std::ffi::OsStr;
+    for ci in [None, Some(""), Some("0"), Some("false")] {
+        skip_or_fail(ci.map(OsStr::new), "t", "no tool");
+    }
+    for ci in ["true", "1", "yes"] {
+        let r = std::panic::catch_unwind(|| skip_or_fail(Some(OsStr::new(ci)), "t", "no tool"));
+        assert!(r.is_err(), "CI={ci} skipped");
+    }
 }
 
 /// A path as a command-line argument.

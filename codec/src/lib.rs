@@ -11,6 +11,7 @@ pub mod atomic;
 pub mod colour;
 pub mod entropy;
 pub mod error;
+pub mod files;
 pub mod geodesy;
 pub mod geometry;
 pub mod hierarchy;

@@ -10,7 +10,8 @@
 //! their reconstruction hashes equal the other coders', which nothing was copied from.
 //!
 //! To re-capture after such a change, print the current values instead of asserting:
-//! `CBDAM_PRINT_GOLDEN=1 cargo test -p cbdam-codec --test tests -- golden:: --nocapture`
+//! `CBDAM_PRINT_GOLDEN=1 cargo test -p cbdam-codec --test tests -- golden:: --nocapture`.
+//! Each test then prints all its values and fails: a run that checked nothing is never green.
 
 use std::path::Path;
 
@@ -95,7 +96,7 @@ fn golden(
     let report = verify(&enc, grid).unwrap();
     assert!(report.within_bound(), "{name}: {report:?}");
     let got = (hash_encoded(&enc), hash_finest(&enc));
-    if std::env::var_os("CBDAM_PRINT_GOLDEN").is_some_and(|v| v == "1") {
+    if printing() {
         println!(
             "{name}: (0x{:016x}, 0x{:016x}), // {} records, {} bytes",
             got.0,
@@ -112,6 +113,31 @@ fn golden(
         got.0, got.1
     );
     got
+}
+
+/// Whether the hashes are printed instead of checked (`CBDAM_PRINT_GOLDEN=1`).
+fn printing() -> bool {
+    std::env::var_os("CBDAM_PRINT_GOLDEN").is_some_and(|v| v == "1")
+}
+
+/// The end of a golden test: the cross-check below, then, in the printing mode, a failure —
+/// the values were printed, not checked, and such a run must never read as green.
+fn finish(hashes: &[(Alpha, CoderKind, (u64, u64))]) {
+    same_reconstruction_for_every_coder(hashes);
+    fail_if_printed(printing());
+}
+
+fn fail_if_printed(printed: bool) {
+    assert!(
+        !printed,
+        "CBDAM_PRINT_GOLDEN=1: the hashes were printed above, not checked, so this test fails"
+    );
+}
+
+#[test]
+fn the_printing_mode_never_passes() {
+    fail_if_printed(false);
+    assert!(std::panic::catch_unwind(|| fail_if_printed(true)).is_err());
 }
 
 /// The entropy coder is lossless over the same quantizer indices, so the reconstruction must
@@ -200,7 +226,7 @@ fn srtm_crop_at_one_metre() {
             golden(&name, &grid, q, opts(alpha, coder), want),
         ));
     }
-    same_reconstruction_for_every_coder(&got);
+    finish(&got);
 }
 
 #[test]
@@ -229,7 +255,7 @@ fn lidar_crop_at_half_a_metre() {
         let h = golden(&name, &grid, q, opts(Alpha::One, coder), want);
         got.push((Alpha::One, coder, h));
     }
-    same_reconstruction_for_every_coder(&got);
+    finish(&got);
 }
 
 #[test]
@@ -303,5 +329,5 @@ fn synthetic_field_with_holes_and_small_diamonds() {
         };
         got.push((alpha, coder, golden(&name, &grid, q, o, want)));
     }
-    same_reconstruction_for_every_coder(&got);
+    finish(&got);
 }

@@ -11,8 +11,8 @@ use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::index::{IndexEntry, range_shift_for};
 use cbdam_codec::repository::{
-    FORMAT_VERSION, HEADER_FETCH_LEN, Repository, RepositoryHead, Section, required_head_len,
-    reseal_checksums, serialize, write_repository,
+    FORMAT_VERSION, HEADER_FETCH_LEN, MAX_MAGNITUDE, Repository, RepositoryHead, Section,
+    craft_header, required_head_len, reseal_checksums, serialize, write_repository,
 };
 
 /// A small hierarchy with nodata holes, rough enough that records are non-trivial.
@@ -328,6 +328,65 @@ fn hostile_headers_with_valid_checksums_never_panic() {
         refused * 2 > tried,
         "only {refused} of {tried} hostile headers refused"
     );
+}
+
+/// Fields that are each finite but make what readers derive from them infinite or absurd,
+/// written by a hostile writer with every checksum matching: each is refused when the file is
+/// opened (the repository and the head a remote client parses alike), by an error that names
+/// the field and its value, so no reader, server or viewer meets a non-finite height or
+/// coordinate.
+#[test]
+fn crafted_headers_with_valid_checksums_and_absurd_derived_values_are_refused_by_name() {
+    let good = image();
+    // The fixture's plan: unit 1/16 m, not lattice input; 1 m pixels.
+    let cases: &[(&str, f64, &str)] = &[
+        // offset ± unit · 44 000 000 overflows to ±inf.
+        ("unit", 1e308, "height unit 1e308"),
+        ("unit", 1e300, "height unit 1e300"),
+        ("offset", 1e308, "offset 1e308"),
+        ("offset", -f64::MAX, "heights it spans"),
+        // origin + pixel · extent overflows, or lies past any planet.
+        ("pixel_x", 1e307, "pixel size x 1e307"),
+        ("pixel_y", -f64::MAX, "pixel size y"),
+        ("origin_x", 1e308, "origin x"),
+        ("origin_y", MAX_MAGNITUDE * 2.0, "origin y 2000000000000000"),
+        // Not lattice input: the representation error must be 0.
+        ("representation_error", 0.01, "representation error 0.01"),
+    ];
+    for &(field, value, named) in cases {
+        let b = craft_header(&good, field, value.to_bits()).unwrap();
+        let e = Repository::from_bytes(b.clone()).unwrap_err();
+        assert!(
+            matches!(e, CodecError::Corrupt(_)),
+            "{field} = {value}: {e}"
+        );
+        assert!(e.to_string().contains(named), "{field} = {value}: {e}");
+        let head = RepositoryHead::parse(&b, b.len() as u64).unwrap_err();
+        assert_eq!(head.to_string(), e.to_string());
+    }
+    // Large but sane values still open: the check is on meaning, not on a value's size.
+    for (field, value) in [("origin_x", 6.4e6), ("origin_y", -1e9), ("offset", 8848.0)] {
+        let b = craft_header(&good, field, f64::to_bits(value)).unwrap();
+        let repo = load(b).unwrap_or_else(|e| panic!("{field} = {value}: {e}"));
+        let plan = repo.head().plan();
+        for h in [-44_000_000, 44_000_000] {
+            assert!(plan.metres(h).is_finite());
+        }
+    }
+    // Crafting rewrites the header only: the same value gives back the same bytes.
+    let same = craft_header(&good, "unit", (1.0f64 / 16.0).to_bits()).unwrap();
+    assert_eq!(same, good);
+}
+
+/// A writer never writes what a reader would refuse: a plan whose heights overflow is refused
+/// before anything is written.
+#[test]
+fn repositories_readers_would_refuse_are_not_written() {
+    let (enc, mut plan, _) = fixture(Alpha::One, CoderKind::Adaptive);
+    plan.unit = 1e300;
+    let e = serialize(&enc, &plan, Some(&georef()), None).unwrap_err();
+    assert!(matches!(e, CodecError::InvalidParameter(_)), "{e}");
+    assert!(e.to_string().contains("height unit 1e300"), "{e}");
 }
 
 /// What a remote client does: fetch the header, learn the head's length, fetch the head, then

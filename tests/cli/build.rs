@@ -211,9 +211,162 @@ fn bad_inputs_fail_without_output() {
         "is a directory",
     );
     assert!(listing(&sub).is_empty());
-    // Output directory missing: an error, nothing created.
+    // Output directory missing: an error naming it before any work (it used to surface only
+    // when the finished repository was written, after the encode), nothing created.
     let deep = dir.path().join("no").join("such").join("out.cbdam");
-    build_fails(dir.path(), &jb, &deep, &["--max-error", "1"], "writing");
+    build_fails(
+        dir.path(),
+        &jb,
+        &deep,
+        &["--max-error", "1"],
+        "such does not exist",
+    );
+    let o = cbdam(&["build", &jb, "-o", &s(&deep), "--max-error", "1"]);
+    assert!(!stderr(&o).contains("encod"), "{}", stderr(&o));
+}
+
+#[cfg(unix)]
+fn mkfifo(path: &Path) {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).unwrap();
+    // SAFETY: `c` is a NUL-terminated path that outlives the call.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo");
+}
+
+/// A VRT placing `source` (relative to the VRT) with this `GeoTransform`.
+fn write_vrt(path: &Path, source: &str, geo_transform: &str) {
+    std::fs::write(
+        path,
+        format!(
+            r#"<VRTDataset rasterXSize="5" rasterYSize="4">
+  <GeoTransform>{geo_transform}</GeoTransform>
+  <VRTRasterBand dataType="Float32" band="1">
+    <SimpleSource>
+      <SourceFilename relativeToVRT="1">{source}</SourceFilename>
+      <SourceBand>1</SourceBand>
+      <SrcRect xOff="0" yOff="0" xSize="5" ySize="4" />
+      <DstRect xOff="0" yOff="0" xSize="5" ySize="4" />
+    </SimpleSource>
+  </VRTRasterBand>
+</VRTDataset>
+"#
+        ),
+    )
+    .unwrap();
+}
+
+/// A FIFO (or any file that is not a regular file) given as an input, listed in an @LIST or
+/// placed by a VRT is refused by its type, naming it, instead of blocking the build forever on
+/// the open.
+#[cfg(unix)]
+#[test]
+fn special_files_are_refused_by_type_not_waited_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.cbdam");
+    let fifo = dir.path().join("pipe.asc");
+    mkfifo(&fifo);
+    let vrt = dir.path().join("tiles.vrt");
+    write_vrt(&vrt, "pipe.asc", "0, 1, 0, 4, 0, -1");
+    let list = dir.path().join("inputs.txt");
+    std::fs::write(&list, "pipe.asc\n").unwrap();
+    let fifo_vrt = dir.path().join("pipe.vrt");
+    mkfifo(&fifo_vrt);
+    let at_list = format!("@{}", s(&list));
+    for input in [s(&fifo), s(&vrt), at_list, s(&fifo_vrt)] {
+        let before = listing(dir.path());
+        let o = cbdam_within(&["build", &input, "-o", &s(&out), "--max-error", "1"], 60);
+        assert!(!o.status.success(), "{input}: {}", stderr(&o));
+        let err = stderr(&o);
+        assert!(
+            err.contains("a FIFO (named pipe), not a regular file"),
+            "{input}: {err}"
+        );
+        assert!(err.contains("pipe."), "{input}: {err}");
+        assert_eq!(listing(dir.path()), before, "{input} left files behind");
+    }
+    // And where a repository is expected.
+    let o = cbdam_within(&["inspect", &s(&fifo)], 60);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("not a regular file"), "{}", stderr(&o));
+}
+
+/// `-o` naming one of the build's inputs — the same path, a symlink or hard link to it, a VRT's
+/// tile, the VRT itself — is refused before anything is written; the input is untouched.
+#[cfg(unix)]
+#[test]
+fn an_output_that_is_an_input_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let asc = dir.path().join("a.asc");
+    write_asc(&asc, &vec![vec![1.0, 2.0, 3.0, 4.0, 5.0]; 4], None);
+    let original = std::fs::read(&asc).unwrap();
+    let link = dir.path().join("link.cbdam");
+    std::os::unix::fs::symlink(&asc, &link).unwrap();
+    let hard = dir.path().join("hard.cbdam");
+    std::fs::hard_link(&asc, &hard).unwrap();
+    let vrt = dir.path().join("tiles.vrt");
+    write_vrt(&vrt, "a.asc", "0, 1, 0, 4, 0, -1");
+    let spelled = dir.path().join(".").join("a.asc");
+    let cases = [
+        (s(&asc), s(&asc)),
+        (s(&asc), s(&spelled)),
+        (s(&asc), s(&link)),
+        (s(&asc), s(&hard)),
+        (s(&vrt), s(&asc)),
+        (s(&vrt), s(&vrt)),
+    ];
+    for (input, out) in &cases {
+        let before = listing(dir.path());
+        let o = cbdam(&["build", input, "-o", out, "--max-error", "1"]);
+        assert!(!o.status.success(), "{input} -o {out} succeeded");
+        let err = stderr(&o);
+        assert!(
+            err.contains("would overwrite what it reads"),
+            "{input} -o {out}: {err}"
+        );
+        assert_eq!(
+            listing(dir.path()),
+            before,
+            "{input} -o {out} left files behind"
+        );
+        assert_eq!(std::fs::read(&asc).unwrap(), original, "{input} -o {out}");
+    }
+    let vrt_text = std::fs::read_to_string(&vrt).unwrap();
+    assert!(vrt_text.contains("a.asc"));
+    // A different output still builds.
+    let o = cbdam(&[
+        "build",
+        &s(&asc),
+        "-o",
+        &s(&dir.path().join("b.cbdam")),
+        "--max-error",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// A VRT whose `GeoTransform` holds NaN or an infinity is refused by name, not accepted with
+/// a NaN origin.
+#[test]
+fn a_vrt_with_a_non_finite_geotransform_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let asc = dir.path().join("a.asc");
+    write_asc(&asc, &vec![vec![1.0, 2.0, 3.0, 4.0, 5.0]; 4], None);
+    let out = dir.path().join("out.cbdam");
+    for gt in [
+        "NaN, 1, 0, 4, 0, -1",
+        "0, 1, 0, inf, 0, -1",
+        "-inf, 1, 0, 4, 0, -1",
+    ] {
+        let vrt = dir.path().join("tiles.vrt");
+        write_vrt(&vrt, "a.asc", gt);
+        build_fails(
+            dir.path(),
+            &s(&vrt),
+            &out,
+            &["--max-error", "1"],
+            "every term must be a finite number",
+        );
+    }
 }
 
 #[test]
@@ -224,15 +377,31 @@ fn out_of_core_and_streamed_builds_give_identical_bytes() {
     let a = dir.path().join("a.cbdam");
     let b = dir.path().join("b.cbdam");
     let rhine = data("rhine_nodata.tif");
+    // `--timings` names where the reconstruction and the lattice went: the limited builds must
+    // have taken the other path, or the comparison compares a path with itself.
+    let path_taken = |o: &Output| -> String {
+        ok(o);
+        let err = stderr(o);
+        let line = err.lines().find(|l| l.starts_with("timings:"));
+        line.unwrap_or_else(|| panic!("no timings in {err}"))
+            .to_owned()
+    };
+    let in_memory = |t: &str| t.ends_with("reconstruction in memory");
+    let out_of_core =
+        |t: &str| t.contains("reconstruction in mapped file; lattice in mapped files");
     for (out, extra) in [(&a, None), (&b, Some("1M"))] {
         let mut args = vec!["build", &rhine, "--max-error", "1", "-o"];
         let out = s(out);
         args.push(&out);
-        args.push("--quiet");
+        args.extend(["--quiet", "--timings"]);
         if let Some(limit) = extra {
             args.extend(["--memory-limit", limit]);
         }
-        ok(&cbdam(&args));
+        let t = path_taken(&cbdam(&args));
+        match extra {
+            None => assert!(in_memory(&t), "{t}"),
+            Some(_) => assert!(out_of_core(&t), "{t}"),
+        }
     }
     assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
     // An odd-sized float terrain streamed from raw f32, in memory and forced out of core:
@@ -255,7 +424,7 @@ fn out_of_core_and_streamed_builds_give_identical_bytes() {
         .collect();
     std::fs::write(&raw, bytes).unwrap();
     let (c, d) = (dir.path().join("c.cbdam"), dir.path().join("d.cbdam"));
-    ok(&cbdam(&[
+    let t = path_taken(&cbdam(&[
         "build",
         &s(&raw),
         "--size",
@@ -265,8 +434,10 @@ fn out_of_core_and_streamed_builds_give_identical_bytes() {
         "-o",
         &s(&c),
         "--quiet",
+        "--timings",
     ]));
-    ok(&cbdam(&[
+    assert!(in_memory(&t), "{t}");
+    let t = path_taken(&cbdam(&[
         "build",
         &s(&raw),
         "--size",
@@ -276,9 +447,11 @@ fn out_of_core_and_streamed_builds_give_identical_bytes() {
         "-o",
         &s(&d),
         "--quiet",
+        "--timings",
         "--memory-limit",
         "4K",
     ]));
+    assert!(out_of_core(&t), "{t}");
     assert_eq!(std::fs::read(&c).unwrap(), std::fs::read(&d).unwrap());
     ok(&cbdam(&["verify", &s(&d), "--against", &s(&asc)]));
     // Bad limits and sizes are clear errors.

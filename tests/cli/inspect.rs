@@ -2,6 +2,8 @@
 
 use std::process::Command;
 
+use crate::util::*;
+
 #[test]
 fn a_closed_stdout_ends_inspect_quietly() {
     let repo = concat!(
@@ -65,4 +67,42 @@ fn inspect_names_a_planet_domain() {
     let s = (n as u64 - 1) << k;
     assert_eq!(v["nodata_samples"], 0, "{v}");
     assert_eq!(v["samples"].as_u64(), Some(6 * s * s + 2), "{v}");
+}
+
+/// A hostile header whose checksums match but whose unit makes every height infinite is
+/// refused by every command that opens it, naming the field, instead of being described
+/// (`inspect`), written out as ±inf (`extract`) or drawn until the camera panics.
+#[test]
+fn a_crafted_header_with_infinite_heights_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let asc = dir.path().join("a.asc");
+    super::write_asc(&asc, &vec![vec![10.0, 12.0, 15.0, 11.0, 9.0]; 4], None);
+    let good = dir.path().join("good.cbdam");
+    super::build_quiet(&s(&asc), &good, "0.5");
+    let bytes = std::fs::read(&good).unwrap();
+    let bad = dir.path().join("bad.cbdam");
+    let crafted =
+        cbdam_codec::repository::craft_header(&bytes, "unit", 1e308f64.to_bits()).unwrap();
+    std::fs::write(&bad, crafted).unwrap();
+    let tif = dir.path().join("x.tif");
+    let (bad, tif_s) = (s(&bad), s(&tif));
+    for args in [
+        vec!["inspect", &bad],
+        vec!["inspect", &bad, "--json"],
+        vec!["extract", &bad, "-o", &tif_s],
+    ] {
+        let o = cbdam(&args);
+        assert!(!o.status.success(), "{args:?} accepted it: {}", stdout(&o));
+        assert!(
+            stderr(&o).contains("height unit 1e308"),
+            "{args:?}: {}",
+            stderr(&o)
+        );
+        assert!(!stderr(&o).contains("panicked"), "{args:?}: {}", stderr(&o));
+    }
+    assert!(!tif.exists());
+    // A server refuses to serve it, at startup, instead of handing it to clients.
+    let o = cbdam_within(&["serve", &bad, "--addr", "127.0.0.1:0"], 60);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("height unit 1e308"), "{}", stderr(&o));
 }

@@ -126,7 +126,8 @@ fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_builder() {
 }
 
 /// The Python of a venv under target/ with codec/builder/dask/requirements.txt installed (made
-/// once per target directory); `None`, with the reason printed, only when pip is missing.
+/// once per target directory); `None`, with the reason printed, only when pip or venv is
+/// missing, and then only outside CI: under CI that fails the test ([`skip_unless_ci`]).
 fn dask_python() -> Option<PathBuf> {
     static PYTHON: OnceLock<Option<PathBuf>> = OnceLock::new();
     PYTHON
@@ -142,15 +143,24 @@ fn dask_python() -> Option<PathBuf> {
             if imports(&python) {
                 return Some(python);
             }
-            let pip = Command::new("python3")
-                .args(["-m", "pip", "--version"])
-                .output();
-            if !pip.is_ok_and(|o| o.status.success()) {
-                eprintln!(
-                    "SKIPPED: `python3 -m pip` is not available, so the Dask requirements \
-                     (codec/builder/dask/requirements.txt) cannot be installed"
-                );
-                return None;
+            // Debian's python3 has the venv module without the ensurepip it needs
+            // (python3-venv), and no pip (python3-pip).
+            for (module, probe) in [("pip", "import pip"), ("venv", "import venv, ensurepip")] {
+                let there = Command::new("python3")
+                    .args(["-c", probe])
+                    .output()
+                    .is_ok_and(|o| o.status.success());
+                if !there {
+                    skip_unless_ci(
+                        "the Dask tests",
+                        &format!(
+                            "`python3 -m {module}` is not available, so the Dask requirements \
+                             (codec/builder/dask/requirements.txt) cannot be installed \
+                             (apt-get install python3-pip python3-venv)"
+                        ),
+                    );
+                    return None;
+                }
             }
             let run = |cmd: &mut Command| {
                 let o = cmd.output().expect("run python3");

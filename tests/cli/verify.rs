@@ -1,7 +1,7 @@
 //! `cbdam verify`: damaged repositories and wrong inputs it must catch, the nodata mask, raw
 //! inputs.
 
-use cbdam_codec::repository::{Repository, Section};
+use cbdam_codec::repository::{Repository, Section, craft_header};
 
 use super::write_asc;
 use crate::util::*;
@@ -237,4 +237,69 @@ fn one_file_verifies_block_by_block() {
     assert!(!o.status.success(), "{}", stdout(&o));
     // 10 m is 80 units: every level is past the bound of 7.
     assert!(stderr(&o).contains("L∞ bound violated"), "{}", stderr(&o));
+}
+
+/// `verify` compares the georeferencing and the nodata value the header records with the
+/// input's: a repository whose header places the data elsewhere, or forgets the input's nodata
+/// value, fails with a message naming what differs (the heights alone would pass).
+#[test]
+fn verify_compares_georeferencing_and_nodata_with_the_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let asc = dir.path().join("a.asc");
+    let mut rows = vec![vec![10.0, 12.0, 15.0, 11.0, 9.0]; 4];
+    rows[1][2] = -9999.0;
+    write_asc(&asc, &rows, Some(-9999.0));
+    let out = dir.path().join("t.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(&asc),
+        "-o",
+        &s(&out),
+        "--max-error",
+        "0.5",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let verify = |repo: &std::path::Path| cbdam(&["verify", &s(repo), "--against", &s(&asc)]);
+    let o = verify(&out);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let good = std::fs::read(&out).unwrap();
+    let crafted = dir.path().join("crafted.cbdam");
+    for (field, value, message) in [
+        ("origin_x", 1000.0, "georeferencing differs"),
+        ("pixel_y", 2.0, "georeferencing differs"),
+        (
+            "nodata",
+            f64::NAN,
+            "declares the nodata value -9999, the repository records none",
+        ),
+    ] {
+        std::fs::write(
+            &crafted,
+            craft_header(&good, field, f64::to_bits(value)).unwrap(),
+        )
+        .unwrap();
+        let o = verify(&crafted);
+        assert!(!o.status.success(), "{field} = {value}: verify passed");
+        assert!(
+            stderr(&o).contains(message),
+            "{field} = {value}: {}",
+            stderr(&o)
+        );
+    }
+    // The build's --nodata overrides the file's value: that is no mismatch.
+    let o = cbdam(&[
+        "build",
+        &s(&asc),
+        "-o",
+        &s(&out),
+        "--max-error",
+        "0.5",
+        "--quiet",
+        "--nodata",
+        "-9999.5",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = verify(&out);
+    assert!(!stderr(&o).contains("nodata differs"), "{}", stderr(&o));
 }

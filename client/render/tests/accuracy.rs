@@ -131,7 +131,21 @@ fn worst_excess(
 
 #[test]
 fn adaptive_cuts_stay_within_the_pixel_error() {
-    let repo = jacksboro();
+    within_the_pixel_error(jacksboro());
+}
+
+/// The same with the α = ½ lifting weight, whose object errors come from its own filter.
+#[test]
+fn adaptive_cuts_of_an_alpha_half_repository_stay_within_the_pixel_error() {
+    let repo = jacksboro_half();
+    assert_eq!(
+        repo.head().params().alpha,
+        cbdam_codec::lifting::Alpha::Half
+    );
+    within_the_pixel_error(repo);
+}
+
+fn within_the_pixel_error(repo: &std::sync::Arc<cbdam_codec::repository::Repository>) {
     let world = World::of_repository(repo);
     let finest = Finest::new(repo);
     let size = (240, 160);

@@ -8,7 +8,8 @@
 //! patch placement changes far more than 1 % of the pixels or far more than 6 levels.
 //!
 //! Regenerate with `CBDAM_UPDATE_GOLDEN=1 cargo test -p cbdam-render --test tests golden::`, and
-//! look at the new PNGs before committing them.
+//! look at the new PNGs before committing them. A run in that mode writes every image and then
+//! fails each test that wrote one: it compared nothing, so it must never read as green.
 
 use std::path::PathBuf;
 
@@ -41,8 +42,11 @@ pub fn compare(name: &str, frame: &Frame) {
     let path = golden_path(name);
     if std::env::var_os("CBDAM_UPDATE_GOLDEN").is_some() {
         std::fs::write(&path, frame.to_png().unwrap()).unwrap();
-        eprintln!("wrote {}", path.display());
-        return;
+        panic!(
+            "{name}: wrote {} (CBDAM_UPDATE_GOLDEN is set: the image was rewritten, not \
+             compared, so this test fails; look at it, then run again without the variable)",
+            path.display()
+        );
     }
     let (w, h, golden) = read_png(&path);
     assert_eq!((w, h), (frame.width, frame.height), "{name}: size");

@@ -13,6 +13,7 @@ use cbdam_client::refine::{RefineConfig, Refiner};
 use cbdam_client::world::World;
 use cbdam_codec::geometry::Cut;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
+use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{Repository, serialize};
 use cbdam_render::{CacheConfig, Gpu, Renderer};
@@ -28,11 +29,17 @@ pub fn data(name: &str) -> PathBuf {
 
 /// A repository of a bundled DEM with diamond side `n`, built in memory.
 pub fn repository(name: &str, max_error: f64, n: usize) -> Repository {
+    repository_with_alpha(name, max_error, n, Alpha::One)
+}
+
+/// [`repository`] with the lifting weight `alpha`.
+pub fn repository_with_alpha(name: &str, max_error: f64, n: usize, alpha: Alpha) -> Repository {
     let dem = read_dem(&data(name), &ReadOptions::default()).unwrap();
     let plan = QuantPlan::for_dem(&dem, max_error, None).unwrap();
     let grid = HeightGrid::from_dem(&dem, &plan).unwrap();
     let opts = EncodeOptions {
         n,
+        alpha,
         ..EncodeOptions::default()
     };
     let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
@@ -44,6 +51,19 @@ pub fn repository(name: &str, max_error: f64, n: usize) -> Repository {
 pub fn jacksboro() -> &'static Arc<Repository> {
     static REPO: OnceLock<Arc<Repository>> = OnceLock::new();
     REPO.get_or_init(|| Arc::new(repository("jacksboro_mpl.tif", 1.0, 17)))
+}
+
+/// [`jacksboro`] with the α = ½ lifting weight (its own analysis filter and vertex bands).
+pub fn jacksboro_half() -> &'static Arc<Repository> {
+    static REPO: OnceLock<Arc<Repository>> = OnceLock::new();
+    REPO.get_or_init(|| {
+        Arc::new(repository_with_alpha(
+            "jacksboro_mpl.tif",
+            1.0,
+            17,
+            Alpha::Half,
+        ))
+    })
 }
 
 /// The cut the streaming client's refinement loop settles on for `cam` at `pixel_error` with an

@@ -882,4 +882,47 @@ mod tests {
         missing[8] = 1;
         assert!(parse_frames(&missing, &ids).is_err());
     }
+
+    /// What the native client and the browser core open a remote repository with: the file of
+    /// a hostile server, whose checksums match but whose height unit makes every height
+    /// infinite, is refused with the codec's error naming the field, before any world or
+    /// camera is made from it (they panicked on such values).
+    #[test]
+    fn a_crafted_head_from_a_hostile_server_is_refused_by_name() {
+        use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
+        use cbdam_codec::quant::{HeightGrid, QuantPlan};
+        use cbdam_codec::repository::{craft_header, serialize};
+        let (w, h) = (33, 33);
+        let metres: Vec<f64> = (0..w * h).map(|i| f64::from((i % 7) as u8) * 3.0).collect();
+        let plan = QuantPlan::new(1.0, None, 0.0, 18.0).unwrap();
+        let grid = HeightGrid::from_metres(w, h, &metres, None, &plan).unwrap();
+        let opts = EncodeOptions {
+            n: 9,
+            ..EncodeOptions::default()
+        };
+        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
+        let good = serialize(&enc, &plan, None, None).unwrap();
+        let open = |bytes: Vec<u8>| {
+            let len = bytes.len() as u64;
+            let get = |r: std::ops::Range<u64>| {
+                let end = r.end.min(len) as usize;
+                let body = bytes[r.start as usize..end].to_vec();
+                async move { Ok((body, len)) }
+            };
+            let fut = std::pin::pin!(fetch_head_with("http://hostile/r.cbdam", get));
+            let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+            match fut.poll(&mut cx) {
+                std::task::Poll::Ready(r) => r.map(|(head, _)| head),
+                std::task::Poll::Pending => panic!("an in-memory fetch is never pending"),
+            }
+        };
+        assert!(open(good.clone()).is_ok());
+        let bad = craft_header(&good, "unit", 1e308f64.to_bits()).unwrap();
+        match open(bad) {
+            Err(RemoteError::Repository { source, .. }) => {
+                assert!(source.to_string().contains("height unit 1e308"), "{source}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 }

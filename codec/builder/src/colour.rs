@@ -107,9 +107,7 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
     if opts.raw_size.is_some() || opts.nodata.is_some() || opts.quantum.is_some() {
         bail!("--size, --nodata and --quantum do not apply to colour images");
     }
-    if opts.output.is_dir() {
-        bail!("output path {} is a directory", opts.output.display());
-    }
+    crate::check_output(&opts.output)?;
     let like = opts
         .like
         .as_deref()
@@ -127,6 +125,8 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
             opts.inputs.len()
         );
     };
+    crate::tiles::check_regular_file(input, "input")?;
+    crate::check_output_is_not_an_input(opts, &[])?;
     progress.event(ProgressEvent {
         stage: Stage::Prepare,
         done: 0,

@@ -196,10 +196,75 @@ pub(crate) struct PreparedBuild {
 /// The input files: directories, globs, @lists and VRTs become their files; the raw float32
 /// input of `--size` is a single file, taken as given.
 pub(crate) fn input_tiles(opts: &BuildOptions) -> Result<Vec<tiles::Tile>> {
-    if opts.raw_size.is_some() {
-        Ok(opts.inputs.iter().map(tiles::Tile::file).collect())
+    let tiles = if opts.raw_size.is_some() {
+        for input in &opts.inputs {
+            tiles::check_regular_file(input, "input")?;
+        }
+        opts.inputs.iter().map(tiles::Tile::file).collect()
     } else {
-        tiles::expand_inputs(&opts.inputs)
+        tiles::expand_inputs(&opts.inputs)?
+    };
+    check_output_is_not_an_input(opts, &tiles)?;
+    Ok(tiles)
+}
+
+/// Refuses an output path that is one of the files the build reads — an input argument, an
+/// `@LIST`, a VRT, a file they name, or `--like` — as the same file (device and inode: through
+/// a symlink, a hard link or another spelling of the path too), before anything is written:
+/// the build would replace its own input.
+pub(crate) fn check_output_is_not_an_input(
+    opts: &BuildOptions,
+    tiles: &[tiles::Tile],
+) -> Result<()> {
+    let Ok(out) = std::fs::metadata(&opts.output) else {
+        // Nothing there yet, so nothing it could overwrite.
+        return Ok(());
+    };
+    let args = opts.inputs.iter().map(|p| {
+        let text = p.to_string_lossy();
+        match text.strip_prefix('@') {
+            Some(list) => PathBuf::from(list),
+            None => p.clone(),
+        }
+    });
+    let read = args
+        .chain(opts.like.iter().cloned())
+        .chain(tiles.iter().map(|t| t.path.clone()))
+        .chain(
+            tiles
+                .iter()
+                .filter_map(|t| t.vrt.as_ref().map(|v| v.vrt.clone())),
+        );
+    for input in read {
+        if let Ok(m) = std::fs::metadata(&input)
+            && same_file(&m, &out, &input, &opts.output)
+        {
+            bail!(
+                "the output {} is the input {}: the build would overwrite what it reads; \
+                 choose another -o",
+                opts.output.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Whether two paths (with their metadata, symlinks followed) name the same file.
+fn same_file(a: &std::fs::Metadata, b: &std::fs::Metadata, pa: &Path, pb: &Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        let _ = (pa, pb);
+        (a.dev(), a.ino()) == (b.dev(), b.ino())
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = (a, b);
+        matches!(
+            (std::fs::canonicalize(pa), std::fs::canonicalize(pb)),
+            (Ok(x), Ok(y)) if x == y
+        )
     }
 }
 
@@ -420,8 +485,24 @@ fn check_tolerance_and_output(opts: &BuildOptions) -> Result<()> {
             opts.max_error
         );
     }
-    if opts.output.is_dir() {
-        bail!("output path {} is a directory", opts.output.display());
+    check_output(&opts.output)
+}
+
+/// Checks the output path before any work: not a directory, and in a directory that exists (a
+/// build that is not journaled would otherwise find out only when it writes, after encoding).
+pub(crate) fn check_output(output: &Path) -> Result<()> {
+    if output.is_dir() {
+        bail!("output path {} is a directory", output.display());
+    }
+    let dir = match output.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        bail!(
+            "the output's directory {} does not exist (or is not a directory); create it first",
+            dir.display()
+        );
     }
     Ok(())
 }

@@ -1142,6 +1142,7 @@ pub fn build_planet(
         .context("starting the build's threads")?;
     let t = Instant::now();
     let tiles = crate::tiles::expand_inputs(&opts.inputs)?;
+    crate::check_output_is_not_an_input(opts, &tiles)?;
     let inputs =
         pool.install(|| PlanetInputs::read(&tiles, opts.nodata, opts.assign_georef.as_ref()))?;
     stages.push(("read", t.elapsed()));

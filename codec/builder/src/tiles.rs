@@ -110,8 +110,17 @@ fn expand(input: &Path, lists: bool, out: &mut Vec<Tile>) -> Result<()> {
         return Ok(());
     }
     // A plain file; a missing one is named by the reader.
+    check_regular_file(input, "input")?;
     out.push(Tile::file(input));
     Ok(())
+}
+
+/// Refuses a `role` (an input, a list, a VRT, a VRT's source…) that exists but is not a regular
+/// file — a FIFO, a socket, a device — by its type, before opening it: reading a FIFO waits
+/// for a writer, forever if none comes.
+pub fn check_regular_file(path: &Path, role: &str) -> Result<()> {
+    cbdam_codec::files::check_regular_file(path)
+        .with_context(|| format!("{role} {}", path.display()))
 }
 
 fn expand_glob(input: &Path, pattern: &str, out: &mut Vec<Tile>) -> Result<()> {
@@ -189,6 +198,7 @@ pub fn glob_match(p: &[char], name: &[char]) -> bool {
 }
 
 fn expand_list(list: &Path, out: &mut Vec<Tile>) -> Result<()> {
+    check_regular_file(list, "list")?;
     let text = std::fs::read_to_string(list)
         .with_context(|| format!("reading list @{}", list.display()))?;
     let base = list.parent().unwrap_or(Path::new(""));
@@ -370,6 +380,7 @@ fn srs_epsg(srs: &str) -> Option<u32> {
 /// each a whole tile placed without scaling. Anything else is refused, naming the element or
 /// attribute; the tiles' own sizes and georeferencing are checked when the mosaic reads them.
 pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
+    check_regular_file(vrt, "VRT")?;
     let text =
         std::fs::read_to_string(vrt).with_context(|| format!("reading {}", vrt.display()))?;
     let doc = roxmltree::Document::parse(&text)
@@ -402,6 +413,12 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
             "{}: <GeoTransform> has {} terms, not 6",
             vrt.display(),
             gt.len()
+        );
+    }
+    if let Some(t) = gt.iter().find(|t| !t.is_finite()) {
+        bail!(
+            "{}: <GeoTransform> {gt:?} holds {t}: every term must be a finite number",
+            vrt.display()
         );
     }
     if gt[2] != 0.0 || gt[4] != 0.0 || !(gt[1] > 0.0 && gt[5] < 0.0) {
@@ -481,6 +498,7 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
         } else {
             PathBuf::from(name)
         };
+        check_regular_file(&path, &format!("{}: source", vrt.display()))?;
         let sb: u32 = number(
             vrt,
             &format!("<SourceBand> of {name}"),

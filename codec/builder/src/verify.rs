@@ -15,6 +15,7 @@ use cbdam_codec::hierarchy::{
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::HeightGrid;
+use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
 use cbdam_codec::temp::LatticeArray;
 
@@ -92,6 +93,9 @@ pub struct DemComparison {
     pub epsilon: f64,
     /// The guaranteed bound, metres.
     pub guaranteed: f64,
+    /// The nodata value the input file declares itself (the header's may be the build's
+    /// `--nodata` instead).
+    pub declared_nodata: Option<f64>,
 }
 
 impl DemComparison {
@@ -157,7 +161,20 @@ pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
     if is_raw_path(against) {
         opts.format = Some(Format::RawF32 { width, height });
     }
-    let dem = read_dem(against, &opts).with_context(|| format!("reading {}", against.display()))?;
+    // Read with the file's own nodata value, to compare it with the header's, then with the
+    // header's as the build did (a recorded value is the file's or the build's `--nodata`).
+    let mut dem = read_dem(
+        against,
+        &ReadOptions {
+            nodata: None,
+            ..opts
+        },
+    )
+    .with_context(|| format!("reading {}", against.display()))?;
+    let declared_nodata = dem.nodata;
+    if repo.head().nodata().is_some() {
+        dem.nodata = repo.head().nodata();
+    }
     if (dem.width, dem.height) != (width, height) {
         bail!(
             "{} is {}×{} samples, the repository was built from {}×{}",
@@ -168,6 +185,8 @@ pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
             height
         );
     }
+    check_nodata(repo.head().nodata(), declared_nodata, against)?;
+    check_georef(repo.head().georef(), dem.georef.as_ref(), against)?;
     let grid = HeightGrid::from_dem(&dem, &plan).with_context(|| {
         format!(
             "mapping {} onto the repository's height lattice",
@@ -205,7 +224,59 @@ pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
         worst,
         epsilon: plan.epsilon,
         guaranteed: plan.max_error(),
+        declared_nodata,
     })
+}
+
+/// The nodata value a repository records against the one its input file declares. A file
+/// that declares one (other than NaN, which is nodata anyway and recorded as none) gives
+/// every build a nodata value: its own, or the build's `--nodata` overriding it, so a
+/// repository that records none was not built from this file as it is. Differing values are
+/// not an error (that is `--nodata`); which samples had data is compared sample by sample.
+fn check_nodata(recorded: Option<f64>, declared: Option<f64>, input: &Path) -> Result<()> {
+    if let Some(d) = declared
+        && !d.is_nan()
+        && recorded.is_none()
+    {
+        bail!(
+            "nodata differs: {} declares the nodata value {d}, the repository records none",
+            input.display()
+        );
+    }
+    Ok(())
+}
+
+/// The georeferencing a repository records against its input's: origin, pixel size, pixel
+/// convention, CRS (EPSG code and definition) exactly, as the build copies them. Only where
+/// both have one: an input without georeferencing may have been given one by the build's
+/// `--bounds` and `--crs`, and a repository without any claims no place (the same samples
+/// may come from a raw file).
+fn check_georef(recorded: Option<&GeoRef>, input: Option<&GeoRef>, what: &Path) -> Result<()> {
+    let describe = |g: &GeoRef| {
+        format!(
+            "origin ({}, {}), pixel {} × {} ({}), EPSG {}{}",
+            g.origin_x,
+            g.origin_y,
+            g.pixel_x,
+            g.pixel_y,
+            if g.pixel_is_area { "area" } else { "point" },
+            g.epsg.map_or_else(|| "none".to_owned(), |e| e.to_string()),
+            if g.wkt.is_some() {
+                ", with a CRS definition"
+            } else {
+                ""
+            }
+        )
+    };
+    match (recorded, input) {
+        (Some(r), Some(i)) if r != i => bail!(
+            "georeferencing differs: the repository records {}; {} has {}",
+            describe(r),
+            what.display(),
+            describe(i)
+        ),
+        _ => Ok(()),
+    }
 }
 
 /// What one input of a multi-input build contributes.
@@ -464,6 +535,10 @@ fn mosaic_lattice(
         ..ReadOptions::default()
     };
     let m = mosaic_tiles(tiles, &opts, memory_limit)?;
+    let what = match tiles {
+        [t] => t.path.clone(),
+        _ => PathBuf::from("the inputs' mosaic"),
+    };
     let (width, height) = p.domain.data().size();
     if (m.width, m.height) != (width, height) {
         bail!(
@@ -474,6 +549,7 @@ fn mosaic_lattice(
             height
         );
     }
+    check_georef(repo.head().georef(), Some(&m.georef), &what)?;
     let class = m.survey()?.resolution.class;
     let grid = HeightGrid::from_source_in(&m, &plan, &m.lattice)
         .context("mapping the inputs onto the repository's height lattice")?;

@@ -33,7 +33,7 @@ use crate::colour::{ColourDecoder, ycocg};
 use crate::entropy::CoderKind;
 use crate::geometry::{DataRect, DiamondId, Domain, DomainKind, Layout};
 use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, RepoKind, root_quantizer};
-use crate::lifting::Alpha;
+use crate::lifting::{Alpha, MAX_ABS_HEIGHT};
 use crate::quant::{QuantPlan, Quantizer};
 use crate::repository::GeoRef;
 
@@ -229,6 +229,11 @@ fn serialize_to(
         record_count: encoded.records.len() as u64,
         crc: 0,
     };
+    // What a reader would refuse is not written: the same check, blamed on the caller.
+    parse_derived(&fields, &p.domain).map_err(|e| match e {
+        CodecError::Corrupt(m) => CodecError::InvalidParameter(m),
+        e => e,
+    })?;
     let h = write_compact(&fields)?;
     let offset = h.len() as u64 + fields.sections.iter().map(|s| s.length).sum::<u64>();
 
@@ -336,6 +341,7 @@ impl RepositoryHead {
         let h = parse_header(b)?;
         let (params, plan) = parse_params(&h)?;
         let georef = parse_georef(&h)?;
+        parse_derived(&h, &params.domain)?;
         let nodata = (!h.nodata.is_nan()).then_some(h.nodata);
         let sections = h.sections;
         parse_placement(&sections, h.header_len, b.len(), file_len)?;
@@ -736,6 +742,73 @@ fn parse_georef(h: &HeaderFields) -> Result<Option<GeoRef>, CodecError> {
     }
 }
 
+/// Largest magnitude of any height (metres) or georeferenced coordinate (CRS units) a
+/// repository may describe. Far beyond any planet (the Earth's circumference is 4·10⁷ m, and a
+/// degree 1.1·10⁵ m), yet small enough that what consumers compute from it — distances and
+/// their squares, projection matrices, coordinates relative to an eye in `f32`, degrees turned
+/// into metres — stays finite.
+pub const MAX_MAGNITUDE: f64 = 1e15;
+
+/// The derived-values step: each field is finite on its own ([`parse_plan`], [`parse_georef`]),
+/// but what readers compute from them must be too. Every height a record can reconstruct
+/// (`offset + unit·h` for `|h| ≤` [`MAX_ABS_HEIGHT`]), every georeferenced coordinate of the
+/// lattice (`origin + pixel·i` for `i` from −1 to the lattice's extent) and a planet's
+/// resampling errors must be finite and within [`MAX_MAGNITUDE`]; the representation error must
+/// lie within its range (below half a unit and the tolerance for lattice input, 0 otherwise).
+/// The errors name the field and its value. Writers run the same check, so nothing writes what
+/// a reader refuses.
+fn parse_derived(h: &HeaderFields, domain: &Domain) -> Result<(), CodecError> {
+    let within = |v: f64| v.is_finite() && v.abs() <= MAX_MAGNITUDE;
+    let reach = h.unit * f64::from(MAX_ABS_HEIGHT);
+    let (low, high) = (h.offset - reach, h.offset + reach);
+    if !(within(low) && within(high) && low <= high) {
+        return Err(CodecError::corrupt(format!(
+            "header height unit {:?} m with offset {:?} m: the heights it spans ({low:?} … \
+             {high:?} m, offset ± unit · {MAX_ABS_HEIGHT}) are not finite and within \
+             ±{MAX_MAGNITUDE:e} m",
+            h.unit, h.offset
+        )));
+    }
+    let repr = h.representation_error;
+    let repr_ok = repr == 0.0 || (h.lattice == 1 && repr < h.unit / 2.0 && repr < h.epsilon);
+    if !repr_ok {
+        return Err(CodecError::corrupt(format!(
+            "header representation error {repr:?} m is out of range for unit {:?} m and \
+             tolerance {:?} m (lattice input: below half a unit and the tolerance; otherwise 0)",
+            h.unit, h.epsilon
+        )));
+    }
+    if h.geo_flags & 1 == 1 {
+        let (ex, ey) = domain.layout().face_extent();
+        let [ox, oy, px, py] = h.geo;
+        for (axis, origin, pixel, extent) in [("x", ox, px, ex), ("y", oy, py, ey)] {
+            // Pixel-is-point extents reach half a pixel before the origin; a whole one covers it.
+            let (first, last) = (origin - pixel, origin + pixel * extent as f64);
+            if !(within(origin) && within(first) && within(last)) {
+                return Err(CodecError::corrupt(format!(
+                    "header georeferencing origin {axis} {origin:?} with pixel size {axis} \
+                     {pixel:?}: the lattice's coordinates ({first:?} … {last:?}, over {extent} \
+                     points) are not finite and within ±{MAX_MAGNITUDE:e}"
+                )));
+            }
+        }
+    }
+    if let Some(p) = h.provenance {
+        for (what, v) in [
+            ("maximum", p.resampling_max),
+            ("root mean square", p.resampling_rms),
+        ] {
+            if !within(v) {
+                return Err(CodecError::corrupt(format!(
+                    "header planet resampling error ({what}) {v:?} m is not finite and within \
+                     ±{MAX_MAGNITUDE:e} m"
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The placement step: the sections follow the header and one another without gaps, end
 /// within `file_len` and the records area ends the file; the `given` bytes hold everything
 /// before the records area.
@@ -906,12 +979,128 @@ pub fn reseal_checksums(b: &mut [u8]) {
     }
 }
 
+/// The header fields [`craft_header`] can set, by name.
+#[doc(hidden)]
+pub const CRAFTABLE_FIELDS: &[&str] = &[
+    "flags",
+    "n",
+    "level_pairs",
+    "alpha",
+    "coder",
+    "lattice",
+    "geo_flags",
+    "nodata_policy",
+    "vertical_unit",
+    "roots_x",
+    "roots_y",
+    "data_width",
+    "data_height",
+    "quantizer_k",
+    "leaf_error",
+    "epsg",
+    "unit",
+    "offset",
+    "epsilon",
+    "representation_error",
+    "origin_x",
+    "origin_y",
+    "pixel_x",
+    "pixel_y",
+    "nodata",
+    "record_count",
+    "resampling_max",
+    "resampling_rms",
+];
+
+/// A hostile writer's header: the repository `b` (format version 3 or later) with one header
+/// field, named as in [`CRAFTABLE_FIELDS`], set to `bits` (a float's bits, or an integer, which
+/// must fit the field), the header rewritten and every checksum made to match
+/// ([`reseal_checksums`]). For tests and fuzzers of the validation behind the checksums.
+///
+/// # Errors
+/// When `b`'s header cannot be read, is a fixed (version 1 or 2) one, the field is unknown or
+/// the value does not fit it.
+#[doc(hidden)]
+pub fn craft_header(b: &[u8], field: &str, bits: u64) -> Result<Vec<u8>, CodecError> {
+    let mut sealed = b.to_vec();
+    reseal_header(&mut sealed);
+    let mut h = read_header(&sealed)?;
+    if h.version < 3 {
+        return Err(CodecError::unsupported(
+            "crafting a fixed (version 1 or 2) header",
+        ));
+    }
+    let too_large = || CodecError::invalid(format!("{bits} does not fit header field {field}"));
+    let int = || u32::try_from(bits).map_err(|_| too_large());
+    let byte = || u8::try_from(bits).map_err(|_| too_large());
+    let float = f64::from_bits(bits);
+    let provenance = |h: &mut HeaderFields| {
+        *h.provenance.get_or_insert(PlanetProvenance {
+            vertical_datum: VerticalDatum::Unknown,
+            resampling_max: 0.0,
+            resampling_rms: 0.0,
+        })
+    };
+    match field {
+        "flags" => h.flags = int()?,
+        "n" => h.n = int()?,
+        "level_pairs" => h.level_pairs = byte()?,
+        "alpha" => h.alpha = byte()?,
+        "coder" => h.coder = byte()?,
+        "lattice" => h.lattice = byte()?,
+        "geo_flags" => h.geo_flags = byte()?,
+        "nodata_policy" => h.nodata_policy = byte()?,
+        "vertical_unit" => h.vertical_unit = byte()?,
+        "roots_x" => h.roots_x = int()?,
+        "roots_y" => h.roots_y = int()?,
+        "data_width" => h.data_width = int()?,
+        "data_height" => h.data_height = int()?,
+        "quantizer_k" => h.quantizer_k = int()?,
+        "leaf_error" => h.leaf_error = int()?,
+        "epsg" => h.epsg = int()?,
+        "unit" => h.unit = float,
+        "offset" => h.offset = float,
+        "epsilon" => h.epsilon = float,
+        "representation_error" => h.representation_error = float,
+        "origin_x" => h.geo[0] = float,
+        "origin_y" => h.geo[1] = float,
+        "pixel_x" => h.geo[2] = float,
+        "pixel_y" => h.geo[3] = float,
+        "nodata" => h.nodata = float,
+        "record_count" => h.record_count = bits,
+        "resampling_max" => {
+            h.provenance = Some(PlanetProvenance {
+                resampling_max: float,
+                ..provenance(&mut h)
+            });
+        }
+        "resampling_rms" => {
+            h.provenance = Some(PlanetProvenance {
+                resampling_rms: float,
+                ..provenance(&mut h)
+            });
+        }
+        _ => {
+            return Err(CodecError::invalid(format!(
+                "no header field {field} (one of {})",
+                CRAFTABLE_FIELDS.join(", ")
+            )));
+        }
+    }
+    let mut out = write_compact(&h)?;
+    out.extend_from_slice(&sealed[h.header_len..]);
+    reseal_checksums(&mut out);
+    Ok(out)
+}
+
 impl Repository {
     /// Maps and validates the repository at `path`: magic, version, header CRC, every header
     /// field, section bounds against the file length, the CRCs of the root field, index and
     /// checksum table, and the index itself. Record bytes are checked when read
     /// ([`Repository::record`]) or by [`Repository::check_all`].
     pub fn open(path: &Path) -> Result<Self, CodecError> {
+        // A FIFO would block the open until a writer came; a device would map or read forever.
+        crate::files::check_regular_file(path)?;
         let file = File::open(path)?;
         let len = file.metadata()?.len();
         if len < HEADER_FETCH_LEN as u64 {

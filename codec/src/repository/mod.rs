@@ -11,9 +11,11 @@ mod georef;
 mod header;
 pub mod index;
 
+#[doc(hidden)]
+pub use container::{CRAFTABLE_FIELDS, craft_header};
 pub use container::{
-    FORMAT_VERSION, HEADER_FETCH_LEN, MAGIC, MAX_HEADER_LEN, PlanetProvenance, Repository,
-    RepositoryHead, Section, VerticalDatum, header_len, required_head_len, reseal_checksums,
-    serialize, write_planet_repository, write_repository,
+    FORMAT_VERSION, HEADER_FETCH_LEN, MAGIC, MAX_HEADER_LEN, MAX_MAGNITUDE, PlanetProvenance,
+    Repository, RepositoryHead, Section, VerticalDatum, header_len, required_head_len,
+    reseal_checksums, serialize, write_planet_repository, write_repository,
 };
 pub use georef::{GeoRef, MAX_WKT_LEN};

@@ -62,6 +62,7 @@ impl GeoTiffSource {
     /// Opens `path`, checking its tags and chunk table like [`super::read_dem`] does; `nodata`
     /// overrides the file's nodata value.
     pub fn open(path: &Path, nodata: Option<f64>, limits: &Limits) -> Result<Self, CodecError> {
+        cbdam_codec::files::check_regular_file(path)?;
         let mut header = Header::read(path, limits)?;
         if nodata.is_some() {
             header.nodata = nodata;

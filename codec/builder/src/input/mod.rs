@@ -19,6 +19,7 @@ mod tile_reader;
 use std::path::Path;
 
 use cbdam_codec::CodecError;
+use cbdam_codec::files::check_regular_file;
 use cbdam_codec::repository::{GeoRef, MAX_WKT_LEN};
 use cbdam_codec::samples::{Dem, SampleType};
 
@@ -105,6 +106,7 @@ pub struct ReadOptions {
 /// [`CodecError::InvalidParameter`] when the format cannot be determined or the given format
 /// does not fit the file.
 pub fn read_dem(path: &Path, opts: &ReadOptions) -> Result<Dem, CodecError> {
+    check_regular_file(path)?;
     let format = match opts.format {
         Some(f) => f,
         None => detect_format(path)?,
@@ -173,6 +175,7 @@ pub fn with_sidecar_crs(georef: Option<GeoRef>, path: &Path) -> Result<Option<Ge
 /// [`CodecError::InvalidParameter`] when neither tells (and for raw float32, which needs a size),
 /// [`CodecError::Io`] when the file cannot be read.
 pub fn detect_format(path: &Path) -> Result<Format, CodecError> {
+    check_regular_file(path)?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

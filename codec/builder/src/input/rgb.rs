@@ -19,6 +19,7 @@ use cbdam_codec::colour::RgbImage;
 /// Reads an 8-bit RGB(A) PNG or GeoTIFF (by extension; `.tif`/`.tiff` are TIFF, everything else
 /// is tried as PNG). Alpha is dropped; GeoTIFF georeferencing is kept.
 pub fn read_rgb(path: &Path, limits: &Limits) -> Result<RgbImage, CodecError> {
+    cbdam_codec::files::check_regular_file(path)?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

@@ -34,6 +34,7 @@ impl RawF32Source {
         nodata: Option<f64>,
         limits: &Limits,
     ) -> Result<Self, CodecError> {
+        cbdam_codec::files::check_regular_file(path)?;
         let n = limits.check(width, height)?;
         super::raw::check_len(path, n, width, height)?;
         Ok(Self {

@@ -52,6 +52,7 @@ impl TileReader {
     /// # Errors
     /// As [`super::read_dem`], for what the header holds.
     pub fn open(path: &Path, opts: &ReadOptions) -> Result<Self, CodecError> {
+        cbdam_codec::files::check_regular_file(path)?;
         let format = match opts.format {
             Some(f) => f,
             None => super::detect_format(path)?,
