@@ -1162,16 +1162,85 @@ impl TerrainPipelines {
             bind_group_layouts: &[Some(layout)],
             immediate_size: 0,
         });
-        let pipeline = |polygon_mode, bias: wgpu::DepthBiasState, compare, fs| {
-            let blend = (fs == "fs_wire").then_some(wgpu::BlendState::ALPHA_BLENDING);
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        let base = PipelineBase {
+            device,
+            layout: &pipeline_layout,
+            shader: &shader,
+            vertex_buffers,
+        };
+        let (less, less_equal, back) = if reversed {
+            (
+                wgpu::CompareFunction::Greater,
+                wgpu::CompareFunction::GreaterEqual,
+                -1,
+            )
+        } else {
+            (
+                wgpu::CompareFunction::Less,
+                wgpu::CompareFunction::LessEqual,
+                1,
+            )
+        };
+        let fill = base.pipeline(wgpu::PolygonMode::Fill, Default::default(), less, "fs_main");
+        // Under a wireframe the surface is pushed back a little so the lines win the depth test.
+        let fill_under_lines = base.pipeline(
+            wgpu::PolygonMode::Fill,
+            wgpu::DepthBiasState {
+                constant: 2 * back,
+                slope_scale: back as f32,
+                clamp: 0.0,
+            },
+            less,
+            "fs_main",
+        );
+        let lines = device
+            .features()
+            .contains(wgpu::Features::POLYGON_MODE_LINE)
+            .then(|| {
+                base.pipeline(
+                    wgpu::PolygonMode::Line,
+                    Default::default(),
+                    less_equal,
+                    "fs_wire",
+                )
+            });
+        TerrainPipelines {
+            fill,
+            fill_under_lines,
+            lines,
+        }
+    }
+}
+
+/// What the terrain's pipelines share: the device, the layout, the shader and the vertex
+/// buffers (the texture path's patch instances, or none).
+struct PipelineBase<'a> {
+    device: &'a wgpu::Device,
+    layout: &'a wgpu::PipelineLayout,
+    shader: &'a wgpu::ShaderModule,
+    vertex_buffers: &'a [Option<wgpu::VertexBufferLayout<'a>>],
+}
+
+impl PipelineBase<'_> {
+    /// A terrain pipeline drawing `polygon_mode` with depth `bias` and `compare`, coloured by
+    /// the fragment entry point `fs` (the wireframe's, `fs_wire`, blends).
+    fn pipeline(
+        &self,
+        polygon_mode: wgpu::PolygonMode,
+        bias: wgpu::DepthBiasState,
+        compare: wgpu::CompareFunction,
+        fs: &str,
+    ) -> wgpu::RenderPipeline {
+        let blend = (fs == "fs_wire").then_some(wgpu::BlendState::ALPHA_BLENDING);
+        self.device
+            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("terrain"),
-                layout: Some(&pipeline_layout),
+                layout: Some(self.layout),
                 vertex: wgpu::VertexState {
-                    module: &shader,
+                    module: self.shader,
                     entry_point: Some("vs_main"),
                     compilation_options: Default::default(),
-                    buffers: vertex_buffers,
+                    buffers: self.vertex_buffers,
                 },
                 primitive: wgpu::PrimitiveState {
                     topology: wgpu::PrimitiveTopology::TriangleList,
@@ -1191,7 +1260,7 @@ impl TerrainPipelines {
                 }),
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
-                    module: &shader,
+                    module: self.shader,
                     entry_point: Some(fs),
                     compilation_options: Default::default(),
                     targets: &[Some(wgpu::ColorTargetState {
@@ -1203,48 +1272,6 @@ impl TerrainPipelines {
                 multiview_mask: None,
                 cache: None,
             })
-        };
-        let (less, less_equal, back) = if reversed {
-            (
-                wgpu::CompareFunction::Greater,
-                wgpu::CompareFunction::GreaterEqual,
-                -1,
-            )
-        } else {
-            (
-                wgpu::CompareFunction::Less,
-                wgpu::CompareFunction::LessEqual,
-                1,
-            )
-        };
-        let fill = pipeline(wgpu::PolygonMode::Fill, Default::default(), less, "fs_main");
-        // Under a wireframe the surface is pushed back a little so the lines win the depth test.
-        let fill_under_lines = pipeline(
-            wgpu::PolygonMode::Fill,
-            wgpu::DepthBiasState {
-                constant: 2 * back,
-                slope_scale: back as f32,
-                clamp: 0.0,
-            },
-            less,
-            "fs_main",
-        );
-        let lines = device
-            .features()
-            .contains(wgpu::Features::POLYGON_MODE_LINE)
-            .then(|| {
-                pipeline(
-                    wgpu::PolygonMode::Line,
-                    Default::default(),
-                    less_equal,
-                    "fs_wire",
-                )
-            });
-        TerrainPipelines {
-            fill,
-            fill_under_lines,
-            lines,
-        }
     }
 }
 
