@@ -46,6 +46,7 @@ pub use progress::{NoProgress, Progress, ProgressEvent, Stage};
 use crate::encode::{encode_prepared, with_coarser_roots_if_smaller};
 use crate::error::{Context, bail};
 use crate::journal::Journal;
+use rayon::prelude::*;
 use crate::plan::{InputSpec, default_memory_limit, prepare, prepare_mosaic, storage_for};
 use cbdam_codec::hierarchy::{BlockJournal, BlockPlan, NoJournal};
 
@@ -436,22 +437,22 @@ pub(crate) fn journal_key(
     plan: Option<&BlockPlan>,
 ) -> Result<String> {
     let mut key = format!(
-        "journal=2\ncbdam={}\nformat={}\n",
+        "journal=3\ncbdam={}\nformat={}\n",
         env!("CARGO_PKG_VERSION"),
         cbdam_codec::repository::FORMAT_VERSION
     );
-    for t in tiles {
-        let meta =
-            std::fs::metadata(&t.path).with_context(|| format!("reading {}", t.path.display()))?;
-        let modified = meta
-            .modified()
-            .ok()
-            .and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok())
-            .map_or(0, |d| d.as_nanos());
+    // The inputs' contents, not their modification times: a file changed and given its old
+    // time back (a restored backup, `touch -r`) must not resume from blocks of the old bytes.
+    // One streamed CRC-32 a file, the files in parallel: a read of what the build has just
+    // read, from the page cache for inputs that fit it.
+    let crcs = tiles
+        .par_iter()
+        .map(|t| journal::content_crc(&t.path))
+        .collect::<Result<Vec<_>>>()?;
+    for (t, (len, crc)) in tiles.iter().zip(crcs) {
         key += &format!(
-            "input={} {} bytes, modified {modified} ns, placed {:?}\n",
+            "input={} {len} bytes, crc32 {crc:08x}, placed {:?}\n",
             t.path.display(),
-            meta.len(),
             t.vrt
         );
     }
