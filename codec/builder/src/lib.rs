@@ -330,8 +330,10 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
     let mut stages = input.stages.clone();
     let journal = match &storage.blocks {
         Some(plan) => {
+            let t = Instant::now();
             let key = journal_key(opts, &tiles, &enc_opts, Some(plan))?;
             let (journal, resumed) = Journal::open(&opts.output, &key)?;
+            stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
             progress.resumed(&resumed);
             Some(journal)
         }
@@ -450,10 +452,10 @@ pub(crate) fn journal_key(
         .map(|t| journal::content_crc(&t.path))
         .collect::<Result<Vec<_>>>()?;
     for (t, (len, crc)) in tiles.iter().zip(crcs) {
+        let placed = t.vrt.as_ref().map_or(String::new(), |v| format!(", placed {v:?}"));
         key += &format!(
-            "input={} {len} bytes, crc32 {crc:08x}, placed {:?}\n",
-            t.path.display(),
-            t.vrt
+            "input={} {len} bytes, crc32 {crc:08x}{placed}\n",
+            t.path.display()
         );
     }
     key += &format!(
