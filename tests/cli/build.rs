@@ -626,7 +626,10 @@ fn a_killed_build_resumes_and_writes_the_same_bytes() {
         }
         child.kill().unwrap();
         child.wait().unwrap();
-        assert!(blocks_done() >= n, "the build was not killed after {n} blocks");
+        assert!(
+            blocks_done() >= n,
+            "the build was not killed after {n} blocks"
+        );
     };
     kill_after_blocks(2);
     let mtime = std::fs::metadata(&raw).unwrap().modified().unwrap();

@@ -3,7 +3,8 @@
 //! was killed (SIGKILL, power loss) and run again with the same inputs and arguments continues
 //! from its last finished block and writes the same bytes.
 //!
-//! `OUT.journal/` holds `key` — every input (path, size, modification time) and every argument
+//! `OUT.journal/` holds `key` — every input (path, size, CRC-32 of its bytes: not its modification
+//! time, which a restored file may carry over from other bytes) and every argument
 //! that decides the output, one `name=value` line each — and one `block-NNNNNN` file per finished
 //! block, each written to a temporary name and renamed, with a CRC-32 of its contents, so a file
 //! is whole or absent after a kill, and a file a power loss cut short is noticed and redone. A journal whose key differs from this build's is removed,

@@ -46,9 +46,9 @@ pub use progress::{NoProgress, Progress, ProgressEvent, Stage};
 use crate::encode::{encode_prepared, with_coarser_roots_if_smaller};
 use crate::error::{Context, bail};
 use crate::journal::Journal;
-use rayon::prelude::*;
 use crate::plan::{InputSpec, default_memory_limit, prepare, prepare_mosaic, storage_for};
 use cbdam_codec::hierarchy::{BlockJournal, BlockPlan, NoJournal};
+use rayon::prelude::*;
 
 /// Everything a build needs, given once.
 #[derive(Clone, Debug)]
@@ -452,7 +452,10 @@ pub(crate) fn journal_key(
         .map(|t| journal::content_crc(&t.path))
         .collect::<Result<Vec<_>>>()?;
     for (t, (len, crc)) in tiles.iter().zip(crcs) {
-        let placed = t.vrt.as_ref().map_or(String::new(), |v| format!(", placed {v:?}"));
+        let placed = t
+            .vrt
+            .as_ref()
+            .map_or(String::new(), |v| format!(", placed {v:?}"));
         key += &format!(
             "input={} {len} bytes, crc32 {crc:08x}{placed}\n",
             t.path.display()

@@ -199,7 +199,10 @@ fn a_changed_input_with_its_old_mtime_starts_the_build_over() {
     let file = std::fs::File::options().write(true).open(&input).unwrap();
     file.set_modified(mtime).unwrap();
     drop(file);
-    assert_eq!(std::fs::metadata(&input).unwrap().modified().unwrap(), mtime);
+    assert_eq!(
+        std::fs::metadata(&input).unwrap().modified().unwrap(),
+        mtime
+    );
 
     let resume = Interrupt::after(usize::MAX);
     build(&raw_options(&input, &out, side), &resume).unwrap();
@@ -237,7 +240,12 @@ fn a_damaged_block_file_is_counted_as_encoded_again() {
     let mut blocks: Vec<PathBuf> = std::fs::read_dir(cbdam_builder::journal::Journal::dir_of(&out))
         .unwrap()
         .map(|e| e.unwrap().path())
-        .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with("block-"))
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("block-")
+        })
         .collect();
     blocks.sort();
     assert!(blocks.len() >= 2, "{} blocks", blocks.len());
@@ -249,10 +257,10 @@ fn a_damaged_block_file_is_counted_as_encoded_again() {
     let said = resume.resumed.lock().unwrap().clone().unwrap_or_default();
     assert_eq!(
         said,
-        format!(
-            "Continuing {{ blocks: {}, damaged: 1 }}",
-            blocks.len() - 1
-        )
+        format!("Continuing {{ blocks: {}, damaged: 1 }}", blocks.len() - 1)
     );
-    assert!(std::fs::read(&out).unwrap() == want, "the resumed build differs");
+    assert!(
+        std::fs::read(&out).unwrap() == want,
+        "the resumed build differs"
+    );
 }
