@@ -405,10 +405,18 @@ impl Progress for Bars {
         }
         match r {
             Resumed::Fresh => {}
-            Resumed::Continuing { blocks } => eprintln!(
-                "resuming: {blocks} blocks finished by an earlier run of this build are kept \
-                 (from OUTPUT.journal/)"
-            ),
+            Resumed::Continuing { blocks, damaged } => {
+                eprintln!(
+                    "resuming: {blocks} blocks finished by an earlier run of this build are kept \
+                     (from OUTPUT.journal/)"
+                );
+                if *damaged > 0 {
+                    eprintln!(
+                        "resuming: {damaged} damaged block files in OUTPUT.journal/ were removed; \
+                         their blocks are encoded again"
+                    );
+                }
+            }
             Resumed::StartedOver { changed } => eprintln!(
                 "starting over: the earlier run's journal was for other inputs or arguments \
                  ({changed})"

@@ -705,8 +705,8 @@ fn block_encoding_under_a_memory_limit_writes_the_same_bytes() {
 /// A large build keeps a journal of finished blocks: killed (SIGKILL) before any block, after
 /// one and after several, it resumes when run again and writes the same bytes as a build that
 /// was never interrupted; no partial output is ever left under the output's name, and the
-/// journal is gone once the repository is written. Run again with another tolerance, it starts
-/// over and says why.
+/// journal is gone once the repository is written. Run again with another tolerance, or with a
+/// patch of the input changed and its modification time restored, it starts over and says why.
 #[test]
 fn a_killed_build_resumes_and_writes_the_same_bytes() {
     let dir = tempfile::tempdir().unwrap();
@@ -782,21 +782,57 @@ fn a_killed_build_resumes_and_writes_the_same_bytes() {
         "the resumed build differs"
     );
     assert!(!journal.exists(), "the journal outlived the build");
-    // Killed again after some blocks, then run with another tolerance: it starts over.
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
-        .args(args(&dir.path().join("killed.cbdam"), "1"))
-        .arg("--quiet")
-        .spawn()
-        .unwrap();
-    let start = std::time::Instant::now();
-    while blocks_done() < 2
-        && start.elapsed().as_secs() < 120
-        && child.try_wait().unwrap().is_none()
-    {
-        std::thread::sleep(std::time::Duration::from_millis(5));
+    // Killed again after some blocks, a patch of the input raised by 50 m and its modification
+    // time restored: the build starts over, naming the input, and its output verifies.
+    let kill_after_blocks = |n: usize| {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
+            .args(args(&out, "1"))
+            .arg("--quiet")
+            .spawn()
+            .unwrap();
+        let start = std::time::Instant::now();
+        while blocks_done() < n
+            && start.elapsed().as_secs() < 120
+            && child.try_wait().unwrap().is_none()
+        {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        child.kill().unwrap();
+        child.wait().unwrap();
+        assert!(
+            blocks_done() >= n,
+            "the build was not killed after {n} blocks"
+        );
+    };
+    kill_after_blocks(2);
+    let mtime = std::fs::metadata(&raw).unwrap().modified().unwrap();
+    let mut samples = std::fs::read(&raw).unwrap();
+    for y in 1000..1300 {
+        for x in 1000..1300 {
+            let i = (y * 4097 + x) * 4;
+            let z = f32::from_le_bytes(samples[i..i + 4].try_into().unwrap()) + 50.0;
+            samples[i..i + 4].copy_from_slice(&z.to_le_bytes());
+        }
     }
-    child.kill().unwrap();
-    child.wait().unwrap();
+    std::fs::write(&raw, &samples).unwrap();
+    let file = std::fs::File::options().write(true).open(&raw).unwrap();
+    file.set_modified(mtime).unwrap();
+    drop(file);
+    let o = cbdam(
+        &args(&out, "1")
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    succeeds(&o);
+    assert!(
+        stderr(&o).contains("starting over") && stderr(&o).contains(&format!("input: {}", s(&raw))),
+        "{}",
+        stderr(&o)
+    );
+    succeeds(&cbdam(&["verify", &s(&out), "--against", &s(&raw)]));
+    // Killed again after some blocks, then run with another tolerance: it starts over.
+    kill_after_blocks(2);
     let o = cbdam(
         &args(&out, "2")
             .iter()

@@ -3,14 +3,17 @@
 //! was killed (SIGKILL, power loss) and run again with the same inputs and arguments continues
 //! from its last finished block and writes the same bytes.
 //!
-//! `OUT.journal/` holds `key` — every input (path, size, modification time) and every argument
+//! `OUT.journal/` holds `key` — every input (path, size, CRC-32 of its bytes: not its modification
+//! time, which a restored file may carry over from other bytes) and every argument
 //! that decides the output, one `name=value` line each — and one `block-NNNNNN` file per finished
 //! block, each written to a temporary name and renamed, with a CRC-32 of its contents, so a file
 //! is whole or absent after a kill, and a file a power loss cut short is noticed and redone. A journal whose key differs from this build's is removed,
 //! and the build says which line changed. The journal goes once the repository is written.
 
 use std::fs;
-use std::io::Write;
+use std::io::{Read, Seek, SeekFrom, Write};
+
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 use cbdam_codec::CodecError;
@@ -31,8 +34,11 @@ pub enum Resumed {
     Fresh,
     /// An earlier run of the same build had finished some blocks.
     Continuing {
-        /// Blocks finished.
+        /// Blocks finished whose files are whole: they are kept.
         blocks: usize,
+        /// Block files that are not whole (cut short by a power loss, damaged): removed, their
+        /// blocks are encoded again.
+        damaged: usize,
     },
     /// An earlier run's journal was for other inputs or arguments; it was removed.
     StartedOver {
@@ -64,12 +70,36 @@ impl Journal {
         if dir.exists() {
             let old = fs::read_to_string(dir.join("key")).unwrap_or_default();
             if old == key {
-                let blocks = fs::read_dir(&dir)
+                // Every block file is checked now, so that the count of kept blocks is the count
+                // the encode will load; one that is not whole is removed and encoded again.
+                let names = fs::read_dir(&dir)
                     .with_context(context)?
                     .filter_map(|e| e.ok())
-                    .filter(|e| e.file_name().to_string_lossy().starts_with("block-"))
-                    .count();
-                return Ok((Journal { dir }, Resumed::Continuing { blocks }));
+                    .map(|e| e.path())
+                    .filter(|p| {
+                        p.file_name()
+                            .is_some_and(|n| n.to_string_lossy().starts_with("block-"))
+                    })
+                    .collect::<Vec<_>>();
+                let whole = names
+                    .par_iter()
+                    .map(|p| -> Result<bool> {
+                        let whole = fs::read(p)
+                            .ok()
+                            .is_some_and(|bytes| parse_block(&bytes).is_some());
+                        if !whole {
+                            fs::remove_file(p)
+                                .with_context(|| format!("removing {}", p.display()))?;
+                        }
+                        Ok(whole)
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                let blocks = whole.iter().filter(|&&w| w).count();
+                let resumed = Resumed::Continuing {
+                    blocks,
+                    damaged: names.len() - blocks,
+                };
+                return Ok((Journal { dir }, resumed));
             }
             resumed = Resumed::StartedOver {
                 changed: first_difference(&old, key),
@@ -119,17 +149,64 @@ impl BlockJournal for Journal {
     }
 }
 
-/// `name: old → new` for the first `name=value` line of `new` that `old` lacks.
+/// Bytes of an input hashed as one piece: large files are hashed in pieces of this size in
+/// parallel and the pieces' CRCs combined.
+const HASH_PIECE: u64 = 64 << 20;
+
+/// The length and CRC-32 of the file at `path`'s contents, read in pieces of [`HASH_PIECE`]
+/// bytes in parallel (the pieces' CRCs combined in order), each streamed in 1 MiB reads.
+pub(crate) fn content_crc(path: &Path) -> Result<(u64, u32)> {
+    let context = || format!("reading {} to check the build journal", path.display());
+    let len = fs::metadata(path).with_context(context)?.len();
+    let pieces = len.div_ceil(HASH_PIECE).max(1);
+    let hashers = (0..pieces)
+        .into_par_iter()
+        .map(|i| -> std::io::Result<crc32fast::Hasher> {
+            let mut file = fs::File::open(path)?;
+            file.seek(SeekFrom::Start(i * HASH_PIECE))?;
+            let mut left = HASH_PIECE.min(len - i * HASH_PIECE);
+            let mut hasher = crc32fast::Hasher::new();
+            let mut buf = vec![0u8; 1 << 20];
+            while left > 0 {
+                let want = buf.len().min(left as usize);
+                let n = file.read(&mut buf[..want])?;
+                if n == 0 {
+                    return Err(std::io::Error::new(
+                        std::io::ErrorKind::UnexpectedEof,
+                        "the file became shorter while it was read",
+                    ));
+                }
+                hasher.update(&buf[..n]);
+                left -= n as u64;
+            }
+            Ok(hasher)
+        })
+        .collect::<std::io::Result<Vec<_>>>()
+        .with_context(context)?;
+    let mut whole = crc32fast::Hasher::new();
+    for h in &hashers {
+        whole.combine(h);
+    }
+    Ok((len, whole.finalize()))
+}
+
+/// `name: old → new` for the first `name=value` line of `new` that `old` lacks; a name on several
+/// lines (one `input` a file) is compared occurrence by occurrence.
 pub(crate) fn first_difference(old: &str, new: &str) -> String {
-    let value = |text: &str, name: &str| {
+    let values = |text: &str, name: &str| -> Vec<String> {
         text.lines()
-            .find_map(|l| l.strip_prefix(name)?.strip_prefix('=').map(str::to_string))
+            .filter_map(|l| l.strip_prefix(name)?.strip_prefix('=').map(str::to_string))
+            .collect()
     };
+    let mut seen = std::collections::HashMap::<&str, usize>::new();
     for line in new.lines() {
         let name = line.split('=').next().unwrap_or(line);
-        let now = value(new, name).unwrap_or_default();
-        match value(old, name) {
-            Some(before) if before == now => continue,
+        let k = seen.entry(name).or_default();
+        let occurrence = *k;
+        *k += 1;
+        let now = values(new, name).swap_remove(occurrence);
+        match values(old, name).get(occurrence) {
+            Some(before) if *before == now => continue,
             Some(before) => return format!("{name}: {before} → {now}"),
             None => return format!("{name}: (none) → {now}"),
         }
@@ -306,7 +383,13 @@ mod tests {
         assert_eq!(r, Resumed::Fresh);
         j.save(3, &sample()).unwrap();
         let (j, r) = Journal::open(&out, "input=a 10\nmax_error=1\n").unwrap();
-        assert_eq!(r, Resumed::Continuing { blocks: 1 });
+        assert_eq!(
+            r,
+            Resumed::Continuing {
+                blocks: 1,
+                damaged: 0
+            }
+        );
         assert_eq!(j.load(3).unwrap(), Some(sample()));
         assert_eq!(j.load(4).unwrap(), None);
         let (j, r) = Journal::open(&out, "input=a 10\nmax_error=2\n").unwrap();

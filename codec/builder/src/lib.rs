@@ -48,6 +48,7 @@ use crate::error::{Context, bail};
 use crate::journal::Journal;
 use crate::plan::{InputSpec, default_memory_limit, prepare, prepare_mosaic, storage_for};
 use cbdam_codec::hierarchy::{BlockJournal, BlockPlan, NoJournal};
+use rayon::prelude::*;
 
 /// Everything a build needs, given once.
 #[derive(Clone, Debug)]
@@ -394,8 +395,10 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
     let mut stages = input.stages.clone();
     let journal = match &storage.blocks {
         Some(plan) => {
+            let t = Instant::now();
             let key = journal_key(opts, &tiles, &enc_opts, Some(plan))?;
             let (journal, resumed) = Journal::open(&opts.output, &key)?;
+            stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
             progress.resumed(&resumed);
             Some(journal)
         }
@@ -517,23 +520,26 @@ pub(crate) fn journal_key(
     plan: Option<&BlockPlan>,
 ) -> Result<String> {
     let mut key = format!(
-        "journal=2\ncbdam={}\nformat={}\n",
+        "journal=3\ncbdam={}\nformat={}\n",
         env!("CARGO_PKG_VERSION"),
         cbdam_codec::repository::FORMAT_VERSION
     );
-    for t in tiles {
-        let meta =
-            std::fs::metadata(&t.path).with_context(|| format!("reading {}", t.path.display()))?;
-        let modified = meta
-            .modified()
-            .ok()
-            .and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok())
-            .map_or(0, |d| d.as_nanos());
+    // The inputs' contents, not their modification times: a file changed and given its old
+    // time back (a restored backup, `touch -r`) must not resume from blocks of the old bytes.
+    // One streamed CRC-32 a file, the files in parallel: a read of what the build has just
+    // read, from the page cache for inputs that fit it.
+    let crcs = tiles
+        .par_iter()
+        .map(|t| journal::content_crc(&t.path))
+        .collect::<Result<Vec<_>>>()?;
+    for (t, (len, crc)) in tiles.iter().zip(crcs) {
+        let placed = t
+            .vrt
+            .as_ref()
+            .map_or(String::new(), |v| format!(", placed {v:?}"));
         key += &format!(
-            "input={} {} bytes, modified {modified} ns, placed {:?}\n",
-            t.path.display(),
-            meta.len(),
-            t.vrt
+            "input={} {len} bytes, crc32 {crc:08x}{placed}\n",
+            t.path.display()
         );
     }
     key += &format!(

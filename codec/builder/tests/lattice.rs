@@ -141,3 +141,126 @@ fn block_builds_resume_across_lattice_storages_with_the_same_bytes() {
         );
     }
 }
+
+/// A smooth raw float32 DEM of `side`² samples, `bump` metres higher in a patch of it.
+fn write_raw(path: &Path, side: usize, bump: f32) {
+    let mut bytes = Vec::with_capacity(side * side * 4);
+    for y in 0..side {
+        for x in 0..side {
+            let (fx, fy) = (x as f32, y as f32);
+            let mut z = 300.0 + 80.0 * (fx / 37.0).sin() * (fy / 23.0).cos() + 0.05 * fx;
+            if (200..260).contains(&x) && (300..340).contains(&y) {
+                z += bump;
+            }
+            bytes.extend_from_slice(&z.to_le_bytes());
+        }
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+fn raw_options(input: &Path, out: &Path, side: usize) -> BuildOptions {
+    let mut o = options(input, out, None);
+    o.raw_size = Some((side, side));
+    o.block_plan = Some(BlockPlan {
+        cut_level: 6,
+        block_side: 128,
+    });
+    o
+}
+
+/// An input changed in place after a build was interrupted, and given its old size and
+/// modification time back, is not resumed from the blocks of its old bytes: the build starts
+/// over, names the input, and writes what a fresh build of the new bytes writes.
+#[test]
+fn a_changed_input_with_its_old_mtime_starts_the_build_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let side = 1025;
+    let (input, changed) = (dir.path().join("in.f32"), dir.path().join("changed.f32"));
+    write_raw(&input, side, 0.0);
+    write_raw(&changed, side, 50.0);
+    let fresh = raw_options(&changed, &dir.path().join("fresh.cbdam"), side);
+    let count = Interrupt::after(usize::MAX);
+    build(&fresh, &count).unwrap();
+    let want = std::fs::read(&fresh.output).unwrap();
+    let total = count.total.load(Ordering::Relaxed);
+    assert!(total > 10, "{total} units");
+
+    let out = dir.path().join("out.cbdam");
+    let stop = Interrupt::after(total * 19 / 20);
+    let r = catch_unwind(AssertUnwindSafe(|| {
+        build(&raw_options(&input, &out, side), &stop)
+    }));
+    assert!(r.is_err(), "the build was not interrupted");
+    let journal = cbdam_builder::journal::Journal::dir_of(&out);
+    assert!(std::fs::read_dir(&journal).unwrap().count() > 2);
+    // The patch raised by 50 m, the size and the modification time as they were.
+    let mtime = std::fs::metadata(&input).unwrap().modified().unwrap();
+    std::fs::copy(&changed, &input).unwrap();
+    let file = std::fs::File::options().write(true).open(&input).unwrap();
+    file.set_modified(mtime).unwrap();
+    drop(file);
+    assert_eq!(
+        std::fs::metadata(&input).unwrap().modified().unwrap(),
+        mtime
+    );
+
+    let resume = Interrupt::after(usize::MAX);
+    build(&raw_options(&input, &out, side), &resume).unwrap();
+    let said = resume.resumed.lock().unwrap().clone().unwrap_or_default();
+    assert!(
+        said.starts_with("StartedOver") && said.contains(&format!("input: {}", input.display())),
+        "{said}"
+    );
+    assert!(
+        std::fs::read(&out).unwrap() == want,
+        "the build resumed from blocks of the old input"
+    );
+}
+
+/// A block file damaged after an interrupted build (cut short, as a power loss may leave it) is
+/// counted as encoded again, not as kept, and the resumed build writes the same bytes.
+#[test]
+fn a_damaged_block_file_is_counted_as_encoded_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let side = 1025;
+    let input = dir.path().join("in.f32");
+    write_raw(&input, side, 0.0);
+    let whole = raw_options(&input, &dir.path().join("whole.cbdam"), side);
+    let count = Interrupt::after(usize::MAX);
+    build(&whole, &count).unwrap();
+    let want = std::fs::read(&whole.output).unwrap();
+    let total = count.total.load(Ordering::Relaxed);
+
+    let out = dir.path().join("out.cbdam");
+    let stop = Interrupt::after(total * 19 / 20);
+    let r = catch_unwind(AssertUnwindSafe(|| {
+        build(&raw_options(&input, &out, side), &stop)
+    }));
+    assert!(r.is_err(), "the build was not interrupted");
+    let mut blocks: Vec<PathBuf> = std::fs::read_dir(cbdam_builder::journal::Journal::dir_of(&out))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("block-")
+        })
+        .collect();
+    blocks.sort();
+    assert!(blocks.len() >= 2, "{} blocks", blocks.len());
+    let bytes = std::fs::read(&blocks[0]).unwrap();
+    std::fs::write(&blocks[0], &bytes[..bytes.len() / 2]).unwrap();
+
+    let resume = Interrupt::after(usize::MAX);
+    build(&raw_options(&input, &out, side), &resume).unwrap();
+    let said = resume.resumed.lock().unwrap().clone().unwrap_or_default();
+    assert_eq!(
+        said,
+        format!("Continuing {{ blocks: {}, damaged: 1 }}", blocks.len() - 1)
+    );
+    assert!(
+        std::fs::read(&out).unwrap() == want,
+        "the resumed build differs"
+    );
+}
