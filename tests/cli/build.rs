@@ -744,15 +744,16 @@ fn a_killed_build_resumes_and_writes_the_same_bytes() {
         })
     };
     let out = dir.path().join("killed.cbdam");
-    for kill_after in [0, 1, 6] {
+    // Starts the build and SIGKILLs it once its journal (whose key is written before the
+    // encode) holds `n` blocks.
+    let kill_after_blocks = |n: usize| {
         let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
             .args(args(&out, "1"))
             .arg("--quiet")
             .spawn()
             .unwrap();
-        // Wait for the journal (its key is written before the encode) and `kill_after` blocks.
         let start = std::time::Instant::now();
-        while !(journal.join("key").exists() && blocks_done() >= kill_after) {
+        while !(journal.join("key").exists() && blocks_done() >= n) {
             assert!(start.elapsed().as_secs() < 120, "no progress to kill at");
             if child.try_wait().unwrap().is_some() {
                 break;
@@ -761,6 +762,13 @@ fn a_killed_build_resumes_and_writes_the_same_bytes() {
         }
         child.kill().unwrap(); // SIGKILL
         child.wait().unwrap();
+        assert!(
+            blocks_done() >= n,
+            "the build was not killed after {n} blocks"
+        );
+    };
+    for n in [0, 1, 6] {
+        kill_after_blocks(n);
         assert!(!out.exists(), "a killed build left {}", out.display());
     }
     let before = blocks_done();
@@ -784,26 +792,6 @@ fn a_killed_build_resumes_and_writes_the_same_bytes() {
     assert!(!journal.exists(), "the journal outlived the build");
     // Killed again after some blocks, a patch of the input raised by 50 m and its modification
     // time restored: the build starts over, naming the input, and its output verifies.
-    let kill_after_blocks = |n: usize| {
-        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
-            .args(args(&out, "1"))
-            .arg("--quiet")
-            .spawn()
-            .unwrap();
-        let start = std::time::Instant::now();
-        while blocks_done() < n
-            && start.elapsed().as_secs() < 120
-            && child.try_wait().unwrap().is_none()
-        {
-            std::thread::sleep(std::time::Duration::from_millis(5));
-        }
-        child.kill().unwrap();
-        child.wait().unwrap();
-        assert!(
-            blocks_done() >= n,
-            "the build was not killed after {n} blocks"
-        );
-    };
     kill_after_blocks(2);
     let mtime = std::fs::metadata(&raw).unwrap().modified().unwrap();
     let mut samples = std::fs::read(&raw).unwrap();
