@@ -21,4 +21,5 @@ pub mod patch;
 pub mod refine;
 pub mod spawn;
 pub mod stats;
+pub mod viewer;
 pub mod world;

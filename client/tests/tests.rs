@@ -16,3 +16,5 @@ mod priorities;
 /// The refinement loop's cut, convergence, failures and memory budget over local and flaky
 /// sources.
 mod streaming;
+/// The viewer core shared by the desktop window and the page: keys, drags and switches.
+mod viewer;

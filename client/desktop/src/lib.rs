@@ -11,15 +11,16 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow, bail};
 use cbdam_client::access::DataSource;
 use cbdam_client::camera::Camera;
-use cbdam_client::controls::{self, Controls, Mode, Movement};
+use cbdam_client::controls::{Controls, Mode};
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, Refiner};
+use cbdam_client::viewer::{Effect, Gestures, HeldKeys, Toggles, action_for_key};
 use cbdam_client::world::World;
 use winit::application::ApplicationHandler;
 use winit::dpi::PhysicalSize;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
-use winit::keyboard::{Key, KeyCode, NamedKey, PhysicalKey};
+use winit::keyboard::{Key, PhysicalKey};
 use winit::window::{Window, WindowId};
 
 use cbdam_client::stats::percentile;
@@ -92,14 +93,15 @@ pub fn view<S: DataSource>(refiner: Refiner<S>, args: &ViewOptions) -> Result<()
         controls: Controls::new(&world, &start),
         refiner,
         patches: Vec::new(),
-        options: RenderOptions {
+        options: RenderOptions::default(),
+        toggles: Toggles {
             wireframe: args.wireframe,
-            level_colours: args.levels,
-            ..RenderOptions::default()
+            levels: args.levels,
+            ..Toggles::default()
         },
-        frozen: false,
-        show_hud: true,
-        input: Input::default(),
+        keys: HeldKeys::default(),
+        gestures: Gestures::default(),
+        mouse: Mouse::default(),
         window: None,
         last_refine: FrameStats::default(),
         last_draw: Default::default(),
@@ -119,29 +121,12 @@ pub fn view<S: DataSource>(refiner: Refiner<S>, args: &ViewOptions) -> Result<()
     Ok(())
 }
 
-/// Mouse and keys held.
+/// The mouse buttons held and where the cursor was.
 #[derive(Default)]
-struct Input {
-    forward: [bool; 2],
-    right: [bool; 2],
-    up: [bool; 2],
-    shift: bool,
+struct Mouse {
     rotating: bool,
     panning: bool,
     cursor: Option<(f64, f64)>,
-}
-
-impl Input {
-    fn movement(&self) -> Movement {
-        let axis =
-            |[plus, minus]: [bool; 2]| f64::from(u8::from(plus)) - f64::from(u8::from(minus));
-        Movement {
-            forward: axis(self.forward),
-            right: axis(self.right),
-            up: axis(self.up),
-            fast: self.shift,
-        }
-    }
 }
 
 /// What exists once the window does.
@@ -164,10 +149,10 @@ struct App<'a, S: DataSource> {
     refiner: Refiner<S>,
     patches: Vec<Arc<HalfPatch>>,
     options: RenderOptions,
-    frozen: bool,
-    /// The HUD is drawn (H toggles it).
-    show_hud: bool,
-    input: Input,
+    toggles: Toggles,
+    keys: HeldKeys,
+    gestures: Gestures,
+    mouse: Mouse,
     window: Option<WindowState>,
     last_refine: FrameStats,
     last_draw: DrawStats,
@@ -284,14 +269,16 @@ impl<S: DataSource> App<'_, S> {
             .last_instant
             .map_or(0.0, |t| now.duration_since(t).as_secs_f64());
         self.last_instant = Some(now);
-        // A stalled frame (a window drag, a debugger) must not fling the camera across the map.
-        self.controls.update(self.input.movement(), dt.min(0.25));
         let Some(ws) = &mut self.window else {
             return Ok(());
         };
         let size = (ws.config.width, ws.config.height);
+        self.gestures
+            .apply(&mut self.controls, &mut self.keys, size.1, dt);
         let cam = self.controls.camera(&self.world, size);
-        if !self.frozen {
+        self.options.wireframe = self.toggles.wireframe;
+        self.options.level_colours = self.toggles.levels;
+        if !self.toggles.frozen {
             self.last_refine = self.refiner.frame(&cam);
             self.patches.clear();
             self.patches.extend(self.refiner.drawn().cloned());
@@ -306,7 +293,7 @@ impl<S: DataSource> App<'_, S> {
                 self.frame_times.pop_front();
             }
         }
-        let lines = if self.show_hud {
+        let lines = if self.toggles.hud {
             hud_text::lines(&hud_figures(self, size))
         } else {
             Vec::new()
@@ -397,64 +384,37 @@ impl<S: DataSource> App<'_, S> {
         );
     }
 
+    /// A key going down or up, named as the viewer core names keys (W3C codes and values).
     fn key(&mut self, event_loop: &ActiveEventLoop, key: &Key, code: PhysicalKey, down: bool) {
-        let held = |v: &mut bool| *v = down;
-        match code {
-            PhysicalKey::Code(KeyCode::KeyW) => return held(&mut self.input.forward[0]),
-            PhysicalKey::Code(KeyCode::KeyS) => return held(&mut self.input.forward[1]),
-            PhysicalKey::Code(KeyCode::KeyD) => return held(&mut self.input.right[0]),
-            PhysicalKey::Code(KeyCode::KeyA) => return held(&mut self.input.right[1]),
-            PhysicalKey::Code(KeyCode::KeyQ) => return held(&mut self.input.up[0]),
-            PhysicalKey::Code(KeyCode::KeyE) => return held(&mut self.input.up[1]),
-            PhysicalKey::Code(KeyCode::ShiftLeft | KeyCode::ShiftRight) => {
-                return held(&mut self.input.shift);
-            }
-            _ => {}
-        }
-        if !down {
+        // winit's key codes and named keys carry the W3C names.
+        let code = match code {
+            PhysicalKey::Code(c) => format!("{c:?}"),
+            PhysicalKey::Unidentified(_) => String::new(),
+        };
+        if self.keys.set(&code, down) || !down {
             return;
         }
-        let set_error = |refiner: &mut Refiner<S>, f: fn(f64) -> f64| {
-            let px = f(refiner.config().pixel_error);
-            refiner.set_pixel_error(px);
+        let key = match key {
+            Key::Character(c) => c.to_string(),
+            Key::Named(named) => format!("{named:?}"),
+            _ => String::new(),
         };
-        match (key, code) {
-            (Key::Named(NamedKey::Escape), _) => event_loop.exit(),
-            (_, PhysicalKey::Code(KeyCode::NumpadAdd)) => {
-                set_error(&mut self.refiner, controls::finer)
-            }
-            (_, PhysicalKey::Code(KeyCode::NumpadSubtract)) => {
-                set_error(&mut self.refiner, controls::coarser)
-            }
-            (Key::Character(c), _) if c == "+" || c == "=" => {
-                set_error(&mut self.refiner, controls::finer)
-            }
-            (Key::Character(c), _) if c == "-" || c == "_" => {
-                set_error(&mut self.refiner, controls::coarser)
-            }
-            (Key::Named(NamedKey::Tab), _) | (_, PhysicalKey::Code(KeyCode::Digit1)) => {
-                let supported = self.window.as_ref().is_some_and(|ws| {
-                    ws.renderer
-                        .gpu()
-                        .device
-                        .features()
-                        .contains(wgpu::Features::POLYGON_MODE_LINE)
-                });
-                if supported {
-                    self.options.wireframe = !self.options.wireframe;
-                } else {
-                    eprintln!("cbdam view: this adapter cannot draw a wireframe");
-                }
-            }
-            (_, PhysicalKey::Code(KeyCode::KeyF)) => self.frozen = !self.frozen,
-            (_, PhysicalKey::Code(KeyCode::KeyH)) => self.show_hud = !self.show_hud,
-            (_, PhysicalKey::Code(KeyCode::KeyL)) => {
-                self.options.level_colours = !self.options.level_colours
-            }
-            (_, PhysicalKey::Code(KeyCode::KeyC)) => self.controls.toggle_mode(),
-            (_, PhysicalKey::Code(KeyCode::KeyR)) => self.controls.reset(),
-            (_, PhysicalKey::Code(KeyCode::KeyP)) => self.screenshot_now = true,
-            _ => {}
+        let Some(action) = action_for_key(&code, &key) else {
+            return;
+        };
+        let wireframe_supported = self.window.as_ref().is_some_and(|ws| {
+            let features = ws.renderer.gpu().device.features();
+            features.contains(wgpu::Features::POLYGON_MODE_LINE)
+        });
+        let (controls, refiner) = (&mut self.controls, &mut self.refiner);
+        match self
+            .toggles
+            .act(action, controls, refiner, wireframe_supported)
+        {
+            Effect::Quit => event_loop.exit(),
+            Effect::Screenshot => self.screenshot_now = true,
+            Effect::NoWireframe => eprintln!("cbdam view: this adapter cannot draw a wireframe"),
+            Effect::None | Effect::CutChanged => {}
         }
     }
 }
@@ -494,30 +454,26 @@ impl<S: DataSource> ApplicationHandler for App<'_, S> {
                 let down = state == ElementState::Pressed;
                 match (self.controls.mode(), button) {
                     (Mode::Orbit, MouseButton::Right | MouseButton::Middle) => {
-                        self.input.panning = down
+                        self.mouse.panning = down
                     }
-                    _ => self.input.rotating = down,
+                    _ => self.mouse.rotating = down,
                 }
             }
             WindowEvent::CursorMoved { position, .. } => {
                 let now = (position.x, position.y);
-                if let Some((x, y)) = self.input.cursor {
-                    let (dx, dy) = (now.0 - x, now.1 - y);
-                    if self.input.panning {
-                        let h = self.window.as_ref().map_or(1, |w| w.config.height);
-                        self.controls.pan(dx, dy, h);
-                    } else if self.input.rotating {
-                        self.controls.rotate(dx, dy);
-                    }
+                if let Some((x, y)) = self.mouse.cursor
+                    && (self.mouse.panning || self.mouse.rotating)
+                {
+                    self.gestures.drag(now.0 - x, now.1 - y, self.mouse.panning);
                 }
-                self.input.cursor = Some(now);
+                self.mouse.cursor = Some(now);
             }
             WindowEvent::MouseWheel { delta, .. } => {
                 let steps = match delta {
                     MouseScrollDelta::LineDelta(_, y) => f64::from(y),
                     MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
                 };
-                self.controls.zoom(steps);
+                self.gestures.zoom += steps;
             }
             _ => {}
         }
@@ -555,7 +511,7 @@ fn hud_figures<'a, S: DataSource>(app: &'a App<'_, S>, size: (u32, u32)) -> hud_
         draw: app.last_draw,
         refine: app.last_refine,
         pixel_error: app.refiner.config().pixel_error,
-        frozen: app.frozen,
+        frozen: app.toggles.frozen,
         cpu: app.refiner.cache_use(),
         gpu: ws.map(|w| {
             let cache = w.renderer.cache();

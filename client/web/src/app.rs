@@ -12,10 +12,11 @@ use std::time::Duration;
 
 use cbdam_client::access::{ColouredSource, DataSource, RemoteSource};
 use cbdam_client::camera::Camera;
-use cbdam_client::controls::{self, Controls, Mode};
+use cbdam_client::controls::{Controls, Mode};
 use cbdam_client::fetch::FetchOptions;
 use cbdam_client::patch::HalfPatch;
 use cbdam_client::refine::{FrameStats, HeadBytes, RefineConfig, Refiner};
+use cbdam_client::viewer::{Action, Effect, Toggles};
 use cbdam_client::world::World;
 use cbdam_render::present::Presenter;
 use cbdam_render::{CacheConfig, Colouring, Gpu, RenderOptions, Renderer, VertexFetch};
@@ -26,7 +27,7 @@ use wasm_bindgen::prelude::wasm_bindgen;
 use web_sys::HtmlCanvasElement;
 
 use crate::flight::{self, Playback};
-use crate::input::{Action, Input};
+use crate::input::Input;
 use crate::status::Status;
 use crate::workers::{WorkerPool, worker_count};
 
@@ -144,8 +145,8 @@ struct App {
     frames: u64,
     /// Whether the cut was reported converged for the current camera.
     reported_converged: bool,
-    /// Refinement stopped (F): the camera still moves.
-    frozen: bool,
+    /// The page's switches (F freezes refinement: the camera still moves).
+    toggles: Toggles,
     last_stats: FrameStats,
     /// The camera of the last frame, for refinement steps between frames.
     last_camera: Option<Camera>,
@@ -324,7 +325,7 @@ impl App {
             patches: Vec::new(),
             frames: 0,
             reported_converged: false,
-            frozen: false,
+            toggles: Toggles::default(),
             last_stats: FrameStats::default(),
             last_camera: None,
             decoded: 0,
@@ -355,10 +356,7 @@ impl App {
                 self.intervals_ms.pop_front();
             }
         }
-        // A stalled frame (a hidden tab) must not fling the camera across the map.
-        let (moved, actions) =
-            self.input
-                .apply(&mut self.controls, size.1, (dt_ms / 1e3).min(0.25));
+        let (moved, actions) = self.input.apply(&mut self.controls, size.1, dt_ms / 1e3);
         let mut changed = moved;
         if let Some(requested) = flight::requested() {
             self.playback = Some(requested);
@@ -438,46 +436,23 @@ impl App {
 
     /// Carries out a key's action; whether it changes the cut to converge to.
     fn act(&mut self, action: Action) -> bool {
-        match action {
-            Action::Finer | Action::Coarser => {
-                let step = if action == Action::Finer {
-                    controls::finer
-                } else {
-                    controls::coarser
-                };
-                let px = step(self.refiner.config().pixel_error);
-                self.refiner.set_pixel_error(px);
-                return true;
-            }
-            Action::Freeze => {
-                self.frozen = !self.frozen;
-                return !self.frozen;
-            }
-            Action::Levels => self.options.level_colours = !self.options.level_colours,
-            Action::Wireframe => {
-                let device = &self.renderer.gpu().device;
-                if device
-                    .features()
-                    .contains(wgpu::Features::POLYGON_MODE_LINE)
-                {
-                    self.options.wireframe = !self.options.wireframe;
-                } else {
-                    self.status
-                        .set("notice", "this browser's adapter cannot draw a wireframe");
-                }
-            }
-            Action::Mode => self.controls.toggle_mode(),
-            Action::Reset => {
-                self.controls.reset();
-                return true;
-            }
+        let features = self.renderer.gpu().device.features();
+        let wireframe = features.contains(wgpu::Features::POLYGON_MODE_LINE);
+        let effect = self
+            .toggles
+            .act(action, &mut self.controls, &mut self.refiner, wireframe);
+        self.options.wireframe = self.toggles.wireframe;
+        self.options.level_colours = self.toggles.levels;
+        if effect == Effect::NoWireframe {
+            self.status
+                .set("notice", "this browser's adapter cannot draw a wireframe");
         }
-        false
+        effect == Effect::CutChanged
     }
 
     /// One step of the refinement loop for `camera` (unless frozen): the cut and its patches.
     fn refine(&mut self, camera: &Camera) {
-        if self.frozen {
+        if self.toggles.frozen {
             return;
         }
         self.last_stats = self.refiner.frame(camera);
@@ -547,7 +522,7 @@ impl App {
                 Mode::Fly => "fly",
             },
         );
-        s.set("frozen", self.frozen);
+        s.set("frozen", self.toggles.frozen);
         s.set("levels", self.options.level_colours);
         s.set("wireframe", self.options.wireframe);
         let c = self.refiner.cache_use();

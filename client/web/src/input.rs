@@ -7,34 +7,18 @@
 //! - Keys on the window: W/A/S/D/Q/E (Shift faster) move; `+`/`-` halve/double the pixel-error
 //!   target, F freezes the cut, L colours by level, Tab or 1 toggles the wireframe, C switches
 //!   orbit/fly, R resets the view.
+//!
+//! What a key, a drag or a wheel step does is the viewer core's (`cbdam_client::viewer`), as in
+//! `cbdam view`: this file only turns DOM events into its calls.
 
 use std::cell::RefCell;
-use std::collections::HashSet;
 use std::rc::Rc;
 
-use cbdam_client::controls::{Controls, Mode, Movement, TURN_PER_PIXEL, ZOOM_STEP};
+use cbdam_client::controls::{Controls, TURN_PER_PIXEL, ZOOM_STEP};
+use cbdam_client::viewer::{Action, Gestures, HeldKeys, action_for_key};
 use wasm_bindgen::JsCast;
 use wasm_bindgen::closure::Closure;
 use web_sys::{HtmlCanvasElement, KeyboardEvent, PointerEvent, WheelEvent};
-
-/// A key press that changes a setting once (not a held movement key).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Action {
-    /// Halve the pixel-error target.
-    Finer,
-    /// Double the pixel-error target.
-    Coarser,
-    /// Freeze / unfreeze the cut.
-    Freeze,
-    /// Colour by diamond level on / off.
-    Levels,
-    /// Wireframe on / off.
-    Wireframe,
-    /// Orbit ↔ fly.
-    Mode,
-    /// Back to the first view.
-    Reset,
-}
 
 /// A pointer held down on the canvas.
 #[derive(Clone, Copy, Debug)]
@@ -49,17 +33,9 @@ struct Pointer {
 /// What happened since the last frame.
 #[derive(Debug, Default)]
 struct Pending {
-    rotate: (f64, f64),
-    pan: (f64, f64),
-    /// Wheel or pinch steps, positive towards the terrain.
-    zoom: f64,
+    gestures: Gestures,
     pointers: Vec<Pointer>,
-    /// Movement keys held (`KeyboardEvent.code`) and Shift.
-    held: HashSet<String>,
-    /// Movement keys pressed since the last frame, even if already released: a tap between
-    /// two slow frames still moves.
-    tapped: HashSet<String>,
-    shift: bool,
+    keys: HeldKeys,
     actions: Vec<Action>,
 }
 
@@ -72,8 +48,6 @@ pub struct Input {
 /// Browsers report wheel deltas in pixels (about 100 per notch) or lines (about 3 per notch).
 const PIXELS_PER_STEP: f64 = 100.0;
 const LINES_PER_STEP: f64 = 3.0;
-/// Movement keys, by `KeyboardEvent.code` (the key's place, whatever the layout).
-const MOVEMENT_KEYS: [&str; 6] = ["KeyW", "KeyS", "KeyD", "KeyA", "KeyQ", "KeyE"];
 
 /// Adds a listener for the page's lifetime.
 fn listen<E: wasm_bindgen::convert::FromWasmAbi + 'static>(
@@ -137,10 +111,7 @@ impl Input {
             match p.pointers.len() {
                 1 => {
                     let q = p.pointers[0];
-                    let d = (x - q.x, y - q.y);
-                    let sum = if q.pan { &mut p.pan } else { &mut p.rotate };
-                    sum.0 += d.0;
-                    sum.1 += d.1;
+                    p.gestures.drag(x - q.x, y - q.y, q.pan);
                 }
                 2 => {
                     let before = [
@@ -150,12 +121,11 @@ impl Input {
                     let mut after = before;
                     after[i] = (x, y);
                     let (zoom, turn, moved) = two_finger(before, after);
-                    p.zoom += zoom;
+                    p.gestures.zoom += zoom;
                     // The terrain follows the fingers: a clockwise twist turns the view
                     // anticlockwise.
-                    p.rotate.0 -= turn / TURN_PER_PIXEL;
-                    p.pan.0 += moved.0;
-                    p.pan.1 += moved.1;
+                    p.gestures.drag(-turn / TURN_PER_PIXEL, 0.0, false);
+                    p.gestures.drag(moved.0, moved.1, true);
                 }
                 // Three or more: ignored.
                 _ => {}
@@ -180,7 +150,7 @@ impl Input {
                 PIXELS_PER_STEP
             };
             // Scrolling down (positive delta) moves away from the terrain.
-            p.borrow_mut().zoom -= e.delta_y() / per_step;
+            p.borrow_mut().gestures.zoom -= e.delta_y() / per_step;
             e.prevent_default();
         });
 
@@ -189,25 +159,17 @@ impl Input {
             let p = me.pending.clone();
             listen(window, "keydown", move |e: KeyboardEvent| {
                 let mut p = p.borrow_mut();
-                let code = e.code();
-                p.shift = e.shift_key();
-                if MOVEMENT_KEYS.contains(&code.as_str()) {
-                    p.tapped.insert(code.clone());
-                    p.held.insert(code);
+                p.keys.shift = e.shift_key();
+                if p.keys.set(&e.code(), true) {
                     return;
                 }
                 if e.repeat() || e.ctrl_key() || e.meta_key() || e.alt_key() {
                     return;
                 }
-                let action = match (e.key().as_str(), code.as_str()) {
-                    ("+" | "=", _) | (_, "NumpadAdd") => Action::Finer,
-                    ("-" | "_", _) | (_, "NumpadSubtract") => Action::Coarser,
-                    (_, "KeyF") => Action::Freeze,
-                    (_, "KeyL") => Action::Levels,
-                    (_, "Tab" | "Digit1") => Action::Wireframe,
-                    (_, "KeyC") => Action::Mode,
-                    (_, "KeyR") => Action::Reset,
-                    _ => return,
+                // The page has no HUD to hide, no screenshot key and nothing to close.
+                let action = match action_for_key(&e.code(), &e.key()) {
+                    None | Some(Action::Hud | Action::Screenshot | Action::Quit) => return,
+                    Some(action) => action,
                 };
                 p.actions.push(action);
                 e.prevent_default();
@@ -215,15 +177,14 @@ impl Input {
             let p = me.pending.clone();
             listen(window, "keyup", move |e: KeyboardEvent| {
                 let mut p = p.borrow_mut();
-                p.shift = e.shift_key();
-                p.held.remove(&e.code());
+                p.keys.shift = e.shift_key();
+                p.keys.set(&e.code(), false);
             });
             // Keys released while the page had no focus never report it.
             let p = me.pending.clone();
             listen(window, "blur", move |_: web_sys::FocusEvent| {
                 let mut p = p.borrow_mut();
-                p.held.clear();
-                p.shift = false;
+                p.keys.release_all();
                 p.pointers.clear();
             });
         }
@@ -233,40 +194,8 @@ impl Input {
     /// Applies what happened since the last call to `controls` (held keys for `dt` seconds);
     /// returns whether the camera moved and the key actions to carry out.
     pub fn apply(&self, controls: &mut Controls, height: u32, dt: f64) -> (bool, Vec<Action>) {
-        let mut p = self.pending.borrow_mut();
-        let down =
-            |code: &str| f64::from(u8::from(p.held.contains(code) || p.tapped.contains(code)));
-        let axis = |plus: &str, minus: &str| down(plus) - down(minus);
-        let movement = Movement {
-            forward: axis("KeyW", "KeyS"),
-            right: axis("KeyD", "KeyA"),
-            up: axis("KeyQ", "KeyE"),
-            fast: p.shift,
-        };
-        let keys_move = movement.forward != 0.0 || movement.right != 0.0 || movement.up != 0.0;
-        if controls.mode() == Mode::Fly {
-            // Flying, every drag looks around (as in `cbdam view`).
-            p.rotate.0 += p.pan.0;
-            p.rotate.1 += p.pan.1;
-            p.pan = (0.0, 0.0);
-        }
-        let moved = keys_move || p.rotate != (0.0, 0.0) || p.pan != (0.0, 0.0) || p.zoom != 0.0;
-        if p.rotate != (0.0, 0.0) {
-            controls.rotate(p.rotate.0, p.rotate.1);
-        }
-        if p.pan != (0.0, 0.0) {
-            controls.pan(p.pan.0, p.pan.1, height);
-        }
-        if p.zoom != 0.0 {
-            controls.zoom(p.zoom);
-        }
-        if keys_move {
-            controls.update(movement, dt);
-        }
-        p.rotate = (0.0, 0.0);
-        p.pan = (0.0, 0.0);
-        p.zoom = 0.0;
-        p.tapped.clear();
+        let p = &mut *self.pending.borrow_mut();
+        let moved = p.gestures.apply(controls, &mut p.keys, height, dt);
         (moved, std::mem::take(&mut p.actions))
     }
 }
