@@ -187,10 +187,8 @@ struct State<H> {
     window: Window,
 }
 
-/// A byte window over the requests in flight, sized by the link's measured delivery rate (the
-/// desktop transport's; the browser's keeps to [`FetchOptions::max_in_flight`]).
+/// A byte window over the requests in flight, sized by the link's measured delivery rate.
 #[derive(Default)]
-#[cfg_attr(target_arch = "wasm32", allow(dead_code))]
 struct Window {
     /// Record bytes of the requests in flight.
     in_flight: u64,
@@ -202,7 +200,6 @@ struct Window {
     rate: f64,
 }
 
-#[cfg_attr(target_arch = "wasm32", allow(dead_code))]
 impl Window {
     /// The byte limit of records in flight.
     fn limit(&self, options: &FetchOptions) -> u64 {
@@ -255,7 +252,6 @@ impl<H> Default for State<H> {
 }
 
 impl<H> State<H> {
-    #[cfg_attr(target_arch = "wasm32", allow(dead_code))]
     /// Whether another request may start: a free slot, and room in the byte window (always
     /// for the first two).
     fn may_start(&self, options: &FetchOptions, endpoint: &Endpoint) -> bool {
@@ -263,7 +259,6 @@ impl<H> State<H> {
             && (self.batches.len() < 2 || self.window.in_flight < self.window.limit(options))
     }
 
-    #[cfg_attr(target_arch = "wasm32", allow(dead_code))]
     /// Most record bytes in the next request.
     fn batch_bytes(&self, options: &FetchOptions) -> u64 {
         (self.window.limit(options) / 2).max(1)
@@ -288,6 +283,54 @@ impl<H> State<H> {
         }
         ready.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
         (ready.into_iter().map(|(id, _)| id).collect(), next_retry)
+    }
+
+    /// Replaces the wanted records (those the head stores and that were not just delivered).
+    fn set_wanted(
+        &mut self,
+        head: &RepositoryHead,
+        wanted: impl IntoIterator<Item = (DiamondId, f32)>,
+    ) {
+        let delivered = &self.delivered;
+        self.wanted = wanted
+            .into_iter()
+            .filter(|(id, _)| head.position(*id).is_some() && !delivered.contains(id))
+            .map(|(id, priority)| (id, Pending { priority }))
+            .collect();
+    }
+
+    /// Drops the requests [`not_worth_finishing`] for the wanted set, calling `abort` on each
+    /// one's handle; their records go back to the queue. Returns the requests dropped and the
+    /// records still wanted that they were carrying.
+    fn cancel_unwanted(
+        &mut self,
+        head: &RepositoryHead,
+        options: &FetchOptions,
+        abort: impl Fn(&H),
+    ) -> (u64, u64) {
+        let now = Instant::now();
+        let (mut cancelled, mut requeued) = (0, 0);
+        let State {
+            wanted,
+            batches,
+            in_flight,
+            window,
+            ..
+        } = self;
+        batches.retain(|(batch, ids, handle)| {
+            if !not_worth_finishing(ids, wanted, head, options) {
+                return true;
+            }
+            abort(handle);
+            window.end(*batch, None, now);
+            for id in ids {
+                in_flight.remove(id);
+                requeued += u64::from(wanted.contains_key(id));
+            }
+            cancelled += 1;
+            false
+        });
+        (cancelled, requeued)
     }
 
     /// Puts `failed` records into backoff: each retry waits twice as long as the last, from
@@ -358,7 +401,6 @@ fn next_batch(
 }
 
 /// Record bytes of `ids`.
-#[cfg_attr(target_arch = "wasm32", allow(dead_code))]
 fn record_bytes(head: &RepositoryHead, ids: &[DiamondId]) -> u64 {
     ids.iter()
         .map(|&id| {
@@ -599,36 +641,25 @@ fn split_span(
 /// Records that passed their checks.
 type Checked = Vec<(DiamondId, Arc<[u8]>)>;
 
-/// The records of a finished request checked against the head: those that pass, and the ids
-/// to retry (all of them when the request failed). The browser's transport; the desktop's
-/// checks records as they stream in.
-#[cfg_attr(not(target_arch = "wasm32"), allow(dead_code))]
-fn check_batch(
+/// `records` checked against the head: those that pass, and the ids of those that fail (to be
+/// retried).
+fn check_records(
     head: &RepositoryHead,
-    ids: &[DiamondId],
-    outcome: Result<Vec<(DiamondId, Vec<u8>)>, String>,
+    records: Vec<(DiamondId, Vec<u8>)>,
 ) -> (Checked, Vec<DiamondId>) {
-    let mut delivered = Vec::new();
+    let mut passed = Vec::with_capacity(records.len());
     let mut failed = Vec::new();
-    match outcome {
-        Ok(records) => {
-            for (id, bytes) in records {
-                let i = head.position(id).expect("stored");
-                match head.check_record(i, &bytes) {
-                    Ok(()) => delivered.push((id, Arc::from(bytes))),
-                    Err(e) => {
-                        tracing::warn!("record {id} rejected: {e}");
-                        failed.push(id);
-                    }
-                }
+    for (id, bytes) in records {
+        let i = head.position(id).expect("stored");
+        match head.check_record(i, &bytes) {
+            Ok(()) => passed.push((id, Arc::from(bytes))),
+            Err(e) => {
+                tracing::warn!("record {id} rejected: {e}");
+                failed.push(id);
             }
         }
-        Err(message) => {
-            tracing::warn!("request for {} records failed: {message}", ids.len());
-            failed.extend(ids.iter().copied());
-        }
     }
-    (delivered, failed)
+    (passed, failed)
 }
 
 /// The JSON body of a batch request (`POST …/diamonds`) for `ids` with their `priorities`
@@ -672,7 +703,6 @@ fn answer_ids(ids: &[DiamondId], priorities: &[f32]) -> Vec<DiamondId> {
 /// Whether a request whose still-to-come records are `remaining` should be dropped now that
 /// `wanted` is what the view wants: none of them is wanted, or at least
 /// [`FetchOptions::cancel_waste`] of their bytes (each with its entry's framing) is not.
-#[cfg_attr(target_arch = "wasm32", allow(dead_code))]
 fn not_worth_finishing<V>(
     remaining: &[DiamondId],
     wanted: &HashMap<DiamondId, V>,

@@ -14,10 +14,9 @@ use tokio::task::AbortHandle;
 use web_time::Instant;
 
 use super::{
-    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, answer_ids,
-    batch_request_body, batch_span, classify, expect_partial, fetch_head_with, http_error,
-    list_url, next_batch, not_worth_finishing, range_total, record_bytes, single_repository,
-    split_span,
+    Endpoint, FetchOptions, FetchStats, Fetched, RemoteError, State, answer_ids,
+    batch_request_body, batch_span, check_records, classify, expect_partial, fetch_head_with,
+    http_error, list_url, next_batch, range_total, record_bytes, single_repository, split_span,
 };
 use cbdam_codec::repository::batch::{OwnedEntry, StreamParser};
 
@@ -122,40 +121,13 @@ impl RemoteFetcher {
     /// are still wanted are queued again.
     pub fn want(&self, wanted: impl IntoIterator<Item = (DiamondId, f32)>) {
         let mut s = self.shared.state.lock().expect("fetch state");
-        let delivered = std::mem::take(&mut s.delivered);
-        s.wanted = wanted
-            .into_iter()
-            .filter(|(id, _)| self.shared.head.position(*id).is_some() && !delivered.contains(id))
-            .map(|(id, priority)| (id, Pending { priority }))
-            .collect();
-        s.delivered = delivered;
-        let State {
-            wanted,
-            batches,
-            in_flight,
-            window,
-            ..
-        } = &mut *s;
+        s.set_wanted(&self.shared.head, wanted);
         let (head, options) = (&self.shared.head, &self.shared.options);
-        batches.retain(|(batch, ids, handle)| {
-            if !not_worth_finishing(ids, wanted, head, options) {
-                return true;
-            }
-            handle.abort();
-            window.end(*batch, None, Instant::now());
-            let mut requeued = 0;
-            for id in ids {
-                in_flight.remove(id);
-                requeued += u64::from(wanted.contains_key(id));
-            }
-            self.shared
-                .stats
-                .requeued
-                .fetch_add(requeued, Ordering::Relaxed);
-            self.shared.stats.cancelled.fetch_add(1, Ordering::Relaxed);
-            self.shared.stats.in_flight.fetch_sub(1, Ordering::Relaxed);
-            false
-        });
+        let (cancelled, requeued) = s.cancel_unwanted(head, options, AbortHandle::abort);
+        let stats = &self.shared.stats;
+        stats.requeued.fetch_add(requeued, Ordering::Relaxed);
+        stats.cancelled.fetch_add(cancelled, Ordering::Relaxed);
+        stats.in_flight.fetch_sub(cancelled, Ordering::Relaxed);
         drop(s);
         self.shared.wake.notify_one();
     }
@@ -359,14 +331,8 @@ async fn fetch_batch(shared: Arc<Shared>, batch: u64, ids: Vec<DiamondId>, prior
 /// batch was cancelled meanwhile; each one handed over leaves the batch's list of records to
 /// come (those that fail stay there, to be backed off when the batch ends).
 fn deliver(shared: &Shared, batch: u64, records: Vec<(DiamondId, Vec<u8>)>) {
-    let mut checked = Vec::with_capacity(records.len());
-    for (id, bytes) in records {
-        let i = shared.head.position(id).expect("stored");
-        match shared.head.check_record(i, &bytes) {
-            Ok(()) => checked.push((id, Arc::<[u8]>::from(bytes))),
-            Err(e) => tracing::warn!("record {id} rejected: {e}"),
-        }
-    }
+    // Those that fail stay in the batch's list of records to come.
+    let (checked, _) = check_records(&shared.head, records);
     if checked.is_empty() {
         return;
     }

@@ -2,7 +2,8 @@
 //! loop. A page has one thread and must never block it, so there is no scheduler task: requests
 //! start when the wanted set changes ([`RemoteFetcher::want`]), when one finishes, and on every
 //! [`RemoteFetcher::poll`] (once a frame: backoffs that expired). What to fetch next, the
-//! backoff, the range and record checks and the batch framing are the portable parent module's;
+//! backoff, the byte window, cancellation, the range and record checks and the batch framing are
+//! the portable parent module's (one policy for the desktop and the page);
 //! this module only moves bytes.
 //!
 //! A static host on another origin must allow the page's origin (CORS) and expose
@@ -21,9 +22,10 @@ use web_sys::{AbortController, Request, RequestInit, Response};
 use web_time::Instant;
 
 use super::{
-    Endpoint, FetchOptions, FetchStats, Fetched, Pending, RemoteError, State, answer_ids,
-    batch_request_body, batch_span, check_batch, classify, expect_partial, fetch_head_with,
-    http_error, list_url, next_batch, parse_frames, range_total, single_repository, split_span,
+    Endpoint, FetchOptions, FetchStats, Fetched, RemoteError, State, answer_ids,
+    batch_request_body, batch_span, check_records, classify, expect_partial, fetch_head_with,
+    http_error, list_url, next_batch, parse_frames, range_total, record_bytes, single_repository,
+    split_span,
 };
 
 struct Shared {
@@ -102,38 +104,20 @@ impl RemoteFetcher {
     }
 
     /// Replaces the set of wanted records (higher priority first). Queued records not in the set
-    /// are forgotten, and requests none of whose records are wanted any more are aborted.
+    /// are forgotten, and requests not worth finishing any more (none of their records wanted,
+    /// or [`FetchOptions::cancel_waste`] of their bytes unwanted) are aborted, their records that
+    /// are still wanted queued again.
     pub fn want(&self, wanted: impl IntoIterator<Item = (DiamondId, f32)>) {
         {
             let mut s = self.shared.state.borrow_mut();
-            let delivered = std::mem::take(&mut s.delivered);
-            s.wanted = wanted
-                .into_iter()
-                .filter(|(id, _)| {
-                    self.shared.head.position(*id).is_some() && !delivered.contains(id)
-                })
-                .map(|(id, priority)| (id, Pending { priority }))
-                .collect();
-            s.delivered = delivered;
-            let State {
-                wanted,
-                batches,
-                in_flight,
-                ..
-            } = &mut *s;
+            s.set_wanted(&self.shared.head, wanted);
+            let (head, options) = (&self.shared.head, &self.shared.options);
+            let abort = |c: &AbortController| c.abort();
+            let (cancelled, requeued) = s.cancel_unwanted(head, options, abort);
             let mut stats = self.shared.stats.borrow_mut();
-            batches.retain(|(_, ids, controller)| {
-                if ids.iter().any(|id| wanted.contains_key(id)) {
-                    return true;
-                }
-                controller.abort();
-                for id in ids {
-                    in_flight.remove(id);
-                }
-                stats.cancelled += 1;
-                stats.in_flight -= 1;
-                false
-            });
+            stats.cancelled += cancelled;
+            stats.requeued += requeued;
+            stats.in_flight -= cancelled;
         }
         start_batches(&self.shared);
     }
@@ -182,13 +166,14 @@ fn start_batches(shared: &Rc<Shared>) {
         return;
     }
     let (mut ready, _) = s.ready(Instant::now());
-    while s.batches.len() < shared.endpoint.max_in_flight(&shared.options) && !ready.is_empty() {
+    while s.may_start(&shared.options, &shared.endpoint) && !ready.is_empty() {
+        let max_bytes = s.batch_bytes(&shared.options);
         let ids = next_batch(
             &mut ready,
             &shared.endpoint,
             &shared.head,
             &shared.options,
-            u64::MAX,
+            max_bytes,
         );
         let Ok(controller) = AbortController::new() else {
             // Without an AbortController (very old browsers) nothing can be fetched safely.
@@ -205,6 +190,8 @@ fn start_batches(shared: &Rc<Shared>) {
         s.next_batch += 1;
         let signal = controller.signal();
         abort_after(&controller, shared.options.timeout);
+        s.window
+            .start(batch, record_bytes(&shared.head, &ids), Instant::now());
         s.batches.push((batch, ids.clone(), controller));
         {
             let mut stats = shared.stats.borrow_mut();
@@ -246,7 +233,13 @@ async fn fetch_batch(
         }
         Endpoint::File { url } => fetch_ranges(&shared, url, &ids, &signal).await,
     };
-    let (delivered, failed) = check_batch(&shared.head, &ids, outcome);
+    let (delivered, failed) = match outcome {
+        Ok(records) => check_records(&shared.head, records),
+        Err(message) => {
+            tracing::warn!("request for {} records failed: {message}", ids.len());
+            (Vec::new(), ids.clone())
+        }
+    };
     {
         let mut s = shared.state.borrow_mut();
         let Some(pos) = s.batches.iter().position(|(b, _, _)| *b == batch) else {
@@ -254,6 +247,11 @@ async fn fetch_batch(
             return;
         };
         s.batches.swap_remove(pos);
+        // A rate sample only from a request that delivered everything it carried.
+        let received = failed
+            .is_empty()
+            .then(|| delivered.iter().map(|(_, r)| r.len() as u64).sum());
+        s.window.end(batch, received, Instant::now());
         let mut stats = shared.stats.borrow_mut();
         stats.in_flight -= 1;
         for id in &ids {
