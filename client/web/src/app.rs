@@ -166,123 +166,15 @@ struct App {
 impl App {
     async fn new(
         canvas: HtmlCanvasElement,
-        (repo_url, colour_url): (&str, Option<&str>),
+        urls: (&str, Option<&str>),
         worker_script: Option<&str>,
         status: Status,
     ) -> Result<Self, String> {
         status.set("phase", "connecting");
-        let elevation = RemoteSource::connect(repo_url, FetchOptions::default())
-            .await
-            .map_err(|e| format!("cannot read the repository: {e}"))?;
-        // The heads the decode workers are set up from, kept: the sources move into the
-        // refiner.
-        let head = |s: &RemoteSource| {
-            let h = s.head_bytes();
-            (h.bytes.to_vec(), h.file_len)
-        };
-        let elevation_head = head(&elevation);
-        let (source, colour_head): (Box<dyn DataSource>, _) = match colour_url {
-            None => (Box::new(elevation), None),
-            Some(url) => {
-                let colour = RemoteSource::connect(url, FetchOptions::default())
-                    .await
-                    .map_err(|e| format!("cannot read the colour repository: {e}"))?;
-                let colour_head = head(&colour);
-                let paired = ColouredSource::new(elevation, colour).map_err(|e| {
-                    format!("cannot drape the colour repository {url} over the terrain: {e}")
-                })?;
-                (Box::new(paired), Some(colour_head))
-            }
-        };
-        status.set("draped", colour_head.is_some());
-        let config = RefineConfig {
-            budget: Some(REFINE_BUDGET),
-            ..RefineConfig::default()
-        };
-        let workers = WorkerPool::new();
-        let refiner = Refiner::with_spawner(source, config, workers.clone())
-            .map_err(|e| format!("cannot decode the repository's root: {e}"))?;
-        // The same module as the page's (this build's), in each worker.
-        let module = if cfg!(feature = "webgl") {
-            "cbdam_web_gl"
-        } else {
-            "cbdam_web"
-        };
-        if let Some(script) = worker_script {
-            let context = refiner.worker_context(
-                head_bytes(&elevation_head),
-                colour_head.as_ref().map(head_bytes),
-            );
-            workers.start(script, module, &context, worker_count());
-        }
+        let (refiner, workers) = connect(urls, worker_script, &status).await?;
         let world = *refiner.world();
-
-        // Always false in a module built without the `webgpu` feature (the WebGL2 one, which
-        // main.js loads only where the browser has no WebGPU adapter): it cannot use WebGPU.
-        let webgpu = wgpu::util::is_browser_webgpu_supported().await;
-        status.set("webgpu", webgpu);
-        if !webgpu {
-            let webgl2 = has_webgl2();
-            status.set("webgl2", webgl2);
-            if !webgl2 || !cfg!(feature = "webgl") {
-                return Err(no_adapter_message());
-            }
-        }
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-        desc.backends = wgpu::Backends::BROWSER_WEBGPU | wgpu::Backends::GL;
-        let instance = wgpu::util::new_instance_with_webgpu_detection(desc).await;
-        let surface = instance
-            .create_surface(wgpu::SurfaceTarget::Canvas(canvas.clone()))
-            .map_err(|e| format!("cannot draw on the canvas: {e}"))?;
-        let adapter = instance
-            .request_adapter(&wgpu::RequestAdapterOptions {
-                power_preference: wgpu::PowerPreference::HighPerformance,
-                force_fallback_adapter: false,
-                compatible_surface: Some(&surface),
-                apply_limit_buckets: false,
-            })
-            .await
-            .map_err(|e| format!("{} ({e})", no_adapter_message()))?;
-        let info = adapter.get_info();
-        let backend = match info.backend {
-            wgpu::Backend::BrowserWebGpu => "webgpu",
-            wgpu::Backend::Gl => "webgl",
-            _ => "other",
-        };
-        status.set("backend", backend);
-        status.set("adapter", info.name.as_str());
-        let gpu = Gpu::from_adapter_async(&adapter)
-            .await
-            .map_err(|e| e.to_string())?;
-        gpu.device.on_uncaptured_error(Arc::new(|e: wgpu::Error| {
-            if let Ok(mut errors) = GPU_ERRORS.lock() {
-                errors.push(e.to_string());
-            }
-        }));
-        let caps = surface.get_capabilities(&adapter);
-        // A non-sRGB format: WebGPU offers Rgba8Unorm/Bgra8Unorm first, WebGL Rgba8UnormSrgb,
-        // which would show the offscreen image's bytes lighter.
-        let format = caps
-            .formats
-            .iter()
-            .copied()
-            .find(|f| !f.is_srgb())
-            .or_else(|| caps.formats.first().copied())
-            .ok_or("the canvas offers no texture format")?;
-        let size = canvas_size(&canvas);
-        let config = wgpu::SurfaceConfiguration {
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-            format,
-            width: size.0,
-            height: size.1,
-            present_mode: wgpu::PresentMode::Fifo,
-            desired_maximum_frame_latency: 2,
-            alpha_mode: caps.alpha_modes.first().copied().unwrap_or_default(),
-            view_formats: vec![],
-            color_space: wgpu::SurfaceColorSpace::Auto,
-        };
-        surface.configure(&gpu.device, &config);
-        let presenter = Presenter::new(&gpu.device, format);
+        let (gpu, surface, config) = open_canvas(&canvas, &status).await?;
+        let presenter = Presenter::new(&gpu.device, config.format);
         let cache = CacheConfig {
             pool_bytes: Some(POOL_BYTES),
             ..CacheConfig::default()
@@ -298,6 +190,7 @@ impl App {
                 _ => "storage",
             },
         );
+        let size = (config.width, config.height);
         let start = match camera_from_hash() {
             // 45°, as `Camera::framed` and `cbdam render --camera`: the same hash gives the same
             // view and cut as the command line's camera.
@@ -589,6 +482,138 @@ impl App {
             s.set_strings("cut", &cut);
         }
     }
+}
+
+/// Connects to the elevation repository (and the colour one draped over it) and starts the
+/// refiner, its decode workers running `worker_script` where one is given.
+async fn connect(
+    (repo_url, colour_url): (&str, Option<&str>),
+    worker_script: Option<&str>,
+    status: &Status,
+) -> Result<(Refiner<Box<dyn DataSource>, WorkerPool>, WorkerPool), String> {
+    let elevation = RemoteSource::connect(repo_url, FetchOptions::default())
+        .await
+        .map_err(|e| format!("cannot read the repository: {e}"))?;
+    // The heads the decode workers are set up from, kept: the sources move into the refiner.
+    let head = |s: &RemoteSource| {
+        let h = s.head_bytes();
+        (h.bytes.to_vec(), h.file_len)
+    };
+    let elevation_head = head(&elevation);
+    let (source, colour_head): (Box<dyn DataSource>, _) = match colour_url {
+        None => (Box::new(elevation), None),
+        Some(url) => {
+            let colour = RemoteSource::connect(url, FetchOptions::default())
+                .await
+                .map_err(|e| format!("cannot read the colour repository: {e}"))?;
+            let colour_head = head(&colour);
+            let paired = ColouredSource::new(elevation, colour).map_err(|e| {
+                format!("cannot drape the colour repository {url} over the terrain: {e}")
+            })?;
+            (Box::new(paired), Some(colour_head))
+        }
+    };
+    status.set("draped", colour_head.is_some());
+    let config = RefineConfig {
+        budget: Some(REFINE_BUDGET),
+        ..RefineConfig::default()
+    };
+    let workers = WorkerPool::new();
+    let refiner = Refiner::with_spawner(source, config, workers.clone())
+        .map_err(|e| format!("cannot decode the repository's root: {e}"))?;
+    // The same module as the page's (this build's), in each worker.
+    let module = if cfg!(feature = "webgl") {
+        "cbdam_web_gl"
+    } else {
+        "cbdam_web"
+    };
+    if let Some(script) = worker_script {
+        let context = refiner.worker_context(
+            head_bytes(&elevation_head),
+            colour_head.as_ref().map(head_bytes),
+        );
+        workers.start(script, module, &context, worker_count());
+    }
+    Ok((refiner, workers))
+}
+
+/// Opens the GPU (WebGPU, else WebGL2 in the `webgl` build) and configures the canvas for it.
+async fn open_canvas(
+    canvas: &HtmlCanvasElement,
+    status: &Status,
+) -> Result<(Gpu, wgpu::Surface<'static>, wgpu::SurfaceConfiguration), String> {
+    // Always false in a module built without the `webgpu` feature (the WebGL2 one, which
+    // main.js loads only where the browser has no WebGPU adapter): it cannot use WebGPU.
+    let webgpu = wgpu::util::is_browser_webgpu_supported().await;
+    status.set("webgpu", webgpu);
+    if !webgpu {
+        let webgl2 = has_webgl2();
+        status.set("webgl2", webgl2);
+        if !webgl2 || !cfg!(feature = "webgl") {
+            return Err(no_adapter_message());
+        }
+    }
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::BROWSER_WEBGPU | wgpu::Backends::GL;
+    let instance = wgpu::util::new_instance_with_webgpu_detection(desc).await;
+    let surface = instance
+        .create_surface(wgpu::SurfaceTarget::Canvas(canvas.clone()))
+        .map_err(|e| format!("cannot draw on the canvas: {e}"))?;
+    let adapter = instance
+        .request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: Some(&surface),
+            apply_limit_buckets: false,
+        })
+        .await
+        .map_err(|e| format!("{} ({e})", no_adapter_message()))?;
+    let info = adapter.get_info();
+    let backend = match info.backend {
+        wgpu::Backend::BrowserWebGpu => "webgpu",
+        wgpu::Backend::Gl => "webgl",
+        _ => "other",
+    };
+    status.set("backend", backend);
+    status.set("adapter", info.name.as_str());
+    let gpu = Gpu::from_adapter_async(&adapter)
+        .await
+        .map_err(|e| e.to_string())?;
+    gpu.device.on_uncaptured_error(Arc::new(|e: wgpu::Error| {
+        if let Ok(mut errors) = GPU_ERRORS.lock() {
+            errors.push(e.to_string());
+        }
+    }));
+    let config = surface_config(&surface.get_capabilities(&adapter), canvas_size(canvas))?;
+    surface.configure(&gpu.device, &config);
+    Ok((gpu, surface, config))
+}
+
+/// The canvas surface's configuration for `size`.
+fn surface_config(
+    caps: &wgpu::SurfaceCapabilities,
+    size: (u32, u32),
+) -> Result<wgpu::SurfaceConfiguration, String> {
+    // A non-sRGB format: WebGPU offers Rgba8Unorm/Bgra8Unorm first, WebGL Rgba8UnormSrgb,
+    // which would show the offscreen image's bytes lighter.
+    let format = caps
+        .formats
+        .iter()
+        .copied()
+        .find(|f| !f.is_srgb())
+        .or_else(|| caps.formats.first().copied())
+        .ok_or("the canvas offers no texture format")?;
+    Ok(wgpu::SurfaceConfiguration {
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+        format,
+        width: size.0,
+        height: size.1,
+        present_mode: wgpu::PresentMode::Fifo,
+        desired_maximum_frame_latency: 2,
+        alpha_mode: caps.alpha_modes.first().copied().unwrap_or_default(),
+        view_formats: vec![],
+        color_space: wgpu::SurfaceColorSpace::Auto,
+    })
 }
 
 /// The animation-frame callback, shared with itself so it can ask for the next frame.

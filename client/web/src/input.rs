@@ -82,13 +82,74 @@ fn two_finger(before: [(f64, f64); 2], after: [(f64, f64); 2]) -> (f64, f64, (f6
     (zoom, turn, (m1.0 - m0.0, m1.1 - m0.1))
 }
 
+impl Pending {
+    /// Pointer `id` moved to (x, y): one pointer drags, two pinch, twist and pan.
+    fn pointer_moved(&mut self, id: i32, x: f64, y: f64) {
+        let Some(i) = self.pointers.iter().position(|q| q.id == id) else {
+            return;
+        };
+        match self.pointers.len() {
+            1 => {
+                let q = self.pointers[0];
+                self.gestures.drag(x - q.x, y - q.y, q.pan);
+            }
+            2 => {
+                let before = [
+                    (self.pointers[0].x, self.pointers[0].y),
+                    (self.pointers[1].x, self.pointers[1].y),
+                ];
+                let mut after = before;
+                after[i] = (x, y);
+                let (zoom, turn, moved) = two_finger(before, after);
+                self.gestures.zoom += zoom;
+                // The terrain follows the fingers: a clockwise twist turns the view
+                // anticlockwise.
+                self.gestures.drag(-turn / TURN_PER_PIXEL, 0.0, false);
+                self.gestures.drag(moved.0, moved.1, true);
+            }
+            // Three or more: ignored.
+            _ => {}
+        }
+        self.pointers[i].x = x;
+        self.pointers[i].y = y;
+    }
+
+    /// A key went down: a movement key is held, another may be an action.
+    fn key_down(&mut self, e: &KeyboardEvent) {
+        self.keys.shift = e.shift_key();
+        if self.keys.set(&e.code(), true) {
+            return;
+        }
+        if e.repeat() || e.ctrl_key() || e.meta_key() || e.alt_key() {
+            return;
+        }
+        // The page has no HUD to hide, no screenshot key and nothing to close.
+        match action_for_key(&e.code(), &e.key()) {
+            None | Some(Action::Hud | Action::Screenshot | Action::Quit) => {}
+            Some(action) => {
+                self.actions.push(action);
+                e.prevent_default();
+            }
+        }
+    }
+}
+
 impl Input {
     /// Listens to pointers and the wheel on `canvas` and to keys on the window.
     pub fn listen(canvas: &HtmlCanvasElement) -> Self {
         let me = Self::default();
-        let target: &web_sys::EventTarget = canvas.as_ref();
+        me.listen_pointers(canvas);
+        me.listen_wheel(canvas);
+        if let Some(window) = web_sys::window() {
+            me.listen_keys(window.as_ref());
+        }
+        me
+    }
 
-        let (p, c) = (me.pending.clone(), canvas.clone());
+    /// Pointer events on `canvas` (mouse, pen and touch).
+    fn listen_pointers(&self, canvas: &HtmlCanvasElement) {
+        let target: &web_sys::EventTarget = canvas.as_ref();
+        let (p, c) = (self.pending.clone(), canvas.clone());
         listen(target, "pointerdown", move |e: PointerEvent| {
             let _ = c.set_pointer_capture(e.pointer_id());
             let mut p = p.borrow_mut();
@@ -101,40 +162,13 @@ impl Input {
             });
             e.prevent_default();
         });
-        let p = me.pending.clone();
+        let p = self.pending.clone();
         listen(target, "pointermove", move |e: PointerEvent| {
-            let mut p = p.borrow_mut();
-            let Some(i) = p.pointers.iter().position(|q| q.id == e.pointer_id()) else {
-                return;
-            };
             let (x, y) = (f64::from(e.client_x()), f64::from(e.client_y()));
-            match p.pointers.len() {
-                1 => {
-                    let q = p.pointers[0];
-                    p.gestures.drag(x - q.x, y - q.y, q.pan);
-                }
-                2 => {
-                    let before = [
-                        (p.pointers[0].x, p.pointers[0].y),
-                        (p.pointers[1].x, p.pointers[1].y),
-                    ];
-                    let mut after = before;
-                    after[i] = (x, y);
-                    let (zoom, turn, moved) = two_finger(before, after);
-                    p.gestures.zoom += zoom;
-                    // The terrain follows the fingers: a clockwise twist turns the view
-                    // anticlockwise.
-                    p.gestures.drag(-turn / TURN_PER_PIXEL, 0.0, false);
-                    p.gestures.drag(moved.0, moved.1, true);
-                }
-                // Three or more: ignored.
-                _ => {}
-            }
-            p.pointers[i].x = x;
-            p.pointers[i].y = y;
+            p.borrow_mut().pointer_moved(e.pointer_id(), x, y);
         });
         for end in ["pointerup", "pointercancel"] {
-            let p = me.pending.clone();
+            let p = self.pending.clone();
             listen(target, end, move |e: PointerEvent| {
                 p.borrow_mut().pointers.retain(|q| q.id != e.pointer_id());
             });
@@ -142,8 +176,12 @@ impl Input {
         listen(target, "contextmenu", |e: web_sys::MouseEvent| {
             e.prevent_default()
         });
-        let p = me.pending.clone();
-        listen(target, "wheel", move |e: WheelEvent| {
+    }
+
+    /// The wheel on `canvas`.
+    fn listen_wheel(&self, canvas: &HtmlCanvasElement) {
+        let p = self.pending.clone();
+        listen(canvas.as_ref(), "wheel", move |e: WheelEvent| {
             let per_step = if e.delta_mode() == WheelEvent::DOM_DELTA_LINE {
                 LINES_PER_STEP
             } else {
@@ -153,42 +191,27 @@ impl Input {
             p.borrow_mut().gestures.zoom -= e.delta_y() / per_step;
             e.prevent_default();
         });
+    }
 
-        if let Some(window) = web_sys::window() {
-            let window: &web_sys::EventTarget = window.as_ref();
-            let p = me.pending.clone();
-            listen(window, "keydown", move |e: KeyboardEvent| {
-                let mut p = p.borrow_mut();
-                p.keys.shift = e.shift_key();
-                if p.keys.set(&e.code(), true) {
-                    return;
-                }
-                if e.repeat() || e.ctrl_key() || e.meta_key() || e.alt_key() {
-                    return;
-                }
-                // The page has no HUD to hide, no screenshot key and nothing to close.
-                let action = match action_for_key(&e.code(), &e.key()) {
-                    None | Some(Action::Hud | Action::Screenshot | Action::Quit) => return,
-                    Some(action) => action,
-                };
-                p.actions.push(action);
-                e.prevent_default();
-            });
-            let p = me.pending.clone();
-            listen(window, "keyup", move |e: KeyboardEvent| {
-                let mut p = p.borrow_mut();
-                p.keys.shift = e.shift_key();
-                p.keys.set(&e.code(), false);
-            });
-            // Keys released while the page had no focus never report it.
-            let p = me.pending.clone();
-            listen(window, "blur", move |_: web_sys::FocusEvent| {
-                let mut p = p.borrow_mut();
-                p.keys.release_all();
-                p.pointers.clear();
-            });
-        }
-        me
+    /// Keys on the page's `window`.
+    fn listen_keys(&self, window: &web_sys::EventTarget) {
+        let p = self.pending.clone();
+        listen(window, "keydown", move |e: KeyboardEvent| {
+            p.borrow_mut().key_down(&e)
+        });
+        let p = self.pending.clone();
+        listen(window, "keyup", move |e: KeyboardEvent| {
+            let mut p = p.borrow_mut();
+            p.keys.shift = e.shift_key();
+            p.keys.set(&e.code(), false);
+        });
+        // Keys released while the page had no focus never report it.
+        let p = self.pending.clone();
+        listen(window, "blur", move |_: web_sys::FocusEvent| {
+            let mut p = p.borrow_mut();
+            p.keys.release_all();
+            p.pointers.clear();
+        });
     }
 
     /// Applies what happened since the last call to `controls` (held keys for `dt` seconds);
