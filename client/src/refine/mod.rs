@@ -72,6 +72,7 @@ use std::time::Duration;
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::{Cut, DiamondId, Domain, Half, IdMap, IdSet, Layout};
 use cbdam_codec::hierarchy::Decoder;
+use cbdam_codec::repository::index::IndexEntry;
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
 use web_time::Instant;
@@ -566,47 +567,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             ));
         }
         let domain = world.domain;
-
-        // Saturate boxes and errors bottom-up: ids sort coarse to fine, so go in reverse.
-        let mut stored: IdMap<(Info, usize)> = IdMap::default();
-        for (index, e) in source.head().entries().iter().enumerate().rev() {
-            let id = e.id.finer(shift);
-            let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
-            // On a planet the flat triangles' sag under the curved surface counts too.
-            let mut err_m = (f64::from(e.object_error) * world.unit).max(world.chord_error(id));
-            for c in domain.children(id).into_iter().flatten() {
-                if let Some((ci, _)) = stored.get(&c) {
-                    lo = lo.min(ci.lo);
-                    hi = hi.max(ci.hi);
-                    err_m = err_m.max(ci.err_m);
-                }
-            }
-            stored.insert(id, (Info { err_m, lo, hi }, index));
-        }
-
+        let stored = saturated_boxes(source.head().entries(), &world, shift);
         let drape = source.drape().cloned().map(Arc::new);
-        let mut roots = IdMap::default();
-        for r in domain.roots() {
-            let src = r.coarser(shift);
-            let heights = decoder.grid_of(src, [None, None]);
-            let valid = decoder.validity_of(src, [None, None]);
-            let colour = drape
-                .as_ref()
-                .map(|d| root_colour(d, src).map(|g| packed(&g)))
-                .transpose()?;
-            roots.insert(
-                r,
-                Half::BOTH.map(|half| {
-                    Arc::new(HalfPatch {
-                        id: r,
-                        half,
-                        heights: heights.clone(),
-                        valid: valid.clone(),
-                        colour: colour.clone(),
-                    })
-                }),
-            );
-        }
+        let roots = root_patches(&decoder, drape.as_deref(), &domain, shift)?;
         let (done_tx, done_rx) = std::sync::mpsc::channel();
         let mut me = Self {
             source,
@@ -1170,4 +1133,57 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
         stats
     }
+}
+/// Per stored diamond (at the detail shift's level) its [`Info`] — the box and error saturated
+/// over its descendants, so a parent's bounds every child's — and its index in `entries`.
+fn saturated_boxes(entries: &[IndexEntry], world: &World, shift: u32) -> IdMap<(Info, usize)> {
+    let domain = world.domain;
+    // Saturate boxes and errors bottom-up: ids sort coarse to fine, so go in reverse.
+    let mut stored: IdMap<(Info, usize)> = IdMap::default();
+    for (index, e) in entries.iter().enumerate().rev() {
+        let id = e.id.finer(shift);
+        let (mut lo, mut hi) = world.diamond_box(id, e.min, e.max);
+        // On a planet the flat triangles' sag under the curved surface counts too.
+        let mut err_m = (f64::from(e.object_error) * world.unit).max(world.chord_error(id));
+        for c in domain.children(id).into_iter().flatten() {
+            if let Some((ci, _)) = stored.get(&c) {
+                lo = lo.min(ci.lo);
+                hi = hi.max(ci.hi);
+                err_m = err_m.max(ci.err_m);
+            }
+        }
+        stored.insert(id, (Info { err_m, lo, hi }, index));
+    }
+    stored
+}
+
+/// The roots' half-patches, decoded from the head (and coloured from `drape`).
+fn root_patches(
+    decoder: &Decoder,
+    drape: Option<&Drape>,
+    domain: &Domain,
+    shift: u32,
+) -> Result<IdMap<[Arc<HalfPatch>; 2]>, CodecError> {
+    let mut roots = IdMap::default();
+    for r in domain.roots() {
+        let src = r.coarser(shift);
+        let heights = decoder.grid_of(src, [None, None]);
+        let valid = decoder.validity_of(src, [None, None]);
+        let colour = drape
+            .map(|d| root_colour(d, src).map(|g| packed(&g)))
+            .transpose()?;
+        roots.insert(
+            r,
+            Half::BOTH.map(|half| {
+                Arc::new(HalfPatch {
+                    id: r,
+                    half,
+                    heights: heights.clone(),
+                    valid: valid.clone(),
+                    colour: colour.clone(),
+                })
+            }),
+        );
+    }
+    Ok(roots)
 }
