@@ -6,7 +6,7 @@ use std::path::Path;
 use crate::input::{Limits, read_rgb};
 use cbdam_codec::colour::{Alignment, RgbImage, encode_colour};
 use cbdam_codec::geometry::Layout;
-use cbdam_codec::hierarchy::RepoKind;
+use cbdam_codec::hierarchy::{EncodeOptions, RepoKind};
 use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::{Repository, write_repository};
@@ -99,6 +99,42 @@ fn scaled_georef(g: &GeoRef, shift: i32) -> GeoRef {
     }
 }
 
+/// The elevation repository at `path` a colour image is laid over (`--like`).
+fn open_like(path: &Path) -> Result<(&Path, Repository)> {
+    let r = Repository::open(path).with_context(|| format!("opening {}", path.display()))?;
+    if r.head().kind() != RepoKind::Elevation {
+        bail!("--like {} is not an elevation repository", path.display());
+    }
+    Ok((path, r))
+}
+
+/// Makes `img` encode on `like`'s lattice: its diamond size, and level pairs so that the image's
+/// pixels fall on `like`'s points (`like`'s georeferencing scaled, when the image has none).
+fn lay_over(
+    img: &mut RgbImage,
+    enc_opts: &mut EncodeOptions,
+    like: &Repository,
+    path: &Path,
+) -> Result<()> {
+    let shift = shift_for(img, like, path)?;
+    let lp = like.head().params().layout();
+    let k = lp.k() as i32 + shift;
+    let base = Layout::covering(lp.n(), img.width, img.height, 0)?;
+    if k < base.k() as i32 {
+        bail!(
+            "the colour image is too coarse for {}'s {} level pairs",
+            path.display(),
+            lp.k()
+        );
+    }
+    enc_opts.n = lp.n();
+    enc_opts.extra_level_pairs = (k - base.k() as i32) as u32;
+    if img.georef.is_none() {
+        img.georef = like.head().georef().map(|g| scaled_georef(g, shift));
+    }
+    Ok(())
+}
+
 /// Builds a colour repository from `opts.inputs` (one image), laid over `opts.like` when given
 /// (whose diamond size and level pairs then replace `opts`'s).
 pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<ColourSummary> {
@@ -108,17 +144,7 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
         bail!("--size, --nodata and --quantum do not apply to colour images");
     }
     crate::check_output(&opts.output)?;
-    let like = opts
-        .like
-        .as_deref()
-        .map(|p| {
-            let r = Repository::open(p).with_context(|| format!("opening {}", p.display()))?;
-            if r.head().kind() != RepoKind::Elevation {
-                bail!("--like {} is not an elevation repository", p.display());
-            }
-            Ok((p, r))
-        })
-        .transpose()?;
+    let like = opts.like.as_deref().map(open_like).transpose()?;
     let [input] = opts.inputs.as_slice() else {
         bail!(
             "a colour repository is built from one image, not {} files",
@@ -135,22 +161,7 @@ pub fn build_colour(opts: &BuildOptions, progress: &dyn Progress) -> Result<Colo
     let mut img = read_rgb(input, &Limits::default())
         .with_context(|| format!("reading {}", input.display()))?;
     if let Some((path, like)) = &like {
-        let shift = shift_for(&img, like, path)?;
-        let lp = like.head().params().layout();
-        let k = lp.k() as i32 + shift;
-        let base = Layout::covering(lp.n(), img.width, img.height, 0)?;
-        if k < base.k() as i32 {
-            bail!(
-                "the colour image is too coarse for {}'s {} level pairs",
-                path.display(),
-                lp.k()
-            );
-        }
-        enc_opts.n = lp.n();
-        enc_opts.extra_level_pairs = (k - base.k() as i32) as u32;
-        if img.georef.is_none() {
-            img.georef = like.head().georef().map(|g| scaled_georef(g, shift));
-        }
+        lay_over(&mut img, &mut enc_opts, like, path)?;
     }
     progress.event(ProgressEvent {
         stage: Stage::Prepare,
