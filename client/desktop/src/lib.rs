@@ -197,34 +197,12 @@ impl<S: DataSource> App<'_, S> {
             )
         })?;
         let gpu = Gpu::from_adapter(&adapter)?;
-        let caps = surface.get_capabilities(&adapter);
-        let format = *caps
-            .formats
-            .first()
-            .ok_or_else(|| anyhow!("the window's surface offers no texture format"))?;
-        let present_mode = if self.args.no_vsync {
-            [wgpu::PresentMode::Immediate, wgpu::PresentMode::Mailbox]
-                .into_iter()
-                .find(|m| caps.present_modes.contains(m))
-                .unwrap_or_else(|| {
-                    eprintln!("cbdam: warning: this surface cannot present without vsync");
-                    wgpu::PresentMode::Fifo
-                })
-        } else {
-            wgpu::PresentMode::Fifo
-        };
-        let size = window.inner_size();
-        let config = wgpu::SurfaceConfiguration {
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-            format,
-            width: size.width.max(1),
-            height: size.height.max(1),
-            present_mode,
-            desired_maximum_frame_latency: 2,
-            alpha_mode: caps.alpha_modes.first().copied().unwrap_or_default(),
-            view_formats: vec![],
-            color_space: wgpu::SurfaceColorSpace::Auto,
-        };
+        let config = surface_config(
+            &surface.get_capabilities(&adapter),
+            window.inner_size(),
+            self.args.no_vsync,
+        )?;
+        let (format, present_mode) = (config.format, config.present_mode);
         surface.configure(&gpu.device, &config);
         let adapter_name = gpu.describe();
         let hud = Hud::new(&gpu.device, &gpu.queue);
@@ -285,14 +263,7 @@ impl<S: DataSource> App<'_, S> {
         }
         let (mut encoder, draw) = ws.renderer.encode(&cam, &self.patches, &self.options)?;
         self.last_draw = draw;
-        if self.frames > 0 {
-            self.frame_times.push_back(dt);
-            self.all_frame_times.push(dt);
-            self.triangles.push(draw.triangles);
-            if self.frame_times.len() > FPS_WINDOW {
-                self.frame_times.pop_front();
-            }
-        }
+        self.count_frame(dt, draw.triangles);
         let lines = if self.toggles.hud {
             hud_text::lines(&hud_figures(self, size))
         } else {
@@ -311,31 +282,7 @@ impl<S: DataSource> App<'_, S> {
         let quads = hud::layout(&lines, size, hud::scale_for(size));
         ws.hud
             .draw(&gpu.device, &gpu.queue, &mut encoder, &view, size, &quads);
-        let surface_texture = match ws.surface.get_current_texture() {
-            wgpu::CurrentSurfaceTexture::Success(t)
-            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => Some(t),
-            wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => None,
-            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
-                ws.surface.configure(&gpu.device, &ws.config);
-                None
-            }
-            other => bail!("the window's surface failed: {other:?}"),
-        };
-        // The frame's commands are submitted even when there is nothing to present on: they
-        // hold the height uploads the patch cache now counts as resident.
-        if let Some(t) = &surface_texture {
-            // A resize between encoding and acquiring: skip presenting this frame.
-            if (t.texture.width(), t.texture.height()) == size {
-                let target = t.texture.create_view(&Default::default());
-                ws.presenter
-                    .draw(&gpu.device, &mut encoder, &color, &target);
-            }
-        }
-        gpu.queue.submit([encoder.finish()]);
-        if let Some(t) = surface_texture {
-            ws.window.pre_present_notify();
-            gpu.queue.present(t);
-        }
+        present(ws, encoder, &color, size)?;
         self.frames += 1;
         let done = self.args.max_frames.is_some_and(|n| self.frames >= n);
         if std::mem::take(&mut self.screenshot_now) {
@@ -347,6 +294,18 @@ impl<S: DataSource> App<'_, S> {
             event_loop.exit();
         }
         Ok(())
+    }
+
+    /// Counts a frame `dt` seconds after the last one, of `triangles` (HUD and summary).
+    fn count_frame(&mut self, dt: f64, triangles: u64) {
+        if self.frames > 0 {
+            self.frame_times.push_back(dt);
+            self.all_frame_times.push(dt);
+            self.triangles.push(triangles);
+            if self.frame_times.len() > FPS_WINDOW {
+                self.frame_times.pop_front();
+            }
+        }
     }
 
     /// Saves `--screenshot` (when asked) from the last frame drawn.
@@ -492,6 +451,77 @@ impl<S: DataSource> ApplicationHandler for App<'_, S> {
             self.error = Some(e);
         }
     }
+}
+
+/// Submits `encoder` and presents `color` (the frame and its HUD) on the window's surface.
+fn present(
+    ws: &mut WindowState,
+    mut encoder: wgpu::CommandEncoder,
+    color: &wgpu::Texture,
+    size: (u32, u32),
+) -> Result<()> {
+    let gpu = ws.renderer.gpu();
+    let surface_texture = match ws.surface.get_current_texture() {
+        wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => {
+            Some(t)
+        }
+        wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => None,
+        wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
+            ws.surface.configure(&gpu.device, &ws.config);
+            None
+        }
+        other => bail!("the window's surface failed: {other:?}"),
+    };
+    // The frame's commands are submitted even when there is nothing to present on: they
+    // hold the height uploads the patch cache now counts as resident.
+    if let Some(t) = &surface_texture {
+        // A resize between encoding and acquiring: skip presenting this frame.
+        if (t.texture.width(), t.texture.height()) == size {
+            let target = t.texture.create_view(&Default::default());
+            ws.presenter.draw(&gpu.device, &mut encoder, color, &target);
+        }
+    }
+    gpu.queue.submit([encoder.finish()]);
+    if let Some(t) = surface_texture {
+        ws.window.pre_present_notify();
+        gpu.queue.present(t);
+    }
+    Ok(())
+}
+
+/// The window surface's configuration: its first format, vsync unless `no_vsync` (and the
+/// surface can present without it).
+fn surface_config(
+    caps: &wgpu::SurfaceCapabilities,
+    size: PhysicalSize<u32>,
+    no_vsync: bool,
+) -> Result<wgpu::SurfaceConfiguration> {
+    let format = *caps
+        .formats
+        .first()
+        .ok_or_else(|| anyhow!("the window's surface offers no texture format"))?;
+    let present_mode = if no_vsync {
+        [wgpu::PresentMode::Immediate, wgpu::PresentMode::Mailbox]
+            .into_iter()
+            .find(|m| caps.present_modes.contains(m))
+            .unwrap_or_else(|| {
+                eprintln!("cbdam: warning: this surface cannot present without vsync");
+                wgpu::PresentMode::Fifo
+            })
+    } else {
+        wgpu::PresentMode::Fifo
+    };
+    Ok(wgpu::SurfaceConfiguration {
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+        format,
+        width: size.width.max(1),
+        height: size.height.max(1),
+        present_mode,
+        desired_maximum_frame_latency: 2,
+        alpha_mode: caps.alpha_modes.first().copied().unwrap_or_default(),
+        view_formats: vec![],
+        color_space: wgpu::SurfaceColorSpace::Auto,
+    })
 }
 
 /// The HUD's figures of this frame.

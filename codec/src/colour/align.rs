@@ -86,36 +86,11 @@ impl Alignment {
             }
         }
         if let (Some(ge), Some(gc)) = (elevation_geo, colour_geo) {
-            if let (Some(a), Some(b)) = (ge.epsg, gc.epsg)
-                && a != b
-            {
-                return mismatch(format!("EPSG:{b} (colour) vs EPSG:{a} (elevation)"));
-            }
-            let tol = 0.5
-                * ge.pixel_x
-                    .abs()
-                    .max(gc.pixel_x.abs())
-                    .max(ge.pixel_y.abs())
-                    .max(gc.pixel_y.abs());
-            let last = |p: &CodecParams| {
-                let d = p.domain.data();
-                (f64::from(d.width) - 1.0, f64::from(d.height) - 1.0)
-            };
-            let corners = [
-                (sample_centre(ge, 0.0, 0.0), sample_centre(gc, 0.0, 0.0)),
-                (
-                    sample_centre(ge, last(elevation).0, last(elevation).1),
-                    sample_centre(gc, last(colour).0, last(colour).1),
-                ),
-            ];
-            for (a, b) in corners {
-                if (a.0 - b.0).abs() > tol || (a.1 - b.1).abs() > tol {
-                    return mismatch(format!(
-                        "georeferenced corner sample at ({}, {}) (colour) vs ({}, {}) (elevation)",
-                        b.0, b.1, a.0, a.1
-                    ));
-                }
-            }
+            check_georefs(elevation, ge, colour, gc).map_err(|what| {
+                CodecError::invalid(format!(
+                    "the colour repository does not cover the elevation's domain: {what}"
+                ))
+            })?;
         }
         Ok(Self {
             shift: c.k() as i32 - e.k() as i32,
@@ -144,4 +119,45 @@ impl Alignment {
             y: scale(id.y)?,
         })
     }
+}
+/// Whether two georeferenced repositories cover the same ground: the same EPSG code where both
+/// have one, and the first and last sample centres within half the coarser sample spacing; the
+/// mismatch found otherwise.
+fn check_georefs(
+    elevation: &CodecParams,
+    ge: &GeoRef,
+    colour: &CodecParams,
+    gc: &GeoRef,
+) -> Result<(), String> {
+    if let (Some(a), Some(b)) = (ge.epsg, gc.epsg)
+        && a != b
+    {
+        return Err(format!("EPSG:{b} (colour) vs EPSG:{a} (elevation)"));
+    }
+    let tol = 0.5
+        * ge.pixel_x
+            .abs()
+            .max(gc.pixel_x.abs())
+            .max(ge.pixel_y.abs())
+            .max(gc.pixel_y.abs());
+    let last = |p: &CodecParams| {
+        let d = p.domain.data();
+        (f64::from(d.width) - 1.0, f64::from(d.height) - 1.0)
+    };
+    let corners = [
+        (sample_centre(ge, 0.0, 0.0), sample_centre(gc, 0.0, 0.0)),
+        (
+            sample_centre(ge, last(elevation).0, last(elevation).1),
+            sample_centre(gc, last(colour).0, last(colour).1),
+        ),
+    ];
+    for (a, b) in corners {
+        if (a.0 - b.0).abs() > tol || (a.1 - b.1).abs() > tol {
+            return Err(format!(
+                "georeferenced corner sample at ({}, {}) (colour) vs ({}, {}) (elevation)",
+                b.0, b.1, a.0, a.1
+            ));
+        }
+    }
+    Ok(())
 }
