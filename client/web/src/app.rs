@@ -249,7 +249,48 @@ impl App {
                 self.intervals_ms.pop_front();
             }
         }
-        let (moved, actions) = self.input.apply(&mut self.controls, size.1, dt_ms / 1e3);
+        let camera = self.move_camera(size, dt_ms / 1e3, now);
+        self.last_camera = Some(camera);
+        self.refine(&camera);
+        if self.playback.is_some() {
+            self.flown(&camera, dt_ms, now);
+        }
+        let stats = self.last_stats;
+        let (encoder, draw) = self
+            .renderer
+            .encode(&camera, &self.patches, &self.options)
+            .map_err(|e| e.to_string())?;
+        self.present(encoder, size)?;
+        self.frames += 1;
+        self.report(&stats, &camera, draw.triangles);
+        let errors = std::mem::take(&mut *GPU_ERRORS.lock().map_err(|e| e.to_string())?);
+        if let Some(first) = errors.first() {
+            return Err(format!("GPU error: {first}"));
+        }
+        Ok(())
+    }
+
+    /// Carries out a key's action; whether it changes the cut to converge to.
+    fn act(&mut self, action: Action) -> bool {
+        let features = self.renderer.gpu().device.features();
+        let wireframe = features.contains(wgpu::Features::POLYGON_MODE_LINE);
+        let effect = self
+            .toggles
+            .act(action, &mut self.controls, &mut self.refiner, wireframe);
+        self.options.wireframe = self.toggles.wireframe;
+        self.options.level_colours = self.toggles.levels;
+        if effect == Effect::NoWireframe {
+            self.status
+                .set("notice", "this browser's adapter cannot draw a wireframe");
+        }
+        effect == Effect::CutChanged
+    }
+
+    /// Moves the camera by the input since the last frame (`dt` seconds, the clock at `now`
+    /// ms) or the flight being played; whether the cut to converge to changed is remembered
+    /// for the status, and a camera the user moved goes to the page's address.
+    fn move_camera(&mut self, size: (u32, u32), dt: f64, now: f64) -> Camera {
+        let (moved, actions) = self.input.apply(&mut self.controls, size.1, dt);
         let mut changed = moved;
         if let Some(requested) = flight::requested() {
             self.playback = Some(requested);
@@ -282,16 +323,16 @@ impl App {
         if moved {
             camera_to_hash(&camera);
         }
-        self.last_camera = Some(camera);
-        self.refine(&camera);
-        if self.playback.is_some() {
-            self.flown(&camera, dt_ms, now);
-        }
-        let stats = self.last_stats;
-        let (mut encoder, draw) = self
-            .renderer
-            .encode(&camera, &self.patches, &self.options)
-            .map_err(|e| e.to_string())?;
+        camera
+    }
+
+    /// Draws the frame's colour target onto the canvas and submits `encoder`.
+    fn present(
+        &mut self,
+        mut encoder: wgpu::CommandEncoder,
+        size: (u32, u32),
+    ) -> Result<(), String> {
+        let device = self.renderer.gpu().device.clone();
         let color = self
             .renderer
             .color_texture()
@@ -318,29 +359,7 @@ impl App {
         if let Some(t) = surface_texture {
             queue.present(t);
         }
-        self.frames += 1;
-        self.report(&stats, &camera, draw.triangles);
-        let errors = std::mem::take(&mut *GPU_ERRORS.lock().map_err(|e| e.to_string())?);
-        if let Some(first) = errors.first() {
-            return Err(format!("GPU error: {first}"));
-        }
         Ok(())
-    }
-
-    /// Carries out a key's action; whether it changes the cut to converge to.
-    fn act(&mut self, action: Action) -> bool {
-        let features = self.renderer.gpu().device.features();
-        let wireframe = features.contains(wgpu::Features::POLYGON_MODE_LINE);
-        let effect = self
-            .toggles
-            .act(action, &mut self.controls, &mut self.refiner, wireframe);
-        self.options.wireframe = self.toggles.wireframe;
-        self.options.level_colours = self.toggles.levels;
-        if effect == Effect::NoWireframe {
-            self.status
-                .set("notice", "this browser's adapter cannot draw a wireframe");
-        }
-        effect == Effect::CutChanged
     }
 
     /// One step of the refinement loop for `camera` (unless frozen): the cut and its patches.
@@ -418,6 +437,13 @@ impl App {
         s.set("frozen", self.toggles.frozen);
         s.set("levels", self.options.level_colours);
         s.set("wireframe", self.options.wireframe);
+        self.report_resources(stats);
+        self.report_cut(stats, camera, triangles, now);
+    }
+
+    /// The status's caches, fetches and workers.
+    fn report_resources(&self, stats: &FrameStats) {
+        let s = &self.status;
         let c = self.refiner.cache_use();
         s.set_numbers(
             "cpuCache",
@@ -449,15 +475,20 @@ impl App {
                 ("problem", w.problem.unwrap_or_default().into()),
             ],
         );
+        s.set("recordsRequested", stats.access.requests_issued as f64);
+        s.set("bytes", stats.access.bytes_fetched as f64);
+        s.set("fetchErrors", stats.access.errors as f64);
+    }
+
+    /// The status's cut and camera; the cut once it converged.
+    fn report_cut(&mut self, stats: &FrameStats, camera: &Camera, triangles: u64, now: f64) {
+        let s = &self.status;
         s.set("frames", self.frames as f64);
         s.set("refined", stats.refined as f64);
         s.set("drawnHalves", stats.drawn_halves as f64);
         s.set("triangles", triangles as f64);
         s.set("maxErrorPx", stats.max_screen_error_px);
         s.set("converged", stats.converged);
-        s.set("recordsRequested", stats.access.requests_issued as f64);
-        s.set("bytes", stats.access.bytes_fetched as f64);
-        s.set("fetchErrors", stats.access.errors as f64);
         s.set_numbers(
             "camera",
             &[
