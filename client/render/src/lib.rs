@@ -68,6 +68,7 @@ use glam::DVec3;
 pub use cache::{CacheStats, Residency, SlotCache};
 pub use gpu::Gpu;
 pub use instances::PatchInstance;
+use instances::Prepared;
 pub use mesh::{MeshKind, SharedMesh};
 use pipelines::{TerrainPipelines, bind_group, buffer_init, instance_buffer, terrain_layout};
 use pool::HeightPool;
@@ -488,38 +489,7 @@ impl Renderer {
         let mut stats = prepared.stats;
         let device = &self.gpu.device;
         let mut encoder = device.create_command_encoder(&Default::default());
-        let slot_bytes = self.slot_bytes();
-        match &self.pool {
-            HeightPool::Buffer(heights) if !prepared.staging.is_empty() => {
-                let staging = buffer_init(
-                    device,
-                    "height uploads",
-                    bytemuck::cast_slice(&prepared.staging),
-                    wgpu::BufferUsages::COPY_SRC,
-                );
-                for (k, &slot) in prepared.upload_slots.iter().enumerate() {
-                    encoder.copy_buffer_to_buffer(
-                        &staging,
-                        k as u64 * slot_bytes,
-                        heights,
-                        u64::from(slot) * slot_bytes,
-                        slot_bytes,
-                    );
-                }
-            }
-            HeightPool::Buffer(_) => {}
-            HeightPool::Texture(_) => {
-                // Through the queue: done before this encoder's commands run once submitted.
-                let words = slot_bytes as usize / 4;
-                for (k, &slot) in prepared.upload_slots.iter().enumerate() {
-                    self.pool.write_texture(
-                        &self.gpu.queue,
-                        u64::from(slot) * words as u64,
-                        &prepared.staging[k * words..(k + 1) * words],
-                    );
-                }
-            }
-        }
+        self.upload(&mut encoder, &prepared);
         let target = self.target.as_ref().expect("target made above");
         let color_view = target.color.create_view(&Default::default());
         let depth_view = target.depth.create_view(&Default::default());
@@ -623,6 +593,44 @@ impl Renderer {
             }
         }
         calls
+    }
+
+    /// Copies the frame's staged slots into the height pool: by `encoder` from a staging
+    /// buffer, or through the queue into the pool texture.
+    fn upload(&self, encoder: &mut wgpu::CommandEncoder, prepared: &Prepared) {
+        let device = &self.gpu.device;
+        let slot_bytes = self.slot_bytes();
+        match &self.pool {
+            HeightPool::Buffer(heights) if !prepared.staging.is_empty() => {
+                let staging = buffer_init(
+                    device,
+                    "height uploads",
+                    bytemuck::cast_slice(&prepared.staging),
+                    wgpu::BufferUsages::COPY_SRC,
+                );
+                for (k, &slot) in prepared.upload_slots.iter().enumerate() {
+                    encoder.copy_buffer_to_buffer(
+                        &staging,
+                        k as u64 * slot_bytes,
+                        heights,
+                        u64::from(slot) * slot_bytes,
+                        slot_bytes,
+                    );
+                }
+            }
+            HeightPool::Buffer(_) => {}
+            HeightPool::Texture(_) => {
+                // Through the queue: done before this encoder's commands run once submitted.
+                let words = slot_bytes as usize / 4;
+                for (k, &slot) in prepared.upload_slots.iter().enumerate() {
+                    self.pool.write_texture(
+                        &self.gpu.queue,
+                        u64::from(slot) * words as u64,
+                        &prepared.staging[k * words..(k + 1) * words],
+                    );
+                }
+            }
+        }
     }
 
     fn ensure_target(&mut self, size: (u32, u32)) {
