@@ -96,14 +96,21 @@ pub fn lines(f: &Figures<'_>) -> Vec<String> {
         "target {} px  max {:.2} px{state}",
         f.pixel_error, r.max_screen_error_px
     ));
+    lines.extend(cache_lines(f));
+    lines.push(access_line(f));
+    lines
+}
+
+/// The CPU and GPU caches' lines.
+fn cache_lines(f: &Figures<'_>) -> Vec<String> {
     let c = &f.cpu;
-    lines.push(format!(
+    let mut lines = vec![format!(
         "CPU records {}/{} decoded {}/{} MiB",
         mib(c.record_bytes),
         mib(c.record_budget),
         mib(c.decoded_bytes),
         mib(c.decoded_budget)
-    ));
+    )];
     if let Some(g) = &f.gpu {
         lines.push(format!(
             "GPU slots {}/{}  hits {}",
@@ -117,8 +124,13 @@ pub fn lines(f: &Figures<'_>) -> Vec<String> {
             count(g.stats.evictions)
         ));
     }
-    let a: &AccessStats = &r.access;
-    lines.push(if f.remote {
+    lines
+}
+
+/// The line of what was read: from the network or the file.
+fn access_line(f: &Figures<'_>) -> String {
+    let a: &AccessStats = &f.refine.access;
+    if f.remote {
         format!(
             "net {} in flight {} req {}B {} err",
             a.in_flight,
@@ -132,8 +144,7 @@ pub fn lines(f: &Figures<'_>) -> Vec<String> {
             count(a.records_taken),
             count(a.bytes_fetched)
         )
-    });
-    lines
+    }
 }
 
 /// A count in at most 5 characters below 10¹²: `999`, `12.3k`, `123k`, `4.5M`, `123M`, `12.3G`.
