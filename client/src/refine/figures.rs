@@ -1,6 +1,117 @@
-//! A frame's figures: its largest screen error and whether the cut has converged.
+//! A frame's figures: what it did and how long each step took ([`FrameStats`]), the caches' use,
+//! its largest screen error and whether the cut has converged.
 
 use super::*;
+
+/// What one frame did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameStats {
+    /// Frame number, from 1.
+    pub frame: u64,
+    /// Wall time of the frame on the calling thread, ms: pump, heaps, dispatching, waiting for
+    /// decodes while budget remains, coarsening.
+    pub refine_ms: f64,
+    /// Worker time spent decoding the refinements that came back this frame, ms.
+    pub decode_ms: f64,
+    /// Of `decode_ms`, the workers' CPU time where the platform measures it (Unix; 0
+    /// elsewhere): without the time they waited for a core.
+    pub decode_cpu_ms: f64,
+    /// Diamonds decoded that came back this frame (refinements served from the cache do not
+    /// count).
+    pub decoded: usize,
+    /// Largest screen-space error, pixels, of a drawn diamond in the frustum that could still
+    /// be refined (stored, or synthetic with detail synthesis on; neither it nor a parent it
+    /// needs given up on); 0 if none. Without detail synthesis, the finest level's own error
+    /// (the data's resolution) does not count: nothing can reduce it.
+    pub max_screen_error_px: f64,
+    /// `max_screen_error_px` is within the target.
+    pub met_target: bool,
+    /// Met the target and nothing is left to coarsen: the cut is the one this view converges to.
+    pub converged: bool,
+    /// Refined diamonds in the cut.
+    pub refined: usize,
+    /// Half-patches drawn.
+    pub drawn_halves: usize,
+    /// Triangles drawn.
+    pub triangles: u64,
+    /// Refinements this frame.
+    pub refinements: usize,
+    /// Of `decoded`, the diamonds decoded ahead of the cut (speculatively, between frames).
+    pub decoded_ahead: usize,
+    /// Of `refinements`, those that took a diamond decoded ahead (one decoded ahead of a view
+    /// that then moved away from it counts as a plain refinement from the decoded cache).
+    pub refined_ahead: usize,
+    /// Coarsenings this frame.
+    pub coarsenings: usize,
+    /// The budget ran out with work left.
+    pub budget_exhausted: bool,
+    /// A refinement waited because the cut was at `cut_bytes` and nothing coarser could give
+    /// way.
+    pub memory_limited: bool,
+    /// Bytes of the cut's decoded diamonds after the frame.
+    pub cut_bytes: usize,
+    /// Records the view's cut lacks, wanted this frame (queued or in flight).
+    pub cut_wants: usize,
+    /// Records wanted this frame only as prefetches (see [`RefineConfig::prefetch`]).
+    pub prefetch_wants: usize,
+    /// The data source's counters after the frame.
+    pub access: AccessStats,
+    /// Records rejected so far (failed fetches and failed decodes).
+    pub failures: u64,
+    /// Where `refine_ms` went, step by step.
+    pub steps: FrameSteps,
+}
+
+/// Where a frame's wall time went, ms: the steps of [`Refiner::frame`] in order; they add up to
+/// [`FrameStats::refine_ms`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameSteps {
+    /// Before the refinement loop: the source's arrivals, a moving view's collection, the
+    /// refinement heap.
+    pub before_ms: f64,
+    /// The refinement loop: dispatching, waiting for and applying decodes.
+    pub loop_ms: f64,
+    /// A collection after the loop (a still view's, or one going on in time the loop left).
+    pub collect_ms: f64,
+    /// Choosing the records to request for what the budget did not reach.
+    pub want_ms: f64,
+    /// The frame's largest error, prefetching, posting the requests.
+    pub after_ms: f64,
+    /// Planning the decoding ahead of the cut, last (cut at the end of the budget), and
+    /// remembering the overrun.
+    pub ahead_ms: f64,
+}
+
+impl FrameSteps {
+    /// The steps' times from the instants that end them: the frame's start, then the end of
+    /// each step in the order of the fields.
+    pub(super) fn between(t: [Instant; 7]) -> Self {
+        let ms = |i: usize| (t[i + 1] - t[i]).as_secs_f64() * 1e3;
+        FrameSteps {
+            before_ms: ms(0),
+            loop_ms: ms(1),
+            collect_ms: ms(2),
+            want_ms: ms(3),
+            after_ms: ms(4),
+            ahead_ms: ms(5),
+        }
+    }
+}
+
+/// Bytes held by the refiner's CPU caches ([`Refiner::cache_use`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CacheUse {
+    /// Compressed records kept in RAM.
+    pub record_bytes: usize,
+    /// [`RefineConfig::record_cache_bytes`].
+    pub record_budget: usize,
+    /// Decoded diamonds kept after coarsening.
+    pub decoded_bytes: usize,
+    /// [`RefineConfig::decoded_cache_bytes`].
+    pub decoded_budget: usize,
+    /// Decoded diamonds evicted so far.
+    pub decoded_evictions: u64,
+}
 
 impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Frame step: the frame's figures of the cut it leaves.
