@@ -97,6 +97,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         header_read_timeout: Duration::from_secs_f64(args.header_timeout),
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),
         max_connections: args.max_connections,
+        ..Config::default()
     };
     init_logging();
     let state = AppState::open(&specs, config)?;

@@ -9,3 +9,4 @@ mod util;
 mod hostile;
 mod http;
 mod priorities;
+mod tiles;
