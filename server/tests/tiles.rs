@@ -4,25 +4,25 @@
 //! server states.
 
 use cbdam_codec::geodesy::{LatLon, Utm};
-use cbdam_codec::hierarchy::{EncodeOptions, Encoder, PlanetGrid, encode_planet};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{GeoRef, Repository, serialize};
 use cbdam_server::{AppState, Config};
 use serde_json::Value;
 
-use crate::util::{Running, client, error_body, json, start};
+use crate::util::{Running, client, json, start};
 
 /// A DEM, its georeferencing and the repository built from it.
-struct Dem {
+pub(crate) struct Dem {
     w: usize,
     h: usize,
     metres: Vec<f64>,
-    georef: GeoRef,
+    pub(crate) georef: GeoRef,
 }
 
-const NODATA: f64 = -9999.0;
+pub(crate) const NODATA: f64 = -9999.0;
 /// The repositories' ε, metres.
-const EPSILON: f64 = 0.25;
+pub(crate) const EPSILON: f64 = 0.25;
 
 impl Dem {
     /// Rough terrain with a nodata hole, `w × h` samples.
@@ -45,7 +45,7 @@ impl Dem {
         }
     }
 
-    fn repository(&self) -> Repository {
+    pub(crate) fn repository(&self) -> Repository {
         let plan = QuantPlan::new(EPSILON, None, 200.0, 400.0).unwrap();
         let grid =
             HeightGrid::from_metres(self.w, self.h, &self.metres, Some(NODATA), &plan).unwrap();
@@ -76,7 +76,7 @@ impl Dem {
     /// The input's bilinear interpolation at a geodetic point, when all four samples around it
     /// hold data and it lies inside the data; `Err(true)` when it lies clearly outside the
     /// data (more than a sample beyond it).
-    fn bilinear(&self, lat: f64, lon: f64) -> Result<f64, bool> {
+    pub(crate) fn bilinear(&self, lat: f64, lon: f64) -> Result<f64, bool> {
         let (x, y) = self.lattice(lat, lon);
         let (wm, hm) = ((self.w - 1) as f64, (self.h - 1) as f64);
         if x < -1.0 || y < -1.0 || x > wm + 1.0 || y > hm + 1.0 {
@@ -96,7 +96,7 @@ impl Dem {
     }
 }
 
-fn utm_dem() -> Dem {
+pub(crate) fn utm_dem() -> Dem {
     Dem::rough(
         70,
         50,
@@ -112,7 +112,7 @@ fn utm_dem() -> Dem {
     )
 }
 
-fn geographic_dem() -> Dem {
+pub(crate) fn geographic_dem() -> Dem {
     Dem::rough(
         64,
         48,
@@ -128,12 +128,12 @@ fn geographic_dem() -> Dem {
     )
 }
 
-async fn serve(repos: Vec<(&str, Repository)>) -> Running {
+pub(crate) async fn serve(repos: Vec<(&str, Repository)>) -> Running {
     let repos = repos.into_iter().map(|(n, r)| (n.to_string(), r)).collect();
     start(AppState::new(repos, Config::default()).unwrap()).await
 }
 
-async fn get_json(s: &Running, path: &str) -> Value {
+pub(crate) async fn get_json(s: &Running, path: &str) -> Value {
     let r = client().get(s.url(path)).send().await.unwrap();
     assert_eq!(r.status(), 200, "{path}");
     json(r).await

@@ -224,7 +224,7 @@ fn lattice_to_model(g: &GeoRef, x: f64, y: f64) -> (f64, f64) {
 /// The desired level step for a ground spacing of `metres`: the coarsest level (index into
 /// [`crate::surface::Surface::levels`]) whose samples are at most `metres` apart.
 pub fn coarsen_for(spacing_m: f64, metres: f64) -> usize {
-    if !(metres > spacing_m) {
+    if metres.is_nan() || metres <= spacing_m {
         return 0;
     }
     (metres / spacing_m).log2().floor() as usize

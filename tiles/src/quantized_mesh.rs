@@ -320,7 +320,7 @@ fn write_indices(out: &mut Vec<u8>, triangles: &[u32], edges: &[Vec<u32>; 4], ve
         }
     };
     let align = if wide { 4 } else { 2 };
-    while out.len() % align != 0 {
+    while !out.len().is_multiple_of(align) {
         out.push(0);
     }
     out.extend_from_slice(&((triangles.len() / 3) as u32).to_le_bytes());
