@@ -151,7 +151,10 @@ fn put(domain: &Domain, raster: &mut LevelRaster, face: u8, p: (i64, i64), value
         let (c, r) = ((dx / raster.step) as usize, (dy / raster.step) as usize);
         if c < raster.width && r < raster.height {
             let i = (usize::from(face) * raster.height + r) * raster.width + c;
-            raster.units[i] = value;
+            // A value seen through one diamond is not taken back by another's mask.
+            if value != MASKED || raster.units[i] == NO_DATA {
+                raster.units[i] = value;
+            }
         }
     };
     match domain.cube() {
