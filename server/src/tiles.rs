@@ -179,6 +179,30 @@ fn json_response(r: &ServedRepo, req: &HeaderMap, v: &serde_json::Value) -> Resp
     tile_response(r, req, h, body)
 }
 
+/// `http://HOST` of the request (its `Host` header or HTTP/2 authority; `https` behind a proxy
+/// that says `X-Forwarded-Proto: https`), for absolute tile URLs: MapLibre resolves a TileJSON's
+/// tile URLs against the page, not the TileJSON. Empty (root-relative URLs) without a host.
+fn origin(req: &Request) -> String {
+    let host = req
+        .headers()
+        .get(header::HOST)
+        .and_then(|h| h.to_str().ok())
+        .map(str::to_string)
+        .or_else(|| req.uri().authority().map(|a| a.to_string()));
+    let valid = |h: &String| {
+        h.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b".-:[]_".contains(&b))
+    };
+    let proto = match req.headers().get("x-forwarded-proto").map(|v| v.as_bytes()) {
+        Some(b"https") => "https",
+        _ => "http",
+    };
+    match host.filter(valid) {
+        Some(h) => format!("{proto}://{h}"),
+        None => String::new(),
+    }
+}
+
 /// `GET /v1/repos/{name}/{terrarium|terrain-rgb}/tiles.json`.
 async fn tilejson(
     st: AppState,
@@ -191,7 +215,10 @@ async fn tilejson(
     let tile = Tiler::tile_size(tile_query(&req)?).map_err(api_error)?;
     let t = tiler(&st, r).await?;
     let query = if tile == 512 { "" } else { "?tile=256" };
-    let template = format!("/v1/repos/{name}/{segment}/{{z}}/{{x}}/{{y}}.png{query}");
+    let template = format!(
+        "{}/v1/repos/{name}/{segment}/{{z}}/{{x}}/{{y}}.png{query}",
+        origin(&req)
+    );
     Ok(json_response(
         r,
         req.headers(),

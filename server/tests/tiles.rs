@@ -200,6 +200,11 @@ async fn check_raster(s: &Running, dem: &Dem, format: &str, tile: u32) -> usize 
     let (lat, lon) = (0.5 * (b[1] + b[3]), 0.5 * (b[0] + b[2]));
     let (x, y) = mercator_tile(z, lat, lon);
     let template = tj["tiles"][0].as_str().unwrap();
+    assert!(
+        template.starts_with(&s.url("/v1/repos/d/")),
+        "absolute: {template}"
+    );
+    let template = template.strip_prefix(&s.base).unwrap();
     let url = template
         .replace("{z}", &z.to_string())
         .replace("{x}", &x.to_string())

@@ -168,3 +168,29 @@ fn write_png(rgba: &[u8], tile: u32, alpha: bool) -> Result<Vec<u8>, TilesError>
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every encodable height comes back within half a step; outside the range it is clamped
+    /// and said so.
+    #[test]
+    fn encodings_round_trip_within_half_a_step_and_clamp() {
+        for enc in [Encoding::Terrarium, Encoding::TerrainRgb] {
+            let (lo, hi) = enc.range();
+            for k in 0..10_000 {
+                let h = -12_000.0 + 0.731_3 * f64::from(k) * 3.7;
+                let (rgb, clamped) = enc.encode(h);
+                let back = enc.decode(rgb);
+                assert_eq!(clamped, !(lo..=hi).contains(&h), "{enc:?} {h}");
+                let expected = h.clamp(lo, hi);
+                assert!(
+                    (back - expected).abs() <= enc.step() / 2.0 + 1e-9,
+                    "{enc:?} {h}: {back}"
+                );
+            }
+        }
+        assert_eq!(Encoding::TerrainRgb.encode(-10_500.0), ([0, 0, 0], true));
+    }
+}

@@ -139,3 +139,33 @@ pub fn cesium_level_error(z: u8) -> f64 {
         cbdam_codec::geodesy::wgs84::A * 2.0 * std::f64::consts::PI * 0.25 / (65.0 * 2.0);
     level_zero / f64::from(1u32 << z)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Bounds lying on tile edges take no tile beyond them; a point's tile is its range.
+    #[test]
+    fn ranges_hold_exactly_the_tiles_meeting_the_bounds() {
+        let g = Scheme::Geographic;
+        // Level 1: 4 × 2 tiles of 90°. The eastern hemisphere's north half.
+        assert_eq!(g.range(1, [0.0, 0.0, 180.0, 90.0]), Some((2, 1, 3, 1)));
+        assert_eq!(g.range(0, [-180.0, -90.0, 180.0, 90.0]), Some((0, 0, 1, 0)));
+        let m = Scheme::WebMercator;
+        assert_eq!(m.range(1, [0.0, 0.0, 180.0, 85.0]), Some((1, 0, 1, 0)));
+        for z in 0..12 {
+            let (x0, y0, x1, y1) = m.range(z, [7.1, 46.2, 7.11, 46.21]).unwrap();
+            assert!(x1 - x0 <= 1 && y1 - y0 <= 1);
+            for (x, y) in [(x0, y0), (x1, y1)] {
+                assert!(m.meets(TileId { z, x, y }, [7.1, 46.2, 7.11, 46.21]));
+            }
+        }
+        assert!(Scheme::Geographic.tile(2, 8, 0).is_err());
+        assert!(Scheme::WebMercator.tile(25, 0, 0).is_err());
+    }
+
+    #[test]
+    fn cesium_level_zero_error_is_cesiums() {
+        assert!((cesium_level_error(0) - 77_067.34).abs() < 0.01);
+    }
+}
