@@ -125,10 +125,15 @@ pub fn run(args: &TilesArgs) -> Result<()> {
     Ok(())
 }
 
-/// Every tile of levels `0..=max_zoom` of `scheme` that meets `bounds`.
+/// Every tile of levels `0..=max_zoom` of `scheme` that meets `bounds`, and both
+/// quantized-mesh root tiles (CesiumJS asks for them whatever the data covers).
 fn tile_list(scheme: Scheme, bounds: [f64; 4], max_zoom: u8) -> Vec<(u32, u32, u32)> {
     let mut out = Vec::new();
-    for z in 0..=max_zoom {
+    if scheme == Scheme::Geographic {
+        out.extend([(0, 0, 0), (0, 1, 0)]);
+    }
+    let first = if scheme == Scheme::Geographic { 1 } else { 0 };
+    for z in first..=max_zoom {
         let Some((x0, y0, x1, y1)) = scheme.range(z, bounds) else {
             continue;
         };

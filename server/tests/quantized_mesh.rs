@@ -291,6 +291,13 @@ async fn quantized_mesh_tiles_decode_and_hold_the_input() {
     assert_eq!(layer["scheme"], "tms");
     assert_eq!(layer["projection"], "EPSG:4326");
     assert_eq!(layer["tiles"][0], "{z}/{x}/{y}.terrain?v={version}");
+    // CesiumJS reads the metadata extension's availability only with this set.
+    assert_eq!(layer["metadataAvailability"], 1);
+    assert_eq!(
+        layer["available"][0],
+        serde_json::json!([{"startX": 0, "startY": 0, "endX": 1, "endY": 0}]),
+        "both root tiles"
+    );
     let max = layer["maxzoom"].as_u64().unwrap() as u32;
     assert_eq!(layer["available"].as_array().unwrap().len() as u32, max + 1);
     let bound = layer["cbdam"]["vertex_bound_m"].as_f64().unwrap();
@@ -331,13 +338,32 @@ async fn quantized_mesh_tiles_decode_and_hold_the_input() {
     let meta = &tw.extensions[1].1;
     let len = u32::from_le_bytes(meta[..4].try_into().unwrap()) as usize;
     let meta: Value = serde_json::from_slice(&meta[4..4 + len]).unwrap();
-    assert!(meta["available"].is_array());
+    // At maxzoom there is no level below to list.
+    assert_eq!(meta["available"], serde_json::json!([]));
     assert_eq!(meta["cbdam"]["vertex_bound_m"].as_f64().unwrap(), bound);
     let plain = fetch(&s, "d", west, "application/octet-stream").await;
     assert!(plain.extensions.is_empty(), "no extension unless asked for");
     // A coarser level comes from a coarser repository level.
     let coarse = tile_at(max - 3, lat, lon);
-    check_tile(&fetch(&s, "d", coarse, ACCEPT_ALL).await, coarse);
+    let tc = fetch(&s, "d", coarse, ACCEPT_ALL).await;
+    check_tile(&tc, coarse);
+    // Its metadata lists the children that hold data: those `available` lists one level down.
+    let meta = &tc.extensions[1].1;
+    let len = u32::from_le_bytes(meta[..4].try_into().unwrap()) as usize;
+    let meta: Value = serde_json::from_slice(&meta[4..4 + len]).unwrap();
+    let children = meta["available"][0].as_array().unwrap();
+    assert!(!children.is_empty());
+    let below = &layer["available"][coarse.0 as usize + 1][0];
+    for c in children {
+        for (k, lo, hi) in [("startX", "startX", "endX"), ("startY", "startY", "endY")] {
+            let v = c[k].as_u64().unwrap();
+            assert!(v >= below[lo].as_u64().unwrap() && v <= below[hi].as_u64().unwrap());
+        }
+    }
+    // A root tile far from the data exists (CesiumJS asks for both) and lies at 0 m.
+    let far = fetch(&s, "d", (0, 0, 0), ACCEPT_ALL).await;
+    check_tile(&far, (0, 0, 0));
+    assert!((0..far.u.len()).all(|k| far.height(k).abs() <= 1.0));
     s.stop().await;
 }
 

@@ -190,17 +190,6 @@ impl Placement {
             Placement::Utm { georef, .. } => (georef.pixel_x * georef.pixel_y).abs().sqrt(),
         }
     }
-
-    /// Clamps a lattice position into the data (planes; a planet's faces are closed).
-    pub fn clamp(&self, x: f64, y: f64) -> (f64, f64) {
-        match self {
-            Placement::Planet { .. } => (x, y),
-            Placement::Geographic { size, .. } | Placement::Utm { size, .. } => (
-                x.clamp(0.0, size.0 as f64 - 1.0),
-                y.clamp(0.0, size.1 as f64 - 1.0),
-            ),
-        }
-    }
 }
 
 /// Lattice column and row (sample centres at integers, row 0 = north) of model point `(mx, my)`.

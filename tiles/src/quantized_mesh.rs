@@ -62,9 +62,11 @@ pub fn max_zoom(place: &Placement) -> u8 {
     (ratio.log2().ceil().max(0.0) as u8).min(crate::schemes::MAX_ZOOM)
 }
 
-/// The height range every tile's header states: the surface's, never empty.
+/// The height range every tile's header states: the surface's and 0 m, never empty.
 pub fn height_range(surface: &Surface) -> (f64, f64) {
+    // 0 m included: the height of vertices without data (a plane's surroundings).
     let (lo, hi) = surface.range().unwrap_or((0.0, 0.0));
+    let (lo, hi) = (lo.min(0.0), hi.max(0.0));
     // Rounded outwards to whole metres so that the header's f32 holds them exactly.
     let (lo, hi) = (lo.floor(), hi.ceil());
     if hi > lo { (lo, hi) } else { (lo, lo + 1.0) }
@@ -98,9 +100,8 @@ fn vertex_lat_lon(t: TileId, i: f64, j: f64) -> (f64, f64) {
     ((-90.0 + gy * cell_deg).min(90.0), -180.0 + gx * cell_deg)
 }
 
-/// The height at a point: the surface's, clamped into a plane's data rectangle (the edge
-/// samples extend outwards), 0 m where there is no data; and the level used (`u8::MAX` for
-/// none).
+/// The height at a point: the surface's, 0 m (the ellipsoid) where there is no data (outside
+/// a plane's data, beyond half a sample); and the level used (`u8::MAX` for none).
 fn height_at(
     surface: &Surface,
     place: &Placement,
@@ -110,39 +111,44 @@ fn height_at(
 ) -> (f64, u8) {
     place
         .locate(lat, lon)
-        .and_then(|(face, x, y)| {
-            let (x, y) = place.clamp(x, y);
-            surface.height(face, x, y, coarsen)
-        })
+        .and_then(|(face, x, y)| surface.height(face, x, y, coarsen))
         .unwrap_or((0.0, u8::MAX))
 }
 
 /// Largest |mesh − finest level| at the vertices and at the midpoints of every cell's edges
-/// and diagonal (where the triangles interpolate), metres.
+/// and diagonal (where the triangles interpolate), metres, over the points where the mesh's
+/// vertices and the finest level all hold data (a plane's edge, a wall down to 0 m, is not
+/// counted).
 fn measure_deviation(surface: &Surface, place: &Placement, t: TileId, heights: &[f64]) -> f64 {
     let n = (GRID + 1) as usize;
-    let h = |i: usize, j: usize| heights[j * n + i];
     let finest = |i: f64, j: f64| {
         let (lat, lon) = vertex_lat_lon(t, i, j);
-        height_at(surface, place, lat, lon, 0).0
+        let (h, level) = height_at(surface, place, lat, lon, 0);
+        (level != u8::MAX).then_some(h)
     };
+    let vertex: Vec<Option<f64>> = (0..n * n)
+        .map(|k| finest((k % n) as f64, (k / n) as f64).map(|_| heights[k]))
+        .collect();
     let mut worst = 0.0f64;
+    let mut compare = |a: usize, b: usize, i: f64, j: f64| {
+        if let (Some(ha), Some(hb), Some(f)) = (vertex[a], vertex[b], finest(i, j)) {
+            worst = worst.max((0.5 * (ha + hb) - f).abs());
+        }
+    };
     for j in 0..n {
         for i in 0..n {
+            let k = j * n + i;
             let (fi, fj) = (i as f64, j as f64);
-            worst = worst.max((h(i, j) - finest(fi, fj)).abs());
+            compare(k, k, fi, fj);
             if i + 1 < n {
-                let mesh = 0.5 * (h(i, j) + h(i + 1, j));
-                worst = worst.max((mesh - finest(fi + 0.5, fj)).abs());
+                compare(k, k + 1, fi + 0.5, fj);
             }
             if j + 1 < n {
-                let mesh = 0.5 * (h(i, j) + h(i, j + 1));
-                worst = worst.max((mesh - finest(fi, fj + 0.5)).abs());
+                compare(k, k + n, fi, fj + 0.5);
             }
             if i + 1 < n && j + 1 < n {
                 // The diagonal (i, j)–(i+1, j+1) that both triangles of the cell share.
-                let mesh = 0.5 * (h(i, j) + h(i + 1, j + 1));
-                worst = worst.max((mesh - finest(fi + 0.5, fj + 0.5)).abs());
+                compare(k, k + n + 1, fi + 0.5, fj + 0.5);
             }
         }
     }

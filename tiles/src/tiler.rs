@@ -109,7 +109,9 @@ impl Tiler {
         metadata: bool,
     ) -> Result<MeshTile, TilesError> {
         let t = Scheme::Geographic.tile(z, x, y)?;
-        if t.z > self.mesh_max_zoom || !Scheme::Geographic.meets(t, self.bounds) {
+        // Both root tiles exist whatever the data covers: CesiumJS requests them and upsamples
+        // the levels below from them where nothing finer is available.
+        if t.z > self.mesh_max_zoom || (t.z > 0 && !Scheme::Geographic.meets(t, self.bounds)) {
             return Err(TilesError::OutsideData(format!(
                 "tile {z}/{x}/{y} is not available (bounds {:?}, levels 0…{})",
                 self.bounds, self.mesh_max_zoom
@@ -146,6 +148,7 @@ impl Tiler {
     pub fn layer_json(&self, name: &str) -> Value {
         let available: Vec<Value> = (0..=self.mesh_max_zoom)
             .map(|z| match Scheme::Geographic.range(z, self.bounds) {
+                _ if z == 0 => json!([{"startX": 0, "startY": 0, "endX": 1, "endY": 0}]),
                 Some((x0, y0, x1, y1)) => {
                     json!([{"startX": x0, "startY": y0, "endX": x1, "endY": y1}])
                 }
@@ -167,6 +170,10 @@ impl Tiler {
             "minzoom": 0,
             "maxzoom": self.mesh_max_zoom,
             "available": available,
+            // CesiumJS reads a tile's metadata extension only with `metadataAvailability`
+            // (then it takes availability from the tiles, not from `available`): each tile's
+            // metadata lists its children, one level down.
+            "metadataAvailability": 1,
             "extensions": ["octvertexnormals", "metadata"],
             "attribution": "",
             "cbdam": {
