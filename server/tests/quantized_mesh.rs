@@ -255,6 +255,18 @@ fn edge(t: &Qm, side: usize) -> Vec<(u16, u16)> {
     e
 }
 
+/// The JSON of a tile's metadata extension (id 4: a u32 length, then the JSON).
+fn metadata(t: &Qm) -> Value {
+    let (_, bytes) = t
+        .extensions
+        .iter()
+        .find(|e| e.0 == 4)
+        .expect("a metadata extension");
+    let len = u32::from_le_bytes(bytes[..4].try_into().unwrap()) as usize;
+    assert_eq!(bytes.len(), 4 + len);
+    serde_json::from_slice(&bytes[4..]).unwrap()
+}
+
 /// The tile of level `z` holding a geodetic point.
 fn tile_at(z: u32, lat: f64, lon: f64) -> (u32, u32, u32) {
     let size = 180.0 / f64::from(1u32 << z);
@@ -335,9 +347,7 @@ async fn quantized_mesh_tiles_decode_and_hold_the_input() {
     let ids: Vec<u8> = tw.extensions.iter().map(|e| e.0).collect();
     assert_eq!(ids, [1, 4]);
     assert_eq!(tw.extensions[0].1.len(), 2 * tw.u.len());
-    let meta = &tw.extensions[1].1;
-    let len = u32::from_le_bytes(meta[..4].try_into().unwrap()) as usize;
-    let meta: Value = serde_json::from_slice(&meta[4..4 + len]).unwrap();
+    let meta = metadata(&tw);
     // At maxzoom there is no level below to list.
     assert_eq!(meta["available"], serde_json::json!([]));
     assert_eq!(meta["cbdam"]["vertex_bound_m"].as_f64().unwrap(), bound);
@@ -348,9 +358,7 @@ async fn quantized_mesh_tiles_decode_and_hold_the_input() {
     let tc = fetch(&s, "d", coarse, ACCEPT_ALL).await;
     check_tile(&tc, coarse);
     // Its metadata lists the children that hold data: those `available` lists one level down.
-    let meta = &tc.extensions[1].1;
-    let len = u32::from_le_bytes(meta[..4].try_into().unwrap()) as usize;
-    let meta: Value = serde_json::from_slice(&meta[4..4 + len]).unwrap();
+    let meta = metadata(&tc);
     let children = meta["available"][0].as_array().unwrap();
     assert!(!children.is_empty());
     let below = &layer["available"][coarse.0 as usize + 1][0];
