@@ -429,7 +429,7 @@ impl AppState {
             .map(|n| serde_json::json!({ "name": n, "meta": format!("/v1/repos/{n}/meta") }))
             .collect();
         let listing = Bytes::from(serde_json::json!({ "repos": listing }).to_string());
-        let about: Vec<(String, String)> = names
+        let about: Vec<(String, String, bool)> = names
             .iter()
             .map(|n| {
                 let r = &map[n].repo;
@@ -443,6 +443,7 @@ impl AppState {
                         data.height,
                         size as f64 / 1e6
                     ),
+                    cbdam_tiles::Tiler::check(r.head()).is_ok(),
                 )
             })
             .collect();
