@@ -261,3 +261,29 @@ async fn raster_tiles_hold_the_input_within_the_stated_bound() {
         s.stop().await;
     }
 }
+
+/// A repository whose decoded levels would pass the server's limit is refused for tiles by
+/// name, and still served otherwise.
+#[tokio::test]
+async fn repositories_past_the_tile_memory_limit_are_refused() {
+    let config = Config {
+        max_tile_samples: 1000,
+        ..Config::default()
+    };
+    let repos = vec![("d".to_string(), utm_dem().repository())];
+    let s = start(AppState::new(repos, config).unwrap()).await;
+    let r = client()
+        .get(s.url("/v1/repos/d/terrarium/tiles.json"))
+        .send()
+        .await
+        .unwrap();
+    let msg = crate::util::error_body(r, 404).await;
+    assert!(msg.contains("too large") && msg.contains("1000"), "{msg}");
+    let r = client()
+        .get(s.url("/v1/repos/d/meta"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    s.stop().await;
+}
