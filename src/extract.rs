@@ -8,9 +8,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use cbdam_builder::write::{Raster, write_geotiff, write_raw};
 use cbdam_codec::atomic::write_atomically;
-use cbdam_codec::hierarchy::walk_all_with_validity;
 use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
+use cbdam_tiles::surface::{LevelWindow, MASKED, NO_DATA, decode_levels};
 use clap::{Args, ValueEnum};
 use serde_json::json;
 
@@ -205,33 +205,27 @@ impl Samples {
         let encoded = repo
             .to_encoded()
             .with_context(|| format!("reading {}", path.display()))?;
-        let (p, plan) = (repo.head().params(), repo.head().plan());
+        let plan = repo.head().plan();
         let fill = repo.head().nodata().unwrap_or(f64::NAN);
-        let mut values = vec![fill; self.width * self.height];
-        let n = p.layout().n();
-        walk_all_with_validity(&encoded, |id, grid, valid| {
-            if id.level != self.level {
-                return;
-            }
-            let g = p.layout().grid(id);
-            for j in 0..n {
-                for i in 0..n {
-                    let (x, y) = g.point(i as i64, j as i64);
-                    if x < self.x0 || y < self.y0 || x > self.x1 || y > self.y1 {
-                        continue;
-                    }
-                    // Even-level grids sit on multiples of their own spacing, which is `step`.
-                    debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
-                    let c = ((x - self.x0) / self.step) as usize;
-                    let r = ((y - self.y0) / self.step) as usize;
-                    if valid.is_none_or(|v| v[j * n + i]) {
-                        values[r * self.width + c] = plan.metres(grid[j * n + i]);
-                    }
-                }
-            }
-        })
-        .with_context(|| format!("decoding {}", path.display()))?;
-        Ok(values)
+        let window = LevelWindow {
+            level: self.level,
+            x0: self.x0,
+            y0: self.y0,
+            x1: self.x1,
+            y1: self.y1,
+        };
+        let rasters = decode_levels(&encoded, &[window])
+            .with_context(|| format!("decoding {}", path.display()))?;
+        let raster = &rasters[0];
+        debug_assert!(raster.width == self.width && raster.height == self.height);
+        Ok(raster
+            .units
+            .iter()
+            .map(|&u| match u {
+                NO_DATA | MASKED => fill,
+                u => plan.metres(u),
+            })
+            .collect())
     }
 
     /// The georeferencing of the output raster, from the repository's `g`.

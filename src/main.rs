@@ -20,6 +20,7 @@ mod synth;
 mod verify;
 mod view;
 mod web_export;
+mod web_tiles;
 
 use std::process::ExitCode;
 
@@ -46,6 +47,7 @@ enum Command {
     Extract(extract::ExtractArgs),
     Serve(serve::ServeArgs),
     WebExport(web_export::WebExportArgs),
+    Tiles(web_tiles::TilesArgs),
     Link(link::LinkArgs),
     Replay(replay::ReplayArgs),
     Render(render::RenderArgs),
@@ -70,6 +72,7 @@ fn default_sigpipe(command: &Command) {
             | Command::Upgrade(_)
             | Command::Verify(_)
             | Command::Extract(_)
+            | Command::Tiles(_)
             | Command::Build(_)
             | Command::Shard(_)
     ) {
@@ -95,6 +98,7 @@ fn main() -> ExitCode {
         Command::Extract(args) => extract::run(&args),
         Command::Serve(args) => serve::run(&args),
         Command::WebExport(args) => web_export::run(&args),
+        Command::Tiles(args) => web_tiles::run(&args),
         Command::Link(args) => link::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Render(args) => render::run(&args),

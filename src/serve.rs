@@ -51,6 +51,11 @@ pub struct ServeArgs {
     /// closes the least recently active connection of the client address holding the most.
     #[arg(long, default_value_t = 10_000)]
     max_connections: usize,
+    /// Most samples a repository's decoded levels may hold to be served as web-map tiles
+    /// (docs/WEB-MAPS.md): its surface is decoded whole on the first tile request, 4 bytes a
+    /// sample. Larger repositories answer 404 for tiles, naming the limit.
+    #[arg(long, default_value_t = 1 << 28)]
+    max_tile_samples: u64,
     /// The browser viewer's files (the bundle `scripts/web-build.sh` writes, e.g.
     /// target/web-bundle): `/` then links every repository to the viewer, served under
     /// `/viewer/HASH/`. Without it `/` only lists the repositories.
@@ -97,6 +102,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         header_read_timeout: Duration::from_secs_f64(args.header_timeout),
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),
         max_connections: args.max_connections,
+        max_tile_samples: args.max_tile_samples,
     };
     init_logging();
     let state = AppState::open(&specs, config)?;

@@ -14,6 +14,7 @@ mod serve;
 mod shard;
 mod upgrade;
 mod verify;
+mod web_tiles;
 
 use std::path::Path;
 

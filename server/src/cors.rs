@@ -1,7 +1,7 @@
 //! Cross-origin access (`--cors-origin`): parsing the setting and the layer that applies it.
 //! Shared by the state (which validates the setting at startup) and the router.
 
-use axum::http::{HeaderValue, Method, header};
+use axum::http::{HeaderName, HeaderValue, Method, header};
 use tower_http::cors::{AllowOrigin, CorsLayer};
 
 /// Parses `--cors-origin`: `*` or a comma-separated list of origins.
@@ -31,6 +31,7 @@ pub(crate) fn cors_layer(origin: &str) -> CorsLayer {
         .allow_methods([Method::GET, Method::HEAD, Method::POST])
         .allow_headers([
             header::CONTENT_TYPE,
+            header::ACCEPT,
             header::RANGE,
             header::IF_NONE_MATCH,
             header::IF_RANGE,
@@ -42,6 +43,9 @@ pub(crate) fn cors_layer(origin: &str) -> CorsLayer {
             header::CONTENT_RANGE,
             header::ACCEPT_RANGES,
             header::CONTENT_LENGTH,
+            HeaderName::from_static(crate::tiles::LEVEL_HEADER),
+            HeaderName::from_static(crate::tiles::CLAMPED_HEADER),
+            HeaderName::from_static(crate::tiles::DEVIATION_HEADER),
         ])
         .max_age(std::time::Duration::from_secs(86_400))
 }

@@ -10,6 +10,9 @@
 //! - `GET /v1/repos/{name}/diamonds/{l-x-y}`: one record's bytes.
 //! - `POST /v1/repos/{name}/diamonds`: many records in one framed body.
 //! - `GET /v1/repos/{name}/file`: the repository file itself, with range requests.
+//! - `GET /v1/repos/{name}/{terrarium|terrain-rgb}/{z}/{x}/{y}.png`, `…/tiles.json`,
+//!   `…/quantized-mesh/{z}/{x}/{y}.terrain`, `…/quantized-mesh/layer.json`: web-map tiles
+//!   ([`tiles`], `docs/WEB-MAPS.md`).
 //! - `GET /metrics`: Prometheus counters.
 //! - `GET /`: a page listing the repositories; with `--web DIR`, each opens the browser viewer,
 //!   whose files are served under `/viewer/{hash}/` ([`web`]).
@@ -55,6 +58,7 @@ mod observe;
 mod range;
 mod routes;
 mod state;
+mod tiles;
 pub mod web;
 
 use std::future::Future;

@@ -46,7 +46,7 @@ fn hv(s: &'static str) -> HeaderValue {
 
 pub(crate) fn router(state: AppState) -> Router {
     let cfg = state.config().clone();
-    Router::new()
+    crate::tiles::routes(Router::new())
         .route("/v1/repos", get(list))
         .route("/v1/repos/{name}/meta", get(meta))
         .route("/v1/repos/{name}/file", get(file))
@@ -75,7 +75,7 @@ async fn method_not_allowed(method: Method, uri: Uri) -> ApiError {
     ApiError::MethodNotAllowed(format!("{method} is not allowed on {}", uri.path()))
 }
 
-fn bad_path(e: PathRejection) -> ApiError {
+pub(crate) fn bad_path(e: PathRejection) -> ApiError {
     ApiError::BadRequest(format!("malformed path: {}", e.body_text()))
 }
 
@@ -98,7 +98,7 @@ fn find(r: &ServedRepo, id: DiamondId) -> Option<usize> {
 }
 
 /// Whether `If-None-Match` matches `etag` (weak comparison, as RFC 9110 asks for this header).
-fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
+pub(crate) fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
     let ours = etag.as_bytes();
     headers
         .get_all(header::IF_NONE_MATCH)
@@ -187,19 +187,7 @@ async fn viewer_file(
     let asset = web
         .get(&file)
         .ok_or_else(|| ApiError::NotFound(format!("the viewer has no file {file:?}")))?;
-    let accepts_gzip = req
-        .headers()
-        .get_all(header::ACCEPT_ENCODING)
-        .iter()
-        .filter_map(|v| v.to_str().ok())
-        .flat_map(|v| v.split(','))
-        .any(|e| {
-            let mut parts = e.split(';');
-            let coding = parts.next().unwrap_or("").trim();
-            // `gzip;q=0` refuses it.
-            let refused = parts.any(|p| p.trim().replace(' ', "") == "q=0");
-            (coding.eq_ignore_ascii_case("gzip") || coding == "*") && !refused
-        });
+    let accepts_gzip = accepts_gzip(req.headers());
     let mut h = headers([
         (header::CONTENT_TYPE, hv(asset.content_type)),
         (header::CACHE_CONTROL, hv(IMMUTABLE)),
@@ -213,6 +201,21 @@ async fn viewer_file(
         _ => asset.raw.clone(),
     };
     Ok(respond(StatusCode::OK, h, body))
+}
+
+/// Whether `Accept-Encoding` accepts gzip (`gzip;q=0` refuses it).
+pub(crate) fn accepts_gzip(headers: &HeaderMap) -> bool {
+    headers
+        .get_all(header::ACCEPT_ENCODING)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .any(|e| {
+            let mut parts = e.split(';');
+            let coding = parts.next().unwrap_or("").trim();
+            let refused = parts.any(|p| p.trim().replace(' ', "") == "q=0");
+            (coding.eq_ignore_ascii_case("gzip") || coding == "*") && !refused
+        })
 }
 
 async fn list(State(st): State<AppState>) -> Response {

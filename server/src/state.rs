@@ -44,6 +44,9 @@ pub struct Config {
     /// file-descriptor limit allows). A connection beyond it closes the least recently active
     /// one of the client address holding the most connections (see [`crate::run`]).
     pub max_connections: usize,
+    /// Most samples a repository's decoded levels may hold for it to be served as web-map
+    /// tiles (its surface is decoded whole, 4 bytes a sample, on the first tile request).
+    pub max_tile_samples: u64,
 }
 
 impl Default for Config {
@@ -57,6 +60,7 @@ impl Default for Config {
             header_read_timeout: Duration::from_secs(10),
             idle_timeout: Duration::from_secs(60),
             max_connections: 10_000,
+            max_tile_samples: 1 << 28,
         }
     }
 }
@@ -170,6 +174,8 @@ pub struct ServedRepo {
     /// checked again whenever they are sent: a file overwritten underneath the server must not
     /// send new bytes under an old ETag.
     pub(crate) verified: Vec<AtomicBool>,
+    /// The web-map tiler ([`crate::tiles`]), decoded on the first tile request.
+    pub(crate) tiles: crate::tiles::TilerCell,
     /// Every record's ETag, concatenated: a response takes its slice of this shared buffer
     /// (a reference count, no allocation, no formatting per request).
     etags: Bytes,
@@ -226,6 +232,7 @@ impl ServedRepo {
             changed_logged: AtomicBool::new(false),
             corrupt_logged: flags(),
             verified: flags(),
+            tiles: crate::tiles::TilerCell::new(),
             etags: Bytes::from(etags),
             etag_at,
         }
@@ -422,7 +429,7 @@ impl AppState {
             .map(|n| serde_json::json!({ "name": n, "meta": format!("/v1/repos/{n}/meta") }))
             .collect();
         let listing = Bytes::from(serde_json::json!({ "repos": listing }).to_string());
-        let about: Vec<(String, String)> = names
+        let about: Vec<(String, String, bool)> = names
             .iter()
             .map(|n| {
                 let r = &map[n].repo;
@@ -436,6 +443,7 @@ impl AppState {
                         data.height,
                         size as f64 / 1e6
                     ),
+                    cbdam_tiles::Tiler::check(r.head()).is_ok(),
                 )
             })
             .collect();

@@ -169,11 +169,11 @@ fn escape(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// The page at `/`: the repositories (name, samples, size), each linking to the viewer when it
-/// is served, and the API's entry points.
-pub(crate) fn index_page(repos: &[(String, String)], web: Option<&WebAssets>) -> String {
+/// The page at `/`: the repositories (name, samples, size, whether web-map tiles are made of
+/// it), each linking to the viewer when it is served, and the API's entry points.
+pub(crate) fn index_page(repos: &[(String, String, bool)], web: Option<&WebAssets>) -> String {
     let mut rows = String::new();
-    for (name, about) in repos {
+    for (name, about, tiles) in repos {
         let name_html = escape(name);
         let open = match web {
             Some(w) => format!(
@@ -182,9 +182,19 @@ pub(crate) fn index_page(repos: &[(String, String)], web: Option<&WebAssets>) ->
             ),
             None => name_html.clone(),
         };
+        // Web maps (docs/WEB-MAPS.md): what MapLibre and CesiumJS are pointed at.
+        let maps = if *tiles {
+            format!(
+                " · <a href=\"/v1/repos/{name_html}/terrarium/tiles.json\">terrarium</a> \
+                 · <a href=\"/v1/repos/{name_html}/terrain-rgb/tiles.json\">terrain-RGB</a> \
+                 · <a href=\"/v1/repos/{name_html}/quantized-mesh/layer.json\">quantized-mesh</a>"
+            )
+        } else {
+            String::new()
+        };
         rows += &format!(
             "<tr><td>{open}</td><td>{}</td><td><a href=\"/v1/repos/{name_html}/meta\">meta</a> \
-             · <a href=\"/v1/repos/{name_html}/file\">file</a></td></tr>\n",
+             · <a href=\"/v1/repos/{name_html}/file\">file</a>{maps}</td></tr>\n",
             escape(about)
         );
     }

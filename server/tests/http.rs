@@ -735,6 +735,12 @@ async fn the_index_page_and_the_viewer_files() {
     let page = r.text().await.unwrap();
     let link = format!("/viewer/{hash}/index.html?repo=/v1/repos/t");
     assert!(page.contains(&link), "{page}");
+    // A UTM repository: web-map tiles are made of it, and linked.
+    assert!(
+        page.contains("/v1/repos/t/quantized-mesh/layer.json"),
+        "{page}"
+    );
+    assert!(page.contains("/v1/repos/t/terrarium/tiles.json"), "{page}");
 
     let wasm_url = s.url(&format!("/viewer/{hash}/cbdam_web_bg.wasm"));
     let r = c

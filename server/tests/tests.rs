@@ -9,3 +9,5 @@ mod util;
 mod hostile;
 mod http;
 mod priorities;
+mod quantized_mesh;
+mod tiles;

@@ -1,0 +1,370 @@
+//! Web-map tiles of a served repository (`docs/WEB-MAPS.md`): terrarium and terrain-RGB PNG
+//! with their TileJSON for MapLibre, quantized-mesh-1.0 with its `layer.json` for CesiumJS.
+//!
+//! The tile maths live in `cbdam-tiles`; this module decodes a repository's surface once, on
+//! the first tile request (every record read through the server's checked reads), keeps it for
+//! the server's life, and answers each tile from it on a blocking thread.
+
+use std::sync::{Arc, OnceLock};
+
+use axum::body::Body;
+use axum::extract::rejection::PathRejection;
+use axum::extract::{Path, Request, State};
+use axum::http::{HeaderMap, HeaderName, HeaderValue, StatusCode, header};
+use axum::response::Response;
+use cbdam_codec::hierarchy::{Encoded, Record};
+use cbdam_tiles::surface::Surface;
+use cbdam_tiles::{Encoding, Tiler, TilesError};
+
+use crate::error::ApiError;
+use crate::state::{AppState, RecordError, ServedRepo};
+
+/// Caches revalidate tiles (a file rebuilt under the same name changes them): a 304 is cheap
+/// for the network, though the server makes the tile again to compare its ETag.
+const REVALIDATE: &str = "no-cache";
+
+/// The level of the repository a tile's heights come from (response header).
+pub(crate) const LEVEL_HEADER: &str = "cbdam-level";
+/// Pixels of a raster tile whose height the encoding had to clamp (response header).
+pub(crate) const CLAMPED_HEADER: &str = "cbdam-clamped-pixels";
+/// A mesh tile's measured |mesh − finest level|, metres (response header).
+pub(crate) const DEVIATION_HEADER: &str = "cbdam-deviation-m";
+
+/// A served repository's tiler, built on first use: `Err` keeps why it could not be.
+pub(crate) type TilerCell = OnceLock<Result<Arc<Tiler>, String>>;
+
+fn api_error(e: TilesError) -> ApiError {
+    match e {
+        TilesError::BadTile(m) => ApiError::BadRequest(m),
+        TilesError::OutsideData(m) | TilesError::Unsupported(m) => ApiError::NotFound(m),
+        TilesError::Internal(m) => ApiError::Internal(m),
+    }
+}
+
+fn hv(s: &'static str) -> HeaderValue {
+    HeaderValue::from_static(s)
+}
+
+fn number(v: impl std::fmt::Display) -> HeaderValue {
+    HeaderValue::from_str(&v.to_string()).expect("a number is ASCII")
+}
+
+/// The repository's whole hierarchy, every record read and checked as the server reads them.
+fn encoded(st: &AppState, r: &ServedRepo) -> Result<Encoded, String> {
+    let head = r.repo.head();
+    let mut records = Vec::with_capacity(head.entries().len());
+    for (i, e) in head.entries().iter().enumerate() {
+        let mut bytes = Vec::with_capacity(e.length as usize);
+        match r.read_record_into(i, &mut bytes) {
+            Ok(()) => {}
+            Err(RecordError::Read(e)) => return Err(e.to_string()),
+            Err(RecordError::Damaged(e)) => {
+                st.metrics().add_corrupt();
+                return Err(format!(
+                    "the record of diamond {} is damaged: {e}",
+                    e_id(head, i)
+                ));
+            }
+        }
+        records.push(Record {
+            id: e.id,
+            bytes: bytes.into(),
+            object_error: e.object_error,
+            min: e.min,
+            max: e.max,
+        });
+    }
+    Ok(Encoded {
+        params: *head.params(),
+        roots: head.root_bytes().to_vec(),
+        records,
+        leaf_error: head.leaf_error(),
+    })
+}
+
+fn e_id(head: &cbdam_codec::repository::RepositoryHead, i: usize) -> String {
+    head.entries()[i].id.to_string()
+}
+
+/// The tiler of repository `r`, decoding it on first use (on a blocking thread).
+async fn tiler(st: &AppState, r: &Arc<ServedRepo>) -> Result<Arc<Tiler>, ApiError> {
+    r.check_unchanged()?;
+    if let Some(t) = r.tiles.get() {
+        return t.clone().map_err(ApiError::Internal);
+    }
+    Tiler::check(r.repo.head()).map_err(api_error)?;
+    let samples = Surface::samples(&r.repo.head().params().domain);
+    let cap = st.config().max_tile_samples;
+    if samples > cap {
+        return Err(ApiError::NotFound(format!(
+            "repository {:?} is too large to serve as web-map tiles: its decoded levels hold \
+             {samples} samples, more than this server's limit of {cap}",
+            r.name
+        )));
+    }
+    let (st2, r2) = (st.clone(), Arc::clone(r));
+    let built = tokio::task::spawn_blocking(move || {
+        r2.tiles
+            .get_or_init(|| {
+                let encoded = encoded(&st2, &r2)?;
+                let t = Tiler::new(r2.repo.head(), &encoded).map_err(|e| e.to_string())?;
+                tracing::info!(repo = %r2.name, "decoded for web-map tiles ({samples} samples)");
+                Ok(Arc::new(t))
+            })
+            .clone()
+    })
+    .await
+    .map_err(|e| ApiError::Internal(format!("decoding for tiles: {e}")))?;
+    built.map_err(|m| ApiError::Internal(format!("repository {:?}: {m}", r.name)))
+}
+
+fn lookup<'a>(st: &'a AppState, name: &str) -> Result<&'a Arc<ServedRepo>, ApiError> {
+    st.repo(name)
+        .ok_or_else(|| ApiError::NotFound(format!("no repository named {name:?}")))
+}
+
+/// `?tile=256|512` of the raster endpoints (other parameters are ignored: clients add their
+/// own cache busters).
+fn tile_query(req: &Request) -> Result<Option<u32>, ApiError> {
+    let Some(q) = req.uri().query() else {
+        return Ok(None);
+    };
+    let mut tile = None;
+    for pair in q.split('&') {
+        if let Some(v) = pair.strip_prefix("tile=") {
+            tile = Some(v.parse::<u32>().map_err(|_| {
+                ApiError::BadRequest(format!("malformed tile size {v:?} (want 256 or 512)"))
+            })?);
+        }
+    }
+    Ok(tile)
+}
+
+/// Parses `z`, `x` and `y` (`y` with its file extension), or 400.
+fn tile_address(z: &str, x: &str, y: &str, ext: &str) -> Result<(u32, u32, u32), ApiError> {
+    let bad = || {
+        ApiError::BadRequest(format!(
+            "malformed tile address {z}/{x}/{y} (want z/x/y{ext}, non-negative integers)"
+        ))
+    };
+    let y = y.strip_suffix(ext).ok_or_else(bad)?;
+    let parse = |s: &str| s.parse::<u32>().map_err(|_| bad());
+    Ok((parse(z)?, parse(x)?, parse(y)?))
+}
+
+/// A 200 (or a 304 when `If-None-Match` names it) of `body` under an ETag from its bytes.
+fn tile_response(r: &ServedRepo, req: &HeaderMap, mut h: HeaderMap, body: Vec<u8>) -> Response {
+    let tag = format!(
+        "\"{:08x}-t{:08x}\"",
+        r.repo.head().header_crc(),
+        crc32fast::hash(&body)
+    );
+    let etag = HeaderValue::from_str(&tag).expect("ASCII");
+    h.insert(header::ETAG, etag.clone());
+    h.insert(header::CACHE_CONTROL, hv(REVALIDATE));
+    let mut resp = Response::new(Body::empty());
+    if crate::routes::not_modified(req, &etag) {
+        *resp.status_mut() = StatusCode::NOT_MODIFIED;
+    } else {
+        *resp.body_mut() = Body::from(body);
+    }
+    *resp.headers_mut() = h;
+    resp
+}
+
+fn json_response(r: &ServedRepo, req: &HeaderMap, v: &serde_json::Value) -> Response {
+    let mut h = HeaderMap::new();
+    h.insert(header::CONTENT_TYPE, hv("application/json"));
+    let body = serde_json::to_vec_pretty(v).expect("JSON of plain values");
+    tile_response(r, req, h, body)
+}
+
+/// `http://HOST` of the request (its `Host` header or HTTP/2 authority; `https` behind a proxy
+/// that says `X-Forwarded-Proto: https`), for absolute tile URLs: MapLibre resolves a TileJSON's
+/// tile URLs against the page, not the TileJSON. Empty (root-relative URLs) without a host.
+fn origin(req: &Request) -> String {
+    let host = req
+        .headers()
+        .get(header::HOST)
+        .and_then(|h| h.to_str().ok())
+        .map(str::to_string)
+        .or_else(|| req.uri().authority().map(|a| a.to_string()));
+    let valid = |h: &String| {
+        h.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b".-:[]_".contains(&b))
+    };
+    let proto = match req.headers().get("x-forwarded-proto").map(|v| v.as_bytes()) {
+        Some(b"https") => "https",
+        _ => "http",
+    };
+    match host.filter(valid) {
+        Some(h) => format!("{proto}://{h}"),
+        None => String::new(),
+    }
+}
+
+/// `GET /v1/repos/{name}/{terrarium|terrain-rgb}/tiles.json`.
+async fn tilejson(
+    st: AppState,
+    name: String,
+    req: Request,
+    encoding: Encoding,
+    segment: &str,
+) -> Result<Response, ApiError> {
+    let r = lookup(&st, &name)?;
+    let tile = Tiler::tile_size(tile_query(&req)?).map_err(api_error)?;
+    let t = tiler(&st, r).await?;
+    let query = if tile == 512 { "" } else { "?tile=256" };
+    let template = format!(
+        "{}/v1/repos/{name}/{segment}/{{z}}/{{x}}/{{y}}.png{query}",
+        origin(&req)
+    );
+    Ok(json_response(
+        r,
+        req.headers(),
+        &t.tilejson(&name, encoding, tile, &template),
+    ))
+}
+
+/// `GET /v1/repos/{name}/{terrarium|terrain-rgb}/{z}/{x}/{y}.png`.
+async fn raster(
+    st: AppState,
+    (name, z, x, y): (String, String, String, String),
+    req: Request,
+    encoding: Encoding,
+) -> Result<Response, ApiError> {
+    let r = lookup(&st, &name)?;
+    let zxy = tile_address(&z, &x, &y, ".png")?;
+    let tile = Tiler::tile_size(tile_query(&req)?).map_err(api_error)?;
+    let t = tiler(&st, r).await?;
+    let made = tokio::task::spawn_blocking(move || t.raster(zxy, tile, encoding))
+        .await
+        .map_err(|e| ApiError::Internal(format!("making a tile: {e}")))?
+        .map_err(api_error)?;
+    let mut h = HeaderMap::new();
+    h.insert(header::CONTENT_TYPE, hv("image/png"));
+    h.insert(HeaderName::from_static(LEVEL_HEADER), number(made.level));
+    h.insert(
+        HeaderName::from_static(CLAMPED_HEADER),
+        number(made.clamped),
+    );
+    Ok(tile_response(r, req.headers(), h, made.png))
+}
+
+/// The extensions an `Accept` header asks for: `(octvertexnormals, metadata)`.
+fn extensions(headers: &HeaderMap) -> (bool, bool) {
+    let mut wanted = (false, false);
+    let items = headers
+        .get_all(header::ACCEPT)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','));
+    for item in items {
+        let mut parts = item.split(';').map(str::trim);
+        if !parts
+            .next()
+            .is_some_and(|m| m.eq_ignore_ascii_case("application/vnd.quantized-mesh"))
+        {
+            continue;
+        }
+        for p in parts {
+            if let Some(list) = p.strip_prefix("extensions=") {
+                for e in list.trim_matches('"').split('-') {
+                    wanted.0 |= e == "octvertexnormals";
+                    wanted.1 |= e == "metadata";
+                }
+            }
+        }
+    }
+    wanted
+}
+
+/// `GET /v1/repos/{name}/quantized-mesh/layer.json`.
+async fn layer_json(
+    State(st): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let Path(name) = path.map_err(crate::routes::bad_path)?;
+    let r = lookup(&st, &name)?;
+    let t = tiler(&st, r).await?;
+    Ok(json_response(r, req.headers(), &t.layer_json(&name)))
+}
+
+/// `GET /v1/repos/{name}/quantized-mesh/{z}/{x}/{y}.terrain`: gzip-compressed when the client
+/// accepts it, extensions as its `Accept` asks.
+async fn terrain(
+    State(st): State<AppState>,
+    path: Result<Path<(String, String, String, String)>, PathRejection>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let Path((name, z, x, y)) = path.map_err(crate::routes::bad_path)?;
+    let r = lookup(&st, &name)?;
+    let zxy = tile_address(&z, &x, &y, ".terrain")?;
+    let (normals, metadata) = extensions(req.headers());
+    let t = tiler(&st, r).await?;
+    let gzip = crate::routes::accepts_gzip(req.headers());
+    let (made, body) = tokio::task::spawn_blocking(move || {
+        let made = t.mesh(zxy, normals, metadata)?;
+        let body = if gzip {
+            cbdam_tiles::gzip(&made.bytes)
+        } else {
+            made.bytes.clone()
+        };
+        Ok::<_, TilesError>((made, body))
+    })
+    .await
+    .map_err(|e| ApiError::Internal(format!("making a tile: {e}")))?
+    .map_err(api_error)?;
+    let mut h = HeaderMap::new();
+    h.insert(header::CONTENT_TYPE, hv("application/vnd.quantized-mesh"));
+    h.insert(header::VARY, hv("accept, accept-encoding"));
+    if gzip {
+        h.insert(header::CONTENT_ENCODING, hv("gzip"));
+    }
+    h.insert(HeaderName::from_static(LEVEL_HEADER), number(made.level));
+    h.insert(
+        HeaderName::from_static(DEVIATION_HEADER),
+        number(format!("{:.4}", made.deviation)),
+    );
+    Ok(tile_response(r, req.headers(), h, body))
+}
+
+type RasterPath = Result<Path<(String, String, String, String)>, PathRejection>;
+type NamePath = Result<Path<String>, PathRejection>;
+
+/// The routes of this module.
+pub(crate) fn routes(router: axum::Router<AppState>) -> axum::Router<AppState> {
+    use axum::routing::get;
+    macro_rules! raster_routes {
+        ($router:expr, $segment:literal, $encoding:expr) => {
+            $router
+                .route(
+                    concat!("/v1/repos/{name}/", $segment, "/tiles.json"),
+                    get(
+                        |State(st): State<AppState>, p: NamePath, req: Request| async move {
+                            let Path(name) = p.map_err(crate::routes::bad_path)?;
+                            tilejson(st, name, req, $encoding, $segment).await
+                        },
+                    ),
+                )
+                .route(
+                    concat!("/v1/repos/{name}/", $segment, "/{z}/{x}/{y}"),
+                    get(
+                        |State(st): State<AppState>, p: RasterPath, req: Request| async move {
+                            let Path(p) = p.map_err(crate::routes::bad_path)?;
+                            raster(st, p, req, $encoding).await
+                        },
+                    ),
+                )
+        };
+    }
+    let router = raster_routes!(router, "terrarium", Encoding::Terrarium);
+    let router = raster_routes!(router, "terrain-rgb", Encoding::TerrainRgb);
+    router
+        .route(
+            "/v1/repos/{name}/quantized-mesh/layer.json",
+            get(layer_json),
+        )
+        .route("/v1/repos/{name}/quantized-mesh/{z}/{x}/{y}", get(terrain))
+}

@@ -1,0 +1,289 @@
+//! Web-map tiles over real HTTP on 127.0.0.1: terrarium / terrain-RGB PNGs decoded with the
+//! `png` crate, quantized-mesh tiles decoded by a reader written here from the specification
+//! (not the encoder's code), every height compared with the input DEM within the bound the
+//! server states.
+
+use cbdam_codec::geodesy::{LatLon, Utm};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
+use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::repository::{GeoRef, Repository, serialize};
+use cbdam_server::{AppState, Config};
+use serde_json::Value;
+
+use crate::util::{Running, client, json, start};
+
+/// A DEM, its georeferencing and the repository built from it.
+pub(crate) struct Dem {
+    w: usize,
+    h: usize,
+    metres: Vec<f64>,
+    pub(crate) georef: GeoRef,
+}
+
+pub(crate) const NODATA: f64 = -9999.0;
+/// The repositories' ε, metres.
+pub(crate) const EPSILON: f64 = 0.25;
+
+impl Dem {
+    /// Rough terrain with a nodata hole, `w × h` samples.
+    fn rough(w: usize, h: usize, georef: GeoRef) -> Dem {
+        let metres = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64, (i / w) as f64);
+                if (x - 0.7 * w as f64).hypot(y - 0.3 * h as f64) < 3.0 {
+                    return NODATA;
+                }
+                let noise = ((i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as f64 / 8.0;
+                300.0 + 40.0 * (x / 6.0).sin() * (y / 9.0).cos() + 0.3 * x + noise
+            })
+            .collect();
+        Dem {
+            w,
+            h,
+            metres,
+            georef,
+        }
+    }
+
+    pub(crate) fn repository(&self) -> Repository {
+        let plan = QuantPlan::new(EPSILON, None, 200.0, 400.0).unwrap();
+        let grid =
+            HeightGrid::from_metres(self.w, self.h, &self.metres, Some(NODATA), &plan).unwrap();
+        let opts = EncodeOptions {
+            n: 9,
+            ..EncodeOptions::default()
+        };
+        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
+        let bytes = serialize(&enc, &plan, Some(&self.georef), Some(NODATA)).unwrap();
+        Repository::from_bytes(bytes).unwrap()
+    }
+
+    /// Lattice column / row of a geodetic point (sample centres at integers).
+    fn lattice(&self, lat: f64, lon: f64) -> (f64, f64) {
+        let g = &self.georef;
+        let (mx, my) = match g.epsg {
+            Some(4326) => (lon, lat),
+            Some(code) => Utm::from_epsg(code).unwrap().forward(LatLon { lat, lon }),
+            None => unreachable!(),
+        };
+        let half = if g.pixel_is_area { 0.5 } else { 0.0 };
+        (
+            (mx - g.origin_x) / g.pixel_x - half,
+            (g.origin_y - my) / g.pixel_y - half,
+        )
+    }
+
+    /// The input's bilinear interpolation at a geodetic point, when all four samples around it
+    /// hold data and it lies inside the data; `Err(true)` when it lies clearly outside the
+    /// data (more than a sample beyond it).
+    pub(crate) fn bilinear(&self, lat: f64, lon: f64) -> Result<f64, bool> {
+        let (x, y) = self.lattice(lat, lon);
+        let (wm, hm) = ((self.w - 1) as f64, (self.h - 1) as f64);
+        if x < -1.0 || y < -1.0 || x > wm + 1.0 || y > hm + 1.0 {
+            return Err(true);
+        }
+        if x < 0.0 || y < 0.0 || x >= wm || y >= hm {
+            return Err(false);
+        }
+        let (c, r) = (x.floor() as usize, y.floor() as usize);
+        let (tx, ty) = (x - c as f64, y - r as f64);
+        let at = |c: usize, r: usize| self.metres[r * self.w + c];
+        let v = [at(c, r), at(c + 1, r), at(c, r + 1), at(c + 1, r + 1)];
+        if v.contains(&NODATA) {
+            return Err(false);
+        }
+        Ok((1.0 - ty) * ((1.0 - tx) * v[0] + tx * v[1]) + ty * ((1.0 - tx) * v[2] + tx * v[3]))
+    }
+}
+
+pub(crate) fn utm_dem() -> Dem {
+    Dem::rough(
+        70,
+        50,
+        GeoRef {
+            epsg: Some(32632),
+            origin_x: 400_000.0,
+            origin_y: 5_100_000.0,
+            pixel_x: 30.0,
+            pixel_y: 30.0,
+            pixel_is_area: true,
+            wkt: None,
+        },
+    )
+}
+
+pub(crate) fn geographic_dem() -> Dem {
+    Dem::rough(
+        64,
+        48,
+        GeoRef {
+            epsg: Some(4326),
+            origin_x: 7.0,
+            origin_y: 46.0,
+            pixel_x: 1.0 / 1200.0,
+            pixel_y: 1.0 / 1200.0,
+            pixel_is_area: false,
+            wkt: None,
+        },
+    )
+}
+
+pub(crate) async fn serve(repos: Vec<(&str, Repository)>) -> Running {
+    let repos = repos.into_iter().map(|(n, r)| (n.to_string(), r)).collect();
+    start(AppState::new(repos, Config::default()).unwrap()).await
+}
+
+pub(crate) async fn get_json(s: &Running, path: &str) -> Value {
+    let r = client().get(s.url(path)).send().await.unwrap();
+    assert_eq!(r.status(), 200, "{path}");
+    json(r).await
+}
+
+/// The Web Mercator tile holding a geodetic point at zoom `z`.
+fn mercator_tile(z: u32, lat: f64, lon: f64) -> (u32, u32) {
+    let n = f64::from(1u32 << z);
+    let x = ((lon + 180.0) / 360.0 * n).floor() as u32;
+    let lat = lat.to_radians();
+    let y = ((1.0 - lat.tan().asinh() / std::f64::consts::PI) / 2.0 * n).floor() as u32;
+    (x, y)
+}
+
+/// Decodes a PNG into RGBA pixels.
+fn decode_png(bytes: &[u8]) -> (u32, Vec<[u8; 4]>) {
+    let mut dec = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; dec.output_buffer_size().unwrap()];
+    let info = dec.next_frame(&mut buf).unwrap();
+    let px = match info.color_type {
+        png::ColorType::Rgb => buf
+            .chunks_exact(3)
+            .map(|p| [p[0], p[1], p[2], 255])
+            .collect(),
+        png::ColorType::Rgba => buf
+            .chunks_exact(4)
+            .map(|p| [p[0], p[1], p[2], p[3]])
+            .collect(),
+        c => panic!("unexpected colour type {c:?}"),
+    };
+    (info.width, px)
+}
+
+/// The clients' formulas.
+fn decode_height(format: &str, [r, g, b, _]: [u8; 4]) -> f64 {
+    let [r, g, b] = [r, g, b].map(f64::from);
+    match format {
+        "terrarium" => r * 256.0 + g + b / 256.0 - 32768.0,
+        _ => -10000.0 + (r * 65536.0 + g * 256.0 + b) * 0.1,
+    }
+}
+
+/// Fetches the raster tile holding the data's centre at the TileJSON's maxzoom and checks
+/// every pixel against the input: within the stated bound where the input has data around
+/// it, transparent well outside the data. Returns how many pixels were compared.
+async fn check_raster(s: &Running, dem: &Dem, format: &str, tile: u32) -> usize {
+    let query = if tile == 256 { "?tile=256" } else { "" };
+    let tj = get_json(s, &format!("/v1/repos/d/{format}/tiles.json{query}")).await;
+    assert_eq!(tj["tilejson"], "3.0.0");
+    assert_eq!(tj["tileSize"], tile);
+    let encoding = if format == "terrarium" {
+        "terrarium"
+    } else {
+        "mapbox"
+    };
+    assert_eq!(tj["encoding"], encoding);
+    let bound = tj["cbdam"]["pixel_bound_m"].as_f64().unwrap();
+    let step = tj["cbdam"]["encoding_step_m"].as_f64().unwrap();
+    assert!(bound > 0.5 * step && bound <= EPSILON + step, "{bound}");
+    let z = tj["maxzoom"].as_u64().unwrap() as u32;
+    let b: Vec<f64> = serde_json::from_value(tj["bounds"].clone()).unwrap();
+    let (lat, lon) = (0.5 * (b[1] + b[3]), 0.5 * (b[0] + b[2]));
+    let (x, y) = mercator_tile(z, lat, lon);
+    let template = tj["tiles"][0].as_str().unwrap();
+    assert!(
+        template.starts_with(&s.url("/v1/repos/d/")),
+        "absolute: {template}"
+    );
+    let template = template.strip_prefix(&s.base).unwrap();
+    let url = template
+        .replace("{z}", &z.to_string())
+        .replace("{x}", &x.to_string())
+        .replace("{y}", &y.to_string());
+    let r = client().get(s.url(&url)).send().await.unwrap();
+    assert_eq!(r.status(), 200, "{url}");
+    assert_eq!(r.headers()["content-type"], "image/png");
+    let (size, px) = decode_png(&r.bytes().await.unwrap());
+    assert_eq!(size, tile);
+    let n = f64::from(1u32 << z);
+    let (mut compared, mut outside) = (0, 0);
+    for (i, p) in px.iter().enumerate() {
+        let (col, row) = ((i as u32 % tile) as f64, (i as u32 / tile) as f64);
+        let lon = (f64::from(x) + (col + 0.5) / f64::from(tile)) / n * 360.0 - 180.0;
+        let yn = (f64::from(y) + (row + 0.5) / f64::from(tile)) / n;
+        let lat = (std::f64::consts::PI * (1.0 - 2.0 * yn))
+            .sinh()
+            .atan()
+            .to_degrees();
+        match dem.bilinear(lat, lon) {
+            Ok(expected) => {
+                assert_eq!(p[3], 255, "pixel {col},{row} holds data");
+                let got = decode_height(format, *p);
+                assert!(
+                    (got - expected).abs() <= bound + 1e-9,
+                    "{format} pixel {col},{row}: {got} against the input's {expected}, bound {bound}"
+                );
+                compared += 1;
+            }
+            Err(true) => {
+                assert_eq!(p[3], 0, "pixel {col},{row} outside the data is transparent");
+                assert!(
+                    decode_height(format, *p).abs() <= step,
+                    "nodata encodes 0 m"
+                );
+                outside += 1;
+            }
+            Err(false) => {}
+        }
+    }
+    assert!(outside > 0, "the tile reaches past the data");
+    compared
+}
+
+#[tokio::test]
+async fn raster_tiles_hold_the_input_within_the_stated_bound() {
+    for dem in [utm_dem(), geographic_dem()] {
+        let s = serve(vec![("d", dem.repository())]).await;
+        for (format, tile) in [("terrarium", 512), ("terrain-rgb", 512), ("terrarium", 256)] {
+            let compared = check_raster(&s, &dem, format, tile).await;
+            // Most of the data's 3 000-odd samples' cells are covered by the tile's pixels.
+            assert!(compared > 1000, "{format}: only {compared} pixels compared");
+        }
+        s.stop().await;
+    }
+}
+
+/// A repository whose decoded levels would pass the server's limit is refused for tiles by
+/// name, and still served otherwise.
+#[tokio::test]
+async fn repositories_past_the_tile_memory_limit_are_refused() {
+    let config = Config {
+        max_tile_samples: 1000,
+        ..Config::default()
+    };
+    let repos = vec![("d".to_string(), utm_dem().repository())];
+    let s = start(AppState::new(repos, config).unwrap()).await;
+    let r = client()
+        .get(s.url("/v1/repos/d/terrarium/tiles.json"))
+        .send()
+        .await
+        .unwrap();
+    let msg = crate::util::error_body(r, 404).await;
+    assert!(msg.contains("too large") && msg.contains("1000"), "{msg}");
+    let r = client()
+        .get(s.url("/v1/repos/d/meta"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    s.stop().await;
+}

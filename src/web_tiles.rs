@@ -1,0 +1,211 @@
+//! `cbdam tiles`: a repository's web-map tiles written as static files (`docs/WEB-MAPS.md`),
+//! the same bytes `cbdam serve` answers, for hosts without `cbdam serve`.
+
+use std::fs::File;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use cbdam_codec::atomic::write_atomically;
+use cbdam_codec::repository::Repository;
+use cbdam_tiles::{Encoding, Scheme, Tiler};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+
+use crate::flags;
+
+/// Tile format of `cbdam tiles`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum TileFormat {
+    /// Terrarium PNG (MapLibre `raster-dem`, `encoding: "terrarium"`), Web Mercator.
+    Terrarium,
+    /// Mapbox terrain-RGB PNG (MapLibre `raster-dem`, `encoding: "mapbox"`), Web Mercator.
+    TerrainRgb,
+    /// Quantized-mesh-1.0 (CesiumJS), geographic TMS, gzip-compressed, with oct-encoded normals
+    /// and metadata.
+    QuantizedMesh,
+}
+
+/// Write a repository's web-map tiles as files: `DIR/{z}/{x}/{y}.png` and `DIR/tiles.json`
+/// (terrarium, terrain-rgb), or `DIR/{z}/{x}/{y}.terrain` and `DIR/layer.json`
+/// (quantized-mesh; serve them with `Content-Encoding: gzip`).
+///
+/// Tiles already in DIR are kept (each file is written atomically, so one there is whole): an
+/// interrupted export run again goes on where it stopped. Tiles are made in parallel.
+#[derive(Args, Debug)]
+pub struct TilesArgs {
+    /// Repository file.
+    repo: PathBuf,
+    /// Tile format.
+    #[arg(long, value_enum)]
+    format: TileFormat,
+    /// Output directory (created if missing).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Deepest zoom level written (default, and at most: the format's maxzoom for this
+    /// repository, the first level whose tiles carry its finest data).
+    #[arg(long)]
+    max_zoom: Option<u8>,
+    /// Raster tile size, pixels: 256 or 512.
+    #[arg(long, default_value_t = 512)]
+    tile: u32,
+    #[command(flatten)]
+    quiet: flags::Quiet,
+}
+
+pub fn run(args: &TilesArgs) -> Result<()> {
+    let tile = Tiler::tile_size(Some(args.tile)).map_err(anyhow::Error::msg)?;
+    if args.output.exists() && !args.output.is_dir() {
+        bail!(
+            "output {} exists and is not a directory",
+            args.output.display()
+        );
+    }
+    let repo =
+        Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
+    Tiler::check(repo.head()).map_err(anyhow::Error::msg)?;
+    let started = Instant::now();
+    let encoded = repo
+        .to_encoded()
+        .with_context(|| format!("reading {}", args.repo.display()))?;
+    let tiler = Tiler::new(repo.head(), &encoded).map_err(anyhow::Error::msg)?;
+    drop(encoded);
+    let decoded_s = started.elapsed().as_secs_f64();
+    let name = args
+        .repo
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("terrain")
+        .to_string();
+    let (scheme, deepest) = match args.format {
+        TileFormat::QuantizedMesh => (Scheme::Geographic, tiler.mesh_max_zoom()),
+        _ => (Scheme::WebMercator, tiler.raster_max_zoom(tile)),
+    };
+    let max_zoom = args.max_zoom.unwrap_or(deepest).min(deepest);
+    let tiles = tile_list(scheme, tiler.bounds(), max_zoom);
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("creating {}", args.output.display()))?;
+    write_document(args, &tiler, &name, tile)?;
+    let bar = progress(args.quiet.value, tiles.len() as u64);
+    let (written, bytes) = (AtomicU64::new(0), AtomicU64::new(0));
+    let tiling = Instant::now();
+    tiles.par_iter().try_for_each(|&(z, x, y)| -> Result<()> {
+        let ext = if scheme == Scheme::Geographic {
+            "terrain"
+        } else {
+            "png"
+        };
+        let path = args.output.join(format!("{z}/{x}/{y}.{ext}"));
+        if !path.exists() {
+            let body = make(&tiler, args.format, (z, x, y), tile)?;
+            write_tile(&path, &body)?;
+            written.fetch_add(1, Relaxed);
+            bytes.fetch_add(body.len() as u64, Relaxed);
+        }
+        bar.inc(1);
+        Ok(())
+    })?;
+    bar.finish_and_clear();
+    let (n, b) = (written.into_inner(), bytes.into_inner());
+    if !args.quiet.value {
+        let secs = tiling.elapsed().as_secs_f64();
+        println!(
+            "{}: {n} tiles written ({} already there), levels 0…{max_zoom}, {b} bytes \
+             ({:.0} bytes/tile); decoded in {decoded_s:.2} s, tiles in {secs:.2} s \
+             ({:.0} tiles/s)",
+            args.output.display(),
+            tiles.len() as u64 - n,
+            b as f64 / n.max(1) as f64,
+            n as f64 / secs.max(1e-9),
+        );
+    }
+    Ok(())
+}
+
+/// Every tile of levels `0..=max_zoom` of `scheme` that meets `bounds`, and both
+/// quantized-mesh root tiles (CesiumJS asks for them whatever the data covers).
+fn tile_list(scheme: Scheme, bounds: [f64; 4], max_zoom: u8) -> Vec<(u32, u32, u32)> {
+    let mut out = Vec::new();
+    if scheme == Scheme::Geographic {
+        out.extend([(0, 0, 0), (0, 1, 0)]);
+    }
+    let first = if scheme == Scheme::Geographic { 1 } else { 0 };
+    for z in first..=max_zoom {
+        let Some((x0, y0, x1, y1)) = scheme.range(z, bounds) else {
+            continue;
+        };
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                if scheme.meets(cbdam_tiles::TileId { z, x, y }, bounds) {
+                    out.push((u32::from(z), x, y));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// One tile's file bytes.
+fn make(tiler: &Tiler, format: TileFormat, zxy: (u32, u32, u32), tile: u32) -> Result<Vec<u8>> {
+    let at =
+        |e: cbdam_tiles::TilesError| anyhow::anyhow!("tile {}/{}/{}: {e}", zxy.0, zxy.1, zxy.2);
+    Ok(match format {
+        TileFormat::Terrarium => {
+            tiler
+                .raster(zxy, tile, Encoding::Terrarium)
+                .map_err(at)?
+                .png
+        }
+        TileFormat::TerrainRgb => {
+            tiler
+                .raster(zxy, tile, Encoding::TerrainRgb)
+                .map_err(at)?
+                .png
+        }
+        TileFormat::QuantizedMesh => {
+            cbdam_tiles::gzip(&tiler.mesh(zxy, true, true).map_err(at)?.bytes)
+        }
+    })
+}
+
+fn write_tile(path: &Path, body: &[u8]) -> Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    write_atomically(path, |f: &mut File| -> Result<()> {
+        Ok(f.write_all(body)?)
+    })
+    .with_context(|| format!("writing {}", path.display()))
+}
+
+/// `tiles.json` or `layer.json`, with URLs relative to the directory.
+fn write_document(args: &TilesArgs, tiler: &Tiler, name: &str, tile: u32) -> Result<()> {
+    let (file, doc) = match args.format {
+        TileFormat::QuantizedMesh => ("layer.json", tiler.layer_json(name)),
+        TileFormat::Terrarium => (
+            "tiles.json",
+            tiler.tilejson(name, Encoding::Terrarium, tile, "{z}/{x}/{y}.png"),
+        ),
+        TileFormat::TerrainRgb => (
+            "tiles.json",
+            tiler.tilejson(name, Encoding::TerrainRgb, tile, "{z}/{x}/{y}.png"),
+        ),
+    };
+    let body = serde_json::to_vec_pretty(&doc)?;
+    write_tile(&args.output.join(file), &body)
+}
+
+fn progress(quiet: bool, total: u64) -> ProgressBar {
+    if quiet || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template("tiles {bar:40} {pos}/{len}, {elapsed} elapsed, ETA {eta}")
+            .expect("static template"),
+    );
+    bar
+}

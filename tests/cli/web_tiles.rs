@@ -1,0 +1,128 @@
+//! `cbdam tiles`: a repository's web-map tiles as static files, byte for byte what `cbdam
+//! serve` answers; an export run again keeps what is there; bad arguments refused by name.
+
+use std::io::{Read, Write};
+use std::path::Path;
+
+use crate::util::*;
+
+/// The body of an HTTP/1.1 GET of `path` on `addr` (`connection: close`), asking for gzip.
+fn get_body(addr: &str, path: &str) -> Vec<u8> {
+    let mut t = std::net::TcpStream::connect(addr).unwrap();
+    write!(
+        t,
+        "GET {path} HTTP/1.1\r\nhost: x\r\naccept-encoding: gzip\r\naccept: \
+         application/vnd.quantized-mesh;extensions=octvertexnormals-metadata\r\n\
+         connection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut resp = Vec::new();
+    t.read_to_end(&mut resp).unwrap();
+    let end = resp.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let head = String::from_utf8_lossy(&resp[..end]).to_string();
+    assert!(head.starts_with("HTTP/1.1 200"), "{path}: {head}");
+    assert!(!head.contains("chunked"), "{path}: a sized body expected");
+    resp[end + 4..].to_vec()
+}
+
+fn gunzip(b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    flate2::read::GzDecoder::new(b)
+        .read_to_end(&mut out)
+        .unwrap();
+    out
+}
+
+fn export(repo: &Path, out: &Path, format: &str, extra: &[&str]) -> String {
+    let (repo, out) = (s(repo), s(out));
+    let mut args = vec!["tiles", &repo, "--format", format, "-o", &out];
+    args.extend_from_slice(extra);
+    let o = cbdam(&args);
+    assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+    stdout(&o)
+}
+
+/// Every file under `dir` with extension `ext`.
+fn files(dir: &Path, ext: &str) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(files(&p, ext));
+        } else if p.extension().is_some_and(|e| e == ext) {
+            out.push(p);
+        }
+    }
+    out
+}
+
+#[test]
+fn exported_tiles_are_what_serve_answers() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let (png_dir, qm_dir) = (dir.path().join("png"), dir.path().join("qm"));
+    let said = export(&repo, &png_dir, "terrarium", &["--max-zoom", "8"]);
+    assert!(said.contains("tiles written (0 already there)"), "{said}");
+    let tj: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(png_dir.join("tiles.json")).unwrap()).unwrap();
+    assert_eq!(tj["tiles"][0], "{z}/{x}/{y}.png");
+    assert_eq!(tj["encoding"], "terrarium");
+    let pngs = files(&png_dir, "png");
+    // One tile a level until the data spans a tile boundary.
+    assert!(pngs.len() >= 9, "{} tiles", pngs.len());
+    export(&repo, &qm_dir, "quantized-mesh", &["--max-zoom", "9"]);
+    let terrains = files(&qm_dir, "terrain");
+    assert!(terrains.len() >= 10, "{} tiles", terrains.len());
+    // Run again: nothing to do.
+    let again = export(&repo, &png_dir, "terrarium", &["--max-zoom", "8"]);
+    assert!(again.contains(": 0 tiles written"), "{again}");
+    let (mut server, addr) = spawn_serve(&[&format!("j={}", s(&repo))]);
+    for p in pngs.iter().chain(&terrains) {
+        let rel = p.strip_prefix(if p.starts_with(&png_dir) {
+            &png_dir
+        } else {
+            &qm_dir
+        });
+        let rel = rel.unwrap().to_str().unwrap().to_string();
+        let kind = if rel.ends_with(".png") {
+            "terrarium"
+        } else {
+            "quantized-mesh"
+        };
+        let served = get_body(&addr, &format!("/v1/repos/j/{kind}/{rel}"));
+        let file = std::fs::read(p).unwrap();
+        if kind == "terrarium" {
+            assert_eq!(served, file, "{rel}");
+        } else {
+            assert_eq!(gunzip(&served), gunzip(&file), "{rel}");
+        }
+    }
+    server.kill().unwrap();
+    server.wait().unwrap();
+}
+
+#[test]
+fn bad_tile_arguments_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = planet(dir.path());
+    let out = dir.path().join("t");
+    let o = cbdam(&[
+        "tiles",
+        &s(&repo),
+        "--format",
+        "terrarium",
+        "-o",
+        &s(&out),
+        "--tile",
+        "300",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("tile size 300"), "{}", stderr(&o));
+    let o = cbdam(&["tiles", &s(&repo), "--format", "webp", "-o", &s(&out)]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    // A planet is tiled whole: two root tiles at level 0; this one's 33-point faces (313 km
+    // between samples) have nothing finer to give, so --max-zoom stops at its maxzoom, 0.
+    let said = export(&repo, &out, "quantized-mesh", &["--max-zoom", "3"]);
+    assert!(said.contains("levels 0…0"), "{said}");
+    assert_eq!(files(&out, "terrain").len(), 2);
+}

@@ -1,0 +1,414 @@
+//! Quantized-mesh-1.0 tiles (CesiumJS's terrain format) of the geographic TMS scheme.
+//!
+//! Each tile is a regular grid of `GRID + 1` × `GRID + 1` vertices, evenly spaced in longitude
+//! and latitude, each at the repository's height there ([`Surface::height`], from the level
+//! whose spacing suits the tile). Vertex positions come from global integer indices and
+//! heights are quantized over the repository's whole height range (the same header range in
+//! every tile), so the vertices two neighbouring tiles share along an edge are bit-identical:
+//! same u/v position on the ground, same quantized height.
+//!
+//! The byte layout follows the quantized-mesh-1.0 specification: an 88-byte header (centre,
+//! height range, bounding sphere, horizon occlusion point), zig-zag delta-coded u/v/height,
+//! high-water-mark coded triangle indices, the four edge lists, then the extensions asked for
+//! (oct-encoded vertex normals, id 1; metadata, id 4). All little-endian.
+
+use cbdam_codec::geodesy::Geodetic;
+use cbdam_codec::geodesy::wgs84::{A, B};
+
+use crate::place::{Placement, coarsen_for};
+use crate::schemes::{Scheme, TileId};
+use crate::surface::Surface;
+
+/// Cells along each side of a tile (CesiumJS's own heightmap tiles are 65 × 65 samples).
+pub const GRID: u32 = 64;
+/// Largest quantized u, v or height.
+pub const QMAX: u32 = 32_767;
+/// Extension id of oct-encoded vertex normals.
+pub const EXT_NORMALS: u8 = 1;
+/// Extension id of metadata (JSON).
+pub const EXT_METADATA: u8 = 4;
+
+/// Metres of one degree of latitude (mean), for level choice.
+const METRES_PER_DEGREE: f64 = 111_132.954;
+
+/// What a tile needs besides the surface.
+pub struct TileRequest<'a> {
+    /// The tile.
+    pub tile: TileId,
+    /// Oct-encoded vertex normals wanted.
+    pub normals: bool,
+    /// The metadata extension's JSON, when wanted.
+    pub metadata: Option<&'a serde_json::Value>,
+}
+
+/// A built tile and what was measured on it.
+#[derive(Clone, Debug)]
+pub struct MeshTile {
+    /// The quantized-mesh bytes (not compressed).
+    pub bytes: Vec<u8>,
+    /// The repository level the vertex heights come from (the finest one used).
+    pub level: u8,
+    /// Metres between consecutive quantized heights.
+    pub height_step: f64,
+    /// Largest |mesh − finest level| measured at the vertices and at the midpoints of the
+    /// cells' edges and diagonals, metres (heights before quantization).
+    pub deviation: f64,
+}
+
+/// The first geographic level whose vertices are no farther apart than the data's finest
+/// spacing.
+pub fn max_zoom(place: &Placement) -> u8 {
+    let ratio = 180.0 * METRES_PER_DEGREE / (f64::from(GRID) * place.spacing_m());
+    (ratio.log2().ceil().max(0.0) as u8).min(crate::schemes::MAX_ZOOM)
+}
+
+/// The height range every tile's header states: the surface's and 0 m, never empty.
+pub fn height_range(surface: &Surface) -> (f64, f64) {
+    // 0 m included: the height of vertices without data (a plane's surroundings).
+    let (lo, hi) = surface.range().unwrap_or((0.0, 0.0));
+    let (lo, hi) = (lo.min(0.0), hi.max(0.0));
+    // Rounded outwards to whole metres so that the header's f32 holds them exactly.
+    let (lo, hi) = (lo.floor(), hi.ceil());
+    if hi > lo { (lo, hi) } else { (lo, lo + 1.0) }
+}
+
+/// The grid's vertex heights (before quantization), row by row from the south, and the
+/// finest level used.
+fn vertex_heights(surface: &Surface, place: &Placement, t: TileId) -> (Vec<f64>, u8) {
+    let n = (GRID + 1) as usize;
+    let cell_deg = 180.0 / f64::from(1u32 << t.z) / f64::from(GRID);
+    let coarsen = coarsen_for(place.spacing_m(), cell_deg * METRES_PER_DEGREE);
+    let mut level = u8::MAX;
+    let mut heights = Vec::with_capacity(n * n);
+    for j in 0..n {
+        for i in 0..n {
+            let (lat, lon) = vertex_lat_lon(t, i as f64, j as f64);
+            let h = height_at(surface, place, lat, lon, coarsen);
+            level = level.min(h.1);
+            heights.push(h.0);
+        }
+    }
+    (heights, if level == u8::MAX { 0 } else { level })
+}
+
+/// Latitude and longitude of grid position `(i, j)` of tile `t` (fractional for midpoints),
+/// from the global grid index so that neighbours compute the same bits.
+fn vertex_lat_lon(t: TileId, i: f64, j: f64) -> (f64, f64) {
+    let cell_deg = 180.0 / f64::from(1u32 << t.z) / f64::from(GRID);
+    let gx = f64::from(t.x) * f64::from(GRID) + i;
+    let gy = f64::from(t.y) * f64::from(GRID) + j;
+    ((-90.0 + gy * cell_deg).min(90.0), -180.0 + gx * cell_deg)
+}
+
+/// The height at a point: the surface's, 0 m (the ellipsoid) where there is no data (outside
+/// a plane's data, beyond half a sample); and the level used (`u8::MAX` for none).
+fn height_at(
+    surface: &Surface,
+    place: &Placement,
+    lat: f64,
+    lon: f64,
+    coarsen: usize,
+) -> (f64, u8) {
+    place
+        .locate(lat, lon)
+        .and_then(|(face, x, y)| surface.height(face, x, y, coarsen))
+        .unwrap_or((0.0, u8::MAX))
+}
+
+/// Largest |mesh − finest level| at the vertices and at the midpoints of every cell's edges
+/// and diagonal (where the triangles interpolate), metres, over the points where the mesh's
+/// vertices and the finest level all hold data (a plane's edge, a wall down to 0 m, is not
+/// counted).
+fn measure_deviation(surface: &Surface, place: &Placement, t: TileId, heights: &[f64]) -> f64 {
+    let n = (GRID + 1) as usize;
+    let finest = |i: f64, j: f64| {
+        let (lat, lon) = vertex_lat_lon(t, i, j);
+        let (h, level) = height_at(surface, place, lat, lon, 0);
+        (level != u8::MAX).then_some(h)
+    };
+    let vertex: Vec<Option<f64>> = (0..n * n)
+        .map(|k| finest((k % n) as f64, (k / n) as f64).map(|_| heights[k]))
+        .collect();
+    let mut worst = 0.0f64;
+    let mut compare = |a: usize, b: usize, i: f64, j: f64| {
+        if let (Some(ha), Some(hb), Some(f)) = (vertex[a], vertex[b], finest(i, j)) {
+            worst = worst.max((0.5 * (ha + hb) - f).abs());
+        }
+    };
+    for j in 0..n {
+        for i in 0..n {
+            let k = j * n + i;
+            let (fi, fj) = (i as f64, j as f64);
+            compare(k, k, fi, fj);
+            if i + 1 < n {
+                compare(k, k + 1, fi + 0.5, fj);
+            }
+            if j + 1 < n {
+                compare(k, k + n, fi, fj + 0.5);
+            }
+            if i + 1 < n && j + 1 < n {
+                // The diagonal (i, j)–(i+1, j+1) that both triangles of the cell share.
+                compare(k, k + n + 1, fi + 0.5, fj + 0.5);
+            }
+        }
+    }
+    worst
+}
+
+/// Builds tile `req.tile` of `surface`.
+pub fn build(surface: &Surface, place: &Placement, req: &TileRequest<'_>) -> MeshTile {
+    let t = req.tile;
+    let n = (GRID + 1) as usize;
+    let (heights, level) = vertex_heights(surface, place, t);
+    let deviation = measure_deviation(surface, place, t, &heights);
+    let (lo, hi) = height_range(surface);
+    let quantize =
+        |h: f64| (((h - lo) / (hi - lo)).clamp(0.0, 1.0) * f64::from(QMAX)).round() as u16;
+    let grid_q = |k: usize| ((k as u32 * QMAX + GRID / 2) / GRID) as u16;
+    // Grid vertices in row order; triangles counter-clockwise seen from above.
+    let grid_index = |i: usize, j: usize| (j * n + i) as u32;
+    let mut triangles: Vec<u32> = Vec::with_capacity((n - 1) * (n - 1) * 6);
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let (a, b, c, d) = (
+                grid_index(i, j),
+                grid_index(i + 1, j),
+                grid_index(i + 1, j + 1),
+                grid_index(i, j + 1),
+            );
+            triangles.extend_from_slice(&[a, b, c, a, c, d]);
+        }
+    }
+    // Vertices renumbered in order of first use, as high-water-mark coding needs.
+    let mut new_of = vec![u32::MAX; n * n];
+    let mut order = Vec::with_capacity(n * n);
+    for k in &mut triangles {
+        if new_of[*k as usize] == u32::MAX {
+            new_of[*k as usize] = order.len() as u32;
+            order.push(*k as usize);
+        }
+        *k = new_of[*k as usize];
+    }
+    let us: Vec<u16> = order.iter().map(|&g| grid_q(g % n)).collect();
+    let vs: Vec<u16> = order.iter().map(|&g| grid_q(g / n)).collect();
+    let hs: Vec<u16> = order.iter().map(|&g| quantize(heights[g])).collect();
+    let decoded_h = |q: u16| lo + f64::from(q) / f64::from(QMAX) * (hi - lo);
+    let positions: Vec<[f64; 3]> = order
+        .iter()
+        .zip(&hs)
+        .map(|(&g, &q)| {
+            let (lat, lon) = vertex_lat_lon(t, (g % n) as f64, (g / n) as f64);
+            Geodetic::new(lat, lon, decoded_h(q)).to_ecef()
+        })
+        .collect();
+    let edge = |f: &dyn Fn(usize) -> usize| -> Vec<u32> { (0..n).map(|k| new_of[f(k)]).collect() };
+    let edges = [
+        edge(&|k| k * n),           // west, south to north
+        edge(&|k| k),               // south, west to east
+        edge(&|k| k * n + n - 1),   // east, south to north
+        edge(&|k| (n - 1) * n + k), // north, west to east
+    ];
+    let mut out = Vec::with_capacity(88 + 6 * us.len() + 2 * triangles.len() + 1024);
+    write_header(&mut out, &positions, (lo, hi));
+    write_vertices(&mut out, [&us, &vs, &hs]);
+    write_indices(&mut out, &triangles, &edges, order.len());
+    if req.normals {
+        write_normals(&mut out, &positions, &triangles);
+    }
+    if let Some(meta) = req.metadata {
+        let json = serde_json::to_vec(meta).expect("JSON of plain values");
+        out.push(EXT_METADATA);
+        out.extend_from_slice(&(json.len() as u32 + 4).to_le_bytes());
+        out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        out.extend_from_slice(&json);
+    }
+    MeshTile {
+        bytes: out,
+        level,
+        height_step: (hi - lo) / f64::from(QMAX),
+        deviation,
+    }
+}
+
+fn put_f64s(out: &mut Vec<u8>, v: &[f64]) {
+    for x in v {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+}
+
+/// The 88-byte header.
+fn write_header(out: &mut Vec<u8>, positions: &[[f64; 3]], (lo, hi): (f64, f64)) {
+    let mut min = [f64::INFINITY; 3];
+    let mut max = [f64::NEG_INFINITY; 3];
+    for p in positions {
+        for k in 0..3 {
+            min[k] = min[k].min(p[k]);
+            max[k] = max[k].max(p[k]);
+        }
+    }
+    let centre: [f64; 3] = std::array::from_fn(|k| 0.5 * (min[k] + max[k]));
+    let radius = positions
+        .iter()
+        .map(|p| distance(*p, centre))
+        .fold(0.0, f64::max);
+    put_f64s(out, &centre);
+    out.extend_from_slice(&(lo as f32).to_le_bytes());
+    out.extend_from_slice(&(hi as f32).to_le_bytes());
+    put_f64s(out, &centre);
+    put_f64s(out, &[radius]);
+    put_f64s(out, &horizon_occlusion_point(positions, centre));
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// The horizon occlusion point, ECEF scaled by the ellipsoid's radii (CesiumJS's
+/// `EllipsoidalOccluder.computeHorizonCullingPointFromVertices`): a point that is hidden by the
+/// ellipsoid only when every vertex is. A tile too large to have one (a hemisphere at z = 0)
+/// gets NaN, which CesiumJS's test reads as never hidden.
+fn horizon_occlusion_point(positions: &[[f64; 3]], centre: [f64; 3]) -> [f64; 3] {
+    let scale = |p: [f64; 3]| [p[0] / A, p[1] / A, p[2] / B];
+    let dir = scale(centre);
+    let len = (dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]).sqrt();
+    if len == 0.0 {
+        return [f64::NAN; 3];
+    }
+    let dir = dir.map(|c| c / len);
+    let mut magnitude = 0.0f64;
+    for p in positions {
+        let s = scale(*p);
+        let m2 = s[0] * s[0] + s[1] * s[1] + s[2] * s[2];
+        let m = m2.sqrt();
+        let d = s.map(|c| c / m);
+        let (m2, m) = (m2.max(1.0), m.max(1.0));
+        let cos_alpha = d[0] * dir[0] + d[1] * dir[1] + d[2] * dir[2];
+        let cross = [
+            d[1] * dir[2] - d[2] * dir[1],
+            d[2] * dir[0] - d[0] * dir[2],
+            d[0] * dir[1] - d[1] * dir[0],
+        ];
+        let sin_alpha = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
+        let cos_beta = 1.0 / m;
+        let sin_beta = (m2 - 1.0).sqrt() * cos_beta;
+        let denominator = cos_alpha * cos_beta - sin_alpha * sin_beta;
+        if denominator <= 0.0 {
+            return [f64::NAN; 3];
+        }
+        magnitude = magnitude.max(1.0 / denominator);
+    }
+    dir.map(|c| c * magnitude)
+}
+
+/// Zig-zag delta coding of each of u, v, height.
+fn write_vertices(out: &mut Vec<u8>, arrays: [&[u16]; 3]) {
+    out.extend_from_slice(&(arrays[0].len() as u32).to_le_bytes());
+    for a in arrays {
+        let mut prev = 0i32;
+        for &v in a {
+            let d = i32::from(v) - prev;
+            prev = i32::from(v);
+            let zz = ((d << 1) ^ (d >> 31)) as u16;
+            out.extend_from_slice(&zz.to_le_bytes());
+        }
+    }
+}
+
+/// Triangle indices (high-water mark), then the west, south, east and north edge lists; 16-bit
+/// indices up to 65 536 vertices, 32-bit (4-byte aligned) beyond.
+fn write_indices(out: &mut Vec<u8>, triangles: &[u32], edges: &[Vec<u32>; 4], vertices: usize) {
+    let wide = vertices > 65_536;
+    let put = |out: &mut Vec<u8>, v: u32| {
+        if wide {
+            out.extend_from_slice(&v.to_le_bytes());
+        } else {
+            out.extend_from_slice(&(v as u16).to_le_bytes());
+        }
+    };
+    let align = if wide { 4 } else { 2 };
+    while !out.len().is_multiple_of(align) {
+        out.push(0);
+    }
+    out.extend_from_slice(&((triangles.len() / 3) as u32).to_le_bytes());
+    let mut highest = 0u32;
+    for &k in triangles {
+        put(out, highest - k);
+        if k == highest {
+            highest += 1;
+        }
+    }
+    for e in edges {
+        out.extend_from_slice(&(e.len() as u32).to_le_bytes());
+        for &k in e {
+            put(out, k);
+        }
+    }
+}
+
+/// Extension 1: per vertex, the area-weighted mean of its triangles' normals, oct-encoded.
+fn write_normals(out: &mut Vec<u8>, positions: &[[f64; 3]], triangles: &[u32]) {
+    let mut sums = vec![[0.0f64; 3]; positions.len()];
+    for t in triangles.chunks_exact(3) {
+        let [a, b, c] = [t[0], t[1], t[2]].map(|k| positions[k as usize]);
+        let (u, v) = (sub(b, a), sub(c, a));
+        let n = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        for &k in t {
+            for (s, c) in sums[k as usize].iter_mut().zip(n) {
+                *s += c;
+            }
+        }
+    }
+    out.push(EXT_NORMALS);
+    out.extend_from_slice(&(2 * positions.len() as u32).to_le_bytes());
+    for (s, p) in sums.iter().zip(positions) {
+        // A degenerate neighbourhood (the poles' collapsed rows) takes the radial direction.
+        let n = if s.iter().all(|c| *c == 0.0) { *p } else { *s };
+        out.extend_from_slice(&oct_encode(n));
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// CesiumJS's `AttributeCompression.octEncode` of a direction, to two bytes.
+pub fn oct_encode(v: [f64; 3]) -> [u8; 2] {
+    let l1 = v[0].abs() + v[1].abs() + v[2].abs();
+    let (mut x, mut y) = (v[0] / l1, v[1] / l1);
+    if v[2] < 0.0 {
+        let (ox, oy) = (x, y);
+        x = (1.0 - oy.abs()) * if ox >= 0.0 { 1.0 } else { -1.0 };
+        y = (1.0 - ox.abs()) * if oy >= 0.0 { 1.0 } else { -1.0 };
+    }
+    let snorm = |c: f64| ((c.clamp(-1.0, 1.0) * 0.5 + 0.5) * 255.0).round() as u8;
+    [snorm(x), snorm(y)]
+}
+
+/// The child tiles of `t` that exist at level `z + 1` among those available, as the
+/// metadata extension's `available` (one level: ranges in TMS rows, from the south).
+pub fn child_availability(t: TileId, bounds: [f64; 4], max_zoom: u8) -> serde_json::Value {
+    if t.z >= max_zoom {
+        return serde_json::json!([]);
+    }
+    let z = t.z + 1;
+    let mut ranges = Vec::new();
+    for dy in 0..2 {
+        for dx in 0..2 {
+            let c = TileId {
+                z,
+                x: 2 * t.x + dx,
+                y: 2 * t.y + dy,
+            };
+            if Scheme::Geographic.meets(c, bounds) {
+                ranges.push(serde_json::json!({
+                    "startX": c.x, "startY": c.y, "endX": c.x, "endY": c.y
+                }));
+            }
+        }
+    }
+    serde_json::json!([ranges])
+}

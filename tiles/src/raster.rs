@@ -1,0 +1,196 @@
+//! Elevation raster tiles: heights at each pixel centre of a Web Mercator tile, written as a
+//! terrarium or Mapbox terrain-RGB PNG (the encodings MapLibre's `raster-dem` source reads).
+//!
+//! - terrarium: `h = R·256 + G + B/256 − 32768`, a step of 1/256 m over −32 768 … 32 767.996 m;
+//! - terrain-RGB: `h = −10 000 + (R·65 536 + G·256 + B)·0.1`, a step of 0.1 m over
+//!   −10 000 … 1 667 721.5 m; heights below (the deepest ocean trenches) are clamped to
+//!   −10 000 m and counted ([`RasterTile::clamped`]).
+//!
+//! Heights are rounded to the nearest step, so a pixel is within half a step of the height
+//! computed. Pixels without data are transparent (an RGBA PNG; a tile with data everywhere is
+//! RGB) and their colour encodes 0 m, which is what a client ignoring alpha draws there.
+
+use crate::TilesError;
+use crate::place::{Placement, coarsen_for};
+use crate::schemes::{Scheme, TileId, mercator_lat};
+use crate::surface::Surface;
+
+/// Equatorial circumference of WGS84, metres (Web Mercator's world width).
+pub const EARTH_CIRCUMFERENCE: f64 = 2.0 * std::f64::consts::PI * cbdam_codec::geodesy::wgs84::A;
+
+/// A raster-dem encoding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Encoding {
+    /// Mapzen terrarium.
+    Terrarium,
+    /// Mapbox terrain-RGB.
+    TerrainRgb,
+}
+
+impl Encoding {
+    /// Its name in URLs and in MapLibre's `encoding` (`terrarium`, `mapbox`).
+    pub fn maplibre_name(self) -> &'static str {
+        match self {
+            Encoding::Terrarium => "terrarium",
+            Encoding::TerrainRgb => "mapbox",
+        }
+    }
+
+    /// Metres between two consecutive encoded heights.
+    pub fn step(self) -> f64 {
+        match self {
+            Encoding::Terrarium => 1.0 / 256.0,
+            Encoding::TerrainRgb => 0.1,
+        }
+    }
+
+    /// Lowest and highest encodable height, metres.
+    pub fn range(self) -> (f64, f64) {
+        match self {
+            Encoding::Terrarium => (-32_768.0, 32_768.0 - 1.0 / 256.0),
+            Encoding::TerrainRgb => (-10_000.0, -10_000.0 + f64::from((1u32 << 24) - 1) * 0.1),
+        }
+    }
+
+    /// The RGB of height `h` (clamped into [`Encoding::range`]) and whether it was clamped.
+    pub fn encode(self, h: f64) -> ([u8; 3], bool) {
+        let (lo, hi) = self.range();
+        let clamped = !(lo..=hi).contains(&h);
+        let h = h.clamp(lo, hi);
+        let v = match self {
+            Encoding::Terrarium => ((h + 32_768.0) * 256.0).round() as u32,
+            Encoding::TerrainRgb => ((h + 10_000.0) * 10.0).round() as u32,
+        };
+        ([(v >> 16) as u8, (v >> 8) as u8, v as u8], clamped)
+    }
+
+    /// The height of an RGB (the clients' formula).
+    pub fn decode(self, rgb: [u8; 3]) -> f64 {
+        let [r, g, b] = rgb.map(f64::from);
+        match self {
+            Encoding::Terrarium => r * 256.0 + g + b / 256.0 - 32_768.0,
+            Encoding::TerrainRgb => -10_000.0 + (r * 65_536.0 + g * 256.0 + b) * 0.1,
+        }
+    }
+}
+
+/// One encoded tile.
+#[derive(Clone, Debug)]
+pub struct RasterTile {
+    /// The PNG.
+    pub png: Vec<u8>,
+    /// Pixels whose height the encoding could not hold (clamped to its range).
+    pub clamped: u64,
+    /// Pixels without data (transparent).
+    pub nodata: u64,
+    /// The repository level the heights were taken from (the finest one used).
+    pub level: u8,
+}
+
+/// The Web Mercator zoom whose `tile`-pixel tiles first have pixels no larger than the data's
+/// finest spacing at the data's centre latitude.
+pub fn max_zoom(place: &Placement, tile: u32) -> u8 {
+    let [_, s, _, n] = place.bounds();
+    let lat = (0.5 * (s + n)).clamp(-80.0, 80.0).to_radians();
+    let ratio = EARTH_CIRCUMFERENCE * lat.cos() / (f64::from(tile) * place.spacing_m());
+    (ratio.log2().ceil().max(0.0) as u8).min(crate::schemes::MAX_ZOOM)
+}
+
+/// The `tile × tile` raster of Web Mercator tile `t`, encoded.
+pub fn render(
+    surface: &Surface,
+    place: &Placement,
+    t: TileId,
+    tile: u32,
+    encoding: Encoding,
+) -> Result<RasterTile, TilesError> {
+    let [w, s, e, n] = Scheme::WebMercator.bounds(t);
+    let centre_lat = (0.5 * (s + n)).to_radians();
+    let pixel_m =
+        EARTH_CIRCUMFERENCE * centre_lat.cos() / (f64::from(tile) * f64::from(1u32 << t.z));
+    let coarsen = coarsen_for(place.spacing_m(), pixel_m);
+    let size = tile as usize;
+    let world = f64::from(1u32 << t.z);
+    let mut rgba = vec![0u8; size * size * 4];
+    let (mut clamped, mut nodata, mut level) = (0u64, 0u64, u8::MAX);
+    let zero = encoding.encode(0.0).0;
+    for row in 0..size {
+        let yn = (f64::from(t.y) + (row as f64 + 0.5) / f64::from(tile)) / world;
+        let lat = mercator_lat(yn);
+        for col in 0..size {
+            let lon = w + (e - w) * (col as f64 + 0.5) / f64::from(tile);
+            let px = &mut rgba[(row * size + col) * 4..][..4];
+            let h = place
+                .locate(lat, lon)
+                .and_then(|(face, x, y)| surface.height(face, x, y, coarsen));
+            match h {
+                Some((h, l)) => {
+                    let (rgb, c) = encoding.encode(h);
+                    px.copy_from_slice(&[rgb[0], rgb[1], rgb[2], 255]);
+                    clamped += u64::from(c);
+                    level = level.min(l);
+                }
+                None => {
+                    px.copy_from_slice(&[zero[0], zero[1], zero[2], 0]);
+                    nodata += 1;
+                }
+            }
+        }
+    }
+    let png = write_png(&rgba, tile, nodata > 0)?;
+    Ok(RasterTile {
+        png,
+        clamped,
+        nodata,
+        level: if level == u8::MAX { 0 } else { level },
+    })
+}
+
+/// A PNG of `rgba` pixels, RGB when no pixel is transparent.
+fn write_png(rgba: &[u8], tile: u32, alpha: bool) -> Result<Vec<u8>, TilesError> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, tile, tile);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Fast);
+    let internal = |e: png::EncodingError| TilesError::Internal(format!("writing a PNG: {e}"));
+    if alpha {
+        enc.set_color(png::ColorType::Rgba);
+        let mut w = enc.write_header().map_err(internal)?;
+        w.write_image_data(rgba).map_err(internal)?;
+    } else {
+        enc.set_color(png::ColorType::Rgb);
+        let rgb: Vec<u8> = rgba
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect();
+        let mut w = enc.write_header().map_err(internal)?;
+        w.write_image_data(&rgb).map_err(internal)?;
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every encodable height comes back within half a step; outside the range it is clamped
+    /// and said so.
+    #[test]
+    fn encodings_round_trip_within_half_a_step_and_clamp() {
+        for enc in [Encoding::Terrarium, Encoding::TerrainRgb] {
+            let (lo, hi) = enc.range();
+            for k in 0..10_000 {
+                let h = -12_000.0 + 0.731_3 * f64::from(k) * 3.7;
+                let (rgb, clamped) = enc.encode(h);
+                let back = enc.decode(rgb);
+                assert_eq!(clamped, !(lo..=hi).contains(&h), "{enc:?} {h}");
+                let expected = h.clamp(lo, hi);
+                assert!(
+                    (back - expected).abs() <= enc.step() / 2.0 + 1e-9,
+                    "{enc:?} {h}: {back}"
+                );
+            }
+        }
+        assert_eq!(Encoding::TerrainRgb.encode(-10_500.0), ([0, 0, 0], true));
+    }
+}
