@@ -11,6 +11,7 @@ mod hostile_records;
 mod linf_bound;
 mod nodata_mask;
 mod older_formats;
+mod parallel_decode;
 mod planet_codec;
 mod planet_domain;
 mod real_dems;
