@@ -52,6 +52,12 @@ pub(crate) struct SectionEntry {
 /// provenance, [`PlanetProvenance`] (`docs/FORMAT.md`, "Cube-sphere repositories").
 pub const FLAG_PLANET_PROVENANCE: u32 = 8;
 
+/// Header flag bit 4: the header holds the RMS error bound of a `--rms-error` build, two
+/// floats after the nodata value (and a planet's provenance): the target and the RMS error the
+/// build measured (`docs/FORMAT.md`, "Header"). Builds that bound the maximum error only leave
+/// it clear and are unchanged; readers that predate it refuse it ("unknown header flags").
+pub const FLAG_RMS_ERROR: u32 = 16;
+
 /// What the heights of a planet are measured from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VerticalDatum {
@@ -155,6 +161,8 @@ pub(crate) struct HeaderFields {
     pub wkt: Option<String>,
     /// A planet's provenance (version 3, with flag bit 3 only).
     pub provenance: Option<PlanetProvenance>,
+    /// The RMS bound: target and measured, metres (version 3, with flag bit 4 only).
+    pub rms: Option<(f64, f64)>,
     /// Roots, index, checksums, records.
     pub sections: [SectionEntry; 4],
     pub record_count: u64,
@@ -293,6 +301,7 @@ fn read_fixed(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecErr
         nodata: f64_at(b, NODATA_AT),
         wkt: None,
         provenance: None,
+        rms: None,
         sections,
         record_count: u64_at(b, RECORD_COUNT_AT),
         crc,
@@ -425,6 +434,17 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
     } else {
         None
     };
+    let rms = if flags & FLAG_RMS_ERROR != 0 {
+        let (target, measured) = (f.f64()?, f.f64()?);
+        if !(target.is_finite() && target > 0.0 && measured >= 0.0 && measured <= target) {
+            return Err(CodecError::corrupt(format!(
+                "RMS error bound {target} m with {measured} m measured"
+            )));
+        }
+        Some((target, measured))
+    } else {
+        None
+    };
     let record_count = f.varint()?;
     let mut sections = [SectionEntry::default(); 4];
     let mut at = b.len() as u64;
@@ -476,6 +496,7 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
         nodata,
         wkt,
         provenance,
+        rms,
         sections,
         record_count,
         crc,
@@ -543,6 +564,11 @@ pub(crate) fn write_compact(h: &HeaderFields) -> Result<Vec<u8>, CodecError> {
         out.push(p.vertical_datum.to_byte());
         float(&mut out, p.resampling_max);
         float(&mut out, p.resampling_rms);
+    }
+    if h.flags & FLAG_RMS_ERROR != 0 {
+        let (target, measured) = h.rms.unwrap_or((0.0, 0.0));
+        float(&mut out, target);
+        float(&mut out, measured);
     }
     varint(&mut out, h.record_count);
     for s in &h.sections {
@@ -659,6 +685,7 @@ mod tests {
             nodata: f64::NAN,
             wkt: None,
             provenance: None,
+            rms: None,
             sections: [
                 SectionEntry {
                     offset: 0,
