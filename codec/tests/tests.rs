@@ -10,6 +10,7 @@ mod golden;
 mod hostile_records;
 mod linf_bound;
 mod nodata_mask;
+mod numerical_stress;
 mod older_formats;
 mod parallel_decode;
 mod planet_codec;
