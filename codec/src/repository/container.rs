@@ -1269,7 +1269,7 @@ mod tests {
         refused(&|h| h.geo_flags = 1, "georeferencing");
         refused(&|h| h.data_width -= 1, "points, the header says");
         refused(&|h| h.flags |= FLAG_COLOUR, "colour cube-sphere");
-        refused(&|h| h.flags |= 16, "unknown header flags");
+        refused(&|h| h.flags |= 32, "unknown header flags");
         refused(
             &|h| h.flags = FLAG_PLANET_PROVENANCE,
             "provenance (flag bit 3) in a planar",

@@ -724,6 +724,7 @@ mod tests {
         ]
         .into_iter()
         .chain(h.geo)
+        .chain(h.rms.into_iter().flat_map(|(t, m)| [t, m]))
         .map(f64::to_bits)
         .collect();
         let lengths: Vec<(u64, u32)> = h.sections.iter().map(|s| (s.length, s.crc)).collect();
@@ -759,6 +760,29 @@ mod tests {
     }
 
     #[test]
+    fn an_rms_bound_round_trips_under_flag_bit_4_and_bad_ones_are_refused() {
+        let mut h = sample(false);
+        let plain = write_compact(&h).unwrap();
+        h.flags |= FLAG_RMS_ERROR;
+        h.rms = Some((1.0, 0.8140239554214606));
+        let b = write_compact(&h).unwrap();
+        assert_eq!(key(&read_header(&b).unwrap()), key(&h));
+        // Only the flag's two floats are added.
+        assert!(b.len() > plain.len() && b.len() <= plain.len() + 2 * 10);
+        for bad in [
+            (1.0, 1.5),
+            (0.0, 0.0),
+            (-1.0, -2.0),
+            (f64::INFINITY, 1.0),
+            (1.0, f64::NAN),
+        ] {
+            h.rms = Some(bad);
+            let e = read_header(&write_compact(&h).unwrap()).unwrap_err();
+            assert!(e.to_string().contains("RMS error bound"), "{bad:?}: {e}");
+        }
+    }
+
+    #[test]
     fn extreme_fields_round_trip_within_the_maximum_length() {
         let mut h = sample(true);
         (h.flags, h.n, h.roots_x, h.roots_y) = (u32::MAX, u32::MAX, u32::MAX, u32::MAX);
@@ -772,6 +796,8 @@ mod tests {
         h.representation_error = f64::INFINITY;
         h.geo = [f64::MAX, f64::MIN, f64::NEG_INFINITY, f64::from_bits(1)];
         h.nodata = f64::from_bits(0x7FF8_0000_0000_0001);
+        // Flag bit 4 is among the flags: the RMS bound's extremes (measured ≤ target).
+        h.rms = Some((f64::MAX, f64::MIN_POSITIVE / 3.0));
         for s in &mut h.sections {
             s.length = u64::MAX / 8;
         }
