@@ -75,9 +75,20 @@ pub struct BuildArgs {
     #[arg(short, long)]
     pub(crate) output: PathBuf,
     /// Guaranteed maximum error of every reconstructed sample, metres; with --colour, whole
-    /// 8-bit levels bounding every decoded R, G and B component (0 = lossless).
-    #[arg(long, allow_hyphen_values = true)]
-    pub(crate) max_error: f64,
+    /// 8-bit levels bounding every decoded R, G and B component (0 = lossless). With
+    /// --rms-error, a cap on the maximum error (both bounds hold).
+    #[arg(
+        long,
+        allow_hyphen_values = true,
+        required_unless_present = "rms_error"
+    )]
+    pub(crate) max_error: Option<f64>,
+    /// Bound the root-mean-square error of the finest level over every valid sample instead,
+    /// metres: the build picks the coarsest quantizer whose decoded surface, measured, meets
+    /// it (one input DEM only; several trial encodes). The header records the bound and the
+    /// RMS error measured; `verify` checks it.
+    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["colour", "planet"])]
+    pub(crate) rms_error: Option<f64>,
     /// The input is an 8-bit RGB/RGBA PNG or RGB GeoTIFF: build a colour repository (YCoCg-R,
     /// each component coded like elevation) to drape over an elevation repository.
     #[arg(long)]
@@ -157,7 +168,8 @@ pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
     Ok(BuildOptions {
         inputs: args.inputs.clone(),
         output: args.output.clone(),
-        max_error: args.max_error,
+        max_error: args.max_error.unwrap_or(f64::INFINITY),
+        rms_error: args.rms_error,
         raw_size: args.size,
         memory_limit: args.memory_limit.map(|b| b.0),
         colour: args.colour,
@@ -244,7 +256,7 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
         let plan = &s.plan;
         println!(
             "{}: {}×{} samples ({} valid), {} bytes, {:.3} bits/sample, {} records, \
-             max error {} m (unit {} m, k = {}), {:.2} s",
+             max error {} m (unit {} m, k = {}){}, {:.2} s",
             args.output.display(),
             s.width,
             s.height,
@@ -255,6 +267,10 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
             plan.max_error(),
             plan.unit,
             plan.quantizer.k(),
+            plan.rms.map_or(String::new(), |r| format!(
+                ", RMS error {:.4} m (bound {} m)",
+                r.measured, r.target
+            )),
             start.elapsed().as_secs_f64()
         );
     }

@@ -8,10 +8,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use cbdam_builder::write::{Raster, write_geotiff, write_raw};
 use cbdam_codec::atomic::write_atomically;
+use cbdam_codec::hierarchy::walk_all_with_validity;
 use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
-use cbdam_tiles::surface::{LevelWindow, MASKED, NO_DATA, decode_levels};
 use clap::{Args, ValueEnum};
+use rayon::prelude::*;
 use serde_json::json;
 
 use crate::flags;
@@ -205,27 +206,74 @@ impl Samples {
         let encoded = repo
             .to_encoded()
             .with_context(|| format!("reading {}", path.display()))?;
-        let plan = repo.head().plan();
+        let (p, plan) = (repo.head().params(), repo.head().plan());
         let fill = repo.head().nodata().unwrap_or(f64::NAN);
-        let window = LevelWindow {
-            level: self.level,
-            x0: self.x0,
-            y0: self.y0,
-            x1: self.x1,
-            y1: self.y1,
-        };
-        let rasters = decode_levels(&encoded, &[window])
-            .with_context(|| format!("decoding {}", path.display()))?;
-        let raster = &rasters[0];
-        debug_assert!(raster.width == self.width && raster.height == self.height);
-        Ok(raster
-            .units
-            .iter()
-            .map(|&u| match u {
-                NO_DATA | MASKED => fill,
-                u => plan.metres(u),
-            })
-            .collect())
+        // Filled in parallel: the first touch of hundreds of megabytes of pages.
+        let mut values = Vec::new();
+        values.par_extend(rayon::iter::repeat_n(fill, self.width * self.height));
+        let n = p.layout().n();
+        walk_all_with_validity(&encoded, |id, grid, valid| {
+            if id.level != self.level {
+                return;
+            }
+            let g = p.layout().grid(id);
+            for j in 0..n {
+                // Row j of an even-level grid is a line of the output raster: clip it to the
+                // window once, then step through it.
+                let (origin, u) = (g.point(0, j as i64), g.u);
+                let Some(columns) = self.clip_row(origin, u, n) else {
+                    continue;
+                };
+                let (x, y) = (
+                    origin.0 + columns.start * u.0,
+                    origin.1 + columns.start * u.1,
+                );
+                // Even-level grids sit on multiples of their own spacing, which is `step`.
+                debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
+                let mut k =
+                    ((y - self.y0) / self.step) * self.width as i64 + (x - self.x0) / self.step;
+                let dk = u.1 / self.step * self.width as i64 + u.0 / self.step;
+                let row = j * n;
+                for i in columns.start as usize..columns.end as usize {
+                    if valid.is_none_or(|v| v[row + i]) {
+                        values[k as usize] = plan.metres(grid[row + i]);
+                    }
+                    k += dk;
+                }
+            }
+        })
+        .with_context(|| format!("decoding {}", path.display()))?;
+        Ok(values)
+    }
+
+    /// The indices `i` in `0..n` whose points `origin + i·u` lie inside the window, `None`
+    /// when none does (`u` is axis-aligned: the grids of even levels).
+    fn clip_row(
+        &self,
+        origin: (i64, i64),
+        u: (i64, i64),
+        n: usize,
+    ) -> Option<std::ops::Range<i64>> {
+        let (mut lo, mut hi) = (0i64, n as i64 - 1);
+        for (start, step, min, max) in [
+            (origin.0, u.0, self.x0, self.x1),
+            (origin.1, u.1, self.y0, self.y1),
+        ] {
+            match step.signum() {
+                0 if start < min || start > max => return None,
+                0 => {}
+                1 => {
+                    lo = lo.max((min - start + step - 1).div_euclid(step));
+                    hi = hi.min((max - start).div_euclid(step));
+                }
+                _ => {
+                    let s = -step;
+                    lo = lo.max((start - max + s - 1).div_euclid(s));
+                    hi = hi.min((start - min).div_euclid(s));
+                }
+            }
+        }
+        (lo <= hi).then_some(lo..hi + 1)
     }
 
     /// The georeferencing of the output raster, from the repository's `g`.

@@ -200,11 +200,24 @@ fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
             cbdam_codec::colour::ycocg::rgb_bound(p.quantizer.k() as u32)
         );
     } else {
-        println!(
-            "max error       {} m requested, {} m guaranteed",
-            plan.epsilon,
-            plan.max_error()
-        );
+        match plan.rms {
+            None => println!(
+                "max error       {} m requested, {} m guaranteed",
+                plan.epsilon,
+                plan.max_error()
+            ),
+            Some(_) => println!(
+                "max error       {} m guaranteed (the quantizer --rms-error chose)",
+                plan.max_error()
+            ),
+        }
+        if let Some(r) = plan.rms {
+            println!(
+                "rms error       {} m bound, {} m measured by the build (finest level, every \
+                 valid sample)",
+                r.target, r.measured
+            );
+        }
     }
     print_georef(repo);
     println!(
@@ -266,6 +279,10 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         v["nodata_mask"] = repo.head().params().nodata_mask.into();
         v["nodata_samples"] = (samples - valid).into();
         v["nodata_fraction"] = nodata_fraction.into();
+        if let Some(r) = repo.head().plan().rms {
+            v["rms_error_bound_m"] = r.target.into();
+            v["rms_error_measured_m"] = r.measured.into();
+        }
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }

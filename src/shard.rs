@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 
 use crate::build::BuildArgs;
@@ -77,6 +77,9 @@ pub fn run(command: &ShardCommand) -> Result<()> {
     match command {
         ShardCommand::Plan(args) => {
             let opts = crate::build::options(&args.build)?;
+            if opts.rms_error.is_some() {
+                bail!("--rms-error measures the whole decoded surface: build without shards");
+            }
             let s = cbdam_builder::shard::plan(
                 &opts,
                 &args.work,

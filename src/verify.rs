@@ -158,11 +158,15 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     );
     c.check_mask()?;
     println!(
-        "finest level against {}: max error {:.6} m (tolerance {} m, guaranteed {} m)",
+        "finest level against {}: max error {:.6} m (tolerance {} m, guaranteed {} m), RMS \
+         error {:.6} m{}",
         against.display(),
         c.max_error,
         c.epsilon,
-        c.guaranteed
+        c.guaranteed,
+        c.rms_error,
+        c.rms_bound
+            .map_or(String::new(), |b| format!(" (bound {b} m)"))
     );
     c.check_error()?;
     println!("OK");

@@ -119,6 +119,21 @@ pub struct QuantPlan {
     pub representation_error: f64,
     /// The tolerance asked for, metres.
     pub epsilon: f64,
+    /// The RMS error bound of a `--rms-error` build: the quantizer was chosen so that the finest
+    /// level's root-mean-square error over every valid sample is at most `target`. `None` for
+    /// a build that bounds the maximum error only.
+    pub rms: Option<RmsBound>,
+}
+
+/// The root-mean-square error bound of a repository built with `--rms-error` (header flag bit
+/// 4, `docs/FORMAT.md`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RmsBound {
+    /// The bound asked for, metres.
+    pub target: f64,
+    /// The RMS error the build measured at the finest level against its input, metres (at
+    /// most `target`).
+    pub measured: f64,
 }
 
 /// Relative slack when dividing decimal tolerances by decimal quanta: 0.3 / 0.1 is
@@ -213,6 +228,7 @@ impl QuantPlan {
             lattice,
             representation_error: if lattice { deviation } else { 0.0 },
             epsilon,
+            rms: None,
         })
     }
 
@@ -333,6 +349,7 @@ impl QuantPlan {
             lattice: true,
             representation_error: 0.0,
             epsilon,
+            rms: None,
         };
         let mut grid = HeightGrid::empty(src.width(), src.height(), storage)?;
         let nodata = src.nodata();

@@ -834,3 +834,50 @@ fn a_killed_build_resumes_and_writes_the_same_bytes() {
         stderr(&o)
     );
 }
+
+/// `--rms-error` end to end: without `--max-error` it builds, the summary, `inspect` (text and
+/// JSON) and `verify` state the RMS error, and the figures agree with the bound.
+#[test]
+fn an_rms_error_build_states_its_bound_everywhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r.cbdam");
+    let input = data("lidar1m_mn.tif");
+    let o = cbdam(&["build", &input, "-o", &s(&out), "--rms-error", "0.25"]);
+    succeeds(&o);
+    assert!(stdout(&o).contains("(bound 0.25 m)"), "{}", stdout(&o));
+    let o = cbdam(&["inspect", &s(&out)]);
+    succeeds(&o);
+    assert!(
+        stdout(&o).contains("rms error       0.25 m bound"),
+        "{}",
+        stdout(&o)
+    );
+    let o = cbdam(&["inspect", "--json", &s(&out)]);
+    succeeds(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(v["rms_error_bound_m"], 0.25);
+    let measured = v["rms_error_measured_m"].as_f64().unwrap();
+    assert!(measured > 0.0 && measured <= 0.25, "{measured}");
+    let o = cbdam(&["verify", &s(&out), "--against", &input]);
+    succeeds(&o);
+    assert!(stdout(&o).contains("RMS error") && stdout(&o).contains("(bound 0.25 m)"));
+    // Neither bound given is refused by clap, naming both.
+    let o = cbdam(&["build", &input, "-o", &s(&out)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--max-error"), "{}", stderr(&o));
+    // Bad bounds and unsupported combinations are refused by name.
+    for extra in [
+        &["--rms-error", "0"][..],
+        &["--rms-error", "1", "--colour"][..],
+    ] {
+        let mut args = vec!["build", &input, "-o", "x.cbdam"];
+        args.extend_from_slice(extra);
+        let o = cbdam(&args);
+        assert!(!o.status.success(), "{extra:?}");
+        assert!(
+            stderr(&o).contains("--rms-error"),
+            "{extra:?}: {}",
+            stderr(&o)
+        );
+    }
+}

@@ -21,6 +21,7 @@ pub mod mosaic;
 pub mod plan;
 pub mod planet;
 pub mod progress;
+pub mod rms;
 pub mod shard;
 mod shard_grid;
 pub mod tiles;
@@ -61,8 +62,12 @@ pub struct BuildOptions {
     /// The repository to write (atomically: a temporary file renamed into place).
     pub output: PathBuf,
     /// Guaranteed maximum error of every reconstructed sample, metres; with `colour`, whole
-    /// 8-bit levels bounding every decoded R, G and B component (0 = lossless).
+    /// 8-bit levels bounding every decoded R, G and B component (0 = lossless). With
+    /// `rms_error`, the cap on the maximum error (`f64::INFINITY`: none).
     pub max_error: f64,
+    /// Bound the finest level's root-mean-square error over every valid sample instead, metres
+    /// ([`rms`]): the coarsest quantizer that meets it within the `max_error` cap.
+    pub rms_error: Option<f64>,
     /// `Some((w, h))`: the one input is headerless little-endian float32 of `w × h` samples,
     /// row 0 north, streamed.
     pub raw_size: Option<(usize, usize)>,
@@ -106,6 +111,7 @@ impl BuildOptions {
             inputs,
             output,
             max_error,
+            rms_error: None,
             raw_size: None,
             memory_limit: None,
             colour: false,
@@ -384,14 +390,33 @@ pub(crate) fn prepare_elevation(
 
 /// Builds an elevation repository (`opts.colour` is ignored).
 pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<ElevationSummary> {
+    // `--rms-error`: the maximum error whose build meets the RMS bound, then that build.
+    let (chosen, rms) = match opts.rms_error {
+        Some(target) => {
+            let (max_error, bound) = rms::choose_max_error(opts, target)?;
+            let opts = BuildOptions {
+                max_error,
+                rms_error: None,
+                ..opts.clone()
+            };
+            (Some(opts), Some(bound))
+        }
+        None => (None, None),
+    };
+    let opts = chosen.as_ref().unwrap_or(opts);
     let PreparedBuild {
         tiles,
-        input,
+        mut input,
         resolution,
         storage,
         enc_opts,
         limit,
     } = prepare_elevation(opts, progress, None)?;
+    if rms.is_some() {
+        // The header's tolerance is then the maximum error the chosen quantizer guarantees.
+        input.plan.epsilon = input.plan.max_error();
+        input.plan.rms = rms;
+    }
     let mut stages = input.stages.clone();
     let journal = match &storage.blocks {
         Some(plan) => {

@@ -204,6 +204,8 @@ impl ShardPlan {
             lattice: get("lattice")? == "true",
             representation_error: real("representation_error")?,
             epsilon: real("epsilon")?,
+            // Sharded builds bound the maximum error only.
+            rms: None,
         };
         let georef = match value("georef") {
             None => None,

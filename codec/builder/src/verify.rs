@@ -89,6 +89,10 @@ pub struct DemComparison {
     pub max_error: f64,
     /// Where it is (sample index).
     pub worst: usize,
+    /// Root-mean-square error of the finest level against the DEM's valid samples, metres.
+    pub rms_error: f64,
+    /// The RMS bound of a `--rms-error` build (header flag bit 4), metres.
+    pub rms_bound: Option<f64>,
     /// The tolerance, metres.
     pub epsilon: f64,
     /// The guaranteed bound, metres.
@@ -133,6 +137,14 @@ impl DemComparison {
                 self.worst / self.width,
                 self.max_error,
                 self.epsilon
+            );
+        }
+        if let Some(bound) = self.rms_bound
+            && self.rms_error > bound * (1.0 + 1e-12)
+        {
+            bail!(
+                "RMS error {} m of the finest level is above the {bound} m bound the header                  records",
+                self.rms_error
             );
         }
         Ok(())
@@ -205,9 +217,12 @@ pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
         .collect();
     let mut max_error = 0f64;
     let mut worst = 0usize;
+    let (mut square_sum, mut valid_count) = (0f64, 0u64);
     for (i, &n) in finest.iter().enumerate() {
         if grid.valid[i] {
             let e = (plan.metres(n) - dem.values[i]).abs();
+            square_sum += e * e;
+            valid_count += 1;
             if e > max_error {
                 max_error = e;
                 worst = i;
@@ -222,6 +237,8 @@ pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
         mask_mismatches,
         max_error,
         worst,
+        rms_error: (square_sum / valid_count.max(1) as f64).sqrt(),
+        rms_bound: plan.rms.map(|r| r.target),
         epsilon: plan.epsilon,
         guaranteed: plan.max_error(),
         declared_nodata,

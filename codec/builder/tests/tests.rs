@@ -9,6 +9,7 @@ mod input_real;
 mod input_synthetic;
 mod lattice;
 mod progress;
+mod rms;
 mod streamed;
 mod tiles;
 mod verify;

@@ -22,6 +22,7 @@ pub fn colour_plan(max_error: u32) -> Result<QuantPlan, CodecError> {
         lattice: true,
         representation_error: 0.0,
         epsilon: f64::from(max_error),
+        rms: None,
     })
 }
 

@@ -2,6 +2,8 @@
 
 use std::collections::HashMap;
 
+use rayon::prelude::*;
+
 use super::analysis::analysis_fields;
 use super::refine::{RefineScratch, Refined, gather, gather_validity, refine};
 use super::roots::{decode_roots, root_grid};
@@ -258,6 +260,11 @@ pub(super) fn leaves_of(
 /// Visits the diamonds `ids` of one level (in that order) and refines those with a record in
 /// `records`, gathering each grid from `prev`, the refinements of the level above; gives the
 /// refinements of this level. A stored diamond with a parent that is not is corrupt.
+///
+/// The diamonds of a level depend only on the level above, so they are decoded in parallel
+/// (rayon, in chunks of a few per worker to bound the memory held) and then visited one by
+/// one in `ids` order: `visit` sees exactly what a serial walk shows it, and the first error
+/// in that order is the one returned.
 pub(super) fn walk_level(
     decoder: &Decoder,
     ids: &[DiamondId],
@@ -266,29 +273,88 @@ pub(super) fn walk_level(
     scratch: &mut RefineScratch,
     visit: &mut impl FnMut(DiamondId, &[i32], Option<&[bool]>),
 ) -> Result<HashMap<DiamondId, Refined>, CodecError> {
-    let domain = &decoder.params().domain;
-    let mut next = HashMap::new();
-    for &id in ids {
-        let parent_ids = domain.parents(id);
-        let parents = parent_ids.map(|p| p.and_then(|p| prev.get(&p)));
-        if id.level > 0
-            && parent_ids
-                .iter()
-                .zip(&parents)
-                .any(|(id, r)| id.is_some() && r.is_none())
-        {
-            return Err(CodecError::corrupt(format!(
-                "{id} is stored but a parent is not"
-            )));
+    let mut next = HashMap::with_capacity(records.ids.len());
+    let workers = rayon::current_num_threads();
+    if workers <= 1 || ids.len() < 2 {
+        for &id in ids {
+            let decoded = decode_diamond(decoder, id, records, prev, scratch);
+            visit_decoded(id, decoded, &mut next, visit)?;
         }
-        let p = decoder.grid_of(id, parents);
-        let valid = decoder.validity_of(id, parents);
-        visit(id, &p, valid.as_deref());
-        if let Some(bytes) = records.get(id) {
-            next.insert(id, decoder.refine(&p, bytes, scratch)?);
+        return Ok(next);
+    }
+    let chunk = PARALLEL_CHUNK_PER_WORKER * workers;
+    for ids in ids.chunks(chunk) {
+        let decoded: Vec<Result<DecodedDiamond, CodecError>> = ids
+            .par_iter()
+            .map_init(RefineScratch::default, |scratch, &id| {
+                decode_diamond(decoder, id, records, prev, scratch)
+            })
+            .collect();
+        for (&id, decoded) in ids.iter().zip(decoded) {
+            visit_decoded(id, decoded, &mut next, visit)?;
         }
     }
     Ok(next)
+}
+
+/// Diamonds each worker decodes between two visiting rounds of [`walk_level`].
+const PARALLEL_CHUNK_PER_WORKER: usize = 16;
+
+/// One diamond as [`walk_level`] visits it: its grid, the grid's validity, and its refinement
+/// when it has a record. `Err` in `refined` is a corrupt record, reported after the visit.
+struct DecodedDiamond {
+    grid: Vec<i32>,
+    valid: Option<Vec<bool>>,
+    refined: Option<Result<Refined, CodecError>>,
+}
+
+/// Gathers `id`'s grid and validity from `prev` and refines it by its record, if any.
+fn decode_diamond(
+    decoder: &Decoder,
+    id: DiamondId,
+    records: &LevelRecords<'_>,
+    prev: &HashMap<DiamondId, Refined>,
+    scratch: &mut RefineScratch,
+) -> Result<DecodedDiamond, CodecError> {
+    let parent_ids = decoder.params().domain.parents(id);
+    let parents = parent_ids.map(|p| p.and_then(|p| prev.get(&p)));
+    if id.level > 0
+        && parent_ids
+            .iter()
+            .zip(&parents)
+            .any(|(id, r)| id.is_some() && r.is_none())
+    {
+        return Err(CodecError::corrupt(format!(
+            "{id} is stored but a parent is not"
+        )));
+    }
+    let grid = decoder.grid_of(id, parents);
+    let valid = decoder.validity_of(id, parents);
+    let refined = records
+        .get(id)
+        .map(|bytes| decoder.refine(&grid, bytes, scratch));
+    Ok(DecodedDiamond {
+        grid,
+        valid,
+        refined,
+    })
+}
+
+/// Hands a decoded diamond to `visit` and keeps its refinement in `next`; the errors of
+/// [`decode_diamond`] in the order a serial walk meets them (a missing parent before the
+/// visit, a corrupt record after it).
+fn visit_decoded(
+    id: DiamondId,
+    decoded: Result<DecodedDiamond, CodecError>,
+    next: &mut HashMap<DiamondId, Refined>,
+    visit: &mut impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+) -> Result<(), CodecError> {
+    let decoded = decoded?;
+    visit(id, &decoded.grid, decoded.valid.as_deref());
+    if let Some(refined) = decoded.refined {
+        next.insert(id, refined?);
+    }
+    Ok(())
 }
 
 /// Decodes the finest level onto the input's grid (the domain's data rectangle, row-major):

@@ -21,7 +21,7 @@ use std::io::Write;
 use std::ops::Deref;
 use std::path::Path;
 
-pub use super::header::{FLAG_PLANET_PROVENANCE, PlanetProvenance, VerticalDatum};
+pub use super::header::{FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, PlanetProvenance, VerticalDatum};
 use super::header::{
     HeaderFields, SectionEntry, crc32, read_header, read_prefix, reseal_header, u32_at,
     write_compact,
@@ -34,7 +34,7 @@ use crate::entropy::CoderKind;
 use crate::geometry::{DataRect, DiamondId, Domain, DomainKind, Layout};
 use crate::hierarchy::{CodecParams, Decoder, Encoded, Record, RepoKind, root_quantizer};
 use crate::lifting::{Alpha, MAX_ABS_HEIGHT};
-use crate::quant::{QuantPlan, Quantizer};
+use crate::quant::{QuantPlan, Quantizer, RmsBound};
 use crate::repository::GeoRef;
 
 pub use super::header::{HEADER_FETCH_LEN, MAGIC, MAX_HEADER_LEN, header_len};
@@ -173,6 +173,11 @@ fn serialize_to(
             FLAG_PLANET_PROVENANCE
         } else {
             0
+        }
+        | if plan.rms.is_some() {
+            FLAG_RMS_ERROR
+        } else {
+            0
         };
     if provenance.is_some() && !cube_sphere {
         return Err(CodecError::invalid(
@@ -216,6 +221,7 @@ fn serialize_to(
         nodata: nodata.unwrap_or(f64::NAN),
         wkt: georef.and_then(|g| g.wkt.clone()),
         provenance: provenance.copied(),
+        rms: plan.rms.map(|r| (r.target, r.measured)),
         sections: [
             section(&encoded.roots),
             section(&index),
@@ -544,7 +550,9 @@ fn parse_params(h: &HeaderFields) -> Result<(CodecParams, QuantPlan), CodecError
 /// that order.
 fn parse_layout(h: &HeaderFields) -> Result<(Domain, Alpha, CoderKind, bool), CodecError> {
     let flags = h.flags;
-    if flags & !(FLAG_NODATA_MASK | FLAG_COLOUR | FLAG_CUBE_SPHERE | FLAG_PLANET_PROVENANCE) != 0 {
+    let known =
+        FLAG_NODATA_MASK | FLAG_COLOUR | FLAG_CUBE_SPHERE | FLAG_PLANET_PROVENANCE | FLAG_RMS_ERROR;
+    if flags & !known != 0 {
         return Err(CodecError::unsupported(format!(
             "unknown header flags {flags:#x}"
         )));
@@ -711,7 +719,15 @@ fn parse_plan(
         lattice,
         representation_error,
         epsilon,
+        rms: h
+            .rms
+            .map(|(target, measured)| RmsBound { target, measured }),
     };
+    if plan.rms.is_some() && kind == RepoKind::Colour {
+        return Err(CodecError::corrupt(
+            "an RMS error bound in a colour repository",
+        ));
+    }
     Ok((plan, root_q, kind))
 }
 
@@ -1010,6 +1026,8 @@ pub const CRAFTABLE_FIELDS: &[&str] = &[
     "record_count",
     "resampling_max",
     "resampling_rms",
+    "rms_target",
+    "rms_measured",
 ];
 
 /// A hostile writer's header: the repository `b` (format version 3 or later) with one header
@@ -1080,6 +1098,8 @@ pub fn craft_header(b: &[u8], field: &str, bits: u64) -> Result<Vec<u8>, CodecEr
                 ..provenance(&mut h)
             });
         }
+        "rms_target" => h.rms = Some((float, h.rms.map_or(0.0, |r| r.1))),
+        "rms_measured" => h.rms = Some((h.rms.map_or(float, |r| r.0), float)),
         _ => {
             return Err(CodecError::invalid(format!(
                 "no header field {field} (one of {})",
@@ -1249,7 +1269,7 @@ mod tests {
         refused(&|h| h.geo_flags = 1, "georeferencing");
         refused(&|h| h.data_width -= 1, "points, the header says");
         refused(&|h| h.flags |= FLAG_COLOUR, "colour cube-sphere");
-        refused(&|h| h.flags |= 16, "unknown header flags");
+        refused(&|h| h.flags |= 32, "unknown header flags");
         refused(
             &|h| h.flags = FLAG_PLANET_PROVENANCE,
             "provenance (flag bit 3) in a planar",

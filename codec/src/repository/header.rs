@@ -52,6 +52,12 @@ pub(crate) struct SectionEntry {
 /// provenance, [`PlanetProvenance`] (`docs/FORMAT.md`, "Cube-sphere repositories").
 pub const FLAG_PLANET_PROVENANCE: u32 = 8;
 
+/// Header flag bit 4: the header holds the RMS error bound of a `--rms-error` build, two
+/// floats after the nodata value (and a planet's provenance): the target and the RMS error the
+/// build measured (`docs/FORMAT.md`, "Header"). Builds that bound the maximum error only leave
+/// it clear and are unchanged; readers that predate it refuse it ("unknown header flags").
+pub const FLAG_RMS_ERROR: u32 = 16;
+
 /// What the heights of a planet are measured from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VerticalDatum {
@@ -155,6 +161,8 @@ pub(crate) struct HeaderFields {
     pub wkt: Option<String>,
     /// A planet's provenance (version 3, with flag bit 3 only).
     pub provenance: Option<PlanetProvenance>,
+    /// The RMS bound: target and measured, metres (version 3, with flag bit 4 only).
+    pub rms: Option<(f64, f64)>,
     /// Roots, index, checksums, records.
     pub sections: [SectionEntry; 4],
     pub record_count: u64,
@@ -293,6 +301,7 @@ fn read_fixed(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecErr
         nodata: f64_at(b, NODATA_AT),
         wkt: None,
         provenance: None,
+        rms: None,
         sections,
         record_count: u64_at(b, RECORD_COUNT_AT),
         crc,
@@ -425,6 +434,17 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
     } else {
         None
     };
+    let rms = if flags & FLAG_RMS_ERROR != 0 {
+        let (target, measured) = (f.f64()?, f.f64()?);
+        if !(target.is_finite() && target > 0.0 && measured >= 0.0 && measured <= target) {
+            return Err(CodecError::corrupt(format!(
+                "RMS error bound {target} m with {measured} m measured"
+            )));
+        }
+        Some((target, measured))
+    } else {
+        None
+    };
     let record_count = f.varint()?;
     let mut sections = [SectionEntry::default(); 4];
     let mut at = b.len() as u64;
@@ -476,6 +496,7 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
         nodata,
         wkt,
         provenance,
+        rms,
         sections,
         record_count,
         crc,
@@ -543,6 +564,11 @@ pub(crate) fn write_compact(h: &HeaderFields) -> Result<Vec<u8>, CodecError> {
         out.push(p.vertical_datum.to_byte());
         float(&mut out, p.resampling_max);
         float(&mut out, p.resampling_rms);
+    }
+    if h.flags & FLAG_RMS_ERROR != 0 {
+        let (target, measured) = h.rms.unwrap_or((0.0, 0.0));
+        float(&mut out, target);
+        float(&mut out, measured);
     }
     varint(&mut out, h.record_count);
     for s in &h.sections {
@@ -659,6 +685,7 @@ mod tests {
             nodata: f64::NAN,
             wkt: None,
             provenance: None,
+            rms: None,
             sections: [
                 SectionEntry {
                     offset: 0,
@@ -697,6 +724,7 @@ mod tests {
         ]
         .into_iter()
         .chain(h.geo)
+        .chain(h.rms.into_iter().flat_map(|(t, m)| [t, m]))
         .map(f64::to_bits)
         .collect();
         let lengths: Vec<(u64, u32)> = h.sections.iter().map(|s| (s.length, s.crc)).collect();
@@ -732,6 +760,29 @@ mod tests {
     }
 
     #[test]
+    fn an_rms_bound_round_trips_under_flag_bit_4_and_bad_ones_are_refused() {
+        let mut h = sample(false);
+        let plain = write_compact(&h).unwrap();
+        h.flags |= FLAG_RMS_ERROR;
+        h.rms = Some((1.0, 0.8140239554214606));
+        let b = write_compact(&h).unwrap();
+        assert_eq!(key(&read_header(&b).unwrap()), key(&h));
+        // Only the flag's two floats are added.
+        assert!(b.len() > plain.len() && b.len() <= plain.len() + 2 * 10);
+        for bad in [
+            (1.0, 1.5),
+            (0.0, 0.0),
+            (-1.0, -2.0),
+            (f64::INFINITY, 1.0),
+            (1.0, f64::NAN),
+        ] {
+            h.rms = Some(bad);
+            let e = read_header(&write_compact(&h).unwrap()).unwrap_err();
+            assert!(e.to_string().contains("RMS error bound"), "{bad:?}: {e}");
+        }
+    }
+
+    #[test]
     fn extreme_fields_round_trip_within_the_maximum_length() {
         let mut h = sample(true);
         (h.flags, h.n, h.roots_x, h.roots_y) = (u32::MAX, u32::MAX, u32::MAX, u32::MAX);
@@ -745,6 +796,8 @@ mod tests {
         h.representation_error = f64::INFINITY;
         h.geo = [f64::MAX, f64::MIN, f64::NEG_INFINITY, f64::from_bits(1)];
         h.nodata = f64::from_bits(0x7FF8_0000_0000_0001);
+        // Flag bit 4 is among the flags: the RMS bound's extremes (measured ≤ target).
+        h.rms = Some((f64::MAX, f64::MIN_POSITIVE / 3.0));
         for s in &mut h.sections {
             s.length = u64::MAX / 8;
         }
