@@ -11,7 +11,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-target="${CARGO_TARGET_DIR:-target}"
+# Absolute: maturin runs cargo from client/python, where a relative target would be another one.
+mkdir -p "${CARGO_TARGET_DIR:-target}"
+target="$(cd "${CARGO_TARGET_DIR:-target}" && pwd)"
 venv="$target/cbdam-python-venv"
 if ! python3 -c 'import pip, venv, ensurepip' >/dev/null 2>&1; then
     case "${CI:-}" in
@@ -36,8 +38,9 @@ if [ ! -x "$venv/bin/python" ] || ! cmp -s "$requirements" "$venv/requirements-t
     cp "$requirements" "$venv/requirements-test.txt"
 fi
 # The package as a user installs it: `pip install ./client/python` (maturin, a release build).
-# The cargo target directory is the workspace's: rebuilt only when the Rust sources change.
-CARGO_TARGET_DIR="$target" "$venv/bin/python" -m pip install --quiet --disable-pip-version-check \
+# The cargo target directory is the workspace's: rebuilt only when the Rust sources change. The
+# venv's maturin is found on PATH (no build isolation: nothing is fetched for the build).
+PATH="$venv/bin:$PATH" CARGO_TARGET_DIR="$target" "$venv/bin/python" -m pip install --quiet --disable-pip-version-check \
     --no-build-isolation --force-reinstall --no-deps ./client/python
 cargo build --quiet --bin cbdam
 CBDAM_BIN="$target/debug/cbdam" "$venv/bin/python" -m pytest -q -p no:cacheprovider \

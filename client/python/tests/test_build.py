@@ -1,7 +1,6 @@
 """`cbdam.build` writes the CLI's bytes and reports progress; `cbdam.verify` checks like the
 CLI; bad input raises with the CLI's message."""
 
-import numpy as np
 import pytest
 from conftest import DATA, cli_build
 
@@ -53,3 +52,15 @@ def test_verify(repos, tmp_path):
         cbdam.verify(bad)
     with pytest.raises(cbdam.InputError):
         cbdam.verify(repos["jacksboro"], against=[DATA / "lidar1m_mn.tif"])
+
+
+def test_a_planet_opens_and_read_says_it_is_unsupported(tmp_path):
+    # A coarse lattice (K = 2) of ETOPO5: built in a moment.
+    out = tmp_path / "earth.cbdam"
+    cbdam.build([DATA / "etopo5_global.tif"], out, 16.0, planet=True, planet_level=2)
+    r = cbdam.open(out)
+    assert r.domain == "cube-sphere" and r.meta["faces"] == 6
+    with pytest.raises(cbdam.UnsupportedError, match="planet"):
+        r.read()
+    with pytest.raises(cbdam.InputError, match="planet_level"):
+        cbdam.build([DATA / "etopo5_global.tif"], out, 16.0, planet_level=2)
