@@ -2,8 +2,8 @@
 # The Python package's tests (run by scripts/test.sh after the workspace's tests): sets up a venv
 # under target/ with client/python/requirements-test.txt (maturin, NumPy, pytest, xarray,
 # rioxarray, rasterio, Dask), installs the package from client/python with pip (maturin builds
-# the extension, release profile, into target/), builds the cbdam binary the tests compare with,
-# and runs pytest on client/python/tests against the sample DEMs.
+# the extension, release profile, into target/), and runs pytest on client/python/tests against
+# the sample DEMs and the cbdam binary ($CBDAM_BIN, else built here).
 #
 # Needs python3 with pip and venv (test.sh installs python3-pip python3-venv where it can). Where
 # they are missing it says so and skips, except under CI (CI set, and not false or 0), where that
@@ -42,6 +42,11 @@ fi
 # venv's maturin is found on PATH (no build isolation: nothing is fetched for the build).
 PATH="$venv/bin:$PATH" CARGO_TARGET_DIR="$target" "$venv/bin/python" -m pip install --quiet --disable-pip-version-check \
     --no-build-isolation --force-reinstall --no-deps ./client/python
-cargo build --quiet --bin cbdam
-CBDAM_BIN="$target/debug/cbdam" "$venv/bin/python" -m pytest -q -p no:cacheprovider \
+# The CLI the tests compare with: $CBDAM_BIN (test.sh passes the one `cargo test` built: building
+# the binary alone would unify other features and rebuild much of the tree), else built here.
+if [ -z "${CBDAM_BIN:-}" ]; then
+    cargo build --quiet --bin cbdam
+    CBDAM_BIN="$target/debug/cbdam"
+fi
+CBDAM_BIN="$CBDAM_BIN" "$venv/bin/python" -m pytest -q -p no:cacheprovider \
     client/python/tests "$@"

@@ -137,7 +137,7 @@ cargo test --workspace --all-targets
 
 # The Python package (client/python): built into a venv with maturin, its pytest suite against
 # the CLI (sets up its venv; needs pip and venv, installed above).
-scripts/python-test.sh
+CBDAM_BIN="${CARGO_TARGET_DIR:-target}/debug/cbdam" scripts/python-test.sh
 
 # The browser viewer, end to end in headless Chromium (builds the web bundle; sets up Chromium).
 scripts/web-test.sh

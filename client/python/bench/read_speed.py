@@ -71,10 +71,16 @@ def main(dem, cbdam_bin, work, max_error="1"):
         n = samples if "whole" in name else w.width * w.height
         print(f"{name:40s} {s * 1000:9.1f} ms  {n / s / 1e6:8.1f} M samples/s")
     assert np.array_equal(np.isnan(r.read(window=window)), np.isnan(r.read()[w.toslices()]))
-    py = sys.executable
-    bare = median_seconds(lambda: subprocess.run([py, "-c", "pass"], check=True))
-    imp = median_seconds(lambda: subprocess.run([py, "-c", "import cbdam"], check=True))
-    print(f"import cbdam: {(imp - bare) * 1000:.0f} ms (python -c pass {bare * 1000:.0f} ms)")
+    # Import time: python -X importtime's cumulative microseconds of the package, median of 5.
+    def import_us():
+        p = subprocess.run(
+            [sys.executable, "-X", "importtime", "-c", "import cbdam"],
+            capture_output=True, text=True, check=True,
+        )
+        line = [x for x in p.stderr.splitlines() if x.rstrip().endswith("| cbdam")][-1]
+        return int(line.split("|")[1])
+
+    print(f"import cbdam: {statistics.median(import_us() for _ in range(5)) / 1000:.1f} ms")
 
 
 if __name__ == "__main__":
