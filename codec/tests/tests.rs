@@ -16,3 +16,4 @@ mod planet_domain;
 mod real_dems;
 mod repository;
 mod variable_resolution;
+mod window_decode;
