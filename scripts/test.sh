@@ -70,8 +70,8 @@ if ! command -v Xvfb >/dev/null 2>&1 || ! command -v xdotool >/dev/null 2>&1 \
         fi
     fi
 fi
-# The Dask tests (tests/cli/shard.rs) install codec/builder/dask/requirements.txt into a venv:
-# they need pip and venv (Debian splits them out of python3). Installed when missing, like the
+# The Dask tests (tests/cli/shard.rs) install codec/builder/dask/requirements.txt into a venv,
+# and scripts/python-test.sh client/python/requirements-test.txt into another: they need pip and venv (Debian splits them out of python3). Installed when missing, like the
 # above; without them those tests are skipped, except under CI, where they fail.
 if ! python3 -c 'import pip' >/dev/null 2>&1 || ! python3 -c 'import venv, ensurepip' >/dev/null 2>&1; then
     if command -v apt-get >/dev/null 2>&1; then
@@ -134,6 +134,10 @@ if command -v rustup >/dev/null 2>&1 \
 fi
 
 cargo test --workspace --all-targets
+
+# The Python package (client/python): built into a venv with maturin, its pytest suite against
+# the CLI (sets up its venv; needs pip and venv, installed above).
+CBDAM_BIN="${CARGO_TARGET_DIR:-target}/debug/cbdam" scripts/python-test.sh
 
 # The browser viewer, end to end in headless Chromium (builds the web bundle; sets up Chromium).
 scripts/web-test.sh

@@ -9,8 +9,8 @@ use anyhow::{Context, Result, bail};
 use cbdam_builder::write::{Raster, write_geotiff, write_raw};
 use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::hierarchy::walk_all_with_validity;
-use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
+use cbdam_codec::repository::{LevelGrid, bbox_window};
 use clap::{Args, ValueEnum};
 use rayon::prelude::*;
 use serde_json::json;
@@ -139,59 +139,33 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     Ok(())
 }
 
-/// The samples to write: the lattice points of one even level inside the window, from
-/// `(x0, y0)` to at most `(x1, y1)`, `step` input samples apart.
-struct Samples {
-    level: u8,
-    step: i64,
-    x0: i64,
-    y0: i64,
-    x1: i64,
-    y1: i64,
-    width: usize,
-    height: usize,
+/// The samples to write: one even level inside the window ([`LevelGrid`]).
+struct Samples(LevelGrid);
+
+impl std::ops::Deref for Samples {
+    type Target = LevelGrid;
+    fn deref(&self) -> &LevelGrid {
+        &self.0
+    }
 }
 
 impl Samples {
     /// The samples `--level` and `--bbox` ask for, checked.
     fn of(args: &ExtractArgs, repo: &Repository) -> Result<Samples> {
         let p = repo.head().params();
-        let finest = p.layout().finest_level();
-        let level = args.level.unwrap_or(finest);
-        if !level.is_multiple_of(2) || level > finest {
-            bail!(
-                "--level {level}: only even levels 0, 2, …, {finest} are axis-aligned grids in \
-                 this repository (the finest is {finest})"
-            );
-        }
-        // Lattice spacing of the level's samples: level 2m samples every 2^(K−m) input samples.
-        let step = 1i64 << ((finest - level) / 2);
         let (w, h) = (
             i64::from(p.domain.data().width),
             i64::from(p.domain.data().height),
         );
-        let window = match &args.bbox {
-            None => (0, 0, w - 1, h - 1),
-            Some(b) => bbox_window(b, repo.head().georef(), w, h)?,
+        let rect = match &args.bbox {
+            None => None,
+            Some(b) => Some(
+                bbox_window(b, repo.head().georef(), w, h, "--bbox").map_err(anyhow::Error::msg)?,
+            ),
         };
-        // The level's lattice points inside the window: multiples of `step`.
-        let first = |lo: i64| (lo + step - 1).div_euclid(step) * step;
-        let (x0, y0) = (first(window.0), first(window.1));
-        if x0 > window.2 || y0 > window.3 {
-            bail!(
-                "the bounding box holds no sample of level {level} (spacing {step} input samples)"
-            );
-        }
-        Ok(Samples {
-            level,
-            step,
-            x0,
-            y0,
-            x1: window.2,
-            y1: window.3,
-            width: ((window.2 - x0) / step + 1) as usize,
-            height: ((window.3 - y0) / step + 1) as usize,
-        })
+        Ok(Samples(
+            LevelGrid::new(p, args.level, rect, "--level").map_err(anyhow::Error::msg)?,
+        ))
     }
 
     /// Decodes `repo` (read from `path`) and returns the samples' heights in metres, row by row.
@@ -275,21 +249,6 @@ impl Samples {
         }
         (lo <= hi).then_some(lo..hi + 1)
     }
-
-    /// The georeferencing of the output raster, from the repository's `g`.
-    fn georef(&self, g: &GeoRef) -> GeoRef {
-        // Raster point (0, 0) of the output is lattice point (x0, y0); a PixelIsArea origin is the
-        // outer corner of a cell `step` samples wide centred on that point.
-        let half = if g.pixel_is_area { 0.5 } else { 0.0 };
-        let (sx, sy) = (self.step as f64, self.step as f64);
-        GeoRef {
-            origin_x: g.origin_x + (self.x0 as f64 + half - half * sx) * g.pixel_x,
-            origin_y: g.origin_y - (self.y0 as f64 + half - half * sy) * g.pixel_y,
-            pixel_x: g.pixel_x * sx,
-            pixel_y: g.pixel_y * sy,
-            ..g.clone()
-        }
-    }
 }
 
 /// Writes `raster` as a GeoTIFF to --output and, for a CRS known only as WKT, an ESRI `.prj`
@@ -332,72 +291,4 @@ fn write_sidecar(output: &Path, sidecar: &Path, meta: &serde_json::Value) -> Res
 /// `OUT.json` next to a raw `OUT.f32` (the extension replaced).
 fn sidecar_path(output: &Path) -> PathBuf {
     output.with_extension("json")
-}
-
-/// The inclusive lattice window `(x0, y0, x1, y1)` of the data samples inside `b`, clipped to
-/// the data. With georeferencing `b` is in CRS units and a sample is inside when its centre is;
-/// without, it is in column / row indices (row 0 = north).
-fn bbox_window(b: &[f64], georef: Option<&GeoRef>, w: i64, h: i64) -> Result<(i64, i64, i64, i64)> {
-    let [minx, miny, maxx, maxy] = b else {
-        bail!(
-            "--bbox takes four numbers MINX,MINY,MAXX,MAXY, not {}",
-            b.len()
-        );
-    };
-    if !b.iter().all(|v| v.is_finite()) {
-        bail!("--bbox holds a non-finite number");
-    }
-    if minx > maxx || miny > maxy {
-        bail!("--bbox is inverted: MINX must not exceed MAXX, nor MINY MAXY");
-    }
-    // Sample (c, r) has its centre at (ox + (c + half)·px, oy − (r + half)·py); solve for c and r.
-    let (ox, oy, px, py, half) = match georef {
-        Some(g) => (
-            g.origin_x,
-            g.origin_y,
-            g.pixel_x,
-            g.pixel_y,
-            if g.pixel_is_area { 0.5 } else { 0.0 },
-        ),
-        // Pixel coordinates: x = column, y = row.
-        None => (0.0, 0.0, 1.0, -1.0, 0.0),
-    };
-    let range = |a: f64, b: f64| {
-        let (lo, hi) = (a.min(b), a.max(b));
-        (lo.ceil(), hi.floor())
-    };
-    let (c0, c1) = range((minx - ox) / px - half, (maxx - ox) / px - half);
-    let (r0, r1) = range((oy - maxy) / py - half, (oy - miny) / py - half);
-    let (c0, r0) = (c0.max(0.0), r0.max(0.0));
-    let (c1, r1) = (c1.min((w - 1) as f64), r1.min((h - 1) as f64));
-    if c0 > c1 || r0 > r1 {
-        bail!(
-            "--bbox {minx},{miny},{maxx},{maxy} holds no sample of the data ({})",
-            match georef {
-                Some(g) => {
-                    let xs = [
-                        g.origin_x + half * g.pixel_x,
-                        g.origin_x + ((w - 1) as f64 + half) * g.pixel_x,
-                    ];
-                    let ys = [
-                        g.origin_y - half * g.pixel_y,
-                        g.origin_y - ((h - 1) as f64 + half) * g.pixel_y,
-                    ];
-                    format!(
-                        "sample centres span x {} … {}, y {} … {}",
-                        xs[0].min(xs[1]),
-                        xs[0].max(xs[1]),
-                        ys[0].min(ys[1]),
-                        ys[0].max(ys[1])
-                    )
-                }
-                None => format!(
-                    "no georeferencing: columns 0 … {}, rows 0 … {}",
-                    w - 1,
-                    h - 1
-                ),
-            }
-        );
-    }
-    Ok((c0 as i64, r0 as i64, c1 as i64, r1 as i64))
 }

@@ -18,3 +18,4 @@ mod planet_domain;
 mod real_dems;
 mod repository;
 mod variable_resolution;
+mod window_decode;

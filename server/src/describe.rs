@@ -2,7 +2,7 @@
 //! `/v1/repos/{name}/meta`, so the two never drift apart.
 
 use cbdam_codec::lifting::Alpha;
-use cbdam_codec::repository::{Repository, Section};
+use cbdam_codec::repository::{Repository, RepositoryHead, Section};
 use serde_json::{Value, json};
 
 /// Per-level statistics of the stored records.
@@ -35,7 +35,12 @@ pub struct Summary {
 
 /// Computes the [`Summary`] of `repo` (one pass over the index).
 pub fn summarize(repo: &Repository) -> Summary {
-    let p = repo.head().params();
+    summarize_head(repo.head())
+}
+
+/// [`summarize`] from a repository's head alone (all it reads): a remote repository's too.
+pub fn summarize_head(head: &RepositoryHead) -> Summary {
+    let p = head.params();
     let finest = p.layout().finest_level();
     let mut levels = vec![
         LevelStats {
@@ -44,9 +49,9 @@ pub fn summarize(repo: &Repository) -> Summary {
         };
         usize::from(finest) + 1
     ];
-    let (mut lo, mut hi) = (repo.head().leaf_error(), repo.head().leaf_error());
+    let (mut lo, mut hi) = (head.leaf_error(), head.leaf_error());
     let mut empty_records = 0;
-    for e in repo.head().entries() {
+    for e in head.entries() {
         let l = &mut levels[usize::from(e.id.level)];
         l.records += 1;
         l.bytes += u64::from(e.length);
@@ -63,11 +68,11 @@ pub fn summarize(repo: &Repository) -> Summary {
         levels,
         empty_records,
         object_error_range: (lo, hi),
-        container_overhead: repo.head().file_len()
-            - repo.head().section_len(Section::Roots)
-            - repo.head().section_len(Section::Index)
-            - repo.head().section_len(Section::Records),
-        bits_per_sample: repo.head().file_len() as f64 * 8.0 / samples as f64,
+        container_overhead: head.file_len()
+            - head.section_len(Section::Roots)
+            - head.section_len(Section::Index)
+            - head.section_len(Section::Records),
+        bits_per_sample: head.file_len() as f64 * 8.0 / samples as f64,
     }
 }
 
@@ -87,11 +92,16 @@ pub fn alpha_name(a: Alpha) -> &'static str {
 /// sizes and offsets, root ids, and per-level record statistics. This is the output of
 /// `cbdam inspect --json`; the server's meta endpoint adds links to it.
 pub fn describe(repo: &Repository) -> Value {
-    let p = repo.head().params();
-    let plan = repo.head().plan();
-    let s = summarize(repo);
+    describe_head(repo.head())
+}
+
+/// [`describe`] from a repository's head alone (all it reads): a remote repository's too.
+pub fn describe_head(head: &RepositoryHead) -> Value {
+    let p = head.params();
+    let plan = head.plan();
+    let s = summarize_head(head);
     let metres = |u: u32| f64::from(u) * plan.unit;
-    let geo = repo.head().georef().map(|g| {
+    let geo = head.georef().map(|g| {
         json!({
             "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
             "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
@@ -102,7 +112,7 @@ pub fn describe(repo: &Repository) -> Value {
     // The area the data samples cover, in CRS units: cell edges for pixel-is-area data,
     // sample centres widened by half a pixel for pixel-is-point data (GDAL's convention), so
     // both read as "the extent of the raster".
-    let bbox = repo.head().georef().map(|g| {
+    let bbox = head.georef().map(|g| {
         let half = if g.pixel_is_area { 0.0 } else { 0.5 };
         let x0 = g.origin_x - half * g.pixel_x;
         let y0 = g.origin_y + half * g.pixel_y;
@@ -124,10 +134,10 @@ pub fn describe(repo: &Repository) -> Value {
             })
         })
         .collect();
-    let section = |sec: Section| json!({ "offset": repo.head().section_offset(sec), "length": repo.head().section_len(sec) });
+    let section = |sec: Section| json!({ "offset": head.section_offset(sec), "length": head.section_len(sec) });
     let roots: Vec<String> = p.domain.roots().map(|id| id.to_string()).collect();
     // A planet's provenance, null for planes.
-    let planet = repo.head().provenance().map(|v| {
+    let planet = head.provenance().map(|v| {
         json!({
             "vertical_datum": v.vertical_datum.code(),
             "resampling_max_m": v.resampling_max,
@@ -135,12 +145,12 @@ pub fn describe(repo: &Repository) -> Value {
         })
     });
     let mut v = json!({
-        "format_version": repo.head().format_version(),
+        "format_version": head.format_version(),
         "kind": p.kind.name(),
         "domain": p.domain.kind().name(),
         "faces": p.domain.faces(),
-        "file_bytes": repo.head().file_len(),
-        "header_crc": format!("{:08x}", repo.head().header_crc()),
+        "file_bytes": head.file_len(),
+        "header_crc": format!("{:08x}", head.header_crc()),
         "diamond_size": p.layout().n(),
         "level_pairs": p.layout().k(),
         "finest_level": p.layout().finest_level(),
@@ -165,17 +175,17 @@ pub fn describe(repo: &Repository) -> Value {
         "max_error_guaranteed_m": plan.max_error(),
         "representation_error_m": plan.representation_error,
         "lattice": plan.lattice,
-        "nodata": repo.head().nodata(),
+        "nodata": head.nodata(),
         "georef": geo,
-        "records": repo.head().entries().len(),
+        "records": head.entries().len(),
         "empty_records": s.empty_records,
-        "roots_bytes": repo.head().section_len(Section::Roots),
-        "index_bytes": repo.head().section_len(Section::Index),
-        "records_bytes": repo.head().section_len(Section::Records),
+        "roots_bytes": head.section_len(Section::Roots),
+        "index_bytes": head.section_len(Section::Index),
+        "records_bytes": head.section_len(Section::Records),
         "container_overhead_bytes": s.container_overhead,
-        "head_len": head_len(repo),
+        "head_len": head.section_offset(Section::Records),
         "sections": {
-            "header": { "offset": 0, "length": repo.head().header_len() },
+            "header": { "offset": 0, "length": head.header_len() },
             "roots": section(Section::Roots),
             "index": section(Section::Index),
             "checksums": section(Section::Checksums),
@@ -183,7 +193,7 @@ pub fn describe(repo: &Repository) -> Value {
         },
         "bits_per_sample": s.bits_per_sample,
         "object_error_range_m": [metres(s.object_error_range.0), metres(s.object_error_range.1)],
-        "leaf_error_m": metres(repo.head().leaf_error()),
+        "leaf_error_m": metres(head.leaf_error()),
         "levels": levels,
     });
     v["planet"] = planet.unwrap_or(Value::Null);

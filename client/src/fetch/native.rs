@@ -144,6 +144,56 @@ impl RemoteFetcher {
         got
     }
 
+    /// Fetches every record of `ids` and waits for them (a batch reader's call, not a frame
+    /// loop's: it blocks). Fails on the first record the fetcher rejects, or when `stall`
+    /// passes without a record arriving (a server that is gone: the fetcher itself would retry
+    /// for ever), saying how many arrived. Ids not stored are refused at once.
+    pub fn fetch_all(
+        &self,
+        ids: &[DiamondId],
+        stall: Duration,
+    ) -> Result<std::collections::HashMap<DiamondId, Arc<[u8]>>, String> {
+        if let Some(id) = ids
+            .iter()
+            .find(|&&id| self.shared.head.position(id).is_none())
+        {
+            return Err(format!("{id} is not stored in this repository"));
+        }
+        let mut got = std::collections::HashMap::with_capacity(ids.len());
+        let missing = |got: &std::collections::HashMap<DiamondId, Arc<[u8]>>| {
+            ids.iter().filter(|id| !got.contains_key(*id)).count()
+        };
+        self.want(ids.iter().map(|&id| (id, 1.0)));
+        let result = loop {
+            if missing(&got) == 0 {
+                break Ok(());
+            }
+            match self.results.recv_timeout(stall) {
+                Ok((id, Ok(bytes))) => {
+                    got.insert(id, bytes);
+                }
+                Ok((id, Err(e))) => break Err(format!("record of {id} rejected: {e}")),
+                Err(_) => {
+                    break Err(format!(
+                        "no record arrived for {:.1} s ({} of {} received, {} failed requests): \
+                         is the server still there?",
+                        stall.as_secs_f64(),
+                        ids.len() - missing(&got),
+                        ids.len(),
+                        self.stats().errors
+                    ));
+                }
+            }
+        };
+        self.want(std::iter::empty());
+        let mut s = self.shared.state.lock().expect("fetch state");
+        for id in got.keys() {
+            s.delivered.remove(id);
+        }
+        drop(s);
+        result.map(|()| got)
+    }
+
     /// Whether `id` is queued or being fetched.
     pub fn is_pending(&self, id: DiamondId) -> bool {
         let s = self.shared.state.lock().expect("fetch state");

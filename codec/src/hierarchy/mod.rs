@@ -17,6 +17,7 @@ mod analysis;
 pub mod blocks;
 mod decode;
 mod decode_blocks;
+mod decode_window;
 mod encode;
 mod field;
 pub mod mask;
@@ -35,6 +36,7 @@ pub use decode::{
     walk_with_validity,
 };
 pub use decode_blocks::{BlockWalk, block_walk};
+pub use decode_window::{LevelWindow, decode_window};
 pub use encode::{ApexField, ApexOutput, EncodeOptions, Encoder, GridSummary, ShardedEncode};
 pub use field::TempStorage;
 pub use planet::{

@@ -10,6 +10,7 @@ pub mod container;
 mod georef;
 mod header;
 pub mod index;
+mod level_grid;
 
 #[doc(hidden)]
 pub use container::{CRAFTABLE_FIELDS, craft_header};
@@ -19,3 +20,4 @@ pub use container::{
     reseal_checksums, serialize, write_planet_repository, write_repository,
 };
 pub use georef::{GeoRef, MAX_WKT_LEN};
+pub use level_grid::{LevelGrid, bbox_window};

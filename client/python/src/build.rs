@@ -1,0 +1,219 @@
+//! `cbdam.build` and `cbdam.verify`: the CLI's `build` and `verify` as functions, over the same
+//! library calls ([`cbdam_builder::build`], [`cbdam_builder::verify`]), so a build from Python
+//! writes the CLI's bytes.
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+
+use cbdam_builder::plan::default_memory_limit;
+use cbdam_builder::tiles::{Tile, expand_inputs};
+use cbdam_builder::verify::{compare_dem, compare_tiles_with, one_file_in_blocks};
+use cbdam_builder::{BuildOptions, BuildSummary, ExtraLevels, ProgressEvent, Stage};
+use cbdam_codec::entropy::CoderKind;
+use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
+use cbdam_codec::lifting::Alpha;
+use cbdam_codec::repository::Repository;
+use pyo3::prelude::*;
+use pyo3::types::{PyAny, PyDict};
+
+use crate::errors::{PyCbdamError, Result};
+
+/// Builds a repository from `inputs` (paths: DEMs, directories, globs, `@LIST`s or VRTs of
+/// tiles, as `cbdam build` takes them) within `max_error` metres, written atomically to
+/// `output`; the options are the CLI's flags. `progress(stage, done, total)` is called from the
+/// build's threads (stage: 'prepare', 'encode', 'encode-coarser-roots', 'write'); an exception
+/// it raises is raised once the build ends. Returns a summary dict.
+#[pyfunction]
+#[pyo3(signature = (inputs, output, max_error, *, diamond_size = None, extra_levels = None,
+    alpha = 1.0, coder = "adaptive-tokens", threads = None, quantum = None, nodata = None,
+    memory_limit = None, size = None, colour = false, like = None, planet = false,
+    planet_level = None, progress = None))]
+#[allow(clippy::too_many_arguments)]
+pub fn build<'py>(
+    py: Python<'py>,
+    inputs: Vec<PathBuf>,
+    output: PathBuf,
+    max_error: f64,
+    diamond_size: Option<usize>,
+    extra_levels: Option<&Bound<'py, PyAny>>,
+    alpha: f64,
+    coder: &str,
+    threads: Option<usize>,
+    quantum: Option<f64>,
+    nodata: Option<f64>,
+    memory_limit: Option<u64>,
+    size: Option<(usize, usize)>,
+    colour: bool,
+    like: Option<PathBuf>,
+    planet: bool,
+    planet_level: Option<u32>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let mut o = BuildOptions::new(inputs, output, max_error);
+    o.diamond_size = diamond_size.unwrap_or(o.diamond_size);
+    o.extra_levels = parse_extra_levels(extra_levels)?;
+    o.alpha = match alpha {
+        1.0 => Alpha::One,
+        0.5 => Alpha::Half,
+        other => return Err(PyCbdamError::Input(format!("alpha={other}: 1 or 0.5")).into()),
+    };
+    o.coder = CoderKind::ALL
+        .into_iter()
+        .find(|c| c.name() == coder)
+        .ok_or_else(|| {
+            PyCbdamError::Input(format!(
+                "coder={coder:?}: one of 'adaptive-tokens', 'adaptive', 'elias-gamma'"
+            ))
+        })?;
+    (o.threads, o.quantum, o.nodata, o.memory_limit, o.raw_size) =
+        (threads, quantum, nodata, memory_limit, size);
+    (o.colour, o.like) = (colour, like);
+    if planet_level.is_some() && !planet {
+        return Err(PyCbdamError::Input("planet_level= needs planet=True".into()).into());
+    }
+    o.planet = planet.then_some(planet_level);
+    let failed: Mutex<Option<PyErr>> = Mutex::new(None);
+    let report = |event: ProgressEvent| {
+        let Some(callback) = &progress else {
+            return;
+        };
+        Python::attach(|py| {
+            if let Err(e) = callback.call1(py, (stage_name(event.stage), event.done, event.total)) {
+                let mut first = failed.lock().expect("progress error");
+                first.get_or_insert(e);
+            }
+        });
+    };
+    let summary = py.detach(|| cbdam_builder::build(&o, &report));
+    if let Some(e) = failed.into_inner().expect("progress error") {
+        return Err(e);
+    }
+    let summary = summary.map_err(|e| PyCbdamError::build(&e))?;
+    let d = PyDict::new(py);
+    d.set_item("output", o.output.display().to_string())?;
+    d.set_item("bytes", std::fs::metadata(&o.output).map(|m| m.len()).ok())?;
+    match summary {
+        BuildSummary::Elevation(s) => {
+            d.set_item("kind", "elevation")?;
+            d.set_item("width", s.width)?;
+            d.set_item("height", s.height)?;
+            d.set_item("valid", s.valid)?;
+            d.set_item("records", s.records)?;
+            d.set_item("max_error", s.plan.max_error())?;
+        }
+        BuildSummary::Colour(s) => {
+            d.set_item("kind", "colour")?;
+            d.set_item("records", s.records)?;
+        }
+        BuildSummary::Planet(s) => {
+            d.set_item("kind", "planet")?;
+            d.set_item("records", s.records)?;
+            d.set_item("max_error", s.plan.max_error())?;
+        }
+    }
+    Ok(d)
+}
+
+fn parse_extra_levels(v: Option<&Bound<'_, PyAny>>) -> Result<ExtraLevels> {
+    let Some(v) = v else {
+        return Ok(ExtraLevels::Auto);
+    };
+    if let Ok(s) = v.extract::<String>()
+        && s.eq_ignore_ascii_case("auto")
+    {
+        return Ok(ExtraLevels::Auto);
+    }
+    match v.extract::<u32>() {
+        Ok(n) if n <= ExtraLevels::MAX => Ok(ExtraLevels::Fixed(n)),
+        _ => Err(PyCbdamError::Input(format!(
+            "extra_levels={v}: 'auto' or a number of level pairs from 0 to {}",
+            ExtraLevels::MAX
+        ))),
+    }
+}
+
+fn stage_name(stage: Stage) -> &'static str {
+    match stage {
+        Stage::Prepare => "prepare",
+        Stage::Encode => "encode",
+        Stage::EncodeCoarserRoots => "encode-coarser-roots",
+        Stage::Write => "write",
+    }
+}
+
+/// Checks every checksum of the repository at `path` and, given `against` (the build's input
+/// paths), decodes every level and compares it with them, as `cbdam verify` does; raises
+/// `CorruptError` or `InputError` with the CLI's message when a check fails. Returns the
+/// per-level errors (`levels`: level, diamonds, worst error in metres; within `level_bound`),
+/// the finest level's worst error against the input (`max_error`, metres) and the guaranteed
+/// bound it keeps (`bound`).
+#[pyfunction]
+#[pyo3(signature = (path, against = None, memory_limit = None))]
+pub fn verify<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    against: Option<Vec<PathBuf>>,
+    memory_limit: Option<u64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let checked = py.detach(|| check(&path, against.as_deref(), memory_limit))?;
+    let d = PyDict::new(py);
+    d.set_item("checksums", true)?;
+    if let Some((report, unit, max_error, guaranteed)) = checked {
+        let levels: Vec<(u8, usize, f64)> = report
+            .levels
+            .iter()
+            .map(|l| (l.level, l.diamonds, f64::from(l.max_error) * unit))
+            .collect();
+        d.set_item("levels", levels)?;
+        d.set_item("level_bound", f64::from(report.bound) * unit)?;
+        d.set_item("max_error", max_error)?;
+        d.set_item("bound", guaranteed)?;
+    }
+    Ok(d)
+}
+
+/// [`verify`]'s work, when compared with inputs: the report, the unit, the finest level's worst
+/// error in metres and the guaranteed bound.
+fn check(
+    path: &std::path::Path,
+    against: Option<&[PathBuf]>,
+    memory_limit: Option<u64>,
+) -> Result<Option<(VerifyReport, f64, f64, f64)>> {
+    let name = path.display();
+    let repo =
+        Repository::open(path).map_err(|e| PyCbdamError::codec(&format!("opening {name}"), &e))?;
+    repo.check_all()
+        .map_err(|e| PyCbdamError::codec(&format!("checking {name}"), &e))?;
+    let Some(against) = against else {
+        return Ok(None);
+    };
+    let head = repo.head();
+    if head.kind() == RepoKind::Colour || head.params().domain.cube().is_some() {
+        return Err(PyCbdamError::Unsupported(format!(
+            "{name} is a colour repository or a planet: compare it with `cbdam verify`"
+        )));
+    }
+    let (unit, guaranteed) = (head.plan().unit, head.plan().max_error());
+    let build = |e: cbdam_builder::BuildError| PyCbdamError::build(&e);
+    let tiles = expand_inputs(against).map_err(build)?;
+    let limit = memory_limit.unwrap_or_else(default_memory_limit);
+    match tiles.as_slice() {
+        [
+            Tile {
+                path: one,
+                vrt: None,
+            },
+        ] if !one_file_in_blocks(&repo, one, limit) => {
+            let c = compare_dem(&repo, one).map_err(build)?;
+            c.check_mask().map_err(build)?;
+            c.check_error().map_err(build)?;
+            Ok(Some((c.levels, unit, c.max_error, guaranteed)))
+        }
+        several => {
+            let c = compare_tiles_with(&repo, several, limit, None).map_err(build)?;
+            c.check().map_err(build)?;
+            let worst = c.worst.map_or(0.0, |w| w.0);
+            Ok(Some((c.levels, unit, worst, guaranteed)))
+        }
+    }
+}

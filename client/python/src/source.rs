@@ -1,0 +1,136 @@
+//! Where a reader's records come from: a memory-mapped local file, or a remote repository
+//! (`cbdam serve`, or a `.cbdam` file on any server with Range support) fetched in batches by
+//! the client's fetcher; and the windowed decode of one level from either, written into an
+//! output slice in place.
+
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use cbdam_client::fetch::{FetchOptions, RemoteFetcher};
+use cbdam_codec::CodecError;
+use cbdam_codec::geometry::DiamondId;
+use cbdam_codec::hierarchy::{LevelWindow, decode_window};
+use cbdam_codec::repository::{LevelGrid, Repository, RepositoryHead};
+
+use crate::errors::{PyCbdamError, Result};
+
+/// A repository, local or remote.
+pub enum Source {
+    /// A memory-mapped file: records are read (and CRC-checked) where they are decoded.
+    Local(Arc<Repository>),
+    /// Over HTTP: the head fetched at open, the records a read needs fetched before it decodes
+    /// (one read's fetch at a time: the fetcher has one wanted set).
+    Remote {
+        /// The fetcher, which holds the head.
+        fetcher: Mutex<RemoteFetcher>,
+        /// Its head, shared.
+        head: Arc<RepositoryHead>,
+        /// How long a read waits without a record arriving before it gives up.
+        stall: Duration,
+    },
+}
+
+/// One output sample type: `float32` or `float64`, NaN where there is no data.
+pub trait Sample: Copy + Send + Sync {
+    /// The height `v` (metres).
+    fn from_metres(v: f64) -> Self;
+}
+
+impl Sample for f32 {
+    fn from_metres(v: f64) -> Self {
+        v as f32
+    }
+}
+
+impl Sample for f64 {
+    fn from_metres(v: f64) -> Self {
+        v
+    }
+}
+
+impl Source {
+    /// Maps and validates the repository at `path`.
+    pub fn open_local(path: &Path) -> Result<Source> {
+        let repo = Repository::open(path)
+            .map_err(|e| PyCbdamError::codec(&format!("opening {}", path.display()), &e))?;
+        Ok(Source::Local(Arc::new(repo)))
+    }
+
+    /// Connects to `url` and fetches the head; later reads give up after `stall` without a
+    /// record (and so does connecting, per request).
+    pub fn open_remote(url: &str, stall: Duration) -> Result<Source> {
+        let options = FetchOptions {
+            timeout: stall,
+            ..FetchOptions::default()
+        };
+        let fetcher = RemoteFetcher::connect(url, options).map_err(|e| PyCbdamError::remote(&e))?;
+        let head = fetcher.head().clone();
+        Ok(Source::Remote {
+            fetcher: Mutex::new(fetcher),
+            head,
+            stall,
+        })
+    }
+
+    /// The validated head.
+    pub fn head(&self) -> &RepositoryHead {
+        match self {
+            Source::Local(repo) => repo.head(),
+            Source::Remote { head, .. } => head,
+        }
+    }
+
+    /// Decodes `grid` (one even level over a window) into `out` (`grid.width × grid.height`,
+    /// row-major, row 0 north): heights in metres, NaN where the repository has no data.
+    /// `name` names the repository in messages. Runs on rayon's pool; call it without the GIL.
+    pub fn read_into<T: Sample>(&self, grid: &LevelGrid, out: &mut [T], name: &str) -> Result<()> {
+        debug_assert_eq!(out.len(), grid.width * grid.height);
+        out.fill(T::from_metres(f64::NAN));
+        let head = self.head();
+        let (params, plan) = (*head.params(), *head.plan());
+        let window = LevelWindow {
+            level: grid.level,
+            rect: (grid.x0, grid.y0, grid.x1, grid.y1),
+        };
+        let stored: Vec<DiamondId> = head.entries().iter().map(|e| e.id).collect();
+        let n = params.layout().n();
+        let visit = |id: DiamondId, values: &[i32], valid: Option<&[bool]>| {
+            let g = params.layout().grid(id);
+            for j in 0..n {
+                for i in 0..n {
+                    let (x, y) = g.point(i as i64, j as i64);
+                    let Some(at) = grid.index_of(x, y) else {
+                        continue;
+                    };
+                    if valid.is_none_or(|v| v[j * n + i]) {
+                        out[at] = T::from_metres(plan.metres(values[j * n + i]));
+                    }
+                }
+            }
+        };
+        let decoding = |e: CodecError| PyCbdamError::codec(&format!("decoding {name}"), &e);
+        match self {
+            Source::Local(repo) => {
+                let record = |id: DiamondId| repo.record(id);
+                decode_window(params, head.root_bytes(), &stored, record, window, visit)
+                    .map_err(decoding)
+            }
+            Source::Remote { fetcher, stall, .. } => {
+                let needed = window.records_needed(&params, &stored);
+                let records = fetcher
+                    .lock()
+                    .map_err(|_| PyCbdamError::Other("an earlier read panicked".into()))?
+                    .fetch_all(&needed, *stall)
+                    .map_err(|m| PyCbdamError::Network(format!("reading {name}: {m}")))?;
+                let record = |id: DiamondId| {
+                    records.get(&id).map(|b| &b[..]).ok_or_else(|| {
+                        CodecError::invalid(format!("{id} was not fetched for this window"))
+                    })
+                };
+                decode_window(params, head.root_bytes(), &stored, record, window, visit)
+                    .map_err(decoding)
+            }
+        }
+    }
+}
