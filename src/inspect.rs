@@ -201,9 +201,9 @@ fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
         );
     } else {
         println!(
-            "max error       {} m requested, {} m guaranteed",
+            "max error       {} m requested, {} guaranteed",
             plan.epsilon,
-            plan.max_error()
+            plan.bound_text()
         );
     }
     print_georef(repo);

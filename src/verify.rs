@@ -158,11 +158,11 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     );
     c.check_mask()?;
     println!(
-        "finest level against {}: max error {:.6} m (tolerance {} m, guaranteed {} m)",
+        "finest level against {}: max error {:.6} m (tolerance {} m, guaranteed {})",
         against.display(),
         c.max_error,
         c.epsilon,
-        c.guaranteed
+        repo.head().plan().bound_text()
     );
     c.check_error()?;
     println!("OK");

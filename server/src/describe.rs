@@ -187,5 +187,6 @@ pub fn describe(repo: &Repository) -> Value {
         "levels": levels,
     });
     v["planet"] = planet.unwrap_or(Value::Null);
+    v["float_rounding_m"] = json!(plan.rounding_error());
     v
 }
