@@ -55,7 +55,7 @@ async fn batches_and_records_as_stored(held: bool) {
         assert_eq!(r.status(), 200);
         let bytes = r.bytes().await.unwrap();
         assert!(
-            bytes.len() > 3 * 16 << 10,
+            bytes.len() > 3 * (16 << 10),
             "{} bytes: a few chunks",
             bytes.len()
         );
