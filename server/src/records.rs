@@ -8,9 +8,9 @@
 //!   and every record's CRC is checked on every read, so that a file rewritten in place with
 //!   its length and modification time kept never sends bytes its ETag does not name.
 //!
-//! The file's identity ([`crate::state::FileIdentity`]) is checked for every answer (after
-//! the reads, where there are reads), so a file changed in place is refused, and a file
-//! truncated underneath gives a short read, an error, never a fault.
+//! The file's identity ([`crate::state::FileIdentity`]) is checked before every answer and
+//! after every read of the file, so a file changed in place is refused, and a file truncated
+//! underneath gives a short read, an error, never a fault.
 
 use cbdam_codec::repository::Section;
 
@@ -70,9 +70,8 @@ impl ServedRepo {
             Source::File {
                 held: Some(held), ..
             } => {
-                // Read when the file was opened: no read now, and a file changed in place
-                // since is refused as it is after a read.
-                self.check_unchanged().map_err(RecordError::Read)?;
+                // Read when the file was opened: these are the bytes the ETags name whatever
+                // the file does since (each answer checks its identity before it starts).
                 let at = head.section_offset(Section::Records);
                 let slice = |k: usize| {
                     let r = range(records[k]);

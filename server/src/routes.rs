@@ -260,11 +260,11 @@ async fn diamond(
     let i = find(r, id).ok_or_else(|| {
         ApiError::NotFound(format!("diamond {id} is not stored in repository {name:?}"))
     })?;
+    // Before any answer, a 304 included: a file rebuilt in place no longer holds what the
+    // ETag names.
+    r.check_unchanged()?;
     let etag = r.record_etag(i);
     if not_modified(req.headers(), &etag) {
-        // A file rebuilt in place no longer holds what the ETag names. (A 200 checks the
-        // file's identity after reading the record.)
-        r.check_unchanged()?;
         return Ok(respond(
             StatusCode::NOT_MODIFIED,
             headers([(header::ETAG, etag), (header::CACHE_CONTROL, hv(IMMUTABLE))]),
