@@ -256,7 +256,7 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
         let plan = &s.plan;
         println!(
             "{}: {}×{} samples ({} valid), {} bytes, {:.3} bits/sample, {} records, \
-             max error {} m (unit {} m, k = {}){}, {:.2} s",
+             max error {} (unit {} m, k = {}){}, {:.2} s",
             args.output.display(),
             s.width,
             s.height,
@@ -264,7 +264,7 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
             bytes,
             bytes as f64 * 8.0 / (s.width * s.height) as f64,
             s.records,
-            plan.max_error(),
+            plan.bound_text(),
             plan.unit,
             plan.quantizer.k(),
             plan.rms.map_or(String::new(), |r| format!(
@@ -291,7 +291,7 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
     let plan = &s.plan;
     println!(
         "{}: planet (cube-sphere on WGS84), N = {}, K = {} ({:.4}° mean lattice spacing), {} \
-         lattice points ({} with data), {} bytes, {:.3} bits/point, {} records, max error {} m \
+         lattice points ({} with data), {} bytes, {:.3} bits/point, {} records, max error {} \
          against the resampled lattice (unit {} m, k = {}), {:.2} s",
         args.output.display(),
         s.n,
@@ -302,7 +302,7 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
         bytes,
         bytes as f64 * 8.0 / s.valid.max(1) as f64,
         s.records,
-        plan.max_error(),
+        plan.bound_text(),
         plan.unit,
         plan.quantizer.k(),
         start.elapsed().as_secs_f64()

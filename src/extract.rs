@@ -114,6 +114,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
                 "nodata": repo.head().nodata(),
                 "max_error_m": plan.epsilon,
                 "guaranteed_max_error_m": plan.max_error(),
+                "float_rounding_m": plan.rounding_error(),
                 "level": samples.level,
                 "georef": raster.georef.as_ref().map(|g| json!({
                     "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
@@ -127,13 +128,13 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     }
     if !args.quiet.value {
         println!(
-            "{}: {}×{} samples of level {} (spacing {}), max error {} m",
+            "{}: {}×{} samples of level {} (spacing {}), max error {}",
             args.output.display(),
             samples.width,
             samples.height,
             samples.level,
             samples.step,
-            plan.max_error()
+            plan.bound_text()
         );
     }
     Ok(())

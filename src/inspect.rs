@@ -202,13 +202,13 @@ fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
     } else {
         match plan.rms {
             None => println!(
-                "max error       {} m requested, {} m guaranteed",
+                "max error       {} m requested, {} guaranteed",
                 plan.epsilon,
-                plan.max_error()
+                plan.bound_text()
             ),
             Some(_) => println!(
-                "max error       {} m guaranteed (the quantizer --rms-error chose)",
-                plan.max_error()
+                "max error       {} guaranteed (the quantizer --rms-error chose)",
+                plan.bound_text()
             ),
         }
         if let Some(r) = plan.rms {

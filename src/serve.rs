@@ -64,6 +64,11 @@ pub struct ServeArgs {
     /// Worker threads (default: one per core).
     #[arg(long)]
     threads: Option<usize>,
+    /// Repositories whose records areas take at most this much in all (e.g. 256M, 1G; in the
+    /// order given) are read into memory at start and served from it; larger ones are read
+    /// from their files record by record (`--hold-records 1`: every one).
+    #[arg(long, default_value = "256M", value_name = "SIZE")]
+    hold_records: crate::flags::ByteSize,
 }
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`: startup, errors, one line per
@@ -103,8 +108,20 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),
         max_connections: args.max_connections,
         max_tile_samples: args.max_tile_samples,
+        held_records_bytes: args.hold_records.0,
     };
     init_logging();
+    if let Some((before, after)) = cbdam_server::raise_fd_limit() {
+        let after = if after == u64::MAX {
+            "unlimited".to_string()
+        } else {
+            after.to_string()
+        };
+        tracing::info!(
+            "raised the soft limit on open files from {before} to the hard limit, {after} \
+             (it bounds --max-connections)"
+        );
+    }
     let state = AppState::open(&specs, config)?;
     let mut rt = tokio::runtime::Builder::new_multi_thread();
     if let Some(n) = args.threads {

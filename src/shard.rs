@@ -125,13 +125,13 @@ pub fn run(command: &ShardCommand) -> Result<()> {
             let s = cbdam_builder::shard::merge(&args.work, args.threads)?;
             let bytes = std::fs::metadata(&s.output)?.len();
             println!(
-                "{}: {}×{} samples, {} bytes, {} records, max error {} m, {:.2} s",
+                "{}: {}×{} samples, {} bytes, {} records, max error {}, {:.2} s",
                 s.output.display(),
                 s.width,
                 s.height,
                 bytes,
                 s.records,
-                s.quant.max_error(),
+                s.quant.bound_text(),
                 start.elapsed().as_secs_f64()
             );
         }

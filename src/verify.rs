@@ -158,12 +158,12 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     );
     c.check_mask()?;
     println!(
-        "finest level against {}: max error {:.6} m (tolerance {} m, guaranteed {} m), RMS \
+        "finest level against {}: max error {:.6} m (tolerance {} m, guaranteed {}), RMS \
          error {:.6} m{}",
         against.display(),
         c.max_error,
         c.epsilon,
-        c.guaranteed,
+        repo.head().plan().bound_text(),
         c.rms_error,
         c.rms_bound
             .map_or(String::new(), |b| format!(" (bound {b} m)"))

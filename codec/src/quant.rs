@@ -22,6 +22,8 @@ use crate::samples::detect_quantum;
 use crate::samples::{Dem, QuantumScan, SampleSource};
 use crate::temp::{LatticeArray, TempStorage};
 
+mod rounding;
+
 /// Samples per parallel work item of the passes over the input.
 const CHUNK: usize = 1 << 16;
 
@@ -380,14 +382,39 @@ impl QuantPlan {
         Ok((plan, grid))
     }
 
-    /// The guaranteed bound, metres: `k·u`, plus `u/2` of pre-quantization for float input or
-    /// the representation error of lattice input.
+    /// The guaranteed bound, metres, on the distance between any valid sample and its
+    /// reconstruction as computed in `f64`: [`QuantPlan::quantization_error`] plus
+    /// [`QuantPlan::rounding_error`], rounded up. Exactly the quantization error where the
+    /// arithmetic is exact (whole metres and other binary lattices).
     pub fn max_error(&self) -> f64 {
+        let quantization = self.quantization_error();
+        match self.rounding_error() {
+            0.0 => quantization,
+            rounding => (quantization + rounding).next_up(),
+        }
+    }
+
+    /// The bound in exact arithmetic, metres: `k·u`, plus `u/2` of pre-quantization for float
+    /// input or the representation error of lattice input.
+    pub fn quantization_error(&self) -> f64 {
         let k = f64::from(self.quantizer.k()) * self.unit;
         if self.lattice {
             k + self.representation_error
         } else {
             k + self.unit / 2.0
+        }
+    }
+
+    /// The guarantee as a user reads it: `"0.9375 m"` where the arithmetic is exact, else
+    /// `"0.001 m + 3.9e-11 m of float rounding"` (the rounding term rounded up).
+    pub fn bound_text(&self) -> String {
+        match self.rounding_error() {
+            0.0 => format!("{} m", self.quantization_error()),
+            r => format!(
+                "{} m + {} m of float rounding",
+                self.quantization_error(),
+                round_up_2_digits(r)
+            ),
         }
     }
 
@@ -428,6 +455,23 @@ impl QuantPlan {
         }
         Ok(Some(n))
     }
+}
+
+/// `x > 0` rounded up to two significant digits, as text (`3.9e-11`).
+fn round_up_2_digits(x: f64) -> String {
+    let exponent = x.log10().floor() as i32 - 1;
+    let scale = 10f64.powi(exponent);
+    let mut mantissa = (x / scale).ceil();
+    // The division can round below the true quotient: step up while the value is short of x.
+    while mantissa * scale < x {
+        mantissa += 1.0;
+    }
+    // Two digits `m` (10 to 100) times 10^exponent, written as `d.de(exponent + 1)`.
+    let (m, e) = match mantissa as u64 {
+        100 => (10, exponent + 2),
+        m => (m, exponent + 1),
+    };
+    format!("{}.{}e{e}", m / 10, m % 10)
 }
 
 /// One pass over the samples: the valid height range, and the value quantum (`quantum` when
@@ -886,7 +930,13 @@ mod tests {
         assert!(p.max_error() <= 1.0);
         for eps in [0.0025, 0.01, 0.1, 0.3, 0.5, 1.0, 2.0, 5.0, 100.0] {
             let p = QuantPlan::new(eps, None, -11000.0, 9000.0).unwrap();
-            assert!(p.max_error() <= eps && p.quantizer.k() >= 7, "{eps}: {p:?}");
+            // Within ε in exact arithmetic; the stated bound adds the float rounding term.
+            let stated = (p.quantization_error() + p.rounding_error()).next_up();
+            assert!(
+                p.quantization_error() <= eps && p.max_error() <= stated,
+                "{eps}: {p:?}"
+            );
+            assert!(p.quantizer.k() >= 7, "{eps}: {p:?}");
             if eps > 0.003 {
                 assert_eq!(p.unit.log2().fract(), 0.0, "unit is a power of two");
             }

@@ -1,6 +1,7 @@
 //! The streamed body of a batch response: entries are handed to the connection a chunk at a
-//! time, in answer order (most urgent first), each record read from the file and checked
-//! against its CRC as its chunk is made. The connection asks for a chunk only when its write
+//! time, in answer order (most urgent first), the records of a chunk read from the file
+//! together as it is made ([`crate::records`]: few positioned reads, the file's identity checked
+//! after them). The connection asks for a chunk only when its write
 //! buffer (bounded, see [`crate::run`]) has room, so a client that does not read its answer
 //! holds one chunk and that buffer, never the whole answer. A client that drops the request
 //! (its view moved on) closes the connection; the body is then dropped unfinished, nothing
@@ -17,7 +18,9 @@ use cbdam_codec::repository::batch::{
 };
 use http_body::{Frame, SizeHint};
 
-use crate::state::{AppState, RecordError, ServedRepo};
+use crate::records::RecordBuffer;
+use crate::routes::read_records;
+use crate::state::{AppState, ServedRepo};
 
 /// A chunk is cut after the entry that takes it past this many bytes: small enough that a
 /// closed connection stops the body soon and an unread one holds little, large enough to keep
@@ -76,39 +79,60 @@ impl BatchBody {
             out.extend_from_slice(&(self.entries.len() as u32).to_le_bytes());
             self.preamble_sent = true;
         }
-        let mut records = 0;
-        while self.next < self.entries.len() && out.len() < CHUNK_BYTES {
-            match self.entries[self.next] {
-                NOT_STORED => {
-                    out.push(STATUS_NOT_STORED);
-                    out.extend_from_slice(&0u32.to_le_bytes());
-                }
-                i => {
-                    let i = i as usize;
-                    records += 1;
-                    out.push(STATUS_RECORD);
-                    // Index lengths are u32.
-                    out.extend_from_slice(&self.repo.repo.head().entries()[i].length.to_le_bytes());
-                    if let Err(e) = self.repo.read_record_into(i, &mut out) {
-                        let why = match e {
-                            RecordError::Read(e) => e.to_string(),
-                            RecordError::Damaged(e) => e.to_string(),
-                        };
-                        tracing::error!(
-                            repo = %self.repo.name,
-                            "batch cut short: record {i} can no longer be read as checked: {why}"
-                        );
-                        return Err(std::io::Error::other(why));
-                    }
-                }
+        let head = self.repo.repo.head();
+        // The chunk's entries: up to the one that takes it past CHUNK_BYTES.
+        let (start, mut size) = (self.next, out.len());
+        let mut end = start;
+        // Made afresh per chunk (a few allocations a chunk, none a record): a body waiting on
+        // a client that does not read holds no read buffers.
+        let mut records = Vec::new();
+        while end < self.entries.len() && size < CHUNK_BYTES {
+            size += ENTRY_HEAD_LEN;
+            let i = self.entries[end];
+            if i != NOT_STORED {
+                size += head.entries()[i as usize].length as usize;
+                records.push(i as usize);
             }
-            self.next += 1;
+            end += 1;
         }
+        out.reserve(size.saturating_sub(out.capacity()));
+        let entries = &self.entries[start..end];
+        let mut at = 0;
+        let not_stored = |out: &mut Vec<u8>, at: &mut usize| {
+            while *at < entries.len() && entries[*at] == NOT_STORED {
+                out.push(STATUS_NOT_STORED);
+                out.extend_from_slice(&0u32.to_le_bytes());
+                *at += 1;
+            }
+        };
+        let read = read_records(
+            &self.state,
+            &self.repo,
+            &records,
+            &mut RecordBuffer::default(),
+            |_, bytes| {
+                not_stored(&mut out, &mut at);
+                out.push(STATUS_RECORD);
+                // Index lengths are u32.
+                out.extend_from_slice(&(bytes.len() as u32).to_le_bytes());
+                out.extend_from_slice(bytes);
+                at += 1;
+            },
+        );
+        if let Err(e) = read {
+            tracing::error!(
+                repo = %self.repo.name,
+                "batch cut short: its records can no longer be read as checked: {e}"
+            );
+            return Err(std::io::Error::other(e.to_string()));
+        }
+        not_stored(&mut out, &mut at);
+        self.next = end;
         self.unsent -= out.len() as u64;
         // Counted as handed over, so the records of an aborted batch that were never written
         // are not counted as sent.
-        if records > 0 {
-            self.state.metrics().add_records(records);
+        if !records.is_empty() {
+            self.state.metrics().add_records(records.len() as u64);
         }
         Ok(out)
     }

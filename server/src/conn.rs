@@ -147,6 +147,36 @@ fn fd_limit() -> Option<u64> {
     None
 }
 
+/// Raises the soft limit on open file descriptors to the hard limit, so that the connection
+/// cap is not lowered by a soft limit the process could lift itself (1 024 by default on many
+/// systems, against hard limits of hundreds of thousands). Returns the limit before and after
+/// when it was raised; `None` when it already was at the hard limit, or could not be read or
+/// set (then the cap follows the soft limit, as [`effective_cap`] says).
+// `rlim_t` is u64 on Linux, not on every Unix.
+#[allow(clippy::unnecessary_cast)]
+pub fn raise_fd_limit() -> Option<(u64, u64)> {
+    #[cfg(unix)]
+    {
+        let mut r = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        // SAFETY: getrlimit writes into the struct it is given.
+        if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut r) } != 0 || r.rlim_cur >= r.rlim_max
+        {
+            return None;
+        }
+        let before = r.rlim_cur as u64;
+        r.rlim_cur = r.rlim_max;
+        // SAFETY: setrlimit reads the struct it is given; raising the soft limit up to the hard
+        // one needs no privilege.
+        if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &r) } == 0 {
+            return Some((before, fd_limit().unwrap_or(u64::MAX)));
+        }
+    }
+    None
+}
+
 /// The connection cap in effect: `max_connections`, lowered to what the fd limit leaves.
 pub(crate) fn effective_cap(max_connections: usize) -> usize {
     let by_fds = fd_limit().map_or(usize::MAX, |l| {

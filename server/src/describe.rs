@@ -197,5 +197,6 @@ pub fn describe_head(head: &RepositoryHead) -> Value {
         "levels": levels,
     });
     v["planet"] = planet.unwrap_or(Value::Null);
+    v["float_rounding_m"] = json!(plan.rounding_error());
     v
 }

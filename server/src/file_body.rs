@@ -42,11 +42,12 @@ impl http_body::Body for FileBody {
         }
         let end = me.range.end.min(me.range.start + CHUNK_BYTES);
         let mut out = Vec::with_capacity((end - me.range.start) as usize);
-        // A file rewritten in place may keep its length: check its identity per chunk too.
+        // A file rewritten in place may keep its length: its identity is checked after each
+        // chunk is read, so a chunk read from a changed file is never sent.
         let read = me
             .repo
-            .check_unchanged()
-            .and_then(|()| me.repo.read_into(me.range.start..end, &mut out));
+            .read_into(me.range.start..end, &mut out)
+            .and_then(|()| me.repo.check_unchanged());
         Poll::Ready(Some(match read {
             Ok(()) => {
                 me.range.start = end;

@@ -56,6 +56,7 @@ mod file_body;
 pub mod metrics;
 mod observe;
 mod range;
+mod records;
 mod routes;
 mod state;
 mod tiles;
@@ -66,6 +67,7 @@ use std::future::Future;
 use axum::Router;
 use tokio::net::TcpListener;
 
+pub use conn::raise_fd_limit;
 pub use describe::{describe, head_len, summarize};
 pub use error::{ApiError, ServerError};
 pub use range::{RangeRequest, parse_range};

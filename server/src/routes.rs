@@ -23,7 +23,8 @@ use crate::error::ApiError;
 use crate::file_body::FileBody;
 use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
-use crate::state::{AppState, RecordError, ServedRepo, Source};
+use crate::records::{RecordBuffer, RecordError};
+use crate::state::{AppState, ServedRepo, Source};
 
 use cbdam_codec::repository::batch::answer_order;
 /// The batch framing, defined once in the codec for both ends of the wire.
@@ -109,18 +110,19 @@ pub(crate) fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
         .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t).as_bytes() == ours)
 }
 
-/// Record `i`'s bytes appended to `out`, read from the file and checked against their CRC. A
+/// Reads `records` ([`ServedRepo::read_records`]), handing each one's bytes to `emit`. A
 /// damaged record is answered with 500 and logged the first time only.
-fn read_record(st: &AppState, r: &ServedRepo, i: usize, out: &mut Vec<u8>) -> Result<(), ApiError> {
-    match r.read_record_into(i, out) {
-        Ok(()) => {
-            r.verified[i].store(true, Relaxed);
-            Ok(())
-        }
+pub(crate) fn read_records(
+    st: &AppState,
+    r: &ServedRepo,
+    records: &[usize],
+    buf: &mut RecordBuffer,
+    emit: impl FnMut(usize, &[u8]),
+) -> Result<(), ApiError> {
+    match r.read_records(records, buf, emit) {
+        Ok(()) => Ok(()),
         Err(RecordError::Read(e)) => Err(e),
-        Err(RecordError::Damaged(e)) => {
-            // Checked once, damaged since (a file changed in place): no longer known good.
-            r.verified[i].store(false, Relaxed);
+        Err(RecordError::Damaged(i, e)) => {
             st.metrics().add_corrupt();
             let id = r.repo.head().entries()[i].id;
             if !r.corrupt_logged[i].swap(true, Relaxed) {
@@ -272,8 +274,10 @@ async fn diamond(
             Body::empty(),
         ));
     }
-    let mut bytes = Vec::with_capacity(r.repo.head().entries()[i].length as usize);
-    read_record(&st, r, i, &mut bytes)?;
+    let mut bytes = Vec::new();
+    read_records(&st, r, &[i], &mut RecordBuffer::default(), |_, b| {
+        bytes = b.to_vec()
+    })?;
     st.metrics().add_records(1);
     Ok(respond(
         StatusCode::OK,
@@ -379,22 +383,22 @@ async fn batch(
         .map_err(|_| ApiError::TooLarge("more than 2^32 ids in one batch".into()))?;
     r.check_unchanged()?;
     // Records not checked before are read and checked now, so that a damaged one fails the
-    // whole request; the body reads (and checks) each again as it sends it.
-    let mut scratch = Vec::new();
-    let mut entries = Vec::with_capacity(slots.len());
-    for k in order {
-        entries.push(match slots[k] {
-            Some(i) => {
-                if !r.verified[i].load(Relaxed) {
-                    scratch.clear();
-                    read_record(&st, r, i, &mut scratch)?;
-                }
-                // Index positions fit in u32 (index lengths and counts are u32).
-                i as u32
-            }
-            None => NOT_STORED,
-        });
+    // whole request; the body reads each again as it sends it, and checks the file's identity
+    // after each read.
+    let unchecked: Vec<usize> = slots
+        .iter()
+        .flatten()
+        .copied()
+        .filter(|&i| !r.verified[i].load(Relaxed))
+        .collect();
+    if !unchecked.is_empty() {
+        read_records(&st, r, &unchecked, &mut RecordBuffer::default(), |_, _| {})?;
     }
+    // Index positions fit in u32 (index lengths and counts are u32).
+    let entries = order
+        .into_iter()
+        .map(|k| slots[k].map_or(NOT_STORED, |i| i as u32))
+        .collect();
     // The records are counted as the body hands them over (`BatchBody`).
     Ok(respond(
         StatusCode::OK,

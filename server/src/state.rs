@@ -47,6 +47,11 @@ pub struct Config {
     /// Most samples a repository's decoded levels may hold for it to be served as web-map
     /// tiles (its surface is decoded whole, 4 bytes a sample, on the first tile request).
     pub max_tile_samples: u64,
+    /// Repositories opened from files whose records areas take at most this many bytes in
+    /// all (in the order given) are read into memory when opened (`--hold-records`): records
+    /// are then served without a read of the file, the file's identity still checked for each
+    /// request. Larger ones are read record by record ([`crate::records`]).
+    pub held_records_bytes: u64,
 }
 
 impl Default for Config {
@@ -61,6 +66,7 @@ impl Default for Config {
             idle_timeout: Duration::from_secs(60),
             max_connections: 10_000,
             max_tile_samples: 1 << 28,
+            held_records_bytes: 256 << 20,
         }
     }
 }
@@ -138,13 +144,43 @@ pub(crate) enum Source {
     /// The file opened at startup ([`AppState::open`]), read with positioned reads from its
     /// descriptor, never through a memory map: a file truncated underneath a map kills the
     /// process with SIGBUS on the next read of a vanished page, a short read is only an error.
-    /// Its length and modification time at startup are checked before each request reads it.
+    /// Its identity at startup is checked after every read ([`crate::records`]).
     File {
         file: std::fs::File,
         path: PathBuf,
-        len: u64,
-        modified: Option<std::time::SystemTime>,
+        identity: FileIdentity,
+        /// The records area, read when the file was opened ([`Config::held_records_bytes`]).
+        held: Option<Box<[u8]>>,
     },
+}
+
+/// What tells a file changed in place: length and modification time (and on Unix the inode,
+/// which a descriptor keeps). Not the change time: the rename that replaces a file (how
+/// `cbdam build` writes) moves the change time of the file it unlinks, which is served on.
+/// A write that keeps the length and puts the modification time back is not seen here; bytes
+/// read from the file are checked against their CRCs for that ([`crate::records`]).
+#[derive(Debug, PartialEq, Eq)]
+pub(crate) struct FileIdentity {
+    len: u64,
+    modified: Option<std::time::SystemTime>,
+    inode: Option<(u64, u64)>,
+}
+
+impl FileIdentity {
+    fn of(m: &std::fs::Metadata) -> Self {
+        #[cfg(unix)]
+        let inode = {
+            use std::os::unix::fs::MetadataExt;
+            Some((m.dev(), m.ino()))
+        };
+        #[cfg(not(unix))]
+        let inode = None;
+        Self {
+            len: m.len(),
+            modified: m.modified().ok(),
+            inode,
+        }
+    }
 }
 
 /// One repository as served: the validated repository plus what the server precomputes.
@@ -169,10 +205,10 @@ pub struct ServedRepo {
     /// Per record: whether its corruption has been logged (log once per record, not per
     /// request: a client retrying a damaged record must not flood the log).
     pub(crate) corrupt_logged: Vec<AtomicBool>,
-    /// Per record: whether its bytes have passed their CRC once, so that a batch can refuse a
-    /// damaged record before sending anything without reading every record twice. Bytes are
-    /// checked again whenever they are sent: a file overwritten underneath the server must not
-    /// send new bytes under an old ETag.
+    /// Per record: whether its bytes have passed their CRC, so that a batch can refuse a
+    /// damaged record before sending anything without reading every record twice. Bytes held
+    /// in memory are checked once; bytes read from the file each time they are read
+    /// ([`crate::records`]).
     pub(crate) verified: Vec<AtomicBool>,
     /// The web-map tiler ([`crate::tiles`]), decoded on the first tile request.
     pub(crate) tiles: crate::tiles::TilerCell,
@@ -247,21 +283,21 @@ impl ServedRepo {
         HeaderValue::from_maybe_shared(v).expect("ASCII")
     }
 
-    /// Checks that the file served is still the one opened: same length, same modification
-    /// time. A file rebuilt in place (overwritten or truncated rather than replaced by a
-    /// rename) is refused with a 500 naming the problem until the server is restarted.
+    /// Checks that the file served is still the one opened ([`FileIdentity`]). A file rebuilt
+    /// in place (overwritten or truncated rather than replaced by a rename) is refused with a
+    /// 500 naming the problem until the server is restarted.
     pub(crate) fn check_unchanged(&self) -> Result<(), ApiError> {
         let Source::File {
             file,
             path,
-            len,
-            modified,
+            identity,
+            ..
         } = &self.source
         else {
             return Ok(());
         };
         let changed = match file.metadata() {
-            Ok(m) => m.len() != *len || m.modified().ok() != *modified,
+            Ok(m) => FileIdentity::of(&m) != *identity,
             Err(e) => {
                 tracing::error!(repo = %self.name, "cannot stat {}: {e}", path.display());
                 true
@@ -328,28 +364,6 @@ impl ServedRepo {
             }
         }
     }
-
-    /// Record `i`'s bytes appended to `out`, checked against their CRC (always: see
-    /// [`ServedRepo::verified`]).
-    pub(crate) fn read_record_into(&self, i: usize, out: &mut Vec<u8>) -> Result<(), RecordError> {
-        // `i` comes from a search of the index, and the index was checked against the file.
-        let range = self.repo.head().record_range(i).expect("an index position");
-        let at = out.len();
-        self.read_into(range, out).map_err(RecordError::Read)?;
-        self.repo.head().check_record(i, &out[at..]).map_err(|e| {
-            out.truncate(at);
-            RecordError::Damaged(e)
-        })
-    }
-}
-
-/// Why a record could not be read.
-#[derive(Debug)]
-pub(crate) enum RecordError {
-    /// The file could not be read, or changed underneath: the error to answer with.
-    Read(ApiError),
-    /// Its bytes fail their CRC.
-    Damaged(cbdam_codec::CodecError),
 }
 
 #[cfg(unix)]
@@ -470,10 +484,11 @@ impl AppState {
                 return Err(ServerError::DuplicateName(s.name.clone()));
             }
         }
+        let mut budget = config.held_records_bytes;
         let repos = specs
             .iter()
             .map(|s| {
-                let (repo, source) = open_one(&s.path)?;
+                let (repo, source) = open_one(&s.path, &mut budget)?;
                 Ok((s.name.clone(), repo, source))
             })
             .collect::<Result<Vec<_>, ServerError>>()?;
@@ -503,8 +518,9 @@ impl AppState {
 
 /// Opens the file, validates the repository at its path, and checks that both are the same
 /// bytes (the head, whose checksums cover everything else, read back through the descriptor),
-/// so that a file replaced between the two opens is not served half old, half new.
-fn open_one(path: &Path) -> Result<(Repository, Source), ServerError> {
+/// so that a file replaced between the two opens is not served half old, half new. A records
+/// area of at most `budget` bytes is read into memory, and taken from the budget.
+fn open_one(path: &Path, budget: &mut u64) -> Result<(Repository, Source), ServerError> {
     let open_err = |error: std::io::Error| ServerError::Open {
         path: path.to_path_buf(),
         error: error.into(),
@@ -520,18 +536,36 @@ fn open_one(path: &Path) -> Result<(Repository, Source), ServerError> {
     let same = meta.len() == repo.head().file_len()
         && read_exact_at(&file, &mut back, 0).is_ok()
         && back[..] == repo.as_bytes()[..head];
-    if !same {
-        return Err(open_err(std::io::Error::other(
+    let changed = || {
+        open_err(std::io::Error::other(
             "the file changed while it was being opened",
-        )));
+        ))
+    };
+    if !same {
+        return Err(changed());
     }
+    let identity = FileIdentity::of(&meta);
+    let records_len = repo.head().section_len(Section::Records);
+    let held = if records_len <= *budget {
+        *budget -= records_len;
+        let mut records = vec![0; records_len as usize].into_boxed_slice();
+        read_exact_at(&file, &mut records, head as u64).map_err(open_err)?;
+        // Read before an unchanged identity: the bytes opened (their CRCs are checked as
+        // each record is first served).
+        if FileIdentity::of(&file.metadata().map_err(open_err)?) != identity {
+            return Err(changed());
+        }
+        Some(records)
+    } else {
+        None
+    };
     // Nothing reads the map any more: its pages need not stay resident.
     repo.release_pages();
     let source = Source::File {
         file,
         path: path.to_path_buf(),
-        len: meta.len(),
-        modified: meta.modified().ok(),
+        identity,
+        held,
     };
     Ok((repo, source))
 }

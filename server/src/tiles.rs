@@ -17,7 +17,8 @@ use cbdam_tiles::surface::Surface;
 use cbdam_tiles::{Encoding, Tiler, TilesError};
 
 use crate::error::ApiError;
-use crate::state::{AppState, RecordError, ServedRepo};
+use crate::records::{RecordBuffer, RecordError};
+use crate::state::{AppState, ServedRepo};
 
 /// Caches revalidate tiles (a file rebuilt under the same name changes them): a 304 is cheap
 /// for the network, though the server makes the tile again to compare its ETag.
@@ -52,27 +53,30 @@ fn number(v: impl std::fmt::Display) -> HeaderValue {
 /// The repository's whole hierarchy, every record read and checked as the server reads them.
 fn encoded(st: &AppState, r: &ServedRepo) -> Result<Encoded, String> {
     let head = r.repo.head();
-    let mut records = Vec::with_capacity(head.entries().len());
-    for (i, e) in head.entries().iter().enumerate() {
-        let mut bytes = Vec::with_capacity(e.length as usize);
-        match r.read_record_into(i, &mut bytes) {
-            Ok(()) => {}
-            Err(RecordError::Read(e)) => return Err(e.to_string()),
-            Err(RecordError::Damaged(e)) => {
-                st.metrics().add_corrupt();
-                return Err(format!(
-                    "the record of diamond {} is damaged: {e}",
-                    e_id(head, i)
-                ));
-            }
-        }
+    let entries = head.entries();
+    let mut records = Vec::with_capacity(entries.len());
+    let all: Vec<usize> = (0..entries.len()).collect();
+    let mut buf = RecordBuffer::default();
+    let read = r.read_records(&all, &mut buf, |i, bytes| {
+        let e = &entries[i];
         records.push(Record {
             id: e.id,
-            bytes: bytes.into(),
+            bytes: bytes.to_vec().into(),
             object_error: e.object_error,
             min: e.min,
             max: e.max,
         });
+    });
+    match read {
+        Ok(()) => {}
+        Err(RecordError::Read(e)) => return Err(e.to_string()),
+        Err(RecordError::Damaged(i, e)) => {
+            st.metrics().add_corrupt();
+            return Err(format!(
+                "the record of diamond {} is damaged: {e}",
+                e_id(head, i)
+            ));
+        }
     }
     Ok(Encoded {
         params: *head.params(),

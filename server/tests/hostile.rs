@@ -412,10 +412,15 @@ async fn unread_batch_answers_hold_little_memory() {
     assert!(server.alive());
 }
 
-/// Serves `path` as `t` (opened from the file).
-async fn serve_file(path: &std::path::Path) -> Running {
+/// Serves `path` as `t` (opened from the file), its records held in memory or read from the
+/// file as asked for.
+async fn serve_file(path: &std::path::Path, held: bool) -> Running {
     let spec: RepoSpec = format!("t={}", path.display()).parse().unwrap();
-    start(AppState::open(&[spec], Config::default()).unwrap()).await
+    let config = Config {
+        held_records_bytes: if held { 1 << 30 } else { 1 },
+        ..Config::default()
+    };
+    start(AppState::open(&[spec], config).unwrap()).await
 }
 
 #[tokio::test]
@@ -423,7 +428,7 @@ async fn a_file_replaced_by_a_rename_keeps_being_served_as_it_was() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("t.cbdam");
     std::fs::write(&path, image(1)).unwrap();
-    let s = serve_file(&path).await;
+    let s = serve_file(&path, false).await;
     let old = repo(1);
     let e = old
         .head()
@@ -452,7 +457,8 @@ async fn a_file_changed_in_place_is_refused_not_served() {
     let path = dir.path().join("t.cbdam");
     let bytes = image(1);
     std::fs::write(&path, &bytes).unwrap();
-    let s = serve_file(&path).await;
+    let s = serve_file(&path, false).await;
+    let held_server = serve_file(&path, true).await;
     let repo = repo(1);
     let e = repo
         .head()
@@ -469,6 +475,9 @@ async fn a_file_changed_in_place_is_refused_not_served() {
     let batch = serde_json::json!({ "ids": all_ids }).to_string();
     let c = client();
     let record = s.url(&format!("/v1/repos/t/diamonds/{}", e.id));
+    let held_record = held_server.url(&format!("/v1/repos/t/diamonds/{}", e.id));
+    let held = client();
+    assert_eq!(held.get(&held_record).send().await.unwrap().status(), 200);
     let urls = [
         record.clone(),
         s.url("/v1/repos/t/meta"),
@@ -486,7 +495,7 @@ async fn a_file_changed_in_place_is_refused_not_served() {
 
     // One byte of the record changed in place, the modification time put back: the file looks
     // the same to stat, but the record's bytes are no longer what its ETag names. It was
-    // checked once already; it is checked again.
+    // checked once already; read from the file, it is checked again.
     let at = repo
         .head()
         .section_offset(cbdam_codec::repository::Section::Records)
@@ -502,6 +511,11 @@ async fn a_file_changed_in_place_is_refused_not_served() {
     assert!(msg.contains("damaged"), "{msg}");
     let r = c.post(&batch_url).body(batch.clone()).send().await.unwrap();
     error_body(r, 500).await;
+    // Held in memory, the record is served as it was read at startup: what its ETag names.
+    let r = held.get(&held_record).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["etag"], etags[0]);
+    assert_eq!(&r.bytes().await.unwrap()[..], repo.record(e.id).unwrap());
 
     // Overwritten in place with another repository (a rebuild into the same file): every
     // endpoint that reads it refuses, with or without the old ETag, and says why.
@@ -520,6 +534,10 @@ async fn a_file_changed_in_place_is_refused_not_served() {
     let r = c.post(&batch_url).body(batch.clone()).send().await.unwrap();
     let msg = error_body(r, 500).await;
     assert!(msg.contains("changed on disk"), "{msg}");
+    // Held in memory or not, a file changed in place is refused.
+    let msg = error_body(held.get(&held_record).send().await.unwrap(), 500).await;
+    assert!(msg.contains("changed on disk"), "{msg}");
+    held_server.stop().await;
 
     // Truncated: refused the same way, and the server lives on.
     std::fs::OpenOptions::new()
@@ -729,7 +747,7 @@ async fn record_figures() {
     let path = dir.path().join("t.cbdam");
     let repo = noise_repo();
     std::fs::write(&path, repo.as_bytes()).unwrap();
-    let s = serve_file(&path).await;
+    let s = serve_file(&path, false).await;
     let c = client();
     let urls: Vec<String> = repo
         .head()

@@ -5,6 +5,7 @@
 mod util;
 
 // Child processes with their own limits, measured through /proc.
+mod file_reads;
 #[cfg(target_os = "linux")]
 mod hostile;
 mod http;

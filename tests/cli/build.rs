@@ -881,3 +881,37 @@ fn an_rms_error_build_states_its_bound_everywhere() {
         );
     }
 }
+
+/// An infinite nodata value, the file's own or `--nodata`'s, is refused by name: it used to be
+/// recorded in the header as the nodata value, and extracts wrote ±inf.
+#[test]
+fn an_infinite_nodata_value_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.cbdam");
+    let minus_inf = dir.path().join("minus_inf.asc");
+    std::fs::write(
+        &minus_inf,
+        "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\nNODATA_value -inf\n\
+         1 2 -inf\n4 5 6\n",
+    )
+    .unwrap();
+    let plain = dir.path().join("plain.asc");
+    write_asc(&plain, &[vec![1.0, 2.0, 3.0], vec![4.0, 5.0, 6.0]], None);
+    for (input, extra, value) in [
+        (&minus_inf, None, "-inf"),
+        (&plain, Some("--nodata=inf"), "inf"),
+    ] {
+        let mut args = vec!["build", "--max-error", "1", "-o"];
+        let (input, out) = (s(input), s(&out));
+        args.extend([out.as_str(), input.as_str()]);
+        args.extend(extra);
+        let o = cbdam(&args);
+        assert!(!o.status.success(), "{args:?} was accepted");
+        let err = stderr(&o);
+        assert!(
+            err.contains(&format!("nodata value {value} is infinite")),
+            "{args:?}: {err}"
+        );
+    }
+    assert!(!out.exists());
+}

@@ -104,3 +104,52 @@ fn serve_refuses_bad_repositories_by_name() {
         stderr(&o)
     );
 }
+
+/// `cbdam serve` started under a low soft limit on open files raises it to the hard limit and
+/// says so: the soft limit bounds `--max-connections`, and 1 024 is a common default.
+#[cfg(unix)]
+#[test]
+fn serve_raises_its_soft_fd_limit_to_the_hard_limit() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+
+    let hard = Command::new("sh")
+        .args(["-c", "ulimit -Hn"])
+        .output()
+        .unwrap();
+    let hard = String::from_utf8_lossy(&hard.stdout).trim().to_string();
+    assert!(
+        hard == "unlimited" || hard.parse::<u64>().unwrap() > 512,
+        "the test lowers the soft limit to 256 and needs a hard limit over 512, not {hard}"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let mut child = Command::new("sh")
+        .args([
+            "-c",
+            "ulimit -Sn 256 && exec \"$0\" serve \"$1\" --addr 127.0.0.1:0",
+        ])
+        .arg(env!("CARGO_BIN_EXE_cbdam"))
+        .arg(&repo)
+        .env("RUST_LOG", "info")
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    while !seen.contains("listening on http://") {
+        let mut line = String::new();
+        if err.read_line(&mut line).unwrap() == 0 {
+            break;
+        }
+        seen += &line;
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(
+        seen.contains(&format!(
+            "raised the soft limit on open files from 256 to the hard limit, {hard}"
+        )),
+        "{seen}"
+    );
+}

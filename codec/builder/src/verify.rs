@@ -128,14 +128,16 @@ impl DemComparison {
                 self.levels.bound
             );
         }
-        // f64 evaluation of offset + n·u is good to ~1e-16 relative; the bound itself was
-        // checked exactly in integers above.
-        if self.max_error > self.epsilon * (1.0 + 1e-12) {
+        // The guarantee includes the float rounding of offset + n·u (QuantPlan::max_error);
+        // the bound in units was checked exactly in integers above.
+        if self.max_error > self.guaranteed {
             bail!(
-                "sample at column {}, row {} is off by {} m, above the {} m tolerance",
+                "sample at column {}, row {} is off by {} m, above the {} m guaranteed (tolerance \
+                 {} m)",
                 self.worst % self.width,
                 self.worst / self.width,
                 self.max_error,
+                self.guaranteed,
                 self.epsilon
             );
         }
@@ -333,6 +335,8 @@ pub struct MosaicComparison {
     pub width: usize,
     /// The tolerance, metres.
     pub epsilon: f64,
+    /// The guaranteed bound, metres ([`cbdam_codec::quant::QuantPlan::max_error`]).
+    pub guaranteed: f64,
     /// The blocks the hierarchy was decoded in, `None` when it was decoded whole.
     pub blocks: Option<BlockPlan>,
 }
@@ -373,14 +377,15 @@ impl MosaicComparison {
             );
         }
         if let Some((e, i, k)) = self.worst
-            && e > self.epsilon * (1.0 + 1e-12)
+            && e > self.guaranteed
         {
             bail!(
                 "lattice point at column {}, row {} (from {}) is off by {e} m, above the {} m \
-                 tolerance",
+                 guaranteed (tolerance {} m)",
                 i % w,
                 i / w,
                 self.inputs[k].path.display(),
+                self.guaranteed,
                 self.epsilon
             );
         }
@@ -705,6 +710,7 @@ impl Tally {
             worst: self.worst,
             width: m.width,
             epsilon: repo.head().plan().epsilon,
+            guaranteed: repo.head().plan().max_error(),
             blocks,
         }
     }

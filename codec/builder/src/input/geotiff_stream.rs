@@ -67,6 +67,7 @@ impl GeoTiffSource {
         if nodata.is_some() {
             header.nodata = nodata;
         }
+        super::check_nodata(header.nodata, path)?;
         let band_rows = (BLOCK_SAMPLES / header.width.max(1)).max(1);
         let band_chunk_rows = (band_rows / header.chunk_height).max(1);
         // Padding of edge tiles is decoded too; the bound is on what is held, padding included.

@@ -122,8 +122,22 @@ pub fn read_dem(path: &Path, opts: &ReadOptions) -> Result<Dem, CodecError> {
     if opts.nodata.is_some() {
         dem.nodata = opts.nodata;
     }
+    check_nodata(dem.nodata, path)?;
     dem.georef = with_sidecar_crs(dem.georef, path)?;
     Ok(dem)
+}
+
+/// Refuses an infinite nodata value, the file's own or an override: a sample of ±inf is no
+/// height, and consumers (extracts, GDAL) would meet the value as a height or mistake it for
+/// overflow. NaN (or none) is how "no data" is said without a sentinel.
+pub(crate) fn check_nodata(nodata: Option<f64>, path: &Path) -> Result<(), CodecError> {
+    match nodata {
+        Some(v) if v.is_infinite() => Err(CodecError::invalid(format!(
+            "{}: the nodata value {v} is infinite; give a finite one (or NaN) with --nodata",
+            path.display()
+        ))),
+        _ => Ok(()),
+    }
 }
 
 /// The CRS definition (WKT) in an ESRI `.prj` file beside `path` — same name, extension `prj`

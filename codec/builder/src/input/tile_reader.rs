@@ -84,6 +84,7 @@ impl TileReader {
         if opts.nodata.is_some() {
             header.nodata = opts.nodata;
         }
+        super::check_nodata(header.nodata, path)?;
         header.georef = super::with_sidecar_crs(header.georef, path)?;
         Ok(Self {
             path: path.to_path_buf(),
