@@ -267,6 +267,12 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
             "{} M lattice points/s)",
             timings(&s.stages, start, s.lattice_points.min(s.held_points))
         );
+        eprintln!(
+            "inputs read from their files {} times ({} inputs; once for the height range, then \
+             when the resampling asks for one its cache has let go)",
+            s.inputs_read,
+            s.resampling.len()
+        );
     }
     if args.quiet.value {
         return Ok(());
