@@ -135,6 +135,19 @@ impl InputCache {
     }
 }
 
+/// Makes the C allocator give every block of 1 MiB or more back to the system when it is
+/// freed, as it does until its first such free: glibc then raises that threshold to the
+/// block's size, and the inputs read and let go one after another (each with a buffer of 8
+/// bytes a sample while read) come from its heaps instead, which keep the freed pieces resident
+/// and grow with the number of inputs read (figures: `docs/RESULTS.md`, "Planets").
+pub(crate) fn give_large_frees_back() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: `mallopt` only changes a tuning parameter of glibc's allocator.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

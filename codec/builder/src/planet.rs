@@ -680,6 +680,7 @@ pub fn build_planet(
     let t = Instant::now();
     let tiles = crate::tiles::expand_inputs(&opts.inputs)?;
     crate::check_output_is_not_an_input(opts, &tiles)?;
+    crate::input_cache::give_large_frees_back();
     let inputs = PlanetInputs::read(
         &tiles,
         opts.nodata,

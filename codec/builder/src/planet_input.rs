@@ -299,9 +299,9 @@ fn read_samples(
     Ok(Samples::compact(values))
 }
 
-/// Reads one input and places it on the Earth, or says why it cannot be. An input without
+/// Opens one input from its header and places it on the Earth, or says why it cannot be. An input without
 /// georeferencing of its own takes `assign`'s (`--bounds`/`--crs`); the flag says it did.
-fn read_input(
+fn open_input(
     tile: &Tile,
     nodata: Option<f64>,
     assign: Option<&AssignedGeoRef>,
@@ -437,7 +437,7 @@ impl PlanetInputs {
         }
         let read = tiles
             .iter()
-            .map(|t| read_input(t, nodata, assign))
+            .map(|t| open_input(t, nodata, assign))
             .collect::<Result<Vec<_>>>()?;
         if assign.is_some() {
             let assigned: Vec<&PlanetInput> =
