@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::util::{cbdam, s, stderr};
+use crate::util::{cbdam, data, s, stderr};
 
 /// SRTM 3″ tiles: 1201 samples a side, one degree plus the shared edge.
 const SIDE: usize = 1201;
@@ -155,4 +155,72 @@ fn a_truncated_tile_is_named() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("N40E011.hgt"), "{}", stderr(&o));
     assert!(!out.exists());
+}
+
+/// `synth --earth` writes SRTM's tiles: named by their south-west corner, 1201² big-endian
+/// samples, neighbours equal on their shared column, only land cells, and as rough as the
+/// bundled SRTM tile where it lies (RMS differences at 3″ and 48″, measured here on both).
+#[test]
+fn synth_earth_writes_srtm_tiles_as_rough_as_the_real_one() {
+    use cbdam_builder::earth::Roughness;
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("earth");
+    let (etopo, srtm) = (data("etopo5_global.tif"), data("srtm3_demcompare.tif"));
+    let base = ["synth", "--etopo", &etopo, "--srtm", &srtm, "--earth"];
+    let mut args = base.to_vec();
+    let d = s(&dir);
+    args.extend([d.as_str(), "--bbox", "40,39,42,40", "--cells", "2"]);
+    let o = cbdam(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let read = |name: &str| -> Vec<Option<f64>> {
+        let b = std::fs::read(dir.join(name)).unwrap();
+        assert_eq!(b.len(), SIDE * SIDE * 2, "{name}");
+        b.chunks_exact(2)
+            .map(|c| i16::from_be_bytes([c[0], c[1]]))
+            .map(|v| (v != i16::MIN).then_some(f64::from(v)))
+            .collect()
+    };
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["N39E040.hgt", "N39E041.hgt"]);
+    let (west, east) = (read("N39E040.hgt"), read("N39E041.hgt"));
+    for r in 0..SIDE {
+        assert_eq!(west[r * SIDE + SIDE - 1], east[r * SIDE], "row {r}");
+    }
+    // The real tile: 1000² samples from 40° N 40° E, inside N39E040.
+    let real = cbdam_builder::input::read_dem(
+        Path::new(&srtm),
+        &cbdam_builder::input::ReadOptions::default(),
+    )
+    .unwrap();
+    let real: Vec<Option<f64>> = real.values.iter().map(|&v| Some(v)).collect();
+    let synthetic: Vec<Option<f64>> = (0..1000)
+        .flat_map(|r| west[r * SIDE..r * SIDE + 1000].to_vec())
+        .collect();
+    let (a, b) = (Roughness::of(&real, 1000), Roughness::of(&synthetic, 1000));
+    eprintln!("real {a:?}, synthetic {b:?}");
+    for (x, y) in [(a.lag1, b.lag1), (a.lag16, b.lag16)] {
+        assert!((y / x - 1.0).abs() < 0.15, "real {a:?}, synthetic {b:?}");
+    }
+    // The South Atlantic has no land; an existing tile is not overwritten.
+    let mut args = base.to_vec();
+    let sea = s(&tmp.path().join("sea"));
+    args.extend([sea.as_str(), "--bbox", "-30,-31,-29,-30"]);
+    let o = cbdam(&args);
+    assert!(
+        !o.status.success() && stderr(&o).contains("no land cell"),
+        "{}",
+        stderr(&o)
+    );
+    let mut args = base.to_vec();
+    args.extend([d.as_str(), "--bbox", "40,39,41,40"]);
+    let o = cbdam(&args);
+    assert!(
+        !o.status.success() && stderr(&o).contains("N39E040.hgt exists"),
+        "{}",
+        stderr(&o)
+    );
 }

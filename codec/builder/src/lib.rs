@@ -13,6 +13,7 @@
 pub mod assign;
 pub mod band_cache;
 pub mod colour;
+pub mod earth;
 pub mod encode;
 mod error;
 pub mod input;
