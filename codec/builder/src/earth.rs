@@ -220,11 +220,12 @@ impl Roughness {
                 for c in 0..w {
                     let Some(a) = values[r * w + c] else { continue };
                     for (rr, cc) in [(r, c + d), (r + d, c)] {
-                        if rr < h && cc < w {
-                            if let Some(b) = values[rr * w + cc] {
-                                sum += (a - b) * (a - b);
-                                n += 1;
-                            }
+                        if rr < h
+                            && cc < w
+                            && let Some(b) = values[rr * w + cc]
+                        {
+                            sum += (a - b) * (a - b);
+                            n += 1;
                         }
                     }
                 }

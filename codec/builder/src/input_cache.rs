@@ -68,7 +68,8 @@ impl InputCache {
     }
 
     /// The samples of input `key`: kept ones, or read by `read` (once, however many workers
-    /// ask at the same time) and kept while the budget allows.
+    /// ask at the same time) and kept while the budget allows. `read` runs holding the input's
+    /// lock: it must not wait on work of a thread pool that may be asking for the same input.
     pub fn get(&self, key: usize, read: impl FnOnce() -> Result<Samples>) -> Result<Arc<Samples>> {
         let slot = {
             let mut s = self.lock();

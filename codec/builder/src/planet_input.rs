@@ -268,12 +268,14 @@ fn rem_euclid(c: f64, p: f64) -> f64 {
 }
 
 /// The samples of the `width` × `height` input at `path`, read whole as [`crate::input::read_dem`]
-/// would read them, with the bands of a GeoTIFF's strips or tiles decoded on all the build's
-/// workers ([`TileReader`] reads rows as `read_dem` would), kept in the narrowest exact type.
+/// would read them ([`TileReader`] reads rows as `read_dem` does), kept in the narrowest exact
+/// type; with `parallel`, the bands of a GeoTIFF's strips or tiles decoded on all the build's
+/// workers.
 fn read_samples(
     path: &Path,
     opts: &ReadOptions,
     (width, height): (usize, usize),
+    parallel: bool,
 ) -> std::result::Result<Samples, CodecError> {
     let reader = TileReader::open(path, opts)?;
     if (reader.width(), reader.height()) != (width, height) {
@@ -286,16 +288,25 @@ fn read_samples(
     }
     let band = reader.band_rows().max(1);
     let mut values = vec![0.0; width * height];
-    values
-        .par_chunks_mut((band * width).max(1))
-        .enumerate()
-        .try_for_each(|(b, out)| {
-            let start = b * band;
-            let mut rows = Vec::new();
-            reader.read_rows(start..(start + band).min(height), &mut rows)?;
-            out.copy_from_slice(&rows);
-            Ok::<_, CodecError>(())
-        })?;
+    let read_band = |(b, out): (usize, &mut [f64])| {
+        let start = b * band;
+        let mut rows = Vec::new();
+        reader.read_rows(start..(start + band).min(height), &mut rows)?;
+        out.copy_from_slice(&rows);
+        Ok::<_, CodecError>(())
+    };
+    let chunk = (band * width).max(1);
+    if parallel {
+        values
+            .par_chunks_mut(chunk)
+            .enumerate()
+            .try_for_each(read_band)?;
+    } else {
+        values
+            .chunks_mut(chunk)
+            .enumerate()
+            .try_for_each(read_band)?;
+    }
     Ok(Samples::compact(values))
 }
 
@@ -473,14 +484,23 @@ impl PlanetInputs {
         }
     }
 
-    /// The samples of input `i`: from the cache, or read (naming the file if that fails).
+    /// The samples of input `i`: from the cache, or read (naming the file if that fails) on
+    /// this thread alone. The cache holds an input's lock while reading it; a read that forked
+    /// work onto the pool could, while waiting, take up another lattice tile's task asking for
+    /// the same input — and wait on its own lock.
     pub(crate) fn samples(&self, i: usize) -> Result<Arc<Samples>> {
+        self.samples_read(i, false)
+    }
+
+    /// [`Self::samples`], a read decoding on all workers: only where nothing else runs on the
+    /// pool (the height range, one input at a time).
+    fn samples_read(&self, i: usize, parallel: bool) -> Result<Arc<Samples>> {
         let input = &self.inputs[i];
         match &input.source {
             #[cfg(test)]
             SampleSource::Held(s) => Ok(Arc::clone(s)),
             SampleSource::File(opts) => self.cache.get(i, || {
-                read_samples(&input.path, opts, (input.width, input.height))
+                read_samples(&input.path, opts, (input.width, input.height), parallel)
                     .with_context(|| format!("reading {}", input.path.display()))
             }),
         }
@@ -502,7 +522,7 @@ impl PlanetInputs {
     pub fn range(&self) -> Result<Option<(f64, f64)>> {
         let mut range: Option<(f64, f64)> = None;
         for (i, input) in self.inputs.iter().enumerate() {
-            if let Some((lo, hi)) = input.range(&*self.samples(i)?) {
+            if let Some((lo, hi)) = input.range(&*self.samples_read(i, true)?) {
                 range = Some(range.map_or((lo, hi), |r| (r.0.min(lo), r.1.max(hi))));
             }
         }
