@@ -132,7 +132,8 @@ pub struct BuildArgs {
     /// lattice is finer than an input, area-averaged where coarser, the finest input winning
     /// where they overlap. The lattice is the coarsest as fine as the finest input, within
     /// --memory-limit (about 40 bytes per lattice point); the summary says when the limit made
-    /// it coarser, and how far the lattice is from each input's samples.
+    /// it coarser, and how far the lattice is from each input's samples. The inputs are read
+    /// when the resampling asks for them, keeping at most an eighth of --memory-limit of them.
     #[arg(long)]
     pub(crate) planet: bool,
     /// With --planet: the lattice's level pairs K (faces of (N − 1)·2^K steps, a mean spacing of
@@ -282,6 +283,12 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
         eprintln!(
             "{} M lattice points/s)",
             timings(&s.stages, start, s.lattice_points.min(s.held_points))
+        );
+        eprintln!(
+            "inputs read from their files {} times ({} inputs; once for the height range, then \
+             when the resampling asks for one its cache has let go)",
+            s.inputs_read,
+            s.resampling.len()
         );
     }
     if args.quiet.value {

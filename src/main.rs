@@ -17,6 +17,7 @@ mod serve;
 mod session;
 mod shard;
 mod synth;
+mod synth_earth;
 mod verify;
 mod view;
 mod web_export;

@@ -19,11 +19,11 @@ use clap::{Args, ValueEnum};
 #[derive(Args, Debug)]
 pub struct SynthArgs {
     /// Side of the square grid in samples.
-    #[arg(long)]
-    size: usize,
+    #[arg(long, required_unless_present = "earth")]
+    size: Option<usize>,
     /// Output raw float32 file.
-    #[arg(short, long)]
-    output: PathBuf,
+    #[arg(short, long, required_unless_present = "earth")]
+    output: Option<PathBuf>,
     /// Seed of the pseudo-random displacements.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -44,6 +44,8 @@ pub struct SynthArgs {
     /// of scripts/bench-tiles.sh). The grid is then periodic, not one terrain.
     #[arg(long, requires = "tiles")]
     mirrored: bool,
+    #[command(flatten)]
+    earth: crate::synth_earth::EarthArgs,
 }
 
 /// Compression of `cbdam synth --tiff`.
@@ -259,24 +261,26 @@ pub fn write_tiff_i16(
 }
 
 pub fn run(args: &SynthArgs) -> Result<()> {
-    if args.size < 2 {
+    if let Some(dir) = &args.earth.earth {
+        if args.size.is_some() || args.output.is_some() || args.tiff.is_some() {
+            bail!("--earth writes its own tiles: --size, -o and --tiff do not apply");
+        }
+        return crate::synth_earth::run(dir, &args.earth);
+    }
+    let (Some(size), Some(output)) = (args.size, args.output.clone()) else {
+        bail!("--size and -o are needed (or --earth DIR)");
+    };
+    if size < 2 {
         bail!("--size must be at least 2");
     }
     if args.int16 {
         let deflate = matches!(args.tiff, Some(TiffArg::Deflate));
-        return write_tiff_i16(
-            &args.output,
-            args.size,
-            args.seed,
-            deflate,
-            args.tiles,
-            args.mirrored,
-        );
+        return write_tiff_i16(&output, size, args.seed, deflate, args.tiles, args.mirrored);
     }
     match args.tiff {
-        None => write(&args.output, args.size, args.seed),
-        Some(TiffArg::Plain) => write_tiff(&args.output, args.size, args.seed, false),
-        Some(TiffArg::Deflate) => write_tiff(&args.output, args.size, args.seed, true),
+        None => write(&output, size, args.seed),
+        Some(TiffArg::Plain) => write_tiff(&output, size, args.seed, false),
+        Some(TiffArg::Deflate) => write_tiff(&output, size, args.seed, true),
     }
 }
 

@@ -8,6 +8,7 @@ mod cli;
 mod cli_colour;
 mod cli_multires;
 mod cli_planet_closeup;
+mod cli_planet_out_of_core;
 mod cli_render;
 mod cli_render_colour;
 mod cli_tiles;

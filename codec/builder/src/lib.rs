@@ -13,13 +13,16 @@
 pub mod assign;
 pub mod band_cache;
 pub mod colour;
+pub mod earth;
 pub mod encode;
 mod error;
 pub mod input;
+mod input_cache;
 pub mod journal;
 pub mod mosaic;
 pub mod plan;
 pub mod planet;
+mod planet_input;
 pub mod progress;
 pub mod rms;
 pub mod shard;

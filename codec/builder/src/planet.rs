@@ -16,37 +16,26 @@
 //! samples: each input sample against the bilinear interpolant of the four lattice points
 //! around it, wherever those four took their height from that input.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use rayon::prelude::*;
 
 use crate::assign::AssignedGeoRef;
-use crate::band_cache::Samples;
-use crate::error::{Context, Result, bail};
-use crate::input::{ReadOptions, TileReader};
+use crate::error::{BuildError, Context, Result, bail};
+use crate::planet_input::{Frame, PointSource};
+pub use crate::planet_input::{GEOGRAPHIC_EPSG, MAX_PLANET_INPUTS, PlanetInput, PlanetInputs};
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
-use cbdam_codec::error::CodecError;
 use cbdam_codec::geodesy::cube_map::{FaceLattice, lat_lon_to_face_st, sin_cos_to_face_st};
-use cbdam_codec::geodesy::{LatLon, Utm, lattice_lat_lon};
+use cbdam_codec::geodesy::{LatLon, lattice_lat_lon};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::planet::{tile_log2, tile_of};
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, PlanetTile, encode_planet};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
-use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
-use cbdam_codec::samples::Dem;
-
-/// Metres per degree of arc on the ground (the WGS 84 mean), to compare projected spacings with
-/// angular ones.
-const METRES_PER_DEGREE: f64 = 111_195.0;
-
-/// EPSG codes of the geographic coordinate systems accepted as latitude/longitude on WGS 84:
-/// WGS 84 itself, and NAD83, ETRS89 and GDA94, whose datums are within about 2 m of it.
-pub const GEOGRAPHIC_EPSG: [u32; 4] = [4326, 4269, 4258, 4283];
 
 /// Bytes the planet build holds per lattice point its tiles hold ([`PlanetGrid`]), measured on
 /// the ETOPO5 planet with margin (`/usr/bin/time -v cbdam build data/etopo5_global.tif --planet
@@ -54,470 +43,6 @@ pub const GEOGRAPHIC_EPSG: [u32; 4] = [4326, 4269, 4258, 4283];
 /// classes), the resampling winners (2 B) and the encoder's per-diamond refinements of two
 /// levels.
 pub const BYTES_PER_LATTICE_POINT: u64 = 24;
-
-/// How an input's pixels lie on the Earth.
-#[derive(Clone, Copy, Debug)]
-enum Frame {
-    /// Latitude/longitude degrees: sample `(c, r)` at `lon0 + c·dlon`, `lat0 − r·dlat`;
-    /// `period`: columns per 360° when the input wraps around the globe.
-    Geographic {
-        lon0: f64,
-        lat0: f64,
-        dlon: f64,
-        dlat: f64,
-        period: Option<usize>,
-    },
-    /// A UTM zone: sample `(c, r)` at easting `x0 + c·dx`, northing `y0 − r·dy`.
-    Projected {
-        utm: Utm,
-        x0: f64,
-        y0: f64,
-        dx: f64,
-        dy: f64,
-    },
-}
-
-/// One input, read and placed on the Earth.
-pub struct PlanetInput {
-    /// The file.
-    pub path: PathBuf,
-    width: usize,
-    height: usize,
-    samples: Samples,
-    nodata: Option<f64>,
-    frame: Frame,
-    /// Ground spacing of its samples, degrees of arc (north–south).
-    pub spacing_deg: f64,
-}
-
-impl PlanetInput {
-    fn sample(&self, c: usize, r: usize) -> Option<f64> {
-        let v = self.samples.get(r * self.width + c);
-        (!v.is_nan() && self.nodata != Some(v)).then_some(v)
-    }
-
-    /// Fractional column and row of a point, or `None` off the input.
-    fn pixel_of(&self, ll: LatLon) -> Option<(f64, f64)> {
-        const SLACK: f64 = 1e-9;
-        let (w, h) = (self.width as f64, self.height as f64);
-        let (c, r) = match self.frame {
-            Frame::Geographic {
-                lon0,
-                lat0,
-                dlon,
-                dlat,
-                period,
-            } => {
-                let r = (lat0 - ll.lat) / dlat;
-                let c = (ll.lon - lon0) / dlon;
-                let c = match period {
-                    Some(p) => rem_euclid(c, p as f64),
-                    None => [c, c + 360.0 / dlon, c - 360.0 / dlon]
-                        .into_iter()
-                        .find(|c| (-SLACK..=w - 1.0 + SLACK).contains(c))?,
-                };
-                (c, r)
-            }
-            Frame::Projected {
-                utm,
-                x0,
-                y0,
-                dx,
-                dy,
-            } => {
-                let (e, n) = utm.forward(ll);
-                ((e - x0) / dx, (y0 - n) / dy)
-            }
-        };
-        let wraps = matches!(
-            self.frame,
-            Frame::Geographic {
-                period: Some(_),
-                ..
-            }
-        );
-        let c_max = if wraps { w } else { w - 1.0 };
-        ((-SLACK..=c_max + SLACK).contains(&c) && (-SLACK..=h - 1.0 + SLACK).contains(&r))
-            .then_some((c.clamp(0.0, c_max), r.clamp(0.0, h - 1.0)))
-    }
-
-    /// The column index of `c`, wrapped for inputs around the globe.
-    fn column(&self, c: i64) -> Option<usize> {
-        match self.frame {
-            Frame::Geographic {
-                period: Some(p), ..
-            } => Some(c.rem_euclid(p as i64) as usize).filter(|&c| c < self.width),
-            _ => usize::try_from(c).ok().filter(|&c| c < self.width),
-        }
-    }
-
-    /// Bilinear interpolation at a fractional pixel; `None` unless all four samples are valid.
-    fn bilinear(&self, (c, r): (f64, f64)) -> Option<f64> {
-        let wraps = matches!(
-            self.frame,
-            Frame::Geographic {
-                period: Some(_),
-                ..
-            }
-        );
-        let c0 = if wraps {
-            c.floor()
-        } else {
-            c.floor().min(self.width.saturating_sub(2) as f64)
-        };
-        let r0 = r.floor().min(self.height.saturating_sub(2) as f64);
-        let (fx, fy) = (c - c0, r - r0);
-        let (c0, r0) = (c0 as i64, r0 as usize);
-        let r1 = (r0 + 1).min(self.height - 1);
-        let (ca, cb) = (
-            self.column(c0)?,
-            self.column(c0 + 1).unwrap_or(self.column(c0)?),
-        );
-        let v = |c, r| self.sample(c, r);
-        let top = v(ca, r0)? * (1.0 - fx) + v(cb, r0)? * fx;
-        let bottom = v(ca, r1)? * (1.0 - fx) + v(cb, r1)? * fx;
-        Some(top * (1.0 - fy) + bottom * fy)
-    }
-
-    /// Mean of the valid samples whose centres lie within `half` (columns, rows) of a pixel.
-    fn area_average(&self, (c, r): (f64, f64), half: (f64, f64)) -> Option<f64> {
-        let (r_lo, r_hi) = (
-            (r - half.1).ceil().max(0.0) as usize,
-            ((r + half.1).floor() as usize).min(self.height - 1),
-        );
-        let (c_lo, c_hi) = ((c - half.0).ceil() as i64, (c + half.0).floor() as i64);
-        let (mut sum, mut count) = (0.0, 0u64);
-        for row in r_lo..=r_hi {
-            for col in c_lo..=c_hi {
-                if let Some(v) = self.column(col).and_then(|col| self.sample(col, row)) {
-                    sum += v;
-                    count += 1;
-                }
-            }
-        }
-        (count > 0).then(|| sum / count as f64)
-    }
-
-    /// The height at a point whose lattice cell is `lattice_deg` degrees across: bilinear where
-    /// the lattice is at least as fine as the input, the area average where it is coarser.
-    fn height_at(&self, ll: LatLon, lattice_deg: f64) -> Option<f64> {
-        let px = self.pixel_of(ll)?;
-        if lattice_deg > self.spacing_deg {
-            let half_deg = lattice_deg / 2.0;
-            let half = match self.frame {
-                Frame::Geographic { dlon, dlat, .. } => {
-                    let cos = ll.lat.to_radians().cos().max(1e-9);
-                    ((half_deg / cos / dlon).min(180.0 / dlon), half_deg / dlat)
-                }
-                Frame::Projected { dx, dy, .. } => (
-                    half_deg * METRES_PER_DEGREE / dx,
-                    half_deg * METRES_PER_DEGREE / dy,
-                ),
-            };
-            if let Some(v) = self.area_average(px, half) {
-                return Some(v);
-            }
-        }
-        self.bilinear(px)
-    }
-
-    /// Latitude and longitude of sample `(c, r)`.
-    fn lat_lon_of(&self, c: usize, r: usize) -> LatLon {
-        match self.frame {
-            Frame::Geographic {
-                lon0,
-                lat0,
-                dlon,
-                dlat,
-                ..
-            } => {
-                let mut lon = lon0 + c as f64 * dlon;
-                lon -= 360.0 * ((lon - 1e-12) / 360.0).round();
-                LatLon {
-                    lat: lat0 - r as f64 * dlat,
-                    lon,
-                }
-            }
-            Frame::Projected {
-                utm,
-                x0,
-                y0,
-                dx,
-                dy,
-            } => utm.inverse(x0 + c as f64 * dx, y0 - r as f64 * dy),
-        }
-    }
-
-    /// The valid height range, metres.
-    fn range(&self) -> Option<(f64, f64)> {
-        (0..self.height)
-            .into_par_iter()
-            .filter_map(|r| {
-                (0..self.width).filter_map(|c| self.sample(c, r)).fold(
-                    None,
-                    |acc: Option<(f64, f64)>, v| {
-                        Some(acc.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))))
-                    },
-                )
-            })
-            .reduce_with(|a, b| (a.0.min(b.0), a.1.max(b.1)))
-    }
-}
-
-/// `c.rem_euclid(p)` bit for bit, without the `fmod` of `%` where `c` is less than a period
-/// out of `[0, p)` (every longitude of a global input): below 0, `c % p` is `c` and
-/// `rem_euclid` adds `p`, as here; in `[p, 2p)` the exact remainder is `c − p`, which is exact
-/// in floating point there (Sterbenz).
-#[inline]
-fn rem_euclid(c: f64, p: f64) -> f64 {
-    if (0.0..p).contains(&c) {
-        c
-    } else if (-p..0.0).contains(&c) {
-        c + p
-    } else if (p..2.0 * p).contains(&c) {
-        c - p
-    } else {
-        c.rem_euclid(p)
-    }
-}
-
-/// [`crate::input::read_dem`], with the bands of a GeoTIFF's strips or tiles decoded on
-/// all the build's workers (the same samples: [`TileReader`] reads rows as `read_dem` would).
-fn read_whole(path: &Path, opts: &ReadOptions) -> std::result::Result<Dem, CodecError> {
-    let reader = TileReader::open(path, opts)?;
-    let (width, height) = (reader.width(), reader.height());
-    let band = reader.band_rows().max(1);
-    let mut values = vec![0.0; width * height];
-    values
-        .par_chunks_mut((band * width).max(1))
-        .enumerate()
-        .try_for_each(|(b, out)| {
-            let start = b * band;
-            let mut rows = Vec::new();
-            reader.read_rows(start..(start + band).min(height), &mut rows)?;
-            out.copy_from_slice(&rows);
-            Ok::<_, CodecError>(())
-        })?;
-    Ok(Dem {
-        width,
-        height,
-        values,
-        sample_type: reader.sample_type(),
-        nodata: reader.nodata(),
-        georef: reader.georef().cloned(),
-    })
-}
-
-/// Reads one input and places it on the Earth, or says why it cannot be. An input without
-/// georeferencing of its own takes `assign`'s (`--bounds`/`--crs`); the flag says it did.
-fn read_input(
-    tile: &Tile,
-    nodata: Option<f64>,
-    assign: Option<&AssignedGeoRef>,
-) -> Result<(PlanetInput, bool)> {
-    let path = &tile.path;
-    // A tile a VRT places keeps its own georeferencing (checked against the VRT's) or takes
-    // the VRT's, and the VRT's nodata value where none is given, as in a planar mosaic.
-    let opts = ReadOptions {
-        nodata: nodata.or(tile.vrt.as_ref().and_then(|v| v.nodata)),
-        ..ReadOptions::default()
-    };
-    let dem = read_whole(path, &opts).with_context(|| format!("reading {}", path.display()))?;
-    let mut georef = dem.georef.clone();
-    if let Some(v) = &tile.vrt {
-        crate::mosaic::place_vrt_tile(path, (dem.width, dem.height), &mut georef, v)?;
-    }
-    let assigned = georef.is_none() && assign.is_some();
-    if let (None, Some(a)) = (&georef, assign) {
-        georef = Some(a.georef(dem.width, dem.height));
-    }
-    let Some(georef) = georef else {
-        bail!(
-            "{} carries no georeferencing: a planet needs to know where each input lies \
-             (EPSG:4326 latitude/longitude or a UTM zone; --bounds and --crs give it to one \
-             input without)",
-            path.display()
-        );
-    };
-    let frame = frame_of(&georef, dem.width).with_context(|| path.display().to_string())?;
-    let spacing_deg = match frame {
-        Frame::Geographic { dlat, .. } => dlat,
-        Frame::Projected { dy, .. } => dy / METRES_PER_DEGREE,
-    };
-    let width = dem.width;
-    let height = dem.height;
-    if width < 2 || height < 2 {
-        bail!(
-            "{} is {width}×{height} samples: a planet input needs at least 2×2",
-            path.display()
-        );
-    }
-    Ok((
-        PlanetInput {
-            path: path.clone(),
-            width,
-            height,
-            samples: Samples::compact(dem.values),
-            nodata: dem.nodata,
-            frame,
-            spacing_deg,
-        },
-        assigned,
-    ))
-}
-
-/// How the `width` columns of an input georeferenced by `g` lie on the Earth.
-fn frame_of(g: &GeoRef, width: usize) -> Result<Frame> {
-    let epsg = g.epsg.unwrap_or(0);
-    if !(g.pixel_x > 0.0 && g.pixel_y > 0.0) {
-        bail!(
-            "pixel size {} × {}: rows must run south and columns east",
-            g.pixel_x,
-            g.pixel_y
-        );
-    }
-    // Sample centres: half a pixel in from the corner when pixels are areas.
-    let half = if g.pixel_is_area { 0.5 } else { 0.0 };
-    let (x0, y0) = (g.origin_x + half * g.pixel_x, g.origin_y - half * g.pixel_y);
-    if GEOGRAPHIC_EPSG.contains(&epsg) {
-        // It wraps only when its columns go all the way round: a spacing that divides 360°
-        // (3″, 5′, 2⁻¹⁰ of 90°) is not enough — an inset of it would take the point up to one
-        // column east of its last one as its own, clamped onto the last column.
-        let per_turn = 360.0 / g.pixel_x;
-        let period = ((per_turn - per_turn.round()).abs() < 1e-6
-            && width as f64 >= per_turn.round())
-        .then_some(per_turn.round() as usize);
-        return Ok(Frame::Geographic {
-            lon0: x0,
-            lat0: y0,
-            dlon: g.pixel_x,
-            dlat: g.pixel_y,
-            period,
-        });
-    }
-    if let Some(utm) = Utm::from_epsg(epsg) {
-        return Ok(Frame::Projected {
-            utm,
-            x0,
-            y0,
-            dx: g.pixel_x,
-            dy: g.pixel_y,
-        });
-    }
-    bail!(
-        "EPSG:{epsg} cannot be placed on a planet: accepted are latitude/longitude ({}) and UTM \
-         zones (EPSG 32601–32660, 32701–32760 on WGS 84; 26901–26923 NAD83; 25828–25838 ETRS89)",
-        GEOGRAPHIC_EPSG.map(|e| format!("EPSG:{e}")).join(", ")
-    )
-}
-
-/// Inputs a planet combines at most: which one wins a lattice point is kept in 16 bits,
-/// `u16::MAX` meaning none.
-pub const MAX_PLANET_INPUTS: usize = u16::MAX as usize - 1;
-
-/// All inputs of a planet, finest first.
-pub struct PlanetInputs {
-    /// The inputs, by ground spacing (finest first; ties in the order given).
-    pub inputs: Vec<PlanetInput>,
-}
-
-impl PlanetInputs {
-    /// Reads every input ([`crate::tiles::expand_inputs`] already expanded them); `assign`
-    /// (`--bounds`/`--crs`) georeferences the one input that carries none, and is refused when
-    /// none or several do.
-    pub fn read(
-        tiles: &[Tile],
-        nodata: Option<f64>,
-        assign: Option<&AssignedGeoRef>,
-    ) -> Result<Self> {
-        if tiles.is_empty() {
-            bail!("no input given");
-        }
-        if tiles.len() > MAX_PLANET_INPUTS {
-            bail!(
-                "{} inputs: a planet combines at most {MAX_PLANET_INPUTS}; merge tiles of the \
-                 same source into larger ones first",
-                tiles.len(),
-            );
-        }
-        let read = tiles
-            .iter()
-            .map(|t| read_input(t, nodata, assign))
-            .collect::<Result<Vec<_>>>()?;
-        if assign.is_some() {
-            let assigned: Vec<&PlanetInput> =
-                read.iter().filter(|(_, a)| *a).map(|(i, _)| i).collect();
-            match assigned.as_slice() {
-                [] => bail!(
-                    "--bounds and --crs georeference an input that carries none, and every \
-                     input here has its own"
-                ),
-                [_] => {}
-                [a, b, ..] => bail!(
-                    "--bounds and --crs georeference one input, but {} and {} both carry none \
-                     (give each its own georeferencing)",
-                    a.path.display(),
-                    b.path.display()
-                ),
-            }
-        }
-        let mut inputs: Vec<PlanetInput> = read.into_iter().map(|(i, _)| i).collect();
-        inputs.sort_by(|a, b| a.spacing_deg.total_cmp(&b.spacing_deg));
-        Ok(Self { inputs })
-    }
-
-    /// The finest input's spacing, degrees.
-    pub fn finest_deg(&self) -> f64 {
-        self.inputs[0].spacing_deg
-    }
-
-    /// The height range over all inputs, metres.
-    pub fn range(&self) -> Option<(f64, f64)> {
-        self.inputs
-            .iter()
-            .filter_map(PlanetInput::range)
-            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
-    }
-
-    /// The stride of each input on a lattice of `n`, `k` (see [`input_stride`]).
-    pub fn strides(&self, n: usize, k: u32) -> Vec<u32> {
-        self.inputs
-            .iter()
-            .map(|i| input_stride(i.spacing_deg, lattice_spacing_deg(n, k), k))
-            .collect()
-    }
-
-    /// What lattice point `(x, y)` at `ll` takes from input `i`, if it covers it: on that
-    /// input's stride the point is one of its samples ([`PointSource::Sample`]; the height for
-    /// a lattice cell `2^stride` times the lattice's, `lattice_deg` across); between them it is
-    /// coarse only. A point takes the first input (finest first) that covers it.
-    fn source_of(
-        &self,
-        i: u16,
-        ll: LatLon,
-        (x, y): (i64, i64),
-        lattice_deg: f64,
-        strides: &[u32],
-    ) -> Option<PointSource> {
-        let j = strides[usize::from(i)];
-        let step = 1i64 << j;
-        let v = self.inputs[usize::from(i)].height_at(ll, lattice_deg * step as f64)?;
-        Some(if x % step == 0 && y % step == 0 {
-            PointSource::Sample(v, i, j as u8)
-        } else {
-            PointSource::CoarseOnly(i)
-        })
-    }
-}
-
-/// What a lattice point takes from the inputs.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum PointSource {
-    /// Height (metres), the winning input and its stride's `log2`.
-    Sample(f64, u16, u8),
-    /// Between the samples of this (coarser) input: drawn from its level, not constrained.
-    CoarseOnly(u16),
-}
 
 /// `log2` of the stride at which an input of ground spacing `input_deg` samples a lattice of
 /// spacing `lattice_deg` with `k` level pairs: the largest `j ≤ k` with `2^j` lattice steps no
@@ -756,7 +281,6 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
     let lattices: Vec<FaceLattice> = (0..domain.faces())
         .map(|face| FaceLattice::new(face, side))
         .collect();
-    // One tile's points at stride 2^s: heights, validity, classes and winners.
     // One tile's points at stride 2^s: heights, validity, classes and winners. The inputs
     // that can cover the tile paint it finest first, each over its own rectangle, each point
     // taking the first that covers it.
@@ -783,6 +307,8 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
             if c0 > c1 || r0 > r1 {
                 continue;
             }
+            // Read (or found in the cache) only now, and let go when the tile is painted.
+            let samples = inputs.samples(usize::from(input))?;
             let rows = (r0 * w)..((r1 + 1) * w);
             values[rows.clone()]
                 .par_chunks_mut(w)
@@ -806,7 +332,7 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
                         } else {
                             lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
                         };
-                        match inputs.source_of(input, ll, (x, y), lattice_deg, &strides) {
+                        match inputs.source_of(&samples, input, ll, (x, y), lattice_deg, &strides) {
                             Some(PointSource::Sample(v, wi, j)) => {
                                 if let Some(u) = plan.to_units(v).ok().flatten() {
                                     values[i] = u;
@@ -827,7 +353,7 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
                 });
         }
         let finest = class.iter().copied().filter(|&c| c < 32).min();
-        (values, valid, won, class, finest)
+        Ok::<_, BuildError>((values, valid, won, class, finest))
     };
     let faces: Vec<Vec<(PlanetTile, Vec<u16>)>> = (0..domain.faces())
         .map(|face| {
@@ -837,12 +363,12 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
                 .enumerate()
                 .map(|(i, (&rect, &planned))| {
                     let mut s = planned;
-                    let mut tile = evaluate(face, i, rect, s);
+                    let mut tile = evaluate(face, i, rect, s)?;
                     // A point that took a finer input's sample than planned: the tile holds
                     // every point of that input's stride.
                     if let Some(j) = tile.4.filter(|&j| u32::from(j) < s) {
                         s = u32::from(j);
-                        tile = evaluate(face, i, rect, s);
+                        tile = evaluate(face, i, rect, s)?;
                     }
                     let (values, valid, won, class, _) = tile;
                     let (x0, y0, x1, y1) = rect;
@@ -855,9 +381,9 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
                     let tile = PlanetTile::new(s, rect, grid, variable.then_some(class))?;
                     Ok((tile, won))
                 })
-                .collect::<std::result::Result<Vec<_>, CodecError>>()
+                .collect::<Result<Vec<_>>>()
         })
-        .collect::<std::result::Result<Vec<_>, CodecError>>()?;
+        .collect::<Result<Vec<_>>>()?;
     let mut winners = Vec::with_capacity(faces.len());
     let mut tiles = Vec::with_capacity(faces.len());
     for face in faces {
@@ -900,7 +426,7 @@ pub fn resampling_error(
     inputs: &PlanetInputs,
     resampled: &Resampled,
     plan: &QuantPlan,
-) -> Vec<InputResampling> {
+) -> Result<Vec<InputResampling>> {
     let planet = &resampled.planet;
     let side = planet.domain().cube().expect("a cube-sphere").side();
     inputs
@@ -909,6 +435,7 @@ pub fn resampling_error(
         .enumerate()
         .map(|(i, input)| {
             let me = u16::try_from(i).unwrap_or(u16::MAX);
+            let samples = inputs.samples(i)?;
             // The input's samples are the lattice points on its stride: the surface drawn
             // where it is the finest data interpolates those.
             let step = 1i64 << resampled.strides[i];
@@ -928,7 +455,7 @@ pub fn resampling_error(
                     let mut acc = (0u64, 0u64, 0f64, 0f64, None);
                     let row = input.lat_lon_of(0, r).lat.to_radians().sin_cos();
                     for c in 0..input.width {
-                        let Some(v) = input.sample(c, r) else {
+                        let Some(v) = input.sample(&samples, c, r) else {
                             continue;
                         };
                         acc.0 += 1;
@@ -994,7 +521,7 @@ pub fn resampling_error(
                     };
                     (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
                 });
-            InputResampling {
+            Ok(InputResampling {
                 path: input.path.clone(),
                 samples,
                 compared,
@@ -1006,7 +533,7 @@ pub fn resampling_error(
                 },
                 worst_at,
                 stride: resampled.strides[i],
-            }
+            })
         })
         .collect()
 }
@@ -1055,8 +582,18 @@ pub struct PlanetSummary {
     pub plan: QuantPlan,
     /// Per input, the resampling error against its samples.
     pub resampling: Vec<InputResampling>,
+    /// Times an input was read from its file: once for the height range, then again each time
+    /// the resampling asked for one the cache had let go ([`input_cache_budget`]).
+    pub inputs_read: u64,
     /// Wall time of each stage.
     pub stages: Vec<(&'static str, std::time::Duration)>,
+}
+
+/// Bytes of the inputs' samples a planet build keeps besides those in use: an eighth of the
+/// memory limit (the rest is the lattice's). The inputs are read when a lattice tile asks for
+/// them, so memory does not grow with their number.
+pub fn input_cache_budget(memory_limit: u64) -> u64 {
+    memory_limit / 8
 }
 
 /// Distinct lattice points with data (a point on a cube edge or corner counted once, a point
@@ -1143,15 +680,21 @@ pub fn build_planet(
     let t = Instant::now();
     let tiles = crate::tiles::expand_inputs(&opts.inputs)?;
     crate::check_output_is_not_an_input(opts, &tiles)?;
-    let inputs =
-        pool.install(|| PlanetInputs::read(&tiles, opts.nodata, opts.assign_georef.as_ref()))?;
+    crate::input_cache::give_large_frees_back();
+    let inputs = PlanetInputs::read(
+        &tiles,
+        opts.nodata,
+        opts.assign_georef.as_ref(),
+        input_cache_budget(limit),
+    )?;
+    // Every input is read once here (one at a time), for the height range.
+    let Some((lo, hi)) = pool.install(|| inputs.range())? else {
+        bail!("the inputs have no valid sample (all nodata or NaN)");
+    };
     stages.push(("read", t.elapsed()));
     let n = opts.diamond_size;
     let k = choose_level(&inputs, n, planet_level, limit)?;
     let wanted = choose_level(&inputs, n, None, u64::MAX)?;
-    let Some((lo, hi)) = inputs.range() else {
-        bail!("the inputs have no valid sample (all nodata or NaN)");
-    };
     let plan = QuantPlan::new(opts.max_error, None, lo, hi)?;
     let t = Instant::now();
     let resampled = pool.install(|| resample(&inputs, n, k, &plan))?;
@@ -1173,7 +716,7 @@ pub fn build_planet(
             || resampling_error(&inputs, &resampled, &plan),
         )
     });
-    let encoded = encoded?;
+    let (encoded, resampling) = (encoded?, resampling?);
     stages.push(("encode and measure resampling error", t.elapsed()));
     event(Stage::Encode, 1);
     event(Stage::Write, 0);
@@ -1200,6 +743,7 @@ pub fn build_planet(
         records: encoded.records.len(),
         plan,
         resampling,
+        inputs_read: inputs.reads().0,
         stages,
     })
 }
@@ -1262,18 +806,19 @@ pub fn compare_planet(
         bail!("this repository is planar: compare it with compare_dem or compare_tiles");
     }
     let plan = *repo.head().plan();
-    let inputs = PlanetInputs::read(tiles, nodata, assign)?;
+    let budget = input_cache_budget(crate::plan::default_memory_limit());
+    let inputs = PlanetInputs::read(tiles, nodata, assign, budget)?;
     let (n, k) = (domain.n(), domain.layout().k());
     let resampled = resample(&inputs, n, k, &plan)?;
     let encoded = repo.to_encoded()?;
     let report = verify_planet(&encoded, &resampled.planet)?;
-    let resampling = resampling_error(&inputs, &resampled, &plan);
+    let resampling = resampling_error(&inputs, &resampled, &plan)?;
     let decoded = Resampled {
         planet: reconstruct_planet_like(&encoded, &resampled.planet)?,
         winners: resampled.winners,
         strides: resampled.strides,
     };
-    let end_to_end = resampling_error(&inputs, &decoded, &plan);
+    let end_to_end = resampling_error(&inputs, &decoded, &plan)?;
     Ok(PlanetComparison {
         report,
         resampling,
@@ -1285,13 +830,17 @@ pub fn compare_planet(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::band_cache::Samples;
+    use crate::planet_input::{SampleSource, frame_of};
+    use cbdam_codec::repository::GeoRef;
+    use std::sync::Arc;
 
     fn input(spacing_deg: f64) -> PlanetInput {
         PlanetInput {
             path: PathBuf::from("x.tif"),
             width: 2,
             height: 2,
-            samples: Samples::compact(vec![0.0; 4]),
+            source: SampleSource::Held(Arc::new(Samples::compact(vec![0.0; 4]))),
             nodata: None,
             frame: Frame::Geographic {
                 lon0: 0.0,
@@ -1308,9 +857,7 @@ mod tests {
     /// caps it (or refuses a forced level above it).
     #[test]
     fn the_level_follows_the_finest_input_within_the_memory_limit() {
-        let inputs = PlanetInputs {
-            inputs: vec![input(0.25), input(2.0)],
-        };
+        let inputs = PlanetInputs::held(vec![input(0.25), input(2.0)]);
         // 90°/(16·2^K) ≤ 0.25° first at K = 5 (0.176°); K = 4 is 0.352°.
         assert_eq!(choose_level(&inputs, 17, None, u64::MAX).unwrap(), 5);
         // Faces of 512 (K = 5) and 256 (K = 4) steps are one tile each: the face under the two
@@ -1343,7 +890,7 @@ mod tests {
                 vrt: None,
             })
             .collect();
-        let e = PlanetInputs::read(&tiles, None, None)
+        let e = PlanetInputs::read(&tiles, None, None, 0)
             .err()
             .unwrap()
             .to_string();
@@ -1352,7 +899,9 @@ mod tests {
             "{e}"
         );
         // One fewer is read (and fails on the first missing file, naming it).
-        let e = PlanetInputs::read(&tiles[1..], None, None).err().unwrap();
+        let e = PlanetInputs::read(&tiles[1..], None, None, 0)
+            .err()
+            .unwrap();
         assert!(format!("{e:#}").contains("/nonexistent/1.tif"), "{e:#}");
     }
 
@@ -1366,7 +915,7 @@ mod tests {
             path: PathBuf::from("g.tif"),
             width: 4,
             height: 3,
-            samples: Samples::compact(values.clone()),
+            source: SampleSource::Held(Arc::new(Samples::compact(values.clone()))),
             nodata: Some(-1.0),
             frame: Frame::Geographic {
                 lon0: 0.0,
@@ -1377,12 +926,17 @@ mod tests {
             },
             spacing_deg: 90.0,
         };
-        let at = |g: &PlanetInput, lat, lon| g.bilinear(g.pixel_of(LatLon { lat, lon }).unwrap());
+        let at = |g: &PlanetInput, lat, lon| {
+            let SampleSource::Held(s) = &g.source else {
+                unreachable!("made in memory")
+            };
+            g.bilinear(s, g.pixel_of(LatLon { lat, lon }).unwrap())
+        };
         assert_eq!(at(&g, 45.0, 45.0), Some(5.0 + 0.5));
         // Between column 3 (270°) and column 0 (360° = 0°): halfway is 315° = −45°.
         assert_eq!(at(&g, 0.0, -45.0), Some(0.5 * 30.0 + 0.5 * 0.0 + 1.0));
         values[4] = -1.0;
-        g.samples = Samples::compact(values);
+        g.source = SampleSource::Held(Arc::new(Samples::compact(values)));
         assert_eq!(at(&g, 45.0, 45.0), None);
     }
 
@@ -1413,7 +967,7 @@ mod tests {
         assert!(!wraps(frame_of(&georef(3.0 / 3600.0), 1201).unwrap()));
         let mut inset = input(0.5);
         inset.width = 3;
-        inset.samples = Samples::compact(vec![0.0; 6]);
+        inset.source = SampleSource::Held(Arc::new(Samples::compact(vec![0.0; 6])));
         inset.frame = frame_of(&georef(0.5), 3).unwrap();
         // Columns at 10°, 10.5° and 11° E: 11.2° E is off the inset, 10.9° E on it.
         assert!(

@@ -1,0 +1,215 @@
+//! The samples of a planet's inputs, read when a lattice tile asks for them and kept while they
+//! fit a byte budget.
+//!
+//! A planet of thousands of SRTM tiles cannot hold them all: each input is opened from its
+//! header alone ([`crate::input::TileReader`]) and its samples are read whole the first time a
+//! lattice tile (or the resampling error) asks for them, then kept until they are the least
+//! recently used and the budget is exceeded. Samples in use are never freed under their user
+//! (they are shared), so memory is the budget plus what the build's workers use at once (one
+//! input each). An input asked for by several workers at once is read once: the others wait
+//! for it.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use crate::band_cache::Samples;
+use crate::error::Result;
+
+/// One input's place in the cache: its samples once read (the lock held while they are read).
+#[derive(Default)]
+struct Slot {
+    samples: Mutex<Option<Arc<Samples>>>,
+}
+
+/// A slot, the tick of its last use and its bytes (0 while being read).
+struct Entry {
+    slot: Arc<Slot>,
+    used: u64,
+    bytes: u64,
+}
+
+#[derive(Default)]
+struct State {
+    entries: HashMap<usize, Entry>,
+    bytes: u64,
+    tick: u64,
+}
+
+/// The cache; see the module notes.
+pub struct InputCache {
+    budget: u64,
+    state: Mutex<State>,
+    reads: AtomicU64,
+}
+
+impl InputCache {
+    /// An empty cache keeping at most `budget` bytes of samples besides those in use.
+    pub fn new(budget: u64) -> Self {
+        Self {
+            budget,
+            state: Mutex::new(State::default()),
+            reads: AtomicU64::new(0),
+        }
+    }
+
+    /// The bytes it may keep.
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Inputs read so far (a read again after eviction counts again).
+    pub fn reads(&self) -> u64 {
+        self.reads.load(Ordering::Relaxed)
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The samples of input `key`: kept ones, or read by `read` (once, however many workers
+    /// ask at the same time) and kept while the budget allows. `read` runs holding the input's
+    /// lock: it must not wait on work of a thread pool that may be asking for the same input.
+    pub fn get(&self, key: usize, read: impl FnOnce() -> Result<Samples>) -> Result<Arc<Samples>> {
+        let slot = {
+            let mut s = self.lock();
+            s.tick += 1;
+            let tick = s.tick;
+            let e = s.entries.entry(key).or_insert_with(|| Entry {
+                slot: Arc::default(),
+                used: tick,
+                bytes: 0,
+            });
+            e.used = tick;
+            Arc::clone(&e.slot)
+        };
+        let mut held = slot.samples.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(samples) = held.as_ref() {
+            return Ok(Arc::clone(samples));
+        }
+        let samples = Arc::new(read()?);
+        self.reads.fetch_add(1, Ordering::Relaxed);
+        *held = Some(Arc::clone(&samples));
+        drop(held);
+        let mut s = self.lock();
+        // Counted only if the slot is still the cache's (it may have been evicted meanwhile:
+        // then the samples live only as long as this caller keeps them).
+        if let Some(e) = s
+            .entries
+            .get_mut(&key)
+            .filter(|e| Arc::ptr_eq(&e.slot, &slot))
+        {
+            e.bytes = samples.bytes();
+            s.bytes += samples.bytes();
+        }
+        self.evict(&mut s, key);
+        Ok(samples)
+    }
+
+    /// Drops the least recently used inputs (read, and other than `keep`) until the kept bytes
+    /// are within the budget.
+    fn evict(&self, s: &mut State, keep: usize) {
+        if s.bytes <= self.budget {
+            return;
+        }
+        let mut by_use: Vec<(u64, usize)> = s
+            .entries
+            .iter()
+            .filter(|(k, e)| **k != keep && e.bytes > 0)
+            .map(|(k, e)| (e.used, *k))
+            .collect();
+        by_use.sort_unstable();
+        for (_, k) in by_use {
+            if s.bytes <= self.budget {
+                break;
+            }
+            if let Some(e) = s.entries.remove(&k) {
+                s.bytes -= e.bytes;
+            }
+        }
+    }
+
+    /// Bytes kept now (samples in use by a caller but evicted not counted).
+    #[cfg(test)]
+    pub fn kept_bytes(&self) -> u64 {
+        self.lock().bytes
+    }
+}
+
+/// Makes the C allocator give every block of 1 MiB or more back to the system when it is
+/// freed, as it does until its first such free: glibc then raises that threshold to the
+/// block's size, and the inputs read and let go one after another (each with a buffer of 8
+/// bytes a sample while read) come from its heaps instead, which keep the freed pieces resident
+/// and grow with the number of inputs read (figures: `docs/RESULTS.md`, "Planets").
+pub(crate) fn give_large_frees_back() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: `mallopt` only changes a tuning parameter of glibc's allocator.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn samples(n: usize, v: i16) -> Result<Samples> {
+        Ok(Samples::I16(vec![v; n]))
+    }
+
+    /// Kept inputs are not read again; past the budget the least recently used go, and a
+    /// later ask reads them again.
+    #[test]
+    fn inputs_are_kept_within_the_budget_least_recently_used_first() {
+        let cache = InputCache::new(2 * 200);
+        for key in 0..2 {
+            cache.get(key, || samples(100, key as i16)).unwrap();
+        }
+        assert_eq!(cache.reads(), 2);
+        assert_eq!(cache.kept_bytes(), 400);
+        // 0 used again: 1 is now the least recently used.
+        let again = cache.get(0, || panic!("0 is kept")).unwrap();
+        assert_eq!(again.get(7), 0.0);
+        cache.get(2, || samples(100, 2)).unwrap();
+        assert_eq!(cache.kept_bytes(), 400);
+        cache.get(0, || panic!("0 is still kept")).unwrap();
+        cache.get(2, || panic!("2 is kept")).unwrap();
+        let one = cache.get(1, || samples(100, 1)).unwrap();
+        assert_eq!(one.get(0), 1.0);
+        assert_eq!(cache.reads(), 4);
+    }
+
+    /// An input larger than the budget is returned (and not kept once another is asked for);
+    /// a failed read is reported and read again next time.
+    #[test]
+    fn an_input_over_the_budget_and_a_failed_read() {
+        let cache = InputCache::new(10);
+        let big = cache.get(0, || samples(100, 5)).unwrap();
+        assert_eq!(big.get(99), 5.0);
+        cache.get(1, || samples(100, 6)).unwrap();
+        assert_eq!(cache.kept_bytes(), 200);
+        let e = cache.get(2, || crate::error::bail!("tile 2 is truncated"));
+        assert!(e.unwrap_err().to_string().contains("tile 2 is truncated"));
+        assert_eq!(cache.get(2, || samples(3, 7)).unwrap().get(2), 7.0);
+        assert_eq!(cache.kept_bytes(), 6);
+    }
+
+    /// Workers asking for the same input at once read it once.
+    #[test]
+    fn an_input_asked_for_by_several_workers_at_once_is_read_once() {
+        let cache = InputCache::new(1 << 20);
+        std::thread::scope(|s| {
+            for _ in 0..8 {
+                s.spawn(|| {
+                    cache
+                        .get(3, || {
+                            std::thread::sleep(std::time::Duration::from_millis(20));
+                            samples(10, 3)
+                        })
+                        .unwrap()
+                });
+            }
+        });
+        assert_eq!(cache.reads(), 1);
+    }
+}
