@@ -394,8 +394,41 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
         );
     }
     check_subset(vrt, root)?;
-    let xsize: usize = number(vrt, "rasterXSize", root.attribute("rasterXSize"))?;
-    let ysize: usize = number(vrt, "rasterYSize", root.attribute("rasterYSize"))?;
+    let raster = VrtRaster {
+        vrt,
+        width: number(vrt, "rasterXSize", root.attribute("rasterXSize"))?,
+        height: number(vrt, "rasterYSize", root.attribute("rasterYSize"))?,
+        geo_transform: parse_geo_transform(vrt, root)?,
+        epsg: child(root, "SRS").and_then(|s| s.text()).and_then(srs_epsg),
+    };
+    let (band, band_nodata) = parse_band(vrt, root)?;
+    let base = vrt.parent().unwrap_or(Path::new(""));
+    let tiles = band
+        .children()
+        .filter(|c| matches!(c.tag_name().name(), "SimpleSource" | "ComplexSource"))
+        .map(|src| raster.parse_source(src, base, band_nodata))
+        .collect::<Result<Vec<_>>>()?;
+    if tiles.is_empty() {
+        bail!(
+            "{}: no <SimpleSource> or <ComplexSource>: the VRT places no tile",
+            vrt.display()
+        );
+    }
+    Ok(tiles)
+}
+
+/// The VRT's raster, which its sources are placed on.
+struct VrtRaster<'a> {
+    vrt: &'a Path,
+    width: usize,
+    height: usize,
+    /// GDAL's six terms, checked north-up.
+    geo_transform: [f64; 6],
+    epsg: Option<u32>,
+}
+
+/// The `<GeoTransform>`: six finite terms of a north-up grid.
+fn parse_geo_transform(vrt: &Path, root: roxmltree::Node<'_, '_>) -> Result<[f64; 6]> {
     let Some(gt) = child(root, "GeoTransform") else {
         bail!(
             "{}: no <GeoTransform>: the tiles cannot be placed",
@@ -408,13 +441,13 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
         .split(',')
         .map(|t| number(vrt, "a <GeoTransform> term", Some(t)))
         .collect::<Result<_>>()?;
-    if gt.len() != 6 {
+    let Ok(gt) = <[f64; 6]>::try_from(gt.as_slice()) else {
         bail!(
             "{}: <GeoTransform> has {} terms, not 6",
             vrt.display(),
             gt.len()
         );
-    }
+    };
     if let Some(t) = gt.iter().find(|t| !t.is_finite()) {
         bail!(
             "{}: <GeoTransform> {gt:?} holds {t}: every term must be a finite number",
@@ -428,7 +461,14 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
             vrt.display()
         );
     }
-    let epsg = child(root, "SRS").and_then(|s| s.text()).and_then(srs_epsg);
+    Ok(gt)
+}
+
+/// The one `<VRTRasterBand>` (band 1, a supported `dataType`) and its `<NoDataValue>`.
+fn parse_band<'a, 'i>(
+    vrt: &Path,
+    root: roxmltree::Node<'a, 'i>,
+) -> Result<(roxmltree::Node<'a, 'i>, Option<f64>)> {
     let bands: Vec<_> = root
         .children()
         .filter(|c| c.tag_name().name() == "VRTRasterBand")
@@ -461,44 +501,33 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
             TYPES.join(", ")
         );
     }
-    let parse_nodata = |node: Option<roxmltree::Node<'_, '_>>, what: &str| -> Result<Option<f64>> {
-        match node.and_then(|n| n.text()) {
-            None => Ok(None),
-            Some(t) if t.trim().eq_ignore_ascii_case("nan") => Ok(Some(f64::NAN)),
-            Some(t) => number(vrt, what, Some(t)).map(Some),
-        }
-    };
-    let band_nodata = parse_nodata(child(band, "NoDataValue"), "<NoDataValue>")?;
-    let base = vrt.parent().unwrap_or(Path::new(""));
-    let mut tiles = Vec::new();
-    for src in band
-        .children()
-        .filter(|c| matches!(c.tag_name().name(), "SimpleSource" | "ComplexSource"))
-    {
-        let kind = src.tag_name().name();
-        let Some(file) = child(src, "SourceFilename") else {
-            bail!("{}: a <{kind}> has no <SourceFilename>", vrt.display());
-        };
-        let name = file.text().unwrap_or("").trim();
-        if name.is_empty() {
-            bail!("{}: an empty <SourceFilename>", vrt.display());
-        }
-        if name.starts_with("/vsi") {
-            bail!(
-                "{}: <SourceFilename> {name}: GDAL virtual file systems are not supported",
-                vrt.display()
-            );
-        }
-        let relative = file
-            .attribute("relativeToVRT")
-            .or(file.attribute("relativetoVRT"))
-            .is_some_and(|v| v.trim() == "1");
-        let path = if relative {
-            base.join(name)
-        } else {
-            PathBuf::from(name)
-        };
-        check_regular_file(&path, &format!("{}: source", vrt.display()))?;
+    let nodata = parse_nodata(vrt, child(band, "NoDataValue"), "<NoDataValue>")?;
+    Ok((band, nodata))
+}
+
+/// A nodata element's value: a number or `nan`.
+fn parse_nodata(
+    vrt: &Path,
+    node: Option<roxmltree::Node<'_, '_>>,
+    what: &str,
+) -> Result<Option<f64>> {
+    match node.and_then(|n| n.text()) {
+        None => Ok(None),
+        Some(t) if t.trim().eq_ignore_ascii_case("nan") => Ok(Some(f64::NAN)),
+        Some(t) => number(vrt, what, Some(t)).map(Some),
+    }
+}
+
+impl VrtRaster<'_> {
+    /// One `<SimpleSource>`/`<ComplexSource>`: a whole tile placed on the raster unscaled.
+    fn parse_source(
+        &self,
+        src: roxmltree::Node<'_, '_>,
+        base: &Path,
+        band_nodata: Option<f64>,
+    ) -> Result<Tile> {
+        let vrt = self.vrt;
+        let (name, path) = source_path(vrt, src, base)?;
         let sb: u32 = number(
             vrt,
             &format!("<SourceBand> of {name}"),
@@ -512,6 +541,42 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
                 vrt.display()
             );
         }
+        let (size, dst) = self.placement(src, &name)?;
+        let nodata = match parse_nodata(vrt, child(src, "NODATA"), &format!("<NODATA> of {name}"))?
+        {
+            Some(v) => Some(v),
+            None => band_nodata,
+        };
+        let gt = &self.geo_transform;
+        Ok(Tile {
+            path,
+            vrt: Some(VrtPlacement {
+                vrt: vrt.to_path_buf(),
+                width: size[0],
+                height: size[1],
+                georef: GeoRef {
+                    origin_x: gt[0] + dst[0] as f64 * gt[1],
+                    origin_y: gt[3] + dst[1] as f64 * gt[5],
+                    pixel_x: gt[1],
+                    pixel_y: -gt[5],
+                    pixel_is_area: true,
+                    epsg: self.epsg,
+                    wkt: None,
+                },
+                nodata,
+            }),
+        })
+    }
+
+    /// A source's size and its offset on the raster, from `<SrcRect>` (the whole tile) and
+    /// `<DstRect>` (the same size, inside the raster).
+    fn placement(
+        &self,
+        src: roxmltree::Node<'_, '_>,
+        name: &str,
+    ) -> Result<([usize; 2], [usize; 2])> {
+        let vrt = self.vrt;
+        let (xsize, ysize) = (self.width, self.height);
         let s = rect(vrt, src, "SrcRect")?;
         let d = rect(vrt, src, "DstRect")?;
         if s[0] != 0 || s[1] != 0 {
@@ -545,36 +610,38 @@ pub fn read_vrt(vrt: &Path) -> Result<Vec<Tile>> {
                 d[3]
             );
         }
-        let nodata = match parse_nodata(child(src, "NODATA"), &format!("<NODATA> of {name}"))? {
-            Some(v) => Some(v),
-            None => band_nodata,
-        };
-        tiles.push(Tile {
-            path,
-            vrt: Some(VrtPlacement {
-                vrt: vrt.to_path_buf(),
-                width: s[2],
-                height: s[3],
-                georef: GeoRef {
-                    origin_x: gt[0] + d[0] as f64 * gt[1],
-                    origin_y: gt[3] + d[1] as f64 * gt[5],
-                    pixel_x: gt[1],
-                    pixel_y: -gt[5],
-                    pixel_is_area: true,
-                    epsg,
-                    wkt: None,
-                },
-                nodata,
-            }),
-        });
+        Ok(([s[2], s[3]], [d[0], d[1]]))
     }
-    if tiles.is_empty() {
+}
+
+/// A source's `<SourceFilename>` as written and as a path (relative to the VRT's folder when
+/// `relativeToVRT="1"`), checked to be a regular file.
+fn source_path(vrt: &Path, src: roxmltree::Node<'_, '_>, base: &Path) -> Result<(String, PathBuf)> {
+    let kind = src.tag_name().name();
+    let Some(file) = child(src, "SourceFilename") else {
+        bail!("{}: a <{kind}> has no <SourceFilename>", vrt.display());
+    };
+    let name = file.text().unwrap_or("").trim();
+    if name.is_empty() {
+        bail!("{}: an empty <SourceFilename>", vrt.display());
+    }
+    if name.starts_with("/vsi") {
         bail!(
-            "{}: no <SimpleSource> or <ComplexSource>: the VRT places no tile",
+            "{}: <SourceFilename> {name}: GDAL virtual file systems are not supported",
             vrt.display()
         );
     }
-    Ok(tiles)
+    let relative = file
+        .attribute("relativeToVRT")
+        .or(file.attribute("relativetoVRT"))
+        .is_some_and(|v| v.trim() == "1");
+    let path = if relative {
+        base.join(name)
+    } else {
+        PathBuf::from(name)
+    };
+    check_regular_file(&path, &format!("{}: source", vrt.display()))?;
+    Ok((name.to_string(), path))
 }
 
 #[cfg(test)]
