@@ -74,63 +74,9 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 if self.cut_state.cut.is_refined(c.id) {
                     continue;
                 }
-                let mut blocked = false;
-                let mut dispatched_self = false;
-                for d in self.plan(c.id) {
-                    if self.decoding.contains(&d) {
-                        continue;
-                    }
-                    let parents_done = self
-                        .domain
-                        .parents(d)
-                        .into_iter()
-                        .flatten()
-                        .all(|p| self.cut_state.cut.is_refined(p));
-                    match self.need(d) {
-                        Need::Impossible => {
-                            blocked = true;
-                            break;
-                        }
-                        Need::Missing => {
-                            let w = wanted.entry(d).or_insert(c.err);
-                            *w = w.max(c.err);
-                            blocked = true;
-                        }
-                        Need::Ready(_)
-                            if parents_done
-                                && !self.make_room(c.err, d, view, &mut coarsening, stats) =>
-                        {
-                            stats.memory_limited = true;
-                            blocked = true;
-                            break;
-                        }
-                        Need::Ready(Source::Cached(node)) if parents_done => {
-                            // Decoded before (ahead of the cut, or coarsened since): refining
-                            // is free.
-                            self.apply(
-                                Done {
-                                    id: d,
-                                    result: Some(Ok(node)),
-                                    secs: None,
-                                    cpu_secs: None,
-                                    speculative: false,
-                                    last: false,
-                                },
-                                view,
-                                heap,
-                                stats,
-                            );
-                            dispatched_self |= d == c.id;
-                            started = true;
-                        }
-                        Need::Ready(s) if parents_done => {
-                            self.dispatch(d, s);
-                            dispatched_self |= d == c.id;
-                            started = true;
-                        }
-                        Need::Ready(_) => {}
-                    }
-                }
+                let step = self.start_refining(c, view, heap, wanted, &mut coarsening, stats);
+                started |= step.started;
+                let (blocked, dispatched_self) = (step.blocked, step.dispatched_self);
                 if blocked {
                     self.heap_whole = false;
                 } else if !dispatched_self && !self.cut_state.cut.is_refined(c.id) {
@@ -157,6 +103,73 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             heap.extend(waiting.drain(..));
         }
         heap.extend(waiting);
+    }
+
+    /// Starts what refining candidate `c` needs, in [`Self::plan`] order: each diamond of the
+    /// plan whose parents are refined is applied from the decoded cache or dispatched to a
+    /// worker (after making room under the cut's memory limit). A missing record goes into
+    /// `wanted` (with the candidate's error) and blocks `c`; so does one that can never be
+    /// decoded, or a memory limit that leaves no room.
+    fn start_refining(
+        &mut self,
+        c: Candidate,
+        view: &View,
+        heap: &mut BinaryHeap<Candidate>,
+        wanted: &mut IdMap<f64>,
+        coarsening: &mut Option<BinaryHeap<std::cmp::Reverse<Candidate>>>,
+        stats: &mut FrameStats,
+    ) -> Started {
+        let mut step = Started::default();
+        for d in self.plan(c.id) {
+            if self.decoding.contains(&d) {
+                continue;
+            }
+            let parents_done = self
+                .domain
+                .parents(d)
+                .into_iter()
+                .flatten()
+                .all(|p| self.cut_state.cut.is_refined(p));
+            match self.need(d) {
+                Need::Impossible => {
+                    step.blocked = true;
+                    break;
+                }
+                Need::Missing => {
+                    let w = wanted.entry(d).or_insert(c.err);
+                    *w = w.max(c.err);
+                    step.blocked = true;
+                }
+                Need::Ready(_)
+                    if parents_done && !self.make_room(c.err, d, view, coarsening, stats) =>
+                {
+                    stats.memory_limited = true;
+                    step.blocked = true;
+                    break;
+                }
+                Need::Ready(Source::Cached(node)) if parents_done => {
+                    // Decoded before (ahead of the cut, or coarsened since): refining is free.
+                    let done = Done {
+                        id: d,
+                        result: Some(Ok(node)),
+                        secs: None,
+                        cpu_secs: None,
+                        speculative: false,
+                        last: false,
+                    };
+                    self.apply(done, view, heap, stats);
+                    step.dispatched_self |= d == c.id;
+                    step.started = true;
+                }
+                Need::Ready(s) if parents_done => {
+                    self.dispatch(d, s);
+                    step.dispatched_self |= d == c.id;
+                    step.started = true;
+                }
+                Need::Ready(_) => {}
+            }
+        }
+        step
     }
 
     /// The next finished decode: waits for it until `deadline` (forever without one); `None`
@@ -304,4 +317,15 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             }
         }
     }
+}
+
+/// What [`Refiner::start_refining`] did for one candidate.
+#[derive(Default)]
+struct Started {
+    /// A refinement of its plan was applied or dispatched.
+    started: bool,
+    /// The candidate itself was.
+    dispatched_self: bool,
+    /// Its plan cannot go on now (a record missing or undecodable, or no room).
+    blocked: bool,
 }

@@ -39,28 +39,72 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         leftovers: Vec<Candidate>,
         until: Option<Instant>,
     ) {
+        let Some((free, max_steps)) = self.speculation_capacity() else {
+            return;
+        };
+        self.prune_ahead(view);
+        let room = AHEAD_LIMIT.saturating_sub(self.ahead.kept.len() + self.ahead.speculative.len());
+        let mut plan = Plan::new(free, max_steps, (max_steps * free).min(room), leftovers);
+        while let Some(Candidate { id, .. }) = plan.frontier.pop() {
+            if plan.should_stop(until) {
+                break;
+            }
+            plan.looked += 1;
+            if !plan.seen.insert(id)
+                || self.cut_state.cut.is_refined(id)
+                || self.decoding.contains(&id)
+            {
+                continue;
+            }
+            if !self.residency.decoded.contains(&id) && !self.take_ahead(&mut plan, id) {
+                plan.missed_one();
+                continue;
+            }
+            for k in self.domain.children(id).into_iter().flatten() {
+                // A child of two parents is looked at once.
+                if !plan.queued.insert(k) {
+                    continue;
+                }
+                if let Some(err) = self.violation(k, view) {
+                    plan.frontier.push(Candidate { err, id: k });
+                }
+            }
+        }
+        for job in plan.jobs {
+            if !job.steps.is_empty() {
+                self.dispatch_job(job.steps, job.given, true);
+            }
+        }
+    }
+
+    /// How many speculative jobs can start now and how many refinements each may hold; `None`
+    /// when every worker that may speculate is busy.
+    fn speculation_capacity(&self) -> Option<(usize, usize)> {
         // Workers at the frame thread's priority get one job fewer than there are of them, so
         // that the frame's own thread keeps a core (decoding ahead would pre-empt the next
         // frame's refinement: measured on 2 cores); workers that yield to it get one each
         // while frames are paced (PACED_BUDGETS).
         let workers = self.spawner.parallelism().max(1);
-        let paced = self.paced();
-        let max_jobs = if self.spawner.yields_to_caller() && paced {
+        let max_jobs = if self.spawner.yields_to_caller() && self.paced() {
             workers
         } else {
             workers.saturating_sub(1).max(1)
         };
         let free = max_jobs.saturating_sub(self.ahead.jobs);
         if free == 0 {
-            return;
+            return None;
         }
         let per_job = (self.pacing.frame_interval_s / self.pacing.decode_s.max(1e-6)) as usize;
         let max_steps = per_job.clamp(*SPECULATIVE_STEPS.start(), *SPECULATIVE_STEPS.end());
-        // What was decoded ahead for a view that has moved on (a diamond this view does not
-        // refine) stays in the decoded cache like anything coarsened, but is no longer counted
-        // as ahead: counted, it would take room that what this view needs could use (a fast
-        // flight leaves such diamonds behind every frame). For a still view only what came
-        // back since the last frame is looked at.
+        Some((free, max_steps))
+    }
+
+    /// What was decoded ahead for a view that has moved on (a diamond this view does not
+    /// refine) stays in the decoded cache like anything coarsened, but is no longer counted as
+    /// ahead: counted, it would take room that what this view needs could use (a fast flight
+    /// leaves such diamonds behind every frame). For a still view only what came back since
+    /// the last frame is looked at.
+    fn prune_ahead(&mut self, view: &View) {
         let mut look_at: Vec<DiamondId> = self.ahead.arrived.drain().collect();
         if self.ahead.view == Some(view.camera) {
             let decoded = &self.residency.decoded;
@@ -74,122 +118,128 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
                 self.ahead.kept.insert(id);
             }
         }
-        let room = AHEAD_LIMIT.saturating_sub(self.ahead.kept.len() + self.ahead.speculative.len());
-        let max_taken = (max_steps * free).min(room);
-        struct Planned {
-            steps: Vec<(DiamondId, Source)>,
-            given: Vec<(DiamondId, Arc<Node>)>,
+    }
+
+    /// Puts `id` (not decoded) in a job of `plan`: the job of its parents taken in this pass,
+    /// else the least loaded, with the parents' nodes the job needs. `false` when it cannot be
+    /// taken: parents in two jobs or not at hand, the job full, or its record not ready.
+    fn take_ahead(&mut self, plan: &mut Plan, id: DiamondId) -> bool {
+        // The job of the parents taken in this pass, if any; the others must be at hand.
+        let mut job = None;
+        let mut ok = true;
+        for p in self.domain.parents(id).into_iter().flatten() {
+            if let Some(&j) = plan.job_of.get(&p) {
+                ok &= job.is_none_or(|k| k == j);
+                job = Some(j);
+            } else {
+                ok &= self.cut_state.cut.is_refined(p) || self.residency.decoded.contains(&p);
+            }
         }
-        let mut jobs: Vec<Planned> = (0..free)
-            .map(|_| Planned {
-                steps: Vec::new(),
-                given: Vec::new(),
-            })
-            .collect();
-        // Which job refines a diamond taken in this pass; decoded ones (cut, cache) are
-        // looked up when a job needs them.
-        let mut job_of: IdMap<usize> = IdMap::default();
-        let mut seen = IdSet::default();
-        // Children pushed, each once (one that is also among the leftovers may come twice: the
-        // second is passed over as seen; filling this with every leftover cost more, over a
-        // network, where thousands lack their records).
-        let mut queued = IdSet::default();
-        let mut frontier = BinaryHeap::from(leftovers);
-        let mut taken = 0;
-        let mut looked = 0;
-        // Diamonds to decode that could not be taken (record missing, parents not at hand, job
-        // full), counted once `until` has passed.
-        let mut missed_late: Option<usize> = None;
-        while let Some(Candidate { id, .. }) = frontier.pop() {
-            if taken >= max_taken || looked - taken >= SPECULATION_MISSES {
-                break;
-            }
-            // Past `until`, the plan stops once it has taken a diamond per free worker, or has
-            // missed LEAST_LOOKS a free worker since (until a diamond per worker is taken, the
-            // clock is read every LEAST_LOOKS looks).
-            if missed_late.is_none()
-                && (taken >= free || looked % LEAST_LOOKS == 0)
-                && until.is_some_and(|u| Instant::now() >= u)
-            {
-                missed_late = Some(0);
-            }
-            if let Some(missed) = missed_late
-                && (taken >= free || missed >= LEAST_LOOKS * free)
-            {
-                break;
-            }
-            looked += 1;
-            if !seen.insert(id) || self.cut_state.cut.is_refined(id) || self.decoding.contains(&id)
-            {
+        let j = job.unwrap_or_else(|| plan.least_loaded());
+        if !ok || plan.jobs[j].steps.len() >= plan.max_steps {
+            return false;
+        }
+        let source = match self.need(id) {
+            Need::Ready(Source::Cached(_)) | Need::Missing | Need::Impossible => return false,
+            Need::Ready(source) => source,
+        };
+        for p in self.domain.parents(id).into_iter().flatten() {
+            if plan.job_of.contains_key(&p) || plan.jobs[j].given.iter().any(|(g, _)| *g == p) {
                 continue;
             }
-            let decoded = self.residency.decoded.contains(&id);
-            if !decoded {
-                // The job of the parents taken in this pass, if any; the others must be at
-                // hand.
-                let mut job = None;
-                let mut ok = true;
-                for p in self.domain.parents(id).into_iter().flatten() {
-                    if let Some(&j) = job_of.get(&p) {
-                        ok &= job.is_none_or(|k| k == j);
-                        job = Some(j);
-                    } else {
-                        ok &=
-                            self.cut_state.cut.is_refined(p) || self.residency.decoded.contains(&p);
-                    }
-                }
-                let j = job.unwrap_or_else(|| {
-                    (0..free)
-                        .min_by_key(|&j| jobs[j].steps.len())
-                        .expect("at least one job")
-                });
-                let late_miss = |m: &mut Option<usize>| {
-                    if let Some(m) = m {
-                        *m += 1;
-                    }
-                };
-                if !ok || jobs[j].steps.len() >= max_steps {
-                    late_miss(&mut missed_late);
-                    continue;
-                }
-                let source = match self.need(id) {
-                    Need::Ready(Source::Cached(_)) | Need::Missing | Need::Impossible => {
-                        late_miss(&mut missed_late);
-                        continue;
-                    }
-                    Need::Ready(source) => source,
-                };
-                for p in self.domain.parents(id).into_iter().flatten() {
-                    if job_of.contains_key(&p) || jobs[j].given.iter().any(|(g, _)| *g == p) {
-                        continue;
-                    }
-                    let node = self
-                        .cut_state
-                        .nodes
-                        .get(&p)
-                        .or_else(|| self.residency.decoded.get(&p))
-                        .cloned()
-                        .expect("checked above");
-                    jobs[j].given.push((p, node));
-                }
-                jobs[j].steps.push((id, source));
-                job_of.insert(id, j);
-                taken += 1;
-            }
-            for k in self.domain.children(id).into_iter().flatten() {
-                // A child of two parents is looked at once.
-                if !queued.insert(k) {
-                    continue;
-                }
-                if let Some(err) = self.violation(k, view) {
-                    frontier.push(Candidate { err, id: k });
-                }
-            }
+            let node = self
+                .cut_state
+                .nodes
+                .get(&p)
+                .or_else(|| self.residency.decoded.get(&p))
+                .cloned()
+                .expect("checked above");
+            plan.jobs[j].given.push((p, node));
         }
-        for job in jobs {
-            if !job.steps.is_empty() {
-                self.dispatch_job(job.steps, job.given, true);
-            }
+        plan.jobs[j].steps.push((id, source));
+        plan.job_of.insert(id, j);
+        plan.taken += 1;
+        true
+    }
+}
+
+/// One speculative job being planned: the refinements in order and the parents' nodes given.
+struct PlannedJob {
+    steps: Vec<(DiamondId, Source)>,
+    given: Vec<(DiamondId, Arc<Node>)>,
+}
+
+/// A pass of [`Refiner::speculate`]: the frontier walked, the jobs filled and the counts that
+/// end it.
+struct Plan {
+    jobs: Vec<PlannedJob>,
+    max_steps: usize,
+    max_taken: usize,
+    /// Which job refines a diamond taken in this pass; decoded ones (cut, cache) are looked up
+    /// when a job needs them.
+    job_of: IdMap<usize>,
+    seen: IdSet,
+    /// Children pushed, each once (one that is also among the leftovers may come twice: the
+    /// second is passed over as seen; filling this with every leftover cost more, over a
+    /// network, where thousands lack their records).
+    queued: IdSet,
+    frontier: BinaryHeap<Candidate>,
+    taken: usize,
+    looked: usize,
+    /// Diamonds to decode that could not be taken (record missing, parents not at hand, job
+    /// full), counted once `until` has passed.
+    missed_late: Option<usize>,
+}
+
+impl Plan {
+    fn new(free: usize, max_steps: usize, max_taken: usize, leftovers: Vec<Candidate>) -> Plan {
+        Plan {
+            jobs: (0..free)
+                .map(|_| PlannedJob {
+                    steps: Vec::new(),
+                    given: Vec::new(),
+                })
+                .collect(),
+            max_steps,
+            max_taken,
+            job_of: IdMap::default(),
+            seen: IdSet::default(),
+            queued: IdSet::default(),
+            frontier: BinaryHeap::from(leftovers),
+            taken: 0,
+            looked: 0,
+            missed_late: None,
         }
+    }
+
+    /// Whether the pass ends before the next look: enough taken, too many missed, or — past
+    /// `until` — a diamond taken per free worker, or LEAST_LOOKS missed per free worker since
+    /// (until a diamond per worker is taken, the clock is read every LEAST_LOOKS looks).
+    fn should_stop(&mut self, until: Option<Instant>) -> bool {
+        if self.taken >= self.max_taken || self.looked - self.taken >= SPECULATION_MISSES {
+            return true;
+        }
+        let free = self.jobs.len();
+        if self.missed_late.is_none()
+            && (self.taken >= free || self.looked.is_multiple_of(LEAST_LOOKS))
+            && until.is_some_and(|u| Instant::now() >= u)
+        {
+            self.missed_late = Some(0);
+        }
+        self.missed_late
+            .is_some_and(|missed| self.taken >= free || missed >= LEAST_LOOKS * free)
+    }
+
+    /// Counts a diamond that could not be taken, once `until` has passed.
+    fn missed_one(&mut self) {
+        if let Some(m) = &mut self.missed_late {
+            *m += 1;
+        }
+    }
+
+    fn least_loaded(&self) -> usize {
+        (0..self.jobs.len())
+            .min_by_key(|&j| self.jobs[j].steps.len())
+            .expect("at least one job")
     }
 }
