@@ -215,30 +215,10 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         // Without a limit every contribution is planned, still most urgent first: what a
         // deadline cuts off is the least urgent.
         let limit = self.config.prefetch_limit.unwrap_or(usize::MAX);
-        // Each contribution: a diamond whose plan is wanted, at its priority.
-        let mut contributions = Vec::new();
-        for (n, (&(id, info), &err_now)) in candidates.iter().zip(errors).enumerate() {
-            if n % PREFETCH_CLOCK_STRIDE == PREFETCH_CLOCK_STRIDE - 1 && past() {
-                return self.keep_last_ahead(IdMap::default(), Some(limit));
-            }
-            if let Some(err) = self.violation_of(id, info, &view) {
-                contributions.push(Candidate {
-                    err: err * PREFETCH_PRIORITY,
-                    id,
-                });
-            }
-            if self.violates(id, err_now) {
-                for k in self.domain.children(id).into_iter().flatten() {
-                    if let Some(err) = self.violation(k, &now) {
-                        contributions.push(Candidate {
-                            err: err * PREFETCH_PRIORITY,
-                            id: k,
-                        });
-                    }
-                }
-            }
-        }
-        let mut contributions = BinaryHeap::from(contributions);
+        let Some(mut contributions) = self.contributions(&view, &now, candidates, errors, &past)
+        else {
+            return self.keep_last_ahead(IdMap::default(), Some(limit));
+        };
         let mut wanted = IdMap::default();
         // The priority of the contribution that brought `wanted` to the limit: every later one
         // as urgent is planned too (it may add diamonds that tie with the kept ones).
@@ -251,13 +231,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             planned += 1;
             if planned % PREFETCH_CLOCK_STRIDE == 0 && past() {
                 #[cfg(debug_assertions)]
-                {
-                    let mut all = IdMap::default();
-                    self.prefetch_all(&view, &now, candidates, errors, &mut all);
-                    for (d, p) in &wanted {
-                        assert_eq!(all.get(d), Some(p), "a prefetch cut short: {d}'s priority");
-                    }
-                }
+                self.check_cut_short_prefetch(&view, &now, candidates, errors, &wanted);
                 let kept = most_urgent(wanted, Some(limit));
                 return self.keep_last_ahead(kept, Some(limit));
             }
@@ -268,18 +242,85 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
         }
         let kept = most_urgent(wanted, Some(limit));
         #[cfg(debug_assertions)]
-        {
-            let mut all = IdMap::default();
-            self.prefetch_all(&view, &now, candidates, errors, &mut all);
-            let all = most_urgent(all, Some(limit));
-            let sorted = |m: &IdMap<f64>| {
-                let mut v: Vec<(DiamondId, f64)> = m.iter().map(|(&d, &p)| (d, p)).collect();
-                v.sort_unstable_by_key(|&(d, _)| d);
-                v
-            };
-            assert_eq!(sorted(&kept), sorted(&all), "prefetch from the most urgent");
-        }
+        self.check_prefetch(&view, &now, candidates, errors, &kept, limit);
         kept
+    }
+
+    /// The prefetch's contributions, as a heap: each candidate violating the target in the
+    /// future `view` (its own plan), and the violating children in `now` of each candidate
+    /// violating it now, at [`PREFETCH_PRIORITY`]. `None` when `past` says the time is up.
+    fn contributions(
+        &mut self,
+        view: &View,
+        now: &View,
+        candidates: &[(DiamondId, Option<Info>)],
+        errors: &[Option<f64>],
+        past: &dyn Fn() -> bool,
+    ) -> Option<BinaryHeap<Candidate>> {
+        let mut contributions = Vec::new();
+        for (n, (&(id, info), &err_now)) in candidates.iter().zip(errors).enumerate() {
+            if n % PREFETCH_CLOCK_STRIDE == PREFETCH_CLOCK_STRIDE - 1 && past() {
+                return None;
+            }
+            if let Some(err) = self.violation_of(id, info, view) {
+                contributions.push(Candidate {
+                    err: err * PREFETCH_PRIORITY,
+                    id,
+                });
+            }
+            if self.violates(id, err_now) {
+                for k in self.domain.children(id).into_iter().flatten() {
+                    if let Some(err) = self.violation(k, now) {
+                        contributions.push(Candidate {
+                            err: err * PREFETCH_PRIORITY,
+                            id: k,
+                        });
+                    }
+                }
+            }
+        }
+        Some(BinaryHeap::from(contributions))
+    }
+
+    /// Debug builds: a prefetch cut short kept each diamond at the priority planning every
+    /// contribution gives it.
+    #[cfg(debug_assertions)]
+    fn check_cut_short_prefetch(
+        &mut self,
+        view: &View,
+        now: &View,
+        candidates: &[(DiamondId, Option<Info>)],
+        errors: &[Option<f64>],
+        wanted: &IdMap<f64>,
+    ) {
+        let mut all = IdMap::default();
+        self.prefetch_all(view, now, candidates, errors, &mut all);
+        for (d, p) in wanted {
+            assert_eq!(all.get(d), Some(p), "a prefetch cut short: {d}'s priority");
+        }
+    }
+
+    /// Debug builds: a whole prefetch kept exactly the `limit` most urgent of planning every
+    /// contribution.
+    #[cfg(debug_assertions)]
+    fn check_prefetch(
+        &mut self,
+        view: &View,
+        now: &View,
+        candidates: &[(DiamondId, Option<Info>)],
+        errors: &[Option<f64>],
+        kept: &IdMap<f64>,
+        limit: usize,
+    ) {
+        let mut all = IdMap::default();
+        self.prefetch_all(view, now, candidates, errors, &mut all);
+        let all = most_urgent(all, Some(limit));
+        let sorted = |m: &IdMap<f64>| {
+            let mut v: Vec<(DiamondId, f64)> = m.iter().map(|(&d, &p)| (d, p)).collect();
+            v.sort_unstable_by_key(|&(d, _)| d);
+            v
+        };
+        assert_eq!(sorted(kept), sorted(&all), "prefetch from the most urgent");
     }
 
     /// A prefetch cut short: `kept`, and what the last frame prefetched that is still on its
