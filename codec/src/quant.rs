@@ -168,38 +168,9 @@ impl QuantPlan {
                 "invalid height range {min}…{max}"
             )));
         }
-        let reach_in = |u: f64| {
-            let offset = ((min + max) / 2.0 / u).round() * u;
-            let reach = ((max - offset).abs().max((min - offset).abs()) / u).ceil();
-            (offset, reach)
-        };
+        let reach_in = |u: f64| reach_in(u, min, max);
         let (unit, k, lattice) = match quantum {
-            Some(u) => {
-                if !(u.is_finite() && u > 0.0) {
-                    return Err(CodecError::invalid(format!(
-                        "value quantum must be positive, not {u}"
-                    )));
-                }
-                if !(deviation.is_finite() && (0.0..u / 2.0).contains(&deviation)) {
-                    return Err(CodecError::invalid(format!(
-                        "samples are up to {deviation} m off the value quantum {u} m"
-                    )));
-                }
-                if deviation >= epsilon {
-                    return Err(CodecError::invalid(format!(
-                        "tolerance {epsilon} m is below the {deviation} m the samples' storage \
-                         already deviates from their {u} m value grid"
-                    )));
-                }
-                // Exact decimal data (deviation 0) keeps the slack for 0.3/0.1-style quotients.
-                let budget = if deviation > 0.0 {
-                    epsilon - deviation
-                } else {
-                    epsilon * (1.0 + DECIMAL_SLACK)
-                };
-                let k = (budget / u).floor();
-                (u, k, true)
-            }
+            Some(u) => (u, lattice_steps(epsilon, u, deviation)?, true),
             None => {
                 // Prefer a power of two (exact in binary, and the step (2k+1)·u ≈ 2ε − u wastes
                 // less of the budget), unless it is so fine that heights overflow; then ε/8.
@@ -872,6 +843,42 @@ impl HeightGrid {
         });
         range
     }
+}
+
+/// The offset (a multiple of `u` at the range's middle) and the reach of heights `min…max`
+/// around it, in units of `u`.
+fn reach_in(u: f64, min: f64, max: f64) -> (f64, f64) {
+    let offset = ((min + max) / 2.0 / u).round() * u;
+    let reach = ((max - offset).abs().max((min - offset).abs()) / u).ceil();
+    (offset, reach)
+}
+
+/// The quantizer's `k` (as a float, range-checked by the caller) for data on a value grid of
+/// quantum `u` whose samples are up to `deviation` metres off it, within tolerance `epsilon`.
+fn lattice_steps(epsilon: f64, u: f64, deviation: f64) -> Result<f64, CodecError> {
+    if !(u.is_finite() && u > 0.0) {
+        return Err(CodecError::invalid(format!(
+            "value quantum must be positive, not {u}"
+        )));
+    }
+    if !(deviation.is_finite() && (0.0..u / 2.0).contains(&deviation)) {
+        return Err(CodecError::invalid(format!(
+            "samples are up to {deviation} m off the value quantum {u} m"
+        )));
+    }
+    if deviation >= epsilon {
+        return Err(CodecError::invalid(format!(
+            "tolerance {epsilon} m is below the {deviation} m the samples' storage already \
+             deviates from their {u} m value grid"
+        )));
+    }
+    // Exact decimal data (deviation 0) keeps the slack for 0.3/0.1-style quotients.
+    let budget = if deviation > 0.0 {
+        epsilon - deviation
+    } else {
+        epsilon * (1.0 + DECIMAL_SLACK)
+    };
+    Ok((budget / u).floor())
 }
 
 #[cfg(test)]

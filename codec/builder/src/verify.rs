@@ -23,9 +23,7 @@ use crate::error::{Context, Result, bail};
 use crate::mosaic::{Mosaic, NO_WINNER, mosaic_tiles};
 use crate::plan::is_raw_path;
 use crate::tiles::{Tile, expand_inputs};
-use crate::verify_blocks::{
-    ApexPoints, BlockPoints, Visits, decode_plan, decode_row, rows_of_blocks, visit_apex,
-};
+use crate::verify_blocks::{ApexPoints, DecodedRows, Visits, decode_plan, visit_apex};
 
 /// A colour repository against its image.
 pub struct ColourComparison {
@@ -481,33 +479,20 @@ pub fn compare_tiles_with(
         ),
     )
     .context("decoding the hierarchy")?;
-    let rows = rows_of_blocks(walk.blocks());
-    let mut next_row = 0;
-    let mut row: Vec<BlockPoints> = Vec::new();
+    let mut rows = DecodedRows::new(&walk, &apex, &grid, (width, height));
     let mut tally = Tally::new(m.inputs.len());
     m.for_each_block_winners(&mut |ya, block, winners| {
         let yb = ya + block.len() / width;
         for y in ya..yb {
-            while row.first().is_none_or(|b| y >= b.y0 + b.height) {
-                let Some(range) = rows.get(next_row).cloned() else {
-                    bail!("lattice row {y} lies in no block of {plan:?}");
-                };
-                next_row += 1;
-                // The finished row goes before the next is decoded: one row in memory, not two.
-                row = Vec::new();
-                row = decode_row(&walk, range, &apex, &grid, (width, height))
-                    .context("decoding the hierarchy")?;
-                repo.release_pages();
-                for b in &row {
-                    levels.merge(&b.visits);
-                }
-            }
+            let row = rows
+                .at(y, &mut levels, &|| repo.release_pages())
+                .context("decoding the hierarchy")?;
             let first = y * width;
             let (values, winners) = (
                 &block[(y - ya) * width..][..width],
                 &winners[(y - ya) * width..][..width],
             );
-            for b in &row {
+            for b in row {
                 let (decoded, state) = b.row(y);
                 for (j, (&d, &s)) in decoded.iter().zip(state).enumerate() {
                     let x = b.x0 + j;
@@ -525,12 +510,7 @@ pub fn compare_tiles_with(
         class.release(ya * width..yb * width);
         Ok(())
     })?;
-    // Blocks below the data rectangle own diamonds too (their grids may reach into it).
-    for range in &rows[next_row..] {
-        for b in decode_row(&walk, range.clone(), &apex, &grid, (width, height))? {
-            levels.merge(&b.visits);
-        }
-    }
+    rows.finish(&mut levels)?;
     Ok(tally.finish(
         VerifyReport {
             levels: levels.levels,

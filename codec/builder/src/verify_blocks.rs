@@ -309,7 +309,7 @@ pub(crate) fn decode_block(
 }
 
 /// The blocks of `blocks` (row by row) grouped in rows: index ranges of equal first row.
-pub(crate) fn rows_of_blocks(blocks: &[Block]) -> Vec<Range<usize>> {
+fn rows_of_blocks(blocks: &[Block]) -> Vec<Range<usize>> {
     let mut rows: Vec<Range<usize>> = Vec::new();
     for (i, b) in blocks.iter().enumerate() {
         match rows.last_mut() {
@@ -321,7 +321,7 @@ pub(crate) fn rows_of_blocks(blocks: &[Block]) -> Vec<Range<usize>> {
 }
 
 /// Decodes the blocks `range` (one row of blocks) in parallel.
-pub(crate) fn decode_row(
+fn decode_row(
     walk: &BlockWalk<'_>,
     range: Range<usize>,
     apex: &ApexPoints,
@@ -332,6 +332,73 @@ pub(crate) fn decode_row(
         .into_par_iter()
         .map(|b| decode_block(walk, b, apex, input, data))
         .collect()
+}
+
+/// The rows of blocks of a [`BlockWalk`], decoded one row at a time as the lattice rows are
+/// compared top to bottom: one row of blocks in memory, not two.
+pub(crate) struct DecodedRows<'a> {
+    walk: &'a BlockWalk<'a>,
+    apex: &'a ApexPoints,
+    input: &'a HeightGrid,
+    data: (usize, usize),
+    rows: Vec<Range<usize>>,
+    next: usize,
+    row: Vec<BlockPoints>,
+}
+
+impl<'a> DecodedRows<'a> {
+    pub(crate) fn new(
+        walk: &'a BlockWalk<'a>,
+        apex: &'a ApexPoints,
+        input: &'a HeightGrid,
+        data: (usize, usize),
+    ) -> Self {
+        DecodedRows {
+            walk,
+            apex,
+            input,
+            data,
+            rows: rows_of_blocks(walk.blocks()),
+            next: 0,
+            row: Vec::new(),
+        }
+    }
+
+    /// The row of blocks holding lattice row `y` (rows asked for in order), decoding the rows
+    /// of blocks up to it; each decoded row's visits are merged into `levels` and `released`
+    /// is called after each decode (to drop the mapped pages it read).
+    pub(crate) fn at(
+        &mut self,
+        y: usize,
+        levels: &mut Visits,
+        released: &dyn Fn(),
+    ) -> Result<&[BlockPoints]> {
+        while self.row.first().is_none_or(|b| y >= b.y0 + b.height) {
+            let Some(range) = self.rows.get(self.next).cloned() else {
+                bail!("lattice row {y} lies in no block of {:?}", self.walk.plan());
+            };
+            self.next += 1;
+            // The finished row goes before the next is decoded.
+            self.row = Vec::new();
+            self.row = decode_row(self.walk, range, self.apex, self.input, self.data)?;
+            released();
+            for b in &self.row {
+                levels.merge(&b.visits);
+            }
+        }
+        Ok(&self.row)
+    }
+
+    /// Decodes the rows of blocks below the last asked for (blocks below the data rectangle
+    /// own diamonds too: their grids may reach into it), merging their visits into `levels`.
+    pub(crate) fn finish(self, levels: &mut Visits) -> Result<()> {
+        for range in &self.rows[self.next..] {
+            for b in decode_row(self.walk, range.clone(), self.apex, self.input, self.data)? {
+                levels.merge(&b.visits);
+            }
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]

@@ -151,48 +151,9 @@ fn serialize_to(
         .filter(|r| !r.bytes.is_empty())
         .flat_map(|r| crc32(&r.bytes).to_le_bytes())
         .collect();
-    let records_len: u64 = encoded.records.iter().map(|r| r.bytes.len() as u64).sum();
     let n = u16::try_from(p.layout().n()).map_err(|_| CodecError::limit("diamond size"))?;
     let k = u8::try_from(p.layout().k()).map_err(|_| CodecError::limit("level pairs"))?;
-
-    let cube_sphere = p.domain.kind() == DomainKind::CubeSphere;
-    if cube_sphere && (georef.is_some() || p.kind == RepoKind::Colour) {
-        return Err(CodecError::invalid(
-            "a cube-sphere repository holds elevation placed by its own mapping: no planar \
-             georeferencing, no colour",
-        ));
-    }
-    let flags = if p.nodata_mask { FLAG_NODATA_MASK } else { 0 }
-        | if p.kind == RepoKind::Colour {
-            FLAG_COLOUR
-        } else {
-            0
-        }
-        | if cube_sphere { FLAG_CUBE_SPHERE } else { 0 }
-        | if provenance.is_some() {
-            FLAG_PLANET_PROVENANCE
-        } else {
-            0
-        }
-        | if plan.rms.is_some() {
-            FLAG_RMS_ERROR
-        } else {
-            0
-        };
-    if provenance.is_some() && !cube_sphere {
-        return Err(CodecError::invalid(
-            "a planet's provenance belongs in a cube-sphere repository",
-        ));
-    }
-    let mut records_hasher = crc32fast::Hasher::new();
-    for r in &encoded.records {
-        records_hasher.update(&r.bytes);
-    }
-    let section = |bytes: &[u8]| SectionEntry {
-        offset: 0,
-        length: bytes.len() as u64,
-        crc: crc32(bytes),
-    };
+    let flags = header_flags(encoded, plan, georef.is_some(), provenance.is_some())?;
     let fields = HeaderFields {
         version: FORMAT_VERSION,
         header_len: 0,
@@ -222,16 +183,7 @@ fn serialize_to(
         wkt: georef.and_then(|g| g.wkt.clone()),
         provenance: provenance.copied(),
         rms: plan.rms.map(|r| (r.target, r.measured)),
-        sections: [
-            section(&encoded.roots),
-            section(&index),
-            section(&checksums),
-            SectionEntry {
-                offset: 0,
-                length: records_len,
-                crc: records_hasher.finalize(),
-            },
-        ],
+        sections: section_entries(encoded, &index, &checksums),
         record_count: encoded.records.len() as u64,
         crc: 0,
     };
@@ -251,6 +203,59 @@ fn serialize_to(
         out.write_all(&r.bytes)?;
     }
     Ok(offset)
+}
+
+/// The four sections' lengths and CRCs: roots, index, checksums, records (offsets are laid out
+/// by the header writer).
+fn section_entries(encoded: &Encoded, index: &[u8], checksums: &[u8]) -> [SectionEntry; 4] {
+    let section = |bytes: &[u8]| SectionEntry {
+        offset: 0,
+        length: bytes.len() as u64,
+        crc: crc32(bytes),
+    };
+    let mut records = crc32fast::Hasher::new();
+    for r in &encoded.records {
+        records.update(&r.bytes);
+    }
+    [
+        section(&encoded.roots),
+        section(index),
+        section(checksums),
+        SectionEntry {
+            offset: 0,
+            length: encoded.records.iter().map(|r| r.bytes.len() as u64).sum(),
+            crc: records.finalize(),
+        },
+    ]
+}
+
+/// The header's flags for `encoded` under `plan`; errors for what a cube-sphere cannot hold
+/// (planar georeferencing, colour) and for a provenance on a plane.
+fn header_flags(
+    encoded: &Encoded,
+    plan: &QuantPlan,
+    georeferenced: bool,
+    provenance: bool,
+) -> Result<u32, CodecError> {
+    let p = &encoded.params;
+    let cube_sphere = p.domain.kind() == DomainKind::CubeSphere;
+    if cube_sphere && (georeferenced || p.kind == RepoKind::Colour) {
+        return Err(CodecError::invalid(
+            "a cube-sphere repository holds elevation placed by its own mapping: no planar \
+             georeferencing, no colour",
+        ));
+    }
+    if provenance && !cube_sphere {
+        return Err(CodecError::invalid(
+            "a planet's provenance belongs in a cube-sphere repository",
+        ));
+    }
+    let flag = |on: bool, bit: u32| if on { bit } else { 0 };
+    Ok(flag(p.nodata_mask, FLAG_NODATA_MASK)
+        | flag(p.kind == RepoKind::Colour, FLAG_COLOUR)
+        | flag(cube_sphere, FLAG_CUBE_SPHERE)
+        | flag(provenance, FLAG_PLANET_PROVENANCE)
+        | flag(plan.rms.is_some(), FLAG_RMS_ERROR))
 }
 
 /// Writes a repository to `path` atomically, streamed through a buffer.
@@ -688,24 +693,7 @@ fn parse_plan(
         )));
     }
     if kind == RepoKind::Colour {
-        if flags & FLAG_NODATA_MASK != 0 {
-            return Err(CodecError::unsupported(
-                "a colour repository with a nodata mask",
-            ));
-        }
-        if unit != 1.0 || offset != 0.0 || !lattice || representation_error != 0.0 {
-            return Err(CodecError::corrupt(
-                "a colour repository must have unit 1, offset 0 and lattice input",
-            ));
-        }
-        let bound = ycocg::rgb_bound(quantizer.k() as u32);
-        if bound.iter().any(|&b| f64::from(b) > epsilon) {
-            return Err(CodecError::corrupt(format!(
-                "colour quantizer k = {} allows RGB errors of {bound:?}, over the stated \
-                 tolerance {epsilon}",
-                quantizer.k()
-            )));
-        }
+        check_colour_plan(h, lattice, quantizer)?;
     }
     if !(representation_error.is_finite() && representation_error >= 0.0) {
         return Err(CodecError::corrupt(
@@ -729,6 +717,35 @@ fn parse_plan(
         ));
     }
     Ok((plan, root_q, kind))
+}
+
+/// A colour repository's plan: no nodata mask, unit 1, offset 0, lattice input, and a
+/// quantizer whose RGB error is within the stated tolerance.
+fn check_colour_plan(
+    h: &HeaderFields,
+    lattice: bool,
+    quantizer: Quantizer,
+) -> Result<(), CodecError> {
+    if h.flags & FLAG_NODATA_MASK != 0 {
+        return Err(CodecError::unsupported(
+            "a colour repository with a nodata mask",
+        ));
+    }
+    if h.unit != 1.0 || h.offset != 0.0 || !lattice || h.representation_error != 0.0 {
+        return Err(CodecError::corrupt(
+            "a colour repository must have unit 1, offset 0 and lattice input",
+        ));
+    }
+    let bound = ycocg::rgb_bound(quantizer.k() as u32);
+    if bound.iter().any(|&b| f64::from(b) > h.epsilon) {
+        return Err(CodecError::corrupt(format!(
+            "colour quantizer k = {} allows RGB errors of {bound:?}, over the stated tolerance \
+             {}",
+            quantizer.k(),
+            h.epsilon
+        )));
+    }
+    Ok(())
 }
 
 /// The georeferencing fields: finite where the flags say they are present, all zero where

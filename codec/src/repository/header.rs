@@ -394,74 +394,12 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
     let offset = f.f64()?;
     let epsilon = f.f64()?;
     let representation_error = f.f64()?;
-    // Georeferencing is written only when present; its absence reads as the zeros the fixed
-    // layout stores, so the container checks both layouts the same way.
-    let (epsg, geo, wkt) = if geo_flags & 1 == 1 {
-        let epsg = f.u32("EPSG code")?;
-        let geo = [f.f64()?, f.f64()?, f.f64()?, f.f64()?];
-        let len = f.varint()?;
-        let wkt = if len == 0 {
-            None
-        } else {
-            let len = usize::try_from(len)
-                .ok()
-                .filter(|&l| l <= crate::repository::MAX_WKT_LEN)
-                .ok_or_else(|| CodecError::corrupt(format!("CRS definition of {len} bytes")))?;
-            let text = std::str::from_utf8(f.bytes(len)?)
-                .map_err(|_| CodecError::corrupt("CRS definition is not UTF-8"))?;
-            Some(text.to_owned())
-        };
-        (epsg, geo, wkt)
-    } else {
-        (0, [0.0; 4], None)
-    };
+    let (epsg, geo, wkt) = parse_georef(&mut f, geo_flags)?;
     let nodata = f.f64()?;
-    let provenance = if flags & FLAG_PLANET_PROVENANCE != 0 {
-        let datum = f.byte()?;
-        let vertical_datum = VerticalDatum::from_byte(datum)
-            .ok_or_else(|| CodecError::unsupported(format!("unknown vertical datum {datum}")))?;
-        let (resampling_max, resampling_rms) = (f.f64()?, f.f64()?);
-        if !(resampling_max >= 0.0 && resampling_rms >= 0.0 && resampling_rms <= resampling_max) {
-            return Err(CodecError::corrupt(format!(
-                "resampling error max {resampling_max} m, rms {resampling_rms} m"
-            )));
-        }
-        Some(PlanetProvenance {
-            vertical_datum,
-            resampling_max,
-            resampling_rms,
-        })
-    } else {
-        None
-    };
-    let rms = if flags & FLAG_RMS_ERROR != 0 {
-        let (target, measured) = (f.f64()?, f.f64()?);
-        if !(target.is_finite() && target > 0.0 && measured >= 0.0 && measured <= target) {
-            return Err(CodecError::corrupt(format!(
-                "RMS error bound {target} m with {measured} m measured"
-            )));
-        }
-        Some((target, measured))
-    } else {
-        None
-    };
+    let provenance = parse_provenance(&mut f, flags)?;
+    let rms = parse_rms(&mut f, flags)?;
     let record_count = f.varint()?;
-    let mut sections = [SectionEntry::default(); 4];
-    let mut at = b.len() as u64;
-    for s in &mut sections {
-        let length = f.varint()?;
-        *s = SectionEntry {
-            offset: at,
-            length,
-            crc: 0,
-        };
-        at = at
-            .checked_add(length)
-            .ok_or_else(|| CodecError::corrupt("section lengths overflow"))?;
-    }
-    for s in &mut sections {
-        s.crc = f.u32_le()?;
-    }
+    let sections = parse_sections(&mut f, b.len() as u64)?;
     if f.pos != f.b.len() {
         return Err(CodecError::corrupt(format!(
             "{} unexpected bytes at the end of the header fields",
@@ -501,6 +439,90 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
         record_count,
         crc,
     })
+}
+
+/// The georeferencing fields: written only with `geo_flags` bit 0; their absence reads as the
+/// zeros the fixed layout stores, so the container checks both layouts the same way.
+fn parse_georef(
+    f: &mut Fields<'_>,
+    geo_flags: u8,
+) -> Result<(u32, [f64; 4], Option<String>), CodecError> {
+    if geo_flags & 1 == 0 {
+        return Ok((0, [0.0; 4], None));
+    }
+    let epsg = f.u32("EPSG code")?;
+    let geo = [f.f64()?, f.f64()?, f.f64()?, f.f64()?];
+    let len = f.varint()?;
+    if len == 0 {
+        return Ok((epsg, geo, None));
+    }
+    let len = usize::try_from(len)
+        .ok()
+        .filter(|&l| l <= crate::repository::MAX_WKT_LEN)
+        .ok_or_else(|| CodecError::corrupt(format!("CRS definition of {len} bytes")))?;
+    let text = std::str::from_utf8(f.bytes(len)?)
+        .map_err(|_| CodecError::corrupt("CRS definition is not UTF-8"))?;
+    Ok((epsg, geo, Some(text.to_owned())))
+}
+
+/// A planet's provenance (vertical datum, resampling error), with its flag only.
+fn parse_provenance(
+    f: &mut Fields<'_>,
+    flags: u32,
+) -> Result<Option<PlanetProvenance>, CodecError> {
+    if flags & FLAG_PLANET_PROVENANCE == 0 {
+        return Ok(None);
+    }
+    let datum = f.byte()?;
+    let vertical_datum = VerticalDatum::from_byte(datum)
+        .ok_or_else(|| CodecError::unsupported(format!("unknown vertical datum {datum}")))?;
+    let (resampling_max, resampling_rms) = (f.f64()?, f.f64()?);
+    if !(resampling_max >= 0.0 && resampling_rms >= 0.0 && resampling_rms <= resampling_max) {
+        return Err(CodecError::corrupt(format!(
+            "resampling error max {resampling_max} m, rms {resampling_rms} m"
+        )));
+    }
+    Ok(Some(PlanetProvenance {
+        vertical_datum,
+        resampling_max,
+        resampling_rms,
+    }))
+}
+
+/// The RMS bound (target, measured), with its flag only.
+fn parse_rms(f: &mut Fields<'_>, flags: u32) -> Result<Option<(f64, f64)>, CodecError> {
+    if flags & FLAG_RMS_ERROR == 0 {
+        return Ok(None);
+    }
+    let (target, measured) = (f.f64()?, f.f64()?);
+    if !(target.is_finite() && target > 0.0 && measured >= 0.0 && measured <= target) {
+        return Err(CodecError::corrupt(format!(
+            "RMS error bound {target} m with {measured} m measured"
+        )));
+    }
+    Ok(Some((target, measured)))
+}
+
+/// The four sections' lengths (laid out one after the other from the header's end,
+/// `header_len`) and then their CRCs.
+fn parse_sections(f: &mut Fields<'_>, header_len: u64) -> Result<[SectionEntry; 4], CodecError> {
+    let mut sections = [SectionEntry::default(); 4];
+    let mut at = header_len;
+    for s in &mut sections {
+        let length = f.varint()?;
+        *s = SectionEntry {
+            offset: at,
+            length,
+            crc: 0,
+        };
+        at = at
+            .checked_add(length)
+            .ok_or_else(|| CodecError::corrupt("section lengths overflow"))?;
+    }
+    for s in &mut sections {
+        s.crc = f.u32_le()?;
+    }
+    Ok(sections)
 }
 
 /// Writes `h` as a compact header (version `h.version`, 3 or later). `h.header_len`, `h.crc`,
