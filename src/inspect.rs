@@ -167,15 +167,9 @@ fn print_georef(repo: &Repository) {
     }
 }
 
-/// The text description's second part: quantization, error bound, georeferencing, nodata,
-/// sections, records and the object error of every level.
-fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
+/// The quantization and error-bound lines of the text description.
+fn print_quantization(repo: &Repository) {
     let (p, plan) = (repo.head().params(), repo.head().plan());
-    let nodata_fraction = 1.0 - valid as f64 / samples as f64;
-    let metres = |u: u32| f64::from(u) * plan.unit;
-    let (err_lo, err_hi) = s.object_error_range;
-    let overhead = s.container_overhead;
-    let empty = s.empty_records;
     println!(
         "quantization    unit {} m, offset {} m, k = {} (root k = {}), {}",
         plan.unit,
@@ -199,19 +193,19 @@ fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
             p.quantizer.k(),
             cbdam_codec::colour::ycocg::rgb_bound(p.quantizer.k() as u32)
         );
-    } else {
-        match plan.rms {
-            None => println!(
-                "max error       {} m requested, {} guaranteed",
-                plan.epsilon,
-                plan.bound_text()
-            ),
-            Some(_) => println!(
+        return;
+    }
+    match plan.rms {
+        None => println!(
+            "max error       {} m requested, {} guaranteed",
+            plan.epsilon,
+            plan.bound_text()
+        ),
+        Some(r) => {
+            println!(
                 "max error       {} guaranteed (the quantizer --rms-error chose)",
                 plan.bound_text()
-            ),
-        }
-        if let Some(r) = plan.rms {
+            );
             println!(
                 "rms error       {} m bound, {} m measured by the build (finest level, every \
                  valid sample)",
@@ -219,6 +213,18 @@ fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
             );
         }
     }
+}
+
+/// The text description's second part: quantization, error bound, georeferencing, nodata,
+/// sections, records and the object error of every level.
+fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
+    let (p, plan) = (repo.head().params(), repo.head().plan());
+    let nodata_fraction = 1.0 - valid as f64 / samples as f64;
+    let metres = |u: u32| f64::from(u) * plan.unit;
+    let (err_lo, err_hi) = s.object_error_range;
+    let overhead = s.container_overhead;
+    let empty = s.empty_records;
+    print_quantization(repo);
     print_georef(repo);
     println!(
         "nodata          value {}, {} of {samples} samples ({:.2} %) without data{}",
