@@ -501,4 +501,28 @@ mod tests {
             assert!(Flight::parse(bad).is_err(), "{bad}");
         }
     }
+
+    #[test]
+    fn every_bundled_flight_loads() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/flights");
+        let mut dirs = vec![root];
+        let mut loaded = 0;
+        while let Some(dir) = dirs.pop() {
+            for entry in std::fs::read_dir(&dir).unwrap() {
+                let path = entry.unwrap().path();
+                if path.is_dir() {
+                    dirs.push(path);
+                } else if path.extension().is_some_and(|e| e == "json") {
+                    let f =
+                        Flight::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                    assert!(f.duration() > 0.0, "{}", path.display());
+                    // Planet flights are geodetic, plane flights relative.
+                    let planet = path.parent().is_some_and(|p| p.ends_with("planet"));
+                    assert_eq!(f.is_geodetic(), planet, "{}", path.display());
+                    loaded += 1;
+                }
+            }
+        }
+        assert!(loaded >= 4, "only {loaded} flights under data/flights");
+    }
 }
