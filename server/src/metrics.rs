@@ -173,7 +173,18 @@ impl Metrics {
     /// The Prometheus text exposition (format 0.0.4).
     pub fn render(&self) -> String {
         let mut o = String::with_capacity(8192);
-        // `write!` into a String cannot fail.
+        self.render_requests(&mut o);
+        self.render_errors(&mut o);
+        self.render_bytes(&mut o);
+        self.render_latency(&mut o);
+        self.render_totals(&mut o);
+        o
+    }
+
+    // `write!` into a String cannot fail: the results below are ignored.
+
+    /// `cbdam_http_requests_total`, by endpoint and status (the statuses seen only).
+    fn render_requests(&self, o: &mut String) {
         let _ = writeln!(
             o,
             "# HELP cbdam_http_requests_total HTTP requests answered, by endpoint and status.\n\
@@ -196,6 +207,10 @@ impl Metrics {
                 }
             }
         }
+    }
+
+    /// `cbdam_http_errors_total`, by endpoint and class (client 4xx, server 5xx).
+    fn render_errors(&self, o: &mut String) {
         let _ = writeln!(
             o,
             "# HELP cbdam_http_errors_total HTTP requests answered with a 4xx or 5xx status.\n\
@@ -219,6 +234,10 @@ impl Metrics {
                 e.name()
             );
         }
+    }
+
+    /// `cbdam_http_response_bytes_total`, by endpoint.
+    fn render_bytes(&self, o: &mut String) {
         let _ = writeln!(
             o,
             "# HELP cbdam_http_response_bytes_total Response body bytes sent.\n\
@@ -232,6 +251,10 @@ impl Metrics {
                 self.bytes[e as usize].load(Relaxed)
             );
         }
+    }
+
+    /// The `cbdam_http_request_duration_seconds` histogram, by endpoint.
+    fn render_latency(&self, o: &mut String) {
         let _ = writeln!(
             o,
             "# HELP cbdam_http_request_duration_seconds Time from request to response head.\n\
@@ -258,6 +281,10 @@ impl Metrics {
                 n = e.name()
             );
         }
+    }
+
+    /// The server-wide counters: records sent, corrupt records met, aborted batches.
+    fn render_totals(&self, o: &mut String) {
         let _ = writeln!(
             o,
             "# HELP cbdam_records_sent_total Diamond records sent, single and batched.\n\
@@ -277,7 +304,6 @@ impl Metrics {
             self.aborted_batches.load(Relaxed),
             self.unsent_batch_bytes.load(Relaxed)
         );
-        o
     }
 }
 
