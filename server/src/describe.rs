@@ -2,7 +2,7 @@
 //! `/v1/repos/{name}/meta`, so the two never drift apart.
 
 use cbdam_codec::lifting::Alpha;
-use cbdam_codec::repository::{Repository, RepositoryHead, Section};
+use cbdam_codec::repository::{GeoRef, Repository, RepositoryHead, Section};
 use serde_json::{Value, json};
 
 /// Per-level statistics of the stored records.
@@ -101,39 +101,10 @@ pub fn describe_head(head: &RepositoryHead) -> Value {
     let plan = head.plan();
     let s = summarize_head(head);
     let metres = |u: u32| f64::from(u) * plan.unit;
-    let geo = head.georef().map(|g| {
-        json!({
-            "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
-            "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
-            "pixel_is": if g.pixel_is_area { "area" } else { "point" },
-            "wkt": g.wkt,
-        })
-    });
-    // The area the data samples cover, in CRS units: cell edges for pixel-is-area data,
-    // sample centres widened by half a pixel for pixel-is-point data (GDAL's convention), so
-    // both read as "the extent of the raster".
-    let bbox = head.georef().map(|g| {
-        let half = if g.pixel_is_area { 0.0 } else { 0.5 };
-        let x0 = g.origin_x - half * g.pixel_x;
-        let y0 = g.origin_y + half * g.pixel_y;
-        let x1 = x0 + f64::from(p.domain.data().width) * g.pixel_x;
-        let y1 = y0 - f64::from(p.domain.data().height) * g.pixel_y;
-        [x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1)]
-    });
+    let geo = head.georef().map(georef_json);
+    let bbox = head.georef().map(|g| data_bbox(g, p.domain.data().size()));
     let (ex, ey) = p.layout().face_extent();
-    let levels: Vec<Value> = s
-        .levels
-        .iter()
-        .enumerate()
-        .map(|(i, l)| {
-            let some = l.records > 0;
-            json!({
-                "level": i, "records": l.records, "bytes": l.bytes,
-                "object_error_min_m": some.then(|| metres(l.object_error_min)),
-                "object_error_max_m": some.then(|| metres(l.object_error_max)),
-            })
-        })
-        .collect();
+    let levels = levels_json(&s.levels, metres);
     let section = |sec: Section| json!({ "offset": head.section_offset(sec), "length": head.section_len(sec) });
     let roots: Vec<String> = p.domain.roots().map(|id| id.to_string()).collect();
     // A planet's provenance, null for planes.
@@ -199,4 +170,42 @@ pub fn describe_head(head: &RepositoryHead) -> Value {
     v["planet"] = planet.unwrap_or(Value::Null);
     v["float_rounding_m"] = json!(plan.rounding_error());
     v
+}
+
+/// The georeferencing as JSON: EPSG code, origin, pixel size, pixel-is, WKT.
+fn georef_json(g: &GeoRef) -> Value {
+    json!({
+        "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
+        "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
+        "pixel_is": if g.pixel_is_area { "area" } else { "point" },
+        "wkt": g.wkt,
+    })
+}
+
+/// The area the data samples cover, in CRS units: cell edges for pixel-is-area data, sample
+/// centres widened by half a pixel for pixel-is-point data (GDAL's convention), so both read
+/// as "the extent of the raster". `[x0, y0, x1, y1]`.
+fn data_bbox(g: &GeoRef, (width, height): (usize, usize)) -> [f64; 4] {
+    let half = if g.pixel_is_area { 0.0 } else { 0.5 };
+    let x0 = g.origin_x - half * g.pixel_x;
+    let y0 = g.origin_y + half * g.pixel_y;
+    let x1 = x0 + width as f64 * g.pixel_x;
+    let y1 = y0 - height as f64 * g.pixel_y;
+    [x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1)]
+}
+
+/// Per level: records, bytes and the object-error range in metres (null without records).
+fn levels_json(levels: &[LevelStats], metres: impl Fn(u32) -> f64) -> Vec<Value> {
+    levels
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            let some = l.records > 0;
+            json!({
+                "level": i, "records": l.records, "bytes": l.bytes,
+                "object_error_min_m": some.then(|| metres(l.object_error_min)),
+                "object_error_max_m": some.then(|| metres(l.object_error_max)),
+            })
+        })
+        .collect()
 }
