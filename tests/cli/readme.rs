@@ -2,7 +2,7 @@
 //! a page of `docs/` names a subcommand that exists (and a sub-subcommand, as in `cbdam shard
 //! plan` or `cbdam bench report`), and every `--flag` it names appears in that subcommand's
 //! `--help`. The commands are not run: a command whose flags all exist may still be wrong in
-//! its values.
+//! its values. Every relative link (a file, a heading's anchor) resolves.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -231,4 +231,114 @@ fn commands_are_found_as_the_docs_write_them() {
     );
     assert!(help_names_flag("  --size <WxH>\n", "--size"));
     assert!(!help_names_flag("  --size-limit <N>\n", "--size"));
+}
+
+/// The relative links `](target)` of Markdown `text`, outside code blocks: `(path, anchor)`,
+/// either part possibly empty; web and mail links are left out.
+fn links_in(text: &str) -> Vec<(String, String)> {
+    let mut found = Vec::new();
+    let mut in_block = false;
+    for line in text.lines() {
+        if line.trim_start().starts_with("```") {
+            in_block = !in_block;
+            continue;
+        }
+        if in_block {
+            continue;
+        }
+        for (i, _) in line.match_indices("](") {
+            let rest = &line[i + 2..];
+            let Some(end) = rest.find(')') else { continue };
+            let target = &rest[..end];
+            if target.contains(' ') || target.starts_with("http") || target.starts_with("mailto:") {
+                continue;
+            }
+            let (path, anchor) = target.split_once('#').unwrap_or((target, ""));
+            found.push((path.to_string(), anchor.to_string()));
+        }
+    }
+    found
+}
+
+/// GitHub's anchor of a heading: lower case, punctuation dropped (letters, digits, `-` and
+/// `_` kept), spaces as `-`.
+fn anchor_of(heading: &str) -> String {
+    heading
+        .trim()
+        .to_lowercase()
+        .chars()
+        .filter(|c| c.is_alphanumeric() || matches!(c, '-' | '_' | ' '))
+        .map(|c| if c == ' ' { '-' } else { c })
+        .collect()
+}
+
+/// The anchors of the headings of Markdown `text` (outside code blocks).
+fn anchors_in(text: &str) -> Vec<String> {
+    let mut in_block = false;
+    let mut anchors = Vec::new();
+    for line in text.lines() {
+        if line.trim_start().starts_with("```") {
+            in_block = !in_block;
+        } else if !in_block && line.starts_with('#') {
+            anchors.push(anchor_of(line.trim_start_matches('#')));
+        }
+    }
+    anchors
+}
+
+#[test]
+fn every_relative_link_in_the_readme_and_docs_resolves() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut problems = Vec::new();
+    let mut checked = 0;
+    for file in documentation() {
+        let text = std::fs::read_to_string(&file).unwrap();
+        let name = file.strip_prefix(root).unwrap().display().to_string();
+        for (path, anchor) in links_in(&text) {
+            checked += 1;
+            let target = if path.is_empty() {
+                file.clone()
+            } else {
+                file.parent().unwrap().join(&path)
+            };
+            if !target.exists() {
+                problems.push(format!("{name}: {path} does not exist"));
+                continue;
+            }
+            let is_markdown = target.extension().is_some_and(|e| e == "md");
+            if !anchor.is_empty() && is_markdown {
+                let page = std::fs::read_to_string(&target).unwrap();
+                if !anchors_in(&page).contains(&anchor) {
+                    problems.push(format!("{name}: {path}#{anchor}: no such heading"));
+                }
+            }
+        }
+    }
+    assert!(checked >= 50, "only {checked} links found in the docs");
+    assert!(
+        problems.is_empty(),
+        "{} of {checked} links are broken:\n{}",
+        problems.len(),
+        problems.join("\n")
+    );
+}
+
+/// The link finder and GitHub's anchors, on the forms the docs use.
+#[test]
+fn links_and_anchors_are_read_as_github_does() {
+    let text = "See [a](docs/A.md#the-demo), [b](#local) and [w](https://x.org/a).\n\
+        ```\n[not](a/link.md)\n```\n![pic](globe.png)\n";
+    assert_eq!(
+        links_in(text),
+        [
+            ("docs/A.md".to_string(), "the-demo".to_string()),
+            (String::new(), "local".to_string()),
+            ("globe.png".to_string(), String::new()),
+        ]
+    );
+    assert_eq!(
+        anchor_of(" An Earth to measure on: `cbdam synth --earth`"),
+        "an-earth-to-measure-on-cbdam-synth---earth"
+    );
+    assert_eq!(anchor_of("Rendering offscreen"), "rendering-offscreen");
 }
