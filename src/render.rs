@@ -351,6 +351,7 @@ fn fly<S: DataSource>(
     if let Some(max) = args.max_frames {
         frames = frames.min(max);
     }
+    let progress = FrameProgress::new(frames);
     let run = draw_flight(
         &mut refiner,
         &mut renderer,
@@ -362,8 +363,13 @@ fn fly<S: DataSource>(
             real_time: remote,
         },
         options,
-        |i, frame| write_png(&dir.join(format!("frame_{i:05}.png")), frame),
+        |i, frame| {
+            write_png(&dir.join(format!("frame_{i:05}.png")), frame)?;
+            progress.frame_written();
+            Ok(())
+        },
     )?;
+    progress.finish();
     let FlightRun {
         mut refine_ms,
         mut render_ms,
@@ -463,4 +469,52 @@ pub(crate) fn draw_flight<S: DataSource>(
         run.max_err = run.max_err.max(s.max_screen_error_px);
     }
     Ok(run)
+}
+
+/// Progress of a flight's frames on stderr: a bar on a terminal, otherwise a line at each
+/// quarter (a log keeps them), so that a long software-rendered flight shows it is moving.
+struct FrameProgress {
+    bar: indicatif::ProgressBar,
+    total: u64,
+    written: std::cell::Cell<u64>,
+    terminal: bool,
+}
+
+impl FrameProgress {
+    fn new(total: u64) -> Self {
+        use std::io::IsTerminal;
+        let terminal = std::io::stderr().is_terminal();
+        let bar = if terminal {
+            let bar = indicatif::ProgressBar::new(total);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "frames {bar:40} {pos}/{len}, {elapsed} elapsed, ETA {eta}",
+                )
+                .expect("static template"),
+            );
+            bar
+        } else {
+            indicatif::ProgressBar::hidden()
+        };
+        FrameProgress {
+            bar,
+            total,
+            written: std::cell::Cell::new(0),
+            terminal,
+        }
+    }
+
+    fn frame_written(&self) {
+        let done = self.written.get() + 1;
+        self.written.set(done);
+        self.bar.inc(1);
+        let quarter = |n: u64| n * 4 / self.total.max(1);
+        if !self.terminal && quarter(done) > quarter(done - 1) {
+            eprintln!("rendering: {done} of {} frames", self.total);
+        }
+    }
+
+    fn finish(&self) {
+        self.bar.finish_and_clear();
+    }
 }

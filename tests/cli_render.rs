@@ -116,6 +116,19 @@ fn render_path_writes_every_frame() {
             && text.contains("triangles"),
         "{text}"
     );
+    // Progress on stderr (not a terminal here): a line at each quarter of the frames.
+    let err = String::from_utf8_lossy(&o.stderr);
+    let progress: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("rendering: "))
+        .collect();
+    assert_eq!(
+        progress,
+        (1..=4)
+            .map(|i| format!("rendering: {i} of 4 frames"))
+            .collect::<Vec<_>>(),
+        "{err}"
+    );
     let mut names: Vec<String> = std::fs::read_dir(&frames)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
