@@ -505,6 +505,10 @@ impl<'a> Scan<'a> {
     /// rows lies in: constant per cell except at the split diagonal, so a second buffer holds
     /// the steps and only one entry per cell changes from row to row (all of them at a new row
     /// of cells). Both loops over a row are straight and vectorise.
+    ///
+    /// Long on purpose: this is the encoder's hottest kernel (the object error of every
+    /// diamond), compiled twice — here and inside [`Scan::rows_avx2`]'s `target_feature` — and
+    /// kept as one body so that every loop of it is compiled for the wider vector unit there.
     #[inline(always)]
     fn rows<const MAIN: bool, T: Lane>(&self, t0: i64, t1: i64) -> i64 {
         let (lo, hi) = self.data_rows();
