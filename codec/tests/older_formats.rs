@@ -14,6 +14,11 @@
 //!
 //! `tests/data/v2/` holds the same three, rewritten by the version-2 `cbdam upgrade` (commit
 //! 2a2aeb0).
+//!
+//! `tests/data/v3/lidar5_before_wkt.cbdam` is a version-3 file written before the CRS definition
+//! joined the header's georeferencing fields without a new version number (commit 08ba422):
+//! `cbdam build data/lidar1m_mn.tif --max-error 5` (N = 65, georeferenced, all records empty),
+//! the fuzz seed of that name until it was rebuilt.
 
 use std::path::{Path, PathBuf};
 
@@ -176,4 +181,34 @@ fn older_nodata_and_colour_repositories_open_and_decode() {
             );
         }
     }
+}
+
+#[test]
+fn version_3_files_from_before_the_crs_definition_still_open() {
+    let old = Repository::open(&fixture(3, "lidar5_before_wkt.cbdam")).unwrap();
+    assert_eq!(old.head().format_version(), 3);
+    old.check_all().unwrap();
+    let g = old.head().georef().expect("georeferenced");
+    assert!(g.wkt.is_none());
+    // The georeferencing the input has today.
+    let dem = read_dem(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/lidar1m_mn.tif"),
+        &ReadOptions::default(),
+    )
+    .unwrap();
+    let today = dem.georef.expect("a georeferenced input");
+    assert_eq!(
+        (g.epsg, g.origin_x, g.origin_y, g.pixel_x, g.pixel_y),
+        (
+            today.epsg,
+            today.origin_x,
+            today.origin_y,
+            today.pixel_x,
+            today.pixel_y
+        )
+    );
+    let enc = old.to_encoded().unwrap();
+    let mut diamonds = 0;
+    walk_all_with_validity(&enc, |_, _, _| diamonds += 1).unwrap();
+    assert!(diamonds > 1);
 }

@@ -368,7 +368,31 @@ impl Fields<'_> {
     }
 }
 
+/// Reads a compact header. Version-3 files written before the CRS definition (WKT) joined the
+/// georeferencing fields (commit 08ba422, 2 December 2026, without a new version number) have
+/// no WKT length after the geotransform: a georeferenced header that does not read with it is
+/// read again without it, and only if that reads to the header's last byte is it taken.
 fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecError> {
+    match read_compact_layout(b, version, crc, Wkt::Present) {
+        Err(e) if version == 3 => read_compact_layout(b, version, crc, Wkt::Absent).map_err(|_| e),
+        read => read,
+    }
+}
+
+/// Whether a compact header's georeferencing carries the CRS definition's length (every
+/// compact header but the earliest version-3 ones, [`read_compact`]).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Wkt {
+    Present,
+    Absent,
+}
+
+fn read_compact_layout(
+    b: &[u8],
+    version: u16,
+    crc: u32,
+    wkt_layout: Wkt,
+) -> Result<HeaderFields, CodecError> {
     let mut f = Fields {
         b: &b[PREFIX_LEN..b.len() - 4],
         pos: 0,
@@ -394,7 +418,7 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
     let offset = f.f64()?;
     let epsilon = f.f64()?;
     let representation_error = f.f64()?;
-    let (epsg, geo, wkt) = parse_georef(&mut f, geo_flags)?;
+    let (epsg, geo, wkt) = parse_georef(&mut f, geo_flags, wkt_layout)?;
     let nodata = f.f64()?;
     let provenance = parse_provenance(&mut f, flags)?;
     let rms = parse_rms(&mut f, flags)?;
@@ -446,12 +470,16 @@ fn read_compact(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecE
 fn parse_georef(
     f: &mut Fields<'_>,
     geo_flags: u8,
+    wkt: Wkt,
 ) -> Result<(u32, [f64; 4], Option<String>), CodecError> {
     if geo_flags & 1 == 0 {
         return Ok((0, [0.0; 4], None));
     }
     let epsg = f.u32("EPSG code")?;
     let geo = [f.f64()?, f.f64()?, f.f64()?, f.f64()?];
+    if wkt == Wkt::Absent {
+        return Ok((epsg, geo, None));
+    }
     let len = f.varint()?;
     if len == 0 {
         return Ok((epsg, geo, None));
