@@ -69,6 +69,11 @@ pub struct ServeArgs {
     /// from their files record by record (`--hold-records 1`: every one).
     #[arg(long, default_value = "256M", value_name = "SIZE")]
     hold_records: crate::flags::ByteSize,
+    /// Most bytes of streamed answers (batches, file ranges) made and not yet written, over
+    /// all connections (e.g. 32M): beyond it answers wait for room, and a connection that has
+    /// held answer bytes without reading for a second is closed to make room.
+    #[arg(long, default_value = "32M", value_name = "SIZE")]
+    answer_memory: crate::flags::ByteSize,
 }
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`: startup, errors, one line per
@@ -109,6 +114,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         max_connections: args.max_connections,
         max_tile_samples: args.max_tile_samples,
         held_records_bytes: args.hold_records.0,
+        answer_memory: args.answer_memory.0,
     };
     init_logging();
     if let Some((before, after)) = cbdam_server::raise_fd_limit() {

@@ -7,6 +7,7 @@ mod util;
 mod colour;
 mod gamma_coder;
 mod golden;
+mod hostile_inputs;
 mod hostile_records;
 mod linf_bound;
 mod nodata_mask;

@@ -8,29 +8,13 @@
 //! recomputed over whatever bytes the header points at, and when the head then parses, every
 //! record's slot in the checksum table too (`reseal_checksums`, any format version). Seed with small real repositories (see
 //! `fuzz/seeds/repository_crc/README.md`; run with `cargo +nightly fuzz run repository_crc corpus/repository_crc seeds/repository_crc`).
+//!
+//! The checks live in `cbdam_codec::repository::hostile::resealed`, which the stable test
+//! `codec/tests/hostile_inputs.rs` (run by CI) also puts through the seeds and their mutants.
 #![no_main]
 
-use cbdam_codec::colour::reconstruct_rgb;
-use cbdam_codec::hierarchy::{RepoKind, walk_all_with_validity};
-use cbdam_codec::repository::{Repository, reseal_checksums};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let mut b = data.to_vec();
-    reseal_checksums(&mut b);
-    let Ok(repo) = Repository::from_bytes(b) else {
-        return;
-    };
-    let _ = repo.check_all();
-    let Ok(enc) = repo.to_encoded() else {
-        return;
-    };
-    match repo.head().params().kind {
-        RepoKind::Elevation => {
-            let _ = walk_all_with_validity(&enc, |_, _, _| {});
-        }
-        RepoKind::Colour => {
-            let _ = reconstruct_rgb(&enc);
-        }
-    }
+    let _ = cbdam_codec::repository::hostile::resealed(data);
 });

@@ -72,6 +72,9 @@ struct Slot {
     last_io: AtomicU64,
     /// Whether a request has reached the router.
     requested: AtomicBool,
+    /// Bytes of answer chunks made for this connection and not yet written
+    /// ([`crate::answer_memory`]).
+    held: AtomicU64,
     /// Told when the connection is to close to make room for another.
     evict: Notify,
 }
@@ -249,6 +252,7 @@ pub(crate) async fn serve(
             accepted: now,
             last_io: AtomicU64::new(now),
             requested: AtomicBool::new(false),
+            held: AtomicU64::new(0),
             evict: Notify::new(),
         });
         let id = {
@@ -263,7 +267,11 @@ pub(crate) async fn serve(
         });
         let svc = Svc {
             router: router.clone(),
-            slot: Arc::clone(&slot),
+            conn: ConnHandle {
+                slot: Arc::clone(&slot),
+                registry: Arc::clone(&registry),
+                clock,
+            },
         };
         let builder = Arc::clone(&builder);
         let registry = Arc::clone(&registry);
@@ -351,11 +359,58 @@ impl Limits {
     }
 }
 
-/// The router, as hyper calls it; marks the connection as having made a request.
+/// The router, as hyper calls it; marks the connection as having made a request, and hands
+/// each request its connection ([`ConnHandle`], a request extension).
 #[derive(Clone)]
 struct Svc {
     router: Router,
+    conn: ConnHandle,
+}
+
+/// A request's connection, as the answer-memory budget sees it ([`crate::answer_memory`]): it
+/// counts the answer bytes held for the connection, and can close the connection elsewhere
+/// that has held answer bytes without moving a byte the longest.
+#[derive(Clone)]
+pub(crate) struct ConnHandle {
     slot: Arc<Slot>,
+    registry: Arc<Mutex<Registry>>,
+    clock: Instant,
+}
+
+impl ConnHandle {
+    /// Counts `n` more answer bytes held for this connection.
+    pub(crate) fn hold(&self, n: u64) {
+        self.slot.held.fetch_add(n, Relaxed);
+    }
+
+    /// Counts `n` answer bytes written or dropped.
+    pub(crate) fn release(&self, n: u64) {
+        self.slot.held.fetch_sub(n, Relaxed);
+    }
+
+    /// Closes the connection, other than this one, that holds answer bytes and has moved no
+    /// byte for the longest, if that is at least `stalled`. False when there is none.
+    pub(crate) fn close_most_stalled_holder(&self, stalled: Duration) -> bool {
+        let Some(before) = self.clock.elapsed().checked_sub(stalled) else {
+            return false;
+        };
+        let before = before.as_micros() as u64;
+        let mut reg = self.registry.lock().expect("not poisoned");
+        let most_stalled = reg
+            .conns
+            .iter()
+            .filter(|(_, s)| !Arc::ptr_eq(s, &self.slot) && s.held.load(Relaxed) > 0)
+            .map(|(&id, s)| (s.last_io.load(Relaxed), id))
+            .filter(|&(last, _)| last <= before)
+            .min();
+        let Some((_, id)) = most_stalled else {
+            return false;
+        };
+        let slot = Arc::clone(&reg.conns[&id]);
+        reg.remove(id);
+        slot.evict.notify_one();
+        true
+    }
 }
 
 impl hyper::service::Service<hyper::Request<Incoming>> for Svc {
@@ -364,8 +419,9 @@ impl hyper::service::Service<hyper::Request<Incoming>> for Svc {
     type Future = axum::routing::future::RouteFuture<Infallible>;
 
     fn call(&self, req: hyper::Request<Incoming>) -> Self::Future {
-        self.slot.requested.store(true, Relaxed);
-        let req: Request = req.map(axum::body::Body::new);
+        self.conn.slot.requested.store(true, Relaxed);
+        let mut req: Request = req.map(axum::body::Body::new);
+        req.extensions_mut().insert(self.conn.clone());
         tower_service::Service::call(&mut self.router.clone(), req)
     }
 }

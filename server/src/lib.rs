@@ -47,6 +47,7 @@
 //!   changes is cut short (the connection is closed) rather than finished with other bytes.
 #![deny(missing_docs)]
 
+mod answer_memory;
 mod batch_body;
 mod conn;
 mod cors;
@@ -92,9 +93,12 @@ pub fn app(state: AppState) -> Router {
 /// - at most [`Config::max_connections`] are open at once (fewer when the file-descriptor
 ///   limit is lower): a new connection beyond it closes the least recently active one of the
 ///   client address that holds the most, so an idle flood cannot keep other clients out;
-/// - hyper buffers a bounded part of each answer (16 KiB for HTTP/1.1, 32 KiB per HTTP/2
+/// - hyper buffers a bounded part of each answer (one chunk for HTTP/1.1, 32 KiB per HTTP/2
 ///   stream, at most 32 streams a connection) and bodies are produced as it asks for them, so
-///   a client that never reads its batch answer holds tens of kilobytes, not the answer;
+///   a client that never reads its batch answer holds one chunk, not the answer;
+/// - the chunks held, over all connections, take at most [`Config::answer_memory`]: beyond it
+///   answers wait, and connections that stopped reading are closed to make room
+///   ([`answer_memory`]);
 /// - request heads are limited to 16 KiB (431 beyond).
 pub async fn run(
     listener: TcpListener,

@@ -18,6 +18,7 @@ use serde::Deserialize;
 use tower_http::timeout::TimeoutLayer;
 
 use crate::batch_body::{BatchBody, NOT_STORED};
+use crate::conn::ConnHandle;
 use crate::cors::cors_layer;
 use crate::error::ApiError;
 use crate::file_body::FileBody;
@@ -343,6 +344,7 @@ async fn batch(
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
     let cfg = st.config();
+    let conn = http.extensions().get::<ConnHandle>().cloned();
     let body = read_body(http.into_body(), cfg.max_body).await?;
     let req: BatchRequest = serde_json::from_slice(&body).map_err(|e| {
         ApiError::BadRequest(format!(
@@ -410,7 +412,7 @@ async fn batch(
             (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
         ]),
         // Streamed in answer order, most urgent first; dropped unsent if the client goes.
-        Body::new(BatchBody::new(st.clone(), Arc::clone(r), entries)),
+        Body::new(BatchBody::new(st.clone(), Arc::clone(r), entries, conn)),
     ))
 }
 
@@ -475,7 +477,12 @@ async fn file(
             range: range.start as usize..range.end as usize,
         })),
         // Read a chunk at a time as the client takes them.
-        Source::File { .. } => Body::new(FileBody::new(Arc::clone(r), range)),
+        Source::File { .. } => Body::new(FileBody::new(
+            Arc::clone(r),
+            range,
+            Arc::clone(&st.inner.answer_memory),
+            req.extensions().get::<ConnHandle>().cloned(),
+        )),
     };
     Ok(respond(status, h, body))
 }
@@ -490,6 +497,6 @@ async fn metrics(State(st): State<AppState>) -> Response {
             ),
             (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
         ]),
-        st.metrics().render(),
+        st.metrics().render() + &st.inner.answer_memory.render(),
     )
 }

@@ -13,6 +13,7 @@ use axum::http::HeaderValue;
 use bytes::Bytes;
 use cbdam_codec::repository::{Repository, Section};
 
+use crate::answer_memory::AnswerMemory;
 use crate::describe::{describe, head_len};
 use crate::error::{ApiError, ServerError};
 use crate::metrics::Metrics;
@@ -52,6 +53,11 @@ pub struct Config {
     /// are then served without a read of the file, the file's identity still checked for each
     /// request. Larger ones are read record by record ([`crate::records`]).
     pub held_records_bytes: u64,
+    /// Most bytes of streamed answers (batches, file ranges) made and not yet written, over
+    /// all connections (`--answer-memory`): a body waits for room beyond it, and a connection
+    /// that has held answer bytes without reading for a second is closed to make room
+    /// ([`crate::answer_memory`]).
+    pub answer_memory: u64,
 }
 
 impl Default for Config {
@@ -67,6 +73,7 @@ impl Default for Config {
             max_connections: 10_000,
             max_tile_samples: 1 << 28,
             held_records_bytes: 256 << 20,
+            answer_memory: 32 << 20,
         }
     }
 }
@@ -403,6 +410,8 @@ pub(crate) struct Inner {
     pub(crate) index: Bytes,
     pub(crate) config: Config,
     pub(crate) metrics: Metrics,
+    /// The budget of answer bytes held ([`Config::answer_memory`]).
+    pub(crate) answer_memory: Arc<AnswerMemory>,
 }
 
 impl AppState {
@@ -468,6 +477,7 @@ impl AppState {
                 names,
                 listing,
                 index,
+                answer_memory: Arc::new(AnswerMemory::new(config.answer_memory)),
                 config,
                 metrics: Metrics::default(),
             }),

@@ -5,6 +5,10 @@
 mod util;
 
 // Child processes with their own limits, measured through /proc.
+#[cfg(target_os = "linux")]
+mod answer_memory;
+#[cfg(target_os = "linux")]
+mod child;
 mod file_reads;
 #[cfg(target_os = "linux")]
 mod hostile;

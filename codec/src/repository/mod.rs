@@ -9,6 +9,8 @@ pub mod batch;
 pub mod container;
 mod georef;
 mod header;
+#[doc(hidden)]
+pub mod hostile;
 pub mod index;
 mod level_grid;
 
