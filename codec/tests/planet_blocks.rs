@@ -195,7 +195,7 @@ impl PlanetTiles for Counting<'_> {
         if min == 0 {
             *self.fine_tiles.lock().unwrap() += 1;
         }
-        self.planet.tile(face, index, min)
+        PlanetTiles::tile(self.planet, face, index, min)
     }
 }
 

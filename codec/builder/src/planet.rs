@@ -332,10 +332,9 @@ pub(crate) fn input_resampling(
                 // other face's on shared points.
                 // The four corners lie in the tile of the first but where the cell
                 // crosses a tile's side.
-                let tiles = planet.tiles(face);
                 let winners = &resampled.winners[usize::from(face)];
                 let first = planet.tile_index(x0 * step, y0 * step);
-                let (_, _, tx1, ty1) = tiles[first].rect;
+                let (_, _, tx1, ty1) = planet.tile(face, first).rect;
                 let one_tile = (x0 + 1) * step <= tx1 && (y0 + 1) * step <= ty1;
                 let corner = |dx: i64, dy: i64| {
                     let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
@@ -344,7 +343,7 @@ pub(crate) fn input_resampling(
                     } else {
                         planet.tile_index(px, py)
                     };
-                    let t = &tiles[i];
+                    let t = planet.tile(face, i);
                     let k = t.index(px, py)?;
                     (winners[i][k] == me && t.grid.valid[k]).then(|| plan.metres(t.grid.values[k]))
                 };

@@ -213,7 +213,8 @@ pub fn encode_planet_in_blocks(
     let cut = cut.min(domain.finest_level());
     let apex = Apex::encode(outline, tiles, &params, &sets.stored, &sets.recorded, cut)?;
     let side = domain.cube().expect("a cube-sphere").side();
-    let per_face = PlanetGrid::tile_rects(&domain, outline.tile_log2).len();
+    let rects = PlanetGrid::tile_rects(&domain, outline.tile_log2);
+    let per_face = rects.len();
     let mut kept = KeptRecords::new(spill)?;
     kept.extend(apex.records.clone())?;
     let mut own_error: HashMap<DiamondId, u32> = apex.grids.keys().map(|&id| (id, 0)).collect();
@@ -226,6 +227,7 @@ pub fn encode_planet_in_blocks(
         apex: &apex,
         cut,
         side,
+        rects,
     };
     for index in 0..usize::from(domain.faces()) * per_face {
         let output = match journal.load(index)? {
@@ -379,6 +381,8 @@ struct BlockEncode<'a> {
     apex: &'a Apex,
     cut: u8,
     side: i64,
+    /// The tiles' rectangles on every face.
+    rects: Vec<(i64, i64, i64, i64)>,
 }
 
 impl BlockEncode<'_> {
@@ -386,7 +390,7 @@ impl BlockEncode<'_> {
     fn encode(&self, face: u8, index: usize) -> Result<BlockOutput, CodecError> {
         let domain = &self.params.domain;
         let finest = domain.finest_level();
-        let rect = PlanetGrid::tile_rects(domain, self.outline.tile_log2)[index];
+        let rect = self.rects[index];
         let owns = |id: &DiamondId| id.face == face && owned_by(rect, self.side, id);
         let needed = self.needed(face, &owns);
         let mut wanted: BTreeSet<(u8, usize)> = BTreeSet::from([(face, index)]);

@@ -159,6 +159,9 @@ pub struct PlanetGrid {
     tiles_across: usize,
     faces: Vec<Vec<Arc<PlanetTile>>>,
     variable: bool,
+    /// A partial planet ([`PlanetGrid::partial`]): its tiles by face and index, and the empty
+    /// tile read everywhere else (`faces` then holds no tile).
+    sparse: Option<Arc<(HashMap<(u8, usize), Arc<PlanetTile>>, Arc<PlanetTile>)>>,
 }
 
 impl PlanetGrid {
@@ -236,6 +239,7 @@ impl PlanetGrid {
             tiles_across: tiles_across(side, tile_log2),
             faces,
             variable: false,
+            sparse: None,
         })
     }
 
@@ -299,6 +303,7 @@ impl PlanetGrid {
             tiles_across: tiles_across(side, tile_log2),
             faces,
             variable,
+            sparse: None,
         })
     }
 
@@ -328,9 +333,8 @@ impl PlanetGrid {
             },
             variable.then(|| vec![HOLE]),
         )?);
-        let mut faces = vec![vec![absent; rects.len()]; usize::from(domain.faces())];
-        for ((f, i), t) in held {
-            let Some(r) = rects.get(i).filter(|_| usize::from(f) < faces.len()) else {
+        for (&(f, i), t) in &held {
+            let Some(r) = rects.get(i).filter(|_| f < domain.faces()) else {
                 return Err(CodecError::invalid(format!(
                     "face {f} tile {i}: the planet has 6 faces of {} tiles",
                     rects.len()
@@ -342,14 +346,14 @@ impl PlanetGrid {
                     t.rect, t.stride
                 )));
             }
-            faces[usize::from(f)][i] = t;
         }
         Ok(Self {
             domain,
             tile_log2,
             tiles_across: tiles_across(side, tile_log2),
-            faces,
+            faces: vec![Vec::new(); usize::from(domain.faces())],
             variable,
+            sparse: Some(Arc::new((held, absent))),
         })
     }
 
@@ -476,6 +480,18 @@ impl PlanetGrid {
         &self.faces[usize::from(face)]
     }
 
+    /// Tile `index` of face `face` (on a partial planet, an empty tile where none is held).
+    ///
+    /// # Panics
+    /// If there is no such tile.
+    #[inline]
+    pub fn tile(&self, face: u8, index: usize) -> &Arc<PlanetTile> {
+        match &self.sparse {
+            None => &self.faces[usize::from(face)][index],
+            Some(sparse) => sparse.0.get(&(face, index)).unwrap_or(&sparse.1),
+        }
+    }
+
     /// `log2` of the tiles' side in lattice steps.
     pub fn tile_log2(&self) -> u32 {
         self.tile_log2
@@ -503,7 +519,7 @@ impl PlanetGrid {
     /// S`) among the points that tile holds; `None` between its points.
     #[inline]
     pub fn held(&self, face: u8, x: i64, y: i64) -> Option<(&PlanetTile, usize)> {
-        let t: &PlanetTile = &self.faces[usize::from(face)][self.tile_index(x, y)];
+        let t: &PlanetTile = self.tile(face, self.tile_index(x, y));
         t.index(x, y).map(|k| (t, k))
     }
 
@@ -562,7 +578,7 @@ impl PlanetGrid {
     #[inline]
     pub fn drawn(&self, face: u8, x: i64, y: i64) -> Option<bool> {
         let c = self.domain.canonical_point(face, x, y)?;
-        let t = &self.faces[usize::from(c.face)][self.tile_index(c.x, c.y)];
+        let t = self.tile(c.face, self.tile_index(c.x, c.y));
         if let Some(k) = t.index(c.x, c.y) {
             return Some(t.drawn_at(k));
         }
@@ -637,9 +653,12 @@ impl PlanetGrid {
             })
             .collect();
         Self {
+            domain: self.domain,
+            tile_log2: self.tile_log2,
+            tiles_across: self.tiles_across,
             faces,
             variable: false,
-            ..*self
+            sparse: self.sparse.clone(),
         }
     }
 

@@ -162,7 +162,7 @@ fn refine_diamond(
     let side = domain.cube().expect("a cube-sphere").side();
     let drawn = |x, y| planet.drawn(id.face, x, y);
     let (x0, y0, x1, y1) = domain.layout().bounds(id);
-    let tile = &planet.tiles(id.face)[planet.tile_index(x0.max(0), y0.max(0))];
+    let tile = planet.tile(id.face, planet.tile_index(x0.max(0), y0.max(0)));
     let (tx0, ty0, tx1, ty1) = tile.rect;
     let inside = 0 < x0.min(y0) && x1.max(y1) < side;
     let r = if inside
@@ -324,10 +324,9 @@ impl<'a> TiledError<'a> {
         let layout = planet.domain().layout();
         let finest = layout.finest_level();
         let bounds = layout.bounds(id);
-        let tiles = planet.tiles(id.face);
         let p_abs = grid_abs(p);
         let one = |i: usize| -> u32 {
-            let t = &tiles[i];
+            let t = planet.tile(id.face, i);
             let (max_abs, all_valid) = t.bounds();
             // The coarsest spacing, in lattice steps, at which the diamond's grid lies on
             // lattice points: its level's finest.
