@@ -174,19 +174,26 @@ impl PlanetOutline {
 }
 
 /// The deepest cut [`default_cut`] takes: a block's tile this many of the cut level's radii
-/// across (the blocks' margins, the ancestors of the diamonds they own, about 4 radii each
+/// across (the blocks' margins, the ancestors of the diamonds they own, about 2 radii each
 /// side), as for planar blocks ([`crate::hierarchy::BlockPlan`]).
 const TILE_IN_CUT_RADII: i64 = 32;
 
+/// The apex reads the lattice at least `2^APEX_MIN_SHIFT` steps apart (a 64th of the points at
+/// most), so that it stays small beside the blocks.
+const APEX_MIN_SHIFT: u32 = 3;
+
 /// The cut level for tiles of `2^tile_log2` steps: the deepest level whose radius fits
-/// [`TILE_IN_CUT_RADII`] times in a tile, two levels above the finest at most.
+/// [`TILE_IN_CUT_RADII`] times in a tile, two levels above the finest at most, and no deeper
+/// than lets the apex read every `2^`[`APEX_MIN_SHIFT`]-th point.
 pub fn default_cut(domain: &Domain, tile_log2: u32) -> u8 {
     let layout = domain.layout();
     let finest = layout.finest_level();
+    let apex = 2 * layout.k().saturating_sub(APEX_MIN_SHIFT);
     (0..=finest)
         .find(|&l| layout.radius(l) * TILE_IN_CUT_RADII <= 1i64 << tile_log2)
         .unwrap_or(finest)
         .min(finest.saturating_sub(2))
+        .min(u8::try_from(apex).unwrap_or(u8::MAX))
 }
 
 /// Encodes the planet that `outline` outlines and `tiles` hands out, block by block (see the
