@@ -135,6 +135,9 @@ impl PlanetTile {
     }
 }
 
+/// The tiles of a partial planet by face and index, and the empty tile read everywhere else.
+type SparseTiles = (HashMap<(u8, usize), Arc<PlanetTile>>, Arc<PlanetTile>);
+
 /// Integer heights (and validity) at the lattice points of the six faces of a cube-sphere
 /// (`Domain::cube_sphere(n, k)`), `S = (N − 1)·2^K` steps per face side, in square tiles of
 /// `2^tile_log2(S)` steps ([`PlanetTile`]). A tile holds every point where some input is as
@@ -161,7 +164,7 @@ pub struct PlanetGrid {
     variable: bool,
     /// A partial planet ([`PlanetGrid::partial`]): its tiles by face and index, and the empty
     /// tile read everywhere else (`faces` then holds no tile).
-    sparse: Option<Arc<(HashMap<(u8, usize), Arc<PlanetTile>>, Arc<PlanetTile>)>>,
+    sparse: Option<Arc<SparseTiles>>,
 }
 
 impl PlanetGrid {
