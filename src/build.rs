@@ -322,11 +322,11 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
             100.0 * s.held_points as f64 / s.lattice_points as f64
         );
     }
-    if s.capped {
+    if s.level_pairs < s.finest_input_level_pairs {
         println!(
-            "  the memory limit capped the lattice: the finest input is finer than {:.4}°, its \
-             samples are area-averaged (--memory-limit or --planet-level to change)",
-            s.lattice_deg
+            "  --planet-level {} is coarser than the finest input asks (K = {}): its samples are \
+             area-averaged on a {:.4}° lattice",
+            s.level_pairs, s.finest_input_level_pairs, s.lattice_deg
         );
     }
     for r in &s.resampling {

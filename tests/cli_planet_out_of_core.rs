@@ -132,6 +132,85 @@ fn a_planet_of_many_tiles_peaks_at_the_same_memory_as_one_of_few() {
     );
 }
 
+/// A planet whose lattice's tiles hold several times `--memory-limit` (at 8 bytes a point:
+/// height, validity, class and winning input, what holding them costs at the least) builds at
+/// its finest input's level, K = 11 for 3″, with the build's peak resident memory (the child's
+/// own `ru_maxrss`) within half over the limit: 36 small 3″ insets a degree apart, each making
+/// the lattice tiles around it hold every point. Measured: 45.6 M points held (348 MiB at 8 B,
+/// 3.6× the limit), peak 131.5 MiB under `--memory-limit 96M` — the issue's 10× and "about the
+/// limit" are not reached: each block holds its tile and its neighbours whole (≈ 55 MB).
+/// Ignored in CI: about 3 minutes on 2 loaded cores (`--ignored` runs it).
+#[test]
+#[ignore = "about 3 minutes; run with --ignored"]
+fn a_planet_lattice_several_times_the_memory_limit_builds_at_its_inputs_level() {
+    use cbdam_builder::write::{Raster, write_geotiff};
+    use cbdam_codec::repository::GeoRef;
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("insets");
+    std::fs::create_dir_all(&d).unwrap();
+    let pixel = 1.0 / 1200.0;
+    for (lat, lon) in block(6, 6) {
+        let (lat0, lon0) = (f64::from(lat) + 0.5, f64::from(lon) + 0.5);
+        let r = Raster {
+            width: 8,
+            height: 8,
+            values: (0..64)
+                .map(|i| {
+                    let (c, r) = ((i % 8) as f64, (i / 8) as f64);
+                    f64::from(height(lat0 - r * pixel, lon0 + c * pixel))
+                })
+                .collect(),
+            georef: Some(GeoRef {
+                epsg: Some(4326),
+                origin_x: lon0,
+                origin_y: lat0,
+                pixel_x: pixel,
+                pixel_y: pixel,
+                pixel_is_area: false,
+                wkt: None,
+            }),
+        };
+        let f = std::fs::File::create(d.join(format!("i{lat}_{lon}.tif"))).unwrap();
+        write_geotiff(f, &r, Some(f64::from(i16::MIN)), false).unwrap();
+    }
+    let limit: u64 = 96 << 20;
+    let out = tmp.path().join("p.cbdam");
+    let (dir, out_s) = (s(&d), s(&out));
+    let o = std::process::Command::new("/usr/bin/time")
+        .args(["-f", "peak-rss-kib %M", env!("CARGO_BIN_EXE_cbdam")])
+        .args(["build", &dir, "--planet", "-o", &out_s, "--max-error", "2"])
+        .args(["--memory-limit", "96M"])
+        .output()
+        .expect("run /usr/bin/time (GNU time)");
+    let (text, err) = (
+        String::from_utf8_lossy(&o.stdout).to_string(),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    );
+    assert!(o.status.success(), "{err}");
+    assert!(text.contains("K = 11"), "{text}");
+    let number_after = |s: &str, key: &str| -> u64 {
+        let at = s.find(key).unwrap_or_else(|| panic!("no {key:?} in {s}")) + key.len();
+        let digits: String = s[at..].chars().take_while(char::is_ascii_digit).collect();
+        digits.parse().unwrap()
+    };
+    let rss = number_after(&err, "peak-rss-kib ") * 1024;
+    let held = number_after(&text, "the build held ");
+    let mib = |b: u64| b as f64 / f64::from(1 << 20);
+    eprintln!(
+        "{held} lattice points held ({:.0} MiB at 8 B), peak RSS {:.1} MiB, limit {:.0} MiB",
+        mib(8 * held),
+        mib(rss),
+        mib(limit)
+    );
+    assert!(8 * held >= 3 * limit, "only {held} lattice points held");
+    assert!(
+        rss <= limit + limit / 2,
+        "peak RSS {:.1} MiB over the {:.0} MiB limit",
+        mib(rss),
+        mib(limit)
+    );
+}
+
 /// A tile cut short is refused by name, and nothing is left at `-o`.
 #[test]
 fn a_truncated_tile_is_named() {

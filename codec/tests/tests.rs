@@ -14,6 +14,7 @@ mod nodata_mask;
 mod numerical_stress;
 mod older_formats;
 mod parallel_decode;
+mod planet_blocks;
 mod planet_codec;
 mod planet_domain;
 mod real_dems;

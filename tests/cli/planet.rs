@@ -234,23 +234,20 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
     refused(&o, &["lambert.tif", "EPSG:2154", "UTM"]);
     assert!(!out.exists());
 
-    // A lattice over the memory limit is refused before anything is allocated: the 2° grid
-    // alone on a K = 9 lattice holds every 512th point (3 × 3 in each of 6 · 32² tiles, about
-    // 1.3 MB at 24 B a point).
+    // A lattice finer than the level pairs a planet has is refused by name (the memory limit
+    // does not bound the lattice: it is encoded block by block).
     let o = cbdam(&[
         "build",
         &s(&global),
         "--planet",
         "--planet-level",
-        "9",
-        "--memory-limit",
-        "1M",
+        "17",
         "-o",
         &s(&out),
         "--max-error",
         "1",
     ]);
-    refused(&o, &["memory limit"]);
+    refused(&o, &["--planet-level 17", "at most 16"]);
     assert!(!out.exists());
 }
 
@@ -554,13 +551,19 @@ fn a_fine_inset_builds_at_its_own_lattice_holding_only_the_points_around_it() {
         pieces.records.len()
     );
 
-    // Below what the tiles need, the lattice is capped (and says so), not refused.
+    // Far below what the lattice's tiles hold, the lattice keeps the finest input's level (it
+    // is encoded block by block) and the repository its bytes.
+    let bytes = std::fs::read(&out).unwrap();
     let o = build("16M");
     assert!(o.status.success(), "{}", stderr(&o));
     let text = stdout(&o);
     assert!(
-        text.contains("capped") && !text.contains("K = 11"),
+        text.contains("K = 11") && !text.contains("--planet-level"),
         "{text}"
+    );
+    assert!(
+        std::fs::read(&out).unwrap() == bytes,
+        "16M built other bytes"
     );
 }
 
@@ -688,4 +691,117 @@ fn bounds_and_crs_place_an_ungeoreferenced_planet_input() {
     let o = build(&[&global, &bare, &bare2], &flags, &out);
     refused(&o, &["bare.tif", "bare2.tif"]);
     assert!(!out.exists());
+}
+
+/// `cbdam build --planet` encodes the lattice block by block, resampling each tile as a block
+/// asks for it, under any memory limit: its repository is byte for byte the one the whole
+/// lattice — resampled at once, encoded whole, its resampling error measured over it — writes,
+/// with insets astride a cube edge (with a void) and on a cube corner over a global grid.
+#[test]
+fn a_planet_built_block_by_block_is_the_planet_encoded_whole() {
+    use cbdam_builder::planet::{PlanetInputs, provenance_of, resample, resampling_error};
+    use cbdam_codec::hierarchy::{EncodeOptions, encode_planet};
+    use cbdam_codec::quant::QuantPlan;
+    use cbdam_codec::repository::write_planet_repository;
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    // The global grid with a void (nodata) over 60° … 70° N, 100° … 120° E.
+    let global = d.join("global.tif");
+    let r = Raster {
+        width: 180,
+        height: 91,
+        values: (0..180 * 91)
+            .map(|i| {
+                let (lat, lon) = (90.0 - 2.0 * (i / 180) as f64, 2.0 * (i % 180) as f64);
+                if (60.0..=70.0).contains(&lat) && (100.0..=120.0).contains(&lon) {
+                    -9999.0
+                } else {
+                    relief(LatLon { lat, lon })
+                }
+            })
+            .collect(),
+        georef: Some(geographic((0.0, 90.0), 2.0)),
+    };
+    write_geotiff(
+        std::fs::File::create(&global).unwrap(),
+        &r,
+        Some(-9999.0),
+        false,
+    )
+    .unwrap();
+    // Astride the edge between the faces centred on 0° E and 90° E (45° E on the equator),
+    // with a void of 5 × 5 samples.
+    let edge = d.join("edge.tif");
+    let r = Raster {
+        width: 21,
+        height: 21,
+        values: (0..21 * 21)
+            .map(|i| {
+                let (c, r) = (i % 21, i / 21);
+                if (8..13).contains(&c) && (3..8).contains(&r) {
+                    -9999.0
+                } else {
+                    relief(LatLon {
+                        lat: 0.05 - 0.005 * r as f64,
+                        lon: 44.95 + 0.005 * c as f64,
+                    })
+                }
+            })
+            .collect(),
+        georef: Some(geographic((44.95, 0.05), 0.005)),
+    };
+    write_geotiff(
+        std::fs::File::create(&edge).unwrap(),
+        &r,
+        Some(-9999.0),
+        false,
+    )
+    .unwrap();
+    let corner = d.join("corner.tif");
+    let (lat0, lon0) = (35.446 + 0.05, 45.0 - 0.05);
+    write(
+        &corner,
+        (21, 21),
+        geographic((lon0, lat0), 0.005),
+        |c, r| {
+            relief(LatLon {
+                lat: lat0 - 0.005 * r as f64,
+                lon: lon0 + 0.005 * c as f64,
+            }) + 10.0 * ((c * 7 + r * 3) % 5) as f64
+        },
+    );
+    let paths = [global, edge, corner];
+    let out = d.join("planet.cbdam");
+    let mut args: Vec<String> = vec!["build".into()];
+    args.extend(paths.iter().map(|p| s(p)));
+    for a in ["--planet", "--diamond-size", "17", "--max-error", "1"] {
+        args.push(a.into());
+    }
+    args.extend(["--memory-limit".into(), "16M".into(), "-o".into(), s(&out)]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = cbdam(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("K = 11"), "{}", stdout(&o));
+
+    let tiles = cbdam_builder::tiles::expand_inputs(&paths).unwrap();
+    let inputs = PlanetInputs::read(&tiles, None, None, u64::MAX).unwrap();
+    let (lo, hi) = inputs.range().unwrap().unwrap();
+    let plan = QuantPlan::new(1.0, None, lo, hi).unwrap();
+    let resampled = resample(&inputs, 17, 11, &plan).unwrap();
+    assert!(resampled.planet.has_nodata());
+    let opts = EncodeOptions {
+        n: 17,
+        ..EncodeOptions::default()
+    };
+    let encoded = encode_planet(&resampled.planet, plan.quantizer, &opts).unwrap();
+    let provenance = provenance_of(&resampling_error(&inputs, &resampled, &plan).unwrap());
+    let whole = d.join("whole.cbdam");
+    write_planet_repository(&whole, &encoded, &plan, None, &provenance).unwrap();
+    let (a, b) = (std::fs::read(&whole).unwrap(), std::fs::read(&out).unwrap());
+    assert!(
+        a == b,
+        "block by block {} bytes, whole {} bytes",
+        b.len(),
+        a.len()
+    );
 }

@@ -23,6 +23,7 @@ pub mod mosaic;
 pub mod plan;
 pub mod planet;
 mod planet_input;
+pub mod planet_lattice;
 pub mod progress;
 pub mod rms;
 pub mod shard;

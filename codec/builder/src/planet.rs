@@ -22,27 +22,20 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::assign::AssignedGeoRef;
-use crate::error::{BuildError, Context, Result, bail};
-use crate::planet_input::{Frame, PointSource};
+use crate::error::{Context, Result, bail};
+use crate::planet_input::Frame;
 pub use crate::planet_input::{GEOGRAPHIC_EPSG, MAX_PLANET_INPUTS, PlanetInput, PlanetInputs};
+use crate::planet_lattice::{Resampler, encode_out_of_core};
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
-use cbdam_codec::geodesy::cube_map::{FaceLattice, lat_lon_to_face_st, sin_cos_to_face_st};
-use cbdam_codec::geodesy::{LatLon, lattice_lat_lon};
+use cbdam_codec::geodesy::LatLon;
+use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::planet::{tile_log2, tile_of};
-use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
-use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, PlanetTile, encode_planet};
+use cbdam_codec::hierarchy::{EncodeOptions, NoJournal, PlanetGrid, PlanetTile};
 use cbdam_codec::lifting::Alpha;
-use cbdam_codec::quant::{HeightGrid, QuantPlan};
+use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
-
-/// Bytes the planet build holds per lattice point its tiles hold ([`PlanetGrid`]), measured on
-/// the ETOPO5 planet with margin (`/usr/bin/time -v cbdam build data/etopo5_global.tif --planet
-/// --max-error 16`: 482 MB peak for 25.2 M points, 19.6 B a point): the tiles (6 B with
-/// classes), the resampling winners (2 B) and the encoder's per-diamond refinements of two
-/// levels.
-pub const BYTES_PER_LATTICE_POINT: u64 = 24;
 
 /// `log2` of the stride at which an input of ground spacing `input_deg` samples a lattice of
 /// spacing `lattice_deg` with `k` level pairs: the largest `j ≤ k` with `2^j` lattice steps no
@@ -62,65 +55,21 @@ pub fn lattice_spacing_deg(n: usize, k: u32) -> f64 {
     90.0 / ((n as f64 - 1.0) * f64::from(1u32 << k))
 }
 
-/// The lattice's level pairs `K`: the given one, or the coarsest at least as fine as the finest
-/// input; in both cases refused if the build would need more than `memory_limit` bytes
-/// ([`BYTES_PER_LATTICE_POINT`] per point its tiles hold, [`plan_tiles`]).
-pub fn choose_level(
-    inputs: &PlanetInputs,
-    n: usize,
-    forced: Option<u32>,
-    memory_limit: u64,
-) -> Result<u32> {
+/// The lattice's level pairs `K`: the given one (`--planet-level`, at most 16), or the
+/// coarsest at least as fine as the finest input. The lattice is encoded out of core
+/// ([`crate::planet_lattice`]), so the memory limit does not coarsen it.
+pub fn choose_level(inputs: &PlanetInputs, n: usize, forced: Option<u32>) -> Result<u32> {
     const MAX_K: u32 = 16;
-    let need = |k: u32| -> Result<u64> {
-        Ok(held_points(n, k, &plan_tiles(inputs, n, k)?.strides)? * BYTES_PER_LATTICE_POINT)
-    };
     if let Some(k) = forced {
         if k > MAX_K {
             bail!("--planet-level {k}: at most {MAX_K}");
         }
-        let need = need(k)?;
-        if need > memory_limit {
-            bail!(
-                "--planet-level {k} ({:.3}° lattice) needs about {} MiB, over the memory limit \
-                 of {} MiB",
-                lattice_spacing_deg(n, k),
-                need >> 20,
-                memory_limit >> 20
-            );
-        }
         return Ok(k);
     }
     let finest = inputs.finest_deg();
-    let wanted = (0..=MAX_K)
+    Ok((0..=MAX_K)
         .find(|&k| lattice_spacing_deg(n, k) <= finest * (1.0 + 1e-9))
-        .unwrap_or(MAX_K);
-    for k in (0..=wanted).rev() {
-        if need(k)? <= memory_limit {
-            return Ok(k);
-        }
-    }
-    bail!(
-        "even the coarsest planet lattice needs about {} MiB, over the memory limit of {} MiB",
-        need(0)? >> 20,
-        memory_limit >> 20
-    )
-}
-
-/// The points the tiles of an `n`, `k` planet hold under `plan` (per face, per tile, `log2` of
-/// the stride).
-fn held_points(n: usize, k: u32, plan: &[Vec<u32>]) -> Result<u64> {
-    let domain = Domain::cube_sphere(n, k)?;
-    let side = domain.cube().expect("a cube-sphere").side();
-    let rects = PlanetGrid::tile_rects(&domain, tile_log2(side));
-    Ok(plan
-        .iter()
-        .flat_map(|strides| {
-            strides.iter().zip(&rects).map(|(&s, &(x0, y0, x1, y1))| {
-                (((x1 - x0) >> s) as u64 + 1) * (((y1 - y0) >> s) as u64 + 1)
-            })
-        })
-        .sum())
+        .unwrap_or(MAX_K))
 }
 
 /// An input that can cover part of a lattice tile: its index, and the rectangle of the tile
@@ -266,121 +215,18 @@ pub struct Resampled {
 /// Resamples the inputs onto the `N`, `K` cube-sphere (see the module documentation): the
 /// finest input covering a point gives its height where the point lies on that input's
 /// stride ([`input_stride`]), and makes it coarse only between. Tile by tile, each at the
-/// stride [`plan_tiles`] gives it.
+/// stride [`plan_tiles`] gives it (denser where a point took a finer input's sample), the whole
+/// lattice held: for checking a repository ([`compare_planet`]); a build resamples each tile as
+/// a block of the encode asks for it ([`crate::planet_lattice`]).
 pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Result<Resampled> {
-    let domain = Domain::cube_sphere(n, k)?;
-    let side = domain.cube().expect("a cube-sphere").side();
-    let lattice_deg = lattice_spacing_deg(n, k);
-    let strides = inputs.strides(n, k);
-    let variable = strides.iter().any(|&j| j > 0);
-    let TilePlan {
-        strides: tile_strides,
-        candidates,
-    } = plan_tiles(inputs, n, k)?;
-    let rects = PlanetGrid::tile_rects(&domain, tile_log2(side));
-    let lattices: Vec<FaceLattice> = (0..domain.faces())
-        .map(|face| FaceLattice::new(face, side))
-        .collect();
-    // One tile's points at stride 2^s: heights, validity, classes and winners. The inputs
-    // that can cover the tile paint it finest first, each over its own rectangle, each point
-    // taking the first that covers it.
-    let evaluate = |face: u8, tile: usize, rect: (i64, i64, i64, i64), s: u32| {
-        let (x0, y0, x1, y1) = rect;
-        let (w, h) = (((x1 - x0) >> s) as usize + 1, ((y1 - y0) >> s) as usize + 1);
-        let lattice = &lattices[usize::from(face)];
-        let mut values = vec![0; w * h];
-        let mut valid = vec![false; w * h];
-        let mut won = vec![u16::MAX; w * h];
-        let mut class = vec![HOLE; w * h];
-        let mut done = vec![false; w * h];
-        let step = 1i64 << s;
-        for &(input, reach) in &candidates[usize::from(face)][tile] {
-            // The tile's points (on its stride) in the input's rectangle.
-            let (rx0, ry0, rx1, ry1) = reach.unwrap_or(rect);
-            let first = |lo: i64, o: i64| ((lo.max(o) - o + step - 1) / step) as usize;
-            let last = |hi: i64, o: i64, n: usize| (((hi - o) / step) as usize).min(n - 1);
-            if rx1 < x0 || ry1 < y0 || rx0 > x1 || ry0 > y1 {
-                continue;
-            }
-            let (c0, c1) = (first(rx0, x0), last(rx1, x0, w));
-            let (r0, r1) = (first(ry0, y0), last(ry1, y0, h));
-            if c0 > c1 || r0 > r1 {
-                continue;
-            }
-            // Read (or found in the cache) only now, and let go when the tile is painted.
-            let samples = inputs.samples(usize::from(input))?;
-            let rows = (r0 * w)..((r1 + 1) * w);
-            values[rows.clone()]
-                .par_chunks_mut(w)
-                .zip(valid[rows.clone()].par_chunks_mut(w))
-                .zip(won[rows.clone()].par_chunks_mut(w))
-                .zip(class[rows.clone()].par_chunks_mut(w))
-                .zip(done[rows].par_chunks_mut(w))
-                .enumerate()
-                .for_each(|(row, ((((values, valid), won), class), done))| {
-                    let y = y0 + (((r0 + row) as i64) << s);
-                    for i in c0..=c1 {
-                        if done[i] {
-                            continue;
-                        }
-                        let x = x0 + ((i as i64) << s);
-                        // Interior points are their own canonical point; edge and corner
-                        // points are computed from their owner, so every face holding one sees
-                        // the same bits.
-                        let ll = if 0 < x && x < side && 0 < y && y < side {
-                            lattice.lat_lon(x as usize, y as usize)
-                        } else {
-                            lattice_lat_lon(&domain, face, x, y).expect("a point of the face")
-                        };
-                        match inputs.source_of(&samples, input, ll, (x, y), lattice_deg, &strides) {
-                            Some(PointSource::Sample(v, wi, j)) => {
-                                if let Some(u) = plan.to_units(v).ok().flatten() {
-                                    values[i] = u;
-                                    valid[i] = true;
-                                    won[i] = wi;
-                                    class[i] = j;
-                                }
-                                done[i] = true;
-                            }
-                            Some(PointSource::CoarseOnly(wi)) => {
-                                won[i] = wi;
-                                class[i] = COARSE_ONLY;
-                                done[i] = true;
-                            }
-                            None => {}
-                        }
-                    }
-                });
-        }
-        let finest = class.iter().copied().filter(|&c| c < 32).min();
-        Ok::<_, BuildError>((values, valid, won, class, finest))
-    };
+    let resampler = Resampler::new(inputs, n, k, plan)?;
+    let domain = *resampler.domain();
+    let per_face = PlanetGrid::tile_rects(&domain, resampler.tile_log2()).len();
     let faces: Vec<Vec<(PlanetTile, Vec<u16>)>> = (0..domain.faces())
         .map(|face| {
-            rects
-                .par_iter()
-                .zip(&tile_strides[usize::from(face)])
-                .enumerate()
-                .map(|(i, (&rect, &planned))| {
-                    let mut s = planned;
-                    let mut tile = evaluate(face, i, rect, s)?;
-                    // A point that took a finer input's sample than planned: the tile holds
-                    // every point of that input's stride.
-                    if let Some(j) = tile.4.filter(|&j| u32::from(j) < s) {
-                        s = u32::from(j);
-                        tile = evaluate(face, i, rect, s)?;
-                    }
-                    let (values, valid, won, class, _) = tile;
-                    let (x0, y0, x1, y1) = rect;
-                    let grid = HeightGrid {
-                        width: ((x1 - x0) >> s) as usize + 1,
-                        height: ((y1 - y0) >> s) as usize + 1,
-                        values: values.into(),
-                        valid: valid.into(),
-                    };
-                    let tile = PlanetTile::new(s, rect, grid, variable.then_some(class))?;
-                    Ok((tile, won))
-                })
+            (0..per_face)
+                .into_par_iter()
+                .map(|i| resampler.final_tile(face, i))
                 .collect::<Result<Vec<_>>>()
         })
         .collect::<Result<Vec<_>>>()?;
@@ -391,11 +237,12 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
         tiles.push(t);
         winners.push(w);
     }
-    let planet = PlanetGrid::from_tiles(n, k, tile_log2(side), tiles, variable)?;
+    let variable = resampler.is_variable();
+    let planet = PlanetGrid::from_tiles(n, k, resampler.tile_log2(), tiles, variable)?;
     Ok(Resampled {
         planet,
         winners,
-        strides,
+        strides: resampler.input_strides().to_vec(),
     })
 }
 
@@ -427,115 +274,120 @@ pub fn resampling_error(
     resampled: &Resampled,
     plan: &QuantPlan,
 ) -> Result<Vec<InputResampling>> {
+    (0..inputs.inputs.len())
+        .map(|i| input_resampling(inputs, i, resampled, plan))
+        .collect()
+}
+
+/// Input `i`'s samples against the bilinear interpolant of the resampled lattice: only the
+/// lattice points that took their height from it are read (`resampled` may hold only the
+/// tiles it can cover).
+pub(crate) fn input_resampling(
+    inputs: &PlanetInputs,
+    i: usize,
+    resampled: &Resampled,
+    plan: &QuantPlan,
+) -> Result<InputResampling> {
     let planet = &resampled.planet;
     let side = planet.domain().cube().expect("a cube-sphere").side();
-    inputs
-        .inputs
-        .iter()
-        .enumerate()
-        .map(|(i, input)| {
-            let me = u16::try_from(i).unwrap_or(u16::MAX);
-            let samples = inputs.samples(i)?;
-            // The input's samples are the lattice points on its stride: the surface drawn
-            // where it is the finest data interpolates those.
-            let step = 1i64 << resampled.strides[i];
-            // On a latitude/longitude grid the longitude's sine and cosine depend on the
-            // column only (the latitude's on the row): computed once each.
-            let columns: Option<Vec<(f64, f64)>> = match input.frame {
-                Frame::Geographic { .. } => Some(
-                    (0..input.width)
-                        .map(|c| input.lat_lon_of(c, 0).lon.to_radians().sin_cos())
-                        .collect(),
-                ),
-                Frame::Projected { .. } => None,
-            };
-            let (samples, compared, max, sum2, worst_at) = (0..input.height)
-                .into_par_iter()
-                .map(|r| {
-                    let mut acc = (0u64, 0u64, 0f64, 0f64, None);
-                    let row = input.lat_lon_of(0, r).lat.to_radians().sin_cos();
-                    for c in 0..input.width {
-                        let Some(v) = input.sample(&samples, c, r) else {
-                            continue;
-                        };
-                        acc.0 += 1;
-                        let (face, s, t) = match &columns {
-                            Some(columns) => sin_cos_to_face_st(row, columns[c]),
-                            None => lat_lon_to_face_st(input.lat_lon_of(c, r)),
-                        };
-                        let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
-                        let cells = side / step;
-                        let (x0, y0) = (
-                            (x.floor() as i64).min(cells - 1),
-                            (y.floor() as i64).min(cells - 1),
-                        );
-                        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
-                        // Corners inside the face (x0, y0 < S): its own tiles hold them (the
-                        // input's samples made them dense enough, `plan_tiles`), equal to every
-                        // other face's on shared points.
-                        // The four corners lie in the tile of the first but where the cell
-                        // crosses a tile's side.
-                        let tiles = planet.tiles(face);
-                        let winners = &resampled.winners[usize::from(face)];
-                        let first = planet.tile_index(x0 * step, y0 * step);
-                        let (_, _, tx1, ty1) = tiles[first].rect;
-                        let one_tile = (x0 + 1) * step <= tx1 && (y0 + 1) * step <= ty1;
-                        let corner = |dx: i64, dy: i64| {
-                            let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
-                            let i = if one_tile {
-                                first
-                            } else {
-                                planet.tile_index(px, py)
-                            };
-                            let t = &tiles[i];
-                            let k = t.index(px, py)?;
-                            (winners[i][k] == me && t.grid.valid[k])
-                                .then(|| plan.metres(t.grid.values[k]))
-                        };
-                        let (Some(a), Some(b), Some(cc), Some(d)) =
-                            (corner(0, 0), corner(1, 0), corner(0, 1), corner(1, 1))
-                        else {
-                            continue;
-                        };
-                        let l = (a * (1.0 - fx) + b * fx) * (1.0 - fy)
-                            + (cc * (1.0 - fx) + d * fx) * fy;
-                        let e = (l - v).abs();
-                        acc.1 += 1;
-                        if e > acc.2 || acc.4.is_none() {
-                            acc.2 = e;
-                            acc.4 = Some(input.lat_lon_of(c, r));
-                        }
-                        acc.3 += e * e;
-                    }
-                    acc
-                })
-                // Rows summed in order, not in rayon's reduction tree (whose shape depends on
-                // scheduling): the stored RMS has the same bits every build.
-                .collect::<Vec<_>>()
-                .into_iter()
-                .fold((0, 0, 0.0, 0.0, None), |a, b| {
-                    let (max, at) = if b.2 > a.2 || a.4.is_none() {
-                        (b.2, b.4)
+    let input = &inputs.inputs[i];
+    let me = u16::try_from(i).unwrap_or(u16::MAX);
+    let samples = inputs.samples(i)?;
+    // The input's samples are the lattice points on its stride: the surface drawn
+    // where it is the finest data interpolates those.
+    let step = 1i64 << resampled.strides[i];
+    // On a latitude/longitude grid the longitude's sine and cosine depend on the
+    // column only (the latitude's on the row): computed once each.
+    let columns: Option<Vec<(f64, f64)>> = match input.frame {
+        Frame::Geographic { .. } => Some(
+            (0..input.width)
+                .map(|c| input.lat_lon_of(c, 0).lon.to_radians().sin_cos())
+                .collect(),
+        ),
+        Frame::Projected { .. } => None,
+    };
+    let (samples, compared, max, sum2, worst_at) = (0..input.height)
+        .into_par_iter()
+        .map(|r| {
+            let mut acc = (0u64, 0u64, 0f64, 0f64, None);
+            let row = input.lat_lon_of(0, r).lat.to_radians().sin_cos();
+            for c in 0..input.width {
+                let Some(v) = input.sample(&samples, c, r) else {
+                    continue;
+                };
+                acc.0 += 1;
+                let (face, s, t) = match &columns {
+                    Some(columns) => sin_cos_to_face_st(row, columns[c]),
+                    None => lat_lon_to_face_st(input.lat_lon_of(c, r)),
+                };
+                let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
+                let cells = side / step;
+                let (x0, y0) = (
+                    (x.floor() as i64).min(cells - 1),
+                    (y.floor() as i64).min(cells - 1),
+                );
+                let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+                // Corners inside the face (x0, y0 < S): its own tiles hold them (the
+                // input's samples made them dense enough, `plan_tiles`), equal to every
+                // other face's on shared points.
+                // The four corners lie in the tile of the first but where the cell
+                // crosses a tile's side.
+                let winners = &resampled.winners[usize::from(face)];
+                let first = planet.tile_index(x0 * step, y0 * step);
+                let (_, _, tx1, ty1) = planet.tile(face, first).rect;
+                let one_tile = (x0 + 1) * step <= tx1 && (y0 + 1) * step <= ty1;
+                let corner = |dx: i64, dy: i64| {
+                    let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
+                    let i = if one_tile {
+                        first
                     } else {
-                        (a.2, a.4)
+                        planet.tile_index(px, py)
                     };
-                    (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
-                });
-            Ok(InputResampling {
-                path: input.path.clone(),
-                samples,
-                compared,
-                max_error: max,
-                rms_error: if compared > 0 {
-                    (sum2 / compared as f64).sqrt()
-                } else {
-                    0.0
-                },
-                worst_at,
-                stride: resampled.strides[i],
-            })
+                    let t = planet.tile(face, i);
+                    let k = t.index(px, py)?;
+                    (winners[i][k] == me && t.grid.valid[k]).then(|| plan.metres(t.grid.values[k]))
+                };
+                let (Some(a), Some(b), Some(cc), Some(d)) =
+                    (corner(0, 0), corner(1, 0), corner(0, 1), corner(1, 1))
+                else {
+                    continue;
+                };
+                let l = (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (cc * (1.0 - fx) + d * fx) * fy;
+                let e = (l - v).abs();
+                acc.1 += 1;
+                if e > acc.2 || acc.4.is_none() {
+                    acc.2 = e;
+                    acc.4 = Some(input.lat_lon_of(c, r));
+                }
+                acc.3 += e * e;
+            }
+            acc
         })
-        .collect()
+        // Rows summed in order, not in rayon's reduction tree (whose shape depends on
+        // scheduling): the stored RMS has the same bits every build.
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold((0, 0, 0.0, 0.0, None), |a, b| {
+            let (max, at) = if b.2 > a.2 || a.4.is_none() {
+                (b.2, b.4)
+            } else {
+                (a.2, a.4)
+            };
+            (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
+        });
+    Ok(InputResampling {
+        path: input.path.clone(),
+        samples,
+        compared,
+        max_error: max,
+        rms_error: if compared > 0 {
+            (sum2 / compared as f64).sqrt()
+        } else {
+            0.0
+        },
+        worst_at,
+        stride: resampled.strides[i],
+    })
 }
 
 /// The header's summary of the resampling: the largest error over all inputs and the root mean
@@ -565,8 +417,9 @@ pub struct PlanetSummary {
     pub n: usize,
     /// Level pairs `K`.
     pub level_pairs: u32,
-    /// Whether `K` is coarser than the finest input asks for (the memory limit capped it).
-    pub capped: bool,
+    /// The level pairs the finest input asks for: above `level_pairs` when `--planet-level`
+    /// made the lattice coarser.
+    pub finest_input_level_pairs: u32,
     /// Mean lattice spacing, degrees.
     pub lattice_deg: f64,
     /// Distinct lattice points (`6·S² + 2`).
@@ -596,39 +449,46 @@ pub fn input_cache_budget(memory_limit: u64) -> u64 {
     memory_limit / 8
 }
 
+/// Bytes of resampled lattice tiles a planet build keeps for the blocks that read them again
+/// (a block reads its neighbours' edges): a quarter of the memory limit.
+pub fn lattice_cache_budget(memory_limit: u64) -> u64 {
+    memory_limit / 4
+}
+
 /// Distinct lattice points with data (a point on a cube edge or corner counted once, a point
 /// on a tile's side once).
 pub fn count_valid(planet: &PlanetGrid) -> u64 {
     let d = planet.domain();
-    let side = d.cube().expect("a cube-sphere").side();
     (0..d.faces())
         .flat_map(|f| planet.tiles(f).iter().map(move |t| (f, t)))
         .collect::<Vec<_>>()
         .into_par_iter()
-        .map(|(f, t)| {
-            let (x0, y0, x1, y1) = t.rect;
-            let step = 1usize << t.stride;
-            let mut count = 0u64;
-            for (j, y) in (y0..=y1).step_by(step).enumerate() {
-                // A tile owns its first row and column, and its last only on the face's edge.
-                if y == y1 && y1 < side {
-                    continue;
-                }
-                for (i, x) in (x0..=x1).step_by(step).enumerate() {
-                    if (x == x1 && x1 < side) || !t.grid.valid[j * t.grid.width + i] {
-                        continue;
-                    }
-                    // Interior points are their own; an edge point is counted on the face
-                    // that owns it.
-                    let edge = x == 0 || y == 0 || x == side || y == side;
-                    if !edge || d.canonical_point(f, x, y).is_some_and(|c| c.face == f) {
-                        count += 1;
-                    }
-                }
-            }
-            count
-        })
+        .map(|(f, t)| valid_in_tile(d, f, t))
         .sum()
+}
+
+/// The lattice points with data that tile `t` of face `f` owns: a tile owns its first row and
+/// column, its last only on the face's edge; an edge point is counted on the face that owns it.
+pub(crate) fn valid_in_tile(d: &Domain, f: u8, t: &PlanetTile) -> u64 {
+    let side = d.cube().expect("a cube-sphere").side();
+    let (x0, y0, x1, y1) = t.rect;
+    let step = 1usize << t.stride;
+    let mut count = 0u64;
+    for (j, y) in (y0..=y1).step_by(step).enumerate() {
+        if y == y1 && y1 < side {
+            continue;
+        }
+        for (i, x) in (x0..=x1).step_by(step).enumerate() {
+            if (x == x1 && x1 < side) || !t.grid.valid[j * t.grid.width + i] {
+                continue;
+            }
+            let edge = x == 0 || y == 0 || x == side || y == side;
+            if !edge || d.canonical_point(f, x, y).is_some_and(|c| c.face == f) {
+                count += 1;
+            }
+        }
+    }
+    count
 }
 
 /// Checks the options a planet build does not take.
@@ -693,12 +553,9 @@ pub fn build_planet(
     };
     stages.push(("read", t.elapsed()));
     let n = opts.diamond_size;
-    let k = choose_level(&inputs, n, planet_level, limit)?;
-    let wanted = choose_level(&inputs, n, None, u64::MAX)?;
+    let k = choose_level(&inputs, n, planet_level)?;
+    let wanted = choose_level(&inputs, n, None)?;
     let plan = QuantPlan::new(opts.max_error, None, lo, hi)?;
-    let t = Instant::now();
-    let resampled = pool.install(|| resample(&inputs, n, k, &plan))?;
-    stages.push(("resample", t.elapsed()));
     event(Stage::Prepare, 1);
     event(Stage::Encode, 0);
     let t = Instant::now();
@@ -708,16 +565,19 @@ pub fn build_planet(
         alpha: Alpha::One,
         coder: opts.coder,
     };
-    // The resampling error only reads the lattice, as the encoder does: measured alongside, it
-    // fills the cores the encoder's coarse levels leave idle.
-    let (encoded, resampling) = pool.install(|| {
-        rayon::join(
-            || encode_planet(&resampled.planet, plan.quantizer, &enc),
-            || resampling_error(&inputs, &resampled, &plan),
+    let lattice = pool.install(|| {
+        encode_out_of_core(
+            &inputs,
+            n,
+            k,
+            &plan,
+            &enc,
+            lattice_cache_budget(limit),
+            &NoJournal,
         )
-    });
-    let (encoded, resampling) = (encoded?, resampling?);
-    stages.push(("encode and measure resampling error", t.elapsed()));
+    })?;
+    let (encoded, resampling) = (lattice.encoded, lattice.resampling);
+    stages.push(("resample, encode and measure resampling error", t.elapsed()));
     event(Stage::Encode, 1);
     event(Stage::Write, 0);
     let t = Instant::now();
@@ -731,15 +591,14 @@ pub fn build_planet(
     .with_context(|| format!("writing {}", opts.output.display()))?;
     stages.push(("write", t.elapsed()));
     event(Stage::Write, 1);
-    let valid = count_valid(&resampled.planet);
     Ok(PlanetSummary {
         n,
         level_pairs: k,
-        capped: k < wanted && planet_level.is_none(),
+        finest_input_level_pairs: wanted,
         lattice_deg: lattice_spacing_deg(n, k),
-        lattice_points: resampled.planet.lattice_points(),
-        held_points: resampled.planet.held_points(),
-        valid,
+        lattice_points: Domain::cube_sphere(n, k)?.lattice_points(),
+        held_points: lattice.held_points,
+        valid: lattice.valid,
         records: encoded.records.len(),
         plan,
         resampling,
@@ -853,32 +712,23 @@ mod tests {
         }
     }
 
-    /// The lattice is the coarsest at least as fine as the finest input, and the memory limit
-    /// caps it (or refuses a forced level above it).
+    /// The lattice is the coarsest at least as fine as the finest input (whatever the memory:
+    /// it is encoded out of core); `--planet-level` sets it, finer or coarser, up to 16.
     #[test]
-    fn the_level_follows_the_finest_input_within_the_memory_limit() {
+    fn the_level_follows_the_finest_input_unless_forced() {
         let inputs = PlanetInputs::held(vec![input(0.25), input(2.0)]);
         // 90°/(16·2^K) ≤ 0.25° first at K = 5 (0.176°); K = 4 is 0.352°.
-        assert_eq!(choose_level(&inputs, 17, None, u64::MAX).unwrap(), 5);
-        // Faces of 512 (K = 5) and 256 (K = 4) steps are one tile each: the face under the two
-        // inputs (both near 0° N 0° E) holds every point for the fine one, the five others,
-        // which no input reaches, their 4 corners.
-        let at = |k: u32| {
-            let side = 16u64 << k;
-            ((side + 1) * (side + 1) + 5 * 4) * BYTES_PER_LATTICE_POINT
-        };
-        assert_eq!(
-            held_points(17, 5, &plan_tiles(&inputs, 17, 5).unwrap().strides).unwrap()
-                * BYTES_PER_LATTICE_POINT,
-            at(5)
+        assert_eq!(choose_level(&inputs, 17, None).unwrap(), 5);
+        let coarse = PlanetInputs::held(vec![input(2.0)]);
+        // 90°/(16·2^K) ≤ 2° first at K = 2 (1.41°).
+        assert_eq!(choose_level(&coarse, 17, None).unwrap(), 2);
+        assert_eq!(choose_level(&inputs, 17, Some(3)).unwrap(), 3);
+        assert_eq!(choose_level(&inputs, 17, Some(6)).unwrap(), 6);
+        let e = choose_level(&inputs, 17, Some(17)).unwrap_err().to_string();
+        assert!(
+            e.contains("--planet-level 17") && e.contains("at most 16"),
+            "{e}"
         );
-        assert_eq!(choose_level(&inputs, 17, None, at(5)).unwrap(), 5);
-        assert_eq!(choose_level(&inputs, 17, None, at(5) - 1).unwrap(), 4);
-        assert!(choose_level(&inputs, 17, Some(5), at(5) - 1).is_err());
-        // Beyond the finest input's spacing a lattice holds every 2nd point (or 4th...) of
-        // the input's tiles: K = 6 costs what K = 5 did, so a forced finer level fits too.
-        assert_eq!(choose_level(&inputs, 17, Some(6), at(5)).unwrap(), 6);
-        assert_eq!(choose_level(&inputs, 17, Some(3), at(5)).unwrap(), 3);
     }
 
     /// More inputs than a winner index holds are refused by count, before any is read.

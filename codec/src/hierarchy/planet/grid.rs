@@ -1,6 +1,9 @@
 //! The input of a planet: six faces of integer heights on a cube-sphere's lattice, held in
 //! tiles — every lattice point where fine data is, every `2^s`-th where only coarser data is.
 
+use std::collections::HashMap;
+use std::sync::Arc;
+
 use rayon::prelude::*;
 
 use crate::CodecError;
@@ -132,6 +135,9 @@ impl PlanetTile {
     }
 }
 
+/// The tiles of a partial planet by face and index, and the empty tile read everywhere else.
+type SparseTiles = (HashMap<(u8, usize), Arc<PlanetTile>>, Arc<PlanetTile>);
+
 /// Integer heights (and validity) at the lattice points of the six faces of a cube-sphere
 /// (`Domain::cube_sphere(n, k)`), `S = (N − 1)·2^K` steps per face side, in square tiles of
 /// `2^tile_log2(S)` steps ([`PlanetTile`]). A tile holds every point where some input is as
@@ -154,8 +160,11 @@ pub struct PlanetGrid {
     domain: Domain,
     tile_log2: u32,
     tiles_across: usize,
-    faces: Vec<Vec<PlanetTile>>,
+    faces: Vec<Vec<Arc<PlanetTile>>>,
     variable: bool,
+    /// A partial planet ([`PlanetGrid::partial`]): its tiles by face and index, and the empty
+    /// tile read everywhere else (`faces` then holds no tile).
+    sparse: Option<Arc<SparseTiles>>,
 }
 
 impl PlanetGrid {
@@ -222,6 +231,7 @@ impl PlanetGrid {
                             window(g, rect, |g, k| (g.values[k], g.valid[k])),
                             None,
                         )
+                        .map(Arc::new)
                     })
                     .collect::<Result<Vec<_>, _>>()
             })
@@ -232,6 +242,7 @@ impl PlanetGrid {
             tiles_across: tiles_across(side, tile_log2),
             faces,
             variable: false,
+            sparse: None,
         })
     }
 
@@ -285,13 +296,73 @@ impl PlanetGrid {
                 }
             }
         }
+        let faces = faces
+            .into_iter()
+            .map(|tiles| tiles.into_iter().map(Arc::new).collect())
+            .collect();
         Ok(Self {
             domain,
             tile_log2,
             tiles_across: tiles_across(side, tile_log2),
             faces,
             variable,
+            sparse: None,
         })
+    }
+
+    /// A planet of which only some tiles are held (`held`, by face and index among
+    /// [`PlanetGrid::tile_rects`]), for code that reads only their points (a block of a
+    /// block-wise encode, [`super::PlanetBlocks`]): every other tile holds no point, so reads
+    /// there say nodata — the caller must not read there. Errors as
+    /// [`PlanetGrid::from_tiles`] does on a held tile.
+    pub fn partial(
+        n: usize,
+        k: u32,
+        tile_log2: u32,
+        variable: bool,
+        held: HashMap<(u8, usize), Arc<PlanetTile>>,
+    ) -> Result<Self, CodecError> {
+        let domain = Domain::cube_sphere(n, k)?;
+        let side = domain.cube().expect("a cube-sphere has a cube").side();
+        let rects = tile_rects(side, tile_log2);
+        let absent = Arc::new(PlanetTile::new(
+            0,
+            (-1, -1, -1, -1),
+            HeightGrid {
+                width: 1,
+                height: 1,
+                values: vec![0].into(),
+                valid: vec![false].into(),
+            },
+            variable.then(|| vec![HOLE]),
+        )?);
+        for (&(f, i), t) in &held {
+            let Some(r) = rects.get(i).filter(|_| f < domain.faces()) else {
+                return Err(CodecError::invalid(format!(
+                    "face {f} tile {i}: the planet has 6 faces of {} tiles",
+                    rects.len()
+                )));
+            };
+            if t.rect != *r || t.stride > tile_log2 || t.class.is_some() != variable {
+                return Err(CodecError::invalid(format!(
+                    "face {f}: a tile over {:?} at stride 2^{} where the tiling has {r:?}",
+                    t.rect, t.stride
+                )));
+            }
+        }
+        Ok(Self {
+            domain,
+            tile_log2,
+            tiles_across: tiles_across(side, tile_log2),
+            faces: vec![Vec::new(); usize::from(domain.faces())],
+            variable,
+            sparse: Some(Arc::new((held, absent))),
+        })
+    }
+
+    /// Whether the planet carries resolution classes ([`PlanetGrid::with_classes`]).
+    pub fn is_variable(&self) -> bool {
+        self.variable
     }
 
     /// The rectangles of tiles of `2^tile_log2` steps on every face of `domain`, row-major:
@@ -349,6 +420,7 @@ impl PlanetGrid {
         let mut faces = self.faces;
         for (tiles, c) in faces.iter_mut().zip(&classes) {
             for t in tiles.iter_mut() {
+                let t = Arc::make_mut(t);
                 let (x0, y0, x1, y1) = t.rect;
                 let mut held = Vec::with_capacity(t.points());
                 for y in y0..=y1 {
@@ -407,8 +479,20 @@ impl PlanetGrid {
     ///
     /// # Panics
     /// If `face` is not a face (≥ 6).
-    pub fn tiles(&self, face: u8) -> &[PlanetTile] {
+    pub fn tiles(&self, face: u8) -> &[Arc<PlanetTile>] {
         &self.faces[usize::from(face)]
+    }
+
+    /// Tile `index` of face `face` (on a partial planet, an empty tile where none is held).
+    ///
+    /// # Panics
+    /// If there is no such tile.
+    #[inline]
+    pub fn tile(&self, face: u8, index: usize) -> &Arc<PlanetTile> {
+        match &self.sparse {
+            None => &self.faces[usize::from(face)][index],
+            Some(sparse) => sparse.0.get(&(face, index)).unwrap_or(&sparse.1),
+        }
     }
 
     /// `log2` of the tiles' side in lattice steps.
@@ -431,29 +515,14 @@ impl PlanetGrid {
         (x0, y0, x1, y1): (i64, i64, i64, i64),
     ) -> impl Iterator<Item = usize> + '_ {
         let side = self.domain.cube().expect("a cube-sphere").side();
-        let clip = |v: i64| v.clamp(0, side);
-        let (x0, y0, x1, y1) = (clip(x0), clip(y0), clip(x1), clip(y1));
-        let last = self.tiles_across as i64 - 1;
-        // A point on a tile's first row or column also lies on the previous tile's last.
-        let log2 = self.tile_log2;
-        let first = move |v: i64| (((v - 1).max(0)) >> log2).min(last);
-        let end = move |v: i64| (v >> log2).min(last);
-        let across = self.tiles_across;
-        (first(y0)..=end(y1))
-            .flat_map(move |by| {
-                (first(x0)..=end(x1)).map(move |bx| by as usize * across + bx as usize)
-            })
-            .filter(move |&i| {
-                let (a0, b0, a1, b1) = self.faces[0][i].rect;
-                a0 <= x1 && x0 <= a1 && b0 <= y1 && y0 <= b1
-            })
+        tiles_meeting(side, self.tile_log2, (x0, y0, x1, y1))
     }
 
     /// The tile and index of lattice point `(x, y)` of `face` (inside the face, `0 ≤ x, y ≤
     /// S`) among the points that tile holds; `None` between its points.
     #[inline]
     pub fn held(&self, face: u8, x: i64, y: i64) -> Option<(&PlanetTile, usize)> {
-        let t = &self.faces[usize::from(face)][self.tile_index(x, y)];
+        let t: &PlanetTile = self.tile(face, self.tile_index(x, y));
         t.index(x, y).map(|k| (t, k))
     }
 
@@ -512,7 +581,7 @@ impl PlanetGrid {
     #[inline]
     pub fn drawn(&self, face: u8, x: i64, y: i64) -> Option<bool> {
         let c = self.domain.canonical_point(face, x, y)?;
-        let t = &self.faces[usize::from(c.face)][self.tile_index(c.x, c.y)];
+        let t = self.tile(c.face, self.tile_index(c.x, c.y));
         if let Some(k) = t.index(c.x, c.y) {
             return Some(t.drawn_at(k));
         }
@@ -570,7 +639,7 @@ impl PlanetGrid {
                     .iter()
                     .map(|t| {
                         let p = t.points();
-                        PlanetTile {
+                        Arc::new(PlanetTile {
                             grid: HeightGrid {
                                 width: t.grid.width,
                                 height: t.grid.height,
@@ -580,16 +649,19 @@ impl PlanetGrid {
                             class: None,
                             max_abs: 0,
                             all_valid: false,
-                            ..*t
-                        }
+                            ..**t
+                        })
                     })
                     .collect()
             })
             .collect();
         Self {
+            domain: self.domain,
+            tile_log2: self.tile_log2,
+            tiles_across: self.tiles_across,
             faces,
             variable: false,
-            ..*self
+            sparse: self.sparse.clone(),
         }
     }
 
@@ -607,6 +679,7 @@ impl PlanetGrid {
             };
             let t = &mut tiles[ty * across + tx];
             if let Some(k) = t.index(x, y) {
+                let t = Arc::make_mut(t);
                 t.grid.values[k] = value;
                 t.grid.valid[k] = valid;
             }
@@ -621,6 +694,32 @@ pub fn tile_of(side: i64, log2: u32, x: i64, y: i64) -> usize {
     let across = tiles_across(side, log2);
     let (bx, by) = tile_cell(across, log2, x, y);
     by * across + bx
+}
+
+/// The row-major indices of the tiles of `2^log2` steps, on a face of `side` steps, whose
+/// closed rectangles meet `(x0, y0, x1, y1)` (clipped to the face; none when it misses it).
+pub fn tiles_meeting(
+    side: i64,
+    log2: u32,
+    (x0, y0, x1, y1): (i64, i64, i64, i64),
+) -> impl Iterator<Item = usize> {
+    let clip = |v: i64| v.clamp(0, side);
+    let misses = x1 < 0 || y1 < 0 || x0 > side || y0 > side || x1 < x0 || y1 < y0;
+    let (x0, y0, x1, y1) = (clip(x0), clip(y0), clip(x1), clip(y1));
+    let across = tiles_across(side, log2);
+    let last = across as i64 - 1;
+    // A point on a tile's first row or column also lies on the previous tile's last.
+    let first = move |v: i64| (((v - 1).max(0)) >> log2).min(last);
+    let end = move |v: i64| (v >> log2).min(last);
+    let t = 1i64 << log2;
+    let rows = (first(y0)..=end(y1)).filter(move |_| !misses);
+    rows.flat_map(move |by| (first(x0)..=end(x1)).map(move |bx| (bx, by)))
+        .filter(move |&(bx, by)| {
+            let (a0, b0) = (bx * t, by * t);
+            let (a1, b1) = (((bx + 1) * t).min(side), ((by + 1) * t).min(side));
+            a0 <= x1 && x0 <= a1 && b0 <= y1 && y0 <= b1
+        })
+        .map(move |(bx, by)| by as usize * across + bx as usize)
 }
 
 /// Column and row of the tile owning `(x, y)`: the one starting at or before it, the last one

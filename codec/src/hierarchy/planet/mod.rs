@@ -10,10 +10,14 @@
 //! a cube edge compares each half with its own face's input. The previous level's refinements
 //! are kept per diamond (as [`super::encode`] does for α = ½); α = 1 only.
 
+mod blocks;
 mod grid;
+
+pub use blocks::{PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks, thinned};
 
 pub use grid::{MAX_TILES_ACROSS, PlanetGrid, PlanetTile, TILE_MIN_LOG2, tile_log2, tile_of};
 
+use std::borrow::Cow;
 use std::collections::{BTreeSet, HashMap};
 
 use rayon::prelude::*;
@@ -42,35 +46,10 @@ pub fn encode_planet(
     opts: &EncodeOptions,
 ) -> Result<Encoded, CodecError> {
     let domain = *planet.domain();
-    if opts.alpha != Alpha::One {
-        return Err(CodecError::unsupported(
-            "a cube-sphere is encoded with α = 1 only (the α = ½ analysis filter is planar)",
-        ));
-    }
-    if opts.n != domain.n() {
-        return Err(CodecError::invalid(format!(
-            "the planet's lattice is laid out for N = {}, not N = {}",
-            domain.n(),
-            opts.n
-        )));
-    }
-    if opts.extra_level_pairs != 0 {
-        return Err(CodecError::invalid(
-            "a planet's lattice fixes its levels: extra level pairs do not apply",
-        ));
-    }
+    let params = planet_params(domain, quantizer, opts, planet.has_nodata())?;
     if planet.range().is_none() {
         return Err(CodecError::invalid("the planet has no valid sample"));
     }
-    let params = CodecParams {
-        domain,
-        alpha: opts.alpha,
-        coder: opts.coder,
-        quantizer,
-        root_quantizer: super::root_quantizer(quantizer),
-        nodata_mask: planet.has_nodata(),
-        kind: RepoKind::Elevation,
-    };
     let (stored, recorded) = stored_sets(planet);
     let (root_field, roots) = encode_roots(
         &params,
@@ -79,8 +58,6 @@ pub fn encode_planet(
     )?;
     let errors = TiledError::new(planet)?;
     let finest = domain.finest_level();
-    let n = domain.n();
-    let side = domain.cube().expect("a cube-sphere").side();
     let mut records: Vec<Record> = Vec::new();
     let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
     let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
@@ -89,55 +66,13 @@ pub fn encode_planet(
         let results = stored[level as usize]
             .par_iter()
             .map(|&id| -> Result<Output, CodecError> {
-                let mut p = vec![0i32; n * n];
-                if level == 0 {
-                    root_grid(&domain, &root_field, id, &mut p);
-                } else {
-                    let parents = domain.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
-                    gather(&domain, id, parents, &mut p);
-                }
+                let p = grid_from_parents(&domain, &root_field, id, &prev);
                 let err = planet_surface_error(&domain, id, &p, &errors);
                 // Leaves: the finest level, and where coarse data ends the hierarchy above it.
                 if !recorded[level as usize].contains(&id) {
                     return Ok((id, None, err));
                 }
-                let drawn = |x, y| planet.drawn(id.face, x, y);
-                let (x0, y0, x1, y1) = domain.layout().bounds(id);
-                let tile = &planet.tiles(id.face)[planet.tile_index(x0.max(0), y0.max(0))];
-                let (tx0, ty0, tx1, ty1) = tile.rect;
-                let inside = 0 < x0.min(y0) && x1.max(y1) < side;
-                let r = if inside
-                    && tile.stride == 0
-                    && (tx0..=tx1).contains(&x0)
-                    && (tx0..=tx1).contains(&x1)
-                    && (ty0..=ty1).contains(&y0)
-                    && (ty0..=ty1).contains(&y1)
-                {
-                    // Strictly inside its face and inside one tile holding every point, every
-                    // point of the diamond is its own canonical point: read the tile's samples
-                    // directly (what `PlanetGrid::get` returns there, without locating each
-                    // point).
-                    let g = &tile.grid;
-                    let (values, valid): (&[i32], &[bool]) = (&g.values, &g.valid);
-                    let w = g.width;
-                    let target = |x: i64, y: i64| {
-                        let k = (y - ty0) as usize * w + (x - tx0) as usize;
-                        valid[k].then(|| values[k])
-                    };
-                    refine_encode(&params, id, &p, target, drawn)?
-                } else if inside {
-                    // Inside the face but over several tiles: each point read on its tile,
-                    // still without locating it.
-                    let target = |x: i64, y: i64| {
-                        let (t, k) = planet.held(id.face, x, y)?;
-                        t.grid.valid[k].then(|| t.grid.values[k])
-                    };
-                    refine_encode(&params, id, &p, target, drawn)?
-                } else {
-                    refine_encode(&params, id, &p, |x, y| planet.get(id.face, x, y), drawn)?
-                };
-                let refined = Refined::from_parts(n, &p, &r.cells);
-                Ok((id, Some((refined, record_of(id, &p, r.bytes))), err))
+                Ok((id, Some(refine_diamond(&params, planet, id, &p)?), err))
             })
             .collect::<Result<Vec<_>, CodecError>>()?;
         prev.clear();
@@ -158,6 +93,111 @@ pub fn encode_planet(
     })
 }
 
+/// The checks [`encode_planet`] makes of its options, and the parameters it encodes with.
+fn planet_params(
+    domain: Domain,
+    quantizer: Quantizer,
+    opts: &EncodeOptions,
+    nodata_mask: bool,
+) -> Result<CodecParams, CodecError> {
+    if opts.alpha != Alpha::One {
+        return Err(CodecError::unsupported(
+            "a cube-sphere is encoded with α = 1 only (the α = ½ analysis filter is planar)",
+        ));
+    }
+    if opts.n != domain.n() {
+        return Err(CodecError::invalid(format!(
+            "the planet's lattice is laid out for N = {}, not N = {}",
+            domain.n(),
+            opts.n
+        )));
+    }
+    if opts.extra_level_pairs != 0 {
+        return Err(CodecError::invalid(
+            "a planet's lattice fixes its levels: extra level pairs do not apply",
+        ));
+    }
+    Ok(CodecParams {
+        domain,
+        alpha: opts.alpha,
+        coder: opts.coder,
+        quantizer,
+        root_quantizer: super::root_quantizer(quantizer),
+        nodata_mask,
+        kind: RepoKind::Elevation,
+    })
+}
+
+/// The grid of `id` before its refinement: from the root field at level 0, else gathered from
+/// its parents' refinements (`prev`, the level above's).
+///
+/// # Panics
+/// If a parent of `id` is not in `prev` (every stored diamond's parents are recorded).
+fn grid_from_parents(
+    domain: &Domain,
+    root_field: &[i32],
+    id: DiamondId,
+    prev: &HashMap<DiamondId, Refined>,
+) -> Vec<i32> {
+    let n = domain.n();
+    let mut p = vec![0i32; n * n];
+    if id.level == 0 {
+        root_grid(domain, root_field, id, &mut p);
+    } else {
+        let parents = domain.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
+        gather(domain, id, parents, &mut p);
+    }
+    p
+}
+
+/// Refines `id`, whose grid is `p`, against the planet's targets: its refinement and record.
+fn refine_diamond(
+    params: &CodecParams,
+    planet: &PlanetGrid,
+    id: DiamondId,
+    p: &[i32],
+) -> Result<(Refined, Record), CodecError> {
+    let domain = &params.domain;
+    let n = domain.n();
+    let side = domain.cube().expect("a cube-sphere").side();
+    let drawn = |x, y| planet.drawn(id.face, x, y);
+    let (x0, y0, x1, y1) = domain.layout().bounds(id);
+    let tile = planet.tile(id.face, planet.tile_index(x0.max(0), y0.max(0)));
+    let (tx0, ty0, tx1, ty1) = tile.rect;
+    let inside = 0 < x0.min(y0) && x1.max(y1) < side;
+    let r = if inside
+        && tile.stride == 0
+        && (tx0..=tx1).contains(&x0)
+        && (tx0..=tx1).contains(&x1)
+        && (ty0..=ty1).contains(&y0)
+        && (ty0..=ty1).contains(&y1)
+    {
+        // Strictly inside its face and inside one tile holding every point, every point of
+        // the diamond is its own canonical point: read the tile's samples directly (what
+        // `PlanetGrid::get` returns there, without locating each point).
+        let g = &tile.grid;
+        let (values, valid): (&[i32], &[bool]) = (&g.values, &g.valid);
+        let w = g.width;
+        let target = |x: i64, y: i64| {
+            let k = (y - ty0) as usize * w + (x - tx0) as usize;
+            valid[k].then(|| values[k])
+        };
+        refine_encode(params, id, p, target, drawn)?
+    } else if inside {
+        // Inside the face but over several tiles: each point read on its tile, still without
+        // locating it.
+        let target = |x: i64, y: i64| {
+            let (t, k) = planet.held(id.face, x, y)?;
+            t.grid.valid[k].then(|| t.grid.values[k])
+        };
+        refine_encode(params, id, p, target, drawn)?
+    } else {
+        refine_encode(params, id, p, |x, y| planet.get(id.face, x, y), drawn)?
+    };
+    let refined = Refined::from_parts(n, p, &r.cells);
+    Ok((refined, record_of(id, p, r.bytes)))
+}
+
 /// The stored diamonds of every level and, per level, those that get a record (the parents of
 /// the next level's stored diamonds).
 ///
@@ -169,67 +209,12 @@ pub fn encode_planet(
 /// points the tiles hold.
 fn stored_sets(planet: &PlanetGrid) -> (Vec<Vec<DiamondId>>, Vec<BTreeSet<DiamondId>>) {
     let domain = planet.domain();
-    let layout = domain.layout();
     let finest = domain.finest_level();
-    let side = domain.cube().expect("a cube-sphere").side();
-    // The class of the point held at `k`: its stride's log2 for a sample, ≥ 32 otherwise.
-    let class_of = |t: &PlanetTile, k: usize| match &t.class {
-        Some(class) => class[k],
-        None if t.grid.valid[k] => 0,
-        None => u8::MAX,
-    };
     let found: Vec<Vec<BTreeSet<DiamondId>>> = (0..domain.faces())
         .flat_map(|f| planet.tiles(f).iter().map(move |t| (f, t)))
         .collect::<Vec<_>>()
         .into_par_iter()
-        .map(|(face, t)| {
-            let mut leaves = vec![BTreeSet::new(); finest as usize + 1];
-            let mut present = 0u32;
-            for k in 0..t.points() {
-                let c = class_of(t, k);
-                if c < 32 {
-                    present |= 1 << c;
-                }
-            }
-            let (tx0, ty0, tx1, ty1) = t.rect;
-            let step = 1i64 << t.stride;
-            for j in (0..32u8).filter(|j| present & (1 << j) != 0) {
-                // Strides above the root spacing are root points: their leaves are roots.
-                let level = finest.saturating_sub(2 * j);
-                let r = layout.radius(level);
-                // The squares of the level meeting the tile (closed), inside the face.
-                let squares = |a0: i64, a1: i64| {
-                    let first = ((a0 - 1).max(0)) / (2 * r);
-                    let last = (a1 / (2 * r)).min(side / (2 * r) - 1);
-                    first..=last
-                };
-                for sy in squares(ty0, ty1) {
-                    for sx in squares(tx0, tx1) {
-                        let (x0, y0) = ((2 * sx * r).max(tx0), (2 * sy * r).max(ty0));
-                        let (x1, y1) = ((2 * (sx + 1) * r).min(tx1), (2 * (sy + 1) * r).min(ty1));
-                        if x0 > x1 || y0 > y1 {
-                            continue;
-                        }
-                        // The held points of the square's part in the tile.
-                        let up = |v: i64, o: i64| o + (v - o + step - 1) / step * step;
-                        let hit = (up(y0, ty0)..=y1).step_by(step as usize).any(|y| {
-                            (up(x0, tx0)..=x1)
-                                .step_by(step as usize)
-                                .any(|x| t.index(x, y).is_some_and(|k| class_of(t, k) == j))
-                        });
-                        if hit {
-                            leaves[level as usize].insert(DiamondId::on_face(
-                                face,
-                                level,
-                                ((2 * sx + 1) * r) as u32,
-                                ((2 * sy + 1) * r) as u32,
-                            ));
-                        }
-                    }
-                }
-            }
-            leaves
-        })
+        .map(|(face, t)| tile_leaves(domain, face, t))
         .collect();
     let mut leaves: Vec<BTreeSet<DiamondId>> = vec![BTreeSet::new(); finest as usize + 1];
     for tile in found {
@@ -239,6 +224,67 @@ fn stored_sets(planet: &PlanetGrid) -> (Vec<Vec<DiamondId>>, Vec<BTreeSet<Diamon
     }
     let sets = with_parents(domain, &leaves);
     (sets.stored, sets.recorded)
+}
+
+/// The leaves (per level) that the points of one tile `t` of face `face` make: for each
+/// stride `2^j` its samples have, the level-`L − 2j` diamonds (squares inside the face) whose
+/// closed square holds a sample of that stride in the tile ([`stored_sets`]).
+fn tile_leaves(domain: &Domain, face: u8, t: &PlanetTile) -> Vec<BTreeSet<DiamondId>> {
+    let layout = domain.layout();
+    let finest = domain.finest_level();
+    let side = domain.cube().expect("a cube-sphere").side();
+    // The class of the point held at `k`: its stride's log2 for a sample, ≥ 32 otherwise.
+    let class_of = |t: &PlanetTile, k: usize| match &t.class {
+        Some(class) => class[k],
+        None if t.grid.valid[k] => 0,
+        None => u8::MAX,
+    };
+    let mut leaves = vec![BTreeSet::new(); finest as usize + 1];
+    let mut present = 0u32;
+    for k in 0..t.points() {
+        let c = class_of(t, k);
+        if c < 32 {
+            present |= 1 << c;
+        }
+    }
+    let (tx0, ty0, tx1, ty1) = t.rect;
+    let step = 1i64 << t.stride;
+    for j in (0..32u8).filter(|j| present & (1 << j) != 0) {
+        // Strides above the root spacing are root points: their leaves are roots.
+        let level = finest.saturating_sub(2 * j);
+        let r = layout.radius(level);
+        // The squares of the level meeting the tile (closed), inside the face.
+        let squares = |a0: i64, a1: i64| {
+            let first = ((a0 - 1).max(0)) / (2 * r);
+            let last = (a1 / (2 * r)).min(side / (2 * r) - 1);
+            first..=last
+        };
+        for sy in squares(ty0, ty1) {
+            for sx in squares(tx0, tx1) {
+                let (x0, y0) = ((2 * sx * r).max(tx0), (2 * sy * r).max(ty0));
+                let (x1, y1) = ((2 * (sx + 1) * r).min(tx1), (2 * (sy + 1) * r).min(ty1));
+                if x0 > x1 || y0 > y1 {
+                    continue;
+                }
+                // The held points of the square's part in the tile.
+                let up = |v: i64, o: i64| o + (v - o + step - 1) / step * step;
+                let hit = (up(y0, ty0)..=y1).step_by(step as usize).any(|y| {
+                    (up(x0, tx0)..=x1)
+                        .step_by(step as usize)
+                        .any(|x| t.index(x, y).is_some_and(|k| class_of(t, k) == j))
+                });
+                if hit {
+                    leaves[level as usize].insert(DiamondId::on_face(
+                        face,
+                        level,
+                        ((2 * sx + 1) * r) as u32,
+                        ((2 * sy + 1) * r) as u32,
+                    ));
+                }
+            }
+        }
+    }
+    leaves
 }
 
 /// The object errors of diamonds against a planet's tiles: each tile measured in a lattice
@@ -265,14 +311,22 @@ impl<'a> TiledError<'a> {
     /// The error of `id`'s grid `p` (in the frame of `id.face`) against the valid points of
     /// that face under it.
     fn face_error(&self, id: DiamondId, p: &[i32]) -> u32 {
+        let bounds = self.planet.domain().layout().bounds(id);
+        let meeting: Vec<usize> = self.planet.tiles_meeting(bounds).collect();
+        self.face_error_over(id, p, meeting)
+    }
+
+    /// [`TiledError::face_error`] over the tiles `meeting` of `id.face` only (indices among
+    /// [`PlanetGrid::tiles`]): the face's error is the largest over the tiles meeting the
+    /// diamond.
+    fn face_error_over(&self, id: DiamondId, p: &[i32], meeting: Vec<usize>) -> u32 {
         let planet = self.planet;
         let layout = planet.domain().layout();
         let finest = layout.finest_level();
         let bounds = layout.bounds(id);
-        let tiles = planet.tiles(id.face);
         let p_abs = grid_abs(p);
         let one = |i: usize| -> u32 {
-            let t = &tiles[i];
+            let t = planet.tile(id.face, i);
             let (max_abs, all_valid) = t.bounds();
             // The coarsest spacing, in lattice steps, at which the diamond's grid lies on
             // lattice points: its level's finest.
@@ -318,7 +372,6 @@ impl<'a> TiledError<'a> {
                 ErrorInput::with_bounds(&grid, max_abs, false).placed_at((x0 >> s, y0 >> s));
             surface_error_of(&self.layouts[s as usize], scaled(s), p, p_abs, &input)
         };
-        let meeting: Vec<usize> = planet.tiles_meeting(bounds).collect();
         if meeting.len() > 2 {
             meeting.into_par_iter().map(one).max().unwrap_or(0)
         } else {
@@ -327,14 +380,23 @@ impl<'a> TiledError<'a> {
     }
 }
 
-/// The object error of `id` with grid `p` against the planet's faces: its own face's input,
-/// and for a diamond centred on a cube edge also the neighbouring face's input under its other
-/// half, measured on the same diamond seen from that face (the grid carried into that face's
-/// frame and re-indexed as that face's diamond of the same centre, whose split diagonal is the
-/// same edge).
+/// The object error of `id` with grid `p` against the planet's faces: the largest over its
+/// [`views`].
 fn planet_surface_error(domain: &Domain, id: DiamondId, p: &[i32], errors: &TiledError) -> u32 {
+    views(domain, id, p)
+        .into_iter()
+        .map(|(seen, q)| errors.face_error(seen, &q))
+        .max()
+        .unwrap_or(0)
+}
+
+/// The faces' views of `id` with grid `p` that its object error measures: its own face's, and
+/// for a diamond centred on a cube edge also the neighbouring face's under its other half — the
+/// same diamond seen from that face (the grid carried into that face's frame and re-indexed as
+/// that face's diamond of the same centre, whose split diagonal is the same edge).
+fn views<'p>(domain: &Domain, id: DiamondId, p: &'p [i32]) -> Vec<(DiamondId, Cow<'p, [i32]>)> {
     let layout = domain.layout();
-    let mut e = errors.face_error(id, p);
+    let mut out = vec![(id, Cow::Borrowed(p))];
     for half in Half::BOTH {
         let (face, g) = domain.half_grid(id, half);
         if face == id.face {
@@ -357,9 +419,9 @@ fn planet_surface_error(domain: &Domain, id: DiamondId, p: &[i32], errors: &Tile
                 q[j * n + i] = p[b as usize * n + a as usize];
             }
         }
-        e = e.max(errors.face_error(seen, &q));
+        out.push((seen, Cow::Owned(q)));
     }
-    e
+    out
 }
 
 fn planet_only(encoded: &Encoded, planet: &PlanetGrid) -> Result<(), CodecError> {

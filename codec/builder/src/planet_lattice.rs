@@ -1,0 +1,421 @@
+//! The planet lattice out of core: each lattice tile resampled from the inputs when the
+//! block-wise encode ([`encode_planet_in_blocks`]) or the resampling-error scan asks for it,
+//! through a bounded cache, never the whole lattice held (in memory or on disk).
+//!
+//! A build resamples every tile once to outline the planet (its stored diamonds, nodata, the
+//! valid points; [`PlanetOutline`]) and to fix the stride each tile holds its points at (denser
+//! than planned where a point took a finer input's sample), then again as the apex (thinned to
+//! the cut's vertices), the blocks (each its tile and the strips of its neighbours its diamonds
+//! reach) and each input's resampling error (the tiles its samples lie in, thinned to its
+//! stride) ask. A point's height depends on the point and the inputs only, so every reading of
+//! a tile holds the same values: the repository is byte for byte the one the whole lattice
+//! encodes to.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::{Arc, Mutex};
+
+use rayon::prelude::*;
+
+use crate::error::{BuildError, Result};
+use crate::planet::{
+    InputResampling, PlanetInputs, Resampled, TilePlan, input_resampling, lattice_spacing_deg,
+    plan_tiles, valid_in_tile,
+};
+use crate::planet_input::PointSource;
+use cbdam_codec::CodecError;
+use cbdam_codec::geodesy::cube_map::FaceLattice;
+use cbdam_codec::geodesy::lattice_lat_lon;
+use cbdam_codec::geometry::Domain;
+use cbdam_codec::hierarchy::planet::{
+    PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks, tile_log2,
+};
+use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
+use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded, PlanetGrid, PlanetTile};
+use cbdam_codec::quant::{HeightGrid, QuantPlan};
+
+/// One tile's points at a stride: heights, validity, winning inputs, classes, and the finest
+/// class of a sample among them.
+type Painted = (Vec<i32>, Vec<bool>, Vec<u16>, Vec<u8>, Option<u8>);
+
+/// Resamples the inputs onto the tiles of the `N`, `K` cube-sphere, one tile at a time (see
+/// [`crate::planet`]'s documentation for the rule each point follows).
+pub struct Resampler<'a> {
+    inputs: &'a PlanetInputs,
+    plan: &'a QuantPlan,
+    domain: Domain,
+    side: i64,
+    tile_log2: u32,
+    lattice_deg: f64,
+    /// Per input, `log2` of its stride on the lattice.
+    strides: Vec<u32>,
+    variable: bool,
+    tiles: TilePlan,
+    rects: Vec<(i64, i64, i64, i64)>,
+    lattices: Vec<FaceLattice>,
+}
+
+impl<'a> Resampler<'a> {
+    /// The resampler of `inputs` onto the `n`, `k` lattice, heights in units of `plan`.
+    pub fn new(inputs: &'a PlanetInputs, n: usize, k: u32, plan: &'a QuantPlan) -> Result<Self> {
+        let domain = Domain::cube_sphere(n, k)?;
+        let side = domain.cube().expect("a cube-sphere").side();
+        let strides = inputs.strides(n, k);
+        let tile_log2 = tile_log2(side);
+        Ok(Self {
+            inputs,
+            plan,
+            domain,
+            side,
+            tile_log2,
+            lattice_deg: lattice_spacing_deg(n, k),
+            variable: strides.iter().any(|&j| j > 0),
+            strides,
+            tiles: plan_tiles(inputs, n, k)?,
+            rects: PlanetGrid::tile_rects(&domain, tile_log2),
+            lattices: (0..domain.faces())
+                .map(|face| FaceLattice::new(face, side))
+                .collect(),
+        })
+    }
+
+    /// The lattice's cube-sphere.
+    pub fn domain(&self) -> &Domain {
+        &self.domain
+    }
+
+    /// `log2` of the tiles' side.
+    pub fn tile_log2(&self) -> u32 {
+        self.tile_log2
+    }
+
+    /// Whether the tiles carry resolution classes (an input coarser than the lattice).
+    pub fn is_variable(&self) -> bool {
+        self.variable
+    }
+
+    /// Per input, `log2` of its stride on the lattice.
+    pub fn input_strides(&self) -> &[u32] {
+        &self.strides
+    }
+
+    /// Tiles per face.
+    pub fn tiles_per_face(&self) -> usize {
+        self.rects.len()
+    }
+
+    /// Tile `tile` of `face` at the stride the plan gives it, or denser where a point took a
+    /// finer input's sample than planned: the tile a whole resampling holds, with the winning
+    /// input of each point.
+    pub fn final_tile(&self, face: u8, tile: usize) -> Result<(PlanetTile, Vec<u16>)> {
+        let mut s = self.tiles.strides[usize::from(face)][tile];
+        let mut painted = self.paint(face, tile, s)?;
+        // A point that took a finer input's sample than planned: the tile holds every point
+        // of that input's stride.
+        if let Some(j) = painted.4.filter(|&j| u32::from(j) < s) {
+            s = u32::from(j);
+            painted = self.paint(face, tile, s)?;
+        }
+        self.tile_of(tile, s, painted)
+    }
+
+    /// Tile `tile` of `face` holding its points on multiples of `2^stride`.
+    pub fn tile(&self, face: u8, tile: usize, stride: u32) -> Result<(PlanetTile, Vec<u16>)> {
+        let painted = self.paint(face, tile, stride)?;
+        self.tile_of(tile, stride, painted)
+    }
+
+    fn tile_of(&self, tile: usize, s: u32, painted: Painted) -> Result<(PlanetTile, Vec<u16>)> {
+        let (values, valid, won, class, _) = painted;
+        let rect = self.rects[tile];
+        let (x0, y0, x1, y1) = rect;
+        let grid = HeightGrid {
+            width: ((x1 - x0) >> s) as usize + 1,
+            height: ((y1 - y0) >> s) as usize + 1,
+            values: values.into(),
+            valid: valid.into(),
+        };
+        let tile = PlanetTile::new(s, rect, grid, self.variable.then_some(class))?;
+        Ok((tile, won))
+    }
+
+    /// One tile's points at stride `2^s`. The inputs that can cover the tile paint it finest
+    /// first, each over its own rectangle, each point taking the first that covers it.
+    fn paint(&self, face: u8, tile: usize, s: u32) -> Result<Painted> {
+        let rect = self.rects[tile];
+        let (x0, y0, x1, y1) = rect;
+        let (w, h) = (((x1 - x0) >> s) as usize + 1, ((y1 - y0) >> s) as usize + 1);
+        let mut values = vec![0; w * h];
+        let mut valid = vec![false; w * h];
+        let mut won = vec![u16::MAX; w * h];
+        let mut class = vec![HOLE; w * h];
+        let mut done = vec![false; w * h];
+        let step = 1i64 << s;
+        for &(input, reach) in &self.tiles.candidates[usize::from(face)][tile] {
+            // The tile's points (on its stride) in the input's rectangle.
+            let (rx0, ry0, rx1, ry1) = reach.unwrap_or(rect);
+            let first = |lo: i64, o: i64| ((lo.max(o) - o + step - 1) / step) as usize;
+            let last = |hi: i64, o: i64, n: usize| (((hi - o) / step) as usize).min(n - 1);
+            if rx1 < x0 || ry1 < y0 || rx0 > x1 || ry0 > y1 {
+                continue;
+            }
+            let (c0, c1) = (first(rx0, x0), last(rx1, x0, w));
+            let (r0, r1) = (first(ry0, y0), last(ry1, y0, h));
+            if c0 > c1 || r0 > r1 {
+                continue;
+            }
+            // Read (or found in the cache) only now, and let go when the tile is painted.
+            let samples = self.inputs.samples(usize::from(input))?;
+            let rows = (r0 * w)..((r1 + 1) * w);
+            values[rows.clone()]
+                .par_chunks_mut(w)
+                .zip(valid[rows.clone()].par_chunks_mut(w))
+                .zip(won[rows.clone()].par_chunks_mut(w))
+                .zip(class[rows.clone()].par_chunks_mut(w))
+                .zip(done[rows].par_chunks_mut(w))
+                .enumerate()
+                .for_each(|(row, ((((values, valid), won), class), done))| {
+                    let y = y0 + (((r0 + row) as i64) << s);
+                    for i in c0..=c1 {
+                        if done[i] {
+                            continue;
+                        }
+                        let x = x0 + ((i as i64) << s);
+                        let source = self.inputs.source_of(
+                            &samples,
+                            input,
+                            self.lat_lon(face, x, y),
+                            (x, y),
+                            self.lattice_deg,
+                            &self.strides,
+                        );
+                        match source {
+                            Some(PointSource::Sample(v, wi, j)) => {
+                                if let Some(u) = self.plan.to_units(v).ok().flatten() {
+                                    values[i] = u;
+                                    valid[i] = true;
+                                    won[i] = wi;
+                                    class[i] = j;
+                                }
+                                done[i] = true;
+                            }
+                            Some(PointSource::CoarseOnly(wi)) => {
+                                won[i] = wi;
+                                class[i] = COARSE_ONLY;
+                                done[i] = true;
+                            }
+                            None => {}
+                        }
+                    }
+                });
+        }
+        let finest = class.iter().copied().filter(|&c| c < 32).min();
+        Ok((values, valid, won, class, finest))
+    }
+
+    /// The geodetic position of lattice point `(x, y)` of `face`. Interior points are their own
+    /// canonical point; edge and corner points are computed from their owner, so every face
+    /// holding one sees the same bits.
+    #[inline]
+    fn lat_lon(&self, face: u8, x: i64, y: i64) -> cbdam_codec::geodesy::LatLon {
+        if 0 < x && x < self.side && 0 < y && y < self.side {
+            self.lattices[usize::from(face)].lat_lon(x as usize, y as usize)
+        } else {
+            lattice_lat_lon(&self.domain, face, x, y).expect("a point of the face")
+        }
+    }
+}
+
+/// A resampled tile and the winning input of each point it holds.
+type Held = Arc<(Arc<PlanetTile>, Vec<u16>)>;
+
+/// The lattice's tiles on demand: resampled at the stride the outline fixed (or thinner, as
+/// asked), the most recent kept up to a budget of bytes.
+pub struct LatticeTiles<'a> {
+    resampler: Resampler<'a>,
+    /// Per face, per tile: `log2` of the stride it holds its points at.
+    strides: Vec<Vec<u32>>,
+    cache: Mutex<TileCache>,
+}
+
+/// Recently resampled tiles, by `(face, tile, stride)`, oldest first in `order`.
+struct TileCache {
+    held: HashMap<(u8, usize, u32), Held>,
+    order: VecDeque<(u8, usize, u32)>,
+    bytes: u64,
+    budget: u64,
+}
+
+/// Bytes a tile of `points` points takes with its winners: height, validity, class, winner.
+fn tile_bytes(points: usize) -> u64 {
+    points as u64 * (4 + 1 + 1 + 2)
+}
+
+impl<'a> LatticeTiles<'a> {
+    /// Resamples every tile once (on the current rayon pool, one tile per worker at a time):
+    /// the outline of the planet, the stride of every tile, and the distinct lattice points
+    /// with data and the points the tiles hold.
+    pub fn outline(
+        resampler: Resampler<'a>,
+        cache_budget: u64,
+    ) -> Result<(Self, PlanetOutline, u64, u64)> {
+        let d = *resampler.domain();
+        let per_face = resampler.tiles_per_face();
+        let (n, k) = (d.n(), d.layout().k());
+        let (t, variable) = (resampler.tile_log2(), resampler.is_variable());
+        let empty = || PlanetOutline::new(n, k, t, variable).expect("the resampler's lattice");
+        type Part = (PlanetOutline, Vec<(u8, usize, u32)>, u64, u64);
+        let (outline, strides, valid, held) = (0..usize::from(d.faces()) * per_face)
+            .into_par_iter()
+            .try_fold(
+                || (empty(), Vec::new(), 0, 0),
+                |(mut o, mut s, valid, held): Part, i| -> Result<Part> {
+                    let face = (i / per_face) as u8;
+                    let (tile, _) = resampler.final_tile(face, i % per_face)?;
+                    o.add(face, &tile);
+                    s.push((face, i % per_face, tile.stride));
+                    let v = valid_in_tile(&d, face, &tile);
+                    Ok((o, s, valid + v, held + tile.points() as u64))
+                },
+            )
+            .try_reduce(
+                || (empty(), Vec::new(), 0, 0),
+                |mut a, b| {
+                    a.0.merge(b.0);
+                    a.1.extend(b.1);
+                    Ok((a.0, a.1, a.2 + b.2, a.3 + b.3))
+                },
+            )?;
+        let mut by_tile = vec![vec![0; per_face]; usize::from(d.faces())];
+        for (f, i, s) in strides {
+            by_tile[usize::from(f)][i] = s;
+        }
+        let tiles = Self {
+            resampler,
+            strides: by_tile,
+            cache: Mutex::new(TileCache {
+                held: HashMap::new(),
+                order: VecDeque::new(),
+                bytes: 0,
+                budget: cache_budget,
+            }),
+        };
+        Ok((tiles, outline, valid, held))
+    }
+
+    /// Tile `index` of `face` on multiples of `2^max(s, min(min_stride, tile side))` for its
+    /// own stride `2^s`, with its points' winners.
+    fn held(&self, face: u8, index: usize, min_stride: u32) -> Result<Held> {
+        let own = self.strides[usize::from(face)][index];
+        let stride = own.max(min_stride.min(self.resampler.tile_log2()));
+        let key = (face, index, stride);
+        if let Some(t) = self.cache.lock().expect("the tile cache").held.get(&key) {
+            return Ok(Arc::clone(t));
+        }
+        let (tile, won) = self.resampler.tile(face, index, stride)?;
+        let held: Held = Arc::new((Arc::new(tile), won));
+        let mut cache = self.cache.lock().expect("the tile cache");
+        let bytes = tile_bytes(held.0.points());
+        if bytes <= cache.budget && cache.held.insert(key, Arc::clone(&held)).is_none() {
+            cache.bytes += bytes;
+            cache.order.push_back(key);
+            while cache.bytes > cache.budget {
+                let Some(old) = cache.order.pop_front() else {
+                    break;
+                };
+                if let Some(t) = cache.held.remove(&old) {
+                    cache.bytes -= tile_bytes(t.0.points());
+                }
+            }
+        }
+        Ok(held)
+    }
+
+    /// Input `input`'s share of the lattice for its resampling error: the tiles it can cover,
+    /// thinned to its stride (the lattice points its samples are compared with), the others
+    /// empty.
+    fn input_view(&self, input: usize) -> Result<Resampled> {
+        let r = &self.resampler;
+        let d = r.domain();
+        let stride = r.strides[input];
+        let wanted: Vec<(u8, usize)> = (0..d.faces())
+            .flat_map(|f| (0..r.tiles_per_face()).map(move |i| (f, i)))
+            .filter(|&(f, i)| {
+                r.tiles.candidates[usize::from(f)][i]
+                    .iter()
+                    .any(|&(c, _)| usize::from(c) == input)
+            })
+            .collect();
+        let held = wanted
+            .into_par_iter()
+            .map(|(f, i)| Ok(((f, i), self.held(f, i, stride)?)))
+            .collect::<Result<HashMap<_, _>>>()?;
+        let mut winners = vec![vec![Vec::new(); r.tiles_per_face()]; usize::from(d.faces())];
+        let mut tiles = HashMap::new();
+        for ((f, i), h) in held {
+            winners[usize::from(f)][i] = h.1.clone();
+            tiles.insert((f, i), Arc::clone(&h.0));
+        }
+        let planet = PlanetGrid::partial(d.n(), d.layout().k(), r.tile_log2, r.variable, tiles)?;
+        Ok(Resampled {
+            planet,
+            winners,
+            strides: r.strides.clone(),
+        })
+    }
+}
+
+impl PlanetTiles for LatticeTiles<'_> {
+    fn tile(
+        &self,
+        face: u8,
+        index: usize,
+        min_stride: u32,
+    ) -> std::result::Result<Arc<PlanetTile>, CodecError> {
+        self.held(face, index, min_stride)
+            .map(|h| Arc::clone(&h.0))
+            .map_err(|e| CodecError::invalid(format!("resampling face {face} tile {index}: {e:#}")))
+    }
+}
+
+/// What [`encode_out_of_core`] made.
+pub struct LatticeEncode {
+    /// The hierarchy.
+    pub encoded: Encoded,
+    /// Per input, the resampling error against its samples.
+    pub resampling: Vec<InputResampling>,
+    /// Distinct lattice points with data.
+    pub valid: u64,
+    /// Points the lattice's tiles hold.
+    pub held_points: u64,
+}
+
+/// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
+/// as it is asked for (a cache of `cache_budget` bytes of tiles), finished blocks kept in
+/// `journal`, and measures each input's resampling error: the same hierarchy and figures as
+/// [`crate::planet::resample`] then [`cbdam_codec::hierarchy::encode_planet`] and
+/// [`crate::planet::resampling_error`] of the whole lattice.
+pub fn encode_out_of_core(
+    inputs: &PlanetInputs,
+    n: usize,
+    k: u32,
+    plan: &QuantPlan,
+    enc: &EncodeOptions,
+    cache_budget: u64,
+    journal: &dyn BlockJournal,
+) -> Result<LatticeEncode> {
+    let resampler = Resampler::new(inputs, n, k, plan)?;
+    let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
+    let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
+    let encoded =
+        encode_planet_in_blocks(&outline, &tiles, plan.quantizer, enc, cut, journal, true)
+            .map_err(BuildError::from)?;
+    let resampling = (0..inputs.inputs.len())
+        .map(|i| input_resampling(inputs, i, &tiles.input_view(i)?, plan))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(LatticeEncode {
+        encoded,
+        resampling,
+        valid,
+        held_points,
+    })
+}

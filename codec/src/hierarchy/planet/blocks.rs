@@ -1,0 +1,554 @@
+//! Encoding a planet block by block, its tiles read as each block needs them: the same records,
+//! byte for byte, as [`super::encode_planet`] over the whole planet, with never more than an
+//! apex view and one block's tiles of the lattice held.
+//!
+//! A planet's face is cut into tiles ([`PlanetGrid::tile_rects`]); each tile is a block. The
+//! encode runs in three parts:
+//!
+//! 1. An [`PlanetOutline`], gathered one tile at a time: the leaves each tile's points make
+//!    (the stored diamonds are the leaves and their ancestors, as the whole encoder finds them),
+//!    whether some point is a hole (the nodata mask) and whether any has data.
+//! 2. The **apex**: the root field and the levels above a cut level, over the whole planet, from
+//!    the tiles thinned to the cut level's vertices (every point the apex reads, and only those:
+//!    `2^(K − ⌈cut/2⌉)` apart). The apex keeps each of its diamonds' grids and the last level's
+//!    refinements; its object errors are measured by the blocks.
+//! 3. The **blocks**, one per tile: the stored diamonds from the cut down whose centres lie in
+//!    the tile (the block *owns* them; a tile owns its first row and column, its last only on
+//!    the face's far side) and their ancestors down to the cut, each gathered from its parents
+//!    as the whole encoder does — a diamond's refinement depends on its parents' and its own
+//!    points only (α = 1), so it is the same wherever it is computed. The block reads the tiles
+//!    under those diamonds (across face edges and cube corners through the cube's
+//!    `locate`/`representations`), records the diamonds it owns with their object errors, and
+//!    measures its own tile's share of the apex diamonds' errors: a planet diamond's error is the
+//!    largest over the tiles under it (on each face it lies on), so the largest over the blocks
+//!    is the whole encoder's.
+
+use std::collections::{BTreeSet, HashMap};
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use super::grid::tiles_meeting;
+use super::{
+    PlanetGrid, PlanetTile, TiledError, grid_from_parents, planet_params, planet_surface_error,
+    refine_diamond, tile_leaves, views,
+};
+use crate::CodecError;
+use crate::geometry::{DiamondId, Domain};
+use crate::hierarchy::blocks::{BlockJournal, BlockOutput};
+use crate::hierarchy::encode::{EncodeOptions, saturate_errors};
+use crate::hierarchy::record_bytes::KeptRecords;
+use crate::hierarchy::refine::Refined;
+use crate::hierarchy::resolution::{HOLE, with_parents};
+use crate::hierarchy::roots::encode_roots;
+use crate::hierarchy::{Encoded, Record};
+use crate::quant::{HeightGrid, Quantizer};
+
+/// Hands out a planet's tiles as the block-wise encode asks for them.
+pub trait PlanetTiles: Sync {
+    /// Tile `index` of face `face` ([`PlanetGrid::tile_rects`] order) with the points on
+    /// multiples of `2^max(s, min(min_stride, tile_log2))` for its own stride `2^s`: the same
+    /// values, validity and classes at those points as the tile at its own stride.
+    fn tile(&self, face: u8, index: usize, min_stride: u32) -> Result<Arc<PlanetTile>, CodecError>;
+}
+
+impl PlanetTiles for PlanetGrid {
+    fn tile(&self, face: u8, index: usize, min_stride: u32) -> Result<Arc<PlanetTile>, CodecError> {
+        let tiles = self.tiles(face);
+        let Some(t) = tiles.get(index) else {
+            return Err(CodecError::invalid(format!(
+                "face {face} has {} tiles, not {}",
+                tiles.len(),
+                index + 1
+            )));
+        };
+        thinned(t, min_stride.min(self.tile_log2()))
+    }
+}
+
+/// `t` with only its points on multiples of `2^stride` (itself when it holds no finer ones).
+pub fn thinned(t: &Arc<PlanetTile>, stride: u32) -> Result<Arc<PlanetTile>, CodecError> {
+    if stride <= t.stride {
+        return Ok(Arc::clone(t));
+    }
+    let (x0, y0, x1, y1) = t.rect;
+    let step = 1usize << stride;
+    let mut values = Vec::new();
+    let mut valid = Vec::new();
+    let mut class = t.class.as_ref().map(|_| Vec::new());
+    for y in (y0..=y1).step_by(step) {
+        for x in (x0..=x1).step_by(step) {
+            let k = t
+                .index(x, y)
+                .expect("a point of the tile on a coarser stride");
+            values.push(t.grid.values[k]);
+            valid.push(t.grid.valid[k]);
+            if let (Some(out), Some(c)) = (class.as_mut(), t.class.as_ref()) {
+                out.push(c[k]);
+            }
+        }
+    }
+    let grid = HeightGrid {
+        width: ((x1 - x0) >> stride) as usize + 1,
+        height: ((y1 - y0) >> stride) as usize + 1,
+        values: values.into(),
+        valid: valid.into(),
+    };
+    Ok(Arc::new(PlanetTile::new(stride, t.rect, grid, class)?))
+}
+
+/// What the block-wise encode needs of the whole planet, gathered tile by tile
+/// ([`PlanetOutline::add`]) without holding the tiles.
+#[derive(Clone, Debug)]
+pub struct PlanetOutline {
+    domain: Domain,
+    tile_log2: u32,
+    variable: bool,
+    leaves: Vec<BTreeSet<DiamondId>>,
+    has_nodata: bool,
+    has_data: bool,
+}
+
+impl PlanetOutline {
+    /// The outline of an `n`, `k` planet in tiles of `2^tile_log2` steps, with resolution
+    /// classes when `variable`, before any tile is added.
+    pub fn new(n: usize, k: u32, tile_log2: u32, variable: bool) -> Result<Self, CodecError> {
+        let domain = Domain::cube_sphere(n, k)?;
+        Ok(Self {
+            domain,
+            tile_log2,
+            variable,
+            leaves: vec![BTreeSet::new(); usize::from(domain.finest_level()) + 1],
+            has_nodata: false,
+            has_data: false,
+        })
+    }
+
+    /// The outline of a whole planet.
+    pub fn of_planet(planet: &PlanetGrid) -> Self {
+        let d = planet.domain();
+        let mut out = Self::new(
+            d.n(),
+            d.layout().k(),
+            planet.tile_log2(),
+            planet.is_variable(),
+        )
+        .expect("a planet's own lattice");
+        for face in 0..d.faces() {
+            for t in planet.tiles(face) {
+                out.add(face, t);
+            }
+        }
+        out
+    }
+
+    /// Adds tile `t` of face `face` (at its own stride).
+    pub fn add(&mut self, face: u8, t: &PlanetTile) {
+        for (all, some) in self
+            .leaves
+            .iter_mut()
+            .zip(tile_leaves(&self.domain, face, t))
+        {
+            all.extend(some);
+        }
+        self.has_nodata |= match &t.class {
+            Some(class) => class.contains(&HOLE),
+            None => !t.bounds().1,
+        };
+        self.has_data |= t.grid.range().is_some();
+    }
+
+    /// Adds what another outline of the same planet gathered (tiles outlined apart).
+    pub fn merge(&mut self, other: PlanetOutline) {
+        for (all, some) in self.leaves.iter_mut().zip(other.leaves) {
+            all.extend(some);
+        }
+        self.has_nodata |= other.has_nodata;
+        self.has_data |= other.has_data;
+    }
+
+    /// The planet's cube-sphere.
+    pub fn domain(&self) -> &Domain {
+        &self.domain
+    }
+}
+
+/// The deepest cut [`default_cut`] takes: a block's tile this many of the cut level's radii
+/// across (the blocks' margins, the ancestors of the diamonds they own, about 2 radii each
+/// side), as for planar blocks ([`crate::hierarchy::BlockPlan`]).
+const TILE_IN_CUT_RADII: i64 = 32;
+
+/// The apex reads the lattice at least `2^APEX_MIN_SHIFT` steps apart (a 64th of the points at
+/// most), so that it stays small beside the blocks.
+const APEX_MIN_SHIFT: u32 = 3;
+
+/// The cut level for tiles of `2^tile_log2` steps: the deepest level whose radius fits
+/// [`TILE_IN_CUT_RADII`] times in a tile, two levels above the finest at most, and no deeper
+/// than lets the apex read every `2^`[`APEX_MIN_SHIFT`]-th point.
+pub fn default_cut(domain: &Domain, tile_log2: u32) -> u8 {
+    let layout = domain.layout();
+    let finest = layout.finest_level();
+    let apex = 2 * layout.k().saturating_sub(APEX_MIN_SHIFT);
+    (0..=finest)
+        .find(|&l| layout.radius(l) * TILE_IN_CUT_RADII <= 1i64 << tile_log2)
+        .unwrap_or(finest)
+        .min(finest.saturating_sub(2))
+        .min(u8::try_from(apex).unwrap_or(u8::MAX))
+}
+
+/// Encodes the planet that `outline` outlines and `tiles` hands out, block by block (see the
+/// module documentation), cut at level `cut` (clamped to the finest level;
+/// [`default_cut`] is a good one): the same [`Encoded`] as [`super::encode_planet`] of the
+/// whole planet. Blocks `journal` kept are not encoded again (block `i` is tile
+/// `i % tiles_per_face` of face `i / tiles_per_face`); `spill`: finished records' bytes wait
+/// in a temporary file.
+pub fn encode_planet_in_blocks(
+    outline: &PlanetOutline,
+    tiles: &dyn PlanetTiles,
+    quantizer: Quantizer,
+    opts: &EncodeOptions,
+    cut: u8,
+    journal: &dyn BlockJournal,
+    spill: bool,
+) -> Result<Encoded, CodecError> {
+    let domain = outline.domain;
+    let params = planet_params(domain, quantizer, opts, outline.has_nodata)?;
+    if !outline.has_data {
+        return Err(CodecError::invalid("the planet has no valid sample"));
+    }
+    let sets = with_parents(&domain, &outline.leaves);
+    let cut = cut.min(domain.finest_level());
+    let apex = Apex::encode(outline, tiles, &params, &sets.stored, &sets.recorded, cut)?;
+    let side = domain.cube().expect("a cube-sphere").side();
+    let rects = PlanetGrid::tile_rects(&domain, outline.tile_log2);
+    let per_face = rects.len();
+    let mut kept = KeptRecords::new(spill)?;
+    kept.extend(apex.records.clone())?;
+    let mut own_error: HashMap<DiamondId, u32> = apex.grids.keys().map(|&id| (id, 0)).collect();
+    let block = BlockEncode {
+        outline,
+        tiles,
+        params: &params,
+        stored: &sets.stored,
+        recorded: &sets.recorded,
+        apex: &apex,
+        cut,
+        side,
+        rects,
+    };
+    for index in 0..usize::from(domain.faces()) * per_face {
+        let output = match journal.load(index)? {
+            Some(output) => output,
+            None => {
+                let face = u8::try_from(index / per_face).expect("6 faces");
+                let output = block.encode(face, index % per_face)?;
+                journal.save(index, &output)?;
+                output
+            }
+        };
+        kept.extend(output.records)?;
+        for (id, e) in output.own_errors {
+            let max = own_error.entry(id).or_insert(e);
+            *max = (*max).max(e);
+        }
+    }
+    if let Some(id) = sets
+        .stored
+        .iter()
+        .flatten()
+        .find(|id| !own_error.contains_key(id))
+    {
+        return Err(CodecError::invalid(format!(
+            "diamond {id} is in no block: the planet's tiles do not cover its centre"
+        )));
+    }
+    let (records, leaf_error) = saturate_errors(&domain, &sets.stored, kept.finish()?, &own_error);
+    Ok(Encoded {
+        params,
+        roots: apex.roots,
+        records,
+        leaf_error,
+    })
+}
+
+/// The levels above the cut, encoded over the whole planet.
+struct Apex {
+    root_field: Vec<i32>,
+    roots: Vec<u8>,
+    /// Records of the apex levels (object errors not yet saturated).
+    records: Vec<Record>,
+    /// Every stored apex diamond's grid, for the blocks to measure its error on their tiles.
+    grids: HashMap<DiamondId, Vec<i32>>,
+    /// Refinements of the recorded diamonds of the level above the cut.
+    last: HashMap<DiamondId, Refined>,
+    /// Per `(face, tile)`, the apex diamonds with a view on that face meeting the tile.
+    meeting: HashMap<(u8, usize), Vec<DiamondId>>,
+}
+
+impl Apex {
+    fn encode(
+        outline: &PlanetOutline,
+        tiles: &dyn PlanetTiles,
+        params: &crate::hierarchy::CodecParams,
+        stored: &[Vec<DiamondId>],
+        recorded: &[BTreeSet<DiamondId>],
+        cut: u8,
+    ) -> Result<Self, CodecError> {
+        let domain = &params.domain;
+        let layout = domain.layout();
+        // Every point the apex reads: the cut level's vertices (and the roots, coarser).
+        let shift = layout.k() - u32::from(cut).div_ceil(2);
+        let view = view_of(outline, tiles, all_tiles(outline), shift)?;
+        let (root_field, roots) = encode_roots(
+            params,
+            |f, x, y| view.get(f, x, y),
+            |f, x, y| view.drawn(f, x, y) == Some(true),
+        )?;
+        let mut grids = HashMap::new();
+        let mut records = Vec::new();
+        let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
+        for level in 0..cut {
+            type Output = (DiamondId, Vec<i32>, Option<(Refined, Record)>);
+            let results = stored[level as usize]
+                .par_iter()
+                .map(|&id| -> Result<Output, CodecError> {
+                    let p = grid_from_parents(domain, &root_field, id, &prev);
+                    let refined = match recorded[level as usize].contains(&id) {
+                        true => Some(refine_diamond(params, &view, id, &p)?),
+                        false => None,
+                    };
+                    Ok((id, p, refined))
+                })
+                .collect::<Result<Vec<_>, CodecError>>()?;
+            prev.clear();
+            for (id, p, refined) in results {
+                grids.insert(id, p);
+                if let Some((refined, record)) = refined {
+                    prev.insert(id, refined);
+                    records.push(record);
+                }
+            }
+        }
+        let side = domain.cube().expect("a cube-sphere").side();
+        let mut meeting: HashMap<(u8, usize), Vec<DiamondId>> = HashMap::new();
+        for (&id, p) in &grids {
+            for (seen, _) in views(domain, id, p) {
+                for i in tiles_meeting(side, outline.tile_log2, layout.bounds(seen)) {
+                    meeting.entry((seen.face, i)).or_default().push(id);
+                }
+            }
+        }
+        Ok(Self {
+            root_field,
+            roots,
+            records,
+            grids,
+            last: prev,
+            meeting,
+        })
+    }
+}
+
+/// Every tile of every face.
+fn all_tiles(outline: &PlanetOutline) -> BTreeSet<(u8, usize)> {
+    let per_face = PlanetGrid::tile_rects(&outline.domain, outline.tile_log2).len();
+    (0..outline.domain.faces())
+        .flat_map(|f| (0..per_face).map(move |i| (f, i)))
+        .collect()
+}
+
+/// A planet holding only `wanted`'s tiles, each thinned to `min_stride`.
+fn view_of(
+    outline: &PlanetOutline,
+    tiles: &dyn PlanetTiles,
+    wanted: BTreeSet<(u8, usize)>,
+    min_stride: u32,
+) -> Result<PlanetGrid, CodecError> {
+    let held = wanted
+        .into_par_iter()
+        .map(|(f, i)| Ok(((f, i), tiles.tile(f, i, min_stride)?)))
+        .collect::<Result<HashMap<_, _>, CodecError>>()?;
+    let d = &outline.domain;
+    PlanetGrid::partial(
+        d.n(),
+        d.layout().k(),
+        outline.tile_log2,
+        outline.variable,
+        held,
+    )
+}
+
+/// What every block's encode shares.
+struct BlockEncode<'a> {
+    outline: &'a PlanetOutline,
+    tiles: &'a dyn PlanetTiles,
+    params: &'a crate::hierarchy::CodecParams,
+    stored: &'a [Vec<DiamondId>],
+    recorded: &'a [BTreeSet<DiamondId>],
+    apex: &'a Apex,
+    cut: u8,
+    side: i64,
+    /// The tiles' rectangles on every face.
+    rects: Vec<(i64, i64, i64, i64)>,
+}
+
+impl BlockEncode<'_> {
+    /// The block of tile `index` of face `face`.
+    fn encode(&self, face: u8, index: usize) -> Result<BlockOutput, CodecError> {
+        let domain = &self.params.domain;
+        let finest = domain.finest_level();
+        let rect = self.rects[index];
+        let owns = |id: &DiamondId| id.face == face && owned_by(rect, self.side, id);
+        let needed = self.needed(face, &owns);
+        let mut wanted: BTreeSet<(u8, usize)> = BTreeSet::from([(face, index)]);
+        for id in needed.iter().flatten() {
+            wanted.extend(tiles_under(domain, self.outline.tile_log2, *id));
+        }
+        let view = view_of(self.outline, self.tiles, wanted, 0)?;
+        let errors = TiledError::new(&view)?;
+        let mut output = BlockOutput::default();
+        let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
+        for level in self.cut..=finest {
+            type Output = (DiamondId, Option<(Refined, Record)>, Option<u32>);
+            let parents = if level == self.cut {
+                &self.apex.last
+            } else {
+                &prev
+            };
+            let results = needed[usize::from(level - self.cut)]
+                .par_iter()
+                .map(|&id| -> Result<Output, CodecError> {
+                    let p = grid_from_parents(domain, &self.apex.root_field, id, parents);
+                    let err = owns(&id).then(|| planet_surface_error(domain, id, &p, &errors));
+                    let refined = match self.recorded[level as usize].contains(&id) {
+                        true => Some(refine_diamond(self.params, &view, id, &p)?),
+                        false => None,
+                    };
+                    Ok((id, refined, err))
+                })
+                .collect::<Result<Vec<_>, CodecError>>()?;
+            let mut next = HashMap::new();
+            for (id, refined, err) in results {
+                if let Some(e) = err {
+                    output.own_errors.push((id, e));
+                }
+                if let Some((refined, record)) = refined {
+                    if owns(&id) {
+                        output.records.push(record);
+                    }
+                    next.insert(id, refined);
+                }
+            }
+            prev = next;
+        }
+        output
+            .own_errors
+            .extend(self.apex_shares(face, index, &errors));
+        Ok(output)
+    }
+
+    /// Per level from the cut, in id order: the stored diamonds the block owns and their
+    /// ancestors down to the cut.
+    fn needed(&self, face: u8, owns: &dyn Fn(&DiamondId) -> bool) -> Vec<Vec<DiamondId>> {
+        let domain = &self.params.domain;
+        let finest = domain.finest_level();
+        let mut needed: Vec<Vec<DiamondId>> = Vec::new();
+        let mut below: Vec<DiamondId> = Vec::new();
+        for level in (self.cut..=finest).rev() {
+            let ids = &self.stored[level as usize];
+            let (a, b) = (
+                ids.partition_point(|id| id.face < face),
+                ids.partition_point(|id| id.face <= face),
+            );
+            let mut set: BTreeSet<DiamondId> = ids[a..b].iter().copied().filter(owns).collect();
+            set.extend(below.iter().flat_map(|&d| domain.parents(d)).flatten());
+            below = set.into_iter().collect();
+            needed.push(below.clone());
+        }
+        needed.reverse();
+        needed
+    }
+
+    /// The apex diamonds' errors measured on this block's tile alone.
+    fn apex_shares(&self, face: u8, index: usize, errors: &TiledError) -> Vec<(DiamondId, u32)> {
+        let domain = &self.params.domain;
+        let layout = domain.layout();
+        let Some(ids) = self.apex.meeting.get(&(face, index)) else {
+            return Vec::new();
+        };
+        ids.par_iter()
+            .map(|&id| {
+                let e = views(domain, id, &self.apex.grids[&id])
+                    .into_iter()
+                    .filter(|(seen, _)| seen.face == face)
+                    .filter(|(seen, _)| {
+                        tiles_meeting(self.side, self.outline.tile_log2, layout.bounds(*seen))
+                            .any(|i| i == index)
+                    })
+                    .map(|(seen, q)| errors.face_error_over(seen, &q, vec![index]))
+                    .max()
+                    .unwrap_or(0);
+                (id, e)
+            })
+            .collect()
+    }
+}
+
+/// Whether the block of the tile over `rect` (closed) owns `id`: its centre on the tile's
+/// first row or column or inside, or on the last where that is the face's far side.
+fn owned_by(rect: (i64, i64, i64, i64), side: i64, id: &DiamondId) -> bool {
+    let (x0, y0, x1, y1) = rect;
+    let within = |v: i64, a: i64, b: i64| a <= v && (v < b || (v == b && b == side));
+    within(i64::from(id.x), x0, x1) && within(i64::from(id.y), y0, y1)
+}
+
+/// The tiles (face, index) holding a point of `id`'s square or of any face's view of it: its
+/// bounds cut at its face's edges, each part carried onto the face it lies on (a part beyond a
+/// cube corner is off the surface), every corner of a part on every face holding it.
+fn tiles_under(domain: &Domain, tile_log2: u32, id: DiamondId) -> Vec<(u8, usize)> {
+    let cube = domain.cube().expect("a cube-sphere");
+    let side = cube.side();
+    let layout = domain.layout();
+    let mut out = Vec::new();
+    let mut rects: HashMap<u8, (i64, i64, i64, i64)> = HashMap::new();
+    let mut everything = false;
+    let parts = |a0: i64, a1: i64| {
+        [
+            (a0, a1.min(-1), true),
+            (a0.max(0), a1.min(side), false),
+            (a0.max(side + 1), a1, true),
+        ]
+        .into_iter()
+        .filter(|(a, b, _)| a <= b)
+    };
+    let (x0, y0, x1, y1) = layout.bounds(id);
+    for (xa, xb, x_out) in parts(x0, x1) {
+        for (ya, yb, y_out) in parts(y0, y1) {
+            if x_out && y_out {
+                continue;
+            }
+            for (x, y) in [(xa, ya), (xb, ya), (xa, yb), (xb, yb)] {
+                let Some(p) = cube.locate(id.face, x, y) else {
+                    everything = true;
+                    continue;
+                };
+                let (reps, len) = cube.representations(p);
+                for r in &reps[..len] {
+                    let e = rects.entry(r.face).or_insert((r.x, r.y, r.x, r.y));
+                    *e = (e.0.min(r.x), e.1.min(r.y), e.2.max(r.x), e.3.max(r.y));
+                }
+            }
+        }
+    }
+    if everything {
+        let rect = (0, 0, side, side);
+        for f in 0..domain.faces() {
+            out.extend(tiles_meeting(side, tile_log2, rect).map(|i| (f, i)));
+        }
+        return out;
+    }
+    for (f, rect) in rects {
+        out.extend(tiles_meeting(side, tile_log2, rect).map(|i| (f, i)));
+    }
+    out
+}
