@@ -771,17 +771,28 @@ fn a_planet_built_block_by_block_is_the_planet_encoded_whole() {
         },
     );
     let paths = [global, edge, corner];
-    let out = d.join("planet.cbdam");
     let mut args: Vec<String> = vec!["build".into()];
     args.extend(paths.iter().map(|p| s(p)));
     for a in ["--planet", "--diamond-size", "17", "--max-error", "1"] {
         args.push(a.into());
     }
-    args.extend(["--memory-limit".into(), "16M".into(), "-o".into(), s(&out)]);
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let o = cbdam(&args);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stdout(&o).contains("K = 11"), "{}", stdout(&o));
+    // Under 4 MiB the lattice (7.4 M points held) does not fit whole; under 8 GiB it does.
+    let mut outputs = Vec::new();
+    for (limit, path) in [("4M", "(block by block)"), ("8G", "(whole lattice)")] {
+        let out = d.join(format!("planet-{limit}.cbdam"));
+        let mut args = args.clone();
+        args.extend(["--timings", "--memory-limit", limit, "-o", &s(&out)].map(String::from));
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = cbdam(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(stdout(&o).contains("K = 11"), "{}", stdout(&o));
+        assert!(stderr(&o).contains(path), "{limit}: {}", stderr(&o));
+        outputs.push(std::fs::read(&out).unwrap());
+    }
+    assert!(
+        outputs[0] == outputs[1],
+        "the two paths wrote different bytes"
+    );
 
     let tiles = cbdam_builder::tiles::expand_inputs(&paths).unwrap();
     let inputs = PlanetInputs::read(&tiles, None, None, u64::MAX).unwrap();
@@ -797,7 +808,7 @@ fn a_planet_built_block_by_block_is_the_planet_encoded_whole() {
     let provenance = provenance_of(&resampling_error(&inputs, &resampled, &plan).unwrap());
     let whole = d.join("whole.cbdam");
     write_planet_repository(&whole, &encoded, &plan, None, &provenance).unwrap();
-    let (a, b) = (std::fs::read(&whole).unwrap(), std::fs::read(&out).unwrap());
+    let (a, b) = (std::fs::read(&whole).unwrap(), outputs.remove(0));
     assert!(
         a == b,
         "block by block {} bytes, whole {} bytes",

@@ -25,14 +25,14 @@ use crate::assign::AssignedGeoRef;
 use crate::error::{Context, Result, bail};
 use crate::planet_input::Frame;
 pub use crate::planet_input::{GEOGRAPHIC_EPSG, MAX_PLANET_INPUTS, PlanetInput, PlanetInputs};
-use crate::planet_lattice::{Resampler, encode_out_of_core};
+use crate::planet_lattice::{LatticeEncode, Resampler, encode_out_of_core};
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
 use cbdam_codec::geodesy::LatLon;
 use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::planet::{tile_log2, tile_of};
-use cbdam_codec::hierarchy::{EncodeOptions, NoJournal, PlanetGrid, PlanetTile};
+use cbdam_codec::hierarchy::{EncodeOptions, NoJournal, PlanetGrid, PlanetTile, encode_planet};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
@@ -442,6 +442,54 @@ pub struct PlanetSummary {
     pub stages: Vec<(&'static str, std::time::Duration)>,
 }
 
+/// Bytes a planet build holds per lattice point its tiles hold when it resamples and encodes
+/// the whole lattice at once (measured on the ETOPO5 planet with margin, `/usr/bin/time -v
+/// cbdam build data/etopo5_global.tif --planet --max-error 16`: 19.6 B a point): the tiles
+/// (6 B with classes), the resampling winners (2 B) and the encoder's per-diamond refinements
+/// of two levels. A lattice over the memory limit at this rate is encoded block by block.
+pub const BYTES_PER_LATTICE_POINT: u64 = 24;
+
+/// The points the lattice's tiles will hold, from each tile's stride in [`plan_tiles`] (the
+/// resampling may make a tile denser where a point takes a finer input's sample).
+fn estimated_held_points(inputs: &PlanetInputs, n: usize, k: u32) -> Result<u64> {
+    let domain = Domain::cube_sphere(n, k)?;
+    let side = domain.cube().expect("a cube-sphere").side();
+    let rects = PlanetGrid::tile_rects(&domain, tile_log2(side));
+    let plan = plan_tiles(inputs, n, k)?;
+    Ok(plan
+        .strides
+        .iter()
+        .flat_map(|strides| {
+            strides.iter().zip(&rects).map(|(&s, &(x0, y0, x1, y1))| {
+                (((x1 - x0) >> s) as u64 + 1) * (((y1 - y0) >> s) as u64 + 1)
+            })
+        })
+        .sum())
+}
+
+/// The whole lattice resampled, then encoded while each input's resampling error is measured
+/// (the measurement fills the cores the encoder's coarse levels leave idle): what
+/// [`encode_out_of_core`] gives, for a lattice that fits in memory.
+fn encode_whole(
+    inputs: &PlanetInputs,
+    n: usize,
+    k: u32,
+    plan: &QuantPlan,
+    enc: &EncodeOptions,
+) -> Result<LatticeEncode> {
+    let resampled = resample(inputs, n, k, plan)?;
+    let (encoded, resampling) = rayon::join(
+        || encode_planet(&resampled.planet, plan.quantizer, enc),
+        || resampling_error(inputs, &resampled, plan),
+    );
+    Ok(LatticeEncode {
+        encoded: encoded?,
+        resampling: resampling?,
+        valid: count_valid(&resampled.planet),
+        held_points: resampled.planet.held_points(),
+    })
+}
+
 /// Bytes of the inputs' samples a planet build keeps besides those in use: an eighth of the
 /// memory limit (the rest is the lattice's). The inputs are read when a lattice tile asks for
 /// them, so memory does not grow with their number.
@@ -565,19 +613,37 @@ pub fn build_planet(
         alpha: Alpha::One,
         coder: opts.coder,
     };
+    // The whole lattice in memory where it fits (the faster path), block by block where not:
+    // the same bytes either way.
+    let whole =
+        estimated_held_points(&inputs, n, k)?.saturating_mul(BYTES_PER_LATTICE_POINT) <= limit;
     let lattice = pool.install(|| {
-        encode_out_of_core(
-            &inputs,
-            n,
-            k,
-            &plan,
-            &enc,
-            lattice_cache_budget(limit),
-            &NoJournal,
-        )
+        if whole {
+            encode_whole(&inputs, n, k, &plan, &enc)
+        } else {
+            encode_out_of_core(
+                &inputs,
+                n,
+                k,
+                &plan,
+                &enc,
+                lattice_cache_budget(limit),
+                &NoJournal,
+            )
+        }
     })?;
     let (encoded, resampling) = (lattice.encoded, lattice.resampling);
-    stages.push(("resample, encode and measure resampling error", t.elapsed()));
+    stages.push(if whole {
+        (
+            "resample, encode and measure resampling error (whole lattice)",
+            t.elapsed(),
+        )
+    } else {
+        (
+            "resample, encode and measure resampling error (block by block)",
+            t.elapsed(),
+        )
+    });
     event(Stage::Encode, 1);
     event(Stage::Write, 0);
     let t = Instant::now();
