@@ -15,6 +15,7 @@ mod older_formats;
 mod parallel_decode;
 mod planet_codec;
 mod planet_domain;
+mod planet_window_decode;
 mod real_dems;
 mod repository;
 mod variable_resolution;
