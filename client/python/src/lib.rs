@@ -5,6 +5,7 @@
 
 mod build;
 mod errors;
+mod planet;
 mod reader;
 mod source;
 

@@ -12,6 +12,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyAny;
 
 use crate::errors::{PyCbdamError, Result};
+use crate::planet::{self, GeoGrid};
 use crate::source::{Sample, Source};
 
 /// A window `(col_off, row_off, width, height)` of the input grid: a tuple, or anything with
@@ -90,6 +91,69 @@ pub fn open(py: Python<'_>, path_or_url: &Bound<'_, PyAny>, timeout: f64) -> PyR
 }
 
 impl Reader {
+    fn is_planet(&self) -> bool {
+        self.source.head().params().domain.kind() != DomainKind::Planar
+    }
+
+    /// Refuses a planet for the planar reads, naming the planet's.
+    fn require_planar(&self) -> Result<()> {
+        match self.is_planet() {
+            true => Err(PyCbdamError::Unsupported(format!(
+                "{} is a planet (cube-sphere): read, sample and to_xarray take planar rasters; \
+                 use read_geo(bbox=(west, south, east, north), resolution=degrees) and \
+                 sample_geo(lons, lats)",
+                self.name
+            ))),
+            false => Ok(()),
+        }
+    }
+
+    /// Refuses a plane for the planet's reads.
+    fn require_planet(&self, what: &str) -> Result<()> {
+        match self.is_planet() {
+            true => Ok(()),
+            false => Err(PyCbdamError::Unsupported(format!(
+                "{} is planar: {what} reads planets (cube-sphere); use read / sample with its \
+                 CRS coordinates",
+                self.name
+            ))),
+        }
+    }
+
+    /// `level`, checked (an even level of the planet), else the one `resolution` picks.
+    fn geo_level(&self, level: Option<u8>, resolution: Option<f64>) -> Result<u8> {
+        let head = self.source.head();
+        let finest = head.params().layout().finest_level();
+        match (level, resolution) {
+            (Some(l), _) if l % 2 != 0 || l > finest => Err(PyCbdamError::Input(format!(
+                "level={l}: only even levels 0, 2, …, {finest} are grids of this planet"
+            ))),
+            (Some(l), _) => Ok(l),
+            (None, Some(r)) => Ok(planet::level_for(head, r)),
+            (None, None) => Ok(finest),
+        }
+    }
+
+    /// A new array of `shape` of `T` holding the heights at `points`, written in place
+    /// without the GIL.
+    fn geo_as<'py, T: Sample + numpy::Element, D: numpy::ndarray::Dimension>(
+        &self,
+        py: Python<'py>,
+        shape: D,
+        level: u8,
+        points: &[(f64, f64)],
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let array = numpy::PyArray::<T, D>::zeros(py, shape, false);
+        {
+            let mut rw = array.readwrite();
+            let out = rw
+                .as_slice_mut()
+                .map_err(|e| PyCbdamError::Other(e.to_string()))?;
+            py.detach(|| planet::heights_at(&self.source, &self.name, level, points, out))?;
+        }
+        Ok(array.into_any())
+    }
+
     fn georef(&self) -> Option<&GeoRef> {
         self.source.head().georef()
     }
@@ -107,13 +171,7 @@ impl Reader {
         bbox: Option<Vec<f64>>,
     ) -> Result<LevelGrid> {
         let head = self.source.head();
-        if head.params().domain.kind() != DomainKind::Planar {
-            return Err(PyCbdamError::Unsupported(format!(
-                "{} is a planet (cube-sphere): read returns planar rasters, and a planet's six \
-                 faces are not resampled to latitude/longitude yet",
-                self.name
-            )));
-        }
+        self.require_planar()?;
         let (w, h) = self.data_size();
         let rect = match (window, bbox) {
             (Some(_), Some(_)) => {
@@ -284,7 +342,9 @@ impl Reader {
         xs: PyReadonlyArray1<'py, f64>,
         ys: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let (xs, ys) = (xs.as_slice()?, ys.as_slice()?);
+        self.require_planar()?;
+        // Any strides (a column of a 2-D array, a reversed view): copied once.
+        let (xs, ys): (Vec<f64>, Vec<f64>) = (xs.as_array().to_vec(), ys.as_array().to_vec());
         if xs.len() != ys.len() {
             return Err(PyCbdamError::Input(format!(
                 "xs and ys differ in length ({} and {})",
@@ -298,7 +358,7 @@ impl Reader {
         // Fractional (column, row) of each point, sample centres at whole numbers.
         let at: Vec<(f64, f64)> = xs
             .iter()
-            .zip(ys)
+            .zip(&ys)
             .map(|(&x, &y)| ((x - c) / a - 0.5, (y - f) / e - 0.5))
             .collect();
         let inside = |&(col, row): &(f64, f64)| {
@@ -332,6 +392,66 @@ impl Reader {
             }
         }
         Ok(PyArray1::from_vec(py, out))
+    }
+
+    /// A planet's heights on a latitude/longitude grid: the cells of `bbox=(west, south, east,
+    /// north)` (degrees, sides whole numbers of cells) at `resolution` degrees, each sampled
+    /// at its centre, row 0 north (the transform `(resolution, 0, west, 0, −resolution,
+    /// north)` in EPSG:4326). From `level` (default: the coarsest even level whose mean
+    /// spacing is at most `resolution`), bilinear in a face's lattice, as `sample_geo`.
+    #[pyo3(signature = (bbox, resolution, level = None, out_dtype = "float32"))]
+    fn read_geo<'py>(
+        &self,
+        py: Python<'py>,
+        bbox: Vec<f64>,
+        resolution: f64,
+        level: Option<u8>,
+        out_dtype: &str,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        self.require_planet("read_geo")?;
+        let grid = GeoGrid::new(&bbox, resolution)?;
+        let level = self.geo_level(level, Some(resolution))?;
+        let points = grid.points();
+        let shape = numpy::ndarray::Ix2(grid.height, grid.width);
+        match out_dtype {
+            "float32" | "f4" => self.geo_as::<f32, _>(py, shape, level, &points),
+            "float64" | "f8" => self.geo_as::<f64, _>(py, shape, level, &points),
+            other => Err(PyCbdamError::Input(format!(
+                "out_dtype={other:?}: 'float32' or 'float64'"
+            ))
+            .into()),
+        }
+    }
+
+    /// A planet's heights (float64, metres) at geodetic `(lons[i], lats[i])`, degrees:
+    /// bilinear between the four lattice points of the finest level (or `level`) around each
+    /// on its face, so within `max_error` of the same interpolation of the planet's resampled
+    /// lattice, and within `max_error + resampling_error[0]` of the input at the input's
+    /// samples. NaN where the planet has no data. Decodes the faces' rectangles around the
+    /// points.
+    #[pyo3(signature = (lons, lats, level = None))]
+    fn sample_geo<'py>(
+        &self,
+        py: Python<'py>,
+        lons: PyReadonlyArray1<'py, f64>,
+        lats: PyReadonlyArray1<'py, f64>,
+        level: Option<u8>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        self.require_planet("sample_geo")?;
+        let (lons, lats) = (lons.as_array(), lats.as_array());
+        let points = planet::lon_lat_points(lons.iter(), lats.iter())?;
+        let level = self.geo_level(level, None)?;
+        let shape = numpy::ndarray::Ix1(points.len());
+        self.geo_as::<f64, _>(py, shape, level, &points)
+    }
+
+    /// A planet's resampling error `(max, rms)`, metres: how far its lattice is from the
+    /// inputs' samples (each against the bilinear interpolation of the four lattice points
+    /// around it), as the build measured it; `None` for planes and planets without it.
+    #[getter]
+    fn resampling_error(&self) -> Option<(f64, f64)> {
+        let p = self.source.head().provenance()?;
+        Some((p.resampling_max, p.resampling_rms))
     }
 
     fn __repr__(&self) -> String {

@@ -10,10 +10,13 @@ use std::time::Duration;
 use cbdam_client::fetch::{FetchOptions, RemoteFetcher};
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{LevelWindow, decode_window};
+use cbdam_codec::hierarchy::{FaceWindows, LevelWindow, decode_face_windows, decode_window};
 use cbdam_codec::repository::{LevelGrid, Repository, RepositoryHead};
 
 use crate::errors::{PyCbdamError, Result};
+
+/// The bytes of one stored diamond's record, as the decoders ask for them.
+type RecordFn<'r> = dyn Fn(DiamondId) -> std::result::Result<&'r [u8], CodecError> + Sync + 'r;
 
 /// A repository, local or remote.
 pub enum Source {
@@ -93,7 +96,6 @@ impl Source {
             level: grid.level,
             rect: (grid.x0, grid.y0, grid.x1, grid.y1),
         };
-        let stored: Vec<DiamondId> = head.entries().iter().map(|e| e.id).collect();
         let n = params.layout().n();
         let visit = |id: DiamondId, values: &[i32], valid: Option<&[bool]>| {
             let g = params.layout().grid(id);
@@ -109,15 +111,46 @@ impl Source {
                 }
             }
         };
+        let stored: Vec<DiamondId> = head.entries().iter().map(|e| e.id).collect();
+        let needed = || Ok(window.records_needed(&params, &stored));
+        self.decode_with(needed, name, |record| {
+            decode_window(params, head.root_bytes(), &stored, record, window, visit)
+        })
+    }
+
+    /// Decodes `windows` of a planet, handing `visit` each diamond of the level that reaches
+    /// them (see `decode_face_windows`). Runs on rayon's pool; call it without the GIL.
+    pub fn decode_faces(
+        &self,
+        windows: &FaceWindows,
+        name: &str,
+        visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+    ) -> Result<()> {
+        let head = self.head();
+        let params = *head.params();
+        let stored: Vec<DiamondId> = head.entries().iter().map(|e| e.id).collect();
+        let needed = || windows.records_needed(&params, &stored);
+        self.decode_with(needed, name, |record| {
+            decode_face_windows(params, head.root_bytes(), &stored, record, windows, visit)
+        })
+    }
+
+    /// Runs `decode` with the records it reads: a local file's, or (remote) the records
+    /// `needed` names, fetched first. `name` names the repository in messages.
+    fn decode_with(
+        &self,
+        needed: impl FnOnce() -> std::result::Result<Vec<DiamondId>, CodecError>,
+        name: &str,
+        decode: impl for<'r> FnOnce(&'r RecordFn<'r>) -> std::result::Result<(), CodecError>,
+    ) -> Result<()> {
         let decoding = |e: CodecError| PyCbdamError::codec(&format!("decoding {name}"), &e);
         match self {
             Source::Local(repo) => {
                 let record = |id: DiamondId| repo.record(id);
-                decode_window(params, head.root_bytes(), &stored, record, window, visit)
-                    .map_err(decoding)
+                decode(&record).map_err(decoding)
             }
             Source::Remote { fetcher, stall, .. } => {
-                let needed = window.records_needed(&params, &stored);
+                let needed = needed().map_err(decoding)?;
                 let records = fetcher
                     .lock()
                     .map_err(|_| PyCbdamError::Other("an earlier read panicked".into()))?
@@ -128,8 +161,7 @@ impl Source {
                         CodecError::invalid(format!("{id} was not fetched for this window"))
                     })
                 };
-                decode_window(params, head.root_bytes(), &stored, record, window, visit)
-                    .map_err(decoding)
+                decode(&record).map_err(decoding)
             }
         }
     }

@@ -39,6 +39,9 @@ pub struct LevelWindow {
     pub rect: (i64, i64, i64, i64),
 }
 
+/// An inclusive lattice rectangle `(x0, y0, x1, y1)` of one face: `(face, rectangle)`.
+pub type FaceRect = (u8, (i64, i64, i64, i64));
+
 /// One level's samples over inclusive lattice rectangles of a planet's faces: `(face, (x0, y0,
 /// x1, y1))` in that face's lattice units (`0..=S`). A point on a face edge may be asked through
 /// any face holding it.
@@ -47,7 +50,7 @@ pub struct FaceWindows {
     /// The level to decode.
     pub level: u8,
     /// The rectangles.
-    pub rects: Vec<(u8, (i64, i64, i64, i64))>,
+    pub rects: Vec<FaceRect>,
 }
 
 /// Diamonds decoded in one parallel step of the target level before they are visited in order:

@@ -7,7 +7,7 @@
 //! windowed decode of the same level): on a planet a grid point is written to every face that
 //! holds it, so a position on or next to a face edge interpolates on one face alone.
 
-use super::DiamondId;
+use super::{DiamondId, FaceRect};
 use crate::CodecError;
 use crate::geometry::Domain;
 
@@ -62,11 +62,7 @@ impl LevelRaster {
     /// An empty raster ([`NO_DATA`] everywhere) of even `level` over `rects`: `(face, (x0, y0,
     /// x1, y1))`, inclusive lattice units, at most one a face. Refuses an odd level or one past
     /// the finest, and a rectangle holding no sample of the level.
-    pub fn new(
-        domain: &Domain,
-        level: u8,
-        rects: &[(u8, (i64, i64, i64, i64))],
-    ) -> Result<LevelRaster, CodecError> {
+    pub fn new(domain: &Domain, level: u8, rects: &[FaceRect]) -> Result<LevelRaster, CodecError> {
         let finest = domain.finest_level();
         if !level.is_multiple_of(2) || level > finest {
             return Err(CodecError::invalid(format!(

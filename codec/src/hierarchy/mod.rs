@@ -37,7 +37,7 @@ pub use decode::{
     walk_with_validity,
 };
 pub use decode_blocks::{BlockWalk, block_walk};
-pub use decode_window::{FaceWindows, LevelWindow, decode_face_windows, decode_window};
+pub use decode_window::{FaceRect, FaceWindows, LevelWindow, decode_face_windows, decode_window};
 pub use encode::{ApexField, ApexOutput, EncodeOptions, Encoder, GridSummary, ShardedEncode};
 pub use field::TempStorage;
 pub use level_raster::{FaceBlock, LevelRaster, LevelSample, MASKED, NO_DATA};

@@ -7,7 +7,7 @@
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::hierarchy::{Encoded, LevelSample, walk_all_with_validity};
+use cbdam_codec::hierarchy::{Encoded, FaceRect, LevelSample, walk_all_with_validity};
 pub use cbdam_codec::hierarchy::{LevelRaster, MASKED, NO_DATA};
 use cbdam_codec::quant::QuantPlan;
 
@@ -42,7 +42,7 @@ pub fn decode_levels(
     // Per level, the raster it fills (at most one window per level).
     let mut of_level: Vec<Option<usize>> = vec![None; domain.finest_level() as usize + 1];
     for w in windows {
-        let rects: Vec<(u8, (i64, i64, i64, i64))> = (0..domain.faces())
+        let rects: Vec<FaceRect> = (0..domain.faces())
             .map(|f| (f, (w.x0, w.y0, w.x1, w.y1)))
             .collect();
         let raster = LevelRaster::new(&domain, w.level, &rects)?;
