@@ -4,6 +4,7 @@
 //! `to_xarray`) is in `python/cbdam/`.
 
 mod build;
+mod cache;
 mod errors;
 mod planet;
 mod reader;

@@ -9,7 +9,7 @@ use cbdam_codec::geometry::DomainKind;
 use cbdam_codec::repository::{GeoRef, LevelGrid, bbox_window};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1};
 use pyo3::prelude::*;
-use pyo3::types::PyAny;
+use pyo3::types::{PyAny, PyDict};
 
 use crate::errors::{PyCbdamError, Result};
 use crate::planet::{self, GeoGrid};
@@ -51,6 +51,9 @@ impl<'a, 'py> FromPyObject<'a, 'py> for Window {
     }
 }
 
+/// The records a remote reader keeps between reads unless told otherwise: 64 MiB.
+const DEFAULT_CACHE_BYTES: i64 = 64 << 20;
+
 /// An open repository (`cbdam.open`).
 #[pyclass(module = "cbdam", frozen)]
 pub struct Reader {
@@ -61,10 +64,22 @@ pub struct Reader {
 
 /// Opens a repository: a local file (memory-mapped), a `cbdam serve` repository URL, or the URL
 /// of a `.cbdam` file on a server with Range support. `timeout`: seconds a remote read waits
-/// without a record arriving before it raises `NetworkError`.
+/// without a record arriving before it raises `NetworkError`. `cache_bytes`: how many bytes of
+/// records a remote reader keeps between reads (least recently used dropped first; 0: none).
 #[pyfunction]
-#[pyo3(signature = (path_or_url, timeout = 10.0))]
-pub fn open(py: Python<'_>, path_or_url: &Bound<'_, PyAny>, timeout: f64) -> PyResult<Reader> {
+#[pyo3(signature = (path_or_url, timeout = 10.0, cache_bytes = DEFAULT_CACHE_BYTES))]
+pub fn open(
+    py: Python<'_>,
+    path_or_url: &Bound<'_, PyAny>,
+    timeout: f64,
+    cache_bytes: i64,
+) -> PyResult<Reader> {
+    let Ok(cache_bytes) = usize::try_from(cache_bytes) else {
+        return Err(PyCbdamError::Input(format!(
+            "cache_bytes={cache_bytes}: must be 0 or a positive number of bytes"
+        ))
+        .into());
+    };
     if !(timeout.is_finite() && timeout > 0.0) {
         return Err(PyCbdamError::Input(format!(
             "timeout={timeout}: must be a positive number of seconds"
@@ -78,7 +93,7 @@ pub fn open(py: Python<'_>, path_or_url: &Bound<'_, PyAny>, timeout: f64) -> PyR
     let (source, name) = match url {
         Some(url) => {
             let stall = Duration::from_secs_f64(timeout);
-            let source = py.detach(|| Source::open_remote(&url, stall))?;
+            let source = py.detach(|| Source::open_remote(&url, stall, cache_bytes))?;
             (source, url)
         }
         None => {
@@ -452,6 +467,22 @@ impl Reader {
     fn resampling_error(&self) -> Option<(f64, f64)> {
         let p = self.source.head().provenance()?;
         Some((p.resampling_max, p.resampling_rms))
+    }
+
+    /// A remote reader's cache: `{'records', 'bytes', 'limit', 'hits', 'misses'}` (records
+    /// held, their bytes, the budget, and since opening the records reads found held and those
+    /// they fetched); `None` for a local file.
+    fn cache_info<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(info) = self.source.cache_info() else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("records", info.records)?;
+        d.set_item("bytes", info.bytes)?;
+        d.set_item("limit", info.limit)?;
+        d.set_item("hits", info.hits)?;
+        d.set_item("misses", info.misses)?;
+        Ok(Some(d))
     }
 
     fn __repr__(&self) -> String {

@@ -13,6 +13,7 @@ use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{FaceWindows, LevelWindow, decode_face_windows, decode_window};
 use cbdam_codec::repository::{LevelGrid, Repository, RepositoryHead};
 
+use crate::cache::{CacheInfo, RecordCache};
 use crate::errors::{PyCbdamError, Result};
 
 /// The bytes of one stored diamond's record, as the decoders ask for them.
@@ -22,8 +23,8 @@ type RecordFn<'r> = dyn Fn(DiamondId) -> std::result::Result<&'r [u8], CodecErro
 pub enum Source {
     /// A memory-mapped file: records are read (and CRC-checked) where they are decoded.
     Local(Arc<Repository>),
-    /// Over HTTP: the head fetched at open, the records a read needs fetched before it decodes
-    /// (one read's fetch at a time: the fetcher has one wanted set).
+    /// Over HTTP: the head fetched at open, the records a read needs and the cache lacks
+    /// fetched before it decodes (one read's fetch at a time: the fetcher has one wanted set).
     Remote {
         /// The fetcher, which holds the head.
         fetcher: Mutex<RemoteFetcher>,
@@ -31,7 +32,14 @@ pub enum Source {
         head: Arc<RepositoryHead>,
         /// How long a read waits without a record arriving before it gives up.
         stall: Duration,
+        /// The records kept between reads.
+        cache: Mutex<RecordCache>,
     },
+}
+
+/// The error of a lock an earlier read panicked holding.
+fn poisoned<T>(_: T) -> PyCbdamError {
+    PyCbdamError::Other("an earlier read panicked".into())
 }
 
 /// One output sample type: `float32` or `float64`, NaN where there is no data.
@@ -62,7 +70,8 @@ impl Source {
 
     /// Connects to `url` and fetches the head; later reads give up after `stall` without a
     /// record (and so does connecting, per request).
-    pub fn open_remote(url: &str, stall: Duration) -> Result<Source> {
+    /// `cache_bytes`: the records kept between reads, at most (0: none).
+    pub fn open_remote(url: &str, stall: Duration, cache_bytes: usize) -> Result<Source> {
         let options = FetchOptions {
             timeout: stall,
             ..FetchOptions::default()
@@ -73,7 +82,16 @@ impl Source {
             fetcher: Mutex::new(fetcher),
             head,
             stall,
+            cache: Mutex::new(RecordCache::new(cache_bytes)),
         })
+    }
+
+    /// What the remote cache holds (`None` for a local file).
+    pub fn cache_info(&self) -> Option<CacheInfo> {
+        match self {
+            Source::Local(_) => None,
+            Source::Remote { cache, .. } => cache.lock().ok().map(|c| c.info()),
+        }
     }
 
     /// The validated head.
@@ -149,13 +167,23 @@ impl Source {
                 let record = |id: DiamondId| repo.record(id);
                 decode(&record).map_err(decoding)
             }
-            Source::Remote { fetcher, stall, .. } => {
+            Source::Remote {
+                fetcher,
+                stall,
+                cache,
+                ..
+            } => {
                 let needed = needed().map_err(decoding)?;
-                let records = fetcher
-                    .lock()
-                    .map_err(|_| PyCbdamError::Other("an earlier read panicked".into()))?
-                    .fetch_all(&needed, *stall)
-                    .map_err(|m| PyCbdamError::Network(format!("reading {name}: {m}")))?;
+                let (mut records, missing) = cache.lock().map_err(poisoned)?.take(&needed);
+                if !missing.is_empty() {
+                    let fetched = fetcher
+                        .lock()
+                        .map_err(poisoned)?
+                        .fetch_all(&missing, *stall)
+                        .map_err(|m| PyCbdamError::Network(format!("reading {name}: {m}")))?;
+                    cache.lock().map_err(poisoned)?.keep(&fetched);
+                    records.extend(fetched);
+                }
                 let record = |id: DiamondId| {
                     records.get(&id).map(|b| &b[..]).ok_or_else(|| {
                         CodecError::invalid(format!("{id} was not fetched for this window"))
