@@ -33,7 +33,7 @@ pub enum Source {
         /// How long a read waits without a record arriving before it gives up.
         stall: Duration,
         /// The records kept between reads.
-        cache: Mutex<RecordCache>,
+        cache: Box<Mutex<RecordCache>>,
     },
 }
 
@@ -82,7 +82,7 @@ impl Source {
             fetcher: Mutex::new(fetcher),
             head,
             stall,
-            cache: Mutex::new(RecordCache::new(cache_bytes)),
+            cache: Box::new(Mutex::new(RecordCache::new(cache_bytes))),
         })
     }
 
