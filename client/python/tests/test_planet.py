@@ -215,3 +215,24 @@ def test_a_planet_of_a_real_dem_holds_the_bound_at_its_samples(cbdam_bin, tmp_pa
     err = np.abs(got - values.ravel())
     assert np.isfinite(got).all()
     assert err.max() <= r.max_error + r.resampling_error[0] + 1e-6, err.max()
+
+
+def test_verify_compares_a_planet_with_its_input(planet, tmp_path):
+    report = cbdam.verify(planet["repo"], against=[planet["dem"]])
+    r = cbdam.open(planet["repo"])
+    assert report["bound"] == r.max_error and report["max_error"] <= report["level_bound"]
+    [one] = report["inputs"]
+    assert one["path"].endswith("relief.tif") and one["samples"] == 360 * 180
+    assert one["compared"] > 0.98 * one["samples"], one
+    assert one["resampling_max"] == pytest.approx(r.resampling_error[0], rel=1e-6)
+    assert 0 < one["surface_max"] <= one["allowed"] == one["resampling_max"] + r.max_error
+    # Against a DEM 50 m higher east of 45° E (a cube edge on the equator) the planet fails:
+    # its levels are far from the lattice resampled from it.
+    with rasterio.open(planet["dem"]) as src:
+        values, profile = src.read(1), src.profile
+    values[:, 225:] += 50.0  # east of 45° E
+    other = tmp_path / "other.tif"
+    with rasterio.open(other, "w", **profile) as dst:
+        dst.write(values, 1)
+    with pytest.raises(cbdam.Error, match="exceeds the bound"):
+        cbdam.verify(planet["repo"], against=[other])
