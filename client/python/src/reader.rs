@@ -283,11 +283,12 @@ impl Reader {
         (h as usize, w as usize)
     }
 
-    /// The levels `read` takes (the even ones, the finest last).
+    /// The levels `read` takes (the even ones, the finest last), a list of ints (PyO3 would
+    /// make a `Vec<u8>` a `bytes`).
     #[getter]
-    fn levels(&self) -> Vec<u8> {
+    fn levels(&self) -> Vec<u32> {
         let finest = self.source.head().params().layout().finest_level();
-        (0..=finest).filter(|l| l % 2 == 0).collect()
+        (0..=u32::from(finest)).filter(|l| l % 2 == 0).collect()
     }
 
     /// The guaranteed maximum error of every decoded height, metres.
