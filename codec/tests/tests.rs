@@ -17,6 +17,7 @@ mod parallel_decode;
 mod planet_blocks;
 mod planet_codec;
 mod planet_domain;
+mod planet_window_decode;
 mod real_dems;
 mod repository;
 mod variable_resolution;

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::sync::Mutex;
 
 use cbdam_builder::plan::default_memory_limit;
+use cbdam_builder::planet::{PlanetComparison, compare_planet};
 use cbdam_builder::tiles::{Tile, expand_inputs};
 use cbdam_builder::verify::{compare_dem, compare_tiles_with, one_file_in_blocks};
 use cbdam_builder::{BuildOptions, BuildSummary, ExtraLevels, ProgressEvent, Stage};
@@ -14,7 +15,7 @@ use cbdam_codec::hierarchy::{RepoKind, VerifyReport};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::repository::Repository;
 use pyo3::prelude::*;
-use pyo3::types::{PyAny, PyDict};
+use pyo3::types::{PyAny, PyDict, PyList};
 
 use crate::errors::{PyCbdamError, Result};
 
@@ -145,8 +146,11 @@ fn stage_name(stage: Stage) -> &'static str {
 /// paths), decodes every level and compares it with them, as `cbdam verify` does; raises
 /// `CorruptError` or `InputError` with the CLI's message when a check fails. Returns the
 /// per-level errors (`levels`: level, diamonds, worst error in metres; within `level_bound`),
-/// the finest level's worst error against the input (`max_error`, metres) and the guaranteed
-/// bound it keeps (`bound`).
+/// the worst error of the finest level (a planet: of any level, against its resampled
+/// lattice) in metres (`max_error`) and the guaranteed bound it keeps (`bound`); for a planet
+/// also `inputs`, per input: its `path`, `samples`, `compared`, the lattice's
+/// `resampling_max`/`resampling_rms` and the decoded surface's `surface_max`/`surface_rms`
+/// against its samples, metres, and the `allowed` surface error (bound + resampling error).
 #[pyfunction]
 #[pyo3(signature = (path, against = None, memory_limit = None))]
 pub fn verify<'py>(
@@ -158,27 +162,57 @@ pub fn verify<'py>(
     let checked = py.detach(|| check(&path, against.as_deref(), memory_limit))?;
     let d = PyDict::new(py);
     d.set_item("checksums", true)?;
-    if let Some((report, unit, max_error, guaranteed)) = checked {
-        let levels: Vec<(u8, usize, f64)> = report
-            .levels
-            .iter()
-            .map(|l| (l.level, l.diamonds, f64::from(l.max_error) * unit))
-            .collect();
-        d.set_item("levels", levels)?;
-        d.set_item("level_bound", f64::from(report.bound) * unit)?;
-        d.set_item("max_error", max_error)?;
-        d.set_item("bound", guaranteed)?;
+    let Some(c) = checked else {
+        return Ok(d);
+    };
+    let levels: Vec<(u8, usize, f64)> = c
+        .report
+        .levels
+        .iter()
+        .map(|l| (l.level, l.diamonds, f64::from(l.max_error) * c.unit))
+        .collect();
+    d.set_item("levels", levels)?;
+    d.set_item("level_bound", f64::from(c.report.bound) * c.unit)?;
+    d.set_item("max_error", c.max_error)?;
+    d.set_item("bound", c.bound)?;
+    if let Some(planet) = c.planet {
+        let inputs = PyList::empty(py);
+        for (r, e) in planet.resampling.iter().zip(&planet.end_to_end) {
+            let i = PyDict::new(py);
+            i.set_item("path", r.path.display().to_string())?;
+            i.set_item("samples", r.samples)?;
+            i.set_item("compared", r.compared)?;
+            i.set_item("resampling_max", r.max_error)?;
+            i.set_item("resampling_rms", r.rms_error)?;
+            i.set_item("surface_max", e.max_error)?;
+            i.set_item("surface_rms", e.rms_error)?;
+            i.set_item("allowed", r.max_error + c.bound)?;
+            inputs.append(i)?;
+        }
+        d.set_item("inputs", inputs)?;
     }
     Ok(d)
 }
 
-/// [`verify`]'s work, when compared with inputs: the report, the unit, the finest level's worst
-/// error in metres and the guaranteed bound.
+/// What [`verify`] measured against the inputs.
+struct Checked {
+    report: VerifyReport,
+    /// Metres of one unit.
+    unit: f64,
+    /// The worst error, metres (see [`verify`]).
+    max_error: f64,
+    /// The guaranteed bound, metres.
+    bound: f64,
+    /// A planet's comparison with each input.
+    planet: Option<PlanetComparison>,
+}
+
+/// [`verify`]'s work.
 fn check(
     path: &std::path::Path,
     against: Option<&[PathBuf]>,
     memory_limit: Option<u64>,
-) -> Result<Option<(VerifyReport, f64, f64, f64)>> {
+) -> Result<Option<Checked>> {
     let name = path.display();
     let repo =
         Repository::open(path).map_err(|e| PyCbdamError::codec(&format!("opening {name}"), &e))?;
@@ -188,14 +222,27 @@ fn check(
         return Ok(None);
     };
     let head = repo.head();
-    if head.kind() == RepoKind::Colour || head.params().domain.cube().is_some() {
+    if head.kind() == RepoKind::Colour {
         return Err(PyCbdamError::Unsupported(format!(
-            "{name} is a colour repository or a planet: compare it with `cbdam verify`"
+            "{name} is a colour repository: compare it with `cbdam verify`"
         )));
     }
-    let (unit, guaranteed) = (head.plan().unit, head.plan().max_error());
+    let (unit, bound) = (head.plan().unit, head.plan().max_error());
     let build = |e: cbdam_builder::BuildError| PyCbdamError::build(&e);
     let tiles = expand_inputs(against).map_err(build)?;
+    let checked = |report, max_error, planet| Checked {
+        report,
+        unit,
+        max_error,
+        bound,
+        planet,
+    };
+    if head.params().domain.cube().is_some() {
+        let c = compare_planet(&repo, &tiles, head.nodata(), None).map_err(build)?;
+        c.check().map_err(build)?;
+        let worst = f64::from(c.report.max_error()) * unit;
+        return Ok(Some(checked(c.report.clone(), worst, Some(c))));
+    }
     let limit = memory_limit.unwrap_or_else(default_memory_limit);
     match tiles.as_slice() {
         [
@@ -207,13 +254,13 @@ fn check(
             let c = compare_dem(&repo, one).map_err(build)?;
             c.check_mask().map_err(build)?;
             c.check_error().map_err(build)?;
-            Ok(Some((c.levels, unit, c.max_error, guaranteed)))
+            Ok(Some(checked(c.levels, c.max_error, None)))
         }
         several => {
             let c = compare_tiles_with(&repo, several, limit, None).map_err(build)?;
             c.check().map_err(build)?;
             let worst = c.worst.map_or(0.0, |w| w.0);
-            Ok(Some((c.levels, unit, worst, guaranteed)))
+            Ok(Some(checked(c.levels, worst, None)))
         }
     }
 }

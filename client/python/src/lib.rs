@@ -4,7 +4,9 @@
 //! `to_xarray`) is in `python/cbdam/`.
 
 mod build;
+mod cache;
 mod errors;
+mod planet;
 mod reader;
 mod source;
 

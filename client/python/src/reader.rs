@@ -9,9 +9,10 @@ use cbdam_codec::geometry::DomainKind;
 use cbdam_codec::repository::{GeoRef, LevelGrid, bbox_window};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1};
 use pyo3::prelude::*;
-use pyo3::types::PyAny;
+use pyo3::types::{PyAny, PyDict};
 
 use crate::errors::{PyCbdamError, Result};
+use crate::planet::{self, GeoGrid};
 use crate::source::{Sample, Source};
 
 /// A window `(col_off, row_off, width, height)` of the input grid: a tuple, or anything with
@@ -50,6 +51,9 @@ impl<'a, 'py> FromPyObject<'a, 'py> for Window {
     }
 }
 
+/// The records a remote reader keeps between reads unless told otherwise: 64 MiB.
+const DEFAULT_CACHE_BYTES: i64 = 64 << 20;
+
 /// An open repository (`cbdam.open`).
 #[pyclass(module = "cbdam", frozen)]
 pub struct Reader {
@@ -60,10 +64,22 @@ pub struct Reader {
 
 /// Opens a repository: a local file (memory-mapped), a `cbdam serve` repository URL, or the URL
 /// of a `.cbdam` file on a server with Range support. `timeout`: seconds a remote read waits
-/// without a record arriving before it raises `NetworkError`.
+/// without a record arriving before it raises `NetworkError`. `cache_bytes`: how many bytes of
+/// records a remote reader keeps between reads (least recently used dropped first; 0: none).
 #[pyfunction]
-#[pyo3(signature = (path_or_url, timeout = 10.0))]
-pub fn open(py: Python<'_>, path_or_url: &Bound<'_, PyAny>, timeout: f64) -> PyResult<Reader> {
+#[pyo3(signature = (path_or_url, timeout = 10.0, cache_bytes = DEFAULT_CACHE_BYTES))]
+pub fn open(
+    py: Python<'_>,
+    path_or_url: &Bound<'_, PyAny>,
+    timeout: f64,
+    cache_bytes: i64,
+) -> PyResult<Reader> {
+    let Ok(cache_bytes) = usize::try_from(cache_bytes) else {
+        return Err(PyCbdamError::Input(format!(
+            "cache_bytes={cache_bytes}: must be 0 or a positive number of bytes"
+        ))
+        .into());
+    };
     if !(timeout.is_finite() && timeout > 0.0) {
         return Err(PyCbdamError::Input(format!(
             "timeout={timeout}: must be a positive number of seconds"
@@ -77,7 +93,7 @@ pub fn open(py: Python<'_>, path_or_url: &Bound<'_, PyAny>, timeout: f64) -> PyR
     let (source, name) = match url {
         Some(url) => {
             let stall = Duration::from_secs_f64(timeout);
-            let source = py.detach(|| Source::open_remote(&url, stall))?;
+            let source = py.detach(|| Source::open_remote(&url, stall, cache_bytes))?;
             (source, url)
         }
         None => {
@@ -90,6 +106,69 @@ pub fn open(py: Python<'_>, path_or_url: &Bound<'_, PyAny>, timeout: f64) -> PyR
 }
 
 impl Reader {
+    fn is_planet(&self) -> bool {
+        self.source.head().params().domain.kind() != DomainKind::Planar
+    }
+
+    /// Refuses a planet for the planar reads, naming the planet's.
+    fn require_planar(&self) -> Result<()> {
+        match self.is_planet() {
+            true => Err(PyCbdamError::Unsupported(format!(
+                "{} is a planet (cube-sphere): read, sample and to_xarray take planar rasters; \
+                 use read_geo(bbox=(west, south, east, north), resolution=degrees) and \
+                 sample_geo(lons, lats)",
+                self.name
+            ))),
+            false => Ok(()),
+        }
+    }
+
+    /// Refuses a plane for the planet's reads.
+    fn require_planet(&self, what: &str) -> Result<()> {
+        match self.is_planet() {
+            true => Ok(()),
+            false => Err(PyCbdamError::Unsupported(format!(
+                "{} is planar: {what} reads planets (cube-sphere); use read / sample with its \
+                 CRS coordinates",
+                self.name
+            ))),
+        }
+    }
+
+    /// `level`, checked (an even level of the planet), else the one `resolution` picks.
+    fn geo_level(&self, level: Option<u8>, resolution: Option<f64>) -> Result<u8> {
+        let head = self.source.head();
+        let finest = head.params().layout().finest_level();
+        match (level, resolution) {
+            (Some(l), _) if l % 2 != 0 || l > finest => Err(PyCbdamError::Input(format!(
+                "level={l}: only even levels 0, 2, …, {finest} are grids of this planet"
+            ))),
+            (Some(l), _) => Ok(l),
+            (None, Some(r)) => Ok(planet::level_for(head, r)),
+            (None, None) => Ok(finest),
+        }
+    }
+
+    /// A new array of `shape` of `T` holding the heights at `points`, written in place
+    /// without the GIL.
+    fn geo_as<'py, T: Sample + numpy::Element, D: numpy::ndarray::Dimension>(
+        &self,
+        py: Python<'py>,
+        shape: D,
+        level: u8,
+        points: &[(f64, f64)],
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let array = numpy::PyArray::<T, D>::zeros(py, shape, false);
+        {
+            let mut rw = array.readwrite();
+            let out = rw
+                .as_slice_mut()
+                .map_err(|e| PyCbdamError::Other(e.to_string()))?;
+            py.detach(|| planet::heights_at(&self.source, &self.name, level, points, out))?;
+        }
+        Ok(array.into_any())
+    }
+
     fn georef(&self) -> Option<&GeoRef> {
         self.source.head().georef()
     }
@@ -107,13 +186,7 @@ impl Reader {
         bbox: Option<Vec<f64>>,
     ) -> Result<LevelGrid> {
         let head = self.source.head();
-        if head.params().domain.kind() != DomainKind::Planar {
-            return Err(PyCbdamError::Unsupported(format!(
-                "{} is a planet (cube-sphere): read returns planar rasters, and a planet's six \
-                 faces are not resampled to latitude/longitude yet",
-                self.name
-            )));
-        }
+        self.require_planar()?;
         let (w, h) = self.data_size();
         let rect = match (window, bbox) {
             (Some(_), Some(_)) => {
@@ -210,11 +283,12 @@ impl Reader {
         (h as usize, w as usize)
     }
 
-    /// The levels `read` takes (the even ones, the finest last).
+    /// The levels `read` takes (the even ones, the finest last), a list of ints (PyO3 would
+    /// make a `Vec<u8>` a `bytes`).
     #[getter]
-    fn levels(&self) -> Vec<u8> {
+    fn levels(&self) -> Vec<u32> {
         let finest = self.source.head().params().layout().finest_level();
-        (0..=finest).filter(|l| l % 2 == 0).collect()
+        (0..=u32::from(finest)).filter(|l| l % 2 == 0).collect()
     }
 
     /// The guaranteed maximum error of every decoded height, metres.
@@ -284,7 +358,9 @@ impl Reader {
         xs: PyReadonlyArray1<'py, f64>,
         ys: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let (xs, ys) = (xs.as_slice()?, ys.as_slice()?);
+        self.require_planar()?;
+        // Any strides (a column of a 2-D array, a reversed view): copied once.
+        let (xs, ys): (Vec<f64>, Vec<f64>) = (xs.as_array().to_vec(), ys.as_array().to_vec());
         if xs.len() != ys.len() {
             return Err(PyCbdamError::Input(format!(
                 "xs and ys differ in length ({} and {})",
@@ -298,7 +374,7 @@ impl Reader {
         // Fractional (column, row) of each point, sample centres at whole numbers.
         let at: Vec<(f64, f64)> = xs
             .iter()
-            .zip(ys)
+            .zip(&ys)
             .map(|(&x, &y)| ((x - c) / a - 0.5, (y - f) / e - 0.5))
             .collect();
         let inside = |&(col, row): &(f64, f64)| {
@@ -332,6 +408,82 @@ impl Reader {
             }
         }
         Ok(PyArray1::from_vec(py, out))
+    }
+
+    /// A planet's heights on a latitude/longitude grid: the cells of `bbox=(west, south, east,
+    /// north)` (degrees, sides whole numbers of cells) at `resolution` degrees, each sampled
+    /// at its centre, row 0 north (the transform `(resolution, 0, west, 0, −resolution,
+    /// north)` in EPSG:4326). From `level` (default: the coarsest even level whose mean
+    /// spacing is at most `resolution`), bilinear in a face's lattice, as `sample_geo`.
+    #[pyo3(signature = (bbox, resolution, level = None, out_dtype = "float32"))]
+    fn read_geo<'py>(
+        &self,
+        py: Python<'py>,
+        bbox: Vec<f64>,
+        resolution: f64,
+        level: Option<u8>,
+        out_dtype: &str,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        self.require_planet("read_geo")?;
+        let grid = GeoGrid::new(&bbox, resolution)?;
+        let level = self.geo_level(level, Some(resolution))?;
+        let points = grid.points();
+        let shape = numpy::ndarray::Ix2(grid.height, grid.width);
+        match out_dtype {
+            "float32" | "f4" => self.geo_as::<f32, _>(py, shape, level, &points),
+            "float64" | "f8" => self.geo_as::<f64, _>(py, shape, level, &points),
+            other => Err(PyCbdamError::Input(format!(
+                "out_dtype={other:?}: 'float32' or 'float64'"
+            ))
+            .into()),
+        }
+    }
+
+    /// A planet's heights (float64, metres) at geodetic `(lons[i], lats[i])`, degrees:
+    /// bilinear between the four lattice points of the finest level (or `level`) around each
+    /// on its face, so within `max_error` of the same interpolation of the planet's resampled
+    /// lattice, and within `max_error + resampling_error[0]` of the input at the input's
+    /// samples. NaN where the planet has no data. Decodes the faces' rectangles around the
+    /// points.
+    #[pyo3(signature = (lons, lats, level = None))]
+    fn sample_geo<'py>(
+        &self,
+        py: Python<'py>,
+        lons: PyReadonlyArray1<'py, f64>,
+        lats: PyReadonlyArray1<'py, f64>,
+        level: Option<u8>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        self.require_planet("sample_geo")?;
+        let (lons, lats) = (lons.as_array(), lats.as_array());
+        let points = planet::lon_lat_points(lons.iter(), lats.iter())?;
+        let level = self.geo_level(level, None)?;
+        let shape = numpy::ndarray::Ix1(points.len());
+        self.geo_as::<f64, _>(py, shape, level, &points)
+    }
+
+    /// A planet's resampling error `(max, rms)`, metres: how far its lattice is from the
+    /// inputs' samples (each against the bilinear interpolation of the four lattice points
+    /// around it), as the build measured it; `None` for planes and planets without it.
+    #[getter]
+    fn resampling_error(&self) -> Option<(f64, f64)> {
+        let p = self.source.head().provenance()?;
+        Some((p.resampling_max, p.resampling_rms))
+    }
+
+    /// A remote reader's cache: `{'records', 'bytes', 'limit', 'hits', 'misses'}` (records
+    /// held, their bytes, the budget, and since opening the records reads found held and those
+    /// they fetched); `None` for a local file.
+    fn cache_info<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(info) = self.source.cache_info() else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("records", info.records)?;
+        d.set_item("bytes", info.bytes)?;
+        d.set_item("limit", info.limit)?;
+        d.set_item("hits", info.hits)?;
+        d.set_item("misses", info.misses)?;
+        Ok(Some(d))
     }
 
     fn __repr__(&self) -> String {

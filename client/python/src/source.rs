@@ -10,17 +10,21 @@ use std::time::Duration;
 use cbdam_client::fetch::{FetchOptions, RemoteFetcher};
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{LevelWindow, decode_window};
+use cbdam_codec::hierarchy::{FaceWindows, LevelWindow, decode_face_windows, decode_window};
 use cbdam_codec::repository::{LevelGrid, Repository, RepositoryHead};
 
+use crate::cache::{CacheInfo, RecordCache};
 use crate::errors::{PyCbdamError, Result};
+
+/// The bytes of one stored diamond's record, as the decoders ask for them.
+type RecordFn<'r> = dyn Fn(DiamondId) -> std::result::Result<&'r [u8], CodecError> + Sync + 'r;
 
 /// A repository, local or remote.
 pub enum Source {
     /// A memory-mapped file: records are read (and CRC-checked) where they are decoded.
     Local(Arc<Repository>),
-    /// Over HTTP: the head fetched at open, the records a read needs fetched before it decodes
-    /// (one read's fetch at a time: the fetcher has one wanted set).
+    /// Over HTTP: the head fetched at open, the records a read needs and the cache lacks
+    /// fetched before it decodes (one read's fetch at a time: the fetcher has one wanted set).
     Remote {
         /// The fetcher, which holds the head.
         fetcher: Mutex<RemoteFetcher>,
@@ -28,7 +32,14 @@ pub enum Source {
         head: Arc<RepositoryHead>,
         /// How long a read waits without a record arriving before it gives up.
         stall: Duration,
+        /// The records kept between reads.
+        cache: Box<Mutex<RecordCache>>,
     },
+}
+
+/// The error of a lock an earlier read panicked holding.
+fn poisoned<T>(_: T) -> PyCbdamError {
+    PyCbdamError::Other("an earlier read panicked".into())
 }
 
 /// One output sample type: `float32` or `float64`, NaN where there is no data.
@@ -59,7 +70,8 @@ impl Source {
 
     /// Connects to `url` and fetches the head; later reads give up after `stall` without a
     /// record (and so does connecting, per request).
-    pub fn open_remote(url: &str, stall: Duration) -> Result<Source> {
+    /// `cache_bytes`: the records kept between reads, at most (0: none).
+    pub fn open_remote(url: &str, stall: Duration, cache_bytes: usize) -> Result<Source> {
         let options = FetchOptions {
             timeout: stall,
             ..FetchOptions::default()
@@ -70,7 +82,16 @@ impl Source {
             fetcher: Mutex::new(fetcher),
             head,
             stall,
+            cache: Box::new(Mutex::new(RecordCache::new(cache_bytes))),
         })
+    }
+
+    /// What the remote cache holds (`None` for a local file).
+    pub fn cache_info(&self) -> Option<CacheInfo> {
+        match self {
+            Source::Local(_) => None,
+            Source::Remote { cache, .. } => cache.lock().ok().map(|c| c.info()),
+        }
     }
 
     /// The validated head.
@@ -93,7 +114,6 @@ impl Source {
             level: grid.level,
             rect: (grid.x0, grid.y0, grid.x1, grid.y1),
         };
-        let stored: Vec<DiamondId> = head.entries().iter().map(|e| e.id).collect();
         let n = params.layout().n();
         let visit = |id: DiamondId, values: &[i32], valid: Option<&[bool]>| {
             let g = params.layout().grid(id);
@@ -109,27 +129,67 @@ impl Source {
                 }
             }
         };
+        let stored: Vec<DiamondId> = head.entries().iter().map(|e| e.id).collect();
+        let needed = || Ok(window.records_needed(&params, &stored));
+        self.decode_with(needed, name, |record| {
+            decode_window(params, head.root_bytes(), &stored, record, window, visit)
+        })
+    }
+
+    /// Decodes `windows` of a planet, handing `visit` each diamond of the level that reaches
+    /// them (see `decode_face_windows`). Runs on rayon's pool; call it without the GIL.
+    pub fn decode_faces(
+        &self,
+        windows: &FaceWindows,
+        name: &str,
+        visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+    ) -> Result<()> {
+        let head = self.head();
+        let params = *head.params();
+        let stored: Vec<DiamondId> = head.entries().iter().map(|e| e.id).collect();
+        let needed = || windows.records_needed(&params, &stored);
+        self.decode_with(needed, name, |record| {
+            decode_face_windows(params, head.root_bytes(), &stored, record, windows, visit)
+        })
+    }
+
+    /// Runs `decode` with the records it reads: a local file's, or (remote) the records
+    /// `needed` names, fetched first. `name` names the repository in messages.
+    fn decode_with(
+        &self,
+        needed: impl FnOnce() -> std::result::Result<Vec<DiamondId>, CodecError>,
+        name: &str,
+        decode: impl for<'r> FnOnce(&'r RecordFn<'r>) -> std::result::Result<(), CodecError>,
+    ) -> Result<()> {
         let decoding = |e: CodecError| PyCbdamError::codec(&format!("decoding {name}"), &e);
         match self {
             Source::Local(repo) => {
                 let record = |id: DiamondId| repo.record(id);
-                decode_window(params, head.root_bytes(), &stored, record, window, visit)
-                    .map_err(decoding)
+                decode(&record).map_err(decoding)
             }
-            Source::Remote { fetcher, stall, .. } => {
-                let needed = window.records_needed(&params, &stored);
-                let records = fetcher
-                    .lock()
-                    .map_err(|_| PyCbdamError::Other("an earlier read panicked".into()))?
-                    .fetch_all(&needed, *stall)
-                    .map_err(|m| PyCbdamError::Network(format!("reading {name}: {m}")))?;
+            Source::Remote {
+                fetcher,
+                stall,
+                cache,
+                ..
+            } => {
+                let needed = needed().map_err(decoding)?;
+                let (mut records, missing) = cache.lock().map_err(poisoned)?.take(&needed);
+                if !missing.is_empty() {
+                    let fetched = fetcher
+                        .lock()
+                        .map_err(poisoned)?
+                        .fetch_all(&missing, *stall)
+                        .map_err(|m| PyCbdamError::Network(format!("reading {name}: {m}")))?;
+                    cache.lock().map_err(poisoned)?.keep(&fetched);
+                    records.extend(fetched);
+                }
                 let record = |id: DiamondId| {
                     records.get(&id).map(|b| &b[..]).ok_or_else(|| {
                         CodecError::invalid(format!("{id} was not fetched for this window"))
                     })
                 };
-                decode_window(params, head.root_bytes(), &stored, record, window, visit)
-                    .map_err(decoding)
+                decode(&record).map_err(decoding)
             }
         }
     }

@@ -80,11 +80,17 @@ class RangeHandler(http.server.SimpleHTTPRequestHandler):
     """Static files answering only single-range `Range: bytes=a-b` GETs with 206 (python's own
     server has no Range support): what a `.cbdam` on a plain static server looks like."""
 
+    # Every request answered, `(path, first byte, last byte)` (None, None without a Range): what
+    # the cache tests count.
+    requests = []
+
     def log_message(self, *args):
         pass
 
     def send_head(self):
         header = self.headers.get("Range")
+        if header is None:
+            RangeHandler.requests.append((self.path, None, None))
         path = self.translate_path(self.path)
         if header is None or not os.path.isfile(path):
             return super().send_head()
@@ -98,6 +104,7 @@ class RangeHandler(http.server.SimpleHTTPRequestHandler):
             return None
         start = int(m.group(1))
         end = min(int(m.group(2)) if m.group(2) else size - 1, size - 1)
+        RangeHandler.requests.append((self.path, start, end))
         with open(path, "rb") as f:
             f.seek(start)
             data = f.read(end - start + 1)

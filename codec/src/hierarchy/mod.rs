@@ -20,6 +20,7 @@ mod decode_blocks;
 mod decode_window;
 mod encode;
 mod field;
+pub mod level_raster;
 pub mod mask;
 mod object_error;
 pub mod planet;
@@ -36,9 +37,10 @@ pub use decode::{
     walk_with_validity,
 };
 pub use decode_blocks::{BlockWalk, block_walk};
-pub use decode_window::{LevelWindow, decode_window};
+pub use decode_window::{FaceRect, FaceWindows, LevelWindow, decode_face_windows, decode_window};
 pub use encode::{ApexField, ApexOutput, EncodeOptions, Encoder, GridSummary, ShardedEncode};
 pub use field::TempStorage;
+pub use level_raster::{FaceBlock, LevelRaster, LevelSample, MASKED, NO_DATA};
 pub use planet::{
     PlanetGrid, PlanetTile, encode_planet, reconstruct_planet, reconstruct_planet_like,
     verify_planet,
