@@ -141,3 +141,7 @@ CBDAM_BIN="${CARGO_TARGET_DIR:-target}/debug/cbdam" scripts/python-test.sh
 
 # The browser viewer, end to end in headless Chromium (builds the web bundle; sets up Chromium).
 scripts/web-test.sh
+
+# The web-map clients (CesiumJS, MapLibre GL JS) on cbdam serve's tiles, in headless Chromium
+# (sets up Chromium, npm and the clients' packages; docs/WEB-MAPS.md).
+scripts/web-maps-test.sh

@@ -52,8 +52,9 @@ pub struct ServeArgs {
     #[arg(long, default_value_t = 10_000)]
     max_connections: usize,
     /// Most samples a repository's decoded levels may hold to be served as web-map tiles
-    /// (docs/WEB-MAPS.md): its surface is decoded whole on the first tile request, 4 bytes a
-    /// sample. Larger repositories answer 404 for tiles, naming the limit.
+    /// (docs/WEB-MAPS.md): its surface is decoded whole, 4 bytes a sample, on the first
+    /// quantized-mesh request (a plane's raster tiles decode windows). Larger repositories
+    /// answer 404 for tiles, naming the limit.
     #[arg(long, default_value_t = 1 << 28)]
     max_tile_samples: u64,
     /// The browser viewer's files (the bundle `scripts/web-build.sh` writes, e.g.

@@ -71,8 +71,9 @@ pub fn run(args: &TilesArgs) -> Result<()> {
     let encoded = repo
         .to_encoded()
         .with_context(|| format!("reading {}", args.repo.display()))?;
-    let tiler = Tiler::new(repo.head(), &encoded).map_err(anyhow::Error::msg)?;
-    drop(encoded);
+    let tiler = Tiler::new(repo.head(), encoded).map_err(anyhow::Error::msg)?;
+    // Every tile is made: decode every level once (tiles then read it, not windows).
+    tiler.surface().map_err(anyhow::Error::msg)?;
     let decoded_s = started.elapsed().as_secs_f64();
     let name = args
         .repo
@@ -184,7 +185,10 @@ fn write_tile(path: &Path, body: &[u8]) -> Result<()> {
 /// `tiles.json` or `layer.json`, with URLs relative to the directory.
 fn write_document(args: &TilesArgs, tiler: &Tiler, name: &str, tile: u32) -> Result<()> {
     let (file, doc) = match args.format {
-        TileFormat::QuantizedMesh => ("layer.json", tiler.layer_json(name)),
+        TileFormat::QuantizedMesh => (
+            "layer.json",
+            tiler.layer_json(name).map_err(anyhow::Error::msg)?,
+        ),
         TileFormat::Terrarium => (
             "tiles.json",
             tiler.tilejson(name, Encoding::Terrarium, tile, "{z}/{x}/{y}.png"),

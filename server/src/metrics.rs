@@ -23,18 +23,22 @@ pub enum Endpoint {
     File,
     /// `GET /metrics`.
     Metrics,
+    /// Web-map tiles and their documents: `/v1/repos/{name}/terrarium|terrain-rgb|
+    /// quantized-mesh/…` (docs/WEB-MAPS.md).
+    Tiles,
     /// Anything else (404s, CORS preflights, …).
     Other,
 }
 
 impl Endpoint {
-    const ALL: [Endpoint; 7] = [
+    const ALL: [Endpoint; 8] = [
         Endpoint::Repos,
         Endpoint::Meta,
         Endpoint::Diamond,
         Endpoint::Batch,
         Endpoint::File,
         Endpoint::Metrics,
+        Endpoint::Tiles,
         Endpoint::Other,
     ];
 
@@ -47,6 +51,7 @@ impl Endpoint {
             Endpoint::Batch => "batch",
             Endpoint::File => "file",
             Endpoint::Metrics => "metrics",
+            Endpoint::Tiles => "tiles",
             Endpoint::Other => "other",
         }
     }
@@ -71,6 +76,7 @@ impl Endpoint {
             (Some("file"), None, None) => Endpoint::File,
             (Some("diamonds"), None, None) if method == Method::POST => Endpoint::Batch,
             (Some("diamonds"), Some(_), None) => Endpoint::Diamond,
+            (Some("terrarium" | "terrain-rgb" | "quantized-mesh"), Some(_), _) => Endpoint::Tiles,
             _ => Endpoint::Other,
         }
     }
@@ -330,6 +336,18 @@ mod tests {
             Endpoint::Other
         );
         assert_eq!(Endpoint::classify(&g, "/v1/reposx"), Endpoint::Other);
+        for tiles in [
+            "/v1/repos/a/terrarium/tiles.json",
+            "/v1/repos/a/terrain-rgb/3/1/2.png",
+            "/v1/repos/a/quantized-mesh/layer.json",
+            "/v1/repos/a/quantized-mesh/0/0/0.terrain",
+        ] {
+            assert_eq!(Endpoint::classify(&g, tiles), Endpoint::Tiles, "{tiles}");
+        }
+        assert_eq!(
+            Endpoint::classify(&g, "/v1/repos/a/terrarium"),
+            Endpoint::Other
+        );
         assert_eq!(Endpoint::classify(&g, "/metrics"), Endpoint::Metrics);
         assert_eq!(Endpoint::classify(&g, "/"), Endpoint::Other);
     }

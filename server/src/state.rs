@@ -46,7 +46,8 @@ pub struct Config {
     /// one of the client address holding the most connections (see [`crate::run`]).
     pub max_connections: usize,
     /// Most samples a repository's decoded levels may hold for it to be served as web-map
-    /// tiles (its surface is decoded whole, 4 bytes a sample, on the first tile request).
+    /// tiles (its surface is decoded whole, 4 bytes a sample, on the first quantized-mesh
+    /// request or a planet's first tile).
     pub max_tile_samples: u64,
     /// Repositories opened from files whose records areas take at most this many bytes in
     /// all (in the order given) are read into memory when opened (`--hold-records`): records
@@ -217,7 +218,7 @@ pub struct ServedRepo {
     /// in memory are checked once; bytes read from the file each time they are read
     /// ([`crate::records`]).
     pub(crate) verified: Vec<AtomicBool>,
-    /// The web-map tiler ([`crate::tiles`]), decoded on the first tile request.
+    /// The web-map tiler ([`crate::tiles`]), its records read on the first tile request.
     pub(crate) tiles: crate::tiles::TilerCell,
     /// Every record's ETag, concatenated: a response takes its slice of this shared buffer
     /// (a reference count, no allocation, no formatting per request).

@@ -1,9 +1,10 @@
 //! Web-map tiles of a served repository (`docs/WEB-MAPS.md`): terrarium and terrain-RGB PNG
 //! with their TileJSON for MapLibre, quantized-mesh-1.0 with its `layer.json` for CesiumJS.
 //!
-//! The tile maths live in `cbdam-tiles`; this module decodes a repository's surface once, on
-//! the first tile request (every record read through the server's checked reads), keeps it for
-//! the server's life, and answers each tile from it on a blocking thread.
+//! The tile maths live in `cbdam-tiles`; this module reads a repository's records once, on the
+//! first tile request (through the server's checked reads), keeps its `Tiler` for the server's
+//! life, and answers each tile on a blocking thread: a plane's raster tile decodes the records
+//! within its reach, quantized-mesh tiles and `layer.json` the whole surface, once.
 
 use std::sync::{Arc, OnceLock};
 
@@ -111,8 +112,8 @@ async fn tiler(st: &AppState, r: &Arc<ServedRepo>) -> Result<Arc<Tiler>, ApiErro
         r2.tiles
             .get_or_init(|| {
                 let encoded = encoded(&st2, &r2)?;
-                let t = Tiler::new(r2.repo.head(), &encoded).map_err(|e| e.to_string())?;
-                tracing::info!(repo = %r2.name, "decoded for web-map tiles ({samples} samples)");
+                let t = Tiler::new(r2.repo.head(), encoded).map_err(|e| e.to_string())?;
+                tracing::info!(repo = %r2.name, "records read for web-map tiles");
                 Ok(Arc::new(t))
             })
             .clone()
@@ -292,7 +293,11 @@ async fn layer_json(
     let Path(name) = path.map_err(crate::routes::bad_path)?;
     let r = lookup(&st, &name)?;
     let t = tiler(&st, r).await?;
-    Ok(json_response(r, req.headers(), &t.layer_json(&name)))
+    let doc = tokio::task::spawn_blocking(move || t.layer_json(&name))
+        .await
+        .map_err(|e| ApiError::Internal(format!("decoding for tiles: {e}")))?
+        .map_err(api_error)?;
+    Ok(json_response(r, req.headers(), &doc))
 }
 
 /// `GET /v1/repos/{name}/quantized-mesh/{z}/{x}/{y}.terrain`: gzip-compressed when the client

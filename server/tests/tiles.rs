@@ -287,3 +287,43 @@ async fn repositories_past_the_tile_memory_limit_are_refused() {
     assert_eq!(r.status(), 200);
     s.stop().await;
 }
+
+/// Tile requests and their documents are counted under their own `/metrics` endpoint,
+/// `tiles`, with their statuses; nothing of them under `other`.
+#[tokio::test]
+async fn tile_requests_are_counted_as_tiles_in_metrics() {
+    let dem = geographic_dem();
+    let s = serve(vec![("d", dem.repository())]).await;
+    let tj = get_json(&s, "/v1/repos/d/terrarium/tiles.json").await;
+    let z = tj["maxzoom"].as_u64().unwrap() as u32;
+    let b: Vec<f64> = serde_json::from_value(tj["bounds"].clone()).unwrap();
+    let (x, y) = mercator_tile(z, 0.5 * (b[1] + b[3]), 0.5 * (b[0] + b[2]));
+    let paths = [
+        (format!("/v1/repos/d/terrarium/{z}/{x}/{y}.png"), 200),
+        ("/v1/repos/d/quantized-mesh/layer.json".to_string(), 200),
+        ("/v1/repos/d/quantized-mesh/0/0/0.terrain".to_string(), 200),
+        (format!("/v1/repos/d/terrain-rgb/{z}/0/0.png"), 404),
+        ("/v1/repos/d/terrarium/1/9/9.png".to_string(), 400),
+    ];
+    for (path, status) in &paths {
+        let r = client().get(s.url(path)).send().await.unwrap();
+        assert_eq!(r.status(), *status, "{path}");
+    }
+    let r = client().get(s.url("/metrics")).send().await.unwrap();
+    let text = r.text().await.unwrap();
+    let count = |endpoint: &str, status: &str| -> u64 {
+        let key =
+            format!("cbdam_http_requests_total{{endpoint=\"{endpoint}\",status=\"{status}\"}} ");
+        text.lines()
+            .find_map(|l| l.strip_prefix(&key))
+            .map_or(0, |v| v.parse().unwrap())
+    };
+    assert_eq!(count("tiles", "200"), 4, "{text}");
+    assert_eq!(count("tiles", "404"), 1);
+    assert_eq!(count("tiles", "400"), 1);
+    assert_eq!(
+        count("other", "200") + count("other", "404") + count("other", "400"),
+        0
+    );
+    s.stop().await;
+}

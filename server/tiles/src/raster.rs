@@ -96,7 +96,55 @@ pub fn max_zoom(place: &Placement, tile: u32) -> u8 {
     (ratio.log2().ceil().max(0.0) as u8).min(crate::schemes::MAX_ZOOM)
 }
 
-/// The `tile × tile` raster of Web Mercator tile `t`, encoded.
+/// Where the pixel centres of a raster tile lie on the repository, and which level answers.
+#[derive(Clone, Debug)]
+pub struct PixelPlan {
+    /// Per pixel, row after row: face and lattice position (`None` off the repository).
+    pub positions: Vec<Option<(u8, f64, f64)>>,
+    /// The level index ([`Surface::levels`]) the tile's pixel spacing calls for.
+    pub coarsen: usize,
+}
+
+impl PixelPlan {
+    /// The pixels of tile `t`, `tile` pixels a side.
+    pub fn of(place: &Placement, t: TileId, tile: u32) -> PixelPlan {
+        let [w, s, e, n] = Scheme::WebMercator.bounds(t);
+        let centre_lat = (0.5 * (s + n)).to_radians();
+        let pixel_m =
+            EARTH_CIRCUMFERENCE * centre_lat.cos() / (f64::from(tile) * f64::from(1u32 << t.z));
+        let size = tile as usize;
+        let world = f64::from(1u32 << t.z);
+        let mut positions = Vec::with_capacity(size * size);
+        for row in 0..size {
+            let yn = (f64::from(t.y) + (row as f64 + 0.5) / f64::from(tile)) / world;
+            let lat = mercator_lat(yn);
+            for col in 0..size {
+                let lon = w + (e - w) * (col as f64 + 0.5) / f64::from(tile);
+                positions.push(place.locate(lat, lon));
+            }
+        }
+        PixelPlan {
+            positions,
+            coarsen: coarsen_for(place.spacing_m(), pixel_m),
+        }
+    }
+
+    /// The lattice rectangle `(x0, y0, x1, y1)` holding every located pixel, rounded outwards
+    /// (`None` when no pixel lies on the repository).
+    pub fn lattice_rect(&self) -> Option<(i64, i64, i64, i64)> {
+        let mut rect: Option<(f64, f64, f64, f64)> = None;
+        for &(_, x, y) in self.positions.iter().flatten() {
+            let r = rect.get_or_insert((x, y, x, y));
+            *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y));
+        }
+        rect.map(|(x0, y0, x1, y1)| {
+            let (lo, hi) = (|v: f64| v.floor() as i64, |v: f64| v.ceil() as i64);
+            (lo(x0), lo(y0), hi(x1), hi(y1))
+        })
+    }
+}
+
+/// Renders tile `t` of `tile` pixels from `surface`.
 pub fn render(
     surface: &Surface,
     place: &Placement,
@@ -104,36 +152,32 @@ pub fn render(
     tile: u32,
     encoding: Encoding,
 ) -> Result<RasterTile, TilesError> {
-    let [w, s, e, n] = Scheme::WebMercator.bounds(t);
-    let centre_lat = (0.5 * (s + n)).to_radians();
-    let pixel_m =
-        EARTH_CIRCUMFERENCE * centre_lat.cos() / (f64::from(tile) * f64::from(1u32 << t.z));
-    let coarsen = coarsen_for(place.spacing_m(), pixel_m);
-    let size = tile as usize;
-    let world = f64::from(1u32 << t.z);
-    let mut rgba = vec![0u8; size * size * 4];
+    render_plan(surface, &PixelPlan::of(place, t, tile), tile, encoding)
+}
+
+/// Renders the pixels `plan` places (a tile of `tile` pixels) from `surface`, which holds the
+/// plan's level and coarser ones wherever its pixels lie.
+pub fn render_plan(
+    surface: &Surface,
+    plan: &PixelPlan,
+    tile: u32,
+    encoding: Encoding,
+) -> Result<RasterTile, TilesError> {
+    let mut rgba = vec![0u8; plan.positions.len() * 4];
     let (mut clamped, mut nodata, mut level) = (0u64, 0u64, u8::MAX);
     let zero = encoding.encode(0.0).0;
-    for row in 0..size {
-        let yn = (f64::from(t.y) + (row as f64 + 0.5) / f64::from(tile)) / world;
-        let lat = mercator_lat(yn);
-        for col in 0..size {
-            let lon = w + (e - w) * (col as f64 + 0.5) / f64::from(tile);
-            let px = &mut rgba[(row * size + col) * 4..][..4];
-            let h = place
-                .locate(lat, lon)
-                .and_then(|(face, x, y)| surface.height(face, x, y, coarsen));
-            match h {
-                Some((h, l)) => {
-                    let (rgb, c) = encoding.encode(h);
-                    px.copy_from_slice(&[rgb[0], rgb[1], rgb[2], 255]);
-                    clamped += u64::from(c);
-                    level = level.min(l);
-                }
-                None => {
-                    px.copy_from_slice(&[zero[0], zero[1], zero[2], 0]);
-                    nodata += 1;
-                }
+    for (px, at) in rgba.chunks_exact_mut(4).zip(&plan.positions) {
+        let h = at.and_then(|(face, x, y)| surface.height(face, x, y, plan.coarsen));
+        match h {
+            Some((h, l)) => {
+                let (rgb, c) = encoding.encode(h);
+                px.copy_from_slice(&[rgb[0], rgb[1], rgb[2], 255]);
+                clamped += u64::from(c);
+                level = level.min(l);
+            }
+            None => {
+                px.copy_from_slice(&[zero[0], zero[1], zero[2], 0]);
+                nodata += 1;
             }
         }
     }

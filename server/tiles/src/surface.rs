@@ -3,7 +3,13 @@
 //!
 //! There is one reconstruction path: [`decode_levels`] walks the hierarchy with
 //! [`walk_all_with_validity`] and copies each wanted level's grid points into a raster; `cbdam
-//! extract` decodes its window through it too.
+//! extract` decodes its window through it too. A plane's surface over a part of it is decoded
+//! with the codec's windowed decoder instead ([`Surface::decode_window`], in `window.rs`), to
+//! the same samples there.
+
+mod window;
+
+pub use window::RecordIndex;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::Domain;
@@ -66,10 +72,15 @@ pub fn decode_levels(
 /// Every even level of a repository, whole, and the heights between their samples.
 #[derive(Clone, Debug)]
 pub struct Surface {
-    /// Level rasters, finest first (index `i` has step `2^i`).
+    /// Level rasters, finest first (index `i` has step `2^i`); those finer than `first` are
+    /// empty (not decoded).
     levels: Vec<LevelRaster>,
+    /// Index of the finest level decoded.
+    first: usize,
+    /// The data's lattice rectangle `(x0, y0, x1, y1)`, inclusive, finest units.
+    extent: (i64, i64, i64, i64),
     plan: QuantPlan,
-    /// Smallest and largest height of any sample, metres (`None`: no data at all).
+    /// Smallest and largest height of any decoded sample, metres (`None`: no data at all).
     range: Option<(f64, f64)>,
 }
 
@@ -102,25 +113,43 @@ impl Surface {
             })
             .collect();
         let levels = decode_levels(encoded, &windows)?;
+        Ok(Surface::of_levels(
+            levels,
+            0,
+            (0, 0, w as i64 - 1, h as i64 - 1),
+            plan,
+        ))
+    }
+
+    fn of_levels(
+        levels: Vec<LevelRaster>,
+        first: usize,
+        extent: (i64, i64, i64, i64),
+        plan: &QuantPlan,
+    ) -> Surface {
         let units = levels
             .iter()
             .flat_map(|l| l.units())
             .filter(|&u| u != NO_DATA && u != MASKED);
         let (lo, hi) = units.fold((i32::MAX, i32::MIN), |(lo, hi), u| (lo.min(u), hi.max(u)));
         let range = (lo <= hi).then(|| (plan.metres(lo), plan.metres(hi)));
-        Ok(Surface {
+        Surface {
             levels,
+            first,
+            extent,
             plan: *plan,
             range,
-        })
+        }
     }
 
-    /// The levels, finest first: level `i` samples every `2^i` lattice units.
+    /// The levels, finest first: level `i` samples every `2^i` lattice units (empty where a
+    /// window's surface did not decode it).
     pub fn levels(&self) -> &[LevelRaster] {
         &self.levels
     }
 
-    /// Smallest and largest decoded height, metres; `None` when nothing holds data.
+    /// Smallest and largest decoded height, metres (of the window only, for a window's
+    /// surface); `None` when nothing holds data.
     pub fn range(&self) -> Option<(f64, f64)> {
         self.range
     }
@@ -131,19 +160,18 @@ impl Surface {
     /// used. Where none of the four was reached, the next coarser level is asked (a
     /// variable-resolution repository's coarse parts). `None` outside the data (more than half
     /// a finest sample beyond its edge samples), where the nodata mask marks all four, or
-    /// where no level has data.
+    /// where no level has data. A window's surface answers inside its window, from its first
+    /// level on (a finer `coarsen` is taken as that level).
     pub fn height(&self, face: u8, x: f64, y: f64, coarsen: usize) -> Option<(f64, u8)> {
-        let finest = self.levels[0].block(face)?;
-        let (x0, y0) = (finest.x0 as f64, finest.y0 as f64);
-        let (x1, y1) = (
-            x0 + (finest.width - 1) as f64,
-            y0 + (finest.height - 1) as f64,
-        );
+        let (x0, y0, x1, y1) = self.extent;
+        let (x0, y0, x1, y1) = (x0 as f64, y0 as f64, x1 as f64, y1 as f64);
         if !(x0 - 0.5..=x1 + 0.5).contains(&x) || !(y0 - 0.5..=y1 + 0.5).contains(&y) {
             return None;
         }
         let (x, y) = (x.clamp(x0, x1), y.clamp(y0, y1));
-        for l in &self.levels[coarsen.min(self.levels.len() - 1)..] {
+        debug_assert!(coarsen >= self.first || self.first >= self.levels.len() - 1);
+        let from = coarsen.max(self.first).min(self.levels.len() - 1);
+        for l in &self.levels[from..] {
             match l.sample(face, x, y) {
                 LevelSample::Value(u) => {
                     return Some((self.plan.offset + u * self.plan.unit, l.level));

@@ -1,16 +1,23 @@
 //! One repository's surface placed on the Earth, answering web-map tile requests and their
-//! TileJSON / `layer.json` documents. Built once (decoding every even level), then shared.
+//! TileJSON / `layer.json` documents. Built once, then shared: it holds the repository's
+//! records; a plane's raster tile decodes only the records within reach of its pixels, while
+//! quantized-mesh tiles (whose heights are quantized over the whole repository's range) and
+//! planets decode every even level once, on first use.
 
+use std::sync::OnceLock;
+
+use cbdam_codec::geometry::DomainKind;
 use cbdam_codec::hierarchy::Encoded;
+use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{RepositoryHead, VerticalDatum};
 use serde_json::{Value, json};
 
 use crate::TilesError;
 use crate::place::Placement;
 use crate::quantized_mesh::{self, MeshTile, TileRequest};
-use crate::raster::{self, Encoding, RasterTile};
+use crate::raster::{self, Encoding, PixelPlan, RasterTile};
 use crate::schemes::{MERCATOR_MAX_LAT, Scheme, TileId, cesium_level_error};
-use crate::surface::Surface;
+use crate::surface::{RecordIndex, Surface};
 
 /// Raster tile sizes served, pixels (`?tile=`): 512 by default.
 pub const TILE_SIZES: [u32; 2] = [256, 512];
@@ -18,7 +25,11 @@ pub const TILE_SIZES: [u32; 2] = [256, 512];
 /// A repository ready to be cut into tiles.
 #[derive(Debug)]
 pub struct Tiler {
-    surface: Surface,
+    encoded: Encoded,
+    index: RecordIndex,
+    plan: QuantPlan,
+    /// Every even level, decoded on first use.
+    surface: OnceLock<Result<Surface, String>>,
     place: Placement,
     bounds: [f64; 4],
     /// The repository's guaranteed L∞ bound, metres.
@@ -33,18 +44,19 @@ impl Tiler {
         Placement::of(head).map(|_| ())
     }
 
-    /// Decodes `encoded` (the hierarchy of `head`'s repository) and places it.
-    pub fn new(head: &RepositoryHead, encoded: &Encoded) -> Result<Tiler, TilesError> {
+    /// Places `encoded` (the hierarchy of `head`'s repository); decodes nothing yet.
+    pub fn new(head: &RepositoryHead, encoded: Encoded) -> Result<Tiler, TilesError> {
         let place = Placement::of(head)?;
-        let surface = Surface::decode(encoded, head.plan())
-            .map_err(|e| TilesError::Internal(format!("decoding the repository: {e}")))?;
         let bounds = place.bounds();
         let datum = head
             .provenance()
             .map_or(VerticalDatum::Unknown, |p| p.vertical_datum);
         Ok(Tiler {
             mesh_max_zoom: quantized_mesh::max_zoom(&place),
-            surface,
+            index: RecordIndex::of(&encoded),
+            encoded,
+            plan: *head.plan(),
+            surface: OnceLock::new(),
             place,
             bounds,
             max_error: head.plan().max_error(),
@@ -57,9 +69,15 @@ impl Tiler {
         self.bounds
     }
 
-    /// The decoded surface.
-    pub fn surface(&self) -> &Surface {
-        &self.surface
+    /// The whole surface, every even level (decoded on the first call).
+    pub fn surface(&self) -> Result<&Surface, TilesError> {
+        self.surface
+            .get_or_init(|| {
+                Surface::decode(&self.encoded, &self.plan)
+                    .map_err(|e| format!("decoding the repository: {e}"))
+            })
+            .as_ref()
+            .map_err(|m| TilesError::Internal(m.clone()))
     }
 
     /// The raster tiles' deepest zoom for `tile`-pixel tiles.
@@ -98,7 +116,23 @@ impl Tiler {
                 self.bounds
             )));
         }
-        raster::render(&self.surface, &self.place, t, tile, encoding)
+        let pixels = PixelPlan::of(&self.place, t, tile);
+        let planar = self.encoded.params.domain.kind() == DomainKind::Planar;
+        match pixels.lattice_rect() {
+            // A plane: only the records within reach of the tile's pixels.
+            Some(rect) if planar && self.surface.get().is_none() => {
+                let surface = Surface::decode_window(
+                    &self.encoded,
+                    &self.index,
+                    &self.plan,
+                    rect,
+                    pixels.coarsen,
+                )
+                .map_err(|e| TilesError::Internal(format!("decoding tile {z}/{x}/{y}: {e}")))?;
+                raster::render_plan(&surface, &pixels, tile, encoding)
+            }
+            _ => raster::render_plan(self.surface()?, &pixels, tile, encoding),
+        }
     }
 
     /// Quantized-mesh tile `z/x/y` (geographic TMS, y from the south).
@@ -117,9 +151,10 @@ impl Tiler {
                 self.bounds, self.mesh_max_zoom
             )));
         }
-        let meta = metadata.then(|| self.mesh_metadata(t));
+        let surface = self.surface()?;
+        let meta = metadata.then(|| self.mesh_metadata(surface, t));
         Ok(quantized_mesh::build(
-            &self.surface,
+            surface,
             &self.place,
             &TileRequest {
                 tile: t,
@@ -130,8 +165,8 @@ impl Tiler {
     }
 
     /// The metadata extension of tile `t`: its children's availability and the error bound.
-    fn mesh_metadata(&self, t: TileId) -> Value {
-        let (lo, hi) = quantized_mesh::height_range(&self.surface);
+    fn mesh_metadata(&self, surface: &Surface, t: TileId) -> Value {
+        let (lo, hi) = quantized_mesh::height_range(surface);
         let step = (hi - lo) / f64::from(quantized_mesh::QMAX);
         json!({
             "available": quantized_mesh::child_availability(t, self.bounds, self.mesh_max_zoom),
@@ -144,8 +179,9 @@ impl Tiler {
         })
     }
 
-    /// `layer.json` of the quantized-mesh tiles.
-    pub fn layer_json(&self, name: &str) -> Value {
+    /// `layer.json` of the quantized-mesh tiles (decodes the whole surface: it states the
+    /// height step of the whole repository's range).
+    pub fn layer_json(&self, name: &str) -> Result<Value, TilesError> {
         let available: Vec<Value> = (0..=self.mesh_max_zoom)
             .map(|z| match Scheme::Geographic.range(z, self.bounds) {
                 _ if z == 0 => json!([{"startX": 0, "startY": 0, "endX": 1, "endY": 0}]),
@@ -155,9 +191,9 @@ impl Tiler {
                 None => json!([]),
             })
             .collect();
-        let (lo, hi) = quantized_mesh::height_range(&self.surface);
+        let (lo, hi) = quantized_mesh::height_range(self.surface()?);
         let step = (hi - lo) / f64::from(quantized_mesh::QMAX);
-        json!({
+        Ok(json!({
             "tilejson": "2.1.0",
             "name": name,
             "description": format!("cbdam repository {name} as quantized-mesh-1.0 terrain"),
@@ -191,7 +227,7 @@ impl Tiler {
                     geoid (EGM96) correction is applied: expect offsets of up to about ±100 m \
                     against ellipsoidal imagery and 3D tiles.",
             },
-        })
+        }))
     }
 
     /// TileJSON 3.0 of the raster tiles; `tiles` is the URL template to put in it.

@@ -498,6 +498,7 @@ fn answered_requests(metrics: &Metrics) -> u64 {
         Endpoint::Diamond,
         Endpoint::Batch,
         Endpoint::File,
+        Endpoint::Tiles,
         Endpoint::Other,
     ]
     .iter()
