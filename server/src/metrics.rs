@@ -232,13 +232,13 @@ impl Metrics {
                     _ => {}
                 }
             }
-            let _ = writeln!(
-                o,
-                "cbdam_http_errors_total{{endpoint=\"{}\",class=\"client\"}} {client}\n\
-                 cbdam_http_errors_total{{endpoint=\"{}\",class=\"server\"}} {server}",
-                e.name(),
-                e.name()
-            );
+            for (class, n) in [("client", client), ("server", server)] {
+                let _ = writeln!(
+                    o,
+                    "cbdam_http_errors_total{{endpoint=\"{}\",class=\"{class}\"}} {n}",
+                    e.name()
+                );
+            }
         }
     }
 
