@@ -32,7 +32,9 @@ use cbdam_codec::geodesy::LatLon;
 use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::planet::{tile_log2, tile_of};
-use cbdam_codec::hierarchy::{EncodeOptions, NoJournal, PlanetGrid, PlanetTile, encode_planet};
+use cbdam_codec::hierarchy::{
+    BlockJournal, EncodeOptions, NoJournal, PlanetGrid, PlanetTile, encode_planet,
+};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
@@ -606,7 +608,6 @@ pub fn build_planet(
     let plan = QuantPlan::new(opts.max_error, None, lo, hi)?;
     event(Stage::Prepare, 1);
     event(Stage::Encode, 0);
-    let t = Instant::now();
     let enc = EncodeOptions {
         n,
         extra_level_pairs: 0,
@@ -617,6 +618,24 @@ pub fn build_planet(
     // the same bytes either way.
     let whole =
         estimated_held_points(&inputs, n, k)?.saturating_mul(BYTES_PER_LATTICE_POINT) <= limit;
+    // Block by block, finished blocks are kept in a journal beside the output, so that a
+    // build killed and run again continues (the whole-lattice path is short enough to redo).
+    let journal = if whole {
+        None
+    } else {
+        let t = Instant::now();
+        let key = crate::journal_key(opts, &tiles, &enc, None)?
+            + &format!(
+                "planet=1
+level_pairs={k}
+"
+            );
+        let (journal, resumed) = crate::journal::Journal::open(&opts.output, &key)?;
+        stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
+        progress.resumed(&resumed);
+        Some(journal)
+    };
+    let t = Instant::now();
     let lattice = pool.install(|| {
         if whole {
             encode_whole(&inputs, n, k, &plan, &enc)
@@ -628,7 +647,9 @@ pub fn build_planet(
                 &plan,
                 &enc,
                 lattice_cache_budget(limit),
-                &NoJournal,
+                journal
+                    .as_ref()
+                    .map_or(&NoJournal as &dyn BlockJournal, |j| j),
             )
         }
     })?;
@@ -655,6 +676,9 @@ pub fn build_planet(
         &provenance_of(&resampling),
     )
     .with_context(|| format!("writing {}", opts.output.display()))?;
+    if let Some(journal) = journal {
+        journal.finish()?;
+    }
     stages.push(("write", t.elapsed()));
     event(Stage::Write, 1);
     Ok(PlanetSummary {
