@@ -624,12 +624,8 @@ pub fn build_planet(
         None
     } else {
         let t = Instant::now();
-        let key = crate::journal_key(opts, &tiles, &enc, None)?
-            + &format!(
-                "planet=1
-level_pairs={k}
-"
-            );
+        let key =
+            crate::journal_key(opts, &tiles, &enc, None)? + &format!("planet=1\nlevel_pairs={k}\n");
         let (journal, resumed) = crate::journal::Journal::open(&opts.output, &key)?;
         stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
         progress.resumed(&resumed);
