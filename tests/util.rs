@@ -186,3 +186,36 @@ pub fn planet(dir: &Path) -> PathBuf {
     std::fs::write(&path, bytes).unwrap();
     path
 }
+
+/// The finished-block files (`block-*`) in a build's journal directory; 0 when it is absent.
+pub fn journal_blocks(journal: &Path) -> usize {
+    std::fs::read_dir(journal).map_or(0, |d| {
+        d.filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().starts_with("block-"))
+            .count()
+    })
+}
+
+/// Starts `cbdam ARGS --quiet` and SIGKILLs it once its journal (whose key is written before
+/// the encode) holds `n` blocks; fails if the build ended or stalled before that.
+pub fn kill_after_blocks(args: &[String], journal: &Path, n: usize) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(args)
+        .arg("--quiet")
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while !(journal.join("key").exists() && journal_blocks(journal) >= n) {
+        assert!(start.elapsed().as_secs() < 120, "no progress to kill at");
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    assert!(
+        journal_blocks(journal) >= n,
+        "the build was not killed after {n} blocks"
+    );
+}

@@ -278,14 +278,15 @@ impl Metrics {
                 );
             }
             cumulative += self.latency_buckets[i][BUCKETS.len()].load(Relaxed);
+            let n = e.name();
+            let sum = self.latency_sum_us[i].load(Relaxed) as f64 / 1e6;
+            let name = "cbdam_http_request_duration_seconds";
             let _ = writeln!(
                 o,
-                "cbdam_http_request_duration_seconds_bucket{{endpoint=\"{n}\",le=\"+Inf\"}} {cumulative}\n\
-                 cbdam_http_request_duration_seconds_sum{{endpoint=\"{n}\"}} {}\n\
-                 cbdam_http_request_duration_seconds_count{{endpoint=\"{n}\"}} {cumulative}",
-                self.latency_sum_us[i].load(Relaxed) as f64 / 1e6,
-                n = e.name()
+                "{name}_bucket{{endpoint=\"{n}\",le=\"+Inf\"}} {cumulative}"
             );
+            let _ = writeln!(o, "{name}_sum{{endpoint=\"{n}\"}} {sum}");
+            let _ = writeln!(o, "{name}_count{{endpoint=\"{n}\"}} {cumulative}");
         }
     }
 

@@ -865,34 +865,9 @@ fn a_killed_planet_build_resumes_and_writes_the_same_bytes() {
     let expected = std::fs::read(&whole).unwrap();
     let out = d.join("killed.cbdam");
     let journal = d.join("killed.cbdam.journal");
-    let blocks_done = || {
-        std::fs::read_dir(&journal).map_or(0, |d| {
-            d.filter_map(|e| e.ok())
-                .filter(|e| e.file_name().to_string_lossy().starts_with("block-"))
-                .count()
-        })
-    };
-    let kill_after_blocks = |n: usize| {
-        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
-            .args(args(&out, "1"))
-            .arg("--quiet")
-            .spawn()
-            .unwrap();
-        let start = std::time::Instant::now();
-        while !(journal.join("key").exists() && blocks_done() >= n) {
-            assert!(start.elapsed().as_secs() < 120, "no progress to kill at");
-            if child.try_wait().unwrap().is_some() {
-                break;
-            }
-            std::thread::sleep(std::time::Duration::from_millis(2));
-        }
-        child.kill().unwrap(); // SIGKILL
-        child.wait().unwrap();
-        assert!(
-            blocks_done() >= n,
-            "the build was not killed after {n} blocks"
-        );
-    };
+    let blocks_done = || crate::util::journal_blocks(&journal);
+    let kill_after_blocks =
+        |n: usize| crate::util::kill_after_blocks(&args(&out, "1"), &journal, n);
     for n in [0, 1, 3] {
         kill_after_blocks(n);
         assert!(!out.exists(), "a killed build left {}", out.display());

@@ -32,9 +32,7 @@ use cbdam_codec::geodesy::LatLon;
 use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::planet::{tile_log2, tile_of};
-use cbdam_codec::hierarchy::{
-    BlockJournal, EncodeOptions, NoJournal, PlanetGrid, PlanetTile, encode_planet,
-};
+use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, PlanetTile, encode_planet};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
@@ -492,6 +490,58 @@ fn encode_whole(
     })
 }
 
+/// Resamples and encodes the lattice: whole in memory where its tiles fit in the memory limit
+/// at [`BYTES_PER_LATTICE_POINT`] (the faster path), block by block where not, with a journal
+/// of finished blocks beside the output so that a build killed and run again continues (the
+/// whole-lattice path is short enough to redo). The same bytes either way; the stage is named
+/// after the path taken.
+#[allow(clippy::too_many_arguments)]
+fn encode_lattice(
+    opts: &BuildOptions,
+    tiles: &[Tile],
+    inputs: &PlanetInputs,
+    (n, k): (usize, u32),
+    plan: &QuantPlan,
+    enc: &EncodeOptions,
+    progress: &dyn Progress,
+    stages: &mut Vec<(&'static str, std::time::Duration)>,
+) -> Result<(LatticeEncode, Option<crate::journal::Journal>)> {
+    let limit = opts
+        .memory_limit
+        .unwrap_or_else(crate::plan::default_memory_limit);
+    let whole =
+        estimated_held_points(inputs, n, k)?.saturating_mul(BYTES_PER_LATTICE_POINT) <= limit;
+    if whole {
+        let t = Instant::now();
+        let lattice = encode_whole(inputs, n, k, plan, enc)?;
+        stages.push((
+            "resample, encode and measure resampling error (whole lattice)",
+            t.elapsed(),
+        ));
+        return Ok((lattice, None));
+    }
+    let t = Instant::now();
+    let key = crate::journal_key(opts, tiles, enc, None)? + &format!("planet=1\nlevel_pairs={k}\n");
+    let (journal, resumed) = crate::journal::Journal::open(&opts.output, &key)?;
+    stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
+    progress.resumed(&resumed);
+    let t = Instant::now();
+    let lattice = encode_out_of_core(
+        inputs,
+        n,
+        k,
+        plan,
+        enc,
+        lattice_cache_budget(limit),
+        &journal,
+    )?;
+    stages.push((
+        "resample, encode and measure resampling error (block by block)",
+        t.elapsed(),
+    ));
+    Ok((lattice, Some(journal)))
+}
+
 /// Bytes of the inputs' samples a planet build keeps besides those in use: an eighth of the
 /// memory limit (the rest is the lattice's). The inputs are read when a lattice tile asks for
 /// them, so memory does not grow with their number.
@@ -614,53 +664,19 @@ pub fn build_planet(
         alpha: Alpha::One,
         coder: opts.coder,
     };
-    // The whole lattice in memory where it fits (the faster path), block by block where not:
-    // the same bytes either way.
-    let whole =
-        estimated_held_points(&inputs, n, k)?.saturating_mul(BYTES_PER_LATTICE_POINT) <= limit;
-    // Block by block, finished blocks are kept in a journal beside the output, so that a
-    // build killed and run again continues (the whole-lattice path is short enough to redo).
-    let journal = if whole {
-        None
-    } else {
-        let t = Instant::now();
-        let key =
-            crate::journal_key(opts, &tiles, &enc, None)? + &format!("planet=1\nlevel_pairs={k}\n");
-        let (journal, resumed) = crate::journal::Journal::open(&opts.output, &key)?;
-        stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
-        progress.resumed(&resumed);
-        Some(journal)
-    };
-    let t = Instant::now();
-    let lattice = pool.install(|| {
-        if whole {
-            encode_whole(&inputs, n, k, &plan, &enc)
-        } else {
-            encode_out_of_core(
-                &inputs,
-                n,
-                k,
-                &plan,
-                &enc,
-                lattice_cache_budget(limit),
-                journal
-                    .as_ref()
-                    .map_or(&NoJournal as &dyn BlockJournal, |j| j),
-            )
-        }
+    let (lattice, journal) = pool.install(|| {
+        encode_lattice(
+            opts,
+            &tiles,
+            &inputs,
+            (n, k),
+            &plan,
+            &enc,
+            progress,
+            &mut stages,
+        )
     })?;
     let (encoded, resampling) = (lattice.encoded, lattice.resampling);
-    stages.push(if whole {
-        (
-            "resample, encode and measure resampling error (whole lattice)",
-            t.elapsed(),
-        )
-    } else {
-        (
-            "resample, encode and measure resampling error (block by block)",
-            t.elapsed(),
-        )
-    });
     event(Stage::Encode, 1);
     event(Stage::Write, 0);
     let t = Instant::now();
