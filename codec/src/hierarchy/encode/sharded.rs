@@ -25,7 +25,7 @@ use super::{EncodeOptions, GridSummary, Setup};
 /// about half its work) are measured by the blocks, each over its own square, and the finish
 /// takes each diamond's largest. So the apex is quick, and that work is shared out.
 pub struct ShardedEncode<'a> {
-    setup: Setup<'a>,
+    pub(super) setup: Setup<'a>,
     plan: BlockPlan,
     blocks: Vec<Block>,
 }

@@ -2,6 +2,8 @@
 //! synthetic terrain and on real DEMs with nodata and odd sizes.
 
 use super::*;
+use crate::geometry::Layout;
+use crate::hierarchy::blocks::BlockOutput;
 use crate::quant::QuantPlan;
 use crate::samples::{Dem, SampleType};
 use proptest::prelude::*;
