@@ -1,9 +1,14 @@
-//! `cbdam inspect`: what a repository holds.
+//! `cbdam inspect`: what a repository holds, gathered once into an [`InspectReport`] and
+//! written as text or as JSON.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
+use cbdam_codec::geometry::DomainKind;
+use cbdam_codec::hierarchy::RepoKind;
 use cbdam_codec::hierarchy::mask::count_valid_samples;
+use cbdam_codec::lifting::Alpha;
 use cbdam_codec::repository::{Repository, Section};
 use cbdam_server::describe::Summary;
 use cbdam_server::summarize;
@@ -19,54 +24,269 @@ pub struct InspectArgs {
     json: bool,
 }
 
-/// Rewrite a repository of an older format version in the current one, 3 (from version 1: a
-/// range-coded record index and the compact header; from version 2: the compact header; both
-/// smaller on smooth terrain); heights, records and errors are unchanged. The output is written
-/// atomically and may be the input itself.
-#[derive(Args, Debug)]
-pub struct UpgradeArgs {
-    /// Repository file to read.
-    repo: PathBuf,
-    /// Where to write the upgraded repository (may be the input).
-    #[arg(short, long)]
-    output: PathBuf,
-}
-
-/// `cbdam upgrade`: the repository as the current writer writes it. The file's content is the
-/// encoder's output as read back (`to_encoded`, every record checked), so this is a rewrite of
-/// the containers, never a re-encode.
-pub fn upgrade(args: &UpgradeArgs) -> Result<()> {
+pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    let from = repo.head().format_version();
-    let encoded = repo
-        .to_encoded()
-        .with_context(|| format!("reading the records of {}", args.repo.display()))?;
-    let (plan, georef, nodata) = (
-        *repo.head().plan(),
-        repo.head().georef().cloned(),
-        repo.head().nodata(),
-    );
-    let before = repo.head().file_len();
-    // Unmap before writing: the output may replace the input.
-    drop(repo);
-    cbdam_codec::repository::write_repository(
-        &args.output,
-        &encoded,
-        &plan,
-        georef.as_ref(),
-        nodata,
-    )
-    .with_context(|| format!("writing {}", args.output.display()))?;
-    let after = std::fs::metadata(&args.output)
-        .with_context(|| format!("reading back {}", args.output.display()))?
-        .len();
-    println!(
-        "{}: format version {from} → {}, {before} → {after} bytes",
-        args.output.display(),
-        cbdam_codec::repository::FORMAT_VERSION
-    );
+    let report = InspectReport::gather(&repo, &args.repo)?;
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        writeln!(out, "{}", serde_json::to_string_pretty(&report.json())?)?;
+    } else {
+        report.write_text(&mut out)?;
+    }
     Ok(())
+}
+
+/// Everything `inspect` says of a repository, gathered once: the header (read through the
+/// repository), the per-level summary, and how many of its lattice points hold data. Written
+/// as text ([`InspectReport::write_text`]) or as JSON ([`InspectReport::json`]).
+struct InspectReport<'a> {
+    repo: &'a Repository,
+    path: &'a Path,
+    summary: Summary,
+    /// Distinct lattice points that can hold data (a planet's shared edge points once).
+    samples: u64,
+    /// Of those, the points that hold data.
+    valid: u64,
+}
+
+impl<'a> InspectReport<'a> {
+    /// The report of `repo`, opened from `path`: reads (and checks) the records when there is
+    /// a nodata mask, to count the points with data.
+    fn gather(repo: &'a Repository, path: &'a Path) -> Result<Self> {
+        let samples = repo.head().params().domain.lattice_points();
+        let valid = count_valid(repo, path, samples)?;
+        Ok(InspectReport {
+            repo,
+            path,
+            summary: summarize(repo),
+            samples,
+            valid,
+        })
+    }
+
+    /// The share of the lattice points without data.
+    fn nodata_fraction(&self) -> f64 {
+        1.0 - self.valid as f64 / self.samples as f64
+    }
+
+    /// The JSON form: the description the server's meta endpoint starts from, with the nodata
+    /// counts and the RMS bound.
+    fn json(&self) -> serde_json::Value {
+        let mut v = cbdam_server::describe(self.repo);
+        v["nodata_mask"] = self.repo.head().params().nodata_mask.into();
+        v["nodata_samples"] = (self.samples - self.valid).into();
+        v["nodata_fraction"] = self.nodata_fraction().into();
+        if let Some(r) = self.repo.head().plan().rms {
+            v["rms_error_bound_m"] = r.target.into();
+            v["rms_error_measured_m"] = r.measured.into();
+        }
+        v
+    }
+
+    /// The text form: the layout, the coding, the georeferencing, nodata, the sections and a
+    /// line per level.
+    fn write_text(&self, out: &mut impl Write) -> std::io::Result<()> {
+        self.write_layout(out)?;
+        self.write_quantization(out)?;
+        self.write_georef(out)?;
+        self.write_contents(out)?;
+        self.write_levels(out)
+    }
+
+    /// The file, its kind and domain, the data and the hierarchy.
+    fn write_layout(&self, out: &mut impl Write) -> std::io::Result<()> {
+        let head = self.repo.head();
+        let p = head.params();
+        let finest = p.layout().finest_level();
+        writeln!(out, "repository      {}", self.path.display())?;
+        writeln!(out, "format          version {}", head.format_version())?;
+        writeln!(out, "kind            {}", p.kind.name())?;
+        let domain = match p.domain.kind() {
+            DomainKind::Planar => "planar, 1 face".to_string(),
+            DomainKind::CubeSphere => format!(
+                "cube-sphere, {} faces, WGS84 ellipsoid, sigmoid cube map (docs/PLANET.md)",
+                p.domain.faces()
+            ),
+        };
+        writeln!(out, "domain          {domain}")?;
+        if let Some(pv) = head.provenance() {
+            writeln!(out, "vertical datum  {}", pv.vertical_datum.name())?;
+            writeln!(
+                out,
+                "resampling      lattice − input samples: max {:.3} m, rms {:.3} m (the bound \
+                 below holds against the lattice)",
+                pv.resampling_max, pv.resampling_rms
+            )?;
+        }
+        writeln!(out, "file            {} bytes", head.file_len())?;
+        let (width, height) = (p.domain.data().width, p.domain.data().height);
+        let bits = self.summary.bits_per_sample;
+        match p.domain.cube() {
+            None => writeln!(
+                out,
+                "data            {width}×{height} samples, {bits:.4} bits/sample"
+            )?,
+            Some(_) => writeln!(
+                out,
+                "data            6 faces of {width}×{height} points, {} distinct lattice \
+                 points, {bits:.4} bits/point",
+                p.domain.lattice_points()
+            )?,
+        }
+        let (roots_x, roots_y) = p.layout().root_counts();
+        writeln!(
+            out,
+            "hierarchy       N = {}, K = {} (levels 0…{finest}), {roots_x}×{roots_y} roots, α = {}, \
+             {} coder",
+            p.layout().n(),
+            p.layout().k(),
+            if p.alpha == Alpha::One { "1" } else { "½" },
+            p.coder.name()
+        )
+    }
+
+    /// The quantization and the error bound (a colour repository's in colour levels).
+    fn write_quantization(&self, out: &mut impl Write) -> std::io::Result<()> {
+        let (p, plan) = (self.repo.head().params(), self.repo.head().plan());
+        let values = if plan.lattice {
+            format!(
+                "lattice data (representation error {} m)",
+                plan.representation_error
+            )
+        } else {
+            "pre-quantized float data".to_string()
+        };
+        writeln!(
+            out,
+            "quantization    unit {} m, offset {} m, k = {} (root k = {}), {values}",
+            plan.unit,
+            plan.offset,
+            p.quantizer.k(),
+            p.root_quantizer.k(),
+        )?;
+        if p.kind == RepoKind::Colour {
+            return writeln!(
+                out,
+                "max error       {} levels per R, G, B component (YCoCg-R, k = {} per channel: \
+                 R, G, B within {:?}); values below are colour levels",
+                plan.epsilon,
+                p.quantizer.k(),
+                cbdam_codec::colour::ycocg::rgb_bound(p.quantizer.k() as u32)
+            );
+        }
+        match plan.rms {
+            None => writeln!(
+                out,
+                "max error       {} m requested, {} guaranteed",
+                plan.epsilon,
+                plan.bound_text()
+            ),
+            Some(r) => {
+                writeln!(
+                    out,
+                    "max error       {} guaranteed (the quantizer --rms-error chose)",
+                    plan.bound_text()
+                )?;
+                writeln!(
+                    out,
+                    "rms error       {} m bound, {} m measured by the build (finest level, \
+                     every valid sample)",
+                    r.target, r.measured
+                )
+            }
+        }
+    }
+
+    /// EPSG, origin and pixel, and the start of a WKT definition (the whole is in the JSON).
+    fn write_georef(&self, out: &mut impl Write) -> std::io::Result<()> {
+        let Some(g) = self.repo.head().georef() else {
+            return writeln!(out, "georeference    none");
+        };
+        writeln!(
+            out,
+            "georeference    EPSG {}, origin ({}, {}), pixel {} × {}, pixel is {}",
+            g.epsg.map_or("unknown".to_string(), |c| c.to_string()),
+            g.origin_x,
+            g.origin_y,
+            g.pixel_x,
+            g.pixel_y,
+            if g.pixel_is_area { "area" } else { "point" }
+        )?;
+        if let Some(wkt) = g.wkt.as_deref() {
+            // The definition's name is what a reader recognises.
+            let head: String = wkt.chars().take(72).collect();
+            let more = if head.len() < wkt.len() { "…" } else { "" };
+            writeln!(out, "crs (wkt)       {head}{more} ({} bytes)", wkt.len())?;
+        }
+        Ok(())
+    }
+
+    /// Nodata, the sections, the records and the object error range.
+    fn write_contents(&self, out: &mut impl Write) -> std::io::Result<()> {
+        let head = self.repo.head();
+        let s = &self.summary;
+        let (samples, valid) = (self.samples, self.valid);
+        writeln!(
+            out,
+            "nodata          value {}, {} of {samples} samples ({:.2} %) without data{}",
+            head.nodata().map_or("none".to_string(), |v| v.to_string()),
+            samples - valid,
+            100.0 * self.nodata_fraction(),
+            if head.params().nodata_mask {
+                ", per-sample mask stored"
+            } else {
+                ""
+            }
+        )?;
+        writeln!(
+            out,
+            "sections        roots {} B, index {} B, records {} B, header + checksums {} B",
+            head.section_len(Section::Roots),
+            head.section_len(Section::Index),
+            head.section_len(Section::Records),
+            s.container_overhead
+        )?;
+        writeln!(
+            out,
+            "records         {} ({} empty)",
+            head.entries().len(),
+            s.empty_records
+        )?;
+        let (lo, hi) = s.object_error_range;
+        writeln!(
+            out,
+            "object error    {} … {} m (finest level {} m)",
+            self.metres(lo),
+            self.metres(hi),
+            self.metres(head.leaf_error())
+        )
+    }
+
+    /// A line per level: its records, their bytes and their object error range.
+    fn write_levels(&self, out: &mut impl Write) -> std::io::Result<()> {
+        writeln!(out, "level  records        bytes   object error (m)")?;
+        for (i, l) in self.summary.levels.iter().enumerate() {
+            if l.records == 0 {
+                writeln!(out, "{i:>5}  {:>7}  {:>11}   -", 0, 0)?;
+            } else {
+                writeln!(
+                    out,
+                    "{i:>5}  {:>7}  {:>11}   {} … {}",
+                    l.records,
+                    l.bytes,
+                    self.metres(l.object_error_min),
+                    self.metres(l.object_error_max)
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Height units in metres (a colour repository's in colour levels).
+    fn metres(&self, units: u32) -> f64 {
+        f64::from(units) * self.repo.head().plan().unit
+    }
 }
 
 /// The lattice points of `repo` that hold data, of `samples`: all of them without a nodata mask;
@@ -85,215 +305,4 @@ fn count_valid(repo: &Repository, path: &Path, samples: u64) -> Result<u64> {
     } else {
         samples
     })
-}
-
-/// The text description's first part: the file, its kind and domain, the data and the hierarchy.
-fn print_layout(repo: &Repository, path: &Path, s: &Summary) {
-    let p = repo.head().params();
-    let finest = p.layout().finest_level();
-    let bits = s.bits_per_sample;
-    println!("repository      {}", path.display());
-    println!("format          version {}", repo.head().format_version());
-    println!("kind            {}", p.kind.name());
-    println!(
-        "domain          {}",
-        match p.domain.kind() {
-            cbdam_codec::geometry::DomainKind::Planar => "planar, 1 face".to_string(),
-            cbdam_codec::geometry::DomainKind::CubeSphere => format!(
-                "cube-sphere, {} faces, WGS84 ellipsoid, sigmoid cube map (docs/PLANET.md)",
-                p.domain.faces()
-            ),
-        }
-    );
-    if let Some(pv) = repo.head().provenance() {
-        println!("vertical datum  {}", pv.vertical_datum.name());
-        println!(
-            "resampling      lattice − input samples: max {:.3} m, rms {:.3} m (the bound below \
-             holds against the lattice)",
-            pv.resampling_max, pv.resampling_rms
-        );
-    }
-    println!("file            {} bytes", repo.head().file_len());
-    match p.domain.cube() {
-        None => println!(
-            "data            {}×{} samples, {:.4} bits/sample",
-            p.domain.data().width,
-            p.domain.data().height,
-            bits
-        ),
-        Some(_) => println!(
-            "data            6 faces of {}×{} points, {} distinct lattice points, {:.4} bits/point",
-            p.domain.data().width,
-            p.domain.data().height,
-            p.domain.lattice_points(),
-            bits
-        ),
-    }
-    println!(
-        "hierarchy       N = {}, K = {} (levels 0…{finest}), {}×{} roots, α = {}, {} coder",
-        p.layout().n(),
-        p.layout().k(),
-        p.layout().root_counts().0,
-        p.layout().root_counts().1,
-        if p.alpha == cbdam_codec::lifting::Alpha::One {
-            "1"
-        } else {
-            "½"
-        },
-        p.coder.name()
-    );
-}
-
-/// The georeferencing lines of the text description: EPSG, origin and pixel, and the start of
-/// a WKT definition.
-fn print_georef(repo: &Repository) {
-    match repo.head().georef() {
-        Some(g) => println!(
-            "georeference    EPSG {}, origin ({}, {}), pixel {} × {}, pixel is {}",
-            g.epsg.map_or("unknown".to_string(), |c| c.to_string()),
-            g.origin_x,
-            g.origin_y,
-            g.pixel_x,
-            g.pixel_y,
-            if g.pixel_is_area { "area" } else { "point" }
-        ),
-        None => println!("georeference    none"),
-    }
-    if let Some(wkt) = repo.head().georef().and_then(|g| g.wkt.as_deref()) {
-        // The definition's name is what a reader recognises; the whole is in --json.
-        let head: String = wkt.chars().take(72).collect();
-        let more = if head.len() < wkt.len() { "…" } else { "" };
-        println!("crs (wkt)       {head}{more} ({} bytes)", wkt.len());
-    }
-}
-
-/// The quantization and error-bound lines of the text description.
-fn print_quantization(repo: &Repository) {
-    let (p, plan) = (repo.head().params(), repo.head().plan());
-    println!(
-        "quantization    unit {} m, offset {} m, k = {} (root k = {}), {}",
-        plan.unit,
-        plan.offset,
-        p.quantizer.k(),
-        p.root_quantizer.k(),
-        if plan.lattice {
-            format!(
-                "lattice data (representation error {} m)",
-                plan.representation_error
-            )
-        } else {
-            "pre-quantized float data".to_string()
-        }
-    );
-    if p.kind == cbdam_codec::hierarchy::RepoKind::Colour {
-        println!(
-            "max error       {} levels per R, G, B component (YCoCg-R, k = {} per channel: \
-             R, G, B within {:?}); values below are colour levels",
-            plan.epsilon,
-            p.quantizer.k(),
-            cbdam_codec::colour::ycocg::rgb_bound(p.quantizer.k() as u32)
-        );
-        return;
-    }
-    match plan.rms {
-        None => println!(
-            "max error       {} m requested, {} guaranteed",
-            plan.epsilon,
-            plan.bound_text()
-        ),
-        Some(r) => {
-            println!(
-                "max error       {} guaranteed (the quantizer --rms-error chose)",
-                plan.bound_text()
-            );
-            println!(
-                "rms error       {} m bound, {} m measured by the build (finest level, every \
-                 valid sample)",
-                r.target, r.measured
-            );
-        }
-    }
-}
-
-/// The text description's second part: quantization, error bound, georeferencing, nodata,
-/// sections, records and the object error of every level.
-fn print_coding(repo: &Repository, s: &Summary, samples: u64, valid: u64) {
-    let (p, plan) = (repo.head().params(), repo.head().plan());
-    let nodata_fraction = 1.0 - valid as f64 / samples as f64;
-    let metres = |u: u32| f64::from(u) * plan.unit;
-    let (err_lo, err_hi) = s.object_error_range;
-    let overhead = s.container_overhead;
-    let empty = s.empty_records;
-    print_quantization(repo);
-    print_georef(repo);
-    println!(
-        "nodata          value {}, {} of {samples} samples ({:.2} %) without data{}",
-        repo.head()
-            .nodata()
-            .map_or("none".to_string(), |v| v.to_string()),
-        samples - valid,
-        100.0 * nodata_fraction,
-        if p.nodata_mask {
-            ", per-sample mask stored"
-        } else {
-            ""
-        }
-    );
-    println!(
-        "sections        roots {} B, index {} B, records {} B, header + checksums {} B",
-        repo.head().section_len(Section::Roots),
-        repo.head().section_len(Section::Index),
-        repo.head().section_len(Section::Records),
-        overhead
-    );
-    println!(
-        "records         {} ({empty} empty)",
-        repo.head().entries().len()
-    );
-    println!(
-        "object error    {} … {} m (finest level {} m)",
-        metres(err_lo),
-        metres(err_hi),
-        metres(repo.head().leaf_error())
-    );
-    println!("level  records        bytes   object error (m)");
-    for (i, l) in s.levels.iter().enumerate() {
-        if l.records == 0 {
-            println!("{i:>5}  {:>7}  {:>11}   -", 0, 0);
-        } else {
-            println!(
-                "{i:>5}  {:>7}  {:>11}   {} … {}",
-                l.records,
-                l.bytes,
-                metres(l.object_error_min),
-                metres(l.object_error_max)
-            );
-        }
-    }
-}
-
-pub fn run(args: &InspectArgs) -> Result<()> {
-    let repo =
-        Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    // Distinct lattice points that can hold data (a planet's shared edge points once).
-    let samples = repo.head().params().domain.lattice_points();
-    let valid = count_valid(&repo, &args.repo, samples)?;
-    let nodata_fraction = 1.0 - valid as f64 / samples as f64;
-    if args.json {
-        // The same description the server's meta endpoint starts from.
-        let mut v = cbdam_server::describe(&repo);
-        v["nodata_mask"] = repo.head().params().nodata_mask.into();
-        v["nodata_samples"] = (samples - valid).into();
-        v["nodata_fraction"] = nodata_fraction.into();
-        if let Some(r) = repo.head().plan().rms {
-            v["rms_error_bound_m"] = r.target.into();
-            v["rms_error_measured_m"] = r.measured.into();
-        }
-        println!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
-    }
-    let summary = summarize(&repo);
-    print_layout(&repo, &args.repo, &summary);
-    print_coding(&repo, &summary, samples, valid);
-    Ok(())
 }

@@ -18,6 +18,7 @@ mod session;
 mod shard;
 mod synth;
 mod synth_earth;
+mod upgrade;
 mod verify;
 mod view;
 mod web_export;
@@ -43,7 +44,7 @@ struct Cli {
 enum Command {
     Build(build::BuildArgs),
     Inspect(inspect::InspectArgs),
-    Upgrade(inspect::UpgradeArgs),
+    Upgrade(upgrade::UpgradeArgs),
     Verify(verify::VerifyArgs),
     Extract(extract::ExtractArgs),
     Serve(serve::ServeArgs),
@@ -94,7 +95,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Build(args) => build::run(&args),
         Command::Inspect(args) => inspect::run(&args),
-        Command::Upgrade(args) => inspect::upgrade(&args),
+        Command::Upgrade(args) => upgrade::run(&args),
         Command::Verify(args) => verify::run(&args),
         Command::Extract(args) => extract::run(&args),
         Command::Serve(args) => serve::run(&args),

@@ -370,6 +370,16 @@ fn fly<S: DataSource>(
         },
     )?;
     progress.finish();
+    print_flight_figures(args, dir, frames, &adapter, run);
+    for e in refiner.errors() {
+        eprintln!("cbdam: warning: {e}");
+    }
+    Ok(())
+}
+
+/// The figures of a flight drawn to `dir`: its settings, then the median and p99 of the
+/// refinement and render times per frame and the triangles drawn.
+fn print_flight_figures(args: &RenderArgs, dir: &Path, frames: u64, adapter: &str, run: FlightRun) {
     let FlightRun {
         mut refine_ms,
         mut render_ms,
@@ -405,10 +415,6 @@ fn fly<S: DataSource>(
         percentile(&tris, 0.5),
         tris.last().copied().unwrap_or(0),
     );
-    for e in refiner.errors() {
-        eprintln!("cbdam: warning: {e}");
-    }
-    Ok(())
 }
 
 /// How a flight is stepped: `frames` frames at `fps`, of `size`; `real_time` waits for each

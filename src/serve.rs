@@ -99,36 +99,10 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         .iter()
         .map(|s| s.parse::<RepoSpec>())
         .collect::<Result<Vec<_>, _>>()?;
-    let timeout = Duration::from_secs_f64(args.timeout);
-    let web = match &args.web {
-        Some(dir) => Some(std::sync::Arc::new(cbdam_server::WebAssets::load(dir)?)),
-        None => None,
-    };
-    let config = Config {
-        max_batch: args.max_batch,
-        max_body: args.max_body,
-        cors_origin: args.cors_origin.clone(),
-        timeout,
-        web,
-        header_read_timeout: Duration::from_secs_f64(args.header_timeout),
-        idle_timeout: Duration::from_secs_f64(args.idle_timeout),
-        max_connections: args.max_connections,
-        max_tile_samples: args.max_tile_samples,
-        held_records_bytes: args.hold_records.0,
-        answer_memory: args.answer_memory.0,
-    };
+    let config = server_config(args)?;
+    let timeout = config.timeout;
     init_logging();
-    if let Some((before, after)) = cbdam_server::raise_fd_limit() {
-        let after = if after == u64::MAX {
-            "unlimited".to_string()
-        } else {
-            after.to_string()
-        };
-        tracing::info!(
-            "raised the soft limit on open files from {before} to the hard limit, {after} \
-             (it bounds --max-connections)"
-        );
-    }
+    log_raised_fd_limit();
     let state = AppState::open(&specs, config)?;
     let mut rt = tokio::runtime::Builder::new_multi_thread();
     if let Some(n) = args.threads {
@@ -145,43 +119,95 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         let addr = listener.local_addr()?;
         // Signal handlers first: a client (or a test) may signal as soon as it reads the address.
         let shutdown = cbdam_server::shutdown_signal();
-        for (name, spec) in state.names().iter().zip(&specs) {
-            tracing::info!(
-                "serving {} as http://{addr}/v1/repos/{name}/meta",
-                spec.path.display()
-            );
-        }
-        tracing::info!("listening on http://{addr}");
-        match &state.config().web {
-            Some(web) => tracing::info!(
-                "browser viewer: http://{addr}/ (files under /viewer/{}/)",
-                web.hash()
-            ),
-            None => tracing::info!(
-                "repositories listed at http://{addr}/ (the browser viewer with --web DIR)"
-            ),
-        }
-        let (stop, stopped) = oneshot::channel::<()>();
-        let mut server = tokio::spawn(cbdam_server::run(listener, state, async {
-            let _ = stopped.await;
-        }));
-        tokio::select! {
-            r = &mut server => {
-                // The server ended without being asked to: an I/O error on the listener.
-                r.context("server task")??;
-                return Ok(());
-            }
-            () = shutdown => {}
-        }
-        let _ = stop.send(());
-        // In-flight requests get their timeout plus a little to finish; then exit regardless
-        // (an idle keep-alive client must not hold the process up).
-        let grace = timeout + Duration::from_secs(5);
-        match tokio::time::timeout(grace, &mut server).await {
-            Ok(r) => r.context("server task")??,
-            Err(_) => tracing::warn!("connections still open after {grace:?}; exiting anyway"),
-        }
-        tracing::info!("stopped");
-        Ok(())
+        log_addresses(&state, &specs, addr);
+        serve_until_signalled(listener, state, shutdown, timeout).await
     })
+}
+
+/// The server's settings from the flags (the browser viewer's files read from `--web`).
+fn server_config(args: &ServeArgs) -> Result<Config> {
+    let web = match &args.web {
+        Some(dir) => Some(std::sync::Arc::new(cbdam_server::WebAssets::load(dir)?)),
+        None => None,
+    };
+    Ok(Config {
+        max_batch: args.max_batch,
+        max_body: args.max_body,
+        cors_origin: args.cors_origin.clone(),
+        timeout: Duration::from_secs_f64(args.timeout),
+        web,
+        header_read_timeout: Duration::from_secs_f64(args.header_timeout),
+        idle_timeout: Duration::from_secs_f64(args.idle_timeout),
+        max_connections: args.max_connections,
+        max_tile_samples: args.max_tile_samples,
+        held_records_bytes: args.hold_records.0,
+        answer_memory: args.answer_memory.0,
+    })
+}
+
+/// Raises the soft limit on open files to the hard one, and says so.
+fn log_raised_fd_limit() {
+    if let Some((before, after)) = cbdam_server::raise_fd_limit() {
+        let after = if after == u64::MAX {
+            "unlimited".to_string()
+        } else {
+            after.to_string()
+        };
+        tracing::info!(
+            "raised the soft limit on open files from {before} to the hard limit, {after} \
+             (it bounds --max-connections)"
+        );
+    }
+}
+
+/// Where each repository is served, the listening address, and where the browser viewer is.
+fn log_addresses(state: &AppState, specs: &[RepoSpec], addr: SocketAddr) {
+    for (name, spec) in state.names().iter().zip(specs) {
+        tracing::info!(
+            "serving {} as http://{addr}/v1/repos/{name}/meta",
+            spec.path.display()
+        );
+    }
+    tracing::info!("listening on http://{addr}");
+    match &state.config().web {
+        Some(web) => tracing::info!(
+            "browser viewer: http://{addr}/ (files under /viewer/{}/)",
+            web.hash()
+        ),
+        None => tracing::info!(
+            "repositories listed at http://{addr}/ (the browser viewer with --web DIR)"
+        ),
+    }
+}
+
+/// Serves on `listener` until `shutdown` (SIGINT/SIGTERM), then gives the requests in flight
+/// their timeout plus a little to finish.
+async fn serve_until_signalled(
+    listener: TcpListener,
+    state: AppState,
+    shutdown: impl std::future::Future<Output = ()>,
+    timeout: Duration,
+) -> Result<()> {
+    let (stop, stopped) = oneshot::channel::<()>();
+    let mut server = tokio::spawn(cbdam_server::run(listener, state, async {
+        let _ = stopped.await;
+    }));
+    tokio::select! {
+        r = &mut server => {
+            // The server ended without being asked to: an I/O error on the listener.
+            r.context("server task")??;
+            return Ok(());
+        }
+        () = shutdown => {}
+    }
+    let _ = stop.send(());
+    // In-flight requests get their timeout plus a little to finish; then exit regardless
+    // (an idle keep-alive client must not hold the process up).
+    let grace = timeout + Duration::from_secs(5);
+    match tokio::time::timeout(grace, &mut server).await {
+        Ok(r) => r.context("server task")??,
+        Err(_) => tracing::warn!("connections still open after {grace:?}; exiting anyway"),
+    }
+    tracing::info!("stopped");
+    Ok(())
 }

@@ -22,7 +22,7 @@ use std::collections::HashMap;
 use std::convert::Infallible;
 use std::future::Future;
 use std::io::IoSlice;
-use std::net::IpAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::pin::Pin;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::atomic::{AtomicBool, AtomicU64};
@@ -212,40 +212,71 @@ pub(crate) async fn serve(
     cfg: &Config,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    let cap = effective_cap(cfg.max_connections);
-    if cap < cfg.max_connections {
-        tracing::warn!(
-            "at most {cap} connections at once (--max-connections {} is over what the \
-             file-descriptor limit allows; raise it with ulimit -n)",
-            cfg.max_connections
-        );
-    }
-    let builder = Arc::new(builder(cfg));
-    let registry = Arc::new(Mutex::new(Registry::default()));
-    let graceful = GracefulShutdown::new();
-    let clock = Instant::now();
-    let limits = Limits {
-        header: cfg.header_read_timeout,
-        idle: cfg.idle_timeout,
-        clock,
-    };
+    let acceptor = Acceptor::new(router, cfg);
     tokio::pin!(shutdown);
     loop {
         let (tcp, peer) = tokio::select! {
             r = listener.accept() => match r {
                 Ok(c) => c,
                 Err(e) => {
-                    accept_error(&e, &registry).await;
+                    accept_error(&e, &acceptor.registry).await;
                     continue;
                 }
             },
             () = &mut shutdown => break,
         };
+        acceptor.admit(tcp, peer);
+    }
+    drop(listener);
+    acceptor.graceful.shutdown().await;
+    Ok(())
+}
+
+/// What the accept loop hands every connection it admits: hyper's settings, the registry of
+/// open connections and its cap, the deadlines, and the graceful shutdown they all watch.
+struct Acceptor {
+    router: Router,
+    builder: Arc<Builder<TokioExecutor>>,
+    registry: Arc<Mutex<Registry>>,
+    graceful: GracefulShutdown,
+    limits: Limits,
+    cap: usize,
+}
+
+impl Acceptor {
+    /// The acceptor for `cfg`; warns when the fd limit lowers the connection cap.
+    fn new(router: Router, cfg: &Config) -> Self {
+        let cap = effective_cap(cfg.max_connections);
+        if cap < cfg.max_connections {
+            tracing::warn!(
+                "at most {cap} connections at once (--max-connections {} is over what the \
+                 file-descriptor limit allows; raise it with ulimit -n)",
+                cfg.max_connections
+            );
+        }
+        Self {
+            router,
+            builder: Arc::new(builder(cfg)),
+            registry: Arc::new(Mutex::new(Registry::default())),
+            graceful: GracefulShutdown::new(),
+            limits: Limits {
+                header: cfg.header_read_timeout,
+                idle: cfg.idle_timeout,
+                clock: Instant::now(),
+            },
+            cap,
+        }
+    }
+
+    /// Registers an accepted connection (closing another beyond the cap) and serves it on a
+    /// task of its own.
+    fn admit(&self, tcp: TcpStream, peer: SocketAddr) {
         // Without TCP_NODELAY a small response can wait for the client's delayed ACK (Nagle's
         // algorithm): tens of milliseconds on a request that takes microseconds.
         if let Err(e) = tcp.set_nodelay(true) {
             tracing::debug!("set_nodelay: {e}");
         }
+        let (limits, clock) = (self.limits, self.limits.clock);
         let now = limits.now();
         let slot = Arc::new(Slot {
             ip: peer.ip(),
@@ -256,8 +287,8 @@ pub(crate) async fn serve(
             evict: Notify::new(),
         });
         let id = {
-            let mut reg = registry.lock().expect("not poisoned");
-            while reg.conns.len() >= cap && reg.evict_one() {}
+            let mut reg = self.registry.lock().expect("not poisoned");
+            while reg.conns.len() >= self.cap && reg.evict_one() {}
             reg.add(Arc::clone(&slot))
         };
         let io = TokioIo::new(Tracked {
@@ -266,46 +297,53 @@ pub(crate) async fn serve(
             clock,
         });
         let svc = Svc {
-            router: router.clone(),
+            router: self.router.clone(),
             conn: ConnHandle {
                 slot: Arc::clone(&slot),
-                registry: Arc::clone(&registry),
+                registry: Arc::clone(&self.registry),
                 clock,
             },
         };
-        let builder = Arc::clone(&builder);
-        let registry = Arc::clone(&registry);
-        let watcher = graceful.watcher();
+        let builder = Arc::clone(&self.builder);
+        let registry = Arc::clone(&self.registry);
+        let watcher = self.graceful.watcher();
         tokio::spawn(async move {
             let conn = watcher.watch(builder.serve_connection(io, svc));
-            tokio::pin!(conn);
-            loop {
-                let deadline = limits.deadline(&slot);
-                tokio::select! {
-                    r = &mut conn => {
-                        if let Err(e) = r {
-                            tracing::debug!("connection from {peer}: {e}");
-                        }
-                        break;
-                    }
-                    () = slot.evict.notified() => {
-                        tracing::debug!("connection from {peer} closed for a newer one");
-                        break;
-                    }
-                    () = tokio::time::sleep_until(deadline) => {
-                        if limits.deadline(&slot) <= Instant::now() {
-                            tracing::debug!("connection from {peer} timed out");
-                            break;
-                        }
-                    }
-                }
-            }
+            until_done_evicted_or_late(conn, &slot, limits, peer).await;
             registry.lock().expect("not poisoned").remove(id);
         });
     }
-    drop(listener);
-    graceful.shutdown().await;
-    Ok(())
+}
+
+/// Drives `conn` until it ends, a newer connection evicts it, or its deadline passes.
+async fn until_done_evicted_or_late<E: std::fmt::Display>(
+    conn: impl Future<Output = Result<(), E>>,
+    slot: &Slot,
+    limits: Limits,
+    peer: SocketAddr,
+) {
+    tokio::pin!(conn);
+    loop {
+        let deadline = limits.deadline(slot);
+        tokio::select! {
+            r = &mut conn => {
+                if let Err(e) = r {
+                    tracing::debug!("connection from {peer}: {e}");
+                }
+                break;
+            }
+            () = slot.evict.notified() => {
+                tracing::debug!("connection from {peer} closed for a newer one");
+                break;
+            }
+            () = tokio::time::sleep_until(deadline) => {
+                if limits.deadline(slot) <= Instant::now() {
+                    tracing::debug!("connection from {peer} timed out");
+                    break;
+                }
+            }
+        }
+    }
 }
 
 /// An accept that failed. Out of file descriptors: close a connection to make room. A

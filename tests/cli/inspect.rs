@@ -1,5 +1,6 @@
 //! `cbdam inspect` as a process.
 
+use std::path::Path;
 use std::process::Command;
 
 use crate::util::*;
@@ -105,4 +106,47 @@ fn a_crafted_header_with_infinite_heights_is_refused_by_name() {
     let o = cbdam_within(&["serve", &bad, "--addr", "127.0.0.1:0"], 60);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("height unit 1e308"), "{}", stderr(&o));
+}
+
+/// `cbdam inspect REPO` and `cbdam inspect REPO --json`, run in `dir`.
+fn inspect_in(dir: &Path, repo: &str) -> [String; 2] {
+    [vec![], vec!["--json"]].map(|extra| {
+        let o = Command::new(env!("CARGO_BIN_EXE_cbdam"))
+            .current_dir(dir)
+            .arg("inspect")
+            .arg(repo)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{repo}: {}", stderr(&o));
+        stdout(&o)
+    })
+}
+
+/// The text and the JSON of a plane, a nodata mask, a colour repository, a planet, an RMS bound
+/// and a version-1 file are byte for byte what `inspect` printed before it became a report
+/// struct (`tests/data/inspect/README.md` says how they were captured).
+#[test]
+fn inspect_prints_what_it_printed_before_the_report_struct() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let fixtures = root.join("tests/data/inspect");
+    let cases = [
+        ("plane", fixtures.clone(), "plane.cbdam"),
+        ("nodata", fixtures.clone(), "nodata.cbdam"),
+        ("colour", fixtures.clone(), "colour.cbdam"),
+        ("planet", fixtures.clone(), "planet.cbdam"),
+        ("rms", fixtures.clone(), "rms.cbdam"),
+        (
+            "v1_holes_n9",
+            root.join("codec/tests/data/v1"),
+            "holes_n9.cbdam",
+        ),
+    ];
+    for (name, dir, repo) in cases {
+        let [text, json] = inspect_in(&dir, repo);
+        let expected =
+            |ext: &str| std::fs::read_to_string(fixtures.join(format!("{name}.{ext}"))).unwrap();
+        assert_eq!(text, expected("txt"), "{name}: text");
+        assert_eq!(json, expected("json"), "{name}: --json");
+    }
 }

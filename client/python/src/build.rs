@@ -53,19 +53,8 @@ pub fn build<'py>(
     let mut o = BuildOptions::new(inputs, output, max_error);
     o.diamond_size = diamond_size.unwrap_or(o.diamond_size);
     o.extra_levels = parse_extra_levels(extra_levels)?;
-    o.alpha = match alpha {
-        1.0 => Alpha::One,
-        0.5 => Alpha::Half,
-        other => return Err(PyCbdamError::Input(format!("alpha={other}: 1 or 0.5")).into()),
-    };
-    o.coder = CoderKind::ALL
-        .into_iter()
-        .find(|c| c.name() == coder)
-        .ok_or_else(|| {
-            PyCbdamError::Input(format!(
-                "coder={coder:?}: one of 'adaptive-tokens', 'adaptive', 'elias-gamma'"
-            ))
-        })?;
+    o.alpha = parse_alpha(alpha)?;
+    o.coder = parse_coder(coder)?;
     (o.threads, o.quantum, o.nodata, o.memory_limit, o.raw_size) =
         (threads, quantum, nodata, memory_limit, size);
     (o.colour, o.like) = (colour, like);
@@ -73,6 +62,17 @@ pub fn build<'py>(
         return Err(PyCbdamError::Input("planet_level= needs planet=True".into()).into());
     }
     o.planet = planet.then_some(planet_level);
+    let summary = build_reporting_progress(py, &o, progress)?;
+    summary_dict(py, &o, summary)
+}
+
+/// Runs the build without the GIL, calling `progress(stage, done, total)` (with it) on each
+/// event; the first exception the callback raises is raised once the build ends.
+fn build_reporting_progress(
+    py: Python<'_>,
+    o: &BuildOptions,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<BuildSummary> {
     let failed: Mutex<Option<PyErr>> = Mutex::new(None);
     let report = |event: ProgressEvent| {
         let Some(callback) = &progress else {
@@ -85,11 +85,19 @@ pub fn build<'py>(
             }
         });
     };
-    let summary = py.detach(|| cbdam_builder::build(&o, &report));
+    let summary = py.detach(|| cbdam_builder::build(o, &report));
     if let Some(e) = failed.into_inner().expect("progress error") {
         return Err(e);
     }
-    let summary = summary.map_err(|e| PyCbdamError::build(&e))?;
+    Ok(summary.map_err(|e| PyCbdamError::build(&e))?)
+}
+
+/// The summary dict `build` returns: the output, its size, its kind and what the kind reports.
+fn summary_dict<'py>(
+    py: Python<'py>,
+    o: &BuildOptions,
+    summary: BuildSummary,
+) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("output", o.output.display().to_string())?;
     d.set_item("bytes", std::fs::metadata(&o.output).map(|m| m.len()).ok())?;
@@ -113,6 +121,27 @@ pub fn build<'py>(
         }
     }
     Ok(d)
+}
+
+/// `alpha=`: 1 or 0.5.
+fn parse_alpha(alpha: f64) -> Result<Alpha> {
+    match alpha {
+        1.0 => Ok(Alpha::One),
+        0.5 => Ok(Alpha::Half),
+        other => Err(PyCbdamError::Input(format!("alpha={other}: 1 or 0.5"))),
+    }
+}
+
+/// `coder=`: a coder's name.
+fn parse_coder(coder: &str) -> Result<CoderKind> {
+    CoderKind::ALL
+        .into_iter()
+        .find(|c| c.name() == coder)
+        .ok_or_else(|| {
+            PyCbdamError::Input(format!(
+                "coder={coder:?}: one of 'adaptive-tokens', 'adaptive', 'elias-gamma'"
+            ))
+        })
 }
 
 fn parse_extra_levels(v: Option<&Bound<'_, PyAny>>) -> Result<ExtraLevels> {

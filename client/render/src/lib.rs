@@ -53,19 +53,19 @@ pub mod mesh;
 pub mod pool;
 pub mod present;
 
+mod frame;
 mod gpu;
 mod instances;
 mod pipelines;
 mod readback;
+mod target;
 
 use std::borrow::Borrow;
 
 use web_time::Instant;
 
-use bytemuck::{Pod, Zeroable};
-use glam::DVec3;
-
 pub use cache::{CacheStats, Residency, SlotCache};
+pub use frame::{DrawStats, FrameUniform, RenderOptions};
 pub use gpu::Gpu;
 pub use instances::PatchInstance;
 use instances::Prepared;
@@ -74,6 +74,7 @@ use pipelines::{TerrainPipelines, bind_group, buffer_init, instance_buffer, terr
 use pool::HeightPool;
 pub use pool::{POOL_TEXTURE_WIDTH, VertexFetch};
 pub use readback::{Frame, encode_png, write_png};
+use target::Target;
 
 use cbdam_client::camera::Camera;
 use cbdam_client::patch::HalfPatch;
@@ -143,94 +144,6 @@ pub enum DrawError {
     Png(String),
 }
 
-/// Per-frame constants (`Frame` in the shader).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
-pub struct FrameUniform {
-    /// World-minus-eye to clip.
-    pub view_proj: [[f32; 4]; 4],
-    /// Unit vector towards the sun; w unused.
-    pub sun: [f32; 4],
-    /// z relative to the eye of height 0 units.
-    pub z_base: f32,
-    /// Metres per height unit (vertically exaggerated if asked).
-    pub z_scale: f32,
-    /// True metres of height 0 units (colour ramp).
-    pub m_offset: f32,
-    /// True metres per height unit (colour ramp).
-    pub m_unit: f32,
-    /// Colour ramp start, metres.
-    pub ramp_lo: f32,
-    /// Colour ramp end, metres.
-    pub ramp_hi: f32,
-    /// Grid side N.
-    pub n: u32,
-    /// 0 hypsometric, 1 level colours.
-    pub mode: u32,
-    /// Largest lattice x and y of the data rectangle.
-    pub data_max: [f32; 2],
-    /// 1 when the data reaches below sea level.
-    pub has_sea: u32,
-    /// 1 when slots hold draped colours after the heights.
-    pub draped: u32,
-    /// 1 on a planet: slots hold positions after the heights, no data rectangle.
-    pub planet: u32,
-    /// Padding to 16 bytes.
-    pub pad: [u32; 3],
-}
-const _: () = assert!(std::mem::size_of::<FrameUniform>() == 144);
-
-/// How a frame looks.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RenderOptions {
-    /// Colour by diamond level instead of by height (debug).
-    pub level_colours: bool,
-    /// Draw triangle edges over the surface (debug; needs `POLYGON_MODE_LINE`).
-    pub wireframe: bool,
-    /// Clear colour, RGBA 0–1 as written to the image.
-    pub background: [f64; 4],
-    /// Unit vector towards the sun (default: from the north-west, 45° high — the cartographic
-    /// convention, so valleys read as valleys).
-    pub sun: DVec3,
-    /// Read the depth buffer back into [`Frame::depth`].
-    pub read_depth: bool,
-}
-
-impl Default for RenderOptions {
-    fn default() -> Self {
-        Self {
-            level_colours: false,
-            wireframe: false,
-            background: [0.62, 0.74, 0.86, 1.0],
-            sun: DVec3::new(-0.5, 0.5, std::f64::consts::FRAC_1_SQRT_2).normalize(),
-            read_depth: false,
-        }
-    }
-}
-
-/// What one frame drew.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct DrawStats {
-    /// Half-patches in the cut handed over.
-    pub patches: usize,
-    /// Half-patches drawn.
-    pub drawn: usize,
-    /// Not drawn: entirely outside the data rectangle or the view frustum.
-    pub culled: usize,
-    /// Not drawn: not resident and not uploadable this frame (budget or pool size).
-    pub missing: usize,
-    /// Triangles submitted.
-    pub triangles: u64,
-    /// Draw calls issued.
-    pub draw_calls: u32,
-    /// Cache counters of this frame.
-    pub cache: CacheStats,
-    /// CPU time preparing the frame (culling, cache, staging), seconds.
-    pub prepare_s: f64,
-    /// Time from submitting the frame to the GPU finishing it, seconds (readback excluded).
-    pub gpu_s: f64,
-}
-
 /// Sizes of the GPU patch cache.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CacheConfig {
@@ -253,12 +166,6 @@ impl Default for CacheConfig {
             vertex_fetch: VertexFetch::Auto,
         }
     }
-}
-
-struct Target {
-    size: (u32, u32),
-    color: wgpu::Texture,
-    depth: wgpu::Texture,
 }
 
 /// The terrain renderer of one repository's world.
@@ -529,29 +436,6 @@ impl Renderer {
         Ok((encoder, stats))
     }
 
-    /// The offscreen colour target ([`COLOR_FORMAT`]) of the last frame, once there is one.
-    pub fn color_texture(&self) -> Option<&wgpu::Texture> {
-        self.target.as_ref().map(|t| &t.color)
-    }
-
-    /// Reads the colour target back (RGBA8, top row first) after the commands that drew it were
-    /// submitted; waits for the GPU (native targets only).
-    #[cfg(not(target_arch = "wasm32"))]
-    pub fn read_color(&self) -> Result<Frame, DrawError> {
-        let target = self
-            .target
-            .as_ref()
-            .ok_or_else(|| DrawError::Gpu("nothing rendered yet".into()))?;
-        let rgba = self.read_texture(&target.color, target.size, 4)?;
-        Ok(Frame {
-            width: target.size.0,
-            height: target.size.1,
-            rgba,
-            depth: None,
-            stats: DrawStats::default(),
-        })
-    }
-
     /// Records the draw calls of a prepared frame into `pass`; returns how many.
     fn draw(
         &self,
@@ -633,110 +517,6 @@ impl Renderer {
         }
     }
 
-    fn ensure_target(&mut self, size: (u32, u32)) {
-        if self.target.as_ref().is_some_and(|t| t.size == size) {
-            return;
-        }
-        let tex = |label, format, usage| {
-            self.gpu.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: size.0,
-                    height: size.1,
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage,
-                view_formats: &[],
-            })
-        };
-        let usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
-        self.target = Some(Target {
-            size,
-            // A window samples the colour target to present it.
-            color: tex(
-                "colour",
-                COLOR_FORMAT,
-                usage | wgpu::TextureUsages::TEXTURE_BINDING,
-            ),
-            depth: tex("depth", DEPTH_FORMAT, usage),
-        });
-    }
-
-    #[cfg(not(target_arch = "wasm32"))]
-    fn wait(&self) -> Result<(), DrawError> {
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map(|_| ())
-            .map_err(|e| DrawError::Gpu(e.to_string()))
-    }
-
-    /// Copies a texture with `bpp` bytes per pixel into a tightly packed byte vector.
-    #[cfg(not(target_arch = "wasm32"))]
-    fn read_texture(
-        &self,
-        texture: &wgpu::Texture,
-        size: (u32, u32),
-        bpp: u32,
-    ) -> Result<Vec<u8>, DrawError> {
-        let row = size.0 * bpp;
-        let padded =
-            row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        let buffer = self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: u64::from(padded) * u64::from(size.1),
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
-        encoder.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buffer,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(padded),
-                    rows_per_image: Some(size.1),
-                },
-            },
-            wgpu::Extent3d {
-                width: size.0,
-                height: size.1,
-                depth_or_array_layers: 1,
-            },
-        );
-        self.gpu.queue.submit([encoder.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        buffer.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait()?;
-        rx.recv()
-            .map_err(|e| DrawError::Gpu(e.to_string()))?
-            .map_err(|e| DrawError::Gpu(e.to_string()))?;
-        let mut out = Vec::with_capacity((row * size.1) as usize);
-        {
-            let view = buffer
-                .get_mapped_range(..)
-                .map_err(|e| DrawError::Gpu(e.to_string()))?;
-            for y in 0..size.1 as usize {
-                let start = y * padded as usize;
-                out.extend_from_slice(&view[start..start + row as usize]);
-            }
-        }
-        buffer.unmap();
-        Ok(out)
-    }
-
     fn write_instances(&mut self, instances: &[PatchInstance]) {
         let needed = instances.len() as u64;
         if needed > self.instance_capacity {
@@ -755,51 +535,6 @@ impl Renderer {
                 .queue
                 .write_buffer(&self.instances, 0, bytemuck::cast_slice(instances));
         }
-    }
-
-    fn write_uniform(&self, camera: &Camera, options: &RenderOptions) {
-        let w = &self.world;
-        let sun = options.sun.normalize_or_zero();
-        // On a planet the sun is given in the local frame under the eye.
-        let sun = if w.is_planet() {
-            let g = cbdam_codec::geodesy::Geodetic::from_ecef(camera.eye.to_array());
-            let (sp, cp) = g.lat.to_radians().sin_cos();
-            let (sl, cl) = g.lon.to_radians().sin_cos();
-            let east = DVec3::new(-sl, cl, 0.0);
-            let north = DVec3::new(-sp * cl, -sp * sl, cp);
-            let up = DVec3::new(cp * cl, cp * sl, sp);
-            east * sun.x + north * sun.y + up * sun.z
-        } else {
-            sun
-        };
-        // The colour ramp spans the land's true heights; below sea level is water when present.
-        let ramp_lo = w.min_height.max(0.0);
-        let uniform = FrameUniform {
-            view_proj: camera.view_proj_relative().to_cols_array_2d(),
-            sun: [sun.x as f32, sun.y as f32, sun.z as f32, 0.0],
-            z_base: (w.offset - camera.eye.z) as f32,
-            z_scale: w.unit as f32,
-            m_offset: w.offset as f32,
-            m_unit: w.unit as f32,
-            ramp_lo: ramp_lo as f32,
-            ramp_hi: w.max_height.max(ramp_lo + 1.0) as f32,
-            n: w.domain.n() as u32,
-            mode: u32::from(options.level_colours),
-            data_max: {
-                let data = w.domain.data();
-                [
-                    data.width.saturating_sub(1) as f32,
-                    data.height.saturating_sub(1) as f32,
-                ]
-            },
-            has_sea: u32::from(w.min_height < 0.0),
-            draped: u32::from(self.draped()),
-            planet: u32::from(w.is_planet()),
-            pad: [0; 3],
-        };
-        self.gpu
-            .queue
-            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&uniform));
     }
 }
 

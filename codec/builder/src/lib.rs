@@ -287,95 +287,27 @@ pub(crate) fn prepare_elevation(
     progress: &dyn Progress,
     lattice_dir: Option<&Path>,
 ) -> Result<PreparedBuild> {
-    if opts.like.is_some() {
-        bail!("--like only applies to colour repositories (--colour)");
-    }
-    // Cheap checks first, so a typo does not cost a DEM read.
-    check_tolerance_and_output(opts)?;
-    if opts.threads == Some(0) {
-        bail!("--threads must be at least 1");
-    }
-    if let ExtraLevels::Fixed(n) = opts.extra_levels
-        && n > ExtraLevels::MAX
-    {
-        bail!(
-            "--extra-levels {n}: at most {} level pairs",
-            ExtraLevels::MAX
-        );
-    }
+    check_elevation_options(opts)?;
     let limit = opts.memory_limit.unwrap_or_else(default_memory_limit);
     let enc_opts = opts.encode_options();
-    progress.event(ProgressEvent {
-        stage: Stage::Prepare,
-        done: 0,
-        total: 1,
-    });
+    let prepare_step = |done| {
+        progress.event(ProgressEvent {
+            stage: Stage::Prepare,
+            done,
+            total: 1,
+        })
+    };
+    prepare_step(0);
     let tiles = input_tiles(opts)?;
-    let (input, resolution, storage) = match tiles.as_slice() {
+    let (input, resolution, mut storage) = match tiles.as_slice() {
         [] => bail!("no input given"),
         [tiles::Tile { path, vrt: None }] => {
-            let mut input = prepare(&InputSpec {
-                path,
-                raw_size: opts.raw_size,
-                nodata: opts.nodata,
-                quantum: opts.quantum,
-                max_error: opts.max_error,
-                memory_limit: limit,
-                lattice_dir,
-            })?;
-            if let Some(a) = &opts.assign_georef {
-                a.apply(
-                    path,
-                    &mut input.georef,
-                    (input.grid.width, input.grid.height),
-                )?;
-            }
-            let storage = storage_for(&input.grid, None, &enc_opts, limit)?;
-            (input, None, storage)
+            prepare_single_input(opts, path, &enc_opts, limit, lattice_dir)?
         }
-        tiles => {
-            if opts.assign_georef.is_some() {
-                bail!(
-                    "--bounds and --crs georeference one input; these {} inputs (tiles) need \
-                     their own georeferencing",
-                    tiles.len()
-                );
-            }
-            if opts.raw_size.is_some() {
-                bail!(
-                    "--size: raw float32 inputs carry no georeferencing, so several inputs \
-                     cannot include them"
-                );
-            }
-            if enc_opts.alpha != Alpha::One {
-                bail!("several inputs (variable resolution) need --alpha one");
-            }
-            if enc_opts.extra_level_pairs > 0 {
-                bail!(
-                    "--extra-levels above 0 applies to single-input builds (several inputs keep \
-                     the covering hierarchy)"
-                );
-            }
-            let (input, res) = prepare_mosaic(
-                tiles,
-                opts.nodata,
-                opts.quantum,
-                opts.max_error,
-                limit,
-                lattice_dir,
-            )?;
-            // The inputs are gone by now: what stays is the grid, the classes and the field.
-            let storage = storage_for(&input.grid, Some(&res), &enc_opts, limit)?;
-            (input, Some(res), storage)
-        }
+        tiles => prepare_several_inputs(opts, tiles, &enc_opts, limit, lattice_dir)?,
     };
     plan::return_freed_memory();
-    progress.event(ProgressEvent {
-        stage: Stage::Prepare,
-        done: 1,
-        total: 1,
-    });
-    let mut storage = storage;
+    prepare_step(1);
     if let Some(plan) = opts.block_plan {
         if enc_opts.alpha != Alpha::One {
             bail!("--block-plan needs --alpha one");
@@ -390,6 +322,107 @@ pub(crate) fn prepare_elevation(
         enc_opts,
         limit,
     })
+}
+
+/// The checks of an elevation build's options that need no input: cheap, so a typo does not
+/// cost a DEM read.
+fn check_elevation_options(opts: &BuildOptions) -> Result<()> {
+    if opts.like.is_some() {
+        bail!("--like only applies to colour repositories (--colour)");
+    }
+    check_tolerance_and_output(opts)?;
+    if opts.threads == Some(0) {
+        bail!("--threads must be at least 1");
+    }
+    if let ExtraLevels::Fixed(n) = opts.extra_levels
+        && n > ExtraLevels::MAX
+    {
+        bail!(
+            "--extra-levels {n}: at most {} level pairs",
+            ExtraLevels::MAX
+        );
+    }
+    Ok(())
+}
+
+/// An input read and quantized, the classes of a variable-resolution input, and where the
+/// encoder's temporaries go.
+type PreparedInput = (
+    plan::Prepared,
+    Option<cbdam_codec::hierarchy::Resolution>,
+    plan::Temporaries,
+);
+
+/// One input file: read (georeferenced by `--bounds`/`--crs` when given) and quantized.
+fn prepare_single_input(
+    opts: &BuildOptions,
+    path: &Path,
+    enc_opts: &EncodeOptions,
+    limit: u64,
+    lattice_dir: Option<&Path>,
+) -> Result<PreparedInput> {
+    let mut input = prepare(&InputSpec {
+        path,
+        raw_size: opts.raw_size,
+        nodata: opts.nodata,
+        quantum: opts.quantum,
+        max_error: opts.max_error,
+        memory_limit: limit,
+        lattice_dir,
+    })?;
+    if let Some(a) = &opts.assign_georef {
+        a.apply(
+            path,
+            &mut input.georef,
+            (input.grid.width, input.grid.height),
+        )?;
+    }
+    let storage = storage_for(&input.grid, None, enc_opts, limit)?;
+    Ok((input, None, storage))
+}
+
+/// Several inputs (tiles): checked against the options a mosaic cannot take, then mosaicked
+/// into one variable-resolution input.
+fn prepare_several_inputs(
+    opts: &BuildOptions,
+    tiles: &[tiles::Tile],
+    enc_opts: &EncodeOptions,
+    limit: u64,
+    lattice_dir: Option<&Path>,
+) -> Result<PreparedInput> {
+    if opts.assign_georef.is_some() {
+        bail!(
+            "--bounds and --crs georeference one input; these {} inputs (tiles) need \
+             their own georeferencing",
+            tiles.len()
+        );
+    }
+    if opts.raw_size.is_some() {
+        bail!(
+            "--size: raw float32 inputs carry no georeferencing, so several inputs \
+             cannot include them"
+        );
+    }
+    if enc_opts.alpha != Alpha::One {
+        bail!("several inputs (variable resolution) need --alpha one");
+    }
+    if enc_opts.extra_level_pairs > 0 {
+        bail!(
+            "--extra-levels above 0 applies to single-input builds (several inputs keep \
+             the covering hierarchy)"
+        );
+    }
+    let (input, res) = prepare_mosaic(
+        tiles,
+        opts.nodata,
+        opts.quantum,
+        opts.max_error,
+        limit,
+        lattice_dir,
+    )?;
+    // The inputs are gone by now: what stays is the grid, the classes and the field.
+    let storage = storage_for(&input.grid, Some(&res), enc_opts, limit)?;
+    Ok((input, Some(res), storage))
 }
 
 /// Builds an elevation repository (`opts.colour` is ignored).
@@ -408,93 +441,17 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         None => (None, None),
     };
     let opts = chosen.as_ref().unwrap_or(opts);
-    let PreparedBuild {
-        tiles,
-        mut input,
-        resolution,
-        storage,
-        enc_opts,
-        limit,
-    } = prepare_elevation(opts, progress, None)?;
+    let mut prepared = prepare_elevation(opts, progress, None)?;
     if rms.is_some() {
         // The header's tolerance is then the maximum error the chosen quantizer guarantees.
-        input.plan.epsilon = input.plan.max_error();
-        input.plan.rms = rms;
+        prepared.input.plan.epsilon = prepared.input.plan.max_error();
+        prepared.input.plan.rms = rms;
     }
-    let mut stages = input.stages.clone();
-    let journal = match &storage.blocks {
-        Some(plan) => {
-            let t = Instant::now();
-            let key = journal_key(opts, &tiles, &enc_opts, Some(plan))?;
-            let (journal, resumed) = Journal::open(&opts.output, &key)?;
-            stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
-            progress.resumed(&resumed);
-            Some(journal)
-        }
-        None => None,
-    };
-    let t = Instant::now();
-    let encoded = encode_prepared(
-        &input,
-        resolution.as_ref(),
-        &enc_opts,
-        &storage,
-        journal
-            .as_ref()
-            .map_or(&NoJournal as &dyn BlockJournal, |j| j),
-        opts.threads,
-        &|done, total| {
-            progress.event(ProgressEvent {
-                stage: Stage::Encode,
-                done,
-                total,
-            })
-        },
-    )?;
-    stages.push(("encode", t.elapsed()));
-    let encoded = if opts.extra_levels == ExtraLevels::Auto && resolution.is_none() {
-        let step = |done| {
-            progress.event(ProgressEvent {
-                stage: Stage::EncodeCoarserRoots,
-                done,
-                total: 1,
-            })
-        };
-        step(0);
-        let t = Instant::now();
-        let (e, tried) =
-            with_coarser_roots_if_smaller(&input, encoded, &enc_opts, limit, opts.threads)?;
-        if tried {
-            stages.push(("encode with coarser roots", t.elapsed()));
-        }
-        step(1);
-        e
-    } else {
-        encoded
-    };
-    let t = Instant::now();
-    progress.event(ProgressEvent {
-        stage: Stage::Write,
-        done: 0,
-        total: 1,
-    });
-    write_repository(
-        &opts.output,
-        &encoded,
-        &input.plan,
-        input.georef.as_ref(),
-        input.nodata,
-    )
-    .with_context(|| format!("writing {}", opts.output.display()))?;
-    if let Some(journal) = journal {
-        journal.finish()?;
-    }
-    stages.push(("write", t.elapsed()));
-    progress.event(ProgressEvent {
-        stage: Stage::Write,
-        done: 1,
-        total: 1,
-    });
+    let mut stages = prepared.input.stages.clone();
+    let journal = open_block_journal(opts, &prepared, progress, &mut stages)?;
+    let encoded = encode_elevation(opts, &prepared, journal.as_ref(), progress, &mut stages)?;
+    write_elevation(opts, &prepared, &encoded, journal, progress, &mut stages)?;
+    let PreparedBuild { input, storage, .. } = prepared;
     let grid = &input.grid;
     Ok(ElevationSummary {
         width: grid.width,
@@ -506,6 +463,115 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
         temporaries: storage.describe(),
         lattice_mapped: grid.is_mapped(),
     })
+}
+
+/// A build encoded block by block (`--block-plan`) keeps a journal beside the output, so an
+/// interrupted build resumes; `None` for a build in one piece.
+fn open_block_journal(
+    opts: &BuildOptions,
+    prepared: &PreparedBuild,
+    progress: &dyn Progress,
+    stages: &mut Vec<(&'static str, Duration)>,
+) -> Result<Option<Journal>> {
+    let Some(plan) = &prepared.storage.blocks else {
+        return Ok(None);
+    };
+    let t = Instant::now();
+    let key = journal_key(opts, &prepared.tiles, &prepared.enc_opts, Some(plan))?;
+    let (journal, resumed) = Journal::open(&opts.output, &key)?;
+    stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
+    progress.resumed(&resumed);
+    Ok(Some(journal))
+}
+
+/// Encodes the prepared input; with `--extra-levels auto` on a single input, encodes it again
+/// with coarser roots and keeps whichever repository is smaller.
+fn encode_elevation(
+    opts: &BuildOptions,
+    prepared: &PreparedBuild,
+    journal: Option<&Journal>,
+    progress: &dyn Progress,
+    stages: &mut Vec<(&'static str, Duration)>,
+) -> Result<cbdam_codec::hierarchy::Encoded> {
+    let PreparedBuild {
+        input,
+        resolution,
+        storage,
+        enc_opts,
+        limit,
+        ..
+    } = prepared;
+    let t = Instant::now();
+    let encoded = encode_prepared(
+        input,
+        resolution.as_ref(),
+        enc_opts,
+        storage,
+        journal.map_or(&NoJournal as &dyn BlockJournal, |j| j),
+        opts.threads,
+        &|done, total| {
+            progress.event(ProgressEvent {
+                stage: Stage::Encode,
+                done,
+                total,
+            })
+        },
+    )?;
+    stages.push(("encode", t.elapsed()));
+    if opts.extra_levels != ExtraLevels::Auto || resolution.is_some() {
+        return Ok(encoded);
+    }
+    let step = |done| {
+        progress.event(ProgressEvent {
+            stage: Stage::EncodeCoarserRoots,
+            done,
+            total: 1,
+        })
+    };
+    step(0);
+    let t = Instant::now();
+    let (encoded, tried) =
+        with_coarser_roots_if_smaller(input, encoded, enc_opts, *limit, opts.threads)?;
+    if tried {
+        stages.push(("encode with coarser roots", t.elapsed()));
+    }
+    step(1);
+    Ok(encoded)
+}
+
+/// Writes the repository to `opts.output`, then removes the journal of a block build.
+fn write_elevation(
+    opts: &BuildOptions,
+    prepared: &PreparedBuild,
+    encoded: &cbdam_codec::hierarchy::Encoded,
+    journal: Option<Journal>,
+    progress: &dyn Progress,
+    stages: &mut Vec<(&'static str, Duration)>,
+) -> Result<()> {
+    let write_step = |done| {
+        progress.event(ProgressEvent {
+            stage: Stage::Write,
+            done,
+            total: 1,
+        })
+    };
+    let t = Instant::now();
+    write_step(0);
+    let input = &prepared.input;
+    write_repository(
+        &opts.output,
+        encoded,
+        &input.plan,
+        input.georef.as_ref(),
+        input.nodata,
+    )
+    .with_context(|| format!("writing {}", opts.output.display()))?;
+    if let Some(journal) = journal {
+        journal.finish()?;
+    }
+    stages.push(("write", t.elapsed()));
+    write_step(1);
+    Ok(())
 }
 
 /// The checks every elevation build makes before reading anything: a positive finite

@@ -28,6 +28,8 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::sync::atomic::Ordering::Relaxed;
 
 use crate::band_cache::{BandCache, Samples};
 use crate::error::{Context, Result, bail};
@@ -41,6 +43,13 @@ use cbdam_codec::repository::GeoRef;
 use cbdam_codec::samples::{BlockFn, SampleSource, SampleType};
 use cbdam_codec::temp::{LatticeArray, MAPPED_RESIDENT_BYTES, TempStorage};
 use rayon::prelude::*;
+
+mod assemble;
+mod placement;
+
+pub(crate) use assemble::place_vrt_tile;
+pub use assemble::{mosaic, mosaic_tiles};
+pub use placement::Placement;
 
 /// Relative tolerance on spacing ratios: GeoTIFF pixel scales are decimal doubles (e.g.
 /// 1/3600°), so ratios of exact powers of two come out within a few ulps.
@@ -81,96 +90,6 @@ pub fn bytes_in_memory(width: usize, height: usize, lattice: &TempStorage) -> u6
         }
     };
     arrays.saturating_add(block)
-}
-
-/// Where one input lies on the lattice, and how its rows are read.
-#[derive(Debug)]
-pub struct Placement {
-    /// The file.
-    pub path: PathBuf,
-    /// Lattice column of its first sample.
-    pub x0: usize,
-    /// Lattice row of its first sample.
-    pub y0: usize,
-    /// Its stride in lattice points, `2^log2`.
-    pub log2: u8,
-    /// Samples per row.
-    pub width: usize,
-    /// Rows.
-    pub height: usize,
-    /// The type its samples are stored as.
-    pub sample_type: SampleType,
-    /// Its nodata value (the override, a VRT's, else the file's).
-    pub nodata: Option<f64>,
-    /// Header read; rows decoded on demand.
-    reader: TileReader,
-    /// Rows per band of decoded samples ([`TileReader::band_rows`]).
-    band_rows: usize,
-}
-
-impl Placement {
-    fn stride(&self) -> usize {
-        1 << self.log2
-    }
-
-    /// The last lattice row and column its samples reach.
-    fn last_row(&self) -> usize {
-        self.y0 + (self.height - 1) * self.stride()
-    }
-
-    fn last_col(&self) -> usize {
-        self.x0 + (self.width - 1) * self.stride()
-    }
-
-    /// Whether `v` is a height ([`cbdam_codec::samples::Dem::is_valid`]).
-    #[inline]
-    fn is_valid(&self, v: f64) -> bool {
-        !v.is_nan() && self.nodata != Some(v)
-    }
-
-    /// Its rows with a sample on lattice rows `ya..yb`.
-    fn rows_on(&self, ya: usize, yb: usize) -> std::ops::Range<usize> {
-        let s = self.stride();
-        let lo = ya.saturating_sub(self.y0).div_ceil(s);
-        let hi = if yb <= self.y0 {
-            0
-        } else {
-            ((yb - 1 - self.y0) / s + 1).min(self.height)
-        };
-        lo..hi.max(lo)
-    }
-
-    /// Its rows bounding the cells that lattice rows `ya..yb` cross (one more on each side than
-    /// [`Placement::rows_on`]): what [`COARSE_ONLY`] points are drawn from.
-    fn rows_around(&self, ya: usize, yb: usize) -> std::ops::Range<usize> {
-        if yb <= self.y0 || ya > self.last_row() {
-            return 0..0;
-        }
-        let s = self.stride();
-        let lo = (ya.saturating_sub(self.y0) / s).saturating_sub(1);
-        let hi = ((yb - 1 - self.y0) / s + 2).min(self.height);
-        lo..hi
-    }
-
-    /// Reads band `band` of its rows, narrowed ([`Samples::compact`]).
-    fn read_band(&self, band: usize) -> Result<Samples> {
-        let r0 = band * self.band_rows;
-        let r1 = (r0 + self.band_rows).min(self.height);
-        let mut values = Vec::new();
-        self.reader
-            .read_rows(r0..r1, &mut values)
-            .with_context(|| format!("reading {}", self.path.display()))?;
-        if values.len() != (r1 - r0) * self.width {
-            bail!(
-                "reading {}: rows {r0}..{r1} came back as {} samples, not {} × {}",
-                self.path.display(),
-                values.len(),
-                r1 - r0,
-                self.width
-            );
-        }
-        Ok(Samples::compact(values))
-    }
 }
 
 /// No input has a valid sample at this point (in [`Mosaic::for_each_block_winners`]).
@@ -401,8 +320,8 @@ impl Mosaic {
     pub fn survey_watched(&self, watch: &mut dyn FnMut(&[u8], Range<usize>)) -> Result<Survey> {
         let w = self.width;
         let mut class = LatticeArray::filled(w * self.height, HOLE, &self.lattice)?;
-        let seen_any: Vec<std::sync::atomic::AtomicBool> = (0..self.inputs.len())
-            .map(|_| std::sync::atomic::AtomicBool::new(false))
+        let seen_any: Vec<AtomicBool> = (0..self.inputs.len())
+            .map(|_| AtomicBool::new(false))
             .collect();
         let mut shared = SharedSamples::new();
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -420,23 +339,7 @@ impl Mosaic {
                 .zip(class[ya * w..yb * w].par_chunks_mut(w))
                 .enumerate()
                 .map(|(i, ((values, winners), class))| {
-                    let y = ya + i;
-                    let mut shared = SharedSamples::new();
-                    let mut seen = vec![false; block.inputs.len()];
-                    self.paint_row(&block, y, values, Some((winners, &mut shared, &mut seen)));
-                    for (j, _) in seen.iter().enumerate().filter(|(_, s)| **s) {
-                        seen_any[block.inputs[j]].store(true, std::sync::atomic::Ordering::Relaxed);
-                    }
-                    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-                    for ((c, &k), &v) in class.iter_mut().zip(winners.iter()).zip(values.iter()) {
-                        if k != NO_WINNER {
-                            *c = self.inputs[k as usize].log2;
-                            lo = lo.min(v);
-                            hi = hi.max(v);
-                        }
-                    }
-                    self.mark_coarse_only(&block, y, class);
-                    (shared, lo, hi)
+                    self.survey_row(&block, ya + i, (values, winners, class), &seen_any)
                 })
                 .reduce(
                     || (SharedSamples::new(), f64::INFINITY, f64::NEG_INFINITY),
@@ -452,8 +355,46 @@ impl Mosaic {
             lo = lo.min(part.1);
             hi = hi.max(part.2);
         }
+        self.check_survey(&seen_any, &shared)?;
+        Ok(Survey {
+            resolution: Resolution { class },
+            range: (lo, hi),
+        })
+    }
+
+    /// Surveys lattice row `y` of `block`: paints its winning samples, winners and classes,
+    /// marks in `seen_any` the inputs with a valid sample on it, and returns the samples shared
+    /// by inputs of one spacing and the row's smallest and largest winning sample.
+    fn survey_row(
+        &self,
+        block: &Block,
+        y: usize,
+        (values, winners, class): (&mut [f64], &mut [u32], &mut [u8]),
+        seen_any: &[AtomicBool],
+    ) -> (SharedSamples, f64, f64) {
+        let mut shared = SharedSamples::new();
+        let mut seen = vec![false; block.inputs.len()];
+        self.paint_row(block, y, values, Some((winners, &mut shared, &mut seen)));
+        for (j, _) in seen.iter().enumerate().filter(|(_, s)| **s) {
+            seen_any[block.inputs[j]].store(true, Relaxed);
+        }
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for ((c, &k), &v) in class.iter_mut().zip(winners.iter()).zip(values.iter()) {
+            if k != NO_WINNER {
+                *c = self.inputs[k as usize].log2;
+                lo = lo.min(v);
+                hi = hi.max(v);
+            }
+        }
+        self.mark_coarse_only(block, y, class);
+        (shared, lo, hi)
+    }
+
+    /// Refuses a survey in which an input has no valid sample, or inputs of one spacing
+    /// disagree where they overlap.
+    fn check_survey(&self, seen_any: &[AtomicBool], shared: &SharedSamples) -> Result<()> {
         if let Some(p) = (0..self.inputs.len())
-            .find(|&k| !seen_any[k].load(std::sync::atomic::Ordering::Relaxed))
+            .find(|&k| !seen_any[k].load(Relaxed))
             .map(|k| &self.inputs[k])
         {
             bail!(
@@ -475,10 +416,7 @@ impl Mosaic {
                 }
             );
         }
-        Ok(Survey {
-            resolution: Resolution { class },
-            range: (lo, hi),
-        })
+        Ok(())
     }
 
     /// One pass over the lattice: `f(first_row, values, winners)` per block of rows, with the
@@ -567,569 +505,5 @@ impl SampleSource for Mosaic {
     }
 }
 
-/// Sample-centre position of raster point (0, 0), so that PixelIsArea and PixelIsPoint inputs
-/// mix.
-fn centre(g: &GeoRef) -> (f64, f64) {
-    let half = if g.pixel_is_area { 0.5 } else { 0.0 };
-    (g.origin_x + half * g.pixel_x, g.origin_y - half * g.pixel_y)
-}
-
-fn describe(p: &Path, g: &GeoRef) -> String {
-    let (cx, cy) = centre(g);
-    format!(
-        "{} (spacing {} × {}, first sample centre at ({cx}, {cy}))",
-        p.display(),
-        g.pixel_x,
-        g.pixel_y
-    )
-}
-
-/// Reads `paths` and places them on one lattice; refuses (before allocating it) a lattice whose
-/// build would need more than `memory_limit` bytes.
-pub fn mosaic(paths: &[PathBuf], opts: &ReadOptions, memory_limit: u64) -> Result<Mosaic> {
-    let tiles: Vec<Tile> = paths.iter().map(Tile::file).collect();
-    mosaic_tiles(&tiles, opts, memory_limit)
-}
-
-/// Checks a tile read through a VRT against where the VRT places it (its size `width × height`
-/// and its own georeferencing `georef`), and gives it the VRT's georeferencing where it has
-/// none of its own.
-pub(crate) fn place_vrt_tile(
-    path: &Path,
-    (width, height): (usize, usize),
-    georef: &mut Option<GeoRef>,
-    v: &VrtPlacement,
-) -> Result<()> {
-    if (width, height) != (v.width, v.height) {
-        bail!(
-            "{}: <SrcRect>/<DstRect> of {} are {}×{} but the tile is {}×{}: only whole tiles \
-             placed without scaling are supported",
-            v.vrt.display(),
-            path.display(),
-            v.width,
-            v.height,
-            width,
-            height
-        );
-    }
-    let Some(g) = georef.as_ref() else {
-        *georef = Some(v.georef.clone());
-        return Ok(());
-    };
-    let want = &v.georef;
-    let close = |a: f64, b: f64| (a - b).abs() <= RATIO_TOLERANCE * b.abs();
-    let (cx, cy) = centre(g);
-    let (wx, wy) = centre(want);
-    let (ox, oy) = ((cx - wx) / want.pixel_x, (cy - wy) / want.pixel_y);
-    if !close(g.pixel_x, want.pixel_x)
-        || !close(g.pixel_y, want.pixel_y)
-        || ox.abs() > ORIGIN_TOLERANCE
-        || oy.abs() > ORIGIN_TOLERANCE
-    {
-        bail!(
-            "{} places {} with spacing {} × {} and its first sample centre at ({wx}, {wy}), but \
-             the tile's own georeferencing says {} × {} and ({cx}, {cy}) ({ox:.4} × {oy:.4} \
-             samples off): fix the VRT or the tile",
-            v.vrt.display(),
-            path.display(),
-            want.pixel_x,
-            want.pixel_y,
-            g.pixel_x,
-            g.pixel_y
-        );
-    }
-    if let (Some(a), Some(b)) = (g.epsg, want.epsg)
-        && a != b
-    {
-        bail!(
-            "{}: its SRS is EPSG:{b} but {} is in EPSG:{a}",
-            v.vrt.display(),
-            path.display()
-        );
-    }
-    Ok(())
-}
-
-/// [`mosaic`] of tiles ([`crate::tiles`]): plain files, or tiles a VRT places (checked against
-/// their own georeferencing, which they keep; a tile without one takes the VRT's). Only the
-/// tiles' headers are read here: every check of where the tiles lie is made before any sample
-/// is decoded; the checks that need the samples (each tile has a valid one; inputs of the same
-/// spacing that overlap hold the same valid samples there) are made by [`Mosaic::survey`].
-/// Decoded rows are kept in a cache of at most half of what `memory_limit` leaves beside the
-/// lattice ([`bytes_in_memory`]).
-pub fn mosaic_tiles(tiles: &[Tile], opts: &ReadOptions, memory_limit: u64) -> Result<Mosaic> {
-    if tiles.is_empty() {
-        bail!("no input given");
-    }
-    if tiles.len() > NO_WINNER as usize {
-        bail!(
-            "{} inputs: at most {NO_WINNER} can be combined",
-            tiles.len()
-        );
-    }
-    let dems = open_tiles(tiles, opts)?;
-    check_one_crs(&dems)?;
-    // The finest input sets the lattice; ties go to the first listed.
-    let fine = (0..dems.len())
-        .min_by(|&a, &b| dems[a].2.pixel_x.total_cmp(&dems[b].2.pixel_x))
-        .expect("at least one input");
-    let fine_georef = dems[fine].2.clone();
-    let (fx, fy) = (fine_georef.pixel_x, fine_georef.pixel_y);
-    let (fcx, fcy) = centre(&fine_georef);
-    let placed = place_on_finest(&dems, fine)?;
-    let coarsest = (0..placed.len())
-        .max_by_key(|&k| placed[k].2)
-        .expect("at least one input");
-    check_strides(&dems, &placed, coarsest)?;
-    let (origin_x, origin_y) = lattice_origin(&placed, coarsest);
-    let mut width = 0usize;
-    let mut height = 0usize;
-    let mut inputs = Vec::new();
-    for ((path, reader, _), &(ox, oy, log2)) in dems.into_iter().zip(&placed) {
-        let p = Placement {
-            path,
-            x0: (ox - origin_x) as usize,
-            y0: (oy - origin_y) as usize,
-            log2,
-            width: reader.width(),
-            height: reader.height(),
-            sample_type: reader.sample_type(),
-            nodata: reader.nodata(),
-            band_rows: reader.band_rows(),
-            reader,
-        };
-        width = width.max(p.last_col() + 1);
-        height = height.max(p.last_row() + 1);
-        inputs.push(p);
-    }
-    // The lattice's own arrays stay in memory when they fit half the limit, else they are
-    // mapped; the inputs are read a band of rows at a time.
-    let lattice = lattice_storage(width, height, memory_limit);
-    let need = bytes_in_memory(width, height, &lattice);
-    let mut buckets = vec![Vec::new(); height.div_ceil(BUCKET_ROWS)];
-    for (k, p) in inputs.iter().enumerate() {
-        for bucket in &mut buckets[p.y0 / BUCKET_ROWS..=p.last_row() / BUCKET_ROWS] {
-            bucket.push(k as u32);
-        }
-    }
-    let sample_type = common_sample_type(&inputs);
-    let fine_geo = fine_georef;
-    let half = if fine_geo.pixel_is_area { 0.5 } else { 0.0 };
-    let georef = GeoRef {
-        origin_x: fcx + (origin_x as f64 - half) * fx,
-        origin_y: fcy - (origin_y as f64 - half) * fy,
-        ..fine_geo
-    };
-    Ok(Mosaic {
-        width,
-        height,
-        georef,
-        sample_type,
-        inputs,
-        buckets,
-        cache: BandCache::new(memory_limit.saturating_sub(need) / 2),
-        block_points: BLOCK_POINTS,
-        lattice,
-    })
-}
-
-/// The type every input's samples fit exactly: theirs when they agree, else `i32` for integers
-/// and `f64` for anything else.
-fn common_sample_type(inputs: &[Placement]) -> SampleType {
-    let types: Vec<SampleType> = inputs.iter().map(|p| p.sample_type).collect();
-    if types.iter().all(|&t| t == types[0]) {
-        types[0]
-    } else if types.iter().all(|t| t.is_integer()) {
-        SampleType::I32
-    } else {
-        SampleType::F64
-    }
-}
-
-/// An input tile opened: its path, its reader, and where it lies.
-type OpenTile = (PathBuf, TileReader, GeoRef);
-
-/// Opens every tile, each with its georeferencing (a VRT's placement over the file's own), and
-/// refuses one without georeferencing, with a spacing that is not positive or without samples.
-fn open_tiles(tiles: &[Tile], opts: &ReadOptions) -> Result<Vec<OpenTile>> {
-    let mut dems: Vec<OpenTile> = Vec::with_capacity(tiles.len());
-    for tile in tiles {
-        let path = &tile.path;
-        let tile_opts = ReadOptions {
-            nodata: opts.nodata.or(tile.vrt.as_ref().and_then(|v| v.nodata)),
-            ..opts.clone()
-        };
-        let reader = TileReader::open(path, &tile_opts)
-            .with_context(|| format!("reading {}", path.display()))?;
-        let mut georef = reader.georef().cloned();
-        if let Some(v) = &tile.vrt {
-            place_vrt_tile(path, (reader.width(), reader.height()), &mut georef, v)?;
-        }
-        let Some(g) = georef else {
-            bail!(
-                "{} has no georeferencing (GeoTIFF tie point and pixel scale, or an .hgt/.asc \
-                 position): several inputs are combined by where they lie, so each needs one",
-                path.display()
-            );
-        };
-        if !(g.pixel_x > 0.0 && g.pixel_y > 0.0) {
-            bail!(
-                "{}: sample spacing {} × {} is not positive (only north-up grids are combined)",
-                path.display(),
-                g.pixel_x,
-                g.pixel_y
-            );
-        }
-        if reader.width() == 0 || reader.height() == 0 {
-            bail!("{} has no valid sample (all nodata or NaN)", path.display());
-        }
-        dems.push((path.clone(), reader, g));
-    }
-    Ok(dems)
-}
-
-/// One coordinate reference system: heights and positions of different CRSs cannot share a
-/// lattice without reprojection, which this builder does not do.
-fn check_one_crs(dems: &[OpenTile]) -> Result<()> {
-    let geo = |k: usize| &dems[k].2;
-    for k in 1..dems.len() {
-        if geo(k).epsg != geo(0).epsg {
-            let name =
-                |e: Option<u32>| e.map_or("no EPSG code".to_string(), |e| format!("EPSG:{e}"));
-            bail!(
-                "{} is in {} but {} is in {}: inputs must share one coordinate reference system \
-                 (reproject them first)",
-                dems[k].0.display(),
-                name(geo(k).epsg),
-                dems[0].0.display(),
-                name(geo(0).epsg)
-            );
-        }
-        // Without an EPSG code the CRS is whatever the `.prj` files define: different texts
-        // may name the same CRS, but the builder cannot tell, so it asks rather than guesses.
-        if geo(k).epsg.is_none()
-            && let (Some(a), Some(b)) = (&geo(k).wkt, &geo(0).wkt)
-            && a != b
-        {
-            bail!(
-                "{} and {} have different CRS definitions (.prj) and no EPSG code: inputs must \
-                 share one coordinate reference system (reproject them, or give them the same \
-                 .prj)",
-                dems[k].0.display(),
-                dems[0].0.display()
-            );
-        }
-    }
-    Ok(())
-}
-
-/// Each input's offset from the finest input (`fine`), in fine samples, and its stride as a
-/// power of two: refused unless its spacing is 2^j times the finest and its samples fall on
-/// the finest input's sample positions.
-fn place_on_finest(dems: &[OpenTile], fine: usize) -> Result<Vec<(i64, i64, u8)>> {
-    let geo = |k: usize| &dems[k].2;
-    let (fx, fy) = (geo(fine).pixel_x, geo(fine).pixel_y);
-    let (fcx, fcy) = centre(geo(fine));
-    let mut placed = Vec::new();
-    for (k, (path, _, _)) in dems.iter().enumerate() {
-        let g = geo(k);
-        let (rx, ry) = (g.pixel_x / fx, g.pixel_y / fy);
-        let log2 = rx.log2().round();
-        let power = (0.0..31.0).contains(&log2) && {
-            let p = log2.exp2();
-            (rx - p).abs() <= RATIO_TOLERANCE * p && (ry - p).abs() <= RATIO_TOLERANCE * p
-        };
-        if !power {
-            bail!(
-                "{} is {rx:.6} × {ry:.6} times as coarse as {}: combined inputs must be \
-                 2^j times the finest spacing (1, 2, 4, …) on both axes, so that every coarse \
-                 sample is a vertex of the diamond lattice (e.g. SRTM 1″ with 3″ is a ratio of \
-                 3, which would need resampling; resample the coarse input to a power-of-two \
-                 ratio first)",
-                describe(path, g),
-                describe(&dems[fine].0, geo(fine))
-            );
-        }
-        let (cx, cy) = centre(g);
-        let (ox, oy) = ((cx - fcx) / fx, (fcy - cy) / fy);
-        if (ox - ox.round()).abs() > ORIGIN_TOLERANCE || (oy - oy.round()).abs() > ORIGIN_TOLERANCE
-        {
-            bail!(
-                "{} lies {ox:.4} × {oy:.4} samples from {}: its samples must fall on the \
-                 finest input's sample positions (a whole number of fine samples apart)",
-                describe(path, g),
-                describe(&dems[fine].0, geo(fine))
-            );
-        }
-        placed.push((ox.round() as i64, oy.round() as i64, log2 as u8));
-    }
-    Ok(placed)
-}
-
-/// The lattice origin must sit on every input's stride: congruent to the coarsest input's
-/// offset modulo its stride, which every other input must agree with modulo its own.
-fn check_strides(dems: &[OpenTile], placed: &[(i64, i64, u8)], coarsest: usize) -> Result<()> {
-    let geo = |k: usize| &dems[k].2;
-    for (k, &(ox, oy, l)) in placed.iter().enumerate() {
-        let s = 1i64 << l;
-        let (dx, dy) = (
-            (ox - placed[coarsest].0).rem_euclid(s),
-            (oy - placed[coarsest].1).rem_euclid(s),
-        );
-        if dx != 0 || dy != 0 {
-            bail!(
-                "{} and {} are misaligned: with a stride of {s} fine samples, {} must start a \
-                 multiple of {s} fine samples from {}, but is {} × {} off (mod {s}); shift or \
-                 crop one of them",
-                describe(&dems[k].0, geo(k)),
-                describe(&dems[coarsest].0, geo(coarsest)),
-                dems[k].0.display(),
-                dems[coarsest].0.display(),
-                dx,
-                dy
-            );
-        }
-    }
-    Ok(())
-}
-
-/// The lattice's origin, in fine samples from the finest input: the lowest point on the
-/// coarsest input's stride at or before every input's first sample.
-fn lattice_origin(placed: &[(i64, i64, u8)], coarsest: usize) -> (i64, i64) {
-    let big = 1i64 << placed[coarsest].2;
-    let lowest = |axis: fn(&(i64, i64, u8)) -> i64| {
-        let min = placed.iter().map(axis).min().expect("inputs");
-        let c = axis(&placed[coarsest]);
-        c - (c - min).div_euclid(big) * big
-            - if (c - min).rem_euclid(big) == 0 {
-                0
-            } else {
-                big
-            }
-    };
-    (lowest(|p| p.0), lowest(|p| p.1))
-}
-
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every value comes back bit for bit (a zero's sign aside) from the narrowest type chosen.
-    #[test]
-    fn samples_narrow_only_where_exact() {
-        let cases: [(&[f64], &str); 5] = [
-            (&[0.0, -32768.0, 32767.0, 1200.0], "i16"),
-            (&[0.0, 32768.0, 1.5], "f32"),
-            (&[f64::NAN, 7.0, -9999.0], "f32"),
-            (&[0.1, 1.0], "f64"),
-            // Beyond f32's range: f32 would make it infinite.
-            (&[3.0e38 * 10.0, 1.0], "f64"),
-        ];
-        for (values, want) in cases {
-            let s = Samples::compact(values.to_vec());
-            let got = match &s {
-                Samples::I16(_) => "i16",
-                Samples::F32(_) => "f32",
-                Samples::F64(_) => "f64",
-            };
-            assert_eq!(got, want, "{values:?}");
-            for (i, &v) in values.iter().enumerate() {
-                let back = s.get(i);
-                assert!(
-                    back == v || (back.is_nan() && v.is_nan()),
-                    "{v} came back as {back}"
-                );
-            }
-        }
-        assert_eq!(Samples::compact(vec![1.0; 10]).bytes(), 20);
-        assert_eq!(Samples::compact(vec![0.1; 10]).bytes(), 80);
-    }
-
-    /// The lattice the former in-memory mosaic built, point by point from the whole inputs:
-    /// winners (painting coarsest first, the last listed first, valid samples only), values and
-    /// resolution classes (coarse cells with four valid corners drawn from the coarse level).
-    fn reference(m: &Mosaic) -> (Vec<u32>, Vec<f64>, Vec<u8>) {
-        let (w, h) = (m.width, m.height);
-        let dems: Vec<_> = m
-            .inputs
-            .iter()
-            .map(|p| {
-                let opts = ReadOptions {
-                    nodata: p.nodata,
-                    ..ReadOptions::default()
-                };
-                crate::input::read_dem(&p.path, &opts).unwrap()
-            })
-            .collect();
-        let mut winner = vec![NO_WINNER; w * h];
-        let mut order: Vec<usize> = (0..m.inputs.len()).collect();
-        order.sort_by_key(|&k| m.paint_key(k));
-        for &k in &order {
-            let (p, d) = (&m.inputs[k], &dems[k]);
-            for r in 0..p.height {
-                for c in 0..p.width {
-                    if d.is_valid(r * p.width + c) {
-                        winner[(p.y0 + r * p.stride()) * w + p.x0 + c * p.stride()] = k as u32;
-                    }
-                }
-            }
-        }
-        let mut class: Vec<u8> = winner
-            .iter()
-            .map(|&k| match k {
-                NO_WINNER => HOLE,
-                k => m.inputs[k as usize].log2,
-            })
-            .collect();
-        let values = (0..w * h)
-            .map(|i| match winner[i] {
-                NO_WINNER => f64::NAN,
-                k => {
-                    let p = &m.inputs[k as usize];
-                    let (c, r) = ((i % w - p.x0) >> p.log2, (i / w - p.y0) >> p.log2);
-                    dems[k as usize].values[r * p.width + c]
-                }
-            })
-            .collect();
-        for (p, d) in m.inputs.iter().zip(&dems).filter(|(p, _)| p.log2 > 0) {
-            let s = p.stride();
-            for r in 0..p.height - 1 {
-                for c in 0..p.width - 1 {
-                    let corners = [(c, r), (c + 1, r), (c, r + 1), (c + 1, r + 1)];
-                    if corners.iter().all(|&(c, r)| d.is_valid(r * p.width + c)) {
-                        for y in p.y0 + r * s..=p.y0 + (r + 1) * s {
-                            for x in p.x0 + c * s..=p.x0 + (c + 1) * s {
-                                if class[y * w + x] == HOLE {
-                                    class[y * w + x] = COARSE_ONLY;
-                                }
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        (winner, values, class)
-    }
-
-    /// Inputs at strides 1, 2 and 4 that overlap (agreeing where they share a spacing), with
-    /// nodata that falls through to coarser inputs: every block size, down to one row a block
-    /// and under a cache that keeps nothing, composes the lattice the whole inputs make.
-    #[test]
-    fn blocks_of_any_size_compose_the_whole_inputs_lattice() {
-        use crate::write::{Raster, write_geotiff};
-        let dir = tempfile::tempdir().unwrap();
-        const ND: f64 = -9999.0;
-        // (name, lattice column and row of the first sample, stride, columns, rows)
-        let inputs = [
-            ("fine_a", 5, 7, 1, 30, 25),
-            ("coarse", 0, 0, 4, 20, 15),
-            ("fine_b", 21, 19, 1, 20, 22),
-            ("medium", 2, 30, 2, 16, 12),
-        ];
-        let mut paths = Vec::new();
-        for (name, x0, y0, s, w, h) in inputs {
-            let values = (0..w * h)
-                .map(|i| {
-                    let (x, y) = (x0 + (i % w) * s, y0 + (i / w) * s);
-                    // Holes: a block in `fine_a` (where `fine_b` and `coarse` show through), a
-                    // coarse sample, a diagonal of `medium`.
-                    let hole = match name {
-                        "fine_a" => (22..27).contains(&x) && (20..30).contains(&y),
-                        "coarse" => (x, y) == (40, 20),
-                        _ => name == "medium" && i % (w + 1) == 3,
-                    };
-                    if hole {
-                        ND
-                    } else {
-                        // One function of the lattice point per stride: inputs of one spacing
-                        // agree where they overlap.
-                        ((x * 7 + y * 13) % 50) as f64 + 100.0 * s as f64
-                    }
-                })
-                .collect();
-            let r = Raster {
-                width: w,
-                height: h,
-                values,
-                georef: Some(GeoRef {
-                    epsg: Some(32632),
-                    origin_x: 500_000.0 + x0 as f64 * 10.0,
-                    origin_y: 4_000_000.0 - y0 as f64 * 10.0,
-                    pixel_x: 10.0 * s as f64,
-                    pixel_y: 10.0 * s as f64,
-                    pixel_is_area: false,
-                    wkt: None,
-                }),
-            };
-            let path = dir.path().join(format!("{name}.tif"));
-            write_geotiff(std::fs::File::create(&path).unwrap(), &r, Some(ND), false).unwrap();
-            paths.push(path);
-        }
-        let mut m = mosaic(&paths, &ReadOptions::default(), 1 << 30).unwrap();
-        assert_eq!((m.width, m.height), (77, 57));
-        let (winner, values, class) = reference(&m);
-        assert!(class.contains(&COARSE_ONLY) && class.contains(&HOLE) && class.contains(&1));
-        let same = |a: &[f64], b: &[f64]| {
-            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
-        };
-        for (points, budget) in [(BLOCK_POINTS, 1 << 30), (1, 0), (3 * 77 + 5, 4096)] {
-            m.block_points = points;
-            m.cache = BandCache::new(budget);
-            let survey = m.survey().unwrap();
-            assert!(
-                survey.resolution.class[..] == class[..],
-                "classes, blocks of {points}"
-            );
-            let valid: Vec<f64> = values.iter().copied().filter(|v| !v.is_nan()).collect();
-            let lo = valid.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = valid.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            assert_eq!(survey.range, (lo, hi));
-            let (mut got_w, mut got_v) = (Vec::new(), Vec::new());
-            m.for_each_block_winners(&mut |y0, v, w| {
-                assert_eq!(y0 * m.width, got_v.len());
-                got_v.extend_from_slice(v);
-                got_w.extend_from_slice(w);
-                Ok(())
-            })
-            .unwrap();
-            assert!(got_w == winner, "winners, blocks of {points}");
-            assert!(same(&got_v, &values), "values, blocks of {points}");
-            let mut streamed = Vec::new();
-            m.for_each_block(&mut |_, v| {
-                streamed.extend_from_slice(v);
-                Ok(())
-            })
-            .unwrap();
-            assert!(same(&streamed, &values), "source, blocks of {points}");
-        }
-        // A sample of `fine_b` changed where it overlaps `fine_a`: refused, naming both.
-        let mut b = crate::input::read_dem(&paths[2], &ReadOptions::default()).unwrap();
-        b.values[0] += 2.5;
-        let r = Raster {
-            width: b.width,
-            height: b.height,
-            values: b.values,
-            georef: b.georef,
-        };
-        write_geotiff(
-            std::fs::File::create(&paths[2]).unwrap(),
-            &r,
-            Some(ND),
-            false,
-        )
-        .unwrap();
-        let e = mosaic(&paths, &ReadOptions::default(), 1 << 30)
-            .unwrap()
-            .survey()
-            .err()
-            .expect("disagreeing tiles accepted")
-            .to_string();
-        assert!(
-            e.contains("fine_b.tif")
-                && e.contains("fine_a.tif")
-                && e.contains("disagree on 1 of their")
-                && e.contains("by up to 2.5"),
-            "{e}"
-        );
-    }
-}
+mod tests;

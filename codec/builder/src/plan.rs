@@ -85,45 +85,10 @@ fn unit_check(max_error: f64, lo: f64, hi: f64) -> Result<()> {
 /// Reads, plans and quantizes the input.
 pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
     let path = spec.path;
-    let streamed = |src: &dyn SampleSource, georef: Option<GeoRef>| -> Result<Prepared> {
-        let reading = || format!("reading {}", path.display());
-        let t = Instant::now();
-        let points = (src.width() as u64).saturating_mul(src.height() as u64);
-        let lattice = TempStorage::for_lattice(
-            points.saturating_mul(HeightGrid::BYTES_PER_POINT),
-            spec.memory_limit,
-        )
-        .named_in(spec.lattice_dir);
-        let mut written = spec.lattice_dir.map(|_| WrittenCrcs::default());
-        let (plan, grid) = QuantPlan::quantize_source_watched(
-            src,
-            spec.max_error,
-            spec.quantum,
-            &lattice,
-            &mut |grid, rows| {
-                if let Some(w) = written.as_mut() {
-                    w.grid_rows(grid, rows);
-                }
-            },
-        )
-        .with_context(reading)?;
-        let stages = vec![("read, plan and quantize", t.elapsed())];
-        if let Some((lo, hi)) = grid.range() {
-            unit_check(spec.max_error, plan.metres(lo), plan.metres(hi))?;
-        }
-        Ok(Prepared {
-            grid,
-            plan,
-            georef,
-            nodata: src.nodata(),
-            stages,
-            written,
-        })
-    };
     if let Some((w, h)) = spec.raw_size {
         let src = RawF32Source::open(path, w, h, spec.nodata, &Limits::default())
             .with_context(|| format!("reading {}", path.display()))?;
-        return streamed(&src, None);
+        return prepare_streamed(spec, &src, None);
     }
     if is_raw_path(path) {
         bail!(
@@ -137,8 +102,56 @@ pub fn prepare(spec: &InputSpec<'_>) -> Result<Prepared> {
             .with_context(|| format!("reading {}", path.display()))?;
         let georef = with_sidecar_crs(src.georef().cloned(), path)
             .with_context(|| format!("reading {}", path.display()))?;
-        return streamed(&src, georef);
+        return prepare_streamed(spec, &src, georef);
     }
+    prepare_read_whole(spec)
+}
+
+/// An input streamed from `src` (a raw float32 file, a GeoTIFF): planned and quantized as it is
+/// read, its lattice in memory or in mapped files by [`InputSpec::memory_limit`].
+fn prepare_streamed(
+    spec: &InputSpec<'_>,
+    src: &dyn SampleSource,
+    georef: Option<GeoRef>,
+) -> Result<Prepared> {
+    let reading = || format!("reading {}", spec.path.display());
+    let t = Instant::now();
+    let points = (src.width() as u64).saturating_mul(src.height() as u64);
+    let lattice = TempStorage::for_lattice(
+        points.saturating_mul(HeightGrid::BYTES_PER_POINT),
+        spec.memory_limit,
+    )
+    .named_in(spec.lattice_dir);
+    let mut written = spec.lattice_dir.map(|_| WrittenCrcs::default());
+    let (plan, grid) = QuantPlan::quantize_source_watched(
+        src,
+        spec.max_error,
+        spec.quantum,
+        &lattice,
+        &mut |grid, rows| {
+            if let Some(w) = written.as_mut() {
+                w.grid_rows(grid, rows);
+            }
+        },
+    )
+    .with_context(reading)?;
+    let stages = vec![("read, plan and quantize", t.elapsed())];
+    if let Some((lo, hi)) = grid.range() {
+        unit_check(spec.max_error, plan.metres(lo), plan.metres(hi))?;
+    }
+    Ok(Prepared {
+        grid,
+        plan,
+        georef,
+        nodata: src.nodata(),
+        stages,
+        written,
+    })
+}
+
+/// An input of another format: read whole, then planned and quantized.
+fn prepare_read_whole(spec: &InputSpec<'_>) -> Result<Prepared> {
+    let path = spec.path;
     let opts = ReadOptions {
         nodata: spec.nodata,
         ..ReadOptions::default()

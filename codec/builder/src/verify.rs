@@ -14,7 +14,7 @@ use cbdam_codec::hierarchy::{
     reconstruct_reached, verify,
 };
 use cbdam_codec::lifting::Alpha;
-use cbdam_codec::quant::HeightGrid;
+use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::GeoRef;
 use cbdam_codec::repository::Repository;
 use cbdam_codec::temp::LatticeArray;
@@ -215,34 +215,54 @@ pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
         .filter(|&i| valid[i] != grid.valid[i])
         .map(|i| (i, valid[i]))
         .collect();
-    let mut max_error = 0f64;
-    let mut worst = 0usize;
-    let (mut square_sum, mut valid_count) = (0f64, 0u64);
-    for (i, &n) in finest.iter().enumerate() {
-        if grid.valid[i] {
-            let e = (plan.metres(n) - dem.values[i]).abs();
-            square_sum += e * e;
-            valid_count += 1;
-            if e > max_error {
-                max_error = e;
-                worst = i;
-            }
-        }
-    }
+    let errors = SampleErrors::of(&finest, &grid.valid, &dem.values, &plan);
     Ok(DemComparison {
         levels,
         width: dem.width,
         samples: grid.valid.len(),
         nodata: grid.valid.iter().filter(|v| !**v).count(),
         mask_mismatches,
-        max_error,
-        worst,
-        rms_error: (square_sum / valid_count.max(1) as f64).sqrt(),
+        max_error: errors.max,
+        worst: errors.worst,
+        rms_error: errors.rms,
         rms_bound: plan.rms.map(|r| r.target),
         epsilon: plan.epsilon,
         guaranteed: plan.max_error(),
         declared_nodata,
     })
+}
+
+/// The errors of the samples as stored against the input's, metres, over the samples with data.
+struct SampleErrors {
+    /// The largest.
+    max: f64,
+    /// The sample (row-major index) of the largest; 0 when none is off.
+    worst: usize,
+    /// The root mean square.
+    rms: f64,
+}
+
+impl SampleErrors {
+    /// The errors of the decoded heights `finest` (units of `plan`) against the input's
+    /// `values`, over the samples `valid` marks.
+    fn of(finest: &[i32], valid: &[bool], values: &[f64], plan: &QuantPlan) -> Self {
+        let mut max = 0f64;
+        let mut worst = 0usize;
+        let (mut square_sum, mut valid_count) = (0f64, 0u64);
+        for (i, &n) in finest.iter().enumerate() {
+            if valid[i] {
+                let e = (plan.metres(n) - values[i]).abs();
+                square_sum += e * e;
+                valid_count += 1;
+                if e > max {
+                    max = e;
+                    worst = i;
+                }
+            }
+        }
+        let rms = (square_sum / valid_count.max(1) as f64).sqrt();
+        SampleErrors { max, worst, rms }
+    }
 }
 
 /// The nodata value a repository records against the one its input file declares. A file
@@ -437,7 +457,6 @@ pub fn compare_tiles_with(
     blocks: Option<BlockPlan>,
 ) -> Result<MosaicComparison> {
     let p = *repo.head().params();
-    let quant = *repo.head().plan();
     let layout = *p.layout();
     let blockwise = p.alpha == Alpha::One
         && p.domain.kind() == DomainKind::Planar
@@ -455,61 +474,25 @@ pub fn compare_tiles_with(
         None => decode_plan(&layout, width, workers, memory_limit / 2)?,
     };
     let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit / 8 * 3)?;
-    let records = repo
-        .head()
-        .entries()
-        .iter()
-        .map(|e| Ok((e.id, repo.record(e.id)?)))
-        .collect::<Result<Vec<_>>>()?;
-    repo.release_pages();
     let mut levels = Visits::new(layout.finest_level());
     let mut apex = ApexPoints::new(plan.apex_shift(&layout), (width, height));
-    let apex_input = grid.strided(plan.apex_shift(&layout))?;
-    let walk = BlockWalk::new(
-        p,
-        repo.head().root_bytes(),
-        records,
-        plan,
-        visit_apex(
-            &layout,
-            &apex_input,
-            (width, height),
-            &mut apex,
-            &mut levels,
-        ),
-    )
-    .context("decoding the hierarchy")?;
-    let mut rows = DecodedRows::new(&walk, &apex, &grid, (width, height));
-    let mut tally = Tally::new(m.inputs.len());
+    let walk = decode_apex(repo, plan, &grid, &mut apex, &mut levels)?;
+    let mut compared = RowsCompared {
+        rows: DecodedRows::new(&walk, &apex, &grid, (width, height)),
+        levels,
+        tally: Tally::new(m.inputs.len()),
+        quant: *repo.head().plan(),
+        width,
+    };
     m.for_each_block_winners(&mut |ya, block, winners| {
-        let yb = ya + block.len() / width;
-        for y in ya..yb {
-            let row = rows
-                .at(y, &mut levels, &|| repo.release_pages())
-                .context("decoding the hierarchy")?;
-            let first = y * width;
-            let (values, winners) = (
-                &block[(y - ya) * width..][..width],
-                &winners[(y - ya) * width..][..width],
-            );
-            for b in row {
-                let (decoded, state) = b.row(y);
-                for (j, (&d, &s)) in decoded.iter().zip(state).enumerate() {
-                    let x = b.x0 + j;
-                    tally.point(
-                        first + x,
-                        values[x],
-                        winners[x],
-                        class[first + x],
-                        s,
-                        || quant.metres(d),
-                    );
-                }
-            }
-        }
-        class.release(ya * width..yb * width);
-        Ok(())
+        compared.block(repo, &class, ya, block, winners)
     })?;
+    let RowsCompared {
+        rows,
+        mut levels,
+        tally,
+        ..
+    } = compared;
     rows.finish(&mut levels)?;
     Ok(tally.finish(
         VerifyReport {
@@ -520,6 +503,89 @@ pub fn compare_tiles_with(
         repo,
         Some(plan),
     ))
+}
+
+/// Reads `repo`'s records and decodes the levels above `plan`'s cut over the whole domain,
+/// checking the apex lattice points against `grid` as it goes.
+fn decode_apex<'r>(
+    repo: &'r Repository,
+    plan: BlockPlan,
+    grid: &HeightGrid,
+    apex: &mut ApexPoints,
+    levels: &mut Visits,
+) -> Result<BlockWalk<'r>> {
+    let p = *repo.head().params();
+    let layout = *p.layout();
+    let records = repo
+        .head()
+        .entries()
+        .iter()
+        .map(|e| Ok((e.id, repo.record(e.id)?)))
+        .collect::<Result<Vec<_>>>()?;
+    repo.release_pages();
+    let apex_input = grid.strided(plan.apex_shift(&layout))?;
+    let walk = BlockWalk::new(
+        p,
+        repo.head().root_bytes(),
+        records,
+        plan,
+        visit_apex(&layout, &apex_input, p.domain.data().size(), apex, levels),
+    )
+    .context("decoding the hierarchy")?;
+    Ok(walk)
+}
+
+/// The block-by-block comparison under way: the decoded rows of blocks, the visits of every
+/// level and the tally of the winning samples compared so far.
+struct RowsCompared<'a> {
+    rows: DecodedRows<'a>,
+    levels: Visits,
+    tally: Tally,
+    quant: QuantPlan,
+    width: usize,
+}
+
+impl RowsCompared<'_> {
+    /// Compares one block of the mosaic's winning samples (lattice rows from `ya`) with the
+    /// decoded rows, then releases the block's resolution classes.
+    fn block(
+        &mut self,
+        repo: &Repository,
+        class: &LatticeArray<u8>,
+        ya: usize,
+        block: &[f64],
+        winners: &[u32],
+    ) -> Result<()> {
+        let width = self.width;
+        let yb = ya + block.len() / width;
+        for y in ya..yb {
+            let row = self
+                .rows
+                .at(y, &mut self.levels, &|| repo.release_pages())
+                .context("decoding the hierarchy")?;
+            let first = y * width;
+            let (values, winners) = (
+                &block[(y - ya) * width..][..width],
+                &winners[(y - ya) * width..][..width],
+            );
+            for b in row {
+                let (decoded, state) = b.row(y);
+                for (j, (&d, &s)) in decoded.iter().zip(state).enumerate() {
+                    let x = b.x0 + j;
+                    self.tally.point(
+                        first + x,
+                        values[x],
+                        winners[x],
+                        class[first + x],
+                        s,
+                        || self.quant.metres(d),
+                    );
+                }
+            }
+        }
+        class.release(ya * width..yb * width);
+        Ok(())
+    }
 }
 
 /// The inputs composed as the build composed them: the mosaic, its resolution classes and its

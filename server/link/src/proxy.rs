@@ -212,85 +212,109 @@ async fn connection(
 /// One direction of a connection: read → rate cap → delay line → write, then half-close the
 /// destination when the source ends (or reset, when the connection was chosen for one).
 async fn pipe(
-    mut src: ReadHalf<'_>,
-    mut dst: WriteHalf<'_>,
+    src: ReadHalf<'_>,
+    dst: WriteHalf<'_>,
     link: &Link,
     bucket: &Bucket,
     seed: u64,
     reset: &Reset,
     delivered: &AtomicU64,
 ) {
-    let mut rng = XorShift::new(seed);
     // Bytes in the delay line, bounded so a slow reader at the far end holds back the source
     // (TCP's back-pressure) instead of filling memory: twice the bandwidth-delay product, at
     // least 256 KiB.
     let bdp = bucket.rate * (link.delay + link.jitter).as_secs_f64();
     let limit = ((2.0 * bdp) as usize).max(256 * 1024);
     let in_flight = Semaphore::new(limit);
-    let in_flight = &in_flight;
-    let (tx, mut rx) = mpsc::unbounded_channel::<(Instant, Vec<u8>)>();
-    let read = async move {
-        let mut buf = vec![0u8; bucket.burst];
-        let mut last = Instant::now();
-        loop {
-            let n = match src.read(&mut buf).await {
-                Ok(0) | Err(_) => break,
-                Ok(n) => n,
-            };
-            // n ≤ 16 KiB ≤ limit: the permits always exist. The semaphore is closed only when
-            // the destination is gone.
-            let Ok(permit) = in_flight.acquire_many(n as u32).await else {
-                break;
-            };
-            permit.forget();
-            bucket.take(n).await;
-            let mut d = link.delay.as_secs_f64();
-            if !link.jitter.is_zero() {
-                d += link.jitter.as_secs_f64() * (2.0 * rng.unit() - 1.0);
-            }
-            let release = (Instant::now() + Duration::from_secs_f64(d.max(0.0))).max(last);
-            last = release;
-            if tx.send((release, buf[..n].to_vec())).is_err() {
-                break;
+    let (tx, rx) = mpsc::unbounded_channel::<DelayedPiece>();
+    let rng = XorShift::new(seed);
+    tokio::join!(
+        into_delay_line(src, link, bucket, rng, &in_flight, tx),
+        out_of_delay_line(dst, rx, reset, &in_flight, delivered),
+    );
+}
+
+/// A piece of the stream in the delay line, and when it is due at the destination.
+type DelayedPiece = (Instant, Vec<u8>);
+
+/// The reading end of [`pipe`]: each piece read waits for room in the delay line and for the
+/// rate cap, then goes in, due after the link's delay (± jitter, never before the last piece).
+async fn into_delay_line(
+    mut src: ReadHalf<'_>,
+    link: &Link,
+    bucket: &Bucket,
+    mut rng: XorShift,
+    in_flight: &Semaphore,
+    tx: mpsc::UnboundedSender<DelayedPiece>,
+) {
+    let mut buf = vec![0u8; bucket.burst];
+    let mut last = Instant::now();
+    loop {
+        let n = match src.read(&mut buf).await {
+            Ok(0) | Err(_) => break,
+            Ok(n) => n,
+        };
+        // n ≤ 16 KiB ≤ limit: the permits always exist. The semaphore is closed only when
+        // the destination is gone.
+        let Ok(permit) = in_flight.acquire_many(n as u32).await else {
+            break;
+        };
+        permit.forget();
+        bucket.take(n).await;
+        let mut d = link.delay.as_secs_f64();
+        if !link.jitter.is_zero() {
+            d += link.jitter.as_secs_f64() * (2.0 * rng.unit() - 1.0);
+        }
+        let release = (Instant::now() + Duration::from_secs_f64(d.max(0.0))).max(last);
+        last = release;
+        if tx.send((release, buf[..n].to_vec())).is_err() {
+            break;
+        }
+    }
+    // Dropping `tx` ends the writer once the delay line is empty.
+}
+
+/// The writing end of [`pipe`]: each piece is written when due, until the reset byte (then the
+/// connection is reset) or the end of the stream (then the destination is half-closed).
+async fn out_of_delay_line(
+    mut dst: WriteHalf<'_>,
+    mut rx: mpsc::UnboundedReceiver<DelayedPiece>,
+    reset: &Reset,
+    in_flight: &Semaphore,
+    delivered: &AtomicU64,
+) {
+    while let Some((release, piece)) = rx.recv().await {
+        sleep_until(release).await;
+        let mut len = piece.len();
+        let mut hit = false;
+        if let Some(at) = reset.at {
+            let before = reset.sent.fetch_add(len as u64, Ordering::Relaxed);
+            if before + len as u64 >= at {
+                len = at.saturating_sub(before) as usize;
+                hit = true;
             }
         }
-        // Dropping `tx` ends the writer once the delay line is empty.
-    };
-    let write = async {
-        while let Some((release, piece)) = rx.recv().await {
-            sleep_until(release).await;
-            let mut len = piece.len();
-            let mut hit = false;
-            if let Some(at) = reset.at {
-                let before = reset.sent.fetch_add(len as u64, Ordering::Relaxed);
-                if before + len as u64 >= at {
-                    len = at.saturating_sub(before) as usize;
-                    hit = true;
-                }
-            }
-            if dst.write_all(&piece[..len]).await.is_err() {
-                // The destination is gone: stop the reader too, so the rest of the stream is
-                // not pulled through the shared cap for nobody (a real sender stops at the
-                // receiver's reset). Its next permit or send fails.
-                rx.close();
-                in_flight.close();
-                return;
-            }
-            delivered.fetch_add(len as u64, Ordering::Relaxed);
-            in_flight.add_permits(piece.len());
-            if hit {
-                reset.now.notify_one();
-                return std::future::pending().await;
-            }
+        if dst.write_all(&piece[..len]).await.is_err() {
+            // The destination is gone: stop the reader too, so the rest of the stream is
+            // not pulled through the shared cap for nobody (a real sender stops at the
+            // receiver's reset). Its next permit or send fails.
+            rx.close();
+            in_flight.close();
+            return;
         }
-        if reset.at.is_some() {
-            // Ended before its reset byte: reset instead of closing in order.
+        delivered.fetch_add(len as u64, Ordering::Relaxed);
+        in_flight.add_permits(piece.len());
+        if hit {
             reset.now.notify_one();
             return std::future::pending().await;
         }
-        let _ = dst.shutdown().await;
-    };
-    tokio::join!(read, write);
+    }
+    if reset.at.is_some() {
+        // Ended before its reset byte: reset instead of closing in order.
+        reset.now.notify_one();
+        return std::future::pending().await;
+    }
+    let _ = dst.shutdown().await;
 }
 
 /// A token bucket in bytes, shared by the connections of one direction. A taker subtracts what
