@@ -11,6 +11,7 @@ use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 
 use crate::build::BuildArgs;
+use cbdam_builder::planet_shard;
 
 /// A build split into steps that run as separate processes, on other machines (Dask, a
 /// Kubernetes Indexed Job, a Slurm array), merged into the repository `cbdam build` writes
@@ -20,8 +21,9 @@ use crate::build::BuildArgs;
 pub enum ShardCommand {
     /// Read and quantize the inputs once (as `cbdam build` would, same arguments), choose the
     /// blocks and shards, and write them to the work directory (which every step must reach,
-    /// e.g. a shared file system). Prints one JSON line: {"shards", "blocks", "reused",
-    /// "output"}. With the inputs and arguments of the plan already there it does nothing; a
+    /// e.g. a shared file system); with --planet, outline the planet (one block per lattice
+    /// tile; the other steps read the inputs again, which must stay where they are, unchanged).
+    /// Prints one JSON line: {"shards", "blocks", "reused", "output", "planet"}. With the inputs and arguments of the plan already there it does nothing; a
     /// work directory of another build is refused.
     Plan(Box<ShardPlanArgs>),
     /// Refine the coarse levels over the whole domain (reads the prepared grid, writes the apex).
@@ -75,30 +77,13 @@ pub struct ShardRunArgs {
 pub fn run(command: &ShardCommand) -> Result<()> {
     let start = Instant::now();
     match command {
-        ShardCommand::Plan(args) => {
-            let opts = crate::build::options(&args.build)?;
-            if opts.rms_error.is_some() {
-                bail!("--rms-error measures the whole decoded surface: build without shards");
-            }
-            let s = cbdam_builder::shard::plan(
-                &opts,
-                &args.work,
-                args.shards,
-                args.apex,
-                &cbdam_builder::NoProgress,
-            )?;
-            println!(
-                "{}",
-                serde_json::json!({
-                    "shards": s.plan.shards,
-                    "blocks": s.plan.block_count,
-                    "reused": s.reused,
-                    "output": s.plan.output,
-                })
-            );
-        }
+        ShardCommand::Plan(args) => plan(args)?,
         ShardCommand::Apex(args) => {
-            let encoded = cbdam_builder::shard::apex(&args.work, args.threads)?;
+            let encoded = if planet_shard::is_planet(&args.work) {
+                planet_shard::apex(&args.work, args.threads)?
+            } else {
+                cbdam_builder::shard::apex(&args.work, args.threads)?
+            };
             println!(
                 "apex: {}, {:.2} s",
                 if encoded {
@@ -110,7 +95,12 @@ pub fn run(command: &ShardCommand) -> Result<()> {
             );
         }
         ShardCommand::Run(args) => {
-            let s = cbdam_builder::shard::run(&args.step.work, args.shard, args.step.threads)?;
+            let (work, threads) = (&args.step.work, args.step.threads);
+            let s = if planet_shard::is_planet(work) {
+                planet_shard::run(work, args.shard, threads)?
+            } else {
+                cbdam_builder::shard::run(work, args.shard, threads)?
+            };
             println!(
                 "shard {}: blocks {}…{}, {} encoded, {} kept from an earlier run, {:.2} s",
                 args.shard,
@@ -118,6 +108,21 @@ pub fn run(command: &ShardCommand) -> Result<()> {
                 s.blocks.end.saturating_sub(1),
                 s.encoded,
                 s.blocks.len() - s.encoded,
+                start.elapsed().as_secs_f64()
+            );
+        }
+        ShardCommand::Merge(args) if planet_shard::is_planet(&args.work) => {
+            let s = planet_shard::merge(&args.work, args.threads)?;
+            let bytes = std::fs::metadata(&s.output)?.len();
+            println!(
+                "{}: planet, K = {}, {} lattice points with data, {} bytes, {} records, max \
+                 error {}, {:.2} s",
+                s.output.display(),
+                s.level_pairs,
+                s.valid,
+                bytes,
+                s.records,
+                s.quant.bound_text(),
                 start.elapsed().as_secs_f64()
             );
         }
@@ -136,5 +141,37 @@ pub fn run(command: &ShardCommand) -> Result<()> {
             );
         }
     }
+    Ok(())
+}
+
+/// `cbdam shard plan`: a plane's or, with `--planet`, a planet's.
+fn plan(args: &ShardPlanArgs) -> Result<()> {
+    let opts = crate::build::options(&args.build)?;
+    if opts.rms_error.is_some() {
+        bail!("--rms-error measures the whole decoded surface: build without shards");
+    }
+    let (shards, blocks, reused, output) = if opts.planet.is_some() {
+        let s = planet_shard::plan(&opts, &args.work, args.shards, args.apex)?;
+        (s.plan.shards, s.plan.block_count, s.reused, s.plan.output)
+    } else {
+        let s = cbdam_builder::shard::plan(
+            &opts,
+            &args.work,
+            args.shards,
+            args.apex,
+            &cbdam_builder::NoProgress,
+        )?;
+        (s.plan.shards, s.plan.block_count, s.reused, s.plan.output)
+    };
+    println!(
+        "{}",
+        serde_json::json!({
+            "shards": shards,
+            "blocks": blocks,
+            "reused": reused,
+            "output": output,
+            "planet": opts.planet.is_some(),
+        })
+    );
     Ok(())
 }

@@ -701,7 +701,7 @@ fn bounds_and_crs_place_an_ungeoreferenced_planet_input() {
 /// global grid with a void (nodata) over 60° … 70° N, 100° … 120° E; a 0.005° inset astride the
 /// edge between the faces centred on 0° E and 90° E with a void of 5 × 5 samples; and one on a
 /// cube corner. Built at N = 17 it is K = 11, 7.4 M points held.
-fn edge_and_corner_planet(d: &Path) -> [PathBuf; 3] {
+pub(crate) fn edge_and_corner_planet(d: &Path) -> [PathBuf; 3] {
     // The global grid with a void (nodata) over 60° … 70° N, 100° … 120° E.
     let global = d.join("global.tif");
     let r = Raster {

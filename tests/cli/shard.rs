@@ -128,7 +128,7 @@ fn shard_steps_by_hand_merge_to_the_bytes_of_cbdam_builder() {
 /// The Python of a venv under target/ with codec/builder/dask/requirements.txt installed (made
 /// once per target directory); `None`, with the reason printed, only when pip or venv is
 /// missing, and then only outside CI: under CI that fails the test ([`skip_unless_ci`]).
-fn dask_python() -> Option<PathBuf> {
+pub(crate) fn dask_python() -> Option<PathBuf> {
     static PYTHON: OnceLock<Option<PathBuf>> = OnceLock::new();
     PYTHON
         .get_or_init(|| {

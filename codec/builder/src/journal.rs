@@ -230,7 +230,7 @@ pub(crate) fn write_atomically(dir: &Path, name: &str, bytes: &[u8]) -> std::io:
     Ok(())
 }
 
-fn put_id(out: &mut Vec<u8>, id: DiamondId) {
+pub(crate) fn put_id(out: &mut Vec<u8>, id: DiamondId) {
     out.push(id.level);
     out.push(id.face);
     out.extend_from_slice(&id.x.to_le_bytes());

@@ -592,7 +592,7 @@ pub(crate) fn valid_in_tile(d: &Domain, f: u8, t: &PlanetTile) -> u64 {
 }
 
 /// Checks the options a planet build does not take.
-fn refuse_planar_options(opts: &BuildOptions) -> Result<()> {
+pub(crate) fn refuse_planar_options(opts: &BuildOptions) -> Result<()> {
     if opts.colour || opts.like.is_some() {
         bail!("--planet builds elevation; colour planets are not supported yet");
     }

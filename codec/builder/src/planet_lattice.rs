@@ -289,17 +289,56 @@ impl<'a> LatticeTiles<'a> {
         for (f, i, s) in strides {
             by_tile[usize::from(f)][i] = s;
         }
-        let tiles = Self {
+        let tiles = Self::with_strides(resampler, by_tile, cache_budget)?;
+        Ok((tiles, outline, valid, held))
+    }
+
+    /// The tiles at the strides an earlier [`LatticeTiles::outline`] of the same resampler
+    /// fixed ([`LatticeTiles::strides`]; a sharded build's steps share them).
+    pub fn with_strides(
+        resampler: Resampler<'a>,
+        strides: Vec<Vec<u32>>,
+        cache_budget: u64,
+    ) -> Result<Self> {
+        let faces = usize::from(resampler.domain().faces());
+        if strides.len() != faces
+            || strides
+                .iter()
+                .any(|f| f.len() != resampler.tiles_per_face())
+        {
+            return Err(BuildError::Invalid(format!(
+                "tile strides for {} faces of {} tiles, not {faces} of {}",
+                strides.len(),
+                strides.first().map_or(0, Vec::len),
+                resampler.tiles_per_face()
+            )));
+        }
+        Ok(Self {
             resampler,
-            strides: by_tile,
+            strides,
             cache: Mutex::new(TileCache {
                 held: HashMap::new(),
                 order: VecDeque::new(),
                 bytes: 0,
                 budget: cache_budget,
             }),
-        };
-        Ok((tiles, outline, valid, held))
+        })
+    }
+
+    /// Per face, per tile: `log2` of the stride it holds its points at.
+    pub fn strides(&self) -> &[Vec<u32>] {
+        &self.strides
+    }
+
+    /// `log2` of the tiles' side.
+    pub fn tile_log2(&self) -> u32 {
+        self.resampler.tile_log2()
+    }
+
+    /// Input `input`'s resampling error, over the tiles it can cover.
+    pub fn resampling(&self, input: usize) -> Result<InputResampling> {
+        let r = &self.resampler;
+        input_resampling(r.inputs, input, &self.input_view(input)?, r.plan)
     }
 
     /// Tile `index` of `face` on multiples of `2^max(s, min(min_stride, tile side))` for its
@@ -410,7 +449,7 @@ pub fn encode_out_of_core(
         encode_planet_in_blocks(&outline, &tiles, plan.quantizer, enc, cut, journal, true)
             .map_err(BuildError::from)?;
     let resampling = (0..inputs.inputs.len())
-        .map(|i| input_resampling(inputs, i, &tiles.input_view(i)?, plan))
+        .map(|i| tiles.resampling(i))
         .collect::<Result<Vec<_>>>()?;
     Ok(LatticeEncode {
         encoded,

@@ -33,15 +33,13 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::{
-    BlockJournal, BlockOutput, BlockPlan, EncodeOptions, GridSummary, NO_WINDOW, Resolution,
-    ShardedEncode, TempStorage,
+    BlockJournal, BlockOutput, BlockPlan, GridSummary, NO_WINDOW, Resolution, ShardedEncode,
+    TempStorage,
 };
 use cbdam_codec::lifting::Alpha;
-use cbdam_codec::quant::{HeightGrid, QuantPlan, Quantizer};
-use cbdam_codec::repository::GeoRef;
+use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::write_repository;
 use cbdam_codec::temp::LATTICE_TEMP_PREFIX;
 
@@ -54,7 +52,7 @@ use crate::plan::Prepared;
 use crate::shard_grid::{PreparedGrid, read_prepared, read_summary, write_prepared, write_summary};
 use crate::{BuildOptions, Progress, input_tiles, journal_key, prepare_elevation};
 
-const KEY: &str = "key";
+pub(crate) const KEY: &str = "key";
 const PLAN: &str = "plan";
 const APEX: &str = "apex";
 const APEX_FIELD: &str = "apex.field";
@@ -68,215 +66,7 @@ const FIELD_MAGIC: &[u8; 4] = b"CBDF";
 /// 3: the prepared grid is the lattice's own arrays, with a table of tile checksums).
 const VERSION: u32 = 3;
 
-/// What a sharded build's steps share: read from the work directory's `plan` file.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ShardPlan {
-    /// The repository the merge writes (absolute).
-    pub output: PathBuf,
-    /// Samples per row and rows of the (combined) input.
-    pub width: usize,
-    /// Rows.
-    pub height: usize,
-    /// Whether the input is several inputs (a variable-resolution lattice with classes).
-    pub variable: bool,
-    /// Diamond grid side N.
-    pub diamond_size: usize,
-    /// `--extra-levels`.
-    pub extra_levels: ExtraLevels,
-    /// Entropy coder.
-    pub coder: CoderKind,
-    /// Memory limit of the build, bytes (the merge's `--extra-levels auto` retry).
-    pub memory_limit: u64,
-    /// The integer mapping.
-    pub quant: QuantPlan,
-    /// Georeferencing.
-    pub georef: Option<GeoRef>,
-    /// Nodata value.
-    pub nodata: Option<f64>,
-    /// The blocks.
-    pub blocks: BlockPlan,
-    /// How many blocks the plan makes.
-    pub block_count: usize,
-    /// How many shards (runs of consecutive blocks).
-    pub shards: usize,
-}
-
-impl ShardPlan {
-    /// The blocks of shard `shard` (`0 .. shards`).
-    pub fn shard_blocks(&self, shard: usize) -> Range<usize> {
-        let (b, s) = (self.block_count, self.shards.max(1));
-        shard * b / s..(shard + 1) * b / s
-    }
-
-    /// The shard that holds `block`.
-    fn shard_of(&self, block: usize) -> usize {
-        (0..self.shards)
-            .find(|&s| self.shard_blocks(s).contains(&block))
-            .unwrap_or(0)
-    }
-
-    fn encode_options(&self) -> EncodeOptions {
-        EncodeOptions {
-            n: self.diamond_size,
-            alpha: Alpha::One,
-            coder: self.coder,
-            extra_level_pairs: self.extra_levels.first(),
-        }
-    }
-
-    /// The `plan` file: one `name=value` line each; floats as their bits, so they read back
-    /// exactly.
-    fn to_text(&self) -> String {
-        let f = |v: f64| format!("{:016x}", v.to_bits());
-        let q = &self.quant;
-        let mut t = format!(
-            "output={}\nwidth={}\nheight={}\nvariable={}\ndiamond_size={}\nextra_levels={}\n\
-             coder={:?}\nmemory_limit={}\nunit={}\noffset={}\nk={}\nlattice={}\n\
-             representation_error={}\nepsilon={}\ncut_level={}\nblock_side={}\nblocks={}\n\
-             shards={}\n",
-            hex(self.output.to_string_lossy().as_bytes()),
-            self.width,
-            self.height,
-            self.variable,
-            self.diamond_size,
-            match self.extra_levels {
-                ExtraLevels::Auto => "auto".to_string(),
-                ExtraLevels::Fixed(n) => n.to_string(),
-            },
-            self.coder,
-            self.memory_limit,
-            f(q.unit),
-            f(q.offset),
-            q.quantizer.k(),
-            q.lattice,
-            f(q.representation_error),
-            f(q.epsilon),
-            self.blocks.cut_level,
-            self.blocks.block_side,
-            self.block_count,
-            self.shards,
-        );
-        if let Some(nodata) = self.nodata {
-            t += &format!("nodata={}\n", f(nodata));
-        }
-        if let Some(g) = &self.georef {
-            t += &format!(
-                "georef={} {} {} {} {} {} {}\n",
-                g.epsg.map_or("-".to_string(), |e| e.to_string()),
-                f(g.origin_x),
-                f(g.origin_y),
-                f(g.pixel_x),
-                f(g.pixel_y),
-                g.pixel_is_area,
-                g.wkt
-                    .as_deref()
-                    .map_or("-".to_string(), |w| hex(w.as_bytes())),
-            );
-        }
-        t
-    }
-
-    fn parse(text: &str, file: &Path) -> Result<ShardPlan> {
-        let bad = |what: &str| {
-            crate::BuildError::Invalid(format!(
-                "{}: {what} missing or unreadable (a plan file of another cbdam version?)",
-                file.display()
-            ))
-        };
-        let value = |name: &str| {
-            text.lines()
-                .find_map(|l| l.strip_prefix(name)?.strip_prefix('='))
-        };
-        let get = |name: &str| value(name).ok_or_else(|| bad(name));
-        let num = |name: &str| get(name)?.parse::<u64>().map_err(|_| bad(name));
-        let float = |s: &str| u64::from_str_radix(s, 16).ok().map(f64::from_bits);
-        let real = |name: &str| float(get(name)?).ok_or_else(|| bad(name));
-        let text_of = |s: &str, name: &str| {
-            unhex(s)
-                .and_then(|b| String::from_utf8(b).ok())
-                .ok_or_else(|| bad(name))
-        };
-        let k = get("k")?.parse::<u32>().map_err(|_| bad("k"))?;
-        let quant = QuantPlan {
-            unit: real("unit")?,
-            offset: real("offset")?,
-            quantizer: Quantizer::new(k).map_err(|_| bad("k"))?,
-            lattice: get("lattice")? == "true",
-            representation_error: real("representation_error")?,
-            epsilon: real("epsilon")?,
-            // Sharded builds bound the maximum error only.
-            rms: None,
-        };
-        let georef = match value("georef") {
-            None => None,
-            Some(g) => {
-                let p: Vec<&str> = g.split(' ').collect();
-                let [epsg, ox, oy, px, py, area, wkt] = p[..] else {
-                    return Err(bad("georef"));
-                };
-                let r = |s: &str| float(s).ok_or_else(|| bad("georef"));
-                Some(GeoRef {
-                    epsg: match epsg {
-                        "-" => None,
-                        e => Some(e.parse().map_err(|_| bad("georef"))?),
-                    },
-                    origin_x: r(ox)?,
-                    origin_y: r(oy)?,
-                    pixel_x: r(px)?,
-                    pixel_y: r(py)?,
-                    pixel_is_area: area == "true",
-                    wkt: match wkt {
-                        "-" => None,
-                        w => Some(text_of(w, "georef")?),
-                    },
-                })
-            }
-        };
-        let coder_name = get("coder")?;
-        Ok(ShardPlan {
-            output: PathBuf::from(text_of(get("output")?, "output")?),
-            width: num("width")? as usize,
-            height: num("height")? as usize,
-            variable: get("variable")? == "true",
-            diamond_size: num("diamond_size")? as usize,
-            extra_levels: match get("extra_levels")? {
-                "auto" => ExtraLevels::Auto,
-                n => ExtraLevels::Fixed(n.parse().map_err(|_| bad("extra_levels"))?),
-            },
-            coder: CoderKind::ALL
-                .into_iter()
-                .find(|c| format!("{c:?}") == coder_name)
-                .ok_or_else(|| bad("coder"))?,
-            memory_limit: num("memory_limit")?,
-            quant,
-            georef,
-            nodata: match value("nodata") {
-                None => None,
-                Some(v) => Some(float(v).ok_or_else(|| bad("nodata"))?),
-            },
-            blocks: BlockPlan {
-                cut_level: num("cut_level")? as u8,
-                block_side: num("block_side")? as i64,
-            },
-            block_count: num("blocks")? as usize,
-            shards: num("shards")? as usize,
-        })
-    }
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
-}
-
-fn unhex(s: &str) -> Option<Vec<u8>> {
-    if !s.len().is_multiple_of(2) {
-        return None;
-    }
-    (0..s.len())
-        .step_by(2)
-        .map(|i| u8::from_str_radix(s.get(i..i + 2)?, 16).ok())
-        .collect()
-}
+pub use crate::shard_plan::ShardPlan;
 
 /// What [`plan`] did.
 #[derive(Clone, Debug)]
@@ -303,54 +93,15 @@ pub fn plan(
     progress: &dyn Progress,
 ) -> Result<PlanSummary> {
     let t = Instant::now();
-    if opts.colour {
-        bail!(
-            "sharded builds make elevation repositories; build colour with `cbdam build --colour`"
-        );
-    }
-    if opts.alpha != Alpha::One {
-        bail!(
-            "a sharded build needs --alpha 1 (its blocks rely on the coarse levels being subsamples)"
-        );
-    }
-    if shards == Some(0) {
-        bail!("--shards must be at least 1");
-    }
+    refuse_for_shards(opts, shards)?;
     let output = if opts.output.is_absolute() {
         opts.output.clone()
     } else {
         std::env::current_dir()?.join(&opts.output)
     };
-    let tiles = input_tiles(opts)?;
-    let mut key = journal_key(
-        opts,
-        &tiles,
-        &opts.encode_options(),
-        opts.block_plan.as_ref(),
-    )?;
-    key += &format!(
-        "shard_layout={VERSION}\noutput={}\nmemory_limit={}\nshards={}\n",
-        output.display(),
-        opts.memory_limit.map_or("auto".into(), |m| m.to_string()),
-        shards.map_or("auto".into(), |s| s.to_string()),
-    );
-    if let Ok(old) = fs::read_to_string(work.join(KEY)) {
-        if old == key {
-            if with_apex {
-                apex(work, opts.threads)?;
-            }
-            return Ok(PlanSummary {
-                plan: read_plan(work)?,
-                reused: true,
-                elapsed: t.elapsed(),
-            });
-        }
-        bail!(
-            "the work directory {} holds the plan of another build ({}); give another --work \
-             or remove it",
-            work.display(),
-            crate::journal::first_difference(&old, &key)
-        );
+    let key = plan_key(opts, &output, shards)?;
+    if let Some(reused) = reuse_or_refuse(work, &key, with_apex, opts.threads, t)? {
+        return Ok(reused);
     }
     claim_work_dir(work)?;
     // The lattice's mapped files are made in the work directory, and kept as `prepared`.
@@ -361,32 +112,9 @@ pub fn plan(
         prepared.resolution.as_mut(),
         prepared.input.written.as_ref(),
     )?;
-    let enc = prepared.enc_opts;
+    let (blocks, block_count) = choose_blocks(&prepared)?;
     let grid = &prepared.input.grid;
-    let blocks = match prepared.storage.blocks {
-        Some(b) => b,
-        None => {
-            let domain = Domain::covering(enc.n, grid.width, grid.height, enc.extra_level_pairs)?;
-            let (ex, ey) = domain.layout().face_extent();
-            let input = 6 * (grid.width as u64) * (grid.height as u64);
-            BlockPlan::fitting_at_most(
-                domain.layout(),
-                prepared.limit.saturating_sub(input),
-                ex.max(ey) / 4,
-                &NO_WINDOW,
-            )
-            .ok_or_else(|| {
-                crate::BuildError::Invalid(format!(
-                    "no block plan fits --memory-limit {} bytes beside the input",
-                    prepared.limit
-                ))
-            })?
-        }
-    };
-    let block_count = {
-        let domain = Domain::covering(enc.n, grid.width, grid.height, enc.extra_level_pairs)?;
-        blocks.blocks(domain.layout()).len()
-    };
+    let enc = prepared.enc_opts;
     let plan = ShardPlan {
         output,
         width: grid.width,
@@ -430,9 +158,105 @@ pub fn plan(
     })
 }
 
+/// Refuses what a sharded elevation build does not take.
+fn refuse_for_shards(opts: &BuildOptions, shards: Option<usize>) -> Result<()> {
+    if opts.colour {
+        bail!(
+            "sharded builds make elevation repositories; build colour with `cbdam build --colour`"
+        );
+    }
+    if opts.alpha != Alpha::One {
+        bail!(
+            "a sharded build needs --alpha 1 (its blocks rely on the coarse levels being subsamples)"
+        );
+    }
+    if shards == Some(0) {
+        bail!("--shards must be at least 1");
+    }
+    Ok(())
+}
+
+/// The plan's key: the build journal's (every input and argument that decides the bytes) and
+/// what the work directory adds.
+fn plan_key(opts: &BuildOptions, output: &Path, shards: Option<usize>) -> Result<String> {
+    let tiles = input_tiles(opts)?;
+    let mut key = journal_key(
+        opts,
+        &tiles,
+        &opts.encode_options(),
+        opts.block_plan.as_ref(),
+    )?;
+    key += &format!(
+        "shard_layout={VERSION}\noutput={}\nmemory_limit={}\nshards={}\n",
+        output.display(),
+        opts.memory_limit.map_or("auto".into(), |m| m.to_string()),
+        shards.map_or("auto".into(), |s| s.to_string()),
+    );
+    Ok(key)
+}
+
+/// The plan already in `work` when its key is `key` (encoding the apex if asked for and
+/// missing); `None` when `work` holds no plan; an error naming the first difference when it
+/// holds another.
+fn reuse_or_refuse(
+    work: &Path,
+    key: &str,
+    with_apex: bool,
+    threads: Option<usize>,
+    t: Instant,
+) -> Result<Option<PlanSummary>> {
+    let Ok(old) = fs::read_to_string(work.join(KEY)) else {
+        return Ok(None);
+    };
+    if old != key {
+        bail!(
+            "the work directory {} holds the plan of another build ({}); give another --work \
+             or remove it",
+            work.display(),
+            crate::journal::first_difference(&old, key)
+        );
+    }
+    if with_apex {
+        apex(work, threads)?;
+    }
+    Ok(Some(PlanSummary {
+        plan: read_plan(work)?,
+        reused: true,
+        elapsed: t.elapsed(),
+    }))
+}
+
+/// The block plan (`--block-plan`, else the build's own, else blocks a quarter of the domain
+/// across at most) and how many blocks it makes.
+fn choose_blocks(prepared: &crate::PreparedBuild) -> Result<(BlockPlan, usize)> {
+    let enc = prepared.enc_opts;
+    let grid = &prepared.input.grid;
+    let domain = Domain::covering(enc.n, grid.width, grid.height, enc.extra_level_pairs)?;
+    let blocks = match prepared.storage.blocks {
+        Some(b) => b,
+        None => {
+            let (ex, ey) = domain.layout().face_extent();
+            let input = 6 * (grid.width as u64) * (grid.height as u64);
+            BlockPlan::fitting_at_most(
+                domain.layout(),
+                prepared.limit.saturating_sub(input),
+                ex.max(ey) / 4,
+                &NO_WINDOW,
+            )
+            .ok_or_else(|| {
+                crate::BuildError::Invalid(format!(
+                    "no block plan fits --memory-limit {} bytes beside the input",
+                    prepared.limit
+                ))
+            })?
+        }
+    };
+    Ok((blocks, blocks.blocks(domain.layout()).len()))
+}
+
 /// Makes `work` a work directory: created, or one already marked as such (an unfinished plan's),
 /// or empty; anything else is refused rather than cleared.
-fn claim_work_dir(work: &Path) -> Result<()> {
+pub(crate) fn claim_work_dir(work: &Path) -> Result<()> {
     let context = || format!("preparing the work directory {}", work.display());
     if work.exists() {
         let marked = work.join(MARKER).exists();
@@ -678,6 +502,52 @@ pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSumma
     })
 }
 
+/// The error of a merge that finds shards unfinished: `shards` (in block order, repeats
+/// allowed) of `total`, `file` the first missing (a `kind`, e.g. "block file").
+pub(crate) fn missing_shards(
+    work: &Path,
+    total: usize,
+    mut shards: Vec<usize>,
+    (kind, file): (&str, &Path),
+) -> crate::BuildError {
+    shards.dedup();
+    let list: Vec<String> = shards.iter().map(usize::to_string).collect();
+    crate::BuildError::Invalid(format!(
+        "{} of {} shards have not finished: shard{} {} ({kind} {} missing); run `cbdam shard \
+         run --work {} --shard I` for each",
+        shards.len(),
+        total,
+        if shards.len() > 1 { "s" } else { "" },
+        list.join(", "),
+        file.display(),
+        work.display()
+    ))
+}
+
+/// The apex's output and every block's, in order; a damaged block file is named.
+fn finished_parts(
+    work: &Path,
+    plan: &ShardPlan,
+    journal: &Journal,
+    apex: BlockOutput,
+) -> Result<Vec<BlockOutput>> {
+    let mut parts = vec![apex];
+    for b in 0..plan.block_count {
+        match journal.load(b)? {
+            Some(out) => parts.push(out),
+            None => bail!(
+                "{} (shard {}) is damaged: remove it and run `cbdam shard run --work {} \
+                 --shard {}` again",
+                journal.block_path(b).display(),
+                plan.shard_of(b),
+                work.display(),
+                plan.shard_of(b)
+            ),
+        }
+    }
+    Ok(parts)
+}
+
 /// What [`merge`] wrote.
 #[derive(Clone, Debug)]
 pub struct MergeSummary {
@@ -701,20 +571,14 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<MergeSummary> {
     let missing: Vec<usize> = (0..plan.block_count)
         .filter(|&b| !journal.block_path(b).exists())
         .collect();
-    if !missing.is_empty() {
-        let mut shards: Vec<usize> = missing.iter().map(|&b| plan.shard_of(b)).collect();
-        shards.dedup();
-        let list: Vec<String> = shards.iter().map(usize::to_string).collect();
-        bail!(
-            "{} of {} shards have not finished: shard{} {} (block file {} missing); run \
-             `cbdam shard run --work {} --shard I` for each",
-            shards.len(),
+    if let Some(&first) = missing.first() {
+        let shards = missing.iter().map(|&b| plan.shard_of(b)).collect();
+        return Err(missing_shards(
+            work,
             plan.shards,
-            if shards.len() > 1 { "s" } else { "" },
-            list.join(", "),
-            journal.block_path(missing[0]).display(),
-            work.display()
-        );
+            shards,
+            ("block file", &journal.block_path(first)),
+        ));
     }
     let Some(apex) = read_apex_records(work)? else {
         bail!(
@@ -746,20 +610,7 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<MergeSummary> {
     };
     let encoded = thread_pool(threads)?.install(|| -> Result<_> {
         let encode = sharded(&input.grid, classes.as_ref(), &plan, summary)?;
-        let mut parts = vec![apex];
-        for b in 0..plan.block_count {
-            match journal.load(b)? {
-                Some(out) => parts.push(out),
-                None => bail!(
-                    "{} (shard {}) is damaged: remove it and run `cbdam shard run --work {} \
-                     --shard {}` again",
-                    journal.block_path(b).display(),
-                    plan.shard_of(b),
-                    work.display(),
-                    plan.shard_of(b)
-                ),
-            }
-        }
+        let parts = finished_parts(work, &plan, &journal, apex)?;
         Ok(encode.finish(parts)?)
     })?;
     // `cbdam build`'s second try with sparser roots, on the small inputs where it applies.

@@ -2,7 +2,8 @@
 
 The steps are the `cbdam shard` subcommands (docs/SHARDING.md), each run by a task as a
 subprocess of a Dask worker: plan with the apex (reads the inputs once), one task per shard,
-merge. They share a work directory, which must be a path every worker reaches (a shared file system or an
+merge. Planets too: `--planet` and the planet's flags go to `cbdam shard plan` as any flag
+does, and the steps are the same. They share a work directory, which must be a path every worker reaches (a shared file system or an
 object-store mount), as must the inputs and the output. Dask does the scheduling: tasks are
 submitted with `retries=`, and a task whose worker dies is rerun elsewhere; every step is
 idempotent, so a rerun is harmless.

@@ -171,6 +171,49 @@ impl PlanetOutline {
     pub fn domain(&self) -> &Domain {
         &self.domain
     }
+
+    /// `log2` of the side of the planet's tiles.
+    pub fn tile_log2(&self) -> u32 {
+        self.tile_log2
+    }
+
+    /// Whether the tiles carry resolution classes.
+    pub fn is_variable(&self) -> bool {
+        self.variable
+    }
+
+    /// Per level, the leaves the tiles' points make.
+    pub fn leaves(&self) -> &[BTreeSet<DiamondId>] {
+        &self.leaves
+    }
+
+    /// Whether some point is a hole, and whether any has data.
+    pub fn has_nodata_and_data(&self) -> (bool, bool) {
+        (self.has_nodata, self.has_data)
+    }
+
+    /// The outline `new(n, k, tile_log2, variable)` gathers when its tiles make `leaves`
+    /// (one set per level, root to finest) and hold a hole (`has_nodata`) and data
+    /// (`has_data`): an outline written out and read back.
+    pub fn from_parts(
+        (n, k, tile_log2, variable): (usize, u32, u32, bool),
+        leaves: Vec<BTreeSet<DiamondId>>,
+        has_nodata: bool,
+        has_data: bool,
+    ) -> Result<Self, CodecError> {
+        let mut out = Self::new(n, k, tile_log2, variable)?;
+        if leaves.len() != out.leaves.len() {
+            return Err(CodecError::invalid(format!(
+                "an outline of {} levels for a planet of {}",
+                leaves.len(),
+                out.leaves.len()
+            )));
+        }
+        out.leaves = leaves;
+        out.has_nodata = has_nodata;
+        out.has_data = has_data;
+        Ok(out)
+    }
 }
 
 /// The deepest cut [`default_cut`] takes: a block's tile this many of the cut level's radii
@@ -211,81 +254,184 @@ pub fn encode_planet_in_blocks(
     journal: &dyn BlockJournal,
     spill: bool,
 ) -> Result<Encoded, CodecError> {
-    let domain = outline.domain;
-    let params = planet_params(domain, quantizer, opts, outline.has_nodata)?;
-    if !outline.has_data {
-        return Err(CodecError::invalid("the planet has no valid sample"));
-    }
-    let sets = with_parents(&domain, &outline.leaves);
-    let cut = cut.min(domain.finest_level());
-    let apex = Apex::encode(outline, tiles, &params, &sets.stored, &sets.recorded, cut)?;
-    let side = domain.cube().expect("a cube-sphere").side();
-    let rects = PlanetGrid::tile_rects(&domain, outline.tile_log2);
-    let per_face = rects.len();
-    let mut kept = KeptRecords::new(spill)?;
-    kept.extend(apex.records.clone())?;
-    let mut own_error: HashMap<DiamondId, u32> = apex.grids.keys().map(|&id| (id, 0)).collect();
-    let block = BlockEncode {
-        outline,
-        tiles,
-        params: &params,
-        stored: &sets.stored,
-        recorded: &sets.recorded,
-        apex: &apex,
-        cut,
-        side,
-        rects,
-    };
-    for index in 0..usize::from(domain.faces()) * per_face {
-        let output = match journal.load(index)? {
-            Some(output) => output,
-            None => {
-                let face = u8::try_from(index / per_face).expect("6 faces");
-                let output = block.encode(face, index % per_face)?;
-                journal.save(index, &output)?;
-                output
-            }
+    PlanetBlocks::new(outline, tiles, quantizer, opts, cut, None)?.finish(journal, spill)
+}
+
+/// A planet's block-wise encode split at its seams, for builds whose blocks run in other
+/// processes (sharded builds): the apex (encoded, or handed over as an earlier process
+/// encoded it), any block on its own, and the merge of every block's output.
+pub struct PlanetBlocks<'a> {
+    outline: &'a PlanetOutline,
+    tiles: &'a dyn PlanetTiles,
+    params: crate::hierarchy::CodecParams,
+    stored: Vec<Vec<DiamondId>>,
+    recorded: Vec<BTreeSet<DiamondId>>,
+    apex: PlanetApex,
+    cut: u8,
+}
+
+impl<'a> PlanetBlocks<'a> {
+    /// The encode of the planet `outline` outlines, cut at `cut` (clamped to the finest
+    /// level), with `apex` as [`PlanetBlocks::apex`] gave it for the same planet and cut, or
+    /// the apex encoded from `tiles` when `None`.
+    pub fn new(
+        outline: &'a PlanetOutline,
+        tiles: &'a dyn PlanetTiles,
+        quantizer: Quantizer,
+        opts: &EncodeOptions,
+        cut: u8,
+        apex: Option<PlanetApex>,
+    ) -> Result<Self, CodecError> {
+        let domain = outline.domain;
+        let params = planet_params(domain, quantizer, opts, outline.has_nodata)?;
+        if !outline.has_data {
+            return Err(CodecError::invalid("the planet has no valid sample"));
+        }
+        let sets = with_parents(&domain, &outline.leaves);
+        let cut = cut.min(domain.finest_level());
+        let apex = match apex {
+            Some(apex) => apex,
+            None => PlanetApex::encode(outline, tiles, &params, &sets.stored, &sets.recorded, cut)?,
         };
-        kept.extend(output.records)?;
-        for (id, e) in output.own_errors {
-            let max = own_error.entry(id).or_insert(e);
-            *max = (*max).max(e);
+        Ok(Self {
+            outline,
+            tiles,
+            params,
+            stored: sets.stored,
+            recorded: sets.recorded,
+            apex,
+            cut,
+        })
+    }
+
+    /// The apex: the levels above the cut.
+    pub fn apex(&self) -> &PlanetApex {
+        &self.apex
+    }
+
+    /// How many blocks: every tile of every face.
+    pub fn block_count(&self) -> usize {
+        usize::from(self.outline.domain.faces()) * self.tiles_per_face()
+    }
+
+    fn tiles_per_face(&self) -> usize {
+        PlanetGrid::tile_rects(&self.outline.domain, self.outline.tile_log2).len()
+    }
+
+    fn block_encode(&self) -> BlockEncode<'_> {
+        let domain = self.outline.domain;
+        BlockEncode {
+            outline: self.outline,
+            tiles: self.tiles,
+            params: &self.params,
+            stored: &self.stored,
+            recorded: &self.recorded,
+            apex: &self.apex,
+            cut: self.cut,
+            side: domain.cube().expect("a cube-sphere").side(),
+            rects: PlanetGrid::tile_rects(&domain, self.outline.tile_log2),
         }
     }
-    if let Some(id) = sets
-        .stored
-        .iter()
-        .flatten()
-        .find(|id| !own_error.contains_key(id))
-    {
-        return Err(CodecError::invalid(format!(
-            "diamond {id} is in no block: the planet's tiles do not cover its centre"
-        )));
+
+    /// Encodes block `index` (tile `index % tiles_per_face` of face `index / tiles_per_face`).
+    pub fn encode_block(&self, index: usize) -> Result<BlockOutput, CodecError> {
+        if index >= self.block_count() {
+            return Err(CodecError::invalid(format!(
+                "block {index} of a planet of {} blocks",
+                self.block_count()
+            )));
+        }
+        let per_face = self.tiles_per_face();
+        let face = u8::try_from(index / per_face).expect("6 faces");
+        self.block_encode().encode(face, index % per_face)
     }
-    let (records, leaf_error) = saturate_errors(&domain, &sets.stored, kept.finish()?, &own_error);
-    Ok(Encoded {
-        params,
-        roots: apex.roots,
-        records,
-        leaf_error,
-    })
+
+    /// Every block's output (from `journal`, else encoded and saved there) and the apex's put
+    /// together: the planet's [`Encoded`].
+    pub fn finish(&self, journal: &dyn BlockJournal, spill: bool) -> Result<Encoded, CodecError> {
+        let domain = self.outline.domain;
+        let mut kept = KeptRecords::new(spill)?;
+        kept.extend(self.apex.records.clone())?;
+        let mut own_error: HashMap<DiamondId, u32> =
+            self.apex.grids.keys().map(|&id| (id, 0)).collect();
+        let block = self.block_encode();
+        let per_face = self.tiles_per_face();
+        for index in 0..self.block_count() {
+            let output = match journal.load(index)? {
+                Some(output) => output,
+                None => {
+                    let face = u8::try_from(index / per_face).expect("6 faces");
+                    let output = block.encode(face, index % per_face)?;
+                    journal.save(index, &output)?;
+                    output
+                }
+            };
+            kept.extend(output.records)?;
+            for (id, e) in output.own_errors {
+                let max = own_error.entry(id).or_insert(e);
+                *max = (*max).max(e);
+            }
+        }
+        if let Some(id) = self
+            .stored
+            .iter()
+            .flatten()
+            .find(|id| !own_error.contains_key(id))
+        {
+            return Err(CodecError::invalid(format!(
+                "diamond {id} is in no block: the planet's tiles do not cover its centre"
+            )));
+        }
+        let (records, leaf_error) =
+            saturate_errors(&domain, &self.stored, kept.finish()?, &own_error);
+        Ok(Encoded {
+            params: self.params,
+            roots: self.apex.roots.clone(),
+            records,
+            leaf_error,
+        })
+    }
 }
 
 /// The levels above the cut, encoded over the whole planet.
-struct Apex {
-    root_field: Vec<i32>,
-    roots: Vec<u8>,
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlanetApex {
+    /// The root field's values.
+    pub root_field: Vec<i32>,
+    /// The coded root field.
+    pub roots: Vec<u8>,
     /// Records of the apex levels (object errors not yet saturated).
-    records: Vec<Record>,
+    pub records: Vec<Record>,
     /// Every stored apex diamond's grid, for the blocks to measure its error on their tiles.
-    grids: HashMap<DiamondId, Vec<i32>>,
+    pub grids: HashMap<DiamondId, Vec<i32>>,
     /// Refinements of the recorded diamonds of the level above the cut.
-    last: HashMap<DiamondId, Refined>,
+    pub last: HashMap<DiamondId, Refined>,
     /// Per `(face, tile)`, the apex diamonds with a view on that face meeting the tile.
     meeting: HashMap<(u8, usize), Vec<DiamondId>>,
 }
 
-impl Apex {
+impl PlanetApex {
+    /// The apex of the planet `outline` outlines from its parts as an earlier
+    /// [`PlanetBlocks::apex`] held them.
+    pub fn from_parts(
+        outline: &PlanetOutline,
+        root_field: Vec<i32>,
+        roots: Vec<u8>,
+        records: Vec<Record>,
+        grids: HashMap<DiamondId, Vec<i32>>,
+        last: HashMap<DiamondId, Refined>,
+    ) -> Self {
+        let meeting = meeting(&outline.domain, outline.tile_log2, &grids);
+        Self {
+            root_field,
+            roots,
+            records,
+            grids,
+            last,
+            meeting,
+        }
+    }
+
     fn encode(
         outline: &PlanetOutline,
         tiles: &dyn PlanetTiles,
@@ -329,24 +475,28 @@ impl Apex {
                 }
             }
         }
-        let side = domain.cube().expect("a cube-sphere").side();
-        let mut meeting: HashMap<(u8, usize), Vec<DiamondId>> = HashMap::new();
-        for (&id, p) in &grids {
-            for (seen, _) in views(domain, id, p) {
-                for i in tiles_meeting(side, outline.tile_log2, layout.bounds(seen)) {
-                    meeting.entry((seen.face, i)).or_default().push(id);
-                }
+        Ok(Self::from_parts(
+            outline, root_field, roots, records, grids, prev,
+        ))
+    }
+}
+
+/// Per `(face, tile)`, the diamonds of `grids` with a view on that face meeting the tile.
+fn meeting(
+    domain: &Domain,
+    tile_log2: u32,
+    grids: &HashMap<DiamondId, Vec<i32>>,
+) -> HashMap<(u8, usize), Vec<DiamondId>> {
+    let side = domain.cube().expect("a cube-sphere").side();
+    let mut meeting: HashMap<(u8, usize), Vec<DiamondId>> = HashMap::new();
+    for (&id, p) in grids {
+        for (seen, _) in views(domain, id, p) {
+            for i in tiles_meeting(side, tile_log2, domain.layout().bounds(seen)) {
+                meeting.entry((seen.face, i)).or_default().push(id);
             }
         }
-        Ok(Self {
-            root_field,
-            roots,
-            records,
-            grids,
-            last: prev,
-            meeting,
-        })
     }
+    meeting
 }
 
 /// Every tile of every face.
@@ -385,7 +535,7 @@ struct BlockEncode<'a> {
     params: &'a crate::hierarchy::CodecParams,
     stored: &'a [Vec<DiamondId>],
     recorded: &'a [BTreeSet<DiamondId>],
-    apex: &'a Apex,
+    apex: &'a PlanetApex,
     cut: u8,
     side: i64,
     /// The tiles' rectangles on every face.

@@ -13,7 +13,10 @@
 mod blocks;
 mod grid;
 
-pub use blocks::{PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks, thinned};
+pub use blocks::{
+    PlanetApex, PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks,
+    thinned,
+};
 
 pub use grid::{MAX_TILES_ACROSS, PlanetGrid, PlanetTile, TILE_MIN_LOG2, tile_log2, tile_of};
 
