@@ -51,10 +51,10 @@ pub struct ServeArgs {
     /// closes the least recently active connection of the client address holding the most.
     #[arg(long, default_value_t = 10_000)]
     max_connections: usize,
-    /// Most samples a repository's decoded levels may hold to be served as web-map tiles
-    /// (docs/WEB-MAPS.md): its surface is decoded whole, 4 bytes a sample, on the first
-    /// quantized-mesh request (a plane's raster tiles decode windows). Larger repositories
-    /// answer 404 for tiles, naming the limit.
+    /// Most samples a repository's decoded levels (4 bytes a sample) may hold for web-map tiles
+    /// (docs/WEB-MAPS.md) to decode them whole, in the background after the first tile; past
+    /// it, every tile decodes only the records within its reach (a repository without records
+    /// past it answers 404 for tiles, naming the limit).
     #[arg(long, default_value_t = 1 << 28)]
     max_tile_samples: u64,
     /// The browser viewer's files (the bundle `scripts/web-build.sh` writes, e.g.

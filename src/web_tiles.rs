@@ -86,7 +86,14 @@ pub fn run(args: &TilesArgs) -> Result<()> {
         _ => (Scheme::WebMercator, tiler.raster_max_zoom(tile)),
     };
     let max_zoom = args.max_zoom.unwrap_or(deepest).min(deepest);
-    let tiles = tile_list(scheme, tiler.bounds(), max_zoom);
+    let tiles = match scheme {
+        // The tiles `layer.json` lists (its `available`, from the repository's records).
+        Scheme::Geographic => (tiler.available().tiles().into_iter())
+            .filter(|t| t.z <= max_zoom)
+            .map(|t| (u32::from(t.z), t.x, t.y))
+            .collect(),
+        Scheme::WebMercator => tile_list(tiler.bounds(), max_zoom),
+    };
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
     write_document(args, &tiler, &name, tile)?;
@@ -126,15 +133,11 @@ pub fn run(args: &TilesArgs) -> Result<()> {
     Ok(())
 }
 
-/// Every tile of levels `0..=max_zoom` of `scheme` that meets `bounds`, and both
-/// quantized-mesh root tiles (CesiumJS asks for them whatever the data covers).
-fn tile_list(scheme: Scheme, bounds: [f64; 4], max_zoom: u8) -> Vec<(u32, u32, u32)> {
+/// Every Web Mercator tile of levels `0..=max_zoom` that meets `bounds`.
+fn tile_list(bounds: [f64; 4], max_zoom: u8) -> Vec<(u32, u32, u32)> {
+    let scheme = Scheme::WebMercator;
     let mut out = Vec::new();
-    if scheme == Scheme::Geographic {
-        out.extend([(0, 0, 0), (0, 1, 0)]);
-    }
-    let first = if scheme == Scheme::Geographic { 1 } else { 0 };
-    for z in first..=max_zoom {
+    for z in 0..=max_zoom {
         let Some((x0, y0, x1, y1)) = scheme.range(z, bounds) else {
             continue;
         };

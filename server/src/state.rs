@@ -45,9 +45,9 @@ pub struct Config {
     /// file-descriptor limit allows). A connection beyond it closes the least recently active
     /// one of the client address holding the most connections (see [`crate::run`]).
     pub max_connections: usize,
-    /// Most samples a repository's decoded levels may hold for it to be served as web-map
-    /// tiles (its surface is decoded whole, 4 bytes a sample, on the first quantized-mesh
-    /// request or a planet's first tile).
+    /// Most samples a repository's decoded levels (4 bytes a sample) may hold for the tiles to
+    /// decode them whole in the background after the first tile request; past it, tiles keep
+    /// decoding windows (a repository without records, which has no windows, is refused).
     pub max_tile_samples: u64,
     /// Repositories opened from files whose records areas take at most this many bytes in
     /// all (in the order given) are read into memory when opened (`--hold-records`): records

@@ -3,8 +3,9 @@
 //!
 //! The tile maths live in `cbdam-tiles`; this module reads a repository's records once, on the
 //! first tile request (through the server's checked reads), keeps its `Tiler` for the server's
-//! life, and answers each tile on a blocking thread: a plane's raster tile decodes the records
-//! within its reach, quantized-mesh tiles and `layer.json` the whole surface, once.
+//! life, and answers each tile on a blocking thread. The first tiles decode the records within
+//! their reach while the whole surface is decoded in the background (when it fits
+//! `max_tile_samples`); tiles then read it. The bytes are the same either way.
 
 use std::sync::{Arc, OnceLock};
 
@@ -29,8 +30,10 @@ const REVALIDATE: &str = "no-cache";
 pub(crate) const LEVEL_HEADER: &str = "cbdam-level";
 /// Pixels of a raster tile whose height the encoding had to clamp (response header).
 pub(crate) const CLAMPED_HEADER: &str = "cbdam-clamped-pixels";
-/// A mesh tile's measured |mesh − finest level|, metres (response header).
+/// A mesh tile's measured |mesh − the repository level sampled|, metres (response header).
 pub(crate) const DEVIATION_HEADER: &str = "cbdam-deviation-m";
+/// Vertices of a mesh tile clamped to the header's height range (response header).
+pub(crate) const CLAMPED_VERTICES_HEADER: &str = "cbdam-clamped-vertices";
 
 /// A served repository's tiler, built on first use: `Err` keeps why it could not be.
 pub(crate) type TilerCell = OnceLock<Result<Arc<Tiler>, String>>;
@@ -100,7 +103,8 @@ async fn tiler(st: &AppState, r: &Arc<ServedRepo>) -> Result<Arc<Tiler>, ApiErro
     Tiler::check(r.repo.head()).map_err(api_error)?;
     let samples = Surface::samples(&r.repo.head().params().domain);
     let cap = st.config().max_tile_samples;
-    if samples > cap {
+    // Only a repository without records is decoded whole (tiles decode windows otherwise).
+    if samples > cap && r.repo.head().entries().is_empty() {
         return Err(ApiError::NotFound(format!(
             "repository {:?} is too large to serve as web-map tiles: its decoded levels hold \
              {samples} samples, more than this server's limit of {cap}",
@@ -108,13 +112,22 @@ async fn tiler(st: &AppState, r: &Arc<ServedRepo>) -> Result<Arc<Tiler>, ApiErro
         )));
     }
     let (st2, r2) = (st.clone(), Arc::clone(r));
+    let whole_fits = samples <= cap;
     let built = tokio::task::spawn_blocking(move || {
         r2.tiles
             .get_or_init(|| {
                 let encoded = encoded(&st2, &r2)?;
-                let t = Tiler::new(r2.repo.head(), encoded).map_err(|e| e.to_string())?;
+                let t = Arc::new(Tiler::new(r2.repo.head(), encoded).map_err(|e| e.to_string())?);
                 tracing::info!(repo = %r2.name, "records read for web-map tiles");
-                Ok(Arc::new(t))
+                if whole_fits {
+                    // Tiles decode windows until the whole surface is there, then read it.
+                    let (t2, name) = (Arc::clone(&t), r2.name.clone());
+                    tokio::task::spawn_blocking(move || match t2.surface() {
+                        Ok(_) => tracing::info!(repo = %name, "surface decoded for web-map tiles"),
+                        Err(e) => tracing::warn!(repo = %name, "decoding for tiles: {e}"),
+                    });
+                }
+                Ok(t)
             })
             .clone()
     })
@@ -335,6 +348,10 @@ async fn terrain(
     h.insert(
         HeaderName::from_static(DEVIATION_HEADER),
         number(format!("{:.4}", made.deviation)),
+    );
+    h.insert(
+        HeaderName::from_static(CLAMPED_VERTICES_HEADER),
+        number(made.clamped),
     );
     Ok(tile_response(r, req.headers(), h, body))
 }

@@ -135,6 +135,15 @@ fn read_qm(b: &[u8]) -> Qm {
 }
 
 impl Qm {
+    /// Latitude and longitude of vertex `k` of tile `z/x/y` at the 64-cell grid position its
+    /// u/v rounds (where the server took its height; u/v are that position quantized, at most
+    /// 1/65 534 of the tile off).
+    fn grid_lat_lon(&self, k: usize, (z, x, y): (u32, u32, u32)) -> (f64, f64) {
+        let size = 180.0 / f64::from(1u32 << z);
+        let (w, s) = (-180.0 + f64::from(x) * size, -90.0 + f64::from(y) * size);
+        let cell = |q: u16| (f64::from(q) * 64.0 / 32767.0).round() / 64.0;
+        (s + cell(self.v[k]) * size, w + cell(self.u[k]) * size)
+    }
     fn height(&self, k: usize) -> f64 {
         self.min_h + f64::from(self.h[k]) / 32767.0 * (self.max_h - self.min_h)
     }
@@ -183,7 +192,21 @@ async fn fetch(s: &Running, name: &str, (z, x, y): (u32, u32, u32), accept: &str
         .await
         .unwrap();
     assert_eq!(again.status(), 304);
+    assert_eq!(h["cbdam-clamped-vertices"], "0", "{url}: vertices clamped");
     read_qm(&raw)
+}
+
+/// Whether `layer.json`'s `available` lists tile `z/x/y`.
+fn listed(layer: &Value, (z, x, y): (u32, u32, u32)) -> bool {
+    let at = |r: &Value, k: &str| r[k].as_u64().unwrap() as u32;
+    layer["available"][z as usize]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|r| {
+            (at(r, "startX")..=at(r, "endX")).contains(&x)
+                && (at(r, "startY")..=at(r, "endY")).contains(&y)
+        })
 }
 
 /// What holds for every tile by itself.
@@ -317,10 +340,7 @@ async fn quantized_mesh_tiles_decode_and_hold_the_input() {
     let (lat, lon) = (0.5 * (b[1] + b[3]), 0.5 * (b[0] + b[2]));
     let a = tile_at(max, lat, lon);
     // The neighbour east, or west when the data ends there.
-    let avail = &layer["available"][max as usize][0];
-    let in_range = |x: u32| {
-        x >= avail["startX"].as_u64().unwrap() as u32 && x <= avail["endX"].as_u64().unwrap() as u32
-    };
+    let in_range = |x: u32| listed(&layer, (max, x, a.2));
     let (west, east) = if in_range(a.1 + 1) {
         (a, (max, a.1 + 1, a.2))
     } else {
@@ -361,12 +381,12 @@ async fn quantized_mesh_tiles_decode_and_hold_the_input() {
     let meta = metadata(&tc);
     let children = meta["available"][0].as_array().unwrap();
     assert!(!children.is_empty());
-    let below = &layer["available"][coarse.0 as usize + 1][0];
     for c in children {
-        for (k, lo, hi) in [("startX", "startX", "endX"), ("startY", "startY", "endY")] {
-            let v = c[k].as_u64().unwrap();
-            assert!(v >= below[lo].as_u64().unwrap() && v <= below[hi].as_u64().unwrap());
-        }
+        let (x, y) = (c["startX"].as_u64().unwrap(), c["startY"].as_u64().unwrap());
+        assert!(
+            listed(&layer, (coarse.0 + 1, x as u32, y as u32)),
+            "child {c}"
+        );
     }
     // A root tile far from the data exists (CesiumJS asks for both) and lies at 0 m.
     let far = fetch(&s, "d", (0, 0, 0), ACCEPT_ALL).await;
@@ -516,5 +536,218 @@ async fn planets_are_tiled_whole_with_matching_root_edges() {
         compared += 1;
     }
     assert!(compared > 30_000, "{compared}");
+    s.stop().await;
+}
+
+/// A variable-resolution planet: samples every 4 lattice steps (a coarse input) everywhere
+/// but around a hill on face 0, where every lattice point is one (an inset), so that its records
+/// stop 4 levels above the finest away from the hill.
+fn island_planet() -> (Repository, QuantPlan, impl Fn(u8, i64, i64) -> f64) {
+    use cbdam_codec::hierarchy::Resolution;
+    use cbdam_codec::hierarchy::resolution::COARSE_ONLY;
+    let plan = QuantPlan::new(0.5, Some(0.5), -100.0, 2000.0).unwrap();
+    let (n, k) = (17usize, 4u32);
+    let side = ((n - 1) << k) as i64;
+    let domain = cbdam_codec::geometry::Domain::cube_sphere(n, k).unwrap();
+    let height = move |face: u8, x: i64, y: i64| -> f64 {
+        let (s, t) = (x as f64 / side as f64 - 0.4, y as f64 / side as f64 - 0.6);
+        let r2 = (s * s + t * t) / 0.01;
+        let wave = 30.0 * (7.0 * s).sin() * (5.0 * t + f64::from(face)).cos();
+        if face != 0 || r2 >= 1.0 {
+            return wave;
+        }
+        wave + 1500.0 * (1.0 - r2).powi(2) + 80.0 * (40.0 * s).sin() * (30.0 * t).cos() * (1.0 - r2)
+    };
+    let class = move |p: cbdam_codec::geometry::FacePoint| {
+        let (s, t) = (
+            p.x as f64 / side as f64 - 0.4,
+            p.y as f64 / side as f64 - 0.6,
+        );
+        if p.face == 0 && (s * s + t * t) < 0.02 {
+            0
+        } else if p.x % 4 == 0 && p.y % 4 == 0 {
+            2
+        } else {
+            COARSE_ONLY
+        }
+    };
+    let grid = PlanetGrid::from_fn(n, k, |p| {
+        (class(p) < 32)
+            .then(|| ((height(p.face, p.x, p.y) - plan.offset) / plan.unit).round() as i32)
+    })
+    .unwrap();
+    let classes: Vec<Resolution> = (0..6u8)
+        .map(|f| Resolution {
+            class: (0..=side)
+                .flat_map(|y| (0..=side).map(move |x| (x, y)))
+                .map(|(x, y)| class(domain.canonical_point(f, x, y).unwrap()))
+                .collect(),
+        })
+        .collect();
+    let grid = grid.with_classes(classes).unwrap();
+    let opts = EncodeOptions {
+        n,
+        ..EncodeOptions::default()
+    };
+    let enc = encode_planet(&grid, plan.quantizer, &opts).unwrap();
+    let repo = Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap();
+    (repo, plan, height)
+}
+
+/// `available` follows the records: at `maxzoom` only the tiles over the hill exist, the
+/// ocean's stop at a coarser level; listed tiles are a tree and answer 200 (decoded from face
+/// windows, within the bound of the planet's heights), others 404.
+#[tokio::test]
+async fn available_follows_a_variable_resolution_planets_records() {
+    let (repo, plan, height) = island_planet();
+    let side = 256i64;
+    let s = serve(vec![("p", repo)]).await;
+    let layer = get_json(&s, "/v1/repos/p/quantized-mesh/layer.json").await;
+    let max = layer["maxzoom"].as_u64().unwrap() as u32;
+    assert!(max >= 3, "maxzoom {max}");
+    let bound = layer["cbdam"]["vertex_bound_m"].as_f64().unwrap();
+    let hill = cbdam_codec::geodesy::cube_map::face_st_to_lat_lon(0, 0.4, 0.6);
+    let mut counts = Vec::new();
+    for z in 0..=max {
+        let all: Vec<(u32, u32, u32)> = (0..2u32 << z)
+            .flat_map(|x| (0..1u32 << z).map(move |y| (z, x, y)))
+            .collect();
+        let on: Vec<_> = all.iter().copied().filter(|&t| listed(&layer, t)).collect();
+        for &(z, x, y) in &on {
+            if z > 0 {
+                assert!(
+                    listed(&layer, (z - 1, x / 2, y / 2)),
+                    "{z}/{x}/{y} without its parent"
+                );
+            }
+        }
+        counts.push((on.len(), all.len()));
+    }
+    let (deep, total) = counts[max as usize];
+    assert!(
+        deep > 0 && deep * 8 < total,
+        "maxzoom lists {deep} of {total} tiles"
+    );
+    assert_eq!(counts[0].0, 2);
+    // A listed maxzoom tile over the hill: decoded, within the bound of the planet's heights.
+    let near = tile_at(max, hill.lat, hill.lon);
+    assert!(
+        listed(&layer, near),
+        "the hill's tile {near:?} is not listed"
+    );
+    let t = fetch(&s, "p", near, ACCEPT_ALL).await;
+    check_tile(&t, near);
+    // Bilinear between the planet's lattice values: the surface's, within the bound.
+    let q = |face: u8, c: i64, r: i64| {
+        plan.metres(((height(face, c, r) - plan.offset) / plan.unit).round() as i32)
+    };
+    let mut compared = 0;
+    for k in 0..t.u.len() {
+        let (lat, lon) = t.grid_lat_lon(k, near);
+        let (face, fs, ft) = lat_lon_to_face_st(LatLon { lat, lon });
+        let (x, y) = (fs * side as f64, ft * side as f64);
+        let (c, r) = (x.floor() as i64, y.floor() as i64);
+        // Inside the inset (its fine samples), away from its coarse surroundings.
+        let (ds, dt) = (fs - 0.4, ft - 0.6);
+        if face != 0 || ds * ds + dt * dt >= 0.015 {
+            continue;
+        }
+        let (tx, ty) = (x - c as f64, y - r as f64);
+        let expected = (1.0 - ty) * ((1.0 - tx) * q(face, c, r) + tx * q(face, c + 1, r))
+            + ty * ((1.0 - tx) * q(face, c, r + 1) + tx * q(face, c + 1, r + 1));
+        let got = t.height(k);
+        assert!(
+            (got - expected).abs() <= bound + 1e-6,
+            "vertex {k}: {got} m against {expected} m, bound {bound}"
+        );
+        compared += 1;
+    }
+    assert!(compared > 1000, "{compared} vertices compared");
+    // A maxzoom tile over the ocean is not listed, and answers 404 naming `available`.
+    let ocean = tile_at(max, -60.0, -150.0);
+    assert!(!listed(&layer, ocean));
+    let r = client()
+        .get(s.url(&format!(
+            "/v1/repos/p/quantized-mesh/{}/{}/{}.terrain",
+            ocean.0, ocean.1, ocean.2
+        )))
+        .send()
+        .await
+        .unwrap();
+    let msg = error_body(r, 404).await;
+    assert!(msg.contains("not available"), "{msg}");
+    s.stop().await;
+}
+
+/// Heights of a planet at sea level everywhere (0 m orthometric), built as `cbdam build
+/// --planet` records its datum, and the repository.
+fn sea_level_planet(dir: &std::path::Path) -> Repository {
+    use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
+    let plan = QuantPlan::new(0.5, Some(0.5), -100.0, 100.0).unwrap();
+    let (n, k) = (9usize, 4u32);
+    let grid =
+        PlanetGrid::from_fn(n, k, |_| Some((-plan.offset / plan.unit).round() as i32)).unwrap();
+    let opts = EncodeOptions {
+        n,
+        ..EncodeOptions::default()
+    };
+    let enc = encode_planet(&grid, plan.quantizer, &opts).unwrap();
+    let path = dir.join("sea.cbdam");
+    let provenance = PlanetProvenance {
+        vertical_datum: VerticalDatum::Orthometric,
+        resampling_max: 0.0,
+        resampling_rms: 0.0,
+    };
+    write_planet_repository(&path, &enc, &plan, None, &provenance).unwrap();
+    Repository::open(&path).unwrap()
+}
+
+/// An orthometric repository's Cesium tiles stand on the geoid: at sea level every vertex is
+/// EGM96's undulation above the ellipsoid (within the stated bound, which counts the geoid
+/// grid's error), `layer.json` says so, and MapLibre's terrarium tiles stay at 0 m.
+#[tokio::test]
+async fn orthometric_heights_are_raised_onto_the_ellipsoid_for_cesium_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = serve(vec![("p", sea_level_planet(dir.path()))]).await;
+    let layer = get_json(&s, "/v1/repos/p/quantized-mesh/layer.json").await;
+    assert_eq!(layer["cbdam"]["height_datum"], "ellipsoidal");
+    assert_eq!(layer["cbdam"]["repository_datum"], "orthometric");
+    let geoid_error = layer["cbdam"]["geoid_error_m"].as_f64().unwrap();
+    assert!(geoid_error > 0.0);
+    let bound = layer["cbdam"]["vertex_bound_m"].as_f64().unwrap();
+    // Over the Indian Ocean's low (about −100 m) and New Guinea's high (about +70 m).
+    let mut extremes = (f64::INFINITY, f64::NEG_INFINITY);
+    for (lat, lon) in [(5.0, 78.0), (-5.0, 145.0), (48.86, 2.35)] {
+        let zxy = tile_at(2, lat, lon);
+        let t = fetch(&s, "p", zxy, ACCEPT_ALL).await;
+        check_tile(&t, zxy);
+        for k in 0..t.u.len() {
+            let (lat, lon) = t.grid_lat_lon(k, zxy);
+            let n = cbdam_tiles::geoid::undulation(lat, lon);
+            let got = t.height(k);
+            assert!(
+                (got - n).abs() <= bound - geoid_error + 1e-6,
+                "vertex {k}: {got} m, N {n} m"
+            );
+            extremes = (extremes.0.min(got), extremes.1.max(got));
+        }
+    }
+    assert!(extremes.0 < -80.0 && extremes.1 > 50.0, "{extremes:?}");
+    // MapLibre's terrarium tiles: heights above sea level, unconverted.
+    let r = client()
+        .get(s.url("/v1/repos/p/terrarium/0/0/0.png"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    let mut dec = png::Decoder::new(std::io::Cursor::new(r.bytes().await.unwrap()))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; dec.output_buffer_size().unwrap()];
+    dec.next_frame(&mut buf).unwrap();
+    for p in buf.chunks_exact(3) {
+        let h = f64::from(p[0]) * 256.0 + f64::from(p[1]) + f64::from(p[2]) / 256.0 - 32768.0;
+        assert!(h.abs() <= 0.5 + 1.0 / 512.0, "terrarium pixel at {h} m");
+    }
     s.stop().await;
 }

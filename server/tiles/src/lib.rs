@@ -12,6 +12,8 @@
 //! guide.
 #![deny(missing_docs)]
 
+pub mod coverage;
+pub mod geoid;
 pub mod place;
 pub mod quantized_mesh;
 pub mod raster;

@@ -15,8 +15,9 @@
 use cbdam_codec::geodesy::Geodetic;
 use cbdam_codec::geodesy::wgs84::{A, B};
 
+use crate::coverage::Availability;
 use crate::place::{Placement, coarsen_for};
-use crate::schemes::{Scheme, TileId};
+use crate::schemes::TileId;
 use crate::surface::Surface;
 
 /// Cells along each side of a tile (CesiumJS's own heightmap tiles are 65 × 65 samples).
@@ -29,7 +30,7 @@ pub const EXT_NORMALS: u8 = 1;
 pub const EXT_METADATA: u8 = 4;
 
 /// Metres of one degree of latitude (mean), for level choice.
-const METRES_PER_DEGREE: f64 = 111_132.954;
+pub const METRES_PER_DEGREE: f64 = 111_132.954;
 
 /// What a tile needs besides the surface.
 pub struct TileRequest<'a> {
@@ -50,9 +51,12 @@ pub struct MeshTile {
     pub level: u8,
     /// Metres between consecutive quantized heights.
     pub height_step: f64,
-    /// Largest |mesh − finest level| measured at the vertices and at the midpoints of the
-    /// cells' edges and diagonals, metres (heights before quantization).
+    /// Largest |mesh − the repository level sampled| measured at the vertices and at the
+    /// midpoints of the cells' edges and diagonals, metres (heights before quantization); at
+    /// `maxzoom` that level is the finest.
     pub deviation: f64,
+    /// Vertices whose height fell outside the header's range and were clamped to it.
+    pub clamped: u64,
 }
 
 /// The first geographic level whose vertices are no farther apart than the data's finest
@@ -62,76 +66,100 @@ pub fn max_zoom(place: &Placement) -> u8 {
     (ratio.log2().ceil().max(0.0) as u8).min(crate::schemes::MAX_ZOOM)
 }
 
-/// The height range every tile's header states: the surface's and 0 m, never empty.
-pub fn height_range(surface: &Surface) -> (f64, f64) {
-    // 0 m included: the height of vertices without data (a plane's surroundings).
-    let (lo, hi) = surface.range().unwrap_or((0.0, 0.0));
-    let (lo, hi) = (lo.min(0.0), hi.max(0.0));
-    // Rounded outwards to whole metres so that the header's f32 holds them exactly.
-    let (lo, hi) = (lo.floor(), hi.ceil());
-    if hi > lo { (lo, hi) } else { (lo, lo + 1.0) }
+/// The height range every tile's header states, from the smallest and largest height the
+/// repository's records hold (`None`: no record): widened by an eighth of its span (at least
+/// 8 m) each way for the heights of unstored leaves between them, 0 m included (vertices
+/// without data), rounded outwards to whole metres (the header's f32 holds them exactly). A
+/// height that still falls outside is clamped and counted ([`MeshTile::clamped`]).
+pub fn height_range(records: Option<(f64, f64)>) -> (f64, f64) {
+    let (lo, hi) = records.unwrap_or((0.0, 0.0));
+    let pad = (0.125 * (hi - lo)).max(8.0);
+    let (lo, hi) = ((lo - pad).min(0.0), (hi + pad).max(0.0));
+    (lo.floor(), hi.ceil())
+}
+
+/// The level index ([`Surface::levels`]) the vertices of a level-`z` tile sample: the coarsest
+/// whose spacing is no larger than theirs.
+pub fn coarsen_at(place: &Placement, z: u8) -> usize {
+    let cell_deg = 180.0 / f64::from(1u32 << z) / f64::from(GRID);
+    coarsen_for(place.spacing_m(), cell_deg * METRES_PER_DEGREE)
+}
+
+/// The lattice position of every vertex of tile `t`, row by row from the south (`None` where
+/// the repository's CRS cannot place it).
+pub fn vertex_positions(place: &Placement, t: TileId) -> Vec<Option<(u8, f64, f64)>> {
+    let n = (GRID + 1) as usize;
+    let mut out = Vec::with_capacity(n * n);
+    for j in 0..n {
+        for i in 0..n {
+            let (lat, lon) = vertex_lat_lon(t, i as f64, j as f64);
+            out.push(place.locate(lat, lon));
+        }
+    }
+    out
 }
 
 /// The grid's vertex heights (before quantization), row by row from the south, and the
 /// finest level used.
-fn vertex_heights(surface: &Surface, place: &Placement, t: TileId) -> (Vec<f64>, u8) {
-    let n = (GRID + 1) as usize;
-    let cell_deg = 180.0 / f64::from(1u32 << t.z) / f64::from(GRID);
-    let coarsen = coarsen_for(place.spacing_m(), cell_deg * METRES_PER_DEGREE);
+fn vertex_heights(
+    surface: Option<&Surface>,
+    positions: &[Option<(u8, f64, f64)>],
+    coarsen: usize,
+) -> (Vec<f64>, u8) {
     let mut level = u8::MAX;
-    let mut heights = Vec::with_capacity(n * n);
-    for j in 0..n {
-        for i in 0..n {
-            let (lat, lon) = vertex_lat_lon(t, i as f64, j as f64);
-            let h = height_at(surface, place, lat, lon, coarsen);
+    let heights = positions
+        .iter()
+        .map(|&at| {
+            let h = height_at(surface, at, coarsen);
             level = level.min(h.1);
-            heights.push(h.0);
-        }
-    }
+            h.0
+        })
+        .collect();
     (heights, if level == u8::MAX { 0 } else { level })
 }
 
 /// Latitude and longitude of grid position `(i, j)` of tile `t` (fractional for midpoints),
 /// from the global grid index so that neighbours compute the same bits.
-fn vertex_lat_lon(t: TileId, i: f64, j: f64) -> (f64, f64) {
+pub fn vertex_lat_lon(t: TileId, i: f64, j: f64) -> (f64, f64) {
     let cell_deg = 180.0 / f64::from(1u32 << t.z) / f64::from(GRID);
     let gx = f64::from(t.x) * f64::from(GRID) + i;
     let gy = f64::from(t.y) * f64::from(GRID) + j;
     ((-90.0 + gy * cell_deg).min(90.0), -180.0 + gx * cell_deg)
 }
 
-/// The height at a point: the surface's, 0 m (the ellipsoid) where there is no data (outside
-/// a plane's data, beyond half a sample); and the level used (`u8::MAX` for none).
-fn height_at(
-    surface: &Surface,
-    place: &Placement,
-    lat: f64,
-    lon: f64,
-    coarsen: usize,
-) -> (f64, u8) {
-    place
-        .locate(lat, lon)
-        .and_then(|(face, x, y)| surface.height(face, x, y, coarsen))
+/// The height at a lattice position: the surface's, 0 m (the ellipsoid) where there is no
+/// data (outside a plane's data, beyond half a sample); and the level used (`u8::MAX` for
+/// none).
+fn height_at(surface: Option<&Surface>, at: Option<(u8, f64, f64)>, coarsen: usize) -> (f64, u8) {
+    surface
+        .zip(at)
+        .and_then(|(s, (face, x, y))| s.height(face, x, y, coarsen))
         .unwrap_or((0.0, u8::MAX))
 }
 
-/// Largest |mesh − finest level| at the vertices and at the midpoints of every cell's edges
-/// and diagonal (where the triangles interpolate), metres, over the points where the mesh's
-/// vertices and the finest level all hold data (a plane's edge, a wall down to 0 m, is not
-/// counted).
-fn measure_deviation(surface: &Surface, place: &Placement, t: TileId, heights: &[f64]) -> f64 {
+/// Largest |mesh − the level sampled| at the vertices and at the midpoints of every cell's
+/// edges and diagonal (where the triangles interpolate), metres, over the points where the
+/// mesh's vertices and that level all hold data (a plane's edge, a wall down to 0 m, is not
+/// counted). At `maxzoom` the level sampled is the finest.
+fn measure_deviation(
+    surface: Option<&Surface>,
+    place: &Placement,
+    t: TileId,
+    heights: &[f64],
+    coarsen: usize,
+) -> f64 {
     let n = (GRID + 1) as usize;
-    let finest = |i: f64, j: f64| {
+    let level_at = |i: f64, j: f64| {
         let (lat, lon) = vertex_lat_lon(t, i, j);
-        let (h, level) = height_at(surface, place, lat, lon, 0);
+        let (h, level) = height_at(surface, place.locate(lat, lon), coarsen);
         (level != u8::MAX).then_some(h)
     };
     let vertex: Vec<Option<f64>> = (0..n * n)
-        .map(|k| finest((k % n) as f64, (k / n) as f64).map(|_| heights[k]))
+        .map(|k| level_at((k % n) as f64, (k / n) as f64).map(|_| heights[k]))
         .collect();
     let mut worst = 0.0f64;
     let mut compare = |a: usize, b: usize, i: f64, j: f64| {
-        if let (Some(ha), Some(hb), Some(f)) = (vertex[a], vertex[b], finest(i, j)) {
+        if let (Some(ha), Some(hb), Some(f)) = (vertex[a], vertex[b], level_at(i, j)) {
             worst = worst.max((0.5 * (ha + hb) - f).abs());
         }
     };
@@ -155,13 +183,51 @@ fn measure_deviation(surface: &Surface, place: &Placement, t: TileId, heights: &
     worst
 }
 
-/// Builds tile `req.tile` of `surface`.
-pub fn build(surface: &Surface, place: &Placement, req: &TileRequest<'_>) -> MeshTile {
+/// Adds EGM96's undulation to the heights of the vertices with data (those without stay on
+/// the ellipsoid, at 0 m).
+fn raise_onto_ellipsoid(at: &TileHeights<'_>, t: TileId, heights: &mut [f64]) {
+    let n = (GRID + 1) as usize;
+    for (k, h) in heights.iter_mut().enumerate() {
+        if has_data(at, k) {
+            let (lat, lon) = vertex_lat_lon(t, (k % n) as f64, (k / n) as f64);
+            *h += crate::geoid::undulation(lat, lon);
+        }
+    }
+}
+
+/// Whether vertex `k` has a height from the surface.
+fn has_data(at: &TileHeights<'_>, k: usize) -> bool {
+    height_at(at.surface, at.positions[k], at.coarsen).1 != u8::MAX
+}
+
+/// What [`build`] samples.
+pub struct TileHeights<'a> {
+    /// The surface, holding the tile's level and coarser ones around its vertices (`None`:
+    /// no vertex on the data).
+    pub surface: Option<&'a Surface>,
+    /// The vertices' lattice positions ([`vertex_positions`]).
+    pub positions: &'a [Option<(u8, f64, f64)>],
+    /// The level index ([`Surface::levels`]) the vertices sample ([`coarsen_at`]).
+    pub coarsen: usize,
+    /// The header's height range, metres ([`height_range`]).
+    pub range: (f64, f64),
+    /// Whether to add EGM96's undulation to the heights of vertices with data (an orthometric
+    /// repository's tiles for CesiumJS, which draws heights above the ellipsoid).
+    pub to_ellipsoid: bool,
+}
+
+/// Builds tile `req.tile` from `at`.
+pub fn build(at: &TileHeights<'_>, place: &Placement, req: &TileRequest<'_>) -> MeshTile {
     let t = req.tile;
     let n = (GRID + 1) as usize;
-    let (heights, level) = vertex_heights(surface, place, t);
-    let deviation = measure_deviation(surface, place, t, &heights);
-    let (lo, hi) = height_range(surface);
+    let (heights, level) = vertex_heights(at.surface, at.positions, at.coarsen);
+    let deviation = measure_deviation(at.surface, place, t, &heights, at.coarsen);
+    let mut heights = heights;
+    if at.to_ellipsoid {
+        raise_onto_ellipsoid(at, t, &mut heights);
+    }
+    let (lo, hi) = at.range;
+    let clamped = heights.iter().filter(|&&h| !(lo..=hi).contains(&h)).count() as u64;
     let quantize =
         |h: f64| (((h - lo) / (hi - lo)).clamp(0.0, 1.0) * f64::from(QMAX)).round() as u16;
     let grid_q = |k: usize| ((k as u32 * QMAX + GRID / 2) / GRID) as u16;
@@ -227,6 +293,7 @@ pub fn build(surface: &Surface, place: &Placement, req: &TileRequest<'_>) -> Mes
         level,
         height_step: (hi - lo) / f64::from(QMAX),
         deviation,
+        clamped,
     }
 }
 
@@ -388,27 +455,26 @@ pub fn oct_encode(v: [f64; 3]) -> [u8; 2] {
     [snorm(x), snorm(y)]
 }
 
-/// The child tiles of `t` that exist at level `z + 1` among those available, as the
-/// metadata extension's `available` (one level: ranges in TMS rows, from the south).
-pub fn child_availability(t: TileId, bounds: [f64; 4], max_zoom: u8) -> serde_json::Value {
-    if t.z >= max_zoom {
-        return serde_json::json!([]);
-    }
-    let z = t.z + 1;
+/// The child tiles of `t` that `available` lists, as the metadata extension's `available`
+/// (one level: ranges in TMS rows, from the south).
+pub fn child_availability(t: TileId, available: &Availability) -> serde_json::Value {
     let mut ranges = Vec::new();
     for dy in 0..2 {
         for dx in 0..2 {
             let c = TileId {
-                z,
+                z: t.z + 1,
                 x: 2 * t.x + dx,
                 y: 2 * t.y + dy,
             };
-            if Scheme::Geographic.meets(c, bounds) {
+            if t.z < available.max_zoom() && available.has(c) {
                 ranges.push(serde_json::json!({
                     "startX": c.x, "startY": c.y, "endX": c.x, "endY": c.y
                 }));
             }
         }
+    }
+    if ranges.is_empty() {
+        return serde_json::json!([]);
     }
     serde_json::json!([ranges])
 }

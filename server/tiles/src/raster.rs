@@ -152,13 +152,18 @@ pub fn render(
     tile: u32,
     encoding: Encoding,
 ) -> Result<RasterTile, TilesError> {
-    render_plan(surface, &PixelPlan::of(place, t, tile), tile, encoding)
+    render_plan(
+        Some(surface),
+        &PixelPlan::of(place, t, tile),
+        tile,
+        encoding,
+    )
 }
 
 /// Renders the pixels `plan` places (a tile of `tile` pixels) from `surface`, which holds the
-/// plan's level and coarser ones wherever its pixels lie.
+/// plan's level and coarser ones wherever its pixels lie (`None`: no pixel on the data).
 pub fn render_plan(
-    surface: &Surface,
+    surface: Option<&Surface>,
     plan: &PixelPlan,
     tile: u32,
     encoding: Encoding,
@@ -167,7 +172,9 @@ pub fn render_plan(
     let (mut clamped, mut nodata, mut level) = (0u64, 0u64, u8::MAX);
     let zero = encoding.encode(0.0).0;
     for (px, at) in rgba.chunks_exact_mut(4).zip(&plan.positions) {
-        let h = at.and_then(|(face, x, y)| surface.height(face, x, y, plan.coarsen));
+        let h = surface
+            .zip(*at)
+            .and_then(|(s, (face, x, y))| s.height(face, x, y, plan.coarsen));
         match h {
             Some((h, l)) => {
                 let (rgb, c) = encoding.encode(h);

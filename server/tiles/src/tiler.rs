@@ -1,8 +1,9 @@
 //! One repository's surface placed on the Earth, answering web-map tile requests and their
 //! TileJSON / `layer.json` documents. Built once, then shared: it holds the repository's
-//! records; a plane's raster tile decodes only the records within reach of its pixels, while
-//! quantized-mesh tiles (whose heights are quantized over the whole repository's range) and
-//! planets decode every even level once, on first use.
+//! records and which quantized-mesh tiles exist ([`Availability`]); each tile decodes only
+//! the records within reach of its pixels or vertices (a plane's window, a planet's face
+//! windows). An exporter that makes every tile decodes every even level once instead
+//! ([`Tiler::surface`]), to the same samples.
 
 use std::sync::OnceLock;
 
@@ -13,8 +14,10 @@ use cbdam_codec::repository::{RepositoryHead, VerticalDatum};
 use serde_json::{Value, json};
 
 use crate::TilesError;
+use crate::coverage::Availability;
+use crate::geoid;
 use crate::place::Placement;
-use crate::quantized_mesh::{self, MeshTile, TileRequest};
+use crate::quantized_mesh::{self, MeshTile, TileHeights, TileRequest};
 use crate::raster::{self, Encoding, PixelPlan, RasterTile};
 use crate::schemes::{MERCATOR_MAX_LAT, Scheme, TileId, cesium_level_error};
 use crate::surface::{RecordIndex, Surface};
@@ -36,6 +39,28 @@ pub struct Tiler {
     max_error: f64,
     datum: VerticalDatum,
     mesh_max_zoom: u8,
+    /// The header height range of every quantized-mesh tile, metres.
+    mesh_range: (f64, f64),
+    /// The quantized-mesh tiles that exist, level by level.
+    available: Availability,
+}
+
+/// The heights a tile samples: the whole surface, a window decoded for it, or none (no pixel
+/// or vertex on the data).
+enum Held<'a> {
+    Whole(&'a Surface),
+    Window(Surface),
+    Nothing,
+}
+
+impl Held<'_> {
+    fn get(&self) -> Option<&Surface> {
+        match self {
+            Held::Whole(s) => Some(s),
+            Held::Window(s) => Some(s),
+            Held::Nothing => None,
+        }
+    }
 }
 
 impl Tiler {
@@ -51,17 +76,95 @@ impl Tiler {
         let datum = head
             .provenance()
             .map_or(VerticalDatum::Unknown, |p| p.vertical_datum);
+        let plan = *head.plan();
+        let mesh_max_zoom = quantized_mesh::max_zoom(&place);
+        let index = RecordIndex::of(&encoded);
+        let available = Availability::of(
+            &encoded.params.domain,
+            &place,
+            index.ids(),
+            mesh_max_zoom,
+            |z| quantized_mesh::coarsen_at(&place, z),
+        );
+        let surface = OnceLock::new();
+        let units = encoded.records.iter().map(|r| (r.min, r.max));
+        let records = units.reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)));
+        let records = match records {
+            Some((lo, hi)) => Some((plan.metres(lo), plan.metres(hi))),
+            // No record: only the roots' predictions, whatever their size; decode them.
+            None => {
+                let decoded = Surface::decode(&encoded, &plan)
+                    .map_err(|e| TilesError::Internal(format!("decoding the repository: {e}")));
+                let range = decoded.as_ref().ok().and_then(Surface::range);
+                let _ = surface.set(decoded.map_err(|e| e.to_string()));
+                range
+            }
+        };
         Ok(Tiler {
-            mesh_max_zoom: quantized_mesh::max_zoom(&place),
-            index: RecordIndex::of(&encoded),
+            mesh_max_zoom,
+            mesh_range: quantized_mesh::height_range(match datum {
+                // EGM96 is added to the heights: the range takes its extremes.
+                VerticalDatum::Orthometric => {
+                    let (n_lo, n_hi) = geoid::range();
+                    Some(records.map_or((n_lo, n_hi), |(lo, hi)| (lo + n_lo, hi + n_hi)))
+                }
+                _ => records,
+            }),
+            available,
+            index,
             encoded,
-            plan: *head.plan(),
-            surface: OnceLock::new(),
+            plan,
+            surface,
             place,
             bounds,
             max_error: head.plan().max_error(),
             datum,
         })
+    }
+
+    /// The quantized-mesh tiles that exist.
+    pub fn available(&self) -> &Availability {
+        &self.available
+    }
+
+    /// The heights around the lattice positions `at` for level index `coarsen` and coarser:
+    /// the whole surface when it is decoded, else a window of it (a plane's rectangle, clipped
+    /// to the data; a planet's face boxes).
+    fn held(&self, at: &[Option<(u8, f64, f64)>], coarsen: usize) -> Result<Held<'_>, String> {
+        if let Some(whole) = self.surface.get() {
+            return whole.as_ref().map(Held::Whole).map_err(Clone::clone);
+        }
+        let points: Vec<(u8, f64, f64)> = at.iter().flatten().copied().collect();
+        let domain = self.encoded.params.domain;
+        if domain.kind() != DomainKind::Planar {
+            if points.is_empty() {
+                return Ok(Held::Nothing);
+            }
+            return Surface::decode_faces(&self.encoded, &self.index, &self.plan, &points, coarsen)
+                .map(Held::Window)
+                .map_err(|e| e.to_string());
+        }
+        let (w, h) = domain.data().size();
+        let (xmax, ymax) = (w as f64 - 0.5, h as f64 - 0.5);
+        let inside = points
+            .iter()
+            .filter(|p| (-0.5..=xmax).contains(&p.1) && (-0.5..=ymax).contains(&p.2));
+        let mut rect: Option<(f64, f64, f64, f64)> = None;
+        for &(_, x, y) in inside {
+            let r = rect.get_or_insert((x, y, x, y));
+            *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y));
+        }
+        let Some((x0, y0, x1, y1)) = rect else {
+            return Ok(Held::Nothing);
+        };
+        let (lo, hi) = (
+            |v: f64| v.floor().max(0.0) as i64,
+            |v: f64, m: usize| (v.ceil() as i64).min(m as i64 - 1),
+        );
+        let rect = (lo(x0), lo(y0), hi(x1, w), hi(y1, h));
+        Surface::decode_window(&self.encoded, &self.index, &self.plan, rect, coarsen)
+            .map(Held::Window)
+            .map_err(|e| e.to_string())
     }
 
     /// West, south, east, north of the data, degrees.
@@ -117,22 +220,11 @@ impl Tiler {
             )));
         }
         let pixels = PixelPlan::of(&self.place, t, tile);
-        let planar = self.encoded.params.domain.kind() == DomainKind::Planar;
-        match pixels.lattice_rect() {
-            // A plane: only the records within reach of the tile's pixels.
-            Some(rect) if planar && self.surface.get().is_none() => {
-                let surface = Surface::decode_window(
-                    &self.encoded,
-                    &self.index,
-                    &self.plan,
-                    rect,
-                    pixels.coarsen,
-                )
-                .map_err(|e| TilesError::Internal(format!("decoding tile {z}/{x}/{y}: {e}")))?;
-                raster::render_plan(&surface, &pixels, tile, encoding)
-            }
-            _ => raster::render_plan(self.surface()?, &pixels, tile, encoding),
-        }
+        // Only the records within reach of the tile's pixels.
+        let held = self
+            .held(&pixels.positions, pixels.coarsen)
+            .map_err(|e| TilesError::Internal(format!("decoding tile {z}/{x}/{y}: {e}")))?;
+        raster::render_plan(held.get(), &pixels, tile, encoding)
     }
 
     /// Quantized-mesh tile `z/x/y` (geographic TMS, y from the south).
@@ -145,16 +237,29 @@ impl Tiler {
         let t = Scheme::Geographic.tile(z, x, y)?;
         // Both root tiles exist whatever the data covers: CesiumJS requests them and upsamples
         // the levels below from them where nothing finer is available.
-        if t.z > self.mesh_max_zoom || (t.z > 0 && !Scheme::Geographic.meets(t, self.bounds)) {
+        if !self.available.has(t) {
             return Err(TilesError::OutsideData(format!(
-                "tile {z}/{x}/{y} is not available (bounds {:?}, levels 0…{})",
-                self.bounds, self.mesh_max_zoom
+                "tile {z}/{x}/{y} is not available: level {z} of this repository has {} tiles \
+                 (layer.json lists them; bounds {:?}, levels 0…{})",
+                self.available.count(t.z),
+                self.bounds,
+                self.mesh_max_zoom
             )));
         }
-        let surface = self.surface()?;
-        let meta = metadata.then(|| self.mesh_metadata(surface, t));
+        let positions = quantized_mesh::vertex_positions(&self.place, t);
+        let coarsen = quantized_mesh::coarsen_at(&self.place, t.z);
+        let held = self
+            .held(&positions, coarsen)
+            .map_err(|e| TilesError::Internal(format!("decoding tile {z}/{x}/{y}: {e}")))?;
+        let meta = metadata.then(|| self.mesh_metadata(t));
         Ok(quantized_mesh::build(
-            surface,
+            &TileHeights {
+                surface: held.get(),
+                positions: &positions,
+                coarsen,
+                range: self.mesh_range,
+                to_ellipsoid: self.datum == VerticalDatum::Orthometric,
+            },
             &self.place,
             &TileRequest {
                 tile: t,
@@ -164,14 +269,48 @@ impl Tiler {
         ))
     }
 
+    /// The bound every vertex of a `maxzoom` mesh tile keeps, metres: ε, half the height step,
+    /// and EGM96's interpolation where heights are converted.
+    fn vertex_bound(&self) -> f64 {
+        let (lo, hi) = self.mesh_range;
+        let step = (hi - lo) / f64::from(quantized_mesh::QMAX);
+        let geoid = match self.datum {
+            VerticalDatum::Orthometric => geoid::ERROR_M,
+            _ => 0.0,
+        };
+        self.max_error + 0.5 * step + geoid
+    }
+
+    /// The datum of the mesh tiles' heights, and how they were made.
+    fn mesh_datum(&self) -> (&'static str, &'static str) {
+        match self.datum {
+            VerticalDatum::Orthometric => (
+                "ellipsoidal",
+                "heights above the WGS84 ellipsoid, as CesiumJS draws them: the repository's \
+                 orthometric heights plus EGM96's geoid undulation (a 1° grid from NGA's \
+                 spherical harmonics, within geoid_error_m of them)",
+            ),
+            VerticalDatum::Ellipsoidal => (
+                "ellipsoidal",
+                "heights above the WGS84 ellipsoid, as stored in the repository",
+            ),
+            VerticalDatum::Unknown => (
+                "unknown",
+                "heights as stored: the repository does not record its vertical datum, so no \
+                 geoid correction is applied; if they are above sea level, CesiumJS draws them \
+                 off the ellipsoid by the geoid undulation (up to about ±100 m)",
+            ),
+        }
+    }
+
     /// The metadata extension of tile `t`: its children's availability and the error bound.
-    fn mesh_metadata(&self, surface: &Surface, t: TileId) -> Value {
-        let (lo, hi) = quantized_mesh::height_range(surface);
+    fn mesh_metadata(&self, t: TileId) -> Value {
+        let (lo, hi) = self.mesh_range;
         let step = (hi - lo) / f64::from(quantized_mesh::QMAX);
         json!({
-            "available": quantized_mesh::child_availability(t, self.bounds, self.mesh_max_zoom),
+            "available": quantized_mesh::child_availability(t, &self.available),
             "cbdam": {
-                "vertex_bound_m": self.max_error + 0.5 * step,
+                "vertex_bound_m": self.vertex_bound(),
                 "repository_max_error_m": self.max_error,
                 "height_step_m": step,
                 "cesium_level_error_m": cesium_level_error(t.z),
@@ -179,19 +318,19 @@ impl Tiler {
         })
     }
 
-    /// `layer.json` of the quantized-mesh tiles (decodes the whole surface: it states the
-    /// height step of the whole repository's range).
+    /// `layer.json` of the quantized-mesh tiles.
     pub fn layer_json(&self, name: &str) -> Result<Value, TilesError> {
         let available: Vec<Value> = (0..=self.mesh_max_zoom)
-            .map(|z| match Scheme::Geographic.range(z, self.bounds) {
-                _ if z == 0 => json!([{"startX": 0, "startY": 0, "endX": 1, "endY": 0}]),
-                Some((x0, y0, x1, y1)) => {
-                    json!([{"startX": x0, "startY": y0, "endX": x1, "endY": y1}])
-                }
-                None => json!([]),
+            .map(|z| {
+                let ranges = self.available.ranges(z).into_iter();
+                ranges
+                    .map(|(x0, y0, x1, y1)| {
+                        json!({"startX": x0, "startY": y0, "endX": x1, "endY": y1})
+                    })
+                    .collect()
             })
             .collect();
-        let (lo, hi) = quantized_mesh::height_range(self.surface()?);
+        let (lo, hi) = self.mesh_range;
         let step = (hi - lo) / f64::from(quantized_mesh::QMAX);
         Ok(json!({
             "tilejson": "2.1.0",
@@ -213,7 +352,7 @@ impl Tiler {
             "extensions": ["octvertexnormals", "metadata"],
             "attribution": "",
             "cbdam": {
-                "vertex_bound_m": self.max_error + 0.5 * step,
+                "vertex_bound_m": self.vertex_bound(),
                 "vertex_bound": "every vertex of a level-maxzoom tile is within this of the \
                     repository's finest level (bilinear between its samples); coarser levels \
                     take their vertices from coarser repository levels",
@@ -221,11 +360,14 @@ impl Tiler {
                 "height_step_m": step,
                 "height_range_m": [lo, hi],
                 "grid": quantized_mesh::GRID,
-                "height_datum": self.datum.code(),
-                "height_datum_note": "heights are the repository's own (orthometric for DEMs \
-                    given above sea level); CesiumJS draws them above the WGS84 ellipsoid. No \
-                    geoid (EGM96) correction is applied: expect offsets of up to about ±100 m \
-                    against ellipsoidal imagery and 3D tiles.",
+                "height_datum": self.mesh_datum().0,
+                "height_datum_note": self.mesh_datum().1,
+                "repository_datum": self.datum.code(),
+                "geoid_error_m": if self.datum == VerticalDatum::Orthometric {
+                    geoid::ERROR_M
+                } else {
+                    0.0
+                },
             },
         }))
     }

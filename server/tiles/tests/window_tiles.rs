@@ -1,9 +1,10 @@
-//! Raster tiles made from windows (a plane's tile decodes only the records within reach of its
-//! pixels, `Surface::decode_window`) are byte for byte the tiles made from the whole decoded
-//! surface (`Surface::decode`), for every tile of every zoom, both encodings, both sizes, on an
-//! EPSG:4326 plane and a UTM one, with a nodata hole.
+//! Tiles made from windows (a tile decodes only the records within reach of its pixels or
+//! vertices: a plane's `Surface::decode_window`, a planet's `Surface::decode_faces`) are byte
+//! for byte the tiles made from the whole decoded surface (`Surface::decode`): every raster
+//! tile of every zoom, both encodings, both sizes, and every available quantized-mesh tile, on
+//! an EPSG:4326 plane and a UTM one with a nodata hole, and on a planet.
 
-use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
+use cbdam_codec::hierarchy::{EncodeOptions, Encoder, PlanetGrid, encode_planet};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::{GeoRef, Repository, serialize};
 use cbdam_tiles::{Encoding, Scheme, Tiler};
@@ -59,7 +60,41 @@ fn same_tiles(repo: &Repository) -> usize {
             }
         }
     }
-    compared
+    compared + same_meshes(&whole, &windows)
+}
+
+/// Every available quantized-mesh tile, with normals and metadata, of both tilers.
+fn same_meshes(whole: &Tiler, windows: &Tiler) -> usize {
+    let tiles = whole.available().tiles();
+    for t in &tiles {
+        let zxy = (u32::from(t.z), t.x, t.y);
+        let a = whole.mesh(zxy, true, true).unwrap();
+        let b = windows.mesh(zxy, true, true).unwrap();
+        assert!(a.bytes == b.bytes, "mesh tile {zxy:?} differs");
+        assert_eq!((a.level, a.clamped), (b.level, 0));
+    }
+    tiles.len()
+}
+
+#[test]
+fn window_tiles_are_the_whole_surfaces_tiles_on_a_planet() {
+    let plan = QuantPlan::new(0.5, Some(0.5), -2000.0, 2000.0).unwrap();
+    let (n, k) = (9usize, 4u32);
+    let side = ((n - 1) << k) as f64;
+    let grid = PlanetGrid::from_fn(n, k, |p| {
+        let (s, t) = (p.x as f64 / side, p.y as f64 / side);
+        let h = 300.0 * f64::from(p.face) - 500.0 + 400.0 * (9.0 * s).sin() * (7.0 * t).cos();
+        Some(((h - plan.offset) / plan.unit).round() as i32)
+    })
+    .unwrap();
+    let opts = EncodeOptions {
+        n,
+        ..EncodeOptions::default()
+    };
+    let enc = encode_planet(&grid, plan.quantizer, &opts).unwrap();
+    let repo = Repository::from_bytes(serialize(&enc, &plan, None, None).unwrap()).unwrap();
+    let compared = same_tiles(&repo);
+    assert!(compared >= 40, "only {compared} tiles compared");
 }
 
 #[test]

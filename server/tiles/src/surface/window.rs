@@ -1,14 +1,15 @@
-//! A plane's surface over a lattice rectangle only, decoded with the codec's windowed decoder
-//! ([`cbdam_codec::hierarchy::decode_window`]): the records within reach of the rectangle,
-//! not the whole repository. Inside the rectangle its samples, and so its heights, are those of
-//! [`Surface::decode`] (the windowed decoder visits every diamond the whole walk visits there,
-//! in the same order).
+//! A surface over a part of the repository only, decoded with the codec's windowed decoders: a
+//! plane's over a lattice rectangle ([`cbdam_codec::hierarchy::decode_window`]), a planet's
+//! over the boxes around some face points ([`cbdam_codec::hierarchy::decode_face_windows`]).
+//! They read the records within reach of the window, not the whole repository. Inside the
+//! window the samples, and so the heights, are those of [`Surface::decode`] (the windowed
+//! decoders visit every diamond the whole walk visits there, in the same order).
 
 use std::collections::HashMap;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{Encoded, decode_window};
+use cbdam_codec::hierarchy::{Encoded, FaceRect, FaceWindows, decode_face_windows, decode_window};
 use cbdam_codec::quant::QuantPlan;
 
 use super::{LevelRaster, Surface};
@@ -26,6 +27,11 @@ impl RecordIndex {
         let ids: Vec<DiamondId> = encoded.records.iter().map(|r| r.id).collect();
         let at = ids.iter().enumerate().map(|(i, &id)| (id, i)).collect();
         RecordIndex { ids, at }
+    }
+
+    /// The stored diamonds, in record order.
+    pub fn ids(&self) -> &[DiamondId] {
+        &self.ids
     }
 }
 
@@ -76,6 +82,71 @@ impl Surface {
                 &index.ids,
                 record,
                 window,
+                |id, grid, valid| raster.put_diamond(&domain, id, grid, valid),
+            )?;
+            levels.push(raster);
+        }
+        Ok(Surface::of_levels(levels, first, extent, plan))
+    }
+}
+
+impl Surface {
+    /// The even levels of step `2^coarsen` and coarser of a planet, on each face over the box
+    /// of the face points `points` (lattice units) with one sample of margin on each level, so
+    /// that [`Surface::height`] at any of them with at least `coarsen` answers as the whole
+    /// surface does. Planes are refused.
+    pub fn decode_faces(
+        encoded: &Encoded,
+        index: &RecordIndex,
+        plan: &QuantPlan,
+        points: &[(u8, f64, f64)],
+        coarsen: usize,
+    ) -> Result<Surface, CodecError> {
+        let domain = encoded.params.domain;
+        let Some(cube) = domain.cube() else {
+            return Err(CodecError::invalid("face windows are read from planets"));
+        };
+        let side = cube.side();
+        let (w, h) = domain.data().size();
+        let extent = (0, 0, w as i64 - 1, h as i64 - 1);
+        let finest = domain.finest_level();
+        let count = usize::from(finest / 2) + 1;
+        let first = coarsen.min(count - 1);
+        let record = |id: DiamondId| match index.at.get(&id) {
+            Some(&i) => Ok(&encoded.records[i].bytes[..]),
+            None => Err(CodecError::invalid(format!("{id} is not stored"))),
+        };
+        let mut boxes: [Option<(f64, f64, f64, f64)>; 6] = [None; 6];
+        for &(face, x, y) in points {
+            let b = boxes.get_mut(usize::from(face)).ok_or_else(|| {
+                CodecError::invalid(format!("face {face} is not one of the planet's"))
+            })?;
+            *b = Some(b.map_or((x, y, x, y), |(x0, y0, x1, y1)| {
+                (x0.min(x), y0.min(y), x1.max(x), y1.max(y))
+            }));
+        }
+        let mut levels = Vec::with_capacity(count);
+        for m in 0..count {
+            let level = finest - 2 * m as u8;
+            let step = 1i64 << m;
+            if m < first {
+                levels.push(empty(level, step));
+                continue;
+            }
+            let lo = |v: f64| ((v / step as f64).floor() as i64 - 1).max(0) * step;
+            let hi = |v: f64| (((v / step as f64).ceil() as i64 + 1) * step).min(side);
+            let rects: Vec<FaceRect> = (0u8..6)
+                .filter_map(|f| boxes[usize::from(f)].map(|b| (f, b)))
+                .map(|(f, (x0, y0, x1, y1))| (f, (lo(x0), lo(y0), hi(x1), hi(y1))))
+                .collect();
+            let mut raster = LevelRaster::new(&domain, level, &rects)?;
+            let windows = FaceWindows { level, rects };
+            decode_face_windows(
+                encoded.params,
+                &encoded.roots,
+                &index.ids,
+                record,
+                &windows,
                 |id, grid, valid| raster.put_diamond(&domain, id, grid, valid),
             )?;
             levels.push(raster);
