@@ -1,8 +1,8 @@
 //! The offscreen colour and depth targets a [`Renderer`] draws into, and reading them back.
 
-use crate::{COLOR_FORMAT, DEPTH_FORMAT, DrawError, Renderer};
+use crate::{COLOR_FORMAT, DEPTH_FORMAT, Renderer};
 #[cfg(not(target_arch = "wasm32"))]
-use crate::{DrawStats, Frame};
+use crate::{DrawError, DrawStats, Frame};
 
 /// The colour and depth textures of the last frame's size.
 pub(crate) struct Target {
