@@ -8,6 +8,7 @@ mod extract;
 mod inspect;
 mod link;
 mod planet;
+mod planet_bad_input;
 mod planet_shard;
 mod readme;
 mod replay;

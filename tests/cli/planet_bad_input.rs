@@ -1,0 +1,78 @@
+//! `cbdam build --planet` on SRTM tiles that are not what their names promise: a tile whose
+//! length is no SRTM size and a tile truncated mid-way are refused before anything is written,
+//! naming the file, and leave nothing at `-o` (no repository, no journal, no temporary).
+
+use std::path::Path;
+
+use crate::util::{cbdam, s, stderr, stdout};
+
+/// Side of a 3″ SRTM tile.
+const SIDE_3S: usize = 1201;
+
+/// Writes `bytes` bytes of a smooth big-endian `i16` relief (metres) to `path`: the first
+/// samples of a 3″ tile, or more than a tile holds.
+fn write_hgt_bytes(path: &Path, bytes: usize) {
+    let data: Vec<u8> = (0..bytes / 2)
+        .flat_map(|i| {
+            let (c, r) = (i % SIDE_3S, i / SIDE_3S);
+            (((c + r) % 500) as i16 + 200).to_be_bytes()
+        })
+        .chain((bytes % 2 == 1).then_some(0))
+        .collect();
+    std::fs::write(path, data).unwrap();
+}
+
+/// Builds a planet of the tiles in `inputs` into an empty directory, expecting a refusal that
+/// names `bad` and says how long it is, and nothing left in that directory.
+fn refused_naming(inputs: &Path, bad: &str, len: usize) {
+    let out_dir = tempfile::tempdir().unwrap();
+    let out = out_dir.path().join("planet.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(inputs),
+        "--planet",
+        "--max-error",
+        "16",
+        "--memory-limit",
+        "64M",
+        "-o",
+        &s(&out),
+    ]);
+    assert!(!o.status.success(), "succeeded: {}", stdout(&o));
+    let err = stderr(&o);
+    assert!(err.contains(bad), "the error does not name {bad}: {err}");
+    assert!(
+        err.contains(&format!("{len} bytes")),
+        "the error does not give the length {len}: {err}"
+    );
+    assert!(!err.contains("panicked"), "a panic: {err}");
+    let left: Vec<_> = std::fs::read_dir(out_dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(left.is_empty(), "left behind at -o: {left:?}");
+}
+
+/// A good tile beside one of `len` bytes, named `N45E007.hgt`.
+fn planet_with_bad_tile(dir: &Path, len: usize) {
+    write_hgt_bytes(&dir.join("N45E006.hgt"), SIDE_3S * SIDE_3S * 2);
+    write_hgt_bytes(&dir.join("N45E007.hgt"), len);
+}
+
+#[test]
+fn a_planet_tile_whose_length_is_no_srtm_size_is_refused_by_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Two bytes too many: one sample more than a 3″ tile, fewer than a 1″ one.
+    let len = SIDE_3S * SIDE_3S * 2 + 2;
+    planet_with_bad_tile(tmp.path(), len);
+    refused_naming(tmp.path(), "N45E007.hgt", len);
+}
+
+#[test]
+fn a_planet_tile_truncated_mid_way_is_refused_by_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Cut off after 600 of its 1201 rows, and in the middle of a sample.
+    let len = SIDE_3S * 600 * 2 + 1;
+    planet_with_bad_tile(tmp.path(), len);
+    refused_naming(tmp.path(), "N45E007.hgt", len);
+}
