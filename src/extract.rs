@@ -8,7 +8,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use cbdam_builder::write::{Raster, write_geotiff, write_raw};
 use cbdam_codec::atomic::write_atomically;
+use cbdam_codec::geometry::GridMap;
 use cbdam_codec::hierarchy::walk_all_with_validity;
+use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::Repository;
 use cbdam_codec::repository::{LevelGrid, bbox_window};
 use clap::{Args, ValueEnum};
@@ -188,37 +190,70 @@ impl Samples {
         values.par_extend(rayon::iter::repeat_n(fill, self.width * self.height));
         let n = p.layout().n();
         walk_all_with_validity(&encoded, |id, grid, valid| {
-            if id.level != self.level {
-                return;
-            }
-            let g = p.layout().grid(id);
-            for j in 0..n {
-                // Row j of an even-level grid is a line of the output raster: clip it to the
-                // window once, then step through it.
-                let (origin, u) = (g.point(0, j as i64), g.u);
-                let Some(columns) = self.clip_row(origin, u, n) else {
-                    continue;
-                };
-                let (x, y) = (
-                    origin.0 + columns.start * u.0,
-                    origin.1 + columns.start * u.1,
-                );
-                // Even-level grids sit on multiples of their own spacing, which is `step`.
-                debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
-                let mut k =
-                    ((y - self.y0) / self.step) * self.width as i64 + (x - self.x0) / self.step;
-                let dk = u.1 / self.step * self.width as i64 + u.0 / self.step;
-                let row = j * n;
-                for i in columns.start as usize..columns.end as usize {
-                    if valid.is_none_or(|v| v[row + i]) {
-                        values[k as usize] = plan.metres(grid[row + i]);
-                    }
-                    k += dk;
-                }
+            if id.level == self.level {
+                self.put_grid(&p.layout().grid(id), n, grid, valid, plan, &mut values);
             }
         })
         .with_context(|| format!("decoding {}", path.display()))?;
         Ok(values)
+    }
+
+    /// Writes the heights of one even-level `n × n` grid (`valid`: its validity, `None` when
+    /// all valid) into `values`, the window's raster. An even-level grid's lines are lines of
+    /// the raster, along x or along y; each raster row the grid covers is written as one run,
+    /// reading the grid down its columns when its lines run along y (the grid is small and
+    /// stays in cache; the raster's rows are far apart).
+    fn put_grid(
+        &self,
+        g: &GridMap,
+        n: usize,
+        grid: &[i32],
+        valid: Option<&[bool]>,
+        plan: &QuantPlan,
+        values: &mut [f64],
+    ) {
+        // `along` steps along a raster row: one sample of a line; `across` from line to line.
+        let (along, across, sample_stride, line_stride) = if g.u.1 == 0 {
+            (g.u, g.v, 1, n)
+        } else {
+            (g.v, g.u, n, 1)
+        };
+        debug_assert!(
+            along.1 == 0 && across.0 == 0,
+            "even-level grids are axis-aligned"
+        );
+        let dk = along.0 / self.step;
+        for line in 0..n {
+            let origin = (
+                g.origin.0 + line as i64 * across.0,
+                g.origin.1 + line as i64 * across.1,
+            );
+            // Clip the line to the window once, then step through it.
+            let Some(columns) = self.clip_row(origin, along, n) else {
+                continue;
+            };
+            let (x, y) = (origin.0 + columns.start * along.0, origin.1);
+            // Even-level grids sit on multiples of their own spacing, which is `step`.
+            debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
+            let mut k = ((y - self.y0) / self.step) * self.width as i64 + (x - self.x0) / self.step;
+            let first = line * line_stride + columns.start as usize * sample_stride;
+            let count = (columns.end - columns.start) as usize;
+            if valid.is_none() && dk == 1 && sample_stride == 1 {
+                // The common case: a run of the raster row from a run of the grid, no mask.
+                let out = &mut values[k as usize..][..count];
+                for (o, &h) in out.iter_mut().zip(&grid[first..][..count]) {
+                    *o = plan.metres(h);
+                }
+                continue;
+            }
+            for s in 0..count {
+                let i = first + s * sample_stride;
+                if valid.is_none_or(|v| v[i]) {
+                    values[k as usize] = plan.metres(grid[i]);
+                }
+                k += dk;
+            }
+        }
     }
 
     /// The indices `i` in `0..n` whose points `origin + i·u` lie inside the window, `None`

@@ -1,14 +1,18 @@
 //! The whole-hierarchy walk decodes each level's diamonds in parallel and visits them in order:
 //! on any number of threads it must show `visit` exactly what one thread does, and report the
-//! same first error for a damaged record.
+//! same first error for a damaged record; and what it shows must be what the renderer's
+//! per-diamond decoder (`Decoder::grid_of`, `Decoder::refine`) makes of the same records.
 
+use std::collections::HashMap;
 use std::collections::hash_map::DefaultHasher;
 use std::hash::{Hash, Hasher};
 use std::path::Path;
 
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{EncodeOptions, Encoded, Encoder, walk_all_with_validity};
+use cbdam_codec::hierarchy::{
+    Decoder, EncodeOptions, Encoded, Encoder, RefineScratch, Refined, walk_all_with_validity,
+};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
@@ -91,5 +95,53 @@ fn a_damaged_record_gives_the_same_first_error_on_every_thread_count() {
             serial,
             "{threads} threads"
         );
+    }
+}
+
+/// The walk refines each stored diamond in place of its grid (with α = 1 the refinement's
+/// vertices are the grid, so no copy is made); every grid it visits, at every level and on
+/// every thread count, must be the one the renderer's per-diamond decoder gathers from
+/// refinements it made itself with the copying `Decoder::refine`.
+#[test]
+fn the_walk_shows_what_the_per_diamond_decoder_makes() {
+    for (name, eps, alpha) in [
+        ("srtm3_demcompare.tif", 1.0, Alpha::One),
+        ("srtm3_demcompare.tif", 2.0, Alpha::Half),
+        ("rhine_nodata.tif", 0.5, Alpha::One),
+    ] {
+        let encoded = encode(name, eps, alpha);
+        let decoder = Decoder::new(encoded.params, &encoded.roots).unwrap();
+        let records: HashMap<DiamondId, &[u8]> = encoded
+            .records
+            .iter()
+            .map(|r| (r.id, &r.bytes[..]))
+            .collect();
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut reference: HashMap<DiamondId, Refined> = HashMap::new();
+            let mut scratch = RefineScratch::default();
+            let mut visits = 0;
+            pool.install(|| {
+                walk_all_with_validity(&encoded, |id, grid, _| {
+                    let parents = encoded
+                        .params
+                        .domain
+                        .parents(id)
+                        .map(|p| p.and_then(|p| reference.get(&p)));
+                    let expected = decoder.grid_of(id, parents);
+                    assert!(grid == &expected[..], "{name} {alpha:?}: grid of {id}");
+                    if let Some(bytes) = records.get(&id) {
+                        let refined = decoder.refine(&expected, bytes, &mut scratch).unwrap();
+                        reference.insert(id, refined);
+                    }
+                    visits += 1;
+                })
+                .unwrap()
+            });
+            assert!(visits > 200, "{name}: {visits} visits");
+        }
     }
 }

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use super::analysis::analysis_fields;
-use super::refine::{RefineScratch, Refined, gather, gather_validity, refine};
+use super::refine::{RefineScratch, Refined, gather, gather_validity, refine, refine_owned};
 use super::roots::{decode_roots, root_grid};
 use super::{CodecParams, Encoded};
 use crate::CodecError;
@@ -48,7 +48,9 @@ impl Decoder {
     /// refinements of its existing parents ([`gather`]).
     pub fn grid_of(&self, id: DiamondId, parents: [Option<&Refined>; 2]) -> Vec<i32> {
         let n = self.params.layout().n();
-        let mut p = vec![0i32; n * n];
+        // Room for the cells too: a refinement with α = 1 appends them ([`refine_owned`]).
+        let mut p = Vec::with_capacity(n * n + (n - 1) * (n - 1));
+        p.resize(n * n, 0i32);
         if id.level == 0 {
             root_grid(&self.params.domain, &self.roots, id, &mut p);
         } else {
@@ -300,12 +302,22 @@ pub(super) fn walk_level(
 /// Diamonds each worker decodes between two visiting rounds of [`walk_level`].
 const PARALLEL_CHUNK_PER_WORKER: usize = 16;
 
-/// One diamond as [`walk_level`] visits it: its grid, the grid's validity, and its refinement
-/// when it has a record. `Err` in `refined` is a corrupt record, reported after the visit.
+/// One diamond as [`walk_level`] visits it: its grid's validity, and its grid and refinement.
 struct DecodedDiamond {
-    grid: Vec<i32>,
     valid: Option<Vec<bool>>,
-    refined: Option<Result<Refined, CodecError>>,
+    body: DecodedBody,
+}
+
+/// A diamond's grid and what its record made of it.
+enum DecodedBody {
+    /// No record: the gathered grid.
+    Unrefined(Vec<i32>),
+    /// Refined with α = 1: the refinement's vertices are the gathered grid (no second copy).
+    SharedGrid(Refined),
+    /// Refined with α = ½ (the vertices moved): the gathered grid and the refinement.
+    Separate(Vec<i32>, Refined),
+    /// A corrupt record: the gathered grid, and the error to report after the visit.
+    Corrupt(Vec<i32>, CodecError),
 }
 
 /// Gathers `id`'s grid and validity from `prev` and refines it by its record, if any.
@@ -316,7 +328,8 @@ fn decode_diamond(
     prev: &HashMap<DiamondId, Refined>,
     scratch: &mut RefineScratch,
 ) -> Result<DecodedDiamond, CodecError> {
-    let parent_ids = decoder.params().domain.parents(id);
+    let params = decoder.params();
+    let parent_ids = params.domain.parents(id);
     let parents = parent_ids.map(|p| p.and_then(|p| prev.get(&p)));
     if id.level > 0
         && parent_ids
@@ -330,14 +343,18 @@ fn decode_diamond(
     }
     let grid = decoder.grid_of(id, parents);
     let valid = decoder.validity_of(id, parents);
-    let refined = records
-        .get(id)
-        .map(|bytes| decoder.refine(&grid, bytes, scratch));
-    Ok(DecodedDiamond {
-        grid,
-        valid,
-        refined,
-    })
+    let body = match records.get(id) {
+        None => DecodedBody::Unrefined(grid),
+        Some(bytes) if params.alpha == Alpha::Half => match decoder.refine(&grid, bytes, scratch) {
+            Ok(refined) => DecodedBody::Separate(grid, refined),
+            Err(e) => DecodedBody::Corrupt(grid, e),
+        },
+        Some(bytes) => match refine_owned(params, grid, bytes, scratch) {
+            Ok(refined) => DecodedBody::SharedGrid(refined),
+            Err((grid, e)) => DecodedBody::Corrupt(grid, e),
+        },
+    };
+    Ok(DecodedDiamond { valid, body })
 }
 
 /// Hands a decoded diamond to `visit` and keeps its refinement in `next`; the errors of
@@ -349,10 +366,22 @@ fn visit_decoded(
     next: &mut HashMap<DiamondId, Refined>,
     visit: &mut impl FnMut(DiamondId, &[i32], Option<&[bool]>),
 ) -> Result<(), CodecError> {
-    let decoded = decoded?;
-    visit(id, &decoded.grid, decoded.valid.as_deref());
-    if let Some(refined) = decoded.refined {
-        next.insert(id, refined?);
+    let DecodedDiamond { valid, body } = decoded?;
+    let valid = valid.as_deref();
+    match body {
+        DecodedBody::Unrefined(grid) => visit(id, &grid, valid),
+        DecodedBody::SharedGrid(refined) => {
+            visit(id, refined.vertices(), valid);
+            next.insert(id, refined);
+        }
+        DecodedBody::Separate(grid, refined) => {
+            visit(id, &grid, valid);
+            next.insert(id, refined);
+        }
+        DecodedBody::Corrupt(grid, e) => {
+            visit(id, &grid, valid);
+            return Err(e);
+        }
     }
     Ok(())
 }

@@ -54,6 +54,12 @@ impl Refined {
         self.valid.as_deref()
     }
 
+    /// The `N²` refined vertex values, row-major (with α = 1 the grid the diamond was refined
+    /// from).
+    pub(crate) fn vertices(&self) -> &[i32] {
+        &self.values[..self.n * self.n]
+    }
+
     /// Grid side `N` of the diamond.
     pub fn n(&self) -> usize {
         self.n
@@ -400,6 +406,53 @@ pub fn refine(
     record: &[u8],
     scratch: &mut RefineScratch,
 ) -> Result<Refined, CodecError> {
+    let valid = synthesise(params, p, record, scratch)?;
+    // With α = 1 a refinement leaves every vertex as it was: interleave `p` itself.
+    let vertices = if params.alpha == Alpha::Half {
+        &scratch.vertices[..]
+    } else {
+        p
+    };
+    Ok(Refined::from_parts(params.layout().n(), vertices, &scratch.cells).with_validity(valid))
+}
+
+/// [`refine`] taking the grid by value: with α = 1 the refinement's vertices are the grid
+/// itself, so its cells are appended to `grid` (allocate it with room for `(N−1)²` more to
+/// avoid a reallocation) instead of copying both into a new buffer. Gives back `grid`
+/// unchanged with the error when the record is corrupt. The values are [`refine`]'s exactly.
+pub(crate) fn refine_owned(
+    params: &CodecParams,
+    mut grid: Vec<i32>,
+    record: &[u8],
+    scratch: &mut RefineScratch,
+) -> Result<Refined, (Vec<i32>, CodecError)> {
+    if params.alpha == Alpha::Half {
+        return refine(params, &grid, record, scratch).map_err(|e| (grid, e));
+    }
+    let valid = match synthesise(params, &grid, record, scratch) {
+        Ok(valid) => valid,
+        Err(e) => return Err((grid, e)),
+    };
+    let n = params.layout().n();
+    assert_eq!(grid.len(), n * n, "a diamond's grid is N × N");
+    grid.extend_from_slice(&scratch.cells);
+    Ok(Refined {
+        n,
+        values: grid,
+        valid: None,
+    }
+    .with_validity(valid))
+}
+
+/// The part of [`refine`] that decodes the record and computes the new values into
+/// `scratch.cells` (and, with α = ½, the updated vertices into `scratch.vertices`); gives the
+/// record's half-step validity (`None`: all valid).
+fn synthesise(
+    params: &CodecParams,
+    p: &[i32],
+    record: &[u8],
+    scratch: &mut RefineScratch,
+) -> Result<Option<Vec<bool>>, CodecError> {
     let n = params.layout().n();
     let m = n - 1;
     let RefineScratch {
@@ -477,9 +530,7 @@ pub fn refine(
             return Err(out_of_range());
         }
     }
-    // With α = 1 a refinement leaves every vertex as it was: interleave `p` itself.
-    let vertices = if half { &vertices[..] } else { p };
-    Ok(Refined::from_parts(n, vertices, cells).with_validity(valid))
+    Ok(valid)
 }
 
 #[cfg(test)]
