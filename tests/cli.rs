@@ -4,18 +4,27 @@
 mod bench;
 mod bench_network;
 mod build;
+mod colour;
 mod extract;
 mod inspect;
 mod link;
+mod multires;
 mod planet;
 mod planet_bad_input;
+mod planet_closeup;
+mod planet_out_of_core;
 mod planet_shard;
 mod readme;
+mod render;
+mod render_colour;
 mod replay;
 mod serve;
 mod shard;
+mod tiles;
 mod upgrade;
 mod verify;
+mod view;
+mod web_export;
 mod web_tiles;
 
 use std::path::Path;

@@ -215,7 +215,7 @@ fn dask_build_of_a_mosaic_is_byte_identical_to_cbdam_builder() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let tiles = d.join("tiles");
-    crate::cli_tiles::cut_into_tiles(&data("srtm3_demcompare.tif"), &tiles, 499, 2);
+    crate::cli::tiles::cut_into_tiles(&data("srtm3_demcompare.tif"), &tiles, 499, 2);
     let want = build(&s(&tiles), &d.join("whole.cbdam"));
     let out = d.join("dask.cbdam");
     let log = dask_build(&python, &s(&tiles), &out, None);
