@@ -120,18 +120,10 @@ fn progress_is_logged_when_stderr_is_not_a_terminal() {
 
 /// Runs a build that must fail with `message` and leave `dir` as it was.
 fn build_fails(dir: &Path, input: &str, out: &Path, extra: &[&str], message: &str) {
-    let before = listing(dir);
     let out_s = s(out);
     let mut args = vec!["build", input, "-o", &out_s];
     args.extend_from_slice(extra);
-    let o = cbdam(&args);
-    assert!(!o.status.success(), "{args:?} succeeded");
-    let err = stderr(&o);
-    assert!(
-        err.contains(message),
-        "{args:?}: expected {message:?} in {err:?}"
-    );
-    assert_eq!(listing(dir), before, "{args:?} left files behind");
+    run_refused_leaving(dir, &args, &[message]);
 }
 
 #[test]

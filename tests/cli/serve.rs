@@ -122,8 +122,7 @@ fn serve_raises_its_soft_fd_limit_to_the_hard_limit() {
         hard == "unlimited" || hard.parse::<u64>().unwrap() > 512,
         "the test lowers the soft limit to 256 and needs a hard limit over 512, not {hard}"
     );
-    let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let mut child = Command::new("sh")
         .args([
             "-c",
