@@ -52,19 +52,6 @@ fn write_asc(path: &Path, rows: &[Vec<f64>], nodata: Option<f64>) {
     std::fs::write(path, t).unwrap();
 }
 
-fn build_quiet(input: &str, out: &Path, max_error: &str) {
-    let o = cbdam(&[
-        "build",
-        input,
-        "-o",
-        &s(out),
-        "--max-error",
-        max_error,
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "build {input}: {}", stderr(&o));
-}
-
 /// An I/O error is printed once: the codec's, server's and flight's error messages include the
 /// OS error, so it is no longer also their `source` (the chain printed it twice).
 #[test]

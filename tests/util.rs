@@ -160,6 +160,20 @@ fn a_missing_prerequisite_fails_under_ci_and_skips_elsewhere() {
     }
 }
 
+/// `cbdam build INPUT -o OUT --max-error E --quiet`, which must succeed.
+pub fn build_quiet(input: &str, out: &Path, max_error: &str) {
+    let out = s(out);
+    run_ok(&[
+        "build",
+        input,
+        "-o",
+        &out,
+        "--max-error",
+        max_error,
+        "--quiet",
+    ]);
+}
+
 /// A path as a command-line argument.
 pub fn s(p: &Path) -> String {
     p.to_string_lossy().into_owned()
@@ -199,16 +213,7 @@ pub fn listing(dir: &Path) -> Vec<PathBuf> {
 /// converge on it in a few frames.
 pub fn jacksboro(dir: &Path) -> PathBuf {
     let repo = dir.join("j.cbdam");
-    let o = cbdam(&[
-        "build",
-        &data("jacksboro_mpl.tif"),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "2",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&data("jacksboro_mpl.tif"), &repo, "2");
     repo
 }
 

@@ -7,7 +7,7 @@ use cbdam_builder::input::{Format, ReadOptions, read_dem};
 use cbdam_codec::repository::{Repository, Section};
 use cbdam_codec::samples::Dem;
 
-use super::{build_quiet, write_asc};
+use super::write_asc;
 use crate::util::*;
 
 fn read(path: &Path) -> Dem {
@@ -350,16 +350,7 @@ fn a_prj_crs_definition_travels_from_input_to_extract() {
     let wkt = r#"PROJCS["Custom_LCC",GEOGCS["GCS_WGS_1984",DATUM["D_WGS_1984",SPHEROID["WGS_1984",6378137.0,298.257223563]],PRIMEM["Greenwich",0.0],UNIT["Degree",0.0174532925199433]],PROJECTION["Lambert_Conformal_Conic"],PARAMETER["Central_Meridian",-96.0],PARAMETER["Standard_Parallel_1",33.0],PARAMETER["Standard_Parallel_2",45.0],PARAMETER["Latitude_Of_Origin",39.0],UNIT["Meter",1.0]]"#;
     std::fs::write(dir.path().join("lcc.prj"), format!("{wkt}\r\n")).unwrap();
     let repo = dir.path().join("lcc.cbdam");
-    let o = cbdam(&[
-        "build",
-        &s(&asc),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "1",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&s(&asc), &repo, "1");
     let o = cbdam(&["inspect", &s(&repo), "--json"]);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["georef"]["wkt"], wkt);

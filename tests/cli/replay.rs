@@ -2,7 +2,6 @@
 
 use std::path::Path;
 
-use super::build_quiet;
 use crate::util::*;
 
 /// The per-step columns of a frame's wall time, in the CSV's order.

@@ -12,8 +12,7 @@ use crate::util::*;
 const BLOCKS: &str = "8,300";
 
 fn build(input: &str, out: &Path) -> Vec<u8> {
-    let o = cbdam(&["build", input, "-o", &s(out), "--max-error", "1", "--quiet"]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(input, out, "1");
     std::fs::read(out).unwrap()
 }
 

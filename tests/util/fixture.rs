@@ -10,21 +10,12 @@ use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use super::{cbdam, data, s, stderr};
+use super::{build_quiet, data};
 
 /// Jacksboro (`data/jacksboro_mpl.tif`, 403 × 344) built at `max_error` metres.
 pub fn jacksboro_at(max_error: &str) -> PathBuf {
     shared(&format!("jacksboro-{max_error}.cbdam"), |out| {
-        let o = cbdam(&[
-            "build",
-            &data("jacksboro_mpl.tif"),
-            "-o",
-            &s(out),
-            "--max-error",
-            max_error,
-            "--quiet",
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
+        build_quiet(&data("jacksboro_mpl.tif"), out, max_error)
     })
 }
 
