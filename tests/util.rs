@@ -2,12 +2,12 @@
 //! the repositories many tests read.
 //!
 //! The convention (tests/README.md): every CLI test is in a module of `tests/cli/`, one per
-//! subcommand or feature, all linked into the one test binary `tests` (`cargo test -p cbdam --test
-//! tests cli::build::`). A test runs `cbdam` through [`cbdam`] (the output, for a test that
-//! checks more), [`run_ok`] (must succeed: its stdout) or [`run_refused`] (must fail, not
-//! by a panic, naming the problem: its stderr; [`run_refused_leaving`] also checks that nothing
-//! was left behind). A repository a test only
-//! reads comes from [`fixture`] ([`jacksboro_at`], [`shared_planet`], or [`shared`] for another
+//! subcommand or feature, all linked into the one test binary `tests` (`cargo test -p cbdam
+//! --test tests cli::build::`). A test runs `cbdam` through [`cbdam`] (the output, for a test
+//! that checks more), [`run_ok`] (must succeed: its stdout), [`build_quiet`], or
+//! [`run_refused`] (must fail, not by a panic, naming the problem: its stderr;
+//! [`run_refused_leaving`] also checks that nothing was left behind). A repository a test only
+//! reads comes from `fixture` ([`jacksboro_at`], [`shared_planet`], or [`shared`] for another
 //! kind), built once per build; one it changes is built in the test's own temporary directory.
 //! The Dask bridge is run through [`dask`].
 
