@@ -4,6 +4,7 @@
 mod bench;
 mod bench_network;
 mod build;
+mod build_refusals;
 mod colour;
 mod extract;
 mod inspect;
