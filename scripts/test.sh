@@ -49,7 +49,7 @@ if ! has_vulkan_icd || ! has_vulkan_loader; then
         echo "test.sh: install Mesa's Vulkan drivers (lavapipe) and the Vulkan loader." >&2
     fi
 fi
-# The viewer's tests (tests/cli_view.rs) open a real window: on a machine without a display they
+# The viewer's tests (tests/cli/view.rs) open a real window: on a machine without a display they
 # need Xvfb (and the X client libraries winit loads at run time), xdotool to press keys and
 # drag the mouse, and xwd (x11-apps) to read the window back. Install them when missing, like
 # lavapipe above; without them those tests print SKIPPED and pass, except under CI (CI set),

@@ -4,18 +4,28 @@
 mod bench;
 mod bench_network;
 mod build;
+mod build_refusals;
+mod colour;
 mod extract;
 mod inspect;
 mod link;
+mod multires;
 mod planet;
 mod planet_bad_input;
+mod planet_closeup;
+mod planet_out_of_core;
 mod planet_shard;
 mod readme;
+mod render;
+mod render_colour;
 mod replay;
 mod serve;
 mod shard;
+mod tiles;
 mod upgrade;
 mod verify;
+mod view;
+mod web_export;
 mod web_tiles;
 
 use std::path::Path;
@@ -41,19 +51,6 @@ fn write_asc(path: &Path, rows: &[Vec<f64>], nodata: Option<f64>) {
         t += "\n";
     }
     std::fs::write(path, t).unwrap();
-}
-
-fn build_quiet(input: &str, out: &Path, max_error: &str) {
-    let o = cbdam(&[
-        "build",
-        input,
-        "-o",
-        &s(out),
-        "--max-error",
-        max_error,
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "build {input}: {}", stderr(&o));
 }
 
 /// An I/O error is printed once: the codec's, server's and flight's error messages include the

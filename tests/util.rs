@@ -1,5 +1,19 @@
-//! Helpers shared by the CLI tests: run the binary, read its output, find the bundled data.
-//! Each module of `tests.rs` uses some of them.
+//! Helpers shared by the CLI tests: run the binary, read its output, find the bundled data, and
+//! the repositories many tests read.
+//!
+//! The convention (tests/README.md): every CLI test is in a module of `tests/cli/`, one per
+//! subcommand or feature, all linked into the one test binary `tests` (`cargo test -p cbdam
+//! --test tests cli::build::`). A test runs `cbdam` through [`cbdam`] (the output, for a test
+//! that checks more), [`run_ok`] (must succeed: its stdout), [`build_quiet`], or
+//! [`run_refused`] (must fail, not by a panic, naming the problem: its stderr;
+//! [`run_refused_leaving`] also checks that nothing was left behind). A repository a test only
+//! reads comes from `fixture` ([`jacksboro_at`], [`shared_planet`], or [`shared`] for another
+//! kind), built once per build; one it changes is built in the test's own temporary directory.
+//! The Dask bridge is run through [`dask`].
+
+pub mod dask;
+mod fixture;
+pub use fixture::*;
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -10,6 +24,53 @@ pub fn cbdam(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("run cbdam")
+}
+
+/// Runs `cbdam args…`, which must succeed; returns its stdout. On failure the test fails with the
+/// command and its stderr.
+pub fn run_ok(args: &[&str]) -> String {
+    let o = cbdam(args);
+    assert!(o.status.success(), "cbdam {args:?} failed: {}", stderr(&o));
+    stdout(&o)
+}
+
+/// Runs `cbdam args…`, which must be refused: exit status 1 (an error) or 2 (a usage error), never
+/// a panic or a signal, and stderr naming each of `says`. Returns stderr.
+pub fn run_refused(args: &[&str], says: &[&str]) -> String {
+    check_refused(&cbdam(args), args, says)
+}
+
+/// [`run_refused`] that also checks the refusal left `dir` as it was (no output, not even a
+/// temporary file).
+pub fn run_refused_leaving(dir: &Path, args: &[&str], says: &[&str]) -> String {
+    let before = listing(dir);
+    let e = run_refused(args, says);
+    assert_eq!(listing(dir), before, "cbdam {args:?} left files behind");
+    e
+}
+
+/// What [`run_refused`] checks, for output the test got another way (`what`: the command, for
+/// the failure message).
+pub fn check_refused(o: &Output, what: impl std::fmt::Debug, says: &[&str]) -> String {
+    let e = stderr(o);
+    // 1: an error the command reports; 2: a usage error clap reports. A panic exits 101, a
+    // signal with no code at all.
+    assert!(
+        matches!(o.status.code(), Some(1 | 2)),
+        "cbdam {what:?} was not refused cleanly ({}): {e}{}",
+        o.status,
+        stdout(o)
+    );
+    assert!(!e.contains("panicked"), "cbdam {what:?} panicked: {e}");
+    for s in says {
+        assert!(e.contains(s), "cbdam {what:?}: no {s:?} in: {e}");
+    }
+    e
+}
+
+/// `a` as the `&str`s [`cbdam`] takes.
+pub fn strs(a: &[String]) -> Vec<&str> {
+    a.iter().map(String::as_str).collect()
 }
 
 /// Runs `cbdam args…`, failing the test (and killing the process) if it has not finished
@@ -99,9 +160,28 @@ fn a_missing_prerequisite_fails_under_ci_and_skips_elsewhere() {
     }
 }
 
+/// `cbdam build INPUT -o OUT --max-error E --quiet`, which must succeed.
+pub fn build_quiet(input: &str, out: &Path, max_error: &str) {
+    let out = s(out);
+    run_ok(&[
+        "build",
+        input,
+        "-o",
+        &out,
+        "--max-error",
+        max_error,
+        "--quiet",
+    ]);
+}
+
 /// A path as a command-line argument.
 pub fn s(p: &Path) -> String {
     p.to_string_lossy().into_owned()
+}
+
+/// The file name of `p`, as `cbdam` prints it in its tables.
+pub fn file_name(p: &Path) -> String {
+    p.file_name().unwrap().to_string_lossy().into_owned()
 }
 
 /// A bundled DEM of `data/`, as a command-line argument.
@@ -133,17 +213,22 @@ pub fn listing(dir: &Path) -> Vec<PathBuf> {
 /// converge on it in a few frames.
 pub fn jacksboro(dir: &Path) -> PathBuf {
     let repo = dir.join("j.cbdam");
-    let o = cbdam(&[
-        "build",
-        &data("jacksboro_mpl.tif"),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "2",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&data("jacksboro_mpl.tif"), &repo, "2");
     repo
+}
+
+/// A 2 s camera flight over Jacksboro (the ends of the shipped `descent.json`), written into
+/// `dir`: short enough for a replay over a slow link.
+pub fn short_flight(dir: &Path) -> PathBuf {
+    let flight = dir.join("short.json");
+    std::fs::write(
+        &flight,
+        r#"{ "keyframes": [
+            { "t": 0.0, "eye": [0.50, -0.60, 25.0], "target": [0.50, 0.50, 0.00] },
+            { "t": 2.0, "eye": [0.51, 0.48, 1.08], "target": [0.54, 0.53, 0.50] } ] }"#,
+    )
+    .unwrap();
+    flight
 }
 
 /// An RGBA PNG (what `render` and `view` write): width, height and the pixels.
@@ -218,4 +303,29 @@ pub fn kill_after_blocks(args: &[String], journal: &Path, n: usize) {
         journal_blocks(journal) >= n,
         "the build was not killed after {n} blocks"
     );
+}
+
+/// [`check_refused`] passes a clean refusal (status 1 or 2, every word named) and fails a
+/// success, a panic (status 101), a signal and a refusal that does not name the problem.
+#[cfg(unix)]
+#[test]
+fn a_refusal_must_fail_cleanly_and_name_the_problem() {
+    use std::os::unix::process::ExitStatusExt;
+    let output = |raw: i32, err: &str| Output {
+        status: std::process::ExitStatus::from_raw(raw),
+        stdout: Vec::new(),
+        stderr: err.as_bytes().to_vec(),
+    };
+    let named = "cbdam: error: bad.tif: no such file";
+    check_refused(&output(1 << 8, named), "ok", &["bad.tif", "no such file"]);
+    check_refused(&output(2 << 8, named), "usage", &["bad.tif"]);
+    for (raw, err, says) in [
+        (0, named, vec!["bad.tif"]),
+        (101 << 8, "thread 'main' panicked at src/x.rs", vec![]),
+        (9, "", vec![]), // killed by SIGKILL
+        (1 << 8, named, vec!["other.tif"]),
+    ] {
+        let r = std::panic::catch_unwind(|| check_refused(&output(raw, err), "bad", &says));
+        assert!(r.is_err(), "status {raw:#x}, {err:?}: passed");
+    }
 }

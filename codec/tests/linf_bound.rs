@@ -235,14 +235,14 @@ proptest! {
         eps in prop_oneof![Just(0.001), Just(0.01), Just(0.1), Just(0.5), Just(1.0), Just(5.0), Just(10.0), Just(100.0)],
         lattice in any::<bool>(),
         half in any::<bool>(),
-        gamma in any::<bool>(),
+        coder in proptest::sample::select(CoderKind::ALL.to_vec()),
         seed in any::<u64>(),
         extra_level_pairs in 0u32..3,
     ) {
         let opts = EncodeOptions {
             n: (1 << n_pow) + 1,
             alpha: if half { Alpha::Half } else { Alpha::One },
-            coder: if gamma { CoderKind::EliasGamma } else { CoderKind::Adaptive },
+            coder,
             extra_level_pairs,
         };
         check(field, w, h, seed, eps, lattice.then_some(1.0), opts);

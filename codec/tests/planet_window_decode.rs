@@ -5,8 +5,7 @@
 //! read; and a level raster filled from the windowed decode equals one filled from the whole
 //! walk.
 
-use std::collections::{HashMap, HashSet};
-use std::sync::Mutex;
+use std::collections::HashMap;
 
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geometry::{DiamondId, Domain, FacePoint};
@@ -15,6 +14,8 @@ use cbdam_codec::hierarchy::{
     encode_planet, walk_all_with_validity,
 };
 use cbdam_codec::quant::Quantizer;
+
+use crate::util::CountedReads;
 
 type Points = HashMap<FacePoint, (i32, bool)>;
 
@@ -80,9 +81,7 @@ fn every_face_window_and_level_decodes_as_the_whole_walk() {
     let enc = encode(5, 3);
     let s = enc.params.domain.cube().unwrap().side();
     let finest = enc.params.layout().finest_level();
-    let stored: Vec<DiamondId> = enc.records.iter().map(|r| r.id).collect();
-    let bytes: HashMap<DiamondId, &[u8]> =
-        enc.records.iter().map(|r| (r.id, &r.bytes[..])).collect();
+    let reads = CountedReads::new(&enc);
     let windows = [
         vec![(0, (5, 7, 12, 9))],        // inside a face
         vec![(1, (s - 3, 10, s, 20))],   // along the edge of faces 1 and 2
@@ -102,22 +101,12 @@ fn every_face_window_and_level_decodes_as_the_whole_walk() {
                 keep_last(&enc, &windows, &mut want, (id, g, v))
             })
             .unwrap();
-            let needed: HashSet<DiamondId> = windows
-                .records_needed(&enc.params, &stored)
-                .unwrap()
-                .into_iter()
-                .collect();
-            let asked = Mutex::new(HashSet::new());
-            let record = |id: DiamondId| {
-                asked.lock().unwrap().insert(id);
-                Ok(bytes[&id])
-            };
             let mut got = Points::new();
             decode_face_windows(
                 enc.params,
                 &enc.roots,
-                &stored,
-                record,
+                &reads.stored,
+                |id| reads.read(id),
                 &windows,
                 |id, g, v| keep_last(&enc, &windows, &mut got, (id, g, v)),
             )
@@ -132,10 +121,9 @@ fn every_face_window_and_level_decodes_as_the_whole_walk() {
                 got.len(),
                 want.len()
             );
-            let asked = asked.into_inner().unwrap();
-            assert!(asked.is_subset(&needed), "read a record it did not name");
-            assert_eq!(asked.len(), needed.len(), "named a record it did not read");
-            partial_reads += usize::from(needed.len() < stored.len());
+            let needed = windows.records_needed(&enc.params, &reads.stored).unwrap();
+            let partial = reads.check_read_exactly(needed);
+            partial_reads += usize::from(partial);
         }
     }
     // The small windows at the finest levels need only part of the planet.
@@ -150,9 +138,7 @@ fn a_raster_from_face_windows_equals_the_raster_from_the_whole_walk() {
     let enc = encode(5, 2);
     let domain = enc.params.domain;
     let s = domain.cube().unwrap().side();
-    let stored: Vec<DiamondId> = enc.records.iter().map(|r| r.id).collect();
-    let bytes: HashMap<DiamondId, &[u8]> =
-        enc.records.iter().map(|r| (r.id, &r.bytes[..])).collect();
+    let reads = CountedReads::new(&enc);
     let rects = vec![
         (0, (s - 4, 0, s, 5)),
         (4, (s - 5, s - 5, s, s)),
@@ -166,12 +152,11 @@ fn a_raster_from_face_windows_equals_the_raster_from_the_whole_walk() {
             level,
             rects: rects.clone(),
         };
-        let record = |id: DiamondId| Ok(bytes[&id]);
         decode_face_windows(
             enc.params,
             &enc.roots,
-            &stored,
-            record,
+            &reads.stored,
+            |id| reads.read(id),
             &windows,
             |id, g, v| windowed.put_diamond(&domain, id, g, v),
         )

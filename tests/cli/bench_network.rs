@@ -9,16 +9,8 @@ use crate::util::*;
 
 /// Jacksboro at ε = 1 m and a 2 s flight (the shipped descent's ends), in `dir`.
 fn inputs(dir: &Path) -> (String, String) {
-    let repo = dir.join("jb.cbdam");
-    super::build_quiet(&data("jacksboro_mpl.tif"), &repo, "1");
-    let flight = dir.join("short.json");
-    std::fs::write(
-        &flight,
-        r#"{ "keyframes": [
-            { "t": 0.0, "eye": [0.50, -0.60, 25.0], "target": [0.50, 0.50, 0.00] },
-            { "t": 2.0, "eye": [0.51, 0.48, 1.08], "target": [0.54, 0.53, 0.50] } ] }"#,
-    )
-    .unwrap();
+    let repo = jacksboro_at("1");
+    let flight = short_flight(dir);
     (s(&repo), s(&flight))
 }
 

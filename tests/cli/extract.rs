@@ -7,7 +7,7 @@ use cbdam_builder::input::{Format, ReadOptions, read_dem};
 use cbdam_codec::repository::{Repository, Section};
 use cbdam_codec::samples::Dem;
 
-use super::{build_quiet, write_asc};
+use super::write_asc;
 use crate::util::*;
 
 fn read(path: &Path) -> Dem {
@@ -190,25 +190,15 @@ fn extract_bbox_and_level() {
 
 /// Runs an extract that must fail with `message` and leave `dir` as it was.
 fn extract_fails(dir: &Path, args: &[&str], message: &str) {
-    let before = listing(dir);
     let mut all = vec!["extract"];
     all.extend_from_slice(args);
-    let o = cbdam(&all);
-    assert!(!o.status.success(), "{all:?} succeeded");
-    assert_eq!(o.status.code(), Some(1), "{all:?}");
-    let err = stderr(&o);
-    assert!(
-        err.contains(message),
-        "{all:?}: expected {message:?} in {err:?}"
-    );
-    assert_eq!(listing(dir), before, "{all:?} left files behind");
+    run_refused_leaving(dir, &all, &[message]);
 }
 
 #[test]
 fn extract_bad_inputs_fail_without_output() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = dir.path().join("t.cbdam");
-    build_quiet(&data("jacksboro_mpl.tif"), &repo, "1");
+    let repo = jacksboro_at("1");
     let r = s(&repo);
     let out = s(&dir.path().join("out.tif"));
     // Jacksboro lies around 84.2° W, 36.6° N.
@@ -360,16 +350,7 @@ fn a_prj_crs_definition_travels_from_input_to_extract() {
     let wkt = r#"PROJCS["Custom_LCC",GEOGCS["GCS_WGS_1984",DATUM["D_WGS_1984",SPHEROID["WGS_1984",6378137.0,298.257223563]],PRIMEM["Greenwich",0.0],UNIT["Degree",0.0174532925199433]],PROJECTION["Lambert_Conformal_Conic"],PARAMETER["Central_Meridian",-96.0],PARAMETER["Standard_Parallel_1",33.0],PARAMETER["Standard_Parallel_2",45.0],PARAMETER["Latitude_Of_Origin",39.0],UNIT["Meter",1.0]]"#;
     std::fs::write(dir.path().join("lcc.prj"), format!("{wkt}\r\n")).unwrap();
     let repo = dir.path().join("lcc.cbdam");
-    let o = cbdam(&[
-        "build",
-        &s(&asc),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "1",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&s(&asc), &repo, "1");
     let o = cbdam(&["inspect", &s(&repo), "--json"]);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["georef"]["wkt"], wkt);

@@ -79,7 +79,7 @@ fn a_crafted_header_with_infinite_heights_is_refused_by_name() {
     let asc = dir.path().join("a.asc");
     super::write_asc(&asc, &vec![vec![10.0, 12.0, 15.0, 11.0, 9.0]; 4], None);
     let good = dir.path().join("good.cbdam");
-    super::build_quiet(&s(&asc), &good, "0.5");
+    build_quiet(&s(&asc), &good, "0.5");
     let bytes = std::fs::read(&good).unwrap();
     let bad = dir.path().join("bad.cbdam");
     let crafted =

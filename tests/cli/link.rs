@@ -53,10 +53,8 @@ fn get(addr: &str, path: &str) -> Vec<u8> {
 #[cfg(unix)]
 #[test]
 fn link_forwards_to_serve_at_the_link_rate_and_stops_on_sigterm() {
-    let dir = tempfile::tempdir().unwrap();
-    let repo = dir.path().join("jb.cbdam");
-    super::build_quiet(&data("jacksboro_mpl.tif"), &repo, "1");
-    let (mut server, server_addr) = spawn_serve(&[&s(&repo)]);
+    let repo = jacksboro_at("1");
+    let (mut server, server_addr) = spawn_serve(&[&format!("jb={}", s(&repo))]);
     let (link, addr, seen, out) = spawn_link(&[
         "--profile",
         "custom",
@@ -149,17 +147,9 @@ fn last_row(csv: &std::path::Path) -> std::collections::HashMap<String, f64> {
 #[test]
 fn replay_through_a_mobile_link_with_resets_converges_to_the_local_cut() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = dir.path().join("jb.cbdam");
-    super::build_quiet(&data("jacksboro_mpl.tif"), &repo, "1");
-    let flight = dir.path().join("short.json");
-    std::fs::write(
-        &flight,
-        r#"{ "keyframes": [
-            { "t": 0.0, "eye": [0.50, -0.60, 25.0], "target": [0.50, 0.50, 0.00] },
-            { "t": 2.0, "eye": [0.51, 0.48, 1.08], "target": [0.54, 0.53, 0.50] } ] }"#,
-    )
-    .unwrap();
-    let (mut server, server_addr) = spawn_serve(&[&s(&repo)]);
+    let repo = jacksboro_at("1");
+    let flight = short_flight(dir.path());
+    let (mut server, server_addr) = spawn_serve(&[&format!("jb={}", s(&repo))]);
     let (link, addr, seen, out) = spawn_link(&[
         "--profile",
         "mobile",

@@ -9,16 +9,7 @@ use cbdam_builder::write::{Raster, write_geotiff};
 use cbdam_codec::geodesy::{LatLon, Utm};
 use cbdam_codec::repository::GeoRef;
 
-use crate::util::{cbdam, s, stderr, stdout};
-
-/// Asserts that `o` failed with a message naming each of `says`.
-fn refused(o: &std::process::Output, says: &[&str]) {
-    assert!(!o.status.success(), "succeeded: {}", stdout(o));
-    let err = stderr(o);
-    for word in says {
-        assert!(err.contains(word), "no {word:?} in: {err}");
-    }
-}
+use crate::util::{cbdam, check_refused, s, stderr, stdout};
 
 /// A smooth relief over the globe, single-valued at the poles: linear in the direction of the
 /// point, ±1000 m towards 0° E on the equator, ±300 m towards the poles.
@@ -231,7 +222,7 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
         "--max-error",
         "1",
     ]);
-    refused(&o, &["lambert.tif", "EPSG:2154", "UTM"]);
+    check_refused(&o, "build --planet", &["lambert.tif", "EPSG:2154", "UTM"]);
     assert!(!out.exists());
 
     // A lattice finer than the level pairs a planet has is refused by name (the memory limit
@@ -247,7 +238,7 @@ fn inputs_a_planet_cannot_place_are_refused_by_name() {
         "--max-error",
         "1",
     ]);
-    refused(&o, &["--planet-level 17", "at most 16"]);
+    check_refused(&o, "build --planet", &["--planet-level 17", "at most 16"]);
     assert!(!out.exists());
 }
 
@@ -343,7 +334,7 @@ fn a_vrt_of_tiles_builds_the_planet_of_its_tiles() {
     let vrt = write_tiles_and_vrt(d, 2);
     let out = d.join("shifted.cbdam");
     let o = build(&[&global, &vrt], &out);
-    refused(&o, &["tiles.vrt", "b.tif"]);
+    check_refused(&o, "build --planet", &["tiles.vrt", "b.tif"]);
     assert!(!out.exists());
 
     // More inputs than a byte can tell apart (the limit until winners took 16 bits): 300
@@ -421,7 +412,7 @@ fn etopo5_with_an_srtm_inset_verifies_on_every_level() {
     // extract writes planar rasters: a planet is refused by name, nothing written.
     let tif = tmp.path().join("x.tif");
     let o = cbdam(&["extract", &s(&out), "-o", &s(&tif)]);
-    refused(&o, &["is a planet"]);
+    check_refused(&o, "build --planet", &["is a planet"]);
     assert!(!tif.exists());
 }
 
@@ -681,15 +672,19 @@ fn bounds_and_crs_place_an_ungeoreferenced_planet_input() {
     assert!(compared > 1000, "{text}");
     // Without the flags the bare input cannot be placed.
     let o = cbdam(&["verify", &s(&b), "--against", &s(&global), &s(&bare)]);
-    refused(&o, &["bare.tif carries no georeferencing"]);
+    check_refused(
+        &o,
+        "build --planet",
+        &["bare.tif carries no georeferencing"],
+    );
 
     let out = d.join("refused.cbdam");
     let o = build(&[&global, &placed], &flags, &out);
-    refused(&o, &["every input here has its own"]);
+    check_refused(&o, "build --planet", &["every input here has its own"]);
     let bare2 = d.join("bare2.tif");
     std::fs::copy(&bare, &bare2).unwrap();
     let o = build(&[&global, &bare, &bare2], &flags, &out);
-    refused(&o, &["bare.tif", "bare2.tif"]);
+    check_refused(&o, "build --planet", &["bare.tif", "bare2.tif"]);
     assert!(!out.exists());
 }
 

@@ -6,7 +6,6 @@
 //! and insets on a cube edge (with a void) and on a cube corner.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use crate::util::*;
 
@@ -22,26 +21,8 @@ fn built(paths: &[PathBuf], out: &Path) -> Vec<u8> {
     let mut a = vec!["build".to_string()];
     a.extend(planet_args(paths));
     a.extend(["-o".into(), s(out), "--quiet".into()]);
-    let o = cbdam(&a.iter().map(String::as_str).collect::<Vec<_>>());
-    assert!(o.status.success(), "{}", stderr(&o));
+    run_ok(&strs(&a));
     std::fs::read(out).unwrap()
-}
-
-fn ok(args: &[&str]) -> String {
-    let o = cbdam(args);
-    assert!(o.status.success(), "cbdam {args:?}: {}", stderr(&o));
-    stdout(&o)
-}
-
-/// `a` as the `&str`s [`cbdam`] takes.
-fn args(a: &[String]) -> Vec<&str> {
-    a.iter().map(String::as_str).collect()
-}
-
-fn refused(args: &[&str]) -> String {
-    let o = cbdam(args);
-    assert_eq!(o.status.code(), Some(1), "cbdam {args:?}: {}", stdout(&o));
-    stderr(&o)
 }
 
 #[test]
@@ -78,20 +59,20 @@ fn sharded_planet_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
         a.into_iter().map(String::from).collect::<Vec<_>>()
     };
     // Out of order: a shard before the apex, the merge before the shards.
-    let e = refused(&args(&step("run", Some("0"))));
-    assert!(e.contains("cbdam shard apex --work"), "{e}");
-    let e = refused(&args(&step("merge", None)));
-    assert!(e.contains("3 of 3 shards have not finished"), "{e}");
-    assert!(ok(&args(&step("apex", None))).contains("encoded"));
-    ok(&args(&step("run", Some("2"))));
-    ok(&args(&step("run", Some("0"))));
-    let e = refused(&args(&step("merge", None)));
-    assert!(e.contains("1 of 3 shards") && e.contains("shard 1 "), "{e}");
-    ok(&args(&step("run", Some("1"))));
+    run_refused(&strs(&step("run", Some("0"))), &["cbdam shard apex --work"]);
+    run_refused(
+        &strs(&step("merge", None)),
+        &["3 of 3 shards have not finished"],
+    );
+    assert!(run_ok(&strs(&step("apex", None))).contains("encoded"));
+    run_ok(&strs(&step("run", Some("2"))));
+    run_ok(&strs(&step("run", Some("0"))));
+    run_refused(&strs(&step("merge", None)), &["1 of 3 shards", "shard 1 "]);
+    run_ok(&strs(&step("run", Some("1"))));
     // A retried shard keeps what it finished.
-    let again = ok(&args(&step("run", Some("1"))));
+    let again = run_ok(&strs(&step("run", Some("1"))));
     assert!(again.contains(", 0 encoded"), "{again}");
-    ok(&args(&step("merge", None)));
+    run_ok(&strs(&step("merge", None)));
     assert!(
         std::fs::read(&out).unwrap() == want,
         "the merged planet differs"
@@ -102,8 +83,7 @@ fn sharded_planet_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
     let mut other = plan_args(&[]);
     let at = other.iter().position(|a| a == "--max-error").unwrap() + 1;
     other[at] = "2".into();
-    let e = refused(&args(&other));
-    assert!(e.contains("max_error: 1 → 2"), "{e}");
+    run_refused(&strs(&other), &["max_error: 1 → 2"]);
     // An input changed since the plan: a shard that still has work refuses, naming it.
     std::fs::remove_file(d.join("work/blocks/block-000000")).unwrap();
     let mut f = std::fs::OpenOptions::new()
@@ -111,10 +91,9 @@ fn sharded_planet_steps_by_hand_merge_to_the_bytes_of_cbdam_build() {
         .open(&paths[1])
         .unwrap();
     std::io::Write::write_all(&mut f, b"\0").unwrap();
-    let e = refused(&args(&step("run", Some("0"))));
-    assert!(
-        e.contains(&s(&paths[1])) && e.contains("changed since the plan"),
-        "{e}"
+    run_refused(
+        &strs(&step("run", Some("0"))),
+        &[&s(&paths[1]), "changed since the plan"],
     );
 }
 
@@ -143,43 +122,29 @@ fn a_planet_planned_with_its_apex_in_one_shard_merges_to_the_same_bytes() {
         ]
         .map(String::from),
     );
-    ok(&a.iter().map(String::as_str).collect::<Vec<_>>());
-    ok(&["shard", "run", "--work", &work, "--shard", "0"]);
-    let e = refused(&["shard", "run", "--work", &work, "--shard", "1"]);
-    assert!(e.contains("shard 1 does not exist"), "{e}");
-    ok(&["shard", "merge", "--work", &work]);
+    run_ok(&strs(&a));
+    run_ok(&["shard", "run", "--work", &work, "--shard", "0"]);
+    run_refused(
+        &["shard", "run", "--work", &work, "--shard", "1"],
+        &["shard 1 does not exist"],
+    );
+    run_ok(&["shard", "merge", "--work", &work]);
     assert!(
         std::fs::read(&out).unwrap() == want,
         "the merged planet differs"
     );
 }
 
-/// Runs `python -m cbdam_dask build PLANET -o OUT --scheduler local:2`; `kill_marker`: the test
-/// hook that kills one shard task's worker once.
-fn dask_planet(python: &Path, paths: &[PathBuf], out: &Path, kill_marker: Option<&Path>) -> String {
-    let mut cmd = Command::new(python);
-    cmd.args(["-m", "cbdam_dask", "build"])
-        .args(planet_args(paths))
-        .arg("-o")
-        .arg(out)
-        .args(["--scheduler", "local:2", "--cbdam"])
-        .arg(env!("CARGO_BIN_EXE_cbdam"))
-        .env(
-            "PYTHONPATH",
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("codec/builder/dask"),
-        );
-    if let Some(m) = kill_marker {
-        cmd.env("CBDAM_DASK_TEST_KILL_ONCE", m);
-    }
-    let o = cmd.output().expect("run python -m cbdam_dask");
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(o.status.success(), "cbdam_dask failed: {err}");
-    err
+/// `python -m cbdam_dask build PLANET -o OUT --scheduler local:2`.
+fn dask_args(paths: &[PathBuf], out: &Path) -> Vec<String> {
+    let mut a = planet_args(paths);
+    a.extend(["-o".into(), s(out), "--scheduler".into(), "local:2".into()]);
+    a
 }
 
 #[test]
 fn dask_build_of_a_planet_is_byte_identical_to_cbdam_build_also_with_a_worker_killed() {
-    let Some(python) = crate::cli::shard::dask_python() else {
+    let Some(python) = dask::python() else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
@@ -187,22 +152,11 @@ fn dask_build_of_a_planet_is_byte_identical_to_cbdam_build_also_with_a_worker_ki
     let paths = crate::cli::planet::edge_and_corner_planet(d);
     let want = built(&paths, &d.join("whole.cbdam"));
     let out = d.join("dask.cbdam");
-    let log = dask_planet(&python, &paths, &out, None);
-    assert_eq!(log.matches("] shard ").count(), 2, "{log}");
-    assert!(
-        std::fs::read(&out).unwrap() == want,
-        "the Dask planet differs"
-    );
-    assert!(
-        !d.join("dask.cbdam.shards").exists(),
-        "the work directory is left"
-    );
+    let log = dask::build(&python, &dask_args(&paths, &out), None);
+    dask::check_build(&log, &out, &want, Some(2));
     let killed = d.join("killed.cbdam");
     let marker = d.join("killed");
-    let log = dask_planet(&python, &paths, &killed, Some(&marker));
+    let log = dask::build(&python, &dask_args(&paths, &killed), Some(&marker));
     assert!(marker.exists(), "the kill hook never ran: {log}");
-    assert!(
-        std::fs::read(&killed).unwrap() == want,
-        "the Dask planet differs after a kill"
-    );
+    dask::check_build(&log, &killed, &want, None);
 }

@@ -2,7 +2,6 @@
 
 use std::path::Path;
 
-use super::build_quiet;
 use crate::util::*;
 
 /// The per-step columns of a frame's wall time, in the CSV's order.
@@ -20,8 +19,7 @@ const STEPS: [&str; 6] = [
 #[test]
 fn replay_writes_documented_csv_and_converges() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = dir.path().join("jb.cbdam");
-    build_quiet(&data("jacksboro_mpl.tif"), &repo, "1");
+    let repo = jacksboro_at("1");
     for flight in ["descent.json", "low_pass.json"] {
         let csv = dir.path().join("stats.csv");
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))

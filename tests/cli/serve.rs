@@ -12,16 +12,7 @@ fn serve_answers_and_stops_on_sigterm() {
 
     let dir = tempfile::tempdir().unwrap();
     let repo = dir.path().join("jb.cbdam");
-    let o = cbdam(&[
-        "build",
-        &data("jacksboro_mpl.tif"),
-        "-o",
-        &s(&repo),
-        "--max-error",
-        "2",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&data("jacksboro_mpl.tif"), &repo, "2");
     let mut child = Command::new(env!("CARGO_BIN_EXE_cbdam"))
         .args(["serve", &s(&repo), "--addr", "127.0.0.1:0"])
         .env("RUST_LOG", "info")
@@ -122,8 +113,7 @@ fn serve_raises_its_soft_fd_limit_to_the_hard_limit() {
         hard == "unlimited" || hard.parse::<u64>().unwrap() > 512,
         "the test lowers the soft limit to 256 and needs a hard limit over 512, not {hard}"
     );
-    let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let mut child = Command::new("sh")
         .args([
             "-c",

@@ -11,16 +11,7 @@ fn verify_catches_a_damaged_record_by_name() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("t.cbdam");
     let input = data("jacksboro_mpl.tif");
-    let o = cbdam(&[
-        "build",
-        &input,
-        "-o",
-        &s(&out),
-        "--max-error",
-        "1",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&input, &out, "1");
     let repo = Repository::open(&out).unwrap();
     let records = repo.head().section_len(Section::Records) as usize;
     // The longest record (some records are empty: all residuals zero).
@@ -63,8 +54,7 @@ fn verify_rejects_the_wrong_input() {
     let asc = dir.path().join("a.asc");
     write_asc(&asc, &rows, None);
     let out = s(&dir.path().join("a.cbdam"));
-    let o = cbdam(&["build", &s(&asc), "-o", &out, "--max-error", "2", "--quiet"]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&s(&asc), std::path::Path::new(&out), "2");
     assert!(
         cbdam(&["verify", &out, "--against", &s(&asc)])
             .status
@@ -105,8 +95,7 @@ fn verify_checks_the_nodata_mask() {
     let asc = dir.path().join("h.asc");
     write_asc(&asc, &holed, Some(-9999.0));
     let out = s(&dir.path().join("h.cbdam"));
-    let o = cbdam(&["build", &s(&asc), "-o", &out, "--max-error", "2", "--quiet"]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&s(&asc), std::path::Path::new(&out), "2");
     let o = cbdam(&["verify", &out, "--against", &s(&asc)]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("0 mismatches"), "{}", stdout(&o));
@@ -179,16 +168,7 @@ fn one_file_verifies_block_by_block() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("r.cbdam");
     let input = data("rhine_nodata.tif");
-    let o = cbdam(&[
-        "build",
-        &input,
-        "-o",
-        &s(&out),
-        "--max-error",
-        "1",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&input, &out, "1");
     let verify_in_blocks = |against: &str| {
         cbdam(&[
             "verify",
@@ -250,16 +230,7 @@ fn verify_compares_georeferencing_and_nodata_with_the_input() {
     rows[1][2] = -9999.0;
     write_asc(&asc, &rows, Some(-9999.0));
     let out = dir.path().join("t.cbdam");
-    let o = cbdam(&[
-        "build",
-        &s(&asc),
-        "-o",
-        &s(&out),
-        "--max-error",
-        "0.5",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    build_quiet(&s(&asc), &out, "0.5");
     let verify = |repo: &std::path::Path| cbdam(&["verify", &s(repo), "--against", &s(&asc)]);
     let o = verify(&out);
     assert!(o.status.success(), "{}", stderr(&o));

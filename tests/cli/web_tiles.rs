@@ -59,7 +59,7 @@ fn files(dir: &Path, ext: &str) -> Vec<std::path::PathBuf> {
 #[test]
 fn exported_tiles_are_what_serve_answers() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let (png_dir, qm_dir) = (dir.path().join("png"), dir.path().join("qm"));
     let said = export(&repo, &png_dir, "terrarium", &["--max-zoom", "8"]);
     assert!(said.contains("tiles written (0 already there)"), "{said}");
@@ -104,7 +104,7 @@ fn exported_tiles_are_what_serve_answers() {
 #[test]
 fn bad_tile_arguments_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = planet(dir.path());
+    let repo = shared_planet();
     let out = dir.path().join("t");
     let o = cbdam(&[
         "tiles",

@@ -27,7 +27,7 @@ fn png_colours(path: &Path) -> ((u32, u32), usize) {
 #[test]
 fn render_writes_a_png_and_rejects_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
 
     let out = dir.path().join("f.png");
     let o = cbdam(&["render", &s(&repo), "--size", "96x64", "-o", &s(&out)]);
@@ -87,7 +87,7 @@ fn render_writes_a_png_and_rejects_bad_arguments() {
 #[test]
 fn render_path_writes_every_frame() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flights/descent.json");
     let frames = dir.path().join("frames");
     let o = cbdam(&[
@@ -180,7 +180,7 @@ fn render_path_writes_every_frame() {
 #[test]
 fn render_over_http_equals_render_of_the_file() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let (mut server, addr) = spawn_serve(&[&s(&repo)]);
     let local = dir.path().join("local.png");
     let remote = dir.path().join("remote.png");
@@ -202,7 +202,7 @@ fn render_over_http_equals_render_of_the_file() {
 #[test]
 fn render_cut_out_lists_the_refined_diamonds() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let (mut server, addr) = spawn_serve(&[&s(&repo)]);
     let mut cuts = Vec::new();
     for (name, source) in [("local", s(&repo)), ("remote", format!("http://{addr}/"))] {
@@ -255,7 +255,7 @@ fn render_cut_out_lists_the_refined_diamonds() {
 #[test]
 fn render_without_a_runtime_dir_prints_no_error_and_leaves_nothing() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let tmp = dir.path().join("tmp");
     std::fs::create_dir(&tmp).unwrap();
     let not_ours = dir.path().join("missing");
@@ -413,8 +413,7 @@ fn check_flight_video(out: &Path, stdout: &str) {
 /// bounded by --max-frames and positive frame times and triangle rates; a bad --fps is refused.
 #[test]
 fn bench_render_flies_the_flights() {
-    let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let flights = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flights");
     let (low, descent) = (flights.join("low_pass.json"), flights.join("descent.json"));
     let o = cbdam(&[
@@ -437,7 +436,7 @@ fn bench_render_flies_the_flights() {
     for flight in ["low_pass.json", "descent.json"] {
         let row = text
             .lines()
-            .find(|l| l.starts_with("| j.cbdam | ") && l.contains(flight))
+            .find(|l| l.starts_with(&format!("| {} | ", file_name(&repo))) && l.contains(flight))
             .unwrap_or_else(|| panic!("no row for {flight}:\n{text}"));
         let cells: Vec<&str> = row.split('|').map(str::trim).collect();
         assert_eq!(cells[3], "3", "frames: {row}");
@@ -507,7 +506,7 @@ fn the_default_view_fills_most_of_the_frame() {
 #[test]
 fn render_draws_a_planet_whole_and_from_a_geodetic_camera() {
     let dir = tempfile::tempdir().unwrap();
-    let repo = planet(dir.path());
+    let repo = shared_planet();
     let out = dir.path().join("globe.png");
     let o = cbdam(&["render", &s(&repo), "--size", "160x120", "-o", &s(&out)]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -549,7 +548,7 @@ fn render_draws_a_planet_whole_and_from_a_geodetic_camera() {
     );
     assert_eq!(png_size(&geo), (96, 64));
 
-    let plane = jacksboro(dir.path());
+    let plane = jacksboro_at("2");
     let o = cbdam(&["render", &s(&plane), "--geo", "30,20,100", "-o", &s(&geo)]);
     assert_eq!(o.status.code(), Some(1));
     assert!(

@@ -72,7 +72,7 @@ fn render(repo: &str, colour: Option<&str>, out: &Path) -> std::process::Output 
 #[test]
 fn render_drapes_the_colour_locally_and_over_http_and_refuses_misfits() {
     let dir = tempfile::tempdir().unwrap();
-    let elev = jacksboro(dir.path());
+    let elev = jacksboro_at("2");
     let img = dir.path().join("ortho.png");
     write_png(&img, W, H, |x, _| if x < W / 2 { RED } else { BLUE });
     let colour = build_colour(dir.path(), &img, Some(&elev), "ortho.cbdam");
@@ -97,7 +97,7 @@ fn render_drapes_the_colour_locally_and_over_http_and_refuses_misfits() {
     assert!(red == 0 && blue == 0, "plain: red {red}, blue {blue}");
 
     // Over HTTP: both repositories from one `cbdam serve`, the same bytes.
-    let (mut server, addr) = spawn_serve(&[&s(&elev), &s(&colour)]);
+    let (mut server, addr) = spawn_serve(&[&format!("j={}", s(&elev)), &s(&colour)]);
     let remote = dir.path().join("remote.png");
     let o = render(
         &format!("http://{addr}/v1/repos/j"),
@@ -148,7 +148,7 @@ fn render_drapes_the_colour_locally_and_over_http_and_refuses_misfits() {
 #[test]
 fn replay_fetches_colour_with_the_elevation() {
     let dir = tempfile::tempdir().unwrap();
-    let elev = jacksboro(dir.path());
+    let elev = jacksboro_at("2");
     let img = dir.path().join("ortho.png");
     write_png(&img, W, H, |x, y| [(x % 256) as u8, (y % 256) as u8, 90]);
     let colour = build_colour(dir.path(), &img, Some(&elev), "ortho.cbdam");

@@ -2,20 +2,11 @@
 //! RGB, inspect the kind; bad images and mismatched sizes fail cleanly without leaving files.
 
 use std::path::Path;
-use std::process::Output;
 
 use crate::util::*;
 use cbdam_codec::colour::reconstruct_rgb;
 use cbdam_codec::hierarchy::RepoKind;
 use cbdam_codec::repository::Repository;
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
 
 fn write_asc(path: &Path, w: usize, h: usize) {
     let mut t = format!("ncols {w}\nnrows {h}\nxllcorner 0\nyllcorner 0\ncellsize 1\n");
@@ -73,7 +64,7 @@ fn colour_build_verify_inspect_over_an_elevation() {
     let dem = dir.path().join("dem.asc");
     write_asc(&dem, 33, 25);
     let elev = s(&dir.path().join("dem.cbdam"));
-    let o = cbdam(&[
+    run_ok(&[
         "build",
         &s(&dem),
         "-o",
@@ -84,13 +75,12 @@ fn colour_build_verify_inspect_over_an_elevation() {
         "9",
         "--quiet",
     ]);
-    assert!(o.status.success(), "{}", text(&o));
     // Twice the elevation's resolution: (33 − 1)·2 + 1 × (25 − 1)·2 + 1.
     let img = dir.path().join("ortho.png");
     let px = write_rgb(&img, 65, 49);
     for max_error in ["0", "4", "10"] {
         let out = s(&dir.path().join(format!("ortho{max_error}.cbdam")));
-        let o = cbdam(&[
+        run_ok(&[
             "build",
             &s(&img),
             "--colour",
@@ -101,7 +91,6 @@ fn colour_build_verify_inspect_over_an_elevation() {
             "--max-error",
             max_error,
         ]);
-        assert!(o.status.success(), "{}", text(&o));
         let repo = Repository::open(Path::new(&out)).unwrap();
         assert_eq!(repo.head().kind(), RepoKind::Colour);
         // --like took the elevation's diamond size, not the default 65.
@@ -117,14 +106,12 @@ fn colour_build_verify_inspect_over_an_elevation() {
             .unwrap();
         let bound: u32 = max_error.parse().unwrap();
         assert!(worst <= bound, "{max_error}: {worst}");
-        let o = cbdam(&["verify", &out, "--against", &s(&img)]);
-        assert!(o.status.success(), "{}", text(&o));
-        assert!(text(&o).contains("OK"));
-        let o = cbdam(&["inspect", &out]);
-        assert!(o.status.success(), "{}", text(&o));
-        assert!(text(&o).contains("kind            colour"), "{}", text(&o));
-        let o = cbdam(&["inspect", &out, "--json"]);
-        assert!(text(&o).contains("\"kind\": \"colour\""), "{}", text(&o));
+        let said = run_ok(&["verify", &out, "--against", &s(&img)]);
+        assert!(said.contains("OK"), "{said}");
+        let said = run_ok(&["inspect", &out]);
+        assert!(said.contains("kind            colour"), "{said}");
+        let said = run_ok(&["inspect", &out, "--json"]);
+        assert!(said.contains("\"kind\": \"colour\""), "{said}");
     }
     // verify catches an image that is not the one built from.
     let other = dir.path().join("other.png");
@@ -139,20 +126,18 @@ fn colour_build_verify_inspect_over_an_elevation() {
         png::BitDepth::Eight,
         &data,
     );
-    let o = cbdam(&[
-        "verify",
-        &s(&dir.path().join("ortho4.cbdam")),
-        "--against",
-        &s(&other),
-    ]);
-    assert!(!o.status.success(), "{}", text(&o));
-    // The elevation inspect says elevation.
-    let o = cbdam(&["inspect", &elev]);
-    assert!(
-        text(&o).contains("kind            elevation"),
-        "{}",
-        text(&o)
+    run_refused(
+        &[
+            "verify",
+            &s(&dir.path().join("ortho4.cbdam")),
+            "--against",
+            &s(&other),
+        ],
+        &[],
     );
+    // The elevation inspect says elevation.
+    let said = run_ok(&["inspect", &elev]);
+    assert!(said.contains("kind            elevation"), "{said}");
 }
 
 #[test]
@@ -161,7 +146,7 @@ fn bad_colour_inputs_fail_cleanly() {
     let dem = dir.path().join("dem.asc");
     write_asc(&dem, 33, 25);
     let elev = s(&dir.path().join("dem.cbdam"));
-    let o = cbdam(&[
+    run_ok(&[
         "build",
         &s(&dem),
         "-o",
@@ -172,7 +157,6 @@ fn bad_colour_inputs_fail_cleanly() {
         "9",
         "--quiet",
     ]);
-    assert!(o.status.success(), "{}", text(&o));
     let grey = dir.path().join("grey.png");
     write_png(
         &grey,
@@ -215,25 +199,21 @@ fn bad_colour_inputs_fail_cleanly() {
         let in_s = s(input);
         args.extend([o_s.as_str(), in_s.as_str(), "--max-error", max_error]);
         args.extend_from_slice(extra);
-        let o = cbdam(&args);
-        assert!(!o.status.success(), "case {i} succeeded");
-        assert!(text(&o).contains(want), "case {i}: {}", text(&o));
+        run_refused(&args, &[want]);
         assert!(!out.exists(), "case {i} left a file");
     }
     // --like on an elevation build is refused rather than ignored.
-    let o = cbdam(&[
-        "build",
-        &s(&dem),
-        "-o",
-        &s(&out),
-        "--max-error",
-        "1",
-        "--like",
-        &elev,
-    ]);
-    assert!(
-        !o.status.success() && text(&o).contains("--colour"),
-        "{}",
-        text(&o)
+    run_refused(
+        &[
+            "build",
+            &s(&dem),
+            "-o",
+            &s(&out),
+            "--max-error",
+            "1",
+            "--like",
+            &elev,
+        ],
+        &["--colour"],
     );
 }

@@ -89,7 +89,7 @@ fn view_draws_terrain_and_the_hud_in_a_window() {
         Err(why) => return skip_unless_ci("view_draws_terrain_and_the_hud_in_a_window", &why),
     };
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
 
     let shot = dir.path().join("shot.png");
     let (w, h) = (320u32, 240u32);
@@ -289,7 +289,7 @@ fn keys_and_mouse_drive_the_viewer() {
         Err(why) => return skip(&why),
     };
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     let (w, h) = (320u32, 240u32);
     let mut viewer = Command::new(env!("CARGO_BIN_EXE_cbdam"))
         .args([
@@ -468,7 +468,7 @@ fn view_drapes_a_colour_repository() {
         Err(why) => return skip_unless_ci("view_drapes_a_colour_repository", &why),
     };
     let dir = tempfile::tempdir().unwrap();
-    let repo = jacksboro(dir.path());
+    let repo = jacksboro_at("2");
     // Jacksboro is 403 × 344 samples: a colour image of the same size covers its domain.
     let (iw, ih) = (403usize, 344usize);
     let img = dir.path().join("halves.png");

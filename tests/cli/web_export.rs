@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::cli_render_colour::{H, W, build_colour, write_png};
+use crate::cli::render_colour::{H, W, build_colour, write_png};
 use crate::util::{cbdam, jacksboro, s, stderr};
 
 /// A stand-in for target/web-bundle: the files `cbdam serve --web` and the export require, with

@@ -223,7 +223,7 @@ fn peak_rss_kib(args: &[&str]) -> u64 {
 ///   several inputs have) + ¼ of the tiles' bytes.
 ///
 /// Minutes in a debug build: run it with
-/// `cargo test --release -p cbdam --test tests -- --ignored cli_tiles::mosaic_peak_memory`.
+/// `cargo test --release -p cbdam --test tests -- --ignored cli::tiles::mosaic_peak_memory`.
 #[test]
 #[ignore = "minutes: builds a 67 M-sample grid three times"]
 fn mosaic_peak_memory_does_not_grow_with_the_tile_count() {
