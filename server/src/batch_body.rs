@@ -21,8 +21,7 @@ use http_body::{Frame, SizeHint};
 
 use crate::answer_memory::Claim;
 use crate::conn::ConnHandle;
-use crate::records::RecordBuffer;
-use crate::routes::read_records;
+use crate::records::{RecordBuffer, read_records};
 use crate::state::{AppState, ServedRepo};
 
 /// A chunk is cut after the entry that takes it past this many bytes: small enough that a

@@ -43,7 +43,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Notify;
 use tokio::time::Instant;
 
-use crate::state::Config;
+use crate::config::Config;
 
 /// hyper's buffer bound for HTTP/1.1 (bytes): the most a request head may take (a longer one is
 /// answered 431), and about how much of an answer hyper queues before it stops asking the body

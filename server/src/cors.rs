@@ -43,9 +43,9 @@ pub(crate) fn cors_layer(origin: &str) -> CorsLayer {
             header::CONTENT_RANGE,
             header::ACCEPT_RANGES,
             header::CONTENT_LENGTH,
-            HeaderName::from_static(crate::tiles::LEVEL_HEADER),
-            HeaderName::from_static(crate::tiles::CLAMPED_HEADER),
-            HeaderName::from_static(crate::tiles::DEVIATION_HEADER),
+            HeaderName::from_static(crate::headers::LEVEL_HEADER),
+            HeaderName::from_static(crate::headers::CLAMPED_HEADER),
+            HeaderName::from_static(crate::headers::DEVIATION_HEADER),
         ])
         .max_age(std::time::Duration::from_secs(86_400))
 }

@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use axum::extract::rejection::PathRejection;
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use cbdam_codec::CodecError;
@@ -118,4 +119,9 @@ impl From<std::io::Error> for ServerError {
     fn from(e: std::io::Error) -> Self {
         ServerError::Io(e)
     }
+}
+
+/// A path the router could not parse into its parameters, as a 400.
+pub(crate) fn bad_path(e: PathRejection) -> ApiError {
+    ApiError::BadRequest(format!("malformed path: {}", e.body_text()))
 }

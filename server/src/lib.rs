@@ -49,11 +49,13 @@
 
 mod answer_memory;
 mod batch_body;
+mod config;
 mod conn;
 mod cors;
 pub mod describe;
 mod error;
 mod file_body;
+mod headers;
 pub mod metrics;
 mod observe;
 mod range;
@@ -68,12 +70,13 @@ use std::future::Future;
 use axum::Router;
 use tokio::net::TcpListener;
 
+pub use config::Config;
 pub use conn::raise_fd_limit;
 pub use describe::{describe, head_len, summarize};
 pub use error::{ApiError, ServerError};
 pub use range::{RangeRequest, parse_range};
 pub use routes::{BATCH_CONTENT_TYPE, BATCH_MAGIC, STATUS_NOT_STORED, STATUS_RECORD};
-pub use state::{AppState, Config, RepoSpec, ServedRepo, validate_name};
+pub use state::{AppState, RepoSpec, ServedRepo, validate_name};
 pub use web::{WebAssets, WebError};
 
 /// The router with every endpoint and middleware (CORS, timeout, metrics and request logs).

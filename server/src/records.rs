@@ -15,7 +15,7 @@
 use cbdam_codec::repository::Section;
 
 use crate::error::ApiError;
-use crate::state::{ServedRepo, Source};
+use crate::state::{AppState, ServedRepo, Source};
 use std::sync::atomic::Ordering::Relaxed;
 
 /// Records whose bytes lie at most this far apart are read with one positioned read, the bytes
@@ -164,5 +164,35 @@ impl ServedRepo {
             run = next;
         }
         Ok(())
+    }
+}
+
+/// Reads `records` ([`ServedRepo::read_records`]), handing each one's bytes to `emit`. A
+/// damaged record is answered with 500 and logged the first time only.
+pub(crate) fn read_records(
+    st: &AppState,
+    r: &ServedRepo,
+    records: &[usize],
+    buf: &mut RecordBuffer,
+    emit: impl FnMut(usize, &[u8]),
+) -> Result<(), ApiError> {
+    match r.read_records(records, buf, emit) {
+        Ok(()) => Ok(()),
+        Err(RecordError::Read(e)) => Err(e),
+        Err(RecordError::Damaged(i, e)) => {
+            st.metrics().add_corrupt();
+            let id = r.repo.head().entries()[i].id;
+            if !r.corrupt_logged[i].swap(true, Relaxed) {
+                tracing::error!(
+                    repo = %r.name,
+                    diamond = %id,
+                    "damaged record, answering 500 for it (logged once): {e}"
+                );
+            }
+            Err(ApiError::Internal(format!(
+                "the record of diamond {id} in repository {:?} is damaged",
+                r.name
+            )))
+        }
     }
 }

@@ -20,11 +20,12 @@ use tower_http::timeout::TimeoutLayer;
 use crate::batch_body::{BatchBody, NOT_STORED};
 use crate::conn::ConnHandle;
 use crate::cors::cors_layer;
-use crate::error::ApiError;
+use crate::error::{ApiError, bad_path};
 use crate::file_body::FileBody;
+use crate::headers::{accepts_gzip, not_modified};
 use crate::observe::ObserveLayer;
 use crate::range::{RangeRequest, parse_range};
-use crate::records::{RecordBuffer, RecordError};
+use crate::records::{RecordBuffer, read_records};
 use crate::state::{AppState, ServedRepo, Source};
 
 use cbdam_codec::repository::batch::answer_order;
@@ -77,10 +78,6 @@ async fn method_not_allowed(method: Method, uri: Uri) -> ApiError {
     ApiError::MethodNotAllowed(format!("{method} is not allowed on {}", uri.path()))
 }
 
-pub(crate) fn bad_path(e: PathRejection) -> ApiError {
-    ApiError::BadRequest(format!("malformed path: {}", e.body_text()))
-}
-
 fn lookup<'a>(st: &'a AppState, name: &str) -> Result<&'a Arc<ServedRepo>, ApiError> {
     st.repo(name)
         .ok_or_else(|| ApiError::NotFound(format!("no repository named {name:?}")))
@@ -97,48 +94,6 @@ fn find(r: &ServedRepo, id: DiamondId) -> Option<usize> {
         .entries()
         .binary_search_by(|e| e.id.cmp(&id))
         .ok()
-}
-
-/// Whether `If-None-Match` matches `etag` (weak comparison, as RFC 9110 asks for this header).
-pub(crate) fn not_modified(headers: &HeaderMap, etag: &HeaderValue) -> bool {
-    let ours = etag.as_bytes();
-    headers
-        .get_all(header::IF_NONE_MATCH)
-        .iter()
-        .filter_map(|v| v.to_str().ok())
-        .flat_map(|v| v.split(','))
-        .map(str::trim)
-        .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t).as_bytes() == ours)
-}
-
-/// Reads `records` ([`ServedRepo::read_records`]), handing each one's bytes to `emit`. A
-/// damaged record is answered with 500 and logged the first time only.
-pub(crate) fn read_records(
-    st: &AppState,
-    r: &ServedRepo,
-    records: &[usize],
-    buf: &mut RecordBuffer,
-    emit: impl FnMut(usize, &[u8]),
-) -> Result<(), ApiError> {
-    match r.read_records(records, buf, emit) {
-        Ok(()) => Ok(()),
-        Err(RecordError::Read(e)) => Err(e),
-        Err(RecordError::Damaged(i, e)) => {
-            st.metrics().add_corrupt();
-            let id = r.repo.head().entries()[i].id;
-            if !r.corrupt_logged[i].swap(true, Relaxed) {
-                tracing::error!(
-                    repo = %r.name,
-                    diamond = %id,
-                    "damaged record, answering 500 for it (logged once): {e}"
-                );
-            }
-            Err(ApiError::Internal(format!(
-                "the record of diamond {id} in repository {:?} is damaged",
-                r.name
-            )))
-        }
-    }
 }
 
 fn respond(status: StatusCode, headers: HeaderMap, body: impl Into<Body>) -> Response {
@@ -204,21 +159,6 @@ async fn viewer_file(
         _ => asset.raw.clone(),
     };
     Ok(respond(StatusCode::OK, h, body))
-}
-
-/// Whether `Accept-Encoding` accepts gzip (`gzip;q=0` refuses it).
-pub(crate) fn accepts_gzip(headers: &HeaderMap) -> bool {
-    headers
-        .get_all(header::ACCEPT_ENCODING)
-        .iter()
-        .filter_map(|v| v.to_str().ok())
-        .flat_map(|v| v.split(','))
-        .any(|e| {
-            let mut parts = e.split(';');
-            let coding = parts.next().unwrap_or("").trim();
-            let refused = parts.any(|p| p.trim().replace(' ', "") == "q=0");
-            (coding.eq_ignore_ascii_case("gzip") || coding == "*") && !refused
-        })
 }
 
 async fn list(State(st): State<AppState>) -> Response {

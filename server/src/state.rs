@@ -5,79 +5,22 @@ use std::fmt::Write;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
-use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use std::time::Duration;
+use std::sync::{Arc, OnceLock};
 
 use axum::http::HeaderValue;
 use bytes::Bytes;
 use cbdam_codec::repository::{Repository, Section};
+use cbdam_tiles::Tiler;
 
 use crate::answer_memory::AnswerMemory;
+use crate::config::Config;
 use crate::describe::{describe, head_len};
 use crate::error::{ApiError, ServerError};
 use crate::metrics::Metrics;
 
-/// Server settings.
-#[derive(Clone, Debug)]
-pub struct Config {
-    /// Most ids in one batch request (`--max-batch`).
-    pub max_batch: usize,
-    /// Largest accepted request body, bytes.
-    pub max_body: usize,
-    /// Value of `Access-Control-Allow-Origin`: `*` or an origin such as
-    /// `https://example.org` (`--cors-origin`).
-    pub cors_origin: String,
-    /// Time allowed to answer one request (`--timeout`).
-    pub timeout: Duration,
-    /// The browser viewer's files, served at `/viewer/…` with a page at `/` (`--web`).
-    pub web: Option<Arc<crate::web::WebAssets>>,
-    /// Time a connection has to deliver a request's headers (`--header-timeout`): from its
-    /// accept for the first request (protocol detection included), from the end of the last
-    /// answer for the next ones on an HTTP/1.1 keep-alive connection, which this also closes
-    /// when it stays idle that long.
-    pub header_read_timeout: Duration,
-    /// A connection that moves no byte either way for this long is closed
-    /// (`--idle-timeout`): an idle HTTP/2 connection, or a client that stopped reading its
-    /// answer. Longer than [`Config::timeout`], so a request being answered is not cut.
-    pub idle_timeout: Duration,
-    /// Most connections held open at once (`--max-connections`; lowered to what the process's
-    /// file-descriptor limit allows). A connection beyond it closes the least recently active
-    /// one of the client address holding the most connections (see [`crate::run`]).
-    pub max_connections: usize,
-    /// Most samples a repository's decoded levels (4 bytes a sample) may hold for the tiles to
-    /// decode them whole in the background after the first tile request; past it, tiles keep
-    /// decoding windows (a repository without records, which has no windows, is refused).
-    pub max_tile_samples: u64,
-    /// Repositories opened from files whose records areas take at most this many bytes in
-    /// all (in the order given) are read into memory when opened (`--hold-records`): records
-    /// are then served without a read of the file, the file's identity still checked for each
-    /// request. Larger ones are read record by record ([`crate::records`]).
-    pub held_records_bytes: u64,
-    /// Most bytes of streamed answers (batches, file ranges) made and not yet written, over
-    /// all connections (`--answer-memory`): a body waits for room beyond it, and a connection
-    /// that has held answer bytes without reading for a second is closed to make room
-    /// ([`crate::answer_memory`]).
-    pub answer_memory: u64,
-}
-
-impl Default for Config {
-    fn default() -> Self {
-        Self {
-            max_batch: 4096,
-            max_body: 1 << 20,
-            cors_origin: "*".to_string(),
-            timeout: Duration::from_secs(30),
-            web: None,
-            header_read_timeout: Duration::from_secs(10),
-            idle_timeout: Duration::from_secs(60),
-            max_connections: 10_000,
-            max_tile_samples: 1 << 28,
-            held_records_bytes: 256 << 20,
-            answer_memory: 32 << 20,
-        }
-    }
-}
+/// A served repository's tiler, built on first use: `Err` keeps why it could not be.
+pub(crate) type TilerCell = OnceLock<Result<Arc<Tiler>, String>>;
 
 /// A repository argument: `PATH` (named after the file stem) or `NAME=PATH`.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -219,7 +162,7 @@ pub struct ServedRepo {
     /// ([`crate::records`]).
     pub(crate) verified: Vec<AtomicBool>,
     /// The web-map tiler ([`crate::tiles`]), its records read on the first tile request.
-    pub(crate) tiles: crate::tiles::TilerCell,
+    pub(crate) tiles: TilerCell,
     /// Every record's ETag, concatenated: a response takes its slice of this shared buffer
     /// (a reference count, no allocation, no formatting per request).
     etags: Bytes,
@@ -276,7 +219,7 @@ impl ServedRepo {
             changed_logged: AtomicBool::new(false),
             corrupt_logged: flags(),
             verified: flags(),
-            tiles: crate::tiles::TilerCell::new(),
+            tiles: TilerCell::new(),
             etags: Bytes::from(etags),
             etag_at,
         }

@@ -7,7 +7,7 @@
 //! their reach while the whole surface is decoded in the background (when it fits
 //! `max_tile_samples`); tiles then read it. The bytes are the same either way.
 
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 use axum::body::Body;
 use axum::extract::rejection::PathRejection;
@@ -18,25 +18,17 @@ use cbdam_codec::hierarchy::{Encoded, Record};
 use cbdam_tiles::surface::Surface;
 use cbdam_tiles::{Encoding, Tiler, TilesError};
 
-use crate::error::ApiError;
+use crate::error::{ApiError, bad_path};
+use crate::headers::{
+    CLAMPED_HEADER, CLAMPED_VERTICES_HEADER, DEVIATION_HEADER, LEVEL_HEADER, accepts_gzip,
+    not_modified,
+};
 use crate::records::{RecordBuffer, RecordError};
 use crate::state::{AppState, ServedRepo};
 
 /// Caches revalidate tiles (a file rebuilt under the same name changes them): a 304 is cheap
 /// for the network, though the server makes the tile again to compare its ETag.
 const REVALIDATE: &str = "no-cache";
-
-/// The level of the repository a tile's heights come from (response header).
-pub(crate) const LEVEL_HEADER: &str = "cbdam-level";
-/// Pixels of a raster tile whose height the encoding had to clamp (response header).
-pub(crate) const CLAMPED_HEADER: &str = "cbdam-clamped-pixels";
-/// A mesh tile's measured |mesh − the repository level sampled|, metres (response header).
-pub(crate) const DEVIATION_HEADER: &str = "cbdam-deviation-m";
-/// Vertices of a mesh tile clamped to the header's height range (response header).
-pub(crate) const CLAMPED_VERTICES_HEADER: &str = "cbdam-clamped-vertices";
-
-/// A served repository's tiler, built on first use: `Err` keeps why it could not be.
-pub(crate) type TilerCell = OnceLock<Result<Arc<Tiler>, String>>;
 
 fn api_error(e: TilesError) -> ApiError {
     match e {
@@ -181,7 +173,7 @@ fn tile_response(r: &ServedRepo, req: &HeaderMap, mut h: HeaderMap, body: Vec<u8
     h.insert(header::ETAG, etag.clone());
     h.insert(header::CACHE_CONTROL, hv(REVALIDATE));
     let mut resp = Response::new(Body::empty());
-    if crate::routes::not_modified(req, &etag) {
+    if not_modified(req, &etag) {
         *resp.status_mut() = StatusCode::NOT_MODIFIED;
     } else {
         *resp.body_mut() = Body::from(body);
@@ -303,7 +295,7 @@ async fn layer_json(
     path: Result<Path<String>, PathRejection>,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let Path(name) = path.map_err(crate::routes::bad_path)?;
+    let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
     let t = tiler(&st, r).await?;
     let doc = tokio::task::spawn_blocking(move || t.layer_json(&name))
@@ -320,12 +312,12 @@ async fn terrain(
     path: Result<Path<(String, String, String, String)>, PathRejection>,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let Path((name, z, x, y)) = path.map_err(crate::routes::bad_path)?;
+    let Path((name, z, x, y)) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
     let zxy = tile_address(&z, &x, &y, ".terrain")?;
     let (normals, metadata) = extensions(req.headers());
     let t = tiler(&st, r).await?;
-    let gzip = crate::routes::accepts_gzip(req.headers());
+    let gzip = accepts_gzip(req.headers());
     let (made, body) = tokio::task::spawn_blocking(move || {
         let made = t.mesh(zxy, normals, metadata)?;
         let body = if gzip {
@@ -369,7 +361,7 @@ pub(crate) fn routes(router: axum::Router<AppState>) -> axum::Router<AppState> {
                     concat!("/v1/repos/{name}/", $segment, "/tiles.json"),
                     get(
                         |State(st): State<AppState>, p: NamePath, req: Request| async move {
-                            let Path(name) = p.map_err(crate::routes::bad_path)?;
+                            let Path(name) = p.map_err(bad_path)?;
                             tilejson(st, name, req, $encoding, $segment).await
                         },
                     ),
@@ -378,7 +370,7 @@ pub(crate) fn routes(router: axum::Router<AppState>) -> axum::Router<AppState> {
                     concat!("/v1/repos/{name}/", $segment, "/{z}/{x}/{y}"),
                     get(
                         |State(st): State<AppState>, p: RasterPath, req: Request| async move {
-                            let Path(p) = p.map_err(crate::routes::bad_path)?;
+                            let Path(p) = p.map_err(bad_path)?;
                             raster(st, p, req, $encoding).await
                         },
                     ),
