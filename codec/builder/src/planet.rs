@@ -440,6 +440,8 @@ pub struct PlanetSummary {
     pub inputs_read: u64,
     /// Wall time of each stage.
     pub stages: Vec<(&'static str, std::time::Duration)>,
+    /// Encoded block by block: how many blocks, and how many lattice tiles they group.
+    pub blocks: Option<(usize, usize)>,
 }
 
 /// Bytes a planet build holds per lattice point its tiles hold when it resamples and encodes
@@ -487,6 +489,7 @@ fn encode_whole(
         resampling: resampling?,
         valid: count_valid(&resampled.planet),
         held_points: resampled.planet.held_points(),
+        blocks: None,
     })
 }
 
@@ -521,7 +524,9 @@ fn encode_lattice(
         return Ok((lattice, None));
     }
     let t = Instant::now();
-    let key = crate::journal_key(opts, tiles, enc, None)? + &format!("planet=1\nlevel_pairs={k}\n");
+    let block_bytes = planet_block_bytes(limit);
+    let key = crate::journal_key(opts, tiles, enc, None)?
+        + &format!("planet=1\nlevel_pairs={k}\nplanet_block_bytes={block_bytes}\n");
     let (journal, resumed) = crate::journal::Journal::open(&opts.output, &key)?;
     stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
     progress.resumed(&resumed);
@@ -532,7 +537,7 @@ fn encode_lattice(
         k,
         plan,
         enc,
-        lattice_cache_budget(limit),
+        (lattice_cache_budget(limit), block_bytes),
         &journal,
     )?;
     stages.push((
@@ -552,6 +557,14 @@ pub fn input_cache_budget(memory_limit: u64) -> u64 {
 /// Bytes of resampled lattice tiles a planet build keeps for the blocks that read them again
 /// (a block reads its neighbours' edges): a quarter of the memory limit.
 pub fn lattice_cache_budget(memory_limit: u64) -> u64 {
+    memory_limit / 4
+}
+
+/// Bytes one block of the block-wise encode is planned to hold (its tiles, and the grids of
+/// the diamonds it owns): a quarter of the memory limit. Tiles are grouped into blocks of
+/// about this much ([`cbdam_codec::hierarchy::planet::BlockGroups`]), so that blocks follow the
+/// data: a coarse face is a few blocks, a fine tile one.
+pub fn planet_block_bytes(memory_limit: u64) -> u64 {
     memory_limit / 4
 }
 
@@ -706,6 +719,7 @@ pub fn build_planet(
         resampling,
         inputs_read: inputs.reads().0,
         stages,
+        blocks: lattice.blocks,
     })
 }
 
