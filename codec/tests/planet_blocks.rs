@@ -301,7 +301,7 @@ fn tiles_grouped_into_blocks_by_memory_encode_as_whole() {
         for cut in [2, default] {
             let blocks = PlanetBlocks::new(&outline, &planet, q, &opts(9), cut, None)
                 .unwrap()
-                .with_block_bytes(&strides, budget)
+                .with_block_bytes(&strides, (budget, 1))
                 .unwrap();
             let count = blocks.block_count();
             let encoded = blocks.finish(&NoJournal, cut % 2 == 0).unwrap();

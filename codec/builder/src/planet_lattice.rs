@@ -448,7 +448,7 @@ pub fn encode_out_of_core(
     let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
     let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
     let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, None)
-        .and_then(|b| b.with_block_bytes(tiles.strides(), block_bytes))
+        .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
         .map_err(BuildError::from)?;
     let counts = (
         blocks.block_count(),

@@ -56,7 +56,7 @@ const APEX: &str = "planet-apex";
 const RESAMPLING: &str = "resampling";
 const BLOCKS: &str = "blocks";
 /// The work directory layout of sharded planets, in the key (`shard_layout=`).
-pub(crate) const LAYOUT: &str = "planet-1";
+pub(crate) const LAYOUT: &str = "planet-2";
 
 /// Whether `work` holds a finished plan of a planet.
 pub fn is_planet(work: &Path) -> bool {
@@ -132,11 +132,12 @@ pub fn plan(
         valid,
         held_points,
     };
+    let min_blocks = shards.map_or(1, |s| 4 * s);
     let block_count = planet_block_groups(
         &outline.outline,
         outline.cut,
         &outline.strides,
-        planet_block_bytes(limit),
+        (planet_block_bytes(limit), min_blocks),
     )?
     .len();
     let plan = PlanetShardPlan {
@@ -152,6 +153,7 @@ pub fn plan(
         coder: opts.coder,
         memory_limit: limit,
         block_count,
+        min_blocks,
         shards: shards.unwrap_or(block_count).clamp(1, block_count.max(1)),
     };
     write_outline(work, OUTLINE, &outline)?;
@@ -318,8 +320,8 @@ fn grouped<'a>(
     plan: &PlanetShardPlan,
     outline: &OutlineFile,
 ) -> Result<PlanetBlocks<'a>> {
-    let blocks =
-        blocks.with_block_bytes(&outline.strides, planet_block_bytes(plan.memory_limit))?;
+    let budget = (planet_block_bytes(plan.memory_limit), plan.min_blocks);
+    let blocks = blocks.with_block_bytes(&outline.strides, budget)?;
     if blocks.block_count() != plan.block_count {
         bail!(
             "the plan has {} blocks but its outline groups into {}: plan again with this \

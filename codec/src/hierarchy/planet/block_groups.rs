@@ -91,17 +91,18 @@ impl BlockGroups {
         Self { groups }
     }
 
-    /// Tiles grouped so that each block's estimated memory fits `block_bytes` (or it is one
-    /// tile; see the module notes): `strides` per face, per tile, the `log2` of the stride it
-    /// holds its points at; `stored` per level, the planet's stored diamonds, of which those
-    /// from level `cut` down are counted where their centres lie.
+    /// Tiles grouped so that each block's estimated memory fits `block_bytes`, and at most
+    /// the `at_least`-th part of the whole planet's (so that shards have blocks to share), or
+    /// it is one tile (see the module notes): `strides` per face, per tile, the `log2` of the
+    /// stride it holds its points at; `stored` per level, the planet's stored diamonds, of
+    /// which those from level `cut` down are counted where their centres lie.
     pub fn within(
         domain: &Domain,
         tile_log2: u32,
         strides: &[Vec<u32>],
         stored: &[Vec<DiamondId>],
         cut: u8,
-        block_bytes: u64,
+        (block_bytes, at_least): (u64, usize),
     ) -> Result<Self, CodecError> {
         let side = domain.cube().map_or(0, |c| c.side());
         let across = tiles_across(side, tile_log2);
@@ -132,6 +133,8 @@ impl BlockGroups {
             let i = tile_of(side, tile_log2, i64::from(id.x), i64::from(id.y));
             bytes[usize::from(id.face)][i] += n * n * BYTES_PER_DIAMOND_POINT;
         }
+        let total: u64 = bytes.iter().flatten().sum();
+        let budget = block_bytes.min(total.div_ceil(at_least.max(1) as u64));
         let mut groups = Vec::new();
         for (face, bytes) in bytes.iter().enumerate() {
             let face = u8::try_from(face).expect("6 faces");
@@ -140,7 +143,7 @@ impl BlockGroups {
                 first: (0, 0),
                 last: (across - 1, across - 1),
             };
-            split(whole, across, bytes, block_bytes, &mut groups);
+            split(whole, across, bytes, budget, &mut groups);
         }
         Ok(Self { groups })
     }
@@ -205,7 +208,10 @@ mod tests {
         assert_eq!(across, 16);
         let mut strides = vec![vec![3u32; across * across]; 6];
         strides[2][5 * across + 7] = 0;
-        let g = BlockGroups::within(&domain, t, &strides, &[], 0, 4 * 81 * 8).unwrap();
+        // A coarse tile holds 2² points (32 B), the fine one 9² (648 B): under 700 B the fine
+        // one is alone (any quarter holding it and three others is 744 B), the coarse ones go
+        // 16 together (512 B; 64 are 2 048 B).
+        let g = BlockGroups::within(&domain, t, &strides, &[], 0, (700, 1)).unwrap();
         for face in 0..6u8 {
             for i in 0..across * across {
                 let holding = g
@@ -220,11 +226,19 @@ mod tests {
             .iter()
             .find(|b| b.face == 2 && b.holds(5 * across + 7, across));
         assert_eq!(fine.unwrap().tiles(across).count(), 1);
-        // 4 coarse points of 8 B a tile: 81 tiles a block at most.
-        assert!(g.len() < 6 * across * across / 16, "{} groups", g.len());
+        for b in g.groups.iter().filter(|b| b.face != 2) {
+            assert_eq!(b.tiles(across).count(), 16, "{b:?}");
+        }
         let one = BlockGroups::one_per_tile(&domain, t);
         assert_eq!(one.len(), 6 * across * across);
-        let e = BlockGroups::within(&domain, t, &strides[..5], &[], 0, 0).unwrap_err();
+        // Asked for at least 200 blocks, the budget shrinks to the 200th part of the planet.
+        let many = BlockGroups::within(&domain, t, &strides, &[], 0, (u64::MAX, 200)).unwrap();
+        assert!(
+            many.len() >= 200 && many.len() < g.len() * 200,
+            "{}",
+            many.len()
+        );
+        let e = BlockGroups::within(&domain, t, &strides[..5], &[], 0, (0, 1)).unwrap_err();
         assert!(e.to_string().contains("5 faces"), "{e}");
     }
 
@@ -236,7 +250,7 @@ mod tests {
             first: (1, 0),
             last: (2, 3),
         };
-        assert_eq!(g.owned_span(64, 4), ((16, 47), (0, 63)));
+        assert_eq!(g.owned_span(64, 4), ((16, 47), (0, 64)));
         let g = TileGroup {
             face: 0,
             first: (3, 3),

@@ -264,7 +264,7 @@ pub fn planet_block_groups(
     outline: &PlanetOutline,
     cut: u8,
     strides: &[Vec<u32>],
-    block_bytes: u64,
+    budget: (u64, usize),
 ) -> Result<BlockGroups, CodecError> {
     let domain = outline.domain;
     let sets = with_parents(&domain, &outline.leaves);
@@ -275,7 +275,7 @@ pub fn planet_block_groups(
         strides,
         &sets.stored,
         cut,
-        block_bytes,
+        budget,
     )
 }
 
@@ -328,14 +328,14 @@ impl<'a> PlanetBlocks<'a> {
         })
     }
 
-    /// The same encode with its tiles grouped into blocks of about `block_bytes` each
-    /// ([`BlockGroups::within`]; `strides`, per face, per tile: `log2` of the stride it holds
-    /// its points at) instead of one block per tile: the same bytes, far fewer blocks where the
-    /// planet is coarse.
+    /// The same encode with its tiles grouped into blocks of about `budget.0` bytes each, and
+    /// at least `budget.1` blocks ([`BlockGroups::within`]; `strides`, per face, per tile:
+    /// `log2` of the stride it holds its points at) instead of one block per tile: the same
+    /// bytes, far fewer blocks where the planet is coarse.
     pub fn with_block_bytes(
         mut self,
         strides: &[Vec<u32>],
-        block_bytes: u64,
+        budget: (u64, usize),
     ) -> Result<Self, CodecError> {
         self.groups = BlockGroups::within(
             &self.outline.domain,
@@ -343,7 +343,7 @@ impl<'a> PlanetBlocks<'a> {
             strides,
             &self.stored,
             self.cut,
-            block_bytes,
+            budget,
         )?;
         Ok(self)
     }
