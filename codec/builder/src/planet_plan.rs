@@ -144,16 +144,15 @@ pub(crate) fn estimated_held_points(inputs: &PlanetInputs, n: usize, k: u32) -> 
         .sum())
 }
 
+/// Per `(face, tile)`, the rectangle `(x0, y0, x1, y1)` (inclusive) of lattice points an input
+/// reaches there.
+type Reach = BTreeMap<(u8, usize), (i64, i64, i64, i64)>;
+
 /// Where input `input` (of stride `2^j`, not around the globe) reaches on the lattice of tiles
 /// of `2^t` steps: per tile met, the rectangle of the lattice points met (its footprint and a
 /// margin of a few of its cells), and the spacing of the offsets that found them (a covered
 /// point lies within one such step of a point met).
-fn footprint(
-    cube: &Cube,
-    t: u32,
-    input: &PlanetInput,
-    j: u32,
-) -> (i64, BTreeMap<(u8, usize), (i64, i64, i64, i64)>) {
+fn footprint(cube: &Cube, t: u32, input: &PlanetInput, j: u32) -> (i64, Reach) {
     let side = cube.side();
     // Sample positions `q` apart are at most `q·2^(j+1)` lattice steps apart (an input's
     // spacing is under twice its stride); a lattice point it covers lies within one cell
@@ -200,7 +199,7 @@ fn footprint(
         })
         .collect();
     // Per tile met, the rectangle of the points met (the footprint and its margin there).
-    let mut reach_of: BTreeMap<(u8, usize), (i64, i64, i64, i64)> = BTreeMap::new();
+    let mut reach_of = Reach::new();
     for (face, tile, x, y) in hits {
         let r = reach_of.entry((face, tile)).or_insert((x, y, x, y));
         *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y));
