@@ -2,8 +2,9 @@
 //! byte for byte, as [`super::encode_planet`] over the whole planet, with never more than an
 //! apex view and one block's tiles of the lattice held.
 //!
-//! A planet's face is cut into tiles ([`PlanetGrid::tile_rects`]); each tile is a block. The
-//! encode runs in three parts:
+//! A planet's face is cut into tiles ([`PlanetGrid::tile_rects`]); a block is one tile
+//! ([`PlanetBlocks::new`]) or a rectangle of tiles of one face grouped by memory
+//! ([`PlanetBlocks::with_block_bytes`], [`BlockGroups`]). The encode runs in three parts:
 //!
 //! 1. An [`PlanetOutline`], gathered one tile at a time: the leaves each tile's points make
 //!    (the stored diamonds are the leaves and their ancestors, as the whole encoder finds them),
@@ -12,8 +13,8 @@
 //!    the tiles thinned to the cut level's vertices (every point the apex reads, and only those:
 //!    `2^(K − ⌈cut/2⌉)` apart). The apex keeps each of its diamonds' grids and the last level's
 //!    refinements; its object errors are measured by the blocks.
-//! 3. The **blocks**, one per tile: the stored diamonds from the cut down whose centres lie in
-//!    the tile (the block *owns* them; a tile owns its first row and column, its last only on
+//! 3. The **blocks**: the stored diamonds from the cut down whose centres lie in the block's
+//!    tiles (the block *owns* them; a tile owns its first row and column, its last only on
 //!    the face's far side) and their ancestors down to the cut, each gathered from its parents
 //!    as the whole encoder does — a diamond's refinement depends on its parents' and its own
 //!    points only (α = 1), so it is the same wherever it is computed. The block reads the tiles
