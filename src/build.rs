@@ -290,6 +290,9 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
             s.inputs_read,
             s.resampling.len()
         );
+        if let Some((blocks, tiles)) = s.blocks {
+            eprintln!("encoded in {blocks} blocks of the lattice's {tiles} tiles");
+        }
     }
     if args.quiet.value {
         return Ok(());

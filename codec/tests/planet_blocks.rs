@@ -12,7 +12,7 @@ use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::{Domain, FacePoint};
 use cbdam_codec::hierarchy::planet::{
-    PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks, thinned,
+    PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks, thinned,
 };
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
@@ -276,6 +276,49 @@ fn insets_on_a_cube_edge_and_corner_encode_block_by_block_as_whole() {
         let (blocks, _) = in_blocks(&planet, cut, cut % 2 == 0);
         assert_same(&whole, &blocks, &format!("cut {cut}"));
     }
+}
+
+/// Per face, per tile: the stride each tile of `planet` holds its points at.
+fn strides_of(planet: &PlanetGrid) -> Vec<Vec<u32>> {
+    (0..6u8)
+        .map(|f| planet.tiles(f).iter().map(|t| t.stride).collect())
+        .collect()
+}
+
+/// Tiles grouped into blocks of a byte budget (from one tile each to whole faces): the same
+/// hierarchy at every budget and cut, with fewer blocks the larger the budget.
+#[test]
+fn tiles_grouped_into_blocks_by_memory_encode_as_whole() {
+    let planet = inset_planet();
+    let outline = PlanetOutline::of_planet(&planet);
+    let q = Quantizer::new(3).unwrap();
+    let whole = encode_planet(&planet, q, &opts(9)).unwrap();
+    let strides = strides_of(&planet);
+    let tiles = 6 * PlanetGrid::tile_rects(planet.domain(), planet.tile_log2()).len();
+    let default = default_cut(planet.domain(), planet.tile_log2());
+    let mut counts = Vec::new();
+    for budget in [0u64, 4 << 10, 64 << 10, 1 << 30] {
+        for cut in [2, default] {
+            let blocks = PlanetBlocks::new(&outline, &planet, q, &opts(9), cut, None)
+                .unwrap()
+                .with_block_bytes(&strides, (budget, 1))
+                .unwrap();
+            let count = blocks.block_count();
+            let encoded = blocks.finish(&NoJournal, cut % 2 == 0).unwrap();
+            assert_same(&whole, &encoded, &format!("budget {budget}, cut {cut}"));
+            if cut == default {
+                counts.push(count);
+            }
+        }
+    }
+    // A budget under any tile: one block per tile; the largest: one block per face.
+    assert_eq!(counts[0], tiles, "{counts:?}");
+    assert_eq!(*counts.last().unwrap(), 6, "{counts:?}");
+    assert!(counts.windows(2).all(|w| w[0] >= w[1]), "{counts:?}");
+    assert!(
+        counts[1] < counts[0] && counts[2] < tiles / 16,
+        "{counts:?} of {tiles} tiles"
+    );
 }
 
 /// Keeps blocks in memory; after `fail_after` saves, every later save fails (a killed build).

@@ -790,6 +790,9 @@ fn a_planet_built_block_by_block_is_the_planet_encoded_whole() {
         assert!(o.status.success(), "{}", stderr(&o));
         assert!(stdout(&o).contains("K = 11"), "{}", stdout(&o));
         assert!(stderr(&o).contains(path), "{limit}: {}", stderr(&o));
+        if limit == "4M" {
+            assert_blocks_follow_the_data(&stderr(&o));
+        }
         outputs.push(std::fs::read(&out).unwrap());
     }
     assert!(
@@ -818,6 +821,21 @@ fn a_planet_built_block_by_block_is_the_planet_encoded_whole() {
         b.len(),
         a.len()
     );
+}
+
+/// The blocks follow the data, not the cube: the two 0.1° insets make a few fine lattice tiles
+/// of the 6·32² at K = 11 (N = 17: tiles of 1 024 steps, 0.0027° each), the 2° grid elsewhere
+/// holds 3 × 3 points a tile, so the coarse faces are a block or a few each and all the
+/// blocks together are a small fraction of the tiles (one journal file each).
+fn assert_blocks_follow_the_data(timings: &str) {
+    let line = timings
+        .lines()
+        .find(|l| l.starts_with("encoded in "))
+        .unwrap_or_else(|| panic!("no block count in {timings}"));
+    let words: Vec<&str> = line.split_whitespace().collect();
+    let (blocks, tiles): (usize, usize) = (words[2].parse().unwrap(), words[7].parse().unwrap());
+    assert_eq!(tiles, 6 * 32 * 32, "{line}");
+    assert!(blocks >= 6 && blocks * 20 <= tiles, "{line}");
 }
 
 /// A planet built block by block keeps a journal of finished blocks: killed (SIGKILL) before

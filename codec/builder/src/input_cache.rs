@@ -7,11 +7,13 @@
 //! recently used and the budget is exceeded. Samples in use are never freed under their user
 //! (they are shared), so memory is the budget plus what the build's workers use at once (one
 //! input each). An input asked for by several workers at once is read once: the others wait
-//! for it.
+//! for it. Inputs *pinned* at the start (those around the globe, which every lattice tile
+//! asks for) are kept once read, outside the budget: a global base such as ETOPO5 is read
+//! once however small the budget.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, Weak};
 
 use crate::band_cache::Samples;
 use crate::error::Result;
@@ -32,6 +34,9 @@ struct Entry {
 #[derive(Default)]
 struct State {
     entries: HashMap<usize, Entry>,
+    /// Inputs evicted while a caller may still hold them: asked for again while one does,
+    /// they are taken back rather than read into a second copy.
+    let_go: HashMap<usize, Weak<Samples>>,
     bytes: u64,
     tick: u64,
 }
@@ -39,15 +44,24 @@ struct State {
 /// The cache; see the module notes.
 pub struct InputCache {
     budget: u64,
+    pinned: HashSet<usize>,
     state: Mutex<State>,
     reads: AtomicU64,
 }
 
 impl InputCache {
     /// An empty cache keeping at most `budget` bytes of samples besides those in use.
+    #[cfg(test)]
     pub fn new(budget: u64) -> Self {
+        Self::with_pinned(budget, HashSet::new())
+    }
+
+    /// An empty cache keeping at most `budget` bytes of samples besides those in use and
+    /// those of the inputs in `pinned`, which are kept once read.
+    pub fn with_pinned(budget: u64, pinned: HashSet<usize>) -> Self {
         Self {
             budget,
+            pinned,
             state: Mutex::new(State::default()),
             reads: AtomicU64::new(0),
         }
@@ -75,6 +89,9 @@ impl InputCache {
             let mut s = self.lock();
             s.tick += 1;
             let tick = s.tick;
+            if let Some(alive) = self.take_back(&mut s, key, tick) {
+                return Ok(alive);
+            }
             let e = s.entries.entry(key).or_insert_with(|| Entry {
                 slot: Arc::default(),
                 used: tick,
@@ -94,16 +111,44 @@ impl InputCache {
         let mut s = self.lock();
         // Counted only if the slot is still the cache's (it may have been evicted meanwhile:
         // then the samples live only as long as this caller keeps them).
+        // Pinned inputs are kept outside the budget: never counted, never evicted.
         if let Some(e) = s
             .entries
             .get_mut(&key)
-            .filter(|e| Arc::ptr_eq(&e.slot, &slot))
+            .filter(|e| Arc::ptr_eq(&e.slot, &slot) && !self.pinned.contains(&key))
         {
             e.bytes = samples.bytes();
             s.bytes += samples.bytes();
         }
         self.evict(&mut s, key);
         Ok(samples)
+    }
+
+    /// Input `key`'s samples if it was evicted but a caller still holds them: kept again (one
+    /// copy, not a second read).
+    fn take_back(&self, s: &mut State, key: usize, tick: u64) -> Option<Arc<Samples>> {
+        if s.entries.contains_key(&key) {
+            return None;
+        }
+        let alive = s.let_go.remove(&key)?.upgrade()?;
+        let bytes = match self.pinned.contains(&key) {
+            true => 0,
+            false => alive.bytes(),
+        };
+        let slot = Arc::new(Slot {
+            samples: Mutex::new(Some(Arc::clone(&alive))),
+        });
+        s.entries.insert(
+            key,
+            Entry {
+                slot,
+                used: tick,
+                bytes,
+            },
+        );
+        s.bytes += bytes;
+        self.evict(s, key);
+        Some(alive)
     }
 
     /// Drops the least recently used inputs (read, and other than `keep`) until the kept bytes
@@ -125,6 +170,10 @@ impl InputCache {
             }
             if let Some(e) = s.entries.remove(&k) {
                 s.bytes -= e.bytes;
+                let held = e.slot.samples.lock().unwrap_or_else(|e| e.into_inner());
+                if let Some(samples) = held.as_ref() {
+                    s.let_go.insert(k, Arc::downgrade(samples));
+                }
             }
         }
     }
@@ -192,6 +241,44 @@ mod tests {
         assert!(e.unwrap_err().to_string().contains("tile 2 is truncated"));
         assert_eq!(cache.get(2, || samples(3, 7)).unwrap().get(2), 7.0);
         assert_eq!(cache.kept_bytes(), 6);
+    }
+
+    /// A pinned input is read once and kept, whatever the budget and however many other
+    /// inputs come and go; the others are evicted as before.
+    #[test]
+    fn a_pinned_input_is_read_once_outside_the_budget() {
+        let cache = InputCache::with_pinned(150, HashSet::from([9]));
+        for round in 0..3 {
+            let base = cache.get(9, || samples(1000, 9)).unwrap();
+            assert_eq!(base.get(999), 9.0);
+            for key in 0..3 {
+                cache.get(key, || samples(100, key as i16)).unwrap();
+                assert!(
+                    cache.kept_bytes() <= 200,
+                    "round {round}: {}",
+                    cache.kept_bytes()
+                );
+            }
+        }
+        // The base once; the three others each round (only one of them fits).
+        assert_eq!(cache.reads(), 1 + 3 * 3);
+    }
+
+    /// An input evicted while a caller still holds it is taken back when asked for again, not
+    /// read into a second copy; once no one holds it, it is read again.
+    #[test]
+    fn an_evicted_input_still_in_use_is_taken_back_not_read_again() {
+        let cache = InputCache::new(150);
+        let first = cache.get(0, || samples(100, 0)).unwrap();
+        cache.get(1, || samples(100, 1)).unwrap();
+        // 0 was evicted for 1, but `first` still holds it.
+        let again = cache.get(0, || panic!("0 is still in use")).unwrap();
+        assert!(Arc::ptr_eq(&first, &again));
+        assert_eq!(cache.reads(), 2);
+        drop((first, again));
+        cache.get(1, || samples(100, 1)).unwrap();
+        cache.get(0, || samples(100, 0)).unwrap();
+        assert_eq!(cache.reads(), 4);
     }
 
     /// Workers asking for the same input at once read it once.

@@ -24,6 +24,8 @@ pub mod plan;
 pub mod planet;
 mod planet_input;
 pub mod planet_lattice;
+mod planet_plan;
+mod planet_resampling;
 pub mod planet_shard;
 mod planet_shard_files;
 pub mod planet_shard_plan;

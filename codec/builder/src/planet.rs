@@ -16,189 +16,26 @@
 //! samples: each input sample against the bilinear interpolant of the four lattice points
 //! around it, wherever those four took their height from that input.
 
-use std::path::PathBuf;
 use std::time::Instant;
 
 use rayon::prelude::*;
 
 use crate::assign::AssignedGeoRef;
 use crate::error::{Context, Result, bail};
-use crate::planet_input::Frame;
 pub use crate::planet_input::{GEOGRAPHIC_EPSG, MAX_PLANET_INPUTS, PlanetInput, PlanetInputs};
 use crate::planet_lattice::{LatticeEncode, Resampler, encode_out_of_core};
+pub use crate::planet_plan::{
+    Candidate, TilePlan, choose_level, input_stride, lattice_spacing_deg, plan_tiles,
+};
+pub(crate) use crate::planet_resampling::input_resampling;
+pub use crate::planet_resampling::{InputResampling, provenance_of, resampling_error};
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
-use cbdam_codec::geodesy::LatLon;
-use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_to_face_st};
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::hierarchy::planet::{tile_log2, tile_of};
 use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, PlanetTile, encode_planet};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::QuantPlan;
-use cbdam_codec::repository::{PlanetProvenance, VerticalDatum, write_planet_repository};
-
-/// `log2` of the stride at which an input of ground spacing `input_deg` samples a lattice of
-/// spacing `lattice_deg` with `k` level pairs: the largest `j ≤ k` with `2^j` lattice steps no
-/// wider than the input's spacing. Its samples are the lattice points on multiples of `2^j`,
-/// vertices of level `2K − 2j`, and the lattice points between them are *coarse only*: the
-/// hierarchy ends at that level where this input is the finest data (variable resolution: an
-/// ETOPO ocean stays as coarse as ETOPO under a fine inset's lattice).
-pub fn input_stride(input_deg: f64, lattice_deg: f64, k: u32) -> u32 {
-    (0..=k)
-        .rev()
-        .find(|&j| lattice_deg * f64::from(1u32 << j) <= input_deg * (1.0 + 1e-9))
-        .unwrap_or(0)
-}
-
-/// Mean spacing of a cube-sphere lattice, degrees of arc: a face spans 90° over `S` steps.
-pub fn lattice_spacing_deg(n: usize, k: u32) -> f64 {
-    90.0 / ((n as f64 - 1.0) * f64::from(1u32 << k))
-}
-
-/// The lattice's level pairs `K`: the given one (`--planet-level`, at most 16), or the
-/// coarsest at least as fine as the finest input. The lattice is encoded out of core
-/// ([`crate::planet_lattice`]), so the memory limit does not coarsen it.
-pub fn choose_level(inputs: &PlanetInputs, n: usize, forced: Option<u32>) -> Result<u32> {
-    const MAX_K: u32 = 16;
-    if let Some(k) = forced {
-        if k > MAX_K {
-            bail!("--planet-level {k}: at most {MAX_K}");
-        }
-        return Ok(k);
-    }
-    let finest = inputs.finest_deg();
-    Ok((0..=MAX_K)
-        .find(|&k| lattice_spacing_deg(n, k) <= finest * (1.0 + 1e-9))
-        .unwrap_or(MAX_K))
-}
-
-/// An input that can cover part of a lattice tile: its index, and the rectangle of the tile
-/// (`(x0, y0, x1, y1)`, inclusive) it can cover (`None`: the whole tile).
-pub type Candidate = (u16, Option<(i64, i64, i64, i64)>);
-
-/// What each tile of a planet's faces holds ([`plan_tiles`]).
-pub struct TilePlan {
-    /// Per face, per tile: `log2` of the stride of the points it holds.
-    pub strides: Vec<Vec<u32>>,
-    /// Per face, per tile: the inputs that can cover a point of it, finest first (indices into
-    /// [`PlanetInputs::inputs`]), each with the rectangle of the tile it can cover: the inputs
-    /// around the globe (`None`: all of it), and the others whose samples lie in or near the
-    /// tile. Only these are asked, and only inside their rectangles, so a planet of thousands
-    /// of tiles asks a handful for each point.
-    pub candidates: Vec<Vec<Vec<Candidate>>>,
-}
-
-/// The stride (`log2`) at which each tile of each face of the `n`, `k` lattice holds its
-/// points ([`PlanetGrid`]), and the inputs that can cover it: the finest stride (at most the
-/// tile's side) of the inputs around the globe and of those whose samples lie in or near it
-/// (within a few of their cells, across face edges too); the tile's side where none does
-/// (its corners only, holes). An input's
-/// footprint is found from its sample positions (every `q`-th, close enough that no covered
-/// lattice point is farther than the margin from one), so a fine inset makes only the tiles
-/// around it dense. [`resample`] makes a tile denser still should one of its points turn out to
-/// take a finer input's sample.
-pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
-    let domain = Domain::cube_sphere(n, k)?;
-    let cube = *domain.cube().expect("a cube-sphere");
-    let side = cube.side();
-    let t = tile_log2(side);
-    let rects = PlanetGrid::tile_rects(&domain, t);
-    let strides = inputs.strides(n, k);
-    let faces = usize::from(domain.faces());
-    // A tile no input reaches holds its corners only (holes all).
-    let mut plan = vec![vec![t; rects.len()]; faces];
-    let mut candidates: Vec<Vec<Vec<Candidate>>> = vec![vec![Vec::new(); rects.len()]; faces];
-    for (i, (input, &j)) in inputs.inputs.iter().zip(&strides).enumerate() {
-        let i = u16::try_from(i).expect("at most MAX_PLANET_INPUTS inputs");
-        let mark = j.min(t);
-        if matches!(
-            input.frame,
-            Frame::Geographic {
-                period: Some(_),
-                ..
-            }
-        ) {
-            // Around the globe: a candidate everywhere.
-            for (tiles, strides) in candidates.iter_mut().zip(&mut plan) {
-                for (c, s) in tiles.iter_mut().zip(strides.iter_mut()) {
-                    c.push((i, None));
-                    *s = (*s).min(mark);
-                }
-            }
-            continue;
-        }
-        // Sample positions `q` apart are at most `q·2^(j+1)` lattice steps apart (an input's
-        // spacing is under twice its stride); a lattice point it covers lies within one cell
-        // of its samples.
-        let cell = 2i64 << j;
-        // At most a quarter of the tile or of the input apart.
-        let q = ((1i64 << t) / (4 * cell))
-            .min((input.width.min(input.height) / 4) as i64)
-            .max(1) as usize;
-        let margin = ((q as i64 + 2) * cell).min(side);
-        // Offsets no farther apart than half a tile, so that every tile within the margin is
-        // met.
-        let step = margin.min(1 << (t - 1)).max(1);
-        let mut offsets: Vec<i64> = (0..)
-            .map(|m| -margin + m * step)
-            .take_while(|&o| o < margin)
-            .collect();
-        offsets.push(margin);
-        let along = |len: usize| (0..len).step_by(q).chain([len - 1]);
-        let positions: Vec<(usize, usize)> = along(input.height)
-            .flat_map(|r| along(input.width).map(move |c| (c, r)))
-            .collect();
-        let hits: Vec<(u8, usize, i64, i64)> = positions
-            .par_iter()
-            .flat_map_iter(|&(c, r)| {
-                let (face, s, tt) = lat_lon_to_face_st(input.lat_lon_of(c, r));
-                let (x, y) = (
-                    (s * side as f64).round() as i64,
-                    (tt * side as f64).round() as i64,
-                );
-                let mut hits = Vec::new();
-                for &dy in &offsets {
-                    for &dx in &offsets {
-                        let Some(p) = cube.locate(face, x + dx, y + dy) else {
-                            continue;
-                        };
-                        let (reps, len) = cube.representations(p);
-                        for r in &reps[..len] {
-                            hits.push((r.face, tile_of(side, t, r.x, r.y), r.x, r.y));
-                        }
-                    }
-                }
-                hits
-            })
-            .collect();
-        // Per tile met, the rectangle of the points met (the footprint and its margin there).
-        let mut reach_of: std::collections::BTreeMap<(u8, usize), (i64, i64, i64, i64)> =
-            std::collections::BTreeMap::new();
-        for (face, tile, x, y) in hits {
-            let r = reach_of.entry((face, tile)).or_insert((x, y, x, y));
-            *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y));
-        }
-        // A covered point of a tile lies within one offset step of a point met there (the
-        // offsets are a grid no coarser than `step` over each position's square, and a tile
-        // is wider than that).
-        for ((face, tile), r) in reach_of {
-            let f = usize::from(face);
-            plan[f][tile] = plan[f][tile].min(mark);
-            let (tx0, ty0, tx1, ty1) = rects[tile];
-            let grown = (
-                (r.0 - step).max(tx0),
-                (r.1 - step).max(ty0),
-                (r.2 + step).min(tx1),
-                (r.3 + step).min(ty1),
-            );
-            candidates[f][tile].push((i, Some(grown)));
-        }
-    }
-    Ok(TilePlan {
-        strides: plan,
-        candidates,
-    })
-}
+use cbdam_codec::repository::write_planet_repository;
 
 /// The resampled lattice: integer heights under `plan`, and per point held which input won.
 pub struct Resampled {
@@ -246,170 +83,6 @@ pub fn resample(inputs: &PlanetInputs, n: usize, k: u32, plan: &QuantPlan) -> Re
     })
 }
 
-/// How far the resampled lattice is from one input's own samples.
-#[derive(Clone, Debug, PartialEq)]
-pub struct InputResampling {
-    /// The input.
-    pub path: PathBuf,
-    /// Its valid samples.
-    pub samples: u64,
-    /// Of those, the samples compared: those whose four surrounding lattice points all took
-    /// their height from this input.
-    pub compared: u64,
-    /// Largest |lattice − sample|, metres (0 when none was compared).
-    pub max_error: f64,
-    /// Root mean square of the same, metres.
-    pub rms_error: f64,
-    /// Where the largest error is: the sample's latitude and longitude.
-    pub worst_at: Option<LatLon>,
-    /// `log2` of the input's stride on the lattice ([`input_stride`]): 0 when it is sampled at
-    /// every lattice point.
-    pub stride: u32,
-}
-
-/// Measures each input's samples against the bilinear interpolant of the resampled lattice
-/// (heights in metres under `plan`) in face coordinates.
-pub fn resampling_error(
-    inputs: &PlanetInputs,
-    resampled: &Resampled,
-    plan: &QuantPlan,
-) -> Result<Vec<InputResampling>> {
-    (0..inputs.inputs.len())
-        .map(|i| input_resampling(inputs, i, resampled, plan))
-        .collect()
-}
-
-/// Input `i`'s samples against the bilinear interpolant of the resampled lattice: only the
-/// lattice points that took their height from it are read (`resampled` may hold only the
-/// tiles it can cover).
-pub(crate) fn input_resampling(
-    inputs: &PlanetInputs,
-    i: usize,
-    resampled: &Resampled,
-    plan: &QuantPlan,
-) -> Result<InputResampling> {
-    let planet = &resampled.planet;
-    let side = planet.domain().cube().expect("a cube-sphere").side();
-    let input = &inputs.inputs[i];
-    let me = u16::try_from(i).unwrap_or(u16::MAX);
-    let samples = inputs.samples(i)?;
-    // The input's samples are the lattice points on its stride: the surface drawn
-    // where it is the finest data interpolates those.
-    let step = 1i64 << resampled.strides[i];
-    // On a latitude/longitude grid the longitude's sine and cosine depend on the
-    // column only (the latitude's on the row): computed once each.
-    let columns: Option<Vec<(f64, f64)>> = match input.frame {
-        Frame::Geographic { .. } => Some(
-            (0..input.width)
-                .map(|c| input.lat_lon_of(c, 0).lon.to_radians().sin_cos())
-                .collect(),
-        ),
-        Frame::Projected { .. } => None,
-    };
-    let (samples, compared, max, sum2, worst_at) = (0..input.height)
-        .into_par_iter()
-        .map(|r| {
-            let mut acc = (0u64, 0u64, 0f64, 0f64, None);
-            let row = input.lat_lon_of(0, r).lat.to_radians().sin_cos();
-            for c in 0..input.width {
-                let Some(v) = input.sample(&samples, c, r) else {
-                    continue;
-                };
-                acc.0 += 1;
-                let (face, s, t) = match &columns {
-                    Some(columns) => sin_cos_to_face_st(row, columns[c]),
-                    None => lat_lon_to_face_st(input.lat_lon_of(c, r)),
-                };
-                let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
-                let cells = side / step;
-                let (x0, y0) = (
-                    (x.floor() as i64).min(cells - 1),
-                    (y.floor() as i64).min(cells - 1),
-                );
-                let (fx, fy) = (x - x0 as f64, y - y0 as f64);
-                // Corners inside the face (x0, y0 < S): its own tiles hold them (the
-                // input's samples made them dense enough, `plan_tiles`), equal to every
-                // other face's on shared points.
-                // The four corners lie in the tile of the first but where the cell
-                // crosses a tile's side.
-                let winners = &resampled.winners[usize::from(face)];
-                let first = planet.tile_index(x0 * step, y0 * step);
-                let (_, _, tx1, ty1) = planet.tile(face, first).rect;
-                let one_tile = (x0 + 1) * step <= tx1 && (y0 + 1) * step <= ty1;
-                let corner = |dx: i64, dy: i64| {
-                    let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
-                    let i = if one_tile {
-                        first
-                    } else {
-                        planet.tile_index(px, py)
-                    };
-                    let t = planet.tile(face, i);
-                    let k = t.index(px, py)?;
-                    (winners[i][k] == me && t.grid.valid[k]).then(|| plan.metres(t.grid.values[k]))
-                };
-                let (Some(a), Some(b), Some(cc), Some(d)) =
-                    (corner(0, 0), corner(1, 0), corner(0, 1), corner(1, 1))
-                else {
-                    continue;
-                };
-                let l = (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (cc * (1.0 - fx) + d * fx) * fy;
-                let e = (l - v).abs();
-                acc.1 += 1;
-                if e > acc.2 || acc.4.is_none() {
-                    acc.2 = e;
-                    acc.4 = Some(input.lat_lon_of(c, r));
-                }
-                acc.3 += e * e;
-            }
-            acc
-        })
-        // Rows summed in order, not in rayon's reduction tree (whose shape depends on
-        // scheduling): the stored RMS has the same bits every build.
-        .collect::<Vec<_>>()
-        .into_iter()
-        .fold((0, 0, 0.0, 0.0, None), |a, b| {
-            let (max, at) = if b.2 > a.2 || a.4.is_none() {
-                (b.2, b.4)
-            } else {
-                (a.2, a.4)
-            };
-            (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
-        });
-    Ok(InputResampling {
-        path: input.path.clone(),
-        samples,
-        compared,
-        max_error: max,
-        rms_error: if compared > 0 {
-            (sum2 / compared as f64).sqrt()
-        } else {
-            0.0
-        },
-        worst_at,
-        stride: resampled.strides[i],
-    })
-}
-
-/// The header's summary of the resampling: the largest error over all inputs and the root mean
-/// square over all compared samples; heights as the inputs give them (DEMs are orthometric —
-/// the inputs' vertical GeoKeys are not read yet).
-pub fn provenance_of(resampling: &[InputResampling]) -> PlanetProvenance {
-    let compared: u64 = resampling.iter().map(|r| r.compared).sum();
-    let sum2: f64 = resampling
-        .iter()
-        .map(|r| r.rms_error * r.rms_error * r.compared as f64)
-        .sum();
-    PlanetProvenance {
-        vertical_datum: VerticalDatum::Orthometric,
-        resampling_max: resampling.iter().map(|r| r.max_error).fold(0.0, f64::max),
-        resampling_rms: if compared > 0 {
-            (sum2 / compared as f64).sqrt()
-        } else {
-            0.0
-        },
-    }
-}
-
 /// What a planet build made.
 #[derive(Clone, Debug)]
 pub struct PlanetSummary {
@@ -440,6 +113,8 @@ pub struct PlanetSummary {
     pub inputs_read: u64,
     /// Wall time of each stage.
     pub stages: Vec<(&'static str, std::time::Duration)>,
+    /// Encoded block by block: how many blocks, and how many lattice tiles they group.
+    pub blocks: Option<(usize, usize)>,
 }
 
 /// Bytes a planet build holds per lattice point its tiles hold when it resamples and encodes
@@ -448,24 +123,6 @@ pub struct PlanetSummary {
 /// (6 B with classes), the resampling winners (2 B) and the encoder's per-diamond refinements
 /// of two levels. A lattice over the memory limit at this rate is encoded block by block.
 pub const BYTES_PER_LATTICE_POINT: u64 = 24;
-
-/// The points the lattice's tiles will hold, from each tile's stride in [`plan_tiles`] (the
-/// resampling may make a tile denser where a point takes a finer input's sample).
-fn estimated_held_points(inputs: &PlanetInputs, n: usize, k: u32) -> Result<u64> {
-    let domain = Domain::cube_sphere(n, k)?;
-    let side = domain.cube().expect("a cube-sphere").side();
-    let rects = PlanetGrid::tile_rects(&domain, tile_log2(side));
-    let plan = plan_tiles(inputs, n, k)?;
-    Ok(plan
-        .strides
-        .iter()
-        .flat_map(|strides| {
-            strides.iter().zip(&rects).map(|(&s, &(x0, y0, x1, y1))| {
-                (((x1 - x0) >> s) as u64 + 1) * (((y1 - y0) >> s) as u64 + 1)
-            })
-        })
-        .sum())
-}
 
 /// The whole lattice resampled, then encoded while each input's resampling error is measured
 /// (the measurement fills the cores the encoder's coarse levels leave idle): what
@@ -487,6 +144,7 @@ fn encode_whole(
         resampling: resampling?,
         valid: count_valid(&resampled.planet),
         held_points: resampled.planet.held_points(),
+        blocks: None,
     })
 }
 
@@ -509,8 +167,9 @@ fn encode_lattice(
     let limit = opts
         .memory_limit
         .unwrap_or_else(crate::plan::default_memory_limit);
-    let whole =
-        estimated_held_points(inputs, n, k)?.saturating_mul(BYTES_PER_LATTICE_POINT) <= limit;
+    let whole = crate::planet_plan::estimated_held_points(inputs, n, k)?
+        .saturating_mul(BYTES_PER_LATTICE_POINT)
+        <= limit;
     if whole {
         let t = Instant::now();
         let lattice = encode_whole(inputs, n, k, plan, enc)?;
@@ -521,7 +180,9 @@ fn encode_lattice(
         return Ok((lattice, None));
     }
     let t = Instant::now();
-    let key = crate::journal_key(opts, tiles, enc, None)? + &format!("planet=1\nlevel_pairs={k}\n");
+    let block_bytes = planet_block_bytes(limit);
+    let key = crate::journal_key(opts, tiles, enc, None)?
+        + &format!("planet=1\nlevel_pairs={k}\nplanet_block_bytes={block_bytes}\n");
     let (journal, resumed) = crate::journal::Journal::open(&opts.output, &key)?;
     stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
     progress.resumed(&resumed);
@@ -532,7 +193,7 @@ fn encode_lattice(
         k,
         plan,
         enc,
-        lattice_cache_budget(limit),
+        (lattice_cache_budget(limit), block_bytes),
         &journal,
     )?;
     stages.push((
@@ -552,6 +213,14 @@ pub fn input_cache_budget(memory_limit: u64) -> u64 {
 /// Bytes of resampled lattice tiles a planet build keeps for the blocks that read them again
 /// (a block reads its neighbours' edges): a quarter of the memory limit.
 pub fn lattice_cache_budget(memory_limit: u64) -> u64 {
+    memory_limit / 4
+}
+
+/// Bytes one block of the block-wise encode is planned to hold (its tiles, and the grids of
+/// the diamonds it owns): a quarter of the memory limit. Tiles are grouped into blocks of
+/// about this much ([`cbdam_codec::hierarchy::planet::BlockGroups`]), so that blocks follow the
+/// data: a coarse face is a few blocks, a fine tile one.
+pub fn planet_block_bytes(memory_limit: u64) -> u64 {
     memory_limit / 4
 }
 
@@ -611,6 +280,50 @@ pub(crate) fn refuse_planar_options(opts: &BuildOptions) -> Result<()> {
     Ok(())
 }
 
+/// The inputs of a planet build, expanded and opened, and their height range: every input read
+/// once here (one at a time, on `pool`), so that a damaged one is named before the lattice.
+fn open_planet_inputs(
+    opts: &BuildOptions,
+    pool: &rayon::ThreadPool,
+    cache_budget: u64,
+) -> Result<(Vec<Tile>, PlanetInputs, (f64, f64))> {
+    let tiles = crate::tiles::expand_inputs(&opts.inputs)?;
+    crate::check_output_is_not_an_input(opts, &tiles)?;
+    crate::input_cache::give_large_frees_back();
+    let inputs = PlanetInputs::read(
+        &tiles,
+        opts.nodata,
+        opts.assign_georef.as_ref(),
+        cache_budget,
+    )?;
+    let Some(range) = pool.install(|| inputs.range())? else {
+        bail!("the inputs have no valid sample (all nodata or NaN)");
+    };
+    Ok((tiles, inputs, range))
+}
+
+/// Writes the planet repository (atomically), then removes the journal of its blocks.
+fn write_planet(
+    opts: &BuildOptions,
+    encoded: &cbdam_codec::hierarchy::Encoded,
+    plan: &QuantPlan,
+    resampling: &[InputResampling],
+    journal: Option<crate::journal::Journal>,
+) -> Result<()> {
+    write_planet_repository(
+        &opts.output,
+        encoded,
+        plan,
+        opts.nodata,
+        &provenance_of(resampling),
+    )
+    .with_context(|| format!("writing {}", opts.output.display()))?;
+    if let Some(journal) = journal {
+        journal.finish()?;
+    }
+    Ok(())
+}
+
 /// Builds a planet repository from `opts.inputs` (each a geographic or UTM DEM, a directory,
 /// glob or `@list` of them).
 pub fn build_planet(
@@ -638,19 +351,7 @@ pub fn build_planet(
         .build()
         .context("starting the build's threads")?;
     let t = Instant::now();
-    let tiles = crate::tiles::expand_inputs(&opts.inputs)?;
-    crate::check_output_is_not_an_input(opts, &tiles)?;
-    crate::input_cache::give_large_frees_back();
-    let inputs = PlanetInputs::read(
-        &tiles,
-        opts.nodata,
-        opts.assign_georef.as_ref(),
-        input_cache_budget(limit),
-    )?;
-    // Every input is read once here (one at a time), for the height range.
-    let Some((lo, hi)) = pool.install(|| inputs.range())? else {
-        bail!("the inputs have no valid sample (all nodata or NaN)");
-    };
+    let (tiles, inputs, (lo, hi)) = open_planet_inputs(opts, &pool, input_cache_budget(limit))?;
     stages.push(("read", t.elapsed()));
     let n = opts.diamond_size;
     let k = choose_level(&inputs, n, planet_level)?;
@@ -680,17 +381,7 @@ pub fn build_planet(
     event(Stage::Encode, 1);
     event(Stage::Write, 0);
     let t = Instant::now();
-    write_planet_repository(
-        &opts.output,
-        &encoded,
-        &plan,
-        opts.nodata,
-        &provenance_of(&resampling),
-    )
-    .with_context(|| format!("writing {}", opts.output.display()))?;
-    if let Some(journal) = journal {
-        journal.finish()?;
-    }
+    write_planet(opts, &encoded, &plan, &resampling, journal)?;
     stages.push(("write", t.elapsed()));
     event(Stage::Write, 1);
     Ok(PlanetSummary {
@@ -706,6 +397,7 @@ pub fn build_planet(
         resampling,
         inputs_read: inputs.reads().0,
         stages,
+        blocks: lattice.blocks,
     })
 }
 
@@ -792,8 +484,10 @@ pub fn compare_planet(
 mod tests {
     use super::*;
     use crate::band_cache::Samples;
-    use crate::planet_input::{SampleSource, frame_of};
+    use crate::planet_input::{Frame, SampleSource, frame_of};
+    use cbdam_codec::geodesy::LatLon;
     use cbdam_codec::repository::GeoRef;
+    use std::path::PathBuf;
     use std::sync::Arc;
 
     fn input(spacing_deg: f64) -> PlanetInput {

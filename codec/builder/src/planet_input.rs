@@ -469,9 +469,24 @@ impl PlanetInputs {
         }
         let mut inputs: Vec<PlanetInput> = read.into_iter().map(|(i, _)| i).collect();
         inputs.sort_by(|a, b| a.spacing_deg.total_cmp(&b.spacing_deg));
+        // Every lattice tile asks for the inputs around the globe: kept once read.
+        let global = inputs
+            .iter()
+            .enumerate()
+            .filter(|(_, i)| {
+                matches!(
+                    i.frame,
+                    Frame::Geographic {
+                        period: Some(_),
+                        ..
+                    }
+                )
+            })
+            .map(|(k, _)| k)
+            .collect();
         Ok(Self {
             inputs,
-            cache: InputCache::new(cache_budget),
+            cache: InputCache::with_pinned(cache_budget, global),
         })
     }
 

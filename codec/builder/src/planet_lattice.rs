@@ -1,5 +1,5 @@
 //! The planet lattice out of core: each lattice tile resampled from the inputs when the
-//! block-wise encode ([`encode_planet_in_blocks`]) or the resampling-error scan asks for it,
+//! block-wise encode ([`PlanetBlocks`]) or the resampling-error scan asks for it,
 //! through a bounded cache, never the whole lattice held (in memory or on disk).
 //!
 //! A build resamples every tile once to outline the planet (its stored diamonds, nodata, the
@@ -27,7 +27,7 @@ use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::planet::{
-    PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks, tile_log2,
+    PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, tile_log2,
 };
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded, PlanetGrid, PlanetTile};
@@ -426,11 +426,13 @@ pub struct LatticeEncode {
     pub valid: u64,
     /// Points the lattice's tiles hold.
     pub held_points: u64,
+    /// Block by block: how many blocks, and how many lattice tiles they group.
+    pub blocks: Option<(usize, usize)>,
 }
 
 /// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
-/// as it is asked for (a cache of `cache_budget` bytes of tiles), finished blocks kept in
-/// `journal`, and measures each input's resampling error: the same hierarchy and figures as
+/// as it is asked for (a cache of `cache_budget` bytes of tiles; tiles grouped into blocks of
+/// about `block_bytes`, [`PlanetBlocks::with_block_bytes`]), finished blocks kept in `journal`, and measures each input's resampling error: the same hierarchy and figures as
 /// [`crate::planet::resample`] then [`cbdam_codec::hierarchy::encode_planet`] and
 /// [`crate::planet::resampling_error`] of the whole lattice.
 pub fn encode_out_of_core(
@@ -439,15 +441,20 @@ pub fn encode_out_of_core(
     k: u32,
     plan: &QuantPlan,
     enc: &EncodeOptions,
-    cache_budget: u64,
+    (cache_budget, block_bytes): (u64, u64),
     journal: &dyn BlockJournal,
 ) -> Result<LatticeEncode> {
     let resampler = Resampler::new(inputs, n, k, plan)?;
     let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
     let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
-    let encoded =
-        encode_planet_in_blocks(&outline, &tiles, plan.quantizer, enc, cut, journal, true)
-            .map_err(BuildError::from)?;
+    let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, None)
+        .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
+        .map_err(BuildError::from)?;
+    let counts = (
+        blocks.block_count(),
+        tiles.strides().iter().map(Vec::len).sum(),
+    );
+    let encoded = blocks.finish(journal, true).map_err(BuildError::from)?;
     let resampling = (0..inputs.inputs.len())
         .map(|i| tiles.resampling(i))
         .collect::<Result<Vec<_>>>()?;
@@ -456,5 +463,6 @@ pub fn encode_out_of_core(
         resampling,
         valid,
         held_points,
+        blocks: Some(counts),
     })
 }

@@ -26,7 +26,9 @@ use std::path::{Path, PathBuf};
 
 use cbdam_codec::CodecError;
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::planet::{PlanetBlocks, PlanetTile, PlanetTiles, default_cut};
+use cbdam_codec::hierarchy::planet::{
+    PlanetBlocks, PlanetTile, PlanetTiles, default_cut, planet_block_groups,
+};
 use cbdam_codec::hierarchy::{BlockJournal, BlockOutput, EncodeOptions};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::QuantPlan;
@@ -37,7 +39,7 @@ use crate::error::{Context, Result, bail};
 use crate::journal::{Journal, write_atomically};
 use crate::planet::{
     InputResampling, PlanetInputs, choose_level, input_cache_budget, lattice_cache_budget,
-    provenance_of,
+    planet_block_bytes, provenance_of,
 };
 use crate::planet_lattice::{LatticeTiles, Resampler};
 use crate::planet_shard_files::{
@@ -54,7 +56,7 @@ const APEX: &str = "planet-apex";
 const RESAMPLING: &str = "resampling";
 const BLOCKS: &str = "blocks";
 /// The work directory layout of sharded planets, in the key (`shard_layout=`).
-pub(crate) const LAYOUT: &str = "planet-1";
+pub(crate) const LAYOUT: &str = "planet-2";
 
 /// Whether `work` holds a finished plan of a planet.
 pub fn is_planet(work: &Path) -> bool {
@@ -130,7 +132,14 @@ pub fn plan(
         valid,
         held_points,
     };
-    let block_count = lattice.strides().iter().map(Vec::len).sum::<usize>();
+    let min_blocks = shards.map_or(1, |s| 4 * s);
+    let block_count = planet_block_groups(
+        &outline.outline,
+        outline.cut,
+        &outline.strides,
+        (planet_block_bytes(limit), min_blocks),
+    )?
+    .len();
     let plan = PlanetShardPlan {
         output: opts.output.clone(),
         inputs: opts.inputs.clone(),
@@ -144,6 +153,7 @@ pub fn plan(
         coder: opts.coder,
         memory_limit: limit,
         block_count,
+        min_blocks,
         shards: shards.unwrap_or(block_count).clamp(1, block_count.max(1)),
     };
     write_outline(work, OUTLINE, &outline)?;
@@ -303,6 +313,26 @@ pub fn apex(work: &Path, threads: Option<usize>) -> Result<bool> {
     Ok(true)
 }
 
+/// `blocks` with its tiles grouped as the plan grouped them (the memory limit's block size),
+/// refusing a plan whose block count differs (another version's plan).
+fn grouped<'a>(
+    blocks: PlanetBlocks<'a>,
+    plan: &PlanetShardPlan,
+    outline: &OutlineFile,
+) -> Result<PlanetBlocks<'a>> {
+    let budget = (planet_block_bytes(plan.memory_limit), plan.min_blocks);
+    let blocks = blocks.with_block_bytes(&outline.strides, budget)?;
+    if blocks.block_count() != plan.block_count {
+        bail!(
+            "the plan has {} blocks but its outline groups into {}: plan again with this \
+             version of cbdam",
+            plan.block_count,
+            blocks.block_count()
+        );
+    }
+    Ok(blocks)
+}
+
 /// The inputs whose resampling error shard `shard` measures: every `shards`-th.
 fn measured_by(plan: &PlanetShardPlan, inputs: usize, shard: usize) -> Vec<usize> {
     (shard..inputs).step_by(plan.shards.max(1)).collect()
@@ -365,6 +395,7 @@ pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSumma
                 outline.cut,
                 Some(apex),
             )?;
+            let encode = grouped(encode, &plan, &outline)?;
             for &b in &todo {
                 journal.save(b, &encode.encode_block(b)?)?;
             }
@@ -498,21 +529,21 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<PlanetMergeSummary> 
     };
     let quant = plan.quant()?;
     let enc = encode_options(plan.n, plan.coder);
-    let encoded = thread_pool(threads)?.install(|| {
+    let encoded = thread_pool(threads)?.install(|| -> Result<_> {
         let finished = Finished {
             journal: &journal,
             plan: &plan,
             work,
         };
-        PlanetBlocks::new(
+        let blocks = PlanetBlocks::new(
             &outline.outline,
             &NoTiles,
             quant.quantizer,
             &enc,
             outline.cut,
             Some(apex),
-        )?
-        .finish(&finished, true)
+        )?;
+        Ok(grouped(blocks, &plan, &outline)?.finish(&finished, true)?)
     })?;
     write_planet_repository(
         &plan.output,

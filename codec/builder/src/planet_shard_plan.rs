@@ -43,6 +43,9 @@ pub struct PlanetShardPlan {
     pub memory_limit: u64,
     /// Blocks: one per lattice tile.
     pub block_count: usize,
+    /// The fewest blocks the tiles were grouped into (`4·S` for `--shards S`, so that the
+    /// shards have blocks to share; 1 otherwise).
+    pub min_blocks: usize,
     /// Shards: runs of consecutive blocks.
     pub shards: usize,
 }
@@ -127,7 +130,7 @@ impl PlanetShardPlan {
     pub(crate) fn to_text(&self) -> String {
         let mut t = format!(
             "output={}\nn={}\nk={}\nmax_error={}\nlow={}\nhigh={}\ncoder={:?}\n\
-             memory_limit={}\nblocks={}\nshards={}\n",
+             memory_limit={}\nblocks={}\nmin_blocks={}\nshards={}\n",
             hex(self.output.to_string_lossy().as_bytes()),
             self.n,
             self.k,
@@ -137,6 +140,7 @@ impl PlanetShardPlan {
             self.coder,
             self.memory_limit,
             self.block_count,
+            self.min_blocks,
             self.shards,
         );
         for input in &self.inputs {
@@ -218,6 +222,7 @@ impl PlanetShardPlan {
                 .find(|c| format!("{c:?}") == coder)?,
             memory_limit: num("memory_limit")?,
             block_count: usize::try_from(num("blocks")?).ok()?,
+            min_blocks: usize::try_from(num("min_blocks")?).ok()?,
             shards: usize::try_from(num("shards")?).ok()?.max(1),
         })
     }
@@ -249,6 +254,7 @@ mod tests {
             coder: CoderKind::ALL[1],
             memory_limit: 96 << 20,
             block_count: 96,
+            min_blocks: 8,
             shards: 3,
         };
         let text = plan.to_text();

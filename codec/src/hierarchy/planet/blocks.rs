@@ -2,8 +2,9 @@
 //! byte for byte, as [`super::encode_planet`] over the whole planet, with never more than an
 //! apex view and one block's tiles of the lattice held.
 //!
-//! A planet's face is cut into tiles ([`PlanetGrid::tile_rects`]); each tile is a block. The
-//! encode runs in three parts:
+//! A planet's face is cut into tiles ([`PlanetGrid::tile_rects`]); a block is one tile
+//! ([`PlanetBlocks::new`]) or a rectangle of tiles of one face grouped by memory
+//! ([`PlanetBlocks::with_block_bytes`], [`BlockGroups`]). The encode runs in three parts:
 //!
 //! 1. An [`PlanetOutline`], gathered one tile at a time: the leaves each tile's points make
 //!    (the stored diamonds are the leaves and their ancestors, as the whole encoder finds them),
@@ -12,8 +13,8 @@
 //!    the tiles thinned to the cut level's vertices (every point the apex reads, and only those:
 //!    `2^(K − ⌈cut/2⌉)` apart). The apex keeps each of its diamonds' grids and the last level's
 //!    refinements; its object errors are measured by the blocks.
-//! 3. The **blocks**, one per tile: the stored diamonds from the cut down whose centres lie in
-//!    the tile (the block *owns* them; a tile owns its first row and column, its last only on
+//! 3. The **blocks**: the stored diamonds from the cut down whose centres lie in the block's
+//!    tiles (the block *owns* them; a tile owns its first row and column, its last only on
 //!    the face's far side) and their ancestors down to the cut, each gathered from its parents
 //!    as the whole encoder does — a diamond's refinement depends on its parents' and its own
 //!    points only (α = 1), so it is the same wherever it is computed. The block reads the tiles
@@ -28,7 +29,8 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use super::grid::tiles_meeting;
+use super::block_groups::{BlockGroups, TileGroup};
+use super::grid::{tiles_across, tiles_meeting};
 use super::{
     PlanetGrid, PlanetTile, TiledError, grid_from_parents, planet_params, planet_surface_error,
     refine_diamond, tile_leaves, views,
@@ -257,6 +259,27 @@ pub fn encode_planet_in_blocks(
     PlanetBlocks::new(outline, tiles, quantizer, opts, cut, None)?.finish(journal, spill)
 }
 
+/// The blocks [`PlanetBlocks::with_block_bytes`] makes of the planet `outline` outlines, cut
+/// at `cut`: for a plan that needs their count before any is encoded.
+pub fn planet_block_groups(
+    outline: &PlanetOutline,
+    cut: u8,
+    strides: &[Vec<u32>],
+    budget: (u64, usize),
+) -> Result<BlockGroups, CodecError> {
+    let domain = outline.domain;
+    let sets = with_parents(&domain, &outline.leaves);
+    let cut = cut.min(domain.finest_level());
+    BlockGroups::within(
+        &domain,
+        outline.tile_log2,
+        strides,
+        &sets.stored,
+        cut,
+        budget,
+    )
+}
+
 /// A planet's block-wise encode split at its seams, for builds whose blocks run in other
 /// processes (sharded builds): the apex (encoded, or handed over as an earlier process
 /// encoded it), any block on its own, and the merge of every block's output.
@@ -268,6 +291,7 @@ pub struct PlanetBlocks<'a> {
     recorded: Vec<BTreeSet<DiamondId>>,
     apex: PlanetApex,
     cut: u8,
+    groups: BlockGroups,
 }
 
 impl<'a> PlanetBlocks<'a> {
@@ -301,7 +325,28 @@ impl<'a> PlanetBlocks<'a> {
             recorded: sets.recorded,
             apex,
             cut,
+            groups: BlockGroups::one_per_tile(&domain, outline.tile_log2),
         })
+    }
+
+    /// The same encode with its tiles grouped into blocks of about `budget.0` bytes each, and
+    /// at least `budget.1` blocks ([`BlockGroups::within`]; `strides`, per face, per tile:
+    /// `log2` of the stride it holds its points at) instead of one block per tile: the same
+    /// bytes, far fewer blocks where the planet is coarse.
+    pub fn with_block_bytes(
+        mut self,
+        strides: &[Vec<u32>],
+        budget: (u64, usize),
+    ) -> Result<Self, CodecError> {
+        self.groups = BlockGroups::within(
+            &self.outline.domain,
+            self.outline.tile_log2,
+            strides,
+            &self.stored,
+            self.cut,
+            budget,
+        )?;
+        Ok(self)
     }
 
     /// The apex: the levels above the cut.
@@ -309,17 +354,14 @@ impl<'a> PlanetBlocks<'a> {
         &self.apex
     }
 
-    /// How many blocks: every tile of every face.
+    /// How many blocks: one per tile, or per group of tiles ([`Self::with_block_bytes`]).
     pub fn block_count(&self) -> usize {
-        usize::from(self.outline.domain.faces()) * self.tiles_per_face()
-    }
-
-    fn tiles_per_face(&self) -> usize {
-        PlanetGrid::tile_rects(&self.outline.domain, self.outline.tile_log2).len()
+        self.groups.len()
     }
 
     fn block_encode(&self) -> BlockEncode<'_> {
         let domain = self.outline.domain;
+        let side = domain.cube().expect("a cube-sphere").side();
         BlockEncode {
             outline: self.outline,
             tiles: self.tiles,
@@ -328,22 +370,25 @@ impl<'a> PlanetBlocks<'a> {
             recorded: &self.recorded,
             apex: &self.apex,
             cut: self.cut,
-            side: domain.cube().expect("a cube-sphere").side(),
-            rects: PlanetGrid::tile_rects(&domain, self.outline.tile_log2),
+            side,
+            across: tiles_across(side, self.outline.tile_log2),
         }
     }
 
-    /// Encodes block `index` (tile `index % tiles_per_face` of face `index / tiles_per_face`).
+    /// Encodes block `index` (its tiles: [`Self::block_tiles`]).
     pub fn encode_block(&self, index: usize) -> Result<BlockOutput, CodecError> {
-        if index >= self.block_count() {
+        let Some(group) = self.groups.get(index) else {
             return Err(CodecError::invalid(format!(
                 "block {index} of a planet of {} blocks",
                 self.block_count()
             )));
-        }
-        let per_face = self.tiles_per_face();
-        let face = u8::try_from(index / per_face).expect("6 faces");
-        self.block_encode().encode(face, index % per_face)
+        };
+        self.block_encode().encode(group)
+    }
+
+    /// The tiles of block `index`, if there is one.
+    pub fn block_tiles(&self, index: usize) -> Option<&TileGroup> {
+        self.groups.get(index)
     }
 
     /// Every block's output (from `journal`, else encoded and saved there) and the apex's put
@@ -355,13 +400,12 @@ impl<'a> PlanetBlocks<'a> {
         let mut own_error: HashMap<DiamondId, u32> =
             self.apex.grids.keys().map(|&id| (id, 0)).collect();
         let block = self.block_encode();
-        let per_face = self.tiles_per_face();
         for index in 0..self.block_count() {
             let output = match journal.load(index)? {
                 Some(output) => output,
                 None => {
-                    let face = u8::try_from(index / per_face).expect("6 faces");
-                    let output = block.encode(face, index % per_face)?;
+                    let group = self.groups.get(index).expect("a block of the planet");
+                    let output = block.encode(group)?;
                     journal.save(index, &output)?;
                     output
                 }
@@ -538,19 +582,24 @@ struct BlockEncode<'a> {
     apex: &'a PlanetApex,
     cut: u8,
     side: i64,
-    /// The tiles' rectangles on every face.
-    rects: Vec<(i64, i64, i64, i64)>,
+    /// Tiles across a face.
+    across: usize,
 }
 
 impl BlockEncode<'_> {
-    /// The block of tile `index` of face `face`.
-    fn encode(&self, face: u8, index: usize) -> Result<BlockOutput, CodecError> {
+    /// The block of the tiles of `group`.
+    fn encode(&self, group: &TileGroup) -> Result<BlockOutput, CodecError> {
         let domain = &self.params.domain;
         let finest = domain.finest_level();
-        let rect = self.rects[index];
-        let owns = |id: &DiamondId| id.face == face && owned_by(rect, self.side, id);
-        let needed = self.needed(face, &owns);
-        let mut wanted: BTreeSet<(u8, usize)> = BTreeSet::from([(face, index)]);
+        let face = group.face;
+        let (xs, ys) = group.owned_span(self.side, self.outline.tile_log2);
+        let owns = |id: &DiamondId| {
+            let (x, y) = (i64::from(id.x), i64::from(id.y));
+            id.face == face && xs.0 <= x && x <= xs.1 && ys.0 <= y && y <= ys.1
+        };
+        let needed = self.needed(face, xs, &owns);
+        let mut wanted: BTreeSet<(u8, usize)> =
+            group.tiles(self.across).map(|i| (face, i)).collect();
         for id in needed.iter().flatten() {
             wanted.extend(tiles_under(domain, self.outline.tile_log2, *id));
         }
@@ -591,24 +640,29 @@ impl BlockEncode<'_> {
             }
             prev = next;
         }
-        output
-            .own_errors
-            .extend(self.apex_shares(face, index, &errors));
+        output.own_errors.extend(self.apex_shares(group, &errors));
         Ok(output)
     }
 
-    /// Per level from the cut, in id order: the stored diamonds the block owns and their
-    /// ancestors down to the cut.
-    fn needed(&self, face: u8, owns: &dyn Fn(&DiamondId) -> bool) -> Vec<Vec<DiamondId>> {
+    /// Per level from the cut, in id order: the stored diamonds the block owns (centres in
+    /// columns `xs`, found by bisection: a level's ids are sorted by face, then column) and
+    /// their ancestors down to the cut.
+    fn needed(
+        &self,
+        face: u8,
+        xs: (i64, i64),
+        owns: &dyn Fn(&DiamondId) -> bool,
+    ) -> Vec<Vec<DiamondId>> {
         let domain = &self.params.domain;
         let finest = domain.finest_level();
         let mut needed: Vec<Vec<DiamondId>> = Vec::new();
         let mut below: Vec<DiamondId> = Vec::new();
         for level in (self.cut..=finest).rev() {
             let ids = &self.stored[level as usize];
+            let at = |id: &DiamondId| (id.face, i64::from(id.x));
             let (a, b) = (
-                ids.partition_point(|id| id.face < face),
-                ids.partition_point(|id| id.face <= face),
+                ids.partition_point(|id| at(id) < (face, xs.0)),
+                ids.partition_point(|id| at(id) <= (face, xs.1)),
             );
             let mut set: BTreeSet<DiamondId> = ids[a..b].iter().copied().filter(owns).collect();
             set.extend(below.iter().flat_map(|&d| domain.parents(d)).flatten());
@@ -619,37 +673,35 @@ impl BlockEncode<'_> {
         needed
     }
 
-    /// The apex diamonds' errors measured on this block's tile alone.
-    fn apex_shares(&self, face: u8, index: usize, errors: &TiledError) -> Vec<(DiamondId, u32)> {
+    /// The apex diamonds' errors measured on this block's tiles alone.
+    fn apex_shares(&self, group: &TileGroup, errors: &TiledError) -> Vec<(DiamondId, u32)> {
         let domain = &self.params.domain;
         let layout = domain.layout();
-        let Some(ids) = self.apex.meeting.get(&(face, index)) else {
-            return Vec::new();
-        };
-        ids.par_iter()
-            .map(|&id| {
+        let face = group.face;
+        let ids: BTreeSet<DiamondId> = group
+            .tiles(self.across)
+            .filter_map(|i| self.apex.meeting.get(&(face, i)))
+            .flatten()
+            .copied()
+            .collect();
+        ids.into_par_iter()
+            .map(|id| {
                 let e = views(domain, id, &self.apex.grids[&id])
                     .into_iter()
                     .filter(|(seen, _)| seen.face == face)
-                    .filter(|(seen, _)| {
-                        tiles_meeting(self.side, self.outline.tile_log2, layout.bounds(*seen))
-                            .any(|i| i == index)
+                    .filter_map(|(seen, q)| {
+                        let mine: Vec<usize> =
+                            tiles_meeting(self.side, self.outline.tile_log2, layout.bounds(seen))
+                                .filter(|&i| group.holds(i, self.across))
+                                .collect();
+                        (!mine.is_empty()).then(|| errors.face_error_over(seen, &q, mine))
                     })
-                    .map(|(seen, q)| errors.face_error_over(seen, &q, vec![index]))
                     .max()
                     .unwrap_or(0);
                 (id, e)
             })
             .collect()
     }
-}
-
-/// Whether the block of the tile over `rect` (closed) owns `id`: its centre on the tile's
-/// first row or column or inside, or on the last where that is the face's far side.
-fn owned_by(rect: (i64, i64, i64, i64), side: i64, id: &DiamondId) -> bool {
-    let (x0, y0, x1, y1) = rect;
-    let within = |v: i64, a: i64, b: i64| a <= v && (v < b || (v == b && b == side));
-    within(i64::from(id.x), x0, x1) && within(i64::from(id.y), y0, y1)
 }
 
 /// The tiles (face, index) holding a point of `id`'s square or of any face's view of it: its

@@ -734,7 +734,7 @@ fn tile_cell(across: usize, log2: u32, x: i64, y: i64) -> (usize, usize) {
 }
 
 /// Tiles along a face side of `side` steps in tiles of `2^log2`.
-fn tiles_across(side: i64, log2: u32) -> usize {
+pub(super) fn tiles_across(side: i64, log2: u32) -> usize {
     ((side + (1i64 << log2) - 1) >> log2).max(1) as usize
 }
 

@@ -10,12 +10,15 @@
 //! a cube edge compares each half with its own face's input. The previous level's refinements
 //! are kept per diamond (as [`super::encode`] does for α = ½); α = 1 only.
 
+mod block_groups;
 mod blocks;
 mod grid;
 
+pub use block_groups::{BlockGroups, TileGroup};
+
 pub use blocks::{
     PlanetApex, PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks,
-    thinned,
+    planet_block_groups, thinned,
 };
 
 pub use grid::{MAX_TILES_ACROSS, PlanetGrid, PlanetTile, TILE_MIN_LOG2, tile_log2, tile_of};

@@ -1,0 +1,188 @@
+//! How far a planet's resampled lattice is from each input's own samples (the resampling
+//! error the build reports and the header records), and the header's summary of it.
+
+use std::path::PathBuf;
+
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::planet::Resampled;
+use crate::planet_input::{Frame, PlanetInputs};
+use cbdam_codec::geodesy::LatLon;
+use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_to_face_st};
+use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::repository::{PlanetProvenance, VerticalDatum};
+
+/// How far the resampled lattice is from one input's own samples.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputResampling {
+    /// The input.
+    pub path: PathBuf,
+    /// Its valid samples.
+    pub samples: u64,
+    /// Of those, the samples compared: those whose four surrounding lattice points all took
+    /// their height from this input.
+    pub compared: u64,
+    /// Largest |lattice − sample|, metres (0 when none was compared).
+    pub max_error: f64,
+    /// Root mean square of the same, metres.
+    pub rms_error: f64,
+    /// Where the largest error is: the sample's latitude and longitude.
+    pub worst_at: Option<LatLon>,
+    /// `log2` of the input's stride on the lattice ([`input_stride`]): 0 when it is sampled at
+    /// every lattice point.
+    pub stride: u32,
+}
+
+/// Measures each input's samples against the bilinear interpolant of the resampled lattice
+/// (heights in metres under `plan`) in face coordinates.
+pub fn resampling_error(
+    inputs: &PlanetInputs,
+    resampled: &Resampled,
+    plan: &QuantPlan,
+) -> Result<Vec<InputResampling>> {
+    (0..inputs.inputs.len())
+        .map(|i| input_resampling(inputs, i, resampled, plan))
+        .collect()
+}
+
+/// Input `i`'s samples against the bilinear interpolant of the resampled lattice: only the
+/// lattice points that took their height from it are read (`resampled` may hold only the
+/// tiles it can cover).
+pub(crate) fn input_resampling(
+    inputs: &PlanetInputs,
+    i: usize,
+    resampled: &Resampled,
+    plan: &QuantPlan,
+) -> Result<InputResampling> {
+    let input = &inputs.inputs[i];
+    let me = u16::try_from(i).unwrap_or(u16::MAX);
+    let samples = inputs.samples(i)?;
+    // The input's samples are the lattice points on its stride: the surface drawn
+    // where it is the finest data interpolates those.
+    let step = 1i64 << resampled.strides[i];
+    // On a latitude/longitude grid the longitude's sine and cosine depend on the
+    // column only (the latitude's on the row): computed once each.
+    let columns: Option<Vec<(f64, f64)>> = match input.frame {
+        Frame::Geographic { .. } => Some(
+            (0..input.width)
+                .map(|c| input.lat_lon_of(c, 0).lon.to_radians().sin_cos())
+                .collect(),
+        ),
+        Frame::Projected { .. } => None,
+    };
+    let (samples, compared, max, sum2, worst_at) = (0..input.height)
+        .into_par_iter()
+        .map(|r| {
+            let mut acc = (0u64, 0u64, 0f64, 0f64, None);
+            let row = input.lat_lon_of(0, r).lat.to_radians().sin_cos();
+            for c in 0..input.width {
+                let Some(v) = input.sample(&samples, c, r) else {
+                    continue;
+                };
+                acc.0 += 1;
+                let (face, s, t) = match &columns {
+                    Some(columns) => sin_cos_to_face_st(row, columns[c]),
+                    None => lat_lon_to_face_st(input.lat_lon_of(c, r)),
+                };
+                let Some(l) = lattice_at(resampled, plan, me, (face, s, t), step) else {
+                    continue;
+                };
+                let e = (l - v).abs();
+                acc.1 += 1;
+                if e > acc.2 || acc.4.is_none() {
+                    acc.2 = e;
+                    acc.4 = Some(input.lat_lon_of(c, r));
+                }
+                acc.3 += e * e;
+            }
+            acc
+        })
+        // Rows summed in order, not in rayon's reduction tree (whose shape depends on
+        // scheduling): the stored RMS has the same bits every build.
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold((0, 0, 0.0, 0.0, None), |a, b| {
+            let (max, at) = if b.2 > a.2 || a.4.is_none() {
+                (b.2, b.4)
+            } else {
+                (a.2, a.4)
+            };
+            (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
+        });
+    Ok(InputResampling {
+        path: input.path.clone(),
+        samples,
+        compared,
+        max_error: max,
+        rms_error: if compared > 0 {
+            (sum2 / compared as f64).sqrt()
+        } else {
+            0.0
+        },
+        worst_at,
+        stride: resampled.strides[i],
+    })
+}
+
+/// The header's summary of the resampling: the largest error over all inputs and the root mean
+/// square over all compared samples; heights as the inputs give them (DEMs are orthometric —
+/// the inputs' vertical GeoKeys are not read yet).
+pub fn provenance_of(resampling: &[InputResampling]) -> PlanetProvenance {
+    let compared: u64 = resampling.iter().map(|r| r.compared).sum();
+    let sum2: f64 = resampling
+        .iter()
+        .map(|r| r.rms_error * r.rms_error * r.compared as f64)
+        .sum();
+    PlanetProvenance {
+        vertical_datum: VerticalDatum::Orthometric,
+        resampling_max: resampling.iter().map(|r| r.max_error).fold(0.0, f64::max),
+        resampling_rms: if compared > 0 {
+            (sum2 / compared as f64).sqrt()
+        } else {
+            0.0
+        },
+    }
+}
+
+/// The bilinear interpolant, metres, at face point `(face, s, t)` of the lattice points on
+/// multiples of `step` around it, `None` unless all four took their height from input `me`.
+fn lattice_at(
+    resampled: &Resampled,
+    plan: &QuantPlan,
+    me: u16,
+    (face, s, t): (u8, f64, f64),
+    step: i64,
+) -> Option<f64> {
+    let planet = &resampled.planet;
+    let side = planet.domain().cube().expect("a cube-sphere").side();
+    let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
+    let cells = side / step;
+    let (x0, y0) = (
+        (x.floor() as i64).min(cells - 1),
+        (y.floor() as i64).min(cells - 1),
+    );
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    // Corners inside the face (x0, y0 < S): its own tiles hold them (the
+    // input's samples made them dense enough, `plan_tiles`), equal to every
+    // other face's on shared points.
+    // The four corners lie in the tile of the first but where the cell
+    // crosses a tile's side.
+    let winners = &resampled.winners[usize::from(face)];
+    let first = planet.tile_index(x0 * step, y0 * step);
+    let (_, _, tx1, ty1) = planet.tile(face, first).rect;
+    let one_tile = (x0 + 1) * step <= tx1 && (y0 + 1) * step <= ty1;
+    let corner = |dx: i64, dy: i64| {
+        let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
+        let i = if one_tile {
+            first
+        } else {
+            planet.tile_index(px, py)
+        };
+        let t = planet.tile(face, i);
+        let k = t.index(px, py)?;
+        (winners[i][k] == me && t.grid.valid[k]).then(|| plan.metres(t.grid.values[k]))
+    };
+    let (a, b, cc, d) = (corner(0, 0)?, corner(1, 0)?, corner(0, 1)?, corner(1, 1)?);
+    Some((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (cc * (1.0 - fx) + d * fx) * fy)
+}
