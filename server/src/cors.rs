@@ -46,6 +46,7 @@ pub(crate) fn cors_layer(origin: &str) -> CorsLayer {
             HeaderName::from_static(crate::tiles::LEVEL_HEADER),
             HeaderName::from_static(crate::tiles::CLAMPED_HEADER),
             HeaderName::from_static(crate::tiles::DEVIATION_HEADER),
+            HeaderName::from_static(crate::tiles::OVER_THRESHOLD_HEADER),
         ])
         .max_age(std::time::Duration::from_secs(86_400))
 }

@@ -59,7 +59,7 @@ impl Dem {
     }
 
     /// Lattice column / row of a geodetic point (sample centres at integers).
-    fn lattice(&self, lat: f64, lon: f64) -> (f64, f64) {
+    pub(crate) fn lattice(&self, lat: f64, lon: f64) -> (f64, f64) {
         let g = &self.georef;
         let (mx, my) = match g.epsg {
             Some(4326) => (lon, lat),
