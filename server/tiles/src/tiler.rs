@@ -122,6 +122,28 @@ impl Tiler {
         })
     }
 
+    /// Narrows the tiles to those meeting `bbox` (west, south, east, north, degrees): the
+    /// bounds become the part of the data's inside it, `available` (and the children each
+    /// tile's metadata lists) only the tiles meeting it. Refuses a box that misses the data.
+    pub fn restrict_to(&mut self, bbox: [f64; 4]) -> Result<(), TilesError> {
+        let b = self.bounds;
+        let cut = [
+            b[0].max(bbox[0]),
+            b[1].max(bbox[1]),
+            b[2].min(bbox[2]),
+            b[3].min(bbox[3]),
+        ];
+        if cut[0] >= cut[2] || cut[1] >= cut[3] {
+            return Err(TilesError::OutsideData(format!(
+                "the box {bbox:?} (west, south, east, north) does not meet the data, which \
+                 lies within {b:?}"
+            )));
+        }
+        self.bounds = cut;
+        self.available = self.available.within(cut);
+        Ok(())
+    }
+
     /// The quantized-mesh tiles that exist.
     pub fn available(&self) -> &Availability {
         &self.available

@@ -21,7 +21,14 @@ impl Network<'_> {
         let turn = (GRID << (z + 1)) as f64;
         let place = b.place;
         let mut found: Vec<(usize, (f64, f64, f64))> = Vec::new();
+        // Only the data's samples (a plane's block may reach around the Earth).
+        let (ex0, ey0, ex1, ey1) = surface.extent();
         for (face, (x0, y0, x1, y1)) in face_boxes(b.positions) {
+            let (x0, x1) = (x0.max(ex0 as f64), x1.min(ex1 as f64));
+            let (y0, y1) = (y0.max(ey0 as f64), y1.min(ey1 as f64));
+            if x0 > x1 || y0 > y1 {
+                continue;
+            }
             let (x0, x1) = ((x0 / step).floor() - 1.0, (x1 / step).ceil() + 1.0);
             let (y0, y1) = ((y0 / step).floor() - 1.0, (y1 / step).ceil() + 1.0);
             let mut sy = y0;
