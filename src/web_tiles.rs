@@ -52,6 +52,11 @@ pub struct TilesArgs {
     /// Raster tile size, pixels: 256 or 512.
     #[arg(long, default_value_t = 512)]
     tile: u32,
+    /// Only the tiles meeting this box: west,south,east,north in degrees (WGS84 longitude
+    /// and latitude, west < east, south < north); `tiles.json` / `layer.json` then state
+    /// its part of the data. A box that misses the data is refused.
+    #[arg(long, value_parser = parse_bbox, allow_hyphen_values = true)]
+    bbox: Option<[f64; 4]>,
     #[command(flatten)]
     quiet: flags::Quiet,
 }
@@ -71,7 +76,12 @@ pub fn run(args: &TilesArgs) -> Result<()> {
     let encoded = repo
         .to_encoded()
         .with_context(|| format!("reading {}", args.repo.display()))?;
-    let tiler = Tiler::new(repo.head(), encoded).map_err(anyhow::Error::msg)?;
+    let mut tiler = Tiler::new(repo.head(), encoded).map_err(anyhow::Error::msg)?;
+    if let Some(bbox) = args.bbox {
+        tiler
+            .restrict_to(bbox)
+            .map_err(|e| anyhow::anyhow!("--bbox: {e}"))?;
+    }
     // Every tile is made: decode every level once (tiles then read it, not windows).
     tiler.surface().map_err(anyhow::Error::msg)?;
     let decoded_s = started.elapsed().as_secs_f64();
@@ -131,6 +141,46 @@ pub fn run(args: &TilesArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--bbox`: four comma-separated degrees, west,south,east,north.
+fn parse_bbox(text: &str) -> Result<[f64; 4], String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let [w, s, e, n] = parts[..] else {
+        return Err(format!(
+            "{} values; the box is four: west,south,east,north (degrees)",
+            parts.len()
+        ));
+    };
+    let mut v = [0.0; 4];
+    for (slot, (name, part)) in
+        v.iter_mut()
+            .zip([("west", w), ("south", s), ("east", e), ("north", n)])
+    {
+        *slot = part
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("{name} `{part}` is not a number of degrees"))?;
+    }
+    let [w, s, e, n] = v;
+    for (name, x, limit) in [("west", w, 180.0), ("east", e, 180.0)]
+        .into_iter()
+        .chain([("south", s, 90.0), ("north", n, 90.0)])
+    {
+        if x.abs() > limit {
+            return Err(format!("{name} {x}° is outside ±{limit}°"));
+        }
+    }
+    if w >= e {
+        return Err(format!(
+            "west {w}° is not west of east {e}° (a box across the antimeridian is not supported)"
+        ));
+    }
+    if s >= n {
+        return Err(format!("south {s}° is not south of north {n}°"));
+    }
+    Ok(v)
 }
 
 /// Every Web Mercator tile of levels `0..=max_zoom` that meets `bounds`.

@@ -46,6 +46,8 @@ pub(crate) fn cors_layer(origin: &str) -> CorsLayer {
             HeaderName::from_static(crate::headers::LEVEL_HEADER),
             HeaderName::from_static(crate::headers::CLAMPED_HEADER),
             HeaderName::from_static(crate::headers::DEVIATION_HEADER),
+            HeaderName::from_static(crate::headers::OVER_THRESHOLD_HEADER),
+            HeaderName::from_static(crate::headers::CLAMPED_VERTICES_HEADER),
         ])
         .max_age(std::time::Duration::from_secs(86_400))
 }

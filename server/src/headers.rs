@@ -7,8 +7,11 @@ use axum::http::{HeaderMap, HeaderValue, header};
 pub(crate) const LEVEL_HEADER: &str = "cbdam-level";
 /// Pixels of a raster tile whose height the encoding had to clamp (response header).
 pub(crate) const CLAMPED_HEADER: &str = "cbdam-clamped-pixels";
-/// A mesh tile's measured |mesh − the repository level sampled|, metres (response header).
+/// A mesh tile's triangulation error: the largest |mesh − the repository level sampled| at its
+/// grid points and that level's samples, metres (response header).
 pub(crate) const DEVIATION_HEADER: &str = "cbdam-deviation-m";
+/// A mesh tile's triangles over the level's threshold (the grid's finest; response header).
+pub(crate) const OVER_THRESHOLD_HEADER: &str = "cbdam-triangles-over-threshold";
 /// Vertices of a mesh tile clamped to the header's height range (response header).
 pub(crate) const CLAMPED_VERTICES_HEADER: &str = "cbdam-clamped-vertices";
 

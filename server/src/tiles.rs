@@ -20,8 +20,8 @@ use cbdam_tiles::{Encoding, Tiler, TilesError};
 
 use crate::error::{ApiError, bad_path};
 use crate::headers::{
-    CLAMPED_HEADER, CLAMPED_VERTICES_HEADER, DEVIATION_HEADER, LEVEL_HEADER, accepts_gzip,
-    not_modified,
+    CLAMPED_HEADER, CLAMPED_VERTICES_HEADER, DEVIATION_HEADER, LEVEL_HEADER, OVER_THRESHOLD_HEADER,
+    accepts_gzip, not_modified,
 };
 use crate::records::{RecordBuffer, RecordError};
 use crate::state::{AppState, ServedRepo};
@@ -344,6 +344,10 @@ async fn terrain(
     h.insert(
         HeaderName::from_static(CLAMPED_VERTICES_HEADER),
         number(made.clamped),
+    );
+    h.insert(
+        HeaderName::from_static(OVER_THRESHOLD_HEADER),
+        number(made.over_threshold),
     );
     Ok(tile_response(r, req.headers(), h, body))
 }

@@ -14,25 +14,29 @@ use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{Repository, serialize};
 use serde_json::Value;
 
+use crate::mesh_error::compare_mesh;
 use crate::tiles::{Dem, get_json, serve, utm_dem};
 use crate::util::{Running, client, error_body};
 
-const ACCEPT_ALL: &str = "application/vnd.quantized-mesh;extensions=octvertexnormals-metadata,application/octet-stream;q=0.9";
+pub(crate) const ACCEPT_ALL: &str = "application/vnd.quantized-mesh;extensions=octvertexnormals-metadata,application/octet-stream;q=0.9";
 
 /// One decoded tile.
 #[derive(Debug)]
-struct Qm {
-    min_h: f64,
-    max_h: f64,
+pub(crate) struct Qm {
+    pub(crate) min_h: f64,
+    pub(crate) max_h: f64,
     sphere: ([f64; 3], f64),
     occlusion: [f64; 3],
-    u: Vec<u16>,
-    v: Vec<u16>,
+    pub(crate) u: Vec<u16>,
+    pub(crate) v: Vec<u16>,
     h: Vec<u16>,
-    triangles: Vec<u32>,
+    pub(crate) triangles: Vec<u32>,
     /// West, south, east, north.
     edges: [Vec<u32>; 4],
     extensions: Vec<(u8, Vec<u8>)>,
+    /// The response's `cbdam-level` and `cbdam-triangles-over-threshold` headers.
+    pub(crate) level: u8,
+    pub(crate) over_threshold: usize,
 }
 
 struct Reader<'a> {
@@ -131,6 +135,8 @@ fn read_qm(b: &[u8]) -> Qm {
         triangles,
         edges,
         extensions,
+        level: 0,
+        over_threshold: 0,
     }
 }
 
@@ -144,7 +150,7 @@ impl Qm {
         let cell = |q: u16| (f64::from(q) * 64.0 / 32767.0).round() / 64.0;
         (s + cell(self.v[k]) * size, w + cell(self.u[k]) * size)
     }
-    fn height(&self, k: usize) -> f64 {
+    pub(crate) fn height(&self, k: usize) -> f64 {
         self.min_h + f64::from(self.h[k]) / 32767.0 * (self.max_h - self.min_h)
     }
     /// Latitude and longitude of vertex `k` of tile `z/x/y`.
@@ -160,7 +166,7 @@ impl Qm {
 
 /// Fetches and decodes tile `z/x/y`, checking the transfer headers; `accept` asks for
 /// extensions.
-async fn fetch(s: &Running, name: &str, (z, x, y): (u32, u32, u32), accept: &str) -> Qm {
+pub(crate) async fn fetch(s: &Running, name: &str, (z, x, y): (u32, u32, u32), accept: &str) -> Qm {
     let url = s.url(&format!(
         "/v1/repos/{name}/quantized-mesh/{z}/{x}/{y}.terrain?v=1.0.0"
     ));
@@ -193,11 +199,16 @@ async fn fetch(s: &Running, name: &str, (z, x, y): (u32, u32, u32), accept: &str
         .unwrap();
     assert_eq!(again.status(), 304);
     assert_eq!(h["cbdam-clamped-vertices"], "0", "{url}: vertices clamped");
-    read_qm(&raw)
+    let header = |name: &str| h[name].to_str().unwrap().parse::<usize>().unwrap();
+    Qm {
+        level: header("cbdam-level") as u8,
+        over_threshold: header("cbdam-triangles-over-threshold"),
+        ..read_qm(&raw)
+    }
 }
 
 /// Whether `layer.json`'s `available` lists tile `z/x/y`.
-fn listed(layer: &Value, (z, x, y): (u32, u32, u32)) -> bool {
+pub(crate) fn listed(layer: &Value, (z, x, y): (u32, u32, u32)) -> bool {
     let at = |r: &Value, k: &str| r[k].as_u64().unwrap() as u32;
     layer["available"][z as usize]
         .as_array()
@@ -210,7 +221,7 @@ fn listed(layer: &Value, (z, x, y): (u32, u32, u32)) -> bool {
 }
 
 /// What holds for every tile by itself.
-fn check_tile(t: &Qm, zxy: (u32, u32, u32)) {
+pub(crate) fn check_tile(t: &Qm, zxy: (u32, u32, u32)) {
     let n = t.u.len();
     assert!(n > 0 && !t.triangles.is_empty());
     assert!(t.min_h <= t.max_h);
@@ -262,7 +273,7 @@ fn check_tile(t: &Qm, zxy: (u32, u32, u32)) {
 }
 
 /// The `(v, height step)` pairs of one edge list, sorted.
-fn edge(t: &Qm, side: usize) -> Vec<(u16, u16)> {
+pub(crate) fn edge(t: &Qm, side: usize) -> Vec<(u16, u16)> {
     let mut e: Vec<(u16, u16)> = t.edges[side]
         .iter()
         .map(|&k| {
@@ -291,7 +302,7 @@ fn metadata(t: &Qm) -> Value {
 }
 
 /// The tile of level `z` holding a geodetic point.
-fn tile_at(z: u32, lat: f64, lon: f64) -> (u32, u32, u32) {
+pub(crate) fn tile_at(z: u32, lat: f64, lon: f64) -> (u32, u32, u32) {
     let size = 180.0 / f64::from(1u32 << z);
     (
         z,
@@ -362,7 +373,7 @@ async fn quantized_mesh_tiles_decode_and_hold_the_input() {
         "the shared edge differs between neighbours"
     );
     let compared = check_heights(&tw, west, &dem, bound) + check_heights(&te, east, &dem, bound);
-    assert!(compared > 1000, "only {compared} vertices compared");
+    assert!(compared > 300, "only {compared} vertices compared");
     // Extensions: normals (2 bytes a vertex) and metadata, as asked for.
     let ids: Vec<u8> = tw.extensions.iter().map(|e| e.0).collect();
     assert_eq!(ids, [1, 4]);
@@ -641,28 +652,40 @@ async fn available_follows_a_variable_resolution_planets_records() {
     let q = |face: u8, c: i64, r: i64| {
         plan.metres(((height(face, c, r) - plan.offset) / plan.unit).round() as i32)
     };
-    let mut compared = 0;
-    for k in 0..t.u.len() {
-        let (lat, lon) = t.grid_lat_lon(k, near);
+    let inset = |lat: f64, lon: f64| {
         let (face, fs, ft) = lat_lon_to_face_st(LatLon { lat, lon });
         let (x, y) = (fs * side as f64, ft * side as f64);
         let (c, r) = (x.floor() as i64, y.floor() as i64);
         // Inside the inset (its fine samples), away from its coarse surroundings.
         let (ds, dt) = (fs - 0.4, ft - 0.6);
         if face != 0 || ds * ds + dt * dt >= 0.015 {
-            continue;
+            return None;
         }
         let (tx, ty) = (x - c as f64, y - r as f64);
-        let expected = (1.0 - ty) * ((1.0 - tx) * q(face, c, r) + tx * q(face, c + 1, r))
-            + ty * ((1.0 - tx) * q(face, c, r + 1) + tx * q(face, c + 1, r + 1));
-        let got = t.height(k);
-        assert!(
-            (got - expected).abs() <= bound + 1e-6,
-            "vertex {k}: {got} m against {expected} m, bound {bound}"
-        );
-        compared += 1;
+        Some(
+            (1.0 - ty) * ((1.0 - tx) * q(face, c, r) + tx * q(face, c + 1, r))
+                + ty * ((1.0 - tx) * q(face, c, r + 1) + tx * q(face, c + 1, r + 1)),
+        )
+    };
+    // The vertices in the inset (at this level's error, 9.6 km, perhaps none: the tile's
+    // corners lie outside it).
+    for k in 0..t.u.len() {
+        let (lat, lon) = t.grid_lat_lon(k, near);
+        if let Some(expected) = inset(lat, lon) {
+            let got = t.height(k);
+            assert!(
+                (got - expected).abs() <= bound + 1e-6,
+                "vertex {k}: {got} m against {expected} m, bound {bound}"
+            );
+        }
     }
-    assert!(compared > 1000, "{compared} vertices compared");
+    // Between the vertices: within the level's triangulation threshold more.
+    let threshold = layer["cbdam"]["triangulation_threshold_m"][max as usize]
+        .as_f64()
+        .unwrap();
+    let everywhere = |_: f64, _: f64| true;
+    let (_, compared) = compare_mesh(&t, near, (&inset, &everywhere), bound + threshold, 20_000);
+    assert!(compared > 1000, "{compared} points compared");
     // A maxzoom tile over the ocean is not listed, and answers 404 naming `available`.
     let ocean = tile_at(max, -60.0, -150.0);
     assert!(!listed(&layer, ocean));
@@ -716,7 +739,7 @@ async fn orthometric_heights_are_raised_onto_the_ellipsoid_for_cesium_only() {
     assert!(geoid_error > 0.0);
     let bound = layer["cbdam"]["vertex_bound_m"].as_f64().unwrap();
     // Over the Indian Ocean's low (about −100 m) and New Guinea's high (about +70 m).
-    let mut extremes = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut raised = 0.0f64;
     for (lat, lon) in [(5.0, 78.0), (-5.0, 145.0), (48.86, 2.35)] {
         let zxy = tile_at(2, lat, lon);
         let t = fetch(&s, "p", zxy, ACCEPT_ALL).await;
@@ -729,10 +752,11 @@ async fn orthometric_heights_are_raised_onto_the_ellipsoid_for_cesium_only() {
                 (got - n).abs() <= bound - geoid_error + 1e-6,
                 "vertex {k}: {got} m, N {n} m"
             );
-            extremes = (extremes.0.min(got), extremes.1.max(got));
+            raised = raised.max(n.abs());
         }
     }
-    assert!(extremes.0 < -80.0 && extremes.1 > 50.0, "{extremes:?}");
+    // Not all at the ellipsoid: some vertex stands where EGM96 is far from it.
+    assert!(raised > 20.0, "the largest |N| at a vertex is {raised} m");
     // MapLibre's terrarium tiles: heights above sea level, unconverted.
     let r = client()
         .get(s.url("/v1/repos/p/terrarium/0/0/0.png"))

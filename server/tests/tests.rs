@@ -13,6 +13,7 @@ mod file_reads;
 #[cfg(target_os = "linux")]
 mod hostile;
 mod http;
+mod mesh_error;
 mod priorities;
 mod quantized_mesh;
 mod tiles;

@@ -4,13 +4,16 @@
 //! server states.
 
 use cbdam_codec::geodesy::{LatLon, Utm};
-use cbdam_codec::hierarchy::{EncodeOptions, Encoder};
-use cbdam_codec::quant::{HeightGrid, QuantPlan};
-use cbdam_codec::repository::{GeoRef, Repository, serialize};
+use cbdam_codec::repository::{GeoRef, Repository};
 use cbdam_server::{AppState, Config};
 use serde_json::Value;
 
 use crate::util::{Running, client, json, start};
+
+#[path = "../tiles/tests/common/rough_dem.rs"]
+mod rough_dem;
+
+pub(crate) use rough_dem::{EPSILON, NODATA};
 
 /// A DEM, its georeferencing and the repository built from it.
 pub(crate) struct Dem {
@@ -20,46 +23,23 @@ pub(crate) struct Dem {
     pub(crate) georef: GeoRef,
 }
 
-pub(crate) const NODATA: f64 = -9999.0;
-/// The repositories' ε, metres.
-pub(crate) const EPSILON: f64 = 0.25;
-
 impl Dem {
     /// Rough terrain with a nodata hole, `w × h` samples.
     fn rough(w: usize, h: usize, georef: GeoRef) -> Dem {
-        let metres = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f64, (i / w) as f64);
-                if (x - 0.7 * w as f64).hypot(y - 0.3 * h as f64) < 3.0 {
-                    return NODATA;
-                }
-                let noise = ((i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as f64 / 8.0;
-                300.0 + 40.0 * (x / 6.0).sin() * (y / 9.0).cos() + 0.3 * x + noise
-            })
-            .collect();
         Dem {
             w,
             h,
-            metres,
+            metres: rough_dem::rough_metres(w, h),
             georef,
         }
     }
 
     pub(crate) fn repository(&self) -> Repository {
-        let plan = QuantPlan::new(EPSILON, None, 200.0, 400.0).unwrap();
-        let grid =
-            HeightGrid::from_metres(self.w, self.h, &self.metres, Some(NODATA), &plan).unwrap();
-        let opts = EncodeOptions {
-            n: 9,
-            ..EncodeOptions::default()
-        };
-        let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
-        let bytes = serialize(&enc, &plan, Some(&self.georef), Some(NODATA)).unwrap();
-        Repository::from_bytes(bytes).unwrap()
+        rough_dem::repository(self.w, self.h, &self.metres, &self.georef)
     }
 
     /// Lattice column / row of a geodetic point (sample centres at integers).
-    fn lattice(&self, lat: f64, lon: f64) -> (f64, f64) {
+    pub(crate) fn lattice(&self, lat: f64, lon: f64) -> (f64, f64) {
         let g = &self.georef;
         let (mx, my) = match g.epsg {
             Some(4326) => (lon, lat),

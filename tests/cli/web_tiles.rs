@@ -126,3 +126,114 @@ fn bad_tile_arguments_are_refused_by_name() {
     assert!(said.contains("levels 0…0"), "{said}");
     assert_eq!(files(&out, "terrain").len(), 2);
 }
+
+/// A file `…/{z}/{x}/{y}.terrain`'s tile.
+fn tile_of(path: &Path) -> (u32, u32, u32) {
+    let part = |p: Option<&std::ffi::OsStr>| -> u32 {
+        let text = p.unwrap().to_str().unwrap();
+        text.trim_end_matches(".terrain").parse().unwrap()
+    };
+    let y = part(path.file_name());
+    let x = part(path.parent().unwrap().file_name());
+    let z = part(path.parent().unwrap().parent().unwrap().file_name());
+    (z, x, y)
+}
+
+/// Whether geographic tile `z/x/y` meets box `b` (west, south, east, north) with an area.
+fn meets((z, x, y): (u32, u32, u32), b: [f64; 4]) -> bool {
+    let size = 180.0 / f64::from(1u32 << z);
+    let (w, s) = (-180.0 + f64::from(x) * size, -90.0 + f64::from(y) * size);
+    w < b[2] && b[0] < w + size && s < b[3] && b[1] < s + size
+}
+
+#[test]
+fn a_bbox_exports_only_the_tiles_meeting_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let (all_dir, part_dir) = (dir.path().join("all"), dir.path().join("part"));
+    export(&repo, &all_dir, "quantized-mesh", &["--max-zoom", "10"]);
+    let layer = |d: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(d.join("layer.json")).unwrap()).unwrap()
+    };
+    let b: Vec<f64> = serde_json::from_value(layer(&all_dir)["bounds"].clone()).unwrap();
+    // The data's western third, and a box reaching past its south edge.
+    let bbox = [b[0], b[1] - 1.0, b[0] + (b[2] - b[0]) / 3.0, b[3]];
+    let arg = format!("{},{},{},{}", bbox[0], bbox[1], bbox[2], bbox[3]);
+    export(
+        &repo,
+        &part_dir,
+        "quantized-mesh",
+        &["--max-zoom", "10", "--bbox", &arg],
+    );
+    let stated: Vec<f64> = serde_json::from_value(layer(&part_dir)["bounds"].clone()).unwrap();
+    assert_eq!(
+        stated,
+        [b[0], b[1], bbox[2], b[3]],
+        "the part of the data in the box"
+    );
+    let mut all: Vec<_> = files(&all_dir, "terrain")
+        .iter()
+        .map(|p| tile_of(p))
+        .collect();
+    let mut part: Vec<_> = files(&part_dir, "terrain")
+        .iter()
+        .map(|p| tile_of(p))
+        .collect();
+    all.sort_unstable();
+    part.sort_unstable();
+    let want: Vec<_> = all
+        .iter()
+        .copied()
+        .filter(|&t| t.0 == 0 || meets(t, bbox))
+        .collect();
+    assert_eq!(part, want, "the tiles meeting the box, and both roots");
+    assert!(
+        part.len() < all.len() && part.len() > 12,
+        "{} of {}",
+        part.len(),
+        all.len()
+    );
+    // Raster tiles too: their document states the part of the data in the box.
+    let png = dir.path().join("png");
+    export(
+        &repo,
+        &png,
+        "terrarium",
+        &["--max-zoom", "9", "--bbox", &arg],
+    );
+    let tj: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(png.join("tiles.json")).unwrap()).unwrap();
+    let stated: Vec<f64> = serde_json::from_value(tj["bounds"].clone()).unwrap();
+    assert_eq!(stated, [b[0], b[1], bbox[2], b[3]]);
+    assert!(!files(&png, "png").is_empty());
+}
+
+#[test]
+fn bad_boxes_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let out = dir.path().join("t");
+    for (bbox, said) in [
+        ("1,2,3", "3 values"),
+        ("a,0,1,1", "west `a` is not a number"),
+        ("-98,33,-99,34", "west -98° is not west of east -99°"),
+        ("-98,34,-97,33", "south 34° is not south of north 33°"),
+        ("-98,33,-97,95", "north 95° is outside ±90°"),
+        ("0,0,1,1", "does not meet the data"),
+    ] {
+        let args = [
+            "tiles",
+            &s(&repo),
+            "--format",
+            "terrarium",
+            "-o",
+            &s(&out),
+            "--bbox",
+            bbox,
+        ];
+        let o = cbdam(&args);
+        assert!(!o.status.success(), "{bbox} accepted");
+        assert!(stderr(&o).contains(said), "{bbox}: {}", stderr(&o));
+        assert!(!stderr(&o).contains("panicked"), "{bbox}: {}", stderr(&o));
+    }
+}

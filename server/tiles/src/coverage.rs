@@ -77,6 +77,24 @@ impl Availability {
         Availability { levels }
     }
 
+    /// The tiles that meet `bbox` (west, south, east, north, degrees) and both root tiles:
+    /// still a tree, since a tile's parent holds it.
+    pub fn within(&self, bbox: [f64; 4]) -> Availability {
+        let levels = self
+            .levels
+            .iter()
+            .enumerate()
+            .map(|(z, set)| {
+                let z = z as u8;
+                let keep = |&&(x, y): &&(u32, u32)| {
+                    z == 0 || Scheme::Geographic.meets(TileId { z, x, y }, bbox)
+                };
+                set.iter().filter(keep).copied().collect()
+            })
+            .collect();
+        Availability { levels }
+    }
+
     /// The deepest level listed.
     pub fn max_zoom(&self) -> u8 {
         (self.levels.len() - 1) as u8

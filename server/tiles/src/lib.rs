@@ -14,6 +14,7 @@
 
 pub mod coverage;
 pub mod geoid;
+pub mod mesh_cut;
 pub mod place;
 pub mod quantized_mesh;
 pub mod raster;

@@ -1,11 +1,12 @@
 //! Quantized-mesh-1.0 tiles (CesiumJS's terrain format) of the geographic TMS scheme.
 //!
-//! Each tile is a regular grid of `GRID + 1` × `GRID + 1` vertices, evenly spaced in longitude
-//! and latitude, each at the repository's height there ([`Surface::height`], from the level
-//! whose spacing suits the tile). Vertex positions come from global integer indices and
-//! heights are quantized over the repository's whole height range (the same header range in
-//! every tile), so the vertices two neighbouring tiles share along an edge are bit-identical:
-//! same u/v position on the ground, same quantized height.
+//! Each tile's vertices are points of a grid of `GRID + 1` × `GRID + 1`, evenly spaced in
+//! longitude and latitude, each at the repository's height there ([`Surface::height`], from
+//! the level whose spacing suits the tile); which of them, and the triangles, come from an
+//! adaptive cut within the level's error ([`mesh_cut`]). Vertex positions come from global
+//! integer indices and heights are quantized over the repository's whole height range (the
+//! same header range in every tile), so the vertices two neighbouring tiles share along an
+//! edge are bit-identical: same u/v position on the ground, same quantized height.
 //!
 //! The byte layout follows the quantized-mesh-1.0 specification: an 88-byte header (centre,
 //! height range, bounding sphere, horizon occlusion point), zig-zag delta-coded u/v/height,
@@ -16,6 +17,7 @@ use cbdam_codec::geodesy::Geodetic;
 use cbdam_codec::geodesy::wgs84::{A, B};
 
 use crate::coverage::Availability;
+use crate::mesh_cut;
 use crate::place::{Placement, coarsen_for};
 use crate::schemes::TileId;
 use crate::surface::Surface;
@@ -51,10 +53,13 @@ pub struct MeshTile {
     pub level: u8,
     /// Metres between consecutive quantized heights.
     pub height_step: f64,
-    /// Largest |mesh − the repository level sampled| measured at the vertices and at the
-    /// midpoints of the cells' edges and diagonals, metres (heights before quantization); at
-    /// `maxzoom` that level is the finest.
+    /// Largest |mesh − the repository level sampled| over every grid point and every sample of
+    /// that level inside the tile's triangles whose vertices hold data, metres (heights before
+    /// quantization; [`mesh_cut`]); at `maxzoom` that level is the finest.
     pub deviation: f64,
+    /// Triangles whose error is over [`triangulation_threshold`] (the grid's finest, which
+    /// cannot be split further).
+    pub over_threshold: usize,
     /// Vertices whose height fell outside the header's range and were clamped to it.
     pub clamped: u64,
 }
@@ -85,127 +90,33 @@ pub fn coarsen_at(place: &Placement, z: u8) -> usize {
     coarsen_for(place.spacing_m(), cell_deg * METRES_PER_DEGREE)
 }
 
-/// The lattice position of every vertex of tile `t`, row by row from the south (`None` where
-/// the repository's CRS cannot place it).
-pub fn vertex_positions(place: &Placement, t: TileId) -> Vec<Option<(u8, f64, f64)>> {
-    let n = (GRID + 1) as usize;
-    let mut out = Vec::with_capacity(n * n);
-    for j in 0..n {
-        for i in 0..n {
-            let (lat, lon) = vertex_lat_lon(t, i as f64, j as f64);
-            out.push(place.locate(lat, lon));
-        }
-    }
-    out
-}
-
-/// The grid's vertex heights (before quantization), row by row from the south, and the
-/// finest level used.
-fn vertex_heights(
-    surface: Option<&Surface>,
-    positions: &[Option<(u8, f64, f64)>],
-    coarsen: usize,
-) -> (Vec<f64>, u8) {
-    let mut level = u8::MAX;
-    let heights = positions
-        .iter()
-        .map(|&at| {
-            let h = height_at(surface, at, coarsen);
-            level = level.min(h.1);
-            h.0
-        })
-        .collect();
-    (heights, if level == u8::MAX { 0 } else { level })
-}
-
-/// Latitude and longitude of grid position `(i, j)` of tile `t` (fractional for midpoints),
-/// from the global grid index so that neighbours compute the same bits.
-pub fn vertex_lat_lon(t: TileId, i: f64, j: f64) -> (f64, f64) {
-    let cell_deg = 180.0 / f64::from(1u32 << t.z) / f64::from(GRID);
-    let gx = f64::from(t.x) * f64::from(GRID) + i;
-    let gy = f64::from(t.y) * f64::from(GRID) + j;
-    ((-90.0 + gy * cell_deg).min(90.0), -180.0 + gx * cell_deg)
+/// Latitude and longitude of grid position `(i, j)` of tile `t`, from the global grid index
+/// so that neighbours compute the same bits.
+pub fn vertex_lat_lon(t: TileId, i: u32, j: u32) -> (f64, f64) {
+    let g = i64::from(GRID);
+    mesh_cut::grid_lat_lon(
+        t.z,
+        i64::from(t.x) * g + i64::from(i),
+        i64::from(t.y) * g + i64::from(j),
+    )
 }
 
 /// The height at a lattice position: the surface's, 0 m (the ellipsoid) where there is no
-/// data (outside a plane's data, beyond half a sample); and the level used (`u8::MAX` for
-/// none).
-fn height_at(surface: Option<&Surface>, at: Option<(u8, f64, f64)>, coarsen: usize) -> (f64, u8) {
+/// data (outside a plane's data, beyond half a sample); and whether there is data.
+fn height_at(surface: Option<&Surface>, at: Option<(u8, f64, f64)>, coarsen: usize) -> (f64, bool) {
     surface
         .zip(at)
         .and_then(|(s, (face, x, y))| s.height(face, x, y, coarsen))
-        .unwrap_or((0.0, u8::MAX))
-}
-
-/// Largest |mesh − the level sampled| at the vertices and at the midpoints of every cell's
-/// edges and diagonal (where the triangles interpolate), metres, over the points where the
-/// mesh's vertices and that level all hold data (a plane's edge, a wall down to 0 m, is not
-/// counted). At `maxzoom` the level sampled is the finest.
-fn measure_deviation(
-    surface: Option<&Surface>,
-    place: &Placement,
-    t: TileId,
-    heights: &[f64],
-    coarsen: usize,
-) -> f64 {
-    let n = (GRID + 1) as usize;
-    let level_at = |i: f64, j: f64| {
-        let (lat, lon) = vertex_lat_lon(t, i, j);
-        let (h, level) = height_at(surface, place.locate(lat, lon), coarsen);
-        (level != u8::MAX).then_some(h)
-    };
-    let vertex: Vec<Option<f64>> = (0..n * n)
-        .map(|k| level_at((k % n) as f64, (k / n) as f64).map(|_| heights[k]))
-        .collect();
-    let mut worst = 0.0f64;
-    let mut compare = |a: usize, b: usize, i: f64, j: f64| {
-        if let (Some(ha), Some(hb), Some(f)) = (vertex[a], vertex[b], level_at(i, j)) {
-            worst = worst.max((0.5 * (ha + hb) - f).abs());
-        }
-    };
-    for j in 0..n {
-        for i in 0..n {
-            let k = j * n + i;
-            let (fi, fj) = (i as f64, j as f64);
-            compare(k, k, fi, fj);
-            if i + 1 < n {
-                compare(k, k + 1, fi + 0.5, fj);
-            }
-            if j + 1 < n {
-                compare(k, k + n, fi, fj + 0.5);
-            }
-            if i + 1 < n && j + 1 < n {
-                // The diagonal (i, j)–(i+1, j+1) that both triangles of the cell share.
-                compare(k, k + n + 1, fi + 0.5, fj + 0.5);
-            }
-        }
-    }
-    worst
-}
-
-/// Adds EGM96's undulation to the heights of the vertices with data (those without stay on
-/// the ellipsoid, at 0 m).
-fn raise_onto_ellipsoid(at: &TileHeights<'_>, t: TileId, heights: &mut [f64]) {
-    let n = (GRID + 1) as usize;
-    for (k, h) in heights.iter_mut().enumerate() {
-        if has_data(at, k) {
-            let (lat, lon) = vertex_lat_lon(t, (k % n) as f64, (k / n) as f64);
-            *h += crate::geoid::undulation(lat, lon);
-        }
-    }
-}
-
-/// Whether vertex `k` has a height from the surface.
-fn has_data(at: &TileHeights<'_>, k: usize) -> bool {
-    height_at(at.surface, at.positions[k], at.coarsen).1 != u8::MAX
+        .map_or((0.0, false), |(h, _)| (h, true))
 }
 
 /// What [`build`] samples.
 pub struct TileHeights<'a> {
-    /// The surface, holding the tile's level and coarser ones around its vertices (`None`:
-    /// no vertex on the data).
+    /// The surface, holding the tile's level and coarser ones around its block (`None`: no
+    /// block point on the data).
     pub surface: Option<&'a Surface>,
-    /// The vertices' lattice positions ([`vertex_positions`]).
+    /// The lattice positions of the tile's block ([`mesh_cut::block_positions`]: the tile and
+    /// its eight neighbours, whose data decide its edges).
     pub positions: &'a [Option<(u8, f64, f64)>],
     /// The level index ([`Surface::levels`]) the vertices sample ([`coarsen_at`]).
     pub coarsen: usize,
@@ -216,64 +127,102 @@ pub struct TileHeights<'a> {
     pub to_ellipsoid: bool,
 }
 
+/// The largest triangle error (metres, against the repository level sampled, heights before
+/// quantization) the cut of a level-`z` tile allows: CesiumJS's level error less half the
+/// height step, so that drawn heights stay within the level error.
+pub fn triangulation_threshold(z: u8, height_step: f64) -> f64 {
+    crate::schemes::cesium_level_error(z) - 0.5 * height_step
+}
+
+/// The block's heights as drawn (0 m without data), raised onto the ellipsoid where asked so
+/// that the cut follows them; and whether each holds data.
+fn drawn_heights(at: &TileHeights<'_>, t: TileId) -> Vec<(f64, bool)> {
+    let (gx0, gy0) = mesh_cut::block_origin(t);
+    at.positions
+        .iter()
+        .enumerate()
+        .map(|(k, &p)| {
+            let (h, data) = height_at(at.surface, p, at.coarsen);
+            if !(at.to_ellipsoid && data) {
+                return (h, data);
+            }
+            let (i, j) = ((k % mesh_cut::SPAN) as i64, (k / mesh_cut::SPAN) as i64);
+            let (lat, lon) = mesh_cut::grid_lat_lon(t.z, gx0 + i, gy0 + j);
+            (h + crate::geoid::undulation(lat, lon), true)
+        })
+        .collect()
+}
+
+/// The cut's vertices, numbered in order of first use (as high-water-mark coding needs), and
+/// its triangles as those numbers.
+fn number_vertices(cut: &mesh_cut::Cut) -> (Vec<(u32, u32)>, Vec<u32>) {
+    let n = (GRID + 1) as usize;
+    let mut new_of = vec![u32::MAX; n * n];
+    let mut order: Vec<(u32, u32)> = Vec::new();
+    let mut triangles: Vec<u32> = Vec::with_capacity(3 * cut.triangles.len());
+    for &(i, j) in cut.triangles.iter().flatten() {
+        let g = j as usize * n + i as usize;
+        if new_of[g] == u32::MAX {
+            new_of[g] = order.len() as u32;
+            order.push((i, j));
+        }
+        triangles.push(new_of[g]);
+    }
+    (order, triangles)
+}
+
 /// Builds tile `req.tile` from `at`.
 pub fn build(at: &TileHeights<'_>, place: &Placement, req: &TileRequest<'_>) -> MeshTile {
     let t = req.tile;
-    let n = (GRID + 1) as usize;
-    let (heights, level) = vertex_heights(at.surface, at.positions, at.coarsen);
-    let deviation = measure_deviation(at.surface, place, t, &heights, at.coarsen);
-    let mut heights = heights;
-    if at.to_ellipsoid {
-        raise_onto_ellipsoid(at, t, &mut heights);
-    }
     let (lo, hi) = at.range;
-    let clamped = heights.iter().filter(|&&h| !(lo..=hi).contains(&h)).count() as u64;
+    let height_step = (hi - lo) / f64::from(QMAX);
+    let heights = drawn_heights(at, t);
+    let cut = mesh_cut::cut(&mesh_cut::Block {
+        tile: t,
+        place,
+        surface: at.surface,
+        positions: at.positions,
+        heights: &heights,
+        coarsen: at.coarsen,
+        threshold: triangulation_threshold(t.z, height_step),
+        to_ellipsoid: at.to_ellipsoid,
+    });
+    let (order, triangles) = number_vertices(&cut);
+    let mut level = u8::MAX;
+    let vertex_heights: Vec<(f64, bool)> = order
+        .iter()
+        .map(|&(i, j)| {
+            let p = at.positions[mesh_cut::block_index(i, j)];
+            if let Some((_, l)) = at
+                .surface
+                .zip(p)
+                .and_then(|(s, (f, x, y))| s.height(f, x, y, at.coarsen))
+            {
+                level = level.min(l);
+            }
+            heights[mesh_cut::block_index(i, j)]
+        })
+        .collect();
+    let clamped = vertex_heights
+        .iter()
+        .filter(|h| !(lo..=hi).contains(&h.0))
+        .count() as u64;
     let quantize =
         |h: f64| (((h - lo) / (hi - lo)).clamp(0.0, 1.0) * f64::from(QMAX)).round() as u16;
-    let grid_q = |k: usize| ((k as u32 * QMAX + GRID / 2) / GRID) as u16;
-    // Grid vertices in row order; triangles counter-clockwise seen from above.
-    let grid_index = |i: usize, j: usize| (j * n + i) as u32;
-    let mut triangles: Vec<u32> = Vec::with_capacity((n - 1) * (n - 1) * 6);
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let (a, b, c, d) = (
-                grid_index(i, j),
-                grid_index(i + 1, j),
-                grid_index(i + 1, j + 1),
-                grid_index(i, j + 1),
-            );
-            triangles.extend_from_slice(&[a, b, c, a, c, d]);
-        }
-    }
-    // Vertices renumbered in order of first use, as high-water-mark coding needs.
-    let mut new_of = vec![u32::MAX; n * n];
-    let mut order = Vec::with_capacity(n * n);
-    for k in &mut triangles {
-        if new_of[*k as usize] == u32::MAX {
-            new_of[*k as usize] = order.len() as u32;
-            order.push(*k as usize);
-        }
-        *k = new_of[*k as usize];
-    }
-    let us: Vec<u16> = order.iter().map(|&g| grid_q(g % n)).collect();
-    let vs: Vec<u16> = order.iter().map(|&g| grid_q(g / n)).collect();
-    let hs: Vec<u16> = order.iter().map(|&g| quantize(heights[g])).collect();
+    let grid_q = |k: u32| ((k * QMAX + GRID / 2) / GRID) as u16;
+    let us: Vec<u16> = order.iter().map(|&(i, _)| grid_q(i)).collect();
+    let vs: Vec<u16> = order.iter().map(|&(_, j)| grid_q(j)).collect();
+    let hs: Vec<u16> = vertex_heights.iter().map(|h| quantize(h.0)).collect();
     let decoded_h = |q: u16| lo + f64::from(q) / f64::from(QMAX) * (hi - lo);
     let positions: Vec<[f64; 3]> = order
         .iter()
         .zip(&hs)
-        .map(|(&g, &q)| {
-            let (lat, lon) = vertex_lat_lon(t, (g % n) as f64, (g / n) as f64);
+        .map(|(&(i, j), &q)| {
+            let (lat, lon) = vertex_lat_lon(t, i, j);
             Geodetic::new(lat, lon, decoded_h(q)).to_ecef()
         })
         .collect();
-    let edge = |f: &dyn Fn(usize) -> usize| -> Vec<u32> { (0..n).map(|k| new_of[f(k)]).collect() };
-    let edges = [
-        edge(&|k| k * n),           // west, south to north
-        edge(&|k| k),               // south, west to east
-        edge(&|k| k * n + n - 1),   // east, south to north
-        edge(&|k| (n - 1) * n + k), // north, west to east
-    ];
+    let edges = edge_lists(&order);
     let mut out = Vec::with_capacity(88 + 6 * us.len() + 2 * triangles.len() + 1024);
     write_header(&mut out, &positions, (lo, hi));
     write_vertices(&mut out, [&us, &vs, &hs]);
@@ -290,11 +239,31 @@ pub fn build(at: &TileHeights<'_>, place: &Placement, req: &TileRequest<'_>) -> 
     }
     MeshTile {
         bytes: out,
-        level,
-        height_step: (hi - lo) / f64::from(QMAX),
-        deviation,
+        level: if level == u8::MAX { 0 } else { level },
+        height_step,
+        deviation: cut.error,
+        over_threshold: cut.over,
         clamped,
     }
+}
+
+/// The west, south, east and north edge lists: the vertices on each side, in order along it.
+fn edge_lists(order: &[(u32, u32)]) -> [Vec<u32>; 4] {
+    let side = |on: &dyn Fn((u32, u32)) -> Option<u32>| -> Vec<u32> {
+        let mut e: Vec<(u32, u32)> = order
+            .iter()
+            .enumerate()
+            .filter_map(|(k, &p)| on(p).map(|along| (along, k as u32)))
+            .collect();
+        e.sort_unstable();
+        e.into_iter().map(|(_, k)| k).collect()
+    };
+    [
+        side(&|(i, j)| (i == 0).then_some(j)),
+        side(&|(i, j)| (j == 0).then_some(i)),
+        side(&|(i, j)| (i == GRID).then_some(j)),
+        side(&|(i, j)| (j == GRID).then_some(i)),
+    ]
 }
 
 fn put_f64s(out: &mut Vec<u8>, v: &[f64]) {

@@ -148,6 +148,12 @@ impl Surface {
         &self.levels
     }
 
+    /// The data's lattice rectangle `(x0, y0, x1, y1)` (finest units, inclusive) on every face:
+    /// the surface answers up to half a sample beyond it.
+    pub fn extent(&self) -> (i64, i64, i64, i64) {
+        self.extent
+    }
+
     /// Smallest and largest decoded height, metres (of the window only, for a window's
     /// surface); `None` when nothing holds data.
     pub fn range(&self) -> Option<(f64, f64)> {

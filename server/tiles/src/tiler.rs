@@ -122,6 +122,28 @@ impl Tiler {
         })
     }
 
+    /// Narrows the tiles to those meeting `bbox` (west, south, east, north, degrees): the
+    /// bounds become the part of the data's inside it, `available` (and the children each
+    /// tile's metadata lists) only the tiles meeting it. Refuses a box that misses the data.
+    pub fn restrict_to(&mut self, bbox: [f64; 4]) -> Result<(), TilesError> {
+        let b = self.bounds;
+        let cut = [
+            b[0].max(bbox[0]),
+            b[1].max(bbox[1]),
+            b[2].min(bbox[2]),
+            b[3].min(bbox[3]),
+        ];
+        if cut[0] >= cut[2] || cut[1] >= cut[3] {
+            return Err(TilesError::OutsideData(format!(
+                "the box {bbox:?} (west, south, east, north) does not meet the data, which \
+                 lies within {b:?}"
+            )));
+        }
+        self.bounds = cut;
+        self.available = self.available.within(cut);
+        Ok(())
+    }
+
     /// The quantized-mesh tiles that exist.
     pub fn available(&self) -> &Availability {
         &self.available
@@ -246,7 +268,7 @@ impl Tiler {
                 self.mesh_max_zoom
             )));
         }
-        let positions = quantized_mesh::vertex_positions(&self.place, t);
+        let positions = crate::mesh_cut::block_positions(&self.place, t);
         let coarsen = quantized_mesh::coarsen_at(&self.place, t.z);
         let held = self
             .held(&positions, coarsen)
@@ -314,6 +336,8 @@ impl Tiler {
                 "repository_max_error_m": self.max_error,
                 "height_step_m": step,
                 "cesium_level_error_m": cesium_level_error(t.z),
+                "triangulation_threshold_m":
+                    quantized_mesh::triangulation_threshold(t.z, step),
             },
         })
     }
@@ -360,6 +384,19 @@ impl Tiler {
                 "height_step_m": step,
                 "height_range_m": [lo, hi],
                 "grid": quantized_mesh::GRID,
+                "between_vertex_bound_m": (0..=self.mesh_max_zoom)
+                    .map(cesium_level_error)
+                    .collect::<Vec<f64>>(),
+                "triangulation_threshold_m": (0..=self.mesh_max_zoom)
+                    .map(|z| quantized_mesh::triangulation_threshold(z, step))
+                    .collect::<Vec<f64>>(),
+                "between_vertex_bound": "per level z: every triangle of a level-z tile is \
+                    within triangulation_threshold_m[z] of the repository level it samples at \
+                    every grid point and every sample of that level inside it (checked when \
+                    the tile is made; a tile's cbdam-deviation-m header gives its own largest), \
+                    so with the height step within between_vertex_bound_m[z], CesiumJS's level \
+                    error; the grid's finest triangles cannot be split, and the response header \
+                    cbdam-triangles-over-threshold counts those over it",
                 "height_datum": self.mesh_datum().0,
                 "height_datum_note": self.mesh_datum().1,
                 "repository_datum": self.datum.code(),

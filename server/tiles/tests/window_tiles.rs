@@ -4,34 +4,17 @@
 //! tile of every zoom, both encodings, both sizes, and every available quantized-mesh tile, on
 //! an EPSG:4326 plane and a UTM one with a nodata hole, and on a planet.
 
-use cbdam_codec::hierarchy::{EncodeOptions, Encoder, PlanetGrid, encode_planet};
-use cbdam_codec::quant::{HeightGrid, QuantPlan};
+#[path = "common/rough_dem.rs"]
+mod rough_dem;
+
+use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, encode_planet};
+use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{GeoRef, Repository, serialize};
 use cbdam_tiles::{Encoding, Scheme, Tiler};
 
-const NODATA: f64 = -9999.0;
-
 /// Rough terrain, `w × h` samples, with a nodata hole, as a repository within 0.25 m.
 fn repository(w: usize, h: usize, georef: GeoRef) -> Repository {
-    let metres: Vec<f64> = (0..w * h)
-        .map(|i| {
-            let (x, y) = ((i % w) as f64, (i / w) as f64);
-            if (x - 0.7 * w as f64).hypot(y - 0.3 * h as f64) < 3.0 {
-                return NODATA;
-            }
-            let noise = ((i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as f64 / 8.0;
-            300.0 + 40.0 * (x / 6.0).sin() * (y / 9.0).cos() + 0.3 * x + noise
-        })
-        .collect();
-    let plan = QuantPlan::new(0.25, None, 200.0, 400.0).unwrap();
-    let grid = HeightGrid::from_metres(w, h, &metres, Some(NODATA), &plan).unwrap();
-    let opts = EncodeOptions {
-        n: 9,
-        ..EncodeOptions::default()
-    };
-    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
-    let bytes = serialize(&enc, &plan, Some(&georef), Some(NODATA)).unwrap();
-    Repository::from_bytes(bytes).unwrap()
+    rough_dem::repository(w, h, &rough_dem::rough_metres(w, h), &georef)
 }
 
 /// Every raster tile of `repo`, made by a tiler that decoded the whole surface first and by

@@ -1,0 +1,178 @@
+//! The exact error of a network triangle: its plane against every grid point and every sample
+//! of the repository level inside it ([`Network::triangle_error`]), and gathering those
+//! samples over the block ([`Network::gather_samples`]).
+
+use super::{GRID, Network, P, SPAN};
+
+impl Network<'_> {
+    /// Every sample of the level the tile draws from whose position falls in the block, in
+    /// global grid coordinates, sorted by block cell.
+    pub(super) fn gather_samples(&mut self) {
+        let b = self.block;
+        let cells = (SPAN - 1) * (SPAN - 1);
+        let Some(surface) = b.surface else {
+            self.cell_start = vec![0; cells + 1];
+            return;
+        };
+        let level = b.coarsen.min(surface.levels().len() - 1);
+        let step = (1i64 << level) as f64;
+        let z = b.tile.z;
+        let cell = 180.0 / (f64::from(1u32 << z) * GRID as f64);
+        let turn = (GRID << (z + 1)) as f64;
+        let place = b.place;
+        let mut found: Vec<(usize, (f64, f64, f64))> = Vec::new();
+        // Only the data's samples (a plane's block may reach around the Earth).
+        let (ex0, ey0, ex1, ey1) = surface.extent();
+        for (face, (x0, y0, x1, y1)) in face_boxes(b.positions) {
+            let (x0, x1) = (x0.max(ex0 as f64), x1.min(ex1 as f64));
+            let (y0, y1) = (y0.max(ey0 as f64), y1.min(ey1 as f64));
+            if x0 > x1 || y0 > y1 {
+                continue;
+            }
+            let (x0, x1) = ((x0 / step).floor() - 1.0, (x1 / step).ceil() + 1.0);
+            let (y0, y1) = ((y0 / step).floor() - 1.0, (y1 / step).ceil() + 1.0);
+            let mut sy = y0;
+            while sy <= y1 {
+                let mut sx = x0;
+                while sx <= x1 {
+                    let (x, y) = (sx * step, sy * step);
+                    if let Some((h, _)) = surface.height(face, x, y, b.coarsen) {
+                        let ll = place.lat_lon(face, x, y);
+                        let h = match b.to_ellipsoid {
+                            true => h + crate::geoid::undulation(ll.lat, ll.lon),
+                            false => h,
+                        };
+                        let gx = (ll.lon + 180.0) / cell;
+                        let gy = (ll.lat + 90.0) / cell;
+                        let ly = gy - self.origin.1 as f64;
+                        for k in -2..=2 {
+                            let gx = gx + f64::from(k) * turn;
+                            let lx = gx - self.origin.0 as f64;
+                            if let Some(c) = block_cell(lx, ly) {
+                                found.push((c, (gx, gy, h)));
+                            }
+                        }
+                    }
+                    sx += 1.0;
+                }
+                sy += 1.0;
+            }
+        }
+        found.sort_by_key(|f| f.0);
+        let mut start = vec![0u32; cells + 1];
+        for f in &found {
+            start[f.0 + 1] += 1;
+        }
+        for c in 0..cells {
+            start[c + 1] += start[c];
+        }
+        self.cell_start = start;
+        self.samples = found.into_iter().map(|f| f.1).collect();
+    }
+
+    /// Largest |height − plane of `tri`| over the block's grid points and samples in `tri`
+    /// holding data; returns as soon as it passes `stop`.
+    pub(super) fn triangle_error(&self, tri: [P; 3], stop: f64) -> f64 {
+        let [a, b, c] = tri.map(|p| (p.0 as f64, p.1 as f64, self.height(p).0));
+        let plane = Plane::through(a, b, c);
+        let gx = [tri[0].0, tri[1].0, tri[2].0];
+        let gy = [tri[0].1, tri[1].1, tri[2].1];
+        let (x0, x1) = (*gx.iter().min().unwrap(), *gx.iter().max().unwrap());
+        let (y0, y1) = (*gy.iter().min().unwrap(), *gy.iter().max().unwrap());
+        let mut worst = 0.0f64;
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let (h, data) = self.height((x, y));
+                if data && plane.holds(x as f64, y as f64) {
+                    worst = worst.max((h - plane.at(x as f64, y as f64)).abs());
+                }
+            }
+            if worst > stop {
+                return worst;
+            }
+        }
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let Some(cell) = self.cell_of((x, y)) else {
+                    continue;
+                };
+                let (s, e) = (self.cell_start[cell], self.cell_start[cell + 1]);
+                for &(sx, sy, h) in &self.samples[s as usize..e as usize] {
+                    if plane.holds(sx, sy) {
+                        worst = worst.max((h - plane.at(sx, sy)).abs());
+                    }
+                }
+            }
+            if worst > stop {
+                return worst;
+            }
+        }
+        worst
+    }
+
+    /// Block cell whose south-west corner is global grid point `p`.
+    fn cell_of(&self, p: P) -> Option<usize> {
+        let (i, j) = (p.0 - self.origin.0, p.1 - self.origin.1);
+        let n = SPAN as i64 - 1;
+        ((0..n).contains(&i) && (0..n).contains(&j)).then(|| (j * n + i) as usize)
+    }
+}
+
+/// The cell of block position `(lx, ly)`, points on the block's far edges in its last cells.
+fn block_cell(lx: f64, ly: f64) -> Option<usize> {
+    let n = (SPAN - 1) as f64;
+    if !(0.0..=n).contains(&lx) || !(0.0..=n).contains(&ly) {
+        return None;
+    }
+    let (i, j) = (lx.floor().min(n - 1.0), ly.floor().min(n - 1.0));
+    Some(j as usize * (SPAN - 1) + i as usize)
+}
+
+/// Per cube face (one for a plane), the lattice box of the block points located on it.
+fn face_boxes(positions: &[Option<(u8, f64, f64)>]) -> Vec<(u8, (f64, f64, f64, f64))> {
+    let mut boxes: Vec<(u8, (f64, f64, f64, f64))> = Vec::new();
+    for &(face, x, y) in positions.iter().flatten() {
+        match boxes.iter_mut().find(|b| b.0 == face) {
+            Some((_, r)) => *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y)),
+            None => boxes.push((face, (x, y, x, y))),
+        }
+    }
+    boxes
+}
+
+/// A triangle's plane over the grid, and whether a point lies in the triangle.
+struct Plane {
+    origin: (f64, f64, f64),
+    slope: (f64, f64),
+    /// Per edge: its inward normal and a point on it.
+    edges: [(f64, f64, f64, f64); 3],
+}
+
+impl Plane {
+    fn through(a: (f64, f64, f64), b: (f64, f64, f64), c: (f64, f64, f64)) -> Plane {
+        let (ux, uy, uh) = (b.0 - a.0, b.1 - a.1, b.2 - a.2);
+        let (vx, vy, vh) = (c.0 - a.0, c.1 - a.1, c.2 - a.2);
+        let det = ux * vy - uy * vx;
+        let slope = ((uh * vy - vh * uy) / det, (ux * vh - vx * uh) / det);
+        let sign = det.signum();
+        let edge = |p: (f64, f64, f64), q: (f64, f64, f64)| {
+            (-(q.1 - p.1) * sign, (q.0 - p.0) * sign, p.0, p.1)
+        };
+        Plane {
+            origin: a,
+            slope,
+            edges: [edge(a, b), edge(b, c), edge(c, a)],
+        }
+    }
+
+    fn at(&self, x: f64, y: f64) -> f64 {
+        self.origin.2 + (x - self.origin.0) * self.slope.0 + (y - self.origin.1) * self.slope.1
+    }
+
+    /// Whether `(x, y)` lies in the triangle or on its edges (within a millionth of a cell).
+    fn holds(&self, x: f64, y: f64) -> bool {
+        self.edges
+            .iter()
+            .all(|e| e.0 * (x - e.2) + e.1 * (y - e.3) >= -1e-6 * (e.0.abs() + e.1.abs()))
+    }
+}
