@@ -16,6 +16,7 @@ mod lanes;
 mod scan;
 #[cfg(test)]
 mod tests;
+mod walk;
 
 use lanes::{Lane, PREFETCH_ROWS, extremes, prefetch};
 use scan::Scan;

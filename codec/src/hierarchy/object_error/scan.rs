@@ -5,21 +5,22 @@
 use rayon::prelude::*;
 
 use super::lanes::{Lane, PREFETCH_ROWS, extremes, prefetch};
+use super::walk::SurfaceWalk;
 use super::{ErrorInput, tests};
 use crate::geometry::{DiamondId, Layout};
 use crate::quant::HeightGrid;
 
-/// Bytes of an odd-level batch of surface rows (see [`Scan::rows`]): small enough to stay in
+/// Bytes of an odd-level batch of surface rows (see [`Scan::odd_rows`]): small enough to stay in
 /// a core's L2 cache.
-pub(super) const ODD_BATCH_BYTES: usize = 256 << 10;
+const ODD_BATCH_BYTES: usize = 256 << 10;
 
 /// Fewest odd-level surface rows compared with the input at a time: the batch's width along
 /// each input row it meets, and so how much of each input cache line is used before it leaves.
-pub(super) const ODD_BATCH_MIN: usize = 32;
+const ODD_BATCH_MIN: usize = 32;
 
 /// Rows of an odd-level batch over `rows` surface rows `len` long: as many as the byte budget
 /// allows, and at least [`ODD_BATCH_MIN`].
-pub(super) fn odd_batch_rows<T>(rows: usize, len: usize) -> usize {
+fn odd_batch_rows<T>(rows: usize, len: usize) -> usize {
     let mut b = rows.max(1);
     while b > ODD_BATCH_MIN
         && (len.div_ceil(2) + b) * b * std::mem::size_of::<T>() > ODD_BATCH_BYTES
@@ -164,27 +165,36 @@ impl<'a> Scan<'a> {
 
     /// The largest scaled error over rows `t0..=t1`.
     ///
-    /// The surface along the first row with data is filled exactly, cell by cell. Moving to the
-    /// next row adds, at each `s`, the step of the triangle the unit segment between the two
-    /// rows lies in: constant per cell except at the split diagonal, so a second buffer holds
-    /// the steps and only one entry per cell changes from row to row (all of them at a new row
-    /// of cells). Both loops over a row are straight and vectorise.
-    ///
-    /// Long on purpose: this is the encoder's hottest kernel (the object error of every
-    /// diamond), compiled twice — here and inside [`Scan::rows_avx2`]'s `target_feature` — and
-    /// kept as one body so that every loop of it is compiled for the wider vector unit there.
+    /// The surface is walked row by row ([`SurfaceWalk`]): filled exactly along the first row
+    /// with data, then moved to each next row by per-column steps. Every loop is straight and
+    /// vectorises; all of them are `#[inline(always)]`, so that [`Scan::rows_avx2`]'s
+    /// `target_feature` compiles them for the wider vector unit.
     #[inline(always)]
     fn rows<const MAIN: bool, T: Lane>(&self, t0: i64, t1: i64) -> i64 {
-        let (lo, hi) = self.data_rows();
-        let (t0, t1) = (t0.max(lo), t1.min(hi));
-        let Some(ta) = (t0..=t1).find(|&t| self.data_range(t).is_some()) else {
+        let Some((ta, tb, columns)) = self.span(t0, t1) else {
             return 0;
         };
+        let sp = (self.sp, self.shift);
+        let mut walk = SurfaceWalk::<MAIN, T>::new(self.p, self.n, sp, columns, (ta, tb));
+        let (hi, lo) = if self.odd {
+            self.odd_rows(&mut walk, (ta, tb), columns)
+        } else {
+            self.even_rows(&mut walk, (ta, tb), columns.0)
+        };
+        hi.widen().max(-lo.widen())
+    }
+
+    /// The first and last rows of `t0..=t1` with data, and the columns `(ulo, uhi)` any of
+    /// them needs; `None` when no row has data.
+    #[inline(always)]
+    fn span(&self, t0: i64, t1: i64) -> Option<(i64, i64, (i64, i64))> {
+        let (lo, hi) = self.data_rows();
+        let (t0, t1) = (t0.max(lo), t1.min(hi));
+        let ta = (t0..=t1).find(|&t| self.data_range(t).is_some())?;
         let tb = (ta..=t1)
             .rev()
             .find(|&t| self.data_range(t).is_some())
             .unwrap_or(ta);
-        // The columns any of these rows needs.
         let (mut ulo, mut uhi) = (i64::MAX, i64::MIN);
         if self.odd {
             for t in ta..=tb {
@@ -196,167 +206,94 @@ impl<'a> Scan<'a> {
         } else if let Some((lo, hi)) = self.data_range(ta) {
             (ulo, uhi) = (lo, hi);
         }
-        let (sp, shift, n) = (self.sp, self.shift, self.n);
-        let last = n as i64 - 2;
-        let len = (uhi - ulo + 1) as usize;
-        let mut surface = vec![T::default(); len];
-        let mut step = vec![T::default(); len];
-        let (cl, ch) = ((ulo >> shift).min(last), (uhi >> shift).min(last));
-        let p = self.p;
-        let at = |k: usize| T::of(i64::from(p[k]));
-        // The cells of row `t`: (index of cell (cl, cj) in `p`, offset ft of t in the row).
-        let cell_row = |t: i64| {
-            let cj = (t >> shift).min(last);
-            (cj as usize * n, t - (cj << shift))
-        };
-        // Fills `buf` cell by cell with `value(cell index, fs)` over the columns kept.
-        let for_cells = |buf: &mut [T], f: &mut dyn FnMut(usize, i64, &mut [T])| {
-            for ci in cl..=ch {
-                let s0 = ci << shift;
-                let from = (ulo - s0).max(0);
-                let to = (uhi - s0).min(sp);
-                if from <= to {
-                    let slots = &mut buf[(s0 + from - ulo) as usize..=(s0 + to - ulo) as usize];
-                    f(ci as usize, from, slots);
-                }
-            }
-        };
-        // Exact surface along row ta: two linear pieces c0 + c1·fs per cell.
-        {
-            let (row, ft) = cell_row(ta);
-            let spl = T::of(sp);
-            let ftl = T::of(ft);
-            for_cells(&mut surface, &mut |ci, from, slots| {
-                let k = row + ci;
-                let (v00, v10, v01, v11) = (at(k), at(k + 1), at(k + n), at(k + n + 1));
-                // fs in [0, split] lies on the first piece, the rest on the second.
-                let (split, first, second) = if MAIN {
-                    (
-                        ft - 1,
-                        (v00.mul(spl).add(v01.sub(v00).mul(ftl)), v11.sub(v01)),
-                        (v00.mul(spl).add(v11.sub(v10).mul(ftl)), v10.sub(v00)),
-                    )
-                } else {
-                    (
-                        sp - ft,
-                        (v00.mul(spl).add(v01.sub(v00).mul(ftl)), v10.sub(v00)),
-                        (
-                            v01.mul(spl).add(v10.sub(v11).mul(T::of(sp - ft))),
-                            v11.sub(v01),
-                        ),
-                    )
-                };
-                for (fs, slot) in (from..).zip(slots.iter_mut()) {
-                    let (c0, c1) = if fs <= split { first } else { second };
-                    *slot = c0.add(c1.mul(T::of(fs)));
-                }
-            });
-        }
-        // Steps from row t (offset ft in its row of cells) to t + 1. Main diagonal: the upper
-        // triangle (fs ≤ ft) climbs like the cell's left edge, the lower one like its right
-        // edge. Anti-diagonal: the lower-left one (fs < sp − ft) like the left edge, the
-        // upper-right one like the right edge. `edge[i]`: the climb of vertex column i.
-        let mut edge = vec![T::default(); n];
-        let fill_edges = |edge: &mut [T], t: i64| {
-            let (row, _) = cell_row(t);
-            let (lower, upper) = (&p[row..row + n], &p[row + n..row + 2 * n]);
-            for ((e, &a), &b) in edge.iter_mut().zip(lower).zip(upper) {
-                *e = T::of(i64::from(b)).sub(T::of(i64::from(a)));
-            }
-        };
-        let fill_steps = |step: &mut [T], edge: &[T], t: i64| {
-            let (_, ft) = cell_row(t);
-            let split = if MAIN { ft } else { sp - ft - 1 };
-            for (s, slot) in (ulo..).zip(step.iter_mut()) {
-                let right = usize::from((s & (sp - 1)) > split);
-                *slot = edge[(s >> shift) as usize + right];
-            }
-        };
-        if ta < tb {
-            fill_edges(&mut edge, ta);
-            fill_steps(&mut step, &edge, ta);
-        }
+        Some((ta, tb, (ulo, uhi)))
+    }
+
+    /// Even levels: the extremes over rows `ta..=tb`, each row an input row compared as the
+    /// walk reaches it (columns from `ulo`).
+    #[inline(always)]
+    fn even_rows<const MAIN: bool, T: Lane>(
+        &self,
+        walk: &mut SurfaceWalk<'_, MAIN, T>,
+        (ta, tb): (i64, i64),
+        ulo: i64,
+    ) -> (T, T) {
         let (ox, oy) = self.origin;
         let w = self.input.width as i64;
         let (values, valid) = (&self.input.values[..], self.valid);
         let (mut hi_d, mut lo_d) = (T::default(), T::default());
-        // Odd levels: a row is an input diagonal, and walking it touches one input row (and
-        // memory page) per sample. So a batch of surface rows is kept, transposed: input row
-        // Δy crosses batch row r at s = 2Δy + t0 + r, so the samples of one input row lie on
-        // one diagonal s − r of the batch, and the batch is stored diagonal by diagonal, each
-        // diagonal's rows adjacent. Then the batch is compared with the input in input-row
-        // order, both sides contiguous. Only entries with s ≡ t (mod 2) are samples, so a
-        // batch's diagonals share one parity and are kept at half resolution.
-        let br = odd_batch_rows::<T>((tb - ta + 1) as usize, len);
-        let mut batch = if self.odd {
-            vec![T::default(); (len.div_ceil(2) + br) * br]
-        } else {
-            Vec::new()
-        };
-        let mut batch_from = ta;
         let mut t = ta;
         loop {
-            if self.odd {
-                let r = (t - batch_from) as usize;
-                // The first sample column of row t, and its diagonal's slot.
-                let s0 = ulo + (t - ulo).rem_euclid(2);
-                if s0 <= uhi {
-                    let d0 = odd_diagonal(s0 - r as i64, ulo, br);
-                    let slots = batch[d0 * br + r..].iter_mut().step_by(br);
-                    let row = surface[(s0 - ulo) as usize..].iter().step_by(2);
-                    for (slot, &v) in slots.zip(row) {
-                        *slot = v;
-                    }
-                }
-                if r + 1 == br || t == tb {
-                    let rows = (batch_from, t);
-                    (hi_d, lo_d) = self.odd_batch(&batch, br, rows, ulo, uhi, (hi_d, lo_d));
-                    batch_from = t + 1;
-                }
-            } else if let Some((lo, hi)) = self.data_range(t) {
+            if let Some((lo, hi)) = self.data_range(t) {
                 if let Some((lo, hi)) = self.data_range(t + PREFETCH_ROWS).filter(|_| t < tb) {
                     let k = ((oy + t + PREFETCH_ROWS) * w + ox + lo) as usize;
                     prefetch(values, valid, k, (hi - lo + 1) as usize);
                 }
-                let buf = &surface[(lo - ulo) as usize..=(hi - ulo) as usize];
+                let buf = &walk.surface()[(lo - ulo) as usize..=(hi - ulo) as usize];
                 let k = ((oy + t) * w + ox + lo) as usize;
                 let vals = &values[k..k + buf.len()];
                 let oks = valid.map(|v| &v[k..k + buf.len()]);
-                (hi_d, lo_d) = extremes(buf, vals, oks, shift, hi_d, lo_d);
+                (hi_d, lo_d) = extremes(buf, vals, oks, self.shift, hi_d, lo_d);
                 // A mapped input drops its resident pages every window read.
                 self.input.touched_sparse_rows(1, buf.len());
             }
             if t == tb {
-                break;
-            }
-            for (s, &d) in surface.iter_mut().zip(&step) {
-                *s = s.add(d);
+                return (hi_d, lo_d);
             }
             t += 1;
-            if t == tb {
-                // No step out of the last row.
-            } else if t & (sp - 1) == 0 {
-                fill_edges(&mut edge, t);
-                fill_steps(&mut step, &edge, t);
-            } else {
-                // One entry per cell changes triangle: fs = ft to the left edge (main), or
-                // fs = sp − ft to the right edge (anti).
-                let (_, ft) = cell_row(t);
-                let fs = if MAIN { ft } else { sp - ft };
-                for ci in cl..=ch {
-                    let s = (ci << shift) + fs;
-                    if (ulo..=uhi).contains(&s) {
-                        step[(s - ulo) as usize] = edge[ci as usize + usize::from(!MAIN)];
-                    }
+            walk.advance(t, tb);
+        }
+    }
+
+    /// Odd levels: the extremes over rows `ta..=tb` (columns `ulo..=uhi`). A row is an input
+    /// diagonal, and walking it touches one input row (and memory page) per sample. So a batch
+    /// of surface rows is kept, transposed: input row Δy crosses batch row r at
+    /// s = 2Δy + t0 + r, so the samples of one input row lie on one diagonal s − r of the
+    /// batch, and the batch is stored diagonal by diagonal, each diagonal's rows adjacent.
+    /// Then the batch is compared with the input in input-row order ([`Scan::odd_batch`]),
+    /// both sides contiguous. Only entries with s ≡ t (mod 2) are samples, so a batch's
+    /// diagonals share one parity and are kept at half resolution.
+    #[inline(always)]
+    fn odd_rows<const MAIN: bool, T: Lane>(
+        &self,
+        walk: &mut SurfaceWalk<'_, MAIN, T>,
+        (ta, tb): (i64, i64),
+        (ulo, uhi): (i64, i64),
+    ) -> (T, T) {
+        let len = (uhi - ulo + 1) as usize;
+        let br = odd_batch_rows::<T>((tb - ta + 1) as usize, len);
+        let mut batch = vec![T::default(); (len.div_ceil(2) + br) * br];
+        let mut batch_from = ta;
+        let (mut hi_d, mut lo_d) = (T::default(), T::default());
+        let mut t = ta;
+        loop {
+            let r = (t - batch_from) as usize;
+            // The first sample column of row t, and its diagonal's slot.
+            let s0 = ulo + (t - ulo).rem_euclid(2);
+            if s0 <= uhi {
+                let d0 = odd_diagonal(s0 - r as i64, ulo, br);
+                let slots = batch[d0 * br + r..].iter_mut().step_by(br);
+                let row = walk.surface()[(s0 - ulo) as usize..].iter().step_by(2);
+                for (slot, &v) in slots.zip(row) {
+                    *slot = v;
                 }
             }
+            if r + 1 == br || t == tb {
+                let rows = (batch_from, t);
+                (hi_d, lo_d) = self.odd_batch(&batch, br, rows, ulo, uhi, (hi_d, lo_d));
+                batch_from = t + 1;
+            }
+            if t == tb {
+                return (hi_d, lo_d);
+            }
+            t += 1;
+            walk.advance(t, tb);
         }
-        hi_d.widen().max(-lo_d.widen())
     }
 
     /// Folds into `(hi, lo)` the extremes of `surface − value·sp` over the valid samples of
     /// odd-level rows `t0..=t1`, whose surfaces (columns `ulo..=uhi`) are in `batch` of `br`
-    /// rows, diagonal by diagonal (see [`Scan::rows`]). Walks the input row by row: along an input row, `s`
+    /// rows, diagonal by diagonal (see [`Scan::odd_rows`]). Walks the input row by row: along an input row, `s`
     /// and `t` both grow by one, so the batch row grows by one along a diagonal.
     #[inline(always)]
     fn odd_batch<T: Lane>(
