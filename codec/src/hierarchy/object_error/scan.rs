@@ -4,9 +4,9 @@
 
 use rayon::prelude::*;
 
+use super::ErrorInput;
 use super::lanes::{Lane, PREFETCH_ROWS, extremes, prefetch};
 use super::walk::SurfaceWalk;
-use super::{ErrorInput, tests};
 use crate::geometry::{DiamondId, Layout};
 use crate::quant::HeightGrid;
 
@@ -149,7 +149,7 @@ impl<'a> Scan<'a> {
     /// min/max and half the lanes of AVX2.
     fn rows_fast<const MAIN: bool, T: Lane>(&self, t0: i64, t1: i64) -> i64 {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") && !tests::portable_only() {
+        if std::arch::is_x86_feature_detected!("avx2") && !super::tests::portable_only() {
             // SAFETY: the CPU has AVX2, checked just above.
             return unsafe { self.rows_avx2::<MAIN, T>(t0, t1) };
         }
