@@ -13,8 +13,8 @@
 //! Either way every reconstructed value is within `k` units of the integer input, which the
 //! tests check exactly in integers.
 //!
-//! [`quantizer`] is the residual quantizer, [`plan`] chooses the unit, offset and `k` for a
-//! dataset, and [`height_grid`] holds the integer heights the encoder takes.
+//! `quantizer.rs` is the residual quantizer, `plan.rs` chooses the unit, offset and `k` for a
+//! dataset, and `height_grid.rs` holds the integer heights the encoder takes.
 
 use crate::lifting::{MAX_ABS_HEIGHT, PREDICTION_LIMIT};
 

@@ -7,7 +7,7 @@
 //! bounds), so that no later step scans the whole grid again. Both are internal to the work
 //! directory (not a repository format); a file of another layout version is refused.
 //!
-//! This file holds `prepared`; [`tiles`] its tiling and CRCs, [`summary`] the summary.
+//! This file holds `prepared`; `tiles.rs` its tiling and CRCs, `summary.rs` the summary.
 
 use std::fs;
 use std::path::{Path, PathBuf};

@@ -5,8 +5,8 @@
 //! two in lattice units, so the interpolant at an input sample is a rational with that
 //! denominator: it is evaluated exactly in integers, and the maximum rounded up.
 //!
-//! This file holds the entry points and the finest level (every sample a grid vertex); [`scan`]
-//! walks the coarser levels' surfaces, over the integer lanes of [`lanes`].
+//! This file holds the entry points and the finest level (every sample a grid vertex); `scan.rs`
+//! walks the coarser levels' surfaces, over the integer lanes of `lanes.rs`.
 
 use crate::geometry::{Diagonal, DiamondId, Layout};
 use crate::lifting::MAX_ABS_HEIGHT;

@@ -16,8 +16,8 @@
 //! small sections but does not scan the records area, so opening a large repository stays cheap.
 //! [`Repository::check_all`] checks everything.
 //!
-//! Writing is [`write`], the head and its validation [`head`] and [`validate`], and the hostile
-//! writers of tests and fuzzers [`craft`]; this file holds what they share and [`Repository`].
+//! Writing is `write.rs`, the head and its validation `head.rs` and `validate.rs`, and the hostile
+//! writers of tests and fuzzers `craft.rs`; this file holds what they share and [`Repository`].
 
 mod craft;
 mod head;
