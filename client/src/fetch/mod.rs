@@ -16,20 +16,16 @@
 //! ([`RemoteFetcher`]: tokio and reqwest) is in `native`, the browser's (the page's `fetch`,
 //! driven by its event loop, never blocking) in `web`.
 
-use std::collections::{HashMap, HashSet, VecDeque};
 use std::time::Duration;
 
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::repository::RepositoryHead;
-use cbdam_codec::repository::batch::{self, Entry};
 use std::sync::Arc;
-use web_time::Instant;
 
 mod schedule;
 mod wire;
 
-use schedule::{State, next_batch, record_bytes, record_range};
+use schedule::{State, next_batch, record_bytes};
 pub use wire::parse_frames;
 use wire::{
     answer_ids, batch_request_body, batch_span, check_records, expect_partial, fetch_head_with,

@@ -2,7 +2,11 @@
 //! request, how many bytes may be in flight (a window sized by the link's measured rate), the
 //! backoff of failed records, and when a request is no longer worth finishing.
 
-use super::*;
+use super::{Endpoint, FetchOptions};
+use cbdam_codec::geometry::DiamondId;
+use cbdam_codec::repository::{RepositoryHead, batch};
+use std::collections::{HashMap, HashSet, VecDeque};
+use web_time::Instant;
 
 pub(super) struct Pending {
     pub(super) priority: f32,

@@ -4,6 +4,9 @@
 use super::schedule::{Window, not_worth_finishing};
 use super::wire::wire_priorities;
 use super::*;
+use cbdam_codec::repository::batch;
+use std::collections::HashMap;
+use web_time::Instant;
 
 fn id(l: u8, x: u32, y: u32) -> DiamondId {
     DiamondId::new(l, x, y)

@@ -2,7 +2,13 @@
 //! of their answers, range requests and the spans they cover, the head read by ranges, and the
 //! checks every record passes before it is handed over.
 
-use super::*;
+use super::schedule::record_range;
+use super::{RemoteError, http_error};
+use cbdam_codec::CodecError;
+use cbdam_codec::geometry::DiamondId;
+use cbdam_codec::repository::batch::Entry;
+use cbdam_codec::repository::{RepositoryHead, batch};
+use std::sync::Arc;
 
 /// Splits the body of a batch request for `ids` into records: the framing is the codec's
 /// ([`cbdam_codec::repository::batch`]); every id must be answered, in order, with a record.

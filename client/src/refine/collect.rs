@@ -1,7 +1,13 @@
 //! Garbage collection: coarsening refined diamonds the view no longer needs, least needed
 //! first, within a share of the frame's budget, and freeing what the decoded cache evicts.
 
-use super::*;
+use super::node::Node;
+use super::{Candidate, FrameStats, GC_MIN_COARSENINGS, GC_SHARE, Refiner, View};
+use crate::access::DataSource;
+use crate::spawn::Spawner;
+use cbdam_codec::geometry::DiamondId;
+use std::collections::BinaryHeap;
+use web_time::Instant;
 
 impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Frame step: a moving view's collection, first in the frame, for a share of the budget.

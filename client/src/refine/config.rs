@@ -1,7 +1,8 @@
 //! The refinement loop's settings: the error target, the time budget, the caches, and how it
 //! fetches and prefetches.
 
-use super::*;
+use super::DetailConfig;
+use std::time::Duration;
 
 /// Settings of the refinement loop.
 #[derive(Clone, Debug)]

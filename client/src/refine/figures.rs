@@ -1,7 +1,13 @@
 //! A frame's figures: what it did and how long each step took ([`FrameStats`]), the caches' use,
 //! its largest screen error and whether the cut has converged.
 
-use super::*;
+use super::{Candidate, Refiner, View};
+use crate::access::AccessStats;
+use crate::access::DataSource;
+use crate::spawn::Spawner;
+use cbdam_codec::geometry::DiamondId;
+use std::collections::BinaryHeap;
+use web_time::Instant;
 
 /// What one frame did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

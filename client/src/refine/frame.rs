@@ -1,7 +1,15 @@
 //! One frame of the refinement loop, step by step: start, refine within the deadline, collect,
 //! want and prefetch, decode ahead; and settling a still view.
 
-use super::*;
+use super::{
+    AHEAD_RESERVE, Candidate, FrameStats, FrameSteps, KeptHeap, PREFETCH_RESERVE, Refiner, View,
+};
+use crate::access::DataSource;
+use crate::camera::Camera;
+use crate::spawn::Spawner;
+use cbdam_codec::geometry::IdMap;
+use std::collections::BinaryHeap;
+use web_time::Instant;
 
 impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Runs one frame for `camera`: refine within the budget, request what is missing,

@@ -60,11 +60,10 @@ mod wire;
 pub use cache::LruCache;
 pub use config::{FetchOrder, Prefetch, RefineConfig};
 pub use detail::DetailConfig;
-use drawn::DrawnList;
 pub use figures::{CacheUse, FrameStats, FrameSteps};
+use job::Source;
 pub use job::{DecodeJob, Done};
-use job::{Source, root_colour};
-use node::{Info, Node};
+use node::Info;
 use pacing::Pacing;
 use speculate::Ahead;
 use state::{CutState, Requests, Residency};
@@ -75,19 +74,17 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use cbdam_codec::CodecError;
-use cbdam_codec::geometry::{Cut, DiamondId, Domain, Half, IdMap, IdSet, Layout};
+use cbdam_codec::geometry::{Cut, DiamondId, Domain, IdMap, IdSet, Layout};
 use cbdam_codec::hierarchy::Decoder;
-use cbdam_codec::repository::index::IndexEntry;
 use glam::DVec3;
 use std::sync::mpsc::{Receiver, Sender};
-use web_time::Instant;
 
-use crate::access::{AccessStats, DataSource, Drape, Priority};
+use crate::access::{DataSource, Drape};
 use crate::camera::{Camera, Frustum};
 use crate::horizon::Horizon;
-use crate::patch::{HalfPatch, packed};
+use crate::patch::HalfPatch;
 use crate::spawn::{DefaultSpawner, Spawner};
-use crate::world::{World, exaggerated};
+use crate::world::World;
 
 /// Per frame, the remembered overrun past the deadline shrinks by this factor unless a new one
 /// is larger: about 34 frames to halve, so a slow tail is remembered for about a second of

@@ -1,7 +1,14 @@
 //! Pacing: how long a frame may refine (its deadline, what recent frames overran) and whether
 //! the frames come far enough apart for the workers to decode ahead between them.
 
-use super::*;
+use super::{
+    AHEAD_SHARE, FrameStats, OVERRUN_CAP, OVERRUN_DECAY, OVERRUN_PRIOR, OVERRUN_SPREAD,
+    PACED_BUDGETS, Refiner, SMOOTHING,
+};
+use crate::access::DataSource;
+use crate::spawn::Spawner;
+use std::time::Duration;
+use web_time::Instant;
 
 /// The frames' timing, for deadlines and for sizing work to the time between frames.
 #[derive(Debug)]

@@ -1,7 +1,15 @@
 //! The refinement loop: the heap of candidates by screen error, refined from the top on the
 //! workers until the target is met or the deadline passes; decoded results applied to the cut.
 
-use super::*;
+use super::job::Source;
+use super::node::Node;
+use super::{Candidate, DecodeJob, Done, FrameStats, LEAST_LOOKS, Need, Refiner, SMOOTHING, View};
+use crate::access::DataSource;
+use crate::spawn::Spawner;
+use cbdam_codec::geometry::{DiamondId, IdMap};
+use std::collections::BinaryHeap;
+use std::sync::Arc;
+use web_time::Instant;
 
 impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Frame step: the refinement heap, the candidates that violate the target in `view`, most
@@ -24,7 +32,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// those being decoded (debug builds, so every test frame of a still view checks it).
     #[cfg(debug_assertions)]
     pub(super) fn check_kept_heap(&self, view: &View, kept: &BinaryHeap<Candidate>) {
-        let held: IdSet = kept.iter().map(|c| c.id).collect();
+        let held: cbdam_codec::geometry::IdSet = kept.iter().map(|c| c.id).collect();
         for c in self.refinement_heap(view).into_vec() {
             assert!(
                 held.contains(&c.id) || self.decoding.contains(&c.id),

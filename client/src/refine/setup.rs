@@ -1,7 +1,23 @@
 //! Setting a refiner up: the boxes and errors of the stored diamonds saturated over their
 //! descendants, the roots decoded from the head, the coarsest cut.
 
-use super::*;
+use super::drawn::DrawnList;
+use super::job::root_colour;
+use super::node::Info;
+use super::pacing::Pacing;
+use super::speculate::Ahead;
+use super::state::{CutState, Requests, Residency};
+use super::{LruCache, RefineConfig, Refiner};
+use crate::access::DataSource;
+use crate::access::Drape;
+use crate::patch::{HalfPatch, packed};
+use crate::spawn::Spawner;
+use crate::world::{World, exaggerated};
+use cbdam_codec::CodecError;
+use cbdam_codec::geometry::{Cut, DiamondId, Domain, Half, IdMap, IdSet};
+use cbdam_codec::hierarchy::Decoder;
+use cbdam_codec::repository::index::IndexEntry;
+use std::sync::Arc;
 
 impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// A refiner with the coarsest cut (roots only), decoding on `spawner`.

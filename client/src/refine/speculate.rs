@@ -1,7 +1,18 @@
 //! Decoding ahead of the cut (speculation): at the end of a frame, jobs sized to last until the
 //! next one decode what the view still needs, so that later frames refine without waiting.
 
-use super::*;
+use super::job::Source;
+use super::node::Node;
+use super::{
+    AHEAD_LIMIT, Candidate, LEAST_LOOKS, Need, Refiner, SPECULATION_MISSES, SPECULATIVE_STEPS, View,
+};
+use crate::access::DataSource;
+use crate::camera::Camera;
+use crate::spawn::Spawner;
+use cbdam_codec::geometry::{DiamondId, IdMap, IdSet};
+use std::collections::BinaryHeap;
+use std::sync::Arc;
+use web_time::Instant;
 
 /// What is decoded ahead of the cut.
 #[derive(Debug, Default)]

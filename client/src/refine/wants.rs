@@ -1,7 +1,19 @@
 //! Wants and prefetch: which records the cut lacks and which the moving view will soon need,
 //! requested from the source with their urgency; records that arrived moved into RAM.
 
-use super::*;
+use super::node::Info;
+use super::{
+    Candidate, FetchOrder, FrameStats, PREFETCH_CLOCK_STRIDE, PREFETCH_PRIORITY, Refiner, View,
+    WANT_HORIZON_S, most_urgent,
+};
+use crate::access::DataSource;
+use crate::access::Priority;
+use crate::camera::Camera;
+use crate::spawn::Spawner;
+use cbdam_codec::geometry::{DiamondId, IdMap};
+use glam::DVec3;
+use std::collections::BinaryHeap;
+use web_time::Instant;
 
 impl<S: DataSource, X: Spawner> Refiner<S, X> {
     /// Frame step: wants the records of what the refinement loop left unrefined (`leftovers`),

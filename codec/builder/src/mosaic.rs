@@ -26,15 +26,12 @@
 
 use std::collections::BTreeMap;
 use std::ops::Range;
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::sync::atomic::Ordering::Relaxed;
 
 use crate::band_cache::{BandCache, Samples};
-use crate::error::{Context, Result, bail};
-use crate::input::{ReadOptions, TileReader};
-use crate::tiles::{Tile, VrtPlacement};
+use crate::error::{Result, bail};
 use cbdam_codec::CodecError;
 use cbdam_codec::hierarchy::Resolution;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};

@@ -47,7 +47,10 @@ use crate::planet_shard_files::{
     write_resampling,
 };
 use crate::planet_shard_plan::{PlanetShardPlan, absolute};
-use crate::shard::{KEY, RunSummary, claim_work_dir, missing_shards};
+use crate::shard::{
+    KEY, RunSummary, check_shard, claim_work_dir, missing_shards, reuse_or_refuse,
+    unfinished_blocks,
+};
 use crate::{BuildOptions, tiles::expand_inputs};
 
 pub(crate) const PLANET: &str = "planet";
@@ -113,8 +116,9 @@ pub fn plan(
     )?;
     let k = choose_level(&inputs, opts.diamond_size, opts.planet.flatten())?;
     let key = plan_key(&opts, &tiles, k, limit, shards)?;
-    if let Some(reused) = reuse_or_refuse(work, &key, with_apex, opts.threads)? {
-        return Ok(reused);
+    let apex = || apex(work, opts.threads);
+    if let Some(plan) = reuse_or_refuse(work, &key, with_apex, apex, || read_plan(work))? {
+        return Ok(PlanetPlanSummary { plan, reused: true });
     }
     claim_work_dir(work)?;
     let pool = thread_pool(opts.threads)?;
@@ -198,35 +202,6 @@ fn plan_key(
             opts.output.display(),
             shards.map_or("auto".into(), |s| s.to_string()),
         ))
-}
-
-/// The plan already in `work` when its key is `key` (encoding the apex if asked for and
-/// missing); `None` when `work` holds no plan; an error naming the first difference when it
-/// holds another.
-fn reuse_or_refuse(
-    work: &Path,
-    key: &str,
-    with_apex: bool,
-    threads: Option<usize>,
-) -> Result<Option<PlanetPlanSummary>> {
-    let Ok(old) = fs::read_to_string(work.join(KEY)) else {
-        return Ok(None);
-    };
-    if old != key {
-        bail!(
-            "the work directory {} holds the plan of another build ({}); give another --work \
-             or remove it",
-            work.display(),
-            crate::journal::first_difference(&old, key)
-        );
-    }
-    if with_apex {
-        apex(work, threads)?;
-    }
-    Ok(Some(PlanetPlanSummary {
-        plan: read_plan(work)?,
-        reused: true,
-    }))
 }
 
 fn encode_options(n: usize, coder: CoderKind) -> EncodeOptions {
@@ -342,22 +317,9 @@ fn measured_by(plan: &PlanetShardPlan, inputs: usize, shard: usize) -> Vec<usize
 /// resampling error of its share of the inputs not measured yet.
 pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSummary> {
     let plan = read_plan(work)?;
-    if shard >= plan.shards {
-        bail!(
-            "shard {shard} does not exist: the plan in {} has {} shards (0 … {})",
-            work.display(),
-            plan.shards,
-            plan.shards - 1
-        );
-    }
+    check_shard(work, shard, plan.shards)?;
     let blocks = share(plan.block_count, plan.shards, shard);
-    let journal = Journal::in_dir(work.join(BLOCKS))?;
-    let mut todo = Vec::new();
-    for b in blocks.clone() {
-        if journal.load(b)?.is_none() {
-            todo.push(b);
-        }
-    }
+    let (journal, todo) = unfinished_blocks(work, blocks.clone())?;
     let measured = work.join(RESAMPLING);
     fs::create_dir_all(&measured).with_context(|| format!("creating {}", measured.display()))?;
     let mut to_measure = Vec::new();

@@ -100,8 +100,13 @@ pub fn plan(
         std::env::current_dir()?.join(&opts.output)
     };
     let key = plan_key(opts, &output, shards)?;
-    if let Some(reused) = reuse_or_refuse(work, &key, with_apex, opts.threads, t)? {
-        return Ok(reused);
+    let apex = || apex(work, opts.threads);
+    if let Some(plan) = reuse_or_refuse(work, &key, with_apex, apex, || read_plan(work))? {
+        return Ok(PlanSummary {
+            plan,
+            reused: true,
+            elapsed: t.elapsed(),
+        });
     }
     claim_work_dir(work)?;
     // The lattice's mapped files are made in the work directory, and kept as `prepared`.
@@ -195,16 +200,16 @@ fn plan_key(opts: &BuildOptions, output: &Path, shards: Option<usize>) -> Result
     Ok(key)
 }
 
-/// The plan already in `work` when its key is `key` (encoding the apex if asked for and
-/// missing); `None` when `work` holds no plan; an error naming the first difference when it
-/// holds another.
-fn reuse_or_refuse(
+/// The plan already in `work` when its key is `key` (encoding the apex with `apex` if asked for
+/// and missing), read with `read_plan`; `None` when `work` holds no plan; an error naming the
+/// first difference when it holds another. Planes and planets alike.
+pub(crate) fn reuse_or_refuse<P>(
     work: &Path,
     key: &str,
     with_apex: bool,
-    threads: Option<usize>,
-    t: Instant,
-) -> Result<Option<PlanSummary>> {
+    apex: impl FnOnce() -> Result<bool>,
+    read_plan: impl FnOnce() -> Result<P>,
+) -> Result<Option<P>> {
     let Ok(old) = fs::read_to_string(work.join(KEY)) else {
         return Ok(None);
     };
@@ -217,13 +222,9 @@ fn reuse_or_refuse(
         );
     }
     if with_apex {
-        apex(work, threads)?;
+        apex()?;
     }
-    Ok(Some(PlanSummary {
-        plan: read_plan(work)?,
-        reused: true,
-        elapsed: t.elapsed(),
-    }))
+    read_plan().map(Some)
 }
 
 /// The block plan (`--block-plan`, else the build's own, else blocks a quarter of the domain
@@ -442,25 +443,41 @@ pub struct RunSummary {
     pub encoded: usize,
 }
 
-/// Encodes the blocks of shard `shard` that are not in the work directory yet.
-pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSummary> {
-    let plan = read_plan(work)?;
-    if shard >= plan.shards {
+/// Refuses shard `shard` when the plan in `work` has only `shards` (planes and planets).
+pub(crate) fn check_shard(work: &Path, shard: usize, shards: usize) -> Result<()> {
+    if shard >= shards {
         bail!(
             "shard {shard} does not exist: the plan in {} has {} shards (0 … {})",
             work.display(),
-            plan.shards,
-            plan.shards - 1
+            shards,
+            shards - 1
         );
     }
-    let blocks = plan.shard_blocks(shard);
+    Ok(())
+}
+
+/// The block journal of `work` and the blocks of `blocks` it does not hold yet: what a run of
+/// the shard owning `blocks` encodes (planes and planets).
+pub(crate) fn unfinished_blocks(
+    work: &Path,
+    blocks: Range<usize>,
+) -> Result<(Journal, Vec<usize>)> {
     let journal = Journal::in_dir(work.join(BLOCKS))?;
     let mut todo = Vec::new();
-    for b in blocks.clone() {
+    for b in blocks {
         if journal.load(b)?.is_none() {
             todo.push(b);
         }
     }
+    Ok((journal, todo))
+}
+
+/// Encodes the blocks of shard `shard` that are not in the work directory yet.
+pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSummary> {
+    let plan = read_plan(work)?;
+    check_shard(work, shard, plan.shards)?;
+    let blocks = plan.shard_blocks(shard);
+    let (journal, todo) = unfinished_blocks(work, blocks.clone())?;
     if todo.is_empty() {
         return Ok(RunSummary { blocks, encoded: 0 });
     }

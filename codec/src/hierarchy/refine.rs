@@ -454,14 +454,34 @@ fn synthesise(
     scratch: &mut RefineScratch,
 ) -> Result<Option<Vec<bool>>, CodecError> {
     let n = params.layout().n();
-    let m = n - 1;
+    let valid = decode_residuals(params, record, scratch)?;
+    let step = i64::from(params.quantizer.step());
     let RefineScratch {
         dc,
         dv,
         cells,
         vertices,
         vpred,
-        entropy,
+        ..
+    } = scratch;
+    reconstruct_cells(p, n, dc, step, cells)?;
+    if params.alpha == Alpha::Half {
+        reconstruct_vertices(p, n, cells, dv, step, vpred, vertices)?;
+    }
+    Ok(valid)
+}
+
+/// The record's nodata mask (`None`: all valid) and its residual bands, decoded into
+/// `scratch.dc` (cells) and, with α = ½, `scratch.dv` (inner vertices).
+fn decode_residuals(
+    params: &CodecParams,
+    record: &[u8],
+    scratch: &mut RefineScratch,
+) -> Result<Option<Vec<bool>>, CodecError> {
+    let n = params.layout().n();
+    let m = n - 1;
+    let RefineScratch {
+        dc, dv, entropy, ..
     } = scratch;
     dc.resize(m * m, 0);
     dv.resize((n - 2) * (n - 2), 0);
@@ -495,8 +515,24 @@ fn synthesise(
         DecodeLimits::default(),
         entropy,
     )?;
-    let out_of_range = || CodecError::corrupt("record reconstructs heights out of range");
-    let step = i64::from(params.quantizer.step());
+    Ok(valid)
+}
+
+fn out_of_range() -> CodecError {
+    CodecError::corrupt("record reconstructs heights out of range")
+}
+
+/// The new cells: each predicted from the grid `p` (N × N) and corrected by its residual in
+/// `dc`, times the quantizer's `step`. Checked before vertices are predicted from them:
+/// out-of-range cells would overflow the filter's i32 numerators.
+fn reconstruct_cells(
+    p: &[i32],
+    n: usize,
+    dc: &[i32],
+    step: i64,
+    cells: &mut Vec<i32>,
+) -> Result<(), CodecError> {
+    let m = n - 1;
     cells.resize(m * m, 0);
     predict_cells(p, n, cells);
     let mut bad = false;
@@ -505,32 +541,43 @@ fn synthesise(
         bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
         *c = v as i32;
     }
-    // Check before predicting vertices from the cells: out-of-range cells would overflow the
-    // filter's i32 numerators.
     if bad {
         return Err(out_of_range());
     }
-    if half {
-        vertices.clear();
-        vertices.extend_from_slice(p);
-        let k = n - 2;
-        vpred.resize(k * k, 0);
-        predict_inner_vertices(cells, n, vpred);
-        for j in 1..n - 1 {
-            let row = &mut vertices[j * n + 1..][..k];
-            let pred = &vpred[(j - 1) * k..][..k];
-            let d = &dv[(j - 1) * k..][..k];
-            for ((o, &q), &d) in row.iter_mut().zip(pred).zip(d) {
-                let v = clamp_prediction(2 * i64::from(*o) - i64::from(q)) + step * i64::from(d);
-                bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
-                *o = v as i32;
-            }
-        }
-        if bad {
-            return Err(out_of_range());
+    Ok(())
+}
+
+/// α = ½: `vertices` becomes `p` with each inner vertex updated from the new `cells` and
+/// corrected by its residual in `dv`.
+fn reconstruct_vertices(
+    p: &[i32],
+    n: usize,
+    cells: &[i32],
+    dv: &[i32],
+    step: i64,
+    vpred: &mut Vec<i32>,
+    vertices: &mut Vec<i32>,
+) -> Result<(), CodecError> {
+    vertices.clear();
+    vertices.extend_from_slice(p);
+    let k = n - 2;
+    vpred.resize(k * k, 0);
+    predict_inner_vertices(cells, n, vpred);
+    let mut bad = false;
+    for j in 1..n - 1 {
+        let row = &mut vertices[j * n + 1..][..k];
+        let pred = &vpred[(j - 1) * k..][..k];
+        let d = &dv[(j - 1) * k..][..k];
+        for ((o, &q), &d) in row.iter_mut().zip(pred).zip(d) {
+            let v = clamp_prediction(2 * i64::from(*o) - i64::from(q)) + step * i64::from(d);
+            bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
+            *o = v as i32;
         }
     }
-    Ok(valid)
+    if bad {
+        return Err(out_of_range());
+    }
+    Ok(())
 }
 
 #[cfg(test)]

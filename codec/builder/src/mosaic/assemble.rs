@@ -1,7 +1,17 @@
 //! The mosaic assembled from its inputs' headers: every input opened, checked against the
 //! others (one CRS, power-of-two spacings, samples on the lattice) and placed, nothing decoded.
 
-use super::*;
+use super::{
+    BLOCK_POINTS, BUCKET_ROWS, Mosaic, NO_WINNER, ORIGIN_TOLERANCE, Placement, RATIO_TOLERANCE,
+    bytes_in_memory, lattice_storage,
+};
+use crate::band_cache::BandCache;
+use crate::error::{Context, Result, bail};
+use crate::input::{ReadOptions, TileReader};
+use crate::tiles::{Tile, VrtPlacement};
+use cbdam_codec::repository::GeoRef;
+use cbdam_codec::samples::SampleType;
+use std::path::{Path, PathBuf};
 
 /// Sample-centre position of raster point (0, 0), so that PixelIsArea and PixelIsPoint inputs
 /// mix.

@@ -1,6 +1,10 @@
 //! Where one input lies on the mosaic's lattice, and how its rows are read.
 
-use super::*;
+use crate::band_cache::Samples;
+use crate::error::{Context, Result, bail};
+use crate::input::TileReader;
+use cbdam_codec::samples::SampleType;
+use std::path::PathBuf;
 
 /// Where one input lies on the lattice, and how its rows are read.
 #[derive(Debug)]

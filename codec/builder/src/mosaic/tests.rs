@@ -2,6 +2,7 @@
 //! refusals, over small synthetic tiles.
 
 use super::*;
+use crate::input::ReadOptions;
 
 /// Every value comes back bit for bit (a zero's sign aside) from the narrowest type chosen.
 #[test]

@@ -7,7 +7,7 @@ use std::collections::{BTreeSet, HashMap};
 use rayon::prelude::*;
 
 use crate::CodecError;
-use crate::geometry::{DiamondId, Layout};
+use crate::geometry::{DiamondId, Domain, Layout};
 use crate::hierarchy::blocks::{Block, BlockJournal, BlockOutput, BlockPlan};
 use crate::hierarchy::field::{ReconField, TempStorage};
 use crate::hierarchy::object_error::{ErrorInput, surface_error};
@@ -33,6 +33,28 @@ pub(super) struct Levels<'a> {
     pub(super) recorded: Option<&'a [BTreeSet<DiamondId>]>,
     pub(super) root_field: &'a [i32],
     pub(super) tick: &'a (dyn Fn(&DiamondId) + Sync),
+}
+
+/// The grid of `id` before its refinement: from the root field at level 0, else gathered from
+/// its parents' refinements (`prev`, the level above's).
+///
+/// # Panics
+/// If a parent of `id` is not in `prev` (every stored diamond's parents are recorded).
+pub(in crate::hierarchy) fn grid_from_parents(
+    domain: &Domain,
+    root_field: &[i32],
+    id: DiamondId,
+    prev: &HashMap<DiamondId, Refined>,
+) -> Vec<i32> {
+    let n = domain.n();
+    let mut p = vec![0i32; n * n];
+    if id.level == 0 {
+        root_grid(domain, root_field, id, &mut p);
+    } else {
+        let parents = domain.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
+        gather(domain, id, parents, &mut p);
+    }
+    p
 }
 
 /// The record of a refined diamond with reconstructed grid `p` (object error not yet
@@ -64,18 +86,8 @@ impl Levels<'_> {
         let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
         let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
         for level in 0..=finest {
-            let grids_of = |id: DiamondId| -> Vec<i32> {
-                let mut p = vec![0i32; n * n];
-                if level == 0 {
-                    root_grid(&self.params.domain, self.root_field, id, &mut p);
-                } else {
-                    let parents = (self.params.domain)
-                        .parents(id)
-                        .map(|pid| pid.map(|pid| &prev[&pid]));
-                    gather(&self.params.domain, id, parents, &mut p);
-                }
-                p
-            };
+            let grids_of =
+                |id: DiamondId| grid_from_parents(&self.params.domain, self.root_field, id, &prev);
             if level == finest {
                 for (id, e) in self.stored[level as usize]
                     .par_iter()

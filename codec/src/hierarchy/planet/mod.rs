@@ -29,11 +29,11 @@ use std::collections::{BTreeSet, HashMap};
 use rayon::prelude::*;
 
 use super::decode::{LevelReport, VerifyReport, walk_all_with_validity};
-use super::encode::{EncodeOptions, record_of, refine_encode, saturate_errors};
+use super::encode::{EncodeOptions, grid_from_parents, record_of, refine_encode, saturate_errors};
 use super::object_error::{ErrorInput, grid_abs, surface_error_of};
-use super::refine::{Refined, gather};
+use super::refine::Refined;
 use super::resolution::with_parents;
-use super::roots::{encode_roots, root_grid};
+use super::roots::encode_roots;
 use super::{CodecParams, Encoded, Record, RepoKind};
 use crate::CodecError;
 use crate::geometry::{DiamondId, Domain, DomainKind, Half, Layout};
@@ -132,28 +132,6 @@ fn planet_params(
         nodata_mask,
         kind: RepoKind::Elevation,
     })
-}
-
-/// The grid of `id` before its refinement: from the root field at level 0, else gathered from
-/// its parents' refinements (`prev`, the level above's).
-///
-/// # Panics
-/// If a parent of `id` is not in `prev` (every stored diamond's parents are recorded).
-fn grid_from_parents(
-    domain: &Domain,
-    root_field: &[i32],
-    id: DiamondId,
-    prev: &HashMap<DiamondId, Refined>,
-) -> Vec<i32> {
-    let n = domain.n();
-    let mut p = vec![0i32; n * n];
-    if id.level == 0 {
-        root_grid(domain, root_field, id, &mut p);
-    } else {
-        let parents = domain.parents(id).map(|pid| pid.map(|pid| &prev[&pid]));
-        gather(domain, id, parents, &mut p);
-    }
-    p
 }
 
 /// Refines `id`, whose grid is `p`, against the planet's targets: its refinement and record.

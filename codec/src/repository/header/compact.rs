@@ -3,7 +3,10 @@
 
 use crate::CodecError;
 
-use super::*;
+use super::{
+    FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, HEADER_FETCH_LEN, HeaderFields, MAGIC, MAX_HEADER_LEN,
+    PREFIX_LEN, PlanetProvenance, SectionEntry, VerticalDatum, crc32, u32_at,
+};
 
 /// A cursor over a compact header's field bytes (between the prefix and the CRC).
 struct Fields<'a> {

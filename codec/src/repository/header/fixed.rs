@@ -2,7 +2,10 @@
 
 use crate::CodecError;
 
-use super::*;
+use super::{
+    FIXED_CRC_AT, FIXED_HEADER_LEN, HeaderFields, NODATA_AT, RECORD_COUNT_AT, SECTION_ENTRY,
+    SECTIONS_AT, SectionEntry, f64_at, u16_at, u32_at, u64_at,
+};
 
 /// Reads a fixed header (`b` at least 256 bytes, its length and CRC checked).
 pub(super) fn read_fixed(b: &[u8], version: u16, crc: u32) -> Result<HeaderFields, CodecError> {

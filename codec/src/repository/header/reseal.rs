@@ -1,7 +1,11 @@
 //! Resealing a header: its checksums recomputed over whatever the bytes say (for crafted and
 //! fuzzed repositories).
 
-use super::*;
+use super::compact::read_compact;
+use super::fixed::read_fixed;
+use super::{
+    FIXED_HEADER_LEN, MAX_HEADER_LEN, PREFIX_LEN, SECTION_ENTRY, SECTIONS_AT, crc32, read_prefix,
+};
 
 /// Where a header keeps its checksums, for [`reseal_header`].
 struct ChecksumPlaces {
