@@ -29,6 +29,7 @@ mod planet_resampling;
 pub mod planet_shard;
 mod planet_shard_files;
 pub mod planet_shard_plan;
+mod planet_spacing;
 pub mod progress;
 pub mod rms;
 pub mod shard;

@@ -24,11 +24,11 @@ use crate::assign::AssignedGeoRef;
 use crate::error::{Context, Result, bail};
 pub use crate::planet_input::{GEOGRAPHIC_EPSG, MAX_PLANET_INPUTS, PlanetInput, PlanetInputs};
 use crate::planet_lattice::{LatticeEncode, Resampler, encode_out_of_core};
+use crate::planet_plan::valid_in_tile;
 pub use crate::planet_plan::{
     Candidate, TilePlan, choose_level, input_stride, lattice_spacing_deg, plan_tiles,
 };
-pub(crate) use crate::planet_resampling::input_resampling;
-pub use crate::planet_resampling::{InputResampling, provenance_of, resampling_error};
+pub use crate::planet_resampling::{InputResampling, Resampled, provenance_of, resampling_error};
 use crate::tiles::Tile;
 use crate::{BuildOptions, Progress, ProgressEvent, Stage};
 use cbdam_codec::geometry::Domain;
@@ -36,18 +36,6 @@ use cbdam_codec::hierarchy::{EncodeOptions, PlanetGrid, PlanetTile, encode_plane
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::write_planet_repository;
-
-/// The resampled lattice: integer heights under `plan`, and per point held which input won.
-pub struct Resampled {
-    /// The planet's heights (with resolution classes when an input is coarser than the
-    /// lattice, [`input_stride`]).
-    pub planet: PlanetGrid,
-    /// Per face, per tile, per point the tile holds: the winning input's index, `u16::MAX`
-    /// for none.
-    pub winners: Vec<Vec<Vec<u16>>>,
-    /// Per input, `log2` of its stride on the lattice ([`input_stride`]).
-    pub strides: Vec<u32>,
-}
 
 /// Resamples the inputs onto the `N`, `K` cube-sphere (see the module documentation): the
 /// finest input covering a point gives its height where the point lies on that input's
@@ -234,30 +222,6 @@ pub fn count_valid(planet: &PlanetGrid) -> u64 {
         .into_par_iter()
         .map(|(f, t)| valid_in_tile(d, f, t))
         .sum()
-}
-
-/// The lattice points with data that tile `t` of face `f` owns: a tile owns its first row and
-/// column, its last only on the face's edge; an edge point is counted on the face that owns it.
-pub(crate) fn valid_in_tile(d: &Domain, f: u8, t: &PlanetTile) -> u64 {
-    let side = d.cube().expect("a cube-sphere").side();
-    let (x0, y0, x1, y1) = t.rect;
-    let step = 1usize << t.stride;
-    let mut count = 0u64;
-    for (j, y) in (y0..=y1).step_by(step).enumerate() {
-        if y == y1 && y1 < side {
-            continue;
-        }
-        for (i, x) in (x0..=x1).step_by(step).enumerate() {
-            if (x == x1 && x1 < side) || !t.grid.valid[j * t.grid.width + i] {
-                continue;
-            }
-            let edge = x == 0 || y == 0 || x == side || y == side;
-            if !edge || d.canonical_point(f, x, y).is_some_and(|c| c.face == f) {
-                count += 1;
-            }
-        }
-    }
-    count
 }
 
 /// Checks the options a planet build does not take.

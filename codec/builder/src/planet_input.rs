@@ -14,7 +14,7 @@ use crate::band_cache::Samples;
 use crate::error::{Context, Result, bail};
 use crate::input::{ReadOptions, TileReader};
 use crate::input_cache::InputCache;
-use crate::planet::{input_stride, lattice_spacing_deg};
+use crate::planet_spacing::{input_stride, lattice_spacing_deg};
 use crate::tiles::Tile;
 use cbdam_codec::error::CodecError;
 use cbdam_codec::geodesy::{LatLon, Utm};

@@ -17,11 +17,9 @@ use std::sync::{Arc, Mutex};
 use rayon::prelude::*;
 
 use crate::error::{BuildError, Result};
-use crate::planet::{
-    InputResampling, PlanetInputs, Resampled, TilePlan, input_resampling, lattice_spacing_deg,
-    plan_tiles, valid_in_tile,
-};
-use crate::planet_input::PointSource;
+use crate::planet_input::{PlanetInputs, PointSource};
+use crate::planet_plan::{TilePlan, lattice_spacing_deg, plan_tiles, valid_in_tile};
+use crate::planet_resampling::{InputResampling, Resampled, input_resampling};
 use cbdam_codec::CodecError;
 use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;

@@ -8,28 +8,11 @@ use rayon::prelude::*;
 
 use crate::error::{Result, bail};
 use crate::planet_input::{Frame, PlanetInput, PlanetInputs};
+pub use crate::planet_spacing::{input_stride, lattice_spacing_deg};
 use cbdam_codec::geodesy::cube_map::lat_lon_to_face_st;
 use cbdam_codec::geometry::{Cube, Domain};
-use cbdam_codec::hierarchy::PlanetGrid;
 use cbdam_codec::hierarchy::planet::{tile_log2, tile_of};
-
-/// `log2` of the stride at which an input of ground spacing `input_deg` samples a lattice of
-/// spacing `lattice_deg` with `k` level pairs: the largest `j ≤ k` with `2^j` lattice steps no
-/// wider than the input's spacing. Its samples are the lattice points on multiples of `2^j`,
-/// vertices of level `2K − 2j`, and the lattice points between them are *coarse only*: the
-/// hierarchy ends at that level where this input is the finest data (variable resolution: an
-/// ETOPO ocean stays as coarse as ETOPO under a fine inset's lattice).
-pub fn input_stride(input_deg: f64, lattice_deg: f64, k: u32) -> u32 {
-    (0..=k)
-        .rev()
-        .find(|&j| lattice_deg * f64::from(1u32 << j) <= input_deg * (1.0 + 1e-9))
-        .unwrap_or(0)
-}
-
-/// Mean spacing of a cube-sphere lattice, degrees of arc: a face spans 90° over `S` steps.
-pub fn lattice_spacing_deg(n: usize, k: u32) -> f64 {
-    90.0 / ((n as f64 - 1.0) * f64::from(1u32 << k))
-}
+use cbdam_codec::hierarchy::{PlanetGrid, PlanetTile};
 
 /// The lattice's level pairs `K`: the given one (`--planet-level`, at most 16), or the
 /// coarsest at least as fine as the finest input. The lattice is encoded out of core
@@ -205,4 +188,28 @@ fn footprint(cube: &Cube, t: u32, input: &PlanetInput, j: u32) -> (i64, Reach) {
         *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y));
     }
     (step, reach_of)
+}
+
+/// The lattice points with data that tile `t` of face `f` owns: a tile owns its first row and
+/// column, its last only on the face's edge; an edge point is counted on the face that owns it.
+pub(crate) fn valid_in_tile(d: &Domain, f: u8, t: &PlanetTile) -> u64 {
+    let side = d.cube().expect("a cube-sphere").side();
+    let (x0, y0, x1, y1) = t.rect;
+    let step = 1usize << t.stride;
+    let mut count = 0u64;
+    for (j, y) in (y0..=y1).step_by(step).enumerate() {
+        if y == y1 && y1 < side {
+            continue;
+        }
+        for (i, x) in (x0..=x1).step_by(step).enumerate() {
+            if (x == x1 && x1 < side) || !t.grid.valid[j * t.grid.width + i] {
+                continue;
+            }
+            let edge = x == 0 || y == 0 || x == side || y == side;
+            if !edge || d.canonical_point(f, x, y).is_some_and(|c| c.face == f) {
+                count += 1;
+            }
+        }
+    }
+    count
 }

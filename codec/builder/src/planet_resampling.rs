@@ -6,12 +6,24 @@ use std::path::PathBuf;
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::planet::Resampled;
 use crate::planet_input::{Frame, PlanetInputs};
 use cbdam_codec::geodesy::LatLon;
 use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_to_face_st};
+use cbdam_codec::hierarchy::PlanetGrid;
 use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{PlanetProvenance, VerticalDatum};
+
+/// The resampled lattice: integer heights under `plan`, and per point held which input won.
+pub struct Resampled {
+    /// The planet's heights (with resolution classes when an input is coarser than the
+    /// lattice, [`input_stride`]).
+    pub planet: PlanetGrid,
+    /// Per face, per tile, per point the tile holds: the winning input's index, `u16::MAX`
+    /// for none.
+    pub winners: Vec<Vec<Vec<u16>>>,
+    /// Per input, `log2` of its stride on the lattice ([`input_stride`]).
+    pub strides: Vec<u32>,
+}
 
 /// How far the resampled lattice is from one input's own samples.
 #[derive(Clone, Debug, PartialEq)]

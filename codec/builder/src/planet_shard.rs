@@ -21,7 +21,6 @@
 //! time) refuses, naming it.
 
 use std::fs;
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use cbdam_codec::CodecError;
@@ -46,7 +45,7 @@ use crate::planet_shard_files::{
     OutlineFile, read_apex, read_outline, read_resampling, write_apex, write_outline,
     write_resampling,
 };
-use crate::planet_shard_plan::{PlanetShardPlan, absolute};
+use crate::planet_shard_plan::{PlanetShardPlan, absolute, share};
 use crate::shard::{
     KEY, RunSummary, check_shard, claim_work_dir, missing_shards, reuse_or_refuse,
     unfinished_blocks,
@@ -65,12 +64,6 @@ pub(crate) const LAYOUT: &str = "planet-2";
 pub fn is_planet(work: &Path) -> bool {
     fs::read_to_string(work.join(KEY))
         .is_ok_and(|k| k.lines().any(|l| l == format!("shard_layout={LAYOUT}")))
-}
-
-/// The blocks of shard `shard` of `shards` over `count` blocks: runs of consecutive blocks.
-pub(crate) fn share(count: usize, shards: usize, shard: usize) -> Range<usize> {
-    let s = shards.max(1);
-    shard * count / s..(shard + 1) * count / s
 }
 
 fn resampling_name(input: usize) -> String {

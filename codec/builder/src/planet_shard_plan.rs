@@ -123,7 +123,7 @@ impl PlanetShardPlan {
 
     /// The blocks of shard `shard`.
     pub fn shard_blocks(&self, shard: usize) -> Range<usize> {
-        crate::planet_shard::share(self.block_count, self.shards, shard)
+        share(self.block_count, self.shards, shard)
     }
 
     /// The file's text.
@@ -266,4 +266,10 @@ mod tests {
         let cut = &text[..text.find("coder").unwrap()];
         assert_eq!(PlanetShardPlan::parse(cut), None);
     }
+}
+
+/// The blocks of shard `shard` of `shards` over `count` blocks: runs of consecutive blocks.
+pub(crate) fn share(count: usize, shards: usize, shard: usize) -> Range<usize> {
+    let s = shards.max(1);
+    shard * count / s..(shard + 1) * count / s
 }
