@@ -280,19 +280,7 @@ fn print_elevation(args: &BuildArgs, s: &ElevationSummary, start: Instant) -> Re
 
 fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<()> {
     if args.timings {
-        eprintln!(
-            "{} M lattice points/s)",
-            timings(&s.stages, start, s.lattice_points.min(s.held_points))
-        );
-        eprintln!(
-            "inputs read from their files {} times ({} inputs; once for the height range, then \
-             when the resampling asks for one its cache has let go)",
-            s.inputs_read,
-            s.resampling.len()
-        );
-        if let Some((blocks, tiles)) = s.blocks {
-            eprintln!("encoded in {blocks} blocks of the lattice's {tiles} tiles");
-        }
+        print_planet_timings(s, start);
     }
     if args.quiet.value {
         return Ok(());
@@ -358,6 +346,23 @@ fn print_planet(args: &BuildArgs, s: &PlanetSummary, start: Instant) -> Result<(
         );
     }
     Ok(())
+}
+
+/// `--timings` of a planet build: the stages, the input reads and the blocks (stderr).
+fn print_planet_timings(s: &PlanetSummary, start: Instant) {
+    eprintln!(
+        "{} M lattice points/s)",
+        timings(&s.stages, start, s.lattice_points.min(s.held_points))
+    );
+    eprintln!(
+        "inputs read from their files {} times ({} inputs; once for the height range, then \
+         when the resampling asks for one its cache has let go)",
+        s.inputs_read,
+        s.resampling.len()
+    );
+    if let Some((blocks, tiles)) = s.blocks {
+        eprintln!("encoded in {blocks} blocks of the lattice's {tiles} tiles");
+    }
 }
 
 fn print_colour(args: &BuildArgs, s: &ColourSummary, start: Instant) -> Result<()> {

@@ -69,21 +69,8 @@ pub fn run(args: &TilesArgs) -> Result<()> {
             args.output.display()
         );
     }
-    let repo =
-        Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
-    Tiler::check(repo.head()).map_err(anyhow::Error::msg)?;
     let started = Instant::now();
-    let encoded = repo
-        .to_encoded()
-        .with_context(|| format!("reading {}", args.repo.display()))?;
-    let mut tiler = Tiler::new(repo.head(), encoded).map_err(anyhow::Error::msg)?;
-    if let Some(bbox) = args.bbox {
-        tiler
-            .restrict_to(bbox)
-            .map_err(|e| anyhow::anyhow!("--bbox: {e}"))?;
-    }
-    // Every tile is made: decode every level once (tiles then read it, not windows).
-    tiler.surface().map_err(anyhow::Error::msg)?;
+    let tiler = open_tiler(args)?;
     let decoded_s = started.elapsed().as_secs_f64();
     let name = args
         .repo
@@ -141,6 +128,25 @@ pub fn run(args: &TilesArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The repository's tiler, restricted to `--bbox`, with every level decoded (every tile is
+/// made, so tiles read the decoded surface, not windows).
+fn open_tiler(args: &TilesArgs) -> Result<Tiler> {
+    let repo =
+        Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
+    Tiler::check(repo.head()).map_err(anyhow::Error::msg)?;
+    let encoded = repo
+        .to_encoded()
+        .with_context(|| format!("reading {}", args.repo.display()))?;
+    let mut tiler = Tiler::new(repo.head(), encoded).map_err(anyhow::Error::msg)?;
+    if let Some(bbox) = args.bbox {
+        tiler
+            .restrict_to(bbox)
+            .map_err(|e| anyhow::anyhow!("--bbox: {e}"))?;
+    }
+    tiler.surface().map_err(anyhow::Error::msg)?;
+    Ok(tiler)
 }
 
 /// `--bbox`: four comma-separated degrees, west,south,east,north.

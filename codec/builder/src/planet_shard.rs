@@ -90,11 +90,7 @@ pub fn plan(
     shards: Option<usize>,
     with_apex: bool,
 ) -> Result<PlanetPlanSummary> {
-    crate::planet::refuse_planar_options(opts)?;
-    crate::check_tolerance_and_output(opts)?;
-    if shards == Some(0) {
-        bail!("--shards must be at least 1");
-    }
+    check_plan_options(opts, shards)?;
     let opts = with_absolute_paths(opts)?;
     let tiles = expand_inputs(&opts.inputs)?;
     crate::check_output_is_not_an_input(&opts, &tiles)?;
@@ -164,6 +160,16 @@ pub fn plan(
         plan,
         reused: false,
     })
+}
+
+/// The options a sharded planet plan refuses: planar ones, a bad tolerance or output, no shard.
+fn check_plan_options(opts: &BuildOptions, shards: Option<usize>) -> Result<()> {
+    crate::planet::refuse_planar_options(opts)?;
+    crate::check_tolerance_and_output(opts)?;
+    if shards == Some(0) {
+        bail!("--shards must be at least 1");
+    }
+    Ok(())
 }
 
 /// `opts` with its inputs and output made absolute: the steps may run elsewhere.
