@@ -24,7 +24,7 @@ mod stored;
 mod targets;
 
 use levels::Levels;
-pub(super) use levels::{grid_from_parents, record_of};
+pub(super) use levels::{grid_from_parents, per_diamond_levels, record_of};
 pub(super) use refinement::refine_encode;
 pub use sharded::{ApexField, ApexOutput, ShardedEncode};
 pub(crate) use stored::stored_sets;

@@ -3,6 +3,7 @@
 //! in an apex field and one per block.
 
 use std::collections::{BTreeSet, HashMap};
+use std::ops::Range;
 
 use rayon::prelude::*;
 
@@ -57,6 +58,53 @@ pub(in crate::hierarchy) fn grid_from_parents(
     p
 }
 
+/// What [`per_diamond_levels`] made: the records in `stored` order, what `visit` said of each
+/// stored diamond, and the refinements of the last level passed (for the levels after it).
+pub(in crate::hierarchy) struct LevelPass<T> {
+    pub(in crate::hierarchy) records: Vec<Record>,
+    pub(in crate::hierarchy) visited: Vec<(DiamondId, T)>,
+    pub(in crate::hierarchy) last: HashMap<DiamondId, Refined>,
+}
+
+/// The coarse-to-fine pass over `levels` that planes and planets share, the previous level's
+/// refinements kept per diamond: each stored diamond's grid gathered from the level above's
+/// refinements (from the root field at level 0) and handed to `visit`, the diamonds of a level
+/// in parallel. `visit` gives the diamond's refinement and record (`None`: a leaf, which the
+/// next level does not gather from) and what the caller keeps of it (an object error, the
+/// grid). Records are kept in `stored` order, which fixes the repository's bytes.
+pub(in crate::hierarchy) fn per_diamond_levels<T: Send>(
+    domain: &Domain,
+    root_field: &[i32],
+    stored: &[Vec<DiamondId>],
+    levels: Range<u8>,
+    visit: impl Fn(DiamondId, Vec<i32>) -> Result<(Option<(Refined, Record)>, T), CodecError> + Sync,
+) -> Result<LevelPass<T>, CodecError> {
+    let mut pass = LevelPass {
+        records: Vec::new(),
+        visited: Vec::new(),
+        last: HashMap::new(),
+    };
+    for level in levels {
+        let prev = &pass.last;
+        let results = stored[level as usize]
+            .par_iter()
+            .map(|&id| {
+                let (refined, kept) = visit(id, grid_from_parents(domain, root_field, id, prev))?;
+                Ok((id, refined, kept))
+            })
+            .collect::<Result<Vec<_>, CodecError>>()?;
+        pass.last.clear();
+        for (id, refined, kept) in results {
+            pass.visited.push((id, kept));
+            if let Some((refined, record)) = refined {
+                pass.last.insert(id, refined);
+                pass.records.push(record);
+            }
+        }
+    }
+    Ok(pass)
+}
+
 /// The record of a refined diamond with reconstructed grid `p` (object error not yet
 /// saturated).
 pub(in crate::hierarchy) fn record_of(id: DiamondId, p: &[i32], bytes: Vec<u8>) -> Record {
@@ -82,52 +130,33 @@ impl Levels<'_> {
     pub(super) fn per_diamond(&self) -> Result<LevelOutput, CodecError> {
         let layout = self.params.layout();
         let (finest, n) = (layout.finest_level(), layout.n());
-        let mut records: Vec<Record> = Vec::new();
-        let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
-        let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
-        for level in 0..=finest {
-            let grids_of =
-                |id: DiamondId| grid_from_parents(&self.params.domain, self.root_field, id, &prev);
-            if level == finest {
-                for (id, e) in self.stored[level as usize]
-                    .par_iter()
-                    .map(|&id| {
-                        let e = surface_error(layout, id, &grids_of(id), &self.error_input);
-                        (self.tick)(&id);
-                        (id, e)
-                    })
-                    .collect::<Vec<_>>()
-                {
-                    own_error.insert(id, e);
-                }
-                break;
-            }
-            let results = self.stored[level as usize]
-                .par_iter()
-                .map(|&id| {
-                    let p = grids_of(id);
-                    let err = surface_error(layout, id, &p, &self.error_input);
+        let pass = per_diamond_levels(
+            &self.params.domain,
+            self.root_field,
+            self.stored,
+            0..finest + 1,
+            |id, p| {
+                let err = surface_error(layout, id, &p, &self.error_input);
+                // The finest level is only measured: its diamonds are the leaves.
+                let refined = if id.level == finest {
+                    None
+                } else {
                     let r = refine_encode(
                         self.params,
                         id,
                         &p,
-                        |x, y| self.targets.at(level + 1, x, y),
+                        |x, y| self.targets.at(id.level + 1, x, y),
                         |x, y| self.targets.mask(self.params, x, y),
                     )?;
                     let vertices = r.vertices.as_deref().unwrap_or(&p);
                     let refined = Refined::from_parts(n, vertices, &r.cells);
-                    (self.tick)(&id);
-                    Ok((id, refined, Self::record(id, &p, r.bytes), err))
-                })
-                .collect::<Result<Vec<_>, CodecError>>()?;
-            prev.clear();
-            for (id, refined, record, err) in results {
-                own_error.insert(id, err);
-                prev.insert(id, refined);
-                records.push(record);
-            }
-        }
-        Ok((records, own_error))
+                    Some((refined, Self::record(id, &p, r.bytes)))
+                };
+                (self.tick)(&id);
+                Ok((refined, err))
+            },
+        )?;
+        Ok((pass.records, pass.visited.into_iter().collect()))
     }
 
     /// The levels with one reconstruction field (α = 1): each refinement writes its new points

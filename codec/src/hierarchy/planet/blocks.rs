@@ -38,7 +38,7 @@ use super::{
 use crate::CodecError;
 use crate::geometry::{DiamondId, Domain};
 use crate::hierarchy::blocks::{BlockJournal, BlockOutput};
-use crate::hierarchy::encode::{EncodeOptions, saturate_errors};
+use crate::hierarchy::encode::{EncodeOptions, per_diamond_levels, saturate_errors};
 use crate::hierarchy::record_bytes::KeptRecords;
 use crate::hierarchy::refine::Refined;
 use crate::hierarchy::resolution::{HOLE, with_parents};
@@ -494,31 +494,15 @@ impl PlanetApex {
             |f, x, y| view.get(f, x, y),
             |f, x, y| view.drawn(f, x, y) == Some(true),
         )?;
-        let mut grids = HashMap::new();
-        let mut records = Vec::new();
-        let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
-        for level in 0..cut {
-            type Output = (DiamondId, Vec<i32>, Option<(Refined, Record)>);
-            let results = stored[level as usize]
-                .par_iter()
-                .map(|&id| -> Result<Output, CodecError> {
-                    let p = grid_from_parents(domain, &root_field, id, &prev);
-                    let refined = match recorded[level as usize].contains(&id) {
-                        true => Some(refine_diamond(params, &view, id, &p)?),
-                        false => None,
-                    };
-                    Ok((id, p, refined))
-                })
-                .collect::<Result<Vec<_>, CodecError>>()?;
-            prev.clear();
-            for (id, p, refined) in results {
-                grids.insert(id, p);
-                if let Some((refined, record)) = refined {
-                    prev.insert(id, refined);
-                    records.push(record);
-                }
-            }
-        }
+        let pass = per_diamond_levels(domain, &root_field, stored, 0..cut, |id, p| {
+            let refined = match recorded[id.level as usize].contains(&id) {
+                true => Some(refine_diamond(params, &view, id, &p)?),
+                false => None,
+            };
+            Ok((refined, p))
+        })?;
+        let grids: HashMap<DiamondId, Vec<i32>> = pass.visited.into_iter().collect();
+        let (records, prev) = (pass.records, pass.last);
         Ok(Self::from_parts(
             outline, root_field, roots, records, grids, prev,
         ))

@@ -29,7 +29,9 @@ use std::collections::{BTreeSet, HashMap};
 use rayon::prelude::*;
 
 use super::decode::{LevelReport, VerifyReport, walk_all_with_validity};
-use super::encode::{EncodeOptions, grid_from_parents, record_of, refine_encode, saturate_errors};
+use super::encode::{
+    EncodeOptions, grid_from_parents, per_diamond_levels, record_of, refine_encode, saturate_errors,
+};
 use super::object_error::{ErrorInput, grid_abs, surface_error_of};
 use super::refine::Refined;
 use super::resolution::with_parents;
@@ -64,32 +66,16 @@ pub fn encode_planet(
     )?;
     let errors = TiledError::new(planet)?;
     let finest = domain.finest_level();
-    let mut records: Vec<Record> = Vec::new();
-    let mut own_error: HashMap<DiamondId, u32> = HashMap::new();
-    let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
-    for level in 0..=finest {
-        type Output = (DiamondId, Option<(Refined, Record)>, u32);
-        let results = stored[level as usize]
-            .par_iter()
-            .map(|&id| -> Result<Output, CodecError> {
-                let p = grid_from_parents(&domain, &root_field, id, &prev);
-                let err = planet_surface_error(&domain, id, &p, &errors);
-                // Leaves: the finest level, and where coarse data ends the hierarchy above it.
-                if !recorded[level as usize].contains(&id) {
-                    return Ok((id, None, err));
-                }
-                Ok((id, Some(refine_diamond(&params, planet, id, &p)?), err))
-            })
-            .collect::<Result<Vec<_>, CodecError>>()?;
-        prev.clear();
-        for (id, refined, err) in results {
-            own_error.insert(id, err);
-            if let Some((refined, record)) = refined {
-                prev.insert(id, refined);
-                records.push(record);
-            }
+    let pass = per_diamond_levels(&domain, &root_field, &stored, 0..finest + 1, |id, p| {
+        let err = planet_surface_error(&domain, id, &p, &errors);
+        // Leaves: the finest level, and where coarse data ends the hierarchy above it.
+        if !recorded[id.level as usize].contains(&id) {
+            return Ok((None, err));
         }
-    }
+        Ok((Some(refine_diamond(&params, planet, id, &p)?), err))
+    })?;
+    let own_error: HashMap<DiamondId, u32> = pass.visited.into_iter().collect();
+    let records = pass.records;
     let (records, leaf_error) = saturate_errors(&domain, &stored, records, &own_error);
     Ok(Encoded {
         params,
