@@ -301,6 +301,10 @@ fn keys_and_mouse_drive_the_viewer() {
         ])
         .current_dir(dir.path())
         .env("DISPLAY", &display)
+        // The decode workers at the test's priority, not idle: on a busy machine idle workers
+        // can be starved for several frames, and a still view that stops changing for want of
+        // decoded records is not a converged one.
+        .env("CBDAM_DECODE_PRIORITY", "0")
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -320,22 +324,21 @@ fn keys_and_mouse_drive_the_viewer() {
         xdotool(&display, &args);
     };
 
-    // P, until two screenshots of the still camera agree below the HUD: the cut has converged
-    // (the HUD's fps line changes every frame, so it is left out).
+    // P, until three screenshots in a row of the still camera agree below the HUD: the cut has
+    // converged (the HUD's fps line changes every frame, so it is left out).
     press(&["p"]);
     let mut n = 1;
     let (_, _, mut still) = wait_for(&shot(n), &mut viewer);
-    loop {
+    let mut agreeing = 0;
+    while agreeing < 2 {
         press(&["p"]);
         n += 1;
         let (_, _, next) = wait_for(&shot(n), &mut viewer);
         let changed = lower_half_changes(&still, &next, w, h);
         still = next;
-        if changed == 0 {
-            break;
-        }
+        agreeing = if changed == 0 { agreeing + 1 } else { 0 };
         assert!(
-            n < 20,
+            n < 30,
             "the still view never settled ({changed} pixels still change)"
         );
     }
