@@ -228,6 +228,12 @@ impl PlanetShardPlan {
     }
 }
 
+/// The blocks of shard `shard` of `shards` over `count` blocks: runs of consecutive blocks.
+pub(crate) fn share(count: usize, shards: usize, shard: usize) -> Range<usize> {
+    let s = shards.max(1);
+    shard * count / s..(shard + 1) * count / s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -266,10 +272,4 @@ mod tests {
         let cut = &text[..text.find("coder").unwrap()];
         assert_eq!(PlanetShardPlan::parse(cut), None);
     }
-}
-
-/// The blocks of shard `shard` of `shards` over `count` blocks: runs of consecutive blocks.
-pub(crate) fn share(count: usize, shards: usize, shard: usize) -> Range<usize> {
-    let s = shards.max(1);
-    shard * count / s..(shard + 1) * count / s
 }
