@@ -437,13 +437,14 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
     // `--rms-error`: the maximum error whose build meets the RMS bound, then that build.
     let (chosen, rms) = match opts.rms_error {
         Some(target) => {
-            let (max_error, bound) = rms::choose_max_error(opts, target)?;
+            let choice = rms::choose(opts, target)?;
             let opts = BuildOptions {
-                max_error,
+                max_error: choice.max_error,
+                quantum: choice.quantum,
                 rms_error: None,
                 ..opts.clone()
             };
-            (Some(opts), Some(bound))
+            (Some(opts), Some(choice.bound))
         }
         None => (None, None),
     };

@@ -9,9 +9,16 @@
 //! is at most the maximum error). The build then encodes with the chosen candidate exactly as
 //! the trial did (the encode is deterministic), and the header records the bound and the RMS
 //! error measured ([`RmsBound`]).
+//!
+//! On lattice data (whole metres, decimetres) the maximum-error steps are odd multiples of the
+//! data's quantum `q` (a maximum error of 1 m on whole metres is a step of 3 m), and the next
+//! one up (5 m) usually breaks an RMS bound the first (RMS 0.8 m) leaves slack under. Unless
+//! `--quantum` is given, the ladder is therefore also searched on a unit of `q / 8`, whose steps
+//! fall between them, and the build keeps whichever of the two choices codes smaller.
 
 use cbdam_codec::hierarchy::{Encoded, NoJournal, reconstruct_finest_with_validity};
 use cbdam_codec::quant::{QuantPlan, RmsBound};
+use cbdam_codec::samples::{Dem, detect_quantum};
 
 use crate::encode::{ExtraLevels, encode_prepared, with_coarser_roots_if_smaller};
 use crate::error::{Context, Result, bail};
@@ -22,13 +29,24 @@ use crate::{BuildOptions, prepare_elevation};
 
 /// Rungs of the candidate ladder per octave of maximum error.
 const RUNGS_PER_OCTAVE: i32 = 8;
+/// The finer unit the ladder is also searched on, as a fraction of the data's quantum.
+const FINER_UNIT: f64 = 8.0;
 /// The ladder's top: `E · 2^MAX_OCTAVES`. An RMS error far below the maximum error needs most
 /// residuals well inside the dead zone; beyond 16 E the rate hardly falls further.
 const MAX_OCTAVES: i32 = 4;
 
-/// The maximum error to build with for `--rms-error target` (`opts.max_error` is the cap,
-/// infinite when none was given), and the bound to record.
-pub(crate) fn choose_max_error(opts: &BuildOptions, target: f64) -> Result<(f64, RmsBound)> {
+/// What `--rms-error` chose: the maximum error to build with, the unit to build on (`None`:
+/// the data's own), and the bound to record.
+pub(crate) struct RmsChoice {
+    pub max_error: f64,
+    pub quantum: Option<f64>,
+    pub bound: RmsBound,
+}
+
+/// The quantizer for `--rms-error target` (`opts.max_error` is the cap, infinite when none was
+/// given): the ladder searched on the data's unit and, for lattice data without `--quantum`,
+/// on a finer one; the smaller coding wins.
+pub(crate) fn choose(opts: &BuildOptions, target: f64) -> Result<RmsChoice> {
     if !(target.is_finite() && target > 0.0) {
         bail!("--rms-error must be a positive number of metres, not {target}");
     }
@@ -43,26 +61,56 @@ pub(crate) fn choose_max_error(opts: &BuildOptions, target: f64) -> Result<(f64,
         bail!("--max-error must be a positive number of metres, not {cap}");
     }
     let dem = read_input(opts)?;
+    let own = search_ladder(opts, &dem, target)?;
+    let finer = match (opts.quantum, detect_quantum(&dem)) {
+        (None, Some(q)) => {
+            let finer = BuildOptions {
+                quantum: Some(q / FINER_UNIT),
+                ..opts.clone()
+            };
+            // The finer unit is an offer, not a requirement: where the data does not sit on
+            // it (a quantum detected within float rounding), the data's own unit stands.
+            search_ladder(&finer, &dem, target).ok()
+        }
+        _ => None,
+    };
+    Ok(match finer {
+        Some(f) if f.bytes < own.bytes => f.choice,
+        _ => own.choice,
+    })
+}
+
+/// The ladder's winner on one unit, with its coded size.
+struct Searched {
+    choice: RmsChoice,
+    bytes: usize,
+}
+
+/// The last rung of the ladder on `opts`'s unit whose build meets the RMS bound.
+fn search_ladder(opts: &BuildOptions, dem: &Dem, target: f64) -> Result<Searched> {
     let ladder: Vec<f64> = (0..=RUNGS_PER_OCTAVE * MAX_OCTAVES)
-        .map(|i| (target * 2f64.powf(f64::from(i) / f64::from(RUNGS_PER_OCTAVE))).min(cap))
+        .map(|i| {
+            (target * 2f64.powf(f64::from(i) / f64::from(RUNGS_PER_OCTAVE))).min(opts.max_error)
+        })
         .collect();
-    let measure = |max_error: f64| -> Result<f64> {
+    let measure = |max_error: f64| -> Result<(f64, usize)> {
         let trial = BuildOptions {
             max_error,
             rms_error: None,
             ..opts.clone()
         };
         let (encoded, plan) = encode_in_memory(&trial)?;
-        rms_error(&encoded, &plan, &dem)
+        Ok((rms_error(&encoded, &plan, dem)?, encoded.payload_bytes()))
     };
     // Bisection for the last rung that meets the bound: `lo` is known to meet it.
     let (mut lo, mut hi) = (0usize, ladder.len());
     let mut best = measure(ladder[0])?;
-    if best > target {
+    if best.0 > target {
         bail!(
-            "the build at a maximum error of {} m has an RMS error of {best} m, over \
+            "the build at a maximum error of {} m has an RMS error of {} m, over \
              --rms-error {target} m (the float quantizer's pre-rounding); lower --max-error",
-            ladder[0]
+            ladder[0],
+            best.0
         );
     }
     while hi - lo > 1 {
@@ -72,25 +120,29 @@ pub(crate) fn choose_max_error(opts: &BuildOptions, target: f64) -> Result<(f64,
             hi = mid;
             continue;
         }
-        let rms = measure(ladder[mid])?;
-        if rms <= target {
-            (lo, best) = (mid, rms);
+        let trial = measure(ladder[mid])?;
+        if trial.0 <= target {
+            (lo, best) = (mid, trial);
         } else {
             hi = mid;
         }
     }
-    Ok((
-        ladder[lo],
-        RmsBound {
-            target,
-            measured: best,
+    Ok(Searched {
+        choice: RmsChoice {
+            max_error: ladder[lo],
+            quantum: opts.quantum,
+            bound: RmsBound {
+                target,
+                measured: best.0,
+            },
         },
-    ))
+        bytes: best.1,
+    })
 }
 
 /// The one input as floats in metres, read as the build reads it (its nodata override, raw
 /// float32 of `--size`).
-fn read_input(opts: &BuildOptions) -> Result<cbdam_codec::samples::Dem> {
+fn read_input(opts: &BuildOptions) -> Result<Dem> {
     let path = &opts.inputs[0];
     let mut read = ReadOptions {
         nodata: opts.nodata,
@@ -127,11 +179,7 @@ fn encode_in_memory(opts: &BuildOptions) -> Result<(Encoded, QuantPlan)> {
 
 /// The root-mean-square of `decoded − input` over the input's valid samples at the finest
 /// level, metres.
-pub fn rms_error(
-    encoded: &Encoded,
-    plan: &QuantPlan,
-    dem: &cbdam_codec::samples::Dem,
-) -> Result<f64> {
+pub fn rms_error(encoded: &Encoded, plan: &QuantPlan, dem: &Dem) -> Result<f64> {
     let (finest, _) = reconstruct_finest_with_validity(encoded)?;
     if finest.len() != dem.values.len() {
         bail!("the decoded surface and the input differ in size");

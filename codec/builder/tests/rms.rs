@@ -113,3 +113,32 @@ fn bad_rms_bounds_are_refused_by_name() {
         assert!(err.contains("--rms-error"), "{bad}: {err}");
     }
 }
+
+#[test]
+fn on_whole_metres_a_finer_unit_meets_the_rms_bound_in_fewer_bytes_than_the_max_error_build() {
+    // Whole-metre data at RMS 1 m: on the data's own unit the coarsest step meeting it is the
+    // maximum-error build's 3 m (RMS 0.81 m; 5 m breaks it); a unit of 1/8 m has steps between.
+    let dir = tempfile::tempdir().unwrap();
+    let input = data("jacksboro_mpl.tif");
+    let max_out = dir.path().join("max.cbdam");
+    let opts = BuildOptions::new(vec![input.clone()], max_out.clone(), 1.0);
+    build(&opts, &NoProgress).unwrap();
+    let rms_out = dir.path().join("rms.cbdam");
+    let repo = build_rms(&input, &rms_out, 1.0, None);
+    let c = compare_dem(&repo, &input).unwrap();
+    c.check().unwrap();
+    assert!(c.rms_error <= 1.0, "RMS {}", c.rms_error);
+    assert!(
+        repo.head().plan().unit < 1.0,
+        "unit {}",
+        repo.head().plan().unit
+    );
+    let (max_len, rms_len) = (
+        std::fs::metadata(&max_out).unwrap().len(),
+        std::fs::metadata(&rms_out).unwrap().len(),
+    );
+    assert!(
+        rms_len < max_len,
+        "RMS 1 m build {rms_len} B, max 1 m build {max_len} B"
+    );
+}
