@@ -22,6 +22,14 @@ use crate::view::ViewArgs;
 /// Frames per second of the flight (replay, frames and video).
 const FPS: f64 = 30.0;
 
+/// The surface as the viewers draw it by default: no wireframe, coloured by height, no
+/// exaggeration.
+const DEFAULT_LOOK: flags::Look = flags::Look {
+    wireframe: false,
+    levels: false,
+    exaggeration: 1.0,
+};
+
 /// The whole pipeline on the bundled SRTM tile: builds a repository (once), serves it on
 /// loopback, replays a flight against the server over HTTP and renders an overview and the
 /// flight's frames offscreen from what the client fetched, and writes the flight as one video
@@ -212,9 +220,7 @@ fn fly_over_http(args: &DemoArgs, url: &str, repo: &Path, flight: &Path) -> Resu
             camera: None,
             geo: None,
             pixel_error: flags::PixelError { value: 1.0 },
-            wireframe: false,
-            levels: false,
-            exaggeration: 1.0,
+            look: DEFAULT_LOOK,
             pool_mib: flags::PoolMib { value: None },
             colour: flags::Colour { value: None },
             cut_out: None,
@@ -266,9 +272,7 @@ fn open_viewer(args: &DemoArgs, url: &str) {
         no_vsync: false,
         max_frames: args.view_frames,
         screenshot: None,
-        wireframe: false,
-        levels: false,
-        exaggeration: 1.0,
+        look: DEFAULT_LOOK,
         pool_mib: flags::PoolMib { value: None },
         colour: flags::Colour { value: None },
     });

@@ -3,7 +3,7 @@
 //! cameras ([`GeoView`]), numbers that must be positive ([`positive_finite`]) or not negative
 //! ([`non_negative_finite`]) — and the flags
 //! defined once and flattened into each command that takes them ([`PixelError`], [`BudgetMs`],
-//! [`Fps`], [`Colour`], [`PoolMib`], [`DiamondSize`], [`Quiet`], [`GeorefArgs`]). A command
+//! [`Fps`], [`Colour`], [`PoolMib`], [`Look`], [`DiamondSize`], [`Quiet`], [`GeorefArgs`]). A command
 //! whose help says more about one of them (`render --fps` only with `--path`) adds it with
 //! `mut_arg` on its own arguments.
 //!
@@ -299,6 +299,20 @@ pub struct PoolMib {
     /// GPU height pool, MiB (default: 256 or what the adapter allows).
     #[arg(id = "pool_mib", long = "pool-mib", value_name = "POOL_MIB")]
     pub value: Option<u64>,
+}
+
+/// How the surface is drawn (`render`, `view`): `--wireframe`, `--levels`, `--exaggeration`.
+#[derive(Args, Clone, Copy, Debug)]
+pub struct Look {
+    /// Draw triangle edges over the surface (`view`: Tab or 1 toggles it).
+    #[arg(long)]
+    pub wireframe: bool,
+    /// Colour by diamond level instead of height (`view`: L toggles it).
+    #[arg(long)]
+    pub levels: bool,
+    /// Vertical exaggeration (heights and the camera's z are scaled by it).
+    #[arg(long, default_value_t = 1.0, value_parser = positive_finite, allow_hyphen_values = true)]
+    pub exaggeration: f64,
 }
 
 /// `--diamond-size`: the side of a diamond's grid.

@@ -75,15 +75,8 @@ pub struct RenderArgs {
     pub(crate) geo: Option<flags::GeoView>,
     #[command(flatten)]
     pub(crate) pixel_error: flags::PixelError,
-    /// Draw triangle edges over the surface.
-    #[arg(long)]
-    pub(crate) wireframe: bool,
-    /// Colour by diamond level instead of height.
-    #[arg(long)]
-    pub(crate) levels: bool,
-    /// Vertical exaggeration (heights and the camera's z are scaled by it).
-    #[arg(long, default_value_t = 1.0, value_parser = flags::positive_finite, allow_hyphen_values = true)]
-    pub(crate) exaggeration: f64,
+    #[command(flatten)]
+    pub(crate) look: flags::Look,
     #[command(flatten)]
     pub(crate) pool_mib: flags::PoolMib,
     #[command(flatten)]
@@ -190,7 +183,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     } else {
         0.0
     };
-    let config = refine_config(args.pixel_error.value, budget_ms, args.exaggeration);
+    let config = refine_config(args.pixel_error.value, budget_ms, args.look.exaggeration);
     let (source, remote) =
         terrain_source(&args.repo.to_string_lossy(), args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
@@ -253,8 +246,8 @@ fn render_with<S: DataSource>(
 ) -> Result<()> {
     let world = *refiner.world();
     let options = RenderOptions {
-        wireframe: args.wireframe,
-        level_colours: args.levels,
+        wireframe: args.look.wireframe,
+        level_colours: args.look.levels,
         ..RenderOptions::default()
     };
     if let (Some(path), Some(dir)) = (&args.path, &args.out_dir) {

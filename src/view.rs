@@ -48,15 +48,8 @@ pub struct ViewArgs {
     /// Save the last frame (with the HUD) to this PNG when the viewer stops.
     #[arg(long)]
     pub(crate) screenshot: Option<PathBuf>,
-    /// Start with the wireframe on.
-    #[arg(long)]
-    pub(crate) wireframe: bool,
-    /// Start colouring by diamond level.
-    #[arg(long)]
-    pub(crate) levels: bool,
-    /// Vertical exaggeration.
-    #[arg(long, default_value_t = 1.0, value_parser = flags::positive_finite, allow_hyphen_values = true)]
-    pub(crate) exaggeration: f64,
+    #[command(flatten)]
+    pub(crate) look: flags::Look,
     #[command(flatten)]
     pub(crate) pool_mib: flags::PoolMib,
     #[command(flatten)]
@@ -64,7 +57,11 @@ pub struct ViewArgs {
 }
 
 pub fn run(args: &ViewArgs) -> Result<()> {
-    let config = refine_config(args.pixel_error.value, args.budget_ms, args.exaggeration);
+    let config = refine_config(
+        args.pixel_error.value,
+        args.budget_ms,
+        args.look.exaggeration,
+    );
     let repo = args.repo.to_string_lossy();
     let (source, remote) = terrain_source(&repo, args.colour.value.as_deref())?;
     let refiner = Refiner::new(source, config).context("starting the refiner")?;
@@ -77,8 +74,8 @@ pub fn run(args: &ViewArgs) -> Result<()> {
             no_vsync: args.no_vsync,
             max_frames: args.max_frames,
             screenshot: args.screenshot.clone(),
-            wireframe: args.wireframe,
-            levels: args.levels,
+            wireframe: args.look.wireframe,
+            levels: args.look.levels,
             pool_mib: args.pool_mib.value,
         },
     )
