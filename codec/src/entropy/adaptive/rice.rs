@@ -81,6 +81,37 @@ pub(super) fn rice_class(s: u32) -> usize {
     c.min(RICE_CLASSES - 1)
 }
 
+/// A band's `k` table spread over the neighbourhood sums, so that a decoder finds `k` with
+/// one load whichever the sum: `small[s]` for `s < 64`, `large[⌊log2 s⌋]` above.
+pub(super) struct KBySum {
+    small: [u8; 64],
+    large: [u8; 32],
+}
+
+impl KBySum {
+    pub(super) fn new(ks: &[u32; RICE_CLASSES]) -> Self {
+        let mut t = KBySum {
+            small: [0; 64],
+            large: [0; 32],
+        };
+        for (s, k) in t.small.iter_mut().enumerate() {
+            *k = ks[rice_class(s as u32)] as u8;
+        }
+        for (l, k) in t.large.iter_mut().enumerate() {
+            *k = ks[(l + 5).min(RICE_CLASSES - 1)] as u8;
+        }
+        t
+    }
+
+    /// `ks[rice_class(s)]`: both loads issued at once, then a select.
+    #[inline(always)]
+    pub(super) fn k(&self, s: u32) -> u32 {
+        let small = self.small[s.min(63) as usize];
+        let large = self.large[((s | 1).ilog2() & 31) as usize];
+        u32::from(if s < 64 { small } else { large })
+    }
+}
+
 /// Zig-zag map: 0, −1, 1, −2, 2 … → 0, 1, 2, 3, 4 …
 #[inline(always)]
 pub(super) fn zigzag(v: i32) -> u32 {

@@ -2,9 +2,7 @@
 //! their own streams, each coefficient one table lookup, one count-leading-zeros and a shift.
 
 use super::super::{MAG_SAT, Scratch, code_node};
-use super::{
-    ESCAPE, ESCAPE_BITS, RICE_CLASSES, RawFlags, check_padding, get_k_table, no_models, rice_class,
-};
+use super::{ESCAPE, ESCAPE_BITS, KBySum, RawFlags, check_padding, get_k_table, no_models};
 use crate::CodecError;
 use crate::entropy::adaptive::tokens::get_len;
 use crate::entropy::bitio::BitReader;
@@ -51,7 +49,7 @@ fn escaped(r: &mut BitReader<'_>, q: u32, bad: &mut bool) -> u32 {
 fn decode_coeffs(
     ra: &mut BitReader<'_>,
     rb: &mut BitReader<'_>,
-    ks: &[u32; RICE_CLASSES],
+    ks: &KBySum,
     s: &mut Scratch,
     values: &mut [i32],
     w: usize,
@@ -86,7 +84,7 @@ fn decode_coeffs(
                 // the left neighbour only when adjacent.
                 let left = if $next == x { $left } else { 0 };
                 let sum = 2 * (left + u32::from(t[1])) + u32::from(t[0]) + u32::from(t[2]);
-                let (a, v) = decode_one($r, ks[rice_class(sum)], &mut bad);
+                let (a, v) = decode_one($r, ks.k(sum), &mut bad);
                 worst = worst.max(a);
                 $out[x] = v;
                 $left = a.min(MAG_SAT);
@@ -178,7 +176,7 @@ pub(crate) fn decode_bands(
                 "fast-rice record ends in a band header",
             ));
         }
-        let ks = get_k_table(&mut ra)?;
+        let ks = KBySum::new(&get_k_table(&mut ra)?);
         decode_coeffs(&mut ra, &mut rb, &ks, s, b.values, w, h, limits.max_abs)?;
     }
     check_padding(&mut ra, "A")?;

@@ -147,6 +147,15 @@ fn classes_follow_their_definition() {
 }
 
 #[test]
+fn k_by_sum_is_the_table_at_the_class_of_the_sum() {
+    let ks: [u32; RICE_CLASSES] = std::array::from_fn(|c| (c as u32 * 7) % (MAX_K + 1));
+    let by_sum = KBySum::new(&ks);
+    for s in (0..1 << 19).step_by(7).chain([63, 64, 65, 6 * MAG_SAT]) {
+        assert_eq!(by_sum.k(s), ks[rice_class(s)], "sum {s}");
+    }
+}
+
+#[test]
 fn zigzag_interleaves_signs() {
     let got: Vec<u32> = [0, -1, 1, -2, 2, MAX, -MAX].map(zigzag).to_vec();
     let max = MAX as u32;
