@@ -32,6 +32,9 @@ pub enum CoderArg {
     AdaptiveTokens,
     /// Elias-gamma codes (simpler, faster to decode).
     EliasGamma,
+    /// Golomb–Rice codes with a per-band parameter table, no arithmetic coding: the fastest
+    /// to decode, larger files (docs/FORMAT.md).
+    FastRice,
 }
 
 /// Lifting weight of `cbdam build`.
@@ -185,6 +188,7 @@ pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
             CoderArg::Adaptive => CoderKind::Adaptive,
             CoderArg::AdaptiveTokens => CoderKind::AdaptiveTokens,
             CoderArg::EliasGamma => CoderKind::EliasGamma,
+            CoderArg::FastRice => CoderKind::FastRice,
         },
         threads: args.threads,
         quantum: args.quantum,

@@ -1,4 +1,4 @@
-//! Hostile bytes into `decode_bands`, for both coders: it must never panic, and whatever the
+//! Hostile bytes into `decode_bands`, for every coder: it must never panic, and whatever the
 //! gamma coder accepts must be within limits and re-encode to exactly the input (it accepts
 //! only canonical streams).
 //!

@@ -12,7 +12,7 @@ use cbdam_codec::entropy::{
 use libfuzzer_sys::fuzz_target;
 
 /// Coders to round-trip: all of them.
-const CODERS: [CoderKind; 3] = CoderKind::ALL;
+const CODERS: [CoderKind; 4] = CoderKind::ALL;
 
 fuzz_target!(|data: &[u8]| {
     let [w, h, rest @ ..] = data else { return };

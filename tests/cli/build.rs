@@ -72,6 +72,42 @@ fn jacksboro_round_trip() {
 }
 
 #[test]
+fn fast_rice_decodes_to_what_the_default_coder_decodes() {
+    round_trip("jacksboro_mpl.tif", "1", &["--coder", "fast-rice"]);
+    let dir = tempfile::tempdir().unwrap();
+    let input = data("jacksboro_mpl.tif");
+    let mut extracted = Vec::new();
+    for coder in ["adaptive-tokens", "fast-rice"] {
+        let repo = s(&dir.path().join(format!("{coder}.cbdam")));
+        let o = cbdam(&[
+            "build",
+            &input,
+            "-o",
+            &repo,
+            "--max-error",
+            "1",
+            "--coder",
+            coder,
+        ]);
+        assert!(o.status.success(), "build {coder}: {}", stderr(&o));
+        let o = cbdam(&["inspect", &repo]);
+        assert!(
+            stdout(&o).contains(&format!("{coder} coder")),
+            "{}",
+            stdout(&o)
+        );
+        let tif = s(&dir.path().join(format!("{coder}.tif")));
+        let o = cbdam(&["extract", &repo, "-o", &tif, "--quiet"]);
+        assert!(o.status.success(), "extract {coder}: {}", stderr(&o));
+        extracted.push(std::fs::read(&tif).unwrap());
+    }
+    assert!(
+        extracted[0] == extracted[1],
+        "the coders decode different heights"
+    );
+}
+
+#[test]
 fn lidar_round_trip() {
     round_trip("lidar1m_mn.tif", "0.5", &["--diamond-size", "33"]);
 }

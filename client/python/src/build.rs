@@ -139,7 +139,7 @@ fn parse_coder(coder: &str) -> Result<CoderKind> {
         .find(|c| c.name() == coder)
         .ok_or_else(|| {
             PyCbdamError::Input(format!(
-                "coder={coder:?}: one of 'adaptive-tokens', 'adaptive', 'elias-gamma'"
+                "coder={coder:?}: one of 'adaptive-tokens', 'adaptive', 'elias-gamma', 'fast-rice'"
             ))
         })
 }

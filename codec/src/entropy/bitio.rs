@@ -184,6 +184,14 @@ impl<'a> BitReader<'a> {
         (self.buf >> (64 - n)) as u32
     }
 
+    /// The buffer, left-aligned: the next bit is bit 63. After [`ensure`](Self::ensure)`(n)`
+    /// its top `n` bits are the stream's next bits (zero past the end), so a decoder can take
+    /// a whole prefix code from one word.
+    #[inline(always)]
+    pub fn buffered(&self) -> u64 {
+        self.buf
+    }
+
     /// Drops `n` buffered bits (`n <= avail`; 64 is allowed).
     #[inline(always)]
     pub fn consume(&mut self, n: u32) {

@@ -6,7 +6,9 @@
 //! leaves, [`gamma`]); [`CoderKind::Adaptive`], a context-modelled adaptive binary arithmetic
 //! coder with one decision per bit of each coefficient ([`adaptive`]); and
 //! [`CoderKind::AdaptiveTokens`], the same quadtree and contexts with a binarisation made for
-//! decoding speed (about 1 % larger; the default). A repository records which one wrote it.
+//! decoding speed (about 1 % larger; the default); and [`CoderKind::FastRice`], the same
+//! quadtree and neighbourhood classes with static per-band Golomb–Rice codes instead of
+//! arithmetic coding (larger, faster to decode). A repository records which one wrote it.
 
 pub mod adaptive;
 pub mod bitio;
@@ -26,14 +28,18 @@ pub enum CoderKind {
     /// The same contexts with a binarisation made for decoding speed: a 3-level token tree
     /// on the magnitude's high bits, its low bits and the signs in a separate raw stream.
     AdaptiveTokens = 2,
+    /// Golomb–Rice codes whose parameter a per-band table picks by neighbourhood class, no
+    /// arithmetic coding: larger files, shorter decode chain.
+    FastRice = 3,
 }
 
 impl CoderKind {
     /// Every coder, for tests and benchmarks.
-    pub const ALL: [CoderKind; 3] = [
+    pub const ALL: [CoderKind; 4] = [
         CoderKind::EliasGamma,
         CoderKind::Adaptive,
         CoderKind::AdaptiveTokens,
+        CoderKind::FastRice,
     ];
 
     /// The byte stored in a repository header.
@@ -47,6 +53,7 @@ impl CoderKind {
             0 => Ok(Self::EliasGamma),
             1 => Ok(Self::Adaptive),
             2 => Ok(Self::AdaptiveTokens),
+            3 => Ok(Self::FastRice),
             _ => Err(CodecError::corrupt(format!("unknown entropy coder id {b}"))),
         }
     }
@@ -57,6 +64,7 @@ impl CoderKind {
             Self::EliasGamma => "elias-gamma",
             Self::Adaptive => "adaptive",
             Self::AdaptiveTokens => "adaptive-tokens",
+            Self::FastRice => "fast-rice",
         }
     }
 }
@@ -139,6 +147,7 @@ pub fn encode_bands(kind: CoderKind, bands: &[Band<'_>], out: &mut Vec<u8>) {
         CoderKind::EliasGamma => gamma::encode_bands(bands, out),
         CoderKind::Adaptive => adaptive::encode_bands(bands, out),
         CoderKind::AdaptiveTokens => adaptive::tokens::encode_bands(bands, out),
+        CoderKind::FastRice => adaptive::rice::encode_bands(bands, out),
     }
 }
 
@@ -189,6 +198,9 @@ pub fn decode_bands_with(
         CoderKind::Adaptive => adaptive::decode_bands(bytes, bands, limits, &mut scratch.adaptive),
         CoderKind::AdaptiveTokens => {
             adaptive::tokens::decode_bands(bytes, bands, limits, &mut scratch.adaptive)
+        }
+        CoderKind::FastRice => {
+            adaptive::rice::decode_bands(bytes, bands, limits, &mut scratch.adaptive)
         }
     }
 }

@@ -24,10 +24,12 @@
 //!
 //! [`tokens`] codes the same quadtree with the same neighbourhood classes but binarises each
 //! coefficient differently (a token tree on its high bits, its low bits and sign in a raw
-//! stream) for faster decoding.
+//! stream) for faster decoding; [`rice`] codes the same quadtree with raw bits and each
+//! coefficient as a static Golomb–Rice code, for faster decoding still.
 
 pub(crate) mod integers;
 mod range_coder;
+pub(crate) mod rice;
 #[cfg(test)]
 mod tests;
 pub(crate) mod tokens;

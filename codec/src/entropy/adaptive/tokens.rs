@@ -428,7 +428,7 @@ pub(crate) fn decode_bands(
     if bytes.is_empty() {
         return Ok(());
     }
-    let (raw_len, header) = get_len(bytes)?;
+    let (raw_len, header) = get_len(bytes, "adaptive tokens")?;
     let rest = &bytes[header..];
     if raw_len > rest.len() {
         return Err(CodecError::truncated(format!(
@@ -484,7 +484,7 @@ fn decode_all(
 }
 
 /// Appends `len` as LEB128.
-fn put_len(out: &mut Vec<u8>, mut len: usize) {
+pub(super) fn put_len(out: &mut Vec<u8>, mut len: usize) {
     while len >= 0x80 {
         out.push((len as u8) | 0x80);
         len >>= 7;
@@ -492,30 +492,31 @@ fn put_len(out: &mut Vec<u8>, mut len: usize) {
     out.push(len as u8);
 }
 
-/// Reads a canonical LEB128 length below 2^32: `(value, bytes read)`.
-fn get_len(bytes: &[u8]) -> Result<(usize, usize), CodecError> {
+/// Reads a canonical LEB128 length below 2^32 at the start of a `coder` record: `(value, bytes
+/// read)`.
+pub(super) fn get_len(bytes: &[u8], coder: &str) -> Result<(usize, usize), CodecError> {
     let mut v = 0u64;
     for (i, &b) in bytes.iter().enumerate().take(5) {
         v |= u64::from(b & 0x7f) << (7 * i);
         if b & 0x80 == 0 {
             if i > 0 && b == 0 {
-                return Err(CodecError::corrupt(
-                    "adaptive tokens record: over-long raw stream length",
-                ));
+                return Err(CodecError::corrupt(format!(
+                    "{coder} record: over-long stream length"
+                )));
             }
             let v = u32::try_from(v).map_err(|_| {
-                CodecError::corrupt("adaptive tokens record: raw stream length over 4 GiB")
+                CodecError::corrupt(format!("{coder} record: stream length over 4 GiB"))
             })?;
             return Ok((v as usize, i + 1));
         }
     }
     if bytes.len() < 5 {
-        Err(CodecError::truncated(
-            "adaptive tokens record ends inside its raw stream length",
-        ))
+        Err(CodecError::truncated(format!(
+            "{coder} record ends inside its stream length"
+        )))
     } else {
-        Err(CodecError::corrupt(
-            "adaptive tokens record: raw stream length over 4 GiB",
-        ))
+        Err(CodecError::corrupt(format!(
+            "{coder} record: stream length over 4 GiB"
+        )))
     }
 }

@@ -50,7 +50,7 @@ fn reference_decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, Code
     if bytes.is_empty() {
         return Ok(bufs);
     }
-    let (raw_len, header) = get_len(bytes)?;
+    let (raw_len, header) = get_len(bytes, "adaptive tokens")?;
     let rest = &bytes[header..];
     if raw_len > rest.len() {
         return Err(CodecError::truncated("raw stream"));
@@ -216,7 +216,7 @@ fn an_escape_beyond_two_to_the_thirty_is_an_error_not_an_overflow() {
     // gamma code can hold are what no encoder writes.
     let bands = [(BandKind::Cells, 1, 1, vec![MAX])];
     let bytes = encode(&bands);
-    let (raw_len, header) = get_len(&bytes).unwrap();
+    let (raw_len, header) = get_len(&bytes, "adaptive tokens").unwrap();
     assert!(
         raw_len >= 8,
         "escape of 2^30 needs about 61 raw bits: {raw_len} bytes"

@@ -213,7 +213,7 @@ proptest! {
         let opts = EncodeOptions {
             n: (1 << n_pow) + 1,
             extra_level_pairs: extra,
-            coder: CoderKind::ALL[(seed % 3) as usize],
+            coder: CoderKind::ALL[(seed % CoderKind::ALL.len() as u64) as usize],
             ..EncodeOptions::default()
         };
         let plan = BlockPlan { cut_level: cut, block_side: side };
@@ -237,7 +237,7 @@ proptest! {
         let opts = EncodeOptions {
             n: (1 << n_pow) + 1,
             extra_level_pairs: extra,
-            coder: CoderKind::ALL[(seed % 3) as usize],
+            coder: CoderKind::ALL[(seed % CoderKind::ALL.len() as u64) as usize],
             ..EncodeOptions::default()
         };
         let storage = if file { TempStorage::File(None) } else { TempStorage::Memory };
