@@ -52,7 +52,7 @@ pub struct Tiler {
 }
 
 /// Bytes of made mesh tiles a tiler keeps (a tile asked for again is not made again).
-pub const MESH_CACHE_BYTES: usize = 32 << 20;
+pub const MESH_CACHE_BYTES: usize = 16 << 20;
 
 /// The heights a tile samples: the whole surface, a window decoded for it, or none (no pixel
 /// or vertex on the data).

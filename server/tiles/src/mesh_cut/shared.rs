@@ -15,11 +15,11 @@ use crate::schemes::TileId;
 /// Samples along a chunk's side.
 pub const CHUNK: i64 = 32;
 /// Bytes of tile grid positions held (about 130 KiB a tile).
-pub const POSITIONS_BYTES: usize = 64 << 20;
+pub const POSITIONS_BYTES: usize = 32 << 20;
 /// Bytes of tile grid heights held (about 66 KiB a tile).
-pub const HEIGHTS_BYTES: usize = 32 << 20;
+pub const HEIGHTS_BYTES: usize = 16 << 20;
 /// Bytes of placed sample chunks held (32 KiB a chunk).
-pub const CHUNKS_BYTES: usize = 64 << 20;
+pub const CHUNKS_BYTES: usize = 32 << 20;
 
 /// A face's box of lattice positions: `x0, y0, x1, y1`.
 pub type FaceBox = (u8, (f64, f64, f64, f64));
