@@ -9,11 +9,15 @@ robin, back to back: the "cold" pass (each tile's first request, from a server t
 read its records) and then the same tiles again ("warm"). Reports per pass p50 / p99 latency
 (send to last body byte, ms) and tiles/s, as JSON lines. Every answer must be 200.
 
-Usage: tiles_load.py CBDAM_BINARY REPO.cbdam terrain|png CLIENTS LEVELS
+Usage: tiles_load.py CBDAM_BINARY REPO.cbdam terrain|png CLIENTS LEVELS [TOP]
+
+TOP, when given, stands for maxzoom: the levels TOP-LEVELS…TOP (a planet's deepest levels
+hold more tiles than a measurement can wait for).
 """
 import http.client, json, math, random, re, subprocess, sys, threading, time
 
 binary, repo, kind, clients, levels = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4]), int(sys.argv[5])
+top = int(sys.argv[6]) if len(sys.argv) > 6 else None
 ACCEPT = "application/vnd.quantized-mesh;extensions=octvertexnormals-metadata"
 
 
@@ -33,14 +37,14 @@ def tile_paths(port):
     if kind == "terrain":
         c.request("GET", "/v1/repos/r/quantized-mesh/layer.json")
         layer = json.loads(c.getresponse().read())
-        z = layer["maxzoom"]
+        z = layer["maxzoom"] if top is None else min(top, layer["maxzoom"])
         return [f"/v1/repos/r/quantized-mesh/{zz}/{x}/{y}.terrain"
                 for zz in range(max(0, z - levels), z + 1) for r in layer["available"][zz]
                 for x in range(r["startX"], r["endX"] + 1) for y in range(r["startY"], r["endY"] + 1)]
     c.request("GET", "/v1/repos/r/terrarium/tiles.json")
     tj = json.loads(c.getresponse().read())
     w, s, e, n = tj["bounds"]
-    z = tj["maxzoom"]
+    z = tj["maxzoom"] if top is None else min(top, tj["maxzoom"])
     out = []
     for zz in range(max(0, z - levels), z + 1):
         k = 2 ** zz

@@ -12,6 +12,7 @@
 //! guide.
 #![deny(missing_docs)]
 
+pub mod bounded;
 pub mod coverage;
 pub mod geoid;
 pub mod mesh_cut;

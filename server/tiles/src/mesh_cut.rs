@@ -79,6 +79,8 @@ pub struct Block<'a> {
     pub surface: Option<&'a Surface>,
     /// [`block_positions`].
     pub positions: &'a [Option<(u8, f64, f64)>],
+    /// Per face, the box of the block points on it ([`shared::face_boxes`] of `positions`).
+    pub boxes: &'a [shared::FaceBox],
     /// The block points' heights as drawn (0 m without data) and whether they hold data.
     pub heights: &'a [(f64, bool)],
     /// The level index the tile draws from.
@@ -88,6 +90,9 @@ pub struct Block<'a> {
     /// Whether the heights are raised by EGM96's undulation (as `heights` are): the samples
     /// are raised too.
     pub to_ellipsoid: bool,
+    /// Where placed samples are shared between blocks (only for a whole surface: a window's
+    /// chunks could reach past it); `None`: placed for this block alone.
+    pub shared: Option<&'a shared::Shared>,
 }
 
 /// The network's state over one block.
@@ -249,3 +254,4 @@ impl Network<'_> {
 }
 
 mod error;
+pub mod shared;

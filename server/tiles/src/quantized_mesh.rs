@@ -18,6 +18,7 @@ use cbdam_codec::geodesy::wgs84::{A, B};
 
 use crate::coverage::Availability;
 use crate::mesh_cut;
+use crate::mesh_cut::shared::Position;
 use crate::place::{Placement, coarsen_for};
 use crate::schemes::TileId;
 use crate::surface::Surface;
@@ -127,6 +128,18 @@ pub struct TileHeights<'a> {
     pub to_ellipsoid: bool,
 }
 
+/// What the block's cut works from besides [`TileHeights`]: made once a tile
+/// ([`drawn_heights`], [`mesh_cut::shared::face_boxes`]) or assembled from the tiles around it
+/// ([`mesh_cut::shared::Shared`]); the same values either way.
+pub struct BlockWork<'a> {
+    /// The block points' heights as drawn and whether they hold data ([`drawn_height`]).
+    pub heights: &'a [(f64, bool)],
+    /// Per face, the box of the block points on it.
+    pub boxes: &'a [mesh_cut::shared::FaceBox],
+    /// Where placed samples are shared (a whole surface only).
+    pub shared: Option<&'a mesh_cut::shared::Shared>,
+}
+
 /// The largest triangle error (metres, against the repository level sampled, heights before
 /// quantization) the cut of a level-`z` tile allows: CesiumJS's level error less half the
 /// height step, so that drawn heights stay within the level error.
@@ -134,21 +147,27 @@ pub fn triangulation_threshold(z: u8, height_step: f64) -> f64 {
     crate::schemes::cesium_level_error(z) - 0.5 * height_step
 }
 
-/// The block's heights as drawn (0 m without data), raised onto the ellipsoid where asked so
-/// that the cut follows them; and whether each holds data.
-fn drawn_heights(at: &TileHeights<'_>, t: TileId) -> Vec<(f64, bool)> {
+/// The height of a block point as drawn (0 m without data), raised onto the ellipsoid where
+/// asked so that the cut follows it, and whether it holds data: the point at global grid
+/// position `(gx, gy)` of level `z`, lattice position `p`.
+pub fn drawn_height(at: &TileHeights<'_>, z: u8, (gx, gy): (i64, i64), p: Position) -> (f64, bool) {
+    let (h, data) = height_at(at.surface, p, at.coarsen);
+    if !(at.to_ellipsoid && data) {
+        return (h, data);
+    }
+    let (lat, lon) = mesh_cut::grid_lat_lon(z, gx, gy);
+    (h + crate::geoid::undulation(lat, lon), true)
+}
+
+/// The block's heights as drawn ([`drawn_height`] of every block point), computed here.
+pub fn drawn_heights(at: &TileHeights<'_>, t: TileId) -> Vec<(f64, bool)> {
     let (gx0, gy0) = mesh_cut::block_origin(t);
     at.positions
         .iter()
         .enumerate()
         .map(|(k, &p)| {
-            let (h, data) = height_at(at.surface, p, at.coarsen);
-            if !(at.to_ellipsoid && data) {
-                return (h, data);
-            }
             let (i, j) = ((k % mesh_cut::SPAN) as i64, (k / mesh_cut::SPAN) as i64);
-            let (lat, lon) = mesh_cut::grid_lat_lon(t.z, gx0 + i, gy0 + j);
-            (h + crate::geoid::undulation(lat, lon), true)
+            drawn_height(at, t.z, (gx0 + i, gy0 + j), p)
         })
         .collect()
 }
@@ -172,20 +191,27 @@ fn number_vertices(cut: &mesh_cut::Cut) -> (Vec<(u32, u32)>, Vec<u32>) {
 }
 
 /// Builds tile `req.tile` from `at`.
-pub fn build(at: &TileHeights<'_>, place: &Placement, req: &TileRequest<'_>) -> MeshTile {
+pub fn build(
+    at: &TileHeights<'_>,
+    block: &BlockWork<'_>,
+    place: &Placement,
+    req: &TileRequest<'_>,
+) -> MeshTile {
     let t = req.tile;
     let (lo, hi) = at.range;
     let height_step = (hi - lo) / f64::from(QMAX);
-    let heights = drawn_heights(at, t);
+    let heights = block.heights;
     let cut = mesh_cut::cut(&mesh_cut::Block {
         tile: t,
         place,
         surface: at.surface,
         positions: at.positions,
-        heights: &heights,
+        boxes: block.boxes,
+        heights,
         coarsen: at.coarsen,
         threshold: triangulation_threshold(t.z, height_step),
         to_ellipsoid: at.to_ellipsoid,
+        shared: block.shared,
     });
     let (order, triangles) = number_vertices(&cut);
     let mut level = u8::MAX;

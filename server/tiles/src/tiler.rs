@@ -5,7 +5,7 @@
 //! windows). An exporter that makes every tile decodes every even level once instead
 //! ([`Tiler::surface`]), to the same samples.
 
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use cbdam_codec::geometry::DomainKind;
 use cbdam_codec::hierarchy::Encoded;
@@ -14,10 +14,12 @@ use cbdam_codec::repository::{RepositoryHead, VerticalDatum};
 use serde_json::{Value, json};
 
 use crate::TilesError;
+use crate::bounded::Bounded;
 use crate::coverage::Availability;
 use crate::geoid;
+use crate::mesh_cut::shared::{Shared, face_boxes};
 use crate::place::Placement;
-use crate::quantized_mesh::{self, MeshTile, TileHeights, TileRequest};
+use crate::quantized_mesh::{self, BlockWork, MeshTile, TileHeights, TileRequest};
 use crate::raster::{self, Encoding, PixelPlan, RasterTile};
 use crate::schemes::{MERCATOR_MAX_LAT, Scheme, TileId, cesium_level_error};
 use crate::surface::{RecordIndex, Surface};
@@ -43,7 +45,14 @@ pub struct Tiler {
     mesh_range: (f64, f64),
     /// The quantized-mesh tiles that exist, level by level.
     available: Availability,
+    /// Work neighbouring mesh tiles share (`None`: each tile works alone, for comparisons).
+    shared: Option<Shared>,
+    /// Mesh tiles made, by tile and extensions, within [`MESH_CACHE_BYTES`].
+    meshes: Bounded<(TileId, bool, bool), MeshTile>,
 }
+
+/// Bytes of made mesh tiles a tiler keeps (a tile asked for again is not made again).
+pub const MESH_CACHE_BYTES: usize = 16 << 20;
 
 /// The heights a tile samples: the whole surface, a window decoded for it, or none (no pixel
 /// or vertex on the data).
@@ -119,7 +128,17 @@ impl Tiler {
             bounds,
             max_error: head.plan().max_error(),
             datum,
+            shared: Some(Shared::default()),
+            meshes: Bounded::new(MESH_CACHE_BYTES),
         })
+    }
+
+    /// The same tiler making each mesh tile alone: no work shared between neighbours, no tile
+    /// kept. Its tiles are the same bytes, made several times slower (for comparisons).
+    pub fn without_sharing(mut self) -> Tiler {
+        self.shared = None;
+        self.meshes = Bounded::new(0);
+        self
     }
 
     /// Narrows the tiles to those meeting `bbox` (west, south, east, north, degrees): the
@@ -141,6 +160,8 @@ impl Tiler {
         }
         self.bounds = cut;
         self.available = self.available.within(cut);
+        // Tiles already made list children of the old `available`.
+        self.meshes.clear();
         Ok(())
     }
 
@@ -268,27 +289,63 @@ impl Tiler {
                 self.mesh_max_zoom
             )));
         }
-        let positions = crate::mesh_cut::block_positions(&self.place, t);
+        let key = (t, normals, metadata);
+        if let Some(made) = self.meshes.get(&key) {
+            return Ok(MeshTile::clone(&made));
+        }
+        let made = self.make_mesh(t, normals, metadata)?;
+        let bytes = made.bytes.len() + size_of::<MeshTile>();
+        Ok(MeshTile::clone(&self.meshes.insert(
+            key,
+            Arc::new(made),
+            bytes,
+        )))
+    }
+
+    /// Makes mesh tile `t` (its block's work shared with its neighbours' where it can be).
+    fn make_mesh(&self, t: TileId, normals: bool, metadata: bool) -> Result<MeshTile, TilesError> {
+        let (positions, boxes) = match &self.shared {
+            Some(shared) => shared.block_positions(&self.place, t),
+            None => {
+                let p = crate::mesh_cut::block_positions(&self.place, t);
+                let boxes = face_boxes(&p);
+                (p, boxes)
+            }
+        };
         let coarsen = quantized_mesh::coarsen_at(&self.place, t.z);
-        let held = self
-            .held(&positions, coarsen)
-            .map_err(|e| TilesError::Internal(format!("decoding tile {z}/{x}/{y}: {e}")))?;
+        let held = self.held(&positions, coarsen).map_err(|e| {
+            TilesError::Internal(format!("decoding tile {}/{}/{}: {e}", t.z, t.x, t.y))
+        })?;
         let meta = metadata.then(|| self.mesh_metadata(t));
-        Ok(quantized_mesh::build(
-            &TileHeights {
-                surface: held.get(),
-                positions: &positions,
-                coarsen,
-                range: self.mesh_range,
-                to_ellipsoid: self.datum == VerticalDatum::Orthometric,
-            },
-            &self.place,
-            &TileRequest {
-                tile: t,
-                normals,
-                metadata: meta.as_ref(),
-            },
-        ))
+        let at = TileHeights {
+            surface: held.get(),
+            positions: &positions,
+            coarsen,
+            range: self.mesh_range,
+            to_ellipsoid: self.datum == VerticalDatum::Orthometric,
+        };
+        let heights = match &self.shared {
+            Some(shared) => shared.block_heights(t, &positions, |gx, gy, p| {
+                quantized_mesh::drawn_height(&at, t.z, (gx, gy), p)
+            }),
+            None => quantized_mesh::drawn_heights(&at, t),
+        };
+        let block = BlockWork {
+            heights: &heights,
+            boxes: &boxes,
+            // Chunks of placed samples only from the whole surface (a window's could reach
+            // past it).
+            shared: self
+                .shared
+                .as_ref()
+                .filter(|_| matches!(held, Held::Whole(_))),
+        };
+        let req = TileRequest {
+            tile: t,
+            normals,
+            metadata: meta.as_ref(),
+        };
+        Ok(quantized_mesh::build(&at, &block, &self.place, &req))
     }
 
     /// The bound every vertex of a `maxzoom` mesh tile keeps, metres: ε, half the height step,

@@ -2,7 +2,9 @@
 //! vertices: a plane's `Surface::decode_window`, a planet's `Surface::decode_faces`) are byte
 //! for byte the tiles made from the whole decoded surface (`Surface::decode`): every raster
 //! tile of every zoom, both encodings, both sizes, and every available quantized-mesh tile, on
-//! an EPSG:4326 plane and a UTM one with a nodata hole, and on a planet.
+//! an EPSG:4326 plane and a UTM one with a nodata hole, and on a planet. The mesh tiles are
+//! also those of a tiler that shares no work between neighbouring tiles
+//! (`Tiler::without_sharing`), whatever order the tiles are asked in.
 
 #[path = "common/rough_dem.rs"]
 mod rough_dem;
@@ -43,18 +45,47 @@ fn same_tiles(repo: &Repository) -> usize {
             }
         }
     }
-    compared + same_meshes(&whole, &windows)
+    compared + same_meshes(repo, &whole, &windows)
 }
 
-/// Every available quantized-mesh tile, with normals and metadata, of both tilers.
-fn same_meshes(whole: &Tiler, windows: &Tiler) -> usize {
+/// Every available quantized-mesh tile, with normals and metadata, of both tilers and of one
+/// sharing no work between tiles. The two sharing tilers are asked in opposite orders (each
+/// tile's neighbours' shared work made by different neighbours first), and asked twice (the
+/// second answer from the tiles kept).
+fn same_meshes(repo: &Repository, whole: &Tiler, windows: &Tiler) -> usize {
+    let alone = Tiler::new(repo.head(), repo.to_encoded().unwrap())
+        .unwrap()
+        .without_sharing();
+    alone.surface().unwrap();
     let tiles = whole.available().tiles();
-    for t in &tiles {
-        let zxy = (u32::from(t.z), t.x, t.y);
-        let a = whole.mesh(zxy, true, true).unwrap();
-        let b = windows.mesh(zxy, true, true).unwrap();
-        assert!(a.bytes == b.bytes, "mesh tile {zxy:?} differs");
+    let zxy = |t: &cbdam_tiles::TileId| (u32::from(t.z), t.x, t.y);
+    let backwards: Vec<_> = tiles
+        .iter()
+        .rev()
+        .map(|t| windows.mesh(zxy(t), true, true))
+        .collect();
+    for (t, b) in tiles.iter().zip(backwards.into_iter().rev()) {
+        let zxy = zxy(t);
+        let (a, b) = (whole.mesh(zxy, true, true).unwrap(), b.unwrap());
+        let c = alone.mesh(zxy, true, true).unwrap();
+        assert!(
+            a.bytes == c.bytes,
+            "mesh tile {zxy:?} differs from the unshared one"
+        );
+        assert!(
+            b.bytes == c.bytes,
+            "window mesh tile {zxy:?} differs from the unshared one"
+        );
         assert_eq!((a.level, a.clamped), (b.level, 0));
+        assert_eq!(
+            (a.deviation, a.over_threshold),
+            (c.deviation, c.over_threshold)
+        );
+        let again = whole.mesh(zxy, true, true).unwrap();
+        assert!(
+            again.bytes == a.bytes,
+            "mesh tile {zxy:?} asked again differs"
+        );
     }
     tiles.len()
 }

@@ -2,7 +2,11 @@
 //! of the repository level inside it ([`Network::triangle_error`]), and gathering those
 //! samples over the block ([`Network::gather_samples`]).
 
-use super::{GRID, Network, P, SPAN};
+use std::sync::Arc;
+
+use super::shared::{CHUNK, Placed};
+use super::{Block, GRID, Network, P, SPAN};
+use crate::surface::Surface;
 
 impl Network<'_> {
     /// Every sample of the level the tile draws from whose position falls in the block, in
@@ -16,14 +20,11 @@ impl Network<'_> {
         };
         let level = b.coarsen.min(surface.levels().len() - 1);
         let step = (1i64 << level) as f64;
-        let z = b.tile.z;
-        let cell = 180.0 / (f64::from(1u32 << z) * GRID as f64);
-        let turn = (GRID << (z + 1)) as f64;
-        let place = b.place;
+        let turn = (GRID << (b.tile.z + 1)) as f64;
         let mut found: Vec<(usize, (f64, f64, f64))> = Vec::new();
         // Only the data's samples (a plane's block may reach around the Earth).
         let (ex0, ey0, ex1, ey1) = surface.extent();
-        for (face, (x0, y0, x1, y1)) in face_boxes(b.positions) {
+        for &(face, (x0, y0, x1, y1)) in b.boxes {
             let (x0, x1) = (x0.max(ex0 as f64), x1.min(ex1 as f64));
             let (y0, y1) = (y0.max(ey0 as f64), y1.min(ey1 as f64));
             if x0 > x1 || y0 > y1 {
@@ -31,43 +32,25 @@ impl Network<'_> {
             }
             let (x0, x1) = ((x0 / step).floor() - 1.0, (x1 / step).ceil() + 1.0);
             let (y0, y1) = ((y0 / step).floor() - 1.0, (y1 / step).ceil() + 1.0);
-            let mut sy = y0;
-            while sy <= y1 {
-                let mut sx = x0;
-                while sx <= x1 {
-                    let (x, y) = (sx * step, sy * step);
-                    if let Some((h, _)) = surface.height(face, x, y, b.coarsen) {
-                        let ll = place.lat_lon(face, x, y);
-                        let h = match b.to_ellipsoid {
-                            true => h + crate::geoid::undulation(ll.lat, ll.lon),
-                            false => h,
-                        };
-                        let gx = (ll.lon + 180.0) / cell;
-                        let gy = (ll.lat + 90.0) / cell;
-                        let ly = gy - self.origin.1 as f64;
-                        for k in -2..=2 {
-                            let gx = gx + f64::from(k) * turn;
-                            let lx = gx - self.origin.0 as f64;
-                            if let Some(c) = block_cell(lx, ly) {
-                                found.push((c, (gx, gy, h)));
-                            }
+            let mut samples = Samples::new(b, face, surface, step);
+            for sy in y0 as i64..=y1 as i64 {
+                for sx in x0 as i64..=x1 as i64 {
+                    let Some((gx, gy, h)) = samples.at(sx, sy) else {
+                        continue;
+                    };
+                    let ly = gy - self.origin.1 as f64;
+                    for k in -2..=2 {
+                        let gx = gx + f64::from(k) * turn;
+                        let lx = gx - self.origin.0 as f64;
+                        if let Some(c) = block_cell(lx, ly) {
+                            found.push((c, (gx, gy, h)));
                         }
                     }
-                    sx += 1.0;
                 }
-                sy += 1.0;
             }
         }
-        found.sort_by_key(|f| f.0);
-        let mut start = vec![0u32; cells + 1];
-        for f in &found {
-            start[f.0 + 1] += 1;
-        }
-        for c in 0..cells {
-            start[c + 1] += start[c];
-        }
-        self.cell_start = start;
-        self.samples = found.into_iter().map(|f| f.1).collect();
+        self.cell_start = cell_starts(&found, cells);
+        self.samples = sorted_by_cell(found, &self.cell_start);
     }
 
     /// Largest |height − plane of `tri`| over the block's grid points and samples in `tri`
@@ -128,18 +111,6 @@ fn block_cell(lx: f64, ly: f64) -> Option<usize> {
     Some(j as usize * (SPAN - 1) + i as usize)
 }
 
-/// Per cube face (one for a plane), the lattice box of the block points located on it.
-fn face_boxes(positions: &[Option<(u8, f64, f64)>]) -> Vec<(u8, (f64, f64, f64, f64))> {
-    let mut boxes: Vec<(u8, (f64, f64, f64, f64))> = Vec::new();
-    for &(face, x, y) in positions.iter().flatten() {
-        match boxes.iter_mut().find(|b| b.0 == face) {
-            Some((_, r)) => *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y)),
-            None => boxes.push((face, (x, y, x, y))),
-        }
-    }
-    boxes
-}
-
 /// A triangle's plane over the grid, and whether a point lies in the triangle.
 struct Plane {
     origin: (f64, f64, f64),
@@ -175,4 +146,85 @@ impl Plane {
             .iter()
             .all(|e| e.0 * (x - e.2) + e.1 * (y - e.3) >= -1e-6 * (e.0.abs() + e.1.abs()))
     }
+}
+
+/// A chunk of placed samples, row by row.
+type Chunk = Arc<Vec<Placed>>;
+
+/// Where a block's samples come from: placed one by one, or from the shared chunks (a whole
+/// surface only: a window's chunk could reach past the window), the last chunk kept at hand.
+struct Samples<'a> {
+    block: &'a Block<'a>,
+    face: u8,
+    surface: &'a Surface,
+    step: f64,
+    /// The chunk last read, and its index.
+    chunk: Option<(P, Chunk)>,
+}
+
+impl<'a> Samples<'a> {
+    fn new(block: &'a Block<'a>, face: u8, surface: &'a Surface, step: f64) -> Self {
+        Samples {
+            block,
+            face,
+            surface,
+            step,
+            chunk: None,
+        }
+    }
+
+    /// Sample `(sx, sy)` (in steps of the level sampled) placed on the block's level grid.
+    fn at(&mut self, sx: i64, sy: i64) -> Placed {
+        let Some(shared) = self.block.shared else {
+            return place_sample(self.block, self.surface, self.face, (sx, sy), self.step);
+        };
+        let key = (sx.div_euclid(CHUNK), sy.div_euclid(CHUNK));
+        if self.chunk.as_ref().is_none_or(|c| c.0 != key) {
+            let (b, s, face, step) = (self.block, self.surface, self.face, self.step);
+            let chunk = shared.chunk((b.tile.z, face, key.0, key.1), |x, y| {
+                place_sample(b, s, face, (x, y), step)
+            });
+            self.chunk = Some((key, chunk));
+        }
+        let (_, chunk) = self.chunk.as_ref().expect("set above");
+        let (i, j) = (sx.rem_euclid(CHUNK), sy.rem_euclid(CHUNK));
+        chunk[(j * CHUNK + i) as usize]
+    }
+}
+
+/// Sample `(sx, sy)` of `face` (in steps of `step`) placed on the level grid of `b`'s tile:
+/// global grid x and y, and its height (raised onto the ellipsoid where the block's are).
+fn place_sample(b: &Block<'_>, surface: &Surface, face: u8, (sx, sy): P, step: f64) -> Placed {
+    let (x, y) = (sx as f64 * step, sy as f64 * step);
+    let (h, _) = surface.height(face, x, y, b.coarsen)?;
+    let ll = b.place.lat_lon(face, x, y);
+    let h = match b.to_ellipsoid {
+        true => h + crate::geoid::undulation(ll.lat, ll.lon),
+        false => h,
+    };
+    let cell = 180.0 / (f64::from(1u32 << b.tile.z) * GRID as f64);
+    Some(((ll.lon + 180.0) / cell, (ll.lat + 90.0) / cell, h))
+}
+
+/// Where each block cell's samples start in the sorted list (and the end, last).
+fn cell_starts(found: &[(usize, (f64, f64, f64))], cells: usize) -> Vec<u32> {
+    let mut start = vec![0u32; cells + 1];
+    for f in found {
+        start[f.0 + 1] += 1;
+    }
+    for c in 0..cells {
+        start[c + 1] += start[c];
+    }
+    start
+}
+
+/// The samples sorted by cell, each cell's in the order found (a counting sort).
+fn sorted_by_cell(found: Vec<(usize, (f64, f64, f64))>, start: &[u32]) -> Vec<(f64, f64, f64)> {
+    let mut next: Vec<u32> = start.to_vec();
+    let mut out = vec![(0.0, 0.0, 0.0); found.len()];
+    for (c, s) in found {
+        out[next[c] as usize] = s;
+        next[c] += 1;
+    }
+    out
 }

@@ -33,6 +33,40 @@ impl RecordIndex {
     pub fn ids(&self) -> &[DiamondId] {
         &self.ids
     }
+
+    /// The record bytes of stored diamond `id` of `encoded` (the hierarchy indexed).
+    fn record<'e>(&self, encoded: &'e Encoded, id: DiamondId) -> Result<&'e [u8], CodecError> {
+        match self.at.get(&id) {
+            Some(&i) => Ok(&encoded.records[i].bytes[..]),
+            None => Err(CodecError::invalid(format!("{id} is not stored"))),
+        }
+    }
+}
+
+/// What both windowed decodes start from: the domain, its data's extent (finest units), the
+/// finest level, how many even levels there are, and the first one decoded for `coarsen`.
+struct WindowLevels {
+    domain: cbdam_codec::geometry::Domain,
+    extent: (i64, i64, i64, i64),
+    finest: u8,
+    count: usize,
+    first: usize,
+}
+
+impl WindowLevels {
+    fn of(encoded: &Encoded, coarsen: usize) -> WindowLevels {
+        let domain = encoded.params.domain;
+        let (w, h) = domain.data().size();
+        let finest = domain.finest_level();
+        let count = usize::from(finest / 2) + 1;
+        WindowLevels {
+            domain,
+            extent: (0, 0, w as i64 - 1, h as i64 - 1),
+            finest,
+            count,
+            first: coarsen.min(count - 1),
+        }
+    }
 }
 
 impl Surface {
@@ -48,16 +82,14 @@ impl Surface {
         rect: (i64, i64, i64, i64),
         coarsen: usize,
     ) -> Result<Surface, CodecError> {
-        let domain = encoded.params.domain;
-        let (w, h) = domain.data().size();
-        let extent = (0, 0, w as i64 - 1, h as i64 - 1);
-        let finest = domain.finest_level();
-        let count = usize::from(finest / 2) + 1;
-        let first = coarsen.min(count - 1);
-        let record = |id: DiamondId| match index.at.get(&id) {
-            Some(&i) => Ok(&encoded.records[i].bytes[..]),
-            None => Err(CodecError::invalid(format!("{id} is not stored"))),
-        };
+        let WindowLevels {
+            domain,
+            extent,
+            finest,
+            count,
+            first,
+        } = WindowLevels::of(encoded, coarsen);
+        let record = |id: DiamondId| index.record(encoded, id);
         let mut levels = Vec::with_capacity(count);
         for m in 0..count {
             let level = finest - 2 * m as u8;
@@ -102,20 +134,18 @@ impl Surface {
         points: &[(u8, f64, f64)],
         coarsen: usize,
     ) -> Result<Surface, CodecError> {
-        let domain = encoded.params.domain;
+        let WindowLevels {
+            domain,
+            extent,
+            finest,
+            count,
+            first,
+        } = WindowLevels::of(encoded, coarsen);
         let Some(cube) = domain.cube() else {
             return Err(CodecError::invalid("face windows are read from planets"));
         };
         let side = cube.side();
-        let (w, h) = domain.data().size();
-        let extent = (0, 0, w as i64 - 1, h as i64 - 1);
-        let finest = domain.finest_level();
-        let count = usize::from(finest / 2) + 1;
-        let first = coarsen.min(count - 1);
-        let record = |id: DiamondId| match index.at.get(&id) {
-            Some(&i) => Ok(&encoded.records[i].bytes[..]),
-            None => Err(CodecError::invalid(format!("{id} is not stored"))),
-        };
+        let record = |id: DiamondId| index.record(encoded, id);
         let mut boxes: [Option<(f64, f64, f64, f64)>; 6] = [None; 6];
         for &(face, x, y) in points {
             let b = boxes.get_mut(usize::from(face)).ok_or_else(|| {
