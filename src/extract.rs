@@ -293,30 +293,35 @@ impl Samples {
             "even-level grids are axis-aligned"
         );
         let dk = along.0 / self.step;
-        // The band's rows in lattice units, and the grid's lines on them.
+        // The samples of a line inside the window's columns: the same for every line (the lines
+        // are parallel and start at the same x). Then the lines on the band's rows (which are
+        // inside the window's).
+        let anywhere = (i64::MIN, i64::MAX);
+        let Some(columns) = clip_line(g.origin, along, n, (self.x0, self.x1), anywhere) else {
+            return;
+        };
         let band_y = (
             self.y0 + rows.start as i64 * self.step,
             self.y0 + (rows.end as i64 - 1) * self.step,
         );
-        let Some(lines) = clip_line(g.origin, across, n, (i64::MIN, i64::MAX), band_y) else {
+        let Some(lines) = clip_line(g.origin, across, n, anywhere, band_y) else {
             return;
         };
+        let (x, y) = (
+            g.origin.0 + columns.start * along.0,
+            g.origin.1 + lines.start * across.1,
+        );
+        // Even-level grids sit on multiples of their own spacing, which is `step`.
+        debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
+        let row = ((y - self.y0) / self.step) as usize - rows.start;
+        // The first sample of each line in `band`, line after line.
+        let mut line_start = (row * self.width) as i64 + (x - self.x0) / self.step;
+        let next_line = across.1 / self.step * self.width as i64;
+        let count = (columns.end - columns.start) as usize;
         for line in lines.start as usize..lines.end as usize {
-            let origin = (
-                g.origin.0 + line as i64 * across.0,
-                g.origin.1 + line as i64 * across.1,
-            );
-            // Clip the line to the window once, then step through it.
-            let Some(columns) = self.clip_row(origin, along, n) else {
-                continue;
-            };
-            let (x, y) = (origin.0 + columns.start * along.0, origin.1);
-            // Even-level grids sit on multiples of their own spacing, which is `step`.
-            debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
-            let row = ((y - self.y0) / self.step) as usize - rows.start;
-            let mut k = (row * self.width) as i64 + (x - self.x0) / self.step;
             let first = line * line_stride + columns.start as usize * sample_stride;
-            let count = (columns.end - columns.start) as usize;
+            let mut k = line_start;
+            line_start += next_line;
             if valid.is_none() && dk == 1 && sample_stride == 1 {
                 // The common case: a run of the raster row from a run of the grid, no mask.
                 let out = &mut band[k as usize..][..count];
@@ -333,17 +338,6 @@ impl Samples {
                 k += dk;
             }
         }
-    }
-
-    /// The indices `i` in `0..n` whose points `origin + i·u` lie inside the window, `None`
-    /// when none does (`u` is axis-aligned: the grids of even levels).
-    fn clip_row(
-        &self,
-        origin: (i64, i64),
-        u: (i64, i64),
-        n: usize,
-    ) -> Option<std::ops::Range<i64>> {
-        clip_line(origin, u, n, (self.x0, self.x1), (self.y0, self.y1))
     }
 }
 
