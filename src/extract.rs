@@ -6,11 +6,10 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use cbdam_builder::write::{Raster, write_geotiff, write_raw};
+use cbdam_builder::write::{Raster, write_geotiff, write_geotiff_f32, write_raw, write_raw_f32};
 use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::geometry::GridMap;
-use cbdam_codec::hierarchy::walk_all_with_validity;
-use cbdam_codec::quant::QuantPlan;
+use cbdam_codec::hierarchy::{Visit, walk_all_batches};
 use cbdam_codec::repository::Repository;
 use cbdam_codec::repository::{LevelGrid, bbox_window};
 use clap::{Args, ValueEnum};
@@ -92,33 +91,45 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         );
     }
     let samples = Samples::of(args, &repo)?;
-    let raster = Raster {
-        width: samples.width,
-        height: samples.height,
-        values: samples.decode(&repo, &args.repo)?,
-        georef: repo.head().georef().map(|g| samples.georef(g)),
+    let georef = repo.head().georef().map(|g| samples.georef(g));
+    let (plan, nodata) = (*repo.head().plan(), repo.head().nodata());
+    // Samples without data: the recorded nodata value, or NaN.
+    let fill = nodata.unwrap_or(f64::NAN);
+    // Decoded straight into the sample type written: no float64 raster to convert for float32.
+    let heights = if args.float64 {
+        Heights::F64(Raster {
+            width: samples.width,
+            height: samples.height,
+            values: samples.decode(&repo, &args.repo, fill, |h| plan.metres(h))?,
+            georef,
+        })
+    } else {
+        Heights::F32(Raster {
+            width: samples.width,
+            height: samples.height,
+            values: samples.decode(&repo, &args.repo, fill as f32, |h| plan.metres(h) as f32)?,
+            georef,
+        })
     };
-    let plan = *repo.head().plan();
+    let (width, height, georef) = heights.shape();
     match args.format {
-        ExtractFormat::Geotiff => write_geotiff_and_prj(args, &raster, repo.head().nodata())?,
+        ExtractFormat::Geotiff => write_geotiff_and_prj(args, &heights, nodata)?,
         ExtractFormat::Raw => {
-            write_atomically(&args.output, |f: &mut File| {
-                write_raw(f, &raster, args.float64)
-            })
-            .with_context(|| format!("writing {}", args.output.display()))?;
+            write_atomically(&args.output, |f: &mut File| heights.write_raw(f))
+                .with_context(|| format!("writing {}", args.output.display()))?;
             let meta = json!({
-                "width": raster.width,
-                "height": raster.height,
+                "width": width,
+                "height": height,
                 "dtype": if args.float64 { "float64" } else { "float32" },
                 "byte_order": "little",
                 "row_order": "north-up (row 0 = north edge)",
                 "unit": "m",
-                "nodata": repo.head().nodata(),
+                "nodata": nodata,
                 "max_error_m": plan.epsilon,
                 "guaranteed_max_error_m": plan.max_error(),
                 "float_rounding_m": plan.rounding_error(),
                 "level": samples.level,
-                "georef": raster.georef.as_ref().map(|g| json!({
+                "georef": georef.map(|g| json!({
                     "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
                     "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
                     "pixel_is": if g.pixel_is_area { "area" } else { "point" },
@@ -171,7 +182,8 @@ impl Samples {
         ))
     }
 
-    /// Decodes `repo` (read from `path`) and returns the samples' heights in metres, row by row.
+    /// Decodes `repo` (read from `path`) and returns the samples' heights in metres (`to_sample`
+    /// of a height in units), row by row.
     ///
     /// Points no decoded diamond covers lie in parts of the data rectangle with no valid sample
     /// nearby (the encoder stores only diamonds that meet one), and the repository's nodata mask
@@ -179,39 +191,97 @@ impl Samples {
     /// In a variable-resolution repository, levels finer than the data at a place are not
     /// reached there either (every level's leaves are visited, so a coarse input's level is
     /// extracted whole).
-    fn decode(&self, repo: &Repository, path: &Path) -> Result<Vec<f64>> {
+    fn decode<T: Copy + Send + Sync>(
+        &self,
+        repo: &Repository,
+        path: &Path,
+        fill: T,
+        to_sample: impl Fn(i32) -> T + Sync,
+    ) -> Result<Vec<T>> {
         let encoded = repo
             .to_encoded()
             .with_context(|| format!("reading {}", path.display()))?;
-        let (p, plan) = (repo.head().params(), repo.head().plan());
-        let fill = repo.head().nodata().unwrap_or(f64::NAN);
         // Filled in parallel: the first touch of hundreds of megabytes of pages.
         let mut values = Vec::new();
         values.par_extend(rayon::iter::repeat_n(fill, self.width * self.height));
-        let n = p.layout().n();
-        walk_all_with_validity(&encoded, |id, grid, valid| {
-            if id.level == self.level {
-                self.put_grid(&p.layout().grid(id), n, grid, valid, plan, &mut values);
-            }
+        let layout = repo.head().params().layout();
+        walk_all_batches(&encoded, |batch| {
+            let grids: Vec<(GridMap, &Visit<'_>)> = batch
+                .iter()
+                .filter(|v| v.id.level == self.level)
+                .map(|v| (layout.grid(v.id), v))
+                .collect();
+            self.put_batch(&grids, layout.n(), &to_sample, &mut values);
         })
         .with_context(|| format!("decoding {}", path.display()))?;
         Ok(values)
     }
 
-    /// Writes the heights of one even-level `n × n` grid (`valid`: its validity, `None` when
-    /// all valid) into `values`, the window's raster. An even-level grid's lines are lines of
-    /// the raster, along x or along y; each raster row the grid covers is written as one run,
-    /// reading the grid down its columns when its lines run along y (the grid is small and
-    /// stays in cache; the raster's rows are far apart).
-    fn put_grid(
+    /// Writes a batch of even-level grids into `values`, the window's raster, in parallel over
+    /// disjoint bands of the raster rows the batch covers: each band takes the batch's grids in
+    /// the walk's order, so every sample ends as the serial walk leaves it.
+    fn put_batch<T: Copy + Send + Sync>(
+        &self,
+        grids: &[(GridMap, &Visit<'_>)],
+        n: usize,
+        to_sample: &(impl Fn(i32) -> T + Sync),
+        values: &mut [T],
+    ) {
+        // The rows the batch covers: an even-level grid's lines run along the raster's rows.
+        let rows = grids.iter().filter_map(|(g, _)| self.rows_of(g, n));
+        let (Some(first), Some(last)) = (
+            rows.clone().map(|r| r.start).min(),
+            rows.map(|r| r.end).max(),
+        ) else {
+            return;
+        };
+        let workers = rayon::current_num_threads();
+        let put_rows = |band: &mut [T], start: usize| {
+            let band_rows = start..start + band.len() / self.width;
+            for (g, v) in grids {
+                self.put_grid(g, n, v, to_sample, band_rows.clone(), band);
+            }
+        };
+        let values = &mut values[first * self.width..last * self.width];
+        if workers <= 1 {
+            return put_rows(values, first);
+        }
+        let band_rows = (last - first).div_ceil(BANDS_PER_WORKER * workers);
+        values
+            .par_chunks_mut(band_rows * self.width)
+            .enumerate()
+            .for_each(|(b, band)| put_rows(band, first + b * band_rows));
+    }
+
+    /// The raster rows an even-level grid has samples on, `None` when none is in the window.
+    fn rows_of(&self, g: &GridMap, n: usize) -> Option<std::ops::Range<usize>> {
+        let across = if g.u.1 == 0 { g.v } else { g.u };
+        let last = (g.origin.0, g.origin.1 + (n as i64 - 1) * across.1);
+        let (lo, hi) = (
+            g.origin.1.min(last.1).max(self.y0),
+            g.origin.1.max(last.1).min(self.y1),
+        );
+        (lo <= hi).then(|| {
+            let row = |y: i64| ((y - self.y0).div_euclid(self.step)) as usize;
+            row(lo)..row(hi) + 1
+        })
+    }
+
+    /// Writes the heights of one even-level `n × n` grid (`v`: the grid and its validity) that
+    /// fall on raster rows `rows` into `band`, those rows of the window's raster. An even-level
+    /// grid's lines are lines of the raster, along x or along y; each raster row the grid covers
+    /// is written as one run, reading the grid down its columns when its lines run along y (the
+    /// grid is small and stays in cache; the raster's rows are far apart).
+    fn put_grid<T: Copy>(
         &self,
         g: &GridMap,
         n: usize,
-        grid: &[i32],
-        valid: Option<&[bool]>,
-        plan: &QuantPlan,
-        values: &mut [f64],
+        v: &Visit<'_>,
+        to_sample: &impl Fn(i32) -> T,
+        rows: std::ops::Range<usize>,
+        band: &mut [T],
     ) {
+        let (grid, valid) = (v.grid, v.valid);
         // `along` steps along a raster row: one sample of a line; `across` from line to line.
         let (along, across, sample_stride, line_stride) = if g.u.1 == 0 {
             (g.u, g.v, 1, n)
@@ -223,78 +293,126 @@ impl Samples {
             "even-level grids are axis-aligned"
         );
         let dk = along.0 / self.step;
-        for line in 0..n {
-            let origin = (
-                g.origin.0 + line as i64 * across.0,
-                g.origin.1 + line as i64 * across.1,
-            );
-            // Clip the line to the window once, then step through it.
-            let Some(columns) = self.clip_row(origin, along, n) else {
-                continue;
-            };
-            let (x, y) = (origin.0 + columns.start * along.0, origin.1);
-            // Even-level grids sit on multiples of their own spacing, which is `step`.
-            debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
-            let mut k = ((y - self.y0) / self.step) * self.width as i64 + (x - self.x0) / self.step;
+        // The samples of a line inside the window's columns: the same for every line (the lines
+        // are parallel and start at the same x). Then the lines on the band's rows (which are
+        // inside the window's).
+        let anywhere = (i64::MIN, i64::MAX);
+        let Some(columns) = clip_line(g.origin, along, n, (self.x0, self.x1), anywhere) else {
+            return;
+        };
+        let band_y = (
+            self.y0 + rows.start as i64 * self.step,
+            self.y0 + (rows.end as i64 - 1) * self.step,
+        );
+        let Some(lines) = clip_line(g.origin, across, n, anywhere, band_y) else {
+            return;
+        };
+        let (x, y) = (
+            g.origin.0 + columns.start * along.0,
+            g.origin.1 + lines.start * across.1,
+        );
+        // Even-level grids sit on multiples of their own spacing, which is `step`.
+        debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
+        let row = ((y - self.y0) / self.step) as usize - rows.start;
+        // The first sample of each line in `band`, line after line.
+        let mut line_start = (row * self.width) as i64 + (x - self.x0) / self.step;
+        let next_line = across.1 / self.step * self.width as i64;
+        let count = (columns.end - columns.start) as usize;
+        for line in lines.start as usize..lines.end as usize {
             let first = line * line_stride + columns.start as usize * sample_stride;
-            let count = (columns.end - columns.start) as usize;
+            let mut k = line_start;
+            line_start += next_line;
             if valid.is_none() && dk == 1 && sample_stride == 1 {
                 // The common case: a run of the raster row from a run of the grid, no mask.
-                let out = &mut values[k as usize..][..count];
+                let out = &mut band[k as usize..][..count];
                 for (o, &h) in out.iter_mut().zip(&grid[first..][..count]) {
-                    *o = plan.metres(h);
+                    *o = to_sample(h);
                 }
                 continue;
             }
             for s in 0..count {
                 let i = first + s * sample_stride;
                 if valid.is_none_or(|v| v[i]) {
-                    values[k as usize] = plan.metres(grid[i]);
+                    band[k as usize] = to_sample(grid[i]);
                 }
                 k += dk;
             }
         }
     }
+}
 
-    /// The indices `i` in `0..n` whose points `origin + i·u` lie inside the window, `None`
-    /// when none does (`u` is axis-aligned: the grids of even levels).
-    fn clip_row(
-        &self,
-        origin: (i64, i64),
-        u: (i64, i64),
-        n: usize,
-    ) -> Option<std::ops::Range<i64>> {
-        let (mut lo, mut hi) = (0i64, n as i64 - 1);
-        for (start, step, min, max) in [
-            (origin.0, u.0, self.x0, self.x1),
-            (origin.1, u.1, self.y0, self.y1),
-        ] {
-            match step.signum() {
-                0 if start < min || start > max => return None,
-                0 => {}
-                1 => {
-                    lo = lo.max((min - start + step - 1).div_euclid(step));
-                    hi = hi.min((max - start).div_euclid(step));
-                }
-                _ => {
-                    let s = -step;
-                    lo = lo.max((start - max + s - 1).div_euclid(s));
-                    hi = hi.min((start - min).div_euclid(s));
-                }
+/// Bands of raster rows per worker in [`Samples::put_batch`]: a few, so that a band's share of a
+/// batch evens out between workers.
+const BANDS_PER_WORKER: usize = 4;
+
+/// The indices `i` in `0..n` whose points `origin + i·u` lie inside `x` × `y` (inclusive
+/// ranges), `None` when none does (`u` is axis-aligned).
+fn clip_line(
+    origin: (i64, i64),
+    u: (i64, i64),
+    n: usize,
+    x: (i64, i64),
+    y: (i64, i64),
+) -> Option<std::ops::Range<i64>> {
+    let (mut lo, mut hi) = (0i64, n as i64 - 1);
+    for (start, step, (min, max)) in [(origin.0, u.0, x), (origin.1, u.1, y)] {
+        match step.signum() {
+            0 if start < min || start > max => return None,
+            0 => {}
+            1 => {
+                lo = lo.max((min.saturating_sub(start) + step - 1).div_euclid(step));
+                hi = hi.min(max.saturating_sub(start).div_euclid(step));
+            }
+            _ => {
+                let s = -step;
+                lo = lo.max((start.saturating_sub(max) + s - 1).div_euclid(s));
+                hi = hi.min(start.saturating_sub(min).div_euclid(s));
             }
         }
-        (lo <= hi).then_some(lo..hi + 1)
+    }
+    (lo <= hi).then_some(lo..hi + 1)
+}
+
+/// The decoded heights, in the sample type written.
+enum Heights {
+    /// `--float64`: exactly as decoded.
+    F64(Raster<f64>),
+    /// The default: rounded to float32.
+    F32(Raster<f32>),
+}
+
+impl Heights {
+    /// Width, height and georeferencing.
+    fn shape(&self) -> (usize, usize, Option<&cbdam_codec::repository::GeoRef>) {
+        match self {
+            Heights::F64(r) => (r.width, r.height, r.georef.as_ref()),
+            Heights::F32(r) => (r.width, r.height, r.georef.as_ref()),
+        }
+    }
+
+    fn write_geotiff(&self, f: &mut File, nodata: Option<f64>) -> cbdam_builder::Result<()> {
+        match self {
+            Heights::F64(r) => write_geotiff(f, r, nodata, true),
+            Heights::F32(r) => write_geotiff_f32(f, r, nodata),
+        }
+    }
+
+    fn write_raw(&self, f: &mut File) -> cbdam_builder::Result<()> {
+        match self {
+            Heights::F64(r) => write_raw(f, r, true),
+            Heights::F32(r) => write_raw_f32(f, r),
+        }
     }
 }
 
-/// Writes `raster` as a GeoTIFF to --output and, for a CRS known only as WKT, an ESRI `.prj`
+/// Writes `heights` as a GeoTIFF to --output and, for a CRS known only as WKT, an ESRI `.prj`
 /// beside it (GeoKeys hold EPSG codes, not definitions; GIS software looks for the `.prj`).
-fn write_geotiff_and_prj(args: &ExtractArgs, raster: &Raster, nodata: Option<f64>) -> Result<()> {
+fn write_geotiff_and_prj(args: &ExtractArgs, heights: &Heights, nodata: Option<f64>) -> Result<()> {
     write_atomically(&args.output, |f: &mut File| {
-        write_geotiff(f, raster, nodata, args.float64)
+        heights.write_geotiff(f, nodata)
     })
     .with_context(|| format!("writing {}", args.output.display()))?;
-    if let Some(wkt) = raster.georef.as_ref().and_then(|g| g.wkt.as_deref()) {
+    if let Some(wkt) = heights.shape().2.and_then(|g| g.wkt.as_deref()) {
         let prj = args.output.with_extension("prj");
         let written = write_atomically(&prj, |f: &mut File| -> Result<()> {
             f.write_all(wkt.as_bytes())?;

@@ -7,6 +7,7 @@ mod build;
 mod build_refusals;
 mod colour;
 mod extract;
+mod extract_parallel;
 mod inspect;
 mod link;
 mod multires;

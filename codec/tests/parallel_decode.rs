@@ -11,7 +11,8 @@ use std::path::Path;
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::{
-    Decoder, EncodeOptions, Encoded, Encoder, RefineScratch, Refined, walk_all_with_validity,
+    Decoder, EncodeOptions, Encoded, Encoder, RefineScratch, Refined, walk_all_batches,
+    walk_all_with_validity,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
@@ -33,21 +34,41 @@ fn encode(name: &str, eps: f64, alpha: Alpha) -> Encoded {
 /// Every visit in order, as (id, hash of grid and validity), or the error and how many visits
 /// came before it, on `threads`.
 fn walk_on(encoded: &Encoded, threads: usize) -> Result<Vec<(DiamondId, u64)>, String> {
+    walk_batched_on(encoded, threads, false)
+}
+
+/// [`walk_on`], through `walk_all_batches` when `batched` (the batches one after another).
+fn walk_batched_on(
+    encoded: &Encoded,
+    threads: usize,
+    batched: bool,
+) -> Result<Vec<(DiamondId, u64)>, String> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .unwrap();
     pool.install(|| {
         let mut seen = Vec::new();
-        walk_all_with_validity(encoded, |id, grid, valid| {
+        let mut visit = |id, grid: &[i32], valid: Option<&[bool]>| {
             let mut h = DefaultHasher::new();
             grid.hash(&mut h);
             valid.hash(&mut h);
             seen.push((id, h.finish()));
-        })
-        .map(|()| seen.clone())
-        // Where the walk stopped counts as much as why.
-        .map_err(|e| format!("{e} after {} visits", seen.len()))
+        };
+        let walked = if batched {
+            walk_all_batches(encoded, |batch| {
+                assert!(!batch.is_empty(), "an empty batch");
+                for v in batch {
+                    visit(v.id, v.grid, v.valid);
+                }
+            })
+        } else {
+            walk_all_with_validity(encoded, visit)
+        };
+        walked
+            .map(|()| seen.clone())
+            // Where the walk stopped counts as much as why.
+            .map_err(|e| format!("{e} after {} visits", seen.len()))
     })
 }
 
@@ -68,6 +89,14 @@ fn every_thread_count_visits_the_same_grids_in_the_same_order() {
                 walk_on(&encoded, threads).unwrap(),
                 serial,
                 "{name} ε={eps} {alpha:?} on {threads} threads"
+            );
+        }
+        // The batches of the batched walk, one after another, are the serial walk.
+        for threads in [1, 2, 5] {
+            assert_eq!(
+                walk_batched_on(&encoded, threads, true).unwrap(),
+                serial,
+                "{name} ε={eps} {alpha:?} in batches on {threads} threads"
             );
         }
     }
@@ -94,6 +123,13 @@ fn a_damaged_record_gives_the_same_first_error_on_every_thread_count() {
             walk_on(&encoded, threads).unwrap_err(),
             serial,
             "{threads} threads"
+        );
+    }
+    for threads in [1, 3] {
+        assert_eq!(
+            walk_batched_on(&encoded, threads, true).unwrap_err(),
+            serial,
+            "in batches on {threads} threads"
         );
     }
 }

@@ -14,14 +14,15 @@ use tiff::tags::Tag;
 
 use crate::error::{BuildError, Result};
 
-/// A raster to write: heights in metres, row-major, row 0 = north.
-pub struct Raster {
+/// A raster to write: heights in metres (float64, or already rounded to float32), row-major,
+/// row 0 = north.
+pub struct Raster<T = f64> {
     /// Samples per row.
     pub width: usize,
     /// Rows.
     pub height: usize,
     /// `width × height` heights.
-    pub values: Vec<f64>,
+    pub values: Vec<T>,
     /// Georeferencing of sample (0, 0) and the spacing, if any.
     pub georef: Option<GeoRef>,
 }
@@ -59,6 +60,28 @@ pub fn write_geotiff<W: Write + Seek>(
         let v: Vec<f32> = r.values.par_iter().map(|&x| x as f32).collect();
         image!(colortype::Gray32Float, &v);
     }
+    Ok(())
+}
+
+/// Writes `r`'s float32 samples as a single-band GeoTIFF: the same file [`write_geotiff`] writes
+/// without `float64` for the same heights rounded to float32, without a float64 raster first.
+pub fn write_geotiff_f32<W: Write + Seek>(
+    out: W,
+    r: &Raster<f32>,
+    nodata: Option<f64>,
+) -> Result<()> {
+    let mut enc = TiffEncoder::new(BufWriter::new(out))?;
+    let dim = |v: usize| {
+        u32::try_from(v).map_err(|_| {
+            BuildError::Invalid(format!(
+                "a {}×{} raster is too large for a TIFF",
+                r.width, r.height
+            ))
+        })
+    };
+    let mut img = enc.new_image::<colortype::Gray32Float>(dim(r.width)?, dim(r.height)?)?;
+    write_geo_tags(img.encoder(), r.georef.as_ref(), nodata)?;
+    img.write_data(&r.values)?;
     Ok(())
 }
 
@@ -156,6 +179,17 @@ pub fn write_raw<W: Write>(out: W, r: &Raster, float64: bool) -> Result<()> {
         } else {
             out.write_all(&(v as f32).to_le_bytes())?;
         }
+    }
+    out.flush()?;
+    Ok(())
+}
+
+/// Writes `r`'s float32 samples as headerless little-endian float32: [`write_raw`]'s bytes
+/// without `float64` for the same heights rounded to float32.
+pub fn write_raw_f32<W: Write>(out: W, r: &Raster<f32>) -> Result<()> {
+    let mut out = BufWriter::new(out);
+    for &v in &r.values {
+        out.write_all(&v.to_le_bytes())?;
     }
     out.flush()?;
     Ok(())

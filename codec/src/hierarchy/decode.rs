@@ -5,6 +5,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use super::analysis::analysis_fields;
+use super::decode_pool::{GridPool, with_thread_scratch};
 use super::refine::{RefineScratch, Refined, gather, gather_validity, refine, refine_owned};
 use super::roots::{decode_roots, root_grid};
 use super::{CodecParams, Encoded};
@@ -47,9 +48,20 @@ impl Decoder {
     /// The `N × N` grid of `id`: from the root field at level 0, otherwise gathered from the
     /// refinements of its existing parents ([`gather`]).
     pub fn grid_of(&self, id: DiamondId, parents: [Option<&Refined>; 2]) -> Vec<i32> {
+        self.grid_into(id, parents, Vec::new())
+    }
+
+    /// [`Decoder::grid_of`] in the buffer `p` (emptied and grown as needed): with room for the
+    /// cells too, which a refinement with α = 1 appends ([`refine_owned`]).
+    pub(super) fn grid_into(
+        &self,
+        id: DiamondId,
+        parents: [Option<&Refined>; 2],
+        mut p: Vec<i32>,
+    ) -> Vec<i32> {
         let n = self.params.layout().n();
-        // Room for the cells too: a refinement with α = 1 appends them ([`refine_owned`]).
-        let mut p = Vec::with_capacity(n * n + (n - 1) * (n - 1));
+        p.clear();
+        p.reserve(grid_capacity(n));
         p.resize(n * n, 0i32);
         if id.level == 0 {
             root_grid(&self.params.domain, &self.roots, id, &mut p);
@@ -81,6 +93,11 @@ impl Decoder {
     ) -> Result<Refined, CodecError> {
         refine(&self.params, p, record, scratch)
     }
+}
+
+/// Values a diamond's buffer holds: its `N²` vertices, then a refinement's `(N − 1)²` cells.
+fn grid_capacity(n: usize) -> usize {
+    n * n + (n - 1) * (n - 1)
 }
 
 /// The worst error found on one level.
@@ -161,6 +178,41 @@ fn walk_impl(
     all_levels: bool,
     mut visit: impl FnMut(DiamondId, &[i32], Option<&[bool]>),
 ) -> Result<(), CodecError> {
+    walk_batches_impl(encoded, all_levels, |batch| {
+        for v in batch {
+            visit(v.id, v.grid, v.valid);
+        }
+    })
+}
+
+/// One diamond as a walk visits it: its id, reconstructed grid and the grid's validity
+/// (`None`: all valid).
+#[derive(Clone, Copy, Debug)]
+pub struct Visit<'a> {
+    /// The diamond.
+    pub id: DiamondId,
+    /// Its `N × N` reconstructed grid, row-major.
+    pub grid: &'a [i32],
+    /// The grid's validity ([`Decoder::validity_of`]), `None` when all valid.
+    pub valid: Option<&'a [bool]>,
+}
+
+/// [`walk_all_with_validity`], handing `visit` the diamonds a batch at a time: consecutive runs
+/// of the walk's order, decoded in parallel. A caller that writes each batch in parallel (e.g.
+/// into disjoint rows of a raster, each part taking the batch's diamonds in order) sees what
+/// the serial walk shows it and uses every core for the visit too.
+pub fn walk_all_batches(
+    encoded: &Encoded,
+    visit: impl FnMut(&[Visit<'_>]),
+) -> Result<(), CodecError> {
+    walk_batches_impl(encoded, true, visit)
+}
+
+fn walk_batches_impl(
+    encoded: &Encoded,
+    all_levels: bool,
+    mut visit: impl FnMut(&[Visit<'_>]),
+) -> Result<(), CodecError> {
     let params = encoded.params;
     let decoder = Decoder::new(params, &encoded.roots)?;
     let finest = params.layout().finest_level();
@@ -170,6 +222,7 @@ fn walk_impl(
     )?;
     let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
     let mut scratch = RefineScratch::default();
+    let pool = GridPool::default();
     for level in 0..=finest {
         let stored = &levels[level as usize];
         let ids = if finest == 0 {
@@ -184,7 +237,16 @@ fn walk_impl(
         } else {
             stored.ids.clone()
         };
-        prev = walk_level(&decoder, &ids, stored, &prev, &mut scratch, &mut visit)?;
+        let next = walk_level(
+            &decoder,
+            &ids,
+            stored,
+            &prev,
+            &mut scratch,
+            &pool,
+            &mut visit,
+        )?;
+        pool.give_refinements(std::mem::replace(&mut prev, next).into_values());
     }
     Ok(())
 }
@@ -264,42 +326,42 @@ pub(super) fn leaves_of(
 /// refinements of this level. A stored diamond with a parent that is not is corrupt.
 ///
 /// The diamonds of a level depend only on the level above, so they are decoded in parallel
-/// (rayon, in chunks of a few per worker to bound the memory held) and then visited one by
-/// one in `ids` order: `visit` sees exactly what a serial walk shows it, and the first error
-/// in that order is the one returned.
+/// (rayon, in chunks of a few per worker to bound the memory held) and each chunk is handed to
+/// `visit` as one batch in `ids` order: a visit that takes a batch's diamonds in order sees
+/// exactly what a serial walk shows it, and the first error in that order is the one returned
+/// (after visiting the diamonds before it).
 pub(super) fn walk_level(
     decoder: &Decoder,
     ids: &[DiamondId],
     records: &LevelRecords<'_>,
     prev: &HashMap<DiamondId, Refined>,
     scratch: &mut RefineScratch,
-    visit: &mut impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+    pool: &GridPool,
+    visit: &mut impl FnMut(&[Visit<'_>]),
 ) -> Result<HashMap<DiamondId, Refined>, CodecError> {
     let mut next = HashMap::with_capacity(records.ids.len());
     let workers = rayon::current_num_threads();
-    if workers <= 1 || ids.len() < 2 {
-        for &id in ids {
-            let decoded = decode_diamond(decoder, id, records, prev, scratch);
-            visit_decoded(id, decoded, &mut next, visit)?;
-        }
-        return Ok(next);
-    }
-    let chunk = PARALLEL_CHUNK_PER_WORKER * workers;
+    let chunk = PARALLEL_CHUNK_PER_WORKER * workers.max(1);
     for ids in ids.chunks(chunk) {
-        let decoded: Vec<Result<DecodedDiamond, CodecError>> = ids
-            .par_iter()
-            .map_init(RefineScratch::default, |scratch, &id| {
-                decode_diamond(decoder, id, records, prev, scratch)
-            })
-            .collect();
-        for (&id, decoded) in ids.iter().zip(decoded) {
-            visit_decoded(id, decoded, &mut next, visit)?;
-        }
+        let decoded: Vec<Result<DecodedDiamond, CodecError>> = if workers <= 1 || ids.len() < 2 {
+            ids.iter()
+                .map(|&id| decode_diamond(decoder, id, records, prev, scratch, pool))
+                .collect()
+        } else {
+            ids.par_iter()
+                .map(|&id| {
+                    with_thread_scratch(|scratch| {
+                        decode_diamond(decoder, id, records, prev, scratch, pool)
+                    })
+                })
+                .collect()
+        };
+        visit_batch(ids, decoded, &mut next, pool, visit)?;
     }
     Ok(next)
 }
 
-/// Diamonds each worker decodes between two visiting rounds of [`walk_level`].
+/// Diamonds each worker decodes for one batch of [`walk_level`]'s visits.
 const PARALLEL_CHUNK_PER_WORKER: usize = 16;
 
 /// One diamond as [`walk_level`] visits it: its grid's validity, and its grid and refinement.
@@ -327,6 +389,7 @@ fn decode_diamond(
     records: &LevelRecords<'_>,
     prev: &HashMap<DiamondId, Refined>,
     scratch: &mut RefineScratch,
+    pool: &GridPool,
 ) -> Result<DecodedDiamond, CodecError> {
     let params = decoder.params();
     let parent_ids = params.domain.parents(id);
@@ -341,7 +404,8 @@ fn decode_diamond(
             "{id} is stored but a parent is not"
         )));
     }
-    let grid = decoder.grid_of(id, parents);
+    let n = params.layout().n();
+    let grid = decoder.grid_into(id, parents, pool.take(grid_capacity(n)));
     let valid = decoder.validity_of(id, parents);
     let body = match records.get(id) {
         None => DecodedBody::Unrefined(grid),
@@ -357,33 +421,70 @@ fn decode_diamond(
     Ok(DecodedDiamond { valid, body })
 }
 
-/// Hands a decoded diamond to `visit` and keeps its refinement in `next`; the errors of
-/// [`decode_diamond`] in the order a serial walk meets them (a missing parent before the
-/// visit, a corrupt record after it).
-fn visit_decoded(
-    id: DiamondId,
-    decoded: Result<DecodedDiamond, CodecError>,
+/// Hands a chunk of decoded diamonds to `visit` as one batch and keeps their refinements in
+/// `next`; the errors of [`decode_diamond`] in the order a serial walk meets them (a missing
+/// parent before the diamond's visit, a corrupt record after it): the batch ends there.
+fn visit_batch(
+    ids: &[DiamondId],
+    decoded: Vec<Result<DecodedDiamond, CodecError>>,
     next: &mut HashMap<DiamondId, Refined>,
-    visit: &mut impl FnMut(DiamondId, &[i32], Option<&[bool]>),
+    pool: &GridPool,
+    visit: &mut impl FnMut(&[Visit<'_>]),
 ) -> Result<(), CodecError> {
-    let DecodedDiamond { valid, body } = decoded?;
-    let valid = valid.as_deref();
-    match body {
-        DecodedBody::Unrefined(grid) => visit(id, &grid, valid),
-        DecodedBody::SharedGrid(refined) => {
-            visit(id, refined.vertices(), valid);
-            next.insert(id, refined);
-        }
-        DecodedBody::Separate(grid, refined) => {
-            visit(id, &grid, valid);
-            next.insert(id, refined);
-        }
-        DecodedBody::Corrupt(grid, e) => {
-            visit(id, &grid, valid);
-            return Err(e);
+    let mut kept = Vec::with_capacity(decoded.len());
+    let mut missing_parent = None;
+    for (&id, decoded) in ids.iter().zip(decoded) {
+        match decoded {
+            Err(e) => {
+                missing_parent = Some(e);
+                break;
+            }
+            Ok(d) => {
+                let corrupt = matches!(d.body, DecodedBody::Corrupt(..));
+                kept.push((id, d));
+                if corrupt {
+                    break;
+                }
+            }
         }
     }
-    Ok(())
+    if !kept.is_empty() {
+        let batch: Vec<Visit<'_>> = kept
+            .iter()
+            .map(|(id, d)| Visit {
+                id: *id,
+                grid: d.grid(),
+                valid: d.valid.as_deref(),
+            })
+            .collect();
+        visit(&batch);
+    }
+    for (id, DecodedDiamond { body, .. }) in kept {
+        match body {
+            DecodedBody::Unrefined(grid) => pool.give(grid),
+            DecodedBody::SharedGrid(refined) => {
+                next.insert(id, refined);
+            }
+            DecodedBody::Separate(grid, refined) => {
+                pool.give(grid);
+                next.insert(id, refined);
+            }
+            DecodedBody::Corrupt(_, e) => return Err(e),
+        }
+    }
+    missing_parent.map_or(Ok(()), Err)
+}
+
+impl DecodedDiamond {
+    /// The grid a walk shows: the gathered grid (for α = 1 also the refinement's vertices).
+    fn grid(&self) -> &[i32] {
+        match &self.body {
+            DecodedBody::Unrefined(grid)
+            | DecodedBody::Separate(grid, _)
+            | DecodedBody::Corrupt(grid, _) => grid,
+            DecodedBody::SharedGrid(refined) => refined.vertices(),
+        }
+    }
 }
 
 /// Decodes the finest level onto the input's grid (the domain's data rectangle, row-major):
@@ -508,21 +609,37 @@ pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, Cod
     let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(layout, input));
     let n = layout.n();
     let mut levels = LevelReport::empty(layout.finest_level());
-    walk_impl(encoded, true, |id, p, _| {
-        let report = &mut levels[id.level as usize];
-        let g = layout.grid(id);
-        report.diamonds += 1;
-        for j in 0..n {
-            for i in 0..n {
-                let (x, y) = g.point(i as i64, j as i64);
-                let Some(v) = input.get(x, y) else { continue };
-                let want = fields
-                    .as_ref()
-                    .map_or(v, |f| f[id.level as usize].get(x, y));
-                let e = (i64::from(p[j * n + i]) - i64::from(want)).unsigned_abs();
-                report.max_error = report.max_error.max(u32::try_from(e).unwrap_or(u32::MAX));
-                report.vertices += 1;
-            }
+    // Each diamond's worst error on its own, in parallel; maxima and sums do not depend on the
+    // order they are taken in, so the report is the serial walk's.
+    walk_batches_impl(encoded, true, |batch| {
+        let found: Vec<(u64, u32)> = batch
+            .par_iter()
+            .map(|v| {
+                let want = |x, y, level: u8| -> Option<i32> {
+                    let v = input.get(x, y)?;
+                    Some(fields.as_ref().map_or(v, |f| f[level as usize].get(x, y)))
+                };
+                let g = layout.grid(v.id);
+                let (mut vertices, mut worst) = (0u64, 0u32);
+                for j in 0..n {
+                    for i in 0..n {
+                        let (x, y) = g.point(i as i64, j as i64);
+                        let Some(want) = want(x, y, v.id.level) else {
+                            continue;
+                        };
+                        let e = (i64::from(v.grid[j * n + i]) - i64::from(want)).unsigned_abs();
+                        worst = worst.max(u32::try_from(e).unwrap_or(u32::MAX));
+                        vertices += 1;
+                    }
+                }
+                (vertices, worst)
+            })
+            .collect();
+        for (v, (vertices, worst)) in batch.iter().zip(found) {
+            let report = &mut levels[v.id.level as usize];
+            report.diamonds += 1;
+            report.vertices += vertices;
+            report.max_error = report.max_error.max(worst);
         }
     })?;
     Ok(VerifyReport {

@@ -21,7 +21,8 @@
 use std::collections::HashMap;
 
 use super::blocks::{Block, BlockPlan};
-use super::decode::{Decoder, LevelRecords, leaves_of, records_by_level, walk_level};
+use super::decode::{Decoder, LevelRecords, Visit, leaves_of, records_by_level, walk_level};
+use super::decode_pool::GridPool;
 use super::refine::{RefineScratch, Refined};
 use super::{CodecParams, Encoded};
 use crate::CodecError;
@@ -71,6 +72,7 @@ impl<'a> BlockWalk<'a> {
         let levels = records_by_level(&params, records)?;
         let mut prev = HashMap::new();
         let mut scratch = RefineScratch::default();
+        let pool = GridPool::default();
         for level in 0..plan.cut_level {
             let stored = &levels[level as usize];
             let ids = if level == 0 {
@@ -87,7 +89,20 @@ impl<'a> BlockWalk<'a> {
                 ids.dedup();
                 ids
             };
-            prev = walk_level(&decoder, &ids, stored, &prev, &mut scratch, &mut visit)?;
+            let next = walk_level(
+                &decoder,
+                &ids,
+                stored,
+                &prev,
+                &mut scratch,
+                &pool,
+                &mut |batch: &[Visit<'_>]| {
+                    for v in batch {
+                        visit(v.id, v.grid, v.valid);
+                    }
+                },
+            )?;
+            pool.give_refinements(std::mem::replace(&mut prev, next).into_values());
         }
         Ok(Self {
             decoder,
@@ -134,6 +149,7 @@ impl<'a> BlockWalk<'a> {
         let reach = |level: u8| Self::reach(layout, &self.plan, level);
         let mut own: HashMap<DiamondId, Refined> = HashMap::new();
         let mut scratch = RefineScratch::default();
+        let pool = GridPool::default();
         for level in self.plan.cut_level..=layout.finest_level() {
             let stored = &self.levels[level as usize];
             let mut ids = block.select(&stored.ids, reach(level));
@@ -156,9 +172,14 @@ impl<'a> BlockWalk<'a> {
                 stored,
                 prev,
                 &mut scratch,
-                &mut |id, p, v| visit(id, block.owns(id), p, v),
+                &pool,
+                &mut |batch: &[Visit<'_>]| {
+                    for v in batch {
+                        visit(v.id, block.owns(v.id), v.grid, v.valid);
+                    }
+                },
             )?;
-            own = next;
+            pool.give_refinements(std::mem::replace(&mut own, next).into_values());
         }
         Ok(())
     }

@@ -17,6 +17,7 @@ mod analysis;
 pub mod blocks;
 mod decode;
 mod decode_blocks;
+mod decode_pool;
 mod decode_window;
 mod encode;
 mod field;
@@ -32,9 +33,9 @@ mod roots;
 pub use analysis::{LevelField, analysis_fields};
 pub use blocks::{BlockJournal, BlockOutput, BlockPlan, NO_WINDOW, NoJournal, WindowBytes};
 pub use decode::{
-    Decoder, LevelReport, Reached, VerifyReport, reconstruct_finest,
-    reconstruct_finest_with_validity, reconstruct_reached, verify, walk, walk_all_with_validity,
-    walk_with_validity,
+    Decoder, LevelReport, Reached, VerifyReport, Visit, reconstruct_finest,
+    reconstruct_finest_with_validity, reconstruct_reached, verify, walk, walk_all_batches,
+    walk_all_with_validity, walk_with_validity,
 };
 pub use decode_blocks::{BlockWalk, block_walk};
 pub use decode_window::{FaceRect, FaceWindows, LevelWindow, decode_face_windows, decode_window};

@@ -60,6 +60,11 @@ impl Refined {
         &self.values[..self.n * self.n]
     }
 
+    /// The buffer of the values, for reuse.
+    pub(crate) fn into_values(self) -> Vec<i32> {
+        self.values
+    }
+
     /// Grid side `N` of the diamond.
     pub fn n(&self) -> usize {
         self.n
