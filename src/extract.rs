@@ -11,7 +11,7 @@ use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::geometry::GridMap;
 use cbdam_codec::hierarchy::{Visit, walk_all_batches};
 use cbdam_codec::repository::Repository;
-use cbdam_codec::repository::{LevelGrid, bbox_window};
+use cbdam_codec::repository::{GeoRef, LevelGrid, bbox_window};
 use clap::{Args, ValueEnum};
 use rayon::prelude::*;
 use serde_json::json;
@@ -93,50 +93,11 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
     let samples = Samples::of(args, &repo)?;
     let georef = repo.head().georef().map(|g| samples.georef(g));
     let (plan, nodata) = (*repo.head().plan(), repo.head().nodata());
-    // Samples without data: the recorded nodata value, or NaN.
-    let fill = nodata.unwrap_or(f64::NAN);
-    // Decoded straight into the sample type written: no float64 raster to convert for float32.
-    let heights = if args.float64 {
-        Heights::F64(Raster {
-            width: samples.width,
-            height: samples.height,
-            values: samples.decode(&repo, &args.repo, fill, |h| plan.metres(h))?,
-            georef,
-        })
-    } else {
-        Heights::F32(Raster {
-            width: samples.width,
-            height: samples.height,
-            values: samples.decode(&repo, &args.repo, fill as f32, |h| plan.metres(h) as f32)?,
-            georef,
-        })
-    };
-    let (width, height, georef) = heights.shape();
+    let heights = decode_heights(args, &repo, &samples, georef)?;
     match args.format {
         ExtractFormat::Geotiff => write_geotiff_and_prj(args, &heights, nodata)?,
         ExtractFormat::Raw => {
-            write_atomically(&args.output, |f: &mut File| heights.write_raw(f))
-                .with_context(|| format!("writing {}", args.output.display()))?;
-            let meta = json!({
-                "width": width,
-                "height": height,
-                "dtype": if args.float64 { "float64" } else { "float32" },
-                "byte_order": "little",
-                "row_order": "north-up (row 0 = north edge)",
-                "unit": "m",
-                "nodata": nodata,
-                "max_error_m": plan.epsilon,
-                "guaranteed_max_error_m": plan.max_error(),
-                "float_rounding_m": plan.rounding_error(),
-                "level": samples.level,
-                "georef": georef.map(|g| json!({
-                    "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
-                    "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
-                    "pixel_is": if g.pixel_is_area { "area" } else { "point" },
-                    "wkt": g.wkt,
-                })),
-            });
-            write_sidecar(&args.output, &sidecar, &meta)?;
+            write_raw_and_sidecar(args, &heights, &repo, samples.level, &sidecar)?
         }
     }
     if !args.quiet.value {
@@ -151,6 +112,69 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The window's samples decoded straight into the sample type written (no float64 raster to
+/// convert for float32); samples without data hold the recorded nodata value, or NaN.
+fn decode_heights(
+    args: &ExtractArgs,
+    repo: &Repository,
+    samples: &Samples,
+    georef: Option<GeoRef>,
+) -> Result<Heights> {
+    let (plan, fill) = (
+        *repo.head().plan(),
+        repo.head().nodata().unwrap_or(f64::NAN),
+    );
+    Ok(if args.float64 {
+        Heights::F64(Raster {
+            width: samples.width,
+            height: samples.height,
+            values: samples.decode(repo, &args.repo, fill, |h| plan.metres(h))?,
+            georef,
+        })
+    } else {
+        Heights::F32(Raster {
+            width: samples.width,
+            height: samples.height,
+            values: samples.decode(repo, &args.repo, fill as f32, |h| plan.metres(h) as f32)?,
+            georef,
+        })
+    })
+}
+
+/// `--format raw`: the samples, then the JSON sidecar describing them.
+fn write_raw_and_sidecar(
+    args: &ExtractArgs,
+    heights: &Heights,
+    repo: &Repository,
+    level: u8,
+    sidecar: &Path,
+) -> Result<()> {
+    let (plan, nodata) = (*repo.head().plan(), repo.head().nodata());
+    let (width, height, georef) = heights.shape();
+    write_atomically(&args.output, |f: &mut File| heights.write_raw(f))
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    let meta = json!({
+        "width": width,
+        "height": height,
+        "dtype": if args.float64 { "float64" } else { "float32" },
+        "byte_order": "little",
+        "row_order": "north-up (row 0 = north edge)",
+        "unit": "m",
+        "nodata": nodata,
+        "max_error_m": plan.epsilon,
+        "guaranteed_max_error_m": plan.max_error(),
+        "float_rounding_m": plan.rounding_error(),
+        "level": level,
+        "georef": georef.map(|g| json!({
+            "epsg": g.epsg, "origin_x": g.origin_x, "origin_y": g.origin_y,
+            "pixel_x": g.pixel_x, "pixel_y": g.pixel_y,
+            "pixel_is": if g.pixel_is_area { "area" } else { "point" },
+            "wkt": g.wkt,
+        })),
+    });
+    write_sidecar(&args.output, sidecar, &meta)
 }
 
 /// The samples to write: one even level inside the window ([`LevelGrid`]).

@@ -214,21 +214,7 @@ pub fn build(
         shared: block.shared,
     });
     let (order, triangles) = number_vertices(&cut);
-    let mut level = u8::MAX;
-    let vertex_heights: Vec<(f64, bool)> = order
-        .iter()
-        .map(|&(i, j)| {
-            let p = at.positions[mesh_cut::block_index(i, j)];
-            if let Some((_, l)) = at
-                .surface
-                .zip(p)
-                .and_then(|(s, (f, x, y))| s.height(f, x, y, at.coarsen))
-            {
-                level = level.min(l);
-            }
-            heights[mesh_cut::block_index(i, j)]
-        })
-        .collect();
+    let (vertex_heights, level) = vertex_heights(at, heights, &order);
     let clamped = vertex_heights
         .iter()
         .filter(|h| !(lo..=hi).contains(&h.0))
@@ -257,11 +243,7 @@ pub fn build(
         write_normals(&mut out, &positions, &triangles);
     }
     if let Some(meta) = req.metadata {
-        let json = serde_json::to_vec(meta).expect("JSON of plain values");
-        out.push(EXT_METADATA);
-        out.extend_from_slice(&(json.len() as u32 + 4).to_le_bytes());
-        out.extend_from_slice(&(json.len() as u32).to_le_bytes());
-        out.extend_from_slice(&json);
+        write_metadata(&mut out, meta);
     }
     MeshTile {
         bytes: out,
@@ -271,6 +253,40 @@ pub fn build(
         over_threshold: cut.over,
         clamped,
     }
+}
+
+/// The heights of the numbered vertices (from the block's grid heights), and the finest
+/// repository level the surface gave any of them (`u8::MAX`: none).
+fn vertex_heights(
+    at: &TileHeights<'_>,
+    heights: &[(f64, bool)],
+    order: &[(u32, u32)],
+) -> (Vec<(f64, bool)>, u8) {
+    let mut level = u8::MAX;
+    let vertex_heights = order
+        .iter()
+        .map(|&(i, j)| {
+            let p = at.positions[mesh_cut::block_index(i, j)];
+            if let Some((_, l)) = at
+                .surface
+                .zip(p)
+                .and_then(|(s, (f, x, y))| s.height(f, x, y, at.coarsen))
+            {
+                level = level.min(l);
+            }
+            heights[mesh_cut::block_index(i, j)]
+        })
+        .collect();
+    (vertex_heights, level)
+}
+
+/// The metadata extension: its id, its length, then the JSON's length and the JSON.
+fn write_metadata(out: &mut Vec<u8>, meta: &serde_json::Value) {
+    let json = serde_json::to_vec(meta).expect("JSON of plain values");
+    out.push(EXT_METADATA);
+    out.extend_from_slice(&(json.len() as u32 + 4).to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(&json);
 }
 
 /// The west, south, east and north edge lists: the vertices on each side, in order along it.
