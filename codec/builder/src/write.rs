@@ -35,31 +35,21 @@ pub fn write_geotiff<W: Write + Seek>(
     nodata: Option<f64>,
     float64: bool,
 ) -> Result<()> {
-    let mut enc = TiffEncoder::new(BufWriter::new(out))?;
-    let dim = |v: usize| {
-        u32::try_from(v).map_err(|_| {
-            BuildError::Invalid(format!(
-                "a {}×{} raster is too large for a TIFF",
-                r.width, r.height
-            ))
-        })
-    };
-    let (w, h) = (dim(r.width)?, dim(r.height)?);
-    // Tags first, then the samples: the same for both sample types.
-    macro_rules! image {
-        ($ct:ty, $data:expr) => {{
-            let mut img = enc.new_image::<$ct>(w, h)?;
-            write_geo_tags(img.encoder(), r.georef.as_ref(), nodata)?;
-            img.write_data($data)?;
-        }};
-    }
-    if float64 {
-        image!(colortype::Gray64Float, &r.values);
-    } else {
+    if !float64 {
         // In parallel: on a whole-file extract this is a pass over hundreds of megabytes.
-        let v: Vec<f32> = r.values.par_iter().map(|&x| x as f32).collect();
-        image!(colortype::Gray32Float, &v);
+        let f32s = Raster {
+            width: r.width,
+            height: r.height,
+            values: r.values.par_iter().map(|&x| x as f32).collect(),
+            georef: r.georef.clone(),
+        };
+        return write_geotiff_f32(out, &f32s, nodata);
     }
+    let (w, h) = tiff_size(r.width, r.height)?;
+    let mut enc = TiffEncoder::new(BufWriter::new(out))?;
+    let mut img = enc.new_image::<colortype::Gray64Float>(w, h)?;
+    write_geo_tags(img.encoder(), r.georef.as_ref(), nodata)?;
+    img.write_data(&r.values)?;
     Ok(())
 }
 
@@ -70,19 +60,22 @@ pub fn write_geotiff_f32<W: Write + Seek>(
     r: &Raster<f32>,
     nodata: Option<f64>,
 ) -> Result<()> {
+    let (w, h) = tiff_size(r.width, r.height)?;
     let mut enc = TiffEncoder::new(BufWriter::new(out))?;
-    let dim = |v: usize| {
-        u32::try_from(v).map_err(|_| {
-            BuildError::Invalid(format!(
-                "a {}×{} raster is too large for a TIFF",
-                r.width, r.height
-            ))
-        })
-    };
-    let mut img = enc.new_image::<colortype::Gray32Float>(dim(r.width)?, dim(r.height)?)?;
+    let mut img = enc.new_image::<colortype::Gray32Float>(w, h)?;
     write_geo_tags(img.encoder(), r.georef.as_ref(), nodata)?;
     img.write_data(&r.values)?;
     Ok(())
+}
+
+/// A raster's size as TIFF's 32-bit width and height, or an error naming it.
+fn tiff_size(width: usize, height: usize) -> Result<(u32, u32)> {
+    let dim = |v: usize| {
+        u32::try_from(v).map_err(|_| {
+            BuildError::Invalid(format!("a {width}×{height} raster is too large for a TIFF"))
+        })
+    };
+    Ok((dim(width)?, dim(height)?))
 }
 
 /// Writes `width × height` int16 samples (row-major, row 0 north) as a single-band GeoTIFF with

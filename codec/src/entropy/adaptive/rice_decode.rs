@@ -4,7 +4,7 @@
 use super::super::{MAG_SAT, Scratch, code_node};
 use super::{ESCAPE, ESCAPE_BITS, KBySum, RawFlags, check_padding, get_k_table, no_models};
 use crate::CodecError;
-use crate::entropy::adaptive::tokens::get_len;
+use crate::entropy::adaptive::tokens::split_streams;
 use crate::entropy::bitio::BitReader;
 use crate::entropy::{BandMut, DecodeLimits};
 
@@ -139,15 +139,7 @@ pub(crate) fn decode_bands(
     if bytes.is_empty() {
         return Ok(());
     }
-    let (a_len, header) = get_len(bytes, "fast-rice")?;
-    let rest = &bytes[header..];
-    if a_len > rest.len() {
-        return Err(CodecError::truncated(format!(
-            "fast-rice record: stream A of {a_len} bytes, {} left",
-            rest.len()
-        )));
-    }
-    let (a_bytes, b_bytes) = rest.split_at(a_len);
+    let (a_bytes, b_bytes) = split_streams(bytes, "fast-rice", "stream A")?;
     let (mut ra, mut rb) = (BitReader::new(a_bytes), BitReader::new(b_bytes));
     for b in bands.iter_mut() {
         let (w, h) = (b.width, b.height);

@@ -428,15 +428,7 @@ pub(crate) fn decode_bands(
     if bytes.is_empty() {
         return Ok(());
     }
-    let (raw_len, header) = get_len(bytes, "adaptive tokens")?;
-    let rest = &bytes[header..];
-    if raw_len > rest.len() {
-        return Err(CodecError::truncated(format!(
-            "adaptive tokens record: raw stream of {raw_len} bytes, {} left",
-            rest.len()
-        )));
-    }
-    let (raw_bytes, coded) = rest.split_at(raw_len);
+    let (raw_bytes, coded) = split_streams(bytes, "adaptive tokens", "raw stream")?;
     let mut raw = BitReader::new(raw_bytes);
     let mut dec = Decoder::new(coded);
     decode_all(&mut dec, &mut raw, s, bands, limits)?;
@@ -490,6 +482,24 @@ pub(super) fn put_len(out: &mut Vec<u8>, mut len: usize) {
         len >>= 7;
     }
     out.push(len as u8);
+}
+
+/// Splits a non-empty `coder` record into its first stream, whose length leads the record
+/// (`first` names it in errors), and the rest.
+pub(super) fn split_streams<'a>(
+    bytes: &'a [u8],
+    coder: &str,
+    first: &str,
+) -> Result<(&'a [u8], &'a [u8]), CodecError> {
+    let (len, header) = get_len(bytes, coder)?;
+    let rest = &bytes[header..];
+    if len > rest.len() {
+        return Err(CodecError::truncated(format!(
+            "{coder} record: {first} of {len} bytes, {} left",
+            rest.len()
+        )));
+    }
+    Ok(rest.split_at(len))
 }
 
 /// Reads a canonical LEB128 length below 2^32 at the start of a `coder` record: `(value, bytes
