@@ -37,6 +37,18 @@ pub enum CoderArg {
     FastRice,
 }
 
+impl CoderArg {
+    /// The codec's coder this flag value names.
+    pub(crate) fn kind(self) -> CoderKind {
+        match self {
+            CoderArg::Adaptive => CoderKind::Adaptive,
+            CoderArg::AdaptiveTokens => CoderKind::AdaptiveTokens,
+            CoderArg::EliasGamma => CoderKind::EliasGamma,
+            CoderArg::FastRice => CoderKind::FastRice,
+        }
+    }
+}
+
 /// Lifting weight of `cbdam build`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum AlphaArg {
@@ -184,12 +196,7 @@ pub fn options(args: &BuildArgs) -> Result<BuildOptions> {
             AlphaArg::One => Alpha::One,
             AlphaArg::Half => Alpha::Half,
         },
-        coder: match args.coder {
-            CoderArg::Adaptive => CoderKind::Adaptive,
-            CoderArg::AdaptiveTokens => CoderKind::AdaptiveTokens,
-            CoderArg::EliasGamma => CoderKind::EliasGamma,
-            CoderArg::FastRice => CoderKind::FastRice,
-        },
+        coder: args.coder.kind(),
         threads: args.threads,
         quantum: args.quantum,
         nodata: args.nodata,

@@ -9,7 +9,9 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::CoderKind;
-use cbdam_codec::hierarchy::{EncodeOptions, Encoded, Encoder, reconstruct_finest, verify, walk};
+use cbdam_codec::hierarchy::{
+    EncodeOptions, Encoded, Encoder, reconstruct_finest, verify, walk, walk_all_batches,
+};
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 use cbdam_codec::repository::serialize;
@@ -112,6 +114,21 @@ pub struct Measurement {
     pub encode: Duration,
     /// Median time to decode every record and synthesise every diamond (single thread).
     pub decode: Duration,
+    /// The encode and the decode on every core ([`on_all_cores`]), when measured.
+    pub all_cores: Option<AllCores>,
+}
+
+/// Encode and decode times with a pool of every core: what `cbdam build` and `cbdam extract`
+/// use by default.
+#[derive(Clone, Copy, Debug)]
+pub struct AllCores {
+    /// Worker threads of the pool.
+    pub threads: usize,
+    /// Median time of the encode alone.
+    pub encode: Duration,
+    /// Median time to decode every record and synthesise every diamond, a batch of the walk's
+    /// diamonds at a time in parallel (`walk_all_batches`, as `cbdam extract` decodes).
+    pub decode: Duration,
 }
 
 impl Measurement {
@@ -200,6 +217,42 @@ pub fn measure(
         max_err,
         rms_err: (sum_sq / valid.max(1) as f64).sqrt(),
         build: median(build_times),
+        encode: median(enc_times),
+        decode: median(dec_times),
+        all_cores: None,
+    })
+}
+
+/// The encode and decode of `dem` at `eps` timed `runs` times each on `pool` (every core): the
+/// same encode [`measure`] verified, so only the times are taken here.
+pub fn on_all_cores(
+    dem: &Dem,
+    eps: f64,
+    opts: &EncodeOptions,
+    runs: usize,
+    pool: &rayon::ThreadPool,
+) -> Result<AllCores> {
+    let plan = QuantPlan::for_dem(dem, eps, None)?;
+    let grid = HeightGrid::from_dem(dem, &plan)?;
+    let (mut enc_times, mut dec_times) = (Vec::new(), Vec::new());
+    let mut encoded = None;
+    for _ in 0..runs.max(1) {
+        let t = Instant::now();
+        encoded = Some(pool.install(|| Encoder::new(&grid, plan.quantizer, opts).encode())?);
+        enc_times.push(t.elapsed());
+    }
+    let encoded = encoded.expect("runs ≥ 1");
+    for _ in 0..runs.max(1) {
+        let t = Instant::now();
+        pool.install(|| {
+            walk_all_batches(&encoded, |batch| {
+                std::hint::black_box(batch);
+            })
+        })?;
+        dec_times.push(t.elapsed());
+    }
+    Ok(AllCores {
+        threads: pool.current_num_threads(),
         encode: median(enc_times),
         decode: median(dec_times),
     })

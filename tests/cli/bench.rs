@@ -44,6 +44,8 @@ fn bench_report_quick() {
         "65",
         "--out",
         &s(&out),
+        "--rms",
+        "1",
         &data("jacksboro_mpl.tif"),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -89,16 +91,62 @@ fn bench_report_quick() {
             let eps: f64 = r["ε (m)"].parse().unwrap();
             let err: f64 = r["cbdam max err (m)"].parse().unwrap();
             let rms: f64 = r["cbdam RMS (m)"].parse().unwrap();
-            let bps: f64 = r["cbdam file bits/sample"].parse().unwrap();
             assert!(err <= eps && rms <= err, "{r:?}");
-            assert!(bps > 0.0 && bps < 64.0, "{r:?}");
+            // Both default coders, each its own file size.
+            for coder in ["adaptive-tokens", "fast-rice"] {
+                let bps: f64 = r[&format!("cbdam {coder} file bits/sample")]
+                    .parse()
+                    .unwrap();
+                assert!(bps > 0.0 && bps < 64.0, "{r:?}");
+            }
         }
         // Looser tolerance, fewer bits.
-        let first: f64 = rows[0]["cbdam file bits/sample"].parse().unwrap();
-        let last: f64 = rows[7]["cbdam file bits/sample"].parse().unwrap();
+        let key = "cbdam adaptive-tokens file bits/sample";
+        let first: f64 = rows[0][key].parse().unwrap();
+        let last: f64 = rows[7][key].parse().unwrap();
         assert!(last < first, "{rows:?}");
     }
-    assert_eq!(tables_with(&md, "cbdam decode").len(), 2);
+    // Throughput on one core and every core, both coders, every dataset and ε in one table.
+    let threads = std::thread::available_parallelism().unwrap().get();
+    let speed = tables_with(&md, "dataset");
+    let speed: Vec<_> = speed
+        .iter()
+        .filter(|t| t[0].keys().any(|k| k.contains(" decode 1 / ")))
+        .collect();
+    assert_eq!(speed.len(), 1, "{md}");
+    assert_eq!(speed[0].len(), 16, "{:?}", speed[0]);
+    for r in speed[0] {
+        for coder in ["adaptive-tokens", "fast-rice"] {
+            for what in ["encode", "decode"] {
+                let cell = &r[&format!("cbdam {coder} {what} 1 / {threads}")];
+                let (one, all) = cell.split_once(" / ").unwrap_or_else(|| panic!("{r:?}"));
+                let (one, all): (f64, f64) = (one.parse().unwrap(), all.parse().unwrap());
+                assert!(one > 0.0 && all > 0.0, "{r:?}");
+            }
+        }
+    }
+    // The mean-square error mode beside the maximum error, both files checked against the DEM.
+    let rms = tables_with(&md, "RMS ÷ max");
+    assert_eq!(rms.len(), 1, "{md}");
+    let row = &rms[0][0];
+    assert_eq!(row["dataset"], "jacksboro_mpl.tif");
+    let pair = |k: &str| -> (f64, f64) {
+        let (a, b) = row[k].split_once(" / ").unwrap();
+        (a.parse().unwrap(), b.parse().unwrap())
+    };
+    let (max_build, rms_build) = (
+        pair("max 1 m: max / RMS error (m)"),
+        pair("RMS 1 m: max / RMS error (m)"),
+    );
+    assert!(max_build.0 <= 1.0 && rms_build.1 <= 1.0, "{row:?}");
+    let sizes = |name: &str| std::fs::metadata(out.join("rms").join(name)).unwrap().len() as f64;
+    let ratio: f64 = row["RMS ÷ max"].parse().unwrap();
+    let measured = sizes("jacksboro_mpl.tif.rms.cbdam") / sizes("jacksboro_mpl.tif.max.cbdam");
+    assert!(
+        (ratio - measured).abs() < 0.001,
+        "{ratio} against {measured}"
+    );
+    assert!(ratio <= 1.0, "{row:?}");
     for plot in ["jacksboro_mpl.tif.svg", "synthetic_fractal_65.svg"] {
         let svg = std::fs::read_to_string(out.join("plots").join(plot)).unwrap();
         assert!(
@@ -109,5 +157,6 @@ fn bench_report_quick() {
     }
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
-    assert_eq!(json["cbdam"].as_array().unwrap().len(), 16);
+    // Two datasets × eight ε × two coders.
+    assert_eq!(json["cbdam"].as_array().unwrap().len(), 32);
 }

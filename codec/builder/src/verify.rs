@@ -143,7 +143,7 @@ impl DemComparison {
             && self.rms_error > bound * (1.0 + 1e-12)
         {
             bail!(
-                "RMS error {} m of the finest level is above the {bound} m bound the header                  records",
+                "RMS error {} m of the finest level is above the {bound} m bound the header records",
                 self.rms_error
             );
         }

@@ -9,6 +9,8 @@ pub(crate) mod machine;
 mod peers;
 pub(crate) mod plot;
 mod render_cost;
+mod rms_mode;
+mod throughput;
 
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
@@ -16,11 +18,13 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use cbdam_builder::input::{ReadOptions, read_dem};
+use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::EncodeOptions;
 use cbdam_codec::samples::{Dem, detect_quantum};
 use clap::Args;
 
-use super::codec::{Measurement, bundled_inputs, measure};
+use super::codec::{Measurement, bundled_inputs, measure, on_all_cores};
+use crate::build::CoderArg;
 use machine::{Machine, load_average};
 use peers::{PeerRow, Peers};
 
@@ -58,9 +62,22 @@ pub struct BenchReportArgs {
     #[arg(long)]
     synthetic: Option<usize>,
     /// Worker threads for building (default 1, as the peers are single-threaded; the decode is
-    /// single-threaded by construction).
+    /// single-threaded by construction). Every point is also timed on every core.
     #[arg(long, default_value_t = 1)]
     threads: usize,
+    /// Our entropy coders to measure, comma-separated; the first is the one the plots and the
+    /// rendering cost use.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_values_t = vec![CoderArg::AdaptiveTokens, CoderArg::FastRice]
+    )]
+    coders: Vec<CoderArg>,
+    /// Also build every input file within this RMS error (`cbdam build --rms-error`) and
+    /// within the same maximum error, and compare the two (metres).
+    #[arg(long, value_parser = crate::flags::positive_finite)]
+    rms: Option<f64>,
     /// Python virtual environment for the peers (default ~/.cache/cbdam-bench-venv).
     #[arg(long)]
     venv: Option<PathBuf>,
@@ -83,8 +100,21 @@ const SYNTH_SEED: u64 = 2006;
 struct Dataset {
     name: String,
     dem: Dem,
-    /// Our points, in ε order.
-    ours: Vec<(f64, Measurement)>,
+    /// Our points, a series per coder (`--coders`, the first first).
+    ours: Vec<Series>,
+}
+
+/// Our points with one coder, in ε order.
+struct Series {
+    coder: CoderKind,
+    points: Vec<(f64, Measurement)>,
+}
+
+impl Dataset {
+    /// The first coder's points: the plots' and the rendering cost's.
+    fn first(&self) -> &[(f64, Measurement)] {
+        &self.ours[0].points
+    }
 }
 
 /// How the run went for the peers: their rows, or why there are none.
@@ -126,30 +156,46 @@ fn read_dems(inputs: &[PathBuf], synth_side: usize) -> Result<Vec<(String, Dem)>
     Ok(dems)
 }
 
-/// Our codec on `dem` at every tolerance of `eps`, each point verified, in ε order.
+/// The build's pool and a pool of every core.
+struct Pools {
+    build: rayon::ThreadPool,
+    all: rayon::ThreadPool,
+}
+
+/// Our codec with `coder` on `dem` at every tolerance of `eps`, each point verified, then
+/// timed on every core too, in ε order.
 fn measure_ours(
     name: &str,
     dem: &Dem,
     eps: &[f64],
     runs: usize,
-    pool: &rayon::ThreadPool,
-) -> Result<Vec<(f64, Measurement)>> {
-    let opts = EncodeOptions::default();
-    let mut ours = Vec::new();
+    pools: &Pools,
+    coder: CoderKind,
+) -> Result<Series> {
+    let opts = EncodeOptions {
+        coder,
+        ..EncodeOptions::default()
+    };
+    let mut points = Vec::new();
     for &e in eps {
-        let m = measure(dem, e, &opts, runs, pool)
+        let mut m = measure(dem, e, &opts, runs, &pools.build)
             .with_context(|| format!("{name}: the codec failed its own bound"))?;
+        let all = on_all_cores(dem, e, &opts, runs, &pools.all)?;
         eprintln!(
-            "{name} ε={e}: {:.3} bits/sample (file), max err {:.4} m, build {:.2} MS/s, \
-             decode {:.2} MS/s",
+            "{name} ε={e} {}: {:.3} bits/sample (file), max err {:.4} m, build {:.2} MS/s, \
+             decode {:.2} MS/s (1 thread), {:.2} MS/s ({} threads)",
+            coder.name(),
             m.file_bps(),
             m.max_err,
             m.msps(m.build),
-            m.msps(m.decode)
+            m.msps(m.decode),
+            m.msps(all.decode),
+            all.threads
         );
-        ours.push((e, m));
+        m.all_cores = Some(all);
+        points.push((e, m));
     }
-    Ok(ours)
+    Ok(Series { coder, points })
 }
 
 /// The peer codecs on every dataset (`--peers`), or why they were skipped.
@@ -202,16 +248,35 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
 
     let load_start = load_average();
     let machine = Machine::probe();
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads.max(1))
-        .build()?;
+    let pools = Pools {
+        build: rayon::ThreadPoolBuilder::new()
+            .num_threads(args.threads.max(1))
+            .build()?,
+        all: rayon::ThreadPoolBuilder::new().build()?,
+    };
+    let mut coders: Vec<CoderKind> = Vec::new();
+    for c in &args.coders {
+        if !coders.contains(&c.kind()) {
+            coders.push(c.kind());
+        }
+    }
+    if coders.is_empty() {
+        bail!("--coders needs at least one coder");
+    }
     let dems = read_dems(&inputs, synth_side)?;
 
     let mut datasets = Vec::new();
     for (name, dem) in dems {
-        let ours = measure_ours(&name, &dem, &eps, runs, &pool)?;
+        let ours = coders
+            .iter()
+            .map(|&c| measure_ours(&name, &dem, &eps, runs, &pools, c))
+            .collect::<Result<Vec<_>>>()?;
         datasets.push(Dataset { name, dem, ours });
     }
+    let rms = match args.rms {
+        Some(e) => Some((e, rms_mode::measure(&inputs, e, &args.out.join("rms"))?)),
+        None => None,
+    };
 
     let peers = if args.peers {
         measure_peers(args, &datasets, &eps, runs)
@@ -227,11 +292,17 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
         &load_start,
         &load_end,
         runs,
-        args.threads.max(1),
+        &pools,
         &peers,
     )?;
     datasets_table(&mut md, &datasets)?;
     summary(&mut md, &datasets, &eps, peers.rows())?;
+    throughput::section(&mut md, &datasets, peers.rows())?;
+    if let Some((e, rows)) = &rms {
+        md += "## Mean-square error control\n\n";
+        md += &rms_mode::section(rows, *e)?;
+        md.push('\n');
+    }
     for d in &datasets {
         let rows: Vec<&PeerRow> = peers
             .rows()
@@ -337,9 +408,13 @@ fn header(
     load_start: &str,
     load_end: &str,
     runs: usize,
-    threads: usize,
+    pools: &Pools,
     peers: &PeerOutcome,
 ) -> Result<()> {
+    let (threads, all_threads) = (
+        pools.build.current_num_threads(),
+        pools.all.current_num_threads(),
+    );
     let args: Vec<String> = std::env::args().skip(1).collect();
     writeln!(md, "# cbdam benchmark report\n")?;
     writeln!(
@@ -369,7 +444,8 @@ fn header(
     writeln!(md, "| timed runs per point | {runs} (medians reported) |")?;
     writeln!(
         md,
-        "| cbdam build threads | {threads} (decode: 1); N = {}, α = 1, adaptive coder |",
+        "| cbdam build threads | {threads} (decode: 1), and every point again on {all_threads} \
+         (all cores); N = {}, α = 1 |",
         EncodeOptions::default().n
     )?;
     let p = match peers {
@@ -476,11 +552,14 @@ fn summary(
     }
     md.push('\n');
     for d in datasets {
-        write!(md, "| {} | **cbdam** |", d.name)?;
-        for (_, m) in &d.ours {
-            write!(md, " **{:.3}** |", m.file_bps())?;
+        for (i, series) in d.ours.iter().enumerate() {
+            let name = if i == 0 { d.name.as_str() } else { "" };
+            write!(md, "| {name} | **cbdam** {} |", series.coder.name())?;
+            for (_, m) in &series.points {
+                write!(md, " **{:.3}** |", m.file_bps())?;
+            }
+            md.push('\n');
         }
-        md.push('\n');
         let rows: Vec<&PeerRow> = peer_rows
             .iter()
             .filter(|r| r.dem == file_safe(&d.name))
@@ -538,17 +617,23 @@ fn per_dataset(md: &mut String, d: &Dataset, rows: &[&PeerRow], plot: &str) -> R
         md,
         "Rate–distortion (bits per sample; peers: bits per sample (verified max error, m)):\n"
     )?;
-    table_head(
-        md,
-        "| ε (m) | cbdam file bits/sample | cbdam payload bits/sample | cbdam max err (m) | cbdam RMS (m) |",
-        "|---:|---:|---:|---:|---:|",
-        &cs,
-    )?;
-    for (e, m) in &d.ours {
+    let mut head = "| ε (m) |".to_string();
+    let mut align = "|---:|".to_string();
+    for s in &d.ours {
+        head += &format!(" cbdam {} file bits/sample |", s.coder.name());
+        align += "---:|";
+    }
+    head += " cbdam payload bits/sample | cbdam max err (m) | cbdam RMS (m) |";
+    align += "---:|---:|---:|";
+    table_head(md, &head, &align, &cs)?;
+    for (i, (e, m)) in d.first().iter().enumerate() {
+        write!(md, "| {e} |")?;
+        for s in &d.ours {
+            write!(md, " {:.3} |", s.points[i].1.file_bps())?;
+        }
         write!(
             md,
-            "| {e} | {:.3} | {:.3} | {:.4} | {:.4} |",
-            m.file_bps(),
+            " {:.3} | {:.4} | {:.4} |",
             m.payload_bps(),
             m.max_err,
             m.rms_err
@@ -560,32 +645,8 @@ fn per_dataset(md: &mut String, d: &Dataset, rows: &[&PeerRow], plot: &str) -> R
     }
     writeln!(
         md,
-        "\nTime against error (M samples/s; peers: encode / decode):\n"
+        "\nThroughput against error: [the table above](#throughput-one-core-and-every-core)."
     )?;
-    table_head(
-        md,
-        "| ε (m) | cbdam build | cbdam encode | cbdam decode |",
-        "|---:|---:|---:|---:|",
-        &cs,
-    )?;
-    for (e, m) in &d.ours {
-        write!(
-            md,
-            "| {e} | {:.2} | {:.2} | {:.2} |",
-            m.msps(m.build),
-            m.msps(m.encode),
-            m.msps(m.decode)
-        )?;
-        for c in &cs {
-            let cell = match find(rows, c, *e).map(|r| &r.result) {
-                Some(Ok(p)) => format!("{:.1} / {:.1}", p.enc_msps, p.dec_msps),
-                Some(Err(_)) => "–".into(),
-                None => String::new(),
-            };
-            write!(md, " {cell} |")?;
-        }
-        md.push('\n');
-    }
     let skips: Vec<String> = rows
         .iter()
         .filter_map(|r| match &r.result {
@@ -604,7 +665,7 @@ fn plot_series(d: &Dataset, rows: &[&PeerRow]) -> Vec<plot::Series> {
     let mut v = vec![plot::Series {
         name: "cbdam (file)".into(),
         points: d
-            .ours
+            .first()
             .iter()
             .map(|(e, m)| (*e, m.file_bps(), m.msps(m.build), m.msps(m.decode)))
             .collect(),
@@ -646,7 +707,9 @@ fn fairness(md: &mut String) {
          original, so it flatters ZFP. JPEG-LS codes integers on the data's value quantum, or \
          on cbdam's own pre-quantization grid for float data. Decode throughput for cbdam is \
          a full decode of every record plus synthesis of every diamond (what a viewer does \
-         piecemeal), single-threaded.\n",
+         piecemeal), single-threaded in the one-core column and a batch of the walk's diamonds \
+         at a time in parallel (as `cbdam extract` decodes) in the every-core column; the \
+         peers are measured single-threaded only.\n",
     );
 }
 
@@ -654,14 +717,20 @@ fn results_json(datasets: &[Dataset], peers: &PeerOutcome) -> serde_json::Value 
     use serde_json::json;
     let ours: Vec<_> = datasets
         .iter()
-        .flat_map(|d| {
-            d.ours.iter().map(move |(e, m)| {
+        .flat_map(|d| d.ours.iter().map(move |s| (d, s)))
+        .flat_map(|(d, s)| {
+            s.points.iter().map(move |(e, m)| {
+                let all = m.all_cores.as_ref();
                 json!({
-                    "dem": d.name, "eps": e, "file_bps": m.file_bps(),
-                    "payload_bps": m.payload_bps(), "max_err": m.max_err, "rms_err": m.rms_err,
+                    "dem": d.name, "coder": s.coder.name(), "eps": e,
+                    "file_bps": m.file_bps(), "payload_bps": m.payload_bps(),
+                    "max_err": m.max_err, "rms_err": m.rms_err,
                     "build_msps": m.msps(m.build), "encode_msps": m.msps(m.encode),
-                    "decode_msps": m.msps(m.decode), "file_bytes": m.file_bytes,
-                    "records": m.records,
+                    "decode_msps": m.msps(m.decode),
+                    "all_cores_threads": all.map(|a| a.threads),
+                    "all_cores_encode_msps": all.map(|a| m.msps(a.encode)),
+                    "all_cores_decode_msps": all.map(|a| m.msps(a.decode)),
+                    "file_bytes": m.file_bytes, "records": m.records,
                 })
             })
         })
