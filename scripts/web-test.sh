@@ -8,7 +8,8 @@
 # the target, the URL hash restores the view, the server may go away and come back; without
 # WebGPU flags the page must draw the same view through WebGL2 (the renderer's texture path), and
 # with WebGL off too say that neither is there; decoding runs in Web Workers (and on the page with
-# ?workers=0, to the same cut); a camera flight (?flight=) plays to its end, at the cut
+# ?workers=0, to the same cut); the page's wasm32 decodes whole repositories (both coders, a
+# planet) to the digest the native decoder gives; a camera flight (?flight=) plays to its end, at the cut
 # `cbdam render` gives for its last camera, and a drag ends one early; a colour repository
 # (?colour=) drapes red and blue over the same cut through both APIs; a small planet draws as a whole globe, centred, through WebGPU and
 # through WebGL2.
@@ -63,3 +64,10 @@ cargo run --quiet --bin cbdam -- build data/etopo5_global.tif --planet --planet-
     -o "$work/earth.cbdam" --max-error 16 --quiet
 python3 scripts/web_test.py --planet target/web-bundle "$work/earth.cbdam" \
     "${CARGO_TARGET_DIR:-target}/debug/cbdam"
+# wasm32 decodes what native decodes, bit for bit: the page digests whole repositories (the
+# default coder's, the same surface coded by fast-rice, the planet) against `cbdam inspect
+# --digest`.
+cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro-rice.cbdam" \
+    --max-error 1 --coder fast-rice --quiet
+python3 scripts/web_test.py --digest target/web-bundle "${CARGO_TARGET_DIR:-target}/debug/cbdam" \
+    "$work/jacksboro.cbdam" "$work/jacksboro-rice.cbdam" "$work/earth.cbdam"

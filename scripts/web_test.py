@@ -1140,7 +1140,75 @@ def check_planet(bundle, repository, cbdam, name="planet", flags=None):
     return failures
 
 
+def check_digests(bundle, cbdam, repositories):
+    """wasm32 decodes what native decodes, bit for bit: the page's module (the WebGPU build, as
+    the workers run it) digests each repository's whole decoded surface (every diamond of every
+    level: `decoded_digest`, client/web/src/digest.rs) and each digest must equal `cbdam inspect
+    --digest` of the same file. Repositories of one surface coded by different coders must give
+    one digest too (the caller passes the default coder's and fast-rice's). Returns failures."""
+    failures = []
+    root = tempfile.mkdtemp(prefix="cbdam-digest-")
+    try:
+        subprocess.run(
+            [cbdam, "web-export", root, "--bundle", bundle, "--repo", repositories[0]],
+            check=True, stdout=subprocess.DEVNULL,
+        )
+        names = []
+        for i, repo in enumerate(repositories):
+            name = f"digest-{i}.cbdam"
+            shutil.copyfile(repo, os.path.join(root, name))
+            names.append(name)
+        server = serve(root)
+        url = f"http://127.0.0.1:{server.server_address[1]}/index.html?repo={names[0]}"
+        browser = Browser(WEBGPU_FLAGS)
+        try:
+            browser.call("Page.navigate", session=True, url=url)
+            browser.wait_event("Page.loadEventFired", 30)
+            deadline = time.time() + TIMEOUT_S
+            while not browser.evaluate("typeof window.cbdamDecodedDigest === 'function'"):
+                if time.time() > deadline:
+                    return [f"digest: the page never offered cbdamDecodedDigest: {browser.console[-5:]}"]
+                time.sleep(0.2)
+            digests = []
+            for repo, name in zip(repositories, names):
+                t = time.time()
+                r = browser.call(
+                    "Runtime.evaluate", session=True, awaitPromise=True, returnByValue=True,
+                    expression=f"window.cbdamDecodedDigest({json.dumps(name)})",
+                )
+                wasm_s = time.time() - t
+                page = r.get("result", {}).get("value")
+                if page is None:
+                    failures.append(f"digest: {repo}: the page failed: {r.get('exceptionDetails')}")
+                    continue
+                meta = json.loads(subprocess.run(
+                    [cbdam, "inspect", "--json", "--digest", repo],
+                    check=True, capture_output=True, text=True,
+                ).stdout)
+                d = meta["decoded_digest"]
+                native = f"{d['fnv1a64']} {d['diamonds']} {d['samples']}"
+                print(f"digest: {os.path.basename(repo)} ({meta.get('coder', '?')}): wasm32 {page} "
+                      f"in {wasm_s:.2f} s, native {native}")
+                if page != native:
+                    failures.append(f"digest: {repo}: wasm32 decodes {page}, native {native}")
+                digests.append(page)
+            if len(digests) >= 2 and digests[0] != digests[1]:
+                failures.append(f"digest: one surface, two coders, two digests: {digests[:2]}")
+        finally:
+            browser.close()
+            server.shutdown()
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    return failures
+
+
 if __name__ == "__main__":
+    if sys.argv[1] == "--digest":
+        # BUNDLE CBDAM REPO...: the first two repositories hold one surface in two coders.
+        digest_failures = check_digests(sys.argv[2], sys.argv[3], sys.argv[4:])
+        for f in digest_failures:
+            print("FAILED " + f, file=sys.stderr)
+        sys.exit(1 if digest_failures else 0)
     if sys.argv[1] == "--measure":
         sys.exit(measure(*sys.argv[2:7]))
     if sys.argv[1] == "--planet":

@@ -9,7 +9,7 @@ use cbdam_codec::geometry::DomainKind;
 use cbdam_codec::hierarchy::RepoKind;
 use cbdam_codec::hierarchy::mask::count_valid_samples;
 use cbdam_codec::lifting::Alpha;
-use cbdam_codec::repository::{Repository, Section};
+use cbdam_codec::repository::{Repository, Section, decoded_digest};
 use cbdam_server::describe::Summary;
 use cbdam_server::summarize;
 use clap::Args;
@@ -22,17 +22,43 @@ pub struct InspectArgs {
     /// Machine-readable output.
     #[arg(long)]
     json: bool,
+    /// Also decode every record and print a digest of the decoded surface (64-bit FNV-1a over
+    /// every diamond's grid in the walk's order): equal digests mean two decoders (or two
+    /// coders of one surface) decode to the same samples, bit for bit.
+    #[arg(long)]
+    digest: bool,
 }
 
 pub fn run(args: &InspectArgs) -> Result<()> {
     let repo =
         Repository::open(&args.repo).with_context(|| format!("opening {}", args.repo.display()))?;
     let report = InspectReport::gather(&repo, &args.repo)?;
+    let digest = match args.digest {
+        true => Some(
+            decoded_digest(&repo).with_context(|| format!("decoding {}", args.repo.display()))?,
+        ),
+        false => None,
+    };
     let mut out = std::io::stdout().lock();
     if args.json {
-        writeln!(out, "{}", serde_json::to_string_pretty(&report.json())?)?;
+        let mut v = report.json();
+        if let Some(d) = digest {
+            v["decoded_digest"] = serde_json::json!({
+                "fnv1a64": format!("{:016x}", d.fnv1a64),
+                "diamonds": d.diamonds,
+                "samples": d.samples,
+            });
+        }
+        writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
     } else {
         report.write_text(&mut out)?;
+        if let Some(d) = digest {
+            writeln!(
+                out,
+                "decoded         fnv1a-64 {:016x} over {} diamonds, {} samples",
+                d.fnv1a64, d.diamonds, d.samples
+            )?;
+        }
     }
     Ok(())
 }

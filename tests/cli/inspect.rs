@@ -150,3 +150,49 @@ fn inspect_prints_what_it_printed_before_the_report_struct() {
         assert_eq!(json, expected("json"), "{name}: --json");
     }
 }
+
+/// `inspect --digest`: one surface coded by every coder gives one digest (text and JSON agree),
+/// and another surface (a looser bound) another.
+#[test]
+fn the_decoded_digest_is_the_surfaces_not_the_coders() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem = data("jacksboro_mpl.tif");
+    let digest_of = |coder: &str, eps: &str| -> String {
+        let repo = dir.path().join(format!("{coder}-{eps}.cbdam"));
+        let o = cbdam(&[
+            "build",
+            &dem,
+            "-o",
+            &s(&repo),
+            "--max-error",
+            eps,
+            "--coder",
+            coder,
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let text = String::from_utf8(cbdam(&["inspect", &s(&repo), "--digest"]).stdout).unwrap();
+        let line = text
+            .lines()
+            .find(|l| l.starts_with("decoded"))
+            .unwrap_or_else(|| panic!("no digest line: {text}"));
+        let json: serde_json::Value =
+            serde_json::from_slice(&cbdam(&["inspect", &s(&repo), "--digest", "--json"]).stdout)
+                .unwrap();
+        let d = &json["decoded_digest"];
+        let hash = d["fnv1a64"].as_str().unwrap().to_string();
+        assert!(line.contains(&hash), "{line} against {d}");
+        assert!(d["diamonds"].as_u64().unwrap() > 1, "{d}");
+        // Every diamond's N × N grid (N = 65 by default).
+        assert_eq!(
+            d["samples"].as_u64(),
+            d["diamonds"].as_u64().map(|n| n * 65 * 65)
+        );
+        hash
+    };
+    let default = digest_of("adaptive-tokens", "1");
+    for coder in ["adaptive", "elias-gamma", "fast-rice"] {
+        assert_eq!(digest_of(coder, "1"), default, "{coder}");
+    }
+    assert_ne!(digest_of("adaptive-tokens", "4"), default);
+}

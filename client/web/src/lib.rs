@@ -12,6 +12,8 @@
 //! `index.html?flight=URL` plays a camera flight of `cbdam render --path` ([`flight`]) and
 //! measures its frames; `index.html?colour=URL` drapes a colour repository over the terrain
 //! (the core's `ColouredSource`, decoded in the workers beside the heights).
+//! `window.cbdamDecodedDigest(url)` digests a whole repository's decoded surface in wasm32
+//! ([`decoded_digest`]), for the test that it equals the native decode's.
 //!
 //! Decoding runs in Web Workers ([`workers`]): `navigator.hardwareConcurrency − 1` of them (at
 //! least 1, at most 4), each running `worker.js`, which instantiates this same module (the
@@ -41,6 +43,8 @@
 #[cfg(target_arch = "wasm32")]
 mod app;
 #[cfg(target_arch = "wasm32")]
+mod digest;
+#[cfg(target_arch = "wasm32")]
 pub mod flight;
 #[cfg(target_arch = "wasm32")]
 mod input;
@@ -51,6 +55,8 @@ pub mod workers;
 
 #[cfg(target_arch = "wasm32")]
 pub use app::{set_pixel_error, start};
+#[cfg(target_arch = "wasm32")]
+pub use digest::decoded_digest;
 #[cfg(target_arch = "wasm32")]
 pub use flight::play_flight;
 #[cfg(target_arch = "wasm32")]

@@ -138,6 +138,13 @@ if (!repo) {
     const module = await loadViewer();
     await module.default();
     viewer = module;
+    // The digest of a whole repository's decoded surface, decoded here in wasm32 (the browser
+    // test compares it with `cbdam inspect --digest`): "fnv1a64 diamonds samples".
+    window.cbdamDecodedDigest = async (url) => {
+      const response = await fetch(new URL(url, location.href));
+      if (!response.ok) throw new Error(`HTTP ${response.status} for ${url}`);
+      return module.decoded_digest(new Uint8Array(await response.arrayBuffer()));
+    };
     // Decoding runs in Web Workers (worker.js, next to this file) that load the same module;
     // ?workers=0 decodes on the page instead (for comparisons).
     const workers = new URLSearchParams(location.search).get("workers") !== "0";

@@ -7,6 +7,7 @@
 
 pub mod batch;
 pub mod container;
+mod digest;
 mod georef;
 mod header;
 #[doc(hidden)]
@@ -21,5 +22,6 @@ pub use container::{
     Repository, RepositoryHead, Section, VerticalDatum, header_len, required_head_len,
     reseal_checksums, serialize, write_planet_repository, write_repository,
 };
+pub use digest::{DecodedDigest, decoded_digest};
 pub use georef::{GeoRef, MAX_WKT_LEN};
 pub use level_grid::{LevelGrid, bbox_window};
