@@ -7,7 +7,8 @@ use crate::CodecError;
 use crate::entropy::{BandKind, BandMut, DecodeLimits, DecodeScratch, decode_bands_with};
 use crate::geometry::{Diagonal, DiamondId, Domain, Half, IndexMap};
 use crate::lifting::{
-    Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_inner_vertices,
+    Alpha, MAX_ABS_HEIGHT, PREDICTION_LIMIT, clamp_prediction, predict_cells,
+    predict_inner_vertices,
 };
 
 /// The level-`l+1` values a refinement produces on a level-`l` diamond's square: the values of
@@ -187,7 +188,7 @@ impl HalfStepSource<i32> for &Refined {
         let (a1, b1) = (a + da, b + db);
         // The first stream starts at (a, b), the second at the next point (an index only when
         // the diagonal has one).
-        let ((first, mut k0, d0), (second, mut k1, d1)) = if a % 2 == 0 {
+        let ((first, k0, d0), (second, k1, d1)) = if a % 2 == 0 {
             (
                 (vertices, vertex(a, b), vertex_stride),
                 (cells, cell(a1, b1), cell_stride),
@@ -198,16 +199,46 @@ impl HalfStepSource<i32> for &Refined {
                 (vertices, vertex(a1, b1), vertex_stride),
             )
         };
-        let mut pairs = out.chunks_exact_mut(2);
-        for pair in &mut pairs {
-            pair[0] = first[k0 as usize];
-            pair[1] = second[k1 as usize];
-            k0 += d0;
-            k1 += d1;
-        }
-        if let [last] = pairs.into_remainder() {
-            *last = first[k0 as usize];
-        }
+        let (even, odd) = (out.len().div_ceil(2), out.len() / 2);
+        copy_strided(strided(first, k0, d0, even), out.iter_mut().step_by(2));
+        copy_strided(
+            strided(second, k1, d1, odd),
+            out.iter_mut().skip(1).step_by(2),
+        );
+    }
+}
+
+/// The `count` indices `start, start + stride, …` of `values` as one slice (checked once) and
+/// the step through it: `(slice, step, backwards)`. Empty when `count` is 0.
+fn strided(values: &[i32], start: i64, stride: i64, count: usize) -> (&[i32], usize, bool) {
+    if count == 0 {
+        return (&[], 1, false);
+    }
+    let span = stride.unsigned_abs() as usize * (count - 1);
+    let start = start as usize;
+    if stride >= 0 {
+        (&values[start..=start + span], stride as usize, false)
+    } else {
+        (
+            &values[start - span..=start],
+            stride.unsigned_abs() as usize,
+            true,
+        )
+    }
+}
+
+/// Copies every `step`-th value of a [`strided`] slice (from its end when `backwards`) into
+/// `out`: no bounds check per value.
+fn copy_strided<'a>(
+    (values, step, backwards): (&[i32], usize, bool),
+    out: impl Iterator<Item = &'a mut i32>,
+) {
+    if backwards {
+        out.zip(values.iter().rev().step_by(step))
+            .for_each(|(o, &v)| *o = v);
+    } else {
+        out.zip(values.iter().step_by(step))
+            .for_each(|(o, &v)| *o = v);
     }
 }
 
@@ -540,12 +571,22 @@ fn reconstruct_cells(
     let m = n - 1;
     cells.resize(m * m, 0);
     predict_cells(p, n, cells);
-    let mut bad = false;
-    for (c, &d) in cells.iter_mut().zip(dc.iter()) {
-        let v = clamp_prediction(i64::from(*c)) + step * i64::from(d);
-        bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
-        *c = v as i32;
+    let dc = &dc[..cells.len()];
+    // A clamped prediction is at most PREDICTION_LIMIT, far below MAX_ABS_HEIGHT: a residual
+    // whose step × value is over i32::MAX − PREDICTION_LIMIT makes its cell out of range
+    // whatever the prediction. Below that every sum fits i32, so the loop is in i32 (it
+    // vectorises) and gives the values of an i64 computation exactly.
+    let largest = dc.iter().fold(0u32, |a, &d| a.max(d.unsigned_abs()));
+    let room = u64::from(i32::MAX.unsigned_abs() - PREDICTION_LIMIT.unsigned_abs());
+    if u64::from(largest) * step.unsigned_abs() > room {
+        return Err(out_of_range());
     }
+    let step = step as i32;
+    let bad = cells.iter_mut().zip(dc).fold(false, |bad, (c, &d)| {
+        let v = (*c).clamp(-PREDICTION_LIMIT, PREDICTION_LIMIT) + step * d;
+        *c = v;
+        bad | (v.abs() > MAX_ABS_HEIGHT)
+    });
     if bad {
         return Err(out_of_range());
     }
@@ -641,6 +682,60 @@ mod tests {
         }
         mirror_missing_halves(diag, n, parents.map(|p| p.is_some()), &mut out);
         out
+    }
+
+    /// [`reconstruct_cells`] (in i32, with its early refusal) against the definition in i64:
+    /// the same cells where every cell is in range, an error exactly where one is not; with
+    /// residuals up to the entropy decoders' limit and steps up to 2³¹ − 1.
+    #[test]
+    fn cells_in_i32_are_the_i64_definition() {
+        let n = 9;
+        let m = n - 1;
+        let mut state = 7u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            state >> 16
+        };
+        let mut outcomes = [0usize; 2];
+        for round in 0..4000 {
+            let p: Vec<i32> = (0..n * n)
+                .map(|_| (next() % (2 * MAX_ABS_HEIGHT as u64 + 1)) as i32 - MAX_ABS_HEIGHT)
+                .collect();
+            let step = [1i64, 3, 2_001, 1 << 20 | 1, i64::from(i32::MAX)][round % 5];
+            let dc: Vec<i32> = (0..m * m)
+                .map(|_| {
+                    let magnitude = match next() % 64 {
+                        0 => (next() % (1 << 30)) as i32,
+                        1 => (i64::from(MAX_ABS_HEIGHT) / step) as i32 + (next() % 3) as i32,
+                        _ => (next() % 50) as i32,
+                    };
+                    if next() % 2 == 0 {
+                        magnitude
+                    } else {
+                        -magnitude
+                    }
+                })
+                .collect();
+            let mut expected = vec![0; m * m];
+            predict_cells(&p, n, &mut expected);
+            let mut in_range = true;
+            for (c, &d) in expected.iter_mut().zip(&dc) {
+                let v = clamp_prediction(i64::from(*c)) + step * i64::from(d);
+                in_range &= v.abs() <= i64::from(MAX_ABS_HEIGHT);
+                *c = v as i32;
+            }
+            let mut got = Vec::new();
+            let result = reconstruct_cells(&p, n, &dc, step, &mut got);
+            assert_eq!(result.is_ok(), in_range, "round {round}");
+            if in_range {
+                assert_eq!(got, expected, "round {round}");
+            }
+            outcomes[usize::from(in_range)] += 1;
+        }
+        // Both outcomes were met.
+        assert!(outcomes.iter().all(|&c| c > 100), "{outcomes:?}");
     }
 
     /// Gathering in the parents' memory order gives every point its definition, on a plane
