@@ -24,6 +24,7 @@ pub mod plan;
 pub mod planet;
 mod planet_input;
 pub mod planet_lattice;
+mod planet_overlap;
 mod planet_plan;
 mod planet_resampling;
 pub mod planet_shard;
