@@ -1,7 +1,9 @@
 //! `cbdam build --planet` on SRTM tiles that are not what their names promise: a tile whose
 //! length is no SRTM size and a tile truncated mid-way are refused before anything is written,
 //! naming the file, and leave nothing at `-o` (no repository, no journal, no temporary); and
-//! neighbouring tiles that disagree on their shared edge are refused naming both.
+//! neighbouring tiles that disagree on their shared edge are refused naming both; a disk that
+//! fills during the build is named, leaves nothing at `-o`, and the build resumes from its
+//! journal.
 
 use std::path::Path;
 
@@ -144,4 +146,121 @@ fn neighbouring_planet_tiles_that_disagree_on_their_shared_edge_are_refused_nami
     write_agreeing_tile(tmp.path(), (45, 7), None);
     let built = cbdam(&args(&out).iter().map(String::as_str).collect::<Vec<_>>());
     assert!(built.status.success(), "{}", stderr(&built));
+}
+
+/// Runs `cbdam args…` allowed to write files of at most `limit` bytes (`RLIMIT_FSIZE`, with
+/// `SIGXFSZ` ignored, so that a write past it fails with `EFBIG` as a full disk's fails with
+/// `ENOSPC`: the same path through the build, without root or a small file system).
+#[cfg(unix)]
+fn cbdam_with_file_size_limit(args: &[String], limit: u64) -> std::process::Output {
+    use std::os::unix::process::CommandExt;
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"));
+    command.args(args);
+    // SAFETY: `signal` and `setrlimit` are async-signal-safe; nothing else runs here.
+    unsafe {
+        command.pre_exec(move || {
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            let r = libc::rlimit {
+                rlim_cur: limit as libc::rlim_t,
+                rlim_max: limit as libc::rlim_t,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &r) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    command.output().expect("run cbdam")
+}
+
+/// The names left in `dir`.
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// A planet built block by block (`--memory-limit 4M`) on a disk that fills: once while the
+/// repository is written (every block already in the journal), once while the journal's blocks
+/// are. Each time the build fails naming the file and that no room was left, leaves nothing
+/// at `-o` but its journal, and, run again with room, continues from the journal and writes the
+/// bytes of a build that never failed.
+#[cfg(unix)]
+#[test]
+fn a_planet_build_on_a_disk_that_fills_is_named_and_resumes() {
+    let tmp = tempfile::tempdir().unwrap();
+    write_agreeing_tile(tmp.path(), (45, 6), None);
+    write_agreeing_tile(tmp.path(), (45, 7), None);
+    let out_dir = tempfile::tempdir().unwrap();
+    let args = |out: &Path| -> Vec<String> {
+        let mut a: Vec<String> = ["build", &s(tmp.path()), "--planet", "--max-error", "16"]
+            .map(String::from)
+            .to_vec();
+        a.extend(["--memory-limit", "4M", "--planet-level", "6", "-o", &s(out)].map(String::from));
+        a
+    };
+    let run = |out: &Path| {
+        let a = args(out);
+        let o = cbdam(&a.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(o.status.success(), "{}", stderr(&o));
+        o
+    };
+    let clean = out_dir.path().join("clean.cbdam");
+    run(&clean);
+    let expected = std::fs::read(&clean).unwrap();
+    std::fs::remove_file(&clean).unwrap();
+    let out = out_dir.path().join("planet.cbdam");
+    // One byte short of the repository: every journal block fits, the repository does not.
+    let full = cbdam_with_file_size_limit(&args(&out), expected.len() as u64 - 1);
+    assert!(!full.status.success(), "succeeded: {}", stdout(&full));
+    let err = stderr(&full);
+    let writing = format!("writing {}", out.display());
+    for needed in [
+        writing.as_str(),
+        "file-size limit",
+        "nothing was written at",
+        "finished blocks are kept in",
+    ] {
+        assert!(err.contains(needed), "the error lacks {needed:?}: {err}");
+    }
+    assert!(!err.contains("panicked"), "a panic: {err}");
+    assert_eq!(names_in(out_dir.path()), ["planet.cbdam.journal"], "{err}");
+    let resumed = run(&out);
+    assert!(
+        stderr(&resumed).contains("resuming: "),
+        "{}",
+        stderr(&resumed)
+    );
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "the resumed planet differs"
+    );
+    assert_eq!(names_in(out_dir.path()), ["planet.cbdam"]);
+    // Room for the journal's key (a few hundred bytes) and its smallest blocks, not for all:
+    // the block that found no room is named.
+    std::fs::remove_file(&out).unwrap();
+    let full = cbdam_with_file_size_limit(&args(&out), 1024);
+    let err = stderr(&full);
+    assert!(!full.status.success(), "succeeded: {}", stdout(&full));
+    for needed in [
+        "planet.cbdam.journal/block-",
+        "file-size limit",
+        "nothing was written at",
+    ] {
+        assert!(err.contains(needed), "the error lacks {needed:?}: {err}");
+    }
+    assert!(!out.exists() && !err.contains("panicked"), "{err}");
+    let resumed = run(&out);
+    assert!(
+        stderr(&resumed).contains("resuming: "),
+        "{}",
+        stderr(&resumed)
+    );
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "the planet differs"
+    );
 }
