@@ -160,3 +160,60 @@ fn dask_build_of_a_planet_is_byte_identical_to_cbdam_build_also_with_a_worker_ki
     assert!(marker.exists(), "the kill hook never ran: {log}");
     dask::check_build(&log, &killed, &want, None);
 }
+
+/// A `cbdam shard run` of a planet killed (SIGKILL) after some of its blocks, run again, keeps
+/// the blocks it finished and encodes the rest; the merge writes `cbdam build --planet`'s bytes.
+#[test]
+fn a_killed_planet_shard_run_resumes_and_merges_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let paths = crate::cli::planet::edge_and_corner_planet(d);
+    let want = built(&paths, &d.join("whole.cbdam"));
+    let (work, out) = (d.join("work"), d.join("sharded.cbdam"));
+    let mut plan = vec!["shard".to_string(), "plan".into()];
+    plan.extend(planet_args(&paths));
+    plan.extend(
+        [
+            "-o",
+            &s(&out),
+            "--work",
+            &s(&work),
+            "--shards",
+            "1",
+            "--apex",
+        ]
+        .map(String::from),
+    );
+    run_ok(&strs(&plan));
+    let run: Vec<String> = ["shard", "run", "--work", &s(&work), "--shard", "0"]
+        .map(String::from)
+        .to_vec();
+    let blocks = work.join("blocks");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cbdam"))
+        .args(&run)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while journal_blocks(&blocks) < 2 {
+        assert!(child.try_wait().unwrap().is_none(), "the shard ended first");
+        assert!(start.elapsed().as_secs() < 120, "no block to kill after");
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let kept = journal_blocks(&blocks);
+    let again = run_ok(&strs(&run));
+    assert!(
+        again.contains(&format!("{kept} kept from an earlier run")),
+        "{kept} blocks were finished: {again}"
+    );
+    run_ok(&strs(
+        &["shard", "merge", "--work", &s(&work)].map(String::from),
+    ));
+    assert!(
+        std::fs::read(&out).unwrap() == want,
+        "the merged planet differs"
+    );
+}

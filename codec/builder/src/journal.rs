@@ -144,7 +144,11 @@ impl BlockJournal for Journal {
 
     fn save(&self, index: usize, output: &BlockOutput) -> Result<(), CodecError> {
         let name = format!("block-{index:06}");
-        write_atomically(&self.dir, &name, &serialize_block(output))?;
+        // Named, keeping the error's kind (a full disk is told apart: `crate::disk_full`).
+        write_atomically(&self.dir, &name, &serialize_block(output)).map_err(|e| {
+            let path = self.dir.join(&name);
+            std::io::Error::new(e.kind(), format!("writing {}: {e}", path.display()))
+        })?;
         Ok(())
     }
 }

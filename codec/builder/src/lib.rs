@@ -13,6 +13,7 @@
 pub mod assign;
 pub mod band_cache;
 pub mod colour;
+pub mod disk_full;
 pub mod earth;
 pub mod encode;
 mod error;
@@ -24,6 +25,7 @@ pub mod plan;
 pub mod planet;
 mod planet_input;
 pub mod planet_lattice;
+mod planet_overlap;
 mod planet_plan;
 mod planet_resampling;
 pub mod planet_shard;
@@ -186,13 +188,14 @@ pub enum BuildSummary {
 
 /// Builds the repository `opts` describe; progress goes to `progress`.
 pub fn build(opts: &BuildOptions, progress: &dyn Progress) -> Result<BuildSummary> {
-    if let Some(level) = opts.planet {
-        return planet::build_planet(opts, level, progress).map(BuildSummary::Planet);
-    }
-    if opts.colour {
-        return colour::build_colour(opts, progress).map(BuildSummary::Colour);
-    }
-    build_elevation(opts, progress).map(BuildSummary::Elevation)
+    let built = if let Some(level) = opts.planet {
+        planet::build_planet(opts, level, progress).map(BuildSummary::Planet)
+    } else if opts.colour {
+        colour::build_colour(opts, progress).map(BuildSummary::Colour)
+    } else {
+        build_elevation(opts, progress).map(BuildSummary::Elevation)
+    };
+    built.map_err(|e| disk_full::explain(e, &opts.output))
 }
 
 /// An elevation build's input, read and quantized, and how it is to be encoded.

@@ -14,6 +14,7 @@ use crate::band_cache::Samples;
 use crate::error::{Context, Result, bail};
 use crate::input::{ReadOptions, TileReader};
 use crate::input_cache::InputCache;
+use crate::planet_overlap::SharedEdges;
 use crate::planet_spacing::{input_stride, lattice_spacing_deg};
 use crate::tiles::Tile;
 use cbdam_codec::error::CodecError;
@@ -533,11 +534,15 @@ impl PlanetInputs {
     }
 
     /// The height range over all inputs, metres.
-    /// Every input is read (one at a time, through the cache), so a damaged one is found here.
+    /// Every input is read (one at a time, through the cache), so a damaged one is found here,
+    /// and so are inputs of one spacing that disagree where they overlap ([`SharedEdges`]).
     pub fn range(&self) -> Result<Option<(f64, f64)>> {
         let mut range: Option<(f64, f64)> = None;
+        let mut edges = SharedEdges::new(&self.inputs);
         for (i, input) in self.inputs.iter().enumerate() {
-            if let Some((lo, hi)) = input.range(&*self.samples_read(i, true)?) {
+            let samples = self.samples_read(i, true)?;
+            edges.check(&self.inputs, i, &samples)?;
+            if let Some((lo, hi)) = input.range(&samples) {
                 range = Some(range.map_or((lo, hi), |r| (r.0.min(lo), r.1.max(hi))));
             }
         }
