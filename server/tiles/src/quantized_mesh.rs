@@ -50,6 +50,9 @@ pub struct TileRequest<'a> {
 pub struct MeshTile {
     /// The quantized-mesh bytes (not compressed).
     pub bytes: Vec<u8>,
+    /// The same, gzip-compressed ([`crate::gzip`]): what clients that accept gzip get, made
+    /// once with the tile and kept with it.
+    pub gzipped: Vec<u8>,
     /// The repository level the vertex heights come from (the finest one used).
     pub level: u8,
     /// Metres between consecutive quantized heights.
@@ -246,6 +249,7 @@ pub fn build(
         write_metadata(&mut out, meta);
     }
     MeshTile {
+        gzipped: crate::gzip(&out),
         bytes: out,
         level: if level == u8::MAX { 0 } else { level },
         height_step,
