@@ -340,7 +340,7 @@ async fn terrain(
     let body = if gzip {
         made.gzipped.clone()
     } else {
-        made.bytes.clone()
+        made.bytes()
     };
     let mut h = HeaderMap::new();
     h.insert(header::CONTENT_TYPE, hv("application/vnd.quantized-mesh"));

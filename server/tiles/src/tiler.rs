@@ -297,7 +297,7 @@ impl Tiler {
             return Ok(made);
         }
         let made = self.make_mesh(t, normals, metadata)?;
-        let bytes = made.bytes.len() + made.gzipped.len() + size_of::<MeshTile>();
+        let bytes = made.gzipped.len() + size_of::<MeshTile>();
         Ok(self.meshes.insert(key, Arc::new(made), bytes))
     }
 

@@ -5,7 +5,7 @@
 //! an EPSG:4326 plane and a UTM one with a nodata hole, and on a planet. The mesh tiles are
 //! also those of a tiler that shares no work between neighbouring tiles
 //! (`Tiler::without_sharing`), whatever order the tiles are asked in; a mesh tile asked again
-//! is the one kept, with the gzip of its bytes.
+//! is the one kept (its gzip).
 
 #[path = "common/rough_dem.rs"]
 mod rough_dem;
@@ -81,11 +81,11 @@ fn same_meshes(repo: &Repository, whole: &Tiler, windows: &Tiler) -> usize {
         let (a, b) = (whole.mesh(zxy, true, true).unwrap(), b.unwrap());
         let c = alone.mesh(zxy, true, true).unwrap();
         assert!(
-            a.bytes == c.bytes,
+            a.gzipped == c.gzipped,
             "mesh tile {zxy:?} differs from the unshared one"
         );
         assert!(
-            b.bytes == c.bytes,
+            b.gzipped == c.gzipped,
             "window mesh tile {zxy:?} differs from the unshared one"
         );
         assert_eq!((a.level, a.clamped), (b.level, 0));
@@ -99,8 +99,8 @@ fn same_meshes(repo: &Repository, whole: &Tiler, windows: &Tiler) -> usize {
             "mesh tile {zxy:?} asked again is made again, not the one kept"
         );
         assert!(
-            gunzip(&a.gzipped) == a.bytes && gunzip(&b.gzipped) == b.bytes,
-            "mesh tile {zxy:?}: the gzip kept with it is not its bytes"
+            gunzip(&a.gzipped) == a.bytes() && a.bytes().len() > 88,
+            "mesh tile {zxy:?}: its bytes are not its gzip's"
         );
     }
     tiles.len()
