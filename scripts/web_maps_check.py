@@ -19,7 +19,12 @@ send is watched: one to any other host fails the check. Checked:
   at `maxzoom`: reaches `idle` with no `error` event; some terrarium tiles fetched; at 20 points
   `queryTerrainElevation` is within the stated `pixel_bound_m` (tiles.json) of the same
   reference resampled as MapLibre samples its DEM (bilinear between the four pixel centres of the
-  `maxzoom` tile around the point); the screenshot is not one colour.
+  `maxzoom` tile around the point); the screenshot is not one colour. Then the same with the
+  lossless WebP tiles (`…/terrarium/tiles.json?format=webp`): MapLibre reads them alike.
+- WebP tiles (terrarium and terrain-RGB, `?format=webp`): at `maxzoom`, the tile at the data's
+  centre and the one at its north-west corner (with transparent pixels) decoded by Chromium
+  (webp-check.html: libwebp, read back unpremultiplied through WebGL) are the RGBA pixels of the
+  PNG tile decoded here (web_test.decode_png), transparent pixels' colour included.
 
 Usage: web_maps_check.py REPO.cbdam CBDAM_BINARY NODE_DIR
 Screenshots are kept in $CBDAM_WEB_SHOTS when it is set.
@@ -161,11 +166,11 @@ def inner_points(bounds, count, margin):
              s + (n - s) * (margin + (1 - 2 * margin) * ((i * 0.382 + 0.1) % 1))) for i in range(count)]
 
 
-def served_tiles(log, kind):
-    """Distinct (z, x, y) of the tiles of `kind` the server answered with 200."""
+def served_tiles(log, kind, ext=r"\w+"):
+    """Distinct (z, x, y) of the tiles of `kind` (files ending `.ext`) answered with 200."""
     found = set()
     for line in log:
-        m = re.search(kind + r"/(\d+)/(\d+)/(\d+)\.\w+[ ?].*status=200", line)
+        m = re.search(kind + r"/(\d+)/(\d+)/(\d+)\." + ext + r"[ ?].*status=200", line)
         if m:
             found.add(tuple(int(v) for v in m.groups()))
     return found
@@ -234,8 +239,9 @@ def resampled(at, lon, lat, z):
             + ty * ((1 - tx) * h(ix, iy + 1) + tx * h(ix + 1, iy + 1)))
 
 
-def check_maplibre(browser, site, addr, log, at, failures):
-    tiles_url = f"http://{addr}/v1/repos/r/terrarium/tiles.json"
+def check_maplibre(browser, site, addr, log, at, failures, image="png"):
+    query = "" if image == "png" else f"?format={image}"
+    tiles_url = f"http://{addr}/v1/repos/r/terrarium/tiles.json{query}"
     info = json.load(urllib.request.urlopen(tiles_url))
     w, s, e, n = info["bounds"]
     z = info["maxzoom"]
@@ -254,14 +260,14 @@ def check_maplibre(browser, site, addr, log, at, failures):
     # The canvas as the page read it: a DevTools screenshot waits for a compositor frame, which
     # MapLibre's terrain on SwiftShader takes up to a minute to give under load.
     shot = base64.b64decode(result.get("png", ",").split(",", 1)[1])
-    save_screenshot(shot, "maplibre.png")
-    tiles = served_tiles(log, "terrarium")
+    save_screenshot(shot, f"maplibre-{image}.png")
+    tiles = served_tiles(log, "terrarium", image)
     worst = 0.0
     for lon, lat, h in result.get("samples", []):
         worst = max(worst, abs(h - resampled(at, lon, lat, z)) if h is not None else math.inf)
     bound = info["cbdam"]["pixel_bound_m"]
     colours, commonest = colours_of(shot)
-    print(f"maplibre: load {result.get('loadMs')} ms, idle {result.get('idleMs')} ms after navigation "
+    print(f"maplibre ({image}): load {result.get('loadMs')} ms, idle {result.get('idleMs')} ms after navigation "
           f"({result.get('frames')} frames), {len(tiles)} tiles at levels "
           f"{sorted({t[0] for t in tiles})}, max |queryTerrainElevation - reference| {worst:.4f} m, "
           f"bound {bound:.4f} m, screenshot {colours} colours, commonest {commonest:.0%}")
@@ -275,6 +281,52 @@ def check_maplibre(browser, site, addr, log, at, failures):
         failures.append(f"maplibre: the screenshot is one colour ({colours} colours)")
 
 
+def png_rgba(data):
+    """A PNG's pixels as RGBA bytes (decoded here, by web_test.decode_png)."""
+    width, height, channels, rows = decode_png(data)
+    if channels == 4:
+        return width, b"".join(rows)
+    out = bytearray()
+    for row in rows:
+        for x in range(0, len(row), 3):
+            out += row[x:x + 3] + b"\xff"
+    return width, bytes(out)
+
+
+def check_webp(browser, site, addr, failures):
+    urls, pngs = [], []
+    for kind in ("terrarium", "terrain-rgb"):
+        info = json.load(urllib.request.urlopen(f"http://{addr}/v1/repos/r/{kind}/tiles.json?format=webp"))
+        w, s, e, n = info["bounds"]
+        z = info["maxzoom"]
+        for lon, lat in (((w + e) / 2, (s + n) / 2), (w + 1e-9, n - 1e-9)):
+            x, y = (int(v // 512) for v in mercator_tile(lon, lat, z))  # tiles.json's are 512 px
+            url = info["tiles"][0].replace("{z}", str(z)).replace("{x}", str(x)).replace("{y}", str(y))
+            urls.append(url)
+            pngs.append(urllib.request.urlopen(url.replace(".webp", ".png")).read())
+    result = browser.run_page(f"{site}/webp-check.html?" + urllib.parse.urlencode({"urls": json.dumps(urls)}))
+    same = transparent = webp_bytes = png_bytes = 0
+    for url, png, tile in zip(urls, pngs, result.get("tiles", [])):
+        width, rgba = png_rgba(png)
+        got = base64.b64decode(tile["rgba"])
+        if tile["type"] != "image/webp" or tile["width"] != width or got != rgba:
+            differing = sum(1 for i in range(0, min(len(got), len(rgba)), 4) if got[i:i + 4] != rgba[i:i + 4])
+            failures.append(f"webp: {url} ({tile['type']}, {tile['width']} px) differs from the PNG "
+                            f"in {differing} pixels")
+        else:
+            same += 1
+        transparent += rgba[3::4].count(0)
+        webp_bytes += len(urllib.request.urlopen(url).read())
+        png_bytes += len(png)
+    print(f"webp: {same} of {len(urls)} tiles decoded by Chromium equal to their PNG's pixels "
+          f"({transparent} transparent pixels); WebP {webp_bytes} bytes, PNG {png_bytes}")
+    if result["errors"] or len(result.get("tiles", [])) != len(urls):
+        failures.append(f"webp: the page decoded {len(result.get('tiles', []))} of {len(urls)} tiles, "
+                        f"errors {result['errors']}")
+    if transparent == 0:
+        failures.append("webp: no tile with transparent pixels was compared")
+
+
 def main():
     repo, cbdam, node_dir = sys.argv[1:4]
     here = os.path.dirname(os.path.abspath(__file__))
@@ -282,7 +334,7 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         root = os.path.join(tmp, "site")
         os.makedirs(root)
-        for page in ("cesium-check.html", "maplibre-check.html"):
+        for page in ("cesium-check.html", "maplibre-check.html", "webp-check.html"):
             shutil.copy(os.path.join(here, "web-maps", page), root)
         os.symlink(os.path.join(os.path.abspath(node_dir), "node_modules"), os.path.join(root, "node_modules"))
         site_server = serve(root)
@@ -295,7 +347,13 @@ def main():
             check_cesium(browser, site, addr, log, at, failures)
             cesium_s = time.time() - started
             check_maplibre(browser, site, addr, log, at, failures)
-            print(f"times: cesium {cesium_s:.1f} s, maplibre {time.time() - started - cesium_s:.1f} s")
+            maplibre_s = time.time() - started - cesium_s
+            check_maplibre(browser, site, addr, log, at, failures, image="webp")
+            maplibre_webp_s = time.time() - started - cesium_s - maplibre_s
+            check_webp(browser, site, addr, failures)
+            print(f"times: cesium {cesium_s:.1f} s, maplibre {maplibre_s:.1f} s, maplibre on webp "
+                  f"{maplibre_webp_s:.1f} s, webp pixels "
+                  f"{time.time() - started - cesium_s - maplibre_s - maplibre_webp_s:.1f} s")
             browser.wait_quietly(0.5)
             foreign = browser.foreign()
             if foreign:

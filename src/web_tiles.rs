@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use cbdam_codec::atomic::write_atomically;
 use cbdam_codec::repository::Repository;
-use cbdam_tiles::{Encoding, Scheme, Tiler};
+use cbdam_tiles::{Encoding, ImageFormat, Scheme, Tiler};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -29,8 +29,26 @@ pub enum TileFormat {
     QuantizedMesh,
 }
 
-/// Write a repository's web-map tiles as files: `DIR/{z}/{x}/{y}.png` and `DIR/tiles.json`
-/// (terrarium, terrain-rgb), or `DIR/{z}/{x}/{y}.terrain` and `DIR/layer.json`
+/// Raster tiles' image file in `cbdam tiles`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ImageArg {
+    /// PNG.
+    Png,
+    /// Lossless WebP: the same pixels as the PNG, in fewer bytes.
+    Webp,
+}
+
+impl ImageArg {
+    fn format(self) -> ImageFormat {
+        match self {
+            ImageArg::Png => ImageFormat::Png,
+            ImageArg::Webp => ImageFormat::Webp,
+        }
+    }
+}
+
+/// Write a repository's web-map tiles as files: `DIR/{z}/{x}/{y}.png` (or `.webp`) and
+/// `DIR/tiles.json` (terrarium, terrain-rgb), or `DIR/{z}/{x}/{y}.terrain` and `DIR/layer.json`
 /// (quantized-mesh; serve them with `Content-Encoding: gzip`).
 ///
 /// Tiles already in DIR are kept (each file is written atomically, so one there is whole): an
@@ -52,6 +70,10 @@ pub struct TilesArgs {
     /// Raster tile size, pixels: 256 or 512.
     #[arg(long, default_value_t = 512)]
     tile: u32,
+    /// Raster tiles' image file: png, or webp (lossless: the same pixels, fewer bytes; read
+    /// by MapLibre's raster-dem). Not for quantized-mesh.
+    #[arg(long, value_enum, default_value_t = ImageArg::Png)]
+    image: ImageArg,
     /// Only the tiles meeting this box: west,south,east,north in degrees (WGS84 longitude
     /// and latitude, west < east, south < north); `tiles.json` / `layer.json` then state
     /// its part of the data. A box that misses the data is refused.
@@ -63,6 +85,9 @@ pub struct TilesArgs {
 
 pub fn run(args: &TilesArgs) -> Result<()> {
     let tile = Tiler::tile_size(Some(args.tile)).map_err(anyhow::Error::msg)?;
+    if args.format == TileFormat::QuantizedMesh && args.image != ImageArg::Png {
+        bail!("--image webp is for raster tiles (terrarium, terrain-rgb), not quantized-mesh");
+    }
     if args.output.exists() && !args.output.is_dir() {
         bail!(
             "output {} exists and is not a directory",
@@ -101,11 +126,11 @@ pub fn run(args: &TilesArgs) -> Result<()> {
         let ext = if scheme == Scheme::Geographic {
             "terrain"
         } else {
-            "png"
+            args.image.format().extension()
         };
         let path = args.output.join(format!("{z}/{x}/{y}.{ext}"));
         if !path.exists() {
-            let body = make(&tiler, args.format, (z, x, y), tile)?;
+            let body = make(&tiler, (args.format, args.image), (z, x, y), tile)?;
             write_tile(&path, &body)?;
             written.fetch_add(1, Relaxed);
             bytes.fetch_add(body.len() as u64, Relaxed);
@@ -209,25 +234,19 @@ fn tile_list(bounds: [f64; 4], max_zoom: u8) -> Vec<(u32, u32, u32)> {
 }
 
 /// One tile's file bytes.
-fn make(tiler: &Tiler, format: TileFormat, zxy: (u32, u32, u32), tile: u32) -> Result<Vec<u8>> {
+fn make(
+    tiler: &Tiler,
+    (format, image): (TileFormat, ImageArg),
+    zxy: (u32, u32, u32),
+    tile: u32,
+) -> Result<Vec<u8>> {
     let at =
         |e: cbdam_tiles::TilesError| anyhow::anyhow!("tile {}/{}/{}: {e}", zxy.0, zxy.1, zxy.2);
+    let raster = |encoding| tiler.raster(zxy, tile, (encoding, image.format()));
     Ok(match format {
-        TileFormat::Terrarium => {
-            tiler
-                .raster(zxy, tile, Encoding::Terrarium)
-                .map_err(at)?
-                .png
-        }
-        TileFormat::TerrainRgb => {
-            tiler
-                .raster(zxy, tile, Encoding::TerrainRgb)
-                .map_err(at)?
-                .png
-        }
-        TileFormat::QuantizedMesh => {
-            cbdam_tiles::gzip(&tiler.mesh(zxy, true, true).map_err(at)?.bytes)
-        }
+        TileFormat::Terrarium => raster(Encoding::Terrarium).map_err(at)?.image,
+        TileFormat::TerrainRgb => raster(Encoding::TerrainRgb).map_err(at)?.image,
+        TileFormat::QuantizedMesh => tiler.mesh(zxy, true, true).map_err(at)?.gzipped.clone(),
     })
 }
 
@@ -243,6 +262,7 @@ fn write_tile(path: &Path, body: &[u8]) -> Result<()> {
 
 /// `tiles.json` or `layer.json`, with URLs relative to the directory.
 fn write_document(args: &TilesArgs, tiler: &Tiler, name: &str, tile: u32) -> Result<()> {
+    let template = format!("{{z}}/{{x}}/{{y}}.{}", args.image.format().extension());
     let (file, doc) = match args.format {
         TileFormat::QuantizedMesh => (
             "layer.json",
@@ -250,11 +270,11 @@ fn write_document(args: &TilesArgs, tiler: &Tiler, name: &str, tile: u32) -> Res
         ),
         TileFormat::Terrarium => (
             "tiles.json",
-            tiler.tilejson(name, Encoding::Terrarium, tile, "{z}/{x}/{y}.png"),
+            tiler.tilejson(name, Encoding::Terrarium, tile, &template),
         ),
         TileFormat::TerrainRgb => (
             "tiles.json",
-            tiler.tilejson(name, Encoding::TerrainRgb, tile, "{z}/{x}/{y}.png"),
+            tiler.tilejson(name, Encoding::TerrainRgb, tile, &template),
         ),
     };
     let body = serde_json::to_vec_pretty(&doc)?;

@@ -10,7 +10,7 @@
 //! - `GET /v1/repos/{name}/diamonds/{l-x-y}`: one record's bytes.
 //! - `POST /v1/repos/{name}/diamonds`: many records in one framed body.
 //! - `GET /v1/repos/{name}/file`: the repository file itself, with range requests.
-//! - `GET /v1/repos/{name}/{terrarium|terrain-rgb}/{z}/{x}/{y}.png`, `…/tiles.json`,
+//! - `GET /v1/repos/{name}/{terrarium|terrain-rgb}/{z}/{x}/{y}.{png|webp}`, `…/tiles.json`,
 //!   `…/quantized-mesh/{z}/{x}/{y}.terrain`, `…/quantized-mesh/layer.json`: web-map tiles
 //!   ([`tiles`], `docs/WEB-MAPS.md`).
 //! - `GET /metrics`: Prometheus counters.

@@ -1,5 +1,5 @@
 //! Web-map tiles of a served repository (`docs/WEB-MAPS.md`): terrarium and terrain-RGB PNG
-//! with their TileJSON for MapLibre, quantized-mesh-1.0 with its `layer.json` for CesiumJS.
+//! or lossless WebP with their TileJSON for MapLibre, quantized-mesh-1.0 with its `layer.json` for CesiumJS.
 //!
 //! The tile maths live in `cbdam-tiles`; this module reads a repository's records once, on the
 //! first tile request (through the server's checked reads), keeps its `Tiler` for the server's
@@ -16,7 +16,7 @@ use axum::http::{HeaderMap, HeaderName, HeaderValue, StatusCode, header};
 use axum::response::Response;
 use cbdam_codec::hierarchy::{Encoded, Record};
 use cbdam_tiles::surface::Surface;
-use cbdam_tiles::{Encoding, Tiler, TilesError};
+use cbdam_tiles::{Encoding, ImageFormat, Tiler, TilesError};
 
 use crate::error::{ApiError, bad_path};
 use crate::headers::{
@@ -133,33 +133,44 @@ fn lookup<'a>(st: &'a AppState, name: &str) -> Result<&'a Arc<ServedRepo>, ApiEr
         .ok_or_else(|| ApiError::NotFound(format!("no repository named {name:?}")))
 }
 
-/// `?tile=256|512` of the raster endpoints (other parameters are ignored: clients add their
-/// own cache busters).
-fn tile_query(req: &Request) -> Result<Option<u32>, ApiError> {
+/// `?tile=256|512` of the raster endpoints, and `?format=png|webp` of their TileJSON (other
+/// parameters are ignored: clients add their own cache busters).
+fn tile_query(req: &Request) -> Result<(Option<u32>, ImageFormat), ApiError> {
     let Some(q) = req.uri().query() else {
-        return Ok(None);
+        return Ok((None, ImageFormat::Png));
     };
-    let mut tile = None;
+    let (mut tile, mut format) = (None, ImageFormat::Png);
     for pair in q.split('&') {
         if let Some(v) = pair.strip_prefix("tile=") {
             tile = Some(v.parse::<u32>().map_err(|_| {
                 ApiError::BadRequest(format!("malformed tile size {v:?} (want 256 or 512)"))
             })?);
+        } else if let Some(v) = pair.strip_prefix("format=") {
+            format = ImageFormat::parse(v).map_err(api_error)?;
         }
     }
-    Ok(tile)
+    Ok((tile, format))
 }
 
-/// Parses `z`, `x` and `y` (`y` with its file extension), or 400.
-fn tile_address(z: &str, x: &str, y: &str, ext: &str) -> Result<(u32, u32, u32), ApiError> {
+/// Parses `z`, `x` and `y` (`y` with one of the file extensions `exts`), or 400; returns
+/// which extension it had.
+fn tile_address<'e>(
+    z: &str,
+    x: &str,
+    y: &str,
+    exts: &[&'e str],
+) -> Result<((u32, u32, u32), &'e str), ApiError> {
     let bad = || {
         ApiError::BadRequest(format!(
-            "malformed tile address {z}/{x}/{y} (want z/x/y{ext}, non-negative integers)"
+            "malformed tile address {z}/{x}/{y} (want z/x/y{}, non-negative integers)",
+            exts.join(" or z/x/y")
         ))
     };
-    let y = y.strip_suffix(ext).ok_or_else(bad)?;
+    let (y, ext) = (exts.iter())
+        .find_map(|e| y.strip_suffix(e).map(|y| (y, *e)))
+        .ok_or_else(bad)?;
     let parse = |s: &str| s.parse::<u32>().map_err(|_| bad());
-    Ok((parse(z)?, parse(x)?, parse(y)?))
+    Ok(((parse(z)?, parse(x)?, parse(y)?), ext))
 }
 
 /// A 200 (or a 304 when `If-None-Match` names it) of `body` under an ETag from its bytes.
@@ -213,7 +224,7 @@ fn origin(req: &Request) -> String {
     }
 }
 
-/// `GET /v1/repos/{name}/{terrarium|terrain-rgb}/tiles.json`.
+/// `GET /v1/repos/{name}/{terrarium|terrain-rgb}/tiles.json[?format=webp]`.
 async fn tilejson(
     st: AppState,
     name: String,
@@ -222,12 +233,14 @@ async fn tilejson(
     segment: &str,
 ) -> Result<Response, ApiError> {
     let r = lookup(&st, &name)?;
-    let tile = Tiler::tile_size(tile_query(&req)?).map_err(api_error)?;
+    let (tile, image) = tile_query(&req)?;
+    let tile = Tiler::tile_size(tile).map_err(api_error)?;
     let t = tiler(&st, r).await?;
     let query = if tile == 512 { "" } else { "?tile=256" };
     let template = format!(
-        "{}/v1/repos/{name}/{segment}/{{z}}/{{x}}/{{y}}.png{query}",
-        origin(&req)
+        "{}/v1/repos/{name}/{segment}/{{z}}/{{x}}/{{y}}.{}{query}",
+        origin(&req),
+        image.extension()
     );
     Ok(json_response(
         r,
@@ -236,7 +249,7 @@ async fn tilejson(
     ))
 }
 
-/// `GET /v1/repos/{name}/{terrarium|terrain-rgb}/{z}/{x}/{y}.png`.
+/// `GET /v1/repos/{name}/{terrarium|terrain-rgb}/{z}/{x}/{y}.{png|webp}`.
 async fn raster(
     st: AppState,
     (name, z, x, y): (String, String, String, String),
@@ -244,21 +257,22 @@ async fn raster(
     encoding: Encoding,
 ) -> Result<Response, ApiError> {
     let r = lookup(&st, &name)?;
-    let zxy = tile_address(&z, &x, &y, ".png")?;
-    let tile = Tiler::tile_size(tile_query(&req)?).map_err(api_error)?;
+    let (zxy, ext) = tile_address(&z, &x, &y, &[".png", ".webp"])?;
+    let image = ImageFormat::parse(&ext[1..]).map_err(api_error)?;
+    let tile = Tiler::tile_size(tile_query(&req)?.0).map_err(api_error)?;
     let t = tiler(&st, r).await?;
-    let made = tokio::task::spawn_blocking(move || t.raster(zxy, tile, encoding))
+    let made = tokio::task::spawn_blocking(move || t.raster(zxy, tile, (encoding, image)))
         .await
         .map_err(|e| ApiError::Internal(format!("making a tile: {e}")))?
         .map_err(api_error)?;
     let mut h = HeaderMap::new();
-    h.insert(header::CONTENT_TYPE, hv("image/png"));
+    h.insert(header::CONTENT_TYPE, hv(image.media_type()));
     h.insert(HeaderName::from_static(LEVEL_HEADER), number(made.level));
     h.insert(
         HeaderName::from_static(CLAMPED_HEADER),
         number(made.clamped),
     );
-    Ok(tile_response(r, req.headers(), h, made.png))
+    Ok(tile_response(r, req.headers(), h, made.image))
 }
 
 /// The extensions an `Accept` header asks for: `(octvertexnormals, metadata)`.
@@ -314,22 +328,20 @@ async fn terrain(
 ) -> Result<Response, ApiError> {
     let Path((name, z, x, y)) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
-    let zxy = tile_address(&z, &x, &y, ".terrain")?;
+    let (zxy, _) = tile_address(&z, &x, &y, &[".terrain"])?;
     let (normals, metadata) = extensions(req.headers());
     let t = tiler(&st, r).await?;
     let gzip = accepts_gzip(req.headers());
-    let (made, body) = tokio::task::spawn_blocking(move || {
-        let made = t.mesh(zxy, normals, metadata)?;
-        let body = if gzip {
-            cbdam_tiles::gzip(&made.bytes)
-        } else {
-            made.bytes.clone()
-        };
-        Ok::<_, TilesError>((made, body))
-    })
-    .await
-    .map_err(|e| ApiError::Internal(format!("making a tile: {e}")))?
-    .map_err(api_error)?;
+    // A kept tile comes with its gzip: nothing is compressed per request.
+    let made = tokio::task::spawn_blocking(move || t.mesh(zxy, normals, metadata))
+        .await
+        .map_err(|e| ApiError::Internal(format!("making a tile: {e}")))?
+        .map_err(api_error)?;
+    let body = if gzip {
+        made.gzipped.clone()
+    } else {
+        made.bytes()
+    };
     let mut h = HeaderMap::new();
     h.insert(header::CONTENT_TYPE, hv("application/vnd.quantized-mesh"));
     h.insert(header::VARY, hv("accept, accept-encoding"));

@@ -198,6 +198,14 @@ pub(crate) async fn fetch(s: &Running, name: &str, (z, x, y): (u32, u32, u32), a
         .await
         .unwrap();
     assert_eq!(again.status(), 304);
+    // Without gzip: the same bytes, unpacked from the tile kept.
+    let plain = client().get(&url).header("accept", accept).send().await;
+    let plain = plain.unwrap();
+    assert!(plain.headers().get("content-encoding").is_none(), "{url}");
+    assert!(
+        plain.bytes().await.unwrap() == raw,
+        "{url}: the bytes without gzip differ"
+    );
     assert_eq!(h["cbdam-clamped-vertices"], "0", "{url}: vertices clamped");
     let header = |name: &str| h[name].to_str().unwrap().parse::<usize>().unwrap();
     Qm {

@@ -302,3 +302,59 @@ async fn tile_requests_are_counted_as_tiles_in_metrics() {
     );
     s.stop().await;
 }
+
+/// Decodes a WebP into RGBA pixels (the `image-webp` decoder).
+fn decode_webp(bytes: &[u8]) -> (u32, Vec<[u8; 4]>) {
+    let mut dec = image_webp::WebPDecoder::new(std::io::Cursor::new(bytes)).unwrap();
+    let mut buf = vec![0; dec.output_buffer_size().unwrap()];
+    dec.read_image(&mut buf).unwrap();
+    let px = if dec.has_alpha() {
+        buf.chunks_exact(4)
+            .map(|p| [p[0], p[1], p[2], p[3]])
+            .collect()
+    } else {
+        buf.chunks_exact(3)
+            .map(|p| [p[0], p[1], p[2], 255])
+            .collect()
+    };
+    (dec.dimensions().0, px)
+}
+
+/// `tiles.json?format=webp` points at `.webp` tiles, served as `image/webp` with the very
+/// pixels of the PNG tile (transparent ones included); other formats are a 400 naming them.
+#[tokio::test]
+async fn webp_tiles_hold_the_png_tiles_pixels() {
+    let dem = geographic_dem();
+    let s = serve(vec![("d", dem.repository())]).await;
+    for format in ["terrarium", "terrain-rgb"] {
+        let tj = get_json(&s, &format!("/v1/repos/d/{format}/tiles.json?format=webp")).await;
+        let template = tj["tiles"][0].as_str().unwrap();
+        assert!(template.ends_with("/{z}/{x}/{y}.webp"), "{template}");
+        let z = tj["maxzoom"].as_u64().unwrap() as u32;
+        let b: Vec<f64> = serde_json::from_value(tj["bounds"].clone()).unwrap();
+        let (x, y) = mercator_tile(z, 0.5 * (b[1] + b[3]), 0.5 * (b[0] + b[2]));
+        let get =
+            |ext: &str| client().get(s.url(&format!("/v1/repos/d/{format}/{z}/{x}/{y}.{ext}")));
+        let webp = get("webp").send().await.unwrap();
+        assert_eq!(webp.status(), 200);
+        assert_eq!(webp.headers()["content-type"], "image/webp");
+        let webp = webp.bytes().await.unwrap();
+        let png = get("png").send().await.unwrap().bytes().await.unwrap();
+        let (size, png_px) = decode_png(&png);
+        assert_eq!(decode_webp(&webp), (size, png_px.clone()));
+        assert!(
+            png_px.iter().any(|p| p[3] == 0),
+            "the tile has transparent pixels"
+        );
+    }
+    for (path, says) in [
+        ("/v1/repos/d/terrarium/tiles.json?format=gif", "png or webp"),
+        ("/v1/repos/d/terrarium/0/0/0.gif", "z/x/y.webp"),
+    ] {
+        let r = client().get(s.url(path)).send().await.unwrap();
+        assert_eq!(r.status(), 400, "{path}");
+        let text = r.text().await.unwrap();
+        assert!(text.contains(says), "{path}: {text}");
+    }
+    s.stop().await;
+}

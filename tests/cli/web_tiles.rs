@@ -237,3 +237,47 @@ fn bad_boxes_are_refused_by_name() {
         assert!(!stderr(&o).contains("panicked"), "{bbox}: {}", stderr(&o));
     }
 }
+
+/// `--image webp`: `.webp` files, what `cbdam serve` answers for them, listed by a `tiles.json`
+/// whose URLs end in `.webp`; refused with quantized-mesh, naming why.
+#[test]
+fn webp_exports_are_what_serve_answers() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro_at("2");
+    let out = dir.path().join("webp");
+    export(
+        &repo,
+        &out,
+        "terrain-rgb",
+        &["--max-zoom", "7", "--image", "webp"],
+    );
+    let tj: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("tiles.json")).unwrap()).unwrap();
+    assert_eq!(tj["tiles"][0], "{z}/{x}/{y}.webp");
+    let webps = files(&out, "webp");
+    assert!(webps.len() >= 8, "{} tiles", webps.len());
+    assert!(files(&out, "png").is_empty());
+    let (mut server, addr) = spawn_serve(&[&format!("j={}", s(&repo))]);
+    for p in &webps {
+        let rel = p.strip_prefix(&out).unwrap().to_str().unwrap().to_string();
+        let served = get_body(&addr, &format!("/v1/repos/j/terrain-rgb/{rel}"));
+        let file = std::fs::read(p).unwrap();
+        assert!(
+            file.starts_with(b"RIFF") && file[8..12] == *b"WEBP",
+            "{rel}"
+        );
+        assert_eq!(served, file, "{rel}");
+    }
+    server.kill().unwrap();
+    server.wait().unwrap();
+    let qm = dir.path().join("qm");
+    let (repo, qm) = (s(&repo), s(&qm));
+    let args = ["tiles", &repo, "--format", "quantized-mesh", "-o", &qm];
+    let o = cbdam(&[&args[..], &["--image", "webp"]].concat());
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("--image webp is for raster tiles"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -1,6 +1,6 @@
 //! Web-map tiles of a cbdam repository: what CesiumJS and MapLibre GL read.
 //!
-//! - [`raster`]: terrarium and Mapbox terrain-RGB PNG tiles in the Web Mercator XYZ scheme,
+//! - [`raster`]: terrarium and Mapbox terrain-RGB PNG or WebP ([`raster_image`]) tiles in the Web Mercator XYZ scheme,
 //!   for MapLibre's `raster-dem` source (and deck.gl, openglobus);
 //! - [`quantized_mesh`]: quantized-mesh-1.0 tiles in the geographic TMS scheme, for
 //!   CesiumJS's `CesiumTerrainProvider`;
@@ -19,11 +19,13 @@ pub mod mesh_cut;
 pub mod place;
 pub mod quantized_mesh;
 pub mod raster;
+pub mod raster_image;
 pub mod schemes;
 pub mod surface;
 pub mod tiler;
 
 pub use raster::Encoding;
+pub use raster_image::ImageFormat;
 pub use schemes::{Scheme, TileId};
 pub use tiler::Tiler;
 

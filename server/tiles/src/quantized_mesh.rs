@@ -48,8 +48,10 @@ pub struct TileRequest<'a> {
 /// A built tile and what was measured on it.
 #[derive(Clone, Debug)]
 pub struct MeshTile {
-    /// The quantized-mesh bytes (not compressed).
-    pub bytes: Vec<u8>,
+    /// The quantized-mesh bytes, gzip-compressed ([`crate::gzip`]): what clients get (they
+    /// all accept gzip but the rare one, for which [`MeshTile::bytes`] unpacks them). Kept
+    /// compressed alone, so a kept tile costs its gzip's bytes, half its bytes or less.
+    pub gzipped: Vec<u8>,
     /// The repository level the vertex heights come from (the finest one used).
     pub level: u8,
     /// Metres between consecutive quantized heights.
@@ -63,6 +65,18 @@ pub struct MeshTile {
     pub over_threshold: usize,
     /// Vertices whose height fell outside the header's range and were clamped to it.
     pub clamped: u64,
+}
+
+impl MeshTile {
+    /// The quantized-mesh bytes, not compressed.
+    pub fn bytes(&self) -> Vec<u8> {
+        use std::io::Read;
+        let mut out = Vec::new();
+        flate2::read::GzDecoder::new(&self.gzipped[..])
+            .read_to_end(&mut out)
+            .expect("a gzip made in memory unpacks");
+        out
+    }
 }
 
 /// The first geographic level whose vertices are no farther apart than the data's finest
@@ -246,7 +260,7 @@ pub fn build(
         write_metadata(&mut out, meta);
     }
     MeshTile {
-        bytes: out,
+        gzipped: crate::gzip(&out),
         level: if level == u8::MAX { 0 } else { level },
         height_step,
         deviation: cut.error,

@@ -1,5 +1,6 @@
 //! Elevation raster tiles: heights at each pixel centre of a Web Mercator tile, written as a
-//! terrarium or Mapbox terrain-RGB PNG (the encodings MapLibre's `raster-dem` source reads).
+//! terrarium or Mapbox terrain-RGB PNG or WebP (the encodings MapLibre's `raster-dem` source
+//! reads; the image files are [`crate::raster_image`]'s).
 //!
 //! - terrarium: `h = R·256 + G + B/256 − 32768`, a step of 1/256 m over −32 768 … 32 767.996 m;
 //! - terrain-RGB: `h = −10 000 + (R·65 536 + G·256 + B)·0.1`, a step of 0.1 m over
@@ -7,11 +8,12 @@
 //!   −10 000 m and counted ([`RasterTile::clamped`]).
 //!
 //! Heights are rounded to the nearest step, so a pixel is within half a step of the height
-//! computed. Pixels without data are transparent (an RGBA PNG; a tile with data everywhere is
-//! RGB) and their colour encodes 0 m, which is what a client ignoring alpha draws there.
+//! computed. Pixels without data are transparent (an RGBA image; a tile with data everywhere
+//! is RGB) and their colour encodes 0 m, which is what a client ignoring alpha draws there.
 
 use crate::TilesError;
 use crate::place::{Placement, coarsen_for};
+use crate::raster_image::ImageFormat;
 use crate::schemes::{Scheme, TileId, mercator_lat};
 use crate::surface::Surface;
 
@@ -77,8 +79,8 @@ impl Encoding {
 /// One encoded tile.
 #[derive(Clone, Debug)]
 pub struct RasterTile {
-    /// The PNG.
-    pub png: Vec<u8>,
+    /// The image file (PNG or WebP, as asked).
+    pub image: Vec<u8>,
     /// Pixels whose height the encoding could not hold (clamped to its range).
     pub clamped: u64,
     /// Pixels without data (transparent).
@@ -150,23 +152,24 @@ pub fn render(
     place: &Placement,
     t: TileId,
     tile: u32,
-    encoding: Encoding,
+    (encoding, format): (Encoding, ImageFormat),
 ) -> Result<RasterTile, TilesError> {
     render_plan(
         Some(surface),
         &PixelPlan::of(place, t, tile),
         tile,
-        encoding,
+        (encoding, format),
     )
 }
 
 /// Renders the pixels `plan` places (a tile of `tile` pixels) from `surface`, which holds the
-/// plan's level and coarser ones wherever its pixels lie (`None`: no pixel on the data).
+/// plan's level and coarser ones wherever its pixels lie (`None`: no pixel on the data), as
+/// an image file of `format`.
 pub fn render_plan(
     surface: Option<&Surface>,
     plan: &PixelPlan,
     tile: u32,
-    encoding: Encoding,
+    (encoding, format): (Encoding, ImageFormat),
 ) -> Result<RasterTile, TilesError> {
     let mut rgba = vec![0u8; plan.positions.len() * 4];
     let (mut clamped, mut nodata, mut level) = (0u64, 0u64, u8::MAX);
@@ -188,36 +191,13 @@ pub fn render_plan(
             }
         }
     }
-    let png = write_png(&rgba, tile, nodata > 0)?;
+    let image = format.write(&rgba, tile, nodata > 0)?;
     Ok(RasterTile {
-        png,
+        image,
         clamped,
         nodata,
         level: if level == u8::MAX { 0 } else { level },
     })
-}
-
-/// A PNG of `rgba` pixels, RGB when no pixel is transparent.
-fn write_png(rgba: &[u8], tile: u32, alpha: bool) -> Result<Vec<u8>, TilesError> {
-    let mut out = Vec::new();
-    let mut enc = png::Encoder::new(&mut out, tile, tile);
-    enc.set_depth(png::BitDepth::Eight);
-    enc.set_compression(png::Compression::Fast);
-    let internal = |e: png::EncodingError| TilesError::Internal(format!("writing a PNG: {e}"));
-    if alpha {
-        enc.set_color(png::ColorType::Rgba);
-        let mut w = enc.write_header().map_err(internal)?;
-        w.write_image_data(rgba).map_err(internal)?;
-    } else {
-        enc.set_color(png::ColorType::Rgb);
-        let rgb: Vec<u8> = rgba
-            .chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect();
-        let mut w = enc.write_header().map_err(internal)?;
-        w.write_image_data(&rgb).map_err(internal)?;
-    }
-    Ok(out)
 }
 
 #[cfg(test)]

@@ -21,6 +21,7 @@ use crate::mesh_cut::shared::{Shared, face_boxes};
 use crate::place::Placement;
 use crate::quantized_mesh::{self, BlockWork, MeshTile, TileHeights, TileRequest};
 use crate::raster::{self, Encoding, PixelPlan, RasterTile};
+use crate::raster_image::ImageFormat;
 use crate::schemes::{MERCATOR_MAX_LAT, Scheme, TileId, cesium_level_error};
 use crate::surface::{RecordIndex, Surface};
 
@@ -247,12 +248,13 @@ impl Tiler {
         }
     }
 
-    /// Raster tile `z/x/y` (Web Mercator, y from the north).
+    /// Raster tile `z/x/y` (Web Mercator, y from the north), heights as `encoding` writes
+    /// them, in an image file of `format`.
     pub fn raster(
         &self,
         (z, x, y): (u32, u32, u32),
         tile: u32,
-        encoding: Encoding,
+        (encoding, format): (Encoding, ImageFormat),
     ) -> Result<RasterTile, TilesError> {
         let t = Scheme::WebMercator.tile(z, x, y)?;
         let max = self.raster_max_zoom(tile);
@@ -267,16 +269,17 @@ impl Tiler {
         let held = self
             .held(&pixels.positions, pixels.coarsen)
             .map_err(|e| TilesError::Internal(format!("decoding tile {z}/{x}/{y}: {e}")))?;
-        raster::render_plan(held.get(), &pixels, tile, encoding)
+        raster::render_plan(held.get(), &pixels, tile, (encoding, format))
     }
 
-    /// Quantized-mesh tile `z/x/y` (geographic TMS, y from the south).
+    /// Quantized-mesh tile `z/x/y` (geographic TMS, y from the south), with its gzip; a
+    /// tile asked for again is the one kept (within [`MESH_CACHE_BYTES`]), not made again.
     pub fn mesh(
         &self,
         (z, x, y): (u32, u32, u32),
         normals: bool,
         metadata: bool,
-    ) -> Result<MeshTile, TilesError> {
+    ) -> Result<Arc<MeshTile>, TilesError> {
         let t = Scheme::Geographic.tile(z, x, y)?;
         // Both root tiles exist whatever the data covers: CesiumJS requests them and upsamples
         // the levels below from them where nothing finer is available.
@@ -291,15 +294,11 @@ impl Tiler {
         }
         let key = (t, normals, metadata);
         if let Some(made) = self.meshes.get(&key) {
-            return Ok(MeshTile::clone(&made));
+            return Ok(made);
         }
         let made = self.make_mesh(t, normals, metadata)?;
-        let bytes = made.bytes.len() + size_of::<MeshTile>();
-        Ok(MeshTile::clone(&self.meshes.insert(
-            key,
-            Arc::new(made),
-            bytes,
-        )))
+        let bytes = made.gzipped.len() + size_of::<MeshTile>();
+        Ok(self.meshes.insert(key, Arc::new(made), bytes))
     }
 
     /// Makes mesh tile `t` (its block's work shared with its neighbours' where it can be).
