@@ -224,7 +224,16 @@ fn measure_peers(
     }
 }
 
-pub fn run(args: &BenchReportArgs) -> Result<()> {
+/// What the flags ask to measure, checked: runs per point, the tolerances in order, the
+/// synthetic terrain's side and the input files.
+struct Plan {
+    runs: usize,
+    eps: Vec<f64>,
+    synth_side: usize,
+    inputs: Vec<PathBuf>,
+}
+
+fn plan_of(args: &BenchReportArgs) -> Result<Plan> {
     let runs = args.runs.unwrap_or(if args.quick { 1 } else { 3 });
     if runs == 0 {
         bail!("--runs must be at least 1");
@@ -243,6 +252,21 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
     } else {
         args.inputs.clone()
     };
+    Ok(Plan {
+        runs,
+        eps,
+        synth_side,
+        inputs,
+    })
+}
+
+pub fn run(args: &BenchReportArgs) -> Result<()> {
+    let Plan {
+        runs,
+        eps,
+        synth_side,
+        inputs,
+    } = plan_of(args)?;
     std::fs::create_dir_all(args.out.join("plots"))
         .with_context(|| format!("creating {}", args.out.display()))?;
 
@@ -254,15 +278,7 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
             .build()?,
         all: rayon::ThreadPoolBuilder::new().build()?,
     };
-    let mut coders: Vec<CoderKind> = Vec::new();
-    for c in &args.coders {
-        if !coders.contains(&c.kind()) {
-            coders.push(c.kind());
-        }
-    }
-    if coders.is_empty() {
-        bail!("--coders needs at least one coder");
-    }
+    let coders = coders_of(&args.coders)?;
     let dems = read_dems(&inputs, synth_side)?;
 
     let mut datasets = Vec::new();
@@ -303,16 +319,7 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
         md += &rms_mode::section(rows, *e)?;
         md.push('\n');
     }
-    for d in &datasets {
-        let rows: Vec<&PeerRow> = peers
-            .rows()
-            .iter()
-            .filter(|r| r.dem == file_safe(&d.name))
-            .collect();
-        let plot = format!("plots/{}.svg", file_safe(&d.name));
-        plot::dataset(&args.out.join(&plot), &d.name, &plot_series(d, &rows))?;
-        per_dataset(&mut md, d, &rows, &plot)?;
-    }
+    datasets_sections(&mut md, args, &datasets, peers.rows())?;
     md += "\n## Rendering cost against error\n\n";
     md += &rendering_cost(args, &datasets)?;
     fairness(&mut md);
@@ -323,6 +330,39 @@ pub fn run(args: &BenchReportArgs) -> Result<()> {
         serde_json::to_vec_pretty(&results_json(&datasets, &peers))?,
     )?;
     println!("{}", report.display());
+    Ok(())
+}
+
+/// `--coders` without repeats, in order; at least one.
+fn coders_of(args: &[CoderArg]) -> Result<Vec<CoderKind>> {
+    let mut coders: Vec<CoderKind> = Vec::new();
+    for c in args {
+        if !coders.contains(&c.kind()) {
+            coders.push(c.kind());
+        }
+    }
+    if coders.is_empty() {
+        bail!("--coders needs at least one coder");
+    }
+    Ok(coders)
+}
+
+/// A section per dataset (its plot written beside the report).
+fn datasets_sections(
+    md: &mut String,
+    args: &BenchReportArgs,
+    datasets: &[Dataset],
+    peer_rows: &[PeerRow],
+) -> Result<()> {
+    for d in datasets {
+        let rows: Vec<&PeerRow> = peer_rows
+            .iter()
+            .filter(|r| r.dem == file_safe(&d.name))
+            .collect();
+        let plot = format!("plots/{}.svg", file_safe(&d.name));
+        plot::dataset(&args.out.join(&plot), &d.name, &plot_series(d, &rows))?;
+        per_dataset(md, d, &rows, &plot)?;
+    }
     Ok(())
 }
 
