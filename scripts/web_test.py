@@ -1178,8 +1178,9 @@ def check_digests(bundle, cbdam, repositories):
                 )
                 wasm_s = time.time() - t
                 page = r.get("result", {}).get("value")
-                if page is None:
-                    failures.append(f"digest: {repo}: the page failed: {r.get('exceptionDetails')}")
+                if "exceptionDetails" in r or not isinstance(page, str):
+                    why = r.get("exceptionDetails", {}).get("exception", {}).get("description")
+                    failures.append(f"digest: {repo}: the page could not decode it: {why or r}")
                     continue
                 meta = json.loads(subprocess.run(
                     [cbdam, "inspect", "--json", "--digest", repo],
