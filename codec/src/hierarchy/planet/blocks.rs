@@ -52,6 +52,20 @@ pub trait PlanetTiles: Sync {
     /// multiples of `2^max(s, min(min_stride, tile_log2))` for its own stride `2^s`: the same
     /// values, validity and classes at those points as the tile at its own stride.
     fn tile(&self, face: u8, index: usize, min_stride: u32) -> Result<Arc<PlanetTile>, CodecError>;
+
+    /// Tile `index` of face `face` at its own stride, holding at least the points in `part`
+    /// (`(x0, y0, x1, y1)`, inclusive, lattice coordinates of the face) as
+    /// [`PlanetTiles::tile`] does; its other points may be holes. A block reads only the
+    /// strips of its neighbours' tiles that its diamonds reach.
+    fn tile_part(
+        &self,
+        face: u8,
+        index: usize,
+        part: (i64, i64, i64, i64),
+    ) -> Result<Arc<PlanetTile>, CodecError> {
+        let _ = part;
+        self.tile(face, index, 0)
+    }
 }
 
 impl PlanetTiles for PlanetGrid {
@@ -66,6 +80,47 @@ impl PlanetTiles for PlanetGrid {
         };
         thinned(t, min_stride.min(self.tile_log2()))
     }
+
+    /// Its points outside `part` made holes, so that an encode reading outside the strips it
+    /// asked for writes other bytes (the block-wise tests check it).
+    fn tile_part(
+        &self,
+        face: u8,
+        index: usize,
+        part: (i64, i64, i64, i64),
+    ) -> Result<Arc<PlanetTile>, CodecError> {
+        let t = PlanetTiles::tile(self, face, index, 0)?;
+        Ok(Arc::new(only_part(&t, part)?))
+    }
+}
+
+/// `t` with its points outside `part` (inclusive) made holes.
+pub fn only_part(t: &PlanetTile, part: (i64, i64, i64, i64)) -> Result<PlanetTile, CodecError> {
+    let (x0, y0, x1, y1) = t.rect;
+    let step = 1usize << t.stride;
+    let mut values = t.grid.values.to_vec();
+    let mut valid = t.grid.valid.to_vec();
+    let mut class = t.class.clone();
+    let mut k = 0;
+    for y in (y0..=y1).step_by(step) {
+        for x in (x0..=x1).step_by(step) {
+            if !(part.0 <= x && x <= part.2 && part.1 <= y && y <= part.3) {
+                values[k] = 0;
+                valid[k] = false;
+                if let Some(c) = class.as_mut() {
+                    c[k] = HOLE;
+                }
+            }
+            k += 1;
+        }
+    }
+    let grid = HeightGrid {
+        width: t.grid.width,
+        height: t.grid.height,
+        values: values.into(),
+        valid: valid.into(),
+    };
+    PlanetTile::new(t.stride, t.rect, grid, class)
 }
 
 /// `t` with only its points on multiples of `2^stride` (itself when it holds no finer ones).
@@ -556,6 +611,41 @@ fn view_of(
     )
 }
 
+/// Lattice points `(x0, y0, x1, y1)` of a face, inclusive.
+type Rect = (i64, i64, i64, i64);
+
+/// The smallest rectangle holding `a` and `b`.
+fn union(a: Rect, b: Rect) -> Rect {
+    (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3))
+}
+
+/// A planet holding only `wanted`'s tiles at their own strides: whole (`None`) or with at
+/// least the points of a rectangle ([`PlanetTiles::tile_part`]).
+fn view_of_parts(
+    outline: &PlanetOutline,
+    tiles: &dyn PlanetTiles,
+    wanted: HashMap<(u8, usize), Option<Rect>>,
+) -> Result<PlanetGrid, CodecError> {
+    let held = wanted
+        .into_par_iter()
+        .map(|((f, i), part)| {
+            let tile = match part {
+                None => tiles.tile(f, i, 0)?,
+                Some(part) => tiles.tile_part(f, i, part)?,
+            };
+            Ok(((f, i), tile))
+        })
+        .collect::<Result<HashMap<_, _>, CodecError>>()?;
+    let d = &outline.domain;
+    PlanetGrid::partial(
+        d.n(),
+        d.layout().k(),
+        outline.tile_log2,
+        outline.variable,
+        held,
+    )
+}
+
 /// What every block's encode shares.
 struct BlockEncode<'a> {
     outline: &'a PlanetOutline,
@@ -582,12 +672,20 @@ impl BlockEncode<'_> {
             id.face == face && xs.0 <= x && x <= xs.1 && ys.0 <= y && y <= ys.1
         };
         let needed = self.needed(face, xs, &owns);
-        let mut wanted: BTreeSet<(u8, usize)> =
-            group.tiles(self.across).map(|i| (face, i)).collect();
+        // Its own tiles whole, and of the others the strips its diamonds reach.
+        let mut wanted: HashMap<(u8, usize), Option<Rect>> = group
+            .tiles(self.across)
+            .map(|i| ((face, i), None))
+            .collect();
         for id in needed.iter().flatten() {
-            wanted.extend(tiles_under(domain, self.outline.tile_log2, *id));
+            for (f, i, r) in tiles_under(domain, self.outline.tile_log2, *id) {
+                wanted
+                    .entry((f, i))
+                    .and_modify(|w| *w = w.map(|w| union(w, r)))
+                    .or_insert(Some(r));
+            }
         }
-        let view = view_of(self.outline, self.tiles, wanted, 0)?;
+        let view = view_of_parts(self.outline, self.tiles, wanted)?;
         let errors = TiledError::new(&view)?;
         let mut output = BlockOutput::default();
         let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
@@ -688,15 +786,15 @@ impl BlockEncode<'_> {
     }
 }
 
-/// The tiles (face, index) holding a point of `id`'s square or of any face's view of it: its
-/// bounds cut at its face's edges, each part carried onto the face it lies on (a part beyond a
-/// cube corner is off the surface), every corner of a part on every face holding it.
-fn tiles_under(domain: &Domain, tile_log2: u32, id: DiamondId) -> Vec<(u8, usize)> {
+/// The tiles (face, index) holding a point of `id`'s square or of any face's view of it, each
+/// with the rectangle of its points there: its bounds cut at its face's edges, each part
+/// carried onto the face it lies on (a part beyond a cube corner is off the surface), every
+/// corner of a part on every face holding it.
+fn tiles_under(domain: &Domain, tile_log2: u32, id: DiamondId) -> Vec<(u8, usize, Rect)> {
     let cube = domain.cube().expect("a cube-sphere");
     let side = cube.side();
     let layout = domain.layout();
-    let mut out = Vec::new();
-    let mut rects: HashMap<u8, (i64, i64, i64, i64)> = HashMap::new();
+    let mut rects: HashMap<u8, Rect> = HashMap::new();
     let mut everything = false;
     let parts = |a0: i64, a1: i64| {
         [
@@ -721,20 +819,33 @@ fn tiles_under(domain: &Domain, tile_log2: u32, id: DiamondId) -> Vec<(u8, usize
                 let (reps, len) = cube.representations(p);
                 for r in &reps[..len] {
                     let e = rects.entry(r.face).or_insert((r.x, r.y, r.x, r.y));
-                    *e = (e.0.min(r.x), e.1.min(r.y), e.2.max(r.x), e.3.max(r.y));
+                    *e = union(*e, (r.x, r.y, r.x, r.y));
                 }
             }
         }
     }
     if everything {
-        let rect = (0, 0, side, side);
-        for f in 0..domain.faces() {
-            out.extend(tiles_meeting(side, tile_log2, rect).map(|i| (f, i)));
-        }
-        return out;
+        rects = (0..domain.faces())
+            .map(|f| (f, (0, 0, side, side)))
+            .collect();
     }
+    let across = tiles_across(side, tile_log2);
+    let t = 1i64 << tile_log2;
+    let mut out = Vec::new();
     for (f, rect) in rects {
-        out.extend(tiles_meeting(side, tile_log2, rect).map(|i| (f, i)));
+        for i in tiles_meeting(side, tile_log2, rect) {
+            // The tile's rectangle (as `PlanetGrid::tile_rects` gives it), clipping the part.
+            let (bx, by) = ((i % across) as i64, (i / across) as i64);
+            let (tx0, ty0) = (bx * t, by * t);
+            let (tx1, ty1) = ((tx0 + t).min(side), (ty0 + t).min(side));
+            let part = (
+                rect.0.max(tx0),
+                rect.1.max(ty0),
+                rect.2.min(tx1),
+                rect.3.min(ty1),
+            );
+            out.push((f, i, part));
+        }
     }
     out
 }
