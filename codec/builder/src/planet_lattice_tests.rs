@@ -8,6 +8,7 @@ use std::sync::Arc;
 use super::Resampler;
 use crate::band_cache::Samples;
 use crate::planet_input::{Frame, PlanetInput, PlanetInputs, PointSource, SampleSource};
+use crate::planet_plan::{input_stride, lattice_spacing_deg};
 use crate::planet_resampling::sample_footprint;
 use cbdam_codec::geodesy::cube_map::lat_lon_to_face_st;
 use cbdam_codec::geodesy::lattice_lat_lon;
@@ -43,11 +44,13 @@ fn input(name: &str, (lat0, lon0): (f64, f64), deg: f64, (w, h): (usize, usize))
 }
 
 /// Two fine insets, one astride the edge of an equatorial and a polar face, one on the cube
-/// corner at 35.26° N 45° E, overlapping a global coarse input: finest first.
+/// corner at 35.26° N 45° E, and an inset coarser than the lattice (points between its samples
+/// are coarse only), over a global coarse input: finest first.
 fn inputs() -> PlanetInputs {
     PlanetInputs::held(vec![
         input("edge.tif", (52.0, -12.0), 0.3, (50, 40)),
         input("corner.tif", (40.0, 40.0), 0.3, (34, 30)),
+        input("coarse.tif", (30.0, -70.0), 1.2, (30, 20)),
         input("globe.tif", (90.0, -180.0), 3.0, (120, 61)),
     ])
 }
@@ -88,7 +91,8 @@ fn every_painted_point_is_its_own_resampling() {
     let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
     let r = Resampler::new(&inputs, 17, 4, &plan).unwrap();
     let per_face = r.tiles_per_face();
-    let mut kinds = [0usize; 4];
+    let mut coarse_only = 0;
+    let mut kinds = [0usize; 5];
     for face in 0..6u8 {
         for tile in 0..per_face {
             for stride in [0, 2] {
@@ -102,14 +106,17 @@ fn every_painted_point_is_its_own_resampling() {
                         let got = (t.grid.values[k], t.grid.valid[k], won[k], class);
                         let want = reference(&r, &plan, face, (x, y));
                         assert_eq!(got, want, "face {face} point ({x}, {y}) stride {stride}");
-                        kinds[usize::from(want.2.min(3))] += 1;
+                        kinds[usize::from(want.2.min(4))] += 1;
+                        coarse_only += usize::from(want.3 == COARSE_ONLY && want.2 == 2);
                     }
                 }
             }
         }
     }
-    // Each input wins points, and some are holes (the voids).
+    // Each input wins points, some are holes (the voids), and the coarse inset wins some
+    // points between its samples (coarse only), which the globe covers too.
     assert!(kinds.iter().all(|&n| n > 0), "{kinds:?}");
+    assert!(coarse_only > 0);
 }
 
 /// A part of a tile holds the whole tile's points in the part and holes elsewhere.
@@ -121,8 +128,7 @@ fn a_part_of_a_tile_is_the_tile_there_and_holes_elsewhere() {
     let rects = PlanetGrid::tile_rects(r.domain(), r.tile_log2());
     let mut inside = 0;
     for face in [0u8, 2, 4] {
-        for tile in 0..r.tiles_per_face() {
-            let (x0, y0, x1, y1) = rects[tile];
+        for (tile, &(x0, y0, x1, y1)) in rects.iter().enumerate() {
             let part = (x0 + 3, y0 - 5, x1 - 7, y0 + 4);
             let (whole, won) = r.tile(face, tile, 0).unwrap();
             let (t, won_part) = r.tile_part(face, tile, 0, part).unwrap();
@@ -159,14 +165,16 @@ fn a_footprint_holds_every_sample_cell() {
     for (i, input) in inputs.inputs.iter().enumerate() {
         assert!(sample_footprint(input, r.strides[i], side).is_none(), "{i}");
     }
-    // Insets inside a face (an equatorial one, a polar one), on the lattice's stride and on
-    // every fourth point.
+    // Insets inside a face (an equatorial one, a polar one), on lattices finer than them (at
+    // their strides there).
     let insets = [
         input("equator.tif", (20.0, 10.0), 0.3, (40, 30)),
         input("pole.tif", (80.0, 100.0), 0.3, (40, 25)),
     ];
     for inset in &insets {
-        for stride in [0, 2] {
+        for k in [6, 8] {
+            let side = 16i64 << k;
+            let stride = input_stride(inset.spacing_deg, lattice_spacing_deg(17, k), k);
             let step = 1i64 << stride;
             let (face, (x0, y0, x1, y1)) = sample_footprint(inset, stride, side).unwrap();
             for row in 0..inset.height {
