@@ -32,6 +32,9 @@ use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded, PlanetGrid, PlanetTile};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
+/// How many inputs' samples a tile's painting holds at once.
+const INPUTS_HELD: usize = 4;
+
 /// Lattice points `(x0, y0, x1, y1)` of a face, inclusive.
 type Rect = (i64, i64, i64, i64);
 
@@ -170,12 +173,80 @@ impl<'a> Resampler<'a> {
         let mut valid = vec![false; w * h];
         let mut won = vec![u16::MAX; w * h];
         let mut class = vec![HOLE; w * h];
-        // Read (or found in the cache) only now, and let go when the tile is painted.
-        let reaching = self
-            .reaching(face, tile, s, part)
-            .into_iter()
-            .map(|(input, span)| Ok((input, span, self.inputs.samples(usize::from(input))?)))
-            .collect::<Result<Vec<_>>>()?;
+        let mut done = vec![false; w * h];
+        let reaching = self.reaching(face, tile, s, part);
+        self.count_painted((w, h), (x0, y0), s, part);
+        // The inputs a few at a time (read, or found in the cache, only now, and let go when
+        // they have painted), so that the samples held do not grow with the candidates.
+        for chunk in reaching.chunks(INPUTS_HELD) {
+            let chunk = chunk
+                .iter()
+                .map(|&(input, span)| Ok((input, span, self.inputs.samples(usize::from(input))?)))
+                .collect::<Result<Vec<_>>>()?;
+            values
+                .par_chunks_mut(w)
+                .zip(valid.par_chunks_mut(w))
+                .zip(won.par_chunks_mut(w))
+                .zip(class.par_chunks_mut(w))
+                .zip(done.par_chunks_mut(w))
+                .enumerate()
+                .for_each(|(row, ((((values, valid), won), class), done))| {
+                    let y = y0 + ((row as i64) << s);
+                    for i in 0..w {
+                        if done[i] {
+                            continue;
+                        }
+                        let x = x0 + ((i as i64) << s);
+                        let mut position = None;
+                        for (input, (c0, c1, r0, r1), samples) in &chunk {
+                            if i < *c0 || i > *c1 || row < *r0 || row > *r1 {
+                                continue;
+                            }
+                            let ll = *position.get_or_insert_with(|| self.lat_lon(face, x, y));
+                            let source = self.inputs.source_of(
+                                samples,
+                                *input,
+                                ll,
+                                (x, y),
+                                self.lattice_deg,
+                                &self.strides,
+                            );
+                            match source {
+                                Some(PointSource::Sample(v, wi, j)) => {
+                                    if let Some(u) = self.plan.to_units(v).ok().flatten() {
+                                        values[i] = u;
+                                        valid[i] = true;
+                                        won[i] = wi;
+                                        class[i] = j;
+                                    }
+                                    done[i] = true;
+                                    break;
+                                }
+                                Some(PointSource::CoarseOnly(wi)) => {
+                                    won[i] = wi;
+                                    class[i] = COARSE_ONLY;
+                                    done[i] = true;
+                                    break;
+                                }
+                                None => {}
+                            }
+                        }
+                    }
+                });
+        }
+        let finest = class.iter().copied().filter(|&c| c < 32).min();
+        Ok((values, valid, won, class, finest))
+    }
+
+    /// Adds the points of a `w × h` tile at `(x0, y0)`, stride `2^s` (of `part` only where one
+    /// is given), to those painted.
+    fn count_painted(
+        &self,
+        (w, h): (usize, usize),
+        (x0, y0): (i64, i64),
+        s: u32,
+        part: Option<Rect>,
+    ) {
         let painted = match part {
             None => (w * h) as i64,
             // The part's points on the stride.
@@ -194,52 +265,6 @@ impl<'a> Resampler<'a> {
             self.painted_parts
                 .fetch_add(painted as u64, Ordering::Relaxed);
         }
-        values
-            .par_chunks_mut(w)
-            .zip(valid.par_chunks_mut(w))
-            .zip(won.par_chunks_mut(w))
-            .zip(class.par_chunks_mut(w))
-            .enumerate()
-            .for_each(|(row, (((values, valid), won), class))| {
-                let y = y0 + ((row as i64) << s);
-                for i in 0..w {
-                    let x = x0 + ((i as i64) << s);
-                    let mut position = None;
-                    for (input, (c0, c1, r0, r1), samples) in &reaching {
-                        if i < *c0 || i > *c1 || row < *r0 || row > *r1 {
-                            continue;
-                        }
-                        let ll = *position.get_or_insert_with(|| self.lat_lon(face, x, y));
-                        let source = self.inputs.source_of(
-                            samples,
-                            *input,
-                            ll,
-                            (x, y),
-                            self.lattice_deg,
-                            &self.strides,
-                        );
-                        match source {
-                            Some(PointSource::Sample(v, wi, j)) => {
-                                if let Some(u) = self.plan.to_units(v).ok().flatten() {
-                                    values[i] = u;
-                                    valid[i] = true;
-                                    won[i] = wi;
-                                    class[i] = j;
-                                }
-                                break;
-                            }
-                            Some(PointSource::CoarseOnly(wi)) => {
-                                won[i] = wi;
-                                class[i] = COARSE_ONLY;
-                                break;
-                            }
-                            None => {}
-                        }
-                    }
-                }
-            });
-        let finest = class.iter().copied().filter(|&c| c < 32).min();
-        Ok((values, valid, won, class, finest))
     }
 
     /// Points a row and rows of tile `tile` at stride `2^s`.
