@@ -374,6 +374,17 @@ fn print_planet_timings(s: &PlanetSummary, start: Instant) {
     if let Some((blocks, tiles)) = s.blocks {
         eprintln!("encoded in {blocks} blocks of the lattice's {tiles} tiles");
     }
+    if !s.painted.is_empty() {
+        let steps: Vec<String> = s
+            .painted
+            .iter()
+            .map(|(step, n)| format!("{step} {:.1} M", *n as f64 / 1e6))
+            .collect();
+        eprintln!(
+            "lattice points painted (resampled from the inputs; again counts again): {}",
+            steps.join(", ")
+        );
+    }
 }
 
 fn print_colour(args: &BuildArgs, s: &ColourSummary, start: Instant) -> Result<()> {

@@ -184,10 +184,13 @@ fn inset_planet() -> PlanetGrid {
     retiled(&whole, 3, Some(&classes)).unwrap()
 }
 
-/// Hands out a planet's tiles, counting the points handed out at full resolution per request.
+/// Hands out a planet's tiles, counting the tiles handed out whole at full resolution and the
+/// parts of tiles (their points outside the part made holes, so that an encode reading
+/// outside the strips it asked for writes other bytes).
 struct Counting<'a> {
     planet: &'a PlanetGrid,
     fine_tiles: Mutex<usize>,
+    parts: Mutex<usize>,
 }
 
 impl PlanetTiles for Counting<'_> {
@@ -197,19 +200,36 @@ impl PlanetTiles for Counting<'_> {
         }
         PlanetTiles::tile(self.planet, face, index, min)
     }
+
+    fn tile_part(
+        &self,
+        face: u8,
+        index: usize,
+        part: (i64, i64, i64, i64),
+    ) -> Result<Arc<PlanetTile>, CodecError> {
+        *self.parts.lock().unwrap() += 1;
+        PlanetTiles::tile_part(self.planet, face, index, part)
+    }
 }
 
-fn in_blocks(planet: &PlanetGrid, cut: u8, spill: bool) -> (Encoded, usize) {
+/// The planet encoded in blocks of one tile, with the tiles handed out whole at full
+/// resolution and the parts of tiles handed out.
+fn in_blocks(planet: &PlanetGrid, cut: u8, spill: bool) -> (Encoded, usize, usize) {
     let source = Counting {
         planet,
         fine_tiles: Mutex::new(0),
+        parts: Mutex::new(0),
     };
     let outline = PlanetOutline::of_planet(planet);
     let n = planet.domain().n();
     let q = Quantizer::new(3).unwrap();
     let e =
         encode_planet_in_blocks(&outline, &source, q, &opts(n), cut, &NoJournal, spill).unwrap();
-    (e, source.fine_tiles.into_inner().unwrap())
+    (
+        e,
+        source.fine_tiles.into_inner().unwrap(),
+        source.parts.into_inner().unwrap(),
+    )
 }
 
 fn assert_same(whole: &Encoded, blocks: &Encoded, what: &str) {
@@ -241,16 +261,19 @@ fn a_planet_with_voids_on_its_edges_encodes_block_by_block_as_whole() {
     let finest = planet.domain().finest_level();
     let default = default_cut(planet.domain(), planet.tile_log2());
     for (cut, spill) in [(0, false), (3, true), (default, false), (finest, true)] {
-        let (blocks, fine_tiles) = in_blocks(&planet, cut, spill);
+        let (blocks, fine_tiles, parts) = in_blocks(&planet, cut, spill);
         assert_same(&whole, &blocks, &format!("cut {cut}"));
-        // Each block reads its own tile and a ring of neighbours, not the planet.
+        // Each block reads its own tile whole and strips of a ring of neighbours, not the
+        // planet.
         let tiles = 6 * PlanetGrid::tile_rects(planet.domain(), 3).len();
         assert!(fine_tiles >= tiles, "cut {cut}: {fine_tiles} tile reads");
         if cut == finest {
+            // The apex reads every tile at full resolution at this cut, each block its own.
             assert!(
-                fine_tiles <= 10 * tiles,
+                fine_tiles <= 2 * tiles,
                 "cut {cut}: {fine_tiles} of {tiles}"
             );
+            assert!(parts > 0 && parts <= 9 * tiles, "cut {cut}: {parts} parts");
         }
     }
 }
@@ -273,7 +296,7 @@ fn insets_on_a_cube_edge_and_corner_encode_block_by_block_as_whole() {
     let q = Quantizer::new(3).unwrap();
     let whole = encode_planet(&planet, q, &opts(9)).unwrap();
     for cut in 0..=planet.domain().finest_level() {
-        let (blocks, _) = in_blocks(&planet, cut, cut % 2 == 0);
+        let (blocks, _, _) = in_blocks(&planet, cut, cut % 2 == 0);
         assert_same(&whole, &blocks, &format!("cut {cut}"));
     }
 }

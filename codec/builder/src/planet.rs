@@ -103,6 +103,8 @@ pub struct PlanetSummary {
     pub stages: Vec<(&'static str, std::time::Duration)>,
     /// Encoded block by block: how many blocks, and how many lattice tiles they group.
     pub blocks: Option<(usize, usize)>,
+    /// Block by block: lattice points painted by each step ([`LatticeEncode::painted`]).
+    pub painted: Vec<(&'static str, u64)>,
 }
 
 /// Bytes a planet build holds per lattice point its tiles hold when it resamples and encodes
@@ -133,6 +135,7 @@ fn encode_whole(
         valid: count_valid(&resampled.planet),
         held_points: resampled.planet.held_points(),
         blocks: None,
+        painted: Vec::new(),
     })
 }
 
@@ -362,6 +365,7 @@ pub fn build_planet(
         inputs_read: inputs.reads().0,
         stages,
         blocks: lattice.blocks,
+        painted: lattice.painted,
     })
 }
 

@@ -12,6 +12,7 @@
 //! encodes to.
 
 use std::collections::{HashMap, VecDeque};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
@@ -19,7 +20,7 @@ use rayon::prelude::*;
 use crate::error::{BuildError, Result};
 use crate::planet_input::{PlanetInputs, PointSource};
 use crate::planet_plan::{TilePlan, lattice_spacing_deg, plan_tiles, valid_in_tile};
-use crate::planet_resampling::{InputResampling, Resampled, input_resampling};
+use crate::planet_resampling::{InputResampling, Resampled, input_resampling, sample_footprint};
 use cbdam_codec::CodecError;
 use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;
@@ -30,6 +31,12 @@ use cbdam_codec::hierarchy::planet::{
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded, PlanetGrid, PlanetTile};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
+
+/// How many inputs' samples a tile's painting holds at once.
+const INPUTS_HELD: usize = 4;
+
+/// Lattice points `(x0, y0, x1, y1)` of a face, inclusive.
+type Rect = (i64, i64, i64, i64);
 
 /// One tile's points at a stride: heights, validity, winning inputs, classes, and the finest
 /// class of a sample among them.
@@ -50,6 +57,9 @@ pub struct Resampler<'a> {
     tiles: TilePlan,
     rects: Vec<(i64, i64, i64, i64)>,
     lattices: Vec<FaceLattice>,
+    /// Lattice points painted so far: all, and those of parts of tiles.
+    painted: AtomicU64,
+    painted_parts: AtomicU64,
 }
 
 impl<'a> Resampler<'a> {
@@ -73,6 +83,8 @@ impl<'a> Resampler<'a> {
             lattices: (0..domain.faces())
                 .map(|face| FaceLattice::new(face, side))
                 .collect(),
+            painted: AtomicU64::new(0),
+            painted_parts: AtomicU64::new(0),
         })
     }
 
@@ -106,19 +118,32 @@ impl<'a> Resampler<'a> {
     /// input of each point.
     pub fn final_tile(&self, face: u8, tile: usize) -> Result<(PlanetTile, Vec<u16>)> {
         let mut s = self.tiles.strides[usize::from(face)][tile];
-        let mut painted = self.paint(face, tile, s)?;
+        let mut painted = self.paint(face, tile, s, None)?;
         // A point that took a finer input's sample than planned: the tile holds every point
         // of that input's stride.
         if let Some(j) = painted.4.filter(|&j| u32::from(j) < s) {
             s = u32::from(j);
-            painted = self.paint(face, tile, s)?;
+            painted = self.paint(face, tile, s, None)?;
         }
         self.tile_of(tile, s, painted)
     }
 
     /// Tile `tile` of `face` holding its points on multiples of `2^stride`.
     pub fn tile(&self, face: u8, tile: usize, stride: u32) -> Result<(PlanetTile, Vec<u16>)> {
-        let painted = self.paint(face, tile, stride)?;
+        let painted = self.paint(face, tile, stride, None)?;
+        self.tile_of(tile, stride, painted)
+    }
+
+    /// [`Resampler::tile`] with only its points in `part` (inclusive) painted, the others
+    /// holes.
+    pub fn tile_part(
+        &self,
+        face: u8,
+        tile: usize,
+        stride: u32,
+        part: Rect,
+    ) -> Result<(PlanetTile, Vec<u16>)> {
+        let painted = self.paint(face, tile, stride, Some(part))?;
         self.tile_of(tile, stride, painted)
     }
 
@@ -137,77 +162,158 @@ impl<'a> Resampler<'a> {
     }
 
     /// One tile's points at stride `2^s`. The inputs that can cover the tile paint it finest
-    /// first, each over its own rectangle, each point taking the first that covers it.
-    fn paint(&self, face: u8, tile: usize, s: u32) -> Result<Painted> {
+    /// first, each over its own rectangle, each point taking the first that covers it; only
+    /// the points in `part` where one is given. A point's position is computed once, however
+    /// many inputs' rectangles hold it.
+    fn paint(&self, face: u8, tile: usize, s: u32, part: Option<Rect>) -> Result<Painted> {
         let rect = self.rects[tile];
-        let (x0, y0, x1, y1) = rect;
-        let (w, h) = (((x1 - x0) >> s) as usize + 1, ((y1 - y0) >> s) as usize + 1);
+        let (x0, y0, _, _) = rect;
+        let (w, h) = self.tile_size(tile, s);
         let mut values = vec![0; w * h];
         let mut valid = vec![false; w * h];
         let mut won = vec![u16::MAX; w * h];
         let mut class = vec![HOLE; w * h];
         let mut done = vec![false; w * h];
-        let step = 1i64 << s;
-        for &(input, reach) in &self.tiles.candidates[usize::from(face)][tile] {
-            // The tile's points (on its stride) in the input's rectangle.
-            let (rx0, ry0, rx1, ry1) = reach.unwrap_or(rect);
-            let first = |lo: i64, o: i64| ((lo.max(o) - o + step - 1) / step) as usize;
-            let last = |hi: i64, o: i64, n: usize| (((hi - o) / step) as usize).min(n - 1);
-            if rx1 < x0 || ry1 < y0 || rx0 > x1 || ry0 > y1 {
-                continue;
-            }
-            let (c0, c1) = (first(rx0, x0), last(rx1, x0, w));
-            let (r0, r1) = (first(ry0, y0), last(ry1, y0, h));
-            if c0 > c1 || r0 > r1 {
-                continue;
-            }
-            // Read (or found in the cache) only now, and let go when the tile is painted.
-            let samples = self.inputs.samples(usize::from(input))?;
-            let rows = (r0 * w)..((r1 + 1) * w);
-            values[rows.clone()]
+        let reaching = self.reaching(face, tile, s, part);
+        self.count_painted((w, h), (x0, y0), s, part);
+        // The inputs a few at a time (read, or found in the cache, only now, and let go when
+        // they have painted), so that the samples held do not grow with the candidates.
+        for chunk in reaching.chunks(INPUTS_HELD) {
+            let chunk = chunk
+                .iter()
+                .map(|&(input, span)| Ok((input, span, self.inputs.samples(usize::from(input))?)))
+                .collect::<Result<Vec<_>>>()?;
+            values
                 .par_chunks_mut(w)
-                .zip(valid[rows.clone()].par_chunks_mut(w))
-                .zip(won[rows.clone()].par_chunks_mut(w))
-                .zip(class[rows.clone()].par_chunks_mut(w))
-                .zip(done[rows].par_chunks_mut(w))
+                .zip(valid.par_chunks_mut(w))
+                .zip(won.par_chunks_mut(w))
+                .zip(class.par_chunks_mut(w))
+                .zip(done.par_chunks_mut(w))
                 .enumerate()
                 .for_each(|(row, ((((values, valid), won), class), done))| {
-                    let y = y0 + (((r0 + row) as i64) << s);
-                    for i in c0..=c1 {
+                    let y = y0 + ((row as i64) << s);
+                    for i in 0..w {
                         if done[i] {
                             continue;
                         }
                         let x = x0 + ((i as i64) << s);
-                        let source = self.inputs.source_of(
-                            &samples,
-                            input,
-                            self.lat_lon(face, x, y),
-                            (x, y),
-                            self.lattice_deg,
-                            &self.strides,
-                        );
-                        match source {
-                            Some(PointSource::Sample(v, wi, j)) => {
-                                if let Some(u) = self.plan.to_units(v).ok().flatten() {
-                                    values[i] = u;
-                                    valid[i] = true;
-                                    won[i] = wi;
-                                    class[i] = j;
+                        let mut position = None;
+                        for (input, (c0, c1, r0, r1), samples) in &chunk {
+                            if i < *c0 || i > *c1 || row < *r0 || row > *r1 {
+                                continue;
+                            }
+                            let ll = *position.get_or_insert_with(|| self.lat_lon(face, x, y));
+                            let source = self.inputs.source_of(
+                                samples,
+                                *input,
+                                ll,
+                                (x, y),
+                                self.lattice_deg,
+                                &self.strides,
+                            );
+                            match source {
+                                Some(PointSource::Sample(v, wi, j)) => {
+                                    if let Some(u) = self.plan.to_units(v).ok().flatten() {
+                                        values[i] = u;
+                                        valid[i] = true;
+                                        won[i] = wi;
+                                        class[i] = j;
+                                    }
+                                    done[i] = true;
+                                    break;
                                 }
-                                done[i] = true;
+                                Some(PointSource::CoarseOnly(wi)) => {
+                                    won[i] = wi;
+                                    class[i] = COARSE_ONLY;
+                                    done[i] = true;
+                                    break;
+                                }
+                                None => {}
                             }
-                            Some(PointSource::CoarseOnly(wi)) => {
-                                won[i] = wi;
-                                class[i] = COARSE_ONLY;
-                                done[i] = true;
-                            }
-                            None => {}
                         }
                     }
                 });
         }
         let finest = class.iter().copied().filter(|&c| c < 32).min();
         Ok((values, valid, won, class, finest))
+    }
+
+    /// Adds the points of a `w × h` tile at `(x0, y0)`, stride `2^s` (of `part` only where one
+    /// is given), to those painted.
+    fn count_painted(
+        &self,
+        (w, h): (usize, usize),
+        (x0, y0): (i64, i64),
+        s: u32,
+        part: Option<Rect>,
+    ) {
+        let painted = match part {
+            None => (w * h) as i64,
+            // The part's points on the stride.
+            Some((px0, py0, px1, py1)) => {
+                let step = 1i64 << s;
+                let (x1, y1) = (x0 + ((w as i64 - 1) << s), y0 + ((h as i64 - 1) << s));
+                let count = |lo: i64, hi: i64, o: i64, end: i64| {
+                    let (lo, hi) = ((lo.max(o) - o + step - 1) / step, (hi.min(end) - o) / step);
+                    (hi - lo + 1).max(0)
+                };
+                count(px0, px1, x0, x1) * count(py0, py1, y0, y1)
+            }
+        };
+        self.painted.fetch_add(painted as u64, Ordering::Relaxed);
+        if part.is_some() {
+            self.painted_parts
+                .fetch_add(painted as u64, Ordering::Relaxed);
+        }
+    }
+
+    /// Points a row and rows of tile `tile` at stride `2^s`.
+    fn tile_size(&self, tile: usize, s: u32) -> (usize, usize) {
+        let (x0, y0, x1, y1) = self.rects[tile];
+        (((x1 - x0) >> s) as usize + 1, ((y1 - y0) >> s) as usize + 1)
+    }
+
+    /// The inputs that can cover a point of tile `tile` of `face` on stride `2^s` (in `part`
+    /// where one is given), finest first, each with the columns and rows (`c0, c1, r0, r1`,
+    /// inclusive, in points of the stride) of its rectangle there.
+    fn reaching(
+        &self,
+        face: u8,
+        tile: usize,
+        s: u32,
+        part: Option<Rect>,
+    ) -> Vec<(u16, (usize, usize, usize, usize))> {
+        let rect = self.rects[tile];
+        let (x0, y0, x1, y1) = rect;
+        let within = |r: Rect| match part {
+            None => r,
+            Some(p) => (r.0.max(p.0), r.1.max(p.1), r.2.min(p.2), r.3.min(p.3)),
+        };
+        let (w, h) = self.tile_size(tile, s);
+        let step = 1i64 << s;
+        let first = |lo: i64, o: i64| ((lo.max(o) - o + step - 1) / step) as usize;
+        let last = |hi: i64, o: i64, n: usize| (((hi - o) / step) as usize).min(n - 1);
+        self.tiles.candidates[usize::from(face)][tile]
+            .iter()
+            .filter_map(|&(input, reach)| {
+                let (rx0, ry0, rx1, ry1) = within(reach.unwrap_or(rect));
+                if rx1 < x0 || ry1 < y0 || rx0 > x1 || ry0 > y1 {
+                    return None;
+                }
+                let (c0, c1) = (first(rx0, x0), last(rx1, x0, w));
+                let (r0, r1) = (first(ry0, y0), last(ry1, y0, h));
+                (c0 <= c1 && r0 <= r1).then_some((input, (c0, c1, r0, r1)))
+            })
+            .collect()
+    }
+
+    /// Lattice points painted so far (a point painted again counts again): all, and those of
+    /// parts of tiles.
+    pub fn painted(&self) -> (u64, u64) {
+        (
+            self.painted.load(Ordering::Relaxed),
+            self.painted_parts.load(Ordering::Relaxed),
+        )
     }
 
     /// The geodetic position of lattice point `(x, y)` of `face`. Interior points are their own
@@ -367,24 +473,61 @@ impl<'a> LatticeTiles<'a> {
         Ok(held)
     }
 
+    /// Tile `index` of `face` as [`LatticeTiles::held`] gives it, or, where the cache does not
+    /// hold it and `part` is given, with only the points in `part` painted (not kept).
+    fn held_part(
+        &self,
+        face: u8,
+        index: usize,
+        min_stride: u32,
+        part: Option<Rect>,
+    ) -> Result<Held> {
+        let Some(part) = part else {
+            return self.held(face, index, min_stride);
+        };
+        let own = self.strides[usize::from(face)][index];
+        let stride = own.max(min_stride.min(self.resampler.tile_log2()));
+        if let Some(t) = self
+            .cache
+            .lock()
+            .expect("the tile cache")
+            .held
+            .get(&(face, index, stride))
+        {
+            return Ok(Arc::clone(t));
+        }
+        let (tile, won) = self.resampler.tile_part(face, index, stride, part)?;
+        Ok(Arc::new((Arc::new(tile), won)))
+    }
+
     /// Input `input`'s share of the lattice for its resampling error: the tiles it can cover,
     /// thinned to its stride (the lattice points its samples are compared with), the others
-    /// empty.
+    /// empty. Where its samples lie on one face ([`sample_footprint`]), only the part of
+    /// those tiles around them is painted.
     fn input_view(&self, input: usize) -> Result<Resampled> {
         let r = &self.resampler;
         let d = r.domain();
         let stride = r.strides[input];
-        let wanted: Vec<(u8, usize)> = (0..d.faces())
+        let footprint = sample_footprint(&r.inputs.inputs[input], stride, r.side);
+        let wanted: Vec<(u8, usize, Option<Rect>)> = (0..d.faces())
             .flat_map(|f| (0..r.tiles_per_face()).map(move |i| (f, i)))
             .filter(|&(f, i)| {
                 r.tiles.candidates[usize::from(f)][i]
                     .iter()
                     .any(|&(c, _)| usize::from(c) == input)
             })
+            .filter_map(|(f, i)| match footprint {
+                None => Some((f, i, None)),
+                Some((face, part)) => {
+                    let (x0, y0, x1, y1) = r.rects[i];
+                    let meets = x0 <= part.2 && part.0 <= x1 && y0 <= part.3 && part.1 <= y1;
+                    (f == face && meets).then_some((f, i, Some(part)))
+                }
+            })
             .collect();
         let held = wanted
             .into_par_iter()
-            .map(|(f, i)| Ok(((f, i), self.held(f, i, stride)?)))
+            .map(|(f, i, part)| Ok(((f, i), self.held_part(f, i, stride, part)?)))
             .collect::<Result<HashMap<_, _>>>()?;
         let mut winners = vec![vec![Vec::new(); r.tiles_per_face()]; usize::from(d.faces())];
         let mut tiles = HashMap::new();
@@ -412,6 +555,24 @@ impl PlanetTiles for LatticeTiles<'_> {
             .map(|h| Arc::clone(&h.0))
             .map_err(|e| CodecError::invalid(format!("resampling face {face} tile {index}: {e:#}")))
     }
+
+    /// The tile whole where the cache holds it, else only `part` painted (not kept).
+    fn tile_part(
+        &self,
+        face: u8,
+        index: usize,
+        part: Rect,
+    ) -> std::result::Result<Arc<PlanetTile>, CodecError> {
+        let own = self.strides[usize::from(face)][index];
+        let key = (face, index, own);
+        if let Some(t) = self.cache.lock().expect("the tile cache").held.get(&key) {
+            return Ok(Arc::clone(&t.0));
+        }
+        self.resampler
+            .tile_part(face, index, own, part)
+            .map(|(tile, _)| Arc::new(tile))
+            .map_err(|e| CodecError::invalid(format!("resampling face {face} tile {index}: {e:#}")))
+    }
 }
 
 /// What [`encode_out_of_core`] made.
@@ -426,6 +587,9 @@ pub struct LatticeEncode {
     pub held_points: u64,
     /// Block by block: how many blocks, and how many lattice tiles they group.
     pub blocks: Option<(usize, usize)>,
+    /// Block by block: lattice points painted (resampled from the inputs) by each step, in
+    /// order; a point painted again counts again.
+    pub painted: Vec<(&'static str, u64)>,
 }
 
 /// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
@@ -444,23 +608,49 @@ pub fn encode_out_of_core(
 ) -> Result<LatticeEncode> {
     let resampler = Resampler::new(inputs, n, k, plan)?;
     let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
+    // Per step, the points painted whole and in parts of tiles.
+    let mut painted = vec![("outline", tiles.resampler.painted().0)];
+    let mut last = tiles.resampler.painted();
+    let mut step = |(whole, part): (&'static str, &'static str), tiles: &LatticeTiles| {
+        let now = tiles.resampler.painted();
+        let parts = now.1 - last.1;
+        painted.push((whole, now.0 - last.0 - parts));
+        if parts > 0 {
+            painted.push((part, parts));
+        }
+        last = now;
+    };
     let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
     let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, None)
         .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
         .map_err(BuildError::from)?;
+    step(("apex", "apex (parts of tiles)"), &tiles);
     let counts = (
         blocks.block_count(),
         tiles.strides().iter().map(Vec::len).sum(),
     );
     let encoded = blocks.finish(journal, true).map_err(BuildError::from)?;
+    step(("blocks", "blocks (strips of neighbouring tiles)"), &tiles);
     let resampling = (0..inputs.inputs.len())
         .map(|i| tiles.resampling(i))
         .collect::<Result<Vec<_>>>()?;
+    step(
+        (
+            "resampling error",
+            "resampling error (parts of tiles around an input's samples)",
+        ),
+        &tiles,
+    );
     Ok(LatticeEncode {
         encoded,
         resampling,
         valid,
         held_points,
         blocks: Some(counts),
+        painted,
     })
 }
+
+#[cfg(test)]
+#[path = "planet_lattice_tests.rs"]
+mod tests;

@@ -137,6 +137,45 @@ pub(crate) fn input_resampling(
     })
 }
 
+/// The lattice points input `input` (of stride `2^stride` on a lattice of `side` steps a
+/// face) can compare its samples with, when they all lie on one face: that face and a
+/// rectangle `(x0, y0, x1, y1)` (inclusive) holding the corners of every lattice cell (on the
+/// stride) a sample lies in; `None` where its samples lie on several faces or near an edge.
+///
+/// Found from every `Q`-th sample of each row and column (and the last): a sample lies within
+/// `Q − 1` columns and rows of one of those, and samples one apart are under `2^(stride+1)`
+/// lattice steps apart ([`crate::planet_plan::plan_tiles`]' footprint makes the same bound), so
+/// a margin of `(Q + 2)·2^(stride+1)` steps and a cell holds them all.
+pub(crate) fn sample_footprint(
+    input: &crate::planet_input::PlanetInput,
+    stride: u32,
+    side: i64,
+) -> Option<(u8, (i64, i64, i64, i64))> {
+    const Q: usize = 8;
+    let along = |len: usize| (0..len).step_by(Q).chain([len - 1]);
+    let mut face = None;
+    let mut rect = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for r in along(input.height) {
+        for c in along(input.width) {
+            let (f, s, t) = lat_lon_to_face_st(input.lat_lon_of(c, r));
+            if *face.get_or_insert(f) != f {
+                return None;
+            }
+            let (x, y) = (s * side as f64, t * side as f64);
+            rect = (rect.0.min(x), rect.1.min(y), rect.2.max(x), rect.3.max(y));
+        }
+    }
+    let step = 1i64 << stride;
+    let margin = (Q as i64 + 2) * 2 * step + step;
+    let (x0, y0) = (
+        rect.0.floor() as i64 - margin,
+        rect.1.floor() as i64 - margin,
+    );
+    let (x1, y1) = (rect.2.ceil() as i64 + margin, rect.3.ceil() as i64 + margin);
+    (x0 > 0 && y0 > 0 && x1 < side && y1 < side)
+        .then(|| (face.expect("a sample"), (x0, y0, x1, y1)))
+}
+
 /// The header's summary of the resampling: the largest error over all inputs and the root mean
 /// square over all compared samples; heights as the inputs give them (DEMs are orthometric —
 /// the inputs' vertical GeoKeys are not read yet).

@@ -25,12 +25,12 @@
 //!    is the whole encoder's.
 
 use std::collections::{BTreeSet, HashMap};
-use std::sync::Arc;
 
 use rayon::prelude::*;
 
 use super::block_groups::{BlockGroups, TileGroup};
 use super::grid::{tiles_across, tiles_meeting};
+use super::tile_source::PlanetTiles;
 use super::{
     PlanetGrid, PlanetTile, TiledError, grid_from_parents, planet_params, planet_surface_error,
     refine_diamond, tile_leaves, views,
@@ -44,60 +44,7 @@ use crate::hierarchy::refine::Refined;
 use crate::hierarchy::resolution::{HOLE, with_parents};
 use crate::hierarchy::roots::encode_roots;
 use crate::hierarchy::{Encoded, Record};
-use crate::quant::{HeightGrid, Quantizer};
-
-/// Hands out a planet's tiles as the block-wise encode asks for them.
-pub trait PlanetTiles: Sync {
-    /// Tile `index` of face `face` ([`PlanetGrid::tile_rects`] order) with the points on
-    /// multiples of `2^max(s, min(min_stride, tile_log2))` for its own stride `2^s`: the same
-    /// values, validity and classes at those points as the tile at its own stride.
-    fn tile(&self, face: u8, index: usize, min_stride: u32) -> Result<Arc<PlanetTile>, CodecError>;
-}
-
-impl PlanetTiles for PlanetGrid {
-    fn tile(&self, face: u8, index: usize, min_stride: u32) -> Result<Arc<PlanetTile>, CodecError> {
-        let tiles = self.tiles(face);
-        let Some(t) = tiles.get(index) else {
-            return Err(CodecError::invalid(format!(
-                "face {face} has {} tiles, not {}",
-                tiles.len(),
-                index + 1
-            )));
-        };
-        thinned(t, min_stride.min(self.tile_log2()))
-    }
-}
-
-/// `t` with only its points on multiples of `2^stride` (itself when it holds no finer ones).
-pub fn thinned(t: &Arc<PlanetTile>, stride: u32) -> Result<Arc<PlanetTile>, CodecError> {
-    if stride <= t.stride {
-        return Ok(Arc::clone(t));
-    }
-    let (x0, y0, x1, y1) = t.rect;
-    let step = 1usize << stride;
-    let mut values = Vec::new();
-    let mut valid = Vec::new();
-    let mut class = t.class.as_ref().map(|_| Vec::new());
-    for y in (y0..=y1).step_by(step) {
-        for x in (x0..=x1).step_by(step) {
-            let k = t
-                .index(x, y)
-                .expect("a point of the tile on a coarser stride");
-            values.push(t.grid.values[k]);
-            valid.push(t.grid.valid[k]);
-            if let (Some(out), Some(c)) = (class.as_mut(), t.class.as_ref()) {
-                out.push(c[k]);
-            }
-        }
-    }
-    let grid = HeightGrid {
-        width: ((x1 - x0) >> stride) as usize + 1,
-        height: ((y1 - y0) >> stride) as usize + 1,
-        values: values.into(),
-        valid: valid.into(),
-    };
-    Ok(Arc::new(PlanetTile::new(stride, t.rect, grid, class)?))
-}
+use crate::quant::Quantizer;
 
 /// What the block-wise encode needs of the whole planet, gathered tile by tile
 /// ([`PlanetOutline::add`]) without holding the tiles.
@@ -556,6 +503,41 @@ fn view_of(
     )
 }
 
+/// Lattice points `(x0, y0, x1, y1)` of a face, inclusive.
+type Rect = (i64, i64, i64, i64);
+
+/// The smallest rectangle holding `a` and `b`.
+fn union(a: Rect, b: Rect) -> Rect {
+    (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3))
+}
+
+/// A planet holding only `wanted`'s tiles at their own strides: whole (`None`) or with at
+/// least the points of a rectangle ([`PlanetTiles::tile_part`]).
+fn view_of_parts(
+    outline: &PlanetOutline,
+    tiles: &dyn PlanetTiles,
+    wanted: HashMap<(u8, usize), Option<Rect>>,
+) -> Result<PlanetGrid, CodecError> {
+    let held = wanted
+        .into_par_iter()
+        .map(|((f, i), part)| {
+            let tile = match part {
+                None => tiles.tile(f, i, 0)?,
+                Some(part) => tiles.tile_part(f, i, part)?,
+            };
+            Ok(((f, i), tile))
+        })
+        .collect::<Result<HashMap<_, _>, CodecError>>()?;
+    let d = &outline.domain;
+    PlanetGrid::partial(
+        d.n(),
+        d.layout().k(),
+        outline.tile_log2,
+        outline.variable,
+        held,
+    )
+}
+
 /// What every block's encode shares.
 struct BlockEncode<'a> {
     outline: &'a PlanetOutline,
@@ -582,12 +564,20 @@ impl BlockEncode<'_> {
             id.face == face && xs.0 <= x && x <= xs.1 && ys.0 <= y && y <= ys.1
         };
         let needed = self.needed(face, xs, &owns);
-        let mut wanted: BTreeSet<(u8, usize)> =
-            group.tiles(self.across).map(|i| (face, i)).collect();
+        // Its own tiles whole, and of the others the strips its diamonds reach.
+        let mut wanted: HashMap<(u8, usize), Option<Rect>> = group
+            .tiles(self.across)
+            .map(|i| ((face, i), None))
+            .collect();
         for id in needed.iter().flatten() {
-            wanted.extend(tiles_under(domain, self.outline.tile_log2, *id));
+            for (f, i, r) in tiles_under(domain, self.outline.tile_log2, *id) {
+                wanted
+                    .entry((f, i))
+                    .and_modify(|w| *w = w.map(|w| union(w, r)))
+                    .or_insert(Some(r));
+            }
         }
-        let view = view_of(self.outline, self.tiles, wanted, 0)?;
+        let view = view_of_parts(self.outline, self.tiles, wanted)?;
         let errors = TiledError::new(&view)?;
         let mut output = BlockOutput::default();
         let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
@@ -688,15 +678,15 @@ impl BlockEncode<'_> {
     }
 }
 
-/// The tiles (face, index) holding a point of `id`'s square or of any face's view of it: its
-/// bounds cut at its face's edges, each part carried onto the face it lies on (a part beyond a
-/// cube corner is off the surface), every corner of a part on every face holding it.
-fn tiles_under(domain: &Domain, tile_log2: u32, id: DiamondId) -> Vec<(u8, usize)> {
+/// The tiles (face, index) holding a point of `id`'s square or of any face's view of it, each
+/// with the rectangle of its points there: its bounds cut at its face's edges, each part
+/// carried onto the face it lies on (a part beyond a cube corner is off the surface), every
+/// corner of a part on every face holding it.
+fn tiles_under(domain: &Domain, tile_log2: u32, id: DiamondId) -> Vec<(u8, usize, Rect)> {
     let cube = domain.cube().expect("a cube-sphere");
     let side = cube.side();
     let layout = domain.layout();
-    let mut out = Vec::new();
-    let mut rects: HashMap<u8, (i64, i64, i64, i64)> = HashMap::new();
+    let mut rects: HashMap<u8, Rect> = HashMap::new();
     let mut everything = false;
     let parts = |a0: i64, a1: i64| {
         [
@@ -721,20 +711,33 @@ fn tiles_under(domain: &Domain, tile_log2: u32, id: DiamondId) -> Vec<(u8, usize
                 let (reps, len) = cube.representations(p);
                 for r in &reps[..len] {
                     let e = rects.entry(r.face).or_insert((r.x, r.y, r.x, r.y));
-                    *e = (e.0.min(r.x), e.1.min(r.y), e.2.max(r.x), e.3.max(r.y));
+                    *e = union(*e, (r.x, r.y, r.x, r.y));
                 }
             }
         }
     }
     if everything {
-        let rect = (0, 0, side, side);
-        for f in 0..domain.faces() {
-            out.extend(tiles_meeting(side, tile_log2, rect).map(|i| (f, i)));
-        }
-        return out;
+        rects = (0..domain.faces())
+            .map(|f| (f, (0, 0, side, side)))
+            .collect();
     }
+    let across = tiles_across(side, tile_log2);
+    let t = 1i64 << tile_log2;
+    let mut out = Vec::new();
     for (f, rect) in rects {
-        out.extend(tiles_meeting(side, tile_log2, rect).map(|i| (f, i)));
+        for i in tiles_meeting(side, tile_log2, rect) {
+            // The tile's rectangle (as `PlanetGrid::tile_rects` gives it), clipping the part.
+            let (bx, by) = ((i % across) as i64, (i / across) as i64);
+            let (tx0, ty0) = (bx * t, by * t);
+            let (tx1, ty1) = ((tx0 + t).min(side), (ty0 + t).min(side));
+            let part = (
+                rect.0.max(tx0),
+                rect.1.max(ty0),
+                rect.2.min(tx1),
+                rect.3.min(ty1),
+            );
+            out.push((f, i, part));
+        }
     }
     out
 }

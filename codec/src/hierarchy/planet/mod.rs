@@ -13,13 +13,15 @@
 mod block_groups;
 mod blocks;
 mod grid;
+mod tile_source;
 
 pub use block_groups::{BlockGroups, TileGroup};
 
 pub use blocks::{
-    PlanetApex, PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks,
-    planet_block_groups, thinned,
+    PlanetApex, PlanetBlocks, PlanetOutline, default_cut, encode_planet_in_blocks,
+    planet_block_groups,
 };
+pub use tile_source::{PlanetTiles, only_part, thinned};
 
 pub use grid::{MAX_TILES_ACROSS, PlanetGrid, PlanetTile, TILE_MIN_LOG2, tile_log2, tile_of};
 

@@ -1,0 +1,196 @@
+//! Tests of the planet lattice's painting: every point of every tile of every face (edges and
+//! cube corners too) against a point-by-point resampling written independently of the tiles,
+//! parts of tiles against the whole, and an input's sample footprint against its samples.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use super::Resampler;
+use crate::band_cache::Samples;
+use crate::planet_input::{Frame, PlanetInput, PlanetInputs, PointSource, SampleSource};
+use crate::planet_plan::{input_stride, lattice_spacing_deg};
+use crate::planet_resampling::sample_footprint;
+use cbdam_codec::geodesy::cube_map::lat_lon_to_face_st;
+use cbdam_codec::geodesy::lattice_lat_lon;
+use cbdam_codec::hierarchy::PlanetGrid;
+use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
+use cbdam_codec::quant::QuantPlan;
+
+/// A geographic input of `w × h` samples `deg` apart from `(lat0, lon0)` (its first sample),
+/// around the globe when `period`; heights a function of the sample, one in 23 a void.
+fn input(name: &str, (lat0, lon0): (f64, f64), deg: f64, (w, h): (usize, usize)) -> PlanetInput {
+    let period = (w as f64 * deg >= 360.0).then_some(w);
+    let values = (0..w * h)
+        .map(|i| match i % 23 {
+            7 => -9999.0,
+            k => (i % 97) as f64 * 13.0 + k as f64 * 0.37 + deg,
+        })
+        .collect();
+    PlanetInput {
+        path: PathBuf::from(name),
+        width: w,
+        height: h,
+        source: SampleSource::Held(Arc::new(Samples::compact(values))),
+        nodata: Some(-9999.0),
+        frame: Frame::Geographic {
+            lon0,
+            lat0,
+            dlon: deg,
+            dlat: deg,
+            period,
+        },
+        spacing_deg: deg,
+    }
+}
+
+/// Two fine insets, one astride the edge of an equatorial and a polar face, one on the cube
+/// corner at 35.26° N 45° E, and an inset coarser than the lattice (points between its samples
+/// are coarse only), over a global coarse input: finest first.
+fn inputs() -> PlanetInputs {
+    PlanetInputs::held(vec![
+        input("edge.tif", (52.0, -12.0), 0.3, (50, 40)),
+        input("corner.tif", (40.0, 40.0), 0.3, (34, 30)),
+        input("coarse.tif", (30.0, -70.0), 1.2, (30, 20)),
+        input("globe.tif", (90.0, -180.0), 3.0, (120, 61)),
+    ])
+}
+
+/// What a point takes, resampled on its own: the first input (in order) that covers it, its
+/// position from the domain's canonical point. Height units, validity, winner, class.
+fn reference(
+    r: &Resampler,
+    plan: &QuantPlan,
+    face: u8,
+    (x, y): (i64, i64),
+) -> (i32, bool, u16, u8) {
+    let inputs = r.inputs;
+    let ll = lattice_lat_lon(r.domain(), face, x, y).expect("a point of the face");
+    for i in 0..inputs.inputs.len() {
+        let samples = inputs.samples(i).unwrap();
+        let source = inputs.source_of(&samples, i as u16, ll, (x, y), r.lattice_deg, &r.strides);
+        match source {
+            Some(PointSource::Sample(v, wi, j)) => {
+                return match plan.to_units(v).ok().flatten() {
+                    Some(u) => (u, true, wi, j),
+                    None => (0, false, u16::MAX, HOLE),
+                };
+            }
+            Some(PointSource::CoarseOnly(wi)) => return (0, false, wi, COARSE_ONLY),
+            None => {}
+        }
+    }
+    (0, false, u16::MAX, HOLE)
+}
+
+/// Every point of every tile, at every stride, is what the point resampled on its own takes:
+/// the tiles' one pass over their candidates, with each position computed once, changes
+/// nothing.
+#[test]
+fn every_painted_point_is_its_own_resampling() {
+    let inputs = inputs();
+    let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
+    let r = Resampler::new(&inputs, 17, 4, &plan).unwrap();
+    let per_face = r.tiles_per_face();
+    let mut coarse_only = 0;
+    let mut kinds = [0usize; 5];
+    for face in 0..6u8 {
+        for tile in 0..per_face {
+            for stride in [0, 2] {
+                let (t, won) = r.tile(face, tile, stride).unwrap();
+                let (x0, y0, x1, y1) = t.rect;
+                let step = 1usize << stride;
+                for y in (y0..=y1).step_by(step) {
+                    for x in (x0..=x1).step_by(step) {
+                        let k = t.index(x, y).unwrap();
+                        let class = t.class.as_ref().map_or(0, |c| c[k]);
+                        let got = (t.grid.values[k], t.grid.valid[k], won[k], class);
+                        let want = reference(&r, &plan, face, (x, y));
+                        assert_eq!(got, want, "face {face} point ({x}, {y}) stride {stride}");
+                        kinds[usize::from(want.2.min(4))] += 1;
+                        coarse_only += usize::from(want.3 == COARSE_ONLY && want.2 == 2);
+                    }
+                }
+            }
+        }
+    }
+    // Each input wins points, some are holes (the voids), and the coarse inset wins some
+    // points between its samples (coarse only), which the globe covers too.
+    assert!(kinds.iter().all(|&n| n > 0), "{kinds:?}");
+    assert!(coarse_only > 0);
+}
+
+/// A part of a tile holds the whole tile's points in the part and holes elsewhere.
+#[test]
+fn a_part_of_a_tile_is_the_tile_there_and_holes_elsewhere() {
+    let inputs = inputs();
+    let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
+    let r = Resampler::new(&inputs, 17, 4, &plan).unwrap();
+    let rects = PlanetGrid::tile_rects(r.domain(), r.tile_log2());
+    let mut inside = 0;
+    for face in [0u8, 2, 4] {
+        for (tile, &(x0, y0, x1, y1)) in rects.iter().enumerate() {
+            let part = (x0 + 3, y0 - 5, x1 - 7, y0 + 4);
+            let (whole, won) = r.tile(face, tile, 0).unwrap();
+            let (t, won_part) = r.tile_part(face, tile, 0, part).unwrap();
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    let k = t.index(x, y).unwrap();
+                    let class =
+                        |t: &cbdam_codec::hierarchy::PlanetTile| t.class.as_ref().map(|c| c[k]);
+                    if part.0 <= x && x <= part.2 && part.1 <= y && y <= part.3 {
+                        inside += 1;
+                        assert_eq!(t.grid.values[k], whole.grid.values[k]);
+                        assert_eq!(t.grid.valid[k], whole.grid.valid[k]);
+                        assert_eq!((won_part[k], class(&t)), (won[k], class(&whole)));
+                    } else {
+                        assert!(!t.grid.valid[k] && won_part[k] == u16::MAX);
+                        assert_eq!(class(&t), class(&whole).map(|_| HOLE));
+                    }
+                }
+            }
+        }
+    }
+    assert!(inside > 0);
+}
+
+/// An inset's footprint holds the corners of the lattice cell of every one of its samples, on
+/// the face they lie on; an input across faces has none.
+#[test]
+fn a_footprint_holds_every_sample_cell() {
+    let inputs = inputs();
+    let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
+    let r = Resampler::new(&inputs, 17, 4, &plan).unwrap();
+    let side = r.side;
+    // The globe and the insets astride an edge and on a corner lie on several faces.
+    for (i, input) in inputs.inputs.iter().enumerate() {
+        assert!(sample_footprint(input, r.strides[i], side).is_none(), "{i}");
+    }
+    // Insets inside a face (an equatorial one, a polar one), on lattices finer than them (at
+    // their strides there).
+    let insets = [
+        input("equator.tif", (20.0, 10.0), 0.3, (40, 30)),
+        input("pole.tif", (80.0, 100.0), 0.3, (40, 25)),
+    ];
+    for inset in &insets {
+        for k in [6, 8] {
+            let side = 16i64 << k;
+            let stride = input_stride(inset.spacing_deg, lattice_spacing_deg(17, k), k);
+            let step = 1i64 << stride;
+            let (face, (x0, y0, x1, y1)) = sample_footprint(inset, stride, side).unwrap();
+            for row in 0..inset.height {
+                for c in 0..inset.width {
+                    let (f, s, t) = lat_lon_to_face_st(inset.lat_lon_of(c, row));
+                    assert_eq!(f, face, "{} sample ({c}, {row})", inset.path.display());
+                    let cx = ((s * side as f64 / step as f64).floor() as i64) * step;
+                    let cy = ((t * side as f64 / step as f64).floor() as i64) * step;
+                    assert!(
+                        x0 <= cx && cx + step <= x1 && y0 <= cy && cy + step <= y1,
+                        "{} sample ({c}, {row}): cell at ({cx}, {cy}) outside {:?}",
+                        inset.path.display(),
+                        (x0, y0, x1, y1)
+                    );
+                }
+            }
+        }
+    }
+}
