@@ -61,8 +61,8 @@ pub struct BenchReportArgs {
     /// --quick).
     #[arg(long)]
     synthetic: Option<usize>,
-    /// Worker threads for building (default 1, as the peers are single-threaded; the decode is
-    /// single-threaded by construction). Every point is also timed on every core.
+    /// Worker threads for building and decoding (default 1, as the peers are single-threaded).
+    /// Every point is also timed on every core.
     #[arg(long, default_value_t = 1)]
     threads: usize,
     /// Our entropy coders to measure, comma-separated; the first is the one the plots and the
@@ -484,8 +484,8 @@ fn header(
     writeln!(md, "| timed runs per point | {runs} (medians reported) |")?;
     writeln!(
         md,
-        "| cbdam build threads | {threads} (decode: 1), and every point again on {all_threads} \
-         (all cores); N = {}, α = 1 |",
+        "| cbdam threads | {threads} for build and decode, and every point again on \
+         {all_threads} (all cores); N = {}, α = 1 |",
         EncodeOptions::default().n
     )?;
     let p = match peers {
