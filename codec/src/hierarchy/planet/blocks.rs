@@ -25,6 +25,7 @@
 //!    is the whole encoder's.
 
 use std::collections::{BTreeSet, HashMap};
+use std::sync::Arc;
 
 use rayon::prelude::*;
 
@@ -493,6 +494,14 @@ fn view_of(
         .into_par_iter()
         .map(|(f, i)| Ok(((f, i), tiles.tile(f, i, min_stride)?)))
         .collect::<Result<HashMap<_, _>, CodecError>>()?;
+    held_planet(outline, held)
+}
+
+/// A planet of the outline's domain holding `held`'s tiles only.
+fn held_planet(
+    outline: &PlanetOutline,
+    held: HashMap<(u8, usize), Arc<PlanetTile>>,
+) -> Result<PlanetGrid, CodecError> {
     let d = &outline.domain;
     PlanetGrid::partial(
         d.n(),
@@ -528,14 +537,7 @@ fn view_of_parts(
             Ok(((f, i), tile))
         })
         .collect::<Result<HashMap<_, _>, CodecError>>()?;
-    let d = &outline.domain;
-    PlanetGrid::partial(
-        d.n(),
-        d.layout().k(),
-        outline.tile_log2,
-        outline.variable,
-        held,
-    )
+    held_planet(outline, held)
 }
 
 /// What every block's encode shares.

@@ -1,0 +1,174 @@
+//! Tests of `refine.rs`: the gather, the reconstruction and the refinement against their
+//! definitions.
+
+use super::*;
+
+/// Every diamond of `domain` down to `levels`, parents before children.
+fn diamonds(domain: &Domain, levels: u8) -> Vec<DiamondId> {
+    let mut all: Vec<DiamondId> = domain.roots().collect();
+    let mut seen: std::collections::HashSet<DiamondId> = all.iter().copied().collect();
+    let mut i = 0;
+    while i < all.len() {
+        let id = all[i];
+        if id.level < levels {
+            for c in domain.children(id).into_iter().flatten() {
+                if seen.insert(c) {
+                    all.push(c);
+                }
+            }
+        }
+        i += 1;
+    }
+    all
+}
+
+/// The definition [`gather_values`] implements, one point at a time: point `(i, j)` of the
+/// half on parent `h` is that parent's half-step value where `(i, j)` lands; a half whose
+/// parent is missing is the mirror image of the other; where both exist the diagonal is
+/// the second parent's.
+fn gather_by_definition(domain: &Domain, id: DiamondId, parents: [Option<&[u32]>; 2]) -> Vec<u32> {
+    let layout = domain.layout();
+    let n = layout.n();
+    let side = (2 * n - 1) as i64;
+    let diag = layout.diagonal(id);
+    let ids = domain.parents(id);
+    let mut out = vec![u32::MAX; n * n];
+    for (h, half) in Half::BOTH.into_iter().enumerate() {
+        let Some(parent) = parents[h] else { continue };
+        let pid = ids[h].unwrap();
+        let m = domain
+            .grid_in_parent_frame(id, half, pid)
+            .unwrap()
+            .index_map_into_half_step(&layout.grid(pid))
+            .unwrap();
+        for j in 0..n {
+            let (lo, hi) = half_range(diag, half, n, j);
+            for i in lo..=hi {
+                let (a, b) = m.apply(i as i64, j as i64);
+                out[j * n + i] = parent[(b * side + a) as usize];
+            }
+        }
+    }
+    mirror_missing_halves(diag, n, parents.map(|p| p.is_some()), &mut out);
+    out
+}
+
+/// [`reconstruct_cells`] (in i32, with its early refusal) against the definition in i64:
+/// the same cells where every cell is in range, an error exactly where one is not; with
+/// residuals up to the entropy decoders' limit and steps up to 2³¹ − 1.
+#[test]
+fn cells_in_i32_are_the_i64_definition() {
+    let n = 9;
+    let m = n - 1;
+    let mut state = 7u64;
+    let mut next = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        state >> 16
+    };
+    let mut outcomes = [0usize; 2];
+    for round in 0..4000 {
+        let p: Vec<i32> = (0..n * n)
+            .map(|_| (next() % (2 * MAX_ABS_HEIGHT as u64 + 1)) as i32 - MAX_ABS_HEIGHT)
+            .collect();
+        let step = [1i64, 3, 2_001, 1 << 20 | 1, i64::from(i32::MAX)][round % 5];
+        let dc: Vec<i32> = (0..m * m)
+            .map(|_| {
+                let magnitude = match next() % 64 {
+                    0 => (next() % (1 << 30)) as i32,
+                    1 => (i64::from(MAX_ABS_HEIGHT) / step) as i32 + (next() % 3) as i32,
+                    _ => (next() % 50) as i32,
+                };
+                if next() % 2 == 0 {
+                    magnitude
+                } else {
+                    -magnitude
+                }
+            })
+            .collect();
+        let mut expected = vec![0; m * m];
+        predict_cells(&p, n, &mut expected);
+        let mut in_range = true;
+        for (c, &d) in expected.iter_mut().zip(&dc) {
+            let v = clamp_prediction(i64::from(*c)) + step * i64::from(d);
+            in_range &= v.abs() <= i64::from(MAX_ABS_HEIGHT);
+            *c = v as i32;
+        }
+        let mut got = Vec::new();
+        let result = reconstruct_cells(&p, n, &dc, step, &mut got);
+        assert_eq!(result.is_ok(), in_range, "round {round}");
+        if in_range {
+            assert_eq!(got, expected, "round {round}");
+        }
+        outcomes[usize::from(in_range)] += 1;
+    }
+    // Both outcomes were met.
+    assert!(outcomes.iter().all(|&c| c > 100), "{outcomes:?}");
+}
+
+/// Gathering in the parents' memory order gives every point its definition, on a plane
+/// (diamonds on its edges have one parent) and on a cube-sphere (halves read across face
+/// edges and at the corners, in the neighbouring face's frame).
+#[test]
+fn gathering_row_by_row_follows_the_definition() {
+    let domains = [
+        Domain::covering(9, 50, 37, 0).unwrap(),
+        Domain::covering(17, 90, 131, 0).unwrap(),
+        Domain::cube_sphere(9, 1).unwrap(),
+    ];
+    for domain in domains {
+        let n = domain.n();
+        let side = 2 * n - 1;
+        let ids = diamonds(&domain, 3);
+        let mut checked = [0usize; 2];
+        for (k, &id) in ids.iter().enumerate().filter(|(_, id)| id.level > 0) {
+            // Distinct values everywhere, so that any misplaced read shows.
+            let grids: [Vec<u32>; 2] = std::array::from_fn(|h| {
+                (0..side * side)
+                    .map(|p| (k * 4 + h) as u32 * 100_000 + p as u32)
+                    .collect()
+            });
+            let present = domain.parents(id).map(|p| p.is_some());
+            let parents: [Option<&[u32]>; 2] =
+                std::array::from_fn(|h| present[h].then_some(&grids[h][..]));
+            let mut got = vec![u32::MAX; n * n];
+            let grids = parents.map(|p| p.map(|values| HalfStepGrid { side, values }));
+            gather_values(&domain, id, grids, false, &mut got);
+            let expected = gather_by_definition(&domain, id, parents);
+            assert_eq!(got, expected, "{id}");
+            // Heights: the same gather from refinements that store only the vertices and
+            // cell centres of those half-step grids.
+            let refined = parents.map(|p| {
+                p.map(|g| {
+                    let pick = |o: usize, side_of: usize| -> Vec<i32> {
+                        (0..side_of * side_of)
+                            .map(|q| {
+                                let (i, j) = (q % side_of, q / side_of);
+                                g[(2 * j + o) * side + 2 * i + o] as i32
+                            })
+                            .collect()
+                    };
+                    Refined::from_parts(n, &pick(0, n), &pick(1, n - 1))
+                })
+            });
+            let mut heights = vec![i32::MIN; n * n];
+            gather_values(
+                &domain,
+                id,
+                refined.each_ref().map(Option::as_ref),
+                false,
+                &mut heights,
+            );
+            for (k, (&h, &e)) in heights.iter().zip(&expected).enumerate() {
+                assert_eq!(h, e as i32, "{id} point {k}");
+            }
+            checked[usize::from(present.iter().all(|&p| p))] += 1;
+        }
+        // Both kinds of diamond were checked where the domain has them.
+        assert!(checked[1] > 0, "{checked:?}");
+        if domain.cube().is_none() {
+            assert!(checked[0] > 0, "{checked:?}");
+        }
+    }
+}
