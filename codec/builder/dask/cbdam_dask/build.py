@@ -134,6 +134,22 @@ class Progress:
         sys.stderr.flush()
 
 
+def _quiet_local_workers():
+    """A local cluster's workers only wait on `cbdam shard` subprocesses, so their dashboard
+    aids (the statistical profiler sampling every thread's stack each 10 ms, the system and
+    memory monitors every 0.5 s) would cost CPU beside the build for nothing: about 0.08 CPU-s
+    per second of build, measured (docs/RESULTS.md, "The Dask build's overhead"). Off or slowed
+    here, for `local:` only; a `tcp://` cluster keeps its own configuration."""
+    import dask
+
+    dask.config.set({
+        "distributed.worker.profile.enabled": False,
+        "distributed.admin.system-monitor.interval": "5s",
+        "distributed.worker.memory.monitor-interval": "5s",
+        "distributed.admin.tick.interval": "1s",
+    })
+
+
 def main(argv):
     args, extra = _parse(argv)
     cbdam = shutil.which(args.cbdam) or args.cbdam
@@ -171,6 +187,7 @@ def main(argv):
     from dask.distributed import Client, LocalCluster, as_completed
 
     if early_plan is not None:
+        _quiet_local_workers()
         cluster = LocalCluster(
             n_workers=workers,
             threads_per_worker=1,
