@@ -8,12 +8,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use cbdam_builder::write::{Raster, write_geotiff, write_geotiff_f32, write_raw, write_raw_f32};
 use cbdam_codec::atomic::write_atomically;
-use cbdam_codec::geometry::GridMap;
-use cbdam_codec::hierarchy::{Visit, walk_all_batches};
 use cbdam_codec::repository::Repository;
 use cbdam_codec::repository::{GeoRef, LevelGrid, bbox_window};
 use clap::{Args, ValueEnum};
-use rayon::prelude::*;
 use serde_json::json;
 
 use crate::flags;
@@ -207,14 +204,8 @@ impl Samples {
     }
 
     /// Decodes `repo` (read from `path`) and returns the samples' heights in metres (`to_sample`
-    /// of a height in units), row by row.
-    ///
-    /// Points no decoded diamond covers lie in parts of the data rectangle with no valid sample
-    /// nearby (the encoder stores only diamonds that meet one), and the repository's nodata mask
-    /// marks the others that had no data: both are written as nodata, or NaN without a value.
-    /// In a variable-resolution repository, levels finer than the data at a place are not
-    /// reached there either (every level's leaves are visited, so a coarse input's level is
-    /// extracted whole).
+    /// of a height in units), row by row; `fill` where there is no data
+    /// ([`LevelGrid::decode`]).
     fn decode<T: Copy + Send + Sync>(
         &self,
         repo: &Repository,
@@ -225,176 +216,10 @@ impl Samples {
         let encoded = repo
             .to_encoded()
             .with_context(|| format!("reading {}", path.display()))?;
-        // Filled in parallel: the first touch of hundreds of megabytes of pages.
-        let mut values = Vec::new();
-        values.par_extend(rayon::iter::repeat_n(fill, self.width * self.height));
-        let layout = repo.head().params().layout();
-        walk_all_batches(&encoded, |batch| {
-            let grids: Vec<(GridMap, &Visit<'_>)> = batch
-                .iter()
-                .filter(|v| v.id.level == self.level)
-                .map(|v| (layout.grid(v.id), v))
-                .collect();
-            self.put_batch(&grids, layout.n(), &to_sample, &mut values);
-        })
-        .with_context(|| format!("decoding {}", path.display()))?;
-        Ok(values)
+        self.0
+            .decode(&encoded, fill, to_sample)
+            .with_context(|| format!("decoding {}", path.display()))
     }
-
-    /// Writes a batch of even-level grids into `values`, the window's raster, in parallel over
-    /// disjoint bands of the raster rows the batch covers: each band takes the batch's grids in
-    /// the walk's order, so every sample ends as the serial walk leaves it.
-    fn put_batch<T: Copy + Send + Sync>(
-        &self,
-        grids: &[(GridMap, &Visit<'_>)],
-        n: usize,
-        to_sample: &(impl Fn(i32) -> T + Sync),
-        values: &mut [T],
-    ) {
-        // The rows the batch covers: an even-level grid's lines run along the raster's rows.
-        let rows = grids.iter().filter_map(|(g, _)| self.rows_of(g, n));
-        let (Some(first), Some(last)) = (
-            rows.clone().map(|r| r.start).min(),
-            rows.map(|r| r.end).max(),
-        ) else {
-            return;
-        };
-        let workers = rayon::current_num_threads();
-        let put_rows = |band: &mut [T], start: usize| {
-            let band_rows = start..start + band.len() / self.width;
-            for (g, v) in grids {
-                self.put_grid(g, n, v, to_sample, band_rows.clone(), band);
-            }
-        };
-        let values = &mut values[first * self.width..last * self.width];
-        if workers <= 1 {
-            return put_rows(values, first);
-        }
-        let band_rows = (last - first).div_ceil(BANDS_PER_WORKER * workers);
-        values
-            .par_chunks_mut(band_rows * self.width)
-            .enumerate()
-            .for_each(|(b, band)| put_rows(band, first + b * band_rows));
-    }
-
-    /// The raster rows an even-level grid has samples on, `None` when none is in the window.
-    fn rows_of(&self, g: &GridMap, n: usize) -> Option<std::ops::Range<usize>> {
-        let across = if g.u.1 == 0 { g.v } else { g.u };
-        let last = (g.origin.0, g.origin.1 + (n as i64 - 1) * across.1);
-        let (lo, hi) = (
-            g.origin.1.min(last.1).max(self.y0),
-            g.origin.1.max(last.1).min(self.y1),
-        );
-        (lo <= hi).then(|| {
-            let row = |y: i64| ((y - self.y0).div_euclid(self.step)) as usize;
-            row(lo)..row(hi) + 1
-        })
-    }
-
-    /// Writes the heights of one even-level `n × n` grid (`v`: the grid and its validity) that
-    /// fall on raster rows `rows` into `band`, those rows of the window's raster. An even-level
-    /// grid's lines are lines of the raster, along x or along y; each raster row the grid covers
-    /// is written as one run, reading the grid down its columns when its lines run along y (the
-    /// grid is small and stays in cache; the raster's rows are far apart).
-    fn put_grid<T: Copy>(
-        &self,
-        g: &GridMap,
-        n: usize,
-        v: &Visit<'_>,
-        to_sample: &impl Fn(i32) -> T,
-        rows: std::ops::Range<usize>,
-        band: &mut [T],
-    ) {
-        let (grid, valid) = (v.grid, v.valid);
-        // `along` steps along a raster row: one sample of a line; `across` from line to line.
-        let (along, across, sample_stride, line_stride) = if g.u.1 == 0 {
-            (g.u, g.v, 1, n)
-        } else {
-            (g.v, g.u, n, 1)
-        };
-        debug_assert!(
-            along.1 == 0 && across.0 == 0,
-            "even-level grids are axis-aligned"
-        );
-        let dk = along.0 / self.step;
-        // The samples of a line inside the window's columns: the same for every line (the lines
-        // are parallel and start at the same x). Then the lines on the band's rows (which are
-        // inside the window's).
-        let anywhere = (i64::MIN, i64::MAX);
-        let Some(columns) = clip_line(g.origin, along, n, (self.x0, self.x1), anywhere) else {
-            return;
-        };
-        let band_y = (
-            self.y0 + rows.start as i64 * self.step,
-            self.y0 + (rows.end as i64 - 1) * self.step,
-        );
-        let Some(lines) = clip_line(g.origin, across, n, anywhere, band_y) else {
-            return;
-        };
-        let (x, y) = (
-            g.origin.0 + columns.start * along.0,
-            g.origin.1 + lines.start * across.1,
-        );
-        // Even-level grids sit on multiples of their own spacing, which is `step`.
-        debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
-        let row = ((y - self.y0) / self.step) as usize - rows.start;
-        // The first sample of each line in `band`, line after line.
-        let mut line_start = (row * self.width) as i64 + (x - self.x0) / self.step;
-        let next_line = across.1 / self.step * self.width as i64;
-        let count = (columns.end - columns.start) as usize;
-        for line in lines.start as usize..lines.end as usize {
-            let first = line * line_stride + columns.start as usize * sample_stride;
-            let mut k = line_start;
-            line_start += next_line;
-            if valid.is_none() && dk == 1 && sample_stride == 1 {
-                // The common case: a run of the raster row from a run of the grid, no mask.
-                let out = &mut band[k as usize..][..count];
-                for (o, &h) in out.iter_mut().zip(&grid[first..][..count]) {
-                    *o = to_sample(h);
-                }
-                continue;
-            }
-            for s in 0..count {
-                let i = first + s * sample_stride;
-                if valid.is_none_or(|v| v[i]) {
-                    band[k as usize] = to_sample(grid[i]);
-                }
-                k += dk;
-            }
-        }
-    }
-}
-
-/// Bands of raster rows per worker in [`Samples::put_batch`]: a few, so that a band's share of a
-/// batch evens out between workers.
-const BANDS_PER_WORKER: usize = 4;
-
-/// The indices `i` in `0..n` whose points `origin + i·u` lie inside `x` × `y` (inclusive
-/// ranges), `None` when none does (`u` is axis-aligned).
-fn clip_line(
-    origin: (i64, i64),
-    u: (i64, i64),
-    n: usize,
-    x: (i64, i64),
-    y: (i64, i64),
-) -> Option<std::ops::Range<i64>> {
-    let (mut lo, mut hi) = (0i64, n as i64 - 1);
-    for (start, step, (min, max)) in [(origin.0, u.0, x), (origin.1, u.1, y)] {
-        match step.signum() {
-            0 if start < min || start > max => return None,
-            0 => {}
-            1 => {
-                lo = lo.max((min.saturating_sub(start) + step - 1).div_euclid(step));
-                hi = hi.min(max.saturating_sub(start).div_euclid(step));
-            }
-            _ => {
-                let s = -step;
-                lo = lo.max((start.saturating_sub(max) + s - 1).div_euclid(s));
-                hi = hi.min(start.saturating_sub(min).div_euclid(s));
-            }
-        }
-    }
-    (lo <= hi).then_some(lo..hi + 1)
 }
 
 /// The decoded heights, in the sample type written.

@@ -13,6 +13,7 @@ mod linf_bound;
 mod nodata_mask;
 mod numerical_stress;
 mod older_formats;
+mod one_decode;
 mod parallel_decode;
 mod planet_blocks;
 mod planet_codec;

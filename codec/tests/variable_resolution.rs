@@ -34,7 +34,7 @@ fn opts() -> EncodeOptions {
 }
 
 /// Rough terrain, so that residuals are not all zero.
-fn terrain(rng: &mut Rng) -> Vec<i32> {
+pub(crate) fn terrain(rng: &mut Rng) -> Vec<i32> {
     (0..SIDE * SIDE)
         .map(|k| {
             let (x, y) = ((k % SIDE) as f64, (k / SIDE) as f64);
@@ -49,7 +49,7 @@ fn in_fine(x: usize, y: usize) -> bool {
 
 /// The grid and classes as the builder would make them from the two inputs (constructed here
 /// independently of the CLI's mosaic code).
-fn variable_input(h: &[i32]) -> (HeightGrid, Resolution) {
+pub(crate) fn variable_input(h: &[i32]) -> (HeightGrid, Resolution) {
     let s = 1usize << COARSE_LOG2;
     let coarse_valid = |x: usize, y: usize| !(x >= HOLE_FROM && y >= HOLE_FROM);
     let mut values = vec![0i32; SIDE * SIDE];
@@ -102,7 +102,7 @@ fn variable_input(h: &[i32]) -> (HeightGrid, Resolution) {
     )
 }
 
-fn encode_var(grid: &HeightGrid, res: &Resolution, q: Quantizer) -> Encoded {
+pub(crate) fn encode_var(grid: &HeightGrid, res: &Resolution, q: Quantizer) -> Encoded {
     Encoder::new(grid, q, &opts())
         .resolution(Some(res))
         .encode()

@@ -10,7 +10,9 @@ use std::time::Duration;
 use cbdam_client::fetch::{FetchOptions, RemoteFetcher};
 use cbdam_codec::CodecError;
 use cbdam_codec::geometry::DiamondId;
-use cbdam_codec::hierarchy::{FaceWindows, LevelWindow, decode_face_windows, decode_window};
+use cbdam_codec::hierarchy::{
+    CodecParams, FaceWindows, LevelWindow, decode_face_windows, decode_window,
+};
 use cbdam_codec::repository::{LevelGrid, Repository, RepositoryHead};
 
 use crate::cache::{CacheInfo, RecordCache};
@@ -35,6 +37,13 @@ pub enum Source {
         /// The records kept between reads.
         cache: Box<Mutex<RecordCache>>,
     },
+}
+
+/// Whether `grid` is the finest level over the whole data rectangle: a read that needs every
+/// record, decoded whole ([`LevelGrid::decode_into`]) rather than window by window.
+fn reads_whole_finest_level(grid: &LevelGrid, params: &CodecParams) -> bool {
+    let whole = LevelGrid::new(params, None, None, "");
+    params.domain.cube().is_none() && whole.is_ok_and(|whole| whole == *grid)
 }
 
 /// The error of a lock an earlier read panicked holding.
@@ -110,6 +119,19 @@ impl Source {
         out.fill(T::from_metres(f64::NAN));
         let head = self.head();
         let (params, plan) = (*head.params(), *head.plan());
+        if let Source::Local(repo) = self
+            && reads_whole_finest_level(grid, &params)
+        {
+            // Every record is read: one walk over the file, in parallel over records and over
+            // the raster's rows, as `cbdam extract` decodes.
+            let encoded = repo
+                .to_encoded()
+                .map_err(|e| PyCbdamError::codec(&format!("reading {name}"), &e))?;
+            let to_sample = |h: i32| T::from_metres(plan.metres(h));
+            return grid
+                .decode_into(&encoded, to_sample, out)
+                .map_err(|e| PyCbdamError::codec(&format!("decoding {name}"), &e));
+        }
         let window = LevelWindow {
             level: grid.level,
             rect: (grid.x0, grid.y0, grid.x1, grid.y1),

@@ -10,8 +10,7 @@ use cbdam_codec::colour::{ColourVerifyReport, verify_colour};
 use cbdam_codec::geometry::DomainKind;
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
-    BlockPlan, BlockWalk, Reached, VerifyReport, reconstruct_finest_with_validity,
-    reconstruct_reached, verify,
+    BlockPlan, BlockWalk, Reached, VerifyReport, verify_with_finest, verify_with_reached,
 };
 use cbdam_codec::lifting::Alpha;
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
@@ -206,9 +205,10 @@ pub fn compare_dem(repo: &Repository, against: &Path) -> Result<DemComparison> {
         )
     })?;
     let encoded = repo.to_encoded()?;
-    let levels = verify(&encoded, &grid).context("decoding the hierarchy")?;
-    // Against the samples as stored, in metres: what the user was promised.
-    let (finest, valid) = reconstruct_finest_with_validity(&encoded)?;
+    // One decode: every level against the input, and the finest level as stored, to compare
+    // in metres (what the user was promised).
+    let (levels, finest, valid) =
+        verify_with_finest(&encoded, &grid).context("decoding the hierarchy")?;
     // The nodata mask must state exactly which samples had data: a sample drawn that had none
     // shows invented surface, one hidden that had data loses it.
     let mask_mismatches: Vec<(usize, bool)> = (0..valid.len())
@@ -633,8 +633,9 @@ pub fn compare_tiles_whole(
 ) -> Result<MosaicComparison> {
     let (m, class, grid) = mosaic_lattice(repo, tiles, memory_limit)?;
     let encoded = repo.to_encoded()?;
-    let levels = verify(&encoded, &grid).context("decoding the hierarchy")?;
-    let (values, state) = reconstruct_reached(&encoded)?;
+    // One decode: every level against the lattice, and every point it reaches.
+    let (levels, values, state) =
+        verify_with_reached(&encoded, &grid).context("decoding the hierarchy")?;
     let quant = *repo.head().plan();
     let mut tally = Tally::new(m.inputs.len());
     m.for_each_block_winners(&mut |y0, block, winners| {

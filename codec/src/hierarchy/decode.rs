@@ -1,10 +1,10 @@
-//! Decoding diamond by diamond, and the exact L∞ verifier built on it.
+//! Decoding diamond by diamond: the walks over a whole hierarchy and the finest level
+//! reconstructed from them (the exact L∞ verifier built on them is [`super::verify`]).
 
 use std::collections::HashMap;
 
 use rayon::prelude::*;
 
-use super::analysis::analysis_fields;
 use super::decode_pool::{GridPool, with_thread_scratch};
 use super::refine::{RefineScratch, Refined, gather, gather_validity, refine, refine_owned};
 use super::roots::{decode_roots, root_grid};
@@ -12,10 +12,9 @@ use super::{CodecParams, Encoded};
 use crate::CodecError;
 use crate::geometry::DiamondId;
 use crate::lifting::Alpha;
-use crate::quant::HeightGrid;
 
 /// A decoder: the root field plus the per-diamond steps. The renderer drives it diamond by
-/// diamond; [`verify`] drives it over the whole hierarchy.
+/// diamond; [`super::verify`] drives it over the whole hierarchy.
 #[derive(Clone, Debug)]
 pub struct Decoder {
     params: CodecParams,
@@ -127,7 +126,7 @@ impl LevelReport {
     }
 }
 
-/// What [`verify`] found.
+/// What [`super::verify`] found.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct VerifyReport {
     /// One entry per level, coarse to fine.
@@ -208,7 +207,7 @@ pub fn walk_all_batches(
     walk_batches_impl(encoded, true, visit)
 }
 
-fn walk_batches_impl(
+pub(super) fn walk_batches_impl(
     encoded: &Encoded,
     all_levels: bool,
     mut visit: impl FnMut(&[Visit<'_>]),
@@ -498,43 +497,75 @@ pub fn reconstruct_finest(encoded: &Encoded) -> Result<Vec<i32>, CodecError> {
 pub fn reconstruct_finest_with_validity(
     encoded: &Encoded,
 ) -> Result<(Vec<i32>, Vec<bool>), CodecError> {
-    let params = encoded.params;
-    planar_only(&params)?;
-    let layout = params.layout();
-    let (w, h) = params.domain.data().size();
-    // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
-    let mut out = Vec::new();
-    w.checked_mul(h)
-        .and_then(|len| out.try_reserve_exact(len).ok().map(|()| len))
-        .map(|len| out.resize(len, 0))
-        .ok_or_else(|| {
-            CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
-        })?;
-    // Points no finest diamond reaches lie in leaves without data, which are not stored.
-    let mut valid = vec![!params.nodata_mask; out.len()];
-    let n = layout.n();
-    let finest = layout.finest_level();
-    walk_with_validity(encoded, |id, p, v| {
-        if id.level != finest {
+    let mut finest = FinestRaster::new(&encoded.params)?;
+    walk_with_validity(encoded, |id, p, v| finest.put(id, p, v))?;
+    Ok((finest.heights, finest.valid))
+}
+
+/// The finest level on the input's grid (the domain's data rectangle, row-major), filled from a
+/// walk's visits ([`FinestRaster::put`]; the other levels' are ignored): what
+/// [`reconstruct_finest_with_validity`] returns.
+pub(super) struct FinestRaster {
+    params: CodecParams,
+    /// The heights, units; 0 where no finest diamond reaches.
+    pub(super) heights: Vec<i32>,
+    /// The nodata mask (`true` = the input had data; all `true` without a mask).
+    pub(super) valid: Vec<bool>,
+}
+
+impl FinestRaster {
+    /// An empty raster of `params`' data rectangle, refused for a cube-sphere or one too large
+    /// to hold.
+    pub(super) fn new(params: &CodecParams) -> Result<Self, CodecError> {
+        planar_only(params)?;
+        let (w, h) = params.domain.data().size();
+        // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
+        let mut heights = Vec::new();
+        let mut valid = Vec::new();
+        w.checked_mul(h)
+            .filter(|&len| {
+                heights.try_reserve_exact(len).is_ok() && valid.try_reserve_exact(len).is_ok()
+            })
+            .map(|len| {
+                heights.resize(len, 0);
+                // Points no finest diamond reaches lie in leaves without data, which are not
+                // stored.
+                valid.resize(len, !params.nodata_mask);
+            })
+            .ok_or_else(|| {
+                CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
+            })?;
+        Ok(Self {
+            params: *params,
+            heights,
+            valid,
+        })
+    }
+
+    /// Writes the visit of diamond `id` (grid `p`, validity `v`) if it is of the finest level.
+    pub(super) fn put(&mut self, id: DiamondId, p: &[i32], v: Option<&[bool]>) {
+        let layout = self.params.layout();
+        if id.level != layout.finest_level() {
             return;
         }
+        let (n, data) = (layout.n(), self.params.domain.data());
+        let w = data.size().0;
         let g = layout.grid(id);
         for j in 0..n {
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);
-                if params.domain.data().contains(x, y) {
+                if data.contains(x, y) {
                     let k = y as usize * w + x as usize;
-                    out[k] = p[j * n + i];
-                    valid[k] = v.is_none_or(|v| v[j * n + i]);
+                    self.heights[k] = p[j * n + i];
+                    self.valid[k] = v.is_none_or(|v| v[j * n + i]);
                 }
             }
         }
-    })?;
-    Ok((out, valid))
+    }
 }
 
 /// Refuses a cube-sphere where one planar raster is asked for.
-fn planar_only(params: &CodecParams) -> Result<(), CodecError> {
+pub(super) fn planar_only(params: &CodecParams) -> Result<(), CodecError> {
     if params.domain.kind() == crate::geometry::DomainKind::Planar {
         Ok(())
     } else {
@@ -560,32 +591,61 @@ pub enum Reached {
 /// diamond of [`walk_all_with_validity`] (values of the same point agree at every level, α = 1
 /// vertices never change; for α = ½ the finest visit wins), and the nodata mask there.
 pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>), CodecError> {
-    let params = encoded.params;
-    planar_only(&params)?;
-    let layout = params.layout();
-    let (w, h) = params.domain.data().size();
-    // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
-    let mut out = Vec::new();
-    let mut state = Vec::new();
-    w.checked_mul(h)
-        .filter(|&len| out.try_reserve_exact(len).is_ok() && state.try_reserve_exact(len).is_ok())
-        .map(|len| {
-            out.resize(len, 0i32);
-            state.resize(len, Reached::No);
+    let mut reached = ReachedRaster::new(&encoded.params)?;
+    walk_impl(encoded, true, |id, p, v| reached.put(id, p, v))?;
+    Ok((reached.heights, reached.state))
+}
+
+/// Every level's grid points on the input's grid, filled from a walk's visits: what
+/// [`reconstruct_reached`] returns.
+pub(super) struct ReachedRaster {
+    params: CodecParams,
+    /// The heights, units; 0 where no diamond reaches.
+    pub(super) heights: Vec<i32>,
+    /// What the walk found at each point.
+    pub(super) state: Vec<Reached>,
+}
+
+impl ReachedRaster {
+    /// An empty raster of `params`' data rectangle, refused for a cube-sphere or one too large
+    /// to hold.
+    pub(super) fn new(params: &CodecParams) -> Result<Self, CodecError> {
+        planar_only(params)?;
+        let (w, h) = params.domain.data().size();
+        // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
+        let mut heights = Vec::new();
+        let mut state = Vec::new();
+        w.checked_mul(h)
+            .filter(|&len| {
+                heights.try_reserve_exact(len).is_ok() && state.try_reserve_exact(len).is_ok()
+            })
+            .map(|len| {
+                heights.resize(len, 0i32);
+                state.resize(len, Reached::No);
+            })
+            .ok_or_else(|| {
+                CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
+            })?;
+        Ok(Self {
+            params: *params,
+            heights,
+            state,
         })
-        .ok_or_else(|| {
-            CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
-        })?;
-    let n = layout.n();
-    walk_impl(encoded, true, |id, p, v| {
+    }
+
+    /// Writes the visit of diamond `id` (grid `p`, validity `v`), of any level.
+    pub(super) fn put(&mut self, id: DiamondId, p: &[i32], v: Option<&[bool]>) {
+        let layout = self.params.layout();
+        let (n, data) = (layout.n(), self.params.domain.data());
+        let w = data.size().0;
         let g = layout.grid(id);
         for j in 0..n {
             for i in 0..n {
                 let (x, y) = g.point(i as i64, j as i64);
-                if params.domain.data().contains(x, y) {
+                if data.contains(x, y) {
                     let k = y as usize * w + x as usize;
-                    out[k] = p[j * n + i];
-                    state[k] = if v.is_none_or(|v| v[j * n + i]) {
+                    self.heights[k] = p[j * n + i];
+                    self.state[k] = if v.is_none_or(|v| v[j * n + i]) {
                         Reached::Valid
                     } else {
                         Reached::Invalid
@@ -593,57 +653,5 @@ pub fn reconstruct_reached(encoded: &Encoded) -> Result<(Vec<i32>, Vec<Reached>)
                 }
             }
         }
-    })?;
-    Ok((out, state))
-}
-
-/// Decodes the whole hierarchy ([`walk_all_with_validity`]) and compares every reconstructed
-/// vertex of every level with the filtered data of that level (the input itself for α = 1 and at the finest level).
-///
-/// Corrupt records are errors; a bound violation is reported, not an error, so callers can say
-/// by how much.
-pub fn verify(encoded: &Encoded, input: &HeightGrid) -> Result<VerifyReport, CodecError> {
-    let params = encoded.params;
-    planar_only(&params)?;
-    let layout = params.layout();
-    let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(layout, input));
-    let n = layout.n();
-    let mut levels = LevelReport::empty(layout.finest_level());
-    // Each diamond's worst error on its own, in parallel; maxima and sums do not depend on the
-    // order they are taken in, so the report is the serial walk's.
-    walk_batches_impl(encoded, true, |batch| {
-        let found: Vec<(u64, u32)> = batch
-            .par_iter()
-            .map(|v| {
-                let want = |x, y, level: u8| -> Option<i32> {
-                    let v = input.get(x, y)?;
-                    Some(fields.as_ref().map_or(v, |f| f[level as usize].get(x, y)))
-                };
-                let g = layout.grid(v.id);
-                let (mut vertices, mut worst) = (0u64, 0u32);
-                for j in 0..n {
-                    for i in 0..n {
-                        let (x, y) = g.point(i as i64, j as i64);
-                        let Some(want) = want(x, y, v.id.level) else {
-                            continue;
-                        };
-                        let e = (i64::from(v.grid[j * n + i]) - i64::from(want)).unsigned_abs();
-                        worst = worst.max(u32::try_from(e).unwrap_or(u32::MAX));
-                        vertices += 1;
-                    }
-                }
-                (vertices, worst)
-            })
-            .collect();
-        for (v, (vertices, worst)) in batch.iter().zip(found) {
-            let report = &mut levels[v.id.level as usize];
-            report.diamonds += 1;
-            report.vertices += vertices;
-            report.max_error = report.max_error.max(worst);
-        }
-    })?;
-    Ok(VerifyReport {
-        levels,
-        bound: params.quantizer.k() as u32,
-    })
+    }
 }

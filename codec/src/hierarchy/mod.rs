@@ -29,12 +29,13 @@ mod record_bytes;
 mod refine;
 pub mod resolution;
 mod roots;
+mod verifier;
 
 pub use analysis::{LevelField, analysis_fields};
 pub use blocks::{BlockJournal, BlockOutput, BlockPlan, NO_WINDOW, NoJournal, WindowBytes};
 pub use decode::{
     Decoder, LevelReport, Reached, VerifyReport, Visit, reconstruct_finest,
-    reconstruct_finest_with_validity, reconstruct_reached, verify, walk, walk_all_batches,
+    reconstruct_finest_with_validity, reconstruct_reached, walk, walk_all_batches,
     walk_all_with_validity, walk_with_validity,
 };
 pub use decode_blocks::{BlockWalk, block_walk};
@@ -49,6 +50,7 @@ pub use planet::{
 pub use record_bytes::RecordBytes;
 pub use refine::{RefineScratch, Refined, gather, gather_validity, join_halves, refine};
 pub use resolution::Resolution;
+pub use verifier::{verify, verify_with_finest, verify_with_reached};
 
 use crate::entropy::{BandKind, CoderKind};
 use crate::geometry::{DiamondId, Domain, Layout};

@@ -13,6 +13,7 @@ mod header;
 #[doc(hidden)]
 pub mod hostile;
 pub mod index;
+mod level_decode;
 mod level_grid;
 
 #[doc(hidden)]
