@@ -23,6 +23,7 @@ pub mod raster_image;
 pub mod schemes;
 pub mod surface;
 pub mod tiler;
+pub mod windows;
 
 pub use raster::Encoding;
 pub use raster_image::ImageFormat;
