@@ -17,6 +17,7 @@ pub mod coverage;
 pub mod geoid;
 pub mod mesh_cut;
 pub mod place;
+pub mod pmtiles;
 pub mod quantized_mesh;
 pub mod raster;
 pub mod raster_image;

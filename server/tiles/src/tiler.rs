@@ -54,7 +54,7 @@ pub struct Tiler {
     /// Windows decoded for groups of cold mesh tiles, shared between them.
     windows: SharedWindows,
     /// Whether a tile may wait for the whole surface instead of decoding a window (where the
-    /// window would be a large part of it, or the whole is small).
+    /// whole is small).
     whole_ok: bool,
 }
 
@@ -63,9 +63,6 @@ pub const GROUP_SHIFT: u32 = 2;
 /// A surface of at most this many samples is decoded whole rather than by windows (when the
 /// whole is allowed: [`Tiler::with_memory`]); decoding it costs about as much as a few windows.
 pub const SMALL_WHOLE_SAMPLES: u64 = 1 << 22;
-/// A window covering at least 1/`WHOLE_SHARE` of the data waits for the whole surface instead
-/// (when allowed): concurrent tiles would decode most of it several times over.
-pub const WHOLE_SHARE: f64 = 8.0;
 
 /// Bytes of made mesh tiles a tiler keeps (a tile asked for again is not made again).
 pub const MESH_CACHE_BYTES: usize = 16 << 20;
@@ -154,8 +151,8 @@ impl Tiler {
     }
 
     /// The same tiler keeping at most `window_bytes` of decoded windows, and, with
-    /// `whole_surface`, letting tiles wait for the whole surface where a window would be a
-    /// large part of it or the whole is small (at most [`SMALL_WHOLE_SAMPLES`]). The tiles are
+    /// `whole_surface`, letting tiles wait for the whole surface where it is small (at most
+    /// [`SMALL_WHOLE_SAMPLES`]). The tiles are
     /// the same bytes either way.
     pub fn with_memory(mut self, window_bytes: usize, whole_surface: bool) -> Tiler {
         self.windows = SharedWindows::new(window_bytes);
@@ -224,7 +221,7 @@ impl Tiler {
         if boxes.is_empty() {
             return Ok(Held::Nothing);
         }
-        if self.whole_for(&boxes) {
+        if self.whole_for() {
             return self.whole().map(Held::Whole);
         }
         self.decode_boxes(&boxes, coarsen).map(Held::Window)
@@ -251,17 +248,17 @@ impl Tiler {
         if !at.iter().flatten().any(on_data) {
             return Ok(Held::Nothing);
         }
+        if self.whole_for() {
+            return self.whole().map(Held::Whole);
+        }
         let s = GROUP_SHIFT;
         let (gx, gy) = (t.x >> s, t.y >> s);
         let last = |g: u32, tiles: i64| (i64::from(g + 1) << s).min(tiles) - 1;
         let xs = (i64::from(gx) << s, last(gx, 2i64 << t.z));
         let ys = (i64::from(gy) << s, last(gy, 1i64 << t.z));
-        let boxes = shared.group_boxes(&self.place, t.z, xs, ys);
-        if self.whole_for(&boxes) {
-            return self.whole().map(Held::Whole);
-        }
         let key = (t.z, gx, gy, coarsen);
         let window = self.windows.get_or_decode(key, || {
+            let boxes = shared.group_boxes(&self.place, t.z, xs, ys);
             let window = self.decode_boxes(&boxes, coarsen)?;
             let bytes = window.bytes();
             Ok((window, bytes))
@@ -269,23 +266,12 @@ impl Tiler {
         Ok(Held::Shared(window))
     }
 
-    /// Whether a window over `boxes` had better wait for the whole surface: when allowed
-    /// ([`Self::with_memory`]), for a small surface or a window of a large part of it.
-    fn whole_for(&self, boxes: &[FaceBox]) -> bool {
-        if !self.whole_ok {
-            return false;
-        }
-        let domain = self.encoded.params.domain;
-        if Surface::samples(&domain) <= SMALL_WHOLE_SAMPLES {
-            return true;
-        }
-        let (w, h) = domain.data().size();
-        let (w, h) = (w as f64, h as f64);
-        let span = |lo: f64, hi: f64, m: f64| (hi.min(m) - lo.max(0.0)).max(0.0);
-        let area: f64 = (boxes.iter())
-            .map(|&(_, b)| span(b.0, b.2, w) * span(b.1, b.3, h))
-            .sum();
-        area * WHOLE_SHARE >= f64::from(domain.faces()) * w * h
+    /// Whether a tile had better wait for the whole surface than decode a window: when
+    /// allowed ([`Self::with_memory`]), for a small surface (its decode costs about as much as a
+    /// few windows). A large one is not waited for, even where a window is a large part of it:
+    /// the whole decode runs on one thread, the windows of different groups on all of them.
+    fn whole_for(&self) -> bool {
+        self.whole_ok && Surface::samples(&self.encoded.params.domain) <= SMALL_WHOLE_SAMPLES
     }
 
     /// The whole surface, decoded by the first caller (the others wait for it).
