@@ -13,15 +13,16 @@ use crate::web_tiles::{TileFormat, TilesArgs, make, progress};
 /// Tiles made at a time (in parallel) before they are appended in order.
 const BATCH: usize = 64;
 
-/// Writes `tiles` (XYZ) of `tiler` into the archive at `args.output`; returns how many tiles
-/// and the archive's bytes.
+/// Writes `tiles` (XYZ) of `tile` pixels of `tiler` into the archive at `args.output`, and
+/// says so (levels to `max_zoom`, the repository decoded in `decoded_s`).
 pub fn write(
     args: &TilesArgs,
     tiler: &Tiler,
     name: &str,
-    mut tiles: Vec<(u32, u32, u32)>,
-    tile: u32,
-) -> Result<(usize, u64)> {
+    (mut tiles, tile): (Vec<(u32, u32, u32)>, u32),
+    (max_zoom, decoded_s): (u8, f64),
+) -> Result<()> {
+    let tiling = std::time::Instant::now();
     let id = |&(z, x, y): &(u32, u32, u32)| u8::try_from(z).ok().and_then(|z| tile_id(z, x, y));
     tiles.sort_by_key(id);
     let path = &args.output;
@@ -45,7 +46,16 @@ pub fn write(
     let bytes = out
         .finish(&info)
         .with_context(|| format!("finishing {}", path.display()))?;
-    Ok((tiles.len(), bytes))
+    if !args.quiet.value {
+        let (n, secs) = (tiles.len(), tiling.elapsed().as_secs_f64());
+        println!(
+            "{}: {n} tiles, levels 0…{max_zoom}, {bytes} bytes; decoded in {decoded_s:.2} s, \
+             tiles in {secs:.2} s ({:.0} tiles/s)",
+            path.display(),
+            n as f64 / secs.max(1e-9),
+        );
+    }
+    Ok(())
 }
 
 /// The header's fields and the metadata: the TileJSON `cbdam serve` answers, without its

@@ -92,27 +92,7 @@ pub fn run(args: &TilesArgs) -> Result<()> {
     if args.format == TileFormat::QuantizedMesh && args.image != ImageArg::Png {
         bail!("--image webp is for raster tiles (terrarium, terrain-rgb), not quantized-mesh");
     }
-    let pmtiles = args.output.extension().is_some_and(|e| e == "pmtiles");
-    if pmtiles && args.format == TileFormat::QuantizedMesh {
-        bail!(
-            "{}: quantized-mesh tiles are not written to PMTiles: its tile ids address 2^z × 2^z \
-             tiles a level, the geographic scheme has 2^(z+1) × 2^z, and CesiumJS reads no \
-             PMTiles; export them to a directory",
-            args.output.display()
-        );
-    }
-    if pmtiles && args.output.is_dir() {
-        bail!(
-            "output {} is a directory, not a .pmtiles file",
-            args.output.display()
-        );
-    }
-    if !pmtiles && args.output.exists() && !args.output.is_dir() {
-        bail!(
-            "output {} exists and is not a directory",
-            args.output.display()
-        );
-    }
+    let pmtiles = check_output(args)?;
     let started = Instant::now();
     let tiler = open_tiler(args)?;
     let decoded_s = started.elapsed().as_secs_f64();
@@ -136,18 +116,13 @@ pub fn run(args: &TilesArgs) -> Result<()> {
         Scheme::WebMercator => tile_list(tiler.bounds(), max_zoom),
     };
     if pmtiles {
-        let tiling = Instant::now();
-        let (n, b) = crate::web_pmtiles::write(args, &tiler, &name, tiles, tile)?;
-        if !args.quiet.value {
-            let secs = tiling.elapsed().as_secs_f64();
-            println!(
-                "{}: {n} tiles, levels 0…{max_zoom}, {b} bytes; decoded in {decoded_s:.2} s, \
-                 tiles in {secs:.2} s ({:.0} tiles/s)",
-                args.output.display(),
-                n as f64 / secs.max(1e-9),
-            );
-        }
-        return Ok(());
+        return crate::web_pmtiles::write(
+            args,
+            &tiler,
+            &name,
+            (tiles, tile),
+            (max_zoom, decoded_s),
+        );
     }
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
@@ -186,6 +161,32 @@ pub fn run(args: &TilesArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Refuses an output the format cannot go to; returns whether it is a `.pmtiles` archive.
+fn check_output(args: &TilesArgs) -> Result<bool> {
+    let pmtiles = args.output.extension().is_some_and(|e| e == "pmtiles");
+    if pmtiles && args.format == TileFormat::QuantizedMesh {
+        bail!(
+            "{}: quantized-mesh tiles are not written to PMTiles: its tile ids address 2^z × 2^z \
+             tiles a level, the geographic scheme has 2^(z+1) × 2^z, and CesiumJS reads no \
+             PMTiles; export them to a directory",
+            args.output.display()
+        );
+    }
+    if pmtiles && args.output.is_dir() {
+        bail!(
+            "output {} is a directory, not a .pmtiles file",
+            args.output.display()
+        );
+    }
+    if !pmtiles && args.output.exists() && !args.output.is_dir() {
+        bail!(
+            "output {} exists and is not a directory",
+            args.output.display()
+        );
+    }
+    Ok(pmtiles)
 }
 
 /// The repository's tiler, restricted to `--bbox`, with every level decoded (every tile is
