@@ -25,6 +25,31 @@ missing() {
     exit 0
 }
 
+# PMTiles: `cbdam tiles -o OUT.pmtiles` read back by an independent reader, the `pmtiles`
+# Python package (pip, pinned, installed once into target/web-maps-python), tile for tile
+# against the directory export (scripts/web-maps/pmtiles_check.py). Needs no browser.
+pm_py="${CARGO_TARGET_DIR:-target}/web-maps-python"
+if [ -d "$pm_py/pmtiles" ] || python3 -m pip install --quiet --target "$pm_py" pmtiles==3.8.1; then
+    pm_work="$(mktemp -d)"
+    cargo build --quiet --bin cbdam
+    cbdam="${CARGO_TARGET_DIR:-target}/debug/cbdam"
+    "$cbdam" build data/jacksboro_mpl.tif -o "$pm_work/j.cbdam" --max-error 1 --quiet
+    for format in "terrarium --image png" "terrain-rgb --image webp"; do
+        # shellcheck disable=SC2086 # the format and its image flag, split on purpose
+        "$cbdam" tiles "$pm_work/j.cbdam" --format $format -o "$pm_work/dir" --quiet
+        # shellcheck disable=SC2086
+        "$cbdam" tiles "$pm_work/j.cbdam" --format $format -o "$pm_work/j.pmtiles" --quiet
+        PYTHONPATH="$pm_py" python3 scripts/web-maps/pmtiles_check.py "$pm_work/j.pmtiles" "$pm_work/dir"
+        rm -rf "$pm_work/dir" "$pm_work/j.pmtiles"
+    done
+    rm -rf "$pm_work"
+elif under_ci; then
+    echo "web-maps-test.sh: FAILED: pip install pmtiles==3.8.1 failed; under CI that fails the run" >&2
+    exit 1
+else
+    echo "web-maps-test.sh: SKIPPED the PMTiles check: pip install pmtiles==3.8.1 failed" >&2
+fi
+
 chromium="${CBDAM_CHROMIUM:-/usr/lib/chromium/chromium}"
 needs=()
 [ -x "$chromium" ] || needs+=(chromium)

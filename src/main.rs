@@ -22,6 +22,7 @@ mod upgrade;
 mod verify;
 mod view;
 mod web_export;
+mod web_pmtiles;
 mod web_tiles;
 
 use std::process::ExitCode;

@@ -57,6 +57,11 @@ pub struct ServeArgs {
     /// past it answers 404 for tiles, naming the limit).
     #[arg(long, default_value_t = 1 << 28)]
     max_tile_samples: u64,
+    /// Most bytes of decoded windows each repository's web-map tiles keep (e.g. 256M; 0: none
+    /// kept): the cold mesh tiles of a 4 × 4 group read one window, decoded once however many
+    /// ask for it at a time (docs/WEB-MAPS.md).
+    #[arg(long, default_value = "256M", value_name = "SIZE")]
+    tile_cache: crate::flags::ByteSize,
     /// The browser viewer's files (the bundle `scripts/web-build.sh` writes, e.g.
     /// target/web-bundle): `/` then links every repository to the viewer, served under
     /// `/viewer/HASH/`. Without it `/` only lists the repositories.
@@ -140,6 +145,7 @@ fn server_config(args: &ServeArgs) -> Result<Config> {
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),
         max_connections: args.max_connections,
         max_tile_samples: args.max_tile_samples,
+        tile_cache: args.tile_cache.0,
         held_records_bytes: args.hold_records.0,
         answer_memory: args.answer_memory.0,
     })

@@ -39,7 +39,7 @@ pub enum ImageArg {
 }
 
 impl ImageArg {
-    fn format(self) -> ImageFormat {
+    pub(crate) fn format(self) -> ImageFormat {
         match self {
             ImageArg::Png => ImageFormat::Png,
             ImageArg::Webp => ImageFormat::Webp,
@@ -53,34 +53,38 @@ impl ImageArg {
 ///
 /// Tiles already in DIR are kept (each file is written atomically, so one there is whole): an
 /// interrupted export run again goes on where it stopped. Tiles are made in parallel.
+///
+/// With `-o OUT.pmtiles` the raster tiles go into one PMTiles v3 archive instead (its metadata
+/// holds the TileJSON), written beside it as OUT.pmtiles.partial and renamed when whole (an
+/// interrupted export starts again).
 #[derive(Args, Debug)]
 pub struct TilesArgs {
     /// Repository file.
-    repo: PathBuf,
+    pub(crate) repo: PathBuf,
     /// Tile format.
     #[arg(long, value_enum)]
-    format: TileFormat,
-    /// Output directory (created if missing).
+    pub(crate) format: TileFormat,
+    /// Output directory (created if missing), or a `.pmtiles` file (raster formats).
     #[arg(short, long)]
-    output: PathBuf,
+    pub(crate) output: PathBuf,
     /// Deepest zoom level written (default, and at most: the format's maxzoom for this
     /// repository, the first level whose tiles carry its finest data).
     #[arg(long)]
-    max_zoom: Option<u8>,
+    pub(crate) max_zoom: Option<u8>,
     /// Raster tile size, pixels: 256 or 512.
     #[arg(long, default_value_t = 512)]
-    tile: u32,
+    pub(crate) tile: u32,
     /// Raster tiles' image file: png, or webp (lossless: the same pixels, fewer bytes; read
     /// by MapLibre's raster-dem). Not for quantized-mesh.
     #[arg(long, value_enum, default_value_t = ImageArg::Png)]
-    image: ImageArg,
+    pub(crate) image: ImageArg,
     /// Only the tiles meeting this box: west,south,east,north in degrees (WGS84 longitude
     /// and latitude, west < east, south < north); `tiles.json` / `layer.json` then state
     /// its part of the data. A box that misses the data is refused.
     #[arg(long, value_parser = parse_bbox, allow_hyphen_values = true)]
-    bbox: Option<[f64; 4]>,
+    pub(crate) bbox: Option<[f64; 4]>,
     #[command(flatten)]
-    quiet: flags::Quiet,
+    pub(crate) quiet: flags::Quiet,
 }
 
 pub fn run(args: &TilesArgs) -> Result<()> {
@@ -88,12 +92,7 @@ pub fn run(args: &TilesArgs) -> Result<()> {
     if args.format == TileFormat::QuantizedMesh && args.image != ImageArg::Png {
         bail!("--image webp is for raster tiles (terrarium, terrain-rgb), not quantized-mesh");
     }
-    if args.output.exists() && !args.output.is_dir() {
-        bail!(
-            "output {} exists and is not a directory",
-            args.output.display()
-        );
-    }
+    let pmtiles = check_output(args)?;
     let started = Instant::now();
     let tiler = open_tiler(args)?;
     let decoded_s = started.elapsed().as_secs_f64();
@@ -116,6 +115,15 @@ pub fn run(args: &TilesArgs) -> Result<()> {
             .collect(),
         Scheme::WebMercator => tile_list(tiler.bounds(), max_zoom),
     };
+    if pmtiles {
+        return crate::web_pmtiles::write(
+            args,
+            &tiler,
+            &name,
+            (tiles, tile),
+            (max_zoom, decoded_s),
+        );
+    }
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
     write_document(args, &tiler, &name, tile)?;
@@ -153,6 +161,32 @@ pub fn run(args: &TilesArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Refuses an output the format cannot go to; returns whether it is a `.pmtiles` archive.
+fn check_output(args: &TilesArgs) -> Result<bool> {
+    let pmtiles = args.output.extension().is_some_and(|e| e == "pmtiles");
+    if pmtiles && args.format == TileFormat::QuantizedMesh {
+        bail!(
+            "{}: quantized-mesh tiles are not written to PMTiles: its tile ids address 2^z × 2^z \
+             tiles a level, the geographic scheme has 2^(z+1) × 2^z, and CesiumJS reads no \
+             PMTiles; export them to a directory",
+            args.output.display()
+        );
+    }
+    if pmtiles && args.output.is_dir() {
+        bail!(
+            "output {} is a directory, not a .pmtiles file",
+            args.output.display()
+        );
+    }
+    if !pmtiles && args.output.exists() && !args.output.is_dir() {
+        bail!(
+            "output {} exists and is not a directory",
+            args.output.display()
+        );
+    }
+    Ok(pmtiles)
 }
 
 /// The repository's tiler, restricted to `--bbox`, with every level decoded (every tile is
@@ -234,7 +268,7 @@ fn tile_list(bounds: [f64; 4], max_zoom: u8) -> Vec<(u32, u32, u32)> {
 }
 
 /// One tile's file bytes.
-fn make(
+pub(crate) fn make(
     tiler: &Tiler,
     (format, image): (TileFormat, ImageArg),
     zxy: (u32, u32, u32),
@@ -281,7 +315,7 @@ fn write_document(args: &TilesArgs, tiler: &Tiler, name: &str, tile: u32) -> Res
     write_tile(&args.output.join(file), &body)
 }
 
-fn progress(quiet: bool, total: u64) -> ProgressBar {
+pub(crate) fn progress(quiet: bool, total: u64) -> ProgressBar {
     if quiet || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }

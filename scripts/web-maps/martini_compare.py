@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
-"""cbdam's quantized-mesh tiles against @mapbox/martini's RTIN meshes at the same error
+"""cbdam's quantized-mesh tiles against @mapbox/martini's RTIN meshes and delatin's Delaunay
+refinement meshes (mourner's, npm `delatin`) at the same error
 (docs/RESULTS.md, web-map tiles; docs/WEB-MAPS.md). A measurement, not a test.
 
 For every available quantized-mesh tile of the levels asked (`cbdam tiles REPO --format
 quantized-mesh`), both meshes are made on the tile's 65 x 65 grid (the grid cbdam's vertices are
 chosen from): Martini (`getMesh(maxError)`, maxError = layer.json's `triangulation_threshold_m`
-of the level) on the repository's heights at the grid points (the bilinear interpolation of
+of the level; delatin: `run(maxError)` with the same maxError) on the repository's heights at the grid points (the bilinear interpolation of
 `cbdam extract --float64`'s finest level; 0 m without data, as cbdam's vertices), cbdam's as
 exported. Both are then written by the same quantized-mesh encoder (below: the tile's own
 88-byte header, zig-zag delta u/v/height, high-water-mark indices, edge lists; no extensions)
@@ -13,13 +14,15 @@ and gzip-compressed at the same level (zlib level 1, as cbdam's tiles), so the b
 like for like. The encoder is checked on cbdam's tiles first: re-encoding a decoded cbdam tile
 gives its bytes exactly. Martini's error is measured at the grid points only; cbdam's also at
 every repository sample inside each triangle (docs/WEB-MAPS.md), so at the same threshold it
-keeps at least as many vertices where the terrain is rough between grid points.
+keeps at least as many vertices where the terrain is rough between grid points. Delatin also
+measures its error at the grid points only, but its triangles are not bound to the RTIN
+hierarchy (any grid point can be a vertex, Delaunay-refined).
 
 Usage: martini_compare.py CBDAM_BINARY REPO.cbdam LEVELS [MAX_TILES_PER_LEVEL]
   LEVELS: comma-separated quantized-mesh levels, e.g. 9,10,11,12. An EPSG:4326 plane only.
   MAX_TILES_PER_LEVEL: every k-th available tile (in x, then y order) so that at most this
   many are compared.
-  Installs @mapbox/martini (scripts/web-maps/martini/package-lock.json) with npm into
+  Installs @mapbox/martini and delatin (scripts/web-maps/martini/package-lock.json) with npm into
   target/web-maps-node/martini (set CBDAM_MARTINI_DIR to use another directory).
 """
 import array
@@ -45,7 +48,8 @@ def install_martini():
     lock = os.path.join(HERE, "martini", "package-lock.json")
     have = os.path.join(node_dir, "package-lock.json")
     if not (os.path.exists(have) and open(have, "rb").read() == open(lock, "rb").read()
-            and os.path.isdir(os.path.join(node_dir, "node_modules", "@mapbox", "martini"))):
+            and os.path.isdir(os.path.join(node_dir, "node_modules", "@mapbox", "martini"))
+            and os.path.isdir(os.path.join(node_dir, "node_modules", "delatin"))):
         os.makedirs(node_dir, exist_ok=True)
         for f in ("package.json", "package-lock.json"):
             shutil.copy(os.path.join(HERE, "martini", f), node_dir)
@@ -178,8 +182,9 @@ def find(doc, key):
     return None
 
 
-def martini_tile(proc, heights, max_error):
-    proc.stdin.write(json.dumps({"size": GRID + 1, "heights": heights, "maxError": max_error}) + "\n")
+def mesh_of(proc, mesher, heights, max_error):
+    job = {"mesher": mesher, "size": GRID + 1, "heights": heights, "maxError": max_error}
+    proc.stdin.write(json.dumps(job) + "\n")
     proc.stdin.flush()
     mesh = json.loads(proc.stdout.readline())
     return mesh["vertices"], mesh["triangles"]
@@ -195,7 +200,17 @@ def compare_tile(proc, at, data, z, x, y, threshold):
         for i in range(GRID + 1):
             value = at(-90 + (y * GRID + j) * cell, -180 + (x * GRID + i) * cell)
             heights.append(0.0 if value is None else value)
-    verts, tris = martini_tile(proc, heights, threshold)
+    ours = gz(data[:core_end])
+    out = [(len(u), len(tri) // 3, len(ours))]
+    for mesher in MESHERS:
+        verts, tris = mesh_of(proc, mesher, heights, threshold)
+        out.append(encoded_size(header, verts, tris, heights, (lo, hi)))
+    return out
+
+
+def encoded_size(header, verts, tris, heights, lo_hi):
+    """Vertices, triangles and gzip bytes of a mesh on the tile's grid, by the same encoder."""
+    lo, hi = lo_hi
     order, renumber, triangles = [], {}, []
     for k in tris:
         if k not in renumber:
@@ -207,8 +222,10 @@ def compare_tile(proc, at, data, z, x, y, threshold):
     mv = [grid_q(verts[2 * k + 1]) for k in order]
     quant = lambda hh: round(min(1.0, max(0.0, (hh - lo) / (hi - lo))) * QMAX)  # noqa: E731
     mh = [quant(heights[verts[2 * k + 1] * (GRID + 1) + verts[2 * k]]) for k in order]
-    ours, theirs = gz(data[:core_end]), gz(encode_tile(header, mu, mv, mh, triangles))
-    return (len(u), len(tri) // 3, len(ours)), (len(order), len(triangles) // 3, len(theirs))
+    return len(order), len(triangles) // 3, len(gz(encode_tile(header, mu, mv, mh, triangles)))
+
+
+MESHERS = ("martini", "delatin")
 
 
 def main():
@@ -224,9 +241,9 @@ def main():
         proc = subprocess.Popen(["node", os.path.join(HERE, "martini_mesh.js"), node_dir],
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         print("| level | tiles | threshold m | cbdam vertices / triangles / gzip bytes a tile "
-              "| Martini vertices / triangles / gzip bytes a tile | bytes Martini / cbdam "
-              "| cbdam bytes/km² | Martini bytes/km² |")
-        print("|---:|---:|---:|---|---|---:|---:|---:|")
+              "| Martini v / t / B | Delatin v / t / B | bytes Martini / cbdam "
+              "| bytes Delatin / cbdam | B/km² cbdam / Martini / Delatin |")
+        print("|---:|---:|---:|---|---|---|---:|---:|---|")
         for z in levels:
             zdir = os.path.join(out, str(z))
             if not os.path.isdir(zdir):
@@ -234,7 +251,7 @@ def main():
             tiles = sorted((int(xd), int(f[:-8])) for xd in os.listdir(zdir)
                            for f in os.listdir(os.path.join(zdir, xd)))
             tiles = tiles[::math.ceil(len(tiles) / cap)]  # spread over the level
-            sums = [[0, 0, 0], [0, 0, 0]]
+            sums = [[0, 0, 0] for _ in range(1 + len(MESHERS))]
             area = 0.0
             for x, y in tiles:
                 data = gzip.decompress(open(os.path.join(zdir, str(x), f"{y}.terrain"), "rb").read())
@@ -243,10 +260,11 @@ def main():
                         s[k] += r[k]
                 area += tile_area_km2(z, y)
             n = len(tiles)
-            (cv, ct, cb), (mv, mt, mb) = sums
+            (cv, ct, cb), (mv, mt, mb), (dv, dt, db) = sums
             print(f"| {z} | {n} | {thresholds[z]:.2f} | {cv / n:.0f} / {ct / n:.0f} / {cb / n:.0f} "
-                  f"| {mv / n:.0f} / {mt / n:.0f} / {mb / n:.0f} | {mb / cb:.2f} "
-                  f"| {cb / area:.3g} | {mb / area:.3g} |", flush=True)
+                  f"| {mv / n:.0f} / {mt / n:.0f} / {mb / n:.0f} "
+                  f"| {dv / n:.0f} / {dt / n:.0f} / {db / n:.0f} | {mb / cb:.2f} | {db / cb:.2f} "
+                  f"| {cb / area:.3g} / {mb / area:.3g} / {db / area:.3g} |", flush=True)
         proc.stdin.close()
         proc.wait()
 

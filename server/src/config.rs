@@ -37,6 +37,9 @@ pub struct Config {
     /// decode them whole in the background after the first tile request; past it, tiles keep
     /// decoding windows (a repository without records, which has no windows, is refused).
     pub max_tile_samples: u64,
+    /// Most bytes of decoded windows a repository's web-map tiles keep (`--tile-cache`): cold
+    /// mesh tiles of one group read one window, decoded once however many ask at a time.
+    pub tile_cache: u64,
     /// Repositories opened from files whose records areas take at most this many bytes in
     /// all (in the order given) are read into memory when opened (`--hold-records`): records
     /// are then served without a read of the file, the file's identity still checked for each
@@ -61,6 +64,7 @@ impl Default for Config {
             idle_timeout: Duration::from_secs(60),
             max_connections: 10_000,
             max_tile_samples: 1 << 28,
+            tile_cache: cbdam_tiles::windows::WINDOW_CACHE_BYTES as u64,
             held_records_bytes: 256 << 20,
             answer_memory: 32 << 20,
         }

@@ -109,7 +109,9 @@ async fn tiler(st: &AppState, r: &Arc<ServedRepo>) -> Result<Arc<Tiler>, ApiErro
         r2.tiles
             .get_or_init(|| {
                 let encoded = encoded(&st2, &r2)?;
-                let t = Arc::new(Tiler::new(r2.repo.head(), encoded).map_err(|e| e.to_string())?);
+                let cache = usize::try_from(st2.config().tile_cache).unwrap_or(usize::MAX);
+                let t = Tiler::new(r2.repo.head(), encoded).map_err(|e| e.to_string())?;
+                let t = Arc::new(t.with_memory(cache, whole_fits));
                 tracing::info!(repo = %r2.name, "records read for web-map tiles");
                 if whole_fits {
                     // Tiles decode windows until the whole surface is there, then read it.

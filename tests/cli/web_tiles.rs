@@ -281,3 +281,58 @@ fn webp_exports_are_what_serve_answers() {
         stderr(&o)
     );
 }
+
+/// `-o OUT.pmtiles`: one archive, moved into place whole (no `.partial` left), addressing as
+/// many tiles as the directory export writes (its tiles, byte for byte, are checked with an
+/// independent reader by scripts/web-maps/pmtiles_check.py); quantized-mesh and a directory
+/// named `.pmtiles` are refused by name.
+#[test]
+fn pmtiles_archives_are_written_whole_and_mesh_tiles_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro_at("2");
+    let (archive, tiles) = (dir.path().join("p.pmtiles"), dir.path().join("t"));
+    export(&repo, &tiles, "terrarium", &["--quiet", "--max-zoom", "7"]);
+    let exported = files(&tiles, "png").len() as u64;
+    export(
+        &repo,
+        &archive,
+        "terrarium",
+        &["--quiet", "--max-zoom", "7"],
+    );
+    let bytes = std::fs::read(&archive).unwrap();
+    assert_eq!(&bytes[..8], b"PMTiles\x03");
+    let addressed = u64::from_le_bytes(bytes[72..80].try_into().unwrap());
+    assert_eq!(
+        (addressed, bytes[99]),
+        (exported, 2),
+        "tiles addressed, tile type PNG"
+    );
+    assert!(exported >= 5, "only {exported} tiles");
+    assert!(!dir.path().join("p.pmtiles.partial").exists());
+    let o = cbdam(&[
+        "tiles",
+        &s(&repo),
+        "--format",
+        "quantized-mesh",
+        "-o",
+        &s(&archive),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("not written to PMTiles"),
+        "{}",
+        stderr(&o)
+    );
+    let folder = dir.path().join("d.pmtiles");
+    std::fs::create_dir(&folder).unwrap();
+    let o = cbdam(&[
+        "tiles",
+        &s(&repo),
+        "--format",
+        "terrarium",
+        "-o",
+        &s(&folder),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("is a directory"), "{}", stderr(&o));
+}

@@ -17,12 +17,14 @@ pub mod coverage;
 pub mod geoid;
 pub mod mesh_cut;
 pub mod place;
+pub mod pmtiles;
 pub mod quantized_mesh;
 pub mod raster;
 pub mod raster_image;
 pub mod schemes;
 pub mod surface;
 pub mod tiler;
+pub mod windows;
 
 pub use raster::Encoding;
 pub use raster_image::ImageFormat;

@@ -154,6 +154,12 @@ impl Surface {
         self.extent
     }
 
+    /// Bytes of decoded samples held (4 a sample).
+    pub fn bytes(&self) -> usize {
+        let blocks = self.levels.iter().flat_map(|l| &l.blocks);
+        blocks.map(|b| b.units.len() * size_of::<i32>()).sum()
+    }
+
     /// Smallest and largest decoded height, metres (of the window only, for a window's
     /// surface); `None` when nothing holds data.
     pub fn range(&self) -> Option<(f64, f64)> {

@@ -17,13 +17,14 @@ use crate::TilesError;
 use crate::bounded::Bounded;
 use crate::coverage::Availability;
 use crate::geoid;
-use crate::mesh_cut::shared::{Shared, face_boxes};
+use crate::mesh_cut::shared::{FaceBox, Position, Shared, face_boxes};
 use crate::place::Placement;
 use crate::quantized_mesh::{self, BlockWork, MeshTile, TileHeights, TileRequest};
 use crate::raster::{self, Encoding, PixelPlan, RasterTile};
 use crate::raster_image::ImageFormat;
 use crate::schemes::{MERCATOR_MAX_LAT, Scheme, TileId, cesium_level_error};
 use crate::surface::{RecordIndex, Surface};
+use crate::windows::{SharedWindows, WINDOW_CACHE_BYTES};
 
 /// Raster tile sizes served, pixels (`?tile=`): 512 by default.
 pub const TILE_SIZES: [u32; 2] = [256, 512];
@@ -50,7 +51,18 @@ pub struct Tiler {
     shared: Option<Shared>,
     /// Mesh tiles made, by tile and extensions, within [`MESH_CACHE_BYTES`].
     meshes: Bounded<(TileId, bool, bool), MeshTile>,
+    /// Windows decoded for groups of cold mesh tiles, shared between them.
+    windows: SharedWindows,
+    /// Whether a tile may wait for the whole surface instead of decoding a window (where the
+    /// whole is small).
+    whole_ok: bool,
 }
+
+/// Mesh tiles share a window by groups of `2^GROUP_SHIFT` × `2^GROUP_SHIFT` tiles of a level.
+pub const GROUP_SHIFT: u32 = 2;
+/// A surface of at most this many samples is decoded whole rather than by windows (when the
+/// whole is allowed: [`Tiler::with_memory`]); decoding it costs about as much as a few windows.
+pub const SMALL_WHOLE_SAMPLES: u64 = 1 << 22;
 
 /// Bytes of made mesh tiles a tiler keeps (a tile asked for again is not made again).
 pub const MESH_CACHE_BYTES: usize = 16 << 20;
@@ -60,6 +72,7 @@ pub const MESH_CACHE_BYTES: usize = 16 << 20;
 enum Held<'a> {
     Whole(&'a Surface),
     Window(Surface),
+    Shared(Arc<Surface>),
     Nothing,
 }
 
@@ -68,6 +81,7 @@ impl Held<'_> {
         match self {
             Held::Whole(s) => Some(s),
             Held::Window(s) => Some(s),
+            Held::Shared(s) => Some(s),
             Held::Nothing => None,
         }
     }
@@ -131,7 +145,24 @@ impl Tiler {
             datum,
             shared: Some(Shared::default()),
             meshes: Bounded::new(MESH_CACHE_BYTES),
+            windows: SharedWindows::new(WINDOW_CACHE_BYTES),
+            whole_ok: false,
         })
+    }
+
+    /// The same tiler keeping at most `window_bytes` of decoded windows, and, with
+    /// `whole_surface`, letting tiles wait for the whole surface where it is small (at most
+    /// [`SMALL_WHOLE_SAMPLES`]). The tiles are
+    /// the same bytes either way.
+    pub fn with_memory(mut self, window_bytes: usize, whole_surface: bool) -> Tiler {
+        self.windows = SharedWindows::new(window_bytes);
+        self.whole_ok = whole_surface;
+        self
+    }
+
+    /// The windows decoded for cold mesh tiles (how many, and the bytes held).
+    pub fn windows(&self) -> &SharedWindows {
+        &self.windows
     }
 
     /// The same tiler making each mesh tile alone: no work shared between neighbours, no tile
@@ -172,43 +203,101 @@ impl Tiler {
     }
 
     /// The heights around the lattice positions `at` for level index `coarsen` and coarser:
-    /// the whole surface when it is decoded, else a window of it (a plane's rectangle, clipped
-    /// to the data; a planet's face boxes).
-    fn held(&self, at: &[Option<(u8, f64, f64)>], coarsen: usize) -> Result<Held<'_>, String> {
+    /// the whole surface when it is decoded (or worth waiting for: [`Self::whole_for`]), else a
+    /// window of it (a plane's rectangle around the points on the data, clipped to it; a
+    /// planet's face boxes).
+    fn held(&self, at: &[Position], coarsen: usize) -> Result<Held<'_>, String> {
         if let Some(whole) = self.surface.get() {
             return whole.as_ref().map(Held::Whole).map_err(Clone::clone);
         }
-        let points: Vec<(u8, f64, f64)> = at.iter().flatten().copied().collect();
         let domain = self.encoded.params.domain;
-        if domain.kind() != DomainKind::Planar {
-            if points.is_empty() {
-                return Ok(Held::Nothing);
-            }
-            return Surface::decode_faces(&self.encoded, &self.index, &self.plan, &points, coarsen)
-                .map(Held::Window)
-                .map_err(|e| e.to_string());
-        }
         let (w, h) = domain.data().size();
         let (xmax, ymax) = (w as f64 - 0.5, h as f64 - 0.5);
-        let inside = points
-            .iter()
-            .filter(|p| (-0.5..=xmax).contains(&p.1) && (-0.5..=ymax).contains(&p.2));
-        let mut rect: Option<(f64, f64, f64, f64)> = None;
-        for &(_, x, y) in inside {
-            let r = rect.get_or_insert((x, y, x, y));
-            *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y));
-        }
-        let Some((x0, y0, x1, y1)) = rect else {
-            return Ok(Held::Nothing);
+        let planar = domain.kind() == DomainKind::Planar;
+        let on_data = |p: &&(u8, f64, f64)| {
+            !planar || (-0.5..=xmax).contains(&p.1) && (-0.5..=ymax).contains(&p.2)
         };
-        let (lo, hi) = (
-            |v: f64| v.floor().max(0.0) as i64,
-            |v: f64, m: usize| (v.ceil() as i64).min(m as i64 - 1),
-        );
-        let rect = (lo(x0), lo(y0), hi(x1, w), hi(y1, h));
-        Surface::decode_window(&self.encoded, &self.index, &self.plan, rect, coarsen)
-            .map(Held::Window)
-            .map_err(|e| e.to_string())
+        let boxes = face_boxes_of(at.iter().flatten().filter(on_data));
+        if boxes.is_empty() {
+            return Ok(Held::Nothing);
+        }
+        if self.whole_for() {
+            return self.whole().map(Held::Whole);
+        }
+        self.decode_boxes(&boxes, coarsen).map(Held::Window)
+    }
+
+    /// The heights mesh tile `t` (its block's lattice positions `at`) samples: as
+    /// [`Self::held`], but a window is its group's ([`GROUP_SHIFT`]), decoded once for all the
+    /// group's tiles and kept ([`SharedWindows`]).
+    fn mesh_held(&self, t: TileId, at: &[Position], coarsen: usize) -> Result<Held<'_>, String> {
+        let Some(shared) = self
+            .shared
+            .as_ref()
+            .filter(|_| self.surface.get().is_none())
+        else {
+            return self.held(at, coarsen);
+        };
+        let domain = self.encoded.params.domain;
+        let (w, h) = domain.data().size();
+        let (xmax, ymax) = (w as f64 - 0.5, h as f64 - 0.5);
+        let planar = domain.kind() == DomainKind::Planar;
+        let on_data = |p: &(u8, f64, f64)| {
+            !planar || (-0.5..=xmax).contains(&p.1) && (-0.5..=ymax).contains(&p.2)
+        };
+        if !at.iter().flatten().any(on_data) {
+            return Ok(Held::Nothing);
+        }
+        if self.whole_for() {
+            return self.whole().map(Held::Whole);
+        }
+        let s = GROUP_SHIFT;
+        let (gx, gy) = (t.x >> s, t.y >> s);
+        let last = |g: u32, tiles: i64| (i64::from(g + 1) << s).min(tiles) - 1;
+        let xs = (i64::from(gx) << s, last(gx, 2i64 << t.z));
+        let ys = (i64::from(gy) << s, last(gy, 1i64 << t.z));
+        let key = (t.z, gx, gy, coarsen);
+        let window = self.windows.get_or_decode(key, || {
+            let boxes = shared.group_boxes(&self.place, t.z, xs, ys);
+            let window = self.decode_boxes(&boxes, coarsen)?;
+            let bytes = window.bytes();
+            Ok((window, bytes))
+        })?;
+        Ok(Held::Shared(window))
+    }
+
+    /// Whether a tile had better wait for the whole surface than decode a window: when
+    /// allowed ([`Self::with_memory`]), for a small surface (its decode costs about as much as a
+    /// few windows). A large one is not waited for, even where a window is a large part of it:
+    /// the whole decode runs on one thread, the windows of different groups on all of them.
+    fn whole_for(&self) -> bool {
+        self.whole_ok && Surface::samples(&self.encoded.params.domain) <= SMALL_WHOLE_SAMPLES
+    }
+
+    /// The whole surface, decoded by the first caller (the others wait for it).
+    fn whole(&self) -> Result<&Surface, String> {
+        self.surface().map_err(|e| e.to_string())
+    }
+
+    /// The levels of index `coarsen` and coarser over `boxes`: a plane's window over their
+    /// box (clipped to the data), a planet's face windows.
+    fn decode_boxes(&self, boxes: &[FaceBox], coarsen: usize) -> Result<Surface, String> {
+        let domain = self.encoded.params.domain;
+        let (e, i, p) = (&self.encoded, &self.index, &self.plan);
+        if domain.kind() != DomainKind::Planar {
+            let corners: Vec<(u8, f64, f64)> = (boxes.iter())
+                .flat_map(|&(f, b)| [(f, b.0, b.1), (f, b.2, b.3)])
+                .collect();
+            return Surface::decode_faces(e, i, p, &corners, coarsen).map_err(|e| e.to_string());
+        }
+        let (w, h) = domain.data().size();
+        let b = (boxes.iter().map(|b| b.1))
+            .reduce(|a, b| (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3)))
+            .ok_or("an empty window")?;
+        let lo = |v: f64| v.floor().max(0.0) as i64;
+        let hi = |v: f64, m: usize| (v.ceil() as i64).min(m as i64 - 1);
+        let rect = (lo(b.0), lo(b.1), hi(b.2, w), hi(b.3, h));
+        Surface::decode_window(e, i, p, rect, coarsen).map_err(|e| e.to_string())
     }
 
     /// West, south, east, north of the data, degrees.
@@ -312,7 +401,7 @@ impl Tiler {
             }
         };
         let coarsen = quantized_mesh::coarsen_at(&self.place, t.z);
-        let held = self.held(&positions, coarsen).map_err(|e| {
+        let held = self.mesh_held(t, &positions, coarsen).map_err(|e| {
             TilesError::Internal(format!("decoding tile {}/{}/{}: {e}", t.z, t.x, t.y))
         })?;
         let meta = metadata.then(|| self.mesh_metadata(t));
@@ -506,4 +595,16 @@ impl Tiler {
             },
         })
     }
+}
+
+/// Per face, the box of `points`.
+fn face_boxes_of<'p>(points: impl Iterator<Item = &'p (u8, f64, f64)>) -> Vec<FaceBox> {
+    let mut boxes: Vec<FaceBox> = Vec::new();
+    for &(face, x, y) in points {
+        match boxes.iter_mut().find(|b| b.0 == face) {
+            Some((_, r)) => *r = (r.0.min(x), r.1.min(y), r.2.max(x), r.3.max(y)),
+            None => boxes.push((face, (x, y, x, y))),
+        }
+    }
+    boxes
 }

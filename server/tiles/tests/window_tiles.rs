@@ -164,3 +164,76 @@ fn window_tiles_are_the_whole_surfaces_tiles_on_a_utm_plane() {
     let compared = same_tiles(&repo);
     assert!(compared >= 40, "only {compared} tiles compared");
 }
+
+/// Cold mesh tiles asked by 8 threads at once, each in its own order, read their group's window
+/// (decoded once a group, not once a tile) and are byte for byte the tiles of a tiler sharing
+/// nothing; so are those of a tiler keeping no window, and of one allowed to wait for the whole
+/// surface (a small one: it decodes no window at all).
+#[test]
+fn cold_mesh_tiles_share_their_groups_window_and_keep_their_bytes() {
+    let repo = repository(
+        160,
+        120,
+        GeoRef {
+            epsg: Some(4326),
+            origin_x: 7.0,
+            origin_y: 46.0,
+            pixel_x: 1.0 / 1200.0,
+            pixel_y: 1.0 / 1200.0,
+            pixel_is_area: false,
+            wkt: None,
+        },
+    );
+    let tiler = |cache: usize, whole: bool| {
+        Tiler::new(repo.head(), repo.to_encoded().unwrap())
+            .unwrap()
+            .with_memory(cache, whole)
+    };
+    let alone = Tiler::new(repo.head(), repo.to_encoded().unwrap())
+        .unwrap()
+        .without_sharing();
+    alone.surface().unwrap();
+    let tiles = alone.available().tiles();
+    let zxy = |t: &cbdam_tiles::TileId| (u32::from(t.z), t.x, t.y);
+    let shift = cbdam_tiles::tiler::GROUP_SHIFT;
+    let mut groups: Vec<_> = (tiles.iter())
+        .map(|t| (t.z, t.x >> shift, t.y >> shift))
+        .collect();
+    groups.sort();
+    groups.dedup();
+    for (cache, whole) in [(64 << 20, false), (0, false), (64 << 20, true)] {
+        let cold = tiler(cache, whole);
+        std::thread::scope(|s| {
+            for k in 0..8 {
+                let (cold, tiles, alone) = (&cold, &tiles, &alone);
+                s.spawn(move || {
+                    for i in 0..tiles.len() {
+                        let t = zxy(&tiles[(i * 7 + k * 5) % tiles.len()]);
+                        let (a, b) = (alone.mesh(t, true, true), cold.mesh(t, true, true));
+                        assert!(
+                            a.unwrap().gzipped == b.unwrap().gzipped,
+                            "cold mesh tile {t:?} (cache {cache}, whole {whole}) differs"
+                        );
+                    }
+                });
+            }
+        });
+        let decodes = cold.windows().decodes();
+        match (cache, whole) {
+            (0, _) => assert_eq!(cold.windows().bytes(), 0, "a window kept past the bound"),
+            (_, true) => assert_eq!(decodes, 0, "a window decoded beside the whole surface"),
+            _ => assert!(
+                (1..=groups.len()).contains(&decodes),
+                "{decodes} windows decoded for {} tiles in {} groups",
+                tiles.len(),
+                groups.len()
+            ),
+        }
+    }
+    assert!(
+        groups.len() < tiles.len(),
+        "{} tiles, {} groups",
+        tiles.len(),
+        groups.len()
+    );
+}

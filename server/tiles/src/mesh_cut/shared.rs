@@ -130,6 +130,39 @@ impl Shared {
         (out, boxes)
     }
 
+    /// Per face, the box of every point of the blocks of the level-`z` tiles `xs × ys` (the
+    /// grid tiles one beyond them on each side, made once and held as [`Self::block_positions`]
+    /// makes them).
+    pub fn group_boxes(
+        &self,
+        place: &Placement,
+        z: u8,
+        xs: (i64, i64),
+        ys: (i64, i64),
+    ) -> Vec<FaceBox> {
+        let n = (GRID + 1) as usize;
+        let bytes = n * n * size_of::<Position>();
+        let across = 2i64 << z;
+        let mut boxes: Vec<FaceBox> = Vec::new();
+        for ty in ys.0 - 1..=ys.1 + 1 {
+            for tx in xs.0 - 1..=xs.1 + 1 {
+                let tile = (z, tx.rem_euclid(across), ty);
+                let grid = self
+                    .positions
+                    .get_or_make(tile, bytes, || grid_positions(place, tile));
+                for &(face, r) in &grid.boxes {
+                    match boxes.iter_mut().find(|b| b.0 == face) {
+                        Some((_, b)) => {
+                            *b = (b.0.min(r.0), b.1.min(r.1), b.2.max(r.2), b.3.max(r.3))
+                        }
+                        None => boxes.push((face, r)),
+                    }
+                }
+            }
+        }
+        boxes
+    }
+
     /// The height of every point of `t`'s block: `height(gx, gy, position)` of each grid point
     /// (global grid coordinates), made once a grid tile. `positions` are the block's.
     pub fn block_heights(
