@@ -502,8 +502,8 @@ impl<'a> LatticeTiles<'a> {
 
     /// Input `input`'s share of the lattice for its resampling error: the tiles it can cover,
     /// thinned to its stride (the lattice points its samples are compared with), the others
-    /// empty. Where its samples lie on one face ([`sample_footprint`]), only the part of
-    /// those tiles around them is painted.
+    /// empty. Where its samples lie on at most three faces ([`sample_footprint`]), only the
+    /// part of those tiles around them on each face is painted.
     fn input_view(&self, input: usize) -> Result<Resampled> {
         let r = &self.resampler;
         let d = r.domain();
@@ -516,12 +516,15 @@ impl<'a> LatticeTiles<'a> {
                     .iter()
                     .any(|&(c, _)| usize::from(c) == input)
             })
-            .filter_map(|(f, i)| match footprint {
+            .filter_map(|(f, i)| match &footprint {
                 None => Some((f, i, None)),
-                Some((face, part)) => {
+                Some(parts) => {
                     let (x0, y0, x1, y1) = r.rects[i];
-                    let meets = x0 <= part.2 && part.0 <= x1 && y0 <= part.3 && part.1 <= y1;
-                    (f == face && meets).then_some((f, i, Some(part)))
+                    let meets = |p: &Rect| x0 <= p.2 && p.0 <= x1 && y0 <= p.3 && p.1 <= y1;
+                    parts
+                        .iter()
+                        .find(|(face, part)| *face == f && meets(part))
+                        .map(|&(_, part)| (f, i, Some(part)))
                 }
             })
             .collect();

@@ -153,44 +153,66 @@ fn a_part_of_a_tile_is_the_tile_there_and_holes_elsewhere() {
     assert!(inside > 0);
 }
 
+/// Every sample of `inset` lies on a face of its footprint, with the corners of its lattice
+/// cell (on the stride, as `lattice_at` reads them) inside that face's rectangle; the faces
+/// its samples lie on.
+fn check_footprint(inset: &PlanetInput, stride: u32, side: i64) -> std::collections::BTreeSet<u8> {
+    let step = 1i64 << stride;
+    let cells = side / step;
+    let parts = sample_footprint(inset, stride, side).unwrap();
+    let mut faces = std::collections::BTreeSet::new();
+    for row in 0..inset.height {
+        for c in 0..inset.width {
+            let (f, s, t) = lat_lon_to_face_st(inset.lat_lon_of(c, row));
+            faces.insert(f);
+            let name = inset.path.display();
+            let &(_, (x0, y0, x1, y1)) = parts
+                .iter()
+                .find(|(face, _)| *face == f)
+                .unwrap_or_else(|| panic!("{name} sample ({c}, {row}): face {f} not in {parts:?}"));
+            let cx = ((s * side as f64 / step as f64).floor() as i64).min(cells - 1) * step;
+            let cy = ((t * side as f64 / step as f64).floor() as i64).min(cells - 1) * step;
+            assert!(
+                x0 <= cx && cx + step <= x1 && y0 <= cy && cy + step <= y1,
+                "{name} sample ({c}, {row}) on face {f}: cell at ({cx}, {cy}) outside {:?}",
+                (x0, y0, x1, y1)
+            );
+        }
+    }
+    faces
+}
+
 /// An inset's footprint holds the corners of the lattice cell of every one of its samples, on
-/// the face they lie on; an input across faces has none.
+/// the face they lie on, also where its samples lie on two faces (across an edge) or three (a
+/// cube corner); a global input has none (its tiles are read whole).
 #[test]
 fn a_footprint_holds_every_sample_cell() {
     let inputs = inputs();
     let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
     let r = Resampler::new(&inputs, 17, 4, &plan).unwrap();
-    let side = r.side;
-    // The globe and the insets astride an edge and on a corner lie on several faces.
-    for (i, input) in inputs.inputs.iter().enumerate() {
-        assert!(sample_footprint(input, r.strides[i], side).is_none(), "{i}");
-    }
-    // Insets inside a face (an equatorial one, a polar one), on lattices finer than them (at
-    // their strides there).
+    assert!(sample_footprint(&inputs.inputs[3], r.strides[3], r.side).is_none());
+    // Insets inside a face (an equatorial one, a polar one), astride the edge of an
+    // equatorial and a polar face, astride two equatorial faces, on the cube corner at
+    // 35.26° N 45° E, and a coarse one astride 45° W, on lattices finer than them (at their
+    // strides there).
     let insets = [
-        input("equator.tif", (20.0, 10.0), 0.3, (40, 30)),
-        input("pole.tif", (80.0, 100.0), 0.3, (40, 25)),
+        (input("equator.tif", (20.0, 10.0), 0.3, (40, 30)), 1),
+        (input("pole.tif", (80.0, 100.0), 0.3, (40, 25)), 1),
+        (input("edge.tif", (52.0, -12.0), 0.3, (50, 40)), 2),
+        (input("meridian.tif", (10.0, 40.0), 0.3, (40, 30)), 2),
+        (input("corner.tif", (40.0, 40.0), 0.3, (34, 30)), 3),
+        (input("coarse.tif", (30.0, -70.0), 1.2, (30, 20)), 2),
+        // A row just under the polar face's edge where it is highest (45.19° N at 0° E): its
+        // three middle samples lie on the equatorial face, none of them one of the samples
+        // the footprint looks at (every eighth, and the last).
+        (input("sliver.tif", (45.1923, -0.4), 0.1, (9, 1)), 2),
     ];
-    for inset in &insets {
-        for k in [6, 8] {
+    for (inset, faces) in &insets {
+        for k in [4, 6, 8] {
             let side = 16i64 << k;
             let stride = input_stride(inset.spacing_deg, lattice_spacing_deg(17, k), k);
-            let step = 1i64 << stride;
-            let (face, (x0, y0, x1, y1)) = sample_footprint(inset, stride, side).unwrap();
-            for row in 0..inset.height {
-                for c in 0..inset.width {
-                    let (f, s, t) = lat_lon_to_face_st(inset.lat_lon_of(c, row));
-                    assert_eq!(f, face, "{} sample ({c}, {row})", inset.path.display());
-                    let cx = ((s * side as f64 / step as f64).floor() as i64) * step;
-                    let cy = ((t * side as f64 / step as f64).floor() as i64) * step;
-                    assert!(
-                        x0 <= cx && cx + step <= x1 && y0 <= cy && cy + step <= y1,
-                        "{} sample ({c}, {row}): cell at ({cx}, {cy}) outside {:?}",
-                        inset.path.display(),
-                        (x0, y0, x1, y1)
-                    );
-                }
-            }
+            let on = check_footprint(inset, stride, side);
+            assert_eq!(on.len(), *faces, "{}", inset.path.display());
         }
     }
 }

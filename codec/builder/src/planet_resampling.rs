@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use crate::error::Result;
 use crate::planet_input::{Frame, PlanetInputs};
 use cbdam_codec::geodesy::LatLon;
-use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_to_face_st};
+use cbdam_codec::geodesy::cube_map::{lat_lon_to_face_st, sin_cos_on_face, sin_cos_to_face_st};
 use cbdam_codec::hierarchy::PlanetGrid;
 use cbdam_codec::quant::QuantPlan;
 use cbdam_codec::repository::{PlanetProvenance, VerticalDatum};
@@ -137,43 +137,69 @@ pub(crate) fn input_resampling(
     })
 }
 
+/// Lattice points `(x0, y0, x1, y1)` of a face, inclusive.
+pub(crate) type FaceRect = (i64, i64, i64, i64);
+
 /// The lattice points input `input` (of stride `2^stride` on a lattice of `side` steps a
-/// face) can compare its samples with, when they all lie on one face: that face and a
-/// rectangle `(x0, y0, x1, y1)` (inclusive) holding the corners of every lattice cell (on the
-/// stride) a sample lies in; `None` where its samples lie on several faces or near an edge.
+/// face) can compare its samples with: per face its samples lie on, a rectangle `(x0, y0, x1,
+/// y1)` (inclusive, within the face) holding the corners of every lattice cell (on the
+/// stride) a sample of that face lies in; `None` where its samples reach more than three
+/// faces (a global input: its tiles are read whole).
 ///
 /// Found from every `Q`-th sample of each row and column (and the last): a sample lies within
 /// `Q − 1` columns and rows of one of those, and samples one apart are under `2^(stride+1)`
 /// lattice steps apart ([`crate::planet_plan::plan_tiles`]' footprint makes the same bound), so
-/// a margin of `(Q + 2)·2^(stride+1)` steps and a cell holds them all.
+/// a margin of `(Q + 2)·2^(stride+1)` steps and a cell holds them all. A sample near a face's
+/// edge counts on the neighbouring face too (in that face's coordinates continued past its
+/// edge, [`sin_cos_on_face`]) where it lies within twice the margin of it, so that a sample
+/// of that face between the ones looked at is held there as well.
 pub(crate) fn sample_footprint(
     input: &crate::planet_input::PlanetInput,
     stride: u32,
     side: i64,
-) -> Option<(u8, (i64, i64, i64, i64))> {
+) -> Option<Vec<(u8, FaceRect)>> {
     const Q: usize = 8;
     let along = |len: usize| (0..len).step_by(Q).chain([len - 1]);
-    let mut face = None;
-    let mut rect = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-    for r in along(input.height) {
-        for c in along(input.width) {
-            let (f, s, t) = lat_lon_to_face_st(input.lat_lon_of(c, r));
-            if *face.get_or_insert(f) != f {
-                return None;
-            }
-            let (x, y) = (s * side as f64, t * side as f64);
-            rect = (rect.0.min(x), rect.1.min(y), rect.2.max(x), rect.3.max(y));
-        }
-    }
     let step = 1i64 << stride;
     let margin = (Q as i64 + 2) * 2 * step + step;
-    let (x0, y0) = (
-        rect.0.floor() as i64 - margin,
-        rect.1.floor() as i64 - margin,
-    );
-    let (x1, y1) = (rect.2.ceil() as i64 + margin, rect.3.ceil() as i64 + margin);
-    (x0 > 0 && y0 > 0 && x1 < side && y1 < side)
-        .then(|| (face.expect("a sample"), (x0, y0, x1, y1)))
+    let reach = (2 * margin) as f64;
+    let mut rects = [None::<(f64, f64, f64, f64)>; 6];
+    for r in along(input.height) {
+        for c in along(input.width) {
+            let ll = input.lat_lon_of(c, r);
+            let (sc_lat, sc_lon) = (ll.lat.to_radians().sin_cos(), ll.lon.to_radians().sin_cos());
+            let (own, _, _) = sin_cos_to_face_st(sc_lat, sc_lon);
+            for face in 0..6u8 {
+                let Some((s, t)) = sin_cos_on_face(sc_lat, sc_lon, face) else {
+                    continue;
+                };
+                let (x, y) = (s * side as f64, t * side as f64);
+                let near = |a: f64| (-reach..=side as f64 + reach).contains(&a);
+                if face == own || (near(x) && near(y)) {
+                    let e = rects[usize::from(face)].get_or_insert((x, y, x, y));
+                    *e = (e.0.min(x), e.1.min(y), e.2.max(x), e.3.max(y));
+                }
+            }
+        }
+    }
+    let faces: Vec<_> = (0..6u8)
+        .filter_map(|f| rects[usize::from(f)].map(|r| (f, r)))
+        .collect();
+    (faces.len() <= 3).then(|| {
+        faces
+            .into_iter()
+            .map(|(f, (x0, y0, x1, y1))| {
+                let clip = |a: f64, m: i64| (a as i64 + m).clamp(0, side);
+                let rect = (
+                    clip(x0.floor(), -margin),
+                    clip(y0.floor(), -margin),
+                    clip(x1.ceil(), margin),
+                    clip(y1.ceil(), margin),
+                );
+                (f, rect)
+            })
+            .collect()
+    })
 }
 
 /// The header's summary of the resampling: the largest error over all inputs and the root mean

@@ -204,6 +204,20 @@ pub fn sin_cos_to_face_st((sp, cp): (f64, f64), (sl, cl): (f64, f64)) -> (u8, f6
     (face as u8, to_st(u), to_st(v))
 }
 
+/// The face coordinates `(s, t)` on `face` of a geodetic latitude and longitude (given as in
+/// [`sin_cos_to_face_st`]), extended beyond `[0, 1]` past the face's edges (the ray through
+/// the face's plane, warped as inside): equal to [`sin_cos_to_face_st`]'s where `face` is the
+/// point's own face. `None` where the point is not in front of the face (its ray never meets
+/// the face's plane).
+pub fn sin_cos_on_face((sp, cp): (f64, f64), (sl, cl): (f64, f64), face: u8) -> Option<(f64, f64)> {
+    let d = [cp * cl, cp * sl, (1.0 - E2) * sp];
+    let dot = |w: [i8; 3]| (0..3).map(|k| d[k] * f64::from(w[k])).sum::<f64>();
+    let [n, u, v] = FACE_FRAMES[usize::from(face)];
+    let along = dot(n);
+    let to_st = |w: [i8; 3]| 0.5 * (CubeWarp::PLANET.from_cube(dot(w) / along) + 1.0);
+    (along > 0.0).then(|| (to_st(u), to_st(v)))
+}
+
 /// Geodetic latitude and longitude of lattice point `(face, x, y)` of a cube-sphere domain,
 /// computed from its canonical point ([`Domain::canonical_point`]) so that every face holding
 /// an edge or corner vertex gets bit-identical values. `None` on a plane or off the surface.
@@ -256,6 +270,41 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// On a point's own face the extended coordinates are `sin_cos_to_face_st`'s, bit for bit;
+    /// on a neighbouring face they lie past its edge, continuing across it, and a face behind
+    /// the point has none.
+    #[test]
+    fn extended_face_coordinates_continue_across_the_edges() {
+        let mut seed = 11u64;
+        let mut beyond = 0;
+        for _ in 0..50_000 {
+            let lat = (2.0 * lcg(&mut seed) - 1.0).asin();
+            let lon = (-180.0 + 360.0 * lcg(&mut seed)).to_radians();
+            let (row, col) = (lat.sin_cos(), lon.sin_cos());
+            let (face, s, t) = sin_cos_to_face_st(row, col);
+            let (es, et) = sin_cos_on_face(row, col, face).unwrap();
+            assert_eq!((es.to_bits(), et.to_bits()), (s.to_bits(), t.to_bits()));
+            for other in (0..6u8).filter(|&f| f != face) {
+                if let Some((os, ot)) = sin_cos_on_face(row, col, other) {
+                    // Past the other face's edge (or on it).
+                    let out = |c: f64| !(1e-12..=1.0 - 1e-12).contains(&c);
+                    assert!(out(os) || out(ot), "face {other}: ({os}, {ot})");
+                    beyond += 1;
+                }
+            }
+        }
+        assert!(beyond > 0);
+        // Across an edge: a point just inside face 0's edge at s = 1 and one just past it seen
+        // from face 0 are a lattice step apart in s.
+        let just = |lon: f64| sin_cos_on_face((0.0, 1.0), lon.to_radians().sin_cos(), 0);
+        let (s_in, _) = just(44.999).unwrap();
+        let (s_out, _) = just(45.001).unwrap();
+        assert!(
+            s_in < 1.0 && s_out > 1.0 && s_out - s_in < 1e-4,
+            "{s_in} {s_out}"
+        );
     }
 
     /// Angle between two geodetic positions on the ellipsoid, degrees (via their normals, so it
