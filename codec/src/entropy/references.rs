@@ -247,6 +247,99 @@ fn med(a: i64, b: i64, c: i64) -> i64 {
     }
 }
 
+/// Cell predictors to weigh against the codec's own on a decoded grid: what the cells'
+/// residuals would cost with another prediction, all else equal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CellPredictor {
+    /// The codec's prediction (`lifting::predict_cells`: order-4 Neville where it fits).
+    Codec,
+    /// The mean of the cell's four corners (order 2 everywhere).
+    Bilinear,
+    /// The mean of the two corners along the flatter diagonal (edge-directed).
+    FlatterDiagonal,
+    /// The median of the codec's prediction and the two diagonals' means.
+    Median,
+}
+
+impl CellPredictor {
+    /// Every predictor, the codec's first.
+    pub const ALL: [CellPredictor; 4] = [
+        CellPredictor::Codec,
+        CellPredictor::Bilinear,
+        CellPredictor::FlatterDiagonal,
+        CellPredictor::Median,
+    ];
+
+    /// A short name for tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Codec => "codec (Neville)",
+            Self::Bilinear => "bilinear (4 corners)",
+            Self::FlatterDiagonal => "flatter diagonal",
+            Self::Median => "median of codec and diagonals",
+        }
+    }
+}
+
+/// The four corners of cell `(i, j)` (column, row) of an `n × n` grid: top-left, top-right,
+/// bottom-left, bottom-right.
+fn corners(p: &[i32], n: usize, i: usize, j: usize) -> [i64; 4] {
+    [
+        p[j * n + i],
+        p[j * n + i + 1],
+        p[(j + 1) * n + i],
+        p[(j + 1) * n + i + 1],
+    ]
+    .map(i64::from)
+}
+
+/// The quantizer indices of a diamond's `(n − 1)²` cells under `predictor`, into `out`: `p` is
+/// the diamond's `n × n` grid, `codec` the codec's predictions of its cells and `cells` their
+/// reconstructed heights; each residual is rounded to the nearest multiple of `step` (odd).
+/// Exact where `step` is 1 (the grid and cells are then the input's); with a coarser step it
+/// is an open-loop estimate, since a closed loop with another predictor would quantize other
+/// values.
+pub fn cell_indices(
+    predictor: CellPredictor,
+    p: &[i32],
+    n: usize,
+    codec: &[i32],
+    cells: &[i32],
+    step: i32,
+    out: &mut Vec<i32>,
+) {
+    let m = n - 1;
+    assert!(p.len() == n * n && codec.len() == m * m && cells.len() == m * m);
+    let step = i64::from(step);
+    let k = (step - 1) / 2;
+    out.clear();
+    for j in 0..m {
+        for i in 0..m {
+            let [tl, tr, bl, br] = corners(p, n, i, j);
+            let own = i64::from(codec[j * m + i]);
+            let (main, anti) = ((tl + br).div_euclid(2), (tr + bl).div_euclid(2));
+            let prediction = match predictor {
+                CellPredictor::Codec => own,
+                CellPredictor::Bilinear => (tl + tr + bl + br + 2).div_euclid(4),
+                CellPredictor::FlatterDiagonal if (tl - br).abs() <= (tr - bl).abs() => main,
+                CellPredictor::FlatterDiagonal => anti,
+                CellPredictor::Median => own.max(main.min(anti)).min(main.max(anti)),
+            };
+            let r = i64::from(cells[j * m + i]) - prediction;
+            let index = r.signum() * ((r.abs() + k) / step);
+            out.push(index as i32);
+        }
+    }
+}
+
+/// Bin 0 … 7 of the spread of cell `(i, j)`'s corners in quantizer steps:
+/// `⌊log2(1 + (|TL − BR| + |TR − BL|) / step)⌋`, at most 7. Known to a decoder before the cell.
+pub fn corner_activity(p: &[i32], n: usize, i: usize, j: usize, step: i32) -> u32 {
+    let [tl, tr, bl, br] = corners(p, n, i, j);
+    let spread = ((tl - br).abs() + (tr - bl).abs()) / i64::from(step.max(1));
+    ((spread + 1).ilog2()).min(7)
+}
+
 #[cfg(test)]
 #[path = "references_tests.rs"]
 mod tests;

@@ -159,3 +159,40 @@ fn a_constant_lattice_costs_one_index() {
     assert_eq!(non_zero.len(), 1, "{samples:?}");
     assert_eq!(non_zero[0].index, 7);
 }
+
+#[test]
+fn cell_predictors_on_a_hand_worked_cell() {
+    // One cell (n = 2): corners TL 10, TR 20, BL 14, BR 11; the codec predicted 13 and the
+    // cell is 16. Bilinear ⌊(55 + 2) / 4⌋ = 14; diagonals TL–BR 10.5 → 10 (|Δ| 1, flatter),
+    // TR–BL 17; median(13, 10, 17) = 13.
+    let p = [10, 20, 14, 11];
+    let mut out = Vec::new();
+    let expect = [
+        (CellPredictor::Codec, 3),
+        (CellPredictor::Bilinear, 2),
+        (CellPredictor::FlatterDiagonal, 6),
+        (CellPredictor::Median, 3),
+    ];
+    for (predictor, residual) in expect {
+        cell_indices(predictor, &p, 2, &[13], &[16], 1, &mut out);
+        assert_eq!(out, [residual], "{}", predictor.name());
+    }
+    // Step 3 (k = 1): residual 6 → 2, 2 → 1 (rounded to nearest), −2 → −1.
+    cell_indices(
+        CellPredictor::FlatterDiagonal,
+        &p,
+        2,
+        &[13],
+        &[16],
+        3,
+        &mut out,
+    );
+    assert_eq!(out, [2]);
+    cell_indices(CellPredictor::Bilinear, &p, 2, &[13], &[16], 3, &mut out);
+    assert_eq!(out, [1]);
+    cell_indices(CellPredictor::Codec, &p, 2, &[13], &[11], 3, &mut out);
+    assert_eq!(out, [-1]);
+    // Spread |10 − 11| + |20 − 14| = 7: ⌊log2 8⌋ = 3; in steps of 3: ⌊7 / 3⌋ = 2, ⌊log2 3⌋ = 1.
+    assert_eq!(corner_activity(&p, 2, 0, 0, 1), 3);
+    assert_eq!(corner_activity(&p, 2, 0, 0, 3), 1);
+}
