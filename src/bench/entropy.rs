@@ -39,6 +39,9 @@ pub struct BenchEntropyArgs {
     coder: CoderArg,
 }
 
+/// The tallies by (level, band kind).
+type Tallies = BTreeMap<(u8, &'static str), BandTally>;
+
 /// One level's band kind: the coder's bits and the symbol counts.
 #[derive(Default)]
 struct BandTally {
@@ -85,11 +88,11 @@ pub fn run(args: &BenchEntropyArgs) -> Result<()> {
 
 /// Decodes every record's bands and counts them by (level, band kind), with the coder's bits;
 /// also the bits of the records' nodata masks.
-fn tally_bands(encoded: &Encoded) -> Result<(BTreeMap<(u8, &'static str), BandTally>, u64)> {
+fn tally_bands(encoded: &Encoded) -> Result<(Tallies, u64)> {
     let params = &encoded.params;
     let n = params.layout().n();
     let half = params.alpha == Alpha::Half;
-    let mut tallies: BTreeMap<(u8, &'static str), BandTally> = BTreeMap::new();
+    let mut tallies: Tallies = BTreeMap::new();
     let mut mask_bits = 0u64;
     let (mut cells, mut vertices) = (vec![0i32; (n - 1) * (n - 1)], vec![0i32; (n - 2) * (n - 2)]);
     for record in &encoded.records {
@@ -233,7 +236,7 @@ fn print_predictors(encoded: &Encoded, samples: f64) -> Result<()> {
     Ok(())
 }
 
-fn print_levels(bands: &BTreeMap<(u8, &'static str), BandTally>) {
+fn print_levels(bands: &Tallies) {
     println!(
         "| level | band | records | values | coded bits/value | H0 | H(v \\| ctx) | H(abs v \\| ctx) + raw sign | coded ÷ H(v \\| ctx) |"
     );
@@ -256,13 +259,7 @@ fn print_levels(bands: &BTreeMap<(u8, &'static str), BandTally>) {
 
 /// The whole file in bits per input sample: what the coder spent, what the references would,
 /// and the fixed costs (header, index, root field, checksums, nodata masks).
-fn print_totals(
-    bands: &BTreeMap<(u8, &'static str), BandTally>,
-    samples: f64,
-    file_bytes: usize,
-    fixed_bits: f64,
-    mask_bits: u64,
-) {
+fn print_totals(bands: &Tallies, samples: f64, file_bytes: usize, fixed_bits: f64, mask_bits: u64) {
     let coded: u64 = bands.values().map(|t| t.coded_bits).sum();
     let (mut h0, mut hc, mut hs) = (0.0, 0.0, 0.0);
     for t in bands.values() {
