@@ -208,6 +208,17 @@ fn print_predictors(encoded: &Encoded, samples: f64) -> Result<()> {
     if let Some(e) = failure {
         return Err(e);
     }
+    print_predictor_table(&by_predictor, &with_activity, step, samples);
+    Ok(())
+}
+
+/// The table of [`print_predictors`]: per predictor, the levels' entropies summed.
+fn print_predictor_table(
+    by_predictor: &BTreeMap<(usize, u8), SymbolStats>,
+    with_activity: &BTreeMap<u8, SymbolStats>,
+    step: i32,
+    samples: f64,
+) {
     let exact = if step == 1 {
         "exact"
     } else {
@@ -233,7 +244,6 @@ fn print_predictors(encoded: &Encoded, samples: f64) -> Result<()> {
         "| codec, context × corner spread (8 bins) | | {:.4} |",
         hc / samples
     );
-    Ok(())
 }
 
 fn print_levels(bands: &Tallies) {

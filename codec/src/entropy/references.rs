@@ -143,9 +143,10 @@ impl GradientQuantizer {
         let max_value = max_value.max(1);
         let factor = (max_value.min(4095) + 128) >> 8;
         let clamp = |v: i64, lo: i64| if v > max_value || v < lo { lo } else { v };
-        let t1 = clamp(factor * (3 - 2) + 2 + 3 * near, near + 1);
-        let t2 = clamp(factor * (7 - 3) + 3 + 5 * near, t1);
-        let t3 = clamp(factor * (21 - 4) + 4 + 7 * near, t2);
+        // T.87's BASIC_T1..3 = 3, 7, 21.
+        let t1 = clamp(factor + 2 + 3 * near, near + 1);
+        let t2 = clamp(factor * 4 + 3 + 5 * near, t1);
+        let t3 = clamp(factor * 17 + 4 + 7 * near, t2);
         Self { t1, t2, t3, near }
     }
 
