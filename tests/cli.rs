@@ -2,6 +2,7 @@
 //! concerns every subcommand (how errors are printed).
 
 mod bench;
+mod bench_entropy;
 mod bench_network;
 mod build;
 mod build_refusals;

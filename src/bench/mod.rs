@@ -3,6 +3,7 @@
 
 mod build;
 mod codec;
+mod entropy;
 mod network;
 mod render;
 mod report;
@@ -15,6 +16,7 @@ use clap::Subcommand;
 #[derive(Subcommand)]
 pub enum BenchCommand {
     Codec(codec::BenchCodecArgs),
+    Entropy(entropy::BenchEntropyArgs),
     Serve(serve::BenchServeArgs),
     Build(build::BenchBuildArgs),
     Render(render::BenchRenderArgs),
@@ -26,6 +28,7 @@ pub enum BenchCommand {
 pub fn run(command: &BenchCommand) -> Result<()> {
     match command {
         BenchCommand::Codec(args) => codec::run(args),
+        BenchCommand::Entropy(args) => entropy::run(args),
         BenchCommand::Serve(args) => serve::run(args),
         BenchCommand::Build(args) => build::run(args),
         BenchCommand::Render(args) => render::run(args),

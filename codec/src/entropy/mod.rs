@@ -13,6 +13,7 @@
 pub mod adaptive;
 pub mod bitio;
 pub mod gamma;
+pub mod references;
 
 use crate::CodecError;
 

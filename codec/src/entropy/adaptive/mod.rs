@@ -81,7 +81,7 @@ const CLASS_LUT: [u8; 1025] = {
 };
 
 #[inline(always)]
-fn class_of(s: u32) -> usize {
+pub(crate) fn class_of(s: u32) -> usize {
     CLASS_LUT[s.min(1024) as usize] as usize
 }
 
