@@ -1,7 +1,8 @@
 //! The grids of a planet apex's diamonds, which the blocks read to measure the apex diamonds'
-//! object errors on their own tiles: written to an unlinked temporary file as the apex encodes
-//! them, and read back one at a time by the blocks that need them, so that the memory of a
-//! planet build does not grow with its apex (over the land, the apex grows with the land).
+//! object errors on their own tiles: past [`IN_MEMORY_BYTES`], written to an unlinked
+//! temporary file as the apex encodes them, and read back one at a time by the blocks that
+//! need them, so that the memory of a planet build does not grow with its apex (over the land,
+//! the apex grows with the land). A small apex stays in memory (no temporary to fill a disk).
 //!
 //! The file is written through `write` (a full disk is an error naming the temporary, never a
 //! fault of a mapping) and read with positioned reads.
@@ -20,45 +21,79 @@ use crate::temp::TempStorage;
 /// What the temporary file holds, for its errors.
 const WHAT: &str = "the planet apex's grids";
 
+/// Bytes of grids kept in memory before they go to a temporary file.
+pub const IN_MEMORY_BYTES: usize = 16 << 20;
+
+/// Where the grids' bytes are: in memory, or (past [`IN_MEMORY_BYTES`]) in a temporary file
+/// and how many bytes it holds.
+enum Store {
+    Memory(Vec<u8>),
+    File(BufWriter<File>, u64),
+}
+
 /// Apex grids being written ([`GridSpill::put`]), from any thread.
 pub(super) struct GridSpill {
-    file: Mutex<(BufWriter<File>, u64)>,
+    store: Mutex<Store>,
     values: usize,
 }
 
 impl GridSpill {
-    /// A spill of grids of `values` heights each, in a new unlinked temporary file.
-    pub(super) fn new(values: usize) -> Result<Self, CodecError> {
-        let file = TempStorage::File(None)
-            .unlinked_file(WHAT)?
-            .expect("a file storage makes a file");
-        Ok(Self {
-            file: Mutex::new((BufWriter::with_capacity(1 << 20, file), 0)),
+    /// A spill of grids of `values` heights each.
+    pub(super) fn new(values: usize) -> Self {
+        Self {
+            store: Mutex::new(Store::Memory(Vec::new())),
             values,
-        })
+        }
     }
 
-    /// Appends `grid` to the file: where it went.
+    /// Appends `grid`: where it went.
     pub(super) fn put(&self, grid: &[i32]) -> Result<u64, CodecError> {
         debug_assert_eq!(grid.len(), self.values);
         let bytes: Vec<u8> = grid.iter().flat_map(|v| v.to_le_bytes()).collect();
-        let mut file = self.file.lock().expect("the apex grids' file");
-        let at = file.1;
-        file.0.write_all(&bytes).map_err(writing)?;
-        file.1 += bytes.len() as u64;
+        let mut store = self.store.lock().expect("the apex grids");
+        if let Store::Memory(held) = &mut *store {
+            if held.len() + bytes.len() <= IN_MEMORY_BYTES {
+                held.extend_from_slice(&bytes);
+                return Ok((held.len() - bytes.len()) as u64);
+            }
+            let file = TempStorage::File(None)
+                .unlinked_file(WHAT)?
+                .expect("a file storage makes a file");
+            let mut file = BufWriter::with_capacity(1 << 20, file);
+            file.write_all(held).map_err(writing)?;
+            let len = held.len() as u64;
+            *store = Store::File(file, len);
+        }
+        let Store::File(file, len) = &mut *store else {
+            unreachable!("spilled above")
+        };
+        let at = *len;
+        file.write_all(&bytes).map_err(writing)?;
+        *len += bytes.len() as u64;
         Ok(at)
     }
 
     /// The grids written, by diamond (`index`: where [`GridSpill::put`] put each).
     pub(super) fn finish(self, index: HashMap<DiamondId, u64>) -> Result<ApexGrids, CodecError> {
-        let (writer, _) = self.file.into_inner().expect("the apex grids' file");
-        let file = writer.into_inner().map_err(|e| writing(e.into_error()))?;
+        let bytes = match self.store.into_inner().expect("the apex grids") {
+            Store::Memory(held) => Bytes::Memory(Arc::new(held)),
+            Store::File(writer, _) => Bytes::File(Arc::new(
+                writer.into_inner().map_err(|e| writing(e.into_error()))?,
+            )),
+        };
         Ok(ApexGrids {
-            file: Arc::new(file),
+            bytes,
             index,
             values: self.values,
         })
     }
+}
+
+/// The grids' bytes, in memory or in a temporary file.
+#[derive(Clone)]
+enum Bytes {
+    Memory(Arc<Vec<u8>>),
+    File(Arc<File>),
 }
 
 /// The error of writing the temporary file.
@@ -72,7 +107,7 @@ fn writing(e: std::io::Error) -> CodecError {
 /// Every stored apex diamond's grid, in a temporary file ([`GridSpill`]).
 #[derive(Clone)]
 pub struct ApexGrids {
-    file: Arc<File>,
+    bytes: Bytes,
     index: HashMap<DiamondId, u64>,
     values: usize,
 }
@@ -83,7 +118,7 @@ impl ApexGrids {
         values: usize,
         grids: impl IntoIterator<Item = (DiamondId, Vec<i32>)>,
     ) -> Result<Self, CodecError> {
-        let spill = GridSpill::new(values)?;
+        let spill = GridSpill::new(values);
         let mut index = HashMap::new();
         for (id, grid) in grids {
             if grid.len() != values {
@@ -118,12 +153,17 @@ impl ApexGrids {
             return Ok(None);
         };
         let mut bytes = vec![0u8; self.values * 4];
-        self.file.read_exact_at(&mut bytes, at).map_err(|e| {
-            CodecError::Io(std::io::Error::new(
-                e.kind(),
-                format!("reading a temporary file for {WHAT}: {e}"),
-            ))
-        })?;
+        match &self.bytes {
+            Bytes::Memory(held) => {
+                bytes.copy_from_slice(&held[at as usize..at as usize + self.values * 4]);
+            }
+            Bytes::File(file) => file.read_exact_at(&mut bytes, at).map_err(|e| {
+                CodecError::Io(std::io::Error::new(
+                    e.kind(),
+                    format!("reading a temporary file for {WHAT}: {e}"),
+                ))
+            })?,
+        }
         Ok(Some(
             bytes
                 .chunks_exact(4)
@@ -159,15 +199,17 @@ impl PartialEq for ApexGrids {
 mod tests {
     use super::*;
 
-    /// Grids written from several threads read back as written, each by its diamond.
+    /// Grids written from several threads read back as written, each by its diamond: held in
+    /// memory, and spilled to a file past [`IN_MEMORY_BYTES`] (200 grids of a 64th of it).
     #[test]
     fn grids_read_back_as_written() {
-        let spill = GridSpill::new(9).unwrap();
+        const V: usize = IN_MEMORY_BYTES / 4 / 64;
         let grid = |i: u32| {
-            (0..9)
+            (0..V as i32)
                 .map(|v| v * 1000 - i as i32 * 7)
                 .collect::<Vec<i32>>()
         };
+        let spill = GridSpill::new(V);
         let index: HashMap<DiamondId, u64> = std::thread::scope(|s| {
             let handles: Vec<_> = (0..4u32)
                 .map(|t| {
@@ -188,6 +230,7 @@ mod tests {
                 .collect()
         });
         let grids = spill.finish(index).unwrap();
+        assert!(matches!(grids.bytes, Bytes::File(_)), "not spilled");
         assert_eq!(grids.len(), 200);
         for i in 0..200u32 {
             assert_eq!(
@@ -196,13 +239,21 @@ mod tests {
             );
         }
         assert_eq!(grids.get(DiamondId::new(3, 0, 0)).unwrap(), None);
-        let again = ApexGrids::from_grids(
-            9,
-            (0..200u32).map(|i| (DiamondId::new(3, i, i + 1), grid(i))),
-        )
-        .unwrap();
-        assert_eq!(again, grids);
-        let e = ApexGrids::from_grids(9, [(DiamondId::new(3, 0, 0), vec![0; 8])]).unwrap_err();
-        assert!(e.to_string().contains("8 heights, not 9"), "{e}");
+        let few = (0..20u32).map(|i| (DiamondId::new(3, i, i + 1), grid(i)));
+        let held = ApexGrids::from_grids(V, few).unwrap();
+        assert!(matches!(held.bytes, Bytes::Memory(_)), "spilled");
+        for i in 0..20u32 {
+            assert_eq!(
+                held.get(DiamondId::new(3, i, i + 1)).unwrap(),
+                Some(grid(i))
+            );
+        }
+        let all = (0..200u32).map(|i| (DiamondId::new(3, i, i + 1), grid(i)));
+        assert_eq!(ApexGrids::from_grids(V, all).unwrap(), grids);
+        let e = ApexGrids::from_grids(V, [(DiamondId::new(3, 0, 0), vec![0; 8])]).unwrap_err();
+        assert!(
+            e.to_string().contains(&format!("8 heights, not {V}")),
+            "{e}"
+        );
     }
 }

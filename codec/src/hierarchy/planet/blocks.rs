@@ -445,7 +445,7 @@ impl PlanetApex {
             |f, x, y| view.drawn(f, x, y) == Some(true),
         )?;
         // Each grid goes to a temporary file as soon as it is made.
-        let spill = GridSpill::new(layout.n() * layout.n())?;
+        let spill = GridSpill::new(layout.n() * layout.n());
         let pass = per_diamond_levels(domain, &root_field, stored, 0..cut, |id, p| {
             let refined = match recorded[id.level as usize].contains(&id) {
                 true => Some(refine_diamond(params, &view, id, &p)?),
