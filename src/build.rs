@@ -385,6 +385,14 @@ fn print_planet_timings(s: &PlanetSummary, start: Instant) {
             steps.join(", ")
         );
     }
+    if !s.peaks.is_empty() {
+        let steps: Vec<String> = s
+            .peaks
+            .iter()
+            .map(|(step, b)| format!("{step} {:.1} MiB", *b as f64 / (1u64 << 20) as f64))
+            .collect();
+        eprintln!("peak resident memory after each step: {}", steps.join(", "));
+    }
 }
 
 fn print_colour(args: &BuildArgs, s: &ColourSummary, start: Instant) -> Result<()> {

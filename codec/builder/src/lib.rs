@@ -21,6 +21,7 @@ pub mod input;
 mod input_cache;
 pub mod journal;
 pub mod mosaic;
+pub mod peak_memory;
 pub mod plan;
 pub mod planet;
 mod planet_input;

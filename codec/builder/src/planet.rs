@@ -105,6 +105,8 @@ pub struct PlanetSummary {
     pub blocks: Option<(usize, usize)>,
     /// Block by block: lattice points painted by each step ([`LatticeEncode::painted`]).
     pub painted: Vec<(&'static str, u64)>,
+    /// Block by block: the peak resident memory after each step ([`LatticeEncode::peaks`]).
+    pub peaks: Vec<(&'static str, u64)>,
 }
 
 /// Bytes a planet build holds per lattice point its tiles hold when it resamples and encodes
@@ -136,6 +138,7 @@ fn encode_whole(
         held_points: resampled.planet.held_points(),
         blocks: None,
         painted: Vec::new(),
+        peaks: Vec::new(),
     })
 }
 
@@ -366,6 +369,7 @@ pub fn build_planet(
         stages,
         blocks: lattice.blocks,
         painted: lattice.painted,
+        peaks: lattice.peaks,
     })
 }
 

@@ -18,6 +18,7 @@ use std::sync::{Arc, Mutex};
 use rayon::prelude::*;
 
 use crate::error::{BuildError, Result};
+use crate::peak_memory::peak_rss;
 use crate::planet_input::{PlanetInputs, PointSource};
 use crate::planet_plan::{TilePlan, lattice_spacing_deg, plan_tiles, valid_in_tile};
 use crate::planet_resampling::{InputResampling, Resampled, input_resampling, sample_footprint};
@@ -439,10 +440,15 @@ impl<'a> LatticeTiles<'a> {
         self.resampler.tile_log2()
     }
 
-    /// Input `input`'s resampling error, over the tiles it can cover.
+    /// Input `input`'s resampling error, over the tiles it can cover: where its samples lie on
+    /// one face, on the parts of those tiles around them held at once; else a band of its rows
+    /// at a time ([`resampling_bands`]), so that a global input does not hold the lattice.
     pub fn resampling(&self, input: usize) -> Result<InputResampling> {
         let r = &self.resampler;
-        input_resampling(r.inputs, input, &self.input_view(input)?, r.plan)
+        match sample_footprint(&r.inputs.inputs[input], r.strides[input], r.side) {
+            Some(_) => input_resampling(r.inputs, input, &self.input_view(input)?, r.plan),
+            None => self.resampling_in_bands(input),
+        }
     }
 
     /// Tile `index` of `face` on multiples of `2^max(s, min(min_stride, tile side))` for its
@@ -593,6 +599,9 @@ pub struct LatticeEncode {
     /// Block by block: lattice points painted (resampled from the inputs) by each step, in
     /// order; a point painted again counts again.
     pub painted: Vec<(&'static str, u64)>,
+    /// Block by block: the process's peak resident memory after each step, bytes
+    /// ([`crate::peak_memory::peak_rss`]; empty where the system does not say).
+    pub peaks: Vec<(&'static str, u64)>,
 }
 
 /// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
@@ -611,8 +620,11 @@ pub fn encode_out_of_core(
 ) -> Result<LatticeEncode> {
     let resampler = Resampler::new(inputs, n, k, plan)?;
     let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
-    // Per step, the points painted whole and in parts of tiles.
+    // Per step, the points painted whole and in parts of tiles, and the peak memory after it.
     let mut painted = vec![("outline", tiles.resampler.painted().0)];
+    let mut peaks: Vec<(&'static str, u64)> = Vec::new();
+    let mut peak = |step: &'static str| peaks.extend(peak_rss().map(|p| (step, p)));
+    peak("outline");
     let mut last = tiles.resampler.painted();
     let mut step = |(whole, part): (&'static str, &'static str), tiles: &LatticeTiles| {
         let now = tiles.resampler.painted();
@@ -624,16 +636,24 @@ pub fn encode_out_of_core(
         last = now;
     };
     let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
-    let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, None)
-        .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
-        .map_err(BuildError::from)?;
-    step(("apex", "apex (parts of tiles)"), &tiles);
-    let counts = (
-        blocks.block_count(),
-        tiles.strides().iter().map(Vec::len).sum(),
-    );
-    let encoded = blocks.finish(journal, true).map_err(BuildError::from)?;
+    // The apex and the blocks are let go before the resampling error is measured.
+    let (encoded, counts) = {
+        let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, None)
+            .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
+            .map_err(BuildError::from)?;
+        step(("apex", "apex (parts of tiles)"), &tiles);
+        peak("apex");
+        let counts = (
+            blocks.block_count(),
+            tiles.strides().iter().map(Vec::len).sum(),
+        );
+        (
+            blocks.finish(journal, true).map_err(BuildError::from)?,
+            counts,
+        )
+    };
     step(("blocks", "blocks (strips of neighbouring tiles)"), &tiles);
+    peak("blocks");
     let resampling = (0..inputs.inputs.len())
         .map(|i| tiles.resampling(i))
         .collect::<Result<Vec<_>>>()?;
@@ -644,6 +664,7 @@ pub fn encode_out_of_core(
         ),
         &tiles,
     );
+    peak("resampling error");
     Ok(LatticeEncode {
         encoded,
         resampling,
@@ -651,8 +672,12 @@ pub fn encode_out_of_core(
         held_points,
         blocks: Some(counts),
         painted,
+        peaks,
     })
 }
+
+#[path = "planet_resampling_bands.rs"]
+mod resampling_bands;
 
 #[cfg(test)]
 #[path = "planet_lattice_tests.rs"]

@@ -67,37 +67,43 @@ pub(crate) fn input_resampling(
     resampled: &Resampled,
     plan: &QuantPlan,
 ) -> Result<InputResampling> {
+    let rows = rows_resampling(inputs, i, 0..inputs.inputs[i].height, resampled, plan)?;
+    Ok(fold_rows(inputs, i, rows, resampled.strides[i]))
+}
+
+/// One row's share of an input's resampling error: valid samples, samples compared, the
+/// largest error and where, and the sum of squared errors.
+pub(crate) type RowError = (u64, u64, f64, f64, Option<LatLon>);
+
+/// The rows `rows` of input `i` against the bilinear interpolant of the resampled lattice,
+/// each on its own ([`fold_rows`] sums them): `resampled` needs to hold only the tiles those
+/// rows' samples lie in ([`sample_cell_tiles`]).
+pub(crate) fn rows_resampling(
+    inputs: &PlanetInputs,
+    i: usize,
+    rows: std::ops::Range<usize>,
+    resampled: &Resampled,
+    plan: &QuantPlan,
+) -> Result<Vec<RowError>> {
     let input = &inputs.inputs[i];
     let me = u16::try_from(i).unwrap_or(u16::MAX);
     let samples = inputs.samples(i)?;
     // The input's samples are the lattice points on its stride: the surface drawn
     // where it is the finest data interpolates those.
     let step = 1i64 << resampled.strides[i];
-    // On a latitude/longitude grid the longitude's sine and cosine depend on the
-    // column only (the latitude's on the row): computed once each.
-    let columns: Option<Vec<(f64, f64)>> = match input.frame {
-        Frame::Geographic { .. } => Some(
-            (0..input.width)
-                .map(|c| input.lat_lon_of(c, 0).lon.to_radians().sin_cos())
-                .collect(),
-        ),
-        Frame::Projected { .. } => None,
-    };
-    let (samples, compared, max, sum2, worst_at) = (0..input.height)
+    let columns = column_sin_cos(input);
+    Ok(rows
         .into_par_iter()
         .map(|r| {
-            let mut acc = (0u64, 0u64, 0f64, 0f64, None);
+            let mut acc: RowError = (0, 0, 0.0, 0.0, None);
             let row = input.lat_lon_of(0, r).lat.to_radians().sin_cos();
             for c in 0..input.width {
                 let Some(v) = input.sample(&samples, c, r) else {
                     continue;
                 };
                 acc.0 += 1;
-                let (face, s, t) = match &columns {
-                    Some(columns) => sin_cos_to_face_st(row, columns[c]),
-                    None => lat_lon_to_face_st(input.lat_lon_of(c, r)),
-                };
-                let Some(l) = lattice_at(resampled, plan, me, (face, s, t), step) else {
+                let position = sample_position(input, columns.as_deref(), row, (c, r));
+                let Some(l) = lattice_at(resampled, plan, me, position, step) else {
                     continue;
                 };
                 let e = (l - v).abs();
@@ -110,11 +116,20 @@ pub(crate) fn input_resampling(
             }
             acc
         })
-        // Rows summed in order, not in rayon's reduction tree (whose shape depends on
-        // scheduling): the stored RMS has the same bits every build.
-        .collect::<Vec<_>>()
-        .into_iter()
-        .fold((0, 0, 0.0, 0.0, None), |a, b| {
+        .collect())
+}
+
+/// Input `i`'s resampling error from its rows' shares, all of them in row order.
+pub(crate) fn fold_rows(
+    inputs: &PlanetInputs,
+    i: usize,
+    rows: Vec<RowError>,
+    stride: u32,
+) -> InputResampling {
+    // Rows summed in order, not in rayon's reduction tree (whose shape depends on
+    // scheduling): the stored RMS has the same bits every build.
+    let (samples, compared, max, sum2, worst_at) =
+        rows.into_iter().fold((0, 0, 0.0, 0.0, None), |a, b| {
             let (max, at) = if b.2 > a.2 || a.4.is_none() {
                 (b.2, b.4)
             } else {
@@ -122,8 +137,8 @@ pub(crate) fn input_resampling(
             };
             (a.0 + b.0, a.1 + b.1, max, a.3 + b.3, at)
         });
-    Ok(InputResampling {
-        path: input.path.clone(),
+    InputResampling {
+        path: inputs.inputs[i].path.clone(),
         samples,
         compared,
         max_error: max,
@@ -133,8 +148,36 @@ pub(crate) fn input_resampling(
             0.0
         },
         worst_at,
-        stride: resampled.strides[i],
-    })
+        stride,
+    }
+}
+
+/// On a latitude/longitude grid the longitude's sine and cosine depend on the column only (the
+/// latitude's on the row): computed once each; `None` for a projected input.
+pub(crate) fn column_sin_cos(input: &crate::planet_input::PlanetInput) -> Option<Vec<(f64, f64)>> {
+    match input.frame {
+        Frame::Geographic { .. } => Some(
+            (0..input.width)
+                .map(|c| input.lat_lon_of(c, 0).lon.to_radians().sin_cos())
+                .collect(),
+        ),
+        Frame::Projected { .. } => None,
+    }
+}
+
+/// Where sample `(c, r)` lies on the cube: face and face coordinates `(s, t)`; `row` is the
+/// sine and cosine of its row's latitude, `columns` [`column_sin_cos`].
+#[inline]
+pub(crate) fn sample_position(
+    input: &crate::planet_input::PlanetInput,
+    columns: Option<&[(f64, f64)]>,
+    row: (f64, f64),
+    (c, r): (usize, usize),
+) -> (u8, f64, f64) {
+    match columns {
+        Some(columns) => sin_cos_to_face_st(row, columns[c]),
+        None => lat_lon_to_face_st(input.lat_lon_of(c, r)),
+    }
 }
 
 /// Lattice points `(x0, y0, x1, y1)` of a face, inclusive.
@@ -222,6 +265,37 @@ pub fn provenance_of(resampling: &[InputResampling]) -> PlanetProvenance {
     }
 }
 
+/// The lattice cell (on multiples of `step`, of a face of `side` steps) that face point
+/// `(s, t)` lies in: its first corner in cells, and where in it the point lies.
+#[inline]
+fn lattice_cell(side: i64, step: i64, (s, t): (f64, f64)) -> ((i64, i64), (f64, f64)) {
+    let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
+    let cells = side / step;
+    let (x0, y0) = (
+        (x.floor() as i64).min(cells - 1),
+        (y.floor() as i64).min(cells - 1),
+    );
+    ((x0, y0), (x - x0 as f64, y - y0 as f64))
+}
+
+/// The tiles (of `2^tile_log2` steps) holding the four lattice points (on multiples of `step`)
+/// around face point `(face, s, t)`: those [`lattice_at`] reads.
+pub(crate) fn sample_cell_tiles(
+    side: i64,
+    tile_log2: u32,
+    step: i64,
+    (face, s, t): (u8, f64, f64),
+) -> [(u8, usize); 4] {
+    let ((x0, y0), _) = lattice_cell(side, step, (s, t));
+    [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(dx, dy)| {
+        let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
+        (
+            face,
+            cbdam_codec::hierarchy::planet::tile_of(side, tile_log2, px, py),
+        )
+    })
+}
+
 /// The bilinear interpolant, metres, at face point `(face, s, t)` of the lattice points on
 /// multiples of `step` around it, `None` unless all four took their height from input `me`.
 fn lattice_at(
@@ -233,13 +307,7 @@ fn lattice_at(
 ) -> Option<f64> {
     let planet = &resampled.planet;
     let side = planet.domain().cube().expect("a cube-sphere").side();
-    let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
-    let cells = side / step;
-    let (x0, y0) = (
-        (x.floor() as i64).min(cells - 1),
-        (y.floor() as i64).min(cells - 1),
-    );
-    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let ((x0, y0), (fx, fy)) = lattice_cell(side, step, (s, t));
     // Corners inside the face (x0, y0 < S): its own tiles hold them (the
     // input's samples made them dense enough, `plan_tiles`), equal to every
     // other face's on shared points.

@@ -10,7 +10,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use cbdam_codec::geodesy::LatLon;
-use cbdam_codec::hierarchy::planet::{PlanetApex, PlanetOutline};
+use cbdam_codec::hierarchy::planet::{ApexGrids, PlanetApex, PlanetOutline};
 use cbdam_codec::hierarchy::{Record, Refined};
 
 use crate::error::{Context, Result, bail};
@@ -237,12 +237,13 @@ pub(crate) fn write_apex(work: &Path, name: &str, apex: &PlanetApex) -> Result<(
     put_u64(&mut out, apex.records.len() as u64);
     apex.records.iter().for_each(|r| put_record(&mut out, r));
     // In id order: the file's bytes do not depend on a hash map's order.
-    let mut grids: Vec<_> = apex.grids.iter().collect();
-    grids.sort_by_key(|(id, _)| **id);
-    put_u64(&mut out, grids.len() as u64);
-    for (&id, grid) in grids {
+    let mut ids: Vec<_> = apex.grids.ids().collect();
+    ids.sort();
+    put_u64(&mut out, ids.len() as u64);
+    for id in ids {
         put_id(&mut out, id);
-        put_i32s(&mut out, grid);
+        let grid = apex.grids.get(id)?.expect("an apex diamond's grid");
+        put_i32s(&mut out, &grid);
     }
     let mut last: Vec<_> = apex.last.iter().collect();
     last.sort_by_key(|(id, _)| **id);
@@ -285,6 +286,11 @@ pub(crate) fn read_apex(
     let (root_field, roots, records, grids, last) = parse(&mut r)
         .filter(|_| r.0.is_empty())
         .ok_or_else(|| damaged(&path))?;
+    let n = outline.domain().n();
+    let grids = ApexGrids::from_grids(n * n, grids).map_err(|e| match e {
+        cbdam_codec::CodecError::Io(e) => crate::BuildError::from(cbdam_codec::CodecError::Io(e)),
+        _ => damaged(&path),
+    })?;
     Ok(Some(PlanetApex::from_parts(
         outline, root_field, roots, records, grids, last,
     )))

@@ -29,6 +29,7 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use super::apex_grids::{ApexGrids, GridSpill};
 use super::block_groups::{BlockGroups, TileGroup};
 use super::grid::{tiles_across, tiles_meeting};
 use super::tile_source::PlanetTiles;
@@ -346,7 +347,7 @@ impl<'a> PlanetBlocks<'a> {
         let mut kept = KeptRecords::new(spill)?;
         kept.extend(self.apex.records.clone())?;
         let mut own_error: HashMap<DiamondId, u32> =
-            self.apex.grids.keys().map(|&id| (id, 0)).collect();
+            self.apex.grids.ids().map(|id| (id, 0)).collect();
         let block = self.block_encode();
         for index in 0..self.block_count() {
             let output = match journal.load(index)? {
@@ -394,8 +395,9 @@ pub struct PlanetApex {
     pub roots: Vec<u8>,
     /// Records of the apex levels (object errors not yet saturated).
     pub records: Vec<Record>,
-    /// Every stored apex diamond's grid, for the blocks to measure its error on their tiles.
-    pub grids: HashMap<DiamondId, Vec<i32>>,
+    /// Every stored apex diamond's grid, for the blocks to measure its error on their tiles
+    /// (in a temporary file, read back as a block needs one).
+    pub grids: ApexGrids,
     /// Refinements of the recorded diamonds of the level above the cut.
     pub last: HashMap<DiamondId, Refined>,
     /// Per `(face, tile)`, the apex diamonds with a view on that face meeting the tile.
@@ -410,7 +412,7 @@ impl PlanetApex {
         root_field: Vec<i32>,
         roots: Vec<u8>,
         records: Vec<Record>,
-        grids: HashMap<DiamondId, Vec<i32>>,
+        grids: ApexGrids,
         last: HashMap<DiamondId, Refined>,
     ) -> Self {
         let meeting = meeting(&outline.domain, outline.tile_log2, &grids);
@@ -442,14 +444,16 @@ impl PlanetApex {
             |f, x, y| view.get(f, x, y),
             |f, x, y| view.drawn(f, x, y) == Some(true),
         )?;
+        // Each grid goes to a temporary file as soon as it is made.
+        let spill = GridSpill::new(layout.n() * layout.n());
         let pass = per_diamond_levels(domain, &root_field, stored, 0..cut, |id, p| {
             let refined = match recorded[id.level as usize].contains(&id) {
                 true => Some(refine_diamond(params, &view, id, &p)?),
                 false => None,
             };
-            Ok((refined, p))
+            Ok((refined, spill.put(&p)?))
         })?;
-        let grids: HashMap<DiamondId, Vec<i32>> = pass.visited.into_iter().collect();
+        let grids = spill.finish(pass.visited.into_iter().collect())?;
         let (records, prev) = (pass.records, pass.last);
         Ok(Self::from_parts(
             outline, root_field, roots, records, grids, prev,
@@ -461,12 +465,14 @@ impl PlanetApex {
 fn meeting(
     domain: &Domain,
     tile_log2: u32,
-    grids: &HashMap<DiamondId, Vec<i32>>,
+    grids: &ApexGrids,
 ) -> HashMap<(u8, usize), Vec<DiamondId>> {
     let side = domain.cube().expect("a cube-sphere").side();
     let mut meeting: HashMap<(u8, usize), Vec<DiamondId>> = HashMap::new();
-    for (&id, p) in grids {
-        for (seen, _) in views(domain, id, p) {
+    // Where a diamond's views lie does not depend on its grid.
+    let blank = vec![0; domain.n() * domain.n()];
+    for id in grids.ids() {
+        for (seen, _) in views(domain, id, &blank) {
             for i in tiles_meeting(side, tile_log2, domain.layout().bounds(seen)) {
                 meeting.entry((seen.face, i)).or_default().push(id);
             }
@@ -616,7 +622,7 @@ impl BlockEncode<'_> {
             }
             prev = next;
         }
-        output.own_errors.extend(self.apex_shares(group, &errors));
+        output.own_errors.extend(self.apex_shares(group, &errors)?);
         Ok(output)
     }
 
@@ -650,7 +656,11 @@ impl BlockEncode<'_> {
     }
 
     /// The apex diamonds' errors measured on this block's tiles alone.
-    fn apex_shares(&self, group: &TileGroup, errors: &TiledError) -> Vec<(DiamondId, u32)> {
+    fn apex_shares(
+        &self,
+        group: &TileGroup,
+        errors: &TiledError,
+    ) -> Result<Vec<(DiamondId, u32)>, CodecError> {
         let domain = &self.params.domain;
         let layout = domain.layout();
         let face = group.face;
@@ -662,7 +672,8 @@ impl BlockEncode<'_> {
             .collect();
         ids.into_par_iter()
             .map(|id| {
-                let e = views(domain, id, &self.apex.grids[&id])
+                let grid = self.apex.grids.get(id)?.expect("an apex diamond's grid");
+                let e = views(domain, id, &grid)
                     .into_iter()
                     .filter(|(seen, _)| seen.face == face)
                     .filter_map(|(seen, q)| {
@@ -674,7 +685,7 @@ impl BlockEncode<'_> {
                     })
                     .max()
                     .unwrap_or(0);
-                (id, e)
+                Ok((id, e))
             })
             .collect()
     }

@@ -10,11 +10,13 @@
 //! a cube edge compares each half with its own face's input. The previous level's refinements
 //! are kept per diamond (as [`super::encode`] does for α = ½); α = 1 only.
 
+mod apex_grids;
 mod block_groups;
 mod blocks;
 mod grid;
 mod tile_source;
 
+pub use apex_grids::ApexGrids;
 pub use block_groups::{BlockGroups, TileGroup};
 
 pub use blocks::{
