@@ -11,7 +11,6 @@ use std::collections::HashMap;
 use std::fmt;
 use std::fs::File;
 use std::io::{BufWriter, Write};
-use std::os::unix::fs::FileExt;
 use std::sync::{Arc, Mutex};
 
 use crate::CodecError;
@@ -112,6 +111,26 @@ pub struct ApexGrids {
     values: usize,
 }
 
+/// Reads `bytes.len()` bytes of `file` at `at`: a positioned read on Unix (the blocks read in
+/// parallel, with no shared cursor); elsewhere (where no planet is built today, e.g. the browser
+/// build of this crate) a seek and a read, one reader at a time.
+fn read_at(file: &File, bytes: &mut [u8], at: u64) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileExt;
+        file.read_exact_at(bytes, at)
+    }
+    #[cfg(not(unix))]
+    {
+        use std::io::{Read, Seek, SeekFrom};
+        static CURSOR: Mutex<()> = Mutex::new(());
+        let _one_reader = CURSOR.lock().unwrap_or_else(|e| e.into_inner());
+        let mut file = file;
+        file.seek(SeekFrom::Start(at))?;
+        file.read_exact(bytes)
+    }
+}
+
 impl ApexGrids {
     /// The grids `grids` (each of `values` heights), written to a temporary file.
     pub fn from_grids(
@@ -157,7 +176,7 @@ impl ApexGrids {
             Bytes::Memory(held) => {
                 bytes.copy_from_slice(&held[at as usize..at as usize + self.values * 4]);
             }
-            Bytes::File(file) => file.read_exact_at(&mut bytes, at).map_err(|e| {
+            Bytes::File(file) => read_at(file, &mut bytes, at).map_err(|e| {
                 CodecError::Io(std::io::Error::new(
                     e.kind(),
                     format!("reading a temporary file for {WHAT}: {e}"),
