@@ -502,6 +502,31 @@ pub fn reconstruct_finest_with_validity(
     Ok((finest.heights, finest.valid))
 }
 
+/// Two rasters of `params`' data rectangle, filled with `a` and `b`; refused for a cube-sphere or
+/// one too large to hold. The size comes from a header: a crafted file may declare terabytes, so
+/// ask, don't abort.
+fn data_rasters<A: Clone, B: Clone>(
+    params: &CodecParams,
+    a: A,
+    b: B,
+) -> Result<(Vec<A>, Vec<B>), CodecError> {
+    planar_only(params)?;
+    let (w, h) = params.domain.data().size();
+    let (mut first, mut second) = (Vec::new(), Vec::new());
+    w.checked_mul(h)
+        .filter(|&len| {
+            first.try_reserve_exact(len).is_ok() && second.try_reserve_exact(len).is_ok()
+        })
+        .map(|len| {
+            first.resize(len, a);
+            second.resize(len, b);
+        })
+        .ok_or_else(|| {
+            CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
+        })?;
+    Ok((first, second))
+}
+
 /// The finest level on the input's grid (the domain's data rectangle, row-major), filled from a
 /// walk's visits ([`FinestRaster::put`]; the other levels' are ignored): what
 /// [`reconstruct_finest_with_validity`] returns.
@@ -517,24 +542,8 @@ impl FinestRaster {
     /// An empty raster of `params`' data rectangle, refused for a cube-sphere or one too large
     /// to hold.
     pub(super) fn new(params: &CodecParams) -> Result<Self, CodecError> {
-        planar_only(params)?;
-        let (w, h) = params.domain.data().size();
-        // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
-        let mut heights = Vec::new();
-        let mut valid = Vec::new();
-        w.checked_mul(h)
-            .filter(|&len| {
-                heights.try_reserve_exact(len).is_ok() && valid.try_reserve_exact(len).is_ok()
-            })
-            .map(|len| {
-                heights.resize(len, 0);
-                // Points no finest diamond reaches lie in leaves without data, which are not
-                // stored.
-                valid.resize(len, !params.nodata_mask);
-            })
-            .ok_or_else(|| {
-                CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
-            })?;
+        // Points no finest diamond reaches lie in leaves without data, which are not stored.
+        let (heights, valid) = data_rasters(params, 0, !params.nodata_mask)?;
         Ok(Self {
             params: *params,
             heights,
@@ -610,22 +619,7 @@ impl ReachedRaster {
     /// An empty raster of `params`' data rectangle, refused for a cube-sphere or one too large
     /// to hold.
     pub(super) fn new(params: &CodecParams) -> Result<Self, CodecError> {
-        planar_only(params)?;
-        let (w, h) = params.domain.data().size();
-        // The size comes from a header: a crafted file may declare terabytes, so ask, don't abort.
-        let mut heights = Vec::new();
-        let mut state = Vec::new();
-        w.checked_mul(h)
-            .filter(|&len| {
-                heights.try_reserve_exact(len).is_ok() && state.try_reserve_exact(len).is_ok()
-            })
-            .map(|len| {
-                heights.resize(len, 0i32);
-                state.resize(len, Reached::No);
-            })
-            .ok_or_else(|| {
-                CodecError::limit(format!("cannot hold a {w}×{h} reconstruction in memory"))
-            })?;
+        let (heights, state) = data_rasters(params, 0i32, Reached::No)?;
         Ok(Self {
             params: *params,
             heights,
