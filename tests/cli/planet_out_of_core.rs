@@ -313,7 +313,8 @@ fn synth_earth_writes_srtm_tiles_as_rough_as_the_real_one() {
 /// ETOPO5's resolution, and two levels of its refinements). Ignored in CI: about 2 minutes.
 /// It does not single out the banded measurement: with the whole-tile measurement put back
 /// (a fault tried on 2026-12-07), the global input's resampling error stays under the apex's
-/// peak on this planet and the test passes; it fails where the last step sets a new peak.
+/// peak on this planet and the test passes. It checks that the last step sets no new peak, but
+/// has not been seen to fail on one.
 #[test]
 #[ignore = "about 2 minutes; run with --ignored"]
 fn a_global_inputs_resampling_error_sets_no_new_peak() {
