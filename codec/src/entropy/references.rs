@@ -13,6 +13,7 @@
 use std::collections::HashMap;
 
 use super::adaptive::class_of;
+use crate::lifting::median_edge as med;
 
 /// Counts of `(context, symbol)` pairs: enough for the zero-order and the context-conditioned
 /// empirical entropy.
@@ -234,17 +235,6 @@ pub fn med_residuals(
             });
         }
         std::mem::swap(&mut above, &mut row);
-    }
-}
-
-/// The median edge detector: `min(a, b)` above an edge, `max(a, b)` below, else `a + b − c`.
-fn med(a: i64, b: i64, c: i64) -> i64 {
-    if c >= a.max(b) {
-        a.min(b)
-    } else if c <= a.min(b) {
-        a.max(b)
-    } else {
-        a + b - c
     }
 }
 

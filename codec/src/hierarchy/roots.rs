@@ -10,7 +10,7 @@ use super::mask::{decode_mask, encode_mask};
 use crate::CodecError;
 use crate::entropy::{Band, BandKind, BandMut, DecodeLimits, decode_bands, encode_bands};
 use crate::geometry::{DiamondId, Domain, FacePoint};
-use crate::lifting::MAX_ABS_HEIGHT;
+use crate::lifting::{MAX_ABS_HEIGHT, median_edge};
 
 /// Median edge detector prediction of `(x, y)` from the reconstructed left, upper and
 /// upper-left neighbours.
@@ -21,16 +21,7 @@ fn med(field: &[i32], w: usize, x: usize, y: usize) -> i64 {
         (0, 0) => 0,
         (_, 0) => at(x - 1, 0),
         (0, _) => at(0, y - 1),
-        _ => {
-            let (a, b, c) = (at(x - 1, y), at(x, y - 1), at(x - 1, y - 1));
-            if c >= a.max(b) {
-                a.min(b)
-            } else if c <= a.min(b) {
-                a.max(b)
-            } else {
-                a + b - c
-            }
-        }
+        _ => median_edge(at(x - 1, y), at(x, y - 1), at(x - 1, y - 1)),
     }
 }
 
