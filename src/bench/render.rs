@@ -104,7 +104,7 @@ pub fn run(args: &BenchRenderArgs) -> Result<()> {
                 times.sort_by(f64::total_cmp);
                 let median = times[times.len() / 2];
                 println!(
-                    "| {} | {view} | {} | {:.3} | {:.1} | {:.1} | {:.1} |",
+                    "| {} | {view} | {} | {:.3} | {:.1} | {:.1} | {:.3} |",
                     path.file_name().unwrap_or_default().to_string_lossy(),
                     last.drawn,
                     last.triangles as f64 / 1e6,
@@ -180,7 +180,7 @@ fn bench_flights(args: &BenchRenderArgs) -> Result<()> {
             run.tris.sort_unstable();
             rate.sort_by(f64::total_cmp);
             println!(
-                "| {} | {} | {frames} | {:.1} | {:.1} | {:.3} | {:.1} | {:.3} |",
+                "| {} | {} | {frames} | {:.1} | {:.1} | {:.3} | {:.3} | {:.3} |",
                 path.file_name().unwrap_or_default().to_string_lossy(),
                 flight_path
                     .file_name()
