@@ -12,6 +12,12 @@ use tokio::net::TcpStream;
 /// Unread batch answers in each flood.
 const UNREAD: usize = 400;
 
+/// How long a normal request may take during a flood. What this guards is a server that stops
+/// answering while its answer memory is full (it would never answer); the time it takes is
+/// printed, not judged: on a shared 2-core machine under load 16 a `GET …/meta` took over 1 s
+/// (the first deadline) with the server healthy.
+const NORMAL_DEADLINE: Duration = Duration::from_secs(10);
+
 /// What a flood of [`UNREAD`] unread batch answers did to a server.
 struct Flood {
     /// Resident memory before and during the flood, bytes.
@@ -60,24 +66,24 @@ async fn read_answer(s: &mut TcpStream, len: usize) {
     }
 }
 
-/// Normal requests during a flood, each given 1 s: a `GET …/meta` and a 64-id batch read to
-/// its end. The slowest.
+/// Normal requests during a flood, each given [`NORMAL_DEADLINE`]: a `GET …/meta` and a
+/// 64-id batch read to its end. The slowest.
 async fn normal_requests(c: &reqwest::Client, server: &Child) -> Duration {
     let (small, small_len) = big_batch(64);
     let mut slowest = Duration::ZERO;
     for _ in 0..3 {
         let t = Instant::now();
         let meta = c.get(server.url("/v1/repos/t/meta")).send();
-        let r = tokio::time::timeout(Duration::from_secs(1), meta)
+        let r = tokio::time::timeout(NORMAL_DEADLINE, meta)
             .await
-            .expect("GET meta answered within 1 s during the flood")
+            .expect("GET meta answered during the flood")
             .unwrap();
         assert_eq!(r.status(), 200);
         let mut s = TcpStream::connect(server.addr).await.unwrap();
         s.write_all(&small).await.unwrap();
-        tokio::time::timeout(Duration::from_secs(1), read_answer(&mut s, small_len))
+        tokio::time::timeout(NORMAL_DEADLINE, read_answer(&mut s, small_len))
             .await
-            .expect("a 64-id batch answered within 1 s during the flood");
+            .expect("a 64-id batch answered during the flood");
         slowest = slowest.max(t.elapsed());
     }
     slowest
