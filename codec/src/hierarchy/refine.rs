@@ -347,6 +347,86 @@ fn copy_half<T: Copy, G: HalfStepSource<T>>(
     }
 }
 
+/// One half of a child's `N × N` grid (split diagonal included) as a parent's refinement holds
+/// it: what [`gather`] copies from that parent, read on demand instead, so that a caller can put
+/// the child's points straight where it wants them (e.g. an output raster) without gathering the
+/// child's grid first. Child point `(i, j)` of the half is the parent's half-step value at
+/// `map.apply(i, j)`; for a child whose other parent does not exist, [`ChildHalf::mirror`] is
+/// the other half (the symmetric extension), read from the same parent.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ChildHalf<'a> {
+    /// The child.
+    pub(crate) child: DiamondId,
+    parent: &'a Refined,
+    map: IndexMap,
+    diag: Diagonal,
+    half: Half,
+}
+
+impl<'a> ChildHalf<'a> {
+    /// The half of `child` on parent `parent_id`'s side (`half`), whose refinement is `parent`.
+    pub(crate) fn new(
+        domain: &Domain,
+        child: DiamondId,
+        half: Half,
+        parent_id: DiamondId,
+        parent: &'a Refined,
+    ) -> Self {
+        let layout = domain.layout();
+        let grid = domain
+            .grid_in_parent_frame(child, half, parent_id)
+            .expect("a parent's face borders its child's half");
+        let map = grid
+            .index_map_into_half_step(&layout.grid(parent_id))
+            .expect("child grid maps into its parent");
+        Self {
+            child,
+            parent,
+            map,
+            diag: layout.diagonal(child),
+            half,
+        }
+    }
+
+    /// The other half, mirrored across the split diagonal from this one's parent: what
+    /// [`gather`] puts there when that half's parent does not exist.
+    pub(crate) fn mirror(&self, n: usize) -> Self {
+        let half = match self.half {
+            Half::Positive => Half::Negative,
+            Half::Negative => Half::Positive,
+        };
+        Self {
+            map: mirrored(&self.map, self.diag, n),
+            half,
+            ..*self
+        }
+    }
+
+    /// The columns `lo..=hi` of child row `j` on this half.
+    pub(crate) fn row_range(&self, n: usize, j: usize) -> (usize, usize) {
+        half_range(self.diag, self.half, n, j)
+    }
+
+    /// The rows `lo..=hi` of child column `i` on this half.
+    pub(crate) fn column_range(&self, n: usize, i: usize) -> (usize, usize) {
+        match (self.diag, self.half) {
+            (Diagonal::Main, Half::Positive) => (0, i),
+            (Diagonal::Main, Half::Negative) => (i, n - 1),
+            (Diagonal::Anti, Half::Positive) => (n - 1 - i, n - 1),
+            (Diagonal::Anti, Half::Negative) => (0, n - 1 - i),
+        }
+    }
+
+    /// `out[k]` = child point `(i + k·di, j + k·dj)` (`(di, dj)` is `(1, 0)` along a row or
+    /// `(0, 1)` down a column; the points must lie on this half).
+    pub(crate) fn read_line(&self, (i, j): (usize, usize), (di, dj): (i64, i64), out: &mut [i32]) {
+        let m = &self.map;
+        let (a, b) = m.apply(i as i64, j as i64);
+        let (da, db) = (m.ai * di + m.aj * dj, m.bi * di + m.bj * dj);
+        self.parent.read_diagonal(a, b, da, db, out);
+    }
+}
+
 /// A diamond's `N × N` grid joined from its two half-grids, as [`gather`] would give it from
 /// the parents those halves were gathered from: `halves[h]` is the grid gathered from parent `h`
 /// alone (its own half, split diagonal included, and the mirror image of it on the other half),

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use super::LevelGrid;
 use crate::CodecError;
 use crate::geometry::GridMap;
-use crate::hierarchy::{Encoded, Visit, walk_all_batches};
+use crate::hierarchy::{ChildHalf, Encoded, Visit, walk_all_batches, walk_child_halves};
 
 impl LevelGrid {
     /// Decodes `encoded` and returns the samples' heights (`to_sample` of a height in units),
@@ -64,25 +64,39 @@ impl LevelGrid {
             )));
         }
         let layout = encoded.params.layout();
+        let n = layout.n();
+        if self.level == layout.finest_level() && self.level > 0 && !encoded.params.nodata_mask {
+            // Straight from the level above's refinements: no grid of this level is gathered.
+            return walk_child_halves(encoded, self.level - 1, |halves| {
+                let halves: Vec<(GridMap, &ChildHalf<'_>)> =
+                    halves.iter().map(|h| (layout.grid(h.child), h)).collect();
+                self.put_batch(&halves, n, values, |g, h, rows, band| {
+                    self.put_half(g, n, h, &to_sample, rows, band)
+                });
+            });
+        }
         walk_all_batches(encoded, |batch| {
             let grids: Vec<(GridMap, &Visit<'_>)> = batch
                 .iter()
                 .filter(|v| v.id.level == self.level)
                 .map(|v| (layout.grid(v.id), v))
                 .collect();
-            self.put_batch(&grids, layout.n(), &to_sample, values);
+            self.put_batch(&grids, n, values, |g, v, rows, band| {
+                self.put_grid(g, n, v, &to_sample, rows, band)
+            });
         })
     }
 
-    /// Writes a batch of even-level grids into `values`, the window's raster, in parallel over
-    /// disjoint bands of the raster rows the batch covers: each band takes the batch's grids in
-    /// the walk's order, so every sample ends as the serial walk leaves it.
-    fn put_batch<T: Copy + Send + Sync>(
+    /// Writes a batch of even-level grids (or parts of them: `put` writes one item's samples on
+    /// the given raster rows into the band of those rows) into `values`, the window's raster, in
+    /// parallel over disjoint bands of the raster rows the batch covers: each band takes the
+    /// batch's items in the walk's order, so every sample ends as the serial walk leaves it.
+    fn put_batch<T: Send, I: Sync>(
         &self,
-        grids: &[(GridMap, &Visit<'_>)],
+        grids: &[(GridMap, I)],
         n: usize,
-        to_sample: &(impl Fn(i32) -> T + Sync),
         values: &mut [T],
+        put: impl Fn(&GridMap, &I, std::ops::Range<usize>, &mut [T]) + Sync,
     ) {
         // The rows the batch covers: an even-level grid's lines run along the raster's rows.
         let rows = grids.iter().filter_map(|(g, _)| self.rows_of(g, n));
@@ -96,7 +110,7 @@ impl LevelGrid {
         let put_rows = |band: &mut [T], start: usize| {
             let band_rows = start..start + band.len() / self.width;
             for (g, v) in grids {
-                self.put_grid(g, n, v, to_sample, band_rows.clone(), band);
+                put(g, v, band_rows.clone(), band);
             }
         };
         let values = &mut values[first * self.width..last * self.width];
@@ -193,6 +207,76 @@ impl LevelGrid {
                     band[k as usize] = to_sample(grid[i]);
                 }
                 k += dk;
+            }
+        }
+    }
+}
+
+impl LevelGrid {
+    /// Writes the points of one child half `h` ([`ChildHalf`]: part of the even-level `n × n`
+    /// grid `g`) that fall on raster rows `rows` into `band`, those rows of the window's raster,
+    /// as [`LevelGrid::put_grid`] writes a whole grid without a mask: each raster row the half
+    /// covers is one run, read from the parent's refinement along one of its diagonals.
+    fn put_half<T: Copy>(
+        &self,
+        g: &GridMap,
+        n: usize,
+        h: &ChildHalf<'_>,
+        to_sample: &impl Fn(i32) -> T,
+        rows: std::ops::Range<usize>,
+        band: &mut [T],
+    ) {
+        // `along` steps along a raster row: the child's rows (`i`) or its columns (`j`).
+        let by_rows = g.u.1 == 0;
+        let (along, across) = if by_rows { (g.u, g.v) } else { (g.v, g.u) };
+        let anywhere = (i64::MIN, i64::MAX);
+        let Some(columns) = clip_line(g.origin, along, n, (self.x0, self.x1), anywhere) else {
+            return;
+        };
+        let band_y = (
+            self.y0 + rows.start as i64 * self.step,
+            self.y0 + (rows.end as i64 - 1) * self.step,
+        );
+        let Some(lines) = clip_line(g.origin, across, n, anywhere, band_y) else {
+            return;
+        };
+        let dk = along.0 / self.step;
+        let mut line_values = vec![0i32; n];
+        for t in lines.start as usize..lines.end as usize {
+            let (lo, hi) = if by_rows {
+                h.row_range(n, t)
+            } else {
+                h.column_range(n, t)
+            };
+            let (s0, s1) = (
+                lo.max(columns.start as usize),
+                hi.min(columns.end as usize - 1),
+            );
+            if s0 > s1 {
+                continue;
+            }
+            let out = &mut line_values[..=s1 - s0];
+            if by_rows {
+                h.read_line((s0, t), (1, 0), out);
+            } else {
+                h.read_line((t, s0), (0, 1), out);
+            }
+            let (x, y) = (
+                g.origin.0 + s0 as i64 * along.0,
+                g.origin.1 + t as i64 * across.1,
+            );
+            debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
+            let row = ((y - self.y0) / self.step) as usize - rows.start;
+            let k = (row * self.width) as i64 + (x - self.x0) / self.step;
+            if dk == 1 {
+                let run = &mut band[k as usize..][..out.len()];
+                for (o, &v) in run.iter_mut().zip(out.iter()) {
+                    *o = to_sample(v);
+                }
+            } else {
+                for (s, &v) in out.iter().enumerate() {
+                    band[(k + s as i64 * dk) as usize] = to_sample(v);
+                }
             }
         }
     }
