@@ -376,10 +376,10 @@ fn decode_chunk(
 /// For a caller that needs only one level's grids, `last + 1` (≥ 1): decodes the stored
 /// diamonds of levels `0..=last` and, instead of gathering the grids of level `last + 1`, hands
 /// `visit` each batch of level `last`'s refinements as the halves of the children a walk
-/// ([`walk_all_batches`]) would visit on level `last + 1` ([`ChildHalf`]: a child's two halves,
-/// or one half and its mirror image where the other parent does not exist), in the walk's
-/// order of the parents. Every point of those children's grids is in one of the halves, with
-/// the value the walk shows there. The refinements of level `last` are read while in cache and
+/// ([`walk_all_batches`]) would visit on level `last + 1` ([`ChildHalf`]), in the walk's order
+/// of the parents. Every point of those children's grids inside the domain is in one of the
+/// halves, with the value the walk shows there (where a child's other parent does not exist,
+/// its other half — the mirror image the walk gathers — lies outside the domain). The refinements of level `last` are read while in cache and
 /// their buffers reused as soon as their batch is visited. Planar domains only.
 pub(crate) fn walk_child_halves(
     encoded: &Encoded,
@@ -442,8 +442,7 @@ pub(crate) fn walk_child_halves(
 }
 
 /// Appends to `out` the halves that refinement `refined` of `id` gives its children that a walk
-/// visits: those whose existing parents are all `stored` (on `id`'s level); with the mirror
-/// image of the half where the child's other parent does not exist.
+/// visits: those whose existing parents are all `stored` (on `id`'s level).
 fn visited_child_halves<'a>(
     params: &CodecParams,
     id: DiamondId,
@@ -452,7 +451,6 @@ fn visited_child_halves<'a>(
     out: &mut Vec<ChildHalf<'a>>,
 ) {
     let domain = &params.domain;
-    let n = params.layout().n();
     for child in domain.children(id).into_iter().flatten() {
         let parents = domain.parents(child);
         if !parents.iter().flatten().all(|&p| stored.get(p).is_some()) {
@@ -462,11 +460,7 @@ fn visited_child_halves<'a>(
             if parents[h] != Some(id) {
                 continue;
             }
-            let own = ChildHalf::new(domain, child, half, id, refined);
-            out.push(own);
-            if parents[1 - h].is_none() {
-                out.push(own.mirror(n));
-            }
+            out.push(ChildHalf::new(domain, child, half, id, refined));
         }
     }
 }

@@ -351,8 +351,7 @@ fn copy_half<T: Copy, G: HalfStepSource<T>>(
 /// it: what [`gather`] copies from that parent, read on demand instead, so that a caller can put
 /// the child's points straight where it wants them (e.g. an output raster) without gathering the
 /// child's grid first. Child point `(i, j)` of the half is the parent's half-step value at
-/// `map.apply(i, j)`; for a child whose other parent does not exist, [`ChildHalf::mirror`] is
-/// the other half (the symmetric extension), read from the same parent.
+/// `map.apply(i, j)`.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ChildHalf<'a> {
     /// The child.
@@ -388,42 +387,16 @@ impl<'a> ChildHalf<'a> {
         }
     }
 
-    /// The other half, mirrored across the split diagonal from this one's parent: what
-    /// [`gather`] puts there when that half's parent does not exist.
-    pub(crate) fn mirror(&self, n: usize) -> Self {
-        let half = match self.half {
-            Half::Positive => Half::Negative,
-            Half::Negative => Half::Positive,
-        };
-        Self {
-            map: mirrored(&self.map, self.diag, n),
-            half,
-            ..*self
-        }
-    }
-
     /// The columns `lo..=hi` of child row `j` on this half.
     pub(crate) fn row_range(&self, n: usize, j: usize) -> (usize, usize) {
         half_range(self.diag, self.half, n, j)
     }
 
-    /// The rows `lo..=hi` of child column `i` on this half.
-    pub(crate) fn column_range(&self, n: usize, i: usize) -> (usize, usize) {
-        match (self.diag, self.half) {
-            (Diagonal::Main, Half::Positive) => (0, i),
-            (Diagonal::Main, Half::Negative) => (i, n - 1),
-            (Diagonal::Anti, Half::Positive) => (n - 1 - i, n - 1),
-            (Diagonal::Anti, Half::Negative) => (0, n - 1 - i),
-        }
-    }
-
-    /// `out[k]` = child point `(i + k·di, j + k·dj)` (`(di, dj)` is `(1, 0)` along a row or
-    /// `(0, 1)` down a column; the points must lie on this half).
-    pub(crate) fn read_line(&self, (i, j): (usize, usize), (di, dj): (i64, i64), out: &mut [i32]) {
+    /// `out[k]` = child point `(i + k, j)` (the points must lie on this half).
+    pub(crate) fn read_row(&self, i: usize, j: usize, out: &mut [i32]) {
         let m = &self.map;
         let (a, b) = m.apply(i as i64, j as i64);
-        let (da, db) = (m.ai * di + m.aj * dj, m.bi * di + m.bj * dj);
-        self.parent.read_diagonal(a, b, da, db, out);
+        self.parent.read_diagonal(a, b, m.ai, m.bi, out);
     }
 }
 

@@ -215,8 +215,8 @@ impl LevelGrid {
 impl LevelGrid {
     /// Writes the points of one child half `h` ([`ChildHalf`]: part of the even-level `n × n`
     /// grid `g`) that fall on raster rows `rows` into `band`, those rows of the window's raster,
-    /// as [`LevelGrid::put_grid`] writes a whole grid without a mask: each raster row the half
-    /// covers is one run, read from the parent's refinement along one of its diagonals.
+    /// as [`LevelGrid::put_grid`] writes a whole grid without a mask: each row of the half is one
+    /// run of a raster row, read from the parent's refinement along one of its diagonals.
     fn put_half<T: Copy>(
         &self,
         g: &GridMap,
@@ -226,57 +226,40 @@ impl LevelGrid {
         rows: std::ops::Range<usize>,
         band: &mut [T],
     ) {
-        // `along` steps along a raster row: the child's rows (`i`) or its columns (`j`).
-        let by_rows = g.u.1 == 0;
-        let (along, across) = if by_rows { (g.u, g.v) } else { (g.v, g.u) };
+        // A planar even-level grid's rows run along the raster's rows, one sample apart
+        // (`Layout::grid`: u = (step, 0), v = (0, step)).
+        debug_assert!(g.u == (self.step, 0) && g.v == (0, self.step));
         let anywhere = (i64::MIN, i64::MAX);
-        let Some(columns) = clip_line(g.origin, along, n, (self.x0, self.x1), anywhere) else {
+        let Some(columns) = clip_line(g.origin, g.u, n, (self.x0, self.x1), anywhere) else {
             return;
         };
         let band_y = (
             self.y0 + rows.start as i64 * self.step,
             self.y0 + (rows.end as i64 - 1) * self.step,
         );
-        let Some(lines) = clip_line(g.origin, across, n, anywhere, band_y) else {
+        let Some(lines) = clip_line(g.origin, g.v, n, anywhere, band_y) else {
             return;
         };
-        let dk = along.0 / self.step;
         let mut line_values = vec![0i32; n];
-        for t in lines.start as usize..lines.end as usize {
-            let (lo, hi) = if by_rows {
-                h.row_range(n, t)
-            } else {
-                h.column_range(n, t)
-            };
-            let (s0, s1) = (
+        for j in lines.start as usize..lines.end as usize {
+            let (lo, hi) = h.row_range(n, j);
+            let (i0, i1) = (
                 lo.max(columns.start as usize),
                 hi.min(columns.end as usize - 1),
             );
-            if s0 > s1 {
+            if i0 > i1 {
                 continue;
             }
-            let out = &mut line_values[..=s1 - s0];
-            if by_rows {
-                h.read_line((s0, t), (1, 0), out);
-            } else {
-                h.read_line((t, s0), (0, 1), out);
-            }
+            let values = &mut line_values[..=i1 - i0];
+            h.read_row(i0, j, values);
             let (x, y) = (
-                g.origin.0 + s0 as i64 * along.0,
-                g.origin.1 + t as i64 * across.1,
+                g.origin.0 + i0 as i64 * g.u.0,
+                g.origin.1 + j as i64 * g.v.1,
             );
-            debug_assert!((x - self.x0) % self.step == 0 && (y - self.y0) % self.step == 0);
             let row = ((y - self.y0) / self.step) as usize - rows.start;
-            let k = (row * self.width) as i64 + (x - self.x0) / self.step;
-            if dk == 1 {
-                let run = &mut band[k as usize..][..out.len()];
-                for (o, &v) in run.iter_mut().zip(out.iter()) {
-                    *o = to_sample(v);
-                }
-            } else {
-                for (s, &v) in out.iter().enumerate() {
-                    band[(k + s as i64 * dk) as usize] = to_sample(v);
-                }
+            let k = row * self.width + ((x - self.x0) / self.step) as usize;
+            for (o, &v) in band[k..][..values.len()].iter_mut().zip(values.iter()) {
+                *o = to_sample(v);
             }
         }
     }
