@@ -45,8 +45,10 @@ run() {
 median() { cut -d' ' -f"$1" "$2" | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 
 for repo in "$@"; do
-  samples=$("$NEW" inspect "$repo" | grep -m1 -oE '[0-9]+ ?× ?[0-9]+' | tr -d ' ' |
-    awk -F× '{print $1*$2}')
+  # inspect's whole output first: `grep -m1` stops reading early, and under pipefail the
+  # writer's SIGPIPE would end the script (a large repository's output).
+  info=$("$NEW" inspect "$repo")
+  samples=$(grep -m1 -oE '[0-9]+ ?× ?[0-9]+' <<<"$info" | tr -d ' ' | awk -F× '{print $1*$2}')
   echo "== $repo ($samples samples; $RUNS runs each, alternated; $CORES cores)"
   printf '%-4s %-10s %10s %10s %12s %10s\n' bin setting "cpu s" "wall s" "M samples/s" faults
   for setting in one-core:0:1 threads-1:0-$((CORES - 1)):1 threads-all:0-$((CORES - 1)):$CORES; do

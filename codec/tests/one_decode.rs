@@ -9,6 +9,7 @@ use std::path::Path;
 use crate::util::Rng;
 use crate::variable_resolution::{encode_var, terrain, variable_input};
 use cbdam_builder::input::{ReadOptions, read_dem};
+use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::{
     EncodeOptions, Encoded, Encoder, reconstruct_finest_with_validity, reconstruct_reached, verify,
     verify_with_finest, verify_with_reached, walk_all_with_validity,
@@ -19,15 +20,22 @@ use cbdam_codec::repository::LevelGrid;
 
 /// The Rhine DEM (48 % nodata) encoded at `eps` with `alpha`, and its grid.
 fn rhine(eps: f64, alpha: Alpha) -> (Encoded, HeightGrid) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/rhine_nodata.tif");
-    let dem = read_dem(&path, &ReadOptions::default()).unwrap();
-    let plan = QuantPlan::for_dem(&dem, eps, None).unwrap();
-    let grid = HeightGrid::from_dem(&dem, &plan).unwrap();
     let opts = EncodeOptions {
         alpha,
         ..EncodeOptions::default()
     };
-    let enc = Encoder::new(&grid, plan.quantizer, &opts).encode().unwrap();
+    bundled("rhine_nodata.tif", eps, &opts)
+}
+
+/// The bundled DEM `file` encoded at `eps` with `opts`, and its grid.
+fn bundled(file: &str, eps: f64, opts: &EncodeOptions) -> (Encoded, HeightGrid) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../data")
+        .join(file);
+    let dem = read_dem(&path, &ReadOptions::default()).unwrap();
+    let plan = QuantPlan::for_dem(&dem, eps, None).unwrap();
+    let grid = HeightGrid::from_dem(&dem, &plan).unwrap();
+    let enc = Encoder::new(&grid, plan.quantizer, opts).encode().unwrap();
     (enc, grid)
 }
 
@@ -128,6 +136,48 @@ fn a_level_grid_decodes_to_what_a_serial_walk_puts_there() {
                 );
             }
             assert!(want.iter().any(|&v| v != fill), "{name}: samples decoded");
+        }
+    }
+}
+
+/// Without a nodata mask the finest level is written straight from the level above's
+/// refinements, half of a child at a time (no grid of the level gathered): the same samples as
+/// the serial walk's grids, on a DEM whose sides are not the domain's (diamonds on the domain's
+/// edge, mirrored halves), at α = 1 and ½, with both coders and a small N (many diamonds).
+#[test]
+fn the_finest_level_without_a_mask_is_what_a_serial_walk_puts_there() {
+    let fill = i64::MIN;
+    let cases = [
+        (Alpha::One, CoderKind::FastRice, 17),
+        (Alpha::Half, CoderKind::AdaptiveTokens, 33),
+        (Alpha::One, CoderKind::AdaptiveTokens, 65),
+    ];
+    for (alpha, coder, n) in cases {
+        let opts = EncodeOptions {
+            alpha,
+            coder,
+            n,
+            ..EncodeOptions::default()
+        };
+        let (enc, _) = bundled("jacksboro_mpl.tif", 0.5, &opts);
+        assert!(!enc.params.nodata_mask, "the case has no mask");
+        let (w, h) = enc.params.domain.data().size();
+        let (w, h) = (w as i64, h as i64);
+        for rect in [None, Some((w / 5 + 1, h / 3, w / 2 + 7, h - 2))] {
+            let grid = LevelGrid::new(&enc.params, None, rect, "level").unwrap();
+            let want = serial_reference(&enc, &grid, fill);
+            assert!(want.iter().all(|&v| v != fill), "every sample decoded");
+            for threads in [1, 2] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let got = pool.install(|| grid.decode(&enc, fill, i64::from)).unwrap();
+                assert!(
+                    got == want,
+                    "{alpha:?} {coder:?} N = {n}, window {rect:?}, {threads} threads"
+                );
+            }
         }
     }
 }

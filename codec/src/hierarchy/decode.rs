@@ -6,11 +6,13 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use super::decode_pool::{GridPool, with_thread_scratch};
-use super::refine::{RefineScratch, Refined, gather, gather_validity, refine, refine_owned};
+use super::refine::{
+    ChildHalf, RefineScratch, Refined, gather, gather_validity, refine, refine_owned,
+};
 use super::roots::{decode_roots, root_grid};
 use super::{CodecParams, Encoded};
 use crate::CodecError;
-use crate::geometry::DiamondId;
+use crate::geometry::{DiamondId, Half};
 use crate::lifting::Alpha;
 
 /// A decoder: the root field plus the per-diamond steps. The renderer drives it diamond by
@@ -339,25 +341,128 @@ pub(super) fn walk_level(
     visit: &mut impl FnMut(&[Visit<'_>]),
 ) -> Result<HashMap<DiamondId, Refined>, CodecError> {
     let mut next = HashMap::with_capacity(records.ids.len());
-    let workers = rayon::current_num_threads();
-    let chunk = PARALLEL_CHUNK_PER_WORKER * workers.max(1);
+    let chunk = PARALLEL_CHUNK_PER_WORKER * rayon::current_num_threads().max(1);
     for ids in ids.chunks(chunk) {
-        let decoded: Vec<Result<DecodedDiamond, CodecError>> = if workers <= 1 || ids.len() < 2 {
-            ids.iter()
-                .map(|&id| decode_diamond(decoder, id, records, prev, scratch, pool))
-                .collect()
-        } else {
-            ids.par_iter()
-                .map(|&id| {
-                    with_thread_scratch(|scratch| {
-                        decode_diamond(decoder, id, records, prev, scratch, pool)
-                    })
-                })
-                .collect()
-        };
+        let decoded = decode_chunk(decoder, ids, records, prev, scratch, pool);
         visit_batch(ids, decoded, &mut next, pool, visit)?;
     }
     Ok(next)
+}
+
+/// [`decode_diamond`] of each of `ids`, in parallel when there are several workers.
+fn decode_chunk(
+    decoder: &Decoder,
+    ids: &[DiamondId],
+    records: &LevelRecords<'_>,
+    prev: &HashMap<DiamondId, Refined>,
+    scratch: &mut RefineScratch,
+    pool: &GridPool,
+) -> Vec<Result<DecodedDiamond, CodecError>> {
+    if rayon::current_num_threads() <= 1 || ids.len() < 2 {
+        ids.iter()
+            .map(|&id| decode_diamond(decoder, id, records, prev, scratch, pool))
+            .collect()
+    } else {
+        ids.par_iter()
+            .map(|&id| {
+                with_thread_scratch(|scratch| {
+                    decode_diamond(decoder, id, records, prev, scratch, pool)
+                })
+            })
+            .collect()
+    }
+}
+
+/// For a caller that needs only one level's grids, `last + 1` (≥ 1): decodes the stored
+/// diamonds of levels `0..=last` and, instead of gathering the grids of level `last + 1`, hands
+/// `visit` each batch of level `last`'s refinements as the halves of the children a walk
+/// ([`walk_all_batches`]) would visit on level `last + 1` ([`ChildHalf`]), in the walk's order
+/// of the parents. Every point of those children's grids inside the domain is in one of the
+/// halves, with the value the walk shows there (where a child's other parent does not exist,
+/// its other half — the mirror image the walk gathers — lies outside the domain). The refinements of level `last` are read while in cache and
+/// their buffers reused as soon as their batch is visited. Planar domains only.
+pub(crate) fn walk_child_halves(
+    encoded: &Encoded,
+    last: u8,
+    mut visit: impl FnMut(&[ChildHalf<'_>]),
+) -> Result<(), CodecError> {
+    let params = encoded.params;
+    planar_only(&params)?;
+    let decoder = Decoder::new(params, &encoded.roots)?;
+    if last >= params.layout().finest_level() {
+        return Err(CodecError::invalid(format!(
+            "level {last} has no children to visit"
+        )));
+    }
+    let levels = records_by_level(
+        &params,
+        encoded.records.iter().map(|r| (r.id, &r.bytes[..])),
+    )?;
+    let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
+    let mut scratch = RefineScratch::default();
+    let pool = GridPool::default();
+    for stored in &levels[..usize::from(last)] {
+        let next = walk_level(
+            &decoder,
+            &stored.ids,
+            stored,
+            &prev,
+            &mut scratch,
+            &pool,
+            &mut |_: &[Visit<'_>]| {},
+        )?;
+        pool.give_refinements(std::mem::replace(&mut prev, next).into_values());
+    }
+    let stored = &levels[usize::from(last)];
+    let chunk = PARALLEL_CHUNK_PER_WORKER * rayon::current_num_threads().max(1);
+    for ids in stored.ids.chunks(chunk) {
+        let decoded = decode_chunk(&decoder, ids, stored, &prev, &mut scratch, &pool);
+        let mut refined = Vec::with_capacity(decoded.len());
+        for (&id, d) in ids.iter().zip(decoded) {
+            match d?.body {
+                DecodedBody::SharedGrid(r) => refined.push((id, r)),
+                DecodedBody::Separate(grid, r) => {
+                    pool.give(grid);
+                    refined.push((id, r));
+                }
+                // Not met: every diamond walked here has a record.
+                DecodedBody::Unrefined(grid) => pool.give(grid),
+                DecodedBody::Corrupt(_, e) => return Err(e),
+            }
+        }
+        let mut halves = Vec::with_capacity(4 * refined.len());
+        for (id, r) in &refined {
+            visited_child_halves(&params, *id, r, stored, &mut halves);
+        }
+        visit(&halves);
+        drop(halves);
+        pool.give_refinements(refined.into_iter().map(|(_, r)| r));
+    }
+    Ok(())
+}
+
+/// Appends to `out` the halves that refinement `refined` of `id` gives its children that a walk
+/// visits: those whose existing parents are all `stored` (on `id`'s level).
+fn visited_child_halves<'a>(
+    params: &CodecParams,
+    id: DiamondId,
+    refined: &'a Refined,
+    stored: &LevelRecords<'_>,
+    out: &mut Vec<ChildHalf<'a>>,
+) {
+    let domain = &params.domain;
+    for child in domain.children(id).into_iter().flatten() {
+        let parents = domain.parents(child);
+        if !parents.iter().flatten().all(|&p| stored.get(p).is_some()) {
+            continue;
+        }
+        for (h, half) in Half::BOTH.into_iter().enumerate() {
+            if parents[h] != Some(id) {
+                continue;
+            }
+            out.push(ChildHalf::new(domain, child, half, id, refined));
+        }
+    }
 }
 
 /// Diamonds each worker decodes for one batch of [`walk_level`]'s visits.

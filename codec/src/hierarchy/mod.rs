@@ -33,6 +33,7 @@ mod verifier;
 
 pub use analysis::{LevelField, analysis_fields};
 pub use blocks::{BlockJournal, BlockOutput, BlockPlan, NO_WINDOW, NoJournal, WindowBytes};
+pub(crate) use decode::walk_child_halves;
 pub use decode::{
     Decoder, LevelReport, Reached, VerifyReport, Visit, reconstruct_finest,
     reconstruct_finest_with_validity, reconstruct_reached, walk, walk_all_batches,
@@ -48,6 +49,7 @@ pub use planet::{
     verify_planet,
 };
 pub use record_bytes::RecordBytes;
+pub(crate) use refine::ChildHalf;
 pub use refine::{RefineScratch, Refined, gather, gather_validity, join_halves, refine};
 pub use resolution::Resolution;
 pub use verifier::{verify, verify_with_finest, verify_with_reached};

@@ -347,6 +347,59 @@ fn copy_half<T: Copy, G: HalfStepSource<T>>(
     }
 }
 
+/// One half of a child's `N × N` grid (split diagonal included) as a parent's refinement holds
+/// it: what [`gather`] copies from that parent, read on demand instead, so that a caller can put
+/// the child's points straight where it wants them (e.g. an output raster) without gathering the
+/// child's grid first. Child point `(i, j)` of the half is the parent's half-step value at
+/// `map.apply(i, j)`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ChildHalf<'a> {
+    /// The child.
+    pub(crate) child: DiamondId,
+    parent: &'a Refined,
+    map: IndexMap,
+    diag: Diagonal,
+    half: Half,
+}
+
+impl<'a> ChildHalf<'a> {
+    /// The half of `child` on parent `parent_id`'s side (`half`), whose refinement is `parent`.
+    pub(crate) fn new(
+        domain: &Domain,
+        child: DiamondId,
+        half: Half,
+        parent_id: DiamondId,
+        parent: &'a Refined,
+    ) -> Self {
+        let layout = domain.layout();
+        let grid = domain
+            .grid_in_parent_frame(child, half, parent_id)
+            .expect("a parent's face borders its child's half");
+        let map = grid
+            .index_map_into_half_step(&layout.grid(parent_id))
+            .expect("child grid maps into its parent");
+        Self {
+            child,
+            parent,
+            map,
+            diag: layout.diagonal(child),
+            half,
+        }
+    }
+
+    /// The columns `lo..=hi` of child row `j` on this half.
+    pub(crate) fn row_range(&self, n: usize, j: usize) -> (usize, usize) {
+        half_range(self.diag, self.half, n, j)
+    }
+
+    /// `out[k]` = child point `(i + k, j)` (the points must lie on this half).
+    pub(crate) fn read_row(&self, i: usize, j: usize, out: &mut [i32]) {
+        let m = &self.map;
+        let (a, b) = m.apply(i as i64, j as i64);
+        self.parent.read_diagonal(a, b, m.ai, m.bi, out);
+    }
+}
+
 /// A diamond's `N × N` grid joined from its two half-grids, as [`gather`] would give it from
 /// the parents those halves were gathered from: `halves[h]` is the grid gathered from parent `h`
 /// alone (its own half, split diagonal included, and the mirror image of it on the other half),

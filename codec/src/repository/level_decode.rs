@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use super::LevelGrid;
 use crate::CodecError;
 use crate::geometry::GridMap;
-use crate::hierarchy::{Encoded, Visit, walk_all_batches};
+use crate::hierarchy::{ChildHalf, Encoded, Visit, walk_all_batches, walk_child_halves};
 
 impl LevelGrid {
     /// Decodes `encoded` and returns the samples' heights (`to_sample` of a height in units),
@@ -64,25 +64,39 @@ impl LevelGrid {
             )));
         }
         let layout = encoded.params.layout();
+        let n = layout.n();
+        if self.level == layout.finest_level() && self.level > 0 && !encoded.params.nodata_mask {
+            // Straight from the level above's refinements: no grid of this level is gathered.
+            return walk_child_halves(encoded, self.level - 1, |halves| {
+                let halves: Vec<(GridMap, &ChildHalf<'_>)> =
+                    halves.iter().map(|h| (layout.grid(h.child), h)).collect();
+                self.put_batch(&halves, n, values, |g, h, rows, band| {
+                    self.put_half(g, n, h, &to_sample, rows, band)
+                });
+            });
+        }
         walk_all_batches(encoded, |batch| {
             let grids: Vec<(GridMap, &Visit<'_>)> = batch
                 .iter()
                 .filter(|v| v.id.level == self.level)
                 .map(|v| (layout.grid(v.id), v))
                 .collect();
-            self.put_batch(&grids, layout.n(), &to_sample, values);
+            self.put_batch(&grids, n, values, |g, v, rows, band| {
+                self.put_grid(g, n, v, &to_sample, rows, band)
+            });
         })
     }
 
-    /// Writes a batch of even-level grids into `values`, the window's raster, in parallel over
-    /// disjoint bands of the raster rows the batch covers: each band takes the batch's grids in
-    /// the walk's order, so every sample ends as the serial walk leaves it.
-    fn put_batch<T: Copy + Send + Sync>(
+    /// Writes a batch of even-level grids (or parts of them: `put` writes one item's samples on
+    /// the given raster rows into the band of those rows) into `values`, the window's raster, in
+    /// parallel over disjoint bands of the raster rows the batch covers: each band takes the
+    /// batch's items in the walk's order, so every sample ends as the serial walk leaves it.
+    fn put_batch<T: Send, I: Sync>(
         &self,
-        grids: &[(GridMap, &Visit<'_>)],
+        grids: &[(GridMap, I)],
         n: usize,
-        to_sample: &(impl Fn(i32) -> T + Sync),
         values: &mut [T],
+        put: impl Fn(&GridMap, &I, std::ops::Range<usize>, &mut [T]) + Sync,
     ) {
         // The rows the batch covers: an even-level grid's lines run along the raster's rows.
         let rows = grids.iter().filter_map(|(g, _)| self.rows_of(g, n));
@@ -96,7 +110,7 @@ impl LevelGrid {
         let put_rows = |band: &mut [T], start: usize| {
             let band_rows = start..start + band.len() / self.width;
             for (g, v) in grids {
-                self.put_grid(g, n, v, to_sample, band_rows.clone(), band);
+                put(g, v, band_rows.clone(), band);
             }
         };
         let values = &mut values[first * self.width..last * self.width];
@@ -193,6 +207,59 @@ impl LevelGrid {
                     band[k as usize] = to_sample(grid[i]);
                 }
                 k += dk;
+            }
+        }
+    }
+}
+
+impl LevelGrid {
+    /// Writes the points of one child half `h` ([`ChildHalf`]: part of the even-level `n × n`
+    /// grid `g`) that fall on raster rows `rows` into `band`, those rows of the window's raster,
+    /// as [`LevelGrid::put_grid`] writes a whole grid without a mask: each row of the half is one
+    /// run of a raster row, read from the parent's refinement along one of its diagonals.
+    fn put_half<T: Copy>(
+        &self,
+        g: &GridMap,
+        n: usize,
+        h: &ChildHalf<'_>,
+        to_sample: &impl Fn(i32) -> T,
+        rows: std::ops::Range<usize>,
+        band: &mut [T],
+    ) {
+        // A planar even-level grid's rows run along the raster's rows, one sample apart
+        // (`Layout::grid`: u = (step, 0), v = (0, step)).
+        debug_assert!(g.u == (self.step, 0) && g.v == (0, self.step));
+        let anywhere = (i64::MIN, i64::MAX);
+        let Some(columns) = clip_line(g.origin, g.u, n, (self.x0, self.x1), anywhere) else {
+            return;
+        };
+        let band_y = (
+            self.y0 + rows.start as i64 * self.step,
+            self.y0 + (rows.end as i64 - 1) * self.step,
+        );
+        let Some(lines) = clip_line(g.origin, g.v, n, anywhere, band_y) else {
+            return;
+        };
+        let mut line_values = vec![0i32; n];
+        for j in lines.start as usize..lines.end as usize {
+            let (lo, hi) = h.row_range(n, j);
+            let (i0, i1) = (
+                lo.max(columns.start as usize),
+                hi.min(columns.end as usize - 1),
+            );
+            if i0 > i1 {
+                continue;
+            }
+            let values = &mut line_values[..=i1 - i0];
+            h.read_row(i0, j, values);
+            let (x, y) = (
+                g.origin.0 + i0 as i64 * g.u.0,
+                g.origin.1 + j as i64 * g.v.1,
+            );
+            let row = ((y - self.y0) / self.step) as usize - rows.start;
+            let k = row * self.width + ((x - self.x0) / self.step) as usize;
+            for (o, &v) in band[k..][..values.len()].iter_mut().zip(values.iter()) {
+                *o = to_sample(v);
             }
         }
     }
