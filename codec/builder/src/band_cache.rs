@@ -62,6 +62,42 @@ impl Samples {
     }
 }
 
+/// Samples read one at a time by index, as `f64`: each held representation on its own (a
+/// loop over one of them reads without matching on the representation each time), and
+/// [`Samples`] itself.
+pub trait SampleValues: Sync {
+    /// Sample `i`.
+    fn value(&self, i: usize) -> f64;
+}
+
+impl SampleValues for [i16] {
+    #[inline]
+    fn value(&self, i: usize) -> f64 {
+        f64::from(self[i])
+    }
+}
+
+impl SampleValues for [f32] {
+    #[inline]
+    fn value(&self, i: usize) -> f64 {
+        f64::from(self[i])
+    }
+}
+
+impl SampleValues for [f64] {
+    #[inline]
+    fn value(&self, i: usize) -> f64 {
+        self[i]
+    }
+}
+
+impl SampleValues for Samples {
+    #[inline]
+    fn value(&self, i: usize) -> f64 {
+        self.get(i)
+    }
+}
+
 /// A band: tile index and band number within the tile.
 pub type BandKey = (usize, usize);
 

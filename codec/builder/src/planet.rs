@@ -548,7 +548,7 @@ mod tests {
             let SampleSource::Held(s) = &g.source else {
                 unreachable!("made in memory")
             };
-            g.bilinear(s, g.pixel_of(LatLon { lat, lon }).unwrap())
+            g.bilinear(&**s, g.pixel_of(LatLon { lat, lon }).unwrap())
         };
         assert_eq!(at(&g, 45.0, 45.0), Some(5.0 + 0.5));
         // Between column 3 (270°) and column 0 (360° = 0°): halfway is 315° = −45°.

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 use crate::assign::AssignedGeoRef;
-use crate::band_cache::Samples;
+use crate::band_cache::{SampleValues, Samples};
 use crate::error::{Context, Result, bail};
 use crate::input::{ReadOptions, TileReader};
 use crate::input_cache::InputCache;
@@ -77,7 +77,13 @@ impl PlanetInput {
     /// Sample `(c, r)` of `samples` (this input's), `None` where nodata or NaN.
     #[inline]
     pub(crate) fn sample(&self, samples: &Samples, c: usize, r: usize) -> Option<f64> {
-        let v = samples.get(r * self.width + c);
+        self.sample_in(samples, c, r)
+    }
+
+    /// [`PlanetInput::sample`] from samples in any representation.
+    #[inline]
+    fn sample_in<S: SampleValues + ?Sized>(&self, samples: &S, c: usize, r: usize) -> Option<f64> {
+        let v = samples.value(r * self.width + c);
         (!v.is_nan() && self.nodata != Some(v)).then_some(v)
     }
 
@@ -97,9 +103,17 @@ impl PlanetInput {
                 let c = (ll.lon - lon0) / dlon;
                 let c = match period {
                     Some(p) => rem_euclid(c, p as f64),
-                    None => [c, c + 360.0 / dlon, c - 360.0 / dlon]
-                        .into_iter()
-                        .find(|c| (-SLACK..=w - 1.0 + SLACK).contains(c))?,
+                    // The column itself, else a turn east or west of it (each worked out only
+                    // where the one before is off the input).
+                    None => {
+                        let on = |c: f64| (-SLACK..=w - 1.0 + SLACK).contains(&c);
+                        if on(c) {
+                            c
+                        } else {
+                            let turn = 360.0 / dlon;
+                            [c + turn, c - turn].into_iter().find(|&c| on(c))?
+                        }
+                    }
                 };
                 (c, r)
             }
@@ -137,7 +151,12 @@ impl PlanetInput {
     }
 
     /// Bilinear interpolation at a fractional pixel; `None` unless all four samples are valid.
-    pub(crate) fn bilinear(&self, samples: &Samples, (c, r): (f64, f64)) -> Option<f64> {
+    #[inline]
+    pub(crate) fn bilinear<S: SampleValues + ?Sized>(
+        &self,
+        samples: &S,
+        (c, r): (f64, f64),
+    ) -> Option<f64> {
         let wraps = matches!(
             self.frame,
             Frame::Geographic {
@@ -158,14 +177,19 @@ impl PlanetInput {
             self.column(c0)?,
             self.column(c0 + 1).unwrap_or(self.column(c0)?),
         );
-        let v = |c, r| self.sample(samples, c, r);
+        let v = |c, r| self.sample_in(samples, c, r);
         let top = v(ca, r0)? * (1.0 - fx) + v(cb, r0)? * fx;
         let bottom = v(ca, r1)? * (1.0 - fx) + v(cb, r1)? * fx;
         Some(top * (1.0 - fy) + bottom * fy)
     }
 
     /// Mean of the valid samples whose centres lie within `half` (columns, rows) of a pixel.
-    fn area_average(&self, samples: &Samples, (c, r): (f64, f64), half: (f64, f64)) -> Option<f64> {
+    fn area_average<S: SampleValues + ?Sized>(
+        &self,
+        samples: &S,
+        (c, r): (f64, f64),
+        half: (f64, f64),
+    ) -> Option<f64> {
         let (r_lo, r_hi) = (
             (r - half.1).ceil().max(0.0) as usize,
             ((r + half.1).floor() as usize).min(self.height - 1),
@@ -176,7 +200,7 @@ impl PlanetInput {
             for col in c_lo..=c_hi {
                 if let Some(v) = self
                     .column(col)
-                    .and_then(|col| self.sample(samples, col, row))
+                    .and_then(|col| self.sample_in(samples, col, row))
                 {
                     sum += v;
                     count += 1;
@@ -188,7 +212,13 @@ impl PlanetInput {
 
     /// The height at a point whose lattice cell is `lattice_deg` degrees across: bilinear where
     /// the lattice is at least as fine as the input, the area average where it is coarser.
-    fn height_at(&self, samples: &Samples, ll: LatLon, lattice_deg: f64) -> Option<f64> {
+    #[inline]
+    fn height_at<S: SampleValues + ?Sized>(
+        &self,
+        samples: &S,
+        ll: LatLon,
+        lattice_deg: f64,
+    ) -> Option<f64> {
         let px = self.pixel_of(ll)?;
         if lattice_deg > self.spacing_deg {
             let half_deg = lattice_deg / 2.0;
@@ -557,26 +587,53 @@ impl PlanetInputs {
             .collect()
     }
 
-    /// What lattice point `(x, y)` at `ll` takes from input `i`, if it covers it: on that
-    /// input's stride the point is one of its samples ([`PointSource::Sample`]; the height for
-    /// a lattice cell `2^stride` times the lattice's, `lattice_deg` across); between them it is
-    /// coarse only. A point takes the first input (finest first) that covers it.
-    pub(crate) fn source_of(
-        &self,
-        samples: &Samples,
+    /// Input `i` (whose samples are `samples`; `strides` each input's, on a lattice of
+    /// `lattice_deg`) ready to say what lattice points take from it
+    /// ([`InputProbe::source_of`]), for a run of points: what depends on the input alone
+    /// worked out once.
+    pub(crate) fn probe<'s, S: SampleValues + ?Sized>(
+        &'s self,
+        samples: &'s S,
         i: u16,
-        ll: LatLon,
-        (x, y): (i64, i64),
         lattice_deg: f64,
         strides: &[u32],
-    ) -> Option<PointSource> {
+    ) -> InputProbe<'s, S> {
         let j = strides[usize::from(i)];
         let step = 1i64 << j;
-        let v = self.inputs[usize::from(i)].height_at(samples, ll, lattice_deg * step as f64)?;
-        Some(if x % step == 0 && y % step == 0 {
-            PointSource::Sample(v, i, j as u8)
+        InputProbe {
+            input: &self.inputs[usize::from(i)],
+            samples,
+            index: i,
+            stride_log2: j,
+            step,
+            cell_deg: lattice_deg * step as f64,
+        }
+    }
+}
+
+/// One input asked what lattice points take from it ([`PlanetInputs::probe`]).
+pub(crate) struct InputProbe<'s, S: ?Sized> {
+    input: &'s PlanetInput,
+    samples: &'s S,
+    index: u16,
+    stride_log2: u32,
+    step: i64,
+    /// The lattice cell at the input's stride, degrees across.
+    cell_deg: f64,
+}
+
+impl<S: SampleValues + ?Sized> InputProbe<'_, S> {
+    /// What lattice point `(x, y)` at `ll` takes from the input, if it covers it: on the
+    /// input's stride the point is one of its samples ([`PointSource::Sample`]; the height for
+    /// a lattice cell `2^stride` times the lattice's across); between them it is coarse only.
+    /// A point takes the first input (finest first) that covers it.
+    #[inline]
+    pub(crate) fn source_of(&self, ll: LatLon, (x, y): (i64, i64)) -> Option<PointSource> {
+        let v = self.input.height_at(self.samples, ll, self.cell_deg)?;
+        Some(if x % self.step == 0 && y % self.step == 0 {
+            PointSource::Sample(v, self.index, self.stride_log2 as u8)
         } else {
-            PointSource::CoarseOnly(i)
+            PointSource::CoarseOnly(self.index)
         })
     }
 }

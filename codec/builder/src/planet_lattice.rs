@@ -17,6 +17,7 @@ use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
+use crate::band_cache::{SampleValues, Samples};
 use crate::error::{BuildError, Result};
 use crate::peak_memory::peak_rss;
 use crate::planet_input::{PlanetInputs, PointSource};
@@ -191,52 +192,88 @@ impl<'a> Resampler<'a> {
                 .zip(class.par_chunks_mut(w))
                 .zip(done.par_chunks_mut(w))
                 .enumerate()
-                .for_each(|(row, ((((values, valid), won), class), done))| {
-                    let y = y0 + ((row as i64) << s);
-                    for i in 0..w {
-                        if done[i] {
-                            continue;
-                        }
-                        let x = x0 + ((i as i64) << s);
-                        let mut position = None;
+                .for_each_init(
+                    Vec::new,
+                    |positions, (row, ((((values, valid), won), class), done))| {
+                        let y = y0 + ((row as i64) << s);
+                        let mut out = RowOut {
+                            values,
+                            valid,
+                            won,
+                            class,
+                            done,
+                            positions,
+                        };
+                        out.positions.clear();
+                        out.positions.resize(w, None);
+                        // Input by input, each over its columns of the row: a point asks the
+                        // inputs in the same order as one at a time would, and stops at the same.
                         for (input, (c0, c1, r0, r1), samples) in &chunk {
-                            if i < *c0 || i > *c1 || row < *r0 || row > *r1 {
+                            if row < *r0 || row > *r1 {
                                 continue;
                             }
-                            let ll = *position.get_or_insert_with(|| self.lat_lon(face, x, y));
-                            let source = self.inputs.source_of(
-                                samples,
-                                *input,
-                                ll,
-                                (x, y),
-                                self.lattice_deg,
-                                &self.strides,
-                            );
-                            match source {
-                                Some(PointSource::Sample(v, wi, j)) => {
-                                    if let Some(u) = self.plan.to_units(v).ok().flatten() {
-                                        values[i] = u;
-                                        valid[i] = true;
-                                        won[i] = wi;
-                                        class[i] = j;
-                                    }
-                                    done[i] = true;
-                                    break;
+                            let run = Run {
+                                face,
+                                x0,
+                                y,
+                                s,
+                                columns: *c0..=*c1,
+                            };
+                            match &**samples {
+                                Samples::I16(v) => {
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())
                                 }
-                                Some(PointSource::CoarseOnly(wi)) => {
-                                    won[i] = wi;
-                                    class[i] = COARSE_ONLY;
-                                    done[i] = true;
-                                    break;
+                                Samples::F32(v) => {
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())
                                 }
-                                None => {}
+                                Samples::F64(v) => {
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())
+                                }
                             }
                         }
-                    }
-                });
+                    },
+                );
         }
         let finest = class.iter().copied().filter(|&c| c < 32).min();
         Ok((values, valid, won, class, finest))
+    }
+
+    /// Paints the points of `run` not yet done from input `input` (`samples` its samples), where it
+    /// covers them: a point's position is worked out once, the first time an input asks.
+    fn paint_run<S: SampleValues + ?Sized>(
+        &self,
+        out: &mut RowOut,
+        run: &Run,
+        input: u16,
+        samples: &S,
+    ) {
+        let probe = self
+            .inputs
+            .probe(samples, input, self.lattice_deg, &self.strides);
+        for i in run.columns.clone() {
+            if out.done[i] {
+                continue;
+            }
+            let x = run.x0 + ((i as i64) << run.s);
+            let ll = *out.positions[i].get_or_insert_with(|| self.lat_lon(run.face, x, run.y));
+            match probe.source_of(ll, (x, run.y)) {
+                Some(PointSource::Sample(v, wi, j)) => {
+                    if let Some(u) = self.plan.to_units(v).ok().flatten() {
+                        out.values[i] = u;
+                        out.valid[i] = true;
+                        out.won[i] = wi;
+                        out.class[i] = j;
+                    }
+                    out.done[i] = true;
+                }
+                Some(PointSource::CoarseOnly(wi)) => {
+                    out.won[i] = wi;
+                    out.class[i] = COARSE_ONLY;
+                    out.done[i] = true;
+                }
+                None => {}
+            }
+        }
     }
 
     /// Adds the points of a `w × h` tile at `(x0, y0)`, stride `2^s` (of `part` only where one
@@ -328,6 +365,27 @@ impl<'a> Resampler<'a> {
             lattice_lat_lon(&self.domain, face, x, y).expect("a point of the face")
         }
     }
+}
+
+/// One row of a tile being painted ([`Resampler::paint`]): what each point holds so far, and
+/// the positions of those worked out.
+struct RowOut<'r> {
+    values: &'r mut [i32],
+    valid: &'r mut [bool],
+    won: &'r mut [u16],
+    class: &'r mut [u8],
+    done: &'r mut [bool],
+    positions: &'r mut Vec<Option<cbdam_codec::geodesy::LatLon>>,
+}
+
+/// The points of a row of a tile one input paints: face, the tile's first column `x0`, the
+/// row's `y`, the stride's `log2` and the columns (in points of the stride) of its rectangle.
+struct Run {
+    face: u8,
+    x0: i64,
+    y: i64,
+    s: u32,
+    columns: std::ops::RangeInclusive<usize>,
 }
 
 /// A resampled tile and the winning input of each point it holds.

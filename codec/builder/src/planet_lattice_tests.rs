@@ -67,7 +67,9 @@ fn reference(
     let ll = lattice_lat_lon(r.domain(), face, x, y).expect("a point of the face");
     for i in 0..inputs.inputs.len() {
         let samples = inputs.samples(i).unwrap();
-        let source = inputs.source_of(&samples, i as u16, ll, (x, y), r.lattice_deg, &r.strides);
+        let source = inputs
+            .probe(&*samples, i as u16, r.lattice_deg, &r.strides)
+            .source_of(ll, (x, y));
         match source {
             Some(PointSource::Sample(v, wi, j)) => {
                 return match plan.to_units(v).ok().flatten() {

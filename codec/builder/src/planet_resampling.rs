@@ -314,17 +314,19 @@ fn lattice_at(
     // The four corners lie in the tile of the first but where the cell
     // crosses a tile's side.
     let winners = &resampled.winners[usize::from(face)];
+    // (Looked up once: a sparse lattice finds its tiles by hashing.)
     let first = planet.tile_index(x0 * step, y0 * step);
-    let (_, _, tx1, ty1) = planet.tile(face, first).rect;
+    let first_tile = planet.tile(face, first);
+    let (_, _, tx1, ty1) = first_tile.rect;
     let one_tile = (x0 + 1) * step <= tx1 && (y0 + 1) * step <= ty1;
     let corner = |dx: i64, dy: i64| {
         let (px, py) = ((x0 + dx) * step, (y0 + dy) * step);
-        let i = if one_tile {
-            first
+        let (i, t) = if one_tile {
+            (first, first_tile)
         } else {
-            planet.tile_index(px, py)
+            let i = planet.tile_index(px, py);
+            (i, planet.tile(face, i))
         };
-        let t = planet.tile(face, i);
         let k = t.index(px, py)?;
         (winners[i][k] == me && t.grid.valid[k]).then(|| plan.metres(t.grid.values[k]))
     };
