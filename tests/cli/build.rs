@@ -99,22 +99,11 @@ fn adaptive_grid_decodes_to_what_the_default_coder_decodes() {
         let tif = s(&dir.path().join(format!("{coder}.tif")));
         let o = cbdam(&["extract", &repo, "-o", &tif, "--quiet"]);
         assert!(o.status.success(), "extract {coder}: {}", stderr(&o));
-        built.push((
-            std::fs::metadata(&repo).unwrap().len(),
-            std::fs::read(&tif).unwrap(),
-        ));
+        built.push(std::fs::read(&tif).unwrap());
     }
-    assert!(
-        built[0].1 == built[1].1,
-        "the coders decode different heights"
-    );
-    // The corner spread is worth having on real terrain: a smaller file.
-    assert!(
-        built[1].0 < built[0].0,
-        "sizes {} and {}",
-        built[0].0,
-        built[1].0
-    );
+    // Sizes are not compared: on this tile at 1 m the grid coder's file is 0.25 % larger
+    // (docs/RESULTS.md, "A coder whose contexts see the grid").
+    assert!(built[0] == built[1], "the coders decode different heights");
 }
 
 #[test]
