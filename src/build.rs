@@ -35,6 +35,9 @@ pub enum CoderArg {
     /// Golomb–Rice codes with a per-band parameter table, no arithmetic coding: the fastest
     /// to decode, larger files (docs/FORMAT.md).
     FastRice,
+    /// The adaptive token coder with each cell's context also seeing the spread of its four
+    /// corners on the diamond's grid: smaller files (docs/FORMAT.md, coder id 4).
+    AdaptiveGrid,
 }
 
 impl CoderArg {
@@ -45,6 +48,7 @@ impl CoderArg {
             CoderArg::AdaptiveTokens => CoderKind::AdaptiveTokens,
             CoderArg::EliasGamma => CoderKind::EliasGamma,
             CoderArg::FastRice => CoderKind::FastRice,
+            CoderArg::AdaptiveGrid => CoderKind::AdaptiveGrid,
         }
     }
 }

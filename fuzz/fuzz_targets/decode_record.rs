@@ -1,12 +1,14 @@
-//! Hostile bytes into `decode_bands`, for every coder: it must never panic, and whatever the
-//! gamma coder accepts must be within limits and re-encode to exactly the input (it accepts
+//! Hostile bytes into `decode_bands`, for every coder (and the grid-aware coder also on a grid
+//! made of the payload, through `decode_bands_on_grid_with`): it must never panic, and whatever
+//! the gamma coder accepts must be within limits and re-encode to exactly the input (it accepts
 //! only canonical streams).
 //!
 //! Input layout: `[limits byte, band count byte, one shape byte per band.., payload..]`.
 #![no_main]
 
 use cbdam_codec::entropy::{
-    Band, BandKind, BandMut, CoderKind, DecodeLimits, decode_bands, encode_bands,
+    Band, BandKind, BandMut, CoderKind, DecodeLimits, DecodeScratch, ParentGrid, decode_bands,
+    decode_bands_on_grid_with, encode_bands,
 };
 use libfuzzer_sys::fuzz_target;
 
@@ -42,6 +44,37 @@ fuzz_target!(|data: &[u8]| {
             )
         })
         .collect();
+
+    // The grid of the first band's cells (whatever its kind; a grid that does not fit a cell
+    // band is refused), its heights the payload's bytes scaled by the limits byte.
+    let n = shapes.first().map_or(0, |&(_, w, _)| w + 1);
+    let grid: Vec<i32> = (0..n * n)
+        .map(|k| i32::from(payload.get(k % payload.len().max(1)).copied().unwrap_or(0)))
+        .map(|v| v.wrapping_mul(1 << (lim & 31)))
+        .collect();
+    let grid = ParentGrid {
+        values: &grid,
+        n,
+        step: i32::from(*count >> 3),
+    };
+    let mut bufs: Vec<Vec<i32>> = shapes.iter().map(|&(_, w, h)| vec![0; w * h]).collect();
+    let mut bands: Vec<BandMut<'_>> = bufs
+        .iter_mut()
+        .zip(&shapes)
+        .map(|(v, &(kind, width, height))| BandMut {
+            kind,
+            width,
+            height,
+            values: v,
+        })
+        .collect();
+    let mut scratch = DecodeScratch::default();
+    let coder = CoderKind::AdaptiveGrid;
+    if decode_bands_on_grid_with(coder, payload, &mut bands, Some(grid), limits, &mut scratch).is_ok() {
+        for v in bufs.iter().flatten() {
+            assert!(v.unsigned_abs() <= limits.max_abs, "adaptive-grid on a grid decoded {v} over the limit");
+        }
+    }
 
     for coder in CoderKind::ALL {
         let mut bufs: Vec<Vec<i32>> = shapes.iter().map(|&(_, w, h)| vec![0; w * h]).collect();

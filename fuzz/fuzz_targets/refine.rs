@@ -72,8 +72,9 @@ fn fixtures() -> &'static [Fixture] {
 fuzz_target!(|data: &[u8]| {
     let [sel, record @ ..] = data else { return };
     let fs = fixtures();
-    let f = &fs[usize::from(sel & 7)];
-    let ri = usize::from(sel >> 3) % f.enc.records.len();
+    // Every fixture (grid × coder × α) and, with what is left of the byte, the diamond.
+    let f = &fs[usize::from(*sel) % fs.len()];
+    let ri = usize::from(*sel) / fs.len() % f.enc.records.len();
     let mut scratch = RefineScratch::default();
     if f.decoder
         .refine(&f.grids[ri], record, &mut scratch)

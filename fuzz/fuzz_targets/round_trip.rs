@@ -1,4 +1,5 @@
-//! Arbitrary integer matrices through encode → decode must come back unchanged.
+//! Arbitrary integer matrices through encode → decode must come back unchanged, for every
+//! coder, and for the grid-aware coder also on a grid made of the input's first values.
 //!
 //! Input layout: `[width byte, height byte, values..]`; each value is one byte (a small
 //! signed value, the common case) or, when that byte has its top two bits set, four more
@@ -7,12 +8,11 @@
 #![no_main]
 
 use cbdam_codec::entropy::{
-    Band, BandKind, BandMut, CoderKind, DecodeLimits, decode_bands, encode_bands,
+    Band, BandKind, BandMut, CoderKind, DecodeLimits, DecodeScratch, ParentGrid, decode_bands,
+    decode_bands_on_grid_with, encode_bands, encode_bands_on_grid,
 };
 use libfuzzer_sys::fuzz_target;
 
-/// Coders to round-trip: all of them.
-const CODERS: [CoderKind; 4] = CoderKind::ALL;
 
 fuzz_target!(|data: &[u8]| {
     let [w, h, rest @ ..] = data else { return };
@@ -34,7 +34,7 @@ fuzz_target!(|data: &[u8]| {
             i32::from(b) - 96
         };
     }
-    for coder in CODERS {
+    for coder in CoderKind::ALL {
         let band = Band {
             kind: BandKind::Cells,
             width: w,
@@ -53,5 +53,39 @@ fuzz_target!(|data: &[u8]| {
         decode_bands(coder, &bytes, &mut bands, DecodeLimits::default())
             .unwrap_or_else(|e| panic!("{}: own record rejected: {e}", coder.name()));
         assert_eq!(out, values, "{}", coder.name());
+    }
+    if w == h {
+        // The cells of an (w + 1)² grid whose heights are the values read again from the
+        // start (wrapping), times a factor from the height byte: flat to steep.
+        let n = w + 1;
+        let grid: Vec<i32> = (0..n * n)
+            .map(|k| values.get(k % values.len().max(1)).copied().unwrap_or(0))
+            .map(|v| v.saturating_mul(i32::from(data[1] % 16)))
+            .collect();
+        let grid = Some(ParentGrid {
+            values: &grid,
+            n,
+            step: i32::from(data[0] % 8),
+        });
+        let band = Band {
+            kind: BandKind::Cells,
+            width: w,
+            height: h,
+            values: &values,
+        };
+        let mut bytes = Vec::new();
+        encode_bands_on_grid(CoderKind::AdaptiveGrid, &[band], grid, &mut bytes);
+        let mut out = vec![i32::MIN; w * h];
+        let mut bands = [BandMut {
+            kind: BandKind::Cells,
+            width: w,
+            height: h,
+            values: &mut out,
+        }];
+        let limits = DecodeLimits::default();
+        let mut scratch = DecodeScratch::default();
+        decode_bands_on_grid_with(CoderKind::AdaptiveGrid, &bytes, &mut bands, grid, limits, &mut scratch)
+            .unwrap_or_else(|e| panic!("adaptive-grid on its grid: own record rejected: {e}"));
+        assert_eq!(out, values, "adaptive-grid on its grid");
     }
 });

@@ -11,7 +11,9 @@ use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::entropy::references::{
     CellPredictor, SymbolStats, cell_indices, coder_contexts, corner_activity, med_residuals,
 };
-use cbdam_codec::entropy::{BandKind, BandMut, DecodeLimits, decode_bands};
+use cbdam_codec::entropy::{
+    BandKind, BandMut, DecodeLimits, DecodeScratch, ParentGrid, decode_bands_on_grid_with,
+};
 use cbdam_codec::geometry::DiamondId;
 use cbdam_codec::hierarchy::mask::decode_mask;
 use cbdam_codec::hierarchy::{EncodeOptions, Encoded, Encoder, walk};
@@ -86,54 +88,101 @@ pub fn run(args: &BenchEntropyArgs) -> Result<()> {
     Ok(())
 }
 
-/// Decodes every record's bands and counts them by (level, band kind), with the coder's bits;
-/// also the bits of the records' nodata masks.
+/// Decodes every record's bands (on its diamond's grid, as a decoder does) and counts them by
+/// (level, band kind), with the coder's bits; also the bits of the records' nodata masks.
 fn tally_bands(encoded: &Encoded) -> Result<(Tallies, u64)> {
-    let params = &encoded.params;
-    let n = params.layout().n();
-    let half = params.alpha == Alpha::Half;
+    let n = encoded.params.layout().n();
     let mut tallies: Tallies = BTreeMap::new();
     let mut mask_bits = 0u64;
     let (mut cells, mut vertices) = (vec![0i32; (n - 1) * (n - 1)], vec![0i32; (n - 2) * (n - 2)]);
-    for record in &encoded.records {
-        let (used_mask, bytes) = strip_mask(encoded, &record.bytes)?;
-        mask_bits += 8 * used_mask as u64;
-        let mut bands = [
-            BandMut {
-                kind: BandKind::Cells,
-                width: n - 1,
-                height: n - 1,
-                values: &mut cells,
-            },
-            BandMut {
-                kind: BandKind::Vertices,
-                width: n - 2,
-                height: n - 2,
-                values: &mut vertices,
-            },
-        ];
-        let used = &mut bands[..1 + usize::from(half)];
-        decode_bands(params.coder, bytes, used, DecodeLimits::default())?;
-        // The record's bits go to its first band's row: the coder does not say how they split.
-        let mut first = true;
-        for band in used.iter() {
-            let kind = match band.kind {
-                BandKind::Cells => "cells",
-                BandKind::Vertices => "vertices",
-                BandKind::Roots => "roots",
-            };
-            let tally = tallies.entry((record.id.level, kind)).or_default();
-            if first {
-                tally.records += 1;
-                tally.coded_bits += 8 * bytes.len() as u64;
-                first = false;
+    let records: std::collections::HashMap<DiamondId, &[u8]> = encoded
+        .records
+        .iter()
+        .map(|r| (r.id, &r.bytes[..]))
+        .collect();
+    let mut scratch = DecodeScratch::default();
+    let mut failure = None;
+    walk(encoded, |id, p| {
+        let Some(record) = records.get(&id) else {
+            return;
+        };
+        let tallied = tally_record(
+            encoded,
+            id,
+            p,
+            record,
+            &mut tallies,
+            &mut scratch,
+            [&mut cells, &mut vertices],
+        );
+        match tallied {
+            Ok(used_mask) => mask_bits += 8 * used_mask as u64,
+            Err(e) => {
+                failure.get_or_insert(e);
             }
-            coder_contexts(band.values, band.width, band.height, |ctx, v| {
-                tally.stats.add(ctx, v)
-            });
         }
+    })?;
+    if let Some(e) = failure {
+        return Err(e);
     }
     Ok((tallies, mask_bits))
+}
+
+/// [`tally_bands`] for one record of diamond `id`, whose grid is `p`: the mask's bytes.
+fn tally_record(
+    encoded: &Encoded,
+    id: DiamondId,
+    p: &[i32],
+    record: &[u8],
+    tallies: &mut Tallies,
+    scratch: &mut DecodeScratch,
+    [cells, vertices]: [&mut Vec<i32>; 2],
+) -> Result<usize> {
+    let params = &encoded.params;
+    let n = params.layout().n();
+    let half = params.alpha == Alpha::Half;
+    let (used_mask, bytes) = strip_mask(encoded, record)?;
+    let mut bands = [
+        BandMut {
+            kind: BandKind::Cells,
+            width: n - 1,
+            height: n - 1,
+            values: cells,
+        },
+        BandMut {
+            kind: BandKind::Vertices,
+            width: n - 2,
+            height: n - 2,
+            values: vertices,
+        },
+    ];
+    let used = &mut bands[..1 + usize::from(half)];
+    let grid = ParentGrid {
+        values: p,
+        n,
+        step: params.quantizer.step(),
+    };
+    let limits = DecodeLimits::default();
+    decode_bands_on_grid_with(params.coder, bytes, used, Some(grid), limits, scratch)?;
+    // The record's bits go to its first band's row: the coder does not say how they split.
+    let mut first = true;
+    for band in used.iter() {
+        let kind = match band.kind {
+            BandKind::Cells => "cells",
+            BandKind::Vertices => "vertices",
+            BandKind::Roots => "roots",
+        };
+        let tally = tallies.entry((id.level, kind)).or_default();
+        if first {
+            tally.records += 1;
+            tally.coded_bits += 8 * bytes.len() as u64;
+            first = false;
+        }
+        coder_contexts(band.values, band.width, band.height, |ctx, v| {
+            tally.stats.add(ctx, v)
+        });
+    }
+    Ok(used_mask)
 }
 
 /// A record's bytes without its nodata mask, and the mask's length.
@@ -166,6 +215,7 @@ fn print_predictors(encoded: &Encoded, samples: f64) -> Result<()> {
         Vec::new(),
     );
     let mut failure = None;
+    let mut scratch = DecodeScratch::default();
     walk(encoded, |id, p| {
         let Some(bytes) = records.get(&id) else {
             return;
@@ -177,11 +227,15 @@ fn print_predictors(encoded: &Encoded, samples: f64) -> Result<()> {
                 height: m,
                 values: &mut residuals,
             }];
-            Ok(decode_bands(
+            let grid = ParentGrid { values: p, n, step };
+            let limits = DecodeLimits::default();
+            Ok(decode_bands_on_grid_with(
                 params.coder,
                 bytes,
                 &mut band,
-                DecodeLimits::default(),
+                Some(grid),
+                limits,
+                &mut scratch,
             )?)
         });
         if let Err(e) = decoded {

@@ -138,9 +138,11 @@ fn parse_coder(coder: &str) -> Result<CoderKind> {
         .into_iter()
         .find(|c| c.name() == coder)
         .ok_or_else(|| {
-            PyCbdamError::Input(format!(
-                "coder={coder:?}: one of 'adaptive-tokens', 'adaptive', 'elias-gamma', 'fast-rice'"
-            ))
+            let names: Vec<String> = CoderKind::ALL
+                .iter()
+                .map(|c| format!("'{}'", c.name()))
+                .collect();
+            PyCbdamError::Input(format!("coder={coder:?}: one of {}", names.join(", ")))
         })
 }
 

@@ -8,7 +8,9 @@
 //! [`CoderKind::AdaptiveTokens`], the same quadtree and contexts with a binarisation made for
 //! decoding speed (about 1 % larger; the default); and [`CoderKind::FastRice`], the same
 //! quadtree and neighbourhood classes with static per-band Golomb–Rice codes instead of
-//! arithmetic coding (larger, faster to decode). A repository records which one wrote it.
+//! arithmetic coding (larger, faster to decode); and [`CoderKind::AdaptiveGrid`], the token
+//! coder with each cell's context also seeing the diamond's grid (the spread of the cell's
+//! corners, [`ParentGrid`]). A repository records which one wrote it.
 
 pub mod adaptive;
 pub mod bitio;
@@ -32,15 +34,19 @@ pub enum CoderKind {
     /// Golomb–Rice codes whose parameter a per-band table picks by neighbourhood class, no
     /// arithmetic coding: larger files, shorter decode chain.
     FastRice = 3,
+    /// The token coder with one more context for cells: the spread of the cell's four corners
+    /// on the diamond's grid, which the decoder has before the record ([`ParentGrid`]).
+    AdaptiveGrid = 4,
 }
 
 impl CoderKind {
     /// Every coder, for tests and benchmarks.
-    pub const ALL: [CoderKind; 4] = [
+    pub const ALL: [CoderKind; 5] = [
         CoderKind::EliasGamma,
         CoderKind::Adaptive,
         CoderKind::AdaptiveTokens,
         CoderKind::FastRice,
+        CoderKind::AdaptiveGrid,
     ];
 
     /// The byte stored in a repository header.
@@ -55,6 +61,7 @@ impl CoderKind {
             1 => Ok(Self::Adaptive),
             2 => Ok(Self::AdaptiveTokens),
             3 => Ok(Self::FastRice),
+            4 => Ok(Self::AdaptiveGrid),
             _ => Err(CodecError::corrupt(format!("unknown entropy coder id {b}"))),
         }
     }
@@ -66,6 +73,7 @@ impl CoderKind {
             Self::Adaptive => "adaptive",
             Self::AdaptiveTokens => "adaptive-tokens",
             Self::FastRice => "fast-rice",
+            Self::AdaptiveGrid => "adaptive-grid",
         }
     }
 }
@@ -125,6 +133,30 @@ impl Default for DecodeLimits {
     }
 }
 
+/// The grid a diamond's cell band refines, which the decoder has before it decodes the
+/// diamond's record: coders whose contexts look at it ([`CoderKind::AdaptiveGrid`]) need the
+/// same grid on both sides; the others ignore it.
+#[derive(Clone, Copy, Debug)]
+pub struct ParentGrid<'a> {
+    /// The diamond's `n × n` grid, row-major: the corners of the `(n − 1)²` cells, whose band
+    /// is `(n − 1) × (n − 1)`.
+    pub values: &'a [i32],
+    /// Grid side.
+    pub n: usize,
+    /// The quantizer's step in lattice units (values below 1 are taken as 1).
+    pub step: i32,
+}
+
+impl ParentGrid<'_> {
+    /// Whether the grid is `n × n` and every cell band of `shapes` (kind, width, height) is
+    /// `(n − 1) × (n − 1)`.
+    fn fits(&self, mut shapes: impl Iterator<Item = (BandKind, usize, usize)>) -> bool {
+        self.values.len() == self.n * self.n
+            && shapes
+                .all(|(kind, w, h)| kind != BandKind::Cells || (w + 1, h + 1) == (self.n, self.n))
+    }
+}
+
 /// Largest band dimension any coder accepts (root fields of huge datasets are the largest bands).
 pub const MAX_BAND_SIDE: usize = 1 << 20;
 
@@ -135,6 +167,26 @@ pub const MAX_BAND_SIDE: usize = 1 << 20;
 /// magnitude exceeds `DecodeLimits::default().max_abs` — all caller bugs, not data errors (the
 /// decoder refuses such bands, so writing one would produce an undecodable record).
 pub fn encode_bands(kind: CoderKind, bands: &[Band<'_>], out: &mut Vec<u8>) {
+    encode_bands_on_grid(kind, bands, None, out);
+}
+
+/// [`encode_bands`] for the cells of a diamond whose grid is `grid` (`None`: not known, as for
+/// root fields; the decoder must then be given `None` too).
+///
+/// # Panics
+/// As [`encode_bands`], and if `grid` does not fit the bands ([`ParentGrid`]).
+pub fn encode_bands_on_grid(
+    kind: CoderKind,
+    bands: &[Band<'_>],
+    grid: Option<ParentGrid<'_>>,
+    out: &mut Vec<u8>,
+) {
+    if let Some(g) = &grid {
+        assert!(
+            g.fits(bands.iter().map(|b| (b.kind, b.width, b.height))),
+            "the grid does not fit the cell band"
+        );
+    }
     for b in bands {
         assert!(
             b.width <= MAX_BAND_SIDE && b.height <= MAX_BAND_SIDE,
@@ -149,6 +201,7 @@ pub fn encode_bands(kind: CoderKind, bands: &[Band<'_>], out: &mut Vec<u8>) {
         CoderKind::Adaptive => adaptive::encode_bands(bands, out),
         CoderKind::AdaptiveTokens => adaptive::tokens::encode_bands(bands, out),
         CoderKind::FastRice => adaptive::rice::encode_bands(bands, out),
+        CoderKind::AdaptiveGrid => adaptive::grid::encode_bands(bands, grid, out),
     }
 }
 
@@ -157,6 +210,7 @@ pub fn encode_bands(kind: CoderKind, bands: &[Band<'_>], out: &mut Vec<u8>) {
 #[derive(Debug, Default)]
 pub struct DecodeScratch {
     adaptive: adaptive::Scratch,
+    cells: adaptive::grid::CellActivity,
 }
 
 /// Decodes one record written by [`encode_bands`] with the same band shapes.
@@ -181,6 +235,25 @@ pub fn decode_bands_with(
     limits: DecodeLimits,
     scratch: &mut DecodeScratch,
 ) -> Result<(), CodecError> {
+    decode_bands_on_grid_with(kind, bytes, bands, None, limits, scratch)
+}
+
+/// [`decode_bands_with`] for a record written by [`encode_bands_on_grid`] with `grid`.
+pub fn decode_bands_on_grid_with(
+    kind: CoderKind,
+    bytes: &[u8],
+    bands: &mut [BandMut<'_>],
+    grid: Option<ParentGrid<'_>>,
+    limits: DecodeLimits,
+    scratch: &mut DecodeScratch,
+) -> Result<(), CodecError> {
+    if let Some(g) = &grid
+        && !g.fits(bands.iter().map(|b| (b.kind, b.width, b.height)))
+    {
+        return Err(CodecError::invalid(
+            "the diamond's grid does not fit its cell band",
+        ));
+    }
     for b in bands.iter() {
         if b.width > MAX_BAND_SIDE || b.height > MAX_BAND_SIDE {
             return Err(CodecError::limit(format!(
@@ -203,6 +276,14 @@ pub fn decode_bands_with(
         CoderKind::FastRice => {
             adaptive::rice::decode_bands(bytes, bands, limits, &mut scratch.adaptive)
         }
+        CoderKind::AdaptiveGrid => adaptive::grid::decode_bands(
+            bytes,
+            bands,
+            grid,
+            limits,
+            &mut scratch.adaptive,
+            &mut scratch.cells,
+        ),
     }
 }
 

@@ -4,7 +4,9 @@
 use super::CodecParams;
 use super::mask::decode_mask;
 use crate::CodecError;
-use crate::entropy::{BandKind, BandMut, DecodeLimits, DecodeScratch, decode_bands_with};
+use crate::entropy::{
+    BandKind, BandMut, DecodeLimits, DecodeScratch, ParentGrid, decode_bands_on_grid_with,
+};
 use crate::geometry::{Diagonal, DiamondId, Domain, Half, IndexMap};
 use crate::lifting::{
     Alpha, MAX_ABS_HEIGHT, PREDICTION_LIMIT, clamp_prediction, predict_cells,
@@ -543,7 +545,7 @@ fn synthesise(
     scratch: &mut RefineScratch,
 ) -> Result<Option<Vec<bool>>, CodecError> {
     let n = params.layout().n();
-    let valid = decode_residuals(params, record, scratch)?;
+    let valid = decode_residuals(params, p, record, scratch)?;
     let step = i64::from(params.quantizer.step());
     let RefineScratch {
         dc,
@@ -561,9 +563,11 @@ fn synthesise(
 }
 
 /// The record's nodata mask (`None`: all valid) and its residual bands, decoded into
-/// `scratch.dc` (cells) and, with α = ½, `scratch.dv` (inner vertices).
+/// `scratch.dc` (cells) and, with α = ½, `scratch.dv` (inner vertices); `p` is the diamond's
+/// grid, which a grid-aware coder's contexts read.
 fn decode_residuals(
     params: &CodecParams,
+    p: &[i32],
     record: &[u8],
     scratch: &mut RefineScratch,
 ) -> Result<Option<Vec<bool>>, CodecError> {
@@ -597,10 +601,16 @@ fn decode_residuals(
             values: dv.as_mut_slice(),
         },
     ];
-    decode_bands_with(
+    let grid = ParentGrid {
+        values: p,
+        n,
+        step: params.quantizer.step(),
+    };
+    decode_bands_on_grid_with(
         params.coder,
         record,
         &mut bands[..1 + usize::from(half)],
+        Some(grid),
         DecodeLimits::default(),
         entropy,
     )?;

@@ -27,6 +27,7 @@
 //! stream) for faster decoding; [`rice`] codes the same quadtree with raw bits and each
 //! coefficient as a static Golomb–Rice code, for faster decoding still.
 
+pub(crate) mod grid;
 pub(crate) mod integers;
 mod range_coder;
 pub(crate) mod rice;

@@ -59,13 +59,15 @@ fn shift_of(sum: u32) -> u32 {
     (sum | 1).ilog2().saturating_sub(3)
 }
 
-/// The adaptive models of one band kind.
+/// The adaptive models of one band kind, `C` contexts for the coefficients: the neighbourhood
+/// class plus an offset that a coder may add ([`Activity`]), context `c` starting from class
+/// `c % NCLASS`'s priors.
 #[derive(Clone)]
-struct TokenModels {
-    /// "v ≠ 0", by class × border.
-    zero: [Prob; NCLASS * 2],
-    /// Token tree nodes by class; node `n` (1-based, heap order) at `tree[class][n]`.
-    tree: [[Prob; TOKENS]; NCLASS],
+pub(super) struct TokenModels<const C: usize> {
+    /// "v ≠ 0", by context, then border.
+    zero: [[Prob; 2]; C],
+    /// Token tree nodes by context; node `n` (1-based, heap order) at `tree[context][n]`.
+    tree: [[Prob; TOKENS]; C],
     /// Zero-block quadtree, as in the bitwise coder.
     node: [Prob; NODE_LEVELS * 3],
 }
@@ -96,10 +98,10 @@ const fn tree_prior(rho: f64, n: usize) -> u16 {
     (left / all * 4096.0) as u16
 }
 
-impl TokenModels {
+impl<const C: usize> TokenModels<C> {
     /// Starting points: zeros as likely as in the bitwise coder, and geometric tokens (the
     /// shift keeps `q` small in busy neighbourhoods). The rest is fast adaptation.
-    const INIT: TokenModels = {
+    pub(super) const INIT: Self = {
         let p_zero: [u16; NCLASS] = [
             3700, 3200, 2900, 2500, 2100, 1700, 1300, 1000, 700, 500, 350, 250, 180, 120, 80, 60,
         ];
@@ -107,19 +109,20 @@ impl TokenModels {
         let rho: [f64; NCLASS] = [
             0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5,
         ];
-        let mut zero = [Prob::new(2048); NCLASS * 2];
-        let mut tree = [[Prob::new(2048); TOKENS]; NCLASS];
-        let mut c = 0;
-        while c < NCLASS {
-            zero[2 * c] = Prob::new(p_zero[c]);
+        let mut zero = [[Prob::new(2048); 2]; C];
+        let mut tree = [[Prob::new(2048); TOKENS]; C];
+        let mut ctx = 0;
+        while ctx < C {
+            let c = ctx % NCLASS;
+            zero[ctx][0] = Prob::new(p_zero[c]);
             // Border residuals come from a lower-order predictor: expect fewer zeros.
-            zero[2 * c + 1] = Prob::new(p_zero[c] * 3 / 4);
+            zero[ctx][1] = Prob::new(p_zero[c] * 3 / 4);
             let mut n = 1;
             while n < TOKENS {
-                tree[c][n] = Prob::new(tree_prior(rho[c], n));
+                tree[ctx][n] = Prob::new(tree_prior(rho[c], n));
                 n += 1;
             }
-            c += 1;
+            ctx += 1;
         }
         TokenModels {
             zero,
@@ -127,6 +130,25 @@ impl TokenModels {
             node: [Prob::new(2048); NODE_LEVELS * 3],
         }
     };
+}
+
+/// What a coder knows about each coefficient beyond its coded neighbours: given the
+/// coefficient's index in the band and its neighbourhood sum, the sum to use (it picks the
+/// class and the raw shift) and an offset added to the class (a multiple of [`NCLASS`], below
+/// the models' `C`).
+pub(super) trait Activity: Copy {
+    fn context(self, index: usize, sum: u32) -> (u32, usize);
+}
+
+/// No knowledge beyond the neighbours: [`CoderKind::AdaptiveTokens`](crate::entropy::CoderKind::AdaptiveTokens).
+#[derive(Clone, Copy)]
+pub(super) struct Flat;
+
+impl Activity for Flat {
+    #[inline(always)]
+    fn context(self, _: usize, sum: u32) -> (u32, usize) {
+        (sum, 0)
+    }
 }
 
 /// How many coefficients the second row of a pair trails the first by, in coding order: the
@@ -174,15 +196,17 @@ impl Scratch {
 }
 
 /// Codes the coefficients of one band's non-zero leaf blocks (the flag pyramid in `s` is set),
-/// in [`pair_order`].
-fn encode_coeffs(
+/// in [`pair_order`], each in the context `activity` gives it.
+#[allow(clippy::too_many_arguments)]
+fn encode_coeffs<const C: usize>(
     enc: &mut Encoder,
     raw: &mut BitWriter,
-    m: &mut TokenModels,
+    m: &mut TokenModels<C>,
     s: &mut Scratch,
     values: &[i32],
     w: usize,
     h: usize,
+    activity: impl Activity,
 ) {
     let stride = w + 4;
     for y0 in (0..h).step_by(2) {
@@ -196,16 +220,17 @@ fn encode_coeffs(
             let sum = 2 * (u32::from(mag[j - 1]) + u32::from(mag[j - stride]))
                 + u32::from(mag[j - stride - 1])
                 + u32::from(mag[j - stride + 1]);
-            let class = class_of(sum);
+            let (sum, offset) = activity.context(y * w + x, sum);
+            let ctx = class_of(sum) + offset;
             let border = (y < 2 || y + 2 >= h || x < 2 || x + 2 >= w) as usize;
             let k = shift_of(sum);
             let v = values[y * w + x];
             let a = v.unsigned_abs();
-            enc.encode(&mut m.zero[class * 2 + border], a != 0);
+            enc.encode(&mut m.zero[ctx][border], a != 0);
             if a != 0 {
                 let q = (a - 1) >> k;
                 let token = q.min(ESCAPE);
-                let tree = &mut m.tree[class];
+                let tree = &mut m.tree[ctx];
                 let mut n = 1;
                 for level in (0..TREE_LEVELS).rev() {
                     let bit = (token >> level) & 1 != 0;
@@ -223,28 +248,29 @@ fn encode_coeffs(
     }
 }
 
-/// Decodes one coefficient whose neighbourhood sum is `sum`: `(magnitude, value)`. The
+/// Decodes one coefficient whose neighbourhood sum is `sum` and context offset `offset`:
+/// `(magnitude, value)`. The
 /// decisions are [`encode_coeffs`]'s, written for speed: no branch in the token tree or the
 /// raw reads but the rare escape, and each tree level's two candidate models loaded while the
 /// level above is decided, so a decision picks its probability with a select instead of
 /// waiting on a load that depends on it. Magnitudes are clamped to below 2^31 whatever the
 /// bytes; an escape that no encoder writes sets `bad_escape`.
 #[inline(always)]
-fn decode_one(
+fn decode_one<const C: usize>(
     d: &mut Decoder<'_>,
     raw: &mut BitReader<'_>,
-    m: &mut TokenModels,
-    sum: u32,
+    m: &mut TokenModels<C>,
+    (sum, offset): (u32, usize),
     border: usize,
     bad_escape: &mut bool,
 ) -> (u32, i32) {
-    let class = class_of(sum);
-    if !d.decode(&mut m.zero[class * 2 + border]) {
+    let ctx = class_of(sum) + offset;
+    if !d.decode(&mut m.zero[ctx][border]) {
         return (0, 0);
     }
     let k = shift_of(sum);
     {
-        let tree = &mut m.tree[class];
+        let tree = &mut m.tree[ctx];
         let root = tree[1];
         let (mut lo, mut hi) = (tree[2], tree[3]);
         let b0 = d.decode_p(root.p0());
@@ -282,17 +308,19 @@ fn decode_one(
 /// Decodes what [`encode_coeffs`] wrote, in [`pair_order`]: the two rows of a pair are two
 /// independent dependency chains (each coefficient's context waits for its left neighbour),
 /// so the CPU works on both at once. Magnitudes are checked against `max_abs` once per pair.
+/// Each coefficient's context is the one `activity` gives it, as in [`encode_coeffs`].
 // The slot loops spell out `pair_order` step by step, by index, so that they can be compared.
 #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
-fn decode_coeffs(
+fn decode_coeffs<const C: usize>(
     dec: &mut Decoder<'_>,
     raw: &mut BitReader<'_>,
-    m: &mut TokenModels,
+    m: &mut TokenModels<C>,
     s: &mut Scratch,
     values: &mut [i32],
     w: usize,
     h: usize,
     max_abs: u32,
+    activity: impl Activity,
 ) -> Result<(), CodecError> {
     let mut d = *dec;
     let stride = w + 4;
@@ -330,7 +358,8 @@ fn decode_coeffs(
                 let left = if next_a == x { left_a } else { 0 };
                 let sum = 2 * (left + u32::from(t[1])) + u32::from(t[0]) + u32::from(t[2]);
                 let border = (border_a || col_border(x)) as usize;
-                let (a, v) = decode_one(&mut d, raw, m, sum, border, &mut bad_escape);
+                let context = activity.context(y0 * w + x, sum);
+                let (a, v) = decode_one(&mut d, raw, m, context, border, &mut bad_escape);
                 worst = worst.max(a);
                 va[x] = v;
                 left_a = a.min(MAG_SAT);
@@ -351,7 +380,8 @@ fn decode_coeffs(
                     let left = if next_b == x { left_b } else { 0 };
                     let sum = 2 * (left + u32::from(t[1])) + u32::from(t[0]) + u32::from(t[2]);
                     let border = (border_b || col_border(x)) as usize;
-                    let (a, v) = decode_one(&mut d, raw, m, sum, border, &mut bad_escape);
+                    let context = activity.context((y0 + 1) * w + x, sum);
+                    let (a, v) = decode_one(&mut d, raw, m, context, border, &mut bad_escape);
                     worst = worst.max(a);
                     vb[x] = v;
                     left_b = a.min(MAG_SAT);
@@ -393,26 +423,55 @@ pub(crate) fn encode_bands(bands: &[Band<'_>], out: &mut Vec<u8>) {
     if all_zero_checked(bands) {
         return;
     }
-    let mut enc = Encoder::new();
-    let mut raw = BitWriter::new();
-    let mut models = [TokenModels::INIT, TokenModels::INIT];
-    let mut s = Scratch::default();
+    let mut record = RecordEncoder::<NCLASS>::new();
     for b in bands {
-        if b.width == 0 || b.height == 0 {
-            continue;
-        }
-        s.reset(b.width, b.height);
-        s.set_flags(b.values, b.width, b.height);
-        let m = &mut models[model_set(b.kind)];
-        let top = s.dims.len() - 1;
-        if code_node(&mut enc, &mut m.node, &mut s, top, 0, 0, false) {
-            encode_coeffs(&mut enc, &mut raw, m, &mut s, b.values, b.width, b.height);
+        record.band(b, Flat);
+    }
+    record.finish(out);
+}
+
+/// One record being written: the range coder, the raw stream, the models of both sets and the
+/// working memory. A coder whose contexts differ from [`Flat`] writes its bands through it.
+pub(super) struct RecordEncoder<const C: usize> {
+    enc: Encoder,
+    raw: BitWriter,
+    models: [TokenModels<C>; 2],
+    s: Scratch,
+}
+
+impl<const C: usize> RecordEncoder<C> {
+    pub(super) fn new() -> Self {
+        Self {
+            enc: Encoder::new(),
+            raw: BitWriter::new(),
+            models: [TokenModels::INIT, TokenModels::INIT],
+            s: Scratch::default(),
         }
     }
-    let raw = raw.finish();
-    put_len(out, raw.len());
-    out.extend_from_slice(&raw);
-    enc.finish(out);
+
+    /// Codes band `b`'s quadtree and coefficients, each in the context `activity` gives it.
+    pub(super) fn band(&mut self, b: &Band<'_>, activity: impl Activity) {
+        if b.width == 0 || b.height == 0 {
+            return;
+        }
+        let s = &mut self.s;
+        s.reset(b.width, b.height);
+        s.set_flags(b.values, b.width, b.height);
+        let m = &mut self.models[model_set(b.kind)];
+        let top = s.dims.len() - 1;
+        if code_node(&mut self.enc, &mut m.node, s, top, 0, 0, false) {
+            let (w, h) = (b.width, b.height);
+            encode_coeffs(&mut self.enc, &mut self.raw, m, s, b.values, w, h, activity);
+        }
+    }
+
+    /// Appends the record: the raw stream's length, the raw stream, the range-coded stream.
+    pub(super) fn finish(self, out: &mut Vec<u8>) {
+        let raw = self.raw.finish();
+        put_len(out, raw.len());
+        out.extend_from_slice(&raw);
+        self.enc.finish(out);
+    }
 }
 
 /// Decodes one record written by [`encode_bands`] into `bands`.
@@ -422,6 +481,57 @@ pub(crate) fn decode_bands(
     limits: DecodeLimits,
     s: &mut Scratch,
 ) -> Result<(), CodecError> {
+    decode_record::<NCLASS>(bytes, bands, s, |_, record, b| record.band(b, limits, Flat))
+}
+
+/// One record being read: [`RecordEncoder`]'s counterpart.
+pub(super) struct RecordDecoder<'a, 's, const C: usize> {
+    dec: Decoder<'a>,
+    raw: BitReader<'a>,
+    models: [TokenModels<C>; 2],
+    s: &'s mut Scratch,
+}
+
+impl<const C: usize> RecordDecoder<'_, '_, C> {
+    /// Decodes band `b`'s quadtree and coefficients, each in the context `activity` gives it.
+    pub(super) fn band(
+        &mut self,
+        b: &mut BandMut<'_>,
+        limits: DecodeLimits,
+        activity: impl Activity,
+    ) -> Result<(), CodecError> {
+        if b.width == 0 || b.height == 0 {
+            return Ok(());
+        }
+        let s = &mut *self.s;
+        s.reset(b.width, b.height);
+        let m = &mut self.models[model_set(b.kind)];
+        let top = s.dims.len() - 1;
+        if !code_node(&mut self.dec, &mut m.node, s, top, 0, 0, false) {
+            return Ok(());
+        }
+        if self.dec.overran() {
+            return Err(CodecError::truncated("adaptive tokens record ends early"));
+        }
+        let (w, h, max) = (b.width, b.height, limits.max_abs);
+        let raw = &mut self.raw;
+        decode_coeffs(&mut self.dec, raw, m, s, b.values, w, h, max, activity)
+    }
+}
+
+/// Decodes a record of the token format: zeroes `bands`, then (unless the record is empty)
+/// hands `band(index, record, band)` each band in order, then checks that both streams end
+/// where they should.
+pub(super) fn decode_record<const C: usize>(
+    bytes: &[u8],
+    bands: &mut [BandMut<'_>],
+    s: &mut Scratch,
+    mut band: impl FnMut(
+        usize,
+        &mut RecordDecoder<'_, '_, C>,
+        &mut BandMut<'_>,
+    ) -> Result<(), CodecError>,
+) -> Result<(), CodecError> {
     for b in bands.iter_mut() {
         b.values.fill(0);
     }
@@ -429,50 +539,29 @@ pub(crate) fn decode_bands(
         return Ok(());
     }
     let (raw_bytes, coded) = split_streams(bytes, "adaptive tokens", "raw stream")?;
-    let mut raw = BitReader::new(raw_bytes);
-    let mut dec = Decoder::new(coded);
-    decode_all(&mut dec, &mut raw, s, bands, limits)?;
-    dec.finish()?;
+    let mut record = RecordDecoder {
+        dec: Decoder::new(coded),
+        raw: BitReader::new(raw_bytes),
+        models: [TokenModels::INIT, TokenModels::INIT],
+        s,
+    };
+    for (index, b) in bands.iter_mut().enumerate() {
+        band(index, &mut record, b)?;
+    }
+    record.dec.finish()?;
     // Only the zero padding of the raw stream's last byte may be left.
-    match raw.remaining_padding() {
+    match record.raw.remaining_padding() {
         Some((_, 0)) => Ok(()),
         Some(_) => Err(CodecError::corrupt(
             "adaptive tokens record: non-zero padding after the raw bits",
         )),
-        None if raw.is_overrun() => Err(CodecError::truncated(
+        None if record.raw.is_overrun() => Err(CodecError::truncated(
             "adaptive tokens record: raw stream ends early",
         )),
         None => Err(CodecError::corrupt(
             "adaptive tokens record: unused bytes in the raw stream",
         )),
     }
-}
-
-/// Every band's quadtree and coefficients, in order.
-fn decode_all(
-    dec: &mut Decoder<'_>,
-    raw: &mut BitReader<'_>,
-    s: &mut Scratch,
-    bands: &mut [BandMut<'_>],
-    limits: DecodeLimits,
-) -> Result<(), CodecError> {
-    let mut models = [TokenModels::INIT, TokenModels::INIT];
-    for b in bands.iter_mut() {
-        if b.width == 0 || b.height == 0 {
-            continue;
-        }
-        s.reset(b.width, b.height);
-        let m = &mut models[model_set(b.kind)];
-        let top = s.dims.len() - 1;
-        if !code_node(dec, &mut m.node, s, top, 0, 0, false) {
-            continue;
-        }
-        if dec.overran() {
-            return Err(CodecError::truncated("adaptive tokens record ends early"));
-        }
-        decode_coeffs(dec, raw, m, s, b.values, b.width, b.height, limits.max_abs)?;
-    }
-    Ok(())
 }
 
 /// Appends `len` as LEB128.

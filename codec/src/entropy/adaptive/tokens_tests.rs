@@ -58,7 +58,7 @@ fn reference_decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, Code
     let (raw_bytes, coded) = rest.split_at(raw_len);
     let mut raw = BitReader::new(raw_bytes);
     let mut d = Decoder::new(coded);
-    let mut models = [TokenModels::INIT, TokenModels::INIT];
+    let mut models = [TokenModels::<NCLASS>::INIT, TokenModels::INIT];
     let mut s = Scratch::default();
     for ((kind, w, h, _), values) in shapes.iter().zip(bufs.iter_mut()) {
         let (w, h) = (*w, *h);
@@ -89,7 +89,7 @@ fn reference_decode(bytes: &[u8], shapes: &Shapes) -> Result<Vec<Vec<i32>>, Code
                 let border = (y < 2 || y + 2 >= h || x < 2 || x + 2 >= w) as usize;
                 let k = shift_of(sum);
                 let (mut a, mut negative) = (0u64, false);
-                if d.decode(&mut m.zero[class * 2 + border]) {
+                if d.decode(&mut m.zero[class][border]) {
                     let tree = &mut m.tree[class];
                     let mut n = 1;
                     for _ in 0..TREE_LEVELS {

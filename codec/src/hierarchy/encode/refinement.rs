@@ -3,7 +3,7 @@
 //! coded record.
 
 use crate::CodecError;
-use crate::entropy::{Band, BandKind, encode_bands};
+use crate::entropy::{Band, BandKind, ParentGrid, encode_bands_on_grid};
 use crate::geometry::{DiamondId, GridMap};
 use crate::hierarchy::CodecParams;
 use crate::hierarchy::mask::encode_mask;
@@ -39,7 +39,7 @@ pub(in crate::hierarchy) fn refine_encode(
     } else {
         (None, Vec::new())
     };
-    let bytes = code_record(params, &g, &dc, &dv, &mask);
+    let bytes = code_record(params, &g, p, &dc, &dv, &mask);
     Ok(Refinement {
         cells,
         vertices,
@@ -137,11 +137,13 @@ fn quantize_inner_vertices(
 }
 
 /// The record: the nodata mask where the repository has one, then the bands of cell (and, at
-/// α = ½, vertex) indices; empty when all is valid and every index is zero.
+/// α = ½, vertex) indices, coded on the diamond's grid `p`; empty when all is valid and every
+/// index is zero.
 #[inline]
 fn code_record(
     params: &CodecParams,
     g: &GridMap,
+    p: &[i32],
     dc: &[i32],
     dv: &[i32],
     mask: &impl Fn(i64, i64) -> Option<bool>,
@@ -162,9 +164,14 @@ fn code_record(
             values: dv,
         });
     }
+    let grid = Some(ParentGrid {
+        values: p,
+        n,
+        step: params.quantizer.step(),
+    });
     let mut bytes = Vec::new();
     if !params.nodata_mask {
-        encode_bands(params.coder, &bands, &mut bytes);
+        encode_bands_on_grid(params.coder, &bands, grid, &mut bytes);
         return bytes;
     }
     // The validity of the level-`l+1` points of the square (equal-parity half-step points)
@@ -184,7 +191,7 @@ fn code_record(
     };
     encode_mask(2 * n - 1, 2 * n - 1, &cared, &mut bytes);
     let mask_len = bytes.len();
-    encode_bands(params.coder, &bands, &mut bytes);
+    encode_bands_on_grid(params.coder, &bands, grid, &mut bytes);
     // An empty record means "all valid, all residuals zero", as without a mask.
     if all_valid.get() && bytes.len() == mask_len {
         bytes.clear();
