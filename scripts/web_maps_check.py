@@ -5,8 +5,9 @@ Chromium (run by scripts/web-maps-test.sh; see docs/WEB-MAPS.md).
 Give it a repository (an EPSG:4326 plane), the `cbdam` binary and a directory holding
 `node_modules/cesium`, `node_modules/maplibre-gl` and `node_modules/pmtiles`. It serves
 scripts/web-maps/*.html, node_modules and a PMTiles archive of the repository's terrarium tiles
-from a loopback static server (with Range requests), runs `cbdam serve REPO` on loopback and drives the
-system's Chromium (SwiftShader WebGL2) over the DevTools protocol (the Browser of web_test.py).
+from a loopback static server (with Range requests), runs `cbdam serve REPO` on loopback and
+drives the system's Chromium (SwiftShader WebGL2) over the DevTools protocol (the Browser of
+web_test.py).
 Chromium resolves no host name but 127.0.0.1, and every request the pages and their workers
 send is watched: one to any other host fails the check. Checked:
 
