@@ -73,7 +73,8 @@ fi
 # The clients, as locked; installed again only when the lock changes.
 node_dir="${CARGO_TARGET_DIR:-target}/web-maps-node"
 if ! cmp -s scripts/web-maps/package-lock.json "$node_dir/package-lock.json" \
-    || [ ! -d "$node_dir/node_modules/cesium" ] || [ ! -d "$node_dir/node_modules/maplibre-gl" ]; then
+    || [ ! -d "$node_dir/node_modules/cesium" ] || [ ! -d "$node_dir/node_modules/maplibre-gl" ] \
+    || [ ! -d "$node_dir/node_modules/pmtiles" ]; then
     rm -rf "$node_dir"
     mkdir -p "$node_dir"
     cp scripts/web-maps/package.json scripts/web-maps/package-lock.json "$node_dir/"

@@ -3,9 +3,11 @@
 Chromium (run by scripts/web-maps-test.sh; see docs/WEB-MAPS.md).
 
 Give it a repository (an EPSG:4326 plane), the `cbdam` binary and a directory holding
-`node_modules/cesium` and `node_modules/maplibre-gl`. It serves scripts/web-maps/*.html and
-node_modules from a loopback static server, runs `cbdam serve REPO` on loopback and drives the
-system's Chromium (SwiftShader WebGL2) over the DevTools protocol (the Browser of web_test.py).
+`node_modules/cesium`, `node_modules/maplibre-gl` and `node_modules/pmtiles`. It serves
+scripts/web-maps/*.html, node_modules and a PMTiles archive of the repository's terrarium tiles
+from a loopback static server (with Range requests), runs `cbdam serve REPO` on loopback and
+drives the system's Chromium (SwiftShader WebGL2) over the DevTools protocol (the Browser of
+web_test.py).
 Chromium resolves no host name but 127.0.0.1, and every request the pages and their workers
 send is watched: one to any other host fails the check. Checked:
 
@@ -20,7 +22,11 @@ send is watched: one to any other host fails the check. Checked:
   `queryTerrainElevation` is within the stated `pixel_bound_m` (tiles.json) of the same
   reference resampled as MapLibre samples its DEM (bilinear between the four pixel centres of the
   `maxzoom` tile around the point); the screenshot is not one colour. Then the same with the
-  lossless WebP tiles (`…/terrarium/tiles.json?format=webp`): MapLibre reads them alike.
+  lossless WebP tiles (`…/terrarium/tiles.json?format=webp`): MapLibre reads them alike. Then
+  the same on a PMTiles archive of the terrarium tiles (`cbdam tiles REPO -o r.pmtiles`) on
+  the loopback static server, read through the npm `pmtiles` package's protocol
+  (`pmtiles://…`): every request for the archive carries `Range`, and some read past its root
+  directory (tiles).
 - WebP tiles (terrarium and terrain-RGB, `?format=webp`): at `maxzoom`, the tile at the data's
   centre and the one at its north-west corner (with transparent pixels) decoded by Chromium
   (webp-check.html: libwebp, read back unpremultiplied through WebGL) are the RGBA pixels of the
@@ -46,12 +52,37 @@ import urllib.parse
 import urllib.request
 
 import websocket  # websocket-client, pinned by scripts/web-maps-test.sh
-from web_test import Browser, decode_png, save_screenshot, serve
+from web_test import Browser, RangeHandler, decode_png, save_screenshot, serve
 
 # No name resolves but loopback: a page reaching for the network fails fast, and is seen.
 OFFLINE_FLAGS = ["--use-angle=swiftshader", "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1"]
 PAGE_TIMEOUT_S = 180
 MIN_CESIUM_TILES, MIN_CESIUM_LEVELS = 50, 4
+# Where a PMTiles archive's tiles begin (cbdam writes the header and root directory before).
+ARCHIVE_TILES_START = 16384
+
+
+class ArchiveRanges(RangeHandler):
+    """The site's static files (RangeHandler), noting the `Range` header (None: none) of every
+    request for a `.pmtiles` archive."""
+
+    asked = []
+
+    def send_head(self):
+        if self.path.split("?")[0].endswith(".pmtiles"):
+            self.asked.append(self.headers.get("Range"))
+        return super().send_head()
+
+
+def archive_tiles(failures):
+    """The archive reads past its header and root directory (tiles, leaf directories) since
+    the page was opened; a request without `Range` (the whole file) is a failure."""
+    whole = [r for r in ArchiveRanges.asked if r is None]
+    if whole or not ArchiveRanges.asked:
+        failures.append(f"maplibre (pmtiles): {len(whole)} of {len(ArchiveRanges.asked)} archive "
+                        "requests without Range")
+    starts = [int(re.match(r"bytes=(\d+)", r).group(1)) for r in ArchiveRanges.asked if r]
+    return [s for s in starts if s >= ARCHIVE_TILES_START]
 
 
 class WatchedBrowser(Browser):
@@ -239,10 +270,13 @@ def resampled(at, lon, lat, z):
             + ty * ((1 - tx) * h(ix, iy + 1) + tx * h(ix + 1, iy + 1)))
 
 
-def check_maplibre(browser, site, addr, log, at, failures, image="png"):
+def check_maplibre(browser, site, addr, log, at, failures, image="png", archive=None):
+    """MapLibre on the served terrarium tiles (PNG or WebP), or with `archive` (the name of a
+    PMTiles archive of them on the site) on that archive through `pmtiles://`."""
     query = "" if image == "png" else f"?format={image}"
     tiles_url = f"http://{addr}/v1/repos/r/terrarium/tiles.json{query}"
     info = json.load(urllib.request.urlopen(tiles_url))
+    label = f"{image}, pmtiles" if archive else image
     w, s, e, n = info["bounds"]
     z = info["maxzoom"]
     centre = [(w + e) / 2, (s + n) / 2]
@@ -254,31 +288,34 @@ def check_maplibre(browser, site, addr, log, at, failures, image="png"):
     span_lat = span_lon * math.cos(math.radians(centre[1])) * 0.75
     points = inner_points((centre[0] - span_lon, centre[1] - span_lat,
                            centre[0] + span_lon, centre[1] + span_lat), 20, 0.0)
-    query = urllib.parse.urlencode({"tiles": tiles_url, "points": json.dumps(points),
+    source = {"pmtiles": f"{site}/{archive}", "encoding": info["encoding"]} if archive else {"tiles": tiles_url}
+    query = urllib.parse.urlencode({**source, "points": json.dumps(points),
                                     "view": json.dumps({"center": centre, "zoom": zoom, "pitch": 0})})
+    ArchiveRanges.asked.clear()
     result = browser.run_page(f"{site}/maplibre-check.html?{query}")
     # The canvas as the page read it: a DevTools screenshot waits for a compositor frame, which
     # MapLibre's terrain on SwiftShader takes up to a minute to give under load.
     shot = base64.b64decode(result.get("png", ",").split(",", 1)[1])
-    save_screenshot(shot, f"maplibre-{image}.png")
-    tiles = served_tiles(log, "terrarium", image)
+    save_screenshot(shot, f"maplibre-{image}{'-pmtiles' if archive else ''}.png")
+    tiles = archive_tiles(failures) if archive else served_tiles(log, "terrarium", image)
     worst = 0.0
     for lon, lat, h in result.get("samples", []):
         worst = max(worst, abs(h - resampled(at, lon, lat, z)) if h is not None else math.inf)
     bound = info["cbdam"]["pixel_bound_m"]
     colours, commonest = colours_of(shot)
-    print(f"maplibre ({image}): load {result.get('loadMs')} ms, idle {result.get('idleMs')} ms after navigation "
-          f"({result.get('frames')} frames), {len(tiles)} tiles at levels "
-          f"{sorted({t[0] for t in tiles})}, max |queryTerrainElevation - reference| {worst:.4f} m, "
+    fetched = (f"{len(tiles)} range reads past the archive's root directory" if archive
+               else f"{len(tiles)} tiles at levels {sorted({t[0] for t in tiles})}")
+    print(f"maplibre ({label}): load {result.get('loadMs')} ms, idle {result.get('idleMs')} ms after navigation "
+          f"({result.get('frames')} frames), {fetched}, max |queryTerrainElevation - reference| {worst:.4f} m, "
           f"bound {bound:.4f} m, screenshot {colours} colours, commonest {commonest:.0%}")
     if result["errors"] or not result.get("idle"):
-        failures.append(f"maplibre: idle {result.get('idle')}, errors {result['errors']}")
+        failures.append(f"maplibre ({label}): idle {result.get('idle')}, errors {result['errors']}")
     if not tiles:
-        failures.append("maplibre: no terrarium tile was fetched")
+        failures.append(f"maplibre ({label}): no terrarium tile was fetched")
     if len(result.get("samples", [])) != 20 or worst > bound:
-        failures.append(f"maplibre: queryTerrainElevation off by {worst:.4f} m, bound {bound:.4f} m")
+        failures.append(f"maplibre ({label}): queryTerrainElevation off by {worst:.4f} m, bound {bound:.4f} m")
     if colours < 2 or commonest > 0.98:
-        failures.append(f"maplibre: the screenshot is one colour ({colours} colours)")
+        failures.append(f"maplibre ({label}): the screenshot is one colour ({colours} colours)")
 
 
 def png_rgba(data):
@@ -337,7 +374,9 @@ def main():
         for page in ("cesium-check.html", "maplibre-check.html", "webp-check.html"):
             shutil.copy(os.path.join(here, "web-maps", page), root)
         os.symlink(os.path.join(os.path.abspath(node_dir), "node_modules"), os.path.join(root, "node_modules"))
-        site_server = serve(root)
+        subprocess.run([cbdam, "tiles", repo, "--format", "terrarium", "-o",
+                        os.path.join(root, "r.pmtiles"), "--quiet"], check=True)
+        site_server = serve(root, handler_class=ArchiveRanges)
         site = f"http://127.0.0.1:{site_server.server_port}"
         at = reference_surface(cbdam, repo, tmp)
         proc, addr, log = start_cbdam(cbdam, repo)
@@ -350,10 +389,12 @@ def main():
             maplibre_s = time.time() - started - cesium_s
             check_maplibre(browser, site, addr, log, at, failures, image="webp")
             maplibre_webp_s = time.time() - started - cesium_s - maplibre_s
+            check_maplibre(browser, site, addr, log, at, failures, archive="r.pmtiles")
+            maplibre_pmtiles_s = time.time() - started - cesium_s - maplibre_s - maplibre_webp_s
             check_webp(browser, site, addr, failures)
             print(f"times: cesium {cesium_s:.1f} s, maplibre {maplibre_s:.1f} s, maplibre on webp "
-                  f"{maplibre_webp_s:.1f} s, webp pixels "
-                  f"{time.time() - started - cesium_s - maplibre_s - maplibre_webp_s:.1f} s")
+                  f"{maplibre_webp_s:.1f} s, on pmtiles {maplibre_pmtiles_s:.1f} s, webp pixels "
+                  f"{time.time() - started - cesium_s - maplibre_s - maplibre_webp_s - maplibre_pmtiles_s:.1f} s")
             browser.wait_quietly(0.5)
             foreign = browser.foreign()
             if foreign:

@@ -178,8 +178,9 @@ class Server(socketserver.ThreadingMixIn, http.server.HTTPServer):
             super().handle_error(request, client_address)
 
 
-def serve(root, port=0):
-    handler = lambda *a, **k: RangeHandler(*a, directory=root, **k)  # noqa: E731
+def serve(root, port=0, handler_class=None):
+    handler_class = handler_class or RangeHandler
+    handler = lambda *a, **k: handler_class(*a, directory=root, **k)  # noqa: E731
     server = Server(("127.0.0.1", port), handler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     return server

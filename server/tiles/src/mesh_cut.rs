@@ -14,7 +14,12 @@
 //! descendants reach at most 63 cells from it, so a tile decides each of its vertices from the
 //! 3 × 3 tiles around it (the *block*), and two neighbours decide the vertices of their shared
 //! edge from the same heights at the same global grid positions: the same vertices on both
-//! sides, by construction.
+//! sides, by construction. For the same reason a vertex's decision is the same in every block
+//! reaching it; where blocks share their work ([`shared::Shared`]) the first block to decide a
+//! vertex keeps its decision for the others.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
 
 use crate::place::Placement;
 use crate::schemes::TileId;
@@ -90,8 +95,8 @@ pub struct Block<'a> {
     /// Whether the heights are raised by EGM96's undulation (as `heights` are): the samples
     /// are raised too.
     pub to_ellipsoid: bool,
-    /// Where placed samples are shared between blocks (only for a whole surface: a window's
-    /// chunks could reach past it); `None`: placed for this block alone.
+    /// Where placed samples and vertex decisions are shared between blocks (only for a whole
+    /// surface: a window's chunks could reach past it); `None`: made for this block alone.
     pub shared: Option<&'a shared::Shared>,
 }
 
@@ -104,6 +109,8 @@ struct Network<'a> {
     cell_start: Vec<u32>,
     /// Per block point: 0 not decided, 1 inactive, 2 active.
     state: Vec<u8>,
+    /// The decisions shared with other blocks ([`shared::Shared::block_states`]).
+    decided: Option<[Arc<shared::VertexStates>; 9]>,
 }
 
 /// Cuts tile `block.tile`.
@@ -114,6 +121,7 @@ pub fn cut(block: &Block<'_>) -> Cut {
         samples: Vec::new(),
         cell_start: Vec::new(),
         state: vec![0; SPAN * SPAN],
+        decided: block.shared.map(|s| s.block_states(block.tile)),
     };
     net.gather_samples();
     let (x0, y0) = (net.origin.0 + GRID, net.origin.1 + GRID);
@@ -227,6 +235,11 @@ impl Network<'_> {
             // Beyond the block's reach: unreachable from the tile's own vertices.
             return false;
         };
+        if self.state[k] == 0 {
+            self.state[k] = self
+                .shared_state(k)
+                .map_or(0, |s| s.load(Ordering::Relaxed));
+        }
         if self.state[k] != 0 {
             return self.state[k] == 2;
         }
@@ -236,7 +249,19 @@ impl Network<'_> {
             .any(|&t| self.triangle_error(t, threshold) > threshold)
             || children.into_iter().any(|c| self.active(c));
         self.state[k] = if on { 2 } else { 1 };
+        if let Some(s) = self.shared_state(k) {
+            s.store(self.state[k], Ordering::Relaxed);
+        }
         on
+    }
+
+    /// The shared decision of block point `k`, where decisions are shared (points on the
+    /// block's north and east edges are no vertex a block reaches).
+    fn shared_state(&self, k: usize) -> Option<&std::sync::atomic::AtomicU8> {
+        let (i, j) = (k % SPAN, k / SPAN);
+        let g = GRID as usize;
+        let tiles = self.decided.as_ref().filter(|_| i < 3 * g && j < 3 * g)?;
+        Some(&tiles[j / g * 3 + i / g][j % g * g + i % g])
     }
 
     /// The network's triangles within triangle `[a, b, c]` (hypotenuse `a`–`b`, apex `c`).

@@ -62,26 +62,71 @@ impl Network<'_> {
         let gy = [tri[0].1, tri[1].1, tri[2].1];
         let (x0, x1) = (*gx.iter().min().unwrap(), *gx.iter().max().unwrap());
         let (y0, y1) = (*gy.iter().min().unwrap(), *gy.iter().max().unwrap());
+        let area = Area {
+            plane,
+            spans: Spans::of(tri),
+            columns: (x0, x1),
+            rows: (y0, y1),
+        };
+        let worst = self.grid_error(&area, stop);
+        if worst > stop {
+            return worst;
+        }
+        self.samples_error(&area, stop, worst)
+    }
+
+    /// [`Self::triangle_error`] over the grid points, row by row.
+    fn grid_error(&self, area: &Area, stop: f64) -> f64 {
+        let ((x0, x1), (y0, y1), plane) = (area.columns, area.rows, &area.plane);
         let mut worst = 0.0f64;
         for y in y0..=y1 {
-            for x in x0..=x1 {
-                let (h, data) = self.height((x, y));
-                if data && plane.holds(x as f64, y as f64) {
-                    worst = worst.max((h - plane.at(x as f64, y as f64)).abs());
+            match &area.spans {
+                // The row's span holds exactly the grid points `holds` admits: off it, a grid
+                // point is at least a column from the triangle.
+                Some(spans) => {
+                    let (xa, xb) = spans.between(y, y);
+                    for x in xa..=xb {
+                        let (h, data) = self.height((x, y));
+                        if data {
+                            worst = worst.max((h - plane.at(x as f64, y as f64)).abs());
+                        }
+                    }
+                }
+                None => {
+                    for x in x0..=x1 {
+                        let (h, data) = self.height((x, y));
+                        if data && plane.holds(x as f64, y as f64) {
+                            worst = worst.max((h - plane.at(x as f64, y as f64)).abs());
+                        }
+                    }
                 }
             }
             if worst > stop {
                 return worst;
             }
         }
+        worst
+    }
+
+    /// [`Self::triangle_error`] over the samples, cell row by cell row, from `worst`.
+    fn samples_error(&self, area: &Area, stop: f64, mut worst: f64) -> f64 {
+        let ((x0, x1), (y0, y1), plane) = (area.columns, area.rows, &area.plane);
         for y in y0..y1 {
-            for x in x0..x1 {
+            // The cells over the band's span and the one west of it (a sample within `holds`'
+            // tolerance west of the span lies there; one east of the span's last column, in
+            // that column's cell). Cells wholly in the triangle need no `holds`.
+            let ((xa, xb), (inner_a, inner_b)) = match &area.spans {
+                Some(spans) => (spans.between(y, y + 1), spans.within(y)),
+                None => ((x0, x1), (1, 0)),
+            };
+            for x in (xa - 1).max(x0)..=xb.min(x1 - 1) {
                 let Some(cell) = self.cell_of((x, y)) else {
                     continue;
                 };
+                let inside = inner_a <= x && x < inner_b;
                 let (s, e) = (self.cell_start[cell], self.cell_start[cell + 1]);
                 for &(sx, sy, h) in &self.samples[s as usize..e as usize] {
-                    if plane.holds(sx, sy) {
+                    if inside || plane.holds(sx, sy) {
                         worst = worst.max((h - plane.at(sx, sy)).abs());
                     }
                 }
@@ -98,6 +143,65 @@ impl Network<'_> {
         let (i, j) = (p.0 - self.origin.0, p.1 - self.origin.1);
         let n = SPAN as i64 - 1;
         ((0..n).contains(&i) && (0..n).contains(&j)).then(|| (j * n + i) as usize)
+    }
+}
+
+/// A triangle as its error is measured over it.
+struct Area {
+    plane: Plane,
+    /// `None` where not all its edges have whole slopes: every column of its box is visited.
+    spans: Option<Spans>,
+    /// Its box: least and largest column, row.
+    columns: (i64, i64),
+    rows: (i64, i64),
+}
+
+/// A triangle's extent along the grid rows, per edge: its rows `y0 ≤ y1`, its least and
+/// largest x at `y0` (two for an edge along a row) and its slope (columns per row).
+struct Spans([(i64, i64, i64, i64, i64); 3]);
+
+impl Spans {
+    /// The extent of `tri`, or `None` where an edge's slope is not whole. The network's edges
+    /// run along the axes and the diagonals: slopes 0 and ±1.
+    fn of(tri: [P; 3]) -> Option<Spans> {
+        let edge = |p: P, q: P| {
+            let (p, q) = if p.1 <= q.1 { (p, q) } else { (q, p) };
+            match q.1 - p.1 {
+                0 => Some((p.1, q.1, p.0.min(q.0), p.0.max(q.0), 0)),
+                dy if (q.0 - p.0) % dy == 0 => Some((p.1, q.1, p.0, p.0, (q.0 - p.0) / dy)),
+                _ => None,
+            }
+        };
+        Some(Spans([
+            edge(tri[0], tri[1])?,
+            edge(tri[1], tri[2])?,
+            edge(tri[2], tri[0])?,
+        ]))
+    }
+
+    /// The least and largest column of the triangle between rows `y0 ≤ y1` (within its
+    /// rows): a convex triangle's extent over a band is at the band's edges or its vertices.
+    fn between(&self, y0: i64, y1: i64) -> (i64, i64) {
+        let (mut lo, mut hi) = (i64::MAX, i64::MIN);
+        for &(ya, yb, xlo, xhi, slope) in &self.0 {
+            let (ya2, yb2) = (ya.max(y0), yb.min(y1));
+            if ya2 <= yb2 {
+                for y in [ya2, yb2] {
+                    let dx = (y - ya) * slope;
+                    lo = lo.min(xlo + dx);
+                    hi = hi.max(xhi + dx);
+                }
+            }
+        }
+        (lo, hi)
+    }
+
+    /// The columns `x0 ≤ x < x1` whose cells between rows `y` and `y + 1` lie wholly in the
+    /// triangle: from the larger of the two rows' least columns to the smaller of their
+    /// largest (the triangle's sides are straight between its vertices' rows).
+    fn within(&self, y: i64) -> (i64, i64) {
+        let (a, b) = (self.between(y, y), self.between(y + 1, y + 1));
+        (a.0.max(b.0), a.1.min(b.1))
     }
 }
 
@@ -227,4 +331,111 @@ fn sorted_by_cell(found: Vec<(usize, (f64, f64, f64))>, start: &[u32]) -> Vec<(f
         next[c] += 1;
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::diamond;
+    use super::*;
+
+    /// Every triangle of every diamond of a tile's vertices, in every vertex order.
+    fn network_triangles() -> Vec<[P; 3]> {
+        let mut out = Vec::new();
+        for gy in GRID..=2 * GRID {
+            for gx in GRID..=2 * GRID {
+                let Some((tris, _)) = diamond(gx, gy) else {
+                    continue;
+                };
+                for [a, b, c] in tris {
+                    out.extend([[a, b, c], [b, a, c], [c, a, b], [a, c, b]]);
+                }
+            }
+        }
+        out
+    }
+
+    /// Points over `tri`'s box and one cell around it: a lattice of 1/7 cell, and the points
+    /// a hair (1e-7 cell) either side of its edges.
+    fn points_near(tri: [P; 3]) -> Vec<(f64, f64)> {
+        let (x0, x1) = (
+            tri.iter().map(|p| p.0).min().unwrap(),
+            tri.iter().map(|p| p.0).max().unwrap(),
+        );
+        let (y0, y1) = (
+            tri.iter().map(|p| p.1).min().unwrap(),
+            tri.iter().map(|p| p.1).max().unwrap(),
+        );
+        let mut out = Vec::new();
+        for j in 7 * (y0 - 1)..=7 * (y1 + 1) {
+            for i in 7 * (x0 - 1)..=7 * (x1 + 1) {
+                out.push((i as f64 / 7.0 + 0.01, j as f64 / 7.0 + 0.02));
+            }
+        }
+        for (p, q) in [(tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])] {
+            for t in 0..=16 {
+                let (x, y) = (
+                    p.0 as f64 + (q.0 - p.0) as f64 * f64::from(t) / 16.0,
+                    p.1 as f64 + (q.1 - p.1) as f64 * f64::from(t) / 16.0,
+                );
+                for d in [-1e-7, 0.0, 1e-7] {
+                    out.extend([(x + d, y), (x, y + d)]);
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn spans_visit_every_point_holds_admits() {
+        let tris = network_triangles();
+        assert!(tris.len() > 10_000, "{} triangles", tris.len());
+        for tri in tris {
+            let plane = Plane::through(
+                (tri[0].0 as f64, tri[0].1 as f64, 1.0),
+                (tri[1].0 as f64, tri[1].1 as f64, -2.0),
+                (tri[2].0 as f64, tri[2].1 as f64, 0.5),
+            );
+            let spans = Spans::of(tri).expect("a network triangle's slopes are whole");
+            let (y0, y1) = (
+                tri.iter().map(|p| p.1).min().unwrap(),
+                tri.iter().map(|p| p.1).max().unwrap(),
+            );
+            // Grid points: a row's span is exactly the points `holds` admits.
+            for y in y0..=y1 {
+                let (xa, xb) = spans.between(y, y);
+                for x in xa - 3..=xb + 3 {
+                    let admitted = plane.holds(x as f64, y as f64);
+                    assert_eq!(
+                        admitted,
+                        (xa..=xb).contains(&x),
+                        "{tri:?}: grid point ({x}, {y})"
+                    );
+                }
+            }
+            // Samples: every one `holds` admits is in a cell visited; cells counted as wholly
+            // inside are.
+            for (x, y) in points_near(tri) {
+                let row = y.floor() as i64;
+                if !(y0..y1).contains(&row) {
+                    continue;
+                }
+                let (column, (xa, xb), (ia, ib)) = (
+                    x.floor() as i64,
+                    spans.between(row, row + 1),
+                    spans.within(row),
+                );
+                if plane.holds(x, y) {
+                    assert!(
+                        (xa - 1..=xb).contains(&column),
+                        "{tri:?}: sample ({x}, {y}) not visited"
+                    );
+                } else {
+                    assert!(
+                        !(ia..ib).contains(&column),
+                        "{tri:?}: sample ({x}, {y}) outside, in a cell counted inside"
+                    );
+                }
+            }
+        }
+    }
 }

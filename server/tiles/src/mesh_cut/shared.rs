@@ -3,9 +3,14 @@
 //! each tile's grid is placed and sampled nine times, and each repository sample placed on the
 //! level's grid nine times. Held here: each tile's grid positions ([`Placement::locate`]) and
 //! per-face boxes, its grid heights, and the repository's samples placed on a level's grid, by
-//! chunk. Each value is a pure function of a global grid position or a sample (the same bits
-//! whichever block asks), so tiles are byte-identical with or without it. Each kind is held
-//! within a memory bound, the oldest first out ([`Bounded`]).
+//! chunk; and the cut's decision for each vertex ([`VertexStates`]: whether it is in the
+//! network), which every block holding the vertex would otherwise make again. Each value is a
+//! pure function of a global grid position or a sample (the same bits whichever block asks),
+//! so tiles are byte-identical with or without it. Each kind is held within a memory bound, the
+//! oldest first out ([`Bounded`]).
+
+use std::sync::Arc;
+use std::sync::atomic::AtomicU8;
 
 use super::{GRID, SPAN, grid_lat_lon};
 use crate::bounded::Bounded;
@@ -20,6 +25,18 @@ pub const POSITIONS_BYTES: usize = 32 << 20;
 pub const HEIGHTS_BYTES: usize = 16 << 20;
 /// Bytes of placed sample chunks held (32 KiB a chunk).
 pub const CHUNKS_BYTES: usize = 32 << 20;
+/// Bytes of vertex decisions held (4 KiB a grid tile).
+pub const STATES_BYTES: usize = 8 << 20;
+
+/// The cut's decisions for the `GRID × GRID` vertices of one grid tile whose south-west corner
+/// is the tile's own (row by row from the south): 0 not decided yet, 1 not in the network, 2
+/// in it. Blocks decide a vertex from the same heights, samples and planes in the same global
+/// grid coordinates, so the first decision made holds for every block; two blocks deciding
+/// one vertex at once write the same value.
+pub type VertexStates = Vec<AtomicU8>;
+/// A grid tile not wrapped around the Earth (x may be −1 or `2 << z`): a vertex's decision is
+/// held under the coordinates its block computed it in, not its wrapped twin's.
+type UnwrappedTile = (u8, i64, i64);
 
 /// A face's box of lattice positions: `x0, y0, x1, y1`.
 pub type FaceBox = (u8, (f64, f64, f64, f64));
@@ -47,6 +64,7 @@ pub struct Shared {
     positions: Bounded<GridTile, GridPositions>,
     heights: Bounded<GridTile, Vec<(f64, bool)>>,
     chunks: Bounded<(u8, u8, i64, i64), Vec<Placed>>,
+    states: Bounded<UnwrappedTile, VertexStates>,
 }
 
 impl Default for Shared {
@@ -55,6 +73,7 @@ impl Default for Shared {
             positions: Bounded::new(POSITIONS_BYTES),
             heights: Bounded::new(HEIGHTS_BYTES),
             chunks: Bounded::new(CHUNKS_BYTES),
+            states: Bounded::new(STATES_BYTES),
         }
     }
 }
@@ -215,10 +234,24 @@ impl Shared {
         })
     }
 
+    /// The vertex decisions of `t`'s block: of its nine grid tiles ([`block_tiles`], not
+    /// wrapped), from the south-west, row by row. Block point `(i, j)` with `i, j < 3 × GRID`
+    /// is vertex `(j % GRID) * GRID + i % GRID` of tile `j / GRID * 3 + i / GRID`.
+    pub fn block_states(&self, t: TileId) -> [Arc<VertexStates>; 9] {
+        let n = (GRID * GRID) as usize;
+        std::array::from_fn(|k| {
+            let (dx, dy) = ((k % 3) as i64 - 1, (k / 3) as i64 - 1);
+            let tile = (t.z, i64::from(t.x) + dx, i64::from(t.y) + dy);
+            self.states
+                .get_or_make(tile, n, || (0..n).map(|_| AtomicU8::new(0)).collect())
+        })
+    }
+
     /// Drops everything held.
     pub fn clear(&self) {
         self.positions.clear();
         self.heights.clear();
         self.chunks.clear();
+        self.states.clear();
     }
 }
