@@ -1,8 +1,8 @@
 use super::super::super::{
-    Band, BandKind, BandMut, CoderKind, DecodeLimits, DecodeScratch, ParentGrid,
-    decode_bands_on_grid_with, encode_bands_on_grid,
+    Band, BandKind, CoderKind, DecodeLimits, DecodeScratch, ParentGrid, decode_bands_on_grid_with,
+    encode_bands_on_grid,
 };
-use super::super::tests::{MAX, Rng, Shapes, band_strategy};
+use super::super::tests::{MAX, Rng, Shapes, band_strategy, decode_into_buffers};
 use super::*;
 use proptest::prelude::*;
 
@@ -26,27 +26,17 @@ fn decode_on(
     shapes: &Shapes,
     grid: Option<ParentGrid<'_>>,
 ) -> Result<Vec<Vec<i32>>, CodecError> {
-    let mut bufs: Vec<Vec<i32>> = shapes.iter().map(|(_, w, h, _)| vec![7; w * h]).collect();
-    let mut bands: Vec<BandMut<'_>> = shapes
-        .iter()
-        .zip(bufs.iter_mut())
-        .map(|((kind, w, h, _), buf)| BandMut {
-            kind: *kind,
-            width: *w,
-            height: *h,
-            values: buf,
-        })
-        .collect();
-    let mut scratch = DecodeScratch::default();
-    decode_bands_on_grid_with(
-        CoderKind::AdaptiveGrid,
-        bytes,
-        &mut bands,
-        grid,
-        DecodeLimits::default(),
-        &mut scratch,
-    )?;
-    Ok(bufs)
+    // Start from garbage: the decoder must overwrite everything.
+    decode_into_buffers(shapes, 7, |bands| {
+        decode_bands_on_grid_with(
+            CoderKind::AdaptiveGrid,
+            bytes,
+            bands,
+            grid,
+            DecodeLimits::default(),
+            &mut DecodeScratch::default(),
+        )
+    })
 }
 
 fn grid_of(values: &[i32], n: usize, step: i32) -> Option<ParentGrid<'_>> {

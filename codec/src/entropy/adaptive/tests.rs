@@ -49,6 +49,18 @@ pub(super) fn decode_with(
     limits: DecodeLimits,
     scratch: Option<&mut DecodeScratch>,
 ) -> Result<Vec<Vec<i32>>, CodecError> {
+    decode_into_buffers(shapes, fill, |bands| match scratch {
+        None => decode_bands(coder, bytes, bands, limits),
+        Some(s) => decode_bands_with(coder, bytes, bands, limits, s),
+    })
+}
+
+/// Buffers of `shapes`' sizes pre-filled with `fill`, handed to `decode` as bands.
+pub(super) fn decode_into_buffers(
+    shapes: &Shapes,
+    fill: i32,
+    decode: impl FnOnce(&mut [BandMut<'_>]) -> Result<(), CodecError>,
+) -> Result<Vec<Vec<i32>>, CodecError> {
     let mut bufs: Vec<Vec<i32>> = shapes
         .iter()
         .map(|(_, w, h, _)| vec![fill; w * h])
@@ -63,10 +75,7 @@ pub(super) fn decode_with(
             values: buf,
         })
         .collect();
-    match scratch {
-        None => decode_bands(coder, bytes, &mut bands, limits)?,
-        Some(s) => decode_bands_with(coder, bytes, &mut bands, limits, s)?,
-    }
+    decode(&mut bands)?;
     Ok(bufs)
 }
 
