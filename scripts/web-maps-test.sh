@@ -42,6 +42,10 @@ if [ -d "$pm_py/pmtiles" ] || python3 -m pip install --quiet --target "$pm_py" p
         PYTHONPATH="$pm_py" python3 scripts/web-maps/pmtiles_check.py "$pm_work/j.pmtiles" "$pm_work/dir"
         rm -rf "$pm_work/dir" "$pm_work/j.pmtiles"
     done
+    # Leaf directories: an archive of every tile of levels 0…8 (87 381 entries, too many for
+    # the root directory) written by cbdam's writer, read back tile for tile.
+    cargo run --quiet -p cbdam-tiles --example pmtiles_many_tiles -- "$pm_work/many.pmtiles" 8
+    PYTHONPATH="$pm_py" python3 scripts/web-maps/pmtiles_leaves_check.py "$pm_work/many.pmtiles" 8
     rm -rf "$pm_work"
 elif under_ci; then
     echo "web-maps-test.sh: FAILED: pip install pmtiles==3.8.1 failed; under CI that fails the run" >&2
@@ -84,6 +88,9 @@ fi
 
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
+# The same leaf directories read by the npm `pmtiles` package (MapLibre's protocol's reader).
+cargo run --quiet -p cbdam-tiles --example pmtiles_many_tiles -- "$work/many.pmtiles" 8
+node scripts/web-maps/pmtiles_leaves_check.mjs "$node_dir/node_modules" "$work/many.pmtiles" 8
 cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro.cbdam" \
     --max-error 1 --quiet
 started=$(date +%s)

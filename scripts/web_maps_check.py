@@ -48,6 +48,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.error
 import urllib.parse
 import urllib.request
 
@@ -57,6 +58,8 @@ from web_test import Browser, RangeHandler, decode_png, save_screenshot, serve
 # No name resolves but loopback: a page reaching for the network fails fast, and is seen.
 OFFLINE_FLAGS = ["--use-angle=swiftshader", "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1"]
 PAGE_TIMEOUT_S = 180
+# A page on a broken source stops at its first error event, long before PAGE_TIMEOUT_S.
+BROKEN_ARCHIVE_LIMIT_S = 60
 MIN_CESIUM_TILES, MIN_CESIUM_LEVELS = 50, 4
 # Where a PMTiles archive's tiles begin (cbdam writes the header and root directory before).
 ARCHIVE_TILES_START = 16384
@@ -154,8 +157,10 @@ def colours_of(png):
     return len(counts), max(counts.values()) / (width * height)
 
 
-def start_cbdam(cbdam, repo):
-    proc = subprocess.Popen([cbdam, "serve", f"r={repo}", "--addr", "127.0.0.1:0"],
+def start_cbdam(cbdam, repo, node_dir):
+    """`cbdam serve` of `repo` as `r` on loopback, serving the example pages' libraries."""
+    proc = subprocess.Popen([cbdam, "serve", f"r={repo}", "--addr", "127.0.0.1:0",
+                             "--web-libs", os.path.join(node_dir, "node_modules")],
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "RUST_LOG": "info"})
     log = []
     for line in proc.stderr:
@@ -197,11 +202,12 @@ def inner_points(bounds, count, margin):
              s + (n - s) * (margin + (1 - 2 * margin) * ((i * 0.382 + 0.1) % 1))) for i in range(count)]
 
 
-def served_tiles(log, kind, ext=r"\w+"):
-    """Distinct (z, x, y) of the tiles of `kind` (files ending `.ext`) answered with 200."""
+def served_tiles(log, kind, ext=r"\w+", status="200"):
+    """Distinct (z, x, y) of the tiles of `kind` (files ending `.ext`) answered with `status`
+    (a regular expression)."""
     found = set()
     for line in log:
-        m = re.search(kind + r"/(\d+)/(\d+)/(\d+)\." + ext + r"[ ?].*status=200", line)
+        m = re.search(kind + r"/(\d+)/(\d+)/(\d+)\." + ext + r"[ ?].*status=(?:" + status + ")", line)
         if m:
             found.add(tuple(int(v) for v in m.groups()))
     return found
@@ -293,6 +299,10 @@ def check_maplibre(browser, site, addr, log, at, failures, image="png", archive=
                                     "view": json.dumps({"center": centre, "zoom": zoom, "pitch": 0})})
     ArchiveRanges.asked.clear()
     result = browser.run_page(f"{site}/maplibre-check.html?{query}")
+    if result["errors"] or not result.get("idle"):
+        # The page stops at the first error event (no canvas, no samples).
+        failures.append(f"maplibre ({label}): idle {result.get('idle')}, errors {result['errors']}")
+        return
     # The canvas as the page read it: a DevTools screenshot waits for a compositor frame, which
     # MapLibre's terrain on SwiftShader takes up to a minute to give under load.
     shot = base64.b64decode(result.get("png", ",").split(",", 1)[1])
@@ -308,14 +318,68 @@ def check_maplibre(browser, site, addr, log, at, failures, image="png", archive=
     print(f"maplibre ({label}): load {result.get('loadMs')} ms, idle {result.get('idleMs')} ms after navigation "
           f"({result.get('frames')} frames), {fetched}, max |queryTerrainElevation - reference| {worst:.4f} m, "
           f"bound {bound:.4f} m, screenshot {colours} colours, commonest {commonest:.0%}")
-    if result["errors"] or not result.get("idle"):
-        failures.append(f"maplibre ({label}): idle {result.get('idle')}, errors {result['errors']}")
     if not tiles:
         failures.append(f"maplibre ({label}): no terrarium tile was fetched")
     if len(result.get("samples", [])) != 20 or worst > bound:
         failures.append(f"maplibre ({label}): queryTerrainElevation off by {worst:.4f} m, bound {bound:.4f} m")
     if colours < 2 or commonest > 0.98:
         failures.append(f"maplibre ({label}): the screenshot is one colour ({colours} colours)")
+
+
+def check_broken_archive(browser, site, root, failures):
+    """MapLibre on a truncated copy of the archive (its header and root directory whole, the
+    tiles and metadata cut off): the page must stop at the first error event, well within
+    BROKEN_ARCHIVE_LIMIT_S, and say what went wrong."""
+    whole = open(os.path.join(root, "r.pmtiles"), "rb").read()
+    with open(os.path.join(root, "broken.pmtiles"), "wb") as f:
+        f.write(whole[:ARCHIVE_TILES_START + 1000])
+    info_source = {"pmtiles": f"{site}/broken.pmtiles", "encoding": "terrarium"}
+    query = urllib.parse.urlencode({**info_source, "points": "[]",
+                                    "view": json.dumps({"center": [0, 0], "zoom": 1, "pitch": 0})})
+    started = time.time()
+    result = browser.run_page(f"{site}/maplibre-check.html?{query}")
+    took = time.time() - started
+    print(f"maplibre (truncated archive, {ARCHIVE_TILES_START + 1000} of {len(whole)} bytes): "
+          f"stopped after {took:.1f} s, idle {result.get('idle')}, errors {result['errors'][:2]}")
+    if result.get("idle") or not result["errors"]:
+        failures.append(f"maplibre (truncated archive): no error event (idle {result.get('idle')})")
+    if took > BROKEN_ARCHIVE_LIMIT_S:
+        failures.append(f"maplibre (truncated archive): the page took {took:.1f} s to stop "
+                        f"(at most {BROKEN_ARCHIVE_LIMIT_S} s wanted)")
+
+
+def check_examples(browser, addr, log, failures):
+    """The example pages `cbdam serve --web-libs` links from `/`: each reaches its loaded /
+    idle state with no error, loading its library and tiles from the server alone."""
+    index = urllib.request.urlopen(f"http://{addr}/").read().decode()
+    for page, state, kind in (("cesium.html", "loaded", r"quantized-mesh"), ("maplibre.html", "idle", "terrarium")):
+        url = f"/examples/{page}?repo=r"
+        if f'href="{url}"' not in index:
+            failures.append(f"examples: / does not link {url}")
+        mark = len(log)
+        started = time.time()
+        result = browser.run_page(f"http://{addr}{url}")
+        took = time.time() - started
+        shot = browser.screenshot()
+        save_screenshot(shot, f"example-{page[:-5]}.png")
+        colours, commonest = colours_of(shot)
+        # Tiles the browser has from the checks before are revalidated: 304.
+        tiles = served_tiles(log[mark:], kind, status="200|304")
+        print(f"example {page}: {result.get('state')} after {took:.1f} s, errors {result['errors']}, "
+              f"{len(tiles)} {kind} tiles served, screenshot {colours} colours, commonest {commonest:.0%}")
+        if result.get("state") != state or result["errors"]:
+            failures.append(f"example {page}: state {result.get('state')} (want {state}), errors {result['errors']}")
+        if not tiles:
+            failures.append(f"example {page}: no {kind} tile was served")
+        if colours < 2 or commonest > 0.98:
+            failures.append(f"example {page}: the screenshot is one colour ({colours} colours)")
+    try:
+        urllib.request.urlopen(f"http://{addr}/examples/cesium.html?repo=nosuch")
+        failures.append("example page of an unknown repository answered 200")
+    except urllib.error.HTTPError as e:
+        body = e.read().decode()
+        if e.code != 404 or "no repository named" not in body:
+            failures.append(f"example page of an unknown repository: {e.code} {body[:200]!r}")
 
 
 def png_rgba(data):
@@ -379,7 +443,7 @@ def main():
         site_server = serve(root, handler_class=ArchiveRanges)
         site = f"http://127.0.0.1:{site_server.server_port}"
         at = reference_surface(cbdam, repo, tmp)
-        proc, addr, log = start_cbdam(cbdam, repo)
+        proc, addr, log = start_cbdam(cbdam, repo, node_dir)
         browser = WatchedBrowser()
         try:
             started = time.time()
@@ -390,8 +454,12 @@ def main():
             check_maplibre(browser, site, addr, log, at, failures, image="webp")
             maplibre_webp_s = time.time() - started - cesium_s - maplibre_s
             check_maplibre(browser, site, addr, log, at, failures, archive="r.pmtiles")
+            check_broken_archive(browser, site, root, failures)
             maplibre_pmtiles_s = time.time() - started - cesium_s - maplibre_s - maplibre_webp_s
             check_webp(browser, site, addr, failures)
+            examples_started = time.time()
+            check_examples(browser, addr, log, failures)
+            print(f"the example pages took {time.time() - examples_started:.1f} s")
             print(f"times: cesium {cesium_s:.1f} s, maplibre {maplibre_s:.1f} s, maplibre on webp "
                   f"{maplibre_webp_s:.1f} s, on pmtiles {maplibre_pmtiles_s:.1f} s, webp pixels "
                   f"{time.time() - started - cesium_s - maplibre_s - maplibre_webp_s - maplibre_pmtiles_s:.1f} s")

@@ -67,6 +67,16 @@ pub struct ServeArgs {
     /// `/viewer/HASH/`. Without it `/` only lists the repositories.
     #[arg(long, value_name = "DIR")]
     web: Option<std::path::PathBuf>,
+    /// The JavaScript libraries of the web-map example pages (`/examples/cesium.html?repo=NAME`
+    /// and `/examples/maplibre.html?repo=NAME`, linked from `/`): a `node_modules` holding
+    /// `cesium` and `maplibre-gl` (`npm install cesium maplibre-gl`), served under `/web-libs/`
+    /// so the pages fetch nothing from other hosts. Without it the pages say what to install.
+    #[arg(long, value_name = "DIR")]
+    web_libs: Option<std::path::PathBuf>,
+    /// The `attribution` of every repository's web-map `layer.json` and TileJSON (the credit
+    /// viewers show, e.g. the data's source). Default: what the repository records of itself.
+    #[arg(long, value_name = "TEXT")]
+    attribution: Option<String>,
     /// Worker threads (default: one per core).
     #[arg(long)]
     threads: Option<usize>,
@@ -135,12 +145,18 @@ fn server_config(args: &ServeArgs) -> Result<Config> {
         Some(dir) => Some(std::sync::Arc::new(cbdam_server::WebAssets::load(dir)?)),
         None => None,
     };
+    let web_libs = match &args.web_libs {
+        Some(dir) => Some(std::sync::Arc::new(cbdam_server::WebLibs::open(dir)?)),
+        None => None,
+    };
     Ok(Config {
         max_batch: args.max_batch,
         max_body: args.max_body,
         cors_origin: args.cors_origin.clone(),
         timeout: Duration::from_secs_f64(args.timeout),
         web,
+        web_libs,
+        attribution: args.attribution.clone(),
         header_read_timeout: Duration::from_secs_f64(args.header_timeout),
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),
         max_connections: args.max_connections,
@@ -183,6 +199,11 @@ fn log_addresses(state: &AppState, specs: &[RepoSpec], addr: SocketAddr) {
         None => tracing::info!(
             "repositories listed at http://{addr}/ (the browser viewer with --web DIR)"
         ),
+    }
+    if state.config().web_libs.is_some() {
+        tracing::info!(
+            "web-map examples: http://{addr}/examples/cesium.html?repo=NAME, …/maplibre.html?repo=NAME"
+        );
     }
 }
 

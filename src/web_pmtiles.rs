@@ -65,7 +65,7 @@ fn archive_info(args: &TilesArgs, tiler: &Tiler, name: &str, tile: u32) -> Archi
         TileFormat::TerrainRgb => cbdam_tiles::Encoding::TerrainRgb,
         _ => cbdam_tiles::Encoding::Terrarium,
     };
-    let mut doc = tiler.tilejson(name, encoding, tile, "");
+    let mut doc = tiler.tilejson(name, (encoding, tile), "", args.attribution.as_deref());
     if let Some(o) = doc.as_object_mut() {
         o.remove("tiles");
         o.insert("format".into(), args.image.format().extension().into());

@@ -83,6 +83,10 @@ pub struct TilesArgs {
     /// its part of the data. A box that misses the data is refused.
     #[arg(long, value_parser = parse_bbox, allow_hyphen_values = true)]
     pub(crate) bbox: Option<[f64; 4]>,
+    /// The `attribution` of `tiles.json` / `layer.json` (or the PMTiles metadata): the credit
+    /// viewers show, e.g. the data's source. Default: what the repository records of itself.
+    #[arg(long, value_name = "TEXT")]
+    pub(crate) attribution: Option<String>,
     #[command(flatten)]
     pub(crate) quiet: flags::Quiet,
 }
@@ -300,15 +304,25 @@ fn write_document(args: &TilesArgs, tiler: &Tiler, name: &str, tile: u32) -> Res
     let (file, doc) = match args.format {
         TileFormat::QuantizedMesh => (
             "layer.json",
-            tiler.layer_json(name).map_err(anyhow::Error::msg)?,
+            (tiler.layer_json(name, args.attribution.as_deref())).map_err(anyhow::Error::msg)?,
         ),
         TileFormat::Terrarium => (
             "tiles.json",
-            tiler.tilejson(name, Encoding::Terrarium, tile, &template),
+            tiler.tilejson(
+                name,
+                (Encoding::Terrarium, tile),
+                &template,
+                args.attribution.as_deref(),
+            ),
         ),
         TileFormat::TerrainRgb => (
             "tiles.json",
-            tiler.tilejson(name, Encoding::TerrainRgb, tile, &template),
+            tiler.tilejson(
+                name,
+                (Encoding::TerrainRgb, tile),
+                &template,
+                args.attribution.as_deref(),
+            ),
         ),
     };
     let body = serde_json::to_vec_pretty(&doc)?;

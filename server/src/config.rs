@@ -4,6 +4,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use crate::examples::WebLibs;
 use crate::web::WebAssets;
 
 /// Server settings.
@@ -20,6 +21,13 @@ pub struct Config {
     pub timeout: Duration,
     /// The browser viewer's files, served at `/viewer/…` with a page at `/` (`--web`).
     pub web: Option<Arc<WebAssets>>,
+    /// The JavaScript libraries the example pages load (`--web-libs`: a `node_modules` with
+    /// `cesium` and `maplibre-gl`), served under `/web-libs/`; without them the pages say what
+    /// to install.
+    pub web_libs: Option<Arc<WebLibs>>,
+    /// The `attribution` of every repository's `layer.json` and TileJSON (`--attribution`);
+    /// `None`: what the repository records of itself.
+    pub attribution: Option<String>,
     /// Time a connection has to deliver a request's headers (`--header-timeout`): from its
     /// accept for the first request (protocol detection included), from the end of the last
     /// answer for the next ones on an HTTP/1.1 keep-alive connection, which this also closes
@@ -60,6 +68,8 @@ impl Default for Config {
             cors_origin: "*".to_string(),
             timeout: Duration::from_secs(30),
             web: None,
+            web_libs: None,
+            attribution: None,
             header_read_timeout: Duration::from_secs(10),
             idle_timeout: Duration::from_secs(60),
             max_connections: 10_000,

@@ -49,7 +49,7 @@ fn hv(s: &'static str) -> HeaderValue {
 
 pub(crate) fn router(state: AppState) -> Router {
     let cfg = state.config().clone();
-    crate::tiles::routes(Router::new())
+    crate::examples::routes(crate::tiles::routes(Router::new()))
         .route("/v1/repos", get(list))
         .route("/v1/repos/{name}/meta", get(meta))
         .route("/v1/repos/{name}/file", get(file))

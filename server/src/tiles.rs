@@ -247,7 +247,12 @@ async fn tilejson(
     Ok(json_response(
         r,
         req.headers(),
-        &t.tilejson(&name, encoding, tile, &template),
+        &t.tilejson(
+            &name,
+            (encoding, tile),
+            &template,
+            st.config().attribution.as_deref(),
+        ),
     ))
 }
 
@@ -314,7 +319,8 @@ async fn layer_json(
     let Path(name) = path.map_err(bad_path)?;
     let r = lookup(&st, &name)?;
     let t = tiler(&st, r).await?;
-    let doc = tokio::task::spawn_blocking(move || t.layer_json(&name))
+    let attribution = st.config().attribution.clone();
+    let doc = tokio::task::spawn_blocking(move || t.layer_json(&name, attribution.as_deref()))
         .await
         .map_err(|e| ApiError::Internal(format!("decoding for tiles: {e}")))?
         .map_err(api_error)?;

@@ -63,15 +63,18 @@ pub enum WebError {
     },
 }
 
-/// The content type of a viewer file, by extension.
-fn content_type(name: &str) -> &'static str {
+/// The content type of a viewer file (or of the example pages' libraries), by extension.
+pub(crate) fn content_type(name: &str) -> &'static str {
     match name.rsplit_once('.').map(|(_, e)| e) {
         Some("html") => "text/html; charset=utf-8",
-        Some("js") => "text/javascript; charset=utf-8",
+        Some("js" | "mjs" | "cjs") => "text/javascript; charset=utf-8",
         Some("wasm") => "application/wasm",
         Some("css") => "text/css; charset=utf-8",
         Some("json") => "application/json",
         Some("png") => "image/png",
+        Some("jpg" | "jpeg") => "image/jpeg",
+        Some("gif") => "image/gif",
+        Some("xml") => "application/xml",
         Some("svg") => "image/svg+xml",
         _ => "application/octet-stream",
     }
@@ -182,12 +185,15 @@ pub(crate) fn index_page(repos: &[(String, String, bool)], web: Option<&WebAsset
             ),
             None => name_html.clone(),
         };
-        // Web maps (docs/WEB-MAPS.md): what MapLibre and CesiumJS are pointed at.
+        // Web maps (docs/WEB-MAPS.md): what MapLibre and CesiumJS are pointed at, and the
+        // example pages showing it in them.
         let maps = if *tiles {
             format!(
                 " · <a href=\"/v1/repos/{name_html}/terrarium/tiles.json\">terrarium</a> \
                  · <a href=\"/v1/repos/{name_html}/terrain-rgb/tiles.json\">terrain-RGB</a> \
-                 · <a href=\"/v1/repos/{name_html}/quantized-mesh/layer.json\">quantized-mesh</a>"
+                 · <a href=\"/v1/repos/{name_html}/quantized-mesh/layer.json\">quantized-mesh</a> \
+                 · examples: <a href=\"/examples/cesium.html?repo={name_html}\">CesiumJS</a>, \
+                 <a href=\"/examples/maplibre.html?repo={name_html}\">MapLibre</a>"
             )
         } else {
             String::new()

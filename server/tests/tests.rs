@@ -9,6 +9,7 @@ mod util;
 mod answer_memory;
 #[cfg(target_os = "linux")]
 mod child;
+mod examples;
 mod file_reads;
 #[cfg(target_os = "linux")]
 mod hostile;

@@ -42,6 +42,8 @@ pub struct Tiler {
     /// The repository's guaranteed L∞ bound, metres.
     max_error: f64,
     datum: VerticalDatum,
+    /// A planet's largest resampling distance from its inputs, metres (its provenance).
+    resampling_max: Option<f64>,
     mesh_max_zoom: u8,
     /// The header height range of every quantized-mesh tile, metres.
     mesh_range: (f64, f64),
@@ -143,6 +145,7 @@ impl Tiler {
             bounds,
             max_error: head.plan().max_error(),
             datum,
+            resampling_max: head.provenance().map(|p| p.resampling_max),
             shared: Some(Shared::default()),
             meshes: Bounded::new(MESH_CACHE_BYTES),
             windows: SharedWindows::new(WINDOW_CACHE_BYTES),
@@ -487,8 +490,30 @@ impl Tiler {
         })
     }
 
-    /// `layer.json` of the quantized-mesh tiles.
-    pub fn layer_json(&self, name: &str) -> Result<Value, TilesError> {
+    /// The `attribution` of `layer.json` and the TileJSON: `given` (`--attribution`), else what
+    /// the repository records of itself (it holds no credit for the data it was built from).
+    pub fn attribution(&self, name: &str, given: Option<&str>) -> String {
+        if let Some(text) = given {
+            return text.to_string();
+        }
+        // Millimetres at most: the bound is a float of the quantizer's step.
+        let metres = |v: f64| {
+            let s = format!("{v:.3}");
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        };
+        let bound = metres(self.max_error);
+        match self.resampling_max {
+            Some(r) => format!(
+                "cbdam planet {name} (heights within {bound} m of its lattice, resampled within \
+                 {} m of its inputs)",
+                metres(r)
+            ),
+            None => format!("cbdam repository {name} (heights within {bound} m of its input)"),
+        }
+    }
+
+    /// `layer.json` of the quantized-mesh tiles; `attribution` as [`Tiler::attribution`] takes it.
+    pub fn layer_json(&self, name: &str, attribution: Option<&str>) -> Result<Value, TilesError> {
         let available: Vec<Value> = (0..=self.mesh_max_zoom)
             .map(|z| {
                 let ranges = self.available.ranges(z).into_iter();
@@ -519,7 +544,7 @@ impl Tiler {
             // metadata lists its children, one level down.
             "metadataAvailability": 1,
             "extensions": ["octvertexnormals", "metadata"],
-            "attribution": "",
+            "attribution": self.attribution(name, attribution),
             "cbdam": {
                 "vertex_bound_m": self.vertex_bound(),
                 "vertex_bound": "every vertex of a level-maxzoom tile is within this of the \
@@ -554,8 +579,15 @@ impl Tiler {
         }))
     }
 
-    /// TileJSON 3.0 of the raster tiles; `tiles` is the URL template to put in it.
-    pub fn tilejson(&self, name: &str, encoding: Encoding, tile: u32, tiles: &str) -> Value {
+    /// TileJSON 3.0 of the raster tiles; `tiles` is the URL template to put in it, `attribution`
+    /// as [`Tiler::attribution`] takes it.
+    pub fn tilejson(
+        &self,
+        name: &str,
+        (encoding, tile): (Encoding, u32),
+        tiles: &str,
+        attribution: Option<&str>,
+    ) -> Value {
         let b = self.bounds;
         let bounds = [
             b[0],
@@ -573,6 +605,7 @@ impl Tiler {
                                    encoding.maplibre_name()),
             "scheme": "xyz",
             "tiles": [tiles],
+            "attribution": self.attribution(name, attribution),
             "bounds": bounds,
             "center": [0.5 * (bounds[0] + bounds[2]), 0.5 * (bounds[1] + bounds[3]),
                        max.saturating_sub(2)],
