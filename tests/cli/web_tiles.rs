@@ -336,3 +336,39 @@ fn pmtiles_archives_are_written_whole_and_mesh_tiles_refused() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("is a directory"), "{}", stderr(&o));
 }
+
+#[test]
+fn attribution_is_the_flags_in_every_document_the_export_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro_at("2");
+    let credit = ["--quiet", "--max-zoom", "2", "--attribution", "USGS 3DEP"];
+    let read = |p: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+    };
+    export(&repo, &dir.path().join("t"), "terrarium", &credit);
+    assert_eq!(
+        read(&dir.path().join("t/tiles.json"))["attribution"],
+        "USGS 3DEP"
+    );
+    export(&repo, &dir.path().join("q"), "quantized-mesh", &credit);
+    assert_eq!(
+        read(&dir.path().join("q/layer.json"))["attribution"],
+        "USGS 3DEP"
+    );
+    // In a PMTiles archive, in its metadata (gzip JSON at the header's offset and length).
+    let archive = dir.path().join("p.pmtiles");
+    export(&repo, &archive, "terrain-rgb", &credit);
+    let bytes = std::fs::read(&archive).unwrap();
+    let at = |i: usize| u64::from_le_bytes(bytes[i..i + 8].try_into().unwrap()) as usize;
+    let (offset, length) = (at(24), at(32));
+    let meta: serde_json::Value =
+        serde_json::from_slice(&gunzip(&bytes[offset..offset + length])).unwrap();
+    assert_eq!(meta["attribution"], "USGS 3DEP");
+    // Without the flag: what the repository records of itself.
+    export(&repo, &dir.path().join("d"), "quantized-mesh", &credit[..3]);
+    let own = read(&dir.path().join("d/layer.json"))["attribution"].clone();
+    assert!(
+        own.as_str().unwrap().starts_with("cbdam repository "),
+        "{own}"
+    );
+}
