@@ -26,7 +26,11 @@ send is watched: one to any other host fails the check. Checked:
   the same on a PMTiles archive of the terrarium tiles (`cbdam tiles REPO -o r.pmtiles`) on
   the loopback static server, read through the npm `pmtiles` package's protocol
   (`pmtiles://…`): every request for the archive carries `Range`, and some read past its root
-  directory (tiles).
+  directory (tiles). Then on two broken copies of the archive (truncated; root directory one
+  byte late): the page stops at the first `error` event within BROKEN_ARCHIVE_LIMIT_S.
+- The example pages `cbdam serve --web-libs` links from `/` (`/examples/cesium.html?repo=r`,
+  `/examples/maplibre.html?repo=r`): each reaches `loaded` / `idle` with no error, tiles are
+  asked of the server, the screenshot is not one colour; an unknown repository is a 404.
 - WebP tiles (terrarium and terrain-RGB, `?format=webp`): at `maxzoom`, the tile at the data's
   centre and the one at its north-west corner (with transparent pixels) decoded by Chromium
   (webp-check.html: libwebp, read back unpremultiplied through WebGL) are the RGBA pixels of the
