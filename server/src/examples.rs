@@ -15,6 +15,7 @@ use axum::response::Response;
 
 use crate::error::{ApiError, bad_path};
 use crate::state::AppState;
+use crate::web::escape;
 
 /// The pages, by file name, and the library each needs.
 const PAGES: [(&str, &str, &str); 2] = [
@@ -148,12 +149,17 @@ async fn library_file(
     Ok(r)
 }
 
-/// Escapes text for HTML.
-fn escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
+/// An HTML page answered with `status`, revalidated by caches.
+fn html_page(status: StatusCode, body: String) -> Response {
+    let mut r = Response::new(Body::from(body));
+    *r.status_mut() = status;
+    let h = r.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("text/html; charset=utf-8"),
+    );
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    r
 }
 
 /// A page of text: an example that cannot be shown, and why.
@@ -165,15 +171,7 @@ fn message_page(status: StatusCode, title: &str, message: &str) -> Response {
         t = escape(title),
         m = escape(message)
     );
-    let mut r = Response::new(Body::from(body));
-    *r.status_mut() = status;
-    let h = r.headers_mut();
-    h.insert(
-        header::CONTENT_TYPE,
-        HeaderValue::from_static("text/html; charset=utf-8"),
-    );
-    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
-    r
+    html_page(status, body)
 }
 
 /// `repo` of the query string, if given.
@@ -230,15 +228,7 @@ async fn example_page(
         );
     }
     // Names hold A-Z a-z 0-9 . _ - only (`validate_name`): nothing to escape in HTML or JS.
-    let body = template.replace("{{REPO}}", &escape(&name));
-    let mut resp = Response::new(Body::from(body));
-    let h = resp.headers_mut();
-    h.insert(
-        header::CONTENT_TYPE,
-        HeaderValue::from_static("text/html; charset=utf-8"),
-    );
-    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
-    resp
+    html_page(StatusCode::OK, template.replace("{{REPO}}", &escape(&name)))
 }
 
 /// The routes of this module.

@@ -165,7 +165,7 @@ fn gzip(raw: &[u8]) -> Vec<u8> {
 }
 
 /// Escapes text for HTML.
-fn escape(s: &str) -> String {
+pub(crate) fn escape(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
