@@ -38,6 +38,10 @@ pub enum CoderArg {
     /// The adaptive token coder with each cell's context also seeing the spread of its four
     /// corners on the diamond's grid: smaller files (docs/FORMAT.md, coder id 4).
     AdaptiveGrid,
+    /// `adaptive-grid` with each band's indices predicted from their decoded neighbours in the
+    /// band, the predictor chosen per band (docs/FORMAT.md, coder id 5).
+    #[value(name = "adaptive-inband")]
+    AdaptiveInBand,
 }
 
 impl CoderArg {
@@ -49,6 +53,7 @@ impl CoderArg {
             CoderArg::EliasGamma => CoderKind::EliasGamma,
             CoderArg::FastRice => CoderKind::FastRice,
             CoderArg::AdaptiveGrid => CoderKind::AdaptiveGrid,
+            CoderArg::AdaptiveInBand => CoderKind::AdaptiveInBand,
         }
     }
 }

@@ -57,22 +57,29 @@ fuzz_target!(|data: &[u8]| {
         n,
         step: i32::from(*count >> 3),
     };
-    let mut bufs: Vec<Vec<i32>> = shapes.iter().map(|&(_, w, h)| vec![0; w * h]).collect();
-    let mut bands: Vec<BandMut<'_>> = bufs
-        .iter_mut()
-        .zip(&shapes)
-        .map(|(v, &(kind, width, height))| BandMut {
-            kind,
-            width,
-            height,
-            values: v,
-        })
-        .collect();
-    let mut scratch = DecodeScratch::default();
-    let coder = CoderKind::AdaptiveGrid;
-    if decode_bands_on_grid_with(coder, payload, &mut bands, Some(grid), limits, &mut scratch).is_ok() {
-        for v in bufs.iter().flatten() {
-            assert!(v.unsigned_abs() <= limits.max_abs, "adaptive-grid on a grid decoded {v} over the limit");
+    for coder in [CoderKind::AdaptiveGrid, CoderKind::AdaptiveInBand] {
+        let mut bufs: Vec<Vec<i32>> = shapes.iter().map(|&(_, w, h)| vec![0; w * h]).collect();
+        let mut bands: Vec<BandMut<'_>> = bufs
+            .iter_mut()
+            .zip(&shapes)
+            .map(|(v, &(kind, width, height))| BandMut {
+                kind,
+                width,
+                height,
+                values: v,
+            })
+            .collect();
+        let mut scratch = DecodeScratch::default();
+        if decode_bands_on_grid_with(coder, payload, &mut bands, Some(grid), limits, &mut scratch)
+            .is_ok()
+        {
+            for v in bufs.iter().flatten() {
+                assert!(
+                    v.unsigned_abs() <= limits.max_abs,
+                    "{} on a grid decoded {v} over the limit",
+                    coder.name()
+                );
+            }
         }
     }
 

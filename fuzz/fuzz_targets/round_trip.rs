@@ -13,7 +13,6 @@ use cbdam_codec::entropy::{
 };
 use libfuzzer_sys::fuzz_target;
 
-
 fuzz_target!(|data: &[u8]| {
     let [w, h, rest @ ..] = data else { return };
     let mut rest: &[u8] = rest;
@@ -67,25 +66,29 @@ fuzz_target!(|data: &[u8]| {
             n,
             step: i32::from(data[0] % 8),
         });
-        let band = Band {
-            kind: BandKind::Cells,
-            width: w,
-            height: h,
-            values: &values,
-        };
-        let mut bytes = Vec::new();
-        encode_bands_on_grid(CoderKind::AdaptiveGrid, &[band], grid, &mut bytes);
-        let mut out = vec![i32::MIN; w * h];
-        let mut bands = [BandMut {
-            kind: BandKind::Cells,
-            width: w,
-            height: h,
-            values: &mut out,
-        }];
-        let limits = DecodeLimits::default();
-        let mut scratch = DecodeScratch::default();
-        decode_bands_on_grid_with(CoderKind::AdaptiveGrid, &bytes, &mut bands, grid, limits, &mut scratch)
-            .unwrap_or_else(|e| panic!("adaptive-grid on its grid: own record rejected: {e}"));
-        assert_eq!(out, values, "adaptive-grid on its grid");
+        for coder in [CoderKind::AdaptiveGrid, CoderKind::AdaptiveInBand] {
+            let band = Band {
+                kind: BandKind::Cells,
+                width: w,
+                height: h,
+                values: &values,
+            };
+            let mut bytes = Vec::new();
+            encode_bands_on_grid(coder, &[band], grid, &mut bytes);
+            let mut out = vec![i32::MIN; w * h];
+            let mut bands = [BandMut {
+                kind: BandKind::Cells,
+                width: w,
+                height: h,
+                values: &mut out,
+            }];
+            let limits = DecodeLimits::default();
+            let mut scratch = DecodeScratch::default();
+            decode_bands_on_grid_with(coder, &bytes, &mut bands, grid, limits, &mut scratch)
+                .unwrap_or_else(|e| {
+                    panic!("{} on its grid: own record rejected: {e}", coder.name())
+                });
+            assert_eq!(out, values, "{} on its grid", coder.name());
+        }
     }
 });

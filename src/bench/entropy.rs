@@ -39,6 +39,9 @@ pub struct BenchEntropyArgs {
     /// The entropy coder whose bits are measured.
     #[arg(long, value_enum, default_value_t = CoderArg::AdaptiveTokens)]
     coder: CoderArg,
+    /// Also re-code each diamond's cells with in-band secondary predictions (slow).
+    #[arg(long)]
+    in_band: bool,
 }
 
 /// The tallies by (level, band kind).
@@ -83,6 +86,9 @@ pub fn run(args: &BenchEntropyArgs) -> Result<()> {
             print_totals(&bands, samples, file_bytes, fixed_bits, mask_bits);
             print_med(&grid, plan.quantizer.k(), samples);
             print_predictors(&encoded, samples)?;
+            if args.in_band {
+                super::entropy_secondary::print_secondary(&encoded, samples)?;
+            }
         }
     }
     Ok(())
@@ -186,7 +192,7 @@ fn tally_record(
 }
 
 /// A record's bytes without its nodata mask, and the mask's length.
-fn strip_mask<'a>(encoded: &Encoded, bytes: &'a [u8]) -> Result<(usize, &'a [u8])> {
+pub(super) fn strip_mask<'a>(encoded: &Encoded, bytes: &'a [u8]) -> Result<(usize, &'a [u8])> {
     let n = encoded.params.layout().n();
     if encoded.params.nodata_mask && !bytes.is_empty() {
         let (_, used) = decode_mask(2 * n - 1, 2 * n - 1, bytes)?;

@@ -4,6 +4,7 @@
 mod build;
 mod codec;
 mod entropy;
+mod entropy_secondary;
 mod network;
 mod render;
 mod report;

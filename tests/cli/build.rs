@@ -116,6 +116,11 @@ fn adaptive_grid_decodes_to_what_the_default_coder_decodes() {
 }
 
 #[test]
+fn adaptive_inband_decodes_to_what_the_default_coder_decodes() {
+    decodes_to_what_the_default_coder_decodes("adaptive-inband");
+}
+
+#[test]
 fn fast_rice_decodes_to_what_the_default_coder_decodes() {
     decodes_to_what_the_default_coder_decodes("fast-rice");
 }

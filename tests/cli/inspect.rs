@@ -191,7 +191,13 @@ fn the_decoded_digest_is_the_surfaces_not_the_coders() {
         hash
     };
     let default = digest_of("adaptive-tokens", "1");
-    for coder in ["adaptive", "elias-gamma", "fast-rice", "adaptive-grid"] {
+    for coder in [
+        "adaptive",
+        "elias-gamma",
+        "fast-rice",
+        "adaptive-grid",
+        "adaptive-inband",
+    ] {
         assert_eq!(digest_of(coder, "1"), default, "{coder}");
     }
     assert_ne!(digest_of("adaptive-tokens", "4"), default);

@@ -10,12 +10,15 @@
 //! quadtree and neighbourhood classes with static per-band Golomb–Rice codes instead of
 //! arithmetic coding (larger, faster to decode); and [`CoderKind::AdaptiveGrid`], the token
 //! coder with each cell's context also seeing the diamond's grid (the spread of the cell's
-//! corners, [`ParentGrid`]). A repository records which one wrote it.
+//! corners, [`ParentGrid`]); and [`CoderKind::AdaptiveInBand`], that coder on each band's indices
+//! less a prediction from their decoded neighbours in the band ([`secondary`]). A repository
+//! records which one wrote it.
 
 pub mod adaptive;
 pub mod bitio;
 pub mod gamma;
 pub mod references;
+pub mod secondary;
 
 use crate::CodecError;
 
@@ -37,16 +40,20 @@ pub enum CoderKind {
     /// The token coder with one more context for cells: the spread of the cell's four corners
     /// on the diamond's grid, which the decoder has before the record ([`ParentGrid`]).
     AdaptiveGrid = 4,
+    /// [`CoderKind::AdaptiveGrid`] with each band's indices predicted from their decoded
+    /// neighbours in the band, the predictor chosen per band ([`secondary`]).
+    AdaptiveInBand = 5,
 }
 
 impl CoderKind {
     /// Every coder, for tests and benchmarks.
-    pub const ALL: [CoderKind; 5] = [
+    pub const ALL: [CoderKind; 6] = [
         CoderKind::EliasGamma,
         CoderKind::Adaptive,
         CoderKind::AdaptiveTokens,
         CoderKind::FastRice,
         CoderKind::AdaptiveGrid,
+        CoderKind::AdaptiveInBand,
     ];
 
     /// The byte stored in a repository header.
@@ -62,6 +69,7 @@ impl CoderKind {
             2 => Ok(Self::AdaptiveTokens),
             3 => Ok(Self::FastRice),
             4 => Ok(Self::AdaptiveGrid),
+            5 => Ok(Self::AdaptiveInBand),
             _ => Err(CodecError::corrupt(format!("unknown entropy coder id {b}"))),
         }
     }
@@ -74,6 +82,7 @@ impl CoderKind {
             Self::AdaptiveTokens => "adaptive-tokens",
             Self::FastRice => "fast-rice",
             Self::AdaptiveGrid => "adaptive-grid",
+            Self::AdaptiveInBand => "adaptive-inband",
         }
     }
 }
@@ -202,6 +211,7 @@ pub fn encode_bands_on_grid(
         CoderKind::AdaptiveTokens => adaptive::tokens::encode_bands(bands, out),
         CoderKind::FastRice => adaptive::rice::encode_bands(bands, out),
         CoderKind::AdaptiveGrid => adaptive::grid::encode_bands(bands, grid, out),
+        CoderKind::AdaptiveInBand => adaptive::inband::encode_bands(bands, grid, out),
     }
 }
 
@@ -211,6 +221,7 @@ pub fn encode_bands_on_grid(
 pub struct DecodeScratch {
     adaptive: adaptive::Scratch,
     cells: adaptive::grid::CellActivity,
+    hints: secondary::GridHints,
 }
 
 /// Decodes one record written by [`encode_bands`] with the same band shapes.
@@ -283,6 +294,15 @@ pub fn decode_bands_on_grid_with(
             limits,
             &mut scratch.adaptive,
             &mut scratch.cells,
+        ),
+        CoderKind::AdaptiveInBand => adaptive::inband::decode_bands(
+            bytes,
+            bands,
+            grid,
+            limits,
+            &mut scratch.adaptive,
+            &mut scratch.cells,
+            &mut scratch.hints,
         ),
     }
 }

@@ -21,7 +21,7 @@ use crate::entropy::{Band, BandKind, BandMut, DecodeLimits, ParentGrid};
 
 #[cfg(test)]
 #[path = "grid_tests.rs"]
-mod tests;
+pub(super) mod tests;
 
 /// The spread is added to the neighbourhood sum divided by this (measured: 1, 2, 4 and 8, and
 /// separate model sets per octave of the spread, `docs/RESULTS.md`).
@@ -48,7 +48,7 @@ pub(crate) struct CellActivity {
 
 impl CellActivity {
     /// Fills the terms of the `(n − 1)²` cells of `grid`.
-    fn fill(&mut self, grid: &ParentGrid<'_>) {
+    pub(super) fn fill(&mut self, grid: &ParentGrid<'_>) {
         let (n, step) = (grid.n, i64::from(grid.step.max(1)));
         let m = n.saturating_sub(1);
         self.adds.clear();
@@ -58,7 +58,7 @@ impl CellActivity {
         }
     }
 
-    fn activity(&self) -> Corners<'_> {
+    pub(super) fn activity(&self) -> Corners<'_> {
         Corners(&self.adds)
     }
 }
@@ -66,7 +66,7 @@ impl CellActivity {
 /// [`Activity`] from the cells' corner terms: the neighbourhood sum plus the cell's term, so
 /// that the class and the raw shift both see the grid.
 #[derive(Clone, Copy)]
-struct Corners<'a>(&'a [u16]);
+pub(super) struct Corners<'a>(&'a [u16]);
 
 impl Activity for Corners<'_> {
     #[inline(always)]
@@ -76,7 +76,7 @@ impl Activity for Corners<'_> {
 }
 
 /// Whether a band of `kind`, `width × height`, holds the cells whose corners `g` holds.
-fn is_cells_of(kind: BandKind, width: usize, height: usize, g: &ParentGrid<'_>) -> bool {
+pub(super) fn is_cells_of(kind: BandKind, width: usize, height: usize, g: &ParentGrid<'_>) -> bool {
     kind == BandKind::Cells && width + 1 == g.n && height + 1 == g.n
 }
 

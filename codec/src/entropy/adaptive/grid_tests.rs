@@ -6,7 +6,7 @@ use super::super::tests::{MAX, Rng, Shapes, band_strategy, decode_into_buffers};
 use super::*;
 use proptest::prelude::*;
 
-fn encode_on(coder: CoderKind, bands: &Shapes, grid: Option<ParentGrid<'_>>) -> Vec<u8> {
+pub(crate) fn encode_on(coder: CoderKind, bands: &Shapes, grid: Option<ParentGrid<'_>>) -> Vec<u8> {
     let bands: Vec<Band<'_>> = bands
         .iter()
         .map(|(kind, w, h, v)| Band {
@@ -39,12 +39,12 @@ fn decode_on(
     })
 }
 
-fn grid_of(values: &[i32], n: usize, step: i32) -> Option<ParentGrid<'_>> {
+pub(crate) fn grid_of(values: &[i32], n: usize, step: i32) -> Option<ParentGrid<'_>> {
     Some(ParentGrid { values, n, step })
 }
 
 /// An `n × n` terrain-like grid: flat on the left, ever steeper and rougher to the right.
-fn rough_grid(rng: &mut Rng, n: usize) -> Vec<i32> {
+pub(crate) fn rough_grid(rng: &mut Rng, n: usize) -> Vec<i32> {
     (0..n * n)
         .map(|k| {
             let x = (k % n) as i64;
@@ -56,7 +56,7 @@ fn rough_grid(rng: &mut Rng, n: usize) -> Vec<i32> {
 
 /// Cell residuals whose scale follows the grid's corner spread, as on real terrain: Laplacian
 /// with scale `0.05 + spread / 8` steps.
-fn residuals_following(rng: &mut Rng, g: &[i32], n: usize, step: i32) -> Vec<i32> {
+pub(crate) fn residuals_following(rng: &mut Rng, g: &[i32], n: usize, step: i32) -> Vec<i32> {
     let m = n - 1;
     let mut out = Vec::with_capacity(m * m);
     for j in 0..m {
@@ -185,7 +185,7 @@ fn a_grid_that_does_not_fit_the_cells_is_an_error() {
 }
 
 /// A grid for a fuzzed `n`: values anywhere in i32 or small, by `seed`.
-fn fuzz_grid(n: usize, seed: u64, wide: bool) -> Vec<i32> {
+pub(crate) fn fuzz_grid(n: usize, seed: u64, wide: bool) -> Vec<i32> {
     let mut rng = Rng(seed);
     (0..n * n)
         .map(|_| {

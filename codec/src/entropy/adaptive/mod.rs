@@ -28,6 +28,7 @@
 //! coefficient as a static Golomb–Rice code, for faster decoding still.
 
 pub(crate) mod grid;
+pub(crate) mod inband;
 pub(crate) mod integers;
 mod range_coder;
 pub(crate) mod rice;

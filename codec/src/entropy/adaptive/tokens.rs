@@ -465,6 +465,12 @@ impl<const C: usize> RecordEncoder<C> {
         }
     }
 
+    /// Writes `n` bits of `value` to the raw stream (side information a coder puts before a
+    /// band, read back by [`RecordDecoder::raw_bits`] at the same point).
+    pub(super) fn raw_bits(&mut self, value: u32, n: u32) {
+        self.raw.put_bits(value, n);
+    }
+
     /// Appends the record: the raw stream's length, the raw stream, the range-coded stream.
     pub(super) fn finish(self, out: &mut Vec<u8>) {
         let raw = self.raw.finish();
@@ -493,6 +499,12 @@ pub(super) struct RecordDecoder<'a, 's, const C: usize> {
 }
 
 impl<const C: usize> RecordDecoder<'_, '_, C> {
+    /// Reads `n` bits that [`RecordEncoder::raw_bits`] wrote (zeros past the end of the raw
+    /// stream, which [`decode_record`] then reports).
+    pub(super) fn raw_bits(&mut self, n: u32) -> u32 {
+        self.raw.get_bits(n)
+    }
+
     /// Decodes band `b`'s quadtree and coefficients, each in the context `activity` gives it.
     pub(super) fn band(
         &mut self,
