@@ -8,6 +8,7 @@
 #![deny(missing_docs)]
 
 pub mod atomic;
+mod cache;
 pub mod colour;
 pub mod entropy;
 pub mod error;

@@ -61,11 +61,52 @@ pub fn predict_cell(p: &[i32], n: usize, i: usize, j: usize) -> i32 {
     }
 }
 
+/// Which compilation of the decoder's vector loops runs: the portable one, the reference (on
+/// AArch64 it is NEON, part of the baseline; on wasm32 `simd128` where the build enables it),
+/// or one compiled for a wider vector unit the CPU was found to have at run time. Every kind
+/// gives the same integers: the same source, only the instructions differ.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VectorKernels {
+    /// The target's baseline instructions (SSE2 on x86-64).
+    Portable,
+    /// AVX2 (x86-64, detected at run time).
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+}
+
+impl VectorKernels {
+    /// The fastest kind this CPU runs.
+    #[inline]
+    pub fn detected() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Self::Avx2;
+        }
+        Self::Portable
+    }
+
+    /// Every kind this CPU runs, the portable one first.
+    pub fn available() -> Vec<Self> {
+        let mut kinds = vec![Self::Portable];
+        if Self::detected() != Self::Portable {
+            kinds.push(Self::detected());
+        }
+        kinds
+    }
+}
+
 /// Predictions of all `(N−1)²` cells, row-major into `out`.
 ///
 /// The hot path of decoding: borders use [`predict_cell`], the interior runs a branch-free loop
-/// over rows so the compiler can vectorise it.
+/// over rows so the compiler can vectorise it ([`VectorKernels::Portable`]).
 pub fn predict_cells(p: &[i32], n: usize, out: &mut [i32]) {
+    predict_cells_inline(p, n, out);
+}
+
+/// [`predict_cells`], inlined into its caller so that a caller compiled for wider vectors
+/// ([`VectorKernels`]) vectorises it with them.
+#[inline(always)]
+pub(crate) fn predict_cells_inline(p: &[i32], n: usize, out: &mut [i32]) {
     let m = n - 1;
     assert!(p.len() == n * n && out.len() == m * m);
     for j in 0..m {

@@ -7,7 +7,8 @@ use rayon::prelude::*;
 
 use super::decode_pool::{GridPool, with_thread_scratch};
 use super::refine::{
-    ChildHalf, RefineScratch, Refined, gather, gather_validity, refine, refine_owned,
+    ChildHalf, RefineScratch, Refined, gather, gather_validity, prefetch_gather, refine,
+    refine_owned,
 };
 use super::roots::{decode_roots, root_grid};
 use super::{CodecParams, Encoded};
@@ -358,15 +359,28 @@ fn decode_chunk(
     scratch: &mut RefineScratch,
     pool: &GridPool,
 ) -> Vec<Result<DecodedDiamond, CodecError>> {
+    // While one diamond decodes, the parents' values the next one gathers are fetched.
+    let prefetch_next = |k: usize| {
+        if let Some(&next) = ids.get(k + 1) {
+            let domain = &decoder.params().domain;
+            let parents = domain.parents(next).map(|p| p.and_then(|p| prev.get(&p)));
+            prefetch_gather(domain, next, parents);
+        }
+    };
     if rayon::current_num_threads() <= 1 || ids.len() < 2 {
-        ids.iter()
-            .map(|&id| decode_diamond(decoder, id, records, prev, scratch, pool))
+        (0..ids.len())
+            .map(|k| {
+                prefetch_next(k);
+                decode_diamond(decoder, ids[k], records, prev, scratch, pool)
+            })
             .collect()
     } else {
-        ids.par_iter()
-            .map(|&id| {
+        (0..ids.len())
+            .into_par_iter()
+            .map(|k| {
+                prefetch_next(k);
                 with_thread_scratch(|scratch| {
-                    decode_diamond(decoder, id, records, prev, scratch, pool)
+                    decode_diamond(decoder, ids[k], records, prev, scratch, pool)
                 })
             })
             .collect()

@@ -21,6 +21,7 @@ mod decode_pool;
 mod decode_window;
 mod encode;
 mod field;
+mod gather_runs;
 pub mod level_raster;
 pub mod mask;
 mod object_error;

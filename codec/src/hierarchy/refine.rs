@@ -2,6 +2,7 @@
 //! from its parents, and refining it with a record.
 
 use super::CodecParams;
+use super::gather_runs::{half_map, half_runs};
 use super::mask::decode_mask;
 use crate::CodecError;
 use crate::entropy::{
@@ -9,7 +10,7 @@ use crate::entropy::{
 };
 use crate::geometry::{Diagonal, DiamondId, Domain, Half, IndexMap};
 use crate::lifting::{
-    Alpha, MAX_ABS_HEIGHT, PREDICTION_LIMIT, clamp_prediction, predict_cells,
+    Alpha, MAX_ABS_HEIGHT, PREDICTION_LIMIT, VectorKernels, clamp_prediction, predict_cells_inline,
     predict_inner_vertices,
 };
 
@@ -86,6 +87,24 @@ impl Refined {
         self.values[self.n * self.n + j * m + i]
     }
 
+    /// The `count` values at half-step points `(a, b), (a + 2, b), …` (vertices where both are
+    /// even, cell centres where both are odd): one contiguous run.
+    fn row_run(&self, a: i64, b: i64, count: usize) -> &[i32] {
+        let n = self.n;
+        let (vertices, cells) = self.values.split_at(n * n);
+        let start = if b % 2 == 0 {
+            &vertices[b as usize / 2 * n + a as usize / 2..]
+        } else {
+            &cells[(b as usize - 1) / 2 * (n - 1) + (a as usize - 1) / 2..]
+        };
+        &start[..count]
+    }
+
+    /// [`crate::cache::prefetch`] of [`Refined::row_run`].
+    fn prefetch_row(&self, a: i64, b: i64, count: usize) {
+        crate::cache::prefetch(self.row_run(a, b, count));
+    }
+
     /// The value at half-step point `(a, b)`, a vertex (both even) or a cell centre (both odd).
     fn at_half_step(&self, a: i64, b: i64) -> i32 {
         assert_eq!(a % 2, b % 2, "({a}, {b}) is an edge midpoint");
@@ -146,6 +165,9 @@ trait HalfStepSource<T>: Copy {
     fn at(&self, a: i64, b: i64) -> T;
     /// `out[k]` = the value at `(a + k·da, b + k·db)`, `da` and `db` ±1.
     fn read_diagonal(&self, a: i64, b: i64, da: i64, db: i64, out: &mut [T]);
+    /// `put(k, v)` for each `k < count`, `v` the value at `(a + 2k, b)`: a run of one row of
+    /// the half-step grid, all vertices or all cell centres, read in memory order.
+    fn read_row(&self, a: i64, b: i64, count: usize, put: impl FnMut(usize, T));
 }
 
 /// Values on every point of a `side × side` half-step grid, row-major.
@@ -167,6 +189,14 @@ impl<T: Copy> HalfStepSource<T> for HalfStepGrid<'_, T> {
             *o = self.values[k as usize];
             k += stride;
         }
+    }
+    fn read_row(&self, a: i64, b: i64, count: usize, mut put: impl FnMut(usize, T)) {
+        let start = b as usize * self.side + a as usize;
+        let run = &self.values[start..start + 2 * count.max(1) - 1];
+        run.iter()
+            .step_by(2)
+            .enumerate()
+            .for_each(|(k, &v)| put(k, v));
     }
 }
 
@@ -207,6 +237,14 @@ impl HalfStepSource<i32> for &Refined {
             strided(second, k1, d1, odd),
             out.iter_mut().skip(1).step_by(2),
         );
+    }
+    fn read_row(&self, a: i64, b: i64, count: usize, mut put: impl FnMut(usize, i32)) {
+        assert_eq!(a % 2, b % 2, "a row of vertices or of cell centres");
+        // Vertices sit at even (a, b), cell centres at odd: either way a row's run is contiguous.
+        self.row_run(a, b, count)
+            .iter()
+            .enumerate()
+            .for_each(|(k, &v)| put(k, v));
     }
 }
 
@@ -266,12 +304,7 @@ fn gather_values<T: Copy + PartialEq + std::fmt::Debug, G: HalfStepSource<T>>(
         let Some(parent) = parents[h] else { continue };
         let pid = ids[h].expect("a refinement was passed for a parent that does not exist");
         // In the parent's face frame: on a cube-sphere a half may lie across a face edge.
-        let grid = domain
-            .grid_in_parent_frame(id, half, pid)
-            .expect("a parent's face borders its child's half");
-        let m = grid
-            .index_map_into_half_step(&layout.grid(pid))
-            .expect("child grid maps into its parent");
+        let m = half_map(domain, id, half, pid).expect("child grid maps into its parent");
         if check_diagonal && maps.iter().any(Option::is_some) {
             // The diagonal of `id` was written from the first parent: the second must agree.
             for j in 0..n {
@@ -332,8 +365,7 @@ fn mirrored(m: &IndexMap, diag: Diagonal, n: usize) -> IndexMap {
 }
 
 /// Copies the points of `half` (split diagonal included) of a child's `n × n` grid from a
-/// parent's half-step grid through `m`: row by row of the child, each row a diagonal of the
-/// parent's.
+/// parent's half-step grid through `m`, reading the parent in memory order ([`half_runs`]).
 fn copy_half<T: Copy, G: HalfStepSource<T>>(
     m: &IndexMap,
     diag: Diagonal,
@@ -342,10 +374,34 @@ fn copy_half<T: Copy, G: HalfStepSource<T>>(
     parent: G,
     out: &mut [T],
 ) {
-    for j in 0..n {
-        let (lo, hi) = half_range(diag, half, n, j);
-        let (a, b) = m.apply(lo as i64, j as i64);
-        parent.read_diagonal(a, b, m.ai, m.bi, &mut out[j * n + lo..=j * n + hi]);
+    half_runs(m, diag, half, n, |run| {
+        parent.read_row(run.a, run.b, run.count, |k, v| {
+            out[(run.start + k as i64 * run.out_step) as usize] = v;
+        });
+    });
+}
+
+/// Asks for the values [`gather`] will read from `parents` for `id` to be brought into the
+/// cache: called a diamond ahead, so that the parents' refinements (written a level earlier,
+/// cold) arrive while the diamond before is decoded. A hint only: no effect on results.
+pub(crate) fn prefetch_gather(domain: &Domain, id: DiamondId, parents: [Option<&Refined>; 2]) {
+    if !cfg!(target_arch = "x86_64") || id.level == 0 {
+        return;
+    }
+    let layout = domain.layout();
+    let n = layout.n();
+    let diag = layout.diagonal(id);
+    let ids = domain.parents(id);
+    for (h, half) in Half::BOTH.into_iter().enumerate() {
+        let (Some(parent), Some(pid)) = (parents[h], ids[h]) else {
+            continue;
+        };
+        let Some(m) = half_map(domain, id, half, pid) else {
+            continue;
+        };
+        half_runs(&m, diag, half, n, |run| {
+            parent.prefetch_row(run.a, run.b, run.count)
+        });
     }
 }
 
@@ -374,12 +430,8 @@ impl<'a> ChildHalf<'a> {
         parent: &'a Refined,
     ) -> Self {
         let layout = domain.layout();
-        let grid = domain
-            .grid_in_parent_frame(child, half, parent_id)
-            .expect("a parent's face borders its child's half");
-        let map = grid
-            .index_map_into_half_step(&layout.grid(parent_id))
-            .expect("child grid maps into its parent");
+        let map =
+            half_map(domain, child, half, parent_id).expect("child grid maps into its parent");
         Self {
             child,
             parent,
@@ -631,29 +683,76 @@ fn reconstruct_cells(
     step: i64,
     cells: &mut Vec<i32>,
 ) -> Result<(), CodecError> {
+    reconstruct_cells_with(VectorKernels::detected(), p, n, dc, step, cells)
+}
+
+/// [`reconstruct_cells`] with the loops compiled as `kernels` says: the same cells and the same
+/// refusals whichever kind runs.
+fn reconstruct_cells_with(
+    kernels: VectorKernels,
+    p: &[i32],
+    n: usize,
+    dc: &[i32],
+    step: i64,
+    cells: &mut Vec<i32>,
+) -> Result<(), CodecError> {
     let m = n - 1;
     cells.resize(m * m, 0);
-    predict_cells(p, n, cells);
     let dc = &dc[..cells.len()];
     // A clamped prediction is at most PREDICTION_LIMIT, far below MAX_ABS_HEIGHT: a residual
     // whose step × value is over i32::MAX − PREDICTION_LIMIT makes its cell out of range
     // whatever the prediction. Below that every sum fits i32, so the loop is in i32 (it
     // vectorises) and gives the values of an i64 computation exactly.
-    let largest = dc.iter().fold(0u32, |a, &d| a.max(d.unsigned_abs()));
     let room = u64::from(i32::MAX.unsigned_abs() - PREDICTION_LIMIT.unsigned_abs());
-    if u64::from(largest) * step.unsigned_abs() > room {
+    let in_range = match kernels {
+        VectorKernels::Portable => cells_from_residuals(p, n, dc, step, room, cells),
+        // SAFETY: `Avx2` is only ever made where the CPU has AVX2 (`VectorKernels::detected`).
+        #[cfg(target_arch = "x86_64")]
+        VectorKernels::Avx2 => unsafe { cells_from_residuals_avx2(p, n, dc, step, room, cells) },
+    };
+    if !in_range {
         return Err(out_of_range());
     }
+    Ok(())
+}
+
+/// [`cells_from_residuals`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn cells_from_residuals_avx2(
+    p: &[i32],
+    n: usize,
+    dc: &[i32],
+    step: i64,
+    room: u64,
+    cells: &mut [i32],
+) -> bool {
+    cells_from_residuals(p, n, dc, step, room, cells)
+}
+
+/// The loops of [`reconstruct_cells_with`]: `cells` = the clamped prediction + `step × dc`;
+/// false (cells unspecified) when a residual exceeds `room` or a cell `MAX_ABS_HEIGHT`.
+#[inline(always)]
+fn cells_from_residuals(
+    p: &[i32],
+    n: usize,
+    dc: &[i32],
+    step: i64,
+    room: u64,
+    cells: &mut [i32],
+) -> bool {
+    let largest = dc.iter().fold(0u32, |a, &d| a.max(d.unsigned_abs()));
+    if u64::from(largest) * step.unsigned_abs() > room {
+        return false;
+    }
+    predict_cells_inline(p, n, cells);
     let step = step as i32;
     let bad = cells.iter_mut().zip(dc).fold(false, |bad, (c, &d)| {
         let v = (*c).clamp(-PREDICTION_LIMIT, PREDICTION_LIMIT) + step * d;
         *c = v;
         bad | (v.abs() > MAX_ABS_HEIGHT)
     });
-    if bad {
-        return Err(out_of_range());
-    }
-    Ok(())
+    !bad
 }
 
 /// α = ½: `vertices` becomes `p` with each inner vertex updated from the new `cells` and

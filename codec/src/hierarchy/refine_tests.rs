@@ -2,6 +2,7 @@
 //! definitions.
 
 use super::*;
+use crate::lifting::predict_cells;
 
 /// Every diamond of `domain` down to `levels`, parents before children.
 fn diamonds(domain: &Domain, levels: u8) -> Vec<DiamondId> {
@@ -169,6 +170,65 @@ fn gathering_row_by_row_follows_the_definition() {
         assert!(checked[1] > 0, "{checked:?}");
         if domain.cube().is_none() {
             assert!(checked[0] > 0, "{checked:?}");
+        }
+    }
+}
+
+proptest::proptest! {
+    /// Every vector kernel this CPU runs (AVX2 on x86-64 where it has it) reconstructs the
+    /// cells the portable loops do, and refuses the same records: random grids and residuals,
+    /// with heights at ±MAX_ABS_HEIGHT, residuals up to the entropy decoders' limit (2³⁰) and
+    /// around the refusal threshold, and steps up to 2³¹ − 1.
+    #[test]
+    fn every_vector_kernel_reconstructs_the_portable_cells(
+        n_pow in 1u32..8,
+        seed in proptest::prelude::any::<u64>(),
+        step_kind in 0usize..4,
+        extremes in proptest::prelude::any::<bool>(),
+    ) {
+        let n = (1usize << n_pow) + 1;
+        let m = n - 1;
+        let mut state = seed | 1;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let step = match step_kind {
+            0 => 1,
+            1 => 1 + (next() % 1000) as i64,
+            2 => 1 + (next() % (1 << 20)) as i64,
+            _ => i64::from(i32::MAX),
+        };
+        let span = 2 * MAX_ABS_HEIGHT as u64 + 1;
+        let p: Vec<i32> = (0..n * n)
+            .map(|_| match next() % 8 {
+                0 if extremes => MAX_ABS_HEIGHT,
+                1 if extremes => -MAX_ABS_HEIGHT,
+                _ => (next() % span) as i32 - MAX_ABS_HEIGHT,
+            })
+            .collect();
+        let dc: Vec<i32> = (0..m * m)
+            .map(|_| {
+                let magnitude = match next() % 64 {
+                    0 if extremes => (next() % (1 << 30)) as i32,
+                    1 => (i64::from(MAX_ABS_HEIGHT) / step) as i32 + (next() % 3) as i32,
+                    _ => (next() % 50) as i32,
+                };
+                if next() % 2 == 0 { magnitude } else { -magnitude }
+            })
+            .collect();
+        let mut portable = Vec::new();
+        let expected =
+            reconstruct_cells_with(VectorKernels::Portable, &p, n, &dc, step, &mut portable);
+        for kernels in VectorKernels::available() {
+            let mut got = Vec::new();
+            let result = reconstruct_cells_with(kernels, &p, n, &dc, step, &mut got);
+            proptest::prop_assert_eq!(result.is_ok(), expected.is_ok(), "{:?}", kernels);
+            if result.is_ok() {
+                proptest::prop_assert_eq!(&got, &portable, "{:?}", kernels);
+            }
         }
     }
 }

@@ -86,25 +86,12 @@ pub(super) const PREFETCH_ROWS: i64 = 4;
 /// brought into the cache. A hint only: no effect on results.
 #[inline(always)]
 pub(super) fn prefetch(values: &[i32], valid: Option<&[bool]>, k: usize, count: usize) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        let end = (k + count).min(values.len());
-        if k >= end {
-            return;
-        }
-        // SAFETY: SSE is part of the x86-64 baseline, and a prefetch neither reads into the
-        // program nor faults.
-        let hint = |p: *const i8| unsafe { _mm_prefetch::<_MM_HINT_T0>(p) };
-        for line in values[k..end].chunks(16) {
-            hint(line.as_ptr().cast());
-        }
-        if let Some(valid) = valid {
-            for line in valid[k..end].chunks(64) {
-                hint(line.as_ptr().cast());
-            }
-        }
+    let end = (k + count).min(values.len());
+    if k >= end {
+        return;
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (values, valid, k, count);
+    crate::cache::prefetch(&values[k..end]);
+    if let Some(valid) = valid {
+        crate::cache::prefetch(&valid[k..end]);
+    }
 }
