@@ -384,13 +384,14 @@ fn a_global_inputs_resampling_error_sets_no_new_peak() {
 /// `--memory-limit 64M`, adds at most APEX_BOUND_MIB to the peak resident memory the outline
 /// set (`--timings`' peak after each step, the build's own `ru_maxrss`): the apex's levels go
 /// in runs of tiles within a quarter of the limit, and their refinements to a temporary file.
-/// With the apex held whole (the view of every tile and its last two levels' refinements in
-/// memory, as before helper apex7) the apex added about 300 MiB here; seen to fail so. Ignored
-/// in CI: about 2 minutes.
+/// Measured on the 9-tile e9 planet (docs/RESULTS.md, "The apex out of core"): the apex added
+/// 176 MiB under 64M; held whole (the view of every tile and its last two levels' refinements in
+/// memory, main before helper apex7) it added 321 MiB. The bound sits between; this test has
+/// not yet been run (neither passing nor failing). Ignored in CI: about 2 minutes.
 #[test]
 #[ignore = "about 2 minutes; run with --ignored"]
 fn the_apex_of_a_global_input_stays_within_a_bound_of_the_limit() {
-    const APEX_BOUND_MIB: f64 = 160.0;
+    const APEX_BOUND_MIB: f64 = 240.0;
     let tmp = tempfile::tempdir().unwrap();
     let earth = s(&tmp.path().join("earth"));
     let etopo = data("etopo5_global.tif");
