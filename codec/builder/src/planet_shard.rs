@@ -354,7 +354,7 @@ pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSumma
                 quant.quantizer,
                 &enc,
                 outline.cut,
-                Apex::Given(apex),
+                Apex::Given(Box::new(apex)),
             )?;
             let encode = grouped(encode, &plan, &outline)?;
             for &b in &todo {
@@ -502,7 +502,7 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<PlanetMergeSummary> 
             quant.quantizer,
             &enc,
             outline.cut,
-            Apex::Given(apex),
+            Apex::Given(Box::new(apex)),
         )?;
         Ok(grouped(blocks, &plan, &outline)?.finish(&finished, true)?)
     })?;

@@ -370,7 +370,7 @@ mod tests {
             match i % 3 {
                 0 => r.with_validity(Some(
                     (0..side * side)
-                        .map(|k| (k + i as usize) % 5 != 0)
+                        .map(|k| !(k + i as usize).is_multiple_of(5))
                         .collect(),
                 )),
                 _ => r,

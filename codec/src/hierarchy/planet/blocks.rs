@@ -107,7 +107,7 @@ pub enum Apex {
     /// of tiles ([`super::apex`]): the same apex whatever the budget.
     Encode(u64),
     /// As [`PlanetBlocks::apex`] gave it for the same planet and cut.
-    Given(PlanetApex),
+    Given(Box<PlanetApex>),
 }
 
 /// The blocks [`PlanetBlocks::with_block_bytes`] makes of the planet `outline` outlines, cut
@@ -164,7 +164,7 @@ impl<'a> PlanetBlocks<'a> {
         let sets = with_parents(&domain, &outline.leaves);
         let cut = cut.min(domain.finest_level());
         let apex = match apex {
-            Apex::Given(apex) => apex,
+            Apex::Given(apex) => *apex,
             Apex::Encode(view_bytes) => {
                 let sets = (&sets.stored[..], &sets.recorded[..]);
                 PlanetApex::encode(outline, tiles, &params, sets, cut, view_bytes)?
