@@ -28,7 +28,7 @@ use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::planet::{
-    PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, tile_log2,
+    Apex, PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, tile_log2,
 };
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded, PlanetGrid, PlanetTile};
@@ -696,7 +696,8 @@ pub fn encode_out_of_core(
     let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
     // The apex and the blocks are let go before the resampling error is measured.
     let (encoded, counts) = {
-        let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, None)
+        let apex = Apex::Encode(block_bytes);
+        let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, apex)
             .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
             .map_err(BuildError::from)?;
         step(("apex", "apex (parts of tiles)"), &tiles);
