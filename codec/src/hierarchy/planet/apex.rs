@@ -206,10 +206,18 @@ const TILE_OVERHEAD_BYTES: u64 = 256;
 /// class and the input it took its height from.
 const POINT_BYTES: u64 = 8;
 
+/// Bytes a refinement of a grid of side `n` takes in memory: its vertices and cells, and a
+/// validity for each half-step point (the most it carries).
+pub(super) fn refinement_bytes(n: usize) -> u64 {
+    let (n, m) = (n as u64, n.saturating_sub(1) as u64);
+    (n * n + m * m) * 4 + (n + m) * (n + m)
+}
+
 /// Level `level`'s stored diamonds (`sets`: the level's stored ids, in order, and those
-/// recorded), in runs of consecutive ids whose recorded diamonds read at most about
-/// `view_bytes` of tiles (at least one diamond a run). The level reads the next level's
-/// vertices: `2^(K − ⌈(level + 1)/2⌉)` apart.
+/// recorded), in runs of consecutive ids whose reads fit about `view_bytes` (at least one
+/// diamond a run): the tiles its recorded diamonds read, its diamonds' parents' refinements
+/// read back from the level above, and its recorded diamonds' own refinements, held until the
+/// run is spilled. The level reads the next level's vertices: `2^(K − ⌈(level + 1)/2⌉)` apart.
 fn level_runs(
     outline: &PlanetOutline,
     level: u8,
@@ -222,34 +230,81 @@ fn level_runs(
     let s = stride.min(tile_log2);
     let side = ((1u64 << tile_log2) >> s) + 1;
     let tile_bytes = side * side * POINT_BYTES + TILE_OVERHEAD_BYTES;
-    let empty = || Run {
-        ids: Vec::new(),
-        tiles: BTreeSet::new(),
-        stride,
-    };
+    let refined_bytes = refinement_bytes(domain.n());
     let mut runs = Vec::new();
-    let mut run = empty();
+    let mut run = RunBudget::new(stride);
     for &id in ids {
         let is_recorded = recorded.contains(&id);
-        if is_recorded {
-            let under: BTreeSet<(u8, usize)> = tiles_under(domain, tile_log2, id)
+        let under: BTreeSet<(u8, usize)> = match is_recorded {
+            true => tiles_under(domain, tile_log2, id)
                 .into_iter()
                 .map(|(f, i, _)| (f, i))
-                .collect();
-            let more = under.difference(&run.tiles).count() as u64;
-            let full = (run.tiles.len() as u64 + more) * tile_bytes > view_bytes;
-            if full && !run.ids.is_empty() {
-                runs.push(std::mem::replace(&mut run, empty()));
-            }
-            run.tiles.extend(under);
+                .collect(),
+            false => BTreeSet::new(),
+        };
+        let parents: Vec<DiamondId> = domain.parents(id).into_iter().flatten().collect();
+        let (tiles, refinements) = run.with(&under, &parents, is_recorded);
+        let full = tiles * tile_bytes + refinements * refined_bytes > view_bytes;
+        if full && !run.run.ids.is_empty() {
+            runs.push(std::mem::replace(&mut run, RunBudget::new(stride)).run);
         }
-        run.ids.push((id, is_recorded));
+        run.add(id, is_recorded, under, parents);
     }
-    if !run.ids.is_empty() {
-        runs.push(run);
+    if !run.run.ids.is_empty() {
+        runs.push(run.run);
     }
     debug_assert!(runs.iter().flat_map(Run::ids).eq(ids.iter().copied()));
     runs
+}
+
+/// A [`Run`] being gathered, with what it will hold counted.
+struct RunBudget {
+    run: Run,
+    /// The parents its diamonds gather from (their refinements are read back for the run).
+    parents: BTreeSet<DiamondId>,
+    /// Its recorded diamonds (each one's refinement is held until the run is spilled).
+    recorded: u64,
+}
+
+impl RunBudget {
+    fn new(stride: u32) -> Self {
+        Self {
+            run: Run {
+                ids: Vec::new(),
+                tiles: BTreeSet::new(),
+                stride,
+            },
+            parents: BTreeSet::new(),
+            recorded: 0,
+        }
+    }
+
+    /// The tiles and refinements the run would hold with a diamond reading the tiles `under`,
+    /// gathering from `parents`, recorded or not.
+    fn with(
+        &self,
+        under: &BTreeSet<(u8, usize)>,
+        parents: &[DiamondId],
+        recorded: bool,
+    ) -> (u64, u64) {
+        let tiles = self.run.tiles.len() + under.difference(&self.run.tiles).count();
+        let more_parents = parents.iter().filter(|p| !self.parents.contains(p)).count();
+        let refinements = self.parents.len() + more_parents + self.recorded as usize;
+        (tiles as u64, refinements as u64 + u64::from(recorded))
+    }
+
+    fn add(
+        &mut self,
+        id: DiamondId,
+        recorded: bool,
+        under: BTreeSet<(u8, usize)>,
+        parents: Vec<DiamondId>,
+    ) {
+        self.run.ids.push((id, recorded));
+        self.run.tiles.extend(under);
+        self.parents.extend(parents);
+        self.recorded += u64::from(recorded);
+    }
 }
 
 /// The tiles holding the root field's points as [`PlanetGrid::get`] reads them (each point on

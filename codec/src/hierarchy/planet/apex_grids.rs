@@ -22,6 +22,10 @@ pub const IN_MEMORY_BYTES: usize = 16 << 20;
 /// Bytes of one level's refinements kept in memory before they go to a temporary file.
 pub const REFINEMENTS_IN_MEMORY_BYTES: usize = 4 << 20;
 
+/// Bytes of a level's refinements read back at once where they lie end to end in the spill
+/// ([`ApexRefinements::load`]): one read instead of one per refinement.
+pub const READ_BYTES: u64 = 1 << 20;
+
 /// Apex grids being written ([`GridSpill::put`]), from any thread.
 pub(super) struct GridSpill {
     spill: Spill,
@@ -240,33 +244,69 @@ impl ApexRefinements {
         let (Some(&(at, has_validity)), Some(bytes)) = (self.index.get(&id), &self.bytes) else {
             return Ok(None);
         };
-        let n = self.n;
-        let values = n * n + (n - 1) * (n - 1);
-        let side = 2 * n - 1;
-        let mut buf = vec![0u8; values * 4 + if has_validity { side * side } else { 0 }];
+        let mut buf = vec![0u8; self.spilled_len(has_validity)];
         bytes.read(at, &mut buf)?;
-        let refined = Refined::from_values(n, ints(&buf[..values * 4]))
-            .expect("a refinement of the spill's side");
-        Ok(Some(refined.with_validity(has_validity.then(|| {
-            buf[values * 4..].iter().map(|&b| b != 0).collect()
-        }))))
+        Ok(Some(self.refinement_of(has_validity, &buf)))
     }
 
-    /// The refinements of those of `ids` held here, read back, by diamond.
+    /// The refinements of those of `ids` held here, read back, by diamond: refinements written
+    /// one after the other are read together, up to [`READ_BYTES`] at a time.
     pub fn load(
         &self,
         ids: impl IntoIterator<Item = DiamondId>,
     ) -> Result<HashMap<DiamondId, Refined>, CodecError> {
-        let mut out = HashMap::new();
-        for id in ids {
-            if out.contains_key(&id) {
-                continue;
+        let Some(bytes) = &self.bytes else {
+            return Ok(HashMap::new());
+        };
+        let mut wanted: Vec<(u64, bool, DiamondId)> = ids
+            .into_iter()
+            .filter_map(|id| self.index.get(&id).map(|&(at, v)| (at, v, id)))
+            .collect();
+        wanted.sort_unstable();
+        wanted.dedup();
+        let mut out = HashMap::with_capacity(wanted.len());
+        let mut buf = Vec::new();
+        let mut rest = &wanted[..];
+        while let Some(&(start, _, _)) = rest.first() {
+            // The longest run of refinements lying end to end, within the read's bytes.
+            let mut end = start;
+            let mut count = 0;
+            for &(at, v, _) in rest {
+                let len = self.spilled_len(v) as u64;
+                if at != end || (count > 0 && end + len - start > READ_BYTES) {
+                    break;
+                }
+                end += len;
+                count += 1;
             }
-            if let Some(r) = self.get(id)? {
-                out.insert(id, r);
+            buf.resize((end - start) as usize, 0);
+            bytes.read(start, &mut buf)?;
+            for &(at, v, id) in &rest[..count] {
+                let from = (at - start) as usize;
+                let piece = &buf[from..from + self.spilled_len(v)];
+                out.insert(id, self.refinement_of(v, piece));
             }
+            rest = &rest[count..];
         }
         Ok(out)
+    }
+
+    /// Bytes a refinement takes in the spill, with its validity or not.
+    fn spilled_len(&self, has_validity: bool) -> usize {
+        let n = self.n;
+        let side = 2 * n - 1;
+        (n * n + (n - 1) * (n - 1)) * 4 + if has_validity { side * side } else { 0 }
+    }
+
+    /// The refinement whose spilled bytes are `buf` ([`Self::spilled_len`] of them).
+    fn refinement_of(&self, has_validity: bool, buf: &[u8]) -> Refined {
+        let n = self.n;
+        let values = n * n + (n - 1) * (n - 1);
+        let refined = Refined::from_values(n, ints(&buf[..values * 4]))
+            .expect("a refinement of the spill's side");
+        refined.with_validity(
+            has_validity.then(|| buf[values * 4..].iter().map(|&b| b != 0).collect()),
+        )
     }
 }
 
@@ -394,9 +434,42 @@ mod tests {
             assert_eq!(some[&id(3)], refined(3));
         }
         assert!(ApexRefinements::none(n).get(id(0)).unwrap().is_none());
+        assert!(ApexRefinements::none(n).load([id(0)]).unwrap().is_empty());
         let e =
             ApexRefinements::from_refined(n, [(id(0), Refined::from_parts(3, &[0; 9], &[0; 4]))])
                 .unwrap_err();
         assert!(e.to_string().contains("side 3, not 33"), "{e}");
+    }
+
+    /// Refinements loaded together ([`ApexRefinements::load`]: those lying end to end in the
+    /// spill read at once, up to [`READ_BYTES`]) read back as each one alone: all of 600 (5 MB,
+    /// with and without validity), every third, the last few in reverse order with repeats.
+    #[test]
+    fn refinements_loaded_together_read_back_as_written() {
+        let n = 33;
+        let refined = |i: u32| {
+            let vertices: Vec<i32> = (0..n * n).map(|v| v as i32 * 5 + i as i32).collect();
+            let r = Refined::from_parts(n, &vertices, &vec![i as i32; (n - 1) * (n - 1)]);
+            let side = 2 * n - 1;
+            match i % 4 {
+                1 => r.with_validity(Some((0..side * side).map(|k| k % 7 != 0).collect())),
+                _ => r,
+            }
+        };
+        let id = |i: u32| DiamondId::new(7, i, 2 * i + 3);
+        let all = ApexRefinements::from_refined(n, (0..600).map(|i| (id(i), refined(i)))).unwrap();
+        let sets: [Vec<u32>; 3] = [
+            (0..600).collect(),
+            (0..600).step_by(3).collect(),
+            vec![599, 598, 599, 590, 17, 598],
+        ];
+        for set in sets {
+            let loaded = all.load(set.iter().map(|&i| id(i))).unwrap();
+            let distinct: std::collections::BTreeSet<u32> = set.iter().copied().collect();
+            assert_eq!(loaded.len(), distinct.len());
+            for i in distinct {
+                assert_eq!(loaded[&id(i)], refined(i), "{i}");
+            }
+        }
     }
 }
