@@ -161,7 +161,7 @@ type RunOutput = (DiamondId, Option<(super::Refined, Record)>, u64);
 /// in `grids`.
 fn encode_run(
     outline: &PlanetOutline,
-    tiles: &dyn PlanetTiles,
+    tiles: &ApexTiles,
     params: &CodecParams,
     root_field: &[i32],
     prev: &ApexRefinements,
@@ -169,7 +169,7 @@ fn encode_run(
     grids: &GridSpill,
 ) -> Result<Vec<RunOutput>, CodecError> {
     let domain = &params.domain;
-    let view = view_of(outline, tiles, run.tiles.clone(), run.stride)?;
+    let view = held_planet(outline, tiles.tiles(&run.tiles, run.stride)?)?;
     let parents = prev.load(run.ids().flat_map(|id| domain.parents(id)).flatten())?;
     run.ids
         .par_iter()

@@ -3,8 +3,10 @@
 //! ([`super::spill`]) as it resamples them and the odd level reads them back instead of
 //! resampling them again. Only one stride's tiles are kept at a time, on disk past a few MiB.
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 use std::sync::{Arc, Mutex};
+
+use rayon::prelude::*;
 
 use super::PlanetTile;
 use super::spill::{Spill, Spilled};
@@ -59,6 +61,13 @@ pub(super) struct ReadTiles {
     index: Index,
 }
 
+/// Bytes read back at once for [`ReadTiles::get_many`]: kept tiles lying within this span of
+/// the spill (with gaps of at most [`GAP_BYTES`] between them) are read in one read.
+const READ_BYTES: u64 = 1 << 20;
+
+/// The largest gap between two kept tiles read in one read ([`ReadTiles::get_many`]).
+const GAP_BYTES: u64 = 16 << 10;
+
 impl ReadTiles {
     fn get(&self, face: u8, index: usize) -> Result<Option<Arc<PlanetTile>>, CodecError> {
         let Some(&(at, len)) = self.index.get(&(face, index)) else {
@@ -66,9 +75,55 @@ impl ReadTiles {
         };
         let mut bytes = vec![0u8; len];
         self.bytes.read(at, &mut bytes)?;
-        let damaged = || CodecError::invalid(format!("{WHAT}: face {face} tile {index} damaged"));
-        Ok(Some(Arc::new(tile_of_bytes(&bytes).ok_or_else(damaged)??)))
+        Ok(Some(Arc::new(tile_read_back(face, index, &bytes)?)))
     }
+
+    /// Those of `wanted` kept here, by `(face, index)`: tiles lying near each other in the
+    /// spill are read together (at most [`READ_BYTES`] a read, gaps of at most
+    /// [`GAP_BYTES`]), not one read a tile — an odd apex level reads back tens of thousands of
+    /// tiles of a few dozen bytes.
+    pub(super) fn get_many(
+        &self,
+        wanted: impl IntoIterator<Item = (u8, usize)>,
+    ) -> Result<HashMap<(u8, usize), Arc<PlanetTile>>, CodecError> {
+        let mut spans: Vec<(u64, usize, (u8, usize))> = wanted
+            .into_iter()
+            .filter_map(|key| self.index.get(&key).map(|&(at, len)| (at, len, key)))
+            .collect();
+        spans.sort_unstable();
+        spans.dedup();
+        let mut out = HashMap::with_capacity(spans.len());
+        let mut buf = Vec::new();
+        let mut rest = &spans[..];
+        while let Some(&(start, _, _)) = rest.first() {
+            let mut end = start;
+            let mut count = 0;
+            for &(at, len, _) in rest {
+                let stop = at + len as u64;
+                if count > 0 && (at > end + GAP_BYTES || stop - start > READ_BYTES) {
+                    break;
+                }
+                end = end.max(stop);
+                count += 1;
+            }
+            buf.resize((end - start) as usize, 0);
+            self.bytes.read(start, &mut buf)?;
+            for &(at, len, (face, index)) in &rest[..count] {
+                let from = (at - start) as usize;
+                let tile = tile_read_back(face, index, &buf[from..from + len])?;
+                out.insert((face, index), Arc::new(tile));
+            }
+            rest = &rest[count..];
+        }
+        Ok(out)
+    }
+}
+
+/// Tile `index` of `face` from the bytes [`tile_bytes`] wrote; damaged bytes are an error
+/// naming it.
+fn tile_read_back(face: u8, index: usize, bytes: &[u8]) -> Result<PlanetTile, CodecError> {
+    let damaged = || CodecError::invalid(format!("{WHAT}: face {face} tile {index} damaged"));
+    tile_of_bytes(bytes).ok_or_else(damaged)?
 }
 
 /// An apex level's source of tiles: those the previous level of the same stride kept (`read`),
@@ -77,6 +132,32 @@ pub(super) struct ApexTiles<'a> {
     pub(super) tiles: &'a dyn PlanetTiles,
     pub(super) read: Option<&'a ReadTiles>,
     pub(super) keep: Option<&'a KeptTiles>,
+}
+
+impl ApexTiles<'_> {
+    /// The tiles `wanted`, each thinned to `min_stride` ([`PlanetTiles::tile`]): those the
+    /// previous level kept read back together ([`ReadTiles::get_many`]), the others resampled.
+    pub(super) fn tiles(
+        &self,
+        wanted: &BTreeSet<(u8, usize)>,
+        min_stride: u32,
+    ) -> Result<HashMap<(u8, usize), Arc<PlanetTile>>, CodecError> {
+        let mut held = match self.read {
+            Some(read) => read.get_many(wanted.iter().copied())?,
+            None => HashMap::new(),
+        };
+        let missing: Vec<(u8, usize)> = wanted
+            .iter()
+            .filter(|key| !held.contains_key(key))
+            .copied()
+            .collect();
+        let more = missing
+            .into_par_iter()
+            .map(|(f, i)| Ok(((f, i), self.tile(f, i, min_stride)?)))
+            .collect::<Result<Vec<_>, CodecError>>()?;
+        held.extend(more);
+        Ok(held)
+    }
 }
 
 impl PlanetTiles for ApexTiles<'_> {
@@ -183,6 +264,15 @@ mod tests {
             );
         }
         assert!(read.get(1, 8).unwrap().is_none());
+        let many = read.get_many([(4, 0), (1, 8), (1, 7), (4, 0)]).unwrap();
+        assert_eq!(many.len(), 2);
+        for (face, index, t) in [(1, 7, &a), (4, 0, &b)] {
+            let back = &many[&(face, index)];
+            assert_eq!(
+                (back.stride, back.rect, &back.grid, &back.class),
+                (t.stride, t.rect, &t.grid, &t.class)
+            );
+        }
         let bytes = tile_bytes(&a);
         for cut in [0, 3, 20, 37, bytes.len() - 1] {
             assert!(tile_of_bytes(&bytes[..cut]).is_none(), "cut at {cut}");
