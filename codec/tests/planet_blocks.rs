@@ -12,7 +12,7 @@ use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::{Domain, FacePoint};
 use cbdam_codec::hierarchy::planet::{
-    PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks, thinned,
+    Apex, PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, encode_planet_in_blocks, thinned,
 };
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{
@@ -322,10 +322,11 @@ fn tiles_grouped_into_blocks_by_memory_encode_as_whole() {
     let mut counts = Vec::new();
     for budget in [0u64, 4 << 10, 64 << 10, 1 << 30] {
         for cut in [2, default] {
-            let blocks = PlanetBlocks::new(&outline, &planet, q, &opts(9), cut, None)
-                .unwrap()
-                .with_block_bytes(&strides, (budget, 1))
-                .unwrap();
+            let blocks =
+                PlanetBlocks::new(&outline, &planet, q, &opts(9), cut, Apex::Encode(budget))
+                    .unwrap()
+                    .with_block_bytes(&strides, (budget, 1))
+                    .unwrap();
             let count = blocks.block_count();
             let encoded = blocks.finish(&NoJournal, cut % 2 == 0).unwrap();
             assert_same(&whole, &encoded, &format!("budget {budget}, cut {cut}"));

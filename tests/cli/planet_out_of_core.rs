@@ -378,3 +378,68 @@ fn a_global_inputs_resampling_error_sets_no_new_peak() {
     );
     assert!(rss <= 540.0, "peak RSS {rss:.1} MiB");
 }
+
+/// The apex of a planet over a global input (the bundled ETOPO5: every lattice tile at its
+/// stride, 28 M points over the cube at K = 11) and one synthetic SRTM tile, under
+/// `--memory-limit 64M`, adds at most APEX_BOUND_MIB to the peak resident memory the outline
+/// set (`--timings`' peak after each step, the build's own `ru_maxrss`): the apex's levels go
+/// in runs of tiles within a quarter of the limit, and their refinements to a temporary file.
+/// Measured on the 9-tile e9 planet (docs/RESULTS.md, "The apex out of core"): the apex added
+/// 176 MiB under 64M; held whole (the view of every tile and its last two levels' refinements in
+/// memory, main before helper apex7) it added 321 MiB. The bound sits between; this test has
+/// not yet been run (neither passing nor failing). Ignored in CI: about 2 minutes.
+#[test]
+#[ignore = "about 2 minutes; run with --ignored"]
+fn the_apex_of_a_global_input_stays_within_a_bound_of_the_limit() {
+    const APEX_BOUND_MIB: f64 = 240.0;
+    let tmp = tempfile::tempdir().unwrap();
+    let earth = s(&tmp.path().join("earth"));
+    let etopo = data("etopo5_global.tif");
+    let o = cbdam(&[
+        "synth",
+        "--etopo",
+        &etopo,
+        "--earth",
+        &earth,
+        "--bbox",
+        "6,44,7,45",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = s(&tmp.path().join("p.cbdam"));
+    let o = cbdam(&[
+        "build",
+        &earth,
+        &etopo,
+        "--planet",
+        "-o",
+        &out,
+        "--max-error",
+        "16",
+        "--memory-limit",
+        "64M",
+        "--timings",
+    ]);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    let peaks = err
+        .lines()
+        .find(|l| l.starts_with("peak resident memory after each step"))
+        .unwrap_or_else(|| panic!("no peaks in {err}"));
+    let mib_after = |key: &str| -> f64 {
+        let at = peaks
+            .find(key)
+            .unwrap_or_else(|| panic!("no {key:?} in {peaks}"))
+            + key.len();
+        let digits: String = peaks[at..]
+            .chars()
+            .take_while(|c| c.is_ascii_digit() || *c == '.')
+            .collect();
+        digits.parse().unwrap()
+    };
+    let (outline, apex) = (mib_after(": outline "), mib_after(", apex "));
+    eprintln!("peak after the outline {outline} MiB, after the apex {apex} MiB");
+    assert!(
+        apex <= outline + APEX_BOUND_MIB,
+        "the apex raised the peak from {outline} to {apex} MiB"
+    );
+}

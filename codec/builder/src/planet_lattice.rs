@@ -28,7 +28,7 @@ use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::Domain;
 use cbdam_codec::hierarchy::planet::{
-    PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, tile_log2,
+    Apex, PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, tile_log2,
 };
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded, PlanetGrid, PlanetTile};
@@ -331,9 +331,9 @@ impl<'a> Resampler<'a> {
         let step = 1i64 << s;
         let first = |lo: i64, o: i64| ((lo.max(o) - o + step - 1) / step) as usize;
         let last = |hi: i64, o: i64, n: usize| (((hi - o) / step) as usize).min(n - 1);
-        self.tiles.candidates[usize::from(face)][tile]
-            .iter()
-            .filter_map(|&(input, reach)| {
+        self.tiles
+            .candidates(face, tile)
+            .filter_map(|(input, reach)| {
                 let (rx0, ry0, rx1, ry1) = within(reach.unwrap_or(rect));
                 if rx1 < x0 || ry1 < y0 || rx0 > x1 || ry0 > y1 {
                     return None;
@@ -576,9 +576,9 @@ impl<'a> LatticeTiles<'a> {
         let wanted: Vec<(u8, usize, Option<Rect>)> = (0..d.faces())
             .flat_map(|f| (0..r.tiles_per_face()).map(move |i| (f, i)))
             .filter(|&(f, i)| {
-                r.tiles.candidates[usize::from(f)][i]
-                    .iter()
-                    .any(|&(c, _)| usize::from(c) == input)
+                r.tiles
+                    .candidates(f, i)
+                    .any(|(c, _)| usize::from(c) == input)
             })
             .filter_map(|(f, i)| match &footprint {
                 None => Some((f, i, None)),
@@ -696,7 +696,8 @@ pub fn encode_out_of_core(
     let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
     // The apex and the blocks are let go before the resampling error is measured.
     let (encoded, counts) = {
-        let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, None)
+        let apex = Apex::Encode(block_bytes);
+        let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, apex)
             .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
             .map_err(BuildError::from)?;
         step(("apex", "apex (parts of tiles)"), &tiles);

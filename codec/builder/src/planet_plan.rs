@@ -39,12 +39,32 @@ pub type Candidate = (u16, Option<(i64, i64, i64, i64)>);
 pub struct TilePlan {
     /// Per face, per tile: `log2` of the stride of the points it holds.
     pub strides: Vec<Vec<u32>>,
-    /// Per face, per tile: the inputs that can cover a point of it, finest first (indices into
-    /// [`PlanetInputs::inputs`]), each with the rectangle of the tile it can cover: the inputs
-    /// around the globe (`None`: all of it), and the others whose samples lie in or near the
-    /// tile. Only these are asked, and only inside their rectangles, so a planet of thousands
-    /// of tiles asks a handful for each point.
-    pub candidates: Vec<Vec<Vec<Candidate>>>,
+    /// The inputs around the globe (indices into [`PlanetInputs::inputs`], in order): a
+    /// candidate of every tile, kept once rather than in each tile's list.
+    global: Vec<u16>,
+    /// Per face, per tile: the other inputs whose samples lie in or near the tile (in order),
+    /// each with the rectangle of the tile it can cover.
+    local: Vec<Vec<Vec<Candidate>>>,
+}
+
+impl TilePlan {
+    /// The inputs that can cover a point of tile `tile` of `face`, finest first (indices into
+    /// [`PlanetInputs::inputs`], which are sorted finest first), each with the rectangle of
+    /// the tile it can cover: the inputs around the globe (`None`: all of it), and the others
+    /// whose samples lie in or near the tile. Only these are asked, and only inside their
+    /// rectangles, so a planet of thousands of tiles asks a handful for each point.
+    pub fn candidates(&self, face: u8, tile: usize) -> impl Iterator<Item = Candidate> + '_ {
+        let mut global = self.global.iter().map(|&i| (i, None)).peekable();
+        let mut local = self.local[usize::from(face)][tile]
+            .iter()
+            .copied()
+            .peekable();
+        std::iter::from_fn(move || match (global.peek(), local.peek()) {
+            (Some(g), Some(l)) if l.0 < g.0 => local.next(),
+            (Some(_), _) => global.next(),
+            (None, _) => local.next(),
+        })
+    }
 }
 
 /// The stride (`log2`) at which each tile of each face of the `n`, `k` lattice holds its
@@ -66,7 +86,8 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
     let faces = usize::from(domain.faces());
     // A tile no input reaches holds its corners only (holes all).
     let mut plan = vec![vec![t; rects.len()]; faces];
-    let mut candidates: Vec<Vec<Vec<Candidate>>> = vec![vec![Vec::new(); rects.len()]; faces];
+    let mut global = Vec::new();
+    let mut local: Vec<Vec<Vec<Candidate>>> = vec![vec![Vec::new(); rects.len()]; faces];
     for (i, (input, &j)) in inputs.inputs.iter().zip(&strides).enumerate() {
         let i = u16::try_from(i).expect("at most MAX_PLANET_INPUTS inputs");
         let mark = j.min(t);
@@ -78,11 +99,9 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
             }
         ) {
             // Around the globe: a candidate everywhere.
-            for (tiles, strides) in candidates.iter_mut().zip(&mut plan) {
-                for (c, s) in tiles.iter_mut().zip(strides.iter_mut()) {
-                    c.push((i, None));
-                    *s = (*s).min(mark);
-                }
+            global.push(i);
+            for s in plan.iter_mut().flatten() {
+                *s = (*s).min(mark);
             }
             continue;
         }
@@ -100,12 +119,13 @@ pub fn plan_tiles(inputs: &PlanetInputs, n: usize, k: u32) -> Result<TilePlan> {
                 (r.2 + step).min(tx1),
                 (r.3 + step).min(ty1),
             );
-            candidates[f][tile].push((i, Some(grown)));
+            local[f][tile].push((i, Some(grown)));
         }
     }
     Ok(TilePlan {
         strides: plan,
-        candidates,
+        global,
+        local,
     })
 }
 

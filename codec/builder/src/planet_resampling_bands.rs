@@ -29,13 +29,10 @@ impl LatticeTiles<'_> {
         let stride = r.strides[input];
         let me = u16::try_from(input).expect("at most MAX_PLANET_INPUTS inputs");
         // The tiles it can cover: the others hold none of its winners.
-        let candidate: Vec<Vec<bool>> = r
-            .tiles
-            .candidates
-            .iter()
-            .map(|face| {
-                face.iter()
-                    .map(|c| c.iter().any(|&(i, _)| i == me))
+        let candidate: Vec<Vec<bool>> = (0..r.domain().faces())
+            .map(|f| {
+                (0..r.tiles_per_face())
+                    .map(|t| r.tiles.candidates(f, t).any(|(i, _)| i == me))
                     .collect()
             })
             .collect();

@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 use cbdam_codec::CodecError;
 use cbdam_codec::entropy::CoderKind;
 use cbdam_codec::hierarchy::planet::{
-    PlanetBlocks, PlanetTile, PlanetTiles, default_cut, planet_block_groups,
+    Apex, PlanetBlocks, PlanetTile, PlanetTiles, default_cut, planet_block_groups,
 };
 use cbdam_codec::hierarchy::{BlockJournal, BlockOutput, EncodeOptions};
 use cbdam_codec::lifting::Alpha;
@@ -267,7 +267,7 @@ fn encode_apex(
         quant.quantizer,
         &enc,
         outline.cut,
-        None,
+        Apex::Encode(planet_block_bytes(plan.memory_limit)),
     )?;
     write_apex(work, APEX, blocks.apex())
 }
@@ -354,7 +354,7 @@ pub fn run(work: &Path, shard: usize, threads: Option<usize>) -> Result<RunSumma
                 quant.quantizer,
                 &enc,
                 outline.cut,
-                Some(apex),
+                Apex::Given(Box::new(apex)),
             )?;
             let encode = grouped(encode, &plan, &outline)?;
             for &b in &todo {
@@ -502,7 +502,7 @@ pub fn merge(work: &Path, threads: Option<usize>) -> Result<PlanetMergeSummary> 
             quant.quantizer,
             &enc,
             outline.cut,
-            Some(apex),
+            Apex::Given(Box::new(apex)),
         )?;
         Ok(grouped(blocks, &plan, &outline)?.finish(&finished, true)?)
     })?;

@@ -10,7 +10,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use cbdam_codec::geodesy::LatLon;
-use cbdam_codec::hierarchy::planet::{ApexGrids, PlanetApex, PlanetOutline};
+use cbdam_codec::hierarchy::planet::{ApexGrids, ApexRefinements, PlanetApex, PlanetOutline};
 use cbdam_codec::hierarchy::{Record, Refined};
 
 use crate::error::{Context, Result, bail};
@@ -245,12 +245,13 @@ pub(crate) fn write_apex(work: &Path, name: &str, apex: &PlanetApex) -> Result<(
         let grid = apex.grids.get(id)?.expect("an apex diamond's grid");
         put_i32s(&mut out, &grid);
     }
-    let mut last: Vec<_> = apex.last.iter().collect();
-    last.sort_by_key(|(id, _)| **id);
+    let mut last: Vec<_> = apex.last.ids().collect();
+    last.sort();
     put_u64(&mut out, last.len() as u64);
-    for (&id, refined) in last {
+    for id in last {
         put_id(&mut out, id);
-        put_refined(&mut out, refined);
+        let refined = apex.last.get(id)?.expect("an apex refinement");
+        put_refined(&mut out, &refined);
     }
     write_atomically(work, name, &seal(out))
         .with_context(|| format!("writing the apex in {}", work.display()))
@@ -287,10 +288,12 @@ pub(crate) fn read_apex(
         .filter(|_| r.0.is_empty())
         .ok_or_else(|| damaged(&path))?;
     let n = outline.domain().n();
-    let grids = ApexGrids::from_grids(n * n, grids).map_err(|e| match e {
+    let spilled = |e| match e {
         cbdam_codec::CodecError::Io(e) => crate::BuildError::from(cbdam_codec::CodecError::Io(e)),
         _ => damaged(&path),
-    })?;
+    };
+    let grids = ApexGrids::from_grids(n * n, grids).map_err(spilled)?;
+    let last = ApexRefinements::from_refined(n, last).map_err(spilled)?;
     Ok(Some(PlanetApex::from_parts(
         outline, root_field, roots, records, grids, last,
     )))

@@ -69,6 +69,20 @@ impl Refined {
         self.values
     }
 
+    /// The values: the `N²` vertices, then the `(N−1)²` cells, row-major.
+    pub(crate) fn values(&self) -> &[i32] {
+        &self.values
+    }
+
+    /// From [`Refined::values`] of a grid of side `n`; `None` for another count.
+    pub(crate) fn from_values(n: usize, values: Vec<i32>) -> Option<Self> {
+        (n >= 2 && values.len() == n * n + (n - 1) * (n - 1)).then_some(Self {
+            n,
+            values,
+            valid: None,
+        })
+    }
+
     /// Grid side `N` of the diamond.
     pub fn n(&self) -> usize {
         self.n

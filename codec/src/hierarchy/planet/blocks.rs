@@ -9,10 +9,10 @@
 //! 1. An [`PlanetOutline`], gathered one tile at a time: the leaves each tile's points make
 //!    (the stored diamonds are the leaves and their ancestors, as the whole encoder finds them),
 //!    whether some point is a hole (the nodata mask) and whether any has data.
-//! 2. The **apex**: the root field and the levels above a cut level, over the whole planet, from
-//!    the tiles thinned to the cut level's vertices (every point the apex reads, and only those:
-//!    `2^(K − ⌈cut/2⌉)` apart). The apex keeps each of its diamonds' grids and the last level's
-//!    refinements; its object errors are measured by the blocks.
+//! 2. The **apex** ([`super::apex`]): the root field and the levels above a cut level, over the
+//!    whole planet, each level in runs of diamonds reading only the tiles under them, thinned to
+//!    the points that level reads. The apex spills each of its diamonds' grids and the last
+//!    level's refinements; its object errors are measured by the blocks.
 //! 3. The **blocks**: the stored diamonds from the cut down whose centres lie in the block's
 //!    tiles (the block *owns* them; a tile owns its first row and column, its last only on
 //!    the face's far side) and their ancestors down to the cut, each gathered from its parents
@@ -25,147 +25,27 @@
 //!    is the whole encoder's.
 
 use std::collections::{BTreeSet, HashMap};
-use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use super::apex_grids::{ApexGrids, GridSpill};
+use super::apex::PlanetApex;
 use super::block_groups::{BlockGroups, TileGroup};
 use super::grid::{tiles_across, tiles_meeting};
-use super::tile_source::PlanetTiles;
+use super::outline::PlanetOutline;
+use super::tile_source::{PlanetTiles, Rect, held_planet, tiles_under, union};
 use super::{
-    PlanetGrid, PlanetTile, TiledError, grid_from_parents, planet_params, planet_surface_error,
-    refine_diamond, tile_leaves, views,
+    PlanetGrid, TiledError, grid_from_parents, planet_params, planet_surface_error, refine_diamond,
+    views,
 };
 use crate::CodecError;
 use crate::geometry::{DiamondId, Domain};
 use crate::hierarchy::blocks::{BlockJournal, BlockOutput};
-use crate::hierarchy::encode::{EncodeOptions, per_diamond_levels, saturate_errors};
+use crate::hierarchy::encode::{EncodeOptions, saturate_errors};
 use crate::hierarchy::record_bytes::KeptRecords;
 use crate::hierarchy::refine::Refined;
-use crate::hierarchy::resolution::{HOLE, with_parents};
-use crate::hierarchy::roots::encode_roots;
+use crate::hierarchy::resolution::with_parents;
 use crate::hierarchy::{Encoded, Record};
 use crate::quant::Quantizer;
-
-/// What the block-wise encode needs of the whole planet, gathered tile by tile
-/// ([`PlanetOutline::add`]) without holding the tiles.
-#[derive(Clone, Debug)]
-pub struct PlanetOutline {
-    domain: Domain,
-    tile_log2: u32,
-    variable: bool,
-    leaves: Vec<BTreeSet<DiamondId>>,
-    has_nodata: bool,
-    has_data: bool,
-}
-
-impl PlanetOutline {
-    /// The outline of an `n`, `k` planet in tiles of `2^tile_log2` steps, with resolution
-    /// classes when `variable`, before any tile is added.
-    pub fn new(n: usize, k: u32, tile_log2: u32, variable: bool) -> Result<Self, CodecError> {
-        let domain = Domain::cube_sphere(n, k)?;
-        Ok(Self {
-            domain,
-            tile_log2,
-            variable,
-            leaves: vec![BTreeSet::new(); usize::from(domain.finest_level()) + 1],
-            has_nodata: false,
-            has_data: false,
-        })
-    }
-
-    /// The outline of a whole planet.
-    pub fn of_planet(planet: &PlanetGrid) -> Self {
-        let d = planet.domain();
-        let mut out = Self::new(
-            d.n(),
-            d.layout().k(),
-            planet.tile_log2(),
-            planet.is_variable(),
-        )
-        .expect("a planet's own lattice");
-        for face in 0..d.faces() {
-            for t in planet.tiles(face) {
-                out.add(face, t);
-            }
-        }
-        out
-    }
-
-    /// Adds tile `t` of face `face` (at its own stride).
-    pub fn add(&mut self, face: u8, t: &PlanetTile) {
-        for (all, some) in self
-            .leaves
-            .iter_mut()
-            .zip(tile_leaves(&self.domain, face, t))
-        {
-            all.extend(some);
-        }
-        self.has_nodata |= match &t.class {
-            Some(class) => class.contains(&HOLE),
-            None => !t.bounds().1,
-        };
-        self.has_data |= t.grid.range().is_some();
-    }
-
-    /// Adds what another outline of the same planet gathered (tiles outlined apart).
-    pub fn merge(&mut self, other: PlanetOutline) {
-        for (all, some) in self.leaves.iter_mut().zip(other.leaves) {
-            all.extend(some);
-        }
-        self.has_nodata |= other.has_nodata;
-        self.has_data |= other.has_data;
-    }
-
-    /// The planet's cube-sphere.
-    pub fn domain(&self) -> &Domain {
-        &self.domain
-    }
-
-    /// `log2` of the side of the planet's tiles.
-    pub fn tile_log2(&self) -> u32 {
-        self.tile_log2
-    }
-
-    /// Whether the tiles carry resolution classes.
-    pub fn is_variable(&self) -> bool {
-        self.variable
-    }
-
-    /// Per level, the leaves the tiles' points make.
-    pub fn leaves(&self) -> &[BTreeSet<DiamondId>] {
-        &self.leaves
-    }
-
-    /// Whether some point is a hole, and whether any has data.
-    pub fn has_nodata_and_data(&self) -> (bool, bool) {
-        (self.has_nodata, self.has_data)
-    }
-
-    /// The outline `new(n, k, tile_log2, variable)` gathers when its tiles make `leaves`
-    /// (one set per level, root to finest) and hold a hole (`has_nodata`) and data
-    /// (`has_data`): an outline written out and read back.
-    pub fn from_parts(
-        (n, k, tile_log2, variable): (usize, u32, u32, bool),
-        leaves: Vec<BTreeSet<DiamondId>>,
-        has_nodata: bool,
-        has_data: bool,
-    ) -> Result<Self, CodecError> {
-        let mut out = Self::new(n, k, tile_log2, variable)?;
-        if leaves.len() != out.leaves.len() {
-            return Err(CodecError::invalid(format!(
-                "an outline of {} levels for a planet of {}",
-                leaves.len(),
-                out.leaves.len()
-            )));
-        }
-        out.leaves = leaves;
-        out.has_nodata = has_nodata;
-        out.has_data = has_data;
-        Ok(out)
-    }
-}
 
 /// The deepest cut [`default_cut`] takes: a block's tile this many of the cut level's radii
 /// across (the blocks' margins, the ancestors of the diamonds they own, about 2 radii each
@@ -205,7 +85,29 @@ pub fn encode_planet_in_blocks(
     journal: &dyn BlockJournal,
     spill: bool,
 ) -> Result<Encoded, CodecError> {
-    PlanetBlocks::new(outline, tiles, quantizer, opts, cut, None)?.finish(journal, spill)
+    PlanetBlocks::new(
+        outline,
+        tiles,
+        quantizer,
+        opts,
+        cut,
+        Apex::Encode(APEX_VIEW_BYTES),
+    )?
+    .finish(journal, spill)
+}
+
+/// The bytes of tiles a run of the apex reads at once when the caller names no budget
+/// ([`encode_planet_in_blocks`]).
+pub const APEX_VIEW_BYTES: u64 = 64 << 20;
+
+/// Where a block-wise encode's apex comes from.
+#[derive(Clone, Debug)]
+pub enum Apex {
+    /// Encoded from the tiles, each run of an apex level reading at most about this many bytes
+    /// of tiles ([`super::apex`]): the same apex whatever the budget.
+    Encode(u64),
+    /// As [`PlanetBlocks::apex`] gave it for the same planet and cut.
+    Given(Box<PlanetApex>),
 }
 
 /// The blocks [`PlanetBlocks::with_block_bytes`] makes of the planet `outline` outlines, cut
@@ -245,15 +147,14 @@ pub struct PlanetBlocks<'a> {
 
 impl<'a> PlanetBlocks<'a> {
     /// The encode of the planet `outline` outlines, cut at `cut` (clamped to the finest
-    /// level), with `apex` as [`PlanetBlocks::apex`] gave it for the same planet and cut, or
-    /// the apex encoded from `tiles` when `None`.
+    /// level), its apex encoded or given ([`Apex`]).
     pub fn new(
         outline: &'a PlanetOutline,
         tiles: &'a dyn PlanetTiles,
         quantizer: Quantizer,
         opts: &EncodeOptions,
         cut: u8,
-        apex: Option<PlanetApex>,
+        apex: Apex,
     ) -> Result<Self, CodecError> {
         let domain = outline.domain;
         let params = planet_params(domain, quantizer, opts, outline.has_nodata)?;
@@ -263,8 +164,11 @@ impl<'a> PlanetBlocks<'a> {
         let sets = with_parents(&domain, &outline.leaves);
         let cut = cut.min(domain.finest_level());
         let apex = match apex {
-            Some(apex) => apex,
-            None => PlanetApex::encode(outline, tiles, &params, &sets.stored, &sets.recorded, cut)?,
+            Apex::Given(apex) => *apex,
+            Apex::Encode(view_bytes) => {
+                let sets = (&sets.stored[..], &sets.recorded[..]);
+                PlanetApex::encode(outline, tiles, &params, sets, cut, view_bytes)?
+            }
         };
         Ok(Self {
             outline,
@@ -386,146 +290,6 @@ impl<'a> PlanetBlocks<'a> {
     }
 }
 
-/// The levels above the cut, encoded over the whole planet.
-#[derive(Clone, Debug, PartialEq)]
-pub struct PlanetApex {
-    /// The root field's values.
-    pub root_field: Vec<i32>,
-    /// The coded root field.
-    pub roots: Vec<u8>,
-    /// Records of the apex levels (object errors not yet saturated).
-    pub records: Vec<Record>,
-    /// Every stored apex diamond's grid, for the blocks to measure its error on their tiles
-    /// (in a temporary file, read back as a block needs one).
-    pub grids: ApexGrids,
-    /// Refinements of the recorded diamonds of the level above the cut.
-    pub last: HashMap<DiamondId, Refined>,
-    /// Per `(face, tile)`, the apex diamonds with a view on that face meeting the tile.
-    meeting: HashMap<(u8, usize), Vec<DiamondId>>,
-}
-
-impl PlanetApex {
-    /// The apex of the planet `outline` outlines from its parts as an earlier
-    /// [`PlanetBlocks::apex`] held them.
-    pub fn from_parts(
-        outline: &PlanetOutline,
-        root_field: Vec<i32>,
-        roots: Vec<u8>,
-        records: Vec<Record>,
-        grids: ApexGrids,
-        last: HashMap<DiamondId, Refined>,
-    ) -> Self {
-        let meeting = meeting(&outline.domain, outline.tile_log2, &grids);
-        Self {
-            root_field,
-            roots,
-            records,
-            grids,
-            last,
-            meeting,
-        }
-    }
-
-    fn encode(
-        outline: &PlanetOutline,
-        tiles: &dyn PlanetTiles,
-        params: &crate::hierarchy::CodecParams,
-        stored: &[Vec<DiamondId>],
-        recorded: &[BTreeSet<DiamondId>],
-        cut: u8,
-    ) -> Result<Self, CodecError> {
-        let domain = &params.domain;
-        let layout = domain.layout();
-        // Every point the apex reads: the cut level's vertices (and the roots, coarser).
-        let shift = layout.k() - u32::from(cut).div_ceil(2);
-        let view = view_of(outline, tiles, all_tiles(outline), shift)?;
-        let (root_field, roots) = encode_roots(
-            params,
-            |f, x, y| view.get(f, x, y),
-            |f, x, y| view.drawn(f, x, y) == Some(true),
-        )?;
-        // Each grid goes to a temporary file as soon as it is made.
-        let spill = GridSpill::new(layout.n() * layout.n());
-        let pass = per_diamond_levels(domain, &root_field, stored, 0..cut, |id, p| {
-            let refined = match recorded[id.level as usize].contains(&id) {
-                true => Some(refine_diamond(params, &view, id, &p)?),
-                false => None,
-            };
-            Ok((refined, spill.put(&p)?))
-        })?;
-        let grids = spill.finish(pass.visited.into_iter().collect())?;
-        let (records, prev) = (pass.records, pass.last);
-        Ok(Self::from_parts(
-            outline, root_field, roots, records, grids, prev,
-        ))
-    }
-}
-
-/// Per `(face, tile)`, the diamonds of `grids` with a view on that face meeting the tile.
-fn meeting(
-    domain: &Domain,
-    tile_log2: u32,
-    grids: &ApexGrids,
-) -> HashMap<(u8, usize), Vec<DiamondId>> {
-    let side = domain.cube().expect("a cube-sphere").side();
-    let mut meeting: HashMap<(u8, usize), Vec<DiamondId>> = HashMap::new();
-    // Where a diamond's views lie does not depend on its grid.
-    let blank = vec![0; domain.n() * domain.n()];
-    for id in grids.ids() {
-        for (seen, _) in views(domain, id, &blank) {
-            for i in tiles_meeting(side, tile_log2, domain.layout().bounds(seen)) {
-                meeting.entry((seen.face, i)).or_default().push(id);
-            }
-        }
-    }
-    meeting
-}
-
-/// Every tile of every face.
-fn all_tiles(outline: &PlanetOutline) -> BTreeSet<(u8, usize)> {
-    let per_face = PlanetGrid::tile_rects(&outline.domain, outline.tile_log2).len();
-    (0..outline.domain.faces())
-        .flat_map(|f| (0..per_face).map(move |i| (f, i)))
-        .collect()
-}
-
-/// A planet holding only `wanted`'s tiles, each thinned to `min_stride`.
-fn view_of(
-    outline: &PlanetOutline,
-    tiles: &dyn PlanetTiles,
-    wanted: BTreeSet<(u8, usize)>,
-    min_stride: u32,
-) -> Result<PlanetGrid, CodecError> {
-    let held = wanted
-        .into_par_iter()
-        .map(|(f, i)| Ok(((f, i), tiles.tile(f, i, min_stride)?)))
-        .collect::<Result<HashMap<_, _>, CodecError>>()?;
-    held_planet(outline, held)
-}
-
-/// A planet of the outline's domain holding `held`'s tiles only.
-fn held_planet(
-    outline: &PlanetOutline,
-    held: HashMap<(u8, usize), Arc<PlanetTile>>,
-) -> Result<PlanetGrid, CodecError> {
-    let d = &outline.domain;
-    PlanetGrid::partial(
-        d.n(),
-        d.layout().k(),
-        outline.tile_log2,
-        outline.variable,
-        held,
-    )
-}
-
-/// Lattice points `(x0, y0, x1, y1)` of a face, inclusive.
-type Rect = (i64, i64, i64, i64);
-
-/// The smallest rectangle holding `a` and `b`.
-fn union(a: Rect, b: Rect) -> Rect {
-    (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3))
-}
-
 /// A planet holding only `wanted`'s tiles at their own strides: whole (`None`) or with at
 /// least the points of a rectangle ([`PlanetTiles::tile_part`]).
 fn view_of_parts(
@@ -588,14 +352,15 @@ impl BlockEncode<'_> {
         let view = view_of_parts(self.outline, self.tiles, wanted)?;
         let errors = TiledError::new(&view)?;
         let mut output = BlockOutput::default();
-        let mut prev: HashMap<DiamondId, Refined> = HashMap::new();
+        // The cut level gathers from the apex's last refinements: those its diamonds' parents.
+        let first = needed.first().into_iter().flatten();
+        let mut prev: HashMap<DiamondId, Refined> = self
+            .apex
+            .last
+            .load(first.flat_map(|&id| domain.parents(id)).flatten())?;
         for level in self.cut..=finest {
             type Output = (DiamondId, Option<(Refined, Record)>, Option<u32>);
-            let parents = if level == self.cut {
-                &self.apex.last
-            } else {
-                &prev
-            };
+            let parents = &prev;
             let results = needed[usize::from(level - self.cut)]
                 .par_iter()
                 .map(|&id| -> Result<Output, CodecError> {
@@ -664,12 +429,7 @@ impl BlockEncode<'_> {
         let domain = &self.params.domain;
         let layout = domain.layout();
         let face = group.face;
-        let ids: BTreeSet<DiamondId> = group
-            .tiles(self.across)
-            .filter_map(|i| self.apex.meeting.get(&(face, i)))
-            .flatten()
-            .copied()
-            .collect();
+        let ids = self.apex.meeting(group);
         ids.into_par_iter()
             .map(|id| {
                 let grid = self.apex.grids.get(id)?.expect("an apex diamond's grid");
@@ -689,68 +449,4 @@ impl BlockEncode<'_> {
             })
             .collect()
     }
-}
-
-/// The tiles (face, index) holding a point of `id`'s square or of any face's view of it, each
-/// with the rectangle of its points there: its bounds cut at its face's edges, each part
-/// carried onto the face it lies on (a part beyond a cube corner is off the surface), every
-/// corner of a part on every face holding it.
-fn tiles_under(domain: &Domain, tile_log2: u32, id: DiamondId) -> Vec<(u8, usize, Rect)> {
-    let cube = domain.cube().expect("a cube-sphere");
-    let side = cube.side();
-    let layout = domain.layout();
-    let mut rects: HashMap<u8, Rect> = HashMap::new();
-    let mut everything = false;
-    let parts = |a0: i64, a1: i64| {
-        [
-            (a0, a1.min(-1), true),
-            (a0.max(0), a1.min(side), false),
-            (a0.max(side + 1), a1, true),
-        ]
-        .into_iter()
-        .filter(|(a, b, _)| a <= b)
-    };
-    let (x0, y0, x1, y1) = layout.bounds(id);
-    for (xa, xb, x_out) in parts(x0, x1) {
-        for (ya, yb, y_out) in parts(y0, y1) {
-            if x_out && y_out {
-                continue;
-            }
-            for (x, y) in [(xa, ya), (xb, ya), (xa, yb), (xb, yb)] {
-                let Some(p) = cube.locate(id.face, x, y) else {
-                    everything = true;
-                    continue;
-                };
-                let (reps, len) = cube.representations(p);
-                for r in &reps[..len] {
-                    let e = rects.entry(r.face).or_insert((r.x, r.y, r.x, r.y));
-                    *e = union(*e, (r.x, r.y, r.x, r.y));
-                }
-            }
-        }
-    }
-    if everything {
-        rects = (0..domain.faces())
-            .map(|f| (f, (0, 0, side, side)))
-            .collect();
-    }
-    let across = tiles_across(side, tile_log2);
-    let t = 1i64 << tile_log2;
-    let mut out = Vec::new();
-    for (f, rect) in rects {
-        for i in tiles_meeting(side, tile_log2, rect) {
-            // The tile's rectangle (as `PlanetGrid::tile_rects` gives it), clipping the part.
-            let (bx, by) = ((i % across) as i64, (i / across) as i64);
-            let (tx0, ty0) = (bx * t, by * t);
-            let (tx1, ty1) = ((tx0 + t).min(side), (ty0 + t).min(side));
-            let part = (
-                rect.0.max(tx0),
-                rect.1.max(ty0),
-                rect.2.min(tx1),
-                rect.3.min(ty1),
-            );
-            out.push((f, i, part));
-        }
-    }
-    out
 }

@@ -10,18 +10,23 @@
 //! a cube edge compares each half with its own face's input. The previous level's refinements
 //! are kept per diamond (as [`super::encode`] does for α = ½); α = 1 only.
 
+mod apex;
 mod apex_grids;
+mod apex_tiles;
 mod block_groups;
 mod blocks;
 mod grid;
+mod outline;
+mod spill;
 mod tile_source;
 
-pub use apex_grids::ApexGrids;
+pub use apex::PlanetApex;
+pub use apex_grids::{ApexGrids, ApexRefinements};
 pub use block_groups::{BlockGroups, TileGroup};
+pub use outline::PlanetOutline;
 
 pub use blocks::{
-    PlanetApex, PlanetBlocks, PlanetOutline, default_cut, encode_planet_in_blocks,
-    planet_block_groups,
+    APEX_VIEW_BYTES, Apex, PlanetBlocks, default_cut, encode_planet_in_blocks, planet_block_groups,
 };
 pub use tile_source::{PlanetTiles, only_part, thinned};
 

@@ -2,10 +2,14 @@
 //! to a stride, or only a part of a tile (the strips of neighbouring tiles a block reads), and
 //! a whole planet's answer ([`PlanetGrid`]).
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
+use super::grid::{tiles_across, tiles_meeting};
+use super::outline::PlanetOutline;
 use super::{PlanetGrid, PlanetTile};
 use crate::CodecError;
+use crate::geometry::{DiamondId, Domain};
 use crate::hierarchy::resolution::HOLE;
 use crate::quant::HeightGrid;
 
@@ -115,4 +119,95 @@ pub fn thinned(t: &Arc<PlanetTile>, stride: u32) -> Result<Arc<PlanetTile>, Code
         valid: valid.into(),
     };
     Ok(Arc::new(PlanetTile::new(stride, t.rect, grid, class)?))
+}
+
+/// A planet of the outline's domain holding `held`'s tiles only.
+pub(super) fn held_planet(
+    outline: &PlanetOutline,
+    held: HashMap<(u8, usize), Arc<PlanetTile>>,
+) -> Result<PlanetGrid, CodecError> {
+    let d = &outline.domain;
+    PlanetGrid::partial(
+        d.n(),
+        d.layout().k(),
+        outline.tile_log2,
+        outline.variable,
+        held,
+    )
+}
+
+/// Lattice points `(x0, y0, x1, y1)` of a face, inclusive.
+pub(super) type Rect = (i64, i64, i64, i64);
+
+/// The smallest rectangle holding `a` and `b`.
+pub(super) fn union(a: Rect, b: Rect) -> Rect {
+    (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3))
+}
+
+/// The tiles (face, index) holding a point of `id`'s square or of any face's view of it, each
+/// with the rectangle of its points there: its bounds cut at its face's edges, each part
+/// carried onto the face it lies on (a part beyond a cube corner is off the surface), every
+/// corner of a part on every face holding it.
+pub(super) fn tiles_under(
+    domain: &Domain,
+    tile_log2: u32,
+    id: DiamondId,
+) -> Vec<(u8, usize, Rect)> {
+    let cube = domain.cube().expect("a cube-sphere");
+    let side = cube.side();
+    let layout = domain.layout();
+    let mut rects: HashMap<u8, Rect> = HashMap::new();
+    let mut everything = false;
+    let parts = |a0: i64, a1: i64| {
+        [
+            (a0, a1.min(-1), true),
+            (a0.max(0), a1.min(side), false),
+            (a0.max(side + 1), a1, true),
+        ]
+        .into_iter()
+        .filter(|(a, b, _)| a <= b)
+    };
+    let (x0, y0, x1, y1) = layout.bounds(id);
+    for (xa, xb, x_out) in parts(x0, x1) {
+        for (ya, yb, y_out) in parts(y0, y1) {
+            if x_out && y_out {
+                continue;
+            }
+            for (x, y) in [(xa, ya), (xb, ya), (xa, yb), (xb, yb)] {
+                let Some(p) = cube.locate(id.face, x, y) else {
+                    everything = true;
+                    continue;
+                };
+                let (reps, len) = cube.representations(p);
+                for r in &reps[..len] {
+                    let e = rects.entry(r.face).or_insert((r.x, r.y, r.x, r.y));
+                    *e = union(*e, (r.x, r.y, r.x, r.y));
+                }
+            }
+        }
+    }
+    if everything {
+        rects = (0..domain.faces())
+            .map(|f| (f, (0, 0, side, side)))
+            .collect();
+    }
+    let across = tiles_across(side, tile_log2);
+    let t = 1i64 << tile_log2;
+    let mut out = Vec::new();
+    for (f, rect) in rects {
+        for i in tiles_meeting(side, tile_log2, rect) {
+            // The tile's rectangle (as `PlanetGrid::tile_rects` gives it), clipping the part.
+            let (bx, by) = ((i % across) as i64, (i / across) as i64);
+            let (tx0, ty0) = (bx * t, by * t);
+            let (tx1, ty1) = ((tx0 + t).min(side), (ty0 + t).min(side));
+            let part = (
+                rect.0.max(tx0),
+                rect.1.max(ty0),
+                rect.2.min(tx1),
+                rect.3.min(ty1),
+            );
+            out.push((f, i, part));
+        }
+    }
+    out
 }
