@@ -192,9 +192,9 @@ impl<'a> Resampler<'a> {
                 .zip(class.par_chunks_mut(w))
                 .zip(done.par_chunks_mut(w))
                 .enumerate()
-                .for_each_init(
+                .try_for_each_init(
                     Vec::new,
-                    |positions, (row, ((((values, valid), won), class), done))| {
+                    |positions, (row, ((((values, valid), won), class), done))| -> Result<()> {
                         let y = y0 + ((row as i64) << s);
                         let mut out = RowOut {
                             values,
@@ -221,32 +221,35 @@ impl<'a> Resampler<'a> {
                             };
                             match &**samples {
                                 Samples::I16(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
                                 }
                                 Samples::F32(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
                                 }
                                 Samples::F64(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
                                 }
                             }
                         }
+                        Ok(())
                     },
-                );
+                )?;
         }
         let finest = class.iter().copied().filter(|&c| c < 32).min();
         Ok((values, valid, won, class, finest))
     }
 
     /// Paints the points of `run` not yet done from input `input` (`samples` its samples), where it
-    /// covers them: a point's position is worked out once, the first time an input asks.
+    /// covers them: a point's position is worked out once, the first time an input asks. A
+    /// height the plan cannot hold (infinite, or outside the planned range) is an error naming
+    /// the input and the point; a NaN one is no data.
     fn paint_run<S: SampleValues + ?Sized>(
         &self,
         out: &mut RowOut,
         run: &Run,
         input: u16,
         samples: &S,
-    ) {
+    ) -> Result<()> {
         let probe = self
             .inputs
             .probe(samples, input, self.lattice_deg, &self.strides);
@@ -258,7 +261,11 @@ impl<'a> Resampler<'a> {
             let ll = *out.positions[i].get_or_insert_with(|| self.lat_lon(run.face, x, run.y));
             match probe.source_of(ll, (x, run.y)) {
                 Some(PointSource::Sample(v, wi, j)) => {
-                    if let Some(u) = self.plan.to_units(v).ok().flatten() {
+                    let units = self
+                        .plan
+                        .to_units(v)
+                        .map_err(|e| self.unplanned_height(e, input, (run.face, x, run.y), ll))?;
+                    if let Some(u) = units {
                         out.values[i] = u;
                         out.valid[i] = true;
                         out.won[i] = wi;
@@ -274,6 +281,24 @@ impl<'a> Resampler<'a> {
                 None => {}
             }
         }
+        Ok(())
+    }
+
+    /// The error of a height from input `input` at lattice point `(face, x, y)` (at `ll`) that
+    /// the plan cannot hold.
+    fn unplanned_height(
+        &self,
+        e: CodecError,
+        input: u16,
+        (face, x, y): (u8, i64, i64),
+        ll: cbdam_codec::geodesy::LatLon,
+    ) -> BuildError {
+        let path = self.inputs.inputs[usize::from(input)].path.display();
+        BuildError::Invalid(format!(
+            "{path}: its height at lattice point ({x}, {y}) of face {face} ({:.6}°, {:.6}°) \
+             cannot be stored: {e}",
+            ll.lat, ll.lon
+        ))
     }
 
     /// Adds the points of a `w × h` tile at `(x0, y0)`, stride `2^s` (of `part` only where one
@@ -400,12 +425,24 @@ pub struct LatticeTiles<'a> {
     cache: Mutex<TileCache>,
 }
 
-/// Recently resampled tiles, by `(face, tile, stride)`, oldest first in `order`.
+/// Recently resampled tiles, by `(face, tile, stride)`, least recently used first in `order`.
 struct TileCache {
     held: HashMap<(u8, usize, u32), Held>,
     order: VecDeque<(u8, usize, u32)>,
     bytes: u64,
     budget: u64,
+}
+
+impl TileCache {
+    /// The tile held under `key`, if any, made the most recently used.
+    fn get(&mut self, key: &(u8, usize, u32)) -> Option<Held> {
+        let held = Arc::clone(self.held.get(key)?);
+        if let Some(at) = self.order.iter().position(|k| k == key) {
+            self.order.remove(at);
+            self.order.push_back(*key);
+        }
+        Some(held)
+    }
 }
 
 /// Bytes a tile of `points` points takes with its winners: height, validity, class, winner.
@@ -515,8 +552,8 @@ impl<'a> LatticeTiles<'a> {
         let own = self.strides[usize::from(face)][index];
         let stride = own.max(min_stride.min(self.resampler.tile_log2()));
         let key = (face, index, stride);
-        if let Some(t) = self.cache.lock().expect("the tile cache").held.get(&key) {
-            return Ok(Arc::clone(t));
+        if let Some(t) = self.cache.lock().expect("the tile cache").get(&key) {
+            return Ok(t);
         }
         let (tile, won) = self.resampler.tile(face, index, stride)?;
         let held: Held = Arc::new((Arc::new(tile), won));
@@ -555,10 +592,9 @@ impl<'a> LatticeTiles<'a> {
             .cache
             .lock()
             .expect("the tile cache")
-            .held
             .get(&(face, index, stride))
         {
-            return Ok(Arc::clone(t));
+            return Ok(t);
         }
         let (tile, won) = self.resampler.tile_part(face, index, stride, part)?;
         Ok(Arc::new((Arc::new(tile), won)))
@@ -632,7 +668,7 @@ impl PlanetTiles for LatticeTiles<'_> {
     ) -> std::result::Result<Arc<PlanetTile>, CodecError> {
         let own = self.strides[usize::from(face)][index];
         let key = (face, index, own);
-        if let Some(t) = self.cache.lock().expect("the tile cache").held.get(&key) {
+        if let Some(t) = self.cache.lock().expect("the tile cache").get(&key) {
             return Ok(Arc::clone(&t.0));
         }
         self.resampler
