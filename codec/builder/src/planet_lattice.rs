@@ -19,7 +19,6 @@ use rayon::prelude::*;
 
 use crate::band_cache::{SampleValues, Samples};
 use crate::error::{BuildError, Result};
-use crate::peak_memory::peak_rss;
 use crate::planet_input::{PlanetInputs, PointSource};
 use crate::planet_plan::{TilePlan, lattice_spacing_deg, plan_tiles, valid_in_tile};
 use crate::planet_resampling::{InputResampling, Resampled, input_resampling, sample_footprint};
@@ -27,11 +26,9 @@ use cbdam_codec::CodecError;
 use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::hierarchy::planet::{
-    PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, tile_log2,
-};
+use cbdam_codec::hierarchy::planet::{PlanetOutline, PlanetTiles, tile_log2};
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
-use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded, PlanetGrid, PlanetTile};
+use cbdam_codec::hierarchy::{PlanetGrid, PlanetTile};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
 /// How many inputs' samples a tile's painting holds at once.
@@ -608,8 +605,33 @@ impl<'a> LatticeTiles<'a> {
         let r = &self.resampler;
         let d = r.domain();
         let stride = r.strides[input];
+        let held = self
+            .input_tiles(input)
+            .into_par_iter()
+            .map(|(f, i, part)| Ok(((f, i), self.held_part(f, i, stride, part)?)))
+            .collect::<Result<HashMap<_, _>>>()?;
+        let mut winners = vec![vec![Vec::new(); r.tiles_per_face()]; usize::from(d.faces())];
+        let mut tiles = HashMap::new();
+        for ((f, i), h) in held {
+            winners[usize::from(f)][i] = h.1.clone();
+            tiles.insert((f, i), Arc::clone(&h.0));
+        }
+        let planet = PlanetGrid::partial(d.n(), d.layout().k(), r.tile_log2, r.variable, tiles)?;
+        Ok(Resampled {
+            planet,
+            winners,
+            strides: r.strides.clone(),
+        })
+    }
+
+    /// The tiles input `input` can cover, each with the part of it around the input's samples
+    /// where they lie on at most three faces ([`sample_footprint`]), else whole (`None`).
+    fn input_tiles(&self, input: usize) -> Vec<(u8, usize, Option<Rect>)> {
+        let r = &self.resampler;
+        let d = r.domain();
+        let stride = r.strides[input];
         let footprint = sample_footprint(&r.inputs.inputs[input], stride, r.side);
-        let wanted: Vec<(u8, usize, Option<Rect>)> = (0..d.faces())
+        (0..d.faces())
             .flat_map(|f| (0..r.tiles_per_face()).map(move |i| (f, i)))
             .filter(|&(f, i)| {
                 r.tiles.candidates[usize::from(f)][i]
@@ -627,23 +649,7 @@ impl<'a> LatticeTiles<'a> {
                         .map(|&(_, part)| (f, i, Some(part)))
                 }
             })
-            .collect();
-        let held = wanted
-            .into_par_iter()
-            .map(|(f, i, part)| Ok(((f, i), self.held_part(f, i, stride, part)?)))
-            .collect::<Result<HashMap<_, _>>>()?;
-        let mut winners = vec![vec![Vec::new(); r.tiles_per_face()]; usize::from(d.faces())];
-        let mut tiles = HashMap::new();
-        for ((f, i), h) in held {
-            winners[usize::from(f)][i] = h.1.clone();
-            tiles.insert((f, i), Arc::clone(&h.0));
-        }
-        let planet = PlanetGrid::partial(d.n(), d.layout().k(), r.tile_log2, r.variable, tiles)?;
-        Ok(Resampled {
-            planet,
-            winners,
-            strides: r.strides.clone(),
-        })
+            .collect()
     }
 }
 
@@ -678,97 +684,9 @@ impl PlanetTiles for LatticeTiles<'_> {
     }
 }
 
-/// What [`encode_out_of_core`] made.
-pub struct LatticeEncode {
-    /// The hierarchy.
-    pub encoded: Encoded,
-    /// Per input, the resampling error against its samples.
-    pub resampling: Vec<InputResampling>,
-    /// Distinct lattice points with data.
-    pub valid: u64,
-    /// Points the lattice's tiles hold.
-    pub held_points: u64,
-    /// Block by block: how many blocks, and how many lattice tiles they group.
-    pub blocks: Option<(usize, usize)>,
-    /// Block by block: lattice points painted (resampled from the inputs) by each step, in
-    /// order; a point painted again counts again.
-    pub painted: Vec<(&'static str, u64)>,
-    /// Block by block: the process's peak resident memory after each step, bytes
-    /// ([`crate::peak_memory::peak_rss`]; empty where the system does not say).
-    pub peaks: Vec<(&'static str, u64)>,
-}
-
-/// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
-/// as it is asked for (a cache of `cache_budget` bytes of tiles; tiles grouped into blocks of
-/// about `block_bytes`, [`PlanetBlocks::with_block_bytes`]), finished blocks kept in `journal`, and measures each input's resampling error: the same hierarchy and figures as
-/// [`crate::planet::resample`] then [`cbdam_codec::hierarchy::encode_planet`] and
-/// [`crate::planet::resampling_error`] of the whole lattice.
-pub fn encode_out_of_core(
-    inputs: &PlanetInputs,
-    n: usize,
-    k: u32,
-    plan: &QuantPlan,
-    enc: &EncodeOptions,
-    (cache_budget, block_bytes): (u64, u64),
-    journal: &dyn BlockJournal,
-) -> Result<LatticeEncode> {
-    let resampler = Resampler::new(inputs, n, k, plan)?;
-    let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
-    // Per step, the points painted whole and in parts of tiles, and the peak memory after it.
-    let mut painted = vec![("outline", tiles.resampler.painted().0)];
-    let mut peaks: Vec<(&'static str, u64)> = Vec::new();
-    let mut peak = |step: &'static str| peaks.extend(peak_rss().map(|p| (step, p)));
-    peak("outline");
-    let mut last = tiles.resampler.painted();
-    let mut step = |(whole, part): (&'static str, &'static str), tiles: &LatticeTiles| {
-        let now = tiles.resampler.painted();
-        let parts = now.1 - last.1;
-        painted.push((whole, now.0 - last.0 - parts));
-        if parts > 0 {
-            painted.push((part, parts));
-        }
-        last = now;
-    };
-    let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
-    // The apex and the blocks are let go before the resampling error is measured.
-    let (encoded, counts) = {
-        let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, None)
-            .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
-            .map_err(BuildError::from)?;
-        step(("apex", "apex (parts of tiles)"), &tiles);
-        peak("apex");
-        let counts = (
-            blocks.block_count(),
-            tiles.strides().iter().map(Vec::len).sum(),
-        );
-        (
-            blocks.finish(journal, true).map_err(BuildError::from)?,
-            counts,
-        )
-    };
-    step(("blocks", "blocks (strips of neighbouring tiles)"), &tiles);
-    peak("blocks");
-    let resampling = (0..inputs.inputs.len())
-        .map(|i| tiles.resampling(i))
-        .collect::<Result<Vec<_>>>()?;
-    step(
-        (
-            "resampling error",
-            "resampling error (parts of tiles around an input's samples)",
-        ),
-        &tiles,
-    );
-    peak("resampling error");
-    Ok(LatticeEncode {
-        encoded,
-        resampling,
-        valid,
-        held_points,
-        blocks: Some(counts),
-        painted,
-        peaks,
-    })
-}
+#[path = "planet_lattice_encode.rs"]
+mod encode;
+pub use encode::{LatticeEncode, encode_out_of_core};
 
 #[path = "planet_resampling_bands.rs"]
 mod resampling_bands;

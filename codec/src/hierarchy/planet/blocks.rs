@@ -342,6 +342,11 @@ impl<'a> PlanetBlocks<'a> {
         self.block_encode().encode(group, &|_, _| false)
     }
 
+    /// The block of each tile in a block of fewer than 64 tiles ([`BlockGroups::block_of_tiles`]).
+    pub fn block_of_tiles(&self) -> HashMap<(u8, usize), usize> {
+        self.groups.block_of_tiles(self.block_encode().across)
+    }
+
     /// The tiles of block `index`, if there is one.
     pub fn block_tiles(&self, index: usize) -> Option<&TileGroup> {
         self.groups.get(index)
@@ -350,6 +355,17 @@ impl<'a> PlanetBlocks<'a> {
     /// Every block's output (from `journal`, else encoded and saved there) and the apex's put
     /// together: the planet's [`Encoded`].
     pub fn finish(&self, journal: &dyn BlockJournal, spill: bool) -> Result<Encoded, CodecError> {
+        self.finish_with(journal, spill, &mut |_| Ok(()))
+    }
+
+    /// [`Self::finish`], calling `after_block` with each block's index once it is done (encoded
+    /// or found in `journal`), in block order.
+    pub fn finish_with(
+        &self,
+        journal: &dyn BlockJournal,
+        spill: bool,
+        after_block: &mut dyn FnMut(usize) -> Result<(), CodecError>,
+    ) -> Result<Encoded, CodecError> {
         let domain = self.outline.domain;
         let mut kept = KeptRecords::new(spill)?;
         kept.extend(self.apex.records.clone())?;
@@ -379,6 +395,7 @@ impl<'a> PlanetBlocks<'a> {
                 let max = own_error.entry(id).or_insert(e);
                 *max = (*max).max(e);
             }
+            after_block(index)?;
         }
         if let Some(id) = self
             .stored
