@@ -19,7 +19,6 @@ use rayon::prelude::*;
 
 use crate::band_cache::{SampleValues, Samples};
 use crate::error::{BuildError, Result};
-use crate::peak_memory::peak_rss;
 use crate::planet_input::{PlanetInputs, PointSource};
 use crate::planet_plan::{TilePlan, lattice_spacing_deg, plan_tiles, valid_in_tile};
 use crate::planet_resampling::{InputResampling, Resampled, input_resampling, sample_footprint};
@@ -27,11 +26,9 @@ use cbdam_codec::CodecError;
 use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::hierarchy::planet::{
-    Apex, PlanetBlocks, PlanetOutline, PlanetTiles, default_cut, tile_log2,
-};
+use cbdam_codec::hierarchy::planet::{PlanetOutline, PlanetTiles, tile_log2};
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
-use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded, PlanetGrid, PlanetTile};
+use cbdam_codec::hierarchy::{PlanetGrid, PlanetTile};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
 
 /// How many inputs' samples a tile's painting holds at once.
@@ -192,9 +189,9 @@ impl<'a> Resampler<'a> {
                 .zip(class.par_chunks_mut(w))
                 .zip(done.par_chunks_mut(w))
                 .enumerate()
-                .for_each_init(
+                .try_for_each_init(
                     Vec::new,
-                    |positions, (row, ((((values, valid), won), class), done))| {
+                    |positions, (row, ((((values, valid), won), class), done))| -> Result<()> {
                         let y = y0 + ((row as i64) << s);
                         let mut out = RowOut {
                             values,
@@ -221,32 +218,35 @@ impl<'a> Resampler<'a> {
                             };
                             match &**samples {
                                 Samples::I16(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
                                 }
                                 Samples::F32(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
                                 }
                                 Samples::F64(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())
+                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
                                 }
                             }
                         }
+                        Ok(())
                     },
-                );
+                )?;
         }
         let finest = class.iter().copied().filter(|&c| c < 32).min();
         Ok((values, valid, won, class, finest))
     }
 
     /// Paints the points of `run` not yet done from input `input` (`samples` its samples), where it
-    /// covers them: a point's position is worked out once, the first time an input asks.
+    /// covers them: a point's position is worked out once, the first time an input asks. A
+    /// height the plan cannot hold (infinite, or outside the planned range) is an error naming
+    /// the input and the point; a NaN one is no data.
     fn paint_run<S: SampleValues + ?Sized>(
         &self,
         out: &mut RowOut,
         run: &Run,
         input: u16,
         samples: &S,
-    ) {
+    ) -> Result<()> {
         let probe = self
             .inputs
             .probe(samples, input, self.lattice_deg, &self.strides);
@@ -258,7 +258,11 @@ impl<'a> Resampler<'a> {
             let ll = *out.positions[i].get_or_insert_with(|| self.lat_lon(run.face, x, run.y));
             match probe.source_of(ll, (x, run.y)) {
                 Some(PointSource::Sample(v, wi, j)) => {
-                    if let Some(u) = self.plan.to_units(v).ok().flatten() {
+                    let units = self
+                        .plan
+                        .to_units(v)
+                        .map_err(|e| self.unplanned_height(e, input, (run.face, x, run.y), ll))?;
+                    if let Some(u) = units {
                         out.values[i] = u;
                         out.valid[i] = true;
                         out.won[i] = wi;
@@ -274,6 +278,24 @@ impl<'a> Resampler<'a> {
                 None => {}
             }
         }
+        Ok(())
+    }
+
+    /// The error of a height from input `input` at lattice point `(face, x, y)` (at `ll`) that
+    /// the plan cannot hold.
+    fn unplanned_height(
+        &self,
+        e: CodecError,
+        input: u16,
+        (face, x, y): (u8, i64, i64),
+        ll: cbdam_codec::geodesy::LatLon,
+    ) -> BuildError {
+        let path = self.inputs.inputs[usize::from(input)].path.display();
+        BuildError::Invalid(format!(
+            "{path}: its height at lattice point ({x}, {y}) of face {face} ({:.6}°, {:.6}°) \
+             cannot be stored: {e}",
+            ll.lat, ll.lon
+        ))
     }
 
     /// Adds the points of a `w × h` tile at `(x0, y0)`, stride `2^s` (of `part` only where one
@@ -400,12 +422,24 @@ pub struct LatticeTiles<'a> {
     cache: Mutex<TileCache>,
 }
 
-/// Recently resampled tiles, by `(face, tile, stride)`, oldest first in `order`.
+/// Recently resampled tiles, by `(face, tile, stride)`, least recently used first in `order`.
 struct TileCache {
     held: HashMap<(u8, usize, u32), Held>,
     order: VecDeque<(u8, usize, u32)>,
     bytes: u64,
     budget: u64,
+}
+
+impl TileCache {
+    /// The tile held under `key`, if any, made the most recently used.
+    fn get(&mut self, key: &(u8, usize, u32)) -> Option<Held> {
+        let held = Arc::clone(self.held.get(key)?);
+        if let Some(at) = self.order.iter().position(|k| k == key) {
+            self.order.remove(at);
+            self.order.push_back(*key);
+        }
+        Some(held)
+    }
 }
 
 /// Bytes a tile of `points` points takes with its winners: height, validity, class, winner.
@@ -515,8 +549,8 @@ impl<'a> LatticeTiles<'a> {
         let own = self.strides[usize::from(face)][index];
         let stride = own.max(min_stride.min(self.resampler.tile_log2()));
         let key = (face, index, stride);
-        if let Some(t) = self.cache.lock().expect("the tile cache").held.get(&key) {
-            return Ok(Arc::clone(t));
+        if let Some(t) = self.cache.lock().expect("the tile cache").get(&key) {
+            return Ok(t);
         }
         let (tile, won) = self.resampler.tile(face, index, stride)?;
         let held: Held = Arc::new((Arc::new(tile), won));
@@ -555,10 +589,9 @@ impl<'a> LatticeTiles<'a> {
             .cache
             .lock()
             .expect("the tile cache")
-            .held
             .get(&(face, index, stride))
         {
-            return Ok(Arc::clone(t));
+            return Ok(t);
         }
         let (tile, won) = self.resampler.tile_part(face, index, stride, part)?;
         Ok(Arc::new((Arc::new(tile), won)))
@@ -572,8 +605,33 @@ impl<'a> LatticeTiles<'a> {
         let r = &self.resampler;
         let d = r.domain();
         let stride = r.strides[input];
+        let held = self
+            .input_tiles(input)
+            .into_par_iter()
+            .map(|(f, i, part)| Ok(((f, i), self.held_part(f, i, stride, part)?)))
+            .collect::<Result<HashMap<_, _>>>()?;
+        let mut winners = vec![vec![Vec::new(); r.tiles_per_face()]; usize::from(d.faces())];
+        let mut tiles = HashMap::new();
+        for ((f, i), h) in held {
+            winners[usize::from(f)][i] = h.1.clone();
+            tiles.insert((f, i), Arc::clone(&h.0));
+        }
+        let planet = PlanetGrid::partial(d.n(), d.layout().k(), r.tile_log2, r.variable, tiles)?;
+        Ok(Resampled {
+            planet,
+            winners,
+            strides: r.strides.clone(),
+        })
+    }
+
+    /// The tiles input `input` can cover, each with the part of it around the input's samples
+    /// where they lie on at most three faces ([`sample_footprint`]), else whole (`None`).
+    fn input_tiles(&self, input: usize) -> Vec<(u8, usize, Option<Rect>)> {
+        let r = &self.resampler;
+        let d = r.domain();
+        let stride = r.strides[input];
         let footprint = sample_footprint(&r.inputs.inputs[input], stride, r.side);
-        let wanted: Vec<(u8, usize, Option<Rect>)> = (0..d.faces())
+        (0..d.faces())
             .flat_map(|f| (0..r.tiles_per_face()).map(move |i| (f, i)))
             .filter(|&(f, i)| {
                 r.tiles
@@ -591,23 +649,7 @@ impl<'a> LatticeTiles<'a> {
                         .map(|&(_, part)| (f, i, Some(part)))
                 }
             })
-            .collect();
-        let held = wanted
-            .into_par_iter()
-            .map(|(f, i, part)| Ok(((f, i), self.held_part(f, i, stride, part)?)))
-            .collect::<Result<HashMap<_, _>>>()?;
-        let mut winners = vec![vec![Vec::new(); r.tiles_per_face()]; usize::from(d.faces())];
-        let mut tiles = HashMap::new();
-        for ((f, i), h) in held {
-            winners[usize::from(f)][i] = h.1.clone();
-            tiles.insert((f, i), Arc::clone(&h.0));
-        }
-        let planet = PlanetGrid::partial(d.n(), d.layout().k(), r.tile_log2, r.variable, tiles)?;
-        Ok(Resampled {
-            planet,
-            winners,
-            strides: r.strides.clone(),
-        })
+            .collect()
     }
 }
 
@@ -632,7 +674,7 @@ impl PlanetTiles for LatticeTiles<'_> {
     ) -> std::result::Result<Arc<PlanetTile>, CodecError> {
         let own = self.strides[usize::from(face)][index];
         let key = (face, index, own);
-        if let Some(t) = self.cache.lock().expect("the tile cache").held.get(&key) {
+        if let Some(t) = self.cache.lock().expect("the tile cache").get(&key) {
             return Ok(Arc::clone(&t.0));
         }
         self.resampler
@@ -642,98 +684,9 @@ impl PlanetTiles for LatticeTiles<'_> {
     }
 }
 
-/// What [`encode_out_of_core`] made.
-pub struct LatticeEncode {
-    /// The hierarchy.
-    pub encoded: Encoded,
-    /// Per input, the resampling error against its samples.
-    pub resampling: Vec<InputResampling>,
-    /// Distinct lattice points with data.
-    pub valid: u64,
-    /// Points the lattice's tiles hold.
-    pub held_points: u64,
-    /// Block by block: how many blocks, and how many lattice tiles they group.
-    pub blocks: Option<(usize, usize)>,
-    /// Block by block: lattice points painted (resampled from the inputs) by each step, in
-    /// order; a point painted again counts again.
-    pub painted: Vec<(&'static str, u64)>,
-    /// Block by block: the process's peak resident memory after each step, bytes
-    /// ([`crate::peak_memory::peak_rss`]; empty where the system does not say).
-    pub peaks: Vec<(&'static str, u64)>,
-}
-
-/// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
-/// as it is asked for (a cache of `cache_budget` bytes of tiles; tiles grouped into blocks of
-/// about `block_bytes`, [`PlanetBlocks::with_block_bytes`]), finished blocks kept in `journal`, and measures each input's resampling error: the same hierarchy and figures as
-/// [`crate::planet::resample`] then [`cbdam_codec::hierarchy::encode_planet`] and
-/// [`crate::planet::resampling_error`] of the whole lattice.
-pub fn encode_out_of_core(
-    inputs: &PlanetInputs,
-    n: usize,
-    k: u32,
-    plan: &QuantPlan,
-    enc: &EncodeOptions,
-    (cache_budget, block_bytes): (u64, u64),
-    journal: &dyn BlockJournal,
-) -> Result<LatticeEncode> {
-    let resampler = Resampler::new(inputs, n, k, plan)?;
-    let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
-    // Per step, the points painted whole and in parts of tiles, and the peak memory after it.
-    let mut painted = vec![("outline", tiles.resampler.painted().0)];
-    let mut peaks: Vec<(&'static str, u64)> = Vec::new();
-    let mut peak = |step: &'static str| peaks.extend(peak_rss().map(|p| (step, p)));
-    peak("outline");
-    let mut last = tiles.resampler.painted();
-    let mut step = |(whole, part): (&'static str, &'static str), tiles: &LatticeTiles| {
-        let now = tiles.resampler.painted();
-        let parts = now.1 - last.1;
-        painted.push((whole, now.0 - last.0 - parts));
-        if parts > 0 {
-            painted.push((part, parts));
-        }
-        last = now;
-    };
-    let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
-    // The apex and the blocks are let go before the resampling error is measured.
-    let (encoded, counts) = {
-        let apex = Apex::Encode(block_bytes);
-        let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, apex)
-            .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
-            .map_err(BuildError::from)?;
-        step(("apex", "apex (parts of tiles)"), &tiles);
-        peak("apex");
-        let counts = (
-            blocks.block_count(),
-            tiles.strides().iter().map(Vec::len).sum(),
-        );
-        (
-            blocks.finish(journal, true).map_err(BuildError::from)?,
-            counts,
-        )
-    };
-    step(("blocks", "blocks (strips of neighbouring tiles)"), &tiles);
-    peak("blocks");
-    let resampling = (0..inputs.inputs.len())
-        .map(|i| tiles.resampling(i))
-        .collect::<Result<Vec<_>>>()?;
-    step(
-        (
-            "resampling error",
-            "resampling error (parts of tiles around an input's samples)",
-        ),
-        &tiles,
-    );
-    peak("resampling error");
-    Ok(LatticeEncode {
-        encoded,
-        resampling,
-        valid,
-        held_points,
-        blocks: Some(counts),
-        painted,
-        peaks,
-    })
-}
+#[path = "planet_lattice_encode.rs"]
+mod encode;
+pub use encode::{LatticeEncode, encode_out_of_core};
 
 #[path = "planet_resampling_bands.rs"]
 mod resampling_bands;

@@ -1,6 +1,7 @@
 //! Tests of the planet lattice's painting: every point of every tile of every face (edges and
 //! cube corners too) against a point-by-point resampling written independently of the tiles,
-//! parts of tiles against the whole, and an input's sample footprint against its samples.
+//! parts of tiles against the whole, an input's sample footprint against its samples, its
+//! resampling error against one reckoned point by point, and a height the plan cannot hold.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -9,7 +10,7 @@ use super::Resampler;
 use crate::band_cache::Samples;
 use crate::planet_input::{Frame, PlanetInput, PlanetInputs, PointSource, SampleSource};
 use crate::planet_plan::{input_stride, lattice_spacing_deg};
-use crate::planet_resampling::sample_footprint;
+use crate::planet_resampling::{column_sin_cos, sample_footprint, sample_position};
 use cbdam_codec::geodesy::cube_map::lat_lon_to_face_st;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::hierarchy::PlanetGrid;
@@ -217,4 +218,101 @@ fn a_footprint_holds_every_sample_cell() {
             assert_eq!(on.len(), *faces, "{}", inset.path.display());
         }
     }
+}
+
+/// An inset over the middle of a face, where its four tiles meet (a lattice of 2048 steps a
+/// face in tiles of 1024), measured as a build measures it ([`super::LatticeTiles::resampling`]:
+/// the parts of its tiles around its samples): every sample whose four surrounding lattice
+/// points all took their heights from it is compared, on either side of the tiles' sides —
+/// the count and the largest error against the same reckoned from the points resampled on
+/// their own ([`reference`]), no tile looked up.
+#[test]
+fn every_sample_is_compared_on_both_sides_of_a_tile_side() {
+    let (n, k) = (17, 7);
+    let domain = cbdam_codec::geometry::Domain::cube_sphere(n, k).unwrap();
+    let middle = lattice_lat_lon(&domain, 0, 1024, 1024).unwrap();
+    let inputs = PlanetInputs::held(vec![input(
+        "middle.tif",
+        (middle.lat + 0.61, middle.lon - 0.63),
+        0.02,
+        (64, 62),
+    )]);
+    let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
+    let r = Resampler::new(&inputs, n, k, &plan).unwrap();
+    assert_eq!((r.side, r.tile_log2()), (2048, 10));
+    let strides = r.tiles.strides.clone();
+    let tiles = super::LatticeTiles::with_strides(r, strides, 1 << 30).unwrap();
+    let got = tiles.resampling(0).unwrap();
+    let r = &tiles.resampler;
+    let (inset, samples) = (&inputs.inputs[0], inputs.samples(0).unwrap());
+    let columns = column_sin_cos(inset);
+    let (step, side) = (1i64 << r.strides[0], r.side);
+    let (mut compared, mut max, mut tiles_met) = (0u64, 0.0f64, std::collections::BTreeSet::new());
+    for row in 0..inset.height {
+        let lat = inset.lat_lon_of(0, row).lat.to_radians().sin_cos();
+        for c in 0..inset.width {
+            let Some(v) = inset.sample(&samples, c, row) else {
+                continue;
+            };
+            let (face, s, t) = sample_position(inset, columns.as_deref(), lat, (c, row));
+            let (x, y) = (s * side as f64 / step as f64, t * side as f64 / step as f64);
+            let (cx, cy) = (x.floor() as i64, y.floor() as i64);
+            let corner = |dx: i64, dy: i64| {
+                let p = ((cx + dx) * step, (cy + dy) * step);
+                let (units, valid, won, _) = reference(r, &plan, face, p);
+                (valid && won == 0).then(|| plan.metres(units))
+            };
+            let (Some(a), Some(b), Some(cc), Some(d)) =
+                (corner(0, 0), corner(1, 0), corner(0, 1), corner(1, 1))
+            else {
+                continue;
+            };
+            let (fx, fy) = (x - cx as f64, y - cy as f64);
+            let l = (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (cc * (1.0 - fx) + d * fx) * fy;
+            compared += 1;
+            max = max.max((l - v).abs());
+            tiles_met.insert(cbdam_codec::hierarchy::planet::tile_of(
+                side,
+                10,
+                cx * step,
+                cy * step,
+            ));
+        }
+    }
+    // The inset's compared samples lie in all four tiles around the face's middle.
+    assert_eq!(tiles_met.len(), 4, "{tiles_met:?}");
+    assert!(compared > 3000, "{compared} of {}", got.samples);
+    assert_eq!(got.compared, compared);
+    assert!(
+        (got.max_error - max).abs() < 1e-9,
+        "{} against {max}",
+        got.max_error
+    );
+}
+
+/// A height the plan cannot hold is an error naming the input and the lattice point, not a
+/// hole: an inset whose heights lie far outside the planned range.
+#[test]
+fn a_height_outside_the_planned_range_is_an_error_naming_the_input() {
+    let mut inset = input("huge.tif", (20.0, 10.0), 0.3, (40, 30));
+    inset.source = SampleSource::Held(Arc::new(Samples::compact(vec![1.0e15; 40 * 30])));
+    let inputs = PlanetInputs::held(vec![inset]);
+    let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
+    let r = Resampler::new(&inputs, 17, 4, &plan).unwrap();
+    let errors: Vec<String> = (0..6u8)
+        .filter_map(|face| r.tile(face, 0, 0).err())
+        .map(|e| e.to_string())
+        .collect();
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    let e = &errors[0];
+    assert!(
+        e.contains("huge.tif") && e.contains("lattice point") && e.contains("outside the planned"),
+        "{e}"
+    );
+    // Within the range, the same inset paints without error.
+    let mut inset = input("huge.tif", (20.0, 10.0), 0.3, (40, 30));
+    inset.source = SampleSource::Held(Arc::new(Samples::compact(vec![1000.0; 40 * 30])));
+    let inputs = PlanetInputs::held(vec![inset]);
+    let r = Resampler::new(&inputs, 17, 4, &plan).unwrap();
+    assert!((0..6u8).all(|face| r.tile(face, 0, 0).is_ok()));
 }

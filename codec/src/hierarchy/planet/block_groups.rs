@@ -10,6 +10,8 @@
 //! together changes no byte of the output: a diamond is refined from its parents and its own
 //! points wherever it is computed, and its error is the largest over the tiles under it.
 
+use std::collections::HashMap;
+
 use crate::CodecError;
 use crate::geometry::{DiamondId, Domain};
 
@@ -156,6 +158,17 @@ impl BlockGroups {
     /// Whether there is no block.
     pub fn is_empty(&self) -> bool {
         self.groups.is_empty()
+    }
+
+    /// The block of each tile `(face, index)` of a face `across` tiles wide, for blocks of
+    /// fewer than 64 tiles (a larger block holds coarse tiles only, cheap to paint again).
+    pub fn block_of_tiles(&self, across: usize) -> HashMap<(u8, usize), usize> {
+        self.groups
+            .iter()
+            .enumerate()
+            .filter(|(_, g)| g.tiles(across).nth(63).is_none())
+            .flat_map(|(b, g)| g.tiles(across).map(move |i| ((g.face, i), b)))
+            .collect()
     }
 
     /// Block `index`'s tiles.

@@ -56,6 +56,13 @@ const TILE_IN_CUT_RADII: i64 = 32;
 /// most), so that it stays small beside the blocks.
 const APEX_MIN_SHIFT: u32 = 3;
 
+/// How many blocks ahead a neighbour's tile may be encoded in and still be painted whole when
+/// a block reaches into it (kept in the tiles' cache until its own block asks for it), rather
+/// than only the strip the block reaches: a block is mostly one tile, and in the blocks' order
+/// (quarters in turn) a tile's eastern, southern and south-eastern neighbours in its quarter
+/// come within three.
+const NEIGHBOURS_AHEAD: usize = 3;
+
 /// The cut level for tiles of `2^tile_log2` steps: the deepest level whose radius fits
 /// [`TILE_IN_CUT_RADII`] times in a tile, two levels above the finest at most, and no deeper
 /// than lets the apex read every `2^`[`APEX_MIN_SHIFT`]-th point.
@@ -236,7 +243,12 @@ impl<'a> PlanetBlocks<'a> {
                 self.block_count()
             )));
         };
-        self.block_encode().encode(group)
+        self.block_encode().encode(group, &|_, _| false)
+    }
+
+    /// The block of each tile in a block of fewer than 64 tiles ([`BlockGroups::block_of_tiles`]).
+    pub fn block_of_tiles(&self) -> HashMap<(u8, usize), usize> {
+        self.groups.block_of_tiles(self.block_encode().across)
     }
 
     /// The tiles of block `index`, if there is one.
@@ -247,18 +259,37 @@ impl<'a> PlanetBlocks<'a> {
     /// Every block's output (from `journal`, else encoded and saved there) and the apex's put
     /// together: the planet's [`Encoded`].
     pub fn finish(&self, journal: &dyn BlockJournal, spill: bool) -> Result<Encoded, CodecError> {
+        self.finish_with(journal, spill, &mut |_| Ok(()))
+    }
+
+    /// [`Self::finish`], calling `after_block` with each block's index once it is done (encoded
+    /// or found in `journal`), in block order.
+    pub fn finish_with(
+        &self,
+        journal: &dyn BlockJournal,
+        spill: bool,
+        after_block: &mut dyn FnMut(usize) -> Result<(), CodecError>,
+    ) -> Result<Encoded, CodecError> {
         let domain = self.outline.domain;
         let mut kept = KeptRecords::new(spill)?;
         kept.extend(self.apex.records.clone())?;
         let mut own_error: HashMap<DiamondId, u32> =
             self.apex.grids.ids().map(|id| (id, 0)).collect();
         let block = self.block_encode();
+        let block_of = self.groups.block_of_tiles(block.across);
         for index in 0..self.block_count() {
             let output = match journal.load(index)? {
                 Some(output) => output,
                 None => {
                     let group = self.groups.get(index).expect("a block of the planet");
-                    let output = block.encode(group)?;
+                    // A neighbour's tile whose own block comes within the next few is painted
+                    // whole (and kept in the tiles' cache for that block), not only its strip.
+                    let soon = |f: u8, i: usize| {
+                        block_of
+                            .get(&(f, i))
+                            .is_some_and(|&b| index < b && b <= index + NEIGHBOURS_AHEAD)
+                    };
+                    let output = block.encode(group, &soon)?;
                     journal.save(index, &output)?;
                     output
                 }
@@ -268,6 +299,7 @@ impl<'a> PlanetBlocks<'a> {
                 let max = own_error.entry(id).or_insert(e);
                 *max = (*max).max(e);
             }
+            after_block(index)?;
         }
         if let Some(id) = self
             .stored
@@ -296,13 +328,14 @@ fn view_of_parts(
     outline: &PlanetOutline,
     tiles: &dyn PlanetTiles,
     wanted: HashMap<(u8, usize), Option<Rect>>,
+    whole: &(dyn Fn(u8, usize) -> bool + Sync),
 ) -> Result<PlanetGrid, CodecError> {
     let held = wanted
         .into_par_iter()
         .map(|((f, i), part)| {
             let tile = match part {
-                None => tiles.tile(f, i, 0)?,
-                Some(part) => tiles.tile_part(f, i, part)?,
+                Some(part) if !whole(f, i) => tiles.tile_part(f, i, part)?,
+                _ => tiles.tile(f, i, 0)?,
             };
             Ok(((f, i), tile))
         })
@@ -325,8 +358,14 @@ struct BlockEncode<'a> {
 }
 
 impl BlockEncode<'_> {
-    /// The block of the tiles of `group`.
-    fn encode(&self, group: &TileGroup) -> Result<BlockOutput, CodecError> {
+    /// The block of the tiles of `group`; of its neighbours' tiles, those `whole` names are
+    /// asked for whole rather than their strips (the same bytes: a strip is the whole tile
+    /// there).
+    fn encode(
+        &self,
+        group: &TileGroup,
+        whole: &(dyn Fn(u8, usize) -> bool + Sync),
+    ) -> Result<BlockOutput, CodecError> {
         let domain = &self.params.domain;
         let finest = domain.finest_level();
         let face = group.face;
@@ -349,7 +388,7 @@ impl BlockEncode<'_> {
                     .or_insert(Some(r));
             }
         }
-        let view = view_of_parts(self.outline, self.tiles, wanted)?;
+        let view = view_of_parts(self.outline, self.tiles, wanted, whole)?;
         let errors = TiledError::new(&view)?;
         let mut output = BlockOutput::default();
         // The cut level gathers from the apex's last refinements: those its diamonds' parents.
