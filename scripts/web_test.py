@@ -1147,7 +1147,7 @@ def check_digests(bundle, cbdam, repositories):
     level: `decoded_digest`, client/web/src/digest.rs) and each digest must equal `cbdam inspect
     --digest` of the same file. Repositories of one surface coded by different coders must give
     one digest too: every repository but the last holds one surface (the caller passes the
-    default coder's, fast-rice's and adaptive-grid's, then the planet). Returns failures."""
+    default coder's, fast-rice's, adaptive-grid's and adaptive-inband's, then the planet). Returns failures."""
     failures = []
     root = tempfile.mkdtemp(prefix="cbdam-digest-")
     try:
