@@ -6,9 +6,9 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use super::decode_pool::{GridPool, with_thread_scratch};
+use super::gather_runs::prefetch_gather;
 use super::refine::{
-    ChildHalf, RefineScratch, Refined, gather, gather_validity, prefetch_gather, refine,
-    refine_owned,
+    ChildHalf, RefineScratch, Refined, gather, gather_validity, refine, refine_owned,
 };
 use super::roots::{decode_roots, root_grid};
 use super::{CodecParams, Encoded};

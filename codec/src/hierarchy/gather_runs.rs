@@ -1,6 +1,7 @@
 //! Where a child diamond's half lies on its parent's half-step grid, as runs of the parent's
 //! rows: the order in which [`super::gather`] reads a parent (and prefetches it).
 
+use super::Refined;
 use crate::geometry::{Diagonal, DiamondId, Domain, Half, IndexMap};
 
 /// One run of a parent's half-step row that a child's half covers: the `count` points `(a, b),
@@ -120,4 +121,28 @@ fn half_line_range(
         }
     };
     (whole_line && lo <= hi).then_some((lo, hi))
+}
+
+/// Asks for the values [`super::gather`] will read from `parents` for `id` to be brought into the
+/// cache: called a diamond ahead, so that the parents' refinements (written a level earlier,
+/// cold) arrive while the diamond before is decoded. A hint only: no effect on results.
+pub(crate) fn prefetch_gather(domain: &Domain, id: DiamondId, parents: [Option<&Refined>; 2]) {
+    if !cfg!(target_arch = "x86_64") || id.level == 0 {
+        return;
+    }
+    let layout = domain.layout();
+    let n = layout.n();
+    let diag = layout.diagonal(id);
+    let ids = domain.parents(id);
+    for (h, half) in Half::BOTH.into_iter().enumerate() {
+        let (Some(parent), Some(pid)) = (parents[h], ids[h]) else {
+            continue;
+        };
+        let Some(m) = half_map(domain, id, half, pid) else {
+            continue;
+        };
+        half_runs(&m, diag, half, n, |run| {
+            parent.prefetch_row(run.a, run.b, run.count)
+        });
+    }
 }

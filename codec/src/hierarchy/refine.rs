@@ -115,7 +115,7 @@ impl Refined {
     }
 
     /// [`crate::cache::prefetch`] of [`Refined::row_run`].
-    fn prefetch_row(&self, a: i64, b: i64, count: usize) {
+    pub(super) fn prefetch_row(&self, a: i64, b: i64, count: usize) {
         crate::cache::prefetch(self.row_run(a, b, count));
     }
 
@@ -393,30 +393,6 @@ fn copy_half<T: Copy, G: HalfStepSource<T>>(
             out[(run.start + k as i64 * run.out_step) as usize] = v;
         });
     });
-}
-
-/// Asks for the values [`gather`] will read from `parents` for `id` to be brought into the
-/// cache: called a diamond ahead, so that the parents' refinements (written a level earlier,
-/// cold) arrive while the diamond before is decoded. A hint only: no effect on results.
-pub(crate) fn prefetch_gather(domain: &Domain, id: DiamondId, parents: [Option<&Refined>; 2]) {
-    if !cfg!(target_arch = "x86_64") || id.level == 0 {
-        return;
-    }
-    let layout = domain.layout();
-    let n = layout.n();
-    let diag = layout.diagonal(id);
-    let ids = domain.parents(id);
-    for (h, half) in Half::BOTH.into_iter().enumerate() {
-        let (Some(parent), Some(pid)) = (parents[h], ids[h]) else {
-            continue;
-        };
-        let Some(m) = half_map(domain, id, half, pid) else {
-            continue;
-        };
-        half_runs(&m, diag, half, n, |run| {
-            parent.prefetch_row(run.a, run.b, run.count)
-        });
-    }
 }
 
 /// One half of a child's `N × N` grid (split diagonal included) as a parent's refinement holds
