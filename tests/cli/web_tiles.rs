@@ -387,7 +387,7 @@ fn metadata_at(raw: &[u8]) -> usize {
         .rev()
         .find(|&k| {
             let len = u32::from_le_bytes(raw[k..k + 4].try_into().unwrap()) as usize;
-            len == raw.len() - k - 4 && raw[k + 4] == b'{' && raw[k - 5] == 4
+            k >= 5 && len == raw.len() - k - 4 && raw[k + 4] == b'{' && raw[k - 5] == 4
         })
         .expect("a metadata extension")
         - 5
