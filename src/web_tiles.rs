@@ -98,7 +98,7 @@ pub fn run(args: &TilesArgs) -> Result<()> {
     }
     let pmtiles = check_output(args)?;
     let started = Instant::now();
-    let tiler = open_tiler(args)?;
+    let mut tiler = open_tiler(args)?;
     let decoded_s = started.elapsed().as_secs_f64();
     let name = args
         .repo
@@ -111,6 +111,10 @@ pub fn run(args: &TilesArgs) -> Result<()> {
         _ => (Scheme::WebMercator, tiler.raster_max_zoom(tile)),
     };
     let max_zoom = args.max_zoom.unwrap_or(deepest).min(deepest);
+    if max_zoom < deepest {
+        // The documents and the mesh tiles' metadata then list no tile past it.
+        tiler.limit_zoom(max_zoom);
+    }
     let tiles = match scheme {
         // The tiles `layer.json` lists (its `available`, from the repository's records).
         Scheme::Geographic => (tiler.available().tiles().into_iter())
@@ -326,7 +330,37 @@ fn write_document(args: &TilesArgs, tiler: &Tiler, name: &str, tile: u32) -> Res
         ),
     };
     let body = serde_json::to_vec_pretty(&doc)?;
-    write_tile(&args.output.join(file), &body)
+    let path = args.output.join(file);
+    if let Ok(there) = std::fs::read(&path)
+        && there != body
+    {
+        bail!(
+            "{} holds another export (its {file} differs from this one's in {}): an export run \
+             again keeps the tiles already there, which would mix the two; remove the \
+             directory or write to another one",
+            args.output.display(),
+            differing_fields(&there, &doc)
+        );
+    }
+    write_tile(&path, &body)
+}
+
+/// The top-level fields in which the JSON document `there` differs from `doc`, named.
+fn differing_fields(there: &[u8], doc: &serde_json::Value) -> String {
+    let Ok(serde_json::Value::Object(there)) = serde_json::from_slice(there) else {
+        return "being no JSON object".to_string();
+    };
+    let Some(doc) = doc.as_object() else {
+        return "its form".to_string();
+    };
+    let keys = doc
+        .keys()
+        .chain(there.keys().filter(|k| !doc.contains_key(*k)));
+    let differ: Vec<&str> = keys
+        .filter(|k| there.get(*k) != doc.get(*k))
+        .map(String::as_str)
+        .collect();
+    differ.join(", ")
 }
 
 pub(crate) fn progress(quiet: bool, total: u64) -> ProgressBar {

@@ -12,6 +12,7 @@ mod extract_parallel;
 mod inspect;
 mod link;
 mod multires;
+mod plane_disk_full;
 mod planet;
 mod planet_bad_input;
 mod planet_closeup;

@@ -31,8 +31,10 @@ use std::path::{Path, PathBuf};
 use crate::CodecError;
 
 mod lattice_array;
+mod reserve;
 
 pub use lattice_array::{LatticeArray, LatticeElement};
+pub(crate) use reserve::reserve;
 
 /// Where the build keeps a large temporary (the reconstruction field, the lattice).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -72,6 +74,16 @@ impl TempStorage {
                 TempStorage::Named(dir.to_path_buf())
             }
             (storage, _) => storage,
+        }
+    }
+
+    /// The directory this storage's files go in (the system's temporary directory for
+    /// `File(None)`); `None` for [`TempStorage::Memory`].
+    pub fn dir(&self) -> Option<PathBuf> {
+        match self {
+            TempStorage::Memory => None,
+            TempStorage::File(Some(dir)) | TempStorage::Named(dir) => Some(dir.clone()),
+            TempStorage::File(None) => Some(std::env::temp_dir()),
         }
     }
 

@@ -14,22 +14,37 @@ Usage: tiles_load.py CBDAM_BINARY REPO.cbdam terrain|png CLIENTS LEVELS [TOP]
 TOP, when given, stands for maxzoom: the levels TOP-LEVELS…TOP (a planet's deepest levels
 hold more tiles than a measurement can wait for).
 """
-import http.client, json, math, random, re, subprocess, sys, threading, time
+import contextlib, http.client, json, math, random, re, subprocess, sys, threading, time
 
 binary, repo, kind, clients, levels = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4]), int(sys.argv[5])
 top = int(sys.argv[6]) if len(sys.argv) > 6 else None
 ACCEPT = "application/vnd.quantized-mesh;extensions=octvertexnormals-metadata"
 
 
-def start():
+@contextlib.contextmanager
+def served():
+    """A fresh `cbdam serve REPO` on a free loopback port: yields the port, and stops the
+    server however the block is left (an exception, a failed print into a closed pipe, Ctrl-C),
+    killing it if SIGTERM has not stopped it within 10 s."""
     p = subprocess.Popen([binary, "serve", f"r={repo}", "--addr", "127.0.0.1:0"],
-                         stderr=subprocess.PIPE, text=True)
-    for line in p.stderr:
-        m = re.search(r"listening on http://127.0.0.1:(\d+)", line)
-        if m:
-            threading.Thread(target=lambda: [None for _ in p.stderr], daemon=True).start()
-            return p, int(m.group(1))
-    raise SystemExit("cbdam serve did not start")
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    said = []
+    try:
+        for line in p.stderr:
+            said.append(line)
+            m = re.search(r"listening on http://127.0.0.1:(\d+)", line)
+            if m:
+                threading.Thread(target=lambda: [None for _ in p.stderr], daemon=True).start()
+                yield int(m.group(1))
+                return
+        raise SystemExit("cbdam serve did not start: " + "".join(said[-5:]))
+    finally:
+        p.terminate()
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
 
 
 def tile_paths(port):
@@ -85,14 +100,11 @@ def run_pass(port, paths):
             "tiles_per_s": round(len(lat) / wall, 1)}
 
 
-p, port = start()
-try:
+with served() as port:
     # The first request reads the records (and starts the background decode); not timed here.
     paths = tile_paths(port)
     random.seed(1)
     random.shuffle(paths)
     for name in ("cold", "warm"):
-        print(json.dumps({"kind": kind, "clients": clients, "pass": name, **run_pass(port, paths)}))
-finally:
-    p.terminate()
-    p.wait()
+        line = json.dumps({"kind": kind, "clients": clients, "pass": name, **run_pass(port, paths)})
+        print(line, flush=True)

@@ -181,7 +181,13 @@ pub(crate) async fn fetch(s: &Running, name: &str, (z, x, y): (u32, u32, u32), a
     assert_eq!(r.status(), 200, "{url}");
     let h = r.headers().clone();
     assert_eq!(h["content-encoding"], "gzip");
-    assert!(h["vary"].to_str().unwrap().contains("accept"));
+    // `Accept` picks the extensions, `Accept-Encoding` the gzip: caches key on both.
+    let vary = h["vary"].to_str().unwrap().to_ascii_lowercase();
+    let tokens: Vec<&str> = vary.split(',').map(str::trim).collect();
+    assert!(
+        tokens.contains(&"accept") && tokens.contains(&"accept-encoding"),
+        "{vary}"
+    );
     assert_eq!(h["access-control-allow-origin"], "*");
     let etag = h["etag"].clone();
     let mut raw = Vec::new();
@@ -345,6 +351,13 @@ async fn quantized_mesh_tiles_decode_and_hold_the_input() {
     assert_eq!(layer["scheme"], "tms");
     assert_eq!(layer["projection"], "EPSG:4326");
     assert_eq!(layer["tiles"][0], "{z}/{x}/{y}.terrain?v={version}");
+    assert_eq!(layer["tilejson"], "2.1.0");
+    let extensions = serde_json::json!(["octvertexnormals", "metadata"]);
+    assert_eq!(layer["extensions"], extensions);
+    assert!(layer["attribution"].as_str().is_some_and(|a| !a.is_empty()));
+    // A plane records no vertical datum: served as stored, and `layer.json` says so.
+    assert_eq!(layer["cbdam"]["height_datum"], "unknown");
+    assert_eq!(layer["cbdam"]["geoid_error_m"], 0.0);
     // CesiumJS reads the metadata extension's availability only with this set.
     assert_eq!(layer["metadataAvailability"], 1);
     assert_eq!(

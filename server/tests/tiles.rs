@@ -242,6 +242,55 @@ async fn raster_tiles_hold_the_input_within_the_stated_bound() {
     }
 }
 
+/// Terrain-RGB holds nothing below −10 000 m: every pixel with data of a tile of a trench
+/// (heights −10 140 … −10 030 m) is clamped to −10 000 m and counted in `cbdam-clamped-pixels`;
+/// terrarium holds the same heights within the stated bound, none clamped.
+#[tokio::test]
+async fn terrain_rgb_clamps_a_trench_and_counts_the_pixels() {
+    let mut dem = geographic_dem();
+    for m in dem.metres.iter_mut().filter(|m| **m != NODATA) {
+        *m -= 10_400.0;
+    }
+    let range = (-10_300.0, -9_900.0);
+    let repo = rough_dem::repository_between(dem.w, dem.h, &dem.metres, &dem.georef, range);
+    let s = serve(vec![("d", repo)]).await;
+    assert!(check_raster(&s, &dem, "terrarium", 512).await > 1000);
+    let tj = get_json(&s, "/v1/repos/d/terrain-rgb/tiles.json").await;
+    assert_eq!(tj["cbdam"]["encoding_range_m"][0], -10_000.0);
+    assert!(tj["cbdam"]["clamped"].as_str().unwrap().contains("clamped"));
+    let z = tj["maxzoom"].as_u64().unwrap() as u32;
+    let b: Vec<f64> = serde_json::from_value(tj["bounds"].clone()).unwrap();
+    let (x, y) = mercator_tile(z, 0.5 * (b[1] + b[3]), 0.5 * (b[0] + b[2]));
+    for (format, all_clamped) in [("terrain-rgb", true), ("terrarium", false)] {
+        let url = s.url(&format!("/v1/repos/d/{format}/{z}/{x}/{y}.png"));
+        let r = client().get(&url).send().await.unwrap();
+        assert_eq!(r.status(), 200, "{url}");
+        let clamped: usize = r.headers()["cbdam-clamped-pixels"]
+            .to_str()
+            .unwrap()
+            .parse()
+            .unwrap();
+        let (_, px) = decode_png(&r.bytes().await.unwrap());
+        let with_data: Vec<_> = px.iter().filter(|p| p[3] == 255).collect();
+        assert!(
+            with_data.len() > 1000,
+            "{format}: {} pixels",
+            with_data.len()
+        );
+        if all_clamped {
+            assert_eq!(clamped, with_data.len(), "{format}: clamped pixels counted");
+            assert!(
+                with_data
+                    .iter()
+                    .all(|p| decode_height(format, **p) == -10_000.0)
+            );
+        } else {
+            assert_eq!(clamped, 0, "{format}");
+        }
+    }
+    s.stop().await;
+}
+
 /// The server's limit on decoded samples binds only a repository decoded whole (one without
 /// records); one with records past it is still served as tiles, each decoded from a window.
 #[tokio::test]

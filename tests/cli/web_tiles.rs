@@ -93,6 +93,13 @@ fn exported_tiles_are_what_serve_answers() {
         let file = std::fs::read(p).unwrap();
         if kind == "terrarium" {
             assert_eq!(served, file, "{rel}");
+        } else if rel.starts_with("9/") {
+            // The export stops at level 9: its tiles there list no children, the served ones
+            // do. Everything before the metadata is the same.
+            let (served, file) = (gunzip(&served), gunzip(&file));
+            let (a, b) = (metadata_at(&served), metadata_at(&file));
+            assert_eq!(served[..a], file[..b], "{rel}");
+            assert!(a > 88 && served[a..] != file[b..], "{rel}");
         } else {
             assert_eq!(gunzip(&served), gunzip(&file), "{rel}");
         }
@@ -371,4 +378,103 @@ fn attribution_is_the_flags_in_every_document_the_export_writes() {
         own.as_str().unwrap().starts_with("cbdam repository "),
         "{own}"
     );
+}
+
+/// Where the metadata extension of a `.terrain` tile's bytes begins (its id byte, then its
+/// u32 length, then the u32 length of its JSON, which runs to the end).
+fn metadata_at(raw: &[u8]) -> usize {
+    (0..raw.len() - 4)
+        .rev()
+        .find(|&k| {
+            let len = u32::from_le_bytes(raw[k..k + 4].try_into().unwrap()) as usize;
+            k >= 5 && len == raw.len() - k - 4 && raw[k + 4] == b'{' && raw[k - 5] == 4
+        })
+        .expect("a metadata extension")
+        - 5
+}
+
+/// The metadata extension's JSON of a gzip `.terrain` file.
+fn mesh_metadata(path: &Path) -> serde_json::Value {
+    let raw = gunzip(&std::fs::read(path).unwrap());
+    serde_json::from_slice(&raw[metadata_at(&raw) + 9..]).unwrap()
+}
+
+/// The tiles `(z, x, y)` a list of levels of tile rectangles holds (`available`), level `z0`
+/// first.
+fn listed(levels: &serde_json::Value, z0: u32) -> Vec<(u32, u32, u32)> {
+    let at = |r: &serde_json::Value, k: &str| r[k].as_u64().unwrap() as u32;
+    let mut out = Vec::new();
+    for (z, level) in levels.as_array().unwrap().iter().enumerate() {
+        for r in level.as_array().unwrap() {
+            for x in at(r, "startX")..=at(r, "endX") {
+                out.extend((at(r, "startY")..=at(r, "endY")).map(|y| (z0 + z as u32, x, y)));
+            }
+        }
+    }
+    out
+}
+
+/// `--max-zoom` below the format's own maxzoom: the documents' `maxzoom` is it, `layer.json`'s
+/// `available` lists exactly the tiles written and no mesh tile's metadata lists a child that
+/// was not written (a viewer asks for no missing tile); the level where the stated bounds hold
+/// is given as `finest_zoom`.
+#[test]
+fn a_lowered_max_zoom_lists_only_the_tiles_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let (qm, png) = (dir.path().join("qm"), dir.path().join("png"));
+    export(&repo, &qm, "quantized-mesh", &["--max-zoom", "6"]);
+    export(&repo, &png, "terrarium", &["--max-zoom", "7"]);
+    let read = |p: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+    };
+    let layer = read(&qm.join("layer.json"));
+    assert_eq!(layer["maxzoom"], 6);
+    assert!(
+        layer["cbdam"]["finest_zoom"].as_u64().unwrap() > 6,
+        "{layer}"
+    );
+    let mut stated = listed(&layer["available"], 0);
+    let written_files = files(&qm, "terrain");
+    let mut written: Vec<_> = written_files.iter().map(|p| tile_of(p)).collect();
+    stated.sort_unstable();
+    written.sort_unstable();
+    assert_eq!(stated, written, "layer.json's available against the files");
+    for p in &written_files {
+        let (z, _, _) = tile_of(p);
+        for child in listed(&mesh_metadata(p)["available"], z + 1) {
+            assert!(written.contains(&child), "{p:?} lists {child:?}");
+        }
+    }
+    let tj = read(&png.join("tiles.json"));
+    assert_eq!(tj["maxzoom"], 7);
+    assert!(tj["cbdam"]["finest_zoom"].as_u64().unwrap() > 7, "{tj}");
+}
+
+/// An export run again into a directory holding another export (another format's encoding, or
+/// another `--max-zoom`, whose deepest tiles list no children) is refused naming the fields
+/// that differ, and changes nothing; the same export run again goes on.
+#[test]
+fn an_export_into_another_exports_directory_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let repo = jacksboro(dir.path());
+    let out = dir.path().join("t");
+    export(&repo, &out, "terrarium", &["--max-zoom", "6"]);
+    let before = files(&out, "png").len();
+    let doc = std::fs::read(out.join("tiles.json")).unwrap();
+    for (format, max, differ) in [
+        ("terrain-rgb", "6", "encoding"),
+        ("terrarium", "7", "maxzoom"),
+    ] {
+        let (r, o) = (s(&repo), s(&out));
+        let args = ["tiles", &r, "--format", format, "-o", &o, "--max-zoom", max];
+        run_refused(
+            &args,
+            &["holds another export", differ, "remove the directory"],
+        );
+        assert_eq!(files(&out, "png").len(), before, "{format} {max}");
+        assert!(std::fs::read(out.join("tiles.json")).unwrap() == doc);
+    }
+    let again = export(&repo, &out, "terrarium", &["--max-zoom", "6"]);
+    assert!(again.contains(": 0 tiles written"), "{again}");
 }

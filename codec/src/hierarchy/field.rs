@@ -78,11 +78,14 @@ impl ReconField {
             .and_then(|c| c.checked_mul(4))
             .ok_or_else(too_big)?;
         // A field is never kept: unlinked, in the storage's directory.
-        let mut map = match storage.unlinked_file("the reconstruction field")? {
+        let what = "the reconstruction field";
+        let mut map = match storage.unlinked_file(what)? {
             None => MmapMut::map_anon(bytes.max(1))?,
             Some(file) => {
-                // A sparse file: blocks are allocated only where pages are written.
-                file.set_len(bytes.max(1) as u64)?;
+                // Every block on disk before the mapping is written: a full disk is an error
+                // here, not a `SIGBUS` at the first page that finds no room.
+                let dir = storage.dir().expect("a file storage has a directory");
+                crate::temp::reserve(&file, bytes.max(1) as u64, what, &dir, None)?;
                 // SAFETY: the file is unlinked and private to this process, so nothing else can
                 // truncate or modify it while it is mapped.
                 unsafe { MmapMut::map_mut(&file)? }

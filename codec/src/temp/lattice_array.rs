@@ -14,7 +14,7 @@ use memmap2::UncheckedAdvice;
 use crate::CodecError;
 
 use super::{
-    LATTICE_TEMP_PREFIX, MAPPED_RESIDENT_BYTES, MAPPED_WINDOW_BYTES, TempStorage, creating,
+    LATTICE_TEMP_PREFIX, MAPPED_RESIDENT_BYTES, MAPPED_WINDOW_BYTES, TempStorage, creating, reserve,
 };
 
 /// Element types a lattice array can hold in a zero-filled mapped file: every one has the
@@ -79,8 +79,16 @@ impl<T: LatticeElement> LatticeArray<T> {
                 (file, Some(name))
             }
         };
-        // Sparse: blocks are allocated only where pages are written.
-        file.set_len(bytes.max(1) as u64)?;
+        // Every block on disk before the mapping is written: a full disk is an error here,
+        // not a `SIGBUS` at the first page that finds no room.
+        let dir = storage.dir().expect("a file storage has a directory");
+        reserve(
+            &file,
+            bytes.max(1) as u64,
+            "the lattice",
+            &dir,
+            name.as_deref(),
+        )?;
         // SAFETY: the file is unlinked, or has a temporary name nothing else writes, so
         // nothing else truncates or modifies it while it is mapped.
         let map = unsafe { MmapMut::map_mut(&file)? };

@@ -95,6 +95,14 @@ impl Availability {
         Availability { levels }
     }
 
+    /// The tiles of levels `0..=max` (all of them when `max` is deeper): still a tree.
+    pub fn up_to(&self, max: u8) -> Availability {
+        let levels = self.levels.iter().take(usize::from(max) + 1);
+        Availability {
+            levels: levels.cloned().collect(),
+        }
+    }
+
     /// The deepest level listed.
     pub fn max_zoom(&self) -> u8 {
         (self.levels.len() - 1) as u8

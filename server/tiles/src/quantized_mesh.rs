@@ -503,3 +503,53 @@ pub fn child_availability(t: TileId, available: &Availability) -> serde_json::Va
     }
     serde_json::json!([ranges])
 }
+
+#[cfg(test)]
+mod tests {
+    use super::write_indices;
+
+    /// Reads `count` indices of `width` bytes at `at`.
+    fn read(bytes: &[u8], at: &mut usize, width: usize, count: usize) -> Vec<u32> {
+        let out = (0..count)
+            .map(|k| {
+                let b = &bytes[*at + k * width..*at + (k + 1) * width];
+                b.iter().rev().fold(0u32, |v, &x| (v << 8) | u32::from(x))
+            })
+            .collect();
+        *at += count * width;
+        out
+    }
+
+    /// CesiumJS reads 32-bit indices when a tile has more than 64 × 1024 vertices (4-byte
+    /// aligned), 16-bit up to that: a strip of triangles over `n` vertices, written after a
+    /// prefix of 90 bytes, decodes (high-water mark undone) to the same triangles and edges at
+    /// 65 536 vertices (16-bit) and 65 537 (32-bit). Tiles of the 65 × 65 grid never reach it.
+    #[test]
+    fn indices_are_32_bit_above_65_536_vertices() {
+        for (n, width) in [(65_536u32, 2usize), (65_537, 4)] {
+            let triangles: Vec<u32> = (0..n - 2).flat_map(|i| [i, i + 1, i + 2]).collect();
+            let edges = [vec![0, 1], vec![2], vec![], vec![n - 1]];
+            let mut out = vec![7u8; 90];
+            write_indices(&mut out, &triangles, &edges, n as usize);
+            let mut at = 90usize.next_multiple_of(width);
+            assert!(out[90..at].iter().all(|&b| b == 0), "padding");
+            let count = read(&out, &mut at, 4, 1)[0] as usize;
+            assert_eq!(count, triangles.len() / 3);
+            let mut highest = 0;
+            let decoded: Vec<u32> = read(&out, &mut at, width, 3 * count)
+                .into_iter()
+                .map(|code| {
+                    let k = highest - code;
+                    highest += u32::from(code == 0);
+                    k
+                })
+                .collect();
+            assert!(decoded == triangles, "{n} vertices: the triangles differ");
+            for e in &edges {
+                let len = read(&out, &mut at, 4, 1)[0] as usize;
+                assert_eq!(&read(&out, &mut at, width, len), e, "{n} vertices");
+            }
+            assert_eq!(at, out.len(), "{n} vertices: {width}-byte indices");
+        }
+    }
+}

@@ -58,6 +58,8 @@ pub struct Tiler {
     /// Whether a tile may wait for the whole surface instead of decoding a window (where the
     /// whole is small).
     whole_ok: bool,
+    /// The deepest level an export writes ([`Tiler::limit_zoom`]), below the formats' own.
+    zoom_cap: Option<u8>,
 }
 
 /// Mesh tiles share a window by groups of `2^GROUP_SHIFT` × `2^GROUP_SHIFT` tiles of a level.
@@ -150,6 +152,7 @@ impl Tiler {
             meshes: Bounded::new(MESH_CACHE_BYTES),
             windows: SharedWindows::new(WINDOW_CACHE_BYTES),
             whole_ok: false,
+            zoom_cap: None,
         })
     }
 
@@ -198,6 +201,32 @@ impl Tiler {
         // Tiles already made list children of the old `available`.
         self.meshes.clear();
         Ok(())
+    }
+
+    /// Tiles down to level `max` only (an export's `--max-zoom`): `maxzoom`, `available` and
+    /// the children each mesh tile's metadata lists stop there, so a viewer asks for no tile
+    /// past it; the documents then give the level where their bounds hold as `finest_zoom`.
+    pub fn limit_zoom(&mut self, max: u8) {
+        self.zoom_cap = Some(max);
+        if max < self.mesh_max_zoom {
+            self.mesh_max_zoom = max;
+            self.available = self.available.up_to(max);
+            // Tiles already made list children past `max`.
+            self.meshes.clear();
+        }
+    }
+
+    /// Says in `doc`'s `cbdam` fields that its `maxzoom`, `max`, is short of `finest`, where
+    /// the stated bounds hold ([`Tiler::limit_zoom`]), if it is.
+    fn note_cut(doc: &mut Value, max: u8, finest: u8) {
+        if max < finest {
+            doc["cbdam"]["finest_zoom"] = json!(finest);
+            doc["cbdam"]["finest_zoom_note"] = json!(
+                "maxzoom was lowered (--max-zoom): the bounds stated for level-maxzoom tiles \
+                 hold at finest_zoom, whose tiles were not written; the tiles down to maxzoom \
+                 take coarser repository levels"
+            );
+        }
     }
 
     /// The quantized-mesh tiles that exist.
@@ -321,7 +350,8 @@ impl Tiler {
 
     /// The raster tiles' deepest zoom for `tile`-pixel tiles.
     pub fn raster_max_zoom(&self, tile: u32) -> u8 {
-        raster::max_zoom(&self.place, tile)
+        let max = raster::max_zoom(&self.place, tile);
+        self.zoom_cap.map_or(max, |cap| cap.min(max))
     }
 
     /// The quantized-mesh tiles' deepest level.
@@ -526,7 +556,7 @@ impl Tiler {
             .collect();
         let (lo, hi) = self.mesh_range;
         let step = (hi - lo) / f64::from(quantized_mesh::QMAX);
-        Ok(json!({
+        let mut doc = json!({
             "tilejson": "2.1.0",
             "name": name,
             "description": format!("cbdam repository {name} as quantized-mesh-1.0 terrain"),
@@ -576,7 +606,10 @@ impl Tiler {
                     0.0
                 },
             },
-        }))
+        });
+        let finest = quantized_mesh::max_zoom(&self.place);
+        Self::note_cut(&mut doc, self.mesh_max_zoom, finest);
+        Ok(doc)
     }
 
     /// TileJSON 3.0 of the raster tiles; `tiles` is the URL template to put in it, `attribution`
@@ -598,7 +631,7 @@ impl Tiler {
         let max = self.raster_max_zoom(tile);
         let step = encoding.step();
         let (lo, hi) = encoding.range();
-        json!({
+        let mut doc = json!({
             "tilejson": "3.0.0",
             "name": name,
             "description": format!("cbdam repository {name} as {} elevation tiles",
@@ -626,7 +659,9 @@ impl Tiler {
                 "nodata": "transparent pixels whose RGB encodes 0 m",
                 "height_datum": self.datum.code(),
             },
-        })
+        });
+        Self::note_cut(&mut doc, max, raster::max_zoom(&self.place, tile));
+        doc
     }
 }
 

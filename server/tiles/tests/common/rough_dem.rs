@@ -27,7 +27,18 @@ pub fn rough_metres(w: usize, h: usize) -> Vec<f64> {
 
 /// The repository of `metres` (`w × h`) within [`EPSILON`], georeferenced by `georef`.
 pub fn repository(w: usize, h: usize, metres: &[f64], georef: &GeoRef) -> Repository {
-    let plan = QuantPlan::new(EPSILON, None, 200.0, 400.0).unwrap();
+    repository_between(w, h, metres, georef, (200.0, 400.0))
+}
+
+/// [`repository`] of heights within `lo…hi` metres.
+pub fn repository_between(
+    w: usize,
+    h: usize,
+    metres: &[f64],
+    georef: &GeoRef,
+    (lo, hi): (f64, f64),
+) -> Repository {
+    let plan = QuantPlan::new(EPSILON, None, lo, hi).unwrap();
     let grid = HeightGrid::from_metres(w, h, metres, Some(NODATA), &plan).unwrap();
     let opts = EncodeOptions {
         n: 9,
