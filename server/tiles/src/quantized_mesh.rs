@@ -506,7 +506,7 @@ pub fn child_availability(t: TileId, available: &Availability) -> serde_json::Va
 
 #[cfg(test)]
 mod tests {
-    use super::write_indices;
+    use super::{A, B, Geodetic, horizon_occlusion_point, write_indices};
 
     /// Reads `count` indices of `width` bytes at `at`.
     fn read(bytes: &[u8], at: &mut usize, width: usize, count: usize) -> Vec<u32> {
@@ -551,5 +551,84 @@ mod tests {
             }
             assert_eq!(at, out.len(), "{n} vertices: {width}-byte indices");
         }
+    }
+
+    /// CesiumJS's own test (`EllipsoidalOccluder.isScaledSpacePointVisible`, in the space where
+    /// the ellipsoid is the unit sphere): a point is hidden from the camera when it lies beyond
+    /// the camera's horizon plane and inside the cone the sphere fills as seen from the camera.
+    fn hidden(point: [f64; 3], camera: [f64; 3]) -> bool {
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let vh2 = dot(camera, camera) - 1.0;
+        let vt: [f64; 3] = std::array::from_fn(|k| point[k] - camera[k]);
+        let vt_dot_vc = -dot(vt, camera);
+        vt_dot_vc > vh2 && vt_dot_vc * vt_dot_vc / dot(vt, vt) > vh2
+    }
+
+    /// The horizon occlusion point does what CesiumJS relies on it for: from every camera that
+    /// cannot see it, no vertex of the tile can be seen either (else CesiumJS culls a tile that
+    /// shows). Tiles from 0.001° to 45° wide, heights from −430 m to 8 850 m, at 500 cameras
+    /// each from 10 m to 10 Earth radii up; the test also counts that the point is hidden from
+    /// a good share of the cameras, so that it is not passed by a point never hidden.
+    #[test]
+    fn no_vertex_shows_where_the_horizon_occlusion_point_is_hidden() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut tiles, mut hidden_views) = (0, 0);
+        for size in [0.001f64, 0.01, 0.1, 1.0, 5.0, 22.5, 45.0] {
+            for _ in 0..12 {
+                let lat0 = -80.0 + next() * (160.0 - size.min(80.0));
+                let lon0 = -180.0 + next() * 360.0;
+                let positions: Vec<[f64; 3]> = (0..=16 * 16 + 16)
+                    .map(|k| {
+                        let (i, j) = ((k % 17) as f64 / 16.0, (k / 17) as f64 / 16.0);
+                        let h = -430.0 + next() * 9_280.0;
+                        Geodetic::new(lat0 + j * size.min(80.0), lon0 + i * size, h).to_ecef()
+                    })
+                    .collect();
+                let mut min = [f64::MAX; 3];
+                let mut max = [f64::MIN; 3];
+                for p in &positions {
+                    for k in 0..3 {
+                        min[k] = min[k].min(p[k]);
+                        max[k] = max[k].max(p[k]);
+                    }
+                }
+                let centre: [f64; 3] = std::array::from_fn(|k| 0.5 * (min[k] + max[k]));
+                let point = horizon_occlusion_point(&positions, centre);
+                if point.iter().any(|c| c.is_nan()) {
+                    continue; // CesiumJS never culls by a NaN point.
+                }
+                tiles += 1;
+                for _ in 0..500 {
+                    let (z, phi) = (2.0 * next() - 1.0, std::f64::consts::TAU * next());
+                    let r = (1.0 - z * z).sqrt();
+                    let up = 10.0 + (next() * 6.0).exp() * 1.0e4;
+                    let lift = |c: f64, radius: f64| c * (radius + up) / radius;
+                    let camera = [lift(r * phi.cos(), A), lift(r * phi.sin(), A), lift(z, B)];
+                    if !hidden(point, camera) {
+                        continue;
+                    }
+                    hidden_views += 1;
+                    for p in &positions {
+                        let scaled = [p[0] / A, p[1] / A, p[2] / B];
+                        assert!(
+                            hidden(scaled, camera),
+                            "a {size}° tile at ({lat0:.3}, {lon0:.3}): vertex {p:?} shows from \
+                             camera {camera:?} (scaled) while the occlusion point is hidden"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(tiles >= 70, "only {tiles} tiles had an occlusion point");
+        assert!(
+            hidden_views >= tiles * 100,
+            "the point was hidden in only {hidden_views} views"
+        );
     }
 }
