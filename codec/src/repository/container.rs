@@ -35,8 +35,6 @@ use std::fs::File;
 use std::ops::Deref;
 use std::path::Path;
 
-use rayon::prelude::*;
-
 pub use super::header::{FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, PlanetProvenance, VerticalDatum};
 use super::header::{SectionEntry, crc32, read_header, read_prefix};
 use crate::CodecError;
@@ -245,13 +243,12 @@ impl Repository {
 
     /// The whole hierarchy in memory (for [`crate::hierarchy::verify`]); checks every record.
     /// Records' height ranges are the index's (bounds in version-2 files, see
-    /// [`IndexEntry::min`]); serialising the result again gives the same file. The records are
-    /// copied and checked on every core; the first bad one in the file's order is the error.
+    /// [`IndexEntry::min`]); serialising the result again gives the same file.
     pub fn to_encoded(&self) -> Result<Encoded, CodecError> {
         let records = self
             .head
             .entries
-            .par_iter()
+            .iter()
             .enumerate()
             .map(|(i, e)| {
                 Ok(Record {
@@ -262,8 +259,6 @@ impl Repository {
                     max: e.max,
                 })
             })
-            .collect::<Vec<Result<Record, CodecError>>>()
-            .into_iter()
             .collect::<Result<Vec<_>, CodecError>>()?;
         Ok(Encoded {
             params: self.head.params,
