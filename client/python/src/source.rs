@@ -14,9 +14,14 @@ use cbdam_codec::hierarchy::{
     CodecParams, FaceWindows, LevelWindow, decode_face_windows, decode_window,
 };
 use cbdam_codec::repository::{LevelGrid, Repository, RepositoryHead};
+use rayon::prelude::*;
 
 use crate::cache::{CacheInfo, RecordCache};
 use crate::errors::{PyCbdamError, Result};
+
+/// Samples a worker fills with NaN at a time before a read decodes into its array (256 KiB of
+/// `f32`): large enough that the pool's overhead vanishes, small enough to share the pages out.
+const FILL_CHUNK: usize = 1 << 16;
 
 /// The bytes of one stored diamond's record, as the decoders ask for them.
 type RecordFn<'r> = dyn Fn(DiamondId) -> std::result::Result<&'r [u8], CodecError> + Sync + 'r;
@@ -116,7 +121,10 @@ impl Source {
     /// `name` names the repository in messages. Runs on rayon's pool; call it without the GIL.
     pub fn read_into<T: Sample>(&self, grid: &LevelGrid, out: &mut [T], name: &str) -> Result<()> {
         debug_assert_eq!(out.len(), grid.width * grid.height);
-        out.fill(T::from_metres(f64::NAN));
+        // The first touch of a new array's pages (hundreds of MB for a large read): on every
+        // core, as the decode that follows.
+        out.par_chunks_mut(FILL_CHUNK)
+            .for_each(|chunk| chunk.fill(T::from_metres(f64::NAN)));
         let head = self.head();
         let (params, plan) = (*head.params(), *head.plan());
         if let Source::Local(repo) = self

@@ -153,19 +153,23 @@ impl<'a> BitReader<'a> {
             self.pos += ((63 - self.avail) >> 3) as usize;
             self.avail |= 56;
         } else {
-            self.refill_slow();
+            // By value, not by reference: a hot loop's reader never has its address taken, so
+            // the compiler can keep its state in registers (the slow path copies it).
+            *self = self.clone().refilled_slowly();
         }
     }
 
+    /// The reader after [`BitReader::refill`] near the end of the input, byte by byte.
     #[cold]
     #[inline(never)]
-    fn refill_slow(&mut self) {
+    fn refilled_slowly(mut self) -> Self {
         while self.avail <= 56 {
             let byte = self.data.get(self.pos).copied().unwrap_or(0);
             self.buf |= u64::from(byte) << (56 - self.avail);
             self.pos += 1;
             self.avail += 8;
         }
+        self
     }
 
     /// Makes sure at least `n <= 56` bits are buffered.

@@ -114,6 +114,53 @@ impl Refined {
         &start[..count]
     }
 
+    /// `out[k]` = `f` of the value at half-step point `(a + k·da, b + k·db)`, `da` and `db` ±1
+    /// (a diagonal, through vertices and cell centres alternately): what a caller that converts
+    /// the values (e.g. into an output raster's samples) reads in one pass, without a copy of
+    /// the diagonal in between.
+    pub(crate) fn map_diagonal<T>(
+        &self,
+        a: i64,
+        b: i64,
+        da: i64,
+        db: i64,
+        out: &mut [T],
+        f: impl Fn(i32) -> T,
+    ) {
+        assert!(
+            da.abs() == 1 && db.abs() == 1 && a % 2 == b % 2,
+            "a diagonal through vertices and cell centres"
+        );
+        // Vertices and cells alternate along a diagonal; every second step each moves by one
+        // step of its own grid.
+        let n = self.n as i64;
+        let (vertices, cells) = self.values.split_at(self.n * self.n);
+        let vertex = |a: i64, b: i64| b / 2 * n + a / 2;
+        let cell = |a: i64, b: i64| (b - 1) / 2 * (n - 1) + (a - 1) / 2;
+        let (vertex_stride, cell_stride) = (db * n + da, db * (n - 1) + da);
+        let (a1, b1) = (a + da, b + db);
+        // The first stream starts at (a, b), the second at the next point (an index only when
+        // the diagonal has one).
+        let ((first, k0, d0), (second, k1, d1)) = if a % 2 == 0 {
+            (
+                (vertices, vertex(a, b), vertex_stride),
+                (cells, cell(a1, b1), cell_stride),
+            )
+        } else {
+            (
+                (cells, cell(a, b), cell_stride),
+                (vertices, vertex(a1, b1), vertex_stride),
+            )
+        };
+        let (even, odd) = (out.len().div_ceil(2), out.len() / 2);
+        map_strided(strided(first, k0, d0, even), out.iter_mut().step_by(2), &f);
+        map_strided(
+            strided(second, k1, d1, odd),
+            out.iter_mut().skip(1).step_by(2),
+            &f,
+        );
+    }
+
     /// [`crate::cache::prefetch`] of [`Refined::row_run`].
     pub(super) fn prefetch_row(&self, a: i64, b: i64, count: usize) {
         crate::cache::prefetch(self.row_run(a, b, count));
@@ -177,8 +224,6 @@ pub fn gather_validity(
 trait HalfStepSource<T>: Copy {
     /// The value at half-step point `(a, b)`.
     fn at(&self, a: i64, b: i64) -> T;
-    /// `out[k]` = the value at `(a + k·da, b + k·db)`, `da` and `db` ±1.
-    fn read_diagonal(&self, a: i64, b: i64, da: i64, db: i64, out: &mut [T]);
     /// `put(k, v)` for each `k < count`, `v` the value at `(a + 2k, b)`: a run of one row of
     /// the half-step grid, all vertices or all cell centres, read in memory order.
     fn read_row(&self, a: i64, b: i64, count: usize, put: impl FnMut(usize, T));
@@ -196,14 +241,6 @@ impl<T: Copy> HalfStepSource<T> for HalfStepGrid<'_, T> {
         self.values[b as usize * self.side + a as usize]
     }
 
-    fn read_diagonal(&self, a: i64, b: i64, da: i64, db: i64, out: &mut [T]) {
-        let stride = db * self.side as i64 + da;
-        let mut k = b * self.side as i64 + a;
-        for o in out {
-            *o = self.values[k as usize];
-            k += stride;
-        }
-    }
     fn read_row(&self, a: i64, b: i64, count: usize, mut put: impl FnMut(usize, T)) {
         let start = b as usize * self.side + a as usize;
         let run = &self.values[start..start + 2 * count.max(1) - 1];
@@ -219,39 +256,6 @@ impl HalfStepSource<i32> for &Refined {
         self.at_half_step(a, b)
     }
 
-    fn read_diagonal(&self, a: i64, b: i64, da: i64, db: i64, out: &mut [i32]) {
-        assert!(
-            da.abs() == 1 && db.abs() == 1 && a % 2 == b % 2,
-            "a diagonal through vertices and cell centres"
-        );
-        // Vertices and cells alternate along a diagonal; every second step each moves by one
-        // step of its own grid.
-        let n = self.n as i64;
-        let (vertices, cells) = self.values.split_at(self.n * self.n);
-        let vertex = |a: i64, b: i64| b / 2 * n + a / 2;
-        let cell = |a: i64, b: i64| (b - 1) / 2 * (n - 1) + (a - 1) / 2;
-        let (vertex_stride, cell_stride) = (db * n + da, db * (n - 1) + da);
-        let (a1, b1) = (a + da, b + db);
-        // The first stream starts at (a, b), the second at the next point (an index only when
-        // the diagonal has one).
-        let ((first, k0, d0), (second, k1, d1)) = if a % 2 == 0 {
-            (
-                (vertices, vertex(a, b), vertex_stride),
-                (cells, cell(a1, b1), cell_stride),
-            )
-        } else {
-            (
-                (cells, cell(a, b), cell_stride),
-                (vertices, vertex(a1, b1), vertex_stride),
-            )
-        };
-        let (even, odd) = (out.len().div_ceil(2), out.len() / 2);
-        copy_strided(strided(first, k0, d0, even), out.iter_mut().step_by(2));
-        copy_strided(
-            strided(second, k1, d1, odd),
-            out.iter_mut().skip(1).step_by(2),
-        );
-    }
     fn read_row(&self, a: i64, b: i64, count: usize, mut put: impl FnMut(usize, i32)) {
         assert_eq!(a % 2, b % 2, "a row of vertices or of cell centres");
         // Vertices sit at even (a, b), cell centres at odd: either way a row's run is contiguous.
@@ -283,16 +287,17 @@ fn strided(values: &[i32], start: i64, stride: i64, count: usize) -> (&[i32], us
 
 /// Copies every `step`-th value of a [`strided`] slice (from its end when `backwards`) into
 /// `out`: no bounds check per value.
-fn copy_strided<'a>(
+fn map_strided<'a, T: 'a>(
     (values, step, backwards): (&[i32], usize, bool),
-    out: impl Iterator<Item = &'a mut i32>,
+    out: impl Iterator<Item = &'a mut T>,
+    f: &impl Fn(i32) -> T,
 ) {
     if backwards {
         out.zip(values.iter().rev().step_by(step))
-            .for_each(|(o, &v)| *o = v);
+            .for_each(|(o, &v)| *o = f(v));
     } else {
         out.zip(values.iter().step_by(step))
-            .for_each(|(o, &v)| *o = v);
+            .for_each(|(o, &v)| *o = f(v));
     }
 }
 
@@ -436,11 +441,13 @@ impl<'a> ChildHalf<'a> {
         half_range(self.diag, self.half, n, j)
     }
 
-    /// `out[k]` = child point `(i + k, j)` (the points must lie on this half).
-    pub(crate) fn read_row(&self, i: usize, j: usize, out: &mut [i32]) {
+    /// `out[k]` = `f` of child point `(i + k, j)` (the points must lie on this half): the row
+    /// converted as it is read, straight into where the caller wants it (one pass along the
+    /// parent's diagonal, no copy of it in between).
+    pub(crate) fn map_row<T>(&self, i: usize, j: usize, out: &mut [T], f: impl Fn(i32) -> T) {
         let m = &self.map;
         let (a, b) = m.apply(i as i64, j as i64);
-        self.parent.read_diagonal(a, b, m.ai, m.bi, out);
+        self.parent.map_diagonal(a, b, m.ai, m.bi, out, f);
     }
 }
 

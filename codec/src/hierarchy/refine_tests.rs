@@ -232,3 +232,61 @@ proptest::proptest! {
         }
     }
 }
+
+/// [`ChildHalf::map_row`] (a child's row read along its parent's diagonal and converted in the
+/// same pass, what the finest level's raster writer uses) against the definition: every run of
+/// every row of every half a parent gives a child, from any start column to any end, is the
+/// converted [`gather_by_definition`] of that child at those points.
+#[test]
+fn a_child_half_row_maps_to_the_gathered_points() {
+    for domain in [
+        Domain::covering(9, 50, 37, 0).unwrap(),
+        Domain::covering(17, 90, 131, 0).unwrap(),
+    ] {
+        let n = domain.n();
+        let side = 2 * n - 1;
+        // Distinct values on each diamond's half-step grid, so that any misplaced read shows.
+        let grid_of = |id: DiamondId| -> Vec<u32> {
+            let seed = (u32::from(id.level) * 7919 + id.x * 131 + id.y) * 10_000;
+            (0..side * side).map(|p| seed + p as u32).collect()
+        };
+        let refined_of = |g: &[u32]| {
+            let pick = |o: usize, side_of: usize| -> Vec<i32> {
+                (0..side_of * side_of)
+                    .map(|q| g[(2 * (q / side_of) + o) * side + 2 * (q % side_of) + o] as i32)
+                    .collect()
+            };
+            Refined::from_parts(n, &pick(0, n), &pick(1, n - 1))
+        };
+        let convert = |v: i32| f64::from(v) * 0.25 - 3.0;
+        let mut runs = 0usize;
+        for &child in diamonds(&domain, 3).iter().filter(|id| id.level > 0) {
+            let ids = domain.parents(child);
+            for (h, half) in Half::BOTH.into_iter().enumerate() {
+                let Some(pid) = ids[h] else { continue };
+                let g = grid_of(pid);
+                // The definition with this parent alone: its half, split diagonal included.
+                let mut alone = [None, None];
+                alone[h] = Some(&g[..]);
+                let expected = gather_by_definition(&domain, child, alone);
+                let refined = refined_of(&g);
+                let ch = ChildHalf::new(&domain, child, half, pid, &refined);
+                for j in 0..n {
+                    let (lo, hi) = ch.row_range(n, j);
+                    for i0 in lo..=hi {
+                        for i1 in i0..=hi {
+                            let mut got = vec![f64::NAN; i1 - i0 + 1];
+                            ch.map_row(i0, j, &mut got, convert);
+                            let want: Vec<f64> = (i0..=i1)
+                                .map(|i| convert(expected[j * n + i] as i32))
+                                .collect();
+                            assert_eq!(got, want, "{child} half {h} row {j} columns {i0}..={i1}");
+                            runs += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(runs > 1000, "{runs}");
+    }
+}

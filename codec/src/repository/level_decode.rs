@@ -240,7 +240,6 @@ impl LevelGrid {
         let Some(lines) = clip_line(g.origin, g.v, n, anywhere, band_y) else {
             return;
         };
-        let mut line_values = vec![0i32; n];
         for j in lines.start as usize..lines.end as usize {
             let (lo, hi) = h.row_range(n, j);
             let (i0, i1) = (
@@ -250,17 +249,14 @@ impl LevelGrid {
             if i0 > i1 {
                 continue;
             }
-            let values = &mut line_values[..=i1 - i0];
-            h.read_row(i0, j, values);
             let (x, y) = (
                 g.origin.0 + i0 as i64 * g.u.0,
                 g.origin.1 + j as i64 * g.v.1,
             );
             let row = ((y - self.y0) / self.step) as usize - rows.start;
             let k = row * self.width + ((x - self.x0) / self.step) as usize;
-            for (o, &v) in band[k..][..values.len()].iter_mut().zip(values.iter()) {
-                *o = to_sample(v);
-            }
+            // Read along the parent's diagonal and converted straight into the raster's row.
+            h.map_row(i0, j, &mut band[k..][..=i1 - i0], to_sample);
         }
     }
 }

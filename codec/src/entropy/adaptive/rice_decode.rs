@@ -26,36 +26,43 @@ fn decode_one(r: &mut BitReader<'_>, k: u32, bad: &mut bool) -> (u32, i32) {
         r.consume_short(q + 1 + k);
         (q << k) | low as u32
     } else {
-        escaped(r, q, bad)
+        let (after, u, broken) = escaped(r.clone(), q);
+        *r = after;
+        *bad |= broken;
+        u
     };
     let a = (u >> 1) + (u & 1);
     let v = ((u >> 1) as i32) ^ ((u & 1) as i32).wrapping_neg();
     (a, v)
 }
 
-/// The rare escaped code: `ESCAPE` zeros, a one, `u` in [`ESCAPE_BITS`] bits.
+/// The rare escaped code: `ESCAPE` zeros, a one, `u` in [`ESCAPE_BITS`] bits; gives the reader
+/// after it, `u`, and whether the quotient was out of range. The reader goes by value, so that
+/// the hot loop's readers never have their address taken and stay in registers.
 #[cold]
 #[inline(never)]
-fn escaped(r: &mut BitReader<'_>, q: u32, bad: &mut bool) -> u32 {
+fn escaped(mut r: BitReader<'_>, q: u32) -> (BitReader<'_>, u32, bool) {
     r.consume_short(ESCAPE + 1);
-    *bad |= q != ESCAPE;
-    r.get_bits(ESCAPE_BITS)
+    let u = r.get_bits(ESCAPE_BITS);
+    (r, u, q != ESCAPE)
 }
 
 /// Decodes the coded coefficients of one band whose leaf flags are set: even rows from `ra`,
 /// odd rows from `rb`, two coefficients behind. Magnitudes are checked once per row pair.
 // The slot loops spell out the pair order step by step, by index, so that they can be compared.
+// The readers go by value and come back: their state stays in registers through the loop
+// (nothing takes their address; the cold paths copy them).
 #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
-fn decode_coeffs(
-    ra: &mut BitReader<'_>,
-    rb: &mut BitReader<'_>,
+fn decode_coeffs<'a>(
+    mut ra: BitReader<'a>,
+    mut rb: BitReader<'a>,
     ks: &KBySum,
     s: &mut Scratch,
     values: &mut [i32],
     w: usize,
     h: usize,
     max_abs: u32,
-) -> Result<(), CodecError> {
+) -> Result<(BitReader<'a>, BitReader<'a>), CodecError> {
     let stride = w + 4;
     let mut worst = 0u32;
     let mut bad = false;
@@ -84,7 +91,7 @@ fn decode_coeffs(
                 // the left neighbour only when adjacent.
                 let left = if $next == x { $left } else { 0 };
                 let sum = 2 * (left + u32::from(t[1])) + u32::from(t[0]) + u32::from(t[2]);
-                let (a, v) = decode_one($r, ks.k(sum), &mut bad);
+                let (a, v) = decode_one(&mut $r, ks.k(sum), &mut bad);
                 worst = worst.max(a);
                 $out[x] = v;
                 $left = a.min(MAG_SAT);
@@ -123,7 +130,7 @@ fn decode_coeffs(
             )));
         }
     }
-    Ok(())
+    Ok((ra, rb))
 }
 
 /// Decodes one record written by [`super::encode_bands`] into `bands`.
@@ -169,7 +176,7 @@ pub(crate) fn decode_bands(
             ));
         }
         let ks = KBySum::new(&get_k_table(&mut ra)?);
-        decode_coeffs(&mut ra, &mut rb, &ks, s, b.values, w, h, limits.max_abs)?;
+        (ra, rb) = decode_coeffs(ra, rb, &ks, s, b.values, w, h, limits.max_abs)?;
     }
     check_padding(&mut ra, "A")?;
     check_padding(&mut rb, "B")
