@@ -149,8 +149,8 @@ fn encode_whole(prepared: &PreparedBuild, opts: &BuildOptions) -> Result<Encoded
     })
 }
 
-/// The table's steps: half octaves around `base_k`, at most the largest step whose maximum
-/// error is within `cap`.
+/// The table's steps: half octaves around `base_k` whose maximum error is within `cap`, and
+/// the largest step within `cap` where it cuts the half octaves short.
 fn candidate_ks(base_k: u32, plan: &QuantPlan, cap: f64) -> Vec<u32> {
     let within_cap = |k: u32| {
         Quantizer::new(k).is_ok_and(|q| {
@@ -162,10 +162,16 @@ fn candidate_ks(base_k: u32, plan: &QuantPlan, cap: f64) -> Vec<u32> {
                 <= cap
         })
     };
-    let mut ks: Vec<u32> = HALF_OCTAVES
+    let ladder: Vec<u32> = HALF_OCTAVES
         .map(|j| (f64::from(base_k) * 2f64.powf(f64::from(j) / 2.0)).round() as u32)
-        .filter(|&k| k == base_k || within_cap(k))
         .collect();
+    let mut ks: Vec<u32> = ladder.iter().copied().filter(|&k| within_cap(k)).collect();
+    // A cap between two rungs: its own step is a candidate too, so that the levels that
+    // would take the next rung take the most the cap allows.
+    let top = ladder.iter().copied().max().unwrap_or(base_k);
+    if let Some(capped) = (base_k..=top).rev().find(|&k| within_cap(k)) {
+        ks.push(capped);
+    }
     ks.push(base_k);
     ks.sort_unstable();
     ks.dedup();

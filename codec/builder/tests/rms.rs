@@ -144,7 +144,8 @@ fn on_whole_metres_a_finer_unit_meets_the_rms_bound_in_fewer_bytes_than_the_max_
 }
 
 /// Every bundled DEM (ETOPO5 aside: its build is a minute of trial encodes; measured in
-/// docs/RESULTS.md) at RMS 1 m under a 2 m cap: `verify`'s measurement of the file against the
+/// docs/RESULTS.md) at RMS 1 m under a 2.5 m cap (which lidar's uncapped choice, up to 5 m,
+/// breaks): `verify`'s measurement of the file against the
 /// input meets both bounds, every level is within its own L∞ bound, and where the build chose
 /// a quantizer per level (header flag bit 5) no level's step is over the cap.
 #[test]
@@ -159,7 +160,7 @@ fn every_bundled_dem_meets_the_rms_bound_and_the_max_error_cap_on_every_level() 
         "rhine_nodata.tif",
         "srtm3_demcompare.tif",
     ] {
-        let (target, cap) = (1.0, 2.0);
+        let (target, cap) = (1.0, 2.5);
         let out = dir.path().join(format!("{name}.cbdam"));
         let repo = build_rms(&data(name), &out, target, Some(cap));
         let (params, plan) = (*repo.head().params(), *repo.head().plan());
@@ -167,7 +168,11 @@ fn every_bundled_dem_meets_the_rms_bound_and_the_max_error_cap_on_every_level() 
         c.check().unwrap_or_else(|e| panic!("{name}: {e:#}"));
         assert!(c.rms_error <= target, "{name}: RMS {}", c.rms_error);
         assert!(c.max_error <= cap, "{name}: max {}", c.max_error);
-        assert!(plan.max_error() <= cap, "{name}: guaranteed {}", plan.max_error());
+        assert!(
+            plan.max_error() <= cap,
+            "{name}: guaranteed {}",
+            plan.max_error()
+        );
         for l in &c.levels.levels {
             assert!(l.max_error <= l.bound, "{name}: {l:?}");
         }
