@@ -132,7 +132,9 @@ impl CodecParams {
     /// repository has one per level, else the one quantizer.
     #[inline]
     pub fn quantizer_at(&self, level: u8) -> Quantizer {
+        // By reference: the per-level table is a few hundred bytes, this runs once a record.
         self.levels
+            .as_ref()
             .and_then(|l| l.at(level))
             .unwrap_or(self.quantizer)
     }
