@@ -65,15 +65,17 @@ cargo run --quiet --bin cbdam -- build data/etopo5_global.tif --planet --planet-
 python3 scripts/web_test.py --planet target/web-bundle "$work/earth.cbdam" \
     "${CARGO_TARGET_DIR:-target}/debug/cbdam"
 # wasm32 decodes what native decodes, bit for bit: the page digests whole repositories (the
-# default coder's, the same surface coded by fast-rice, adaptive-grid and adaptive-inband, the
-# planet)
-# against `cbdam inspect --digest`.
+# default coder's, the same surface coded by fast-rice, adaptive-grid and adaptive-inband; an
+# RMS build with a quantizer per level (header flag bit 5: Jacksboro at RMS 1 m chooses steps
+# 13 and 18); the planet) against `cbdam inspect --digest`.
 cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro-rice.cbdam" \
     --max-error 1 --coder fast-rice --quiet
 cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro-grid.cbdam" \
     --max-error 1 --coder adaptive-grid --quiet
 cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro-inband.cbdam" \
     --max-error 1 --coder adaptive-inband --quiet
+cargo run --quiet --bin cbdam -- build data/jacksboro_mpl.tif -o "$work/jacksboro-rms.cbdam" \
+    --rms-error 1 --quiet
 python3 scripts/web_test.py --digest target/web-bundle "${CARGO_TARGET_DIR:-target}/debug/cbdam" \
     "$work/jacksboro.cbdam" "$work/jacksboro-rice.cbdam" "$work/jacksboro-grid.cbdam" \
-    "$work/jacksboro-inband.cbdam" "$work/earth.cbdam"
+    "$work/jacksboro-inband.cbdam" "$work/jacksboro-rms.cbdam" "$work/earth.cbdam"

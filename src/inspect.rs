@@ -107,7 +107,28 @@ impl<'a> InspectReport<'a> {
             v["rms_error_bound_m"] = r.target.into();
             v["rms_error_measured_m"] = r.measured.into();
         }
+        if let Some(l) = self.repo.head().params().levels {
+            v["level_k"] = l.ks().into();
+            v["level_max_error_m"] = self.level_max_errors().into();
+        }
         v
+    }
+
+    /// The L∞ bound of each level's samples, metres, levels 0 … finest: with per-level
+    /// quantizers each level's own ([`cbdam_codec::hierarchy::CodecParams::level_bound`]).
+    fn level_max_errors(&self) -> Vec<f64> {
+        let (p, plan) = (self.repo.head().params(), self.repo.head().plan());
+        (0..=p.layout().finest_level())
+            .map(|level| {
+                let q = cbdam_codec::quant::Quantizer::new(p.level_bound(level))
+                    .expect("a level's bound is at most the header's valid k");
+                cbdam_codec::quant::QuantPlan {
+                    quantizer: q,
+                    ..*plan
+                }
+                .max_error()
+            })
+            .collect()
     }
 
     /// The text form: the layout, the coding, the georeferencing, nodata, the sections and a
@@ -291,6 +312,9 @@ impl<'a> InspectReport<'a> {
 
     /// A line per level: its records, their bytes and their object error range.
     fn write_levels(&self, out: &mut impl Write) -> std::io::Result<()> {
+        if let Some(levels) = self.repo.head().params().levels {
+            return self.write_levels_quantized(out, levels.ks());
+        }
         writeln!(out, "level  records        bytes   object error (m)")?;
         for (i, l) in self.summary.levels.iter().enumerate() {
             if l.records == 0 {
@@ -305,6 +329,35 @@ impl<'a> InspectReport<'a> {
                     self.metres(l.object_error_max)
                 )?;
             }
+        }
+        Ok(())
+    }
+
+    /// [`Self::write_levels`] for a repository with a quantizer per level: each level's
+    /// records' `k` and the maximum error its samples are guaranteed.
+    fn write_levels_quantized(&self, out: &mut impl Write, ks: &[u32]) -> std::io::Result<()> {
+        writeln!(
+            out,
+            "level  records        bytes  records' k  max error (m)  object error (m)"
+        )?;
+        let bounds = self.level_max_errors();
+        for (i, l) in self.summary.levels.iter().enumerate() {
+            let k = ks.get(i).map_or("-".to_string(), |k| k.to_string());
+            let object = if l.records == 0 {
+                "-".to_string()
+            } else {
+                format!(
+                    "{} … {}",
+                    self.metres(l.object_error_min),
+                    self.metres(l.object_error_max)
+                )
+            };
+            let bound = bounds.get(i).copied().unwrap_or(f64::NAN);
+            writeln!(
+                out,
+                "{i:>5}  {:>7}  {:>11}  {k:>10}  {bound:>13}  {object}",
+                l.records, l.bytes
+            )?;
         }
         Ok(())
     }

@@ -131,7 +131,7 @@ pub fn decode_cut(repo: &Repository, cut: &Cut) -> Result<Vec<HalfPatch>, CodecE
     for id in cut.refined() {
         let parents = domain.parents(id).map(|p| p.and_then(|p| refined.get(&p)));
         let grid = decoder.grid_of(id, parents);
-        let r = decoder.refine(&grid, repo.record(id)?, &mut scratch)?;
+        let r = decoder.refine(id, &grid, repo.record(id)?, &mut scratch)?;
         refined.insert(id, r);
     }
     let mut out = Vec::new();

@@ -203,7 +203,7 @@ fn refine_bench_on_a_repository() {
             .map(|p| p.and_then(|p| refined.get(&p)));
         let grid = decoder.grid_of(e.id, parents);
         let r = decoder
-            .refine(&grid, repo.record(e.id).unwrap(), &mut scratch)
+            .refine(e.id, &grid, repo.record(e.id).unwrap(), &mut scratch)
             .unwrap();
         grids.push(grid);
         refined.insert(e.id, r);
@@ -215,7 +215,7 @@ fn refine_bench_on_a_repository() {
         for (e, grid) in repo.head().entries().iter().zip(&grids) {
             std::hint::black_box(
                 decoder
-                    .refine(grid, repo.record(e.id).unwrap(), &mut scratch)
+                    .refine(e.id, grid, repo.record(e.id).unwrap(), &mut scratch)
                     .unwrap(),
             );
         }

@@ -88,7 +88,7 @@ fn decode_all(enc: &Encoded) -> Decoded {
             .parents(r.id)
             .map(|p| p.and_then(|p| refined.get(&p)));
         let p = decoder.grid_of(r.id, parents);
-        let out = decoder.refine(&p, &r.bytes, &mut scratch).unwrap();
+        let out = decoder.refine(r.id, &p, &r.bytes, &mut scratch).unwrap();
         refined.insert(r.id, out);
         grids.push(p);
     }
@@ -151,7 +151,7 @@ fn bench(c: &mut Criterion) {
             let mut scratch = RefineScratch::default();
             b.iter(|| {
                 for (r, p) in enc.records.iter().zip(&dec.grids) {
-                    black_box(dec.decoder.refine(p, &r.bytes, &mut scratch).unwrap());
+                    black_box(dec.decoder.refine(r.id, p, &r.bytes, &mut scratch).unwrap());
                 }
             })
         });

@@ -13,12 +13,13 @@
 //! Either way every reconstructed value is within `k` units of the integer input, which the
 //! tests check exactly in integers.
 //!
-//! `quantizer.rs` is the residual quantizer, `plan.rs` chooses the unit, offset and `k` for a
+//! `quantizer.rs` is the residual quantizer, `levels.rs` a quantizer per level (RMS builds), `plan.rs` chooses the unit, offset and `k` for a
 //! dataset, and `height_grid.rs` holds the integer heights the encoder takes.
 
 use crate::lifting::{MAX_ABS_HEIGHT, PREDICTION_LIMIT};
 
 mod height_grid;
+mod levels;
 mod plan;
 mod quantizer;
 mod rounding;
@@ -26,6 +27,7 @@ mod rounding;
 mod tests;
 
 pub use height_grid::{HeightGrid, RowsWritten};
+pub use levels::{LevelQuantizers, MAX_LEVELS};
 pub use plan::{QuantPlan, RmsBound};
 pub use quantizer::Quantizer;
 

@@ -97,10 +97,13 @@ fn truncated_records_never_panic() {
         for r in &enc.records {
             let p = &grids[&r.id];
             // The intact record decodes: otherwise the truncations below prove nothing.
-            decoder.refine(p, &r.bytes, &mut scratch).unwrap();
+            decoder.refine(r.id, p, &r.bytes, &mut scratch).unwrap();
             for len in 0..r.bytes.len() {
                 total += 1;
-                if decoder.refine(p, &r.bytes[..len], &mut scratch).is_ok() {
+                if decoder
+                    .refine(r.id, p, &r.bytes[..len], &mut scratch)
+                    .is_ok()
+                {
                     accepted += 1;
                 }
             }
@@ -136,7 +139,10 @@ fn bit_flipped_records_never_panic_and_stay_in_range() {
             let mut bytes = r.bytes.to_vec();
             let bit = rng.below(bytes.len() * 8);
             bytes[bit / 8] ^= 1 << (bit % 8);
-            if decoder.refine(&grids[&r.id], &bytes, &mut scratch).is_ok() {
+            if decoder
+                .refine(r.id, &grids[&r.id], &bytes, &mut scratch)
+                .is_ok()
+            {
                 accepted += 1;
                 // Whole walks are slower: check the range downstream for some of them.
                 if walked < 150 {
@@ -201,7 +207,12 @@ fn random_records_never_panic_and_stay_in_range() {
                 }
             }
             if decoder
-                .refine(&grids[&enc.records[ri].id], &bytes, &mut scratch)
+                .refine(
+                    enc.records[ri].id,
+                    &grids[&enc.records[ri].id],
+                    &bytes,
+                    &mut scratch,
+                )
                 .is_ok()
             {
                 accepted += 1;

@@ -170,7 +170,7 @@ fn the_walk_shows_what_the_per_diamond_decoder_makes() {
                     let expected = decoder.grid_of(id, parents);
                     assert!(grid == &expected[..], "{name} {alpha:?}: grid of {id}");
                     if let Some(bytes) = records.get(&id) {
-                        let refined = decoder.refine(&expected, bytes, &mut scratch).unwrap();
+                        let refined = decoder.refine(id, &expected, bytes, &mut scratch).unwrap();
                         reference.insert(id, refined);
                     }
                     visits += 1;

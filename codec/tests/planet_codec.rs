@@ -207,7 +207,7 @@ fn decode_all(encoded: &Encoded) -> HashMap<DiamondId, Refined> {
     for r in &encoded.records {
         let parents = domain.parents(r.id).map(|p| p.map(|p| &out[&p]));
         let grid = decoder.grid_of(r.id, parents);
-        let refined = decoder.refine(&grid, &r.bytes, &mut scratch).unwrap();
+        let refined = decoder.refine(r.id, &grid, &r.bytes, &mut scratch).unwrap();
         out.insert(r.id, refined);
     }
     out

@@ -9,6 +9,7 @@ mod gamma_coder;
 mod golden;
 mod hostile_inputs;
 mod hostile_records;
+mod level_quantizers;
 mod linf_bound;
 mod nodata_mask;
 mod numerical_stress;

@@ -77,7 +77,7 @@ fuzz_target!(|data: &[u8]| {
     let ri = usize::from(*sel) / fs.len() % f.enc.records.len();
     let mut scratch = RefineScratch::default();
     if f.decoder
-        .refine(&f.grids[ri], record, &mut scratch)
+        .refine(f.enc.records[ri].id, &f.grids[ri], record, &mut scratch)
         .is_err()
     {
         return;

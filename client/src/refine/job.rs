@@ -227,7 +227,7 @@ impl DecodeJob {
             None => (bytes, &[][..]),
         };
         let grid = self.grid_of(id, parents);
-        let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(&grid, elevation, s))?;
+        let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(id, &grid, elevation, s))?;
         let c = self.refine_colour(id, colour, parents)?;
         Ok(self.node(id, r, c))
     }

@@ -47,17 +47,20 @@ pub fn encode_prepared(
     let storage = &temporaries.storage;
     Ok(pool.install(|| match (&temporaries.blocks, resolution) {
         (Some(plan), r) => Encoder::new(&input.grid, input.plan.quantizer, opts)
+            .per_level(input.plan.levels)
             .resolution(r)
             .storage(storage)
             .in_blocks(plan, journal)
             .progress(progress)
             .encode(),
         (None, Some(r)) => Encoder::new(&input.grid, input.plan.quantizer, opts)
+            .per_level(input.plan.levels)
             .resolution(Some(r))
             .storage(storage)
             .progress(progress)
             .encode(),
         (None, None) => Encoder::new(&input.grid, input.plan.quantizer, opts)
+            .per_level(input.plan.levels)
             .storage(storage)
             .progress(progress)
             .encode(),

@@ -35,6 +35,7 @@ pub mod planet_shard_plan;
 mod planet_spacing;
 pub mod progress;
 pub mod rms;
+mod rms_levels;
 pub mod shard;
 mod shard_grid;
 mod shard_plan;
@@ -446,18 +447,27 @@ pub fn build_elevation(opts: &BuildOptions, progress: &dyn Progress) -> Result<E
                 max_error: choice.max_error,
                 quantum: choice.quantum,
                 rms_error: None,
+                // Per-level quantizers were allocated for this hierarchy's levels.
+                extra_levels: choice
+                    .levels
+                    .map_or(opts.extra_levels, |(_, extra)| ExtraLevels::Fixed(extra)),
                 ..opts.clone()
             };
-            (Some(opts), Some(choice.bound))
+            (Some(opts), Some(choice))
         }
         None => (None, None),
     };
     let opts = chosen.as_ref().unwrap_or(opts);
     let mut prepared = prepare_elevation(opts, progress, None)?;
-    if rms.is_some() {
+    if let Some(choice) = rms {
+        let plan = &mut prepared.input.plan;
+        if let Some((levels, _)) = choice.levels {
+            plan.quantizer = cbdam_codec::quant::Quantizer::new(levels.max_k())?;
+            plan.levels = Some(levels);
+        }
         // The header's tolerance is then the maximum error the chosen quantizer guarantees.
-        prepared.input.plan.epsilon = prepared.input.plan.max_error();
-        prepared.input.plan.rms = rms;
+        plan.epsilon = plan.max_error();
+        plan.rms = Some(choice.bound);
     }
     let mut stages = prepared.input.stages.clone();
     let journal = open_block_journal(opts, &prepared, progress, &mut stages)?;

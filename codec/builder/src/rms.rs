@@ -17,7 +17,7 @@
 //! fall between them, and the build keeps whichever of the two choices codes smaller.
 
 use cbdam_codec::hierarchy::{Encoded, NoJournal, reconstruct_finest_with_validity};
-use cbdam_codec::quant::{QuantPlan, RmsBound};
+use cbdam_codec::quant::{LevelQuantizers, QuantPlan, RmsBound};
 use cbdam_codec::samples::{Dem, detect_quantum};
 
 use crate::encode::{ExtraLevels, encode_prepared, with_coarser_roots_if_smaller};
@@ -41,6 +41,9 @@ pub(crate) struct RmsChoice {
     pub max_error: f64,
     pub quantum: Option<f64>,
     pub bound: RmsBound,
+    /// A quantizer per level that meets the bound in fewer bytes ([`crate::rms_levels`]), and
+    /// the level pairs above the smallest hierarchy it was allocated for.
+    pub levels: Option<(LevelQuantizers, u32)>,
 }
 
 /// The quantizer for `--rms-error target` (`opts.max_error` is the cap, infinite when none was
@@ -74,10 +77,21 @@ pub(crate) fn choose(opts: &BuildOptions, target: f64) -> Result<RmsChoice> {
         }
         _ => None,
     };
-    Ok(match finer {
+    let mut choice = match finer {
         Some(f) if f.bytes < own.bytes => f.choice,
         _ => own.choice,
-    })
+    };
+    let uniform = BuildOptions {
+        max_error: choice.max_error,
+        quantum: choice.quantum,
+        rms_error: None,
+        ..opts.clone()
+    };
+    if let Some(p) = crate::rms_levels::allocate(&uniform, &dem, target, cap)? {
+        choice.levels = Some((p.levels, p.extra_level_pairs));
+        choice.bound.measured = p.measured;
+    }
+    Ok(choice)
 }
 
 /// The ladder's winner on one unit, with its coded size.
@@ -135,6 +149,7 @@ fn search_ladder(opts: &BuildOptions, dem: &Dem, target: f64) -> Result<Searched
                 target,
                 measured: best.0,
             },
+            levels: None,
         },
         bytes: best.1,
     })

@@ -151,6 +151,7 @@ impl ShardPlan {
             epsilon: real("epsilon")?,
             // Sharded builds bound the maximum error only.
             rms: None,
+            levels: None,
         };
         let georef = match value("georef") {
             None => None,

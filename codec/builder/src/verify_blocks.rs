@@ -14,7 +14,7 @@ use std::ops::Range;
 
 use cbdam_codec::geometry::{DiamondId, Layout};
 use cbdam_codec::hierarchy::blocks::Block;
-use cbdam_codec::hierarchy::{BlockPlan, BlockWalk, LevelReport, Reached};
+use cbdam_codec::hierarchy::{BlockPlan, BlockWalk, CodecParams, LevelReport, Reached};
 use cbdam_codec::quant::HeightGrid;
 use rayon::prelude::*;
 
@@ -126,16 +126,9 @@ pub(crate) struct Visits {
 }
 
 impl Visits {
-    pub(crate) fn new(finest: u8) -> Self {
+    pub(crate) fn new(params: &CodecParams) -> Self {
         Self {
-            levels: (0..=finest)
-                .map(|level| LevelReport {
-                    level,
-                    diamonds: 0,
-                    vertices: 0,
-                    max_error: 0,
-                })
-                .collect(),
+            levels: LevelReport::empty(params),
         }
     }
 
@@ -287,7 +280,7 @@ pub(crate) fn decode_block(
         None
     };
     let input = window.as_ref().unwrap_or(input);
-    let mut visits = Visits::new(layout.finest_level());
+    let mut visits = Visits::new(walk.params());
     walk.walk_block(index, |id, owned, p, valid| {
         if owned {
             visits.check(&layout, id, p, input, 0);

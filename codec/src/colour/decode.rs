@@ -6,7 +6,7 @@ use crate::CodecError;
 use crate::geometry::DiamondId;
 use crate::hierarchy::{
     CodecParams, Decoder, Encoded, Record, RefineScratch, Refined, RepoKind, VerifyReport,
-    reconstruct_finest, verify,
+    reconstruct_finest, refine, verify,
 };
 use crate::quant::HeightGrid;
 
@@ -50,7 +50,8 @@ impl ColourDecoder {
         std::array::from_fn(|c| self.channels[c].grid_of(id, parents.map(|p| p.map(|p| &p[c]))))
     }
 
-    /// Refines a diamond with grids `p` by its (three-channel) record.
+    /// Refines a diamond with grids `p` by its (three-channel) record. A colour repository has
+    /// one quantizer for every level (no RMS bound, so no flag bit 5), so no level is asked.
     pub fn refine(
         &self,
         p: &[Vec<i32>; 3],
@@ -60,7 +61,9 @@ impl ColourDecoder {
         let parts = split(record, true, "record")?;
         let mut out = Vec::with_capacity(3);
         for c in 0..3 {
-            out.push(self.channels[c].refine(&p[c], parts[c], scratch)?);
+            let params = self.channels[c].params();
+            let q = params.quantizer;
+            out.push(refine(params, q, &p[c], parts[c], scratch)?);
         }
         Ok(out.try_into().expect("three channels"))
     }

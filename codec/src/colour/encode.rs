@@ -23,6 +23,7 @@ pub fn colour_plan(max_error: u32) -> Result<QuantPlan, CodecError> {
         representation_error: 0.0,
         epsilon: f64::from(max_error),
         rms: None,
+        levels: None,
     })
 }
 

@@ -86,14 +86,21 @@ impl Decoder {
         Some(v)
     }
 
-    /// Refines a diamond with grid `p` by its record.
+    /// Refines diamond `id` with grid `p` by its record (with the quantizer of `id`'s level).
     pub fn refine(
         &self,
+        id: DiamondId,
         p: &[i32],
         record: &[u8],
         scratch: &mut RefineScratch,
     ) -> Result<Refined, CodecError> {
-        refine(&self.params, p, record, scratch)
+        refine(
+            &self.params,
+            self.params.quantizer_at(id.level),
+            p,
+            record,
+            scratch,
+        )
     }
 }
 
@@ -113,17 +120,21 @@ pub struct LevelReport {
     pub vertices: u64,
     /// Largest |reconstructed − filtered| seen, units.
     pub max_error: u32,
+    /// The bound this level's errors must respect, units: `k`, or with per-level quantizers
+    /// the level's own ([`CodecParams::level_bound`]).
+    pub bound: u32,
 }
 
 impl LevelReport {
-    /// One empty report per level `0..=finest`.
-    pub(crate) fn empty(finest: u8) -> Vec<LevelReport> {
-        (0..=finest)
+    /// One empty report per level `0..=finest` of `params`'s hierarchy.
+    pub fn empty(params: &CodecParams) -> Vec<LevelReport> {
+        (0..=params.layout().finest_level())
             .map(|level| LevelReport {
                 level,
                 diamonds: 0,
                 vertices: 0,
                 max_error: 0,
+                bound: params.level_bound(level),
             })
             .collect()
     }
@@ -134,7 +145,8 @@ impl LevelReport {
 pub struct VerifyReport {
     /// One entry per level, coarse to fine.
     pub levels: Vec<LevelReport>,
-    /// The bound every error must respect, units (`k`).
+    /// The bound every error must respect, units (`k`; with per-level quantizers the largest,
+    /// each level's own in [`LevelReport::bound`]).
     pub bound: u32,
 }
 
@@ -143,9 +155,13 @@ impl VerifyReport {
     pub fn max_error(&self) -> u32 {
         self.levels.iter().map(|l| l.max_error).max().unwrap_or(0)
     }
-    /// Whether every level is within the bound.
+    /// Whether every level is within its bound (and so within `bound`).
     pub fn within_bound(&self) -> bool {
         self.max_error() <= self.bound
+            && self
+                .levels
+                .iter()
+                .all(|l| l.max_error <= l.bound.min(self.bound))
     }
 }
 
@@ -527,14 +543,18 @@ fn decode_diamond(
     let valid = decoder.validity_of(id, parents);
     let body = match records.get(id) {
         None => DecodedBody::Unrefined(grid),
-        Some(bytes) if params.alpha == Alpha::Half => match decoder.refine(&grid, bytes, scratch) {
-            Ok(refined) => DecodedBody::Separate(grid, refined),
-            Err(e) => DecodedBody::Corrupt(grid, e),
-        },
-        Some(bytes) => match refine_owned(params, grid, bytes, scratch) {
-            Ok(refined) => DecodedBody::SharedGrid(refined),
-            Err((grid, e)) => DecodedBody::Corrupt(grid, e),
-        },
+        Some(bytes) if params.alpha == Alpha::Half => {
+            match decoder.refine(id, &grid, bytes, scratch) {
+                Ok(refined) => DecodedBody::Separate(grid, refined),
+                Err(e) => DecodedBody::Corrupt(grid, e),
+            }
+        }
+        Some(bytes) => {
+            match refine_owned(params, params.quantizer_at(id.level), grid, bytes, scratch) {
+                Ok(refined) => DecodedBody::SharedGrid(refined),
+                Err((grid, e)) => DecodedBody::Corrupt(grid, e),
+            }
+        }
     };
     Ok(DecodedDiamond { valid, body })
 }

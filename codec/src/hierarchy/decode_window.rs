@@ -316,7 +316,7 @@ fn refine_level<'a>(
         .map_init(RefineScratch::default, |scratch, &id| {
             let parents = domain.parents(id).map(|p| p.and_then(|p| prev.get(&p)));
             let p = decoder.grid_of(id, parents);
-            Ok((id, decoder.refine(&p, record(id)?, scratch)?))
+            Ok((id, decoder.refine(id, &p, record(id)?, scratch)?))
         })
         .collect()
 }

@@ -15,7 +15,7 @@ use crate::CodecError;
 use crate::entropy::CoderKind;
 use crate::geometry::{DiamondId, Domain};
 use crate::lifting::Alpha;
-use crate::quant::{HeightGrid, Quantizer};
+use crate::quant::{HeightGrid, LevelQuantizers, Quantizer};
 
 mod levels;
 mod refinement;
@@ -72,6 +72,7 @@ impl Default for EncodeOptions {
 pub struct Encoder<'a> {
     grid: &'a HeightGrid,
     quantizer: Quantizer,
+    levels: Option<LevelQuantizers>,
     opts: &'a EncodeOptions,
     resolution: Option<&'a Resolution>,
     storage: &'a TempStorage,
@@ -86,6 +87,7 @@ impl<'a> Encoder<'a> {
         Encoder {
             grid,
             quantizer,
+            levels: None,
             opts,
             resolution: None,
             storage: &TempStorage::Memory,
@@ -100,6 +102,14 @@ impl<'a> Encoder<'a> {
     /// hierarchy is refined only as deep as the data at each place. α = 1 only.
     pub fn resolution(mut self, resolution: Option<&'a Resolution>) -> Self {
         self.resolution = resolution;
+        self
+    }
+
+    /// Quantizes each level's records with its own quantizer (`None`: `quantizer` on every
+    /// level). `quantizer` must be the largest of them, and there must be one per level of
+    /// records of the hierarchy; an `--rms-error` build's allocation.
+    pub fn per_level(mut self, levels: Option<LevelQuantizers>) -> Self {
+        self.levels = levels;
         self
     }
 
@@ -156,12 +166,34 @@ impl<'a> Encoder<'a> {
         encode_impl(
             self.grid,
             self.resolution,
-            self.quantizer,
+            (self.quantizer, self.levels),
             self.opts,
             keeping,
             self.progress,
         )
     }
+}
+
+/// `levels` if they fit `params`: one per level of records, the largest `params.quantizer`
+/// (which the root field was quantized from).
+fn checked_levels(
+    params: &CodecParams,
+    levels: Option<LevelQuantizers>,
+) -> Result<Option<LevelQuantizers>, CodecError> {
+    let Some(l) = levels else {
+        return Ok(None);
+    };
+    let finest = usize::from(params.layout().finest_level());
+    if l.len() != finest || l.max_k() != params.quantizer.k() as u32 {
+        return Err(CodecError::invalid(format!(
+            "{} per-level quantizers, largest k = {}, for a hierarchy of {finest} levels of \
+             records with k = {}",
+            l.len(),
+            l.max_k(),
+            params.quantizer.k()
+        )));
+    }
+    Ok(Some(l))
 }
 
 /// How the encoder keeps the reconstruction between levels.
@@ -180,12 +212,12 @@ enum Keeping<'a> {
 fn encode_impl(
     grid: &HeightGrid,
     resolution: Option<&Resolution>,
-    quantizer: Quantizer,
+    (quantizer, levels): (Quantizer, Option<LevelQuantizers>),
     opts: &EncodeOptions,
     strategy: Keeping<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Encoded, CodecError> {
-    let setup = Setup::new(grid, resolution, quantizer, opts)?;
+    let setup = Setup::new(grid, resolution, quantizer, levels, opts)?;
     let layout = *setup.params.domain.layout();
     // Work per diamond is about the data it covers: its bounding box clipped to the data.
     let area = |id: &DiamondId| {
@@ -239,12 +271,13 @@ impl<'a> Setup<'a> {
         grid: &'a HeightGrid,
         resolution: Option<&'a Resolution>,
         quantizer: Quantizer,
+        levels: Option<LevelQuantizers>,
         opts: &EncodeOptions,
     ) -> Result<Self, CodecError> {
         let (params, targets) = Self::params(
             grid,
             resolution,
-            quantizer,
+            (quantizer, levels),
             opts,
             grid.range().is_some(),
             match resolution {
@@ -280,7 +313,7 @@ impl<'a> Setup<'a> {
     fn params(
         grid: &'a HeightGrid,
         resolution: Option<&'a Resolution>,
-        quantizer: Quantizer,
+        (quantizer, levels): (Quantizer, Option<LevelQuantizers>),
         opts: &EncodeOptions,
         any_valid: bool,
         nodata_mask: bool,
@@ -290,15 +323,18 @@ impl<'a> Setup<'a> {
         }
         let domain = Domain::covering(opts.n, grid.width, grid.height, opts.extra_level_pairs)?;
         let layout = *domain.layout();
-        let params = CodecParams {
+        let mut params = CodecParams {
             domain,
             alpha: opts.alpha,
             coder: opts.coder,
             quantizer,
+            levels: None,
             root_quantizer: super::root_quantizer(quantizer),
             nodata_mask,
             kind: super::RepoKind::Elevation,
         };
+        params.levels = checked_levels(&params, levels)?;
+        params.root_quantizer = super::root_quantizer_of(quantizer, params.levels);
         let targets = Targets {
             grid,
             fields: (opts.alpha == Alpha::Half).then(|| analysis_fields(&layout, grid)),
@@ -317,8 +353,14 @@ impl<'a> Setup<'a> {
         opts: &EncodeOptions,
         summary: GridSummary,
     ) -> Result<Self, CodecError> {
-        let (params, targets) =
-            Self::params(grid, resolution, quantizer, opts, true, summary.nodata_mask)?;
+        let (params, targets) = Self::params(
+            grid,
+            resolution,
+            (quantizer, None),
+            opts,
+            true,
+            summary.nodata_mask,
+        )?;
         let layout = params.domain.layout();
         let rf = params.domain.root_field();
         let levels = usize::from(layout.finest_level()) + 1;

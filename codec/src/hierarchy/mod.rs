@@ -58,7 +58,7 @@ pub use verifier::{verify, verify_with_finest, verify_with_reached};
 use crate::entropy::{BandKind, CoderKind};
 use crate::geometry::{DiamondId, Domain, Layout};
 use crate::lifting::Alpha;
-use crate::quant::Quantizer;
+use crate::quant::{LevelQuantizers, Quantizer};
 
 /// Everything a decoder needs to know besides the bytes: what a repository header holds.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -69,8 +69,12 @@ pub struct CodecParams {
     pub alpha: Alpha,
     /// Which entropy coder wrote the records.
     pub coder: CoderKind,
-    /// The residual quantizer (error bound `k` units, step `2k+1`).
+    /// The residual quantizer (error bound `k` units, step `2k+1`): every level's, or, with
+    /// `levels`, the largest of them ([`CodecParams::quantizer_at`] is a level's).
     pub quantizer: Quantizer,
+    /// A quantizer per level of records (header flag bit 5), `None`: `quantizer` on every
+    /// level.
+    pub levels: Option<LevelQuantizers>,
     /// The root field's quantizer, finer than `quantizer` ([`root_quantizer`]).
     pub root_quantizer: Quantizer,
     /// Whether the root field and the records carry a nodata mask ([`mask`]); false when every
@@ -110,11 +114,40 @@ pub fn root_quantizer(quantizer: Quantizer) -> Quantizer {
     Quantizer::new((quantizer.k() / 2) as u32).expect("half of a valid k is valid")
 }
 
+/// The root field's quantizer of a hierarchy quantized with `quantizer`, or with a quantizer
+/// per level: half of level 0's (the records that refine the roots), which with per-level
+/// quantizers may be finer than the largest.
+pub fn root_quantizer_of(quantizer: Quantizer, levels: Option<LevelQuantizers>) -> Quantizer {
+    root_quantizer(levels.and_then(|l| l.at(0)).unwrap_or(quantizer))
+}
+
 impl CodecParams {
     /// The per-face lattice arithmetic of the domain.
     #[inline]
     pub fn layout(&self) -> &Layout {
         self.domain.layout()
+    }
+
+    /// The quantizer of the records of level-`level` diamonds: the level's own where the
+    /// repository has one per level, else the one quantizer.
+    #[inline]
+    pub fn quantizer_at(&self, level: u8) -> Quantizer {
+        // By reference: the per-level table is a few hundred bytes, this runs once a record.
+        self.levels
+            .as_ref()
+            .and_then(|l| l.at(level))
+            .unwrap_or(self.quantizer)
+    }
+
+    /// The L∞ bound, units, of the reconstructed samples of level `level` (within the
+    /// representation error and rounding of [`crate::quant::QuantPlan::max_error`]): the
+    /// quantizer's `k` on every level, or with per-level quantizers the largest of the levels
+    /// above and the root field's.
+    pub fn level_bound(&self, level: u8) -> u32 {
+        match &self.levels {
+            Some(l) => l.level_bound(self.root_quantizer.k() as u32, level),
+            None => self.quantizer.k() as u32,
+        }
     }
 
     /// The bands of one refinement record: `(kind, width, height)`.

@@ -13,6 +13,7 @@ use crate::lifting::{
     Alpha, MAX_ABS_HEIGHT, PREDICTION_LIMIT, VectorKernels, clamp_prediction, predict_cells_inline,
     predict_inner_vertices,
 };
+use crate::quant::Quantizer;
 
 /// The level-`l+1` values a refinement produces on a level-`l` diamond's square: the values of
 /// its `N²` vertices (changed only at inner vertices and only when α = ½) and of its `(N−1)²`
@@ -536,17 +537,19 @@ pub struct RefineScratch {
 }
 
 /// Refines a diamond: decodes its record and synthesises its level-`l+1` values from `p`, its
-/// reconstructed `N × N` grid (eqs. 6 and 8).
+/// reconstructed `N × N` grid (eqs. 6 and 8); `q` is the quantizer of the diamond's level
+/// ([`CodecParams::quantizer_at`]).
 ///
 /// Never panics on bad bytes; a record whose values would leave the representable range is
 /// [`CodecError::Corrupt`].
 pub fn refine(
     params: &CodecParams,
+    q: Quantizer,
     p: &[i32],
     record: &[u8],
     scratch: &mut RefineScratch,
 ) -> Result<Refined, CodecError> {
-    let valid = synthesise(params, p, record, scratch)?;
+    let valid = synthesise(params, q, p, record, scratch)?;
     // With α = 1 a refinement leaves every vertex as it was: interleave `p` itself.
     let vertices = if params.alpha == Alpha::Half {
         &scratch.vertices[..]
@@ -562,14 +565,15 @@ pub fn refine(
 /// unchanged with the error when the record is corrupt. The values are [`refine`]'s exactly.
 pub(crate) fn refine_owned(
     params: &CodecParams,
+    q: Quantizer,
     mut grid: Vec<i32>,
     record: &[u8],
     scratch: &mut RefineScratch,
 ) -> Result<Refined, (Vec<i32>, CodecError)> {
     if params.alpha == Alpha::Half {
-        return refine(params, &grid, record, scratch).map_err(|e| (grid, e));
+        return refine(params, q, &grid, record, scratch).map_err(|e| (grid, e));
     }
-    let valid = match synthesise(params, &grid, record, scratch) {
+    let valid = match synthesise(params, q, &grid, record, scratch) {
         Ok(valid) => valid,
         Err(e) => return Err((grid, e)),
     };
@@ -589,13 +593,14 @@ pub(crate) fn refine_owned(
 /// record's half-step validity (`None`: all valid).
 fn synthesise(
     params: &CodecParams,
+    q: Quantizer,
     p: &[i32],
     record: &[u8],
     scratch: &mut RefineScratch,
 ) -> Result<Option<Vec<bool>>, CodecError> {
     let n = params.layout().n();
-    let valid = decode_residuals(params, p, record, scratch)?;
-    let step = i64::from(params.quantizer.step());
+    let valid = decode_residuals(params, q, p, record, scratch)?;
+    let step = i64::from(q.step());
     let RefineScratch {
         dc,
         dv,
@@ -616,6 +621,7 @@ fn synthesise(
 /// grid, which a grid-aware coder's contexts read.
 fn decode_residuals(
     params: &CodecParams,
+    q: Quantizer,
     p: &[i32],
     record: &[u8],
     scratch: &mut RefineScratch,
@@ -653,7 +659,7 @@ fn decode_residuals(
     let grid = ParentGrid {
         values: p,
         n,
-        step: params.quantizer.step(),
+        step: q.step(),
     };
     decode_bands_on_grid_with(
         params.coder,

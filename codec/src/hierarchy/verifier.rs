@@ -56,7 +56,7 @@ fn verify_walk(
     let layout = params.layout();
     let fields = (params.alpha == Alpha::Half).then(|| analysis_fields(layout, input));
     let n = layout.n();
-    let mut levels = LevelReport::empty(layout.finest_level());
+    let mut levels = LevelReport::empty(&params);
     // Each diamond's worst error on its own, in parallel; maxima and sums do not depend on the
     // order they are taken in, so the report is the serial walk's.
     walk_batches_impl(encoded, true, |batch| {

@@ -3,7 +3,9 @@
 
 use rayon::prelude::*;
 
-use super::{CHUNK, HeightGrid, MAX_ABS_INPUT, MAX_K, Quantizer, RowsWritten, round_to_i64};
+use super::{
+    CHUNK, HeightGrid, LevelQuantizers, MAX_ABS_INPUT, MAX_K, Quantizer, RowsWritten, round_to_i64,
+};
 use crate::CodecError;
 #[cfg(doc)]
 use crate::samples::detect_quantum;
@@ -31,6 +33,9 @@ pub struct QuantPlan {
     /// level's root-mean-square error over every valid sample is at most `target`. `None` for
     /// a build that bounds the maximum error only.
     pub rms: Option<RmsBound>,
+    /// A quantizer per level (an `--rms-error` build that chose unequal steps, header flag bit
+    /// 5); `quantizer` is then the largest of them. `None`: `quantizer` on every level.
+    pub levels: Option<LevelQuantizers>,
 }
 
 /// The root-mean-square error bound of a repository built with `--rms-error` (header flag bit
@@ -108,6 +113,7 @@ impl QuantPlan {
             representation_error: if lattice { deviation } else { 0.0 },
             epsilon,
             rms: None,
+            levels: None,
         })
     }
 
@@ -229,6 +235,7 @@ impl QuantPlan {
             representation_error: 0.0,
             epsilon,
             rms: None,
+            levels: None,
         };
         let mut grid = HeightGrid::empty(src.width(), src.height(), storage)?;
         let nodata = src.nodata();

@@ -35,7 +35,9 @@ use std::fs::File;
 use std::ops::Deref;
 use std::path::Path;
 
-pub use super::header::{FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, PlanetProvenance, VerticalDatum};
+pub use super::header::{
+    FLAG_LEVEL_QUANTIZERS, FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, PlanetProvenance, VerticalDatum,
+};
 use super::header::{SectionEntry, crc32, read_header, read_prefix};
 use crate::CodecError;
 use crate::geometry::DiamondId;

@@ -67,6 +67,12 @@ pub const FLAG_PLANET_PROVENANCE: u32 = 8;
 /// it clear and are unchanged; readers that predate it refuse it ("unknown header flags").
 pub const FLAG_RMS_ERROR: u32 = 16;
 
+/// Header flag bit 5 (only with bit 4): a quantizer per level, after the RMS bound: a varint
+/// count, one per level of records (`2K`), and each level's `k` as a varint, level 0 first; the
+/// header's `k` is their largest ([`crate::quant::LevelQuantizers`], `docs/FORMAT.md`). Written
+/// only by `--rms-error` builds that chose unequal steps; every other file leaves it clear.
+pub const FLAG_LEVEL_QUANTIZERS: u32 = 32;
+
 /// What the heights of a planet are measured from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VerticalDatum {
@@ -172,6 +178,8 @@ pub(crate) struct HeaderFields {
     pub provenance: Option<PlanetProvenance>,
     /// The RMS bound: target and measured, metres (version 3, with flag bit 4 only).
     pub rms: Option<(f64, f64)>,
+    /// Each level's quantizer `k`, level 0 first (version 3, with flag bit 5 only).
+    pub level_ks: Option<Vec<u32>>,
     /// Roots, index, checksums, records.
     pub sections: [SectionEntry; 4],
     pub record_count: u64,

@@ -75,7 +75,9 @@ pub const MESH_CACHE_BYTES: usize = 16 << 20;
 /// or vertex on the data).
 enum Held<'a> {
     Whole(&'a Surface),
-    Window(Surface),
+    // Boxed: a surface holds the codec's parameters (with their per-level quantizers, some
+    // hundreds of bytes), the other variants a pointer.
+    Window(Box<Surface>),
     Shared(Arc<Surface>),
     Nothing,
 }
@@ -256,7 +258,8 @@ impl Tiler {
         if self.whole_for() {
             return self.whole().map(Held::Whole);
         }
-        self.decode_boxes(&boxes, coarsen).map(Held::Window)
+        self.decode_boxes(&boxes, coarsen)
+            .map(|s| Held::Window(Box::new(s)))
     }
 
     /// The heights mesh tile `t` (its block's lattice positions `at`) samples: as

@@ -10,6 +10,7 @@ use crate::hierarchy::mask::encode_mask;
 use crate::lifting::{
     Alpha, MAX_ABS_HEIGHT, clamp_prediction, predict_cells, predict_inner_vertices,
 };
+use crate::quant::Quantizer;
 
 /// What one refinement on the encoder side produces.
 pub(in crate::hierarchy) struct Refinement {
@@ -32,14 +33,15 @@ pub(in crate::hierarchy) fn refine_encode(
     mask: impl Fn(i64, i64) -> Option<bool>,
 ) -> Result<Refinement, CodecError> {
     let g = params.layout().grid(id);
-    let (cells, dc) = quantize_cells(params, &g, p, &target)?;
+    let q = params.quantizer_at(id.level);
+    let (cells, dc) = quantize_cells(params, q, &g, p, &target)?;
     let (vertices, dv) = if params.alpha == Alpha::Half {
-        let (vertices, dv) = quantize_inner_vertices(params, &g, p, &cells, &target)?;
+        let (vertices, dv) = quantize_inner_vertices(params, q, &g, p, &cells, &target)?;
         (Some(vertices), dv)
     } else {
         (None, Vec::new())
     };
-    let bytes = code_record(params, &g, p, &dc, &dv, &mask);
+    let bytes = code_record(params, q, &g, p, &dc, &dv, &mask);
     Ok(Refinement {
         cells,
         vertices,
@@ -56,13 +58,13 @@ fn overflow() -> CodecError {
 #[inline]
 fn quantize_cells(
     params: &CodecParams,
+    q: Quantizer,
     g: &GridMap,
     p: &[i32],
     target: &impl Fn(i64, i64) -> Option<i32>,
 ) -> Result<(Vec<i32>, Vec<i32>), CodecError> {
     let n = params.layout().n();
     let m = n - 1;
-    let q = params.quantizer;
     let step = i64::from(q.step());
     let mut cells = vec![0i32; m * m];
     predict_cells(p, n, &mut cells);
@@ -98,13 +100,13 @@ fn quantize_cells(
 #[inline]
 fn quantize_inner_vertices(
     params: &CodecParams,
+    q: Quantizer,
     g: &GridMap,
     p: &[i32],
     cells: &[i32],
     target: &impl Fn(i64, i64) -> Option<i32>,
 ) -> Result<(Vec<i32>, Vec<i32>), CodecError> {
     let n = params.layout().n();
-    let q = params.quantizer;
     let step = i64::from(q.step());
     let mut vertices = p.to_vec();
     let k = n - 2;
@@ -142,6 +144,7 @@ fn quantize_inner_vertices(
 #[inline]
 fn code_record(
     params: &CodecParams,
+    q: Quantizer,
     g: &GridMap,
     p: &[i32],
     dc: &[i32],
@@ -167,7 +170,7 @@ fn code_record(
     let grid = Some(ParentGrid {
         values: p,
         n,
-        step: params.quantizer.step(),
+        step: q.step(),
     });
     let mut bytes = Vec::new();
     if !params.nodata_mask {

@@ -60,7 +60,7 @@ impl<'a> ShardedEncode<'a> {
             r.check(grid)?;
         }
         Ok(Self::of(
-            Setup::new(grid, resolution, quantizer, opts)?,
+            Setup::new(grid, resolution, quantizer, None, opts)?,
             plan,
         ))
     }

@@ -76,8 +76,16 @@ fn terrain(w: usize, h: usize, holes: &[u16], seed: u64) -> HeightGrid {
 }
 
 fn both_ways(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, storage: &TempStorage) {
-    let old = encode_impl(grid, None, q, opts, Keeping::PerDiamond, &|_, _| {}).unwrap();
-    let new = encode_impl(grid, None, q, opts, Keeping::Field(storage), &|_, _| {}).unwrap();
+    let old = encode_impl(grid, None, (q, None), opts, Keeping::PerDiamond, &|_, _| {}).unwrap();
+    let new = encode_impl(
+        grid,
+        None,
+        (q, None),
+        opts,
+        Keeping::Field(storage),
+        &|_, _| {},
+    )
+    .unwrap();
     assert!(
         old == new,
         "field and per-diamond encoders differ on {}×{} {opts:?}",
@@ -91,7 +99,7 @@ fn in_blocks_too(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, plan: &B
     let whole = encode_impl(
         grid,
         None,
-        q,
+        (q, None),
         opts,
         Keeping::Field(&TempStorage::Memory),
         &|_, _| {},

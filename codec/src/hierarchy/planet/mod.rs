@@ -123,6 +123,7 @@ fn planet_params(
         alpha: opts.alpha,
         coder: opts.coder,
         quantizer,
+        levels: None,
         root_quantizer: super::root_quantizer(quantizer),
         nodata_mask,
         kind: RepoKind::Elevation,
@@ -424,7 +425,7 @@ pub fn verify_planet(encoded: &Encoded, planet: &PlanetGrid) -> Result<VerifyRep
     planet_only(encoded, planet)?;
     let layout = encoded.params.layout();
     let n = layout.n();
-    let mut levels = LevelReport::empty(layout.finest_level());
+    let mut levels = LevelReport::empty(&encoded.params);
     walk_all_with_validity(encoded, |id, p, _| {
         let report = &mut levels[id.level as usize];
         let g = layout.grid(id);

@@ -4,7 +4,8 @@
 use super::RepositoryHead;
 use crate::CodecError;
 use crate::repository::header::{
-    HeaderFields, PlanetProvenance, VerticalDatum, crc32, read_header, reseal_header, write_compact,
+    FLAG_LEVEL_QUANTIZERS, FLAG_RMS_ERROR, HeaderFields, PlanetProvenance, VerticalDatum, crc32,
+    read_header, reseal_header, write_compact,
 };
 
 /// Makes every checksum of a repository-shaped file match its bytes, in place: section CRCs,
@@ -71,6 +72,8 @@ pub const CRAFTABLE_FIELDS: &[&str] = &[
     "resampling_rms",
     "rms_target",
     "rms_measured",
+    "level_k",
+    "level_count",
 ];
 
 /// A hostile writer's header: the repository `b` (format version 3 or later) with one header
@@ -143,6 +146,7 @@ pub fn craft_header(b: &[u8], field: &str, bits: u64) -> Result<Vec<u8>, CodecEr
         }
         "rms_target" => h.rms = Some((float, h.rms.map_or(0.0, |r| r.1))),
         "rms_measured" => h.rms = Some((h.rms.map_or(float, |r| r.0), float)),
+        "level_k" | "level_count" => craft_level_ks(&mut h, field, bits),
         _ => {
             return Err(CodecError::invalid(format!(
                 "no header field {field} (one of {})",
@@ -154,4 +158,21 @@ pub fn craft_header(b: &[u8], field: &str, bits: u64) -> Result<Vec<u8>, CodecEr
     out.extend_from_slice(&sealed[h.header_len..]);
     reseal_checksums(&mut out);
     Ok(out)
+}
+
+/// The per-level quantizers of a crafted header (flag bit 5, set with bit 4 and an RMS bound
+/// where absent; the list starts as the header's `k` on each of the `2K` levels):
+/// `level_k` sets level `(bits >> 32) % count` to the low 32 bits, `level_count` makes the
+/// list `bits % 100` long (past [`crate::quant::MAX_LEVELS`] and away from `2K` on purpose).
+fn craft_level_ks(h: &mut HeaderFields, field: &str, bits: u64) {
+    h.flags |= FLAG_LEVEL_QUANTIZERS | FLAG_RMS_ERROR;
+    h.rms.get_or_insert((1.0, 0.0));
+    let (levels, k) = (usize::from(h.level_pairs) * 2, h.quantizer_k);
+    let ks = h.level_ks.get_or_insert_with(|| vec![k; levels]);
+    if field == "level_count" {
+        ks.resize((bits % 100) as usize, k);
+    } else if !ks.is_empty() {
+        let at = (bits >> 32) as usize % ks.len();
+        ks[at] = bits as u32;
+    }
 }

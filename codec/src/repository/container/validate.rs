@@ -10,13 +10,13 @@ use crate::CodecError;
 use crate::colour::ycocg;
 use crate::entropy::CoderKind;
 use crate::geometry::{DataRect, Domain, Layout};
-use crate::hierarchy::{CodecParams, RepoKind, root_quantizer};
+use crate::hierarchy::{CodecParams, RepoKind, root_quantizer_of};
 use crate::lifting::{Alpha, MAX_ABS_HEIGHT};
-use crate::quant::{QuantPlan, Quantizer, RmsBound};
+use crate::quant::{LevelQuantizers, QuantPlan, Quantizer, RmsBound};
 use crate::repository::GeoRef;
 use crate::repository::header::{
-    FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, HeaderFields, SectionEntry, crc32, read_header,
-    read_prefix, u32_at,
+    FLAG_LEVEL_QUANTIZERS, FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, HeaderFields, SectionEntry,
+    crc32, read_header, read_prefix, u32_at,
 };
 use crate::repository::index::{IndexCoding, IndexEntry, decode_index};
 
@@ -44,11 +44,21 @@ pub(super) fn parse_header(b: &[u8]) -> Result<HeaderFields, CodecError> {
 pub(super) fn parse_params(h: &HeaderFields) -> Result<(CodecParams, QuantPlan), CodecError> {
     let (domain, alpha, coder, lattice) = parse_layout(h)?;
     let (plan, root_quantizer, kind) = parse_plan(h, lattice)?;
+    if let Some(levels) = &plan.levels
+        && levels.len() != usize::from(domain.layout().finest_level())
+    {
+        return Err(CodecError::corrupt(format!(
+            "{} per-level quantizers for a hierarchy of {} levels of records",
+            levels.len(),
+            domain.layout().finest_level()
+        )));
+    }
     let params = CodecParams {
         domain,
         alpha,
         coder,
         quantizer: plan.quantizer,
+        levels: plan.levels,
         root_quantizer,
         nodata_mask: h.flags & FLAG_NODATA_MASK != 0,
         kind,
@@ -63,12 +73,21 @@ pub(super) fn parse_layout(
     h: &HeaderFields,
 ) -> Result<(Domain, Alpha, CoderKind, bool), CodecError> {
     let flags = h.flags;
-    let known =
-        FLAG_NODATA_MASK | FLAG_COLOUR | FLAG_CUBE_SPHERE | FLAG_PLANET_PROVENANCE | FLAG_RMS_ERROR;
+    let known = FLAG_NODATA_MASK
+        | FLAG_COLOUR
+        | FLAG_CUBE_SPHERE
+        | FLAG_PLANET_PROVENANCE
+        | FLAG_RMS_ERROR
+        | FLAG_LEVEL_QUANTIZERS;
     if flags & !known != 0 {
         return Err(CodecError::unsupported(format!(
             "unknown header flags {flags:#x}"
         )));
+    }
+    if flags & FLAG_LEVEL_QUANTIZERS != 0 && flags & FLAG_RMS_ERROR == 0 {
+        return Err(CodecError::corrupt(
+            "per-level quantizers (flag bit 5) without an RMS error bound (bit 4)",
+        ));
     }
     if flags & FLAG_PLANET_PROVENANCE != 0 && flags & FLAG_CUBE_SPHERE == 0 {
         return Err(CodecError::corrupt(
@@ -165,7 +184,8 @@ pub(super) fn parse_plan(
     let flags = h.flags;
     let quantizer = Quantizer::new(h.quantizer_k)
         .map_err(|e| CodecError::corrupt(format!("header quantizer: {e}")))?;
-    let root_q = root_quantizer(quantizer);
+    let levels = parse_level_quantizers(h)?;
+    let root_q = root_quantizer_of(quantizer, levels);
     if let Some(root_k) = h.root_k
         && root_k != root_q.k() as u32
     {
@@ -218,6 +238,7 @@ pub(super) fn parse_plan(
         rms: h
             .rms
             .map(|(target, measured)| RmsBound { target, measured }),
+        levels,
     };
     if plan.rms.is_some() && kind == RepoKind::Colour {
         return Err(CodecError::corrupt(
@@ -225,6 +246,24 @@ pub(super) fn parse_plan(
         ));
     }
     Ok((plan, root_q, kind))
+}
+
+/// The per-level quantizers of flag bit 5: each a valid `k`, the largest the header's `k`
+/// (which the root quantizer and the L∞ bound derive from).
+fn parse_level_quantizers(h: &HeaderFields) -> Result<Option<LevelQuantizers>, CodecError> {
+    let Some(ks) = &h.level_ks else {
+        return Ok(None);
+    };
+    let levels = LevelQuantizers::new(ks)
+        .map_err(|e| CodecError::corrupt(format!("header per-level quantizers: {e}")))?;
+    if levels.max_k() != h.quantizer_k {
+        return Err(CodecError::corrupt(format!(
+            "the largest per-level quantizer k = {} is not the header's k = {}",
+            levels.max_k(),
+            h.quantizer_k
+        )));
+    }
+    Ok(Some(levels))
 }
 
 /// A colour repository's plan: no nodata mask, unit 1, offset 0, lattice input, and a

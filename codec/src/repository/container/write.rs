@@ -17,8 +17,8 @@ use crate::hierarchy::{Encoded, RepoKind};
 use crate::quant::QuantPlan;
 use crate::repository::GeoRef;
 use crate::repository::header::{
-    FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, HeaderFields, PlanetProvenance, SectionEntry, crc32,
-    write_compact,
+    FLAG_LEVEL_QUANTIZERS, FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, HeaderFields, PlanetProvenance,
+    SectionEntry, crc32, write_compact,
 };
 use crate::repository::index::{encode_index, range_shift_for};
 
@@ -58,7 +58,7 @@ pub(super) fn serialize_to(
     provenance: Option<&PlanetProvenance>,
 ) -> Result<u64, CodecError> {
     let p = &encoded.params;
-    if p.quantizer != plan.quantizer {
+    if p.quantizer != plan.quantizer || p.levels != plan.levels {
         return Err(CodecError::invalid(
             "the quantization plan does not match the encoded hierarchy's quantizer",
         ));
@@ -105,6 +105,7 @@ pub(super) fn serialize_to(
         wkt: georef.and_then(|g| g.wkt.clone()),
         provenance: provenance.copied(),
         rms: plan.rms.map(|r| (r.target, r.measured)),
+        level_ks: plan.levels.map(|l| l.ks().to_vec()),
         sections: section_entries(encoded, &index, &checksums),
         record_count: encoded.records.len() as u64,
         crc: 0,
@@ -181,7 +182,8 @@ pub(super) fn header_flags(
         | flag(p.kind == RepoKind::Colour, FLAG_COLOUR)
         | flag(cube_sphere, FLAG_CUBE_SPHERE)
         | flag(provenance, FLAG_PLANET_PROVENANCE)
-        | flag(plan.rms.is_some(), FLAG_RMS_ERROR))
+        | flag(plan.rms.is_some(), FLAG_RMS_ERROR)
+        | flag(plan.levels.is_some(), FLAG_LEVEL_QUANTIZERS))
 }
 
 /// Writes a repository to `path` atomically, streamed through a buffer.

@@ -4,8 +4,9 @@
 use crate::CodecError;
 
 use super::{
-    FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, HEADER_FETCH_LEN, HeaderFields, MAGIC, MAX_HEADER_LEN,
-    PREFIX_LEN, PlanetProvenance, SectionEntry, VerticalDatum, crc32, u32_at,
+    FLAG_LEVEL_QUANTIZERS, FLAG_PLANET_PROVENANCE, FLAG_RMS_ERROR, HEADER_FETCH_LEN, HeaderFields,
+    MAGIC, MAX_HEADER_LEN, PREFIX_LEN, PlanetProvenance, SectionEntry, VerticalDatum, crc32,
+    u32_at,
 };
 
 /// A cursor over a compact header's field bytes (between the prefix and the CRC).
@@ -122,6 +123,7 @@ fn read_compact_layout(
     let nodata = f.f64()?;
     let provenance = parse_provenance(&mut f, flags)?;
     let rms = parse_rms(&mut f, flags)?;
+    let level_ks = parse_level_ks(&mut f, flags)?;
     let record_count = f.varint()?;
     let sections = parse_sections(&mut f, b.len() as u64)?;
     if f.pos != f.b.len() {
@@ -159,6 +161,7 @@ fn read_compact_layout(
         wkt,
         provenance,
         rms,
+        level_ks,
         sections,
         record_count,
         crc,
@@ -229,6 +232,25 @@ fn parse_rms(f: &mut Fields<'_>, flags: u32) -> Result<Option<(f64, f64)>, Codec
         )));
     }
     Ok(Some((target, measured)))
+}
+
+/// Each level's quantizer `k` (a count, then one varint per level), with its flag only. The
+/// count is checked against the layout and the values against the header's `k` by the
+/// container; here only that they are numbers, at most [`crate::quant::MAX_LEVELS`] of them.
+fn parse_level_ks(f: &mut Fields<'_>, flags: u32) -> Result<Option<Vec<u32>>, CodecError> {
+    if flags & FLAG_LEVEL_QUANTIZERS == 0 {
+        return Ok(None);
+    }
+    let count = f.varint()?;
+    if count == 0 || count > crate::quant::MAX_LEVELS as u64 {
+        return Err(CodecError::corrupt(format!(
+            "{count} per-level quantizers in the header"
+        )));
+    }
+    let ks = (0..count)
+        .map(|_| f.u32("per-level quantizer"))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Some(ks))
 }
 
 /// The four sections' lengths (laid out one after the other from the header's end,
@@ -335,7 +357,8 @@ fn put_georef(out: &mut Vec<u8>, h: &HeaderFields) -> Result<(), CodecError> {
     Ok(())
 }
 
-/// A planet's provenance and the RMS bound, each written when its flag is set.
+/// A planet's provenance, the RMS bound and the per-level quantizers, each written when its
+/// flag is set.
 fn put_provenance_and_rms(out: &mut Vec<u8>, h: &HeaderFields) {
     // The flag decides, as it does for the reader; a flag without values writes zeros.
     if h.flags & FLAG_PLANET_PROVENANCE != 0 {
@@ -352,5 +375,12 @@ fn put_provenance_and_rms(out: &mut Vec<u8>, h: &HeaderFields) {
         let (target, measured) = h.rms.unwrap_or((0.0, 0.0));
         put_float(out, target);
         put_float(out, measured);
+    }
+    if h.flags & FLAG_LEVEL_QUANTIZERS != 0 {
+        let ks = h.level_ks.as_deref().unwrap_or(&[]);
+        crate::repository::index::put_varint(out, ks.len() as u64);
+        for &k in ks {
+            crate::repository::index::put_varint(out, u64::from(k));
+        }
     }
 }

@@ -57,6 +57,7 @@ pub(super) fn read_fixed(b: &[u8], version: u16, crc: u32) -> Result<HeaderField
         wkt: None,
         provenance: None,
         rms: None,
+        level_ks: None,
         sections,
         record_count: u64_at(b, RECORD_COUNT_AT),
         crc,

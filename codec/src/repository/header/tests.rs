@@ -36,6 +36,7 @@ fn sample(geo: bool) -> HeaderFields {
         wkt: None,
         provenance: None,
         rms: None,
+        level_ks: None,
         sections: [
             SectionEntry {
                 offset: 0,
@@ -85,6 +86,7 @@ fn key(h: &HeaderFields) -> String {
             (h.geo_flags, h.nodata_policy, h.vertical_unit),
             (h.roots_x, h.roots_y, h.data_width, h.data_height),
             (h.quantizer_k, h.leaf_error, h.epsg, h.record_count),
+            &h.level_ks,
             floats,
             lengths
         )
@@ -133,6 +135,49 @@ fn an_rms_bound_round_trips_under_flag_bit_4_and_bad_ones_are_refused() {
 }
 
 #[test]
+fn per_level_quantizers_round_trip_under_flag_bit_5_and_bad_counts_are_refused() {
+    let mut h = sample(false);
+    h.flags |= FLAG_RMS_ERROR;
+    h.rms = Some((1.0, 0.9));
+    let without = write_compact(&h).unwrap();
+    h.flags |= FLAG_LEVEL_QUANTIZERS;
+    h.level_ks = Some(vec![100, 7, 0, 100, 300, 2]);
+    let b = write_compact(&h).unwrap();
+    assert_eq!(key(&read_header(&b).unwrap()), key(&h));
+    // A count and six varints: 1 + 1 + 1 + 1 + 1 + 2 + 1 bytes.
+    assert_eq!(b.len(), without.len() + 8);
+    // Without the flag the list is neither written nor read.
+    h.flags &= !FLAG_LEVEL_QUANTIZERS;
+    assert_eq!(write_compact(&h).unwrap(), without);
+    h.flags |= FLAG_LEVEL_QUANTIZERS;
+    for (ks, says) in [
+        (vec![], "0 per-level quantizers"),
+        (
+            vec![1; crate::quant::MAX_LEVELS + 1],
+            "81 per-level quantizers",
+        ),
+    ] {
+        h.level_ks = Some(ks);
+        let e = read_header(&write_compact(&h).unwrap()).unwrap_err();
+        assert!(e.to_string().contains(says), "{e}");
+    }
+    // A value past 32 bits: the list [5] with its value respelled as the varint of 2^32.
+    h.level_ks = Some(vec![5]);
+    let one = write_compact(&h).unwrap();
+    let at = (13..).find(|&i| one[i] != without[i]).unwrap();
+    assert_eq!(one[at..at + 2], [1, 5]);
+    let mut b = one[..=at].to_vec();
+    b.extend_from_slice(&[0x80, 0x80, 0x80, 0x80, 0x10]);
+    b.extend_from_slice(&one[at + 2..one.len() - 4]);
+    let len = (b.len() + 4) as u16;
+    b[10..12].copy_from_slice(&len.to_le_bytes());
+    let crc = crc32(&b);
+    b.extend_from_slice(&crc.to_le_bytes());
+    let e = read_header(&b).unwrap_err();
+    assert!(e.to_string().contains("per-level quantizer"), "{e}");
+}
+
+#[test]
 fn extreme_fields_round_trip_within_the_maximum_length() {
     let mut h = sample(true);
     (h.flags, h.n, h.roots_x, h.roots_y) = (u32::MAX, u32::MAX, u32::MAX, u32::MAX);
@@ -148,6 +193,8 @@ fn extreme_fields_round_trip_within_the_maximum_length() {
     h.nodata = f64::from_bits(0x7FF8_0000_0000_0001);
     // Flag bit 4 is among the flags: the RMS bound's extremes (measured ≤ target).
     h.rms = Some((f64::MAX, f64::MIN_POSITIVE / 3.0));
+    // And bit 5: the most per-level quantizers, each the largest number.
+    h.level_ks = Some(vec![u32::MAX; crate::quant::MAX_LEVELS]);
     for s in &mut h.sections {
         s.length = u64::MAX / 8;
     }
