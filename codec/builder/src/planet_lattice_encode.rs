@@ -9,7 +9,7 @@ use crate::peak_memory::peak_rss;
 use crate::planet_input::PlanetInputs;
 use crate::planet_resampling::{InputResampling, sample_footprint};
 use cbdam_codec::CodecError;
-use cbdam_codec::hierarchy::planet::{Apex, PlanetBlocks, default_cut};
+use cbdam_codec::hierarchy::planet::{Apex, ApexViewWriter, PlanetBlocks, default_cut};
 use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded};
 use cbdam_codec::quant::QuantPlan;
 
@@ -51,17 +51,21 @@ pub fn encode_out_of_core(
     journal: &dyn BlockJournal,
 ) -> Result<LatticeEncode> {
     let resampler = Resampler::new(inputs, n, k, plan)?;
-    let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
+    let cut = default_cut(resampler.domain(), resampler.tile_log2());
+    // What the apex reads of each tile, kept as the outline paints it.
+    let view = ApexViewWriter::new(resampler.domain(), resampler.tile_log2(), cut);
+    let (tiles, outline, valid, held_points) =
+        LatticeTiles::outline(resampler, cache_budget, Some(&view))?;
+    let view = view.finish().map_err(BuildError::from)?;
     let mut painted = PaintedBySteps::new(tiles.resampler.painted());
     let mut peaks: Vec<(&'static str, u64)> = Vec::new();
     let mut peak = |step: &'static str| peaks.extend(peak_rss().map(|p| (step, p)));
     peak("outline");
-    let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
     let mut resampling: Vec<Option<InputResampling>> = vec![None; inputs.inputs.len()];
     // Points the resampling error painted during the blocks.
     let mut early = (0, 0);
     let (encoded, counts) = {
-        let apex = Apex::Encode(block_bytes);
+        let apex = Apex::EncodeFrom(block_bytes, view);
         let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, apex)
             .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
             .map_err(BuildError::from)?;
