@@ -217,7 +217,7 @@ impl ApexView {
         wanted: &BTreeSet<(u8, usize)>,
         min_stride: u32,
     ) -> Result<HashMap<(u8, usize), Arc<PlanetTile>>, CodecError> {
-        let mut by_stride: Vec<Vec<(u64, usize, (u8, usize))>> = vec![Vec::new(); STRIDES];
+        let mut by_stride: Vec<Vec<Span>> = vec![Vec::new(); STRIDES];
         for &(face, index) in wanted {
             let (stride, at, len) = self.place(face, index, min_stride)?;
             by_stride[stride as usize].push((at, len, (face, index)));
@@ -265,13 +265,16 @@ impl ApexView {
     }
 }
 
-/// Reads the records `spans` (offset, length, tile; sorted) of `spilled` into `out`: records
+/// A tile's record in a spill: offset, length and the tile (face, index).
+type Span = (u64, usize, (u8, usize));
+
+/// Reads the records `spans` (sorted) of `spilled` into `out`: records
 /// lying near each other read together (at most [`READ_BYTES`] a read, gaps of at most
 /// [`GAP_BYTES`]), not one read a tile — an apex level reads tens of thousands of tiles of a
 /// few dozen bytes.
 fn read_spans(
     spilled: &Spilled,
-    spans: &[(u64, usize, (u8, usize))],
+    spans: &[Span],
     out: &mut HashMap<(u8, usize), Arc<PlanetTile>>,
 ) -> Result<(), CodecError> {
     let mut buf = Vec::new();
