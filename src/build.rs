@@ -380,6 +380,14 @@ fn print_planet_timings(s: &PlanetSummary, start: Instant) {
         s.inputs_read,
         s.resampling.len()
     );
+    if !s.reads.is_empty() {
+        let steps: Vec<String> = s
+            .reads
+            .iter()
+            .map(|(step, n)| format!("{step} {n}"))
+            .collect();
+        eprintln!("inputs read by each step: {}", steps.join(", "));
+    }
     if let Some((blocks, tiles)) = s.blocks {
         eprintln!("encoded in {blocks} blocks of the lattice's {tiles} tiles");
     }

@@ -42,6 +42,46 @@ impl Samples {
         }
     }
 
+    /// An empty [`Samples`] for `len` samples given a band at a time
+    /// ([`Samples::push_band`]), in the narrowest representation that has held every band so
+    /// far: the samples of a file read a band at a time, never all as `f64` at once.
+    pub fn with_capacity(len: usize) -> Self {
+        Self::I16(Vec::with_capacity(len))
+    }
+
+    /// Appends `band`, keeping the representation [`Samples::compact`] would choose for every
+    /// value given so far: `false` (nothing appended) where the band needs a wider one and some
+    /// samples are already held — widening them could not restore what the narrowing dropped
+    /// (a zero's sign, a NaN's payload), so the caller compacts the whole instead.
+    pub fn push_band(&mut self, band: &[f64]) -> bool {
+        let fits_i16 = || band.iter().all(|&v| f64::from(v as i16) == v);
+        let fits_f32 = || band.iter().all(|&v| v.is_nan() || f64::from(v as f32) == v);
+        if let Self::I16(v) = self {
+            if fits_i16() {
+                v.extend(band.iter().map(|&x| x as i16));
+                return true;
+            }
+            if !v.is_empty() {
+                return false;
+            }
+            *self = Self::F32(Vec::with_capacity(v.capacity()));
+        }
+        if let Self::F32(v) = self {
+            if fits_f32() {
+                v.extend(band.iter().map(|&x| x as f32));
+                return true;
+            }
+            if !v.is_empty() {
+                return false;
+            }
+            *self = Self::F64(Vec::with_capacity(v.capacity()));
+        }
+        if let Self::F64(v) = self {
+            v.extend_from_slice(band);
+        }
+        true
+    }
+
     /// Sample `i`.
     #[inline]
     pub fn get(&self, i: usize) -> f64 {
@@ -211,6 +251,43 @@ impl BandCache {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Samples given a band at a time are what [`Samples::compact`] makes of them all, in
+    /// the same representation (zeros' signs and NaN included), or refused where a band needs
+    /// a wider representation than the samples already held.
+    #[test]
+    fn samples_pushed_band_by_band_are_the_whole_compacted() {
+        let bands: [&[&[f64]]; 6] = [
+            &[&[1.0, -2.0], &[300.0, -32768.0]],
+            &[&[0.5, 2.0], &[-0.0, f64::NAN]],
+            &[&[1.0e300, 2.0], &[0.1, f64::NAN]],
+            &[&[], &[1.0, 2.0]],
+            &[&[1.0, 2.0], &[0.5]],
+            &[&[1.0, 2.5], &[0.1]],
+        ];
+        for (case, bands) in bands.iter().enumerate() {
+            let all: Vec<f64> = bands.iter().flat_map(|b| b.iter().copied()).collect();
+            let mut pushed = Samples::with_capacity(all.len());
+            let taken = bands.iter().all(|b| pushed.push_band(b));
+            let whole = Samples::compact(all.clone());
+            if case >= 4 {
+                assert!(
+                    !taken,
+                    "case {case}: a wider band after narrow samples is refused"
+                );
+                continue;
+            }
+            assert!(taken, "case {case}");
+            let bits =
+                |s: &Samples| -> Vec<u64> { (0..all.len()).map(|i| s.get(i).to_bits()).collect() };
+            assert_eq!(
+                std::mem::discriminant(&pushed),
+                std::mem::discriminant(&whole),
+                "case {case}"
+            );
+            assert_eq!(bits(&pushed), bits(&whole), "case {case}");
+        }
+    }
 
     /// Hits are not decoded again; bands of earlier calls are evicted least recently used first
     /// once over budget, but never those of the current call.

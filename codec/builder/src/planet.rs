@@ -107,6 +107,8 @@ pub struct PlanetSummary {
     pub painted: Vec<(&'static str, u64)>,
     /// Block by block: the peak resident memory after each step ([`LatticeEncode::peaks`]).
     pub peaks: Vec<(&'static str, u64)>,
+    /// Block by block: inputs read from their files by each step ([`LatticeEncode::reads`]).
+    pub reads: Vec<(&'static str, u64)>,
 }
 
 /// Bytes a planet build holds per lattice point its tiles hold when it resamples and encodes
@@ -139,6 +141,7 @@ fn encode_whole(
         blocks: None,
         painted: Vec::new(),
         peaks: Vec::new(),
+        reads: Vec::new(),
     })
 }
 
@@ -370,6 +373,7 @@ pub fn build_planet(
         blocks: lattice.blocks,
         painted: lattice.painted,
         peaks: lattice.peaks,
+        reads: lattice.reads,
     })
 }
 

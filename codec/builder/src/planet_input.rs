@@ -318,6 +318,9 @@ fn read_samples(
         )));
     }
     let band = reader.band_rows().max(1);
+    if !parallel && let Some(samples) = read_band_by_band(&reader, band, width * height)? {
+        return Ok(samples);
+    }
     let mut values = vec![0.0; width * height];
     let read_band = |(b, out): (usize, &mut [f64])| {
         let start = b * band;
@@ -339,6 +342,27 @@ fn read_samples(
             .try_for_each(read_band)?;
     }
     Ok(Samples::compact(values))
+}
+
+/// The samples `reader` gives, `len` of them, read `band` rows at a time into their narrowest
+/// representation as they come ([`Samples::push_band`]: an SRTM tile holds its 2 bytes a
+/// sample and one band of `f64`, not 8 bytes a sample and a copy): `None` where a band needed
+/// a wider representation than the samples before it (read whole then).
+fn read_band_by_band(
+    reader: &TileReader,
+    band: usize,
+    len: usize,
+) -> std::result::Result<Option<Samples>, CodecError> {
+    let height = reader.height();
+    let mut samples = Samples::with_capacity(len);
+    let mut rows = Vec::new();
+    for start in (0..height).step_by(band) {
+        reader.read_rows(start..(start + band).min(height), &mut rows)?;
+        if !samples.push_band(&rows) {
+            return Ok(None);
+        }
+    }
+    Ok(Some(samples))
 }
 
 /// Opens one input from its header and places it on the Earth, or says why it cannot be. An input without

@@ -26,7 +26,7 @@ use cbdam_codec::CodecError;
 use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;
 use cbdam_codec::geometry::Domain;
-use cbdam_codec::hierarchy::planet::{PlanetOutline, PlanetTiles, tile_log2};
+use cbdam_codec::hierarchy::planet::{ApexViewWriter, PlanetOutline, PlanetTiles, tile_log2};
 use cbdam_codec::hierarchy::resolution::{COARSE_ONLY, HOLE};
 use cbdam_codec::hierarchy::{PlanetGrid, PlanetTile};
 use cbdam_codec::quant::{HeightGrid, QuantPlan};
@@ -450,10 +450,12 @@ fn tile_bytes(points: usize) -> u64 {
 impl<'a> LatticeTiles<'a> {
     /// Resamples every tile once (on the current rayon pool, one tile per worker at a time):
     /// the outline of the planet, the stride of every tile, and the distinct lattice points
-    /// with data and the points the tiles hold.
+    /// with data and the points the tiles hold; each tile also put in `apex` where given (what
+    /// the apex will read of it, so that the apex paints nothing).
     pub fn outline(
         resampler: Resampler<'a>,
         cache_budget: u64,
+        apex: Option<&ApexViewWriter>,
     ) -> Result<(Self, PlanetOutline, u64, u64)> {
         let d = *resampler.domain();
         let per_face = resampler.tiles_per_face();
@@ -468,6 +470,9 @@ impl<'a> LatticeTiles<'a> {
                 |(mut o, mut s, valid, held): Part, i| -> Result<Part> {
                     let face = (i / per_face) as u8;
                     let (tile, _) = resampler.final_tile(face, i % per_face)?;
+                    if let Some(apex) = apex {
+                        apex.put(face, i % per_face, &tile)?;
+                    }
                     o.add(face, &tile);
                     s.push((face, i % per_face, tile.stride));
                     let v = valid_in_tile(&d, face, &tile);

@@ -9,7 +9,7 @@ use crate::peak_memory::peak_rss;
 use crate::planet_input::PlanetInputs;
 use crate::planet_resampling::{InputResampling, sample_footprint};
 use cbdam_codec::CodecError;
-use cbdam_codec::hierarchy::planet::{Apex, PlanetBlocks, default_cut};
+use cbdam_codec::hierarchy::planet::{Apex, ApexViewWriter, PlanetBlocks, default_cut};
 use cbdam_codec::hierarchy::{BlockJournal, EncodeOptions, Encoded};
 use cbdam_codec::quant::QuantPlan;
 
@@ -31,6 +31,8 @@ pub struct LatticeEncode {
     /// Block by block: the process's peak resident memory after each step, bytes
     /// ([`crate::peak_memory::peak_rss`]; empty where the system does not say).
     pub peaks: Vec<(&'static str, u64)>,
+    /// Block by block: inputs read from their files by each step ([`PlanetInputs::reads`]).
+    pub reads: Vec<(&'static str, u64)>,
 }
 
 /// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
@@ -50,23 +52,26 @@ pub fn encode_out_of_core(
     (cache_budget, block_bytes): (u64, u64),
     journal: &dyn BlockJournal,
 ) -> Result<LatticeEncode> {
+    let mut figures = StepFigures::new(inputs);
     let resampler = Resampler::new(inputs, n, k, plan)?;
-    let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
+    let cut = default_cut(resampler.domain(), resampler.tile_log2());
+    // What the apex reads of each tile, kept as the outline paints it.
+    let view = ApexViewWriter::new(resampler.domain(), resampler.tile_log2(), cut);
+    let (tiles, outline, valid, held_points) =
+        LatticeTiles::outline(resampler, cache_budget, Some(&view))?;
+    let view = view.finish().map_err(BuildError::from)?;
     let mut painted = PaintedBySteps::new(tiles.resampler.painted());
-    let mut peaks: Vec<(&'static str, u64)> = Vec::new();
-    let mut peak = |step: &'static str| peaks.extend(peak_rss().map(|p| (step, p)));
-    peak("outline");
-    let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
+    figures.after("outline");
     let mut resampling: Vec<Option<InputResampling>> = vec![None; inputs.inputs.len()];
     // Points the resampling error painted during the blocks.
     let mut early = (0, 0);
     let (encoded, counts) = {
-        let apex = Apex::Encode(block_bytes);
+        let apex = Apex::EncodeFrom(block_bytes, view);
         let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, apex)
             .and_then(|b| b.with_block_bytes(tiles.strides(), (block_bytes, 1)))
             .map_err(BuildError::from)?;
         painted.step(tiles.resampler.painted(), APEX, ((0, 0), (0, 0)));
-        peak("apex");
+        figures.after("apex");
         let counts = (
             blocks.block_count(),
             tiles.strides().iter().map(Vec::len).sum(),
@@ -95,7 +100,7 @@ pub fn encode_out_of_core(
         (encoded.map_err(BuildError::from)?, counts)
     };
     painted.step(tiles.resampler.painted(), BLOCKS, (early, (0, 0)));
-    peak("blocks");
+    figures.after("blocks");
     // The apex and the blocks are let go before the global inputs are measured.
     let resampling = resampling
         .into_iter()
@@ -103,7 +108,7 @@ pub fn encode_out_of_core(
         .map(|(i, r)| r.map_or_else(|| tiles.resampling(i), Ok))
         .collect::<Result<Vec<_>>>()?;
     painted.step(tiles.resampler.painted(), RESAMPLING, ((0, 0), early));
-    peak("resampling error");
+    figures.after("resampling error");
     Ok(LatticeEncode {
         encoded,
         resampling,
@@ -111,8 +116,38 @@ pub fn encode_out_of_core(
         held_points,
         blocks: Some(counts),
         painted: painted.counts,
-        peaks,
+        peaks: figures.peaks,
+        reads: figures.reads,
     })
+}
+
+/// The process's peak resident memory and the inputs read, after each step.
+struct StepFigures<'i> {
+    inputs: &'i PlanetInputs,
+    peaks: Vec<(&'static str, u64)>,
+    reads: Vec<(&'static str, u64)>,
+    read_before: u64,
+}
+
+impl<'i> StepFigures<'i> {
+    /// Before the outline: the inputs read so far were read for the height range.
+    fn new(inputs: &'i PlanetInputs) -> Self {
+        let read = inputs.reads().0;
+        Self {
+            inputs,
+            peaks: Vec::new(),
+            reads: vec![("height range", read)],
+            read_before: read,
+        }
+    }
+
+    /// After `step`.
+    fn after(&mut self, step: &'static str) {
+        self.peaks.extend(peak_rss().map(|p| (step, p)));
+        let read = self.inputs.reads().0;
+        self.reads.push((step, read - self.read_before));
+        self.read_before = read;
+    }
 }
 
 /// The steps' names in `--timings`: the points painted whole, and in parts of tiles.

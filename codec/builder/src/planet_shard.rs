@@ -117,7 +117,7 @@ pub fn plan(
     let quant = QuantPlan::new(opts.max_error, None, range.0, range.1)?;
     let resampler = Resampler::new(&inputs, opts.diamond_size, k, &quant)?;
     let (lattice, outline, valid, held_points) =
-        pool.install(|| LatticeTiles::outline(resampler, lattice_cache_budget(limit)))?;
+        pool.install(|| LatticeTiles::outline(resampler, lattice_cache_budget(limit), None))?;
     let outline = OutlineFile {
         cut: default_cut(outline.domain(), lattice.tile_log2()),
         strides: lattice.strides().to_vec(),

@@ -5,25 +5,24 @@
 //! stored diamonds (in id order: by face, then column) are cut into runs whose reads fit a
 //! budget of bytes, and each run reads only the tiles under its recorded diamonds, thinned to
 //! the points that level reads (the next level's vertices, `2^(K − ⌈(l + 1)/2⌉)` apart: a coarse
-//! level reads a few points a tile). Each level's refinements, which the next level gathers its
-//! grids from, are spilled ([`RefinedSpill`]) and read back a run's parents at a time; each
-//! diamond's grid is spilled for the blocks ([`ApexGrids`]). Levels `2m` and `2m + 1` read the
-//! same points: the odd level reads back the tiles the even one spilled ([`super::apex_tiles`]). A diamond's refinement depends on
-//! its parents' and the points it reads only, so the records are the whole encoder's, in the
-//! same order.
+//! level reads a few points a tile), from the view written as the tiles were painted
+//! ([`ApexView`]: the apex itself paints nothing). Each level's refinements, which the next
+//! level gathers its grids from, are spilled ([`RefinedSpill`]) and read back a run's parents
+//! at a time; each diamond's grid is spilled for the blocks ([`ApexGrids`]). A diamond's
+//! refinement depends on its parents' and the points it reads only, so the records are the
+//! whole encoder's, in the same order.
 
 use std::collections::{BTreeSet, HashMap};
-use std::sync::Arc;
 
 use rayon::prelude::*;
 
 use super::apex_grids::{ApexGrids, ApexRefinements, GridSpill, RefinedSpill};
-use super::apex_tiles::{ApexTiles, KeptTiles, ReadTiles};
+use super::apex_view::ApexView;
 use super::block_groups::TileGroup;
 use super::grid::{tile_of, tiles_across, tiles_meeting};
 use super::outline::PlanetOutline;
-use super::tile_source::{PlanetTiles, held_planet, tiles_under};
-use super::{PlanetGrid, PlanetTile, refine_diamond, views};
+use super::tile_source::{held_planet, tiles_under};
+use super::{refine_diamond, views};
 use crate::CodecError;
 use crate::geometry::{DiamondId, Domain};
 use crate::hierarchy::encode::grid_from_parents;
@@ -93,10 +92,11 @@ impl PlanetApex {
     }
 
     /// Encodes the levels above `cut` of the planet `outline` outlines (`stored` and `recorded`
-    /// its sets), each run of a level reading at most about `view_bytes` of tiles.
+    /// its sets) from its tiles as `view` holds them, each run of a level reading at most about
+    /// `view_bytes` of tiles.
     pub(super) fn encode(
         outline: &PlanetOutline,
-        tiles: &dyn PlanetTiles,
+        view: &ApexView,
         params: &CodecParams,
         (stored, recorded): (&[Vec<DiamondId>], &[BTreeSet<DiamondId>]),
         cut: u8,
@@ -106,7 +106,8 @@ impl PlanetApex {
         let n = domain.n();
         let (root_field, roots) = {
             let k = domain.layout().k();
-            let view = view_of(outline, tiles, root_tiles(domain, outline.tile_log2), k)?;
+            let wanted = root_tiles(domain, outline.tile_log2);
+            let view = held_planet(outline, view.tiles(&wanted, k)?)?;
             encode_roots(
                 params,
                 |f, x, y| view.get(f, x, y),
@@ -117,23 +118,14 @@ impl PlanetApex {
         let mut index = HashMap::new();
         let mut records = Vec::new();
         let mut prev = ApexRefinements::none(n);
-        let mut kept_before: Option<ReadTiles> = None;
         for level in 0..cut {
             let level_sets = (
                 &stored[usize::from(level)][..],
                 &recorded[usize::from(level)],
             );
             let mut next = RefinedSpill::new(n);
-            // An even level keeps its tiles for the odd level after it (the same points).
-            let keep = (level % 2 == 0).then(KeptTiles::new);
-            let source = ApexTiles {
-                tiles,
-                read: kept_before.as_ref(),
-                keep: keep.as_ref(),
-            };
             for run in level_runs(outline, level, level_sets, view_bytes) {
-                let encoded =
-                    encode_run(outline, &source, params, &root_field, &prev, &run, &grids)?;
+                let encoded = encode_run(outline, view, params, &root_field, &prev, &run, &grids)?;
                 for (id, refined, at) in encoded {
                     index.insert(id, at);
                     if let Some((refined, record)) = refined {
@@ -143,7 +135,6 @@ impl PlanetApex {
                 }
             }
             prev = next.finish()?;
-            kept_before = keep.map(KeptTiles::finish).transpose()?;
         }
         let grids = grids.finish(index)?;
         Ok(Self::from_parts(
@@ -161,7 +152,7 @@ type RunOutput = (DiamondId, Option<(super::Refined, Record)>, u64);
 /// in `grids`.
 fn encode_run(
     outline: &PlanetOutline,
-    tiles: &ApexTiles,
+    tiles: &ApexView,
     params: &CodecParams,
     root_field: &[i32],
     prev: &ApexRefinements,
@@ -340,20 +331,6 @@ fn seen(domain: &Domain, tile_log2: u32, grids: &ApexGrids) -> Vec<(u8, TileSpan
         }
     }
     out
-}
-
-/// A planet holding only `wanted`'s tiles, each thinned to `min_stride`.
-fn view_of(
-    outline: &PlanetOutline,
-    tiles: &dyn PlanetTiles,
-    wanted: BTreeSet<(u8, usize)>,
-    min_stride: u32,
-) -> Result<PlanetGrid, CodecError> {
-    let held = wanted
-        .into_par_iter()
-        .map(|(f, i)| Ok(((f, i), tiles.tile(f, i, min_stride)?)))
-        .collect::<Result<HashMap<(u8, usize), Arc<PlanetTile>>, CodecError>>()?;
-    held_planet(outline, held)
 }
 
 /// The columns and rows (`(first, last)`, inclusive) of the tiles [`tiles_meeting`] gives, a

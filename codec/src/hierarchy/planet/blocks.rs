@@ -29,6 +29,7 @@ use std::collections::{BTreeSet, HashMap};
 use rayon::prelude::*;
 
 use super::apex::PlanetApex;
+use super::apex_view::{ApexView, ApexViewWriter};
 use super::block_groups::{BlockGroups, TileGroup};
 use super::grid::{tiles_across, tiles_meeting};
 use super::outline::PlanetOutline;
@@ -108,11 +109,15 @@ pub fn encode_planet_in_blocks(
 pub const APEX_VIEW_BYTES: u64 = 64 << 20;
 
 /// Where a block-wise encode's apex comes from.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub enum Apex {
     /// Encoded from the tiles, each run of an apex level reading at most about this many bytes
-    /// of tiles ([`super::apex`]): the same apex whatever the budget.
+    /// of tiles ([`super::apex`]): the same apex whatever the budget. The tiles are first
+    /// asked for once each, thinned to what the apex reads ([`ApexViewWriter::put_all`]).
     Encode(u64),
+    /// Encoded as [`Apex::Encode`] from a view of the tiles written as they were painted
+    /// ([`ApexViewWriter::put`], for the same planet and cut): no tile is asked for again.
+    EncodeFrom(u64, ApexView),
     /// As [`PlanetBlocks::apex`] gave it for the same planet and cut.
     Given(Box<PlanetApex>),
 }
@@ -173,8 +178,14 @@ impl<'a> PlanetBlocks<'a> {
         let apex = match apex {
             Apex::Given(apex) => *apex,
             Apex::Encode(view_bytes) => {
+                let view = ApexViewWriter::new(&domain, outline.tile_log2, cut);
+                view.put_all(tiles, domain.faces())?;
                 let sets = (&sets.stored[..], &sets.recorded[..]);
-                PlanetApex::encode(outline, tiles, &params, sets, cut, view_bytes)?
+                PlanetApex::encode(outline, &view.finish()?, &params, sets, cut, view_bytes)?
+            }
+            Apex::EncodeFrom(view_bytes, view) => {
+                let sets = (&sets.stored[..], &sets.recorded[..]);
+                PlanetApex::encode(outline, &view, &params, sets, cut, view_bytes)?
             }
         };
         Ok(Self {

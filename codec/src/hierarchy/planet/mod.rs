@@ -12,7 +12,7 @@
 
 mod apex;
 mod apex_grids;
-mod apex_tiles;
+mod apex_view;
 mod block_groups;
 mod blocks;
 mod grid;
@@ -22,6 +22,7 @@ mod tile_source;
 
 pub use apex::PlanetApex;
 pub use apex_grids::{ApexGrids, ApexRefinements};
+pub use apex_view::{ApexView, ApexViewWriter};
 pub use block_groups::{BlockGroups, TileGroup};
 pub use outline::PlanetOutline;
 
