@@ -105,8 +105,12 @@ pub struct PlanetSummary {
     pub blocks: Option<(usize, usize)>,
     /// Block by block: lattice points painted by each step ([`LatticeEncode::painted`]).
     pub painted: Vec<(&'static str, u64)>,
+    /// Block by block: points the outline did not paint ([`LatticeEncode::outline_covered`]).
+    pub outline_covered: u64,
     /// Block by block: the peak resident memory after each step ([`LatticeEncode::peaks`]).
     pub peaks: Vec<(&'static str, u64)>,
+    /// Block by block: the CPU time of each step ([`LatticeEncode::cpu`]).
+    pub cpu: Vec<(&'static str, (f64, f64))>,
 }
 
 /// Bytes a planet build holds per lattice point its tiles hold when it resamples and encodes
@@ -138,7 +142,9 @@ fn encode_whole(
         held_points: resampled.planet.held_points(),
         blocks: None,
         painted: Vec::new(),
+        outline_covered: 0,
         peaks: Vec::new(),
+        cpu: Vec::new(),
     })
 }
 
@@ -369,7 +375,9 @@ pub fn build_planet(
         stages,
         blocks: lattice.blocks,
         painted: lattice.painted,
+        outline_covered: lattice.outline_covered,
         peaks: lattice.peaks,
+        cpu: lattice.cpu,
     })
 }
 

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use super::{LatticeTiles, Resampler};
 use crate::error::{BuildError, Result};
-use crate::peak_memory::peak_rss;
+use crate::peak_memory::{cpu_seconds, peak_rss};
 use crate::planet_input::PlanetInputs;
 use crate::planet_resampling::{InputResampling, sample_footprint};
 use cbdam_codec::CodecError;
@@ -28,9 +28,15 @@ pub struct LatticeEncode {
     /// Block by block: lattice points painted (resampled from the inputs) by each step, in
     /// order; a point painted again counts again.
     pub painted: Vec<(&'static str, u64)>,
+    /// Block by block: points the outline proved to take a fine input's valid sample and did
+    /// not paint ([`Resampler::covered`]).
+    pub outline_covered: u64,
     /// Block by block: the process's peak resident memory after each step, bytes
     /// ([`crate::peak_memory::peak_rss`]; empty where the system does not say).
     pub peaks: Vec<(&'static str, u64)>,
+    /// Block by block: the CPU time (user, system) of each step, seconds
+    /// ([`crate::peak_memory::cpu_seconds`]; empty where the system does not say).
+    pub cpu: Vec<(&'static str, (f64, f64))>,
 }
 
 /// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
@@ -50,11 +56,11 @@ pub fn encode_out_of_core(
     (cache_budget, block_bytes): (u64, u64),
     journal: &dyn BlockJournal,
 ) -> Result<LatticeEncode> {
+    let mut meter = StepMeter::start();
     let resampler = Resampler::new(inputs, n, k, plan)?;
     let (tiles, outline, valid, held_points) = LatticeTiles::outline(resampler, cache_budget)?;
     let mut painted = PaintedBySteps::new(tiles.resampler.painted());
-    let mut peaks: Vec<(&'static str, u64)> = Vec::new();
-    let mut peak = |step: &'static str| peaks.extend(peak_rss().map(|p| (step, p)));
+    let mut peak = |step: &'static str| meter.step(step);
     peak("outline");
     let cut = default_cut(outline.domain(), tiles.resampler.tile_log2());
     let mut resampling: Vec<Option<InputResampling>> = vec![None; inputs.inputs.len()];
@@ -111,8 +117,38 @@ pub fn encode_out_of_core(
         held_points,
         blocks: Some(counts),
         painted: painted.counts,
-        peaks,
+        outline_covered: tiles.resampler.covered(),
+        peaks: meter.peaks,
+        cpu: meter.cpu,
     })
+}
+
+/// The peak resident memory after each step of a build and the CPU time each took.
+struct StepMeter {
+    peaks: Vec<(&'static str, u64)>,
+    cpu: Vec<(&'static str, (f64, f64))>,
+    /// The CPU time (user, system) when the last step ended.
+    last: Option<(f64, f64)>,
+}
+
+impl StepMeter {
+    fn start() -> Self {
+        Self {
+            peaks: Vec::new(),
+            cpu: Vec::new(),
+            last: cpu_seconds(),
+        }
+    }
+
+    /// Step `step` has ended.
+    fn step(&mut self, step: &'static str) {
+        self.peaks.extend(peak_rss().map(|p| (step, p)));
+        let now = cpu_seconds();
+        if let (Some(a), Some(b)) = (self.last, now) {
+            self.cpu.push((step, (b.0 - a.0, b.1 - a.1)));
+        }
+        self.last = now;
+    }
 }
 
 /// The steps' names in `--timings`: the points painted whole, and in parts of tiles.
