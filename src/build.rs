@@ -401,6 +401,11 @@ fn print_planet_timings(s: &PlanetSummary, start: Instant) {
             "lattice points painted (resampled from the inputs; again counts again): {}",
             steps.join(", ")
         );
+        eprintln!(
+            "lattice points the outline proved to take a fine input's valid sample, not painted: \
+             {:.1} M",
+            s.outline_covered as f64 / 1e6
+        );
     }
     if !s.peaks.is_empty() {
         let steps: Vec<String> = s
@@ -409,6 +414,14 @@ fn print_planet_timings(s: &PlanetSummary, start: Instant) {
             .map(|(step, b)| format!("{step} {:.1} MiB", *b as f64 / (1u64 << 20) as f64))
             .collect();
         eprintln!("peak resident memory after each step: {}", steps.join(", "));
+    }
+    if !s.cpu.is_empty() {
+        let steps: Vec<String> = s
+            .cpu
+            .iter()
+            .map(|(step, (user, sys))| format!("{step} {user:.2} + {sys:.2} s"))
+            .collect();
+        eprintln!("CPU of each step (user + system): {}", steps.join(", "));
     }
 }
 

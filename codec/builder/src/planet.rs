@@ -105,10 +105,14 @@ pub struct PlanetSummary {
     pub blocks: Option<(usize, usize)>,
     /// Block by block: lattice points painted by each step ([`LatticeEncode::painted`]).
     pub painted: Vec<(&'static str, u64)>,
+    /// Block by block: points the outline did not paint ([`LatticeEncode::outline_covered`]).
+    pub outline_covered: u64,
     /// Block by block: the peak resident memory after each step ([`LatticeEncode::peaks`]).
     pub peaks: Vec<(&'static str, u64)>,
     /// Block by block: inputs read from their files by each step ([`LatticeEncode::reads`]).
     pub reads: Vec<(&'static str, u64)>,
+    /// Block by block: the CPU time of each step ([`LatticeEncode::cpu`]).
+    pub cpu: Vec<(&'static str, (f64, f64))>,
 }
 
 /// Bytes a planet build holds per lattice point its tiles hold when it resamples and encodes
@@ -140,8 +144,10 @@ fn encode_whole(
         held_points: resampled.planet.held_points(),
         blocks: None,
         painted: Vec::new(),
+        outline_covered: 0,
         peaks: Vec::new(),
         reads: Vec::new(),
+        cpu: Vec::new(),
     })
 }
 
@@ -372,8 +378,10 @@ pub fn build_planet(
         stages,
         blocks: lattice.blocks,
         painted: lattice.painted,
+        outline_covered: lattice.outline_covered,
         peaks: lattice.peaks,
         reads: lattice.reads,
+        cpu: lattice.cpu,
     })
 }
 

@@ -59,6 +59,8 @@ pub struct Resampler<'a> {
     /// Lattice points painted so far: all, and those of parts of tiles.
     painted: AtomicU64,
     painted_parts: AtomicU64,
+    /// Points the outline found covered by a fine input's valid samples, not painted.
+    covered: AtomicU64,
 }
 
 impl<'a> Resampler<'a> {
@@ -84,6 +86,7 @@ impl<'a> Resampler<'a> {
                 .collect(),
             painted: AtomicU64::new(0),
             painted_parts: AtomicU64::new(0),
+            covered: AtomicU64::new(0),
         })
     }
 
@@ -117,19 +120,49 @@ impl<'a> Resampler<'a> {
     /// input of each point.
     pub fn final_tile(&self, face: u8, tile: usize) -> Result<(PlanetTile, Vec<u16>)> {
         let mut s = self.tiles.strides[usize::from(face)][tile];
-        let mut painted = self.paint(face, tile, s, None)?;
+        let mut painted = self.paint(face, tile, s, None, None)?;
         // A point that took a finer input's sample than planned: the tile holds every point
         // of that input's stride.
         if let Some(j) = painted.4.filter(|&j| u32::from(j) < s) {
             s = u32::from(j);
-            painted = self.paint(face, tile, s, None)?;
+            painted = self.paint(face, tile, s, None, None)?;
         }
         self.tile_of(tile, s, painted)
     }
 
+    /// Tile `tile` of `face` as the outline needs it: [`Resampler::final_tile`]'s stride,
+    /// classes and validity, but the points of squares proved to take a valid sample of a fine
+    /// input (`planet_lattice_covered.rs`) not painted: they hold height 0 (the outline reads
+    /// no height) — except the points on multiples of `2^keep` where `keep` is given (what the
+    /// apex view keeps of the tile: their heights are [`Resampler::final_tile`]'s).
+    pub fn outline_tile(&self, face: u8, tile: usize, keep: Option<u32>) -> Result<PlanetTile> {
+        let Some(mut covered) = self.covered_points(face, tile)? else {
+            return Ok(self.final_tile(face, tile)?.0);
+        };
+        if let Some(keep) = keep {
+            self.paint_multiples(tile, keep, &mut covered);
+        }
+        // Held at stride 1 (`covered_points`), so no point can take a finer input's sample.
+        let painted = self.paint(face, tile, 0, None, Some(&covered))?;
+        Ok(self.tile_of(tile, 0, painted)?.0)
+    }
+
+    /// Clears in `covered` (a mask of tile `tile`'s points at stride 1) the points whose
+    /// lattice coordinates are both multiples of `2^stride`.
+    fn paint_multiples(&self, tile: usize, stride: u32, covered: &mut [bool]) {
+        let (x0, y0, _, _) = self.rects[tile];
+        let (w, h) = self.tile_size(tile, 0);
+        let on = |c: i64| c & ((1i64 << stride) - 1) == 0;
+        for row in (0..h).filter(|&r| on(y0 + r as i64)) {
+            for col in (0..w).filter(|&c| on(x0 + c as i64)) {
+                covered[row * w + col] = false;
+            }
+        }
+    }
+
     /// Tile `tile` of `face` holding its points on multiples of `2^stride`.
     pub fn tile(&self, face: u8, tile: usize, stride: u32) -> Result<(PlanetTile, Vec<u16>)> {
-        let painted = self.paint(face, tile, stride, None)?;
+        let painted = self.paint(face, tile, stride, None, None)?;
         self.tile_of(tile, stride, painted)
     }
 
@@ -142,7 +175,7 @@ impl<'a> Resampler<'a> {
         stride: u32,
         part: Rect,
     ) -> Result<(PlanetTile, Vec<u16>)> {
-        let painted = self.paint(face, tile, stride, Some(part))?;
+        let painted = self.paint(face, tile, stride, Some(part), None)?;
         self.tile_of(tile, stride, painted)
     }
 
@@ -163,18 +196,24 @@ impl<'a> Resampler<'a> {
     /// One tile's points at stride `2^s`. The inputs that can cover the tile paint it finest
     /// first, each over its own rectangle, each point taking the first that covers it; only
     /// the points in `part` where one is given. A point's position is computed once, however
-    /// many inputs' rectangles hold it.
-    fn paint(&self, face: u8, tile: usize, s: u32, part: Option<Rect>) -> Result<Painted> {
+    /// many inputs' rectangles hold it. The points `covered` names (at stride 1, the whole
+    /// tile) are not painted: valid, class 0, height 0 and no winner.
+    fn paint(
+        &self,
+        face: u8,
+        tile: usize,
+        s: u32,
+        part: Option<Rect>,
+        covered: Option<&[bool]>,
+    ) -> Result<Painted> {
         let rect = self.rects[tile];
         let (x0, y0, _, _) = rect;
         let (w, h) = self.tile_size(tile, s);
         let mut values = vec![0; w * h];
-        let mut valid = vec![false; w * h];
         let mut won = vec![u16::MAX; w * h];
-        let mut class = vec![HOLE; w * h];
-        let mut done = vec![false; w * h];
+        let (mut valid, mut class, mut done) = unpainted(w * h, covered);
         let reaching = self.reaching(face, tile, s, part);
-        self.count_painted((w, h), (x0, y0), s, part);
+        self.count_painted((w, h), (x0, y0), s, part, covered);
         // The inputs a few at a time (read, or found in the cache, only now, and let go when
         // they have painted), so that the samples held do not grow with the candidates.
         for chunk in reaching.chunks(INPUTS_HELD) {
@@ -299,14 +338,20 @@ impl<'a> Resampler<'a> {
     }
 
     /// Adds the points of a `w × h` tile at `(x0, y0)`, stride `2^s` (of `part` only where one
-    /// is given), to those painted.
+    /// is given), to those painted, less those `covered` names (counted apart).
     fn count_painted(
         &self,
         (w, h): (usize, usize),
         (x0, y0): (i64, i64),
         s: u32,
         part: Option<Rect>,
+        covered: Option<&[bool]>,
     ) {
+        if let Some(c) = covered {
+            let n = c.iter().filter(|&&c| c).count() as u64;
+            self.painted.fetch_sub(n, Ordering::Relaxed);
+            self.covered.fetch_add(n, Ordering::Relaxed);
+        }
         let painted = match part {
             None => (w * h) as i64,
             // The part's points on the stride.
@@ -376,6 +421,12 @@ impl<'a> Resampler<'a> {
         )
     }
 
+    /// Points the outline found covered by a fine input's valid samples and did not paint
+    /// ([`Resampler::outline_tile`]).
+    pub fn covered(&self) -> u64 {
+        self.covered.load(Ordering::Relaxed)
+    }
+
     /// The geodetic position of lattice point `(x, y)` of `face`. Interior points are their own
     /// canonical point; edge and corner points are computed from their owner, so every face
     /// holding one sees the same bits.
@@ -386,6 +437,19 @@ impl<'a> Resampler<'a> {
         } else {
             lattice_lat_lon(&self.domain, face, x, y).expect("a point of the face")
         }
+    }
+}
+
+/// Validity, classes and whether done of `n` points before any is painted: holes, but those
+/// `covered` names (valid, class 0, done).
+fn unpainted(n: usize, covered: Option<&[bool]>) -> (Vec<bool>, Vec<u8>, Vec<bool>) {
+    match covered {
+        None => (vec![false; n], vec![HOLE; n], vec![false; n]),
+        Some(c) => (
+            c.to_vec(),
+            c.iter().map(|&c| if c { 0 } else { HOLE }).collect(),
+            c.to_vec(),
+        ),
     }
 }
 
@@ -469,7 +533,8 @@ impl<'a> LatticeTiles<'a> {
                 || (empty(), Vec::new(), 0, 0),
                 |(mut o, mut s, valid, held): Part, i| -> Result<Part> {
                     let face = (i / per_face) as u8;
-                    let (tile, _) = resampler.final_tile(face, i % per_face)?;
+                    let keep = apex.map(ApexViewWriter::finest_stride);
+                    let tile = resampler.outline_tile(face, i % per_face, keep)?;
                     if let Some(apex) = apex {
                         apex.put(face, i % per_face, &tile)?;
                     }
@@ -695,6 +760,9 @@ pub use encode::{LatticeEncode, encode_out_of_core};
 
 #[path = "planet_resampling_bands.rs"]
 mod resampling_bands;
+
+#[path = "planet_lattice_covered.rs"]
+mod covered;
 
 #[cfg(test)]
 #[path = "planet_lattice_tests.rs"]

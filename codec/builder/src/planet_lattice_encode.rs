@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use super::{LatticeTiles, Resampler};
 use crate::error::{BuildError, Result};
-use crate::peak_memory::peak_rss;
+use crate::peak_memory::{cpu_seconds, peak_rss};
 use crate::planet_input::PlanetInputs;
 use crate::planet_resampling::{InputResampling, sample_footprint};
 use cbdam_codec::CodecError;
@@ -28,11 +28,17 @@ pub struct LatticeEncode {
     /// Block by block: lattice points painted (resampled from the inputs) by each step, in
     /// order; a point painted again counts again.
     pub painted: Vec<(&'static str, u64)>,
+    /// Block by block: points the outline proved to take a fine input's valid sample and did
+    /// not paint ([`Resampler::covered`]).
+    pub outline_covered: u64,
     /// Block by block: the process's peak resident memory after each step, bytes
     /// ([`crate::peak_memory::peak_rss`]; empty where the system does not say).
     pub peaks: Vec<(&'static str, u64)>,
     /// Block by block: inputs read from their files by each step ([`PlanetInputs::reads`]).
     pub reads: Vec<(&'static str, u64)>,
+    /// Block by block: the CPU time (user, system) of each step, seconds
+    /// ([`crate::peak_memory::cpu_seconds`]; empty where the system does not say).
+    pub cpu: Vec<(&'static str, (f64, f64))>,
 }
 
 /// Encodes the inputs resampled onto the `n`, `k` lattice block by block, resampling each tile
@@ -116,17 +122,23 @@ pub fn encode_out_of_core(
         held_points,
         blocks: Some(counts),
         painted: painted.counts,
+        outline_covered: tiles.resampler.covered(),
         peaks: figures.peaks,
         reads: figures.reads,
+        cpu: figures.cpu,
     })
 }
 
-/// The process's peak resident memory and the inputs read, after each step.
+/// The process's peak resident memory, the inputs read and the CPU time (user, system) of
+/// each step.
 struct StepFigures<'i> {
     inputs: &'i PlanetInputs,
     peaks: Vec<(&'static str, u64)>,
     reads: Vec<(&'static str, u64)>,
+    cpu: Vec<(&'static str, (f64, f64))>,
     read_before: u64,
+    /// The CPU time when the last step ended.
+    cpu_before: Option<(f64, f64)>,
 }
 
 impl<'i> StepFigures<'i> {
@@ -137,7 +149,9 @@ impl<'i> StepFigures<'i> {
             inputs,
             peaks: Vec::new(),
             reads: vec![("height range", read)],
+            cpu: Vec::new(),
             read_before: read,
+            cpu_before: cpu_seconds(),
         }
     }
 
@@ -147,6 +161,11 @@ impl<'i> StepFigures<'i> {
         let read = self.inputs.reads().0;
         self.reads.push((step, read - self.read_before));
         self.read_before = read;
+        let now = cpu_seconds();
+        if let (Some(a), Some(b)) = (self.cpu_before, now) {
+            self.cpu.push((step, (b.0 - a.0, b.1 - a.1)));
+        }
+        self.cpu_before = now;
     }
 }
 

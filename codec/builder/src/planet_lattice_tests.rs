@@ -316,3 +316,91 @@ fn a_height_outside_the_planned_range_is_an_error_naming_the_input() {
     let r = Resampler::new(&inputs, 17, 4, &plan).unwrap();
     assert!((0..6u8).all(|face| r.tile(face, 0, 0).is_ok()));
 }
+
+/// A fine geographic tile of 201² samples 0.1° apart from `(lat0, lon0)` (its north-west
+/// sample), heights a function of the sample but where `odd` gives one (nodata, NaN).
+fn fine_tile(
+    name: &str,
+    (lat0, lon0): (f64, f64),
+    odd: fn(usize, usize) -> Option<f64>,
+) -> PlanetInput {
+    let mut p = input(name, (lat0, lon0), 0.1, (201, 201));
+    let values = (0..201 * 201)
+        .map(|i| odd(i % 201, i / 201).unwrap_or(((i * 7919) % 1000) as f64 + 0.25))
+        .collect();
+    p.source = SampleSource::Held(Arc::new(Samples::compact(values)));
+    p
+}
+
+/// The outline's tiles ([`Resampler::outline_tile`]) hold the classes and validity the tiles
+/// painted whole hold, though the squares proved covered by the fine tiles are not painted:
+/// four fine tiles sharing their edges (10–50° N, 0–40° E, astride the edge of face 0 and the
+/// north polar face), one with voids every 5°, one with a void of a few samples and one with a
+/// NaN, over a global coarse input; and squares proved covered hold many of their points.
+#[test]
+fn the_outline_s_covered_squares_hold_what_painting_them_holds() {
+    let inputs = PlanetInputs::held(vec![
+        fine_tile("n50e000.tif", (50.0, 0.0), |c, r| {
+            ((40..43).contains(&c) && r == 60).then_some(-9999.0)
+        }),
+        fine_tile("n50e020.tif", (50.0, 20.0), |c, r| {
+            (c % 50 == 25 && r % 50 == 25).then_some(-9999.0)
+        }),
+        fine_tile("n30e000.tif", (30.0, 0.0), |c, r| {
+            (c == 77 && r == 12).then_some(f64::NAN)
+        }),
+        fine_tile("n30e020.tif", (30.0, 20.0), |c, r| {
+            (c == 3 && r == 199).then_some(-9999.0)
+        }),
+        input("globe.tif", (90.0, -180.0), 3.0, (120, 61)),
+    ]);
+    let plan = QuantPlan::new(0.25, None, -10.0, 2000.0).unwrap();
+    let r = Resampler::new(&inputs, 17, 6, &plan).unwrap();
+    assert!(r.lattice_deg <= 0.1 && r.strides[0] == 0);
+    let mut covered = 0;
+    for face in 0..6u8 {
+        for tile in 0..r.tiles_per_face() {
+            let (whole, _) = r.final_tile(face, tile).unwrap();
+            let outline = r.outline_tile(face, tile, None).unwrap();
+            assert_eq!((outline.stride, outline.rect), (whole.stride, whole.rect));
+            assert_eq!(outline.class, whole.class, "face {face} tile {tile}");
+            assert_eq!(
+                outline.grid.valid, whole.grid.valid,
+                "face {face} tile {tile}"
+            );
+            let mask = r.covered_points(face, tile).unwrap();
+            for (k, painted) in mask.iter().flatten().map(|&c| !c).enumerate() {
+                assert!(!painted || outline.grid.values[k] == whole.grid.values[k]);
+            }
+            covered += mask.iter().flatten().filter(|&&c| c).count();
+        }
+    }
+    // The fine tiles (40° × 40°) hold about 200 000 lattice points at 0.088°.
+    assert!(covered > 50_000, "{covered} points proved covered");
+    assert_eq!(r.covered(), covered as u64);
+    // Kept for the apex view: the points on multiples of 4 hold the heights painted whole.
+    let mut kept = 0;
+    for face in 0..6u8 {
+        for tile in 0..r.tiles_per_face() {
+            let (whole, _) = r.final_tile(face, tile).unwrap();
+            let outline = r.outline_tile(face, tile, Some(2)).unwrap();
+            let (x0, y0, x1, _) = whole.rect;
+            let s = whole.stride;
+            let w = ((x1 - x0) >> s) as usize + 1;
+            for (k, (&a, &b)) in outline
+                .grid
+                .values
+                .iter()
+                .zip(&whole.grid.values)
+                .enumerate()
+            {
+                let (x, y) = (x0 + ((k % w) << s) as i64, y0 + ((k / w) << s) as i64);
+                if x % 4 == 0 && y % 4 == 0 {
+                    assert_eq!(a, b, "face {face} tile {tile} point ({x}, {y})");
+                    kept += 1;
+                }
+            }
+        }
+    }
+    assert!(kept > covered / 32, "{kept} kept points checked");
+}
