@@ -126,13 +126,15 @@ fn prefetching_when_idle_waits_for_the_cut_to_lack_nothing() {
         assert!(s.prefetch_wants <= limit, "frame {}: {s:?}", s.frame);
         if s.cut_wants > 0 {
             assert_eq!(s.prefetch_wants, 0, "frame {}: {s:?}", s.frame);
-            // What the source is asked for is exactly what the cut lacks: any prefetch of an
-            // earlier frame was withdrawn.
-            assert_eq!(
-                s.access.in_flight as usize, s.cut_wants,
-                "frame {}: {s:?}",
-                s.frame
-            );
+            // What the source is asked for is what the cut lacks and nothing more: any
+            // prefetch of an earlier frame was withdrawn. Exactly that, unless the frame ran
+            // out of time: a record that has arrived then waits to be decoded, wanted by the
+            // cut but no longer in flight (seen once in CI on a loaded machine).
+            let in_flight = s.access.in_flight as usize;
+            assert!(in_flight <= s.cut_wants, "frame {}: {s:?}", s.frame);
+            if !s.budget_exhausted {
+                assert_eq!(in_flight, s.cut_wants, "frame {}: {s:?}", s.frame);
+            }
         }
     }
     let lacking = idle.iter().filter(|s| s.cut_wants > 0).count();
