@@ -209,6 +209,16 @@ pub fn listing(dir: &Path) -> Vec<PathBuf> {
     v
 }
 
+/// The names left in `dir`, sorted.
+pub fn names_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
 /// Jacksboro built into `dir` at 2 m: small and quick, and the viewer's and renderer's cuts
 /// converge on it in a few frames.
 pub fn jacksboro(dir: &Path) -> PathBuf {

@@ -14,7 +14,7 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use crate::util::{cbdam, data, s, skip_unless_ci, stderr, stdout};
+use crate::util::{cbdam, data, names_in, s, skip_unless_ci, stderr, stdout};
 
 /// Exit status of the wrapper when the tmpfs could not be mounted.
 const NO_MOUNT: i32 = 97;
@@ -68,16 +68,6 @@ fn check_named(output: &Output, mount: &Path, what: &str, said: &[&str]) {
 /// `args` as the `&str`s `cbdam` takes.
 fn argv(args: &[String]) -> Vec<&str> {
     args.iter().map(String::as_str).collect()
-}
-
-/// The names left in `dir`.
-fn names_in(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
-    names
 }
 
 /// `cbdam build` of a plane above `--memory-limit 1M` (lattice and reconstruction field in

@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use crate::util::{cbdam, s, stderr, stdout};
+use crate::util::{cbdam, names_in, s, stderr, stdout};
 
 /// Side of a 3″ SRTM tile.
 const SIDE_3S: usize = 1201;
@@ -171,16 +171,6 @@ fn cbdam_with_file_size_limit(args: &[String], limit: u64) -> std::process::Outp
         });
     }
     command.output().expect("run cbdam")
-}
-
-/// The names left in `dir`.
-fn names_in(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
-    names
 }
 
 /// A planet built block by block (`--memory-limit 4M`) on a disk that fills: once while the
