@@ -94,10 +94,12 @@ pub enum DecodePriority {
     /// always yield to: paced `low_pass` (1920×1080, 2 ms, 2 cores) ran wall p99 6.7–7.0 ms
     /// with nice-19 workers and 2.9 ms with idle ones. The default.
     Idle,
-    /// A nice value, 0 to 19 (0: the caller's priority, as before issue 21's measurements).
+    /// A nice value, 0 to 19, counted from the caller's (0: the caller's priority, as before
+    /// issue 21's measurements).
     Nice(i32),
-    /// `SCHED_OTHER` at a nice value with a short time slice (`sched_setattr`, Linux 6.12 and
-    /// later): a waking frame thread waits at most that slice for a worker's core.
+    /// `SCHED_OTHER` at a nice value (counted from the caller's) with a short time slice
+    /// (`sched_setattr`, Linux 6.12 and later): a waking frame thread waits at most that slice
+    /// for a worker's core.
     Sliced {
         /// 0 to 19.
         nice: i32,
@@ -171,10 +173,13 @@ impl DecodePool {
 }
 
 /// Lowers the calling thread's priority (Linux keeps the scheduling policy and the nice value
-/// per thread). Raising it back needs privileges, which the workers never ask for; a failure
-/// (a kernel without `SCHED_IDLE`) falls back to nice 19, or leaves the thread as it was.
+/// per thread). A nice value counts from the thread's own, so a viewer started under `nice`
+/// keeps its workers and standby threads below it and never above (as root, setting nice 0
+/// outright would raise them). A failure (a kernel without `SCHED_IDLE`) falls back to nice
+/// 19, or leaves the thread as it was.
 #[cfg(target_os = "linux")]
 fn lower_priority(priority: DecodePriority) {
+    let own = own_nice();
     let nice = match priority {
         DecodePriority::Idle => {
             let param = libc::sched_param { sched_priority: 0 };
@@ -191,7 +196,7 @@ fn lower_priority(priority: DecodePriority) {
                 size: std::mem::size_of::<libc::sched_attr>() as u32,
                 sched_policy: libc::SCHED_OTHER as u32,
                 sched_flags: 0,
-                sched_nice: nice,
+                sched_nice: lowered(own, nice),
                 sched_priority: 0,
                 sched_runtime: u64::from(slice_us) * 1000,
                 sched_deadline: 0,
@@ -208,9 +213,31 @@ fn lower_priority(priority: DecodePriority) {
     if nice > 0 {
         // SAFETY: plain integers, no memory of ours; `who` 0 is the calling thread.
         unsafe {
-            libc::setpriority(libc::PRIO_PROCESS, 0, nice);
+            libc::setpriority(libc::PRIO_PROCESS, 0, lowered(own, nice));
         }
     }
+}
+
+/// The calling thread's nice value (0 where it cannot be read).
+#[cfg(target_os = "linux")]
+fn own_nice() -> i32 {
+    // SAFETY: errno is the calling thread's; getpriority takes plain integers, `who` 0 is the
+    // calling thread. It may return -1 as a value, so errno tells an error apart.
+    unsafe {
+        *libc::__errno_location() = 0;
+        let nice = libc::getpriority(libc::PRIO_PROCESS, 0);
+        if *libc::__errno_location() == 0 {
+            nice
+        } else {
+            0
+        }
+    }
+}
+
+/// A thread at nice `own` lowered by `by`: never above 19, never above `own`'s priority.
+#[cfg(target_os = "linux")]
+fn lowered(own: i32, by: i32) -> i32 {
+    own.saturating_add(by.max(0)).min(19).max(own)
 }
 
 #[cfg(all(not(target_os = "linux"), not(target_arch = "wasm32")))]
@@ -286,22 +313,46 @@ mod tests {
     }
 
     /// A sliced worker keeps the normal policy at its nice value (with the slice where the
-    /// kernel takes one, Linux 6.12 and later).
+    /// kernel takes one, Linux 6.12 and later), counted from the thread's own nice value.
     #[cfg(target_os = "linux")]
     #[test]
     fn a_sliced_worker_runs_at_its_nice_value() {
-        let nice = std::thread::spawn(|| {
+        let (own, nice) = std::thread::spawn(|| {
+            let own = own_nice();
             lower_priority(DecodePriority::Sliced {
                 nice: 3,
                 slice_us: 200,
             });
             // SAFETY: plain integers; `who` 0 is the calling thread.
             let policy = unsafe { libc::sched_getscheduler(0) };
-            // SAFETY: as above.
-            (policy, unsafe { libc::getpriority(libc::PRIO_PROCESS, 0) })
+            (own, (policy, own_nice()))
         })
         .join()
         .unwrap();
-        assert_eq!(nice, (libc::SCHED_OTHER, 3));
+        assert_eq!(nice, (libc::SCHED_OTHER, (own + 3).min(19)));
+    }
+
+    /// Under `nice`, no thread is raised above the caller: the standby pool's slice at nice 0
+    /// keeps a thread started at nice 5 at nice 5, and the workers' nice values count from it.
+    /// (As root the kernel would take nice 0 outright; CI runs as root.)
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn threads_under_nice_are_never_raised_above_it() {
+        let after = |priority| {
+            std::thread::spawn(move || {
+                // SAFETY: plain integers; `who` 0 is the calling thread.
+                unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, 5) };
+                let start = own_nice();
+                lower_priority(priority);
+                (start, own_nice())
+            })
+            .join()
+            .unwrap()
+        };
+        let (start, standby) = after(STANDBY_PRIORITY);
+        assert!(start >= 5, "the thread's nice was not raised to 5: {start}");
+        assert_eq!(standby, start);
+        assert_eq!(after(DecodePriority::Nice(4)).1, (start + 4).min(19));
+        assert_eq!(after(DecodePriority::Nice(19)).1, 19);
     }
 }
