@@ -140,6 +140,19 @@ impl<'a> BitReader<'a> {
         r
     }
 
+    /// A reader positioned at bit `bit` of `data` (past the end: an overrun reader).
+    pub fn at_bit(data: &'a [u8], bit: usize) -> Self {
+        let mut r = Self {
+            data,
+            buf: 0,
+            avail: 0,
+            pos: bit / 8,
+        };
+        r.refill();
+        r.consume((bit % 8) as u32);
+        r
+    }
+
     /// Tops the buffer up to at least 56 valid bits. Must only be called with `avail < 56`
     /// (the fast path shifts by `avail`, which must stay below 64).
     #[inline(always)]
@@ -310,6 +323,68 @@ impl<'a> BitReader<'a> {
     }
 }
 
+/// Reads bits MSB-first from a copy of its input followed by eight zero bytes, a whole 57-bit
+/// window with one load: its only state is the bit position, so a decoder's loop can keep two
+/// of them in registers. Like [`BitReader`] it never fails: past the end it gives zero bits,
+/// and [`is_overrun`](Self::is_overrun) tells.
+#[derive(Debug, Clone, Copy)]
+pub struct PaddedBitReader<'a> {
+    /// The input, then at least eight zero bytes.
+    padded: &'a [u8],
+    /// Length of the input.
+    len: usize,
+    /// Bits consumed, including zero bits past the end.
+    bit: usize,
+}
+
+impl<'a> PaddedBitReader<'a> {
+    /// A reader at the first bit of `data`, whose copy it keeps in `store`.
+    pub fn new(data: &[u8], store: &'a mut Vec<u8>) -> Self {
+        store.clear();
+        store.extend_from_slice(data);
+        store.extend_from_slice(&[0; 8]);
+        Self {
+            padded: store,
+            len: data.len(),
+            bit: 0,
+        }
+    }
+
+    /// The next bits, left-aligned: at least the top 57 are the stream's (zero past its end).
+    #[inline(always)]
+    pub fn window(&self) -> u64 {
+        // At `len` the load is the padding: zeros, as past the end.
+        let i = (self.bit >> 3).min(self.len);
+        let word = match self.padded.get(i..i + 8) {
+            Some(bytes) => u64::from_be_bytes(bytes.try_into().unwrap_or([0; 8])),
+            None => 0,
+        };
+        word << (self.bit & 7)
+    }
+
+    /// Drops `n` bits.
+    #[inline(always)]
+    pub fn consume(&mut self, n: u32) {
+        self.bit += n as usize;
+    }
+
+    /// Bits consumed so far, including zero padding read past the end.
+    pub fn bits_consumed(&self) -> usize {
+        self.bit
+    }
+
+    /// Moves to bit `bit` of the input.
+    pub fn seek(&mut self, bit: usize) {
+        self.bit = bit;
+    }
+
+    /// Whether more bits were consumed than the input holds.
+    #[inline(always)]
+    pub fn is_overrun(&self) -> bool {
+        self.bit > self.len * 8
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -420,6 +495,31 @@ mod tests {
             let (n, pad) = r.remaining_padding().expect("at most 7 padding bits");
             prop_assert_eq!(n as usize, bytes.len() * 8 - expected_bits);
             prop_assert_eq!(pad, 0);
+        }
+
+        #[test]
+        fn padded_reader_and_at_bit_match_naive_bit_indexing(
+            data in proptest::collection::vec(any::<u8>(), 0..40),
+            steps in proptest::collection::vec(0u32..=57, 0..40),
+        ) {
+            let bit = |i: usize| -> u64 {
+                data.get(i / 8).map_or(0, |b| u64::from(b >> (7 - i % 8) & 1))
+            };
+            let mut store = vec![0xFF; 3];
+            let mut r = PaddedBitReader::new(&data, &mut store);
+            let mut at = 0usize;
+            for &n in &steps {
+                // The window's top 57 bits are the stream's next bits, zero past the end.
+                let want = (0..57).fold(0u64, |acc, j| (acc << 1) | bit(at + j));
+                prop_assert_eq!(r.window() >> 7, want);
+                let mut careful = BitReader::at_bit(&data, at);
+                prop_assert_eq!(careful.bits_consumed(), at);
+                prop_assert_eq!(u64::from(careful.get_bits(32)), want >> 25);
+                r.consume(n);
+                at += n as usize;
+                prop_assert_eq!(r.bits_consumed(), at);
+                prop_assert_eq!(r.is_overrun(), at > data.len() * 8);
+            }
         }
 
         #[test]

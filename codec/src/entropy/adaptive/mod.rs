@@ -224,6 +224,8 @@ pub(crate) struct Scratch {
     dims: Vec<(usize, usize)>,
     /// The token coder's columns of one block row's non-zero leaf blocks.
     slots: Vec<u32>,
+    /// The fast-rice decoder's copies of its two streams, each padded with zero bytes.
+    padded_streams: [Vec<u8>; 2],
 }
 
 impl Scratch {

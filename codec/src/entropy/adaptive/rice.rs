@@ -19,7 +19,7 @@
 //!
 //! Two streams, A and B: A holds each band's header (dense bit, quadtree, `k` table) and the
 //! coefficients of its even rows, B those of its odd rows. A decoder runs the two rows of a pair
-//! side by side, the odd row two coefficients behind (its top-right neighbour must be known),
+//! side by side, the odd row one 4×4 block behind (its top-right neighbour must be known),
 //! so two dependency chains — each through its own bit reader — overlap in the CPU.
 //!
 //! Record: empty when every band is zero; otherwise the LEB128 length of stream A, stream A
@@ -201,6 +201,16 @@ impl Scratch {
             self.slots
                 .extend((bx * B..(bx * B + B).min(w)).map(|x| x as u32));
         }
+    }
+
+    /// Sets `slots` to the first columns of the coded leaf blocks of block row `y / B` (the
+    /// decoder walks them a block at a time).
+    pub(super) fn coded_block_starts(&mut self, y: usize) {
+        let (gw, _) = self.dims[0];
+        let frow = &self.flags[0][(y / B + 1) * (gw + 1) + 1..][..gw];
+        self.slots.clear();
+        let coded = frow.iter().enumerate().filter(|&(_, &f)| f != 0);
+        self.slots.extend(coded.map(|(bx, _)| (bx * B) as u32));
     }
 }
 
