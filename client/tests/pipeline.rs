@@ -230,3 +230,78 @@ fn refine_bench_on_a_repository() {
         runs[4]
     );
 }
+
+/// Where a worker's time per diamond goes beyond the `refine` bench, on a repository file: every
+/// record refined in file order on one thread (grids gathered beforehand, not timed), then
+/// - `refine`: the refinement alone (the bench);
+/// - `+ halves, dropped`: and the four children's halves made from it (`HalfPatch::from_parent`,
+///   what `DecodeJob::node` adds), all dropped at once, so the allocator hands the same memory
+///   back every time;
+/// - `+ halves, kept`: the same, every refinement and half kept until the round ends, as the
+///   client's cache keeps them: new memory for every diamond, as in `cbdam replay`.
+///
+/// Rates in M cells/s (`(N−1)²` a record) of the thread's CPU time, median of 5 rounds.
+/// `CBDAM_BENCH_REPO=FILE cargo test --release -p cbdam-client --test tests worker_decode_cost
+/// -- --ignored --nocapture`
+#[test]
+#[ignore = "a benchmark: needs CBDAM_BENCH_REPO"]
+fn worker_decode_cost_on_a_repository() {
+    use cbdam_client::stats::thread_cpu_seconds;
+    use cbdam_codec::hierarchy::{RefineScratch, Refined};
+    use cbdam_codec::repository::Repository;
+    use std::collections::HashMap;
+    let path = std::env::var("CBDAM_BENCH_REPO").expect("CBDAM_BENCH_REPO=FILE");
+    let repo = Repository::open(Path::new(&path)).unwrap();
+    let decoder = repo.head().decoder().unwrap();
+    let domain = repo.head().params().domain;
+    let entries = repo.head().entries();
+    let mut refined: HashMap<_, Refined> = HashMap::new();
+    let mut grids = Vec::new();
+    let mut scratch = RefineScratch::default();
+    for e in entries {
+        let parents = domain
+            .parents(e.id)
+            .map(|p| p.and_then(|p| refined.get(&p)));
+        let grid = decoder.grid_of(e.id, parents);
+        let r = decoder.refine(e.id, &grid, repo.record(e.id).unwrap(), &mut scratch);
+        grids.push(grid);
+        refined.insert(e.id, r.unwrap());
+    }
+    let cells = ((domain.n() - 1).pow(2) * entries.len()) as f64;
+    let halves = |id, r: &Refined| {
+        domain
+            .children(id)
+            .map(|c| c.and_then(|c| HalfPatch::from_parent(&domain, c, id, r)))
+    };
+    let mut rate = |with_halves: bool, keep: bool| {
+        let mut runs = Vec::new();
+        for _ in 0..5 {
+            let mut kept = Vec::new();
+            let t = thread_cpu_seconds().expect("a thread CPU clock");
+            for (e, grid) in entries.iter().zip(&grids) {
+                let record = repo.record(e.id).unwrap();
+                let r = decoder.refine(e.id, grid, record, &mut scratch).unwrap();
+                let h = with_halves.then(|| halves(e.id, &r));
+                if keep {
+                    kept.push((r, h));
+                } else {
+                    std::hint::black_box((r, h));
+                }
+            }
+            runs.push(cells / (thread_cpu_seconds().unwrap() - t) / 1e6);
+            drop(kept);
+        }
+        runs.sort_by(f64::total_cmp);
+        runs[2]
+    };
+    let bench = rate(false, false);
+    let dropped = rate(true, false);
+    let kept = rate(true, true);
+    println!(
+        "{path}: {} records; M cells/s of CPU time: refine {bench:.1}, + halves, dropped \
+         {dropped:.1} ({:.2}× refine), + halves, kept {kept:.1} ({:.2}×)",
+        entries.len(),
+        dropped / bench,
+        kept / bench
+    );
+}

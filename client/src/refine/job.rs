@@ -226,8 +226,11 @@ impl DecodeJob {
             Some(_) => coloured::split(bytes)?,
             None => (bytes, &[][..]),
         };
-        let grid = self.grid_of(id, parents);
-        let r = SCRATCH.with_borrow_mut(|s| self.decoder.refine(id, &grid, elevation, s))?;
+        // The grid is only read by the refinement: one buffer per worker, not one per diamond.
+        let r = GRID.with_borrow_mut(|grid| {
+            self.grid_into(id, parents, grid);
+            SCRATCH.with_borrow_mut(|s| self.decoder.refine(id, grid, elevation, s))
+        })?;
         let c = self.refine_colour(id, colour, parents)?;
         Ok(self.node(id, r, c))
     }
@@ -269,16 +272,26 @@ impl DecodeJob {
     }
 
     fn grid_of(&self, id: DiamondId, parents: &ParentNodes) -> Vec<i32> {
+        let mut grid = Vec::new();
+        self.grid_into(id, parents, &mut grid);
+        grid
+    }
+
+    /// [`DecodeJob::grid_of`] into `grid` (resized to `N × N`, every value written), so that a
+    /// worker can keep one buffer for every diamond it refines.
+    fn grid_into(&self, id: DiamondId, parents: &ParentNodes, grid: &mut Vec<i32>) {
         if id.level == 0 {
             let sid = id.coarser(self.shift);
-            return self.decoder.grid_of(sid, [None, None]);
+            *grid = self.decoder.grid_of(sid, [None, None]);
+            return;
         }
         let n = self.domain.n();
-        let mut grid = vec![0i32; n * n];
+        grid.resize(n * n, 0);
+        let grid = &mut grid[..];
         if let Some(halves) = self.halves_of(id, parents) {
             let heights = halves.map(|h| h.map(|h| &h.heights[..]));
             let diagonal = self.domain.layout().diagonal(id);
-            join_halves(diagonal, n, heights, &mut grid);
+            join_halves(diagonal, n, heights, grid);
             debug_assert!(
                 heights.iter().flatten().all(|h| (0..n).all(|j| {
                     let k = match diagonal {
@@ -289,11 +302,10 @@ impl DecodeJob {
                 })),
                 "the parents of {id} disagree on its diagonal"
             );
-            return grid;
+            return;
         }
         let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
-        gather(&self.domain, id, parents, &mut grid);
-        grid
+        gather(&self.domain, id, parents, grid);
     }
 
     /// The halves of `id` that its parents' nodes hold (made when each parent was refined),
@@ -376,4 +388,7 @@ pub(super) fn root_colour(drape: &Drape, root: DiamondId) -> Result<[Vec<i32>; 3
 thread_local! {
     /// Decoding buffers, one set per worker thread.
     static SCRATCH: std::cell::RefCell<RefineScratch> = std::cell::RefCell::default();
+    /// The grid of the diamond a worker refines ([`DecodeJob::grid_into`]), one per worker
+    /// thread.
+    static GRID: std::cell::RefCell<Vec<i32>> = std::cell::RefCell::default();
 }
