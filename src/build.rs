@@ -490,6 +490,11 @@ impl Progress for Bars {
         }
     }
 
+    /// Printed even with `--quiet`: the build does something other than asked.
+    fn warning(&self, message: &str) {
+        eprintln!("warning: {message}");
+    }
+
     fn resumed(&self, r: &Resumed) {
         if matches!(self, Bars::Quiet) {
             return;

@@ -211,6 +211,65 @@ fn a_planet_lattice_several_times_the_memory_limit_builds_at_its_inputs_level() 
     );
 }
 
+/// A `--memory-limit` under what a planet build holds whatever the limit (its floor: the
+/// program, the cube map's and the lattice tiles' tables, the spills' in-memory parts, each
+/// worker's tile and input) is said before the build, naming the minimum in MiB, and the build's
+/// own peak (the child's `ru_maxrss`) stays within a tenth over that minimum; at a limit over
+/// the minimum nothing is said and the peak stays within a tenth over the limit. One SRTM tile
+/// at its own level (K = 11: 98 304 lattice tiles), under 16M and then 1.25 × the minimum.
+/// Before (main `eb637ec`) nothing was said: the limit only sized the caches and blocks, and
+/// the floor came on top of it.
+#[test]
+fn a_limit_under_the_planet_s_minimum_is_said_and_the_peak_stays_near_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    write_tiles(&d.join("one"), &block(1, 1));
+    let run = |limit: &str| {
+        let o = std::process::Command::new("/usr/bin/time")
+            .args(["-f", "peak-rss-kib %M", env!("CARGO_BIN_EXE_cbdam")])
+            .args(["build", &s(&d.join("one")), "--planet", "--max-error", "2"])
+            .args([
+                "--quiet",
+                "--memory-limit",
+                limit,
+                "-o",
+                &s(&d.join("p.cbdam")),
+            ])
+            .output()
+            .expect("run /usr/bin/time (GNU time)");
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(o.status.success(), "{err}");
+        let after = |key: &str| -> Option<u64> {
+            let at = err.find(key)? + key.len();
+            let digits: String = err[at..].chars().take_while(char::is_ascii_digit).collect();
+            digits.parse().ok()
+        };
+        let minimum = after("under this planet's minimum of about ").map(|m| m << 20);
+        let rss = after("peak-rss-kib ").expect("GNU time's peak") * 1024;
+        (minimum, rss, err)
+    };
+    let mib = |b: u64| b as f64 / f64::from(1 << 20);
+    let (minimum, rss, err) = run("16M");
+    let minimum = minimum.unwrap_or_else(|| panic!("no minimum named under 16M: {err}"));
+    assert!(err.contains("warning: --memory-limit 16 MiB"), "{err}");
+    eprintln!(
+        "16M: minimum {:.0} MiB, peak {:.1} MiB",
+        mib(minimum),
+        mib(rss)
+    );
+    assert!(
+        rss <= minimum + minimum / 10,
+        "peak {:.1} MiB over the {:.0} MiB minimum named",
+        mib(rss),
+        mib(minimum)
+    );
+    let over = minimum + minimum / 4;
+    let (said, rss, err) = run(&format!("{}M", over >> 20));
+    assert_eq!(said, None, "a limit over the minimum: {err}");
+    eprintln!("{:.0}M: peak {:.1} MiB", mib(over), mib(rss));
+    assert!(rss <= over + over / 10, "peak {:.1} MiB", mib(rss));
+}
+
 /// A tile cut short is refused by name, and nothing is left at `-o`.
 #[test]
 fn a_truncated_tile_is_named() {

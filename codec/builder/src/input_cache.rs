@@ -43,7 +43,7 @@ struct State {
 
 /// The cache; see the module notes.
 pub struct InputCache {
-    budget: u64,
+    budget: AtomicU64,
     pinned: HashSet<usize>,
     state: Mutex<State>,
     reads: AtomicU64,
@@ -60,7 +60,7 @@ impl InputCache {
     /// those of the inputs in `pinned`, which are kept once read.
     pub fn with_pinned(budget: u64, pinned: HashSet<usize>) -> Self {
         Self {
-            budget,
+            budget: AtomicU64::new(budget),
             pinned,
             state: Mutex::new(State::default()),
             reads: AtomicU64::new(0),
@@ -69,7 +69,17 @@ impl InputCache {
 
     /// The bytes it may keep.
     pub fn budget(&self) -> u64 {
-        self.budget
+        self.budget.load(Ordering::Relaxed)
+    }
+
+    /// Keeps at most `budget` bytes from now on (those kept now are let go as others are read).
+    pub fn set_budget(&self, budget: u64) {
+        self.budget.store(budget, Ordering::Relaxed);
+    }
+
+    /// Whether input `key` is kept once read, outside the budget.
+    pub fn is_pinned(&self, key: usize) -> bool {
+        self.pinned.contains(&key)
     }
 
     /// Inputs read so far (a read again after eviction counts again).
@@ -154,7 +164,7 @@ impl InputCache {
     /// Drops the least recently used inputs (read, and other than `keep`) until the kept bytes
     /// are within the budget.
     fn evict(&self, s: &mut State, keep: usize) {
-        if s.bytes <= self.budget {
+        if s.bytes <= self.budget() {
             return;
         }
         let mut by_use: Vec<(u64, usize)> = s
@@ -165,7 +175,7 @@ impl InputCache {
             .collect();
         by_use.sort_unstable();
         for (_, k) in by_use {
-            if s.bytes <= self.budget {
+            if s.bytes <= self.budget() {
                 break;
             }
             if let Some(e) = s.entries.remove(&k) {

@@ -26,6 +26,7 @@ pub mod plan;
 pub mod planet;
 mod planet_input;
 pub mod planet_lattice;
+pub mod planet_memory;
 mod planet_overlap;
 mod planet_plan;
 mod planet_resampling;

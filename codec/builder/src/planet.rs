@@ -24,6 +24,7 @@ use crate::assign::AssignedGeoRef;
 use crate::error::{Context, Result, bail};
 pub use crate::planet_input::{GEOGRAPHIC_EPSG, MAX_PLANET_INPUTS, PlanetInput, PlanetInputs};
 use crate::planet_lattice::{LatticeEncode, Resampler, encode_out_of_core};
+use crate::planet_memory::PlanetMemory;
 use crate::planet_plan::valid_in_tile;
 pub use crate::planet_plan::{
     Candidate, TilePlan, choose_level, input_stride, lattice_spacing_deg, plan_tiles,
@@ -183,7 +184,12 @@ fn encode_lattice(
         return Ok((lattice, None));
     }
     let t = Instant::now();
-    let block_bytes = planet_block_bytes(limit);
+    let memory = PlanetMemory::new(inputs, (n, k), rayon::current_num_threads(), limit)?;
+    if let Some(message) = memory.too_small() {
+        progress.warning(&message);
+    }
+    inputs.set_cache_budget(memory.input_cache_budget());
+    let block_bytes = memory.block_bytes();
     let key = crate::journal_key(opts, tiles, enc, None)?
         + &format!("planet=1\nlevel_pairs={k}\nplanet_block_bytes={block_bytes}\n");
     let (journal, resumed) = crate::journal::Journal::open(&opts.output, &key)?;
@@ -196,7 +202,7 @@ fn encode_lattice(
         k,
         plan,
         enc,
-        (lattice_cache_budget(limit), block_bytes),
+        (memory.lattice_cache_budget(), block_bytes),
         &journal,
     )?;
     stages.push((
@@ -206,21 +212,25 @@ fn encode_lattice(
     Ok((lattice, Some(journal)))
 }
 
-/// Bytes of the inputs' samples a planet build keeps besides those in use: an eighth of the
-/// memory limit (the rest is the lattice's). The inputs are read when a lattice tile asks for
+/// Bytes of the inputs' samples a planet build keeps besides those in use while it reads them
+/// for the height range, and a sharded build's steps throughout: an eighth of the memory limit
+/// (the rest is the lattice's; `cbdam build --planet`'s block-wise encode shares the limit less
+/// its floor out instead, [`PlanetMemory`]). The inputs are read when a lattice tile asks for
 /// them, so memory does not grow with their number.
 pub fn input_cache_budget(memory_limit: u64) -> u64 {
     memory_limit / 8
 }
 
-/// Bytes of resampled lattice tiles a planet build keeps for the blocks that read them again
-/// (a block reads its neighbours' edges): a quarter of the memory limit.
+/// Bytes of resampled lattice tiles a sharded planet build keeps for the blocks that read them
+/// again (a block reads its neighbours' edges): a quarter of the memory limit ([`PlanetMemory`]
+/// for `cbdam build --planet`).
 pub fn lattice_cache_budget(memory_limit: u64) -> u64 {
     memory_limit / 4
 }
 
-/// Bytes one block of the block-wise encode is planned to hold (its tiles, and the grids of
-/// the diamonds it owns): a quarter of the memory limit. Tiles are grouped into blocks of
+/// Bytes one block of a sharded planet build is planned to hold (its tiles, and the grids of
+/// the diamonds it owns): a quarter of the memory limit ([`PlanetMemory`] for `cbdam build
+/// --planet`). Tiles are grouped into blocks of
 /// about this much ([`cbdam_codec::hierarchy::planet::BlockGroups`]), so that blocks follow the
 /// data: a coarse face is a few blocks, a fine tile one.
 pub fn planet_block_bytes(memory_limit: u64) -> u64 {

@@ -590,6 +590,20 @@ impl PlanetInputs {
         }
     }
 
+    /// Bytes of the samples of the inputs kept for the whole build (those around the globe),
+    /// each read now if it was not yet.
+    pub(crate) fn pinned_bytes(&self) -> Result<u64> {
+        (0..self.inputs.len())
+            .filter(|&i| self.cache.is_pinned(i))
+            .map(|i| Ok(self.samples(i)?.bytes()))
+            .sum()
+    }
+
+    /// Keeps at most `budget` bytes of the inputs' samples besides those in use from now on.
+    pub(crate) fn set_cache_budget(&self, budget: u64) {
+        self.cache.set_budget(budget);
+    }
+
     /// Inputs read from their files so far (one read again after the cache let it go counts
     /// again), and the cache's budget in bytes.
     pub fn reads(&self) -> (u64, u64) {

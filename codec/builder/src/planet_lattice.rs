@@ -21,7 +21,7 @@ use crate::band_cache::{SampleValues, Samples};
 use crate::error::{BuildError, Result};
 use crate::planet_input::{PlanetInputs, PointSource};
 use crate::planet_plan::{TilePlan, lattice_spacing_deg, plan_tiles, valid_in_tile};
-use crate::planet_resampling::{InputResampling, Resampled, input_resampling, sample_footprint};
+use crate::planet_resampling::{InputResampling, Resampled, sample_footprint};
 use cbdam_codec::CodecError;
 use cbdam_codec::geodesy::cube_map::FaceLattice;
 use cbdam_codec::geodesy::lattice_lat_lon;
@@ -81,9 +81,7 @@ impl<'a> Resampler<'a> {
             strides,
             tiles: plan_tiles(inputs, n, k)?,
             rects: PlanetGrid::tile_rects(&domain, tile_log2),
-            lattices: (0..domain.faces())
-                .map(|face| FaceLattice::new(face, side))
-                .collect(),
+            lattices: FaceLattice::faces(side),
             painted: AtomicU64::new(0),
             painted_parts: AtomicU64::new(0),
             covered: AtomicU64::new(0),
@@ -608,7 +606,7 @@ impl<'a> LatticeTiles<'a> {
     pub fn resampling(&self, input: usize) -> Result<InputResampling> {
         let r = &self.resampler;
         match sample_footprint(&r.inputs.inputs[input], r.strides[input], r.side) {
-            Some(_) => input_resampling(r.inputs, input, &self.input_view(input)?, r.plan),
+            Some(parts) => self.resampling_of_inset(input, &parts),
             None => self.resampling_in_bands(input),
         }
     }
@@ -641,6 +639,13 @@ impl<'a> LatticeTiles<'a> {
         Ok(held)
     }
 
+    /// `log2` of the stride [`LatticeTiles::held`] holds tile `index` of `face` at for
+    /// `min_stride`: its own, or `min_stride` (at most the tile's side) where coarser.
+    fn view_stride(&self, face: u8, index: usize, min_stride: u32) -> u32 {
+        let own = self.strides[usize::from(face)][index];
+        own.max(min_stride.min(self.resampler.tile_log2()))
+    }
+
     /// Tile `index` of `face` as [`LatticeTiles::held`] gives it, or, where the cache does not
     /// hold it and `part` is given, with only the points in `part` painted (not kept).
     fn held_part(
@@ -653,8 +658,7 @@ impl<'a> LatticeTiles<'a> {
         let Some(part) = part else {
             return self.held(face, index, min_stride);
         };
-        let own = self.strides[usize::from(face)][index];
-        let stride = own.max(min_stride.min(self.resampler.tile_log2()));
+        let stride = self.view_stride(face, index, min_stride);
         if let Some(t) = self
             .cache
             .lock()
@@ -667,16 +671,15 @@ impl<'a> LatticeTiles<'a> {
         Ok(Arc::new((Arc::new(tile), won)))
     }
 
-    /// Input `input`'s share of the lattice for its resampling error: the tiles it can cover,
-    /// thinned to its stride (the lattice points its samples are compared with), the others
-    /// empty. Where its samples lie on at most three faces ([`sample_footprint`]), only the
-    /// part of those tiles around them on each face is painted.
-    fn input_view(&self, input: usize) -> Result<Resampled> {
+    /// Input `input`'s share of the lattice for its resampling error: `tiles` (those it can
+    /// cover, [`LatticeTiles::input_tiles_in`]), thinned to its stride (the lattice points its
+    /// samples are compared with), the others empty; of a tile given with a part, only the
+    /// points in that part are painted.
+    fn input_view(&self, input: usize, tiles: Vec<(u8, usize, Option<Rect>)>) -> Result<Resampled> {
         let r = &self.resampler;
         let d = r.domain();
         let stride = r.strides[input];
-        let held = self
-            .input_tiles(input)
+        let held = tiles
             .into_par_iter()
             .map(|(f, i, part)| Ok(((f, i), self.held_part(f, i, stride, part)?)))
             .collect::<Result<HashMap<_, _>>>()?;
@@ -698,9 +701,19 @@ impl<'a> LatticeTiles<'a> {
     /// where they lie on at most three faces ([`sample_footprint`]), else whole (`None`).
     fn input_tiles(&self, input: usize) -> Vec<(u8, usize, Option<Rect>)> {
         let r = &self.resampler;
+        let footprint = sample_footprint(&r.inputs.inputs[input], r.strides[input], r.side);
+        self.input_tiles_in(input, footprint.as_deref())
+    }
+
+    /// [`LatticeTiles::input_tiles`] for the samples whose footprint is `footprint` (`None`:
+    /// every tile the input can cover, whole).
+    fn input_tiles_in(
+        &self,
+        input: usize,
+        footprint: Option<&[(u8, Rect)]>,
+    ) -> Vec<(u8, usize, Option<Rect>)> {
+        let r = &self.resampler;
         let d = r.domain();
-        let stride = r.strides[input];
-        let footprint = sample_footprint(&r.inputs.inputs[input], stride, r.side);
         (0..d.faces())
             .flat_map(|f| (0..r.tiles_per_face()).map(move |i| (f, i)))
             .filter(|&(f, i)| {
@@ -708,7 +721,7 @@ impl<'a> LatticeTiles<'a> {
                     .candidates(f, i)
                     .any(|(c, _)| usize::from(c) == input)
             })
-            .filter_map(|(f, i)| match &footprint {
+            .filter_map(|(f, i)| match footprint {
                 None => Some((f, i, None)),
                 Some(parts) => {
                     let (x0, y0, x1, y1) = r.rects[i];

@@ -290,6 +290,45 @@ fn every_sample_is_compared_on_both_sides_of_a_tile_side() {
     );
 }
 
+/// An inset whose tiles are more than the lattice cache's budget is measured a band of its
+/// rows at a time, each band painting only the parts of its tiles around its own samples
+/// ([`super::LatticeTiles::resampling`]): the same figures, to the bit, as all its rows against
+/// all its tiles at once — with one row a band (a budget of one byte) and with a few bands.
+#[test]
+fn an_inset_measured_in_bands_gives_the_figures_of_all_its_rows_at_once() {
+    let (n, k) = (17, 7);
+    let domain = cbdam_codec::geometry::Domain::cube_sphere(n, k).unwrap();
+    let middle = lattice_lat_lon(&domain, 0, 1024, 1024).unwrap();
+    let inputs = PlanetInputs::held(vec![input(
+        "middle.tif",
+        (middle.lat + 0.61, middle.lon - 0.63),
+        0.02,
+        (64, 400),
+    )]);
+    let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
+    let measured = |budget: u64| {
+        let r = Resampler::new(&inputs, n, k, &plan).unwrap();
+        let strides = r.tiles.strides.clone();
+        let tiles = super::LatticeTiles::with_strides(r, strides, budget).unwrap();
+        let got = tiles.resampling(0).unwrap();
+        let at = got.worst_at.map(|p| (p.lat.to_bits(), p.lon.to_bits()));
+        (
+            got.samples,
+            got.compared,
+            got.max_error.to_bits(),
+            got.rms_error.to_bits(),
+            at,
+        )
+    };
+    let whole = measured(1 << 40);
+    assert!(whole.1 > 20_000, "{whole:?}");
+    // Its four tiles of 1025² points at 8 B: 33.6 MB, so 12 MiB is three bands of 134 rows
+    // (2.7°, 61 lattice steps: more than the footprint's margin of 41).
+    for budget in [1, 12 << 20] {
+        assert_eq!(measured(budget), whole, "budget {budget}");
+    }
+}
+
 /// A height the plan cannot hold is an error naming the input and the lattice point, not a
 /// hole: an inset whose heights lie far outside the planned range.
 #[test]

@@ -201,14 +201,24 @@ pub(crate) fn sample_footprint(
     stride: u32,
     side: i64,
 ) -> Option<Vec<(u8, FaceRect)>> {
+    sample_footprint_of_rows(input, stride, side, 0..input.height)
+}
+
+/// [`sample_footprint`] of the samples in rows `rows` of `input` only (not empty).
+pub(crate) fn sample_footprint_of_rows(
+    input: &crate::planet_input::PlanetInput,
+    stride: u32,
+    side: i64,
+    rows: std::ops::Range<usize>,
+) -> Option<Vec<(u8, FaceRect)>> {
     const Q: usize = 8;
-    let along = |len: usize| (0..len).step_by(Q).chain([len - 1]);
+    let along = |r: std::ops::Range<usize>| r.clone().step_by(Q).chain([r.end - 1]);
     let step = 1i64 << stride;
     let margin = (Q as i64 + 2) * 2 * step + step;
     let reach = (2 * margin) as f64;
     let mut rects = [None::<(f64, f64, f64, f64)>; 6];
-    for r in along(input.height) {
-        for c in along(input.width) {
+    for r in along(rows) {
+        for c in along(0..input.width) {
             let ll = input.lat_lon_of(c, r);
             let (sc_lat, sc_lon) = (ll.lat.to_radians().sin_cos(), ll.lon.to_radians().sin_cos());
             let (own, _, _) = sin_cos_to_face_st(sc_lat, sc_lon);

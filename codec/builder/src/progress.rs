@@ -35,6 +35,9 @@ pub trait Progress: Sync {
     /// Whether the build continues an earlier run's journal ([`crate::journal`]), starts over,
     /// or starts fresh; reported once, before the encode, by builds that keep a journal.
     fn resumed(&self, _resumed: &crate::journal::Resumed) {}
+    /// Something the user should know before the build goes on (a `--memory-limit` under
+    /// what the build needs, [`crate::planet_memory::PlanetMemory::too_small`]).
+    fn warning(&self, _message: &str) {}
 }
 
 /// Any `Fn(ProgressEvent) + Sync` closure is a [`Progress`] (resumption not reported).

@@ -117,8 +117,8 @@ pub fn face_st_to_lat_lon(face: u8, s: f64, t: f64) -> LatLon {
 /// each column — one `atan2` a point instead of two and a `hypot`.
 pub struct FaceLattice {
     face: u8,
-    /// `CubeWarp::PLANET.to_cube(2·i/S − 1)`, `i = 0..=S`.
-    cube: Vec<f64>,
+    /// `CubeWarp::PLANET.to_cube(2·i/S − 1)`, `i = 0..=S` (the same on every face: shared).
+    cube: std::sync::Arc<[f64]>,
     /// Equatorial faces: per column, `(1 − e²)·√(x² + y²)` of the direction and its
     /// longitude in degrees.
     columns: Option<Vec<(f64, f64)>>,
@@ -127,9 +127,25 @@ pub struct FaceLattice {
 impl FaceLattice {
     /// The lattice of `face` with `side` steps a side.
     pub fn new(face: u8, side: i64) -> Self {
-        let cube: Vec<f64> = (0..=side)
+        Self::with_cube(face, Self::cube_table(side))
+    }
+
+    /// The lattices of the six faces with `side` steps a side, sharing one table of the warp.
+    pub fn faces(side: i64) -> Vec<Self> {
+        let cube = Self::cube_table(side);
+        (0..6)
+            .map(|face| Self::with_cube(face, std::sync::Arc::clone(&cube)))
+            .collect()
+    }
+
+    /// `CubeWarp::PLANET.to_cube(2·i/S − 1)`, `i = 0..=S`.
+    fn cube_table(side: i64) -> std::sync::Arc<[f64]> {
+        (0..=side)
             .map(|i| CubeWarp::PLANET.to_cube(2.0 * (i as f64 / side as f64) - 1.0))
-            .collect();
+            .collect()
+    }
+
+    fn with_cube(face: u8, cube: std::sync::Arc<[f64]>) -> Self {
         let [n, u, v] = FACE_FRAMES[usize::from(face)];
         // x and y of `n + a·u + b·v` do not depend on b when v has none (and adding b·0, a
         // zero, to a sum that is never −0 changes no bit).

@@ -31,7 +31,7 @@ use crate::quant::HeightGrid;
 const WHAT: &str = "the planet apex's view of the tiles";
 
 /// Bytes of the view kept in memory (over all strides) before it goes to temporary files.
-const IN_MEMORY_BYTES: usize = 4 << 20;
+pub const IN_MEMORY_BYTES: usize = 4 << 20;
 
 /// Bytes read back at once ([`ApexView::tiles`]): tiles of one stride lying within this span
 /// of its spill (with gaps of at most [`GAP_BYTES`] between them) are read in one read.

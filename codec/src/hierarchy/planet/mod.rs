@@ -21,8 +21,11 @@ mod spill;
 mod tile_source;
 
 pub use apex::PlanetApex;
-pub use apex_grids::{ApexGrids, ApexRefinements};
-pub use apex_view::{ApexView, ApexViewWriter};
+pub use apex_grids::{
+    ApexGrids, ApexRefinements, IN_MEMORY_BYTES as APEX_GRIDS_IN_MEMORY_BYTES,
+    REFINEMENTS_IN_MEMORY_BYTES as APEX_REFINEMENTS_IN_MEMORY_BYTES,
+};
+pub use apex_view::{ApexView, ApexViewWriter, IN_MEMORY_BYTES as APEX_VIEW_IN_MEMORY_BYTES};
 pub use block_groups::{BlockGroups, TileGroup};
 pub use outline::PlanetOutline;
 
