@@ -220,6 +220,27 @@ fn a_footprint_holds_every_sample_cell() {
     }
 }
 
+/// A lattice of 2048 steps a face in tiles of 1024 (N = 17, K = 7) and one 0.02° inset of 64
+/// columns and `rows` rows over face 0's middle, where its four tiles meet; heights quantized
+/// to 1 m over −10…2000 m.
+fn middle_inset(rows: usize) -> (usize, u32, PlanetInputs, QuantPlan) {
+    let (n, k) = (17, 7);
+    let domain = cbdam_codec::geometry::Domain::cube_sphere(n, k).unwrap();
+    let middle = lattice_lat_lon(&domain, 0, 1024, 1024).unwrap();
+    let inputs = PlanetInputs::held(vec![input(
+        "middle.tif",
+        (middle.lat + 0.61, middle.lon - 0.63),
+        0.02,
+        (64, rows),
+    )]);
+    (
+        n,
+        k,
+        inputs,
+        QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap(),
+    )
+}
+
 /// An inset over the middle of a face, where its four tiles meet (a lattice of 2048 steps a
 /// face in tiles of 1024), measured as a build measures it ([`super::LatticeTiles::resampling`]:
 /// the parts of its tiles around its samples): every sample whose four surrounding lattice
@@ -228,16 +249,7 @@ fn a_footprint_holds_every_sample_cell() {
 /// their own ([`reference`]), no tile looked up.
 #[test]
 fn every_sample_is_compared_on_both_sides_of_a_tile_side() {
-    let (n, k) = (17, 7);
-    let domain = cbdam_codec::geometry::Domain::cube_sphere(n, k).unwrap();
-    let middle = lattice_lat_lon(&domain, 0, 1024, 1024).unwrap();
-    let inputs = PlanetInputs::held(vec![input(
-        "middle.tif",
-        (middle.lat + 0.61, middle.lon - 0.63),
-        0.02,
-        (64, 62),
-    )]);
-    let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
+    let (n, k, inputs, plan) = middle_inset(62);
     let r = Resampler::new(&inputs, n, k, &plan).unwrap();
     assert_eq!((r.side, r.tile_log2()), (2048, 10));
     let strides = r.tiles.strides.clone();
@@ -296,16 +308,7 @@ fn every_sample_is_compared_on_both_sides_of_a_tile_side() {
 /// all its tiles at once — with one row a band (a budget of one byte) and with a few bands.
 #[test]
 fn an_inset_measured_in_bands_gives_the_figures_of_all_its_rows_at_once() {
-    let (n, k) = (17, 7);
-    let domain = cbdam_codec::geometry::Domain::cube_sphere(n, k).unwrap();
-    let middle = lattice_lat_lon(&domain, 0, 1024, 1024).unwrap();
-    let inputs = PlanetInputs::held(vec![input(
-        "middle.tif",
-        (middle.lat + 0.61, middle.lon - 0.63),
-        0.02,
-        (64, 400),
-    )]);
-    let plan = QuantPlan::new(1.0, None, -10.0, 2000.0).unwrap();
+    let (n, k, inputs, plan) = middle_inset(400);
     let measured = |budget: u64| {
         let r = Resampler::new(&inputs, n, k, &plan).unwrap();
         let strides = r.tiles.strides.clone();

@@ -124,17 +124,22 @@ fn layout_k(prepared: &PreparedBuild, extra: u32) -> Result<u32> {
     Ok(d.layout().k())
 }
 
-/// The one-step encode as the build does it (with `--extra-levels auto`'s retry).
-fn encode_whole(prepared: &PreparedBuild, opts: &BuildOptions) -> Result<Encoded> {
-    let encoded = encode_prepared(
+/// `prepared` encoded in one go, as a build without a journal encodes it.
+fn encode_once(prepared: &PreparedBuild, threads: Option<usize>) -> Result<Encoded> {
+    encode_prepared(
         &prepared.input,
         None,
         &prepared.enc_opts,
         &prepared.storage,
         &NoJournal,
-        opts.threads,
+        threads,
         &|_, _| {},
-    )?;
+    )
+}
+
+/// The one-step encode as the build does it (with `--extra-levels auto`'s retry).
+fn encode_whole(prepared: &PreparedBuild, opts: &BuildOptions) -> Result<Encoded> {
+    let encoded = encode_once(prepared, opts.threads)?;
     Ok(if opts.extra_levels == ExtraLevels::Auto {
         with_coarser_roots_if_smaller(
             &prepared.input,
@@ -290,15 +295,7 @@ fn encode_levels(
         prepared.input.plan.quantizer = Quantizer::new(l.max_k())?;
     }
     prepared.input.plan.levels = levels;
-    let encoded = encode_prepared(
-        &prepared.input,
-        None,
-        &prepared.enc_opts,
-        &prepared.storage,
-        &NoJournal,
-        threads,
-        &|_, _| {},
-    )?;
+    let encoded = encode_once(prepared, threads)?;
     let rms = crate::rms::rms_error(&encoded, &prepared.input.plan, dem)?;
     Ok((encoded, rms))
 }

@@ -122,15 +122,26 @@ fn in_blocks_too(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, plan: &B
             grid.height
         );
     }
-    // The same split run as shards would run it: each part from its own encoder (another
-    // process), the apex's field passed as values, the parts put together in reverse. The
-    // blocks and the merge are set up from the apex's summary of the grid, each block
-    // given only the samples of its field's rectangle (the rest nodata) and the merge none:
-    // what they read beyond that would change the output.
+    sharded_too(grid, &mapped, q, opts, plan, &whole);
+}
+
+/// The same split run as shards would run it: each part from its own encoder (another
+/// process), the apex's field passed as values, the parts put together in reverse. The blocks
+/// and the merge are set up from the apex's summary of the grid, each block given only the
+/// samples of its field's rectangle (the rest nodata) and the merge none: what they read beyond
+/// that would change the output. `mapped` is `grid` in mapped files; `whole` its field encode.
+fn sharded_too(
+    grid: &HeightGrid,
+    mapped: &HeightGrid,
+    q: Quantizer,
+    opts: &EncodeOptions,
+    plan: &BlockPlan,
+    whole: &Encoded,
+) {
     let first = ShardedEncode::new(grid, None, q, opts, *plan).unwrap();
     let apex = first.apex(&TempStorage::Memory).unwrap();
     // The apex of a grid in mapped files, from a copy of its points: the same.
-    let from_files = ShardedEncode::new(&mapped, None, q, opts, *plan).unwrap();
+    let from_files = ShardedEncode::new(mapped, None, q, opts, *plan).unwrap();
     let mut got = from_files.apex(&TempStorage::Memory).unwrap();
     let mut want = apex.clone();
     got.output.own_errors.sort_unstable();
@@ -139,23 +150,7 @@ fn in_blocks_too(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, plan: &B
     let summary = first.summary();
     let count = first.block_count();
     let finest = first.setup.params.layout().finest_level();
-    let windowed = |rect: Option<(i64, i64, i64, i64)>| {
-        let mut part = grid.clone();
-        for y in 0..grid.height {
-            for x in 0..grid.width {
-                let (x, y) = (x as i64, y as i64);
-                let inside = rect.is_some_and(|(x0, y0, x1, y1)| {
-                    (x0..=x1).contains(&x) && (y0..=y1).contains(&y)
-                });
-                if !inside {
-                    let k = y as usize * grid.width + x as usize;
-                    part.values[k] = 0;
-                    part.valid[k] = false;
-                }
-            }
-        }
-        part
-    };
+    let windowed = |rect| windowed(grid, rect);
     let mut parts: Vec<BlockOutput> = (0..count)
         .map(|i| {
             let mut part = windowed(first.block_field_rect(i));
@@ -192,11 +187,29 @@ fn in_blocks_too(grid: &HeightGrid, q: Quantizer, opts: &EncodeOptions, plan: &B
     }
     let sharded = merger.finish(parts).unwrap();
     assert!(
-        whole == sharded,
+        *whole == sharded,
         "sharded encode differs on {}×{} {opts:?} {plan:?}",
         grid.width,
         grid.height
     );
+}
+
+/// `grid` with every sample outside `rect` (inclusive; none: all) made nodata, height 0.
+fn windowed(grid: &HeightGrid, rect: Option<(i64, i64, i64, i64)>) -> HeightGrid {
+    let mut part = grid.clone();
+    for y in 0..grid.height {
+        for x in 0..grid.width {
+            let (x, y) = (x as i64, y as i64);
+            let inside = rect
+                .is_some_and(|(x0, y0, x1, y1)| (x0..=x1).contains(&x) && (y0..=y1).contains(&y));
+            if !inside {
+                let k = y as usize * grid.width + x as usize;
+                part.values[k] = 0;
+                part.valid[k] = false;
+            }
+        }
+    }
+    part
 }
 
 proptest! {
