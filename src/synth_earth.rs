@@ -2,6 +2,7 @@
 //! with fractal detail fitted to the bundled SRTM tile ([`cbdam_builder::earth`]).
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -9,6 +10,7 @@ use cbdam_builder::earth::{EarthDetail, Etopo, Roughness, hgt_name, region_of};
 use cbdam_builder::input::{ReadOptions, read_dem};
 use cbdam_codec::atomic::write_atomically;
 use clap::Args;
+use rayon::prelude::*;
 
 /// The flags of `synth --earth`.
 #[derive(Args, Debug)]
@@ -37,6 +39,9 @@ pub struct EarthArgs {
     /// With --earth: the real 3″ tile whose roughness the detail is fitted to
     #[arg(long, requires = "earth", default_value = "data/srtm3_demcompare.tif")]
     pub srtm: PathBuf,
+    /// With --earth: print how many tiles it would write and their bytes, and write nothing
+    #[arg(long, requires = "earth")]
+    pub dry_run: bool,
 }
 
 /// `W,S,E,N` in whole degrees.
@@ -96,6 +101,17 @@ pub fn run(dir: &Path, args: &EarthArgs) -> Result<()> {
     if cells.is_empty() {
         bail!("no land cell of ETOPO5 in the box asked for");
     }
+    if args.dry_run {
+        let samples = cells.len() as u64 * 1201 * 1201;
+        println!(
+            "{} tiles of 1201² 3″ samples ({:.3} G samples, {:.2} GB) would be written to {}",
+            cells.len(),
+            samples as f64 / 1e9,
+            2.0 * samples as f64 / 1e9,
+            dir.display()
+        );
+        return Ok(());
+    }
     if let Some(path) = cells
         .iter()
         .map(|&(lat, lon)| dir.join(hgt_name(lat, lon)))
@@ -120,22 +136,24 @@ pub fn run(dir: &Path, args: &EarthArgs) -> Result<()> {
         synthetic.lag16
     );
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    for (i, &(lat, lon)) in cells.iter().enumerate() {
+    let written = AtomicUsize::new(0);
+    cells.par_iter().try_for_each(|&(lat, lon)| -> Result<()> {
         let path = dir.join(hgt_name(lat, lon));
         let bytes = detail.hgt_tile(&etopo, lat, lon);
         write_atomically::<anyhow::Error>(&path, |f| {
             std::io::Write::write_all(f, &bytes)?;
             Ok(())
         })?;
-        if (i + 1) % 100 == 0 {
+        let done = written.fetch_add(1, Ordering::Relaxed) + 1;
+        if done.is_multiple_of(100) {
             eprintln!(
-                "{} of {} tiles, {:.0} s",
-                i + 1,
+                "{done} of {} tiles, {:.0} s",
                 cells.len(),
                 start.elapsed().as_secs_f64()
             );
         }
-    }
+        Ok(())
+    })?;
     let samples = cells.len() as u64 * 1201 * 1201;
     println!(
         "{}: {} tiles of 1201² 3″ samples ({:.3} G samples, {:.2} GB), {:.1} s",

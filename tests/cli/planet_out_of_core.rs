@@ -297,7 +297,8 @@ fn a_truncated_tile_is_named() {
 
 /// `synth --earth` writes SRTM's tiles: named by their south-west corner, 1201² big-endian
 /// samples, neighbours equal on their shared column, only land cells, and as rough as the
-/// bundled SRTM tile where it lies (RMS differences at 3″ and 48″, measured here on both).
+/// bundled SRTM tile where it lies (RMS differences at 3″ and 48″, measured here on both);
+/// `--dry-run` counts them and writes nothing.
 #[test]
 fn synth_earth_writes_srtm_tiles_as_rough_as_the_real_one() {
     use cbdam_builder::earth::Roughness;
@@ -361,6 +362,15 @@ fn synth_earth_writes_srtm_tiles_as_rough_as_the_real_one() {
         "{}",
         stderr(&o)
     );
+    // A dry run counts the tiles of a box and writes nothing.
+    let mut args = base.to_vec();
+    let dry = s(&tmp.path().join("dry"));
+    args.extend([dry.as_str(), "--bbox", "40,39,42,40", "--dry-run"]);
+    let o = cbdam(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(said.starts_with("2 tiles of 1201²"), "{said}");
+    assert!(!tmp.path().join("dry").exists());
 }
 
 /// A planet over a global input (the bundled ETOPO5, every lattice tile at its stride) and 4
