@@ -51,6 +51,14 @@ pub trait Spawner {
     fn spawn_job<J: Portable>(&self, job: J) {
         self.spawn(move || job.run());
     }
+    /// Whether [`Spawner::spawn_job`] may send jobs as messages ([`Portable::encode`]) to
+    /// workers that share no memory with the caller. A spawner that overrides `spawn_job` to do
+    /// so must say so: a decode job's message carries its parents' refinements, which the
+    /// refiner's nodes otherwise drop once their children's halves are made. False unless a
+    /// spawner says so (the default `spawn_job` runs jobs in place).
+    fn sends_jobs_as_messages(&self) -> bool {
+        false
+    }
     /// How many jobs can run at once: the refiner keeps about twice that many in flight.
     fn parallelism(&self) -> usize;
     /// Whether jobs run in the background, so that work handed over at the end of a frame

@@ -70,6 +70,9 @@ impl Messages {
 }
 
 impl Spawner for Messages {
+    fn sends_jobs_as_messages(&self) -> bool {
+        true
+    }
     fn spawn<F: FnOnce() + Send + 'static>(&self, job: F) {
         job();
     }
@@ -213,6 +216,70 @@ fn compare_in_place_and_by_bytes(
     }
     let answered = *messages.answered.borrow();
     (in_place, answered)
+}
+
+/// Runs jobs in place like [`Inline`], but says that it sends them as messages: the refiner's
+/// nodes then keep their refinements, as they did before nodes dropped them.
+#[derive(Clone, Copy, Default)]
+struct InlineKeepingRefinements;
+
+impl Spawner for InlineKeepingRefinements {
+    fn spawn<F: FnOnce() + Send + 'static>(&self, job: F) {
+        job();
+    }
+    fn sends_jobs_as_messages(&self) -> bool {
+        true
+    }
+    fn parallelism(&self) -> usize {
+        1
+    }
+    fn runs_in_background(&self) -> bool {
+        false
+    }
+}
+
+/// Nodes decoded in place drop their refinements once their children's halves are made: the
+/// same cut, the same drawn patches and failures as nodes that keep them, frame by frame, and
+/// each refined node holds exactly one refinement (`N² + (N−1)²` heights) less.
+#[test]
+fn nodes_that_drop_their_refinements_draw_what_nodes_that_keep_them_draw() {
+    let repo = repository();
+    let world = World::of_repository(&repo);
+    let n = repo.head().params().domain.n();
+    let config = RefineConfig {
+        budget: None,
+        gc_interval: 2,
+        ..RefineConfig::default()
+    };
+    let source = || LocalSource::new(repo.clone());
+    let mut dropping = Refiner::with_spawner(source(), config.clone(), Inline).unwrap();
+    let mut keeping = Refiner::with_spawner(source(), config, InlineKeepingRefinements).unwrap();
+    let mut compared = 0;
+    for (i, cam) in cameras(&world).iter().enumerate() {
+        let a = dropping.frame(cam);
+        let b = keeping.frame(cam);
+        assert_eq!(a.refinements, b.refinements, "frame {i}");
+        assert_eq!(
+            refined_set(dropping.cut()),
+            refined_set(keeping.cut()),
+            "frame {i}"
+        );
+        assert_eq!(
+            drawn(&dropping),
+            drawn(&keeping),
+            "frame {i}: drawn patches"
+        );
+        assert_eq!(dropping.errors(), keeping.errors(), "frame {i}: failures");
+        let refinement_bytes = 4 * (n * n + (n - 1) * (n - 1));
+        assert_eq!(
+            b.cut_bytes - a.cut_bytes,
+            b.refined * refinement_bytes,
+            "frame {i}: bytes of {} refined nodes",
+            b.refined
+        );
+        compared += b.refined;
+    }
+    assert!(compared > 100, "{compared} refined nodes compared");
 }
 
 /// A record of the mapped file that fails its checksum (read by the worker that decodes it in

@@ -238,7 +238,10 @@ fn refine_bench_on_a_repository() {
 ///   what `DecodeJob::node` adds), all dropped at once, so the allocator hands the same memory
 ///   back every time;
 /// - `+ halves, kept`: the same, every refinement and half kept until the round ends, as the
-///   client's cache keeps them: new memory for every diamond, as in `cbdam replay`.
+///   client's cache kept them before nodes dropped their refinements: new memory for every
+///   diamond;
+/// - `+ halves kept, refinement dropped`: the halves kept and each refinement dropped once they
+///   are made, as a node decoded in place keeps them now (`cbdam replay`).
 ///
 /// Rates in M cells/s (`(N−1)²` a record) of the thread's CPU time, median of 5 rounds.
 /// `CBDAM_BENCH_REPO=FILE cargo test --release -p cbdam-client --test tests worker_decode_cost
@@ -273,7 +276,7 @@ fn worker_decode_cost_on_a_repository() {
             .children(id)
             .map(|c| c.and_then(|c| HalfPatch::from_parent(&domain, c, id, r)))
     };
-    let mut rate = |with_halves: bool, keep: bool| {
+    let mut rate = |with_halves: bool, keep: bool, keep_refined: bool| {
         let mut runs = Vec::new();
         for _ in 0..5 {
             let mut kept = Vec::new();
@@ -283,7 +286,7 @@ fn worker_decode_cost_on_a_repository() {
                 let r = decoder.refine(e.id, grid, record, &mut scratch).unwrap();
                 let h = with_halves.then(|| halves(e.id, &r));
                 if keep {
-                    kept.push((r, h));
+                    kept.push((keep_refined.then_some(r), h));
                 } else {
                     std::hint::black_box((r, h));
                 }
@@ -294,14 +297,17 @@ fn worker_decode_cost_on_a_repository() {
         runs.sort_by(f64::total_cmp);
         runs[2]
     };
-    let bench = rate(false, false);
-    let dropped = rate(true, false);
-    let kept = rate(true, true);
+    let bench = rate(false, false, false);
+    let dropped = rate(true, false, false);
+    let kept = rate(true, true, true);
+    let halves_kept = rate(true, true, false);
     println!(
         "{path}: {} records; M cells/s of CPU time: refine {bench:.1}, + halves, dropped \
-         {dropped:.1} ({:.2}× refine), + halves, kept {kept:.1} ({:.2}×)",
+         {dropped:.1} ({:.2}× refine), + halves, kept {kept:.1} ({:.2}×), + halves kept, \
+         refinement dropped {halves_kept:.1} ({:.2}×)",
         entries.len(),
         dropped / bench,
-        kept / bench
+        kept / bench,
+        halves_kept / bench
     );
 }

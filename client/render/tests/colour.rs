@@ -548,6 +548,9 @@ struct ThroughBytes {
 }
 
 impl Spawner for ThroughBytes {
+    fn sends_jobs_as_messages(&self) -> bool {
+        true
+    }
     fn spawn<F: FnOnce() + Send + 'static>(&self, job: F) {
         job();
     }

@@ -74,6 +74,10 @@ pub struct DecodeJob {
     /// Read from a message (in a worker): the given parents are not the refiner's own, so each
     /// step first checks that its two parents agree on its diagonal (gathering assumes it).
     pub(super) from_message: bool,
+    /// Whether the nodes made keep their refinements once their children's halves are made:
+    /// the refiner's spawner sends jobs as messages, which carry refinements
+    /// ([`Spawner::sends_jobs_as_messages`](crate::spawn::Spawner::sends_jobs_as_messages)).
+    pub(super) keep_refined: bool,
 }
 
 impl DecodeJob {
@@ -179,7 +183,10 @@ impl DecodeJob {
         if ids.iter().any(Option::is_none) {
             return true;
         }
-        agree(&a.refined, &b.refined)
+        let (Some(ra), Some(rb)) = (a.refined(), b.refined()) else {
+            unreachable!("a worker's nodes keep their refinements")
+        };
+        agree(ra, rb)
             && match (&a.colour, &b.colour) {
                 (Some(ca), Some(cb)) => (0..3).all(|c| agree(&ca[c], &cb[c])),
                 _ => true,
@@ -304,8 +311,7 @@ impl DecodeJob {
             );
             return;
         }
-        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
-        gather(&self.domain, id, parents, grid);
+        gather(&self.domain, id, refinements(parents), grid);
     }
 
     /// The halves of `id` that its parents' nodes hold (made when each parent was refined),
@@ -349,8 +355,7 @@ impl DecodeJob {
             join_halves(self.domain.layout().diagonal(id), n, valid, &mut out);
             return Some(out);
         }
-        let parents = [0, 1].map(|h| parents[h].as_ref().map(|n| &n.refined));
-        gather_validity(&self.domain, id, parents)
+        gather_validity(&self.domain, id, refinements(parents))
     }
 
     pub(super) fn node(
@@ -359,12 +364,20 @@ impl DecodeJob {
         refined: Refined,
         colour: Option<ColourRefined>,
     ) -> Arc<Node> {
+        let n = self.domain.n();
+        let children = self.domain.children(id);
         // In a worker the node is only sent back (the refiner rebuilds the halves from its
         // refinement) or gathered from: its children's halves would be thrown away.
         if self.from_message {
-            return Arc::new(Node::new(refined, colour, [None, None, None, None]));
+            return Arc::new(Node::new(
+                n,
+                Some(refined),
+                colour,
+                Default::default(),
+                children,
+            ));
         }
-        let halves = self.domain.children(id).map(|c| {
+        let halves = children.map(|c| {
             c.and_then(|c| {
                 let mut h = HalfPatch::from_parent(&self.domain, c, id, &refined)?;
                 if let Some(col) = &colour {
@@ -373,8 +386,22 @@ impl DecodeJob {
                 Some(Arc::new(h))
             })
         });
-        Arc::new(Node::new(refined, colour, halves))
+        // Gathering a child's grid reads its halves, not the refinement: keeping it only to
+        // send it in a message saves its memory (a third of a node) on every other spawner.
+        let refined = self.keep_refined.then_some(refined);
+        Arc::new(Node::new(n, refined, colour, halves, children))
     }
+}
+
+/// The parents' refinements, for gathering a grid from nodes that hold no halves (which keep
+/// their refinements: [`Node::new`]).
+fn refinements(parents: &ParentNodes) -> [Option<&Refined>; 2] {
+    parents.each_ref().map(|p| {
+        p.as_ref().map(|n| {
+            n.refined()
+                .expect("a node without its children's halves keeps its refinement")
+        })
+    })
 }
 
 /// The Y, Co, Cg grids of the colour root covering elevation root `root`.

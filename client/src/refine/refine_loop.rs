@@ -250,6 +250,7 @@ impl<S: DataSource, X: Spawner> Refiner<S, X> {
             speculative,
             tx: self.done_tx.clone(),
             from_message: false,
+            keep_refined: self.spawner.sends_jobs_as_messages(),
         });
     }
 

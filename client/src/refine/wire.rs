@@ -164,7 +164,7 @@ pub(super) fn encode_job(job: &DecodeJob) -> Vec<u8> {
     w.u32(job.given.len() as u32);
     for (id, node) in &job.given {
         w.id(*id);
-        w.node(&node.refined, node.colour.as_ref());
+        w.node(sent_refinement(node), node.colour.as_ref());
     }
     w.u32(job.steps.len() as u32);
     for (id, source) in &job.steps {
@@ -172,7 +172,7 @@ pub(super) fn encode_job(job: &DecodeJob) -> Vec<u8> {
         match source {
             Source::Cached(node) => {
                 w.u8(0);
-                w.node(&node.refined, node.colour.as_ref());
+                w.node(sent_refinement(node), node.colour.as_ref());
             }
             Source::Record(bytes) => {
                 w.u8(1);
@@ -216,7 +216,7 @@ fn decode_job(
     for _ in 0..given_count {
         let id = r.id(&ctx.domain)?;
         let (refined, colour) = r.node(n, colour)?;
-        given.push((id, bare_node(refined, colour)));
+        given.push((id, bare_node(n, refined, colour)));
     }
     let step_count = r.count(ID_BYTES + 1)?;
     let mut steps = Vec::with_capacity(step_count);
@@ -225,7 +225,7 @@ fn decode_job(
         let source = match r.u8()? {
             0 => {
                 let (refined, colour) = r.node(n, colour)?;
-                Source::Cached(bare_node(refined, colour))
+                Source::Cached(bare_node(n, refined, colour))
             }
             1 => Source::Record(r.bytes()?.into()),
             2 => {
@@ -252,11 +252,29 @@ fn decode_job(
         speculative,
         tx,
         from_message: true,
+        keep_refined: true,
     })
 }
 
-fn bare_node(refined: Refined, colour: Option<ColourRefined>) -> Arc<Node> {
-    Arc::new(Node::new(refined, colour, [None, None, None, None]))
+fn bare_node(n: usize, refined: Refined, colour: Option<ColourRefined>) -> Arc<Node> {
+    Arc::new(Node::new(
+        n,
+        Some(refined),
+        colour,
+        Default::default(),
+        Default::default(),
+    ))
+}
+
+/// The refinement a message carries for `node`. Nodes keep theirs when the refiner's spawner
+/// sends jobs as messages
+/// ([`Spawner::sends_jobs_as_messages`](crate::spawn::Spawner::sends_jobs_as_messages)), and a
+/// worker's nodes always do.
+fn sent_refinement(node: &Node) -> &Refined {
+    node.refined().expect(
+        "a job sent as a message by a spawner whose sends_jobs_as_messages() is false \
+         (its nodes dropped their refinements)",
+    )
 }
 
 /// A worker's results as a message.
@@ -269,7 +287,7 @@ pub(super) fn encode_results(done: &[Done]) -> Vec<u8> {
             None => w.u8(0),
             Some(Ok(node)) => {
                 w.u8(1);
-                w.node(&node.refined, node.colour.as_ref());
+                w.node(sent_refinement(node), node.colour.as_ref());
             }
             Some(Err(e)) => {
                 w.u8(2);

@@ -301,6 +301,9 @@ impl WorkerPool {
 }
 
 impl Spawner for WorkerPool {
+    fn sends_jobs_as_messages(&self) -> bool {
+        true
+    }
     fn spawn<F: FnOnce() + Send + 'static>(&self, job: F) {
         job();
     }
