@@ -107,18 +107,50 @@ pub fn predict_cells(p: &[i32], n: usize, out: &mut [i32]) {
 /// ([`VectorKernels`]) vectorises it with them.
 #[inline(always)]
 pub(crate) fn predict_cells_inline(p: &[i32], n: usize, out: &mut [i32]) {
+    // `p` is only a stand-in for the per-cell operand, which the identity ignores (its loads
+    // are dead and compiled out); it is long enough: N² ≥ (N−1)².
+    predict_cells_then(p, n, out, p, |prediction, _| prediction);
+}
+
+/// Every cell's prediction `c`, with cell `k`'s `operand[k]`, through `finish(c, operand[k])`,
+/// row-major into `out`: the decoder finishes a cell (clamp, residual) in the pass that predicts
+/// it. `operand` must hold at least `(N−1)²` values.
+#[inline(always)]
+pub(crate) fn predict_cells_then(
+    p: &[i32],
+    n: usize,
+    out: &mut [i32],
+    operand: &[i32],
+    finish: impl Fn(i32, i32) -> i32,
+) {
     let m = n - 1;
-    assert!(p.len() == n * n && out.len() == m * m);
+    assert!(p.len() == n * n && out.len() == m * m && operand.len() >= m * m);
+    // Order 2 from the four nearest vertices (`predict_cell` outside the order-4 region).
+    let order2 = |s4: i32| (8 * s4 + 16) >> 5;
     for j in 0..m {
-        let interior_row = cell_uses_order4(n, 1, j);
-        if !interior_row || m < 4 {
+        if m < 4 {
             for i in 0..m {
-                out[j * m + i] = predict_cell(p, n, i, j);
+                let k = j * m + i;
+                out[k] = finish(predict_cell(p, n, i, j), operand[k]);
             }
             continue;
         }
-        out[j * m] = predict_cell(p, n, 0, j);
-        out[j * m + m - 1] = predict_cell(p, n, m - 1, j);
+        let (r0, r1) = (&p[j * n..][..n], &p[(j + 1) * n..][..n]);
+        if !cell_uses_order4(n, 1, j) {
+            // The first and last rows: order 2 everywhere, as slices (no bounds checks).
+            let (a, b, c, d) = (&r0[..m], &r0[1..], &r1[..m], &r1[1..]);
+            let row = &mut out[j * m..][..m];
+            let ops = &operand[j * m..][..m];
+            for i in 0..m {
+                row[i] = finish(order2(a[i] + b[i] + c[i] + d[i]), ops[i]);
+            }
+            continue;
+        }
+        // The row's first and last cells are order 2.
+        for i in [0, m - 1] {
+            let k = j * m + i;
+            out[k] = finish(order2(r0[i] + r0[i + 1] + r1[i] + r1[i + 1]), operand[k]);
+        }
         // The interior cells i = 1..=m−2 (w of them) read the four rows at columns i−1..=i+2:
         // slices of exactly w values, so the loop has no bounds checks and vectorises.
         let w = m - 2;
@@ -129,10 +161,11 @@ pub(crate) fn predict_cells_inline(p: &[i32], n: usize, out: &mut [i32]) {
         let ([_, up1, up2, _], [r0a, r0b, r0c, r0d], [r1a, r1b, r1c, r1d], [_, dn1, dn2, _]) =
             (cols(j - 1), cols(j), cols(j + 1), cols(j + 2));
         let row = &mut out[j * m + 1..][..w];
+        let ops = &operand[j * m + 1..][..w];
         for k in 0..w {
             let s4 = r0b[k] + r0c[k] + r1b[k] + r1c[k];
             let s8 = r0a[k] + r1a[k] + r0d[k] + r1d[k] + up1[k] + up2[k] + dn1[k] + dn2[k];
-            row[k] = (10 * s4 - s8 + 16) >> 5;
+            row[k] = finish((10 * s4 - s8 + 16) >> 5, ops[k]);
         }
     }
 }
@@ -418,6 +451,41 @@ mod tests {
         for j in 0..64 {
             for i in 0..64 {
                 assert_eq!(out[j * 64 + i], predict_cell(&p, n, i, j));
+            }
+        }
+    }
+
+    /// The row-wise cell predictions (vectorised rows, order-2 edges) are the pointwise
+    /// definition on every grid size, with heights anywhere in the range.
+    #[test]
+    fn row_wise_cell_predictions_match_the_pointwise_ones() {
+        let mut state = 5u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            state >> 16
+        };
+        for round in 0..400 {
+            let n = [3, 4, 5, 6, 7, 9, 17, 33, 65][round % 9];
+            let p: Vec<i32> = (0..n * n)
+                .map(|_| match next() % 4 {
+                    0 => MAX_ABS_HEIGHT,
+                    1 => -MAX_ABS_HEIGHT,
+                    _ => (next() % (2 * MAX_ABS_HEIGHT as u64 + 1)) as i32 - MAX_ABS_HEIGHT,
+                })
+                .collect();
+            let m = n - 1;
+            let mut out = vec![0; m * m];
+            predict_cells(&p, n, &mut out);
+            for j in 0..m {
+                for i in 0..m {
+                    assert_eq!(
+                        out[j * m + i],
+                        predict_cell(&p, n, i, j),
+                        "N {n} ({i}, {j})"
+                    );
+                }
             }
         }
     }

@@ -26,6 +26,7 @@ pub mod level_raster;
 pub mod mask;
 mod object_error;
 pub mod planet;
+mod reconstruct;
 mod record_bytes;
 mod refine;
 pub mod resolution;

@@ -4,15 +4,13 @@
 use super::CodecParams;
 use super::gather_runs::{half_map, half_runs};
 use super::mask::decode_mask;
+use super::reconstruct::{reconstruct_cells, reconstruct_vertices};
 use crate::CodecError;
 use crate::entropy::{
     BandKind, BandMut, DecodeLimits, DecodeScratch, ParentGrid, decode_bands_on_grid_with,
 };
 use crate::geometry::{Diagonal, DiamondId, Domain, Half, IndexMap};
-use crate::lifting::{
-    Alpha, MAX_ABS_HEIGHT, PREDICTION_LIMIT, VectorKernels, clamp_prediction, predict_cells_inline,
-    predict_inner_vertices,
-};
+use crate::lifting::Alpha;
 use crate::quant::Quantizer;
 
 /// The level-`l+1` values a refinement produces on a level-`l` diamond's square: the values of
@@ -225,9 +223,12 @@ pub fn gather_validity(
 trait HalfStepSource<T>: Copy {
     /// The value at half-step point `(a, b)`.
     fn at(&self, a: i64, b: i64) -> T;
-    /// `put(k, v)` for each `k < count`, `v` the value at `(a + 2k, b)`: a run of one row of
-    /// the half-step grid, all vertices or all cell centres, read in memory order.
-    fn read_row(&self, a: i64, b: i64, count: usize, put: impl FnMut(usize, T));
+    /// The `k`-th place of `out` (for each `k < count`) gets the value at `(a + 2k, b)`: a run
+    /// of one row of the half-step grid, all vertices or all cell centres, read in memory
+    /// order.
+    fn read_row<'o>(&self, a: i64, b: i64, count: usize, out: impl Iterator<Item = &'o mut T>)
+    where
+        T: 'o;
 }
 
 /// Values on every point of a `side × side` half-step grid, row-major.
@@ -242,13 +243,13 @@ impl<T: Copy> HalfStepSource<T> for HalfStepGrid<'_, T> {
         self.values[b as usize * self.side + a as usize]
     }
 
-    fn read_row(&self, a: i64, b: i64, count: usize, mut put: impl FnMut(usize, T)) {
+    fn read_row<'o>(&self, a: i64, b: i64, count: usize, out: impl Iterator<Item = &'o mut T>)
+    where
+        T: 'o,
+    {
         let start = b as usize * self.side + a as usize;
         let run = &self.values[start..start + 2 * count.max(1) - 1];
-        run.iter()
-            .step_by(2)
-            .enumerate()
-            .for_each(|(k, &v)| put(k, v));
+        out.zip(run.iter().step_by(2)).for_each(|(o, &v)| *o = v);
     }
 }
 
@@ -257,33 +258,46 @@ impl HalfStepSource<i32> for &Refined {
         self.at_half_step(a, b)
     }
 
-    fn read_row(&self, a: i64, b: i64, count: usize, mut put: impl FnMut(usize, i32)) {
+    fn read_row<'o>(&self, a: i64, b: i64, count: usize, out: impl Iterator<Item = &'o mut i32>) {
         assert_eq!(a % 2, b % 2, "a row of vertices or of cell centres");
         // Vertices sit at even (a, b), cell centres at odd: either way a row's run is contiguous.
-        self.row_run(a, b, count)
-            .iter()
-            .enumerate()
-            .for_each(|(k, &v)| put(k, v));
+        out.zip(self.row_run(a, b, count))
+            .for_each(|(o, &v)| *o = v);
     }
 }
 
 /// The `count` indices `start, start + stride, …` of `values` as one slice (checked once) and
 /// the step through it: `(slice, step, backwards)`. Empty when `count` is 0.
 fn strided(values: &[i32], start: i64, stride: i64, count: usize) -> (&[i32], usize, bool) {
+    let (span, step, backwards) = strided_span(values.len(), start, stride, count);
+    (&values[span], step, backwards)
+}
+
+/// The index range that holds the `count` indices `start, start + stride, …` (of a slice of
+/// `len`, checked), the step through it and whether it is walked from its end. Empty when
+/// `count` is 0.
+fn strided_span(
+    len: usize,
+    start: i64,
+    stride: i64,
+    count: usize,
+) -> (std::ops::Range<usize>, usize, bool) {
     if count == 0 {
-        return (&[], 1, false);
+        return (0..0, 1, false);
     }
-    let span = stride.unsigned_abs() as usize * (count - 1);
+    let step = stride.unsigned_abs() as usize;
+    let span = step * (count - 1);
     let start = start as usize;
-    if stride >= 0 {
-        (&values[start..=start + span], stride as usize, false)
+    let (first, last, backwards) = if stride >= 0 {
+        (start, start + span, false)
     } else {
-        (
-            &values[start - span..=start],
-            stride.unsigned_abs() as usize,
-            true,
-        )
-    }
+        (start.wrapping_sub(span), start, true)
+    };
+    assert!(
+        first <= last && last < len,
+        "a strided run of {count} from {start} by {stride} outside {len} values"
+    );
+    (first..last + 1, step.max(1), backwards)
 }
 
 /// Copies every `step`-th value of a [`strided`] slice (from its end when `backwards`) into
@@ -395,9 +409,19 @@ fn copy_half<T: Copy, G: HalfStepSource<T>>(
     out: &mut [T],
 ) {
     half_runs(m, diag, half, n, |run| {
-        parent.read_row(run.a, run.b, run.count, |k, v| {
-            out[(run.start + k as i64 * run.out_step) as usize] = v;
-        });
+        // The run's places in `out`, sliced once: no bounds check per value.
+        let (places, step, backwards) = strided_span(out.len(), run.start, run.out_step, run.count);
+        let places = &mut out[places];
+        if backwards {
+            parent.read_row(
+                run.a,
+                run.b,
+                run.count,
+                places.iter_mut().rev().step_by(step),
+            );
+        } else {
+            parent.read_row(run.a, run.b, run.count, places.iter_mut().step_by(step));
+        }
     });
 }
 
@@ -670,125 +694,6 @@ fn decode_residuals(
         entropy,
     )?;
     Ok(valid)
-}
-
-fn out_of_range() -> CodecError {
-    CodecError::corrupt("record reconstructs heights out of range")
-}
-
-/// The new cells: each predicted from the grid `p` (N × N) and corrected by its residual in
-/// `dc`, times the quantizer's `step`. Checked before vertices are predicted from them:
-/// out-of-range cells would overflow the filter's i32 numerators.
-fn reconstruct_cells(
-    p: &[i32],
-    n: usize,
-    dc: &[i32],
-    step: i64,
-    cells: &mut Vec<i32>,
-) -> Result<(), CodecError> {
-    reconstruct_cells_with(VectorKernels::detected(), p, n, dc, step, cells)
-}
-
-/// [`reconstruct_cells`] with the loops compiled as `kernels` says: the same cells and the same
-/// refusals whichever kind runs.
-fn reconstruct_cells_with(
-    kernels: VectorKernels,
-    p: &[i32],
-    n: usize,
-    dc: &[i32],
-    step: i64,
-    cells: &mut Vec<i32>,
-) -> Result<(), CodecError> {
-    let m = n - 1;
-    cells.resize(m * m, 0);
-    let dc = &dc[..cells.len()];
-    // A clamped prediction is at most PREDICTION_LIMIT, far below MAX_ABS_HEIGHT: a residual
-    // whose step × value is over i32::MAX − PREDICTION_LIMIT makes its cell out of range
-    // whatever the prediction. Below that every sum fits i32, so the loop is in i32 (it
-    // vectorises) and gives the values of an i64 computation exactly.
-    let room = u64::from(i32::MAX.unsigned_abs() - PREDICTION_LIMIT.unsigned_abs());
-    let in_range = match kernels {
-        VectorKernels::Portable => cells_from_residuals(p, n, dc, step, room, cells),
-        // SAFETY: `Avx2` is only ever made where the CPU has AVX2 (`VectorKernels::detected`).
-        #[cfg(target_arch = "x86_64")]
-        VectorKernels::Avx2 => unsafe { cells_from_residuals_avx2(p, n, dc, step, room, cells) },
-    };
-    if !in_range {
-        return Err(out_of_range());
-    }
-    Ok(())
-}
-
-/// [`cells_from_residuals`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn cells_from_residuals_avx2(
-    p: &[i32],
-    n: usize,
-    dc: &[i32],
-    step: i64,
-    room: u64,
-    cells: &mut [i32],
-) -> bool {
-    cells_from_residuals(p, n, dc, step, room, cells)
-}
-
-/// The loops of [`reconstruct_cells_with`]: `cells` = the clamped prediction + `step × dc`;
-/// false (cells unspecified) when a residual exceeds `room` or a cell `MAX_ABS_HEIGHT`.
-#[inline(always)]
-fn cells_from_residuals(
-    p: &[i32],
-    n: usize,
-    dc: &[i32],
-    step: i64,
-    room: u64,
-    cells: &mut [i32],
-) -> bool {
-    let largest = dc.iter().fold(0u32, |a, &d| a.max(d.unsigned_abs()));
-    if u64::from(largest) * step.unsigned_abs() > room {
-        return false;
-    }
-    predict_cells_inline(p, n, cells);
-    let step = step as i32;
-    let bad = cells.iter_mut().zip(dc).fold(false, |bad, (c, &d)| {
-        let v = (*c).clamp(-PREDICTION_LIMIT, PREDICTION_LIMIT) + step * d;
-        *c = v;
-        bad | (v.abs() > MAX_ABS_HEIGHT)
-    });
-    !bad
-}
-
-/// α = ½: `vertices` becomes `p` with each inner vertex updated from the new `cells` and
-/// corrected by its residual in `dv`.
-fn reconstruct_vertices(
-    p: &[i32],
-    n: usize,
-    cells: &[i32],
-    dv: &[i32],
-    step: i64,
-    vpred: &mut Vec<i32>,
-    vertices: &mut Vec<i32>,
-) -> Result<(), CodecError> {
-    vertices.clear();
-    vertices.extend_from_slice(p);
-    let k = n - 2;
-    vpred.resize(k * k, 0);
-    predict_inner_vertices(cells, n, vpred);
-    let mut bad = false;
-    for j in 1..n - 1 {
-        let row = &mut vertices[j * n + 1..][..k];
-        let pred = &vpred[(j - 1) * k..][..k];
-        let d = &dv[(j - 1) * k..][..k];
-        for ((o, &q), &d) in row.iter_mut().zip(pred).zip(d) {
-            let v = clamp_prediction(2 * i64::from(*o) - i64::from(q)) + step * i64::from(d);
-            bad |= v.abs() > i64::from(MAX_ABS_HEIGHT);
-            *o = v as i32;
-        }
-    }
-    if bad {
-        return Err(out_of_range());
-    }
-    Ok(())
 }
 
 #[cfg(test)]
