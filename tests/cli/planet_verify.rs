@@ -141,3 +141,75 @@ fn a_planet_verified_block_by_block_fails_where_the_whole_verify_does() {
     let (o, _) = verify(&damaged, &inputs, "4M");
     assert!(!o.status.success(), "{}", stdout(&o));
 }
+
+/// Verify's peak resident memory (the child's own `ru_maxrss`) under a small `--memory-limit`
+/// does not follow the lattice: 12 small 3″ insets a degree apart (each making the lattice tiles
+/// around it hold every point, K = 11) verified whole and under 64M, with the same report.
+/// Ignored in CI: about 3 minutes on 2 loaded cores (`--ignored` runs it).
+#[test]
+#[ignore = "about 3 minutes; run with --ignored"]
+fn a_planet_verified_under_a_small_limit_peaks_below_the_whole_verify() {
+    use super::planet_out_of_core::{block, height};
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("insets");
+    std::fs::create_dir_all(&d).unwrap();
+    let pixel = 1.0 / 1200.0;
+    for (lat, lon) in block(3, 4) {
+        let (lat0, lon0) = (f64::from(lat) + 0.5, f64::from(lon) + 0.5);
+        let r = Raster {
+            width: 8,
+            height: 8,
+            values: (0..64)
+                .map(|i| {
+                    let (c, r) = ((i % 8) as f64, (i / 8) as f64);
+                    f64::from(height(lat0 - r * pixel, lon0 + c * pixel))
+                })
+                .collect(),
+            georef: Some(GeoRef {
+                epsg: Some(4326),
+                origin_x: lon0,
+                origin_y: lat0,
+                pixel_x: pixel,
+                pixel_y: pixel,
+                pixel_is_area: false,
+                wkt: None,
+            }),
+        };
+        let f = std::fs::File::create(d.join(format!("i{lat}_{lon}.tif"))).unwrap();
+        write_geotiff(f, &r, Some(f64::from(i16::MIN)), false).unwrap();
+    }
+    let repo = tmp.path().join("p.cbdam");
+    let o = cbdam(&[
+        "build",
+        &s(&d),
+        "--planet",
+        "-o",
+        &s(&repo),
+        "--max-error",
+        "2",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (whole, whole_peak) = verify(&repo, std::slice::from_ref(&d), "8G");
+    assert!(whole.status.success(), "{}", stderr(&whole));
+    let (blocks, blocks_peak) = verify(&repo, &[d], "64M");
+    assert!(blocks.status.success(), "{}", stderr(&blocks));
+    assert!(
+        stdout(&blocks).contains("decoded in "),
+        "{}",
+        stdout(&blocks)
+    );
+    assert_eq!(report(&blocks), report(&whole));
+    let mib = |b: u64| b as f64 / f64::from(1 << 20);
+    eprintln!(
+        "verify peak RSS: whole {:.1} MiB, under 64M {:.1} MiB",
+        mib(whole_peak),
+        mib(blocks_peak)
+    );
+    assert!(
+        blocks_peak * 2 < whole_peak,
+        "under 64M {:.1} MiB, whole {:.1} MiB",
+        mib(blocks_peak),
+        mib(whole_peak)
+    );
+}

@@ -134,10 +134,16 @@ struct DecodedTiles {
     layout: Layout,
 }
 
+/// A decoded tile: its stride's `log2`, heights and validity.
+type Decoded = (u32, Vec<i32>, Vec<bool>);
+
+/// A tile being decoded: its rectangle, stride's `log2`, heights and validity.
+type Decoding = ((i64, i64, i64, i64), u32, Vec<i32>, Vec<bool>);
+
 /// One block's tiles being decoded: per tile, its rectangle, stride, heights and validity.
 struct BlockTiles {
     face: u8,
-    tiles: HashMap<usize, ((i64, i64, i64, i64), u32, Vec<i32>, Vec<bool>)>,
+    tiles: HashMap<usize, Decoding>,
     across: usize,
     tile_log2: u32,
     rect: (i64, i64, i64, i64),
@@ -201,7 +207,7 @@ impl DecodedTiles {
     }
 
     /// Tile `index` of `face` as decoded: heights and validity at its own stride.
-    fn load(&self, face: u8, index: usize) -> Result<Option<(u32, Vec<i32>, Vec<bool>)>> {
+    fn load(&self, face: u8, index: usize) -> Result<Option<Decoded>> {
         let Some(&start) = self
             .at
             .lock()

@@ -50,6 +50,10 @@ pub struct PlanetBlockVerify<'a> {
     cut: u8,
 }
 
+/// What is handed each diamond a reconstruction writes: its id, grid and validity (`None`: all
+/// valid).
+pub type FinestVisit<'f> = dyn FnMut(DiamondId, &[i32], Option<&[bool]>) + 'f;
+
 /// A diamond of the apex as the walk visited it: its grid and the grid's validity.
 type ApexDiamond = (DiamondId, Vec<i32>, Option<Vec<bool>>);
 
@@ -150,7 +154,7 @@ impl<'a> PlanetBlockVerify<'a> {
         group: &TileGroup,
         tiles: &dyn PlanetTiles,
         report: &mut [LevelReport],
-        mut finest: Option<&mut dyn FnMut(DiamondId, &[i32], Option<&[bool]>)>,
+        mut finest: Option<&mut FinestVisit<'_>>,
     ) -> Result<(), CodecError> {
         let params = self.decoder.params();
         let layout = params.layout();
@@ -214,7 +218,7 @@ impl<'a> PlanetBlockVerify<'a> {
         face: u8,
         xs: (i64, i64),
         writes: &dyn Fn(&DiamondId) -> bool,
-        finest: &mut dyn FnMut(DiamondId, &[i32], Option<&[bool]>),
+        finest: &mut FinestVisit<'_>,
     ) {
         let layout = self.outline.domain.layout();
         for (level, diamonds) in self.apex_finest.iter().enumerate() {
