@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 
 use cbdam_builder::assign::AssignedGeoRef;
 use cbdam_builder::plan::default_memory_limit;
-use cbdam_builder::planet::compare_planet;
+use cbdam_builder::planet_verify::compare_planet_within;
 use cbdam_builder::tiles::{Tile, expand_inputs};
 use cbdam_builder::verify::{compare_colour, compare_dem, compare_tiles_with, one_file_in_blocks};
 use cbdam_codec::hierarchy::{BlockPlan, RepoKind, VerifyReport};
@@ -129,7 +129,8 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     let tiles = expand_inputs(&args.against)?;
     let assign = args.georef.assigned()?;
     if repo.head().params().domain.cube().is_some() {
-        return verify_planet_repo(&repo, &tiles, assign.as_ref());
+        let limit = args.memory_limit.map_or_else(default_memory_limit, |b| b.0);
+        return verify_planet_repo(&repo, &tiles, assign.as_ref(), limit);
     }
     if assign.is_some() {
         bail!(
@@ -179,8 +180,15 @@ fn verify_planet_repo(
     repo: &Repository,
     tiles: &[Tile],
     assign: Option<&AssignedGeoRef>,
+    limit: u64,
 ) -> Result<()> {
-    let c = compare_planet(repo, tiles, repo.head().nodata(), assign)?;
+    let c = compare_planet_within(repo, tiles, repo.head().nodata(), assign, limit)?;
+    if let Some(blocks) = c.blocks {
+        println!(
+            "decoded in {blocks} block(s) of lattice tiles, the levels above them over the whole \
+             planet"
+        );
+    }
     print_levels(&c.report, repo.head().plan().unit);
     println!(
         "every level against the resampled lattice: max error {} units, bound {} ({} m)",

@@ -18,6 +18,7 @@ mod planet_bad_input;
 mod planet_closeup;
 mod planet_out_of_core;
 mod planet_shard;
+mod planet_verify;
 mod readme;
 mod render;
 mod render_colour;

@@ -11,7 +11,7 @@ const SIDE: usize = 1201;
 
 /// A relief with detail at every scale the tiles resolve (deterministic, from latitude and
 /// longitude alone, so tiles agree on their shared edges), and voids in round patches.
-fn height(lat: f64, lon: f64) -> i16 {
+pub(super) fn height(lat: f64, lon: f64) -> i16 {
     let wave = 800.0 * (lat * 1.3).sin() * (lon * 0.9).cos()
         + 150.0 * (lat * 23.0).sin() * (lon * 31.0).cos()
         + 20.0 * (lat * 410.0 + lon * 370.0).sin();
@@ -42,7 +42,7 @@ fn write_tiles(dir: &Path, cells: &[(i32, i32)]) {
 }
 
 /// A block of `rows` × `cols` one-degree cells from 40° N 10° E.
-fn block(rows: i32, cols: i32) -> Vec<(i32, i32)> {
+pub(super) fn block(rows: i32, cols: i32) -> Vec<(i32, i32)> {
     (0..rows)
         .flat_map(|r| (0..cols).map(move |c| (40 + r, 10 + c)))
         .collect()

@@ -34,6 +34,7 @@ pub mod planet_shard;
 mod planet_shard_files;
 pub mod planet_shard_plan;
 mod planet_spacing;
+pub mod planet_verify;
 pub mod progress;
 pub mod rms;
 mod rms_levels;

@@ -406,6 +406,8 @@ pub struct PlanetComparison {
     pub end_to_end: Vec<InputResampling>,
     /// The repository's bound in metres.
     pub max_error: f64,
+    /// Compared block by block ([`crate::planet_verify`]): how many blocks; `None` when whole.
+    pub blocks: Option<usize>,
 }
 
 impl PlanetComparison {
@@ -447,30 +449,39 @@ pub fn compare_planet(
     nodata: Option<f64>,
     assign: Option<&AssignedGeoRef>,
 ) -> Result<PlanetComparison> {
-    use cbdam_codec::hierarchy::{reconstruct_planet_like, verify_planet};
-    let domain = repo.head().params().domain;
-    if domain.cube().is_none() {
+    if repo.head().params().domain.cube().is_none() {
         bail!("this repository is planar: compare it with compare_dem or compare_tiles");
     }
-    let plan = *repo.head().plan();
     let budget = input_cache_budget(crate::plan::default_memory_limit());
     let inputs = PlanetInputs::read(tiles, nodata, assign, budget)?;
+    compare_planet_inputs(repo, &inputs)
+}
+
+/// [`compare_planet`] of inputs already opened.
+pub(crate) fn compare_planet_inputs(
+    repo: &cbdam_codec::repository::Repository,
+    inputs: &PlanetInputs,
+) -> Result<PlanetComparison> {
+    use cbdam_codec::hierarchy::{reconstruct_planet_like, verify_planet};
+    let domain = repo.head().params().domain;
+    let plan = *repo.head().plan();
     let (n, k) = (domain.n(), domain.layout().k());
-    let resampled = resample(&inputs, n, k, &plan)?;
+    let resampled = resample(inputs, n, k, &plan)?;
     let encoded = repo.to_encoded()?;
     let report = verify_planet(&encoded, &resampled.planet)?;
-    let resampling = resampling_error(&inputs, &resampled, &plan)?;
+    let resampling = resampling_error(inputs, &resampled, &plan)?;
     let decoded = Resampled {
         planet: reconstruct_planet_like(&encoded, &resampled.planet)?,
         winners: resampled.winners,
         strides: resampled.strides,
     };
-    let end_to_end = resampling_error(&inputs, &decoded, &plan)?;
+    let end_to_end = resampling_error(inputs, &decoded, &plan)?;
     Ok(PlanetComparison {
         report,
         resampling,
         end_to_end,
         max_error: plan.max_error(),
+        blocks: None,
     })
 }
 

@@ -482,6 +482,16 @@ pub struct LatticeTiles<'a> {
     /// Per face, per tile: `log2` of the stride it holds its points at.
     strides: Vec<Vec<u32>>,
     cache: Mutex<TileCache>,
+    /// Heights measured in place of the lattice's by the resampling error (a decoded surface).
+    heights: Mutex<Option<Arc<dyn TileHeights + 'a>>>,
+}
+
+/// Heights that [`LatticeTiles::resampling`] measures instead of the lattice's where set
+/// ([`LatticeTiles::set_heights`]): `cbdam verify`'s end-to-end error of a decoded planet.
+pub trait TileHeights: Send + Sync {
+    /// Tile `index` of `face` (the lattice's, at some stride) with these heights and validity
+    /// at its points; its rectangle, stride and classes kept.
+    fn heights(&self, face: u8, index: usize, tile: &PlanetTile) -> Result<PlanetTile>;
 }
 
 /// Recently resampled tiles, by `(face, tile, stride)`, least recently used first in `order`.
@@ -587,7 +597,22 @@ impl<'a> LatticeTiles<'a> {
                 bytes: 0,
                 budget: cache_budget,
             }),
+            heights: Mutex::new(None),
         })
+    }
+
+    /// Measures `heights` instead of the lattice's heights from now on (`None`: the lattice's).
+    pub fn set_heights(&self, heights: Option<Arc<dyn TileHeights + 'a>>) {
+        *self.heights.lock().expect("the heights measured") = heights;
+    }
+
+    /// `tile` (tile `index` of `face`) with the heights measured ([`Self::set_heights`]).
+    fn measured(&self, face: u8, index: usize, tile: &Arc<PlanetTile>) -> Result<Arc<PlanetTile>> {
+        let heights = self.heights.lock().expect("the heights measured").clone();
+        match heights {
+            None => Ok(Arc::clone(tile)),
+            Some(h) => Ok(Arc::new(h.heights(face, index, tile)?)),
+        }
     }
 
     /// Per face, per tile: `log2` of the stride it holds its points at.
@@ -687,7 +712,7 @@ impl<'a> LatticeTiles<'a> {
         let mut tiles = HashMap::new();
         for ((f, i), h) in held {
             winners[usize::from(f)][i] = h.1.clone();
-            tiles.insert((f, i), Arc::clone(&h.0));
+            tiles.insert((f, i), self.measured(f, i, &h.0)?);
         }
         let planet = PlanetGrid::partial(d.n(), d.layout().k(), r.tile_log2, r.variable, tiles)?;
         Ok(Resampled {

@@ -138,7 +138,7 @@ impl LatticeTiles<'_> {
         let mut tiles = std::collections::HashMap::new();
         for ((f, i), h) in held {
             winners[usize::from(f)][i] = h.1.clone();
-            tiles.insert((f, i), std::sync::Arc::clone(&h.0));
+            tiles.insert((f, i), self.measured(f, i, &h.0)?);
         }
         let planet = PlanetGrid::partial(d.n(), d.layout().k(), r.tile_log2, r.variable, tiles)?;
         Ok(Resampled {

@@ -19,6 +19,7 @@ mod grid;
 mod outline;
 mod spill;
 mod tile_source;
+mod verify_blocks;
 
 pub use apex::PlanetApex;
 pub use apex_grids::{
@@ -33,6 +34,7 @@ pub use blocks::{
     APEX_VIEW_BYTES, Apex, PlanetBlocks, default_cut, encode_planet_in_blocks, planet_block_groups,
 };
 pub use tile_source::{PlanetTiles, only_part, thinned};
+pub use verify_blocks::{PlanetBlockVerify, group_rect};
 
 pub use grid::{MAX_TILES_ACROSS, PlanetGrid, PlanetTile, TILE_MIN_LOG2, tile_log2, tile_of};
 
