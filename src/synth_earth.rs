@@ -136,10 +136,31 @@ pub fn run(dir: &Path, args: &EarthArgs) -> Result<()> {
         synthetic.lag16
     );
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    write_tiles(dir, &cells, &detail, &etopo, start)?;
+    let samples = cells.len() as u64 * 1201 * 1201;
+    println!(
+        "{}: {} tiles of 1201² 3″ samples ({:.3} G samples, {:.2} GB), {:.1} s",
+        dir.display(),
+        cells.len(),
+        samples as f64 / 1e9,
+        2.0 * samples as f64 / 1e9,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// Writes the `.hgt` tile of each of `cells` into `dir`, on every core, saying every hundredth.
+fn write_tiles(
+    dir: &Path,
+    cells: &[(i32, i32)],
+    detail: &EarthDetail,
+    etopo: &Etopo,
+    start: Instant,
+) -> Result<()> {
     let written = AtomicUsize::new(0);
     cells.par_iter().try_for_each(|&(lat, lon)| -> Result<()> {
         let path = dir.join(hgt_name(lat, lon));
-        let bytes = detail.hgt_tile(&etopo, lat, lon);
+        let bytes = detail.hgt_tile(etopo, lat, lon);
         write_atomically::<anyhow::Error>(&path, |f| {
             std::io::Write::write_all(f, &bytes)?;
             Ok(())
@@ -153,15 +174,5 @@ pub fn run(dir: &Path, args: &EarthArgs) -> Result<()> {
             );
         }
         Ok(())
-    })?;
-    let samples = cells.len() as u64 * 1201 * 1201;
-    println!(
-        "{}: {} tiles of 1201² 3″ samples ({:.3} G samples, {:.2} GB), {:.1} s",
-        dir.display(),
-        cells.len(),
-        samples as f64 / 1e9,
-        2.0 * samples as f64 / 1e9,
-        start.elapsed().as_secs_f64()
-    );
-    Ok(())
+    })
 }
