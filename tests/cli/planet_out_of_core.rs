@@ -143,36 +143,9 @@ fn a_planet_of_many_tiles_peaks_at_the_same_memory_as_one_of_few() {
 #[test]
 #[ignore = "about 3 minutes; run with --ignored"]
 fn a_planet_lattice_several_times_the_memory_limit_builds_at_its_inputs_level() {
-    use cbdam_builder::write::{Raster, write_geotiff};
-    use cbdam_codec::repository::GeoRef;
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path().join("insets");
-    std::fs::create_dir_all(&d).unwrap();
-    let pixel = 1.0 / 1200.0;
-    for (lat, lon) in block(6, 6) {
-        let (lat0, lon0) = (f64::from(lat) + 0.5, f64::from(lon) + 0.5);
-        let r = Raster {
-            width: 8,
-            height: 8,
-            values: (0..64)
-                .map(|i| {
-                    let (c, r) = ((i % 8) as f64, (i / 8) as f64);
-                    f64::from(height(lat0 - r * pixel, lon0 + c * pixel))
-                })
-                .collect(),
-            georef: Some(GeoRef {
-                epsg: Some(4326),
-                origin_x: lon0,
-                origin_y: lat0,
-                pixel_x: pixel,
-                pixel_y: pixel,
-                pixel_is_area: false,
-                wkt: None,
-            }),
-        };
-        let f = std::fs::File::create(d.join(format!("i{lat}_{lon}.tif"))).unwrap();
-        write_geotiff(f, &r, Some(f64::from(i16::MIN)), false).unwrap();
-    }
+    write_insets_a_degree_apart(&d);
     let limit: u64 = 96 << 20;
     let out = tmp.path().join("p.cbdam");
     let (dir, out_s) = (s(&d), s(&out));
@@ -500,4 +473,37 @@ fn the_apex_of_a_global_input_stays_within_a_bound_of_the_limit() {
 fn synth_earth(etopo: &str, earth: &str, bbox: &str) {
     let o = cbdam(&["synth", "--etopo", etopo, "--earth", earth, "--bbox", bbox]);
     assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// 36 small 3″ insets (8 × 8 samples) a degree apart, in `d` (created): each makes the
+/// lattice tiles around it hold every point at K = 11.
+pub(super) fn write_insets_a_degree_apart(d: &Path) {
+    use cbdam_builder::write::{Raster, write_geotiff};
+    use cbdam_codec::repository::GeoRef;
+    std::fs::create_dir_all(d).unwrap();
+    let pixel = 1.0 / 1200.0;
+    for (lat, lon) in block(6, 6) {
+        let (lat0, lon0) = (f64::from(lat) + 0.5, f64::from(lon) + 0.5);
+        let r = Raster {
+            width: 8,
+            height: 8,
+            values: (0..64)
+                .map(|i| {
+                    let (c, r) = ((i % 8) as f64, (i / 8) as f64);
+                    f64::from(height(lat0 - r * pixel, lon0 + c * pixel))
+                })
+                .collect(),
+            georef: Some(GeoRef {
+                epsg: Some(4326),
+                origin_x: lon0,
+                origin_y: lat0,
+                pixel_x: pixel,
+                pixel_y: pixel,
+                pixel_is_area: false,
+                wkt: None,
+            }),
+        };
+        let f = std::fs::File::create(d.join(format!("i{lat}_{lon}.tif"))).unwrap();
+        write_geotiff(f, &r, Some(f64::from(i16::MIN)), false).unwrap();
+    }
 }

@@ -151,35 +151,9 @@ fn a_planet_verified_block_by_block_fails_where_the_whole_verify_does() {
 #[test]
 #[ignore = "about 3 minutes; run with --ignored"]
 fn a_planet_verified_under_a_small_limit_peaks_below_the_whole_verify() {
-    use super::planet_out_of_core::{block, height};
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path().join("insets");
-    std::fs::create_dir_all(&d).unwrap();
-    let pixel = 1.0 / 1200.0;
-    for (lat, lon) in block(6, 6) {
-        let (lat0, lon0) = (f64::from(lat) + 0.5, f64::from(lon) + 0.5);
-        let r = Raster {
-            width: 8,
-            height: 8,
-            values: (0..64)
-                .map(|i| {
-                    let (c, r) = ((i % 8) as f64, (i / 8) as f64);
-                    f64::from(height(lat0 - r * pixel, lon0 + c * pixel))
-                })
-                .collect(),
-            georef: Some(GeoRef {
-                epsg: Some(4326),
-                origin_x: lon0,
-                origin_y: lat0,
-                pixel_x: pixel,
-                pixel_y: pixel,
-                pixel_is_area: false,
-                wkt: None,
-            }),
-        };
-        let f = std::fs::File::create(d.join(format!("i{lat}_{lon}.tif"))).unwrap();
-        write_geotiff(f, &r, Some(f64::from(i16::MIN)), false).unwrap();
-    }
+    super::planet_out_of_core::write_insets_a_degree_apart(&d);
     let repo = tmp.path().join("p.cbdam");
     let o = cbdam(&[
         "build",
