@@ -184,9 +184,11 @@ fn verify_planet_repo(
 ) -> Result<()> {
     let c = compare_planet_within(repo, tiles, repo.head().nodata(), assign, limit)?;
     if let Some(blocks) = c.blocks {
+        let (peak, end, written) = c.decoded_on_disk.unwrap_or_default();
         println!(
             "decoded in {blocks} block(s) of lattice tiles, the levels above them over the whole \
-             planet"
+             planet; the decoded finest level: {written} bytes written to temporary files, at \
+             most {peak} held at once ({end} at the end)"
         );
     }
     print_levels(&c.report, repo.head().plan().unit);

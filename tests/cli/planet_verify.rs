@@ -60,6 +60,38 @@ fn report(o: &std::process::Output) -> String {
         .join("\n")
 }
 
+/// The decoded finest level's temporary disk that verify's "decoded in …" line states: bytes
+/// written, at most held at once, held at the end.
+fn decoded_disk(o: &std::process::Output) -> (u64, u64, u64) {
+    let out = stdout(o);
+    let line = out
+        .lines()
+        .find(|l| l.starts_with("decoded in "))
+        .unwrap_or_else(|| panic!("no \"decoded in\" line: {out}"));
+    let number_before = |word: &str| -> u64 {
+        let at = line
+            .find(word)
+            .unwrap_or_else(|| panic!("{word:?} in {line}"));
+        let digits: String = line[..at]
+            .trim_end()
+            .chars()
+            .rev()
+            .take_while(char::is_ascii_digit)
+            .collect();
+        digits
+            .chars()
+            .rev()
+            .collect::<String>()
+            .parse()
+            .expect(line)
+    };
+    (
+        number_before(" bytes written"),
+        number_before(" held at once"),
+        number_before(" at the end"),
+    )
+}
+
 /// Under 4 MiB the lattice (7.4 M points held, insets astride a cube edge with a void and on a
 /// cube corner over a global grid with a void) is verified block by block, with the whole
 /// comparison's report to the last digit: every level's diamonds, vertices and maximum, each
@@ -83,6 +115,13 @@ fn a_planet_verified_block_by_block_reports_what_the_whole_verify_does() {
         stdout(&blocks)
     );
     assert_eq!(report(&blocks), report(&whole));
+    // The insets' decoded tiles were let go once they were measured: only the global grid's
+    // stride of them stays to the end.
+    let (written, held, at_end) = decoded_disk(&blocks);
+    eprintln!(
+        "decoded finest level: {written} B written, at most {held} B held, {at_end} at the end"
+    );
+    assert!(held < written && at_end * 10 < held, "{}", stdout(&blocks));
     // Every level was compared (the finest with vertices), and each input's samples.
     let report = report(&whole);
     assert!(
@@ -176,6 +215,13 @@ fn a_planet_verified_under_a_small_limit_peaks_below_the_whole_verify() {
         stdout(&blocks)
     );
     assert_eq!(report(&blocks), report(&whole));
+    let (written, held, at_end) = decoded_disk(&blocks);
+    eprintln!(
+        "decoded finest level: {written} B written, at most {held} B held, {at_end} at the end"
+    );
+    // Measured: 225.9 MB written, at most 15.8 MB held at once (each inset's tiles let go once
+    // it is measured; there is no global input, so nothing is kept to the end).
+    assert!(held * 4 < written && at_end == 0, "{}", stdout(&blocks));
     let mib = |b: u64| b as f64 / f64::from(1 << 20);
     eprintln!(
         "verify peak RSS: whole {:.1} MiB, under 64M {:.1} MiB",

@@ -408,6 +408,10 @@ pub struct PlanetComparison {
     pub max_error: f64,
     /// Compared block by block ([`crate::planet_verify`]): how many blocks; `None` when whole.
     pub blocks: Option<usize>,
+    /// Compared block by block: the most bytes the decoded finest level held on disk at once,
+    /// at the end, and written in all (the insets' tiles let go once measured; the global
+    /// inputs' stride kept to the end).
+    pub decoded_on_disk: Option<(u64, u64, u64)>,
 }
 
 impl PlanetComparison {
@@ -482,6 +486,7 @@ pub(crate) fn compare_planet_inputs(
         end_to_end,
         max_error: plan.max_error(),
         blocks: None,
+        decoded_on_disk: None,
     })
 }
 

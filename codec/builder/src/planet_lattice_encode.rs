@@ -214,7 +214,7 @@ impl LatticeTiles<'_> {
     /// Per block of the `blocks` (`block_of`: the block of each tile in a small one), the
     /// inputs whose resampling error is measured once it is done: each input on at most three
     /// faces ([`sample_footprint`]) whose tiles all lie in those blocks, after the last of them.
-    fn measured_after_blocks(
+    pub(crate) fn measured_after_blocks(
         &self,
         block_of: &HashMap<(u8, usize), usize>,
         blocks: usize,
@@ -236,5 +236,35 @@ impl LatticeTiles<'_> {
             }
         }
         after
+    }
+
+    /// How many inputs the lattice is resampled from.
+    pub(crate) fn input_count(&self) -> usize {
+        self.resampler.inputs.inputs.len()
+    }
+
+    /// The tiles (face, index) input `input`'s resampling error reads where its samples lie on
+    /// at most three faces ([`sample_footprint`]); `None` for an input measured a band of rows
+    /// at a time over every tile it can cover.
+    pub(crate) fn inset_tiles(&self, input: usize) -> Option<Vec<(u8, usize)>> {
+        let r = &self.resampler;
+        sample_footprint(&r.inputs.inputs[input], r.strides[input], r.side)?;
+        Some(
+            self.input_tiles(input)
+                .into_iter()
+                .map(|(f, t, _)| (f, t))
+                .collect(),
+        )
+    }
+
+    /// `log2` of the finest stride at which the inputs measured in bands (those
+    /// [`LatticeTiles::inset_tiles`] gives `None`) read any tile, capped at the tile's side: a
+    /// tile held at a finer stride is read by them at this one. `None` when there are none.
+    pub(crate) fn banded_stride(&self) -> Option<u32> {
+        let r = &self.resampler;
+        (0..r.inputs.inputs.len())
+            .filter(|&i| sample_footprint(&r.inputs.inputs[i], r.strides[i], r.side).is_none())
+            .map(|i| r.strides[i].min(r.tile_log2))
+            .min()
     }
 }

@@ -20,10 +20,12 @@ use crate::planet::{BYTES_PER_LATTICE_POINT, PlanetComparison, input_cache_budge
 use crate::planet_input::PlanetInputs;
 use crate::planet_lattice::{LatticeTiles, Resampler, TileHeights};
 use crate::planet_memory::PlanetMemory;
+use crate::planet_resampling::InputResampling;
 use crate::tiles::Tile;
 use cbdam_codec::geometry::{DiamondId, Domain, Layout};
 use cbdam_codec::hierarchy::planet::{
-    ApexViewWriter, PlanetBlockVerify, TileGroup, default_cut, group_rect, planet_block_groups,
+    ApexViewWriter, BlockGroups, PlanetBlockVerify, PlanetOutline, TileGroup, default_cut,
+    group_rect, planet_block_groups,
 };
 use cbdam_codec::hierarchy::resolution::HOLE;
 use cbdam_codec::hierarchy::{PlanetGrid, PlanetTile, VerifyReport};
@@ -89,49 +91,129 @@ pub fn compare_planet_in_blocks(
         (memory.block_bytes(), 1),
     )
     .map_err(BuildError::from)?;
-    let decoded = DecodedTiles::new(lattice.strides(), outline.domain(), outline.tile_log2())?;
-    for index in 0..groups.len() {
+    // Insets measured as soon as their tiles are decoded, their decoded tiles let go after.
+    let (decoded, ready, insets) = DecodedTiles::for_blocks(&lattice, &outline, &groups)?;
+    let n_inputs = inputs.inputs.len();
+    let (mut resampling, mut end_to_end) = (vec![None; n_inputs], vec![None; n_inputs]);
+    for (index, measured_now) in ready.iter().enumerate() {
         let group = groups.get(index).expect("a block of the planet");
         let mut finest = decoded.block(group);
         let mut write = |id: DiamondId, p: &[i32], v: Option<&[bool]>| finest.put(id, p, v);
         walk.verify_block(group, &lattice, &mut levels, Some(&mut write))
             .with_context(|| format!("decoding block {index} (face {})", group.face))?;
-        decoded.save(finest)?;
+        decoded.save(index, finest)?;
+        for &i in measured_now {
+            let (r, e) = both_errors(&lattice, &decoded, i)?;
+            (resampling[i], end_to_end[i]) = (Some(r), Some(e));
+            decoded.measured(insets[i].as_deref().unwrap_or_default());
+        }
     }
     drop(walk);
     let report = VerifyReport {
         levels,
         bound: params.quantizer.k() as u32,
     };
-    let resampling = (0..inputs.inputs.len())
-        .map(|i| lattice.resampling(i))
-        .collect::<Result<Vec<_>>>()?;
-    let decoded: Arc<dyn TileHeights + '_> = Arc::new(decoded);
-    lattice.set_heights(Some(decoded));
-    let end_to_end = (0..inputs.inputs.len())
-        .map(|i| lattice.resampling(i))
-        .collect::<Result<Vec<_>>>()?;
+    let (resampling, end_to_end) = the_other_inputs(&lattice, &decoded, resampling, end_to_end)?;
+    let on_disk = decoded.on_disk();
     Ok(PlanetComparison {
         report,
         resampling,
         end_to_end,
         max_error: plan.max_error(),
         blocks: Some(groups.len()),
+        decoded_on_disk: Some(on_disk),
     })
 }
 
-/// The decoded finest level of every tile, at the tile's own stride, in a temporary file:
-/// heights (4 bytes a point) then validity (1 byte), tile after tile as the blocks write them.
+/// The errors of the inputs not measured yet (global ones, a band of rows at a time): each
+/// input's resampling error, then its end-to-end error.
+fn the_other_inputs(
+    lattice: &LatticeTiles<'_>,
+    decoded: &Arc<DecodedTiles>,
+    mut resampling: Vec<Option<InputResampling>>,
+    mut end_to_end: Vec<Option<InputResampling>>,
+) -> Result<(Vec<InputResampling>, Vec<InputResampling>)> {
+    lattice.set_heights(None);
+    for (i, r) in resampling.iter_mut().enumerate() {
+        if r.is_none() {
+            *r = Some(lattice.resampling(i)?);
+        }
+    }
+    let heights: Arc<dyn TileHeights + '_> = decoded.clone();
+    lattice.set_heights(Some(heights));
+    for (i, e) in end_to_end.iter_mut().enumerate() {
+        if e.is_none() {
+            *e = Some(lattice.resampling(i)?);
+        }
+    }
+    lattice.set_heights(None);
+    Ok((
+        resampling.into_iter().flatten().collect(),
+        end_to_end.into_iter().flatten().collect(),
+    ))
+}
+
+/// Input `input`'s resampling error (the lattice against its samples) and end-to-end error
+/// (the `decoded` finest level against them).
+fn both_errors(
+    lattice: &LatticeTiles<'_>,
+    decoded: &Arc<DecodedTiles>,
+    input: usize,
+) -> Result<(InputResampling, InputResampling)> {
+    lattice.set_heights(None);
+    let resampling = lattice.resampling(input)?;
+    let heights: Arc<dyn TileHeights + '_> = decoded.clone();
+    lattice.set_heights(Some(heights));
+    let end_to_end = lattice.resampling(input);
+    lattice.set_heights(None);
+    Ok((resampling, end_to_end?))
+}
+
+/// The decoded finest level of the tiles, on disk while some input still needs it: each
+/// tile's heights (4 bytes a point) then validity (1 byte). A tile is written at its own stride
+/// in its block's temporary file while an inset whose samples it holds is still to be measured
+/// (the file goes when none of its tiles is needed), and at the stride the global inputs read
+/// it at ([`LatticeTiles::banded_stride`]) in a file kept to the end: so the disk holds the
+/// blocks around the insets being measured and a coarse planet, not the whole finest level.
 struct DecodedTiles {
     /// Per face, per tile: the stride's `log2`.
     strides: Vec<Vec<u32>>,
     rects: Vec<(i64, i64, i64, i64)>,
-    file: Mutex<(std::fs::File, u64)>,
-    /// Where each tile written starts.
-    at: Mutex<HashMap<(u8, usize), u64>>,
+    /// `log2` of the stride the global inputs read every tile at, if there are any.
+    banded: Option<u32>,
+    store: Mutex<Store>,
     tile_log2: u32,
     side: i64,
     layout: Layout,
+}
+
+/// Where [`DecodedTiles`] keeps its tiles.
+struct Store {
+    /// Tiles at the global inputs' stride (or their own where coarser), kept to the end.
+    kept: TempFile,
+    /// Per block written: its file of tiles at their own stride, and how many are still needed.
+    blocks: HashMap<usize, (TempFile, usize)>,
+    /// Per tile written: where it is.
+    at: HashMap<(u8, usize), Stored>,
+    /// Per tile: the insets still to be measured whose samples it holds.
+    pending: HashMap<(u8, usize), usize>,
+    /// Bytes in the files now, at most, and written in all.
+    on_disk: u64,
+    peak: u64,
+    written: u64,
+}
+
+/// An anonymous temporary file appended to, and its length.
+struct TempFile(std::fs::File, u64);
+
+/// Where a decoded tile is: at its own stride in a block's file (block, offset), and at a
+/// coarser or equal stride in the kept file (stride's `log2`, offset); `dropped` once the
+/// former is let go.
+#[derive(Default)]
+struct Stored {
+    own: Option<(usize, u64)>,
+    kept: Option<(u32, u64)>,
+    dropped: bool,
 }
 
 /// A decoded tile: its stride's `log2`, heights and validity.
@@ -150,20 +232,102 @@ struct BlockTiles {
     layout: Layout,
 }
 
+impl TempFile {
+    fn new() -> Result<Self> {
+        let file = tempfile::tempfile().context("creating the decoded planet's temporary file")?;
+        Ok(Self(file, 0))
+    }
+
+    /// Appends `values` then `valid`; where they start.
+    fn append(&mut self, values: &[i32], valid: &[bool]) -> Result<u64> {
+        let mut bytes = Vec::with_capacity(values.len() * 5);
+        bytes.extend(values.iter().flat_map(|v| v.to_le_bytes()));
+        bytes.extend(valid.iter().map(|&v| u8::from(v)));
+        let start = self.1;
+        self.0
+            .write_all(&bytes)
+            .context("writing the decoded planet's temporary file")?;
+        self.1 += bytes.len() as u64;
+        Ok(start)
+    }
+
+    /// The `points` heights and validity written at `start`.
+    fn read(&mut self, start: u64, points: usize) -> Result<(Vec<i32>, Vec<bool>)> {
+        let mut bytes = vec![0u8; points * 5];
+        self.0.seek(SeekFrom::Start(start))?;
+        self.0.read_exact(&mut bytes)?;
+        self.0.seek(SeekFrom::Start(self.1))?;
+        let (v, b) = bytes.split_at(points * 4);
+        let values = v
+            .chunks_exact(4)
+            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        Ok((values, b.iter().map(|&b| b != 0).collect()))
+    }
+}
+
 impl DecodedTiles {
     /// Nothing decoded yet, for the tiles of `2^tile_log2` steps of `domain` held at `strides`
-    /// (per face, per tile).
-    fn new(strides: &[Vec<u32>], domain: &Domain, tile_log2: u32) -> Result<Self> {
-        let file = tempfile::tempfile().context("creating the decoded planet's temporary file")?;
+    /// (per face, per tile), read by the global inputs at `banded` ([`LatticeTiles::banded_stride`])
+    /// and by the insets in `inset_tiles` (each tile once per inset whose samples it holds).
+    fn new(
+        strides: &[Vec<u32>],
+        domain: &Domain,
+        tile_log2: u32,
+        banded: Option<u32>,
+        inset_tiles: impl Iterator<Item = (u8, usize)>,
+    ) -> Result<Self> {
+        let mut pending = HashMap::new();
+        for tile in inset_tiles {
+            *pending.entry(tile).or_insert(0) += 1;
+        }
         Ok(Self {
             strides: strides.to_vec(),
             rects: PlanetGrid::tile_rects(domain, tile_log2),
-            file: Mutex::new((file, 0)),
-            at: Mutex::new(HashMap::new()),
+            banded,
+            store: Mutex::new(Store {
+                kept: TempFile::new()?,
+                blocks: HashMap::new(),
+                at: HashMap::new(),
+                pending,
+                on_disk: 0,
+                peak: 0,
+                written: 0,
+            }),
             tile_log2,
             side: domain.cube().expect("a cube-sphere").side(),
             layout: *domain.layout(),
         })
+    }
+
+    /// Nothing decoded yet, for the tiles of `lattice` in `groups`; with, per block, the insets
+    /// measured once it is done ([`LatticeTiles::measured_after_blocks`]), and per input the
+    /// tiles it is measured on where it is an inset ([`LatticeTiles::inset_tiles`]).
+    #[allow(clippy::type_complexity)]
+    fn for_blocks(
+        lattice: &LatticeTiles<'_>,
+        outline: &PlanetOutline,
+        groups: &BlockGroups,
+    ) -> Result<(Arc<Self>, Vec<Vec<usize>>, Vec<Option<Vec<(u8, usize)>>>)> {
+        let across = PlanetGrid::tile_rects(outline.domain(), outline.tile_log2())
+            .len()
+            .isqrt();
+        let block_of: HashMap<(u8, usize), usize> = (0..groups.len())
+            .filter_map(|b| groups.get(b).map(|g| (b, g)))
+            .flat_map(|(b, g)| g.tiles(across).map(move |i| ((g.face, i), b)))
+            .collect();
+        let ready = lattice.measured_after_blocks(&block_of, groups.len());
+        let insets: Vec<_> = (0..lattice.input_count())
+            .map(|i| lattice.inset_tiles(i))
+            .collect();
+        let decoded = Self::new(
+            lattice.strides(),
+            outline.domain(),
+            outline.tile_log2(),
+            lattice.banded_stride(),
+            insets.iter().flatten().flatten().copied(),
+        )?;
+        Ok((Arc::new(decoded), ready, insets))
     }
 
     /// The tiles of `group`, every point invalid (0) until a diamond writes it.
@@ -188,49 +352,129 @@ impl DecodedTiles {
         }
     }
 
-    /// Appends `block`'s tiles to the file.
-    fn save(&self, block: BlockTiles) -> Result<()> {
-        let mut file = self.file.lock().expect("the decoded tiles' file");
-        let mut at = self.at.lock().expect("the decoded tiles' index");
-        for (i, (_, _, values, valid)) in block.tiles {
-            let mut bytes = Vec::with_capacity(values.len() * 5);
-            bytes.extend(values.iter().flat_map(|v| v.to_le_bytes()));
-            bytes.extend(valid.iter().map(|&v| u8::from(v)));
-            let start = file.1;
-            file.0
-                .write_all(&bytes)
-                .context("writing the decoded planet's temporary file")?;
-            file.1 += bytes.len() as u64;
-            at.insert((block.face, i), start);
+    /// Writes block `index`'s tiles: at their own stride where an inset still needs them, and
+    /// at the global inputs' stride.
+    fn save(&self, index: usize, block: BlockTiles) -> Result<()> {
+        let mut store = self.store.lock().expect("the decoded tiles");
+        let store = &mut *store;
+        let mut own = None;
+        for (i, (rect, s, values, valid)) in block.tiles {
+            let key = (block.face, i);
+            let mut stored = Stored::default();
+            let coarse = self.banded.map(|b| s.max(b));
+            if coarse == Some(s) {
+                stored.kept = Some((s, store.kept.append(&values, &valid)?));
+            } else {
+                if store.pending.get(&key).is_some_and(|&n| n > 0) {
+                    let file = match &mut own {
+                        Some(f) => f,
+                        None => own.insert((TempFile::new()?, 0)),
+                    };
+                    stored.own = Some((index, file.0.append(&values, &valid)?));
+                    file.1 += 1;
+                }
+                if let Some(c) = coarse {
+                    let (v, b) = points_at_stride(rect, s, c, &values, &valid);
+                    stored.kept = Some((c, store.kept.append(&v, &b)?));
+                }
+            }
+            store.at.insert(key, stored);
         }
+        let before = store.on_disk;
+        if let Some(file) = own {
+            store.blocks.insert(index, file);
+        }
+        store.on_disk = store.kept.1 + store.blocks.values().map(|f| f.0.1).sum::<u64>();
+        store.written += store.on_disk - before;
+        store.peak = store.peak.max(store.on_disk);
         Ok(())
     }
 
-    /// Tile `index` of `face` as decoded: heights and validity at its own stride.
-    fn load(&self, face: u8, index: usize) -> Result<Option<Decoded>> {
-        let Some(&start) = self
-            .at
-            .lock()
-            .expect("the decoded tiles' index")
-            .get(&(face, index))
-        else {
+    /// An inset whose samples `tiles` hold was measured: the tiles no other inset needs are let
+    /// go at their own stride, and a block's file once none of its tiles is needed.
+    fn measured(&self, tiles: &[(u8, usize)]) {
+        let mut store = self.store.lock().expect("the decoded tiles");
+        let store = &mut *store;
+        for key in tiles {
+            let Some(n) = store.pending.get_mut(key) else {
+                continue;
+            };
+            *n = n.saturating_sub(1);
+            if *n > 0 {
+                continue;
+            }
+            let Some(stored) = store.at.get_mut(key) else {
+                continue;
+            };
+            let Some((block, _)) = stored.own.take() else {
+                continue;
+            };
+            stored.dropped = true;
+            if let Some(file) = store.blocks.get_mut(&block) {
+                file.1 -= 1;
+                if file.1 == 0 {
+                    let gone = store.blocks.remove(&block).map_or(0, |f| f.0.1);
+                    store.on_disk -= gone;
+                }
+            }
+        }
+    }
+
+    /// The most bytes the temporary files held at once, what they hold now, and the bytes
+    /// written to them.
+    fn on_disk(&self) -> (u64, u64, u64) {
+        let store = self.store.lock().expect("the decoded tiles");
+        (store.peak, store.on_disk, store.written)
+    }
+
+    /// Tile `index` of `face` as decoded, at a stride whose points include those of stride
+    /// `2^want`: `None` where no block decoded it; an error where the points asked for were let
+    /// go (an input measured after the insets it was let go for).
+    fn load(&self, face: u8, index: usize, want: u32) -> Result<Option<Decoded>> {
+        let mut store = self.store.lock().expect("the decoded tiles");
+        let store = &mut *store;
+        let Some(stored) = store.at.get(&(face, index)) else {
             return Ok(None);
         };
+        let rect = self.rects[index];
+        if let Some((s, start)) = stored.kept.filter(|&(s, _)| s <= want) {
+            let (w, h) = tile_size(rect, s);
+            let (values, valid) = store.kept.read(start, w * h)?;
+            return Ok(Some((s, values, valid)));
+        }
+        let (Some((block, start)), false) = (stored.own, stored.dropped) else {
+            bail!(
+                "the decoded tile {index} of face {face} was let go before an input reading it \
+                 at stride 2^{want} was measured"
+            );
+        };
         let s = self.strides[usize::from(face)][index];
-        let (w, h) = tile_size(self.rects[index], s);
-        let mut bytes = vec![0u8; w * h * 5];
-        let mut file = self.file.lock().expect("the decoded tiles' file");
-        file.0.seek(SeekFrom::Start(start))?;
-        file.0.read_exact(&mut bytes)?;
-        let end = file.1;
-        file.0.seek(SeekFrom::Start(end))?;
-        let (v, b) = bytes.split_at(w * h * 4);
-        let values = v
-            .chunks_exact(4)
-            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        Ok(Some((s, values, b.iter().map(|&b| b != 0).collect())))
+        let (w, h) = tile_size(rect, s);
+        let file = store
+            .blocks
+            .get_mut(&block)
+            .expect("a needed tile's block file");
+        let (values, valid) = file.0.read(start, w * h)?;
+        Ok(Some((s, values, valid)))
     }
+}
+
+/// The points at stride `2^c` of a tile over `rect` held at stride `2^s` (`c >= s`).
+fn points_at_stride(
+    rect: (i64, i64, i64, i64),
+    s: u32,
+    c: u32,
+    values: &[i32],
+    valid: &[bool],
+) -> (Vec<i32>, Vec<bool>) {
+    let (w, _) = tile_size(rect, s);
+    let (cw, ch) = tile_size(rect, c);
+    let step = 1usize << (c - s);
+    let at = |k: usize| (k / cw) * step * w + (k % cw) * step;
+    (
+        (0..cw * ch).map(|k| values[at(k)]).collect(),
+        (0..cw * ch).map(|k| valid[at(k)]).collect(),
+    )
 }
 
 impl TileHeights for DecodedTiles {
@@ -240,8 +484,8 @@ impl TileHeights for DecodedTiles {
         let (x0, y0, _, _) = tile.rect;
         let points = tile.points();
         let (mut values, mut valid) = (vec![0; points], vec![false; points]);
-        if let Some((s, dv, dvalid)) = self.load(face, index)? {
-            let (w, _) = tile_size(tile.rect, s);
+        if let Some((s, dv, dvalid)) = self.load(face, index, tile.stride)? {
+            let (w, _) = tile_size(self.rects[index], s);
             let step = tile.stride;
             for row in 0..tile.grid.height {
                 for col in 0..tile.grid.width {
