@@ -25,9 +25,11 @@ pub struct VerifyArgs {
     /// or GDAL VRTs of tiles, as `build` takes them.
     #[arg(long, required = true, num_args = 1..)]
     against: Vec<PathBuf>,
-    /// Memory to stay within (e.g. 2G, 512M; default half of RAM): a hierarchy from several
+    /// Memory to stay within (e.g. 2G, 512M; default half of RAM): a plane from several
     /// inputs, or from one too large to decode whole (26 bytes a sample), is decoded block by
-    /// block, the inputs' lattice kept in temporary files above it.
+    /// block, the inputs' lattice kept in temporary files above it; a planet whose lattice does
+    /// not fit (24 bytes a point) is compared block by block as the build encodes it, the
+    /// decoded finest level on disk only while an input still needs it (docs/PLANET.md).
     #[arg(long, value_name = "SIZE")]
     memory_limit: Option<flags::ByteSize>,
     /// Decode blocks of this plan (testing).
