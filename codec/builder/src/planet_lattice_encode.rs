@@ -214,7 +214,7 @@ impl LatticeTiles<'_> {
     /// Per block of the `blocks` (`block_of`: the block of each tile in a small one), the
     /// inputs whose resampling error is measured once it is done: each input on at most three
     /// faces ([`sample_footprint`]) whose tiles all lie in those blocks, after the last of them.
-    pub(crate) fn measured_after_blocks(
+    fn measured_after_blocks(
         &self,
         block_of: &HashMap<(u8, usize), usize>,
         blocks: usize,
@@ -248,9 +248,9 @@ impl LatticeTiles<'_> {
     /// at a time over every tile it can cover.
     pub(crate) fn inset_tiles(&self, input: usize) -> Option<Vec<(u8, usize)>> {
         let r = &self.resampler;
-        sample_footprint(&r.inputs.inputs[input], r.strides[input], r.side)?;
+        let footprint = sample_footprint(&r.inputs.inputs[input], r.strides[input], r.side)?;
         Some(
-            self.input_tiles(input)
+            self.input_tiles_in(input, Some(footprint.as_slice()))
                 .into_iter()
                 .map(|(f, t, _)| (f, t))
                 .collect(),

@@ -301,7 +301,7 @@ impl DecodedTiles {
     }
 
     /// Nothing decoded yet, for the tiles of `lattice` in `groups`; with, per block, the insets
-    /// measured once it is done ([`LatticeTiles::measured_after_blocks`]), and per input the
+    /// measured once it is done (after the last block holding its tiles), and per input the
     /// tiles it is measured on where it is an inset ([`LatticeTiles::inset_tiles`]).
     #[allow(clippy::type_complexity)]
     fn for_blocks(
@@ -316,10 +316,21 @@ impl DecodedTiles {
             .filter_map(|b| groups.get(b).map(|g| (b, g)))
             .flat_map(|(b, g)| g.tiles(across).map(move |i| ((g.face, i), b)))
             .collect();
-        let ready = lattice.measured_after_blocks(&block_of, groups.len());
         let insets: Vec<_> = (0..lattice.input_count())
             .map(|i| lattice.inset_tiles(i))
             .collect();
+        // Each inset after the last block holding its tiles (as the build's
+        // `measured_after_blocks`, from the footprints just found).
+        let mut ready = vec![Vec::new(); groups.len()];
+        for (i, tiles) in insets.iter().enumerate() {
+            let last = tiles.as_ref().and_then(|tiles| {
+                let blocks = tiles.iter().map(|t| block_of.get(t).copied());
+                blocks.collect::<Option<Vec<_>>>()?.into_iter().max()
+            });
+            if let Some(b) = last {
+                ready[b].push(i);
+            }
+        }
         let decoded = Self::new(
             lattice.strides(),
             outline.domain(),
