@@ -185,12 +185,12 @@ fn verify_planet_repo(
     limit: u64,
 ) -> Result<()> {
     let c = compare_planet_within(repo, tiles, repo.head().nodata(), assign, limit)?;
-    if let Some(blocks) = c.blocks {
-        let (peak, end, written) = c.decoded_on_disk.unwrap_or_default();
+    if let Some(b) = c.blocks {
         println!(
-            "decoded in {blocks} block(s) of lattice tiles, the levels above them over the whole \
-             planet; the decoded finest level: {written} bytes written to temporary files, at \
-             most {peak} held at once ({end} at the end)"
+            "decoded in {} block(s) of lattice tiles, the levels above them over the whole \
+             planet; the decoded finest level: {} bytes written to temporary files, at most {} \
+             held at once ({} at the end)",
+            b.blocks, b.decoded_written, b.decoded_peak, b.decoded_at_end
         );
     }
     print_levels(&c.report, repo.head().plan().unit);

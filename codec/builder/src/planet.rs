@@ -406,12 +406,21 @@ pub struct PlanetComparison {
     pub end_to_end: Vec<InputResampling>,
     /// The repository's bound in metres.
     pub max_error: f64,
-    /// Compared block by block ([`crate::planet_verify`]): how many blocks; `None` when whole.
-    pub blocks: Option<usize>,
-    /// Compared block by block: the most bytes the decoded finest level held on disk at once,
-    /// at the end, and written in all (the insets' tiles let go once measured; the global
-    /// inputs' stride kept to the end).
-    pub decoded_on_disk: Option<(u64, u64, u64)>,
+    /// Compared block by block ([`crate::planet_verify`]): how; `None` when whole.
+    pub blocks: Option<BlockWise>,
+}
+
+/// How a planet was compared block by block ([`crate::planet_verify`]).
+#[derive(Debug, Clone, Copy)]
+pub struct BlockWise {
+    /// Blocks of lattice tiles.
+    pub blocks: usize,
+    /// Bytes of the decoded finest level written to temporary files.
+    pub decoded_written: u64,
+    /// The most of them held at once (the insets' tiles are let go once measured).
+    pub decoded_peak: u64,
+    /// Those held at the end (every tile at the global inputs' stride).
+    pub decoded_at_end: u64,
 }
 
 impl PlanetComparison {
@@ -486,7 +495,6 @@ pub(crate) fn compare_planet_inputs(
         end_to_end,
         max_error: plan.max_error(),
         blocks: None,
-        decoded_on_disk: None,
     })
 }
 

@@ -257,14 +257,9 @@ impl LatticeTiles<'_> {
         )
     }
 
-    /// `log2` of the finest stride at which the inputs measured in bands (those
-    /// [`LatticeTiles::inset_tiles`] gives `None`) read any tile, capped at the tile's side: a
-    /// tile held at a finer stride is read by them at this one. `None` when there are none.
-    pub(crate) fn banded_stride(&self) -> Option<u32> {
-        let r = &self.resampler;
-        (0..r.inputs.inputs.len())
-            .filter(|&i| sample_footprint(&r.inputs.inputs[i], r.strides[i], r.side).is_none())
-            .map(|i| r.strides[i].min(r.tile_log2))
-            .min()
+    /// `log2` of the stride input `input` reads the tiles at, capped at the tile's side (a
+    /// tile held at a finer stride is read at this one).
+    pub(crate) fn view_stride_of(&self, input: usize) -> u32 {
+        self.resampler.strides[input].min(self.resampler.tile_log2)
     }
 }

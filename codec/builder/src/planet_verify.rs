@@ -16,7 +16,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::assign::AssignedGeoRef;
 use crate::error::{BuildError, Context, Result, bail};
-use crate::planet::{BYTES_PER_LATTICE_POINT, PlanetComparison, input_cache_budget};
+use crate::planet::{BYTES_PER_LATTICE_POINT, BlockWise, PlanetComparison, input_cache_budget};
 use crate::planet_input::PlanetInputs;
 use crate::planet_lattice::{LatticeTiles, Resampler, TileHeights};
 use crate::planet_memory::PlanetMemory;
@@ -93,8 +93,7 @@ pub fn compare_planet_in_blocks(
     .map_err(BuildError::from)?;
     // Insets measured as soon as their tiles are decoded, their decoded tiles let go after.
     let (decoded, ready, insets) = DecodedTiles::for_blocks(&lattice, &outline, &groups)?;
-    let n_inputs = inputs.inputs.len();
-    let (mut resampling, mut end_to_end) = (vec![None; n_inputs], vec![None; n_inputs]);
+    let mut measured = vec![None; inputs.inputs.len()];
     for (index, measured_now) in ready.iter().enumerate() {
         let group = groups.get(index).expect("a block of the planet");
         let mut finest = decoded.block(group);
@@ -103,8 +102,7 @@ pub fn compare_planet_in_blocks(
             .with_context(|| format!("decoding block {index} (face {})", group.face))?;
         decoded.save(index, finest)?;
         for &i in measured_now {
-            let (r, e) = both_errors(&lattice, &decoded, i)?;
-            (resampling[i], end_to_end[i]) = (Some(r), Some(e));
+            measured[i] = Some(both_errors(&lattice, &decoded, i)?);
             decoded.measured(insets[i].as_deref().unwrap_or_default());
         }
     }
@@ -113,44 +111,45 @@ pub fn compare_planet_in_blocks(
         levels,
         bound: params.quantizer.k() as u32,
     };
-    let (resampling, end_to_end) = the_other_inputs(&lattice, &decoded, resampling, end_to_end)?;
+    let (resampling, end_to_end) = the_other_inputs(&lattice, &decoded, measured)?;
     let on_disk = decoded.on_disk();
     Ok(PlanetComparison {
         report,
         resampling,
         end_to_end,
         max_error: plan.max_error(),
-        blocks: Some(groups.len()),
-        decoded_on_disk: Some(on_disk),
+        blocks: Some(BlockWise {
+            blocks: groups.len(),
+            decoded_written: on_disk.2,
+            decoded_peak: on_disk.0,
+            decoded_at_end: on_disk.1,
+        }),
     })
 }
 
-/// The errors of the inputs not measured yet (global ones, a band of rows at a time): each
-/// input's resampling error, then its end-to-end error.
+/// The errors of the inputs not measured during the blocks (global ones, a band of rows at a
+/// time), once the blocks are let go.
 fn the_other_inputs(
     lattice: &LatticeTiles<'_>,
     decoded: &Arc<DecodedTiles>,
-    mut resampling: Vec<Option<InputResampling>>,
-    mut end_to_end: Vec<Option<InputResampling>>,
+    measured: Vec<Option<(InputResampling, InputResampling)>>,
 ) -> Result<(Vec<InputResampling>, Vec<InputResampling>)> {
-    lattice.set_heights(None);
-    for (i, r) in resampling.iter_mut().enumerate() {
-        if r.is_none() {
-            *r = Some(lattice.resampling(i)?);
-        }
-    }
-    let heights: Arc<dyn TileHeights + '_> = decoded.clone();
-    lattice.set_heights(Some(heights));
-    for (i, e) in end_to_end.iter_mut().enumerate() {
-        if e.is_none() {
-            *e = Some(lattice.resampling(i)?);
-        }
-    }
-    lattice.set_heights(None);
-    Ok((
-        resampling.into_iter().flatten().collect(),
-        end_to_end.into_iter().flatten().collect(),
-    ))
+    measured
+        .into_iter()
+        .enumerate()
+        .map(|(i, m)| m.map_or_else(|| both_errors(lattice, decoded, i), Ok))
+        .collect::<Result<Vec<_>>>()
+        .map(|both| both.into_iter().unzip())
+}
+
+/// `log2` of the finest stride at which the inputs measured in bands (those `insets` gives no
+/// tiles for, [`LatticeTiles::inset_tiles`]) read any tile: a tile held at a finer stride is
+/// read by them at this one. `None` when there are none.
+fn banded_stride(lattice: &LatticeTiles<'_>, insets: &[Option<Vec<(u8, usize)>>]) -> Option<u32> {
+    (0..insets.len())
+        .filter(|&i| insets[i].is_none())
+        .map(|i| lattice.view_stride_of(i))
+        .min()
 }
 
 /// Input `input`'s resampling error (the lattice against its samples) and end-to-end error
@@ -173,7 +172,7 @@ fn both_errors(
 /// tile's heights (4 bytes a point) then validity (1 byte). A tile is written at its own stride
 /// in its block's temporary file while an inset whose samples it holds is still to be measured
 /// (the file goes when none of its tiles is needed), and at the stride the global inputs read
-/// it at ([`LatticeTiles::banded_stride`]) in a file kept to the end: so the disk holds the
+/// it at ([`banded_stride`]) in a file kept to the end: so the disk holds the
 /// blocks around the insets being measured and a coarse planet, not the whole finest level.
 struct DecodedTiles {
     /// Per face, per tile: the stride's `log2`.
@@ -206,14 +205,12 @@ struct Store {
 /// An anonymous temporary file appended to, and its length.
 struct TempFile(std::fs::File, u64);
 
-/// Where a decoded tile is: at its own stride in a block's file (block, offset), and at a
-/// coarser or equal stride in the kept file (stride's `log2`, offset); `dropped` once the
-/// former is let go.
+/// Where a decoded tile is: at its own stride in a block's file (block, offset) while an inset
+/// still needs it, and at a coarser or equal stride in the kept file (stride's `log2`, offset).
 #[derive(Default)]
 struct Stored {
     own: Option<(usize, u64)>,
     kept: Option<(u32, u64)>,
-    dropped: bool,
 }
 
 /// A decoded tile: its stride's `log2`, heights and validity.
@@ -268,7 +265,7 @@ impl TempFile {
 
 impl DecodedTiles {
     /// Nothing decoded yet, for the tiles of `2^tile_log2` steps of `domain` held at `strides`
-    /// (per face, per tile), read by the global inputs at `banded` ([`LatticeTiles::banded_stride`])
+    /// (per face, per tile), read by the global inputs at `banded` ([`banded_stride`])
     /// and by the insets in `inset_tiles` (each tile once per inset whose samples it holds).
     fn new(
         strides: &[Vec<u32>],
@@ -335,7 +332,7 @@ impl DecodedTiles {
             lattice.strides(),
             outline.domain(),
             outline.tile_log2(),
-            lattice.banded_stride(),
+            banded_stride(lattice, &insets),
             insets.iter().flatten().flatten().copied(),
         )?;
         Ok((Arc::new(decoded), ready, insets))
@@ -420,7 +417,6 @@ impl DecodedTiles {
             let Some((block, _)) = stored.own.take() else {
                 continue;
             };
-            stored.dropped = true;
             if let Some(file) = store.blocks.get_mut(&block) {
                 file.1 -= 1;
                 if file.1 == 0 {
@@ -453,10 +449,10 @@ impl DecodedTiles {
             let (values, valid) = store.kept.read(start, w * h)?;
             return Ok(Some((s, values, valid)));
         }
-        let (Some((block, start)), false) = (stored.own, stored.dropped) else {
+        let Some((block, start)) = stored.own else {
             bail!(
-                "the decoded tile {index} of face {face} was let go before an input reading it \
-                 at stride 2^{want} was measured"
+                "the decoded tile {index} of face {face} is not kept at stride 2^{want} (let go \
+                 before an input reading it there was measured)"
             );
         };
         let s = self.strides[usize::from(face)][index];
