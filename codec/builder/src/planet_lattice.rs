@@ -503,6 +503,18 @@ struct TileCache {
 }
 
 impl TileCache {
+    /// Lets the least recently used tiles go until the rest fit the budget.
+    fn let_go_over_budget(&mut self) {
+        while self.bytes > self.budget {
+            let Some(old) = self.order.pop_front() else {
+                break;
+            };
+            if let Some(t) = self.held.remove(&old) {
+                self.bytes -= tile_bytes(t.0.points());
+            }
+        }
+    }
+
     /// The tile held under `key`, if any, made the most recently used.
     fn get(&mut self, key: &(u8, usize, u32)) -> Option<Held> {
         let held = Arc::clone(self.held.get(key)?);
@@ -601,6 +613,13 @@ impl<'a> LatticeTiles<'a> {
         })
     }
 
+    /// Keeps `bytes` fewer of tiles from now on (at least nothing), letting the oldest go.
+    pub fn shrink_cache(&self, bytes: u64) {
+        let mut cache = self.cache.lock().expect("the tile cache");
+        cache.budget = cache.budget.saturating_sub(bytes);
+        cache.let_go_over_budget();
+    }
+
     /// Measures `heights` instead of the lattice's heights from now on (`None`: the lattice's).
     pub fn set_heights(&self, heights: Option<Arc<dyn TileHeights + 'a>>) {
         *self.heights.lock().expect("the heights measured") = heights;
@@ -652,14 +671,7 @@ impl<'a> LatticeTiles<'a> {
         if bytes <= cache.budget && cache.held.insert(key, Arc::clone(&held)).is_none() {
             cache.bytes += bytes;
             cache.order.push_back(key);
-            while cache.bytes > cache.budget {
-                let Some(old) = cache.order.pop_front() else {
-                    break;
-                };
-                if let Some(t) = cache.held.remove(&old) {
-                    cache.bytes -= tile_bytes(t.0.points());
-                }
-            }
+            cache.let_go_over_budget();
         }
         Ok(held)
     }

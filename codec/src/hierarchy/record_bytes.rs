@@ -156,12 +156,18 @@ impl RecordSpill {
     ) -> Result<Vec<(usize, usize)>, CodecError> {
         let mut spans = Vec::with_capacity(records.len());
         for r in records {
-            self.file.write_all(&r.bytes)?;
-            spans.push((self.len, r.bytes.len()));
-            self.len += r.bytes.len();
+            spans.push((self.append(&r.bytes)?, r.bytes.len()));
             r.bytes = RecordBytes::default();
         }
         Ok(spans)
+    }
+
+    /// Appends `bytes` to the file: where they start.
+    pub(crate) fn append(&mut self, bytes: &[u8]) -> Result<usize, CodecError> {
+        self.file.write_all(bytes)?;
+        let start = self.len;
+        self.len += bytes.len();
+        Ok(start)
     }
 
     /// Maps the file and gives each record of `records` its bytes at `spans[i]` back.
@@ -171,21 +177,37 @@ impl RecordSpill {
         spans: &[(usize, usize)],
     ) -> Result<(), CodecError> {
         debug_assert_eq!(records.len(), spans.len());
+        let Some(map) = self.into_map()? else {
+            return Ok(()); // nothing to map: every record is empty
+        };
+        for (r, &(start, len)) in records.iter_mut().zip(spans) {
+            r.bytes = RecordBytes::spilled(&map, start, len);
+        }
+        Ok(())
+    }
+
+    /// The file mapped read-only, once nothing more is appended; `None` when nothing was (an
+    /// empty file cannot be mapped).
+    pub(crate) fn into_map(self) -> Result<Option<Arc<memmap2::Mmap>>, CodecError> {
         let file = self.file.into_inner().map_err(|e| e.into_error())?;
         if self.len == 0 {
-            return Ok(()); // nothing to map: every record is empty
+            return Ok(None);
         }
         // SAFETY: the file is unlinked and private to this process, and nothing writes to it
         // any more (the writer was consumed above), so the mapping cannot change under us.
-        let map = Arc::new(unsafe { memmap2::Mmap::map(&file)? });
-        for (r, &(start, len)) in records.iter_mut().zip(spans) {
-            r.bytes = RecordBytes(Repr::Spilled {
-                map: Arc::clone(&map),
-                start,
-                len,
-            });
-        }
-        Ok(())
+        Ok(Some(Arc::new(unsafe { memmap2::Mmap::map(&file)? })))
+    }
+}
+
+impl RecordBytes {
+    /// `len` bytes at `start` of a spill file's mapping ([`RecordSpill::into_map`]).
+    pub(crate) fn spilled(map: &Arc<memmap2::Mmap>, start: usize, len: usize) -> Self {
+        debug_assert!(start + len <= map.len());
+        RecordBytes(Repr::Spilled {
+            map: Arc::clone(map),
+            start,
+            len,
+        })
     }
 }
 

@@ -31,6 +31,7 @@ use rayon::prelude::*;
 use super::apex::PlanetApex;
 use super::apex_view::{ApexView, ApexViewWriter};
 use super::block_groups::{BlockGroups, TileGroup};
+use super::finished::{BYTES_PER_RECORD, BYTES_PER_STORED, FinishedRecords};
 use super::grid::{tiles_across, tiles_meeting};
 use super::outline::PlanetOutline;
 use super::tile_source::{PlanetTiles, Rect, held_planet, tiles_under, union};
@@ -41,12 +42,15 @@ use super::{
 use crate::CodecError;
 use crate::geometry::{DiamondId, Domain};
 use crate::hierarchy::blocks::{BlockJournal, BlockOutput};
-use crate::hierarchy::encode::{EncodeOptions, saturate_errors};
-use crate::hierarchy::record_bytes::KeptRecords;
+use crate::hierarchy::encode::EncodeOptions;
 use crate::hierarchy::refine::Refined;
 use crate::hierarchy::resolution::with_parents;
 use crate::hierarchy::{Encoded, Record};
 use crate::quant::Quantizer;
+
+/// Bytes an id takes in a set of ids built in order (a B-tree's full leaves of 11 ids of 12
+/// bytes and their headers, 13.1 bytes an id) with room for its inner nodes and half-full leaves.
+const SET_BYTES_PER_ID: u64 = 16;
 
 /// The deepest cut [`default_cut`] takes: a block's tile this many of the cut level's radii
 /// across (the blocks' margins, the ancestors of the diamonds they own, about 2 radii each
@@ -220,6 +224,21 @@ impl<'a> PlanetBlocks<'a> {
         Ok(self)
     }
 
+    /// Bytes the encode holds for the planet's diamonds whatever its blocks, until it is
+    /// finished: the outline's leaves, the stored and recorded sets, and what the finished
+    /// records keep ([`FinishedRecords`]). A memory plan takes them from what its blocks may
+    /// hold.
+    pub fn diamond_bytes(&self) -> u64 {
+        let count = |sets: &mut dyn Iterator<Item = usize>| sets.map(|n| n as u64).sum::<u64>();
+        let leaves = count(&mut self.outline.leaves.iter().map(BTreeSet::len));
+        let stored = count(&mut self.stored.iter().map(Vec::len));
+        let recorded = count(&mut self.recorded.iter().map(BTreeSet::len));
+        let id = std::mem::size_of::<DiamondId>() as u64;
+        (leaves + recorded) * SET_BYTES_PER_ID
+            + stored * (id + BYTES_PER_STORED)
+            + recorded * BYTES_PER_RECORD
+    }
+
     /// The apex: the levels above the cut.
     pub fn apex(&self) -> &PlanetApex {
         &self.apex
@@ -282,10 +301,12 @@ impl<'a> PlanetBlocks<'a> {
         after_block: &mut dyn FnMut(usize) -> Result<(), CodecError>,
     ) -> Result<Encoded, CodecError> {
         let domain = self.outline.domain;
-        let mut kept = KeptRecords::new(spill)?;
-        kept.extend(self.apex.records.clone())?;
-        let mut own_error: HashMap<DiamondId, u32> =
-            self.apex.grids.ids().map(|id| (id, 0)).collect();
+        let recorded = self.recorded.iter().map(BTreeSet::len).sum();
+        let mut finished = FinishedRecords::new(&self.stored, recorded, spill)?;
+        finished.keep(&self.apex.records)?;
+        for id in self.apex.grids.ids() {
+            finished.measure(id, 0);
+        }
         let block = self.block_encode();
         let block_of = self.groups.block_of_tiles(block.across);
         for index in 0..self.block_count() {
@@ -305,25 +326,13 @@ impl<'a> PlanetBlocks<'a> {
                     output
                 }
             };
-            kept.extend(output.records)?;
+            finished.keep(&output.records)?;
             for (id, e) in output.own_errors {
-                let max = own_error.entry(id).or_insert(e);
-                *max = (*max).max(e);
+                finished.measure(id, e);
             }
             after_block(index)?;
         }
-        if let Some(id) = self
-            .stored
-            .iter()
-            .flatten()
-            .find(|id| !own_error.contains_key(id))
-        {
-            return Err(CodecError::invalid(format!(
-                "diamond {id} is in no block: the planet's tiles do not cover its centre"
-            )));
-        }
-        let (records, leaf_error) =
-            saturate_errors(&domain, &self.stored, kept.finish()?, &own_error);
+        let (records, leaf_error) = finished.finish(&domain)?;
         Ok(Encoded {
             params: self.params,
             roots: self.apex.roots.clone(),

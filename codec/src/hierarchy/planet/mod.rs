@@ -15,6 +15,7 @@ mod apex_grids;
 mod apex_view;
 mod block_groups;
 mod blocks;
+mod finished;
 mod grid;
 mod outline;
 mod spill;
@@ -28,6 +29,7 @@ pub use apex_grids::{
 };
 pub use apex_view::{ApexView, ApexViewWriter, IN_MEMORY_BYTES as APEX_VIEW_IN_MEMORY_BYTES};
 pub use block_groups::{BlockGroups, TileGroup};
+pub use finished::{BYTES_PER_RECORD, BYTES_PER_STORED};
 pub use outline::PlanetOutline;
 
 pub use blocks::{
