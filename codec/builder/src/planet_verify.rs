@@ -80,9 +80,15 @@ pub fn compare_planet_in_blocks(
         .map(|e| Ok((e.id, repo.record(e.id)?)))
         .collect::<Result<Vec<_>>>()?;
     repo.release_pages();
-    let (walk, mut levels) =
-        PlanetBlockVerify::new(params, head.root_bytes(), records, &outline, cut, &view)
-            .context("decoding the planet's apex")?;
+    let (walk, mut levels) = PlanetBlockVerify::new(
+        params,
+        head.root_bytes(),
+        records,
+        (&outline, &view),
+        cut,
+        memory.block_bytes(),
+    )
+    .context("decoding the planet's apex")?;
     drop(view);
     let groups = planet_block_groups(
         &outline,

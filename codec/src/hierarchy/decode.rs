@@ -357,7 +357,7 @@ pub(super) fn walk_level(
     pool: &GridPool,
     visit: &mut impl FnMut(&[Visit<'_>]),
 ) -> Result<HashMap<DiamondId, Refined>, CodecError> {
-    let mut next = HashMap::with_capacity(records.ids.len());
+    let mut next = HashMap::with_capacity(records.ids.len().min(ids.len()));
     let chunk = PARALLEL_CHUNK_PER_WORKER * rayon::current_num_threads().max(1);
     for ids in ids.chunks(chunk) {
         let decoded = decode_chunk(decoder, ids, records, prev, scratch, pool);

@@ -332,6 +332,13 @@ impl PartialEq for ApexRefinements {
     }
 }
 
+/// Bytes of a refinement of a grid of side `n` (its values and, at most, its validity): what a
+/// run of refinements held at once is counted in.
+pub(super) fn refinement_bytes(n: usize) -> usize {
+    let side = 2 * n - 1;
+    (n * n + (n - 1) * (n - 1)) * 4 + side * side
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -11,6 +11,7 @@
 //! are kept per diamond (as [`super::encode`] does for α = ½); α = 1 only.
 
 mod apex;
+mod apex_finest;
 mod apex_grids;
 mod apex_view;
 mod block_groups;

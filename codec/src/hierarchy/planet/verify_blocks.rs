@@ -19,6 +19,8 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use super::apex_finest::{ApexFinest, FinestVisit};
+use super::apex_grids::{ApexRefinements, RefinedSpill, refinement_bytes};
 use super::apex_view::ApexView;
 use super::block_groups::TileGroup;
 use super::grid::tiles_across;
@@ -42,32 +44,30 @@ pub struct PlanetBlockVerify<'a> {
     levels: Vec<LevelRecords<'a>>,
     /// Per level from the cut, in id order: the diamonds the whole walk visits.
     visited: Vec<Vec<DiamondId>>,
-    /// Refinements of the recorded diamonds of the level above the cut.
-    apex: HashMap<DiamondId, Refined>,
-    /// Per level above the cut, in id order: the visited diamonds of the finest level's parity,
-    /// their grids and validity (what a reconstruction writes before the blocks' levels).
-    apex_finest: Vec<Vec<ApexDiamond>>,
+    /// Refinements of the recorded diamonds of the level above the cut (spilled, read back a
+    /// block's at a time).
+    apex: ApexRefinements,
+    /// The visited apex diamonds of the finest level's parity, their grids and validity (what
+    /// a reconstruction writes before the blocks' levels; spilled).
+    apex_finest: ApexFinest,
     cut: u8,
 }
-
-/// What is handed each diamond a reconstruction writes: its id, grid and validity (`None`: all
-/// valid).
-pub type FinestVisit<'f> = dyn FnMut(DiamondId, &[i32], Option<&[bool]>) + 'f;
-
-/// A diamond of the apex as the walk visited it: its grid and the grid's validity.
-type ApexDiamond = (DiamondId, Vec<i32>, Option<Vec<bool>>);
 
 impl<'a> PlanetBlockVerify<'a> {
     /// Decodes the levels above `cut` (clamped to the finest level) over the whole planet that
     /// `outline` outlines and compares each visited diamond's vertices with the lattice as
-    /// `view` (written for the same cut) holds it: the apex's levels of the report.
+    /// `view` (written for the same cut) holds it: the apex's levels of the report. Each level
+    /// is decoded in runs of diamonds whose refinements, with their parents', take about
+    /// `run_bytes`; the refinements of a level wait for the next in a temporary file, as the
+    /// grids the finest level's reconstruction takes from the apex do (the Earth's apex held
+    /// whole came to gigabytes).
     pub fn new(
         params: CodecParams,
         roots: &[u8],
         records: impl IntoIterator<Item = (DiamondId, &'a [u8])>,
-        outline: &'a PlanetOutline,
+        (outline, view): (&'a PlanetOutline, &ApexView),
         cut: u8,
-        view: &ApexView,
+        run_bytes: u64,
     ) -> Result<(Self, Vec<LevelReport>), CodecError> {
         if params.domain.kind() != DomainKind::CubeSphere || params.alpha != Alpha::One {
             return Err(CodecError::unsupported(
@@ -84,10 +84,15 @@ impl<'a> PlanetBlockVerify<'a> {
         let decoder = Decoder::new(params, roots)?;
         let levels = records_by_level(&params, records)?;
         let mut report = LevelReport::empty(&params);
-        let mut apex_finest = vec![Vec::new(); usize::from(cut)];
-        let mut prev = HashMap::new();
+        let n = params.layout().n();
+        let mut apex_finest = ApexFinest::new(n);
+        let mut prev = ApexRefinements::none(n);
         let mut scratch = RefineScratch::default();
         let pool = GridPool::default();
+        // A refinement and the two parents' it gathers from.
+        let run = usize::try_from(run_bytes / (3 * refinement_bytes(n) as u64))
+            .unwrap_or(usize::MAX)
+            .max(1);
         for level in 0..cut {
             let ids = visited_on(&params, &levels, level);
             let stride = params
@@ -95,34 +100,44 @@ impl<'a> PlanetBlockVerify<'a> {
                 .k()
                 .saturating_sub(u32::from(level).div_ceil(2));
             let mut failed = None;
-            let next = walk_level(
-                &decoder,
-                &ids,
-                &levels[usize::from(level)],
-                &prev,
-                &mut scratch,
-                &pool,
-                &mut |batch: &[Visit<'_>]| {
-                    if failed.is_some() {
-                        return;
-                    }
-                    let out = &mut report[usize::from(level)];
-                    if let Err(e) = compare_apex_batch(outline, view, stride, batch, out) {
-                        failed = Some(e);
-                    }
-                    if level % 2 == finest % 2 {
-                        apex_finest[usize::from(level)].extend(
-                            batch
-                                .iter()
-                                .map(|v| (v.id, v.grid.to_vec(), v.valid.map(<[bool]>::to_vec))),
-                        );
-                    }
-                },
-            )?;
-            if let Some(e) = failed {
-                return Err(e);
+            let mut spill = RefinedSpill::new(n);
+            for ids in ids.chunks(run) {
+                let parents = ids.iter().flat_map(|&id| params.domain.parents(id));
+                let above = prev.load(parents.flatten())?;
+                let next = walk_level(
+                    &decoder,
+                    ids,
+                    &levels[usize::from(level)],
+                    &above,
+                    &mut scratch,
+                    &pool,
+                    &mut |batch: &[Visit<'_>]| {
+                        if failed.is_some() {
+                            return;
+                        }
+                        let out = &mut report[usize::from(level)];
+                        if let Err(e) = compare_apex_batch(outline, view, stride, batch, out) {
+                            failed = Some(e);
+                        }
+                        if level % 2 == finest % 2
+                            && let Err(e) = apex_finest.put_all(batch)
+                        {
+                            failed = Some(e);
+                        }
+                    },
+                )?;
+                if let Some(e) = failed {
+                    return Err(e);
+                }
+                let mut next: Vec<(DiamondId, Refined)> = next.into_iter().collect();
+                next.sort_unstable_by_key(|&(id, _)| id);
+                for (id, refined) in &next {
+                    spill.put(*id, refined)?;
+                }
+                pool.give_refinements(next.into_iter().map(|(_, r)| r));
+                pool.give_refinements(above.into_values());
             }
-            pool.give_refinements(std::mem::replace(&mut prev, next).into_values());
+            prev = spill.finish()?;
         }
         let visited = (cut..=finest)
             .map(|l| visited_on(&params, &levels, l))
@@ -133,7 +148,7 @@ impl<'a> PlanetBlockVerify<'a> {
             levels,
             visited,
             apex: prev,
-            apex_finest,
+            apex_finest: apex_finest.finish()?,
             cut,
         };
         Ok((walk, report))
@@ -179,15 +194,20 @@ impl<'a> PlanetBlockVerify<'a> {
                 && rect.1 <= b.3
         };
         if let Some(f) = finest.as_mut() {
-            self.apex_writes(face, (rect.0, rect.2), &writes, &mut **f);
+            self.apex_writes(face, (rect.0, rect.2), &writes, &mut **f)?;
         }
         let needed = self.needed(face, (xs.0, rect.2), &|id| owns(id) || writes(id));
         let view = self.lattice_view(group, tiles, &needed, &owns)?;
         let mut scratch = RefineScratch::default();
         let pool = GridPool::default();
+        let domain = &params.domain;
+        let at_cut = needed.first().into_iter().flatten();
+        let apex = self
+            .apex
+            .load(at_cut.flat_map(|&id| domain.parents(id)).flatten())?;
         let mut own: HashMap<DiamondId, Refined> = HashMap::new();
         for (ids, level) in needed.iter().zip(self.cut..=last) {
-            let prev = if level == self.cut { &self.apex } else { &own };
+            let prev = if level == self.cut { &apex } else { &own };
             let out = &mut report[usize::from(level)];
             let next = walk_level(
                 &self.decoder,
@@ -208,6 +228,7 @@ impl<'a> PlanetBlockVerify<'a> {
             )?;
             pool.give_refinements(std::mem::replace(&mut own, next).into_values());
         }
+        pool.give_refinements(apex.into_values());
         Ok(())
     }
 
@@ -219,17 +240,10 @@ impl<'a> PlanetBlockVerify<'a> {
         xs: (i64, i64),
         writes: &dyn Fn(&DiamondId) -> bool,
         finest: &mut FinestVisit<'_>,
-    ) {
+    ) -> Result<(), CodecError> {
         let layout = self.outline.domain.layout();
-        for (level, diamonds) in self.apex_finest.iter().enumerate() {
-            let r = layout.radius(level as u8);
-            let at = |d: &ApexDiamond| (d.0.face, i64::from(d.0.x));
-            let a = diamonds.partition_point(|d| at(d) < (face, xs.0 - r));
-            let b = diamonds.partition_point(|d| at(d) <= (face, xs.1 + r));
-            for (id, grid, valid) in diamonds[a..b].iter().filter(|d| writes(&d.0)) {
-                finest(*id, grid, valid.as_deref());
-            }
-        }
+        self.apex_finest
+            .visit((face, xs), &|level| layout.radius(level), writes, finest)
     }
 
     fn side(&self) -> i64 {
