@@ -164,6 +164,14 @@ impl FaceLattice {
         }
     }
 
+    /// On an equatorial face, the longitude of every point of column `x`, `0 ≤ x ≤ S` (the
+    /// bits [`FaceLattice::lat_lon`] gives each); `None` on a polar face, where a point's
+    /// longitude depends on its row too.
+    #[inline]
+    pub fn column_lon(&self, x: usize) -> Option<f64> {
+        self.columns.as_ref().map(|columns| columns[x].1)
+    }
+
     /// Latitude and longitude of lattice point `(x, y)`, `0 ≤ x, y ≤ S`.
     #[inline]
     pub fn lat_lon(&self, x: usize, y: usize) -> LatLon {
