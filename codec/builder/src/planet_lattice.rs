@@ -259,17 +259,7 @@ impl<'a> Resampler<'a> {
                                 // Edge rows' points are located through their owner face.
                                 input_columns: columns.as_deref().filter(|_| self.inside(y)),
                             };
-                            match &**samples {
-                                Samples::I16(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
-                                }
-                                Samples::F32(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
-                                }
-                                Samples::F64(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
-                                }
-                            }
+                            self.paint_run_of(&mut out, &run, *input, samples)?;
                         }
                         Ok(())
                     },
@@ -277,6 +267,21 @@ impl<'a> Resampler<'a> {
         }
         let finest = class.iter().copied().filter(|&c| c < 32).min();
         Ok((values, valid, won, class, finest))
+    }
+
+    /// [`Resampler::paint_run`] from samples in whichever representation they are held.
+    fn paint_run_of(
+        &self,
+        out: &mut RowOut,
+        run: &Run,
+        input: u16,
+        samples: &Samples,
+    ) -> Result<()> {
+        match samples {
+            Samples::I16(v) => self.paint_run(out, run, input, v.as_slice()),
+            Samples::F32(v) => self.paint_run(out, run, input, v.as_slice()),
+            Samples::F64(v) => self.paint_run(out, run, input, v.as_slice()),
+        }
     }
 
     /// Paints the points of `run` not yet done from input `input` (`samples` its samples), where it
