@@ -771,6 +771,114 @@ pub(crate) enum PointSource {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    /// `pixel_of` as it was written before its column and row were split apart (column, row,
+    /// then one range test of both): the reference the split must give bit for bit.
+    fn pixel_of_whole(input: &PlanetInput, ll: LatLon) -> Option<(f64, f64)> {
+        const SLACK: f64 = 1e-9;
+        let (w, h) = (input.width as f64, input.height as f64);
+        let Frame::Geographic {
+            lon0,
+            lat0,
+            dlon,
+            dlat,
+            period,
+        } = input.frame
+        else {
+            unreachable!("latitude/longitude inputs here")
+        };
+        let r = (lat0 - ll.lat) / dlat;
+        let c = (ll.lon - lon0) / dlon;
+        let c = match period {
+            Some(p) => c.rem_euclid(p as f64),
+            None => {
+                let on = |c: f64| (-SLACK..=w - 1.0 + SLACK).contains(&c);
+                if on(c) {
+                    c
+                } else {
+                    let turn = 360.0 / dlon;
+                    [c + turn, c - turn].into_iter().find(|&c| on(c))?
+                }
+            }
+        };
+        let c_max = if period.is_some() { w } else { w - 1.0 };
+        ((-SLACK..=c_max + SLACK).contains(&c) && (-SLACK..=h - 1.0 + SLACK).contains(&r))
+            .then_some((c.clamp(0.0, c_max), r.clamp(0.0, h - 1.0)))
+    }
+
+    /// A pixel found from its column of longitude and row of latitude apart is the one found
+    /// whole, bit for bit: inputs around the globe, astride the antimeridian and small, at
+    /// random points and at points just on and off their edges.
+    #[test]
+    fn a_pixel_from_its_column_and_row_is_the_pixel_found_whole() {
+        let frame = |lon0: f64, lat0: f64, deg: f64, period: Option<usize>| Frame::Geographic {
+            lon0,
+            lat0,
+            dlon: deg,
+            dlat: deg,
+            period,
+        };
+        let inputs = [
+            (frame(-180.0, 90.0, 5.0 / 60.0, Some(4320)), (4320, 2161)),
+            (frame(179.5, 10.0, 1.0 / 1200.0, None), (1201, 1201)),
+            (frame(6.0, 47.0, 1.0 / 1200.0, None), (1201, 1201)),
+        ];
+        let mut seed = 5u64;
+        let mut next = || {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (frame, (width, height)) in inputs {
+            let input = PlanetInput {
+                path: PathBuf::from("t.tif"),
+                width,
+                height,
+                source: SampleSource::Held(Arc::new(Samples::compact(vec![0.0; 4]))),
+                nodata: None,
+                frame,
+                spacing_deg: 1.0 / 1200.0,
+            };
+            let Frame::Geographic {
+                lon0, lat0, dlon, ..
+            } = frame
+            else {
+                unreachable!()
+            };
+            let (lon1, lat1) = (
+                lon0 + (width - 1) as f64 * dlon,
+                lat0 - (height - 1) as f64 * dlon,
+            );
+            let mut points = Vec::new();
+            for _ in 0..200_000 {
+                let lat = lat1 - 0.5 + (lat0 - lat1 + 1.0) * next();
+                let lon = lon0 - 0.5 + (lon1 - lon0 + 1.0) * next();
+                let lon = lon - 360.0 * ((lon - 1e-12) / 360.0).round();
+                points.push(LatLon { lat, lon });
+            }
+            for (lat, lon) in [(lat0, lon0), (lat1, lon1), (lat0, lon1), (lat1, lon0)] {
+                for (a, b) in [(0.0, 0.0), (1e-12, -1e-12), (-1e-9, 1e-9), (1e-7, -1e-7)] {
+                    let lon = lon + b;
+                    let lon = lon - 360.0 * ((lon - 1e-12) / 360.0).round();
+                    points.push(LatLon { lat: lat + a, lon });
+                }
+            }
+            let mut on = 0;
+            for ll in points {
+                let want = pixel_of_whole(&input, ll);
+                let got = input.pixel_of(ll);
+                let bits = |p: Option<(f64, f64)>| p.map(|(c, r)| (c.to_bits(), r.to_bits()));
+                assert_eq!(bits(got), bits(want), "{ll:?}");
+                let apart = input
+                    .pixel_column(ll.lon)
+                    .and_then(|c| Some((c, input.pixel_row(ll.lat)?)));
+                assert_eq!(bits(apart), bits(want), "{ll:?}");
+                on += usize::from(want.is_some());
+            }
+            assert!(on > 1000, "{on} points on the input");
+        }
+    }
+
     /// The inlined `floor` is `f64::floor` bit for bit: around every integer of a wide range
     /// (just below, on, just above), at ±0, at the edge of exactness 2⁵², beyond it, at the
     /// infinities and at NaN, and at a million pseudo-random values of every magnitude.
