@@ -89,34 +89,8 @@ impl PlanetInput {
 
     /// Fractional column and row of a point, or `None` off the input.
     pub(crate) fn pixel_of(&self, ll: LatLon) -> Option<(f64, f64)> {
-        const SLACK: f64 = 1e-9;
-        let (w, h) = (self.width as f64, self.height as f64);
-        let (c, r) = match self.frame {
-            Frame::Geographic {
-                lon0,
-                lat0,
-                dlon,
-                dlat,
-                period,
-            } => {
-                let r = (lat0 - ll.lat) / dlat;
-                let c = (ll.lon - lon0) / dlon;
-                let c = match period {
-                    Some(p) => rem_euclid(c, p as f64),
-                    // The column itself, else a turn east or west of it (each worked out only
-                    // where the one before is off the input).
-                    None => {
-                        let on = |c: f64| (-SLACK..=w - 1.0 + SLACK).contains(&c);
-                        if on(c) {
-                            c
-                        } else {
-                            let turn = 360.0 / dlon;
-                            [c + turn, c - turn].into_iter().find(|&c| on(c))?
-                        }
-                    }
-                };
-                (c, r)
-            }
+        match self.frame {
+            Frame::Geographic { .. } => Some((self.pixel_column(ll.lon)?, self.pixel_row(ll.lat)?)),
             Frame::Projected {
                 utm,
                 x0,
@@ -125,19 +99,62 @@ impl PlanetInput {
                 dy,
             } => {
                 let (e, n) = utm.forward(ll);
-                ((e - x0) / dx, (y0 - n) / dy)
+                let c_max = self.width as f64 - 1.0;
+                let c = in_range((e - x0) / dx, c_max)?;
+                Some((c, self.row_in_range((y0 - n) / dy)?))
             }
+        }
+    }
+
+    /// Whether its samples lie on a latitude/longitude grid.
+    pub(crate) fn is_geographic(&self) -> bool {
+        matches!(self.frame, Frame::Geographic { .. })
+    }
+
+    /// Of a latitude/longitude input: the fractional column of longitude `lon` (a turn east
+    /// or west where that is on the input and the column itself is not), clamped onto the
+    /// input, or `None` off it. A point's column depends on its longitude alone, so a caller
+    /// whose points share longitudes (the columns of an equatorial face) asks once for each.
+    pub(crate) fn pixel_column(&self, lon: f64) -> Option<f64> {
+        let Frame::Geographic {
+            lon0, dlon, period, ..
+        } = self.frame
+        else {
+            unreachable!("a column of longitude of a latitude/longitude input only")
         };
-        let wraps = matches!(
-            self.frame,
-            Frame::Geographic {
-                period: Some(_),
-                ..
+        let w = self.width as f64;
+        let c = (lon - lon0) / dlon;
+        match period {
+            Some(p) => in_range(rem_euclid(c, p as f64), w),
+            // The column itself, else a turn east or west of it (each worked out only
+            // where the one before is off the input).
+            None => {
+                let on = |c: f64| (-PIXEL_SLACK..=w - 1.0 + PIXEL_SLACK).contains(&c);
+                let c = if on(c) {
+                    c
+                } else {
+                    let turn = 360.0 / dlon;
+                    [c + turn, c - turn].into_iter().find(|&c| on(c))?
+                };
+                in_range(c, w - 1.0)
             }
-        );
-        let c_max = if wraps { w } else { w - 1.0 };
-        ((-SLACK..=c_max + SLACK).contains(&c) && (-SLACK..=h - 1.0 + SLACK).contains(&r))
-            .then_some((c.clamp(0.0, c_max), r.clamp(0.0, h - 1.0)))
+        }
+    }
+
+    /// Of a latitude/longitude input: the fractional row of latitude `lat`, clamped onto the
+    /// input, or `None` off it.
+    #[inline]
+    fn pixel_row(&self, lat: f64) -> Option<f64> {
+        let Frame::Geographic { lat0, dlat, .. } = self.frame else {
+            unreachable!("a row of latitude of a latitude/longitude input only")
+        };
+        self.row_in_range((lat0 - lat) / dlat)
+    }
+
+    /// Row `r` clamped onto the input, or `None` more than the slack off it.
+    #[inline]
+    fn row_in_range(&self, r: f64) -> Option<f64> {
+        in_range(r, self.height as f64 - 1.0)
     }
 
     /// The column index of `c`, wrapped for inputs around the globe.
@@ -145,7 +162,17 @@ impl PlanetInput {
         match self.frame {
             Frame::Geographic {
                 period: Some(p), ..
-            } => Some(c.rem_euclid(p as i64) as usize).filter(|&c| c < self.width),
+            } => {
+                // `rem_euclid` is the identity on `[0, p)` (nearly every column asked): no
+                // integer division there.
+                let p = p as i64;
+                let c = if (0..p).contains(&c) {
+                    c
+                } else {
+                    c.rem_euclid(p)
+                };
+                Some(c as usize).filter(|&c| c < self.width)
+            }
             _ => usize::try_from(c).ok().filter(|&c| c < self.width),
         }
     }
@@ -210,16 +237,18 @@ impl PlanetInput {
         (count > 0).then(|| sum / count as f64)
     }
 
-    /// The height at a point whose lattice cell is `lattice_deg` degrees across: bilinear where
-    /// the lattice is at least as fine as the input, the area average where it is coarser.
+    /// The height at a point at `ll`, whose pixel on the input is `px`
+    /// ([`PlanetInput::pixel_of`]) and whose lattice cell is `lattice_deg` degrees across:
+    /// bilinear where the lattice is at least as fine as the input, the area average where
+    /// it is coarser.
     #[inline]
-    fn height_at<S: SampleValues + ?Sized>(
+    fn height_at_pixel<S: SampleValues + ?Sized>(
         &self,
         samples: &S,
         ll: LatLon,
+        px: (f64, f64),
         lattice_deg: f64,
     ) -> Option<f64> {
-        let px = self.pixel_of(ll)?;
         if lattice_deg > self.spacing_deg {
             let half_deg = lattice_deg / 2.0;
             let half = match self.frame {
@@ -293,6 +322,17 @@ pub(crate) fn floor(x: f64) -> f64 {
     } else {
         x.floor()
     }
+}
+
+/// How far off an input (in samples) a point may lie and still be clamped onto it.
+const PIXEL_SLACK: f64 = 1e-9;
+
+/// `v` clamped onto `[0, max]` where it lies within [`PIXEL_SLACK`] of it, else `None`.
+#[inline]
+fn in_range(v: f64, max: f64) -> Option<f64> {
+    (-PIXEL_SLACK..=max + PIXEL_SLACK)
+        .contains(&v)
+        .then_some(v.clamp(0.0, max))
 }
 
 /// `c.rem_euclid(p)` bit for bit, without the `fmod` of `%` where `c` is less than a period
@@ -680,9 +720,39 @@ impl<S: SampleValues + ?Sized> InputProbe<'_, S> {
     /// a lattice cell `2^stride` times the lattice's across); between them it is coarse only.
     /// A point takes the first input (finest first) that covers it.
     #[inline]
-    pub(crate) fn source_of(&self, ll: LatLon, (x, y): (i64, i64)) -> Option<PointSource> {
-        let v = self.input.height_at(self.samples, ll, self.cell_deg)?;
-        Some(if x % self.step == 0 && y % self.step == 0 {
+    pub(crate) fn source_of(&self, ll: LatLon, xy: (i64, i64)) -> Option<PointSource> {
+        self.source_at_pixel(ll, self.input.pixel_of(ll)?, xy)
+    }
+
+    /// [`InputProbe::source_of`] of a point of a latitude/longitude input whose column on it
+    /// is `column` ([`PlanetInput::pixel_column`] of its longitude, worked out once for the
+    /// points of a lattice column that share it).
+    #[inline]
+    pub(crate) fn source_in_column(
+        &self,
+        ll: LatLon,
+        column: f64,
+        xy: (i64, i64),
+    ) -> Option<PointSource> {
+        let px = (column, self.input.pixel_row(ll.lat)?);
+        self.source_at_pixel(ll, px, xy)
+    }
+
+    /// [`InputProbe::source_of`] where the point's pixel `px` on the input is known.
+    #[inline]
+    fn source_at_pixel(
+        &self,
+        ll: LatLon,
+        px: (f64, f64),
+        (x, y): (i64, i64),
+    ) -> Option<PointSource> {
+        let v = self
+            .input
+            .height_at_pixel(self.samples, ll, px, self.cell_deg)?;
+        // `step` is a power of two: a multiple of it (negative too) has its low bits clear,
+        // tested without the integer division `%` costs a point.
+        let off_stride = self.step - 1;
+        Some(if x & off_stride == 0 && y & off_stride == 0 {
             PointSource::Sample(v, self.index, self.stride_log2 as u8)
         } else {
             PointSource::CoarseOnly(self.index)
@@ -701,6 +771,114 @@ pub(crate) enum PointSource {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    /// `pixel_of` as it was written before its column and row were split apart (column, row,
+    /// then one range test of both): the reference the split must give bit for bit.
+    fn pixel_of_whole(input: &PlanetInput, ll: LatLon) -> Option<(f64, f64)> {
+        const SLACK: f64 = 1e-9;
+        let (w, h) = (input.width as f64, input.height as f64);
+        let Frame::Geographic {
+            lon0,
+            lat0,
+            dlon,
+            dlat,
+            period,
+        } = input.frame
+        else {
+            unreachable!("latitude/longitude inputs here")
+        };
+        let r = (lat0 - ll.lat) / dlat;
+        let c = (ll.lon - lon0) / dlon;
+        let c = match period {
+            Some(p) => c.rem_euclid(p as f64),
+            None => {
+                let on = |c: f64| (-SLACK..=w - 1.0 + SLACK).contains(&c);
+                if on(c) {
+                    c
+                } else {
+                    let turn = 360.0 / dlon;
+                    [c + turn, c - turn].into_iter().find(|&c| on(c))?
+                }
+            }
+        };
+        let c_max = if period.is_some() { w } else { w - 1.0 };
+        ((-SLACK..=c_max + SLACK).contains(&c) && (-SLACK..=h - 1.0 + SLACK).contains(&r))
+            .then_some((c.clamp(0.0, c_max), r.clamp(0.0, h - 1.0)))
+    }
+
+    /// A pixel found from its column of longitude and row of latitude apart is the one found
+    /// whole, bit for bit: inputs around the globe, astride the antimeridian and small, at
+    /// random points and at points just on and off their edges.
+    #[test]
+    fn a_pixel_from_its_column_and_row_is_the_pixel_found_whole() {
+        let frame = |lon0: f64, lat0: f64, deg: f64, period: Option<usize>| Frame::Geographic {
+            lon0,
+            lat0,
+            dlon: deg,
+            dlat: deg,
+            period,
+        };
+        let inputs = [
+            (frame(-180.0, 90.0, 5.0 / 60.0, Some(4320)), (4320, 2161)),
+            (frame(179.5, 10.0, 1.0 / 1200.0, None), (1201, 1201)),
+            (frame(6.0, 47.0, 1.0 / 1200.0, None), (1201, 1201)),
+        ];
+        let mut seed = 5u64;
+        let mut next = || {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (frame, (width, height)) in inputs {
+            let input = PlanetInput {
+                path: PathBuf::from("t.tif"),
+                width,
+                height,
+                source: SampleSource::Held(Arc::new(Samples::compact(vec![0.0; 4]))),
+                nodata: None,
+                frame,
+                spacing_deg: 1.0 / 1200.0,
+            };
+            let Frame::Geographic {
+                lon0, lat0, dlon, ..
+            } = frame
+            else {
+                unreachable!()
+            };
+            let (lon1, lat1) = (
+                lon0 + (width - 1) as f64 * dlon,
+                lat0 - (height - 1) as f64 * dlon,
+            );
+            let mut points = Vec::new();
+            for _ in 0..200_000 {
+                let lat = lat1 - 0.5 + (lat0 - lat1 + 1.0) * next();
+                let lon = lon0 - 0.5 + (lon1 - lon0 + 1.0) * next();
+                let lon = lon - 360.0 * ((lon - 1e-12) / 360.0).round();
+                points.push(LatLon { lat, lon });
+            }
+            for (lat, lon) in [(lat0, lon0), (lat1, lon1), (lat0, lon1), (lat1, lon0)] {
+                for (a, b) in [(0.0, 0.0), (1e-12, -1e-12), (-1e-9, 1e-9), (1e-7, -1e-7)] {
+                    let lon = lon + b;
+                    let lon = lon - 360.0 * ((lon - 1e-12) / 360.0).round();
+                    points.push(LatLon { lat: lat + a, lon });
+                }
+            }
+            let mut on = 0;
+            for ll in points {
+                let want = pixel_of_whole(&input, ll);
+                let got = input.pixel_of(ll);
+                let bits = |p: Option<(f64, f64)>| p.map(|(c, r)| (c.to_bits(), r.to_bits()));
+                assert_eq!(bits(got), bits(want), "{ll:?}");
+                let apart = input
+                    .pixel_column(ll.lon)
+                    .and_then(|c| Some((c, input.pixel_row(ll.lat)?)));
+                assert_eq!(bits(apart), bits(want), "{ll:?}");
+                on += usize::from(want.is_some());
+            }
+            assert!(on > 1000, "{on} points on the input");
+        }
+    }
+
     /// The inlined `floor` is `f64::floor` bit for bit: around every integer of a wide range
     /// (just below, on, just above), at ±0, at the edge of exactness 2⁵², beyond it, at the
     /// infinities and at NaN, and at a million pseudo-random values of every magnitude.

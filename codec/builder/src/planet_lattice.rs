@@ -217,7 +217,11 @@ impl<'a> Resampler<'a> {
         for chunk in reaching.chunks(INPUTS_HELD) {
             let chunk = chunk
                 .iter()
-                .map(|&(input, span)| Ok((input, span, self.inputs.samples(usize::from(input))?)))
+                .map(|&(input, span)| {
+                    let samples = self.inputs.samples(usize::from(input))?;
+                    let columns = self.input_columns(face, input, (x0, s), (span.0, span.1));
+                    Ok((input, span, samples, columns))
+                })
                 .collect::<Result<Vec<_>>>()?;
             values
                 .par_chunks_mut(w)
@@ -242,7 +246,7 @@ impl<'a> Resampler<'a> {
                         out.positions.resize(w, None);
                         // Input by input, each over its columns of the row: a point asks the
                         // inputs in the same order as one at a time would, and stops at the same.
-                        for (input, (c0, c1, r0, r1), samples) in &chunk {
+                        for (input, (c0, c1, r0, r1), samples, columns) in &chunk {
                             if row < *r0 || row > *r1 {
                                 continue;
                             }
@@ -252,18 +256,10 @@ impl<'a> Resampler<'a> {
                                 y,
                                 s,
                                 columns: *c0..=*c1,
+                                // Edge rows' points are located through their owner face.
+                                input_columns: columns.as_deref().filter(|_| self.inside(y)),
                             };
-                            match &**samples {
-                                Samples::I16(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
-                                }
-                                Samples::F32(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
-                                }
-                                Samples::F64(v) => {
-                                    self.paint_run(&mut out, &run, *input, v.as_slice())?
-                                }
-                            }
+                            self.paint_run_of(&mut out, &run, *input, samples)?;
                         }
                         Ok(())
                     },
@@ -271,6 +267,21 @@ impl<'a> Resampler<'a> {
         }
         let finest = class.iter().copied().filter(|&c| c < 32).min();
         Ok((values, valid, won, class, finest))
+    }
+
+    /// [`Resampler::paint_run`] from samples in whichever representation they are held.
+    fn paint_run_of(
+        &self,
+        out: &mut RowOut,
+        run: &Run,
+        input: u16,
+        samples: &Samples,
+    ) -> Result<()> {
+        match samples {
+            Samples::I16(v) => self.paint_run(out, run, input, v.as_slice()),
+            Samples::F32(v) => self.paint_run(out, run, input, v.as_slice()),
+            Samples::F64(v) => self.paint_run(out, run, input, v.as_slice()),
+        }
     }
 
     /// Paints the points of `run` not yet done from input `input` (`samples` its samples), where it
@@ -287,13 +298,26 @@ impl<'a> Resampler<'a> {
         let probe = self
             .inputs
             .probe(samples, input, self.lattice_deg, &self.strides);
+        let first = *run.columns.start();
         for i in run.columns.clone() {
             if out.done[i] {
                 continue;
             }
             let x = run.x0 + ((i as i64) << run.s);
+            let column = run
+                .input_columns
+                .filter(|_| self.inside(x))
+                .map(|columns| columns[i - first]);
+            // Off the input in longitude: no position needed to know it does not cover the point.
+            if column == Some(None) {
+                continue;
+            }
             let ll = *out.positions[i].get_or_insert_with(|| self.lat_lon(run.face, x, run.y));
-            match probe.source_of(ll, (x, run.y)) {
+            let source = match column {
+                Some(Some(c)) => probe.source_in_column(ll, c, (x, run.y)),
+                _ => probe.source_of(ll, (x, run.y)),
+            };
+            match source {
                 Some(PointSource::Sample(v, wi, j)) => {
                     let units = self
                         .plan
@@ -368,6 +392,41 @@ impl<'a> Resampler<'a> {
             self.painted_parts
                 .fetch_add(painted as u64, Ordering::Relaxed);
         }
+    }
+
+    /// Where `face`'s lattice columns share a longitude (an equatorial face) and input `input`
+    /// lies on a latitude/longitude grid: the input's column ([`PlanetInput::pixel_column`],
+    /// `None` off it) of each tile column `c0..=c1` (in points of stride `2^s` from `x0`),
+    /// worked out once for all the tile's rows. Columns on the face's edges are located
+    /// through their owner face and are not looked up here.
+    ///
+    /// [`PlanetInput::pixel_column`]: crate::planet_input::PlanetInput::pixel_column
+    fn input_columns(
+        &self,
+        face: u8,
+        input: u16,
+        (x0, s): (i64, u32),
+        (c0, c1): (usize, usize),
+    ) -> Option<Vec<Option<f64>>> {
+        let lattice = &self.lattices[usize::from(face)];
+        let input = &self.inputs.inputs[usize::from(input)];
+        lattice.column_lon(0)?;
+        input.is_geographic().then(|| {
+            (c0..=c1)
+                .map(|i| {
+                    let x = x0 + ((i as i64) << s);
+                    let lon = self.inside(x).then(|| lattice.column_lon(x as usize))??;
+                    input.pixel_column(lon)
+                })
+                .collect()
+        })
+    }
+
+    /// Whether lattice coordinate `c` lies strictly inside the face (a point with both inside
+    /// is its own canonical point: [`Resampler::lat_lon`]).
+    #[inline]
+    fn inside(&self, c: i64) -> bool {
+        0 < c && c < self.side
     }
 
     /// Points a row and rows of tile `tile` at stride `2^s`.
@@ -464,12 +523,15 @@ struct RowOut<'r> {
 
 /// The points of a row of a tile one input paints: face, the tile's first column `x0`, the
 /// row's `y`, the stride's `log2` and the columns (in points of the stride) of its rectangle.
-struct Run {
+struct Run<'r> {
     face: u8,
     x0: i64,
     y: i64,
     s: u32,
     columns: std::ops::RangeInclusive<usize>,
+    /// The input's column of each of `columns` (from its first) where worked out once for
+    /// the tile ([`Resampler::input_columns`]), for points inside the face.
+    input_columns: Option<&'r [Option<f64>]>,
 }
 
 /// A resampled tile and the winning input of each point it holds.

@@ -45,6 +45,7 @@ impl CubeWarp {
     pub const SIGMOID_C: f64 = 0.87;
 
     /// Cube coordinate of face coordinate `w`; ±1 stays ±1 exactly, so face edges meet.
+    #[inline]
     pub fn to_cube(self, w: f64) -> f64 {
         match self {
             CubeWarp::Gnomonic => w,
@@ -60,6 +61,7 @@ impl CubeWarp {
     }
 
     /// Face coordinate of cube coordinate `u` (the inverse of [`CubeWarp::to_cube`]).
+    #[inline]
     pub fn from_cube(self, u: f64) -> f64 {
         match self {
             CubeWarp::Gnomonic => u,
@@ -85,11 +87,37 @@ pub fn face_direction(warp: CubeWarp, face: u8, s: f64, t: f64) -> [f64; 3] {
     )
 }
 
+/// [`FACE_FRAMES`] in `f64`: the same values (an `i8` converts exactly), so that the hot loops
+/// below, whose face is known only at run time, do not convert them again point by point.
+const FRAMES: [[[f64; 3]; 3]; 6] = {
+    let mut out = [[[0.0; 3]; 3]; 6];
+    let mut f = 0;
+    while f < 6 {
+        let mut r = 0;
+        while r < 3 {
+            let mut k = 0;
+            while k < 3 {
+                out[f][r][k] = FACE_FRAMES[f][r][k] as f64;
+                k += 1;
+            }
+            r += 1;
+        }
+        f += 1;
+    }
+    out
+};
+
+/// `d · w` summed as `(0..3).map(|k| d[k] * w[k]).sum()`.
+#[inline]
+fn dot(d: [f64; 3], w: [f64; 3]) -> f64 {
+    (0..3).map(|k| d[k] * w[k]).sum::<f64>()
+}
+
 /// The direction `normal + a·u + b·v` of `face`'s frame at cube coordinates `a, b`.
 #[inline]
 fn cube_direction(face: u8, a: f64, b: f64) -> [f64; 3] {
-    let [n, u, v] = FACE_FRAMES[usize::from(face)];
-    std::array::from_fn(|k| f64::from(n[k]) + a * f64::from(u[k]) + b * f64::from(v[k]))
+    let [n, u, v] = FRAMES[usize::from(face)];
+    std::array::from_fn(|k| n[k] + a * u[k] + b * v[k])
 }
 
 /// Geodetic latitude and longitude of the surface point of a direction from the centre.
@@ -164,6 +192,14 @@ impl FaceLattice {
         }
     }
 
+    /// On an equatorial face, the longitude of every point of column `x`, `0 ≤ x ≤ S` (the
+    /// bits [`FaceLattice::lat_lon`] gives each); `None` on a polar face, where a point's
+    /// longitude depends on its row too.
+    #[inline]
+    pub fn column_lon(&self, x: usize) -> Option<f64> {
+        self.columns.as_ref().map(|columns| columns[x].1)
+    }
+
     /// Latitude and longitude of lattice point `(x, y)`, `0 ≤ x, y ≤ S`.
     #[inline]
     pub fn lat_lon(&self, x: usize, y: usize) -> LatLon {
@@ -203,18 +239,19 @@ pub fn lat_lon_to_face_st(ll: LatLon) -> (u8, f64, f64) {
 pub fn sin_cos_to_face_st((sp, cp): (f64, f64), (sl, cl): (f64, f64)) -> (u8, f64, f64) {
     // The surface point, up to the positive factor ν: (cos φ cos λ, cos φ sin λ, (1 − e²) sin φ).
     let d = [cp * cl, cp * sl, (1.0 - E2) * sp];
-    let dot = |w: [i8; 3]| (0..3).map(|k| d[k] * f64::from(w[k])).sum::<f64>();
-    // The first face of greatest alignment (a strict `>` keeps the lower face on ties).
+    // The first face of greatest alignment (a strict `>` keeps the lower face on ties); each
+    // face's alignment worked out once.
+    let alignment = FRAMES.map(|[n, _, _]| dot(d, n));
     let mut face = 0;
-    for (f, frame) in FACE_FRAMES.iter().enumerate().skip(1) {
-        if dot(frame[0]) > dot(FACE_FRAMES[face][0]) {
+    for f in 1..FRAMES.len() {
+        if alignment[f] > alignment[face] {
             face = f;
         }
     }
-    let [n, u, v] = FACE_FRAMES[face];
-    let along = dot(n);
-    let to_st = |w: [i8; 3]| {
-        let c = CubeWarp::PLANET.from_cube(dot(w) / along);
+    let [n, u, v] = FRAMES[face];
+    let along = dot(d, n);
+    let to_st = |w: [f64; 3]| {
+        let c = CubeWarp::PLANET.from_cube(dot(d, w) / along);
         (0.5 * (c + 1.0)).clamp(0.0, 1.0)
     };
     (face as u8, to_st(u), to_st(v))
@@ -227,10 +264,9 @@ pub fn sin_cos_to_face_st((sp, cp): (f64, f64), (sl, cl): (f64, f64)) -> (u8, f6
 /// the face's plane).
 pub fn sin_cos_on_face((sp, cp): (f64, f64), (sl, cl): (f64, f64), face: u8) -> Option<(f64, f64)> {
     let d = [cp * cl, cp * sl, (1.0 - E2) * sp];
-    let dot = |w: [i8; 3]| (0..3).map(|k| d[k] * f64::from(w[k])).sum::<f64>();
-    let [n, u, v] = FACE_FRAMES[usize::from(face)];
-    let along = dot(n);
-    let to_st = |w: [i8; 3]| 0.5 * (CubeWarp::PLANET.from_cube(dot(w) / along) + 1.0);
+    let [n, u, v] = FRAMES[usize::from(face)];
+    let along = dot(d, n);
+    let to_st = |w: [f64; 3]| 0.5 * (CubeWarp::PLANET.from_cube(dot(d, w) / along) + 1.0);
     (along > 0.0).then(|| (to_st(u), to_st(v)))
 }
 

@@ -303,6 +303,7 @@ impl QuantPlan {
     }
 
     /// Metres of integer height `n`.
+    #[inline]
     pub fn metres(&self, n: i32) -> f64 {
         self.offset + f64::from(n) * self.unit
     }
@@ -311,34 +312,49 @@ impl QuantPlan {
     ///
     /// Errors: infinite values, values out of the planned range, and — for lattice input —
     /// values off the lattice (a wrong quantum override would otherwise break the bound).
+    ///
+    /// Inlined (a planet build asks once for every lattice point it paints, from another
+    /// crate), its errors made out of line.
+    #[inline]
     pub fn to_units(&self, v: f64) -> Result<Option<i32>, CodecError> {
         if v.is_nan() {
             return Ok(None);
         }
         if v.is_infinite() {
-            return Err(CodecError::invalid(format!("sample value {v} is infinite")));
+            return Err(unplannable(v, "is infinite"));
         }
         let q = round_to_i64((v - self.offset) / self.unit);
         if q.unsigned_abs() > u64::from(MAX_ABS_INPUT.unsigned_abs()) {
-            return Err(CodecError::invalid(format!(
-                "sample value {v} m is outside the planned height range"
-            )));
+            return Err(unplannable(v, "m is outside the planned height range"));
         }
         let n = q as i32;
         if self.lattice {
-            let back = self.metres(n);
-            // Exact for integer data; for decimal quanta the nearest f32 of n·u is what the file
-            // stored, so allow the representation error of an f32 at that magnitude.
-            let slack = (v.abs().max(self.unit) * f64::from(f32::EPSILON)).max(1e-12);
-            if (back - v).abs() > slack {
-                return Err(CodecError::invalid(format!(
-                    "sample value {v} m is not a multiple of the value quantum {} m",
-                    self.unit
-                )));
-            }
+            self.on_lattice(v, n)?;
         }
         Ok(Some(n))
     }
+
+    /// For lattice input: that sample `v` is a multiple of the quantum (its units `n`).
+    fn on_lattice(&self, v: f64, n: i32) -> Result<(), CodecError> {
+        let back = self.metres(n);
+        // Exact for integer data; for decimal quanta the nearest f32 of n·u is what the file
+        // stored, so allow the representation error of an f32 at that magnitude.
+        let slack = (v.abs().max(self.unit) * f64::from(f32::EPSILON)).max(1e-12);
+        if (back - v).abs() > slack {
+            return Err(CodecError::invalid(format!(
+                "sample value {v} m is not a multiple of the value quantum {} m",
+                self.unit
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The error of a sample value `v` the plan cannot hold: "sample value {v} {why}".
+#[cold]
+#[inline(never)]
+fn unplannable(v: f64, why: &str) -> CodecError {
+    CodecError::invalid(format!("sample value {v} {why}"))
 }
 
 /// `x > 0` rounded up to two significant digits, as text (`3.9e-11`).
