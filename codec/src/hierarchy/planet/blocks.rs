@@ -50,7 +50,7 @@ use crate::quant::Quantizer;
 
 /// Bytes an id takes in a set of ids built in order (a B-tree's full leaves of 11 ids of 12
 /// bytes and their headers, 13.1 bytes an id) with room for its inner nodes and half-full leaves.
-const SET_BYTES_PER_ID: u64 = 16;
+pub(super) const SET_BYTES_PER_ID: u64 = 16;
 
 /// The deepest cut [`default_cut`] takes: a block's tile this many of the cut level's radii
 /// across (the blocks' margins, the ancestors of the diamonds they own, about 2 radii each

@@ -23,6 +23,7 @@ use super::apex_finest::{ApexFinest, FinestVisit};
 use super::apex_grids::{ApexRefinements, RefinedSpill, refinement_bytes};
 use super::apex_view::ApexView;
 use super::block_groups::TileGroup;
+use super::blocks::SET_BYTES_PER_ID;
 use super::grid::tiles_across;
 use super::outline::PlanetOutline;
 use super::tile_source::{PlanetTiles, Rect, held_planet, tiles_under, union};
@@ -152,6 +153,18 @@ impl<'a> PlanetBlockVerify<'a> {
             cut,
         };
         Ok((walk, report))
+    }
+
+    /// Bytes the verifier holds for the planet's diamonds whatever its blocks: the records' ids
+    /// and places, the visited diamonds' ids and the outline's leaves. A memory plan takes them
+    /// from what its blocks and caches may hold.
+    pub fn diamond_bytes(&self) -> u64 {
+        let id = std::mem::size_of::<DiamondId>() as u64;
+        let place = std::mem::size_of::<&[u8]>() as u64;
+        let records: u64 = self.levels.iter().map(|l| l.ids.len() as u64).sum();
+        let visited: u64 = self.visited.iter().map(|v| v.len() as u64).sum();
+        let leaves: u64 = self.outline.leaves.iter().map(|l| l.len() as u64).sum();
+        records * (id + place) + visited * id + leaves * SET_BYTES_PER_ID
     }
 
     /// The level the blocks start at.
