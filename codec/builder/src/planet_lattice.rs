@@ -675,11 +675,14 @@ impl<'a> LatticeTiles<'a> {
         })
     }
 
-    /// Keeps `bytes` fewer of tiles from now on (at least nothing), letting the oldest go.
-    pub fn shrink_cache(&self, bytes: u64) {
+    /// Takes `diamonds` bytes — what a build or a verify holds for the planet's diamonds, which
+    /// grows with its records, not with its blocks — half from this cache (the oldest tiles let
+    /// go) and half from the blocks' `block_bytes`: what the blocks may hold now.
+    pub fn share_out(&self, diamonds: u64, block_bytes: u64) -> u64 {
         let mut cache = self.cache.lock().expect("the tile cache");
-        cache.budget = cache.budget.saturating_sub(bytes);
+        cache.budget = cache.budget.saturating_sub(diamonds / 2);
         cache.let_go_over_budget();
+        block_bytes.saturating_sub(diamonds - diamonds / 2)
     }
 
     /// Measures `heights` instead of the lattice's heights from now on (`None`: the lattice's).

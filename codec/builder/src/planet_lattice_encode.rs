@@ -73,22 +73,16 @@ pub fn encode_out_of_core(
     let mut early = (0, 0);
     let (encoded, counts) = {
         let apex = Apex::EncodeFrom(block_bytes, view);
-        // What the encode holds for each diamond grows with the planet's records, not with its
-        // blocks: it comes out of the blocks' and the tiles' cache's shares, half from each.
         let blocks = PlanetBlocks::new(&outline, &tiles, plan.quantizer, enc, cut, apex)
             .and_then(|b| {
-                let diamonds = b.diamond_bytes();
-                tiles.shrink_cache(diamonds / 2);
-                let budget = block_bytes.saturating_sub(diamonds - diamonds / 2);
+                let budget = tiles.share_out(b.diamond_bytes(), block_bytes);
                 b.with_block_bytes(tiles.strides(), (budget, 1))
             })
             .map_err(BuildError::from)?;
         painted.step(tiles.resampler.painted(), APEX, ((0, 0), (0, 0)));
         figures.after("apex");
-        let counts = (
-            blocks.block_count(),
-            tiles.strides().iter().map(Vec::len).sum(),
-        );
+        let tiles_count = tiles.strides().iter().map(Vec::len).sum();
+        let counts = (blocks.block_count(), tiles_count);
         let ready = tiles.measured_after_blocks(&blocks.block_of_tiles(), counts.0);
         let mut failed = None;
         let encoded = blocks.finish_with(journal, true, &mut |block| {

@@ -90,15 +90,14 @@ pub fn compare_planet_in_blocks(
     )
     .context("decoding the planet's apex")?;
     drop(view);
-    // What the verifier holds for each diamond comes out of the blocks' and the tiles' cache's
-    // shares, half from each, as in the build.
-    let diamonds = walk.diamond_bytes();
-    lattice.shrink_cache(diamonds / 2);
     let groups = planet_block_groups(
         &outline,
         walk.cut(),
         lattice.strides(),
-        (memory.block_bytes().saturating_sub(diamonds - diamonds / 2), 1),
+        (
+            lattice.share_out(walk.diamond_bytes(), memory.block_bytes()),
+            1,
+        ),
     )
     .map_err(BuildError::from)?;
     // Insets measured as soon as their tiles are decoded, their decoded tiles let go after.

@@ -95,50 +95,22 @@ impl<'a> PlanetBlockVerify<'a> {
             .unwrap_or(usize::MAX)
             .max(1);
         for level in 0..cut {
+            let walk = ApexLevel {
+                decoder: &decoder,
+                records: &levels[usize::from(level)],
+                outline,
+                view,
+                stride: params
+                    .layout()
+                    .k()
+                    .saturating_sub(u32::from(level).div_ceil(2)),
+                run,
+                pool: &pool,
+            };
             let ids = visited_on(&params, &levels, level);
-            let stride = params
-                .layout()
-                .k()
-                .saturating_sub(u32::from(level).div_ceil(2));
-            let mut failed = None;
-            let mut spill = RefinedSpill::new(n);
-            for ids in ids.chunks(run) {
-                let parents = ids.iter().flat_map(|&id| params.domain.parents(id));
-                let above = prev.load(parents.flatten())?;
-                let next = walk_level(
-                    &decoder,
-                    ids,
-                    &levels[usize::from(level)],
-                    &above,
-                    &mut scratch,
-                    &pool,
-                    &mut |batch: &[Visit<'_>]| {
-                        if failed.is_some() {
-                            return;
-                        }
-                        let out = &mut report[usize::from(level)];
-                        if let Err(e) = compare_apex_batch(outline, view, stride, batch, out) {
-                            failed = Some(e);
-                        }
-                        if level % 2 == finest % 2
-                            && let Err(e) = apex_finest.put_all(batch)
-                        {
-                            failed = Some(e);
-                        }
-                    },
-                )?;
-                if let Some(e) = failed {
-                    return Err(e);
-                }
-                let mut next: Vec<(DiamondId, Refined)> = next.into_iter().collect();
-                next.sort_unstable_by_key(|&(id, _)| id);
-                for (id, refined) in &next {
-                    spill.put(*id, refined)?;
-                }
-                pool.give_refinements(next.into_iter().map(|(_, r)| r));
-                pool.give_refinements(above.into_values());
-            }
-            prev = spill.finish()?;
+            let grids = (level % 2 == finest % 2).then_some(&mut apex_finest);
+            let out = &mut report[usize::from(level)];
+            prev = walk.walk(&ids, &prev, out, grids, &mut scratch)?;
         }
         let visited = (cut..=finest)
             .map(|l| visited_on(&params, &levels, l))
@@ -328,6 +300,69 @@ impl<'a> PlanetBlockVerify<'a> {
             })
             .collect::<Result<HashMap<_, _>, CodecError>>()?;
         held_planet(self.outline, held)
+    }
+}
+
+/// One level above the cut, decoded over the whole planet in runs of diamonds
+/// ([`PlanetBlockVerify::new`]).
+struct ApexLevel<'w, 'a> {
+    decoder: &'w Decoder,
+    records: &'w LevelRecords<'a>,
+    outline: &'w PlanetOutline,
+    view: &'w ApexView,
+    /// `log2` of the steps between the level's vertices.
+    stride: u32,
+    /// Diamonds decoded at once.
+    run: usize,
+    pool: &'w GridPool,
+}
+
+impl ApexLevel<'_, '_> {
+    /// Decodes the visited diamonds `ids`, a run at a time, each run's parents' refinements read
+    /// back from `prev`; compares them with the lattice into `out` and hands their grids to
+    /// `grids` where given: the level's refinements, spilled.
+    fn walk(
+        &self,
+        ids: &[DiamondId],
+        prev: &ApexRefinements,
+        out: &mut LevelReport,
+        mut grids: Option<&mut ApexFinest>,
+        scratch: &mut RefineScratch,
+    ) -> Result<ApexRefinements, CodecError> {
+        let domain = &self.decoder.params().domain;
+        let mut spill = RefinedSpill::new(domain.n());
+        let mut failed = None;
+        for ids in ids.chunks(self.run) {
+            let above = prev.load(ids.iter().flat_map(|&id| domain.parents(id)).flatten())?;
+            let next = walk_level(
+                self.decoder,
+                ids,
+                self.records,
+                &above,
+                scratch,
+                self.pool,
+                &mut |batch: &[Visit<'_>]| {
+                    if failed.is_some() {
+                        return;
+                    }
+                    let compared =
+                        compare_apex_batch(self.outline, self.view, self.stride, batch, out);
+                    let put = grids.as_mut().map_or(Ok(()), |g| g.put_all(batch));
+                    failed = compared.and(put).err();
+                },
+            )?;
+            if let Some(e) = failed {
+                return Err(e);
+            }
+            let mut next: Vec<(DiamondId, Refined)> = next.into_iter().collect();
+            next.sort_unstable_by_key(|&(id, _)| id);
+            for (id, refined) in &next {
+                spill.put(*id, refined)?;
+            }
+            self.pool.give_refinements(next.into_iter().map(|(_, r)| r));
+            self.pool.give_refinements(above.into_values());
+        }
+        spill.finish()
     }
 }
 
