@@ -190,8 +190,14 @@ fn encode_lattice(
     }
     inputs.set_cache_budget(memory.input_cache_budget());
     let block_bytes = memory.block_bytes();
+    // The blocks are grouped within the blocks' share less what the encode holds per diamond
+    // (`LatticeTiles::share_out`, since 2026-12-08): a journal of blocks grouped otherwise
+    // starts over rather than mixing two groupings.
     let key = crate::journal_key(opts, tiles, enc, None)?
-        + &format!("planet=1\nlevel_pairs={k}\nplanet_block_bytes={block_bytes}\n");
+        + &format!(
+            "planet=1\nlevel_pairs={k}\nplanet_block_bytes={block_bytes}\n\
+             planet_blocks=less the diamonds\n"
+        );
     let (journal, resumed) = crate::journal::Journal::open(&opts.output, &key)?;
     stages.push(("journal (hash the inputs, check the blocks)", t.elapsed()));
     progress.resumed(&resumed);
