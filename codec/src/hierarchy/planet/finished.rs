@@ -3,10 +3,11 @@
 //!
 //! The records come block by block, in no id order, and the repository wants them in id order
 //! with each one's object error saturated over its descendants, which only the last block
-//! completes. The whole Earth at 3″ has 6.8 M records, so what is kept for each diamond counts:
-//! whole [`Record`]s (56 bytes) in a vector grown by doubling, the places of their bytes beside
-//! them (16) and every own error in a hash map (17 bytes a slot, up to twice as many slots as
-//! diamonds) held several hundred megabytes there that no memory plan counted. Here the own
+//! completes. A planet of land tiles has millions of records, so what is kept for each diamond
+//! counts: whole [`Record`]s (56 bytes) in a vector grown by doubling, the places of their bytes
+//! beside them (16) and every own error in a hash map (17 bytes a slot, up to twice as many
+//! slots as diamonds) grew with the records, and no memory plan counted them (the Earth's
+//! figures: docs/RESULTS.md, "What a planet keeps for each diamond…"). Here the own
 //! errors sit in one array per level, aligned with the level's stored diamonds (4 bytes and a
 //! bit a diamond, allocated once), and each record keeps its id, height range and the place of
 //! its bytes (32 bytes, reserved once for the recorded diamonds' count); the bytes themselves

@@ -60,8 +60,8 @@ impl<'a> PlanetBlockVerify<'a> {
     /// `view` (written for the same cut) holds it: the apex's levels of the report. Each level
     /// is decoded in runs of diamonds whose refinements, with their parents', take about
     /// `run_bytes`; the refinements of a level wait for the next in a temporary file, as the
-    /// grids the finest level's reconstruction takes from the apex do (the Earth's apex held
-    /// whole came to gigabytes).
+    /// grids the finest level's reconstruction takes from the apex do (held whole, they grow
+    /// with the planet's land).
     pub fn new(
         params: CodecParams,
         roots: &[u8],
