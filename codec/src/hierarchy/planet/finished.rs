@@ -23,8 +23,8 @@ use crate::hierarchy::Record;
 use crate::hierarchy::field::TempStorage;
 use crate::hierarchy::record_bytes::{RecordBytes, RecordSpill};
 
-/// Bytes [`FinishedRecords`] keeps for each stored diamond (its own error and whether a block
-/// measured it) and each recorded one (its [`Kept`]), for a memory plan.
+/// Bytes `FinishedRecords` keeps for each stored diamond (its own error and whether a block
+/// measured it) and each recorded one (its `Kept`), for a memory plan.
 pub const BYTES_PER_STORED: u64 = 5;
 /// See [`BYTES_PER_STORED`].
 pub const BYTES_PER_RECORD: u64 = std::mem::size_of::<Kept>() as u64;
